@@ -1,0 +1,213 @@
+"""The adapter contract: one thin translation layer per engine.
+
+Every adapter module defines one :class:`Adapter` subclass with:
+
+- ``name`` and :meth:`capabilities` (dimensions, shapes, effects, settings with
+  defaults and allowed values, engine version);
+- :meth:`unsupported_reason` — why a scene cannot be modelled (a missing
+  shape, effect or dimension), or ``None``;
+- :meth:`build` — create the engine's world from a :class:`harness.scene.Scene`
+  (never from TOML) and resolved settings;
+- :meth:`step` — advance n fixed steps;
+- :meth:`read_state` — write positions, wxyz quaternions and world-frame
+  linear/angular velocities into preallocated arrays (frame ``k``);
+- :meth:`close`.
+
+Adapters also fill ``self.notes`` (approximations the engine forces, e.g. a
+missing static/kinetic friction split) and ``self.info`` (calibration
+residuals, effective engine parameters) which land in the run result.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from harness.scene import Scene
+
+
+@dataclass(frozen=True)
+class Setting:
+    """An engine setting: default, and either a tuple of allowed ``choices`` or
+    a numeric range [lo, hi].  ``default=None`` means 'from the scene' (dt)."""
+
+    name: str
+    default: Any
+    kind: type
+    doc: str
+    choices: tuple[Any, ...] | None = None
+    lo: float | None = None
+    hi: float | None = None
+
+    def coerce(self, value: Any) -> Any:
+        """Validate ``value``; raise ValueError naming what was expected."""
+        if self.kind is bool:
+            if isinstance(value, str) and value.lower() in ("true", "false", "on", "off", "1", "0"):
+                value = value.lower() in ("true", "on", "1")
+            if not isinstance(value, bool):
+                raise ValueError(f"setting {self.name}: expected true or false, got {value!r}")
+        elif self.kind in (int, float):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                try:
+                    value = self.kind(value)
+                except (TypeError, ValueError):
+                    raise ValueError(f"setting {self.name}: expected a number, got {value!r}") from None
+            if self.kind is int:
+                if float(value) != int(value):
+                    raise ValueError(f"setting {self.name}: expected an integer, got {value!r}")
+                value = int(value)
+            else:
+                value = float(value)
+            if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+                raise ValueError(f"setting {self.name}: expected a value in [{self.lo}, {self.hi}], got {value!r}")
+        else:
+            value = str(value)
+        if self.choices is not None and value not in self.choices:
+            raise ValueError(f"setting {self.name}: expected one of {', '.join(map(str, self.choices))}, got {value!r}")
+        return value
+
+    def describe(self) -> str:
+        if self.choices is not None:
+            allowed = "|".join(map(str, self.choices))
+        elif self.lo is not None or self.hi is not None:
+            allowed = f"[{self.lo}, {self.hi}]"
+        else:
+            allowed = self.kind.__name__
+        return allowed
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    engine: str
+    version: str
+    dimensions: int
+    shapes: frozenset[str]
+    static_shapes: frozenset[str]
+    effects: frozenset[str]
+    settings: dict[str, Setting]
+    available: bool = True
+    unavailable_reason: str = ""
+    notes: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "engine": self.engine,
+            "version": self.version,
+            "available": self.available,
+            "dimensions": self.dimensions,
+            "shapes": sorted(self.shapes),
+            "static_shapes": sorted(self.static_shapes),
+            "effects": sorted(self.effects),
+            "settings": {k: {"default": s.default, "allowed": s.describe(), "doc": s.doc} for k, s in self.settings.items()},
+            "notes": list(self.notes),
+        }
+
+
+DT_SETTING = Setting("dt", None, float, "fixed time step (s); default: the scene's dt", lo=1e-7, hi=1.0)
+
+
+class Unsupported(Exception):
+    """Raised by build() when the scene needs something the engine cannot
+    model; the run is recorded as ``unsupported`` with this message."""
+
+
+class Adapter(abc.ABC):
+    """Base class; see the module docstring for the contract."""
+
+    name: str = ""
+
+    def __init__(self) -> None:
+        self.notes: list[str] = []
+        self.info: dict[str, Any] = {}
+        self.stage_counts: dict[str, int] = {}
+
+    # ---- declaration -------------------------------------------------------
+    @classmethod
+    @abc.abstractmethod
+    def capabilities(cls) -> Capabilities: ...
+
+    @classmethod
+    def resolve_settings(cls, scene: Scene, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Defaults (dt from the scene) updated by ``overrides``, each
+        validated.  Unknown names are errors listing the known ones."""
+        caps = cls.capabilities()
+        out: dict[str, Any] = {}
+        for name, s in caps.settings.items():
+            out[name] = scene.dt if (name == "dt" and s.default is None) else s.default
+        for key, value in (overrides or {}).items():
+            if key not in caps.settings:
+                raise ValueError(f"setting {key}: unknown for engine {cls.name}; known: {', '.join(caps.settings)}")
+            out[key] = caps.settings[key].coerce(value)
+        return out
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        """Why this engine cannot model ``scene`` (None if it can).  The
+        default checks dimensions, shapes and effects against capabilities."""
+        caps = cls.capabilities()
+        if not caps.available:
+            return f"{caps.engine} is not available: {caps.unavailable_reason}"
+        if caps.dimensions == 2 and not scene.planar:
+            return f"{caps.engine} is a 2D engine and the scene is not planar (planar = false)"
+        missing = sorted({b.shape for b in scene.bodies} - caps.shapes)
+        if missing:
+            return f"{caps.engine} has no body shape {', '.join(missing)}"
+        missing = sorted({s.kind for s in scene.statics} - caps.static_shapes)
+        if missing:
+            return f"{caps.engine} has no static shape {', '.join(missing)}"
+        missing = sorted(scene.effects - caps.effects)
+        if missing:
+            return f"{caps.engine} cannot model effect {', '.join(missing)}"
+        return None
+
+    # ---- life cycle --------------------------------------------------------
+    @abc.abstractmethod
+    def build(self, scene: Scene, settings: dict[str, Any]) -> None: ...
+
+    @abc.abstractmethod
+    def step(self, n: int = 1) -> None: ...
+
+    @abc.abstractmethod
+    def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Write the current state into the given (n, 3), (n, 4) wxyz, (n, 3),
+        (n, 3) arrays (world frame, about the centre of mass).  Must not
+        allocate per call beyond what the engine's API forces."""
+
+    def close(self) -> None:  # noqa: B027 - optional
+        pass
+
+    def stages(self) -> dict[str, Any]:
+        """Per-stage counters/profile (reference engine) or the engine features
+        switched on (other engines)."""
+        return dict(self.stage_counts)
+
+
+# ---- registry ---------------------------------------------------------------
+
+_REGISTRY: dict[str, Callable[[], type[Adapter]]] = {}
+
+
+def register(name: str, loader: Callable[[], type[Adapter]]) -> None:
+    _REGISTRY[name] = loader
+
+
+def engine_names() -> list[str]:
+    return list(_REGISTRY)
+
+
+def get_adapter(name: str) -> type[Adapter]:
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown engine {name!r}; known: {', '.join(_REGISTRY)}")
+    return _REGISTRY[name]()
+
+
+def module_version(mod_name: str) -> str:
+    try:
+        from importlib.metadata import version
+
+        return version(mod_name)
+    except Exception:  # pragma: no cover - metadata missing
+        return "unknown"

@@ -1,0 +1,233 @@
+"""``physbench`` command line: the user's three jobs.
+
+    physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
+    physbench check [--engines ...] [--tags ...] [--junit FILE]
+    physbench trace SCENARIO|FILE [--engines ...] [--variant V] -o FILE.rrd
+    physbench engines [--json]
+    physbench list
+
+``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
+dotted key path into the spec (``material.default.restitution=0.5``,
+``body[0].velocity=[3,0,0]``).  Values are TOML (``true``, ``1e-3``,
+``"rk4"``); a bare word is a string.
+
+Exit codes: 0 success, 1 a check failed (check) or the run's status is not
+ok (run), 2 bad input (spec, settings, arguments).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from harness.spec import SpecError, parse_value
+
+
+class UsageError(Exception):
+    pass
+
+
+def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """--set k=v items -> (engine settings, spec overrides)."""
+    settings: dict[str, Any] = {}
+    overrides: dict[str, Any] = {}
+    for item in pairs or []:
+        if "=" not in item:
+            raise UsageError(f"--set {item}: expected key=value")
+        key, _, text = item.partition("=")
+        key = key.strip()
+        value = parse_value(text.strip())
+        if key in engine_settings:
+            settings[key] = value
+        elif "." in key or "[" in key:
+            overrides[key] = value
+        else:
+            raise UsageError(
+                f"--set {key}: not a setting of this engine ({', '.join(sorted(engine_settings))}) "
+                f"and not a dotted spec key (e.g. material.default.restitution)")
+    return settings, overrides
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "n/a"
+        return f"{v:.6g}"
+    if v is None:
+        return "n/a"
+    return str(v)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.runner import run
+    from harness.scene import load_scene
+
+    cls = get_adapter(args.engine)
+    settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
+    scene = load_scene(args.scenario, args.variant, overrides)
+    try:
+        result = run(scene, args.engine, settings, record_every=args.record_every)
+    except ValueError as e:  # bad setting value
+        raise UsageError(str(e)) from None
+    if args.save:
+        from harness.results import write_rows
+
+        write_rows([result.row()], args.save)
+    if args.json:
+        sys.stdout.write(json.dumps(result.as_dict(), sort_keys=False) + "\n")
+        sys.stdout.flush()
+    else:
+        _print_result(result)
+    return 0 if result.status == "ok" else 1
+
+
+def _print_result(result) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    title = f"{result.scenario}" + (f" [{result.variant}]" if result.variant else "") + f" on {result.engine} {result.engine_version}"
+    con.print(f"[bold]{title}[/bold]: status [bold]{result.status}[/bold]" + (f" - {result.message}" if result.message else ""))
+    t = Table("metric", "value")
+    for k, v in result.metrics.items():
+        t.add_row(k, _fmt(v))
+    con.print(t)
+    s = Table("setting", "value")
+    for k, v in result.settings.items():
+        s.add_row(k, _fmt(v))
+    con.print(s)
+    if result.stages:
+        con.print("stages: " + json.dumps(result.stages, default=str))
+    for n in result.notes:
+        con.print(f"note: {n}")
+
+
+def cmd_engines(args: argparse.Namespace) -> int:
+    from adapters import ENGINES, get_adapter
+
+    caps = []
+    for name in ENGINES:
+        try:
+            caps.append(get_adapter(name).capabilities().as_dict())
+        except Exception as e:  # a broken adapter module is reported, not fatal
+            caps.append({"engine": name, "available": False, "error": f"{type(e).__name__}: {e}"})
+    if args.json:
+        print(json.dumps(caps, indent=2, default=str))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table("engine", "version", "available", "dims", "shapes", "effects", "settings (default)")
+    for c in caps:
+        if "error" in c:
+            t.add_row(c["engine"], "", "no", "", "", "", c["error"])
+            continue
+        t.add_row(c["engine"], c["version"], "yes" if c["available"] else "no", str(c["dimensions"]),
+                  ", ".join(c["shapes"]), ", ".join(c["effects"]),
+                  ", ".join(f"{k}={_fmt(v['default'])}" for k, v in c["settings"].items()))
+    Console().print(t)
+    return 0
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    from adapters import ENGINES, get_adapter
+    from harness.runner import run
+    from harness.scene import load_scene
+
+    engines = args.engines or list(ENGINES)
+    scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
+    results = []
+    for e in engines:
+        get_adapter(e)
+        results.append(run(scene, e))
+    from harness.rerun_log import write_rrd
+
+    write_rrd(args.output, scene, results)
+    for r in results:
+        print(f"{r.engine}: {r.status}" + (f" ({r.message})" if r.message else ""), file=sys.stderr)
+    print(f"wrote {args.output}", file=sys.stderr)
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from harness.conformance import check_main
+
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from harness.scene import load_scene, scenario_ids
+
+    for sid in scenario_ids():
+        try:
+            s = load_scene(sid)
+            print(f"{sid:40s} {','.join(s.tags):20s} variants: {', '.join(s.variant_names) or '-'}")
+        except SpecError as e:
+            print(f"{sid:40s} INVALID: {e.errors[0]}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from adapters import ENGINES
+
+    p = argparse.ArgumentParser(prog="physbench", description="Validation and benchmark harness for rigid-body physics engines.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", help="one run of one scenario on one engine")
+    r.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    r.add_argument("--engine", "-e", default="reference", choices=ENGINES)
+    r.add_argument("--variant", "-v", default=None)
+    r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
+    r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
+    r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
+    r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
+    r.set_defaults(func=cmd_run)
+
+    c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
+    c.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
+    c.add_argument("--tags", nargs="+", default=None)
+    c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
+    c.add_argument("--junit", default=None, metavar="FILE.xml")
+    c.add_argument("--jobs", type=int, default=1)
+    c.set_defaults(func=cmd_check)
+
+    t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
+    t.add_argument("scenario")
+    t.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
+    t.add_argument("--variant", "-v", default=None)
+    t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
+                   help="dotted spec keys only (engine settings differ per engine)")
+    t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
+    t.set_defaults(func=cmd_trace)
+
+    e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(func=cmd_engines)
+
+    ls = sub.add_parser("list", help="the scenarios in scenarios/")
+    ls.set_defaults(func=cmd_list)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except SpecError as e:
+        for line in e.errors:
+            print(f"error: {line}", file=sys.stderr)
+        return 2
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

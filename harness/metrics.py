@@ -1,0 +1,201 @@
+"""Metrics, computed from recorded states and scene geometry by the same code
+for every engine.  Metric names are part of the interface (DESIGN.md).
+
+Definitions (all from the trace, never from an engine's own accounting):
+
+- ``max_penetration`` / ``mean_penetration`` (m): the deepest overlap between
+  any two shapes over the run / the mean of each frame's deepest overlap over
+  the frames where something overlaps (0 if nothing ever does).  Measured by
+  :mod:`harness.geometry`.  NaN without the ``contact`` effect (shapes are
+  meant to pass through each other then).
+- ``energy_drift`` = max_t |E(t) - E0| / E_scale and ``energy_gain`` =
+  max(0, max_t (E(t) - E0) / E_scale), with E = translational + rotational
+  kinetic + gravitational + spring potential energy.  Gravitational energy is
+  measured from the lowest height any body centre reaches in the run, so E >= 0
+  and the ratio does not depend on where the scene's origin is.  E_scale =
+  max(E0, sum m |g| r + 1e-12) where r is each body's bounding radius: a scene
+  at rest is compared against the energy of lifting each body by its own size.
+- ``linear_momentum_drift`` = max_t |P(t) - P0| / max(|P0|, sum m |v0|) where
+  no external force acts (no gravity, no contact with statics, no world
+  springs, no drag); NaN otherwise.  ``angular_momentum_drift`` likewise for L
+  about the system's centre of mass; uniform gravity exerts no torque about the
+  centre of mass, so gravity alone does not make it NaN.
+- ``stable``: every recorded value finite, ``energy_gain`` <= 0.5 and the
+  largest speed <= 100 x the scene's speed scale (max of 1 m/s, the initial
+  speeds and the free-fall speed over the scene's height span).
+- Reference metrics come from the scene's ``[reference]`` model
+  (:mod:`harness.references`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from adapters.conventions import quat_rotate
+from harness.scene import Scene
+
+STABLE_MAX_ENERGY_GAIN = 0.5
+STABLE_SPEED_FACTOR = 100.0
+
+
+def _body_frame(q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """World angular velocities (..., 3) -> body frame, with q (..., 4) wxyz."""
+    qc = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return quat_rotate(qc, w)
+
+
+def kinetic_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
+    """(translational (F,), rotational (F,)) kinetic energy in J."""
+    m = scene.masses
+    inertia = scene.inertias
+    trans = 0.5 * np.einsum("i,fij,fij->f", m, trace.vel, trace.vel)
+    wb = _body_frame(trace.quat, trace.angvel)
+    rot = 0.5 * np.einsum("ij,fij->f", inertia, wb * wb)
+    return trans, rot
+
+
+def potential_energy(scene: Scene, trace) -> np.ndarray:
+    """Gravitational (from the lowest height reached) plus spring energy, J, (F,)."""
+    m = scene.masses
+    g = scene.gravity
+    gn = float(np.linalg.norm(g))
+    F = trace.pos.shape[0]
+    pe = np.zeros(F)
+    if gn > 0:
+        up = -g / gn
+        h = trace.pos @ up  # (F, n)
+        pe += gn * (h - np.nanmin(h)) @ m
+    for sp in scene.springs:
+        pa = _anchor_world(trace, sp.a, sp.anchor_a)
+        pb = _anchor_world(trace, sp.b, sp.anchor_b)
+        ext = np.linalg.norm(pb - pa, axis=-1) - sp.rest_length
+        pe += 0.5 * sp.stiffness * ext * ext
+    return pe
+
+
+def _anchor_world(trace, idx: int, anchor: np.ndarray) -> np.ndarray:
+    if idx < 0:
+        return np.broadcast_to(anchor, (trace.pos.shape[0], 3))
+    return trace.pos[:, idx] + quat_rotate(trace.quat[:, idx], anchor)
+
+
+def external_force_free(scene: Scene) -> tuple[bool, bool]:
+    """(linear momentum conserved, angular momentum about the COM conserved)
+    by the scene's physics.  Contact with statics, world springs and drag are
+    external; uniform gravity is external for P only."""
+    touches_world = scene.has("contact") and len(scene.statics) > 0
+    world_spring = any(sp.a < 0 or sp.b < 0 for sp in scene.springs)
+    drag = (scene.has("drag_linear") and any(b.drag_linear > 0 for b in scene.bodies)) or (
+        scene.has("drag_quadratic") and any(b.drag_quadratic > 0 for b in scene.bodies))
+    free = not (touches_world or world_spring or drag)
+    gravity = bool(np.any(scene.gravity != 0))
+    return free and not gravity, free
+
+
+def momenta(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
+    """Total linear momentum P (F, 3) and angular momentum L (F, 3) about the
+    system's centre of mass (spin + orbital)."""
+    m = scene.masses
+    P = np.einsum("i,fij->fj", m, trace.vel)
+    M = m.sum()
+    xc = np.einsum("i,fij->fj", m, trace.pos) / M
+    vc = P / M
+    r = trace.pos - xc[:, None, :]
+    u = trace.vel - vc[:, None, :]
+    orbital = np.einsum("i,fij->fj", m, np.cross(r, u))
+    wb = _body_frame(trace.quat, trace.angvel)
+    Lb = wb * scene.inertias[None, :, :]
+    spin = quat_rotate(trace.quat, Lb).sum(axis=1)
+    return P, orbital + spin
+
+
+def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, Any]:
+    """Every generic metric plus the reference model's, for one run."""
+    out: dict[str, Any] = {}
+    finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
+                  and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
+    n = scene.n_bodies
+    if n == 0 or trace.pos.shape[0] == 0:
+        return {"stable": finite}
+
+    # --- penetration
+    if scene.has("contact"):
+        from harness.geometry import penetration_depths
+
+        depth = penetration_depths(scene, trace)  # (F, P) >= 0
+        if depth.size:
+            per_frame = np.nanmax(depth, axis=1)
+            out["max_penetration"] = float(np.nanmax(per_frame))
+            touching = per_frame > 0
+            out["mean_penetration"] = float(per_frame[touching].mean()) if touching.any() else 0.0
+        else:
+            out["max_penetration"] = 0.0
+            out["mean_penetration"] = 0.0
+    else:
+        out["max_penetration"] = math.nan
+        out["mean_penetration"] = math.nan
+
+    # --- energy
+    trans, rot = kinetic_energy(scene, trace)
+    E = trans + rot + potential_energy(scene, trace)
+    E0 = float(E[0])
+    gn = float(np.linalg.norm(scene.gravity))
+    floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
+    scale = max(E0, floor)
+    dE = (E - E0) / scale
+    with np.errstate(invalid="ignore"):
+        out["energy_drift"] = float(np.nanmax(np.abs(dE)))
+        out["energy_gain"] = max(0.0, float(np.nanmax(dE)))
+    out["energy_final"] = float(E[-1])
+    out["energy_initial"] = E0
+
+    # --- momentum
+    lin_ok, ang_ok = external_force_free(scene)
+    P, L = momenta(scene, trace)
+    m = scene.masses
+    if lin_ok:
+        denom = max(float(np.linalg.norm(P[0])), float(m @ np.linalg.norm(trace.vel[0], axis=1)), 1e-300)
+        out["linear_momentum_drift"] = float(np.nanmax(np.linalg.norm(P - P[0], axis=1)) / denom)
+    else:
+        out["linear_momentum_drift"] = math.nan
+    if ang_ok:
+        spin0 = np.abs(scene.inertias * _body_frame(trace.quat[0], trace.angvel[0])).sum()
+        xc = m @ trace.pos[0] / m.sum()
+        orb0 = float((m * np.linalg.norm(np.cross(trace.pos[0] - xc, trace.vel[0]), axis=1)).sum())
+        denom = max(float(np.linalg.norm(L[0])), float(spin0) + orb0, 1e-300)
+        out["angular_momentum_drift"] = float(np.nanmax(np.linalg.norm(L - L[0], axis=1)) / denom) if denom > 1e-300 else 0.0
+    else:
+        out["angular_momentum_drift"] = math.nan
+
+    # --- stability
+    speeds = np.linalg.norm(trace.vel, axis=-1)
+    v0 = float(np.max(np.linalg.norm(trace.vel[0], axis=1), initial=0.0))
+    w0 = float(np.max(np.linalg.norm(trace.angvel[0], axis=1), initial=0.0))
+    span = float(np.ptp(trace.pos[..., 2])) if finite else 0.0
+    v_scale = max(1.0, v0, math.sqrt(2 * gn * max(span, 0.0)))
+    w_scale = max(1.0, w0, v_scale / max(min(b.min_extent for b in scene.bodies), 1e-6))
+    vmax = float(np.nanmax(speeds)) if speeds.size else 0.0
+    wmax = float(np.nanmax(np.linalg.norm(trace.angvel, axis=-1)))
+    reasons = []
+    if not finite:
+        reasons.append("non-finite state")
+    if out["energy_gain"] > STABLE_MAX_ENERGY_GAIN or not math.isfinite(out["energy_gain"]):
+        reasons.append(f"energy gain {out['energy_gain']:.3g} > {STABLE_MAX_ENERGY_GAIN}")
+    if vmax > STABLE_SPEED_FACTOR * v_scale:
+        reasons.append(f"speed {vmax:.3g} m/s > {STABLE_SPEED_FACTOR:g} x {v_scale:.3g}")
+    if wmax > STABLE_SPEED_FACTOR * w_scale:
+        reasons.append(f"angular speed {wmax:.3g} rad/s > {STABLE_SPEED_FACTOR:g} x {w_scale:.3g}")
+    out["stable"] = not reasons
+    out["stability_reason"] = "; ".join(reasons)
+    out["max_speed"] = vmax
+
+    # --- reference model
+    if scene.reference_model:
+        from harness.references import get_model
+
+        model = get_model(scene.reference_model)(scene)
+        out.update(model.metrics(trace))
+    return out

@@ -1,0 +1,77 @@
+"""Analytic and high-accuracy reference models.
+
+A model is named by a scene's ``[reference] model = "..."``.  It takes every
+parameter it can from the scene itself (masses, radii, inertias, slope angle,
+materials, initial velocities) so the same model serves any scene of its kind;
+``[reference] params`` holds only what the scene cannot say.
+
+Each model is a :class:`ReferenceModel` subclass in its own module, registered
+in ``MODELS`` by name -> "module:Class" and imported lazily (spec validation
+only needs the names).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+import numpy as np
+
+from harness.scene import Scene
+
+MODELS: dict[str, str] = {
+    "two_body_collision": "harness.references.collision:TwoBodyCollision",
+}
+
+
+class ReferenceError(ValueError):
+    """The scene does not fit the model (wrong body count, shape...)."""
+
+
+class ReferenceModel:
+    """Base class.  ``__init__(scene)`` extracts parameters (raise
+    ReferenceError naming what does not fit); ``metrics(trace)`` returns the
+    model's metrics for a recorded trace (harness.runner.Trace: t (F,),
+    pos (F, n, 3), quat (F, n, 4), vel (F, n, 3), angvel (F, n, 3))."""
+
+    name = ""
+    params_allowed: tuple[str, ...] = ()
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        unknown = set(scene.reference_params) - set(self.params_allowed)
+        if unknown:
+            raise ReferenceError(
+                f"reference.params: unknown key(s) {sorted(unknown)} for model {self.name!r}; "
+                f"allowed: {list(self.params_allowed) or 'none'}")
+
+    def param(self, key: str, default: Any = None) -> Any:
+        return self.scene.reference_params.get(key, default)
+
+    def positions(self, t: np.ndarray) -> np.ndarray | None:
+        """Reference positions (F, n, 3) at times t (F,), if the model has a
+        trajectory; None otherwise."""
+        return None
+
+    def metrics(self, trace) -> dict[str, float]:
+        ref = self.positions(trace.t)
+        if ref is None:
+            return {}
+        return trajectory_metrics(trace.pos, ref)
+
+
+def trajectory_metrics(pos: np.ndarray, ref: np.ndarray) -> dict[str, float]:
+    """trajectory_rmse: RMS over frames and bodies of |x - x_ref| (m);
+    final_position_error: max over bodies of |x - x_ref| at the last frame (m)."""
+    err = np.linalg.norm(pos - ref, axis=-1)
+    return {
+        "trajectory_rmse": float(np.sqrt(np.mean(err * err))),
+        "final_position_error": float(np.max(err[-1])),
+    }
+
+
+def get_model(name: str) -> type[ReferenceModel]:
+    if name not in MODELS:
+        raise ReferenceError(f"unknown reference model {name!r}; known: {', '.join(sorted(MODELS))}")
+    mod, cls = MODELS[name].split(":")
+    return getattr(importlib.import_module(mod), cls)

@@ -1,0 +1,298 @@
+"""The runner: build an adapter for a scene, step it for the scene's
+duration, record states into preallocated arrays, time the stepping apart
+from set-up and metrics, and turn every failure into a recorded status.
+
+Statuses: ``ok``; ``unsupported`` (the engine cannot model the scene, with the
+reason); ``failed`` (the engine rejected the model at build time);
+``error`` (an exception while stepping); ``diverged`` (non-finite or runaway
+state); ``timeout`` (the run exceeded its wall-clock budget).  Metrics are
+computed on whatever prefix of the trace was recorded.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import functools
+import math
+import os
+import platform
+import subprocess
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from adapters import get_adapter
+from harness.scene import Scene, n_steps
+
+# A state this far from the origin or this fast is a blow-up, not physics.
+RUNAWAY_POSITION = 1e6  # m
+RUNAWAY_SPEED = 1e6  # m/s or rad/s
+CHECK_EVERY = 256  # steps between finiteness checks in the loop
+
+
+@dataclass
+class Trace:
+    """Recorded states, one frame per record.  Shapes: t (F,), pos (F, n, 3),
+    quat (F, n, 4) wxyz, vel (F, n, 3), angvel (F, n, 3), world frame.
+    ``n_frames`` frames are valid (fewer than F if the run stopped early)."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    quat: np.ndarray
+    vel: np.ndarray
+    angvel: np.ndarray
+    n_frames: int = 0
+
+    @classmethod
+    def allocate(cls, n_frames: int, n_bodies: int) -> "Trace":
+        return cls(
+            t=np.full(n_frames, np.nan),
+            pos=np.full((n_frames, n_bodies, 3), np.nan),
+            quat=np.full((n_frames, n_bodies, 4), np.nan),
+            vel=np.full((n_frames, n_bodies, 3), np.nan),
+            angvel=np.full((n_frames, n_bodies, 3), np.nan),
+        )
+
+    def valid(self) -> "Trace":
+        """The filled prefix (views, no copy)."""
+        k = self.n_frames
+        return Trace(self.t[:k], self.pos[:k], self.quat[:k], self.vel[:k], self.angvel[:k], k)
+
+
+@dataclass
+class RunResult:
+    scenario: str
+    variant: str | None
+    engine: str
+    engine_version: str
+    status: str
+    message: str
+    settings: dict[str, Any]
+    metrics: dict[str, Any] = field(default_factory=dict)
+    timing: dict[str, float] = field(default_factory=dict)
+    stages: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)
+    machine: dict[str, str] = field(default_factory=dict)
+    commit: str = ""
+    timestamp: str = ""
+    trace: Trace | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """The result row as one JSON-able object: identity, status, every
+        metric as a top-level key, then settings, timing, stages, notes."""
+        out: dict[str, Any] = {
+            "scenario": self.scenario,
+            "variant": self.variant,
+            "engine": self.engine,
+            "engine_version": self.engine_version,
+            "status": self.status,
+            "message": self.message,
+        }
+        out.update({k: _jsonable(v) for k, v in self.metrics.items()})
+        out["settings"] = {k: _jsonable(v) for k, v in self.settings.items()}
+        out["timing"] = {k: _jsonable(v) for k, v in self.timing.items()}
+        out["stages"] = _jsonable(self.stages)
+        out["notes"] = list(self.notes)
+        out["info"] = _jsonable(self.info)
+        out["machine"] = dict(self.machine)
+        out["commit"] = self.commit
+        out["timestamp"] = self.timestamp
+        return out
+
+    def row(self) -> dict[str, Any]:
+        """Flat row for tables and Parquet: nested dicts become dotted
+        columns ('setting.dt', 'timing.setup_s'); lists and the stage profile
+        are JSON strings."""
+        import json
+
+        d = self.as_dict()
+        row: dict[str, Any] = {}
+        for k, v in d.items():
+            if k == "settings":
+                row.update({f"setting.{sk}": sv for sk, sv in v.items()})
+            elif k in ("timing", "machine"):
+                row.update({f"{k}.{sk}": sv for sk, sv in v.items()})
+            elif isinstance(v, (dict, list)):
+                row[k] = json.dumps(v, sort_keys=True)
+            else:
+                row[k] = v
+        return row
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    return v
+
+
+@functools.lru_cache(maxsize=1)
+def machine_info() -> dict[str, str]:
+    return {
+        "host": platform.node(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu": platform.processor() or platform.machine(),
+        "cores": str(os.cpu_count()),
+    }
+
+
+@functools.lru_cache(maxsize=1)
+def commit_id() -> str:
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        out = subprocess.run(["git", "-C", root, "rev-parse", "--short=12", "HEAD"],
+                             capture_output=True, text=True, timeout=5)
+        sha = out.stdout.strip()
+        if not sha:
+            return "unknown"
+        dirty = subprocess.run(["git", "-C", root, "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return sha + ("+dirty" if dirty else "")
+    except Exception:
+        return "unknown"
+
+
+def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
+        record_every: int = 1, timeout_s: float | None = None, compute_metrics: bool = True) -> RunResult:
+    """Run ``scene`` on ``engine`` with setting ``settings`` overrides.
+
+    Never raises for engine trouble: every failure becomes the result's
+    status with a message.  Raises ValueError only for bad settings (a user
+    error the caller should report as such).
+    """
+    cls = get_adapter(engine)
+    caps = cls.capabilities()
+    resolved = cls.resolve_settings(scene, settings)
+    result = RunResult(
+        scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,
+        status="ok", message="", settings=resolved, machine=machine_info(), commit=commit_id(),
+        timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    )
+    reason = cls.unsupported_reason(scene)
+    if reason is not None:
+        result.status, result.message = "unsupported", reason
+        return result
+
+    from adapters.base import Unsupported
+
+    dt = float(resolved["dt"])
+    steps = n_steps(scene.duration, dt)
+    record_every = max(1, int(record_every))
+    n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
+    trace = Trace.allocate(n_frames, scene.n_bodies)
+    result.trace = trace
+
+    adapter = cls()
+    t0 = time.perf_counter()
+    try:
+        adapter.build(scene, resolved)
+        adapter.read_state(trace.pos[0], trace.quat[0], trace.vel[0], trace.angvel[0])
+        trace.t[0] = 0.0
+        trace.n_frames = 1
+    except Unsupported as e:
+        result.status, result.message = "unsupported", str(e)
+        _finish(result, adapter, scene, trace, compute_metrics, dt)
+        return result
+    except Exception as e:  # the engine rejected the model
+        result.status, result.message = "failed", f"build failed: {type(e).__name__}: {e}"
+        result.info["traceback"] = traceback.format_exc(limit=5)
+        _finish(result, adapter, scene, trace, compute_metrics, dt)
+        return result
+    result.timing["setup_s"] = time.perf_counter() - t0
+
+    cpu0 = time.process_time()
+    wall0 = time.perf_counter()
+    done = 0
+    frame = 1
+    next_check = CHECK_EVERY
+    pos, quat, vel, angvel, tt = trace.pos, trace.quat, trace.vel, trace.angvel, trace.t
+    try:
+        while done < steps:
+            n = min(record_every, steps - done)
+            adapter.step(n)
+            done += n
+            adapter.read_state(pos[frame], quat[frame], vel[frame], angvel[frame])
+            tt[frame] = done * dt
+            frame += 1
+            if done >= next_check or done == steps:
+                next_check += CHECK_EVERY
+                trace.n_frames = frame
+                bad = _runaway(trace, max(0, frame - CHECK_EVERY // record_every - 1), frame)
+                if bad:
+                    result.status, result.message = "diverged", f"{bad} at t = {done * dt:.6g} s (step {done})"
+                    break
+                if timeout_s is not None and time.perf_counter() - wall0 > timeout_s:
+                    result.status = "timeout"
+                    result.message = f"stopped after {time.perf_counter() - wall0:.1f} s wall at step {done} of {steps}"
+                    break
+    except Exception as e:
+        result.status, result.message = "error", f"step {done}: {type(e).__name__}: {e}"
+        result.info["traceback"] = traceback.format_exc(limit=5)
+    cpu = time.process_time() - cpu0
+    wall = time.perf_counter() - wall0
+    trace.n_frames = frame
+    sim_time = done * dt
+    result.timing.update({
+        "step_cpu_s": cpu,
+        "step_wall_s": wall,
+        "steps": done,
+        "sim_time_s": sim_time,
+    })
+    result.metrics["cpu_s_per_sim_s"] = cpu / sim_time if sim_time > 0 else float("nan")
+    result.metrics["wall_s_per_sim_s"] = wall / sim_time if sim_time > 0 else float("nan")
+    result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
+    _finish(result, adapter, scene, trace, compute_metrics, dt)
+    return result
+
+
+def _runaway(trace: Trace, a: int, b: int) -> str:
+    """Describe a non-finite or runaway state in frames [a, b), or ''."""
+    for name in ("pos", "quat", "vel", "angvel"):
+        chunk = getattr(trace, name)[a:b]
+        if not np.isfinite(chunk).all():
+            return f"non-finite {name}"
+    if np.abs(trace.pos[a:b]).max(initial=0.0) > RUNAWAY_POSITION:
+        return f"position beyond {RUNAWAY_POSITION:g} m"
+    if max(np.abs(trace.vel[a:b]).max(initial=0.0), np.abs(trace.angvel[a:b]).max(initial=0.0)) > RUNAWAY_SPEED:
+        return f"speed beyond {RUNAWAY_SPEED:g}"
+    return ""
+
+
+def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float) -> None:
+    try:
+        result.stages = adapter.stages()
+    except Exception as e:  # pragma: no cover - defensive
+        result.stages = {"error": str(e)}
+    result.notes.extend(getattr(adapter, "notes", []))
+    result.info.update(getattr(adapter, "info", {}))
+    try:
+        adapter.close()
+    except Exception as e:
+        result.notes.append(f"close() raised {type(e).__name__}: {e}")
+    if compute_metrics and trace.n_frames > 0 and result.status != "unsupported":
+        from harness.metrics import compute_metrics as _metrics
+
+        t0 = time.perf_counter()
+        try:
+            result.metrics.update(_metrics(scene, trace.valid(), dt=dt))
+        except Exception as e:
+            result.notes.append(f"metrics failed: {type(e).__name__}: {e}")
+            result.info["metrics_traceback"] = traceback.format_exc(limit=5)
+        result.timing["metrics_s"] = time.perf_counter() - t0
+        if result.status == "ok" and result.metrics.get("stable") is False:
+            result.notes.append("unstable: " + str(result.metrics.get("stability_reason", "")))
