@@ -162,6 +162,24 @@ def cmd_check(args: argparse.Namespace) -> int:
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs)
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from harness import bench
+
+    if args.kind == "overhead":
+        rows = bench.overhead(args.engines or ["reference", "mujoco", "pybullet", "pymunk"], repeats=args.repeats)
+        bench.print_rows(rows, "runner with full recording vs bare engine loop (CPU time, medians)")
+    else:
+        rows = bench.cost(repeats=args.repeats)
+        bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+        ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
+        if len(ok) >= 2:
+            k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
+            print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
+    if args.json:
+        print(json.dumps(rows, default=str))
+    return 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     from harness.scene import load_scene, scenario_ids
 
@@ -210,6 +228,13 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_engines)
+
+    b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
+    b.add_argument("kind", choices=["overhead", "cost"])
+    b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
+    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(func=cmd_bench)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")
     ls.set_defaults(func=cmd_list)

@@ -1,0 +1,188 @@
+"""Benchmarks: ratios measured side by side in one run (machines are noisy).
+
+Two benchmarks, each a table of scenes ``{name, create, steps}`` in the
+style of Box2D's benchmark, timed interleaved over several repeats; medians
+and ratios are printed, never asserted in tests:
+
+- ``overhead``: per engine, the same scene stepped by the runner with full
+  state recording every step vs a bare loop of the engine's own step call
+  (``Adapter.step(n)``), both after the same build.  Ratio runner / bare.
+- ``cost``: the reference engine vs pybullet (maximal coordinates) on the same
+  scenes (a 10-box column, 100 and 1000 spheres on a plane) at the same dt and
+  solver iterations: per-step CPU time and their ratio, plus the reference
+  engine's broad-phase cost per step against n (fitted exponent).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from adapters import get_adapter
+from harness.runner import Trace, run
+from harness.scene import Scene, compile_scene, load_scene
+from harness.spec import validate_raw
+
+
+@dataclass(frozen=True)
+class BenchScene:
+    name: str
+    create: Callable[[], Scene]
+    steps: int
+
+
+def _scene(raw: dict[str, Any]) -> Scene:
+    return compile_scene(validate_raw(raw, "<bench>"))
+
+
+def column_scene(n: int = 10, dt: float = 1 / 240) -> Scene:
+    return _scene({
+        "scenario": {"family": "bench", "title": f"{n}-box column", "duration": 1.0, "dt": dt,
+                     "effects": ["gravity", "contact", "friction"]},
+        "material": {"default": {"friction": 0.5, "static_friction": 0.5}},
+        "body": [{"name": "box", "shape": "box", "half_extents": [0.1, 0.1, 0.1], "mass": 1.0,
+                  "position": [0.0, 0.0, 0.1], "pattern": {"kind": "column", "count": n}}],
+        "static": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0}],
+    })
+
+
+def spheres_scene(n: int, dt: float = 1 / 240) -> Scene:
+    side = max(1, round(n ** (1 / 3)))
+    nz = max(1, math.ceil(n / (side * side)))
+    r = 0.05
+    return _scene({
+        "scenario": {"family": "bench", "title": f"{side * side * nz} spheres", "duration": 1.0, "dt": dt,
+                     "effects": ["gravity", "contact", "friction"]},
+        "material": {"default": {"friction": 0.5, "static_friction": 0.5}},
+        "body": [{"name": "ball", "shape": "sphere", "radius": r, "mass": 0.1,
+                  "position": [0.0, 0.0, r + 0.01],
+                  "pattern": {"kind": "grid", "counts": [side, side, nz], "spacing": 2.2 * r}}],
+        "static": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0}],
+    })
+
+
+def _head_on() -> Scene:
+    from harness.scene import REPO_ROOT
+
+    shared = REPO_ROOT.parent / "shared" / "examples" / "head_on.toml"
+    local = REPO_ROOT / "tests" / "data" / "head_on.toml"
+    return load_scene(shared if shared.is_file() else local)
+
+
+def _time_bare(engine: str, scene: Scene, steps: int, settings: dict[str, Any] | None) -> float:
+    cls = get_adapter(engine)
+    a = cls()
+    a.build(scene, cls.resolve_settings(scene, settings))
+    c0 = time.process_time()
+    a.step(steps)
+    c = time.process_time() - c0
+    a.close()
+    return c
+
+
+def _time_runner(engine: str, scene: Scene, settings: dict[str, Any] | None) -> float:
+    r = run(scene, engine, settings, compute_metrics=False)
+    if r.status != "ok":
+        raise RuntimeError(f"{engine}: {r.status}: {r.message}")
+    return r.timing["step_cpu_s"]
+
+
+def overhead(engines: list[str], repeats: int = 5, duration: float = 2.0) -> list[dict[str, Any]]:
+    """Runner-with-recording vs bare engine loop, interleaved.  Returns rows."""
+    scenes = [
+        BenchScene("head_on (2 spheres)", _head_on, 0),
+        BenchScene("column_10 (boxes)", lambda: column_scene(10, 1 / 240), 0),
+    ]
+    rows = []
+    for bs in scenes:
+        scene0 = bs.create()
+        scene = Scene(**{**scene0.__dict__, "duration": duration})
+        for engine in engines:
+            cls = get_adapter(engine)
+            if cls.unsupported_reason(scene) is not None:
+                rows.append({"scene": bs.name, "engine": engine, "status": "unsupported",
+                             "reason": cls.unsupported_reason(scene)})
+                continue
+            steps = scene.n_steps
+            bare, runner = [], []
+            _time_bare(engine, scene, min(steps, 200), None)  # warm-up (imports, caches)
+            for _ in range(repeats):
+                bare.append(_time_bare(engine, scene, steps, None))
+                runner.append(_time_runner(engine, scene, None))
+            rows.append({
+                "scene": bs.name, "engine": engine, "status": "ok", "steps": steps,
+                "bare_us_per_step": 1e6 * statistics.median(bare) / steps,
+                "runner_us_per_step": 1e6 * statistics.median(runner) / steps,
+                "ratio": statistics.median(runner) / statistics.median(bare),
+                "ratio_min": min(runner) / min(bare),
+            })
+    return rows
+
+
+def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 120,
+         iterations: int = 10) -> list[dict[str, Any]]:
+    """Reference engine vs pybullet per-step cost on the same scenes,
+    interleaved.  Same dt (1/240) and solver iterations for both."""
+    table = [BenchScene("column_10", lambda: column_scene(10), steps)]
+    table += [BenchScene(f"spheres_{n}", (lambda n=n: spheres_scene(n)), steps) for n in sizes]
+    rows = []
+    for bs in table:
+        scene0 = bs.create()
+        scene = Scene(**{**scene0.__dict__, "duration": bs.steps * scene0.dt})
+        times: dict[str, list[float]] = {"reference": [], "pybullet": []}
+        settings = {"reference": {"iterations": iterations}, "pybullet": {"iterations": iterations}}
+        broad: list[float] = []
+        for _ in range(repeats):
+            for engine in ("reference", "pybullet"):
+                cls = get_adapter(engine)
+                a = cls()
+                st = cls.resolve_settings(scene, {k: v for k, v in settings[engine].items() if k in cls.capabilities().settings})
+                a.build(scene, st)
+                c0 = time.process_time()
+                a.step(bs.steps)
+                times[engine].append((time.process_time() - c0) / bs.steps)
+                if engine == "reference":
+                    prof = a.stages()
+                    b = _stage_time(prof, "broadphase")
+                    if b is not None:
+                        broad.append(b / bs.steps)
+                a.close()
+        ref, pb = statistics.median(times["reference"]), statistics.median(times["pybullet"])
+        rows.append({"scene": bs.name, "bodies": scene.n_bodies, "reference_us_per_step": 1e6 * ref,
+                     "pybullet_us_per_step": 1e6 * pb, "ratio_reference_over_pybullet": ref / pb,
+                     "reference_broadphase_us_per_step": 1e6 * statistics.median(broad) if broad else float("nan")})
+    return rows
+
+
+def _stage_time(profile: dict[str, Any], name: str) -> float | None:
+    """Total CPU seconds of stage ``name`` from a reference-engine profile
+    (``{stage: {"calls": n, "cpu_s": t}}`` or ``{stage: {"time_s": t}}``)."""
+    for key, val in profile.items():
+        if name in key and isinstance(val, dict):
+            for tkey in ("cpu_s", "time_s", "seconds", "wall_s"):
+                if tkey in val:
+                    return float(val[tkey])
+    return None
+
+
+def fit_exponent(ns: list[int], ts: list[float]) -> float:
+    """Least-squares slope of log t against log n."""
+    return float(np.polyfit(np.log(ns), np.log(ts), 1)[0])
+
+
+def print_rows(rows: list[dict[str, Any]], title: str) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    if not rows:
+        return
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    t = Table(*cols, title=title)
+    for r in rows:
+        t.add_row(*[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+    Console().print(t)
