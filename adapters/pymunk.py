@@ -1,0 +1,532 @@
+"""pymunk (Chipmunk2D) adapter: planar scenes only.
+
+pymunk 7.3.1 is a 2D engine.  A planar physbench scene lives in the world x-z
+plane; the single conversion between world and engine state is
+:func:`adapters.conventions.planar_from_world` (at build) and
+:func:`adapters.conventions.world_from_planar` (in :meth:`read_state`):
+2D x = world x, 2D y = world z, 2D counter-clockwise angular velocity w =
+world angular velocity (0, -w, 0).  A body's local frame maps the same way:
+body-local (x, z) is the 2D body-local (x, y), so a capsule or cylinder (axis
+= body z) points along the 2D local y axis at angle 0.
+
+Mass properties
+    mass = ``Body.mass`` and moment = ``Body.inertia[1]`` (kg m^2), the 3D
+    body's principal moment about its y axis.  This is exact, not an
+    approximation: planar validation allows only rotations about y, so the
+    body's y axis stays the world y axis, and for w = (0, w_y, 0) the angular
+    momentum is L = R I R^T w = I_yy w (y is a principal axis; w x I w = 0).
+    The 2D shape's own area moment would be wrong for the 3D body: a sphere
+    (2/5 m r^2) is not a disc (1/2 m r^2), and a cylinder lying along z has
+    I_yy = m (3 r^2 + 4 h^2) / 12, not the rectangle's m (4 r^2 + 4 h^2) / 12.
+    Shapes are therefore given no mass or density of their own.
+
+Shapes (the x-z cross-section through the body centre, which contains every
+support point of the body in x-z directions, so contacts are those of the 3D
+body): sphere -> ``Circle``; box -> ``Poly`` box 2a x 2c (half_extents x, z);
+capsule -> ``Segment`` (0, -h)..(0, h) of radius r; cylinder -> ``Poly`` box
+2r x 2h.
+
+Statics: a plane (and a slope, which the Scene has already turned into a
+plane) is a static ``Poly`` quad, 2 km along the plane's line and 1 km deep
+on its solid side.  A zero-radius ``Segment`` would be two-sided: a body whose
+centre sank past the line (fast impact, large dt) would be pushed out through
+the wrong side.  The thick polygon keeps the solid side solid; measured bounce
+ratios and resting overlaps equal those on a segment.  (A segment with a 1 km
+radius below the line behaves the same but leaves a ~1e-14 rad spurious spin
+on a resting circle from rounding at the 1 km lever arm; the polygon gives 0.)
+A static box is a static ``Poly`` of its x-z cross-section.
+
+Materials: pymunk combines a pair as the *product* of the two shapes'
+elasticity and of their friction.  The adapter solves for per-material shape
+values whose products give every pair the scene asks for
+(:meth:`Scene.pair`), e.g. sqrt(v) when all pairs agree.  This needs no Python
+callback.  Only when no per-shape solution exists does it register a
+``pre_solve`` callback per material pair that sets ``arbiter.friction`` and
+``arbiter.restitution`` to the exact pair value (exact, but one Python call per
+touching pair per step; recorded in notes and stages).
+
+Effects: ``gravity`` -> ``space.gravity``; without ``contact`` bodies get no
+shapes at all (no broad or narrow phase runs: cheaper than shapes filtered
+with ``ShapeFilter(categories=0)``, with the same physics: nothing collides);
+``restitution``/``friction`` absent -> the Scene's pair values are 0;
+``spring``/``damper`` -> ``DampedSpring``; ``drag_linear``/``drag_quadratic``
+-> a force F = -(c1 + c2 |v|) v on the centre of mass, set before each engine
+step; ``gyroscopic`` and ``rolling_friction`` are unsupported.
+
+Integration order (Chipmunk): each step first moves positions with the old
+velocities, x' = x + v dt, then detects contacts at x', then updates
+velocities v' = v + (g + F/m) dt and solves contact and joint impulses.  Free
+fall from rest therefore gives z_k = -g dt^2 k (k - 1) / 2 (10 steps of 0.01 s:
+-0.044145 m), v_k = -g k dt.  Overlap is removed by a separate bias velocity
+that moves positions but never enters the reported velocity; overlap below
+``collision_slop`` is never removed.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any
+
+import numpy as np
+
+from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from adapters.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from harness.scene import Scene
+
+ENGINE = "pymunk"
+
+# Static plane as a thick polygon: half-length along the line and depth into
+# the solid side (m).
+PLANE_HALF_LENGTH = 1.0e3
+PLANE_DEPTH = 1.0e3
+
+# Relative tolerance for accepting per-shape coefficients whose products give
+# the pair values (sqrt(v)**2 may differ from v by an ulp).
+_PAIR_RTOL = 1e-12
+
+_SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
+_STATIC_SHAPES = frozenset({"plane", "slope", "box"})
+_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "spring", "damper",
+                      "drag_linear", "drag_quadratic"})
+
+GYROSCOPIC_REASON = (
+    "pymunk is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
+    "principal axis, so the gyroscopic term w x I w is identically zero and the effect "
+    "cannot be exercised")
+ROLLING_FRICTION_REASON = "pymunk has no rolling resistance (rolling_friction)"
+
+
+@functools.lru_cache(maxsize=1)
+def _engine() -> tuple[Any, str]:
+    """(pymunk module or None, reason it is unavailable)."""
+    try:
+        import pymunk as pm  # the engine, not this module (absolute import)
+        import pymunk.batch  # noqa: F401 - fast state reads
+    except Exception as e:  # pragma: no cover - depends on the environment
+        return None, f"import pymunk failed: {type(e).__name__}: {e}"
+    return pm, ""
+
+
+def _settings() -> dict[str, Setting]:
+    return {
+        "dt": DT_SETTING,
+        "iterations": Setting(
+            "iterations", 10, int,
+            "contact/joint solver iterations per engine step (pymunk default 10)", lo=1, hi=10000),
+        "substeps": Setting(
+            "substeps", 1, int,
+            "engine steps per physbench step: each step() calls space.step(dt / substeps) "
+            "this many times", lo=1, hi=10000),
+        "collision_slop": Setting(
+            "collision_slop", 1e-3, float,
+            "overlap (m) that is tolerated and never pushed out; pymunk's default 0.1 is "
+            "10 cm in SI units, far too loose", lo=0.0, hi=1.0),
+        "collision_bias": Setting(
+            "collision_bias", (1.0 - 0.1) ** 60, float,
+            "fraction of the overlap beyond collision_slop left after one second of "
+            "correction (pymunk default (1 - 0.1)^60 ~ 0.0018)", lo=0.0, hi=1.0),
+    }
+
+
+class PymunkAdapter(Adapter):
+    """Adapter for pymunk 7.x (2D, planar scenes in the world x-z plane)."""
+
+    name = ENGINE
+
+    # ---- declaration -------------------------------------------------------
+    @classmethod
+    def capabilities(cls) -> Capabilities:
+        pm, why = _engine()
+        return Capabilities(
+            engine=ENGINE,
+            version=pm.version if pm is not None else module_version("pymunk"),
+            dimensions=2,
+            shapes=_SHAPES,
+            static_shapes=_STATIC_SHAPES,
+            effects=_EFFECTS,
+            settings=_settings(),
+            available=pm is not None,
+            unavailable_reason=why,
+            notes=(
+                "2D engine: planar scenes (x-z plane) only",
+                "pair friction and elasticity are products of per-shape values",
+                "position-first integration: x' = x + v dt, then v' = v + a dt",
+                "no continuous collision detection",
+            ),
+        )
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        reason = super().unsupported_reason(scene)
+        if reason is not None:
+            if cls.capabilities().available and scene.planar:
+                # give the specific reason rather than the generic 'cannot model'
+                if "gyroscopic" in scene.effects:
+                    return GYROSCOPIC_REASON
+                if "rolling_friction" in scene.effects:
+                    return ROLLING_FRICTION_REASON
+            return reason
+        return _planar_geometry_reason(scene)
+
+    # ---- life cycle --------------------------------------------------------
+    def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        reason = self.unsupported_reason(scene)
+        if reason is not None:
+            raise Unsupported(reason)
+        pm, _ = _engine()
+        self._pm = pm
+        n = scene.n_bodies
+        dt = float(settings["dt"])
+        self._substeps = int(settings["substeps"])
+        self._h = dt / self._substeps
+
+        space = pm.Space()
+        space.iterations = int(settings["iterations"])
+        space.collision_slop = float(settings["collision_slop"])
+        space.collision_bias = float(settings["collision_bias"])
+        space.damping = 1.0  # no hidden velocity damping
+        space.sleep_time_threshold = math.inf  # no sleeping: body order and states stay live
+        space.gravity = world_point_to_planar(scene.gravity)  # (g_x, g_z); (0, 0) without 'gravity'
+        self._space = space
+
+        # -- bodies ---------------------------------------------------------
+        contact = scene.has("contact")
+        self._contact = contact
+        self._bodies = []
+        body_shapes = []
+        for b in scene.bodies:
+            (x, y), (vx, vy), angle, w = planar_from_world(b.position, b.velocity, b.orientation,
+                                                           b.angular_velocity)
+            body = pm.Body(mass=float(b.mass), moment=float(b.inertia[1]))
+            body.position = (x, y)
+            body.angle = angle
+            body.velocity = (vx, vy)
+            body.angular_velocity = w
+            shape = _body_shape(pm, body, b) if contact else None
+            space.add(body)
+            if shape is not None:
+                space.add(shape)
+                body_shapes.append((b.material, shape))
+            self._bodies.append(body)
+
+        static_shapes = []
+        if contact:
+            for s in scene.statics:
+                shape = _static_shape(pm, space.static_body, s)
+                space.add(shape)
+                static_shapes.append((s.material, shape))
+
+        # -- materials ------------------------------------------------------
+        self._material_mode = "none"
+        if contact:
+            self._setup_materials(scene, body_shapes, static_shapes)
+
+        # -- springs and dampers --------------------------------------------
+        self._n_springs = 0
+        for sp in scene.springs:
+            if sp.stiffness == 0.0 and sp.damping == 0.0:
+                continue  # effect(s) absent: the Scene zeroed it
+            ba = space.static_body if sp.a < 0 else self._bodies[sp.a]
+            bb = space.static_body if sp.b < 0 else self._bodies[sp.b]
+            # body-frame anchor (x, y, z) -> 2D body-local (x, z); world anchors
+            # map the same way onto the static body (at the origin, angle 0).
+            c = pm.DampedSpring(ba, bb, world_point_to_planar(sp.anchor_a), world_point_to_planar(sp.anchor_b),
+                                float(sp.rest_length), float(sp.stiffness), float(sp.damping))
+            space.add(c)
+            self._n_springs += 1
+        if self._n_springs and scene.has("damper"):
+            self.notes.append(
+                "damper: pymunk's DampedSpring damps the relative velocity along the spring line "
+                "and integrates that damping as an exact exponential decay over each step")
+
+        # -- drag -------------------------------------------------------------
+        self._drag = []
+        if scene.has("drag_linear") or scene.has("drag_quadratic"):
+            for b, body in zip(scene.bodies, self._bodies):
+                c1 = b.drag_linear if scene.has("drag_linear") else 0.0
+                c2 = b.drag_quadratic if scene.has("drag_quadratic") else 0.0
+                if c1 > 0.0 or c2 > 0.0:
+                    self._drag.append((body, float(c1), float(c2)))
+            if self._drag:
+                self.notes.append(
+                    "drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
+                    "velocity at the start of each engine step (explicit); no angular drag")
+
+        self.notes.append(
+            "pymunk integrates positions with the velocity from before the step (x' = x + v dt, "
+            "then v' = v + a dt): free fall from rest gives z_k = -g dt^2 k (k - 1) / 2")
+
+        # -- fast state reads -------------------------------------------------
+        self._setup_reader(n)
+        self._space_steps = 0
+        self.info.update({
+            "material_mode": self._material_mode,
+            "moment_of_inertia": "Body.inertia[1] (I_yy of the 3D body)",
+            "state_reader": self._reader_kind,
+        })
+
+    def _setup_materials(self, scene: Scene, body_shapes: list, static_shapes: list) -> None:
+        """Give shapes elasticity/friction so that pymunk's products equal the
+        Scene's pair values, or install exact pre_solve callbacks."""
+        counts: dict[str, int] = {}
+        for m, _ in body_shapes:
+            counts[m] = counts.get(m, 0) + 1
+        body_mats = sorted(counts)
+        static_mats = sorted({m for m, _ in static_shapes})
+        pairs: set[tuple[str, str]] = set()
+        for i, a in enumerate(body_mats):
+            if counts[a] >= 2:
+                pairs.add((a, a))
+            for b in body_mats[i + 1:]:
+                pairs.add((a, b))
+            for s in static_mats:
+                pairs.add(tuple(sorted((a, s))))  # type: ignore[arg-type]
+        if not pairs:
+            return
+        values = {p: scene.pair(*p) for p in pairs}
+        if scene.has("friction") and any(v.static_friction != v.friction for v in values.values()):
+            self.notes.append(
+                "friction: pymunk has one Coulomb coefficient; the kinetic value is used for "
+                "sticking too (static_friction differs from friction in this scene)")
+        e_sol = _solve_products({p: v.restitution for p, v in values.items()})
+        f_sol = _solve_products({p: v.friction for p, v in values.items()})
+        if e_sol is not None and f_sol is not None:
+            self._material_mode = "per_shape"
+            for m, shape in body_shapes + static_shapes:
+                shape.elasticity = e_sol.get(m, 0.0)
+                shape.friction = f_sol.get(m, 0.0)
+            return
+        # No per-shape solution: exact per-pair values from a pre_solve callback.
+        self._material_mode = "pre_solve_callback"
+        mats = sorted(set(body_mats) | set(static_mats))
+        ctype = {m: k + 1 for k, m in enumerate(mats)}
+        for m, shape in body_shapes + static_shapes:
+            shape.collision_type = ctype[m]
+            shape.elasticity = 0.0
+            shape.friction = 0.0
+        for (a, b), v in values.items():
+            self._space.on_collision(ctype[a], ctype[b], pre_solve=_pair_setter(v.restitution, v.friction))
+        self.notes.append(
+            "materials: no per-shape elasticity/friction reproduces every pair value as a product; "
+            "exact pair values are set in a Python pre_solve callback per touching pair per step")
+
+    def _setup_reader(self, n: int) -> None:
+        """Prepare batched reads of (x, y, angle, vx, vy, w) for every body.
+
+        The fast path calls the C iterator behind pymunk.batch.get_space_bodies
+        directly into an array that is allocated once, then viewed by numpy
+        (no allocation per read).  It relies on pymunk 7's internal batch
+        structures; if they are missing it falls back to the public
+        get_space_bodies (which allocates a small struct and buffer view per
+        call).  Body order in the batch is the order of space.add (sleeping is
+        disabled, nothing is removed); it is verified here against body ids.
+        """
+        pm = self._pm
+        batch = pm.batch
+        fields = (batch.BodyFields.POSITION | batch.BodyFields.ANGLE | batch.BodyFields.VELOCITY
+                  | batch.BodyFields.ANGULAR_VELOCITY)
+        self._n = n
+        self._batch_fields = fields
+        self._batch_buf = batch.Buffer()
+        # Verify order and layout once, through the public API.  The iterator
+        # visits the dynamic bodies (in order of addition) and then the static
+        # body holding the static shapes, if any: read rows [0, n) only.
+        check = batch.Buffer()
+        batch.get_space_bodies(self._space, fields | batch.BodyFields.BODY_ID, check)
+        ids = np.frombuffer(check.int_buf(), dtype=np.uintp)
+        total = len(ids)
+        if list(ids[:n]) != [b.id for b in self._bodies]:
+            raise RuntimeError("pymunk batch body order differs from the order bodies were added")
+        got = np.frombuffer(check.float_buf()).reshape(total, 6)[:n]
+        want = np.array([(b.position.x, b.position.y, b.angle, b.velocity.x, b.velocity.y, b.angular_velocity)
+                         for b in self._bodies], float).reshape(n, 6)
+        if not np.array_equal(got, want):
+            raise RuntimeError("pymunk batch layout is not (x, y, angle, vx, vy, w)")
+        self._n_iter = total
+        self._reader_kind = "public_batch"
+        try:
+            from pymunk._chipmunk_cffi import ffi, lib
+
+            buf = self._batch_buf
+            batch.get_space_bodies(self._space, fields, buf)  # sizes the array (capacity >= 6 total)
+            farr = buf._float_arr
+            if farr.num != 6 * total or farr.max < 6 * total:
+                raise RuntimeError("unexpected batch array size")
+            data = ffi.new("pmBatchedData *")
+            data.fields = fields.value
+            data.floatArray = farr
+            data.intArray = buf._int_arr
+            self._c_data = data  # keep alive
+            self._c_iter = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
+            self._c_each = lib.cpSpaceEachBody
+            self._c_space = self._space._space
+            self._farr = farr
+            # The array never grows again (same body count each read), so this
+            # view stays valid; the dynamic bodies' rows, columns first: (6, n).
+            self._cols = np.frombuffer(ffi.buffer(farr.arr, 8 * 6 * total), dtype=np.float64).reshape(
+                total, 6)[:n].T
+            self._reader_kind = "c_batch"
+        except Exception:  # pragma: no cover - depends on pymunk internals
+            self._c_each = None
+
+    def step(self, n: int = 1) -> None:
+        """Advance n physbench steps (n * substeps engine steps of dt/substeps)."""
+        st = self._space.step
+        h = self._h
+        k = n * self._substeps
+        if self._drag:
+            drag = self._drag
+            for _ in range(k):
+                for body, c1, c2 in drag:
+                    v = body.velocity
+                    f = -(c1 + c2 * math.hypot(v.x, v.y))
+                    body.force = (f * v.x, f * v.y)
+                st(h)
+        else:
+            for _ in range(k):
+                st(h)
+        self._space_steps += k
+
+    def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Write world positions (n, 3) m, quaternions (n, 4) wxyz, linear
+        velocities (n, 3) m/s and angular velocities (n, 3) rad/s, in place.
+
+        One batched engine read, then one vectorised call of the conversion
+        point world_from_planar on the transposed (column) views."""
+        if self._c_each is not None:
+            self._farr.num = 0
+            self._c_each(self._c_space, self._c_iter, self._c_data)
+            c = self._cols
+        else:
+            buf = self._batch_buf
+            buf.clear()
+            self._pm.batch.get_space_bodies(self._space, self._batch_fields, buf)
+            c = np.frombuffer(buf.float_buf()).reshape(self._n_iter, 6)[:self._n].T
+        world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos.T, quat.T, vel.T, angvel.T)
+
+    def stages(self) -> dict[str, Any]:
+        """Engine features switched on for this scene, and step counters."""
+        if not hasattr(self, "_space"):
+            return {}
+        sp = self._space
+        return {
+            "gravity": tuple(sp.gravity) != (0.0, 0.0),
+            "contact": self._contact,
+            "material_mode": self._material_mode,
+            "springs": self._n_springs,
+            "drag_bodies": len(self._drag),
+            "substeps": self._substeps,
+            "iterations": sp.iterations,
+            "collision_slop": sp.collision_slop,
+            "space_steps": self._space_steps,
+        }
+
+    def close(self) -> None:
+        # Drop references; cffi frees the space and its bodies.
+        for name in ("_cols", "_c_data", "_farr", "_c_space", "_bodies", "_drag"):
+            if hasattr(self, name):
+                setattr(self, name, None if name != "_drag" else [])
+
+
+# ---- helpers ------------------------------------------------------------------
+
+
+def _planar_geometry_reason(scene: Scene) -> str | None:
+    """Planar checks the spec validator does not make (pattern positions,
+    spring anchors, static boxes off the plane)."""
+    for b in scene.bodies:
+        if abs(float(b.position[1])) > 0.0:
+            return f"pymunk is 2D: body {b.name} lies off the x-z plane (y = {float(b.position[1])!r})"
+    for k, sp in enumerate(scene.springs):
+        if abs(float(sp.anchor_a[1])) > 0.0 or abs(float(sp.anchor_b[1])) > 0.0:
+            return f"pymunk is 2D: spring[{k}] has an anchor off the x-z plane (y != 0)"
+    for s in scene.statics:
+        if s.shape == "box" and abs(float(s.position[1])) >= float(s.half_extents[1]):
+            return f"pymunk is 2D: static box {s.name} does not cross the x-z plane"
+    return None
+
+
+def _body_shape(pm: Any, body: Any, b: Any) -> Any:
+    """The body's x-z cross-section as a pymunk shape (body-local (x, z) ->
+    2D local (x, y)); no mass of its own."""
+    if b.shape == "sphere":
+        return pm.Circle(body, float(b.radius))
+    if b.shape == "box":
+        hx, hz = float(b.half_extents[0]), float(b.half_extents[2])
+        return pm.Poly.create_box(body, (2.0 * hx, 2.0 * hz), 0.0)
+    if b.shape == "capsule":
+        h = float(b.half_length)
+        return pm.Segment(body, (0.0, -h), (0.0, h), float(b.radius))
+    if b.shape == "cylinder":
+        return pm.Poly.create_box(body, (2.0 * float(b.radius), 2.0 * float(b.half_length)), 0.0)
+    raise Unsupported(f"pymunk adapter has no shape {b.shape}")  # pragma: no cover
+
+
+def _static_shape(pm: Any, static_body: Any, s: Any) -> Any:
+    """A static plane (solid below n . x = offset) or box as a pymunk Poly in
+    world 2D coordinates."""
+    if s.shape == "plane":
+        nx, ny = world_point_to_planar(s.normal)
+        p0x, p0y = s.offset * nx, s.offset * ny
+        tx, ty = -ny, nx  # along the line
+        L, D = PLANE_HALF_LENGTH, PLANE_DEPTH
+        verts = [
+            (p0x - L * tx, p0y - L * ty),
+            (p0x + L * tx, p0y + L * ty),
+            (p0x + L * tx - D * nx, p0y + L * ty - D * ny),
+            (p0x - L * tx - D * nx, p0y - L * ty - D * ny),
+        ]
+        return pm.Poly(static_body, verts, None, 0.0)
+    # box: x-z cross-section, turned by its planar angle about y
+    (cx, cy), _, angle, _ = planar_from_world(s.position, np.zeros(3), s.orientation, np.zeros(3))
+    hx, hz = float(s.half_extents[0]), float(s.half_extents[2])
+    ca, sa = math.cos(angle), math.sin(angle)
+    verts = [(cx + ca * px - sa * py, cy + sa * px + ca * py)
+             for px, py in ((-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz))]
+    return pm.Poly(static_body, verts, None, 0.0)
+
+
+def _solve_products(pairs: dict[tuple[str, str], float]) -> dict[str, float] | None:
+    """Per-material values f >= 0 with f[a] * f[b] == v for every pair
+    (a, b) -> v (relative tolerance 1e-12), or None if none exist.
+
+    Materials met only in zero-valued pairs get 0.  For the others, log f[a] +
+    log f[b] = log v is solved by least squares (minimum norm: a bipartite set
+    of pairs leaves one free scale per connected group, fixed symmetrically),
+    and the products are then verified against every pair, zero pairs
+    included.  When all pairs agree this gives sqrt(v) for every material."""
+    mats = sorted({m for p in pairs for m in p})
+    positive = [(a, b, v) for (a, b), v in sorted(pairs.items()) if v > 0.0]
+    f = {m: 0.0 for m in mats}
+    if positive:
+        used = sorted({m for a, b, _ in positive for m in (a, b)})
+        col = {m: k for k, m in enumerate(used)}
+        A = np.zeros((len(positive), len(used)))
+        rhs = np.empty(len(positive))
+        for r, (a, b, v) in enumerate(positive):
+            A[r, col[a]] += 1.0
+            A[r, col[b]] += 1.0
+            rhs[r] = math.log(v)
+        x = np.linalg.lstsq(A, rhs, rcond=None)[0]
+        for m, k in col.items():
+            f[m] = math.exp(float(x[k]))
+        for (a, b, v) in positive:
+            if a == b:
+                f[a] = math.sqrt(v)  # exact in the common case of a self pair
+    for (a, b), v in pairs.items():
+        if abs(f[a] * f[b] - v) > _PAIR_RTOL * max(1.0, abs(v)):
+            return None
+    return f
+
+
+def _pair_setter(elasticity: float, friction: float):
+    """A pre_solve callback that sets the arbiter's pair coefficients."""
+
+    def pre_solve(arbiter: Any, space: Any, data: Any) -> None:
+        # pymunk 7 names the pair value Arbiter.restitution; an attribute
+        # 'elasticity' set on the arbiter would be silently ignored.
+        arbiter.restitution = elasticity
+        arbiter.friction = friction
+
+    return pre_solve
