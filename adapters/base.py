@@ -176,6 +176,20 @@ class Adapter(abc.ABC):
         (n, 3) arrays (world frame, about the centre of mass).  Must not
         allocate per call beyond what the engine's API forces."""
 
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Advance ``n`` steps, writing the state after step i+1 into row i of
+        the (n, n_bodies, 3|4) output blocks.  The default is the plain loop
+        of step(1) and read_state(); adapters override it where the engine can
+        step and record a block in compiled code (MuJoCo's rollout) or where
+        converting a block at once is cheaper than converting every step.
+        ``self.block_done`` counts the rows written, so that a failure in the
+        middle of a block loses no recorded frame."""
+        self.block_done = 0
+        for i in range(n):
+            self.step(1)
+            self.read_state(pos[i], quat[i], vel[i], angvel[i])
+            self.block_done = i + 1
+
     def close(self) -> None:  # noqa: B027 - optional
         pass
 

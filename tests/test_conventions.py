@@ -139,6 +139,16 @@ def test_planar_sign(engine):
     assert tr.angvel[-1, 0, 1] == pytest.approx(wy, abs=1e-6)
 
 
+# The material tests check that each adapter realises the spec's *pair* values
+# through its engine's combination rule.  pybullet's default contact handling
+# (position correction folded into the velocity solve, speculative contacts
+# 2 cm early) distorts every impact by itself — measured 0.474 for e = 0.5 and
+# a slide 4.4 % slow at its defaults; the conformance scenarios report that.
+# Here it runs with split impulse and a tight contact margin, which remove
+# those artefacts, so the test isolates the material convention.
+ISOLATE_CONTACT = {"pybullet": {"split_impulse": True, "contact_breaking_threshold": 1e-4}}
+
+
 def _bounce_ratio(tr):
     vz = tr.vel[:, 0, 2]
     k = int(np.argmin(vz))           # fastest descent: the frame before impact
@@ -155,7 +165,7 @@ def test_material_pair_restitution(engine, e):
                    body=[{"name": "b", "shape": "sphere", "radius": 0.05, "mass": 0.2, "material": "ball",
                           "position": [0.0, 0.0, 1.05]}],
                    static=[{"shape": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0}]))
-    r = run(s, engine)
+    r = run(s, engine, ISOLATE_CONTACT.get(engine))
     assert r.status == "ok", r.message
     ratio = _bounce_ratio(r.trace.valid())
     # g dt over the impact speed (4.4 m/s) bounds the discretisation error: 0.3 %
@@ -176,7 +186,7 @@ def test_material_pair_friction(engine):
                    body=[{"name": "b", "shape": "box", "half_extents": [h, h, h], "mass": 1.0, "material": "block",
                           "position": list(start), "orientation": list(axis_angle([0, 1, 0], th))}],
                    static=[{"shape": "slope", "angle": 30.0}]))
-    r = run(s, engine)
+    r = run(s, engine, ISOLATE_CONTACT.get(engine))
     assert r.status == "ok", r.message
     tr = r.trace.valid()
     a_exact = G * (math.sin(th) - mu * math.cos(th))
