@@ -1,0 +1,130 @@
+"""The command line end to end, in subprocesses as a user runs it."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tests.conftest import HEAD_ON, ROOT
+
+ENGINES = ["reference", "mujoco", "pybullet", "pymunk"]
+# metric names of DESIGN.md every run result carries
+GENERIC = ["max_penetration", "mean_penetration", "energy_drift", "energy_gain", "linear_momentum_drift",
+           "angular_momentum_drift", "stable", "cpu_s_per_sim_s", "wall_s_per_sim_s", "steps_per_s"]
+COLLISION = ["post_impact_velocity_error", "trajectory_rmse", "final_position_error"]
+
+
+def physbench(*args, check=False):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.run([sys.executable, "-m", "harness.cli", *map(str, args)], capture_output=True, text=True,
+                       cwd=ROOT, env=env, timeout=300)
+    if check:
+        assert p.returncode == 0, p.stderr
+    return p
+
+
+@pytest.fixture(scope="module")
+def head_on_runs():
+    out = {}
+    for e in ENGINES:
+        for v in (None, "elastic", "plastic"):
+            args = ["run", HEAD_ON, "--engine", e, "--json"] + (["--variant", v] if v else [])
+            p = physbench(*args)
+            out[e, v] = (p.returncode, p.stdout, p.stderr)
+    return out
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_run_json_is_one_object_with_metric_names(head_on_runs, engine):
+    for v in (None, "elastic", "plastic"):
+        rc, stdout, stderr = head_on_runs[engine, v]
+        assert rc == 0, stderr
+        lines = stdout.strip().splitlines()
+        assert len(lines) == 1, f"stdout must be exactly one JSON object, got: {stdout[:300]!r}"
+        d = json.loads(lines[0])
+        assert d["status"] == "ok" and d["engine"] == engine and d["variant"] == v
+        for k in GENERIC + COLLISION:
+            assert k in d, k
+        assert isinstance(d["post_impact_velocity_error"], float)
+        assert d["settings"]["dt"] == 0.001
+        print(f"{engine:9s} {v or 'default':8s} post_impact_velocity_error {d['post_impact_velocity_error']:.3g} "
+              f"max_penetration {d['max_penetration']:.3g}")
+
+
+def test_reference_meets_newton_on_every_variant(head_on_runs):
+    for v in (None, "elastic", "plastic"):
+        d = json.loads(head_on_runs["reference", v][1])
+        assert d["post_impact_velocity_error"] <= 1e-3
+        assert d["linear_momentum_drift"] <= 1e-9
+        assert d["max_penetration"] <= 0.002
+
+
+def test_reference_stages_are_in_the_result(head_on_runs):
+    d = json.loads(head_on_runs["reference", None][1])
+    stages = d["stages"]
+    assert "narrowphase" in stages and stages["narrowphase"]["calls"] > 0
+    assert "gravity" not in stages  # the scene has no gravity effect
+
+
+def test_no_contact_means_no_collision_stage(tmp_path):
+    text = HEAD_ON.read_text().replace('effects = ["contact", "restitution"]', "effects = []")
+    p = tmp_path / "ghosts.toml"
+    p.write_text(text)
+    r = physbench("run", p, "--engine", "reference", "--json", check=True)
+    d = json.loads(r.stdout)
+    assert not any(k in d["stages"] for k in ("broadphase", "narrowphase", "solve", "ccd")), d["stages"]
+    # the balls pass through each other: the cue keeps its speed
+    assert d["status"] == "ok"
+
+
+def test_bad_spec_exits_2_naming_file_and_key(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text(HEAD_ON.read_text().replace("mass = 0.17\nposition = [0.3", "mass = -1\nposition = [0.3"))
+    r = physbench("run", p, "--json")
+    assert r.returncode == 2
+    assert f"{p}: body[1].mass: must be > 0, got -1" in r.stderr
+    assert r.stdout == ""
+
+
+def test_set_engine_setting_and_spec_key():
+    r = physbench("run", HEAD_ON, "-e", "reference", "--json", "--set", "dt=0.002",
+                  "--set", "material.default.restitution=0.5", check=True)
+    d = json.loads(r.stdout)
+    assert d["settings"]["dt"] == 0.002
+    assert d["post_impact_velocity_error"] <= 1e-3  # against e = 0.5
+    r = physbench("run", HEAD_ON, "-e", "mujoco", "--set", "integrator=leapfrog")
+    assert r.returncode == 2 and "integrator" in r.stderr and "expected one of" in r.stderr
+    r = physbench("run", HEAD_ON, "-e", "pymunk", "--set", "wobble=3")
+    assert r.returncode == 2 and "wobble" in r.stderr
+
+
+def test_engines_lists_all_four():
+    r = physbench("engines", "--json", check=True)
+    caps = {c["engine"]: c for c in json.loads(r.stdout)}
+    assert set(caps) == set(ENGINES)
+    for c in caps.values():
+        assert c["available"] and c["version"] and "dt" in c["settings"]
+    assert caps["pymunk"]["dimensions"] == 2 and caps["mujoco"]["dimensions"] == 3
+
+
+def test_trace_writes_side_by_side_recording(tmp_path):
+    from rerun.chunk import RrdReader
+
+    out = tmp_path / "head_on.rrd"
+    physbench("trace", HEAD_ON, "--engines", "reference", "pymunk", "-o", out, check=True)
+    chunks = RrdReader(str(out)).stream().to_chunks()
+    paths = {c.entity_path for c in chunks}
+    for e in ("reference", "pymunk"):
+        assert f"/world/{e}/cue" in paths and f"/world/{e}/object" in paths
+        assert f"/metrics/{e}/energy" in paths
+    # the cue's logged x at the last frame: Newton's law for e = 0.9 gives 0.1 m/s
+    # after the impact at t = (0.3 - 2r) / 2
+    cue = [c for c in chunks if c.entity_path == "/world/reference/cue" and not c.is_static]
+    df = cue[0].to_record_batch().to_pandas()
+    col = [c for c in df.columns if "translation" in c.lower()][0]
+    x_last = float(np.concatenate([np.asarray(v, float).ravel() for v in df[col].iloc[-1]])[0])
+    t_c = (0.3 - 2 * 0.028575) / 2.0
+    assert x_last == pytest.approx(2.0 * t_c + 0.1 * (0.5 - t_c), abs=1e-5)
