@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 
 from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import quat_to_matrix, world_to_body_angvel
+from adapters.conventions import quat_rotate, quat_to_matrix, world_to_body_angvel
 from harness.scene import Body, Scene, Static
 
 try:  # the engine; a missing mujoco only makes its runs unavailable
@@ -289,6 +289,8 @@ class MujocoAdapter(Adapter):
         m = mujoco.MjModel.from_xml_string(xml)
         d = mujoco.MjData(m)
         self.m, self.d = m, d
+        self.n_bodies = scene.n_bodies
+        self._roll_state = None
         n = scene.n_bodies
 
         # the free joints come in body order: qpos 7 and qvel 6 per body
@@ -364,6 +366,51 @@ class MujocoAdapter(Adapter):
                 np.negative(force, out=force)
                 mujoco.mj_step(m, d)
         self.steps += n
+
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Step and record a block of n steps in compiled code.
+
+        ``mujoco.rollout`` runs the n mj_step calls in C and returns every
+        step's full physics state; the block is then converted once,
+        vectorised (body-frame angular velocity -> world with the recorded
+        quaternions).  The solver warm start is carried across blocks, so the
+        states are those of a plain mj_step loop (a test asserts equality).
+        Scenes with drag need a Python force update before each step and use
+        the per-step loop."""
+        if self._drag or self.m.nq != 7 * self.n_bodies:
+            return super().step_record(n, pos, quat, vel, angvel)
+        from mujoco import rollout
+
+        m, d = self.m, self.d
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        if self._roll_state is None or self._roll_state.shape[1] < n:
+            self._state0 = np.empty((1, mujoco.mj_stateSize(m, spec)))
+            self._roll_state = np.empty((1, max(n, 256), self._state0.shape[1]))
+            self._warm = np.empty((1, m.nv))
+        mujoco.mj_getState(m, d, self._state0[0], spec)
+        self._warm[0] = d.qacc_warmstart
+        out = self._roll_state[:, :n]
+        rollout.rollout([m], [d], self._state0, nstep=n, initial_warmstart=self._warm, state=out,
+                        skip_checks=True)
+        st = out[0]
+        nq, nb = m.nq, self.n_bodies
+        # FULLPHYSICS layout: time (1), qpos (nq), qvel (nv), then the rest
+        qpos = st[:, 1:1 + nq].reshape(n, nb, 7)
+        qvel = st[:, 1 + nq:1 + nq + m.nv].reshape(n, nb, 6)
+        pos[...] = qpos[..., 0:3]
+        quat[...] = qpos[..., 3:7]
+        vel[...] = qvel[..., 0:3]
+        angvel[...] = quat_rotate(quat, qvel[..., 3:6])
+        mujoco.mj_setState(m, d, st[-1], spec)
+        d.qacc_warmstart[:] = self._rollout_data_warmstart(d)
+        self.steps += n
+        self.block_done = n
+
+    @staticmethod
+    def _rollout_data_warmstart(d) -> np.ndarray:
+        # rollout steps ``d`` itself (single thread), so its warm start is the
+        # one after the block's last step
+        return d.qacc_warmstart
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         np.copyto(pos, self._pos)
