@@ -30,6 +30,7 @@ Definitions (all from the trace, never from an engine's own accounting):
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -127,7 +128,9 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
 
         depth = penetration_depths(scene, trace)  # (F, P) >= 0
         if depth.size:
-            per_frame = np.nanmax(depth, axis=1)
+            with warnings.catch_warnings():  # frames where every pair is NaN (diverged) stay NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                per_frame = np.nanmax(depth, axis=1)
             out["max_penetration"] = float(np.nanmax(per_frame))
             touching = per_frame > 0
             out["mean_penetration"] = float(per_frame[touching].mean()) if touching.any() else 0.0
