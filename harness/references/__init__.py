@@ -21,6 +21,16 @@ from harness.scene import Scene
 
 MODELS: dict[str, str] = {
     "two_body_collision": "harness.references.collision:TwoBodyCollision",
+    "oblique_collision": "harness.references.billiards:ObliqueCollision",
+    "newtons_cradle": "harness.references.billiards:NewtonsCradle",
+    "momentum_energy": "harness.references.billiards:MomentumEnergy",
+    "bounce_heights": "harness.references.billiards:BounceHeights",
+    "static_stack": "harness.references.stacking:StaticStack",
+    "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
+    "incline_block": "harness.references.friction:InclineBlock",
+    "rolling_sphere": "harness.references.friction:RollingSphere",
+    "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
+    "heavy_top": "harness.references.rigid_body:HeavyTop",
 }
 
 

@@ -1,0 +1,576 @@
+"""CI conformance: run every scenario's checks on every engine.
+
+``check_main(engines, tags, junit, scenarios, jobs)`` is what ``physbench
+check`` calls; it returns the process exit code (1 on any FAIL, ERROR or
+XPASS, else 0).
+
+What runs.  For each selected scenario (all of ``scenarios/`` by default,
+filtered by ``tags``: a scenario is kept if it has any of them) the base scene
+and each ``[[variant]]`` are run once per engine, at the engine's default
+settings and the scene's dt, with :func:`harness.runner.run` -- but only the
+ones that some check applies to:
+
+- a check without ``variants`` applies to the base scenario and to every
+  variant; a check with ``variants = [...]`` only to the variants it names,
+  where the name ``"base"`` stands for the base scenario;
+- a check with ``engines = [...]`` applies only to those engines.
+
+Checks are read from the compiled scene of the run (so a variant sees the
+base's checks, plus whatever its overrides change).
+
+Hard cases.  Every scenario tagged ``hard`` is also checked for stability
+(metric ``stable`` must be true) on every engine, at the default dt and at
+dt = 1/30 s (settings override ``{"dt": 1/30}``), as testcases
+``<scenario>::stable`` and ``<scenario>::stable@dt=1/30`` (base scene only).
+A scenario may declare these checks itself, ``metric = "stable"`` or
+``metric = "stable@dt=1/30"``, to attach an ``xfail``; the explicit check
+then replaces the implicit one.  In general, a check metric
+``NAME@dt=VALUE`` evaluates NAME on a run whose dt is overridden (VALUE may
+be a fraction such as 1/30).
+
+Outcomes, per (engine, scenario, variant, check):
+
+- PASS / FAIL: the run is ``ok`` and the metric meets / misses the bound;
+  a metric that is missing or NaN is a FAIL ("metric not computed");
+- XFAIL / XPASS: the check lists the engine in ``xfail`` (a documented
+  limitation, with the measured figure) and the run fails / passes it;
+- UNSUPPORTED: the engine reported the scene as unsupported;
+- ERROR: the run's status is error, failed, diverged or timeout (or the
+  scene would not load): counts as a failure unless xfailed (then XFAIL).
+
+Bounds: ``max`` (value <= max), ``min`` (value >= min), both if both given;
+``equals`` with ``tolerance`` (|value - equals| <= tolerance; booleans must
+match).  ``tolerance`` also widens max/min bounds.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+import warnings
+import xml.etree.ElementTree as ET
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from harness.scene import Check, Scene
+
+HARD_DT = 1.0 / 30.0
+HARD_DT_LABEL = "1/30"
+RUN_TIMEOUT_S = 600.0  # wall-clock budget per run
+BASE = "base"  # name standing for the base scenario in a check's `variants`
+
+PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR = "PASS", "FAIL", "XFAIL", "XPASS", "UNSUPPORTED", "ERROR"
+BAD = (FAIL, XPASS, ERROR)
+OUTCOMES = (PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR)
+ERROR_STATUSES = ("error", "failed", "diverged", "timeout")
+
+
+# ---------------------------------------------------------------------------
+# data
+
+
+@dataclass
+class Outcome:
+    """One evaluated check: a JUnit testcase."""
+
+    engine: str
+    scenario: str
+    variant: str | None
+    metric: str
+    outcome: str
+    value: Any = None
+    threshold: str = ""
+    message: str = ""
+    time_s: float = 0.0
+
+    @property
+    def name(self) -> str:
+        v = f"[{self.variant}]" if self.variant else ""
+        return f"{self.scenario}{v}::{self.metric}"
+
+
+@dataclass
+class RunSpec:
+    """One run to make: a scene (scenario + variant) on an engine with
+    setting overrides, and the checks to evaluate on it."""
+
+    scenario: str
+    variant: str | None
+    engine: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    checks: list[Check] = field(default_factory=list)
+
+    @property
+    def key(self) -> tuple:
+        return (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
+
+
+# ---------------------------------------------------------------------------
+# check evaluation
+
+
+def split_metric(metric: str) -> tuple[str, dict[str, Any]]:
+    """'stable@dt=1/30' -> ('stable', {'dt': 0.0333...}); 'x' -> ('x', {})."""
+    if "@" not in metric:
+        return metric, {}
+    name, _, rest = metric.partition("@")
+    settings: dict[str, Any] = {}
+    for part in rest.split(","):
+        key, _, val = part.partition("=")
+        if not key or not val:
+            raise ValueError(f"check metric {metric!r}: expected NAME@setting=value")
+        settings[key.strip()] = _parse_setting(val.strip())
+    return name, settings
+
+
+def _parse_setting(text: str) -> Any:
+    if "/" in text:
+        try:
+            return float(Fraction(text))
+        except (ValueError, ZeroDivisionError):
+            return text
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    return text
+
+
+def check_applies(check: Check, engine: str, variant: str | None) -> bool:
+    if check.engines is not None and engine not in check.engines:
+        return False
+    if check.variants is not None:
+        return (variant or BASE) in check.variants
+    return True
+
+
+def describe_bound(check: Check) -> str:
+    tol = f" +- {check.tolerance:g}" if check.tolerance else ""
+    if check.equals is not None:
+        return f"== {check.equals!r}{tol}" if isinstance(check.equals, bool) else f"== {check.equals:g}{tol}"
+    parts = []
+    if check.min is not None:
+        parts.append(f">= {check.min:g}")
+    if check.max is not None:
+        parts.append(f"<= {check.max:g}")
+    return " and ".join(parts) + tol
+
+
+def _is_missing(value: Any) -> bool:
+    if value is None:
+        return True
+    if isinstance(value, (bool,)):
+        return False
+    try:
+        return math.isnan(float(value))
+    except (TypeError, ValueError):
+        return True
+
+
+def meets(check: Check, value: Any) -> bool:
+    """Whether a (present, non-NaN) metric value satisfies the check's bound."""
+    tol = check.tolerance
+    if check.equals is not None:
+        if isinstance(check.equals, bool):
+            # booleans (numpy's too) or exactly 0/1
+            try:
+                f = float(value)
+            except (TypeError, ValueError):
+                return False
+            return f in (0.0, 1.0) and (f == 1.0) == check.equals
+        return abs(float(value) - float(check.equals)) <= tol
+    v = float(value)
+    if check.max is not None and not v <= check.max + tol:
+        return False
+    if check.min is not None and not v >= check.min - tol:
+        return False
+    return True
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return repr(value)
+    try:
+        return f"{float(value):.6g}"
+    except (TypeError, ValueError):
+        return repr(value)
+
+
+def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outcome:
+    """Evaluate one check against one RunResult.  ``metric_name`` is the
+    metric to read (default: the check's metric without an @-suffix)."""
+    metric = metric_name or split_metric(check.metric)[0]
+    reason = check.xfail.get(result.engine)
+    o = Outcome(result.engine, result.scenario, result.variant, check.metric, PASS,
+                threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0))
+    if result.status == "unsupported":
+        o.outcome, o.message = UNSUPPORTED, f"unsupported: {result.message}"
+        return o
+    if result.status in ERROR_STATUSES or result.status != "ok":
+        msg = f"{result.status}: {result.message}"
+        if reason:
+            o.outcome, o.message = XFAIL, f"xfail: {reason} ({msg})"
+        else:
+            o.outcome, o.message = ERROR, msg
+        return o
+    value = result.metrics.get(metric)
+    o.value = value
+    if _is_missing(value):
+        ok, msg = False, "metric not computed"
+        extra = [n for n in result.notes if n.startswith("metrics failed")]
+        if extra:
+            msg += f" ({extra[0]})"
+    else:
+        ok = meets(check, value)
+        msg = f"{metric} = {_fmt(value)}, expected {o.threshold}"
+        if metric == "stable" and not ok and result.metrics.get("stability_reason"):
+            msg += f" ({result.metrics['stability_reason']})"
+    if reason:
+        if ok:
+            o.outcome, o.message = XPASS, f"unexpected pass: {msg}; xfail reason was: {reason}"
+        else:
+            o.outcome, o.message = XFAIL, f"xfail: {reason} ({msg})"
+    else:
+        o.outcome, o.message = (PASS, msg) if ok else (FAIL, msg)
+    return o
+
+
+def applicable_checks(scene: Scene, engine: str) -> list[Check]:
+    """The scene's checks that apply to ``engine`` and the scene's variant
+    (all of them, including @-suffixed ones)."""
+    return [c for c in scene.checks if check_applies(c, engine, scene.variant)]
+
+
+def hard_checks(scene: Scene) -> list[Check]:
+    """The implicit stability checks of a hard-tagged base scene, unless the
+    scene declares them itself (then its own, with their xfail, are used)."""
+    if "hard" not in scene.tags or scene.variant is not None:
+        return []
+    declared = {c.metric for c in scene.checks}
+    out = []
+    for metric in ("stable", f"stable@dt={HARD_DT_LABEL}"):
+        if metric not in declared:
+            out.append(Check(metric=metric, equals=True))
+    return out
+
+
+def evaluate(scene: Scene, result, extra_results: dict[str, Any] | None = None) -> list[Outcome]:
+    """All outcomes for one (scene, engine) run: the applicable checks
+    evaluated on ``result``; checks with an @-suffix on the matching run in
+    ``extra_results`` (keyed by the suffix, e.g. 'dt=1/30'), ERROR if that run
+    is missing."""
+    outs = []
+    for c in applicable_checks(scene, result.engine) + hard_checks(scene):
+        name, settings = split_metric(c.metric)
+        if not settings:
+            outs.append(evaluate_check(c, result))
+            continue
+        suffix = c.metric.partition("@")[2]
+        other = (extra_results or {}).get(suffix)
+        if other is None:
+            outs.append(Outcome(result.engine, result.scenario, result.variant, c.metric, ERROR,
+                                threshold=describe_bound(c), message=f"no run with {suffix}"))
+        else:
+            outs.append(evaluate_check(c, other, name))
+    return outs
+
+
+# ---------------------------------------------------------------------------
+# planning and running
+
+
+def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> list[str]:
+    from harness.scene import scenario_ids
+
+    ids = list(scenarios) if scenarios else scenario_ids()
+    if not tags:
+        return ids
+    from harness.scene import load_scene
+
+    keep = []
+    for sid in ids:
+        try:
+            sc = load_scene(sid)
+        except Exception:
+            keep.append(sid)  # a broken spec is reported, never silently dropped
+            continue
+        if set(sc.tags) & set(tags):
+            keep.append(sid)
+    return keep
+
+
+def default_engines() -> list[str]:
+    from adapters import ENGINES
+
+    return list(ENGINES)
+
+
+def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], message: str) -> list[Outcome]:
+    return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
+
+
+def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], list[Outcome]]:
+    """Runs to make, and ERROR outcomes for scenarios that fail to load."""
+    from harness.scene import load_scene, resolve_scenario
+    from harness.spec import load_spec
+
+    runs: list[RunSpec] = []
+    errors: list[Outcome] = []
+    for sid in scenario_ids:
+        try:
+            loaded = load_spec(resolve_scenario(sid))
+        except Exception as e:
+            errors += _load_error_outcomes(sid, None, engines, f"spec failed to load: {e}")
+            continue
+        for variant in [None, *loaded.variants]:
+            try:
+                scene = load_scene(sid, variant, loaded=loaded)
+            except Exception as e:
+                errors += _load_error_outcomes(sid, variant, engines, f"scene failed to compile: {e}")
+                continue
+            for eng in engines:
+                checks = applicable_checks(scene, eng) + hard_checks(scene)
+                if not checks:
+                    continue
+                runs.append(RunSpec(scene.id, variant, eng, {}, checks))
+                suffixes = {}
+                for c in checks:
+                    _, st = split_metric(c.metric)
+                    if st:
+                        suffixes[c.metric.partition("@")[2]] = st
+                for st in suffixes.values():
+                    runs.append(RunSpec(scene.id, variant, eng, st, []))
+    return runs, errors
+
+
+def execute(spec: RunSpec):
+    """Run one RunSpec; never raises (engine import errors become a
+    RunResult with status 'failed').  The trace is dropped (results cross
+    process boundaries)."""
+    from harness.runner import RunResult, run
+    from harness.scene import load_scene
+
+    try:
+        scene = load_scene(spec.scenario, spec.variant)
+    except Exception as e:
+        return RunResult(spec.scenario, spec.variant, spec.engine, "", "error", f"scene failed to load: {e}",
+                         dict(spec.settings))
+    try:
+        # a blow-up is recorded in the result's status; numpy's overflow
+        # warnings on the way there would only scramble the progress display
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = run(scene, spec.engine, spec.settings or None, timeout_s=RUN_TIMEOUT_S)
+    except Exception as e:  # adapter import error, bad setting ...
+        res = RunResult(scene.id, spec.variant, spec.engine, "", "failed",
+                        f"could not run: {type(e).__name__}: {e}", dict(spec.settings))
+    res.trace = None
+    return res
+
+
+def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[tuple, Any]:
+    """Execute runs (in ``jobs`` processes), with a rich progress bar on
+    stderr.  Returns {RunSpec.key: RunResult}."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    results: dict[tuple, Any] = {}
+    console = Console(stderr=True)
+    cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            TextColumn("{task.description}"))
+    with Progress(*cols, console=console, disable=not progress, transient=False) as bar:
+        task = bar.add_task("", total=len(runs))
+
+        def label(r: RunSpec) -> str:
+            s = ",".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.settings.items())
+            return escape(f"{r.engine} {r.scenario}" + (f"[{r.variant}]" if r.variant else "") + (f" @{s}" if s else ""))
+
+        if jobs <= 1:
+            for r in runs:
+                bar.update(task, description=label(r))
+                results[r.key] = execute(r)
+                bar.advance(task)
+        else:
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                futs = {pool.submit(execute, r): r for r in runs}
+                for fut in as_completed(futs):
+                    r = futs[fut]
+                    try:
+                        results[r.key] = fut.result()
+                    except Exception as e:  # worker crashed
+                        from harness.runner import RunResult
+
+                        results[r.key] = RunResult(r.scenario, r.variant, r.engine, "", "error",
+                                                   f"worker failed: {type(e).__name__}: {e}", dict(r.settings))
+                    bar.update(task, description=label(r))
+                    bar.advance(task)
+    return results
+
+
+def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcome]:
+    """Outcomes for every planned base run (runs with checks)."""
+    outs: list[Outcome] = []
+    for r in runs:
+        if not r.checks:
+            continue
+        res = results[r.key]
+        for c in r.checks:
+            name, st = split_metric(c.metric)
+            if st:
+                key = (r.scenario, r.variant, r.engine, tuple(sorted(st.items())))
+                other = results.get(key)
+                if other is None:
+                    outs.append(Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
+                                        threshold=describe_bound(c), message="run missing"))
+                else:
+                    outs.append(evaluate_check(c, other, name))
+            else:
+                outs.append(evaluate_check(c, res))
+    return outs
+
+
+# ---------------------------------------------------------------------------
+# reporting
+
+
+def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
+    """JUnit XML: one <testsuite> per engine; testcase name
+    '<scenario>[<variant>]::<metric>', classname 'physbench.<engine>.<family>'.
+    FAIL -> <failure>; ERROR -> <error>; XPASS -> <failure> 'unexpected pass';
+    XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>."""
+    root = ET.Element("testsuites", name="physbench conformance")
+    by_engine: dict[str, list[Outcome]] = {}
+    for o in outcomes:
+        by_engine.setdefault(o.engine, []).append(o)
+    totals = dict(tests=0, failures=0, errors=0, skipped=0)
+    for eng, outs in by_engine.items():
+        counts = dict(tests=len(outs),
+                      failures=sum(o.outcome in (FAIL, XPASS) for o in outs),
+                      errors=sum(o.outcome == ERROR for o in outs),
+                      skipped=sum(o.outcome in (XFAIL, UNSUPPORTED) for o in outs))
+        t = sum(o.time_s for o in outs)
+        suite = ET.SubElement(root, "testsuite", name=eng, time=f"{t:.3f}",
+                              **{k: str(v) for k, v in counts.items()})
+        for k in totals:
+            totals[k] += counts[k]
+        for o in outs:
+            family = o.scenario.split(".")[0]
+            tc = ET.SubElement(suite, "testcase", name=o.name, classname=f"physbench.{eng}.{family}",
+                               time=f"{o.time_s:.3f}")
+            if o.outcome == FAIL:
+                ET.SubElement(tc, "failure", message=o.message, type="FAIL").text = _detail(o)
+            elif o.outcome == XPASS:
+                ET.SubElement(tc, "failure", message=o.message, type="XPASS").text = _detail(o)
+            elif o.outcome == ERROR:
+                ET.SubElement(tc, "error", message=o.message, type="ERROR").text = _detail(o)
+            elif o.outcome in (XFAIL, UNSUPPORTED):
+                ET.SubElement(tc, "skipped", message=o.message, type=o.outcome)
+    for k, v in totals.items():
+        root.set(k, str(v))
+    return ET.ElementTree(root)
+
+
+def _detail(o: Outcome) -> str:
+    return f"metric {o.metric}: value {_fmt(o.value)}, threshold {o.threshold}\n{o.message}"
+
+
+def write_junit(outcomes: list[Outcome], path: str | Path) -> None:
+    tree = junit_xml(outcomes)
+    ET.indent(tree)
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp")
+    tree.write(tmp, encoding="utf-8", xml_declaration=True)
+    os.replace(tmp, p)
+
+
+def summarize(outcomes: list[Outcome], console=None) -> None:
+    """Print a per engine x scenario count table and every FAIL/XPASS/ERROR."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = console or Console()
+    engines = sorted({o.engine for o in outcomes})
+    scenarios = sorted({o.scenario for o in outcomes})
+    table = Table(title="conformance: checks per engine (pass/fail/xfail/xpass/unsupported/error)")
+    table.add_column("scenario")
+    for e in engines:
+        table.add_column(e, justify="center")
+    cells: dict[tuple[str, str], dict[str, int]] = {}
+    for o in outcomes:
+        cells.setdefault((o.scenario, o.engine), {k: 0 for k in OUTCOMES})[o.outcome] += 1
+    for s in scenarios:
+        row = [escape(s)]
+        for e in engines:
+            c = cells.get((s, e))
+            row.append(_cell(c) if c else "-")
+        table.add_row(*row)
+    tot = {k: sum(o.outcome == k for o in outcomes) for k in OUTCOMES}
+    console.print(table)
+    console.print("totals: " + ", ".join(f"{k} {v}" for k, v in tot.items()))
+    bad = [o for o in outcomes if o.outcome in BAD]
+    if bad:
+        t2 = Table(title="failures")
+        for col in ("engine", "testcase", "outcome", "value", "threshold", "message"):
+            t2.add_column(col, overflow="fold")
+        for o in bad:
+            t2.add_row(*(escape(x) for x in (o.engine, o.name, o.outcome, _fmt(o.value), o.threshold, o.message)))
+        console.print(t2)
+
+
+def _cell(c: dict[str, int]) -> str:
+    parts = []
+    style = {PASS: "green", FAIL: "red", XFAIL: "yellow", XPASS: "magenta", UNSUPPORTED: "dim", ERROR: "red"}
+    for k in OUTCOMES:
+        if c[k]:
+            parts.append(f"[{style[k]}]{c[k]} {k.lower()}[/]")
+    return " ".join(parts)
+
+
+def exit_code(outcomes: list[Outcome]) -> int:
+    return 1 if any(o.outcome in BAD for o in outcomes) else 0
+
+
+# ---------------------------------------------------------------------------
+# entry point
+
+
+def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
+               scenarios: list[str] | None, jobs: int = 1) -> int:
+    """Run the conformance suite; print a summary; write JUnit XML to
+    ``junit`` if given.  Returns 1 on any FAIL, ERROR or XPASS, else 0."""
+    from rich.console import Console
+
+    t0 = time.perf_counter()
+    engines = list(engines) if engines else default_engines()
+    ids = select_scenarios(scenarios, tags)
+    err = Console(stderr=True)
+    if not ids:
+        err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
+        return 1
+    runs, load_errors = plan(ids, engines)
+    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs")
+    results = run_all(runs, jobs=max(1, int(jobs or 1)), progress=True)
+    outcomes = load_errors + evaluate_runs(runs, results)
+    summarize(outcomes)
+    if junit:
+        write_junit(outcomes, junit)
+        err.print(f"JUnit XML written to {junit}")
+    err.print(f"done in {time.perf_counter() - t0:.1f} s")
+    return exit_code(outcomes)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(check_main(None, None, None, sys.argv[1:] or None))

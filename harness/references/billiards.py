@@ -1,0 +1,328 @@
+"""Billiard-type collision references beyond the two-body law.
+
+- ``oblique_collision``: :class:`harness.references.collision.TwoBodyCollision`
+  plus ``separation_angle_error``: the angle between the two outgoing velocity
+  vectors against the law's (90 degrees for equal masses and e = 1), in
+  degrees.
+- ``newtons_cradle``: a row of equal spheres along a line, one ball striking
+  the row; the independent-collision (sequential) solution.
+- ``momentum_energy``: conservation laws for many-body breaks (rack of 15 + cue).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from adapters.conventions import world_to_body_angvel
+from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references.collision import TwoBodyCollision
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0 or nb == 0:
+        return math.nan
+    c = float(np.clip(a @ b / (na * nb), -1.0, 1.0))
+    return math.degrees(math.acos(c))
+
+
+class ObliqueCollision(TwoBodyCollision):
+    """Two-body collision with the angle between the outgoing velocities.
+
+    ``separation_angle_error`` = |angle(v1(T), v2(T)) - angle(v1', v2')| in
+    degrees, with v' from Newton's law (equal masses, e = 1: 90 degrees).  NaN
+    if either reference outgoing velocity is zero (the angle is undefined).
+    """
+
+    name = "oblique_collision"
+
+    def metrics(self, trace) -> dict[str, float]:
+        out = super().metrics(trace)
+        if self.t_impact is None or trace.t[-1] <= self.t_impact:
+            return out
+        i, j = self.idx
+        ref = _angle_deg(self.v1_post, self.v2_post)
+        meas = _angle_deg(trace.vel[-1, i], trace.vel[-1, j])
+        out["separation_angle"] = meas
+        out["separation_angle_error"] = abs(meas - ref) if math.isfinite(ref) else math.nan
+        return out
+
+
+def sequential_row_collisions(m: np.ndarray, u: np.ndarray, e: float, max_sweeps: int = 100000) -> np.ndarray:
+    """Final velocities of a row of touching bodies on a line under the
+    independent-collision model: binary collisions by Newton's law, resolved
+    pair by pair (sweeping from the struck end) until no touching pair
+    approaches.  m (n,) masses, u (n,) velocities along the row (the row is
+    ordered so that body i+1 is ahead of body i).  Returns (n,) velocities.
+
+    For e = 1 and equal masses a single striking ball hands its whole velocity
+    down the row: the last ball leaves with it, the others stop.
+    """
+    v = np.array(u, float)
+    m = np.asarray(m, float)
+    n = len(v)
+    for _ in range(max_sweeps):
+        moved = False
+        for i in range(n - 1):
+            if v[i] > v[i + 1] + 1e-15 * (abs(v[i]) + abs(v[i + 1])):
+                m1, m2 = m[i], m[i + 1]
+                a, b = v[i], v[i + 1]
+                v[i] = ((m1 - e * m2) * a + (1 + e) * m2 * b) / (m1 + m2)
+                v[i + 1] = ((m2 - e * m1) * b + (1 + e) * m1 * a) / (m1 + m2)
+                moved = True
+        if not moved:
+            return v
+    raise RuntimeError("sequential_row_collisions did not converge")
+
+
+class NewtonsCradle(ReferenceModel):
+    """A row of spheres on one line (the line through the first and last
+    centres), one or more of them moving along it; no gravity along the line.
+
+    Collisions are resolved by the independent-collision model (see
+    :func:`sequential_row_collisions`): the classical idealisation of a cradle
+    of hard steel balls, exact when the balls are separated by small gaps and
+    the accepted ideal when they touch.  Metric ``cradle_velocity_error`` =
+    max over balls of |v_i(T) - v_i'| / max |v(0)| at the last frame (after
+    the collisions); ``trajectory_rmse`` is not defined (the moment each ball
+    leaves depends on the contact model) and not reported.
+    """
+
+    name = "newtons_cradle"
+    params_allowed = ()
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        if scene.n_bodies < 2:
+            raise ReferenceError("newtons_cradle needs at least 2 bodies")
+        if any(b.shape != "sphere" for b in scene.bodies):
+            raise ReferenceError("newtons_cradle needs spheres")
+        x0, _, v0, _ = scene.initial_state()
+        axis = x0[-1] - x0[0]
+        axis /= np.linalg.norm(axis)
+        s = x0 @ axis
+        order = np.argsort(s)
+        perp = (x0 - x0[0]) - np.outer((x0 - x0[0]) @ axis, axis)
+        if np.max(np.linalg.norm(perp, axis=1)) > 1e-9:
+            raise ReferenceError("newtons_cradle needs the ball centres on one line")
+        if np.max(np.linalg.norm(v0 - np.outer(v0 @ axis, axis), axis=1)) > 1e-12:
+            raise ReferenceError("newtons_cradle needs initial velocities along the row")
+        if abs(scene.gravity @ axis) > 0:
+            raise ReferenceError("newtons_cradle needs no gravity along the row")
+        mats = {b.material for b in scene.bodies}
+        es = {scene.pair(a, b).restitution for a in mats for b in mats}
+        if len(es) != 1:
+            raise ReferenceError("newtons_cradle needs one restitution for every ball pair")
+        self.e = es.pop()
+        self.axis = axis
+        m = scene.masses[order]
+        u = (v0 @ axis)[order]
+        vf = sequential_row_collisions(m, u, self.e)
+        self.v_final = np.empty(scene.n_bodies)
+        self.v_final[order] = vf
+        self.v_scale = float(np.max(np.abs(u)))
+        if self.v_scale == 0:
+            raise ReferenceError("newtons_cradle needs a moving ball")
+
+    def metrics(self, trace) -> dict[str, float]:
+        v_end = trace.vel[-1]  # (n, 3)
+        ref = np.outer(self.v_final, self.axis)
+        err = np.linalg.norm(v_end - ref, axis=1)
+        return {"cradle_velocity_error": float(np.max(err) / self.v_scale)}
+
+
+class MomentumEnergy(ReferenceModel):
+    """Conservation laws for a many-body collision (a break).
+
+    With only frictionless contacts (and gravity normal to a frictionless
+    table), the momentum components normal to gravity are conserved exactly,
+    whatever the restitution; the mechanical energy (kinetic, rotational and
+    gravitational) is conserved for e = 1.  The metrics compare the last frame
+    with the first, after all collisions:
+
+    - ``momentum_error`` = |P_h(T) - P_h(0)| / |P_h(0)|, P_h = total momentum
+      with its component along gravity removed (all of it without gravity);
+    - ``energy_error`` = |E(T) - E(0)| / KE(0): meaningful as a conservation
+      check only for e = 1 (for e < 1 it is the energy lost, reported as
+      ``energy_loss`` = (E(0) - E(T)) / KE(0) too).
+    """
+
+    name = "momentum_energy"
+    params_allowed = ()
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        if scene.has("friction"):
+            raise ReferenceError("momentum_energy needs frictionless contacts (no 'friction' effect)")
+        if scene.has("drag_linear") or scene.has("drag_quadratic") or scene.springs:
+            raise ReferenceError("momentum_energy needs no drag and no springs")
+        g = scene.gravity
+        gn = float(np.linalg.norm(g))
+        self.up = -g / gn if gn > 0 else None
+        self.g = gn
+        x0, q0, v0, w0 = scene.initial_state()
+        self.P0 = self._horizontal(scene.masses @ v0)
+        if np.linalg.norm(self.P0) == 0:
+            raise ReferenceError("momentum_energy needs a non-zero initial momentum (normal to gravity)")
+        for s in scene.statics:
+            if s.shape != "plane" or self.up is None or abs(abs(s.normal @ self.up) - 1) > 1e-12:
+                raise ReferenceError("momentum_energy allows only a horizontal table plane as static geometry")
+
+    def _horizontal(self, P: np.ndarray) -> np.ndarray:
+        if self.up is None:
+            return P
+        return P - np.multiply.outer(P @ self.up, self.up)
+
+    def _energy(self, pos, quat, vel, angvel) -> float:
+        sc = self.scene
+        m = sc.masses
+        ke = 0.5 * float(m @ np.einsum("ij,ij->i", vel, vel))
+        wb = world_to_body_angvel(quat, angvel)
+        ke += 0.5 * float(np.sum(sc.inertias * wb * wb))
+        pe = self.g * float(m @ (pos @ self.up)) if self.up is not None else 0.0
+        return ke + pe, ke
+
+    def metrics(self, trace) -> dict[str, float]:
+        P = self._horizontal(self.scene.masses @ trace.vel[-1])
+        E0, K0 = self._energy(trace.pos[0], trace.quat[0], trace.vel[0], trace.angvel[0])
+        E1, _ = self._energy(trace.pos[-1], trace.quat[-1], trace.vel[-1], trace.angvel[-1])
+        return {
+            "momentum_error": float(np.linalg.norm(P - self.P0) / np.linalg.norm(self.P0)),
+            "energy_error": abs(E1 - E0) / K0,
+            "energy_loss": (E0 - E1) / K0,
+        }
+
+
+class BounceHeights(ReferenceModel):
+    """A sphere dropped on a horizontal plane bounces to apex heights
+    h_n = e^(2n) h_0 (Newton's law of restitution, e = the sphere-plane pair's
+    restitution; heights of the sphere's bottom above the plane, no spin, no
+    air).  With impact speed v1 = sqrt(v0z^2 + 2 g h_s) (h_s the starting
+    height, v0z the upward starting velocity), h_0 = v1^2 / (2 g), and the
+    ball is at rest after t_inf = t_1 + 2 e v1 / (g (1 - e)).
+
+    Metrics:
+
+    - ``bounce_ratio_error``: the measured restitution of each bounce,
+      e_n = sqrt(A_n / A_{n-1}) from the measured apex heights A (A_0 = h_0),
+      against e: max over the first ``bounces`` (params, default 3) bounces
+      whose reference apex is above 1 % of h_0 and inside the run of
+      |e_n - e| (absolute; a missing bounce counts as e_n = 0).  For e = 0 the
+      first bounce is checked (any apex above 1 % of h_0 is an error).
+    - ``trajectory_rmse`` / ``final_position_error`` against the piecewise
+      parabola.
+    """
+
+    name = "bounce_heights"
+    params_allowed = ("bounces",)
+    APEX_FRACTION = 0.01
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        if scene.n_bodies != 1 or scene.bodies[0].shape != "sphere":
+            raise ReferenceError("bounce_heights needs exactly one sphere")
+        planes = [s for s in scene.statics if s.shape == "plane"]
+        if len(planes) != 1:
+            raise ReferenceError("bounce_heights needs exactly one plane")
+        p = planes[0]
+        g = scene.gravity
+        self.g = float(np.linalg.norm(g))
+        if self.g == 0 or abs(p.normal @ (-g / self.g) - 1) > 1e-12:
+            raise ReferenceError("bounce_heights needs gravity normal to the plane")
+        b = scene.bodies[0]
+        self.n = p.normal
+        self.offset = p.offset + b.radius  # centre height at touch-down
+        self.e = scene.pair(b.material, p.material).restitution
+        self.x0 = b.position.copy()
+        hs = float(b.position @ self.n - self.offset)
+        vz = float(b.velocity @ self.n)
+        self.v_tan = b.velocity - vz * self.n
+        if hs < 0:
+            raise ReferenceError("bounce_heights: the sphere starts below the plane")
+        self.v1 = math.sqrt(vz * vz + 2 * self.g * hs)
+        self.h0 = self.v1**2 / (2 * self.g)
+        self.t1 = (vz + self.v1) / self.g
+        self.hs, self.vz = hs, vz
+        self.bounces = int(self.param("bounces", 3))
+
+    def height(self, t: np.ndarray) -> np.ndarray:
+        """Reference height of the bottom above the plane (m) at times t (F,)."""
+        t = np.asarray(t, float)
+        h = np.zeros_like(t)
+        first = t <= self.t1
+        h[first] = self.hs + self.vz * t[first] - 0.5 * self.g * t[first] ** 2
+        if self.e == 0:
+            return h
+        tb = self.t1
+        v = self.e * self.v1
+        rest = ~first
+        while v > 1e-9 * self.v1 and rest.any():
+            T = 2 * v / self.g
+            seg = rest & (t <= tb + T)
+            s = t[seg] - tb
+            h[seg] = v * s - 0.5 * self.g * s * s
+            rest &= ~seg
+            tb += T
+            v *= self.e
+        return h
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, float)
+        base = self.x0 - (self.x0 @ self.n - self.offset) * self.n  # touch-down point below the start
+        p = base + np.outer(t, self.v_tan) + np.outer(self.height(t), self.n)
+        return p[:, None, :]
+
+    def reference_apexes(self, duration: float) -> list[float]:
+        """Reference apex heights A_1..A_k above 1 % of h_0 reached within duration."""
+        out = []
+        tb, v = self.t1, self.e * self.v1
+        for _ in range(self.bounces):
+            if self.e == 0:
+                break
+            t_apex = tb + v / self.g
+            A = v * v / (2 * self.g)
+            if A < self.APEX_FRACTION * self.h0 or t_apex > duration:
+                break
+            out.append(A)
+            tb += 2 * v / self.g
+            v *= self.e
+        return out
+
+    def measured_apexes(self, trace) -> list[float]:
+        """Apex heights after each bounce: the highest point between an
+        upward crossing of the normal velocity (a bounce) and the next
+        downward crossing; apexes below 1 % of h_0 are ignored."""
+        h = trace.pos[:, 0] @ self.n - self.offset
+        vz = trace.vel[:, 0] @ self.n
+        out = []
+        k = 1
+        F = len(h)
+        bounced = False
+        start = 0
+        while k < F:
+            if not bounced and vz[k - 1] <= 0 < vz[k] and k > 1:
+                bounced, start = True, k
+            elif bounced and vz[k - 1] > 0 >= vz[k]:
+                A = float(np.max(h[start:k + 1]))
+                if A >= self.APEX_FRACTION * self.h0:
+                    out.append(A)
+                bounced = False
+            k += 1
+        return out
+
+    def metrics(self, trace) -> dict[str, float]:
+        out = trajectory_metrics(trace.pos, self.positions(trace.t))
+        ref = self.reference_apexes(float(trace.t[-1]))
+        meas = self.measured_apexes(trace)
+        n_check = max(len(ref), 1)
+        A = [self.h0] + meas
+        errs = []
+        for k in range(1, n_check + 1):
+            e_k = math.sqrt(max(A[k], 0.0) / A[k - 1]) if k < len(A) and A[k - 1] > 0 else 0.0
+            errs.append(abs(e_k - self.e))
+        out["bounce_ratio_error"] = float(max(errs))
+        if meas:
+            out["first_bounce_ratio"] = math.sqrt(meas[0] / self.h0)
+        return out

@@ -1,0 +1,147 @@
+"""No tunnelling: bodies must not pass through thin static geometry.
+
+Definition of ``tunnelled``.  Every (body, static) pair is watched:
+
+- a static **box** is a slab; its mid-plane is the plane through the box's
+  centre normal to its thinnest axis.  The body's side is the sign of its
+  centre's signed distance to that mid-plane.  The body has tunnelled if, at
+  any recorded frame, its centre is on the other side from where it started
+  while its projection onto the mid-plane lies within the box's face (the
+  face's half-sizes plus the body's bounding radius).  A centre that reaches
+  the other side around the edge of the slab does not count.
+- a static **plane** is solid below, so the body has tunnelled if its centre
+  ever goes below the surface (n . x < offset) having started above it.
+
+A rigid body that cannot interpenetrate can never do either: its centre would
+have to pass through the solid.  ``tunnelled`` is 1.0 if any pair tunnelled,
+else 0.0; ``tunnelled_bodies`` counts the bodies that did.
+
+``reflected_velocity_error`` (bullets).  Without gravity, a sphere whose
+straight path meets a static box's face bounces by Newton's law of
+restitution on a frictionless wall with normal n:
+
+    v' = v - (1 + e) (v . n) n
+
+(tangential part unchanged; e = the pair's restitution).  The metric is
+max over such spheres of |v(T) - v'| / |v . n| at the last frame: 0.01 means
+the outgoing velocity is off by 1 % of the normal approach speed.  A sphere
+that tunnelled keeps v, an error of (1 + e).  Reported only when the scene has
+no gravity and at least one sphere's path meets a box within the run.
+
+params: ``statics`` (list of static names to watch; default all).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from adapters.conventions import quat_to_matrix
+from harness.references import ReferenceError, ReferenceModel
+
+
+class NoTunnelling(ReferenceModel):
+    name = "no_tunnelling"
+    params_allowed = ("statics",)
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        names = self.param("statics")
+        if names is None:
+            statics = list(scene.statics)
+        else:
+            by_name = {s.name: s for s in scene.statics}
+            missing = [n for n in names if n not in by_name]
+            if missing:
+                raise ReferenceError(f"no_tunnelling: params.statics names unknown statics {missing}; "
+                                     f"the scene has {sorted(by_name)}")
+            statics = [by_name[n] for n in names]
+        if not statics:
+            raise ReferenceError("no_tunnelling needs at least one static to watch")
+        if scene.n_bodies == 0:
+            raise ReferenceError("no_tunnelling needs at least one body")
+        self.statics = statics
+        # per static: (centre c (3,), mid-plane normal n (3,), in-plane axes (2, 3), half-sizes (2,)) for
+        # boxes; planes use (point on plane, normal, None, None).
+        self.slabs = []
+        for s in statics:
+            if s.shape == "box":
+                R = quat_to_matrix(s.orientation)
+                k = int(np.argmin(s.half_extents))
+                others = [i for i in range(3) if i != k]
+                self.slabs.append(("box", s.position.copy(), R[:, k].copy(), R[:, others].T.copy(),
+                                   s.half_extents[others].copy(), float(s.half_extents[k])))
+            else:
+                self.slabs.append(("plane", s.normal * s.offset, s.normal.copy(), None, None, 0.0))
+        self.e_by_body = [
+            {s.index: scene.pair(b.material, s.material).restitution for s in statics} for b in scene.bodies
+        ]
+        self._bullets = self._predict_bullets()
+
+    # ---- bullets -----------------------------------------------------------
+    def _predict_bullets(self):
+        """For each sphere, if (without gravity) its straight path hits a box's
+        face within the run: (body index, reference final velocity, |v.n|)."""
+        sc = self.scene
+        if np.any(sc.gravity != 0) or not sc.has("contact"):
+            return []
+        out = []
+        for b in sc.bodies:
+            if b.shape != "sphere":
+                continue
+            v = b.velocity
+            if not np.any(v):
+                continue
+            best = None
+            for s, (kind, c, n, axes, half, thick) in zip(self.statics, self.slabs):
+                if kind != "box":
+                    continue
+                d0 = float((b.position - c) @ n)
+                vn = float(v @ n)
+                if d0 == 0 or vn == 0 or np.sign(vn) == np.sign(d0):
+                    continue  # moving away or parallel
+                # time when the sphere's surface reaches the face (|d| = thick + r)
+                gap = abs(d0) - thick - b.radius
+                t_hit = max(gap, 0.0) / abs(vn)
+                if t_hit > sc.duration:
+                    continue
+                p = b.position + v * t_hit - c
+                if np.any(np.abs(axes @ p) > half):
+                    continue  # misses the face
+                if best is None or t_hit < best[0]:
+                    best = (t_hit, n, vn, self.e_by_body[b.index][s.index])
+            if best is not None:
+                _, n, vn, e = best
+                out.append((b.index, v - (1.0 + e) * vn * n, abs(vn)))
+        return out
+
+    # ---- metrics -------------------------------------------------------------
+    def side_flips(self, trace) -> np.ndarray:
+        """(n_bodies,) bool: which bodies tunnelled through a watched static."""
+        pos = trace.pos  # (F, n, 3)
+        flipped = np.zeros(pos.shape[1], dtype=bool)
+        for (kind, c, n, axes, half, _thick) in self.slabs:
+            rel = pos - c  # (F, n, 3)
+            d = rel @ n  # (F, n)
+            s0 = np.sign(d[0])
+            if kind == "plane":
+                bad = (s0[None, :] > 0) & (d < 0)
+            else:
+                lateral = np.abs(rel @ axes.T)  # (F, n, 2)
+                radius = np.array([b.bounding_radius for b in self.scene.bodies])
+                inside = np.all(lateral <= half[None, None, :] + radius[None, :, None], axis=-1)
+                bad = (s0[None, :] != 0) & (np.sign(d) == -s0[None, :]) & inside
+            with np.errstate(invalid="ignore"):
+                flipped |= np.any(bad, axis=0)
+        return flipped
+
+    def metrics(self, trace) -> dict[str, float]:
+        flipped = self.side_flips(trace)
+        out = {"tunnelled": 1.0 if flipped.any() else 0.0, "tunnelled_bodies": float(flipped.sum())}
+        if self._bullets:
+            errs = []
+            for i, v_ref, vn in self._bullets:
+                errs.append(float(np.linalg.norm(trace.vel[-1, i] - v_ref)) / vn)
+            out["reflected_velocity_error"] = max(errs) if all(map(math.isfinite, errs)) else math.nan
+        return out

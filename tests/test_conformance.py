@@ -1,0 +1,262 @@
+"""Conformance evaluation logic on synthetic run results, and the JUnit XML."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from harness import conformance as C
+from harness.runner import RunResult
+from harness.scene import Check, load_scene
+
+
+def result(metrics=None, status="ok", message="", engine="mujoco", scenario="fam.scn", variant=None):
+    return RunResult(scenario=scenario, variant=variant, engine=engine, engine_version="1", status=status,
+                     message=message, settings={}, metrics=dict(metrics or {}))
+
+
+# ---------------------------------------------------------------------------
+# single checks
+
+
+def test_max_min_equals():
+    r = result({"err": 0.01, "flag": True, "count": 3.0})
+    assert C.evaluate_check(Check("err", max=0.02), r).outcome == C.PASS
+    assert C.evaluate_check(Check("err", max=0.005), r).outcome == C.FAIL
+    assert C.evaluate_check(Check("err", min=0.02), r).outcome == C.FAIL
+    assert C.evaluate_check(Check("err", min=0.0, max=0.02), r).outcome == C.PASS
+    assert C.evaluate_check(Check("flag", equals=True), r).outcome == C.PASS
+    assert C.evaluate_check(Check("flag", equals=False), r).outcome == C.FAIL
+    assert C.evaluate_check(Check("count", equals=3.0), r).outcome == C.PASS
+    assert C.evaluate_check(Check("count", equals=3.1, tolerance=0.2), r).outcome == C.PASS
+    assert C.evaluate_check(Check("count", equals=3.5, tolerance=0.2), r).outcome == C.FAIL
+    # the boundary itself passes
+    assert C.evaluate_check(Check("err", max=0.01), r).outcome == C.PASS
+
+
+def test_bool_check_accepts_numpy_bool_and_0_1():
+    import numpy as np
+
+    assert C.evaluate_check(Check("stable", equals=True), result({"stable": np.bool_(True)})).outcome == C.PASS
+    assert C.evaluate_check(Check("stable", equals=True), result({"stable": 1.0})).outcome == C.PASS
+    assert C.evaluate_check(Check("stable", equals=True), result({"stable": 0.5})).outcome == C.FAIL
+
+
+def test_fail_message_names_value_and_threshold():
+    o = C.evaluate_check(Check("err", max=0.005), result({"err": 0.01}))
+    assert o.outcome == C.FAIL
+    assert "err = 0.01" in o.message and "<= 0.005" in o.message
+    assert o.value == 0.01 and o.threshold == "<= 0.005"
+
+
+def test_nan_or_missing_metric_fails():
+    for metrics in ({"err": math.nan}, {}, {"err": None}):
+        o = C.evaluate_check(Check("err", max=1.0), result(metrics))
+        assert o.outcome == C.FAIL
+        assert o.message.startswith("metric not computed")
+
+
+def test_nan_metric_on_unsupported_engine_is_unsupported():
+    o = C.evaluate_check(Check("err", max=1.0), result({"err": math.nan}, status="unsupported",
+                                                        message="2D engine"))
+    assert o.outcome == C.UNSUPPORTED
+    assert "2D engine" in o.message
+
+
+def test_xfail_and_xpass():
+    c = Check("err", max=0.01, xfail={"mujoco": "soft contacts: measured 0.05"})
+    o = C.evaluate_check(c, result({"err": 0.05}))
+    assert o.outcome == C.XFAIL
+    assert o.message.startswith("xfail: soft contacts: measured 0.05")
+    o = C.evaluate_check(c, result({"err": 0.001}))
+    assert o.outcome == C.XPASS
+    assert o.message.startswith("unexpected pass")
+    # other engines are not affected by mujoco's xfail
+    assert C.evaluate_check(c, result({"err": 0.05}, engine="pybullet")).outcome == C.FAIL
+    # a missing metric on an xfailed engine is an expected failure too
+    assert C.evaluate_check(c, result({})).outcome == C.XFAIL
+
+
+@pytest.mark.parametrize("status", ["error", "failed", "diverged", "timeout"])
+def test_error_statuses(status):
+    o = C.evaluate_check(Check("err", max=1.0), result({"err": 0.0}, status=status, message="boom"))
+    assert o.outcome == C.ERROR
+    assert status in o.message and "boom" in o.message
+    c = Check("err", max=1.0, xfail={"mujoco": "known blow-up"})
+    assert C.evaluate_check(c, result({}, status=status)).outcome == C.XFAIL
+
+
+def test_unsupported():
+    o = C.evaluate_check(Check("err", max=1.0), result({}, status="unsupported", message="no cylinders"))
+    assert o.outcome == C.UNSUPPORTED
+
+
+# ---------------------------------------------------------------------------
+# applicability, @-suffixed checks, hard cases
+
+
+def test_check_applies():
+    c = Check("err", max=1.0, engines=("mujoco",))
+    assert C.check_applies(c, "mujoco", None)
+    assert not C.check_applies(c, "pymunk", None)
+    c = Check("err", max=1.0, variants=("v1",))
+    assert C.check_applies(c, "mujoco", "v1")
+    assert not C.check_applies(c, "mujoco", None)
+    assert not C.check_applies(c, "mujoco", "v2")
+    c = Check("err", max=1.0, variants=("base", "v2"))
+    assert C.check_applies(c, "mujoco", None)
+    assert C.check_applies(c, "mujoco", "v2")
+    assert C.check_applies(Check("err", max=1.0), "x", "anything")
+
+
+def test_split_metric():
+    assert C.split_metric("stable") == ("stable", {})
+    name, st = C.split_metric("stable@dt=1/30")
+    assert name == "stable" and st == {"dt": pytest.approx(1 / 30)}
+    assert C.split_metric("err@iterations=20")[1] == {"iterations": 20}
+
+
+def test_hard_scenarios_get_stability_checks():
+    sc = load_scene("stacking.pyramid")
+    assert "hard" in sc.tags
+    metrics = [c.metric for c in C.hard_checks(sc)]
+    assert metrics == ["stable", "stable@dt=1/30"]
+    # variants of a hard scenario do not repeat them
+    assert C.hard_checks(load_scene("stacking.pyramid", "levels_7")) == []
+    # a non-hard scenario has none
+    assert C.hard_checks(load_scene("stacking.column_5")) == []
+
+
+def test_evaluate_uses_the_dt_run_for_suffixed_checks():
+    sc = load_scene("stacking.pyramid")
+    base = result({"stack_drift": 0.0, "residual_velocity": 0.0, "max_penetration": 0.0, "stable": True},
+                  engine="pymunk", scenario=sc.id)
+    coarse = result({"stable": False, "stability_reason": "energy gain 3 > 0.5"}, engine="pymunk",
+                    scenario=sc.id)
+    outs = {o.metric: o for o in C.evaluate(sc, base, {"dt=1/30": coarse})}
+    assert outs["stable"].outcome == C.PASS
+    assert outs["stable@dt=1/30"].outcome == C.FAIL
+    assert "energy gain" in outs["stable@dt=1/30"].message
+    assert outs["stable@dt=1/30"].name == "stacking.pyramid::stable@dt=1/30"
+    # without the coarse run the suffixed check is an error, not a pass
+    outs = {o.metric: o for o in C.evaluate(sc, base)}
+    assert outs["stable@dt=1/30"].outcome == C.ERROR
+
+
+def test_plan_runs_only_variants_with_checks_and_adds_dt_runs():
+    runs, errors = C.plan(["friction.critical_angle", "stacking.pyramid"], ["mujoco", "pymunk"])
+    assert not errors
+    keys = {(r.scenario, r.variant, r.engine, tuple(r.settings)) for r in runs}
+    # critical_angle: checks only on its two variants, none on the marginal base
+    assert ("friction.critical_angle", None, "mujoco", ()) not in keys
+    assert ("friction.critical_angle", "minus_1deg", "mujoco", ()) in keys
+    assert ("friction.critical_angle", "plus_1deg", "pymunk", ()) in keys
+    # pyramid is hard: a dt = 1/30 run per engine for the base scene only
+    dt_runs = [r for r in runs if r.settings]
+    assert {(r.scenario, r.variant, r.engine) for r in dt_runs} == {
+        ("stacking.pyramid", None, "mujoco"), ("stacking.pyramid", None, "pymunk")}
+    assert all(r.settings["dt"] == pytest.approx(1 / 30) for r in dt_runs)
+
+
+def test_select_scenarios_by_tag():
+    hard = C.select_scenarios(None, ["hard"])
+    assert "stacking.pyramid" in hard and "stacking.column_5" not in hard
+    assert C.select_scenarios(["billiards.head_on"], None) == ["billiards.head_on"]
+
+
+# ---------------------------------------------------------------------------
+# JUnit XML
+
+
+def _outcomes():
+    O = C.Outcome
+    return [
+        O("mujoco", "a.b", None, "err", C.PASS, 0.1, "<= 1", "ok"),
+        O("mujoco", "a.b", "v1", "err", C.FAIL, 2.0, "<= 1", "err = 2, expected <= 1"),
+        O("mujoco", "a.b", None, "stable@dt=1/30", C.XFAIL, False, "== True", "xfail: blows up"),
+        O("pymunk", "a.b", None, "err", C.UNSUPPORTED, None, "<= 1", "unsupported: 2D"),
+        O("pymunk", "a.c", None, "err", C.XPASS, 0.1, "<= 1", "unexpected pass: err = 0.1"),
+        O("pymunk", "a.c", None, "other", C.ERROR, None, "<= 1", "diverged: non-finite pos"),
+    ]
+
+
+def test_junit_xml_parses_and_counts_match(tmp_path):
+    path = tmp_path / "out" / "junit.xml"
+    C.write_junit(_outcomes(), path)
+    root = ET.parse(path).getroot()
+    assert root.tag == "testsuites"
+    suites = {s.get("name"): s for s in root.findall("testsuite")}
+    assert set(suites) == {"mujoco", "pymunk"}
+    for s in suites.values():
+        cases = s.findall("testcase")
+        assert int(s.get("tests")) == len(cases)
+        assert int(s.get("failures")) == sum(c.find("failure") is not None for c in cases)
+        assert int(s.get("errors")) == sum(c.find("error") is not None for c in cases)
+        assert int(s.get("skipped")) == sum(c.find("skipped") is not None for c in cases)
+    mj = {c.get("name"): c for c in suites["mujoco"].findall("testcase")}
+    assert set(mj) == {"a.b::err", "a.b[v1]::err", "a.b::stable@dt=1/30"}
+    assert mj["a.b[v1]::err"].find("failure") is not None
+    assert mj["a.b::stable@dt=1/30"].find("skipped").get("message").startswith("xfail: ")
+    pm = {c.get("name"): c for c in suites["pymunk"].findall("testcase")}
+    assert pm["a.c::err"].find("failure").get("message").startswith("unexpected pass")
+    assert pm["a.c::other"].find("error") is not None
+    assert pm["a.b::err"].find("skipped") is not None
+    assert root.get("tests") == "6" and root.get("failures") == "2" and root.get("errors") == "1"
+    assert root.get("skipped") == "2"
+
+
+def test_exit_code():
+    outs = _outcomes()
+    assert C.exit_code(outs) == 1
+    ok = [o for o in outs if o.outcome in (C.PASS, C.XFAIL, C.UNSUPPORTED)]
+    assert C.exit_code(ok) == 0
+    for bad in (C.FAIL, C.XPASS, C.ERROR):
+        assert C.exit_code(ok + [C.Outcome("e", "s", None, "m", bad)]) == 1
+
+
+def test_summary_lists_failures():
+    from io import StringIO
+
+    from rich.console import Console
+
+    buf = StringIO()
+    C.summarize(_outcomes(), Console(file=buf, width=200))
+    text = buf.getvalue()
+    assert "a.b[v1]::err" in text and "unexpected pass" in text
+    assert "a.c::other" in text and "diverged" in text
+    assert "FAIL 1" in text and "XPASS 1" in text
+
+
+# ---------------------------------------------------------------------------
+# check_main end to end (synthetic engine runs)
+
+
+def test_check_main_with_synthetic_runs(tmp_path, monkeypatch):
+    def fake_execute(spec):
+        # head_on: every check passes on 'good'; 'bad' misses the velocity check
+        m = {"post_impact_velocity_error": 0.001 if spec.engine == "good" else 0.5,
+             "linear_momentum_drift": 0.0, "max_penetration": 0.0, "stable": True}
+        return result(m, engine=spec.engine, scenario=spec.scenario, variant=spec.variant)
+
+    monkeypatch.setattr(C, "execute", fake_execute)
+    junit = tmp_path / "j.xml"
+    assert C.check_main(["good"], None, str(junit), ["billiards.head_on"]) == 0
+    root = ET.parse(junit).getroot()
+    n_variants = 1 + len(load_scene("billiards.head_on").variant_names)
+    assert int(root.get("tests")) == 3 * n_variants
+    assert C.check_main(["good", "bad"], None, str(junit), ["billiards.head_on"]) == 1
+    root = ET.parse(junit).getroot()
+    assert int(root.get("failures")) == n_variants
+
+
+def test_unknown_or_broken_engine_does_not_crash(tmp_path):
+    # the engine cannot even be loaded: every run is recorded as failed -> ERROR
+    junit = tmp_path / "j.xml"
+    code = C.check_main(["no_such_engine"], None, str(junit), ["billiards.head_on"])
+    assert code == 1
+    root = ET.parse(junit).getroot()
+    assert int(root.get("errors")) == int(root.get("tests")) > 0
+    res = C.execute(C.RunSpec("billiards.head_on", None, "no_such_engine"))
+    assert res.status == "failed" and "no_such_engine" in res.message
