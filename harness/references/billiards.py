@@ -218,6 +218,7 @@ class BounceHeights(ReferenceModel):
     name = "bounce_heights"
     params_allowed = ("bounces",)
     APEX_FRACTION = 0.01
+    JITTER_FRACTION = 0.001
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -293,7 +294,10 @@ class BounceHeights(ReferenceModel):
     def measured_apexes(self, trace) -> list[float]:
         """Apex heights after each bounce: the highest point between an
         upward crossing of the normal velocity (a bounce) and the next
-        downward crossing; apexes below 1 % of h_0 are ignored."""
+        downward crossing.  Apexes below 0.1 % of h_0 are contact jitter,
+        not bounces, and are ignored; a low real bounce (below the 1 % that
+        decides which *reference* bounces are checked) still counts, so a
+        weak bounce is measured as weak rather than as missing."""
         h = trace.pos[:, 0] @ self.n - self.offset
         vz = trace.vel[:, 0] @ self.n
         out = []
@@ -306,7 +310,7 @@ class BounceHeights(ReferenceModel):
                 bounced, start = True, k
             elif bounced and vz[k - 1] > 0 >= vz[k]:
                 A = float(np.max(h[start:k + 1]))
-                if A >= self.APEX_FRACTION * self.h0:
+                if A >= self.JITTER_FRACTION * self.h0:
                     out.append(A)
                 bounced = False
             k += 1
