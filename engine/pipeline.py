@@ -1,0 +1,124 @@
+"""The step pipeline: assembled once from the scene's effects and settings,
+run every step in the order of the seed notes' loop::
+
+    forces -> integrate velocities -> collide (broad, narrow) -> solve
+           -> integrate positions [-> time of impact]
+
+Only what the scene calls for is built: no broad/narrow phase, solver or CCD
+without 'contact'; no friction rows without 'friction' (the solver's
+``friction`` flag); no gyroscopic stage without 'gyroscopic'; a force stage
+only for an effect that is present (and non-zero somewhere).  Each stage has
+the signature ``stage(model, state, ctx)`` and runs through the profile,
+which counts calls and time per stage (see profile.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.ccd import CCD, Impact, refine_toi
+from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
+from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
+from engine.model import Model
+from engine.narrowphase import NarrowPhase
+from engine.broadphase import BroadPhase
+from engine.penalty import PenaltyContacts
+from engine.profile import Profile, Stage
+from engine.solver import Solve
+from engine.state import Context, State
+
+
+def force_stages(model: Model) -> tuple[Stage, ...]:
+    """The force stages for the scene's smooth effects."""
+    out: list[Stage] = []
+    if model.has("gravity") and np.any(model.gravity != 0.0):
+        out.append(Gravity(model))
+    if model.has("drag_linear") and np.any(model.drag_linear > 0):
+        out.append(LinearDrag(model))
+    if model.has("drag_quadratic") and np.any(model.drag_quadratic > 0):
+        out.append(QuadraticDrag(model))
+    if (model.has("spring") or model.has("damper")) and model.spring_a.size and (
+            np.any(model.spring_k > 0) or np.any(model.spring_c > 0)):
+        out.append(Springs(model))
+    if model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and np.any(~model.isotropic):
+        out.append(GyroscopicTorque(model))
+    return tuple(out)
+
+
+def build_pipeline(model: Model) -> tuple[Stage, ...]:
+    """The ordered stages for ``model`` (see module doc)."""
+    forces = force_stages(model)
+    stages: list[Stage] = list(forces)
+    mode = model.setting("gyroscopic")
+    gyro = model.has("gyroscopic") and np.any(~model.isotropic)
+    if gyro and mode == "implicit":
+        stages.append(ImplicitGyroscopic(model))
+    stages.append(IntegrateVelocities(model, forces))
+    if gyro and mode == "energy_conserving":
+        stages.append(EnergyConservingRotation(model))
+    contact = model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0
+    penalty = model.setting("contact_model") == "penalty"
+    if contact:
+        stages += [BroadPhase(model), NarrowPhase(model)]
+        stages.append(PenaltyContacts(model) if penalty else Solve(model))
+    stages.append(IntegratePositions(model))
+    if contact and not penalty and model.setting("ccd") != "off":
+        stages += [CCD(), Impact(model)]
+    return tuple(stages)
+
+
+def context(model: Model, state: State, profile: Profile) -> Context:
+    """The state's scratch context (created on first use)."""
+    ctx = getattr(state, "_ctx", None)
+    if ctx is None:
+        ctx = Context(model)
+        ctx.profile = profile
+        state._ctx = ctx
+    ctx.profile = profile
+    return ctx
+
+
+def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
+    n = model.n
+    state.x[:] = ctx.x1
+    state.q[:] = ctx.q1
+    state.v[:] = ctx.v[:n]
+    state.w[:] = ctx.w[:n]
+    state.t += h
+
+
+def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile) -> None:
+    """Advance ``state`` by one step dt, as ``substeps`` substeps of
+    h = dt / substeps.  A substep runs the stages in order; when the CCD
+    stage reports an impact inside the substep, the substep is cut at the
+    time of impact (refined on the integrated trajectory), the impact
+    impulse is applied there and the rest of the substep runs the same way.
+    """
+    ctx = context(model, state, profile)
+    split = ctx.info.get("split")
+    if split is None or split[0] is not stages:
+        split = (stages, tuple(s for s in stages if s.family != "impact"),
+                 next((s for s in stages if s.family == "impact"), None))
+        ctx.info["split"] = split
+    _, main, impact = split
+    max_events = int(model.settings["ccd_max_events"])
+    h = model.h
+    for _ in range(model.substeps):
+        remaining = h
+        events = 0
+        while True:
+            ctx.begin(model, state, remaining)
+            ctx.event_mode = "event" if (impact is not None and events < max_events) else "speculative"
+            for s in main:
+                profile.run(s, model, state, ctx)
+            if ctx.event is None:
+                _commit(model, state, ctx, remaining)
+                break
+            tau = refine_toi(model, state, ctx, main, profile)
+            _commit(model, state, ctx, tau)
+            profile.run(impact, model, state, ctx)
+            events += 1
+            remaining -= tau
+            if remaining <= 1e-12 * h:
+                break
+    state.steps += 1

@@ -1,0 +1,61 @@
+"""The stage protocol and the per-stage profile.
+
+Every pipeline stage is a callable with ONE signature,
+``stage(model, state, ctx) -> None``, and a ``name``.  The step loop runs a
+stage through :meth:`Profile.run`, which counts the call and accumulates its
+CPU time (``time.perf_counter``; the stages are single-threaded numpy, so
+wall time of the call is its CPU time).  Stages that call other stages (the
+integrators evaluate the force stages at intermediate states) run them
+through ``ctx.profile`` too, so every evaluation is counted.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+
+class Stage:
+    """Base class of pipeline stages.  ``name`` is what the profile reports;
+    ``family`` is the stage family (forces, integrate, broadphase, narrowphase,
+    solver, ccd, penalty, impact)."""
+
+    name: str = "stage"
+    family: str = ""
+
+    def __call__(self, model, state, ctx) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"<stage {self.name}>"
+
+
+class Profile:
+    """Call counts and accumulated seconds per stage name."""
+
+    def __init__(self) -> None:
+        self.calls: dict[str, int] = {}
+        self.seconds: dict[str, float] = {}
+        self.counters: dict[str, int] = {}
+
+    def register(self, name: str) -> None:
+        self.calls.setdefault(name, 0)
+        self.seconds.setdefault(name, 0.0)
+
+    def run(self, stage: Stage, model, state, ctx) -> None:
+        t0 = time.perf_counter()
+        stage(model, state, ctx)
+        dt = time.perf_counter() - t0
+        name = stage.name
+        self.calls[name] = self.calls.get(name, 0) + 1
+        self.seconds[name] = self.seconds.get(name, 0.0) + dt
+
+    def count(self, key: str, k: int = 1) -> None:
+        self.counters[key] = self.counters.get(key, 0) + k
+
+    def as_dict(self) -> dict[str, Any]:
+        """{stage: {"calls": int, "cpu_s": float}} plus ``counters``."""
+        out: dict[str, Any] = {k: {"calls": self.calls[k], "cpu_s": self.seconds[k]} for k in self.calls}
+        if self.counters:
+            out["counters"] = dict(self.counters)
+        return out

@@ -1,0 +1,728 @@
+"""Contact solver: sequential impulses (projected Gauss-Seidel) with
+accumulated-impulse clamping, warm starting, Coulomb friction (static and
+kinetic) and restitution; position correction by split impulse, Baumgarte
+or none; and the impact solver used at times of impact.
+
+Rows
+----
+Each contact point gives a normal row.  For a contact between bodies a and
+b (b = n, the world, for statics) with normal n from a to b, lever arms
+rA = p - xa, rB = p - xb, the normal relative velocity is
+
+    vn = n.(vb - va) + (rB x n).wb - (rA x n).wa        (> 0: separating)
+
+and an impulse lambda n is applied +lambda n to b and -lambda n to a.  The
+effective mass is 1 / (1/ma + 1/mb + (rA x n).IA^-1 (rA x n) + (rB x n).IB^-1 (rB x n)).
+
+The solver works on the *end-of-step* velocities v1 = v_free + dv (see
+integrate.py for how dv moves positions: the "contact lever" c, 1 for
+semi-implicit Euler, 1/2 for the others, so that x1 = x_free + c h dv).
+A normal row's target (the least allowed vn) is the largest of
+
+* contact: vn1 >= 0 for a touching contact (gap <= TOUCH_TOL); for a
+  separated (speculative) one min(vn_free - (gap + h un) / (c h), 0), where
+  un is the free flight's mean normal velocity: the end pose may just close
+  the gap.  Never a push-out, so resting and slowly approaching contacts
+  neither penetrate nor gain energy;
+* restitution: -e vn0 when the contact is touching and approached at the
+  start of the step faster than ``restitution_threshold`` (vn0 < -thr),
+  with vn0 the approach velocity *before* the step's forces and the solve
+  (this only happens without CCD; with it, impacts are events).
+
+A contact that is not yet touching but that this step's motion would close
+at an approach speed above the threshold is an *impact*: with ``ccd``
+resolving it (mode "events", or "toi" for fast bodies) it is excluded from
+the solve and handed to the CCD stage, which splits the step at the time of
+impact and resolves it there (:func:`impact_solve`).  A pair that pressed on
+the other last step is a persistent contact, never an impact.
+
+Friction acts per contact patch (all points of a pair), see :class:`Rows`.
+A patch that slides at the start of the step (relative tangential speed
+above ``SLIP_TOL``) uses mu_k; a sticking one uses mu_s, and if its friction
+ends on the mu_s limit it cannot stick: it switches to mu_k and the rows are
+solved again (static friction cannot be exceeded; once broken, kinetic
+applies).
+
+Position correction: push-out velocities beta (depth - slop) / h, solved on
+separate pseudo velocities that move positions by h vp.  ``split_impulse``
+discards them after the step (no energy); ``baumgarte`` keeps them in the
+real velocity too (the classic velocity bias, which injects energy).
+
+Gauss-Seidel, vectorised: rows are coloured greedily so that no dynamic body
+appears twice in a colour; a colour's rows are independent, so updating them
+together in numpy gives exactly the sequential result for that ordering.
+Deterministic (fixed order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.mathutil import cross, perpendicular_basis, solve_small
+from engine.profile import Stage
+from engine.state import Contacts
+
+TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
+DIRECT_MAX_ROWS = 400  # rows up to which the solve starts from a direct solution
+RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
+SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides
+
+
+def _pad(a: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n+1, 3) with a zero world row."""
+    out = np.zeros((a.shape[0] + 1, 3))
+    out[:-1] = a
+    return out
+
+
+def point_normal_velocity(V, W, a, b, rA, rB, n):
+    """n . (vb + wb x rB - va - wa x rA) for padded (n+1, 3) V, W."""
+    rel = V[b] + cross(W[b], rB) - V[a] - cross(W[a], rA)
+    return np.einsum("ki,ki->k", rel, n), rel
+
+
+def colour_order(a: np.ndarray, b: np.ndarray, world: int) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy colouring: rows of one colour share no dynamic body.  Returns
+    (order, bounds): the rows sorted by colour (stable) and the colour
+    boundaries, so every colour is a contiguous slice of the sorted rows."""
+    m = a.size
+    col = np.empty(m, np.int64)
+    used: dict[int, int] = {}
+    al = a.tolist()
+    bl = b.tolist()
+    for k in range(m):
+        i, j = al[k], bl[k]
+        mask = used.get(i, 0) | (used.get(j, 0) if j != world else 0)
+        c = ((~mask) & (mask + 1)).bit_length() - 1
+        col[k] = c
+        used[i] = used.get(i, 0) | (1 << c)
+        if j != world:
+            used[j] = used.get(j, 0) | (1 << c)
+    if m == 0:
+        return np.zeros(0, np.int64), np.zeros(1, np.int64)
+    order = np.argsort(col, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(col))])
+    return order, bounds
+
+
+class Rows:
+    """Solver rows for a set of contacts at a pose (see module doc).
+
+    Velocities are handled as one (n+1, 6) array U = [v, w] (world row n
+    zero).  Normal rows, one per contact: Jacobians ``JA``/``JB`` (m, 6) with
+    vn = JA.U[a] + JB.U[b], and ``MA``/``MB`` (m, 6) = M^-1 J^T, so that an
+    impulse d changes U[a] += MA d, U[b] += MB d.  Rows are reordered by
+    colour at construction (``contacts`` holds them in that order, ``order``
+    maps back).
+
+    Friction acts per contact *patch* (all contacts of one pair): two tangent
+    rows at the patch centroid and a twist row about the patch normal,
+    (np, 3, 6) Jacobians ``JtA``/``JtB``, limited by the patch's total normal
+    impulse: |(l1, l2)| <= mu sum(lambda_n), |l_twist| <= mu sum(lambda_n)
+    r_twist, where r_twist is the mean distance of the patch's points from
+    its centroid (0 for a point contact: no torsional friction).  Coulomb's
+    law is a law for the total force on a contact patch, and its limit then
+    depends on the total normal impulse, which Gauss-Seidel gets right long
+    before it settles how that impulse is shared among the points.
+    """
+
+    def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True):
+        n = model.n
+        if colour:
+            order, bounds = colour_order(c.a, c.b, n)
+            c = c.take(order)
+        else:
+            order, bounds = np.arange(c.m), np.array([0, c.m])
+        self.order = order
+        self.contacts = c
+        self.m = m = c.m
+        self.a, self.b = c.a, c.b
+        self.n = c.normal
+        Xp = _pad(X)
+        self.rA = c.point - Xp[c.a]
+        self.rB = c.point - Xp[c.b]
+        self.ima = model.inv_mass[c.a]
+        self.imb = model.inv_mass[c.b]
+        IA, IB = Iinv[c.a], Iinv[c.b]
+        rnA = cross(self.rA, self.n)
+        rnB = cross(self.rB, self.n)
+        self.JA = np.empty((m, 6))
+        self.JB = np.empty((m, 6))
+        self.JA[:, :3] = -self.n
+        self.JA[:, 3:] = -rnA
+        self.JB[:, :3] = self.n
+        self.JB[:, 3:] = rnB
+        self.MA = np.empty((m, 6))
+        self.MB = np.empty((m, 6))
+        self.MA[:, :3] = -self.ima[:, None] * self.n
+        self.MA[:, 3:] = -np.einsum("kij,kj->ki", IA, rnA)
+        self.MB[:, :3] = self.imb[:, None] * self.n
+        self.MB[:, 3:] = np.einsum("kij,kj->ki", IB, rnB)
+        kn = np.einsum("ki,ki->k", self.JA, self.MA) + np.einsum("ki,ki->k", self.JB, self.MB)
+        self.mn = 1.0 / kn
+        self.lam_n = np.zeros(m)
+        self.target = np.zeros(m)
+        self.slices = [(int(bounds[i]), int(bounds[i + 1]), c.a[bounds[i]:bounds[i + 1]], c.b[bounds[i]:bounds[i + 1]])
+                       for i in range(len(bounds) - 1) if bounds[i + 1] > bounds[i]]
+        self.friction = friction
+        if friction:
+            self._patches(model, Xp, Iinv, c, colour)
+
+    def _patches(self, model, Xp, Iinv, c: Contacts, colour: bool) -> None:
+        n = model.n
+        code = c.a * (n + 1) + c.b + (n + 1) * (n + 1) * (c.sidx + 1)
+        uniq, first, pid = np.unique(code, return_index=True, return_inverse=True)
+        npch = uniq.size
+        pa, pb = c.a[first], c.b[first]
+        if colour:
+            porder, pbounds = colour_order(pa, pb, n)
+        else:
+            porder, pbounds = np.arange(npch), np.array([0, npch])
+        rank = np.empty(npch, np.int64)
+        rank[porder] = np.arange(npch)
+        self.pid = pid = rank[pid]
+        self.pa, self.pb = pa[porder], pb[porder]
+        self.np = npch
+        cnt = np.bincount(pid, minlength=npch).astype(float)
+        P = np.stack([np.bincount(pid, c.point[:, i], npch) for i in range(3)], axis=1) / cnt[:, None]
+        N = np.stack([np.bincount(pid, c.normal[:, i], npch) for i in range(3)], axis=1)
+        N /= np.linalg.norm(N, axis=1, keepdims=True)
+        off = c.point - P[pid]
+        off -= np.einsum("ki,ki->k", off, N[pid])[:, None] * N[pid]
+        self.r_twist = np.bincount(pid, np.sqrt(np.einsum("ki,ki->k", off, off)), npch) / cnt
+        self.pcentroid, self.pnormal = P, N
+        t1, t2 = perpendicular_basis(N)
+        self.t = np.stack([t1, t2], axis=1)  # (np, 2, 3)
+        rA = P - Xp[self.pa]
+        rB = P - Xp[self.pb]
+        IA, IB = Iinv[self.pa], Iinv[self.pb]
+        ima, imb = model.inv_mass[self.pa], model.inv_mass[self.pb]
+        JtA = np.zeros((npch, 3, 6))
+        JtB = np.zeros((npch, 3, 6))
+        JtA[:, :2, :3] = -self.t
+        JtA[:, :2, 3:] = -cross(rA[:, None, :], self.t)
+        JtB[:, :2, :3] = self.t
+        JtB[:, :2, 3:] = cross(rB[:, None, :], self.t)
+        JtA[:, 2, 3:] = -N
+        JtB[:, 2, 3:] = N
+        MtA = np.zeros((npch, 3, 6))
+        MtB = np.zeros((npch, 3, 6))
+        MtA[:, :, :3] = ima[:, None, None] * JtA[:, :, :3]
+        MtA[:, :, 3:] = np.einsum("kij,kmj->kmi", IA, JtA[:, :, 3:])
+        MtB[:, :, :3] = imb[:, None, None] * JtB[:, :, :3]
+        MtB[:, :, 3:] = np.einsum("kij,kmj->kmi", IB, JtB[:, :, 3:])
+        kt = np.einsum("kmi,kmi->km", JtA, MtA) + np.einsum("kmi,kmi->km", JtB, MtB)
+        self.JtA, self.JtB, self.MtA, self.MtB = JtA, JtB, MtA, MtB
+        self.mt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
+        self.lam_t = np.zeros((npch, 3))
+        # pair coefficients are equal for all rows of a patch
+        self.mus = c.mus[first][porder]
+        self.muk = c.muk[first][porder]
+        self.slip = np.zeros(npch, bool)
+        self.mu = self.mus.copy()
+        self.pslices = [(int(pbounds[i]), int(pbounds[i + 1]), self.pa[pbounds[i]:pbounds[i + 1]],
+                         self.pb[pbounds[i]:pbounds[i + 1]]) for i in range(len(pbounds) - 1)
+                        if pbounds[i + 1] > pbounds[i]]
+
+    def normal_matrix(self) -> np.ndarray:
+        """K = J M^-1 J^T over the normal rows, (m, m) dense: rows i and j
+        couple through every body they share (the world row has M^-1 = 0)."""
+        a, b = self.a, self.b
+        K = (a[:, None] == a[None, :]) * np.einsum("ik,jk->ij", self.JA, self.MA)
+        K += (a[:, None] == b[None, :]) * np.einsum("ik,jk->ij", self.JA, self.MB)
+        K += (b[:, None] == a[None, :]) * np.einsum("ik,jk->ij", self.JB, self.MA)
+        K += (b[:, None] == b[None, :]) * np.einsum("ik,jk->ij", self.JB, self.MB)
+        return K
+
+    def _lcp_residual(self, K, r, lam) -> float:
+        """Complementarity residual of normal impulses ``lam`` for
+        K lam >= r, lam >= 0: violated rows plus rows that push while
+        separating."""
+        w = np.einsum("ij,j->i", K, lam) - r
+        return float(np.sum(np.minimum(w, 0.0) ** 2) + np.sum(np.where(lam > 0, np.maximum(w, 0.0), 0.0) ** 2))
+
+    def direct_normal_guess(self, U) -> None:
+        """Start Gauss-Seidel from a direct solution of the normal rows.
+
+        The rows that are not separating (r = target - J U >= 0, with the
+        warm friction impulses applied) are solved as equalities, K lambda = r
+        (Tikhonov-regularised: for the consistent but singular systems of
+        coplanar points it tends to the minimum-norm, symmetric share), then
+        clipped at 0.  The load of a whole stack -- or of a heavy body on a
+        light one -- is then in place from the first sweep, which
+        Gauss-Seidel alone needs many sweeps (mass ratios: thousands) to
+        transport, and indeterminate supports are not biased by the sweep
+        order.  The guess is kept only if its complementarity residual
+        beats the warm start's; Gauss-Seidel then settles complementarity
+        and friction."""
+        U0 = U.copy()
+        if self.friction:
+            self.apply_patch(U0, self.lam_t)
+        r = self.target - (np.einsum("ki,ki->k", self.JA, U0[self.a]) + np.einsum("ki,ki->k", self.JB, U0[self.b]))
+        # rows that are not separating (r >= 0, up to solver noise): resting
+        # rows between bodies that fall together have r = 0 and must carry load
+        act = np.flatnonzero(r > -RESTING_SPEED)
+        if act.size == 0 or not np.any(r[act] > 0.0):
+            return
+        K = self.normal_matrix()
+        Ka = K[np.ix_(act, act)].copy()
+        eps = 1e-10 * float(np.max(np.diag(Ka)))
+        Ka[np.diag_indices_from(Ka)] += eps
+        try:
+            la = solve_small(Ka, r[act])
+        except np.linalg.LinAlgError:
+            return
+        if not np.all(np.isfinite(la)):
+            return
+        lam = np.zeros(self.m)
+        lam[act] = np.maximum(la, 0.0)
+        if self._lcp_residual(K, r, lam) <= self._lcp_residual(K, r, self.lam_n):
+            self.lam_n = lam
+
+    def set_slip(self, slip: np.ndarray) -> None:
+        self.slip = slip
+        self.mu = np.where(slip, self.muk, self.mus)
+
+    def patch_tangent_velocity(self, U) -> np.ndarray:
+        """(np, 2) relative tangential velocity at the patch centroids."""
+        v = np.einsum("kmj,kj->km", self.JtA[:, :2], U[self.pa]) + np.einsum("kmj,kj->km", self.JtB[:, :2], U[self.pb])
+        return v
+
+    # ---- velocities ---------------------------------------------------------
+    @staticmethod
+    def pack(V, W) -> np.ndarray:
+        U = np.empty((V.shape[0], 6))
+        U[:, :3] = V
+        U[:, 3:] = W
+        return U
+
+    @staticmethod
+    def unpack(U, V, W) -> None:
+        V[:] = U[:, :3]
+        W[:] = U[:, 3:]
+        V[-1] = 0.0
+        W[-1] = 0.0
+
+    def apply_normal(self, U, d) -> None:
+        """Add normal impulses d (m,) to U (np.add.at: bodies may repeat)."""
+        np.add.at(U, self.a, self.MA * d[:, None])
+        np.add.at(U, self.b, self.MB * d[:, None])
+        U[-1] = 0.0
+
+    def apply_patch(self, U, d) -> None:
+        """Add patch friction impulses d (np, 3) to U."""
+        np.add.at(U, self.pa, np.einsum("km,kmi->ki", d, self.MtA))
+        np.add.at(U, self.pb, np.einsum("km,kmi->ki", d, self.MtB))
+        U[-1] = 0.0
+
+    def warm_start(self, U) -> None:
+        if self.m:
+            self.apply_normal(U, self.lam_n)
+            if self.friction:
+                self.apply_patch(U, self.lam_t)
+
+    # ---- projected Gauss-Seidel -------------------------------------------------
+    def _slice_data(self):
+        """Per colour slice, the body pairs as a (k, 2) index array and the
+        stacked Jacobians/responses (k, 12) (built once per Rows: one gather
+        and one scatter per slice in the sweeps)."""
+        if getattr(self, "_nslices", None) is None:
+            J = np.concatenate([self.JA, self.JB], axis=1)
+            M = np.concatenate([self.MA, self.MB], axis=1)
+            self._nslices = [(s, e, np.stack([a, b], axis=1), J[s:e], M[s:e], self.mn[s:e])
+                             for s, e, a, b in self.slices]
+            if self.friction:
+                Jt = np.concatenate([self.JtA, self.JtB], axis=2)
+                Mt = np.concatenate([self.MtA, self.MtB], axis=2)
+                self._pslices = [(s, e, np.stack([a, b], axis=1), Jt[s:e], Mt[s:e], self.mt[s:e], self.r_twist[s:e])
+                                 for s, e, a, b in self.pslices]
+        return self._nslices
+
+    def _friction_pass(self, U, reverse: bool = False) -> None:
+        self._slice_data()
+        Fn = np.bincount(self.pid, self.lam_n, self.np)
+        lam_t, mu = self.lam_t, self.mu
+        for s, e, ab, Jt, Mt, mt, rt in (reversed(self._pslices) if reverse else self._pslices):
+            k = e - s
+            Uab = U[ab].reshape(k, 12)
+            vt = np.einsum("kmj,kj->km", Jt, Uab)
+            old = lam_t[s:e]
+            new = old - mt * vt
+            lim = mu[s:e] * Fn[s:e]
+            mag = np.sqrt(new[:, 0] ** 2 + new[:, 1] ** 2)
+            over = mag > lim
+            if over.any():
+                new[:, :2] *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+            tl = lim * rt
+            np.clip(new[:, 2], -tl, tl, out=new[:, 2])
+            Uab += np.einsum("km,kmj->kj", new - old, Mt)
+            lam_t[s:e] = new
+            U[ab] = Uab.reshape(k, 2, 6)
+        U[-1] = 0.0
+
+    def _normal_pass(self, U, lam, target, reverse: bool = False) -> None:
+        sl = self._slice_data()
+        for s, e, ab, J, M, mn in (reversed(sl) if reverse else sl):
+            k = e - s
+            Uab = U[ab].reshape(k, 12)
+            vn = np.einsum("kj,kj->k", J, Uab)
+            old = lam[s:e]
+            new = np.maximum(old - mn * (vn - target[s:e]), 0.0)
+            Uab += M * (new - old)[:, None]
+            lam[s:e] = new
+            U[ab] = Uab.reshape(k, 2, 6)
+        U[-1] = 0.0
+
+    def iterate(self, U, iterations: int, tol: float = 1e-7) -> int:
+        """Sweeps of friction (patches) then normal rows, until no impulse
+        changes by more than ``tol`` times the largest normal impulse in a
+        sweep.  Returns the sweeps done."""
+        for it in range(iterations):
+            prev_n = self.lam_n.copy()
+            if self.friction:
+                prev_t = self.lam_t.copy()
+                self._friction_pass(U)
+            self._normal_pass(U, self.lam_n, self.target)
+            change = float(np.max(np.abs(self.lam_n - prev_n), initial=0.0))
+            if self.friction:
+                change = max(change, float(np.max(np.abs(self.lam_t - prev_t), initial=0.0)))
+            if change <= tol * float(self.lam_n.max(initial=0.0)) or change == 0.0:
+                return it + 1
+        return iterations
+
+    def solve_friction_regimes(self, U, iterations: int) -> int:
+        """Iterate with mu_s for sticking patches; a patch whose friction
+        ends on its mu_s limit cannot stick: it switches to mu_k and the rows
+        are iterated again (at most twice).  Returns the sweeps done."""
+        sweeps = self.iterate(U, iterations)
+        if not self.friction:
+            return sweeps
+        for _ in range(2):
+            Fn = np.bincount(self.pid, self.lam_n, self.np)
+            mag = np.sqrt(self.lam_t[:, 0] ** 2 + self.lam_t[:, 1] ** 2)
+            sat = ~self.slip & (self.mus > self.muk) & (Fn > 0) & (mag >= self.mus * Fn * (1 - 1e-6))
+            if not sat.any():
+                break
+            self.set_slip(self.slip | sat)
+            sweeps += self.iterate(U, iterations)
+        return sweeps
+
+    def iterate_normal(self, U, lam, target, iterations: int, tol: float = 1e-7) -> None:
+        """Normal rows only, with their own accumulator (split impulse)."""
+        for _ in range(iterations):
+            prev = lam.copy()
+            self._normal_pass(U, lam, target)
+            change = float(np.max(np.abs(lam - prev), initial=0.0))
+            if change <= tol * float(lam.max(initial=0.0)) or change == 0.0:
+                return
+
+
+def _pair_codes(model, c: Contacts) -> np.ndarray:
+    return (c.a * (model.n + 1) + c.b) * (model.n_statics + 1) + (c.sidx + 1)
+
+
+class Solve(Stage):
+    """Sequential-impulse contact solve on the end-of-step velocities (see
+    module doc).  Classifies contacts (touching, speculative, impact),
+    leaves impacts to the CCD stage in ``ctx.impacts`` (row indices, time
+    estimates), solves the rest with warm starting, then the split-impulse
+    position correction."""
+
+    name = "solve"
+    family = "solver"
+
+    def __init__(self, model):
+        s = model.settings
+        self.iterations = int(s["iterations"])
+        self.correction = s["position_correction"]
+        self.warm = bool(s["warm_starting"])
+        self.thr = float(s["restitution_threshold"])
+        self.ccd = s["ccd"]
+        self.ccd_fraction = float(s["ccd_motion_fraction"])
+        self.beta = float(s["correction_beta"])
+        self.slop = float(s["correction_slop"])
+        self.friction = model.has("friction")
+        self.c = model.contact_lever
+        self.direct = bool(s["direct_start"])
+
+    def __call__(self, model, state, ctx) -> None:
+        n = model.n
+        h = ctx.h
+        c = ctx.contacts
+        ctx.rows = None
+        ctx.impacts = None
+        if c is None or c.m == 0:
+            state.warm = {}
+            return
+        Xp = _pad(state.x)
+        rA = c.point - Xp[c.a]
+        rB = c.point - Xp[c.b]
+        vn_free, _ = point_normal_velocity(ctx.v, ctx.w, c.a, c.b, rA, rB, c.normal)
+        vn0, rel0 = point_normal_velocity(_pad(state.v), _pad(state.w), c.a, c.b, rA, rB, c.normal)
+        un, _ = point_normal_velocity(_pad(ctx.u_lin), _pad(ctx.u_ang), c.a, c.b, rA, rB, c.normal)
+        gap = c.gap
+        touching = gap <= TOUCH_TOL
+        closes = gap + h * un < 0.0
+        impact = ~touching & closes & (-un > self.thr)
+        if impact.any() and state.warm:
+            # a pair that pressed on each other last step is a persistent
+            # (resting) contact: its closing rows are solver noise, not
+            # impacts -- keep them as speculative rows
+            codes_all = _pair_codes(model, c)
+            pressed = np.array([state.warm.get(code) is not None and float(state.warm[code][1].sum()) > 0.0
+                                for code in codes_all.tolist()], bool)
+            impact &= ~pressed
+        keep = ~impact
+        if impact.any():
+            if self.ccd == "toi":
+                fast = np.zeros(n + 1, bool)
+                fast[:n] = ctx.sweep > self.ccd_fraction * model.min_extent
+                handled = impact & (fast[c.a] | fast[c.b])
+            elif self.ccd == "events":
+                handled = impact
+            else:
+                handled = np.zeros_like(impact)
+            if ctx.event_mode == "event" and handled.any():
+                idx = np.flatnonzero(handled)
+                ctx.impacts = (idx, gap[idx] / np.maximum(-un[idx], 1e-300))
+            elif ctx.event_mode == "speculative":
+                keep = keep | handled
+            # impacts nobody resolves at their time of impact are left to
+            # penetrate and bounce next step (discrete behaviour)
+        sel = np.flatnonzero(keep)
+        if sel.size == 0:
+            state.warm = {}
+            return
+        rows = Rows(model, state.x, ctx.Iinv0, c.take(sel), self.friction)
+        sel = sel[rows.order]  # rows are sorted by colour
+        cs = rows.contacts
+        # touching rows: v1n >= 0 (memoryless: a target that depends on the
+        # previous step's velocity feeds solver noise back into the stack);
+        # separated rows: the end pose may just close the gap
+        spec = np.where(touching[sel], 0.0,
+                        np.minimum(vn_free[sel] - (np.maximum(gap[sel], 0.0) + h * un[sel]) / (self.c * h), 0.0))
+        bounce = touching[sel] & (vn0[sel] < -self.thr)
+        target = np.maximum(spec, np.where(bounce, -cs.e * vn0[sel], -np.inf))
+        depth = -gap[sel]
+        rows.target = target
+        if self.friction:
+            vt0 = rows.patch_tangent_velocity(Rows.pack(_pad(state.v), _pad(state.w)))
+            rows.set_slip(np.sqrt(np.einsum("km,km->k", vt0, vt0)) > SLIP_TOL)
+        codes = _pair_codes(model, cs)
+        U = Rows.pack(ctx.v, ctx.w)
+        if self.warm:
+            self._warm_start(model, state, ctx, rows, cs, codes, h)
+        if self.direct and rows.m <= DIRECT_MAX_ROWS:
+            rows.direct_normal_guess(U)
+        if self.warm or self.direct:
+            rows.warm_start(U)
+        sweeps = rows.solve_friction_regimes(U, self.iterations)
+        Rows.unpack(U, ctx.v, ctx.w)
+        if self.correction != "none":
+            # push-out velocities for penetration beyond the slop, solved on
+            # separate (pseudo) velocities; they move positions by h vp.
+            # split_impulse discards them afterwards; baumgarte keeps them in
+            # the real velocity too (the classic bias: it injects energy)
+            bias = np.where(depth > self.slop, self.beta * (depth - self.slop) / h, 0.0)
+            if (bias > 0).any():
+                lam = np.zeros(rows.m)
+                Up = Rows.pack(ctx.vp, ctx.wp)
+                rows.iterate_normal(Up, lam, bias, self.iterations)
+                Rows.unpack(Up, ctx.vp, ctx.wp)
+                if self.correction == "baumgarte":
+                    ctx.v += ctx.vp
+                    ctx.w += ctx.wp
+                    ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
+                    ctx.w_free += ctx.wp[:n]
+        ctx.rows = rows
+        self._store(model, state, ctx, rows, cs, codes, h)
+        ctx.profile.count("contact_rows", rows.m)
+        ctx.profile.count("solver_sweeps", sweeps)
+
+    # ---- warm starting ----------------------------------------------------
+    def _local(self, ctx, a, p, state):
+        """Contact points in body a's frame (matching key for warm starts)."""
+        return np.einsum("kji,kj->ki", ctx.R0[a], p - state.x[a])
+
+    def _warm_start(self, model, state, ctx, rows, cs, codes, h):
+        old = state.warm
+        if not old:
+            return
+        loc = self._local(ctx, cs.a, cs.point, state)
+        tol = 0.1 * model.bound_radius[cs.a] + 1e-4
+        uniq, inv = np.unique(codes, return_inverse=True)
+        for u, code in enumerate(uniq.tolist()):
+            prev = old.get(code)
+            if prev is None:
+                continue
+            rows_k = np.flatnonzero(inv == u)
+            p_old, fn_old, ft_old, tw_old = prev
+            d = loc[rows_k, None, :] - p_old[None, :, :]
+            d2 = np.einsum("kmi,kmi->km", d, d)
+            j = np.argmin(d2, axis=1)
+            ok = d2[np.arange(rows_k.size), j] <= tol[rows_k] ** 2
+            r = rows_k[ok]
+            j = j[ok]
+            rows.lam_n[r] = fn_old[j] * h
+            if rows.friction and r.size:
+                p = rows.pid[rows_k[0]]
+                rows.lam_t[p, :2] = rows.t[p] @ ft_old * h
+                rows.lam_t[p, 2] = tw_old * h
+
+    def _store(self, model, state, ctx, rows, cs, codes, h):
+        loc = self._local(ctx, cs.a, cs.point, state)
+        fn = rows.lam_n / h
+        new: dict = {}
+        uniq, inv = np.unique(codes, return_inverse=True)
+        for u, code in enumerate(uniq.tolist()):
+            k = np.flatnonzero(inv == u)
+            if rows.friction:
+                p = rows.pid[k[0]]
+                ft = rows.lam_t[p, :2] @ rows.t[p] / h
+                tw = rows.lam_t[p, 2] / h
+            else:
+                ft, tw = np.zeros(3), 0.0
+            new[code] = (loc[k], fn[k], ft, tw)
+        state.warm = new
+
+
+def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Exact normal impulses for the rows ``idx`` of ONE pair (k <= ~8):
+    the linear complementarity problem  lambda >= 0,  K lambda >= r,
+    lambda . (K lambda - r) = 0  with K = J M^-1 J^T and r = target - vn,
+    solved by enumerating active sets (largest first; K may be singular, e.g.
+    four coplanar points).  Applies the impulses to U and returns them."""
+    from itertools import combinations
+
+    a, b = rows.a[idx[0]], rows.b[idx[0]]
+    JA, JB, MA, MB = rows.JA[idx], rows.JB[idx], rows.MA[idx], rows.MB[idx]
+    K = JA @ MA.T + JB @ MB.T
+    r = target - (JA @ U[a] + JB @ U[b])
+    k = idx.size
+    lam = np.zeros(k)
+    if np.all(r <= 0.0):
+        return lam
+    scale = float(np.max(np.abs(r)))
+    found = False
+    for size in range(k, 0, -1):
+        for S in combinations(range(k), size):
+            S = list(S)
+            KS = K[np.ix_(S, S)]
+            if abs(np.linalg.det(KS)) < 1e-12 * max(1.0, float(np.max(np.abs(KS)))) ** size:
+                continue
+            lS = np.linalg.solve(KS, r[S])
+            if np.any(lS < 0.0):
+                continue
+            trial = np.zeros(k)
+            trial[S] = lS
+            if np.all(K @ trial - r >= -1e-9 * scale):
+                lam = trial
+                found = True
+                break
+        if found:
+            break
+    if not found:  # degenerate: fall back to projected Gauss-Seidel on the block
+        for _ in range(200):
+            for i in range(k):
+                lam[i] = max(0.0, lam[i] + (r[i] - K[i] @ lam) / K[i, i])
+    U[a] += MA.T @ lam
+    U[b] += MB.T @ lam
+    U[-1] = 0.0
+    return lam
+
+
+def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
+    """One-shot Coulomb friction impulse on patch ``p`` after a normal
+    impulse of total ``Fn``: the impulse that stops the tangential and twist
+    motion (exact 3x3 block), kept if inside the mu_s disc, else scaled onto
+    the mu_k disc."""
+    a, b = rows.pa[p], rows.pb[p]
+    JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
+    vt = JA @ U[a] + JB @ U[b]
+    K = JA @ MA.T + JB @ MB.T
+    if Fn <= 0.0:
+        return
+    try:
+        d = -np.linalg.solve(K, vt)
+    except np.linalg.LinAlgError:
+        d = -vt * rows.mt[p]
+    mag = float(np.hypot(d[0], d[1]))
+    if mag > rows.mus[p] * Fn:
+        d[:2] *= rows.muk[p] * Fn / mag
+    tl = (rows.mus[p] if mag <= rows.mus[p] * Fn else rows.muk[p]) * Fn * rows.r_twist[p]
+    d[2] = min(max(d[2], -tl), tl)
+    U[a] += MA.T @ d
+    U[b] += MB.T @ d
+    U[-1] = 0.0
+
+
+def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, friction: bool) -> int:
+    """Impulsive collision response at a time of impact, on the state's
+    velocities, by impulse propagation: repeatedly take the touching pair
+    that approaches fastest (normal speed above ``thr``), give it the exact
+    pair impulse (block solve of its points) with the restitution target
+    vn+ = -e vn- and a Coulomb friction impulse, until no touching pair
+    approaches faster than ``thr``; then stop the slow approaches
+    (vn+ >= 0).  Binary collisions one after another: a striker hitting a
+    row of touching balls hands its momentum down the row (Newton's cradle)
+    and symmetric contacts get symmetric impulses.  If the propagation does
+    not settle (pinned ping-pong), the remaining approaches are resolved
+    together by sequential impulses.  Returns the number of rows."""
+    from engine.mathutil import quat_to_matrix, world_inv_inertia
+
+    sel = np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL)
+    if sel.size == 0:
+        return 0
+    cs = contacts.take(sel)
+    n = model.n
+    R = quat_to_matrix(state.q)
+    Iinv = np.zeros((n + 1, 3, 3))
+    Iinv[:n] = world_inv_inertia(R, model.inv_inertia_body[:n])
+    rows = Rows(model, state.x, Iinv, cs, friction, colour=False)
+    cs = rows.contacts
+    U = Rows.pack(_pad(state.v), _pad(state.w))
+    code = _pair_codes(model, cs)
+    uniq, inv = np.unique(code, return_inverse=True)
+    groups = [np.flatnonzero(inv == g) for g in range(uniq.size)]
+    e = cs.e
+
+    def vn_all():
+        return np.einsum("ki,ki->k", rows.JA, U[rows.a]) + np.einsum("ki,ki->k", rows.JB, U[rows.b])
+
+    def resolve(g, restitution: bool):
+        idx = groups[g]
+        v = vn_all()[idx]
+        tgt = np.where(v < -thr, -e[idx] * v, 0.0) if restitution else np.zeros(idx.size)
+        lam = _block_normal(rows, U, idx, tgt)
+        if friction and lam.sum() > 0:
+            _patch_impulse(rows, U, int(rows.pid[idx[0]]), float(lam.sum()))
+            # friction may have changed the normal velocities: keep them >= 0
+            v2 = vn_all()[idx]
+            if np.any(v2 < np.minimum(tgt, 0.0) - 1e-12):
+                _block_normal(rows, U, idx, np.maximum(np.minimum(tgt, 0.0), v2 * 0.0))
+
+    settled = False
+    for _ in range(20 * len(groups) + 10):
+        v = vn_all()
+        j = int(np.argmin(v))
+        if v[j] >= -thr:
+            settled = True
+            break
+        resolve(int(inv[j]), True)
+    if not settled:
+        # pinned configuration: resolve all approaches together
+        v = vn_all()
+        rows.target = np.where(v < -thr, -e * v, 0.0)
+        rows_c = Rows(model, state.x, Iinv, cs, friction)
+        rows_c.target = rows.target[rows_c.order]
+        rows_c.solve_friction_regimes(U, iterations)
+    for _ in range(3):  # slow approaches stop (plastic)
+        v = vn_all()
+        slow = np.unique(inv[v < -1e-12])
+        if slow.size == 0:
+            break
+        for g in slow.tolist():
+            resolve(g, False)
+    state.v[:] = U[:n, :3]
+    state.w[:] = U[:n, 3:]
+    return rows.m

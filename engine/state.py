@@ -1,0 +1,173 @@
+"""Mutable simulation state and the per-step scratch context.
+
+:class:`State` is what the engine advances: positions ``x`` (n, 3) m,
+orientations ``q`` (n, 4) unit quaternions wxyz, linear velocities ``v``
+(n, 3) m/s and angular velocities ``w`` (n, 3) rad/s, both world frame about
+the centre of mass, time ``t`` (s), and caches (warm-start impulses).
+
+:class:`Context` carries everything one (mini-)step computes and throws away:
+the candidate end state the integrator produces (``x1``, ``q1``, ``v``, ``w``
+with a world row at index n), the free-flight velocities, force
+accumulators, the rotation and world inverse inertia at the start pose,
+broad-phase pairs, contacts, and the time-of-impact event found by the CCD
+stage.  All arrays are allocated once, at build.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from adapters.conventions import quat_to_matrix
+from engine.model import Model
+
+
+@dataclass(eq=False)
+class State:
+    x: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    t: float = 0.0
+    steps: int = 0
+    #: warm-start cache: (a, b, static, feature) -> (normal force N, friction force (3,) N)
+    warm: dict = field(default_factory=dict)
+    warm_next: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_model(cls, model: Model) -> "State":
+        x, q, v, w = model.scene.initial_state()
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        return cls(x=np.ascontiguousarray(x, float), q=np.ascontiguousarray(q, float),
+                   v=np.ascontiguousarray(v, float), w=np.ascontiguousarray(w, float))
+
+    def copy(self) -> "State":
+        return State(self.x.copy(), self.q.copy(), self.v.copy(), self.w.copy(), self.t, self.steps,
+                     dict(self.warm), {})
+
+
+@dataclass(eq=False)
+class Contacts:
+    """Contact rows, one per contact point.  ``a`` body index, ``b`` body
+    index or n (the world) for statics, ``sidx`` static index or -1,
+    ``normal`` (m, 3) unit vector from a toward b, ``point`` (m, 3) world
+    point midway between the surfaces, ``gap`` (m,) signed distance (m,
+    negative = penetration), ``fid`` (m,) feature ids for warm starting,
+    ``e``, ``mus``, ``muk`` (m,) pair coefficients."""
+
+    a: np.ndarray
+    b: np.ndarray
+    sidx: np.ndarray
+    normal: np.ndarray
+    point: np.ndarray
+    gap: np.ndarray
+    fid: np.ndarray
+    e: np.ndarray | None = None
+    mus: np.ndarray | None = None
+    muk: np.ndarray | None = None
+
+    @property
+    def m(self) -> int:
+        return int(self.a.shape[0])
+
+    @classmethod
+    def empty(cls) -> "Contacts":
+        z = np.zeros(0, np.int64)
+        return cls(z, z, z, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), z,
+                   np.zeros(0), np.zeros(0), np.zeros(0))
+
+    @classmethod
+    def concat(cls, parts: list["Contacts"]) -> "Contacts":
+        parts = [p for p in parts if p.m]
+        if not parts:
+            return cls.empty()
+        if len(parts) == 1:
+            return parts[0]
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                     ("a", "b", "sidx", "normal", "point", "gap", "fid")))
+
+    def take(self, idx: np.ndarray) -> "Contacts":
+        return Contacts(*(None if getattr(self, f) is None else getattr(self, f)[idx] for f in
+                          ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk")))
+
+
+class Context:
+    """Per-step scratch (see module docstring).  Shapes: ``x1`` (n, 3), ``q1``
+    (n, 4), ``v``/``w`` (n+1, 3) working velocities with the world row n kept
+    at zero, ``v_free``/``w_free`` (n, 3) free-flight end velocities,
+    ``u_lin``/``u_ang`` (n, 3) the mean velocities over the step (displacement
+    / h) of the free flight, ``F``/``T`` (n, 3) force and torque
+    accumulators, ``R0`` (n, 3, 3) rotations at the start pose, ``Iinv0``
+    (n+1, 3, 3) world inverse inertia at the start pose."""
+
+    def __init__(self, model: Model):
+        n = model.n
+        self.h = model.h
+        self.x1 = np.zeros((n, 3))
+        self.q1 = np.zeros((n, 4))
+        self.v = np.zeros((n + 1, 3))
+        self.w = np.zeros((n + 1, 3))
+        self.v_free = np.zeros((n, 3))
+        self.w_free = np.zeros((n, 3))
+        self.u_lin = np.zeros((n, 3))
+        self.u_ang = np.zeros((n, 3))
+        self.F = np.zeros((n, 3))
+        self.T = np.zeros((n, 3))
+        self.R0 = np.zeros((n, 3, 3))
+        self.Iinv0 = np.zeros((n + 1, 3, 3))
+        # evaluation point for force stages (arrays of shape (n, 3)/(n, 4))
+        self.ex = self.x1
+        self.eq = self.q1
+        self.ev = self.v[:n]
+        self.ew = self.w[:n]
+        self.eR: np.ndarray | None = None
+        # pseudo velocities (split-impulse position correction), world row n
+        self.vp = np.zeros((n + 1, 3))
+        self.wp = np.zeros((n + 1, 3))
+        # the step's mean torque (integrator weights), for the
+        # energy-conserving rotation stage
+        self.T_mean = np.zeros((n, 3))
+        self.profile = None
+        self.event_mode = "event"
+        # collision products
+        self.pairs_i = np.zeros(0, np.int64)
+        self.pairs_j = np.zeros(0, np.int64)
+        self.static_pairs_body = np.zeros(0, np.int64)
+        self.static_pairs_static = np.zeros(0, np.int64)
+        self.sweep = np.zeros(n)  # per-body bound on the distance a surface point moves in the step (m)
+        self.plane_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self.sbox_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self.impacts = None
+        self.contacts = None  # type: Contacts | None
+        self.rows: Any = None  # solver rows (solver.Rows)
+        self.reuse_contacts = False
+        self.allow_events = True
+        self.event: tuple | None = None
+        self.n_events = 0
+        self.info: dict[str, Any] = {}
+
+    def begin(self, model: Model, state: State, h: float) -> None:
+        """Start a (mini-)step of length ``h`` from ``state``."""
+        n = model.n
+        self.h = h
+        self.x1[:] = state.x
+        self.q1[:] = state.q
+        self.v[:n] = state.v
+        self.w[:n] = state.w
+        self.v[n] = 0.0
+        self.w[n] = 0.0
+        self.F[:] = 0.0
+        self.T[:] = 0.0
+        self.vp[:] = 0.0
+        self.wp[:] = 0.0
+        self.event = None
+        self.impacts = None
+        # force stages first evaluate at the start state
+        self.ex, self.eq, self.ev, self.ew = state.x, state.q, state.v, state.w
+        self.R0[:] = quat_to_matrix(state.q)
+        self.eR = self.R0
+        # I_world^-1 = R diag(1/I) R^T
+        np.einsum("kij,kj,klj->kil", self.R0, model.inv_inertia_body[:n], self.R0, out=self.Iinv0[:n])
+        self.Iinv0[n] = 0.0

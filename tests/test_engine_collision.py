@@ -1,0 +1,388 @@
+"""Reference engine: narrow phase geometry, broad phase, CCD, stacking,
+determinism.
+
+Geometry is checked against hand-computed gaps, normals and points; the
+bullet against a wall against the no-tunnelling requirement; the column
+against "stays where it was put".
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine import Engine
+from engine.broadphase import brute_pairs, sap_pairs
+from engine.mathutil import quat_to_matrix
+from engine.narrowphase import box_box, box_plane, capsule_box, capsule_capsule, capsule_plane, sphere_box, sphere_capsule
+from harness.scene import load_scene
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return load_scene(p)
+
+
+def rotz(deg):
+    a = math.radians(deg)
+    return np.array([math.cos(a / 2), 0, 0, math.sin(a / 2)])
+
+
+# ---- narrow phase -----------------------------------------------------------
+
+def test_sphere_box_outside_and_inside():
+    I = np.eye(3)[None]
+    h = np.array([[0.5, 0.5, 0.5]])
+    # outside, near a corner
+    k, n, p, g, _ = sphere_box(np.array([[1.0, 1.0, 0.0]]), np.array([0.2]), np.zeros((1, 3)), I, h)
+    assert g[0] == pytest.approx(math.sqrt(0.5) - 0.2)
+    assert np.allclose(n[0], -np.array([1, 1, 0]) / math.sqrt(2))  # from sphere toward box
+    # centre inside: leaves through the nearest face (+x)
+    k, n, p, g, _ = sphere_box(np.array([[0.4, 0.0, 0.1]]), np.array([0.2]), np.zeros((1, 3)), I, h)
+    assert g[0] == pytest.approx(-0.1 - 0.2)
+    assert np.allclose(n[0], [-1, 0, 0])
+
+
+def test_box_plane_corners_of_a_tilted_box():
+    q = np.array([math.cos(math.pi / 8), math.sin(math.pi / 8), 0, 0])  # 45 deg about x
+    R = quat_to_matrix(q)[None]
+    k, n, p, g, fid = box_plane(np.array([[0, 0, 0.5]]), R, np.array([[0.2, 0.3, 0.3]]),
+                                np.array([[0, 0, 1.0]]), np.array([0.0]))
+    lowest = 0.5 - 0.3 * math.sqrt(2)
+    assert g.min() == pytest.approx(lowest)
+    assert np.sum(np.isclose(g, lowest)) == 2  # the bottom edge: two corners
+    assert np.allclose(n, [0, 0, -1])
+
+
+def test_box_box_face_manifold_and_depth():
+    # B rests on A, overlapping by 1 mm, rotated 30 deg about z: a polygon manifold
+    I = np.eye(3)[None]
+    RB = quat_to_matrix(rotz(30.0))[None]
+    k, n, p, g, _ = box_box(np.zeros((1, 3)), I, np.array([[0.5, 0.5, 0.1]]),
+                            np.array([[0.0, 0.0, 0.199]]), RB, np.array([[0.2, 0.2, 0.1]]), np.array([1e-3]))
+    assert 3 <= k.size <= 4
+    assert np.allclose(n, [0, 0, 1])  # from A (below) toward B
+    assert np.allclose(g, -0.001)
+    assert np.allclose(p[:, 2], 0.1 - 0.0005)  # midway between the faces
+    # points are B's bottom corners (inside A's top face)
+    c = 0.2 * math.sqrt(2)
+    assert np.allclose(np.linalg.norm(p[:, :2], axis=1), c)
+
+
+def test_box_box_clipped_manifold_offset():
+    """B hangs half over A's edge: the manifold is clipped to A's face."""
+    I = np.eye(3)[None]
+    k, n, p, g, _ = box_box(np.zeros((1, 3)), I, np.array([[0.5, 0.5, 0.1]]),
+                            np.array([[0.6, 0.0, 0.2]]), I, np.array([[0.2, 0.2, 0.1]]), np.array([1e-3]))
+    assert k.size == 4
+    assert np.allclose(g, 0.0)
+    assert np.isclose(p[:, 0].max(), 0.5) and np.isclose(p[:, 0].min(), 0.4)
+
+
+def test_box_box_edge_edge():
+    """Two boxes crossed edge on edge (A's top edge along x, B's bottom edge along y)."""
+    qa = np.array([math.cos(math.pi / 8), math.sin(math.pi / 8), 0, 0])  # 45 deg about x: ridge along x
+    qb = np.array([math.cos(math.pi / 8), 0, math.sin(math.pi / 8), 0])  # 45 deg about y: ridge along y
+    RA, RB = quat_to_matrix(qa)[None], quat_to_matrix(qb)[None]
+    s = math.sqrt(2) * 0.1
+    zb = 2 * s - 0.002  # 2 mm overlap
+    k, n, p, g, fid = box_box(np.zeros((1, 3)), RA, np.full((1, 3), 0.1), np.array([[0, 0, zb]]), RB,
+                              np.full((1, 3), 0.1), np.array([1e-3]))
+    assert k.size == 1 and fid[0] >= 64
+    assert g[0] == pytest.approx(-0.002, abs=1e-12)
+    assert np.allclose(n[0], [0, 0, 1])
+    assert np.allclose(p[0], [0, 0, s - 0.001])
+
+
+def test_capsule_pairs():
+    I = np.eye(3)[None]
+    # lying capsule (axis along x) on a plane: both caps touch
+    Rx = quat_to_matrix(np.array([math.cos(math.pi / 4), 0, math.sin(math.pi / 4), 0]))[None]
+    k, n, p, g, _ = capsule_plane(np.array([[0, 0, 0.1]]), Rx, np.array([0.3]), np.array([0.1]),
+                                  np.array([[0, 0, 1.0]]), np.array([0.0]))
+    assert np.allclose(g, 0.0) and np.allclose(sorted(p[:, 0]), [-0.3, 0.3], atol=1e-12)
+    # sphere over the middle of a lying capsule
+    k, n, p, g, _ = sphere_capsule(np.array([[0.1, 0, 0.35]]), np.array([0.2]), np.array([[0, 0, 0.1]]), Rx,
+                                   np.array([0.3]), np.array([0.1]))
+    assert g[0] == pytest.approx(0.25 - 0.3) and np.allclose(n[0], [0, 0, -1])
+    # crossed capsules: the segments' closest points
+    Ry = quat_to_matrix(np.array([math.cos(math.pi / 4), -math.sin(math.pi / 4), 0, 0]))[None]
+    k, n, p, g, _ = capsule_capsule(np.zeros((1, 3)), Rx, np.array([0.3]), np.array([0.1]),
+                                    np.array([[0, 0, 0.19]]), Ry, np.array([0.3]), np.array([0.1]))
+    assert g.min() == pytest.approx(-0.01)
+    # capsule standing on a box top, 1 mm in
+    k, n, p, g, _ = capsule_box(np.array([[0.1, 0, 0.5 + 0.4 - 0.001]]), I, np.array([0.3]), np.array([0.1]),
+                                np.zeros((1, 3)), I, np.array([[0.5, 0.5, 0.5]]))
+    assert g.min() == pytest.approx(-0.001, abs=1e-9) and np.allclose(n[np.argmin(g)], [0, 0, -1])
+
+
+# ---- broad phase ------------------------------------------------------------
+
+def test_sap_matches_brute_force():
+    rng = np.random.default_rng(3)
+    n = 60
+    c = rng.uniform(-1, 1, (n, 3))
+    e = rng.uniform(0.01, 0.2, (n, 3))
+
+    class M:  # the brute-force function only needs the precomputed pair list
+        pair_i, pair_j = np.triu_indices(n, 1)
+
+    a1, b1 = sap_pairs(c - e, c + e)
+    a2, b2 = brute_pairs(M, c - e, c + e)
+    assert len(a1) > 0
+    assert np.array_equal(a1, a2) and np.array_equal(b1, b2)
+
+
+GRID = """
+    [scenario]
+    family = "t"
+    title = "grid"
+    duration = 0.5
+    dt = 0.005
+    effects = ["gravity", "contact", "restitution", "friction"]
+    [material.default]
+    restitution = 0.3
+    friction = 0.4
+    [[body]]
+    name = "b"
+    shape = "sphere"
+    radius = 0.05
+    mass = 0.2
+    position = [0, 0, 0.3]
+    velocity = [0.3, -0.2, 0]
+    [body.pattern]
+    kind = "grid"
+    counts = [3, 3, 2]
+    gap = 0.002
+    [[body]]
+    name = "c"
+    shape = "box"
+    half_extents = [0.05, 0.05, 0.05]
+    mass = 0.3
+    position = [0.05, 0.05, 0.05]
+    angular_velocity = [0, 0, 2]
+    [[static]]
+    shape = "plane"
+    normal = [0, 0, 1]
+    """
+
+
+def _state_hash(eng) -> str:
+    s = eng.state
+    return hashlib.sha256(b"".join(a.tobytes() for a in (s.x, s.q, s.v, s.w))).hexdigest()
+
+
+def test_sap_and_brute_give_identical_runs(tmp_path):
+    sc = scene_from(tmp_path, GRID)
+    a = Engine(sc, {"broadphase": "sap"})
+    b = Engine(sc, {"broadphase": "brute"})
+    a.step(60)
+    b.step(60)
+    assert _state_hash(a) == _state_hash(b)
+
+
+def test_determinism_bit_identical(tmp_path):
+    """Same scene + settings -> bit-identical states, in this process and in
+    a fresh interpreter."""
+    sc = scene_from(tmp_path, GRID)
+    runs = []
+    for _ in range(2):
+        e = Engine(sc)
+        e.step(60)
+        runs.append(_state_hash(e))
+    assert runs[0] == runs[1]
+    code = textwrap.dedent(f"""
+        import hashlib
+        from engine import Engine
+        from harness.scene import load_scene
+        e = Engine(load_scene({str(tmp_path / 's.toml')!r}))
+        e.step(60)
+        s = e.state
+        print(hashlib.sha256(b"".join(a.tobytes() for a in (s.x, s.q, s.v, s.w))).hexdigest())
+        """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO,
+                         env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == runs[0]
+
+
+# ---- CCD ----------------------------------------------------------------------
+
+BULLET = """
+    [scenario]
+    family = "t"
+    title = "bullet"
+    duration = 0.05
+    dt = {dt}
+    effects = ["contact", "restitution"]
+    [material.default]
+    restitution = {e}
+    [[body]]
+    name = "ball"
+    shape = "sphere"
+    radius = 0.0025
+    mass = 0.001
+    position = [-1.0, 0, 0.5]
+    velocity = [400.0, 0, 0]
+    [[static]]
+    shape = "box"
+    half_extents = [0.002, 0.5, 0.5]
+    position = [0, 0, 0.5]
+    """
+
+
+@pytest.mark.parametrize("ccd", ["events", "toi"])
+@pytest.mark.parametrize("e", [0.0, 0.5])
+def test_fast_ball_does_not_tunnel_thin_wall(tmp_path, ccd, e):
+    """5 mm ball at 400 m/s against a 4 mm wall at dt = 1/240: it moves 1.67 m
+    per step, 333 times its diameter."""
+    sc = scene_from(tmp_path, BULLET.format(dt=1 / 240, e=e))
+    eng = Engine(sc, {"ccd": ccd})
+    for _ in range(12):
+        eng.step()
+        assert eng.state.x[0, 0] <= -0.0045 + 1e-9  # never past the wall's near face
+    assert eng.state.v[0, 0] == pytest.approx(-e * 400.0, abs=1e-9)
+
+
+def test_without_ccd_the_ball_tunnels(tmp_path):
+    """The measured counterpart: ccd = off passes straight through."""
+    sc = scene_from(tmp_path, BULLET.format(dt=1 / 240, e=0.5))
+    eng = Engine(sc, {"ccd": "off"})
+    eng.step(12)
+    assert eng.state.x[0, 0] > 1.0
+    assert "ccd" not in eng.profile.calls
+
+
+# ---- stacking -------------------------------------------------------------------
+
+COLUMN = """
+    [scenario]
+    family = "t"
+    title = "column"
+    duration = {T}
+    dt = {dt}
+    effects = ["gravity", "contact", "friction"]
+    [material.default]
+    friction = 0.5
+    [[body]]
+    name = "box"
+    shape = "box"
+    half_extents = [0.1, 0.1, 0.1]
+    mass = 1.0
+    position = [0, 0, 0.1]
+    [body.pattern]
+    kind = "column"
+    count = 10
+    [[static]]
+    shape = "plane"
+    normal = [0, 0, 1]
+    """
+
+
+def _column(tmp_path, T, dt, **settings):
+    sc = scene_from(tmp_path, COLUMN.format(T=T, dt=dt))
+    eng = Engine(sc, settings)
+    x0 = eng.state.x.copy()
+    drift = pen = 0.0
+    for _ in range(int(round(T / dt))):
+        eng.step()
+        drift = max(drift, float(np.max(np.linalg.norm(eng.state.x - x0, axis=1))))
+        z = eng.state.x[:, 2]
+        pen = max(pen, 0.1 - z[0], float(np.max(0.2 - np.diff(z))))
+    return drift, pen, eng
+
+
+@pytest.mark.parametrize("dt", [1 / 60, 1 / 240])
+def test_column_short(tmp_path, dt):
+    drift, pen, eng = _column(tmp_path, 1.0, dt)
+    assert drift <= 1e-6 and pen <= 1e-6  # requirement 5 mm; the direct start makes it exact
+
+
+def test_column_gauss_seidel_only(tmp_path):
+    """Without the direct start (plain warm-started Gauss-Seidel) the column
+    sags but meets the requirement at dt = 1/240."""
+    drift, pen, eng = _column(tmp_path, 1.0, 1 / 240, direct_start=False)
+    assert drift <= 5e-3 and pen <= 5e-3
+
+
+def test_heavy_on_light_mass_ratio_1000(tmp_path):
+    sc = scene_from(tmp_path, """
+        [scenario]
+        family = "t"
+        title = "heavy on light"
+        duration = 1.0
+        dt = 0.004166666666666667
+        effects = ["gravity", "contact", "friction"]
+        [material.default]
+        friction = 0.5
+        [[body]]
+        name = "light"
+        shape = "box"
+        half_extents = [0.05, 0.05, 0.05]
+        mass = 1.0
+        position = [0, 0, 0.05]
+        [[body]]
+        name = "heavy"
+        shape = "box"
+        half_extents = [0.05, 0.05, 0.05]
+        mass = 1000.0
+        position = [0, 0, 0.15]
+        [[static]]
+        shape = "plane"
+        normal = [0, 0, 1]
+        """)
+    eng = Engine(sc)
+    x0 = eng.state.x.copy()
+    eng.step(240)
+    assert np.abs(eng.state.x - x0).max() <= 1e-6
+
+
+def test_newtons_cradle_hands_momentum_down_the_row(tmp_path):
+    """A striker hits four touching equal balls (e = 1): impulse propagation
+    gives the textbook result -- the last ball leaves with the striking
+    speed, all others stop."""
+    sc = scene_from(tmp_path, """
+        [scenario]
+        family = "t"
+        title = "cradle"
+        duration = 0.3
+        dt = 0.001
+        effects = ["contact", "restitution"]
+        [material.default]
+        restitution = 1.0
+        [[body]]
+        name = "striker"
+        shape = "sphere"
+        radius = 0.025
+        mass = 0.5
+        position = [-0.1, 0, 0]
+        velocity = [1.0, 0, 0]
+        [[body]]
+        name = "ball"
+        shape = "sphere"
+        radius = 0.025
+        mass = 0.5
+        [body.pattern]
+        kind = "row"
+        count = 4
+        """)
+    eng = Engine(sc)
+    eng.step(300)
+    assert np.allclose(eng.state.v[:, 0], [0, 0, 0, 0, 1.0], atol=1e-12)
+
+
+@pytest.mark.slow
+def test_column_ten_seconds(tmp_path):
+    drift, pen, eng = _column(tmp_path, 10.0, 1 / 240)
+    assert drift <= 5e-3 and pen <= 5e-3  # measured ~1e-14 m and 0
+    assert np.abs(eng.state.v).max() <= 1e-3  # settled

@@ -1,0 +1,190 @@
+"""Reference engine: impacts with restitution, ball drops, resting contact.
+
+Every expectation is analytic: Newton's law of restitution for head-on
+impacts, the ballistic bounce sequence for a dropped ball (exact within the
+step thanks to time-of-impact splitting), rest at z = r afterwards.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine import Engine
+from harness.runner import run
+from harness.scene import load_scene
+
+
+def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return load_scene(p)
+
+
+def newton(m1, m2, v1, v2, e):
+    """Outgoing velocities of a head-on impact (law of restitution)."""
+    u1 = ((m1 - e * m2) * v1 + (1 + e) * m2 * v2) / (m1 + m2)
+    u2 = ((m2 - e * m1) * v2 + (1 + e) * m1 * v1) / (m1 + m2)
+    return u1, u2
+
+
+@pytest.mark.parametrize("variant", [None, "elastic", "plastic"])
+def test_head_on_example_through_runner(head_on_path, variant):
+    scene = load_scene(head_on_path, variant)
+    res = run(scene, "reference")
+    assert res.status == "ok", res.message
+    tr = res.trace.valid()
+    m = scene.masses
+    e = scene.pair(scene.bodies[0].material, scene.bodies[1].material).restitution
+    v1, v2 = scene.bodies[0].velocity[0], scene.bodies[1].velocity[0]
+    u1, u2 = newton(m[0], m[1], v1, v2, e)
+    approach = abs(v1 - v2)
+    err = max(abs(tr.vel[-1, 0, 0] - u1), abs(tr.vel[-1, 1, 0] - u2)) / approach
+    assert err <= 1e-9
+    P = np.einsum("k,fki->fi", m, tr.vel)
+    assert np.max(np.abs(P - P[0])) / np.linalg.norm(P[0]) <= 1e-12
+    gap = np.linalg.norm(tr.pos[:, 1] - tr.pos[:, 0], axis=1) - scene.bodies[0].radius - scene.bodies[1].radius
+    assert -gap.min() <= 1e-9  # impact resolved at its time of impact: no penetration
+    # stages observable: collision ran, no force stage exists (no gravity)
+    st = res.stages
+    assert st["narrowphase"]["calls"] > 0 and st["impact"]["calls"] == 1
+    assert "gravity" not in st
+
+
+@pytest.mark.parametrize("m1,m2,v1,v2,e", [
+    (0.1, 0.5, 3.0, -1.0, 0.0),
+    (2.0, 0.3, 1.5, 0.2, 0.5),
+    (0.7, 0.7, 0.9, -0.4, 1.0),
+    (5.0, 0.05, 0.3, -7.0, 0.8),
+])
+def test_head_on_any_masses(tmp_path, m1, m2, v1, v2, e):
+    scene = scene_from(tmp_path, f"""
+        [scenario]
+        family = "t"
+        title = "head on"
+        duration = 0.4
+        dt = 0.0013
+        effects = ["contact", "restitution"]
+        [material.default]
+        restitution = {e}
+        [[body]]
+        name = "a"
+        shape = "sphere"
+        radius = 0.05
+        mass = {m1}
+        velocity = [{v1}, 0, 0]
+        [[body]]
+        name = "b"
+        shape = "sphere"
+        radius = 0.03
+        mass = {m2}
+        position = [0.31, 0, 0]
+        velocity = [{v2}, 0, 0]
+        """)
+    eng = Engine(scene)
+    eng.step(int(round(0.4 / 0.0013)))
+    u1, u2 = newton(m1, m2, v1, v2, e)
+    err = max(abs(eng.state.v[0, 0] - u1), abs(eng.state.v[1, 0] - u2)) / abs(v1 - v2)
+    assert err <= 1e-9
+    assert np.allclose(eng.state.v[:, 1:], 0.0, atol=1e-12)
+    assert np.allclose(eng.state.w, 0.0, atol=1e-12)
+
+
+DROP = """
+    [scenario]
+    family = "t"
+    title = "ball drop"
+    duration = 3.0
+    dt = {dt}
+    effects = ["gravity", "contact", "restitution"]
+    [material.default]
+    restitution = {e}
+    [[body]]
+    name = "ball"
+    shape = "sphere"
+    radius = 0.1
+    mass = 1.0
+    position = [0, 0, 1.1]
+    {ground}
+    """
+
+GROUNDS = {
+    "plane": '[[static]]\n    shape = "plane"\n    normal = [0, 0, 1]',
+    "box": '[[static]]\n    shape = "box"\n    half_extents = [2, 2, 0.5]\n    position = [0, 0, -0.5]',
+}
+
+
+def bounce_height(t: np.ndarray, z0: float, e: float, g: float = 9.81) -> np.ndarray:
+    """Height of the lowest point of a ball dropped from rest at z0 above a
+    floor, bouncing with coefficient e (analytic, piecewise parabolas)."""
+    out = np.empty_like(t)
+    for i, tt in enumerate(t):
+        z, v, t0 = z0, 0.0, 0.0
+        while True:
+            s = (v + np.sqrt(v * v + 2 * g * z)) / g
+            if t0 + s >= tt:
+                s = tt - t0
+                out[i] = z + v * s - 0.5 * g * s * s
+                break
+            v, z, t0 = -(v - g * s) * e, 0.0, t0 + s
+    return out
+
+
+@pytest.mark.parametrize("ground", ["plane", "box"])
+@pytest.mark.parametrize("dt", [1 / 240, 0.01])
+def test_ball_drop_bounce_trajectory(tmp_path, ground, dt):
+    scene = scene_from(tmp_path, DROP.format(dt=dt, e=0.9, ground=GROUNDS[ground]))
+    eng = Engine(scene)
+    n = int(round(3.0 / dt))
+    z = np.empty(n)
+    for k in range(n):
+        eng.step()
+        z[k] = eng.state.x[0, 2]
+    t = dt * np.arange(1, n + 1)
+    ref = bounce_height(t, 1.0, 0.9) + 0.1
+    assert np.max(np.abs(z - ref)) <= 1e-6  # requirement: 1e-3 m
+    assert (z >= 0.1 - 1e-9).all()  # no penetration
+    assert eng.profile.counters["impacts"] >= 4
+
+
+def test_ball_comes_to_rest(tmp_path):
+    scene = scene_from(tmp_path, DROP.format(dt=1 / 240, e=0.5, ground=GROUNDS["plane"]))
+    eng = Engine(scene)
+    eng.step(240 * 3)  # bounces end after ~1.35 s (Zeno sum)
+    assert abs(eng.state.x[0, 2] - 0.1) <= 1e-4  # within the correction slop
+    assert np.abs(eng.state.v).max() <= 1e-9
+    z = eng.state.x[0, 2]
+    eng.step(240)
+    assert abs(eng.state.x[0, 2] - z) <= 1e-9  # at rest means at rest
+
+
+def test_no_contact_effect_runs_no_collision(tmp_path):
+    scene = scene_from(tmp_path, """
+        [scenario]
+        family = "t"
+        title = "fall"
+        duration = 0.5
+        dt = 0.01
+        effects = ["gravity"]
+        [[body]]
+        name = "ball"
+        shape = "sphere"
+        radius = 0.1
+        mass = 1.0
+        [[static]]
+        shape = "plane"
+        normal = [0, 0, 1]
+        offset = -0.5
+        """)
+    res = run(scene, "reference")
+    assert res.status == "ok"
+    st = res.stages
+    for stage in ("broadphase", "narrowphase", "solve", "ccd", "impact", "gyroscopic", "springs"):
+        assert stage not in st
+    assert st["gravity"]["calls"] >= 50 and st["integrate_velocities"]["calls"] == 50
+    # exact free fall (rk4 is exact for constant forces), straight through the plane
+    tr = res.trace.valid()
+    assert abs(tr.pos[-1, 0, 2] - (-0.5 * 9.81 * 0.25)) <= 1e-12

@@ -1,0 +1,171 @@
+"""Reference engine: Coulomb friction on an incline, rolling without slip.
+
+Analytic truth: a block sticks below atan(mu_s) and slides above it with
+a = g (sin th - mu_k cos th); a solid ball rolls without slipping with
+a = 5/7 g sin th (and w = v / r).
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine import Engine
+from harness.scene import load_scene
+
+G = 9.81
+MU_S, MU_K = 0.6, 0.4  # atan(0.6) = 30.96 deg
+
+
+def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt: float = 1 / 240, **settings):
+    a = math.radians(angle)
+    n = (math.sin(a), 0.0, math.cos(a))
+    if shape == "box":
+        body = (f'shape = "box"\nhalf_extents = [0.1, 0.08, 0.05]\nposition = [{n[0] * 0.05}, 0, {n[2] * 0.05}]\n'
+                f"orientation = [{math.cos(a / 2)}, 0, {math.sin(a / 2)}, 0]")
+    else:
+        body = f'shape = "sphere"\nradius = 0.1\nposition = [{n[0] * 0.1}, 0, {n[2] * 0.1}]'
+    text = textwrap.dedent("""
+        [scenario]
+        family = "t"
+        title = "incline"
+        duration = {duration}
+        dt = {dt}
+        effects = ["gravity", "contact", "friction"]
+        [material.default]
+        friction = {mu_k}
+        static_friction = {mu_s}
+        [[body]]
+        name = "b"
+        mass = 1.3
+        {body}
+        [[static]]
+        shape = "slope"
+        angle = {angle}
+        """).format(duration=duration, dt=dt, mu_k=MU_K, mu_s=MU_S, body="\n".join(body.splitlines()), angle=angle)
+    p = tmp_path / f"incline_{shape}_{angle}.toml"
+    p.write_text(text)
+    scene = load_scene(p)
+    eng = Engine(scene, settings)
+    down = np.array([math.cos(a), 0.0, -math.sin(a)])
+    return eng, down, np.array(n)
+
+
+@pytest.mark.parametrize("angle", [20.0, 30.0])
+def test_box_sticks_below_friction_angle(tmp_path, angle):
+    eng, down, n = incline(tmp_path, "box", angle, duration=2.0)
+    x0 = eng.state.x[0].copy()
+    eng.step(480)
+    creep = (eng.state.x[0] - x0) @ down
+    assert abs(creep) <= 1e-5  # m over 2 s
+    assert np.abs(eng.state.v).max() <= 1e-6
+
+
+@pytest.mark.parametrize("angle", [32.0, 45.0])
+def test_box_slides_above_friction_angle(tmp_path, angle):
+    T = 1.0
+    eng, down, n = incline(tmp_path, "box", angle, duration=T)
+    x0 = eng.state.x[0].copy()
+    eng.step(240)
+    a = math.radians(angle)
+    acc = G * (math.sin(a) - MU_K * math.cos(a))
+    s = (eng.state.x[0] - x0) @ down
+    v = eng.state.v[0] @ down
+    assert abs(s / (0.5 * acc * T * T) - 1) <= 1e-6  # requirement 1e-3
+    assert abs(v / (acc * T) - 1) <= 1e-6
+    assert abs((eng.state.x[0] - x0) @ n) <= 1e-6  # stays on the surface
+    assert np.abs(eng.state.w).max() <= 1e-6  # does not tip
+
+
+def test_ball_rolls_without_slipping(tmp_path):
+    T = 1.0
+    eng, down, n = incline(tmp_path, "sphere", 30.0, duration=T)
+    x0 = eng.state.x[0].copy()
+    eng.step(240)
+    acc = 5.0 / 7.0 * G * math.sin(math.radians(30.0))
+    s = (eng.state.x[0] - x0) @ down
+    assert abs(s / (0.5 * acc * T * T) - 1) <= 1e-9
+    v = eng.state.v[0] @ down
+    assert abs(v / (acc * T) - 1) <= 1e-9
+    # rolling: w = v / r about +y (downhill +x, normal ~ +z: w = n x v / r)
+    w_expect = np.cross(n, eng.state.v[0]) / 0.1
+    assert np.allclose(eng.state.w[0], w_expect, atol=1e-9)
+
+
+def test_frictionless_incline_slides_freely(tmp_path):
+    """Without 'friction' there are no friction rows: a = g sin th even for a
+    material that has friction coefficients."""
+    T = 0.5
+    a = math.radians(20.0)
+    text = textwrap.dedent(f"""
+        [scenario]
+        family = "t"
+        title = "ice"
+        duration = {T}
+        dt = {1 / 240}
+        effects = ["gravity", "contact"]
+        [material.default]
+        friction = 0.9
+        [[body]]
+        name = "b"
+        mass = 1.0
+        shape = "box"
+        half_extents = [0.1, 0.1, 0.1]
+        position = [{math.sin(a) * 0.1}, 0, {math.cos(a) * 0.1}]
+        orientation = [{math.cos(a / 2)}, 0, {math.sin(a / 2)}, 0]
+        [[static]]
+        shape = "slope"
+        angle = 20.0
+        """)
+    p = tmp_path / "ice.toml"
+    p.write_text(text)
+    eng = Engine(load_scene(p))
+    x0 = eng.state.x[0].copy()
+    eng.step(120)
+    down = np.array([math.cos(a), 0.0, -math.sin(a)])
+    s = (eng.state.x[0] - x0) @ down
+    assert abs(s / (0.5 * G * math.sin(a) * T * T) - 1) <= 1e-9
+
+
+def test_capsule_rolls_across_incline(tmp_path):
+    """A capsule lying across the slope rolls without slipping:
+    a = g sin th / (1 + I_axis / (m r^2)) with the capsule's axial moment."""
+    angle, r, T = 20.0, 0.05, 1.0
+    a = math.radians(angle)
+    n = np.array([math.sin(a), 0.0, math.cos(a)])
+    q = [math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0.0, 0.0]  # body z -> world y (across the slope)
+    text = textwrap.dedent(f"""
+        [scenario]
+        family = "t"
+        title = "capsule roll"
+        duration = {T}
+        dt = {1 / 240}
+        effects = ["gravity", "contact", "friction"]
+        [material.default]
+        friction = 0.8
+        [[body]]
+        name = "c"
+        shape = "capsule"
+        radius = {r}
+        half_length = 0.1
+        mass = 1.0
+        position = [{n[0] * r}, 0, {n[2] * r}]
+        orientation = {q}
+        [[static]]
+        shape = "slope"
+        angle = {angle}
+        """)
+    p = tmp_path / "capsule.toml"
+    p.write_text(text)
+    sc = load_scene(p)
+    eng = Engine(sc)
+    x0 = eng.state.x[0].copy()
+    eng.step(240)
+    acc = G * math.sin(a) / (1 + sc.bodies[0].inertia[2] / (sc.bodies[0].mass * r * r))
+    s = (eng.state.x[0] - x0) @ np.array([math.cos(a), 0.0, -math.sin(a)])
+    assert abs(s / (0.5 * acc * T * T) - 1) <= 1e-9
+    assert abs((eng.state.x[0] - x0) @ n) <= 1e-9
