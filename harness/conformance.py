@@ -547,9 +547,26 @@ def exit_code(outcomes: list[Outcome]) -> int:
 # entry point
 
 
+def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | None:
+    """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
+    (default results/check/); a failure to write is reported, not fatal."""
+    from harness.results import RESULTS_DIR, write_rows
+
+    if not results:
+        return None
+    d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    try:
+        return write_rows([r.row() for r in results.values()], d / f"{stamp}.parquet", append=False)
+    except Exception as e:  # pragma: no cover - disk trouble must not hide the verdict
+        print(f"warning: could not write result rows: {type(e).__name__}: {e}", file=sys.stderr)
+        return None
+
+
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
-               scenarios: list[str] | None, jobs: int = 1) -> int:
-    """Run the conformance suite; print a summary; write JUnit XML to
+               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None) -> int:
+    """Run the conformance suite; print a summary; write every run's result
+    row as Parquet (``save_dir``, default results/check/) and JUnit XML to
     ``junit`` if given.  Returns 1 on any FAIL, ERROR or XPASS, else 0."""
     from rich.console import Console
 
@@ -565,6 +582,9 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     results = run_all(runs, jobs=max(1, int(jobs or 1)), progress=True)
     outcomes = load_errors + evaluate_runs(runs, results)
     summarize(outcomes)
+    saved = save_rows(results, save_dir)
+    if saved is not None:
+        err.print(f"result rows written to {saved}")
     if junit:
         write_junit(outcomes, junit)
         err.print(f"JUnit XML written to {junit}")
