@@ -1,0 +1,48 @@
+"""The conversion functions of adapters/conventions.py, against hand values."""
+
+import math
+
+import numpy as np
+import pytest
+
+from adapters.conventions import (body_to_world_angvel, planar_from_world, quat_rotate, quat_to_matrix,
+                                  world_from_planar, world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz)
+
+
+def test_quaternion_order_round_trip():
+    q = np.array([0.1, 0.2, 0.3, 0.9])
+    assert wxyz_to_xyzw(q).tolist() == [0.2, 0.3, 0.9, 0.1]
+    assert np.array_equal(xyzw_to_wxyz(wxyz_to_xyzw(q)), q)
+
+
+def test_rotation_hand_values():
+    # 90 degrees about z takes x to y
+    q = np.array([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)])
+    assert np.allclose(quat_rotate(q, [1.0, 0, 0]), [0, 1, 0])
+    assert np.allclose(quat_to_matrix(q) @ [1.0, 0, 0], [0, 1, 0])
+    # batched: (2, 4) with (2, 3)
+    qs = np.stack([q, [1.0, 0, 0, 0]])
+    assert np.allclose(quat_rotate(qs, np.eye(3)[:2]), [[0, 1, 0], [0, 1, 0]])
+
+
+def test_angular_velocity_frames():
+    # body tilted 90 degrees about x: body z is world -y
+    q = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0])
+    w_body = np.array([0, 0, 2.0])
+    assert np.allclose(body_to_world_angvel(q, w_body), [0, -2.0, 0])
+    assert np.allclose(world_to_body_angvel(q, [0, -2.0, 0]), w_body)
+
+
+def test_planar_mapping_round_trip_and_sign():
+    theta = 0.4
+    q = np.array([math.cos(theta / 2), 0, -math.sin(theta / 2), 0])
+    (x, y), (vx, vy), angle, w = planar_from_world(np.array([1.0, 0, 2.0]), np.array([3.0, 0, -1.0]), q,
+                                                  np.array([0, -5.0, 0]))
+    assert (x, y, vx, vy) == (1.0, 2.0, 3.0, -1.0)
+    assert angle == pytest.approx(theta) and w == 5.0
+    pos, quat, vel, ang = np.zeros(3), np.zeros(4), np.zeros(3), np.zeros(3)
+    world_from_planar(x, y, vx, vy, angle, w, pos, quat, vel, ang)
+    assert np.allclose(pos, [1, 0, 2]) and np.allclose(quat, q) and np.allclose(vel, [3, 0, -1])
+    assert np.allclose(ang, [0, -5, 0])
+    # a counter-clockwise 2D angle turns world +x toward +z
+    assert np.allclose(quat_rotate(quat, [1.0, 0, 0]), [math.cos(theta), 0, math.sin(theta)])
