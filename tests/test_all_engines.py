@@ -1,0 +1,30 @@
+"""Every scenario runs on all four engines: status ok or unsupported (with a
+reason), and every metric finite when ok (NaN only where a metric does not
+apply, e.g. momentum under external forces)."""
+
+import math
+
+import pytest
+
+from adapters import ENGINES
+from harness.runner import run
+from harness.scene import load_scene, scenario_ids
+
+# metrics that are NaN by definition in some scenes (not applicable)
+MAY_BE_NAN = {"linear_momentum_drift", "angular_momentum_drift", "max_penetration", "mean_penetration",
+              "post_impact_velocity_error"}
+
+
+@pytest.mark.parametrize("engine", [e for e in ENGINES if e != "reference"])  # reference: test_scenarios.py
+@pytest.mark.parametrize("sid", scenario_ids())
+def test_scenario_runs_on_engine(sid, engine):
+    scene = load_scene(sid)
+    r = run(scene, engine)
+    assert r.status in ("ok", "unsupported"), f"{engine} {sid}: {r.status}: {r.message}"
+    if r.status == "unsupported":
+        assert r.message, "unsupported needs a reason"
+        return
+    bad = {k: v for k, v in r.metrics.items()
+           if isinstance(v, float) and not math.isfinite(v) and k not in MAY_BE_NAN}
+    assert not bad, f"{engine} {sid}: non-finite metrics {bad}"
+    assert r.metrics["stable"] in (True, False)
