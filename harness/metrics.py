@@ -131,7 +131,9 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
             with warnings.catch_warnings():  # frames where every pair is NaN (diverged) stay NaN
                 warnings.simplefilter("ignore", RuntimeWarning)
                 per_frame = np.nanmax(depth, axis=1)
-            out["max_penetration"] = float(np.nanmax(per_frame))
+                # NaN when no pair could be measured (a shape pair the harness
+                # geometry lacks): reported as not computed, never as 0
+                out["max_penetration"] = float(np.nanmax(per_frame))
             touching = per_frame > 0
             out["mean_penetration"] = float(per_frame[touching].mean()) if touching.any() else 0.0
         else:
