@@ -199,6 +199,66 @@ class Adapter(abc.ABC):
         return dict(self.stage_counts)
 
 
+# ---- shared rules -------------------------------------------------------------
+
+def _unequal_inertia(inertia: np.ndarray) -> bool:
+    i = np.asarray(inertia, float)
+    return float(i.max() - i.min()) > 1e-9 * float(i.max())
+
+
+def _about_principal_axis(w_body: np.ndarray, inertia: np.ndarray) -> bool:
+    """Is the body-frame angular velocity an eigenvector of diag(inertia)
+    (zero, or its non-zero components share one principal moment)?  Then
+    w x I w = 0."""
+    w = np.abs(np.asarray(w_body, float))
+    if w.max() == 0.0:
+        return True
+    moments = np.asarray(inertia, float)[w > 1e-12 * w.max()]
+    return float(moments.max() - moments.min()) <= 1e-9 * float(moments.max())
+
+
+def gyroscopic_reason(scene: Scene, engine: str) -> str | None:
+    """Why an engine whose gyroscopic term w x I w is always on cannot run a
+    scene that omits the ``gyroscopic`` effect, or None when the term is
+    provably zero for the whole run.
+
+    It vanishes while every body with unequal principal moments turns about a
+    principal axis.  That holds for all time when (a) the scene is planar:
+    every body turns about world y, a principal axis of each body (planar
+    orientations are rotations about y), and every force lies in the x-z
+    plane; or (b) the body starts at rest or spinning about a principal axis
+    and nothing can exert a torque on it: no contacts, no spring or damper
+    attached off its centre (gravity and drag act at the centre of mass).
+    """
+    from adapters.conventions import world_to_body_angvel
+
+    if "gyroscopic" in scene.effects or scene.planar:
+        return None
+    contact = "contact" in scene.effects
+    pulled_off_centre = set()
+    for sp in scene.springs:
+        if sp.stiffness == 0.0 and sp.damping == 0.0:
+            continue
+        for i, anchor in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b)):
+            if i >= 0 and np.any(np.asarray(anchor) != 0.0):
+                pulled_off_centre.add(i)
+    for b in scene.bodies:
+        if not _unequal_inertia(b.inertia):
+            continue
+        if contact:
+            why = "contacts can turn it about a non-principal axis"
+        elif b.index in pulled_off_centre:
+            why = "a spring attached off its centre of mass can turn it about a non-principal axis"
+        elif not _about_principal_axis(world_to_body_angvel(b.orientation, b.angular_velocity), b.inertia):
+            why = "it spins about a non-principal axis"
+        else:
+            continue
+        return (f"{engine} always integrates the gyroscopic term w x I w and has no switch to turn it off; "
+                f"body {b.name!r} has unequal principal moments {np.round(b.inertia, 9).tolist()} kg m^2, {why}, "
+                f"and the scene does not list 'gyroscopic'")
+    return None
+
+
 # ---- registry ---------------------------------------------------------------
 
 _REGISTRY: dict[str, Callable[[], type[Adapter]]] = {}

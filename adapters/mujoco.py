@@ -76,7 +76,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
 from adapters.conventions import quat_rotate, quat_to_matrix, world_to_body_angvel
 from harness.scene import Body, Scene, Static
 
@@ -99,15 +99,8 @@ _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_
 _INTEGRATORS = {"euler": "Euler", "rk4": "RK4", "implicit": "implicit", "implicitfast": "implicitfast"}
 _CONES = ("pyramidal", "elliptic")
 
-#: relative size of w x I w (against |I| |w|^2) below which it does not matter
-_GYRO_RTOL = 1e-9
 #: an impact slower than this (m/s) is a resting contact: calibrate at the fallback speed
 _MIN_IMPACT_SPEED = 0.05
-
-GYROSCOPIC_REASON = (
-    "MuJoCo always integrates the gyroscopic term w x I w and cannot switch it off; "
-    "the scene omits 'gyroscopic' but body {name!r} has unequal principal inertia and "
-    "an angular velocity off its principal axes, so the term would act")
 
 
 def _settings() -> dict[str, Setting]:
@@ -266,15 +259,7 @@ class MujocoAdapter(Adapter):
         reason = super().unsupported_reason(scene)
         if reason is not None:
             return reason
-        if not scene.has("gyroscopic"):
-            for b in scene.bodies:
-                w = world_to_body_angvel(b.orientation, b.angular_velocity)
-                iw = np.asarray(b.inertia, float) * w
-                gyro = float(np.linalg.norm(np.cross(w, iw)))
-                scale = float(np.max(b.inertia)) * float(w @ w)
-                if scale > 0.0 and gyro > _GYRO_RTOL * scale:
-                    return GYROSCOPIC_REASON.format(name=b.name)
-        return None
+        return gyroscopic_reason(scene, "MuJoCo")
 
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
