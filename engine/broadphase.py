@@ -28,31 +28,50 @@ from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from engine.profile import Stage
 
 
-def body_extents(model, R: np.ndarray) -> np.ndarray:
-    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations R."""
-    n = model.n
-    ext = np.empty((n, 3))
+#: below this many bodies ``sap`` tests all pairs instead: the same pairs in
+#: the same order, with fewer numpy calls (the sweep's sorting and
+#: bookkeeping only pays for more bodies)
+SAP_MIN_BODIES = 16
+
+
+def shape_groups(model) -> tuple:
+    """Index arrays of the bodies by extent rule (spheres, boxes, capsules
+    and cylinders), computed once per model."""
     s = model.shape
-    m = s == SPHERE
-    if m.any():
-        ext[m] = model.radius[m, None]
-    m = s == BOX
-    if m.any():
-        ext[m] = np.einsum("kij,kj->ki", np.abs(R[m]), model.half_extents[m])
-    m = (s == CAPSULE) | (s == CYLINDER)
-    if m.any():
-        ax = R[m][:, :, 2]
-        r = model.radius[m, None]
-        hl = model.half_length[m, None]
+    rnd = np.flatnonzero((s == CAPSULE) | (s == CYLINDER))
+    return (np.flatnonzero(s == SPHERE), np.flatnonzero(s == BOX), rnd, s[rnd] == CAPSULE)
+
+
+def body_extents(model, R: np.ndarray, groups: tuple | None = None) -> np.ndarray:
+    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations R
+    (``groups``: :func:`shape_groups`, computed here when not given)."""
+    n = model.n
+    sph, box, rnd, is_cap = shape_groups(model) if groups is None else groups
+    ext = np.empty((n, 3))
+    if sph.size:
+        ext[sph] = model.radius[sph, None]
+    if box.size:
+        ext[box] = np.einsum("kij,kj->ki", np.abs(R[box]), model.half_extents[box])
+    if rnd.size:
+        ax = R[rnd][:, :, 2]
+        r = model.radius[rnd, None]
+        hl = model.half_length[rnd, None]
         cap = np.abs(ax) * hl + r
         cyl = np.abs(ax) * hl + r * np.sqrt(np.clip(1.0 - ax * ax, 0.0, 1.0))
-        ext[m] = np.where((s[m] == CAPSULE)[:, None], cap, cyl)
+        ext[rnd] = np.where(is_cap[:, None], cap, cyl)
     return ext
 
 
 def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sweep and prune over boxes [lo, hi] (n, 3): overlapping pairs (i < j),
-    sorted lexicographically."""
+    sorted lexicographically.
+
+    Candidates are the pairs whose intervals overlap on the sweep axis (in
+    sorted order, box q after box p with lo_q <= hi_p); they are then
+    filtered one axis at a time on contiguous per-axis columns, each axis
+    only on the survivors of the previous one (the same pairs as testing
+    all three axes at once, with far fewer gathers when a sweep slab holds
+    many boxes)."""
     n = lo.shape[0]
     if n < 2:
         z = np.zeros(0, np.int64)
@@ -71,10 +90,19 @@ def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     P = np.repeat(np.arange(n), cnt)
     starts = np.cumsum(cnt) - cnt
     Q = P + 1 + (np.arange(total) - np.repeat(starts, cnt))
+    # the sweep axis: lo_p <= lo_q (sorted) <= hi_q, and lo_q <= hi_p (searchsorted)
+    ok_sweep = (slo[P] <= shi[Q]) & (slo[Q] <= shi[P])
+    if not ok_sweep.all():  # only with degenerate (lo > hi or NaN) boxes
+        P, Q = P[ok_sweep], Q[ok_sweep]
+    for ax in range(3):
+        if ax == axis or P.size == 0:
+            continue
+        la = lo[order, ax]
+        ha = hi[order, ax]
+        ok = (la[P] <= ha[Q]) & (la[Q] <= ha[P])
+        P, Q = P[ok], Q[ok]
     i = order[P]
     j = order[Q]
-    ok = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
-    i, j = i[ok], j[ok]
     a, b = np.minimum(i, j), np.maximum(i, j)
     srt = np.lexsort((b, a))
     return a[srt], b[srt]
@@ -98,15 +126,16 @@ class BroadPhase(Stage):
         self.margin = float(model.setting("contact_margin"))
         self.n_planes = model.plane_normal.shape[0]
         self.n_sbox = model.sbox_pos.shape[0]
+        self.groups = shape_groups(model)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
         n = model.n
         h = ctx.h
-        e0 = body_extents(model, ctx.R0)
+        e0 = body_extents(model, ctx.R0, self.groups)
         R1 = quat_to_matrix(ctx.q1)
-        e1 = body_extents(model, R1)
+        e1 = body_extents(model, R1, self.groups)
         vmax = np.sqrt(np.maximum(np.einsum("ki,ki->k", state.v, state.v),
                                   np.einsum("ki,ki->k", ctx.v[:n], ctx.v[:n])))
         umax = np.sqrt(np.einsum("ki,ki->k", ctx.u_lin, ctx.u_lin))
@@ -117,7 +146,7 @@ class BroadPhase(Stage):
         lo = np.minimum(state.x - e0, ctx.x1 - e1) - grow
         hi = np.maximum(state.x + e0, ctx.x1 + e1) + grow
         if n >= 2:
-            if self.method == "sap":
+            if self.method == "sap" and n > SAP_MIN_BODIES:
                 ctx.pairs_i, ctx.pairs_j = sap_pairs(lo, hi)
             else:
                 ctx.pairs_i, ctx.pairs_j = brute_pairs(model, lo, hi)

@@ -9,7 +9,26 @@ from __future__ import annotations
 
 import numpy as np
 
-from adapters.conventions import quat_rotate, quat_to_matrix  # noqa: F401  (re-exported)
+from adapters.conventions import quat_rotate  # noqa: F401  (re-exported)
+
+
+# quaternion products q_i q_j (flattened 4x4, w x y z = 0 1 2 3) combined
+# into the nine entries of R as 2 (p_a + s p_b); the diagonal is 1 - 2 (p_a + p_b)
+_Q2M_A = np.array([10, 6, 7, 6, 5, 11, 7, 11, 5])  # yy xy xz xy xx yz xz yz xx
+_Q2M_B = np.array([15, 3, 2, 3, 15, 1, 2, 1, 10])  # zz wz wy wz zz wx wy wx yy
+_Q2M_S = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_Q2M_D = np.array([0, 4, 8])
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) wxyz: the
+    same arithmetic as :func:`adapters.conventions.quat_to_matrix` (bit for
+    bit), with the products formed in one outer product."""
+    q = np.asarray(q, float)
+    p = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
+    R = 2 * (p[..., _Q2M_A] + _Q2M_S * p[..., _Q2M_B])
+    R[..., _Q2M_D] = 1 - R[..., _Q2M_D]
+    return R.reshape(q.shape[:-1] + (3, 3))
 
 
 def _blas_thread_setter():

@@ -251,49 +251,95 @@ def cylinder_plane(c, R, hl, r, pn, po):
 # ---------------------------------------------------------------------------
 # box-box
 
-def _clip(poly: list[tuple], nrm: tuple, off: float) -> list[tuple]:
-    """Sutherland-Hodgman: keep the part of polygon ``poly`` (list of 3-tuples)
-    with n.p <= off.  Plain floats: these polygons have four to eight
-    vertices, where numpy's per-call overhead dominates."""
-    out: list[tuple] = []
-    m = len(poly)
-    if m == 0:
-        return out
-    nx, ny, nz = nrm
-    for i in range(m):
-        p, q = poly[i], poly[(i + 1) % m]
-        dp = nx * p[0] + ny * p[1] + nz * p[2] - off
-        dq = nx * q[0] + ny * q[1] + nz * q[2] - off
-        if dp <= 0.0:
-            out.append(p)
-        if (dp < 0.0 < dq) or (dq < 0.0 < dp):
-            t = dp / (dp - dq)
-            out.append((p[0] + (q[0] - p[0]) * t, p[1] + (q[1] - p[1]) * t, p[2] + (q[2] - p[2]) * t))
-    return out
+def _clip_batch(P: np.ndarray, cnt: np.ndarray, nrm: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sutherland-Hodgman over a batch of polygons: keep the part of each
+    polygon with n.p <= off.  ``P`` (k, w, 3) vertices (the first ``cnt``
+    (k,) of each row valid), ``nrm`` (k, 3), ``off`` (k,).  Same vertices in
+    the same order as the one-polygon algorithm: per edge (p, q), p if it is
+    inside, then the crossing point if the edge crosses the plane."""
+    k, w = P.shape[0], P.shape[1]
+    if w == 0:
+        return P, cnt
+    nx, ny, nz = nrm[:, 0:1], nrm[:, 1:2], nrm[:, 2:3]
+    dp = nx * P[:, :, 0] + ny * P[:, :, 1] + nz * P[:, :, 2] - off[:, None]  # (k, w)
+    slot = np.arange(w)
+    valid = slot[None, :] < cnt[:, None]
+    if np.all((dp <= 0.0) | ~valid):
+        return P, cnt  # every vertex inside: all kept, no edge crosses
+    nxt = (slot[None, :] + 1) % np.maximum(cnt, 1)[:, None]  # (k, w)
+    rows = np.arange(k)[:, None]
+    Q = P[rows, nxt]
+    dq = dp[rows, nxt]
+    keep_p = valid & (dp <= 0.0)
+    cross_ = valid & (((dp < 0.0) & (0.0 < dq)) | ((dq < 0.0) & (0.0 < dp)))
+    den = np.where(cross_, dp - dq, 1.0)
+    t = (dp / den)[:, :, None]
+    X = P + (Q - P) * t
+    cand = np.empty((k, 2 * w, 3))
+    cand[:, 0::2] = P
+    cand[:, 1::2] = X
+    mask = np.empty((k, 2 * w), bool)
+    mask[:, 0::2] = keep_p
+    mask[:, 1::2] = cross_
+    new_cnt = mask.sum(axis=1)
+    wn = int(new_cnt.max(initial=0))
+    order = np.argsort(~mask, axis=1, kind="stable")[:, :wn]
+    return cand[rows, order], new_cnt
 
 
-def _reduce4(P: np.ndarray, gap: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Indices of at most four points of a manifold: deepest, farthest from
-    it, then the points on either side of that line farthest from it."""
-    m = P.shape[0]
-    if m <= 4:
-        return np.arange(m)
-    i0 = int(np.argmin(gap))
-    d = np.einsum("ki,ki->k", P - P[i0], P - P[i0])
-    i1 = int(np.argmax(d))
-    area = cross(P[i1] - P[i0], P - P[i0]) @ n
-    i2 = int(np.argmax(area))
-    i3 = int(np.argmin(area))
-    keep = []
-    for i in (i0, i1, i2, i3):
-        if i not in keep:
-            keep.append(i)
-    return np.array(keep)
+def _edge_axes(C, dA, hA, hB):
+    """Separations (k, 9) and unit axes (k, 9, 3) (A's frame) of the edge
+    axes A_i x B_j, index 3 i + j; -inf where the axis is degenerate or
+    duplicates a face normal."""
+    k = C.shape[0]
+    # e_i x c for c = C[:, :, j]: (0, -c2, c1), (c2, 0, -c0), (-c1, c0, 0)
+    L = np.zeros((k, 3, 3, 3))  # [k, i, j, component]
+    c0, c1, c2 = C[:, 0, :], C[:, 1, :], C[:, 2, :]  # (k, 3) over j
+    L[:, 0, :, 1] = -c2
+    L[:, 0, :, 2] = c1
+    L[:, 1, :, 0] = c2
+    L[:, 1, :, 2] = -c0
+    L[:, 2, :, 0] = -c1
+    L[:, 2, :, 1] = c0
+    L = L.reshape(k, 9, 3)
+    # (einsum reductions: the same sums, bit for bit, as per-axis einsums)
+    ln = np.sqrt(np.einsum("kai,kai->ka", L, L))
+    ok = ln > 1e-5
+    Ln = L / np.where(ok, ln, 1.0)[..., None]
+    aL = np.abs(Ln)
+    rA = np.einsum("kai,ki->ka", aL, hA)
+    aLB = np.abs(np.einsum("kai,kij->kaj", Ln, C))
+    rB = np.einsum("kaj,kj->ka", aLB, hB)
+    s = np.abs(np.einsum("kai,ki->ka", Ln, dA)) - rA - rB
+    # an edge axis parallel to a face normal duplicates that face axis
+    dup = (aL.max(axis=2) > 1 - 1e-9) | (aLB.max(axis=2) > 1 - 1e-9)
+    return np.where(ok & ~dup, s, -np.inf), Ln
+
+
+def _edge_contact(p, e, cA, RA, hA, cB, RB, hB, d, axesE):
+    """Edge-edge contact of pair ``p`` on edge axis ``e``: (normal, point)."""
+    i, j = divmod(e, 3)
+    L = RA[p] @ axesE[p, e]
+    if L @ d[p] < 0:
+        L = -L
+    sA = np.sign(RA[p].T @ L)
+    sB = -np.sign(RB[p].T @ L)
+    pa = cA[p] + RA[p] @ (np.where(np.arange(3) == i, 0.0, sA) * hA[p])
+    pb = cB[p] + RB[p] @ (np.where(np.arange(3) == j, 0.0, sB) * hB[p])
+    a0, a1 = pa - RA[p][:, i] * hA[p, i], pa + RA[p][:, i] * hA[p, i]
+    b0, b1 = pb - RB[p][:, j] * hB[p, j], pb + RB[p][:, j] * hB[p, j]
+    qa, qb = _segment_segment(a0[None], a1[None], b0[None], b1[None])
+    return L, 0.5 * (qa[0] + qb[0])
 
 
 def box_box(cA, RA, hA, cB, RB, hB, margin):
-    """Separating axes + clipping; normal from A to B.  ``margin`` (k,)."""
+    """Separating axes + clipping; normal from A to B.  ``margin`` (k,).
+
+    Vectorised over the pairs: the face case clips every pair's incident
+    face at once (:func:`_clip_batch`); the rare edge-edge case is a loop."""
     k = cA.shape[0]
+    if k == 0:
+        return _empty()
     d = cB - cA
     C = np.einsum("kji,kjl->kil", RA, RB)  # C[i, j] = A_i . B_j
     absC = np.abs(C) + 1e-9
@@ -303,101 +349,132 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     dB = np.einsum("kij,ki->kj", C, dA)
     sepB = np.abs(dB) - (hB + np.einsum("kij,ki->kj", absC, hA))
     # edges A_i x B_j, in A's frame: L = e_i x C[:, :, j]
-    sepE = np.full((k, 9), -np.inf)
-    axesE = np.zeros((k, 9, 3))
-    for i in range(3):
-        ei = np.zeros(3)
-        ei[i] = 1.0
-        for j in range(3):
-            L = cross(ei[None, :], C[:, :, j])
-            ln = _norm(L)
-            ok = ln > 1e-5
-            Ln = L / np.where(ok, ln, 1.0)[:, None]
-            rA = np.einsum("ki,ki->k", np.abs(Ln), hA)
-            rB = np.einsum("kj,kj->k", np.abs(np.einsum("ki,kij->kj", Ln, C)), hB)
-            s = np.abs(np.einsum("ki,ki->k", Ln, dA)) - rA - rB
-            # an edge axis parallel to a face normal duplicates that face axis
-            dup = (np.max(np.abs(Ln), axis=1) > 1 - 1e-9) | (np.max(np.abs(np.einsum("ki,kij->kj", Ln, C)), axis=1) > 1 - 1e-9)
-            sepE[:, 3 * i + j] = np.where(ok & ~dup, s, -np.inf)
-            axesE[:, 3 * i + j] = Ln
-    ks, ns, ps, gs, fs = [], [], [], [], []
-    for p in range(k):
-        fa = int(np.argmax(sepA[p]))
-        fb = int(np.argmax(sepB[p]))
-        sa, sb = sepA[p, fa], sepB[p, fb]
-        e = int(np.argmax(sepE[p]))
-        se = sepE[p, e]
-        # prefer face axes (stable manifolds): an edge axis or B's face must be
-        # clearly better (larger separation) than the alternative
-        tol_abs = 1e-5 * (hA[p].max() + hB[p].max())
-        best_face = max(sa, sb)
-        if se > best_face + 0.05 * abs(best_face) + tol_abs:
-            # edge-edge
-            i, j = divmod(e, 3)
-            L = RA[p] @ axesE[p, e]
-            if L @ d[p] < 0:
-                L = -L
-            sA = np.sign(RA[p].T @ L)
-            sB = -np.sign(RB[p].T @ L)
-            pa = cA[p] + RA[p] @ (np.where(np.arange(3) == i, 0.0, sA) * hA[p])
-            pb = cB[p] + RB[p] @ (np.where(np.arange(3) == j, 0.0, sB) * hB[p])
-            a0, a1 = pa - RA[p][:, i] * hA[p, i], pa + RA[p][:, i] * hA[p, i]
-            b0, b1 = pb - RB[p][:, j] * hB[p, j], pb + RB[p][:, j] * hB[p, j]
-            qa, qb = _segment_segment(a0[None], a1[None], b0[None], b1[None])
-            gap = se
-            if gap < margin[p]:
-                ks.append(np.array([p]))
-                ns.append(L[None])
-                ps.append(0.5 * (qa + qb))
-                gs.append(np.array([gap]))
-                fs.append(np.array([64 + e]))
-            continue
-        if not sb > sa + 0.05 * abs(sa) + tol_abs:
-            ref_c, ref_R, ref_h, inc_c, inc_R, inc_h, face, flip = cA[p], RA[p], hA[p], cB[p], RB[p], hB[p], fa, False
-            nrm = ref_R[:, face] * (1.0 if dA[p, face] >= 0 else -1.0)
-        else:
-            ref_c, ref_R, ref_h, inc_c, inc_R, inc_h, face, flip = cB[p], RB[p], hB[p], cA[p], RA[p], hA[p], fb, True
-            nrm = ref_R[:, face] * (1.0 if dB[p, face] <= 0 else -1.0)  # from B toward A
-        # incident face: the face of the other box most anti-parallel to nrm
-        dots = inc_R.T @ nrm
-        fi = int(np.argmax(np.abs(dots)))
-        sgn = -1.0 if dots[fi] > 0 else 1.0
-        fc = inc_c + inc_R[:, fi] * (sgn * inc_h[fi])
-        u_i, v_i = [a for a in range(3) if a != fi]
-        U = inc_R[:, u_i] * inc_h[u_i]
-        V = inc_R[:, v_i] * inc_h[v_i]
-        poly = [tuple(fc + U + V), tuple(fc - U + V), tuple(fc - U - V), tuple(fc + U - V)]
-        ref_face_c = ref_c + nrm * ref_h[face]
-        for a in range(3):
-            if a == face:
-                continue
-            ax = ref_R[:, a]
-            off = float(ax @ ref_c)
-            axt = (float(ax[0]), float(ax[1]), float(ax[2]))
-            poly = _clip(poly, axt, off + ref_h[a])
-            poly = _clip(poly, (-axt[0], -axt[1], -axt[2]), -off + ref_h[a])
-            if not poly:
-                break
-        if not poly:
-            continue
-        P = np.array(poly)
-        gap = (P - ref_face_c) @ nrm
-        keep = gap < margin[p]
-        if not keep.any():
-            continue
-        P, gap = P[keep], gap[keep]
-        sel = _reduce4(P, gap, nrm)
-        P, gap = P[sel], gap[sel]
-        normal = -nrm if flip else nrm
-        ks.append(np.full(P.shape[0], p))
-        ns.append(np.repeat(normal[None], P.shape[0], axis=0))
-        ps.append(P - nrm[None] * (0.5 * gap)[:, None])
-        gs.append(gap)
-        fs.append((16 if flip else 0) + 4 * face + np.arange(P.shape[0]))
-    if not ks:
+    sepE, axesE = _edge_axes(C, dA, hA, hB)
+    ar = np.arange(k)
+    fa = np.argmax(sepA, axis=1)
+    fb = np.argmax(sepB, axis=1)
+    sa, sb = sepA[ar, fa], sepB[ar, fb]
+    e = np.argmax(sepE, axis=1)
+    se = sepE[ar, e]
+    # prefer face axes (stable manifolds): an edge axis or B's face must be
+    # clearly better (larger separation) than the alternative
+    tol_abs = 1e-5 * (hA.max(axis=1) + hB.max(axis=1))
+    best_face = np.maximum(sa, sb)
+    edge = se > best_face + 0.05 * np.abs(best_face) + tol_abs
+    flip = sb > sa + 0.05 * np.abs(sa) + tol_abs
+    # slots: up to four contacts per pair, emitted in pair order
+    S_n = np.zeros((k, 4, 3))
+    S_p = np.zeros((k, 4, 3))
+    S_g = np.zeros((k, 4))
+    S_f = np.zeros((k, 4), np.int64)
+    S_ok = np.zeros((k, 4), bool)
+    for p in np.flatnonzero(edge).tolist():
+        if se[p] < margin[p]:
+            L, pt = _edge_contact(p, int(e[p]), cA, RA, hA, cB, RB, hB, d, axesE)
+            S_n[p, 0], S_p[p, 0], S_g[p, 0], S_f[p, 0], S_ok[p, 0] = L, pt, se[p], 64 + int(e[p]), True
+    fc_idx = np.flatnonzero(~edge)
+    if fc_idx.size:
+        _box_box_faces(fc_idx, cA, RA, hA, cB, RB, hB, margin, dA, dB, fa, fb, flip, S_n, S_p, S_g, S_f, S_ok)
+    if not S_ok.any():
         return _empty()
-    return (np.concatenate(ks), np.concatenate(ns), np.concatenate(ps), np.concatenate(gs),
-            np.concatenate(fs).astype(np.int64))
+    kk = np.repeat(ar, 4).reshape(k, 4)
+    m = S_ok
+    return kk[m], S_n[m], S_p[m], S_g[m], S_f[m]
+
+
+def _box_box_faces(idx, cA, RA, hA, cB, RB, hB, margin, dA, dB, fa, fb, flip, S_n, S_p, S_g, S_f, S_ok):
+    """Face-case contacts of the pairs ``idx``, written into the slots."""
+    k = idx.size
+    ar = np.arange(k)
+    fl = flip[idx]
+    f3 = fl[:, None]
+    # reference box: A, or B when flipped (rows of the stacked [A; B] arrays)
+    nA = cA.shape[0]
+    ref_i = idx + nA * fl
+    inc_i = idx + nA * ~fl
+    cAB = np.concatenate([cA, cB])
+    RAB = np.concatenate([RA, RB])
+    hAB = np.concatenate([hA, hB])
+    ref_c, ref_R, ref_h = cAB[ref_i], RAB[ref_i], hAB[ref_i]
+    inc_c, inc_R, inc_h = cAB[inc_i], RAB[inc_i], hAB[inc_i]
+    face = np.where(fl, fb[idx], fa[idx])
+    # A's face: normal toward B; B's face: from B toward A
+    sgnA = np.where(dA[idx, fa[idx]] >= 0, 1.0, -1.0)
+    sgnB = np.where(dB[idx, fb[idx]] <= 0, 1.0, -1.0)
+    nrm = ref_R[ar, :, face] * np.where(fl, sgnB, sgnA)[:, None]
+    # incident face: the face of the other box most anti-parallel to nrm
+    # (batched matmul: the same sums, bit for bit, as one pair's inc_R.T @ nrm)
+    dots = np.matmul(inc_R.transpose(0, 2, 1), nrm[:, :, None])[:, :, 0]
+    fi = np.argmax(np.abs(dots), axis=1)
+    sgn = np.where(dots[ar, fi] > 0, -1.0, 1.0)
+    fc = inc_c + inc_R[ar, :, fi] * (sgn * inc_h[ar, fi])[:, None]
+    u_i = np.where(fi == 0, 1, 0)
+    v_i = np.where(fi == 2, 1, 2)
+    U = inc_R[ar, :, u_i] * inc_h[ar, u_i][:, None]
+    V = inc_R[ar, :, v_i] * inc_h[ar, v_i][:, None]
+    P = np.empty((k, 4, 3))
+    P[:, 0] = fc + U + V
+    P[:, 1] = fc - U + V
+    P[:, 2] = fc - U - V
+    P[:, 3] = fc + U - V
+    cnt = np.full(k, 4)
+    ref_face_c = ref_c + nrm * ref_h[ar, face][:, None]
+    # side planes of the reference face: its other two axes, ascending
+    a_lo = np.where(face == 0, 1, 0)
+    a_hi = np.where(face == 2, 1, 2)
+    for a in (a_lo, a_hi):
+        ax = ref_R[ar, :, a]
+        off = np.matmul(ax[:, None, :], ref_c[:, :, None])[:, 0, 0]  # = ax @ ref_c per pair, bit for bit
+        ha = ref_h[ar, a]
+        P, cnt = _clip_batch(P, cnt, ax, off + ha)
+        P, cnt = _clip_batch(P, cnt, -ax, -off + ha)
+    w = P.shape[1]
+    if w == 0:
+        return
+    valid = np.arange(w)[None, :] < cnt[:, None]
+    D = P - ref_face_c[:, None, :]
+    gap = np.matmul(D, nrm[:, :, None])[..., 0]
+    valid &= gap < margin[idx][:, None]
+    nv = valid.sum(axis=1)
+    # at most four points: all when there are <= 4, else the deepest, the one
+    # farthest from it, and the two on either side of that line farthest from it
+    sel = np.full((k, 4), -1, np.int64)
+    few = nv <= 4
+    if few.any():
+        o = np.argsort(~valid[few], axis=1, kind="stable")[:, :4]
+        fi_ = np.flatnonzero(few)
+        sel[fi_[:, None], np.arange(o.shape[1])[None, :]] = np.where(np.take_along_axis(valid[few], o, axis=1), o, -1)
+    many = np.flatnonzero(~few)
+    if many.size:
+        Pm, vm, gm, nm = P[many], valid[many], gap[many], nrm[many]
+        r = np.arange(many.size)
+        i0 = np.argmin(np.where(vm, gm, np.inf), axis=1)
+        E = Pm - Pm[r, i0][:, None, :]
+        dd = np.where(vm, np.einsum("kmi,kmi->km", E, E), -np.inf)
+        i1 = np.argmax(dd, axis=1)
+        cr = cross(E[r, i1][:, None, :], E)
+        area = np.matmul(cr, nm[:, :, None])[..., 0]
+        i2 = np.argmax(np.where(vm, area, -np.inf), axis=1)
+        i3 = np.argmin(np.where(vm, area, np.inf), axis=1)
+        cand = np.stack([i0, i1, i2, i3], axis=1)
+        # unique, first occurrence order
+        dup = np.zeros((many.size, 4), bool)
+        for s in range(1, 4):
+            dup[:, s] = np.any(cand[:, s:s + 1] == cand[:, :s], axis=1)
+        kept = np.where(dup, -1, cand)
+        o = np.argsort(kept < 0, axis=1, kind="stable")
+        sel[many] = np.take_along_axis(kept, o, axis=1)
+    ok = sel >= 0
+    sidx = np.where(ok, sel, 0)
+    Ps = P[ar[:, None], sidx] if w else np.zeros((k, 4, 3))
+    gs = gap[ar[:, None], sidx]
+    normal = np.where(f3, -nrm, nrm)
+    rows = idx
+    S_ok[rows] = ok
+    S_g[rows] = np.where(ok, gs, 0.0)
+    S_p[rows] = Ps - nrm[:, None, :] * (0.5 * gs)[:, :, None]
+    S_n[rows] = normal[:, None, :]
+    S_f[rows] = (np.where(fl, 16, 0) + 4 * face)[:, None] + np.arange(4)[None, :]
 
 
 def _empty():
@@ -414,8 +491,23 @@ def _cat(parts):
 # ---------------------------------------------------------------------------
 # dispatch
 
+class _BodyGeom(dict):
+    """Geometry of the bodies ``idx``: ``c`` centres, ``R`` rotations, ``r``
+    radii, ``h`` half-extents, ``hl`` half-lengths, each gathered on first
+    use (a pair function reads only what its shapes need)."""
+
+    def __init__(self, model, X, R, idx):
+        super().__init__()
+        self._src = {"c": X, "R": R, "r": model.radius, "h": model.half_extents, "hl": model.half_length}
+        self._idx = idx
+
+    def __missing__(self, key):
+        v = self[key] = self._src[key][self._idx]
+        return v
+
+
 def _body_geom(model, X, R, idx):
-    return dict(c=X[idx], R=R[idx], r=model.radius[idx], h=model.half_extents[idx], hl=model.half_length[idx])
+    return _BodyGeom(model, X, R, idx)
 
 
 def _bb_sphere_sphere(A, B, margin):

@@ -86,20 +86,26 @@ def colour_order(a: np.ndarray, b: np.ndarray, world: int) -> tuple[np.ndarray, 
     (order, bounds): the rows sorted by colour (stable) and the colour
     boundaries, so every colour is a contiguous slice of the sorted rows."""
     m = a.size
-    col = np.empty(m, np.int64)
-    used: dict[int, int] = {}
-    al = a.tolist()
-    bl = b.tolist()
-    for k in range(m):
-        i, j = al[k], bl[k]
-        mask = used.get(i, 0) | (used.get(j, 0) if j != world else 0)
-        c = ((~mask) & (mask + 1)).bit_length() - 1
-        col[k] = c
-        used[i] = used.get(i, 0) | (1 << c)
-        if j != world:
-            used[j] = used.get(j, 0) | (1 << c)
     if m == 0:
         return np.zeros(0, np.int64), np.zeros(1, np.int64)
+    used: dict[int, int] = {}
+    get = used.get
+    cols = []
+    append = cols.append
+    for i, j in zip(a.tolist(), b.tolist()):
+        ui = get(i, 0)
+        if j != world:
+            uj = get(j, 0)
+            mask = ui | uj
+        else:
+            mask = ui
+        c = ((~mask) & (mask + 1)).bit_length() - 1  # lowest free colour
+        bit = 1 << c
+        append(c)
+        used[i] = ui | bit
+        if j != world:
+            used[j] = get(j, 0) | bit
+    col = np.array(cols, np.int64)
     order = np.argsort(col, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(np.bincount(col))])
     return order, bounds
@@ -126,11 +132,19 @@ class Rows:
     before it settles how that impulse is shared among the points.
     """
 
-    def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True):
+    def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True,
+                 sel: np.ndarray | None = None):
         n = model.n
+        if sel is not None and not colour:
+            c = c.take(sel)
         if colour:
-            order, bounds = colour_order(c.a, c.b, n)
-            c = c.take(order)
+            # rows of ``c`` (or of its rows ``sel``), sorted by colour: one gather
+            if sel is None:
+                order, bounds = colour_order(c.a, c.b, n)
+                c = c.take(order)
+            else:
+                order, bounds = colour_order(c.a[sel], c.b[sel], n)
+                c = c.take(sel[order])
         else:
             order, bounds = np.arange(c.m), np.array([0, c.m])
         self.order = order
@@ -184,11 +198,17 @@ class Rows:
         self.pa, self.pb = pa[porder], pb[porder]
         self.np = npch
         cnt = np.bincount(pid, minlength=npch).astype(float)
-        P = np.stack([np.bincount(pid, c.point[:, i], npch) for i in range(3)], axis=1) / cnt[:, None]
-        N = np.stack([np.bincount(pid, c.normal[:, i], npch) for i in range(3)], axis=1)
+        # per-patch sums of the points and normals: one bincount over
+        # (patch, component) bins, each summed in row order like a bincount
+        # per component
+        PN = np.bincount((pid[:, None] * 6 + np.arange(6)).ravel(),
+                         np.concatenate([c.point, c.normal], axis=1).ravel(), 6 * npch).reshape(npch, 6)
+        P = PN[:, :3] / cnt[:, None]
+        N = PN[:, 3:].copy()
         N /= np.linalg.norm(N, axis=1, keepdims=True)
         off = c.point - P[pid]
-        off -= np.einsum("ki,ki->k", off, N[pid])[:, None] * N[pid]
+        Nk = N[pid]
+        off -= np.einsum("ki,ki->k", off, Nk)[:, None] * Nk
         self.r_twist = np.bincount(pid, np.sqrt(np.einsum("ki,ki->k", off, off)), npch) / cnt
         self.pcentroid, self.pnormal = P, N
         t1, t2 = perpendicular_basis(N)
@@ -457,9 +477,18 @@ class Solve(Stage):
         Xp = _pad(state.x)
         rA = c.point - Xp[c.a]
         rB = c.point - Xp[c.b]
-        vn_free, _ = point_normal_velocity(ctx.v, ctx.w, c.a, c.b, rA, rB, c.normal)
-        vn0, rel0 = point_normal_velocity(_pad(state.v), _pad(state.w), c.a, c.b, rA, rB, c.normal)
-        un, _ = point_normal_velocity(_pad(ctx.u_lin), _pad(ctx.u_ang), c.a, c.b, rA, rB, c.normal)
+        # normal velocities at the end of the free flight, at the start of
+        # the step and of the mean motion, in one pass (the arithmetic of
+        # point_normal_velocity on the three stacked velocity fields)
+        VV = np.zeros((3, n + 1, 3))
+        WW = np.zeros((3, n + 1, 3))
+        VV[0], WW[0] = ctx.v, ctx.w
+        VV[1, :n], WW[1, :n] = state.v, state.w
+        VV[2, :n], WW[2, :n] = ctx.u_lin, ctx.u_ang
+        rel = VV[:, c.b] + cross(WW[:, c.b], rB) - VV[:, c.a] - cross(WW[:, c.a], rA)
+        m = c.m
+        vn3 = np.einsum("ki,ki->k", rel.reshape(3 * m, 3), np.concatenate([c.normal, c.normal, c.normal]))
+        vn_free, vn0, un = vn3[:m], vn3[m:2 * m], vn3[2 * m:]
         gap = c.gap
         touching = gap <= TOUCH_TOL
         closes = gap + h * un < 0.0
@@ -493,7 +522,7 @@ class Solve(Stage):
         if sel.size == 0:
             state.warm = {}
             return
-        rows = Rows(model, state.x, ctx.Iinv0, c.take(sel), self.friction)
+        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel)
         sel = sel[rows.order]  # rows are sorted by colour
         cs = rows.contacts
         # touching rows: v1n >= 0 (memoryless: a target that depends on the
@@ -506,7 +535,7 @@ class Solve(Stage):
         depth = -gap[sel]
         rows.target = target
         if self.friction:
-            vt0 = rows.patch_tangent_velocity(Rows.pack(_pad(state.v), _pad(state.w)))
+            vt0 = rows.patch_tangent_velocity(Rows.pack(VV[1], WW[1]))
             rows.set_slip(np.sqrt(np.einsum("km,km->k", vt0, vt0)) > SLIP_TOL)
         codes = _pair_codes(model, cs)
         U = Rows.pack(ctx.v, ctx.w)
@@ -545,45 +574,117 @@ class Solve(Stage):
         return np.einsum("kji,kj->ki", ctx.R0[a], p - state.x[a])
 
     def _warm_start(self, model, state, ctx, rows, cs, codes, h):
+        """Each row takes the cached force of the nearest cached point of its
+        pair (in body a's frame) within 0.1 bounding radius + 0.1 mm; a
+        patch with a matched point takes its pair's cached friction force
+        and twist.  Vectorised over rows (the cache is packed, see
+        :class:`WarmCache`)."""
         old = state.warm
         if not old:
             return
+        o_code, o_loc, o_fn, u_code, u_ft, u_tw = _warm_packed(old)
         loc = self._local(ctx, cs.a, cs.point, state)
         tol = 0.1 * model.bound_radius[cs.a] + 1e-4
-        uniq, inv = np.unique(codes, return_inverse=True)
-        for u, code in enumerate(uniq.tolist()):
-            prev = old.get(code)
-            if prev is None:
-                continue
-            rows_k = np.flatnonzero(inv == u)
-            p_old, fn_old, ft_old, tw_old = prev
-            d = loc[rows_k, None, :] - p_old[None, :, :]
-            d2 = np.einsum("kmi,kmi->km", d, d)
-            j = np.argmin(d2, axis=1)
-            ok = d2[np.arange(rows_k.size), j] <= tol[rows_k] ** 2
-            r = rows_k[ok]
-            j = j[ok]
-            rows.lam_n[r] = fn_old[j] * h
-            if rows.friction and r.size:
-                p = rows.pid[rows_k[0]]
-                rows.lam_t[p, :2] = rows.t[p] @ ft_old * h
-                rows.lam_t[p, 2] = tw_old * h
+        lo = np.searchsorted(o_code, codes, "left")
+        cnt = np.searchsorted(o_code, codes, "right") - lo
+        has = np.flatnonzero(cnt > 0)
+        if has.size == 0:
+            return
+        c = cnt[has]
+        tot = int(c.sum())
+        starts = np.cumsum(c) - c
+        R = np.repeat(has, c)  # (row, cached point) candidates, grouped by row
+        J = np.repeat(lo[has], c) + (np.arange(tot) - np.repeat(starts, c))
+        d = loc[R] - o_loc[J]
+        d2 = np.einsum("ki,ki->k", d, d)
+        # nearest cached point per row, first on ties (like argmin)
+        mn = np.minimum.reduceat(d2, starts)
+        hit = np.flatnonzero(d2 == np.repeat(mn, c))
+        _, fi = np.unique(R[hit], return_index=True)
+        jbest = J[hit[fi]]
+        ok = mn <= tol[has] ** 2
+        r = has[ok]
+        rows.lam_n[r] = o_fn[jbest[ok]] * h
+        if rows.friction and r.size:
+            # one patch per pair: its first row's patch, for pairs with a match
+            rc = codes[r]
+            uc, first = np.unique(codes, return_index=True)
+            sel = np.isin(uc, rc)
+            p = rows.pid[first[sel]]
+            g = np.searchsorted(u_code, uc[sel])
+            rows.lam_t[p, :2] = np.matmul(rows.t[p], u_ft[g][:, :, None])[:, :, 0] * h
+            rows.lam_t[p, 2] = u_tw[g] * h
 
     def _store(self, model, state, ctx, rows, cs, codes, h):
         loc = self._local(ctx, cs.a, cs.point, state)
         fn = rows.lam_n / h
-        new: dict = {}
-        uniq, inv = np.unique(codes, return_inverse=True)
-        for u, code in enumerate(uniq.tolist()):
-            k = np.flatnonzero(inv == u)
-            if rows.friction:
-                p = rows.pid[k[0]]
-                ft = rows.lam_t[p, :2] @ rows.t[p] / h
-                tw = rows.lam_t[p, 2] / h
-            else:
-                ft, tw = np.zeros(3), 0.0
-            new[code] = (loc[k], fn[k], ft, tw)
+        order = np.argsort(codes, kind="stable")
+        sc = codes[order]
+        first = np.flatnonzero(np.concatenate([[True], sc[1:] != sc[:-1]]))
+        uniq = sc[first]
+        if rows.friction:
+            p = rows.pid[order[first]]
+            lt = rows.lam_t[p]
+            tp = rows.t[p]
+            ft = np.matmul(lt[:, None, :2], tp)[:, 0] / h
+            tw = lt[:, 2] / h
+        else:
+            ft, tw = np.zeros((uniq.size, 3)), np.zeros(uniq.size)
+        s_loc, s_fn = loc[order], fn[order]
+        new = WarmCache(zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
+                                              tw.tolist())))
+        new.packed = (sc, s_loc, s_fn, uniq, ft, tw)
         state.warm = new
+
+
+class WarmCache(dict):
+    """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
+    normal forces (k,) N, friction force (3,) N, twist torque N m), plus the
+    same data packed into arrays sorted by code (``packed``) for the
+    vectorised lookup."""
+
+    packed = None
+
+
+def _warm_packed(old: dict):
+    """(point codes, points, normal forces, pair codes, friction forces,
+    twists) of a warm cache, sorted by code (built from the dict when the
+    cache was copied)."""
+    pk = getattr(old, "packed", None)
+    if pk is not None:
+        return pk[0], pk[1], pk[2], pk[3], pk[4], pk[5]
+    keys = sorted(old)
+    vals = [old[k] for k in keys]
+    o_code = np.concatenate([np.full(len(v[1]), k, np.int64) for k, v in zip(keys, vals)])
+    o_loc = np.concatenate([np.asarray(v[0], float).reshape(-1, 3) for v in vals])
+    o_fn = np.concatenate([np.asarray(v[1], float) for v in vals])
+    u_ft = np.array([np.asarray(v[2], float) for v in vals]).reshape(-1, 3)
+    u_tw = np.array([float(v[3]) for v in vals])
+    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw
+
+
+def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
+    """(a, b, JA, JB, MA, MB, K) of the normal rows ``idx`` of one pair,
+    gathered once per Rows (the impact solver resolves a pair many times)."""
+    cache = rows.__dict__.setdefault("_pair_blocks", {})
+    key = idx.tobytes()
+    out = cache.get(key)
+    if out is None:
+        JA, JB, MA, MB = rows.JA[idx], rows.JB[idx], rows.MA[idx], rows.MB[idx]
+        out = (rows.a[idx[0]], rows.b[idx[0]], JA, JB, MA, MB, JA @ MA.T + JB @ MB.T)
+        cache[key] = out
+    return out
+
+
+def _patch_block(rows: Rows, p: int) -> tuple:
+    """(a, b, JA, JB, MA, MB, K) of friction patch ``p`` (cached per Rows)."""
+    cache = rows.__dict__.setdefault("_patch_blocks", {})
+    out = cache.get(p)
+    if out is None:
+        JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
+        out = (rows.pa[p], rows.pb[p], JA, JB, MA, MB, JA @ MA.T + JB @ MB.T)
+        cache[p] = out
+    return out
 
 
 def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -594,12 +695,24 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
     four coplanar points).  Applies the impulses to U and returns them."""
     from itertools import combinations
 
-    a, b = rows.a[idx[0]], rows.b[idx[0]]
-    JA, JB, MA, MB = rows.JA[idx], rows.JB[idx], rows.MA[idx], rows.MB[idx]
-    K = JA @ MA.T + JB @ MB.T
+    a, b, JA, JB, MA, MB, K = _pair_block(rows, idx)
     r = target - (JA @ U[a] + JB @ U[b])
     k = idx.size
     lam = np.zeros(k)
+    if k == 1:
+        # one row (the common case: sphere contacts): the only active set is
+        # {0}, lambda = r / K -- the same tests as the enumeration below
+        K00, r0 = float(K[0, 0]), float(r[0])
+        if r0 <= 0.0:
+            return lam
+        if abs(K00) >= 1e-12 * max(1.0, abs(K00)):
+            l0 = r0 / K00
+            if l0 >= 0.0 and K00 * l0 - r0 >= -1e-9 * abs(r0):
+                lam[0] = l0
+                U[a] += MA[0] * l0
+                U[b] += MB[0] * l0
+                U[-1] = 0.0
+                return lam
     if np.all(r <= 0.0):
         return lam
     scale = float(np.max(np.abs(r)))
@@ -636,10 +749,8 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
     impulse of total ``Fn``: the impulse that stops the tangential and twist
     motion (exact 3x3 block), kept if inside the mu_s disc, else scaled onto
     the mu_k disc."""
-    a, b = rows.pa[p], rows.pb[p]
-    JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
+    a, b, JA, JB, MA, MB, K = _patch_block(rows, p)
     vt = JA @ U[a] + JB @ U[b]
-    K = JA @ MA.T + JB @ MB.T
     if Fn <= 0.0:
         return
     try:
@@ -683,29 +794,56 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     U = Rows.pack(_pad(state.v), _pad(state.w))
     code = _pair_codes(model, cs)
     uniq, inv = np.unique(code, return_inverse=True)
-    groups = [np.flatnonzero(inv == g) for g in range(uniq.size)]
+    # rows of each pair (ascending), and of each body
+    go = np.argsort(inv, kind="stable")
+    groups = np.split(go, np.cumsum(np.bincount(inv, minlength=uniq.size))[:-1])
     e = cs.e
+    ra, rb = rows.a, rows.b
+    ab_rows = np.concatenate([ra, rb])
+    bo = np.argsort(ab_rows, kind="stable")
+    body_rows = np.split(bo % rows.m, np.cumsum(np.bincount(ab_rows, minlength=n + 1))[:-1])
+    affected: dict[int, tuple] = {}
+    group_sub: dict[int, tuple] = {}
 
     def vn_all():
-        return np.einsum("ki,ki->k", rows.JA, U[rows.a]) + np.einsum("ki,ki->k", rows.JB, U[rows.b])
+        return np.einsum("ki,ki->k", rows.JA, U[ra]) + np.einsum("ki,ki->k", rows.JB, U[rb])
+
+    def vn_sub(sub):
+        # the same per-row arithmetic as vn_all, on a subset of the rows
+        # gathered once: sub = (JA, a, JB, b) of those rows
+        JAs, As, JBs, Bs = sub
+        return np.einsum("ki,ki->k", JAs, U[As]) + np.einsum("ki,ki->k", JBs, U[Bs])
+
+    # normal velocities of all rows, kept current: a pair's impulses change
+    # only the rows of its two bodies
+    vcur = vn_all()
 
     def resolve(g, restitution: bool):
         idx = groups[g]
-        v = vn_all()[idx]
+        v = vcur[idx]
         tgt = np.where(v < -thr, -e[idx] * v, 0.0) if restitution else np.zeros(idx.size)
         lam = _block_normal(rows, U, idx, tgt)
         if friction and lam.sum() > 0:
             _patch_impulse(rows, U, int(rows.pid[idx[0]]), float(lam.sum()))
             # friction may have changed the normal velocities: keep them >= 0
-            v2 = vn_all()[idx]
+            gs = group_sub.get(g)
+            if gs is None:
+                gs = group_sub[g] = (rows.JA[idx], ra[idx], rows.JB[idx], rb[idx])
+            v2 = vn_sub(gs)
             if np.any(v2 < np.minimum(tgt, 0.0) - 1e-12):
                 _block_normal(rows, U, idx, np.maximum(np.minimum(tgt, 0.0), v2 * 0.0))
+        entry = affected.get(g)
+        if entry is None:
+            i, j = int(ra[idx[0]]), int(rb[idx[0]])
+            aff = np.unique(np.concatenate([body_rows[i]] + ([body_rows[j]] if j != n else [])))
+            entry = (aff, (rows.JA[aff], ra[aff], rows.JB[aff], rb[aff]))
+            affected[g] = entry
+        vcur[entry[0]] = vn_sub(entry[1])
 
     settled = False
     for _ in range(20 * len(groups) + 10):
-        v = vn_all()
-        j = int(np.argmin(v))
-        if v[j] >= -thr:
+        j = int(np.argmin(vcur))
+        if vcur[j] >= -thr:
             settled = True
             break
         resolve(int(inv[j]), True)
@@ -716,9 +854,9 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
         rows_c = Rows(model, state.x, Iinv, cs, friction)
         rows_c.target = rows.target[rows_c.order]
         rows_c.solve_friction_regimes(U, iterations)
+        vcur[:] = vn_all()
     for _ in range(3):  # slow approaches stop (plastic)
-        v = vn_all()
-        slow = np.unique(inv[v < -1e-12])
+        slow = np.unique(inv[vcur < -1e-12])
         if slow.size == 0:
             break
         for g in slow.tolist():

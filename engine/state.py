@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.conventions import quat_to_matrix
+from engine.mathutil import quat_to_matrix
 from engine.model import Model
 
 
