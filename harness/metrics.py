@@ -6,7 +6,9 @@ Definitions (all from the trace, never from an engine's own accounting):
 - ``max_penetration`` / ``mean_penetration`` (m): the deepest overlap between
   any two shapes over the run / the mean of each frame's deepest overlap over
   the frames where something overlaps (0 if nothing ever does).  Measured by
-  :mod:`harness.geometry`.  NaN without the ``contact`` effect (shapes are
+  :mod:`harness.geometry` (depth = the shortest move that separates the two
+  shapes); ``penetration_unknown_frames`` counts frames where some pair could
+  not be measured.  NaN without the ``contact`` effect (shapes are
   meant to pass through each other then).
 - ``energy_drift`` = max_t |E(t) - E0| / E_scale and ``energy_gain`` =
   max(0, max_t (E(t) - E0) / E_scale), with E = translational + rotational
@@ -30,7 +32,6 @@ Definitions (all from the trace, never from an engine's own accounting):
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Any
 
 import numpy as np
@@ -124,21 +125,17 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
 
     # --- penetration
     if scene.has("contact"):
-        from harness.geometry import penetration_depths
+        from harness.geometry import measure_penetration
 
-        depth = penetration_depths(scene, trace)  # (F, P) >= 0
-        if depth.size:
-            with warnings.catch_warnings():  # frames where every pair is NaN (diverged) stay NaN
-                warnings.simplefilter("ignore", RuntimeWarning)
-                per_frame = np.nanmax(depth, axis=1)
-                # NaN when no pair could be measured (a shape pair the harness
-                # geometry lacks): reported as not computed, never as 0
-                out["max_penetration"] = float(np.nanmax(per_frame))
-            touching = per_frame > 0
-            out["mean_penetration"] = float(per_frame[touching].mean()) if touching.any() else 0.0
-        else:
-            out["max_penetration"] = 0.0
-            out["mean_penetration"] = 0.0
+        pen = measure_penetration(scene, trace)
+        per_frame = pen.frame_max()  # (F,) deepest known overlap, 0 where none
+        unknown = pen.unknown()
+        out["max_penetration"] = float(per_frame.max(initial=0.0))
+        touching = per_frame > 0
+        out["mean_penetration"] = float(per_frame[touching].mean()) if touching.any() else 0.0
+        # frames where some pair's depth could not be measured (a non-finite
+        # pose, a shape pair without a kernel): said, never counted as 0
+        out["penetration_unknown_frames"] = int(unknown.sum())
     else:
         out["max_penetration"] = math.nan
         out["mean_penetration"] = math.nan
