@@ -131,8 +131,9 @@ def cmd_engines(args: argparse.Namespace) -> int:
             continue
         t.add_row(c["engine"], c["version"], "yes" if c["available"] else "no", str(c["dimensions"]),
                   ", ".join(c["shapes"]), ", ".join(c["effects"]),
-                  ", ".join(f"{k}={_fmt(v['default'])}" for k, v in c["settings"].items()))
-    Console().print(t)
+                  ", ".join(f"{k}={_fmt(v['default']) if v['default'] is not None else 'scene'}"
+                            for k, v in c["settings"].items()))
+    Console(width=200).print(t)
     return 0
 
 
