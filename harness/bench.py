@@ -24,8 +24,8 @@ from typing import Any, Callable
 import numpy as np
 
 from adapters import get_adapter
-from harness.runner import Trace, run
-from harness.scene import Scene, compile_scene, load_scene
+from harness.runner import run
+from harness.scene import Scene, canonical_example, compile_scene, load_scene
 from harness.spec import validate_raw
 
 
@@ -67,11 +67,7 @@ def spheres_scene(n: int, dt: float = 1 / 240) -> Scene:
 
 
 def _head_on() -> Scene:
-    from harness.scene import REPO_ROOT
-
-    shared = REPO_ROOT.parent / "shared" / "examples" / "head_on.toml"
-    local = REPO_ROOT / "tests" / "data" / "head_on.toml"
-    return load_scene(shared if shared.is_file() else local)
+    return load_scene(canonical_example())
 
 
 def pyramid_scene(levels: int = 4, dt: float = 1 / 240) -> Scene:

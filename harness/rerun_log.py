@@ -42,7 +42,7 @@
     run, so compare drifts between engines, not absolute levels.
 ``/metrics/<engine>/penetration``
     Per-frame deepest overlap (m) over all candidate pairs,
-    :func:`harness.geometry.penetration_depths` (0 when there are no pairs);
+    :func:`harness.geometry.max_depth_per_frame` (0 when there are no pairs);
     only for scenes with the ``contact`` effect.
 
 Timelines: ``step`` (sequence, the simulation step number round(t / dt) with

@@ -475,6 +475,13 @@ def resolve_scenario(name: str | Path) -> Path:
     raise SpecError([f"{name}: <scenario>: no spec file and no scenario with this id; known ids: {known}"])
 
 
+def canonical_example() -> Path:
+    """The canonical spec: ../shared/examples/head_on.toml beside the
+    repository, else the copy kept under tests/data."""
+    shared = REPO_ROOT.parent / "shared" / "examples" / "head_on.toml"
+    return shared if shared.is_file() else REPO_ROOT / "tests" / "data" / "head_on.toml"
+
+
 def scenario_ids() -> list[str]:
     return sorted(".".join(p.relative_to(SCENARIO_DIR).with_suffix("").parts)
                   for p in SCENARIO_DIR.rglob("*.toml"))

@@ -7,11 +7,11 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-# The shared canonical spec lives beside the repository (../shared); CI clones
-# the repo with shared/ beside it.  Fall back to the copy under tests/data.
-_SHARED = ROOT.parent / "shared" / "examples" / "head_on.toml"
-_LOCAL = ROOT / "tests" / "data" / "head_on.toml"
-HEAD_ON = _SHARED if _SHARED.is_file() else _LOCAL
+from harness.scene import canonical_example  # noqa: E402
+
+# ../shared/examples/head_on.toml when shared/ stands beside the repository
+# (as in CI), else the copy under tests/data
+HEAD_ON = canonical_example()
 
 
 @pytest.fixture
