@@ -190,6 +190,14 @@ class Adapter(abc.ABC):
             self.read_state(pos[i], quat[i], vel[i], angvel[i])
             self.block_done = i + 1
 
+    def bare_loop(self, n: int) -> None:
+        """Advance ``n`` steps by the engine's public step call in a plain
+        Python loop, recording nothing: the baseline of the overhead
+        benchmark (``physbench bench overhead``).  The default is step(n);
+        adapters whose step() is faster than that loop (a compiled multi-step
+        call, a direct C entry point) override it."""
+        self.step(n)
+
     def close(self) -> None:  # noqa: B027 - optional
         pass
 

@@ -44,14 +44,27 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return R
 
 
-def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors v (..., 3) by unit quaternions q (..., 4) wxyz."""
+def quat_rotate(q: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4) wxyz:
+    v' = v + w t + u x t with t = 2 u x v (u the vector part).
+
+    Written out per component: the same arithmetic as with ``np.cross``
+    (results are bit-identical) at half the cost on the small stacks the
+    adapters convert per block.  ``out`` (..., 3) may be given to write in
+    place; it must not share memory with q or v."""
     q = np.asarray(q, float)
     v = np.asarray(v, float)
-    u = q[..., 1:]
-    w = q[..., :1]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    if out is None:
+        out = np.empty(np.broadcast_shapes(q.shape[:-1] + (3,), v.shape))
+    out[..., 0] = vx + w * tx + (y * tz - z * ty)
+    out[..., 1] = vy + w * ty + (z * tx - x * tz)
+    out[..., 2] = vz + w * tz + (x * ty - y * tx)
+    return out
 
 
 def body_to_world_angvel(q: np.ndarray, w_body: np.ndarray) -> np.ndarray:

@@ -352,6 +352,16 @@ class MujocoAdapter(Adapter):
                 mujoco.mj_step(m, d)
         self.steps += n
 
+    def bare_loop(self, n: int) -> None:
+        """The engine's public step call in a Python loop: mj_step(m, d) n
+        times (step() instead hands n to mj_step, which loops in C)."""
+        if self._drag:
+            return self.step(n)
+        m, d, f = self.m, self.d, mujoco.mj_step
+        for _ in range(n):
+            f(m, d)
+        self.steps += n
+
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step and record a block of n steps in compiled code.
 
@@ -385,7 +395,7 @@ class MujocoAdapter(Adapter):
         pos[...] = qpos[..., 0:3]
         quat[...] = qpos[..., 3:7]
         vel[...] = qvel[..., 0:3]
-        angvel[...] = quat_rotate(quat, qvel[..., 3:6])
+        quat_rotate(quat, qvel[..., 3:6], out=angvel)
         mujoco.mj_setState(m, d, st[-1], spec)
         d.qacc_warmstart[:] = self._rollout_data_warmstart(d)
         self.steps += n

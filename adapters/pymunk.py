@@ -257,7 +257,8 @@ class PymunkAdapter(Adapter):
             "pymunk integrates positions with the velocity from before the step (x' = x + v dt, "
             "then v' = v + a dt): free fall from rest gives z_k = -g dt^2 k (k - 1) / 2")
 
-        # -- fast state reads -------------------------------------------------
+        # -- fast stepping and state reads -------------------------------------
+        self._setup_stepper()
         self._setup_reader(n)
         self._space_steps = 0
         self.info.update({
@@ -312,6 +313,32 @@ class PymunkAdapter(Adapter):
             "exact pair values are set in a Python pre_solve callback per touching pair per step")
 
     _raw: np.ndarray | None = None
+
+    def _setup_stepper(self) -> None:
+        """Step through Chipmunk's cpSpaceStep directly.
+
+        pymunk's Space.step wraps that one C call in Python bookkeeping that
+        physbench never needs after build (a mass check of newly added bodies,
+        done here once instead; deferred add/remove and post-step callbacks,
+        which the adapter never registers; the pre_solve material callbacks
+        run inside cpSpaceStep either way).  The wrapper costs ~0.5 us per
+        step, more than reading the whole state back; results are
+        bit-identical (tests/test_adapter_pymunk.py compares the two)."""
+        sp = self._space
+        self._c_step = None
+        for b in self._bodies:
+            if not (b.mass > 0 and math.isfinite(b.mass) and b.moment > 0):
+                raise ValueError(f"pymunk body needs 0 < mass < inf and moment > 0, got {b.mass}, {b.moment}")
+        try:
+            from pymunk._chipmunk_cffi import lib
+
+            if getattr(sp, "threaded", False) or sp._add_later or sp._remove_later or sp._post_step_callbacks:
+                return
+            sp._bodies_to_check.clear()
+            self._c_step = lib.cpSpaceStep
+            self._c_space_step = sp._space
+        except Exception:  # pragma: no cover - depends on pymunk internals
+            self._c_step = None
 
     def _setup_reader(self, n: int) -> None:
         """Prepare batched reads of (x, y, angle, vx, vy, w) for every body.
@@ -374,7 +401,10 @@ class PymunkAdapter(Adapter):
 
     def step(self, n: int = 1) -> None:
         """Advance n physbench steps (n * substeps engine steps of dt/substeps)."""
-        st = self._space.step
+        if self._c_step is not None:
+            st, cs = self._c_step, self._c_space_step
+        else:
+            st, cs = _call_step, self._space
         h = self._h
         k = n * self._substeps
         if self._drag:
@@ -384,51 +414,75 @@ class PymunkAdapter(Adapter):
                     v = body.velocity
                     f = -(c1 + c2 * math.hypot(v.x, v.y))
                     body.force = (f * v.x, f * v.y)
-                st(h)
+                st(cs, h)
         else:
             for _ in range(k):
-                st(h)
+                st(cs, h)
         self._space_steps += k
 
+    def bare_loop(self, n: int) -> None:
+        """The engine's public step call in a plain loop: space.step(dt)."""
+        if self._drag or self._substeps != 1:
+            return self.step(n)
+        st, h = self._space.step, self._h
+        for _ in range(n):
+            st(h)
+        self._space_steps += n
+
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """Step n times, copying each step's raw (x, y, angle, vx, vy, w)
-        columns into a block buffer; convert the whole block once with the
-        conversion point world_from_planar (vectorised over steps and
-        bodies).  Per step this costs one C batch read and one array copy."""
+        """Step n times, the C batch reader appending each step's raw
+        (x, y, angle, vx, vy, w) rows to one block buffer; then convert the
+        whole block once with the conversion point world_from_planar
+        (vectorised over steps and bodies).
+
+        The reader's float array is pointed at the block with a capacity
+        beyond the block's size, so it appends step after step with no
+        per-step bookkeeping in Python (pymunk grows the array only when it
+        is within two values of its capacity, which the slack row rules out);
+        a step costs the C step call and the C read call, nothing else."""
         if self._c_each is None:
             return super().step_record(n, pos, quat, vel, angvel)
         raw = self._raw
         total = self._n_iter
-        if raw is None or raw.shape[0] < n:
+        row = 6 * total
+        if raw is None or raw.shape[0] < n + 1:
             from pymunk._chipmunk_cffi import ffi
 
-            raw = self._raw = np.empty((max(n, 256), total, 6))
-            # pointers to every row of the block: the C batch iterator writes
-            # each step's state straight into its row (no copy)
-            base = ffi.cast("double *", ffi.from_buffer(raw))
-            self._rows = [base + k * 6 * total for k in range(raw.shape[0])]
-        rows = self._rows
+            # one slack row: the array never comes near its capacity
+            raw = self._raw = np.empty((max(n, 256) + 1, total, 6))
+            self._raw_ptr = ffi.cast("double *", ffi.from_buffer(raw))
         each, space_c, it, data, farr = self._c_each, self._c_space, self._c_iter, self._c_data, self._farr
-        home = farr.arr
+        home, home_max = farr.arr, farr.max
         simple = not self._drag and self._substeps == 1
-        st, h = self._space.step, self._h
+        if self._c_step is not None:
+            st, cs = self._c_step, self._c_space_step
+        else:
+            st, cs = _call_step, self._space
+        h = self._h
+        farr.num = 0
+        farr.max = raw.shape[0] * row
+        farr.arr = self._raw_ptr
         try:
-            for i in range(n):
-                if simple:
-                    st(h)
-                else:
+            if simple:
+                for _ in range(n):
+                    st(cs, h)
+                    each(space_c, it, data)
+            else:
+                for _ in range(n):
                     self.step(1)
-                farr.num = 0
-                farr.arr = rows[i]
-                each(space_c, it, data)
-                self.block_done = i + 1
+                    each(space_c, it, data)
         finally:
-            farr.arr = home
-        if simple:
-            self._space_steps += n
-        c = raw[:n, :self._n].transpose(2, 0, 1)  # (6, n steps, bodies)
-        world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos.transpose(2, 0, 1), quat.transpose(2, 0, 1),
-                          vel.transpose(2, 0, 1), angvel.transpose(2, 0, 1))
+            k = farr.num // row  # rows complete, also after an exception
+            if farr.arr != self._raw_ptr:  # pragma: no cover - would mean pymunk reallocated
+                raise RuntimeError("pymunk batch reader reallocated the block buffer")
+            farr.arr, farr.max, farr.num = home, home_max, 0
+            self.block_done = k
+            if simple:
+                self._space_steps += k
+            c = raw[:k, :self._n].transpose(2, 0, 1)  # (6, k steps, bodies)
+            world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos[:k].transpose(2, 0, 1),
+                              quat[:k].transpose(2, 0, 1), vel[:k].transpose(2, 0, 1),
+                              angvel[:k].transpose(2, 0, 1))
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Write world positions (n, 3) m, quaternions (n, 4) wxyz, linear
@@ -560,6 +614,10 @@ def _solve_products(pairs: dict[tuple[str, str], float]) -> dict[str, float] | N
         if abs(f[a] * f[b] - v) > _PAIR_RTOL * max(1.0, abs(v)):
             return None
     return f
+
+
+def _call_step(space: Any, h: float) -> None:
+    space.step(h)
 
 
 def _pair_setter(elasticity: float, friction: float):

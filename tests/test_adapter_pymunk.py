@@ -687,3 +687,71 @@ def test_read_state_paths_agree(tmp_path):
         assert tuple(out1[2][i]) == (b.velocity.x, 0.0, b.velocity.y)
         assert out1[3][i][1] == -b.angular_velocity
     a.close()
+
+
+def _states(a, n):
+    out = [np.full((n, 3), np.nan), np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)]
+    a.read_state(*out)
+    return out
+
+
+@pytest.mark.parametrize("text", ["SHAPES", "MATERIALS"])
+def test_direct_c_step_equals_space_step(tmp_path, text):
+    """step() calls cpSpaceStep without pymunk's Python wrapper; bare_loop()
+    calls the public space.step(dt).  The states are bit-identical, also with
+    the exact-pair pre_solve callbacks (MATERIALS has a plain ball, so the
+    pair values come from the callback, which must still run)."""
+    sc = scene_from(tmp_path, globals()[text])
+    runs = []
+    for loop in ("step", "bare_loop"):
+        a = PymunkAdapter()
+        a.build(sc, PymunkAdapter.resolve_settings(sc))
+        if loop == "step":
+            assert a._c_step is not None
+        getattr(a, loop)(400)
+        runs.append(_states(a, sc.n_bodies))
+        if text == "MATERIALS":
+            assert a.stages()["material_mode"] == "pre_solve_callback"
+        a.close()
+    for x, y in zip(*runs):
+        assert np.isfinite(x).all()
+        np.testing.assert_array_equal(x, y)
+
+
+def test_block_recording_keeps_frames_before_an_engine_error(tmp_path):
+    """An exception in the k-th step of a block leaves the k - 1 steps before
+    it recorded and converted (block_done says how many), equal to a plain
+    step-and-read loop."""
+    sc = scene_from(tmp_path, SHAPES)
+    n = sc.n_bodies
+    ref = PymunkAdapter()
+    ref.build(sc, PymunkAdapter.resolve_settings(sc))
+    want = []
+    for _ in range(6):
+        ref.step(1)
+        want.append(_states(ref, n))
+    ref.close()
+
+    a = PymunkAdapter()
+    a.build(sc, PymunkAdapter.resolve_settings(sc))
+    real, calls = a._c_step, [0]
+
+    def failing(space, h):
+        calls[0] += 1
+        if calls[0] == 7:
+            raise RuntimeError("engine trouble")
+        real(space, h)
+
+    a._c_step = failing
+    block = [np.full((10, n, 3), np.nan), np.full((10, n, 4), np.nan), np.full((10, n, 3), np.nan),
+             np.full((10, n, 3), np.nan)]
+    with pytest.raises(RuntimeError, match="engine trouble"):
+        a.step_record(10, *block)
+    assert a.block_done == 6
+    for k in range(6):
+        for got, exp in zip(block, want[k]):
+            np.testing.assert_array_equal(got[k], exp)
+    assert np.isnan(block[0][6:]).all()
+    # the reader's buffer is home again: a plain read still works
+    assert np.isfinite(_states(a, n)[0]).all()
+    a.close()

@@ -46,3 +46,18 @@ def test_planar_mapping_round_trip_and_sign():
     assert np.allclose(ang, [0, -5, 0])
     # a counter-clockwise 2D angle turns world +x toward +z
     assert np.allclose(quat_rotate(quat, [1.0, 0, 0]), [math.cos(theta), 0, math.sin(theta)])
+
+
+def test_quat_rotate_equals_rotation_matrix_and_writes_in_place():
+    """quat_rotate (per-component) against R(q) v for random stacks, with
+    broadcasting of one vector over many quaternions, and with ``out``."""
+    rng = np.random.default_rng(7)
+    q = rng.normal(size=(50, 3, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    v = rng.normal(size=(50, 3, 3))
+    want = np.einsum("...ij,...j->...i", quat_to_matrix(q), v)
+    np.testing.assert_allclose(quat_rotate(q, v), want, rtol=0, atol=1e-14)
+    out = np.full((50, 3, 3), np.nan)
+    assert quat_rotate(q, v, out=out) is out
+    np.testing.assert_array_equal(out, quat_rotate(q, v))
+    np.testing.assert_allclose(quat_rotate(q, [0.0, 0.0, 1.0]), quat_to_matrix(q)[..., :, 2], atol=1e-15)

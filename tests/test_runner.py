@@ -109,6 +109,38 @@ def test_bad_setting_is_a_value_error(scene):
         run(scene, "fake", {"fault": "sometimes"})
 
 
+@pytest.mark.parametrize("target_s, grows", [(1e9, True), (0.0, False)])
+def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
+    """Blocks start at CHECK_EVERY steps and double while a block is quicker
+    than BLOCK_TARGET_S (set here, so the test does not depend on the
+    machine's speed), never beyond MAX_BLOCK; every step is recorded and
+    time stamps are exact multiples of dt."""
+    from harness import runner
+    from harness.scene import Scene
+
+    long = Scene(**{**scene.__dict__, "duration": 20.0})
+    sizes = []
+    orig = Fake.step_record
+
+    def counting(self, n, *views):
+        sizes.append(n)
+        return orig(self, n, *views)
+
+    monkeypatch.setattr(Fake, "step_record", counting)
+    monkeypatch.setattr(runner, "BLOCK_TARGET_S", target_s)
+    r = run(long, "fake")
+    assert r.status == "ok" and r.trace.n_frames == long.n_steps + 1
+    assert sum(sizes) == long.n_steps and sizes[0] == runner.CHECK_EVERY
+    assert max(sizes) <= runner.MAX_BLOCK
+    if grows:
+        assert sizes[:4] == [runner.CHECK_EVERY * 2 ** k for k in range(4)]
+    else:
+        assert set(sizes[:-1]) == {runner.CHECK_EVERY}
+    tr = r.trace.valid()
+    np.testing.assert_array_equal(tr.t, np.arange(long.n_steps + 1) * long.dt)
+    assert np.isfinite(tr.pos).all()
+
+
 def test_record_every(scene):
     r = run(scene, "fake", record_every=7)
     tr = r.trace.valid()
