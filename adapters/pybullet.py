@@ -681,6 +681,41 @@ class PybulletAdapter(Adapter):
                 p.stepSimulation(physicsClientId=cid)
         self._steps += n
 
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Step n times and record every step.  pybullet has no batched state
+        read: each body costs two calls per step (~1 us each, the bound of
+        this adapter's overhead).  Their tuples are only appended to lists
+        while stepping; the block is converted to arrays once at its end (or
+        at an exception, keeping every complete step)."""
+        p, cid, ids = self._p, self._cid, self._ids
+        nb = len(ids)
+        st, gpo, gv = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
+        po: list = []
+        ve: list = []
+        apo, ave = po.append, ve.append
+        forces = self._forces
+        stepped = 0
+        try:
+            for _ in range(n):
+                if forces:
+                    self._apply_forces()
+                st(cid)
+                stepped += 1
+                for bid in ids:
+                    apo(gpo(bid, cid))
+                    ave(gv(bid, cid))
+        finally:
+            self._steps += stepped
+            k = min(len(po), len(ve)) // nb  # complete steps
+            self.block_done = k
+            if k:
+                m = k * nb
+                po, ve = po[:m], ve[:m]
+                pos[:k] = np.array([t[0] for t in po]).reshape(k, nb, 3)
+                quat[:k] = xyzw_to_wxyz(np.array([t[1] for t in po]).reshape(k, nb, 4))
+                vel[:k] = np.array([t[0] for t in ve]).reshape(k, nb, 3)
+                angvel[:k] = np.array([t[1] for t in ve]).reshape(k, nb, 3)
+
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Write positions (n, 3) m, quaternions (n, 4) wxyz, linear (n, 3) m/s
         and angular (n, 3) rad/s velocities, world frame, about the centre of
