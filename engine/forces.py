@@ -26,6 +26,7 @@ class Gravity(Stage):
     family = "forces"
     torque = False  # makes no torque
     pose = False  # does not read orientations
+    constant = True  # does not depend on the state at all
 
     def __init__(self, model):
         self.mg = model.mass[:, None] * model.gravity[None, :]  # (n, 3), computed once

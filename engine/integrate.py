@@ -67,7 +67,8 @@ class IntegrateVelocities(Stage):
 
     Reads the forces of the start state from ctx.F/ctx.T (the pipeline's force
     stages ran just before) and re-evaluates ``forces`` at intermediate
-    states.  Writes ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n] (end state),
+    states (not when they are all state-independent, ``constant``: gravity
+    alone gives the same forces everywhere).  Writes ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n] (end state),
     ctx.v_free/w_free (copies of the end velocities) and ctx.u_lin/u_ang (the
     step's mean velocities, used by the contact solver's speculative rows).
     """
@@ -84,11 +85,19 @@ class IntegrateVelocities(Stage):
         # skip rotation matrices / angular accelerations when no force stage needs them
         self.torque = any(getattr(s, "torque", True) for s in forces)
         self.pose = any(getattr(s, "pose", True) for s in forces) or self.torque
+        # forces that do not depend on the state at all (gravity): every
+        # evaluation at an intermediate state equals the start's, so the
+        # integrator reuses it instead of re-running the force stages (the
+        # same numbers: F = 0 + m g and a = F / m either way)
+        self.constant = bool(forces) and all(getattr(s, "constant", False) for s in forces)
         self._zero = np.zeros((model.n, 3))
 
     # ---- right-hand side -------------------------------------------------
     def _accel(self, model, state, ctx, x, q, v, w):
         """Accelerations (a, alpha), (n, 3) each, at the state (x, q, v, w)."""
+        if self.constant:
+            self._T.append(self._T[0])
+            return self._acc0
         R = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True)) if self.pose else None
         ctx.ex, ctx.eq, ctx.ev, ctx.ew, ctx.eR = x, q, v, w, R
         ctx.F[:] = 0.0
@@ -124,6 +133,7 @@ class IntegrateVelocities(Stage):
             return
         a0, al0 = self._from_forces(ctx, ctx.R0)
         self._T = [ctx.T.copy()]
+        self._acc0 = (a0, al0)
         f = lambda x, q, v, w: self._accel(model, state, ctx, x, q, v, w)  # noqa: E731
         if m == "explicit_euler":
             x1 = x0 + h * v0

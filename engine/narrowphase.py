@@ -494,20 +494,28 @@ def _cat(parts):
 class _BodyGeom(dict):
     """Geometry of the bodies ``idx``: ``c`` centres, ``R`` rotations, ``r``
     radii, ``h`` half-extents, ``hl`` half-lengths, each gathered on first
-    use (a pair function reads only what its shapes need)."""
+    use (a pair function reads only what its shapes need).  ``const``: the
+    pose-independent entries already gathered (kept by the pair groups)."""
 
-    def __init__(self, model, X, R, idx):
+    def __init__(self, model, X, R, idx, const=None):
         super().__init__()
         self._src = {"c": X, "R": R, "r": model.radius, "h": model.half_extents, "hl": model.half_length}
         self._idx = idx
+        self._const = const
 
     def __missing__(self, key):
+        const = self._const
+        if const is not None and key in const:
+            v = self[key] = const[key]
+            return v
         v = self[key] = self._src[key][self._idx]
+        if const is not None and key in ("r", "h", "hl"):
+            const[key] = v
         return v
 
 
-def _body_geom(model, X, R, idx):
-    return _BodyGeom(model, X, R, idx)
+def _body_geom(model, X, R, idx, const=None):
+    return _BodyGeom(model, X, R, idx, const)
 
 
 def _bb_sphere_sphere(A, B, margin):
@@ -589,69 +597,119 @@ def unsupported_pairs(model) -> list[str]:
     return out
 
 
-def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs) -> Contacts:
+def _ro(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+def _bb_groups(model, pi, pj) -> list:
+    """Body-body candidate pairs grouped by canonically ordered shape pair:
+    [(fn, sel, a, b, const_a, const_b, (e, mus, muk))] with ``sel`` the
+    pairs of the group, a/b its bodies (first/second shape) and the pair
+    coefficients per pair.  Depends only on the candidate pairs."""
+    si, sj = model.shape[pi], model.shape[pj]
+    swap = si > sj
+    a = np.where(swap, pj, pi)
+    b = np.where(swap, pi, pj)
+    sa = np.minimum(si, sj)
+    sb = np.maximum(si, sj)
+    key = sa * 8 + sb
+    out = []
+    for kv in np.unique(key):
+        sel = np.flatnonzero(key == kv)
+        fn = TABLE.get((int(kv) // 8, int(kv) % 8))
+        if fn is None:
+            continue
+        ga, gb = _ro(a[sel]), _ro(b[sel])
+        mat = tuple(_ro(t[ga, gb]) for t in (model.e_bb, model.mus_bb, model.muk_bb))
+        out.append((fn, sel, ga, gb, {}, {}, mat))
+    return out
+
+
+def _static_groups(model, pairs, table, statics, e_mu) -> list:
+    """Body-static candidate pairs grouped by the body's shape:
+    [(fn, sel, bodies, rows, static indices, const, (e, mus, muk))]."""
+    bi, sk = pairs
+    shapes = model.shape[bi]
+    out = []
+    for s in np.unique(shapes):
+        sel = np.flatnonzero(shapes == s)
+        fn = table.get(int(s))
+        if fn is None:
+            continue
+        b_, k_ = _ro(bi[sel]), _ro(sk[sel])
+        st = _ro(statics[k_])
+        mat = tuple(_ro(t[b_, st]) for t in e_mu)
+        out.append((fn, sel, b_, k_, st, {}, mat))
+    return out
+
+
+#: pair groupings a narrow phase keeps (keyed by the candidate pairs);
+#: cleared when full
+GROUP_CACHE = 16
+
+
+def _cached(cache, key, make):
+    if cache is None:
+        return make()
+    v = cache.get(key)
+    if v is None:
+        if len(cache) >= GROUP_CACHE:
+            cache.clear()
+        v = cache[key] = make()
+    return v
+
+
+def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs,
+                  cache: dict | None = None) -> Contacts:
     """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)).
 
     ``pi``/``pj`` body-body pairs (i < j) with margins ``margin_bb``;
     ``plane_pairs``/``sbox_pairs`` (body, row) with margins.  Returns
     :class:`Contacts` with b = n for statics, ordered deterministically
-    (body-body by pair, then planes, then static boxes)."""
+    (body-body by pair, then planes, then static boxes), with their pair
+    coefficients.  ``cache``: a dict in which the grouping of the candidate
+    pairs by shape (and their coefficients) is kept, keyed by the pairs --
+    it depends on nothing else, and a resting scene has the same candidates
+    every step."""
     n = model.n
     parts: list[Contacts] = []
     if pi.size:
-        si, sj = model.shape[pi], model.shape[pj]
-        swap = si > sj
-        a = np.where(swap, pj, pi)
-        b = np.where(swap, pi, pj)
-        sa = np.minimum(si, sj)
-        sb = np.maximum(si, sj)
-        key = sa * 8 + sb
-        for kv in np.unique(key):
-            sel = np.flatnonzero(key == kv)
-            fn = TABLE.get((int(kv) // 8, int(kv) % 8))
-            if fn is None:
+        groups = _cached(cache, ("bb", pi.tobytes(), pj.tobytes()), lambda: _bb_groups(model, pi, pj))
+        for fn, sel, ga, gb, ca, cb, mat in groups:
+            mg = margin_bb[sel]
+            k, nn, p, g, f = fn(_body_geom(model, X, R, ga, ca), _body_geom(model, X, R, gb, cb), mg)
+            keep = g < mg[k]
+            if keep.all():
+                parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn, p, g, f,
+                                      mat[0][k], mat[1][k], mat[2][k]))
                 continue
-            ga, gb = a[sel], b[sel]
-            k, nn, p, g, f = fn(_body_geom(model, X, R, ga), _body_geom(model, X, R, gb), margin_bb[sel])
-            keep = g < margin_bb[sel][k]
             k = k[keep]
-            parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn[keep], p[keep], g[keep], f[keep]))
-    for pairs, table, geom, margins, statics in ((plane_pairs, PLANE_TABLE, _plane, margin_bp, model.plane_static),
-                                                 (sbox_pairs, SBOX_TABLE, _sbox, margin_bs, model.sbox_static)):
+            parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn[keep], p[keep], g[keep], f[keep],
+                                  mat[0][k], mat[1][k], mat[2][k]))
+    for tag, pairs, table, geom, margins, statics, e_mu in (
+            ("plane", plane_pairs, PLANE_TABLE, _plane, margin_bp, model.plane_static,
+             (model.e_bs, model.mus_bs, model.muk_bs)),
+            ("sbox", sbox_pairs, SBOX_TABLE, _sbox, margin_bs, model.sbox_static,
+             (model.e_bs, model.mus_bs, model.muk_bs))):
         bi, sk = pairs
         if bi.size == 0:
             continue
-        shapes = model.shape[bi]
-        for s in np.unique(shapes):
-            sel = np.flatnonzero(shapes == s)
-            fn = table.get(int(s))
-            if fn is None:
-                continue
-            k, nn, p, g, f = fn(_body_geom(model, X, R, bi[sel]), geom(model, sk[sel]), margins[sel])
-            keep = g < margins[sel][k]
-            k = k[keep]
-            parts.append(Contacts(bi[sel][k], np.full(k.size, n, np.int64), statics[sk[sel][k]], nn[keep], p[keep],
-                                  g[keep], f[keep]))
-    c = Contacts.concat(parts)
-    _materials(model, c)
-    return c
-
-
-def _materials(model, c: Contacts) -> None:
-    st = c.sidx >= 0
-    bb = ~st
-    e = np.empty(c.m)
-    mus = np.empty(c.m)
-    muk = np.empty(c.m)
-    if bb.any():
-        e[bb] = model.e_bb[c.a[bb], c.b[bb]]
-        mus[bb] = model.mus_bb[c.a[bb], c.b[bb]]
-        muk[bb] = model.muk_bb[c.a[bb], c.b[bb]]
-    if st.any():
-        e[st] = model.e_bs[c.a[st], c.sidx[st]]
-        mus[st] = model.mus_bs[c.a[st], c.sidx[st]]
-        muk[st] = model.muk_bs[c.a[st], c.sidx[st]]
-    c.e, c.mus, c.muk = e, mus, muk
+        groups = _cached(cache, (tag, bi.tobytes(), sk.tobytes()),
+                         lambda: _static_groups(model, pairs, table, statics, e_mu))
+        for fn, sel, b_, k_, st, const, mat in groups:
+            mg = margins[sel]
+            G = const.get("geom")
+            if G is None:
+                G = const["geom"] = {key: _ro(v) for key, v in geom(model, k_).items()}
+            k, nn, p, g, f = fn(_body_geom(model, X, R, b_, const), G, mg)
+            keep = g < mg[k]
+            if not keep.all():
+                k = k[keep]
+                nn, p, g, f = nn[keep], p[keep], g[keep], f[keep]
+            parts.append(Contacts(b_[k], np.full(k.size, n, np.int64), st[k], nn, p, g, f,
+                                  mat[0][k], mat[1][k], mat[2][k]))
+    return Contacts.concat(parts)
 
 
 class NarrowPhase(Stage):
@@ -665,6 +723,7 @@ class NarrowPhase(Stage):
     def __init__(self, model):
         self.margin = float(model.setting("contact_margin"))
         self.speculative = model.setting("ccd") != "off"
+        self.groups: dict = {}  # pair groupings by candidate pairs (see collide_pairs)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
@@ -674,7 +733,8 @@ class NarrowPhase(Stage):
         mbb = self.margin + sw[pi] + sw[pj]
         mbp = self.margin + sw[ctx.plane_pairs[0]]
         mbs = self.margin + sw[ctx.sbox_pairs[0]]
-        ctx.contacts = collide_pairs(model, state.x, ctx.R0, pi, pj, ctx.plane_pairs, ctx.sbox_pairs, mbb, mbp, mbs)
+        ctx.contacts = collide_pairs(model, state.x, ctx.R0, pi, pj, ctx.plane_pairs, ctx.sbox_pairs, mbb, mbp, mbs,
+                                     self.groups)
 
 
 def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int) -> Contacts:

@@ -52,9 +52,20 @@ Gauss-Seidel, vectorised: rows are coloured greedily so that no dynamic body
 appears twice in a colour; a colour's rows are independent, so updating them
 together in numpy gives exactly the sequential result for that ordering.
 Deterministic (fixed order).
+
+Cost: with a few dozen rows the step costs numpy calls, not arithmetic.
+Everything that depends only on the contact graph -- which bodies the rows
+join, in which order: the colouring, the friction patches, the pair
+grouping of the warm cache, the pair coefficients -- is a
+:class:`Topology`, built once per distinct graph and reused while it is
+unchanged (a resting stack: every step), so a step only redoes the
+pose-dependent arithmetic.
 """
 
 from __future__ import annotations
+
+import math
+import weakref
 
 import numpy as np
 
@@ -111,6 +122,94 @@ def colour_order(a: np.ndarray, b: np.ndarray, world: int) -> tuple[np.ndarray, 
     return order, bounds
 
 
+class Topology:
+    """The part of a row set that depends only on which bodies (and
+    statics) its rows join, in which order -- never on the pose: the
+    colouring and its slices, the friction patches (grouping, colouring,
+    slices, pair coefficients, inverse masses), the pair-code grouping of
+    the warm-start cache and the body-sharing masks of the normal matrix.
+
+    Built from the rows' (a, b, sidx) and reused while the contact graph is
+    unchanged (:class:`Solve` keeps the last few; a resting stack rebuilds
+    nothing after its first step).  Everything here is what :class:`Rows`
+    computed per step before, by the same operations, so reuse is exact.
+    Arrays are over the rows in colour order unless said otherwise.
+    """
+
+    def __init__(self, model, a: np.ndarray, b: np.ndarray, sidx: np.ndarray, friction: bool, colour: bool):
+        n = model.n
+        m = a.size
+        if colour:
+            order, bounds = colour_order(a, b, n)
+            a, b, sidx = a[order], b[order], sidx[order]
+        else:
+            order, bounds = np.arange(m), np.array([0, m])
+        self.colour = colour
+        self.order = order
+        self.m = m
+        self.a, self.b, self.sidx = a, b, sidx
+        #: (a, b) stacked, rows of the world included: one gather/scatter of
+        #: the (n+1, 6) velocities per colour
+        self.ab = np.stack([a, b], axis=1)
+        #: colour slices (start, end)
+        self.slices = [(int(bounds[i]), int(bounds[i + 1])) for i in range(len(bounds) - 1) if bounds[i + 1] > bounds[i]]
+        self.ima = model.inv_mass[a]
+        self.imb = model.inv_mass[b]
+        #: pair codes of the rows (the warm cache's keys), their stable sort
+        #: and the first row of each distinct pair in that sort
+        self.codes = _pair_codes_abs(model, a, b, sidx)
+        self.code_order = np.argsort(self.codes, kind="stable")
+        sc = self.codes[self.code_order]
+        self.sorted_codes = sc
+        self.code_first = np.flatnonzero(np.concatenate([[True], sc[1:] != sc[:-1]]))
+        self.uniq_codes = sc[self.code_first]
+        #: first row (in row order) of each distinct pair, = np.unique's return_index
+        self.uniq_first = self.code_order[self.code_first]
+        self._masks = None
+        self.friction = friction
+        if friction:
+            self._patches(model, colour)
+
+    def _patches(self, model, colour: bool) -> None:
+        n = model.n
+        a, b = self.a, self.b
+        code = a * (n + 1) + b + (n + 1) * (n + 1) * (self.sidx + 1)
+        uniq, first, pid = np.unique(code, return_index=True, return_inverse=True)
+        npch = uniq.size
+        pa, pb = a[first], b[first]
+        if colour:
+            porder, pbounds = colour_order(pa, pb, n)
+        else:
+            porder, pbounds = np.arange(npch), np.array([0, npch])
+        rank = np.empty(npch, np.int64)
+        rank[porder] = np.arange(npch)
+        self.pid = pid = rank[pid]
+        self.pa, self.pb = pa[porder], pb[porder]
+        self.pab = np.stack([self.pa, self.pb], axis=1)
+        self.np = npch
+        #: first row of each patch (patch order)
+        self.pfirst = first[porder]
+        self.cnt = np.bincount(pid, minlength=npch).astype(float)
+        #: bins (patch, component) of the rows' points and normals
+        self.pn_bins = (pid[:, None] * 6 + np.arange(6)).ravel()
+        self.pslices = [(int(pbounds[i]), int(pbounds[i + 1])) for i in range(len(pbounds) - 1)
+                        if pbounds[i + 1] > pbounds[i]]
+        self.pima = model.inv_mass[self.pa]
+        self.pimb = model.inv_mass[self.pb]
+        #: patch of each distinct pair (uniq_codes order)
+        self.uniq_pid = pid[self.uniq_first]
+        self.mus = self.muk = None  # pair coefficients, from the first contacts seen
+
+    def masks(self):
+        """Body-sharing masks of the normal matrix (a_i == a_j, a_i == b_j,
+        b_i == a_j, b_i == b_j), (m, m) bool."""
+        if self._masks is None:
+            a, b = self.a, self.b
+            self._masks = (a[:, None] == a[None, :], a[:, None] == b[None, :],
+                           b[:, None] == a[None, :], b[:, None] == b[None, :])
+        return self._masks
+
+
 class Rows:
     """Solver rows for a set of contacts at a pose (see module doc).
 
@@ -133,41 +232,41 @@ class Rows:
     """
 
     def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True,
-                 sel: np.ndarray | None = None):
+                 sel: np.ndarray | None = None, topo: "Topology | None" = None):
         n = model.n
-        if sel is not None and not colour:
-            c = c.take(sel)
-        if colour:
-            # rows of ``c`` (or of its rows ``sel``), sorted by colour: one gather
-            if sel is None:
-                order, bounds = colour_order(c.a, c.b, n)
-                c = c.take(order)
-            else:
-                order, bounds = colour_order(c.a[sel], c.b[sel], n)
-                c = c.take(sel[order])
+        if topo is None:
+            src = c if sel is None else c.take(sel)
+            topo = Topology(model, src.a, src.b, src.sidx, friction, colour)
+        # rows of ``c`` (or of its rows ``sel``), sorted by colour: one gather
+        if sel is None:
+            if topo.colour:
+                c = c.take(topo.order)
         else:
-            order, bounds = np.arange(c.m), np.array([0, c.m])
-        self.order = order
+            c = c.take(sel[topo.order])
+        self.topo = topo
+        self.order = topo.order
         self.contacts = c
         self.m = m = c.m
-        self.a, self.b = c.a, c.b
+        self.a, self.b = topo.a, topo.b
         self.n = c.normal
         Xp = _pad(X)
         self.rA = c.point - Xp[c.a]
         self.rB = c.point - Xp[c.b]
-        self.ima = model.inv_mass[c.a]
-        self.imb = model.inv_mass[c.b]
+        self.ima = topo.ima
+        self.imb = topo.imb
         IA, IB = Iinv[c.a], Iinv[c.b]
         rnA = cross(self.rA, self.n)
         rnB = cross(self.rB, self.n)
-        self.JA = np.empty((m, 6))
-        self.JB = np.empty((m, 6))
+        # [JA | JB] and [MA | MB] in one (m, 12) array each: the sweeps use
+        # them stacked, everything else through the two views
+        self.J = np.empty((m, 12))
+        self.M = np.empty((m, 12))
+        self.JA, self.JB = self.J[:, :6], self.J[:, 6:]
+        self.MA, self.MB = self.M[:, :6], self.M[:, 6:]
         self.JA[:, :3] = -self.n
         self.JA[:, 3:] = -rnA
         self.JB[:, :3] = self.n
         self.JB[:, 3:] = rnB
-        self.MA = np.empty((m, 6))
-        self.MB = np.empty((m, 6))
         self.MA[:, :3] = -self.ima[:, None] * self.n
         self.MA[:, 3:] = -np.einsum("kij,kj->ki", IA, rnA)
         self.MB[:, :3] = self.imb[:, None] * self.n
@@ -176,33 +275,20 @@ class Rows:
         self.mn = 1.0 / kn
         self.lam_n = np.zeros(m)
         self.target = np.zeros(m)
-        self.slices = [(int(bounds[i]), int(bounds[i + 1]), c.a[bounds[i]:bounds[i + 1]], c.b[bounds[i]:bounds[i + 1]])
-                       for i in range(len(bounds) - 1) if bounds[i + 1] > bounds[i]]
         self.friction = friction
         if friction:
-            self._patches(model, Xp, Iinv, c, colour)
+            self._patches(model, Xp, Iinv, c)
 
-    def _patches(self, model, Xp, Iinv, c: Contacts, colour: bool) -> None:
-        n = model.n
-        code = c.a * (n + 1) + c.b + (n + 1) * (n + 1) * (c.sidx + 1)
-        uniq, first, pid = np.unique(code, return_index=True, return_inverse=True)
-        npch = uniq.size
-        pa, pb = c.a[first], c.b[first]
-        if colour:
-            porder, pbounds = colour_order(pa, pb, n)
-        else:
-            porder, pbounds = np.arange(npch), np.array([0, npch])
-        rank = np.empty(npch, np.int64)
-        rank[porder] = np.arange(npch)
-        self.pid = pid = rank[pid]
-        self.pa, self.pb = pa[porder], pb[porder]
-        self.np = npch
-        cnt = np.bincount(pid, minlength=npch).astype(float)
+    def _patches(self, model, Xp, Iinv, c: Contacts) -> None:
+        topo = self.topo
+        self.pid = pid = topo.pid
+        self.pa, self.pb = topo.pa, topo.pb
+        self.np = npch = topo.np
+        cnt = topo.cnt
         # per-patch sums of the points and normals: one bincount over
         # (patch, component) bins, each summed in row order like a bincount
         # per component
-        PN = np.bincount((pid[:, None] * 6 + np.arange(6)).ravel(),
-                         np.concatenate([c.point, c.normal], axis=1).ravel(), 6 * npch).reshape(npch, 6)
+        PN = np.bincount(topo.pn_bins, np.concatenate([c.point, c.normal], axis=1).ravel(), 6 * npch).reshape(npch, 6)
         P = PN[:, :3] / cnt[:, None]
         N = PN[:, 3:].copy()
         N /= np.linalg.norm(N, axis=1, keepdims=True)
@@ -216,17 +302,17 @@ class Rows:
         rA = P - Xp[self.pa]
         rB = P - Xp[self.pb]
         IA, IB = Iinv[self.pa], Iinv[self.pb]
-        ima, imb = model.inv_mass[self.pa], model.inv_mass[self.pb]
-        JtA = np.zeros((npch, 3, 6))
-        JtB = np.zeros((npch, 3, 6))
+        ima, imb = topo.pima, topo.pimb
+        self.Jt = np.zeros((npch, 3, 12))  # [JtA | JtB], as J above
+        JtA, JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
         JtA[:, :2, :3] = -self.t
         JtA[:, :2, 3:] = -cross(rA[:, None, :], self.t)
         JtB[:, :2, :3] = self.t
         JtB[:, :2, 3:] = cross(rB[:, None, :], self.t)
         JtA[:, 2, 3:] = -N
         JtB[:, 2, 3:] = N
-        MtA = np.zeros((npch, 3, 6))
-        MtB = np.zeros((npch, 3, 6))
+        self.Mt = np.zeros((npch, 3, 12))
+        MtA, MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
         MtA[:, :, :3] = ima[:, None, None] * JtA[:, :, :3]
         MtA[:, :, 3:] = np.einsum("kij,kmj->kmi", IA, JtA[:, :, 3:])
         MtB[:, :, :3] = imb[:, None, None] * JtB[:, :, :3]
@@ -235,30 +321,36 @@ class Rows:
         self.JtA, self.JtB, self.MtA, self.MtB = JtA, JtB, MtA, MtB
         self.mt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
         self.lam_t = np.zeros((npch, 3))
-        # pair coefficients are equal for all rows of a patch
-        self.mus = c.mus[first][porder]
-        self.muk = c.muk[first][porder]
+        # pair coefficients are equal for all rows of a patch (and depend
+        # only on the pair: kept in the topology)
+        if topo.mus is None:
+            topo.mus = c.mus[topo.pfirst]
+            topo.muk = c.muk[topo.pfirst]
+        self.mus = topo.mus
+        self.muk = topo.muk
         self.slip = np.zeros(npch, bool)
         self.mu = self.mus.copy()
-        self.pslices = [(int(pbounds[i]), int(pbounds[i + 1]), self.pa[pbounds[i]:pbounds[i + 1]],
-                         self.pb[pbounds[i]:pbounds[i + 1]]) for i in range(len(pbounds) - 1)
-                        if pbounds[i + 1] > pbounds[i]]
 
     def normal_matrix(self) -> np.ndarray:
         """K = J M^-1 J^T over the normal rows, (m, m) dense: rows i and j
-        couple through every body they share (the world row has M^-1 = 0)."""
-        a, b = self.a, self.b
-        K = (a[:, None] == a[None, :]) * np.einsum("ik,jk->ij", self.JA, self.MA)
-        K += (a[:, None] == b[None, :]) * np.einsum("ik,jk->ij", self.JA, self.MB)
-        K += (b[:, None] == a[None, :]) * np.einsum("ik,jk->ij", self.JB, self.MA)
-        K += (b[:, None] == b[None, :]) * np.einsum("ik,jk->ij", self.JB, self.MB)
+        couple through every body they share (the world row has M^-1 = 0).
+        One product of the stacked sides, G = [JA; JB] [MA; MB]^T (2m, 2m),
+        whose four blocks are masked by which bodies the rows share."""
+        m = self.m
+        aa, ab, ba, bb = self.topo.masks()
+        G = self.J.reshape(2 * m, 6) @ self.M.reshape(2 * m, 6).T  # rows (i, side), cols (j, side)
+        G = G.reshape(m, 2, m, 2)
+        K = aa * G[:, 0, :, 0]
+        K += ab * G[:, 0, :, 1]
+        K += ba * G[:, 1, :, 0]
+        K += bb * G[:, 1, :, 1]
         return K
 
     def _lcp_residual(self, K, r, lam) -> float:
         """Complementarity residual of normal impulses ``lam`` for
         K lam >= r, lam >= 0: violated rows plus rows that push while
         separating."""
-        w = np.einsum("ij,j->i", K, lam) - r
+        w = K @ lam - r
         return float(np.sum(np.minimum(w, 0.0) ** 2) + np.sum(np.where(lam > 0, np.maximum(w, 0.0), 0.0) ** 2))
 
     def direct_normal_guess(self, U) -> None:
@@ -347,15 +439,15 @@ class Rows:
         stacked Jacobians/responses (k, 12) (built once per Rows: one gather
         and one scatter per slice in the sweeps)."""
         if getattr(self, "_nslices", None) is None:
-            J = np.concatenate([self.JA, self.JB], axis=1)
-            M = np.concatenate([self.MA, self.MB], axis=1)
-            self._nslices = [(s, e, np.stack([a, b], axis=1), J[s:e], M[s:e], self.mn[s:e])
-                             for s, e, a, b in self.slices]
+            topo = self.topo
+            J, M = self.J, self.M
+            ab = topo.ab
+            self._nslices = [(s, e, ab[s:e], J[s:e], M[s:e], self.mn[s:e]) for s, e in topo.slices]
             if self.friction:
-                Jt = np.concatenate([self.JtA, self.JtB], axis=2)
-                Mt = np.concatenate([self.MtA, self.MtB], axis=2)
-                self._pslices = [(s, e, np.stack([a, b], axis=1), Jt[s:e], Mt[s:e], self.mt[s:e], self.r_twist[s:e])
-                                 for s, e, a, b in self.pslices]
+                Jt, Mt = self.Jt, self.Mt
+                pab = topo.pab
+                self._pslices = [(s, e, pab[s:e], Jt[s:e], Mt[s:e], self.mt[s:e], self.r_twist[s:e])
+                                 for s, e in topo.pslices]
         return self._nslices
 
     def _friction_pass(self, U, reverse: bool = False) -> None:
@@ -438,7 +530,17 @@ class Rows:
 
 
 def _pair_codes(model, c: Contacts) -> np.ndarray:
-    return (c.a * (model.n + 1) + c.b) * (model.n_statics + 1) + (c.sidx + 1)
+    return _pair_codes_abs(model, c.a, c.b, c.sidx)
+
+
+def _pair_codes_abs(model, a, b, sidx) -> np.ndarray:
+    """Warm-cache key of the pairs (a, b, static index): unique per pair."""
+    return (a * (model.n + 1) + b) * (model.n_statics + 1) + (sidx + 1)
+
+
+#: topologies a Solve stage keeps (the contact graphs of the last steps and
+#: of the time-of-impact re-runs); cleared when full
+TOPOLOGY_CACHE = 8
 
 
 class Solve(Stage):
@@ -464,6 +566,18 @@ class Solve(Stage):
         self.friction = model.has("friction")
         self.c = model.contact_lever
         self.direct = bool(s["direct_start"])
+        self._topos: dict[bytes, Topology] = {}
+
+    def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
+        """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
+        ``codes`` (which identify (a, b, sidx) row by row)."""
+        key = codes.tobytes()
+        topo = self._topos.get(key)
+        if topo is None:
+            if len(self._topos) >= TOPOLOGY_CACHE:
+                self._topos.clear()
+            topo = self._topos[key] = Topology(model, c.a[sel], c.b[sel], c.sidx[sel], self.friction, True)
+        return topo
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -493,14 +607,12 @@ class Solve(Stage):
         touching = gap <= TOUCH_TOL
         closes = gap + h * un < 0.0
         impact = ~touching & closes & (-un > self.thr)
+        codes_all = _pair_codes(model, c)
         if impact.any() and state.warm:
             # a pair that pressed on each other last step is a persistent
             # (resting) contact: its closing rows are solver noise, not
             # impacts -- keep them as speculative rows
-            codes_all = _pair_codes(model, c)
-            pressed = np.array([state.warm.get(code) is not None and float(state.warm[code][1].sum()) > 0.0
-                                for code in codes_all.tolist()], bool)
-            impact &= ~pressed
+            impact &= ~_pressed(state.warm, codes_all)
         keep = ~impact
         if impact.any():
             if self.ccd == "toi":
@@ -522,7 +634,8 @@ class Solve(Stage):
         if sel.size == 0:
             state.warm = {}
             return
-        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel)
+        topo = self.topology(model, codes_all[sel], c, sel)
+        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo)
         sel = sel[rows.order]  # rows are sorted by colour
         cs = rows.contacts
         # touching rows: v1n >= 0 (memoryless: a target that depends on the
@@ -537,10 +650,11 @@ class Solve(Stage):
         if self.friction:
             vt0 = rows.patch_tangent_velocity(Rows.pack(VV[1], WW[1]))
             rows.set_slip(np.sqrt(np.einsum("km,km->k", vt0, vt0)) > SLIP_TOL)
-        codes = _pair_codes(model, cs)
         U = Rows.pack(ctx.v, ctx.w)
+        # contact points in body a's frame: the warm cache's matching key
+        loc = self._local(ctx, cs.a, cs.point, state)
         if self.warm:
-            self._warm_start(model, state, ctx, rows, cs, codes, h)
+            self._warm_start(model, state, ctx, rows, cs, loc, h)
         if self.direct and rows.m <= DIRECT_MAX_ROWS:
             rows.direct_normal_guess(U)
         if self.warm or self.direct:
@@ -564,7 +678,7 @@ class Solve(Stage):
                     ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
                     ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
-        self._store(model, state, ctx, rows, cs, codes, h)
+        self._store(model, state, ctx, rows, loc, h)
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
@@ -573,28 +687,40 @@ class Solve(Stage):
         """Contact points in body a's frame (matching key for warm starts)."""
         return np.einsum("kji,kj->ki", ctx.R0[a], p - state.x[a])
 
-    def _warm_start(self, model, state, ctx, rows, cs, codes, h):
+    def _warm_start(self, model, state, ctx, rows, cs, loc, h):
         """Each row takes the cached force of the nearest cached point of its
         pair (in body a's frame) within 0.1 bounding radius + 0.1 mm; a
         patch with a matched point takes its pair's cached friction force
         and twist.  Vectorised over rows (the cache is packed, see
-        :class:`WarmCache`)."""
+        :class:`WarmCache`); the (row, cached point) candidates depend only
+        on the two steps' contact graphs and are kept in the topology while
+        both are unchanged."""
         old = state.warm
         if not old:
             return
+        topo = rows.topo
         o_code, o_loc, o_fn, u_code, u_ft, u_tw = _warm_packed(old)
-        loc = self._local(ctx, cs.a, cs.point, state)
-        tol = 0.1 * model.bound_radius[cs.a] + 1e-4
-        lo = np.searchsorted(o_code, codes, "left")
-        cnt = np.searchsorted(o_code, codes, "right") - lo
-        has = np.flatnonzero(cnt > 0)
+        otopo = getattr(old, "topo", None)
+        cand = topo.__dict__.get("_warm_cand")
+        if cand is None or otopo is None or cand[0]() is not otopo:
+            codes = topo.codes
+            lo = np.searchsorted(o_code, codes, "left")
+            cnt = np.searchsorted(o_code, codes, "right") - lo
+            has = np.flatnonzero(cnt > 0)
+            if has.size == 0:
+                return
+            c = cnt[has]
+            tot = int(c.sum())
+            starts = np.cumsum(c) - c
+            R = np.repeat(has, c)  # (row, cached point) candidates, grouped by row
+            J = np.repeat(lo[has], c) + (np.arange(tot) - np.repeat(starts, c))
+            tol = 0.1 * model.bound_radius[cs.a] + 1e-4
+            # (weak: a topology must not keep its predecessors alive)
+            cand = (weakref.ref(otopo) if otopo is not None else (lambda: None), has, c, starts, R, J, tol[has] ** 2)
+            topo.__dict__["_warm_cand"] = cand
+        _, has, c, starts, R, J, tol2 = cand
         if has.size == 0:
             return
-        c = cnt[has]
-        tot = int(c.sum())
-        starts = np.cumsum(c) - c
-        R = np.repeat(has, c)  # (row, cached point) candidates, grouped by row
-        J = np.repeat(lo[has], c) + (np.arange(tot) - np.repeat(starts, c))
         d = loc[R] - o_loc[J]
         d2 = np.einsum("ki,ki->k", d, d)
         # nearest cached point per row, first on ties (like argmin)
@@ -602,48 +728,114 @@ class Solve(Stage):
         hit = np.flatnonzero(d2 == np.repeat(mn, c))
         _, fi = np.unique(R[hit], return_index=True)
         jbest = J[hit[fi]]
-        ok = mn <= tol[has] ** 2
+        ok = mn <= tol2
         r = has[ok]
         rows.lam_n[r] = o_fn[jbest[ok]] * h
         if rows.friction and r.size:
             # one patch per pair: its first row's patch, for pairs with a match
-            rc = codes[r]
-            uc, first = np.unique(codes, return_index=True)
+            rc = topo.codes[r]
+            uc = topo.uniq_codes
             sel = np.isin(uc, rc)
-            p = rows.pid[first[sel]]
+            p = topo.uniq_pid[sel]
             g = np.searchsorted(u_code, uc[sel])
             rows.lam_t[p, :2] = np.matmul(rows.t[p], u_ft[g][:, :, None])[:, :, 0] * h
             rows.lam_t[p, 2] = u_tw[g] * h
 
-    def _store(self, model, state, ctx, rows, cs, codes, h):
-        loc = self._local(ctx, cs.a, cs.point, state)
+    def _store(self, model, state, ctx, rows, loc, h):
+        topo = rows.topo
         fn = rows.lam_n / h
-        order = np.argsort(codes, kind="stable")
-        sc = codes[order]
-        first = np.flatnonzero(np.concatenate([[True], sc[1:] != sc[:-1]]))
-        uniq = sc[first]
+        order = topo.code_order
+        sc = topo.sorted_codes
+        first = topo.code_first
+        uniq = topo.uniq_codes
         if rows.friction:
-            p = rows.pid[order[first]]
+            p = topo.uniq_pid
             lt = rows.lam_t[p]
             tp = rows.t[p]
             ft = np.matmul(lt[:, None, :2], tp)[:, 0] / h
             tw = lt[:, 2] / h
         else:
             ft, tw = np.zeros((uniq.size, 3)), np.zeros(uniq.size)
-        s_loc, s_fn = loc[order], fn[order]
-        new = WarmCache(zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
-                                              tw.tolist())))
-        new.packed = (sc, s_loc, s_fn, uniq, ft, tw)
+        new = WarmCache()
+        new.packed = (sc, loc[order], fn[order], uniq, ft, tw)
+        new.first = first
+        new.topo = topo
         state.warm = new
 
 
 class WarmCache(dict):
     """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
-    normal forces (k,) N, friction force (3,) N, twist torque N m), plus the
-    same data packed into arrays sorted by code (``packed``) for the
-    vectorised lookup."""
+    normal forces (k,) N, friction force (3,) N, twist torque N m).
+
+    The solver reads and writes only the same data packed into arrays sorted
+    by code (``packed``, with ``first`` the start of each pair's points and
+    ``topo`` the topology that wrote it); the dict entries are built from
+    them on first access (a step has no use for them)."""
 
     packed = None
+    first = None
+    topo = None
+    _filled = False
+
+    def _fill(self) -> None:
+        if self._filled or self.packed is None:
+            return
+        self._filled = True
+        sc, s_loc, s_fn, uniq, ft, tw = self.packed
+        first = self.first
+        dict.update(self, zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
+                                                 tw.tolist())))
+
+    def __len__(self):
+        return int(self.packed[3].size) if (self.packed is not None and not self._filled) else dict.__len__(self)
+
+    def __bool__(self):
+        return len(self) > 0
+
+    def __iter__(self):
+        self._fill()
+        return dict.__iter__(self)
+
+    def __contains__(self, k):
+        self._fill()
+        return dict.__contains__(self, k)
+
+    def __getitem__(self, k):
+        self._fill()
+        return dict.__getitem__(self, k)
+
+    def get(self, k, default=None):
+        self._fill()
+        return dict.get(self, k, default)
+
+    def keys(self):
+        self._fill()
+        return dict.keys(self)
+
+    def values(self):
+        self._fill()
+        return dict.values(self)
+
+    def items(self):
+        self._fill()
+        return dict.items(self)
+
+    def copy(self):
+        self._fill()
+        return dict(dict.items(self))
+
+    def __eq__(self, other):
+        self._fill()
+        return dict.__eq__(self, other)
+
+    __hash__ = None
+
+
+def _pressed(warm: dict, codes: np.ndarray) -> np.ndarray:
+    """(m,) bool: the pairs ``codes`` pressed on each other in the step that
+    wrote ``warm`` (a positive cached normal force; the forces are >= 0)."""
+    o_code, _, o_fn = _warm_packed(warm)[:3]
+    return np.isin(codes, o_code[o_fn > 0.0])
 
 
 def _warm_packed(old: dict):
@@ -677,12 +869,22 @@ def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
 
 
 def _patch_block(rows: Rows, p: int) -> tuple:
-    """(a, b, JA, JB, MA, MB, K) of friction patch ``p`` (cached per Rows)."""
+    """(a, b, JA, JB, MA, MB, K^-1 or None when K is singular, (mu_s, mu_k,
+    r_twist)) of friction patch ``p`` (cached per Rows: the impact solver
+    resolves a pair many times, and the 3x3 block is inverted once)."""
     cache = rows.__dict__.setdefault("_patch_blocks", {})
     out = cache.get(p)
     if out is None:
         JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
-        out = (rows.pa[p], rows.pb[p], JA, JB, MA, MB, JA @ MA.T + JB @ MB.T)
+        K = JA @ MA.T + JB @ MB.T
+        try:
+            Kinv = np.linalg.inv(K)
+            if not np.all(np.isfinite(Kinv)):
+                Kinv = None
+        except np.linalg.LinAlgError:
+            Kinv = None
+        out = (int(rows.pa[p]), int(rows.pb[p]), JA, JB, MA.T.copy(), MB.T.copy(), Kinv,
+               (float(rows.mus[p]), float(rows.muk[p]), float(rows.r_twist[p])))
         cache[p] = out
     return out
 
@@ -747,23 +949,23 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
 def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
     """One-shot Coulomb friction impulse on patch ``p`` after a normal
     impulse of total ``Fn``: the impulse that stops the tangential and twist
-    motion (exact 3x3 block), kept if inside the mu_s disc, else scaled onto
-    the mu_k disc."""
-    a, b, JA, JB, MA, MB, K = _patch_block(rows, p)
-    vt = JA @ U[a] + JB @ U[b]
+    motion (exact 3x3 block, by its inverse computed once per patch), kept
+    if inside the mu_s disc, else scaled onto the mu_k disc."""
     if Fn <= 0.0:
         return
-    try:
-        d = -np.linalg.solve(K, vt)
-    except np.linalg.LinAlgError:
+    a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt) = _patch_block(rows, p)
+    vt = JA @ U[a] + JB @ U[b]
+    if Kinv is not None:
+        d = -(Kinv @ vt)
+    else:
         d = -vt * rows.mt[p]
-    mag = float(np.hypot(d[0], d[1]))
-    if mag > rows.mus[p] * Fn:
-        d[:2] *= rows.muk[p] * Fn / mag
-    tl = (rows.mus[p] if mag <= rows.mus[p] * Fn else rows.muk[p]) * Fn * rows.r_twist[p]
+    mag = math.hypot(d[0], d[1])
+    if mag > mus * Fn:
+        d[:2] *= muk * Fn / mag
+    tl = (mus if mag <= mus * Fn else muk) * Fn * rt
     d[2] = min(max(d[2], -tl), tl)
-    U[a] += MA.T @ d
-    U[b] += MB.T @ d
+    U[a] += MAT @ d
+    U[b] += MBT @ d
     U[-1] = 0.0
 
 
@@ -805,14 +1007,17 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     affected: dict[int, tuple] = {}
     group_sub: dict[int, tuple] = {}
 
+    ab = rows.topo.ab
+
     def vn_all():
-        return np.einsum("ki,ki->k", rows.JA, U[ra]) + np.einsum("ki,ki->k", rows.JB, U[rb])
+        # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
+        return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
 
     def vn_sub(sub):
         # the same per-row arithmetic as vn_all, on a subset of the rows
-        # gathered once: sub = (JA, a, JB, b) of those rows
-        JAs, As, JBs, Bs = sub
-        return np.einsum("ki,ki->k", JAs, U[As]) + np.einsum("ki,ki->k", JBs, U[Bs])
+        # gathered once: sub = (J, ab) of those rows
+        Js, ABs = sub
+        return np.einsum("kj,kj->k", Js, U[ABs].reshape(-1, 12))
 
     # normal velocities of all rows, kept current: a pair's impulses change
     # only the rows of its two bodies
@@ -828,7 +1033,7 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
             # friction may have changed the normal velocities: keep them >= 0
             gs = group_sub.get(g)
             if gs is None:
-                gs = group_sub[g] = (rows.JA[idx], ra[idx], rows.JB[idx], rb[idx])
+                gs = group_sub[g] = (rows.J[idx], ab[idx])
             v2 = vn_sub(gs)
             if np.any(v2 < np.minimum(tgt, 0.0) - 1e-12):
                 _block_normal(rows, U, idx, np.maximum(np.minimum(tgt, 0.0), v2 * 0.0))
@@ -836,7 +1041,7 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
         if entry is None:
             i, j = int(ra[idx[0]]), int(rb[idx[0]])
             aff = np.unique(np.concatenate([body_rows[i]] + ([body_rows[j]] if j != n else [])))
-            entry = (aff, (rows.JA[aff], ra[aff], rows.JB[aff], rb[aff]))
+            entry = (aff, (rows.J[aff], ab[aff]))
             affected[g] = entry
         vcur[entry[0]] = vn_sub(entry[1])
 

@@ -85,8 +85,10 @@ class Contacts:
             return cls.empty()
         if len(parts) == 1:
             return parts[0]
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                     ("a", "b", "sidx", "normal", "point", "gap", "fid")))
+        fields = ("a", "b", "sidx", "normal", "point", "gap", "fid")
+        if all(p.e is not None for p in parts):
+            fields += ("e", "mus", "muk")
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
 
     def take(self, idx: np.ndarray) -> "Contacts":
         return Contacts(*(None if getattr(self, f) is None else getattr(self, f)[idx] for f in

@@ -13,11 +13,15 @@ import pytest
 from harness.runner import run
 from harness.scene import load_scene
 
+# Re-pinned when an intended change alters arithmetic order, never to make a
+# regression pass.  2026-11-21: column_5 and block_slides, after the solver's
+# normal matrix became one matmul (summation order; the final states moved by
+# at most 3.7e-16 and every physics test still holds).
 PINNED = {
     "billiards.head_on": "8a5a4b45b6cd0c6d",
-    "stacking.column_5": "868a1fc7c5149f65",
+    "stacking.column_5": "8b1adf47e7fa5d38",
     "tunnelling.bullet_400": "0985ae710f0e12b8",
-    "friction.block_slides": "13a9fb9308c5b23f",
+    "friction.block_slides": "ee947407da517337",
     "gyroscopic.dzhanibekov": "00f6f767816e1ca6",
 }
 DURATION = 0.25  # s: enough steps for contacts, impacts and rotation to act
