@@ -98,7 +98,7 @@ MATERIAL_TOLERANCE = 1e-9
 # shape (so a sweep never reports a hit the real shape would not make) while
 # a body moving more than a quarter of its thinnest half-size in one step is
 # swept.
-CCD_RADIUS_FRACTION = 0.5
+CCD_RADIUS_FRACTION = 1.0
 
 
 # --------------------------------------------------------------------------
@@ -271,6 +271,12 @@ SETTINGS: dict[str, Setting] = {
                    "(ccdSweptSphereRadius; pybullet switches the sweep on above half that radius of motion per step).  "
                    "On by default (pybullet's is off): measured on the conformance suite it stops every tunnelling case "
                    "and changes no other result, since slower bodies never reach the motion threshold"),
+    "ccd_radius": Setting("ccd_radius", CCD_RADIUS_FRACTION, float,
+                          "ccdSweptSphereRadius as a fraction f of each body's smallest half-size (with ccd on); "
+                          "the sweep starts above half that radius of motion per step.  A body caught by the sweep "
+                          "stops with its swept sphere touching, so it overlaps by (1 - f) x its half-size (measured): "
+                          "1 (the default, the inscribed sphere) leaves no overlap, 0.5 leaves half the radius",
+                          lo=1e-6, hi=1.0),
     "maximal_coordinates": Setting("maximal_coordinates", True, bool,
                                    "useMaximalCoordinates: btRigidBody (true) or btMultiBody base (false: 100 m/s speed cap, explicit gyroscopic term)"),
     "restitution_velocity_threshold": Setting("restitution_velocity_threshold", 0.0, float,
@@ -427,7 +433,7 @@ class PybulletAdapter(Adapter):
                 activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
             )
             if ccd:
-                r = CCD_RADIUS_FRACTION * b.min_extent
+                r = float(settings["ccd_radius"]) * b.min_extent
                 dyn["ccdSweptSphereRadius"] = r
                 min_ccd_threshold = min(min_ccd_threshold, r / 2.0)
             p.changeDynamics(bid, -1, physicsClientId=cid, **dyn)

@@ -458,6 +458,22 @@ def test_ccd_stops_tunnelling():
     assert tr.pos[:, 0, 0].max() < 0.0 and res.stages["ccd"] is True
 
 
+@pytest.mark.parametrize("f", [1.0, 0.5, 0.1])
+def test_ccd_radius_sets_the_overlap_at_the_catch(f):
+    """The sweep stops the body where its swept sphere (f x the smallest
+    half-size) touches the wall, so the body itself overlaps the wall by
+    (1 - f) r: none with the default f = 1 (measured exactly so)."""
+    r = 0.05
+    scene = make_scene(["contact"], [sphere(r=r, pos=(-0.5, 0, 0), vel=(200, 0, 0))],
+                       statics=[{"shape": "box", "half_extents": [0.005, 1, 1], "position": [0, 0, 0]}],
+                       duration=0.05, dt=0.002)
+    settings = None if f == 1.0 else {"ccd_radius": f}
+    _, tr = ok_run(scene, settings)
+    overlap = tr.pos[:, 0, 0].max() + r - (-0.005)
+    print(f"f = {f}: overlap {overlap:.6f} m")
+    assert overlap == pytest.approx((1.0 - f) * r, abs=1e-3 * r)
+
+
 # --------------------------------------------------------------------------
 # external forces: springs, dampers, drag, rolling friction
 
