@@ -184,6 +184,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from harness.sweep import sweep_main
+
+    return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
+                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from harness.report import report_main
+
+    return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
+                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target)
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     from harness.scene import load_scene, scenario_ids
 
@@ -239,6 +253,27 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=int, default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
+
+    sw = sub.add_parser("sweep", help="accuracy-vs-cost sweep of a suite (suites/*.toml) into results/sweeps/")
+    sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
+    sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
+    sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
+    sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--executor", choices=["serial", "process"], default=None,
+                    help="default: serial for --jobs 1, a process pool otherwise")
+    sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
+                    help="default: resume an unfinished sweep of the same suite file, points and commit; "
+                         "--resume also across commits; --no-resume always starts afresh")
+    sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    sw.set_defaults(func=cmd_sweep)
+
+    rp = sub.add_parser("report", help="one self-contained HTML page from stored sweep and check results")
+    rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
+    rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
+    rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
+    rp.add_argument("--target", type=float, default=None,
+                    help="accuracy target for scenarios whose primary metric has no [[check]] max")
+    rp.set_defaults(func=cmd_report)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")
     ls.set_defaults(func=cmd_list)

@@ -128,3 +128,33 @@ def test_trace_writes_side_by_side_recording(tmp_path):
     x_last = float(np.concatenate([np.asarray(v, float).ravel() for v in df[col].iloc[-1]])[0])
     t_c = (0.3 - 2 * 0.028575) / 2.0
     assert x_last == pytest.approx(2.0 * t_c + 0.1 * (0.5 - t_c), abs=1e-5)
+
+
+def test_sweep_then_report_from_the_command_line(tmp_path, capsys):
+    """`physbench sweep --suite smoke` then `physbench report` on its output:
+    both exit 0, the sweep's rows land under the given root, and the page is
+    written where asked."""
+    from harness.cli import main
+
+    sweeps = tmp_path / "sweeps"
+    assert main(["sweep", "--suite", "smoke", "--out", str(sweeps), "--no-resume"]) == 0
+    files = list(sweeps.rglob("*.parquet"))
+    assert files, "no sweep rows written"
+    import pandas as pd
+
+    df = pd.concat([pd.read_parquet(f) for f in files])
+    assert set(df["status"]) == {"ok"} and len(df) == df["point_key"].nunique()
+    out = tmp_path / "page.html"
+    assert main(["report", "--results-dir", str(tmp_path), "--out", str(out)]) == 0
+    html = out.read_text(encoding="utf-8")
+    assert "billiards.head_on" in html and "data:image/png;base64," in html
+
+
+def test_sweep_bad_suite_is_exit_2(tmp_path, capsys):
+    from harness.cli import main
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[suite]\nengines = ["warp"]\n[[sweep]]\nscenarios = ["billiards.head_on"]\n', encoding="utf-8")
+    assert main(["sweep", "--suite", str(bad), "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "engines" in err

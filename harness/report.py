@@ -1,0 +1,1225 @@
+"""``physbench report``: one self-contained HTML page from stored results.
+
+Input (see results/README.md and docs/REPORT.md):
+
+- sweep rows, ``results/sweeps/<machine-id>/<suite>/<sweep_id>.parquet``
+  (consolidated) and ``results/sweeps/<machine-id>/<suite>/<sweep_id>/part-*.parquet``
+  (a sweep still running or killed: read, and marked *incomplete*);
+- conformance rows, ``results/check/*.parquet`` (``physbench check``), used
+  for the stability matrix.
+
+Sections: header (machines, commits, suites, sweeps, engine versions),
+work-precision diagrams, cost to reach a target accuracy, stability matrix,
+history across runs (regressions flagged only beyond noise), footer.
+
+The page has no external assets and no JavaScript: plots are matplotlib (Agg)
+PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are HTML.
+
+Pure functions (tests use them on synthetic frames): :func:`load_results`,
+:func:`work_precision`, :func:`cost_to_target`, :func:`stability_matrix`,
+:func:`regressions`, :func:`history`, :func:`render_html`; the CLI entry is
+:func:`report_main`.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import functools
+import html
+import io
+import json
+import math
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from harness.results import RESULTS_DIR, SCHEMA_VERSION
+
+SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
+ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes
+NOISE_FLOOR = 0.10  # relative change below which nothing is ever flagged
+NOISE_SPREADS = 3.0  # ... and the multiple of the repeats' relative spread
+ERROR_ABS_FLOOR = 1e-12  # an accuracy change must also exceed this absolutely
+MAX_SMALL_MULTIPLES = 6
+FAILED_STATUSES = ("error", "failed", "timeout")  # counted together as "error"
+
+BASE_LABEL = "base"
+
+_SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "primary_metric", "primary_error",
+                  "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats")
+
+
+# ---------------------------------------------------------------------------
+# small value helpers
+
+
+def _num(v: Any) -> float:
+    """A float, NaN for anything missing or not numeric."""
+    if v is None or isinstance(v, str) and v.strip().lower() in ("", "none", "nan", "null"):
+        return math.nan
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return math.nan
+    return f
+
+
+def _finite(v: Any) -> bool:
+    return math.isfinite(_num(v))
+
+
+def _missing(v: Any) -> bool:
+    if v is None:
+        return True
+    if isinstance(v, float) and math.isnan(v):
+        return True
+    if isinstance(v, str) and v.strip().lower() in ("", "none", "nan", "null"):
+        return True
+    try:
+        return bool(pd.isna(v)) if np.ndim(v) == 0 else False
+    except (TypeError, ValueError):
+        return False
+
+
+def _truthy(v: Any) -> bool | None:
+    """bool, 'True'/'False' text (mixed columns are stored as text), 0/1;
+    None when unknown."""
+    if _missing(v):
+        return None
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, str):
+        s = v.strip().lower()
+        if s in ("true", "1", "yes"):
+            return True
+        if s in ("false", "0", "no"):
+            return False
+        return None
+    f = _num(v)
+    return None if math.isnan(f) else f != 0.0
+
+
+def _variant(v: Any) -> str:
+    """'' for the base scenario, else the variant's name."""
+    if _missing(v) or str(v) == BASE_LABEL:
+        return ""
+    return str(v)
+
+
+def _vlabel(v: str) -> str:
+    return v or BASE_LABEL
+
+
+def _setting_value(v: Any) -> Any:
+    """A setting's stored value back to a plain Python value."""
+    if _missing(v):
+        return None
+    if isinstance(v, (np.bool_, bool)):
+        return bool(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return float(v)
+    if isinstance(v, str):
+        s = v.strip()
+        if s in ("True", "False"):
+            return s == "True"
+        try:
+            return int(s)
+        except ValueError:
+            pass
+        try:
+            return float(s)
+        except ValueError:
+            return s
+    return v
+
+
+def fmt(v: Any, digits: int = 3) -> str:
+    """Numbers to short text ('1.23e-05', '0.002'); '-' for missing."""
+    if _missing(v):
+        return "-"
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    f = _num(v)
+    if math.isnan(f):
+        return str(v)
+    if math.isinf(f):
+        return "inf" if f > 0 else "-inf"
+    return f"{f:.{digits}g}"
+
+
+def settings_label(settings: Mapping[str, Any]) -> str:
+    """{'integrator': 'rk4', 'iterations': 10} -> 'rk4 iterations=10' (text
+    values bare, others as key=value; keys sorted)."""
+    parts = []
+    for k in sorted(settings):
+        v = settings[k]
+        if isinstance(v, str):
+            parts.append(v)
+        elif isinstance(v, float):
+            parts.append(f"{k}={v:g}")
+        else:
+            parts.append(f"{k}={v}")
+    return " ".join(parts)
+
+
+# ---------------------------------------------------------------------------
+# loading
+
+
+def _read_file(path: Path, warnings: list[str], **extra: Any) -> pd.DataFrame | None:
+    try:
+        df = pd.read_parquet(path)
+    except Exception as e:  # a torn or foreign file must not sink the report
+        warnings.append(f"{path}: unreadable, skipped ({type(e).__name__}: {e})")
+        return None
+    if df.empty:
+        return None
+    if "schema_version" in df.columns:
+        sv = df["schema_version"].map(_num)
+        bad = ~sv.isin(list(SUPPORTED_SCHEMAS))
+        if bad.any():
+            versions = sorted({fmt(x) for x in df.loc[bad, "schema_version"]})
+            warnings.append(f"{path}: {int(bad.sum())} row(s) with schema_version {', '.join(versions)} skipped "
+                            f"(this report reads version {', '.join(str(v) for v in sorted(SUPPORTED_SCHEMAS))})")
+            df = df.loc[~bad]
+            if df.empty:
+                return None
+    else:
+        warnings.append(f"{path}: no schema_version column; read as version {SCHEMA_VERSION}")
+    df = df.copy()
+    df["_file"] = str(path)
+    for k, v in extra.items():
+        if k in ("suite", "sweep_id", "machine_id") and k in df.columns:
+            # the file's own column wins; the layout fills the gaps
+            df[k] = df[k].where(~df[k].map(_missing), v)
+        else:
+            df[k] = v
+    return df
+
+
+def _visible(paths: Iterable[Path]) -> list[Path]:
+    return sorted(p for p in paths if not p.name.startswith("."))
+
+
+def load_results(results_dir: str | Path | None = None, suites: list[str] | None = None) -> pd.DataFrame:
+    """All stored rows under ``results_dir`` (default ``results/``) as one
+    normalised frame.
+
+    Added columns: ``source`` ('sweep' or 'check'), ``incomplete`` (rows of
+    an unconsolidated sweep directory), ``machine_id``, ``variant`` ('' for
+    the base scene), ``dt``, ``cost`` (CPU s per simulated s: the sweep's
+    median of repeats, else the run's own), ``cost_min``, ``stable_flag``
+    (True/False/None), ``swept`` (dict of swept settings) and, when a file
+    lacks them, the sweep columns (``point_key``, ``primary_metric``,
+    ``primary_error`` ...).  Warnings (unreadable files, unknown schema
+    versions) are in ``df.attrs['warnings']``.
+    """
+    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    warnings: list[str] = []
+    frames: list[pd.DataFrame] = []
+    sweeps = root / "sweeps"
+    if sweeps.is_dir():
+        for mdir in _visible(p for p in sweeps.iterdir() if p.is_dir()):
+            for sdir in _visible(p for p in mdir.iterdir() if p.is_dir()):
+                if suites and sdir.name not in suites:
+                    continue
+                done = {p.stem: p for p in _visible(sdir.glob("*.parquet"))}
+                for sid, p in done.items():
+                    frames.append(_read_file(p, warnings, source="sweep", incomplete=False,
+                                             machine_id=mdir.name, suite=sdir.name, sweep_id=sid))
+                for d in _visible(p for p in sdir.iterdir() if p.is_dir()):
+                    parts = _visible(d.glob("part-*.parquet"))
+                    if not parts or d.name in done:
+                        continue  # consolidated file wins over leftover parts
+                    for p in parts:
+                        frames.append(_read_file(p, warnings, source="sweep", incomplete=True,
+                                                 machine_id=mdir.name, suite=sdir.name, sweep_id=d.name))
+    check = root / "check"
+    if check.is_dir():
+        for p in _visible(check.glob("*.parquet")):
+            frames.append(_read_file(p, warnings, source="check", incomplete=False, check_file=p.stem))
+    frames = [f for f in frames if f is not None]
+    if not frames:
+        df = _normalise(pd.DataFrame())
+    else:
+        df = _normalise(pd.concat(frames, ignore_index=True, sort=False))
+    if suites:
+        df = df[(df["source"] != "sweep") | df["suite"].isin(suites)].reset_index(drop=True)
+    df.attrs["warnings"] = warnings
+    return df
+
+
+@functools.lru_cache(maxsize=None)
+def _scene(scenario: str, variant: str):
+    """The compiled scene, or None when it no longer loads."""
+    try:
+        from harness.scene import load_scene
+
+        return load_scene(scenario, variant or None)
+    except Exception:
+        return None
+
+
+def scene_primary_metric(scenario: str, variant: str = "") -> str | None:
+    s = _scene(scenario, variant)
+    return None if s is None else s.primary_metric
+
+
+def scene_threshold(scenario: str, variant: str, metric: str | None) -> float | None:
+    """The scenario's ``[[check]] max`` for ``metric`` (checks scoped to some
+    engines only count when no unscoped one exists; the tightest wins)."""
+    if not metric:
+        return None
+    s = _scene(scenario, variant)
+    if s is None:
+        return None
+    cands = [c for c in s.checks if c.metric == metric and c.max is not None
+             and (c.variants is None or (variant or BASE_LABEL) in c.variants)]
+    unscoped = [c for c in cands if c.engines is None]
+    use = unscoped or cands
+    return min(float(c.max) + float(c.tolerance or 0.0) for c in use) if use else None
+
+
+def hard_scenarios() -> set[str]:
+    """Ids of the scenarios tagged 'hard' in scenarios/*.toml."""
+    from harness.scene import SCENARIO_DIR
+
+    out = set()
+    for p in SCENARIO_DIR.rglob("*.toml"):
+        try:
+            data = tomllib.loads(p.read_text())
+        except Exception:
+            continue
+        if "hard" in (data.get("scenario", {}).get("tags") or []):
+            out.add(".".join(p.relative_to(SCENARIO_DIR).with_suffix("").parts))
+    return out
+
+
+def _setting_columns(df: pd.DataFrame) -> list[str]:
+    return [c for c in df.columns if c.startswith("setting.")]
+
+
+def _normalise(df: pd.DataFrame) -> pd.DataFrame:
+    df = df.copy()
+    n = len(df)
+    for col, default in (("scenario", None), ("variant", None), ("engine", None), ("engine_version", ""),
+                         ("status", "unknown"), ("message", ""), ("commit", ""), ("timestamp", ""),
+                         ("source", "sweep"), ("incomplete", False), ("machine_id", None), ("_file", "")):
+        if col not in df.columns:
+            df[col] = [default] * n
+    for col in _SWEEP_COLUMNS + ("cpu_s_per_sim_s", "stable", "setting.dt"):
+        if col not in df.columns:
+            df[col] = [None] * n
+    df = df.astype({c: object for c in df.columns if str(df[c].dtype) in ("str", "string")})
+    if n:
+        keep = ~(df["scenario"].map(_missing) | df["engine"].map(_missing))
+        df = df.loc[keep].copy()
+    n = len(df)
+    df["scenario"] = df["scenario"].astype(str) if n else df["scenario"]
+    df["engine"] = df["engine"].astype(str) if n else df["engine"]
+    df["variant"] = [_variant(v) for v in df["variant"]]
+    df["status"] = [("unknown" if _missing(s) else str(s).strip().lower()) for s in df["status"]]
+    df["message"] = ["" if _missing(m) else str(m) for m in df["message"]]
+    df["engine_version"] = ["" if _missing(m) else str(m) for m in df["engine_version"]]
+    df["commit"] = ["" if _missing(m) else str(m) for m in df["commit"]]
+    df["timestamp"] = ["" if _missing(m) else str(m) for m in df["timestamp"]]
+    df["incomplete"] = [bool(_truthy(v)) for v in df["incomplete"]]
+    if "machine.host" in df.columns:
+        df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df["machine.host"])]
+    df["machine_id"] = ["unknown" if _missing(m) else str(m) for m in df["machine_id"]]
+    df["suite"] = ["" if _missing(s) else str(s) for s in df["suite"]]
+    df["sweep_id"] = ["" if _missing(s) else str(s) for s in df["sweep_id"]]
+    df["dt"] = [_num(v) for v in df["setting.dt"]]
+    df["stable_flag"] = [_truthy(v) for v in df["stable"]]
+
+    scols = _setting_columns(df)
+    swept, keys = [], []
+    for i, row in enumerate(df.itertuples(index=False)):
+        r = dict(zip(df.columns, row))
+        ps = r.get("point_settings")
+        d: dict[str, Any] | None = None
+        if not _missing(ps):
+            try:
+                d = json.loads(ps) if isinstance(ps, str) else dict(ps)
+            except Exception:
+                d = None
+        if d is None:
+            d = {c[len("setting."):]: _setting_value(r[c]) for c in scols}
+            d = {k: v for k, v in d.items() if v is not None}
+        swept.append(d)
+        pk = r.get("point_key")
+        if _missing(pk):
+            pk = json.dumps([r["scenario"], r["variant"], r["engine"],
+                             {c[len("setting."):]: _setting_value(r[c]) for c in scols
+                              if _setting_value(r[c]) is not None}], sort_keys=True, default=str)
+        keys.append(str(pk))
+    df["swept"] = swept
+    df["point_key"] = keys
+
+    # primary metric and error: the sweep's columns, else the scene's metric
+    pm, pe = [], []
+    for i, row in enumerate(df.itertuples(index=False)):
+        r = dict(zip(df.columns, row))
+        m = r.get("primary_metric")
+        if _missing(m):
+            m = scene_primary_metric(r["scenario"], r["variant"])
+        m = None if _missing(m) else str(m)
+        e = _num(r.get("primary_error"))
+        if math.isnan(e) and m and m in r:
+            e = _num(r[m])
+        if r["status"] != "ok":
+            e = math.nan
+        pm.append(m)
+        pe.append(e)
+    df["primary_metric"] = pm
+    df["primary_error"] = pe
+    med = [_num(v) for v in df["cpu_s_per_sim_s_median"]]
+    own = [_num(v) for v in df["cpu_s_per_sim_s"]]
+    df["cost"] = [m if math.isfinite(m) else o for m, o in zip(med, own)]
+    df["cost_min"] = [_num(v) for v in df["cpu_s_per_sim_s_min"]]
+    df["repeats"] = [_num(v) for v in df["repeats"]]
+    return df.reset_index(drop=True)
+
+
+def _ensure(df: pd.DataFrame) -> pd.DataFrame:
+    """A frame straight from Parquet (not through :func:`load_results`) is
+    normalised first (its rows count as sweep rows unless they say
+    otherwise)."""
+    if "swept" in df.columns and "cost" in df.columns:
+        return df
+    warnings = list(df.attrs.get("warnings", []))
+    out = _normalise(df)
+    out.attrs["warnings"] = warnings
+    return out
+
+
+# ---------------------------------------------------------------------------
+# selections
+
+
+def _sweeps(df: pd.DataFrame) -> pd.DataFrame:
+    return df[df["source"] == "sweep"] if len(df) else df
+
+
+def latest_points(df: pd.DataFrame) -> pd.DataFrame:
+    """Each sweep point's latest row per machine (by sweep_id, which sorts
+    by time)."""
+    df = _ensure(df)
+    s = _sweeps(df)
+    if s.empty:
+        return s
+    s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
+    return s.drop_duplicates(["machine_id", "point_key"], keep="last").reset_index(drop=True)
+
+
+def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
+    c = df[df["source"] == "check"] if len(df) else df
+    if c.empty:
+        return c
+    # a check run is the engine's defaults at the scene's dt (or the hard
+    # dt): keyed by dt, so that settings added between commits do not count
+    # the same run twice
+    c = c.sort_values(["_file", "timestamp"], kind="stable").copy()
+    c["_dtkey"] = [fmt(d, 9) for d in c["dt"]]
+    c = c.drop_duplicates(["machine_id", "scenario", "variant", "engine", "_dtkey"], keep="last")
+    return c.drop(columns="_dtkey").reset_index(drop=True)
+
+
+def _good(r: Mapping[str, Any]) -> bool:
+    """ok and not known to be unstable."""
+    return r["status"] == "ok" and r.get("stable_flag") is not False
+
+
+def _targets(df: pd.DataFrame, target: float | None,
+             targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], tuple[float | None, str]]:
+    """(scenario, variant) -> (target, where it came from)."""
+    out: dict[tuple[str, str], tuple[float | None, str]] = {}
+    if df.empty:
+        return out
+    for (sc, va), g in df.groupby(["scenario", "variant"], sort=True):
+        metric = next((m for m in g["primary_metric"] if m), None)
+        given = _lookup_target(targets, sc, va)
+        if given is not None:
+            out[(sc, va)] = (given, "given")
+            continue
+        th = scene_threshold(sc, va, metric)
+        if th is not None:
+            out[(sc, va)] = (th, "check max")
+        elif target is not None:
+            out[(sc, va)] = (float(target), "--target")
+        else:
+            out[(sc, va)] = (None, "none")
+    return out
+
+
+def _lookup_target(targets: Mapping[Any, float] | float | None, sc: str, va: str) -> float | None:
+    if targets is None:
+        return None
+    if isinstance(targets, (int, float)):
+        return float(targets)
+    for k in ((sc, va), (sc, va or None), f"{sc}/{va}" if va else sc, sc):
+        if k in targets and targets[k] is not None:
+            return float(targets[k])
+    return None
+
+
+# ---------------------------------------------------------------------------
+# work-precision
+
+
+def work_precision(df: pd.DataFrame, target: float | None = None,
+                   targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], dict[str, Any]]:
+    """Per (scenario, variant): lines of (cost, primary error) points along
+    dt, one line per engine x non-dt swept settings (x machine when several).
+
+    Returns ``{(scenario, variant): {"primary_metric", "threshold",
+    "threshold_source", "clipped", "lines": [{"label", "engine", "settings",
+    "machine_id", "points": [{"dt", "cost", "error", "error_plot", "status",
+    "message", "ok", "incomplete"}...] (ascending dt)}...],
+    "not_ok": [{"label", "dt", "cost", "status", "message"}...]}}``.
+    A point is ``ok`` when its status is ok, it is not known unstable, and
+    its error and cost are finite; ``error_plot`` is the error clipped to
+    ERROR_FLOOR (``clipped`` says whether any was).
+    """
+    df = _ensure(df)
+    pts = latest_points(df)
+    out: dict[tuple[str, str], dict[str, Any]] = {}
+    if pts.empty:
+        return out
+    many_machines = pts["machine_id"].nunique() > 1
+    tg = _targets(pts, target, targets)
+    for (sc, va), g in pts.groupby(["scenario", "variant"], sort=True):
+        metric = next((m for m in g["primary_metric"] if m), None)
+        th, src = tg.get((sc, va), (None, "none"))
+        lines: dict[tuple, dict[str, Any]] = {}
+        not_ok = []
+        clipped = False
+        for r in g.to_dict("records"):
+            nondt = {k: v for k, v in (r["swept"] or {}).items() if k != "dt"}
+            label = " ".join(x for x in (r["engine"], settings_label(nondt)) if x)
+            if many_machines:
+                label += f" @{r['machine_id']}"
+            key = (r["engine"], json.dumps(nondt, sort_keys=True, default=str), r["machine_id"])
+            line = lines.setdefault(key, {"label": label, "engine": r["engine"], "settings": nondt,
+                                          "machine_id": r["machine_id"], "points": []})
+            err, cost = r["primary_error"], r["cost"]
+            ok = _good(r) and math.isfinite(err) and math.isfinite(cost)
+            status = r["status"] if r["status"] != "ok" or r.get("stable_flag") is not False else "unstable"
+            if r["status"] == "ok" and status == "ok" and not math.isfinite(err):
+                status = "no error"
+            plot = max(err, ERROR_FLOOR) if ok else math.nan
+            if ok and err < ERROR_FLOOR:
+                clipped = True
+            p = {"dt": r["dt"], "cost": cost, "error": err, "error_plot": plot, "status": status,
+                 "message": r["message"], "ok": ok, "incomplete": r["incomplete"]}
+            line["points"].append(p)
+            if not ok:
+                not_ok.append({"label": label, "dt": r["dt"], "cost": cost, "status": status,
+                               "message": r["message"]})
+        for line in lines.values():
+            line["points"].sort(key=lambda p: (math.inf if math.isnan(p["dt"]) else p["dt"]))
+        ordered = sorted(lines.values(), key=lambda l: l["label"])
+        not_ok.sort(key=lambda p: (p["label"], math.inf if math.isnan(p["dt"]) else p["dt"]))
+        out[(sc, va)] = {"scenario": sc, "variant": va, "primary_metric": metric, "threshold": th,
+                         "threshold_source": src, "clipped": clipped, "lines": ordered, "not_ok": not_ok}
+    return out
+
+
+# ---------------------------------------------------------------------------
+# cost to reach a target accuracy
+
+
+def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None = None,
+                   target: float | None = None) -> pd.DataFrame:
+    """Per (scenario, variant, engine): the cheapest point (latest sweep)
+    whose primary error <= the target, its cost and the ratio to the
+    cheapest engine that reached it; ``reached`` False with the best error
+    achieved otherwise.
+
+    ``targets``: a number for every scenario, or a mapping keyed by
+    (scenario, variant) / 'scenario/variant' / scenario; where it gives none,
+    the scenario's ``[[check]] max`` for its primary metric, else ``target``.
+    Rows without any target are left out.
+    """
+    df = _ensure(df)
+    cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
+            "settings", "dt", "cost", "error", "ratio", "best_error", "best_error_settings", "points", "note"]
+    pts = latest_points(df)
+    if pts.empty:
+        return pd.DataFrame(columns=cols)
+    tg = _targets(pts, target, targets)
+    rows = []
+    for (sc, va, en), g in pts.groupby(["scenario", "variant", "engine"], sort=True):
+        t, src = tg.get((sc, va), (None, "none"))
+        if t is None:
+            continue
+        recs = g.to_dict("records")
+        good = [r for r in recs if _good(r) and math.isfinite(r["primary_error"])]
+        under = [r for r in good if r["primary_error"] <= t and math.isfinite(r["cost"])]
+        metric = next((r["primary_metric"] for r in recs if r["primary_metric"]), None)
+        row = {"scenario": sc, "variant": va, "engine": en, "primary_metric": metric, "target": t,
+               "target_source": src, "points": len(recs), "ratio": math.nan, "note": ""}
+        if under:
+            best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
+            row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
+                       error=best["primary_error"], best_error=math.nan, best_error_settings="")
+        else:
+            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, error=math.nan)
+            if good:
+                b = min(good, key=lambda r: r["primary_error"])
+                row.update(best_error=b["primary_error"], best_error_settings=settings_label(b["swept"]))
+            else:
+                row.update(best_error=math.nan, best_error_settings="")
+                row["note"] = "no ok point"
+        rows.append(row)
+    out = pd.DataFrame(rows, columns=cols)
+    if out.empty:
+        return out
+    for (sc, va), g in out.groupby(["scenario", "variant"]):
+        reached = g[g["reached"].astype(bool)]
+        if len(reached):
+            cheapest = reached["cost"].min()
+            if cheapest > 0:
+                out.loc[reached.index, "ratio"] = reached["cost"] / cheapest
+    return out.sort_values(["scenario", "variant", "reached", "cost", "engine"],
+                           ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------
+# stability
+
+
+def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -> pd.DataFrame:
+    """Per (scenario, variant, engine) over the latest sweep points and the
+    latest conformance rows: points, ok-and-stable count and fraction,
+    unstable (ok but not stable), diverged, error (error/failed/timeout),
+    unsupported, the largest dt at which the engine was ok and stable and the
+    smallest dt at which it was not.
+
+    ``scenarios``: which scenarios to show; default the ones tagged 'hard'
+    in scenarios/*.toml that have data, else all.  ``df.attrs['selection']``
+    says which.
+    """
+    df = _ensure(df)
+    cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
+            "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt"]
+    parts = [p for p in (latest_points(df), _latest_checks(df)) if not p.empty]
+    if not parts:
+        out = pd.DataFrame(columns=cols)
+        out.attrs["selection"] = "no data"
+        return out
+    data = pd.concat(parts, ignore_index=True, sort=False)
+    if scenarios is None:
+        hard = hard_scenarios() & set(data["scenario"])
+        if hard:
+            data = data[data["scenario"].isin(hard)]
+            selection = "scenarios tagged 'hard'"
+        else:
+            selection = "all scenarios (none tagged 'hard' has data)"
+    else:
+        keep = set(scenarios)
+        data = data[data["scenario"].isin(keep)]
+        selection = "selected scenarios"
+    rows = []
+    for (sc, va, en), g in data.groupby(["scenario", "variant", "engine"], sort=True):
+        recs = g.to_dict("records")
+        good = [r for r in recs if _good(r)]
+        bad = [r for r in recs if not _good(r) and r["status"] != "unsupported"]
+        st = [r["status"] for r in recs]
+        gdt = [r["dt"] for r in good if math.isfinite(r["dt"])]
+        bdt = [r["dt"] for r in bad if math.isfinite(r["dt"])]
+        n = len(recs)
+        rows.append({
+            "scenario": sc, "variant": va, "engine": en, "points": n, "ok_stable": len(good),
+            "fraction": len(good) / n if n else math.nan,
+            "unstable": sum(1 for r in recs if r["status"] == "ok" and r.get("stable_flag") is False),
+            "diverged": st.count("diverged"),
+            "error": sum(st.count(s) for s in FAILED_STATUSES),
+            "unsupported": st.count("unsupported"),
+            "other": sum(1 for s in st if s not in ("ok", "diverged", "unsupported") + FAILED_STATUSES),
+            "max_stable_dt": max(gdt) if gdt else math.nan,
+            "min_unstable_dt": min(bdt) if bdt else math.nan,
+        })
+    out = pd.DataFrame(rows, columns=cols)
+    out.attrs["selection"] = selection
+    return out
+
+
+# ---------------------------------------------------------------------------
+# history and regressions
+
+
+def _spread(median: float, mn: float) -> float:
+    """Relative spread of a run's repeats: (median - min) / median; 0 when
+    unknown (one repeat, or no min recorded)."""
+    if not (math.isfinite(median) and math.isfinite(mn)) or median <= 0:
+        return 0.0
+    return max(0.0, (median - mn) / median)
+
+
+def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
+    """(machine_id, suite, point_key) -> that point's rows over its sweeps
+    (one per sweep, the last if repeated; ascending sweep_id), for points
+    present in at least two sweeps of the same suite on the same machine."""
+    df = _ensure(df)
+    s = _sweeps(df)
+    out: dict[tuple[str, str, str], pd.DataFrame] = {}
+    if s.empty:
+        return out
+    s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
+    s = s.drop_duplicates(["machine_id", "suite", "point_key", "sweep_id"], keep="last")
+    for key, g in s.groupby(["machine_id", "suite", "point_key"], sort=True):
+        if g["sweep_id"].nunique() >= 2:
+            out[key] = g.reset_index(drop=True)
+    return out
+
+
+def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
+    """Flagged changes of each point's latest sweep against its earlier ones
+    (same machine, same suite).  Only beyond noise:
+
+    - cost (``cpu_s_per_sim_s_median``): the latest ok run against the best
+      (lowest) earlier ok run; flagged when the relative change exceeds
+      max(10 %, 3 x the larger relative spread of repeats, (median - min) /
+      median, of the two runs).  Faster by as much is an improvement.
+    - accuracy (primary error): the latest ok run against the best earlier
+      ok run; flagged when it grows by more than 10 % and by more than 1e-12
+      absolutely (shrinks by as much: an improvement).
+    - status: ok in the previous sweep and anything else in the latest is a
+      regression (the reverse an improvement).
+
+    Columns: kind (cost / accuracy / status), direction (regression /
+    improvement), machine_id, suite, scenario, variant, engine, settings,
+    point_key, previous, latest, change (relative; for status NaN),
+    threshold, previous_sweep, latest_sweep, severity (for ordering).
+    """
+    df = _ensure(df)
+    cols = ["kind", "direction", "machine_id", "suite", "scenario", "variant", "engine", "settings",
+            "point_key", "previous", "latest", "change", "threshold", "previous_sweep", "latest_sweep",
+            "severity"]
+    hist = history(df) if hist is None else hist
+    rows = []
+    for (mid, suite, pk), g in hist.items():
+        recs = g.to_dict("records")
+        last, prev = recs[-1], recs[-2]
+        earlier = recs[:-1]
+        base = {"machine_id": mid, "suite": suite, "scenario": last["scenario"], "variant": last["variant"],
+                "engine": last["engine"], "settings": settings_label(last["swept"] or {}), "point_key": pk,
+                "latest_sweep": last["sweep_id"]}
+        if prev["status"] == "ok" and last["status"] != "ok":
+            rows.append({**base, "kind": "status", "direction": "regression", "previous": "ok",
+                         "latest": last["status"], "change": math.nan, "threshold": math.nan,
+                         "previous_sweep": prev["sweep_id"], "severity": math.inf})
+            continue
+        if prev["status"] != "ok" and last["status"] == "ok":
+            rows.append({**base, "kind": "status", "direction": "improvement", "previous": prev["status"],
+                         "latest": "ok", "change": math.nan, "threshold": math.nan,
+                         "previous_sweep": prev["sweep_id"], "severity": math.inf})
+        if last["status"] != "ok":
+            continue
+        ok_before = [r for r in earlier if r["status"] == "ok"]
+        # cost
+        costs = [r for r in ok_before if math.isfinite(r["cost"]) and r["cost"] > 0]
+        if costs and math.isfinite(last["cost"]) and last["cost"] > 0:
+            best = min(costs, key=lambda r: r["cost"])
+            thr = max(NOISE_FLOOR, NOISE_SPREADS * max(_spread(last["cost"], last["cost_min"]),
+                                                        _spread(best["cost"], best["cost_min"])))
+            change = last["cost"] / best["cost"] - 1.0
+            direction = ("regression" if change > thr else
+                         "improvement" if -change > thr else None)
+            if direction:
+                rows.append({**base, "kind": "cost", "direction": direction, "previous": best["cost"],
+                             "latest": last["cost"], "change": change, "threshold": thr,
+                             "previous_sweep": best["sweep_id"], "severity": abs(change) / thr})
+        # accuracy
+        errs = [r for r in ok_before if math.isfinite(r["primary_error"])]
+        le = last["primary_error"]
+        if errs and math.isfinite(le):
+            best = min(errs, key=lambda r: r["primary_error"])
+            be = best["primary_error"]
+            direction = None
+            if le > be * (1 + NOISE_FLOOR) and le - be > ERROR_ABS_FLOOR:
+                direction = "regression"
+            elif be > le * (1 + NOISE_FLOOR) and be - le > ERROR_ABS_FLOOR:
+                direction = "improvement"
+            if direction:
+                change = (le / be - 1.0) if be > 0 else math.inf
+                sev = abs(math.log10(max(le, ERROR_FLOOR) / max(be, ERROR_FLOOR))) / math.log10(1 + NOISE_FLOOR)
+                rows.append({**base, "kind": "accuracy", "direction": direction, "previous": be, "latest": le,
+                             "change": change, "threshold": NOISE_FLOOR, "previous_sweep": best["sweep_id"],
+                             "severity": sev})
+    out = pd.DataFrame(rows, columns=cols)
+    if out.empty:
+        return out
+    out["_r"] = (out["direction"] != "regression").astype(int)
+    return out.sort_values(["_r", "severity"], ascending=[True, False], kind="stable").drop(columns="_r") \
+              .reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------
+# plotting
+
+
+def _figure(w: float, h: float):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(w, h), dpi=90, layout="constrained")
+
+
+def _png(fig) -> str:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _mpl_text(s: str) -> str:
+    return s.replace("$", r"\$")
+
+
+def plot_work_precision(wp: Mapping[str, Any]) -> str | None:
+    """One work-precision diagram as base64 PNG; None if no point is
+    drawable."""
+    ok = [p for l in wp["lines"] for p in l["points"] if p["ok"]]
+    fails = [p for l in wp["lines"] for p in l["points"] if not p["ok"] and math.isfinite(p["cost"]) and p["cost"] > 0]
+    if not ok and not fails:
+        return None
+    fig = _figure(7.0, 4.4)
+    ax = fig.add_subplot()
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    for i, line in enumerate(wp["lines"]):
+        pts = [p for p in line["points"] if p["ok"] and p["cost"] > 0]
+        if not pts:
+            continue
+        xs = [p["cost"] for p in pts]
+        ys = [p["error_plot"] for p in pts]
+        # markers differ per line (hollow every other one) so that lines
+        # lying on top of each other (two exact integrators) stay visible
+        (h,) = ax.plot(xs, ys, ls="-", marker="osD^v<>ph*"[i % 10], ms=5 if i % 2 else 4, lw=1.2,
+                       mfc="none" if i % 2 else None, color=f"C{i % 10}", label=_mpl_text(line["label"]))
+        for p in pts:
+            ax.annotate(f"{p['dt']:.3g}", (p["cost"], p["error_plot"]), xytext=(3, 3), textcoords="offset points",
+                        fontsize=6.5, color=h.get_color())
+    ys = [p["error_plot"] for p in ok]
+    if wp["threshold"] is not None and wp["threshold"] > 0:
+        ys.append(wp["threshold"])
+        ax.axhline(wp["threshold"], color="k", ls="--", lw=1,
+                   label=f"target {wp['threshold']:g} ({wp['threshold_source']})")
+    lo, hi = (min(ys), max(ys)) if ys else (1e-6, 1.0)
+    top = hi * 10.0  # headroom for the not-ok markers along the top edge
+    ax.set_ylim(lo / 3.0, top)
+    if fails:
+        y = top / 2.0
+        ax.scatter([p["cost"] for p in fails], [y] * len(fails), marker="x", color="red", s=30,
+                   label="not ok (at its cost; see list)", zorder=5)
+        for p in fails:
+            ax.annotate(f"{p['status']} dt={p['dt']:g}", (p["cost"], y), xytext=(3, -9),
+                        textcoords="offset points", fontsize=6, color="red")
+    ax.set_xlabel("CPU s per simulated s")
+    ax.set_ylabel(_mpl_text(wp["primary_metric"] or "primary error"))
+    ax.grid(True, which="both", alpha=0.25)
+    title = wp["scenario"] + (f" / {wp['variant']}" if wp["variant"] else "")
+    ax.set_title(_mpl_text(title), fontsize=10)
+    ax.legend(fontsize=7, loc="best")
+    return _png(fig)
+
+
+def plot_history(series: list[tuple[str, pd.DataFrame]]) -> str | None:
+    """Small multiples: cost (median, bar down to min) and primary error per
+    sweep for a few points."""
+    if not series:
+        return None
+    n = len(series)
+    ncol = min(3, n)
+    nrow = math.ceil(n / ncol)
+    fig = _figure(4.0 * ncol, 2.9 * nrow)
+    axes = fig.subplots(nrow, ncol, squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    for ax, (title, g) in zip(axes.flat, series):
+        x = np.arange(len(g))
+        cost = g["cost"].to_numpy(float)
+        cmin = g["cost_min"].to_numpy(float)
+        ok = (g["status"] == "ok").to_numpy()
+        lo = np.where(np.isfinite(cmin), np.clip(cost - cmin, 0, None), 0)
+        c_ok = ok & np.isfinite(cost)
+        ax.errorbar(x[c_ok], cost[c_ok], yerr=[lo[c_ok], np.zeros(c_ok.sum())], fmt="o-", color="C0",
+                    ms=3, lw=1, capsize=2)
+        ax.set_ylabel("CPU s / sim s", color="C0", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if c_ok.any():
+            ax.set_ylim(0, np.nanmax(cost[c_ok]) * 1.25)
+        err = g["primary_error"].to_numpy(float)
+        e_ok = ok & np.isfinite(err)
+        if e_ok.any():
+            ax2 = ax.twinx()
+            ax2.set_yscale("log")
+            ax2.plot(x[e_ok], np.maximum(err[e_ok], ERROR_FLOOR), "s--", color="C1", ms=3, lw=1)
+            ax2.set_ylabel("primary error", color="C1", fontsize=7)
+            ax2.tick_params(labelsize=6)
+        for xi in x[~ok]:
+            ax.axvline(xi, color="red", lw=0.8, alpha=0.6)
+            ax.text(xi, 0.95, g["status"].iloc[xi], color="red", fontsize=6, transform=ax.get_xaxis_transform(),
+                    ha="center")
+        ax.set_xticks(x)
+        ax.set_xticklabels([str(s)[:16] for s in g["sweep_id"]], rotation=30, ha="right", fontsize=5.5)
+        ax.set_title(_mpl_text(title), fontsize=7)
+    return _png(fig)
+
+
+# ---------------------------------------------------------------------------
+# HTML
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em auto;max-width:1200px;
+color:#222;padding:0 1em;line-height:1.4}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h3{font-size:1.05em;margin-bottom:.3em}
+table{border-collapse:collapse;margin:.5em 0 1em;font-size:.85em}
+th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top}
+th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
+.warn{background:#fff4d6;border:1px solid #e0b000;padding:.5em 1em;margin:1em 0}
+.note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
+.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:640px}
+.wp img,.hist img{max-width:100%}figcaption{font-size:.8em;color:#444}
+.cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
+code{background:#f4f4f4;padding:0 .2em}
+"""
+
+
+def _e(v: Any) -> str:
+    return html.escape("" if v is None else str(v), quote=True)
+
+
+def _img(b64: str, alt: str) -> str:
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{b64}">'
+
+
+def _table(header: list[str], rows: list[list[str]], raw: bool = False, row_class: list[str] | None = None) -> str:
+    """rows' cells are escaped unless ``raw`` (then they are HTML already)."""
+    h = "".join(f"<th>{_e(c)}</th>" for c in header)
+    body = []
+    for i, r in enumerate(rows):
+        cls = f' class="{row_class[i]}"' if row_class and row_class[i] else ""
+        cells = "".join(f"<td>{c if raw else _e(c)}</td>" for c in r)
+        body.append(f"<tr{cls}>{cells}</tr>")
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _date(ts: Iterable[str]) -> str:
+    ts = sorted(t for t in ts if t)
+    if not ts:
+        return "-"
+    return ts[0] if ts[0] == ts[-1] else f"{ts[0]} .. {ts[-1]}"
+
+
+def _header_html(df: pd.DataFrame) -> str:
+    out = []
+    machines = []
+    for mid, g in df.groupby("machine_id", sort=True):
+        last = g.iloc[-1]
+        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"), ("cores", "machine.cores"),
+                                                         ("platform", "machine.platform"),
+                                                         ("python", "machine.python"))
+                         if c in g.columns and not _missing(last[c]))
+        machines.append([mid, info, str(len(g))])
+    out.append("<h3>Machines</h3>" + _table(["machine", "info", "rows"], machines))
+    sweeps = []
+    classes = []
+    s = _sweeps(df)
+    if not s.empty:
+        for (mid, suite, sid), g in s.groupby(["machine_id", "suite", "sweep_id"], sort=True):
+            counts = g["status"].value_counts()
+            inc = bool(g["incomplete"].any())
+            sweeps.append([mid, suite, sid, _date(g["timestamp"]),
+                           ", ".join(sorted({c for c in g["commit"] if c})) or "-", str(len(g)),
+                           ", ".join(f"{k} {v}" for k, v in counts.items()),
+                           "incomplete (parts only)" if inc else "complete"])
+            classes.append("incomplete" if inc else "")
+        out.append("<h3>Sweeps</h3>" + _table(["machine", "suite", "sweep id", "dates", "commits", "rows",
+                                               "statuses", "state"], sweeps, row_class=classes))
+    c = df[df["source"] == "check"]
+    if not c.empty:
+        checks = []
+        for (mid, f), g in c.groupby(["machine_id", "_file"], sort=True):
+            checks.append([mid, Path(f).name, _date(g["timestamp"]),
+                           ", ".join(sorted({x for x in g["commit"] if x})) or "-", str(len(g))])
+        out.append("<h3>Conformance runs (physbench check)</h3>"
+                   + _table(["machine", "file", "dates", "commits", "rows"], checks))
+    ev = []
+    for en, g in df.groupby("engine", sort=True):
+        ev.append([en, ", ".join(sorted({v for v in g["engine_version"] if v})) or "-"])
+    out.append("<h3>Engines</h3>" + _table(["engine", "versions"], ev))
+    commits = sorted({x for x in df["commit"] if x})
+    suites = sorted({x for x in s["suite"] if x}) if not s.empty else []
+    out.insert(0, f'<p>Suites: <b>{_e(", ".join(suites) or "-")}</b>. Commits covered: '
+                  f'{_e(", ".join(commits) or "-")}. Rows: {len(df)} ({len(s)} from sweeps, {len(c)} from '
+                  f"conformance runs). Dates: {_e(_date(df['timestamp']))}.</p>")
+    return "\n".join(out)
+
+
+def _wp_html(wps: dict[tuple[str, str], dict[str, Any]]) -> str:
+    if not wps:
+        return '<p class="note">No sweep rows: nothing to draw.</p>'
+    parts = ['<p class="note">x: CPU seconds per simulated second (log); y: the scenario\'s primary error '
+             "(log); one line per engine and non-dt setting combination, points along dt (labelled). Latest "
+             "sweep of each point on each machine. Dashed: the target (the scenario's <code>[[check]] max</code> "
+             "for its primary metric, else <code>--target</code>). Red x on the top edge: runs that were not ok "
+             "(diverged, error, unstable ...), placed at their cost.</p>"]
+    for (sc, va), wp in wps.items():
+        b64 = plot_work_precision(wp)
+        title = sc + (f" / {va}" if va else "")
+        cap = [f"<b>{_e(title)}</b>: primary metric <code>{_e(wp['primary_metric'] or '?')}</code>"]
+        if wp["threshold"] is not None:
+            cap.append(f"target {_e(fmt(wp['threshold']))} ({_e(wp['threshold_source'])})")
+        else:
+            cap.append("no target (no check max; pass --target)")
+        if wp["clipped"]:
+            cap.append(f"errors below {ERROR_FLOOR:g} (exact results, error 0) are drawn at {ERROR_FLOOR:g}")
+        if any(p["incomplete"] for l in wp["lines"] for p in l["points"]):
+            cap.append("includes points of an incomplete sweep")
+        body = _img(b64, f"work-precision {title}") if b64 else '<p class="note">no drawable point</p>'
+        lst = ""
+        if wp["not_ok"]:
+            items = "".join(f"<li>{_e(p['label'])} dt={_e(fmt(p['dt']))}: <span class='bad'>{_e(p['status'])}"
+                            f"</span>{(' - ' + _e(p['message'][:200])) if p['message'] else ''}"
+                            f"{'' if math.isfinite(p['cost']) else ' (cost unknown)'}</li>"
+                            for p in wp["not_ok"])
+            lst = f"<details><summary>{len(wp['not_ok'])} point(s) not ok</summary><ul class='note'>{items}</ul></details>"
+        parts.append(f'<figure class="wp">{body}<figcaption>{"; ".join(cap)}.</figcaption>{lst}</figure>')
+    return "\n".join(parts)
+
+
+def _cost_html(ct: pd.DataFrame) -> str:
+    if ct.empty:
+        return ('<p class="note">No scenario with a target: give the scenario a <code>[[check]] max</code> for '
+                "its primary metric or pass <code>--target</code>.</p>")
+    rows = []
+    for r in ct.to_dict("records"):
+        scen = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
+        tgt = f"{_e(r['primary_metric'] or '?')} &le; {_e(fmt(r['target']))} <span class='note'>({_e(r['target_source'])})</span>"
+        if r["reached"]:
+            cfg = _e(r["settings"] or f"dt={fmt(r['dt'])}")
+            rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(fmt(r["cost"])),
+                         _e("1" if r["ratio"] == 1 else fmt(r["ratio"]) + "x")])
+        else:
+            best = (f"best error {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
+                                                             if r["best_error_settings"] else "")
+                    if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+            rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached</span>",
+                         _e(best), "-", "-"])
+    return ('<p class="note">The cheapest configuration (latest sweep) whose primary error is at most the '
+            "target, its cost and its cost relative to the cheapest engine that reaches the target.</p>"
+            + _table(["scenario", "engine", "target", "cheapest configuration", "error", "CPU s / sim s",
+                      "vs cheapest"], rows, raw=True))
+
+
+def _colour(frac: float, n_supported: int) -> str:
+    if n_supported == 0 or not math.isfinite(frac):
+        return "#e6e6e6"
+    hue = int(round(120 * frac))  # 0 red .. 120 green
+    return f"hsl({hue},70%,80%)"
+
+
+def _stability_html(sm: pd.DataFrame) -> str:
+    if sm.empty:
+        return '<p class="note">No sweep or conformance rows.</p>'
+    engines = sorted(sm["engine"].unique())
+    rows = []
+    for (sc, va), g in sm.groupby(["scenario", "variant"], sort=True):
+        cells = [_e(sc) + (f" / {_e(va)}" if va else "")]
+        by = {r["engine"]: r for r in g.to_dict("records")}
+        for en in engines:
+            r = by.get(en)
+            if r is None:
+                cells.append("<span class='note'>-</span>")
+                continue
+            supported = r["points"] - r["unsupported"]
+            txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ok &amp; stable"]
+            for k in ("unstable", "diverged", "error", "unsupported", "other"):
+                if r[k]:
+                    txt.append(f"{r[k]} {k}")
+            if _finite(r["max_stable_dt"]):
+                txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
+            if _finite(r["min_unstable_dt"]):
+                txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
+            frac = r["ok_stable"] / supported if supported else math.nan
+            cells.append(f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
+                         + "<br>".join(txt) + "</div>")
+        rows.append(cells)
+    sel = sm.attrs.get("selection", "")
+    return (f"<p class='note'>Showing {_e(sel)}. Per cell: points that ran ok and stable out of all points "
+            "(latest sweep points and latest <code>physbench check</code> rows), counts of the other outcomes, "
+            "the largest dt at which the engine stayed ok and stable, and the smallest dt at which it did not. "
+            "Colour: share of supported points ok and stable (red 0 .. green 1; grey: unsupported).</p>"
+            + _table(["scenario"] + engines, rows, raw=True))
+
+
+def _history_html(df: pd.DataFrame) -> str:
+    hist = history(df)
+    if not hist:
+        return ('<p class="note">No point is in two sweeps of the same suite on the same machine yet: '
+                "history starts with the second sweep.</p>")
+    reg = regressions(df, hist)
+    parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
+             "repeats; a cost change is flagged when the latest median differs from the best earlier one by more "
+             f"than max({NOISE_FLOOR:.0%}, {NOISE_SPREADS:g} x the relative spread (median - min) / median of "
+             f"either run's repeats); an accuracy change when the primary error differs from the best earlier one "
+             f"by more than {NOISE_FLOOR:.0%} and {ERROR_ABS_FLOOR:g} absolute; a status change from ok to anything "
+             "else is a regression.</p>"]
+    if reg.empty:
+        parts.append("<p class='good'>No regression or improvement beyond noise.</p>")
+    else:
+        n_reg = int((reg["direction"] == "regression").sum())
+        parts.append(f"<p><span class='{'bad' if n_reg else 'good'}'>{n_reg} regression(s)</span>, "
+                     f"{len(reg) - n_reg} improvement(s).</p>")
+        rows = []
+        for r in reg.to_dict("records"):
+            d = r["direction"]
+            cls = "bad" if d == "regression" else "good"
+            if r["kind"] == "status":
+                change, prev, last, thr = "-", _e(r["previous"]), _e(r["latest"]), "-"
+            else:
+                change = _e(f"{r['change']:+.1%}") if math.isfinite(r["change"]) else "from 0"
+                prev, last, thr = _e(fmt(r["previous"])), _e(fmt(r["latest"])), _e(f"{r['threshold']:.0%}")
+            rows.append([f"<span class='{cls}'>{_e(d)}</span>", _e(r["kind"]),
+                         _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""),
+                         _e(r["engine"]), _e(r["settings"]), _e(r["machine_id"]) + " / " + _e(r["suite"]),
+                         prev, last, change, thr, _e(r["previous_sweep"]) + " &rarr; " + _e(r["latest_sweep"])])
+        parts.append(_table(["", "kind", "scenario", "engine", "settings", "machine / suite", "before (best)",
+                             "latest", "change", "noise threshold", "sweeps"], rows, raw=True))
+    # small multiples: flagged regressions first, then the largest cost moves
+    order: list[tuple[str, str, str]] = []
+    if not reg.empty:
+        for r in reg[reg["direction"] == "regression"].to_dict("records"):
+            k = (r["machine_id"], r["suite"], r["point_key"])
+            if k not in order:
+                order.append(k)
+
+    def move(g: pd.DataFrame) -> float:
+        c = g.loc[g["status"] == "ok", "cost"].to_numpy(float)
+        c = c[np.isfinite(c) & (c > 0)]
+        return float(np.log(c.max() / c.min())) if len(c) >= 2 else 0.0
+
+    for k in sorted(hist, key=lambda k: -move(hist[k])):
+        if k not in order:
+            order.append(k)
+    picks = order[:MAX_SMALL_MULTIPLES]
+    series = []
+    for k in picks:
+        g = hist[k]
+        last = g.iloc[-1]
+        t = f"{last['scenario']}{' / ' + last['variant'] if last['variant'] else ''}: {last['engine']} " \
+            f"{settings_label(last['swept'] or {})}"
+        series.append((t, g))
+    b64 = plot_history(series)
+    if b64:
+        parts.append(f"<figure class='hist'>{_img(b64, 'history small multiples')}<figcaption>The "
+                     f"{len(picks)} worst series (flagged regressions first, then the largest cost moves): "
+                     "blue, cost median per sweep with a bar down to the fastest repeat; orange, primary error "
+                     "(log); red lines, sweeps where the run was not ok.</figcaption></figure>")
+    return "\n".join(parts)
+
+
+def render_html(df: pd.DataFrame, *, target: float | None = None,
+                targets: Mapping[Any, float] | float | None = None, warnings: Iterable[str] = (),
+                command: str = "physbench report", generated: str | None = None,
+                results_dir: str | Path | None = None, physbench_commit: str | None = None) -> str:
+    """The whole page for the normalised frame ``df`` (from
+    :func:`load_results`)."""
+    df = _ensure(df)
+    warnings = list(warnings) + list(df.attrs.get("warnings", []) if hasattr(df, "attrs") else [])
+    warnings = list(dict.fromkeys(warnings))
+    generated = generated or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    if physbench_commit is None:
+        from harness.runner import commit_id
+
+        physbench_commit = commit_id()
+    where = f" under <code>{_e(results_dir)}</code>" if results_dir is not None else ""
+    sections = []
+    if warnings:
+        items = "".join(f"<li>{_e(w)}</li>" for w in warnings)
+        sections.append(f"<div class='warn'><b>Warnings</b><ul>{items}</ul></div>")
+    if df.empty:
+        sections.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
+                        "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
+                        "write.</div>")
+        body = {k: '<p class="note">No results.</p>' for k in ("wp", "cost", "stab", "hist")}
+        header = ""
+    else:
+        header = _header_html(df)
+        body = {"wp": _wp_html(work_precision(df, target=target, targets=targets)),
+                "cost": _cost_html(cost_to_target(df, targets=targets, target=target)),
+                "stab": _stability_html(stability_matrix(df)),
+                "hist": _history_html(df)}
+        inc = df[df["incomplete"]]
+        if len(inc):
+            sections.append(f"<div class='warn'>{len(inc)} row(s) come from incomplete sweeps (part files not yet "
+                            "consolidated): " + _e(", ".join(sorted(set(inc["sweep_id"])))) + ".</div>")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>physbench report</title>
+<style>{_CSS}</style></head><body>
+<h1>physbench report</h1>
+<p class="note">Generated {_e(generated)} from stored results{where}.</p>
+{''.join(sections)}
+<section id="header"><h2>What this covers</h2>{header or '<p class="note">Nothing.</p>'}</section>
+<section id="work-precision"><h2>Work-precision diagrams</h2>{body['wp']}</section>
+<section id="cost-to-target"><h2>Cost to reach the target accuracy</h2>{body['cost']}</section>
+<section id="stability"><h2>Stability matrix</h2>{body['stab']}</section>
+<section id="history"><h2>History across runs</h2>{body['hist']}</section>
+<footer><p>Generated by <code>{_e(command)}</code> at {_e(generated)}, physbench commit
+<code>{_e(physbench_commit)}</code>. Self-contained: no external assets, no scripts.</p></footer>
+</body></html>
+"""
+
+
+# ---------------------------------------------------------------------------
+# entry point
+
+
+def report_main(results_dir: Path | None = None, out: Path | None = None, suites: list[str] | None = None,
+                target: float | None = None) -> int:
+    """Write the report (default ``<results_dir>/report.html``) and print its
+    path.  Returns 0, or 1 when there were no usable result rows (the page
+    is still written and says so)."""
+    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    out = Path(out) if out is not None else root / "report.html"
+    cmd = ["physbench", "report"]
+    if results_dir is not None:
+        cmd += ["--results-dir", str(results_dir)]
+    if out != root / "report.html":
+        cmd += ["--out", str(out)]
+    if suites:
+        cmd += ["--suites", *suites]
+    if target is not None:
+        cmd += ["--target", f"{target:g}"]
+    df = load_results(root, suites=suites)
+    warnings = df.attrs.get("warnings", [])
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    page = render_html(df, target=target, warnings=warnings, command=" ".join(cmd), results_dir=root)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".tmp-{out.name}")
+    tmp.write_text(page, encoding="utf-8")
+    tmp.replace(out)
+    if df.empty:
+        print(f"no results under {root}{' for suites ' + ', '.join(suites) if suites else ''}; "
+              f"wrote an empty report to {out}", file=sys.stderr)
+        print(out)
+        return 1
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(report_main())

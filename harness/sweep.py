@@ -1,0 +1,998 @@
+"""Accuracy-vs-cost sweeps: ``physbench sweep``.
+
+A *suite* (``suites/<name>.toml``, format in ``docs/SWEEPS.md``) lists blocks
+of scenarios and a grid of engine settings per block: axes common to every
+engine (``grid``) and engine-specific axes (``[sweep.engine.<name>] grid``),
+combined as a cartesian product.  :func:`expand` turns a suite into
+:class:`Point` s, one per (scenario, variant, engine, settings); each point is
+run with :func:`harness.runner.run` (the runner does the stepping, timing and
+metrics; this module only plans, repeats, stores and resumes).
+
+Rows.  One row per point: ``RunResult.row()`` of the point's first run (its
+metrics: engines are deterministic) plus the sweep columns ``suite``,
+``sweep_id``, ``point_key``, ``point_settings``, ``primary_metric``,
+``primary_error``, ``cpu_s_per_sim_s_median``/``_min`` over ``repeats`` timed
+runs, ``machine_id``, ``sweep_jobs``, ``point_wall_s`` and ``schema_version``
+(``results/README.md``).  Traces are never stored.
+
+Storage (asv style, ``results/sweeps/``)::
+
+    <machine-id>/<suite>/<sweep_id>/manifest.json     while running
+    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  one per finished point
+    <machine-id>/<suite>/<sweep_id>.parquet           when complete
+    <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
+
+Every file is written atomically (temp file, fsync, rename), one part per
+finished point, so a killed sweep loses at most the points in flight.  A
+sweep resumes (automatically, or with ``resume=True``) by reading the finished
+point keys back from its parts.
+
+Parallelism: ``jobs`` worker processes (``executor="process"``) or in-process
+(``"serial"``).  A worker that dies (a segfault in an engine) breaks the pool:
+the points that were in flight are retried one at a time in a fresh
+one-worker pool, so only the point that kills its worker again is recorded as
+``error``; the sweep then continues with a new pool.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import fcntl
+import hashlib
+import itertools
+import json
+import math
+import os
+import platform
+import re
+import shutil
+import statistics
+import sys
+import time
+import tomllib
+import traceback
+import warnings
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness.scene import REPO_ROOT
+from harness.spec import SpecError, _display, _format_errors
+
+SUITE_DIR = REPO_ROOT / "suites"
+SWEEPS_DIR = RESULTS_DIR / "sweeps"
+RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
+STATUSES = ("ok", "unsupported", "failed", "diverged", "timeout", "error")
+EXECUTORS = ("serial", "process")
+# Columns this module adds to RunResult.row() (the row contract, with
+# results/README.md).
+SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "primary_metric", "primary_error",
+                 "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
+                 "point_wall_s", "schema_version")
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+_SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
+
+
+class SuiteError(SpecError):
+    """A suite file failed to load; ``errors`` holds one line per problem,
+    ``<file>: <key path>: <what was expected, what was found>``.  A SpecError,
+    so callers that report spec errors (exit code 2) report these too."""
+
+
+# ---------------------------------------------------------------------------
+# suite file model (pydantic: structure and types; engine settings and
+# scenario ids are checked afterwards, against the registry and scenarios/)
+
+
+class _Strict(BaseModel):
+    # strict: TOML is typed, so "3" for an integer is a mistake, not a number
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class SuiteSection(_Strict):
+    name: str | None = None
+    description: str = ""
+    engines: list[str] = Field(min_length=1)
+    repeats: int = Field(default=3, ge=1)
+    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0)
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v: str | None) -> str | None:
+        if v is not None and not _NAME.match(v):
+            raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
+        return v
+
+
+class EngineSection(_Strict):
+    grid: dict[str, list[Any]] = Field(default_factory=dict)
+
+
+class SweepSection(_Strict):
+    description: str = ""
+    scenarios: list[str] = Field(min_length=1)
+    engines: list[str] | None = None
+    repeats: int | None = Field(default=None, ge=1)
+    grid: dict[str, list[Any]] = Field(default_factory=dict)
+    engine: dict[str, EngineSection] = Field(default_factory=dict)
+
+
+class SuiteModel(_Strict):
+    suite: SuiteSection
+    sweep: list[SweepSection] = Field(min_length=1)
+
+
+# ---------------------------------------------------------------------------
+# the validated suite and its points
+
+
+@dataclass(frozen=True)
+class SweepBlock:
+    """One ``[[sweep]]`` table, validated.  ``axes[engine]`` maps each setting
+    name to its coerced values: the common grid, with an engine's own axis of
+    the same name replacing the common one."""
+
+    index: int
+    scenarios: tuple[tuple[str, str | None], ...]
+    engines: tuple[str, ...]
+    repeats: int
+    axes: dict[str, dict[str, tuple[Any, ...]]]
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Suite:
+    name: str
+    path: Path
+    file_hash: str  # sha256 of the file's bytes, 16 hex digits
+    description: str
+    engines: tuple[str, ...]
+    repeats: int
+    timeout_s: float
+    sweeps: tuple[SweepBlock, ...]
+
+
+@dataclass(frozen=True)
+class Point:
+    """One run to make: scenario (+ variant) on an engine with the swept
+    settings (sorted (name, value) pairs, values coerced by the engine's
+    Setting, so 1e-3 and 0.001 are the same point)."""
+
+    scenario: str
+    variant: str | None
+    engine: str
+    settings: tuple[tuple[str, Any], ...]
+    repeats: int = 1
+    timeout_s: float = RUN_TIMEOUT_S
+
+    @property
+    def settings_dict(self) -> dict[str, Any]:
+        return dict(self.settings)
+
+    @property
+    def settings_json(self) -> str:
+        """The swept settings as canonical JSON (sorted keys, shortest
+        round-trip floats)."""
+        return json.dumps(self.settings_dict, sort_keys=True, separators=(",", ":"))
+
+    @property
+    def label(self) -> str:
+        return self.scenario + (f"[{self.variant}]" if self.variant else "")
+
+    @property
+    def key(self) -> str:
+        """Stable identity across runs and nights:
+        ``scenario[variant]|engine|{"dt":0.001,...}``.  Repeats and timeouts
+        are not part of it (they change how a point is measured, not what)."""
+        return f"{self.label}|{self.engine}|{self.settings_json}"
+
+
+def resolve_suite(suite: str | Path) -> Path:
+    """A suite name (``suites/<name>.toml``) or a path -> the file's path."""
+    p = Path(suite)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    cand = SUITE_DIR / f"{suite}.toml"
+    if cand.is_file():
+        return cand
+    known = ", ".join(sorted(q.stem for q in SUITE_DIR.glob("*.toml"))) or "none"
+    raise SuiteError([f"{suite}: <suite>: no such file and no suite of this name in suites/; known suites: {known}"])
+
+
+def load_suite(path: str | Path) -> Suite:
+    """Read and validate a suite file (a path, or a name under suites/).
+    Raises SuiteError listing every problem found."""
+    p = resolve_suite(path)
+    label = _display(p)
+    if not p.is_file():
+        raise SuiteError([f"{label}: <file>: no such file"])
+    data = p.read_bytes()
+    try:
+        raw = tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise SuiteError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    try:
+        model = SuiteModel.model_validate(raw)
+    except ValidationError as exc:
+        raise SuiteError(_format_errors(label, exc, raw)) from None
+    errors: list[str] = []
+    blocks = _check_suite(model, label, errors)
+    if errors:
+        raise SuiteError(errors)
+    s = model.suite
+    return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
+                 description=s.description, engines=tuple(s.engines), repeats=s.repeats,
+                 timeout_s=s.timeout_s, sweeps=tuple(blocks))
+
+
+def _engines_text(engines: Iterable[str]) -> str:
+    engines = list(engines)
+    return f"engine{'s' if len(engines) > 1 else ''} {', '.join(engines)}"
+
+
+def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[SweepBlock]:
+    """Cross-checks pydantic cannot make: engines registered, scenario ids
+    and variants exist, every grid key is a setting of the engines it applies
+    to and every value is allowed by that setting.  Appends to ``errors``."""
+    from adapters import engine_names, get_adapter
+    from harness.scene import resolve_scenario, scenario_ids
+    from harness.spec import load_spec
+
+    known = engine_names()
+    caps: dict[str, Any] = {}
+    for i, e in enumerate(model.suite.engines):
+        if e not in known:
+            errors.append(f"{label}: suite.engines[{i}]: unknown engine {e!r}; known: {', '.join(known)}")
+        elif e in caps:
+            errors.append(f"{label}: suite.engines[{i}]: engine {e!r} is listed twice")
+        else:
+            try:
+                caps[e] = get_adapter(e).capabilities()
+            except Exception as exc:  # a broken adapter module
+                errors.append(f"{label}: suite.engines[{i}]: engine {e!r} cannot be loaded: {type(exc).__name__}: {exc}")
+    ids = set(scenario_ids())
+    blocks: list[SweepBlock] = []
+    for bi, sw in enumerate(model.sweep):
+        where = f"{label}: sweep[{bi}]"
+        # scenarios: 'family.name' or 'family.name[variant]'
+        scen: list[tuple[str, str | None]] = []
+        for j, entry in enumerate(sw.scenarios):
+            m = _SCENARIO_ENTRY.match(entry.strip())
+            if not m:
+                errors.append(f"{where}.scenarios[{j}]: expected 'family.name' or 'family.name[variant]', got {entry!r}")
+                continue
+            sid, var = m.group(1), m.group(2)
+            if var == "base":
+                var = None
+            if sid not in ids:
+                errors.append(f"{where}.scenarios[{j}]: unknown scenario {sid!r}; known ids: {', '.join(sorted(ids))}")
+                continue
+            try:
+                loaded = load_spec(resolve_scenario(sid))
+            except SpecError as exc:
+                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} does not load: {exc.errors[0]}")
+                continue
+            if var is not None and var not in loaded.variants:
+                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} has no variant {var!r}; "
+                              f"its variants: {', '.join(loaded.variants) or 'none'}")
+                continue
+            if (sid, var) in scen:
+                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                continue
+            scen.append((sid, var))
+        # engines of this block: a subset of the suite's
+        if sw.engines is None:
+            engines = [e for e in model.suite.engines if e in caps]
+        else:
+            engines = []
+            for j, e in enumerate(sw.engines):
+                if e not in model.suite.engines:
+                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
+                                  f"({', '.join(model.suite.engines)})")
+                elif e in engines:
+                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
+                elif e in caps:
+                    engines.append(e)
+        for e in sw.engine:
+            if e not in engines:
+                whose = "suite.engines" if sw.engines is None else f"sweep[{bi}].engines"
+                errors.append(f"{where}.engine.{e}: engine {e!r} is not in {whose} "
+                              f"({', '.join(model.suite.engines if sw.engines is None else sw.engines)})")
+        # axes per engine: common grid, then the engine's own (replacing)
+        axes: dict[str, dict[str, tuple[Any, ...]]] = {e: {} for e in engines}
+        common_bad: dict[tuple[str, str, bool], list[str]] = {}  # (path, message, name them?) -> engines
+        for key, values in sw.grid.items():
+            for e in engines:
+                own = sw.engine.get(e)
+                if own is not None and key in own.grid:
+                    continue  # replaced by the engine's own axis
+                coerced = _check_axis(f"sweep[{bi}].grid.{key}", key, values, e, caps[e], common_bad, common=True)
+                if coerced is not None:
+                    axes[e][key] = coerced
+        for (path, msg, name_engines), engs in common_bad.items():
+            errors.append(f"{label}: {path}: {msg}" + (f" ({_engines_text(engs)})" if name_engines else ""))
+        for e, own in sw.engine.items():
+            if e not in engines:
+                continue
+            own_bad: dict[tuple[str, str, bool], list[str]] = {}
+            for key, values in own.grid.items():
+                coerced = _check_axis(f"sweep[{bi}].engine.{e}.grid.{key}", key, values, e, caps[e], own_bad,
+                                      common=False)
+                if coerced is not None:
+                    axes[e][key] = coerced
+            for (path, msg, _), _ in own_bad.items():
+                errors.append(f"{label}: {path}: {msg}")
+        blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
+                                 axes, sw.description))
+    return blocks
+
+
+def _check_axis(path: str, key: str, values: list[Any], engine: str, caps: Any,
+                bad: dict[tuple[str, str, bool], list[str]], common: bool) -> tuple[Any, ...] | None:
+    """Coerce one axis's values with ``engine``'s Setting.  Problems go into
+    ``bad`` keyed by (key path, message, whether to name the engines), so
+    that the same problem on several engines is reported once, naming them
+    all."""
+    setting = caps.settings.get(key)
+
+    def problem(where: str, msg: str, name_engines: bool = True) -> None:
+        bad.setdefault((where, msg, name_engines), []).append(engine)
+
+    if setting is None:
+        known = ", ".join(caps.settings)
+        if common:
+            problem(path, f"not a setting of engine {engine} (its settings: {known}); a common axis must be a "
+                          f"setting of every engine of the sweep, engine-specific axes go under "
+                          f"[sweep.engine.<engine>]", False)
+        else:
+            problem(path, f"not a setting of engine {engine}; its settings: {known}", False)
+        return None
+    if not values:
+        problem(path, "expected at least one value", False)
+        return None
+    out: list[Any] = []
+    ok = True
+    for i, v in enumerate(values):
+        if not isinstance(v, (bool, int, float, str)):
+            problem(f"{path}[{i}]", f"expected a number, string or boolean, got {v!r}", False)
+            ok = False
+            continue
+        try:
+            c = setting.coerce(v)
+        except ValueError as exc:
+            problem(f"{path}[{i}]", re.sub(rf"^setting {re.escape(key)}: ", "", str(exc)), common)
+            ok = False
+            continue
+        if isinstance(c, float) and not math.isfinite(c):
+            problem(f"{path}[{i}]", f"expected a finite number, got {v!r}", False)
+            ok = False
+            continue
+        if c in out:
+            problem(f"{path}[{i}]", f"value {v!r} is listed twice", False)
+            ok = False
+            continue
+        out.append(c)
+    return tuple(out) if ok else None
+
+
+def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] | None = None) -> list[Point]:
+    """All points of ``suite``, in suite order (block, scenario, engine, grid
+    in axis order), optionally only ``engines`` and ``scenarios`` (ids, or
+    ``id[variant]`` for one variant).  A point listed by two blocks is kept
+    once (the first).  Raises ValueError for an engine or scenario that is
+    not in the suite."""
+    if engines is not None:
+        unknown = [e for e in engines if e not in suite.engines]
+        if unknown:
+            raise ValueError(f"engine {', '.join(unknown)} is not in suite {suite.name} "
+                             f"(its engines: {', '.join(suite.engines)})")
+    listed = {(sid, var) for b in suite.sweeps for sid, var in b.scenarios}
+    if scenarios is not None:
+        for s in scenarios:
+            if not any(s == sid or s == _label(sid, var) for sid, var in listed):
+                raise ValueError(f"scenario {s} is not in suite {suite.name} "
+                                 f"(its scenarios: {', '.join(sorted({_label(*x) for x in listed}))})")
+    points: list[Point] = []
+    seen: set[str] = set()
+    for b in suite.sweeps:
+        for sid, var in b.scenarios:
+            if scenarios is not None and sid not in scenarios and _label(sid, var) not in scenarios:
+                continue
+            for e in b.engines:
+                if engines is not None and e not in engines:
+                    continue
+                axes = b.axes.get(e, {})
+                names = sorted(axes)
+                for combo in itertools.product(*(axes[n] for n in names)):
+                    p = Point(sid, var, e, tuple(zip(names, combo)), b.repeats, suite.timeout_s)
+                    if p.key not in seen:
+                        seen.add(p.key)
+                        points.append(p)
+    return points
+
+
+def _label(sid: str, var: str | None) -> str:
+    return sid + (f"[{var}]" if var else "")
+
+
+# ---------------------------------------------------------------------------
+# machine id
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo on Linux; platform elsewhere)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+@lru_cache(maxsize=1)
+def machine_id() -> str:
+    """Short stable id of this machine: ``<host>-<8 hex>``, the hash over
+    host name, CPU model and core count (so a new CPU or a resized VM with
+    the same host name is a new machine, as timings are not comparable)."""
+    from harness.runner import machine_info
+
+    info = machine_info()
+    text = f"{info['host']}|{cpu_model()}|{info['cores']}"
+    host = re.sub(r"[^A-Za-z0-9_.-]", "_", info["host"] or "host")[:32]
+    return f"{host}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+
+
+# ---------------------------------------------------------------------------
+# running one point (in a worker process or in-process)
+
+
+@lru_cache(maxsize=64)
+def _scene(scenario: str, variant: str | None):
+    from harness.scene import load_scene
+
+    return load_scene(scenario, variant)
+
+
+def run_point(point: Point) -> dict[str, Any]:
+    """Run one point: the first run gives the row (metrics, status); while
+    runs are ``ok``, ``point.repeats`` runs in all are timed (metrics computed
+    on the first only: the engines are deterministic, and metric code is not
+    what is timed).  Only ok runs count in the median and minimum CPU time
+    (``repeats`` of them); a run that is not ok is not repeated (the row's
+    ``cpu_s_per_sim_s`` keeps the runner's figure for the part that ran).
+    Never raises for engine trouble; returns the flat row with the point
+    columns (the sweep-wide ones are added by the caller)."""
+    from harness import runner
+
+    t0 = time.perf_counter()
+    try:
+        scene = _scene(point.scenario, point.variant)
+    except Exception as e:
+        return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+    first = None
+    cpu: list[float] = []
+    # a blow-up is recorded in the status; numpy's overflow warnings on the
+    # way there would only scramble the progress display
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for i in range(point.repeats):
+            try:
+                res = runner.run(scene, point.engine, point.settings_dict, timeout_s=point.timeout_s,
+                                 compute_metrics=(i == 0))
+            except Exception as e:  # a bad setting combination, an adapter import error ...
+                if first is None:
+                    return _status_row(point, "failed", f"could not run: {type(e).__name__}: {e}", t0,
+                                       scene=scene, tb=traceback.format_exc(limit=5))
+                first.notes.append(f"repeat {i + 1} raised {type(e).__name__}: {e}; not timed")
+                break
+            res.trace = None
+            if first is None:
+                first = res
+            if res.status != "ok":  # a partial run's cost is no point of a work-precision curve
+                if res is not first:
+                    first.notes.append(f"repeat {i + 1} ended {res.status} ({res.message}); not timed")
+                break
+            cpu.append(float(res.metrics.get("cpu_s_per_sim_s", math.nan)))
+    row = first.row()
+    row.update(_point_columns(point, scene, row, cpu, t0))
+    return row
+
+
+def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float) -> dict[str, Any]:
+    metric = getattr(scene, "primary_metric", None)
+    value = row.get(metric) if metric else None
+    try:
+        err = float(value) if row.get("status") == "ok" and value is not None else math.nan
+    except (TypeError, ValueError):
+        err = math.nan
+    finite = [c for c in cpu if math.isfinite(c)]
+    return {
+        "point_key": point.key,
+        "point_settings": point.settings_json,
+        "primary_metric": metric,
+        "primary_error": err,
+        "cpu_s_per_sim_s_median": statistics.median(finite) if finite else math.nan,
+        "cpu_s_per_sim_s_min": min(finite) if finite else math.nan,
+        "repeats": len(finite),
+        "point_wall_s": time.perf_counter() - t0,
+    }
+
+
+def _status_row(point: Point, status: str, message: str, t0: float, scene: Any = None,
+                tb: str | None = None) -> dict[str, Any]:
+    """A row for a point that produced no RunResult (scene failed to load,
+    the run raised, the worker died)."""
+    from adapters import get_adapter
+    from harness.runner import RunResult, commit_id, machine_info
+
+    settings = point.settings_dict
+    version = ""
+    try:
+        cls = get_adapter(point.engine)
+        version = cls.capabilities().version
+        if scene is None:
+            scene = _scene(point.scenario, point.variant)
+        settings = cls.resolve_settings(scene, settings)
+    except Exception:
+        pass  # keep the swept settings only
+    res = RunResult(point.scenario, point.variant, point.engine, version, status, message, settings,
+                    machine=machine_info(), commit=commit_id(),
+                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    if tb:
+        res.info["traceback"] = tb
+    row = res.row()
+    row.update(_point_columns(point, scene, row, [], t0))
+    return row
+
+
+# ---------------------------------------------------------------------------
+# storage
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _normalize(df):
+    """Columns mixing types (a setting that is a bool on one engine and a
+    string on another) are stored as text, as harness.results does."""
+    for col in df.columns:
+        if df[col].dtype == object:
+            kinds = {type(v) for v in df[col] if v is not None and not (isinstance(v, float) and math.isnan(v))}
+            if len(kinds) > 1:
+                df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float) and math.isnan(v))
+                                      else str(v))
+    return df
+
+
+def _fsync_replace(tmp: Path, path: Path) -> None:
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_parquet_atomic(df, path: Path, metadata: dict[str, Any] | None = None) -> Path:
+    """Write a DataFrame to ``path`` atomically (temp file in the same
+    directory, fsync, rename); ``metadata`` is stored as JSON in the Parquet
+    schema metadata under ``physbench``."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = pa.Table.from_pandas(_normalize(df), preserve_index=False)
+    meta = dict(table.schema.metadata or {})
+    meta[b"physbench"] = json.dumps({"schema_version": SCHEMA_VERSION, **(metadata or {})}, default=str).encode()
+    table = table.replace_schema_metadata(meta)
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    try:
+        pq.write_table(table, tmp)
+        _fsync_replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _write_json_atomic(obj: Any, path: Path) -> None:
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    try:
+        tmp.write_text(json.dumps(obj, indent=1, default=str) + "\n", encoding="utf-8")
+        _fsync_replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _parts(d: Path) -> list[Path]:
+    return sorted(d.glob("part-*.parquet"))
+
+
+def _part_keys(d: Path) -> tuple[set[str], int]:
+    """Finished point keys stored in the parts of sweep directory ``d``, and
+    the next part number.  An unreadable part (it cannot be half-written:
+    parts are renamed into place) is set aside as ``*.bad``."""
+    import pyarrow.parquet as pq
+
+    keys: set[str] = set()
+    n = 0
+    for p in _parts(d):
+        try:
+            n = max(n, int(p.stem.split("-")[1]))
+        except (IndexError, ValueError):
+            pass
+        try:
+            keys.update(pq.read_table(p, columns=["point_key"]).column("point_key").to_pylist())
+        except Exception as e:
+            print(f"warning: unreadable part {p} set aside ({type(e).__name__}: {e}); its points rerun",
+                  file=sys.stderr)
+            p.rename(p.with_suffix(".bad"))
+    return keys, n + 1
+
+
+class _SweepDir:
+    """An open (unfinished) sweep directory, locked against a second sweep
+    resuming it at the same time (flock: released when the process dies,
+    however it dies)."""
+
+    def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
+        self.path = path
+        self.manifest = manifest
+        self.lock_fd = lock_fd
+        self.done, self.next_part = _part_keys(path)
+        for tmp in path.glob(".tmp-*"):  # a write in flight when killed
+            tmp.unlink()
+
+    @property
+    def sweep_id(self) -> str:
+        return self.manifest["sweep_id"]
+
+    def write_point(self, row: dict[str, Any]) -> Path:
+        import pandas as pd
+
+        p = self.path / f"part-{self.next_part:06d}.parquet"
+        write_parquet_atomic(pd.DataFrame([row]), p, {"sweep_id": self.sweep_id})
+        self.next_part += 1
+        self.done.add(row["point_key"])
+        return p
+
+    def close(self) -> None:
+        if self.lock_fd >= 0:
+            os.close(self.lock_fd)
+            self.lock_fd = -1
+
+
+def _try_lock(d: Path) -> int:
+    """An exclusive lock on ``d/.lock`` (fd), or -1 if another process holds it."""
+    fd = os.open(d / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return -1
+    return fd
+
+
+def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
+    """Unfinished sweep directories (with a readable manifest) under
+    ``suite_dir``, newest first."""
+    out = []
+    if not suite_dir.is_dir():
+        return out
+    for d in sorted(suite_dir.iterdir(), reverse=True):
+        m = d / "manifest.json"
+        if d.is_dir() and m.is_file():
+            try:
+                out.append((d, json.loads(m.read_text(encoding="utf-8"))))
+            except (OSError, ValueError):
+                continue
+    return out
+
+
+def _sweep_id(commit: str) -> str:
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    return f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', commit)}"
+
+
+def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | None, jobs: int,
+               executor: str, filters: dict[str, Any]) -> tuple[_SweepDir, bool]:
+    """Find the sweep to resume or start a new one.  Returns (dir, resumed).
+
+    Resume rule: an unfinished sweep directory of this suite on this machine
+    whose manifest has the same suite-file hash and the same planned point
+    keys is resumed -- automatically (``resume=None``) only if it was also
+    started at the same commit, with ``resume=True`` whatever its commit (its
+    rows keep their own ``commit``); ``resume=False`` always starts afresh.
+    The newest match wins; a directory locked by a running sweep is skipped.
+    """
+    from harness.runner import commit_id, machine_info
+
+    suite_dir = root / machine_id() / suite.name
+    commit = commit_id()
+    keys = [p.key for p in points]
+    if resume is not False:
+        for d, man in _unfinished(suite_dir):
+            if (d.parent / f"{d.name}.parquet").exists():
+                continue  # consolidated but not yet removed: finished by _consolidate
+            if man.get("suite_hash") != suite.file_hash or sorted(man.get("points", [])) != sorted(keys):
+                continue
+            if resume is None and man.get("commit") != commit:
+                continue
+            fd = _try_lock(d)
+            if fd < 0:
+                continue
+            man.setdefault("resumed", []).append({"at": _now(), "commit": commit, "jobs": jobs,
+                                                  "executor": executor})
+            _write_json_atomic(man, d / "manifest.json")
+            return _SweepDir(d, man, fd), True
+        if resume:
+            print(f"nothing to resume for suite {suite.name} (same suite file and points) under {suite_dir}; "
+                  "starting a new sweep", file=sys.stderr)
+    base = _sweep_id(commit)
+    sid, n = base, 0
+    while (suite_dir / sid).exists() or (suite_dir / f"{sid}.parquet").exists():
+        n += 1  # two sweeps started in the same second: the later one sorts after
+        sid = f"{base}-{n}"
+    d = suite_dir / sid
+    d.mkdir(parents=True)
+    fd = _try_lock(d)
+    man = {
+        "schema_version": SCHEMA_VERSION,
+        "suite": suite.name,
+        "suite_file": _display(suite.path),
+        "suite_hash": suite.file_hash,
+        "sweep_id": sid,
+        "commit": commit,
+        "machine_id": machine_id(),
+        "machine": {**machine_info(), "cpu_model": cpu_model()},
+        "jobs": jobs,
+        "executor": executor,
+        "filters": filters,
+        "started": _now(),
+        "finished": None,
+        "points": keys,
+    }
+    _write_json_atomic(man, d / "manifest.json")
+    return _SweepDir(d, man, fd), False
+
+
+def consolidate(d: Path) -> Path:
+    """Merge the parts of sweep directory ``d`` into ``<d>.parquet`` (rows in
+    planned order, one per point key), write ``<d>.manifest.json``, then --
+    only once both are safely in place -- remove ``d``.  Returns the
+    consolidated file's path."""
+    import pandas as pd
+
+    man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
+    frames = [pd.read_parquet(p) for p in _parts(d)]
+    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["point_key"])
+    order = {k: i for i, k in enumerate(man.get("points", []))}
+    # a point is stored once by construction; should a bug ever store one
+    # twice, the first row wins and the manifest says so
+    n = len(df)
+    df = df.drop_duplicates("point_key", keep="first")
+    man["duplicates_dropped"] = n - len(df)
+    df = df.iloc[sorted(range(len(df)), key=lambda i: order.get(df["point_key"].iat[i], len(order)))]
+    df = df.reset_index(drop=True)
+    man["finished"] = man.get("finished") or _now()
+    man["rows"] = int(len(df))
+    missing = [k for k in man.get("points", []) if k not in set(df["point_key"])]
+    man["missing"] = missing
+    out = d.parent / f"{d.name}.parquet"
+    write_parquet_atomic(df, out, {"manifest": {k: v for k, v in man.items() if k != "points"}})
+    _write_json_atomic(man, d.parent / f"{d.name}.manifest.json")
+    shutil.rmtree(d)
+    return out
+
+
+def read_sweeps(root: str | Path | None = None, suite: str | None = None, machine: str | None = None,
+                unfinished: bool = False):
+    """All consolidated sweep rows under ``root`` (default results/sweeps/)
+    as one DataFrame, optionally one suite / one machine id; with
+    ``unfinished`` also the parts of sweeps still running or killed."""
+    import pandas as pd
+
+    root = Path(root) if root is not None else SWEEPS_DIR
+    frames = []
+    for mdir in sorted(root.glob(machine or "*")):
+        for sdir in sorted(mdir.glob(suite or "*")):
+            frames += [pd.read_parquet(f) for f in sorted(sdir.glob("*.parquet"))]
+            if unfinished:
+                frames += [pd.read_parquet(f) for d in sorted(sdir.iterdir()) if d.is_dir() for f in _parts(d)]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+# ---------------------------------------------------------------------------
+# executing points
+
+
+def _run_serial(todo: list[Point], on_row: Callable[[Point, dict[str, Any]], None],
+                on_start: Callable[[Point], None]) -> None:
+    for p in todo:
+        on_start(p)
+        on_row(p, run_point(p))
+
+
+def _run_process(todo: list[Point], jobs: int, on_row: Callable[[Point, dict[str, Any]], None],
+                 on_start: Callable[[Point], None]) -> None:
+    """Run points in a pool of ``jobs`` processes, at most 2 x jobs in flight
+    (so that a broken pool loses few).  When a worker dies, every point in
+    flight is retried alone in a fresh one-worker pool: the one that kills
+    its worker again gets an ``error`` row, the others their real rows; the
+    sweep then goes on with a new pool."""
+    pending = deque(todo)
+    while pending:
+        lost: list[Point] = []
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            inflight: dict[Any, Point] = {}
+            broken = False
+            while (pending and not broken) or inflight:
+                while pending and not broken and len(inflight) < 2 * jobs:
+                    p = pending.popleft()
+                    try:
+                        inflight[pool.submit(run_point, p)] = p
+                    except BrokenProcessPool:
+                        pending.appendleft(p)
+                        broken = True
+                        break
+                    on_start(p)
+                if not inflight:
+                    break
+                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                if broken:  # the pool is dead: everything in flight resolves now
+                    done, _ = wait(inflight)
+                for f in done:
+                    p = inflight.pop(f)
+                    try:
+                        row = f.result()
+                    except BrokenProcessPool:
+                        lost.append(p)
+                        broken = True
+                        continue
+                    except Exception as e:  # pickling trouble and the like
+                        row = _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", time.perf_counter())
+                    on_row(p, row)
+        for p in lost:
+            on_row(p, _run_isolated(p))
+
+
+def _run_isolated(p: Point) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=1) as solo:
+        try:
+            return solo.submit(run_point, p).result()
+        except BrokenProcessPool:
+            return _status_row(p, "error", "worker process died while running this point "
+                                           "(killed or crashed inside the engine, e.g. a segfault); "
+                                           "retried alone, it died again", t0)
+        except Exception as e:
+            return _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", t0)
+
+
+# ---------------------------------------------------------------------------
+# entry point
+
+
+def summarize(df, wall_s: float, console=None, title: str = "") -> None:
+    """Per engine: points and counts of each status, and ``time_s``, the
+    wall time spent in its points (s, summed over points, repeats and metric
+    computation included)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    if console is None:
+        console = Console()
+        if not console.is_terminal:  # a log file: do not squeeze the table into 80 columns
+            console = Console(width=120)
+    table = Table(title=title or "sweep", caption=f"wall time {wall_s:.1f} s")
+    for col in ("engine", "points", *STATUSES, "time_s"):
+        table.add_column(col, justify="left" if col == "engine" else "right")
+    if len(df):
+        for eng in dict.fromkeys(df["engine"]):
+            sub = df[df["engine"] == eng]
+            counts = sub["status"].value_counts()
+            t = float(sub["point_wall_s"].sum()) if "point_wall_s" in sub else math.nan
+            table.add_row(eng, str(len(sub)), *(str(int(counts.get(s, 0))) for s in STATUSES), f"{t:.1f}")
+    console.print(table)
+
+
+def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
+               out_dir: Path | None = None, resume: bool | None = None,
+               scenarios: list[str] | None = None) -> int:
+    """``physbench sweep``: run ``suite`` (a name under suites/ or a path)
+    and store its rows under ``out_dir`` (default results/sweeps/).
+
+    ``engines`` / ``scenarios`` restrict the suite; ``jobs`` worker processes
+    with ``executor`` ``"process"`` (default when jobs > 1) or ``"serial"``;
+    ``resume``: None resumes an unfinished sweep of the same suite file,
+    points and commit, True also across commits, False never (see
+    :func:`open_sweep`).  Returns 0 when the sweep completed (failed runs are
+    data, recorded as statuses), 2 for a bad suite file or arguments, 130
+    when interrupted (the sweep can be resumed)."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    err = Console(stderr=True)
+    t_start = time.perf_counter()
+    try:
+        s = load_suite(suite)
+    except SpecError as e:
+        for line in e.errors:
+            err.print(f"error: {line}", markup=False, highlight=False, soft_wrap=True)
+        return 2
+    try:
+        points = expand(s, engines, scenarios)
+    except ValueError as e:
+        err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+        return 2
+    jobs = max(1, int(jobs or 1))
+    executor = executor or ("serial" if jobs == 1 else "process")
+    if executor not in EXECUTORS:
+        err.print(f"error: executor {executor!r}: expected one of {', '.join(EXECUTORS)}", markup=False, soft_wrap=True)
+        return 2
+    if executor == "serial" and jobs > 1:
+        err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
+        jobs = 1
+    if not points:
+        err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
+                  markup=False)
+        return 2
+    root = Path(out_dir) if out_dir is not None else SWEEPS_DIR
+    filters = {"engines": engines, "scenarios": scenarios}
+    sd, resumed = open_sweep(s, points, root, resume, jobs, executor, filters)
+    ctx = {"suite": s.name, "sweep_id": sd.sweep_id, "machine_id": machine_id(), "sweep_jobs": jobs,
+           "schema_version": SCHEMA_VERSION}
+    todo = [p for p in points if p.key not in sd.done]
+    err.print(f"sweep {s.name} ({_display(s.path)}): {len(points)} points on {', '.join(dict.fromkeys(p.engine for p in points))}"
+              f"; {'resuming ' + sd.sweep_id + ': ' + str(len(points) - len(todo)) + ' done, ' if resumed else ''}"
+              f"{len(todo)} to run, {executor} x{jobs}; rows under {sd.path}", markup=False, highlight=False, soft_wrap=True)
+    if jobs > 1:
+        err.print(f"note: {jobs} runs at a time compete for {os.cpu_count()} cores (and caches, memory "
+                  "bandwidth): CPU times are not comparable with a --jobs 1 sweep; metrics are unaffected", soft_wrap=True)
+    cols = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            TextColumn("{task.description}"))
+    try:
+        with Progress(*cols, console=err, disable=not err.is_terminal) as bar:
+            task = bar.add_task("", total=len(todo))
+
+            def on_start(p: Point) -> None:
+                bar.update(task, description=escape(f"{p.engine} {p.label} {p.settings_json}"))
+
+            def on_row(p: Point, row: dict[str, Any]) -> None:
+                row.update(ctx)
+                sd.write_point(row)
+                bar.advance(task)
+
+            if executor == "serial":
+                _run_serial(todo, on_row, on_start)
+            else:
+                _run_process(todo, jobs, on_row, on_start)
+    except KeyboardInterrupt:
+        err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
+                  "run the same sweep again to resume it", markup=False, soft_wrap=True)
+        sd.close()
+        return 130
+    finally:
+        sd.close()
+    out = consolidate(sd.path)
+    import pandas as pd
+
+    df = pd.read_parquet(out)
+    wall = time.perf_counter() - t_start
+    summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
+                              + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
+    err.print(f"rows written to {out}", markup=False, highlight=False, soft_wrap=True)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(sweep_main(sys.argv[1] if len(sys.argv) > 1 else "nightly"))

@@ -1,0 +1,410 @@
+"""physbench report: loading the results layout, the four analyses and the
+self-contained page, on synthetic rows (plus one end-to-end run)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from harness import report as rp
+from harness.results import write_rows
+
+FAKE = "test.fake_scene"  # a scenario id with no spec: targets come from arguments
+METRIC = "post_impact_velocity_error"
+
+
+def row(scenario=FAKE, variant=None, engine="reference", dt=0.001, status="ok", error=1e-3, cost=0.1,
+        cost_min=None, sweep_id="20261122T010000Z-aaaa", suite="nightly", stable=True, repeats=3,
+        message="", metric=METRIC, **settings):
+    """One sweep row in the contract's shape: RunResult.row() columns plus
+    the sweep columns.  Extra keyword arguments are swept settings."""
+    swept = {"dt": dt, **settings}
+    point_key = json.dumps([scenario, variant, engine, swept], sort_keys=True)
+    r = {
+        "scenario": scenario, "variant": variant, "engine": engine, "engine_version": f"{engine}-1.0",
+        "status": status, "message": message or ("" if status == "ok" else f"{status} at t=0.1"),
+        "cpu_s_per_sim_s": cost, "stable": stable if status == "ok" else False,
+        metric: error if status == "ok" else None,
+        "setting.dt": dt, **{f"setting.{k}": v for k, v in settings.items()},
+        "timing.setup_s": 0.01, "machine.host": "box", "machine.cpu": "x86_64", "machine.cores": "8",
+        "commit": sweep_id.split("-")[-1], "timestamp": f"{sweep_id[:4]}-{sweep_id[4:6]}-{sweep_id[6:8]}T01:00:00+00:00",
+        "suite": suite, "sweep_id": sweep_id, "point_key": point_key,
+        "point_settings": json.dumps(swept, sort_keys=True), "primary_metric": metric,
+        "primary_error": error if status == "ok" else float("nan"),
+        "cpu_s_per_sim_s_median": cost, "cpu_s_per_sim_s_min": cost * 0.99 if cost_min is None else cost_min,
+        "repeats": repeats,
+    }
+    return r
+
+
+def write_sweep(root: Path, rows, machine="m1", suite="nightly", sweep_id=None, parts=False) -> Path:
+    sweep_id = sweep_id or rows[0]["sweep_id"]
+    d = root / "sweeps" / machine / suite
+    if parts:
+        for i, r in enumerate(rows):
+            write_rows([r], d / sweep_id / f"part-{i:05d}.parquet", append=False)
+        return d / sweep_id
+    return write_rows(rows, d / f"{sweep_id}.parquet", append=False)
+
+
+def load(tmp_path: Path, rows, **kw) -> pd.DataFrame:
+    write_sweep(tmp_path, rows, **kw)
+    return rp.load_results(tmp_path)
+
+
+# ---------------------------------------------------------------------------
+# cost to target
+
+
+def test_cost_to_target_picks_cheapest_point_under_target(tmp_path):
+    rows = [
+        row(engine="reference", dt=0.01, error=0.05, cost=0.01),
+        row(engine="reference", dt=0.005, error=0.015, cost=0.02),
+        row(engine="reference", dt=0.001, error=0.001, cost=0.1),
+        row(engine="reference", dt=0.02, status="diverged", cost=0.001),  # cheapest, but not ok
+        row(engine="pybullet", dt=0.005, error=0.019, cost=0.04),
+        row(engine="pybullet", dt=0.001, error=0.002, cost=0.3),
+        row(engine="mujoco", dt=0.005, error=0.09, cost=0.001),
+        row(engine="mujoco", dt=0.001, error=0.03, cost=0.003),
+    ]
+    df = load(tmp_path, rows)
+    ct = rp.cost_to_target(df, targets={FAKE: 0.02}).set_index("engine")
+    ref = ct.loc["reference"]
+    assert bool(ref["reached"]) and ref["dt"] == 0.005 and ref["cost"] == 0.02 and ref["error"] == 0.015
+    assert ref["ratio"] == pytest.approx(1.0)
+    assert ct.loc["pybullet", "cost"] == 0.04 and ct.loc["pybullet", "ratio"] == pytest.approx(2.0)
+    mj = ct.loc["mujoco"]
+    assert not bool(mj["reached"]) and math.isnan(mj["cost"])
+    assert mj["best_error"] == 0.03 and "dt=0.001" in mj["best_error_settings"]
+    assert set(ct["target_source"]) == {"given"}
+    # the page says "not reached" with the best error
+    page = rp.render_html(df, targets={FAKE: 0.02}, physbench_commit="x")
+    cost_section = page.split('id="cost-to-target"')[1].split("</section>")[0]
+    assert "not reached" in cost_section and "best error 0.03" in cost_section
+
+
+def test_cost_to_target_uses_the_scenarios_check_max_else_target(tmp_path):
+    rows = [row(scenario="billiards.head_on", dt=0.001, error=0.01, cost=0.1),
+            row(scenario="billiards.head_on", dt=0.002, error=0.03, cost=0.05),
+            row(scenario=FAKE, dt=0.001, error=0.5, cost=0.1)]
+    df = load(tmp_path, rows)
+    ct = rp.cost_to_target(df, target=1.0).set_index("scenario")
+    # head_on.toml: [[check]] post_impact_velocity_error max = 0.02
+    assert ct.loc["billiards.head_on", "target"] == 0.02
+    assert ct.loc["billiards.head_on", "target_source"] == "check max"
+    assert ct.loc["billiards.head_on", "dt"] == 0.001
+    assert ct.loc[FAKE, "target"] == 1.0 and ct.loc[FAKE, "target_source"] == "--target"
+    # no target at all: the scenario without a check is left out
+    assert set(rp.cost_to_target(df)["scenario"]) == {"billiards.head_on"}
+
+
+# ---------------------------------------------------------------------------
+# work-precision
+
+
+def test_work_precision_lines_by_engine_and_non_dt_settings_ordered_by_dt(tmp_path):
+    rows = []
+    for dt, err in ((0.004, 1e-2), (0.001, 1e-4), (0.002, 1e-3)):
+        rows.append(row(engine="reference", dt=dt, error=err, cost=1e-3 / dt, integrator="rk4"))
+        rows.append(row(engine="reference", dt=dt, error=err * 10, cost=2e-4 / dt, integrator="semi_implicit_euler"))
+        rows.append(row(engine="mujoco", dt=dt, error=0.0 if dt == 0.001 else err, cost=1e-5 / dt))
+    rows.append(row(engine="mujoco", dt=0.01, status="diverged", cost=1e-3))
+    rows.append(row(engine="reference", variant="elastic", dt=0.001, error=1e-5, cost=1.0, integrator="rk4"))
+    df = load(tmp_path, rows)
+    wp = rp.work_precision(df, target=0.05)
+    assert set(wp) == {(FAKE, ""), (FAKE, "elastic")}
+    d = wp[(FAKE, "")]
+    labels = [l["label"] for l in d["lines"]]
+    assert labels == ["mujoco", "reference rk4", "reference semi_implicit_euler"]
+    for line in d["lines"]:
+        dts = [p["dt"] for p in line["points"]]
+        assert dts == sorted(dts)
+    rk4 = d["lines"][1]
+    assert [p["dt"] for p in rk4["points"]] == [0.001, 0.002, 0.004]
+    assert [p["error"] for p in rk4["points"]] == [1e-4, 1e-3, 1e-2]
+    assert rk4["settings"] == {"integrator": "rk4"}
+    # exact result drawn at the floor, and the diagram says so
+    mj = d["lines"][0]
+    assert mj["points"][0]["error"] == 0.0 and mj["points"][0]["error_plot"] == rp.ERROR_FLOOR
+    assert d["clipped"]
+    # the diverged point is a non-ok point of the mujoco line, listed
+    assert mj["points"][-1]["dt"] == 0.01 and not mj["points"][-1]["ok"]
+    assert [(p["label"], p["status"]) for p in d["not_ok"]] == [("mujoco", "diverged")]
+    assert d["threshold"] == 0.05 and d["threshold_source"] == "--target"
+    assert rp.plot_work_precision(d)  # draws
+    page = rp.render_html(df, target=0.05, physbench_commit="x")
+    assert "drawn at 1e-16" in page
+
+
+def test_only_the_latest_sweep_of_a_point_is_drawn(tmp_path):
+    old = [row(dt=0.001, error=1e-3, cost=0.1, sweep_id="20261120T010000Z-old")]
+    new = [row(dt=0.001, error=2e-3, cost=0.2, sweep_id="20261121T010000Z-new")]
+    write_sweep(tmp_path, old)
+    write_sweep(tmp_path, new)
+    wp = rp.work_precision(rp.load_results(tmp_path))
+    (line,) = wp[(FAKE, "")]["lines"]
+    assert [(p["error"], p["cost"]) for p in line["points"]] == [(2e-3, 0.2)]
+
+
+# ---------------------------------------------------------------------------
+# stability
+
+
+def test_stability_matrix_counts_statuses_and_largest_stable_dt(tmp_path):
+    rows = [
+        row(engine="reference", dt=0.001), row(engine="reference", dt=0.004),
+        row(engine="reference", dt=0.01, stable=False),  # ok but blew up: not stable
+        row(engine="reference", dt=0.02, status="diverged"),
+        row(engine="reference", dt=0.05, status="error"), row(engine="reference", dt=0.06, status="timeout"),
+        row(engine="pymunk", dt=0.001, status="unsupported"),
+        row(engine="mujoco", dt=0.001), row(engine="mujoco", dt=0.033),
+    ]
+    df = load(tmp_path, rows)
+    sm = rp.stability_matrix(df, scenarios=[FAKE]).set_index("engine")
+    ref = sm.loc["reference"]
+    assert (ref["points"], ref["ok_stable"], ref["unstable"], ref["diverged"], ref["error"], ref["unsupported"]) \
+        == (6, 2, 1, 1, 2, 0)
+    assert ref["fraction"] == pytest.approx(2 / 6)
+    assert ref["max_stable_dt"] == 0.004 and ref["min_unstable_dt"] == 0.01
+    assert sm.loc["pymunk", "unsupported"] == 1 and sm.loc["pymunk", "ok_stable"] == 0
+    assert math.isnan(sm.loc["pymunk", "max_stable_dt"])
+    assert sm.loc["mujoco", "max_stable_dt"] == 0.033 and sm.loc["mujoco", "fraction"] == 1.0
+
+
+def test_stability_matrix_defaults_to_hard_scenarios_and_reads_check_rows(tmp_path):
+    assert "tunnelling.bullet_400" in rp.hard_scenarios()
+    assert "billiards.head_on" not in rp.hard_scenarios()
+    write_sweep(tmp_path, [row(scenario="billiards.head_on"),
+                           row(scenario="tunnelling.bullet_400", dt=0.001, metric="reflected_velocity_error")])
+    # a conformance run: RunResult columns only, no sweep columns
+    check = {"scenario": "tunnelling.bullet_400", "variant": None, "engine": "pybullet", "engine_version": "3",
+             "status": "diverged", "message": "runaway", "stable": False, "setting.dt": 1 / 30,
+             "cpu_s_per_sim_s": 0.01, "machine.host": "box", "commit": "c", "timestamp": "2026-11-21T00:00:00+00:00"}
+    write_rows([check], tmp_path / "check" / "20261121T000000Z.parquet", append=False)
+    df = rp.load_results(tmp_path)
+    sm = rp.stability_matrix(df)
+    assert set(sm["scenario"]) == {"tunnelling.bullet_400"}
+    assert "hard" in sm.attrs["selection"]
+    pb = sm.set_index("engine").loc["pybullet"]
+    assert pb["diverged"] == 1 and pb["ok_stable"] == 0 and pb["min_unstable_dt"] == pytest.approx(1 / 30)
+    # check rows are not sweep points: not in the work-precision diagrams
+    assert ("tunnelling.bullet_400", "") in rp.work_precision(df)
+    assert all(l["engine"] != "pybullet" for l in rp.work_precision(df)[("tunnelling.bullet_400", "")]["lines"])
+
+
+# ---------------------------------------------------------------------------
+# history and regressions
+
+S1, S2, S3 = "20261120T010000Z-c1", "20261121T010000Z-c2", "20261122T010000Z-c3"
+
+
+def two_sweeps(tmp_path, before: dict, after: dict, machine="m1") -> pd.DataFrame:
+    write_sweep(tmp_path, [row(sweep_id=S1, **before)], machine=machine)
+    write_sweep(tmp_path, [row(sweep_id=S2, **after)], machine=machine)
+    return rp.load_results(tmp_path)
+
+
+def test_regression_cost_30_percent_with_tight_repeats_is_flagged(tmp_path):
+    df = two_sweeps(tmp_path, dict(cost=1.0, cost_min=0.99), dict(cost=1.3, cost_min=1.29))
+    reg = rp.regressions(df)
+    assert len(reg) == 1
+    r = reg.iloc[0]
+    assert (r["kind"], r["direction"]) == ("cost", "regression")
+    assert r["change"] == pytest.approx(0.3) and r["threshold"] == pytest.approx(0.10)
+    assert (r["previous_sweep"], r["latest_sweep"]) == (S1, S2)
+
+
+def test_regression_small_change_is_not_flagged(tmp_path):
+    df = two_sweeps(tmp_path, dict(cost=1.0, cost_min=0.99), dict(cost=1.05, cost_min=1.04))
+    assert rp.regressions(df).empty
+
+
+def test_regression_30_percent_within_noisy_repeats_is_not_flagged(tmp_path):
+    # repeats spread 20 % (min 0.8 x median): threshold max(10 %, 3 x 20 %) = 60 %
+    df = two_sweeps(tmp_path, dict(cost=1.0, cost_min=0.8), dict(cost=1.3, cost_min=1.04))
+    assert rp.regressions(df).empty
+
+
+def test_regression_against_the_best_earlier_run_and_improvements(tmp_path):
+    write_sweep(tmp_path, [row(sweep_id=S1, cost=1.0, cost_min=0.99)])
+    write_sweep(tmp_path, [row(sweep_id=S2, cost=1.25, cost_min=1.24)])
+    write_sweep(tmp_path, [row(sweep_id=S3, cost=1.2, cost_min=1.19)])
+    reg = rp.regressions(rp.load_results(tmp_path))
+    assert list(reg["kind"]) == ["cost"] and reg.iloc[0]["previous_sweep"] == S1
+    assert reg.iloc[0]["latest_sweep"] == S3
+    # faster by 40 %: an improvement, not a regression
+    other = tmp_path / "other"
+    df = two_sweeps(other, dict(cost=1.0, cost_min=0.99), dict(cost=0.6, cost_min=0.59))
+    reg = rp.regressions(df)
+    assert list(zip(reg["kind"], reg["direction"])) == [("cost", "improvement")]
+
+
+def test_regression_ok_to_diverged_is_flagged(tmp_path):
+    df = two_sweeps(tmp_path, dict(), dict(status="diverged"))
+    reg = rp.regressions(df)
+    assert len(reg) == 1
+    r = reg.iloc[0]
+    assert (r["kind"], r["direction"], r["previous"], r["latest"]) == ("status", "regression", "ok", "diverged")
+    # the same from a raw in-memory frame (not through load_results)
+    raw = pd.DataFrame([row(sweep_id=S1), row(sweep_id=S2, status="diverged")])
+    assert list(rp.regressions(raw)["kind"]) == ["status"]
+
+
+def test_regression_error_growing_10x_is_flagged_but_not_below_absolute_floor(tmp_path):
+    df = two_sweeps(tmp_path, dict(error=1e-4), dict(error=1e-3))
+    reg = rp.regressions(df)
+    assert list(zip(reg["kind"], reg["direction"])) == [("accuracy", "regression")]
+    assert reg.iloc[0]["change"] == pytest.approx(9.0)
+    # 10x of round-off (1e-15 -> 1e-14) is below the 1e-12 absolute floor
+    assert rp.regressions(two_sweeps(tmp_path / "b", dict(error=1e-15), dict(error=1e-14))).empty
+    # 8 % worse: within 10 %
+    assert rp.regressions(two_sweeps(tmp_path / "c", dict(error=1e-3), dict(error=1.08e-3))).empty
+
+
+def test_history_needs_two_sweeps_of_the_same_suite_on_the_same_machine(tmp_path):
+    write_sweep(tmp_path, [row(sweep_id=S1, cost=1.0)], machine="m1")
+    write_sweep(tmp_path, [row(sweep_id=S2, cost=3.0)], machine="m2")
+    write_sweep(tmp_path, [row(sweep_id=S2, cost=3.0, suite="other")], machine="m1", suite="other")
+    df = rp.load_results(tmp_path)
+    assert rp.history(df) == {} and rp.regressions(df).empty
+    page = rp.render_html(df, physbench_commit="x")
+    assert "history starts with the second sweep" in page
+
+
+# ---------------------------------------------------------------------------
+# the page
+
+
+def test_html_is_self_contained_escapes_names_and_has_every_section(tmp_path):
+    evil = "evil.<script>alert(1)</script>"
+    rows = [row(scenario=evil, dt=dt, error=err, cost=c, sweep_id=S1)
+            for dt, err, c in ((0.001, 1e-4, 0.1), (0.002, 1e-3, 0.05))]
+    rows += [row(scenario=evil, engine="mujoco", dt=0.004, status="diverged", cost=0.01, sweep_id=S1,
+                 message="blew up <b>here</b>")]
+    write_sweep(tmp_path, rows)
+    write_sweep(tmp_path, [dict(r, sweep_id=S2, cpu_s_per_sim_s_median=r["cpu_s_per_sim_s_median"] * 2,
+                                cpu_s_per_sim_s_min=r["cpu_s_per_sim_s_min"] * 2) for r in rows])
+    out = tmp_path / "out" / "r.html"
+    assert rp.report_main(tmp_path, out=out, target=0.01) == 0
+    page = out.read_text()
+    assert page.startswith("<!DOCTYPE html>")
+    for sid in ("header", "work-precision", "cost-to-target", "stability", "history"):
+        assert f'<section id="{sid}">' in page
+    assert "<footer>" in page and "physbench report" in page
+    # self-contained: no remote src/href, no scripts, no stylesheets to fetch
+    assert not re.search(r"""(src|href)\s*=\s*["']?\s*(https?:)?//""", page, re.I)
+    assert "<script" not in page.lower() and "<link" not in page.lower()
+    imgs = re.findall(r'<img [^>]*src="([^"]*)"', page)
+    assert imgs and all(re.fullmatch(r"data:image/png;base64,[A-Za-z0-9+/=]+", s) for s in imgs)
+    # names and messages escaped
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    assert "blew up &lt;b&gt;here&lt;/b&gt;" in page
+    # the doubled cost is flagged in the history section
+    hist = page.split('id="history"')[1]
+    assert "regression" in hist and "+100.0%" in hist
+
+
+def test_empty_results_dir_writes_a_page_that_says_so(tmp_path, capsys):
+    out = tmp_path / "report.html"
+    assert rp.report_main(tmp_path / "does_not_exist", out=out) == 1
+    page = out.read_text()
+    assert "No results found" in page and '<section id="history">' in page
+    captured = capsys.readouterr()
+    assert str(out) in captured.out and "no results" in captured.err
+    (tmp_path / "empty" / "sweeps").mkdir(parents=True)
+    assert rp.report_main(tmp_path / "empty") == 1
+    assert (tmp_path / "empty" / "report.html").is_file()
+
+
+def test_partial_sweep_directory_is_read_and_marked_incomplete(tmp_path):
+    rows = [row(dt=0.001, sweep_id=S2), row(dt=0.002, sweep_id=S2, error=2e-3)]
+    d = write_sweep(tmp_path, rows, parts=True)
+    assert sorted(p.name for p in d.iterdir()) == ["part-00000.parquet", "part-00001.parquet"]
+    write_sweep(tmp_path, [row(dt=0.001, sweep_id=S1)])  # an older, complete one
+    df = rp.load_results(tmp_path)
+    assert len(df) == 3
+    assert set(df.loc[df["incomplete"], "sweep_id"]) == {S2} and not df.loc[~df["incomplete"]].empty
+    page = rp.render_html(df, physbench_commit="x")
+    assert "incomplete" in page and S2 in page
+    # once consolidated, leftover parts are not read twice
+    write_sweep(tmp_path, rows)
+    df = rp.load_results(tmp_path)
+    assert len(df) == 3 and not df["incomplete"].any()
+
+
+def test_unknown_schema_version_is_skipped_with_a_visible_warning(tmp_path):
+    write_sweep(tmp_path, [row(sweep_id=S1)])
+    future = tmp_path / "sweeps" / "m1" / "nightly" / f"{S2}.parquet"
+    pd.DataFrame([dict(row(sweep_id=S2), schema_version=99)]).to_parquet(future)
+    (tmp_path / "sweeps" / "m1" / "nightly" / "garbage.parquet").write_text("not parquet")
+    df = rp.load_results(tmp_path)
+    assert set(df["sweep_id"]) == {S1}
+    ws = df.attrs["warnings"]
+    assert any("schema_version 99" in w for w in ws) and any("unreadable" in w for w in ws)
+    page = rp.render_html(df, physbench_commit="x")
+    assert "schema_version 99 skipped" in page
+
+
+def test_missing_and_all_nan_columns_are_tolerated(tmp_path):
+    # an old/foreign file: no sweep columns at all, metrics all NaN for one engine
+    rows = [{"scenario": "billiards.head_on", "engine": "reference", "status": "ok", "setting.dt": dt,
+             "cpu_s_per_sim_s": 0.1 / dt * 1e-3, METRIC: 1e-3 * dt / 1e-3} for dt in (0.001, 0.002)]
+    rows += [{"scenario": "billiards.head_on", "engine": "mujoco", "status": "ok", "setting.dt": 0.001,
+              "cpu_s_per_sim_s": float("nan"), METRIC: float("nan")}]
+    write_rows(rows, tmp_path / "sweeps" / "m1" / "nightly" / f"{S1}.parquet", append=False)
+    df = rp.load_results(tmp_path)
+    assert set(df["suite"]) == {"nightly"} and set(df["sweep_id"]) == {S1}
+    assert set(df["primary_metric"]) == {METRIC}  # from the scene
+    wp = rp.work_precision(df)[("billiards.head_on", "")]
+    ref = next(l for l in wp["lines"] if l["engine"] == "reference")
+    assert [p["dt"] for p in ref["points"]] == [0.001, 0.002] and all(p["ok"] for p in ref["points"])
+    assert [p["status"] for p in wp["not_ok"]] == ["no error"]
+    page = rp.render_html(df, physbench_commit="x")
+    assert "data:image/png;base64," in page
+
+
+# ---------------------------------------------------------------------------
+# end to end: real runs through the runner
+
+
+def test_end_to_end_real_runs(tmp_path):
+    from harness.runner import run
+    from harness.scene import load_scene
+
+    scene = load_scene("billiards.head_on")
+    rows = []
+    for engine in ("reference", "mujoco"):
+        for dt in (0.001, 0.002):
+            res = run(scene, engine, {"dt": dt})
+            assert res.status == "ok", res.message
+            r = res.row()
+            c = r["cpu_s_per_sim_s"]
+            r.update(suite="e2e", sweep_id=S1, point_key=f"{scene.id}|base|{engine}|dt={dt}",
+                     point_settings=json.dumps({"dt": dt}), primary_metric=scene.primary_metric,
+                     primary_error=r[scene.primary_metric], cpu_s_per_sim_s_median=c,
+                     cpu_s_per_sim_s_min=c * 0.98, repeats=3)
+            rows.append(r)
+    write_sweep(tmp_path, rows, machine="ci", suite="e2e", sweep_id=S1)
+    # a second night, everything 50 % slower with tight repeats
+    slower = [dict(r, sweep_id=S2, cpu_s_per_sim_s_median=r["cpu_s_per_sim_s_median"] * 1.5,
+                   cpu_s_per_sim_s_min=r["cpu_s_per_sim_s_median"] * 1.5 * 0.98) for r in rows]
+    write_sweep(tmp_path, slower, machine="ci", suite="e2e", sweep_id=S2)
+
+    df = rp.load_results(tmp_path)
+    wp = rp.work_precision(df)[("billiards.head_on", "")]
+    assert [l["label"] for l in wp["lines"]] == ["mujoco", "reference"]
+    assert wp["threshold"] == 0.02 and wp["threshold_source"] == "check max"
+    ct = rp.cost_to_target(df).set_index("engine")
+    assert ct["reached"].all()  # both engines meet head_on's 0.02 at these steps
+    reg = rp.regressions(df)
+    assert len(reg) == 4 and set(reg["kind"]) == {"cost"} and set(reg["direction"]) == {"regression"}
+
+    assert rp.report_main(tmp_path) == 0
+    page = (tmp_path / "report.html").read_text()
+    assert "billiards.head_on" in page and "mujoco" in page and "check max" in page
+    assert page.count("data:image/png;base64,") >= 2  # a diagram and the history multiples

@@ -1,0 +1,495 @@
+"""``physbench sweep``: suite validation (messages naming file and key path),
+expansion, the row contract, storage (parts, consolidation, manifest),
+resume after a kill (no duplicates, no lost points, finished points not
+rerun), failures as statuses, worker crashes, and process vs serial
+executors giving the same metrics.  No wall-clock assertions."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_names, register
+from harness import sweep as S
+from harness.results import SCHEMA_VERSION
+from harness.runner import run as _REAL_RUN
+
+ROOT = Path(__file__).resolve().parent.parent
+_PARENT = os.getpid()
+
+# the row contract: RunResult.row()'s identity and status, plus the sweep columns
+CONTRACT = ("scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
+            "setting.dt", "suite", "sweep_id", "point_key", "point_settings", "primary_metric", "primary_error",
+            "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "schema_version", "machine_id",
+            "sweep_jobs", "point_wall_s")
+# columns that hold times (they differ between any two runs)
+TIMING = {"cpu_s_per_sim_s", "wall_s_per_sim_s", "steps_per_s", "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min",
+          "point_wall_s", "sweep_jobs"}
+
+
+class FakeSweep(Adapter):
+    """Free flight; misbehaves on request (setting ``fault``); ``sleep_s``
+    seconds of sleep at build (for the kill test)."""
+
+    name = "fake_sweep"
+
+    @classmethod
+    def capabilities(cls):
+        return Capabilities("fake_sweep", "1", 3, frozenset({"sphere", "box"}), frozenset({"plane"}),
+                            frozenset({"contact", "restitution"}),
+                            {"dt": DT_SETTING,
+                             "fault": Setting("fault", "none", str, "",
+                                              choices=("none", "build", "step", "nan", "crash")),
+                             "sleep_s": Setting("sleep_s", 0.0, float, "", lo=0.0, hi=10.0)})
+
+    def build(self, scene, settings):
+        self.fault = settings["fault"]
+        if self.fault == "build":
+            raise RuntimeError("model rejected")
+        if self.fault == "crash":
+            if os.getpid() == _PARENT:  # never kill the test process itself
+                raise RuntimeError("crash requested in the main process")
+            os.kill(os.getpid(), signal.SIGKILL)  # like a segfault inside an engine
+        time.sleep(settings["sleep_s"])
+        self.dt = settings["dt"]
+        self.x, self.q, self.v, self.w = (a.copy() for a in scene.initial_state())
+        self.k = 0
+
+    def step(self, n=1):
+        for _ in range(n):
+            self.k += 1
+            if self.fault == "step" and self.k == 300:
+                raise FloatingPointError("solver exploded")
+            if self.fault == "nan" and self.k == 400:
+                self.v[:] = np.nan
+            self.x += self.v * self.dt
+
+    def read_state(self, pos, quat, vel, angvel):
+        pos[...] = self.x
+        quat[...] = self.q
+        vel[...] = self.v
+        angvel[...] = self.w
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fake_engine():
+    from adapters import base
+
+    register("fake_sweep", lambda: FakeSweep)
+    yield
+    base._REGISTRY.pop("fake_sweep", None)
+
+
+def write(tmp_path: Path, text: str, name: str = "suite.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def errors_of(path: Path) -> list[str]:
+    with pytest.raises(S.SuiteError) as e:
+        S.load_suite(path)
+    return e.value.errors
+
+
+def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
+    files = list(out.glob("*/*/*.parquet"))
+    assert len(files) == 1, files
+    return pd.read_parquet(files[0]), json.loads(files[0].with_suffix(".manifest.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def smoke_serial(tmp_path_factory):
+    out = tmp_path_factory.mktemp("smoke_serial")
+    assert S.sweep_main("smoke", out_dir=out) == 0
+    return out
+
+
+# ---------------------------------------------------------------------------
+# suites: loading and validation
+
+
+def test_shipped_suites_load():
+    smoke = S.load_suite("smoke")
+    assert smoke.name == "smoke" and smoke.path == ROOT / "suites" / "smoke.toml"
+    assert len(S.expand(smoke)) == 6
+    nightly = S.load_suite(ROOT / "suites" / "nightly.toml")
+    pts = S.expand(nightly)
+    assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk"}
+    assert len({p.key for p in pts}) == len(pts)
+    # every nightly scenario has an analytic primary metric
+    from harness.scene import load_scene
+
+    for sid in {p.scenario for p in pts}:
+        assert load_scene(sid).primary_metric and load_scene(sid).reference_model
+
+
+BASE = """
+[suite]
+engines = ["reference", "mujoco", "pymunk"]
+[[sweep]]
+scenarios = ["billiards.head_on"]
+grid = { dt = [0.002, 0.001] }
+"""
+
+
+@pytest.mark.parametrize("old, new, expected", [
+    ('"mujoco", "pymunk"]', '"bullet"]', "suite.engines[1]: unknown engine 'bullet'; known: {known}"),
+    ("grid = { dt = [0.002, 0.001] }", "grid = { dt = [0.002, 5.0] }",
+     "sweep[0].grid.dt[1]: expected a value in [1e-07, 1.0], got 5.0 (engines reference, mujoco, pymunk)"),
+    ("grid = { dt = [0.002, 0.001] }", "grid = { dt = 0.001 }", "sweep[0].grid.dt: expected a list, got 0.001"),
+    ("grid = { dt = [0.002, 0.001] }", "grid = { dt = [0.002, 0.002] }",
+     "sweep[0].grid.dt[1]: value 0.002 is listed twice"),
+    ("grid = { dt = [0.002, 0.001] }", 'grid = { dt = [0.002, [1]] }',
+     "sweep[0].grid.dt[1]: expected a number, string or boolean, got [1]"),
+    ('"billiards.head_on"]', '"billiards.head_on", "billiards.nope"]',
+     "sweep[0].scenarios[1]: unknown scenario 'billiards.nope'; known ids: "),
+    ('"billiards.head_on"]', '"billiards.head_on[bouncy]"]',
+     "sweep[0].scenarios[0]: scenario 'billiards.head_on' has no variant 'bouncy'; its variants: elastic, "
+     "plastic, half, heavy_object, heavy_object_elastic, light_object_plastic"),
+    ("[suite]", '[suite]\nrepeats = "three"', "suite.repeats: expected an integer, got 'three'"),
+    ("[suite]", "[suite]\nrepeats = 0", "suite.repeats: must be >= 1, got 0"),
+    ("[suite]", '[suite]\nname = "my suite"',
+     "suite.name: must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got 'my suite'"),
+    ("grid = {", "gird = {", "sweep[0].gird: unknown key"),
+    ('engines = ["reference", "mujoco", "pymunk"]', "", "suite.engines: required key is missing"),
+])
+def test_validation_errors_name_file_and_key_path(tmp_path, old, new, expected):
+    assert old in BASE
+    p = write(tmp_path, BASE.replace(old, new))
+    errs = errors_of(p)
+    want = f"{p}: " + expected.format(known=", ".join(engine_names()))
+    assert any(e == want or (expected.endswith(": ") and e.startswith(want)) for e in errs), errs
+
+
+def test_unknown_settings_name_the_engine(tmp_path):
+    p = write(tmp_path, BASE + """
+[sweep.engine.mujoco]
+grid = { iters = [10] }
+[sweep.engine.reference]
+grid = { integrator = ["rk5"] }
+""")
+    errs = errors_of(p)
+    assert f"{p}: sweep[0].engine.mujoco.grid.iters: not a setting of engine mujoco; its settings: dt, integrator, " \
+           "cone, impratio, noslip_iterations, iterations, speculative, contact_steps, restitution_phase" in errs
+    assert any(e.startswith(f"{p}: sweep[0].engine.reference.grid.integrator[0]: expected one of explicit_euler, ")
+               and e.endswith("got 'rk5'") for e in errs), errs
+    # a common axis that one engine lacks
+    p = write(tmp_path, BASE.replace("grid = { dt", 'grid = { integrator = ["rk4"], dt'), "b.toml")
+    errs = errors_of(p)
+    assert len(errs) == 1 and errs[0].startswith(
+        f"{p}: sweep[0].grid.integrator: not a setting of engine pymunk (its settings: dt, iterations"), errs
+    # an engine table for an engine the sweep does not run
+    p = write(tmp_path, BASE.replace('"mujoco", ', "") + "[sweep.engine.mujoco]\ngrid = { iterations = [1] }\n",
+              "c.toml")
+    assert errors_of(p) == [f"{p}: sweep[0].engine.mujoco: engine 'mujoco' is not in suite.engines "
+                            "(reference, pymunk)"]
+
+
+def test_bad_suite_exits_2_with_the_message(tmp_path, capsys):
+    p = write(tmp_path, BASE.replace("0.001]", "-1.0]"))
+    assert S.sweep_main(str(p), out_dir=tmp_path / "out") == 2
+    err = capsys.readouterr().err
+    assert f"error: {p}: sweep[0].grid.dt[1]: expected a value in [1e-07, 1.0], got -1.0" in err
+    assert S.sweep_main("no_such_suite", out_dir=tmp_path / "out") == 2
+    assert "no such file and no suite of this name" in capsys.readouterr().err
+    assert S.sweep_main("smoke", engines=["pybullet"], out_dir=tmp_path / "out") == 2
+    assert "engine pybullet is not in suite smoke" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------------
+# expansion
+
+
+def test_expansion_is_a_cartesian_product_with_engine_axes(tmp_path):
+    p = write(tmp_path, """
+        [suite]
+        engines = ["reference", "mujoco", "pymunk"]
+        repeats = 2
+        [[sweep]]
+        scenarios = ["billiards.head_on", "billiards.head_on[elastic]"]
+        grid = { dt = [0.002, 1e-3] }
+        [sweep.engine.reference]
+        grid = { integrator = ["semi_implicit_euler", "rk4"] }
+        [sweep.engine.mujoco]
+        grid = { integrator = ["euler", "implicitfast", "rk4"], iterations = [10, 100] }
+        [sweep.engine.pymunk]
+        grid = { dt = [0.0005] }      # replaces the common dt axis
+        [[sweep]]
+        scenarios = ["billiards.head_on", "gyroscopic.dzhanibekov"]
+        engines = ["pymunk"]
+        repeats = 1
+        grid = { dt = [0.0005, 0.004] }
+    """)
+    suite = S.load_suite(p)
+    pts = S.expand(suite)
+    by = {}
+    for pt in pts:
+        by.setdefault((pt.scenario, pt.variant, pt.engine), []).append(pt)
+    for var in (None, "elastic"):
+        assert len(by["billiards.head_on", var, "reference"]) == 2 * 2
+        assert len(by["billiards.head_on", var, "mujoco"]) == 2 * 3 * 2
+    assert [q.settings_dict for q in by["billiards.head_on", "elastic", "pymunk"]] == [{"dt": 0.0005}]
+    # block 2: head_on at dt 0.0005 on pymunk repeats block 1's point -> kept once (the first)
+    assert [q.settings_dict["dt"] for q in by["billiards.head_on", None, "pymunk"]] == [0.0005, 0.004]
+    assert by["billiards.head_on", None, "pymunk"][0].repeats == 2
+    # the 2D engine on a 3D scene: points present, they will be `unsupported` rows
+    assert len(by["gyroscopic.dzhanibekov", None, "pymunk"]) == 2
+    assert len(pts) == 2 * (4 + 12 + 1) + 1 + 2
+    # values are coerced once: 1e-3 and 0.001 are one key; keys are stable text
+    mj = by["billiards.head_on", None, "mujoco"][0]
+    assert mj.key == 'billiards.head_on|mujoco|{"dt":0.002,"integrator":"euler","iterations":10}'
+    assert by["billiards.head_on", "elastic", "reference"][-1].key == \
+        'billiards.head_on[elastic]|reference|{"dt":0.001,"integrator":"rk4"}'
+    # restrictions
+    assert {q.engine for q in S.expand(suite, engines=["mujoco"])} == {"mujoco"}
+    assert {q.variant for q in S.expand(suite, scenarios=["billiards.head_on[elastic]"])} == {"elastic"}
+    with pytest.raises(ValueError, match="scenario billiards.oblique is not in suite"):
+        S.expand(suite, scenarios=["billiards.oblique"])
+
+
+def test_unsupported_points_give_unsupported_rows(tmp_path):
+    p = write(tmp_path, """
+        [suite]
+        engines = ["mujoco", "pymunk"]
+        repeats = 3
+        [[sweep]]
+        scenarios = ["gyroscopic.dzhanibekov"]
+        grid = { dt = [0.004, 0.002] }
+    """)
+    out = tmp_path / "out"
+    assert S.sweep_main(str(p), engines=["pymunk"], out_dir=out) == 0
+    df, man = consolidated(out)
+    assert list(df["status"]) == ["unsupported"] * 2 and man["filters"]["engines"] == ["pymunk"]
+    assert df["message"].str.contains("2D engine").all()
+    assert df["primary_error"].isna().all() and (df["repeats"] == 0).all()
+
+
+# ---------------------------------------------------------------------------
+# rows, storage
+
+
+def test_rows_follow_the_contract(smoke_serial):
+    df, man = consolidated(smoke_serial)
+    suite = S.load_suite("smoke")
+    assert set(CONTRACT) <= set(df.columns)
+    assert not [c for c in df.columns if "trace" in c]
+    assert list(df["point_key"]) == [p.key for p in S.expand(suite)]  # planned order, each once
+    assert (df["status"] == "ok").all() and (df["suite"] == "smoke").all()
+    assert df["sweep_id"].nunique() == 1 and df["sweep_id"].iat[0] == man["sweep_id"]
+    assert (df["schema_version"] == SCHEMA_VERSION).all() and (df["machine_id"] == S.machine_id()).all()
+    assert (df["primary_metric"] == "post_impact_velocity_error").all()
+    assert np.isfinite(df["primary_error"]).all()
+    assert (df["primary_error"] == df["post_impact_velocity_error"]).all()
+    for _, r in df.iterrows():
+        assert json.loads(r["point_settings"]) == {"dt": r["setting.dt"]}
+        assert r["repeats"] == 2 and r["cpu_s_per_sim_s_min"] <= r["cpu_s_per_sim_s_median"]
+
+
+def test_head_on_on_reference_meets_the_analytic_velocities(smoke_serial):
+    """The metric compares the simulated outgoing velocities with Newton's
+    law of restitution, v1' = (1 - e) v / 2, v2' = (1 + e) v / 2 for equal
+    masses: the reference engine resolves the impact at its time of impact,
+    so it is exact to rounding at any dt."""
+    df, _ = consolidated(smoke_serial)
+    ref = df[df["engine"] == "reference"]
+    assert len(ref) == 2 and (ref["primary_error"] < 1e-9).all()
+    assert (ref["linear_momentum_drift"] < 1e-12).all()
+
+
+def test_consolidation_and_manifest(smoke_serial):
+    suite = S.load_suite("smoke")
+    sdir = smoke_serial / S.machine_id() / "smoke"
+    files = sorted(x.name for x in sdir.iterdir())
+    sid = files[0].removesuffix(".manifest.json").removesuffix(".parquet")
+    assert files == [f"{sid}.manifest.json", f"{sid}.parquet"]  # the part directory is gone
+    man = json.loads((sdir / f"{sid}.manifest.json").read_text())
+    assert man["suite"] == "smoke" and man["suite_hash"] == suite.file_hash and man["sweep_id"] == sid
+    assert man["points"] == [p.key for p in S.expand(suite)] and man["rows"] == 6 and man["missing"] == []
+    assert man["started"] <= man["finished"] and man["machine_id"] == S.machine_id()
+    assert sid.endswith(man["commit"]) and man["machine"]["cores"] == str(os.cpu_count())
+    meta = json.loads(pq.read_schema(sdir / f"{sid}.parquet").metadata[b"physbench"])
+    assert meta["schema_version"] == SCHEMA_VERSION and meta["manifest"]["sweep_id"] == sid
+    assert len(S.read_sweeps(smoke_serial, suite="smoke")) == 6
+
+
+def test_failures_are_recorded_as_statuses(tmp_path):
+    p = write(tmp_path, """
+        [suite]
+        engines = ["fake_sweep"]
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { fault = ["none", "build", "step", "nan"] }
+    """)
+    out = tmp_path / "out"
+    assert S.sweep_main(str(p), out_dir=out) == 0  # failed runs are data
+    df, _ = consolidated(out)
+    st = dict(zip(df["point_settings"].map(lambda s: json.loads(s)["fault"]), df.itertuples()))
+    assert st["none"].status == "ok" and st["none"].repeats == 3
+    assert st["build"].status == "failed" and "model rejected" in st["build"].message
+    assert st["step"].status == "error" and "solver exploded" in st["step"].message
+    assert st["nan"].status == "diverged"
+    for f in ("build", "step", "nan"):
+        assert math.isnan(st[f].primary_error) and st[f].repeats == 0  # neither repeated nor timed
+
+
+# ---------------------------------------------------------------------------
+# resume
+
+
+class _Killed(BaseException):
+    """Stands for the process dying: not an Exception, so nothing catches it."""
+
+
+def _counting_run(monkeypatch, kill_at_point: int | None):
+    """Patch harness.runner.run to record the point key of every call, and
+    to die on the first call of the ``kill_at_point``-th point (0-based)."""
+    from harness import runner
+
+    real = _REAL_RUN  # not runner.run: that may be an earlier patch
+    calls: list[str] = []
+
+    def run(scene, engine, settings=None, **kw):
+        key = S.Point(scene.id, scene.variant, engine, tuple(sorted((settings or {}).items()))).key
+        if kill_at_point is not None and key not in calls and len(dict.fromkeys(calls)) == kill_at_point:
+            raise _Killed()
+        calls.append(key)
+        return real(scene, engine, settings, **kw)
+
+    monkeypatch.setattr(runner, "run", run)
+    return calls
+
+
+def test_resume_after_a_kill(tmp_path, monkeypatch):
+    suite = S.load_suite("smoke")
+    keys = [p.key for p in S.expand(suite)]
+    out = tmp_path / "out"
+    calls = _counting_run(monkeypatch, kill_at_point=4)
+    with pytest.raises(_Killed):
+        S.sweep_main("smoke", out_dir=out)
+    finished = list(dict.fromkeys(calls))
+    assert finished == keys[:4]
+    sweep_dirs = [d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir()]
+    assert len(sweep_dirs) == 1 and len(list(sweep_dirs[0].glob("part-*.parquet"))) == 4
+    assert not list(out.glob("*/*/*.parquet"))  # not consolidated
+
+    calls = _counting_run(monkeypatch, kill_at_point=None)
+    assert S.sweep_main("smoke", out_dir=out) == 0  # resumes automatically: same suite, points, commit
+    assert not set(calls) & set(finished)  # no finished point was run again
+    assert list(dict.fromkeys(calls)) == keys[4:]
+    df, man = consolidated(out)
+    assert sorted(df["point_key"]) == sorted(keys) and df["point_key"].is_unique  # none lost, none twice
+    assert df["sweep_id"].nunique() == 1 and man["sweep_id"] == sweep_dirs[0].name
+    assert len(man["resumed"]) == 1 and not sweep_dirs[0].exists()
+
+
+def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
+    p = write(tmp_path, (ROOT / "suites" / "smoke.toml").read_text(), "smoke.toml")
+    out = tmp_path / "out"
+    _counting_run(monkeypatch, kill_at_point=2)
+    with pytest.raises(_Killed):
+        S.sweep_main(str(p), out_dir=out)
+    p.write_text(p.read_text() + "# edited\n")  # a different suite file: not resumed
+    _counting_run(monkeypatch, kill_at_point=0)
+    with pytest.raises(_Killed):
+        S.sweep_main(str(p), out_dir=out)
+    dirs = sorted(d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir())
+    assert [len(list(d.glob("part-*"))) for d in dirs] == [2, 0]
+    # resume=True resumes the newest sweep of the same suite file and points
+    calls = _counting_run(monkeypatch, kill_at_point=None)
+    assert S.sweep_main(str(p), out_dir=out, resume=True) == 0
+    assert len(calls) == 6 * 2  # the edited suite's sweep had no finished point: all 6, 2 repeats each
+    assert not dirs[1].exists() and dirs[0].exists()
+
+
+def test_resume_after_the_process_is_killed(tmp_path):
+    """A real SIGKILL in the middle of a sweep: parts are whole files, the
+    point in flight is lost and rerun, nothing else."""
+    p = write(tmp_path, """
+        [suite]
+        engines = ["fake_sweep"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 0.2, 0.201, 0.202, 0.203] }
+    """)
+    out = tmp_path / "out"
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from adapters.base import register
+        from tests.test_sweep import FakeSweep
+        from harness.sweep import sweep_main
+        register("fake_sweep", lambda: FakeSweep)
+        sweep_main({str(p)!r}, out_dir={str(out)!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(out.glob("*/*/*/part-*.parquet"))) < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    before = pd.concat([pd.read_parquet(f) for f in out.glob("*/*/*/part-*.parquet")]).set_index("point_key")
+    assert 5 <= len(before) < 8 and before.index.is_unique
+    assert S.sweep_main(str(p), out_dir=out) == 0
+    df, man = consolidated(out)
+    assert df["point_key"].is_unique and len(df) == 8 and (df["status"] == "ok").all()
+    assert len(man["resumed"]) == 1 and man["duplicates_dropped"] == 0
+    # the rows finished before the kill are the ones kept: not rerun
+    kept = df.set_index("point_key").loc[before.index]
+    assert (kept["point_wall_s"] == before["point_wall_s"]).all()
+
+
+# ---------------------------------------------------------------------------
+# parallel executors
+
+
+def test_process_executor_gives_the_serial_metrics(tmp_path, smoke_serial):
+    out = tmp_path / "out"
+    assert S.sweep_main("smoke", jobs=2, out_dir=out) == 0
+    a, _ = consolidated(smoke_serial)
+    b, man = consolidated(out)
+    assert man["executor"] == "process" and (b["sweep_jobs"] == 2).all()
+    assert list(a["point_key"]) == list(b["point_key"])
+    cols = [c for c in a.columns if c not in TIMING and not c.startswith("timing.")
+            and pd.api.types.is_numeric_dtype(a[c]) and c != "schema_version"]
+    assert "primary_error" in cols and "max_penetration" in cols
+    for c in cols:
+        np.testing.assert_array_equal(a[c].to_numpy(float), b[c].to_numpy(float), err_msg=c)
+    assert list(a["status"]) == list(b["status"])
+
+
+def test_a_worker_crash_becomes_an_error_row(tmp_path):
+    p = write(tmp_path, """
+        [suite]
+        engines = ["fake_sweep"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { fault = ["none", "crash"], dt = [0.002, 0.001] }
+    """)
+    out = tmp_path / "out"
+    assert S.sweep_main(str(p), jobs=2, executor="process", out_dir=out) == 0
+    df, _ = consolidated(out)
+    assert len(df) == 4 and df["point_key"].is_unique
+    faults = df["point_settings"].map(lambda s: json.loads(s)["fault"])
+    assert (df.loc[faults == "none", "status"] == "ok").all()
+    crashed = df[faults == "crash"]
+    assert (crashed["status"] == "error").all()
+    assert crashed["message"].str.contains("worker process died").all()
