@@ -793,7 +793,7 @@ def plot_work_precision(wp: Mapping[str, Any]) -> str | None:
     fails = [p for l in wp["lines"] for p in l["points"] if not p["ok"] and math.isfinite(p["cost"]) and p["cost"] > 0]
     if not ok and not fails:
         return None
-    fig = _figure(7.0, 4.4)
+    fig = _figure(9.5, 4.4)
     ax = fig.add_subplot()
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -830,7 +830,8 @@ def plot_work_precision(wp: Mapping[str, Any]) -> str | None:
     ax.grid(True, which="both", alpha=0.25)
     title = wp["scenario"] + (f" / {wp['variant']}" if wp["variant"] else "")
     ax.set_title(_mpl_text(title), fontsize=10)
-    ax.legend(fontsize=7, loc="best")
+    # outside the axes: with a dozen configurations an inner legend hides data
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     return _png(fig)
 
 
