@@ -12,6 +12,9 @@ and ratios are printed, never asserted in tests:
   scenes (a 10-box column, 100 and 1000 spheres on a plane) at the same dt and
   solver iterations: per-step CPU time and their ratio, plus the reference
   engine's broad-phase cost per step against n (fitted exponent).
+- ``broadphase_scaling``: the reference engine's broad phase alone
+  (``sap_pairs``; all pairs; the former single-axis sweep) on static random
+  sphere clouds of constant density, 100 to 3000 bodies: cost against n.
 """
 
 from __future__ import annotations
@@ -192,6 +195,72 @@ def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 12
                      "pybullet_us_per_step": 1e6 * pb, "ratio_reference_over_pybullet": ref / pb,
                      "reference_broadphase_us_per_step": 1e6 * statistics.median(broad) if broad else float("nan")})
     return rows
+
+
+def sphere_cloud(n: int, seed: int = 0, radius: float = 0.05, spacing: float = 2.5,
+                 margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (lo, hi) of n spheres of one radius at random in a cube of side
+    ``spacing * radius * n^(1/3)`` (constant density: ~13 % of the volume
+    filled at 2.5), grown by the contact margin; every tenth sphere is moved
+    to touch the previous one (centres 2 radii apart along x)."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(0.0, spacing * radius * n ** (1 / 3), (n, 3))
+    c[1::10] = c[0:-1:10][: c[1::10].shape[0]] + [2 * radius, 0.0, 0.0]
+    e = radius + margin
+    return c - e, c + e
+
+
+def _time_call(f: Callable[[], Any], min_s: float = 0.02) -> float:
+    """Seconds per call of f: enough calls to last ``min_s``."""
+    k = 1
+    while True:
+        t0 = time.perf_counter()
+        for _ in range(k):
+            f()
+        t = time.perf_counter() - t0
+        if t >= min_s:
+            return t / k
+        k *= 2 if t <= 0 else max(2, min(16, int(1.5 * min_s / t) + 1))
+
+
+def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats: int = 5,
+                       brute_max: int = 3000) -> dict[str, Any]:
+    """The broad phase alone (``engine.broadphase``: ``sap_pairs``, the
+    all-pairs test ``brute_pairs``, and the former single-axis sweep) on
+    static constant-density sphere clouds (:func:`sphere_cloud`), timed
+    interleaved, medians of ``repeats``.  Returns ``{"rows": [{n, pairs,
+    sap_us, brute_us, single_axis_us}], "exponents": {method: k}}``, k the
+    least-squares slope of log time against log n, with ``n_log_n``: the
+    slope of n log n over the same sizes for reference."""
+    from engine.broadphase import _sap_single_axis, brute_pairs, sap_pairs
+
+    rows = []
+    for n in sizes:
+        lo, hi = sphere_cloud(n)
+        pi, pj = np.triu_indices(n, 1)
+        model = type("PairList", (), {"pair_i": pi.astype(np.int64), "pair_j": pj.astype(np.int64)})
+        a, b = sap_pairs(lo, hi)
+        for other in (brute_pairs(model, lo, hi) if n <= brute_max else None, _sap_single_axis(lo, hi)):
+            if other is not None and not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
+                raise AssertionError(f"broad phase methods disagree at n = {n}")
+        funcs = {"sap": lambda: sap_pairs(lo, hi), "single_axis": lambda: _sap_single_axis(lo, hi)}
+        if n <= brute_max:
+            funcs["brute"] = lambda: brute_pairs(model, lo, hi)
+        times: dict[str, list[float]] = {k: [] for k in funcs}
+        for _ in range(repeats):
+            for k, f in funcs.items():
+                times[k].append(_time_call(f))
+        row: dict[str, Any] = {"n": n, "pairs": int(a.size)}
+        for k in ("sap", "brute", "single_axis"):
+            row[f"{k}_us"] = 1e6 * statistics.median(times[k]) if k in times else float("nan")
+        rows.append(row)
+    ns = [r["n"] for r in rows]
+    exps: dict[str, float] = {}
+    for k in ("sap", "brute", "single_axis"):
+        ok = [r for r in rows if r[f"{k}_us"] == r[f"{k}_us"]]
+        exps[k] = fit_exponent([r["n"] for r in ok], [r[f"{k}_us"] for r in ok]) if len(ok) >= 2 else float("nan")
+    exps["n_log_n"] = fit_exponent(ns, [n * math.log(n) for n in ns]) if len(ns) >= 2 else float("nan")
+    return {"rows": rows, "exponents": exps}
 
 
 def _stage_time(profile: dict[str, Any], name: str) -> float | None:
