@@ -564,14 +564,28 @@ def _now() -> str:
 
 def _normalize(df):
     """Columns mixing types (a setting that is a bool on one engine and a
-    string on another) are stored as text, as harness.results does."""
+    string on another) are stored as text, as harness.results does.  Ints
+    and floats together (a part where the column was None, one where it was
+    an int, one where it was a float) are numbers, stored as float."""
+    import numbers
+
     for col in df.columns:
         if df[col].dtype == object:
-            kinds = {type(v) for v in df[col] if v is not None and not (isinstance(v, float) and math.isnan(v))}
-            if len(kinds) > 1:
+            vals = [v for v in df[col] if v is not None and not (isinstance(v, float) and math.isnan(v))]
+            kinds = {type(v) for v in vals}
+            if len(kinds) > 1 and all(isinstance(v, numbers.Real) and not isinstance(v, (bool, _np_bool()))
+                                      for v in vals):
+                df[col] = df[col].map(lambda v: math.nan if v is None else float(v)).astype(float)
+            elif len(kinds) > 1:
                 df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float) and math.isnan(v))
                                       else str(v))
     return df
+
+
+def _np_bool() -> type:
+    import numpy as np
+
+    return np.bool_
 
 
 def _fsync_replace(tmp: Path, path: Path) -> None:
@@ -721,7 +735,19 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     if resume is not False:
         for d, man in _unfinished(suite_dir):
             if (d.parent / f"{d.name}.parquet").exists():
-                continue  # consolidated but not yet removed: finished by _consolidate
+                # consolidated, but killed before its manifest was written or
+                # its directory removed: finish that (under its lock), never
+                # resume it (its points are stored)
+                fd = _try_lock(d)
+                if fd >= 0:
+                    try:
+                        consolidate(d)
+                    except (OSError, ValueError) as e:
+                        print(f"warning: could not finish consolidating {d}: {type(e).__name__}: {e}",
+                              file=sys.stderr)
+                    finally:
+                        os.close(fd)
+                continue
             if man.get("suite_hash") != suite.file_hash or sorted(man.get("points", [])) != sorted(keys):
                 continue
             if resume is None and man.get("commit") != commit:
@@ -789,7 +815,11 @@ def consolidate(d: Path) -> Path:
     out = d.parent / f"{d.name}.parquet"
     write_parquet_atomic(df, out, {"manifest": {k: v for k, v in man.items() if k != "points"}})
     _write_json_atomic(man, d.parent / f"{d.name}.manifest.json")
-    shutil.rmtree(d)
+    try:
+        shutil.rmtree(d)
+    except OSError as e:  # the rows are safe; open_sweep finishes the removal next time
+        print(f"warning: {out} written but {d} could not be removed ({type(e).__name__}: {e}); "
+              "the next sweep of this suite removes it", file=sys.stderr)
     return out
 
 
@@ -806,7 +836,9 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
         for sdir in sorted(mdir.glob(suite or "*")):
             frames += [pd.read_parquet(f) for f in sorted(sdir.glob("*.parquet"))]
             if unfinished:
-                frames += [pd.read_parquet(f) for d in sorted(sdir.iterdir()) if d.is_dir() for f in _parts(d)]
+                frames += [pd.read_parquet(f) for d in sorted(sdir.iterdir())
+                           if d.is_dir() and not (sdir / f"{d.name}.parquet").exists()  # consolidated wins
+                           for f in _parts(d)]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -818,7 +850,13 @@ def _run_serial(todo: list[Point], on_row: Callable[[Point, dict[str, Any]], Non
                 on_start: Callable[[Point], None]) -> None:
     for p in todo:
         on_start(p)
-        on_row(p, run_point(p))
+        t0 = time.perf_counter()
+        try:
+            row = run_point(p)
+        except Exception as e:  # as the process executor does: an error row, the sweep goes on
+            row = _status_row(p, "error", f"point failed: {type(e).__name__}: {e}", t0,
+                              tb=traceback.format_exc(limit=5))
+        on_row(p, row)
 
 
 def _run_process(todo: list[Point], jobs: int, on_row: Callable[[Point, dict[str, Any]], None],
@@ -981,9 +1019,13 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
         sd.close()
         return 130
+    except BaseException:
+        sd.close()
+        raise
+    try:  # still locked: a sweep started meanwhile must not resume this directory
+        out = consolidate(sd.path)
     finally:
         sd.close()
-    out = consolidate(sd.path)
     import pandas as pd
 
     df = pd.read_parquet(out)

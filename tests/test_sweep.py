@@ -493,3 +493,81 @@ def test_a_worker_crash_becomes_an_error_row(tmp_path):
     crashed = df[faults == "crash"]
     assert (crashed["status"] == "error").all()
     assert crashed["message"].str.contains("worker process died").all()
+
+
+# ---------------------------------------------------------------------------
+# review fixes: consolidation types, a point that raises, a half-finished
+# consolidation
+
+
+def _sweep_dir_with_parts(tmp_path: Path, rows: list[dict]) -> Path:
+    d = tmp_path / "m" / "s" / "20260101T000000Z-x"
+    d.mkdir(parents=True)
+    S._write_json_atomic({"sweep_id": d.name, "points": [r["point_key"] for r in rows]}, d / "manifest.json")
+    for i, r in enumerate(rows, 1):
+        S.write_parquet_atomic(pd.DataFrame([r]), d / f"part-{i:06d}.parquet")
+    return d
+
+
+def test_consolidation_keeps_int_and_float_parts_numeric(tmp_path):
+    # one part with the column None, one int, one float: numbers, not text
+    d = _sweep_dir_with_parts(tmp_path, [{"point_key": "a", "x": None}, {"point_key": "b", "x": 2},
+                                         {"point_key": "c", "x": 2.5}])
+    df = pd.read_parquet(S.consolidate(d))
+    assert pd.api.types.is_float_dtype(df["x"]), df["x"].tolist()
+    assert math.isnan(df["x"].iat[0]) and df["x"].iat[1] == 2.0 and df["x"].iat[2] == 2.5
+
+
+def test_consolidation_still_stores_bool_and_text_mixes_as_text(tmp_path):
+    d = _sweep_dir_with_parts(tmp_path, [{"point_key": "a", "ccd": True}, {"point_key": "b", "ccd": "events"},
+                                         {"point_key": "c", "ccd": None}])
+    df = pd.read_parquet(S.consolidate(d))
+    assert df["ccd"].tolist()[:2] == ["True", "events"] and df["ccd"].isna().iat[2]
+
+
+def test_a_point_that_raises_in_the_serial_executor_is_an_error_row(tmp_path, monkeypatch):
+    real = S.run_point
+
+    def run_point(p):
+        if p.settings_dict.get("dt") == 0.001 and p.engine == "mujoco":
+            raise KeyError("bug in the row code")
+        return real(p)
+
+    monkeypatch.setattr(S, "run_point", run_point)
+    out = tmp_path / "out"
+    assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0
+    df, man = consolidated(out)
+    assert len(df) == 6 and man["missing"] == []
+    bad = df[(df["engine"] == "mujoco") & (df["setting.dt"] == 0.001)]
+    assert bad["status"].tolist() == ["error"] and "bug in the row code" in bad["message"].iat[0]
+    assert (df.drop(bad.index)["status"] == "ok").all()
+
+
+def test_a_consolidated_sweep_whose_directory_was_not_removed(tmp_path, monkeypatch):
+    """Consolidated file written, then the directory removal failed (or the
+    process died before it): no rows twice, no rerun, and the next sweep
+    finishes the removal."""
+    out = tmp_path / "out"
+    real_rmtree = S.shutil.rmtree
+
+    def failing_rmtree(path, *a, **kw):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(S.shutil, "rmtree", failing_rmtree)
+    assert S.sweep_main("smoke", out_dir=out) == 0  # the rows are safe: not a crash
+    monkeypatch.setattr(S.shutil, "rmtree", real_rmtree)
+    sdir = out / S.machine_id() / "smoke"
+    left = [d for d in sdir.iterdir() if d.is_dir()]
+    assert len(left) == 1
+    rows = S.read_sweeps(out, unfinished=True)
+    assert len(rows) == 6 and rows["point_key"].is_unique  # consolidated file wins over leftover parts
+    # killed before the consolidated manifest too
+    (sdir / f"{left[0].name}.manifest.json").unlink()
+    calls = _counting_run(monkeypatch, kill_at_point=0)
+    with pytest.raises(_Killed):  # a new sweep starts (the old one is complete) ...
+        S.sweep_main("smoke", out_dir=out)
+    assert not left[0].exists()  # ... after finishing the old one's consolidation
+    man = json.loads((sdir / f"{left[0].name}.manifest.json").read_text())
+    assert man["rows"] == 6 and man["missing"] == []
+    assert len(pd.read_parquet(sdir / f"{left[0].name}.parquet")) == 6
+    assert calls == []
