@@ -203,7 +203,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
-                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target)
+                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target,
+                       fail_on_regression=args.fail_on_regression)
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -281,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
     rp.add_argument("--target", type=float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
+    rp.add_argument("--fail-on-regression", action="store_true",
+                    help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
     rp.set_defaults(func=cmd_report)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")

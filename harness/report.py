@@ -1189,10 +1189,12 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
 
 
 def report_main(results_dir: Path | None = None, out: Path | None = None, suites: list[str] | None = None,
-                target: float | None = None) -> int:
+                target: float | None = None, fail_on_regression: bool = False) -> int:
     """Write the report (default ``<results_dir>/report.html``) and print its
-    path.  Returns 0, or 1 when there were no usable result rows (the page
-    is still written and says so)."""
+    path and one line per regression flagged beyond noise.  Returns 0; 1
+    when there were no usable result rows (the page is still written and
+    says so); 3 when ``fail_on_regression`` and a regression is flagged (for
+    a nightly pipeline that should go red)."""
     root = Path(results_dir) if results_dir is not None else RESULTS_DIR
     out = Path(out) if out is not None else root / "report.html"
     cmd = ["physbench", "report"]
@@ -1204,6 +1206,8 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
         cmd += ["--suites", *suites]
     if target is not None:
         cmd += ["--target", f"{target:g}"]
+    if fail_on_regression:
+        cmd += ["--fail-on-regression"]
     df = load_results(root, suites=suites)
     warnings = df.attrs.get("warnings", [])
     for w in warnings:
@@ -1219,7 +1223,14 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
         print(out)
         return 1
     print(out)
-    return 0
+    reg = regressions(df)
+    bad = reg[reg["direction"] == "regression"] if not reg.empty else reg
+    for r in bad.itertuples():
+        change = "" if r.kind == "status" else f" ({r.change:+.0%}, threshold {r.threshold:.0%})"
+        print(f"regression: {r.kind}: {r.scenario} on {r.engine} [{r.settings}]: {r.previous} -> {r.latest}{change}")
+    if len(bad):
+        print(f"{len(bad)} regression(s) beyond noise")
+    return 3 if fail_on_regression and len(bad) else 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -408,3 +408,17 @@ def test_end_to_end_real_runs(tmp_path):
     page = (tmp_path / "report.html").read_text()
     assert "billiards.head_on" in page and "mujoco" in page and "check max" in page
     assert page.count("data:image/png;base64,") >= 2  # a diagram and the history multiples
+
+
+def test_fail_on_regression_exit_code_and_lines(tmp_path, capsys):
+    """report_main prints each regression beyond noise and, with
+    fail_on_regression, exits 3; a change within noise keeps exit 0."""
+    two_sweeps(tmp_path / "bad", dict(cost=1.0, cost_min=0.99), dict(cost=1.3, cost_min=1.29))
+    assert rp.report_main(tmp_path / "bad", out=tmp_path / "bad.html") == 0
+    out = capsys.readouterr().out
+    assert "regression: cost:" in out and "1 regression(s) beyond noise" in out
+    assert rp.report_main(tmp_path / "bad", out=tmp_path / "bad.html", fail_on_regression=True) == 3
+    capsys.readouterr()
+    two_sweeps(tmp_path / "fine", dict(cost=1.0, cost_min=0.99), dict(cost=1.05, cost_min=1.04))
+    assert rp.report_main(tmp_path / "fine", out=tmp_path / "fine.html", fail_on_regression=True) == 0
+    assert "beyond noise" not in capsys.readouterr().out
