@@ -1,0 +1,44 @@
+"""The benchmark commands run end to end on tiny sizes and report consistent
+rows.  Nothing here asserts a time: only that every figure is measured
+(finite, positive), that ratios are the ratios of the figures printed beside
+them, and that the broad-phase variants agree on the pairs."""
+
+import math
+
+import pytest
+
+from harness import bench
+
+
+def _pos(x):
+    return isinstance(x, float) and math.isfinite(x) and x > 0
+
+
+def test_cost_rows_are_consistent():
+    pytest.importorskip("pybullet")
+    rows = bench.cost(repeats=1, sizes=(8,), steps=3, iterations=4)
+    assert [r["scene"] for r in rows] == ["column_10", "spheres_8"]
+    for r in rows:
+        for k in ("reference_us_per_step", "reference_fast_us_per_step", "pybullet_us_per_step"):
+            assert _pos(r[k]), (k, r[k])
+        assert r["ratio_reference_over_pybullet"] == pytest.approx(r["reference_us_per_step"] / r["pybullet_us_per_step"])
+        assert r["ratio_fast_over_pybullet"] == pytest.approx(r["reference_fast_us_per_step"] / r["pybullet_us_per_step"])
+
+
+def test_overhead_rows_are_consistent():
+    pytest.importorskip("mujoco")
+    rows = bench.overhead(["mujoco", "pymunk"], repeats=1, duration=0.05)
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert {(r["scene"].split()[0], r["engine"]) for r in rows if r["status"] == "unsupported"} == {("column_10", "pymunk")}
+    assert len(ok) == 5
+    for r in ok:
+        assert _pos(r["api_us_per_step"]) and _pos(r["fast_us_per_step"]) and _pos(r["runner_us_per_step"])
+        assert r["ratio"] == pytest.approx(r["runner_us_per_step"] / r["api_us_per_step"])
+        assert r["ratio_vs_fast"] == pytest.approx(r["runner_us_per_step"] / r["fast_us_per_step"])
+
+
+def test_broadphase_scaling_runs_and_fits():
+    out = bench.broadphase_scaling(sizes=(40, 120), repeats=1)
+    assert [r["n"] for r in out["rows"]] == [40, 120]
+    assert all(r["pairs"] > 0 and _pos(r["sap_us"]) for r in out["rows"])
+    assert math.isfinite(out["exponents"]["sap"])
