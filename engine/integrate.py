@@ -162,18 +162,30 @@ class IntegrateVelocities(Stage):
             v1 = v0 + 0.5 * h * (a0 + ap)
             w1 = w0 + 0.5 * h * (al0 + alp)
         elif m == "rk4":
-            k1 = (v0, quat_deriv(w0, q0), a0, al0)
-            y2 = (x0 + 0.5 * h * k1[0], q0 + 0.5 * h * k1[1], v0 + 0.5 * h * k1[2], w0 + 0.5 * h * k1[3])
-            a2, al2 = f(*y2)
-            k2 = (y2[2], quat_deriv(y2[3], y2[1]), a2, al2)
-            y3 = (x0 + 0.5 * h * k2[0], q0 + 0.5 * h * k2[1], v0 + 0.5 * h * k2[2], w0 + 0.5 * h * k2[3])
-            a3, al3 = f(*y3)
-            k3 = (y3[2], quat_deriv(y3[3], y3[1]), a3, al3)
-            y4 = (x0 + h * k3[0], q0 + h * k3[1], v0 + h * k3[2], w0 + h * k3[3])
-            a4, al4 = f(*y4)
-            k4 = (y4[2], quat_deriv(y4[3], y4[1]), a4, al4)
-            x1, q1, v1, w1 = (y0 + h / 6.0 * (c1 + 2 * c2 + 2 * c3 + c4)
-                              for y0, c1, c2, c3, c4 in zip((x0, q0, v0, w0), k1, k2, k3, k4))
+            # the state and slopes stacked as (n, 13) rows [x | q | v | w]:
+            # the same element-wise arithmetic as per array, in one call each
+            Y0 = np.empty((n, 13))
+            Y0[:, 0:3], Y0[:, 3:7], Y0[:, 7:10], Y0[:, 10:13] = x0, q0, v0, w0
+
+            def slope(Y, a, al):
+                K = np.empty((n, 13))
+                K[:, 0:3] = Y[:, 7:10]
+                K[:, 3:7] = quat_deriv(Y[:, 10:13], Y[:, 3:7])
+                K[:, 7:10] = a
+                K[:, 10:13] = al
+                return K
+
+            def parts(Y):
+                return Y[:, 0:3], Y[:, 3:7], Y[:, 7:10], Y[:, 10:13]
+
+            K1 = slope(Y0, a0, al0)
+            Y2 = Y0 + 0.5 * h * K1
+            K2 = slope(Y2, *f(*parts(Y2)))
+            Y3 = Y0 + 0.5 * h * K2
+            K3 = slope(Y3, *f(*parts(Y3)))
+            Y4 = Y0 + h * K3
+            K4 = slope(Y4, *f(*parts(Y4)))
+            x1, q1, v1, w1 = parts(Y0 + h / 6.0 * (K1 + 2 * K2 + 2 * K3 + K4))
         elif m == "velocity_verlet":
             x1 = x0 + h * v0 + 0.5 * h * h * a0
             q1 = rotate_world(q0, h * (w0 + 0.5 * h * al0))

@@ -250,13 +250,14 @@ class Rows:
         self.a, self.b = topo.a, topo.b
         self.n = c.normal
         Xp = _pad(X)
-        self.rA = c.point - Xp[c.a]
-        self.rB = c.point - Xp[c.b]
+        # both sides stacked (2, m, ...): the same element-wise arithmetic
+        ab2 = np.stack([c.a, c.b])
+        rAB = c.point - Xp[ab2]
+        self.rA, self.rB = rAB[0], rAB[1]
         self.ima = topo.ima
         self.imb = topo.imb
-        IA, IB = Iinv[c.a], Iinv[c.b]
-        rnA = cross(self.rA, self.n)
-        rnB = cross(self.rB, self.n)
+        rnAB = cross(rAB, self.n)
+        rnA, rnB = rnAB[0], rnAB[1]
         # [JA | JB] and [MA | MB] in one (m, 12) array each: the sweeps use
         # them stacked, everything else through the two views
         self.J = np.empty((m, 12))
@@ -268,9 +269,10 @@ class Rows:
         self.JB[:, :3] = self.n
         self.JB[:, 3:] = rnB
         self.MA[:, :3] = -self.ima[:, None] * self.n
-        self.MA[:, 3:] = -np.einsum("kij,kj->ki", IA, rnA)
+        IrnAB = np.einsum("skij,skj->ski", Iinv[ab2], rnAB)
+        self.MA[:, 3:] = -IrnAB[0]
         self.MB[:, :3] = self.imb[:, None] * self.n
-        self.MB[:, 3:] = np.einsum("kij,kj->ki", IB, rnB)
+        self.MB[:, 3:] = IrnAB[1]
         kn = np.einsum("ki,ki->k", self.JA, self.MA) + np.einsum("ki,ki->k", self.JB, self.MB)
         self.mn = 1.0 / kn
         self.lam_n = np.zeros(m)
@@ -299,24 +301,27 @@ class Rows:
         self.pcentroid, self.pnormal = P, N
         t1, t2 = perpendicular_basis(N)
         self.t = np.stack([t1, t2], axis=1)  # (np, 2, 3)
-        rA = P - Xp[self.pa]
-        rB = P - Xp[self.pb]
-        IA, IB = Iinv[self.pa], Iinv[self.pb]
+        pab2 = np.stack([self.pa, self.pb])
+        rAB = P - Xp[pab2]  # both sides stacked (2, np, 3)
+        rtAB = cross(rAB[:, :, None, :], self.t)  # (2, np, 2, 3)
         ima, imb = topo.pima, topo.pimb
         self.Jt = np.zeros((npch, 3, 12))  # [JtA | JtB], as J above
         JtA, JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
         JtA[:, :2, :3] = -self.t
-        JtA[:, :2, 3:] = -cross(rA[:, None, :], self.t)
+        JtA[:, :2, 3:] = -rtAB[0]
         JtB[:, :2, :3] = self.t
-        JtB[:, :2, 3:] = cross(rB[:, None, :], self.t)
+        JtB[:, :2, 3:] = rtAB[1]
         JtA[:, 2, 3:] = -N
         JtB[:, 2, 3:] = N
         self.Mt = np.zeros((npch, 3, 12))
         MtA, MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
         MtA[:, :, :3] = ima[:, None, None] * JtA[:, :, :3]
-        MtA[:, :, 3:] = np.einsum("kij,kmj->kmi", IA, JtA[:, :, 3:])
         MtB[:, :, :3] = imb[:, None, None] * JtB[:, :, :3]
-        MtB[:, :, 3:] = np.einsum("kij,kmj->kmi", IB, JtB[:, :, 3:])
+        # both sides' angular responses in one einsum over the stacked sides
+        Jt4 = self.Jt.reshape(npch, 3, 2, 2, 3)[:, :, :, 1].transpose(2, 0, 1, 3)  # (2, np, 3, 3) = [JtA, JtB][..., 3:]
+        MtAB = np.einsum("skij,skmj->skmi", Iinv[pab2], Jt4)
+        MtA[:, :, 3:] = MtAB[0]
+        MtB[:, :, 3:] = MtAB[1]
         kt = np.einsum("kmi,kmi->km", JtA, MtA) + np.einsum("kmi,kmi->km", JtB, MtB)
         self.JtA, self.JtB, self.MtA, self.MtB = JtA, JtB, MtA, MtB
         self.mt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
