@@ -39,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness.sweep import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
 ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes
@@ -224,23 +225,9 @@ def load_results(results_dir: str | Path | None = None, suites: list[str] | None
     root = Path(results_dir) if results_dir is not None else RESULTS_DIR
     warnings: list[str] = []
     frames: list[pd.DataFrame] = []
-    sweeps = root / "sweeps"
-    if sweeps.is_dir():
-        for mdir in _visible(p for p in sweeps.iterdir() if p.is_dir()):
-            for sdir in _visible(p for p in mdir.iterdir() if p.is_dir()):
-                if suites and sdir.name not in suites:
-                    continue
-                done = {p.stem: p for p in _visible(sdir.glob("*.parquet"))}
-                for sid, p in done.items():
-                    frames.append(_read_file(p, warnings, source="sweep", incomplete=False,
-                                             machine_id=mdir.name, suite=sdir.name, sweep_id=sid))
-                for d in _visible(p for p in sdir.iterdir() if p.is_dir()):
-                    parts = _visible(d.glob("part-*.parquet"))
-                    if not parts or d.name in done:
-                        continue  # consolidated file wins over leftover parts
-                    for p in parts:
-                        frames.append(_read_file(p, warnings, source="sweep", incomplete=True,
-                                                 machine_id=mdir.name, suite=sdir.name, sweep_id=d.name))
+    for mid, suite, sid, p, complete in sweep_files(root / "sweeps", suites):
+        frames.append(_read_file(p, warnings, source="sweep", incomplete=not complete,
+                                 machine_id=mid, suite=suite, sweep_id=sid))
     check = root / "check"
     if check.is_dir():
         for p in _visible(check.glob("*.parquet")):

@@ -823,6 +823,39 @@ def consolidate(d: Path) -> Path:
     return out
 
 
+def sweep_files(root: str | Path | None = None, suites: Iterable[str] | None = None,
+                machine: str | None = None, unfinished: bool = True) -> list[tuple[str, str, str, Path, bool]]:
+    """Every stored sweep file under ``root`` (default results/sweeps/) as
+    (machine_id, suite, sweep_id, path, complete): the consolidated
+    ``<sweep_id>.parquet`` files and, with ``unfinished``, the parts of
+    sweeps still running or killed -- unless their consolidated file exists
+    (it wins over leftover parts).  Hidden files (temporary files about to
+    be renamed into place) are skipped.  The one reader of the storage
+    layout: the report and :func:`read_sweeps` both go through it."""
+    root = Path(root) if root is not None else SWEEPS_DIR
+    wanted = set(suites) if suites else None
+
+    def visible(paths: Iterable[Path]) -> list[Path]:
+        return sorted(p for p in paths if not p.name.startswith("."))
+
+    out = []
+    if not root.is_dir():
+        return out
+    for mdir in visible(p for p in root.iterdir() if p.is_dir()):
+        if machine is not None and mdir.name != machine:
+            continue
+        for sdir in visible(p for p in mdir.iterdir() if p.is_dir()):
+            if wanted is not None and sdir.name not in wanted:
+                continue
+            done = {p.stem: p for p in visible(sdir.glob("*.parquet"))}
+            out += [(mdir.name, sdir.name, sid, p, True) for sid, p in done.items()]
+            if unfinished:
+                for d in visible(p for p in sdir.iterdir() if p.is_dir()):
+                    if d.name not in done:
+                        out += [(mdir.name, sdir.name, d.name, p, False) for p in visible(_parts(d))]
+    return out
+
+
 def read_sweeps(root: str | Path | None = None, suite: str | None = None, machine: str | None = None,
                 unfinished: bool = False):
     """All consolidated sweep rows under ``root`` (default results/sweeps/)
@@ -830,15 +863,8 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
     ``unfinished`` also the parts of sweeps still running or killed."""
     import pandas as pd
 
-    root = Path(root) if root is not None else SWEEPS_DIR
-    frames = []
-    for mdir in sorted(root.glob(machine or "*")):
-        for sdir in sorted(mdir.glob(suite or "*")):
-            frames += [pd.read_parquet(f) for f in sorted(sdir.glob("*.parquet"))]
-            if unfinished:
-                frames += [pd.read_parquet(f) for d in sorted(sdir.iterdir())
-                           if d.is_dir() and not (sdir / f"{d.name}.parquet").exists()  # consolidated wins
-                           for f in _parts(d)]
+    frames = [pd.read_parquet(f) for *_, f, _ in
+              sweep_files(root, [suite] if suite else None, machine, unfinished)]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
