@@ -21,7 +21,8 @@ import pytest
 from engine import Engine
 from engine.broadphase import brute_pairs, sap_pairs
 from engine.mathutil import quat_to_matrix
-from engine.narrowphase import box_box, box_plane, capsule_box, capsule_capsule, capsule_plane, sphere_box, sphere_capsule
+from engine.narrowphase import (box_box, box_plane, capsule_box, capsule_capsule, capsule_plane, cylinder_plane, sphere_box,
+                                sphere_capsule)
 from harness.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -124,6 +125,44 @@ def test_capsule_pairs():
     k, n, p, g, _ = capsule_box(np.array([[0.1, 0, 0.5 + 0.4 - 0.001]]), I, np.array([0.3]), np.array([0.1]),
                                 np.zeros((1, 3)), I, np.array([[0.5, 0.5, 0.5]]))
     assert g.min() == pytest.approx(-0.001, abs=1e-9) and np.allclose(n[np.argmin(g)], [0, 0, -1])
+
+
+def test_cylinder_plane_deepest_point_and_supports():
+    """The deepest of a cylinder's contact points is its exact lowest point,
+    at any orientation: gap = n.c - hl |n.a| - r sqrt(1 - (n.a)^2) - o
+    (a the axis); lying, it touches along the bottom line (two points at
+    the caps); standing, on the cap's square of four rim points."""
+    rng = np.random.default_rng(7)
+    hl, r = 0.2, 0.1
+    for _ in range(200):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        R = quat_to_matrix(q)
+        c = rng.normal(size=3)
+        pn = rng.normal(size=3)
+        pn /= np.linalg.norm(pn)
+        po = rng.normal()
+        k, n, p, g, f = cylinder_plane(c[None], R[None], np.array([hl]), np.array([r]), pn[None], np.array([po]))
+        na = abs(pn @ R[:, 2])
+        exact = pn @ c - hl * na - r * math.sqrt(max(1 - na * na, 0.0)) - po
+        assert g.min() == pytest.approx(exact, abs=1e-12)
+        assert np.allclose(n, -pn)
+        # points are midway between the surfaces: rim point + n gap / 2
+        assert np.allclose(p @ pn - po, 0.5 * g, atol=1e-12)
+    # lying across x (axis along y), 1 mm into the plane z = 0
+    Ry = quat_to_matrix(np.array([math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0, 0]))[None]
+    k, n, p, g, f = cylinder_plane(np.array([[0.3, 0, r - 0.001]]), Ry, np.array([hl]), np.array([r]),
+                                   np.array([[0, 0, 1.0]]), np.array([0.0]))
+    touching = g < 0
+    assert touching.sum() == 2 and np.allclose(g[touching], -0.001)
+    assert np.allclose(np.sort(p[touching][:, 1]), [-hl, hl]) and np.allclose(p[touching][:, 0], 0.3)
+    assert np.all(g[~touching] >= r - 0.001 - 1e-12)  # the other rim points are a radius up or more
+    # standing on its -z cap: four touching points on the rim, a square
+    k, n, p, g, f = cylinder_plane(np.array([[0, 0, hl]]), np.eye(3)[None], np.array([hl]), np.array([r]),
+                                   np.array([[0, 0, 1.0]]), np.array([0.0]))
+    touching = np.abs(g) < 1e-12
+    assert touching.sum() == 4 and np.allclose(np.linalg.norm(p[touching][:, :2], axis=1), r)
+    assert np.allclose(p[touching][:, :2].mean(axis=0), 0.0)
 
 
 # ---- broad phase ------------------------------------------------------------

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from adapters.conventions import quat_rotate
-from harness.references import MODELS, get_model
+from harness.references import MODELS, ReferenceError, get_model
 from harness.runner import Trace
 from harness.scene import compile_scene, load_scene
 from harness.spec import validate_raw
@@ -252,6 +252,33 @@ def test_rolling_sphere_slips():
     assert m.regime == "slip"
     assert m.a == pytest.approx(4.055429, abs=1e-6)
     assert m.alpha == pytest.approx(21.239273, abs=1e-6)
+
+
+def slope_cylinder(angle: float, mu: float, q: str = "[0.7071067811865476, -0.7071067811865476, 0.0, 0.0]") -> str:
+    text = slope_ball(angle, mu).replace('shape = "sphere"', 'shape = "cylinder"\nhalf_length = 0.05\norientation = ' + q)
+    return text.replace('model = "rolling_sphere"', 'model = "rolling_cylinder"').replace(
+        '"friction"]', '"friction", "gyroscopic"]').replace("planar = true\n", "")
+
+
+def test_rolling_cylinder_rolls_and_slips():
+    # k = I_axis / (m r^2) = 1/2: rolls when mu >= 1/3 tan a;
+    # a = 2/3 g sin 20 = 2.236817 m/s^2, alpha = a / r
+    m = get_model("rolling_cylinder")(scene_from(slope_cylinder(20.0, 0.5)))
+    assert m.regime == "roll" and m.k == pytest.approx(0.5, abs=1e-12)
+    assert m.a == pytest.approx(2.0 / 3.0 * 9.81 * math.sin(math.radians(20.0)), rel=1e-12)
+    assert m.alpha == pytest.approx(m.a / 0.1, rel=1e-12)
+    # mu = 0.1 < 1/3 tan 30 = 0.192: slips; alpha = mu g cos 30 r / (r^2 / 2)
+    m = get_model("rolling_cylinder")(scene_from(slope_cylinder(30.0, 0.1)))
+    assert m.regime == "slip"
+    assert m.alpha == pytest.approx(2 * 0.1 * 9.81 * math.cos(math.radians(30.0)) / 0.1, rel=1e-12)
+
+
+def test_rolling_cylinder_needs_its_axis_across_the_slope():
+    # axis (body z) left along world z: it would not roll down the slope
+    with pytest.raises(ReferenceError, match="axis along the roll axis"):
+        get_model("rolling_cylinder")(scene_from(slope_cylinder(20.0, 0.5, q="[1.0, 0.0, 0.0, 0.0]")))
+    with pytest.raises(ReferenceError, match="needs a cylinder"):
+        get_model("rolling_cylinder")(scene_from(slope_ball(20.0, 0.5).replace("rolling_sphere", "rolling_cylinder")))
 
 
 # ---------------------------------------------------------------------------

@@ -29,6 +29,7 @@ MODELS: dict[str, str] = {
     "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
     "incline_block": "harness.references.friction:InclineBlock",
     "rolling_sphere": "harness.references.friction:RollingSphere",
+    "rolling_cylinder": "harness.references.friction:RollingCylinder",
     "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
     "heavy_top": "harness.references.rigid_body:HeavyTop",
 }
