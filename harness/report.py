@@ -44,7 +44,10 @@ from harness.sweep import sweep_files
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
 ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes
 NOISE_FLOOR = 0.10  # relative change below which nothing is ever flagged
-NOISE_SPREADS = 3.0  # ... and the multiple of the repeats' relative spread
+NOISE_SPREADS = 3.0  # ... and the multiple of the repeats' relative spread (and of the nightly scatter)
+BASELINE_RUNS = 5  # a cost is compared with the median of this many latest earlier ok runs of its series
+MAD_TO_SIGMA = 1.4826  # MAD x this estimates a normal standard deviation
+DRIFT_HORIZON = 30  # earlier ok runs a cost drift is looked for in
 ERROR_ABS_FLOOR = 1e-12  # an accuracy change must also exceed this absolutely
 MAX_SMALL_MULTIPLES = 6
 FAILED_STATUSES = ("error", "failed", "timeout")  # counted together as "error"
@@ -651,6 +654,56 @@ def _spread(median: float, mn: float) -> float:
     return max(0.0, (median - mn) / median)
 
 
+def _cost_baseline(window: list[dict]) -> tuple[float, float, float]:
+    """(baseline, scatter, spread) of a series' baseline runs (ok, cost > 0):
+    the median cost; the median absolute deviation of the costs from it,
+    relative to it (0 for one run); the median of the runs' relative
+    spreads of repeats (``_spread``)."""
+    costs = [r["cost"] for r in window]
+    baseline = float(np.median(costs))
+    scatter = float(np.median([abs(c - baseline) for c in costs])) / baseline
+    spread = float(np.median([_spread(r["cost"], r["cost_min"]) for r in window]))
+    return baseline, scatter, spread
+
+
+def _cost_drift(runs: list[dict], last: dict) -> dict | None:
+    """A slow creep of cost that the recent-baseline rule absorbs: the
+    latest run against the cheapest plateau of the horizon ``runs`` (the
+    lowest median of ``BASELINE_RUNS`` consecutive ok runs), flagged when
+
+    - it exceeds max(10 %, 3 x the repeats' spread (latest, plateau),
+      3 x sigma), sigma the night-to-night noise estimated from successive
+      differences of log cost over the horizon (1.4826 MAD / sqrt 2, which
+      a trend hardly moves, unlike the spread around a window's median), and
+    - the rise did not come in one jump: no single night-to-night step from
+      the plateau's end to the latest run makes up half of it (a step is the
+      recent rule's business: flagged while it is new, then accepted).
+
+    Returns the row fields (kind ``cost_drift``) or None."""
+    if len(runs) < BASELINE_RUNS + 1:
+        return None
+    logc = np.log([r["cost"] for r in runs] + [last["cost"]])
+    sigma = MAD_TO_SIGMA * float(np.median(np.abs(np.diff(logc)))) / math.sqrt(2.0)
+    k = BASELINE_RUNS
+    meds = [float(np.median([r["cost"] for r in runs[i:i + k]])) for i in range(len(runs) - k + 1)]
+    i = int(np.argmin(meds))
+    plateau = runs[i:i + k]
+    base_cost = meds[i]
+    spread = float(np.median([_spread(r["cost"], r["cost_min"]) for r in plateau]))
+    thr = max(NOISE_FLOOR, NOISE_SPREADS * max(_spread(last["cost"], last["cost_min"]), spread),
+              NOISE_SPREADS * sigma)
+    change = last["cost"] / base_cost - 1.0
+    if change <= thr:
+        return None
+    rise = math.log(last["cost"] / base_cost)
+    steps = np.diff(logc[i + k - 1:])
+    if steps.size and float(steps.max()) >= 0.5 * rise:
+        return None
+    return {"kind": "cost_drift", "direction": "regression", "previous": base_cost, "latest": last["cost"],
+            "change": change, "threshold": thr,
+            "previous_sweep": f"{plateau[0]['sweep_id']}..{plateau[-1]['sweep_id']}", "severity": change / thr}
+
+
 def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
     """(machine_id, suite, point_key) -> that point's rows over its sweeps
     (one per sweep, the last if repeated; ascending sweep_id), for points
@@ -672,20 +725,47 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
     """Flagged changes of each point's latest sweep against its earlier ones
     (same machine, same suite).  Only beyond noise:
 
-    - cost (``cpu_s_per_sim_s_median``): the latest ok run against the best
-      (lowest) earlier ok run; flagged when the relative change exceeds
-      max(10 %, 3 x the larger relative spread of repeats, (median - min) /
-      median, of the two runs).  Faster by as much is an improvement.
+    - cost (``cpu_s_per_sim_s_median``), asv style: the latest ok run
+      against a baseline, the median cost of the last ``BASELINE_RUNS`` (5)
+      earlier ok runs of the series (fewer if there are fewer; one is
+      enough).  Flagged when the relative change latest / baseline - 1
+      exceeds max(10 %, 3 x s, 3 x 1.4826 x MAD / baseline): ``s`` the
+      larger of the latest run's relative spread of repeats, (median - min)
+      / median, and the median of that spread over the baseline runs; MAD
+      the median absolute deviation of the baseline runs' costs from the
+      baseline, so night-to-night scatter counts as noise.  Faster by as
+      much is an improvement.  Not the best earlier run: the minimum of
+      many noisy nights is optimistic, so that rule's false alarms grew
+      with the length of the history.  A step change becomes the new
+      baseline once it is the majority of the window (3 nights of 5).
+      A steady creep moves that baseline with it, so it is left to:
+    - cost drift (kind ``cost_drift``), when the cost rule flags nothing:
+      the latest run against the cheapest plateau of the last
+      ``DRIFT_HORIZON`` (30) earlier ok runs (lowest median of 5
+      consecutive runs), beyond max(10 %, 3 x spreads, 3 x the nightly
+      noise from successive differences), and only if the rise came over
+      several nights, not in one jump (see :func:`_cost_drift`).  Flagged
+      every night until the cost comes back or the plateau leaves the
+      horizon.
     - accuracy (primary error): the latest ok run against the best earlier
       ok run; flagged when it grows by more than 10 % and by more than 1e-12
-      absolutely (shrinks by as much: an improvement).
+      absolutely (shrinks by as much: an improvement).  Errors are
+      deterministic for an engine version and its settings, so the best
+      earlier night is not a noisy minimum, and comparing with it keeps a
+      real accuracy regression flagged every night until it is fixed
+      instead of letting it become the new normal.
     - status: ok in the previous sweep and anything else in the latest is a
       regression (the reverse an improvement).
 
-    Columns: kind (cost / accuracy / status), direction (regression /
+    Columns: kind (cost / cost_drift / accuracy / status), direction (regression /
     improvement), machine_id, suite, scenario, variant, engine, settings,
-    point_key, previous, latest, change (relative; for status NaN),
-    threshold, previous_sweep, latest_sweep, severity (for ordering).
+    point_key, previous (cost: the baseline median; cost_drift: the
+    plateau's median; accuracy: the best
+    earlier error; status: the previous status), latest, change (relative;
+    for status NaN), threshold, previous_sweep (cost: the baseline window
+    as ``first..last`` sweep id, or the one id when the window is one run;
+    otherwise the sweep compared with), latest_sweep, severity (for
+    ordering).
     """
     df = _ensure(df)
     cols = ["kind", "direction", "machine_id", "suite", "scenario", "variant", "engine", "settings",
@@ -715,16 +795,23 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
         # cost
         costs = [r for r in ok_before if math.isfinite(r["cost"]) and r["cost"] > 0]
         if costs and math.isfinite(last["cost"]) and last["cost"] > 0:
-            best = min(costs, key=lambda r: r["cost"])
-            thr = max(NOISE_FLOOR, NOISE_SPREADS * max(_spread(last["cost"], last["cost_min"]),
-                                                        _spread(best["cost"], best["cost_min"])))
-            change = last["cost"] / best["cost"] - 1.0
+            window = costs[-BASELINE_RUNS:]  # recs ascend by sweep_id: the latest earlier ok runs
+            baseline, scatter, spread = _cost_baseline(window)
+            thr = max(NOISE_FLOOR, NOISE_SPREADS * max(_spread(last["cost"], last["cost_min"]), spread),
+                      NOISE_SPREADS * MAD_TO_SIGMA * scatter)
+            change = last["cost"] / baseline - 1.0
             direction = ("regression" if change > thr else
                          "improvement" if -change > thr else None)
             if direction:
-                rows.append({**base, "kind": "cost", "direction": direction, "previous": best["cost"],
+                first, final = window[0]["sweep_id"], window[-1]["sweep_id"]
+                rows.append({**base, "kind": "cost", "direction": direction, "previous": baseline,
                              "latest": last["cost"], "change": change, "threshold": thr,
-                             "previous_sweep": best["sweep_id"], "severity": abs(change) / thr})
+                             "previous_sweep": final if len(window) == 1 else f"{first}..{final}",
+                             "severity": abs(change) / thr})
+            else:
+                drift = _cost_drift(costs[-DRIFT_HORIZON:], last)
+                if drift is not None:
+                    rows.append({**base, **drift})
         # accuracy
         errs = [r for r in ok_before if math.isfinite(r["primary_error"])]
         le = last["primary_error"]
@@ -1060,9 +1147,17 @@ def _history_html(df: pd.DataFrame) -> str:
                 "history starts with the second sweep.</p>")
     reg = regressions(df, hist)
     parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
-             "repeats; a cost change is flagged when the latest median differs from the best earlier one by more "
-             f"than max({NOISE_FLOOR:.0%}, {NOISE_SPREADS:g} x the relative spread (median - min) / median of "
-             f"either run's repeats); an accuracy change when the primary error differs from the best earlier one "
+             "repeats; a cost change is flagged when the latest median differs from the baseline (the median "
+             f"cost of the last {BASELINE_RUNS} earlier ok runs, fewer if there are fewer) by more than "
+             f"max({NOISE_FLOOR:.0%}; {NOISE_SPREADS:g} x s; {NOISE_SPREADS:g} x {MAD_TO_SIGMA:g} x MAD), s the "
+             "relative spread (median - min) / median of the repeats, the larger of the latest run's and the "
+             "baseline runs' median one, MAD the baseline runs' median absolute deviation from the baseline, "
+             "relative to it (night-to-night scatter); a cost drift (a creep the moving baseline absorbs) when "
+             f"the latest cost exceeds the cheapest plateau (median of {BASELINE_RUNS} consecutive runs) of the last "
+             f"{DRIFT_HORIZON} earlier ok runs by more than max({NOISE_FLOOR:.0%}; {NOISE_SPREADS:g} x s; "
+             f"{NOISE_SPREADS:g} x the night-to-night noise from successive differences) and the rise came over "
+             "several nights, not in one jump; an accuracy change when the primary error differs from the "
+             "best earlier one "
              f"by more than {NOISE_FLOOR:.0%} and {ERROR_ABS_FLOOR:g} absolute; a status change from ok to anything "
              "else is a regression.</p>"]
     if reg.empty:
@@ -1084,8 +1179,9 @@ def _history_html(df: pd.DataFrame) -> str:
                          _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""),
                          _e(r["engine"]), _e(r["settings"]), _e(r["machine_id"]) + " / " + _e(r["suite"]),
                          prev, last, change, thr, _e(r["previous_sweep"]) + " &rarr; " + _e(r["latest_sweep"])])
-        parts.append(_table(["", "kind", "scenario", "engine", "settings", "machine / suite", "before (best)",
-                             "latest", "change", "noise threshold", "sweeps"], rows, raw=True))
+        parts.append(_table(["", "kind", "scenario", "engine", "settings", "machine / suite",
+                             "before (cost: baseline; drift: plateau; error: best)", "latest", "change", "noise threshold",
+                             "sweeps"], rows, raw=True))
     # small multiples: flagged regressions first, then the largest cost moves
     order: list[tuple[str, str, str]] = []
     if not reg.empty:
