@@ -614,10 +614,18 @@ class Solve(Stage):
         impact = ~touching & closes & (-un > self.thr)
         codes_all = _pair_codes(model, c)
         if impact.any() and state.warm:
-            # a pair that pressed on each other last step is a persistent
-            # (resting) contact: its closing rows are solver noise, not
-            # impacts -- keep them as speculative rows
-            impact &= ~_pressed(state.warm, codes_all)
+            # a point that pressed last step (a cached point of its pair with
+            # a positive force, matched in body a's frame as warm starting
+            # does) is a persistent (resting) contact: its closing rows are
+            # solver noise, not impacts -- keep them as speculative rows.
+            # Per point, not per pair: the far end of a bar that rests on one
+            # end and rotates down onto the slab is an impact (as a
+            # speculative row, stopped over the whole step, it sank 4.9 mm
+            # into a 4 mm slab at 2.3 m/s and 1/240 s)
+            idx = np.flatnonzero(impact)
+            loc = self._local(ctx, c.a[idx], c.point[idx], state)
+            tol = 0.1 * model.bound_radius[c.a[idx]] + 1e-4
+            impact[idx[_pressed_points(state.warm, codes_all[idx], loc, tol)]] = False
         keep = ~impact
         if impact.any():
             if self.ccd == "toi":
@@ -836,11 +844,20 @@ class WarmCache(dict):
     __hash__ = None
 
 
-def _pressed(warm: dict, codes: np.ndarray) -> np.ndarray:
-    """(m,) bool: the pairs ``codes`` pressed on each other in the step that
-    wrote ``warm`` (a positive cached normal force; the forces are >= 0)."""
-    o_code, _, o_fn = _warm_packed(warm)[:3]
-    return np.isin(codes, o_code[o_fn > 0.0])
+def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """(k,) bool: contact points (pair ``codes`` (k,), points in body a's
+    frame ``loc`` (k, 3) m) that pressed in the step that wrote ``warm``:
+    a cached point of the same pair with a positive normal force lies
+    within ``tol`` (k,) m of them (the warm start's matching radius)."""
+    o_code, o_loc, o_fn = _warm_packed(warm)[:3]
+    out = np.zeros(codes.size, bool)
+    lo = np.searchsorted(o_code, codes, "left")
+    hi = np.searchsorted(o_code, codes, "right")
+    for i in np.flatnonzero(hi > lo).tolist():  # impact candidates: a few rows
+        sl = slice(lo[i], hi[i])
+        d = o_loc[sl] - loc[i]
+        out[i] = bool(np.any((o_fn[sl] > 0.0) & (np.einsum("ki,ki->k", d, d) <= tol[i] ** 2)))
+    return out
 
 
 def _warm_packed(old: dict):

@@ -416,6 +416,38 @@ def test_no_tunnelling_around_the_edge_is_not_tunnelling():
     assert m.metrics(make_trace(t, pos))["tunnelled"] == 1.0
 
 
+def test_no_tunnelling_counts_crossings_within_the_face_only():
+    """The crossing point between two frames on opposite sides decides: a
+    long body tipping over the slab's edge (centre crossing within a
+    bounding radius of the face, as a spinning bar skidding off its slab
+    did) is not tunnelling; a fast body whose frames both lie beside the
+    face but whose straight path between them crosses inside it is."""
+    sc = load_scene("tunnelling.bullet_100")  # wall: mid-plane x = 0.5, face |y|, |z| <= 0.5
+    m = get_model("no_tunnelling")(sc)
+    t = np.array([0.0, 1.0, 2.0])
+    # goes round the edge (crosses x = 0.5 at y = 0.8, beside the face), then sits behind the
+    # wall in the face's shadow
+    pos = np.array([[[0.0, 0.8, 0.0]], [[1.0, 0.8, 0.0]], [[1.0, 0.2, 0.0]]])
+    assert m.metrics(make_trace(t, pos))["tunnelled"] == 0.0
+    # a long body (bounding radius 0.5 m) tipping over the edge: crossing at y = 0.6, inside the
+    # old face + radius window, outside the face
+    sc_long = load_scene("tunnelling.spinning_long_box")
+    m_long = get_model("no_tunnelling")(sc_long)
+    half = sc_long.statics[0].half_extents[0]
+    z0 = sc_long.bodies[0].position[2]
+    pos = np.array([[[0.0, 0.0, z0]], [[half + 0.3, 0.0, 0.01]], [[half + 0.4, 0.0, -0.2]]])
+    assert m_long.metrics(make_trace(t, pos))["tunnelled"] == 0.0
+    pos[2, 0, 0] = half - 0.3  # the same drop with the crossing inside the face
+    pos[1, 0, 0] = half - 0.3
+    assert m_long.metrics(make_trace(t, pos))["tunnelled"] == 1.0
+    # frames beside the face on both sides (y = -0.7 and y = 0.7), the straight path crosses at y = 0
+    pos = np.array([[[0.0, 0.0, 0.0]], [[0.4, -0.7, 0.0]], [[0.6, 0.7, 0.0]]])
+    assert m.metrics(make_trace(t, pos))["tunnelled"] == 1.0
+    # and back again through the face counts too (a body that went round and came back through)
+    pos = np.array([[[0.0, 0.8, 0.0]], [[1.0, 0.8, 0.0]], [[0.0, 0.0, 0.0]]])
+    assert m.metrics(make_trace(t, pos))["tunnelled"] == 1.0
+
+
 def test_no_tunnelling_floor_slab():
     sc = load_scene("tunnelling.thin_box_on_thin_floor")
     m = get_model("no_tunnelling")(sc)

@@ -4,11 +4,15 @@ Definition of ``tunnelled``.  Every (body, static) pair is watched:
 
 - a static **box** is a slab; its mid-plane is the plane through the box's
   centre normal to its thinnest axis.  The body's side is the sign of its
-  centre's signed distance to that mid-plane.  The body has tunnelled if, at
-  any recorded frame, its centre is on the other side from where it started
-  while its projection onto the mid-plane lies within the box's face (the
-  face's half-sizes plus the body's bounding radius).  A centre that reaches
-  the other side around the edge of the slab does not count.
+  centre's signed distance to that mid-plane.  The body has tunnelled if its
+  centre crosses the mid-plane *within the face*: between two recorded
+  frames on opposite sides, the crossing point (linear interpolation of the
+  centre between them) projects inside the face's half-sizes.  A centre
+  that reaches the other side around the edge of the slab -- a long body
+  tipping over the edge, whose centre may cross within a bounding radius of
+  the face -- does not count (an earlier window of face + bounding radius
+  counted such tips: a spinning bar that skidded off its slab's edge was
+  scored as tunnelling).
 - a static **plane** is solid below, so the body has tunnelled if its centre
   ever goes below the surface (n . x < offset) having started above it.
 
@@ -128,10 +132,18 @@ class NoTunnelling(ReferenceModel):
             if kind == "plane":
                 bad = (s0[None, :] > 0) & (d < 0)
             else:
-                lateral = np.abs(rel @ axes.T)  # (F, n, 2)
-                radius = np.array([b.bounding_radius for b in self.scene.bodies])
-                inside = np.all(lateral <= half[None, None, :] + radius[None, :, None], axis=-1)
-                bad = (s0[None, :] != 0) & (np.sign(d) == -s0[None, :]) & inside
+                # frames i -> i+1 on strictly opposite sides, either way
+                with np.errstate(invalid="ignore"):
+                    cross = d[:-1] * d[1:] < 0  # (F-1, n)
+                if not cross.any():
+                    continue
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    f = d[:-1] / (d[:-1] - d[1:])  # fraction of the way to the mid-plane
+                    p = rel[:-1] + (rel[1:] - rel[:-1]) * f[..., None]  # (F-1, n, 3) crossing points
+                    inside = np.all(np.abs(p @ axes.T) <= half[None, None, :], axis=-1)
+                bad = cross & inside
+                flipped |= np.any(bad, axis=0)
+                continue
             with np.errstate(invalid="ignore"):
                 flipped |= np.any(bad, axis=0)
         return flipped
