@@ -352,6 +352,9 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
         keys.append(str(pk))
     df["swept"] = swept
     df["point_key"] = keys
+    # step phase (harness/phase.py): 0 = the scene as written
+    df["phase"] = [_num(d.get("phase", 0.0)) if isinstance(d, dict) else 0.0 for d in swept]
+    df["phase"] = [0.0 if not math.isfinite(p) else p for p in df["phase"]]
 
     # primary metric and error: the sweep's columns, else the scene's metric
     pm, pe = [], []
@@ -407,6 +410,15 @@ def latest_points(df: pd.DataFrame) -> pd.DataFrame:
         return s
     s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
     return s.drop_duplicates(["machine_id", "point_key"], keep="last").reset_index(drop=True)
+
+
+def _unshifted(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of the scene as written (phase 0): the other step phases of a
+    point are draws of the same configuration, summarised by
+    :func:`phase_table`, not extra points of a curve."""
+    if df.empty or "phase" not in df.columns:
+        return df
+    return df[df["phase"] == 0.0]
 
 
 def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
@@ -479,7 +491,7 @@ def work_precision(df: pd.DataFrame, target: float | None = None,
     ERROR_FLOOR (``clipped`` says whether any was).
     """
     df = _ensure(df)
-    pts = latest_points(df)
+    pts = _unshifted(latest_points(df))
     out: dict[tuple[str, str], dict[str, Any]] = {}
     if pts.empty:
         return out
@@ -541,7 +553,7 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
     df = _ensure(df)
     cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
             "settings", "dt", "cost", "error", "ratio", "best_error", "best_error_settings", "points", "note"]
-    pts = latest_points(df)
+    pts = _unshifted(latest_points(df))
     if pts.empty:
         return pd.DataFrame(columns=cols)
     tg = _targets(pts, target, targets)
@@ -600,7 +612,7 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     df = _ensure(df)
     cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
             "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt"]
-    parts = [p for p in (latest_points(df), _latest_checks(df)) if not p.empty]
+    parts = [p for p in (_unshifted(latest_points(df)), _latest_checks(df)) if not p.empty]
     if not parts:
         out = pd.DataFrame(columns=cols)
         out.attrs["selection"] = "no data"
@@ -640,6 +652,80 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     out = pd.DataFrame(rows, columns=cols)
     out.attrs["selection"] = selection
     return out
+
+
+# ---------------------------------------------------------------------------
+# step phases
+
+
+def _primary_checks(scenario: str, variant: str, engine: str, metric: str | None) -> list:
+    """The scene's checks of its primary metric that apply to ``engine``
+    (xfail or not: an expected failure is still a failure here)."""
+    from harness.conformance import check_applies
+
+    sc = _scene(scenario, variant)
+    if sc is None or not metric:
+        return []
+    return [c for c in sc.checks if c.metric == metric and check_applies(c, engine, variant or None)]
+
+
+def _phase_outcome(r: Mapping[str, Any], checks: list) -> str:
+    """'.' passed, 'x' a primary check failed, '!' the run was not ok or not
+    stable, '-' unsupported."""
+    from harness.conformance import meets
+
+    if r["status"] == "unsupported":
+        return "-"
+    if not _good(r):
+        return "!"
+    m = r.get("primary_metric")
+    v = r.get(m) if m else None
+    for c in checks:
+        if v is None or (isinstance(v, float) and math.isnan(v)) or not meets(c, v):
+            return "x"
+    return "."
+
+
+def phase_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Points swept over step phases (a ``[[sweep]]`` with ``phases = N``):
+    per configuration (machine, suite, scenario, variant, engine, settings
+    without the phase), the N phases' outcomes -- failed = not ok, not
+    stable, or the scenario's check of its primary metric not met -- as a
+    failure fraction k / N with its 95 % Wilson interval, and the pattern
+    over the phases in order (``.`` pass, ``x`` check failed, ``!`` not ok
+    or unstable).  ``phase0`` is the outcome of the scene as written: what a
+    single run (``physbench check``, a sweep without phases) sees."""
+    from harness.phase import wilson_interval
+
+    df = _ensure(df)
+    cols = ["machine_id", "suite", "scenario", "variant", "engine", "settings", "dt", "phases", "failures",
+            "fraction", "lo", "hi", "pattern", "phase0"]
+    pts = latest_points(df)
+    if pts.empty or not (pts["phase"] > 0).any():
+        return pd.DataFrame(columns=cols)
+    pts = pts.copy()
+    pts["_base"] = [settings_label({k: v for k, v in (d or {}).items() if k not in ("phase", "dt")})
+                    for d in pts["swept"]]
+    rows = []
+    pts["_dtkey"] = [fmt(d, 9) for d in pts["dt"]]
+    for key, g in pts.groupby(["machine_id", "suite", "scenario", "variant", "engine", "_base", "_dtkey"],
+                              sort=True):
+        if not (g["phase"] > 0).any():
+            continue
+        mid, suite, sc, va, en, base, _ = key
+        recs = sorted(g.to_dict("records"), key=lambda r: r["phase"])
+        checks = _primary_checks(sc, va, en, recs[0].get("primary_metric"))
+        pattern = "".join(_phase_outcome(r, checks) for r in recs)
+        n = sum(1 for ch in pattern if ch != "-")
+        k = sum(1 for ch in pattern if ch in "x!")
+        lo, hi = wilson_interval(k, n) if n else (math.nan, math.nan)
+        rows.append({"machine_id": mid, "suite": suite, "scenario": sc, "variant": va, "engine": en,
+                     "settings": base, "dt": recs[0]["dt"], "phases": len(recs), "failures": k,
+                     "fraction": k / n if n else math.nan, "lo": lo, "hi": hi, "pattern": pattern,
+                     "phase0": pattern[0] if recs[0]["phase"] == 0.0 else ""})
+    out = pd.DataFrame(rows, columns=cols)
+    return out.sort_values(["scenario", "variant", "engine", "settings", "dt"], ascending=[True, True, True, True, False],
+                           kind="stable").reset_index(drop=True)
 
 
 # ---------------------------------------------------------------------------
@@ -1140,6 +1226,32 @@ def _stability_html(sm: pd.DataFrame) -> str:
             + _table(["scenario"] + engines, rows, raw=True))
 
 
+def _phase_html(pt: pd.DataFrame) -> str:
+    if pt.empty:
+        return ('<p class="note">No point was swept over step phases (a <code>[[sweep]]</code> block with '
+                '<code>phases = N</code>).</p>')
+    rows = []
+    for r in pt.to_dict("records"):
+        n = r["phases"] - r["pattern"].count("-")
+        frac = r["fraction"]
+        cell = (f"<b>{r['failures']}/{n}</b> = {fmt(frac, 2)} [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]"
+                if n else "unsupported")
+        single = {".": "pass", "x": "FAIL", "!": "not ok", "-": "unsupported"}.get(r["phase0"], "")
+        rows.append([_e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""), _e(r["engine"]),
+                     _e(r["settings"]), _e(fmt(r["dt"])),
+                     f"<div class='cell' style='background:{_colour(1 - frac if n else math.nan, n)};"
+                     f"padding:.2em'>{cell}</div>", f"<code>{_e(r['pattern'])}</code>", _e(single)])
+    return ("<p class='note'>One run per dt is one draw of the step phase: where a thin wall is caught depends "
+            "on where the steps fall. Each configuration below ran N times with its start moved back along the "
+            "exact free flight by i/N dt (i = 0 .. N-1; i = 0 is the scene as written). Failed: not ok, not "
+            "stable, or the scenario's check of its primary metric not met (expected failures count). Interval: "
+            "95 % Wilson; 0/N bounds the failure rate below the interval's upper end. Pattern over the phases in "
+            "order: <code>.</code> pass, <code>x</code> check failed, <code>!</code> not ok or unstable. The last "
+            "column is what a single run of the scene as written saw.</p>"
+            + _table(["scenario", "engine", "settings", "dt", "failed / phases [95 %]", "pattern",
+                      "single run"], rows, raw=True))
+
+
 def _history_html(df: pd.DataFrame) -> str:
     hist = history(df)
     if not hist:
@@ -1238,13 +1350,14 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
         sections.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
                         "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
                         "write.</div>")
-        body = {k: '<p class="note">No results.</p>' for k in ("wp", "cost", "stab", "hist")}
+        body = {k: '<p class="note">No results.</p>' for k in ("wp", "cost", "stab", "phase", "hist")}
         header = ""
     else:
         header = _header_html(df)
         body = {"wp": _wp_html(work_precision(df, target=target, targets=targets)),
                 "cost": _cost_html(cost_to_target(df, targets=targets, target=target)),
                 "stab": _stability_html(stability_matrix(df)),
+                "phase": _phase_html(phase_table(df)),
                 "hist": _history_html(df)}
         inc = df[df["incomplete"]]
         if len(inc):
@@ -1260,6 +1373,7 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
 <section id="work-precision"><h2>Work-precision diagrams</h2>{body['wp']}</section>
 <section id="cost-to-target"><h2>Cost to reach the target accuracy</h2>{body['cost']}</section>
 <section id="stability"><h2>Stability matrix</h2>{body['stab']}</section>
+<section id="phases"><h2>Hard cases over step phases</h2>{body['phase']}</section>
 <section id="history"><h2>History across runs</h2>{body['hist']}</section>
 <footer><p>Generated by <code>{_e(command)}</code> at {_e(generated)}, physbench commit
 <code>{_e(physbench_commit)}</code>. Self-contained: no external assets, no scripts.</p></footer>

@@ -62,6 +62,7 @@ from typing import Any, Callable, Iterable
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from harness.phase import PhaseError, phase_values, shift_scene
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
 from harness.scene import REPO_ROOT
 from harness.spec import SpecError, _display, _format_errors
@@ -73,10 +74,12 @@ STATUSES = ("ok", "unsupported", "failed", "diverged", "timeout", "error")
 EXECUTORS = ("serial", "process")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
-SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "primary_metric", "primary_error",
+SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
                  "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
                  "point_wall_s", "schema_version")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: the point setting that carries a step phase (not an engine setting)
+PHASE_KEY = "phase"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
 
 
@@ -120,6 +123,9 @@ class SweepSection(_Strict):
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
     repeats: int | None = Field(default=None, ge=1)
+    #: step phases per grid point (harness/phase.py): N runs with the start
+    #: moved back along the free flight by i/N dt, i = 0 .. N-1
+    phases: int = Field(default=1, ge=1, le=1024)
     grid: dict[str, list[Any]] = Field(default_factory=dict)
     engine: dict[str, EngineSection] = Field(default_factory=dict)
 
@@ -145,6 +151,7 @@ class SweepBlock:
     repeats: int
     axes: dict[str, dict[str, tuple[Any, ...]]]
     description: str = ""
+    phases: int = 1
 
 
 @dataclass(frozen=True)
@@ -175,6 +182,17 @@ class Point:
     @property
     def settings_dict(self) -> dict[str, Any]:
         return dict(self.settings)
+
+    @property
+    def phase(self) -> float:
+        """The step phase f (0 <= f < 1) of the point: its start moved back
+        by f dt along the free flight (harness/phase.py); 0 = as written."""
+        return float(self.settings_dict.get(PHASE_KEY, 0.0))
+
+    @property
+    def engine_settings(self) -> dict[str, Any]:
+        """The swept settings the engine gets (the phase is the harness's)."""
+        return {k: v for k, v in self.settings if k != PHASE_KEY}
 
     @property
     def settings_json(self) -> str:
@@ -329,8 +347,11 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
                     axes[e][key] = coerced
             for (path, msg, _), _ in own_bad.items():
                 errors.append(f"{label}: {path}: {msg}")
+        if PHASE_KEY in sw.grid or any(PHASE_KEY in own.grid for own in sw.engine.values()):
+            errors.append(f"{where}: {PHASE_KEY!r} is not a grid axis; give the number of step phases as "
+                          f"'phases = N' in the [[sweep]] table")
         blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
-                                 axes, sw.description))
+                                 axes, sw.description, sw.phases))
     return blocks
 
 
@@ -411,10 +432,16 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
                 axes = b.axes.get(e, {})
                 names = sorted(axes)
                 for combo in itertools.product(*(axes[n] for n in names)):
-                    p = Point(sid, var, e, tuple(zip(names, combo)), b.repeats, suite.timeout_s)
-                    if p.key not in seen:
-                        seen.add(p.key)
-                        points.append(p)
+                    for f in phase_values(b.phases):
+                        # phase 0 is the scene as written: no phase key, so it is
+                        # the same point (and history) as in a block without phases
+                        settings = tuple(zip(names, combo))
+                        if f:
+                            settings = tuple(sorted(settings + ((PHASE_KEY, f),)))
+                        p = Point(sid, var, e, settings, b.repeats, suite.timeout_s)
+                        if p.key not in seen:
+                            seen.add(p.key)
+                            points.append(p)
     return points
 
 
@@ -478,6 +505,12 @@ def run_point(point: Point) -> dict[str, Any]:
         scene = _scene(point.scenario, point.variant)
     except Exception as e:
         return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+    settings = point.engine_settings
+    if point.phase:
+        try:
+            scene = shift_scene(scene, point.phase, dt=settings.get("dt", scene.dt))
+        except PhaseError as e:
+            return _status_row(point, "error", f"phase {point.phase:g}: {e}", t0, scene=scene)
     first = None
     cpu: list[float] = []
     # a blow-up is recorded in the status; numpy's overflow warnings on the
@@ -486,7 +519,7 @@ def run_point(point: Point) -> dict[str, Any]:
         warnings.simplefilter("ignore", RuntimeWarning)
         for i in range(point.repeats):
             try:
-                res = runner.run(scene, point.engine, point.settings_dict, timeout_s=point.timeout_s,
+                res = runner.run(scene, point.engine, settings, timeout_s=point.timeout_s,
                                  compute_metrics=(i == 0))
             except Exception as e:  # a bad setting combination, an adapter import error ...
                 if first is None:
@@ -518,6 +551,7 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     return {
         "point_key": point.key,
         "point_settings": point.settings_json,
+        "phase": point.phase,
         "primary_metric": metric,
         "primary_error": err,
         "cpu_s_per_sim_s_median": statistics.median(finite) if finite else math.nan,
@@ -534,7 +568,7 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
     from adapters import get_adapter
     from harness.runner import RunResult, commit_id, machine_info
 
-    settings = point.settings_dict
+    settings = point.engine_settings
     version = ""
     try:
         cls = get_adapter(point.engine)

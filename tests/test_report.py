@@ -561,3 +561,41 @@ def test_fail_on_regression_exit_code_and_lines(tmp_path, capsys):
     two_sweeps(tmp_path / "fine", dict(cost=1.0, cost_min=0.99), dict(cost=1.05, cost_min=1.04))
     assert rp.report_main(tmp_path / "fine", out=tmp_path / "fine.html", fail_on_regression=True) == 0
     assert "beyond noise" not in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------
+# step phases
+
+
+def test_phase_table_counts_failures_over_phases_and_curves_use_phase_zero_only(tmp_path):
+    """8 phases of a tunnelling point: 5 tunnel (primary check tunnelled ==
+    0 not met), one is not ok: 6/8 failed, pattern in phase order, Wilson
+    interval; the work-precision, cost and stability analyses see only the
+    phase-0 row (the scene as written)."""
+    sc = "tunnelling.thin_box_on_thin_floor"
+    outcomes = [1.0, 0.0, 1.0, 1.0, None, 1.0, 0.0, 1.0]  # tunnelled per phase; None: diverged
+    rows = []
+    for i, t in enumerate(outcomes):
+        kw = {} if i == 0 else {"phase": i / 8}
+        rows.append(row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled",
+                        status="ok" if t is not None else "diverged", error=t if t is not None else 0.0, **kw))
+    rows.append(row(scenario=sc, engine="reference", dt=1 / 240, metric="tunnelled", error=0.0))  # no phases
+    df = load(tmp_path, rows)
+    pt = rp.phase_table(df)
+    assert len(pt) == 1
+    r = pt.iloc[0]
+    assert (r["engine"], r["phases"], r["failures"], r["pattern"], r["phase0"]) == ("pymunk", 8, 6, "x.xx!x.x", "x")
+    assert r["fraction"] == pytest.approx(0.75)
+    assert (r["lo"], r["hi"]) == pytest.approx((0.4093, 0.9285), abs=1e-4)
+    assert r["dt"] == pytest.approx(1 / 240) and r["settings"] == ""
+    # the curves and the stability matrix count one point per configuration
+    sm = rp.stability_matrix(df, scenarios=[sc])
+    assert dict(zip(sm["engine"], sm["points"])) == {"pymunk": 1, "reference": 1}
+    html = rp.render_html(df)
+    assert "Hard cases over step phases" in html and "x.xx!x.x" in html and "6/8" in html
+
+
+def test_phase_table_is_empty_without_phase_sweeps(tmp_path):
+    df = load(tmp_path, [row(), row(dt=0.002)])
+    assert rp.phase_table(df).empty
+    assert "No point was swept over step phases" in rp.render_html(df)

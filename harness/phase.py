@@ -1,0 +1,191 @@
+"""Step phase: run a scene with its steps falling at other instants of the
+same motion.
+
+A discrete engine samples a motion at t = 0, dt, 2 dt, ...  Whether a fast
+body is caught by a thin wall, or which step lands a falling box, depends on
+where those instants fall relative to the event -- the *phase* of the steps.
+One run per dt is one draw of that phase (docs/ENGINE_FINDINGS.md: a plate
+tunnels in 1 - 3 mm / (v dt) of phases on an engine without a working guard,
+so a pass at one dt and a fail at the next can both be luck).
+
+:func:`shift_scene` moves the start of a scene back along its exact free
+flight by tau = f dt (0 <= f < 1): every body starts where and how it was
+tau seconds earlier, so the continuous motion is unchanged and the steps fall
+f dt earlier along it.  f = 0 is the scene as written.  Sweeping f over
+i / N gives N draws, and the fraction that fails estimates the probability
+of failure over phases (``physbench sweep``: a ``[[sweep]]`` block's
+``phases = N``; the report's phase table).
+
+Exact, and therefore allowed, only when the start is free flight:
+
+- the effects are among gravity, contact, restitution, friction,
+  rolling_friction and gyroscopic (no drag, springs or dampers: they act in
+  free flight and their backward motion is not closed-form here), and
+- no body can touch anything between -tau and 0: along its backward path
+  its bounding sphere (which rotation about the centre never leaves) stays
+  clear of every static and every other body.
+
+Backward free flight: x(-tau) = x0 - v0 tau + g tau^2 / 2, v(-tau) = v0 - g tau;
+rotation: the world-frame angular velocity is constant without the
+gyroscopic effect (that is the scene's physics then), q(-tau) =
+exp(-w tau) q0; with it, the torque-free Euler equations are integrated back
+over tau (scipy, rtol 1e-12), which for a spin about a principal axis or an
+isotropic body is the same constant rotation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+#: effects under which the motion before t = 0 is free flight with a
+#: closed form (contacts are ruled out by the clearance test)
+FREE_FLIGHT_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "gyroscopic"})
+
+
+class PhaseError(ValueError):
+    """The scene's start is not free flight, so it cannot be phase-shifted."""
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of wxyz quaternions (4,)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw])
+
+
+def _qexp(phi: np.ndarray) -> np.ndarray:
+    """Unit quaternion (wxyz) of the rotation vector phi (3,) rad."""
+    a = float(np.linalg.norm(phi))
+    if a < 1e-300:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[math.cos(a / 2)], math.sin(a / 2) * phi / a])
+
+
+def _qmat(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _torque_free_back(q0: np.ndarray, w0: np.ndarray, inertia: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """(q, w world) of a torque-free body tau seconds before (q0, w0 world),
+    principal moments ``inertia`` (3,)."""
+    R0 = _qmat(q0)
+    wb0 = R0.T @ w0
+    Lb = inertia * wb0
+    if float(np.linalg.norm(np.cross(wb0, Lb))) <= 1e-12 * float(np.linalg.norm(wb0) * np.linalg.norm(Lb) + 1e-300):
+        # steady rotation (isotropic, or about a principal axis): w constant in the world
+        return _qmul(_qexp(-w0 * tau), q0), w0.copy()
+    from scipy.integrate import solve_ivp
+
+    def rhs(_t: float, y: np.ndarray) -> np.ndarray:
+        q, wb = y[:4], y[4:]
+        dq = 0.5 * _qmul(q, np.concatenate([[0.0], wb]))
+        dw = -np.cross(wb, inertia * wb) / inertia
+        return np.concatenate([dq, dw])
+
+    sol = solve_ivp(rhs, (0.0, -tau), np.concatenate([q0 / np.linalg.norm(q0), wb0]), method="DOP853",
+                    rtol=1e-12, atol=1e-14)
+    q = sol.y[:4, -1]
+    q = q / np.linalg.norm(q)
+    return q, _qmat(q) @ sol.y[4:, -1]
+
+
+def _static_clearance(p: np.ndarray, r: float, s: Any) -> float:
+    """Distance (m) from a sphere (centre p, radius r) to static ``s``
+    (negative: overlapping)."""
+    if s.shape == "plane":
+        return float(s.normal @ p - s.offset) - r
+    R = _qmat(np.asarray(s.orientation, float))
+    local = R.T @ (p - np.asarray(s.position, float))
+    h = np.asarray(s.half_extents, float)
+    outside = np.maximum(np.abs(local) - h, 0.0)
+    d = float(np.linalg.norm(outside))
+    if d == 0.0:
+        d = -float(np.min(h - np.abs(local)))
+    return d - r
+
+
+def shift_scene(scene: Any, f: float, dt: float | None = None) -> Any:
+    """``scene`` with its start moved back along the exact free flight by
+    tau = f dt (``dt``: the run's step, default the scene's).  f = 0 returns
+    the scene itself.  Raises PhaseError when the start is not free flight
+    (naming the scene and what stands in the way) or f is outside [0, 1)."""
+    f = float(f)
+    if not (0.0 <= f < 1.0):
+        raise PhaseError(f"{scene.id}: phase must be in [0, 1), got {f!r}")
+    if f == 0.0:
+        return scene
+    h = float(scene.dt if dt is None else dt)
+    tau = f * h
+    extra = sorted(set(scene.effects) - FREE_FLIGHT_EFFECTS)
+    if extra:
+        raise PhaseError(f"{scene.id}: phase shift needs free flight before t = 0; effect(s) {', '.join(extra)} "
+                         f"act in free flight (allowed: {', '.join(sorted(FREE_FLIGHT_EFFECTS))})")
+    if scene.springs:
+        raise PhaseError(f"{scene.id}: phase shift needs free flight before t = 0; the scene has springs")
+    g = np.asarray(scene.gravity, float)
+    gyro = scene.has("gyroscopic")
+    if scene.has("contact"):
+        # the bodies' centres over [-tau, 0], sampled (a parabola: its chords
+        # are off by at most |g| tau^2 / 8, within the |g| tau^2 allowance)
+        s_ = np.linspace(0.0, 1.0, 33)[:, None] * tau
+        slack = float(np.linalg.norm(g)) * tau * tau
+        for i, b in enumerate(scene.bodies):
+            x0, v0 = np.asarray(b.position, float), np.asarray(b.velocity, float)
+            path = x0 - v0 * s_ + 0.5 * g * s_ * s_
+            for st in scene.statics:
+                gap = min(_static_clearance(p, b.bounding_radius, st) for p in path)
+                if gap <= slack:
+                    raise PhaseError(f"{scene.id}: phase shift needs free flight before t = 0; body {b.name!r} "
+                                     f"comes within {gap:.3g} m of static {st.name!r} over the {tau:.3g} s "
+                                     f"before the start")
+            for j in range(i + 1, scene.n_bodies):
+                c = scene.bodies[j]
+                # relative motion is uniform (same gravity): closest approach over the segment
+                d0 = x0 - np.asarray(c.position, float)
+                dv = v0 - np.asarray(c.velocity, float)
+                den = float(dv @ dv) * tau * tau
+                u = 0.0 if den == 0 else min(max(float(d0 @ dv) * tau / den, 0.0), 1.0)
+                gap = float(np.linalg.norm(d0 - dv * tau * u)) - b.bounding_radius - c.bounding_radius
+                if gap <= 0.0:
+                    raise PhaseError(f"{scene.id}: phase shift needs free flight before t = 0; bodies {b.name!r} "
+                                     f"and {c.name!r} come within {gap:.3g} m of each other over the {tau:.3g} s "
+                                     f"before the start")
+    bodies = []
+    for b in scene.bodies:
+        x0, v0 = np.asarray(b.position, float), np.asarray(b.velocity, float)
+        q0, w0 = np.asarray(b.orientation, float), np.asarray(b.angular_velocity, float)
+        if gyro:
+            q, w = _torque_free_back(q0, w0, np.asarray(b.inertia, float), tau)
+        else:
+            q, w = _qmul(_qexp(-w0 * tau), q0), w0.copy()
+        bodies.append(dataclasses.replace(b, position=x0 - v0 * tau + 0.5 * g * tau * tau, velocity=v0 - g * tau,
+                                          orientation=q / np.linalg.norm(q), angular_velocity=w))
+    return dataclasses.replace(scene, bodies=tuple(bodies))
+
+
+def phase_values(n: int) -> tuple[float, ...]:
+    """The N phases i / N, i = 0 .. N-1 (0: the scene as written)."""
+    if int(n) != n or n < 1:
+        raise PhaseError(f"phases must be a positive integer, got {n!r}")
+    return tuple(i / int(n) for i in range(int(n)))
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """95 % Wilson score interval (lo, hi) of a proportion k / n."""
+    if n <= 0:
+        return (math.nan, math.nan)
+    p = k / n
+    den = 1 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, mid - half), min(1.0, mid + half))
