@@ -71,11 +71,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
-    scene = load_scene(args.scenario, args.variant, overrides)
+    scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
     try:
         result = run(scene, args.engine, settings, record_every=args.record_every)
     except ValueError as e:  # bad setting value
         raise UsageError(str(e)) from None
+    if args.phase:
+        result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
+                            f"{args.phase:g} dt")
     if args.save:
         from harness.results import write_rows
 
@@ -86,6 +89,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         _print_result(result)
     return 0 if result.status == "ok" else 1
+
+
+def _phase(scene, f: float, dt: Any = None):
+    """``scene`` shifted to step phase ``f`` (harness/phase.py); a scene
+    that does not start in free flight is a usage error naming why."""
+    if not f:
+        return scene
+    from harness.phase import PhaseError, shift_scene
+
+    try:
+        return shift_scene(scene, f, dt=None if dt is None else float(dt))
+    except PhaseError as e:
+        raise UsageError(f"--phase {f:g}: {e}") from None
 
 
 def _print_result(result) -> None:
@@ -144,6 +160,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
 
     engines = args.engines or list(ENGINES)
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
+    scene = _phase(scene, args.phase)
     results = []
     for e in engines:
         get_adapter(e)
@@ -233,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
     r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
+    r.add_argument("--phase", type=float, default=0.0, metavar="F",
+                   help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
+                        "point of a phase sweep (scenes that start in free flight only)")
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
@@ -250,6 +270,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                    help="dotted spec keys only (engine settings differ per engine)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
+    t.add_argument("--phase", type=float, default=0.0, metavar="F",
+                   help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
+                        "e.g. --set scenario.dt=...)")
     t.set_defaults(func=cmd_trace)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")

@@ -158,3 +158,17 @@ def test_sweep_bad_suite_is_exit_2(tmp_path, capsys):
     assert main(["sweep", "--suite", str(bad), "--out", str(tmp_path / "s")]) == 2
     err = capsys.readouterr().err
     assert "bad.toml" in err and "engines" in err
+
+
+def test_run_phase_reproduces_a_phase_sweep_point_and_refuses_non_free_flight():
+    """pymunk's plate at 1/240 s tunnels as written and is caught a quarter
+    step earlier (the sweep's phase 0.25 point); a resting stack cannot be
+    phase-shifted: exit 2 naming why."""
+    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "--engine", "pymunk", "--json")
+    assert json.loads(out.stdout)["tunnelled"] == 1.0
+    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "--engine", "pymunk", "--phase", "0.25", "--json")
+    d = json.loads(out.stdout)
+    assert d["tunnelled"] == 0.0 and any("step phase 0.25" in n for n in d["notes"])
+    out = physbench("run", "stacking.column_5", "--phase", "0.5")
+    assert out.returncode == 2
+    assert "--phase 0.5: stacking.column_5: phase shift needs free flight" in out.stderr
