@@ -28,6 +28,16 @@ then replaces the implicit one.  In general, a check metric
 ``NAME@dt=VALUE`` evaluates NAME on a run whose dt is overridden (VALUE may
 be a fraction such as 1/30).
 
+Step phases: a scenario with ``[scenario] phases = N`` (N > 1; its start
+must be free flight) runs every engine N times, the start moved back along
+the free flight by i/N dt (harness/phase.py); each check not bound to
+another dt holds only if it holds in every phase.  One run is one draw of
+where the steps fall, and for thin walls that decides the outcome: a plate
+that a discrete engine catches in the phase as written may fall through in
+13 of 16 others.  The combined outcome: ERROR if a phase errored, else
+FAIL (XFAIL with an xfail) if a phase failed, else PASS (XPASS); its
+message gives the failing count and the pattern over the phases.
+
 Outcomes, per (engine, scenario, variant, check):
 
 - PASS / FAIL: the run is ``ok`` and the metric meets / misses the bound;
@@ -106,10 +116,16 @@ class RunSpec:
     engine: str
     settings: dict[str, Any] = field(default_factory=dict)
     checks: list[Check] = field(default_factory=list)
+    #: step phase of the run (harness/phase.py); phase runs of a base run
+    #: carry its checks too, and its outcome combines them
+    phase: float = 0.0
+    #: the base run's phases (``[scenario] phases``), on the base run only
+    phases: int = 1
 
     @property
     def key(self) -> tuple:
-        return (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
+        base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
+        return base + ((self.phase,) if self.phase else ())
 
 
 # ---------------------------------------------------------------------------
@@ -342,7 +358,9 @@ def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], li
                 checks = applicable_checks(scene, eng) + hard_checks(scene)
                 if not checks:
                     continue
-                runs.append(RunSpec(scene.id, variant, eng, {}, checks))
+                runs.append(RunSpec(scene.id, variant, eng, {}, checks, phases=scene.phases))
+                for i in range(1, scene.phases):
+                    runs.append(RunSpec(scene.id, variant, eng, {}, [], phase=i / scene.phases))
                 suffixes = {}
                 for c in checks:
                     _, st = split_metric(c.metric)
@@ -362,6 +380,10 @@ def execute(spec: RunSpec):
 
     try:
         scene = load_scene(spec.scenario, spec.variant)
+        if spec.phase:
+            from harness.phase import shift_scene
+
+            scene = shift_scene(scene, spec.phase, dt=spec.settings.get("dt", scene.dt))
     except Exception as e:
         return RunResult(spec.scenario, spec.variant, spec.engine, "", "error", f"scene failed to load: {e}",
                          dict(spec.settings))
@@ -435,9 +457,50 @@ def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcom
                                         threshold=describe_bound(c), message="run missing"))
                 else:
                     outs.append(evaluate_check(c, other, name))
+            elif r.phases > 1:
+                per = [evaluate_check(c, res)]
+                for i in range(1, r.phases):
+                    other = results.get(r.key + (i / r.phases,))
+                    per.append(evaluate_check(c, other) if other is not None else
+                               Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
+                                       threshold=describe_bound(c), message=f"phase {i}/{r.phases} run missing"))
+                outs.append(_combine_phases(per, c))
             else:
                 outs.append(evaluate_check(c, res))
     return outs
+
+
+_PHASE_MARK = {PASS: ".", XPASS: ".", FAIL: "x", XFAIL: "x", ERROR: "!", UNSUPPORTED: "-"}
+
+
+def _combine_phases(per: list[Outcome], check: Check) -> Outcome:
+    """One check's outcome over the N step phases of its scene (``per``,
+    phase 0 first): it holds only if it holds in every phase.  ERROR if
+    any phase errored (without an xfail); else FAIL (XFAIL with an xfail)
+    if any phase failed; else PASS (XPASS with an xfail).  The message
+    names the failing phases and the pattern (``.`` pass, ``x`` fail,
+    ``!`` error) and carries the first failing phase's message; the value
+    is phase 0's."""
+    n = len(per)
+    pattern = "".join(_PHASE_MARK.get(o.outcome, "?") for o in per)
+    o0 = per[0]
+    out = Outcome(o0.engine, o0.scenario, o0.variant, o0.metric, o0.outcome, o0.value, o0.threshold,
+                  o0.message, sum(o.time_s for o in per))
+    if all(o.outcome == UNSUPPORTED for o in per):
+        return out
+    bad = [(i, o) for i, o in enumerate(per) if o.outcome in (FAIL, XFAIL, ERROR)]
+    if not bad:
+        out.message = f"all {n} step phases: {o0.message}"
+        return out
+    i, first = bad[0]
+    errored = any(o.outcome == ERROR for _, o in bad)
+    if errored:
+        out.outcome = ERROR
+    else:
+        out.outcome = XFAIL if check.xfail.get(o0.engine) else FAIL
+    out.value = first.value
+    out.message = f"failed in {len(bad)} of {n} step phases [{pattern}]; phase {i}/{n}: {first.message}"
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -556,8 +619,14 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
         return None
     d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    rows = []
+    for key, r in results.items():
+        row = r.row()
+        # the step phase of the run (a 5th key element; 0 = the scene as written)
+        row["phase"] = float(key[4]) if len(key) > 4 else 0.0
+        rows.append(row)
     try:
-        return write_rows([r.row() for r in results.values()], d / f"{stamp}.parquet", append=False)
+        return write_rows(rows, d / f"{stamp}.parquet", append=False)
     except Exception as e:  # pragma: no cover - disk trouble must not hide the verdict
         print(f"warning: could not write result rows: {type(e).__name__}: {e}", file=sys.stderr)
         return None

@@ -353,8 +353,14 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     df["swept"] = swept
     df["point_key"] = keys
     # step phase (harness/phase.py): 0 = the scene as written
-    df["phase"] = [_num(d.get("phase", 0.0)) if isinstance(d, dict) else 0.0 for d in swept]
-    df["phase"] = [0.0 if not math.isfinite(p) else p for p in df["phase"]]
+    col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
+    ph = []
+    for d, c in zip(swept, col):
+        v = _num(c)
+        if not math.isfinite(v):
+            v = _num(d.get("phase", 0.0)) if isinstance(d, dict) else 0.0
+        ph.append(v if math.isfinite(v) else 0.0)
+    df["phase"] = ph
 
     # primary metric and error: the sweep's columns, else the scene's metric
     pm, pe = [], []
@@ -422,7 +428,7 @@ def _unshifted(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
-    c = df[df["source"] == "check"] if len(df) else df
+    c = _unshifted(df[df["source"] == "check"]) if len(df) else df
     if c.empty:
         return c
     # a check run is the engine's defaults at the scene's dt (or the hard

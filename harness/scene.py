@@ -159,6 +159,8 @@ class Scene:
     reference_params: dict[str, Any]
     checks: tuple[Check, ...]
     variant_names: tuple[str, ...] = ()
+    #: step phases the conformance checks run over (``[scenario] phases``)
+    phases: int = 1
 
     # ---- derived, engine-neutral helpers ---------------------------------
 
@@ -446,7 +448,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     if errs:
         raise SpecError(errs)
     sc = spec.scenario
-    return Scene(
+    scene = Scene(
         id=_id_for(path, sc.family), variant=variant, path=path, family=sc.family, title=sc.title,
         duration=sc.duration, dt=sc.dt, effects=frozenset(sc.effects), planar=sc.planar,
         gravity_vector=np.array(sc.gravity, float), primary_metric=sc.primary_metric,
@@ -459,7 +461,18 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                            tuple(c.variants) if c.variants is not None else None,
                            dict(c.xfail)) for c in spec.check),
         variant_names=variant_names,
+        phases=sc.phases,
     )
+    if scene.phases > 1:
+        # every phase must be runnable: the start must be free flight
+        from harness.phase import PhaseError, shift_scene
+
+        try:
+            shift_scene(scene, (scene.phases - 1) / scene.phases)
+        except PhaseError as e:
+            raise SpecError([f"{label}: scenario.phases: {scene.phases} step phases need a start in free flight: "
+                             f"{e}"]) from None
+    return scene
 
 
 def resolve_scenario(name: str | Path) -> Path:

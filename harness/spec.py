@@ -88,6 +88,10 @@ class ScenarioSection(_Strict):
     primary_metric: str | None = None
     tags: list[str] = Field(default_factory=list)
     description: str | None = None
+    #: step phases the conformance checks are evaluated over (harness/phase.py):
+    #: 1 = the scene as written only; N > 1 = also N - 1 runs with the start
+    #: moved back along the free flight by i/N dt, every one must pass
+    phases: int = Field(default=1, ge=1, le=256)
 
     @field_validator("effects")
     @classmethod

@@ -260,3 +260,68 @@ def test_unknown_or_broken_engine_does_not_crash(tmp_path):
     assert int(root.get("errors")) == int(root.get("tests")) > 0
     res = C.execute(C.RunSpec("billiards.head_on", None, "no_such_engine"))
     assert res.status == "failed" and "no_such_engine" in res.message
+
+
+# ---------------------------------------------------------------------------
+# step phases ([scenario] phases)
+
+
+def _o(outcome, value=0.0, message="m"):
+    return C.Outcome("pymunk", "fam.scn", None, "tunnelled", outcome, value, "== 0", message, 0.1)
+
+
+def test_combine_phases_holds_only_if_every_phase_holds():
+    chk = Check("tunnelled", equals=0.0)
+    xchk = Check("tunnelled", equals=0.0, xfail={"pymunk": "no CCD"})
+    o = C._combine_phases([_o(C.PASS), _o(C.PASS), _o(C.PASS)], chk)
+    assert o.outcome == C.PASS and o.message.startswith("all 3 step phases")
+    o = C._combine_phases([_o(C.PASS), _o(C.FAIL, 1.0, "tunnelled = 1"), _o(C.PASS), _o(C.FAIL, 1.0)], chk)
+    assert o.outcome == C.FAIL and o.value == 1.0
+    assert o.message.startswith("failed in 2 of 4 step phases [.x.x]; phase 1/4: tunnelled = 1")
+    # with an xfail: any failing phase is the expected failure; all passing is an unexpected pass
+    assert C._combine_phases([_o(C.XPASS), _o(C.XFAIL), _o(C.XPASS)], xchk).outcome == C.XFAIL
+    assert C._combine_phases([_o(C.XPASS), _o(C.XPASS)], xchk).outcome == C.XPASS
+    # an errored phase makes the check an error
+    assert C._combine_phases([_o(C.PASS), _o(C.ERROR, None, "diverged: nan")], chk).outcome == C.ERROR
+    assert C._combine_phases([_o(C.UNSUPPORTED)] * 2, chk).outcome == C.UNSUPPORTED
+
+
+def test_scene_phases_run_every_phase_and_combine_them(tmp_path, monkeypatch):
+    """The thin plate over 4 phases: pymunk (no CCD) fails in some of them
+    (its expected failure), the reference engine passes in all."""
+    import harness.scene as scene_mod
+
+    spec = (load_scene("tunnelling.thin_box_on_thin_floor").path).read_text()
+    assert "\nphases = 16\n" in spec
+    spec = spec.replace("\nphases = 16\n", "\nphases = 4\n")
+    (tmp_path / "tunnelling").mkdir()
+    (tmp_path / "tunnelling" / "plate.toml").write_text(spec)
+    monkeypatch.setattr(scene_mod, "SCENARIO_DIR", tmp_path)
+    sc = load_scene("tunnelling.plate")
+    assert sc.phases == 4
+    runs, errors = C.plan(["tunnelling.plate"], ["pymunk", "reference"])
+    assert not errors
+    base = [r for r in runs if r.checks and r.variant is None]
+    assert {r.engine: r.phases for r in base} == {"pymunk": 4, "reference": 4}
+    assert sorted(r.phase for r in runs if r.variant is None and r.engine == "pymunk" and not r.settings) == \
+        [0.0, 0.25, 0.5, 0.75]
+    results = C.run_all(runs, progress=False)
+    outs = [o for o in C.evaluate_runs(runs, results) if o.variant is None and o.metric == "tunnelled"]
+    by = {o.engine: o for o in outs}
+    assert by["reference"].outcome == C.PASS and "all 4 step phases" in by["reference"].message
+    assert by["pymunk"].outcome == C.XFAIL and "step phases [" in by["pymunk"].message
+    # every phase's row is saved, with its phase
+    import pandas as pd
+    df = pd.read_parquet(C.save_rows(results, tmp_path / "rows"))
+    assert sorted(set(df[df["engine"] == "pymunk"]["phase"])) == [0.0, 0.25, 0.5, 0.75]
+
+
+def test_phases_need_a_start_in_free_flight(tmp_path):
+    from harness.spec import SpecError
+
+    spec = load_scene("stacking.column_5").path.read_text()
+    spec = spec.replace("[scenario]\n", "[scenario]\nphases = 4\n", 1)
+    p = tmp_path / "col.toml"
+    p.write_text(spec)
+    with pytest.raises(SpecError, match=r"scenario.phases: 4 step phases need a start in free flight: .*box_0"):
+        load_scene(p)
