@@ -1236,26 +1236,42 @@ def _phase_html(pt: pd.DataFrame) -> str:
     if pt.empty:
         return ('<p class="note">No point was swept over step phases (a <code>[[sweep]]</code> block with '
                 '<code>phases = N</code>).</p>')
+    engines = sorted(pt["engine"].unique())
     rows = []
-    for r in pt.to_dict("records"):
-        n = r["phases"] - r["pattern"].count("-")
-        frac = r["fraction"]
-        cell = (f"<b>{r['failures']}/{n}</b> = {fmt(frac, 2)} [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]"
-                if n else "unsupported")
-        single = {".": "pass", "x": "FAIL", "!": "not ok", "-": "unsupported"}.get(r["phase0"], "")
-        rows.append([_e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""), _e(r["engine"]),
-                     _e(r["settings"]), _e(fmt(r["dt"])),
-                     f"<div class='cell' style='background:{_colour(1 - frac if n else math.nan, n)};"
-                     f"padding:.2em'>{cell}</div>", f"<code>{_e(r['pattern'])}</code>", _e(single)])
+    keys = ["machine_id", "suite", "scenario", "variant", "settings", "dt"]
+    order = pt.sort_values(["scenario", "variant", "settings", "dt"], ascending=[True, True, True, False],
+                           kind="stable")
+    several = order[["machine_id", "suite"]].drop_duplicates().shape[0] > 1
+    for key, g in order.groupby(keys, sort=False):
+        mid, suite, sc, va, st, dt = key
+        label = _e(sc) + (f" / {_e(va)}" if va else "")
+        if several:
+            label += f"<br><span class='note'>{_e(mid)} / {_e(suite)}</span>"
+        cells = [label, _e(st), _e(fmt(dt))]
+        by = {r["engine"]: r for r in g.to_dict("records")}
+        for en in engines:
+            r = by.get(en)
+            if r is None:
+                cells.append("<span class='note'>-</span>")
+                continue
+            n = r["phases"] - r["pattern"].count("-")
+            if not n:
+                cells.append(f"<div class='cell' style='background:{_colour(math.nan, 0)};padding:.2em'>"
+                             "unsupported</div>")
+                continue
+            single = {".": "single run: pass", "x": "single run: FAIL", "!": "single run: not ok"}.get(r["phase0"], "")
+            cells.append(f"<div class='cell' style='background:{_colour(1 - r['fraction'], n)};padding:.2em'>"
+                         f"<b>{r['failures']}/{n}</b> failed [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]<br>"
+                         f"<code>{_e(r['pattern'])}</code><br><span class='note'>{single}</span></div>")
+        rows.append(cells)
     return ("<p class='note'>One run per dt is one draw of the step phase: where a thin wall is caught depends "
             "on where the steps fall. Each configuration below ran N times with its start moved back along the "
             "exact free flight by i/N dt (i = 0 .. N-1; i = 0 is the scene as written). Failed: not ok, not "
             "stable, or the scenario's check of its primary metric not met (expected failures count). Interval: "
-            "95 % Wilson; 0/N bounds the failure rate below the interval's upper end. Pattern over the phases in "
-            "order: <code>.</code> pass, <code>x</code> check failed, <code>!</code> not ok or unstable. The last "
-            "column is what a single run of the scene as written saw.</p>"
-            + _table(["scenario", "engine", "settings", "dt", "failed / phases [95 %]", "pattern",
-                      "single run"], rows, raw=True))
+            "95 % Wilson (0/16 bounds the failure rate below 0.19). Pattern over the phases in order: "
+            "<code>.</code> pass, <code>x</code> check failed, <code>!</code> not ok or unstable; under it, what a "
+            "single run of the scene as written saw. Colour: share of phases passed (red 0 .. green 1).</p>"
+            + _table(["scenario", "settings", "dt"] + engines, rows, raw=True))
 
 
 def _history_html(df: pd.DataFrame) -> str:
