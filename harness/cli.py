@@ -82,7 +82,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.save:
         from harness.results import write_rows
 
-        write_rows([result.row()], args.save)
+        row = result.row()
+        row["phase"] = float(args.phase)  # 0 = the scene as written
+        write_rows([row], args.save)
     if args.json:
         sys.stdout.write(json.dumps(result.as_dict(), sort_keys=False) + "\n")
         sys.stdout.flush()
@@ -99,7 +101,11 @@ def _phase(scene, f: float, dt: Any = None):
     from harness.phase import PhaseError, shift_scene
 
     try:
-        return shift_scene(scene, f, dt=None if dt is None else float(dt))
+        h = None if dt is None else float(dt)
+    except (TypeError, ValueError):
+        raise UsageError(f"--set dt={dt!r}: expected a number of seconds") from None
+    try:
+        return shift_scene(scene, f, dt=h)
     except PhaseError as e:
         raise UsageError(f"--phase {f:g}: {e}") from None
 

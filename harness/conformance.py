@@ -34,7 +34,7 @@ the free flight by i/N dt (harness/phase.py); each check not bound to
 another dt holds only if it holds in every phase.  One run is one draw of
 where the steps fall, and for thin walls that decides the outcome: a plate
 that a discrete engine catches in the phase as written may fall through in
-13 of 16 others.  The combined outcome: ERROR if a phase errored, else
+13 of 16 phases.  The combined outcome: ERROR if a phase errored, else
 FAIL (XFAIL with an xfail) if a phase failed, else PASS (XPASS); its
 message gives the failing count and the pattern over the phases.
 
@@ -487,6 +487,11 @@ def _combine_phases(per: list[Outcome], check: Check) -> Outcome:
     out = Outcome(o0.engine, o0.scenario, o0.variant, o0.metric, o0.outcome, o0.value, o0.threshold,
                   o0.message, sum(o.time_s for o in per))
     if all(o.outcome == UNSUPPORTED for o in per):
+        return out
+    if any(o.outcome == UNSUPPORTED for o in per):
+        out.outcome = ERROR
+        out.message = f"unsupported in some step phases only [{pattern}]: " + next(
+            o.message for o in per if o.outcome == UNSUPPORTED)
         return out
     bad = [(i, o) for i, o in enumerate(per) if o.outcome in (FAIL, XFAIL, ERROR)]
     if not bad:

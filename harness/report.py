@@ -718,6 +718,10 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
                               sort=True):
         if not (g["phase"] > 0).any():
             continue
+        # the phases of the latest sweep that ran them: a phase that sweep no
+        # longer runs keeps an older row in latest_points, which must not mix in
+        latest = max(g.loc[g["phase"] > 0, "sweep_id"])
+        g = g[g["sweep_id"] == latest]
         mid, suite, sc, va, en, base, _ = key
         recs = sorted(g.to_dict("records"), key=lambda r: r["phase"])
         checks = _primary_checks(sc, va, en, recs[0].get("primary_metric"))
@@ -1268,7 +1272,7 @@ def _phase_html(pt: pd.DataFrame) -> str:
             "on where the steps fall. Each configuration below ran N times with its start moved back along the "
             "exact free flight by i/N dt (i = 0 .. N-1; i = 0 is the scene as written). Failed: not ok, not "
             "stable, or the scenario's check of its primary metric not met (expected failures count). Interval: "
-            "95 % Wilson (0/16 bounds the failure rate below 0.19). Pattern over the phases in order: "
+            "95 % Wilson (0/16 bounds the failure rate below 0.20). Pattern over the phases in order: "
             "<code>.</code> pass, <code>x</code> check failed, <code>!</code> not ok or unstable; under it, what a "
             "single run of the scene as written saw. Colour: share of phases passed (red 0 .. green 1).</p>"
             + _table(["scenario", "settings", "dt"] + engines, rows, raw=True))

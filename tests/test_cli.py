@@ -172,3 +172,13 @@ def test_run_phase_reproduces_a_phase_sweep_point_and_refuses_non_free_flight():
     out = physbench("run", "stacking.column_5", "--phase", "0.5")
     assert out.returncode == 2
     assert "--phase 0.5: stacking.column_5: phase shift needs free flight" in out.stderr
+
+
+def test_run_phase_bad_dt_and_saved_rows_carry_the_phase(tmp_path):
+    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.5", "--set", "dt=1/30")
+    assert out.returncode == 2 and "expected a number of seconds" in out.stderr
+    import pandas as pd
+    f = tmp_path / "rows.parquet"
+    physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.25", "--save", f, check=True)
+    physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--save", f)
+    assert sorted(pd.read_parquet(f)["phase"]) == [0.0, 0.25]

@@ -284,6 +284,10 @@ def test_combine_phases_holds_only_if_every_phase_holds():
     # an errored phase makes the check an error
     assert C._combine_phases([_o(C.PASS), _o(C.ERROR, None, "diverged: nan")], chk).outcome == C.ERROR
     assert C._combine_phases([_o(C.UNSUPPORTED)] * 2, chk).outcome == C.UNSUPPORTED
+    # unsupported in some phases only: inconsistent, an error either way round
+    for per in ([_o(C.UNSUPPORTED), _o(C.PASS)], [_o(C.PASS), _o(C.UNSUPPORTED)]):
+        o = C._combine_phases(per, chk)
+        assert o.outcome == C.ERROR and "unsupported in some step phases only" in o.message
 
 
 def test_scene_phases_run_every_phase_and_combine_them(tmp_path, monkeypatch):

@@ -443,6 +443,12 @@ def test_no_tunnelling_counts_crossings_within_the_face_only():
     # frames beside the face on both sides (y = -0.7 and y = 0.7), the straight path crosses at y = 0
     pos = np.array([[[0.0, 0.0, 0.0]], [[0.4, -0.7, 0.0]], [[0.6, 0.7, 0.0]]])
     assert m.metrics(make_trace(t, pos))["tunnelled"] == 1.0
+    # a frame exactly on the mid-plane: + 0 - crosses there, + 0 + does not
+    t4 = np.array([0.0, 1.0, 2.0, 3.0])
+    pos = np.array([[[0.0, 0.0, 0.0]], [[0.5, 0.1, 0.0]], [[1.0, 0.1, 0.0]], [[1.0, 0.1, 0.0]]])
+    assert m.metrics(make_trace(t4, pos))["tunnelled"] == 1.0
+    pos = np.array([[[0.0, 0.0, 0.0]], [[0.5, 0.1, 0.0]], [[0.2, 0.1, 0.0]], [[0.2, 0.1, 0.0]]])
+    assert m.metrics(make_trace(t4, pos))["tunnelled"] == 0.0
     # and back again through the face counts too (a body that went round and came back through)
     pos = np.array([[[0.0, 0.8, 0.0]], [[1.0, 0.8, 0.0]], [[0.0, 0.0, 0.0]]])
     assert m.metrics(make_trace(t, pos))["tunnelled"] == 1.0

@@ -599,3 +599,18 @@ def test_phase_table_is_empty_without_phase_sweeps(tmp_path):
     df = load(tmp_path, [row(), row(dt=0.002)])
     assert rp.phase_table(df).empty
     assert "No point was swept over step phases" in rp.render_html(df)
+
+
+def test_phase_table_takes_the_phases_of_the_latest_sweep_only(tmp_path):
+    """An older sweep ran 4 phases (all failing), the latest runs 2 (both
+    passing): the table shows the latest sweep's 2, not a mix."""
+    sc = "tunnelling.thin_box_on_thin_floor"
+    old = [row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=1.0,
+               sweep_id="20261120T010000Z-aaaa", **({} if i == 0 else {"phase": i / 4})) for i in range(4)]
+    new = [row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=0.0,
+               sweep_id="20261121T010000Z-bbbb", **({} if i == 0 else {"phase": i / 2})) for i in range(2)]
+    write_sweep(tmp_path, old)
+    write_sweep(tmp_path, new)
+    pt = rp.phase_table(rp.load_results(tmp_path))
+    assert len(pt) == 1
+    assert (pt.iloc[0]["phases"], pt.iloc[0]["failures"], pt.iloc[0]["pattern"]) == (2, 0, "..")

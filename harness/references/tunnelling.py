@@ -132,9 +132,15 @@ class NoTunnelling(ReferenceModel):
             if kind == "plane":
                 bad = (s0[None, :] > 0) & (d < 0)
             else:
-                # frames i -> i+1 on strictly opposite sides, either way
+                # frames i -> i+1 on opposite sides, either way; a frame exactly
+                # on the mid-plane (d = 0) takes the side it came from, so
+                # + 0 - crosses at the 0 frame and + 0 + does not
+                sgn = np.sign(d)
+                idx = np.where(sgn != 0, np.arange(len(d))[:, None], 0)
+                np.maximum.accumulate(idx, axis=0, out=idx)
+                side = np.take_along_axis(sgn, idx, axis=0)  # last nonzero side up to each frame
                 with np.errstate(invalid="ignore"):
-                    cross = d[:-1] * d[1:] < 0  # (F-1, n)
+                    cross = side[:-1] * d[1:] < 0  # (F-1, n)
                 if not cross.any():
                     continue
                 with np.errstate(invalid="ignore", divide="ignore"):
