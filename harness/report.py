@@ -48,6 +48,7 @@ NOISE_SPREADS = 3.0  # ... and the multiple of the repeats' relative spread (and
 BASELINE_RUNS = 5  # a cost is compared with the median of this many latest earlier ok runs of its series
 MAD_TO_SIGMA = 1.4826  # MAD x this estimates a normal standard deviation
 DRIFT_HORIZON = 30  # earlier ok runs a cost drift is looked for in
+MIN_COST_HISTORY = 3  # earlier ok runs a cost series needs before a change in it is judged
 ERROR_ABS_FLOOR = 1e-12  # an accuracy change must also exceed this absolutely
 MAX_SMALL_MULTIPLES = 6
 FAILED_STATUSES = ("error", "failed", "timeout")  # counted together as "error"
@@ -823,8 +824,9 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
 
     - cost (``cpu_s_per_sim_s_median``), asv style: the latest ok run
       against a baseline, the median cost of the last ``BASELINE_RUNS`` (5)
-      earlier ok runs of the series (fewer if there are fewer; one is
-      enough).  Flagged when the relative change latest / baseline - 1
+      earlier ok runs of the series (fewer if there are fewer), judged only
+      once the series has ``MIN_COST_HISTORY`` (3) earlier ok runs, so that
+      the night-to-night noise is estimated.  Flagged when the relative change latest / baseline - 1
       exceeds max(10 %, 3 x s, 3 x 1.4826 x MAD / baseline): ``s`` the
       larger of the latest run's relative spread of repeats, (median - min)
       / median, and the median of that spread over the baseline runs; MAD
@@ -890,7 +892,12 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
         ok_before = [r for r in earlier if r["status"] == "ok"]
         # cost
         costs = [r for r in ok_before if math.isfinite(r["cost"]) and r["cost"] > 0]
-        if costs and math.isfinite(last["cost"]) and last["cost"] > 0:
+        # the night-to-night noise must be estimated before a change can be
+        # called beyond it: with fewer earlier runs a cost is not judged (on
+        # the second night of the nightly suite, 86 points moved by 10-60 %
+        # against a single earlier night, sub-millisecond runs of one repeat
+        # and interleaved runs of three alike)
+        if len(costs) >= MIN_COST_HISTORY and math.isfinite(last["cost"]) and last["cost"] > 0:
             window = costs[-BASELINE_RUNS:]  # recs ascend by sweep_id: the latest earlier ok runs
             baseline, scatter, spread = _cost_baseline(window)
             thr = max(NOISE_FLOOR, NOISE_SPREADS * max(_spread(last["cost"], last["cost_min"]), spread),
@@ -1286,7 +1293,8 @@ def _history_html(df: pd.DataFrame) -> str:
     reg = regressions(df, hist)
     parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
              "repeats; a cost change is flagged when the latest median differs from the baseline (the median "
-             f"cost of the last {BASELINE_RUNS} earlier ok runs, fewer if there are fewer) by more than "
+             f"cost of the last {BASELINE_RUNS} earlier ok runs, fewer if there are fewer; a series is judged from "
+             f"its {MIN_COST_HISTORY + 1}th ok run on) by more than "
              f"max({NOISE_FLOOR:.0%}; {NOISE_SPREADS:g} x s; {NOISE_SPREADS:g} x {MAD_TO_SIGMA:g} x MAD), s the "
              "relative spread (median - min) / median of the repeats, the larger of the latest run's and the "
              "baseline runs' median one, MAD the baseline runs' median absolute deviation from the baseline, "

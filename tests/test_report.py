@@ -201,11 +201,15 @@ def test_stability_matrix_defaults_to_hard_scenarios_and_reads_check_rows(tmp_pa
 # ---------------------------------------------------------------------------
 # history and regressions
 
+S0A, S0B = "20261118T010000Z-a1", "20261119T010000Z-b1"
 S1, S2, S3 = "20261120T010000Z-c1", "20261121T010000Z-c2", "20261122T010000Z-c3"
 
 
 def two_sweeps(tmp_path, before: dict, after: dict, machine="m1") -> pd.DataFrame:
-    write_sweep(tmp_path, [row(sweep_id=S1, **before)], machine=machine)
+    """Three nights like ``before`` (S0A, S0B, S1: enough history for a cost
+    to be judged), then ``after`` (S2)."""
+    for sid in (S0A, S0B, S1):
+        write_sweep(tmp_path, [row(sweep_id=sid, **before)], machine=machine)
     write_sweep(tmp_path, [row(sweep_id=S2, **after)], machine=machine)
     return rp.load_results(tmp_path)
 
@@ -217,7 +221,7 @@ def test_regression_cost_30_percent_with_tight_repeats_is_flagged(tmp_path):
     r = reg.iloc[0]
     assert (r["kind"], r["direction"]) == ("cost", "regression")
     assert r["change"] == pytest.approx(0.3) and r["threshold"] == pytest.approx(0.10)
-    assert (r["previous_sweep"], r["latest_sweep"]) == (S1, S2)
+    assert (r["previous_sweep"], r["latest_sweep"]) == (f"{S0A}..{S1}", S2)
 
 
 def test_regression_small_change_is_not_flagged(tmp_path):
@@ -234,13 +238,14 @@ def test_regression_30_percent_within_noisy_repeats_is_not_flagged(tmp_path):
 def test_regression_cost_against_the_median_baseline_and_improvements(tmp_path):
     write_sweep(tmp_path, [row(sweep_id=S1, cost=1.0, cost_min=0.99)])
     write_sweep(tmp_path, [row(sweep_id=S2, cost=1.02, cost_min=1.01)])
-    write_sweep(tmp_path, [row(sweep_id=S3, cost=1.3, cost_min=1.29)])
+    write_sweep(tmp_path, [row(sweep_id=S3, cost=1.01, cost_min=1.0)])
+    write_sweep(tmp_path, [row(sweep_id="20261123T010000Z-c4", cost=1.3, cost_min=1.29)])
     reg = rp.regressions(rp.load_results(tmp_path))
     assert list(zip(reg["kind"], reg["direction"])) == [("cost", "regression")]
     r = reg.iloc[0]
-    # baseline: the median of the two earlier nights; the window is named first..last
+    # baseline: the median of the three earlier nights; the window is named first..last
     assert r["previous"] == pytest.approx(1.01) and r["change"] == pytest.approx(1.3 / 1.01 - 1)
-    assert (r["previous_sweep"], r["latest_sweep"]) == (f"{S1}..{S2}", S3)
+    assert (r["previous_sweep"], r["latest_sweep"]) == (f"{S1}..{S3}", "20261123T010000Z-c4")
     assert r["threshold"] == pytest.approx(0.10)
     # faster by 40 %: an improvement, not a regression
     other = tmp_path / "other"
@@ -367,20 +372,28 @@ def test_regression_a_slow_creep_is_flagged_as_drift_every_night(rate):
         assert r["change"] > r["threshold"] >= rp.NOISE_FLOOR
 
 
-def test_regression_with_only_one_earlier_ok_night_uses_that_night():
-    reg = rp.regressions(pd.DataFrame(nights([1.0, 1.3])))
+def test_regression_cost_is_judged_only_with_three_earlier_ok_nights():
+    """The night-to-night noise is unknown before: +30 % (even +100 %) after
+    one or two earlier nights is not flagged; after three it is, against
+    their median.  Accuracy is deterministic and judged from the second
+    night on."""
+    assert rp.regressions(pd.DataFrame(nights([1.0, 2.0]))).empty
+    assert rp.regressions(pd.DataFrame(nights([1.0, 1.0, 1.3]))).empty
+    reg = rp.regressions(pd.DataFrame(nights([1.0, 1.0, 1.0, 1.3])))
     assert list(zip(reg["kind"], reg["direction"])) == [("cost", "regression")]
     r = reg.iloc[0]
-    assert (r["previous"], r["previous_sweep"]) == (1.0, night_id(1))
+    assert (r["previous"], r["previous_sweep"]) == (1.0, f"{night_id(1)}..{night_id(3)}")
     assert r["change"] == pytest.approx(0.3) and r["threshold"] == pytest.approx(0.10)
-    assert rp.regressions(pd.DataFrame(nights([1.0, 1.08]))).empty
-    # a night that was not ok is not part of the baseline
-    rows = nights([1.0, 0.5, 1.3])
-    rows[1] = row(sweep_id=night_id(2), status="diverged", cost=0.5)
+    rows = nights([1.0, 1.0])
+    rows[-1] = row(sweep_id=night_id(2), cost=1.0, error=1e-2)  # error 10x on the second night
+    assert list(rp.regressions(pd.DataFrame(rows))["kind"]) == ["accuracy"]
+    # a night that was not ok is not part of the baseline (nor of the history count)
+    rows = nights([1.0, 1.0, 0.5, 1.0, 1.3])
+    rows[2] = row(sweep_id=night_id(3), status="diverged", cost=0.5)
     reg = rp.regressions(pd.DataFrame(rows))
     cost = reg[reg["kind"] == "cost"]
-    assert list(cost["direction"]) == ["regression"] and cost.iloc[0]["previous_sweep"] == night_id(1)
-    assert cost.iloc[0]["previous"] == 1.0
+    assert list(cost["direction"]) == ["regression"] and cost.iloc[0]["previous"] == 1.0
+    assert cost.iloc[0]["previous_sweep"] == f"{night_id(1)}..{night_id(4)}"
 
 
 def test_regression_ok_to_diverged_is_flagged(tmp_path):
@@ -425,7 +438,8 @@ def test_html_is_self_contained_escapes_names_and_has_every_section(tmp_path):
             for dt, err, c in ((0.001, 1e-4, 0.1), (0.002, 1e-3, 0.05))]
     rows += [row(scenario=evil, engine="mujoco", dt=0.004, status="diverged", cost=0.01, sweep_id=S1,
                  message="blew up <b>here</b>")]
-    write_sweep(tmp_path, rows)
+    for sid in (S0A, S0B, S1):  # three nights of history, then a night twice as slow
+        write_sweep(tmp_path, [dict(r, sweep_id=sid) for r in rows])
     write_sweep(tmp_path, [dict(r, sweep_id=S2, cpu_s_per_sim_s_median=r["cpu_s_per_sim_s_median"] * 2,
                                 cpu_s_per_sim_s_min=r["cpu_s_per_sim_s_min"] * 2) for r in rows])
     out = tmp_path / "out" / "r.html"
@@ -528,8 +542,9 @@ def test_end_to_end_real_runs(tmp_path):
                      primary_error=r[scene.primary_metric], cpu_s_per_sim_s_median=c,
                      cpu_s_per_sim_s_min=c * 0.98, repeats=3)
             rows.append(r)
-    write_sweep(tmp_path, rows, machine="ci", suite="e2e", sweep_id=S1)
-    # a second night, everything 50 % slower with tight repeats
+    for sid in (S0A, S0B, S1):  # three nights of history
+        write_sweep(tmp_path, [dict(r, sweep_id=sid) for r in rows], machine="ci", suite="e2e", sweep_id=sid)
+    # a fourth night, everything 50 % slower with tight repeats
     slower = [dict(r, sweep_id=S2, cpu_s_per_sim_s_median=r["cpu_s_per_sim_s_median"] * 1.5,
                    cpu_s_per_sim_s_min=r["cpu_s_per_sim_s_median"] * 1.5 * 0.98) for r in rows]
     write_sweep(tmp_path, slower, machine="ci", suite="e2e", sweep_id=S2)
