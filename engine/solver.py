@@ -37,7 +37,8 @@ impact and resolves it there (:func:`impact_solve`).  In a pair that pressed
 on the other last step (a persistent contact) a closing row is an impact
 only if its point did not press, was approaching faster than the threshold
 already at the start of the step, and a speculative row would sink it
-beyond the correction slop (see :class:`Solve`).
+beyond the correction slop (see :class:`Solve`); a touching point
+approaching so is an impact at once (time of impact 0).
 
 Friction acts per contact patch (all points of a pair), see :class:`Rows`.
 A patch that slides at the start of the step (relative tangential speed
@@ -616,6 +617,8 @@ class Solve(Stage):
         closes = gap + h * un < 0.0
         impact = ~touching & closes & (-un > self.thr)
         codes_all = _pair_codes(model, c)
+        if state.warm:
+            impact |= touching & (-vn0 > self.thr) & (self.c * h * vn_free - gap - h * un > self.slop)
         if impact.any() and state.warm:
             # In a pair that pressed last step (a persistent, resting
             # contact), closing rows are mostly solver noise and gravity

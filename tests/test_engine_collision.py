@@ -297,27 +297,23 @@ def test_fast_ball_does_not_tunnel_thin_wall(tmp_path, ccd, e):
     assert eng.state.v[0, 0] == pytest.approx(-e * 400.0, abs=1e-9)
 
 
-def test_spinning_bar_far_end_is_an_impact_not_a_speculative_row():
-    """tunnelling.spinning_long_box at 1/240 s: the bar rests on one end and
-    its spin brings the other end down onto the 4 mm slab at ~4.6 m/s.  That
-    end is a new point of a pair that was already pressing: classified per
-    pair (persistent contact, never an impact) it became a speculative row,
-    stopped over the whole step, and sank 4.9 mm into the slab.  Classified
-    per point (not pressed, approaching at the start of the step, and a
-    speculative row would sink it beyond the slop) it is an impact event:
-    in the scene as written no penetration beyond the resting slop.  Over 8
-    phases of the steps (the start moved back along the exact free flight by
-    f dt) the bar never tunnels, but where a speculative row closes the
-    other end's gap exactly, that end starts the next step touching and
-    still approaching, and is stopped over that step: measured over 16
-    phases, penetration median 0.6 mm (4.8 mm before), max 9.6 mm (as
-    before), over the slop in 8 of 16 (15 before); at 1/30 s 8 of 32 phases
-    tunnel on the 100 m slab (15 before).  Making such touching points
-    impact events too cures the bar but pumps energy into a rattling
-    Gauss-Seidel stack (see the next test), so it is not done."""
+@pytest.mark.parametrize("dt", [1 / 240, 1 / 30])
+def test_spinning_bar_far_end_is_an_impact_not_a_speculative_row(dt):
+    """tunnelling.spinning_long_box: the bar rests on one end and its spin
+    brings the other end down onto the 4 mm slab at ~4.6 m/s.  That end is a
+    new point of a pair that was already pressing: classified per pair
+    (persistent contact, never an impact) it became a speculative row,
+    stopped over the whole step, and sank 4.9 mm into the slab at 1/240 s;
+    at 1/30 s 15 of 32 step phases tunnelled.  Classified per point (not
+    pressed, approaching at the start of the step, and a speculative row --
+    or, touching, a stop over the step -- would sink it beyond the slop) it
+    is an impact event: over 8 phases of the steps (the start moved back
+    along the exact free flight by f dt) the bar never tunnels, and in the
+    scene as written it sinks no further than the slop.  (Measured over 16
+    phases at 1/240 s: median 0.6 mm, 4.8 mm before; the largest, 9.6 mm,
+    is unchanged and not explained; docs/ENGINE_FINDINGS.md.)"""
     from harness.references import get_model
     from harness.runner import run
-    dt = 1 / 240
     base = load_scene("tunnelling.spinning_long_box")
     b = base.bodies[0]
     g = 9.81
@@ -334,25 +330,28 @@ def test_spinning_bar_far_end_is_an_impact_not_a_speculative_row():
         assert res.status == "ok", res.message
         assert get_model("no_tunnelling")(sc).metrics(res.trace)["tunnelled"] == 0.0, f
         assert res.stages["counters"]["impacts"] >= 1
-        if f == 0.0:
+        if f == 0.0 and dt == 1 / 240:
             # within the position correction's slop (resting overlaps below it are left alone by
             # design; measured 1.8e-6 m when the bar settles at 1 cm/s), against 4.9 mm before
             assert res.metrics["max_penetration"] <= res.settings["correction_slop"]
 
 
-def test_no_impact_events_inside_a_rattling_gauss_seidel_column():
+def test_impact_events_inside_a_rattling_gauss_seidel_column_add_no_energy():
     """column_5 solved by Gauss-Seidel alone (no direct start, 5 sweeps, dt
-    0.008 s) rattles: its corners lift and come down every step.  Those are
-    points of persistent pairs that a speculative row stops within the slop,
-    not impact events -- resolved pair by pair inside the stack, impact
-    events pumped energy into it (energy x 275, the column flung 32 m, with
-    a per-point rule that did not ask whether the row would sink)."""
+    0.008 s) rattles: its corners lift and come down, and some are impact
+    events.  The impact solve stops every touching approach in the stack;
+    re-applying the cached resting forces over the rest of the step counted
+    them twice, and 5 sweeps could not take the excess out: the column
+    gained 16 x its energy and was thrown 8 m.  The rest of a step after an
+    event now starts cold: no energy gained, and the column drifts less
+    than with no such events at all (5.4 cm)."""
     from harness.runner import run
 
     res = run(load_scene("stacking.column_5"), "reference", {"direct_start": False, "dt": 0.008, "iterations": 5})
     assert res.status == "ok"
-    assert res.stages["counters"].get("impacts", 0) == 0
+    assert res.stages["counters"].get("impacts", 0) > 0  # the case this is about
     assert res.metrics["energy_gain"] <= 0.01
+    assert res.metrics["stack_drift"] <= 0.054
 
 
 @pytest.mark.parametrize("tilt", [2.0, 25.0])
