@@ -629,3 +629,65 @@ def test_phase_table_takes_the_phases_of_the_latest_sweep_only(tmp_path):
     pt = rp.phase_table(rp.load_results(tmp_path))
     assert len(pt) == 1
     assert (pt.iloc[0]["phases"], pt.iloc[0]["failures"], pt.iloc[0]["pattern"]) == (2, 0, "..")
+
+
+def _many_series(n_series, nights_costs, engine="mujoco"):
+    """n_series points (scenario ids fam.s<i>), each with the given cost per
+    night (a list per series, or one list for all)."""
+    rows = []
+    for i in range(n_series):
+        costs = nights_costs[i] if isinstance(nights_costs[0], list) else nights_costs
+        for n, c in enumerate(costs, 1):
+            rows.append(row(scenario=f"fam.s{i:03d}", engine=engine, sweep_id=night_id(n), cost=float(c),
+                            cost_min=float(c) * 0.99))
+    return pd.DataFrame(rows)
+
+
+def test_a_machine_wide_slowdown_is_taken_out_and_a_real_one_still_flagged():
+    """30 series, 3 steady nights, then a night on which the machine runs
+    8 % slower for all of them (+-3 %) and one series is 40 % slower: only
+    that one is flagged, by 40 / 1.08 - 1 = 30 %; the factor is reported."""
+    rng = np.random.default_rng(11)
+    series = []
+    for i in range(30):
+        base = 0.01 * (1 + i)
+        last = base * 1.08 * (1 + 0.03 * rng.standard_normal()) * (1.4 if i == 7 else 1.0)
+        series.append([base, base * 1.01, base * 0.99, last])
+    df = _many_series(30, series)
+    shifts = rp.machine_shifts(df)
+    (key, f), = shifts.items()
+    assert key[2] == night_id(4) and f == pytest.approx(1.08, abs=0.02)
+    reg = rp.regressions(df)
+    assert list(reg["scenario"]) == ["fam.s007"] and list(reg["direction"]) == ["regression"]
+    assert reg.iloc[0]["change"] == pytest.approx(series[7][3] / (0.08 * f) - 1, rel=1e-9)
+
+
+
+def test_without_the_machine_factor_a_slower_machine_flags_unchanged_series(monkeypatch):
+    rng = np.random.default_rng(11)
+    series = []
+    for i in range(30):
+        base = 0.01 * (1 + i)
+        series.append([base, base * 1.01, base * 0.99, base * 1.08 * (1 + 0.03 * rng.standard_normal())])
+    df = _many_series(30, series)
+    assert rp.regressions(df).empty
+    monkeypatch.setattr(rp, "machine_shifts", lambda *a, **k: {})
+    assert len(rp.regressions(df)) >= 3  # +8 % +- 3 % against the 10 % floor
+
+
+def test_pooled_noise_of_the_engine_widens_a_quiet_series_threshold():
+    """An engine whose series scatter 10 % night to night: one series that
+    happened to be steady for three nights is not flagged for +25 %, since
+    the engine's pooled noise (3 x ~10 % x sqrt(1 + 1/3)) covers it."""
+    rng = np.random.default_rng(5)
+    series = [list(0.01 * np.exp(0.10 * rng.standard_normal(4))) for _ in range(40)]
+    series[0] = [0.01, 0.01, 0.01, 0.0125]
+    df = _many_series(40, series)
+    (key, sig), = rp.pooled_noise(df).items()
+    assert key[1:] == ("nightly", "mujoco")
+    assert 0.06 < sig < 0.16
+    reg = rp.regressions(df)
+    assert "fam.s000" not in set(reg["scenario"])
+    # with no other series the same steady one is flagged (the 10 % floor rules)
+    reg1 = rp.regressions(_many_series(1, [[0.01, 0.01, 0.01, 0.0125]]))
+    assert list(reg1["scenario"]) == ["fam.s000"]
