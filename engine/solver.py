@@ -666,7 +666,11 @@ class Solve(Stage):
             elif ctx.event_mode == "speculative":
                 keep = keep | handled
             # impacts nobody resolves at their time of impact are left to
-            # penetrate and bounce next step (discrete behaviour)
+            # penetrate and bounce next step (discrete behaviour); touching
+            # ones stay rows, with their restitution target, as before
+            # touching points could be impacts (dropping them let slow
+            # spheres sink into each other with ccd = "toi")
+            keep = keep | (impact & touching & ~handled)
         sel = np.flatnonzero(keep)
         if sel.size == 0:
             state.warm = {}
