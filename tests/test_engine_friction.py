@@ -131,6 +131,39 @@ def test_frictionless_incline_slides_freely(tmp_path):
     assert abs(s / (0.5 * G * math.sin(a) * T * T) - 1) <= 1e-9
 
 
+def lying_on_slope(tmp_path: Path, shape: str, angle: float, r: float, half_length: float, mu: float,
+                   T: float, dt: float = 1 / 240, mass: float = 1.0):
+    """A capsule or cylinder lying across a slope (its axis, body z, turned
+    onto world y), at rest on it: (engine, scene, slope normal n, downhill d)."""
+    a = math.radians(angle)
+    n = np.array([math.sin(a), 0.0, math.cos(a)])
+    q = [math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0.0, 0.0]  # body z -> world y (across the slope)
+    p = tmp_path / f"{shape}_{angle}_{mu}.toml"
+    p.write_text(textwrap.dedent(f"""
+        [scenario]
+        family = "t"
+        title = "{shape} on a slope"
+        duration = {T}
+        dt = {dt}
+        effects = ["gravity", "contact", "friction", "gyroscopic"]
+        [material.default]
+        friction = {mu}
+        [[body]]
+        name = "c"
+        shape = "{shape}"
+        radius = {r}
+        half_length = {half_length}
+        mass = {mass}
+        position = [{n[0] * r}, 0, {n[2] * r}]
+        orientation = {q}
+        [[static]]
+        shape = "slope"
+        angle = {angle}
+        """))
+    sc = load_scene(p)
+    return Engine(sc), sc, n, np.array([math.cos(a), 0.0, -math.sin(a)])
+
+
 @pytest.mark.parametrize("shape", ["capsule", "cylinder"])
 def test_round_body_rolls_across_incline(tmp_path, shape):
     """A capsule or a cylinder lying across the slope rolls without slipping:
@@ -141,37 +174,11 @@ def test_round_body_rolls_across_incline(tmp_path, shape):
     was 13 % slow)."""
     angle, r, T = 20.0, 0.05, 1.0
     a = math.radians(angle)
-    n = np.array([math.sin(a), 0.0, math.cos(a)])
-    q = [math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0.0, 0.0]  # body z -> world y (across the slope)
-    text = textwrap.dedent(f"""
-        [scenario]
-        family = "t"
-        title = "capsule roll"
-        duration = {T}
-        dt = {1 / 240}
-        effects = ["gravity", "contact", "friction", "gyroscopic"]
-        [material.default]
-        friction = 0.8
-        [[body]]
-        name = "c"
-        shape = "{shape}"
-        radius = {r}
-        half_length = 0.1
-        mass = 1.0
-        position = [{n[0] * r}, 0, {n[2] * r}]
-        orientation = {q}
-        [[static]]
-        shape = "slope"
-        angle = {angle}
-        """)
-    p = tmp_path / "capsule.toml"
-    p.write_text(text)
-    sc = load_scene(p)
-    eng = Engine(sc)
+    eng, sc, n, down = lying_on_slope(tmp_path, shape, angle, r, 0.1, 0.8, T)
     x0 = eng.state.x[0].copy()
     eng.step(240)
     acc = G * math.sin(a) / (1 + sc.bodies[0].inertia[2] / (sc.bodies[0].mass * r * r))
-    s = (eng.state.x[0] - x0) @ np.array([math.cos(a), 0.0, -math.sin(a)])
+    s = (eng.state.x[0] - x0) @ down
     assert abs(s / (0.5 * acc * T * T) - 1) <= 1e-9
     assert abs((eng.state.x[0] - x0) @ n) <= 1e-9
     assert np.allclose(eng.state.w[0], np.cross(n, eng.state.v[0]) / r, atol=1e-9)
@@ -189,37 +196,12 @@ def test_cylinder_rolls_exactly_at_large_steps(tmp_path, dt, T):
     see engine/README.md.)"""
     angle, r = 20.0, 0.1
     a = math.radians(angle)
-    n = np.array([math.sin(a), 0.0, math.cos(a)])
-    q = [math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0.0, 0.0]
-    p = tmp_path / "cyl_roll.toml"
-    p.write_text(textwrap.dedent(f"""
-        [scenario]
-        family = "t"
-        title = "cylinder roll"
-        duration = {T}
-        dt = {dt}
-        effects = ["gravity", "contact", "friction", "gyroscopic"]
-        [material.default]
-        friction = 0.5
-        [[body]]
-        name = "c"
-        shape = "cylinder"
-        radius = {r}
-        half_length = 0.05
-        mass = 1.0
-        position = [{n[0] * r}, 0, {n[2] * r}]
-        orientation = {q}
-        [[static]]
-        shape = "slope"
-        angle = {angle}
-        """))
-    eng = Engine(load_scene(p))
+    eng, _, n, down = lying_on_slope(tmp_path, "cylinder", angle, r, 0.05, 0.5, T, dt=dt)
     x0 = eng.state.x[0].copy()
     steps = int(round(T / dt))
     eng.step(steps)
     t = steps * dt
     acc = 2.0 / 3.0 * G * math.sin(a)
-    down = np.array([math.cos(a), 0.0, -math.sin(a)])
     assert abs((eng.state.x[0] - x0) @ down / (0.5 * acc * t * t) - 1) <= 1e-9
     assert abs(eng.state.v[0] @ down / (acc * t) - 1) <= 1e-9
     assert np.allclose(eng.state.w[0], np.cross(n, eng.state.v[0]) / r, atol=1e-8)
@@ -230,34 +212,8 @@ def test_cylinder_slips_with_kinetic_friction(tmp_path):
     alpha = mu_k m g cos th r / I_axis (friction at the contact line)."""
     angle, r, T, mu = 30.0, 0.1, 1.0, 0.1
     a = math.radians(angle)
-    n = np.array([math.sin(a), 0.0, math.cos(a)])
-    q = [math.cos(-math.pi / 4), math.sin(-math.pi / 4), 0.0, 0.0]
-    p = tmp_path / "cyl_slip.toml"
-    p.write_text(textwrap.dedent(f"""
-        [scenario]
-        family = "t"
-        title = "cylinder slip"
-        duration = {T}
-        dt = {1 / 240}
-        effects = ["gravity", "contact", "friction", "gyroscopic"]
-        [material.default]
-        friction = {mu}
-        [[body]]
-        name = "c"
-        shape = "cylinder"
-        radius = {r}
-        half_length = 0.05
-        mass = 2.0
-        position = [{n[0] * r}, 0, {n[2] * r}]
-        orientation = {q}
-        [[static]]
-        shape = "slope"
-        angle = {angle}
-        """))
-    sc = load_scene(p)
-    eng = Engine(sc)
+    eng, sc, n, down = lying_on_slope(tmp_path, "cylinder", angle, r, 0.05, mu, T, mass=2.0)
     eng.step(240)
-    down = np.array([math.cos(a), 0.0, -math.sin(a)])
     acc = G * (math.sin(a) - mu * math.cos(a))
     alpha = mu * sc.bodies[0].mass * G * math.cos(a) * r / sc.bodies[0].inertia[2]
     assert abs(eng.state.v[0] @ down / (acc * T) - 1) <= 1e-9
