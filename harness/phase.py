@@ -41,6 +41,8 @@ from typing import Any
 
 import numpy as np
 
+from adapters.conventions import quat_to_matrix
+
 #: effects under which the motion before t = 0 is free flight with a
 #: closed form (contacts are ruled out by the clearance test)
 FREE_FLIGHT_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "gyroscopic"})
@@ -69,10 +71,9 @@ def _qexp(phi: np.ndarray) -> np.ndarray:
 
 
 def _qmat(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    """Rotation matrix of a (not necessarily unit) wxyz quaternion."""
+    q = np.asarray(q, float)
+    return quat_to_matrix(q / np.linalg.norm(q))
 
 
 def _torque_free_back(q0: np.ndarray, w0: np.ndarray, inertia: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,7 @@ import math
 
 import numpy as np
 
+from adapters.conventions import quat_to_matrix
 from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
@@ -249,10 +250,7 @@ class RollingCylinder(RollingSphere):
         if b.shape != "cylinder":
             raise ReferenceError(f"rolling_cylinder needs a cylinder, body {b.name!r} is a {b.shape}")
         q = np.asarray(b.orientation, float)
-        q = q / np.linalg.norm(q)
-        w, x, y, z = q
-        # the body's z axis (the cylinder's axis) in the world: third column of R(q)
-        ez = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+        ez = quat_to_matrix(q / np.linalg.norm(q))[:, 2]  # the body's z axis (the cylinder's axis) in the world
         if abs(abs(float(ez @ self.axis)) - 1.0) > 1e-9:
             raise ReferenceError(f"rolling_cylinder needs the cylinder's axis along the roll axis n x d = "
                                  f"{self.axis.round(6).tolist()}; body {b.name!r} has its axis along {ez.round(6).tolist()}")
