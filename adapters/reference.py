@@ -45,11 +45,10 @@ class ReferenceAdapter(Adapter):
             dimensions=3,
             shapes=frozenset({"sphere", "box", "capsule", "cylinder"}),
             static_shapes=frozenset({"plane", "slope", "box"}),
-            effects=frozenset({"gravity", "contact", "restitution", "friction", "drag_linear", "drag_quadratic",
-                               "spring", "damper", "gyroscopic"}),
+            effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "drag_linear",
+                               "drag_quadratic", "spring", "damper", "gyroscopic"}),
             settings=_settings(),
-            notes=("cylinders collide with planes only",
-                   "rolling_friction is not modelled"),
+            notes=("cylinders collide with planes only",),
         )
 
     @classmethod

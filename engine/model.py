@@ -53,9 +53,12 @@ class Model:
     ``inertia_body`` (n, 3) principal moments, ``inv_inertia_body`` (n+1, 3),
     ``shape`` (n,) codes, ``radius`` (n,), ``half_extents`` (n, 3) (zeros for
     non-boxes), ``half_length`` (n,), ``bound_radius`` (n,), ``min_extent``
-    (n,).  Pair tables ``e_bb``/``mus_bb``/``muk_bb`` (n, n) and
-    ``e_bs``/``mus_bs``/``muk_bs`` (n, n_statics) hold the pair coefficients
-    the scene asks for (Scene.pair, with absent effects already zeroed).
+    (n,).  Pair tables ``e_bb``/``mus_bb``/``muk_bb``/``mur_bb`` (n, n) and
+    ``e_bs``/``mus_bs``/``muk_bs``/``mur_bs`` (n, n_statics) hold the pair
+    coefficients the scene asks for (Scene.pair, with absent effects already
+    zeroed; ``mur`` is the rolling-friction coefficient, a length in m).
+    ``rolling``: some pair has rolling friction (decided once: without it
+    the solver has no rolling rows at all).
     """
 
     scene: Scene
@@ -104,6 +107,9 @@ class Model:
     e_bs: np.ndarray
     mus_bs: np.ndarray
     muk_bs: np.ndarray
+    mur_bb: np.ndarray
+    mur_bs: np.ndarray
+    rolling: bool
     # all body-body pairs (i < j), for the brute-force broad phase
     pair_i: np.ndarray
     pair_j: np.ndarray
@@ -183,6 +189,8 @@ def build_model(scene: Scene, settings: Mapping[str, Any]) -> Model:
     e_bs = np.zeros((n, ns))
     mus_bs = np.zeros((n, ns))
     muk_bs = np.zeros((n, ns))
+    mur_bb = np.zeros((n, n))
+    mur_bs = np.zeros((n, ns))
     cache: dict[tuple[str, str], Any] = {}
 
     def pair(ma: str, mb: str):
@@ -199,11 +207,13 @@ def build_model(scene: Scene, settings: Mapping[str, Any]) -> Model:
             e_bb[bi.index, bj.index] = m.restitution
             mus_bb[bi.index, bj.index] = max(m.static_friction, m.friction)
             muk_bb[bi.index, bj.index] = m.friction
+            mur_bb[bi.index, bj.index] = m.rolling_friction
         for s in scene.statics:
             m = pair(bi.material, s.material)
             e_bs[bi.index, s.index] = m.restitution
             mus_bs[bi.index, s.index] = max(m.static_friction, m.friction)
             muk_bs[bi.index, s.index] = m.friction
+            mur_bs[bi.index, s.index] = m.rolling_friction
 
     pi, pj = np.triu_indices(n, 1)
     integrator = settings["integrator"]
@@ -221,6 +231,7 @@ def build_model(scene: Scene, settings: Mapping[str, Any]) -> Model:
         plane_static=_ro(plane_static), sbox_pos=_ro(sbox_pos), sbox_R=_ro(sbox_R), sbox_half=_ro(sbox_half),
         sbox_static=_ro(sbox_static), sbox_aabb_lo=_ro(sbox_pos - ext), sbox_aabb_hi=_ro(sbox_pos + ext),
         e_bb=_ro(e_bb), mus_bb=_ro(mus_bb), muk_bb=_ro(muk_bb), e_bs=_ro(e_bs), mus_bs=_ro(mus_bs),
-        muk_bs=_ro(muk_bs), pair_i=_ro(pi.astype(np.int64)), pair_j=_ro(pj.astype(np.int64)),
+        muk_bs=_ro(muk_bs), mur_bb=_ro(mur_bb), mur_bs=_ro(mur_bs),
+        rolling=bool(scene.has("rolling_friction") and (mur_bb.any() or mur_bs.any())), pair_i=_ro(pi.astype(np.int64)), pair_j=_ro(pj.astype(np.int64)),
         contact_lever=CONTACT_LEVER[integrator],
     )

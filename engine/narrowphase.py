@@ -631,7 +631,7 @@ def _ro(a: np.ndarray) -> np.ndarray:
 
 def _bb_groups(model, pi, pj) -> list:
     """Body-body candidate pairs grouped by canonically ordered shape pair:
-    [(fn, sel, a, b, const_a, const_b, (e, mus, muk))] with ``sel`` the
+    [(fn, sel, a, b, const_a, const_b, (e, mus, muk, mur))] with ``sel`` the
     pairs of the group, a/b its bodies (first/second shape) and the pair
     coefficients per pair.  Depends only on the candidate pairs."""
     si, sj = model.shape[pi], model.shape[pj]
@@ -648,14 +648,14 @@ def _bb_groups(model, pi, pj) -> list:
         if fn is None:
             continue
         ga, gb = _ro(a[sel]), _ro(b[sel])
-        mat = tuple(_ro(t[ga, gb]) for t in (model.e_bb, model.mus_bb, model.muk_bb))
+        mat = tuple(_ro(t[ga, gb]) for t in (model.e_bb, model.mus_bb, model.muk_bb, model.mur_bb))
         out.append((fn, sel, ga, gb, {}, {}, mat))
     return out
 
 
 def _static_groups(model, pairs, table, statics, e_mu) -> list:
     """Body-static candidate pairs grouped by the body's shape:
-    [(fn, sel, bodies, rows, static indices, const, (e, mus, muk))]."""
+    [(fn, sel, bodies, rows, static indices, const, (e, mus, muk, mur))]."""
     bi, sk = pairs
     shapes = model.shape[bi]
     out = []
@@ -709,16 +709,16 @@ def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margi
             keep = g < mg[k]
             if keep.all():
                 parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn, p, g, f,
-                                      mat[0][k], mat[1][k], mat[2][k]))
+                                      mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
                 continue
             k = k[keep]
             parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn[keep], p[keep], g[keep], f[keep],
-                                  mat[0][k], mat[1][k], mat[2][k]))
+                                  mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
     for tag, pairs, table, geom, margins, statics, e_mu in (
             ("plane", plane_pairs, PLANE_TABLE, _plane, margin_bp, model.plane_static,
-             (model.e_bs, model.mus_bs, model.muk_bs)),
+             (model.e_bs, model.mus_bs, model.muk_bs, model.mur_bs)),
             ("sbox", sbox_pairs, SBOX_TABLE, _sbox, margin_bs, model.sbox_static,
-             (model.e_bs, model.mus_bs, model.muk_bs))):
+             (model.e_bs, model.mus_bs, model.muk_bs, model.mur_bs))):
         bi, sk = pairs
         if bi.size == 0:
             continue
@@ -735,7 +735,7 @@ def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margi
                 k = k[keep]
                 nn, p, g, f = nn[keep], p[keep], g[keep], f[keep]
             parts.append(Contacts(b_[k], np.full(k.size, n, np.int64), st[k], nn, p, g, f,
-                                  mat[0][k], mat[1][k], mat[2][k]))
+                                  mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
     return Contacts.concat(parts)
 
 

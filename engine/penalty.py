@@ -12,7 +12,8 @@ force lets go early).  The spring is evaluated at the predicted mid-step
 depth, which keeps it from creating energy.
 Friction is regularised Coulomb: |Ft| = min(mu_k Fn, what stops the sliding
 within the step), opposite the sliding velocity (no separate static
-friction: noted by the adapter).
+friction: noted by the adapter).  Rolling friction likewise: a torque
+min(mu_r Fn, what stops the relative rolling) against the rolling.
 
 Forces are held constant over the step and applied as impulses F h to the
 working velocities, so the position update is the same as for the impulse
@@ -115,8 +116,17 @@ class PenaltyContacts(Stage):
             Fn_patch = np.bincount(rows.pid, Fn, rows.np)
             stop = speed * np.min(rows.mt[:, :2], axis=1)  # impulse that would stop the sliding
             mag = np.minimum(rows.muk * Fn_patch * h, stop)
-            d = np.zeros((rows.np, 3))
+            d = np.zeros(rows.lam_t.shape)
             d[:, :2] = -vt / np.where(speed > 0, speed, 1.0)[:, None] * mag[:, None]
+            if rows.rolling:
+                # rolling resistance the same way: |torque| = min(mu_r Fn,
+                # what stops the relative rolling), against it
+                U0 = Rows.pack(V0, W0)
+                wr = (np.einsum("kmj,kj->km", rows.JtA[:, 3:], U0[rows.pa])
+                      + np.einsum("kmj,kj->km", rows.JtB[:, 3:], U0[rows.pb]))
+                rs = np.sqrt(np.einsum("km,km->k", wr, wr))
+                mag_r = np.minimum(rows.mur * Fn_patch * h, rs * np.min(rows.mt[:, 3:], axis=1))
+                d[:, 3:] = -wr / np.where(rs > 0, rs, 1.0)[:, None] * mag_r[:, None]
             rows.apply_patch(U, d)
         Rows.unpack(U, ctx.v, ctx.w)
         ctx.profile.count("contact_rows", cs.m)

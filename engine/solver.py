@@ -202,7 +202,7 @@ class Topology:
         self.pimb = model.inv_mass[self.pb]
         #: patch of each distinct pair (uniq_codes order)
         self.uniq_pid = pid[self.uniq_first]
-        self.mus = self.muk = None  # pair coefficients, from the first contacts seen
+        self.mus = self.muk = self.mur = None  # pair coefficients, from the first contacts seen
 
     def masks(self):
         """Body-sharing masks of the normal matrix (a_i == a_j, a_i == b_j,
@@ -233,6 +233,15 @@ class Rows:
     law is a law for the total force on a contact patch, and its limit then
     depends on the total normal impulse, which Gauss-Seidel gets right long
     before it settles how that impulse is shared among the points.
+
+    Rolling friction (``model.rolling``: only then do the rows exist) adds
+    two angular rows per patch, about the tangents t1, t2: the relative
+    angular velocity perpendicular to the normal, t.(wb - wa), resisted by a
+    torque whose magnitude is limited by mu_r sum(lambda_n) (a disc, like the
+    tangent rows; mu_r is a length, MuJoCo's and Bullet's convention).  Rows
+    (np, 5, 12) then, the rolling rows updated after the tangent and twist
+    rows in each sweep (Gauss-Seidel between the two blocks: for a rolling
+    ball they are strongly coupled, K_tr^2 / (K_tt K_rr) = 1 / (1 + k)).
     """
 
     def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True,
@@ -309,7 +318,9 @@ class Rows:
         rAB = P - Xp[pab2]  # both sides stacked (2, np, 3)
         rtAB = cross(rAB[:, :, None, :], self.t)  # (2, np, 2, 3)
         ima, imb = topo.pima, topo.pimb
-        self.Jt = np.zeros((npch, 3, 12))  # [JtA | JtB], as J above
+        self.rolling = rolling = bool(model.rolling)
+        nr = 5 if rolling else 3  # tangent, tangent, twist (, roll, roll)
+        self.Jt = np.zeros((npch, nr, 12))  # [JtA | JtB], as J above
         JtA, JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
         JtA[:, :2, :3] = -self.t
         JtA[:, :2, 3:] = -rtAB[0]
@@ -317,26 +328,31 @@ class Rows:
         JtB[:, :2, 3:] = rtAB[1]
         JtA[:, 2, 3:] = -N
         JtB[:, 2, 3:] = N
-        self.Mt = np.zeros((npch, 3, 12))
+        if rolling:
+            JtA[:, 3:, 3:] = -self.t
+            JtB[:, 3:, 3:] = self.t
+        self.Mt = np.zeros((npch, nr, 12))
         MtA, MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
         MtA[:, :, :3] = ima[:, None, None] * JtA[:, :, :3]
         MtB[:, :, :3] = imb[:, None, None] * JtB[:, :, :3]
         # both sides' angular responses in one einsum over the stacked sides
-        Jt4 = self.Jt.reshape(npch, 3, 2, 2, 3)[:, :, :, 1].transpose(2, 0, 1, 3)  # (2, np, 3, 3) = [JtA, JtB][..., 3:]
+        Jt4 = self.Jt.reshape(npch, nr, 2, 2, 3)[:, :, :, 1].transpose(2, 0, 1, 3)  # (2, np, nr, 3) = [JtA, JtB][..., 3:]
         MtAB = np.einsum("skij,skmj->skmi", Iinv[pab2], Jt4)
         MtA[:, :, 3:] = MtAB[0]
         MtB[:, :, 3:] = MtAB[1]
         kt = np.einsum("kmi,kmi->km", JtA, MtA) + np.einsum("kmi,kmi->km", JtB, MtB)
         self.JtA, self.JtB, self.MtA, self.MtB = JtA, JtB, MtA, MtB
         self.mt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
-        self.lam_t = np.zeros((npch, 3))
+        self.lam_t = np.zeros((npch, nr))
         # pair coefficients are equal for all rows of a patch (and depend
         # only on the pair: kept in the topology)
         if topo.mus is None:
             topo.mus = c.mus[topo.pfirst]
             topo.muk = c.muk[topo.pfirst]
+            topo.mur = c.mur[topo.pfirst] if rolling else None
         self.mus = topo.mus
         self.muk = topo.muk
+        self.mur = topo.mur
         self.slip = np.zeros(npch, bool)
         self.mu = self.mus.copy()
 
@@ -455,8 +471,11 @@ class Rows:
             if self.friction:
                 Jt, Mt = self.Jt, self.Mt
                 pab = topo.pab
-                self._pslices = [(s, e, pab[s:e], Jt[s:e], Mt[s:e], self.mt[s:e], self.r_twist[s:e])
+                self._pslices = [(s, e, pab[s:e], Jt[s:e, :3], Mt[s:e, :3], self.mt[s:e, :3], self.r_twist[s:e])
                                  for s, e in topo.pslices]
+                if self.rolling:
+                    self._rslices = [(s, e, pab[s:e], Jt[s:e, 3:], Mt[s:e, 3:], self.mt[s:e, 3:], self.mur[s:e])
+                                     for s, e in topo.pslices]
         return self._nslices
 
     def _friction_pass(self, U, reverse: bool = False) -> None:
@@ -467,7 +486,7 @@ class Rows:
             k = e - s
             Uab = U[ab].reshape(k, 12)
             vt = np.einsum("kmj,kj->km", Jt, Uab)
-            old = lam_t[s:e]
+            old = lam_t[s:e, :3]
             new = old - mt * vt
             lim = mu[s:e] * Fn[s:e]
             mag = np.sqrt(new[:, 0] ** 2 + new[:, 1] ** 2)
@@ -477,8 +496,24 @@ class Rows:
             tl = lim * rt
             np.clip(new[:, 2], -tl, tl, out=new[:, 2])
             Uab += np.einsum("km,kmj->kj", new - old, Mt)
-            lam_t[s:e] = new
+            lam_t[s:e, :3] = new
             U[ab] = Uab.reshape(k, 2, 6)
+        if self.rolling:
+            # rolling rows: a torque about the tangents within the mu_r disc
+            for s, e, ab, Jr, Mr, mr, mur in (reversed(self._rslices) if reverse else self._rslices):
+                k = e - s
+                Uab = U[ab].reshape(k, 12)
+                vr = np.einsum("kmj,kj->km", Jr, Uab)
+                old = lam_t[s:e, 3:]
+                new = old - mr * vr
+                lim = mur * Fn[s:e]
+                mag = np.sqrt(new[:, 0] ** 2 + new[:, 1] ** 2)
+                over = mag > lim
+                if over.any():
+                    new *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+                Uab += np.einsum("km,kmj->kj", new - old, Mr)
+                lam_t[s:e, 3:] = new
+                U[ab] = Uab.reshape(k, 2, 6)
         U[-1] = 0.0
 
     def _normal_pass(self, U, lam, target, reverse: bool = False) -> None:
@@ -740,7 +775,7 @@ class Solve(Stage):
         if not old:
             return
         topo = rows.topo
-        o_code, o_loc, o_fn, u_code, u_ft, u_tw = _warm_packed(old)
+        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = _warm_packed(old)
         otopo = getattr(old, "topo", None)
         cand = topo.__dict__.get("_warm_cand")
         if cand is None or otopo is None or cand[0]() is not otopo:
@@ -781,6 +816,8 @@ class Solve(Stage):
             g = np.searchsorted(u_code, uc[sel])
             rows.lam_t[p, :2] = np.matmul(rows.t[p], u_ft[g][:, :, None])[:, :, 0] * h
             rows.lam_t[p, 2] = u_tw[g] * h
+            if rows.rolling and u_rr is not None:
+                rows.lam_t[p, 3:] = np.matmul(rows.t[p], u_rr[g][:, :, None])[:, :, 0] * h
 
     def _store(self, model, state, ctx, rows, loc, h):
         topo = rows.topo
@@ -795,10 +832,11 @@ class Solve(Stage):
             tp = rows.t[p]
             ft = np.matmul(lt[:, None, :2], tp)[:, 0] / h
             tw = lt[:, 2] / h
+            rr = np.matmul(lt[:, None, 3:], tp)[:, 0] / h if rows.rolling else None
         else:
-            ft, tw = np.zeros((uniq.size, 3)), np.zeros(uniq.size)
+            ft, tw, rr = np.zeros((uniq.size, 3)), np.zeros(uniq.size), None
         new = WarmCache()
-        new.packed = (sc, loc[order], fn[order], uniq, ft, tw)
+        new.packed = (sc, loc[order], fn[order], uniq, ft, tw, rr)
         new.first = first
         new.topo = topo
         state.warm = new
@@ -806,7 +844,8 @@ class Solve(Stage):
 
 class WarmCache(dict):
     """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
-    normal forces (k,) N, friction force (3,) N, twist torque N m).
+    normal forces (k,) N, friction force (3,) N, twist torque N m, rolling
+    torque (3,) N m).
 
     The solver reads and writes only the same data packed into arrays sorted
     by code (``packed``, with ``first`` the start of each pair's points and
@@ -822,10 +861,12 @@ class WarmCache(dict):
         if self._filled or self.packed is None:
             return
         self._filled = True
-        sc, s_loc, s_fn, uniq, ft, tw = self.packed
+        sc, s_loc, s_fn, uniq, ft, tw, rr = self.packed
         first = self.first
+        if rr is None:
+            rr = np.zeros((uniq.size, 3))
         dict.update(self, zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
-                                                 tw.tolist())))
+                                                 tw.tolist(), rr)))
 
     def __len__(self):
         return int(self.packed[3].size) if (self.packed is not None and not self._filled) else dict.__len__(self)
@@ -890,11 +931,11 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
 
 def _warm_packed(old: dict):
     """(point codes, points, normal forces, pair codes, friction forces,
-    twists) of a warm cache, sorted by code (built from the dict when the
-    cache was copied)."""
+    twists, rolling torques or None) of a warm cache, sorted by code (built
+    from the dict when the cache was copied)."""
     pk = getattr(old, "packed", None)
     if pk is not None:
-        return pk[0], pk[1], pk[2], pk[3], pk[4], pk[5]
+        return pk
     keys = sorted(old)
     vals = [old[k] for k in keys]
     o_code = np.concatenate([np.full(len(v[1]), k, np.int64) for k, v in zip(keys, vals)])
@@ -902,7 +943,8 @@ def _warm_packed(old: dict):
     o_fn = np.concatenate([np.asarray(v[1], float) for v in vals])
     u_ft = np.array([np.asarray(v[2], float) for v in vals]).reshape(-1, 3)
     u_tw = np.array([float(v[3]) for v in vals])
-    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw
+    u_rr = np.array([np.asarray(v[4], float) if len(v) > 4 else np.zeros(3) for v in vals]).reshape(-1, 3)
+    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw, u_rr
 
 
 def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
@@ -920,8 +962,9 @@ def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
 
 def _patch_block(rows: Rows, p: int) -> tuple:
     """(a, b, JA, JB, MA, MB, K^-1 or None when K is singular, (mu_s, mu_k,
-    r_twist)) of friction patch ``p`` (cached per Rows: the impact solver
-    resolves a pair many times, and the 3x3 block is inverted once)."""
+    r_twist, mu_r)) of friction patch ``p`` (cached per Rows: the impact
+    solver resolves a pair many times, and the 3x3 (with rolling friction
+    5x5) block is inverted once)."""
     cache = rows.__dict__.setdefault("_patch_blocks", {})
     out = cache.get(p)
     if out is None:
@@ -934,7 +977,8 @@ def _patch_block(rows: Rows, p: int) -> tuple:
         except np.linalg.LinAlgError:
             Kinv = None
         out = (int(rows.pa[p]), int(rows.pb[p]), JA, JB, MA.T.copy(), MB.T.copy(), Kinv,
-               (float(rows.mus[p]), float(rows.muk[p]), float(rows.r_twist[p])))
+               (float(rows.mus[p]), float(rows.muk[p]), float(rows.r_twist[p]),
+                float(rows.mur[p]) if rows.rolling else 0.0))
         cache[p] = out
     return out
 
@@ -999,11 +1043,12 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
 def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
     """One-shot Coulomb friction impulse on patch ``p`` after a normal
     impulse of total ``Fn``: the impulse that stops the tangential and twist
-    motion (exact 3x3 block, by its inverse computed once per patch), kept
-    if inside the mu_s disc, else scaled onto the mu_k disc."""
+    (and rolling) motion (exact block, by its inverse computed once per
+    patch), kept if inside the mu_s disc, else scaled onto the mu_k disc;
+    the rolling torque impulse is limited to the mu_r Fn disc."""
     if Fn <= 0.0:
         return
-    a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt) = _patch_block(rows, p)
+    a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt, mur) = _patch_block(rows, p)
     vt = JA @ U[a] + JB @ U[b]
     if Kinv is not None:
         d = -(Kinv @ vt)
@@ -1014,6 +1059,10 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
         d[:2] *= muk * Fn / mag
     tl = (mus if mag <= mus * Fn else muk) * Fn * rt
     d[2] = min(max(d[2], -tl), tl)
+    if d.size > 3:
+        rmag = math.hypot(d[3], d[4])
+        if rmag > mur * Fn:
+            d[3:] *= mur * Fn / rmag
     U[a] += MAT @ d
     U[b] += MBT @ d
     U[-1] = 0.0

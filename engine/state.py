@@ -55,7 +55,8 @@ class Contacts:
     ``normal`` (m, 3) unit vector from a toward b, ``point`` (m, 3) world
     point midway between the surfaces, ``gap`` (m,) signed distance (m,
     negative = penetration), ``fid`` (m,) feature ids for warm starting,
-    ``e``, ``mus``, ``muk`` (m,) pair coefficients."""
+    ``e``, ``mus``, ``muk`` (m,) pair coefficients, ``mur`` (m,) the pair's
+    rolling-friction coefficient (m)."""
 
     a: np.ndarray
     b: np.ndarray
@@ -67,6 +68,7 @@ class Contacts:
     e: np.ndarray | None = None
     mus: np.ndarray | None = None
     muk: np.ndarray | None = None
+    mur: np.ndarray | None = None
 
     @property
     def m(self) -> int:
@@ -76,7 +78,7 @@ class Contacts:
     def empty(cls) -> "Contacts":
         z = np.zeros(0, np.int64)
         return cls(z, z, z, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), z,
-                   np.zeros(0), np.zeros(0), np.zeros(0))
+                   np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 
     @classmethod
     def concat(cls, parts: list["Contacts"]) -> "Contacts":
@@ -87,12 +89,12 @@ class Contacts:
             return parts[0]
         fields = ("a", "b", "sidx", "normal", "point", "gap", "fid")
         if all(p.e is not None for p in parts):
-            fields += ("e", "mus", "muk")
+            fields += ("e", "mus", "muk", "mur")
         return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
 
     def take(self, idx: np.ndarray) -> "Contacts":
         return Contacts(*(None if getattr(self, f) is None else getattr(self, f)[idx] for f in
-                          ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk")))
+                          ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk", "mur")))
 
 
 class Context:

@@ -282,6 +282,84 @@ def test_rolling_cylinder_needs_its_axis_across_the_slope():
 
 
 # ---------------------------------------------------------------------------
+# rolling_resistance
+
+
+def rolling_ball(angle: float, u0: float, mur: float = 0.005, mu: float = 0.5, r: float = 0.1) -> str:
+    """A ball on a slope of ``angle`` degrees rolling downhill at u0 (m/s;
+    negative: uphill) with w0 = u0 / r, rolling friction ``mur`` (m)."""
+    a = math.radians(angle)
+    d = (math.cos(a), 0.0, -math.sin(a))
+    text = slope_ball(angle, mu, r).replace('"friction"]', '"friction", "rolling_friction"]')
+    text = text.replace(f"friction = {mu}\n", f"friction = {mu}\nrolling_friction = {mur}\n")
+    text = text.replace("mass = 1.0\n", f"mass = 1.0\nvelocity = [{u0 * d[0]!r}, 0.0, {u0 * d[2]!r}]\n"
+                                           f"angular_velocity = [0.0, {u0 / r!r}, 0.0]\n")
+    return text.replace('model = "rolling_sphere"', 'model = "rolling_resistance"').replace("duration = 2.0", "duration = 4.0")
+
+
+def test_rolling_resistance_regimes():
+    # flat, 1 m/s: a = -5/7 (0.005 / 0.1) 9.81 = -0.3503571 m/s^2, stops at
+    # 1 / 0.3503571 = 2.854230 s after 1 / (2 * 0.3503571) = 1.427115 m
+    m = get_model("rolling_resistance")(scene_from(rolling_ball(0.0, 1.0)))
+    assert m.regime == "stop"
+    assert m.phases[0][3] == pytest.approx(-0.3503571, abs=1e-7)
+    assert m.t_stop == pytest.approx(2.854230, abs=1e-6)
+    assert m.distance(np.array([3.0, 4.0])) == pytest.approx([1.427115, 1.427115], abs=1e-6)
+    # 2 degrees at rest: tan 2 = 0.0349 <= 0.05: holds
+    assert get_model("rolling_resistance")(scene_from(rolling_ball(2.0, 0.0))).regime == "hold"
+    # 5 degrees at rest: a = 5/7 9.81 (sin 5 - 0.05 cos 5) = 0.2616889 m/s^2
+    m = get_model("rolling_resistance")(scene_from(rolling_ball(5.0, 0.0)))
+    assert m.regime == "roll" and m.phases[0][3] == pytest.approx(0.2616889, abs=1e-7)
+    # 5 degrees, 1 m/s uphill: a = 5/7 9.81 (sin 5 + 0.05 cos 5) = 0.9597367 m/s^2
+    # until t = 1.041952 s, then back down with 0.2616889
+    m = get_model("rolling_resistance")(scene_from(rolling_ball(5.0, -1.0)))
+    assert m.regime == "stop_and_return"
+    assert m.phases[0][3] == pytest.approx(0.9597367, abs=1e-7)
+    assert m.t_stop == pytest.approx(1.041952, abs=1e-6)
+    assert m.phases[1][3] == pytest.approx(0.2616889, abs=1e-7)
+    # s(t) continuous at the turnaround: -1 * t + a t^2 / 2 = -0.5209760 m
+    assert m.distance(np.array([m.t_stop])) == pytest.approx([-0.5209760], abs=1e-6)
+
+
+def test_rolling_resistance_metrics_on_exact_and_planted_traces():
+    m = get_model("rolling_resistance")(scene_from(rolling_ball(0.0, 1.0)))
+    t = np.linspace(0.0, 4.0, 961)
+    s = m.distance(t)
+    u = np.where(t < m.t_stop, 1.0 + m.phases[0][3] * t, 0.0)
+    pos = m.x0 + np.outer(s, m.d)
+    vel = np.outer(u, m.d)
+    w = np.outer(u / m.R, m.axis)
+    out = m.metrics(make_trace(t, pos[:, None], vel[:, None], angvel=w[:, None]))
+    assert out["roll_accel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["spin_accel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["rolling_slip"] == pytest.approx(0.0, abs=1e-12)
+    assert out["stick_creep"] == pytest.approx(0.0, abs=1e-12)
+    assert out["final_position_error"] == pytest.approx(0.0, abs=1e-12)
+    # planted: 2 % weaker deceleration, and a slip of 0.03 m/s
+    a2 = 0.98 * m.phases[0][3]
+    u2 = 1.0 + a2 * t
+    out = m.metrics(make_trace(t, pos[:, None], np.outer(u2, m.d)[:, None],
+                               angvel=np.outer((u2 - 0.03) / m.R, m.axis)[:, None]))
+    assert out["roll_accel_error"] == pytest.approx(0.02, abs=1e-9)
+    assert out["rolling_slip"] == pytest.approx(0.03, abs=1e-9)
+    # a ball that stops 5 mm too far and stays there
+    out = m.metrics(make_trace(t, (pos + np.outer(np.where(t >= m.t_stop, 0.005, 0.0), m.d))[:, None]))
+    assert out["stick_creep"] == pytest.approx(0.005, abs=1e-12)
+    assert out["final_position_error"] == pytest.approx(0.005, abs=1e-12)
+
+
+def test_rolling_resistance_refuses_what_it_does_not_model():
+    with pytest.raises(ReferenceError, match="rolling start"):
+        get_model("rolling_resistance")(scene_from(rolling_ball(0.0, 1.0).replace("angular_velocity = [0.0, 10.0, 0.0]",
+                                                                                  "angular_velocity = [0.0, 0.0, 0.0]")))
+    # rolling against mu_r = 0.05 m on a 5 cm ball needs more friction than 0.1
+    with pytest.raises(ReferenceError, match="would slip"):
+        get_model("rolling_resistance")(scene_from(rolling_ball(0.0, 1.0, mur=0.05, mu=0.1, r=0.05)))
+    with pytest.raises(ReferenceError, match="rolling_friction"):
+        get_model("rolling_resistance")(scene_from(rolling_ball(0.0, 1.0, mur=0.0)))
+
+
+# ---------------------------------------------------------------------------
 # bounce_heights
 
 BOUNCE = """

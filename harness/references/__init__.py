@@ -30,6 +30,7 @@ MODELS: dict[str, str] = {
     "incline_block": "harness.references.friction:InclineBlock",
     "rolling_sphere": "harness.references.friction:RollingSphere",
     "rolling_cylinder": "harness.references.friction:RollingCylinder",
+    "rolling_resistance": "harness.references.friction:RollingResistance",
     "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
     "heavy_top": "harness.references.rigid_body:HeavyTop",
 }
