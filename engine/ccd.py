@@ -48,7 +48,8 @@ TOI_MAX_ITER = 6
 
 class CCD(Stage):
     """Pick the earliest impact of the step as ``ctx.event`` =
-    (tau estimate, a, b, static index)."""
+    (tau estimate, a, b, static index, the pair's impact points in body a's
+    frame (k, 3) m)."""
 
     name = "ccd"
     family = "ccd"
@@ -62,16 +63,44 @@ class CCD(Stage):
         k = int(idx[j])
         c = ctx.contacts
         t = float(min(max(tau[j], 0.0), ctx.h))
-        ctx.event = (t, int(c.a[k]), int(c.b[k]), int(c.sidx[k]))
+        a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
+        # the impact points of this pair, in body a's frame: the refinement
+        # follows them, not the pair's deepest point (which may be another
+        # end of the body, already touching or resting within the slop)
+        same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]
+        loc = (c.point[same] - state.x[a]) @ ctx.R0[a]
+        ctx.event = (t, a, b, sidx, loc)
 
 
-def pair_gap(model, ctx, a: int, b: int, sidx: int) -> tuple[float, float]:
+def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = None) -> tuple[float, float]:
     """Signed gap (m) of a pair at the context's end pose and its rate of
-    change (m/s, the normal relative velocity at the closest feature)."""
+    change (m/s, the normal relative velocity at the closest feature).
+
+    ``loc`` (k, 3): body-a-frame points to follow -- the gap is then the
+    least over the contacts nearest to each of them (one per point, within
+    0.1 bounding radius + 0.1 mm, the warm start's matching radius; all
+    contacts if none is that near).  A bar landing on one end while its other end still sits on the
+    slab (gap slightly negative, within the correction slop) has its time
+    of impact where the landing end arrives; the pair's least gap is
+    negative at every tau and drove the search to tau ~ 0, so the step
+    advanced by microseconds per event until the event budget ran out and
+    the landing end was stopped as a speculative row, sinking h v / 2
+    (18.7 mm at 1/60 s)."""
     c = pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx)
     if c.m == 0:
         return np.inf, 0.0
-    k = int(np.argmin(c.gap))
+    gap = c.gap
+    if loc is not None and loc.size:
+        R1 = quat_to_matrix(ctx.q1[a:a + 1])[0]
+        p = (c.point - ctx.x1[a]) @ R1
+        D2 = np.sum((p[:, None, :] - loc[None, :, :]) ** 2, axis=-1)  # (contacts, followed points)
+        best = np.argmin(D2, axis=0)
+        tol = 0.1 * float(model.bound_radius[a]) + 1e-4
+        best = best[D2[best, np.arange(loc.shape[0])] <= tol * tol]
+        if best.size:
+            gap = np.full(c.m, np.inf)
+            gap[best] = c.gap[best]
+    k = int(np.argmin(gap))
     X = _pad(ctx.x1)
     rA = c.point[k:k + 1] - X[c.a[k:k + 1]]
     rB = c.point[k:k + 1] - X[c.b[k:k + 1]]
@@ -83,13 +112,13 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
     """Rerun the step to the time of impact (see module doc).  Leaves the
     context holding the rerun to the returned tau (s)."""
     h_full = ctx.h
-    tau, a, b, sidx = ctx.event
+    tau, a, b, sidx, loc = ctx.event
     lo, hi = 0.0, h_full
     ctx.reuse_contacts = True
     try:
         for it in range(TOI_MAX_ITER):
             _rerun(model, state, ctx, main_stages, profile, tau)
-            g, vn = pair_gap(model, ctx, a, b, sidx)
+            g, vn = pair_gap(model, ctx, a, b, sidx, loc)
             profile.count("toi_iterations")
             if abs(g) <= TOI_TOL:
                 break

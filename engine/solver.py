@@ -754,7 +754,7 @@ class Solve(Stage):
                     ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
                     ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
-        self._store(model, state, ctx, rows, loc, h)
+        self._store(model, state, ctx, rows, loc, h, touching[sel])
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
@@ -775,7 +775,7 @@ class Solve(Stage):
         if not old:
             return
         topo = rows.topo
-        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = _warm_packed(old)
+        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = _warm_packed(old)[:7]
         otopo = getattr(old, "topo", None)
         cand = topo.__dict__.get("_warm_cand")
         if cand is None or otopo is None or cand[0]() is not otopo:
@@ -819,7 +819,11 @@ class Solve(Stage):
             if rows.rolling and u_rr is not None:
                 rows.lam_t[p, 3:] = np.matmul(rows.t[p], u_rr[g][:, :, None])[:, :, 0] * h
 
-    def _store(self, model, state, ctx, rows, loc, h):
+    def _store(self, model, state, ctx, rows, loc, h, touch):
+        """Cache the step's forces for the next step's warm start (``touch``
+        (m,) bool: the rows that were touching at the start of the step --
+        a point pressed *at rest* only if it was; a speculative row that
+        pressed to land its point exactly on the surface did not rest)."""
         topo = rows.topo
         fn = rows.lam_n / h
         order = topo.code_order
@@ -836,7 +840,7 @@ class Solve(Stage):
         else:
             ft, tw, rr = np.zeros((uniq.size, 3)), np.zeros(uniq.size), None
         new = WarmCache()
-        new.packed = (sc, loc[order], fn[order], uniq, ft, tw, rr)
+        new.packed = (sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order])
         new.first = first
         new.topo = topo
         state.warm = new
@@ -845,7 +849,7 @@ class Solve(Stage):
 class WarmCache(dict):
     """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
     normal forces (k,) N, friction force (3,) N, twist torque N m, rolling
-    torque (3,) N m).
+    torque (3,) N m, touching at the start of the step (k,) bool).
 
     The solver reads and writes only the same data packed into arrays sorted
     by code (``packed``, with ``first`` the start of each pair's points and
@@ -861,12 +865,12 @@ class WarmCache(dict):
         if self._filled or self.packed is None:
             return
         self._filled = True
-        sc, s_loc, s_fn, uniq, ft, tw, rr = self.packed
+        sc, s_loc, s_fn, uniq, ft, tw, rr, touch = self.packed
         first = self.first
         if rr is None:
             rr = np.zeros((uniq.size, 3))
         dict.update(self, zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
-                                                 tw.tolist(), rr)))
+                                                 tw.tolist(), rr, np.split(touch, first[1:]))))
 
     def __len__(self):
         return int(self.packed[3].size) if (self.packed is not None and not self._filled) else dict.__len__(self)
@@ -915,10 +919,14 @@ class WarmCache(dict):
 
 def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
     """(k,) bool: contact points (pair ``codes`` (k,), points in body a's
-    frame ``loc`` (k, 3) m) that pressed in the step that wrote ``warm``:
-    a cached point of the same pair with a positive normal force lies
-    within ``tol`` (k,) m of them (the warm start's matching radius)."""
-    o_code, o_loc, o_fn = _warm_packed(warm)[:3]
+    frame ``loc`` (k, 3) m) that pressed at rest in the step that wrote
+    ``warm``: a cached point of the same pair that was touching at the start
+    of that step and carried a positive normal force lies within ``tol``
+    (k,) m of them (the warm start's matching radius).  A speculative row
+    that pressed only to land its point exactly on the surface does not
+    count: that point arrives still approaching, an impact."""
+    pk = _warm_packed(warm)
+    o_code, o_loc, o_fn = pk[0], pk[1], np.where(pk[7], pk[2], 0.0)
     out = np.zeros(codes.size, bool)
     lo = np.searchsorted(o_code, codes, "left")
     hi = np.searchsorted(o_code, codes, "right")
@@ -931,8 +939,8 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
 
 def _warm_packed(old: dict):
     """(point codes, points, normal forces, pair codes, friction forces,
-    twists, rolling torques or None) of a warm cache, sorted by code (built
-    from the dict when the cache was copied)."""
+    twists, rolling torques or None, touching flags) of a warm cache, sorted
+    by code (built from the dict when the cache was copied)."""
     pk = getattr(old, "packed", None)
     if pk is not None:
         return pk
@@ -944,7 +952,8 @@ def _warm_packed(old: dict):
     u_ft = np.array([np.asarray(v[2], float) for v in vals]).reshape(-1, 3)
     u_tw = np.array([float(v[3]) for v in vals])
     u_rr = np.array([np.asarray(v[4], float) if len(v) > 4 else np.zeros(3) for v in vals]).reshape(-1, 3)
-    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw, u_rr
+    o_touch = np.concatenate([np.asarray(v[5], bool) if len(v) > 5 else np.ones(len(v[1]), bool) for v in vals])
+    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw, u_rr, o_touch
 
 
 def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
