@@ -37,6 +37,9 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
             ("off", "toi", "events")),
     "ccd_motion_fraction": (0.25, float, "ccd=toi: a body is fast when it moves more than this fraction of its "
                             "smallest half-size in a step", (0.0, 100.0)),
+    "max_rotation_per_step": (1.0, float, "with contacts: a step in which a non-round body would turn by more "
+                              "than this (rad; about a cylinder's or capsule's own axis does not count) is split "
+                              "into equal parts that do not; 0 = never split", (0.0, 100.0)),
     "ccd_max_events": (32, int, "time-of-impact events per substep before impacts become speculative contacts",
                        (0, 100000)),
     "contact_model": ("impulse", str, "sequential impulses or penalty springs", ("impulse", "penalty")),

@@ -43,7 +43,7 @@ from engine.profile import Stage
 from engine.solver import TOUCH_TOL, _pad, impact_solve, point_normal_velocity
 
 TOI_TOL = 1e-9  # m
-TOI_MAX_ITER = 6
+TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
 
 
 class CCD(Stage):
@@ -132,6 +132,12 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
             if abs(nxt - tau) <= 1e-15 * h_full:
                 break
             tau = nxt
+        if g < -TOI_TOL and 1e-9 * h_full < lo < tau:
+            # not converged (a kink where another followed point becomes the
+            # deepest slows Newton down): commit at the last time that was
+            # still clear, not inside the surface
+            tau = lo
+            _rerun(model, state, ctx, main_stages, profile, tau)
     finally:
         ctx.reuse_contacts = False
     return tau

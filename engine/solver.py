@@ -81,6 +81,7 @@ TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
 DIRECT_MAX_ROWS = 400  # rows up to which the solve starts from a direct solution
 RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
 SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides
+WARM_MIN_STEP = 1e-3  # (sub)steps shorter than this fraction of the model's step cache no forces
 
 
 def _pad(a: np.ndarray) -> np.ndarray:
@@ -754,7 +755,14 @@ class Solve(Stage):
                     ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
                     ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
-        self._store(model, state, ctx, rows, loc, h, touching[sel])
+        if h >= WARM_MIN_STEP * model.h:
+            self._store(model, state, ctx, rows, loc, h, touching[sel])
+        else:
+            # a sliver of a step (the rest of a step after a late time of
+            # impact): its impulses are impulsive, not forces -- cached as
+            # lambda / h they came back next step as a huge impulse (a box
+            # of column_5 spun up to 5e5 rad/s after a 7e-12 s remainder)
+            state.warm = {}
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
