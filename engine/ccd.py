@@ -113,6 +113,7 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
     context holding the rerun to the returned tau (s)."""
     h_full = ctx.h
     tau, a, b, sidx, loc = ctx.event
+    thr = float(model.settings["restitution_threshold"])
     lo, hi = 0.0, h_full
     ctx.reuse_contacts = True
     try:
@@ -121,6 +122,11 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
             g, vn = pair_gap(model, ctx, a, b, sidx, loc)
             profile.count("toi_iterations")
             if abs(g) <= TOI_TOL:
+                break
+            if abs(g) <= TOUCH_TOL and -vn <= thr:
+                # touching and no longer approaching fast: the gap is flat
+                # here (an end settling on the surface, sliding), where
+                # Newton crawls; the solver takes it as a resting contact
                 break
             if g > 0:
                 lo = tau
