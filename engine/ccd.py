@@ -123,7 +123,7 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
             profile.count("toi_iterations")
             if abs(g) <= TOI_TOL:
                 break
-            if abs(g) <= TOUCH_TOL and -vn <= thr:
+            if -TOUCH_TOL <= g < 0.0 and -vn <= thr:
                 # touching and no longer approaching fast: the gap is flat
                 # here (an end settling on the surface, sliding), where
                 # Newton crawls; the solver takes it as a resting contact
