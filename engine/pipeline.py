@@ -95,6 +95,9 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     stage reports an impact inside the substep, the substep is cut at the
     time of impact (refined on the integrated trajectory), the impact
     impulse is applied there and the rest of the substep runs the same way.
+    A substep in which a non-round body would turn by more than
+    ``max_rotation_per_step`` runs as equal parts that do not (see
+    :func:`_parts`; counted as ``rotation_splits``).
     """
     ctx = context(model, state, profile)
     split = ctx.info.get("split")
