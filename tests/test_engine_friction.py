@@ -354,3 +354,17 @@ def test_penalty_contacts_resist_rolling_too(tmp_path):
     t = np.arange(1, 241) / 240
     a = np.polyfit(t[24:], vs[24:], 1)[0]
     assert a == pytest.approx(_rolling_accel(0.0, 1.0), rel=0.05)
+
+
+def test_rolling_friction_on_a_line_contact():
+    """friction.cylinder_rolling_resistance: a cylinder on its side (two rim
+    points, one patch) rolls against mu_r N like the ball, with k = 1/2:
+    a = -2/3 (mu_r / r) g on flat ground, to round-off, and stops within a
+    micrometre of the closed form's 1.5291 m."""
+    from harness.runner import run
+
+    res = run(load_scene("friction.cylinder_rolling_resistance"), "reference")
+    assert res.status == "ok", res.message
+    assert res.metrics["roll_accel"] == pytest.approx(-2 / 3 * MU_R / 0.1 * G, rel=1e-9)
+    assert res.metrics["rolling_slip"] <= 1e-9
+    assert res.metrics["final_position_error"] <= 1e-6
