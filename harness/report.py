@@ -1265,32 +1265,34 @@ def _colour(frac: float, n_supported: int) -> str:
     return f"hsl({hue},70%,80%)"
 
 
+def _engine_cells(g: pd.DataFrame, engines: list[str], cell) -> list[str]:
+    """One cell per engine (columns ``engines``) from the rows ``g`` (one per
+    engine): ``cell(row)``, or a dash where the engine has no row."""
+    by = {r["engine"]: r for r in g.to_dict("records")}
+    return [cell(by[en]) if en in by else "<span class='note'>-</span>" for en in engines]
+
+
 def _stability_html(sm: pd.DataFrame) -> str:
     if sm.empty:
         return '<p class="note">No sweep or conformance rows.</p>'
     engines = sorted(sm["engine"].unique())
     rows = []
+    def cell(r) -> str:
+        supported = r["points"] - r["unsupported"]
+        txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ok &amp; stable"]
+        for k in ("unstable", "diverged", "error", "unsupported", "other"):
+            if r[k]:
+                txt.append(f"{r[k]} {k}")
+        if _finite(r["max_stable_dt"]):
+            txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
+        if _finite(r["min_unstable_dt"]):
+            txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
+        frac = r["ok_stable"] / supported if supported else math.nan
+        return (f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
+                + "<br>".join(txt) + "</div>")
+
     for (sc, va), g in sm.groupby(["scenario", "variant"], sort=True):
-        cells = [_e(sc) + (f" / {_e(va)}" if va else "")]
-        by = {r["engine"]: r for r in g.to_dict("records")}
-        for en in engines:
-            r = by.get(en)
-            if r is None:
-                cells.append("<span class='note'>-</span>")
-                continue
-            supported = r["points"] - r["unsupported"]
-            txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ok &amp; stable"]
-            for k in ("unstable", "diverged", "error", "unsupported", "other"):
-                if r[k]:
-                    txt.append(f"{r[k]} {k}")
-            if _finite(r["max_stable_dt"]):
-                txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
-            if _finite(r["min_unstable_dt"]):
-                txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
-            frac = r["ok_stable"] / supported if supported else math.nan
-            cells.append(f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
-                         + "<br>".join(txt) + "</div>")
-        rows.append(cells)
+        rows.append([_e(sc) + (f" / {_e(va)}" if va else "")] + _engine_cells(g, engines, cell))
     sel = sm.attrs.get("selection", "")
     return (f"<p class='note'>Showing {_e(sel)}. Per cell: points that ran ok and stable out of all points "
             "(latest sweep points and latest <code>physbench check</code> rows), counts of the other outcomes, "
@@ -1309,28 +1311,21 @@ def _phase_html(pt: pd.DataFrame) -> str:
     order = pt.sort_values(["scenario", "variant", "settings", "dt"], ascending=[True, True, True, False],
                            kind="stable")
     several = order[["machine_id", "suite"]].drop_duplicates().shape[0] > 1
+    def cell(r) -> str:
+        n = r["phases"] - r["pattern"].count("-")
+        if not n:
+            return f"<div class='cell' style='background:{_colour(math.nan, 0)};padding:.2em'>unsupported</div>"
+        single = {".": "single run: pass", "x": "single run: FAIL", "!": "single run: not ok"}.get(r["phase0"], "")
+        return (f"<div class='cell' style='background:{_colour(1 - r['fraction'], n)};padding:.2em'>"
+                f"<b>{r['failures']}/{n}</b> failed [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]<br>"
+                f"<code>{_e(r['pattern'])}</code><br><span class='note'>{single}</span></div>")
+
     for key, g in order.groupby(keys, sort=False):
         mid, suite, sc, va, st, dt = key
         label = _e(sc) + (f" / {_e(va)}" if va else "")
         if several:
             label += f"<br><span class='note'>{_e(mid)} / {_e(suite)}</span>"
-        cells = [label, _e(st), _e(fmt(dt))]
-        by = {r["engine"]: r for r in g.to_dict("records")}
-        for en in engines:
-            r = by.get(en)
-            if r is None:
-                cells.append("<span class='note'>-</span>")
-                continue
-            n = r["phases"] - r["pattern"].count("-")
-            if not n:
-                cells.append(f"<div class='cell' style='background:{_colour(math.nan, 0)};padding:.2em'>"
-                             "unsupported</div>")
-                continue
-            single = {".": "single run: pass", "x": "single run: FAIL", "!": "single run: not ok"}.get(r["phase0"], "")
-            cells.append(f"<div class='cell' style='background:{_colour(1 - r['fraction'], n)};padding:.2em'>"
-                         f"<b>{r['failures']}/{n}</b> failed [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]<br>"
-                         f"<code>{_e(r['pattern'])}</code><br><span class='note'>{single}</span></div>")
-        rows.append(cells)
+        rows.append([label, _e(st), _e(fmt(dt))] + _engine_cells(g, engines, cell))
     return ("<p class='note'>One run per dt is one draw of the step phase: where a thin wall is caught depends "
             "on where the steps fall. Each configuration below ran N times with its start moved back along the "
             "exact free flight by i/N dt (i = 0 .. N-1; i = 0 is the scene as written). Failed: not ok, not "
