@@ -111,7 +111,8 @@ class PenaltyContacts(Stage):
         rows.apply_normal(U, Fn * h)
         if self.friction:
             # regularised Coulomb per contact patch, at its centroid
-            vt = rows.patch_tangent_velocity(Rows.pack(V0, W0))
+            U0 = Rows.pack(V0, W0)
+            vt = rows.patch_tangent_velocity(U0)
             speed = np.sqrt(np.einsum("km,km->k", vt, vt))
             Fn_patch = np.bincount(rows.pid, Fn, rows.np)
             stop = speed * np.min(rows.mt[:, :2], axis=1)  # impulse that would stop the sliding
@@ -121,9 +122,7 @@ class PenaltyContacts(Stage):
             if rows.rolling:
                 # rolling resistance the same way: |torque| = min(mu_r Fn,
                 # what stops the relative rolling), against it
-                U0 = Rows.pack(V0, W0)
-                wr = (np.einsum("kmj,kj->km", rows.JtA[:, 3:], U0[rows.pa])
-                      + np.einsum("kmj,kj->km", rows.JtB[:, 3:], U0[rows.pb]))
+                wr = rows.patch_velocity(U0, slice(3, 5))
                 rs = np.sqrt(np.einsum("km,km->k", wr, wr))
                 mag_r = np.minimum(rows.mur * Fn_patch * h, rs * np.min(rows.mt[:, 3:], axis=1))
                 d[:, 3:] = -wr / np.where(rs > 0, rs, 1.0)[:, None] * mag_r[:, None]

@@ -20,6 +20,7 @@ import numpy as np
 
 from engine.ccd import CCD, Impact, refine_toi
 from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
+from engine.mathutil import quat_to_matrix
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.narrowphase import NarrowPhase
@@ -157,10 +158,7 @@ def _parts(model: Model, state: State, turn) -> int:
         wb = state.w[boxes]
         w2 = float(np.max(np.einsum("ki,ki->k", wb, wb)))
     if axisym.size:
-        q = state.q[axisym]
-        # the body z axis (the axis of symmetry) in the world: R[:, 2]
-        ax = np.stack([2 * (q[:, 1] * q[:, 3] + q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] - q[:, 0] * q[:, 1]),
-                       1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2)], axis=1)
+        ax = quat_to_matrix(state.q[axisym])[:, :, 2]  # the body z axis (the axis of symmetry) in the world
         wa = state.w[axisym]
         wp = wa - np.einsum("ki,ki->k", wa, ax)[:, None] * ax
         w2 = max(w2, float(np.max(np.einsum("ki,ki->k", wp, wp))))

@@ -91,6 +91,15 @@ def _pad(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def _onto_disc(d: np.ndarray, lim: np.ndarray) -> None:
+    """Scale the rows of the 2-vectors ``d`` (k, 2) longer than ``lim`` (k,)
+    back onto that disc, in place (the Coulomb and rolling limits)."""
+    mag = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
+    over = mag > lim
+    if over.any():
+        d *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+
+
 def point_normal_velocity(V, W, a, b, rA, rB, n):
     """n . (vb + wb x rB - va - wa x rA) for padded (n+1, 3) V, W."""
     rel = V[b] + cross(W[b], rB) - V[a] - cross(W[a], rA)
@@ -421,10 +430,16 @@ class Rows:
         self.slip = slip
         self.mu = np.where(slip, self.muk, self.mus)
 
+    def patch_velocity(self, U, rows: slice) -> np.ndarray:
+        """(np, k) relative velocities of the patch rows ``rows``: slice(0, 2)
+        the tangential velocity at the centroids (m/s), slice(3, 5) the
+        rolling angular velocity (rad/s)."""
+        return (np.einsum("kmj,kj->km", self.JtA[:, rows], U[self.pa])
+                + np.einsum("kmj,kj->km", self.JtB[:, rows], U[self.pb]))
+
     def patch_tangent_velocity(self, U) -> np.ndarray:
         """(np, 2) relative tangential velocity at the patch centroids."""
-        v = np.einsum("kmj,kj->km", self.JtA[:, :2], U[self.pa]) + np.einsum("kmj,kj->km", self.JtB[:, :2], U[self.pb])
-        return v
+        return self.patch_velocity(U, slice(0, 2))
 
     # ---- velocities ---------------------------------------------------------
     @staticmethod
@@ -490,10 +505,7 @@ class Rows:
             old = lam_t[s:e, :3]
             new = old - mt * vt
             lim = mu[s:e] * Fn[s:e]
-            mag = np.sqrt(new[:, 0] ** 2 + new[:, 1] ** 2)
-            over = mag > lim
-            if over.any():
-                new[:, :2] *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+            _onto_disc(new[:, :2], lim)
             tl = lim * rt
             np.clip(new[:, 2], -tl, tl, out=new[:, 2])
             Uab += np.einsum("km,kmj->kj", new - old, Mt)
@@ -507,11 +519,7 @@ class Rows:
                 vr = np.einsum("kmj,kj->km", Jr, Uab)
                 old = lam_t[s:e, 3:]
                 new = old - mr * vr
-                lim = mur * Fn[s:e]
-                mag = np.sqrt(new[:, 0] ** 2 + new[:, 1] ** 2)
-                over = mag > lim
-                if over.any():
-                    new *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+                _onto_disc(new, mur * Fn[s:e])
                 Uab += np.einsum("km,kmj->kj", new - old, Mr)
                 lam_t[s:e, 3:] = new
                 U[ab] = Uab.reshape(k, 2, 6)

@@ -58,6 +58,16 @@ def _window(t: np.ndarray) -> slice:
     return slice(start, len(t))
 
 
+def _check_axis_across(model: str, b, axis: np.ndarray) -> None:
+    """Refuse a cylinder whose axis (body z) is not along the roll axis
+    ``axis`` = n x d (lying across the slope)."""
+    q = np.asarray(b.orientation, float)
+    ez = quat_to_matrix(q / np.linalg.norm(q))[:, 2]  # the body's z axis (the cylinder's axis) in the world
+    if abs(abs(float(ez @ axis)) - 1.0) > 1e-9:
+        raise ReferenceError(f"{model} needs the cylinder's axis along the roll axis n x d = "
+                             f"{axis.round(6).tolist()}; body {b.name!r} has its axis along {ez.round(6).tolist()}")
+
+
 class _SlopeModel(ReferenceModel):
     params_allowed = ("body", "slope")
 
@@ -249,11 +259,7 @@ class RollingCylinder(RollingSphere):
     def _check_body(self, b) -> None:
         if b.shape != "cylinder":
             raise ReferenceError(f"rolling_cylinder needs a cylinder, body {b.name!r} is a {b.shape}")
-        q = np.asarray(b.orientation, float)
-        ez = quat_to_matrix(q / np.linalg.norm(q))[:, 2]  # the body's z axis (the cylinder's axis) in the world
-        if abs(abs(float(ez @ self.axis)) - 1.0) > 1e-9:
-            raise ReferenceError(f"rolling_cylinder needs the cylinder's axis along the roll axis n x d = "
-                                 f"{self.axis.round(6).tolist()}; body {b.name!r} has its axis along {ez.round(6).tolist()}")
+        _check_axis_across(self.name, b, self.axis)
 
     def _axis_inertia(self, b) -> float:
         return float(b.inertia[2])  # principal moment about the body z axis
@@ -305,7 +311,7 @@ class RollingResistance(_SlopeModel):
         if b.shape == "sphere":
             I = float(b.inertia[0])
         elif b.shape == "cylinder":
-            RollingCylinder._check_body(self, b)
+            _check_axis_across(self.name, b, self.axis)
             I = float(b.inertia[2])
         else:
             raise ReferenceError(f"rolling_resistance needs a sphere or a cylinder, body {b.name!r} is a {b.shape}")
