@@ -40,6 +40,9 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
     "max_rotation_per_step": (1.0, float, "with contacts: a step in which a non-round body would turn by more "
                               "than this (rad; about a cylinder's or capsule's own axis does not count) is split "
                               "into equal parts that do not; 0 = never split", (0.0, 100.0)),
+    "friction_stops": (True, bool, "with friction: a step in which a sliding or rolling contact comes to rest "
+                       "is cut where it does (from the kinetic slip's linear decay), so the rest of the step "
+                       "sees it at rest: turnarounds exact instead of first order in the step", None),
     "ccd_max_events": (32, int, "time-of-impact events per substep before impacts become speculative contacts",
                        (0, 100000)),
     "contact_model": ("impulse", str, "sequential impulses or penalty springs", ("impulse", "penalty")),

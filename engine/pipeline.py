@@ -95,7 +95,9 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     h = dt / substeps.  A substep runs the stages in order; when the CCD
     stage reports an impact inside the substep, the substep is cut at the
     time of impact (refined on the integrated trajectory), the impact
-    impulse is applied there and the rest of the substep runs the same way.
+    impulse is applied there and the rest of the substep runs the same way;
+    likewise at a friction stop (a sliding or rolling contact coming to rest
+    and not staying at rest, :func:`_substep`).
     A substep in which a non-round body would turn by more than
     ``max_rotation_per_step`` runs as equal parts that do not (see
     :func:`_parts`; counted as ``rotation_splits``).
@@ -168,16 +170,54 @@ def _parts(model: Model, state: State, turn) -> int:
     return min(int(math.ceil(theta / limit)), MAX_PARTS)
 
 
+#: friction stops (see :func:`_substep`) per (sub)step at most
+MAX_STOPS = 8
+
+
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
              profile: Profile) -> None:
-    """One (sub)step of length h, cut at every time of impact."""
+    """One (sub)step of length h, cut at every time of impact and at every
+    friction stop.
+
+    A friction stop (setting ``friction_stops``): the solver found a contact
+    that slid (or rolled) at the start of the step at rest at its end, and
+    where inside the step it came to rest (``ctx.stop``,
+    :meth:`engine.solver.Rows.stop_times`).  The step is rerun to that time
+    from the same start (same contacts, the warm start it began with) and
+    committed there; the rest of the step then starts with the contact at
+    rest, where static friction decides whether it stays or turns round.
+    Without the cut the stopped contact sticks for the rest of the step
+    whatever the forces, an error of first order in the step (a block thrown
+    up a 35 degree slope slid back 6.6 mm behind the closed form at 1/240 s).
+    """
     remaining = h
     events = 0
+    stops = 0
+    allow_stops = bool(model.settings["friction_stops"]) and model.has("friction")
     while True:
+        warm0 = state.warm
         ctx.begin(model, state, remaining)
         ctx.event_mode = "event" if (impact is not None and events < max_events) else "speculative"
+        ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
         for s in main:
             profile.run(s, model, state, ctx)
+        if ctx.event is None and ctx.stop is not None:
+            tau = ctx.stop
+            state.warm = warm0
+            _rerun_short(model, state, ctx, main, profile, tau)
+            if ctx.impacts is None:
+                _commit(model, state, ctx, tau)
+                profile.count("friction_stops")
+                stops += 1
+                remaining -= tau
+                if remaining <= 1e-12 * h:
+                    break
+                continue
+            # an impact inside the shortened step (not seen in the whole
+            # one): the step runs again whole, without the stop
+            stops = MAX_STOPS
+            state.warm = warm0
+            continue
         if ctx.event is None:
             _commit(model, state, ctx, remaining)
             break
@@ -185,6 +225,10 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
             tau = 0.0
         else:
             tau = refine_toi(model, state, ctx, main, profile)
+            if tau is None:  # no impact within the step after all
+                profile.count("toi_misses")
+                _commit(model, state, ctx, remaining)
+                break
             _commit(model, state, ctx, tau)
         profile.run(impact, model, state, ctx)
         # the impact solve has stopped every touching approach (plastic
@@ -197,3 +241,21 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
         remaining -= tau
         if remaining <= 1e-12 * h:
             break
+
+
+def _rerun_short(model: Model, state: State, ctx: Context, main, profile: Profile, tau: float) -> None:
+    """Rerun the (mini-)step from ``state`` with length ``tau`` (shorter
+    than the one just run), reusing its contacts (found with a margin that
+    covers the longer motion): no broad or narrow phase, no CCD stage."""
+    mode = ctx.event_mode
+    ctx.begin(model, state, tau)
+    ctx.event_mode = mode
+    ctx.stop_allowed = False
+    ctx.reuse_contacts = True
+    try:
+        for s in main:
+            if s.family in ("broadphase", "narrowphase", "ccd"):
+                continue
+            profile.run(s, model, state, ctx)
+    finally:
+        ctx.reuse_contacts = False

@@ -45,7 +45,9 @@ A patch that slides at the start of the step (relative tangential speed
 above ``SLIP_TOL``) uses mu_k; a sticking one uses mu_s, and if its friction
 ends on the mu_s limit it cannot stick: it switches to mu_k and the rows are
 solved again (static friction cannot be exceeded; once broken, kinetic
-applies).
+applies).  A sliding (or rolling) patch that comes to rest inside the step
+and does not stay at rest is a *friction stop*: :meth:`Rows.stop_times`
+finds when, and the step loop (pipeline._substep) cuts the step there.
 
 Position correction: push-out velocities beta (depth - slop) / h, solved on
 separate pseudo velocities that move positions by h vp.  ``split_impulse``
@@ -81,6 +83,8 @@ TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
 DIRECT_MAX_ROWS = 400  # rows up to which the solve starts from a direct solution
 RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
 SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides
+ROLL_TOL = 1e-4  # rad/s: relative rolling angular speed above which a contact rolls (rolling friction)
+STOP_MIN_REST = 1e-6  # a friction stop this close to a step's end (fraction of it) does not cut the step
 WARM_MIN_STEP = 1e-3  # (sub)steps shorter than this fraction of the model's step cache no forces
 
 
@@ -366,6 +370,12 @@ class Rows:
         self.slip = np.zeros(npch, bool)
         self.mu = self.mus.copy()
 
+    #: patches whose friction is held on its kinetic limit against a fixed
+    #: direction, for :meth:`stop_times`: None, or (tangent mask (np,), unit
+    #: slip directions (np, 2), rolling mask (np,) or None, unit rolling
+    #: directions (np, 2) or None)
+    pin = None
+
     def normal_matrix(self) -> np.ndarray:
         """K = J M^-1 J^T over the normal rows, (m, m) dense: rows i and j
         couple through every body they share (the world row has M^-1 = 0).
@@ -498,6 +508,7 @@ class Rows:
         self._slice_data()
         Fn = np.bincount(self.pid, self.lam_n, self.np)
         lam_t, mu = self.lam_t, self.mu
+        pin = self.pin
         for s, e, ab, Jt, Mt, mt, rt in (reversed(self._pslices) if reverse else self._pslices):
             k = e - s
             Uab = U[ab].reshape(k, 12)
@@ -506,6 +517,9 @@ class Rows:
             new = old - mt * vt
             lim = mu[s:e] * Fn[s:e]
             _onto_disc(new[:, :2], lim)
+            if pin is not None and pin[0][s:e].any():
+                pm = pin[0][s:e]
+                new[pm, :2] = -lim[pm, None] * pin[1][s:e][pm]
             tl = lim * rt
             np.clip(new[:, 2], -tl, tl, out=new[:, 2])
             Uab += np.einsum("km,kmj->kj", new - old, Mt)
@@ -520,6 +534,9 @@ class Rows:
                 old = lam_t[s:e, 3:]
                 new = old - mr * vr
                 _onto_disc(new, mur * Fn[s:e])
+                if pin is not None and pin[2] is not None and pin[2][s:e].any():
+                    pm = pin[2][s:e]
+                    new[pm] = -(mur * Fn[s:e])[pm, None] * pin[3][s:e][pm]
                 Uab += np.einsum("km,kmj->kj", new - old, Mr)
                 lam_t[s:e, 3:] = new
                 U[ab] = Uab.reshape(k, 2, 6)
@@ -572,6 +589,91 @@ class Rows:
             sweeps += self.iterate(U, iterations)
         return sweeps
 
+    def stop_times(self, U, vt0, wr0, h: float, iterations: int) -> np.ndarray | None:
+        """Times (s) within the step at which patches that slid (or rolled)
+        at its start came to rest: (np,) with inf for the others, or None
+        when no patch stopped.  ``U`` (n+1, 6) the solved end velocities,
+        ``vt0`` (np, 2) m/s and ``wr0`` (np, 2) rad/s or None the patches'
+        tangential and rolling velocities at the start of the step.
+
+        A patch that slid at the start (|vt0| > SLIP_TOL) and ends the step
+        at rest or turned round (its end slip along the initial direction
+        below SLIP_TOL) came to rest somewhere inside the step.  The solve
+        then either stuck it for the rest of the step, whatever the forces
+        (a block thrown up a slope steeper than atan(mu_s) ends that step at
+        rest and slides back late by the rest of it), or applied one
+        friction direction to all of it (a ball rolling uphill against
+        rolling resistance turns round resisted the wrong way before or
+        after the turn): either way an error of first order in the step.
+        Where inside the step: under constant forces
+        and kinetic friction against the initial slip direction s, the slip
+        velocity along s is linear in time, sigma(t) = sigma_0 + (sigma_h -
+        sigma_0) t / h.  One more solve with those patches' friction held on
+        the kinetic limit against s (everything else solved as before, so
+        the coupling to the other rows is kept) gives sigma_h < 0, and the
+        stop is at tau = h sigma_0 / (sigma_0 - sigma_h): exact for constant
+        forces, second order otherwise.  Rolling rows alike, with the
+        rolling angular velocity and the mu_r disc.  The impulses of the
+        solve are left as they were."""
+        Fn = np.bincount(self.pid, self.lam_n, self.np)
+        live = Fn > 0.0
+        s0 = np.sqrt(vt0[:, 0] ** 2 + vt0[:, 1] ** 2)
+        tdir = vt0 / np.where(s0 > 0.0, s0, 1.0)[:, None]
+        tc = live & (s0 > SLIP_TOL)
+        if tc.any():
+            # at rest at the end (stuck inside the disc) or already turned
+            # round (on the limit, against the end motion)
+            tc &= np.einsum("km,km->k", self.patch_velocity(U, slice(0, 2)), tdir) < SLIP_TOL
+        rc = r0 = rdir = None
+        if self.rolling and wr0 is not None:
+            r0 = np.sqrt(wr0[:, 0] ** 2 + wr0[:, 1] ** 2)
+            rdir = wr0 / np.where(r0 > 0.0, r0, 1.0)[:, None]
+            rc = live & (self.mur > 0.0) & (r0 > ROLL_TOL)
+            if rc.any():
+                rc &= np.einsum("km,km->k", self.patch_velocity(U, slice(3, 5)), rdir) < ROLL_TOL
+            if not rc.any():
+                rc = rdir = None
+        if rc is None and not tc.any():
+            return None
+        ends = {0: self.patch_velocity(U, slice(0, 2))}
+        if rc is not None:
+            ends[3] = self.patch_velocity(U, slice(3, 5))
+        # (the candidates slid at the start, so their mu is already mu_k)
+        saved = self.lam_n.copy(), self.lam_t.copy()
+        U2 = U.copy()
+        self.pin = (tc, tdir, rc, rdir)
+        try:
+            self.iterate(U2, iterations)
+        finally:
+            self.pin = None
+            self.lam_n, self.lam_t = saved
+        tau = np.full(self.np, np.inf)
+        for mask, rows, d, m0, lim_k, lim_s, tol in (
+                (tc, slice(0, 2), tdir, s0, self.muk, self.mus, SLIP_TOL),
+                (rc, slice(3, 5), rdir, r0, self.mur, self.mur, ROLL_TOL)):
+            if mask is None or not mask.any():
+                continue
+            sig = np.einsum("km,km->k", self.patch_velocity(U2, rows), d)
+            ok = mask & (sig < 0.0)
+            f = m0 / np.where(ok, m0 - sig, 1.0)  # tau / h
+            # A patch the solve left at rest whose rest needs no more than
+            # the static limit: the impulse L it got is kinetic friction for
+            # f h and a holding force F for the rest, L = -lim_k Fn f d +
+            # F (1 - f) h; |F h| <= lim_s Fn means it stays at rest after the
+            # stop, and the uncut step differs from the cut one only at
+            # second order (where within the step the impulse acts).  The
+            # cut matters where it turns round: the block on 35 degrees,
+            # not a falling bar's end sticking a few per cent into a step
+            # (cutting those -- 80 in one run -- set the bar's pivot
+            # chattering)
+            e = ends[rows.start]
+            at_rest = np.sqrt(e[:, 0] ** 2 + e[:, 1] ** 2) < tol
+            L = self.lam_t[:, rows] + (lim_k * Fn * np.where(ok, f, 0.0))[:, None] * d
+            holds = at_rest & (np.sqrt(L[:, 0] ** 2 + L[:, 1] ** 2) <= lim_s * Fn * np.maximum(1.0 - f, 0.0))
+            ok &= ~holds
+            tau = np.where(ok, np.minimum(tau, h * f), tau)
+        return tau
+
     def iterate_normal(self, U, lam, target, iterations: int, tol: float = 1e-7) -> None:
         """Normal rows only, with their own accumulator (split impulse)."""
         for _ in range(iterations):
@@ -619,6 +721,7 @@ class Solve(Stage):
         self.friction = model.has("friction")
         self.c = model.contact_lever
         self.direct = bool(s["direct_start"])
+        self.stops = bool(s["friction_stops"])
         self._topos: dict[bytes, Topology] = {}
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
@@ -733,7 +836,8 @@ class Solve(Stage):
         depth = -gap[sel]
         rows.target = target
         if self.friction:
-            vt0 = rows.patch_tangent_velocity(Rows.pack(VV[1], WW[1]))
+            U0 = Rows.pack(VV[1], WW[1])
+            vt0 = rows.patch_tangent_velocity(U0)
             rows.set_slip(np.sqrt(np.einsum("km,km->k", vt0, vt0)) > SLIP_TOL)
         U = Rows.pack(ctx.v, ctx.w)
         # contact points in body a's frame: the warm cache's matching key
@@ -745,6 +849,13 @@ class Solve(Stage):
         if self.warm or self.direct:
             rows.warm_start(U)
         sweeps = rows.solve_friction_regimes(U, self.iterations)
+        if self.friction and ctx.stop_allowed and self.stops and (rows.slip.any() or rows.rolling):
+            wr0 = rows.patch_velocity(U0, slice(3, 5)) if rows.rolling else None
+            tau = rows.stop_times(U, vt0, wr0, h, self.iterations)
+            if tau is not None:
+                t = float(tau.min())
+                if t < h * (1.0 - STOP_MIN_REST):
+                    ctx.stop = t
         Rows.unpack(U, ctx.v, ctx.w)
         if self.correction != "none":
             # push-out velocities for penetration beyond the slop, solved on

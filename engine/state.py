@@ -150,6 +150,11 @@ class Context:
         self.allow_events = True
         self.event: tuple | None = None
         self.n_events = 0
+        # friction stops (solver.Rows.stop_times): the earliest time (s)
+        # within the step at which a sliding or rolling contact came to rest,
+        # and whether the solver looks for one in this (mini-)step
+        self.stop: float | None = None
+        self.stop_allowed = False
         self.info: dict[str, Any] = {}
 
     def begin(self, model: Model, state: State, h: float) -> None:
@@ -168,6 +173,8 @@ class Context:
         self.wp[:] = 0.0
         self.event = None
         self.impacts = None
+        self.stop = None
+        self.stop_allowed = False
         # force stages first evaluate at the start state
         self.ex, self.eq, self.ev, self.ew = state.x, state.q, state.v, state.w
         self.R0[:] = quat_to_matrix(state.q)

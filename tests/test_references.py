@@ -195,6 +195,44 @@ def test_incline_block_critical_angle_boundary():
     assert above.a_slide == pytest.approx(0.19142, abs=1e-5)
 
 
+def test_incline_block_thrown_uphill_stops_and_slides_back():
+    """Thrown up 35 degrees at 2 m/s (mu_k 0.3, mu_s 0.4 < tan 35): by hand,
+    a_up = 9.81 (sin 35 + 0.3 cos 35) = 9.81 (0.5735764 + 0.2457456)
+    = 8.03755 m/s^2 against the motion, stop at 2 / 8.03755 = 0.248832 s after
+    0.248832 m; then a_back = 9.81 (0.5735764 - 0.2457456) = 3.21602 m/s^2
+    down from rest: at 1.5 s, s = -0.248832 + 3.21602 (1.5 - 0.248832)^2 / 2
+    = 2.268381 m downhill of the start."""
+    text = slope_block(35.0, 0.3, 0.4, duration=1.5).replace(
+        'mass = 1.0', 'mass = 1.0\nvelocity = [-1.6383040885779836, 0.0, 1.1471528727020921]')
+    m = get_model("incline_block")(scene_from(text))
+    assert m.u0 == pytest.approx(-2.0, abs=1e-12)
+    assert m.a_slide == pytest.approx(8.03755, abs=1e-5)
+    assert m.t_stop == pytest.approx(0.248832, abs=1e-6)
+    assert m.a_back == pytest.approx(3.21602, abs=1e-5)
+    assert float(m.distance(np.array([m.t_stop]))[0]) == pytest.approx(-0.248832, abs=1e-6)
+    assert float(m.distance(np.array([1.5]))[0]) == pytest.approx(2.268381, abs=1e-6)
+    t = np.linspace(0.0, 1.5, 1501)
+
+    def trace(delay):
+        """The closed form, turning round ``delay`` s late (stuck meanwhile)."""
+        tt = np.where(t > m.t_stop, np.maximum(t - delay, m.t_stop), t)
+        s = m.distance(tt)
+        v = np.where(tt < m.t_stop, m.u0 + m.a_slide * tt, m.a_back * (tt - m.t_stop))
+        return make_trace(t, (m.x0 + np.outer(s, m.d))[:, None], np.outer(v, m.d)[:, None])
+
+    out = m.metrics(trace(0.0))
+    assert out["final_position_error"] == pytest.approx(0.0, abs=1e-12)
+    assert out["slide_accel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["return_accel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert "stick_creep" not in out
+    # a turnaround 1/480 s late (half a step at 1/240 s): the slide back keeps
+    # its acceleration but ends a_back * delay * (T - t_stop - delay / 2) off
+    d = 1 / 480
+    out = m.metrics(trace(d))
+    assert out["return_accel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["final_position_error"] == pytest.approx(m.a_back * d * (1.5 - m.t_stop - d / 2), rel=1e-9)
+
+
 # ---------------------------------------------------------------------------
 # rolling_sphere
 
