@@ -108,15 +108,12 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     return float(c.gap[k]), float(vn[0])
 
 
-def refine_toi(model, state, ctx, main_stages, profile) -> float | None:
+def refine_toi(model, state, ctx, main_stages, profile) -> float:
     """Rerun the step to the time of impact (see module doc).  Leaves the
-    context holding the rerun to the returned tau (s).  None when the
-    integrated motion does not close the gap within the step after all
-    (the context then holds the whole step, rerun)."""
+    context holding the rerun to the returned tau (s)."""
     h_full = ctx.h
     tau, a, b, sidx, loc = ctx.event
     thr = float(model.settings["restitution_threshold"])
-    margin = float(model.settings["contact_margin"])
     lo, hi = 0.0, h_full
     ctx.reuse_contacts = True
     try:
@@ -126,26 +123,6 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float | None:
             profile.count("toi_iterations")
             if abs(g) <= TOI_TOL:
                 break
-            if g > 0 and it == 1 and hi == h_full:
-                # still clear at two estimates: does the step close the gap
-                # at all?  The estimate is the free flight's (gap over the
-                # mean approach speed), but the solve may hold the point
-                # off -- a corner hovering within the contact margin next
-                # to the edge a bar pivots on.  An "impact" there ran 30
-                # iterations towards the end of the step and, resolved
-                # there with nothing touching, still restarted the rest
-                # cold (the warm cache cleared), which made the next step
-                # see the corner as a fresh impact again
-                # (only a point still within the contact margin at the end
-                # and not approaching faster than the threshold: a point
-                # that is far, or not found at all, at the end pose may
-                # have passed through a thin wall)
-                _rerun(model, state, ctx, main_stages, profile, h_full)
-                g_end, vn_end = pair_gap(model, ctx, a, b, sidx, loc)
-                profile.count("toi_iterations")
-                if TOI_TOL < g_end <= margin and -vn_end <= thr:
-                    return None
-                _rerun(model, state, ctx, main_stages, profile, tau)
             if -TOUCH_TOL <= g < 0.0 and -vn <= thr:
                 # touching and no longer approaching fast: the gap is flat
                 # here (an end settling on the surface, sliding), where

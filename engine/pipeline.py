@@ -225,10 +225,6 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
             tau = 0.0
         else:
             tau = refine_toi(model, state, ctx, main, profile)
-            if tau is None:  # no impact within the step after all
-                profile.count("toi_misses")
-                _commit(model, state, ctx, remaining)
-                break
             _commit(model, state, ctx, tau)
         profile.run(impact, model, state, ctx)
         # the impact solve has stopped every touching approach (plastic
