@@ -626,25 +626,20 @@ class Rows:
         live = Fn > 0.0
         s0 = np.sqrt(vt0[:, 0] ** 2 + vt0[:, 1] ** 2)
         tdir = vt0 / np.where(s0 > 0.0, s0, 1.0)[:, None]
-        tc = live & (s0 > SLIP_TOL)
-        if tc.any():
-            # at rest at the end (stuck inside the disc) or already turned
-            # round (on the limit, against the end motion)
-            tc &= np.einsum("km,km->k", self.patch_velocity(U, slice(0, 2)), tdir) < SLIP_TOL
+        ends = {0: self.patch_velocity(U, slice(0, 2))}  # end velocities per row block
+        # at rest at the end (stuck inside the disc) or already turned round
+        # (on the limit, against the end motion)
+        tc = live & (s0 > SLIP_TOL) & (np.einsum("km,km->k", ends[0], tdir) < SLIP_TOL)
         rc = r0 = rdir = None
         if self.rolling and wr0 is not None:
             r0 = np.sqrt(wr0[:, 0] ** 2 + wr0[:, 1] ** 2)
             rdir = wr0 / np.where(r0 > 0.0, r0, 1.0)[:, None]
-            rc = live & (self.mur > 0.0) & (r0 > ROLL_TOL)
-            if rc.any():
-                rc &= np.einsum("km,km->k", self.patch_velocity(U, slice(3, 5)), rdir) < ROLL_TOL
+            ends[3] = self.patch_velocity(U, slice(3, 5))
+            rc = live & (self.mur > 0.0) & (r0 > ROLL_TOL) & (np.einsum("km,km->k", ends[3], rdir) < ROLL_TOL)
             if not rc.any():
                 rc = rdir = None
         if rc is None and not tc.any():
             return None
-        ends = {0: self.patch_velocity(U, slice(0, 2))}
-        if rc is not None:
-            ends[3] = self.patch_velocity(U, slice(3, 5))
         # (the candidates slid at the start, so their mu is already mu_k)
         saved = self.lam_n.copy(), self.lam_t.copy()
         U2 = U.copy()
