@@ -347,23 +347,28 @@ def test_spinning_bar_far_end_is_an_impact_not_a_speculative_row(dt):
             assert res.metrics["max_penetration"] <= res.settings["correction_slop"]
 
 
-def test_steps_are_split_where_a_body_turns_too_far():
+def test_steps_are_split_where_a_body_turns_too_far(monkeypatch):
     """tunnelling.spinning_long_box[spin_80] at 1/30 s: the bar turns 2.7 rad
     per step, and a point on it strays from the chord of its step (along
     which impacts are detected) by up to r (1 - cos(theta / 2)) = 19 cm:
-    without splitting, its end dips into the 4 mm slab between steps that
-    both see it clear (measured: 174 mm in phase 6 of 16, 60 mm and 97 mm
-    in two more).  With ``max_rotation_per_step`` (1 rad) such a step runs
-    as three parts: no overlap beyond 1 mm in any phase.  Steps of bodies
-    that turn slowly are never split."""
+    with neither cure, its end dips into the 4 mm slab (measured: 174 mm in
+    phase 6 of 16, 60 mm and 97 mm in two more).  With
+    ``max_rotation_per_step`` (1 rad) such a step runs as three parts: no
+    overlap beyond 1 mm in any phase.  Without the split, the end-pose check
+    for missed impacts (``engine.ccd.missed_impacts``) finds the dips as
+    impacts and resolves them at their time of impact instead.  Steps of
+    bodies that turn slowly are never split."""
+    import engine.ccd
     from harness.phase import shift_scene
     from harness.runner import run
 
     base = load_scene("tunnelling.spinning_long_box", "spin_80")
     dt = 1 / 30
-    worst = {}
-    for limit in (1.0, 0.0):
-        pens = []
+    worst, missed = {}, {}
+    found = engine.ccd.missed_impacts
+    for limit, check in ((1.0, True), (0.0, True), (0.0, False)):
+        monkeypatch.setattr(engine.ccd, "missed_impacts", found if check else (lambda *a, **k: []))
+        pens, n_missed = [], 0
         for i in range(16):
             sc = shift_scene(base, i / 16, dt)
             res = run(sc, "reference", {"dt": dt, "max_rotation_per_step": limit})
@@ -371,11 +376,85 @@ def test_steps_are_split_where_a_body_turns_too_far():
             pens.append(res.metrics["max_penetration"])
             splits = res.stages["counters"].get("rotation_splits", 0)
             assert (splits > 0) == (limit > 0)
-        worst[limit] = max(pens)
-    assert worst[1.0] <= 1e-3
-    assert worst[0.0] >= 0.05  # the limit this guards against, measured 0.174 m
+            n_missed += res.stages["counters"].get("missed_impacts", 0)
+        worst[limit, check] = max(pens)
+        missed[limit, check] = n_missed
+    assert worst[1.0, True] <= 1e-3
+    assert worst[0.0, True] <= 1e-3 and missed[0.0, True] >= 1  # measured: 5 missed impacts found
+    assert worst[0.0, False] >= 0.05  # the limit these guard against, measured 0.174 m
+    monkeypatch.setattr(engine.ccd, "missed_impacts", found)
     res = run(load_scene("tunnelling.spinning_long_box"), "reference")  # 40 rad/s at 1/240 s: 0.17 rad per step
     assert res.stages["counters"].get("rotation_splits", 0) == 0
+
+
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def _without(monkeypatch, what: str) -> None:
+    """Switch off one of the time-of-impact safeguards (to show what it
+    removes): the end-pose check for missed impacts, or the check of the
+    step's other impact pairs after the search."""
+    import engine.ccd
+    import engine.pipeline
+
+    if what == "missed":
+        monkeypatch.setattr(engine.ccd, "missed_impacts", lambda *a, **k: [])
+    else:
+        search = engine.ccd.refine_toi
+
+        def first_pair_only(model, state, ctx, main, profile):
+            ctx.event = (*ctx.event[:5], ())
+            return search(model, state, ctx, main, profile)
+
+        monkeypatch.setattr(engine.pipeline, "refine_toi", first_pair_only)
+
+
+@pytest.mark.parametrize("guard", [True, False])
+def test_impact_that_no_contact_row_sees_closing_is_found_at_the_end_pose(monkeypatch, guard):
+    """A capsule spinning at ~32 rad/s comes round a box's edge onto its face
+    within one step (tests/data/missed_impact_capsule_box.toml).  Extrapolated
+    along the start pose's edge normal, its end closes only 18.6 of its
+    31.8 mm, so no contact row sees an impact.  The end-pose check finds the
+    overlap, and the impact is resolved at its time: the deepest overlap is
+    0.02 mm (measured), where without the check it is 18 mm.  Restitution
+    below 1 creates no energy either way."""
+    from harness.runner import run
+
+    if not guard:
+        _without(monkeypatch, "missed")
+    res = run(load_scene(DATA / "missed_impact_capsule_box.toml"), "reference")
+    assert res.status == "ok", res.message
+    assert res.metrics["energy_gain"] <= 1e-9
+    if guard:
+        assert res.stages["counters"].get("missed_impacts", 0) >= 1
+        assert res.metrics["max_penetration"] <= 1e-4
+    else:
+        assert res.metrics["max_penetration"] >= 0.01  # measured 18.1 mm
+
+
+@pytest.mark.parametrize("guard", [True, False])
+def test_time_of_impact_search_checks_the_steps_other_impacts(monkeypatch, guard):
+    """A box falls at 4.9 m/s beside a capsule rolling on the floor
+    (tests/data/impact_behind_a_held_pair.toml).  The capsule's floor
+    contact is the earliest estimated impact of a step, but the solve holds
+    it just clear, so the search for its time runs to the end of the step.
+    Every impact row is left out of the search's reruns, so the box's corner
+    ends that step 14 mm in the floor unless the other impact pairs are
+    checked at the time found.  With the check, the search switches to the
+    box (``toi_switches``) and resolves its impact at its time: deepest
+    overlap 0.12 mm (measured), against 14.3 mm without."""
+    from harness.runner import run
+
+    if not guard:
+        _without(monkeypatch, "others")
+    res = run(load_scene(DATA / "impact_behind_a_held_pair.toml"), "reference")
+    assert res.status == "ok", res.message
+    assert res.metrics["energy_gain"] <= 1e-9
+    if guard:
+        assert res.stages["counters"].get("toi_switches", 0) >= 1
+        assert res.metrics["max_penetration"] <= 3e-4  # the slop + MISS_TOL
+    else:
+        assert res.metrics["max_penetration"] >= 0.01  # measured 14.3 mm
 
 
 def test_impact_events_inside_a_rattling_gauss_seidel_column_add_no_energy():
