@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.mathutil import quat_to_matrix
+from engine.model import BOX
 from engine.narrowphase import collide_pairs, pair_contacts
 from engine.profile import Stage
 from engine.solver import TOUCH_TOL, _pad, _pair_codes, impact_solve, point_normal_velocity
@@ -45,15 +46,17 @@ from engine.solver import TOUCH_TOL, _pad, _pair_codes, impact_solve, point_norm
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
 #: depth (m) beyond the correction slop at which the end pose of a pair
-#: that was apart at the start is a missed impact
+#: that was apart at the start (or overlaps far from where it touched) is a
+#: missed impact
 MISS_TOL = 2e-4
 
 
 class CCD(Stage):
     """Pick the earliest impact of the step as ``ctx.event`` =
     (tau estimate, a, b, static index, the pair's impact points in body a's
-    frame (k, 3) m, the step's other impact pairs as a tuple of (a, b,
-    static index, points))."""
+    frame (k, 3) m, whether it is a missed impact (:func:`missed_impacts`),
+    the step's other impact pairs as a tuple of (a, b, static index, points,
+    missed))."""
 
     name = "ccd"
     family = "ccd"
@@ -77,7 +80,7 @@ class CCD(Stage):
             for k in [int(idx[j])] + [int(idx[i]) for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
                 a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
                 same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]
-                pairs.append((a, b, sidx, (c.point[same] - state.x[a]) @ ctx.R0[a]))
+                pairs.append((a, b, sidx, (c.point[same] - state.x[a]) @ ctx.R0[a], False))
             skip = code
         else:
             skip = np.zeros(0, np.int64)
@@ -86,9 +89,20 @@ class CCD(Stage):
             ctx.profile.count("missed_impacts", len(missed))
             if not pairs:
                 t = missed[0][0]
-            pairs += [m[1:] for m in missed]
+            pairs += [(*m[1:], True) for m in missed]
         if pairs:
             ctx.event = (t, *pairs[0], tuple(pairs[1:]))
+
+
+def _stable_features(model, a: int, b: int, sidx: int) -> bool:
+    """Whether the pair's contact feature ids name the same material feature
+    from pose to pose: all pairs but box against box (body or static), whose
+    ids are slots of a clipped manifold."""
+    if model.shape[a] != BOX:
+        return True
+    if b < model.n:
+        return model.shape[b] != BOX
+    return model.scene.statics[sidx].shape != "box"
 
 
 def missed_impacts(model, state, ctx, skip: np.ndarray) -> list:
@@ -103,11 +117,12 @@ def missed_impacts(model, state, ctx, skip: np.ndarray) -> list:
     31.8 mm gap) and then came down on the face, ending 18 mm inside.  So
     the end pose is checked, for the pairs whose surfaces move far enough
     within the step to overlap by more than the tolerance (the sum of the
-    bodies' sweeps: no resting contact is ever re-collided), and a pair that
-    was apart at the start and overlaps by more than the correction slop +
-    ``MISS_TOL`` at the end is an impact whose time the refinement finds
-    (first estimate: the gap interpolated linearly between the start and end
-    poses).  ``skip``: pair codes already impacts."""
+    bodies' sweeps: no resting contact is ever re-collided).  A pair that
+    overlaps by more than the correction slop + ``MISS_TOL`` at the end, and
+    either was apart at the start or overlaps there far from where it
+    touched, is an impact whose time the refinement finds (first estimate:
+    the gap interpolated linearly between the start and end poses), following
+    those points.  ``skip``: pair codes already impacts."""
     slop = float(model.settings["correction_slop"])
     lim = slop + MISS_TOL
     sw = ctx.sweep
@@ -129,23 +144,44 @@ def missed_impacts(model, state, ctx, skip: np.ndarray) -> list:
     code0 = _pair_codes(model, c0) if c0 is not None and c0.m else np.zeros(0, np.int64)
     out = []
     for u, first in zip(*np.unique(code, return_index=True)):
-        if np.any(skip == u):
+        if np.any(skip == u) or int(u) in ctx.missed_skip:
             continue
         rows = np.flatnonzero(code == u)
         g1 = float(c.gap[rows].min())
-        at0 = code0 == u
-        g0 = float(c0.gap[at0].min()) if at0.any() else np.inf
-        if not g0 > TOUCH_TOL:
-            # touching at the start: the pair's rows hold it, and what they
-            # miss is the second-order drift of curved surfaces sliding or
-            # rolling on each other (a sphere under a box spinning at 20
-            # rad/s: 0.3-1 mm a step at 1/240 s), which position correction
-            # removes; as events these found no approach at their time of
-            # impact, and cold-restarted the solve up to the event budget
-            continue
+        at0 = np.flatnonzero(code0 == u)
+        g0 = float(c0.gap[at0].min()) if at0.size else np.inf
         a, b, sidx = int(c.a[first]), int(c.b[first]), int(c.sidx[first])
-        tau = ctx.h * g0 / (g0 - g1) if np.isfinite(g0) else 0.5 * ctx.h
-        out.append((tau, a, b, sidx, (c.point[rows] - ctx.x1[a]) @ R1[a]))
+        loc = (c.point[rows] - ctx.x1[a]) @ R1[a]
+        if not g0 > TOUCH_TOL:
+            # touching at the start: a deep point near a point that touched
+            # (in body a's frame, within the warm start's matching radius)
+            # is that contact going on -- what its row misses there is the
+            # second-order drift of curved surfaces sliding or rolling on
+            # each other (a sphere under a box spinning at 20 rad/s: 0.3-1
+            # mm a step at 1/240 s), which position correction removes; as
+            # events these found no approach at their time of impact, and
+            # cold-restarted the solve up to the event budget.  A deep
+            # point far from every touching one is a new impact: the far
+            # corner of a box tumbling at 14.5 rad/s onto another it
+            # already touched ended 18 mm inside it at 1/60 s.
+            near = at0[c0.gap[at0] <= lim]
+            p0 = (c0.point[near] - state.x[a]) @ ctx.R0[a]
+            tol = 0.1 * float(model.bound_radius[a]) + 1e-4
+            d2 = np.sum((loc[:, None, :] - p0[None, :, :]) ** 2, axis=-1).min(axis=1, initial=np.inf)
+            new = d2 > tol * tol
+            if _stable_features(model, a, b, sidx):
+                # a round feature (a sphere, a capsule's cap or segment)
+                # rolling brings new material into contact, far from where
+                # it touched in the body's frame (a capsule rolling at 1.8
+                # m/s, 30 mm a step at 1/60 s): the same feature touching
+                # at the start is the same contact
+                new &= ~np.isin(c.fid[rows], c0.fid[near])
+            if not new.any():
+                continue
+            loc = loc[new]
+            g1 = float(c.gap[rows][new].min())
+        tau = ctx.h * g0 / (g0 - g1) if np.isfinite(g0) and g0 > 0.0 else 0.5 * ctx.h
+        out.append((tau, a, b, sidx, loc))
     out.sort(key=lambda m: m[0])
     return out
 
@@ -197,9 +233,11 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
     first after all, or the followed pair never closed: a pair the solve
     holds off through other contacts hovers just clear, and the search ran
     to the end of the step while a box corner elsewhere went 18.5 mm into
-    the floor) becomes the followed pair, searched for before that time."""
+    the floor) becomes the followed pair, searched for before that time.
+    ``ctx.toi_pair``: (a, b, static index, whether it is a missed impact)
+    of the pair followed in the end."""
     h_full = ctx.h
-    tau, a, b, sidx, loc, others = ctx.event
+    tau, a, b, sidx, loc, miss, others = ctx.event
     lo, hi = 0.0, h_full
     ctx.reuse_contacts = True
     try:
@@ -216,11 +254,12 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
                 break
             profile.count("toi_switches")
             others = tuple(q for q in others if q is not worst)
-            a, b, sidx, loc = worst
+            a, b, sidx, loc, miss = worst
             lo, hi = 0.0, tau
             tau = 0.5 * tau
     finally:
         ctx.reuse_contacts = False
+    ctx.toi_pair = (a, b, sidx, miss)
     return tau
 
 
@@ -233,16 +272,19 @@ def _search(model, state, ctx, main_stages, profile, pair, tau: float, lo: float
     thr = float(model.settings["restitution_threshold"])
     tau = min(max(tau, lo), hi)
     g = np.inf
+    converged = False
     for it in range(TOI_MAX_ITER):
         _rerun(model, state, ctx, main_stages, profile, tau)
         g, vn = pair_gap(model, ctx, a, b, sidx, loc)
         profile.count("toi_iterations")
         if abs(g) <= TOI_TOL:
+            converged = True
             break
         if -TOUCH_TOL <= g < 0.0 and -vn <= thr:
             # touching and no longer approaching fast: the gap is flat
             # here (an end settling on the surface, sliding), where
             # Newton crawls; the solver takes it as a resting contact
+            converged = True
             break
         if g > 0:
             lo = tau
@@ -254,10 +296,15 @@ def _search(model, state, ctx, main_stages, profile, pair, tau: float, lo: float
         if abs(nxt - tau) <= 1e-15 * h_full:
             break
         tau = nxt
-    if g < -TOI_TOL and 1e-9 * h_full < lo < tau:
+    if not converged and g < -TOI_TOL and 1e-9 * h_full < lo < tau:
         # not converged (a kink where another followed point becomes the
         # deepest slows Newton down): commit at the last time that was
-        # still clear, not inside the surface
+        # still clear, not inside the surface.  (Not after the settling
+        # stop above: a box sliding 4 um above the floor, its corners
+        # impacts by the step's mean motion, went back to the last clear
+        # time, 0.05 ms in, 32 times over -- the whole event budget, after
+        # which a box landing beside it was a speculative row and sank
+        # 14 mm.)
         tau = lo
         _rerun(model, state, ctx, main_stages, profile, tau)
     return tau

@@ -155,6 +155,10 @@ class Context:
         # and whether the solver looks for one in this (mini-)step
         self.stop: float | None = None
         self.stop_allowed = False
+        # pair codes whose missed impact had no time to it in this substep
+        # (pipeline._substep; ccd.missed_impacts skips them)
+        self.missed_skip: set[int] = set()
+        self.toi_pair: tuple | None = None
         self.info: dict[str, Any] = {}
 
     def begin(self, model: Model, state: State, h: float) -> None:
