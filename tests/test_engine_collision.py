@@ -403,7 +403,7 @@ def _without(monkeypatch, what: str) -> None:
         search = engine.ccd.refine_toi
 
         def first_pair_only(model, state, ctx, main, profile):
-            ctx.event = (*ctx.event[:6], ())
+            ctx.event = (*ctx.event[:7], ())
             return search(model, state, ctx, main, profile)
 
         monkeypatch.setattr(engine.pipeline, "refine_toi", first_pair_only)
@@ -478,6 +478,25 @@ def test_missed_impact_far_from_where_the_pair_touched(monkeypatch, guard):
         assert res.metrics["max_penetration"] <= 3e-4
     else:
         assert res.metrics["max_penetration"] >= 0.01  # measured 15.1 mm
+
+
+def test_missed_impact_search_leaves_out_where_the_pair_touched():
+    """At 1/60 s a box tumbling at 15 rad/s lands at 3 m/s on a box it
+    already overlaps by 1.6 mm elsewhere
+    (tests/data/missed_impact_beside_an_overlap.toml).  The landing corner
+    is a missed impact.  The search for its time leaves out the contacts
+    near where the pair touched at the start, so it finds the time and the
+    impact is resolved.  The deepest overlap stays near the one it started
+    with: 2.2 mm (measured).  When the search counted the old overlap, it
+    went to tau = 0, the impact was dropped, and the box sank 10.9 mm."""
+    from harness.runner import run
+
+    res = run(load_scene(DATA / "missed_impact_beside_an_overlap.toml"), "reference")
+    assert res.status == "ok", res.message
+    assert res.metrics["energy_gain"] <= 1e-9
+    assert res.stages["counters"].get("missed_impacts", 0) >= 1
+    assert res.stages["counters"].get("missed_dropped", 0) == 0
+    assert res.metrics["max_penetration"] <= 3e-3  # 1.6 mm at the start
 
 
 def test_settling_stop_of_the_impact_search_is_kept():
