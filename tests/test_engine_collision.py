@@ -409,75 +409,53 @@ def _without(monkeypatch, what: str) -> None:
         monkeypatch.setattr(engine.pipeline, "refine_toi", first_pair_only)
 
 
-@pytest.mark.parametrize("guard", [True, False])
-def test_impact_that_no_contact_row_sees_closing_is_found_at_the_end_pose(monkeypatch, guard):
-    """A capsule spinning at ~32 rad/s comes round a box's edge onto its face
-    within one step (tests/data/missed_impact_capsule_box.toml).  Extrapolated
-    along the start pose's edge normal, its end closes only 18.6 of its
-    31.8 mm, so no contact row sees an impact.  The end-pose check finds the
-    overlap, and the impact is resolved at its time: the deepest overlap is
-    0.02 mm (measured), where without the check it is 18 mm.  Restitution
-    below 1 creates no energy either way."""
-    from harness.runner import run
-
-    if not guard:
-        _without(monkeypatch, "missed")
-    res = run(load_scene(DATA / "missed_impact_capsule_box.toml"), "reference")
-    assert res.status == "ok", res.message
-    assert res.metrics["energy_gain"] <= 1e-9
-    if guard:
-        assert res.stages["counters"].get("missed_impacts", 0) >= 1
-        assert res.metrics["max_penetration"] <= 1e-4
-    else:
-        assert res.metrics["max_penetration"] >= 0.01  # measured 18.1 mm
-
-
-@pytest.mark.parametrize("guard", [True, False])
-def test_time_of_impact_search_checks_the_steps_other_impacts(monkeypatch, guard):
-    """A box falls at 4.9 m/s beside a capsule rolling on the floor
-    (tests/data/impact_behind_a_held_pair.toml).  The capsule's floor
-    contact is the earliest estimated impact of a step, but the solve holds
-    it just clear, so the search for its time runs to the end of the step.
-    Every impact row is left out of the search's reruns, so the box's corner
-    ends that step 14 mm in the floor unless the other impact pairs are
-    checked at the time found.  With the check, the search switches to the
-    box (``toi_switches``) and resolves its impact at its time: deepest
-    overlap 0.12 mm (measured), against 14.3 mm without."""
-    from harness.runner import run
-
-    if not guard:
-        _without(monkeypatch, "others")
-    res = run(load_scene(DATA / "impact_behind_a_held_pair.toml"), "reference")
-    assert res.status == "ok", res.message
-    assert res.metrics["energy_gain"] <= 1e-9
-    if guard:
-        assert res.stages["counters"].get("toi_switches", 0) >= 1
-        assert res.metrics["max_penetration"] <= 3e-4  # the slop + MISS_TOL
-    else:
-        assert res.metrics["max_penetration"] >= 0.01  # measured 14.3 mm
+#: Time-of-impact cases from a random-pile fuzz, each a state in tests/data
+#: (other bodies removed): (file, the safeguard, its counter, deepest
+#: overlap allowed with it (m), least overlap without it (m)).
+#:
+#: * capsule_round_box_edge: a capsule spinning at ~32 rad/s comes round a
+#:   box's edge onto its face within one step.  Along the start pose's edge
+#:   normal its end closes only 18.6 of its 31.8 mm, so no contact row sees
+#:   an impact; the end-pose check finds it (measured 0.02 mm; 18.1 mm
+#:   without).
+#: * box_beside_held_pair: a box falls at 4.9 m/s beside a capsule rolling
+#:   on the floor.  The capsule's contact is the earliest estimated impact,
+#:   but the solve holds it just clear, so the search runs to the end of the
+#:   step; every impact row is left out of its reruns, so the box's corner
+#:   ends 14 mm in the floor unless the other impact pairs are checked at
+#:   the time found (measured 0.12 mm with ``toi_switches``; 14.3 mm
+#:   without).
+#: * corner_onto_touching_box: at 1/60 s a box tumbling at 13 rad/s touches
+#:   a box on the floor (0.1 mm) when its far corner swings down onto it.
+#:   A deep point of a pair that touched at the start is a new impact when
+#:   it lies far from every point that touched (measured 0.13 mm; 15.1 mm
+#:   when the check skipped touching pairs, and without it).
+#:
+#: Restitution below 1 creates no energy either way.
+TOI_CASES = {
+    "capsule_round_box_edge": ("missed_impact_capsule_box.toml", "missed", "missed_impacts", 1e-4, 0.01),
+    "box_beside_held_pair": ("impact_behind_a_held_pair.toml", "others", "toi_switches", 3e-4, 0.01),
+    "corner_onto_touching_box": ("missed_impact_onto_touching_box.toml", "missed", "missed_impacts", 3e-4, 0.01),
+}
 
 
 @pytest.mark.parametrize("guard", [True, False])
-def test_missed_impact_far_from_where_the_pair_touched(monkeypatch, guard):
-    """At 1/60 s a box tumbling at 13 rad/s touches a box lying on the
-    floor (0.1 mm) when its far corner swings down onto it
-    (tests/data/missed_impact_onto_touching_box.toml).  The end-pose check
-    takes a deep point of a pair that touched at the start as a new impact
-    when it lies far from every point that touched: deepest overlap 0.13
-    mm (measured).  When the check skipped every pair touching at the start
-    (and without the check) it was 15.1 mm."""
+@pytest.mark.parametrize("case", sorted(TOI_CASES))
+def test_time_of_impact_safeguards(monkeypatch, case, guard):
+    """Each fuzz case (``TOI_CASES``) with its safeguard on and off."""
     from harness.runner import run
 
+    name, what, counter, bound, without = TOI_CASES[case]
     if not guard:
-        _without(monkeypatch, "missed")
-    res = run(load_scene(DATA / "missed_impact_onto_touching_box.toml"), "reference")
+        _without(monkeypatch, what)
+    res = run(load_scene(DATA / name), "reference")
     assert res.status == "ok", res.message
     assert res.metrics["energy_gain"] <= 1e-9
     if guard:
-        assert res.stages["counters"].get("missed_impacts", 0) >= 1
-        assert res.metrics["max_penetration"] <= 3e-4
+        assert res.stages["counters"].get(counter, 0) >= 1
+        assert res.metrics["max_penetration"] <= bound
     else:
-        assert res.metrics["max_penetration"] >= 0.01  # measured 15.1 mm
+        assert res.metrics["max_penetration"] >= without
 
 
 def test_missed_impact_search_leaves_out_where_the_pair_touched():
