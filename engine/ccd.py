@@ -41,7 +41,7 @@ from engine.mathutil import quat_to_matrix
 from engine.model import BOX
 from engine.narrowphase import collide_pairs, pair_contacts
 from engine.profile import Stage
-from engine.solver import TOUCH_TOL, _pad, _pair_codes, impact_solve, point_normal_velocity
+from engine.solver import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, impact_solve, point_normal_velocity
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
@@ -77,7 +77,7 @@ class CCD(Stage):
             # refinement follows them, not the pair's deepest point (which
             # may be another end of the body, already touching or resting
             # within the slop)
-            code = _pair_codes(model, c)[idx]
+            code = _pair_codes_abs(model, c.a[idx], c.b[idx], c.sidx[idx])
             for k in [int(idx[j])] + [int(idx[i]) for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
                 a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
                 same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]

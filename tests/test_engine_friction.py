@@ -21,7 +21,11 @@ G = 9.81
 MU_S, MU_K = 0.6, 0.4  # atan(0.6) = 30.96 deg
 
 
-def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt: float = 1 / 240, **settings):
+def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt: float = 1 / 240,
+            mu_k: float = MU_K, mu_s: float = MU_S, u0: float = 0.0, **settings):
+    """A 1.3 kg box (or 0.1 m sphere) resting on a slope of ``angle``
+    degrees, given u0 m/s uphill; returns (engine, downhill direction,
+    slope normal)."""
     a = math.radians(angle)
     n = (math.sin(a), 0.0, math.cos(a))
     if shape == "box":
@@ -29,6 +33,8 @@ def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt:
                 f"orientation = [{math.cos(a / 2)}, 0, {math.sin(a / 2)}, 0]")
     else:
         body = f'shape = "sphere"\nradius = 0.1\nposition = [{n[0] * 0.1}, 0, {n[2] * 0.1}]'
+    if u0:
+        body += f"\nvelocity = [{-u0 * math.cos(a)!r}, 0, {u0 * math.sin(a)!r}]"
     text = textwrap.dedent("""
         [scenario]
         family = "t"
@@ -46,7 +52,7 @@ def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt:
         [[static]]
         shape = "slope"
         angle = {angle}
-        """).format(duration=duration, dt=dt, mu_k=MU_K, mu_s=MU_S, body="\n".join(body.splitlines()), angle=angle)
+        """).format(duration=duration, dt=dt, mu_k=mu_k, mu_s=mu_s, body="\n".join(body.splitlines()), angle=angle)
     p = tmp_path / f"incline_{shape}_{angle}.toml"
     p.write_text(text)
     scene = load_scene(p)
@@ -324,34 +330,8 @@ def thrown_block(tmp_path: Path, angle: float, mu_k: float, mu_s: float, u0: flo
     """A 1.3 kg box resting on a slope of ``angle`` degrees, thrown uphill at
     u0 m/s; returns (engine, downhill direction, closed-form distance
     downhill s(t))."""
+    eng, down, _ = incline(tmp_path, "box", angle, duration=2.0, dt=dt, mu_k=mu_k, mu_s=mu_s, u0=u0, **settings)
     a = math.radians(angle)
-    n = np.array([math.sin(a), 0.0, math.cos(a)])
-    down = np.array([math.cos(a), 0.0, -math.sin(a)])
-    v = -u0 * down
-    text = textwrap.dedent(f"""
-        [scenario]
-        family = "t"
-        title = "thrown"
-        duration = 2.0
-        dt = {dt!r}
-        effects = ["gravity", "contact", "friction"]
-        [material.default]
-        friction = {mu_k}
-        static_friction = {mu_s}
-        [[body]]
-        name = "b"
-        mass = 1.3
-        shape = "box"
-        half_extents = [0.1, 0.08, 0.05]
-        position = [{float(n[0]) * 0.05!r}, 0, {float(n[2]) * 0.05!r}]
-        orientation = [{math.cos(a / 2)!r}, 0, {math.sin(a / 2)!r}, 0]
-        velocity = [{float(v[0])!r}, 0, {float(v[2])!r}]
-        [[static]]
-        shape = "slope"
-        angle = {angle}
-        """)
-    p = tmp_path / f"thrown_{angle}_{dt}.toml"
-    p.write_text(text)
     a_up = G * (math.sin(a) + mu_k * math.cos(a))
     t1 = u0 / a_up
     a_back = G * (math.sin(a) - mu_k * math.cos(a)) if math.tan(a) > mu_s else 0.0
@@ -360,7 +340,7 @@ def thrown_block(tmp_path: Path, angle: float, mu_k: float, mu_s: float, u0: flo
         tt = min(t, t1)
         return -u0 * tt + 0.5 * a_up * tt * tt + 0.5 * a_back * max(t - t1, 0.0) ** 2
 
-    return Engine(load_scene(p), settings), down, s_ref
+    return eng, down, s_ref
 
 
 @pytest.mark.parametrize("dt", [1 / 240, 1 / 120, 0.007])
