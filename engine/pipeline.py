@@ -66,7 +66,7 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
         stages.append(PenaltyContacts(model) if penalty else Solve(model))
     stages.append(IntegratePositions(model))
     if contact and not penalty and model.setting("ccd") != "off":
-        stages += [CCD(), Impact(model)]
+        stages += [CCD(model), Impact(model)]
     return tuple(stages)
 
 
