@@ -804,6 +804,17 @@ class Solve(Stage):
                 tol = 0.1 * model.bound_radius[c.a[idx[cand]]] + 1e-4
                 cand[cand] = ~_pressed_points(state.warm, codes_all[idx[cand]], loc, tol)
             impact[idx[persistent & ~cand]] = False
+        if ctx.event_mode == "drop" and ctx.drop_rows is not None:
+            # a rerun of the time-of-impact search: the rows left out are
+            # the step's impact rows, whatever tau.  Re-deciding them with
+            # the rerun's length kept a row whose linear estimate fell after
+            # tau (its point curving in earlier) as a speculative row, which
+            # held the point just clear: the gap was a plateau near 0 that
+            # jumped below 0 at the estimate, Newton crawled on it and
+            # bisection converged on the jump (30 iterations, each a rerun
+            # of the whole step)
+            impact = np.zeros(c.m, bool)
+            impact[ctx.drop_rows] = True
         keep = ~impact
         if impact.any():
             if self.ccd == "toi":
