@@ -775,6 +775,7 @@ def test_resting_column_is_not_collided_again_at_its_end_pose(tmp_path, monkeypa
     resting column was collided twice a step (590 us of its 2.4 ms,
     measured)."""
     import engine.ccd
+    from harness.runner import run
 
     calls = []
     collide = engine.ccd.collide_pairs
@@ -784,7 +785,6 @@ def test_resting_column_is_not_collided_again_at_its_end_pose(tmp_path, monkeypa
     assert len(calls) == 0
     # the check itself still runs where bodies move: the capsule swinging
     # round a box's edge (TOI_CASES) is found by it
-    from harness.runner import run
     res = run(load_scene(DATA / "missed_impact_capsule_box.toml"), "reference")
     assert len(calls) > 0 and res.stages["counters"].get("missed_impacts", 0) >= 1
 
