@@ -46,6 +46,9 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
     "ccd_max_events": (32, int, "time-of-impact events per substep before impacts become speculative contacts",
                        (0, 100000)),
     "contact_model": ("impulse", str, "sequential impulses or penalty springs", ("impulse", "penalty")),
+    "plastic_impacts": ("simultaneous", str, "at a time of impact, an island of two or more touching pairs with "
+                        "no restitution: one simultaneous plastic impact (Moreau) or pair-by-pair propagation",
+                        ("simultaneous", "sequential")),
     "restitution_threshold": (0.01, float, "approach speed (m/s) below which contacts do not bounce", (0.0, 100.0)),
     "contact_margin": (1e-4, float, "distance (m) within which resting contacts are kept, beyond the motion "
                        "margin", (0.0, 1.0)),
