@@ -31,7 +31,7 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
                             ("split_impulse", "baumgarte", "none")),
     "warm_starting": (True, bool, "start the solver from the previous step's impulses", None),
     "direct_start": (True, bool, "start the solver from the least-squares solution of the normal rows "
-                     "(up to 400 rows)", None),
+                     "(dense up to 400 rows, sparse above)", None),
     "broadphase": ("sap", str, "sweep-and-prune or all pairs", ("sap", "brute")),
     "ccd": ("events", str, "time-of-impact handling: every impact (events), fast bodies only (toi), none (off)",
             ("off", "toi", "events")),
