@@ -818,51 +818,15 @@ def test_heavy_on_light_mass_ratio_1000(tmp_path):
     assert np.abs(eng.state.x - x0).max() <= 1e-6
 
 
-def test_newtons_cradle_hands_momentum_down_the_row(tmp_path):
-    """A striker hits four touching equal balls (e = 1): impulse propagation
-    gives the textbook result -- the last ball leaves with the striking
-    speed, all others stop."""
-    sc = scene_from(tmp_path, """
-        [scenario]
-        family = "t"
-        title = "cradle"
-        duration = 0.3
-        dt = 0.001
-        effects = ["contact", "restitution"]
-        [material.default]
-        restitution = 1.0
-        [[body]]
-        name = "striker"
-        shape = "sphere"
-        radius = 0.025
-        mass = 0.5
-        position = [-0.1, 0, 0]
-        velocity = [1.0, 0, 0]
-        [[body]]
-        name = "ball"
-        shape = "sphere"
-        radius = 0.025
-        mass = 0.5
-        [body.pattern]
-        kind = "row"
-        count = 4
-        """)
-    eng = Engine(sc)
-    eng.step(300)
-    assert np.allclose(eng.state.v[:, 0], [0, 0, 0, 0, 1.0], atol=1e-12)
-
-
-_STRUCK_ROWS = """
+_CRADLE = """
     [scenario]
     family = "t"
-    title = "struck rows"
+    title = "cradle"
     duration = 0.3
     dt = 0.001
     effects = ["contact", "restitution"]
     [material.default]
     restitution = 1.0
-    [material.clay]
-    restitution = 0.0
     [[body]]
     name = "striker"
     shape = "sphere"
@@ -878,6 +842,23 @@ _STRUCK_ROWS = """
     [body.pattern]
     kind = "row"
     count = 4
+    """
+
+
+def test_newtons_cradle_hands_momentum_down_the_row(tmp_path):
+    """A striker hits four touching equal balls (e = 1): impulse propagation
+    gives the textbook result -- the last ball leaves with the striking
+    speed, all others stop."""
+    sc = scene_from(tmp_path, _CRADLE)
+    eng = Engine(sc)
+    eng.step(300)
+    assert np.allclose(eng.state.v[:, 0], [0, 0, 0, 0, 1.0], atol=1e-12)
+
+
+# the cradle beside a row of clay balls (e = 0), struck at the same moment
+_STRUCK_ROWS = _CRADLE.rstrip(" ") + """
+    [material.clay]
+    restitution = 0.0
     [[body]]
     name = "clay_striker"
     shape = "sphere"
