@@ -1326,13 +1326,16 @@ def _plastic_islands(model, cs: Contacts) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    code = _pair_codes(model, cs)
+    if np.all(code == code[0]):  # one pair (a single landing): nothing to join
+        return np.zeros(cs.m, bool)
     n = model.n
     dyn = cs.b < n  # a is always a body; b may be the world
     g = coo_matrix((np.ones(int(dyn.sum())), (cs.a[dyn], cs.b[dyn])), shape=(n, n))
     k, lab = connected_components(g, directed=False)
     isl = lab[cs.a]
     bouncy = np.bincount(isl, cs.e > 0.0, k) > 0
-    _, first = np.unique(_pair_codes(model, cs), return_index=True)
+    _, first = np.unique(code, return_index=True)
     pairs = np.bincount(isl[first], minlength=k)
     ok = ~bouncy & (pairs >= 2)
     return ok[isl]
