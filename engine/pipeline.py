@@ -240,6 +240,15 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
                 state.warm = warm0
                 continue
             _commit(model, state, ctx, tau)
+            if ctx.toi_clear:
+                # no impact in the (mini-)step after all (the solve held the
+                # point clear through other contacts): it ends as a step
+                # with no event, keeping the rerun's solve as the next
+                # step's warm start.  An impact there restarted the next
+                # step cold, so no pair was persistent, so gravity's
+                # approach made a resting box's clear corner an impact
+                # again: two events a step, for as long as it lay there.
+                break
         profile.run(impact, model, state, ctx)
         # the impact solve has stopped every touching approach (plastic
         # stops included): re-applying the cached resting forces over the

@@ -159,6 +159,7 @@ class Context:
         # (pipeline._substep; ccd.missed_impacts skips them)
         self.missed_skip: set[int] = set()
         self.toi_pair: tuple | None = None
+        self.toi_clear = False
         # the impact rows of the step being searched (ccd.refine_toi): the
         # reruns leave out exactly these, at every tau
         self.drop_rows: np.ndarray | None = None
