@@ -225,7 +225,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
             # point far from them and from every touching point is another
             # impact of the pair, which no row saw -- a box landing at 3 m/s
             # on a box it overlapped elsewhere by 1.6 mm swung a corner in
-            # that way, and ended 14.5 mm inside when the pair, an impact
+            # that way, and ended 13.7 mm inside when the pair, an impact
             # already, was not checked)
             near = at0[(c0.gap[at0] <= lim) | imp_row[at0]]
             p0 = (c0.point[near] - state.x[a]) @ ctx.R0[a]
