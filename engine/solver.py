@@ -41,9 +41,10 @@ beyond the correction slop (see :class:`Solve`); a touching point
 approaching so is an impact at once (time of impact 0).
 
 Friction acts per contact patch (all points of a pair), see :class:`Rows`.
-A patch that slides at the start of the step (relative tangential speed
-above ``SLIP_TOL``) uses mu_k; a sticking one uses mu_s, and if its friction
-ends on the mu_s limit it cannot stick: it switches to mu_k and the rows are
+A patch that slides at the start of the step (relative tangential speed at
+its centroid, or its twist's speed at its mean point distance, above
+``SLIP_TOL``) uses mu_k; a sticking one uses mu_s, and if its friction or
+twist ends on the mu_s limit it cannot stick: it switches to mu_k and the rows are
 solved again (static friction cannot be exceeded; once broken, kinetic
 applies).  A sliding (or rolling) patch that comes to rest inside the step
 and does not stay at rest is a *friction stop*: :meth:`Rows.stop_times`
@@ -82,7 +83,7 @@ from engine.state import Contacts
 TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
 DIRECT_MAX_ROWS = 400  # rows up to which the direct start is a dense LAPACK solve; above, sparse (SuperLU)
 RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
-SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides
+SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides (twist: at r_twist)
 ROLL_TOL = 1e-4  # rad/s: relative rolling angular speed above which a contact rolls (rolling friction)
 STOP_MAX_RESIDUAL = 1e-4  # friction stops only from a solve whose last sweep changed impulses by less (relative)
 STOP_MIN_REST = 1e-6  # a friction stop this close to a step's end (fraction of it) does not cut the step
@@ -478,6 +479,20 @@ class Rows:
         self.slip = slip
         self.mu = np.where(slip, self.muk, self.mus)
 
+    def sliding(self, U, vt: np.ndarray | None = None) -> np.ndarray:
+        """(np,) bool: the patches that slide at velocities U (n+1, 6).  A
+        patch slides when its centroid's relative tangential speed ``vt``
+        (np, 2) m/s (computed from U unless given) exceeds ``SLIP_TOL``, or
+        when it twists: |w_n| r_twist, the twist's speed at the patch's mean
+        point distance, exceeds it.  A patch spinning in place slides at
+        every point but its centroid, so it is kinetic friction (mu_k) that
+        acts on it (classed by the centroid alone it kept mu_s: a capsule
+        spinning on its side with mu_s = 2 mu_k stopped in half the time)."""
+        if vt is None:
+            vt = self.patch_tangent_velocity(U)
+        wn = self.patch_velocity(U, slice(2, 3))[:, 0]
+        return (np.sqrt(np.einsum("km,km->k", vt, vt)) > SLIP_TOL) | (np.abs(wn) * self.r_twist > SLIP_TOL)
+
     def patch_velocity(self, U, rows: slice) -> np.ndarray:
         """(np, k) relative velocities of the patch rows ``rows``: slice(0, 2)
         the tangential velocity at the centroids (m/s), slice(3, 5) the
@@ -622,7 +637,11 @@ class Rows:
         for _ in range(2):
             Fn = np.bincount(self.pid, self.lam_n, self.np)
             mag = np.sqrt(self.lam_t[:, 0] ** 2 + self.lam_t[:, 1] ** 2)
-            sat = ~self.slip & (self.mus > self.muk) & (Fn > 0) & (mag >= self.mus * Fn * (1 - 1e-6))
+            # on the mu_s disc, or a twist on its mu_s limit (r_twist > 0:
+            # a point contact has no twist row to saturate)
+            lim = self.mus * Fn * (1 - 1e-6)
+            sat = ~self.slip & (self.mus > self.muk) & (Fn > 0) & (
+                (mag >= lim) | ((self.r_twist > 0.0) & (np.abs(self.lam_t[:, 2]) >= lim * self.r_twist)))
             if not sat.any():
                 break
             self.set_slip(self.slip | sat)
@@ -893,7 +912,7 @@ class Solve(Stage):
         if self.friction:
             U0 = Rows.pack(VV[1], WW[1])
             vt0 = rows.patch_tangent_velocity(U0)
-            rows.set_slip(np.sqrt(np.einsum("km,km->k", vt0, vt0)) > SLIP_TOL)
+            rows.set_slip(rows.sliding(U0, vt0))
         U = Rows.pack(ctx.v, ctx.w)
         # contact points in body a's frame: the warm cache's matching key
         loc = self._local(ctx, cs.a, cs.point, state)
@@ -1240,8 +1259,11 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
     """One-shot Coulomb friction impulse on patch ``p`` after a normal
     impulse of total ``Fn``: the impulse that stops the tangential and twist
     (and rolling) motion (exact block, by its inverse computed once per
-    patch), kept if inside the mu_s disc, else scaled onto the mu_k disc;
-    the rolling torque impulse is limited to the mu_r Fn disc."""
+    patch), kept if within the static limits -- mu_s for a patch at rest,
+    mu_k for one that slides or twists (``Rows.sliding``: it slides until it
+    stops, so kinetic friction is what has to stop it) -- else its force
+    scaled onto the mu_k disc and its twist clipped to mu_k Fn r_twist; the
+    rolling torque impulse is limited to the mu_r Fn disc."""
     if Fn <= 0.0:
         return
     a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt, mur) = _patch_block(rows, p)
@@ -1250,11 +1272,16 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
         d = -(Kinv @ vt)
     else:
         d = -vt * rows.mt[p]
+    # the patch sticks if both the force and the twist that stop it lie
+    # within the limits; else it slides at every point: both are held to
+    # the kinetic ones
+    mu = muk if (math.hypot(vt[0], vt[1]) > SLIP_TOL or abs(vt[2]) * rt > SLIP_TOL) else mus
     mag = math.hypot(d[0], d[1])
-    if mag > mus * Fn:
-        d[:2] *= muk * Fn / mag
-    tl = (mus if mag <= mus * Fn else muk) * Fn * rt
-    d[2] = min(max(d[2], -tl), tl)
+    if mag > mu * Fn or (rt > 0.0 and abs(d[2]) > mu * Fn * rt):
+        if mag > muk * Fn:
+            d[:2] *= muk * Fn / mag
+        tl = muk * Fn * rt
+        d[2] = min(max(d[2], -tl), tl)
     if d.size > 3:
         rmag = math.hypot(d[3], d[4])
         if rmag > mur * Fn:
@@ -1352,8 +1379,7 @@ def _plastic_island_solve(model, X, Iinv, cs: Contacts, U: np.ndarray, iteration
     reached).  Returns the number of rows."""
     rows = Rows(model, X, Iinv, cs, friction)
     if friction:
-        vt = rows.patch_tangent_velocity(U)
-        rows.set_slip(np.sqrt(np.einsum("km,km->k", vt, vt)) > SLIP_TOL)
+        rows.set_slip(rows.sliding(U))
     rows.direct_normal_guess(U)
     rows.warm_start(U)
     rows.solve_friction_regimes(U, iterations)

@@ -398,6 +398,109 @@ def test_rolling_resistance_refuses_what_it_does_not_model():
 
 
 # ---------------------------------------------------------------------------
+# spin_to_rest
+
+
+def spinning_capsule(w: float = 10.0, mu_k: float = 0.3, mu_s: float = 0.6, z: float = 0.02,
+                     orientation: str = "[0.7071067811865476, 0.0, 0.7071067811865476, 0.0]") -> str:
+    return f"""
+[scenario]
+family = "friction"
+title = "t"
+duration = 0.5
+dt = 0.004
+effects = ["gravity", "contact", "friction", "gyroscopic"]
+[material.default]
+friction = {mu_k}
+static_friction = {mu_s}
+[[body]]
+name = "capsule"
+shape = "capsule"
+radius = 0.02
+half_length = 0.1
+mass = 1.0
+position = [0.0, 0.0, {z}]
+orientation = {orientation}
+angular_velocity = [0.0, 0.0, {w}]
+[[static]]
+shape = "plane"
+normal = [0.0, 0.0, 1.0]
+[reference]
+model = "spin_to_rest"
+"""
+
+
+def _spin_trace(m, alpha: float, t_end: float = 0.5, frames: int = 501):
+    """A capsule turning about z with w0 - alpha t until it stops."""
+    t = np.linspace(0.0, t_end, frames)
+    ts = np.minimum(t, abs(m.w0) / alpha)
+    th = m.w0 * ts - math.copysign(0.5 * alpha, m.w0) * ts * ts
+    w = np.where(t < abs(m.w0) / alpha, m.w0 - math.copysign(alpha, m.w0) * t, 0.0)
+    # lying along x (body z -> world x), turned by th about z
+    q0 = np.array([math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0])
+    qz = np.stack([np.cos(th / 2), 0 * th, 0 * th, np.sin(th / 2)], axis=1)
+    w1, v1 = qz[:, :1], qz[:, 1:]
+    quat = np.concatenate([w1 * q0[0] - v1 @ q0[1:, None],
+                           w1 * q0[1:] + q0[0] * v1 + np.cross(v1, q0[1:])], axis=1)
+    return make_trace(t, np.tile(m.x0, (frames, 1))[:, None], quat=quat[:, None],
+                      angvel=np.outer(w, [0.0, 0.0, 1.0])[:, None])
+
+
+def test_spin_to_rest_by_hand():
+    # transverse moment of the capsule (r 0.02, h 0.1, 1 kg, uniform): the
+    # cylinder's 0.88235 kg (0.2^2 / 12 + 0.02^2 / 4) = 3.02941e-3 plus the
+    # caps' 0.11765 kg (2 0.02^2 / 5 + 0.2^2 / 4 + 3 0.2 0.02 / 8) =
+    # 1.37176e-3: 4.40118e-3 kg m^2; alpha = 0.3 9.81 0.1 / 4.40118e-3 =
+    # 66.8685 rad/s^2, t_stop = 10 / 66.8685 = 0.149548 s, angle =
+    # 100 / (2 66.8685) = 0.747738 rad
+    m = get_model("spin_to_rest")(scene_from(spinning_capsule()))
+    assert m.I_n == pytest.approx(4.40118e-3, rel=1e-5)
+    assert m.alpha == pytest.approx(66.8685, rel=1e-5)
+    assert m.t_stop == pytest.approx(0.149548, rel=1e-5)
+    assert m.theta_stop == pytest.approx(0.747738, rel=1e-5)
+    # the static coefficient plays no part; a negative spin turns the other way
+    m2 = get_model("spin_to_rest")(scene_from(spinning_capsule(w=-10.0, mu_s=0.3)))
+    assert m2.alpha == m.alpha and m2.theta_stop == -m.theta_stop
+
+
+@pytest.mark.parametrize("w", [10.0, -40.0])
+def test_spin_to_rest_metrics_on_exact_and_planted_traces(w):
+    m = get_model("spin_to_rest")(scene_from(spinning_capsule(w=w)))
+    t_end = 1.0 if abs(w) > 10 else 0.5
+    out = m.metrics(_spin_trace(m, m.alpha, t_end, 2001))
+    assert out["spin_decel_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["spin_decel"] == pytest.approx(m.alpha, rel=1e-9)
+    assert out["spin_stop_angle_error"] == pytest.approx(0.0, abs=1e-9)
+    assert out["final_position_error"] == 0.0
+    # 2 % too much friction: the deceleration 2 % high, the angle 1/1.02 of the truth
+    out = m.metrics(_spin_trace(m, 1.02 * m.alpha, t_end, 2001))
+    assert out["spin_decel_error"] == pytest.approx(0.02, rel=1e-6)
+    assert out["spin_stop_angle_error"] == pytest.approx(1 - 1 / 1.02, rel=1e-6)
+    # twice the friction (mu_s acting): the fit stops where the spin stopped
+    out = m.metrics(_spin_trace(m, 2.0 * m.alpha, t_end, 2001))
+    assert out["spin_decel_error"] == pytest.approx(1.0, rel=1e-6)
+    assert out["spin_stop_angle_error"] == pytest.approx(0.5, rel=1e-6)
+    # a run that ends before the stop has no stop angle
+    out = m.metrics(_spin_trace(m, m.alpha, 0.9 * m.t_stop, 501))
+    assert "spin_stop_angle_error" not in out
+    assert out["spin_decel_error"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_spin_to_rest_refuses_what_it_does_not_model():
+    with pytest.raises(ReferenceError, match="lying flat"):
+        get_model("spin_to_rest")(scene_from(spinning_capsule(orientation="[1.0, 0.0, 0.0, 0.0]", z=0.12)))
+    with pytest.raises(ReferenceError, match="resting on the plane"):
+        get_model("spin_to_rest")(scene_from(spinning_capsule(z=0.05)))
+    with pytest.raises(ReferenceError, match="along the normal"):
+        get_model("spin_to_rest")(scene_from(spinning_capsule(w=0.0)))
+    with pytest.raises(ReferenceError, match="kinetic friction"):
+        get_model("spin_to_rest")(scene_from(spinning_capsule(mu_k=0.0, mu_s=0.0)))
+    with pytest.raises(ReferenceError, match="needs a capsule"):
+        get_model("spin_to_rest")(scene_from(spinning_capsule().replace('shape = "capsule"', 'shape = "sphere"')
+                                             .replace("half_length = 0.1\n", "")))
+
+
+# ---------------------------------------------------------------------------
 # bounce_heights
 
 BOUNCE = """

@@ -31,6 +31,7 @@ MODELS: dict[str, str] = {
     "rolling_sphere": "harness.references.friction:RollingSphere",
     "rolling_cylinder": "harness.references.friction:RollingCylinder",
     "rolling_resistance": "harness.references.friction:RollingResistance",
+    "spin_to_rest": "harness.references.friction:SpinToRest",
     "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
     "heavy_top": "harness.references.rigid_body:HeavyTop",
 }
