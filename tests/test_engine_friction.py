@@ -496,3 +496,38 @@ def test_spinning_capsule_landing_flat_keeps_what_kinetic_twist_leaves(tmp_path,
     w_ref = 20.0 - dw - (0.0 if e else SPIN_ALPHA * (tr.t[k] - t_land))
     assert tr.pos[k, 0, 2] > 0.02 + 1e-3 if e else abs(tr.pos[k, 0, 2] - 0.02) < 1e-6
     assert tr.angvel[k, 0, 2] == pytest.approx(w_ref, rel=1e-3)
+
+
+@pytest.mark.parametrize("tau", [0.45, 0.7])
+def test_twist_past_its_static_limit_breaks_free(tmp_path, tau):
+    """The capsule at rest on its side, twisted by a couple of two long
+    springs (10 m, pulling opposite ways at its ends: a near-constant torque
+    tau about z, no net force).  mu_k m g h = 0.2943 N m < 0.45 < mu_s m g h
+    = 0.5886 N m: it stays put.  At 0.7 N m the twist ends its first solve
+    on the mu_s limit, so the patch cannot stick and slides with mu_k from
+    the first step: w = (tau - mu_k m g h) h / I after it (held at the mu_s
+    limit it got 0.105 rad/s instead of 0.384)."""
+    from harness.runner import run
+
+    text = (Path(__file__).parents[1] / "scenarios/friction/capsule_spins_to_rest.toml").read_text()
+    text = (text.split("[reference]")[0]
+            .replace('effects = ["gravity", "contact", "friction", "gyroscopic"]',
+                     'effects = ["gravity", "contact", "friction", "gyroscopic", "spring"]')
+            .replace("angular_velocity = [0.0, 0.0, 10.0]", "")
+            .replace("duration = 0.5", "duration = 0.05"))
+    k = tau / 0.2 / 10.0  # each spring pulls tau / (2 h) N from 10 m away
+    for end in (1, -1):
+        text += (f'\n[[spring]]\na = "capsule"\nb = "world"\nanchor_a = [0.0, 0.0, {0.1 * end}]\n'
+                 f"anchor_b = [{0.1 * end}, {10.0 * end}, 0.02]\nstiffness = {k!r}\nrest_length = 0.0\n")
+    p = tmp_path / "couple.toml"
+    p.write_text(text)
+    res = run(load_scene(str(p)), "reference")
+    assert res.status == "ok", res.message
+    w = res.trace.angvel[:, 0, 2]
+    h = 1 / 240
+    if tau < 0.6 * G * 0.1:  # below mu_s m g h
+        assert np.abs(w).max() <= 1e-9
+        assert np.abs(res.trace.pos[:, 0] - res.trace.pos[0, 0]).max() <= 1e-9
+    else:
+        assert w[1] == pytest.approx((tau - 0.3 * G * 0.1) / CAPSULE_I * h, rel=1e-3)
+        assert res.trace.t[1] == pytest.approx(h)
