@@ -48,7 +48,7 @@ class ReferenceAdapter(Adapter):
             effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "drag_linear",
                                "drag_quadratic", "spring", "damper", "gyroscopic"}),
             settings=_settings(),
-            notes=("cylinders collide with planes only",),
+            notes=("cylinders collide with planes and spheres only",),
         )
 
     @classmethod
@@ -57,9 +57,11 @@ class ReferenceAdapter(Adapter):
         if reason is not None:
             return reason
         if scene.has("contact"):
-            cyl = [b for b in scene.bodies if b.shape == "cylinder"]
-            if cyl and (len(scene.bodies) > 1 or any(s.shape == "box" for s in scene.statics)):
-                return "reference engine: cylinders collide with planes only (no cylinder-body or cylinder-box contact)"
+            ncyl = sum(b.shape == "cylinder" for b in scene.bodies)
+            others = {b.shape for b in scene.bodies if b.shape not in ("cylinder", "sphere")}
+            if ncyl and (ncyl > 1 or others or any(s.shape == "box" for s in scene.statics)):
+                return ("reference engine: cylinders collide with planes and spheres only (no cylinder-cylinder, "
+                        "cylinder-box, cylinder-capsule or cylinder-static-box contact)")
         return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

@@ -32,8 +32,8 @@ Pairs:
   along the segment by golden-section search -- the signed distance of a
   convex set is convex -- plus the end caps).
 * cylinder-plane: the deepest rim point of each cap plus four fixed rim
-  points per cap.  Other cylinder pairs are not modelled (the adapter reports
-  them unsupported).
+  points per cap; sphere-cylinder: exact closest points.  Other cylinder
+  pairs are not modelled (reported unsupported).
 """
 
 from __future__ import annotations
@@ -92,6 +92,40 @@ def sphere_box(c, r, cb, Rb, hb):
     gap = np.where(outside, dist, -pen[k, face]) - r
     n_out = np.einsum("kij,kj->ki", Rb, n_loc)  # box outward normal, world
     point = c - n_out * (r + 0.5 * gap)[:, None]
+    return k, -n_out, point, gap, np.zeros(k.size, np.int64)
+
+
+def sphere_cylinder(c, r, cc, Rc, hl, rc):
+    """Sphere (first) against a solid cylinder (second; axis = body z, half
+    length ``hl``, radius ``rc``): exact closest points, like sphere-box
+    with the cylinder's clamp -- radially to the rim, axially to the caps
+    (the rim's circle and the cap edges come out of the two clamps
+    together).  A centre inside leaves through the nearer of the side and
+    the cap.  Normal from sphere to cylinder; one contact (the sphere is
+    smooth)."""
+    local = np.einsum("kji,kj->ki", Rc, c - cc)
+    rho = np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2)
+    scale = np.minimum(1.0, rc / np.where(rho > _EPS, rho, 1.0))
+    cl = np.empty_like(local)
+    cl[:, :2] = local[:, :2] * scale[:, None]
+    cl[:, 2] = np.clip(local[:, 2], -hl, hl)
+    diff = local - cl
+    dist = _norm(diff)
+    outside = dist > _EPS
+    # inside: through the side (radially; +x on the axis) or the nearer cap
+    pen_side = rc - rho
+    pen_cap = hl - np.abs(local[:, 2])
+    radial = np.where((rho > _EPS)[:, None], local[:, :2] / np.where(rho > _EPS, rho, 1.0)[:, None],
+                      np.array([1.0, 0.0]))
+    side = pen_side < pen_cap
+    n_in = np.zeros_like(local)
+    n_in[:, :2] = np.where(side[:, None], radial, 0.0)
+    n_in[:, 2] = np.where(side, 0.0, np.where(local[:, 2] >= 0.0, 1.0, -1.0))
+    n_loc = np.where(outside[:, None], diff / np.where(outside, dist, 1.0)[:, None], n_in)
+    gap = np.where(outside, dist, -np.minimum(pen_side, pen_cap)) - r
+    n_out = np.einsum("kij,kj->ki", Rc, n_loc)  # cylinder outward normal, world
+    point = c - n_out * (r + 0.5 * gap)[:, None]
+    k = np.arange(c.shape[0])
     return k, -n_out, point, gap, np.zeros(k.size, np.int64)
 
 
@@ -584,6 +618,10 @@ def _bb_sphere_capsule(A, B, margin):
     return sphere_capsule(A["c"], A["r"], B["c"], B["R"], B["hl"], B["r"])
 
 
+def _bb_sphere_cylinder(A, B, margin):
+    return sphere_cylinder(A["c"], A["r"], B["c"], B["R"], B["hl"], B["r"])
+
+
 def _bb_box_capsule(A, B, margin):
     # capsule_box has the capsule first: swap and flip the normal
     k, n, p, g, f = capsule_box(B["c"], B["R"], B["hl"], B["r"], A["c"], A["R"], A["h"])
@@ -610,6 +648,7 @@ TABLE = {
     (SPHERE, CAPSULE): _bb_sphere_capsule,
     (BOX, CAPSULE): _bb_box_capsule,
     (CAPSULE, CAPSULE): _bb_capsule_capsule,
+    (SPHERE, CYLINDER): _bb_sphere_cylinder,
 }
 
 #: body-plane functions keyed by the body's shape code

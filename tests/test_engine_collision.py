@@ -22,7 +22,7 @@ from engine import Engine
 from engine.broadphase import brute_pairs, sap_pairs
 from engine.mathutil import quat_to_matrix
 from engine.narrowphase import (box_box, box_plane, capsule_box, capsule_capsule, capsule_plane, cylinder_plane, sphere_box,
-                                sphere_capsule)
+                                sphere_capsule, sphere_cylinder)
 from harness.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -52,6 +52,29 @@ def test_sphere_box_outside_and_inside():
     k, n, p, g, _ = sphere_box(np.array([[0.4, 0.0, 0.1]]), np.array([0.2]), np.zeros((1, 3)), I, h)
     assert g[0] == pytest.approx(-0.1 - 0.2)
     assert np.allclose(n[0], [-1, 0, 0])
+
+
+@pytest.mark.parametrize("centre, gap, normal", [
+    # (cylinder frame: axis z, radius 0.3, half length 0.5; sphere radius 0.1)
+    ([0.6, 0.0, 0.2], 0.2, [-1, 0, 0]),  # beside the side
+    ([0.0, 0.2, 0.9], 0.3, [0, 0, -1]),  # above the cap
+    ([0.3 + 0.3, 0.0, 0.5 + 0.4], 0.4, [-0.6, 0, -0.8]),  # beyond the rim: 0.5 from the edge circle
+    ([0.25, 0.0, 0.1], -0.15, [-1, 0, 0]),  # centre inside, nearer the side
+    ([0.0, 0.1, -0.45], -0.15, [0, 0, 1]),  # centre inside, nearer the bottom cap
+    ([0.0, 0.0, 0.0], -0.4, [-1, 0, 0]),  # on the axis: leaves radially (+x)
+])
+def test_sphere_cylinder_closest_points(centre, gap, normal):
+    """Exact gaps and normals (from the sphere toward the cylinder), the
+    cylinder turned so that its axis is world x: the body frame is used."""
+    q = np.array([math.cos(math.pi / 4), 0, math.sin(math.pi / 4), 0])  # body z -> world x
+    R = quat_to_matrix(q)
+    cc = np.array([1.0, 2.0, 3.0])
+    c = cc + R @ np.array(centre, float)
+    k, n, p, g, _ = sphere_cylinder(c[None], np.array([0.1]), cc[None], R[None], np.array([0.5]), np.array([0.3]))
+    assert g[0] == pytest.approx(gap, abs=1e-12)
+    assert np.allclose(n[0], R @ np.array(normal, float), atol=1e-12)
+    # the point lies midway between the two surfaces
+    assert np.allclose(p[0], c + n[0] * (0.1 + 0.5 * gap), atol=1e-12)
 
 
 def test_box_plane_corners_of_a_tilted_box():
@@ -1125,3 +1148,84 @@ def test_touching_points_that_no_event_resolves_stay_solver_rows():
               {"ccd": "toi", "integrator": "semi_implicit_euler"})
     assert res.status == "ok"
     assert res.metrics["max_penetration"] <= 0.01
+
+
+def test_sphere_strikes_a_cylinder_head_on(tmp_path):
+    """A 1 kg ball at 2 m/s strikes a 2 kg standing cylinder's side through
+    its centre (no gravity, e = 0.8): the 1D law, v1 = (m1 - e m2) u / (m1 +
+    m2) = -0.4 m/s, v2 = (1 + e) m1 u / (m1 + m2) = 1.2 m/s, no spin."""
+    from harness.runner import run
+
+    sc = scene_from(tmp_path, """
+        [scenario]
+        family = "t"
+        title = "ball strikes a cylinder"
+        duration = 0.3
+        dt = 0.004166666666666667
+        effects = ["contact", "restitution", "gyroscopic"]
+        [material.default]
+        restitution = 0.8
+        [[body]]
+        name = "ball"
+        shape = "sphere"
+        radius = 0.1
+        mass = 1.0
+        position = [-0.5, 0.0, 0.0]
+        velocity = [2.0, 0.0, 0.0]
+        [[body]]
+        name = "drum"
+        shape = "cylinder"
+        radius = 0.2
+        half_length = 0.3
+        mass = 2.0
+        """)
+    res = run(sc, "reference")
+    assert res.status == "ok", res.message
+    tr = res.trace
+    assert tr.vel[-1, 0] == pytest.approx([-0.4, 0.0, 0.0], abs=1e-9)
+    assert tr.vel[-1, 1] == pytest.approx([1.2, 0.0, 0.0], abs=1e-9)
+    assert np.abs(tr.angvel[-1]).max() <= 1e-9
+    assert res.metrics["max_penetration"] <= 1e-9
+
+
+def test_sphere_rests_on_a_cylinder_cap(tmp_path):
+    """A ball resting on a standing cylinder's cap (on the ground) stays put
+    for 2 s; a ball dropped beside the axis lands on the cap and stays
+    there too (its friction holds it, no contact point moves)."""
+    from harness.runner import run
+
+    text = """
+        [scenario]
+        family = "t"
+        title = "ball on a drum"
+        duration = 2.0
+        dt = 0.004166666666666667
+        effects = ["gravity", "contact", "friction", "gyroscopic"]
+        [material.default]
+        friction = 0.5
+        static_friction = 0.5
+        [[body]]
+        name = "drum"
+        shape = "cylinder"
+        radius = 0.2
+        half_length = 0.3
+        mass = 2.0
+        position = [0.0, 0.0, 0.3]
+        [[body]]
+        name = "ball"
+        shape = "sphere"
+        radius = 0.1
+        mass = 1.0
+        position = [X, 0.0, Z]
+        [[static]]
+        shape = "plane"
+        normal = [0.0, 0.0, 1.0]
+        """
+    for x, z in ((0.0, 0.7), (0.1, 0.75)):
+        res = run(scene_from(tmp_path, text.replace("X", repr(x)).replace("Z", repr(z))), "reference")
+        assert res.status == "ok", res.message
+        tr = res.trace
+        assert tr.pos[-1, 1] == pytest.approx([x, 0.0, 0.7], abs=1e-5)
+        assert tr.pos[-1, 0] == pytest.approx([0.0, 0.0, 0.3], abs=1e-5)
+        assert res.metrics["max_penetration"] <= 1e-4
+        assert res.metrics["energy_gain"] <= 1e-9

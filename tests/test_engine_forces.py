@@ -254,8 +254,8 @@ def test_adapter_contract(tmp_path):
         mass = 1.0
         [[body]]
         name = "b"
-        shape = "sphere"
-        radius = 0.1
+        shape = "box"
+        half_extents = [0.1, 0.1, 0.1]
         mass = 1.0
         position = [1, 0, 0]
         """)
