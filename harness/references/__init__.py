@@ -61,6 +61,16 @@ class ReferenceModel:
     def param(self, key: str, default: Any = None) -> Any:
         return self.scene.reference_params.get(key, default)
 
+    def the_body(self):
+        """The body ``params.body`` names, else the scene's only body."""
+        bname = self.param("body")
+        if bname is not None:
+            return self.scene.bodies[self.scene.body_index(bname)]
+        if self.scene.n_bodies != 1:
+            raise ReferenceError(f"{self.name} needs exactly one body (or params.body), "
+                                 f"the scene has {self.scene.n_bodies}")
+        return self.scene.bodies[0]
+
     def positions(self, t: np.ndarray) -> np.ndarray | None:
         """Reference positions (F, n, 3) at times t (F,), if the model has a
         trajectory; None otherwise."""

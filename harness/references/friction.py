@@ -73,13 +73,7 @@ class _SlopeModel(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        bname = self.param("body")
-        if bname is None:
-            if scene.n_bodies != 1:
-                raise ReferenceError(f"{self.name} needs exactly one body (or params.body), the scene has {scene.n_bodies}")
-            self.body = scene.bodies[0]
-        else:
-            self.body = scene.bodies[scene.body_index(bname)]
+        self.body = self.the_body()
         sname = self.param("slope")
         slopes = [s for s in scene.statics if s.kind == "slope" and (sname is None or s.name == sname)]
         if len(slopes) != 1:
@@ -456,14 +450,7 @@ class SpinToRest(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        bname = self.param("body")
-        if bname is None:
-            if scene.n_bodies != 1:
-                raise ReferenceError(f"spin_to_rest needs exactly one body (or params.body), the scene has {scene.n_bodies}")
-            b = scene.bodies[0]
-        else:
-            b = scene.bodies[scene.body_index(bname)]
-        self.body = b
+        self.body = b = self.the_body()
         if b.shape != "capsule":
             raise ReferenceError(f"spin_to_rest needs a capsule, body {b.name!r} is a {b.shape}")
         planes = [s for s in scene.statics if s.shape == "plane"]

@@ -148,13 +148,7 @@ class TorqueFreeRigidBody(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        bname = self.param("body")
-        if bname is None:
-            if scene.n_bodies != 1:
-                raise ReferenceError("torque_free_rigid_body needs exactly one body (or params.body)")
-            b = scene.bodies[0]
-        else:
-            b = scene.bodies[scene.body_index(bname)]
+        b = self.the_body()
         if scene.has("contact") and scene.statics:
             raise ReferenceError("torque_free_rigid_body needs a free body (no static geometry)")
         if scene.springs or scene.has("drag_linear") or scene.has("drag_quadratic"):
