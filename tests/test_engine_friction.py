@@ -448,6 +448,22 @@ CAPSULE_I = 4.401176e-3
 SPIN_ALPHA = 0.3 * G * 0.1 / CAPSULE_I  # 66.869 rad/s^2
 
 
+def capsule_scene(tmp_path: Path, extra_effects: tuple[str, ...] = (), edits: dict[str, str] | None = None,
+                  append: str = ""):
+    """friction.capsule_spins_to_rest without its reference model, with
+    effects added, text ``edits`` (old -> new) and TOML appended."""
+    text = (Path(__file__).parents[1] / "scenarios/friction/capsule_spins_to_rest.toml").read_text()
+    text = text.split("[reference]")[0]
+    effects = ", ".join(f'"{e}"' for e in ("gravity", "contact", "friction", "gyroscopic") + extra_effects)
+    text = text.replace('effects = ["gravity", "contact", "friction", "gyroscopic"]', f"effects = [{effects}]")
+    for old, new in (edits or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
+    p = tmp_path / "capsule.toml"
+    p.write_text(text + append)
+    return load_scene(str(p))
+
+
 @pytest.mark.parametrize("dt", [1 / 240, 1 / 60])
 def test_capsule_spinning_in_place_stops_by_kinetic_friction(dt):
     """Both contact points slide although the patch's centroid does not, so
@@ -477,16 +493,11 @@ def test_spinning_capsule_landing_flat_keeps_what_kinetic_twist_leaves(tmp_path,
     (e = 0) on the ground, where mu_k m g h keeps decelerating it."""
     from harness.runner import run
 
-    text = (Path(__file__).parents[1] / "scenarios/friction/capsule_spins_to_rest.toml").read_text()
-    effects = '["gravity", "contact", "friction", "gyroscopic"' + (', "restitution"]' if e else "]")
-    text = (text.replace('effects = ["gravity", "contact", "friction", "gyroscopic"]', f"effects = {effects}")
-            .replace("position = [0.0, 0.0, 0.02]", "position = [0.0, 0.0, 0.07]")
-            .replace("angular_velocity = [0.0, 0.0, 10.0]", "angular_velocity = [0.0, 0.0, 20.0]")
-            .replace("static_friction = 0.6", f"static_friction = 0.6\nrestitution = {e}"))
-    text = text.split("[reference]")[0]
-    p = tmp_path / "landing.toml"
-    p.write_text(text)
-    res = run(load_scene(str(p)), "reference")
+    sc = capsule_scene(tmp_path, ("restitution",) if e else (), {
+        "position = [0.0, 0.0, 0.02]": "position = [0.0, 0.0, 0.07]",
+        "angular_velocity = [0.0, 0.0, 10.0]": "angular_velocity = [0.0, 0.0, 20.0]",
+        "static_friction = 0.6": f"static_friction = 0.6\nrestitution = {e}"})
+    res = run(sc, "reference")
     assert res.status == "ok", res.message
     tr = res.trace
     v = math.sqrt(2 * G * 0.05)
@@ -509,19 +520,13 @@ def test_twist_past_its_static_limit_breaks_free(tmp_path, tau):
     limit it got 0.105 rad/s instead of 0.384)."""
     from harness.runner import run
 
-    text = (Path(__file__).parents[1] / "scenarios/friction/capsule_spins_to_rest.toml").read_text()
-    text = (text.split("[reference]")[0]
-            .replace('effects = ["gravity", "contact", "friction", "gyroscopic"]',
-                     'effects = ["gravity", "contact", "friction", "gyroscopic", "spring"]')
-            .replace("angular_velocity = [0.0, 0.0, 10.0]", "")
-            .replace("duration = 0.5", "duration = 0.05"))
     k = tau / 0.2 / 10.0  # each spring pulls tau / (2 h) N from 10 m away
-    for end in (1, -1):
-        text += (f'\n[[spring]]\na = "capsule"\nb = "world"\nanchor_a = [0.0, 0.0, {0.1 * end}]\n'
-                 f"anchor_b = [{0.1 * end}, {10.0 * end}, 0.02]\nstiffness = {k!r}\nrest_length = 0.0\n")
-    p = tmp_path / "couple.toml"
-    p.write_text(text)
-    res = run(load_scene(str(p)), "reference")
+    springs = "".join(f'\n[[spring]]\na = "capsule"\nb = "world"\nanchor_a = [0.0, 0.0, {0.1 * end}]\n'
+                      f"anchor_b = [{0.1 * end}, {10.0 * end}, 0.02]\nstiffness = {k!r}\nrest_length = 0.0\n"
+                      for end in (1, -1))
+    sc = capsule_scene(tmp_path, ("spring",), {"angular_velocity = [0.0, 0.0, 10.0]": "",
+                                               "duration = 0.5": "duration = 0.05"}, springs)
+    res = run(sc, "reference")
     assert res.status == "ok", res.message
     w = res.trace.angvel[:, 0, 2]
     h = 1 / 240
