@@ -48,7 +48,7 @@ class ReferenceAdapter(Adapter):
             effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "drag_linear",
                                "drag_quadratic", "spring", "damper", "gyroscopic"}),
             settings=_settings(),
-            notes=("cylinders collide with planes and spheres only",),
+            notes=("cylinders collide with planes, spheres, boxes and capsules; not with other cylinders",),
         )
 
     @classmethod
@@ -58,10 +58,9 @@ class ReferenceAdapter(Adapter):
             return reason
         if scene.has("contact"):
             ncyl = sum(b.shape == "cylinder" for b in scene.bodies)
-            others = {b.shape for b in scene.bodies if b.shape not in ("cylinder", "sphere")}
-            if ncyl and (ncyl > 1 or others or any(s.shape == "box" for s in scene.statics)):
-                return ("reference engine: cylinders collide with planes and spheres only (no cylinder-cylinder, "
-                        "cylinder-box, cylinder-capsule or cylinder-static-box contact)")
+            if ncyl > 1:
+                return ("reference engine: no cylinder-cylinder contact (cylinders collide with planes, spheres, "
+                        "boxes and capsules)")
         return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

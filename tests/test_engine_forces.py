@@ -254,12 +254,13 @@ def test_adapter_contract(tmp_path):
         mass = 1.0
         [[body]]
         name = "b"
-        shape = "box"
-        half_extents = [0.1, 0.1, 0.1]
+        shape = "cylinder"
+        radius = 0.1
+        half_length = 0.1
         mass = 1.0
         position = [1, 0, 0]
         """)
-    assert "cylinder" in cls.unsupported_reason(sc)
+    assert "cylinder-cylinder" in cls.unsupported_reason(sc)
     res = run(sc, "reference")
     assert res.status == "unsupported"
     with pytest.raises(ValueError):
