@@ -239,7 +239,7 @@ def _segment_min(f, e0, e1, iters: int = 40):
     golden-section search (one new evaluation per iteration; 40 iterations
     leave a bracket of 4e-9 of the segment), then the end points compared
     exactly (the minimum may sit at an end, and where f is flat the end
-    wins)."""
+    wins).  Returns (s, f there, the smaller of f at the two ends)."""
     lo = np.zeros(e0.shape[0])
     hi = np.ones(e0.shape[0])
     g = _GOLDEN
@@ -260,16 +260,17 @@ def _segment_min(f, e0, e1, iters: int = 40):
     f_s = f(e0 + d * s[:, None])
     f_0 = f(e0)
     f_1 = f(e1)
-    s = np.where(f_0 <= f_s, 0.0, s)
-    s = np.where(f_1 < np.minimum(f_s, f_0), 1.0, s)
-    return s
+    at0 = f_0 <= f_s
+    at1 = f_1 < np.minimum(f_s, f_0)
+    s = np.where(at1, 1.0, np.where(at0, 0.0, s))
+    return s, np.where(at1, f_1, np.where(at0, f_0, f_s)), np.minimum(f_0, f_1)
 
 
 def capsule_box(c, R, hl, r, cb, Rb, hb):
     """Capsule (first) against box (second)."""
     e0, e1 = _capsule_ends(c, R, hl)
     d = e1 - e0
-    s = _segment_min(lambda p: _box_sdf(p, cb, Rb, hb), e0, e1)
+    s = _segment_min(lambda p: _box_sdf(p, cb, Rb, hb), e0, e1)[0]
     out = [sphere_box(e0 + d * s[:, None], r, cb, Rb, hb)]
     for end, fid, sv in ((e0, 1, 0.0), (e1, 2, 1.0)):
         keep = np.flatnonzero(np.abs(s - sv) * 2.0 * hl > 0.02 * (2.0 * hl + r))
@@ -410,7 +411,7 @@ def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
     rim point's id."""
     e0, e1 = _capsule_ends(c, R, hl)
     d = e1 - e0
-    s = _segment_min(lambda p: _cylinder_sdf(p, cc, Rc, hlc, rc), e0, e1)
+    s = _segment_min(lambda p: _cylinder_sdf(p, cc, Rc, hlc, rc), e0, e1)[0]
     first = sphere_cylinder(e0 + d * s[:, None], r, cc, Rc, hlc, rc)
     out = [first]
     for end, fid, sv in ((e0, 1, 0.0), (e1, 2, 1.0)):
@@ -482,11 +483,9 @@ def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
         rows12, edge_id, e0, e1 = rows12[near], edge_id[near], e0[near], e1[near]
     ccr, Rcr, hlr, rcr = cc[rows12], Rc[rows12], hl[rows12], rc[rows12]
     if rows12.size:
-        sdf = lambda q: _cylinder_sdf(q, ccr, Rcr, hlr, rcr)
-        s = _segment_min(sdf, e0, e1)
+        s, f_s, f_ends = _segment_min(lambda q: _cylinder_sdf(q, ccr, Rcr, hlr, rcr), e0, e1)
         pts = e0 + (e1 - e0) * s[:, None]
-        deeper = sdf(pts) < np.minimum(sdf(e0), sdf(e1)) - EDGE_POINT_TOL
-        sel = np.flatnonzero(deeper)
+        sel = np.flatnonzero(f_s < f_ends - EDGE_POINT_TOL)
         if sel.size:
             k, n, p, g, _ = sphere_cylinder(pts[sel], np.zeros(sel.size), ccr[sel], Rcr[sel], hlr[sel], rcr[sel])
             out.append((rows12[sel[k]], n, p, g, 8 + edge_id[sel[k]]))
