@@ -48,7 +48,7 @@ class ReferenceAdapter(Adapter):
             effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "drag_linear",
                                "drag_quadratic", "spring", "damper", "gyroscopic"}),
             settings=_settings(),
-            notes=("cylinders collide with planes, spheres, boxes and capsules; not with other cylinders",),
+            notes=("every shape pair collides, and each shape with every static (plane, slope, box)",),
         )
 
     @classmethod
@@ -56,11 +56,6 @@ class ReferenceAdapter(Adapter):
         reason = super().unsupported_reason(scene)
         if reason is not None:
             return reason
-        if scene.has("contact"):
-            ncyl = sum(b.shape == "cylinder" for b in scene.bodies)
-            if ncyl > 1:
-                return ("reference engine: no cylinder-cylinder contact (cylinders collide with planes, spheres, "
-                        "boxes and capsules)")
         return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

@@ -82,6 +82,8 @@ from engine.state import Contacts
 
 TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
 DIRECT_MAX_ROWS = 400  # rows up to which the direct start is a dense LAPACK solve; above, sparse (SuperLU)
+#: re-solves of the dense direct start with the rows it pulls on let go
+ACTIVE_SET_PASSES = 4
 RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
 SLIP_TOL = 1e-4  # m/s: relative tangential speed above which a contact slides (twist: at r_twist)
 ROLL_TOL = 1e-4  # rad/s: relative rolling angular speed above which a contact rolls (rolling friction)
@@ -425,8 +427,9 @@ class Rows:
         The rows that are not separating (r = target - J U >= 0, with the
         warm friction impulses applied) are solved as equalities, K lambda = r
         (Tikhonov-regularised: for the consistent but singular systems of
-        coplanar points it tends to the minimum-norm, symmetric share), then
-        clipped at 0.  The load of a whole stack -- or of a heavy body on a
+        coplanar points it tends to the minimum-norm, symmetric share); in
+        the dense case rows solved to pull (lambda < 0) are let go and the
+        rest solved again (ACTIVE_SET_PASSES), then all are clipped at 0.  The load of a whole stack -- or of a heavy body on a
         light one -- is then in place from the first sweep, which
         Gauss-Seidel alone needs many sweeps (mass ratios: thousands) to
         transport, and indeterminate supports are not biased by the sweep
@@ -461,13 +464,24 @@ class Rows:
                 return
         else:
             K = self.normal_matrix()
-            Ka = K[np.ix_(act, act)].copy()
-            eps = 1e-10 * float(np.max(np.diag(Ka)))
-            Ka[np.diag_indices_from(Ka)] += eps
-            try:
-                la = solve_small(Ka, r[act])
-            except np.linalg.LinAlgError:
-                return
+            # active set: rows the equality solve pulls on (lambda < 0) are
+            # let go and the rest solved again, a few times.  Clipping
+            # alone leaves the others short of the load those rows took:
+            # a can resting offset on a can near its support's edge came
+            # out of the clipped start turning at 5e-5 rad/s, which 20
+            # sweeps did not undo, and tipped
+            for _ in range(ACTIVE_SET_PASSES):
+                Ka = K[np.ix_(act, act)].copy()
+                eps = 1e-10 * float(np.max(np.diag(Ka)))
+                Ka[np.diag_indices_from(Ka)] += eps
+                try:
+                    la = solve_small(Ka, r[act])
+                except np.linalg.LinAlgError:
+                    return
+                pull = la < 0.0
+                if not pull.any() or pull.all():
+                    break
+                act = act[~pull]
         if not np.all(np.isfinite(la)):
             return
         lam = np.zeros(self.m)
