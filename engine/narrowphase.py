@@ -738,9 +738,11 @@ def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
     exact signed distance (the box-cylinder method, with a circle where the
     box had corners and edges):
 
-    * each rim's support points facing the other body (:func:`_cylinder_rim`
-      along the pair normal): a cap standing on a cap, a side lying along
-      a side;
+    * while a cap faces the other body (within 45 degrees of the pair
+      normal): that cap's material square (body x, y) and its rim point
+      nearest the other's axis -- a cap standing on a cap, offset or not;
+      else each rim's support point toward the other (:func:`_cylinder_rim`
+      along the pair normal) -- a side lying along a side;
     * each rim's local minima of the other's signed distance (sampled and
       refined, :func:`_rim_search`): a rim on a side, rim across rim, a
       tilted cap on its edge;
@@ -755,10 +757,12 @@ def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
     (:func:`_cylinder_pair_normal`); it picks the features and the face a
     point pressed in at a rim's edge leaves by, while each contact's own
     normal and gap are those of the other's signed distance at its point.
+    The touching set is then cut to four points (:func:`_four_points`).
     Separated, the smallest gap is the distance between the solids.
     Normal from the first cylinder to the second; feature ids: the first
-    cylinder's points 0-127 (rim support 0-11, rim minima 16-47, side line
-    48-50, rim crossings 64-95), the second's the same plus 128."""
+    cylinder's points 0-127 (rim support 0 and 8, facing cap's square and
+    nearest point 1-5 or 9-13, rim minima 16-47, side line 48-50, rim
+    crossings 64-95), the second's the same plus 128."""
     axa, axb = Ra[:, :, 2], Rb[:, :, 2]
     pn = _cylinder_pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb)
     k0, n0, p0, g0, f0 = _cylinder_points_against(ca, Ra, hla, ra, cb, Rb, hlb, rb, pn, margin)
