@@ -1642,7 +1642,7 @@ def test_cylinders_rest_on_cylinders(tmp_path, bodies, tol):
     support must be where the bodies truly touch, or they tip.  The offset
     stacks rest on the rims' crossings; the wider turned can offset near
     its support's edge needs the direct start's active set (clipped alone,
-    the start left it turning at 5e-5 rad/s, and it tipped by 8e-5 rad)."""
+    the start left it turning at 5e-5 rad/s, and its quaternion moved 8e-5)."""
     res = _cyl_run(tmp_path, "".join(bodies), _GROUND)
     tr = res.trace
     assert np.abs(tr.pos[-1] - tr.pos[0]).max() <= tol
