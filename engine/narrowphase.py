@@ -554,7 +554,8 @@ def _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin):
     each rim at RIM_SAMPLES angles:
 
     * the rim's local minima of the other body's signed distance
-      ``sdf(points (j, 3), rows (j,)) -> (j,)``: each sample no higher than
+      (``sdf(rows (j,))`` returns it for those pair rows, gathered once, as
+      a function of points (j, 3) -> (j,)): each sample no higher than
       its neighbours (one of them strictly) is refined by golden section
       between them, and kept where it is deeper than both by
       EDGE_POINT_TOL (on a flat stretch -- a cap lying on a cap -- the
@@ -575,7 +576,7 @@ def _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin):
                                + np.sin(_RIM_ANG)[None, :, None] * ey[:, None, :])  # (m, N, 3)
     P = (centres[:, :, None, :] + ring[:, None, :, :]).reshape(-1, 3)  # (m 2 N, 3)
     rows = np.repeat(np.arange(m), 2 * N)
-    fv = sdf(P, rows).reshape(m, 2, N)
+    fv = sdf(rows)(P).reshape(m, 2, N)
     prev, nxt = np.roll(fv, 1, axis=2), np.roll(fv, -1, axis=2)
     lo_n = np.minimum(prev, nxt)
     cand = (fv <= lo_n) & (fv < np.maximum(prev, nxt))
@@ -587,16 +588,16 @@ def _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin):
     kk, cap, i = np.nonzero(cand)
     if kk.size:
         cen, exk, eyk, rk = centres[kk, cap], ex[kk], ey[kk], r[kk]
-        th, f_th = _golden(lambda a: sdf(_rim_points(cen, exk, eyk, rk, a), kk),
+        f_k = sdf(kk)
+        th, f_th = _golden(lambda a: f_k(_rim_points(cen, exk, eyk, rk, a)),
                            _RIM_ANG[i] - 2.0 * math.pi / N, _RIM_ANG[i] + 2.0 * math.pi / N)
         keep = np.flatnonzero(f_th < lo_n[kk, cap, i] - EDGE_POINT_TOL)
         out_r.append(kk[keep])
         out_p.append(_rim_points(cen[keep], exk[keep], eyk[keep], rk[keep], th[keep]))
         out_f.append(16 + 16 * cap[keep] + i[keep])
     # radius crossings: q = rho^2 - r^2 of the samples in the other's frame
-    rr = np.repeat(np.arange(m), 2 * N)
-    loc = np.einsum("kji,kj->ki", oR[rr], P - oc[rr])
-    q = (loc[:, 0] ** 2 + loc[:, 1] ** 2 - orr[rr] ** 2).reshape(m, 2, N)
+    loc = np.einsum("kji,kj->ki", oR[rows], P - oc[rows])
+    q = (loc[:, 0] ** 2 + loc[:, 1] ** 2 - orr[rows] ** 2).reshape(m, 2, N)
     qn = np.roll(q, -1, axis=2)
     # a rim on the other's radius (equal cans stacked) has q at round-off
     # all along: no crossings there, only sign changes that at least one
@@ -670,8 +671,10 @@ def _cylinder_points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin):
     def contact(p, rows):
         return sphere_cylinder(p, np.zeros(rows.size), oc[rows], oR[rows], ohl[rows], orr[rows], cap_face[rows])
 
-    def sdf(p, rows):
-        return _cylinder_sdf(p, oc[rows], oR[rows], ohl[rows], orr[rows])
+    def sdf(rows):
+        # gathered once per search, not at each of its 40 evaluations
+        g = (oc[rows], oR[rows], ohl[rows], orr[rows])
+        return lambda p: _cylinder_sdf(p, *g)
 
     out = []
     ax = R[:, :, 2]
@@ -722,7 +725,7 @@ def _cylinder_points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin):
         line = c[rows] + t[rows] * (r[rows] / tl[rows])[:, None]
         e0 = line - ax[rows] * hl[rows, None]
         e1 = line + ax[rows] * hl[rows, None]
-        s, f_s, f_ends = _segment_min(lambda x: sdf(x, rows), e0, e1)
+        s, f_s, f_ends = _segment_min(sdf(rows), e0, e1)
         sel = np.flatnonzero(f_s < f_ends - EDGE_POINT_TOL)
         if sel.size:
             k, n, p, g, _ = contact(e0[sel] + (e1[sel] - e0[sel]) * s[sel, None], rows[sel])
