@@ -470,7 +470,7 @@ class Rows:
             # a can resting offset on a can near its support's edge came
             # out of the clipped start turning at 5e-5 rad/s, which 20
             # sweeps did not undo, and tipped
-            for _ in range(ACTIVE_SET_PASSES):
+            for npass in range(1, ACTIVE_SET_PASSES + 1):
                 Ka = K[np.ix_(act, act)].copy()
                 eps = 1e-10 * float(np.max(np.diag(Ka)))
                 Ka[np.diag_indices_from(Ka)] += eps
@@ -479,8 +479,8 @@ class Rows:
                 except np.linalg.LinAlgError:
                     return
                 pull = la < 0.0
-                if not pull.any() or pull.all():
-                    break
+                if not pull.any() or pull.all() or npass == ACTIVE_SET_PASSES:
+                    break  # the last pass's pulls are clipped below
                 act = act[~pull]
         if not np.all(np.isfinite(la)):
             return

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -593,6 +594,78 @@ def test_static_stack_drift_and_residual():
     out = m.metrics(make_trace(t, pos, vel))
     assert out["stack_drift"] == pytest.approx(0.003)
     assert out["residual_velocity"] == pytest.approx(0.0006)
+
+
+# ---------------------------------------------------------------------------
+# log_pile
+
+
+def _log_pile_text(mu: float, x_top: float = 0.0, z_top: float | None = None, x_right: float = 0.051,
+                   x_left: float = -0.051) -> str:
+    text = (Path(__file__).resolve().parents[1] / "scenarios" / "stacking" / "log_pile.toml").read_text()
+    text = text.replace("friction = 0.32\nstatic_friction = 0.32", f"friction = {mu}\nstatic_friction = {mu}")
+    text = text.replace("position = [0.051, 0.0, 0.05]", f"position = [{x_right}, 0.0, 0.05]")
+    text = text.replace("position = [-0.051, 0.0, 0.05]", f"position = [{x_left}, 0.0, 0.05]")
+    if z_top is not None or x_top:
+        text = text.replace("position = [0.0, 0.0, 0.13601744009211156]",
+                            f"position = [{x_top}, 0.0, {z_top if z_top is not None else 0.13601744009211156}]")
+    return text
+
+
+def test_log_pile_statics():
+    """By hand: half spacing s = 0.051, r = 0.05: sin th = 0.51, th =
+    30.6638 deg, tan(th / 2) = 0.274168; the ground's share with equal
+    masses is a third of it, 0.091389.  The pile holds from that friction
+    up, and the top log rests at r + sqrt(4 r^2 - s^2) = 0.1360174."""
+    m = get_model("log_pile")(load_scene("stacking.log_pile"))
+    assert m.friction_demand == pytest.approx(0.2741678, rel=1e-6)
+    assert m.ground_friction_demand == pytest.approx(0.2741678 / 3.0, rel=1e-6)
+    assert m.full_drop == pytest.approx(0.0860174, rel=1e-6)
+    assert m.holds
+    assert not get_model("log_pile")(scene_from(_log_pile_text(0.274))).holds
+    assert get_model("log_pile")(scene_from(_log_pile_text(0.2742))).holds
+    assert not get_model("log_pile")(load_scene("stacking.log_pile_slides")).holds
+
+
+def test_log_pile_metrics_on_planted_traces():
+    sc = load_scene("stacking.log_pile")
+    m = get_model("log_pile")(sc)
+    x0 = sc.initial_state()[0]
+    t = np.linspace(0, 3, 301)
+    top = int(np.argmax(x0[:, 2]))
+    pos = np.repeat(x0[None], len(t), axis=0)
+    pos[:, top, 2] -= 0.0005 * t / 3  # sinks 0.5 mm: held
+    out = m.metrics(make_trace(t, pos))
+    assert out["top_drop"] == pytest.approx(0.0005)
+    assert out["stack_drift"] == pytest.approx(0.0005)
+    assert out["pile_holds"] and not out["top_fell"] and out["outcome_ok"]
+    assert out["final_position_error"] == pytest.approx(0.0005)
+    # the whole pile rolls away 7 cm (the lower logs rolling, the top one
+    # turning the other way): the top does not drop, the drift tells
+    pos = np.repeat(x0[None], len(t), axis=0)
+    pos[:, :, 0] += 0.07 * (t / 3)[:, None]
+    out = m.metrics(make_trace(t, pos))
+    assert out["top_drop"] == pytest.approx(0.0, abs=1e-15) and out["outcome_ok"]
+    assert out["stack_drift"] == pytest.approx(0.07)
+    # collapsed: the top falls 8.6 cm to the ground; wrong for this pile,
+    # right for the one below the demand
+    pos = np.repeat(x0[None], len(t), axis=0)
+    pos[:, top, 2] -= np.minimum(t, 0.0860174)
+    out = m.metrics(make_trace(t, pos))
+    assert out["top_fell"] and not out["outcome_ok"]
+    slides = get_model("log_pile")(load_scene("stacking.log_pile_slides"))
+    out = slides.metrics(make_trace(t, pos))
+    assert out["top_fell"] and out["outcome_ok"] and "final_position_error" not in out
+
+
+@pytest.mark.parametrize("kw,what", [
+    (dict(x_right=0.045, x_left=-0.045), "apart"),  # lower logs overlap
+    (dict(x_right=0.06), "centred"),
+    (dict(z_top=0.14), "resting"),
+])
+def test_log_pile_refuses_other_piles(kw, what):
+    with pytest.raises(ReferenceError, match=what):
+        get_model("log_pile")(scene_from(_log_pile_text(0.32, **kw)))
 
 
 # ---------------------------------------------------------------------------

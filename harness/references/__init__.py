@@ -26,6 +26,7 @@ MODELS: dict[str, str] = {
     "momentum_energy": "harness.references.billiards:MomentumEnergy",
     "bounce_heights": "harness.references.billiards:BounceHeights",
     "static_stack": "harness.references.stacking:StaticStack",
+    "log_pile": "harness.references.stacking:LogPile",
     "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
     "incline_block": "harness.references.friction:InclineBlock",
     "rolling_sphere": "harness.references.friction:RollingSphere",

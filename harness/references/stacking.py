@@ -19,11 +19,124 @@ constant reference):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
+
+
+#: a log pile's top log "fell" when it dropped this fraction of the way to
+#: the ground (sqrt(4 r^2 - s^2) for a half spacing s): a held pile drops
+#: only by contact compliance (um to mm), a collapsed one the whole way
+COLLAPSE_FRACTION = 0.5
+
+
+def _axis(q: np.ndarray) -> np.ndarray:
+    """Body z axis (3,) of the unit quaternion (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+
+
+class LogPile(ReferenceModel):
+    """Three equal logs (cylinders lying parallel and level): two on a level
+    ground, the third resting symmetrically in the groove between them,
+    released at rest.
+
+    Statics.  The top log (weight W_t) presses on each lower log along
+    their line of centres, at th = asin(s / 2r) from vertical (s the half
+    spacing of the lower logs).  A lower log is held by that contact and the
+    ground's alone (the lower logs must not touch: s > r); its moment about
+    its own axis makes the two friction forces on it equal, F = f.  Then
+    (derivation in the scenario file)
+
+        N = W_t / 2,   F / N = tan(th / 2)                  (log on log)
+        R = W_b + W_t / 2,   f / R = tan(th / 2) W_t / (2 W_b + W_t)   (log on ground)
+
+    so the pile holds when static friction covers both demands and
+    collapses otherwise: the lower logs roll apart and the top log falls to
+    the ground (the demand only grows as th opens).
+
+    Metrics: ``friction_demand`` (tan(th / 2)), ``ground_friction_demand``,
+    ``pile_holds`` (the prediction, bool), ``top_drop`` (m, the largest fall
+    of the top log below its start), ``top_fell`` (bool: top_drop beyond
+    COLLAPSE_FRACTION of the way to the ground), ``outcome_ok`` (bool:
+    top_fell is the opposite of pile_holds), and static_stack's
+    ``stack_drift`` and ``residual_velocity``.
+    """
+
+    name = "log_pile"
+    params_allowed = ()
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        bodies = scene.bodies
+        if len(bodies) != 3 or any(b.shape != "cylinder" for b in bodies):
+            raise ReferenceError("log_pile needs exactly three cylinder bodies")
+        r = bodies[0].radius
+        if any(abs(b.radius - r) > 1e-12 * r for b in bodies):
+            raise ReferenceError("log_pile needs logs of one radius")
+        planes = [s for s in scene.statics if s.shape == "plane"]
+        if len(planes) != 1 or not np.allclose(planes[0].normal, [0.0, 0.0, 1.0], atol=1e-12):
+            raise ReferenceError("log_pile needs one level ground plane (normal +z)")
+        g = scene.gravity
+        if abs(g[0]) > 0 or abs(g[1]) > 0 or g[2] >= 0:
+            raise ReferenceError("log_pile needs gravity along -z")
+        x0, q0, v0, w0 = scene.initial_state()
+        if np.any(v0 != 0) or np.any(w0 != 0):
+            raise ReferenceError("log_pile needs every log at rest at t = 0")
+        ax = np.array([_axis(q) for q in q0])
+        if np.any(np.abs(ax[:, 2]) > 1e-9) or np.any(np.linalg.norm(np.cross(ax, ax[0]), axis=1) > 1e-9):
+            raise ReferenceError("log_pile needs the three logs lying level and parallel")
+        ground = float(planes[0].offset)
+        order = np.argsort(x0[:, 2])
+        lo, top = order[:2], int(order[2])
+        if np.any(np.abs(x0[lo, 2] - (ground + r)) > 1e-9):
+            raise ReferenceError("log_pile needs two logs lying on the ground (centres at height r)")
+        across = np.cross(ax[0], [0.0, 0.0, 1.0])  # level, across the logs
+        u = (x0 - x0[top]) @ across
+        s = 0.5 * (u[lo].max() - u[lo].min())
+        if abs(u[lo].sum()) > 1e-9 or not (r < s < 2.0 * r):
+            raise ReferenceError("log_pile needs the lower logs apart (r < half spacing < 2 r) "
+                                 "and the top log centred above them")
+        h = math.sqrt(4.0 * r * r - s * s)
+        if abs(x0[top, 2] - (ground + r + h)) > 1e-9:
+            raise ReferenceError("log_pile needs the top log resting on both lower logs "
+                                 f"(centre at height {ground + r + h:.9g})")
+        mb = bodies[int(lo[0])].mass
+        if abs(bodies[int(lo[1])].mass - mb) > 1e-12 * mb:
+            raise ReferenceError("log_pile needs the two lower logs of one mass")
+        mt = bodies[top].mass
+        half = math.tan(0.5 * math.asin(s / (2.0 * r)))
+        self.friction_demand = half
+        self.ground_friction_demand = half * mt / (2.0 * mb + mt)
+        ground_name = planes[0]
+        mu_ll = min(scene.pair(bodies[top].material, bodies[int(i)].material).static_friction for i in lo)
+        mu_lg = min(scene.pair(bodies[int(i)].material, ground_name.material).static_friction for i in lo)
+        self.holds = bool(mu_ll >= half and mu_lg >= self.ground_friction_demand)
+        self.top, self.x0 = top, x0
+        self.full_drop = h
+
+    def positions(self, t: np.ndarray) -> np.ndarray | None:
+        """Held: the start, constant (F, n, 3).  Collapsing: no closed form."""
+        if not self.holds:
+            return None
+        return np.broadcast_to(self.x0, (len(t),) + self.x0.shape).copy()
+
+    def metrics(self, trace) -> dict[str, float]:
+        out = trajectory_metrics(trace.pos, self.positions(trace.t)) if self.holds else {}
+        drop = float(np.nanmax(self.x0[self.top, 2] - trace.pos[:, self.top, 2]))
+        fell = drop > COLLAPSE_FRACTION * self.full_drop
+        disp = np.linalg.norm(trace.pos - self.x0[None], axis=-1)
+        F = trace.pos.shape[0]
+        start = min(int(np.searchsorted(trace.t, float(trace.t[-1]) * (1.0 - RESIDUAL_WINDOW), side="left")), F - 1)
+        out.update(friction_demand=self.friction_demand, ground_friction_demand=self.ground_friction_demand,
+                   pile_holds=self.holds, top_drop=drop, top_fell=bool(fell), outcome_ok=bool(fell != self.holds),
+                   stack_drift=float(np.nanmax(disp)),
+                   residual_velocity=float(np.nanmax(np.linalg.norm(trace.vel[start:], axis=-1))))
+        return out
 
 
 class StaticStack(ReferenceModel):
