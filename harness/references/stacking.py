@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from adapters.conventions import quat_rotate
 from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
@@ -34,10 +35,15 @@ RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks 
 COLLAPSE_FRACTION = 0.5
 
 
-def _axis(q: np.ndarray) -> np.ndarray:
-    """Body z axis (3,) of the unit quaternion (w, x, y, z)."""
-    w, x, y, z = q
-    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+def _rest_metrics(trace, x0: np.ndarray) -> dict[str, float]:
+    """``stack_drift`` (m): the largest |x_i(t) - x0_i| of any body at any
+    time; ``residual_velocity`` (m/s): the largest speed of any body over
+    the last RESIDUAL_WINDOW of the run (at least the last frame)."""
+    disp = np.linalg.norm(trace.pos - x0[None], axis=-1)  # (F, n)
+    F = trace.pos.shape[0]
+    start = min(int(np.searchsorted(trace.t, float(trace.t[-1]) * (1.0 - RESIDUAL_WINDOW), side="left")), F - 1)
+    return {"stack_drift": float(np.nanmax(disp)),
+            "residual_velocity": float(np.nanmax(np.linalg.norm(trace.vel[start:], axis=-1)))}
 
 
 class LogPile(ReferenceModel):
@@ -87,7 +93,7 @@ class LogPile(ReferenceModel):
         x0, q0, v0, w0 = scene.initial_state()
         if np.any(v0 != 0) or np.any(w0 != 0):
             raise ReferenceError("log_pile needs every log at rest at t = 0")
-        ax = np.array([_axis(q) for q in q0])
+        ax = quat_rotate(q0, np.broadcast_to([0.0, 0.0, 1.0], (3, 3)))  # the logs' axes
         if np.any(np.abs(ax[:, 2]) > 1e-9) or np.any(np.linalg.norm(np.cross(ax, ax[0]), axis=1) > 1e-9):
             raise ReferenceError("log_pile needs the three logs lying level and parallel")
         ground = float(planes[0].offset)
@@ -112,9 +118,8 @@ class LogPile(ReferenceModel):
         half = math.tan(0.5 * math.asin(s / (2.0 * r)))
         self.friction_demand = half
         self.ground_friction_demand = half * mt / (2.0 * mb + mt)
-        ground_name = planes[0]
         mu_ll = min(scene.pair(bodies[top].material, bodies[int(i)].material).static_friction for i in lo)
-        mu_lg = min(scene.pair(bodies[int(i)].material, ground_name.material).static_friction for i in lo)
+        mu_lg = min(scene.pair(bodies[int(i)].material, planes[0].material).static_friction for i in lo)
         self.holds = bool(mu_ll >= half and mu_lg >= self.ground_friction_demand)
         self.top, self.x0 = top, x0
         self.full_drop = h
@@ -129,13 +134,9 @@ class LogPile(ReferenceModel):
         out = trajectory_metrics(trace.pos, self.positions(trace.t)) if self.holds else {}
         drop = float(np.nanmax(self.x0[self.top, 2] - trace.pos[:, self.top, 2]))
         fell = drop > COLLAPSE_FRACTION * self.full_drop
-        disp = np.linalg.norm(trace.pos - self.x0[None], axis=-1)
-        F = trace.pos.shape[0]
-        start = min(int(np.searchsorted(trace.t, float(trace.t[-1]) * (1.0 - RESIDUAL_WINDOW), side="left")), F - 1)
         out.update(friction_demand=self.friction_demand, ground_friction_demand=self.ground_friction_demand,
                    pile_holds=self.holds, top_drop=drop, top_fell=bool(fell), outcome_ok=bool(fell != self.holds),
-                   stack_drift=float(np.nanmax(disp)),
-                   residual_velocity=float(np.nanmax(np.linalg.norm(trace.vel[start:], axis=-1))))
+                   **_rest_metrics(trace, self.x0))
         return out
 
 
@@ -158,12 +159,5 @@ class StaticStack(ReferenceModel):
 
     def metrics(self, trace) -> dict[str, float]:
         out = trajectory_metrics(trace.pos, self.positions(trace.t))
-        disp = np.linalg.norm(trace.pos - self.x0[None], axis=-1)  # (F, n)
-        out["stack_drift"] = float(np.nanmax(disp))
-        F = trace.pos.shape[0]
-        t_end = float(trace.t[-1])
-        start = np.searchsorted(trace.t, t_end * (1.0 - RESIDUAL_WINDOW), side="left")
-        start = min(int(start), F - 1)
-        speeds = np.linalg.norm(trace.vel[start:], axis=-1)
-        out["residual_velocity"] = float(np.nanmax(speeds))
+        out.update(_rest_metrics(trace, self.x0))
         return out
