@@ -370,11 +370,12 @@ def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], 
     return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
 
 
-def primary_threshold(scene: Scene) -> float | None:
-    """The scene's ``[[check]] max`` (plus tolerance) on its primary metric
-    for its variant: the accuracy target of the report.  Checks scoped to
-    some engines count only when no unscoped one exists; the tightest wins."""
-    metric = scene.primary_metric
+def primary_threshold(scene: Scene, metric: str | None = None) -> float | None:
+    """The scene's ``[[check]] max`` (plus tolerance) on ``metric`` (default
+    its primary metric) for its variant: the accuracy target of the report.
+    Checks scoped to some engines count only when no unscoped one exists;
+    the tightest wins."""
+    metric = metric or scene.primary_metric
     if not metric:
         return None
     cands = [c for c in scene.checks if c.metric == metric and c.max is not None
