@@ -209,6 +209,9 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from harness.scene import load_scene
 
     engines = args.engines or list(ENGINES)
+    if Path(args.scenario).is_dir():
+        raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
+                         f"or a spec file, not a folder")
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
     scene = _phase(scene, args.phase)
     results = []
