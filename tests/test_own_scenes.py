@@ -7,9 +7,6 @@ written goes under tmp_path."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import textwrap
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -22,6 +19,7 @@ from harness import report as rp
 from harness import sweep as S
 from harness.results import write_rows
 from harness.scene import load_scene
+from tests.test_cli import physbench
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -65,12 +63,6 @@ def write_box(path: Path, friction: float = 0.5, max_pen: float = 1e-12, duratio
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(BOX.format(friction=friction, max_pen=max_pen, duration=duration))
     return path
-
-
-def physbench(*args, cwd=ROOT):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "harness.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, env=env, timeout=300)
 
 
 # ---------------------------------------------------------------------------
