@@ -95,5 +95,21 @@ class ReferenceAdapter(Adapter):
     def stages(self) -> dict[str, Any]:
         return self.profile.as_dict() if hasattr(self, "profile") else {}
 
+    def contacts(self) -> np.ndarray | None:
+        """The contact rows (engine.state.Contacts) of the last step, read
+        from the step context the pipeline keeps on the state: point midway
+        between the surfaces, normal from body a toward b, depth = -gap;
+        None if the engine keeps them in another form."""
+        ctx = getattr(getattr(self, "state", None), "_ctx", None)
+        if ctx is None:
+            return None
+        c = getattr(ctx, "contacts", None)
+        if c is None:
+            return np.empty((0, 7))
+        try:
+            return np.column_stack([c.point, c.normal, -np.asarray(c.gap)]).reshape(-1, 7)
+        except AttributeError:
+            return None
+
     def close(self) -> None:
         pass
