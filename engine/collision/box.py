@@ -10,9 +10,10 @@ the face manifold's points, their gaps clamped at the edge axis' separation
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from engine.mathutil import cross
-from engine.collision.common import _CORNERS, _empty, _segment_segment
+from engine.collision.common import _CORNERS, _empty
+from engine.collision.kernels import cross3, segment_segment
 
 
 def box_plane(c, R, half, pn, po):
@@ -28,145 +29,298 @@ def box_plane(c, R, half, pn, po):
     return k, -pnr, point, gap, fid
 
 
-def _clip_batch(P: np.ndarray, cnt: np.ndarray, nrm: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sutherland-Hodgman over a batch of polygons: keep the part of each
-    polygon with n.p <= off.  ``P`` (k, w, 3) vertices (the first ``cnt``
-    (k,) of each row valid), ``nrm`` (k, 3), ``off`` (k,).  Same vertices in
-    the same order as the one-polygon algorithm: per edge (p, q), p if it is
-    inside, then the crossing point if the edge crosses the plane."""
-    k, w = P.shape[0], P.shape[1]
-    if w == 0:
-        return P, cnt
-    nx, ny, nz = nrm[:, 0:1], nrm[:, 1:2], nrm[:, 2:3]
-    dp = nx * P[:, :, 0] + ny * P[:, :, 1] + nz * P[:, :, 2] - off[:, None]  # (k, w)
-    slot = np.arange(w)
-    valid = slot[None, :] < cnt[:, None]
-    if np.all((dp <= 0.0) | ~valid):
-        return P, cnt  # every vertex inside: all kept, no edge crosses
-    nxt = (slot[None, :] + 1) % np.maximum(cnt, 1)[:, None]  # (k, w)
-    rows = np.arange(k)[:, None]
-    Q = P[rows, nxt]
-    dq = dp[rows, nxt]
-    keep_p = valid & (dp <= 0.0)
-    cross_ = valid & (((dp < 0.0) & (0.0 < dq)) | ((dq < 0.0) & (0.0 < dp)))
-    den = np.where(cross_, dp - dq, 1.0)
-    t = (dp / den)[:, :, None]
-    X = P + (Q - P) * t
-    cand = np.empty((k, 2 * w, 3))
-    cand[:, 0::2] = P
-    cand[:, 1::2] = X
-    mask = np.empty((k, 2 * w), bool)
-    mask[:, 0::2] = keep_p
-    mask[:, 1::2] = cross_
-    new_cnt = mask.sum(axis=1)
-    wn = int(new_cnt.max(initial=0))
-    order = np.argsort(~mask, axis=1, kind="stable")[:, :wn]
-    return cand[rows, order], new_cnt
+@njit(cache=True)
+def _clip(P, cnt, nx, ny, nz, off, Q):
+    """Sutherland-Hodgman: the part of the polygon P[:cnt] (rows (3,))
+    with n.p <= off, written to Q; returns its vertex count.  Per edge
+    (p, q): p if it is inside, then the crossing point if the edge crosses
+    the plane.  When every vertex is inside, Q is P's copy."""
+    allin = True
+    for v in range(cnt):
+        if nx * P[v, 0] + ny * P[v, 1] + nz * P[v, 2] - off > 0.0:
+            allin = False
+            break
+    if allin:
+        for v in range(cnt):
+            for c in range(3):
+                Q[v, c] = P[v, c]
+        return cnt
+    m = 0
+    for v in range(cnt):
+        w = (v + 1) % cnt
+        dp = nx * P[v, 0] + ny * P[v, 1] + nz * P[v, 2] - off
+        dq = nx * P[w, 0] + ny * P[w, 1] + nz * P[w, 2] - off
+        if dp <= 0.0:
+            for c in range(3):
+                Q[m, c] = P[v, c]
+            m += 1
+        if (dp < 0.0 and 0.0 < dq) or (dq < 0.0 and 0.0 < dp):
+            t = dp / (dp - dq)
+            for c in range(3):
+                Q[m, c] = P[v, c] + (P[w, c] - P[v, c]) * t
+            m += 1
+    return m
 
 
-def _edge_axes(C, dA, hA, hB):
-    """Separations (k, 9) and unit axes (k, 9, 3) (A's frame) of the edge
-    axes A_i x B_j, index 3 i + j; -inf where the axis is degenerate or
-    duplicates a face normal."""
-    k = C.shape[0]
-    # e_i x c for c = C[:, :, j]: (0, -c2, c1), (c2, 0, -c0), (-c1, c0, 0)
-    L = np.zeros((k, 3, 3, 3))  # [k, i, j, component]
-    c0, c1, c2 = C[:, 0, :], C[:, 1, :], C[:, 2, :]  # (k, 3) over j
-    L[:, 0, :, 1] = -c2
-    L[:, 0, :, 2] = c1
-    L[:, 1, :, 0] = c2
-    L[:, 1, :, 2] = -c0
-    L[:, 2, :, 0] = -c1
-    L[:, 2, :, 1] = c0
-    L = L.reshape(k, 9, 3)
-    # (einsum reductions: the same sums, bit for bit, as per-axis einsums)
-    ln = np.sqrt(np.einsum("kai,kai->ka", L, L))
-    ok = ln > 1e-5
-    Ln = L / np.where(ok, ln, 1.0)[..., None]
-    aL = np.abs(Ln)
-    rA = np.einsum("kai,ki->ka", aL, hA)
-    aLB = np.abs(np.einsum("kai,kij->kaj", Ln, C))
-    rB = np.einsum("kaj,kj->ka", aLB, hB)
-    s = np.abs(np.einsum("kai,ki->ka", Ln, dA)) - rA - rB
-    # an edge axis parallel to a face normal duplicates that face axis
-    dup = (aL.max(axis=2) > 1 - 1e-9) | (aLB.max(axis=2) > 1 - 1e-9)
-    return np.where(ok & ~dup, s, -np.inf), Ln
+@njit(cache=True)
+def _argmax3(a0, a1, a2):
+    if a1 > a0:
+        return 2 if a2 > a1 else 1
+    return 2 if a2 > a0 else 0
 
 
-def _edge_contact(p, e, cA, RA, hA, cB, RB, hB, d, axesE):
-    """Edge-edge contact of pair ``p`` on edge axis ``e``: (normal, point)."""
-    i, j = divmod(e, 3)
-    L = RA[p] @ axesE[p, e]
-    if L @ d[p] < 0:
-        L = -L
-    sA = np.sign(RA[p].T @ L)
-    sB = -np.sign(RB[p].T @ L)
-    pa = cA[p] + RA[p] @ (np.where(np.arange(3) == i, 0.0, sA) * hA[p])
-    pb = cB[p] + RB[p] @ (np.where(np.arange(3) == j, 0.0, sB) * hB[p])
-    a0, a1 = pa - RA[p][:, i] * hA[p, i], pa + RA[p][:, i] * hA[p, i]
-    b0, b1 = pb - RB[p][:, j] * hB[p, j], pb + RB[p][:, j] * hB[p, j]
-    qa, qb = _segment_segment(a0[None], a1[None], b0[None], b1[None])
-    return L, 0.5 * (qa[0] + qb[0])
+@njit(cache=True)
+def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, edge, se_out):
+    """Separating axes and contacts of box pairs (k of them), written into
+    the slots (k, 5): the edge-edge point (slot 0), then up to four
+    face-manifold points; ``edge`` (k,) whether the pair's axis is an edge
+    axis, ``se_out`` (k,) its best edge-axis separation (m)."""
+    k = cA.shape[0]
+    C = np.empty((3, 3))
+    absC = np.empty((3, 3))
+    d = np.empty(3)
+    dA = np.empty(3)
+    dB = np.empty(3)
+    sepA = np.empty(3)
+    sepB = np.empty(3)
+    Ln = np.empty((9, 3))
+    L = np.empty(3)
+    aLB = np.empty(3)
+    P = np.empty((16, 3))
+    Q = np.empty((16, 3))
+    gap = np.empty(16)
+    valid = np.empty(16, np.bool_)
+    nrm = np.empty(3)
+    w3 = np.empty(3)
+    pa = np.empty(3)
+    pb = np.empty(3)
+    a0 = np.empty(3)
+    a1 = np.empty(3)
+    b0 = np.empty(3)
+    b1 = np.empty(3)
+    qa = np.empty(3)
+    qb = np.empty(3)
+    E = np.empty((16, 3))
+    cr = np.empty(3)
+    area = np.empty(16)
+    cand = np.empty(4, np.int64)
+    for p in range(k):
+        for i in range(3):
+            d[i] = cB[p, i] - cA[p, i]
+        for i in range(3):
+            for l in range(3):
+                C[i, l] = RA[p, 0, i] * RB[p, 0, l] + RA[p, 1, i] * RB[p, 1, l] + RA[p, 2, i] * RB[p, 2, l]
+                absC[i, l] = abs(C[i, l]) + 1e-9
+        for i in range(3):
+            dA[i] = RA[p, 0, i] * d[0] + RA[p, 1, i] * d[1] + RA[p, 2, i] * d[2]
+        for i in range(3):
+            sepA[i] = abs(dA[i]) - (hA[p, i] + (absC[i, 0] * hB[p, 0] + absC[i, 1] * hB[p, 1] + absC[i, 2] * hB[p, 2]))
+        for j in range(3):
+            dB[j] = C[0, j] * dA[0] + C[1, j] * dA[1] + C[2, j] * dA[2]
+        for j in range(3):
+            sepB[j] = abs(dB[j]) - (hB[p, j] + (absC[0, j] * hA[p, 0] + absC[1, j] * hA[p, 1] + absC[2, j] * hA[p, 2]))
+        # edge axes A_i x B_j (A's frame), index 3 i + j
+        best_e = 0
+        se = -np.inf
+        for i in range(3):
+            for j in range(3):
+                a = 3 * i + j
+                c0, c1, c2 = C[0, j], C[1, j], C[2, j]
+                if i == 0:
+                    L[0], L[1], L[2] = 0.0, -c2, c1
+                elif i == 1:
+                    L[0], L[1], L[2] = c2, 0.0, -c0
+                else:
+                    L[0], L[1], L[2] = -c1, c0, 0.0
+                ln = np.sqrt(L[0] * L[0] + L[1] * L[1] + L[2] * L[2])
+                ok = ln > 1e-5
+                div = ln if ok else 1.0
+                for c in range(3):
+                    Ln[a, c] = L[c] / div
+                rA = abs(Ln[a, 0]) * hA[p, 0] + abs(Ln[a, 1]) * hA[p, 1] + abs(Ln[a, 2]) * hA[p, 2]
+                for jj in range(3):
+                    aLB[jj] = abs(Ln[a, 0] * C[0, jj] + Ln[a, 1] * C[1, jj] + Ln[a, 2] * C[2, jj])
+                rB = aLB[0] * hB[p, 0] + aLB[1] * hB[p, 1] + aLB[2] * hB[p, 2]
+                s = abs(Ln[a, 0] * dA[0] + Ln[a, 1] * dA[1] + Ln[a, 2] * dA[2]) - rA - rB
+                dup = (max(abs(Ln[a, 0]), abs(Ln[a, 1]), abs(Ln[a, 2])) > 1 - 1e-9
+                       or max(aLB[0], aLB[1], aLB[2]) > 1 - 1e-9)
+                if not ok or dup:
+                    s = -np.inf
+                if a == 0 or s > se:  # the first of equal maxima (np.argmax)
+                    se = s
+                    best_e = a
+        fa = _argmax3(sepA[0], sepA[1], sepA[2])
+        fb = _argmax3(sepB[0], sepB[1], sepB[2])
+        sa, sb = sepA[fa], sepB[fb]
+        tol_abs = 1e-5 * (max(hA[p, 0], hA[p, 1], hA[p, 2]) + max(hB[p, 0], hB[p, 1], hB[p, 2]))
+        best_face = max(sa, sb)
+        is_edge = se > best_face + 0.05 * abs(best_face) + tol_abs
+        fl = sb > sa + 0.05 * abs(sa) + tol_abs
+        edge[p] = is_edge
+        se_out[p] = se
+        for sl in range(5):
+            S_ok[p, sl] = False
+        if is_edge and se < margin[p]:
+            i, j = best_e // 3, best_e % 3
+            for r in range(3):
+                L[r] = RA[p, r, 0] * Ln[best_e, 0] + RA[p, r, 1] * Ln[best_e, 1] + RA[p, r, 2] * Ln[best_e, 2]
+            if L[0] * d[0] + L[1] * d[1] + L[2] * d[2] < 0:
+                for r in range(3):
+                    L[r] = -L[r]
+            for c in range(3):
+                sgn = np.sign(RA[p, 0, c] * L[0] + RA[p, 1, c] * L[1] + RA[p, 2, c] * L[2])
+                w3[c] = (0.0 if c == i else sgn) * hA[p, c]
+            for r in range(3):
+                pa[r] = cA[p, r] + (RA[p, r, 0] * w3[0] + RA[p, r, 1] * w3[1] + RA[p, r, 2] * w3[2])
+            for c in range(3):
+                sgn = -np.sign(RB[p, 0, c] * L[0] + RB[p, 1, c] * L[1] + RB[p, 2, c] * L[2])
+                w3[c] = (0.0 if c == j else sgn) * hB[p, c]
+            for r in range(3):
+                pb[r] = cB[p, r] + (RB[p, r, 0] * w3[0] + RB[p, r, 1] * w3[1] + RB[p, r, 2] * w3[2])
+            for r in range(3):
+                a0[r] = pa[r] - RA[p, r, i] * hA[p, i]
+                a1[r] = pa[r] + RA[p, r, i] * hA[p, i]
+                b0[r] = pb[r] - RB[p, r, j] * hB[p, j]
+                b1[r] = pb[r] + RB[p, r, j] * hB[p, j]
+            segment_segment(a0, a1, b0, b1, qa, qb)
+            for r in range(3):
+                S_n[p, 0, r] = L[r]
+                S_p[p, 0, r] = 0.5 * (qa[r] + qb[r])
+            S_g[p, 0] = se
+            S_f[p, 0] = 64 + best_e
+            S_ok[p, 0] = True
+        # the face manifold (every pair, edge pairs included: see box_box)
+        if fl:
+            rc, rR, rh, ic, iR, ih = cB[p], RB[p], hB[p], cA[p], RA[p], hA[p]
+            face = fb
+            sg = 1.0 if dB[fb] <= 0 else -1.0
+        else:
+            rc, rR, rh, ic, iR, ih = cA[p], RA[p], hA[p], cB[p], RB[p], hB[p]
+            face = fa
+            sg = 1.0 if dA[fa] >= 0 else -1.0
+        for r in range(3):
+            nrm[r] = rR[r, face] * sg
+        # incident face: the other box's face most anti-parallel to nrm
+        fi = 0
+        best = -1.0
+        dfi = 0.0
+        for l in range(3):
+            dl = iR[0, l] * nrm[0] + iR[1, l] * nrm[1] + iR[2, l] * nrm[2]
+            if abs(dl) > best:
+                best = abs(dl)
+                fi = l
+                dfi = dl
+        sgn = -1.0 if dfi > 0 else 1.0
+        u_i = 1 if fi == 0 else 0
+        v_i = 1 if fi == 2 else 2
+        for r in range(3):
+            fc = ic[r] + iR[r, fi] * (sgn * ih[fi])
+            U = iR[r, u_i] * ih[u_i]
+            V = iR[r, v_i] * ih[v_i]
+            P[0, r] = fc + U + V
+            P[1, r] = fc - U + V
+            P[2, r] = fc - U - V
+            P[3, r] = fc + U - V
+        cnt = 4
+        a_lo = 1 if face == 0 else 0
+        a_hi = 1 if face == 2 else 2
+        for a in (a_lo, a_hi):
+            ax0, ax1, ax2 = rR[0, a], rR[1, a], rR[2, a]
+            off = ax0 * rc[0] + ax1 * rc[1] + ax2 * rc[2]
+            ha = rh[a]
+            cnt = _clip(P, cnt, ax0, ax1, ax2, off + ha, Q)
+            cnt = _clip(Q, cnt, -ax0, -ax1, -ax2, -off + ha, P)
+        nv = 0
+        for v in range(cnt):
+            g = 0.0
+            for r in range(3):
+                g += (P[v, r] - (rc[r] + nrm[r] * rh[face])) * nrm[r]
+            gap[v] = g
+            valid[v] = g < margin[p]
+            if valid[v]:
+                nv += 1
+        ns = 0
+        if nv <= 4:
+            for v in range(cnt):
+                if valid[v]:
+                    cand[ns] = v
+                    ns += 1
+        else:
+            # the deepest, the one farthest from it, and the two on either
+            # side of that line farthest from it (unique, in that order)
+            i0 = -1
+            for v in range(cnt):
+                if valid[v] and (i0 < 0 or gap[v] < gap[i0]):
+                    i0 = v
+            i1 = -1
+            bd = -np.inf
+            for v in range(cnt):
+                for r in range(3):
+                    E[v, r] = P[v, r] - P[i0, r]
+                if valid[v]:
+                    dd = E[v, 0] * E[v, 0] + E[v, 1] * E[v, 1] + E[v, 2] * E[v, 2]
+                    if dd > bd or i1 < 0:
+                        bd = dd
+                        i1 = v
+            i2 = -1
+            i3 = -1
+            for v in range(cnt):
+                cross3(E[i1], E[v], cr)
+                area[v] = cr[0] * nrm[0] + cr[1] * nrm[1] + cr[2] * nrm[2]
+                if valid[v]:
+                    if i2 < 0 or area[v] > area[i2]:
+                        i2 = v
+                    if i3 < 0 or area[v] < area[i3]:
+                        i3 = v
+            for c in (i0, i1, i2, i3):
+                dupc = False
+                for t in range(ns):
+                    if cand[t] == c:
+                        dupc = True
+                if not dupc:
+                    cand[ns] = c
+                    ns += 1
+        for t in range(ns):
+            v = cand[t]
+            sl = 1 + t
+            S_ok[p, sl] = True
+            S_g[p, sl] = gap[v]
+            for r in range(3):
+                S_p[p, sl, r] = P[v, r] - nrm[r] * (0.5 * gap[v])
+                S_n[p, sl, r] = -nrm[r] if fl else nrm[r]
+            S_f[p, sl] = (16 if fl else 0) + 4 * face + t
 
 
 def box_box(cA, RA, hA, cB, RB, hB, margin):
     """Separating axes + clipping; normal from A to B.  ``margin`` (k,).
 
-    Vectorised over the pairs: the face case clips every pair's incident
-    face at once (:func:`_clip_batch`); the rare edge-edge case is a loop."""
+    One compiled loop over the pairs (:func:`_box_box_kernel`).  The face
+    manifold of every pair is computed, edge pairs included.  An edge-edge
+    point alone is blind to the faces about to come down and to the
+    corners already inside: an edge pair keeps the face points' gaps
+    clamped at the edge axis' separation (the edge axis is the pair's least
+    overlap, and no point of a body lies deeper in the other than that,
+    while its overlap along a face normal may be more;
+    :func:`_edge_pair_face_points`, pinned by
+    test_box_edge_landing_keeps_the_face_points)."""
     k = cA.shape[0]
     if k == 0:
         return _empty()
-    d = cB - cA
-    C = np.einsum("kji,kjl->kil", RA, RB)  # C[i, j] = A_i . B_j
-    absC = np.abs(C) + 1e-9
-    dA = np.einsum("kji,kj->ki", RA, d)
-    # faces of A
-    sepA = np.abs(dA) - (hA + np.einsum("kij,kj->ki", absC, hB))
-    dB = np.einsum("kij,ki->kj", C, dA)
-    sepB = np.abs(dB) - (hB + np.einsum("kij,ki->kj", absC, hA))
-    # edges A_i x B_j, in A's frame: L = e_i x C[:, :, j]
-    sepE, axesE = _edge_axes(C, dA, hA, hB)
-    ar = np.arange(k)
-    fa = np.argmax(sepA, axis=1)
-    fb = np.argmax(sepB, axis=1)
-    sa, sb = sepA[ar, fa], sepB[ar, fb]
-    e = np.argmax(sepE, axis=1)
-    se = sepE[ar, e]
-    # prefer face axes (stable manifolds): an edge axis or B's face must be
-    # clearly better (larger separation) than the alternative
-    tol_abs = 1e-5 * (hA.max(axis=1) + hB.max(axis=1))
-    best_face = np.maximum(sa, sb)
-    edge = se > best_face + 0.05 * np.abs(best_face) + tol_abs
-    flip = sb > sa + 0.05 * np.abs(sa) + tol_abs
-    # slots: the edge-edge point, then up to four face-manifold points, per
-    # pair, emitted in pair order
     S_n = np.zeros((k, 5, 3))
     S_p = np.zeros((k, 5, 3))
     S_g = np.zeros((k, 5))
     S_f = np.zeros((k, 5), np.int64)
     S_ok = np.zeros((k, 5), bool)
-    for p in np.flatnonzero(edge).tolist():
-        if se[p] < margin[p]:
-            L, pt = _edge_contact(p, int(e[p]), cA, RA, hA, cB, RB, hB, d, axesE)
-            S_n[p, 0], S_p[p, 0], S_g[p, 0], S_f[p, 0], S_ok[p, 0] = L, pt, se[p], 64 + int(e[p]), True
-    # The face manifold of every pair, edge pairs included.  An edge-edge
-    # point alone is blind to the faces about to come down and to the
-    # corners already inside: a box spinning at 20-27 rad/s about an edge
-    # that crossed another box's edge brought the edge's end down onto that
-    # box's face at 2 m/s; the axis of least overlap switched between the
-    # face and the edge from one rerun of the step to the next, and with it
-    # the contacts, so the time of impact search never converged and the
-    # corner went 5.7 mm in.  An edge pair keeps the face points' gaps
-    # clamped at the edge axis' separation: the edge axis is the pair's
-    # least overlap, and no point of a body lies deeper in the other than
-    # that, while its overlap along a face normal may be more.
-    _box_box_faces(ar, cA, RA, hA, cB, RB, hB, margin, dA, dB, fa, fb, flip,
-                   S_n[:, 1:], S_p[:, 1:], S_g[:, 1:], S_f[:, 1:], S_ok[:, 1:])
-    _edge_pair_face_points(S_ok[:, 1:], S_g[:, 1:], edge, se, margin)
+    edge = np.zeros(k, bool)
+    se = np.zeros(k)
+    f = np.ascontiguousarray
+    _box_box_kernel(f(cA, float), f(RA, float), f(hA, float), f(cB, float), f(RB, float), f(hB, float),
+                    f(margin, float), S_n, S_p, S_g, S_f, S_ok, edge, se)
+    if edge.any():
+        _edge_pair_face_points(S_ok[:, 1:], S_g[:, 1:], edge, se, margin)
     if not S_ok.any():
         return _empty()
-    kk = np.repeat(ar, 5).reshape(k, 5)
+    kk = np.repeat(np.arange(k), 5).reshape(k, 5)
     m = S_ok
     return kk[m], S_n[m], S_p[m], S_g[m], S_f[m]
 
@@ -179,98 +333,3 @@ def _edge_pair_face_points(ok: np.ndarray, gap: np.ndarray, edge: np.ndarray, se
     dropped where that puts them beyond the pair's ``margin`` (k,) m."""
     gap[edge] = np.maximum(gap[edge], se[edge, None])
     ok[edge] &= gap[edge] < margin[edge, None]
-
-
-def _box_box_faces(idx, cA, RA, hA, cB, RB, hB, margin, dA, dB, fa, fb, flip, S_n, S_p, S_g, S_f, S_ok):
-    """Face-case contacts of the pairs ``idx``, written into the slots."""
-    k = idx.size
-    ar = np.arange(k)
-    fl = flip[idx]
-    f3 = fl[:, None]
-    # reference box: A, or B when flipped (rows of the stacked [A; B] arrays)
-    nA = cA.shape[0]
-    ref_i = idx + nA * fl
-    inc_i = idx + nA * ~fl
-    cAB = np.concatenate([cA, cB])
-    RAB = np.concatenate([RA, RB])
-    hAB = np.concatenate([hA, hB])
-    ref_c, ref_R, ref_h = cAB[ref_i], RAB[ref_i], hAB[ref_i]
-    inc_c, inc_R, inc_h = cAB[inc_i], RAB[inc_i], hAB[inc_i]
-    face = np.where(fl, fb[idx], fa[idx])
-    # A's face: normal toward B; B's face: from B toward A
-    sgnA = np.where(dA[idx, fa[idx]] >= 0, 1.0, -1.0)
-    sgnB = np.where(dB[idx, fb[idx]] <= 0, 1.0, -1.0)
-    nrm = ref_R[ar, :, face] * np.where(fl, sgnB, sgnA)[:, None]
-    # incident face: the face of the other box most anti-parallel to nrm
-    # (batched matmul: the same sums, bit for bit, as one pair's inc_R.T @ nrm)
-    dots = np.matmul(inc_R.transpose(0, 2, 1), nrm[:, :, None])[:, :, 0]
-    fi = np.argmax(np.abs(dots), axis=1)
-    sgn = np.where(dots[ar, fi] > 0, -1.0, 1.0)
-    fc = inc_c + inc_R[ar, :, fi] * (sgn * inc_h[ar, fi])[:, None]
-    u_i = np.where(fi == 0, 1, 0)
-    v_i = np.where(fi == 2, 1, 2)
-    U = inc_R[ar, :, u_i] * inc_h[ar, u_i][:, None]
-    V = inc_R[ar, :, v_i] * inc_h[ar, v_i][:, None]
-    P = np.empty((k, 4, 3))
-    P[:, 0] = fc + U + V
-    P[:, 1] = fc - U + V
-    P[:, 2] = fc - U - V
-    P[:, 3] = fc + U - V
-    cnt = np.full(k, 4)
-    ref_face_c = ref_c + nrm * ref_h[ar, face][:, None]
-    # side planes of the reference face: its other two axes, ascending
-    a_lo = np.where(face == 0, 1, 0)
-    a_hi = np.where(face == 2, 1, 2)
-    for a in (a_lo, a_hi):
-        ax = ref_R[ar, :, a]
-        off = np.matmul(ax[:, None, :], ref_c[:, :, None])[:, 0, 0]  # = ax @ ref_c per pair, bit for bit
-        ha = ref_h[ar, a]
-        P, cnt = _clip_batch(P, cnt, ax, off + ha)
-        P, cnt = _clip_batch(P, cnt, -ax, -off + ha)
-    w = P.shape[1]
-    if w == 0:
-        return
-    valid = np.arange(w)[None, :] < cnt[:, None]
-    D = P - ref_face_c[:, None, :]
-    gap = np.matmul(D, nrm[:, :, None])[..., 0]
-    valid &= gap < margin[idx][:, None]
-    nv = valid.sum(axis=1)
-    # at most four points: all when there are <= 4, else the deepest, the one
-    # farthest from it, and the two on either side of that line farthest from it
-    sel = np.full((k, 4), -1, np.int64)
-    few = nv <= 4
-    if few.any():
-        o = np.argsort(~valid[few], axis=1, kind="stable")[:, :4]
-        fi_ = np.flatnonzero(few)
-        sel[fi_[:, None], np.arange(o.shape[1])[None, :]] = np.where(np.take_along_axis(valid[few], o, axis=1), o, -1)
-    many = np.flatnonzero(~few)
-    if many.size:
-        Pm, vm, gm, nm = P[many], valid[many], gap[many], nrm[many]
-        r = np.arange(many.size)
-        i0 = np.argmin(np.where(vm, gm, np.inf), axis=1)
-        E = Pm - Pm[r, i0][:, None, :]
-        dd = np.where(vm, np.einsum("kmi,kmi->km", E, E), -np.inf)
-        i1 = np.argmax(dd, axis=1)
-        cr = cross(E[r, i1][:, None, :], E)
-        area = np.matmul(cr, nm[:, :, None])[..., 0]
-        i2 = np.argmax(np.where(vm, area, -np.inf), axis=1)
-        i3 = np.argmin(np.where(vm, area, np.inf), axis=1)
-        cand = np.stack([i0, i1, i2, i3], axis=1)
-        # unique, first occurrence order
-        dup = np.zeros((many.size, 4), bool)
-        for s in range(1, 4):
-            dup[:, s] = np.any(cand[:, s:s + 1] == cand[:, :s], axis=1)
-        kept = np.where(dup, -1, cand)
-        o = np.argsort(kept < 0, axis=1, kind="stable")
-        sel[many] = np.take_along_axis(kept, o, axis=1)
-    ok = sel >= 0
-    sidx = np.where(ok, sel, 0)
-    Ps = P[ar[:, None], sidx] if w else np.zeros((k, 4, 3))
-    gs = gap[ar[:, None], sidx]
-    normal = np.where(f3, -nrm, nrm)
-    rows = idx
-    S_ok[rows] = ok
-    S_g[rows] = np.where(ok, gs, 0.0)
-    S_p[rows] = Ps - nrm[:, None, :] * (0.5 * gs)[:, :, None]
-    S_n[rows] = normal[:, None, :]
-    S_f[rows] = (np.where(fl, 16, 0) + 4 * face)[:, None] + np.arange(4)[None, :]
