@@ -21,6 +21,7 @@ import numpy as np
 from engine.ccd import CCD, Impact, refine_toi
 from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
 from engine.mathutil import quat_to_matrix
+from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.narrowphase import NarrowPhase
@@ -49,7 +50,10 @@ def force_stages(model: Model) -> tuple[Stage, ...]:
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
-    """The ordered stages for ``model`` (see module doc)."""
+    """The ordered stages for ``model`` (see module doc).  Compiles (or
+    loads) the engine's kernels first, so that no step does
+    (:func:`engine.jit.warm_up`)."""
+    warm_up()
     forces = force_stages(model)
     stages: list[Stage] = list(forces)
     mode = model.setting("gyroscopic")

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _dot6(x, i0, y, j0, i, j):
     s = 0.0
     for k in range(6):
@@ -33,7 +33,7 @@ def _dot6(x, i0, y, j0, i, j):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _k_entry(J, M, a, b, world, i, j):
     """K[i, j]: the sides of rows i and j on a shared dynamic body."""
     s = 0.0
@@ -50,12 +50,21 @@ def _k_entry(J, M, a, b, world, i, j):
 
 @njit(cache=True)
 def normal_matrix(J, M, a, b, world):
-    """K = J M^-1 J^T (m, m) of the normal rows."""
+    """K = J M^-1 J^T (m, m) of the normal rows: entry (i, j) is summed over
+    the dynamic bodies rows i and j share, aa, ab, ba, bb in that order
+    (:func:`_k_entry`); rows sharing no body are 0 and never visited (a row
+    meets only the rows of its two bodies)."""
     m = J.shape[0]
     K = np.zeros((m, m))
+    ptr, idx = _body_rows(a, b, world, np.arange(m))
     for i in range(m):
-        for j in range(m):
-            K[i, j] = _k_entry(J, M, a, b, world, i, j)
+        for side in range(2):
+            body = a[i] if side == 0 else b[i]
+            if body == world or (side == 1 and body == a[i]):
+                continue
+            for t in range(ptr[body], ptr[body + 1]):
+                j = idx[t]
+                K[i, j] = _k_entry(J, M, a, b, world, i, j)
     return K
 
 

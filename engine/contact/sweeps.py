@@ -82,7 +82,7 @@ def normal_pass(U, ab, J, M, mn, lam, target, world):
                 U[ib, k] += M[i, 6 + k] * d
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
     """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected)."""
     ia = pab[p, 0]
@@ -96,7 +96,7 @@ def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
         new[r] = lam_t[p, r] - mt[p, r] * v
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _patch_apply(U, pab, Mt, lam_t, p, r0, r1, new, world):
     ia = pab[p, 0]
     ib = pab[p, 1]
@@ -115,7 +115,7 @@ def _patch_apply(U, pab, Mt, lam_t, p, r0, r1, new, world):
         lam_t[p, r] = new[r]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _onto_disc(new, i, lim):
     mag = math.sqrt(new[i] ** 2 + new[i + 1] ** 2)
     if mag > lim:
