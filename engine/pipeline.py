@@ -263,7 +263,7 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
         # rest of the step would count them twice, and a solver with few
         # sweeps cannot take the excess back out (a Gauss-Seidel-only
         # column gained 16 x its energy); the rest of the step starts cold
-        state.warm = {}
+        state.warm = None
         events += 1
         remaining -= tau
         if remaining <= 1e-12 * h:

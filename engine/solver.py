@@ -73,6 +73,7 @@ from __future__ import annotations
 
 import math
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -721,7 +722,7 @@ class Solve(Stage):
         ctx.rows = None
         ctx.impacts = None
         if c is None or c.m == 0:
-            state.warm = {}
+            state.warm = None
             return
         Xp = _pad(state.x)
         rA = c.point - Xp[c.a]
@@ -763,7 +764,7 @@ class Solve(Stage):
             # alone (as impact events, resolved pair by pair inside the
             # stack, they pumped energy into it: 275 x at dt 0.008 s).
             idx = np.flatnonzero(impact)
-            o_code, _, o_fn = _warm_packed(state.warm)[:3]
+            o_code, _, o_fn = state.warm.packed[:3]
             persistent = np.isin(codes_all[idx], o_code[o_fn > 0.0])
             # as a speculative row stopped at vn1 = 0 (never a push-out), the
             # point would end the step overlapping by c h vn_free - gap - h un
@@ -810,7 +811,7 @@ class Solve(Stage):
             keep = keep | (impact & touching & ~handled)
         sel = np.flatnonzero(keep)
         if sel.size == 0:
-            state.warm = {}
+            state.warm = None
             return
         topo = self.topology(model, codes_all[sel], c, sel)
         rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo)
@@ -876,7 +877,7 @@ class Solve(Stage):
             # impact): its impulses are impulsive, not forces -- cached as
             # lambda / h they came back next step as a huge impulse (a box
             # of column_5 spun up to 5e5 rad/s after a 7e-12 s remainder)
-            state.warm = {}
+            state.warm = None
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
@@ -897,8 +898,8 @@ class Solve(Stage):
         if not old:
             return
         topo = rows.topo
-        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = _warm_packed(old)[:7]
-        otopo = getattr(old, "topo", None)
+        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = old.packed[:7]
+        otopo = old.topo
         cand = topo.__dict__.get("_warm_cand")
         if cand is None or otopo is None or cand[0]() is not otopo:
             codes = topo.codes
@@ -961,85 +962,37 @@ class Solve(Stage):
             rr = np.einsum("ki,kij->kj", lt[:, 3:], tp) / h if rows.rolling else None
         else:
             ft, tw, rr = np.zeros((uniq.size, 3)), np.zeros(uniq.size), None
-        new = WarmCache()
-        new.packed = (sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order])
-        new.first = first
-        new.topo = topo
-        state.warm = new
+        state.warm = WarmCache(sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order], first, topo)
 
 
-class WarmCache(dict):
-    """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
-    normal forces (k,) N, friction force (3,) N, twist torque N m, rolling
-    torque (3,) N m, touching at the start of the step (k,) bool).
+@dataclass(eq=False)
+class WarmCache:
+    """The warm-start cache a solve leaves for the next step, as arrays
+    sorted by pair code: ``codes`` (k,) the pair code of each cached point,
+    ``loc`` (k, 3) m its point in body a's frame, ``fn`` (k,) N its normal
+    force, ``pairs`` (p,) the distinct pair codes, ``ft`` (p, 3) N their
+    friction forces, ``tw`` (p,) N m twist torques, ``rr`` (p, 3) N m
+    rolling torques or None, ``touch`` (k,) bool whether the point touched
+    at the start of its step; ``first`` (p,) each pair's first point and
+    ``topo`` the topology that wrote it."""
 
-    The solver reads and writes only the same data packed into arrays sorted
-    by code (``packed``, with ``first`` the start of each pair's points and
-    ``topo`` the topology that wrote it); the dict entries are built from
-    them on first access (a step has no use for them)."""
+    codes: np.ndarray
+    loc: np.ndarray
+    fn: np.ndarray
+    pairs: np.ndarray
+    ft: np.ndarray
+    tw: np.ndarray
+    rr: np.ndarray | None
+    touch: np.ndarray
+    first: np.ndarray
+    topo: Topology
 
-    packed = None
-    first = None
-    topo = None
-    _filled = False
-
-    def _fill(self) -> None:
-        if self._filled or self.packed is None:
-            return
-        self._filled = True
-        sc, s_loc, s_fn, uniq, ft, tw, rr, touch = self.packed
-        first = self.first
-        if rr is None:
-            rr = np.zeros((uniq.size, 3))
-        dict.update(self, zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
-                                                 tw.tolist(), rr, np.split(touch, first[1:]))))
-
-    def __len__(self):
-        return int(self.packed[3].size) if (self.packed is not None and not self._filled) else dict.__len__(self)
-
-    def __bool__(self):
-        return len(self) > 0
-
-    def __iter__(self):
-        self._fill()
-        return dict.__iter__(self)
-
-    def __contains__(self, k):
-        self._fill()
-        return dict.__contains__(self, k)
-
-    def __getitem__(self, k):
-        self._fill()
-        return dict.__getitem__(self, k)
-
-    def get(self, k, default=None):
-        self._fill()
-        return dict.get(self, k, default)
-
-    def keys(self):
-        self._fill()
-        return dict.keys(self)
-
-    def values(self):
-        self._fill()
-        return dict.values(self)
-
-    def items(self):
-        self._fill()
-        return dict.items(self)
-
-    def copy(self):
-        self._fill()
-        return dict(dict.items(self))
-
-    def __eq__(self, other):
-        self._fill()
-        return dict.__eq__(self, other)
-
-    __hash__ = None
+    @property
+    def packed(self) -> tuple:
+        return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
 
 
-def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
+def _pressed_points(warm: "WarmCache", codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
     """(k,) bool: contact points (pair ``codes`` (k,), points in body a's
     frame ``loc`` (k, 3) m) that pressed at rest in the step that wrote
     ``warm``: a cached point of the same pair that was touching at the start
@@ -1047,7 +1000,7 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
     (k,) m of them (the warm start's matching radius).  A speculative row
     that pressed only to land its point exactly on the surface does not
     count: that point arrives still approaching, an impact."""
-    pk = _warm_packed(warm)
+    pk = warm.packed
     o_code, o_loc, o_fn = pk[0], pk[1], np.where(pk[7], pk[2], 0.0)
     out = np.zeros(codes.size, bool)
     lo = np.searchsorted(o_code, codes, "left")
@@ -1057,25 +1010,6 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
         d = o_loc[sl] - loc[i]
         out[i] = bool(np.any((o_fn[sl] > 0.0) & (np.einsum("ki,ki->k", d, d) <= tol[i] ** 2)))
     return out
-
-
-def _warm_packed(old: dict):
-    """(point codes, points, normal forces, pair codes, friction forces,
-    twists, rolling torques or None, touching flags) of a warm cache, sorted
-    by code (built from the dict when the cache was copied)."""
-    pk = getattr(old, "packed", None)
-    if pk is not None:
-        return pk
-    keys = sorted(old)
-    vals = [old[k] for k in keys]
-    o_code = np.concatenate([np.full(len(v[1]), k, np.int64) for k, v in zip(keys, vals)])
-    o_loc = np.concatenate([np.asarray(v[0], float).reshape(-1, 3) for v in vals])
-    o_fn = np.concatenate([np.asarray(v[1], float) for v in vals])
-    u_ft = np.array([np.asarray(v[2], float) for v in vals]).reshape(-1, 3)
-    u_tw = np.array([float(v[3]) for v in vals])
-    u_rr = np.array([np.asarray(v[4], float) if len(v) > 4 else np.zeros(3) for v in vals]).reshape(-1, 3)
-    o_touch = np.concatenate([np.asarray(v[5], bool) if len(v) > 5 else np.ones(len(v[1]), bool) for v in vals])
-    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw, u_rr, o_touch
 
 
 def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
