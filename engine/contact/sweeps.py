@@ -116,12 +116,17 @@ def _patch_apply(U, pab, Mt, lam_t, p, r0, r1, new, world):
 
 
 @njit(cache=True, inline="always")
-def _onto_disc(new, i, lim):
+def _onto_disc(new, i, lim, pinned, d):
+    """(new[i], new[i+1]) scaled back onto the disc of radius ``lim``, or
+    when ``pinned`` held on its rim against the unit direction ``d`` (2,)."""
     mag = math.sqrt(new[i] ** 2 + new[i + 1] ** 2)
     if mag > lim:
         f = lim / mag if mag > 0 else 1.0
         new[i] *= f
         new[i + 1] *= f
+    if pinned:
+        new[i] = -lim * d[0]
+        new[i + 1] = -lim * d[1]
 
 
 @njit(cache=True)
@@ -138,21 +143,14 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
     for p in range(npch):
         _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
         lim = mu[p] * Fn[p]
-        _onto_disc(new, 0, lim)
-        if pin_t[p]:
-            new[0] = -lim * dir_t[p, 0]
-            new[1] = -lim * dir_t[p, 1]
+        _onto_disc(new, 0, lim, pin_t[p], dir_t[p])
         tl = lim * rt[p]
         new[2] = min(max(new[2], -tl), tl)
         _patch_apply(U, pab, Mt, lam_t, p, 0, 3, new, world)
     if nr == 5:
         for p in range(npch):
             _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 3, 5, new, world)
-            lim = mur[p] * Fn[p]
-            _onto_disc(new, 3, lim)
-            if pin_r[p]:
-                new[3] = -lim * dir_r[p, 0]
-                new[4] = -lim * dir_r[p, 1]
+            _onto_disc(new, 3, mur[p] * Fn[p], pin_r[p], dir_r[p])
             _patch_apply(U, pab, Mt, lam_t, p, 3, 5, new, world)
 
 
