@@ -24,7 +24,7 @@ from engine.mathutil import quat_to_matrix
 from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
-from engine.narrowphase import NarrowPhase
+from engine.collision import NarrowPhase
 from engine.broadphase import BroadPhase
 from engine.penalty import PenaltyContacts
 from engine.profile import Profile, Stage
