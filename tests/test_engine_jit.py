@@ -12,11 +12,11 @@ REPO = Path(__file__).resolve().parent.parent
 _CODE = """
 from harness.bench import column_scene
 from harness.runner import run
-from engine import Engine
+from adapters.reference import engine_for
 import engine.contact.sweeps as sw
 sc = column_scene(3)
 first = run(sc, "reference", compute_metrics=False)
-second = Engine(sc)
+second = engine_for(sc)
 print(first.timing["jit_s"], second.profile.jit_s, "jit_s" in first.stages)
 kernels = [sw.iterate, sw.apply_rows, sw.apply_patches]
 before = [len(k.overloads) for k in kernels]
