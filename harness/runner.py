@@ -242,6 +242,10 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         _finish(result, adapter, scene, trace, compute_metrics, dt)
         return result
     result.timing["setup_s"] = time.perf_counter() - t0
+    # compile time of a JIT-compiled engine (within setup_s, never in step_cpu_s)
+    jit_s = (adapter.stages() or {}).get("jit_s")
+    if jit_s is not None:
+        result.timing["jit_s"] = float(jit_s)
 
     cpu0 = time.process_time()
     wall0 = time.perf_counter()
