@@ -27,7 +27,7 @@ def warm_up() -> float:
     if _READY:
         return 0.0
     t0 = time.perf_counter()
-    from engine.contact import linalg, sweeps
+    from engine.contact import linalg, prepare, sweeps, warm
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
     J = np.ones((m, 12))
@@ -59,10 +59,47 @@ def warm_up() -> float:
     sweeps.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
                    np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb)
     sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb)
+    # preparation and warm start: two bodies and the world, three contacts
+    # (the model's arrays are read-only: ``ro``, the types the step passes)
+    X = np.zeros((nb, 3))
+    V = np.zeros((nb + 1, 3))
+    R0 = np.tile(np.eye(3), (nb, 1, 1))
+    Iinv = np.tile(np.eye(3), (nb + 1, 1, 1))
+    im = _ro(np.ones(nb + 1))
+    br = _ro(np.ones(nb))
+    P3 = np.ones((m, 3))
+    z3 = np.zeros(m)
+    vn = np.zeros((3, m))
+    tb = np.zeros(m, np.bool_)
+    codes = np.zeros(m, np.int64)
+    for warm_flag in (False, True):
+        prepare.classify(X, V, V, X, X, X, X, a, b, -np.ones(m, np.int64), P3, P3, z3, nb, 0, 0.01, 0.01, 0.5,
+                         1e-4, warm_flag, codes, P3, z3, tb, R0, br, vn, tb.copy(), tb.copy(), codes.copy())
+    lm = np.empty((m, 3))
+    prepare.normal_rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm)
+    P = np.zeros((npch, 3))
+    t = np.zeros((npch, 2, 3))
+    for nr in (3, 5):
+        Jt5 = np.zeros((npch, nr, 12))
+        prepare.patch_rows(X, Iinv, im, P3, P3, act, pid, pab[:, 0].copy(), pab[:, 1].copy(), np.ones(npch), nb,
+                           nr == 5, P, P.copy(), np.zeros(npch), t, Jt5, Jt5.copy(), np.zeros((npch, nr)))
+        prepare.patch_velocity(Jt5, U, pab, 0, 2, z2.copy())
+        prepare.sliding(Jt5, U, pab, np.ones(npch), 1e-4, z2.copy(), zb.copy())
+    prepare.targets(act, tb, vn, z3, z3, 0.01, 0.5, 0.01, 0.2, 1e-4, r.copy(), r.copy())
+    lt = np.zeros((npch, 3))
+    warm.match(codes, lm, a, br, codes, lm, z3, codes, P3, z3, P3, 0.01, r.copy(), True, False, pid, t,
+               lt, zb.copy())
+    warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
+               codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
     dt = time.perf_counter() - t0
     _READY = True
     _PENDING += dt
     return dt
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def take_pending() -> float:

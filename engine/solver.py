@@ -72,13 +72,13 @@ pose-dependent arithmetic.
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
-from engine.contact import linalg, sweeps
-from engine.mathutil import cross, perpendicular_basis
+from engine.contact import linalg, prepare, sweeps, warm
+from engine.contact.scratch import Scratch
+from engine.mathutil import cross
 from engine.profile import Stage
 from engine.state import Contacts
 
@@ -109,13 +109,24 @@ def _pad(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _onto_disc(d: np.ndarray, lim: np.ndarray) -> None:
-    """Scale the rows of the 2-vectors ``d`` (k, 2) longer than ``lim`` (k,)
-    back onto that disc, in place (the Coulomb and rolling limits)."""
-    mag = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
-    over = mag > lim
-    if over.any():
-        d *= np.where(over, lim / np.where(mag > 0, mag, 1.0), 1.0)[:, None]
+_NO_R = np.zeros((0, 3, 3))
+_NO_I = np.zeros(0, np.int64)
+_NO_T = np.zeros((0, 2, 3))
+_NO_LT = np.zeros((0, 3))
+#: an empty warm cache (WarmCache.packed)
+_NO_CACHE = (_NO_I, np.zeros((0, 3)), np.zeros(0), _NO_I, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
+             np.zeros(0, np.bool_))
+_AR = np.arange(64)
+_AR.flags.writeable = False
+
+
+def _arange(m: int) -> np.ndarray:
+    """0..m-1 as a read-only view of a shared range grown geometrically."""
+    global _AR
+    if _AR.size < m:
+        _AR = np.arange(max(m, 2 * _AR.size))
+        _AR.flags.writeable = False
+    return _AR[:m]
 
 
 def point_normal_velocity(V, W, a, b, rA, rB, n):
@@ -273,117 +284,97 @@ class Rows:
     """
 
     def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True,
-                 sel: np.ndarray | None = None, topo: "Topology | None" = None):
+                 sel: np.ndarray | None = None, topo: "Topology | None" = None, scratch: Scratch | None = None,
+                 R0: np.ndarray | None = None):
         n = model.n
         if topo is None:
             src = c if sel is None else c.take(sel)
             topo = Topology(model, src.a, src.b, src.sidx, friction, colour)
-        # rows of ``c`` (or of its rows ``sel``), sorted by colour: one gather
-        if sel is None:
-            if topo.colour:
-                c = c.take(topo.order)
-        else:
-            c = c.take(sel[topo.order])
+        # the contacts of the rows, in row (colour) order
+        idx = topo.order if sel is None else sel[topo.order]
+        self.idx = idx
+        self._c = c
+        self._X = X
         self.topo = topo
         self.world = n
         self.order = topo.order
-        self.contacts = c
-        self.m = m = c.m
+        self.m = m = idx.size
         self.a, self.b = topo.a, topo.b
-        self.n = c.normal
-        Xp = _pad(X)
-        # both sides stacked (2, m, ...): the same element-wise arithmetic
-        ab2 = np.stack([c.a, c.b])
-        rAB = c.point - Xp[ab2]
-        self.rA, self.rB = rAB[0], rAB[1]
         self.ima = topo.ima
         self.imb = topo.imb
-        rnAB = cross(rAB, self.n)
-        rnA, rnB = rnAB[0], rnAB[1]
+        sc = scratch if scratch is not None else Scratch()
         # [JA | JB] and [MA | MB] in one (m, 12) array each: the sweeps use
         # them stacked, everything else through the two views
-        self.J = np.empty((m, 12))
-        self.M = np.empty((m, 12))
+        self.J = sc.take("J", (m, 12))
+        self.M = sc.take("M", (m, 12))
+        self.mn = sc.take("mn", (m,))
+        #: contact points in body a's frame (with R0 given): the warm
+        #: cache's matching key
+        self.loc = sc.take("loc", (m, 3))
+        want_loc = R0 is not None
+        prepare.normal_rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point,
+                            c.normal, idx, n, self.J, self.M, self.mn, self.loc)
         self.JA, self.JB = self.J[:, :6], self.J[:, 6:]
         self.MA, self.MB = self.M[:, :6], self.M[:, 6:]
-        self.JA[:, :3] = -self.n
-        self.JA[:, 3:] = -rnA
-        self.JB[:, :3] = self.n
-        self.JB[:, 3:] = rnB
-        self.MA[:, :3] = -self.ima[:, None] * self.n
-        IrnAB = np.einsum("skij,skj->ski", Iinv[ab2], rnAB)
-        self.MA[:, 3:] = -IrnAB[0]
-        self.MB[:, :3] = self.imb[:, None] * self.n
-        self.MB[:, 3:] = IrnAB[1]
-        kn = np.einsum("ki,ki->k", self.JA, self.MA) + np.einsum("ki,ki->k", self.JB, self.MB)
-        self.mn = 1.0 / kn
-        self.lam_n = np.zeros(m)
-        self.target = np.zeros(m)
+        self.lam_n = sc.zeros("lam_n", (m,))
+        self.target = sc.zeros("target", (m,))
         self.friction = friction
         if friction:
-            self._patches(model, Xp, Iinv, c)
+            self._patches(model, X, Iinv, c, sc)
 
-    def _patches(self, model, Xp, Iinv, c: Contacts) -> None:
+    @property
+    def contacts(self) -> Contacts:
+        """The rows' contacts, in row order (gathered on first use)."""
+        cs = self.__dict__.get("_cs")
+        if cs is None:
+            cs = self.__dict__["_cs"] = self._c.take(self.idx)
+        return cs
+
+    @property
+    def rA(self) -> np.ndarray:
+        """(m, 3) lever arms p - x_a."""
+        cs = self.contacts
+        return cs.point - _pad(self._X)[cs.a]
+
+    @property
+    def rB(self) -> np.ndarray:
+        """(m, 3) lever arms p - x_b (the world's origin for statics)."""
+        cs = self.contacts
+        return cs.point - _pad(self._X)[cs.b]
+
+    def _patches(self, model, X, Iinv, c: Contacts, sc: Scratch) -> None:
         topo = self.topo
-        self.pid = pid = topo.pid
+        self.pid = topo.pid
         self.pa, self.pb = topo.pa, topo.pb
         self.np = npch = topo.np
-        cnt = topo.cnt
-        # per-patch sums of the points and normals: one bincount over
-        # (patch, component) bins, each summed in row order like a bincount
-        # per component
-        PN = np.bincount(topo.pn_bins, np.concatenate([c.point, c.normal], axis=1).ravel(), 6 * npch).reshape(npch, 6)
-        P = PN[:, :3] / cnt[:, None]
-        N = PN[:, 3:].copy()
-        N /= np.linalg.norm(N, axis=1, keepdims=True)
-        off = c.point - P[pid]
-        Nk = N[pid]
-        off -= np.einsum("ki,ki->k", off, Nk)[:, None] * Nk
-        self.r_twist = np.bincount(pid, np.sqrt(np.einsum("ki,ki->k", off, off)), npch) / cnt
-        self.pcentroid, self.pnormal = P, N
-        t1, t2 = perpendicular_basis(N)
-        self.t = np.stack([t1, t2], axis=1)  # (np, 2, 3)
-        pab2 = np.stack([self.pa, self.pb])
-        rAB = P - Xp[pab2]  # both sides stacked (2, np, 3)
-        rtAB = cross(rAB[:, :, None, :], self.t)  # (2, np, 2, 3)
-        ima, imb = topo.pima, topo.pimb
         self.rolling = rolling = bool(model.rolling)
         nr = 5 if rolling else 3  # tangent, tangent, twist (, roll, roll)
-        self.Jt = np.zeros((npch, nr, 12))  # [JtA | JtB], as J above
-        JtA, JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
-        JtA[:, :2, :3] = -self.t
-        JtA[:, :2, 3:] = -rtAB[0]
-        JtB[:, :2, :3] = self.t
-        JtB[:, :2, 3:] = rtAB[1]
-        JtA[:, 2, 3:] = -N
-        JtB[:, 2, 3:] = N
-        if rolling:
-            JtA[:, 3:, 3:] = -self.t
-            JtB[:, 3:, 3:] = self.t
-        self.Mt = np.zeros((npch, nr, 12))
-        MtA, MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
-        MtA[:, :, :3] = ima[:, None, None] * JtA[:, :, :3]
-        MtB[:, :, :3] = imb[:, None, None] * JtB[:, :, :3]
-        # both sides' angular responses in one einsum over the stacked sides
-        Jt4 = self.Jt.reshape(npch, nr, 2, 2, 3)[:, :, :, 1].transpose(2, 0, 1, 3)  # (2, np, nr, 3) = [JtA, JtB][..., 3:]
-        MtAB = np.einsum("skij,skmj->skmi", Iinv[pab2], Jt4)
-        MtA[:, :, 3:] = MtAB[0]
-        MtB[:, :, 3:] = MtAB[1]
-        kt = np.einsum("kmi,kmi->km", JtA, MtA) + np.einsum("kmi,kmi->km", JtB, MtB)
-        self.JtA, self.JtB, self.MtA, self.MtB = JtA, JtB, MtA, MtB
-        self.mt = np.where(kt > 0, 1.0 / np.where(kt > 0, kt, 1.0), 0.0)
-        self.lam_t = np.zeros((npch, nr))
+        self.pcentroid = sc.take("P", (npch, 3))
+        self.pnormal = sc.take("N", (npch, 3))
+        self.r_twist = sc.take("r_twist", (npch,))
+        self.t = sc.take("t", (npch, 2, 3))  # (np, 2, 3)
+        self.Jt = sc.take("Jt", (npch, nr, 12))  # [JtA | JtB], as J above
+        self.Mt = sc.take("Mt", (npch, nr, 12))
+        self.mt = sc.take("mt", (npch, nr))
+        prepare.patch_rows(X, Iinv, model.inv_mass, c.point, c.normal, self.idx, topo.pid, topo.pa, topo.pb,
+                           topo.cnt, model.n, rolling, self.pcentroid, self.pnormal, self.r_twist, self.t, self.Jt,
+                           self.Mt, self.mt)
+        self.JtA, self.JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
+        self.MtA, self.MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
+        self.lam_t = sc.zeros("lam_t", (npch, nr))
         # pair coefficients are equal for all rows of a patch (and depend
         # only on the pair: kept in the topology)
         if topo.mus is None:
-            topo.mus = c.mus[topo.pfirst]
-            topo.muk = c.muk[topo.pfirst]
-            topo.mur = c.mur[topo.pfirst] if rolling else None
+            first = self.idx[topo.pfirst]
+            topo.mus = c.mus[first]
+            topo.muk = c.muk[first]
+            topo.mur = c.mur[first] if rolling else None
         self.mus = topo.mus
         self.muk = topo.muk
         self.mur = topo.mur
-        self.slip = np.zeros(npch, bool)
-        self.mu = self.mus.copy()
+        self.slip = sc.zeros("slip", (npch,), np.bool_)
+        self.mu = sc.take("mu", (npch,))
+        self.mu[:] = self.mus
 
     #: the last sweep's largest impulse change relative to the largest
     #: normal impulse, in the last iterate()
@@ -464,29 +455,34 @@ class Rows:
             self.lam_n = lam
 
     def set_slip(self, slip: np.ndarray) -> None:
-        self.slip = slip
-        self.mu = np.where(slip, self.muk, self.mus)
+        """Patches ``slip`` (np,) bool use mu_k, the others mu_s."""
+        if slip is not self.slip:
+            self.slip[:] = slip
+        self.mu[:] = self.mus
+        np.copyto(self.mu, self.muk, where=self.slip)
 
     def sliding(self, U, vt: np.ndarray | None = None) -> np.ndarray:
         """(np,) bool: the patches that slide at velocities U (n+1, 6).  A
-        patch slides when its centroid's relative tangential speed ``vt``
-        (np, 2) m/s (computed from U unless given) exceeds ``SLIP_TOL``, or
+        patch slides when its centroid's relative tangential speed (written
+        to ``vt`` (np, 2) m/s when given) exceeds ``SLIP_TOL``, or
         when it twists: |w_n| r_twist, the twist's speed at the patch's mean
         point distance, exceeds it.  A patch spinning in place slides at
         every point but its centroid, so it is kinetic friction (mu_k) that
         acts on it (classed by the centroid alone it kept mu_s: a capsule
         spinning on its side with mu_s = 2 mu_k stopped in half the time)."""
         if vt is None:
-            vt = self.patch_tangent_velocity(U)
-        wn = self.patch_velocity(U, slice(2, 3))[:, 0]
-        return (np.sqrt(np.einsum("km,km->k", vt, vt)) > SLIP_TOL) | (np.abs(wn) * self.r_twist > SLIP_TOL)
+            vt = np.empty((self.np, 2))
+        slip = np.empty(self.np, np.bool_)
+        prepare.sliding(self.Jt, U, self.topo.pab, self.r_twist, SLIP_TOL, vt, slip)
+        return slip
 
     def patch_velocity(self, U, rows: slice) -> np.ndarray:
         """(np, k) relative velocities of the patch rows ``rows``: slice(0, 2)
         the tangential velocity at the centroids (m/s), slice(3, 5) the
         rolling angular velocity (rad/s)."""
-        return (np.einsum("kmj,kj->km", self.JtA[:, rows], U[self.pa])
-                + np.einsum("kmj,kj->km", self.JtB[:, rows], U[self.pb]))
+        out = np.empty((self.np, rows.stop - rows.start))
+        prepare.patch_velocity(self.Jt, U, self.topo.pab, rows.start, rows.stop, out)
+        return out
 
     def patch_tangent_velocity(self, U) -> np.ndarray:
         """(np, 2) relative tangential velocity at the patch centroids."""
@@ -724,59 +720,31 @@ class Solve(Stage):
         if c is None or c.m == 0:
             state.warm = None
             return
-        Xp = _pad(state.x)
-        rA = c.point - Xp[c.a]
-        rB = c.point - Xp[c.b]
-        # normal velocities at the end of the free flight, at the start of
-        # the step and of the mean motion, in one pass (the arithmetic of
-        # point_normal_velocity on the three stacked velocity fields)
-        VV = np.zeros((3, n + 1, 3))
-        WW = np.zeros((3, n + 1, 3))
-        VV[0], WW[0] = ctx.v, ctx.w
-        VV[1, :n], WW[1, :n] = state.v, state.w
-        VV[2, :n], WW[2, :n] = ctx.u_lin, ctx.u_ang
-        rel = VV[:, c.b] + cross(WW[:, c.b], rB) - VV[:, c.a] - cross(WW[:, c.a], rA)
         m = c.m
-        vn3 = np.einsum("ki,ki->k", rel.reshape(3 * m, 3), np.concatenate([c.normal, c.normal, c.normal]))
-        vn_free, vn0, un = vn3[:m], vn3[m:2 * m], vn3[2 * m:]
+        sc = ctx.scratch
+        # normal velocities at the end of the free flight, at the start of
+        # the step and of the mean motion (vn_free, vn0, un), and the
+        # classification (see prepare.classify): in a pair that pressed last
+        # step (a persistent, resting contact), closing rows are mostly
+        # solver noise and gravity gained within the step, not impacts --
+        # unless the point itself did not press, it was already approaching
+        # faster than the threshold, and a speculative row could not stop it
+        # without sinking beyond the slop (the far end of a bar rotating
+        # down onto a slab: tests/test_engine_collision.py; not the idle rim
+        # points of a cylinder standing on its cap, nor the rattling corners
+        # of a Gauss-Seidel-only box column)
+        vn = sc.take("vn", (3 * m,)).reshape(3, m)
+        touching = sc.take("touching", (m,), np.bool_)
+        impact = sc.take("impact", (m,), np.bool_)
+        codes_all = sc.take("codes", (m,), np.int64)
+        old = state.warm
+        o = old.packed if old else _NO_CACHE
+        nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
+                                c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
+                                bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching, impact,
+                                codes_all)
+        vn_free, vn0, un = vn[0], vn[1], vn[2]
         gap = c.gap
-        touching = gap <= TOUCH_TOL
-        closes = gap + h * un < 0.0
-        impact = ~touching & closes & (-un > self.thr)
-        codes_all = _pair_codes(model, c)
-        if state.warm:
-            impact |= touching & (-vn0 > self.thr) & (self.c * h * vn_free - gap - h * un > self.slop)
-        if impact.any() and state.warm:
-            # In a pair that pressed last step (a persistent, resting
-            # contact), closing rows are mostly solver noise and gravity
-            # gained within the step, not impacts: they stay speculative rows
-            # -- unless the point itself did not press (no cached point of the
-            # pair with a positive force within the warm start's matching
-            # radius, in body a's frame), it was already approaching faster
-            # than the threshold at the start of the step, and a speculative
-            # row could not stop it without sinking beyond the slop.  That is
-            # the far end of a bar resting on one end and rotating down onto
-            # the slab (as a speculative row, stopped over the whole step, it
-            # sank 4.9 mm into a 4 mm slab at 2.3 m/s and 1/240 s); not the
-            # idle rim points of a cylinder standing on its cap (gravity
-            # alone gives them -un = g h / 2 > the threshold every step), nor
-            # the rattling corners of a box column solved by Gauss-Seidel
-            # alone (as impact events, resolved pair by pair inside the
-            # stack, they pumped energy into it: 275 x at dt 0.008 s).
-            idx = np.flatnonzero(impact)
-            o_code, _, o_fn = state.warm.packed[:3]
-            persistent = np.isin(codes_all[idx], o_code[o_fn > 0.0])
-            # as a speculative row stopped at vn1 = 0 (never a push-out), the
-            # point would end the step overlapping by c h vn_free - gap - h un
-            # (the lever c of the position update): an impact only where that
-            # exceeds the position correction's slop
-            sinks = self.c * h * vn_free[idx] - gap[idx] - h * un[idx] > self.slop
-            cand = persistent & sinks & (-vn0[idx] > self.thr)
-            if cand.any():
-                loc = self._local(ctx, c.a[idx[cand]], c.point[idx[cand]], state)
-                tol = 0.1 * model.bound_radius[c.a[idx[cand]]] + 1e-4
-                cand[cand] = ~_pressed_points(state.warm, codes_all[idx[cand]], loc, tol)
-            impact[idx[persistent & ~cand]] = False
         if ctx.event_mode == "drop" and ctx.drop_rows is not None:
             # a rerun of the time-of-impact search: the rows left out are
             # the step's impact rows, whatever tau.  Re-deciding them with
@@ -786,10 +754,15 @@ class Solve(Stage):
             # jumped below 0 at the estimate, Newton crawled on it and
             # bisection converged on the jump (30 iterations, each a rerun
             # of the whole step)
-            impact = np.zeros(c.m, bool)
+            impact[:] = False
             impact[ctx.drop_rows] = True
-        keep = ~impact
-        if impact.any():
+            nimp = ctx.drop_rows.size
+        if nimp == 0:
+            sel = _arange(m)
+        else:
+            sel = None
+            keep = ~impact
+        if nimp:
             if self.ccd == "toi":
                 fast = np.zeros(n + 1, bool)
                 fast[:n] = ctx.sweep > self.ccd_fraction * model.min_extent
@@ -809,32 +782,33 @@ class Solve(Stage):
             # touching points could be impacts (dropping them let slow
             # spheres sink into each other with ccd = "toi")
             keep = keep | (impact & touching & ~handled)
-        sel = np.flatnonzero(keep)
+            sel = np.flatnonzero(keep)
         if sel.size == 0:
             state.warm = None
             return
-        topo = self.topology(model, codes_all[sel], c, sel)
-        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo)
-        sel = sel[rows.order]  # rows are sorted by colour
-        cs = rows.contacts
+        topo = self.topology(model, codes_all[sel] if nimp else codes_all, c, sel)
+        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo, scratch=sc, R0=ctx.R0)
+        idx = rows.idx  # the rows' contacts (rows are sorted by colour)
         # touching rows: v1n >= 0 (memoryless: a target that depends on the
         # previous step's velocity feeds solver noise back into the stack);
         # separated rows: the end pose may just close the gap
-        spec = np.where(touching[sel], 0.0,
-                        np.minimum(vn_free[sel] - (np.maximum(gap[sel], 0.0) + h * un[sel]) / (self.c * h), 0.0))
-        bounce = touching[sel] & (vn0[sel] < -self.thr)
-        target = np.maximum(spec, np.where(bounce, -cs.e * vn0[sel], -np.inf))
-        depth = -gap[sel]
-        rows.target = target
+        bias = sc.take("bias", (rows.m,))
+        pushed = prepare.targets(idx, touching, vn, gap, c.e, h, self.c, self.thr, self.beta, self.slop,
+                                 rows.target, bias)
         if self.friction:
-            U0 = Rows.pack(VV[1], WW[1])
-            vt0 = rows.patch_tangent_velocity(U0)
-            rows.set_slip(rows.sliding(U0, vt0))
-        U = Rows.pack(ctx.v, ctx.w)
-        # contact points in body a's frame: the warm cache's matching key
-        loc = self._local(ctx, cs.a, cs.point, state)
-        if self.warm:
-            self._warm_start(model, state, ctx, rows, cs, loc, h)
+            U0 = sc.take("U0", (n + 1, 6))
+            U0[:n, :3] = state.v
+            U0[:n, 3:] = state.w
+            U0[n] = 0.0
+            vt0 = sc.take("vt0", (rows.np, 2))
+            slip = sc.take("slip0", (rows.np,), np.bool_)
+            prepare.sliding(rows.Jt, U0, topo.pab, rows.r_twist, SLIP_TOL, vt0, slip)
+            rows.set_slip(slip)
+        U = sc.take("U", (n + 1, 6))
+        U[:, :3] = ctx.v
+        U[:, 3:] = ctx.w
+        if self.warm and old:
+            _warm_start(model, old, rows, h)
         if self.direct:
             rows.direct_normal_guess(U)
         if self.warm or self.direct:
@@ -853,25 +827,25 @@ class Solve(Stage):
                 if t < h * (1.0 - STOP_MIN_REST):
                     ctx.stop = t
         Rows.unpack(U, ctx.v, ctx.w)
-        if self.correction != "none":
+        if self.correction != "none" and pushed:
             # push-out velocities for penetration beyond the slop, solved on
             # separate (pseudo) velocities; they move positions by h vp.
             # split_impulse discards them afterwards; baumgarte keeps them in
             # the real velocity too (the classic bias: it injects energy)
-            bias = np.where(depth > self.slop, self.beta * (depth - self.slop) / h, 0.0)
-            if (bias > 0).any():
-                lam = np.zeros(rows.m)
-                Up = Rows.pack(ctx.vp, ctx.wp)
-                rows.iterate_normal(Up, lam, bias, self.iterations)
-                Rows.unpack(Up, ctx.vp, ctx.wp)
-                if self.correction == "baumgarte":
-                    ctx.v += ctx.vp
-                    ctx.w += ctx.wp
-                    ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
-                    ctx.w_free += ctx.wp[:n]
+            lam = sc.zeros("lam_p", (rows.m,))
+            Up = sc.take("Up", (n + 1, 6))
+            Up[:, :3] = ctx.vp
+            Up[:, 3:] = ctx.wp
+            rows.iterate_normal(Up, lam, bias, self.iterations)
+            Rows.unpack(Up, ctx.vp, ctx.wp)
+            if self.correction == "baumgarte":
+                ctx.v += ctx.vp
+                ctx.w += ctx.wp
+                ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
+                ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
         if h >= WARM_MIN_STEP * model.h:
-            self._store(model, state, ctx, rows, loc, h, touching[sel])
+            state.warm = _store(rows, h, touching)
         else:
             # a sliver of a step (the rest of a step after a late time of
             # impact): its impulses are impulsive, not forces -- cached as
@@ -881,88 +855,35 @@ class Solve(Stage):
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
-    # ---- warm starting ----------------------------------------------------
-    def _local(self, ctx, a, p, state):
-        """Contact points in body a's frame (matching key for warm starts)."""
-        return np.einsum("kji,kj->ki", ctx.R0[a], p - state.x[a])
 
-    def _warm_start(self, model, state, ctx, rows, cs, loc, h):
-        """Each row takes the cached force of the nearest cached point of its
-        pair (in body a's frame) within 0.1 bounding radius + 0.1 mm; a
-        patch with a matched point takes its pair's cached friction force
-        and twist.  Vectorised over rows (the cache is packed, see
-        :class:`WarmCache`); the (row, cached point) candidates depend only
-        on the two steps' contact graphs and are kept in the topology while
-        both are unchanged."""
-        old = state.warm
-        if not old:
-            return
-        topo = rows.topo
-        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = old.packed[:7]
-        otopo = old.topo
-        cand = topo.__dict__.get("_warm_cand")
-        if cand is None or otopo is None or cand[0]() is not otopo:
-            codes = topo.codes
-            lo = np.searchsorted(o_code, codes, "left")
-            cnt = np.searchsorted(o_code, codes, "right") - lo
-            has = np.flatnonzero(cnt > 0)
-            if has.size == 0:
-                return
-            c = cnt[has]
-            tot = int(c.sum())
-            starts = np.cumsum(c) - c
-            R = np.repeat(has, c)  # (row, cached point) candidates, grouped by row
-            J = np.repeat(lo[has], c) + (np.arange(tot) - np.repeat(starts, c))
-            tol = 0.1 * model.bound_radius[cs.a] + 1e-4
-            # (weak: a topology must not keep its predecessors alive)
-            cand = (weakref.ref(otopo) if otopo is not None else (lambda: None), has, c, starts, R, J, tol[has] ** 2)
-            topo.__dict__["_warm_cand"] = cand
-        _, has, c, starts, R, J, tol2 = cand
-        if has.size == 0:
-            return
-        d = loc[R] - o_loc[J]
-        d2 = np.einsum("ki,ki->k", d, d)
-        # nearest cached point per row, first on ties (like argmin)
-        mn = np.minimum.reduceat(d2, starts)
-        hit = np.flatnonzero(d2 == np.repeat(mn, c))
-        _, fi = np.unique(R[hit], return_index=True)
-        jbest = J[hit[fi]]
-        ok = mn <= tol2
-        r = has[ok]
-        rows.lam_n[r] = o_fn[jbest[ok]] * h
-        if rows.friction and r.size:
-            # one patch per pair: its first row's patch, for pairs with a match
-            rc = topo.codes[r]
-            uc = topo.uniq_codes
-            sel = np.isin(uc, rc)
-            p = topo.uniq_pid[sel]
-            g = np.searchsorted(u_code, uc[sel])
-            rows.lam_t[p, :2] = np.einsum("kij,kj->ki", rows.t[p], u_ft[g]) * h
-            rows.lam_t[p, 2] = u_tw[g] * h
-            if rows.rolling and u_rr is not None:
-                rows.lam_t[p, 3:] = np.einsum("kij,kj->ki", rows.t[p], u_rr[g]) * h
+def _warm_start(model, old: "WarmCache", rows: Rows, h: float) -> None:
+    """Each row takes the cached force of the nearest cached point of its
+    pair (in body a's frame) within 0.1 bounding radius + 0.1 mm; a patch
+    with a matched point takes its pair's cached friction force and twist
+    (:func:`engine.contact.warm.match`)."""
+    topo = rows.topo
+    f = rows.friction
+    warm.match(topo.codes, rows.loc, rows.a, model.bound_radius, old.codes, old.loc, old.fn, old.pairs, old.ft,
+               old.tw, old.rr, h, rows.lam_n, f, f and rows.rolling, topo.pid if f else _NO_I,
+               rows.t if f else _NO_T, rows.lam_t if f else _NO_LT, np.zeros(rows.np if f else 0, np.bool_))
 
-    def _store(self, model, state, ctx, rows, loc, h, touch):
-        """Cache the step's forces for the next step's warm start (``touch``
-        (m,) bool: the rows that were touching at the start of the step --
-        a point pressed *at rest* only if it was; a speculative row that
-        pressed to land its point exactly on the surface did not rest)."""
-        topo = rows.topo
-        fn = rows.lam_n / h
-        order = topo.code_order
-        sc = topo.sorted_codes
-        first = topo.code_first
-        uniq = topo.uniq_codes
-        if rows.friction:
-            p = topo.uniq_pid
-            lt = rows.lam_t[p]
-            tp = rows.t[p]
-            ft = np.einsum("ki,kij->kj", lt[:, :2], tp) / h
-            tw = lt[:, 2] / h
-            rr = np.einsum("ki,kij->kj", lt[:, 3:], tp) / h if rows.rolling else None
-        else:
-            ft, tw, rr = np.zeros((uniq.size, 3)), np.zeros(uniq.size), None
-        state.warm = WarmCache(sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order], first, topo)
+
+def _store(rows: Rows, h: float, touching: np.ndarray) -> "WarmCache":
+    """The cache of the solve's forces for the next step's warm start
+    (``touching`` (k,) bool over the stage's contacts: the rows that were
+    touching at the start of the step -- a point pressed *at rest* only if
+    it was; a speculative row that pressed to land its point exactly on the
+    surface did not rest).  Its arrays are its own: the step loop restores
+    an older cache for its reruns (pipeline._substep)."""
+    topo = rows.topo
+    m, p = rows.m, topo.uniq_codes.size
+    f = rows.friction
+    out = WarmCache(np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(p, np.int64),
+                    np.empty((p, 3)), np.empty(p), np.empty((p, 3)), np.empty(m, np.bool_))
+    warm.store(topo.code_order, topo.codes, rows.loc, rows.lam_n, touching[rows.idx], topo.code_first,
+               topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT,
+               rows.t if f else _NO_T, h, out.codes, out.loc, out.fn, out.touch, out.pairs, out.ft, out.tw, out.rr)
+    return out
 
 
 @dataclass(eq=False)
@@ -972,9 +893,8 @@ class WarmCache:
     ``loc`` (k, 3) m its point in body a's frame, ``fn`` (k,) N its normal
     force, ``pairs`` (p,) the distinct pair codes, ``ft`` (p, 3) N their
     friction forces, ``tw`` (p,) N m twist torques, ``rr`` (p, 3) N m
-    rolling torques or None, ``touch`` (k,) bool whether the point touched
-    at the start of its step; ``first`` (p,) each pair's first point and
-    ``topo`` the topology that wrote it."""
+    rolling torques (zero without rolling friction), ``touch`` (k,) bool
+    whether the point touched at the start of its step."""
 
     codes: np.ndarray
     loc: np.ndarray
@@ -982,34 +902,12 @@ class WarmCache:
     pairs: np.ndarray
     ft: np.ndarray
     tw: np.ndarray
-    rr: np.ndarray | None
+    rr: np.ndarray
     touch: np.ndarray
-    first: np.ndarray
-    topo: Topology
 
     @property
     def packed(self) -> tuple:
         return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
-
-
-def _pressed_points(warm: "WarmCache", codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
-    """(k,) bool: contact points (pair ``codes`` (k,), points in body a's
-    frame ``loc`` (k, 3) m) that pressed at rest in the step that wrote
-    ``warm``: a cached point of the same pair that was touching at the start
-    of that step and carried a positive normal force lies within ``tol``
-    (k,) m of them (the warm start's matching radius).  A speculative row
-    that pressed only to land its point exactly on the surface does not
-    count: that point arrives still approaching, an impact."""
-    pk = warm.packed
-    o_code, o_loc, o_fn = pk[0], pk[1], np.where(pk[7], pk[2], 0.0)
-    out = np.zeros(codes.size, bool)
-    lo = np.searchsorted(o_code, codes, "left")
-    hi = np.searchsorted(o_code, codes, "right")
-    for i in np.flatnonzero(hi > lo).tolist():  # impact candidates: a few rows
-        sl = slice(lo[i], hi[i])
-        d = o_loc[sl] - loc[i]
-        out[i] = bool(np.any((o_fn[sl] > 0.0) & (np.einsum("ki,ki->k", d, d) <= tol[i] ** 2)))
-    return out
 
 
 def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:

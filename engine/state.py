@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from engine.mathutil import quat_to_matrix
+from engine.contact.scratch import Scratch
 from engine.model import Model
 
 
@@ -158,6 +159,8 @@ class Context:
         # reruns leave out exactly these, at every tau
         self.drop_rows: np.ndarray | None = None
         self.info: dict[str, Any] = {}
+        #: the contact solve's work arrays (grown geometrically, kept)
+        self.scratch = Scratch()
 
     def begin(self, model: Model, state: State, h: float) -> None:
         """Start a (mini-)step of length ``h`` from ``state``."""

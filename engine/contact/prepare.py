@@ -1,0 +1,390 @@
+"""Compiled contact row preparation (the prepare phase): the contacts'
+normal velocities and classification, the normal rows' Jacobians and
+effective masses, the friction patches' frames, Jacobians and effective
+masses, and the patches' relative velocities.
+
+Loops over rows (and patches) in row order; no BLAS, a fixed summation
+order (the bits do not depend on the BLAS kernel:
+tests/test_engine_blas_free.py).  Conventions as in
+:mod:`engine.contact.sweeps`: bodies 0..n-1, the world n (its inverse mass
+and inverse inertia zero, its position the origin); a contact joins body
+``a`` to ``b`` with its normal from a toward b.
+
+Normal row i (contact ``sel[i]``, lever arms rA = p - xa, rB = p - xb):
+``J[i]`` = [-n, -(rA x n) | n, rB x n], ``M[i]`` = [-n/ma, -IA^-1 (rA x n)
+| n/mb, IB^-1 (rB x n)] (M^-1 J^T), ``mn[i]`` = 1 / (J[i] . M[i]).
+
+Friction patch p (all rows of one pair, ``pid`` (m,) the patch of each
+row): centroid P (mean of its points), normal N (normalised sum of its
+normals), tangents t1 = N x e / |N x e| for the world axis e least aligned
+with N (first on ties), t2 = N x t1; rows (tangent t1, tangent t2, twist
+about N [, rolling about t1, t2]) at the centroid, ``Jt``/``Mt`` (np, nr,
+12) as the normal rows, ``mt`` = 1 / (Jt . Mt) where positive, else 0;
+``r_twist`` the mean distance of its points from P within the patch plane.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def pair_code(a, b, sidx, n, n_statics):
+    """Warm-cache key of the pair (a, b, static index): unique per pair
+    (= solver._pair_codes_abs)."""
+    return (a * (n + 1) + b) * (n_statics + 1) + (sidx + 1)
+
+
+@njit(cache=True)
+def _point_vn(V, W, a, b, px, py, pz, nx, ny, nz, xa, xb):
+    """n . (vb + wb x rB - va - wa x rA) with rA = p - xa, rB = p - xb;
+    velocity fields (k, 3) with k = nb (body b = nb, the world, at rest) or
+    nb + 1 (its row zero)."""
+    ax = px - xa[0]
+    ay = py - xa[1]
+    az = pz - xa[2]
+    bx = px - xb[0]
+    by = py - xb[1]
+    bz = pz - xb[2]
+    rx = 0.0
+    ry = 0.0
+    rz = 0.0
+    if b < V.shape[0]:
+        rx = V[b, 0] + (W[b, 1] * bz - W[b, 2] * by)
+        ry = V[b, 1] + (W[b, 2] * bx - W[b, 0] * bz)
+        rz = V[b, 2] + (W[b, 0] * by - W[b, 1] * bx)
+    rx = rx - V[a, 0] - (W[a, 1] * az - W[a, 2] * ay)
+    ry = ry - V[a, 1] - (W[a, 2] * ax - W[a, 0] * az)
+    rz = rz - V[a, 2] - (W[a, 0] * ay - W[a, 1] * ax)
+    return rx * nx + ry * ny + rz * nz
+
+
+@njit(cache=True)
+def classify(X, V1, W1, V0, W0, UL, UA, a, b, sidx, point, normal, gap, nb, n_statics, h, thr, lever, slop,
+             warm, o_code, o_loc, o_fn, o_touch, R0, bound_radius, vn, touching, impact, codes):
+    """Normal velocities and classification of the contacts (m of them).
+
+    ``X`` (nb, 3) positions at the start pose; velocity fields (as
+    :func:`_point_vn`): ``V1``/``W1`` the free flight's end, ``V0``/``W0``
+    the start of the step, ``UL``/``UA`` the free flight's mean motion.  Writes ``vn`` (3, m): rows vn_free, vn0, un (m/s);
+    ``touching`` (m,) gap <= 1e-6 m; ``impact`` (m,) rows this step's motion
+    closes at an approach above ``thr`` m/s (see solver.Solve); ``codes``
+    (m,) pair codes.  With ``warm`` (the last solve's cache: sorted pair
+    codes ``o_code`` (k,), points in body a's frame ``o_loc`` (k, 3), normal
+    forces ``o_fn`` (k,), ``o_touch`` (k,) bool), a touching row approaching
+    faster than ``thr`` that a speculative row would sink beyond ``slop``
+    is an impact too, and in a pair that pressed last step (a cached point
+    with a positive force) a closing row stays an impact only when it is
+    not near a point that pressed at rest (within 0.1 bound radius + 0.1 mm
+    in body a's frame, ``R0`` (nb, 3, 3) the start rotations), it approached
+    faster than ``thr`` at the start, and it would sink beyond ``slop``.
+    Returns the number of impact rows."""
+    m = a.shape[0]
+    zero = np.zeros(3)
+    k = o_code.shape[0]
+    count = 0
+    for i in range(m):
+        ia = a[i]
+        ib = b[i]
+        xa = X[ia]
+        xb = X[ib] if ib < nb else zero
+        px, py, pz = point[i, 0], point[i, 1], point[i, 2]
+        nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
+        v1 = _point_vn(V1, W1, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
+        v0 = _point_vn(V0, W0, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
+        un = _point_vn(UL, UA, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
+        vn[0, i] = v1
+        vn[1, i] = v0
+        vn[2, i] = un
+        g = gap[i]
+        code = pair_code(ia, ib, sidx[i], nb, n_statics)
+        codes[i] = code
+        touch = g <= 1e-6
+        touching[i] = touch
+        sinks = lever * h * v1 - g - h * un > slop
+        imp = (not touch) and (g + h * un < 0.0) and (-un > thr)
+        if warm and touch and (-v0 > thr) and sinks:
+            imp = True
+        if imp and warm:
+            lo = np.searchsorted(o_code, code)
+            persistent = False
+            j = lo
+            while j < k and o_code[j] == code:
+                if o_fn[j] > 0.0:
+                    persistent = True
+                    break
+                j += 1
+            if persistent:
+                keep = sinks and (-v0 > thr)
+                if keep:
+                    # a point that pressed at rest last step is no impact
+                    dx = px - xa[0]
+                    dy = py - xa[1]
+                    dz = pz - xa[2]
+                    lx = R0[ia, 0, 0] * dx + R0[ia, 1, 0] * dy + R0[ia, 2, 0] * dz
+                    ly = R0[ia, 0, 1] * dx + R0[ia, 1, 1] * dy + R0[ia, 2, 1] * dz
+                    lz = R0[ia, 0, 2] * dx + R0[ia, 1, 2] * dy + R0[ia, 2, 2] * dz
+                    tol = 0.1 * bound_radius[ia] + 1e-4
+                    j = lo
+                    while j < k and o_code[j] == code:
+                        if o_touch[j] and o_fn[j] > 0.0:
+                            ex = o_loc[j, 0] - lx
+                            ey = o_loc[j, 1] - ly
+                            ez = o_loc[j, 2] - lz
+                            if ex * ex + ey * ey + ez * ez <= tol * tol:
+                                keep = False
+                                break
+                        j += 1
+                imp = keep
+        impact[i] = imp
+        if imp:
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def _basis(nx, ny, nz):
+    """Tangents (t1, t2) completing the unit normal (nx, ny, nz):
+    t1 = n x e / |n x e| for the world axis e least aligned with n (the
+    first on ties), t2 = n x t1."""
+    ax, ay, az = abs(nx), abs(ny), abs(nz)
+    if ax <= ay and ax <= az:
+        ex, ey, ez = 1.0, 0.0, 0.0
+    elif ay <= az:
+        ex, ey, ez = 0.0, 1.0, 0.0
+    else:
+        ex, ey, ez = 0.0, 0.0, 1.0
+    t1x = ny * ez - nz * ey
+    t1y = nz * ex - nx * ez
+    t1z = nx * ey - ny * ex
+    s = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
+    t1x /= s
+    t1y /= s
+    t1z /= s
+    t2x = ny * t1z - nz * t1y
+    t2y = nz * t1x - nx * t1z
+    t2z = nx * t1y - ny * t1x
+    return t1x, t1y, t1z, t2x, t2y, t2z
+
+
+@njit(cache=True)
+def _row(J, M, i, lin, ang_a, ang_b, ima, imb, IA, IB):
+    """Fill row i of J/M (k, 12) for the direction ``lin`` (3,) (zero for
+    an angular row) with angular parts ``ang_a`` for a and ``ang_b`` for b
+    (J's a side is -lin, -ang_a); returns J[i] . M[i]."""
+    for c in range(3):
+        J[i, c] = -lin[c]
+        J[i, 3 + c] = -ang_a[c]
+        J[i, 6 + c] = lin[c]
+        J[i, 9 + c] = ang_b[c]
+        M[i, c] = -ima * lin[c]
+        M[i, 6 + c] = imb * lin[c]
+    for r in range(3):
+        sa = 0.0
+        sb = 0.0
+        for c in range(3):
+            sa += IA[r, c] * ang_a[c]
+            sb += IB[r, c] * ang_b[c]
+        M[i, 3 + r] = -sa
+        M[i, 9 + r] = sb
+    k = 0.0
+    for c in range(12):
+        k += J[i, c] * M[i, c]
+    return k
+
+
+@njit(cache=True)
+def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc):
+    """The normal rows of the contacts ``sel`` (m,) in that order (see the
+    module doc): ``J``/``M`` (m, 12), ``mn`` (m,) and, with ``want_loc``,
+    ``loc`` (m, 3) the contact points in body a's frame (``R0`` (nb, 3, 3)
+    the start rotations; the warm cache's matching key)."""
+    lin = np.empty(3)
+    angA = np.empty(3)
+    angB = np.empty(3)
+    for i in range(sel.shape[0]):
+        k = sel[i]
+        ia = a[k]
+        ib = b[k]
+        ax = point[k, 0] - X[ia, 0]
+        ay = point[k, 1] - X[ia, 1]
+        az = point[k, 2] - X[ia, 2]
+        if ib < nb:
+            bx = point[k, 0] - X[ib, 0]
+            by = point[k, 1] - X[ib, 1]
+            bz = point[k, 2] - X[ib, 2]
+        else:
+            bx = point[k, 0]
+            by = point[k, 1]
+            bz = point[k, 2]
+        nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
+        lin[0], lin[1], lin[2] = nx, ny, nz
+        angA[0] = ay * nz - az * ny
+        angA[1] = az * nx - ax * nz
+        angA[2] = ax * ny - ay * nx
+        angB[0] = by * nz - bz * ny
+        angB[1] = bz * nx - bx * nz
+        angB[2] = bx * ny - by * nx
+        kn = _row(J, M, i, lin, angA, angB, inv_mass[ia], inv_mass[ib], Iinv[ia], Iinv[ib])
+        mn[i] = 1.0 / kn
+        if not want_loc:
+            continue
+        for r in range(3):
+            loc[i, r] = R0[ia, 0, r] * ax + R0[ia, 1, r] * ay + R0[ia, 2, r] * az
+
+
+@njit(cache=True)
+def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, rolling, P, N, r_twist, t, Jt, Mt,
+               mt):
+    """The friction patches of the rows ``sel`` (m,) (patch of row i
+    ``pid[i]``, patch bodies ``pa``/``pb`` (np,), rows per patch ``cnt``
+    (np,) float): centroids ``P`` and normals ``N`` (np, 3), ``r_twist``
+    (np,) m, tangents ``t`` (np, 2, 3), ``Jt``/``Mt`` (np, nr, 12) and
+    ``mt`` (np, nr) with nr = 5 when ``rolling`` else 3 (module doc)."""
+    npch = pa.shape[0]
+    m = sel.shape[0]
+    P[:, :] = 0.0
+    N[:, :] = 0.0
+    r_twist[:] = 0.0
+    for i in range(m):  # sums in row order
+        k = sel[i]
+        p = pid[i]
+        for c in range(3):
+            P[p, c] += point[k, c]
+            N[p, c] += normal[k, c]
+    for p in range(npch):
+        for c in range(3):
+            P[p, c] /= cnt[p]
+        s = math.sqrt(N[p, 0] ** 2 + N[p, 1] ** 2 + N[p, 2] ** 2)
+        for c in range(3):
+            N[p, c] /= s
+    for i in range(m):
+        k = sel[i]
+        p = pid[i]
+        ox = point[k, 0] - P[p, 0]
+        oy = point[k, 1] - P[p, 1]
+        oz = point[k, 2] - P[p, 2]
+        d = ox * N[p, 0] + oy * N[p, 1] + oz * N[p, 2]
+        ox -= d * N[p, 0]
+        oy -= d * N[p, 1]
+        oz -= d * N[p, 2]
+        r_twist[p] += math.sqrt(ox * ox + oy * oy + oz * oz)
+    lin = np.empty(3)
+    angA = np.empty(3)
+    angB = np.empty(3)
+    zero = np.zeros(3)
+    nr = Jt.shape[1]
+    Jp = np.empty((nr, 12))
+    Mp = np.empty((nr, 12))
+    for p in range(npch):
+        r_twist[p] /= cnt[p]
+        t1x, t1y, t1z, t2x, t2y, t2z = _basis(N[p, 0], N[p, 1], N[p, 2])
+        t[p, 0, 0], t[p, 0, 1], t[p, 0, 2] = t1x, t1y, t1z
+        t[p, 1, 0], t[p, 1, 1], t[p, 1, 2] = t2x, t2y, t2z
+        ia = pa[p]
+        ib = pb[p]
+        ax = P[p, 0] - X[ia, 0]
+        ay = P[p, 1] - X[ia, 1]
+        az = P[p, 2] - X[ia, 2]
+        if ib < nb:
+            bx = P[p, 0] - X[ib, 0]
+            by = P[p, 1] - X[ib, 1]
+            bz = P[p, 2] - X[ib, 2]
+        else:
+            bx = P[p, 0]
+            by = P[p, 1]
+            bz = P[p, 2]
+        ima = inv_mass[ia]
+        imb = inv_mass[ib]
+        IA = Iinv[ia]
+        IB = Iinv[ib]
+        for r in range(2):  # tangent rows: lever arms x t
+            lin[0], lin[1], lin[2] = t[p, r, 0], t[p, r, 1], t[p, r, 2]
+            angA[0] = ay * lin[2] - az * lin[1]
+            angA[1] = az * lin[0] - ax * lin[2]
+            angA[2] = ax * lin[1] - ay * lin[0]
+            angB[0] = by * lin[2] - bz * lin[1]
+            angB[1] = bz * lin[0] - bx * lin[2]
+            angB[2] = bx * lin[1] - by * lin[0]
+            kt = _row(Jp, Mp, r, lin, angA, angB, ima, imb, IA, IB)
+            mt[p, r] = 1.0 / kt if kt > 0.0 else 0.0
+        angA[0], angA[1], angA[2] = N[p, 0], N[p, 1], N[p, 2]
+        kt = _row(Jp, Mp, 2, zero, angA, angA, ima, imb, IA, IB)  # twist about N
+        mt[p, 2] = 1.0 / kt if kt > 0.0 else 0.0
+        if rolling:
+            for r in range(2):
+                angA[0], angA[1], angA[2] = t[p, r, 0], t[p, r, 1], t[p, r, 2]
+                kt = _row(Jp, Mp, 3 + r, zero, angA, angA, ima, imb, IA, IB)
+                mt[p, 3 + r] = 1.0 / kt if kt > 0.0 else 0.0
+        for r in range(nr):
+            for c in range(12):
+                Jt[p, r, c] = Jp[r, c]
+                Mt[p, r, c] = Mp[r, c]
+
+
+@njit(cache=True)
+def patch_velocity(Jt, U, pab, r0, r1, out):
+    """Relative velocities of the patch rows r0..r1-1, ``out`` (np, r1-r0):
+    rows 0, 1 the tangential velocity at the centroids (m/s), 3, 4 the
+    rolling angular velocity (rad/s).  ``U`` (nb+1, 6)."""
+    for p in range(Jt.shape[0]):
+        ia = pab[p, 0]
+        ib = pab[p, 1]
+        for r in range(r0, r1):
+            s = 0.0
+            for c in range(6):
+                s += Jt[p, r, c] * U[ia, c]
+            for c in range(6):
+                s += Jt[p, r, 6 + c] * U[ib, c]
+            out[p, r - r0] = s
+
+
+@njit(cache=True)
+def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
+    """Patches that slide at velocities ``U`` (see solver.Rows.sliding):
+    writes the centroids' relative tangential velocities ``vt`` (np, 2) and
+    ``slip`` (np,) bool."""
+    patch_velocity(Jt, U, pab, 0, 2, vt)
+    for p in range(Jt.shape[0]):
+        ia = pab[p, 0]
+        ib = pab[p, 1]
+        wn = 0.0
+        for c in range(6):
+            wn += Jt[p, 2, c] * U[ia, c]
+        for c in range(6):
+            wn += Jt[p, 2, 6 + c] * U[ib, c]
+        slip[p] = (math.sqrt(vt[p, 0] * vt[p, 0] + vt[p, 1] * vt[p, 1]) > slip_tol) or (
+            abs(wn) * r_twist[p] > slip_tol)
+
+
+@njit(cache=True)
+def targets(sel, touching, vn, gap, e, h, lever, thr, beta, slop, target, bias):
+    """Normal rows' targets (the least allowed end normal velocity, m/s)
+    for the contacts ``sel`` (m,) (see solver module doc): touching rows
+    vn1 >= 0, separated ones min(vn_free - (max(gap, 0) + h un) / (lever
+    h), 0), raised to -e vn0 for a touching row approaching faster than
+    ``thr`` at the start of the step; and the position correction's
+    push-out velocities ``bias`` = beta (depth - slop) / h where the depth
+    -gap exceeds ``slop`` (m), else 0.  Returns the number of rows pushed
+    out."""
+    pushed = 0
+    for i in range(sel.shape[0]):
+        k = sel[i]
+        g = gap[k]
+        if touching[k]:
+            s = 0.0
+            if vn[1, k] < -thr:
+                s = max(s, -e[k] * vn[1, k])
+        else:
+            s = min(vn[0, k] - (max(g, 0.0) + h * vn[2, k]) / (lever * h), 0.0)
+        target[i] = s
+        depth = -g
+        bias[i] = 0.0
+        if depth > slop:
+            bias[i] = beta * (depth - slop) / h
+            if bias[i] > 0.0:
+                pushed += 1
+    return pushed

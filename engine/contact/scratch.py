@@ -1,0 +1,34 @@
+"""Work arrays kept from step to step (no allocation per step in the
+steady state).
+
+:class:`Scratch` hands out named arrays of a requested shape as views of
+buffers that grow geometrically (at least doubling) along their first axis
+when a step needs more rows than any before: a scene with a steady contact
+count allocates nothing after its first steps.  A view is valid until the
+next ``take`` of the same name (each solve phase takes its own names).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Scratch:
+    def __init__(self) -> None:
+        self._buf: dict[str, np.ndarray] = {}
+
+    def take(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+        """A view of shape ``shape`` (contents undefined) of the buffer
+        ``name``."""
+        k = shape[0]
+        buf = self._buf.get(name)
+        if buf is None or buf.shape[0] < k or buf.shape[1:] != tuple(shape[1:]) or buf.dtype != dtype:
+            cap = max(k, 2 * buf.shape[0] if buf is not None else 0, 16)
+            buf = self._buf[name] = np.empty((cap,) + tuple(shape[1:]), dtype)
+        return buf[:k]
+
+    def zeros(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+        """As :meth:`take`, zeroed."""
+        out = self.take(name, shape, dtype)
+        out[...] = 0
+        return out
