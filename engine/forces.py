@@ -8,13 +8,16 @@ velocities.  The pipeline runs them once at the start of a step; the
 integrators run them again at their intermediate states (RK stages).
 
 Stages exist only for the effects a scene lists (see pipeline.build_pipeline).
+Each stage runs its compiled kernel of engine/flight.py; the compiled
+integrators evaluate the same kernels at their intermediate states
+(:func:`force_model`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from engine.mathutil import cross
+from engine import flight
 from engine.profile import Stage
 
 
@@ -32,7 +35,7 @@ class Gravity(Stage):
         self.mg = model.mass[:, None] * model.gravity[None, :]  # (n, 3), computed once
 
     def __call__(self, model, state, ctx) -> None:
-        ctx.F += self.mg
+        flight.gravity(self.mg, ctx.F)
 
 
 class LinearDrag(Stage):
@@ -44,10 +47,10 @@ class LinearDrag(Stage):
     pose = False
 
     def __init__(self, model):
-        self.c = model.drag_linear[:, None].copy()
+        self.c = model.drag_linear.copy()
 
     def __call__(self, model, state, ctx) -> None:
-        ctx.F -= self.c * ctx.ev
+        flight.linear_drag(self.c, ctx.ev, ctx.F)
 
 
 class QuadraticDrag(Stage):
@@ -62,9 +65,7 @@ class QuadraticDrag(Stage):
         self.c = model.drag_quadratic.copy()
 
     def __call__(self, model, state, ctx) -> None:
-        v = ctx.ev
-        speed = np.sqrt(np.einsum("ki,ki->k", v, v))
-        ctx.F -= (self.c * speed)[:, None] * v
+        flight.quadratic_drag(self.c, ctx.ev, ctx.F)
 
 
 class Springs(Stage):
@@ -84,42 +85,13 @@ class Springs(Stage):
     pose = True
 
     def __init__(self, model):
-        self.a = model.spring_a
-        self.b = model.spring_b
-        self.k = model.spring_k
-        self.c = model.spring_c
-        self.L0 = model.spring_rest
-        self.wa = self.a >= 0
-        self.wb = self.b >= 0
-        # indices with the world mapped to 0 (masked out below)
-        self.ia = np.where(self.wa, self.a, 0)
-        self.ib = np.where(self.wb, self.b, 0)
-        self.anc_a = model.spring_anchor_a
-        self.anc_b = model.spring_anchor_b
-
-    def _end(self, ctx, idx, mask, anchor):
-        """World anchor point, lever arm and point velocity of one end."""
-        R = ctx.eR[idx]
-        r = np.einsum("kij,kj->ki", R, anchor)
-        p = np.where(mask[:, None], ctx.ex[idx] + r, anchor)
-        vel = np.where(mask[:, None], ctx.ev[idx] + cross(ctx.ew[idx], r), 0.0)
-        return p, np.where(mask[:, None], r, 0.0), vel
+        self.args = (np.array(model.spring_a, np.int64), np.array(model.spring_b, np.int64),
+                     np.array(model.spring_anchor_a, float),
+                     np.array(model.spring_anchor_b, float), np.array(model.spring_k, float),
+                     np.array(model.spring_c, float), np.array(model.spring_rest, float))
 
     def __call__(self, model, state, ctx) -> None:
-        pa, ra, va = self._end(ctx, self.ia, self.wa, self.anc_a)
-        pb, rb, vb = self._end(ctx, self.ib, self.wb, self.anc_b)
-        d = pb - pa
-        L = np.sqrt(np.einsum("ki,ki->k", d, d))
-        safe = L > 1e-12
-        u = np.where(safe[:, None], d / np.where(safe, L, 1.0)[:, None], 0.0)
-        f = self.k * (L - self.L0) + self.c * np.einsum("ki,ki->k", vb - va, u)
-        Fa = f[:, None] * u  # on a, toward b when stretched
-        ma = self.wa[:, None]
-        mb = self.wb[:, None]
-        np.add.at(ctx.F, self.ia, np.where(ma, Fa, 0.0))
-        np.add.at(ctx.T, self.ia, np.where(ma, cross(ra, Fa), 0.0))
-        np.add.at(ctx.F, self.ib, np.where(mb, -Fa, 0.0))
-        np.add.at(ctx.T, self.ib, np.where(mb, cross(rb, -Fa), 0.0))
+        flight.springs(*self.args, ctx.ex, ctx.eR, ctx.ev, ctx.ew, ctx.F, ctx.T)
 
 
 class GyroscopicTorque(Stage):
@@ -135,14 +107,30 @@ class GyroscopicTorque(Stage):
 
     def __init__(self, model):
         self.idx = np.flatnonzero(~model.isotropic)
-        self.I = model.inertia_body[self.idx]
+        self.I = np.array(model.inertia_body[self.idx], float)
 
     def __call__(self, model, state, ctx) -> None:
-        k = self.idx
-        if k.size == 0:
-            return
-        R = ctx.eR[k]
-        w = ctx.ew[k]
-        wb = np.einsum("kji,kj->ki", R, w)
-        Lw = np.einsum("kij,kj->ki", R, self.I * wb)
-        ctx.T[k] -= cross(w, Lw)
+        flight.gyroscopic_torque(self.idx, self.I, ctx.eR, ctx.ew, ctx.T)
+
+
+def force_model(model, stages) -> tuple:
+    """The force stages ``stages`` as the compiled force model of
+    :mod:`engine.flight` (its module doc): absent effects as empty arrays."""
+    n = model.n
+    z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
+    mg, c_lin, c_quad, sp, g_idx, g_I = z3, z1, z1, (zi, zi, z3, z3, z1, z1, z1), zi, z3
+    for s in stages:
+        if isinstance(s, Gravity):
+            mg = np.array(s.mg, float)
+        elif isinstance(s, LinearDrag):
+            c_lin = s.c
+        elif isinstance(s, QuadraticDrag):
+            c_quad = s.c
+        elif isinstance(s, Springs):
+            sp = s.args
+        elif isinstance(s, GyroscopicTorque):
+            g_idx, g_I = np.array(s.idx, np.int64), s.I
+        else:  # pragma: no cover - every force stage is listed here
+            raise TypeError(f"no compiled form of the force stage {s.name}")
+    assert mg.shape[0] in (0, n)
+    return (mg, c_lin, c_quad) + tuple(sp) + (g_idx, g_I)

@@ -38,25 +38,26 @@ the trapezoid with a predictor for velocity-dependent forces).  All are exact
 for constant forces except the two Euler methods.
 
 Quaternions are renormalised after every step.
+
+Every stage here is one compiled call (engine/flight.py: loops over
+bodies, no BLAS).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from engine.mathutil import (
-    cross,
-    apply_world_inertia,
-    normalize_quat,
-    quat_deriv,
-    quat_from_rotvec,
-    quat_mul,
-    quat_to_matrix,
-    rotate_world,
+from engine.flight import (
+    METHOD,
+    YOSHIDA,
+    YOSHIDA_MAX,
+    energy_conserving_rotation,
+    free_flight,
+    implicit_gyroscopic,
+    integrate_positions,
+    midpoint_rotation,
 )
-from engine.contact.linalg import solve_batch
+from engine.forces import force_model
 from engine.profile import Stage
 
 INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
@@ -69,7 +70,10 @@ class IntegrateVelocities(Stage):
     Reads the forces of the start state from ctx.F/ctx.T (the pipeline's force
     stages ran just before) and re-evaluates ``forces`` at intermediate
     states (not when they are all state-independent, ``constant``: gravity
-    alone gives the same forces everywhere).  Writes ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n] (end state),
+    alone gives the same forces everywhere).  One compiled call
+    (:func:`engine.flight.free_flight`, the force stages' own kernels at the
+    intermediate states, which the profile therefore counts under this
+    stage).  Writes ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n] (end state),
     ctx.v_free/w_free (copies of the end velocities) and ctx.u_lin/u_ang (the
     step's mean velocities, used by the contact solver's speculative rows).
     """
@@ -78,149 +82,33 @@ class IntegrateVelocities(Stage):
     family = "integrate"
 
     def __init__(self, model, forces: tuple[Stage, ...]):
+        n = model.n
         self.forces = forces
         self.method = model.setting("integrator")
-        self.inv_m = model.inv_mass[: model.n, None].copy()
-        self.inv_I = model.inv_inertia_body[: model.n].copy()
-        self.c = model.contact_lever
-        # skip rotation matrices / angular accelerations when no force stage needs them
+        self.code = METHOD[self.method]
+        self.inv_m = np.array(model.inv_mass[:n], float)
+        self.inv_I = np.array(model.inv_inertia_body[:n], float)
+        self.c = float(model.contact_lever)
+        # angular accelerations only when a force stage makes torques
         self.torque = any(getattr(s, "torque", True) for s in forces)
-        self.pose = any(getattr(s, "pose", True) for s in forces) or self.torque
         # forces that do not depend on the state at all (gravity): every
         # evaluation at an intermediate state equals the start's, so the
-        # integrator reuses it instead of re-running the force stages (the
+        # integrator reuses it instead of evaluating the forces again (the
         # same numbers: F = 0 + m g and a = F / m either way)
         self.constant = bool(forces) and all(getattr(s, "constant", False) for s in forces)
-        self._zero = np.zeros((model.n, 3))
-
-    # ---- right-hand side -------------------------------------------------
-    def _accel(self, model, state, ctx, x, q, v, w):
-        """Accelerations (a, alpha), (n, 3) each, at the state (x, q, v, w)."""
-        if self.constant:
-            self._T.append(self._T[0])
-            return self._acc0
-        R = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True)) if self.pose else None
-        ctx.ex, ctx.eq, ctx.ev, ctx.ew, ctx.eR = x, q, v, w, R
-        ctx.F[:] = 0.0
-        ctx.T[:] = 0.0
-        for s in self.forces:
-            ctx.profile.run(s, model, state, ctx)
-        self._T.append(ctx.T.copy())
-        return self._from_forces(ctx, R)
-
-    def _from_forces(self, ctx, R):
-        a = ctx.F * self.inv_m
-        if not self.torque:
-            return a, self._zero
-        tb = np.einsum("kji,kj->ki", R, ctx.T)
-        alpha = np.einsum("kij,kj->ki", R, tb * self.inv_I)
-        return a, alpha
+        #: the compiled force model evaluated at the intermediate states
+        self.fm = force_model(model, forces)
+        self._w0 = np.zeros((n, 3))
+        self._work = np.zeros((16, n, 4))
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
-        h = ctx.h
-        x0, q0, v0, w0 = state.x, state.q, state.v, ctx.w[:n].copy()  # w may carry the implicit gyroscopic update
-        m = self.method
-        if not self.forces:
-            # no forces at all: every integrator's exact answer is uniform
-            # motion and rotation at constant w (no gyroscopic term in the ODE)
-            np.multiply(v0, h, out=ctx.x1)
-            ctx.x1 += x0
-            ctx.q1[:] = rotate_world(q0, h * w0)
-            ctx.v[:n] = v0
-            ctx.w[:n] = w0
-            ctx.T_mean[:] = 0.0
-            self._finish(model, state, ctx, x0)
-            return
-        a0, al0 = self._from_forces(ctx, ctx.R0)
-        self._T = [ctx.T.copy()]
-        self._acc0 = (a0, al0)
-        f = lambda x, q, v, w: self._accel(model, state, ctx, x, q, v, w)  # noqa: E731
-        if m == "explicit_euler":
-            x1 = x0 + h * v0
-            q1 = q0 + h * quat_deriv(w0, q0)
-            v1 = v0 + h * a0
-            w1 = w0 + h * al0
-        elif m == "semi_implicit_euler":
-            v1 = v0 + h * a0
-            w1 = w0 + h * al0
-            x1 = x0 + h * v1
-            q1 = rotate_world(q0, h * w1)
-        elif m == "midpoint":
-            xm, qm = x0 + 0.5 * h * v0, q0 + 0.5 * h * quat_deriv(w0, q0)
-            vm, wm = v0 + 0.5 * h * a0, w0 + 0.5 * h * al0
-            am, alm = f(xm, qm, vm, wm)
-            x1 = x0 + h * vm
-            q1 = q0 + h * quat_deriv(wm, qm)
-            v1 = v0 + h * am
-            w1 = w0 + h * alm
-        elif m == "heun":
-            xp, qp = x0 + h * v0, q0 + h * quat_deriv(w0, q0)
-            vp, wp = v0 + h * a0, w0 + h * al0
-            ap, alp = f(xp, qp, vp, wp)
-            x1 = x0 + 0.5 * h * (v0 + vp)
-            q1 = q0 + 0.5 * h * (quat_deriv(w0, q0) + quat_deriv(wp, qp))
-            v1 = v0 + 0.5 * h * (a0 + ap)
-            w1 = w0 + 0.5 * h * (al0 + alp)
-        elif m == "rk4":
-            # the state and slopes stacked as (n, 13) rows [x | q | v | w]:
-            # the same element-wise arithmetic as per array, in one call each
-            Y0 = np.empty((n, 13))
-            Y0[:, 0:3], Y0[:, 3:7], Y0[:, 7:10], Y0[:, 10:13] = x0, q0, v0, w0
-
-            def slope(Y, a, al):
-                K = np.empty((n, 13))
-                K[:, 0:3] = Y[:, 7:10]
-                K[:, 3:7] = quat_deriv(Y[:, 10:13], Y[:, 3:7])
-                K[:, 7:10] = a
-                K[:, 10:13] = al
-                return K
-
-            def parts(Y):
-                return Y[:, 0:3], Y[:, 3:7], Y[:, 7:10], Y[:, 10:13]
-
-            K1 = slope(Y0, a0, al0)
-            Y2 = Y0 + 0.5 * h * K1
-            K2 = slope(Y2, *f(*parts(Y2)))
-            Y3 = Y0 + 0.5 * h * K2
-            K3 = slope(Y3, *f(*parts(Y3)))
-            Y4 = Y0 + h * K3
-            K4 = slope(Y4, *f(*parts(Y4)))
-            x1, q1, v1, w1 = parts(Y0 + h / 6.0 * (K1 + 2 * K2 + 2 * K3 + K4))
-        elif m == "velocity_verlet":
-            x1 = x0 + h * v0 + 0.5 * h * h * a0
-            q1 = rotate_world(q0, h * (w0 + 0.5 * h * al0))
-            a1, al1 = f(x1, q1, v0 + h * a0, w0 + h * al0)
-            v1 = v0 + 0.5 * h * (a0 + a1)
-            w1 = w0 + 0.5 * h * (al0 + al1)
-        else:  # pragma: no cover - settings are validated
-            raise ValueError(m)
-        ctx.x1[:] = x1
-        ctx.q1[:] = q1
-        normalize_quat(ctx.q1)
-        ctx.v[:n] = v1
-        ctx.w[:n] = w1
-        # the step's mean torque, with the method's own weights (used by the
-        # energy-conserving rotation, so that spin and orbital angular
-        # momentum change consistently)
-        T = self._T
-        ctx.T_mean[:] = {"explicit_euler": lambda: T[0], "semi_implicit_euler": lambda: T[0],
-                         "midpoint": lambda: T[1], "heun": lambda: 0.5 * (T[0] + T[1]),
-                         "rk4": lambda: (T[0] + 2 * T[1] + 2 * T[2] + T[3]) / 6.0,
-                         "velocity_verlet": lambda: 0.5 * (T[0] + T[1])}[m]()
-        self._finish(model, state, ctx, x0)
-
-    def _finish(self, model, state, ctx, x0):
-        n = model.n
-        h = ctx.h
+        np.copyto(self._w0, ctx.w[:n])  # w may carry the implicit gyroscopic update
+        free_flight(self.code, bool(self.forces), self.constant, self.torque, self.fm, state.x, state.q, state.v,
+                    self._w0, state.w, ctx.h, ctx.F, ctx.T, ctx.R0, self.inv_m, self.inv_I, self.c, ctx.x1, ctx.q1,
+                    ctx.v[:n], ctx.w[:n], ctx.T_mean, ctx.u_lin, ctx.u_ang, self._work)
         ctx.v_free[:] = ctx.v[:n]
         ctx.w_free[:] = ctx.w[:n]
-        np.subtract(ctx.x1, x0, out=ctx.u_lin)
-        ctx.u_lin /= h
-        # mean angular velocity over the step, consistent with the contact lever
-        ctx.u_ang[:] = (1.0 - self.c) * state.w + self.c * ctx.w[:n]
-        # restore the force evaluation point to the start state for later readers
-        ctx.ex, ctx.eq, ctx.ev, ctx.ew, ctx.eR = state.x, state.q, state.v, state.w, ctx.R0
 
 
 class ImplicitGyroscopic(Stage):
@@ -233,37 +121,12 @@ class ImplicitGyroscopic(Stage):
     family = "integrate"
 
     def __init__(self, model):
-        self.idx = np.flatnonzero(~model.isotropic)
-        self.I = model.inertia_body[self.idx]
-        self.Imat = np.zeros((self.idx.size, 3, 3))
-        self.Imat[:, [0, 1, 2], [0, 1, 2]] = self.I
-
-    @staticmethod
-    def _skew(v):
-        S = np.zeros(v.shape[:-1] + (3, 3))
-        S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-        S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-        S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-        return S
+        self.idx = np.flatnonzero(~model.isotropic).astype(np.int64)
+        self.I = np.array(model.inertia_body[self.idx], float)
 
     def __call__(self, model, state, ctx) -> None:
-        k = self.idx
-        if k.size == 0:
-            return
-        h = ctx.h
-        R = ctx.R0[k]
-        wb = np.einsum("kji,kj->ki", R, ctx.w[k])
-        Iw = self.I * wb
-        f = h * cross(wb, Iw)
-        J = self.Imat + h * (np.einsum("kij,kjl->kil", self._skew(wb), self.Imat) - self._skew(Iw))
-        wb2 = wb - solve_batch(J, f)
-        ctx.w[k] = np.einsum("kij,kj->ki", R, wb2)
-
-
-# Yoshida's fourth-order triple jump for a symmetric second-order method
-_CBRT2 = 2.0 ** (1.0 / 3.0)
-YOSHIDA = (1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2))
-YOSHIDA_MAX = max(abs(g) for g in YOSHIDA)
+        if self.idx.size:
+            implicit_gyroscopic(self.idx, self.I, ctx.R0, ctx.w, ctx.h)
 
 
 def euler_coefficients(I: np.ndarray) -> np.ndarray:
@@ -275,8 +138,6 @@ def euler_coefficients(I: np.ndarray) -> np.ndarray:
     return np.stack([inv[:, 2] - inv[:, 1], inv[:, 0] - inv[:, 2], inv[:, 1] - inv[:, 0]], axis=1)
 
 
-_NEXT = np.array([1, 2, 0])
-_PREV = np.array([2, 0, 1])
 
 
 def free_rotation_midpoint(Lb: np.ndarray, q: np.ndarray, I: np.ndarray, h: float,
@@ -297,20 +158,10 @@ def free_rotation_midpoint(Lb: np.ndarray, q: np.ndarray, I: np.ndarray, h: floa
     rotation cay(h [wm]x), wm = Lm / I.  Returns (L1, q1)."""
     if E is None:
         E = euler_coefficients(I)
-    hE = 0.5 * h * E
-    Lm = Lb + hE * Lb[:, _NEXT] * Lb[:, _PREV]
-    scale = np.abs(Lb).max() + 1e-300
-    for _ in range(max_iter):
-        L_new = Lb + hE * Lm[:, _NEXT] * Lm[:, _PREV]
-        diff = np.abs(L_new - Lm).max()
-        Lm = L_new
-        if diff <= tol * scale:
-            break
-    qc = np.empty(q.shape)
-    qc[:, 0] = 1.0
-    qc[:, 1:] = (0.5 * h) * (Lm / I)
-    qc /= np.sqrt(np.einsum("ki,ki->k", qc, qc))[:, None]
-    return 2.0 * Lm - Lb, quat_mul(q, qc)
+    L1 = np.array(Lb, float)
+    q1 = np.array(q, float)
+    midpoint_rotation(L1, q1, np.array(I, float), np.array(E, float), h, tol, max_iter)
+    return L1, q1
 
 
 class EnergyConservingRotation(Stage):
@@ -326,42 +177,22 @@ class EnergyConservingRotation(Stage):
     family = "integrate"
 
     def __init__(self, model):
-        self.idx = np.flatnonzero(~model.isotropic)
-        self.I = model.inertia_body[self.idx]
+        self.idx = np.flatnonzero(~model.isotropic).astype(np.int64)
+        self.I = np.array(model.inertia_body[self.idx], float)
         self.inv_I = 1.0 / self.I
         self.E = euler_coefficients(self.I)
-        self.c = model.contact_lever
+        self.c = float(model.contact_lever)
 
     def __call__(self, model, state, ctx) -> None:
-        k = self.idx
-        if k.size == 0:
-            return
-        h = ctx.h
-        R0 = ctx.R0[k]
-        T = ctx.T_mean[k]
-        Lw = apply_world_inertia(R0, self.I, state.w[k]) + 0.5 * h * T
-        Lb = np.einsum("kji,kj->ki", R0, Lw)
-        q = state.q[k]
         # The midpoint fixed point contracts like |w| h: at game steps and
         # fast spins (150 rad/s at dt 1/30: |w| h = 5) it would diverge.  The
         # free rotation is therefore split into m equal parts with
         # |w| h |g|max / m <= 0.5; each part conserves E and L exactly, so
         # splitting only adds accuracy (m = 1 for ordinary spins).
-        wmax = float(np.sqrt(np.max(np.einsum("ki,ki->k", Lb * self.inv_I, Lb * self.inv_I))))
-        m = max(1, math.ceil(wmax * h * YOSHIDA_MAX / 0.5))
-        hs = h / m
-        for _ in range(m):
-            for g in YOSHIDA:
-                Lb, q = free_rotation_midpoint(Lb, q, self.I, g * hs, E=self.E)
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        R1 = quat_to_matrix(q)
-        Lw1 = np.einsum("kij,kj->ki", R1, Lb) + 0.5 * h * T
-        wb1 = np.einsum("kji,kj->ki", R1, Lw1) * self.inv_I
-        w1 = np.einsum("kij,kj->ki", R1, wb1)
-        ctx.q1[k] = q
-        ctx.w[k] = w1
-        ctx.w_free[k] = w1
-        ctx.u_ang[k] = (1.0 - self.c) * state.w[k] + self.c * w1
+        if self.idx.size:
+            energy_conserving_rotation(self.idx, self.I, self.inv_I, self.E, YOSHIDA, YOSHIDA_MAX, ctx.R0,
+                                       ctx.T_mean, state.w, state.q, ctx.h, self.c, ctx.q1, ctx.w, ctx.w_free,
+                                       ctx.u_ang)
 
 
 class IntegratePositions(Stage):
@@ -384,12 +215,5 @@ class IntegratePositions(Stage):
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
-        h = ctx.h
-        ch = self.c * h
-        dv = ctx.v[:n] - ctx.v_free
-        dw = ctx.w[:n] - ctx.w_free
-        ctx.x1 += ch * dv + h * ctx.vp[:n]
-        phi = ch * dw + h * ctx.wp[:n]
-        moved = np.flatnonzero(np.einsum("ki,ki->k", phi, phi) > 0.0)
-        if moved.size:
-            ctx.q1[moved] = rotate_world(ctx.q1[moved], phi[moved])
+        integrate_positions(ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free, ctx.vp[:n], ctx.wp[:n],
+                            ctx.h, self.c)

@@ -91,10 +91,50 @@ def warm_up() -> float:
                lt, zb.copy())
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
+    _warm_flight()
     dt = time.perf_counter() - t0
     _READY = True
     _PENDING += dt
     return dt
+
+
+def _warm_flight() -> None:
+    """The free-flight kernels (engine/flight.py) on two bodies, every
+    integrator, with and without a force that reads the pose."""
+    from engine import flight
+
+    nb = 2
+    x = np.zeros((nb, 3))
+    q = np.zeros((nb, 4))
+    q[:, 0] = 1.0
+    v = np.ones((nb, 3))
+    R = np.zeros((nb, 3, 3))
+    Iinv = np.zeros((nb + 1, 3, 3))
+    inv_I = np.ones((nb, 3))
+    flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
+    z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
+    idx = np.arange(nb, dtype=np.int64)
+    I = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
+    models = ((np.ones((nb, 3)), z1, z1, zi, zi, z3, z3, z1, z1, z1, zi, z3),
+              (z3, np.ones(nb), np.ones(nb), np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)),
+               np.ones((1, 3)), np.ones(1), np.ones(1), np.ones(1), idx, I))
+    F, T = np.zeros((nb, 3)), np.zeros((nb, 3))
+    vw = np.zeros((nb + 1, 3))
+    for fm in models:
+        flight.evaluate(fm, x, q, v, v, R, F, T)
+        for code in flight.METHOD.values():
+            flight.free_flight(code, True, False, True, fm, x, q, v, v.copy(), v, 0.01, F, T, R, np.ones(nb),
+                               inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
+                               np.zeros((16, nb, 4)))
+    flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
+    flight.implicit_gyroscopic(idx, I, R, vw, 0.01)
+    flight.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), flight.YOSHIDA, flight.YOSHIDA_MAX, R, F, v, q,
+                                      0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
+    flight.gravity(np.ones((nb, 3)), F)
+    flight.linear_drag(np.ones(nb), v, F)
+    flight.quadratic_drag(np.ones(nb), v, F)
+    flight.springs(*models[1][3:10], x, R, v, v, F, T)
+    flight.gyroscopic_torque(idx, I, R, v, T)
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.mathutil import quat_to_matrix
+from engine.flight import start_pose
 from engine.contact.scratch import Scratch
 from engine.model import Model
 
@@ -41,8 +41,8 @@ class State:
     def from_model(cls, model: Model) -> "State":
         x, q, v, w = model.x0.copy(), model.q0.copy(), model.v0.copy(), model.w0.copy()
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
-        return cls(x=np.ascontiguousarray(x, float), q=np.ascontiguousarray(q, float),
-                   v=np.ascontiguousarray(v, float), w=np.ascontiguousarray(w, float))
+        return cls(x=np.array(x, float), q=np.array(q, float),
+                   v=np.array(v, float), w=np.array(w, float))
 
 
 @dataclass(eq=False)
@@ -118,6 +118,7 @@ class Context:
         self.T = np.zeros((n, 3))
         self.R0 = np.zeros((n, 3, 3))
         self.Iinv0 = np.zeros((n + 1, 3, 3))
+        self._inv_I = np.array(model.inv_inertia_body[:n], float)
         # evaluation point for force stages (arrays of shape (n, 3)/(n, 4))
         self.ex = self.x1
         self.eq = self.q1
@@ -182,8 +183,6 @@ class Context:
         self.stop_allowed = False
         # force stages first evaluate at the start state
         self.ex, self.eq, self.ev, self.ew = state.x, state.q, state.v, state.w
-        self.R0[:] = quat_to_matrix(state.q)
+        # R0 and I_world^-1 = R diag(1/I) R^T (world row zero)
+        start_pose(state.q, self._inv_I, self.R0, self.Iinv0)
         self.eR = self.R0
-        # I_world^-1 = R diag(1/I) R^T
-        np.einsum("kij,kj,klj->kil", self.R0, model.inv_inertia_body[:n], self.R0, out=self.Iinv0[:n])
-        self.Iinv0[n] = 0.0

@@ -1,0 +1,584 @@
+"""Compiled free flight: the force kernels (one per smooth effect) and the
+integrators over all bodies in one call.
+
+Loops over bodies (and springs) with a fixed order, no BLAS (the bits do
+not depend on the BLAS kernel: tests/test_engine_blas_free.py).  Shapes:
+positions ``x`` (n, 3) m, orientations ``q`` (n, 4) wxyz, velocities
+``v``/``w`` (n, 3) world frame, rotations ``R`` (n, 3, 3), forces and
+torques ``F``/``T`` (n, 3) N, N m (world frame, about the centre of mass).
+
+The force model is a tuple of arrays (:func:`force_model`), the effects
+absent from a scene as empty arrays: ``mg`` (n, 3) or (0, 3) gravity
+forces; ``c_lin`` (n,) or (0,) linear drag N s/m; ``c_quad`` (n,) or (0,)
+quadratic drag N s^2/m^2; springs ``s_a``/``s_b`` (k,) body or -1 (the
+world), anchors ``s_pa``/``s_pb`` (k, 3) (body frame; world points for the
+world), ``s_k`` N/m, ``s_c`` N s/m, ``s_L0`` m (k,); the explicit
+gyroscopic torque on bodies ``g_idx`` (g,) with principal moments ``g_I``
+(g, 3).  Integrators: see engine/integrate.py (``METHOD`` codes).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from engine.contact.linalg import solve_batch
+
+METHOD = {"explicit_euler": 0, "semi_implicit_euler": 1, "midpoint": 2, "heun": 3, "rk4": 4, "velocity_verlet": 5}
+
+
+@njit(cache=True)
+def q2m(q, R):
+    """Rotation matrices R (n, 3, 3) of the quaternions q (n, 4) wxyz (the
+    arithmetic of mathutil.quat_to_matrix)."""
+    for k in range(q.shape[0]):
+        w, x, y, z = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+        R[k, 0, 0] = 1 - 2 * (y * y + z * z)
+        R[k, 0, 1] = 2 * (x * y - w * z)
+        R[k, 0, 2] = 2 * (x * z + w * y)
+        R[k, 1, 0] = 2 * (x * y + w * z)
+        R[k, 1, 1] = 1 - 2 * (x * x + z * z)
+        R[k, 1, 2] = 2 * (y * z - w * x)
+        R[k, 2, 0] = 2 * (x * z - w * y)
+        R[k, 2, 1] = 2 * (y * z + w * x)
+        R[k, 2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(cache=True)
+def gravity(mg, F):
+    """F += m g."""
+    for k in range(mg.shape[0]):
+        for c in range(3):
+            F[k, c] += mg[k, c]
+
+
+@njit(cache=True)
+def linear_drag(c_lin, v, F):
+    """F -= c v (Stokes drag)."""
+    for k in range(c_lin.shape[0]):
+        for c in range(3):
+            F[k, c] -= c_lin[k] * v[k, c]
+
+
+@njit(cache=True)
+def quadratic_drag(c_quad, v, F):
+    """F -= c |v| v."""
+    for k in range(c_quad.shape[0]):
+        s = c_quad[k] * math.sqrt(v[k, 0] * v[k, 0] + v[k, 1] * v[k, 1] + v[k, 2] * v[k, 2])
+        for c in range(3):
+            F[k, c] -= s * v[k, c]
+
+
+@njit(cache=True)
+def _end(i, anchor, x, R, v, w):
+    """World point, lever arm and point velocity of a spring end on body i
+    (i < 0: the world point ``anchor`` at rest)."""
+    if i < 0:
+        return anchor[0], anchor[1], anchor[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    rx = R[i, 0, 0] * anchor[0] + R[i, 0, 1] * anchor[1] + R[i, 0, 2] * anchor[2]
+    ry = R[i, 1, 0] * anchor[0] + R[i, 1, 1] * anchor[1] + R[i, 1, 2] * anchor[2]
+    rz = R[i, 2, 0] * anchor[0] + R[i, 2, 1] * anchor[1] + R[i, 2, 2] * anchor[2]
+    vx = v[i, 0] + (w[i, 1] * rz - w[i, 2] * ry)
+    vy = v[i, 1] + (w[i, 2] * rx - w[i, 0] * rz)
+    vz = v[i, 2] + (w[i, 0] * ry - w[i, 1] * rx)
+    return x[i, 0] + rx, x[i, 1] + ry, x[i, 2] + rz, rx, ry, rz, vx, vy, vz
+
+
+@njit(cache=True)
+def springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w, F, T):
+    """Hooke springs and dashpots between anchor points (see
+    forces.Springs): tension f = k (L - L0) + c (v_pb - v_pa) . u along
+    u = (p_b - p_a) / L (0 when L <= 1e-12 m); body a gets +f u at p_a,
+    body b -f u at p_b, with their torques r x F.  Forces on a are added
+    first over all springs, then those on b."""
+    k = s_a.shape[0]
+    fu = np.empty((k, 3))
+    for s in range(k):
+        pax, pay, paz, rax, ray, raz, vax, vay, vaz = _end(s_a[s], s_pa[s], x, R, v, w)
+        pbx, pby, pbz, rbx, rby, rbz, vbx, vby, vbz = _end(s_b[s], s_pb[s], x, R, v, w)
+        dx, dy, dz = pbx - pax, pby - pay, pbz - paz
+        L = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ux = uy = uz = 0.0
+        if L > 1e-12:
+            ux, uy, uz = dx / L, dy / L, dz / L
+        f = s_k[s] * (L - s_L0[s]) + s_c[s] * ((vbx - vax) * ux + (vby - vay) * uy + (vbz - vaz) * uz)
+        fu[s, 0], fu[s, 1], fu[s, 2] = f * ux, f * uy, f * uz
+        i = s_a[s]
+        if i >= 0:
+            F[i, 0] += fu[s, 0]
+            F[i, 1] += fu[s, 1]
+            F[i, 2] += fu[s, 2]
+            T[i, 0] += ray * fu[s, 2] - raz * fu[s, 1]
+            T[i, 1] += raz * fu[s, 0] - rax * fu[s, 2]
+            T[i, 2] += rax * fu[s, 1] - ray * fu[s, 0]
+    for s in range(k):
+        i = s_b[s]
+        if i < 0:
+            continue
+        pbx, pby, pbz, rbx, rby, rbz, vbx, vby, vbz = _end(i, s_pb[s], x, R, v, w)
+        F[i, 0] -= fu[s, 0]
+        F[i, 1] -= fu[s, 1]
+        F[i, 2] -= fu[s, 2]
+        T[i, 0] += rby * -fu[s, 2] - rbz * -fu[s, 1]
+        T[i, 1] += rbz * -fu[s, 0] - rbx * -fu[s, 2]
+        T[i, 2] += rbx * -fu[s, 1] - rby * -fu[s, 0]
+
+
+@njit(cache=True)
+def gyroscopic_torque(g_idx, g_I, R, w, T):
+    """T -= w x (I_world w), I_world w = R (I (R^T w)), on the bodies
+    ``g_idx``."""
+    for j in range(g_idx.shape[0]):
+        k = g_idx[j]
+        b0 = R[k, 0, 0] * w[k, 0] + R[k, 1, 0] * w[k, 1] + R[k, 2, 0] * w[k, 2]
+        b1 = R[k, 0, 1] * w[k, 0] + R[k, 1, 1] * w[k, 1] + R[k, 2, 1] * w[k, 2]
+        b2 = R[k, 0, 2] * w[k, 0] + R[k, 1, 2] * w[k, 1] + R[k, 2, 2] * w[k, 2]
+        b0 *= g_I[j, 0]
+        b1 *= g_I[j, 1]
+        b2 *= g_I[j, 2]
+        lx = R[k, 0, 0] * b0 + R[k, 0, 1] * b1 + R[k, 0, 2] * b2
+        ly = R[k, 1, 0] * b0 + R[k, 1, 1] * b1 + R[k, 1, 2] * b2
+        lz = R[k, 2, 0] * b0 + R[k, 2, 1] * b1 + R[k, 2, 2] * b2
+        T[k, 0] -= w[k, 1] * lz - w[k, 2] * ly
+        T[k, 1] -= w[k, 2] * lx - w[k, 0] * lz
+        T[k, 2] -= w[k, 0] * ly - w[k, 1] * lx
+
+
+@njit(cache=True)
+def evaluate(fm, x, q, v, w, R, F, T):
+    """F, T (zeroed first) of the force model ``fm`` at the state (x, q, v,
+    w); R (n, 3, 3) is filled from the normalised q when a force reads the
+    pose (springs, gyroscopic torque)."""
+    mg, c_lin, c_quad, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, g_idx, g_I = fm
+    F[:, :] = 0.0
+    T[:, :] = 0.0
+    if s_a.shape[0] or g_idx.shape[0]:
+        qn = np.empty((q.shape[0], 4))
+        for k in range(q.shape[0]):
+            s = math.sqrt(q[k, 0] ** 2 + q[k, 1] ** 2 + q[k, 2] ** 2 + q[k, 3] ** 2)
+            for c in range(4):
+                qn[k, c] = q[k, c] / s
+        q2m(qn, R)
+    gravity(mg, F)
+    linear_drag(c_lin, v, F)
+    quadratic_drag(c_quad, v, F)
+    springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w, F, T)
+    gyroscopic_torque(g_idx, g_I, R, w, T)
+
+
+@njit(cache=True)
+def _accel(F, T, R, inv_m, inv_I, torque, a, al):
+    """a = F / m; alpha = R (I^-1 (R^T T)) (0 without torques)."""
+    for k in range(F.shape[0]):
+        for c in range(3):
+            a[k, c] = F[k, c] * inv_m[k]
+        if not torque:
+            al[k, 0] = al[k, 1] = al[k, 2] = 0.0
+            continue
+        t0 = (R[k, 0, 0] * T[k, 0] + R[k, 1, 0] * T[k, 1] + R[k, 2, 0] * T[k, 2]) * inv_I[k, 0]
+        t1 = (R[k, 0, 1] * T[k, 0] + R[k, 1, 1] * T[k, 1] + R[k, 2, 1] * T[k, 2]) * inv_I[k, 1]
+        t2 = (R[k, 0, 2] * T[k, 0] + R[k, 1, 2] * T[k, 1] + R[k, 2, 2] * T[k, 2]) * inv_I[k, 2]
+        for c in range(3):
+            al[k, c] = R[k, c, 0] * t0 + R[k, c, 1] * t1 + R[k, c, 2] * t2
+
+
+@njit(cache=True)
+def _qd(w, q, k):
+    """dq/dt = 1/2 (0, w[k]) (x) q[k] (mathutil.quat_deriv)."""
+    wx, wy, wz = w[k, 0], w[k, 1], w[k, 2]
+    qw, qx, qy, qz = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+    d0 = -0.5 * (wx * qx + wy * qy + wz * qz)
+    d1 = 0.5 * (wx * qw + wy * qz - wz * qy)
+    d2 = 0.5 * (-wx * qz + wy * qw + wz * qx)
+    d3 = 0.5 * (wx * qy - wy * qx + wz * qw)
+    return d0, d1, d2, d3
+
+
+@njit(cache=True)
+def rotate(q, k, px, py, pz, out):
+    """out[k] = exp(phi) (x) q[k], renormalised (mathutil.rotate_world)."""
+    ang = math.sqrt(px * px + py * py + pz * pz)
+    half = 0.5 * ang
+    if ang < 1e-8:
+        s = 0.5 - ang * ang / 48.0
+    else:
+        s = math.sin(half) / ang
+    aw, ax, ay, az = math.cos(half), px * s, py * s, pz * s
+    bw, bx, by, bz = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+    w = aw * bw - ax * bx - ay * by - az * bz
+    x = aw * bx + ax * bw + ay * bz - az * by
+    y = aw * by - ax * bz + ay * bw + az * bx
+    z = aw * bz + ax * by - ay * bx + az * bw
+    nrm = math.sqrt(w * w + x * x + y * y + z * z)
+    out[k, 0], out[k, 1], out[k, 2], out[k, 3] = w / nrm, x / nrm, y / nrm, z / nrm
+
+
+@njit(cache=True)
+def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_start, h, F, T, R0, inv_m, inv_I, lever,
+                x1, q1, v1, w1, T_mean, u_lin, u_ang, work):
+    """The free flight over h (see engine/integrate.py): from (x0, q0, v0,
+    w0) with the forces F, T (n, 3) already evaluated there (R0 their
+    rotations), writes the end state (x1, q1, v1, w1), the step's mean
+    torque ``T_mean`` (the method's weights), the mean velocities u_lin =
+    (x1 - x0) / h and u_ang = (1 - lever) w_start + lever w1.  Forces are
+    re-evaluated at the method's intermediate states unless ``constant``
+    (then they equal the start's).  ``work`` (16, n, 4) scratch."""
+    n = x0.shape[0]
+    a0, al0 = work[0, :, :3], work[1, :, :3]
+    a1, al1 = work[2, :, :3], work[3, :, :3]
+    xs, qs, vs, ws = work[4, :, :3], work[5], work[6, :, :3], work[7, :, :3]
+    Fs, Ts = work[8, :, :3], work[9, :, :3]
+    Rs = np.empty((n, 3, 3))
+    T1 = work[10, :, :3]
+    T2 = work[11, :, :3]
+    T3 = work[12, :, :3]
+    Sw = work[13, :, :3]
+    Sq = work[14]
+    Sx = work[15, :, :3]
+    Sv = np.empty((n, 3))
+    if not has_forces:
+        for k in range(n):
+            for c in range(3):
+                x1[k, c] = v0[k, c] * h + x0[k, c]
+                v1[k, c] = v0[k, c]
+                w1[k, c] = w0[k, c]
+                T_mean[k, c] = 0.0
+            rotate(q0, k, h * w0[k, 0], h * w0[k, 1], h * w0[k, 2], q1)
+    else:
+        _accel(F, T, R0, inv_m, inv_I, torque, a0, al0)
+        hh = 0.5 * h
+        if method == 0 or method == 1:  # explicit / semi-implicit Euler
+            for k in range(n):
+                d0, d1, d2, d3 = _qd(w0, q0, k)
+                for c in range(3):
+                    v1[k, c] = v0[k, c] + h * a0[k, c]
+                    w1[k, c] = w0[k, c] + h * al0[k, c]
+                    T_mean[k, c] = T[k, c]
+                if method == 0:
+                    for c in range(3):
+                        x1[k, c] = x0[k, c] + h * v0[k, c]
+                    q1[k, 0] = q0[k, 0] + h * d0
+                    q1[k, 1] = q0[k, 1] + h * d1
+                    q1[k, 2] = q0[k, 2] + h * d2
+                    q1[k, 3] = q0[k, 3] + h * d3
+                else:
+                    for c in range(3):
+                        x1[k, c] = x0[k, c] + h * v1[k, c]
+                    rotate(q0, k, h * w1[k, 0], h * w1[k, 1], h * w1[k, 2], q1)
+        elif method == 2 or method == 3:  # midpoint / Heun: one intermediate state
+            s = hh if method == 2 else h
+            for k in range(n):
+                d0, d1, d2, d3 = _qd(w0, q0, k)
+                qs[k, 0] = q0[k, 0] + s * d0
+                qs[k, 1] = q0[k, 1] + s * d1
+                qs[k, 2] = q0[k, 2] + s * d2
+                qs[k, 3] = q0[k, 3] + s * d3
+                for c in range(3):
+                    xs[k, c] = x0[k, c] + s * v0[k, c]
+                    vs[k, c] = v0[k, c] + s * a0[k, c]
+                    ws[k, c] = w0[k, c] + s * al0[k, c]
+            if constant:
+                a1[:, :] = a0
+                al1[:, :] = al0
+                T1[:, :] = T
+            else:
+                evaluate(fm, xs, qs, vs, ws, Rs, Fs, Ts)
+                _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
+                T1[:, :] = Ts
+            for k in range(n):
+                if method == 2:
+                    d0, d1, d2, d3 = _qd(ws, qs, k)
+                    q1[k, 0] = q0[k, 0] + h * d0
+                    q1[k, 1] = q0[k, 1] + h * d1
+                    q1[k, 2] = q0[k, 2] + h * d2
+                    q1[k, 3] = q0[k, 3] + h * d3
+                    for c in range(3):
+                        x1[k, c] = x0[k, c] + h * vs[k, c]
+                        v1[k, c] = v0[k, c] + h * a1[k, c]
+                        w1[k, c] = w0[k, c] + h * al1[k, c]
+                        T_mean[k, c] = T1[k, c]
+                else:
+                    e0, e1, e2, e3 = _qd(w0, q0, k)
+                    d0, d1, d2, d3 = _qd(ws, qs, k)
+                    q1[k, 0] = q0[k, 0] + hh * (e0 + d0)
+                    q1[k, 1] = q0[k, 1] + hh * (e1 + d1)
+                    q1[k, 2] = q0[k, 2] + hh * (e2 + d2)
+                    q1[k, 3] = q0[k, 3] + hh * (e3 + d3)
+                    for c in range(3):
+                        x1[k, c] = x0[k, c] + hh * (v0[k, c] + vs[k, c])
+                        v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
+                        w1[k, c] = w0[k, c] + hh * (al0[k, c] + al1[k, c])
+                        T_mean[k, c] = 0.5 * (T[k, c] + T1[k, c])
+        elif method == 4:  # rk4
+            # slopes K_j = [v, dq/dt, a, alpha] of the stages, summed as
+            # K1 + 2 K2 + 2 K3 + K4 in that order
+            ka, kal = a0, al0
+            for k in range(n):  # K1
+                d0, d1, d2, d3 = _qd(w0, q0, k)
+                Sq[k, 0], Sq[k, 1], Sq[k, 2], Sq[k, 3] = d0, d1, d2, d3
+                for c in range(3):
+                    Sx[k, c] = v0[k, c]
+                    Sv[k, c] = a0[k, c]
+                    Sw[k, c] = al0[k, c]
+            for stage in range(3):
+                s = hh if stage < 2 else h
+                Tx = T1 if stage == 0 else (T2 if stage == 1 else T3)
+                # Y = Y0 + s K (K the last slope)
+                for k in range(n):
+                    if stage == 0:
+                        d0, d1, d2, d3 = _qd(w0, q0, k)
+                        kv = v0
+                    else:
+                        d0, d1, d2, d3 = _qd(ws, qs, k)
+                        kv = vs
+                    kx0, kx1, kx2 = kv[k, 0], kv[k, 1], kv[k, 2]
+                    qs[k, 0] = q0[k, 0] + s * d0
+                    qs[k, 1] = q0[k, 1] + s * d1
+                    qs[k, 2] = q0[k, 2] + s * d2
+                    qs[k, 3] = q0[k, 3] + s * d3
+                    xs[k, 0] = x0[k, 0] + s * kx0
+                    xs[k, 1] = x0[k, 1] + s * kx1
+                    xs[k, 2] = x0[k, 2] + s * kx2
+                    for c in range(3):
+                        vs[k, c] = v0[k, c] + s * ka[k, c]
+                        ws[k, c] = w0[k, c] + s * kal[k, c]
+                if constant:
+                    a1[:, :] = a0
+                    al1[:, :] = al0
+                    Tx[:, :] = T
+                else:
+                    evaluate(fm, xs, qs, vs, ws, Rs, Fs, Ts)
+                    _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
+                    Tx[:, :] = Ts
+                wgt = 2.0 if stage < 2 else 1.0
+                for k in range(n):
+                    d0, d1, d2, d3 = _qd(ws, qs, k)
+                    Sq[k, 0] += wgt * d0
+                    Sq[k, 1] += wgt * d1
+                    Sq[k, 2] += wgt * d2
+                    Sq[k, 3] += wgt * d3
+                    for c in range(3):
+                        Sx[k, c] += wgt * vs[k, c]
+                        Sv[k, c] += wgt * a1[k, c]
+                        Sw[k, c] += wgt * al1[k, c]
+                ka, kal = a1.copy(), al1.copy()
+            h6 = h / 6.0
+            for k in range(n):
+                for c in range(3):
+                    x1[k, c] = x0[k, c] + h6 * Sx[k, c]
+                    v1[k, c] = v0[k, c] + h6 * Sv[k, c]
+                    w1[k, c] = w0[k, c] + h6 * Sw[k, c]
+                    T_mean[k, c] = (T[k, c] + 2 * T1[k, c] + 2 * T2[k, c] + T3[k, c]) / 6.0
+                for c in range(4):
+                    q1[k, c] = q0[k, c] + h6 * Sq[k, c]
+        else:  # velocity Verlet
+            hh2 = hh * h
+            for k in range(n):
+                for c in range(3):
+                    x1[k, c] = x0[k, c] + h * v0[k, c] + hh2 * a0[k, c]
+                    vs[k, c] = v0[k, c] + h * a0[k, c]
+                    ws[k, c] = w0[k, c] + h * al0[k, c]
+                rotate(q0, k, h * (w0[k, 0] + hh * al0[k, 0]), h * (w0[k, 1] + hh * al0[k, 1]),
+                       h * (w0[k, 2] + hh * al0[k, 2]), q1)
+            if constant:
+                a1[:, :] = a0
+                al1[:, :] = al0
+                T1[:, :] = T
+            else:
+                evaluate(fm, x1, q1, vs, ws, Rs, Fs, Ts)
+                _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
+                T1[:, :] = Ts
+            for k in range(n):
+                for c in range(3):
+                    v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
+                    w1[k, c] = w0[k, c] + hh * (al0[k, c] + al1[k, c])
+                    T_mean[k, c] = 0.5 * (T[k, c] + T1[k, c])
+        for k in range(n):  # renormalise
+            s = math.sqrt(q1[k, 0] ** 2 + q1[k, 1] ** 2 + q1[k, 2] ** 2 + q1[k, 3] ** 2)
+            for c in range(4):
+                q1[k, c] /= s
+    for k in range(n):
+        for c in range(3):
+            u_lin[k, c] = (x1[k, c] - x0[k, c]) / h
+            u_ang[k, c] = (1.0 - lever) * w_start[k, c] + lever * w1[k, c]
+
+
+@njit(cache=True)
+def start_pose(q, inv_I, R0, Iinv0):
+    """Rotations R0 (n, 3, 3) of q (n, 4) and world inverse inertias
+    Iinv0[:n] = R diag(1/I) R^T (``inv_I`` (n, 3)); the world's row n zero."""
+    n = q.shape[0]
+    q2m(q, R0)
+    for k in range(n):
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for c in range(3):
+                    s += R0[k, i, c] * inv_I[k, c] * R0[k, j, c]
+                Iinv0[k, i, j] = s
+    Iinv0[n, :, :] = 0.0
+
+
+@njit(cache=True)
+def integrate_positions(x1, q1, v1, w1, v_free, w_free, vp, wp, h, lever):
+    """The contact solve's position effect (see integrate.IntegratePositions):
+    x1 += lever h dv + h vp; q1 <- exp(lever h dw + h wp) (x) q1 where that
+    rotation is not zero; dv = v1 - v_free, dw = w1 - w_free (n, 3)."""
+    ch = lever * h
+    for k in range(x1.shape[0]):
+        for c in range(3):
+            x1[k, c] += ch * (v1[k, c] - v_free[k, c]) + h * vp[k, c]
+        px = ch * (w1[k, 0] - w_free[k, 0]) + h * wp[k, 0]
+        py = ch * (w1[k, 1] - w_free[k, 1]) + h * wp[k, 1]
+        pz = ch * (w1[k, 2] - w_free[k, 2]) + h * wp[k, 2]
+        if px * px + py * py + pz * pz > 0.0:
+            rotate(q1, k, px, py, pz, q1)
+
+
+@njit(cache=True)
+def implicit_gyroscopic(idx, I, R0, w, h):
+    """Catto's implicit gyroscopic update of w (n+1, 3) in place on the
+    bodies ``idx`` (principal moments ``I`` (g, 3)): one Newton iteration on
+    I (w2 - w1) + h w2 x I w2 = 0 in the body frame,
+    J = I + h ([w1]x I - [I w1]x), w2 = w1 - J^-1 (h w1 x I w1)."""
+    g = idx.shape[0]
+    Jm = np.zeros((g, 3, 3))
+    f = np.empty((g, 3))
+    wb = np.empty((g, 3))
+    for j in range(g):
+        k = idx[j]
+        for i in range(3):
+            wb[j, i] = R0[k, 0, i] * w[k, 0] + R0[k, 1, i] * w[k, 1] + R0[k, 2, i] * w[k, 2]
+        b0, b1, b2 = wb[j, 0], wb[j, 1], wb[j, 2]
+        l0, l1, l2 = I[j, 0] * b0, I[j, 1] * b1, I[j, 2] * b2
+        f[j, 0] = h * (b1 * l2 - b2 * l1)
+        f[j, 1] = h * (b2 * l0 - b0 * l2)
+        f[j, 2] = h * (b0 * l1 - b1 * l0)
+        # [wb]x I - [I wb]x
+        S = ((0.0, -b2, b1), (b2, 0.0, -b0), (-b1, b0, 0.0))
+        L = ((0.0, -l2, l1), (l2, 0.0, -l0), (-l1, l0, 0.0))
+        for r in range(3):
+            for c in range(3):
+                Jm[j, r, c] = (I[j, r] if r == c else 0.0) + h * (S[r][c] * I[j, c] - L[r][c])
+    d = solve_batch(Jm, f)
+    for j in range(g):
+        k = idx[j]
+        b0, b1, b2 = wb[j, 0] - d[j, 0], wb[j, 1] - d[j, 1], wb[j, 2] - d[j, 2]
+        for i in range(3):
+            w[k, i] = R0[k, i, 0] * b0 + R0[k, i, 1] * b1 + R0[k, i, 2] * b2
+
+
+#: Yoshida's fourth-order triple jump for a symmetric second-order method
+_CBRT2 = 2.0 ** (1.0 / 3.0)
+YOSHIDA = (1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2))
+YOSHIDA_MAX = max(abs(g) for g in YOSHIDA)
+
+
+@njit(cache=True)
+def midpoint_rotation(Lb, q, I, E, h, tol, max_iter):
+    """One implicit-midpoint Lie-Poisson step of the torque-free rigid body
+    for all rows of ``Lb`` (g, 3) body angular momentum and ``q`` (g, 4), in
+    place (see integrate.free_rotation_midpoint): Lm = L0 + h/2 E * (Lm1
+    Lm2, Lm2 Lm0, Lm0 Lm1) by fixed-point iteration from the explicit
+    predictor, until the largest change is below tol max|L0|; then
+    L1 = 2 Lm - L0, q1 = q0 (x) normalize(1, h Lm / (2 I))."""
+    g = Lb.shape[0]
+    Lm = np.empty((g, 3))
+    Ln = np.empty((g, 3))
+    hE = np.empty((g, 3))
+    scale = 0.0
+    for j in range(g):
+        for c in range(3):
+            hE[j, c] = 0.5 * h * E[j, c]
+            scale = max(scale, abs(Lb[j, c]))
+        Lm[j, 0] = Lb[j, 0] + hE[j, 0] * Lb[j, 1] * Lb[j, 2]
+        Lm[j, 1] = Lb[j, 1] + hE[j, 1] * Lb[j, 2] * Lb[j, 0]
+        Lm[j, 2] = Lb[j, 2] + hE[j, 2] * Lb[j, 0] * Lb[j, 1]
+    scale += 1e-300
+    for _ in range(max_iter):
+        diff = 0.0
+        for j in range(g):
+            Ln[j, 0] = Lb[j, 0] + hE[j, 0] * Lm[j, 1] * Lm[j, 2]
+            Ln[j, 1] = Lb[j, 1] + hE[j, 1] * Lm[j, 2] * Lm[j, 0]
+            Ln[j, 2] = Lb[j, 2] + hE[j, 2] * Lm[j, 0] * Lm[j, 1]
+            for c in range(3):
+                diff = max(diff, abs(Ln[j, c] - Lm[j, c]))
+        Lm[:, :] = Ln
+        if diff <= tol * scale:
+            break
+    for j in range(g):
+        c1 = (0.5 * h) * (Lm[j, 0] / I[j, 0])
+        c2 = (0.5 * h) * (Lm[j, 1] / I[j, 1])
+        c3 = (0.5 * h) * (Lm[j, 2] / I[j, 2])
+        s = math.sqrt(1.0 + c1 * c1 + c2 * c2 + c3 * c3)
+        bw, bx, by, bz = 1.0 / s, c1 / s, c2 / s, c3 / s
+        aw, ax, ay, az = q[j, 0], q[j, 1], q[j, 2], q[j, 3]
+        q[j, 0] = aw * bw - ax * bx - ay * by - az * bz
+        q[j, 1] = aw * bx + ax * bw + ay * bz - az * by
+        q[j, 2] = aw * by - ax * bz + ay * bw + az * bx
+        q[j, 3] = aw * bz + ax * by - ay * bx + az * bw
+        for c in range(3):
+            Lb[j, c] = 2.0 * Lm[j, c] - Lb[j, c]
+
+
+@njit(cache=True)
+def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free,
+                               u_ang):
+    """The energy-conserving rotation stage (integrate.EnergyConservingRotation)
+    on the bodies ``idx`` (principal moments ``I``, ``inv_I``, Euler
+    coefficients ``E`` (g, 3)): half a kick of the mean torque on the world
+    angular momentum, the composed midpoint free rotation in m equal parts
+    with |w| h max|yoshida| / m <= 0.5, the other half kick; writes q1,
+    w, w_free, u_ang on those bodies."""
+    g = idx.shape[0]
+    Lb = np.empty((g, 3))
+    q = np.empty((g, 4))
+    wmax2 = 0.0
+    for j in range(g):
+        k = idx[j]
+        wb0 = R0[k, 0, 0] * w0[k, 0] + R0[k, 1, 0] * w0[k, 1] + R0[k, 2, 0] * w0[k, 2]
+        wb1 = R0[k, 0, 1] * w0[k, 0] + R0[k, 1, 1] * w0[k, 1] + R0[k, 2, 1] * w0[k, 2]
+        wb2 = R0[k, 0, 2] * w0[k, 0] + R0[k, 1, 2] * w0[k, 1] + R0[k, 2, 2] * w0[k, 2]
+        i0, i1, i2 = I[j, 0] * wb0, I[j, 1] * wb1, I[j, 2] * wb2
+        Lw = np.empty(3)
+        for c in range(3):
+            Lw[c] = (R0[k, c, 0] * i0 + R0[k, c, 1] * i1 + R0[k, c, 2] * i2) + 0.5 * h * T_mean[k, c]
+        s = 0.0
+        for c in range(3):
+            Lb[j, c] = R0[k, 0, c] * Lw[0] + R0[k, 1, c] * Lw[1] + R0[k, 2, c] * Lw[2]
+            v = Lb[j, c] * inv_I[j, c]
+            s += v * v
+        wmax2 = max(wmax2, s)
+        for c in range(4):
+            q[j, c] = q0[k, c]
+    x = math.sqrt(wmax2) * h * ymax / 0.5
+    m = 1
+    if x > 1.0 and math.isfinite(x):
+        m = int(math.ceil(x))
+    hs = h / m
+    for _ in range(m):
+        for gy in yoshida:
+            midpoint_rotation(Lb, q, I, E, gy * hs, 1e-15, 100)
+    R1 = np.empty((g, 3, 3))
+    for j in range(g):
+        s = math.sqrt(q[j, 0] ** 2 + q[j, 1] ** 2 + q[j, 2] ** 2 + q[j, 3] ** 2)
+        for c in range(4):
+            q[j, c] /= s
+    q2m(q, R1)
+    for j in range(g):
+        k = idx[j]
+        Lw = np.empty(3)
+        for c in range(3):
+            Lw[c] = (R1[j, c, 0] * Lb[j, 0] + R1[j, c, 1] * Lb[j, 1] + R1[j, c, 2] * Lb[j, 2]) + 0.5 * h * T_mean[k, c]
+        wb = np.empty(3)
+        for c in range(3):
+            wb[c] = (R1[j, 0, c] * Lw[0] + R1[j, 1, c] * Lw[1] + R1[j, 2, c] * Lw[2]) * inv_I[j, c]
+        for c in range(3):
+            w1 = R1[j, c, 0] * wb[0] + R1[j, c, 1] * wb[1] + R1[j, c, 2] * wb[2]
+            w[k, c] = w1
+            w_free[k, c] = w1
+            u_ang[k, c] = (1.0 - lever) * w0[k, c] + lever * w1
+        for c in range(4):
+            q1[k, c] = q[j, c]
