@@ -43,7 +43,8 @@ from engine.mathutil import quat_to_matrix
 from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
 from engine.profile import Stage
-from engine.solver import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, impact_solve, point_normal_velocity
+from engine.contact.impact import impact_solve
+from engine.contact.rows import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, point_normal_velocity
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time

@@ -28,7 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from engine.profile import Stage
-from engine.solver import Rows, _pad, point_normal_velocity
+from engine.contact.rows import Rows, _pad, point_normal_velocity
 
 PERIODS = 20.0
 

@@ -1,5 +1,5 @@
-"""Compiled warm start (the warm-start phase) and its cache (the store
-phase).
+"""The warm start (the warm-start phase) and its cache (the store phase):
+compiled matching and filling, the cache dataclass and the phases' calls.
 
 The cache a solve leaves (solver.WarmCache) is sorted by pair code:
 ``o_code`` (k,) the pair code of each cached point, ``o_loc`` (k, 3) m its
@@ -10,8 +10,16 @@ torque ``u_tw`` (p,) N m and rolling torque ``u_rr`` (p, 3) N m.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
+
+from engine.contact.rows import Rows
+
+_NO_I = np.zeros(0, np.int64)
+_NO_T = np.zeros((0, 2, 3))
+_NO_LT = np.zeros((0, 3))
 
 
 @njit(cache=True)
@@ -92,3 +100,57 @@ def store(order, codes, loc, lam_n, touch, first, uniq_pid, friction, rolling, l
                 if rolling:
                     u_rr[g, c] = (lam_t[p, 3] * t[p, 0, c] + lam_t[p, 4] * t[p, 1, c]) / h
             u_tw[g] = lam_t[p, 2] / h
+
+
+def warm_start(model, old: "WarmCache", rows: Rows, h: float) -> None:
+    """Each row takes the cached force of the nearest cached point of its
+    pair (in body a's frame) within 0.1 bounding radius + 0.1 mm; a patch
+    with a matched point takes its pair's cached friction force and twist
+    (:func:`engine.contact.warm.match`)."""
+    topo = rows.topo
+    f = rows.friction
+    match(topo.codes, rows.loc, rows.a, model.bound_radius, old.codes, old.loc, old.fn, old.pairs, old.ft,
+               old.tw, old.rr, h, rows.lam_n, f, f and rows.rolling, topo.pid if f else _NO_I,
+               rows.t if f else _NO_T, rows.lam_t if f else _NO_LT, np.zeros(rows.np if f else 0, np.bool_))
+
+
+def store_forces(rows: Rows, h: float, touching: np.ndarray) -> "WarmCache":
+    """The cache of the solve's forces for the next step's warm start
+    (``touching`` (k,) bool over the stage's contacts: the rows that were
+    touching at the start of the step -- a point pressed *at rest* only if
+    it was; a speculative row that pressed to land its point exactly on the
+    surface did not rest).  Its arrays are its own: the step loop restores
+    an older cache for its reruns (pipeline._substep)."""
+    topo = rows.topo
+    m, p = rows.m, topo.uniq_codes.size
+    f = rows.friction
+    out = WarmCache(np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(p, np.int64),
+                    np.empty((p, 3)), np.empty(p), np.empty((p, 3)), np.empty(m, np.bool_))
+    store(topo.code_order, topo.codes, rows.loc, rows.lam_n, touching[rows.idx], topo.code_first,
+               topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT,
+               rows.t if f else _NO_T, h, out.codes, out.loc, out.fn, out.touch, out.pairs, out.ft, out.tw, out.rr)
+    return out
+
+
+@dataclass(eq=False)
+class WarmCache:
+    """The warm-start cache a solve leaves for the next step, as arrays
+    sorted by pair code: ``codes`` (k,) the pair code of each cached point,
+    ``loc`` (k, 3) m its point in body a's frame, ``fn`` (k,) N its normal
+    force, ``pairs`` (p,) the distinct pair codes, ``ft`` (p, 3) N their
+    friction forces, ``tw`` (p,) N m twist torques, ``rr`` (p, 3) N m
+    rolling torques (zero without rolling friction), ``touch`` (k,) bool
+    whether the point touched at the start of its step."""
+
+    codes: np.ndarray
+    loc: np.ndarray
+    fn: np.ndarray
+    pairs: np.ndarray
+    ft: np.ndarray
+    tw: np.ndarray
+    rr: np.ndarray
+    touch: np.ndarray
+
+    @property
+    def packed(self) -> tuple:
+        return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
