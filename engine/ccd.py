@@ -44,6 +44,7 @@ from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
+from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
 from engine.contact.rows import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, point_normal_velocity
 
 TOI_TOL = 1e-9  # m
@@ -56,13 +57,12 @@ MISS_TOL = 2e-4
 
 
 class CCD(Stage):
-    """Pick the earliest impact of the step as ``ctx.event`` =
-    (tau estimate, a, b, static index, the pair's impact points in body a's
-    frame (k, 3) m, their feature ids to follow or None
-    (:func:`pair_gap`), whether it is a missed impact
-    (:func:`missed_impacts`), the points to leave out (:func:`pair_gap`) or
-    None, the step's other impact pairs as a tuple of (a, b, static index,
-    points, feature ids, missed, left out))."""
+    """Pick the earliest impact of the step as ``ctx.event``
+    (:class:`engine.control.Event`: the first estimate of its time, the
+    pair to follow -- its impact points in body a's frame, feature ids to
+    follow (:func:`pair_gap`), whether it is a missed impact
+    (:func:`missed_impacts`), the points to leave out -- and the step's
+    other impact pairs)."""
 
     name = "ccd"
     family = "ccd"
@@ -77,12 +77,12 @@ class CCD(Stage):
 
     def __call__(self, model, state, ctx) -> None:
         ctx.event = None
-        if ctx.event_mode != "event":
+        if ctx.event_mode is not EventMode.EVENT:
             return
         pairs = []
         t = ctx.h
         if ctx.impacts is not None:
-            idx, tau = ctx.impacts
+            idx, tau = ctx.impacts.rows, ctx.impacts.tau
             j = int(np.argmin(tau))
             c = ctx.contacts
             t = float(min(max(tau[j], 0.0), ctx.h))
@@ -94,8 +94,8 @@ class CCD(Stage):
             for k in [int(idx[j])] + [int(idx[i]) for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
                 a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
                 same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]
-                pairs.append((a, b, sidx, np.einsum("ki,ij->kj", c.point[same] - state.x[a], ctx.R0[a]), _follow_fids(model, a, b, sidx, c.fid[same]),
-                              False, None))
+                pairs.append(ImpactPair(a, b, sidx, np.einsum("ki,ij->kj", c.point[same] - state.x[a], ctx.R0[a]),
+                                        _follow_fids(model, a, b, sidx, c.fid[same]), False, None))
             skip = code
         else:
             skip = np.zeros(0, np.int64)
@@ -105,9 +105,9 @@ class CCD(Stage):
             ctx.profile.count("missed_impacts", len(missed))
             if not pairs:
                 t = missed[0][0]
-            pairs += [(*m[1:6], True, m[6]) for m in missed]
+            pairs += [ImpactPair(*m[1:6], True, m[6]) for m in missed]
         if pairs:
-            ctx.event = (t, *pairs[0], tuple(pairs[1:]))
+            ctx.event = Event(t, pairs[0], tuple(pairs[1:]))
 
 
 def _stable_features(model, a: int, b: int, sidx: int) -> bool:
@@ -197,7 +197,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     code0 = _pair_codes(model, c0) if c0 is not None and c0.m else np.zeros(0, np.int64)
     imp_row = np.zeros(code0.size, bool)
     if ctx.impacts is not None:
-        imp_row[ctx.impacts[0]] = True
+        imp_row[ctx.impacts.rows] = True
     out = []
     for u, first in zip(*np.unique(code, return_index=True)):
         if int(u) in ctx.missed_skip:
@@ -330,49 +330,51 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
     holds off through other contacts hovers just clear, and the search ran
     to the end of the step while a box corner elsewhere went 18.5 mm into
     the floor) becomes the followed pair, searched for before that time.
-    ``ctx.toi_pair``: (a, b, static index, whether it is a missed impact)
-    of the pair followed in the end; ``ctx.toi_clear``: whether that pair
-    was still clear at the end of the (mini-)step (no impact in it)."""
+    ``ctx.toi``: the pair followed in the end and whether it was still
+    clear at the end of the (mini-)step (:class:`engine.control.TimeOfImpact`)."""
     h_full = ctx.h
-    tau, a, b, sidx, loc, fids, miss, excl, others = ctx.event
+    ev = ctx.event
+    tau, pair, others = ev.tau, ev.pair, ev.others
     lo, hi = 0.0, h_full
     ctx.reuse_contacts = True
-    ctx.drop_rows = ctx.impacts[0] if ctx.impacts is not None else np.zeros(0, np.int64)
+    ctx.drop_rows = ctx.impacts.rows if ctx.impacts is not None else np.zeros(0, np.int64)
+    clear = False
     try:
         for _ in range(len(others) + 1):
-            tau = _search(model, state, ctx, main_stages, profile, (a, b, sidx, loc, fids, excl), tau, lo, hi, h_full)
+            tau, clear = _search(model, state, ctx, main_stages, profile, pair, tau, lo, hi, h_full)
             if not others:
                 break
             worst, g_worst = None, -TOI_TOL
             for q in others:
-                g, _ = pair_gap(model, ctx, q[0], q[1], q[2], q[3], q[6], q[4])
+                g, _ = pair_gap(model, ctx, q.a, q.b, q.sidx, q.loc, q.excl, q.fids)
                 if g < g_worst:
                     worst, g_worst = q, g
             if worst is None:
                 break
             profile.count("toi_switches")
             others = tuple(q for q in others if q is not worst)
-            a, b, sidx, loc, fids, miss, excl = worst
+            pair = worst
             lo, hi = 0.0, tau
             tau = 0.5 * tau
     finally:
         ctx.reuse_contacts = False
         ctx.drop_rows = None
-    ctx.toi_pair = (a, b, sidx, miss)
+    ctx.toi = TimeOfImpact(pair, clear)
     return tau
 
 
 def _search(model, state, ctx, main_stages, profile, pair, tau: float, lo: float, hi: float,
-            h_full: float) -> float:
+            h_full: float) -> tuple[float, bool]:
     """Newton's method on the followed pair's gap, safeguarded by bisection
     in [lo, hi] within the (mini-)step of length h_full (see module doc);
-    leaves the context at the returned tau."""
-    a, b, sidx, loc, fids, excl = pair
+    leaves the context at the returned tau.  Returns (tau, whether the
+    pair was still clear at the end of the (mini-)step)."""
+    a, b, sidx, loc, fids, excl = pair.a, pair.b, pair.sidx, pair.loc, pair.fids, pair.excl
     thr = float(model.settings["restitution_threshold"])
     tau = min(max(tau, lo), hi)
     g = np.inf
     converged = False
-    ctx.toi_clear = False
+    clear = False
     end_tried = tau >= h_full
     for it in range(TOI_MAX_ITER):
         g_prev = g
@@ -408,7 +410,7 @@ def _search(model, state, ctx, main_stages, profile, pair, tau: float, lo: float
             if tau >= h_full:
                 # still clear at the end of the (mini-)step: no impact in it
                 converged = True
-                ctx.toi_clear = True
+                clear = True
                 break
             lo = tau
         else:
@@ -439,13 +441,13 @@ def _search(model, state, ctx, main_stages, profile, pair, tau: float, lo: float
         # 14 mm.)
         tau = lo
         _rerun(model, state, ctx, main_stages, profile, tau)
-    return tau
+    return tau, clear
 
 
 def _rerun(model, state, ctx, stages, profile, tau: float) -> None:
     mode = ctx.event_mode
     ctx.begin(model, state, tau)
-    ctx.event_mode = "drop"  # the impact itself must not be constrained on the way
+    ctx.event_mode = EventMode.DROP  # the impact itself must not be constrained on the way
     for s in stages:
         if s.family in ("broadphase", "narrowphase", "ccd"):
             continue

@@ -25,6 +25,7 @@ from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.collision import NarrowPhase
+from engine.control import EventMode
 from engine.broadphase import BroadPhase
 from engine.penalty import PenaltyContacts
 from engine.profile import Profile, Stage
@@ -202,7 +203,7 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     while True:
         warm0 = state.warm
         ctx.begin(model, state, remaining)
-        ctx.event_mode = "event" if (impact is not None and events < max_events) else "speculative"
+        ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
         ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
         for s in main:
             profile.run(s, model, state, ctx)
@@ -227,13 +228,13 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
             _commit(model, state, ctx, remaining)
             break
         clear = False
-        if ctx.event[0] <= 1e-9 * h:
+        if ctx.event.tau <= 1e-9 * h:
             tau = 0.0
         else:
             tau = refine_toi(model, state, ctx, main, profile)
-            clear = ctx.toi_clear
-            a, b, sidx, missed = ctx.toi_pair
-            if missed and tau <= 1e-9 * h:
+            clear = ctx.toi.clear
+            p = ctx.toi.pair
+            if p.missed and tau <= 1e-9 * h:
                 # a missed impact (ccd.missed_impacts) with no time to it:
                 # the points it follows were in contact at the start already
                 # -- a contact going on (a capsule rolling at 1/60 s brings
@@ -241,7 +242,7 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
                 # the body's frame), whose overlap is position correction's.
                 # As an event it made no progress, 32 times over.  The
                 # mini-step runs again without it.
-                ctx.missed_skip.add(int(_pair_codes_abs(model, a, b, sidx)))
+                ctx.missed_skip.add(int(_pair_codes_abs(model, p.a, p.b, p.sidx)))
                 profile.count("missed_dropped")
                 state.warm = warm0
                 continue

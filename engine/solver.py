@@ -54,6 +54,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.contact import prepare
+from engine.control import EventMode, Impacts
 from engine.contact.impact import impact_solve  # noqa: F401
 from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
     ACTIVE_SET_PASSES,
@@ -105,8 +106,8 @@ TOPOLOGY_CACHE = 8
 class Solve(Stage):
     """Sequential-impulse contact solve on the end-of-step velocities (see
     module doc).  Classifies contacts (touching, speculative, impact),
-    leaves impacts to the CCD stage in ``ctx.impacts`` (row indices, time
-    estimates), solves the rest with warm starting, then the split-impulse
+    leaves impacts to the CCD stage in ``ctx.impacts``
+    (:class:`engine.control.Impacts`), solves the rest with warm starting, then the split-impulse
     position correction."""
 
     name = "solve"
@@ -173,7 +174,7 @@ class Solve(Stage):
                                 codes_all)
         vn_free, vn0, un = vn[0], vn[1], vn[2]
         gap = c.gap
-        if ctx.event_mode == "drop" and ctx.drop_rows is not None:
+        if ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None:
             # a rerun of the time-of-impact search: the rows left out are
             # the step's impact rows, whatever tau.  Re-deciding them with
             # the rerun's length kept a row whose linear estimate fell after
@@ -199,10 +200,10 @@ class Solve(Stage):
                 handled = impact
             else:
                 handled = np.zeros_like(impact)
-            if ctx.event_mode == "event" and handled.any():
+            if ctx.event_mode is EventMode.EVENT and handled.any():
                 idx = np.flatnonzero(handled)
-                ctx.impacts = (idx, gap[idx] / np.maximum(-un[idx], 1e-300))
-            elif ctx.event_mode == "speculative":
+                ctx.impacts = Impacts(idx, gap[idx] / np.maximum(-un[idx], 1e-300))
+            elif ctx.event_mode is EventMode.SPECULATIVE:
                 keep = keep | handled
             # impacts nobody resolves at their time of impact are left to
             # penetrate and bounce next step (discrete behaviour); touching

@@ -22,6 +22,7 @@ import numpy as np
 
 from engine.flight import start_pose
 from engine.contact.scratch import Scratch
+from engine.control import Event, EventMode, Impacts, TimeOfImpact
 from engine.model import Model
 
 
@@ -132,7 +133,8 @@ class Context:
         # energy-conserving rotation stage
         self.T_mean = np.zeros((n, 3))
         self.profile = None
-        self.event_mode = "event"
+        #: how the solve treats impacts in this (mini-)step
+        self.event_mode = EventMode.EVENT
         # collision products
         self.pairs_i = np.zeros(0, np.int64)
         self.pairs_j = np.zeros(0, np.int64)
@@ -141,11 +143,11 @@ class Context:
         self.sweep = np.zeros(n)  # per-body bound on the distance a surface point moves in the step (m)
         self.plane_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         self.sbox_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
-        self.impacts = None
+        self.impacts: Impacts | None = None  # the solve's impact rows
         self.contacts = None  # type: Contacts | None
         self.rows: Any = None  # solver rows (solver.Rows)
         self.reuse_contacts = False
-        self.event: tuple | None = None
+        self.event: Event | None = None  # the CCD stage's earliest impact
         # friction stops (solver.Rows.stop_times): the earliest time (s)
         # within the step at which a sliding or rolling contact came to rest,
         # and whether the solver looks for one in this (mini-)step
@@ -154,8 +156,7 @@ class Context:
         # pair codes whose missed impact had no time to it in this substep
         # (pipeline._substep; ccd.missed_impacts skips them)
         self.missed_skip: set[int] = set()
-        self.toi_pair: tuple | None = None
-        self.toi_clear = False
+        self.toi: TimeOfImpact | None = None  # the last time-of-impact search's result
         # the impact rows of the step being searched (ccd.refine_toi): the
         # reruns leave out exactly these, at every tau
         self.drop_rows: np.ndarray | None = None

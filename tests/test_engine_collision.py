@@ -8,6 +8,8 @@ against "stays where it was put".
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import math
 import os
@@ -450,9 +452,8 @@ def _without(monkeypatch, what: str) -> None:
         search = engine.ccd._search
 
         def impact_at_the_end(model, state, ctx, *args):
-            tau = search(model, state, ctx, *args)
-            ctx.toi_clear = False
-            return tau
+            tau, _clear = search(model, state, ctx, *args)
+            return tau, False
 
         monkeypatch.setattr(engine.ccd, "_search", impact_at_the_end)
     elif what == "fids":
@@ -472,7 +473,7 @@ def _without(monkeypatch, what: str) -> None:
         search = engine.ccd.refine_toi
 
         def first_pair_only(model, state, ctx, main, profile):
-            ctx.event = (*ctx.event[:-1], ())
+            ctx.event = dataclasses.replace(ctx.event, others=())
             return search(model, state, ctx, main, profile)
 
         monkeypatch.setattr(engine.pipeline, "refine_toi", first_pair_only)
@@ -670,10 +671,9 @@ def test_impact_search_stops_at_touching_when_it_stalls(tmp_path, monkeypatch, s
     search = engine.ccd._search
 
     def recording(model, state, ctx, stages, profile, pair, *args):
-        tau = search(model, state, ctx, stages, profile, pair, *args)
-        a, b, sidx, loc, fids, excl = pair
-        gaps.append(engine.ccd.pair_gap(model, ctx, a, b, sidx, loc, excl, fids)[0])
-        return tau
+        out = search(model, state, ctx, stages, profile, pair, *args)
+        gaps.append(engine.ccd.pair_gap(model, ctx, pair.a, pair.b, pair.sidx, pair.loc, pair.excl, pair.fids)[0])
+        return out
 
     monkeypatch.setattr(engine.ccd, "_search", recording)
     sc = scene_from(tmp_path, _SETTLING_COLUMN)
