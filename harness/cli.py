@@ -233,9 +233,18 @@ def cmd_limits(args: argparse.Namespace) -> int:
         lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
     except ValueError as e:
         raise UsageError(str(e)) from None
+    bounds = []
+    for item in args.max or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--max {item}: expected METRIC=VALUE")
+        try:
+            bounds.append((key.strip(), parse_number(text.strip(), f"--max {key.strip()}")))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     req = LimitRequest(args.scenario, args.variant, args.engine, args.param, lo, hi, phases=args.phases,
                        tol=args.tol, checks=tuple(args.check or ()), settings=tuple(sorted(settings.items())),
-                       overrides=tuple(overrides.items()))
+                       overrides=tuple(overrides.items()), bounds=tuple(sorted(bounds)))
     return limits_main(req, out_dir=Path(args.out) if args.out else None, as_json=args.json)
 
 
@@ -335,6 +344,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="relative width of the final bracket (default 0.05)")
     lm.add_argument("--check", action="append", default=None, metavar="METRIC",
                     help="only checks of this metric count (repeatable; stability always counts)")
+    lm.add_argument("--max", action="append", default=None, metavar="METRIC=VALUE",
+                    help="extra criterion: the metric must stay <= VALUE (e.g. energy_gain=0.01); repeatable")
     lm.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                     help="fixed engine setting or dotted spec key for every run of the search")
     lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")

@@ -236,7 +236,8 @@ class LimitRequest:
     of these metrics count (empty: all); ``settings``: fixed engine settings
     (not the searched one); ``overrides``: fixed dotted spec keys applied
     before the searched one (``scenario.duration``, a wall's position);
-    ``timeout_s`` per run."""
+    ``bounds``: extra (metric, max) criteria (``energy_gain`` <= 0.01: where
+    energy starts to grow); ``timeout_s`` per run."""
 
     scenario: str
     variant: str | None
@@ -249,6 +250,7 @@ class LimitRequest:
     checks: tuple[str, ...] = ()
     settings: tuple[tuple[str, Any], ...] = ()
     overrides: tuple[tuple[str, Any], ...] = ()
+    bounds: tuple[tuple[str, float], ...] = ()
     timeout_s: float = 600.0
 
     @property
@@ -261,7 +263,7 @@ class LimitRequest:
         overrides."""
         text = json.dumps([spec_hash, self.label, self.engine, self.param, self.lo, self.hi, self.phases,
                            self.tol, list(self.checks), [list(s) for s in self.settings],
-                           [list(o) for o in self.overrides]], default=str)
+                           [list(o) for o in self.overrides], [list(b) for b in self.bounds]], default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def eval_key(self, limit_id: str, value: float, phase: float) -> str:
@@ -318,9 +320,12 @@ def load_at(req: LimitRequest, value: float):
     return load_scene(req.scenario, req.variant, overrides, loaded=loaded)
 
 
-def judge(scene: Any, result: Any, checks: tuple[str, ...] = ()) -> tuple[bool, str]:
+def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
+          bounds: tuple[tuple[str, float], ...] = ()) -> tuple[bool, str]:
     """Whether one run holds (module docstring), and if not, why: the first
-    failure as ``metric: message``."""
+    failure as ``metric: message``.  ``checks``: only the scene's checks of
+    these metrics (``("stable",)``: stability alone); ``bounds``: extra
+    (metric, max) criteria, a missing or NaN value failing."""
     from harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 
     if result.status != "ok":
@@ -336,6 +341,15 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = ()) -> tuple[bool, 
         o = evaluate_check(dataclasses.replace(c, xfail={}), result)
         if o.outcome != PASS:
             return False, f"{c.metric}: {o.message}" if o.outcome == FAIL else f"{c.metric}: {o.outcome} {o.message}"
+    for metric, hi in bounds:
+        v = result.metrics.get(metric)
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = math.nan
+        if not x <= hi:
+            return False, f"{metric}: {metric} = {x:.6g}, expected <= {hi:g}" if math.isfinite(x) else \
+                f"{metric}: metric not computed"
     return True, ""
 
 
@@ -367,7 +381,7 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
         res.trace = None
         row = res.row()
         row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0))
-        holds, reason = judge(scene, res, req.checks)
+        holds, reason = judge(scene, res, req.checks, req.bounds)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"
     except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
@@ -641,13 +655,16 @@ def validate_request(req: LimitRequest) -> list[str]:
             sc = load_at(req, req.lo)
             from harness.conformance import applicable_checks, split_metric
 
-            have = {split_metric(c.metric)[0] for c in applicable_checks(sc, req.engine)}
+            have = {split_metric(c.metric)[0] for c in applicable_checks(sc, req.engine)} | {"stable"}
             for m in req.checks:
                 if m not in have:
                     errs.append(f"--check {m}: no check of this metric applies to {req.label} on {req.engine} "
                                 f"(its checks: {', '.join(sorted(have)) or 'none'})")
         except (SpecError, ValueError):
             pass  # reported above
+    for m, b in req.bounds:
+        if not (isinstance(b, (int, float)) and math.isfinite(b)):
+            errs.append(f"--max {m}: expected a finite number, got {b!r}")
     for k, v in req.settings:
         if k == req.param:
             errs.append(f"--set {k}: is the searched parameter")

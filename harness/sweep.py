@@ -146,6 +146,8 @@ class LimitSection(_Strict):
     checks: list[str] = Field(default_factory=list)
     #: fixed engine settings and dotted spec keys for every run of the search
     set: dict[str, Any] = Field(default_factory=dict)
+    #: extra criteria: metric -> largest value that holds
+    max: dict[str, float] = Field(default_factory=dict)
 
     @field_validator("range", mode="before")
     @classmethod
@@ -332,7 +334,8 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
                     errors.append(f"{where}.set.{bad[0]}: not a setting of engine {e} and not a dotted spec key")
                     continue
                 req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
-                                   tuple(lb.checks), settings, overrides, model.suite.timeout_s)
+                                   tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
+                                   model.suite.timeout_s)
                 problems = validate_request(req)
                 errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
                 if not problems:
