@@ -1356,7 +1356,7 @@ th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:to
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .warn{background:#fff4d6;border:1px solid #e0b000;padding:.5em 1em;margin:1em 0}
 .note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
-.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:640px}
+.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:1180px}
 .wp img,.hist img{max-width:100%}figcaption{font-size:.8em;color:#444}
 .cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
 code{background:#f4f4f4;padding:0 .2em}
