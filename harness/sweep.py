@@ -288,6 +288,24 @@ def load_suite(path: str | Path) -> Suite:
                  timeout_s=s.timeout_s, sweeps=tuple(blocks), limits=tuple(limits))
 
 
+def _block_engines(listed: list[str] | None, suite_engines: list[str], usable: Any, where: str,
+                   errors: list[str]) -> list[str]:
+    """A block's engines: its own list (a subset of the suite's, each once)
+    or the suite's; only those in ``usable`` (registered and loadable) are
+    kept.  Appends problems to ``errors``."""
+    if listed is None:
+        return [e for e in suite_engines if e in usable]
+    engines: list[str] = []
+    for j, e in enumerate(listed):
+        if e not in suite_engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines ({', '.join(suite_engines)})")
+        elif e in engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
+        elif e in usable:
+            engines.append(e)
+    return engines
+
+
 def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]:
     """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
     engine), each validated as ``physbench limits`` validates its arguments
@@ -301,18 +319,7 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
     out: list[Any] = []
     for bi, lb in enumerate(model.limit):
         where = f"{label}: limit[{bi}]"
-        if lb.engines is None:
-            engines = [e for e in model.suite.engines if e in known]
-        else:
-            engines = []
-            for j, e in enumerate(lb.engines):
-                if e not in model.suite.engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
-                                  f"({', '.join(model.suite.engines)})")
-                elif e in engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
-                elif e in known:
-                    engines.append(e)
+        engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
         seen: set[tuple[str, str | None]] = set()
         for j, entry in enumerate(lb.scenarios):
             m = _SCENARIO_ENTRY.match(entry.strip())
@@ -399,18 +406,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
                 continue
             scen.append((sid, var))
         # engines of this block: a subset of the suite's
-        if sw.engines is None:
-            engines = [e for e in model.suite.engines if e in caps]
-        else:
-            engines = []
-            for j, e in enumerate(sw.engines):
-                if e not in model.suite.engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
-                                  f"({', '.join(model.suite.engines)})")
-                elif e in engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
-                elif e in caps:
-                    engines.append(e)
+        engines = _block_engines(sw.engines, model.suite.engines, caps, where, errors)
         for e in sw.engine:
             if e not in engines:
                 whose = "suite.engines" if sw.engines is None else f"sweep[{bi}].engines"

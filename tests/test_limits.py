@@ -240,31 +240,24 @@ def _suite(tmp_path, body: str):
     return p
 
 
-def test_limit_block_validated(tmp_path):
+def _suite_errors(tmp_path, body: str) -> str:
     from harness.sweep import SuiteError, load_suite
 
-    p = _suite(tmp_path, '[[limit]]\nscenarios = ["stacking.nope", "stacking.heavy_on_light"]\nparam = "dt"\n'
-                         'range = [0.03, 0.001]\nphases = 4\n')
     with pytest.raises(SuiteError) as ei:
-        load_suite(p)
-    text = "\n".join(ei.value.errors)
+        load_suite(_suite(tmp_path, body))
+    return "\n".join(ei.value.errors)
+
+
+def test_limit_block_validated(tmp_path):
+    head = '[[limit]]\nscenarios = ["stacking.nope", "stacking.heavy_on_light"]\nparam = "dt"\n'
+    text = _suite_errors(tmp_path, head + 'range = [0.03, 0.001]\nphases = 4\n')
     assert "limit[0].range" in text and "LO < HI" in text
-    p = _suite(tmp_path, '[[limit]]\nscenarios = ["stacking.nope", "stacking.heavy_on_light"]\nparam = "dt"\n'
-                         'range = [0.001, 0.03]\nphases = 4\nengines = ["pybullet"]\n')
-    with pytest.raises(SuiteError) as ei:
-        load_suite(p)
-    text = "\n".join(ei.value.errors)
+    text = _suite_errors(tmp_path, head + 'range = [0.001, 0.03]\nphases = 4\nengines = ["pybullet"]\n')
     assert "limit[0].scenarios[0]" in text and "'stacking.nope'" in text
     assert "limit[0].engines[0]" in text and "pybullet" in text
-    p = _suite(tmp_path, '[[limit]]\nscenarios = ["stacking.heavy_on_light"]\nparam = "dt"\n'
-                         'range = [0.001, 0.03]\nphases = 4\n')
-    with pytest.raises(SuiteError) as ei:
-        load_suite(p)
-    assert "free flight" in "\n".join(ei.value.errors)
-    p = _suite(tmp_path, '[[limit]]\nscenarios = ["stacking.heavy_on_light"]\nparam = "dt"\nrange = [1, 30]\n'
-                         'set = { bogus = 1 }\n')
-    with pytest.raises(SuiteError, match="bogus"):
-        load_suite(p)
+    head = '[[limit]]\nscenarios = ["stacking.heavy_on_light"]\nparam = "dt"\n'
+    assert "free flight" in _suite_errors(tmp_path, head + 'range = [0.001, 0.03]\nphases = 4\n')
+    assert "bogus" in _suite_errors(tmp_path, head + 'range = [1, 30]\nset = { bogus = 1 }\n')
 
 
 def test_sweep_computes_limit_blocks(tmp_path):
