@@ -1,7 +1,7 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
+    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
@@ -12,8 +12,12 @@ dotted key path into the spec (``material.default.restitution=0.5``,
 ``body[0].velocity=[3,0,0]``).  Values are TOML (``true``, ``1e-3``,
 ``"rk4"``); a bare word is a string.
 
-Exit codes: 0 success, 1 a check failed (check) or the run's status is not
-ok (run), 2 bad input (spec, settings, arguments).
+``run`` evaluates the scene's checks that apply to the run as ``check``
+does (making the step-phase and ``@dt=...`` runs they need) and lists them.
+
+Exit codes: 0 success, 1 a check failed unexpectedly (FAIL, XPASS, ERROR;
+check and run) or the run's status is not ok (run), 2 bad input (spec,
+settings, arguments, unknown scenario ids).
 """
 
 from __future__ import annotations
@@ -67,6 +71,7 @@ def _fmt(v: Any) -> str:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from adapters import get_adapter
+    from harness.conformance import BAD
     from harness.runner import run
     from harness.scene import load_scene
 
@@ -80,18 +85,46 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.phase:
         result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
                             f"{args.phase:g} dt")
+    runs, outcomes = _run_checks(scene, result, settings, args)
     if args.save:
         from harness.results import write_rows
 
         row = result.row()
         row["phase"] = float(args.phase)  # 0 = the scene as written
+        if runs:
+            row.update(runs[0].row_extra)
+        row["checks"] = json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
         write_rows([row], args.save)
     if args.json:
-        sys.stdout.write(json.dumps(result.as_dict(), sort_keys=False) + "\n")
+        d = result.as_dict()
+        d["checks"] = [o.as_dict() for o in outcomes]
+        sys.stdout.write(json.dumps(d, sort_keys=False) + "\n")
         sys.stdout.flush()
     else:
-        _print_result(result)
-    return 0 if result.status == "ok" else 1
+        _print_result(result, outcomes)
+    return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
+
+
+def _run_checks(scene, result, settings: dict[str, Any], args: argparse.Namespace):
+    """The scene's checks that apply to this run, evaluated as ``physbench
+    check`` evaluates them (harness/conformance.py): the runs a check needs
+    beyond this one -- its step phases, an ``@dt=...`` setting -- are made
+    here, with the same settings and spec overrides.  A run at a given
+    ``--phase`` is judged on itself only (it is one phase already).
+    Returns (planned runs, outcomes)."""
+    from harness.conformance import evaluate_runs, run_planned, scene_runs
+
+    runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
+    if not runs:
+        return runs, []
+    results = {runs[0].key: result}
+    for r in runs[1:]:
+        if not args.json:
+            print(f"check run: {args.engine} {r.scenario}" + (f" phase {r.phase:g}" if r.phase else "")
+                  + "".join(f" {k}={v:.6g}" if isinstance(v, float) else f" {k}={v}"
+                            for k, v in r.settings.items() if settings.get(k) != v), file=sys.stderr)
+        results[r.key] = run_planned(scene, r)
+    return runs, evaluate_runs(runs, results)
 
 
 def _phase(scene, f: float, dt: Any = None):
@@ -111,7 +144,7 @@ def _phase(scene, f: float, dt: Any = None):
         raise UsageError(f"--phase {f:g}: {e}") from None
 
 
-def _print_result(result) -> None:
+def _print_result(result, outcomes=()) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -130,6 +163,17 @@ def _print_result(result) -> None:
         con.print("stages: " + json.dumps(result.stages, default=str))
     for n in result.notes:
         con.print(f"note: {n}")
+    if outcomes:
+        from rich.markup import escape
+
+        from harness.conformance import BAD, _fmt as fmt_value
+
+        c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
+        for o in outcomes:
+            style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value), f"[{style}]{o.outcome}[/]",
+                      escape(o.message))
+        con.print(c)
 
 
 def cmd_engines(args: argparse.Namespace) -> int:
@@ -167,6 +211,9 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
+    if Path(args.scenario).is_dir():
+        raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
+                         f"or a spec file, not a folder")
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
     scene = _phase(scene, args.phase)
     results = []
@@ -191,8 +238,9 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
-    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs,
-                      traces=args.traces)
+    scenarios = list(args.paths or []) + list(args.scenarios or [])
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
+                      jobs=args.jobs, traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -296,9 +344,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
+    c.add_argument("paths", nargs="*", metavar="SCENARIO|FILE|DIR",
+                   help="scenario ids, spec files or folders of spec files (anywhere); default all of scenarios/")
     c.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     c.add_argument("--tags", nargs="+", default=None)
-    c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
+    c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
+                   help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
     c.add_argument("--jobs", type=int, default=1)
     c.add_argument("--traces", default=None, metavar="DIR",

@@ -380,7 +380,7 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
             res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s)
         res.trace = None
         row = res.row()
-        row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0))
+        row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
         holds, reason = judge(scene, res, req.checks, req.bounds)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"

@@ -254,34 +254,36 @@ def load_results(results_dir: str | Path | None = None, suites: list[str] | None
 
 
 @functools.lru_cache(maxsize=None)
-def _scene(scenario: str, variant: str):
-    """The compiled scene, or None when it no longer loads."""
+def _scene(scenario: str, variant: str, path: str = ""):
+    """The compiled scene, or None when it no longer loads: from the row's
+    ``scene_path`` when there is one (a spec file anywhere), else by id from
+    scenarios/.  Only a fallback: rows carry their primary metric, its
+    threshold and their checks' outcomes."""
     try:
-        from harness.scene import load_scene
+        from harness.scene import load_scene, source_path
 
+        f = source_path(path) if path and not _missing(path) else None
+        if f is not None and f.is_file():
+            return load_scene(f, variant or None)
         return load_scene(scenario, variant or None)
     except Exception:
         return None
 
 
-def scene_primary_metric(scenario: str, variant: str = "") -> str | None:
-    s = _scene(scenario, variant)
+def scene_primary_metric(scenario: str, variant: str = "", path: str = "") -> str | None:
+    s = _scene(scenario, variant, path)
     return None if s is None else s.primary_metric
 
 
-def scene_threshold(scenario: str, variant: str, metric: str | None) -> float | None:
+def scene_threshold(scenario: str, variant: str, metric: str | None, path: str = "") -> float | None:
     """The scenario's ``[[check]] max`` for ``metric`` (checks scoped to some
     engines only count when no unscoped one exists; the tightest wins)."""
+    from harness.conformance import primary_threshold
+
     if not metric:
         return None
-    s = _scene(scenario, variant)
-    if s is None:
-        return None
-    cands = [c for c in s.checks if c.metric == metric and c.max is not None
-             and (c.variants is None or (variant or BASE_LABEL) in c.variants)]
-    unscoped = [c for c in cands if c.engines is None]
-    use = unscoped or cands
-    return min(float(c.max) + float(c.tolerance or 0.0) for c in use) if use else None
+    s = _scene(scenario, variant, path)
+    return None if s is None else primary_threshold(s, metric)
 
 
 def hard_scenarios() -> set[str]:
@@ -312,7 +314,8 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
                          ("row_kind", None)):
         if col not in df.columns:
             df[col] = [default] * n
-    for col in _SWEEP_COLUMNS + ("cpu_s_per_sim_s", "stable", "setting.dt"):
+    for col in _SWEEP_COLUMNS + ("cpu_s_per_sim_s", "stable", "setting.dt", "scene_hash", "scene_path",
+                                 "primary_threshold", "checks"):
         if col not in df.columns:
             df[col] = [None] * n
     df = df.astype({c: object for c in df.columns if str(df[c].dtype) in ("str", "string")})
@@ -360,6 +363,12 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
         keys.append(str(pk))
     df["swept"] = swept
     df["point_key"] = keys
+    df["scene_hash"] = ["" if _missing(h) else str(h) for h in df["scene_hash"]]
+    df["scene_path"] = ["" if _missing(h) else str(h) for h in df["scene_path"]]
+    # a point's series: its key without the scene hash (history splits a
+    # series where the hash changes: history(), scene_changes())
+    df["series_key"] = [k[:-len(h) - 1] if h and k.endswith("|" + h) else k
+                        for k, h in zip(df["point_key"], df["scene_hash"])]
     # step phase (harness/phase.py): 0 = the scene as written
     col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
     ph = []
@@ -376,7 +385,7 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
         r = dict(zip(df.columns, row))
         m = r.get("primary_metric")
         if _missing(m):
-            m = scene_primary_metric(r["scenario"], r["variant"])
+            m = scene_primary_metric(r["scenario"], r["variant"], r.get("scene_path") or "")
         m = None if _missing(m) else str(m)
         e = _num(r.get("primary_error"))
         if math.isnan(e) and m and m in r:
@@ -475,7 +484,10 @@ def _targets(df: pd.DataFrame, target: float | None,
         if given is not None:
             out[(sc, va)] = (given, "given")
             continue
-        th = scene_threshold(sc, va, metric)
+        th = next((_num(t) for t in g["primary_threshold"] if _finite(t)), None)
+        if th is None:
+            path = next((p for p in g["scene_path"] if p), "")
+            th = scene_threshold(sc, va, metric, path)
         if th is not None:
             out[(sc, va)] = (th, "check max")
         elif target is not None:
@@ -761,7 +773,7 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
             "max_stable_dt": max(gdt) if gdt else math.nan,
             "min_unstable_dt": min(bdt) if bdt else math.nan,
             "met_checks": sum(1 for r in good if meets_checks(r) is True),
-            "checks_failed": sorted({m for r in good for m in failed_checks(r)}),
+            "checks_failed": sorted({m for r in good for m in (failed_checks(r) or [])}),
             "max_met_dt": max((r["dt"] for r in good if meets_checks(r) is True and math.isfinite(r["dt"])),
                               default=math.nan),
         })
@@ -770,15 +782,21 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     return out
 
 
-def failed_checks(r: Mapping[str, Any]) -> list[str]:
-    """The metrics of the scene's checks (those that apply to the row's
-    engine, without an @-setting) that the row's values do not meet -- an
-    ``xfail`` does not make a check met; a missing value fails."""
-    sc = _scene(r["scenario"], r["variant"])
-    if sc is None:
-        return []
-    from harness.conformance import applicable_checks, meets, split_metric
+def failed_checks(r: Mapping[str, Any]) -> list[str] | None:
+    """The metrics of the row's checks (those that apply to its engine,
+    without an @-setting) that it did not meet -- an ``xfail`` does not make
+    a check met.  The outcomes the row carries (its ``checks`` column) when
+    it has them, else the scene's checks evaluated on the row's values (a
+    missing value fails); None when neither is known (the scene no longer
+    loads)."""
+    from harness.conformance import ERROR, FAIL, UNSUPPORTED, XFAIL, applicable_checks, meets, split_metric
 
+    stored = _row_checks(r)
+    if stored is not None:
+        return sorted({str(o.get("metric")) for o in stored if o.get("outcome") in (FAIL, XFAIL, ERROR, UNSUPPORTED)})
+    sc = _scene(r["scenario"], r["variant"], r.get("scene_path", ""))
+    if sc is None:
+        return None
     out = []
     for c in applicable_checks(sc, r["engine"]):
         name, bound = split_metric(c.metric)
@@ -791,38 +809,55 @@ def failed_checks(r: Mapping[str, Any]) -> list[str]:
 
 
 def meets_checks(r: Mapping[str, Any]) -> bool | None:
-    """Whether an ok row meets every check of its scene (None: the scene no
-    longer loads)."""
-    if _scene(r["scenario"], r["variant"]) is None:
+    """Whether an ok row met every one of its checks (None: not known)."""
+    failed = failed_checks(r)
+    if failed is None:
         return None
-    return r["status"] == "ok" and not failed_checks(r)
+    return r["status"] == "ok" and not failed
 
 
 # ---------------------------------------------------------------------------
 # step phases
 
 
-def _primary_checks(scenario: str, variant: str, engine: str, metric: str | None) -> list:
+def _primary_checks(scenario: str, variant: str, engine: str, metric: str | None, path: str = "") -> list:
     """The scene's checks of its primary metric that apply to ``engine``
-    (xfail or not: an expected failure is still a failure here)."""
+    (xfail or not: an expected failure is still a failure here), for rows
+    that do not carry their checks' outcomes."""
     from harness.conformance import check_applies
 
-    sc = _scene(scenario, variant)
+    sc = _scene(scenario, variant, path)
     if sc is None or not metric:
         return []
     return [c for c in sc.checks if c.metric == metric and check_applies(c, engine, variant or None)]
 
 
+def _row_checks(r: Mapping[str, Any]) -> list[dict] | None:
+    """The outcomes stored in a row's ``checks`` column, None without one."""
+    v = r.get("checks")
+    if _missing(v):
+        return None
+    try:
+        out = json.loads(v) if isinstance(v, str) else list(v)
+    except (TypeError, ValueError):
+        return None
+    return out if isinstance(out, list) else None
+
+
 def _phase_outcome(r: Mapping[str, Any], checks: list) -> str:
     """'.' passed, 'x' a primary check failed, '!' the run was not ok or not
-    stable, '-' unsupported."""
-    from harness.conformance import meets
+    stable, '-' unsupported.  The row's own outcomes of its primary metric's
+    checks when it carries them, else ``checks`` evaluated here."""
+    from harness.conformance import ERROR, FAIL, XFAIL, meets
 
     if r["status"] == "unsupported":
         return "-"
     if not _good(r):
         return "!"
     m = r.get("primary_metric")
+    stored = _row_checks(r)
+    if stored is not None:
+        return "x" if any(o.get("metric") == m and o.get("outcome") in (FAIL, XFAIL, ERROR) for o in stored) else "."
     v = r.get(m) if m else None
     for c in checks:
         if v is None or (isinstance(v, float) and math.isnan(v)) or not meets(c, v):
@@ -862,7 +897,8 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
         g = g[g["sweep_id"] == latest]
         mid, suite, sc, va, en, base, _ = key
         recs = sorted(g.to_dict("records"), key=lambda r: r["phase"])
-        checks = _primary_checks(sc, va, en, recs[0].get("primary_metric"))
+        checks = ([] if all(_row_checks(r) is not None for r in recs) else
+                  _primary_checks(sc, va, en, recs[0].get("primary_metric"), recs[0].get("scene_path") or ""))
         pattern = "".join(_phase_outcome(r, checks) for r in recs)
         n = sum(1 for ch in pattern if ch != "-")
         k = sum(1 for ch in pattern if ch in "x!")
@@ -938,20 +974,86 @@ def _cost_drift(runs: list[dict], last: dict) -> dict | None:
             "previous_sweep": f"{plateau[0]['sweep_id']}..{plateau[-1]['sweep_id']}", "severity": change / thr}
 
 
-def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
-    """(machine_id, suite, point_key) -> that point's rows over its sweeps
-    (one per sweep, the last if repeated; ascending sweep_id), for points
-    present in at least two sweeps of the same suite on the same machine."""
-    df = _ensure(df)
-    s = _sweeps(df)
-    out: dict[tuple[str, str, str], pd.DataFrame] = {}
+def _series(df: pd.DataFrame):
+    """(machine_id, suite, series_key) -> that point's sweep rows over time
+    (one per sweep, the last if repeated; ascending sweep_id), whatever the
+    scene's content."""
+    s = _sweeps(_ensure(df))
     if s.empty:
-        return out
+        return
     s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
     s = s.drop_duplicates(["machine_id", "suite", "point_key", "sweep_id"], keep="last")
-    for key, g in s.groupby(["machine_id", "suite", "point_key"], sort=True):
+    yield from s.groupby(["machine_id", "suite", "series_key"], sort=True)
+
+
+def _same_scene(g: pd.DataFrame) -> pd.DataFrame:
+    """The trailing rows of a series with the latest row's scene hash: the
+    only ones its latest run may be compared with.  Rows without a hash
+    (written before rows carried one) count as a different, unknown scene
+    -- unless no row of the series has one."""
+    h = list(g["scene_hash"])
+    i = len(h) - 1
+    while i > 0 and h[i - 1] == h[-1]:
+        i -= 1
+    return g.iloc[i:]
+
+
+def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
+    """(machine_id, suite, series key) -> that point's rows over its sweeps
+    (one per sweep, the last if repeated; ascending sweep_id), for points
+    present in at least two sweeps of the same suite on the same machine
+    *with the same scene content* (``scene_hash``): a changed scene starts
+    a new series (:func:`scene_changes` lists where), it is never compared
+    with the old one.  The series key is the point key without the scene
+    hash."""
+    out: dict[tuple[str, str, str], pd.DataFrame] = {}
+    for key, g in _series(df):
+        g = _same_scene(g)
         if g["sweep_id"].nunique() >= 2:
             out[key] = g.reset_index(drop=True)
+    return out
+
+
+def scene_changes(df: pd.DataFrame) -> pd.DataFrame:
+    """Where a series was cut because its scene changed: per machine,
+    suite, scenario, variant and the sweep that first ran the new content,
+    the date (of that sweep's rows), the number of points and engines, and
+    the previous and new hashes ('' for rows written before rows carried
+    one).  Only the latest cut of each series (the earlier rows are not
+    compared with anything any more)."""
+    cols = ["machine_id", "suite", "scenario", "variant", "sweep_id", "date", "points", "engines",
+            "previous_hash", "scene_hash"]
+    rows = []
+    for (mid, suite, _sk), g in _series(df):
+        new = _same_scene(g)
+        if len(new) == len(g):
+            continue
+        first, before = new.iloc[0], g.iloc[len(g) - len(new) - 1]
+        rows.append({"machine_id": mid, "suite": suite, "scenario": first["scenario"], "variant": first["variant"],
+                     "sweep_id": first["sweep_id"], "date": str(first["timestamp"])[:10] or first["sweep_id"][:8],
+                     "engine": first["engine"], "previous_hash": before["scene_hash"],
+                     "scene_hash": first["scene_hash"]})
+    if not rows:
+        return pd.DataFrame(columns=cols)
+    d = pd.DataFrame(rows)
+    out = []
+    for key, g in d.groupby(["machine_id", "suite", "scenario", "variant", "sweep_id", "date",
+                             "previous_hash", "scene_hash"], sort=True):
+        out.append(dict(zip(["machine_id", "suite", "scenario", "variant", "sweep_id", "date", "previous_hash",
+                             "scene_hash"], key), points=len(g), engines=", ".join(sorted(set(g["engine"])))))
+    return pd.DataFrame(out, columns=cols)
+
+
+def scene_change_lines(changes: pd.DataFrame) -> list[str]:
+    """One sentence per :func:`scene_changes` row."""
+    out = []
+    for r in changes.to_dict("records"):
+        what = r["scenario"] + (f" [{r['variant']}]" if r["variant"] else "")
+        was = (f"content {r['previous_hash']} -> {r['scene_hash']}" if r["previous_hash"]
+               else f"content {r['scene_hash']}; earlier rows carry no scene hash")
+        out.append(f"{what}: scene changed on {r['date']} (sweep {r['sweep_id']}, {r['machine_id']} / {r['suite']}): "
+                   f"new series for {r['points']} point(s) on {r['engines']}, not compared with earlier sweeps "
+                   f"({was})")
     return out
 
 
@@ -1003,7 +1105,8 @@ def pooled_noise(df: pd.DataFrame, hist: dict | None = None) -> dict[tuple[str, 
 
 def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
     """Flagged changes of each point's latest sweep against its earlier ones
-    (same machine, same suite).  Only beyond noise:
+    (same machine, same suite, same scene content: :func:`history`).  Only
+    beyond noise:
 
     - cost (``cpu_s_per_sim_s_median``), asv style: the latest ok run
       against a baseline, the median cost of the last ``BASELINE_RUNS`` (5)
@@ -1040,7 +1143,7 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
 
     Columns: kind (cost / cost_drift / accuracy / status), direction (regression /
     improvement), machine_id, suite, scenario, variant, engine, settings,
-    point_key, previous (cost: the baseline median; cost_drift: the
+    point_key (the series key: the point key without the scene hash), previous (cost: the baseline median; cost_drift: the
     plateau's median; accuracy: the best
     earlier error; status: the previous status), latest, change (relative;
     for status NaN), threshold, previous_sweep (cost: the baseline window
@@ -1691,9 +1794,10 @@ def _phase_html(pt: pd.DataFrame) -> str:
 
 def _history_html(df: pd.DataFrame) -> str:
     hist = history(df)
+    changed = "".join(f"<p class='note'>{_e(line)}</p>" for line in scene_change_lines(scene_changes(df)))
     if not hist:
-        return ('<p class="note">No point is in two sweeps of the same suite on the same machine yet: '
-                "history starts with the second sweep.</p>")
+        return changed + ('<p class="note">No point is in two sweeps of the same suite on the same machine with '
+                          "the same scene content yet: history starts with the second sweep.</p>")
     reg = regressions(df, hist)
     shifts = {k: f for k, f in machine_shifts(df, hist).items() if abs(f - 1.0) >= 0.02}
     parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
@@ -1713,7 +1817,8 @@ def _history_html(df: pd.DataFrame) -> str:
              "An accuracy change when the primary error differs from the "
              "best earlier one "
              f"by more than {NOISE_FLOOR:.0%} and {ERROR_ABS_FLOOR:g} absolute; a status change from ok to anything "
-             "else is a regression.</p>"]
+             "else is a regression. A point is compared only with sweeps of the same scene content (its "
+             "scene hash): a changed scene starts a new series.</p>", changed]
     for (mid, suite, sid), f in sorted(shifts.items()):
         parts.append(f"<p class='note'>Machine-wide factor {_e(mid)} / {_e(suite)} / {_e(sid)}: every series ran "
                      f"{f - 1.0:+.1%} against its baseline (median over the series); taken out of the cost "
@@ -1873,6 +1978,8 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
         return 1
     print(out)
     reg = regressions(df)
+    for line in scene_change_lines(scene_changes(df)):
+        print(f"note: {line}")
     for (mid, suite, sid), f in sorted(machine_shifts(df).items()):
         if abs(f - 1.0) >= 0.02:
             print(f"note: {mid} / {suite} / {sid}: every series ran {f - 1.0:+.0%} against its baseline "

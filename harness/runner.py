@@ -88,6 +88,10 @@ class RunResult:
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
+    #: the scene's content hash (harness.scene.content_hash) and the spec
+    #: file it was loaded from ('' when unknown)
+    scene_hash: str = ""
+    scene_path: str = ""
     #: the engine's own contacts per recorded frame, only when the run was
     #: traced with ``contact_cap``: [(frame, (k, 7) rows of
     #: Adapter.contacts(), k <= cap, deepest first)]; None when not asked
@@ -100,6 +104,8 @@ class RunResult:
         out: dict[str, Any] = {
             "scenario": self.scenario,
             "variant": self.variant,
+            "scene_hash": self.scene_hash,
+            "scene_path": self.scene_path,
             "engine": self.engine,
             "engine_version": self.engine_version,
             "status": self.status,
@@ -201,6 +207,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,
         status="ok", message="", settings=resolved, machine=machine_info(), commit=commit_id(),
         timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        scene_hash=scene.content_hash, scene_path=scene.source,
     )
     reason = cls.unsupported_reason(scene)
     if reason is not None:
@@ -375,7 +382,13 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         try:
             result.metrics.update(_metrics(scene, trace.valid(), dt=dt))
         except Exception as e:
-            result.notes.append(f"metrics failed: {type(e).__name__}: {e}")
+            # no ok without its metrics: a run whose metrics cannot be
+            # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)
+            why = f"metrics failed: {type(e).__name__}: {e}"
+            if result.status == "ok":
+                result.status, result.message = "error", why
+            else:
+                result.notes.append(why)
             result.info["metrics_traceback"] = traceback.format_exc(limit=5)
         result.timing["metrics_s"] = time.perf_counter() - t0
         if result.status == "ok" and result.metrics.get("stable") is False:

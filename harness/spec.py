@@ -581,6 +581,7 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
             errs.append(f"{label}: spring[{i}].stiffness: the scene has springs but 'spring' is not in scenario.effects")
         if sp.damping > 0 and "damper" not in effects:
             errs.append(f"{label}: spring[{i}].damping: the spring is damped but 'damper' is not in scenario.effects")
+    errs += _material_effects(spec, label)
     if ("spring" in effects or "damper" in effects) and not spec.spring:
         errs.append(f"{label}: scenario.effects: 'spring'/'damper' listed but there is no [[spring]] table")
     for i, b in enumerate(spec.body):
@@ -618,6 +619,26 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
     if spec.scenario.primary_metric is not None and spec.reference is None and spec.scenario.primary_metric in (
         "post_impact_velocity_error", "trajectory_rmse", "final_position_error"):
         errs.append(f"{label}: scenario.primary_metric: {spec.scenario.primary_metric!r} needs a [reference] model")
+    return errs
+
+
+#: material coefficient -> the effect without which it would be ignored
+MATERIAL_EFFECTS = {"restitution": "restitution", "friction": "friction", "static_friction": "friction",
+                    "rolling_friction": "rolling_friction"}
+
+
+def _material_effects(spec: SpecModel, label: str) -> list[str]:
+    """A non-zero material coefficient whose effect the scene does not list
+    would be dropped by Scene.pair without a word: an error, as for body and
+    spring coefficients (tests/test_spec.py::test_material_coefficient_needs_its_effect)."""
+    effects = set(spec.scenario.effects)
+    errs = []
+    for name, m in spec.material.items():
+        for key, effect in MATERIAL_EFFECTS.items():
+            value = getattr(m, key)
+            if value and effect not in effects:
+                errs.append(f"{label}: material.{name}.{key}: set to {value!r} but {effect!r} is not in "
+                            f"scenario.effects (add the effect, or leave the coefficient out)")
     return errs
 
 

@@ -75,6 +75,7 @@ EXECUTORS = ("serial", "process")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
 SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
+                 "primary_threshold", "checks",
                  "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
                  "point_wall_s", "schema_version")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -172,13 +173,26 @@ class SuiteModel(_Strict):
 
 
 @dataclass(frozen=True)
+class SuiteEntry:
+    """One scenario (and variant) of a block: its id (family.name, or
+    family.stem for a file outside scenarios/), the spec file when it was
+    named by path (relative to the suite file, resolved), and the scene's
+    content hash (harness.scene.content_hash) when the suite was loaded."""
+
+    scenario: str
+    variant: str | None
+    path: str | None
+    scene_hash: str
+
+
+@dataclass(frozen=True)
 class SweepBlock:
     """One ``[[sweep]]`` table, validated.  ``axes[engine]`` maps each setting
     name to its coerced values: the common grid, with an engine's own axis of
     the same name replacing the common one."""
 
     index: int
-    scenarios: tuple[tuple[str, str | None], ...]
+    scenarios: tuple[SuiteEntry, ...]
     engines: tuple[str, ...]
     repeats: int
     axes: dict[str, dict[str, tuple[Any, ...]]]
@@ -213,6 +227,11 @@ class Point:
     settings: tuple[tuple[str, Any], ...]
     repeats: int = 1
     timeout_s: float = RUN_TIMEOUT_S
+    #: the spec file (None: ``scenario`` is an id under scenarios/)
+    path: str | None = None
+    #: the scene's content hash: part of the key, so a changed scene is a
+    #: new point (and a new history series), never the old one resumed
+    scene_hash: str = ""
 
     @property
     def settings_dict(self) -> dict[str, Any]:
@@ -242,8 +261,16 @@ class Point:
     @property
     def key(self) -> str:
         """Stable identity across runs and nights:
-        ``scenario[variant]|engine|{"dt":0.001,...}``.  Repeats and timeouts
-        are not part of it (they change how a point is measured, not what)."""
+        ``scenario[variant]|engine|{"dt":0.001,...}|<scene hash>``.  Repeats
+        and timeouts are not part of it (they change how a point is
+        measured, not what); the scene's content is."""
+        return self.series_key + (f"|{self.scene_hash}" if self.scene_hash else "")
+
+    @property
+    def series_key(self) -> str:
+        """The key without the scene hash: the point's place in the suite,
+        whatever its content (the report's history splits a series where
+        the hash changes)."""
         return f"{self.label}|{self.engine}|{self.settings_json}"
 
 
@@ -278,7 +305,7 @@ def load_suite(path: str | Path) -> Suite:
     errors: list[str] = []
     if not model.sweep and not model.limit:
         errors.append(f"{label}: <suite>: expected at least one [[sweep]] or [[limit]] table")
-    blocks = _check_suite(model, label, errors)
+    blocks = _check_suite(model, label, errors, p.parent)
     limits = _check_limits(model, label, errors)
     if errors:
         raise SuiteError(errors)
@@ -355,12 +382,12 @@ def _engines_text(engines: Iterable[str]) -> str:
     return f"engine{'s' if len(engines) > 1 else ''} {', '.join(engines)}"
 
 
-def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[SweepBlock]:
+def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = REPO_ROOT) -> list[SweepBlock]:
     """Cross-checks pydantic cannot make: engines registered, scenario ids
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""
     from adapters import engine_names, get_adapter
-    from harness.scene import resolve_scenario, scenario_ids
+    from harness.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
     from harness.spec import load_spec
 
     known = engine_names()
@@ -376,35 +403,55 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
             except Exception as exc:  # a broken adapter module
                 errors.append(f"{label}: suite.engines[{i}]: engine {e!r} cannot be loaded: {type(exc).__name__}: {exc}")
     ids = set(scenario_ids())
+    files: dict[str, str] = {}  # scenario id -> its spec file: one file per id
     blocks: list[SweepBlock] = []
     for bi, sw in enumerate(model.sweep):
         where = f"{label}: sweep[{bi}]"
-        # scenarios: 'family.name' or 'family.name[variant]'
-        scen: list[tuple[str, str | None]] = []
+        # scenarios: 'family.name', a spec file or a folder (relative to the
+        # suite file), each with an optional '[variant]'
+        scen: list[SuiteEntry] = []
         for j, entry in enumerate(sw.scenarios):
             m = _SCENARIO_ENTRY.match(entry.strip())
             if not m:
-                errors.append(f"{where}.scenarios[{j}]: expected 'family.name' or 'family.name[variant]', got {entry!r}")
+                errors.append(f"{where}.scenarios[{j}]: expected 'family.name', a spec file or folder, optionally "
+                              f"with '[variant]', got {entry!r}")
                 continue
             sid, var = m.group(1), m.group(2)
             if var == "base":
                 var = None
-            if sid not in ids:
+            pathlike = sid.endswith(".toml") or "/" in sid or (base / sid).is_dir()
+            if not pathlike and sid not in ids:
                 errors.append(f"{where}.scenarios[{j}]: unknown scenario {sid!r}; known ids: {', '.join(sorted(ids))}")
                 continue
             try:
-                loaded = load_spec(resolve_scenario(sid))
+                targets = spec_targets(sid, base) if pathlike else [sid]
             except SpecError as exc:
-                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} does not load: {exc.errors[0]}")
+                errors.append(f"{where}.scenarios[{j}]: {exc.errors[0]}")
                 continue
-            if var is not None and var not in loaded.variants:
-                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} has no variant {var!r}; "
-                              f"its variants: {', '.join(loaded.variants) or 'none'}")
-                continue
-            if (sid, var) in scen:
-                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
-                continue
-            scen.append((sid, var))
+            for target in targets:
+                try:
+                    loaded = load_spec(resolve_scenario(target))
+                except SpecError as exc:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
+                    continue
+                if var is not None and var not in loaded.variants:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} has no variant {var!r}; "
+                                  f"its variants: {', '.join(loaded.variants) or 'none'}")
+                    continue
+                try:
+                    scene = load_scene(target, var, loaded=loaded)
+                except SpecError as exc:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
+                    continue
+                where_from = str(loaded.path.resolve())
+                if files.setdefault(scene.id, where_from) != where_from:
+                    errors.append(f"{where}.scenarios[{j}]: {target!r} has the id {scene.id!r} (family.stem) of "
+                                  f"another spec file, {files[scene.id]}; rename one")
+                    continue
+                if any((e.scenario, e.variant) == (scene.id, var) for e in scen):
+                    errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                    continue
+                scen.append(SuiteEntry(scene.id, var, target if pathlike else None, scene.content_hash))
         # engines of this block: a subset of the suite's
         engines = _block_engines(sw.engines, model.suite.engines, caps, where, errors)
         for e in sw.engine:
@@ -503,7 +550,7 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
         if unknown:
             raise ValueError(f"engine {', '.join(unknown)} is not in suite {suite.name} "
                              f"(its engines: {', '.join(suite.engines)})")
-    listed = {(sid, var) for b in suite.sweeps for sid, var in b.scenarios}
+    listed = {(e.scenario, e.variant) for b in suite.sweeps for e in b.scenarios}
     listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
@@ -513,7 +560,8 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     points: list[Point] = []
     seen: set[str] = set()
     for b in suite.sweeps:
-        for sid, var in b.scenarios:
+        for entry in b.scenarios:
+            sid, var = entry.scenario, entry.variant
             if scenarios is not None and sid not in scenarios and _label(sid, var) not in scenarios:
                 continue
             for e in b.engines:
@@ -528,7 +576,7 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
                         settings = tuple(zip(names, combo))
                         if f:
                             settings = tuple(sorted(settings + ((PHASE_KEY, f),)))
-                        p = Point(sid, var, e, settings, b.repeats, suite.timeout_s)
+                        p = Point(sid, var, e, settings, b.repeats, suite.timeout_s, entry.path, entry.scene_hash)
                         if p.key not in seen:
                             seen.add(p.key)
                             points.append(p)
@@ -574,6 +622,7 @@ def machine_id() -> str:
 
 @lru_cache(maxsize=64)
 def _scene(scenario: str, variant: str | None):
+    """``scenario``: an id or a spec file's path."""
     from harness.scene import load_scene
 
     return load_scene(scenario, variant)
@@ -592,9 +641,12 @@ def run_point(point: Point) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     try:
-        scene = _scene(point.scenario, point.variant)
+        scene = _scene(point.path or point.scenario, point.variant)
     except Exception as e:
         return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+    if point.scene_hash and scene.content_hash != point.scene_hash:
+        return _status_row(point, "error", f"scene changed since the sweep was planned (content hash "
+                                           f"{scene.content_hash}, planned {point.scene_hash}); sweep again", t0)
     settings = point.engine_settings
     if point.phase:
         try:
@@ -626,11 +678,19 @@ def run_point(point: Point) -> dict[str, Any]:
                 break
             cpu.append(float(res.metrics.get("cpu_s_per_sim_s", math.nan)))
     row = first.row()
-    row.update(_point_columns(point, scene, row, cpu, t0))
+    row.update(_point_columns(point, scene, row, cpu, t0, first))
     return row
 
 
-def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float) -> dict[str, Any]:
+def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
+                   result: Any = None) -> dict[str, Any]:
+    """The sweep's columns of a point's row.  ``checks`` (JSON) holds the
+    scene's checks on this point's run (those that apply to the engine and
+    variant, without an @-setting; evaluated as ``physbench check`` does),
+    ``primary_threshold`` the check max on the primary metric: the report
+    reads both from the row instead of reloading the scene."""
+    from harness.conformance import applicable_checks, evaluate_check, primary_threshold, split_metric
+
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
     try:
@@ -638,8 +698,14 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     except (TypeError, ValueError):
         err = math.nan
     finite = [c for c in cpu if math.isfinite(c)]
+    checks = []
+    if scene is not None and result is not None:
+        checks = [evaluate_check(c, result).as_dict() for c in applicable_checks(scene, point.engine)
+                  if not split_metric(c.metric)[1]]
     return {
         "point_key": point.key,
+        "checks": json.dumps(checks, sort_keys=True),
+        "primary_threshold": primary_threshold(scene) if scene is not None else None,
         "point_settings": point.settings_json,
         "phase": point.phase,
         "primary_metric": metric,
@@ -664,13 +730,14 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
         cls = get_adapter(point.engine)
         version = cls.capabilities().version
         if scene is None:
-            scene = _scene(point.scenario, point.variant)
+            scene = _scene(point.path or point.scenario, point.variant)
         settings = cls.resolve_settings(scene, settings)
     except Exception:
         pass  # keep the swept settings only
     res = RunResult(point.scenario, point.variant, point.engine, version, status, message, settings,
                     machine=machine_info(), commit=commit_id(),
-                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                    scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
     if tb:
         res.info["traceback"] = tb
     row = res.row()

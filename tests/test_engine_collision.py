@@ -1353,9 +1353,7 @@ _CYL_SCENE = """
     dt = 0.004166666666666667
     effects = EFFECTS
     [material.default]
-    friction = 0.5
-    static_friction = 0.5
-    restitution = 0.5
+    MATERIAL
     BODIES
     STATICS
     """
@@ -1365,8 +1363,12 @@ def _cyl_run(tmp_path, bodies: str, statics: str, duration: float = 2.0,
              effects=("gravity", "contact", "friction", "gyroscopic")):
     from harness.runner import run
 
+    # friction 0.5 and restitution 0.5 where the scene has the effect (a
+    # coefficient without its effect is a spec error)
+    material = "\n    ".join([*(["friction = 0.5", "static_friction = 0.5"] if "friction" in effects else []),
+                             *(["restitution = 0.5"] if "restitution" in effects else [])])
     text = (_CYL_SCENE.replace("DUR", repr(duration)).replace("EFFECTS", repr(list(effects)).replace("'", '"'))
-            .replace("BODIES", bodies).replace("STATICS", statics))
+            .replace("MATERIAL", material).replace("BODIES", bodies).replace("STATICS", statics))
     res = run(scene_from(tmp_path, text), "reference")
     assert res.status == "ok", res.message
     return res
