@@ -3,6 +3,7 @@
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
     physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
+    physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
     physbench list
 
@@ -278,6 +279,31 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                       out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
 
 
+def cmd_limits(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.limits import LimitRequest, limits_main, parse_number
+
+    settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
+
+    try:
+        lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    bounds = []
+    for item in args.max or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--max {item}: expected METRIC=VALUE")
+        try:
+            bounds.append((key.strip(), parse_number(text.strip(), f"--max {key.strip()}")))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+    req = LimitRequest(args.scenario, args.variant, args.engine, args.param, lo, hi, phases=args.phases,
+                       tol=args.tol, checks=tuple(args.check or ()), settings=tuple(sorted(settings.items())),
+                       overrides=tuple(overrides.items()), bounds=tuple(sorted(bounds)))
+    return limits_main(req, out_dir=Path(args.out) if args.out else None, as_json=args.json)
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
@@ -367,6 +393,28 @@ def build_parser() -> argparse.ArgumentParser:
                          "--resume also across commits; --no-resume always starts afresh")
     sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
     sw.set_defaults(func=cmd_sweep)
+
+    lm = sub.add_parser("limits", help="breaking point: where a scene stops holding as one parameter moves")
+    lm.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    lm.add_argument("--engine", "-e", required=True, choices=ENGINES)
+    lm.add_argument("--variant", "-v", default=None)
+    lm.add_argument("--param", required=True, metavar="KEY",
+                    help="engine setting (dt, iterations) or dotted spec key (body[0].velocity[0], body[1].mass)")
+    lm.add_argument("--range", nargs=2, required=True, metavar=("LO", "HI"))
+    lm.add_argument("--phases", type=int, default=1, metavar="N",
+                    help="a value holds only if it holds in all N step phases (default 1)")
+    lm.add_argument("--tol", type=float, default=0.05, metavar="REL",
+                    help="relative width of the final bracket (default 0.05)")
+    lm.add_argument("--check", action="append", default=None, metavar="METRIC",
+                    help="only checks of this metric count (repeatable; stability always counts)")
+    lm.add_argument("--max", action="append", default=None, metavar="METRIC=VALUE",
+                    help="extra criterion: the metric must stay <= VALUE (e.g. energy_gain=0.01); repeatable")
+    lm.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
+                    help="fixed engine setting or dotted spec key for every run of the search")
+    lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    lm.add_argument("--json", action="store_true",
+                    help="print one JSON object (limit, bracket, failed_check, runs, cpu_s, ...) on stdout")
+    lm.set_defaults(func=cmd_limits)
 
     rp = sub.add_parser("report", help="one self-contained HTML page from stored sweep and check results")
     rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")

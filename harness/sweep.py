@@ -131,9 +131,41 @@ class SweepSection(_Strict):
     engine: dict[str, EngineSection] = Field(default_factory=dict)
 
 
+class LimitSection(_Strict):
+    """A ``[[limit]]`` table: a breaking-point search (harness/limits.py) per
+    scenario and engine."""
+
+    description: str = ""
+    scenarios: list[str] = Field(min_length=1)
+    engines: list[str] | None = None
+    #: an engine setting (dt, iterations) or a dotted spec key
+    param: str
+    range: tuple[float, float]
+    phases: int = Field(default=1, ge=1, le=1024)
+    tol: float = Field(default=0.05, gt=0, lt=1)
+    #: only checks of these metrics count (stability always does)
+    checks: list[str] = Field(default_factory=list)
+    #: fixed engine settings and dotted spec keys for every run of the search
+    set: dict[str, Any] = Field(default_factory=dict)
+    #: extra criteria: metric -> largest value that holds
+    max: dict[str, float] = Field(default_factory=dict)
+
+    @field_validator("range", mode="before")
+    @classmethod
+    def _range(cls, v: Any) -> Any:
+        # strict mode takes no int for a float: a range of [1, 1000] is meant as numbers
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                        for x in v):
+            if not all(math.isfinite(float(x)) for x in v) or not float(v[0]) < float(v[1]):
+                raise ValueError(f"expected [LO, HI], two finite numbers with LO < HI, got {v!r}")
+            return (float(v[0]), float(v[1]))
+        raise ValueError(f"expected [LO, HI], two numbers, got {v!r}")
+
+
 class SuiteModel(_Strict):
     suite: SuiteSection
-    sweep: list[SweepSection] = Field(min_length=1)
+    sweep: list[SweepSection] = Field(default_factory=list)
+    limit: list[LimitSection] = Field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------
@@ -178,6 +210,9 @@ class Suite:
     repeats: int
     timeout_s: float
     sweeps: tuple[SweepBlock, ...]
+    #: the ``[[limit]]`` blocks expanded: one breaking-point search
+    #: (harness.limits.LimitRequest) per (block, scenario, engine)
+    limits: tuple[Any, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -268,13 +303,78 @@ def load_suite(path: str | Path) -> Suite:
     except ValidationError as exc:
         raise SuiteError(_format_errors(label, exc, raw)) from None
     errors: list[str] = []
+    if not model.sweep and not model.limit:
+        errors.append(f"{label}: <suite>: expected at least one [[sweep]] or [[limit]] table")
     blocks = _check_suite(model, label, errors, p.parent)
+    limits = _check_limits(model, label, errors)
     if errors:
         raise SuiteError(errors)
     s = model.suite
     return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
                  description=s.description, engines=tuple(s.engines), repeats=s.repeats,
-                 timeout_s=s.timeout_s, sweeps=tuple(blocks))
+                 timeout_s=s.timeout_s, sweeps=tuple(blocks), limits=tuple(limits))
+
+
+def _block_engines(listed: list[str] | None, suite_engines: list[str], usable: Any, where: str,
+                   errors: list[str]) -> list[str]:
+    """A block's engines: its own list (a subset of the suite's, each once)
+    or the suite's; only those in ``usable`` (registered and loadable) are
+    kept.  Appends problems to ``errors``."""
+    if listed is None:
+        return [e for e in suite_engines if e in usable]
+    engines: list[str] = []
+    for j, e in enumerate(listed):
+        if e not in suite_engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines ({', '.join(suite_engines)})")
+        elif e in engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
+        elif e in usable:
+            engines.append(e)
+    return engines
+
+
+def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]:
+    """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
+    engine), each validated as ``physbench limits`` validates its arguments
+    (harness.limits.validate_request).  Appends to ``errors``."""
+    from adapters import engine_names, get_adapter
+    from harness.limits import LimitRequest, validate_request
+    from harness.scene import scenario_ids
+
+    ids = set(scenario_ids())
+    known = set(engine_names())
+    out: list[Any] = []
+    for bi, lb in enumerate(model.limit):
+        where = f"{label}: limit[{bi}]"
+        engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
+        seen: set[tuple[str, str | None]] = set()
+        for j, entry in enumerate(lb.scenarios):
+            m = _SCENARIO_ENTRY.match(entry.strip())
+            if not m or m.group(1) not in ids:
+                errors.append(f"{where}.scenarios[{j}]: expected a scenario id ('family.name' or "
+                              f"'family.name[variant]') of scenarios/, got {entry!r}")
+                continue
+            sid, var = m.group(1), (None if m.group(2) in (None, "base") else m.group(2))
+            if (sid, var) in seen:
+                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                continue
+            seen.add((sid, var))
+            for e in engines:
+                names = set(get_adapter(e).capabilities().settings)
+                settings = tuple(sorted((k, v) for k, v in lb.set.items() if k in names))
+                overrides = tuple((k, v) for k, v in lb.set.items() if k not in names)
+                bad = [k for k, _ in overrides if "." not in k and "[" not in k]
+                if bad:
+                    errors.append(f"{where}.set.{bad[0]}: not a setting of engine {e} and not a dotted spec key")
+                    continue
+                req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
+                                   tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
+                                   model.suite.timeout_s)
+                problems = validate_request(req)
+                errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
+                if not problems:
+                    out.append(req)
+    return out
 
 
 def _engines_text(engines: Iterable[str]) -> str:
@@ -353,18 +453,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                     continue
                 scen.append(SuiteEntry(scene.id, var, target if pathlike else None, scene.content_hash))
         # engines of this block: a subset of the suite's
-        if sw.engines is None:
-            engines = [e for e in model.suite.engines if e in caps]
-        else:
-            engines = []
-            for j, e in enumerate(sw.engines):
-                if e not in model.suite.engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
-                                  f"({', '.join(model.suite.engines)})")
-                elif e in engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
-                elif e in caps:
-                    engines.append(e)
+        engines = _block_engines(sw.engines, model.suite.engines, caps, where, errors)
         for e in sw.engine:
             if e not in engines:
                 whose = "suite.engines" if sw.engines is None else f"sweep[{bi}].engines"
@@ -462,6 +551,7 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
             raise ValueError(f"engine {', '.join(unknown)} is not in suite {suite.name} "
                              f"(its engines: {', '.join(suite.engines)})")
     listed = {(e.scenario, e.variant) for b in suite.sweeps for e in b.scenarios}
+    listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
             if not any(s == sid or s == _label(sid, var) for sid, var in listed):
@@ -1069,6 +1159,21 @@ def summarize(df, wall_s: float, console=None, title: str = "") -> None:
     console.print(table)
 
 
+def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int, err: Any) -> None:
+    """The suite's breaking-point searches (``[[limit]]`` blocks), their rows
+    stored in the sweep's directory like its points; evaluations stored by an
+    interrupted run of this sweep are read back, not run again."""
+    from harness.limits import RESULT_ROW, LockedWriter, describe, run_requests, stored_rows
+
+    cached = stored_rows(_parts(sd.path))
+    cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
+    err.print(f"limits: {len(reqs)} breaking-point searches ({len(cached)} stored rows read back)",
+              markup=False, highlight=False)
+    run_requests(reqs, LockedWriter(sd, ctx), cached, jobs,
+                 on_done=lambda r, res, _s: err.print("limit: " + describe(res, r), markup=False,
+                                                       highlight=False, soft_wrap=True))
+
+
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
                out_dir: Path | None = None, resume: bool | None = None,
                scenarios: list[str] | None = None) -> int:
@@ -1107,7 +1212,9 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     if executor == "serial" and jobs > 1:
         err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
         jobs = 1
-    if not points:
+    reqs = [r for r in s.limits if (engines is None or r.engine in engines)
+            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+    if not points and not reqs:
         err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
                   markup=False)
         return 2
@@ -1141,6 +1248,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 _run_serial(todo, on_row, on_start)
             else:
                 _run_process(todo, jobs, on_row, on_start)
+        if reqs:
+            _run_limits(reqs, sd, ctx, jobs if executor == "process" else 1, err)
     except KeyboardInterrupt:
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
@@ -1157,8 +1266,11 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
 
     df = pd.read_parquet(out)
     wall = time.perf_counter() - t_start
-    summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
-                              + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
+    if "row_kind" in df.columns:  # breaking-point rows: summarized as their searches finished
+        df = df[df["row_kind"].isna()]
+    if len(df) or not reqs:
+            summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
+                                  + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
     err.print(f"rows written to {out}", markup=False, highlight=False, soft_wrap=True)
     return 0
 
