@@ -463,6 +463,13 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         variant_names=variant_names,
         phases=sc.phases,
     )
+    # the reference model must accept the scene, and every checked metric
+    # must be produced for it (tests/test_models.py)
+    from harness.references import scene_errors
+
+    errs = scene_errors(scene, label)
+    if errs:
+        raise SpecError(errs)
     if scene.phases > 1:
         # every phase must be runnable: the start must be free flight
         from harness.phase import PhaseError, shift_scene
