@@ -155,6 +155,12 @@ def test_check_and_primary_metrics_must_be_produced(tmp_path):
     errs = _errors(tmp_path, HEAD_ON_TEXT.replace('primary_metric = "post_impact_velocity_error"',
                                                   'primary_metric = "stack_drift"'))
     assert "scenario.primary_metric: 'stack_drift' is not produced" in errs[0]
+    # the elastic variant is conservative: energy_drift is the check there, energy_dissipated is refused
+    text = HEAD_ON_TEXT.replace("restitution = 0.9", "restitution = 1.0")
+    assert _load_text(tmp_path, text + '\n[[check]]\nmetric = "energy_drift"\nmax = 1\n').checks[-1].metric == \
+        "energy_drift"
+    errs = _errors(tmp_path, text + '\n[[check]]\nmetric = "energy_dissipated"\nmin = 0\n')
+    assert "check[3].metric: 'energy_dissipated'" in errs[0] and "conservative" in errs[0]
 
 
 def test_cli_run_reports_a_refused_scene_with_exit_2(tmp_path):

@@ -206,15 +206,13 @@ def scene_errors(scene: "Scene", label: str) -> list[str]:
 
 
 def _why(scene: "Scene", metric: str) -> str:
-    from harness.metric_defs import GENERIC_METRICS, dissipation
+    from harness.metric_defs import dissipation
 
     if metric == "energy_drift":
         return (f" (the scene is not conservative: {'; '.join(dissipation(scene))}; check energy_dissipated "
                 "or energy_gain instead)")
     if metric == "energy_dissipated":
         return " (the scene is conservative: check energy_drift instead)"
-    if metric in GENERIC_METRICS:
-        return f" ({GENERIC_METRICS[metric].when})"
     return ""
 
 
