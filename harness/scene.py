@@ -23,6 +23,7 @@ import numpy as np
 from harness.spec import (
     BodySection,
     LoadedSpec,
+    ModelRefusal,
     SpecError,
     SpecModel,
     load_spec,
@@ -465,8 +466,11 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     )
     # the reference model must accept the scene, and every checked metric
     # must be produced for it (tests/test_models.py)
-    from harness.references import scene_errors
+    from harness.references import model_refusal, scene_errors
 
+    errs = model_refusal(scene, label)
+    if errs:
+        raise ModelRefusal(errs)
     errs = scene_errors(scene, label)
     if errs:
         raise SpecError(errs)

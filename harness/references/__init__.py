@@ -64,6 +64,7 @@ class ReferenceError(ValueError):
         self.key = key
 
 
+
 @dataclass(frozen=True)
 class Param:
     """One ``[reference] params`` key: ``type`` is one of 'str', 'int',
@@ -171,27 +172,33 @@ def get_model(name: str) -> type[ReferenceModel]:
 # load-time check
 
 
+def model_refusal(scene: "Scene", label: str) -> list[str]:
+    """Spec-error lines (``<file>: <key path>: <problem>``) when the scene's
+    reference model does not accept the compiled scene: its refusal, or any
+    failure while it reads the scene; [] when it accepts (or there is none)."""
+    if not scene.reference_model:
+        return []
+    try:
+        get_model(scene.reference_model)(scene)
+    except ReferenceError as e:
+        return [f"{label}: {e.key}: model {scene.reference_model!r} cannot model this scene: {e}"]
+    except Exception as e:  # a model that fails while reading the scene cannot model it either
+        return [f"{label}: reference.model: model {scene.reference_model!r} cannot model this scene: "
+                f"{type(e).__name__}: {e}"]
+    return []
+
+
 def scene_errors(scene: "Scene", label: str) -> list[str]:
-    """Spec-error lines (``<file>: <key path>: <problem>``) for a compiled
-    scene: the reference model must accept it (its refusal, or any failure
-    while it reads the scene, is an error naming the key path), and the
-    primary metric and every check's metric must be one the model or the
-    harness produces for this scene (:func:`harness.metric_defs.generic_metrics`)."""
+    """Spec-error lines for the primary metric and every check's metric
+    that neither the scene's model nor the harness produces for this scene
+    (:func:`harness.metric_defs.generic_metrics`)."""
     from harness.metric_defs import generic_metrics
 
     errs: list[str] = []
     produced = generic_metrics(scene)
     origin = "the harness"
     if scene.reference_model:
-        try:
-            cls = get_model(scene.reference_model)
-            cls(scene)
-        except ReferenceError as e:
-            return [f"{label}: {e.key}: model {scene.reference_model!r} cannot model this scene: {e}"]
-        except Exception as e:  # a model that fails while reading the scene cannot model it either
-            return [f"{label}: reference.model: model {scene.reference_model!r} cannot model this scene: "
-                    f"{type(e).__name__}: {e}"]
-        produced = produced | set(cls.produces)
+        produced = produced | set(get_model(scene.reference_model).produces)
         origin = f"the harness or model {scene.reference_model!r}"
     hint = f"; {origin} produce(s): {', '.join(sorted(produced))}"
     if scene.primary_metric is not None and scene.primary_metric not in produced:
