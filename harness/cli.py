@@ -5,6 +5,7 @@
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
+    physbench models [NAME] [--json]
     physbench list
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
@@ -312,6 +313,29 @@ def cmd_report(args: argparse.Namespace) -> int:
                        fail_on_regression=args.fail_on_regression)
 
 
+def cmd_models(args: argparse.Namespace) -> int:
+    """The reference models' declarations (the same text as docs/MODELS.md)."""
+    from harness.references import MODELS, describe
+
+    if args.name is not None and args.name not in MODELS:
+        raise UsageError(f"models: unknown model {args.name!r}; known: {', '.join(sorted(MODELS))}")
+    descs = describe(args.name)
+    if args.json:
+        print(json.dumps(descs if args.name is None else descs[0]))
+        return 0
+    for d in descs:
+        print(f"{d['name']}: {d['summary']}")
+        print(f"  takes: {d['takes']}")
+        for p in d["params"]:
+            default = "-" if p["default"] is None else repr(p["default"])
+            print(f"  param {p['name']} ({p['type']}, default {default}): {p['meaning']}")
+        print(f"  metrics (primary {d['primary']}):")
+        for m, meaning in d["produces"].items():
+            print(f"    {m}: {meaning}")
+        print()
+    return 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     from harness.scene import load_scene, scenario_ids
 
@@ -425,6 +449,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
     rp.set_defaults(func=cmd_report)
+
+    mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
+    mo.add_argument("name", nargs="?", default=None, help="one model (default: all)")
+    mo.add_argument("--json", action="store_true", help="print the declarations as JSON")
+    mo.set_defaults(func=cmd_models)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")
     ls.set_defaults(func=cmd_list)

@@ -26,6 +26,7 @@ import numpy as np
 from harness.spec import (
     BodySection,
     LoadedSpec,
+    ModelRefusal,
     SpecError,
     SpecModel,
     load_spec,
@@ -483,6 +484,16 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         variant_names=variant_names,
         phases=sc.phases,
     )
+    # the reference model must accept the scene, and every checked metric
+    # must be produced for it (tests/test_models.py)
+    from harness.references import model_refusal, scene_errors
+
+    errs = model_refusal(scene, label)
+    if errs:
+        raise ModelRefusal(errs)
+    errs = scene_errors(scene, label)
+    if errs:
+        raise SpecError(errs)
     scene = dataclasses.replace(scene, content_hash=content_hash(scene))
     if scene.phases > 1:
         # every phase must be runnable: the start must be free flight

@@ -29,6 +29,8 @@ from pydantic import (
     model_validator,
 )
 
+from harness.references import ReferenceError
+
 EFFECTS = (
     "gravity",
     "contact",
@@ -65,6 +67,12 @@ class SpecError(ValueError):
     def __init__(self, errors: list[str]):
         self.errors = list(errors)
         super().__init__("\n".join(self.errors))
+
+
+class ModelRefusal(SpecError, ReferenceError):
+    """The scene's reference model refused the scene at load time: a spec
+    error (file, key path, exit 2) that is also the model's
+    :class:`harness.references.ReferenceError`."""
 
 
 class _Strict(BaseModel):
