@@ -52,6 +52,48 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
     return settings, overrides
 
 
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi] (argparse reports anything else
+    as a usage error, exit 2)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {v}")
+        return v
+    return parse
+
+
+def _phase_value(text: str) -> float:
+    """argparse type: a step phase 0 <= F < 1."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number 0 <= F < 1, got {text!r}") from None
+    if not 0.0 <= v < 1.0:  # also rejects nan
+        raise argparse.ArgumentTypeError(f"expected a number 0 <= F < 1, got {text}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
+    return v
+
+
+#: bounds of the CLI's counts: runs at once, benchmark repeats, record stride
+MAX_JOBS = 256
+MAX_REPEATS = 1000
+MAX_RECORD_EVERY = 10**8
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
@@ -254,9 +296,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", "-v", default=None)
     r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
-    r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
+    r.add_argument("--record-every", type=_int_in(1, MAX_RECORD_EVERY), default=1,
+                   help="record every N >= 1 steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
-    r.add_argument("--phase", type=float, default=0.0, metavar="F",
+    r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
     r.set_defaults(func=cmd_run)
@@ -266,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--tags", nargs="+", default=None)
     c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (default 1)")
     c.set_defaults(func=cmd_check)
 
     t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
@@ -276,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                    help="dotted spec keys only (engine settings differ per engine)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
-    t.add_argument("--phase", type=float, default=0.0, metavar="F",
+    t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
     t.set_defaults(func=cmd_trace)
@@ -288,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
     b.add_argument("kind", choices=["overhead", "cost"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
-    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -296,7 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
-    sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
                     help="default: serial for --jobs 1, a process pool otherwise")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
@@ -309,7 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
-    rp.add_argument("--target", type=float, default=None,
+    rp.add_argument("--target", type=_positive_float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")

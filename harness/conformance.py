@@ -306,8 +306,10 @@ def evaluate(scene: Scene, result, extra_results: dict[str, Any] | None = None) 
 
 
 def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> list[str]:
-    from harness.scene import scenario_ids
+    from harness.scene import resolve_scenario, scenario_ids
 
+    for sid in scenarios or ():
+        resolve_scenario(sid)  # an unknown id is bad input (SpecError, exit 2), not a failed check
     ids = list(scenarios) if scenarios else scenario_ids()
     if not tags:
         return ids

@@ -14,6 +14,7 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import math
+import numbers
 import os
 import platform
 import subprocess
@@ -26,6 +27,7 @@ import numpy as np
 
 from adapters import get_adapter
 from harness.scene import Scene, n_steps
+from harness.spec import record_size_error
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -200,7 +202,13 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
-    record_every = max(1, int(record_every))
+    if not isinstance(record_every, numbers.Integral) or record_every < 1:
+        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
+    record_every = int(record_every)
+    # bounded before anything is allocated (tests/test_fuzz.py::test_record_bound_before_allocation)
+    too_big = record_size_error(steps, scene.n_bodies, record_every)
+    if too_big:
+        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
     n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
     trace = Trace.allocate(n_frames, scene.n_bodies)
     result.trace = trace

@@ -49,7 +49,6 @@ import shutil
 import statistics
 import sys
 import time
-import tomllib
 import traceback
 import warnings
 from collections import deque
@@ -65,7 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from harness.phase import PhaseError, phase_values, shift_scene
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
 from harness.scene import REPO_ROOT
-from harness.spec import SpecError, _display, _format_errors
+from harness.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
@@ -83,6 +82,14 @@ PHASE_KEY = "phase"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
 
 
+def plain_name(name: str) -> bool:
+    """Whether ``name`` may name a directory under the results root: letters,
+    digits, '_', '-', '.', at most 100 characters, and not starting with '.'
+    (so never '.', '..' or a hidden directory).  Pinned by
+    tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
+    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
+
+
 class SuiteError(SpecError):
     """A suite file failed to load; ``errors`` holds one line per problem,
     ``<file>: <key path>: <what was expected, what was found>``.  A SpecError,
@@ -95,22 +102,29 @@ class SuiteError(SpecError):
 
 
 class _Strict(BaseModel):
-    # strict: TOML is typed, so "3" for an integer is a mistake, not a number
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    # strict: TOML is typed, so "3" for an integer is a mistake, not a number;
+    # allow_inf_nan=False: every float is finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+#: bounds of a suite's measuring knobs: repeats per point, seconds per run
+MAX_REPEATS = 1000
+MAX_TIMEOUT_S = 86400.0
 
 
 class SuiteSection(_Strict):
     name: str | None = None
     description: str = ""
     engines: list[str] = Field(min_length=1)
-    repeats: int = Field(default=3, ge=1)
-    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0)
+    repeats: int = Field(default=3, ge=1, le=MAX_REPEATS)
+    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0, le=MAX_TIMEOUT_S)
 
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
-        if v is not None and not _NAME.match(v):
-            raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
+        if v is not None and not plain_name(v):
+            raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.', not starting with '.'): "
+                             f"it names a directory, got {v!r}")
         return v
 
 
@@ -122,7 +136,7 @@ class SweepSection(_Strict):
     description: str = ""
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
-    repeats: int | None = Field(default=None, ge=1)
+    repeats: int | None = Field(default=None, ge=1, le=MAX_REPEATS)
     #: step phases per grid point (harness/phase.py): N runs with the start
     #: moved back along the free flight by i/N dt, i = 0 .. N-1
     phases: int = Field(default=1, ge=1, le=1024)
@@ -229,13 +243,7 @@ def load_suite(path: str | Path) -> Suite:
     Raises SuiteError listing every problem found."""
     p = resolve_suite(path)
     label = _display(p)
-    if not p.is_file():
-        raise SuiteError([f"{label}: <file>: no such file"])
-    data = p.read_bytes()
-    try:
-        raw = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SuiteError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    raw, data = read_toml(p, label, SuiteError)
     try:
         model = SuiteModel.model_validate(raw)
     except ValidationError as exc:
@@ -245,6 +253,9 @@ def load_suite(path: str | Path) -> Suite:
     if errors:
         raise SuiteError(errors)
     s = model.suite
+    if s.name is None and not plain_name(p.stem):
+        raise SuiteError([f"{label}: suite.name: the file name {p.stem!r} is not a plain name (letters, digits, "
+                          f"'_', '-', '.', not starting with '.') and names a directory; give suite.name"])
     return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
                  description=s.description, engines=tuple(s.engines), repeats=s.repeats,
                  timeout_s=s.timeout_s, sweeps=tuple(blocks))
@@ -347,12 +358,36 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
                     axes[e][key] = coerced
             for (path, msg, _), _ in own_bad.items():
                 errors.append(f"{label}: {path}: {msg}")
+        _check_record_size(where, scen, axes, errors)
         if PHASE_KEY in sw.grid or any(PHASE_KEY in own.grid for own in sw.engine.values()):
             errors.append(f"{where}: {PHASE_KEY!r} is not a grid axis; give the number of step phases as "
                           f"'phases = N' in the [[sweep]] table")
         blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
                                  axes, sw.description, sw.phases))
     return blocks
+
+
+def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dict[str, dict[str, tuple[Any, ...]]],
+                       errors: list[str]) -> None:
+    """Every point's recording fits the bounds (harness/spec.py
+    record_size_error) at the smallest dt any engine sweeps: checked when
+    the suite loads, before anything runs or is allocated."""
+    from harness.scene import load_scene, n_steps
+    from harness.spec import record_size_error
+
+    for e, ax in axes.items():
+        if "dt" not in ax:
+            continue
+        dt = min(float(v) for v in ax["dt"])
+        for sid, var in scen:
+            try:
+                sc = load_scene(sid, var)
+            except SpecError:
+                continue  # reported where the scenario is listed
+            why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
+            if why:
+                errors.append(f"{where}.grid.dt: {_label(sid, var)} at dt = {dt:g} on {e}: {why}")
+                return
 
 
 def _check_axis(path: str, key: str, values: list[Any], engine: str, caps: Any,
