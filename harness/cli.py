@@ -94,6 +94,39 @@ MAX_REPEATS = 1000
 MAX_RECORD_EVERY = 10**8
 
 
+def output_file(flag: str, value: str | None) -> Path | None:
+    """The file an output flag (``--junit``, ``-o``, ``--save``, ``--out``)
+    names, checked before any run: not empty, not an existing directory,
+    and no existing file where a parent directory must be (missing parent
+    directories are created when the file is written).  UsageError (exit 2)
+    otherwise."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a file path, got {value!r}")
+    p = Path(value)
+    if p.is_dir() or value.endswith(("/", "\\")):
+        raise UsageError(f"{flag} {value}: is a directory; expected a file path")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{flag} {value}: {parent} is a file, not a directory")
+            break
+    return p
+
+
+def output_dir(flag: str, value: str | None) -> Path | None:
+    """The directory an output flag names: not empty, not an existing file."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a directory path, got {value!r}")
+    p = Path(value)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"{flag} {value}: is a file; expected a directory")
+    return p
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
@@ -111,6 +144,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from harness.runner import run
     from harness.scene import load_scene
 
+    save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
     scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
@@ -126,7 +160,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         row = result.row()
         row["phase"] = float(args.phase)  # 0 = the scene as written
-        write_rows([row], args.save)
+        write_rows([row], save)
     if args.json:
         sys.stdout.write(json.dumps(result.as_dict(), sort_keys=False) + "\n")
         sys.stdout.flush()
@@ -207,6 +241,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from harness.scene import load_scene
 
     engines = args.engines or list(ENGINES)
+    output_file("-o", args.output)
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
     scene = _phase(scene, args.phase)
     results = []
@@ -225,6 +260,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
+    output_file("--junit", args.junit)
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs)
 
 
@@ -261,14 +297,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
-                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target,
+                       out=output_file("--out", args.out), suites=args.suites, target=args.target,
                        fail_on_regression=args.fail_on_regression)
 
 

@@ -185,6 +185,11 @@ class ScenarioSection(_Strict):
     #: moved back along the free flight by i/N dt, every one must pass
     phases: int = Field(default=1, ge=1, le=256)
 
+    @field_validator("family")
+    @classmethod
+    def _family_plain(cls, v: str) -> str:
+        return _plain(v)
+
     @field_validator("effects")
     @classmethod
     def _effects_known(cls, v: list[str]) -> list[str]:
@@ -302,6 +307,30 @@ class PatternSection(_Strict):
         return self
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def name_error(name: str) -> str | None:
+    """Why ``name`` cannot name a body, static, material, variant or family,
+    or None.  Any text is a name (quotes, '<', '&', long names: adapters
+    escape them, tests/test_fuzz.py::test_hostile_names_run) except control
+    characters: names land in tables, logs, JUnit XML (XML 1.0 cannot hold
+    most of them) and rerun entity paths."""
+    m = _CONTROL.search(name)
+    if m:
+        return (f"must not contain control characters (newline, tab, NUL, ...), got {m.group()!r} at "
+                f"index {m.start()} of {name[:60]!r}{'...' if len(name) > 60 else ''}")
+    return None
+
+
+def _plain(v: str | None) -> str | None:
+    if v is not None:
+        msg = name_error(v)
+        if msg:
+            raise ValueError(msg)
+    return v
+
+
 def _check_quat(q: tuple[float, ...]) -> tuple[float, ...]:
     n = math.sqrt(sum(c * c for c in q))
     if abs(n - 1.0) > 1e-6:
@@ -336,6 +365,11 @@ class BodySection(_Strict):
                 f"unknown shape {v!r}; expected one of {', '.join(BODY_SHAPES)}"
             )
         return v
+
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str) -> str:
+        return _plain(v)
 
     @field_validator("half_extents")
     @classmethod
@@ -428,6 +462,11 @@ class StaticSection(_Strict):
     @classmethod
     def _position_bounded(cls, v: Vec3 | None) -> Vec3 | None:
         return _bounded_each("position", v)
+
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str | None) -> str | None:
+        return _plain(v)
 
     @field_validator("half_extents")
     @classmethod
@@ -794,6 +833,10 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
     """Checks that span sections: names, material references, planar rules."""
     errs: list[str] = []
     materials = set(spec.material) | {"default"}
+    for m in spec.material:
+        why = name_error(m)
+        if why:
+            errs.append(f"{label}: material: the name {why}")
     names: dict[str, int] = {}
     for i, b in enumerate(spec.body):
         if b.name in names:
@@ -909,6 +952,8 @@ def load_spec(path: str | Path) -> LoadedSpec:
         if not isinstance(name, str) or not name:
             errors.append(f"{label}: variant[{i}].name: required key is missing")
             continue
+        if name_error(name):
+            errors.append(f"{label}: variant[{i}].name: {name_error(name)}")
         if name in variants:
             errors.append(f"{label}: variant[{i}].name: duplicate variant name {name!r}")
         variants[name] = {k: val for k, val in v.items() if k != "name"}

@@ -780,6 +780,18 @@ def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     return out
 
 
+def confined(root: Path, *parts: str) -> Path:
+    """``root / parts...``, each part a plain name (:func:`plain_name`), so
+    that the path stays inside ``root`` whatever a suite or machine is
+    called.  Raises SuiteError otherwise (a guard: load_suite and
+    machine_id already make plain names)."""
+    for part in parts:
+        if not plain_name(part):
+            raise SuiteError([f"{root}: <path>: {part!r} is not a plain name (letters, digits, '_', '-', '.', "
+                              f"not starting with '.'); it would name a directory outside the results root"])
+    return root.joinpath(*parts)
+
+
 def _sweep_id(commit: str) -> str:
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     return f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', commit)}"
@@ -798,7 +810,7 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     """
     from harness.runner import commit_id, machine_info
 
-    suite_dir = root / machine_id() / suite.name
+    suite_dir = confined(root, machine_id(), suite.name)
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
