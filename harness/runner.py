@@ -16,7 +16,6 @@ import functools
 import math
 import numbers
 import os
-import platform
 import subprocess
 import time
 import traceback
@@ -150,15 +149,16 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
-@functools.lru_cache(maxsize=1)
 def machine_info() -> dict[str, str]:
-    return {
-        "host": platform.node(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu": platform.processor() or platform.machine(),
-        "cores": str(os.cpu_count()),
-    }
+    """A row's ``machine.*`` columns: the environment fingerprint's flat
+    summary (harness/fingerprint.py: ``id`` is the machine id sweeps file
+    under, ``env_id`` adds the library stack; CPU model, family/model,
+    arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
+    One mechanism for check, run and sweep rows
+    (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
+    from harness.fingerprint import summary
+
+    return dict(summary())
 
 
 @functools.lru_cache(maxsize=1)

@@ -43,7 +43,6 @@ import itertools
 import json
 import math
 import os
-import platform
 import re
 import shutil
 import statistics
@@ -64,6 +63,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from harness.phase import PhaseError, phase_values, shift_scene
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
 from harness.scene import REPO_ROOT
+from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from harness.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
@@ -488,29 +488,10 @@ def _label(sid: str, var: str | None) -> str:
 # machine id
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo on Linux; platform elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-@lru_cache(maxsize=1)
-def machine_id() -> str:
-    """Short stable id of this machine: ``<host>-<8 hex>``, the hash over
-    host name, CPU model and core count (so a new CPU or a resized VM with
-    the same host name is a new machine, as timings are not comparable)."""
-    from harness.runner import machine_info
-
-    info = machine_info()
-    text = f"{info['host']}|{cpu_model()}|{info['cores']}"
-    host = re.sub(r"[^A-Za-z0-9_.-]", "_", info["host"] or "host")[:32]
-    return f"{host}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+# the machine id sweeps are filed under is the environment fingerprint's
+# (harness/fingerprint.py): CPU model, family/model/stepping, arithmetic
+# flags, cores and OS, never the host name
+machine_id = _fingerprint_machine_id
 
 
 # ---------------------------------------------------------------------------
@@ -859,7 +840,8 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine_id(),
-        "machine": {**machine_info(), "cpu_model": cpu_model()},
+        "machine": machine_info(),
+        "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
         "filters": filters,

@@ -38,7 +38,7 @@ from hypothesis import strategies as st
 
 from adapters import ENGINES
 from harness import cli
-from harness.scene import REPO_ROOT, SCENARIO_DIR, load_scene, scenario_ids
+from harness.scene import REPO_ROOT, SCENARIO_DIR, load_scene
 from harness.spec import BOUNDS, SpecError, load_spec
 from harness.sweep import STATUSES, SuiteError, expand, load_suite
 
