@@ -66,26 +66,21 @@ def _int_in(lo: int, hi: int):
     return parse
 
 
-def _phase_value(text: str) -> float:
-    """argparse type: a step phase 0 <= F < 1."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number 0 <= F < 1, got {text!r}") from None
-    if not 0.0 <= v < 1.0:  # also rejects nan
-        raise argparse.ArgumentTypeError(f"expected a number 0 <= F < 1, got {text}")
-    return v
+def _float_where(test: Any, expected: str):
+    """argparse type: a number for which ``test(v)`` holds (nan never does)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(v) and test(v)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+        return v
+    return parse
 
 
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return v
+_phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
+_positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
 
 
 #: bounds of the CLI's counts: runs at once, benchmark repeats, record stride

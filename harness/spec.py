@@ -96,18 +96,19 @@ def bound_error(kind: str, value: float, *, norm: bool = False) -> str | None:
     """The complaint about ``value`` against ``BOUNDS[kind]``, or None when
     it lies within them (inclusive).  ``norm``: the value is a vector's norm."""
     lo, hi, unit, _ = BOUNDS[kind]
-    if lo <= value <= hi:
+    if lo <= value <= hi:  # exact for ints of any size; False for nan
         return None
     u = f" {unit}" if unit else ""
     what = "norm " if norm else ""
+    got = f"{value:g}" if isinstance(value, float) or abs(value) < 10**15 else f"an integer of {len(str(abs(value)))} digits"
     if lo <= 0.0 and kind not in ("position",):
-        return f"{what}must be <= {hi:g}{u}, got {value:g}"
-    return f"{what}must be within [{lo:g}, {hi:g}]{u}, got {value:g}"
+        return f"{what}must be <= {hi:g}{u}, got {got}"
+    return f"{what}must be within [{lo:g}, {hi:g}]{u}, got {got}"
 
 
 def _bounded(kind: str, v: float | None) -> float | None:
     if v is not None:
-        msg = bound_error(kind, float(v))
+        msg = bound_error(kind, v)
         if msg:
             raise ValueError(msg)
     return v
@@ -116,7 +117,7 @@ def _bounded(kind: str, v: float | None) -> float | None:
 def _bounded_each(kind: str, v: tuple[float, ...] | None) -> tuple[float, ...] | None:
     if v is not None:
         for i, c in enumerate(v):
-            msg = bound_error(kind, float(c))
+            msg = bound_error(kind, c)
             if msg:
                 raise ValueError(f"[{i}] {msg}")
     return v
@@ -124,11 +125,23 @@ def _bounded_each(kind: str, v: tuple[float, ...] | None) -> tuple[float, ...] |
 
 def _bounded_norm(kind: str, v: tuple[float, ...] | None) -> tuple[float, ...] | None:
     if v is not None:
-        n = math.sqrt(sum(float(c) ** 2 for c in v))
+        n = math.hypot(*v)  # inf, not OverflowError, past 1e154
         msg = bound_error(kind, n, norm=True)
         if msg:
             raise ValueError(f"{msg}: {list(v)}")
     return v
+
+
+def _bound(kind: str, how: str = "value") -> Any:
+    """A field validator holding the field(s) to ``BOUNDS[kind]``: the value
+    itself, each component (``how="each"``) or the norm (``"norm"``).
+    None (an absent optional key) passes."""
+    check = {"value": _bounded, "each": _bounded_each, "norm": _bounded_norm}[how]
+
+    def validate(cls: Any, v: Any) -> Any:
+        return check(kind, v)
+
+    return validate
 
 
 def record_size_error(n_steps: int, n_bodies: int, record_every: int = 1) -> str | None:
@@ -202,20 +215,9 @@ class ScenarioSection(_Strict):
             raise ValueError(f"effects are listed twice: {v}")
         return v
 
-    @field_validator("duration")
-    @classmethod
-    def _duration_bounded(cls, v: float) -> float:
-        return _bounded("duration", v)
-
-    @field_validator("dt")
-    @classmethod
-    def _dt_bounded(cls, v: float) -> float:
-        return _bounded("dt", v)
-
-    @field_validator("gravity")
-    @classmethod
-    def _gravity_bounded(cls, v: Vec3) -> Vec3:
-        return _bounded_norm("gravity", v)
+    _duration_bounded = field_validator("duration")(_bound("duration"))
+    _dt_bounded = field_validator("dt")(_bound("dt"))
+    _gravity_bounded = field_validator("gravity")(_bound("gravity", "norm"))
 
     @model_validator(mode="after")
     def _dt_fits(self) -> "ScenarioSection":
@@ -236,15 +238,8 @@ class MaterialSection(_Strict):
     static_friction: float | None = Field(default=None, ge=0.0)
     rolling_friction: float = Field(default=0.0, ge=0.0)
 
-    @field_validator("friction", "static_friction")
-    @classmethod
-    def _friction_bounded(cls, v: float | None) -> float | None:
-        return _bounded("friction", v)
-
-    @field_validator("rolling_friction")
-    @classmethod
-    def _rolling_bounded(cls, v: float) -> float:
-        return _bounded("rolling_friction", v)
+    _friction_bounded = field_validator("friction", "static_friction")(_bound("friction"))
+    _rolling_bounded = field_validator("rolling_friction")(_bound("rolling_friction"))
 
     @model_validator(mode="after")
     def _static_ge_kinetic(self) -> "MaterialSection":
@@ -263,25 +258,14 @@ class PatternSection(_Strict):
     spacing: float | Vec3 | None = None
     gap: float = Field(default=0.0, ge=0.0)
 
-    @field_validator("count")
-    @classmethod
-    def _count_bounded(cls, v: int | None) -> int | None:
-        return _bounded("bodies", v)
-
-    @field_validator("counts")
-    @classmethod
-    def _counts_bounded(cls, v: tuple[int, int, int] | None) -> tuple[int, int, int] | None:
-        return _bounded_each("bodies", v)
+    _count_bounded = field_validator("count")(_bound("bodies"))
+    _counts_bounded = field_validator("counts")(_bound("bodies", "each"))
+    _gap_bounded = field_validator("gap")(_bound("position"))
 
     @field_validator("spacing")
     @classmethod
     def _spacing_bounded(cls, v: float | Vec3 | None) -> float | Vec3 | None:
         return _bounded("position", v) if isinstance(v, (int, float)) else _bounded_each("position", v)
-
-    @field_validator("gap")
-    @classmethod
-    def _gap_bounded(cls, v: float) -> float:
-        return _bounded("position", v)
 
     def n_bodies(self) -> int:
         """Bodies the pattern makes (pyramid: count levels, a rack: count rows)."""
@@ -378,40 +362,13 @@ class BodySection(_Strict):
             raise ValueError(f"must be > 0 in every component, got {list(v)}")
         return _bounded_each("length", v)
 
-    @field_validator("radius", "half_length")
-    @classmethod
-    def _length_bounded(cls, v: float | None) -> float | None:
-        return _bounded("length", v)
-
-    @field_validator("mass")
-    @classmethod
-    def _mass_bounded(cls, v: float | None) -> float | None:
-        return _bounded("mass", v)
-
-    @field_validator("density")
-    @classmethod
-    def _density_bounded(cls, v: float | None) -> float | None:
-        return _bounded("density", v)
-
-    @field_validator("position")
-    @classmethod
-    def _position_bounded(cls, v: Vec3) -> Vec3:
-        return _bounded_each("position", v)
-
-    @field_validator("velocity")
-    @classmethod
-    def _speed_bounded(cls, v: Vec3) -> Vec3:
-        return _bounded_norm("speed", v)
-
-    @field_validator("angular_velocity")
-    @classmethod
-    def _angular_speed_bounded(cls, v: Vec3) -> Vec3:
-        return _bounded_norm("angular_speed", v)
-
-    @field_validator("drag_linear", "drag_quadratic")
-    @classmethod
-    def _drag_bounded(cls, v: float) -> float:
-        return _bounded("drag", v)
+    _length_bounded = field_validator("radius", "half_length")(_bound("length"))
+    _mass_bounded = field_validator("mass")(_bound("mass"))
+    _density_bounded = field_validator("density")(_bound("density"))
+    _position_bounded = field_validator("position")(_bound("position", "each"))
+    _speed_bounded = field_validator("velocity")(_bound("speed", "norm"))
+    _angular_speed_bounded = field_validator("angular_velocity")(_bound("angular_speed", "norm"))
+    _drag_bounded = field_validator("drag_linear", "drag_quadratic")(_bound("drag"))
 
     @field_validator("orientation")
     @classmethod
@@ -458,10 +415,7 @@ class StaticSection(_Strict):
     def _unit(cls, v: Quat | None) -> Quat | None:
         return None if v is None else _check_quat(v)
 
-    @field_validator("position", "point")
-    @classmethod
-    def _position_bounded(cls, v: Vec3 | None) -> Vec3 | None:
-        return _bounded_each("position", v)
+    _position_bounded = field_validator("position", "point")(_bound("position", "each"))
 
     @field_validator("name", "material")
     @classmethod
@@ -475,10 +429,7 @@ class StaticSection(_Strict):
             raise ValueError(f"must be > 0 in every component, got {list(v)}")
         return _bounded_each("length", v)
 
-    @field_validator("offset")
-    @classmethod
-    def _offset_bounded(cls, v: float | None) -> float | None:
-        return _bounded("position", v)
+    _offset_bounded = field_validator("offset")(_bound("position"))
 
     @field_validator("normal")
     @classmethod
@@ -555,15 +506,10 @@ class SpringSection(_Strict):
     rest_length: float = Field(default=0.0, ge=0.0)
     damping: float = Field(default=0.0, ge=0.0)
 
-    @field_validator("anchor_a", "anchor_b")
-    @classmethod
-    def _anchor_bounded(cls, v: Vec3) -> Vec3:
-        return _bounded_each("position", v)
-
-    @field_validator("stiffness", "damping", "rest_length")
-    @classmethod
-    def _coefficient_bounded(cls, v: float, info: Any) -> float:
-        return _bounded(info.field_name, v)
+    _anchor_bounded = field_validator("anchor_a", "anchor_b")(_bound("position", "each"))
+    _stiffness_bounded = field_validator("stiffness")(_bound("stiffness"))
+    _damping_bounded = field_validator("damping")(_bound("damping"))
+    _rest_length_bounded = field_validator("rest_length")(_bound("rest_length"))
 
 
 class CheckSection(_Strict):

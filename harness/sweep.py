@@ -122,9 +122,11 @@ class SuiteSection(_Strict):
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
+        if v is not None and not _NAME.match(v):
+            raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
         if v is not None and not plain_name(v):
-            raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.', not starting with '.'): "
-                             f"it names a directory, got {v!r}")
+            raise ValueError(f"must be a plain name not starting with '.' and of at most 100 characters: it names "
+                             f"a directory under the results root, got {v!r}")
         return v
 
 

@@ -20,6 +20,7 @@ Hypothesis profiles (``PHYSBENCH_FUZZ_PROFILE``):
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import json
 import math
@@ -162,7 +163,7 @@ def _get_parent(doc: Any, path: tuple) -> Any:
 def _number_near(v: Any, draw) -> Any:
     """A number related to ``v``: scaled by a power of ten, negated, or an extreme."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return draw(st.sampled_from(EXTREMES))
+        return copy.deepcopy(draw(st.sampled_from(EXTREMES)))
     k = draw(st.integers(-320, 320))
     try:
         return float(v) * 10.0**k * draw(st.sampled_from([1.0, -1.0]))
@@ -176,7 +177,7 @@ def mutated_doc(draw, docs: list[tuple[Path, dict[str, Any]]], max_mutations: in
     by an extreme value, a wrong type or a scaled number; a key dropped or
     renamed; a list entry dropped or duplicated."""
     path, raw = draw(st.sampled_from(docs))
-    doc = json.loads(json.dumps(raw))  # deep copy (TOML values are JSON values, minus inf/nan: none shipped)
+    doc = copy.deepcopy(raw)
     for _ in range(draw(st.integers(1, max_mutations))):
         leaves = _leaves(doc)
         if not leaves:
@@ -186,7 +187,7 @@ def mutated_doc(draw, docs: list[tuple[Path, dict[str, Any]]], max_mutations: in
         key = where[-1]
         op = draw(st.sampled_from(["extreme", "near", "near", "drop", "rename", "dup"]))
         if op == "extreme":
-            parent[key] = draw(st.sampled_from(EXTREMES))
+            parent[key] = copy.deepcopy(draw(st.sampled_from(EXTREMES)))  # EXTREMES holds lists: never share them
         elif op == "near":
             v = parent[key]
             if isinstance(v, list) and v and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
