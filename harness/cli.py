@@ -1,8 +1,8 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [--engines ...] [--tags ...] [--junit FILE]
-    physbench trace SCENARIO|FILE [--engines ...] [--variant V] -o FILE.rrd
+    physbench check [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
+    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
     physbench engines [--json]
     physbench list
 
@@ -234,6 +234,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from adapters import ENGINES, get_adapter
     from harness.runner import run
     from harness.scene import load_scene
+    from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
     output_file("-o", args.output)
@@ -242,10 +243,16 @@ def cmd_trace(args: argparse.Namespace) -> int:
     results = []
     for e in engines:
         get_adapter(e)
-        results.append(run(scene, e))
-    from harness.rerun_log import write_rrd
+        results.append(run(scene, e, contact_cap=0 if args.watch else DEFAULT_CAP))
+    from harness.conformance import evaluate
+    from harness.trace import write_rrd
 
-    write_rrd(args.output, scene, results)
+    if args.watch:
+        write_rrd(args.output, scene, results)
+    else:
+        outcomes = [o for r in results for o in evaluate(scene, r) if "@" not in o.metric]
+        write_rrd(args.output, scene, results, diagnose=True, outcomes=outcomes,
+                  checks={c.metric: c for c in scene.checks}, contact_cap=DEFAULT_CAP)
     for r in results:
         print(f"{r.engine}: {r.status}" + (f" ({r.message})" if r.message else ""), file=sys.stderr)
     print(f"wrote {args.output}", file=sys.stderr)
@@ -256,7 +263,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
     output_file("--junit", args.junit)
-    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs)
+    output_dir("--traces", args.traces)
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs,
+                      traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -341,6 +350,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
     c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (default 1)")
+    c.add_argument("--traces", default=None, metavar="DIR",
+                   help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
 
     t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
@@ -350,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                    help="dotted spec keys only (engine settings differ per engine)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
+    t.add_argument("--watch", action="store_true",
+                   help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
     t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")

@@ -99,6 +99,8 @@ class Outcome:
     threshold: str = ""
     message: str = ""
     time_s: float = 0.0
+    #: path of the case's diagnosing trace (check --traces), else ""
+    trace: str = ""
 
     @property
     def name(self) -> str:
@@ -518,7 +520,10 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
     """JUnit XML: one <testsuite> per engine; testcase name
     '<scenario>[<variant>]::<metric>', classname 'physbench.<engine>.<family>'.
     FAIL -> <failure>; ERROR -> <error>; XPASS -> <failure> 'unexpected pass';
-    XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>."""
+    XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>.  A
+    testcase with a trace (check --traces) carries it as
+    ``<property name="trace" value="PATH"/>`` and a ``trace: PATH`` line in
+    ``<system-out>``."""
     root = ET.Element("testsuites", name="physbench conformance")
     by_engine: dict[str, list[Outcome]] = {}
     for o in outcomes:
@@ -538,6 +543,9 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
             family = o.scenario.split(".")[0]
             tc = ET.SubElement(suite, "testcase", name=o.name, classname=f"physbench.{eng}.{family}",
                                time=f"{o.time_s:.3f}")
+            if o.trace:
+                props = ET.SubElement(tc, "properties")
+                ET.SubElement(props, "property", name="trace", value=o.trace)
             if o.outcome == FAIL:
                 ET.SubElement(tc, "failure", message=o.message, type="FAIL").text = _detail(o)
             elif o.outcome == XPASS:
@@ -546,6 +554,8 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
                 ET.SubElement(tc, "error", message=o.message, type="ERROR").text = _detail(o)
             elif o.outcome in (XFAIL, UNSUPPORTED):
                 ET.SubElement(tc, "skipped", message=o.message, type=o.outcome)
+            if o.trace:
+                ET.SubElement(tc, "system-out").text = f"trace: {o.trace}"
     for k, v in totals.items():
         root.set(k, str(v))
     return ET.ElementTree(root)
@@ -639,11 +649,84 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
         return None
 
 
+def deciding_run(spec: "RunSpec", check: Check, results: dict[tuple, Any]) -> tuple[dict[str, Any], float]:
+    """(settings, step phase) of the run that decided ``check`` on the base
+    run ``spec``: the @-suffix's settings; for a phased scene the first
+    phase that failed; else the base run."""
+    name, st = split_metric(check.metric)
+    if st:
+        return st, 0.0
+    if spec.phases > 1:
+        for i in range(spec.phases):
+            res = results.get(spec.key + ((i / spec.phases,) if i else ()))
+            if res is not None and evaluate_check(check, res).outcome in (FAIL, XFAIL, ERROR):
+                return {}, i / spec.phases
+    return {}, 0.0
+
+
+def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[tuple, Any],
+                   outcomes: list[Outcome]) -> list[Path]:
+    """The trace step after the verdicts (``check --traces DIR``): every
+    FAIL, XFAIL and ERROR outcome's deciding run is run again with its trace
+    and the engine's contacts, and one diagnosing ``.rrd`` per case
+    (harness.trace.cases.case_name) goes to ``traces_dir``; each outcome
+    gets its file in ``Outcome.trace``.  Load errors have no run and no
+    trace.  A trace that cannot be written is reported, never fatal."""
+    from harness.scene import load_scene
+    from harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
+
+    base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks}
+    cases: dict[str, tuple] = {}
+    for o in outcomes:
+        spec = base.get((o.scenario, o.variant, o.engine))
+        if o.outcome not in TRACED_OUTCOMES or spec is None:
+            continue
+        check = next((c for c in spec.checks if c.metric == o.metric), None)
+        if check is None:
+            continue
+        settings, phase = deciding_run(spec, check, results)
+        name = case_name(o.scenario, o.variant, o.engine, settings, phase)
+        cases.setdefault(name, (spec, settings, phase, []))[3].append(o)
+    written = []
+    for name, (spec, settings, phase, failing) in cases.items():
+        try:
+            scene = load_scene(spec.scenario, spec.variant)
+            if phase:
+                from harness.phase import shift_scene
+
+                scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
+            res = _traced_run(scene, spec.engine, settings)
+            res.notes.append("run again after the verdict to record this trace")
+            mine = [o for o in outcomes if (o.scenario, o.variant, o.engine) == (spec.scenario, spec.variant,
+                                                                                   spec.engine)]
+            path = write_case_trace(traces_dir, scene, [res], mine, name=name,
+                                    checks={c.metric: c for c in spec.checks})
+        except Exception as e:  # pragma: no cover - a trace must not lose the verdict
+            print(f"warning: no trace for {name}: {type(e).__name__}: {e}", file=sys.stderr)
+            continue
+        for o in failing:
+            o.trace = str(path)
+        written.append(path)
+    return written
+
+
+def _traced_run(scene: Scene, engine: str, settings: dict[str, Any]):
+    from harness.runner import run
+    from harness.trace.contacts import DEFAULT_CAP
+
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return run(scene, engine, settings or None, timeout_s=RUN_TIMEOUT_S, contact_cap=DEFAULT_CAP)
+
+
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
-               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None) -> int:
+               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
+               traces: str | Path | None = None) -> int:
     """Run the conformance suite; print a summary; write every run's result
     row as Parquet (``save_dir``, default results/check/) and JUnit XML to
-    ``junit`` if given.  Returns 1 on any FAIL, ERROR or XPASS, else 0."""
+    ``junit`` if given; with ``traces``, one diagnosing trace per FAIL,
+    XFAIL and ERROR case into that directory (:func:`trace_failures`).
+    Returns 1 on any FAIL, ERROR or XPASS, else 0."""
     from rich.console import Console
 
     t0 = time.perf_counter()
@@ -657,6 +740,9 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs")
     results = run_all(runs, jobs=max(1, int(jobs or 1)), progress=True)
     outcomes = load_errors + evaluate_runs(runs, results)
+    if traces:
+        written = trace_failures(traces, runs, results, outcomes)
+        err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
     saved = save_rows(results, save_dir)
     if saved is not None:

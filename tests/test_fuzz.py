@@ -549,6 +549,7 @@ _TOKENS = ["--engine", "-e", "reference", "mujoco", "pymunk", "pybullet", "nosuc
            "--phase", "0.5", "1.5", "nan", "--jobs", "2", "--repeats", "--timeout", "--tags", "conformance",
            "--scenarios", "billiards.head_on", "nosuch.thing", "--engines", "--junit", "--save", "-o", "--out",
            "--suite", "smoke", "--target", "inf", "--resume", "--no-resume", "--executor", "serial", "",
+           "--traces", "--watch",
            "\x00", "é", "-", "--", "billiards.head_on", "friction.block_slides", "scenarios", "/nonexistent.toml"]
 
 
@@ -562,16 +563,16 @@ class _Called(Exception):
 def test_cli_argument_lists(tmp_path, monkeypatch, capsys, cmd, args):
     import harness.conformance
     import harness.report
-    import harness.rerun_log
     import harness.runner
     import harness.sweep
+    import harness.trace
     from harness import bench
 
     def stub(*a, **k):
         raise _Called
 
     for mod, name in [(harness.runner, "run"), (harness.conformance, "check_main"), (harness.sweep, "sweep_main"),
-                      (harness.report, "report_main"), (harness.rerun_log, "write_rrd"), (bench, "cost"),
+                      (harness.report, "report_main"), (harness.trace, "write_rrd"), (bench, "cost"),
                       (bench, "overhead"), (cli, "cmd_list"), (cli, "cmd_engines")]:
         monkeypatch.setattr(mod, name, stub)
     monkeypatch.chdir(tmp_path)  # relative output paths land in tmp
