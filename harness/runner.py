@@ -85,7 +85,9 @@ class RunResult:
     stages: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
-    machine: dict[str, str] = field(default_factory=dict)
+    #: the environment fingerprint's summary: every row names its machine,
+    #: also rows made without a run (load errors, dead workers)
+    machine: dict[str, str] = field(default_factory=lambda: machine_info())
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None

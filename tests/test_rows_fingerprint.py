@@ -68,3 +68,12 @@ def test_report_groups_old_rows_by_host():
          "machine_id": "amd-epyc-1234abcd", "source": "sweep"},
     ])
     assert list(_normalise(df)["machine_id"]) == ["oldbox", "amd-epyc-1234abcd", "amd-epyc-1234abcd"]
+
+
+def test_rows_made_without_a_run_name_the_machine():
+    """A RunResult built for a run that never started (a scene that failed to
+    load, an engine that cannot be imported) still names its machine."""
+    from harness.runner import RunResult
+
+    row = RunResult("a.b", None, "no_such_engine", "", "error", "scene failed to load", {}).row()
+    assert row["machine.id"] == F.machine_id() and row["machine.env_id"] == F.env_id()
