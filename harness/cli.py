@@ -58,6 +58,76 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
     return settings, overrides
 
 
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi] (argparse reports anything else
+    as a usage error, exit 2)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {v}")
+        return v
+    return parse
+
+
+def _float_where(test: Any, expected: str):
+    """argparse type: a number for which ``test(v)`` holds (nan never does)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(v) and test(v)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+        return v
+    return parse
+
+
+_phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
+_positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
+
+
+#: bounds of the CLI's counts: runs at once, benchmark repeats, record stride
+MAX_JOBS = 256
+MAX_REPEATS = 1000
+MAX_RECORD_EVERY = 10**8
+
+
+def output_file(flag: str, value: str | None) -> Path | None:
+    """The file an output flag (``--junit``, ``-o``, ``--save``, ``--out``)
+    names, checked before any run: not empty, not an existing directory,
+    and no existing file where a parent directory must be (missing parent
+    directories are created when the file is written).  UsageError (exit 2)
+    otherwise."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a file path, got {value!r}")
+    p = Path(value)
+    if p.is_dir() or value.endswith(("/", "\\")):
+        raise UsageError(f"{flag} {value}: is a directory; expected a file path")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{flag} {value}: {parent} is a file, not a directory")
+            break
+    return p
+
+
+def output_dir(flag: str, value: str | None) -> Path | None:
+    """The directory an output flag names: not empty, not an existing file."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a directory path, got {value!r}")
+    p = Path(value)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"{flag} {value}: is a file; expected a directory")
+    return p
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
@@ -76,6 +146,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from harness.runner import run
     from harness.scene import load_scene
 
+    save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
     scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
@@ -95,7 +166,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if runs:
             row.update(runs[0].row_extra)
         row["checks"] = json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
-        write_rows([row], args.save)
+        write_rows([row], save)
     if args.json:
         d = result.as_dict()
         d["checks"] = [o.as_dict() for o in outcomes]
@@ -215,6 +286,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     if Path(args.scenario).is_dir():
         raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
                          f"or a spec file, not a folder")
+    output_file("-o", args.output)
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
     scene = _phase(scene, args.phase)
     results = []
@@ -239,6 +311,8 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
+    output_file("--junit", args.junit)
+    output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
                       jobs=args.jobs, traces=args.traces)
@@ -277,7 +351,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios)
 
 
 def cmd_limits(args: argparse.Namespace) -> int:
@@ -309,7 +383,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
-                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target,
+                       out=output_file("--out", args.out), suites=args.suites, target=args.target,
                        fail_on_regression=args.fail_on_regression)
 
 
@@ -360,9 +434,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", "-v", default=None)
     r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
-    r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
+    r.add_argument("--record-every", type=_int_in(1, MAX_RECORD_EVERY), default=1,
+                   help="record every N >= 1 steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
-    r.add_argument("--phase", type=float, default=0.0, metavar="F",
+    r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
     r.set_defaults(func=cmd_run)
@@ -375,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
                    help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (default 1)")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -389,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
-    t.add_argument("--phase", type=float, default=0.0, metavar="F",
+    t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
     t.set_defaults(func=cmd_trace)
@@ -401,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
     b.add_argument("kind", choices=["overhead", "cost"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
-    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -409,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
-    sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
                     help="default: serial for --jobs 1, a process pool otherwise")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
@@ -444,7 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
-    rp.add_argument("--target", type=float, default=None,
+    rp.add_argument("--target", type=_positive_float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")

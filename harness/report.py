@@ -332,8 +332,11 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     df["commit"] = ["" if _missing(m) else str(m) for m in df["commit"]]
     df["timestamp"] = ["" if _missing(m) else str(m) for m in df["timestamp"]]
     df["incomplete"] = [bool(_truthy(v)) for v in df["incomplete"]]
-    if "machine.host" in df.columns:
-        df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df["machine.host"])]
+    # a row's machine: the sweep's machine id, else the fingerprint's id the
+    # row carries (check and run rows), else the host of rows older than it
+    for col in ("machine.id", "machine.host"):
+        if col in df.columns:
+            df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df[col])]
     df["machine_id"] = ["unknown" if _missing(m) else str(m) for m in df["machine_id"]]
     df["suite"] = ["" if _missing(s) else str(s) for s in df["suite"]]
     df["sweep_id"] = ["" if _missing(s) else str(s) for s in df["sweep_id"]]
@@ -1497,7 +1500,11 @@ def _header_html(df: pd.DataFrame) -> str:
     machines = []
     for mid, g in df.groupby("machine_id", sort=True):
         last = g.iloc[-1]
-        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"), ("cores", "machine.cores"),
+        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"),
+                                                         ("family/model", "machine.cpu_family_model"),
+                                                         ("flags", "machine.cpu_flags"), ("cores", "machine.cores"),
+                                                         ("BLAS", "machine.blas"), ("numpy", "machine.numpy"),
+                                                         ("scipy", "machine.scipy"), ("env", "machine.env_id"),
                                                          ("platform", "machine.platform"),
                                                          ("python", "machine.python"))
                          if c in g.columns and not _missing(last[c]))

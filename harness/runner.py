@@ -14,8 +14,8 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import math
+import numbers
 import os
-import platform
 import subprocess
 import time
 import traceback
@@ -26,6 +26,7 @@ import numpy as np
 
 from adapters import get_adapter
 from harness.scene import Scene, n_steps
+from harness.spec import record_size_error
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -84,7 +85,9 @@ class RunResult:
     stages: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
-    machine: dict[str, str] = field(default_factory=dict)
+    #: the environment fingerprint's summary: every row names its machine,
+    #: also rows made without a run (load errors, dead workers)
+    machine: dict[str, str] = field(default_factory=lambda: machine_info())
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
@@ -159,15 +162,16 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
-@functools.lru_cache(maxsize=1)
 def machine_info() -> dict[str, str]:
-    return {
-        "host": platform.node(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu": platform.processor() or platform.machine(),
-        "cores": str(os.cpu_count()),
-    }
+    """A row's ``machine.*`` columns: the environment fingerprint's flat
+    summary (harness/fingerprint.py: ``id`` is the machine id sweeps file
+    under, ``env_id`` adds the library stack; CPU model, family/model,
+    arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
+    One mechanism for check, run and sweep rows
+    (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
+    from harness.fingerprint import summary
+
+    return dict(summary())
 
 
 @functools.lru_cache(maxsize=1)
@@ -218,7 +222,13 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
-    record_every = max(1, int(record_every))
+    if not isinstance(record_every, numbers.Integral) or record_every < 1:
+        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
+    record_every = int(record_every)
+    # bounded before anything is allocated (tests/test_fuzz.py::test_record_bound_before_allocation)
+    too_big = record_size_error(steps, scene.n_bodies, record_every)
+    if too_big:
+        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
     n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
     trace = Trace.allocate(n_frames, scene.n_bodies)
     result.trace = trace

@@ -43,13 +43,11 @@ import itertools
 import json
 import math
 import os
-import platform
 import re
 import shutil
 import statistics
 import sys
 import time
-import tomllib
 import traceback
 import warnings
 from collections import deque
@@ -65,7 +63,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from harness.phase import PhaseError, phase_values, shift_scene
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
 from harness.scene import REPO_ROOT
-from harness.spec import SpecError, _display, _format_errors
+from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
+from harness.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
@@ -84,6 +83,14 @@ PHASE_KEY = "phase"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
 
 
+def plain_name(name: str) -> bool:
+    """Whether ``name`` may name a directory under the results root: letters,
+    digits, '_', '-', '.', at most 100 characters, and not starting with '.'
+    (so never '.', '..' or a hidden directory).  Pinned by
+    tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
+    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
+
+
 class SuiteError(SpecError):
     """A suite file failed to load; ``errors`` holds one line per problem,
     ``<file>: <key path>: <what was expected, what was found>``.  A SpecError,
@@ -96,22 +103,31 @@ class SuiteError(SpecError):
 
 
 class _Strict(BaseModel):
-    # strict: TOML is typed, so "3" for an integer is a mistake, not a number
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    # strict: TOML is typed, so "3" for an integer is a mistake, not a number;
+    # allow_inf_nan=False: every float is finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+#: bounds of a suite's measuring knobs: repeats per point, seconds per run
+MAX_REPEATS = 1000
+MAX_TIMEOUT_S = 86400.0
 
 
 class SuiteSection(_Strict):
     name: str | None = None
     description: str = ""
     engines: list[str] = Field(min_length=1)
-    repeats: int = Field(default=3, ge=1)
-    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0)
+    repeats: int = Field(default=3, ge=1, le=MAX_REPEATS)
+    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0, le=MAX_TIMEOUT_S)
 
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
         if v is not None and not _NAME.match(v):
             raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
+        if v is not None and not plain_name(v):
+            raise ValueError(f"must be a plain name not starting with '.' and of at most 100 characters: it names "
+                             f"a directory under the results root, got {v!r}")
         return v
 
 
@@ -123,7 +139,7 @@ class SweepSection(_Strict):
     description: str = ""
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
-    repeats: int | None = Field(default=None, ge=1)
+    repeats: int | None = Field(default=None, ge=1, le=MAX_REPEATS)
     #: step phases per grid point (harness/phase.py): N runs with the start
     #: moved back along the free flight by i/N dt, i = 0 .. N-1
     phases: int = Field(default=1, ge=1, le=1024)
@@ -291,13 +307,7 @@ def load_suite(path: str | Path) -> Suite:
     Raises SuiteError listing every problem found."""
     p = resolve_suite(path)
     label = _display(p)
-    if not p.is_file():
-        raise SuiteError([f"{label}: <file>: no such file"])
-    data = p.read_bytes()
-    try:
-        raw = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SuiteError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    raw, data = read_toml(p, label, SuiteError)
     try:
         model = SuiteModel.model_validate(raw)
     except ValidationError as exc:
@@ -310,6 +320,9 @@ def load_suite(path: str | Path) -> Suite:
     if errors:
         raise SuiteError(errors)
     s = model.suite
+    if s.name is None and not plain_name(p.stem):
+        raise SuiteError([f"{label}: suite.name: the file name {p.stem!r} is not a plain name (letters, digits, "
+                          f"'_', '-', '.', not starting with '.') and names a directory; give suite.name"])
     return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
                  description=s.description, engines=tuple(s.engines), repeats=s.repeats,
                  timeout_s=s.timeout_s, sweeps=tuple(blocks), limits=tuple(limits))
@@ -483,12 +496,36 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                     axes[e][key] = coerced
             for (path, msg, _), _ in own_bad.items():
                 errors.append(f"{label}: {path}: {msg}")
+        _check_record_size(where, scen, axes, errors)
         if PHASE_KEY in sw.grid or any(PHASE_KEY in own.grid for own in sw.engine.values()):
             errors.append(f"{where}: {PHASE_KEY!r} is not a grid axis; give the number of step phases as "
                           f"'phases = N' in the [[sweep]] table")
         blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
                                  axes, sw.description, sw.phases))
     return blocks
+
+
+def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dict[str, dict[str, tuple[Any, ...]]],
+                       errors: list[str]) -> None:
+    """Every point's recording fits the bounds (harness/spec.py
+    record_size_error) at the smallest dt any engine sweeps: checked when
+    the suite loads, before anything runs or is allocated."""
+    from harness.scene import load_scene, n_steps
+    from harness.spec import record_size_error
+
+    for e, ax in axes.items():
+        if "dt" not in ax:
+            continue
+        dt = min(float(v) for v in ax["dt"])
+        for sid, var in scen:
+            try:
+                sc = load_scene(sid, var)
+            except SpecError:
+                continue  # reported where the scenario is listed
+            why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
+            if why:
+                errors.append(f"{where}.grid.dt: {_label(sid, var)} at dt = {dt:g} on {e}: {why}")
+                return
 
 
 def _check_axis(path: str, key: str, values: list[Any], engine: str, caps: Any,
@@ -591,29 +628,10 @@ def _label(sid: str, var: str | None) -> str:
 # machine id
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo on Linux; platform elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-@lru_cache(maxsize=1)
-def machine_id() -> str:
-    """Short stable id of this machine: ``<host>-<8 hex>``, the hash over
-    host name, CPU model and core count (so a new CPU or a resized VM with
-    the same host name is a new machine, as timings are not comparable)."""
-    from harness.runner import machine_info
-
-    info = machine_info()
-    text = f"{info['host']}|{cpu_model()}|{info['cores']}"
-    host = re.sub(r"[^A-Za-z0-9_.-]", "_", info["host"] or "host")[:32]
-    return f"{host}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+# the machine id sweeps are filed under is the environment fingerprint's
+# (harness/fingerprint.py): CPU model, family/model/stepping, arithmetic
+# flags, cores and OS, never the host name
+machine_id = _fingerprint_machine_id
 
 
 # ---------------------------------------------------------------------------
@@ -902,6 +920,18 @@ def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     return out
 
 
+def confined(root: Path, *parts: str) -> Path:
+    """``root / parts...``, each part a plain name (:func:`plain_name`), so
+    that the path stays inside ``root`` whatever a suite or machine is
+    called.  Raises SuiteError otherwise (a guard: load_suite and
+    machine_id already make plain names)."""
+    for part in parts:
+        if not plain_name(part):
+            raise SuiteError([f"{root}: <path>: {part!r} is not a plain name (letters, digits, '_', '-', '.', "
+                              f"not starting with '.'); it would name a directory outside the results root"])
+    return root.joinpath(*parts)
+
+
 def _sweep_id(commit: str) -> str:
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     return f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', commit)}"
@@ -920,7 +950,7 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     """
     from harness.runner import commit_id, machine_info
 
-    suite_dir = root / machine_id() / suite.name
+    suite_dir = confined(root, machine_id(), suite.name)
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
@@ -969,7 +999,8 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine_id(),
-        "machine": {**machine_info(), "cpu_model": cpu_model()},
+        "machine": machine_info(),
+        "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
         "filters": filters,
