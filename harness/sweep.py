@@ -505,7 +505,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
     return blocks
 
 
-def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dict[str, dict[str, tuple[Any, ...]]],
+def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[str, tuple[Any, ...]]],
                        errors: list[str]) -> None:
     """Every point's recording fits the bounds (harness/spec.py
     record_size_error) at the smallest dt any engine sweeps: checked when
@@ -517,14 +517,15 @@ def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dic
         if "dt" not in ax:
             continue
         dt = min(float(v) for v in ax["dt"])
-        for sid, var in scen:
+        for entry in scen:
             try:
-                sc = load_scene(sid, var)
+                sc = load_scene(entry.path or entry.scenario, entry.variant)
             except SpecError:
                 continue  # reported where the scenario is listed
             why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
             if why:
-                errors.append(f"{where}.grid.dt: {_label(sid, var)} at dt = {dt:g} on {e}: {why}")
+                errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
+                              f"{why}")
                 return
 
 
