@@ -55,31 +55,34 @@ match).  ``tolerance`` also widens max/min bounds.
 
 from __future__ import annotations
 
+import datetime as _dt
+import hashlib
+import json
 import math
 import os
+import re
 import sys
 import time
-import warnings
 import xml.etree.ElementTree as ET
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, Iterable
 
-import numpy as np
-
+from harness import status as st
+from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result, make_executor
 from harness.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
 HARD_DT_LABEL = "1/30"
-RUN_TIMEOUT_S = 600.0  # wall-clock budget per run
+RUN_TIMEOUT_S = DEFAULT_TIMEOUT_S  # wall-clock budget per run (--timeout)
 BASE = "base"  # name standing for the base scenario in a check's `variants`
 
-PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR = "PASS", "FAIL", "XFAIL", "XPASS", "UNSUPPORTED", "ERROR"
-BAD = (FAIL, XPASS, ERROR)
-OUTCOMES = (PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR)
-ERROR_STATUSES = ("error", "failed", "diverged", "timeout")
+# the outcome vocabulary (harness/status.py) under the names used here
+PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR = st.PASS, st.FAIL, st.XFAIL, st.XPASS, st.CHECK_UNSUPPORTED, st.CHECK_ERROR
+BAD = st.BAD_OUTCOMES
+OUTCOMES = st.OUTCOMES
+ERROR_STATUSES = st.ERROR_STATUSES
 
 
 # ---------------------------------------------------------------------------
@@ -121,11 +124,25 @@ class RunSpec:
     phase: float = 0.0
     #: the base run's phases (``[scenario] phases``), on the base run only
     phases: int = 1
+    #: wall-clock budget of the run (s); not part of its identity
+    timeout_s: float | None = RUN_TIMEOUT_S
 
     @property
     def key(self) -> tuple:
         base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
         return base + ((self.phase,) if self.phase else ())
+
+    @property
+    def run_key(self) -> str:
+        """The run's identity as text (the ``run_key`` column of check rows):
+        ``scenario[variant]|engine|{settings}|phase``."""
+        v = f"[{self.variant}]" if self.variant else ""
+        settings = json.dumps(dict(sorted(self.settings.items())), sort_keys=True, separators=(",", ":"))
+        return f"{self.scenario}{v}|{self.engine}|{settings}|{self.phase!r}"
+
+    def request(self) -> RunRequest:
+        return RunRequest(self.scenario, self.engine, self.variant, dict(self.settings), phase=self.phase,
+                          timeout_s=self.timeout_s)
 
 
 # ---------------------------------------------------------------------------
@@ -229,10 +246,10 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
     reason = check.xfail.get(result.engine)
     o = Outcome(result.engine, result.scenario, result.variant, check.metric, PASS,
                 threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0))
-    if result.status == "unsupported":
+    if result.status == st.UNSUPPORTED:
         o.outcome, o.message = UNSUPPORTED, f"unsupported: {result.message}"
         return o
-    if result.status in ERROR_STATUSES or result.status != "ok":
+    if result.status in ERROR_STATUSES or result.status != st.OK:
         msg = f"{result.status}: {result.message}"
         if reason:
             o.outcome, o.message = XFAIL, f"xfail: {reason} ({msg})"
@@ -335,8 +352,10 @@ def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], 
     return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
 
 
-def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], list[Outcome]]:
-    """Runs to make, and ERROR outcomes for scenarios that fail to load."""
+def plan(scenario_ids: list[str], engines: list[str],
+         timeout_s: float | None = RUN_TIMEOUT_S) -> tuple[list[RunSpec], list[Outcome]]:
+    """Runs to make (each with the wall-clock budget ``timeout_s``), and
+    ERROR outcomes for scenarios that fail to load."""
     from harness.scene import load_scene, resolve_scenario
     from harness.spec import load_spec
 
@@ -358,51 +377,34 @@ def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], li
                 checks = applicable_checks(scene, eng) + hard_checks(scene)
                 if not checks:
                     continue
-                runs.append(RunSpec(scene.id, variant, eng, {}, checks, phases=scene.phases))
+                runs.append(RunSpec(scene.id, variant, eng, {}, checks, phases=scene.phases, timeout_s=timeout_s))
                 for i in range(1, scene.phases):
-                    runs.append(RunSpec(scene.id, variant, eng, {}, [], phase=i / scene.phases))
+                    runs.append(RunSpec(scene.id, variant, eng, {}, [], phase=i / scene.phases,
+                                        timeout_s=timeout_s))
                 suffixes = {}
                 for c in checks:
-                    _, st = split_metric(c.metric)
-                    if st:
-                        suffixes[c.metric.partition("@")[2]] = st
-                for st in suffixes.values():
-                    runs.append(RunSpec(scene.id, variant, eng, st, []))
+                    _, sett = split_metric(c.metric)
+                    if sett:
+                        suffixes[c.metric.partition("@")[2]] = sett
+                for extra in suffixes.values():
+                    runs.append(RunSpec(scene.id, variant, eng, extra, [], timeout_s=timeout_s))
     return runs, errors
 
 
 def execute(spec: RunSpec):
-    """Run one RunSpec; never raises (engine import errors become a
-    RunResult with status 'failed').  The trace is dropped (results cross
-    process boundaries)."""
-    from harness.runner import RunResult, run
-    from harness.scene import load_scene
-
-    try:
-        scene = load_scene(spec.scenario, spec.variant)
-        if spec.phase:
-            from harness.phase import shift_scene
-
-            scene = shift_scene(scene, spec.phase, dt=spec.settings.get("dt", scene.dt))
-    except Exception as e:
-        return RunResult(spec.scenario, spec.variant, spec.engine, "", "error", f"scene failed to load: {e}",
-                         dict(spec.settings))
-    try:
-        # a blow-up is recorded in the result's status; numpy's overflow
-        # warnings on the way there would only scramble the progress display
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
-            res = run(scene, spec.engine, spec.settings or None, timeout_s=RUN_TIMEOUT_S)
-    except Exception as e:  # adapter import error, bad setting ...
-        res = RunResult(scene.id, spec.variant, spec.engine, "", "failed",
-                        f"could not run: {type(e).__name__}: {e}", dict(spec.settings))
-    res.trace = None
-    return res
+    """Run one RunSpec in this process (harness.execute.execute_request):
+    never raises (engine import errors become a RunResult with status
+    'failed').  The trace is dropped (results cross process boundaries)."""
+    return execute_request(spec.request())
 
 
-def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[tuple, Any]:
-    """Execute runs (in ``jobs`` processes), with a rich progress bar on
-    stderr.  Returns {RunSpec.key: RunResult}."""
+def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
+            on_result=None) -> dict[tuple, Any]:
+    """Execute runs in ``jobs`` worker processes (harness/execute.py: a
+    worker that dies or hangs costs only its run, which becomes an error or
+    timeout result), or in this process with ``executor="inline"``; a rich
+    progress bar on stderr.  ``on_result(spec, result)`` is called as each
+    run finishes (check stores it there).  Returns {RunSpec.key: RunResult}."""
     from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -411,32 +413,21 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[t
     console = Console(stderr=True)
     cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
             TextColumn("{task.description}"))
-    with Progress(*cols, console=console, disable=not progress, transient=False) as bar:
+    with Progress(*cols, console=console, disable=not progress, transient=False) as bar, \
+            make_executor(executor, jobs) as ex:
         task = bar.add_task("", total=len(runs))
 
-        def label(r: RunSpec) -> str:
-            s = ",".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.settings.items())
-            return escape(f"{r.engine} {r.scenario}" + (f"[{r.variant}]" if r.variant else "") + (f" @{s}" if s else ""))
+        def run_one(r: RunSpec):
+            return execute(r)  # looked up at call time (tests patch it for inline runs)
 
-        if jobs <= 1:
-            for r in runs:
-                bar.update(task, description=label(r))
-                results[r.key] = execute(r)
-                bar.advance(task)
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                futs = {pool.submit(execute, r): r for r in runs}
-                for fut in as_completed(futs):
-                    r = futs[fut]
-                    try:
-                        results[r.key] = fut.result()
-                    except Exception as e:  # worker crashed
-                        from harness.runner import RunResult
-
-                        results[r.key] = RunResult(r.scenario, r.variant, r.engine, "", "error",
-                                                   f"worker failed: {type(e).__name__}: {e}", dict(r.settings))
-                    bar.update(task, description=label(r))
-                    bar.advance(task)
+        fn = execute if executor == "process" else run_one
+        for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
+                               on_start=lambda r: bar.update(task, description=escape(r.request().label))):
+            res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
+            results[r.key] = res
+            if on_result is not None:
+                on_result(r, res)
+            bar.advance(task)
     return results
 
 
@@ -448,9 +439,9 @@ def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcom
             continue
         res = results[r.key]
         for c in r.checks:
-            name, st = split_metric(c.metric)
-            if st:
-                key = (r.scenario, r.variant, r.engine, tuple(sorted(st.items())))
+            name, sett = split_metric(c.metric)
+            if sett:
+                key = (r.scenario, r.variant, r.engine, tuple(sorted(sett.items())))
                 other = results.get(key)
                 if other is None:
                     outs.append(Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
@@ -615,21 +606,24 @@ def exit_code(outcomes: list[Outcome]) -> int:
 # entry point
 
 
+def _row(key: tuple, result: Any) -> dict[str, Any]:
+    row = result.row()
+    # the step phase of the run (a 5th key element; 0 = the scene as written)
+    row["phase"] = float(key[4]) if len(key) > 4 else 0.0
+    return row
+
+
 def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | None:
     """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
-    (default results/check/); a failure to write is reported, not fatal."""
+    (default results/check/) in one file; a failure to write is reported,
+    not fatal.  (``check_main`` stores rows as they finish instead.)"""
     from harness.results import RESULTS_DIR, write_rows
 
     if not results:
         return None
     d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    rows = []
-    for key, r in results.items():
-        row = r.row()
-        # the step phase of the run (a 5th key element; 0 = the scene as written)
-        row["phase"] = float(key[4]) if len(key) > 4 else 0.0
-        rows.append(row)
+    rows = [_row(key, r) for key, r in results.items()]
     try:
         return write_rows(rows, d / f"{stamp}.parquet", append=False)
     except Exception as e:  # pragma: no cover - disk trouble must not hide the verdict
@@ -637,31 +631,137 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
         return None
 
 
+# ---------------------------------------------------------------------------
+# the check's store: one part per finished run, resumable
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], timeout_s: float | None) -> dict[str, Any]:
+    """What makes two checks "the same" (resumable one from the other): the
+    commit (a dirty tree counts as its commit: code edited between the
+    kill and the rerun is not noticed), the engines, the scenario ids, the
+    bytes of their spec files (sha256), the per-run budget, and the planned
+    run keys."""
+    from harness.runner import commit_id
+    from harness.scene import resolve_scenario
+
+    h = hashlib.sha256()
+    for sid in ids:
+        h.update(sid.encode() + b"\0")
+        try:
+            h.update(resolve_scenario(sid).read_bytes())
+        except Exception as e:  # reported as a load error outcome
+            h.update(repr(e).encode())
+        h.update(b"\0")
+    return {"commit": commit_id(), "engines": list(engines), "scenarios": list(ids),
+            "specs_hash": h.hexdigest()[:16], "timeout_s": timeout_s, "runs": [r.run_key for r in runs]}
+
+
+def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
+    """The unfinished check under ``root`` to resume (same identity, see
+    :func:`check_identity`, not locked by a running check), or a new one.
+    Returns (harness.results.PartsDir keyed by ``run_key``, resumed)."""
+    from harness.results import PartsDir, SCHEMA_VERSION, try_lock, unfinished_dirs, write_json_atomic
+
+    if resume:
+        for d, man in unfinished_dirs(root):
+            if (d.parent / f"{d.name}.parquet").exists():
+                continue  # consolidated; only its directory was left behind
+            if any(man.get(k) != v for k, v in ident.items()):
+                continue
+            fd = try_lock(d)
+            if fd < 0:
+                continue
+            man.setdefault("resumed", []).append(_now())
+            write_json_atomic(man, d / "manifest.json")
+            return PartsDir(d, man, fd, "run_key"), True
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    base = f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', ident['commit'])}"
+    cid, n = base, 0
+    while (root / cid).exists() or (root / f"{cid}.parquet").exists():
+        n += 1
+        cid = f"{base}-{n}"
+    d = root / cid
+    d.mkdir(parents=True)
+    fd = try_lock(d)
+    man = {"schema_version": SCHEMA_VERSION, "check_id": cid, "started": _now(), "finished": None, **ident}
+    write_json_atomic(man, d / "manifest.json")
+    return PartsDir(d, man, fd, "run_key"), False
+
+
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
-               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None) -> int:
-    """Run the conformance suite; print a summary; write every run's result
-    row as Parquet (``save_dir``, default results/check/) and JUnit XML to
-    ``junit`` if given.  Returns 1 on any FAIL, ERROR or XPASS, else 0."""
+               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
+               timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True) -> int:
+    """Run the conformance suite; print a summary; store every run's result
+    row as it finishes (``save_dir``, default results/check/: a directory
+    ``<check_id>/`` of atomic parts while running, consolidated into
+    ``<check_id>.parquet`` at the end) and write JUnit XML to ``junit`` if
+    given.  A killed check is resumed by the next same check (``resume``,
+    :func:`check_identity`): its finished runs are read back, not rerun.
+    Runs go to ``jobs`` worker processes with ``timeout_s`` seconds each
+    (``executor="inline"``: in this process).  Returns 1 on any FAIL,
+    ERROR or XPASS, else 0; raises SpecError for a scenario id or file
+    that does not exist (exit 2)."""
     from rich.console import Console
+
+    from harness.results import RESULTS_DIR, consolidate_parts
+    from harness.runner import RunResult
+    from harness.scene import resolve_scenario
+    from harness.spec import SpecError
 
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()
+    for sid in scenarios or []:
+        if not resolve_scenario(sid).is_file():  # raises SpecError for an unknown id
+            raise SpecError([f"{sid}: <scenario>: no such file"])
     ids = select_scenarios(scenarios, tags)
     err = Console(stderr=True)
     if not ids:
         err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
         return 1
-    runs, load_errors = plan(ids, engines)
-    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs")
-    results = run_all(runs, jobs=max(1, int(jobs or 1)), progress=True)
+    runs, load_errors = plan(ids, engines, timeout_s)
+    root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
+    results: dict[tuple, Any] = {}
+    by_key = {r.run_key: r for r in runs}
+    for row in store.part_rows() if resumed else []:
+        r = by_key.get(row.get("run_key"))
+        if r is not None:
+            results[r.key] = RunResult.from_row(row)
+    todo = [r for r in runs if r.key not in results]
+    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs"
+              + (f"; resuming {store.path.name}: {len(runs) - len(todo)} done, {len(todo)} to run" if resumed else ""),
+              markup=False, highlight=False, soft_wrap=True)
+
+    def on_result(r: RunSpec, res: Any) -> None:
+        row = _row(r.key, res)
+        row.update(run_key=r.run_key, check_id=store.path.name)
+        try:
+            store.write_part(row, {"check_id": store.path.name})
+        except Exception as e:  # disk trouble must not hide the verdict
+            err.print(f"warning: could not store the row of {r.run_key}: {type(e).__name__}: {e}", markup=False)
+
+    try:
+        results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
+                               on_result=on_result))
+    except BaseException:
+        store.close()
+        raise
     outcomes = load_errors + evaluate_runs(runs, results)
     summarize(outcomes)
-    saved = save_rows(results, save_dir)
-    if saved is not None:
-        err.print(f"result rows written to {saved}")
+    try:
+        saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now())
+        err.print(f"result rows written to {saved}", markup=False, highlight=False, soft_wrap=True)
+    except Exception as e:  # the parts stay: nothing is lost
+        err.print(f"warning: could not consolidate {store.path}: {type(e).__name__}: {e}", markup=False)
+    finally:
+        store.close()
     if junit:
         write_junit(outcomes, junit)
-        err.print(f"JUnit XML written to {junit}")
+        err.print(f"JUnit XML written to {junit}", markup=False, highlight=False, soft_wrap=True)
     err.print(f"done in {time.perf_counter() - t0:.1f} s")
     return exit_code(outcomes)
 
