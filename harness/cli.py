@@ -64,21 +64,34 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
+    """The RunRequest of a command line, checked in this process before it
+    goes to a worker: a bad spec, setting or phase is exit 2 here."""
+    from adapters import get_adapter
+    from harness.execute import RunRequest, request_scene
+    from harness.phase import PhaseError
+
+    req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
+    try:
+        scene = request_scene(req)
+    except PhaseError as e:
+        raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    try:
+        get_adapter(engine).resolve_settings(scene, settings)
+    except ValueError as e:  # bad setting value
+        raise UsageError(str(e)) from None
+    return req
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from adapters import get_adapter
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import run_isolated
 
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
-    scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
-    try:
-        result = run(scene, args.engine, settings, record_every=args.record_every)
-    except ValueError as e:  # bad setting value
-        raise UsageError(str(e)) from None
-    if args.phase:
-        result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
-                            f"{args.phase:g} dt")
+    req = _request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
+    # in a worker process: an engine that aborts or hangs is a status, not a dead command
+    result = run_isolated(req)
     if args.save:
         from harness.results import write_rows
 
@@ -91,23 +104,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         _print_result(result)
     return 0 if result.status == "ok" else 1
-
-
-def _phase(scene, f: float, dt: Any = None):
-    """``scene`` shifted to step phase ``f`` (harness/phase.py); a scene
-    that does not start in free flight is a usage error naming why."""
-    if not f:
-        return scene
-    from harness.phase import PhaseError, shift_scene
-
-    try:
-        h = None if dt is None else float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"--set dt={dt!r}: expected a number of seconds") from None
-    try:
-        return shift_scene(scene, f, dt=h)
-    except PhaseError as e:
-        raise UsageError(f"--phase {f:g}: {e}") from None
 
 
 def _print_result(result) -> None:
@@ -161,16 +157,18 @@ def cmd_engines(args: argparse.Namespace) -> int:
 
 def cmd_trace(args: argparse.Namespace) -> int:
     from adapters import ENGINES, get_adapter
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import WorkerPool, request_scene, run_requests
 
     engines = args.engines or list(ENGINES)
-    scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
-    scene = _phase(scene, args.phase)
-    results = []
+    overrides = _split_sets(args.set, set())[1] if args.set else {}
+    reqs = []
     for e in engines:
         get_adapter(e)
-        results.append(run(scene, e))
+        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True))
+    scene = request_scene(reqs[0])
+    with WorkerPool(args.jobs) as pool:
+        done = dict(run_requests(reqs, pool))
+    results = [done[r] for r in reqs]
     from harness.rerun_log import write_rrd
 
     write_rrd(args.output, scene, results)
@@ -183,35 +181,48 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
-    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs)
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs,
+                      timeout_s=args.timeout, resume=args.resume)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    import contextlib
+
     from harness import bench
 
-    if args.kind == "overhead":
-        # the reference engine is left out unless asked for: its steps cost
-        # milliseconds, so its overhead is lost in noise and takes minutes
-        rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
-        bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
-                               "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
-    else:
-        rows = bench.cost(repeats=args.repeats)
-        bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
-        ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
-        if len(ok) >= 2:
-            k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
-            print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
-        sc = bench.broadphase_scaling(repeats=args.repeats)
-        bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                     "medians): sap, all pairs, former single-axis sweep")
-        ns = [r["n"] for r in sc["rows"]]
-        ex = sc["exponents"]
-        print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-              f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
-              f"sweep: {ex['single_axis']:.2f})")
+    out = sys.stdout
+    # with --json, stdout carries the JSON only: the tables go to stderr
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        if args.kind == "isolation":
+            from harness.execute import bench_isolation
+
+            rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
+            bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "
+                                   "this process, in a reused worker, in a fresh worker per run")
+        elif args.kind == "overhead":
+            # the reference engine is left out unless asked for: its steps cost
+            # milliseconds, so its overhead is lost in noise and takes minutes
+            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
+            bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
+                                   "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        else:
+            rows = bench.cost(repeats=args.repeats)
+            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+            ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
+            if len(ok) >= 2:
+                k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
+                print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
+            sc = bench.broadphase_scaling(repeats=args.repeats)
+            bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
+                                         "medians): sap, all pairs, former single-axis sweep")
+            ns = [r["n"] for r in sc["rows"]]
+            ex = sc["exponents"]
+            print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
+                  f"sweep: {ex['single_axis']:.2f})")
     if args.json:
-        print(json.dumps(rows, default=str))
+        out.write(json.dumps(rows, default=str) + "\n")
+        out.flush()
     return 0
 
 
@@ -219,7 +230,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios,
+                      timeout_s=args.timeout)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -242,9 +254,23 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from adapters import ENGINES
+def _seconds(text: str) -> float:
+    """A --timeout value: a positive, finite number of seconds."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive, finite number of seconds, got {text!r}")
+    return v
 
+
+def build_parser() -> argparse.ArgumentParser:
+    from adapters import engine_names
+    from harness.execute import DEFAULT_TIMEOUT_S
+
+    ENGINES = engine_names()  # the shipped four and any named in PHYSBENCH_ADAPTERS
+    timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
     p = argparse.ArgumentParser(prog="physbench", description="Validation and benchmark harness for rigid-body physics engines.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -259,6 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--phase", type=float, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
+    r.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
@@ -266,7 +293,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--tags", nargs="+", default=None)
     c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    c.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
+                        "budget (default); --no-resume always starts afresh")
     c.set_defaults(func=cmd_check)
 
     t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
@@ -279,6 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--phase", type=float, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
+    t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
@@ -286,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_engines)
 
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
-    b.add_argument("kind", choices=["overhead", "cost"])
+    b.add_argument("kind", choices=["overhead", "cost", "isolation"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     b.add_argument("--repeats", type=int, default=5)
     b.add_argument("--json", action="store_true")
@@ -298,7 +331,10 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
     sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
-                    help="default: serial for --jobs 1, a process pool otherwise")
+                    help="default: process (worker processes under a watchdog); serial runs in this process, "
+                         "without isolation")
+    sw.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+                    help="wall-clock budget per run in seconds (default: the suite's timeout_s)")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
                     help="default: resume an unfinished sweep of the same suite file, points and commit; "
                          "--resume also across commits; --no-resume always starts afresh")
@@ -321,6 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from harness.execute import register_env_adapters
+
+    register_env_adapters()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

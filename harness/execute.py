@@ -440,6 +440,7 @@ class WorkerPool:
         self.workdir = Path(tempfile.mkdtemp(prefix="physbench-workers-"))
         env = dict(os.environ)
         env[WORKER_ENV] = "1"
+        env[WORKER_ENV + "_PARENT"] = str(os.getpid())
         adapters, paths = _extra_adapters()
         env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in paths if p != str(REPO_ROOT)]
                                             + [p for p in [env.get("PYTHONPATH")] if p])
@@ -560,11 +561,29 @@ def run_isolated(req: RunRequest):
 # the worker
 
 
+def _die_with_parent() -> None:
+    """Linux: SIGKILL this worker when the process that started it dies (a
+    ``kill -9`` of a check must not leave a worker hanging in an engine
+    call).  Elsewhere a worker leaves when its input closes."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+        if str(os.getppid()) != os.environ.get(WORKER_ENV + "_PARENT", str(os.getppid())):
+            os._exit(1)  # the parent died before the call
+    except Exception:
+        pass
+
+
 def worker_main() -> None:
     """Worker loop: read (function, item) frames from stdin, write
     ("ok", value, "") or ("raised", message, traceback) frames.  The
     replies go to a private copy of the original stdout; fd 1 is pointed
     at stderr, so nothing an engine prints can corrupt them."""
+    _die_with_parent()
     out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
     sys.stdout = sys.stderr

@@ -58,3 +58,14 @@ class FaultyAdapter(PybulletAdapter):
     def step_record(self, n, pos, quat, vel, angvel) -> None:
         self._maybe_fault()
         super().step_record(n, pos, quat, vel, angvel)
+
+
+def worker_pid(_item):
+    """The pid of the process running it (pool tests)."""
+    return os.getpid()
+
+
+def die(_item):
+    """Kill the process running it, as the out-of-memory killer would (pool tests)."""
+    if os.environ.get("PHYSBENCH_WORKER") == "1":
+        os.kill(os.getpid(), 9)
