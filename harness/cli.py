@@ -167,8 +167,8 @@ def cmd_trace(args: argparse.Namespace) -> int:
         reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True))
     scene = request_scene(reqs[0])
     with WorkerPool(args.jobs) as pool:
-        done = dict(run_requests(reqs, pool))
-    results = [done[r] for r in reqs]
+        done = {id(req): res for req, res in run_requests(reqs, pool)}
+    results = [done[id(r)] for r in reqs]
     from harness.rerun_log import write_rrd
 
     write_rrd(args.output, scene, results)
