@@ -201,6 +201,15 @@ class Adapter(abc.ABC):
     def close(self) -> None:  # noqa: B027 - optional
         pass
 
+    def contacts(self) -> np.ndarray | None:
+        """The engine's own contact points after the last step, as its API
+        reports them: (k, 7) float array of rows [point x, y, z (m, world),
+        unit normal x, y, z (world, oriented as the engine orients it),
+        depth (m, > 0 = overlap)], or None when the adapter cannot read them.
+        Called only when a run is traced (runner ``contact_cap``), never in a
+        plain run."""
+        return None
+
     def stages(self) -> dict[str, Any]:
         """Per-stage counters/profile (reference engine) or the engine features
         switched on (other engines)."""

@@ -437,6 +437,20 @@ class MujocoAdapter(Adapter):
         mujoco.mj_kinematics(self.m, self.d)
         np.matmul(self._xmat, self._ang_col, out=angvel[..., None])
 
+    def contacts(self) -> np.ndarray:
+        """``d.contact`` of the last ``mj_step``: the contacts that step
+        solved, found at its start (before its integration).  Normal from
+        geom1 toward geom2; depth = -dist."""
+        d = self.d
+        k = int(d.ncon)
+        out = np.empty((k, 7))
+        if k:
+            c = d.contact
+            out[:, 0:3] = c.pos[:k]
+            out[:, 3:6] = c.frame[:k, 0:3]
+            out[:, 6] = -c.dist[:k]
+        return out
+
     def close(self) -> None:
         # the views keep MjData's buffers alive: drop them with the model
         self.m = self.d = None

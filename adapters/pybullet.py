@@ -749,6 +749,18 @@ class PybulletAdapter(Adapter):
             angvel[k] = w
         quat[...] = xyzw_to_wxyz(xyzw)
 
+    def contacts(self) -> np.ndarray:
+        """``getContactPoints`` after the last step: point midway between
+        positionOnA and positionOnB, normal contactNormalOnB (from B toward
+        A), depth = -contactDistance."""
+        pts = self._p.getContactPoints(physicsClientId=self._cid)
+        out = np.empty((len(pts), 7))
+        for i, c in enumerate(pts):
+            out[i, 0:3] = 0.5 * (np.asarray(c[5]) + np.asarray(c[6]))
+            out[i, 3:6] = c[7]
+            out[i, 6] = -c[8]
+        return out
+
     def close(self) -> None:
         if self._cid is not None and self._p is not None:
             try:

@@ -518,6 +518,28 @@ class PymunkAdapter(Adapter):
             "space_steps": self._space_steps,
         }
 
+    def contacts(self) -> np.ndarray:
+        """The arbiters' contact point sets after the last step (each
+        arbiter once): point midway between point_a and point_b, normal from
+        shape a toward shape b, depth = -distance; 2D (x, y) -> world (x, 0, y)."""
+        rows: list[list[float]] = []
+        seen: set[tuple[int, int]] = set()
+
+        def visit(arb: Any) -> None:
+            key = tuple(sorted(id(s) for s in arb.shapes))
+            if key in seen:
+                return
+            seen.add(key)
+            cps = arb.contact_point_set
+            nx, ny = cps.normal
+            for pt in cps.points:
+                rows.append([0.5 * (pt.point_a.x + pt.point_b.x), 0.0, 0.5 * (pt.point_a.y + pt.point_b.y),
+                             nx, 0.0, ny, -pt.distance])
+
+        for body in self._bodies or ():
+            body.each_arbiter(visit)
+        return np.array(rows, float).reshape(-1, 7)
+
     def close(self) -> None:
         # Drop references; cffi frees the space and its bodies.
         for name in ("_cols", "_c_data", "_farr", "_c_space", "_bodies", "_drag"):

@@ -1,8 +1,10 @@
 """Adapter for physbench's in-house reference engine (``engine/``).
 
-Thin: the engine builds from the engine-neutral Scene directly and uses the
-same conventions (SI, Z up, wxyz, world-frame velocities), so there is no
-conversion; read_state copies the state arrays.  ``stages()`` exposes the
+The engine uses the same conventions (SI, Z up, wxyz, world-frame
+velocities) but imports nothing of the harness: :func:`scene_input`
+translates the Scene into the engine's own input (``engine.model.SceneInput``:
+arrays over bodies and statics, and pair tables over the scene's materials);
+read_state copies the state arrays.  ``stages()`` exposes the
 engine's per-stage profile: {stage: {"calls": int, "cpu_s": float}} plus
 counters (contact rows, impacts, time-of-impact iterations).
 """
@@ -15,6 +17,74 @@ import numpy as np
 
 from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported
 from harness.scene import Scene
+
+
+def scene_input(scene: Scene):
+    """The engine's input (:class:`engine.model.SceneInput`) for ``scene``:
+    per-body and per-static arrays, and the pair coefficients
+    (``Scene.pair``, with the static friction at least the kinetic one) over
+    every pair of the materials the bodies and statics use."""
+    from engine.model import SceneInput
+
+    bodies, statics = scene.bodies, sorted(scene.statics, key=lambda s: s.index)
+    if [s.index for s in statics] != list(range(len(statics))):
+        raise ValueError("scene statics must be indexed 0..n_statics-1")
+    names = sorted({b.material for b in bodies} | {s.material for s in statics})
+    mid = {m: i for i, m in enumerate(names)}
+    M = len(names)
+    tabs = np.zeros((4, M, M))
+    for i, ma in enumerate(names):
+        for j, mb in enumerate(names):
+            m = scene.pair(ma, mb)
+            tabs[:, i, j] = (m.restitution, max(m.static_friction, m.friction), m.friction, m.rolling_friction)
+    n, ns = len(bodies), len(statics)
+    half = np.zeros((n, 3))
+    for b in bodies:
+        if b.half_extents is not None:
+            half[b.index] = b.half_extents
+    x, q, v, w = scene.initial_state()
+
+    def col(get, k: int, rows, width: int | None = None, default=0.0):
+        shape = (k,) if width is None else (k, width)
+        out = np.full(shape, default, float)
+        for i, r in enumerate(rows):
+            val = get(r)
+            if val is not None:
+                out[i] = val
+        return out
+
+    sp = scene.springs
+    return SceneInput(
+        dt=float(scene.dt), effects=frozenset(scene.effects), gravity=np.array(scene.gravity, float),
+        shape=tuple(b.shape for b in bodies), mass=scene.masses, inertia=scene.inertias,
+        radius=col(lambda b: b.radius, n, bodies), half_extents=half,
+        half_length=col(lambda b: b.half_length, n, bodies),
+        bound_radius=col(lambda b: b.bounding_radius, n, bodies),
+        min_extent=col(lambda b: b.min_extent, n, bodies),
+        drag_linear=col(lambda b: b.drag_linear, n, bodies), drag_quadratic=col(lambda b: b.drag_quadratic, n, bodies),
+        material=np.array([mid[b.material] for b in bodies], np.int64), x=x, q=q, v=v, w=w,
+        static_shape=tuple(s.shape for s in statics),
+        static_material=np.array([mid[s.material] for s in statics], np.int64),
+        static_normal=col(lambda s: s.normal, ns, statics, 3), static_offset=col(lambda s: s.offset, ns, statics),
+        static_position=col(lambda s: s.position, ns, statics, 3),
+        static_orientation=np.array([(1.0, 0.0, 0.0, 0.0) if s.orientation is None else s.orientation
+                                     for s in statics], float).reshape(ns, 4),
+        static_half_extents=col(lambda s: s.half_extents, ns, statics, 3),
+        spring_a=np.array([s.a for s in sp], np.int64), spring_b=np.array([s.b for s in sp], np.int64),
+        spring_anchor_a=np.array([s.anchor_a for s in sp], float).reshape(-1, 3),
+        spring_anchor_b=np.array([s.anchor_b for s in sp], float).reshape(-1, 3),
+        spring_k=np.array([s.stiffness for s in sp], float), spring_rest=np.array([s.rest_length for s in sp], float),
+        spring_c=np.array([s.damping for s in sp], float),
+        pair_e=tabs[0], pair_mus=tabs[1], pair_muk=tabs[2], pair_mur=tabs[3], scene=scene,
+    )
+
+
+def engine_for(scene: Scene, settings: dict[str, Any] | None = None):
+    """An :class:`engine.Engine` for the harness ``scene`` (settings over
+    the engine's defaults)."""
+    from engine import Engine
+
+    return Engine(scene_input(scene), settings)
 
 
 def _settings() -> dict[str, Setting]:
@@ -59,13 +129,13 @@ class ReferenceAdapter(Adapter):
         return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        from engine.collision import unsupported_pairs
         from engine.model import build_model
-        from engine.narrowphase import unsupported_pairs
         from engine.pipeline import build_pipeline
         from engine.profile import Profile
         from engine.state import State
 
-        self.model = build_model(scene, settings)
+        self.model = build_model(scene_input(scene), settings)
         missing = unsupported_pairs(self.model)
         if missing:
             raise Unsupported(f"reference engine has no narrow phase for {', '.join(missing)}")
@@ -94,6 +164,22 @@ class ReferenceAdapter(Adapter):
 
     def stages(self) -> dict[str, Any]:
         return self.profile.as_dict() if hasattr(self, "profile") else {}
+
+    def contacts(self) -> np.ndarray | None:
+        """The contact rows (engine.state.Contacts) of the last step, read
+        from the step context the pipeline keeps on the state: point midway
+        between the surfaces, normal from body a toward b, depth = -gap;
+        None if the engine keeps them in another form."""
+        ctx = getattr(getattr(self, "state", None), "_ctx", None)
+        if ctx is None:
+            return None
+        c = getattr(ctx, "contacts", None)
+        if c is None:
+            return np.empty((0, 7))
+        try:
+            return np.column_stack([c.point, c.normal, -np.asarray(c.gap)]).reshape(-1, 7)
+        except AttributeError:
+            return None
 
     def close(self) -> None:
         pass

@@ -5,7 +5,7 @@ defaults are what they are.
 Use::
 
     from engine import Engine
-    eng = Engine(scene, {"dt": 1e-3})      # settings: defaults from SETTINGS
+    eng = Engine(inp, {"dt": 1e-3})   # inp: engine.model.SceneInput; settings: defaults from SETTINGS
     eng.step(100)
     eng.state.x, eng.state.q, eng.state.v, eng.state.w
     eng.profile.as_dict()
@@ -76,24 +76,28 @@ def version() -> str:
         return "unknown"
 
 
-def default_settings(scene) -> dict[str, Any]:
+def default_settings(inp) -> dict[str, Any]:
+    """The default settings for ``inp`` (a :class:`engine.model.SceneInput`):
+    SETTINGS' defaults, dt the scene's step."""
     out = {k: v[0] for k, v in SETTINGS.items()}
-    out["dt"] = scene.dt
+    out["dt"] = inp.dt
     return out
 
 
 class Engine:
-    """Convenience wrapper: model, state, pipeline and profile for a scene."""
+    """Convenience wrapper: model, state, pipeline and profile for a scene
+    given as a :class:`engine.model.SceneInput` (the reference adapter's
+    ``scene_input`` translates a harness scene; ``engine_for`` does both)."""
 
-    def __init__(self, scene, settings: Mapping[str, Any] | None = None):
+    def __init__(self, inp, settings: Mapping[str, Any] | None = None):
         from engine.model import build_model
         from engine.pipeline import build_pipeline
         from engine.profile import Profile
         from engine.state import State
 
-        full = default_settings(scene)
+        full = default_settings(inp)
         full.update(settings or {})
-        self.model = build_model(scene, full)
+        self.model = build_model(inp, full)
         self.state = State.from_model(self.model)
         self.stages = build_pipeline(self.model)
         self.profile = Profile()

@@ -351,9 +351,10 @@ def _grid_pairs(lo: np.ndarray, hi: np.ndarray, axis: int, u: int, v: int,
     return np.minimum(i, j), np.maximum(i, j)
 
 
-def brute_pairs(model, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair (precomputed, i < j, sorted) whose boxes overlap."""
-    i, j = model.pair_i, model.pair_j
+def brute_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair (i < j, sorted) whose boxes [lo, hi] (n, 3) overlap, by
+    testing all n (n - 1) / 2 of them."""
+    i, j = np.triu_indices(lo.shape[0], 1)
     ok = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
     return i[ok], j[ok]
 
@@ -392,7 +393,7 @@ class BroadPhase(Stage):
             if self.method == "sap" and n > SAP_MIN_BODIES:
                 ctx.pairs_i, ctx.pairs_j = sap_pairs(lo, hi)
             else:
-                ctx.pairs_i, ctx.pairs_j = brute_pairs(model, lo, hi)
+                ctx.pairs_i, ctx.pairs_j = brute_pairs(lo, hi)
         if self.n_planes:
             # lowest point of each swept box along each plane normal
             c = 0.5 * (lo + hi)

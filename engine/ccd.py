@@ -40,8 +40,8 @@ from __future__ import annotations
 import numpy as np
 
 from engine.mathutil import quat_to_matrix
-from engine.model import BOX
-from engine.narrowphase import collide_pairs, pair_contacts
+from engine.model import BOX, S_BOX
+from engine.collision import collide_pairs, pair_contacts
 from engine.profile import Stage
 from engine.solver import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, impact_solve, point_normal_velocity
 
@@ -117,7 +117,7 @@ def _stable_features(model, a: int, b: int, sidx: int) -> bool:
         return True
     if b < model.n:
         return model.shape[b] != BOX
-    return model.scene.statics[sidx].shape != "box"
+    return model.static_shape[sidx] != S_BOX
 
 
 def end_displacement(model, state, ctx) -> np.ndarray:

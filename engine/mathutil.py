@@ -1,15 +1,13 @@
 """Small vectorised quaternion and rotation helpers (wxyz, unit quaternions).
 
-Conversions between conventions live in :mod:`adapters.conventions`; these are
-the operations the integrators need.  All functions work on stacks: ``(k, 4)``
+The operations the integrators and the collision code need (the engine
+imports nothing of the harness or the adapters).  All functions work on stacks: ``(k, 4)``
 quaternions and ``(k, 3)`` vectors.
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-from adapters.conventions import quat_rotate  # noqa: F401  (re-exported)
 
 
 # quaternion products q_i q_j (flattened 4x4, w x y z = 0 1 2 3) combined
@@ -22,8 +20,8 @@ _Q2M_D = np.array([0, 4, 8])
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) wxyz: the
-    same arithmetic as :func:`adapters.conventions.quat_to_matrix` (bit for
-    bit), with the products formed in one outer product."""
+    same arithmetic as the adapters' conventions module (bit for bit;
+    tests/test_conventions.py), with the products formed in one outer product."""
     q = np.asarray(q, float)
     p = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
     R = 2 * (p[..., _Q2M_A] + _Q2M_S * p[..., _Q2M_B])

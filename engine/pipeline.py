@@ -23,7 +23,7 @@ from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, 
 from engine.mathutil import quat_to_matrix
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
-from engine.narrowphase import NarrowPhase
+from engine.collision import NarrowPhase
 from engine.broadphase import BroadPhase
 from engine.penalty import PenaltyContacts
 from engine.profile import Profile, Stage

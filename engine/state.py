@@ -38,7 +38,7 @@ class State:
 
     @classmethod
     def from_model(cls, model: Model) -> "State":
-        x, q, v, w = model.scene.initial_state()
+        x, q, v, w = model.x0.copy(), model.q0.copy(), model.v0.copy(), model.w0.copy()
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
         return cls(x=np.ascontiguousarray(x, float), q=np.ascontiguousarray(q, float),
                    v=np.ascontiguousarray(v, float), w=np.ascontiguousarray(w, float))

@@ -255,15 +255,13 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats:
     rows = []
     for n in sizes:
         lo, hi = sphere_cloud(n)
-        pi, pj = np.triu_indices(n, 1)
-        model = type("PairList", (), {"pair_i": pi.astype(np.int64), "pair_j": pj.astype(np.int64)})
         a, b = sap_pairs(lo, hi)
-        for other in (brute_pairs(model, lo, hi) if n <= brute_max else None, _sap_single_axis(lo, hi)):
+        for other in (brute_pairs(lo, hi) if n <= brute_max else None, _sap_single_axis(lo, hi)):
             if other is not None and not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
                 raise AssertionError(f"broad phase methods disagree at n = {n}")
         funcs = {"sap": lambda: sap_pairs(lo, hi), "single_axis": lambda: _sap_single_axis(lo, hi)}
         if n <= brute_max:
-            funcs["brute"] = lambda: brute_pairs(model, lo, hi)
+            funcs["brute"] = lambda: brute_pairs(lo, hi)
         times: dict[str, list[float]] = {k: [] for k in funcs}
         for _ in range(repeats):
             for k, f in funcs.items():

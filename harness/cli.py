@@ -1,8 +1,8 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [--engines ...] [--tags ...] [--junit FILE]
-    physbench trace SCENARIO|FILE [--engines ...] [--variant V] -o FILE.rrd
+    physbench check [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
+    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
     physbench engines [--json]
     physbench list
 
@@ -158,20 +158,28 @@ def cmd_engines(args: argparse.Namespace) -> int:
 def cmd_trace(args: argparse.Namespace) -> int:
     from adapters import ENGINES, get_adapter
     from harness.execute import WorkerPool, request_scene, run_requests
+    from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
     overrides = _split_sets(args.set, set())[1] if args.set else {}
     reqs = []
     for e in engines:
         get_adapter(e)
-        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True))
+        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True,
+                             contact_cap=0 if args.watch else DEFAULT_CAP))
     scene = request_scene(reqs[0])
     with WorkerPool(args.jobs) as pool:
         done = {id(req): res for req, res in run_requests(reqs, pool)}
     results = [done[id(r)] for r in reqs]
-    from harness.rerun_log import write_rrd
+    from harness.conformance import evaluate
+    from harness.trace import write_rrd
 
-    write_rrd(args.output, scene, results)
+    if args.watch:
+        write_rrd(args.output, scene, results)
+    else:
+        outcomes = [o for r in results for o in evaluate(scene, r) if "@" not in o.metric]
+        write_rrd(args.output, scene, results, diagnose=True, outcomes=outcomes,
+                  checks={c.metric: c for c in scene.checks}, contact_cap=DEFAULT_CAP)
     for r in results:
         print(f"{r.engine}: {r.status}" + (f" ({r.message})" if r.message else ""), file=sys.stderr)
     print(f"wrote {args.output}", file=sys.stderr)
@@ -182,7 +190,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs,
-                      timeout_s=args.timeout, resume=args.resume)
+                      timeout_s=args.timeout, resume=args.resume, traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -298,6 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
                         "budget (default); --no-resume always starts afresh")
+    c.add_argument("--traces", default=None, metavar="DIR",
+                   help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
 
     t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
@@ -307,6 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                    help="dotted spec keys only (engine settings differ per engine)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
+    t.add_argument("--watch", action="store_true",
+                   help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
     t.add_argument("--phase", type=float, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")

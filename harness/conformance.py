@@ -102,6 +102,8 @@ class Outcome:
     threshold: str = ""
     message: str = ""
     time_s: float = 0.0
+    #: path of the case's diagnosing trace (check --traces), else ""
+    trace: str = ""
 
     @property
     def name(self) -> str:
@@ -507,7 +509,10 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
     """JUnit XML: one <testsuite> per engine; testcase name
     '<scenario>[<variant>]::<metric>', classname 'physbench.<engine>.<family>'.
     FAIL -> <failure>; ERROR -> <error>; XPASS -> <failure> 'unexpected pass';
-    XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>."""
+    XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>.  A
+    testcase with a trace (check --traces) carries it as
+    ``<property name="trace" value="PATH"/>`` and a ``trace: PATH`` line in
+    ``<system-out>``."""
     root = ET.Element("testsuites", name="physbench conformance")
     by_engine: dict[str, list[Outcome]] = {}
     for o in outcomes:
@@ -527,6 +532,9 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
             family = o.scenario.split(".")[0]
             tc = ET.SubElement(suite, "testcase", name=o.name, classname=f"physbench.{eng}.{family}",
                                time=f"{o.time_s:.3f}")
+            if o.trace:
+                props = ET.SubElement(tc, "properties")
+                ET.SubElement(props, "property", name="trace", value=o.trace)
             if o.outcome == FAIL:
                 ET.SubElement(tc, "failure", message=o.message, type="FAIL").text = _detail(o)
             elif o.outcome == XPASS:
@@ -535,6 +543,8 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
                 ET.SubElement(tc, "error", message=o.message, type="ERROR").text = _detail(o)
             elif o.outcome in (XFAIL, UNSUPPORTED):
                 ET.SubElement(tc, "skipped", message=o.message, type=o.outcome)
+            if o.trace:
+                ET.SubElement(tc, "system-out").text = f"trace: {o.trace}"
     for k, v in totals.items():
         root.set(k, str(v))
     return ET.ElementTree(root)
@@ -631,6 +641,69 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
         return None
 
 
+def deciding_run(spec: "RunSpec", check: Check, results: dict[tuple, Any]) -> tuple[dict[str, Any], float]:
+    """(settings, step phase) of the run that decided ``check`` on the base
+    run ``spec``: the @-suffix's settings; for a phased scene the first
+    phase that failed; else the base run."""
+    name, sett = split_metric(check.metric)
+    if sett:
+        return sett, 0.0
+    if spec.phases > 1:
+        for i in range(spec.phases):
+            res = results.get(spec.key + ((i / spec.phases,) if i else ()))
+            if res is not None and evaluate_check(check, res).outcome in (FAIL, XFAIL, ERROR):
+                return {}, i / spec.phases
+    return {}, 0.0
+
+
+def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[tuple, Any],
+                   outcomes: list[Outcome], jobs: int = 1, executor: str = "process") -> list[Path]:
+    """The trace step after the verdicts (``check --traces DIR``): every
+    FAIL, XFAIL and ERROR outcome's deciding run is run again with its trace
+    and the engine's contacts, and one diagnosing ``.rrd`` per case
+    (harness.trace.cases.case_name) goes to ``traces_dir``; each outcome
+    gets its file in ``Outcome.trace``.  Load errors have no run and no
+    trace.  A trace that cannot be written is reported, never fatal."""
+    from harness.execute import request_scene, run_requests
+    from harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
+    from harness.trace.contacts import DEFAULT_CAP
+
+    base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks}
+    cases: dict[str, tuple] = {}
+    for o in outcomes:
+        spec = base.get((o.scenario, o.variant, o.engine))
+        if o.outcome not in TRACED_OUTCOMES or spec is None:
+            continue
+        check = next((c for c in spec.checks if c.metric == o.metric), None)
+        if check is None:
+            continue
+        settings, phase = deciding_run(spec, check, results)
+        name = case_name(o.scenario, o.variant, o.engine, settings, phase)
+        cases.setdefault(name, (spec, settings, phase, []))[3].append(o)
+    written = []
+    reqs = {name: RunRequest(spec.scenario, spec.engine, spec.variant, dict(settings), phase=phase,
+                             timeout_s=spec.timeout_s, keep_trace=True, contact_cap=DEFAULT_CAP)
+            for name, (spec, settings, phase, _) in cases.items()}
+    with make_executor(executor, jobs) as ex:  # a traced rerun that crashes is a status too
+        traced = {id(req): res for req, res in run_requests(reqs.values(), ex)}
+    for name, (spec, settings, phase, failing) in cases.items():
+        try:
+            scene = request_scene(reqs[name])
+            res = traced[id(reqs[name])]
+            res.notes.append("run again after the verdict to record this trace")
+            mine = [o for o in outcomes if (o.scenario, o.variant, o.engine) == (spec.scenario, spec.variant,
+                                                                                   spec.engine)]
+            path = write_case_trace(traces_dir, scene, [res], mine, name=name,
+                                    checks={c.metric: c for c in spec.checks})
+        except Exception as e:  # pragma: no cover - a trace must not lose the verdict
+            print(f"warning: no trace for {name}: {type(e).__name__}: {e}", file=sys.stderr)
+            continue
+        for o in failing:
+            o.trace = str(path)
+        written.append(path)
+    return written
+
+
 # ---------------------------------------------------------------------------
 # the check's store: one part per finished run, resumable
 
@@ -694,17 +767,19 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
 
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
-               timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True) -> int:
+               timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
+               traces: str | Path | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
     ``<check_id>.parquet`` at the end) and write JUnit XML to ``junit`` if
-    given.  A killed check is resumed by the next same check (``resume``,
-    :func:`check_identity`): its finished runs are read back, not rerun.
-    Runs go to ``jobs`` worker processes with ``timeout_s`` seconds each
-    (``executor="inline"``: in this process).  Returns 1 on any FAIL,
-    ERROR or XPASS, else 0; raises SpecError for a scenario id or file
-    that does not exist (exit 2)."""
+    given; with ``traces``, one diagnosing trace per FAIL, XFAIL and ERROR
+    case into that directory (:func:`trace_failures`).  A killed check is
+    resumed by the next same check (``resume``, :func:`check_identity`):
+    its finished runs are read back, not rerun.  Runs go to ``jobs`` worker
+    processes with ``timeout_s`` seconds each (``executor="inline"``: in
+    this process).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
     from harness.results import RESULTS_DIR, consolidate_parts
@@ -751,6 +826,9 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         store.close()
         raise
     outcomes = load_errors + evaluate_runs(runs, results)
+    if traces:
+        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)), executor=executor)
+        err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
     try:
         saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now())

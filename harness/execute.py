@@ -87,8 +87,9 @@ class RunRequest:
     moved back along the free flight by ``phase`` dt (0 <= phase < 1, 0 =
     as written), ``timeout_s`` seconds of wall-clock budget (None: no
     limit), one frame recorded every ``record_every`` steps, metrics
-    computed when ``compute_metrics``, the trace returned when
-    ``keep_trace`` (``physbench trace``; it crosses process boundaries)."""
+    computed when ``compute_metrics``, the trace (and contacts, with
+    ``contact_cap``) returned when ``keep_trace`` (``physbench trace``,
+    ``check --traces``; they cross process boundaries)."""
 
     scenario: str
     engine: str
@@ -100,6 +101,9 @@ class RunRequest:
     record_every: int = 1
     compute_metrics: bool = True
     keep_trace: bool = False
+    #: > 0: also record the engine's contacts, at most this many per frame
+    #: (tracing only; harness.runner.run)
+    contact_cap: int = 0
 
     def __post_init__(self) -> None:
         p = Path(self.scenario)
@@ -172,7 +176,8 @@ def execute_request(req: RunRequest):
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", RuntimeWarning)
             res = runner.run(scene, req.engine, dict(req.settings) or None, record_every=req.record_every,
-                             timeout_s=req.timeout_s, compute_metrics=req.compute_metrics)
+                             timeout_s=req.timeout_s, compute_metrics=req.compute_metrics,
+                             contact_cap=req.contact_cap)
     except Exception as e:  # adapter import error, bad setting ...
         res = _result(req, st.FAILED, f"could not run: {type(e).__name__}: {e}", scene)
         res.info["traceback"] = traceback.format_exc(limit=5)
@@ -180,6 +185,7 @@ def execute_request(req: RunRequest):
         res.notes.append(f"step phase {req.phase:g}: start moved back along the free flight by {req.phase:g} dt")
     if not req.keep_trace:
         res.trace = None
+        res.contacts = None
     return res
 
 

@@ -90,6 +90,11 @@ class RunResult:
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
+    #: the engine's own contacts per recorded frame, only when the run was
+    #: traced with ``contact_cap``: [(frame, (k, 7) rows of
+    #: Adapter.contacts(), k <= cap, deepest first)]; None when not asked
+    #: for or when the adapter cannot read them.  Never part of a row.
+    contacts: list | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The result row as one JSON-able object: identity, status, every
@@ -212,8 +217,14 @@ def commit_id() -> str:
 
 
 def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
-        record_every: int = 1, timeout_s: float | None = None, compute_metrics: bool = True) -> RunResult:
+        record_every: int = 1, timeout_s: float | None = None, compute_metrics: bool = True,
+        contact_cap: int = 0) -> RunResult:
     """Run ``scene`` on ``engine`` with setting ``settings`` overrides.
+
+    ``contact_cap`` > 0 (tracing only) also records the engine's own contact
+    points after every recorded step, at most that many per frame (the
+    deepest), into ``result.contacts``; it steps one step at a time through
+    the adapter's public calls, so a plain run (0) pays nothing.
 
     Never raises for engine trouble: every failure becomes the result's
     status with a message.  Raises ValueError only for bad settings (a user
@@ -242,6 +253,8 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.trace = trace
 
     adapter = cls()
+    if contact_cap:
+        result.contacts = []
     t0 = time.perf_counter()
     try:
         adapter.build(scene, resolved)
@@ -274,8 +287,11 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                 # work lost to a blow-up and let adapters record in bulk
                 n = min(block, steps - done)
                 adapter.block_done = 0
-                adapter.step_record(n, pos[frame:frame + n], quat[frame:frame + n],
-                                    vel[frame:frame + n], angvel[frame:frame + n])
+                if contact_cap:
+                    _step_record_contacts(adapter, n, frame, trace, result, contact_cap)
+                else:
+                    adapter.step_record(n, pos[frame:frame + n], quat[frame:frame + n],
+                                        vel[frame:frame + n], angvel[frame:frame + n])
                 done += n
                 frame += n
                 a = frame - n
@@ -286,6 +302,8 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                     adapter.step(n)
                     done += n
                     adapter.read_state(pos[frame], quat[frame], vel[frame], angvel[frame])
+                    if contact_cap:
+                        _keep_contacts(adapter, frame, result, contact_cap)
                     tt[frame] = done * dt
                     frame += 1
                     if done >= steps:
@@ -326,6 +344,33 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
     _finish(result, adapter, scene, trace, compute_metrics, dt)
     return result
+
+
+def _keep_contacts(adapter: Any, frame: int, result: RunResult, cap: int) -> None:
+    """Append the adapter's contacts at ``frame`` (the ``cap`` deepest) to
+    ``result.contacts``; an adapter that cannot read them sets it to None
+    for good."""
+    if result.contacts is None:
+        return  # the adapter said no on an earlier frame
+    c = adapter.contacts()
+    if c is None:
+        result.contacts = None
+        return
+    if len(c):
+        if len(c) > cap:
+            c = c[np.argsort(-c[:, 6], kind="stable")[:cap]]
+        result.contacts.append((frame, np.array(c, float)))
+
+
+def _step_record_contacts(adapter: Any, n: int, frame: int, trace: Trace, result: RunResult, cap: int) -> None:
+    """The block of ``n`` steps from ``frame`` one step at a time (the
+    contacts must be read after each), recording states and contacts."""
+    for i in range(n):
+        adapter.step(1)
+        f = frame + i
+        adapter.read_state(trace.pos[f], trace.quat[f], trace.vel[f], trace.angvel[f])
+        _keep_contacts(adapter, f, result, cap)
+        adapter.block_done = i + 1
 
 
 def _runaway(trace: Trace, a: int, b: int) -> str:

@@ -159,10 +159,7 @@ def test_matches_brute_pairs_and_old_single_axis_sweep(monkeypatch):
     n = 1500
     lo, hi = cloud(rng, "dense", n)
 
-    class M:  # brute_pairs only needs the precomputed pair list
-        pair_i, pair_j = np.triu_indices(n, 1)
-
     a, b = sap_pairs(lo, hi)
     assert calls and len(a) > n  # dense enough to take the grid path
-    for ra, rb in (brute_pairs(M, lo, hi), _sap_single_axis(lo, hi)):
+    for ra, rb in (brute_pairs(lo, hi), _sap_single_axis(lo, hi)):
         assert np.array_equal(a, ra) and np.array_equal(b, rb)

@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import Engine
+from adapters.reference import engine_for
 from engine.broadphase import brute_pairs, sap_pairs
+from engine.collision import (box_box, box_cylinder, box_plane, capsule_box, capsule_capsule, capsule_cylinder,
+                              capsule_plane, cylinder_cylinder, cylinder_plane, sphere_box, sphere_capsule,
+                              sphere_cylinder)
 from engine.mathutil import quat_to_matrix
-from engine.narrowphase import (box_box, box_cylinder, box_plane, capsule_box, capsule_capsule, capsule_cylinder,
-                               capsule_plane, cylinder_cylinder, cylinder_plane, sphere_box, sphere_capsule,
-                               sphere_cylinder)
 from harness.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -202,11 +202,8 @@ def test_sap_matches_brute_force():
     c = rng.uniform(-1, 1, (n, 3))
     e = rng.uniform(0.01, 0.2, (n, 3))
 
-    class M:  # the brute-force function only needs the precomputed pair list
-        pair_i, pair_j = np.triu_indices(n, 1)
-
     a1, b1 = sap_pairs(c - e, c + e)
-    a2, b2 = brute_pairs(M, c - e, c + e)
+    a2, b2 = brute_pairs(c - e, c + e)
     assert len(a1) > 0
     assert np.array_equal(a1, a2) and np.array_equal(b1, b2)
 
@@ -252,8 +249,8 @@ def _state_hash(eng) -> str:
 
 def test_sap_and_brute_give_identical_runs(tmp_path):
     sc = scene_from(tmp_path, GRID)
-    a = Engine(sc, {"broadphase": "sap"})
-    b = Engine(sc, {"broadphase": "brute"})
+    a = engine_for(sc, {"broadphase": "sap"})
+    b = engine_for(sc, {"broadphase": "brute"})
     a.step(60)
     b.step(60)
     assert _state_hash(a) == _state_hash(b)
@@ -268,15 +265,15 @@ def test_determinism_bit_identical(tmp_path):
     sc = scene_from(tmp_path, GRID)
     runs = []
     for _ in range(2):
-        e = Engine(sc)
+        e = engine_for(sc)
         e.step(60)
         runs.append(_state_hash(e))
     assert runs[0] == runs[1]
     code = textwrap.dedent(f"""
         import hashlib
-        from engine import Engine
+        from adapters.reference import engine_for
         from harness.scene import load_scene
-        e = Engine(load_scene({str(tmp_path / 's.toml')!r}))
+        e = engine_for(load_scene({str(tmp_path / 's.toml')!r}))
         e.step(60)
         s = e.state
         print(hashlib.sha256(b"".join(a.tobytes() for a in (s.x, s.q, s.v, s.w))).hexdigest())
@@ -318,7 +315,7 @@ def test_fast_ball_does_not_tunnel_thin_wall(tmp_path, ccd, e):
     """5 mm ball at 400 m/s against a 4 mm wall at dt = 1/240: it moves 1.67 m
     per step, 333 times its diameter."""
     sc = scene_from(tmp_path, BULLET.format(dt=1 / 240, e=e))
-    eng = Engine(sc, {"ccd": ccd})
+    eng = engine_for(sc, {"ccd": ccd})
     for _ in range(12):
         eng.step()
         assert eng.state.x[0, 0] <= -0.0045 + 1e-9  # never past the wall's near face
@@ -427,7 +424,7 @@ def _without(monkeypatch, what: str) -> None:
     points of box pairs whose least overlap is an edge
     axis, or the plain end of a step whose search found no impact."""
     import engine.ccd
-    import engine.narrowphase
+    import engine.collision.box
     import engine.pipeline
 
     if what == "missed":
@@ -437,7 +434,7 @@ def _without(monkeypatch, what: str) -> None:
         def edge_point_only(ok, gap, edge, se, margin):
             ok[edge] = False
 
-        monkeypatch.setattr(engine.narrowphase, "_edge_pair_face_points", edge_point_only)
+        monkeypatch.setattr(engine.collision.box, "_edge_pair_face_points", edge_point_only)
     elif what == "missed_and_face_points":
         _without(monkeypatch, "missed")
         _without(monkeypatch, "face_points")
@@ -857,7 +854,7 @@ def test_cylinder_settling_on_its_cap_raises_no_endless_impacts(tmp_path, tilt):
         normal = [0, 0, 1]
         offset = 0.0
         """)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(480)
     before = eng.profile.as_dict()["counters"].get("impacts", 0)
     assert before <= 40  # the landing and the rocking onto the cap
@@ -870,7 +867,7 @@ def test_cylinder_settling_on_its_cap_raises_no_endless_impacts(tmp_path, tilt):
 def test_without_ccd_the_ball_tunnels(tmp_path):
     """The measured counterpart: ccd = off passes straight through."""
     sc = scene_from(tmp_path, BULLET.format(dt=1 / 240, e=0.5))
-    eng = Engine(sc, {"ccd": "off"})
+    eng = engine_for(sc, {"ccd": "off"})
     eng.step(12)
     assert eng.state.x[0, 0] > 1.0
     assert "ccd" not in eng.profile.calls
@@ -904,7 +901,7 @@ COLUMN = """
 
 def _column(tmp_path, T, dt, **settings):
     sc = scene_from(tmp_path, COLUMN.format(T=T, dt=dt))
-    eng = Engine(sc, settings)
+    eng = engine_for(sc, settings)
     x0 = eng.state.x.copy()
     drift = pen = 0.0
     for _ in range(int(round(T / dt))):
@@ -954,7 +951,7 @@ def test_heavy_on_light_mass_ratio_1000(tmp_path):
         shape = "plane"
         normal = [0, 0, 1]
         """)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     x0 = eng.state.x.copy()
     eng.step(240)
     assert np.abs(eng.state.x - x0).max() <= 1e-6
@@ -992,7 +989,7 @@ def test_newtons_cradle_hands_momentum_down_the_row(tmp_path):
     gives the textbook result -- the last ball leaves with the striking
     speed, all others stop."""
     sc = scene_from(tmp_path, _CRADLE)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(300)
     assert np.allclose(eng.state.v[:, 0], [0, 0, 0, 0, 1.0], atol=1e-12)
 
@@ -1036,12 +1033,12 @@ def test_plastic_impact_on_a_row_is_one_simultaneous_impact(tmp_path, plastic):
     threshold (0.01 m/s), then stop the slow approaches one sweep at a
     time: the balls leave with a spread of speeds (measured: 1.2e-2 m/s;
     simultaneous: 2.8e-10) that the next step's contact solve takes out."""
-    from engine.narrowphase import collide_pairs
+    from engine.collision import collide_pairs
     from engine.solver import impact_solve
 
     sc = scene_from(tmp_path, _STRUCK_ROWS.replace("[-0.1, 0, 0]", "[-0.05, 0, 0]")
                     .replace("[-0.1, 0.2, 0]", "[-0.05, 0.2, 0]"))
-    eng = Engine(sc)
+    eng = engine_for(sc)
     model, state = eng.model, eng.state
     pi, pj = np.triu_indices(model.n, 1)
     z = np.zeros(0, np.int64)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import Engine
+from adapters.reference import engine_for
 from harness.runner import run
 from harness.scene import load_scene
 
@@ -84,7 +84,7 @@ def test_head_on_any_masses(tmp_path, m1, m2, v1, v2, e):
         position = [0.31, 0, 0]
         velocity = [{v2}, 0, 0]
         """)
-    eng = Engine(scene)
+    eng = engine_for(scene)
     eng.step(int(round(0.4 / 0.0013)))
     u1, u2 = newton(m1, m2, v1, v2, e)
     err = max(abs(eng.state.v[0, 0] - u1), abs(eng.state.v[1, 0] - u2)) / abs(v1 - v2)
@@ -137,7 +137,7 @@ def bounce_height(t: np.ndarray, z0: float, e: float, g: float = 9.81) -> np.nda
 @pytest.mark.parametrize("dt", [1 / 240, 0.01])
 def test_ball_drop_bounce_trajectory(tmp_path, ground, dt):
     scene = scene_from(tmp_path, DROP.format(dt=dt, e=0.9, ground=GROUNDS[ground]))
-    eng = Engine(scene)
+    eng = engine_for(scene)
     n = int(round(3.0 / dt))
     z = np.empty(n)
     for k in range(n):
@@ -152,7 +152,7 @@ def test_ball_drop_bounce_trajectory(tmp_path, ground, dt):
 
 def test_ball_comes_to_rest(tmp_path):
     scene = scene_from(tmp_path, DROP.format(dt=1 / 240, e=0.5, ground=GROUNDS["plane"]))
-    eng = Engine(scene)
+    eng = engine_for(scene)
     eng.step(240 * 3)  # bounces end after ~1.35 s (Zeno sum)
     assert abs(eng.state.x[0, 2] - 0.1) <= 1e-4  # within the correction slop
     assert np.abs(eng.state.v).max() <= 1e-9

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from adapters import get_adapter
-from engine import Engine
+from adapters.reference import engine_for
 from harness.runner import run
 from harness.scene import load_scene
 
@@ -39,7 +39,7 @@ def test_linear_drag_exponential_decay(tmp_path):
         velocity = [{v0}, 0, 0]
         drag_linear = {c}
         """)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(200)
     k = c / m
     assert eng.state.v[0, 0] == pytest.approx(v0 * math.exp(-k * T), rel=1e-9)
@@ -63,7 +63,7 @@ def test_quadratic_drag_closed_form(tmp_path):
         velocity = [0, {v0}, 0]
         drag_quadratic = {c}
         """)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(300)
     k = c / m  # v' = -k v^2: v = v0 / (1 + k v0 t), x = ln(1 + k v0 t) / k
     assert eng.state.v[0, 1] == pytest.approx(v0 / (1 + k * v0 * T), rel=1e-8)
@@ -86,7 +86,7 @@ def test_terminal_velocity_gravity_and_drag(tmp_path):
         mass = {m}
         drag_linear = {c}
         """)
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(500)
     assert eng.state.v[0, 2] == pytest.approx(-9.81 * m / c * (1 - math.exp(-c / m * 5.0)), rel=1e-9)
 
@@ -128,7 +128,7 @@ def test_two_body_spring_conserves_momentum_and_energy(tmp_path, settings, energ
         stiffness = 40.0
         rest_length = 0.4
         """)
-    eng = Engine(sc, settings)
+    eng = engine_for(sc, settings)
     m = sc.masses
     from adapters.conventions import quat_to_matrix
 
@@ -209,7 +209,7 @@ def test_pipeline_follows_effects(tmp_path):
         shape = "plane"
         normal = [0, 0, 1]
         """
-    names = lambda e, **s: [st.name for st in Engine(scene_from(tmp_path, base.format(effects=e)), s).stages]  # noqa: E731
+    names = lambda e, **s: [st.name for st in engine_for(scene_from(tmp_path, base.format(effects=e)), s).stages]  # noqa: E731
     assert names("[]") == ["integrate_velocities", "integrate_positions"]
     assert names('["gravity"]') == ["gravity", "integrate_velocities", "integrate_positions"]
     assert names('["gyroscopic"]') == ["integrate_velocities", "gyroscopic", "integrate_positions"]
@@ -222,8 +222,8 @@ def test_pipeline_follows_effects(tmp_path):
     assert names('["contact"]', ccd="off") == ["integrate_velocities", "broadphase", "narrowphase", "solve",
                                                "integrate_positions"]
     # friction rows only with 'friction'
-    e1 = Engine(scene_from(tmp_path, base.format(effects='["gravity", "contact"]')))
-    e2 = Engine(scene_from(tmp_path, base.format(effects='["gravity", "contact", "friction"]')))
+    e1 = engine_for(scene_from(tmp_path, base.format(effects='["gravity", "contact"]')))
+    e2 = engine_for(scene_from(tmp_path, base.format(effects='["gravity", "contact", "friction"]')))
     assert not next(s for s in e1.stages if s.name == "solve").friction
     assert next(s for s in e2.stages if s.name == "solve").friction
 
@@ -261,11 +261,12 @@ def test_adapter_contract(tmp_path):
         position = [1, 0, 0]
         """)
     # every shape pair collides (cylinder-cylinder was the last one missing)
+    from adapters.reference import scene_input
     from engine.model import build_model
-    from engine.narrowphase import TABLE, unsupported_pairs
+    from engine.collision import TABLE, unsupported_pairs
 
     assert cls.unsupported_reason(sc) is None
-    assert unsupported_pairs(build_model(sc, cls.resolve_settings(sc, {}))) == []
+    assert unsupported_pairs(build_model(scene_input(sc), cls.resolve_settings(sc, {}))) == []
     assert len(TABLE) == 10  # the 4 shapes' 10 unordered pairs
     res = run(sc, "reference")
     assert res.status == "ok", res.message
@@ -292,8 +293,8 @@ def test_substeps_match_smaller_dt(tmp_path):
         b = "b"
         stiffness = 30.0
         """)
-    a = Engine(sc, {"dt": 0.01, "substeps": 4, "integrator": "semi_implicit_euler"})
-    b = Engine(sc, {"dt": 0.0025, "integrator": "semi_implicit_euler"})
+    a = engine_for(sc, {"dt": 0.01, "substeps": 4, "integrator": "semi_implicit_euler"})
+    b = engine_for(sc, {"dt": 0.0025, "integrator": "semi_implicit_euler"})
     a.step(100)
     b.step(400)
     assert np.allclose(a.state.x, b.state.x, atol=1e-12) and np.allclose(a.state.v, b.state.v, atol=1e-12)

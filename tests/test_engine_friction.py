@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import Engine
+from adapters.reference import engine_for
 from harness.scene import load_scene
 
 G = 9.81
@@ -56,7 +56,7 @@ def incline(tmp_path: Path, shape: str, angle: float, duration: float = 1.0, dt:
     p = tmp_path / f"incline_{shape}_{angle}.toml"
     p.write_text(text)
     scene = load_scene(p)
-    eng = Engine(scene, settings)
+    eng = engine_for(scene, settings)
     down = np.array([math.cos(a), 0.0, -math.sin(a)])
     return eng, down, np.array(n)
 
@@ -129,7 +129,7 @@ def test_frictionless_incline_slides_freely(tmp_path):
         """)
     p = tmp_path / "ice.toml"
     p.write_text(text)
-    eng = Engine(load_scene(p))
+    eng = engine_for(load_scene(p))
     x0 = eng.state.x[0].copy()
     eng.step(120)
     down = np.array([math.cos(a), 0.0, -math.sin(a)])
@@ -167,7 +167,7 @@ def lying_on_slope(tmp_path: Path, shape: str, angle: float, r: float, half_leng
         angle = {angle}
         """))
     sc = load_scene(p)
-    return Engine(sc), sc, n, np.array([math.cos(a), 0.0, -math.sin(a)])
+    return engine_for(sc), sc, n, np.array([math.cos(a), 0.0, -math.sin(a)])
 
 
 @pytest.mark.parametrize("shape", ["capsule", "cylinder"])
@@ -262,7 +262,7 @@ def rolling(tmp_path: Path, angle: float, u0: float, mur: float = MU_R, effects:
         """)
     p = tmp_path / f"rolling_{angle}_{u0}_{mur}.toml"
     p.write_text(text)
-    return Engine(load_scene(p), settings), d
+    return engine_for(load_scene(p), settings), d
 
 
 def _rolling_accel(angle: float, sign: float) -> float:

@@ -17,7 +17,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from adapters.conventions import quat_to_matrix
-from engine import Engine
+from adapters.reference import engine_for
 from engine.mathutil import quat_mul
 from harness.scene import load_scene
 
@@ -80,7 +80,7 @@ def test_order_torque_free_box(tmp_path, integrator):
     dts = [0.02, 0.01, 0.005, 0.0025]
     errs = []
     for dt in dts:
-        eng = Engine(sc, {"dt": dt, "integrator": integrator, "gyroscopic": "explicit"})
+        eng = engine_for(sc, {"dt": dt, "integrator": integrator, "gyroscopic": "explicit"})
         eng.step(int(round(T / dt)))
         errs.append(np.linalg.norm(eng.state.w[0] - wr[0]) + angle_between(eng.state.q[0], qr[0]))
     assert abs(fitted_order(dts, errs) - ORDERS[integrator]) <= 0.3, errs
@@ -116,7 +116,7 @@ def test_order_damped_spring(tmp_path, integrator):
     dts = [0.01, 0.005, 0.0025, 0.00125]
     errs = []
     for dt in dts:
-        eng = Engine(sc, {"dt": dt, "integrator": integrator})
+        eng = engine_for(sc, {"dt": dt, "integrator": integrator})
         eng.step(int(round(T / dt)))
         errs.append(abs(eng.state.x[0, 0] - exact))
     assert abs(fitted_order(dts, errs) - ORDERS[integrator]) <= 0.3, errs
@@ -134,7 +134,7 @@ def _dzhanibekov(tmp_path, settings, T=20.0, dt=1 / 240):
     drift of the box 0.6 x 0.4 x 0.1 spun at 10 rad/s about its
     intermediate axis (flips ~7 times in 20 s)."""
     sc = box_scene(tmp_path, w=(0.0, 10.0, 0.01), duration=T, dt=dt)
-    eng = Engine(sc, settings)
+    eng = engine_for(sc, settings)
     E0, L0 = _energy_and_momentum(sc, eng)
     gain = loss = dl = 0.0
     for _ in range(int(round(T / dt))):
@@ -176,7 +176,7 @@ def test_free_body_orientation_through_flips(tmp_path):
     qr, wr = free_body_reference(sc.bodies[0].inertia, sc.bodies[0].angular_velocity, t)
     flips = int(np.sum(np.diff(np.sign(np.einsum("kji,kj->ki", quat_to_matrix(qr), wr)[:, 1])) != 0))
     assert flips >= 2
-    eng = Engine(sc)
+    eng = engine_for(sc)
     err = 0.0
     for k in range(n):
         eng.step()
@@ -189,7 +189,7 @@ def test_free_body_short_against_reference(tmp_path):
     T, dt = 2.0, 1 / 240
     sc = box_scene(tmp_path, w=(1.0, 3.0, 2.0), duration=T, dt=dt)
     qr, wr = free_body_reference(sc.bodies[0].inertia, sc.bodies[0].angular_velocity, np.array([T]))
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(int(round(T / dt)))
     assert angle_between(eng.state.q[0], qr[0]) <= 1e-6
     assert np.linalg.norm(eng.state.w[0] - wr[0]) <= 1e-6
@@ -200,7 +200,7 @@ def test_without_gyroscopic_effect_w_is_constant(tmp_path):
     """Without the 'gyroscopic' effect the w x I w term is absent: w stays
     constant (and no gyroscopic stage exists)."""
     sc = box_scene(tmp_path, effects="[]")
-    eng = Engine(sc)
+    eng = engine_for(sc)
     eng.step(100)
     assert np.array_equal(eng.state.w[0], sc.bodies[0].angular_velocity)
     assert "gyroscopic" not in eng.profile.calls

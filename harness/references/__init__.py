@@ -77,6 +77,26 @@ class ReferenceModel:
         trajectory; None otherwise."""
         return None
 
+    def trajectory(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The model's motion at times t (F,): (positions (F, n, 3) m,
+        orientations (F, n, 4) wxyz or None when the model predicts none),
+        NaN for bodies it does not model; None without a trajectory.  Drawn
+        as the ghost in traces (harness.trace)."""
+        pos = self.positions(t)
+        return None if pos is None else (pos, None)
+
+    def predictions(self) -> dict[str, str]:
+        """The model's scalar predictions as label -> text with units
+        (post-impact velocity, apex heights, flip period, stop time...), for
+        the trace's context document; {} when it has none to show."""
+        return {}
+
+    def events(self, trace) -> list[tuple[int, int, str]]:
+        """Moments the model recognises in a recorded trace, as (frame,
+        body index, text), e.g. a body passing through a wall; [] by
+        default.  Drawn as event markers in traces."""
+        return []
+
     def metrics(self, trace) -> dict[str, float]:
         ref = self.positions(trace.t)
         if ref is None:

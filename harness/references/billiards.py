@@ -275,6 +275,11 @@ class BounceHeights(ReferenceModel):
         p = base + np.outer(t, self.v_tan) + np.outer(self.height(t), self.n)
         return p[:, None, :]
 
+    def predictions(self) -> dict[str, str]:
+        apex = self.reference_apexes(self.scene.duration)[:5]
+        return {"first impact": f"{self.t1:.6g} s at {self.v1:.6g} m/s",
+                "apex heights (bottom above the plane)": ", ".join(f"{h:.6g}" for h in apex) + " m"}
+
     def reference_apexes(self, duration: float) -> list[float]:
         """Reference apex heights A_1..A_k above 1 % of h_0 reached within duration."""
         out = []

@@ -102,6 +102,14 @@ class TwoBodyCollision(ReferenceModel):
             p2 = np.where(after, self.x2c + self.v2_post * (tt - tc), self.x2 + self.v2 * tt)
         return np.stack([p1 + grav, p2 + grav], axis=1)
 
+    def predictions(self) -> dict[str, str]:
+        if self.t_impact is None:
+            return {"impact": "none within the relative motion"}
+        names = [self.scene.bodies[i].name for i in self.idx]
+        return {"impact time": f"{self.t_impact:.6g} s",
+                f"{names[0]} velocity after impact": f"{np.array2string(self.v1_post, precision=6)} m/s",
+                f"{names[1]} velocity after impact": f"{np.array2string(self.v2_post, precision=6)} m/s"}
+
     def metrics(self, trace) -> dict[str, float]:
         i, j = self.idx
         pos = trace.pos[:, [i, j]]

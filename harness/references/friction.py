@@ -163,6 +163,14 @@ class InclineBlock(_SlopeModel):
     def regime(self) -> str:
         return "stick" if self.t_stop == 0.0 else "slide"
 
+    def predictions(self) -> dict[str, str]:
+        out = {"regime": self.regime, "acceleration along the slope": f"{self.a_slide:.6g} m/s^2"}
+        if math.isfinite(self.t_stop) and self.t_stop > 0:
+            out["stop time"] = f"{self.t_stop:.6g} s"
+            if self.a_back:
+                out["acceleration sliding back"] = f"{self.a_back:.6g} m/s^2"
+        return out
+
     def distance(self, t: np.ndarray) -> np.ndarray:
         """Reference distance travelled downhill (m) at times t (F,)."""
         tt = np.minimum(t, self.t_stop)
@@ -506,6 +514,10 @@ class SpinToRest(ReferenceModel):
         e = quat_rotate(trace.quat[:, i], np.broadcast_to([0.0, 0.0, 1.0], (len(trace.t), 3)))
         s = np.cross(self.axis0, e) @ self.n
         return np.unwrap(np.arctan2(s, e @ self.axis0))
+
+    def predictions(self) -> dict[str, str]:
+        return {"spin deceleration": f"{self.alpha:.6g} rad/s^2", "stop time": f"{self.t_stop:.6g} s",
+                "angle turned": f"{self.theta_stop:.6g} rad"}
 
     def metrics(self, trace) -> dict[str, float]:
         i = self.body.index

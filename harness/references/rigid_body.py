@@ -187,6 +187,19 @@ class TorqueFreeRigidBody(ReferenceModel):
         out[:, self.body.index] = p
         return out
 
+    def trajectory(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.asarray(t, float)
+        quat = np.full((t.shape[0], self.scene.n_bodies, 4), np.nan)
+        quat[:, self.body.index] = self.reference(t)[0]
+        return self.positions(t), quat
+
+    def predictions(self) -> dict[str, str]:
+        distinct = len(set(np.round(self.inertia, 12))) == 3
+        if distinct and self.spin_axis == self.mid_axis:  # spun about (near) the intermediate axis
+            return {"flip period (half of the intermediate-axis cycle)":
+                    f"{intermediate_flip_interval(self.inertia, self.w0):.6g} s"}
+        return {}
+
     def flip_interval(self, t: np.ndarray, w_body: np.ndarray) -> float:
         """Mean time between sign changes of the intermediate-axis component
         (nan with fewer than two sign changes)."""
@@ -349,6 +362,10 @@ class HeavyTop(ReferenceModel):
     def positions(self, t: np.ndarray) -> np.ndarray:
         x, _ = self.reference(np.asarray(t, float))
         return x[:, None, :]
+
+    def trajectory(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, q = self.reference(np.asarray(t, float))
+        return x[:, None, :], q[:, None, :]
 
     def _azimuth_tilt(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         a = quat_rotate(q, self.e_sym)  # (F, 3)

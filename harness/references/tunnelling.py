@@ -123,14 +123,38 @@ class NoTunnelling(ReferenceModel):
     # ---- metrics -------------------------------------------------------------
     def side_flips(self, trace) -> np.ndarray:
         """(n_bodies,) bool: which bodies tunnelled through a watched static."""
+        flipped = np.zeros(trace.pos.shape[1], dtype=bool)
+        for _s, bad in self._crossings(trace):
+            with np.errstate(invalid="ignore"):
+                flipped |= np.any(bad, axis=0)
+        return flipped
+
+    def events(self, trace) -> list[tuple[int, int, str]]:
+        """(frame, body, text) of each body's first pass through each
+        watched static: the first frame on the far side (a box) or below
+        the surface (a plane)."""
+        out = []
+        for s, bad in self._crossings(trace):
+            shift = 1 if s.shape == "box" else 0  # box rows are frame pairs (i, i+1)
+            for i in np.nonzero(bad.any(axis=0))[0]:
+                f = int(np.argmax(bad[:, i])) + shift
+                where = "passed through" if s.shape == "box" else "went below"
+                out.append((f, int(i), f"tunnelling: {self.scene.bodies[i].name} {where} {s.name} "
+                                       f"(t = {float(trace.t[f]):.6g} s)"))
+        return out
+
+    def _crossings(self, trace):
+        """Per watched static: (static, bad) with bad (F-1, n) bool for a box
+        (frames i -> i+1 crossing the mid-plane within the face) or (F, n)
+        for a plane (centre below the surface having started above)."""
         pos = trace.pos  # (F, n, 3)
-        flipped = np.zeros(pos.shape[1], dtype=bool)
-        for (kind, c, n, axes, half, _thick) in self.slabs:
+        for s, (kind, c, n, axes, half, _thick) in zip(self.statics, self.slabs):
             rel = pos - c  # (F, n, 3)
             d = rel @ n  # (F, n)
             s0 = np.sign(d[0])
             if kind == "plane":
-                bad = (s0[None, :] > 0) & (d < 0)
+                with np.errstate(invalid="ignore"):
+                    yield s, (s0[None, :] > 0) & (d < 0)
             else:
                 # frames i -> i+1 on opposite sides, either way; a frame exactly
                 # on the mid-plane (d = 0) takes the side it came from, so
@@ -147,12 +171,7 @@ class NoTunnelling(ReferenceModel):
                     f = d[:-1] / (d[:-1] - d[1:])  # fraction of the way to the mid-plane
                     p = rel[:-1] + (rel[1:] - rel[:-1]) * f[..., None]  # (F-1, n, 3) crossing points
                     inside = np.all(np.abs(p @ axes.T) <= half[None, None, :], axis=-1)
-                bad = cross & inside
-                flipped |= np.any(bad, axis=0)
-                continue
-            with np.errstate(invalid="ignore"):
-                flipped |= np.any(bad, axis=0)
-        return flipped
+                yield s, cross & inside
 
     def metrics(self, trace) -> dict[str, float]:
         flipped = self.side_flips(trace)

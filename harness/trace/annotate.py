@@ -1,0 +1,156 @@
+"""Logging a run's diagnosis into a trace: ghost, error and momentum
+series, thresholds, contacts, events and the context document (entity paths
+in docs/TRACES.md; what each one holds in harness/trace/diagnose.py and
+harness/trace/contacts.py)."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import rerun as rr
+
+from harness.scene import Scene
+from harness.trace import diagnose as dg
+from harness.trace.contacts import DEFAULT_CAP, harness_contacts
+
+GHOST_COLOR = (60, 200, 90, 90)  # translucent green
+HARNESS_CONTACT_COLOR = (230, 30, 30, 255)
+ENGINE_CONTACT_COLOR = (30, 120, 230, 255)
+THRESHOLD_GROUP = {"max_penetration": "penetration", "final_position_error": "error", "trajectory_rmse": "error"}
+
+
+class Diagnosis:
+    """What a diagnosing trace adds, for one scene: the model (or None),
+    the check outcomes of every run (harness.conformance.Outcome; filtered
+    per engine), ``checks`` metric -> harness.scene.Check, the per-frame
+    contact cap."""
+
+    def __init__(self, scene: Scene, outcomes: Sequence = (), checks: dict | None = None,
+                 contact_cap: int = DEFAULT_CAP):
+        self.scene = scene
+        self.model = dg.reference_model(scene)
+        self.outcomes = list(outcomes)
+        self.checks = dict(checks or {})
+        self.contact_cap = int(contact_cap)
+        self.ghost = False
+
+    # ---- layout ------------------------------------------------------------
+    def thresholds(self) -> dict[str, float]:
+        """check metric -> bound drawn as a line (checks with a max whose
+        metric has a per-frame series)."""
+        out = {}
+        for name, c in self.checks.items():
+            if name in THRESHOLD_GROUP and c.max is not None:
+                out[name] = float(c.max + (c.tolerance or 0.0))
+        return out
+
+    def series(self, labels: Sequence[str]) -> dict[str, list[str]]:
+        """Blueprint group -> entity path queries."""
+        g: dict[str, list[str]] = {
+            "energy": [f"/metrics/{lab}/energy" for lab in labels],
+            "momentum": [f"/metrics/{lab}/momentum/**" for lab in labels],
+            "penetration": [f"/metrics/{lab}/penetration" for lab in labels] if self.scene.has("contact") else [],
+            "error": [f"/metrics/{lab}/error/**" for lab in labels] if self.model is not None else [],
+        }
+        for name in self.thresholds():
+            if g[THRESHOLD_GROUP[name]]:
+                g[THRESHOLD_GROUP[name]].append(f"/metrics/threshold/{name}")
+        return g
+
+    # ---- the ghost -----------------------------------------------------------
+    def log_ghost(self, rec: rr.RecordingStream, steps: np.ndarray, t: np.ndarray, log_bodies) -> None:
+        """/world/model/<body>: the model's trajectory at the given frames."""
+        traj = dg.model_trajectory(self.model, self.scene, t)
+        if traj is None:
+            return
+        self.ghost = True
+        log_bodies(rec, "/world/model", self.scene, steps, t, traj[0], traj[1], GHOST_COLOR)
+        preds = {}
+        try:
+            preds = self.model.predictions()
+        except Exception as e:
+            preds = {"predictions failed": f"{type(e).__name__}: {e}"}
+        text = f"# reference model: {self.scene.reference_model}\n\n" + (
+            "\n".join(f"- {k}: {v}" for k, v in preds.items()) or "(no scalar predictions)")
+        rec.log("/context/model", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    def log_thresholds(self, rec: rr.RecordingStream, steps: np.ndarray, t: np.ndarray) -> None:
+        """/metrics/threshold/<metric>: the check's bound as a line over the run."""
+        if not steps.size:
+            return
+        ends = np.array([0, steps.size - 1])
+        for name, bound in self.thresholds().items():
+            rec.send_columns(f"/metrics/threshold/{name}",
+                             indexes=[rr.TimeColumn("step", sequence=steps[ends]),
+                                      rr.TimeColumn("sim_time", duration=t[ends])],
+                             columns=rr.Scalars.columns(scalars=np.full(2, bound)))
+
+    # ---- one run -------------------------------------------------------------
+    def log_context_only(self, rec: rr.RecordingStream, lab: str, result) -> None:
+        """/context/<lab> for a run with nothing to draw (unsupported, failed)."""
+        mine = [o for o in self.outcomes if o.engine == result.engine]
+        doc = dg.context_markdown(self.scene, result, mine, self.model)
+        rec.log(f"/context/{lab}", rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    def log_run(self, rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene: Scene, result,
+                tr, steps: np.ndarray, t: np.ndarray, pen) -> None:
+        from harness.metrics import momenta
+        from harness.trace.writer import _send_scalars, _time_columns
+
+        lab = engine_path.rsplit("/", 1)[1]
+        P, L = momenta(scene, tr)
+        _send_scalars(rec, f"{metrics_path}/momentum/linear", steps, t, np.linalg.norm(P, axis=1))
+        _send_scalars(rec, f"{metrics_path}/momentum/angular", steps, t, np.linalg.norm(L, axis=1))
+        err = None
+        traj = dg.model_trajectory(self.model, scene, t)
+        if traj is not None:
+            err = dg.error_series(tr.pos, traj[0])  # (F, n)
+            from harness.trace.writer import body_entity
+
+            for i, b in enumerate(scene.bodies):
+                if np.isfinite(traj[0][:, i]).all():
+                    _send_scalars(rec, body_entity(f"{metrics_path}/error", b), steps, t, err[:, i])
+        mine = [o for o in self.outcomes if o.engine == result.engine]
+        frame_max = pen.frame_max() if pen is not None else None
+        # contacts: the harness's, then the engine's own
+        if pen is not None:
+            self._log_contacts(rec, f"{engine_path}/contacts", steps, t,
+                               harness_contacts(scene, tr, self.contact_cap, pen=pen), HARNESS_CONTACT_COLOR,
+                               _time_columns)
+        engine_note = ""
+        if result.contacts is None:
+            engine_note = "not recorded (the run was not traced with contacts, or the adapter cannot read them)"
+        elif scene.has("contact"):
+            F = tr.t.shape[0]
+            eng = [(f, c) for f, c in result.contacts if f < F]
+            self._log_contacts(rec, f"{engine_path}/engine_contacts", steps, t, eng, ENGINE_CONTACT_COLOR,
+                               _time_columns)
+            engine_note = f"{len(eng)} frames with contacts at /world/{lab}/engine_contacts"
+        events = dg.find_events(scene, result, tr, penetration=frame_max, error=err, model=self.model,
+                                outcomes=mine, checks=self.checks)
+        if events:
+            f = np.array([e.frame for e in events])
+            rec.send_columns(f"/events/{lab}", indexes=_time_columns(steps[f], t[f]),
+                             columns=rr.TextLog.columns(text=[e.text for e in events],
+                                                        level=[e.level for e in events]))
+        doc = dg.context_markdown(scene, result, mine, self.model, engine_note)
+        rec.log(f"/context/{lab}", rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    @staticmethod
+    def _log_contacts(rec, path: str, steps, t, per_frame: list, color, time_columns) -> None:
+        """Points (Points3D) at ``path`` and normals scaled by depth
+        (Arrows3D, vector = depth x normal) at ``path``/normals, one
+        partition per frame with contacts."""
+        per_frame = [(f, c) for f, c in per_frame if len(c)]
+        if not per_frame:
+            return
+        f = np.array([x[0] for x in per_frame])
+        lengths = np.array([len(x[1]) for x in per_frame])
+        rows = np.concatenate([x[1] for x in per_frame])
+        idx = time_columns(steps[f], t[f])
+        rec.send_columns(path, indexes=idx, columns=rr.Points3D.columns(
+            positions=rows[:, 0:3].astype(np.float32), colors=np.tile(color, (len(rows), 1))).partition(lengths))
+        rec.send_columns(f"{path}/normals", indexes=idx, columns=rr.Arrows3D.columns(
+            origins=rows[:, 0:3].astype(np.float32),
+            vectors=(rows[:, 3:6] * rows[:, 6:7]).astype(np.float32)).partition(lengths))
