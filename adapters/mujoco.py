@@ -71,6 +71,7 @@ Materials
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from typing import Any
 
@@ -89,6 +90,22 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
     _IMPORT_ERROR = f"import mujoco failed: {_e}"
 
 ENGINE = "mujoco"
+
+#: MuJoCo's warnings of the run in progress ("Nan, Inf or huge value in
+#: QACC", "contact buffer full" ...).  Without a handler MuJoCo appends them
+#: to MUJOCO_LOG.TXT in the working directory; with this one they become
+#: notes of the run and nothing is written
+#: (tests/test_execute.py::test_mujoco_warnings_write_no_log_file).
+_WARNINGS: list[str] = []
+
+
+def _on_warning(msg: str) -> None:
+    if len(_WARNINGS) < 20:  # a blow-up repeats the same warning every step
+        _WARNINGS.append(str(msg))
+
+
+if mujoco is not None:
+    mujoco.set_mju_user_warning(_on_warning)
 
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
@@ -266,6 +283,7 @@ class MujocoAdapter(Adapter):
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
+        _WARNINGS.clear()  # a warning belongs to the run that raised it
         self.scene = scene
         self.settings = dict(settings)
         xml, meta = build_mjcf(scene, settings, self.notes, self.info)
@@ -441,6 +459,8 @@ class MujocoAdapter(Adapter):
         self._force = None
 
     def stages(self) -> dict[str, Any]:
+        self.notes.extend(f"mujoco warning: {w}" for w in _WARNINGS)
+        _WARNINGS.clear()
         out = dict(getattr(self, "_stages", {}))
         out["steps"] = getattr(self, "steps", 0)
         return out
@@ -630,4 +650,10 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], notes: list[str] | None =
 
 
 def _xml_escape(s: str) -> str:
-    return (s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;"))
+    """``s`` as the text of a double-quoted XML attribute: markup characters
+    and whitespace escaped (an attribute's raw newline or tab would be read
+    as a space), characters XML 1.0 cannot hold at all replaced by U+FFFD.
+    Pinned by tests/test_fuzz.py::test_mjcf_escape_round_trips."""
+    out = s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+    out = out.replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
+    return re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]", "\ufffd", out)

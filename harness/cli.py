@@ -3,7 +3,9 @@
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
     physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
+    physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
+    physbench models [NAME] [--json]
     physbench list
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
@@ -56,6 +58,76 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
     return settings, overrides
 
 
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi] (argparse reports anything else
+    as a usage error, exit 2)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {v}")
+        return v
+    return parse
+
+
+def _float_where(test: Any, expected: str):
+    """argparse type: a number for which ``test(v)`` holds (nan never does)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(v) and test(v)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+        return v
+    return parse
+
+
+_phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
+_positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
+
+
+#: bounds of the CLI's counts: runs at once, benchmark repeats, record stride
+MAX_JOBS = 256
+MAX_REPEATS = 1000
+MAX_RECORD_EVERY = 10**8
+
+
+def output_file(flag: str, value: str | None) -> Path | None:
+    """The file an output flag (``--junit``, ``-o``, ``--save``, ``--out``)
+    names, checked before any run: not empty, not an existing directory,
+    and no existing file where a parent directory must be (missing parent
+    directories are created when the file is written).  UsageError (exit 2)
+    otherwise."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a file path, got {value!r}")
+    p = Path(value)
+    if p.is_dir() or value.endswith(("/", "\\")):
+        raise UsageError(f"{flag} {value}: is a directory; expected a file path")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{flag} {value}: {parent} is a file, not a directory")
+            break
+    return p
+
+
+def output_dir(flag: str, value: str | None) -> Path | None:
+    """The directory an output flag names: not empty, not an existing file."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a directory path, got {value!r}")
+    p = Path(value)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"{flag} {value}: is a file; expected a directory")
+    return p
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
@@ -68,23 +140,37 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
+    """The RunRequest of a command line, checked in this process before it
+    goes to a worker: a bad spec, setting or phase is exit 2 here."""
+    from adapters import get_adapter
+    from harness.execute import RunRequest, request_scene
+    from harness.phase import PhaseError
+
+    req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
+    try:
+        scene = request_scene(req)
+    except PhaseError as e:
+        raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    try:
+        get_adapter(engine).resolve_settings(scene, settings)
+    except ValueError as e:  # bad setting value
+        raise UsageError(str(e)) from None
+    return req
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from adapters import get_adapter
     from harness.conformance import BAD
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import run_isolated
 
+    save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
-    scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
-    try:
-        result = run(scene, args.engine, settings, record_every=args.record_every)
-    except ValueError as e:  # bad setting value
-        raise UsageError(str(e)) from None
-    if args.phase:
-        result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
-                            f"{args.phase:g} dt")
-    runs, outcomes = _run_checks(scene, result, settings, args)
+    req = _request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
+    # in a worker process: an engine that aborts or hangs is a status, not a dead command
+    result = run_isolated(req)
+    runs, outcomes = _run_checks(req, result, settings, args)
     if args.save:
         from harness.results import write_rows
 
@@ -93,7 +179,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if runs:
             row.update(runs[0].row_extra)
         row["checks"] = json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
-        write_rows([row], args.save)
+        write_rows([row], save)
     if args.json:
         d = result.as_dict()
         d["checks"] = [o.as_dict() for o in outcomes]
@@ -104,43 +190,35 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
 
 
-def _run_checks(scene, result, settings: dict[str, Any], args: argparse.Namespace):
-    """The scene's checks that apply to this run, evaluated as ``physbench
-    check`` evaluates them (harness/conformance.py): the runs a check needs
-    beyond this one -- its step phases, an ``@dt=...`` setting -- are made
-    here, with the same settings and spec overrides.  A run at a given
-    ``--phase`` is judged on itself only (it is one phase already).
-    Returns (planned runs, outcomes)."""
-    from harness.conformance import evaluate_runs, run_planned, scene_runs
+def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace):
+    """The scene's checks that apply to the run of ``req``, evaluated as
+    ``physbench check`` evaluates them (harness/conformance.py): the runs a
+    check needs beyond this one -- its step phases, an ``@dt=...`` setting --
+    are made here, in one worker process, with the same settings and spec
+    overrides.  A run at a given ``--phase`` is judged on itself only (it is
+    one phase already).  Returns (planned runs, outcomes)."""
+    import dataclasses
 
+    from harness.conformance import evaluate_runs, scene_runs
+    from harness.execute import WorkerPool, request_scene, run_requests
+
+    scene = request_scene(dataclasses.replace(req, phase=0.0))
     runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
     if not runs:
         return runs, []
     results = {runs[0].key: result}
+    extra = {id(r): dataclasses.replace(req, settings=dict(r.settings), phase=r.phase) for r in runs[1:]}
     for r in runs[1:]:
         if not args.json:
             print(f"check run: {args.engine} {r.scenario}" + (f" phase {r.phase:g}" if r.phase else "")
                   + "".join(f" {k}={v:.6g}" if isinstance(v, float) else f" {k}={v}"
                             for k, v in r.settings.items() if settings.get(k) != v), file=sys.stderr)
-        results[r.key] = run_planned(scene, r)
+    if extra:
+        with WorkerPool(1) as pool:
+            done = {id(q): res for q, res in run_requests(extra.values(), pool)}
+        for r in runs[1:]:
+            results[r.key] = done[id(extra[id(r)])]
     return runs, evaluate_runs(runs, results)
-
-
-def _phase(scene, f: float, dt: Any = None):
-    """``scene`` shifted to step phase ``f`` (harness/phase.py); a scene
-    that does not start in free flight is a usage error naming why."""
-    if not f:
-        return scene
-    from harness.phase import PhaseError, shift_scene
-
-    try:
-        h = None if dt is None else float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"--set dt={dt!r}: expected a number of seconds") from None
-    try:
-        return shift_scene(scene, f, dt=h)
-    except PhaseError as e:
-        raise UsageError(f"--phase {f:g}: {e}") from None
 
 
 def _print_result(result, outcomes=()) -> None:
@@ -205,20 +283,24 @@ def cmd_engines(args: argparse.Namespace) -> int:
 
 def cmd_trace(args: argparse.Namespace) -> int:
     from adapters import ENGINES, get_adapter
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import WorkerPool, request_scene, run_requests
     from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
     if Path(args.scenario).is_dir():
         raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
                          f"or a spec file, not a folder")
-    scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
-    scene = _phase(scene, args.phase)
-    results = []
+    output_file("-o", args.output)
+    overrides = _split_sets(args.set, set())[1] if args.set else {}
+    reqs = []
     for e in engines:
         get_adapter(e)
-        results.append(run(scene, e, contact_cap=0 if args.watch else DEFAULT_CAP))
+        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True,
+                             contact_cap=0 if args.watch else DEFAULT_CAP))
+    scene = request_scene(reqs[0])
+    with WorkerPool(args.jobs) as pool:
+        done = {id(req): res for req, res in run_requests(reqs, pool)}
+    results = [done[id(r)] for r in reqs]
     from harness.conformance import evaluate
     from harness.trace import write_rrd
 
@@ -237,37 +319,51 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
+    output_file("--junit", args.junit)
+    output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
-                      jobs=args.jobs, traces=args.traces)
+                      jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    import contextlib
+
     from harness import bench
 
-    if args.kind == "overhead":
-        # the reference engine is left out unless asked for: its steps cost
-        # milliseconds, so its overhead is lost in noise and takes minutes
-        rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
-        bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
-                               "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
-    else:
-        rows = bench.cost(repeats=args.repeats)
-        bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
-        ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
-        if len(ok) >= 2:
-            k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
-            print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
-        sc = bench.broadphase_scaling(repeats=args.repeats)
-        bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                     "medians): sap, all pairs, former single-axis sweep")
-        ns = [r["n"] for r in sc["rows"]]
-        ex = sc["exponents"]
-        print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-              f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
-              f"sweep: {ex['single_axis']:.2f})")
+    out = sys.stdout
+    # with --json, stdout carries the JSON only: the tables go to stderr
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        if args.kind == "isolation":
+            from harness.execute import bench_isolation
+
+            rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
+            bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "
+                                   "this process, in a reused worker, in a fresh worker per run")
+        elif args.kind == "overhead":
+            # the reference engine is left out unless asked for: its steps cost
+            # milliseconds, so its overhead is lost in noise and takes minutes
+            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
+            bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
+                                   "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        else:
+            rows = bench.cost(repeats=args.repeats)
+            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+            ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
+            if len(ok) >= 2:
+                k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
+                print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
+            sc = bench.broadphase_scaling(repeats=args.repeats)
+            bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
+                                         "medians): sap, all pairs, former single-axis sweep")
+            ns = [r["n"] for r in sc["rows"]]
+            ex = sc["exponents"]
+            print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
+                  f"sweep: {ex['single_axis']:.2f})")
     if args.json:
-        print(json.dumps(rows, default=str))
+        out.write(json.dumps(rows, default=str) + "\n")
+        out.flush()
     return 0
 
 
@@ -275,15 +371,64 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios,
+                      timeout_s=args.timeout)
+
+
+def cmd_limits(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.limits import LimitRequest, limits_main, parse_number
+
+    settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
+
+    try:
+        lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    bounds = []
+    for item in args.max or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--max {item}: expected METRIC=VALUE")
+        try:
+            bounds.append((key.strip(), parse_number(text.strip(), f"--max {key.strip()}")))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+    req = LimitRequest(args.scenario, args.variant, args.engine, args.param, lo, hi, phases=args.phases,
+                       tol=args.tol, checks=tuple(args.check or ()), settings=tuple(sorted(settings.items())),
+                       overrides=tuple(overrides.items()), bounds=tuple(sorted(bounds)))
+    return limits_main(req, out_dir=Path(args.out) if args.out else None, as_json=args.json)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
-                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target,
+                       out=output_file("--out", args.out), suites=args.suites, target=args.target,
                        fail_on_regression=args.fail_on_regression)
+
+
+def cmd_models(args: argparse.Namespace) -> int:
+    """The reference models' declarations (the same text as docs/MODELS.md)."""
+    from harness.references import MODELS, describe
+
+    if args.name is not None and args.name not in MODELS:
+        raise UsageError(f"models: unknown model {args.name!r}; known: {', '.join(sorted(MODELS))}")
+    descs = describe(args.name)
+    if args.json:
+        print(json.dumps(descs if args.name is None else descs[0]))
+        return 0
+    for d in descs:
+        print(f"{d['name']}: {d['summary']}")
+        print(f"  takes: {d['takes']}")
+        for p in d["params"]:
+            default = "-" if p["default"] is None else repr(p["default"])
+            print(f"  param {p['name']} ({p['type']}, default {default}): {p['meaning']}")
+        print(f"  metrics (primary {d['primary']}):")
+        for m, meaning in d["produces"].items():
+            print(f"    {m}: {meaning}")
+        print()
+    return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -298,9 +443,23 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from adapters import ENGINES
+def _seconds(text: str) -> float:
+    """A --timeout value: a positive, finite number of seconds."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive, finite number of seconds, got {text!r}")
+    return v
 
+
+def build_parser() -> argparse.ArgumentParser:
+    from adapters import engine_names
+    from harness.execute import DEFAULT_TIMEOUT_S
+
+    ENGINES = engine_names()  # the shipped four and any named in PHYSBENCH_ADAPTERS
+    timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
     p = argparse.ArgumentParser(prog="physbench", description="Validation and benchmark harness for rigid-body physics engines.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -310,11 +469,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", "-v", default=None)
     r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
-    r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
+    r.add_argument("--record-every", type=_int_in(1, MAX_RECORD_EVERY), default=1,
+                   help="record every N >= 1 steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
-    r.add_argument("--phase", type=float, default=0.0, metavar="F",
+    r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
+    r.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
@@ -325,7 +486,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
                    help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="worker processes (default 1)")
+    c.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
+                        "budget (default); --no-resume always starts afresh")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -339,9 +504,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
-    t.add_argument("--phase", type=float, default=0.0, metavar="F",
+    t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
+    t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
@@ -349,9 +516,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_engines)
 
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
-    b.add_argument("kind", choices=["overhead", "cost"])
+    b.add_argument("kind", choices=["overhead", "cost", "isolation"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
-    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -359,24 +526,54 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
-    sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
-                    help="default: serial for --jobs 1, a process pool otherwise")
+                    help="default: process (worker processes under a watchdog); serial runs in this process, "
+                         "without isolation")
+    sw.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+                    help="wall-clock budget per run in seconds (default: the suite's timeout_s)")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
                     help="default: resume an unfinished sweep of the same suite file, points and commit; "
                          "--resume also across commits; --no-resume always starts afresh")
     sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
     sw.set_defaults(func=cmd_sweep)
 
+    lm = sub.add_parser("limits", help="breaking point: where a scene stops holding as one parameter moves")
+    lm.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    lm.add_argument("--engine", "-e", required=True, choices=ENGINES)
+    lm.add_argument("--variant", "-v", default=None)
+    lm.add_argument("--param", required=True, metavar="KEY",
+                    help="engine setting (dt, iterations) or dotted spec key (body[0].velocity[0], body[1].mass)")
+    lm.add_argument("--range", nargs=2, required=True, metavar=("LO", "HI"))
+    lm.add_argument("--phases", type=int, default=1, metavar="N",
+                    help="a value holds only if it holds in all N step phases (default 1)")
+    lm.add_argument("--tol", type=float, default=0.05, metavar="REL",
+                    help="relative width of the final bracket (default 0.05)")
+    lm.add_argument("--check", action="append", default=None, metavar="METRIC",
+                    help="only checks of this metric count (repeatable; stability always counts)")
+    lm.add_argument("--max", action="append", default=None, metavar="METRIC=VALUE",
+                    help="extra criterion: the metric must stay <= VALUE (e.g. energy_gain=0.01); repeatable")
+    lm.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
+                    help="fixed engine setting or dotted spec key for every run of the search")
+    lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    lm.add_argument("--json", action="store_true",
+                    help="print one JSON object (limit, bracket, failed_check, runs, cpu_s, ...) on stdout")
+    lm.set_defaults(func=cmd_limits)
+
     rp = sub.add_parser("report", help="one self-contained HTML page from stored sweep and check results")
     rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
-    rp.add_argument("--target", type=float, default=None,
+    rp.add_argument("--target", type=_positive_float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
     rp.set_defaults(func=cmd_report)
+
+    mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
+    mo.add_argument("name", nargs="?", default=None, help="one model (default: all)")
+    mo.add_argument("--json", action="store_true", help="print the declarations as JSON")
+    mo.set_defaults(func=cmd_models)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")
     ls.set_defaults(func=cmd_list)
@@ -384,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from harness.execute import register_env_adapters
+
+    register_env_adapters()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

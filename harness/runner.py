@@ -2,11 +2,13 @@
 duration, record states into preallocated arrays, time the stepping apart
 from set-up and metrics, and turn every failure into a recorded status.
 
-Statuses: ``ok``; ``unsupported`` (the engine cannot model the scene, with the
-reason); ``failed`` (the engine rejected the model at build time);
-``error`` (an exception while stepping); ``diverged`` (non-finite or runaway
-state); ``timeout`` (the run exceeded its wall-clock budget).  Metrics are
-computed on whatever prefix of the trace was recorded.
+Statuses (defined in harness/status.py): ``ok``; ``unsupported`` (the
+engine cannot model the scene, with the reason); ``failed`` (the engine
+rejected the model at build time); ``error`` (an exception while stepping);
+``diverged`` (non-finite or runaway state); ``timeout`` (the run exceeded
+its wall-clock budget, checked between step blocks -- a run stuck inside
+one engine call is stopped by the worker's watchdog, harness/execute.py).
+Metrics are computed on whatever prefix of the trace was recorded.
 """
 
 from __future__ import annotations
@@ -14,8 +16,8 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import math
+import numbers
 import os
-import platform
 import subprocess
 import time
 import traceback
@@ -26,6 +28,7 @@ import numpy as np
 
 from adapters import get_adapter
 from harness.scene import Scene, n_steps
+from harness.spec import record_size_error
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -84,7 +87,9 @@ class RunResult:
     stages: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
-    machine: dict[str, str] = field(default_factory=dict)
+    #: the environment fingerprint's summary: every row names its machine,
+    #: also rows made without a run (load errors, dead workers)
+    machine: dict[str, str] = field(default_factory=lambda: machine_info())
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
@@ -121,6 +126,40 @@ class RunResult:
         out["commit"] = self.commit
         out["timestamp"] = self.timestamp
         return out
+
+    @classmethod
+    def from_row(cls, row: dict[str, Any]) -> "RunResult":
+        """The result a stored row was made from (:meth:`row`), as far as a
+        row holds it: every column that is not identity, status, a setting,
+        timing, machine, JSON or bookkeeping column is a metric.  A resumed
+        check evaluates its finished runs from these."""
+        import json
+
+        fixed = {"scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
+                 "notes", "stages", "info", "schema_version", "phase", "run_key", "check_id"}
+        settings, timing, machine, metrics = {}, {}, {}, {}
+        for k, v in row.items():
+            if k in fixed:
+                continue
+            head, dot, tail = k.partition(".")
+            if dot and head == "setting":
+                settings[tail] = v
+            elif dot and head == "timing":
+                timing[tail] = v
+            elif dot and head == "machine":
+                machine[tail] = v
+            else:
+                metrics[k] = v
+
+        def load(key: str, default: Any) -> Any:
+            try:
+                return json.loads(row[key]) if isinstance(row.get(key), str) else default
+            except ValueError:
+                return default
+
+        return cls(row.get("scenario"), row.get("variant"), row.get("engine"), row.get("engine_version") or "",
+                   row.get("status"), row.get("message") or "", settings, metrics, timing, load("stages", {}),
+                   load("notes", []), load("info", {}), machine, row.get("commit") or "", row.get("timestamp") or "")
 
     def row(self) -> dict[str, Any]:
         """Flat row for tables and Parquet: nested dicts become dotted
@@ -159,15 +198,16 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
-@functools.lru_cache(maxsize=1)
 def machine_info() -> dict[str, str]:
-    return {
-        "host": platform.node(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu": platform.processor() or platform.machine(),
-        "cores": str(os.cpu_count()),
-    }
+    """A row's ``machine.*`` columns: the environment fingerprint's flat
+    summary (harness/fingerprint.py: ``id`` is the machine id sweeps file
+    under, ``env_id`` adds the library stack; CPU model, family/model,
+    arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
+    One mechanism for check, run and sweep rows
+    (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
+    from harness.fingerprint import summary
+
+    return dict(summary())
 
 
 @functools.lru_cache(maxsize=1)
@@ -218,7 +258,13 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
-    record_every = max(1, int(record_every))
+    if not isinstance(record_every, numbers.Integral) or record_every < 1:
+        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
+    record_every = int(record_every)
+    # bounded before anything is allocated (tests/test_fuzz.py::test_record_bound_before_allocation)
+    too_big = record_size_error(steps, scene.n_bodies, record_every)
+    if too_big:
+        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
     n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
     trace = Trace.allocate(n_frames, scene.n_bodies)
     result.trace = trace

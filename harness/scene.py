@@ -25,7 +25,9 @@ import numpy as np
 
 from harness.spec import (
     BodySection,
+    bound_error,
     LoadedSpec,
+    ModelRefusal,
     SpecError,
     SpecModel,
     load_spec,
@@ -408,10 +410,19 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         r = b.radius or 0.0
         h = b.half_length or 0.0
         mass = b.mass if b.mass is not None else b.density * shape_volume(b.shape, r, he, h)
+        why = bound_error("mass", mass)
+        if why:
+            errs.append(f"{label}: body[{bi}].density: the mass it gives (density x volume) {why}")
+            continue
         inertia = principal_inertia(b.shape, mass, r, he, h)
         for name, pos in expand_pattern(b):
             if name in seen:
                 errs.append(f"{label}: body[{bi}].name: pattern makes a duplicate body name {name!r}")
+            far = next((float(c) for c in pos if bound_error("position", float(c))), None)
+            if far is not None:
+                errs.append(f"{label}: body[{bi}].pattern: body {name!r} at {pos.tolist()}: position "
+                            f"{bound_error('position', far)}")
+                break
             seen.add(name)
             bodies.append(Body(
                 index=len(bodies), name=name, shape=b.shape, mass=float(mass), inertia=inertia,
@@ -483,6 +494,16 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         variant_names=variant_names,
         phases=sc.phases,
     )
+    # the reference model must accept the scene, and every checked metric
+    # must be produced for it (tests/test_models.py)
+    from harness.references import model_refusal, scene_errors
+
+    errs = model_refusal(scene, label)
+    if errs:
+        raise ModelRefusal(errs)
+    errs = scene_errors(scene, label)
+    if errs:
+        raise SpecError(errs)
     scene = dataclasses.replace(scene, content_hash=content_hash(scene))
     if scene.phases > 1:
         # every phase must be runnable: the start must be free flight
@@ -556,8 +577,13 @@ def resolve_scenario(name: str | Path) -> Path:
     cand = SCENARIO_DIR.joinpath(*parts).with_suffix(".toml")
     if cand.is_file():
         return cand
-    known = ", ".join(scenario_ids()) or "none"
-    raise SpecError([f"{name}: <scenario>: no spec file and no scenario with this id; known ids: {known}"])
+    import difflib
+
+    ids = scenario_ids()
+    near = difflib.get_close_matches(str(name), ids, n=3, cutoff=0.6)
+    hint = f"did you mean {', '.join(near)}? " if near else ""
+    raise SpecError([f"{name}: <scenario>: no spec file and no scenario with this id; {hint}"
+                     f"{len(ids)} scenarios are known ('physbench list' names them)"])
 
 
 def spec_targets(entry: str | Path, base: Path | None = None) -> list[str]:

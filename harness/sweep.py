@@ -27,34 +27,31 @@ finished point, so a killed sweep loses at most the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.
 
-Parallelism: ``jobs`` worker processes (``executor="process"``) or in-process
-(``"serial"``).  A worker that dies (a segfault in an engine) breaks the pool:
-the points that were in flight are retried one at a time in a fresh
-one-worker pool, so only the point that kills its worker again is recorded as
-``error``; the sweep then continues with a new pool.
+Execution: ``jobs`` reusable worker processes under a wall-clock watchdog
+(``executor="process"``, the default; harness/execute.py), or in this
+process (``"serial"``: no isolation, for debugging).  A point whose worker
+dies (abort, segfault, out-of-memory kill) gets an ``error`` row naming the
+signal with the tail of the worker's stderr; a point stuck past its budget
+(``timeout_s`` per run, times its repeats) gets a ``timeout`` row and its
+worker is replaced; no other point is touched.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
-import fcntl
 import hashlib
 import itertools
 import json
 import math
 import os
-import platform
 import re
-import shutil
+import shutil  # noqa: F401 - consolidation removes part directories through it (tests patch it)
 import statistics
 import sys
 import time
-import tomllib
 import traceback
 import warnings
-from collections import deque
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -62,15 +59,19 @@ from typing import Any, Callable, Iterable
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from harness.phase import PhaseError, phase_values, shift_scene
-from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness import status as st
+from harness.execute import RunRequest, WorkerLost, make_executor, request_scene
+from harness.phase import PhaseError, phase_values
+from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
+                             unfinished_dirs, write_json_atomic, write_parquet_atomic)
 from harness.scene import REPO_ROOT
-from harness.spec import SpecError, _display, _format_errors
+from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
+from harness.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
-STATUSES = ("ok", "unsupported", "failed", "diverged", "timeout", "error")
+STATUSES = st.RUN_STATUSES
 EXECUTORS = ("serial", "process")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
@@ -82,6 +83,14 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 #: the point setting that carries a step phase (not an engine setting)
 PHASE_KEY = "phase"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
+
+
+def plain_name(name: str) -> bool:
+    """Whether ``name`` may name a directory under the results root: letters,
+    digits, '_', '-', '.', at most 100 characters, and not starting with '.'
+    (so never '.', '..' or a hidden directory).  Pinned by
+    tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
+    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
 
 
 class SuiteError(SpecError):
@@ -96,22 +105,31 @@ class SuiteError(SpecError):
 
 
 class _Strict(BaseModel):
-    # strict: TOML is typed, so "3" for an integer is a mistake, not a number
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    # strict: TOML is typed, so "3" for an integer is a mistake, not a number;
+    # allow_inf_nan=False: every float is finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+#: bounds of a suite's measuring knobs: repeats per point, seconds per run
+MAX_REPEATS = 1000
+MAX_TIMEOUT_S = 86400.0
 
 
 class SuiteSection(_Strict):
     name: str | None = None
     description: str = ""
     engines: list[str] = Field(min_length=1)
-    repeats: int = Field(default=3, ge=1)
-    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0)
+    repeats: int = Field(default=3, ge=1, le=MAX_REPEATS)
+    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0, le=MAX_TIMEOUT_S)
 
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
         if v is not None and not _NAME.match(v):
             raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
+        if v is not None and not plain_name(v):
+            raise ValueError(f"must be a plain name not starting with '.' and of at most 100 characters: it names "
+                             f"a directory under the results root, got {v!r}")
         return v
 
 
@@ -123,7 +141,7 @@ class SweepSection(_Strict):
     description: str = ""
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
-    repeats: int | None = Field(default=None, ge=1)
+    repeats: int | None = Field(default=None, ge=1, le=MAX_REPEATS)
     #: step phases per grid point (harness/phase.py): N runs with the start
     #: moved back along the free flight by i/N dt, i = 0 .. N-1
     phases: int = Field(default=1, ge=1, le=1024)
@@ -131,9 +149,41 @@ class SweepSection(_Strict):
     engine: dict[str, EngineSection] = Field(default_factory=dict)
 
 
+class LimitSection(_Strict):
+    """A ``[[limit]]`` table: a breaking-point search (harness/limits.py) per
+    scenario and engine."""
+
+    description: str = ""
+    scenarios: list[str] = Field(min_length=1)
+    engines: list[str] | None = None
+    #: an engine setting (dt, iterations) or a dotted spec key
+    param: str
+    range: tuple[float, float]
+    phases: int = Field(default=1, ge=1, le=1024)
+    tol: float = Field(default=0.05, gt=0, lt=1)
+    #: only checks of these metrics count (stability always does)
+    checks: list[str] = Field(default_factory=list)
+    #: fixed engine settings and dotted spec keys for every run of the search
+    set: dict[str, Any] = Field(default_factory=dict)
+    #: extra criteria: metric -> largest value that holds
+    max: dict[str, float] = Field(default_factory=dict)
+
+    @field_validator("range", mode="before")
+    @classmethod
+    def _range(cls, v: Any) -> Any:
+        # strict mode takes no int for a float: a range of [1, 1000] is meant as numbers
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                        for x in v):
+            if not all(math.isfinite(float(x)) for x in v) or not float(v[0]) < float(v[1]):
+                raise ValueError(f"expected [LO, HI], two finite numbers with LO < HI, got {v!r}")
+            return (float(v[0]), float(v[1]))
+        raise ValueError(f"expected [LO, HI], two numbers, got {v!r}")
+
+
 class SuiteModel(_Strict):
     suite: SuiteSection
-    sweep: list[SweepSection] = Field(min_length=1)
+    sweep: list[SweepSection] = Field(default_factory=list)
+    limit: list[LimitSection] = Field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------
@@ -178,6 +228,9 @@ class Suite:
     repeats: int
     timeout_s: float
     sweeps: tuple[SweepBlock, ...]
+    #: the ``[[limit]]`` blocks expanded: one breaking-point search
+    #: (harness.limits.LimitRequest) per (block, scenario, engine)
+    limits: tuple[Any, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -256,25 +309,87 @@ def load_suite(path: str | Path) -> Suite:
     Raises SuiteError listing every problem found."""
     p = resolve_suite(path)
     label = _display(p)
-    if not p.is_file():
-        raise SuiteError([f"{label}: <file>: no such file"])
-    data = p.read_bytes()
-    try:
-        raw = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SuiteError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    raw, data = read_toml(p, label, SuiteError)
     try:
         model = SuiteModel.model_validate(raw)
     except ValidationError as exc:
         raise SuiteError(_format_errors(label, exc, raw)) from None
     errors: list[str] = []
+    if not model.sweep and not model.limit:
+        errors.append(f"{label}: <suite>: expected at least one [[sweep]] or [[limit]] table")
     blocks = _check_suite(model, label, errors, p.parent)
+    limits = _check_limits(model, label, errors)
     if errors:
         raise SuiteError(errors)
     s = model.suite
+    if s.name is None and not plain_name(p.stem):
+        raise SuiteError([f"{label}: suite.name: the file name {p.stem!r} is not a plain name (letters, digits, "
+                          f"'_', '-', '.', not starting with '.') and names a directory; give suite.name"])
     return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
                  description=s.description, engines=tuple(s.engines), repeats=s.repeats,
-                 timeout_s=s.timeout_s, sweeps=tuple(blocks))
+                 timeout_s=s.timeout_s, sweeps=tuple(blocks), limits=tuple(limits))
+
+
+def _block_engines(listed: list[str] | None, suite_engines: list[str], usable: Any, where: str,
+                   errors: list[str]) -> list[str]:
+    """A block's engines: its own list (a subset of the suite's, each once)
+    or the suite's; only those in ``usable`` (registered and loadable) are
+    kept.  Appends problems to ``errors``."""
+    if listed is None:
+        return [e for e in suite_engines if e in usable]
+    engines: list[str] = []
+    for j, e in enumerate(listed):
+        if e not in suite_engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines ({', '.join(suite_engines)})")
+        elif e in engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
+        elif e in usable:
+            engines.append(e)
+    return engines
+
+
+def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]:
+    """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
+    engine), each validated as ``physbench limits`` validates its arguments
+    (harness.limits.validate_request).  Appends to ``errors``."""
+    from adapters import engine_names, get_adapter
+    from harness.limits import LimitRequest, validate_request
+    from harness.scene import scenario_ids
+
+    ids = set(scenario_ids())
+    known = set(engine_names())
+    out: list[Any] = []
+    for bi, lb in enumerate(model.limit):
+        where = f"{label}: limit[{bi}]"
+        engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
+        seen: set[tuple[str, str | None]] = set()
+        for j, entry in enumerate(lb.scenarios):
+            m = _SCENARIO_ENTRY.match(entry.strip())
+            if not m or m.group(1) not in ids:
+                errors.append(f"{where}.scenarios[{j}]: expected a scenario id ('family.name' or "
+                              f"'family.name[variant]') of scenarios/, got {entry!r}")
+                continue
+            sid, var = m.group(1), (None if m.group(2) in (None, "base") else m.group(2))
+            if (sid, var) in seen:
+                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                continue
+            seen.add((sid, var))
+            for e in engines:
+                names = set(get_adapter(e).capabilities().settings)
+                settings = tuple(sorted((k, v) for k, v in lb.set.items() if k in names))
+                overrides = tuple((k, v) for k, v in lb.set.items() if k not in names)
+                bad = [k for k, _ in overrides if "." not in k and "[" not in k]
+                if bad:
+                    errors.append(f"{where}.set.{bad[0]}: not a setting of engine {e} and not a dotted spec key")
+                    continue
+                req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
+                                   tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
+                                   model.suite.timeout_s)
+                problems = validate_request(req)
+                errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
+                if not problems:
+                    out.append(req)
+    return out
 
 
 def _engines_text(engines: Iterable[str]) -> str:
@@ -353,18 +468,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                     continue
                 scen.append(SuiteEntry(scene.id, var, target if pathlike else None, scene.content_hash))
         # engines of this block: a subset of the suite's
-        if sw.engines is None:
-            engines = [e for e in model.suite.engines if e in caps]
-        else:
-            engines = []
-            for j, e in enumerate(sw.engines):
-                if e not in model.suite.engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
-                                  f"({', '.join(model.suite.engines)})")
-                elif e in engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
-                elif e in caps:
-                    engines.append(e)
+        engines = _block_engines(sw.engines, model.suite.engines, caps, where, errors)
         for e in sw.engine:
             if e not in engines:
                 whose = "suite.engines" if sw.engines is None else f"sweep[{bi}].engines"
@@ -394,12 +498,37 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                     axes[e][key] = coerced
             for (path, msg, _), _ in own_bad.items():
                 errors.append(f"{label}: {path}: {msg}")
+        _check_record_size(where, scen, axes, errors)
         if PHASE_KEY in sw.grid or any(PHASE_KEY in own.grid for own in sw.engine.values()):
             errors.append(f"{where}: {PHASE_KEY!r} is not a grid axis; give the number of step phases as "
                           f"'phases = N' in the [[sweep]] table")
         blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
                                  axes, sw.description, sw.phases))
     return blocks
+
+
+def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[str, tuple[Any, ...]]],
+                       errors: list[str]) -> None:
+    """Every point's recording fits the bounds (harness/spec.py
+    record_size_error) at the smallest dt any engine sweeps: checked when
+    the suite loads, before anything runs or is allocated."""
+    from harness.scene import load_scene, n_steps
+    from harness.spec import record_size_error
+
+    for e, ax in axes.items():
+        if "dt" not in ax:
+            continue
+        dt = min(float(v) for v in ax["dt"])
+        for entry in scen:
+            try:
+                sc = load_scene(entry.path or entry.scenario, entry.variant)
+            except SpecError:
+                continue  # reported where the scenario is listed
+            why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
+            if why:
+                errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
+                              f"{why}")
+                return
 
 
 def _check_axis(path: str, key: str, values: list[Any], engine: str, caps: Any,
@@ -462,6 +591,7 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
             raise ValueError(f"engine {', '.join(unknown)} is not in suite {suite.name} "
                              f"(its engines: {', '.join(suite.engines)})")
     listed = {(e.scenario, e.variant) for b in suite.sweeps for e in b.scenarios}
+    listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
             if not any(s == sid or s == _label(sid, var) for sid, var in listed):
@@ -501,29 +631,10 @@ def _label(sid: str, var: str | None) -> str:
 # machine id
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo on Linux; platform elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-@lru_cache(maxsize=1)
-def machine_id() -> str:
-    """Short stable id of this machine: ``<host>-<8 hex>``, the hash over
-    host name, CPU model and core count (so a new CPU or a resized VM with
-    the same host name is a new machine, as timings are not comparable)."""
-    from harness.runner import machine_info
-
-    info = machine_info()
-    text = f"{info['host']}|{cpu_model()}|{info['cores']}"
-    host = re.sub(r"[^A-Za-z0-9_.-]", "_", info["host"] or "host")[:32]
-    return f"{host}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+# the machine id sweeps are filed under is the environment fingerprint's
+# (harness/fingerprint.py): CPU model, family/model/stepping, arithmetic
+# flags, cores and OS, never the host name
+machine_id = _fingerprint_machine_id
 
 
 # ---------------------------------------------------------------------------
@@ -560,7 +671,8 @@ def run_point(point: Point) -> dict[str, Any]:
     settings = point.engine_settings
     if point.phase:
         try:
-            scene = shift_scene(scene, point.phase, dt=settings.get("dt", scene.dt))
+            scene = request_scene(RunRequest(point.scenario, point.engine, point.variant, settings,
+                                             phase=point.phase), base=scene)
         except PhaseError as e:
             return _status_row(point, "error", f"phase {point.phase:g}: {e}", t0, scene=scene)
     first = None
@@ -628,7 +740,7 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
 
 
 def _status_row(point: Point, status: str, message: str, t0: float, scene: Any = None,
-                tb: str | None = None) -> dict[str, Any]:
+                tb: str | None = None, stderr_tail: str | None = None) -> dict[str, Any]:
     """A row for a point that produced no RunResult (scene failed to load,
     the run raised, the worker died)."""
     from adapters import get_adapter
@@ -650,6 +762,8 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
                     scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
     if tb:
         res.info["traceback"] = tb
+    if stderr_tail:
+        res.info["stderr_tail"] = stderr_tail
     row = res.row()
     row.update(_point_columns(point, scene, row, [], t0))
     return row
@@ -663,153 +777,37 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def _normalize(df):
-    """Columns mixing types (a setting that is a bool on one engine and a
-    string on another) are stored as text, as harness.results does.  Ints
-    and floats together (a part where the column was None, one where it was
-    an int, one where it was a float) are numbers, stored as float."""
-    import numbers
-
-    for col in df.columns:
-        if df[col].dtype == object:
-            vals = [v for v in df[col] if v is not None and not (isinstance(v, float) and math.isnan(v))]
-            kinds = {type(v) for v in vals}
-            if len(kinds) > 1 and all(isinstance(v, numbers.Real) and not isinstance(v, (bool, _np_bool()))
-                                      for v in vals):
-                df[col] = df[col].map(lambda v: math.nan if v is None else float(v)).astype(float)
-            elif len(kinds) > 1:
-                df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float) and math.isnan(v))
-                                      else str(v))
-    return df
+_write_json_atomic = write_json_atomic
+_parts = list_parts
+_try_lock = try_lock
+_unfinished = unfinished_dirs
 
 
-def _np_bool() -> type:
-    import numpy as np
-
-    return np.bool_
-
-
-def _fsync_replace(tmp: Path, path: Path) -> None:
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def write_parquet_atomic(df, path: Path, metadata: dict[str, Any] | None = None) -> Path:
-    """Write a DataFrame to ``path`` atomically (temp file in the same
-    directory, fsync, rename); ``metadata`` is stored as JSON in the Parquet
-    schema metadata under ``physbench``."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table = pa.Table.from_pandas(_normalize(df), preserve_index=False)
-    meta = dict(table.schema.metadata or {})
-    meta[b"physbench"] = json.dumps({"schema_version": SCHEMA_VERSION, **(metadata or {})}, default=str).encode()
-    table = table.replace_schema_metadata(meta)
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        pq.write_table(table, tmp)
-        _fsync_replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def _write_json_atomic(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        tmp.write_text(json.dumps(obj, indent=1, default=str) + "\n", encoding="utf-8")
-        _fsync_replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _parts(d: Path) -> list[Path]:
-    return sorted(d.glob("part-*.parquet"))
-
-
-def _part_keys(d: Path) -> tuple[set[str], int]:
-    """Finished point keys stored in the parts of sweep directory ``d``, and
-    the next part number.  An unreadable part (it cannot be half-written:
-    parts are renamed into place) is set aside as ``*.bad``."""
-    import pyarrow.parquet as pq
-
-    keys: set[str] = set()
-    n = 0
-    for p in _parts(d):
-        try:
-            n = max(n, int(p.stem.split("-")[1]))
-        except (IndexError, ValueError):
-            pass
-        try:
-            keys.update(pq.read_table(p, columns=["point_key"]).column("point_key").to_pylist())
-        except Exception as e:
-            print(f"warning: unreadable part {p} set aside ({type(e).__name__}: {e}); its points rerun",
-                  file=sys.stderr)
-            p.rename(p.with_suffix(".bad"))
-    return keys, n + 1
-
-
-class _SweepDir:
-    """An open (unfinished) sweep directory, locked against a second sweep
-    resuming it at the same time (flock: released when the process dies,
-    however it dies)."""
+class _SweepDir(PartsDir):
+    """An open (unfinished) sweep directory: one part per finished point,
+    keyed by ``point_key`` (harness.results.PartsDir)."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
-        self.path = path
-        self.manifest = manifest
-        self.lock_fd = lock_fd
-        self.done, self.next_part = _part_keys(path)
-        for tmp in path.glob(".tmp-*"):  # a write in flight when killed
-            tmp.unlink()
+        super().__init__(path, manifest, lock_fd, "point_key")
 
     @property
     def sweep_id(self) -> str:
         return self.manifest["sweep_id"]
 
     def write_point(self, row: dict[str, Any]) -> Path:
-        import pandas as pd
-
-        p = self.path / f"part-{self.next_part:06d}.parquet"
-        write_parquet_atomic(pd.DataFrame([row]), p, {"sweep_id": self.sweep_id})
-        self.next_part += 1
-        self.done.add(row["point_key"])
-        return p
-
-    def close(self) -> None:
-        if self.lock_fd >= 0:
-            os.close(self.lock_fd)
-            self.lock_fd = -1
+        return self.write_part(row, {"sweep_id": self.sweep_id})
 
 
-def _try_lock(d: Path) -> int:
-    """An exclusive lock on ``d/.lock`` (fd), or -1 if another process holds it."""
-    fd = os.open(d / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        return -1
-    return fd
-
-
-def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
-    """Unfinished sweep directories (with a readable manifest) under
-    ``suite_dir``, newest first."""
-    out = []
-    if not suite_dir.is_dir():
-        return out
-    for d in sorted(suite_dir.iterdir(), reverse=True):
-        m = d / "manifest.json"
-        if d.is_dir() and m.is_file():
-            try:
-                out.append((d, json.loads(m.read_text(encoding="utf-8"))))
-            except (OSError, ValueError):
-                continue
-    return out
+def confined(root: Path, *parts: str) -> Path:
+    """``root / parts...``, each part a plain name (:func:`plain_name`), so
+    that the path stays inside ``root`` whatever a suite or machine is
+    called.  Raises SuiteError otherwise (a guard: load_suite and
+    machine_id already make plain names)."""
+    for part in parts:
+        if not plain_name(part):
+            raise SuiteError([f"{root}: <path>: {part!r} is not a plain name (letters, digits, '_', '-', '.', "
+                              f"not starting with '.'); it would name a directory outside the results root"])
+    return root.joinpath(*parts)
 
 
 def _sweep_id(commit: str) -> str:
@@ -830,7 +828,7 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     """
     from harness.runner import commit_id, machine_info
 
-    suite_dir = root / machine_id() / suite.name
+    suite_dir = confined(root, machine_id(), suite.name)
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
@@ -879,7 +877,8 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine_id(),
-        "machine": {**machine_info(), "cpu_model": cpu_model()},
+        "machine": machine_info(),
+        "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
         "filters": filters,
@@ -896,31 +895,8 @@ def consolidate(d: Path) -> Path:
     planned order, one per point key), write ``<d>.manifest.json``, then --
     only once both are safely in place -- remove ``d``.  Returns the
     consolidated file's path."""
-    import pandas as pd
-
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    frames = [pd.read_parquet(p) for p in _parts(d)]
-    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["point_key"])
-    order = {k: i for i, k in enumerate(man.get("points", []))}
-    # a point is stored once by construction; should a bug ever store one
-    # twice, the first row wins and the manifest says so
-    n = len(df)
-    df = df.drop_duplicates("point_key", keep="first")
-    man["duplicates_dropped"] = n - len(df)
-    df = df.iloc[sorted(range(len(df)), key=lambda i: order.get(df["point_key"].iat[i], len(order)))]
-    df = df.reset_index(drop=True)
-    man["finished"] = man.get("finished") or _now()
-    man["rows"] = int(len(df))
-    missing = [k for k in man.get("points", []) if k not in set(df["point_key"])]
-    man["missing"] = missing
-    out = d.parent / f"{d.name}.parquet"
-    write_parquet_atomic(df, out, {"manifest": {k: v for k, v in man.items() if k != "points"}})
-    _write_json_atomic(man, d.parent / f"{d.name}.manifest.json")
-    try:
-        shutil.rmtree(d)
-    except OSError as e:  # the rows are safe; open_sweep finishes the removal next time
-        print(f"warning: {out} written but {d} could not be removed ({type(e).__name__}: {e}); "
-              "the next sweep of this suite removes it", file=sys.stderr)
+    out, _ = consolidate_parts(d, "point_key", list(man.get("points", [])), _now())
     return out
 
 
@@ -973,73 +949,30 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
 # executing points
 
 
-def _run_serial(todo: list[Point], on_row: Callable[[Point, dict[str, Any]], None],
-                on_start: Callable[[Point], None]) -> None:
-    for p in todo:
-        on_start(p)
-        t0 = time.perf_counter()
-        try:
-            row = run_point(p)
-        except Exception as e:  # as the process executor does: an error row, the sweep goes on
-            row = _status_row(p, "error", f"point failed: {type(e).__name__}: {e}", t0,
-                              tb=traceback.format_exc(limit=5))
-        on_row(p, row)
+def _point_budget(p: Point) -> float:
+    """Wall-clock budget of a point's worker: its timed runs, each within
+    the suite's ``timeout_s``."""
+    return p.timeout_s * max(1, p.repeats)
 
 
-def _run_process(todo: list[Point], jobs: int, on_row: Callable[[Point, dict[str, Any]], None],
-                 on_start: Callable[[Point], None]) -> None:
-    """Run points in a pool of ``jobs`` processes, at most 2 x jobs in flight
-    (so that a broken pool loses few).  When a worker dies, every point in
-    flight is retried alone in a fresh one-worker pool: the one that kills
-    its worker again gets an ``error`` row, the others their real rows; the
-    sweep then goes on with a new pool."""
-    pending = deque(todo)
-    while pending:
-        lost: list[Point] = []
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            inflight: dict[Any, Point] = {}
-            broken = False
-            while (pending and not broken) or inflight:
-                while pending and not broken and len(inflight) < 2 * jobs:
-                    p = pending.popleft()
-                    try:
-                        inflight[pool.submit(run_point, p)] = p
-                    except BrokenProcessPool:
-                        pending.appendleft(p)
-                        broken = True
-                        break
-                    on_start(p)
-                if not inflight:
-                    break
-                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                if broken:  # the pool is dead: everything in flight resolves now
-                    done, _ = wait(inflight)
-                for f in done:
-                    p = inflight.pop(f)
-                    try:
-                        row = f.result()
-                    except BrokenProcessPool:
-                        lost.append(p)
-                        broken = True
-                        continue
-                    except Exception as e:  # pickling trouble and the like
-                        row = _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", time.perf_counter())
-                    on_row(p, row)
-        for p in lost:
-            on_row(p, _run_isolated(p))
-
-
-def _run_isolated(p: Point) -> dict[str, Any]:
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=1) as solo:
-        try:
-            return solo.submit(run_point, p).result()
-        except BrokenProcessPool:
-            return _status_row(p, "error", "worker process died while running this point "
-                                           "(killed or crashed inside the engine, e.g. a segfault); "
-                                           "retried alone, it died again", t0)
-        except Exception as e:
-            return _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", t0)
+def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[str, Any]], None],
+               on_start: Callable[[Point], None]) -> None:
+    """Run points through ``executor`` (harness/execute.py: a WorkerPool or
+    the inline executor) and hand each row to ``on_row`` as it finishes.  A
+    point whose worker dies or hangs (or whose code raises) gets an
+    ``error``/``timeout`` row naming why; the other points are untouched."""
+    for p, value in executor.map(run_point, todo, budget_s=_point_budget, on_start=on_start):
+        if isinstance(value, WorkerLost):
+            t0 = time.perf_counter()
+            if value.kind == "died":
+                msg = f"{value.full_message()}".replace("this item", "this point")
+            elif value.kind == "timeout":
+                msg = value.full_message()
+            else:
+                msg = f"point failed: {value.message}"
+            value = _status_row(p, value.status, msg, t0, tb=value.traceback or None,
+                                stderr_tail=value.stderr_tail or None)
+        on_row(p, value)
 
 
 # ---------------------------------------------------------------------------
@@ -1069,14 +1002,30 @@ def summarize(df, wall_s: float, console=None, title: str = "") -> None:
     console.print(table)
 
 
+def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int, err: Any) -> None:
+    """The suite's breaking-point searches (``[[limit]]`` blocks), their rows
+    stored in the sweep's directory like its points; evaluations stored by an
+    interrupted run of this sweep are read back, not run again."""
+    from harness.limits import RESULT_ROW, LockedWriter, describe, run_requests, stored_rows
+
+    cached = stored_rows(_parts(sd.path))
+    cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
+    err.print(f"limits: {len(reqs)} breaking-point searches ({len(cached)} stored rows read back)",
+              markup=False, highlight=False)
+    run_requests(reqs, LockedWriter(sd, ctx), cached, jobs,
+                 on_done=lambda r, res, _s: err.print("limit: " + describe(res, r), markup=False,
+                                                       highlight=False, soft_wrap=True))
+
+
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
                out_dir: Path | None = None, resume: bool | None = None,
-               scenarios: list[str] | None = None) -> int:
+               scenarios: list[str] | None = None, timeout_s: float | None = None) -> int:
     """``physbench sweep``: run ``suite`` (a name under suites/ or a path)
     and store its rows under ``out_dir`` (default results/sweeps/).
 
     ``engines`` / ``scenarios`` restrict the suite; ``jobs`` worker processes
-    with ``executor`` ``"process"`` (default when jobs > 1) or ``"serial"``;
+    with ``executor`` ``"process"`` (the default) or ``"serial"`` (in this
+    process); ``timeout_s`` replaces the suite's per-run budget;
     ``resume``: None resumes an unfinished sweep of the same suite file,
     points and commit, True also across commits, False never (see
     :func:`open_sweep`).  Returns 0 when the sweep completed (failed runs are
@@ -1099,15 +1048,19 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     except ValueError as e:
         err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
         return 2
+    if timeout_s is not None:
+        points = [dataclasses.replace(p, timeout_s=float(timeout_s)) for p in points]
     jobs = max(1, int(jobs or 1))
-    executor = executor or ("serial" if jobs == 1 else "process")
+    executor = executor or "process"
     if executor not in EXECUTORS:
         err.print(f"error: executor {executor!r}: expected one of {', '.join(EXECUTORS)}", markup=False, soft_wrap=True)
         return 2
     if executor == "serial" and jobs > 1:
         err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
         jobs = 1
-    if not points:
+    reqs = [r for r in s.limits if (engines is None or r.engine in engines)
+            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+    if not points and not reqs:
         err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
                   markup=False)
         return 2
@@ -1137,10 +1090,10 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 sd.write_point(row)
                 bar.advance(task)
 
-            if executor == "serial":
-                _run_serial(todo, on_row, on_start)
-            else:
-                _run_process(todo, jobs, on_row, on_start)
+            with make_executor(executor, jobs) as ex:
+                run_points(todo, ex, on_row, on_start)
+        if reqs:
+            _run_limits(reqs, sd, ctx, jobs if executor == "process" else 1, err)
     except KeyboardInterrupt:
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
@@ -1157,8 +1110,11 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
 
     df = pd.read_parquet(out)
     wall = time.perf_counter() - t_start
-    summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
-                              + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
+    if "row_kind" in df.columns:  # breaking-point rows: summarized as their searches finished
+        df = df[df["row_kind"].isna()]
+    if len(df) or not reqs:
+            summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
+                                  + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
     err.print(f"rows written to {out}", markup=False, highlight=False, soft_wrap=True)
     return 0
 
