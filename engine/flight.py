@@ -185,6 +185,30 @@ def _accel(F, T, R, inv_m, inv_I, torque, a, al):
 
 
 @njit(cache=True)
+def _stage(constant, fm, x, q, v, w, R, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1):
+    """Accelerations a1, al1 (n, 3) and torques T1 at an intermediate state
+    (x, q, v, w): the start's (a0, al0, T) when the forces are
+    ``constant``, else the force model evaluated there."""
+    if constant:
+        a1[:, :] = a0
+        al1[:, :] = al0
+        T1[:, :] = T
+    else:
+        evaluate(fm, x, q, v, w, R, Fs, Ts)
+        _accel(Fs, Ts, R, inv_m, inv_I, torque, a1, al1)
+        T1[:, :] = Ts
+
+
+@njit(cache=True)
+def _q_step(q0, k, s, d0, d1, d2, d3, out):
+    """out[k] = q0[k] + s d (d a quaternion derivative)."""
+    out[k, 0] = q0[k, 0] + s * d0
+    out[k, 1] = q0[k, 1] + s * d1
+    out[k, 2] = q0[k, 2] + s * d2
+    out[k, 3] = q0[k, 3] + s * d3
+
+
+@njit(cache=True)
 def _qd(w, q, k):
     """dq/dt = 1/2 (0, w[k]) (x) q[k] (mathutil.quat_deriv)."""
     wx, wy, wz = w[k, 0], w[k, 1], w[k, 2]
@@ -259,10 +283,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                 if method == 0:
                     for c in range(3):
                         x1[k, c] = x0[k, c] + h * v0[k, c]
-                    q1[k, 0] = q0[k, 0] + h * d0
-                    q1[k, 1] = q0[k, 1] + h * d1
-                    q1[k, 2] = q0[k, 2] + h * d2
-                    q1[k, 3] = q0[k, 3] + h * d3
+                    _q_step(q0, k, h, d0, d1, d2, d3, q1)
                 else:
                     for c in range(3):
                         x1[k, c] = x0[k, c] + h * v1[k, c]
@@ -271,29 +292,16 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
             s = hh if method == 2 else h
             for k in range(n):
                 d0, d1, d2, d3 = _qd(w0, q0, k)
-                qs[k, 0] = q0[k, 0] + s * d0
-                qs[k, 1] = q0[k, 1] + s * d1
-                qs[k, 2] = q0[k, 2] + s * d2
-                qs[k, 3] = q0[k, 3] + s * d3
+                _q_step(q0, k, s, d0, d1, d2, d3, qs)
                 for c in range(3):
                     xs[k, c] = x0[k, c] + s * v0[k, c]
                     vs[k, c] = v0[k, c] + s * a0[k, c]
                     ws[k, c] = w0[k, c] + s * al0[k, c]
-            if constant:
-                a1[:, :] = a0
-                al1[:, :] = al0
-                T1[:, :] = T
-            else:
-                evaluate(fm, xs, qs, vs, ws, Rs, Fs, Ts)
-                _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
-                T1[:, :] = Ts
+            _stage(constant, fm, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1)
             for k in range(n):
                 if method == 2:
                     d0, d1, d2, d3 = _qd(ws, qs, k)
-                    q1[k, 0] = q0[k, 0] + h * d0
-                    q1[k, 1] = q0[k, 1] + h * d1
-                    q1[k, 2] = q0[k, 2] + h * d2
-                    q1[k, 3] = q0[k, 3] + h * d3
+                    _q_step(q0, k, h, d0, d1, d2, d3, q1)
                     for c in range(3):
                         x1[k, c] = x0[k, c] + h * vs[k, c]
                         v1[k, c] = v0[k, c] + h * a1[k, c]
@@ -334,24 +342,14 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                         d0, d1, d2, d3 = _qd(ws, qs, k)
                         kv = vs
                     kx0, kx1, kx2 = kv[k, 0], kv[k, 1], kv[k, 2]
-                    qs[k, 0] = q0[k, 0] + s * d0
-                    qs[k, 1] = q0[k, 1] + s * d1
-                    qs[k, 2] = q0[k, 2] + s * d2
-                    qs[k, 3] = q0[k, 3] + s * d3
+                    _q_step(q0, k, s, d0, d1, d2, d3, qs)
                     xs[k, 0] = x0[k, 0] + s * kx0
                     xs[k, 1] = x0[k, 1] + s * kx1
                     xs[k, 2] = x0[k, 2] + s * kx2
                     for c in range(3):
                         vs[k, c] = v0[k, c] + s * ka[k, c]
                         ws[k, c] = w0[k, c] + s * kal[k, c]
-                if constant:
-                    a1[:, :] = a0
-                    al1[:, :] = al0
-                    Tx[:, :] = T
-                else:
-                    evaluate(fm, xs, qs, vs, ws, Rs, Fs, Ts)
-                    _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
-                    Tx[:, :] = Ts
+                _stage(constant, fm, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, Tx)
                 wgt = 2.0 if stage < 2 else 1.0
                 for k in range(n):
                     d0, d1, d2, d3 = _qd(ws, qs, k)
@@ -382,14 +380,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                     ws[k, c] = w0[k, c] + h * al0[k, c]
                 rotate(q0, k, h * (w0[k, 0] + hh * al0[k, 0]), h * (w0[k, 1] + hh * al0[k, 1]),
                        h * (w0[k, 2] + hh * al0[k, 2]), q1)
-            if constant:
-                a1[:, :] = a0
-                al1[:, :] = al0
-                T1[:, :] = T
-            else:
-                evaluate(fm, x1, q1, vs, ws, Rs, Fs, Ts)
-                _accel(Fs, Ts, Rs, inv_m, inv_I, torque, a1, al1)
-                T1[:, :] = Ts
+            _stage(constant, fm, x1, q1, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1)
             for k in range(n):
                 for c in range(3):
                     v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])

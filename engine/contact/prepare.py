@@ -30,6 +30,8 @@ import math
 import numpy as np
 from numba import njit
 
+from engine.contact.sweeps import row_velocity
+
 
 @njit(cache=True)
 def pair_code(a, b, sidx, n, n_statics):
@@ -197,6 +199,18 @@ def _row(J, M, i, lin, ang_a, ang_b, ima, imb, IA, IB):
 
 
 @njit(cache=True)
+def _arms(px, py, pz, X, ia, ib, nb):
+    """Lever arms p - x_a and p - x_b of the point (px, py, pz) (the
+    world's origin for b = nb)."""
+    ax = px - X[ia, 0]
+    ay = py - X[ia, 1]
+    az = pz - X[ia, 2]
+    if ib < nb:
+        return ax, ay, az, px - X[ib, 0], py - X[ib, 1], pz - X[ib, 2]
+    return ax, ay, az, px, py, pz
+
+
+@njit(cache=True)
 def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc):
     """The normal rows of the contacts ``sel`` (m,) in that order (see the
     module doc): ``J``/``M`` (m, 12), ``mn`` (m,) and, with ``want_loc``,
@@ -209,17 +223,7 @@ def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J
         k = sel[i]
         ia = a[k]
         ib = b[k]
-        ax = point[k, 0] - X[ia, 0]
-        ay = point[k, 1] - X[ia, 1]
-        az = point[k, 2] - X[ia, 2]
-        if ib < nb:
-            bx = point[k, 0] - X[ib, 0]
-            by = point[k, 1] - X[ib, 1]
-            bz = point[k, 2] - X[ib, 2]
-        else:
-            bx = point[k, 0]
-            by = point[k, 1]
-            bz = point[k, 2]
+        ax, ay, az, bx, by, bz = _arms(point[k, 0], point[k, 1], point[k, 2], X, ia, ib, nb)
         nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
         lin[0], lin[1], lin[2] = nx, ny, nz
         angA[0] = ay * nz - az * ny
@@ -286,17 +290,7 @@ def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, roll
         t[p, 1, 0], t[p, 1, 1], t[p, 1, 2] = t2x, t2y, t2z
         ia = pa[p]
         ib = pb[p]
-        ax = P[p, 0] - X[ia, 0]
-        ay = P[p, 1] - X[ia, 1]
-        az = P[p, 2] - X[ia, 2]
-        if ib < nb:
-            bx = P[p, 0] - X[ib, 0]
-            by = P[p, 1] - X[ib, 1]
-            bz = P[p, 2] - X[ib, 2]
-        else:
-            bx = P[p, 0]
-            by = P[p, 1]
-            bz = P[p, 2]
+        ax, ay, az, bx, by, bz = _arms(P[p, 0], P[p, 1], P[p, 2], X, ia, ib, nb)
         ima = inv_mass[ia]
         imb = inv_mass[ib]
         IA = Iinv[ia]
@@ -334,12 +328,7 @@ def patch_velocity(Jt, U, pab, r0, r1, out):
         ia = pab[p, 0]
         ib = pab[p, 1]
         for r in range(r0, r1):
-            s = 0.0
-            for c in range(6):
-                s += Jt[p, r, c] * U[ia, c]
-            for c in range(6):
-                s += Jt[p, r, 6 + c] * U[ib, c]
-            out[p, r - r0] = s
+            out[p, r - r0] = row_velocity(Jt, U, p, r, ia, ib)
 
 
 @njit(cache=True)
@@ -351,11 +340,7 @@ def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
     for p in range(Jt.shape[0]):
         ia = pab[p, 0]
         ib = pab[p, 1]
-        wn = 0.0
-        for c in range(6):
-            wn += Jt[p, 2, c] * U[ia, c]
-        for c in range(6):
-            wn += Jt[p, 2, 6 + c] * U[ib, c]
+        wn = row_velocity(Jt, U, p, 2, ia, ib)
         slip[p] = (math.sqrt(vt[p, 0] * vt[p, 0] + vt[p, 1] * vt[p, 1]) > slip_tol) or (
             abs(wn) * r_twist[p] > slip_tol)
 

@@ -83,17 +83,24 @@ def normal_pass(U, ab, J, M, mn, lam, target, world):
 
 
 @njit(cache=True, inline="always")
+def row_velocity(Jt, U, p, r, ia, ib):
+    """Jt[p, r] . [U[ia] | U[ib]], the relative velocity of patch row r
+    (the a side summed first, then the b side)."""
+    v = 0.0
+    for k in range(6):
+        v += Jt[p, r, k] * U[ia, k]
+    for k in range(6):
+        v += Jt[p, r, 6 + k] * U[ib, k]
+    return v
+
+
+@njit(cache=True, inline="always")
 def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
     """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected)."""
     ia = pab[p, 0]
     ib = pab[p, 1]
     for r in range(r0, r1):
-        v = 0.0
-        for k in range(6):
-            v += Jt[p, r, k] * U[ia, k]
-        for k in range(6):
-            v += Jt[p, r, 6 + k] * U[ib, k]
-        new[r] = lam_t[p, r] - mt[p, r] * v
+        new[r] = lam_t[p, r] - mt[p, r] * row_velocity(Jt, U, p, r, ia, ib)
 
 
 @njit(cache=True, inline="always")
