@@ -152,9 +152,12 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    from harness.runner import check_run_size
+
     try:
-        get_adapter(engine).resolve_settings(scene, settings)
-    except ValueError as e:  # bad setting value
+        resolved = get_adapter(engine).resolve_settings(scene, settings)
+        check_run_size(scene, float(resolved["dt"]), req.record_every)
+    except ValueError as e:  # bad setting value, or a recording too large to allocate
         raise UsageError(str(e)) from None
     return req
 
