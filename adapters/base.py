@@ -21,6 +21,7 @@ residuals, effective engine parameters) which land in the run result.
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -55,12 +56,18 @@ class Setting:
                     value = self.kind(value)
                 except (TypeError, ValueError):
                     raise ValueError(f"setting {self.name}: expected a number, got {value!r}") from None
+            try:
+                as_float = float(value)
+            except OverflowError:
+                as_float = math.inf
+            if not math.isfinite(as_float):
+                raise ValueError(f"setting {self.name}: expected a finite number, got {value!r}")
             if self.kind is int:
-                if float(value) != int(value):
+                if as_float != int(value):
                     raise ValueError(f"setting {self.name}: expected an integer, got {value!r}")
                 value = int(value)
             else:
-                value = float(value)
+                value = as_float
             if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
                 raise ValueError(f"setting {self.name}: expected a value in [{self.lo}, {self.hi}], got {value!r}")
         else:

@@ -71,6 +71,7 @@ Materials
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from typing import Any
 
@@ -630,4 +631,10 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], notes: list[str] | None =
 
 
 def _xml_escape(s: str) -> str:
-    return (s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;"))
+    """``s`` as the text of a double-quoted XML attribute: markup characters
+    and whitespace escaped (an attribute's raw newline or tab would be read
+    as a space), characters XML 1.0 cannot hold at all replaced by U+FFFD.
+    Pinned by tests/test_fuzz.py::test_mjcf_escape_round_trips."""
+    out = s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+    out = out.replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
+    return re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]", "\ufffd", out)

@@ -488,9 +488,13 @@ class BroadPhase(Stage):
         self.hi = np.empty((n, 3))
         self.R1 = np.empty((n, 3, 3))
         self.bufs = (PairBuffer(), PairBuffer(), PairBuffer())
-        self.shape = np.ascontiguousarray(model.shape, np.int64)
-        self.geom = tuple(np.ascontiguousarray(a, float) for a in (model.radius, model.half_extents,
-                                                                    model.half_length, model.bound_radius))
+        # writable copies: the kernels are compiled (and warmed, warm_up)
+        # for writable arrays, and the model's are read-only
+        self.shape = np.array(model.shape, np.int64)
+        self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
+                                                       model.bound_radius))
+        self.planes = (np.array(model.plane_normal, float), np.array(model.plane_offset, float))
+        self.sbox = (np.array(model.sbox_aabb_lo, float), np.array(model.sbox_aabb_hi, float))
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
@@ -506,11 +510,30 @@ class BroadPhase(Stage):
             else:
                 ctx.pairs_i, ctx.pairs_j = self.bufs[0].run(_brute_kernel, lo, hi)
         if self.n_planes:
-            ctx.plane_pairs = self.bufs[1].run(_plane_pairs_kernel, lo, hi, model.plane_normal, model.plane_offset,
-                                               self.margin)
+            ctx.plane_pairs = self.bufs[1].run(_plane_pairs_kernel, lo, hi, *self.planes, self.margin)
         else:
             ctx.plane_pairs = (_EMPTY, _EMPTY)
         if self.n_sbox:
-            ctx.sbox_pairs = self.bufs[2].run(_box_pairs_kernel, lo, hi, model.sbox_aabb_lo, model.sbox_aabb_hi)
+            ctx.sbox_pairs = self.bufs[2].run(_box_pairs_kernel, lo, hi, *self.sbox)
         else:
             ctx.sbox_pairs = (_EMPTY, _EMPTY)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the broad phase's kernels, with the
+    argument types of the step (writable C-contiguous float64 and int64
+    arrays), on a tiny problem (see :mod:`engine.jit`)."""
+    n = 3
+    z3, z = np.zeros((n, 3)), np.zeros(n)
+    R = np.tile(np.eye(3), (n, 1, 1))
+    lo, hi, sw = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    _swept_boxes(np.array([SPHERE, BOX, CYLINDER], np.int64), z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, z3, R, z3,
+                 np.zeros((n + 1, 3)), z3, z3, np.zeros((n + 1, 3)), 0.01, 1e-4, lo, hi, sw)
+    buf = PairBuffer(1)
+    buf.run(_brute_kernel, lo, hi)
+    buf.run(_plane_pairs_kernel, lo, hi, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), 1e-4)
+    buf.run(_box_pairs_kernel, lo, hi, lo[:1].copy(), hi[:1].copy())
+    order = np.argsort(lo[:, 0], kind="stable")
+    end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    _sweep_pairs(lo, hi, 0, order, end, 3)
+    _grid_pairs(lo, hi, 0, 1, 2, order, end)

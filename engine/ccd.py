@@ -93,7 +93,7 @@ class CCD(Stage):
             for k in [int(idx[j])] + [int(idx[i]) for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
                 a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
                 same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]
-                pairs.append((a, b, sidx, (c.point[same] - state.x[a]) @ ctx.R0[a], _follow_fids(model, a, b, sidx, c.fid[same]),
+                pairs.append((a, b, sidx, np.einsum("ki,ij->kj", c.point[same] - state.x[a], ctx.R0[a]), _follow_fids(model, a, b, sidx, c.fid[same]),
                               False, None))
             skip = code
         else:
@@ -207,7 +207,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
         at0 = np.flatnonzero(code0 == u)
         g0 = float(c0.gap[at0].min()) if at0.size else np.inf
         a, b, sidx = int(c.a[first]), int(c.b[first]), int(c.sidx[first])
-        loc = (c.point[rows] - ctx.x1[a]) @ R1[a]
+        loc = np.einsum("ki,ij->kj", c.point[rows] - ctx.x1[a], R1[a])
         excl = None
         if is_imp or not g0 > TOUCH_TOL:
             # touching at the start: a deep point near a point that touched
@@ -228,7 +228,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
             # that way, and ended 13.7 mm inside when the pair, an impact
             # already, was not checked)
             near = at0[(c0.gap[at0] <= lim) | imp_row[at0]]
-            p0 = (c0.point[near] - state.x[a]) @ ctx.R0[a]
+            p0 = np.einsum("ki,ij->kj", c0.point[near] - state.x[a], ctx.R0[a])
             tol = 0.1 * float(model.bound_radius[a]) + 1e-4
             d2 = np.sum((loc[:, None, :] - p0[None, :, :]) ** 2, axis=-1).min(axis=1, initial=np.inf)
             new = d2 > tol * tol
@@ -291,7 +291,7 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     p = None
     if (loc is not None and loc.size) or (exclude is not None and exclude.size):
         R1 = quat_to_matrix(ctx.q1[a:a + 1])[0]
-        p = (c.point - ctx.x1[a]) @ R1
+        p = np.einsum("ki,ij->kj", c.point - ctx.x1[a], R1)
     if exclude is not None and exclude.size:
         gone = np.sum((p[:, None, :] - exclude[None, :, :]) ** 2, axis=-1).min(axis=1) <= tol * tol
         if gone.all():
@@ -465,12 +465,6 @@ class Impact(Stage):
         self.thr = float(model.settings["restitution_threshold"])
         self.friction = model.has("friction")
         self.plastic = str(model.settings["plastic_impacts"])
-        if self.plastic == "simultaneous":
-            # the plastic islands' graph and sparse solves (solver.impact_solve):
-            # imported here, at build, not in the first impact's timed step
-            # (0.2-0.4 s)
-            import scipy.sparse.csgraph  # noqa: F401
-            import scipy.sparse.linalg  # noqa: F401
 
     def __call__(self, model, state, ctx) -> None:
         R = quat_to_matrix(state.q)

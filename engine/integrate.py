@@ -56,6 +56,7 @@ from engine.mathutil import (
     quat_to_matrix,
     rotate_world,
 )
+from engine.contact.linalg import solve_batch
 from engine.profile import Stage
 
 INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
@@ -254,8 +255,8 @@ class ImplicitGyroscopic(Stage):
         wb = np.einsum("kji,kj->ki", R, ctx.w[k])
         Iw = self.I * wb
         f = h * cross(wb, Iw)
-        J = self.Imat + h * (self._skew(wb) @ self.Imat - self._skew(Iw))
-        wb2 = wb - np.linalg.solve(J, f[..., None])[..., 0]
+        J = self.Imat + h * (np.einsum("kij,kjl->kil", self._skew(wb), self.Imat) - self._skew(Iw))
+        wb2 = wb - solve_batch(J, f)
         ctx.w[k] = np.einsum("kij,kj->ki", R, wb2)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from engine.ccd import CCD, Impact, refine_toi
 from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
 from engine.mathutil import quat_to_matrix
+from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.collision import NarrowPhase
@@ -49,7 +50,10 @@ def force_stages(model: Model) -> tuple[Stage, ...]:
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
-    """The ordered stages for ``model`` (see module doc)."""
+    """The ordered stages for ``model`` (see module doc).  Compiles (or
+    loads) the engine's kernels first, so that no step does
+    (:func:`engine.jit.warm_up`)."""
+    warm_up()
     forces = force_stages(model)
     stages: list[Stage] = list(forces)
     mode = model.setting("gyroscopic")
@@ -259,7 +263,7 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
         # rest of the step would count them twice, and a solver with few
         # sweeps cannot take the excess back out (a Gauss-Seidel-only
         # column gained 16 x its energy); the rest of the step starts cold
-        state.warm = {}
+        state.warm = None
         events += 1
         remaining -= tau
         if remaining <= 1e-12 * h:

@@ -34,6 +34,11 @@ class Profile:
     """Call counts and accumulated seconds per stage name."""
 
     def __init__(self) -> None:
+        from engine.jit import take_pending
+
+        #: seconds the kernels took to compile or load at the build before
+        #: this profile (engine/jit.py); never part of a stage's time
+        self.jit_s = take_pending()
         self.calls: dict[str, int] = {}
         self.seconds: dict[str, float] = {}
         self.counters: dict[str, int] = {}
@@ -54,8 +59,10 @@ class Profile:
         self.counters[key] = self.counters.get(key, 0) + k
 
     def as_dict(self) -> dict[str, Any]:
-        """{stage: {"calls": int, "cpu_s": float}} plus ``counters``."""
+        """{stage: {"calls": int, "cpu_s": float}} plus ``counters`` and
+        ``jit_s`` (float s, see engine/jit.py)."""
         out: dict[str, Any] = {k: {"calls": self.calls[k], "cpu_s": self.seconds[k]} for k in self.calls}
+        out["jit_s"] = self.jit_s
         if self.counters:
             out["counters"] = dict(self.counters)
         return out

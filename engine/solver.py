@@ -73,15 +73,17 @@ from __future__ import annotations
 
 import math
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
-from engine.mathutil import cross, perpendicular_basis, solve_small
+from engine.contact import linalg, sweeps
+from engine.mathutil import cross, perpendicular_basis
 from engine.profile import Stage
 from engine.state import Contacts
 
 TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
-DIRECT_MAX_ROWS = 400  # rows up to which the direct start is a dense LAPACK solve; above, sparse (SuperLU)
+DIRECT_MAX_ROWS = 400  # rows up to which the direct start is a dense LU solve; above, sparse (banded Cholesky per island)
 #: re-solves of the dense direct start with the rows it pulls on let go
 ACTIVE_SET_PASSES = 4
 RESTING_SPEED = 1e-5  # m/s: rows separating slower than this count as resting in the direct start
@@ -90,6 +92,14 @@ ROLL_TOL = 1e-4  # rad/s: relative rolling angular speed above which a contact r
 STOP_MAX_RESIDUAL = 1e-4  # friction stops only from a solve whose last sweep changed impulses by less (relative)
 STOP_MIN_REST = 1e-6  # a friction stop this close to a step's end (fraction of it) does not cut the step
 WARM_MIN_STEP = 1e-3  # (sub)steps shorter than this fraction of the model's step cache no forces
+
+
+def dense_direct_solve(K: np.ndarray, r: np.ndarray, act: np.ndarray, passes: int):
+    """The dense direct start's active-set solves (compiled,
+    :func:`engine.contact.linalg.dense_active_set`, Tikhonov 1e-10 of the
+    largest diagonal): (lambda (m,) >= 0, ok, whether the last pass still
+    pulled on a row and was clipped)."""
+    return linalg.dense_active_set(K, r, act, 1e-10, passes)
 
 
 def _pad(a: np.ndarray) -> np.ndarray:
@@ -275,6 +285,7 @@ class Rows:
         else:
             c = c.take(sel[topo.order])
         self.topo = topo
+        self.world = n
         self.order = topo.order
         self.contacts = c
         self.m = m = c.m
@@ -386,40 +397,26 @@ class Rows:
 
     def normal_matrix(self) -> np.ndarray:
         """K = J M^-1 J^T over the normal rows, (m, m) dense: rows i and j
-        couple through every body they share (the world row has M^-1 = 0).
-        One product of the stacked sides, G = [JA; JB] [MA; MB]^T (2m, 2m),
-        whose four blocks are masked by which bodies the rows share."""
-        m = self.m
-        aa, ab, ba, bb = self.topo.masks()
-        G = self.J.reshape(2 * m, 6) @ self.M.reshape(2 * m, 6).T  # rows (i, side), cols (j, side)
-        G = G.reshape(m, 2, m, 2)
-        K = aa * G[:, 0, :, 0]
-        K += ab * G[:, 0, :, 1]
-        K += ba * G[:, 1, :, 0]
-        K += bb * G[:, 1, :, 1]
-        return K
+        couple through every dynamic body they share (compiled,
+        :func:`engine.contact.linalg.normal_matrix`)."""
+        return linalg.normal_matrix(self.J, self.M, self.a, self.b, self.world)
 
-    def normal_matrix_sparse(self):
-        """K = J M^-1 J^T over the normal rows as a scipy CSR matrix (m, m):
-        J and M^-1 J^T as sparse (m, 6 (bodies + 1)) matrices, 12 entries a
-        row (the world's M^-1 J^T is zero, so it couples nothing)."""
-        from scipy.sparse import csr_matrix
+    def sparse_normal_solve(self, r: np.ndarray, act: np.ndarray):
+        """lambda over the rows ``act`` solving K_aa lambda = r_a
+        (Tikhonov-regularised), exploiting that K couples each row only
+        with the rows of its two bodies: (lambda (m,), ok)
+        (:func:`engine.contact.linalg.spd_solve_sparse`)."""
+        return linalg.spd_solve_sparse(self.J, self.M, self.a, self.b, self.world, r, act, 1e-10)
 
-        m = self.m
-        ab = self.topo.ab
-        cols = (6 * ab[:, :, None] + np.arange(6)).reshape(m * 12)
-        ncol = 6 * (int(ab.max()) + 1)
-        ptr = np.arange(0, 12 * m + 1, 12)
-        J = csr_matrix((self.J.reshape(m * 12), cols, ptr), shape=(m, ncol))
-        M = csr_matrix((self.M.reshape(m * 12), cols, ptr), shape=(m, ncol))
-        return (J @ M.T).tocsr()
+    def k_times(self, lam: np.ndarray) -> np.ndarray:
+        """K lam (m,) without forming K."""
+        return linalg.k_times(self.J, self.M, self.a, self.b, self.world, lam)
 
-    def _lcp_residual(self, K, r, lam) -> float:
+    def _lcp_residual(self, r, lam) -> float:
         """Complementarity residual of normal impulses ``lam`` for
         K lam >= r, lam >= 0: violated rows plus rows that push while
         separating."""
-        w = K @ lam - r
-        return float(np.sum(np.minimum(w, 0.0) ** 2) + np.sum(np.where(lam > 0, np.maximum(w, 0.0), 0.0) ** 2))
+        return float(linalg.lcp_residual(self.k_times(lam) - r, lam))
 
     def direct_normal_guess(self, U) -> None:
         """Start Gauss-Seidel from a direct solution of the normal rows.
@@ -446,47 +443,24 @@ class Rows:
         if act.size == 0 or not np.any(r[act] > 0.0):
             return
         if self.m > DIRECT_MAX_ROWS:
-            # sparse, by scipy's SuperLU: a big scene's K couples each row
-            # only with the rows of its two bodies (1000 spheres in 100
-            # columns: ~1000 rows, block diagonal), where the dense solve
-            # costs m^3 (it was skipped above 400 rows, and Gauss-Seidel
-            # alone left the columns settling into one another: 0.79 mm on
-            # spheres_1000 in 1 s at 10 sweeps, 0 with the sparse start)
-            from scipy.sparse import identity
-            from scipy.sparse.linalg import spsolve
-
-            K = self.normal_matrix_sparse()
-            Ka = K[act][:, act]
-            eps = 1e-10 * float(Ka.diagonal().max())
-            try:
-                la = spsolve((Ka + eps * identity(act.size, format="csr")).tocsc(), r[act])
-            except RuntimeError:  # singular factor
-                return
+            # sparse: a big scene's K couples each row only with the rows
+            # of its two bodies (1000 spheres in 100 columns: ~1000 rows,
+            # block diagonal), where the dense solve costs m^3; Gauss-Seidel
+            # alone leaves the columns settling into one another
+            # (tests/test_engine_collision.py::
+            # test_sparse_direct_start_matches_the_dense_one)
+            lam, ok = self.sparse_normal_solve(r, act)
+            np.maximum(lam, 0.0, out=lam)
         else:
-            K = self.normal_matrix()
             # active set: rows the equality solve pulls on (lambda < 0) are
-            # let go and the rest solved again, a few times.  Clipping
-            # alone leaves the others short of the load those rows took:
-            # a can resting offset on a can near its support's edge came
-            # out of the clipped start turning at 5e-5 rad/s, which 20
-            # sweeps did not undo, and tipped
-            for npass in range(1, ACTIVE_SET_PASSES + 1):
-                Ka = K[np.ix_(act, act)].copy()
-                eps = 1e-10 * float(np.max(np.diag(Ka)))
-                Ka[np.diag_indices_from(Ka)] += eps
-                try:
-                    la = solve_small(Ka, r[act])
-                except np.linalg.LinAlgError:
-                    return
-                pull = la < 0.0
-                if not pull.any() or pull.all() or npass == ACTIVE_SET_PASSES:
-                    break  # the last pass's pulls are clipped below
-                act = act[~pull]
-        if not np.all(np.isfinite(la)):
+            # let go and the rest solved again, a few times; clipping alone
+            # leaves the others short of the load those rows took, and an
+            # offset can near its support's edge tips (the log-pile and
+            # can-stack tests of tests/test_engine_collision.py)
+            lam, ok, _ = dense_direct_solve(self.normal_matrix(), r, act, ACTIVE_SET_PASSES)
+        if not ok or not np.all(np.isfinite(lam)):
             return
-        lam = np.zeros(self.m)
-        lam[act] = np.maximum(la, 0.0)
-        if self._lcp_residual(K, r, lam) <= self._lcp_residual(K, r, self.lam_n):
+        if self._lcp_residual(r, lam) <= self._lcp_residual(r, self.lam_n):
             self.lam_n = lam
 
     def set_slip(self, slip: np.ndarray) -> None:
@@ -535,15 +509,11 @@ class Rows:
 
     def apply_normal(self, U, d) -> None:
         """Add normal impulses d (m,) to U (np.add.at: bodies may repeat)."""
-        np.add.at(U, self.a, self.MA * d[:, None])
-        np.add.at(U, self.b, self.MB * d[:, None])
-        U[-1] = 0.0
+        sweeps.apply_rows(U, self.topo.ab, self.M, d, self.world)
 
     def apply_patch(self, U, d) -> None:
         """Add patch friction impulses d (np, 3) to U."""
-        np.add.at(U, self.pa, np.einsum("km,kmi->ki", d, self.MtA))
-        np.add.at(U, self.pb, np.einsum("km,kmi->ki", d, self.MtB))
-        U[-1] = 0.0
+        sweeps.apply_patches(U, self.topo.pab, self.Mt, d, self.world)
 
     def warm_start(self, U) -> None:
         if self.m:
@@ -551,95 +521,37 @@ class Rows:
             if self.friction:
                 self.apply_patch(U, self.lam_t)
 
-    # ---- projected Gauss-Seidel -------------------------------------------------
-    def _slice_data(self):
-        """Per colour slice, the body pairs as a (k, 2) index array and the
-        stacked Jacobians/responses (k, 12) (built once per Rows: one gather
-        and one scatter per slice in the sweeps)."""
-        if getattr(self, "_nslices", None) is None:
-            topo = self.topo
-            J, M = self.J, self.M
-            ab = topo.ab
-            self._nslices = [(s, e, ab[s:e], J[s:e], M[s:e], self.mn[s:e]) for s, e in topo.slices]
-            if self.friction:
-                Jt, Mt = self.Jt, self.Mt
-                pab = topo.pab
-                self._pslices = [(s, e, pab[s:e], Jt[s:e, :3], Mt[s:e, :3], self.mt[s:e, :3], self.r_twist[s:e])
-                                 for s, e in topo.pslices]
-                if self.rolling:
-                    self._rslices = [(s, e, pab[s:e], Jt[s:e, 3:], Mt[s:e, 3:], self.mt[s:e, 3:], self.mur[s:e])
-                                     for s, e in topo.pslices]
-        return self._nslices
-
-    def _friction_pass(self, U, reverse: bool = False) -> None:
-        self._slice_data()
-        Fn = np.bincount(self.pid, self.lam_n, self.np)
-        lam_t, mu = self.lam_t, self.mu
-        pin = self.pin
-        for s, e, ab, Jt, Mt, mt, rt in (reversed(self._pslices) if reverse else self._pslices):
-            k = e - s
-            Uab = U[ab].reshape(k, 12)
-            vt = np.einsum("kmj,kj->km", Jt, Uab)
-            old = lam_t[s:e, :3]
-            new = old - mt * vt
-            lim = mu[s:e] * Fn[s:e]
-            _onto_disc(new[:, :2], lim)
-            if pin is not None and pin[0][s:e].any():
-                pm = pin[0][s:e]
-                new[pm, :2] = -lim[pm, None] * pin[1][s:e][pm]
-            tl = lim * rt
-            np.clip(new[:, 2], -tl, tl, out=new[:, 2])
-            Uab += np.einsum("km,kmj->kj", new - old, Mt)
-            lam_t[s:e, :3] = new
-            U[ab] = Uab.reshape(k, 2, 6)
-        if self.rolling:
-            # rolling rows: a torque about the tangents within the mu_r disc
-            for s, e, ab, Jr, Mr, mr, mur in (reversed(self._rslices) if reverse else self._rslices):
-                k = e - s
-                Uab = U[ab].reshape(k, 12)
-                vr = np.einsum("kmj,kj->km", Jr, Uab)
-                old = lam_t[s:e, 3:]
-                new = old - mr * vr
-                _onto_disc(new, mur * Fn[s:e])
-                if pin is not None and pin[2] is not None and pin[2][s:e].any():
-                    pm = pin[2][s:e]
-                    new[pm] = -(mur * Fn[s:e])[pm, None] * pin[3][s:e][pm]
-                Uab += np.einsum("km,kmj->kj", new - old, Mr)
-                lam_t[s:e, 3:] = new
-                U[ab] = Uab.reshape(k, 2, 6)
-        U[-1] = 0.0
-
-    def _normal_pass(self, U, lam, target, reverse: bool = False) -> None:
-        sl = self._slice_data()
-        for s, e, ab, J, M, mn in (reversed(sl) if reverse else sl):
-            k = e - s
-            Uab = U[ab].reshape(k, 12)
-            vn = np.einsum("kj,kj->k", J, Uab)
-            old = lam[s:e]
-            new = np.maximum(old - mn * (vn - target[s:e]), 0.0)
-            Uab += M * (new - old)[:, None]
-            lam[s:e] = new
-            U[ab] = Uab.reshape(k, 2, 6)
-        U[-1] = 0.0
+    # ---- projected Gauss-Seidel (compiled: engine/contact/sweeps.py) --------
+    _NO_F = np.zeros((0, 3, 12))
+    _NO_P = np.zeros((0, 2), np.int64)
 
     def iterate(self, U, iterations: int, tol: float = 1e-7) -> int:
         """Sweeps of friction (patches) then normal rows, until no impulse
         changes by more than ``tol`` times the largest normal impulse in a
         sweep.  Returns the sweeps done."""
-        for it in range(iterations):
-            prev_n = self.lam_n.copy()
-            if self.friction:
-                prev_t = self.lam_t.copy()
-                self._friction_pass(U)
-            self._normal_pass(U, self.lam_n, self.target)
-            change = float(np.max(np.abs(self.lam_n - prev_n), initial=0.0))
-            if self.friction:
-                change = max(change, float(np.max(np.abs(self.lam_t - prev_t), initial=0.0)))
-            scale = float(self.lam_n.max(initial=0.0))
-            self.residual = change / scale if scale > 0.0 else 0.0
-            if change <= tol * scale or change == 0.0:
-                return it + 1
-        return iterations
+        if self.friction:
+            npch = self.np
+            pin = self.pin
+            if pin is None:
+                pin_t = pin_r = np.zeros(npch, np.bool_)
+                dir_t = dir_r = np.zeros((npch, 2))
+            else:
+                pin_t, dir_t = pin[0], np.ascontiguousarray(pin[1])
+                pin_r = pin[2] if pin[2] is not None else np.zeros(npch, np.bool_)
+                dir_r = np.ascontiguousarray(pin[3]) if pin[3] is not None else np.zeros((npch, 2))
+            mur = self.mur if self.mur is not None else np.zeros(npch)
+            sw, self.residual = sweeps.iterate(
+                U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, True, self.topo.pab,
+                self.pid, self.Jt, self.Mt, self.mt, self.lam_t, self.mu, self.r_twist, mur,
+                pin_t, dir_t, pin_r, dir_r, iterations, tol, self.world)
+        else:
+            z = np.zeros(0)
+            zb = np.zeros(0, np.bool_)
+            sw, self.residual = sweeps.iterate(
+                U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, False, self._NO_P,
+                np.zeros(0, np.int64), self._NO_F, self._NO_F, np.zeros((0, 3)), np.zeros((0, 3)), z, z, z,
+                zb, np.zeros((0, 2)), zb, np.zeros((0, 2)), iterations, tol, self.world)
+        return int(sw)
 
     def solve_friction_regimes(self, U, iterations: int) -> int:
         """Iterate with mu_s for sticking patches; a patch whose friction
@@ -749,12 +661,7 @@ class Rows:
 
     def iterate_normal(self, U, lam, target, iterations: int, tol: float = 1e-7) -> None:
         """Normal rows only, with their own accumulator (split impulse)."""
-        for _ in range(iterations):
-            prev = lam.copy()
-            self._normal_pass(U, lam, target)
-            change = float(np.max(np.abs(lam - prev), initial=0.0))
-            if change <= tol * float(lam.max(initial=0.0)) or change == 0.0:
-                return
+        sweeps.iterate_normal(U, self.topo.ab, self.J, self.M, self.mn, lam, target, iterations, tol, self.world)
 
 
 def _pair_codes(model, c: Contacts) -> np.ndarray:
@@ -794,10 +701,6 @@ class Solve(Stage):
         self.friction = model.has("friction")
         self.c = model.contact_lever
         self.direct = bool(s["direct_start"])
-        if self.direct and model.n > 16:
-            # the sparse direct start (above DIRECT_MAX_ROWS rows): imported
-            # at build, not in the timed step that first needs it (0.2-0.4 s)
-            import scipy.sparse.linalg  # noqa: F401
         self.stops = bool(s["friction_stops"])
         self._topos: dict[bytes, Topology] = {}
 
@@ -819,7 +722,7 @@ class Solve(Stage):
         ctx.rows = None
         ctx.impacts = None
         if c is None or c.m == 0:
-            state.warm = {}
+            state.warm = None
             return
         Xp = _pad(state.x)
         rA = c.point - Xp[c.a]
@@ -861,7 +764,7 @@ class Solve(Stage):
             # alone (as impact events, resolved pair by pair inside the
             # stack, they pumped energy into it: 275 x at dt 0.008 s).
             idx = np.flatnonzero(impact)
-            o_code, _, o_fn = _warm_packed(state.warm)[:3]
+            o_code, _, o_fn = state.warm.packed[:3]
             persistent = np.isin(codes_all[idx], o_code[o_fn > 0.0])
             # as a speculative row stopped at vn1 = 0 (never a push-out), the
             # point would end the step overlapping by c h vn_free - gap - h un
@@ -908,7 +811,7 @@ class Solve(Stage):
             keep = keep | (impact & touching & ~handled)
         sel = np.flatnonzero(keep)
         if sel.size == 0:
-            state.warm = {}
+            state.warm = None
             return
         topo = self.topology(model, codes_all[sel], c, sel)
         rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo)
@@ -974,7 +877,7 @@ class Solve(Stage):
             # impact): its impulses are impulsive, not forces -- cached as
             # lambda / h they came back next step as a huge impulse (a box
             # of column_5 spun up to 5e5 rad/s after a 7e-12 s remainder)
-            state.warm = {}
+            state.warm = None
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
@@ -995,8 +898,8 @@ class Solve(Stage):
         if not old:
             return
         topo = rows.topo
-        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = _warm_packed(old)[:7]
-        otopo = getattr(old, "topo", None)
+        o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = old.packed[:7]
+        otopo = old.topo
         cand = topo.__dict__.get("_warm_cand")
         if cand is None or otopo is None or cand[0]() is not otopo:
             codes = topo.codes
@@ -1034,10 +937,10 @@ class Solve(Stage):
             sel = np.isin(uc, rc)
             p = topo.uniq_pid[sel]
             g = np.searchsorted(u_code, uc[sel])
-            rows.lam_t[p, :2] = np.matmul(rows.t[p], u_ft[g][:, :, None])[:, :, 0] * h
+            rows.lam_t[p, :2] = np.einsum("kij,kj->ki", rows.t[p], u_ft[g]) * h
             rows.lam_t[p, 2] = u_tw[g] * h
             if rows.rolling and u_rr is not None:
-                rows.lam_t[p, 3:] = np.matmul(rows.t[p], u_rr[g][:, :, None])[:, :, 0] * h
+                rows.lam_t[p, 3:] = np.einsum("kij,kj->ki", rows.t[p], u_rr[g]) * h
 
     def _store(self, model, state, ctx, rows, loc, h, touch):
         """Cache the step's forces for the next step's warm start (``touch``
@@ -1054,90 +957,42 @@ class Solve(Stage):
             p = topo.uniq_pid
             lt = rows.lam_t[p]
             tp = rows.t[p]
-            ft = np.matmul(lt[:, None, :2], tp)[:, 0] / h
+            ft = np.einsum("ki,kij->kj", lt[:, :2], tp) / h
             tw = lt[:, 2] / h
-            rr = np.matmul(lt[:, None, 3:], tp)[:, 0] / h if rows.rolling else None
+            rr = np.einsum("ki,kij->kj", lt[:, 3:], tp) / h if rows.rolling else None
         else:
             ft, tw, rr = np.zeros((uniq.size, 3)), np.zeros(uniq.size), None
-        new = WarmCache()
-        new.packed = (sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order])
-        new.first = first
-        new.topo = topo
-        state.warm = new
+        state.warm = WarmCache(sc, loc[order], fn[order], uniq, ft, tw, rr, touch[order], first, topo)
 
 
-class WarmCache(dict):
-    """The warm-start cache: pair code -> (points in body a's frame (k, 3) m,
-    normal forces (k,) N, friction force (3,) N, twist torque N m, rolling
-    torque (3,) N m, touching at the start of the step (k,) bool).
+@dataclass(eq=False)
+class WarmCache:
+    """The warm-start cache a solve leaves for the next step, as arrays
+    sorted by pair code: ``codes`` (k,) the pair code of each cached point,
+    ``loc`` (k, 3) m its point in body a's frame, ``fn`` (k,) N its normal
+    force, ``pairs`` (p,) the distinct pair codes, ``ft`` (p, 3) N their
+    friction forces, ``tw`` (p,) N m twist torques, ``rr`` (p, 3) N m
+    rolling torques or None, ``touch`` (k,) bool whether the point touched
+    at the start of its step; ``first`` (p,) each pair's first point and
+    ``topo`` the topology that wrote it."""
 
-    The solver reads and writes only the same data packed into arrays sorted
-    by code (``packed``, with ``first`` the start of each pair's points and
-    ``topo`` the topology that wrote it); the dict entries are built from
-    them on first access (a step has no use for them)."""
+    codes: np.ndarray
+    loc: np.ndarray
+    fn: np.ndarray
+    pairs: np.ndarray
+    ft: np.ndarray
+    tw: np.ndarray
+    rr: np.ndarray | None
+    touch: np.ndarray
+    first: np.ndarray
+    topo: Topology
 
-    packed = None
-    first = None
-    topo = None
-    _filled = False
-
-    def _fill(self) -> None:
-        if self._filled or self.packed is None:
-            return
-        self._filled = True
-        sc, s_loc, s_fn, uniq, ft, tw, rr, touch = self.packed
-        first = self.first
-        if rr is None:
-            rr = np.zeros((uniq.size, 3))
-        dict.update(self, zip(uniq.tolist(), zip(np.split(s_loc, first[1:]), np.split(s_fn, first[1:]), ft,
-                                                 tw.tolist(), rr, np.split(touch, first[1:]))))
-
-    def __len__(self):
-        return int(self.packed[3].size) if (self.packed is not None and not self._filled) else dict.__len__(self)
-
-    def __bool__(self):
-        return len(self) > 0
-
-    def __iter__(self):
-        self._fill()
-        return dict.__iter__(self)
-
-    def __contains__(self, k):
-        self._fill()
-        return dict.__contains__(self, k)
-
-    def __getitem__(self, k):
-        self._fill()
-        return dict.__getitem__(self, k)
-
-    def get(self, k, default=None):
-        self._fill()
-        return dict.get(self, k, default)
-
-    def keys(self):
-        self._fill()
-        return dict.keys(self)
-
-    def values(self):
-        self._fill()
-        return dict.values(self)
-
-    def items(self):
-        self._fill()
-        return dict.items(self)
-
-    def copy(self):
-        self._fill()
-        return dict(dict.items(self))
-
-    def __eq__(self, other):
-        self._fill()
-        return dict.__eq__(self, other)
-
-    __hash__ = None
+    @property
+    def packed(self) -> tuple:
+        return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
 
 
-def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
+def _pressed_points(warm: "WarmCache", codes: np.ndarray, loc: np.ndarray, tol: np.ndarray) -> np.ndarray:
     """(k,) bool: contact points (pair ``codes`` (k,), points in body a's
     frame ``loc`` (k, 3) m) that pressed at rest in the step that wrote
     ``warm``: a cached point of the same pair that was touching at the start
@@ -1145,7 +1000,7 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
     (k,) m of them (the warm start's matching radius).  A speculative row
     that pressed only to land its point exactly on the surface does not
     count: that point arrives still approaching, an impact."""
-    pk = _warm_packed(warm)
+    pk = warm.packed
     o_code, o_loc, o_fn = pk[0], pk[1], np.where(pk[7], pk[2], 0.0)
     out = np.zeros(codes.size, bool)
     lo = np.searchsorted(o_code, codes, "left")
@@ -1157,25 +1012,6 @@ def _pressed_points(warm: dict, codes: np.ndarray, loc: np.ndarray, tol: np.ndar
     return out
 
 
-def _warm_packed(old: dict):
-    """(point codes, points, normal forces, pair codes, friction forces,
-    twists, rolling torques or None, touching flags) of a warm cache, sorted
-    by code (built from the dict when the cache was copied)."""
-    pk = getattr(old, "packed", None)
-    if pk is not None:
-        return pk
-    keys = sorted(old)
-    vals = [old[k] for k in keys]
-    o_code = np.concatenate([np.full(len(v[1]), k, np.int64) for k, v in zip(keys, vals)])
-    o_loc = np.concatenate([np.asarray(v[0], float).reshape(-1, 3) for v in vals])
-    o_fn = np.concatenate([np.asarray(v[1], float) for v in vals])
-    u_ft = np.array([np.asarray(v[2], float) for v in vals]).reshape(-1, 3)
-    u_tw = np.array([float(v[3]) for v in vals])
-    u_rr = np.array([np.asarray(v[4], float) if len(v) > 4 else np.zeros(3) for v in vals]).reshape(-1, 3)
-    o_touch = np.concatenate([np.asarray(v[5], bool) if len(v) > 5 else np.ones(len(v[1]), bool) for v in vals])
-    return o_code, o_loc, o_fn, np.array(keys, np.int64), u_ft, u_tw, u_rr, o_touch
-
-
 def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
     """(a, b, JA, JB, MA, MB, K) of the normal rows ``idx`` of one pair,
     gathered once per Rows (the impact solver resolves a pair many times)."""
@@ -1184,7 +1020,8 @@ def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
     out = cache.get(key)
     if out is None:
         JA, JB, MA, MB = rows.JA[idx], rows.JB[idx], rows.MA[idx], rows.MB[idx]
-        out = (rows.a[idx[0]], rows.b[idx[0]], JA, JB, MA, MB, JA @ MA.T + JB @ MB.T)
+        out = (rows.a[idx[0]], rows.b[idx[0]], JA, JB, MA, MB,
+               np.einsum("ik,jk->ij", JA, MA) + np.einsum("ik,jk->ij", JB, MB))
         cache[key] = out
     return out
 
@@ -1198,12 +1035,9 @@ def _patch_block(rows: Rows, p: int) -> tuple:
     out = cache.get(p)
     if out is None:
         JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
-        K = JA @ MA.T + JB @ MB.T
-        try:
-            Kinv = np.linalg.inv(K)
-            if not np.all(np.isfinite(Kinv)):
-                Kinv = None
-        except np.linalg.LinAlgError:
+        K = np.einsum("ik,jk->ij", JA, MA) + np.einsum("ik,jk->ij", JB, MB)
+        Kinv, ok = linalg.inverse(K)
+        if not ok:
             Kinv = None
         out = (int(rows.pa[p]), int(rows.pb[p]), JA, JB, MA.T.copy(), MB.T.copy(), Kinv,
                (float(rows.mus[p]), float(rows.muk[p]), float(rows.r_twist[p]),
@@ -1221,7 +1055,7 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
     from itertools import combinations
 
     a, b, JA, JB, MA, MB, K = _pair_block(rows, idx)
-    r = target - (JA @ U[a] + JB @ U[b])
+    r = target - (np.einsum("kj,j->k", JA, U[a]) + np.einsum("kj,j->k", JB, U[b]))
     k = idx.size
     lam = np.zeros(k)
     if k == 1:
@@ -1246,14 +1080,14 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
         for S in combinations(range(k), size):
             S = list(S)
             KS = K[np.ix_(S, S)]
-            if abs(np.linalg.det(KS)) < 1e-12 * max(1.0, float(np.max(np.abs(KS)))) ** size:
+            lS, det = linalg.lu_solve(KS, r[S])
+            if abs(det) < 1e-12 * max(1.0, float(np.max(np.abs(KS)))) ** size:
                 continue
-            lS = np.linalg.solve(KS, r[S])
             if np.any(lS < 0.0):
                 continue
             trial = np.zeros(k)
             trial[S] = lS
-            if np.all(K @ trial - r >= -1e-9 * scale):
+            if np.all(np.einsum("ij,j->i", K, trial) - r >= -1e-9 * scale):
                 lam = trial
                 found = True
                 break
@@ -1262,9 +1096,9 @@ def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray
     if not found:  # degenerate: fall back to projected Gauss-Seidel on the block
         for _ in range(200):
             for i in range(k):
-                lam[i] = max(0.0, lam[i] + (r[i] - K[i] @ lam) / K[i, i])
-    U[a] += MA.T @ lam
-    U[b] += MB.T @ lam
+                lam[i] = max(0.0, lam[i] + (r[i] - np.einsum("j,j->", K[i], lam)) / K[i, i])
+    U[a] += np.einsum("kj,k->j", MA, lam)
+    U[b] += np.einsum("kj,k->j", MB, lam)
     U[-1] = 0.0
     return lam
 
@@ -1281,9 +1115,9 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
     if Fn <= 0.0:
         return
     a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt, mur) = _patch_block(rows, p)
-    vt = JA @ U[a] + JB @ U[b]
+    vt = np.einsum("kj,j->k", JA, U[a]) + np.einsum("kj,j->k", JB, U[b])
     if Kinv is not None:
-        d = -(Kinv @ vt)
+        d = -np.einsum("ij,j->i", Kinv, vt)
     else:
         d = -vt * rows.mt[p]
     # the patch sticks if both the force and the twist that stop it lie
@@ -1300,8 +1134,8 @@ def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
         rmag = math.hypot(d[3], d[4])
         if rmag > mur * Fn:
             d[3:] *= mur * Fn / rmag
-    U[a] += MAT @ d
-    U[b] += MBT @ d
+    U[a] += np.einsum("jk,k->j", MAT, d)
+    U[b] += np.einsum("jk,k->j", MBT, d)
     U[-1] = 0.0
 
 
@@ -1364,16 +1198,12 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
 def _plastic_islands(model, cs: Contacts) -> np.ndarray:
     """(m,) bool: the rows of ``cs`` in islands of two or more pairs whose
     rows all have e = 0 (see :func:`impact_solve`)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     code = _pair_codes(model, cs)
     if np.all(code == code[0]):  # one pair (a single landing): nothing to join
         return np.zeros(cs.m, bool)
     n = model.n
     dyn = cs.b < n  # a is always a body; b may be the world
-    g = coo_matrix((np.ones(int(dyn.sum())), (cs.a[dyn], cs.b[dyn])), shape=(n, n))
-    k, lab = connected_components(g, directed=False)
+    lab, k = linalg.islands(n, cs.a[dyn], cs.b[dyn])
     isl = lab[cs.a]
     bouncy = np.bincount(isl, cs.e > 0.0, k) > 0
     _, first = np.unique(code, return_index=True)

@@ -15,7 +15,7 @@ stage.  All arrays are allocated once, at build.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,9 +32,9 @@ class State:
     w: np.ndarray
     t: float = 0.0
     steps: int = 0
-    #: warm-start cache: (a, b, static, feature) -> (normal force N, friction force (3,) N)
-    warm: dict = field(default_factory=dict)
-    warm_next: dict = field(default_factory=dict)
+    #: the warm-start cache the last solve left (engine.solver.WarmCache),
+    #: None to start cold
+    warm: Any = None
 
     @classmethod
     def from_model(cls, model: Model) -> "State":
@@ -42,10 +42,6 @@ class State:
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
         return cls(x=np.ascontiguousarray(x, float), q=np.ascontiguousarray(q, float),
                    v=np.ascontiguousarray(v, float), w=np.ascontiguousarray(w, float))
-
-    def copy(self) -> "State":
-        return State(self.x.copy(), self.q.copy(), self.v.copy(), self.w.copy(), self.t, self.steps,
-                     dict(self.warm), {})
 
 
 @dataclass(eq=False)
@@ -147,9 +143,7 @@ class Context:
         self.contacts = None  # type: Contacts | None
         self.rows: Any = None  # solver rows (solver.Rows)
         self.reuse_contacts = False
-        self.allow_events = True
         self.event: tuple | None = None
-        self.n_events = 0
         # friction stops (solver.Rows.stop_times): the earliest time (s)
         # within the step at which a sliding or rolling contact came to rest,
         # and whether the solver looks for one in this (mini-)step

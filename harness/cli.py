@@ -1,9 +1,11 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
+    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
+    physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
+    physbench models [NAME] [--json]
     physbench list
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
@@ -11,8 +13,12 @@ dotted key path into the spec (``material.default.restitution=0.5``,
 ``body[0].velocity=[3,0,0]``).  Values are TOML (``true``, ``1e-3``,
 ``"rk4"``); a bare word is a string.
 
-Exit codes: 0 success, 1 a check failed (check) or the run's status is not
-ok (run), 2 bad input (spec, settings, arguments).
+``run`` evaluates the scene's checks that apply to the run as ``check``
+does (making the step-phase and ``@dt=...`` runs they need) and lists them.
+
+Exit codes: 0 success, 1 a check failed unexpectedly (FAIL, XPASS, ERROR;
+check and run) or the run's status is not ok (run), 2 bad input (spec,
+settings, arguments, unknown scenario ids).
 """
 
 from __future__ import annotations
@@ -52,6 +58,76 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
     return settings, overrides
 
 
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi] (argparse reports anything else
+    as a usage error, exit 2)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {v}")
+        return v
+    return parse
+
+
+def _float_where(test: Any, expected: str):
+    """argparse type: a number for which ``test(v)`` holds (nan never does)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(v) and test(v)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+        return v
+    return parse
+
+
+_phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
+_positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
+
+
+#: bounds of the CLI's counts: runs at once, benchmark repeats, record stride
+MAX_JOBS = 256
+MAX_REPEATS = 1000
+MAX_RECORD_EVERY = 10**8
+
+
+def output_file(flag: str, value: str | None) -> Path | None:
+    """The file an output flag (``--junit``, ``-o``, ``--save``, ``--out``)
+    names, checked before any run: not empty, not an existing directory,
+    and no existing file where a parent directory must be (missing parent
+    directories are created when the file is written).  UsageError (exit 2)
+    otherwise."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a file path, got {value!r}")
+    p = Path(value)
+    if p.is_dir() or value.endswith(("/", "\\")):
+        raise UsageError(f"{flag} {value}: is a directory; expected a file path")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{flag} {value}: {parent} is a file, not a directory")
+            break
+    return p
+
+
+def output_dir(flag: str, value: str | None) -> Path | None:
+    """The directory an output flag names: not empty, not an existing file."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UsageError(f"{flag}: expected a directory path, got {value!r}")
+    p = Path(value)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"{flag} {value}: is a file; expected a directory")
+    return p
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
@@ -66,9 +142,11 @@ def _fmt(v: Any) -> str:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from adapters import get_adapter
+    from harness.conformance import BAD
     from harness.runner import run
     from harness.scene import load_scene
 
+    save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
     scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
@@ -79,18 +157,46 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.phase:
         result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
                             f"{args.phase:g} dt")
+    runs, outcomes = _run_checks(scene, result, settings, args)
     if args.save:
         from harness.results import write_rows
 
         row = result.row()
         row["phase"] = float(args.phase)  # 0 = the scene as written
-        write_rows([row], args.save)
+        if runs:
+            row.update(runs[0].row_extra)
+        row["checks"] = json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
+        write_rows([row], save)
     if args.json:
-        sys.stdout.write(json.dumps(result.as_dict(), sort_keys=False) + "\n")
+        d = result.as_dict()
+        d["checks"] = [o.as_dict() for o in outcomes]
+        sys.stdout.write(json.dumps(d, sort_keys=False) + "\n")
         sys.stdout.flush()
     else:
-        _print_result(result)
-    return 0 if result.status == "ok" else 1
+        _print_result(result, outcomes)
+    return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
+
+
+def _run_checks(scene, result, settings: dict[str, Any], args: argparse.Namespace):
+    """The scene's checks that apply to this run, evaluated as ``physbench
+    check`` evaluates them (harness/conformance.py): the runs a check needs
+    beyond this one -- its step phases, an ``@dt=...`` setting -- are made
+    here, with the same settings and spec overrides.  A run at a given
+    ``--phase`` is judged on itself only (it is one phase already).
+    Returns (planned runs, outcomes)."""
+    from harness.conformance import evaluate_runs, run_planned, scene_runs
+
+    runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
+    if not runs:
+        return runs, []
+    results = {runs[0].key: result}
+    for r in runs[1:]:
+        if not args.json:
+            print(f"check run: {args.engine} {r.scenario}" + (f" phase {r.phase:g}" if r.phase else "")
+                  + "".join(f" {k}={v:.6g}" if isinstance(v, float) else f" {k}={v}"
+                            for k, v in r.settings.items() if settings.get(k) != v), file=sys.stderr)
+        results[r.key] = run_planned(scene, r)
+    return runs, evaluate_runs(runs, results)
 
 
 def _phase(scene, f: float, dt: Any = None):
@@ -110,7 +216,7 @@ def _phase(scene, f: float, dt: Any = None):
         raise UsageError(f"--phase {f:g}: {e}") from None
 
 
-def _print_result(result) -> None:
+def _print_result(result, outcomes=()) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -129,6 +235,17 @@ def _print_result(result) -> None:
         con.print("stages: " + json.dumps(result.stages, default=str))
     for n in result.notes:
         con.print(f"note: {n}")
+    if outcomes:
+        from rich.markup import escape
+
+        from harness.conformance import BAD, _fmt as fmt_value
+
+        c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
+        for o in outcomes:
+            style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value), f"[{style}]{o.outcome}[/]",
+                      escape(o.message))
+        con.print(c)
 
 
 def cmd_engines(args: argparse.Namespace) -> int:
@@ -166,6 +283,10 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
+    if Path(args.scenario).is_dir():
+        raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
+                         f"or a spec file, not a folder")
+    output_file("-o", args.output)
     scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
     scene = _phase(scene, args.phase)
     results = []
@@ -190,8 +311,11 @@ def cmd_trace(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from harness.conformance import check_main
 
-    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=args.scenarios, jobs=args.jobs,
-                      traces=args.traces)
+    output_file("--junit", args.junit)
+    output_dir("--traces", args.traces)
+    scenarios = list(args.paths or []) + list(args.scenarios or [])
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
+                      jobs=args.jobs, traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -229,15 +353,63 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=Path(args.out) if args.out else None, resume=args.resume, scenarios=args.scenarios)
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios)
+
+
+def cmd_limits(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.limits import LimitRequest, limits_main, parse_number
+
+    settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
+
+    try:
+        lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    bounds = []
+    for item in args.max or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--max {item}: expected METRIC=VALUE")
+        try:
+            bounds.append((key.strip(), parse_number(text.strip(), f"--max {key.strip()}")))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+    req = LimitRequest(args.scenario, args.variant, args.engine, args.param, lo, hi, phases=args.phases,
+                       tol=args.tol, checks=tuple(args.check or ()), settings=tuple(sorted(settings.items())),
+                       overrides=tuple(overrides.items()), bounds=tuple(sorted(bounds)))
+    return limits_main(req, out_dir=Path(args.out) if args.out else None, as_json=args.json)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
-                       out=Path(args.out) if args.out else None, suites=args.suites, target=args.target,
+                       out=output_file("--out", args.out), suites=args.suites, target=args.target,
                        fail_on_regression=args.fail_on_regression)
+
+
+def cmd_models(args: argparse.Namespace) -> int:
+    """The reference models' declarations (the same text as docs/MODELS.md)."""
+    from harness.references import MODELS, describe
+
+    if args.name is not None and args.name not in MODELS:
+        raise UsageError(f"models: unknown model {args.name!r}; known: {', '.join(sorted(MODELS))}")
+    descs = describe(args.name)
+    if args.json:
+        print(json.dumps(descs if args.name is None else descs[0]))
+        return 0
+    for d in descs:
+        print(f"{d['name']}: {d['summary']}")
+        print(f"  takes: {d['takes']}")
+        for p in d["params"]:
+            default = "-" if p["default"] is None else repr(p["default"])
+            print(f"  param {p['name']} ({p['type']}, default {default}): {p['meaning']}")
+        print(f"  metrics (primary {d['primary']}):")
+        for m, meaning in d["produces"].items():
+            print(f"    {m}: {meaning}")
+        print()
+    return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -264,19 +436,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", "-v", default=None)
     r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
-    r.add_argument("--record-every", type=int, default=1, help="record every N steps (default 1)")
+    r.add_argument("--record-every", type=_int_in(1, MAX_RECORD_EVERY), default=1,
+                   help="record every N >= 1 steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
-    r.add_argument("--phase", type=float, default=0.0, metavar="F",
+    r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
+    c.add_argument("paths", nargs="*", metavar="SCENARIO|FILE|DIR",
+                   help="scenario ids, spec files or folders of spec files (anywhere); default all of scenarios/")
     c.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     c.add_argument("--tags", nargs="+", default=None)
-    c.add_argument("--scenarios", nargs="+", default=None, help="only these scenario ids")
+    c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
+                   help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (default 1)")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -290,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
-    t.add_argument("--phase", type=float, default=0.0, metavar="F",
+    t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
     t.set_defaults(func=cmd_trace)
@@ -302,7 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
     b.add_argument("kind", choices=["overhead", "cost"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
-    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -310,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
-    sw.add_argument("--jobs", type=int, default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
                     help="default: serial for --jobs 1, a process pool otherwise")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
@@ -319,15 +495,42 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
     sw.set_defaults(func=cmd_sweep)
 
+    lm = sub.add_parser("limits", help="breaking point: where a scene stops holding as one parameter moves")
+    lm.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    lm.add_argument("--engine", "-e", required=True, choices=ENGINES)
+    lm.add_argument("--variant", "-v", default=None)
+    lm.add_argument("--param", required=True, metavar="KEY",
+                    help="engine setting (dt, iterations) or dotted spec key (body[0].velocity[0], body[1].mass)")
+    lm.add_argument("--range", nargs=2, required=True, metavar=("LO", "HI"))
+    lm.add_argument("--phases", type=int, default=1, metavar="N",
+                    help="a value holds only if it holds in all N step phases (default 1)")
+    lm.add_argument("--tol", type=float, default=0.05, metavar="REL",
+                    help="relative width of the final bracket (default 0.05)")
+    lm.add_argument("--check", action="append", default=None, metavar="METRIC",
+                    help="only checks of this metric count (repeatable; stability always counts)")
+    lm.add_argument("--max", action="append", default=None, metavar="METRIC=VALUE",
+                    help="extra criterion: the metric must stay <= VALUE (e.g. energy_gain=0.01); repeatable")
+    lm.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
+                    help="fixed engine setting or dotted spec key for every run of the search")
+    lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    lm.add_argument("--json", action="store_true",
+                    help="print one JSON object (limit, bracket, failed_check, runs, cpu_s, ...) on stdout")
+    lm.set_defaults(func=cmd_limits)
+
     rp = sub.add_parser("report", help="one self-contained HTML page from stored sweep and check results")
     rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
-    rp.add_argument("--target", type=float, default=None,
+    rp.add_argument("--target", type=_positive_float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
     rp.set_defaults(func=cmd_report)
+
+    mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
+    mo.add_argument("name", nargs="?", default=None, help="one model (default: all)")
+    mo.add_argument("--json", action="store_true", help="print the declarations as JSON")
+    mo.set_defaults(func=cmd_models)
 
     ls = sub.add_parser("list", help="the scenarios in scenarios/")
     ls.set_defaults(func=cmd_list)

@@ -4,8 +4,10 @@
 check`` calls; it returns the process exit code (1 on any FAIL, ERROR or
 XPASS, else 0).
 
-What runs.  For each selected scenario (all of ``scenarios/`` by default,
-filtered by ``tags``: a scenario is kept if it has any of them) the base scene
+What runs.  For each selected scenario (all of ``scenarios/`` by default;
+else the ids, spec files and folders of spec files given, anywhere on disk:
+:func:`select_scenarios`; filtered by ``tags``: a scenario is kept if it has
+any of them) the base scene
 and each ``[[variant]]`` are run once per engine, at the engine's default
 settings and the scene's dt, with :func:`harness.runner.run` -- but only the
 ones that some check applies to:
@@ -41,7 +43,9 @@ message gives the failing count and the pattern over the phases.
 Outcomes, per (engine, scenario, variant, check):
 
 - PASS / FAIL: the run is ``ok`` and the metric meets / misses the bound;
-  a metric that is missing or NaN is a FAIL ("metric not computed");
+- ERROR also when the run is ``ok`` but the check's metric is missing from
+  it or NaN ("metric not computed"): a check is never silently skipped, and
+  an xfail does not cover it (nothing was measured);
 - XFAIL / XPASS: the check lists the engine in ``xfail`` (a documented
   limitation, with the measured figure) and the run fails / passes it;
 - UNSUPPORTED: the engine reported the scene as unsupported;
@@ -99,8 +103,19 @@ class Outcome:
     threshold: str = ""
     message: str = ""
     time_s: float = 0.0
+    #: RunSpec.key of the run the check was evaluated on (the base run for
+    #: a check combined over step phases); () when there was none
+    key: tuple = ()
     #: path of the case's diagnosing trace (check --traces), else ""
     trace: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """The outcome as stored in a row's ``checks`` column and printed by
+        ``physbench run --json``."""
+        from harness.runner import _jsonable
+
+        return {"metric": self.metric, "outcome": self.outcome, "value": _jsonable(self.value),
+                "threshold": self.threshold, "message": self.message}
 
     @property
     def name(self) -> str:
@@ -123,6 +138,10 @@ class RunSpec:
     phase: float = 0.0
     #: the base run's phases (``[scenario] phases``), on the base run only
     phases: int = 1
+    #: the spec file (None: ``scenario`` is an id under scenarios/)
+    path: str | None = None
+    #: columns added to the run's row (primary metric and its threshold)
+    row_extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def key(self) -> tuple:
@@ -244,10 +263,15 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
     value = result.metrics.get(metric)
     o.value = value
     if _is_missing(value):
-        ok, msg = False, "metric not computed"
+        # a check whose metric was not computed is never skipped, nor
+        # covered by an xfail (tests/test_conformance.py::test_nan_or_missing_metric_is_an_error)
+        o.outcome = ERROR
+        o.message = (f"metric not computed: {metric} is {'missing from' if value is None else 'NaN in'} "
+                     f"the run's metrics")
         extra = [n for n in result.notes if n.startswith("metrics failed")]
         if extra:
-            msg += f" ({extra[0]})"
+            o.message += f" ({extra[0]})"
+        return o
     else:
         ok = meets(check, value)
         msg = f"{metric} = {_fmt(value)}, expected {o.threshold}"
@@ -308,13 +332,24 @@ def evaluate(scene: Scene, result, extra_results: dict[str, Any] | None = None) 
 
 
 def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> list[str]:
-    from harness.scene import scenario_ids
+    """The scenarios to check, as targets for :func:`plan`: every id of
+    scenarios/ by default; else each entry of ``scenarios`` -- an id stays
+    an id, a spec file or a folder (all ``*.toml`` below it, sorted) becomes
+    the files' paths, anywhere on disk.  An entry that is neither raises
+    SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
+    (a spec that does not load is kept: it is reported, never dropped)."""
+    from harness.scene import load_scene, scenario_ids, spec_targets
 
-    ids = list(scenarios) if scenarios else scenario_ids()
+    if scenarios:
+        ids: list[str] = []
+        for entry in scenarios:
+            for t in spec_targets(entry):
+                if t not in ids:
+                    ids.append(t)
+    else:
+        ids = scenario_ids()
     if not tags:
         return ids
-    from harness.scene import load_scene
-
     keep = []
     for sid in ids:
         try:
@@ -337,67 +372,117 @@ def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], 
     return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
 
 
+def primary_threshold(scene: Scene, metric: str | None = None) -> float | None:
+    """The scene's ``[[check]] max`` (plus tolerance) on ``metric`` (default
+    its primary metric) for its variant: the accuracy target of the report.
+    Checks scoped to some engines count only when no unscoped one exists;
+    the tightest wins."""
+    metric = metric or scene.primary_metric
+    if not metric:
+        return None
+    cands = [c for c in scene.checks if c.metric == metric and c.max is not None
+             and (c.variants is None or (scene.variant or BASE) in c.variants)]
+    use = [c for c in cands if c.engines is None] or cands
+    return min(float(c.max) + float(c.tolerance or 0.0) for c in use) if use else None
+
+
+def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None, path: str | None = None,
+               phases: int | None = None) -> list[RunSpec]:
+    """The runs that evaluating ``scene``'s checks on ``engine`` takes, the
+    base run first (settings ``settings``, carrying the checks); then its
+    step phases (``phases``, default the scene's); then one run per
+    @-suffixed check setting (``settings`` with the suffix's over them).
+    Empty when no check applies.  ``physbench check`` and ``physbench run``
+    both plan with it, so both give the same verdict."""
+    checks = applicable_checks(scene, engine) + hard_checks(scene)
+    if not checks:
+        return []
+    settings = dict(settings or {})
+    n = scene.phases if phases is None else phases
+    extra = {"primary_metric": scene.primary_metric, "primary_threshold": primary_threshold(scene)}
+    runs = [RunSpec(scene.id, scene.variant, engine, settings, checks, phases=n, path=path, row_extra=extra)]
+    for i in range(1, n):
+        runs.append(RunSpec(scene.id, scene.variant, engine, settings, [], phase=i / n, path=path, row_extra=extra))
+    suffixes = {}
+    for c in checks:
+        _, st = split_metric(c.metric)
+        if st:
+            suffixes[c.metric.partition("@")[2]] = st
+    for st in suffixes.values():
+        runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra))
+    return runs
+
+
 def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], list[Outcome]]:
-    """Runs to make, and ERROR outcomes for scenarios that fail to load."""
+    """Runs to make, and ERROR outcomes for scenarios that fail to load.
+    ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
+    Two files with the same id (family.stem) raise SpecError: their rows
+    could not be told apart."""
     from harness.scene import load_scene, resolve_scenario
-    from harness.spec import load_spec
+    from harness.spec import SpecError, load_spec
 
     runs: list[RunSpec] = []
     errors: list[Outcome] = []
+    seen: dict[str, str] = {}
     for sid in scenario_ids:
         try:
             loaded = load_spec(resolve_scenario(sid))
         except Exception as e:
             errors += _load_error_outcomes(sid, None, engines, f"spec failed to load: {e}")
             continue
+        # an id is run by its id; a file given by path is run from it
+        path = str(loaded.path) if (Path(sid).suffix == ".toml" or Path(sid).exists()) else None
         for variant in [None, *loaded.variants]:
             try:
                 scene = load_scene(sid, variant, loaded=loaded)
             except Exception as e:
                 errors += _load_error_outcomes(sid, variant, engines, f"scene failed to compile: {e}")
                 continue
+            if variant is None:
+                where = str(loaded.path.resolve())
+                if seen.setdefault(scene.id, where) != where:
+                    raise SpecError([f"{loaded.label}: <scenario>: id {scene.id!r} (family.stem) is also the id of "
+                                     f"{seen[scene.id]}; rename one file or change its family"])
             for eng in engines:
-                checks = applicable_checks(scene, eng) + hard_checks(scene)
-                if not checks:
-                    continue
-                runs.append(RunSpec(scene.id, variant, eng, {}, checks, phases=scene.phases))
-                for i in range(1, scene.phases):
-                    runs.append(RunSpec(scene.id, variant, eng, {}, [], phase=i / scene.phases))
-                suffixes = {}
-                for c in checks:
-                    _, st = split_metric(c.metric)
-                    if st:
-                        suffixes[c.metric.partition("@")[2]] = st
-                for st in suffixes.values():
-                    runs.append(RunSpec(scene.id, variant, eng, st, []))
+                runs += scene_runs(scene, eng, path=path)
     return runs, errors
+
+
+def run_planned(scene: Scene, spec: RunSpec, **kw: Any):
+    """Run ``scene`` (already loaded) as ``spec`` asks: shifted to its step
+    phase, with its settings; never raises for engine trouble (an adapter
+    that cannot be loaded or a bad setting becomes a ``failed`` result)."""
+    from harness.runner import RunResult, run
+
+    try:
+        if spec.phase:
+            from harness.phase import shift_scene
+
+            scene = shift_scene(scene, spec.phase, dt=spec.settings.get("dt", scene.dt))
+        # a blow-up is recorded in the result's status; numpy's overflow
+        # warnings on the way there would only scramble the progress display
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return run(scene, spec.engine, spec.settings or None, **kw)
+    except Exception as e:  # adapter import error, bad setting ...
+        return RunResult(scene.id, spec.variant, spec.engine, "", "failed",
+                         f"could not run: {type(e).__name__}: {e}", dict(spec.settings),
+                         scene_hash=scene.content_hash, scene_path=scene.source)
 
 
 def execute(spec: RunSpec):
     """Run one RunSpec; never raises (engine import errors become a
     RunResult with status 'failed').  The trace is dropped (results cross
     process boundaries)."""
-    from harness.runner import RunResult, run
+    from harness.runner import RunResult
     from harness.scene import load_scene
 
     try:
-        scene = load_scene(spec.scenario, spec.variant)
-        if spec.phase:
-            from harness.phase import shift_scene
-
-            scene = shift_scene(scene, spec.phase, dt=spec.settings.get("dt", scene.dt))
+        scene = load_scene(spec.path or spec.scenario, spec.variant)
     except Exception as e:
         return RunResult(spec.scenario, spec.variant, spec.engine, "", "error", f"scene failed to load: {e}",
                          dict(spec.settings))
-    try:
-        # a blow-up is recorded in the result's status; numpy's overflow
-        # warnings on the way there would only scramble the progress display
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
-            res = run(scene, spec.engine, spec.settings or None, timeout_s=RUN_TIMEOUT_S)
-    except Exception as e:  # adapter import error, bad setting ...
-        res = RunResult(scene.id, spec.variant, spec.engine, "", "failed",
-                        f"could not run: {type(e).__name__}: {e}", dict(spec.settings))
+    res = run_planned(scene, spec, timeout_s=RUN_TIMEOUT_S)
     res.trace = None
     return res
 
@@ -443,7 +528,8 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[t
 
 
 def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcome]:
-    """Outcomes for every planned base run (runs with checks)."""
+    """Outcomes for every planned base run (runs with checks), each with the
+    key of the run it was evaluated on."""
     outs: list[Outcome] = []
     for r in runs:
         if not r.checks:
@@ -452,13 +538,13 @@ def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcom
         for c in r.checks:
             name, st = split_metric(c.metric)
             if st:
-                key = (r.scenario, r.variant, r.engine, tuple(sorted(st.items())))
+                key = RunSpec(r.scenario, r.variant, r.engine, {**r.settings, **st}).key
                 other = results.get(key)
                 if other is None:
-                    outs.append(Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
-                                        threshold=describe_bound(c), message="run missing"))
+                    o = Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
+                                threshold=describe_bound(c), message="run missing")
                 else:
-                    outs.append(evaluate_check(c, other, name))
+                    o = evaluate_check(c, other, name)
             elif r.phases > 1:
                 per = [evaluate_check(c, res)]
                 for i in range(1, r.phases):
@@ -466,9 +552,11 @@ def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcom
                     per.append(evaluate_check(c, other) if other is not None else
                                Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
                                        threshold=describe_bound(c), message=f"phase {i}/{r.phases} run missing"))
-                outs.append(_combine_phases(per, c))
+                o, key = _combine_phases(per, c), r.key
             else:
-                outs.append(evaluate_check(c, res))
+                o, key = evaluate_check(c, res), r.key
+            o.key = key
+            outs.append(o)
     return outs
 
 
@@ -625,20 +713,35 @@ def exit_code(outcomes: list[Outcome]) -> int:
 # entry point
 
 
-def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | None:
+def save_rows(results: dict[tuple, Any], save_dir: str | Path | None, runs: list[RunSpec] | None = None,
+              outcomes: list[Outcome] | None = None) -> Path | None:
     """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
-    (default results/check/); a failure to write is reported, not fatal."""
+    (default results/check/); a failure to write is reported, not fatal.
+    With ``runs`` and ``outcomes``, each row also carries its scene's
+    ``primary_metric`` and ``primary_threshold`` and, as ``checks`` (JSON),
+    the outcomes evaluated on it (Outcome.as_dict): the report reads
+    verdicts and thresholds from the rows, without reloading the scene."""
+    import json
+
     from harness.results import RESULTS_DIR, write_rows
 
     if not results:
         return None
     d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    extra = {r.key: r.row_extra for r in runs or []}
+    by_key: dict[tuple, list[dict[str, Any]]] = {}
+    for o in outcomes or []:
+        if o.key:
+            by_key.setdefault(o.key, []).append(o.as_dict())
     rows = []
     for key, r in results.items():
         row = r.row()
         # the step phase of the run (a 5th key element; 0 = the scene as written)
         row["phase"] = float(key[4]) if len(key) > 4 else 0.0
+        row.update(extra.get(key, {}))
+        if outcomes is not None:
+            row["checks"] = json.dumps(by_key.get(key, []), sort_keys=True)
         rows.append(row)
     try:
         return write_rows(rows, d / f"{stamp}.parquet", append=False)
@@ -688,7 +791,7 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
     written = []
     for name, (spec, settings, phase, failing) in cases.items():
         try:
-            scene = load_scene(spec.scenario, spec.variant)
+            scene = load_scene(spec.path or spec.scenario, spec.variant)
             if phase:
                 from harness.phase import shift_scene
 
@@ -742,7 +845,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         written = trace_failures(traces, runs, results, outcomes)
         err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
-    saved = save_rows(results, save_dir)
+    saved = save_rows(results, save_dir, runs, outcomes)
     if saved is not None:
         err.print(f"result rows written to {saved}")
     if junit:

@@ -10,13 +10,16 @@ Definitions (all from the trace, never from an engine's own accounting):
   shapes); ``penetration_unknown_frames`` counts frames where some pair could
   not be measured.  NaN without the ``contact`` effect (shapes are
   meant to pass through each other then).
-- ``energy_drift`` = max_t |E(t) - E0| / E_scale and ``energy_gain`` =
-  max(0, max_t (E(t) - E0) / E_scale), with E = translational + rotational
-  kinetic + gravitational + spring potential energy.  Gravitational energy is
-  measured from the lowest height any body centre reaches in the run, so E >= 0
-  and the ratio does not depend on where the scene's origin is.  E_scale =
-  max(E0, sum m |g| r + 1e-12) where r is each body's bounding radius: a scene
-  at rest is compared against the energy of lifting each body by its own size.
+- Energy (docs/METRICS.md has the full statement): E = translational +
+  rotational kinetic + gravitational + spring potential energy, the
+  potential measured from a datum the scene fixes (:func:`energy_datum`),
+  so E0 = E(first frame) is the same number on every engine for the same
+  initial state.  E_scale = max(|E0|, sum m |g| r + 1e-12), r each body's
+  bounding radius.  ``energy_drift`` = max_t |E(t) - E0| / E_scale where the
+  scene is conservative (:func:`harness.metric_defs.dissipation` is empty),
+  NaN otherwise; ``energy_dissipated`` = (E0 - E(T)) / E_scale where it is
+  not, NaN otherwise; ``energy_gain`` = max(0, max_t (E(t) - E0) / E_scale)
+  always.
 - ``linear_momentum_drift`` = max_t |P(t) - P0| / max(|P0|, sum m |v0|) where
   no external force acts (no gravity, no contact with statics, no world
   springs, no drag); NaN otherwise.  ``angular_momentum_drift`` likewise for L
@@ -37,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from adapters.conventions import quat_rotate
+from harness.metric_defs import dissipation, external_force_free
 from harness.scene import Scene
 
 STABLE_MAX_ENERGY_GAIN = 0.5
@@ -60,16 +64,14 @@ def kinetic_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
 
 
 def potential_energy(scene: Scene, trace) -> np.ndarray:
-    """Gravitational (from the lowest height reached) plus spring energy, J, (F,)."""
-    m = scene.masses
+    """Gravitational plus spring energy (J, (F,)) above the scene's datum
+    :func:`energy_datum`."""
     g = scene.gravity
     gn = float(np.linalg.norm(g))
     F = trace.pos.shape[0]
-    pe = np.zeros(F)
+    pe = np.full(F, -energy_datum(scene))
     if gn > 0:
-        up = -g / gn
-        h = trace.pos @ up  # (F, n)
-        pe += gn * (h - np.nanmin(h)) @ m
+        pe += gn * (trace.pos @ (-g / gn)) @ scene.masses
     for sp in scene.springs:
         pa = _anchor_world(trace, sp.a, sp.anchor_a)
         pb = _anchor_world(trace, sp.b, sp.anchor_b)
@@ -78,23 +80,137 @@ def potential_energy(scene: Scene, trace) -> np.ndarray:
     return pe
 
 
+def lowest_height(scene: Scene, body) -> float:
+    """The lowest height (m, along -g) body ``body``'s centre can reach, from
+    the scene alone: resting on a level plane beneath it (plane height +
+    the body's smallest half-size); on an inclined plane beneath it, its
+    start lowered by the slide a frictionless plane allows in the scene's
+    duration T, sin a (|v0| T + g sin a T^2 / 2); with several planes
+    beneath it the highest of these; with none, where free fall from its
+    initial state takes it within T.  Never above the start."""
+    g = scene.gravity
+    gn = float(np.linalg.norm(g))
+    up = -g / gn
+    h0 = float(body.position @ up)
+    T = scene.duration
+    v_up = float(body.velocity @ up)
+    low = h0 + min(0.0, v_up * T - 0.5 * gn * T * T)  # free fall
+    if scene.has("contact"):
+        bounds = []
+        for s in scene.statics:
+            if s.shape != "plane":
+                continue
+            c = float(s.normal @ up)  # cos of the plane's incline
+            if c <= 1e-12 or float(s.normal @ body.position) < s.offset:
+                continue  # a wall or a ceiling, or the body is not above it
+            if c >= 1.0 - 1e-12:
+                bounds.append(s.offset / c + body.min_extent)
+            else:
+                sin_a = math.sqrt(max(0.0, 1.0 - c * c))
+                speed = float(np.linalg.norm(body.velocity))
+                bounds.append(h0 - sin_a * (speed * T + 0.5 * gn * sin_a * T * T))
+        if bounds:
+            low = max(bounds)
+    return min(low, h0)
+
+
+def energy_datum(scene: Scene) -> float:
+    """The potential energy (J) the scene calls zero: sum over bodies of
+    m |g| lowest_height (:func:`lowest_height`), except for bodies that
+    springs connect to the world (directly or through other bodies): for
+    those the minimum over their centre positions (orientations as at the
+    start) of their gravitational plus spring energy, the static
+    equilibrium of that cluster.  A function of the scene only, so every
+    engine measures from the same datum (tests/test_metrics.py pins it)."""
+    key = id(scene)
+    hit = _DATUM.get(key)
+    if hit is not None and hit[0] is scene:
+        return hit[1]
+    value = _energy_datum(scene)
+    if len(_DATUM) > 64:
+        _DATUM.clear()
+    _DATUM[key] = (scene, value)
+    return value
+
+
+_DATUM: dict[int, tuple[Scene, float]] = {}
+
+
+def _energy_datum(scene: Scene) -> float:
+    g = scene.gravity
+    gn = float(np.linalg.norm(g))
+    n = scene.n_bodies
+    # bodies linked by springs, and whether each cluster hangs from the world
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for sp in scene.springs:
+        if sp.a >= 0 and sp.b >= 0:
+            parent[find(sp.a)] = find(sp.b)
+    held = {find(i) for sp in scene.springs for i in (sp.a, sp.b) if i >= 0 and (sp.a < 0 or sp.b < 0)}
+    hung = [i for i in range(n) if find(i) in held]
+    total = 0.0
+    if gn > 0:
+        total += sum(b.mass * gn * lowest_height(scene, b) for b in scene.bodies if b.index not in set(hung))
+    if hung:
+        total += _spring_equilibrium(scene, hung)
+    return total
+
+
+def _spring_equilibrium(scene: Scene, idx: list[int]) -> float:
+    """Minimum over the centres of bodies ``idx`` (orientations fixed at the
+    start, the other bodies where they start) of their gravitational plus
+    every touching spring's energy (J)."""
+    from scipy.optimize import minimize
+
+    g = scene.gravity
+    m = scene.masses[idx]
+    x0, q0, _, _ = scene.initial_state()
+    pos_of = {i: k for k, i in enumerate(idx)}
+    springs = [sp for sp in scene.springs if sp.a in pos_of or sp.b in pos_of]
+    arms = {}
+    for sp in springs:
+        for i, anc in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b)):
+            if i >= 0:
+                arms[(id(sp), i)] = quat_rotate(q0[i], anc)
+
+    def end(sp, i, anc, X):
+        if i < 0:
+            return anc
+        base = X[pos_of[i]] if i in pos_of else x0[i]
+        return base + arms[(id(sp), i)]
+
+    def f(flat):
+        X = flat.reshape(-1, 3)
+        U = -float(m @ (X @ g))
+        grad = -np.outer(m, g)
+        for sp in springs:
+            d = end(sp, sp.b, sp.anchor_b, X) - end(sp, sp.a, sp.anchor_a, X)
+            L = float(np.linalg.norm(d))
+            ext = L - sp.rest_length
+            U += 0.5 * sp.stiffness * ext * ext
+            if L > 1e-300:
+                dU = sp.stiffness * ext * d / L  # dU/d(p_b)
+                if sp.b in pos_of:
+                    grad[pos_of[sp.b]] += dU
+                if sp.a in pos_of:
+                    grad[pos_of[sp.a]] -= dU
+        return U, grad.ravel()
+
+    start = x0[idx].ravel()
+    res = minimize(f, start, jac=True, method="BFGS", options={"gtol": 1e-12, "maxiter": 10000})
+    return float(min(res.fun, f(start)[0]))
+
+
 def _anchor_world(trace, idx: int, anchor: np.ndarray) -> np.ndarray:
     if idx < 0:
         return np.broadcast_to(anchor, (trace.pos.shape[0], 3))
     return trace.pos[:, idx] + quat_rotate(trace.quat[:, idx], anchor)
-
-
-def external_force_free(scene: Scene) -> tuple[bool, bool]:
-    """(linear momentum conserved, angular momentum about the COM conserved)
-    by the scene's physics.  Contact with statics, world springs and drag are
-    external; uniform gravity is external for P only."""
-    touches_world = scene.has("contact") and len(scene.statics) > 0
-    world_spring = any(sp.a < 0 or sp.b < 0 for sp in scene.springs)
-    drag = (scene.has("drag_linear") and any(b.drag_linear > 0 for b in scene.bodies)) or (
-        scene.has("drag_quadratic") and any(b.drag_quadratic > 0 for b in scene.bodies))
-    free = not (touches_world or world_spring or drag)
-    gravity = bool(np.any(scene.gravity != 0))
-    return free and not gravity, free
 
 
 def momenta(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
@@ -140,16 +256,18 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
         out["max_penetration"] = math.nan
         out["mean_penetration"] = math.nan
 
-    # --- energy
+    # --- energy (datum, scale and split: docs/METRICS.md)
     trans, rot = kinetic_energy(scene, trace)
     E = trans + rot + potential_energy(scene, trace)
     E0 = float(E[0])
     gn = float(np.linalg.norm(scene.gravity))
     floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
-    scale = max(E0, floor)
+    scale = max(abs(E0), floor)
     dE = (E - E0) / scale
+    conservative = not dissipation(scene)
     with np.errstate(invalid="ignore"):
-        out["energy_drift"] = float(np.nanmax(np.abs(dE)))
+        out["energy_drift"] = float(np.nanmax(np.abs(dE))) if conservative else math.nan
+        out["energy_dissipated"] = math.nan if conservative else float(-dE[-1])
         out["energy_gain"] = max(0.0, float(np.nanmax(dE)))
     out["energy_final"] = float(E[-1])
     out["energy_initial"] = E0

@@ -8,9 +8,14 @@ Input (see results/README.md and docs/REPORT.md):
 - conformance rows, ``results/check/*.parquet`` (``physbench check``), used
   for the stability matrix.
 
-Sections: header (machines, commits, suites, sweeps, engine versions),
-work-precision diagrams, cost to reach a target accuracy, stability matrix,
-history across runs (regressions flagged only beyond noise), footer.
+Sections: at a glance (per scenario family the cheapest engine to reach
+each accuracy of the ladder 1e-2 .. 1e-9, each engine's breaking points),
+header (machines, commits, suites, sweeps, engine versions), work-precision
+diagrams (a frontier per engine, one colour per engine in every plot), cost
+to reach each rung of the accuracy ladder and each scenario's own target,
+breaking points (``physbench limits`` / ``[[limit]]`` rows), stability matrix
+("ran and stayed finite" apart from "met its checks"), step phases, history
+across runs (regressions flagged only beyond noise), footer.
 
 The page has no external assets and no JavaScript: plots are matplotlib (Agg)
 PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are HTML.
@@ -249,34 +254,36 @@ def load_results(results_dir: str | Path | None = None, suites: list[str] | None
 
 
 @functools.lru_cache(maxsize=None)
-def _scene(scenario: str, variant: str):
-    """The compiled scene, or None when it no longer loads."""
+def _scene(scenario: str, variant: str, path: str = ""):
+    """The compiled scene, or None when it no longer loads: from the row's
+    ``scene_path`` when there is one (a spec file anywhere), else by id from
+    scenarios/.  Only a fallback: rows carry their primary metric, its
+    threshold and their checks' outcomes."""
     try:
-        from harness.scene import load_scene
+        from harness.scene import load_scene, source_path
 
+        f = source_path(path) if path and not _missing(path) else None
+        if f is not None and f.is_file():
+            return load_scene(f, variant or None)
         return load_scene(scenario, variant or None)
     except Exception:
         return None
 
 
-def scene_primary_metric(scenario: str, variant: str = "") -> str | None:
-    s = _scene(scenario, variant)
+def scene_primary_metric(scenario: str, variant: str = "", path: str = "") -> str | None:
+    s = _scene(scenario, variant, path)
     return None if s is None else s.primary_metric
 
 
-def scene_threshold(scenario: str, variant: str, metric: str | None) -> float | None:
+def scene_threshold(scenario: str, variant: str, metric: str | None, path: str = "") -> float | None:
     """The scenario's ``[[check]] max`` for ``metric`` (checks scoped to some
     engines only count when no unscoped one exists; the tightest wins)."""
+    from harness.conformance import primary_threshold
+
     if not metric:
         return None
-    s = _scene(scenario, variant)
-    if s is None:
-        return None
-    cands = [c for c in s.checks if c.metric == metric and c.max is not None
-             and (c.variants is None or (variant or BASE_LABEL) in c.variants)]
-    unscoped = [c for c in cands if c.engines is None]
-    use = unscoped or cands
-    return min(float(c.max) + float(c.tolerance or 0.0) for c in use) if use else None
+    s = _scene(scenario, variant, path)
+    return None if s is None else primary_threshold(s, metric)
 
 
 def hard_scenarios() -> set[str]:
@@ -303,10 +310,12 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     n = len(df)
     for col, default in (("scenario", None), ("variant", None), ("engine", None), ("engine_version", ""),
                          ("status", "unknown"), ("message", ""), ("commit", ""), ("timestamp", ""),
-                         ("source", "sweep"), ("incomplete", False), ("machine_id", None), ("_file", "")):
+                         ("source", "sweep"), ("incomplete", False), ("machine_id", None), ("_file", ""),
+                         ("row_kind", None)):
         if col not in df.columns:
             df[col] = [default] * n
-    for col in _SWEEP_COLUMNS + ("cpu_s_per_sim_s", "stable", "setting.dt"):
+    for col in _SWEEP_COLUMNS + ("cpu_s_per_sim_s", "stable", "setting.dt", "scene_hash", "scene_path",
+                                 "primary_threshold", "checks"):
         if col not in df.columns:
             df[col] = [None] * n
     df = df.astype({c: object for c in df.columns if str(df[c].dtype) in ("str", "string")})
@@ -323,8 +332,11 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     df["commit"] = ["" if _missing(m) else str(m) for m in df["commit"]]
     df["timestamp"] = ["" if _missing(m) else str(m) for m in df["timestamp"]]
     df["incomplete"] = [bool(_truthy(v)) for v in df["incomplete"]]
-    if "machine.host" in df.columns:
-        df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df["machine.host"])]
+    # a row's machine: the sweep's machine id, else the fingerprint's id the
+    # row carries (check and run rows), else the host of rows older than it
+    for col in ("machine.id", "machine.host"):
+        if col in df.columns:
+            df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df[col])]
     df["machine_id"] = ["unknown" if _missing(m) else str(m) for m in df["machine_id"]]
     df["suite"] = ["" if _missing(s) else str(s) for s in df["suite"]]
     df["sweep_id"] = ["" if _missing(s) else str(s) for s in df["sweep_id"]]
@@ -354,6 +366,12 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
         keys.append(str(pk))
     df["swept"] = swept
     df["point_key"] = keys
+    df["scene_hash"] = ["" if _missing(h) else str(h) for h in df["scene_hash"]]
+    df["scene_path"] = ["" if _missing(h) else str(h) for h in df["scene_path"]]
+    # a point's series: its key without the scene hash (history splits a
+    # series where the hash changes: history(), scene_changes())
+    df["series_key"] = [k[:-len(h) - 1] if h and k.endswith("|" + h) else k
+                        for k, h in zip(df["point_key"], df["scene_hash"])]
     # step phase (harness/phase.py): 0 = the scene as written
     col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
     ph = []
@@ -370,7 +388,7 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
         r = dict(zip(df.columns, row))
         m = r.get("primary_metric")
         if _missing(m):
-            m = scene_primary_metric(r["scenario"], r["variant"])
+            m = scene_primary_metric(r["scenario"], r["variant"], r.get("scene_path") or "")
         m = None if _missing(m) else str(m)
         e = _num(r.get("primary_error"))
         if math.isnan(e) and m and m in r:
@@ -406,7 +424,17 @@ def _ensure(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def _sweeps(df: pd.DataFrame) -> pd.DataFrame:
-    return df[df["source"] == "sweep"] if len(df) else df
+    """Sweep grid points (breaking-point rows, ``row_kind`` set, are read by
+    :func:`breaking_points` only)."""
+    if not len(df):
+        return df
+    return df[(df["source"] == "sweep") & df["row_kind"].map(_missing)]
+
+
+def _limit_rows(df: pd.DataFrame, kind: str) -> pd.DataFrame:
+    if not len(df):
+        return df
+    return df[df["row_kind"].map(lambda v: v == kind)]
 
 
 def latest_points(df: pd.DataFrame) -> pd.DataFrame:
@@ -459,7 +487,10 @@ def _targets(df: pd.DataFrame, target: float | None,
         if given is not None:
             out[(sc, va)] = (given, "given")
             continue
-        th = scene_threshold(sc, va, metric)
+        th = next((_num(t) for t in g["primary_threshold"] if _finite(t)), None)
+        if th is None:
+            path = next((p for p in g["scene_path"] if p), "")
+            th = scene_threshold(sc, va, metric, path)
         if th is not None:
             out[(sc, va)] = (th, "check max")
         elif target is not None:
@@ -602,6 +633,93 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
                            ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
 
 
+#: accuracies of the primary metric the report asks every engine for
+LADDER = (1e-2, 1e-4, 1e-6, 1e-9)
+
+
+def ladder(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+    """:func:`cost_to_target` at every rung of the accuracy ladder: per
+    (scenario, variant, engine, rung) the cheapest configuration reaching
+    the rung, or (``reached`` False) the best error reached and where.
+    Column ``rung`` holds the target."""
+    parts = []
+    for t in rungs:
+        ct = cost_to_target(df, targets=float(t))
+        if not ct.empty:
+            parts.append(ct.assign(rung=float(t)))
+    if not parts:
+        return pd.DataFrame(columns=["scenario", "variant", "engine", "rung", "reached", "cost", "settings"])
+    return pd.concat(parts, ignore_index=True)
+
+
+def family(scenario: str) -> str:
+    return scenario.split(".", 1)[0]
+
+
+def breaking_points(df: pd.DataFrame) -> pd.DataFrame:
+    """The latest breaking-point search per (machine, scenario, variant,
+    engine, parameter, range, overrides) from the stored ``limit`` rows
+    (``physbench limits`` and ``[[limit]]`` blocks), with its evaluations'
+    count."""
+    df = _ensure(df)
+    res = _limit_rows(df, "limit")
+    cols = ["machine_id", "scenario", "variant", "engine", "limit_param", "limit_outcome", "limit_value",
+            "limit_lo", "limit_hi", "limit_direction", "limit_failed_check", "limit_runs", "limit_cpu_s",
+            "limit_id", "limit_range_lo", "limit_range_hi", "limit_phases", "limit_overrides", "suite", "sweep_id"]
+    if res.empty:
+        return pd.DataFrame(columns=cols)
+    res = res.copy()
+    for c in cols:
+        if c not in res.columns:
+            res[c] = None
+    res = res.sort_values(["sweep_id", "timestamp"], kind="stable")
+    res = res.drop_duplicates(["machine_id", "limit_id"], keep="last")
+    return res[cols].sort_values(["scenario", "variant", "limit_param", "engine"], kind="stable").reset_index(drop=True)
+
+
+def fmt_limit(r: Mapping[str, Any], short: bool = False) -> str:
+    """A breaking point as text: ``<= 0.0072 [0.0072, 0.0076]``, ``holds to
+    HI``, ``fails at LO``, ``unsupported``."""
+    out = r.get("limit_outcome")
+    if out == "found":
+        sign = "\u2264" if r.get("limit_direction") == "below" else "\u2265"
+        txt = f"{sign} {fmt(r['limit_value'])}"
+        return txt if short else f"{txt} [{fmt(r['limit_lo'])}, {fmt(r['limit_hi'])}]"
+    if out == "holds_throughout":
+        return f"holds to {fmt(r['limit_value'])}" if short else \
+            f"holds over [{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}]"
+    if out == "fails_throughout":
+        return f"fails at {fmt(r['limit_range_lo'])}" if short else \
+            f"fails at both ends [{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}]"
+    return str(out or "?")
+
+
+def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+    """Per scenario family and ladder rung: which engine is cheapest to
+    reach the rung, counted over the family's scenarios (``wins``: engine ->
+    scenarios where it is cheapest), how many scenarios some engine reached
+    it in, out of how many."""
+    lad = ladder(df, rungs)
+    rows = []
+    if lad.empty:
+        return pd.DataFrame(columns=["family", "rung", "wins", "reached", "scenarios"])
+    lad = lad.assign(family=[family(x) for x in lad["scenario"]])
+    for (fam, rung), g in lad.groupby(["family", "rung"], sort=True):
+        wins: dict[str, int] = {}
+        reached = 0
+        scen = 0
+        for _, h in g.groupby(["scenario", "variant"], sort=True):
+            scen += 1
+            r = h[h["reached"].astype(bool) & h["cost"].map(_finite)]
+            if len(r):
+                reached += 1
+                best = r.sort_values(["cost", "engine"], kind="stable").iloc[0]["engine"]
+                wins[best] = wins.get(best, 0) + 1
+        rows.append({"family": fam, "rung": rung, "wins": dict(sorted(wins.items(), key=lambda kv: -kv[1])),
+                     "reached": reached, "scenarios": scen})
+    return pd.DataFrame(rows).sort_values(["family", "rung"], ascending=[True, False]).reset_index(drop=True)
+
+
 # ---------------------------------------------------------------------------
 # stability
 
@@ -619,7 +737,8 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     """
     df = _ensure(df)
     cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
-            "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt"]
+            "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt", "met_checks", "checks_failed",
+            "max_met_dt"]
     parts = [p for p in (_unshifted(latest_points(df)), _latest_checks(df)) if not p.empty]
     if not parts:
         out = pd.DataFrame(columns=cols)
@@ -656,37 +775,92 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
             "other": sum(1 for s in st if s not in ("ok", "diverged", "unsupported") + FAILED_STATUSES),
             "max_stable_dt": max(gdt) if gdt else math.nan,
             "min_unstable_dt": min(bdt) if bdt else math.nan,
+            "met_checks": sum(1 for r in good if meets_checks(r) is True),
+            "checks_failed": sorted({m for r in good for m in (failed_checks(r) or [])}),
+            "max_met_dt": max((r["dt"] for r in good if meets_checks(r) is True and math.isfinite(r["dt"])),
+                              default=math.nan),
         })
     out = pd.DataFrame(rows, columns=cols)
     out.attrs["selection"] = selection
     return out
 
 
+def failed_checks(r: Mapping[str, Any]) -> list[str] | None:
+    """The metrics of the row's checks (those that apply to its engine,
+    without an @-setting) that it did not meet -- an ``xfail`` does not make
+    a check met.  The outcomes the row carries (its ``checks`` column) when
+    it has them, else the scene's checks evaluated on the row's values (a
+    missing value fails); None when neither is known (the scene no longer
+    loads)."""
+    from harness.conformance import ERROR, FAIL, UNSUPPORTED, XFAIL, applicable_checks, meets, split_metric
+
+    stored = _row_checks(r)
+    if stored is not None:
+        return sorted({str(o.get("metric")) for o in stored if o.get("outcome") in (FAIL, XFAIL, ERROR, UNSUPPORTED)})
+    sc = _scene(r["scenario"], r["variant"], r.get("scene_path", ""))
+    if sc is None:
+        return None
+    out = []
+    for c in applicable_checks(sc, r["engine"]):
+        name, bound = split_metric(c.metric)
+        if bound:
+            continue
+        v = r.get(name)
+        if _missing(v) or not meets(c, v):
+            out.append(name)
+    return out
+
+
+def meets_checks(r: Mapping[str, Any]) -> bool | None:
+    """Whether an ok row met every one of its checks (None: not known)."""
+    failed = failed_checks(r)
+    if failed is None:
+        return None
+    return r["status"] == "ok" and not failed
+
+
 # ---------------------------------------------------------------------------
 # step phases
 
 
-def _primary_checks(scenario: str, variant: str, engine: str, metric: str | None) -> list:
+def _primary_checks(scenario: str, variant: str, engine: str, metric: str | None, path: str = "") -> list:
     """The scene's checks of its primary metric that apply to ``engine``
-    (xfail or not: an expected failure is still a failure here)."""
+    (xfail or not: an expected failure is still a failure here), for rows
+    that do not carry their checks' outcomes."""
     from harness.conformance import check_applies
 
-    sc = _scene(scenario, variant)
+    sc = _scene(scenario, variant, path)
     if sc is None or not metric:
         return []
     return [c for c in sc.checks if c.metric == metric and check_applies(c, engine, variant or None)]
 
 
+def _row_checks(r: Mapping[str, Any]) -> list[dict] | None:
+    """The outcomes stored in a row's ``checks`` column, None without one."""
+    v = r.get("checks")
+    if _missing(v):
+        return None
+    try:
+        out = json.loads(v) if isinstance(v, str) else list(v)
+    except (TypeError, ValueError):
+        return None
+    return out if isinstance(out, list) else None
+
+
 def _phase_outcome(r: Mapping[str, Any], checks: list) -> str:
     """'.' passed, 'x' a primary check failed, '!' the run was not ok or not
-    stable, '-' unsupported."""
-    from harness.conformance import meets
+    stable, '-' unsupported.  The row's own outcomes of its primary metric's
+    checks when it carries them, else ``checks`` evaluated here."""
+    from harness.conformance import ERROR, FAIL, XFAIL, meets
 
     if r["status"] == "unsupported":
         return "-"
     if not _good(r):
         return "!"
     m = r.get("primary_metric")
+    stored = _row_checks(r)
+    if stored is not None:
+        return "x" if any(o.get("metric") == m and o.get("outcome") in (FAIL, XFAIL, ERROR) for o in stored) else "."
     v = r.get(m) if m else None
     for c in checks:
         if v is None or (isinstance(v, float) and math.isnan(v)) or not meets(c, v):
@@ -726,7 +900,8 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
         g = g[g["sweep_id"] == latest]
         mid, suite, sc, va, en, base, _ = key
         recs = sorted(g.to_dict("records"), key=lambda r: r["phase"])
-        checks = _primary_checks(sc, va, en, recs[0].get("primary_metric"))
+        checks = ([] if all(_row_checks(r) is not None for r in recs) else
+                  _primary_checks(sc, va, en, recs[0].get("primary_metric"), recs[0].get("scene_path") or ""))
         pattern = "".join(_phase_outcome(r, checks) for r in recs)
         n = sum(1 for ch in pattern if ch != "-")
         k = sum(1 for ch in pattern if ch in "x!")
@@ -802,20 +977,86 @@ def _cost_drift(runs: list[dict], last: dict) -> dict | None:
             "previous_sweep": f"{plateau[0]['sweep_id']}..{plateau[-1]['sweep_id']}", "severity": change / thr}
 
 
-def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
-    """(machine_id, suite, point_key) -> that point's rows over its sweeps
-    (one per sweep, the last if repeated; ascending sweep_id), for points
-    present in at least two sweeps of the same suite on the same machine."""
-    df = _ensure(df)
-    s = _sweeps(df)
-    out: dict[tuple[str, str, str], pd.DataFrame] = {}
+def _series(df: pd.DataFrame):
+    """(machine_id, suite, series_key) -> that point's sweep rows over time
+    (one per sweep, the last if repeated; ascending sweep_id), whatever the
+    scene's content."""
+    s = _sweeps(_ensure(df))
     if s.empty:
-        return out
+        return
     s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
     s = s.drop_duplicates(["machine_id", "suite", "point_key", "sweep_id"], keep="last")
-    for key, g in s.groupby(["machine_id", "suite", "point_key"], sort=True):
+    yield from s.groupby(["machine_id", "suite", "series_key"], sort=True)
+
+
+def _same_scene(g: pd.DataFrame) -> pd.DataFrame:
+    """The trailing rows of a series with the latest row's scene hash: the
+    only ones its latest run may be compared with.  Rows without a hash
+    (written before rows carried one) count as a different, unknown scene
+    -- unless no row of the series has one."""
+    h = list(g["scene_hash"])
+    i = len(h) - 1
+    while i > 0 and h[i - 1] == h[-1]:
+        i -= 1
+    return g.iloc[i:]
+
+
+def history(df: pd.DataFrame) -> dict[tuple[str, str, str], pd.DataFrame]:
+    """(machine_id, suite, series key) -> that point's rows over its sweeps
+    (one per sweep, the last if repeated; ascending sweep_id), for points
+    present in at least two sweeps of the same suite on the same machine
+    *with the same scene content* (``scene_hash``): a changed scene starts
+    a new series (:func:`scene_changes` lists where), it is never compared
+    with the old one.  The series key is the point key without the scene
+    hash."""
+    out: dict[tuple[str, str, str], pd.DataFrame] = {}
+    for key, g in _series(df):
+        g = _same_scene(g)
         if g["sweep_id"].nunique() >= 2:
             out[key] = g.reset_index(drop=True)
+    return out
+
+
+def scene_changes(df: pd.DataFrame) -> pd.DataFrame:
+    """Where a series was cut because its scene changed: per machine,
+    suite, scenario, variant and the sweep that first ran the new content,
+    the date (of that sweep's rows), the number of points and engines, and
+    the previous and new hashes ('' for rows written before rows carried
+    one).  Only the latest cut of each series (the earlier rows are not
+    compared with anything any more)."""
+    cols = ["machine_id", "suite", "scenario", "variant", "sweep_id", "date", "points", "engines",
+            "previous_hash", "scene_hash"]
+    rows = []
+    for (mid, suite, _sk), g in _series(df):
+        new = _same_scene(g)
+        if len(new) == len(g):
+            continue
+        first, before = new.iloc[0], g.iloc[len(g) - len(new) - 1]
+        rows.append({"machine_id": mid, "suite": suite, "scenario": first["scenario"], "variant": first["variant"],
+                     "sweep_id": first["sweep_id"], "date": str(first["timestamp"])[:10] or first["sweep_id"][:8],
+                     "engine": first["engine"], "previous_hash": before["scene_hash"],
+                     "scene_hash": first["scene_hash"]})
+    if not rows:
+        return pd.DataFrame(columns=cols)
+    d = pd.DataFrame(rows)
+    out = []
+    for key, g in d.groupby(["machine_id", "suite", "scenario", "variant", "sweep_id", "date",
+                             "previous_hash", "scene_hash"], sort=True):
+        out.append(dict(zip(["machine_id", "suite", "scenario", "variant", "sweep_id", "date", "previous_hash",
+                             "scene_hash"], key), points=len(g), engines=", ".join(sorted(set(g["engine"])))))
+    return pd.DataFrame(out, columns=cols)
+
+
+def scene_change_lines(changes: pd.DataFrame) -> list[str]:
+    """One sentence per :func:`scene_changes` row."""
+    out = []
+    for r in changes.to_dict("records"):
+        what = r["scenario"] + (f" [{r['variant']}]" if r["variant"] else "")
+        was = (f"content {r['previous_hash']} -> {r['scene_hash']}" if r["previous_hash"]
+               else f"content {r['scene_hash']}; earlier rows carry no scene hash")
+        out.append(f"{what}: scene changed on {r['date']} (sweep {r['sweep_id']}, {r['machine_id']} / {r['suite']}): "
+                   f"new series for {r['points']} point(s) on {r['engines']}, not compared with earlier sweeps "
+                   f"({was})")
     return out
 
 
@@ -867,7 +1108,8 @@ def pooled_noise(df: pd.DataFrame, hist: dict | None = None) -> dict[tuple[str, 
 
 def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
     """Flagged changes of each point's latest sweep against its earlier ones
-    (same machine, same suite).  Only beyond noise:
+    (same machine, same suite, same scene content: :func:`history`).  Only
+    beyond noise:
 
     - cost (``cpu_s_per_sim_s_median``), asv style: the latest ok run
       against a baseline, the median cost of the last ``BASELINE_RUNS`` (5)
@@ -904,7 +1146,7 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
 
     Columns: kind (cost / cost_drift / accuracy / status), direction (regression /
     improvement), machine_id, suite, scenario, variant, engine, settings,
-    point_key, previous (cost: the baseline median; cost_drift: the
+    point_key (the series key: the point key without the scene hash), previous (cost: the baseline median; cost_drift: the
     plateau's median; accuracy: the best
     earlier error; status: the previous status), latest, change (relative;
     for status NaN), threshold, previous_sweep (cost: the baseline window
@@ -1019,52 +1261,148 @@ def _mpl_text(s: str) -> str:
     return s.replace("$", r"\$")
 
 
+#: one colour per engine in every plot (colour-blind-safe Okabe-Ito hues)
+ENGINE_COLOURS = {"reference": "#0072B2", "mujoco": "#D55E00", "pybullet": "#009E73", "pymunk": "#CC79A7"}
+_SPARE_COLOURS = ("#E69F00", "#56B4E9", "#F0E442", "#000000")
+MARKERS = "osD^v<>P"
+MAX_LEGEND = 8  # legend entries per plot, at most
+
+
+def engine_colour(engine: str) -> str:
+    """The engine's colour, the same in every plot."""
+    if engine in ENGINE_COLOURS:
+        return ENGINE_COLOURS[engine]
+    return _SPARE_COLOURS[sum(engine.encode()) % len(_SPARE_COLOURS)]
+
+
+def frontier(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The Pareto frontier of (cost, error) points: ascending cost, each
+    point strictly more accurate than every cheaper one."""
+    out: list[tuple[float, float]] = []
+    for c, e in sorted(points):
+        if not out or e < out[-1][1]:
+            out.append((c, e))
+    return out
+
+
 def plot_work_precision(wp: Mapping[str, Any]) -> str | None:
-    """One work-precision diagram as base64 PNG; None if no point is
-    drawable."""
-    ok = [p for l in wp["lines"] for p in l["points"] if p["ok"]]
+    """One work-precision figure as base64 PNG (None if no point is
+    drawable): left, every engine's points in its colour with its frontier
+    (the cheapest way to each accuracy) as a line -- a legend of engines only;
+    right, one small panel per engine with its settings as markers (at most
+    MAX_LEGEND entries; further ones grey, counted in the panel's title).  No
+    per-point labels: dt is along each line (smallest dt most expensive)."""
+    ok = [p for l in wp["lines"] for p in l["points"] if p["ok"] and p["cost"] > 0]
     fails = [p for l in wp["lines"] for p in l["points"] if not p["ok"] and math.isfinite(p["cost"]) and p["cost"] > 0]
     if not ok and not fails:
         return None
-    fig = _figure(9.5, 4.4)
-    ax = fig.add_subplot()
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    for i, line in enumerate(wp["lines"]):
-        pts = [p for p in line["points"] if p["ok"] and p["cost"] > 0]
-        if not pts:
-            continue
-        xs = [p["cost"] for p in pts]
-        ys = [p["error_plot"] for p in pts]
-        # markers differ per line (hollow every other one) so that lines
-        # lying on top of each other (two exact integrators) stay visible
-        (h,) = ax.plot(xs, ys, ls="-", marker="osD^v<>ph*"[i % 10], ms=5 if i % 2 else 4, lw=1.2,
-                       mfc="none" if i % 2 else None, color=f"C{i % 10}", label=_mpl_text(line["label"]))
-        for p in pts:
-            ax.annotate(f"{p['dt']:.3g}", (p["cost"], p["error_plot"]), xytext=(3, 3), textcoords="offset points",
-                        fontsize=6.5, color=h.get_color())
+    engines = sorted({l["engine"] for l in wp["lines"]})
+    ncol = 2
+    nrow = max(1, math.ceil(len(engines) / ncol))
+    fig = _figure(11.5, max(4.2, 2.3 * nrow))
+    grid = fig.add_gridspec(nrow, 1 + ncol, width_ratios=[1.5] + [1] * ncol)
+    ax = fig.add_subplot(grid[:, 0])
     ys = [p["error_plot"] for p in ok]
     if wp["threshold"] is not None and wp["threshold"] > 0:
         ys.append(wp["threshold"])
-        ax.axhline(wp["threshold"], color="k", ls="--", lw=1,
-                   label=f"target {wp['threshold']:g} ({wp['threshold_source']})")
     lo, hi = (min(ys), max(ys)) if ys else (1e-6, 1.0)
     top = hi * 10.0  # headroom for the not-ok markers along the top edge
-    ax.set_ylim(lo / 3.0, top)
+    xs_all = [p["cost"] for p in ok + fails]
+    xlim = (min(xs_all) / 1.6, max(xs_all) * 1.6)
+    for en in engines:
+        pts = [(p["cost"], p["error_plot"]) for l in wp["lines"] if l["engine"] == en
+               for p in l["points"] if p["ok"] and p["cost"] > 0]
+        if not pts:
+            continue
+        col = engine_colour(en)
+        ax.scatter([c for c, _ in pts], [e for _, e in pts], s=14, color=col, alpha=0.45, lw=0)
+        fr = frontier(pts)
+        ax.plot([c for c, _ in fr], [e for _, e in fr], "-o", color=col, lw=2, ms=4, label=_mpl_text(en))
+    if wp["threshold"] is not None and wp["threshold"] > 0:
+        ax.axhline(wp["threshold"], color="k", ls="--", lw=1,
+                   label=f"target {wp['threshold']:g} ({wp['threshold_source']})")
     if fails:
-        y = top / 2.0
-        ax.scatter([p["cost"] for p in fails], [y] * len(fails), marker="x", color="red", s=30,
-                   label="not ok (at its cost; see list)", zorder=5)
-        for p in fails:
-            ax.annotate(f"{p['status']} dt={p['dt']:g}", (p["cost"], y), xytext=(3, -9),
-                        textcoords="offset points", fontsize=6, color="red")
+        ax.scatter([p["cost"] for p in fails], [top / 2.0] * len(fails), marker="x", color="red", s=30,
+                   label=f"not ok ({len(fails)}, listed below)", zorder=5)
+    for a in (ax,):
+        a.set_xscale("log")
+        a.set_yscale("log")
+        a.set_ylim(lo / 3.0, top)
+        a.set_xlim(*xlim)
+        a.grid(True, which="major", alpha=0.3)
     ax.set_xlabel("CPU s per simulated s")
     ax.set_ylabel(_mpl_text(wp["primary_metric"] or "primary error"))
-    ax.grid(True, which="both", alpha=0.25)
     title = wp["scenario"] + (f" / {wp['variant']}" if wp["variant"] else "")
-    ax.set_title(_mpl_text(title), fontsize=10)
-    # outside the axes: with a dozen configurations an inner legend hides data
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    ax.set_title(_mpl_text(title) + ": frontier per engine", fontsize=10)
+    ax.legend(fontsize=8, loc="lower left", framealpha=0.85)
+    for i, en in enumerate(engines):
+        sub = fig.add_subplot(grid[i // ncol, 1 + i % ncol], sharex=ax, sharey=ax)
+        lines = [l for l in wp["lines"] if l["engine"] == en]
+        col = engine_colour(en)
+        extra = 0
+        for j, line in enumerate(lines):
+            pts = [p for p in line["points"] if p["ok"] and p["cost"] > 0]
+            if not pts:
+                continue
+            lab = settings_label(line["settings"]) or "defaults"
+            if j < MAX_LEGEND:
+                sub.plot([p["cost"] for p in pts], [p["error_plot"] for p in pts], "-", marker=MARKERS[j],
+                         color=col, ms=4, lw=1, mfc="none" if j % 2 else col, label=_mpl_text(lab))
+            else:
+                extra += 1
+                sub.plot([p["cost"] for p in pts], [p["error_plot"] for p in pts], "-", color="0.7", lw=0.8)
+        sub.set_title(_mpl_text(en) + (f" (+{extra} grey)" if extra else ""), fontsize=9, color=col)
+        sub.tick_params(labelsize=7)
+        sub.grid(True, which="major", alpha=0.3)
+        if sub.get_legend_handles_labels()[0]:
+            sub.legend(fontsize=6.5, loc="lower left", framealpha=0.85, handlelength=1.5)
+    return _png(fig)
+
+
+def plot_breaking_point(evals: pd.DataFrame, limits: pd.DataFrame, param: str, metric: str | None) -> str | None:
+    """The criterion along the parameter: per engine (its colour) each
+    evaluated value's primary error (phase 0; filled: the value held in every
+    phase, x: it did not), the limit as a vertical dashed line.  None when
+    nothing is drawable."""
+    if evals.empty:
+        return None
+    fig = _figure(7.5, 3.6)
+    ax = fig.add_subplot()
+    xs = [float(v) for v in evals["limit_value"] if _finite(v)]
+    if not xs:
+        return None
+    if min(xs) > 0:
+        ax.set_xscale("log")
+    errs = [e for e in evals["primary_error"] if _finite(e) and e > 0]
+    ymax = max(errs) * 10 if errs else 1.0
+    ymin = max(min(errs) / 3 if errs else 1e-3, ERROR_FLOOR)
+    ax.set_yscale("log")
+    for en in sorted(set(evals["engine"])):
+        g = evals[evals["engine"] == en].sort_values("limit_value")
+        col = engine_colour(en)
+        # one mark per value: held (all phases) or not; its phase-0 error
+        by = {}
+        for r in g.to_dict("records"):
+            v = float(r["limit_value"])
+            held = bool(r.get("limit_holds")) and by.get(v, (True, None))[0]
+            e = r["primary_error"] if r.get("phase", 0.0) == 0.0 else by.get(v, (True, None))[1]
+            by[v] = (held, e if e is not None else by.get(v, (True, None))[1])
+        vals = sorted(by)
+        ys = [max(by[v][1], ERROR_FLOOR) if _finite(by[v][1]) and by[v][1] > 0 else ymax / 2 for v in vals]
+        ax.plot(vals, ys, "-", color=col, lw=0.8, alpha=0.6)
+        held = [i for i, v in enumerate(vals) if by[v][0]]
+        bad = [i for i, v in enumerate(vals) if not by[v][0]]
+        ax.scatter([vals[i] for i in held], [ys[i] for i in held], color=col, s=22, marker="o", label=_mpl_text(en))
+        ax.scatter([vals[i] for i in bad], [ys[i] for i in bad], color=col, s=30, marker="x")
+        lim = limits[limits["engine"] == en]
+        if len(lim) and lim.iloc[0]["limit_outcome"] == "found":
+            ax.axvline(float(lim.iloc[0]["limit_value"]), color=col, ls="--", lw=1.2)
+    ax.set_ylim(ymin, ymax)
+    ax.set_xlabel(_mpl_text(param))
+    ax.set_ylabel(_mpl_text(metric or "primary error") + " (phase 0)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.scatter([], [], color="0.3", marker="x", s=30, label="fails")
+    ax.legend(fontsize=8, loc="best", framealpha=0.85)
     return _png(fig)
 
 
@@ -1124,7 +1462,7 @@ th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:to
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .warn{background:#fff4d6;border:1px solid #e0b000;padding:.5em 1em;margin:1em 0}
 .note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
-.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:640px}
+.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:1180px}
 .wp img,.hist img{max-width:100%}figcaption{font-size:.8em;color:#444}
 .cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
 code{background:#f4f4f4;padding:0 .2em}
@@ -1162,7 +1500,11 @@ def _header_html(df: pd.DataFrame) -> str:
     machines = []
     for mid, g in df.groupby("machine_id", sort=True):
         last = g.iloc[-1]
-        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"), ("cores", "machine.cores"),
+        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"),
+                                                         ("family/model", "machine.cpu_family_model"),
+                                                         ("flags", "machine.cpu_flags"), ("cores", "machine.cores"),
+                                                         ("BLAS", "machine.blas"), ("numpy", "machine.numpy"),
+                                                         ("scipy", "machine.scipy"), ("env", "machine.env_id"),
                                                          ("platform", "machine.platform"),
                                                          ("python", "machine.python"))
                          if c in g.columns and not _missing(last[c]))
@@ -1258,6 +1600,119 @@ def _cost_html(ct: pd.DataFrame) -> str:
                       "vs cheapest"], rows, raw=True))
 
 
+def _rung(t: float) -> str:
+    return f"{t:.0e}".replace("e-0", "e-")
+
+
+def _ladder_html(lad: pd.DataFrame) -> str:
+    if lad.empty:
+        return ""
+    rungs = sorted(set(lad["rung"]), reverse=True)
+    rows = []
+    for (sc, va, en), g in lad.groupby(["scenario", "variant", "engine"], sort=True):
+        by = {r["rung"]: r for r in g.to_dict("records")}
+        cells = [_e(sc) + (f" / {_e(va)}" if va else ""), f"<span style='color:{engine_colour(en)}'>"
+                 f"<b>{_e(en)}</b></span>", _e(next((m for m in g["primary_metric"] if m), "?"))]
+        for t in rungs:
+            r = by.get(t)
+            if r is None:
+                cells.append("-")
+            elif r["reached"]:
+                ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({fmt(r['ratio'], 2)}x)"
+                best = " <span class='good'>cheapest</span>" if r["ratio"] == 1 else ""
+                cells.append(f"{_e(fmt(r['cost']))}{_e(ratio)}{best}<br><span class='note'>"
+                             f"{_e(r['settings'])}</span>")
+            else:
+                where = (f"best {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
+                                                           if r["best_error_settings"] else "")
+                         if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+                cells.append(f"<span class='bad'>not reached</span><br><span class='note'>{_e(where)}</span>")
+        rows.append(cells)
+    return ("<h3>Accuracy ladder</h3><p class='note'>Per engine, the CPU s per simulated s of its cheapest "
+            "configuration (latest sweep) whose primary error is at most each rung, the factor over the cheapest "
+            "engine and the configuration; where it is not reached, the best error the engine reached and with "
+            "which settings.</p>"
+            + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
+
+
+def _glance_html(df: pd.DataFrame) -> str:
+    ag = at_a_glance(df)
+    bp = breaking_points(df)
+    parts = []
+    if ag.empty:
+        parts.append("<p class='note'>No sweep rows with a primary error: no accuracy ladder.</p>")
+    else:
+        rungs = sorted(set(ag["rung"]), reverse=True)
+        rows = []
+        for fam, g in ag.groupby("family", sort=True):
+            by = {r["rung"]: r for r in g.to_dict("records")}
+            cells = [f"<b>{_e(fam)}</b>"]
+            for t in rungs:
+                r = by.get(t)
+                if r is None or not r["reached"]:
+                    n = r["scenarios"] if r is not None else 0
+                    cells.append(f"<span class='bad'>none</span> <span class='note'>(0/{n})</span>")
+                    continue
+                w = ", ".join(f"<span style='color:{engine_colour(e)}'><b>{_e(e)}</b></span>"
+                              + (f" {k}" if len(r["wins"]) > 1 or k > 1 else "") for e, k in r["wins"].items())
+                cells.append(f"{w} <span class='note'>({r['reached']}/{r['scenarios']})</span>")
+            rows.append(cells)
+        parts.append("<p class='note'>Cheapest engine to reach each accuracy of the primary metric, per scenario "
+                     "family (how many of the family's scenarios it is cheapest in; in brackets, in how many "
+                     "scenarios any engine reached the accuracy). Details: <a href='#cost-to-target'>accuracy "
+                     "ladder</a>.</p>"
+                     + _table(["family"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
+    if bp.empty:
+        parts.append("<p class='note'>No breaking-point searches stored (<code>physbench limits</code> or a "
+                     "suite's <code>[[limit]]</code> blocks).</p>")
+    else:
+        engines = sorted(set(bp["engine"]))
+        rows = []
+        for (sc, va, par), g in bp.groupby(["scenario", "variant", "limit_param"], sort=True):
+            rows.append([_e(sc) + (f" / {_e(va)}" if va else ""), f"<code>{_e(par)}</code>"]
+                        + _engine_cells(g, engines, lambda r: _e(fmt_limit(r, short=True))))
+        parts.append("<p class='note'>Breaking points: the last value of the parameter at which the scene still "
+                     "met its checks and stayed stable (\u2264: holds below; \u2265: holds above). Brackets and "
+                     "the check that failed: <a href='#breaking-points'>Breaking points</a>.</p>"
+                     + _table(["scenario", "parameter"] + [f"{e}" for e in engines], rows, raw=True))
+    return "\n".join(parts)
+
+
+def _breaking_html(df: pd.DataFrame) -> str:
+    bp = breaking_points(df)
+    if bp.empty:
+        return ("<p class='note'>No breaking-point searches stored. <code>physbench limits SCENARIO --engine E "
+                "--param KEY --range LO HI</code> or a suite's <code>[[limit]]</code> block fills this in.</p>")
+    evals = _limit_rows(df, "limit_eval")
+    parts = ["<p class='note'>Each search walks the parameter from the end where the scene holds (met every "
+             "check, stayed stable, in every step phase) towards the other in steps of at most a factor 2, then "
+             "bisects the first failing step to the search's tolerance. Limit: the last value that held; "
+             "bracket: it and the nearest value that failed; the check that failed there.</p>"]
+    for (sc, va, par), g in bp.groupby(["scenario", "variant", "limit_param"], sort=True):
+        rows = []
+        for r in g.to_dict("records"):
+            rows.append([f"<span style='color:{engine_colour(r['engine'])}'><b>{_e(r['engine'])}</b></span>",
+                         _e(fmt_limit(r)), _e(r["limit_failed_check"] or "-")[:300],
+                         _e(fmt(r["limit_runs"])), _e(fmt(r["limit_cpu_s"])),
+                         _e(f"[{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}], {fmt(r['limit_phases'])} "
+                            "phase(s)")])
+        ids = set(g["limit_id"])
+        ev = evals[evals["limit_id"].isin(ids)] if len(evals) and "limit_id" in evals.columns else evals
+        metric = next((m for m in ev["primary_metric"] if m), None) if len(ev) else None
+        b64 = plot_breaking_point(ev, g, par, metric) if len(ev) else None
+        title = sc + (f" / {va}" if va else "")
+        over = next((o for o in g["limit_overrides"] if o and o != "{}"), None)
+        parts.append(f"<h3>{_e(title)}: <code>{_e(par)}</code></h3>"
+                     + (f"<p class='note'>with {_e(over)}</p>" if over else "")
+                     + _table(["engine", "limit [bracket]", "failed just past it", "runs", "CPU s", "range"],
+                              rows, raw=True)
+                     + (f"<figure class='wp'>{_img(b64, f'breaking point {title} {par}')}<figcaption>The "
+                        f"primary error along <code>{_e(par)}</code>: dots held, crosses failed; dashed, each "
+                        "engine's limit; a failed run without an error is drawn at the top.</figcaption></figure>"
+                        if b64 else ""))
+    return "\n".join(parts)
+
+
 def _colour(frac: float, n_supported: int) -> str:
     if n_supported == 0 or not math.isfinite(frac):
         return "#e6e6e6"
@@ -1279,7 +1734,10 @@ def _stability_html(sm: pd.DataFrame) -> str:
     rows = []
     def cell(r) -> str:
         supported = r["points"] - r["unsupported"]
-        txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ok &amp; stable"]
+        txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ran &amp; stayed finite",
+               f"<b>{r['met_checks']}/{r['points']}</b> met its checks"
+               + (f" <span class='bad'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
+                  if r["checks_failed"] else "")]
         for k in ("unstable", "diverged", "error", "unsupported", "other"):
             if r[k]:
                 txt.append(f"{r[k]} {k}")
@@ -1287,17 +1745,22 @@ def _stability_html(sm: pd.DataFrame) -> str:
             txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
         if _finite(r["min_unstable_dt"]):
             txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
-        frac = r["ok_stable"] / supported if supported else math.nan
+        if _finite(r["max_met_dt"]):
+            txt.append(f"checks met up to dt {fmt(r['max_met_dt'])}")
+        frac = r["met_checks"] / supported if supported else math.nan
         return (f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
                 + "<br>".join(txt) + "</div>")
 
     for (sc, va), g in sm.groupby(["scenario", "variant"], sort=True):
         rows.append([_e(sc) + (f" / {_e(va)}" if va else "")] + _engine_cells(g, engines, cell))
     sel = sm.attrs.get("selection", "")
-    return (f"<p class='note'>Showing {_e(sel)}. Per cell: points that ran ok and stable out of all points "
-            "(latest sweep points and latest <code>physbench check</code> rows), counts of the other outcomes, "
-            "the largest dt at which the engine stayed ok and stable, and the smallest dt at which it did not. "
-            "Colour: share of supported points ok and stable (red 0 .. green 1; grey: unsupported).</p>"
+    return (f"<p class='note'>Showing {_e(sel)}. Per cell: points that ran (status ok) and stayed finite and "
+            "stable, out of all points (latest sweep points and latest <code>physbench check</code> rows); of "
+            "those, the points that also met every check of the scenario (an expected failure, xfail, is still "
+            "a check not met: it says the engine is known not to hold the scene), and which checks failed; counts "
+            "of the other outcomes; the largest dt at which the engine stayed ok and stable, the smallest at "
+            "which it did not, the largest at which it met its checks. "
+            "Colour: share of supported points that met their checks (red 0 .. green 1; grey: unsupported).</p>"
             + _table(["scenario"] + engines, rows, raw=True))
 
 
@@ -1338,9 +1801,10 @@ def _phase_html(pt: pd.DataFrame) -> str:
 
 def _history_html(df: pd.DataFrame) -> str:
     hist = history(df)
+    changed = "".join(f"<p class='note'>{_e(line)}</p>" for line in scene_change_lines(scene_changes(df)))
     if not hist:
-        return ('<p class="note">No point is in two sweeps of the same suite on the same machine yet: '
-                "history starts with the second sweep.</p>")
+        return changed + ('<p class="note">No point is in two sweeps of the same suite on the same machine with '
+                          "the same scene content yet: history starts with the second sweep.</p>")
     reg = regressions(df, hist)
     shifts = {k: f for k, f in machine_shifts(df, hist).items() if abs(f - 1.0) >= 0.02}
     parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
@@ -1360,7 +1824,8 @@ def _history_html(df: pd.DataFrame) -> str:
              "An accuracy change when the primary error differs from the "
              "best earlier one "
              f"by more than {NOISE_FLOOR:.0%} and {ERROR_ABS_FLOOR:g} absolute; a status change from ok to anything "
-             "else is a regression.</p>"]
+             "else is a regression. A point is compared only with sweeps of the same scene content (its "
+             "scene hash): a changed scene starts a new series.</p>", changed]
     for (mid, suite, sid), f in sorted(shifts.items()):
         parts.append(f"<p class='note'>Machine-wide factor {_e(mid)} / {_e(suite)} / {_e(sid)}: every series ran "
                      f"{f - 1.0:+.1%} against its baseline (median over the series); taken out of the cost "
@@ -1443,12 +1908,16 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
         sections.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
                         "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
                         "write.</div>")
-        body = {k: '<p class="note">No results.</p>' for k in ("wp", "cost", "stab", "phase", "hist")}
+        body = {k: '<p class="note">No results.</p>' for k in ("glance", "wp", "cost", "stab", "phase", "hist",
+                                                               "limits")}
         header = ""
     else:
         header = _header_html(df)
-        body = {"wp": _wp_html(work_precision(df, target=target, targets=targets)),
-                "cost": _cost_html(cost_to_target(df, targets=targets, target=target)),
+        body = {"glance": _glance_html(df),
+                "wp": _wp_html(work_precision(df, target=target, targets=targets)),
+                "cost": _ladder_html(ladder(df)) + "<h3>At each scenario's own target</h3>"
+                        + _cost_html(cost_to_target(df, targets=targets, target=target)),
+                "limits": _breaking_html(df),
                 "stab": _stability_html(stability_matrix(df)),
                 "phase": _phase_html(phase_table(df)),
                 "hist": _history_html(df)}
@@ -1462,9 +1931,11 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
 <h1>physbench report</h1>
 <p class="note">Generated {_e(generated)} from stored results{where}.</p>
 {''.join(sections)}
+<section id="at-a-glance"><h2>At a glance</h2>{body['glance']}</section>
 <section id="header"><h2>What this covers</h2>{header or '<p class="note">Nothing.</p>'}</section>
 <section id="work-precision"><h2>Work-precision diagrams</h2>{body['wp']}</section>
 <section id="cost-to-target"><h2>Cost to reach the target accuracy</h2>{body['cost']}</section>
+<section id="breaking-points"><h2>Breaking points</h2>{body['limits']}</section>
 <section id="stability"><h2>Stability matrix</h2>{body['stab']}</section>
 <section id="phases"><h2>Hard cases over step phases</h2>{body['phase']}</section>
 <section id="history"><h2>History across runs</h2>{body['hist']}</section>
@@ -1514,6 +1985,8 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
         return 1
     print(out)
     reg = regressions(df)
+    for line in scene_change_lines(scene_changes(df)):
+        print(f"note: {line}")
     for (mid, suite, sid), f in sorted(machine_shifts(df).items()):
         if abs(f - 1.0) >= 0.02:
             print(f"note: {mid} / {suite} / {sid}: every series ran {f - 1.0:+.0%} against its baseline "

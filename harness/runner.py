@@ -14,8 +14,8 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import math
+import numbers
 import os
-import platform
 import subprocess
 import time
 import traceback
@@ -26,6 +26,7 @@ import numpy as np
 
 from adapters import get_adapter
 from harness.scene import Scene, n_steps
+from harness.spec import record_size_error
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -84,10 +85,16 @@ class RunResult:
     stages: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
-    machine: dict[str, str] = field(default_factory=dict)
+    #: the environment fingerprint's summary: every row names its machine,
+    #: also rows made without a run (load errors, dead workers)
+    machine: dict[str, str] = field(default_factory=lambda: machine_info())
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
+    #: the scene's content hash (harness.scene.content_hash) and the spec
+    #: file it was loaded from ('' when unknown)
+    scene_hash: str = ""
+    scene_path: str = ""
     #: the engine's own contacts per recorded frame, only when the run was
     #: traced with ``contact_cap``: [(frame, (k, 7) rows of
     #: Adapter.contacts(), k <= cap, deepest first)]; None when not asked
@@ -100,6 +107,8 @@ class RunResult:
         out: dict[str, Any] = {
             "scenario": self.scenario,
             "variant": self.variant,
+            "scene_hash": self.scene_hash,
+            "scene_path": self.scene_path,
             "engine": self.engine,
             "engine_version": self.engine_version,
             "status": self.status,
@@ -153,15 +162,16 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
-@functools.lru_cache(maxsize=1)
 def machine_info() -> dict[str, str]:
-    return {
-        "host": platform.node(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu": platform.processor() or platform.machine(),
-        "cores": str(os.cpu_count()),
-    }
+    """A row's ``machine.*`` columns: the environment fingerprint's flat
+    summary (harness/fingerprint.py: ``id`` is the machine id sweeps file
+    under, ``env_id`` adds the library stack; CPU model, family/model,
+    arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
+    One mechanism for check, run and sweep rows
+    (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
+    from harness.fingerprint import summary
+
+    return dict(summary())
 
 
 @functools.lru_cache(maxsize=1)
@@ -201,6 +211,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,
         status="ok", message="", settings=resolved, machine=machine_info(), commit=commit_id(),
         timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        scene_hash=scene.content_hash, scene_path=scene.source,
     )
     reason = cls.unsupported_reason(scene)
     if reason is not None:
@@ -211,7 +222,13 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
-    record_every = max(1, int(record_every))
+    if not isinstance(record_every, numbers.Integral) or record_every < 1:
+        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
+    record_every = int(record_every)
+    # bounded before anything is allocated (tests/test_fuzz.py::test_record_bound_before_allocation)
+    too_big = record_size_error(steps, scene.n_bodies, record_every)
+    if too_big:
+        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
     n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
     trace = Trace.allocate(n_frames, scene.n_bodies)
     result.trace = trace
@@ -235,6 +252,10 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         _finish(result, adapter, scene, trace, compute_metrics, dt)
         return result
     result.timing["setup_s"] = time.perf_counter() - t0
+    # compile time of a JIT-compiled engine (within setup_s, never in step_cpu_s)
+    jit_s = (adapter.stages() or {}).get("jit_s")
+    if jit_s is not None:
+        result.timing["jit_s"] = float(jit_s)
 
     cpu0 = time.process_time()
     wall0 = time.perf_counter()
@@ -375,7 +396,13 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         try:
             result.metrics.update(_metrics(scene, trace.valid(), dt=dt))
         except Exception as e:
-            result.notes.append(f"metrics failed: {type(e).__name__}: {e}")
+            # no ok without its metrics: a run whose metrics cannot be
+            # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)
+            why = f"metrics failed: {type(e).__name__}: {e}"
+            if result.status == "ok":
+                result.status, result.message = "error", why
+            else:
+                result.notes.append(why)
             result.info["metrics_traceback"] = traceback.format_exc(limit=5)
         result.timing["metrics_s"] = time.perf_counter() - t0
         if result.status == "ok" and result.metrics.get("stable") is False:

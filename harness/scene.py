@@ -13,6 +13,9 @@ axes (a capsule or cylinder lies along its local z).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +25,9 @@ import numpy as np
 
 from harness.spec import (
     BodySection,
+    bound_error,
     LoadedSpec,
+    ModelRefusal,
     SpecError,
     SpecModel,
     load_spec,
@@ -161,8 +166,25 @@ class Scene:
     variant_names: tuple[str, ...] = ()
     #: step phases the conformance checks run over (``[scenario] phases``)
     phases: int = 1
+    #: :func:`content_hash` of the scene as compiled (kept by
+    #: ``dataclasses.replace``, so a step-phase shift keeps the hash of the
+    #: scene as written; the phase is recorded beside it)
+    content_hash: str = ""
 
     # ---- derived, engine-neutral helpers ---------------------------------
+
+    @property
+    def source(self) -> str:
+        """The spec file as recorded in rows: relative to the repository
+        when inside it (scenarios/...), else absolute; '' for an inline
+        spec.  :func:`source_path` reads it back."""
+        if self.path is None:
+            return ""
+        p = Path(self.path).resolve()
+        try:
+            return p.relative_to(REPO_ROOT).as_posix()
+        except ValueError:
+            return str(p)
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
@@ -388,10 +410,19 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         r = b.radius or 0.0
         h = b.half_length or 0.0
         mass = b.mass if b.mass is not None else b.density * shape_volume(b.shape, r, he, h)
+        why = bound_error("mass", mass)
+        if why:
+            errs.append(f"{label}: body[{bi}].density: the mass it gives (density x volume) {why}")
+            continue
         inertia = principal_inertia(b.shape, mass, r, he, h)
         for name, pos in expand_pattern(b):
             if name in seen:
                 errs.append(f"{label}: body[{bi}].name: pattern makes a duplicate body name {name!r}")
+            far = next((float(c) for c in pos if bound_error("position", float(c))), None)
+            if far is not None:
+                errs.append(f"{label}: body[{bi}].pattern: body {name!r} at {pos.tolist()}: position "
+                            f"{bound_error('position', far)}")
+                break
             seen.add(name)
             bodies.append(Body(
                 index=len(bodies), name=name, shape=b.shape, mass=float(mass), inertia=inertia,
@@ -463,6 +494,17 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         variant_names=variant_names,
         phases=sc.phases,
     )
+    # the reference model must accept the scene, and every checked metric
+    # must be produced for it (tests/test_models.py)
+    from harness.references import model_refusal, scene_errors
+
+    errs = model_refusal(scene, label)
+    if errs:
+        raise ModelRefusal(errs)
+    errs = scene_errors(scene, label)
+    if errs:
+        raise SpecError(errs)
+    scene = dataclasses.replace(scene, content_hash=content_hash(scene))
     if scene.phases > 1:
         # every phase must be runnable: the start must be free flight
         from harness.phase import PhaseError, shift_scene
@@ -475,6 +517,57 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     return scene
 
 
+# Scene fields that say what is simulated and measured; everything else
+# (id, path, title, tags, checks, variants, phases) names or judges a
+# scene without changing any number a run records.
+_CONTENT_FIELDS = ("duration", "dt", "effects", "planar", "gravity_vector", "primary_metric", "materials",
+                   "bodies", "statics", "springs", "reference_model", "reference_params")
+
+
+def _canonical(v: Any) -> Any:
+    """JSON-able canonical form: floats by repr (exact round trip, -0.0 as
+    0.0), arrays as lists, sets sorted, dataclasses as field dicts."""
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _canonical(getattr(v, f.name)) for f in dataclasses.fields(v)}
+    if isinstance(v, dict):
+        return {str(k): _canonical(x) for k, x in sorted(v.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(v, (frozenset, set)):
+        return sorted(_canonical(x) for x in v)
+    if isinstance(v, np.ndarray):
+        return [_canonical(x) for x in v.tolist()]
+    if isinstance(v, (list, tuple)):
+        return [_canonical(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v) + 0.0)
+    return v
+
+
+def content_hash(scene: Scene) -> str:
+    """16 hex digits of sha256 over the compiled scene's content (the spec
+    after its variant and overrides, patterns expanded): the same for the
+    same physics and measurement whatever the file's name, path, layout or
+    comments, different when anything simulated or measured changes (a
+    friction coefficient, a body, dt, the reference model's params).  Checks,
+    title and tags are left out: they judge or name the numbers, they do not
+    change them.  Engine settings are not scene content (rows and point keys
+    carry them apart).  Pinned by tests/test_scene_identity.py."""
+    doc = {k: _canonical(getattr(scene, k)) for k in _CONTENT_FIELDS}
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def source_path(source: str) -> Path | None:
+    """A row's ``scene_path`` (:attr:`Scene.source`) -> the file, or None."""
+    if not source:
+        return None
+    p = Path(source)
+    return p if p.is_absolute() else REPO_ROOT / p
+
+
 def resolve_scenario(name: str | Path) -> Path:
     """A scenario id ('billiards.head_on') or a path -> the spec file's path."""
     p = Path(name)
@@ -484,8 +577,38 @@ def resolve_scenario(name: str | Path) -> Path:
     cand = SCENARIO_DIR.joinpath(*parts).with_suffix(".toml")
     if cand.is_file():
         return cand
-    known = ", ".join(scenario_ids()) or "none"
-    raise SpecError([f"{name}: <scenario>: no spec file and no scenario with this id; known ids: {known}"])
+    import difflib
+
+    ids = scenario_ids()
+    near = difflib.get_close_matches(str(name), ids, n=3, cutoff=0.6)
+    hint = f"did you mean {', '.join(near)}? " if near else ""
+    raise SpecError([f"{name}: <scenario>: no spec file and no scenario with this id; {hint}"
+                     f"{len(ids)} scenarios are known ('physbench list' names them)"])
+
+
+def spec_targets(entry: str | Path, base: Path | None = None) -> list[str]:
+    """One selection entry -> the specs it names: a scenario id stays the
+    id; a spec file (``*.toml``, anywhere) is its path; a folder is every
+    ``*.toml`` below it (sorted, hidden files skipped).  Relative paths are
+    taken from ``base`` when given (a suite file's folder), else from the
+    working directory.  Anything else raises SpecError naming the entry."""
+    text = str(entry)
+    p = Path(text)
+    if base is not None and not p.is_absolute():
+        p = base / p
+    pathlike = p.suffix == ".toml" or "/" in text or p.exists()
+    if p.is_dir():
+        files = sorted(q for q in p.rglob("*.toml")
+                       if not any(part.startswith(".") for part in q.relative_to(p).parts))
+        if not files:
+            raise SpecError([f"{text}: <scenario>: a folder without spec files (*.toml)"])
+        return [str(q) for q in files]
+    if pathlike:
+        if not p.is_file():
+            raise SpecError([f"{text}: <scenario>: no such spec file" + (f" (looked for {p})" if p != Path(text) else "")])
+        return [str(p)]
+    resolve_scenario(text)  # an id: raises SpecError naming the known ones
+    return [text]
 
 
 def canonical_example() -> Path:

@@ -8,7 +8,10 @@ Every error names the file, the key path and what was expected, e.g.::
 
     scenarios/billiards/head_on.toml: body[1].mass: must be > 0, got -1
 
-Unknown keys, effects and shapes are errors.
+Unknown keys, effects and shapes are errors.  Every number must be finite,
+and physical quantities must lie within the bounds of :data:`BOUNDS`
+(documented in the bounds table of ``docs/SCENARIO_FORMAT.md``; the test
+``tests/test_fuzz.py::test_bounds_table_matches_docs`` keeps the two equal).
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+from harness.references import ReferenceError
 
 EFFECTS = (
     "gravity",
@@ -57,6 +62,107 @@ _ALL_DIMENSIONS = ("radius", "half_extents", "half_length")
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
+# --------------------------------------------------------------------------
+# physical bounds: a value outside them is a mistake (or a unit slip), and the
+# engines would meet it as overflow, a warning flood or a diverged run.
+# (lo, hi, unit, what); a vector's bound applies to its norm or components as
+# the key's check says.  Speeds stay a decade below the runner's runaway
+# threshold (harness/runner.py RUNAWAY_SPEED = 1e6), positions below its
+# RUNAWAY_POSITION = 1e6 (pinned by tests/test_fuzz.py::test_bounds_below_runaway).
+
+BOUNDS: dict[str, tuple[float, float, str, str]] = {
+    "length": (1e-6, 1e4, "m", "radius, half_extents, half_length of bodies and static boxes"),
+    "position": (-1e5, 1e5, "m", "each component of positions, points, spring anchors, pattern spacing; "
+                                  "plane offset; every body after pattern expansion"),
+    "mass": (1e-9, 1e9, "kg", "mass, and the mass a density gives"),
+    "density": (1e-3, 1e6, "kg/m^3", "density"),
+    "speed": (0.0, 1e5, "m/s", "norm of a body's velocity"),
+    "angular_speed": (0.0, 1e5, "rad/s", "norm of a body's angular_velocity"),
+    "gravity": (0.0, 1e4, "m/s^2", "norm of scenario.gravity"),
+    "dt": (1e-7, 1.0, "s", "scenario.dt (the engines' dt setting has the same range)"),
+    "duration": (1e-7, 1e6, "s", "scenario.duration"),
+    "friction": (0.0, 100.0, "", "friction, static_friction"),
+    "rolling_friction": (0.0, 1e4, "m", "rolling_friction (a lever arm)"),
+    "drag": (0.0, 1e9, "N s/m, N s^2/m^2", "drag_linear, drag_quadratic"),
+    "stiffness": (0.0, 1e12, "N/m", "spring stiffness"),
+    "damping": (0.0, 1e9, "N s/m", "spring damping"),
+    "rest_length": (0.0, 1e5, "m", "spring rest_length"),
+    "normal": (1e-12, 1e5, "", "norm of a plane's normal (it is normalised)"),
+    "bodies": (1, 10_000, "", "bodies in a scene after pattern expansion (count, counts)"),
+    "steps": (1, 100_000_000, "", "steps of a run: duration / dt"),
+    "recorded_bytes": (0, 1 << 30, "bytes", "recorded state of a run: frames x (8 + bodies x 13 x 8)"),
+}
+
+
+def bound_error(kind: str, value: float, *, norm: bool = False) -> str | None:
+    """The complaint about ``value`` against ``BOUNDS[kind]``, or None when
+    it lies within them (inclusive).  ``norm``: the value is a vector's norm."""
+    lo, hi, unit, _ = BOUNDS[kind]
+    if lo <= value <= hi:  # exact for ints of any size; False for nan
+        return None
+    u = f" {unit}" if unit else ""
+    what = "norm " if norm else ""
+    got = f"{value:g}" if isinstance(value, float) or abs(value) < 10**15 else f"an integer of {len(str(abs(value)))} digits"
+    if lo <= 0.0 and kind not in ("position",):
+        return f"{what}must be <= {hi:g}{u}, got {got}"
+    return f"{what}must be within [{lo:g}, {hi:g}]{u}, got {got}"
+
+
+def _bounded(kind: str, v: float | None) -> float | None:
+    if v is not None:
+        msg = bound_error(kind, v)
+        if msg:
+            raise ValueError(msg)
+    return v
+
+
+def _bounded_each(kind: str, v: tuple[float, ...] | None) -> tuple[float, ...] | None:
+    if v is not None:
+        for i, c in enumerate(v):
+            msg = bound_error(kind, c)
+            if msg:
+                raise ValueError(f"[{i}] {msg}")
+    return v
+
+
+def _bounded_norm(kind: str, v: tuple[float, ...] | None) -> tuple[float, ...] | None:
+    if v is not None:
+        n = math.hypot(*v)  # inf, not OverflowError, past 1e154
+        msg = bound_error(kind, n, norm=True)
+        if msg:
+            raise ValueError(f"{msg}: {list(v)}")
+    return v
+
+
+def _bound(kind: str, how: str = "value") -> Any:
+    """A field validator holding the field(s) to ``BOUNDS[kind]``: the value
+    itself, each component (``how="each"``) or the norm (``"norm"``).
+    None (an absent optional key) passes."""
+    check = {"value": _bounded, "each": _bounded_each, "norm": _bounded_norm}[how]
+
+    def validate(cls: Any, v: Any) -> Any:
+        return check(kind, v)
+
+    return validate
+
+
+def record_size_error(n_steps: int, n_bodies: int, record_every: int = 1) -> str | None:
+    """Why a run of ``n_steps`` steps recording ``n_bodies`` bodies every
+    ``record_every`` steps is too large to allocate (BOUNDS 'steps' and
+    'recorded_bytes'), or None.  Checked before anything is allocated: at
+    load (the scene's own dt, every step) and by the runner (its dt and
+    record_every)."""
+    max_steps = int(BOUNDS["steps"][1])
+    if n_steps > max_steps:
+        return f"{n_steps:.4g} steps (duration / dt) exceed the bound of {max_steps:.4g} steps"
+    frames = n_steps // max(1, record_every) + 2
+    nbytes = frames * (8 + n_bodies * 13 * 8)
+    cap = int(BOUNDS["recorded_bytes"][1])
+    if nbytes > cap:
+        return (f"recording {frames} frames of {n_bodies} bodies takes {nbytes / 2**20:.4g} MiB, beyond the "
+                f"bound of {cap / 2**20:g} MiB (record fewer frames, a shorter duration or a larger dt)")
+    return None
+
 
 class SpecError(ValueError):
     """A scenario spec failed to load.  ``errors`` holds one line per problem,
@@ -67,8 +173,15 @@ class SpecError(ValueError):
         super().__init__("\n".join(self.errors))
 
 
+class ModelRefusal(SpecError, ReferenceError):
+    """The scene's reference model refused the scene at load time: a spec
+    error (file, key path, exit 2) that is also the model's
+    :class:`harness.references.ReferenceError`."""
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    # allow_inf_nan=False: every float in a spec is finite ('finite_number')
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
 
 
 def _finite(v: float, what: str = "a finite number") -> float:
@@ -93,6 +206,11 @@ class ScenarioSection(_Strict):
     #: moved back along the free flight by i/N dt, every one must pass
     phases: int = Field(default=1, ge=1, le=256)
 
+    @field_validator("family")
+    @classmethod
+    def _family_plain(cls, v: str) -> str:
+        return _plain(v)
+
     @field_validator("effects")
     @classmethod
     def _effects_known(cls, v: list[str]) -> list[str]:
@@ -105,12 +223,20 @@ class ScenarioSection(_Strict):
             raise ValueError(f"effects are listed twice: {v}")
         return v
 
+    _duration_bounded = field_validator("duration")(_bound("duration"))
+    _dt_bounded = field_validator("dt")(_bound("dt"))
+    _gravity_bounded = field_validator("gravity")(_bound("gravity", "norm"))
+
     @model_validator(mode="after")
     def _dt_fits(self) -> "ScenarioSection":
         if self.dt > self.duration:
             raise ValueError(
                 f"dt ({self.dt}) must not exceed duration ({self.duration})"
             )
+        steps = round(self.duration / self.dt)
+        if steps > BOUNDS["steps"][1]:
+            raise ValueError(f"duration / dt = {self.duration:g} / {self.dt:g}: "
+                             f"{record_size_error(int(steps), 1)}")
         return self
 
 
@@ -119,6 +245,9 @@ class MaterialSection(_Strict):
     friction: float = Field(default=0.0, ge=0.0)
     static_friction: float | None = Field(default=None, ge=0.0)
     rolling_friction: float = Field(default=0.0, ge=0.0)
+
+    _friction_bounded = field_validator("friction", "static_friction")(_bound("friction"))
+    _rolling_bounded = field_validator("rolling_friction")(_bound("rolling_friction"))
 
     @model_validator(mode="after")
     def _static_ge_kinetic(self) -> "MaterialSection":
@@ -137,6 +266,22 @@ class PatternSection(_Strict):
     spacing: float | Vec3 | None = None
     gap: float = Field(default=0.0, ge=0.0)
 
+    _count_bounded = field_validator("count")(_bound("bodies"))
+    _counts_bounded = field_validator("counts")(_bound("bodies", "each"))
+    _gap_bounded = field_validator("gap")(_bound("position"))
+
+    @field_validator("spacing")
+    @classmethod
+    def _spacing_bounded(cls, v: float | Vec3 | None) -> float | Vec3 | None:
+        return _bounded("position", v) if isinstance(v, (int, float)) else _bounded_each("position", v)
+
+    def n_bodies(self) -> int:
+        """Bodies the pattern makes (pyramid: count levels, a rack: count rows)."""
+        if self.kind == "grid":
+            return math.prod(self.counts or (1,))
+        n = self.count or 1
+        return n * (n + 1) // 2 if self.kind in ("pyramid", "rack") else n
+
     @model_validator(mode="after")
     def _counts(self) -> "PatternSection":
         if self.kind == "grid":
@@ -152,6 +297,30 @@ class PatternSection(_Strict):
             if self.counts is not None:
                 raise ValueError(f"kind {self.kind!r} takes count, not counts")
         return self
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def name_error(name: str) -> str | None:
+    """Why ``name`` cannot name a body, static, material, variant or family,
+    or None.  Any text is a name (quotes, '<', '&', long names: adapters
+    escape them, tests/test_fuzz.py::test_hostile_names_run) except control
+    characters: names land in tables, logs, JUnit XML (XML 1.0 cannot hold
+    most of them) and rerun entity paths."""
+    m = _CONTROL.search(name)
+    if m:
+        return (f"must not contain control characters (newline, tab, NUL, ...), got {m.group()!r} at "
+                f"index {m.start()} of {name[:60]!r}{'...' if len(name) > 60 else ''}")
+    return None
+
+
+def _plain(v: str | None) -> str | None:
+    if v is not None:
+        msg = name_error(v)
+        if msg:
+            raise ValueError(msg)
+    return v
 
 
 def _check_quat(q: tuple[float, ...]) -> tuple[float, ...]:
@@ -189,12 +358,25 @@ class BodySection(_Strict):
             )
         return v
 
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str) -> str:
+        return _plain(v)
+
     @field_validator("half_extents")
     @classmethod
     def _positive_extents(cls, v: Vec3 | None) -> Vec3 | None:
         if v is not None and any(c <= 0 for c in v):
             raise ValueError(f"must be > 0 in every component, got {list(v)}")
-        return v
+        return _bounded_each("length", v)
+
+    _length_bounded = field_validator("radius", "half_length")(_bound("length"))
+    _mass_bounded = field_validator("mass")(_bound("mass"))
+    _density_bounded = field_validator("density")(_bound("density"))
+    _position_bounded = field_validator("position")(_bound("position", "each"))
+    _speed_bounded = field_validator("velocity")(_bound("speed", "norm"))
+    _angular_speed_bounded = field_validator("angular_velocity")(_bound("angular_speed", "norm"))
+    _drag_bounded = field_validator("drag_linear", "drag_quadratic")(_bound("drag"))
 
     @field_validator("orientation")
     @classmethod
@@ -241,6 +423,29 @@ class StaticSection(_Strict):
     def _unit(cls, v: Quat | None) -> Quat | None:
         return None if v is None else _check_quat(v)
 
+    _position_bounded = field_validator("position", "point")(_bound("position", "each"))
+
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str | None) -> str | None:
+        return _plain(v)
+
+    @field_validator("half_extents")
+    @classmethod
+    def _extents_bounded(cls, v: Vec3 | None) -> Vec3 | None:
+        if v is not None and any(c <= 0 for c in v):
+            raise ValueError(f"must be > 0 in every component, got {list(v)}")
+        return _bounded_each("length", v)
+
+    _offset_bounded = field_validator("offset")(_bound("position"))
+
+    @field_validator("normal")
+    @classmethod
+    def _normal_bounded(cls, v: Vec3 | None) -> Vec3 | None:
+        if v is not None and math.sqrt(sum(c * c for c in v)) < 1e-12:
+            raise ValueError("must be a non-zero vector")
+        return _bounded_norm("normal", v)
+
     @model_validator(mode="after")
     def _keys_for_shape(self) -> "StaticSection":
         allowed = {
@@ -259,10 +464,7 @@ class StaticSection(_Strict):
                 raise ValueError(f"{key} is not a key of static shape {self.shape!r}")
             if not given and key in required:
                 raise ValueError(f"static shape {self.shape!r} needs {key}")
-        if self.normal is not None and math.sqrt(sum(c * c for c in self.normal)) < 1e-12:
-            raise ValueError("normal must be a non-zero vector")
-        if self.half_extents is not None and any(c <= 0 for c in self.half_extents):
-            raise ValueError(f"half_extents must be > 0 in every component, got {list(self.half_extents)}")
+
         if self.angle is not None and not -90.0 < self.angle < 90.0:
             raise ValueError(f"angle must be in (-90, 90) degrees, got {self.angle}")
         return self
@@ -271,6 +473,25 @@ class StaticSection(_Strict):
 class ReferenceSection(_Strict):
     model: str
     params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("params")
+    @classmethod
+    def _params_finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        def walk(x: Any, where: str) -> None:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise ValueError(f"{where}: must be a finite number, got {x!r}")
+            if isinstance(x, int) and not isinstance(x, bool) and abs(x) > 2**53:
+                raise ValueError(f"{where}: must be an integer within +-2**53, got {x}")
+            if isinstance(x, dict):
+                for k, y in x.items():
+                    walk(y, f"{where}.{k}")
+            elif isinstance(x, list):
+                for i, y in enumerate(x):
+                    walk(y, f"{where}[{i}]")
+
+        for k, x in v.items():
+            walk(x, k)
+        return v
 
     @field_validator("model")
     @classmethod
@@ -292,6 +513,11 @@ class SpringSection(_Strict):
     stiffness: float = Field(default=0.0, ge=0.0)
     rest_length: float = Field(default=0.0, ge=0.0)
     damping: float = Field(default=0.0, ge=0.0)
+
+    _anchor_bounded = field_validator("anchor_a", "anchor_b")(_bound("position", "each"))
+    _stiffness_bounded = field_validator("stiffness")(_bound("stiffness"))
+    _damping_bounded = field_validator("damping")(_bound("damping"))
+    _rest_length_bounded = field_validator("rest_length")(_bound("rest_length"))
 
 
 class CheckSection(_Strict):
@@ -356,6 +582,8 @@ def _describe(err: dict[str, Any]) -> str:
         return "unknown key"
     if t == "missing":
         return "required key is missing"
+    if t == "finite_number":
+        return f"must be a finite number, got {got!r}"
     if t in ("float_parsing", "float_type"):
         return f"expected a number, got {got!r}"
     if t in ("int_parsing", "int_type", "int_from_float"):
@@ -492,7 +720,7 @@ def parse_value(text: str) -> Any:
     bare words are taken as strings."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError):
         return text
 
 
@@ -559,6 +787,10 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
     """Checks that span sections: names, material references, planar rules."""
     errs: list[str] = []
     materials = set(spec.material) | {"default"}
+    for m in spec.material:
+        why = name_error(m)
+        if why:
+            errs.append(f"{label}: material: the name {why}")
     names: dict[str, int] = {}
     for i, b in enumerate(spec.body):
         if b.name in names:
@@ -581,6 +813,7 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
             errs.append(f"{label}: spring[{i}].stiffness: the scene has springs but 'spring' is not in scenario.effects")
         if sp.damping > 0 and "damper" not in effects:
             errs.append(f"{label}: spring[{i}].damping: the spring is damped but 'damper' is not in scenario.effects")
+    errs += _material_effects(spec, label)
     if ("spring" in effects or "damper" in effects) and not spec.spring:
         errs.append(f"{label}: scenario.effects: 'spring'/'damper' listed but there is no [[spring]] table")
     for i, b in enumerate(spec.body):
@@ -611,6 +844,15 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
                 errs.append(f"{label}: static[{i}].normal: a planar scene lies in the x-z plane, so normal[1] must be 0, got {list(s.normal)}")
             if s.orientation is not None and (abs(s.orientation[1]) > 0 or abs(s.orientation[3]) > 0):
                 errs.append(f"{label}: static[{i}].orientation: a planar scene turns about y only, got {list(s.orientation)}")
+    n_bodies = sum(1 if b.pattern is None else b.pattern.n_bodies() for b in spec.body)
+    if n_bodies > BOUNDS["bodies"][1]:
+        errs.append(f"{label}: body: the scene has {n_bodies} bodies after pattern expansion, beyond the bound "
+                    f"of {BOUNDS['bodies'][1]:g}")
+    else:
+        sc = spec.scenario
+        why = record_size_error(max(1, round(sc.duration / sc.dt)), n_bodies)
+        if why:
+            errs.append(f"{label}: scenario.duration: {why}")
     for i, c in enumerate(spec.check):
         for eng in c.xfail:
             if c.engines is not None and eng not in c.engines:
@@ -621,16 +863,56 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
     return errs
 
 
+#: material coefficient -> the effect without which it would be ignored
+MATERIAL_EFFECTS = {"restitution": "restitution", "friction": "friction", "static_friction": "friction",
+                    "rolling_friction": "rolling_friction"}
+
+
+def _material_effects(spec: SpecModel, label: str) -> list[str]:
+    """A non-zero material coefficient whose effect the scene does not list
+    would be dropped by Scene.pair without a word: an error, as for body and
+    spring coefficients (tests/test_spec.py::test_material_coefficient_needs_its_effect)."""
+    effects = set(spec.scenario.effects)
+    errs = []
+    for name, m in spec.material.items():
+        for key, effect in MATERIAL_EFFECTS.items():
+            value = getattr(m, key)
+            if value and effect not in effects:
+                errs.append(f"{label}: material.{name}.{key}: set to {value!r} but {effect!r} is not in "
+                            f"scenario.effects (add the effect, or leave the coefficient out)")
+    return errs
+
+
+def read_toml(p: Path, label: str, error: type[SpecError] = SpecError) -> tuple[dict[str, Any], bytes]:
+    """The TOML document in file ``p`` and the file's bytes.  A missing file, a directory, an
+    unreadable file, bytes that are not UTF-8 and invalid TOML raise
+    ``error`` (a SpecError: exit 2) naming the file."""
+    if p.is_dir():
+        raise error([f"{label}: <file>: is a directory; expected a spec file (.toml)"])
+    if not p.is_file():
+        raise error([f"{label}: <file>: no such file"])
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise error([f"{label}: <file>: cannot read: {e.strerror or e}"]) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise error([f"{label}: <file>: not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start}); "
+                     f"expected a TOML spec"]) from None
+    try:
+        return tomllib.loads(text), data
+    except tomllib.TOMLDecodeError as e:
+        raise error([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    except RecursionError:
+        raise error([f"{label}: <toml>: not valid TOML: arrays or tables nested too deeply"]) from None
+
+
 def load_spec(path: str | Path) -> LoadedSpec:
     """Read and validate a spec file (base and every variant).  Raises SpecError."""
     p = Path(path)
     label = _display(p)
-    if not p.is_file():
-        raise SpecError([f"{label}: <file>: no such file"])
-    try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    raw, _ = read_toml(p, label, SpecError)
     variants_raw = raw.pop("variant", [])
     errors: list[str] = []
     variants: dict[str, dict[str, Any]] = {}
@@ -645,6 +927,8 @@ def load_spec(path: str | Path) -> LoadedSpec:
         if not isinstance(name, str) or not name:
             errors.append(f"{label}: variant[{i}].name: required key is missing")
             continue
+        if name_error(name):
+            errors.append(f"{label}: variant[{i}].name: {name_error(name)}")
         if name in variants:
             errors.append(f"{label}: variant[{i}].name: duplicate variant name {name!r}")
         variants[name] = {k: val for k, val in v.items() if k != "name"}

@@ -43,13 +43,11 @@ import itertools
 import json
 import math
 import os
-import platform
 import re
 import shutil
 import statistics
 import sys
 import time
-import tomllib
 import traceback
 import warnings
 from collections import deque
@@ -65,7 +63,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from harness.phase import PhaseError, phase_values, shift_scene
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
 from harness.scene import REPO_ROOT
-from harness.spec import SpecError, _display, _format_errors
+from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
+from harness.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
@@ -75,12 +74,21 @@ EXECUTORS = ("serial", "process")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
 SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
+                 "primary_threshold", "checks",
                  "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
                  "point_wall_s", "schema_version")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 #: the point setting that carries a step phase (not an engine setting)
 PHASE_KEY = "phase"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
+
+
+def plain_name(name: str) -> bool:
+    """Whether ``name`` may name a directory under the results root: letters,
+    digits, '_', '-', '.', at most 100 characters, and not starting with '.'
+    (so never '.', '..' or a hidden directory).  Pinned by
+    tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
+    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
 
 
 class SuiteError(SpecError):
@@ -95,22 +103,31 @@ class SuiteError(SpecError):
 
 
 class _Strict(BaseModel):
-    # strict: TOML is typed, so "3" for an integer is a mistake, not a number
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    # strict: TOML is typed, so "3" for an integer is a mistake, not a number;
+    # allow_inf_nan=False: every float is finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+#: bounds of a suite's measuring knobs: repeats per point, seconds per run
+MAX_REPEATS = 1000
+MAX_TIMEOUT_S = 86400.0
 
 
 class SuiteSection(_Strict):
     name: str | None = None
     description: str = ""
     engines: list[str] = Field(min_length=1)
-    repeats: int = Field(default=3, ge=1)
-    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0)
+    repeats: int = Field(default=3, ge=1, le=MAX_REPEATS)
+    timeout_s: float = Field(default=RUN_TIMEOUT_S, gt=0, le=MAX_TIMEOUT_S)
 
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
         if v is not None and not _NAME.match(v):
             raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
+        if v is not None and not plain_name(v):
+            raise ValueError(f"must be a plain name not starting with '.' and of at most 100 characters: it names "
+                             f"a directory under the results root, got {v!r}")
         return v
 
 
@@ -122,7 +139,7 @@ class SweepSection(_Strict):
     description: str = ""
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
-    repeats: int | None = Field(default=None, ge=1)
+    repeats: int | None = Field(default=None, ge=1, le=MAX_REPEATS)
     #: step phases per grid point (harness/phase.py): N runs with the start
     #: moved back along the free flight by i/N dt, i = 0 .. N-1
     phases: int = Field(default=1, ge=1, le=1024)
@@ -130,13 +147,58 @@ class SweepSection(_Strict):
     engine: dict[str, EngineSection] = Field(default_factory=dict)
 
 
+class LimitSection(_Strict):
+    """A ``[[limit]]`` table: a breaking-point search (harness/limits.py) per
+    scenario and engine."""
+
+    description: str = ""
+    scenarios: list[str] = Field(min_length=1)
+    engines: list[str] | None = None
+    #: an engine setting (dt, iterations) or a dotted spec key
+    param: str
+    range: tuple[float, float]
+    phases: int = Field(default=1, ge=1, le=1024)
+    tol: float = Field(default=0.05, gt=0, lt=1)
+    #: only checks of these metrics count (stability always does)
+    checks: list[str] = Field(default_factory=list)
+    #: fixed engine settings and dotted spec keys for every run of the search
+    set: dict[str, Any] = Field(default_factory=dict)
+    #: extra criteria: metric -> largest value that holds
+    max: dict[str, float] = Field(default_factory=dict)
+
+    @field_validator("range", mode="before")
+    @classmethod
+    def _range(cls, v: Any) -> Any:
+        # strict mode takes no int for a float: a range of [1, 1000] is meant as numbers
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                        for x in v):
+            if not all(math.isfinite(float(x)) for x in v) or not float(v[0]) < float(v[1]):
+                raise ValueError(f"expected [LO, HI], two finite numbers with LO < HI, got {v!r}")
+            return (float(v[0]), float(v[1]))
+        raise ValueError(f"expected [LO, HI], two numbers, got {v!r}")
+
+
 class SuiteModel(_Strict):
     suite: SuiteSection
-    sweep: list[SweepSection] = Field(min_length=1)
+    sweep: list[SweepSection] = Field(default_factory=list)
+    limit: list[LimitSection] = Field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------
 # the validated suite and its points
+
+
+@dataclass(frozen=True)
+class SuiteEntry:
+    """One scenario (and variant) of a block: its id (family.name, or
+    family.stem for a file outside scenarios/), the spec file when it was
+    named by path (relative to the suite file, resolved), and the scene's
+    content hash (harness.scene.content_hash) when the suite was loaded."""
+
+    scenario: str
+    variant: str | None
+    path: str | None
+    scene_hash: str
 
 
 @dataclass(frozen=True)
@@ -146,7 +208,7 @@ class SweepBlock:
     the same name replacing the common one."""
 
     index: int
-    scenarios: tuple[tuple[str, str | None], ...]
+    scenarios: tuple[SuiteEntry, ...]
     engines: tuple[str, ...]
     repeats: int
     axes: dict[str, dict[str, tuple[Any, ...]]]
@@ -164,6 +226,9 @@ class Suite:
     repeats: int
     timeout_s: float
     sweeps: tuple[SweepBlock, ...]
+    #: the ``[[limit]]`` blocks expanded: one breaking-point search
+    #: (harness.limits.LimitRequest) per (block, scenario, engine)
+    limits: tuple[Any, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -178,6 +243,11 @@ class Point:
     settings: tuple[tuple[str, Any], ...]
     repeats: int = 1
     timeout_s: float = RUN_TIMEOUT_S
+    #: the spec file (None: ``scenario`` is an id under scenarios/)
+    path: str | None = None
+    #: the scene's content hash: part of the key, so a changed scene is a
+    #: new point (and a new history series), never the old one resumed
+    scene_hash: str = ""
 
     @property
     def settings_dict(self) -> dict[str, Any]:
@@ -207,8 +277,16 @@ class Point:
     @property
     def key(self) -> str:
         """Stable identity across runs and nights:
-        ``scenario[variant]|engine|{"dt":0.001,...}``.  Repeats and timeouts
-        are not part of it (they change how a point is measured, not what)."""
+        ``scenario[variant]|engine|{"dt":0.001,...}|<scene hash>``.  Repeats
+        and timeouts are not part of it (they change how a point is
+        measured, not what); the scene's content is."""
+        return self.series_key + (f"|{self.scene_hash}" if self.scene_hash else "")
+
+    @property
+    def series_key(self) -> str:
+        """The key without the scene hash: the point's place in the suite,
+        whatever its content (the report's history splits a series where
+        the hash changes)."""
         return f"{self.label}|{self.engine}|{self.settings_json}"
 
 
@@ -229,25 +307,87 @@ def load_suite(path: str | Path) -> Suite:
     Raises SuiteError listing every problem found."""
     p = resolve_suite(path)
     label = _display(p)
-    if not p.is_file():
-        raise SuiteError([f"{label}: <file>: no such file"])
-    data = p.read_bytes()
-    try:
-        raw = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SuiteError([f"{label}: <toml>: not valid TOML: {e}"]) from None
+    raw, data = read_toml(p, label, SuiteError)
     try:
         model = SuiteModel.model_validate(raw)
     except ValidationError as exc:
         raise SuiteError(_format_errors(label, exc, raw)) from None
     errors: list[str] = []
-    blocks = _check_suite(model, label, errors)
+    if not model.sweep and not model.limit:
+        errors.append(f"{label}: <suite>: expected at least one [[sweep]] or [[limit]] table")
+    blocks = _check_suite(model, label, errors, p.parent)
+    limits = _check_limits(model, label, errors)
     if errors:
         raise SuiteError(errors)
     s = model.suite
+    if s.name is None and not plain_name(p.stem):
+        raise SuiteError([f"{label}: suite.name: the file name {p.stem!r} is not a plain name (letters, digits, "
+                          f"'_', '-', '.', not starting with '.') and names a directory; give suite.name"])
     return Suite(name=s.name or p.stem, path=p, file_hash=hashlib.sha256(data).hexdigest()[:16],
                  description=s.description, engines=tuple(s.engines), repeats=s.repeats,
-                 timeout_s=s.timeout_s, sweeps=tuple(blocks))
+                 timeout_s=s.timeout_s, sweeps=tuple(blocks), limits=tuple(limits))
+
+
+def _block_engines(listed: list[str] | None, suite_engines: list[str], usable: Any, where: str,
+                   errors: list[str]) -> list[str]:
+    """A block's engines: its own list (a subset of the suite's, each once)
+    or the suite's; only those in ``usable`` (registered and loadable) are
+    kept.  Appends problems to ``errors``."""
+    if listed is None:
+        return [e for e in suite_engines if e in usable]
+    engines: list[str] = []
+    for j, e in enumerate(listed):
+        if e not in suite_engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines ({', '.join(suite_engines)})")
+        elif e in engines:
+            errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
+        elif e in usable:
+            engines.append(e)
+    return engines
+
+
+def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]:
+    """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
+    engine), each validated as ``physbench limits`` validates its arguments
+    (harness.limits.validate_request).  Appends to ``errors``."""
+    from adapters import engine_names, get_adapter
+    from harness.limits import LimitRequest, validate_request
+    from harness.scene import scenario_ids
+
+    ids = set(scenario_ids())
+    known = set(engine_names())
+    out: list[Any] = []
+    for bi, lb in enumerate(model.limit):
+        where = f"{label}: limit[{bi}]"
+        engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
+        seen: set[tuple[str, str | None]] = set()
+        for j, entry in enumerate(lb.scenarios):
+            m = _SCENARIO_ENTRY.match(entry.strip())
+            if not m or m.group(1) not in ids:
+                errors.append(f"{where}.scenarios[{j}]: expected a scenario id ('family.name' or "
+                              f"'family.name[variant]') of scenarios/, got {entry!r}")
+                continue
+            sid, var = m.group(1), (None if m.group(2) in (None, "base") else m.group(2))
+            if (sid, var) in seen:
+                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                continue
+            seen.add((sid, var))
+            for e in engines:
+                names = set(get_adapter(e).capabilities().settings)
+                settings = tuple(sorted((k, v) for k, v in lb.set.items() if k in names))
+                overrides = tuple((k, v) for k, v in lb.set.items() if k not in names)
+                bad = [k for k, _ in overrides if "." not in k and "[" not in k]
+                if bad:
+                    errors.append(f"{where}.set.{bad[0]}: not a setting of engine {e} and not a dotted spec key")
+                    continue
+                req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
+                                   tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
+                                   model.suite.timeout_s)
+                problems = validate_request(req)
+                errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
+                if not problems:
+                    out.append(req)
+    return out
 
 
 def _engines_text(engines: Iterable[str]) -> str:
@@ -255,12 +395,12 @@ def _engines_text(engines: Iterable[str]) -> str:
     return f"engine{'s' if len(engines) > 1 else ''} {', '.join(engines)}"
 
 
-def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[SweepBlock]:
+def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = REPO_ROOT) -> list[SweepBlock]:
     """Cross-checks pydantic cannot make: engines registered, scenario ids
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""
     from adapters import engine_names, get_adapter
-    from harness.scene import resolve_scenario, scenario_ids
+    from harness.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
     from harness.spec import load_spec
 
     known = engine_names()
@@ -276,48 +416,57 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
             except Exception as exc:  # a broken adapter module
                 errors.append(f"{label}: suite.engines[{i}]: engine {e!r} cannot be loaded: {type(exc).__name__}: {exc}")
     ids = set(scenario_ids())
+    files: dict[str, str] = {}  # scenario id -> its spec file: one file per id
     blocks: list[SweepBlock] = []
     for bi, sw in enumerate(model.sweep):
         where = f"{label}: sweep[{bi}]"
-        # scenarios: 'family.name' or 'family.name[variant]'
-        scen: list[tuple[str, str | None]] = []
+        # scenarios: 'family.name', a spec file or a folder (relative to the
+        # suite file), each with an optional '[variant]'
+        scen: list[SuiteEntry] = []
         for j, entry in enumerate(sw.scenarios):
             m = _SCENARIO_ENTRY.match(entry.strip())
             if not m:
-                errors.append(f"{where}.scenarios[{j}]: expected 'family.name' or 'family.name[variant]', got {entry!r}")
+                errors.append(f"{where}.scenarios[{j}]: expected 'family.name', a spec file or folder, optionally "
+                              f"with '[variant]', got {entry!r}")
                 continue
             sid, var = m.group(1), m.group(2)
             if var == "base":
                 var = None
-            if sid not in ids:
+            pathlike = sid.endswith(".toml") or "/" in sid or (base / sid).is_dir()
+            if not pathlike and sid not in ids:
                 errors.append(f"{where}.scenarios[{j}]: unknown scenario {sid!r}; known ids: {', '.join(sorted(ids))}")
                 continue
             try:
-                loaded = load_spec(resolve_scenario(sid))
+                targets = spec_targets(sid, base) if pathlike else [sid]
             except SpecError as exc:
-                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} does not load: {exc.errors[0]}")
+                errors.append(f"{where}.scenarios[{j}]: {exc.errors[0]}")
                 continue
-            if var is not None and var not in loaded.variants:
-                errors.append(f"{where}.scenarios[{j}]: scenario {sid!r} has no variant {var!r}; "
-                              f"its variants: {', '.join(loaded.variants) or 'none'}")
-                continue
-            if (sid, var) in scen:
-                errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
-                continue
-            scen.append((sid, var))
+            for target in targets:
+                try:
+                    loaded = load_spec(resolve_scenario(target))
+                except SpecError as exc:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
+                    continue
+                if var is not None and var not in loaded.variants:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} has no variant {var!r}; "
+                                  f"its variants: {', '.join(loaded.variants) or 'none'}")
+                    continue
+                try:
+                    scene = load_scene(target, var, loaded=loaded)
+                except SpecError as exc:
+                    errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
+                    continue
+                where_from = str(loaded.path.resolve())
+                if files.setdefault(scene.id, where_from) != where_from:
+                    errors.append(f"{where}.scenarios[{j}]: {target!r} has the id {scene.id!r} (family.stem) of "
+                                  f"another spec file, {files[scene.id]}; rename one")
+                    continue
+                if any((e.scenario, e.variant) == (scene.id, var) for e in scen):
+                    errors.append(f"{where}.scenarios[{j}]: {entry!r} is listed twice")
+                    continue
+                scen.append(SuiteEntry(scene.id, var, target if pathlike else None, scene.content_hash))
         # engines of this block: a subset of the suite's
-        if sw.engines is None:
-            engines = [e for e in model.suite.engines if e in caps]
-        else:
-            engines = []
-            for j, e in enumerate(sw.engines):
-                if e not in model.suite.engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is not in suite.engines "
-                                  f"({', '.join(model.suite.engines)})")
-                elif e in engines:
-                    errors.append(f"{where}.engines[{j}]: engine {e!r} is listed twice")
-                elif e in caps:
-                    engines.append(e)
+        engines = _block_engines(sw.engines, model.suite.engines, caps, where, errors)
         for e in sw.engine:
             if e not in engines:
                 whose = "suite.engines" if sw.engines is None else f"sweep[{bi}].engines"
@@ -347,12 +496,36 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str]) -> list[Sweep
                     axes[e][key] = coerced
             for (path, msg, _), _ in own_bad.items():
                 errors.append(f"{label}: {path}: {msg}")
+        _check_record_size(where, scen, axes, errors)
         if PHASE_KEY in sw.grid or any(PHASE_KEY in own.grid for own in sw.engine.values()):
             errors.append(f"{where}: {PHASE_KEY!r} is not a grid axis; give the number of step phases as "
                           f"'phases = N' in the [[sweep]] table")
         blocks.append(SweepBlock(bi, tuple(scen), tuple(engines), sw.repeats or model.suite.repeats,
                                  axes, sw.description, sw.phases))
     return blocks
+
+
+def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dict[str, dict[str, tuple[Any, ...]]],
+                       errors: list[str]) -> None:
+    """Every point's recording fits the bounds (harness/spec.py
+    record_size_error) at the smallest dt any engine sweeps: checked when
+    the suite loads, before anything runs or is allocated."""
+    from harness.scene import load_scene, n_steps
+    from harness.spec import record_size_error
+
+    for e, ax in axes.items():
+        if "dt" not in ax:
+            continue
+        dt = min(float(v) for v in ax["dt"])
+        for sid, var in scen:
+            try:
+                sc = load_scene(sid, var)
+            except SpecError:
+                continue  # reported where the scenario is listed
+            why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
+            if why:
+                errors.append(f"{where}.grid.dt: {_label(sid, var)} at dt = {dt:g} on {e}: {why}")
+                return
 
 
 def _check_axis(path: str, key: str, values: list[Any], engine: str, caps: Any,
@@ -414,7 +587,8 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
         if unknown:
             raise ValueError(f"engine {', '.join(unknown)} is not in suite {suite.name} "
                              f"(its engines: {', '.join(suite.engines)})")
-    listed = {(sid, var) for b in suite.sweeps for sid, var in b.scenarios}
+    listed = {(e.scenario, e.variant) for b in suite.sweeps for e in b.scenarios}
+    listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
             if not any(s == sid or s == _label(sid, var) for sid, var in listed):
@@ -423,7 +597,8 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     points: list[Point] = []
     seen: set[str] = set()
     for b in suite.sweeps:
-        for sid, var in b.scenarios:
+        for entry in b.scenarios:
+            sid, var = entry.scenario, entry.variant
             if scenarios is not None and sid not in scenarios and _label(sid, var) not in scenarios:
                 continue
             for e in b.engines:
@@ -438,7 +613,7 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
                         settings = tuple(zip(names, combo))
                         if f:
                             settings = tuple(sorted(settings + ((PHASE_KEY, f),)))
-                        p = Point(sid, var, e, settings, b.repeats, suite.timeout_s)
+                        p = Point(sid, var, e, settings, b.repeats, suite.timeout_s, entry.path, entry.scene_hash)
                         if p.key not in seen:
                             seen.add(p.key)
                             points.append(p)
@@ -453,29 +628,10 @@ def _label(sid: str, var: str | None) -> str:
 # machine id
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo on Linux; platform elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-@lru_cache(maxsize=1)
-def machine_id() -> str:
-    """Short stable id of this machine: ``<host>-<8 hex>``, the hash over
-    host name, CPU model and core count (so a new CPU or a resized VM with
-    the same host name is a new machine, as timings are not comparable)."""
-    from harness.runner import machine_info
-
-    info = machine_info()
-    text = f"{info['host']}|{cpu_model()}|{info['cores']}"
-    host = re.sub(r"[^A-Za-z0-9_.-]", "_", info["host"] or "host")[:32]
-    return f"{host}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+# the machine id sweeps are filed under is the environment fingerprint's
+# (harness/fingerprint.py): CPU model, family/model/stepping, arithmetic
+# flags, cores and OS, never the host name
+machine_id = _fingerprint_machine_id
 
 
 # ---------------------------------------------------------------------------
@@ -484,6 +640,7 @@ def machine_id() -> str:
 
 @lru_cache(maxsize=64)
 def _scene(scenario: str, variant: str | None):
+    """``scenario``: an id or a spec file's path."""
     from harness.scene import load_scene
 
     return load_scene(scenario, variant)
@@ -502,9 +659,12 @@ def run_point(point: Point) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     try:
-        scene = _scene(point.scenario, point.variant)
+        scene = _scene(point.path or point.scenario, point.variant)
     except Exception as e:
         return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+    if point.scene_hash and scene.content_hash != point.scene_hash:
+        return _status_row(point, "error", f"scene changed since the sweep was planned (content hash "
+                                           f"{scene.content_hash}, planned {point.scene_hash}); sweep again", t0)
     settings = point.engine_settings
     if point.phase:
         try:
@@ -536,11 +696,19 @@ def run_point(point: Point) -> dict[str, Any]:
                 break
             cpu.append(float(res.metrics.get("cpu_s_per_sim_s", math.nan)))
     row = first.row()
-    row.update(_point_columns(point, scene, row, cpu, t0))
+    row.update(_point_columns(point, scene, row, cpu, t0, first))
     return row
 
 
-def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float) -> dict[str, Any]:
+def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
+                   result: Any = None) -> dict[str, Any]:
+    """The sweep's columns of a point's row.  ``checks`` (JSON) holds the
+    scene's checks on this point's run (those that apply to the engine and
+    variant, without an @-setting; evaluated as ``physbench check`` does),
+    ``primary_threshold`` the check max on the primary metric: the report
+    reads both from the row instead of reloading the scene."""
+    from harness.conformance import applicable_checks, evaluate_check, primary_threshold, split_metric
+
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
     try:
@@ -548,8 +716,14 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     except (TypeError, ValueError):
         err = math.nan
     finite = [c for c in cpu if math.isfinite(c)]
+    checks = []
+    if scene is not None and result is not None:
+        checks = [evaluate_check(c, result).as_dict() for c in applicable_checks(scene, point.engine)
+                  if not split_metric(c.metric)[1]]
     return {
         "point_key": point.key,
+        "checks": json.dumps(checks, sort_keys=True),
+        "primary_threshold": primary_threshold(scene) if scene is not None else None,
         "point_settings": point.settings_json,
         "phase": point.phase,
         "primary_metric": metric,
@@ -574,13 +748,14 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
         cls = get_adapter(point.engine)
         version = cls.capabilities().version
         if scene is None:
-            scene = _scene(point.scenario, point.variant)
+            scene = _scene(point.path or point.scenario, point.variant)
         settings = cls.resolve_settings(scene, settings)
     except Exception:
         pass  # keep the swept settings only
     res = RunResult(point.scenario, point.variant, point.engine, version, status, message, settings,
                     machine=machine_info(), commit=commit_id(),
-                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                    scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
     if tb:
         res.info["traceback"] = tb
     row = res.row()
@@ -745,6 +920,18 @@ def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     return out
 
 
+def confined(root: Path, *parts: str) -> Path:
+    """``root / parts...``, each part a plain name (:func:`plain_name`), so
+    that the path stays inside ``root`` whatever a suite or machine is
+    called.  Raises SuiteError otherwise (a guard: load_suite and
+    machine_id already make plain names)."""
+    for part in parts:
+        if not plain_name(part):
+            raise SuiteError([f"{root}: <path>: {part!r} is not a plain name (letters, digits, '_', '-', '.', "
+                              f"not starting with '.'); it would name a directory outside the results root"])
+    return root.joinpath(*parts)
+
+
 def _sweep_id(commit: str) -> str:
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     return f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', commit)}"
@@ -763,7 +950,7 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     """
     from harness.runner import commit_id, machine_info
 
-    suite_dir = root / machine_id() / suite.name
+    suite_dir = confined(root, machine_id(), suite.name)
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
@@ -812,7 +999,8 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine_id(),
-        "machine": {**machine_info(), "cpu_model": cpu_model()},
+        "machine": machine_info(),
+        "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
         "filters": filters,
@@ -1002,6 +1190,21 @@ def summarize(df, wall_s: float, console=None, title: str = "") -> None:
     console.print(table)
 
 
+def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int, err: Any) -> None:
+    """The suite's breaking-point searches (``[[limit]]`` blocks), their rows
+    stored in the sweep's directory like its points; evaluations stored by an
+    interrupted run of this sweep are read back, not run again."""
+    from harness.limits import RESULT_ROW, LockedWriter, describe, run_requests, stored_rows
+
+    cached = stored_rows(_parts(sd.path))
+    cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
+    err.print(f"limits: {len(reqs)} breaking-point searches ({len(cached)} stored rows read back)",
+              markup=False, highlight=False)
+    run_requests(reqs, LockedWriter(sd, ctx), cached, jobs,
+                 on_done=lambda r, res, _s: err.print("limit: " + describe(res, r), markup=False,
+                                                       highlight=False, soft_wrap=True))
+
+
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
                out_dir: Path | None = None, resume: bool | None = None,
                scenarios: list[str] | None = None) -> int:
@@ -1040,7 +1243,9 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     if executor == "serial" and jobs > 1:
         err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
         jobs = 1
-    if not points:
+    reqs = [r for r in s.limits if (engines is None or r.engine in engines)
+            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+    if not points and not reqs:
         err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
                   markup=False)
         return 2
@@ -1074,6 +1279,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 _run_serial(todo, on_row, on_start)
             else:
                 _run_process(todo, jobs, on_row, on_start)
+        if reqs:
+            _run_limits(reqs, sd, ctx, jobs if executor == "process" else 1, err)
     except KeyboardInterrupt:
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
@@ -1090,8 +1297,11 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
 
     df = pd.read_parquet(out)
     wall = time.perf_counter() - t_start
-    summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
-                              + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
+    if "row_kind" in df.columns:  # breaking-point rows: summarized as their searches finished
+        df = df[df["row_kind"].isna()]
+    if len(df) or not reqs:
+            summarize(df, wall, title=f"sweep {s.name} {sd.sweep_id}: {len(df)} points"
+                                  + (f" ({len(points) - len(todo)} from before the resume)" if resumed else ""))
     err.print(f"rows written to {out}", markup=False, highlight=False, soft_wrap=True)
     return 0
 

@@ -17,3 +17,12 @@ HEAD_ON = canonical_example()
 @pytest.fixture
 def head_on_path() -> Path:
     return HEAD_ON
+
+
+def without_effects(scene, *effects: str):
+    """``scene`` with ``effects`` dropped after compilation: a spec cannot
+    give a coefficient without its effect (harness/spec.py), but adapters
+    must still switch off an effect a compiled scene does not list."""
+    import dataclasses
+
+    return dataclasses.replace(scene, effects=frozenset(scene.effects) - set(effects))

@@ -27,6 +27,7 @@ from adapters.mujoco_calibration import ZERO_TOL, calibrate  # noqa: E402
 from harness.runner import run  # noqa: E402
 from harness.scene import compile_scene, load_scene  # noqa: E402
 from harness.spec import validate_raw  # noqa: E402
+from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 G = 9.81
@@ -395,9 +396,10 @@ def test_calibration_without_scene_phase(e, gravity):
 
 
 def test_no_restitution_effect_means_no_bounce():
-    s = scene(["gravity", "contact"], [{"name": "b", "shape": "sphere", "radius": 0.05, "mass": 0.2,
-                                         "material": "ball", "position": [0, 0, 0.55]}], [PLANE],
-              material={"ball": {"restitution": 0.9}}, duration=0.6)
+    s = without_effects(scene(["gravity", "contact", "restitution"],
+                              [{"name": "b", "shape": "sphere", "radius": 0.05, "mass": 0.2,
+                                "material": "ball", "position": [0, 0, 0.55]}], [PLANE],
+                              material={"ball": {"restitution": 0.9}}, duration=0.6), "restitution")
     r, tr = go(s)
     assert bounce_ratio(tr, 0.05, G) <= 0.02
     assert r.info["restitution_calibration"][0]["requested"] == 0.0
@@ -454,9 +456,10 @@ def test_friction_switches_condim():
     body = [{"name": "b", "shape": "box", "half_extents": [0.1, 0.1, 0.1], "mass": 1.0, "position": [0, 0, 0.1],
              "material": "m"}]
     mat = {"m": {"friction": 0.5, "static_friction": 0.7, "rolling_friction": 0.01}}
-    a = built(scene(["gravity", "contact"], body, [PLANE], material=mat))
+    full = scene(["gravity", "contact", "friction", "rolling_friction"], body, [PLANE], material=mat)
+    a = built(without_effects(full, "friction", "rolling_friction"))
     assert set(a.m.geom_condim) == {1}
-    a = built(scene(["gravity", "contact", "friction"], body, [PLANE], material=mat))
+    a = built(without_effects(full, "rolling_friction"))
     assert set(a.m.geom_condim) == {3} and np.allclose(a.m.geom_friction[:, 0], 0.5)
     assert any("static_friction" in n for n in a.notes)
     a = built(scene(["gravity", "contact", "friction", "rolling_friction"], body, [PLANE], material=mat))

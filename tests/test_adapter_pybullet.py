@@ -39,6 +39,7 @@ from adapters.pybullet import (  # noqa: E402
 from harness.runner import run  # noqa: E402
 from harness.scene import compile_scene, load_scene  # noqa: E402
 from harness.spec import validate_raw  # noqa: E402
+from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 G = 9.81
@@ -254,7 +255,7 @@ def test_world_frame_angular_velocity_and_orientation_update():
 
 
 def test_no_contact_means_no_collision(head_on_path):
-    scene = load_scene(head_on_path, overrides={"scenario.effects": []})
+    scene = without_effects(load_scene(head_on_path), "contact", "restitution")
     res, tr = ok_run(scene)
     assert res.stages["collision_detection"] is False
     assert res.stages["gravity"] is False
@@ -265,9 +266,11 @@ def test_no_contact_means_no_collision(head_on_path):
 
 
 def test_absent_friction_and_restitution_are_zero():
-    scene = make_scene(["gravity", "contact"], [sphere(pos=(0, 0, 0.1), vel=(1, 0, 0))],
-                       statics=[{"shape": "plane", "normal": [0, 0, 1], "material": "rough"}],
-                       materials={"rough": {"restitution": 0.8, "friction": 0.7}}, duration=0.5)
+    scene = without_effects(
+        make_scene(["gravity", "contact", "restitution", "friction"], [sphere(pos=(0, 0, 0.1), vel=(1, 0, 0))],
+                   statics=[{"shape": "plane", "normal": [0, 0, 1], "material": "rough"}],
+                   materials={"rough": {"restitution": 0.8, "friction": 0.7}}, duration=0.5),
+        "restitution", "friction")
     res, tr = ok_run(scene)
     assert set(res.info["per_object_friction"].values()) == {0.0}
     assert set(res.info["per_object_restitution"].values()) == {0.0}
@@ -373,7 +376,8 @@ def test_mixed_materials_realised_or_reported():
     # two rubber balls and a default ball on a default plane: rubber|rubber
     # and rubber|default want 0.8, default|default 0.5 -> no per-object values
     bodies.append(sphere("c", pos=(2, 0, 0.1), material="rubber"))
-    scene = make_scene(["gravity", "contact", "restitution"], bodies, [plane], mats, duration=0.01)
+    scene = without_effects(make_scene(["gravity", "contact", "restitution", "friction"], bodies, [plane], mats,
+                                       duration=0.01), "friction")
     res, _ = ok_run(scene)
     print("infeasible restitution residual:", res.info["material_residual"])
     assert res.info["material_residual"] > 1e-3

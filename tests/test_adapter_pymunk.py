@@ -103,7 +103,9 @@ def test_head_on_newton(head_on_path, variant):
 
 
 def test_head_on_without_contact_passes_through(head_on_path):
-    sc = load_scene(head_on_path, None, {"scenario.effects": []})
+    from tests.conftest import without_effects
+
+    sc = without_effects(load_scene(head_on_path), "contact", "restitution")
     r, tr = run_ok(sc)
     assert r.stages["contact"] is False and r.stages["material_mode"] == "none"
     t = tr.t[-1]

@@ -51,11 +51,16 @@ def test_fail_message_names_value_and_threshold():
     assert o.value == 0.01 and o.threshold == "<= 0.005"
 
 
-def test_nan_or_missing_metric_fails():
+def test_nan_or_missing_metric_is_an_error():
+    """A check on a metric the ok run did not produce is an ERROR (never a
+    silent skip, nor a plain FAIL), xfail or not: nothing was measured."""
     for metrics in ({"err": math.nan}, {}, {"err": None}):
         o = C.evaluate_check(Check("err", max=1.0), result(metrics))
-        assert o.outcome == C.FAIL
-        assert o.message.startswith("metric not computed")
+        assert o.outcome == C.ERROR
+        assert o.message.startswith("metric not computed: err is")
+        xo = C.evaluate_check(Check("err", max=1.0, xfail={"mujoco": "known"}), result(metrics))
+        assert xo.outcome == C.ERROR
+    assert C.exit_code([C.evaluate_check(Check("err", max=1.0), result({}))]) == 1
 
 
 def test_nan_metric_on_unsupported_engine_is_unsupported():
@@ -75,8 +80,8 @@ def test_xfail_and_xpass():
     assert o.message.startswith("unexpected pass")
     # other engines are not affected by mujoco's xfail
     assert C.evaluate_check(c, result({"err": 0.05}, engine="pybullet")).outcome == C.FAIL
-    # a missing metric on an xfailed engine is an expected failure too
-    assert C.evaluate_check(c, result({})).outcome == C.XFAIL
+    # a missing metric on an xfailed engine is an error: nothing was measured
+    assert C.evaluate_check(c, result({})).outcome == C.ERROR
 
 
 @pytest.mark.parametrize("status", ["error", "failed", "diverged", "timeout"])

@@ -703,8 +703,8 @@ def test_sparse_direct_start_matches_the_dense_one(tmp_path, monkeypatch):
     dense = run(sc, "reference", {"iterations": 10})
     monkeypatch.setattr(engine.solver, "DIRECT_MAX_ROWS", 0)
     calls = []
-    to_sparse = engine.solver.Rows.normal_matrix_sparse
-    monkeypatch.setattr(engine.solver.Rows, "normal_matrix_sparse", lambda self: calls.append(1) or to_sparse(self))
+    to_sparse = engine.solver.Rows.sparse_normal_solve
+    monkeypatch.setattr(engine.solver.Rows, "sparse_normal_solve", lambda self, *a: calls.append(1) or to_sparse(self, *a))
     sparse = run(sc, "reference", {"iterations": 10})
     assert len(calls) >= 100  # (every step with contacts)
     assert dense.status == sparse.status == "ok"
@@ -1353,9 +1353,7 @@ _CYL_SCENE = """
     dt = 0.004166666666666667
     effects = EFFECTS
     [material.default]
-    friction = 0.5
-    static_friction = 0.5
-    restitution = 0.5
+    MATERIAL
     BODIES
     STATICS
     """
@@ -1365,8 +1363,12 @@ def _cyl_run(tmp_path, bodies: str, statics: str, duration: float = 2.0,
              effects=("gravity", "contact", "friction", "gyroscopic")):
     from harness.runner import run
 
+    # friction 0.5 and restitution 0.5 where the scene has the effect (a
+    # coefficient without its effect is a spec error)
+    material = "\n    ".join([*(["friction = 0.5", "static_friction = 0.5"] if "friction" in effects else []),
+                             *(["restitution = 0.5"] if "restitution" in effects else [])])
     text = (_CYL_SCENE.replace("DUR", repr(duration)).replace("EFFECTS", repr(list(effects)).replace("'", '"'))
-            .replace("BODIES", bodies).replace("STATICS", statics))
+            .replace("MATERIAL", material).replace("BODIES", bodies).replace("STATICS", statics))
     res = run(scene_from(tmp_path, text), "reference")
     assert res.status == "ok", res.message
     return res
@@ -1738,14 +1740,14 @@ def test_direct_start_clips_what_its_last_active_set_pass_pulls(tmp_path, monkey
 
     monkeypatch.setattr(solver, "ACTIVE_SET_PASSES", 1)
     pulled = []
-    orig = solver.solve_small
+    orig = solver.dense_direct_solve
 
-    def spy(K, r):
-        la = orig(K, r)
-        pulled.append(bool((la < 0).any()))
-        return la
+    def spy(*args):
+        lam, ok, pull = orig(*args)
+        pulled.append(bool(pull))
+        return lam, ok, pull
 
-    monkeypatch.setattr(solver, "solve_small", spy)
+    monkeypatch.setattr(solver, "dense_direct_solve", spy)
     res = _cyl_run(tmp_path, _can("a", .1, .1, (0, 0, .1)) + _can("b", .12, .1, (0.071, -0.013, .3), _Q30),
                    _GROUND, duration=0.25)
     assert any(pulled)

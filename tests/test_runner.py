@@ -99,7 +99,11 @@ def test_timeout(scene):
 
 def test_unsupported_effect(tmp_path):
     p = tmp_path / "g.toml"
-    p.write_text(HEAD_ON.read_text().replace('["contact", "restitution"]', '["contact", "gravity"]'))
+    # without the restitution effect its coefficients go too (a coefficient
+    # without its effect is a spec error)
+    p.write_text(HEAD_ON.read_text().replace('["contact", "restitution"]', '["contact", "gravity"]')
+                 .replace("restitution = 0.9\n", "").replace('"material.default.restitution" = 1.0', "")
+                 .replace('"material.default.restitution" = 0.0', ""))
     r = run(load_scene(p), "fake")
     assert r.status == "unsupported" and "gravity" in r.message
 

@@ -22,7 +22,7 @@ from harness.runner import Trace
 from harness.scene import SCENARIO_DIR, load_scene, scenario_ids
 from harness.spec import load_spec
 
-FAMILIES = ("stacking", "tunnelling", "billiards", "friction", "gyroscopic")
+FAMILIES = ("stacking", "tunnelling", "billiards", "friction", "gyroscopic", "forces")
 IDS = scenario_ids()
 
 

@@ -2,6 +2,7 @@
 messages naming the file, the key path, what was expected and what was found."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,10 +110,45 @@ def test_overrides_and_key_paths():
 
 
 def test_effects_gate_pair_values(tmp_path):
-    text = BASE.replace('["contact", "restitution"]', '["contact"]')
+    # a spec cannot give a coefficient without its effect (next test); the
+    # compiled scene's pair values are gated by its effects all the same
+    import dataclasses
+
+    s = load_scene(HEAD_ON)
+    assert s.pair("default", "default").restitution == 0.9
+    s = dataclasses.replace(s, effects=frozenset({"contact"}))
+    assert s.pair("default", "default").restitution == 0.0
+
+
+@pytest.mark.parametrize("key, value, effect", [
+    ("friction", 0.5, "friction"), ("static_friction", 0.6, "friction"), ("restitution", 0.5, "restitution"),
+    ("rolling_friction", 0.001, "rolling_friction")])
+def test_material_coefficient_needs_its_effect(tmp_path, key, value, effect):
+    """[material.default] friction = 0.5 without the friction effect used to
+    run frictionless without a word: now a spec error naming file and key
+    path, exit 2 from the command line."""
+    import subprocess
+    import sys
+
+    text = BASE.replace("restitution = 0.9\n", "").replace('"material.default.restitution" = 1.0', "") \
+        .replace('"material.default.restitution" = 0.0', "").replace("static_friction = 0.0\n", "") \
+        .replace("friction = 0.0\n", "")
+    text = text.replace("[material.default]\n", f"[material.default]\n{key} = {value}\n")
+    text = text.replace('["contact", "restitution"]', '["contact"]')
     p = tmp_path / "s.toml"
     p.write_text(text)
-    assert load_scene(p).pair("default", "default").restitution == 0.0
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    assert f"s.toml: material.default.{key}: set to {value} but '{effect}' is not in scenario.effects" \
+        in "\n".join(e.value.errors)
+    root = Path(__file__).resolve().parent.parent
+    r = subprocess.run([sys.executable, "-m", "harness.cli", "run", str(p), "--engine", "reference"],
+                       capture_output=True, text=True, cwd=root, timeout=120)
+    assert r.returncode == 2 and f"material.default.{key}: set to {value}" in r.stderr
+    assert "Traceback" not in r.stderr
+    # with the effect listed, the same spec loads
+    p.write_text(text.replace('["contact"]', f'["contact", "{effect}"]'))
+    load_spec(p)
 
 
 def test_patterns_expand(tmp_path):

@@ -25,6 +25,7 @@ from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_nam
 from harness import sweep as S
 from harness.results import SCHEMA_VERSION
 from harness.runner import run as _REAL_RUN
+from harness.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 _PARENT = os.getpid()
@@ -250,10 +251,13 @@ def test_expansion_is_a_cartesian_product_with_engine_axes(tmp_path):
     assert len(by["gyroscopic.dzhanibekov", None, "pymunk"]) == 2
     assert len(pts) == 2 * (4 + 12 + 1) + 1 + 2
     # values are coerced once: 1e-3 and 0.001 are one key; keys are stable text
+    # ... and end with the scene's content hash (a changed scene is a new point)
     mj = by["billiards.head_on", None, "mujoco"][0]
-    assert mj.key == 'billiards.head_on|mujoco|{"dt":0.002,"integrator":"euler","iterations":10}'
+    h, he = load_scene("billiards.head_on").content_hash, load_scene("billiards.head_on", "elastic").content_hash
+    assert h != he
+    assert mj.key == 'billiards.head_on|mujoco|{"dt":0.002,"integrator":"euler","iterations":10}|' + h
     assert by["billiards.head_on", "elastic", "reference"][-1].key == \
-        'billiards.head_on[elastic]|reference|{"dt":0.001,"integrator":"rk4"}'
+        'billiards.head_on[elastic]|reference|{"dt":0.001,"integrator":"rk4"}|' + he
     # restrictions
     assert {q.engine for q in S.expand(suite, engines=["mujoco"])} == {"mujoco"}
     assert {q.variant for q in S.expand(suite, scenarios=["billiards.head_on[elastic]"])} == {"elastic"}
@@ -363,7 +367,8 @@ def _counting_run(monkeypatch, kill_at_point: int | None):
     calls: list[str] = []
 
     def run(scene, engine, settings=None, **kw):
-        key = S.Point(scene.id, scene.variant, engine, tuple(sorted((settings or {}).items()))).key
+        key = S.Point(scene.id, scene.variant, engine, tuple(sorted((settings or {}).items())),
+                      scene_hash=scene.content_hash).key
         if kill_at_point is not None and key not in calls and len(dict.fromkeys(calls)) == kill_at_point:
             raise _Killed()
         calls.append(key)
@@ -596,8 +601,9 @@ def test_phases_expand_to_shifted_points_with_phase_zero_as_the_plain_point(tmp_
         [(1 / 240, 0.0), (1 / 240, 0.25), (1 / 240, 0.5), (1 / 240, 0.75),
          (1 / 120, 0.0), (1 / 120, 0.25), (1 / 120, 0.5), (1 / 120, 0.75)]
     # phase 0 has no phase key: the same point (and history) as block 1's
-    assert pb[0].key == 'tunnelling.thin_box_on_thin_floor|pybullet|{"dt":0.004166666666666667}'
-    assert pb[1].key.endswith('{"dt":0.004166666666666667,"phase":0.25}')
+    h = load_scene("tunnelling.thin_box_on_thin_floor").content_hash
+    assert pb[0].key == 'tunnelling.thin_box_on_thin_floor|pybullet|{"dt":0.004166666666666667}|' + h
+    assert pb[1].key.endswith('{"dt":0.004166666666666667,"phase":0.25}|' + h)
     assert pb[1].engine_settings == {"dt": 1 / 240}  # the engine never sees the phase
     assert len(pts) == 2 * 8
 

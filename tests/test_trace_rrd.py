@@ -194,10 +194,9 @@ def test_penetration_series_equals_analytic_overlap(scene, two_runs):
 
 
 def test_no_penetration_series_without_contact(tmp_path):
-    text = HEAD_ON.read_text().replace('effects = ["contact", "restitution"]', "effects = []")
-    spec = tmp_path / "ghosts.toml"
-    spec.write_text(text)
-    scene = load_scene(spec)
+    from tests.conftest import without_effects
+
+    scene = without_effects(load_scene(HEAD_ON), "contact", "restitution")
     assert not scene.has("contact")
     write_rrd(tmp_path / "g.rrd", scene, [ballistic_result(scene, "fake_a", 2.0, 0.0, 11)])
     data = read_rrd(tmp_path / "g.rrd")

@@ -5,19 +5,32 @@ parameter it can from the scene itself (masses, radii, inertias, slope angle,
 materials, initial velocities) so the same model serves any scene of its kind;
 ``[reference] params`` holds only what the scene cannot say.
 
-Each model is a :class:`ReferenceModel` subclass in its own module, registered
-in ``MODELS`` by name -> "module:Class" and imported lazily (spec validation
-only needs the names).
+Each model is a :class:`ReferenceModel` subclass in its own module that
+declares what it takes from the scene (``takes``), its ``params``
+(:class:`Param`: name, type, default, meaning), the metrics it produces
+(``produces``: name -> meaning with units) and its ``primary`` metric.  The
+registry ``MODELS`` holds names only (name -> "module:Class", imported
+lazily), so loading a spec never imports a model, and this package imports
+nothing of the scene contract.  ``docs/MODELS.md`` and ``physbench models``
+are both written from the declarations (:func:`describe`, :func:`models_markdown`;
+tests/test_models.py pins the document to them).
+
+:func:`scene_errors` is the load-time check (called by
+``harness.scene.compile_scene``): the model must accept the scene, and the
+primary metric and every check's metric must be produced by the model or the
+harness for this scene.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from harness.scene import Scene
+if TYPE_CHECKING:  # the scene contract is below this package; no runtime import
+    from harness.scene import Scene
 
 MODELS: dict[str, str] = {
     "two_body_collision": "harness.references.collision:TwoBodyCollision",
@@ -29,35 +42,85 @@ MODELS: dict[str, str] = {
     "log_pile": "harness.references.stacking:LogPile",
     "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
     "incline_block": "harness.references.friction:InclineBlock",
+    "slide_to_rest": "harness.references.friction:SlideToRest",
     "rolling_sphere": "harness.references.friction:RollingSphere",
     "rolling_cylinder": "harness.references.friction:RollingCylinder",
     "rolling_resistance": "harness.references.friction:RollingResistance",
     "spin_to_rest": "harness.references.friction:SpinToRest",
     "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
     "heavy_top": "harness.references.rigid_body:HeavyTop",
+    "damped_oscillator": "harness.references.forces:DampedOscillator",
+    "drag_fall": "harness.references.forces:DragFall",
 }
 
 
 class ReferenceError(ValueError):
-    """The scene does not fit the model (wrong body count, shape...)."""
+    """The scene does not fit the model (wrong body count, shape...).
+    ``key`` is the spec key path the problem is about (default
+    ``reference.model``)."""
+
+    def __init__(self, message: str, key: str = "reference.model"):
+        super().__init__(message)
+        self.key = key
+
+
+
+@dataclass(frozen=True)
+class Param:
+    """One ``[reference] params`` key: ``type`` is one of 'str', 'int',
+    'float', 'list of str'; ``default`` None means "see meaning"."""
+
+    name: str
+    type: str
+    default: Any
+    meaning: str
+
+
+_TYPE_OK = {
+    "str": lambda v: isinstance(v, str),
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    "list of str": lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+}
+
+#: the trajectory metrics of :func:`trajectory_metrics`
+TRAJECTORY = {
+    "trajectory_rmse": "RMS over frames and bodies of |x - x_ref| (m)",
+    "final_position_error": "largest |x - x_ref| over the bodies at the last frame (m)",
+}
+BODY_PARAM = Param("body", "str", None, "the body the model follows (default: the scene's only body)")
 
 
 class ReferenceModel:
     """Base class.  ``__init__(scene)`` extracts parameters (raise
     ReferenceError naming what does not fit); ``metrics(trace)`` returns the
     model's metrics for a recorded trace (harness.runner.Trace: t (F,),
-    pos (F, n, 3), quat (F, n, 4), vel (F, n, 3), angvel (F, n, 3))."""
+    pos (F, n, 3), quat (F, n, 4), vel (F, n, 3), angvel (F, n, 3)).
+
+    Class declarations (the one source of docs/MODELS.md and
+    ``physbench models``): ``summary`` (one line), ``takes`` (what it reads
+    from the scene, and what it refuses), ``params``, ``produces``
+    (metric -> meaning with units), ``primary``."""
 
     name = ""
-    params_allowed: tuple[str, ...] = ()
+    summary = ""
+    takes = ""
+    params: tuple[Param, ...] = ()
+    produces: dict[str, str] = {}
+    primary = ""
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: "Scene"):
         self.scene = scene
-        unknown = set(scene.reference_params) - set(self.params_allowed)
+        allowed = {p.name: p for p in self.params}
+        unknown = sorted(set(scene.reference_params) - set(allowed))
         if unknown:
             raise ReferenceError(
-                f"reference.params: unknown key(s) {sorted(unknown)} for model {self.name!r}; "
-                f"allowed: {list(self.params_allowed) or 'none'}")
+                f"unknown key(s) {unknown} for model {self.name!r}; allowed: {list(allowed) or 'none'}",
+                key=f"reference.params.{unknown[0]}")
+        for k, v in scene.reference_params.items():
+            p = allowed[k]
+            if not _TYPE_OK[p.type](v):
+                raise ReferenceError(f"expected {p.type} ({p.meaning}), got {v!r}", key=f"reference.params.{k}")
 
     def param(self, key: str, default: Any = None) -> Any:
         return self.scene.reference_params.get(key, default)
@@ -66,7 +129,11 @@ class ReferenceModel:
         """The body ``params.body`` names, else the scene's only body."""
         bname = self.param("body")
         if bname is not None:
-            return self.scene.bodies[self.scene.body_index(bname)]
+            try:
+                return self.scene.bodies[self.scene.body_index(bname)]
+            except KeyError:
+                raise ReferenceError(f"no body named {bname!r}; bodies: {[b.name for b in self.scene.bodies]}",
+                                     key="reference.params.body") from None
         if self.scene.n_bodies != 1:
             raise ReferenceError(f"{self.name} needs exactly one body (or params.body), "
                                  f"the scene has {self.scene.n_bodies}")
@@ -119,3 +186,120 @@ def get_model(name: str) -> type[ReferenceModel]:
         raise ReferenceError(f"unknown reference model {name!r}; known: {', '.join(sorted(MODELS))}")
     mod, cls = MODELS[name].split(":")
     return getattr(importlib.import_module(mod), cls)
+
+
+# --------------------------------------------------------------------------
+# load-time check
+
+
+def model_refusal(scene: "Scene", label: str) -> list[str]:
+    """Spec-error lines (``<file>: <key path>: <problem>``) when the scene's
+    reference model does not accept the compiled scene: its refusal, or any
+    failure while it reads the scene; [] when it accepts (or there is none)."""
+    if not scene.reference_model:
+        return []
+    try:
+        get_model(scene.reference_model)(scene)
+    except ReferenceError as e:
+        return [f"{label}: {e.key}: model {scene.reference_model!r} cannot model this scene: {e}"]
+    except Exception as e:  # a model that fails while reading the scene cannot model it either
+        return [f"{label}: reference.model: model {scene.reference_model!r} cannot model this scene: "
+                f"{type(e).__name__}: {e}"]
+    return []
+
+
+def scene_errors(scene: "Scene", label: str) -> list[str]:
+    """Spec-error lines for the primary metric and every check's metric
+    that neither the scene's model nor the harness produces for this scene
+    (:func:`harness.metric_defs.generic_metrics`)."""
+    from harness.metric_defs import generic_metrics
+
+    errs: list[str] = []
+    produced = generic_metrics(scene)
+    origin = "the harness"
+    if scene.reference_model:
+        produced = produced | set(get_model(scene.reference_model).produces)
+        origin = f"the harness or model {scene.reference_model!r}"
+    hint = f"; {origin} produce(s): {', '.join(sorted(produced))}"
+    if scene.primary_metric is not None and scene.primary_metric not in produced:
+        errs.append(f"{label}: scenario.primary_metric: {scene.primary_metric!r} is not produced for this scene"
+                    + _why(scene, scene.primary_metric) + hint)
+    for i, c in enumerate(scene.checks):
+        name = c.metric.partition("@")[0]
+        if name not in produced:
+            errs.append(f"{label}: check[{i}].metric: {name!r} is not produced for this scene"
+                        + _why(scene, name) + hint)
+    return errs
+
+
+def _why(scene: "Scene", metric: str) -> str:
+    from harness.metric_defs import dissipation
+
+    if metric == "energy_drift":
+        return (f" (the scene is not conservative: {'; '.join(dissipation(scene))}; check energy_dissipated "
+                "or energy_gain instead)")
+    if metric == "energy_dissipated":
+        return " (the scene is conservative: check energy_drift instead)"
+    return ""
+
+
+# --------------------------------------------------------------------------
+# the declarations, for people
+
+
+def describe(name: str | None = None) -> list[dict[str, Any]]:
+    """Every model's declaration (or one model's) as JSON-able dicts:
+    name, summary, takes, params [{name, type, default, meaning}],
+    produces {metric: meaning}, primary."""
+    out = []
+    for n in sorted(MODELS) if name is None else [name]:
+        cls = get_model(n)
+        out.append({
+            "name": n,
+            "summary": cls.summary,
+            "takes": cls.takes,
+            "params": [{"name": p.name, "type": p.type, "default": p.default, "meaning": p.meaning}
+                       for p in cls.params],
+            "produces": dict(cls.produces),
+            "primary": cls.primary,
+        })
+    return out
+
+
+def models_markdown() -> str:
+    """docs/MODELS.md, written from the declarations."""
+    lines = [
+        "# Reference models",
+        "",
+        "<!-- written from the models' declarations in harness/references/ by",
+        "     harness.references.models_markdown(); `physbench models` prints the same.",
+        "     tests/test_models.py fails when this file and the declarations differ. -->",
+        "",
+        "A scene names its model in `[reference] model = \"...\"`. The model reads",
+        "everything it can from the scene (bodies, statics, materials, effects,",
+        "initial state) and refuses at load time, as a spec error naming the key",
+        "path, a scene it cannot model. `[reference] params` holds only what the",
+        "scene cannot say. A scene's `primary_metric` and every `[[check]]` metric",
+        "must be produced by its model or by the harness (docs/METRICS.md); that is",
+        "checked at load too.",
+        "",
+        "| model | what it models | primary metric |",
+        "| --- | --- | --- |",
+    ]
+    descs = describe()
+    for d in descs:
+        lines.append(f"| [`{d['name']}`](#{d['name']}) | {d['summary']} | `{d['primary']}` |")
+    for d in descs:
+        lines += ["", f"## {d['name']}", "", d["summary"], "", f"**Takes from the scene.** {d['takes']}", ""]
+        if d["params"]:
+            lines += ["**Params** (`[reference] params`):", "", "| key | type | default | meaning |",
+                      "| --- | --- | --- | --- |"]
+            for p in d["params"]:
+                default = "—" if p["default"] is None else f"`{p['default']!r}`"
+                lines.append(f"| `{p['name']}` | {p['type']} | {default} | {p['meaning']} |")
+        else:
+            lines.append("**Params:** none.")
+        lines += ["", f"**Metrics** (primary: `{d['primary']}`):", ""]
+        for m, meaning in d["produces"].items():
+            lines.append(f"- `{m}`: {meaning}")
+    return "\n".join(lines) + "\n"

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from adapters.conventions import world_to_body_angvel
-from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
 from harness.references.collision import TwoBodyCollision
 
 
@@ -37,6 +37,10 @@ class ObliqueCollision(TwoBodyCollision):
     """
 
     name = "oblique_collision"
+    summary = "two_body_collision plus the angle between the outgoing velocities"
+    produces = {**TwoBodyCollision.produces,
+                "separation_angle": "measured angle between the outgoing velocities at the last frame (deg)",
+                "separation_angle_error": "|measured - reference| separation angle (deg; NaN if undefined)"}
 
     def metrics(self, trace) -> dict[str, float]:
         out = super().metrics(trace)
@@ -91,7 +95,11 @@ class NewtonsCradle(ReferenceModel):
     """
 
     name = "newtons_cradle"
-    params_allowed = ()
+    summary = "a row of spheres on one line struck along it: the independent-collision (sequential) solution"
+    takes = ("spheres with centres on one line, initial velocities along it, one restitution for every pair, "
+             "no gravity along the row")
+    produces = {"cradle_velocity_error": "max over balls of |v_i(T) - v_i'| / max |v(0)| at the last frame (1)"}
+    primary = "cradle_velocity_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -150,7 +158,15 @@ class MomentumEnergy(ReferenceModel):
     """
 
     name = "momentum_energy"
-    params_allowed = ()
+    summary = "conservation laws for a many-body break on a frictionless table"
+    takes = ("any bodies with a non-zero momentum normal to gravity; no friction, drag or springs; "
+             "statics only a level table plane")
+    produces = {
+        "momentum_error": "|P_h(T) - P_h(0)| / |P_h(0)|, P_h the momentum normal to gravity (1)",
+        "energy_error": "|E(T) - E(0)| / KE(0) (1; a conservation check for e = 1)",
+        "energy_loss": "(E(0) - E(T)) / KE(0) (1)",
+    }
+    primary = "momentum_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -216,7 +232,16 @@ class BounceHeights(ReferenceModel):
     """
 
     name = "bounce_heights"
-    params_allowed = ("bounces",)
+    summary = "a sphere dropped on a level plane bounces to apex heights e^(2n) h_0"
+    takes = "one sphere, one plane normal to gravity, the pair's restitution, the sphere's initial height and velocity"
+    params = (Param("bounces", "int", 3, "how many bounces bounce_ratio_error looks at"),)
+    produces = {
+        "bounce_ratio_error": "max over the first `bounces` bounces of |e_n - e|, e_n = sqrt(A_n / A_n-1) "
+                              "from measured apex heights (1)",
+        "first_bounce_ratio": "measured sqrt(A_1 / h_0) (1)",
+        **TRAJECTORY,
+    }
+    primary = "bounce_ratio_error"
     APEX_FRACTION = 0.01
     JITTER_FRACTION = 0.001
 

@@ -18,12 +18,21 @@ import math
 
 import numpy as np
 
-from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
 
 
 class TwoBodyCollision(ReferenceModel):
     name = "two_body_collision"
-    params_allowed = ("bodies",)
+    summary = "two spheres meet: Newton's law of restitution along the line of centres, free flight before and after"
+    takes = ("two spheres (the scene's only two, or params.bodies), their masses, radii, initial positions and "
+             "velocities, the pair's restitution, gravity (moves both alike)")
+    params = (Param("bodies", "list of str", None, "the two bodies (default: the scene's only two)"),)
+    produces = {
+        "post_impact_velocity_error": "max over the two bodies of |v(T) - v'| / approach speed, after the impact (1)",
+        "impact_time": "the reference impact time (s)",
+        **TRAJECTORY,
+    }
+    primary = "post_impact_velocity_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -33,7 +42,12 @@ class TwoBodyCollision(ReferenceModel):
                 raise ReferenceError(f"two_body_collision needs exactly 2 bodies (or params.bodies), the scene has {scene.n_bodies}")
             idx = (0, 1)
         else:
-            idx = tuple(scene.body_index(n) for n in names)
+            try:
+                idx = tuple(scene.body_index(n) for n in names)
+            except KeyError as e:
+                raise ReferenceError(f"no body named {e.args[0]!r}", key="reference.params.bodies") from None
+            if len(idx) != 2:
+                raise ReferenceError(f"expected two body names, got {names!r}", key="reference.params.bodies")
         self.idx = idx
         b1, b2 = (scene.bodies[i] for i in idx)
         for b in (b1, b2):

@@ -2,7 +2,9 @@
 slipping sphere.
 
 The slope is the scene's ``slope`` static (normal n = (sin a, 0, cos a),
-downhill d = (cos a, 0, -sin a)); gravity g acts along -z, so along the slope
+downhill d = (cos a, 0, -sin a)), or a level ``plane`` as the flat case
+(a = 0, n = +z, d the direction of the body's initial horizontal velocity,
++x if it has none); gravity g acts along -z, so along the slope
 the driving acceleration is g_d = g . d = |g| sin a and the normal load per
 unit mass is g_n = -g . n = |g| cos a.  Coefficients are the body-slope pair's
 (static mu_s, kinetic mu_k).
@@ -40,7 +42,7 @@ import math
 import numpy as np
 
 from adapters.conventions import quat_rotate, quat_to_matrix
-from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import BODY_PARAM, TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
 
@@ -69,24 +71,39 @@ def _check_axis_across(model: str, b, axis: np.ndarray) -> None:
 
 
 class _SlopeModel(ReferenceModel):
-    params_allowed = ("body", "slope")
+    params = (BODY_PARAM, Param("slope", "str", None,
+                                "the slope static, or level plane, the body is on (default: the scene's only one)"))
+    SURFACE = ("one `slope` static or one level `plane` (the flat case; downhill = the initial velocity's "
+               "direction), gravity along -z, the 'contact' effect, the body-surface pair's friction")
 
     def __init__(self, scene):
         super().__init__(scene)
         self.body = self.the_body()
         sname = self.param("slope")
-        slopes = [s for s in scene.statics if s.kind == "slope" and (sname is None or s.name == sname)]
+        level = [s for s in scene.statics if s.kind == "plane" and abs(float(s.normal[2]) - 1.0) <= 1e-12]
+        slopes = [s for s in list(scene.statics) if (s.kind == "slope" or s in level)
+                  and (sname is None or s.name == sname)]
         if len(slopes) != 1:
-            raise ReferenceError(f"{self.name} needs exactly one slope static (or params.slope naming one)")
+            named = [s for s in scene.statics if s.name == sname]
+            what = (f"static {sname!r} is a {named[0].kind} that is not level: give an incline as a 'slope'"
+                    if named else f"the scene has {len(slopes)} slopes and level planes")
+            raise ReferenceError(f"{self.name} needs exactly one slope or level plane static (or params.slope naming "
+                                 f"one); {what}", key="reference.params.slope" if sname else "static")
         self.slope = slopes[0]
         g = scene.gravity
         self.gmag = float(np.linalg.norm(g))
         if self.gmag == 0 or abs(g[0]) > 0 or abs(g[1]) > 0:
-            raise ReferenceError(f"{self.name} needs gravity along -z")
-        a = math.radians(self.slope.angle)
+            raise ReferenceError(f"{self.name} needs gravity along -z", key="scenario.gravity")
+        if self.slope.kind == "slope":
+            a = math.radians(self.slope.angle)
+            self.d = np.array([math.cos(a), 0.0, -math.sin(a)])
+        else:
+            a = 0.0
+            vh = self.body.velocity * np.array([1.0, 1.0, 0.0])
+            nv = float(np.linalg.norm(vh))
+            self.d = vh / nv if nv > 0 else np.array([1.0, 0.0, 0.0])
         self.theta = a
         self.n = self.slope.normal.copy()
-        self.d = np.array([math.cos(a), 0.0, -math.sin(a)])
         self.axis = np.cross(self.n, self.d)  # spin axis of a ball rolling downhill
         self.g_d = float(g @ self.d)   # = g sin a
         self.g_n = float(-(g @ self.n))  # = g cos a
@@ -95,7 +112,7 @@ class _SlopeModel(ReferenceModel):
         self.x0 = self.body.position.copy()
         self.u0 = float(self.body.velocity @ self.d)
         if not scene.has("contact"):
-            raise ReferenceError(f"{self.name} needs the 'contact' effect")
+            raise ReferenceError(f"{self.name} needs the 'contact' effect", key="scenario.effects")
 
     def along(self, trace) -> np.ndarray:
         """Velocity along the downhill direction (F,)."""
@@ -135,6 +152,19 @@ class InclineBlock(_SlopeModel):
     """
 
     name = "incline_block"
+    summary = "a block on an incline (or a level plane): sticks below atan(mu_s), slides with g (sin a -+ mu_k cos a)"
+    takes = ("one body on " + _SlopeModel.SURFACE + "; its initial velocity along the downhill direction. "
+             "Refuses a block that would slide at constant speed (no acceleration to measure: a flat frictionless "
+             "surface, or tan a = mu_k with a speed)")
+    produces = {
+        "slide_accel": "measured acceleration along the slope while sliding (m/s^2)",
+        "slide_accel_error": "|a_measured - a| / |a| while sliding (1)",
+        "stick_creep": "largest displacement within the slope's plane after the (reference) stop (m)",
+        "return_accel": "measured acceleration of the slide back after a stop on a steep slope (m/s^2)",
+        "return_accel_error": "|a_measured - a_back| / a_back (1)",
+        **TRAJECTORY,
+    }
+    primary = "slide_accel_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -158,6 +188,11 @@ class InclineBlock(_SlopeModel):
         self.a_back = 0.0
         if math.isfinite(self.t_stop) and self.t_stop > 0 and not self.sticks_at_rest:
             self.a_back = self.g_d - self.mu_k * self.g_n
+        if self.t_stop > 0 and self.a_slide == 0.0:
+            raise ReferenceError(
+                f"{self.name}: the block slides at a constant {u0:g} m/s (slope {math.degrees(self.theta):g} deg, "
+                f"mu_k = {self.mu_k:g}): there is no acceleration to measure and no stop; give it friction, a "
+                "slope, or no speed", key=f"static[{self.slope.index}]")
 
     @property
     def regime(self) -> str:
@@ -207,6 +242,91 @@ class InclineBlock(_SlopeModel):
         return out
 
 
+class SlideToRest(InclineBlock):
+    """A box given a speed u0 along a level plane or a slope slides to rest
+    under kinetic friction and stays there.
+
+    Deceleration along the motion: level, mu_k g; down a slope of angle a,
+    g (mu_k cos a - sin a); up it, g (sin a + mu_k cos a).  Then
+
+        stop distance  d = u0^2 / (2 |a|)   (v^2 / (2 mu_k g) on the level)
+        stop time      t_stop = |u0| / |a|
+
+    What it refuses (load time, naming the surface): a box sliding down a
+    slope at or steeper than the kinetic friction angle atan(mu_k) never
+    stops (g sin a >= mu_k g cos a); a box sent up a slope steeper than the
+    static friction angle atan(mu_s) stops and slides back down
+    (``incline_block`` models both); a run that ends before t_stop.
+
+    Metrics: ``stop_distance`` (m) the distance the centre moved along the
+    motion by the last frame, ``stop_distance_error`` = |d_meas - d| / d;
+    ``stop_time`` (s) where the least-squares line of the speed along the
+    motion (10 % to 90 % of t_stop) reaches zero, ``stop_time_error`` =
+    |t_meas - t_stop| / t_stop; incline_block's ``slide_accel(_error)``,
+    ``stick_creep`` and the trajectory metrics.
+    """
+
+    name = "slide_to_rest"
+    summary = "a box given a speed on a level or inclined frictional plane slides to rest: d = v^2 / (2 mu_k g) on the level"
+    takes = ("one body with an initial velocity along the downhill direction (up or down; on a level plane any "
+             "horizontal direction) on " + _SlopeModel.SURFACE + ", mu_k > 0. Refuses a slope at or steeper than "
+             "atan(mu_k) going down (never stops), steeper than atan(mu_s) going up (slides back: use "
+             "incline_block), and a duration shorter than the stop time")
+    produces = {
+        "stop_distance": "distance the centre moved along the motion by the last frame (m)",
+        "stop_distance_ref": "u0^2 / (2 |a|) (m)",
+        "stop_distance_error": "|d_measured - d| / d (1)",
+        "stop_time": "zero of the fitted speed line (s)",
+        "stop_time_ref": "|u0| / |a| (s)",
+        "stop_time_error": "|t_measured - t_stop| / t_stop (1)",
+        "slide_accel": InclineBlock.produces["slide_accel"],
+        "slide_accel_error": InclineBlock.produces["slide_accel_error"],
+        "stick_creep": InclineBlock.produces["stick_creep"],
+        **TRAJECTORY,
+    }
+    primary = "stop_distance_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        b, where = self.body, f"static[{self.slope.index}]"
+        deg = math.degrees(self.theta)
+        if self.u0 == 0.0 or not np.allclose(b.velocity, self.u0 * self.d, atol=1e-12 * abs(self.u0)):
+            raise ReferenceError(f"slide_to_rest needs an initial velocity along {self.d.round(6).tolist()} "
+                                 "(down or up the slope; on a level plane, horizontal)", key="body")
+        if self.u0 > 0 and self.a_slide >= 0:
+            raise ReferenceError(
+                f"slide_to_rest: a {deg:g} deg slope is at or steeper than the kinetic friction angle "
+                f"atan(mu_k) = {math.degrees(math.atan(self.mu_k)):.6g} deg: sliding down, the box never stops "
+                "(use incline_block)", key=where)
+        if self.a_back:
+            raise ReferenceError(
+                f"slide_to_rest: a {deg:g} deg slope is steeper than the static friction angle atan(mu_s) = "
+                f"{math.degrees(math.atan(self.mu_s)):.6g} deg: the box stops and slides back down "
+                "(use incline_block, which models the return)", key=where)
+        self.d_stop = self.u0 * self.u0 / (2.0 * abs(self.a_slide))
+        if scene.duration <= self.t_stop:
+            raise ReferenceError(f"slide_to_rest: the run ends at {scene.duration:g} s, before the stop at "
+                                 f"t_stop = {self.t_stop:.6g} s", key="scenario.duration")
+
+    def metrics(self, trace) -> dict[str, float]:
+        out = super().metrics(trace)
+        i, sgn = self.body.index, math.copysign(1.0, self.u0)
+        d = float((trace.pos[-1, i] - self.x0) @ self.d) * sgn
+        out["stop_distance"] = d
+        out["stop_distance_ref"] = self.d_stop
+        out["stop_distance_error"] = abs(d - self.d_stop) / self.d_stop
+        t = trace.t
+        lo = int(np.searchsorted(t, SKIP_FRACTION * self.t_stop, side="left"))
+        hi = max(int(np.searchsorted(t, 0.9 * self.t_stop, side="right")), lo + 3)
+        speed = self.along(trace)[lo:hi] * sgn
+        slope = _fit_slope(t[lo:hi], speed)
+        t_meas = float(t[lo:hi].mean() - speed.mean() / slope) if slope < 0 else math.inf
+        out["stop_time"] = t_meas
+        out["stop_time_ref"] = self.t_stop
+        out["stop_time_error"] = abs(t_meas - self.t_stop) / self.t_stop
+        return out
+
+
 class RollingSphere(_SlopeModel):
     """Sphere released from rest on an incline: rolls (a = g sin a / (1 + k))
     or slips (a = g (sin a - mu_k cos a)); see the module docstring.
@@ -219,6 +339,17 @@ class RollingSphere(_SlopeModel):
     """
 
     name = "rolling_sphere"
+    summary = "a sphere released from rest on an incline: rolls (a = g sin a / (1 + k)) or slips"
+    takes = ("one sphere at rest on " + _SlopeModel.SURFACE + "; refuses a level surface (nothing would move)")
+    produces = {
+        "roll_accel": "measured linear acceleration downhill (m/s^2)",
+        "roll_accel_error": "|a_measured - a| / a (1)",
+        "spin_accel": "measured angular acceleration about n x d (rad/s^2)",
+        "spin_accel_error": "|alpha_measured - alpha| / alpha (1)",
+        "rolling_slip": "largest contact-point speed over the fitted window (m/s)",
+        **TRAJECTORY,
+    }
+    primary = "roll_accel_error"
 
     def _check_body(self, b) -> None:
         if b.shape != "sphere":
@@ -233,6 +364,9 @@ class RollingSphere(_SlopeModel):
         self._check_body(b)
         if np.any(b.velocity != 0) or np.any(b.angular_velocity != 0):
             raise ReferenceError(f"{self.name} needs the body to start at rest")
+        if self.g_d == 0.0:
+            raise ReferenceError(f"{self.name} needs an incline: on a level surface a body at rest stays at rest "
+                                 "(no acceleration to measure)", key=f"static[{self.slope.index}]")
         self.R = b.radius
         self.I = self._axis_inertia(b)
         k = self.I / (b.mass * self.R**2)
@@ -280,6 +414,9 @@ class RollingCylinder(RollingSphere):
     """
 
     name = "rolling_cylinder"
+    summary = "a solid cylinder released from rest across an incline: rolls (a = 2/3 g sin a) or slips"
+    takes = ("one cylinder at rest, its axis along n x d (across the slope), on " + _SlopeModel.SURFACE
+             + "; refuses a level surface")
 
     def _check_body(self, b) -> None:
         if b.shape != "cylinder":
@@ -329,6 +466,20 @@ class RollingResistance(_SlopeModel):
     """
 
     name = "rolling_resistance"
+    summary = "a sphere or cylinder rolling on an incline or level plane against rolling friction mu_r"
+    takes = ("one sphere or cylinder (axis across the slope) with a rolling start (w0 = u0 / R) on "
+             + _SlopeModel.SURFACE + "; the 'rolling_friction' effect and a pair rolling_friction > 0; refuses "
+             "a scene where the body would slip")
+    produces = {
+        "roll_accel": "fitted acceleration of the first rolling phase (m/s^2)",
+        "roll_accel_error": "|a_measured - a| / |a| (1)",
+        "spin_accel": "fitted angular acceleration (rad/s^2)",
+        "spin_accel_error": "|alpha_measured - a / R| / |a / R| (1)",
+        "rolling_slip": "largest contact-point speed over the fitted window (m/s)",
+        "stick_creep": "largest displacement within the slope's plane from the reference stop after it (m)",
+        **TRAJECTORY,
+    }
+    primary = "roll_accel_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -454,7 +605,18 @@ class SpinToRest(ReferenceModel):
     """
 
     name = "spin_to_rest"
-    params_allowed = ("body",)
+    summary = "a capsule lying on a level plane, spun about the normal, stops under twist friction"
+    takes = ("one capsule lying flat on exactly one level plane, centre at rest, angular velocity along the normal, "
+             "the 'contact' and 'friction' effects, kinetic friction > 0")
+    params = (BODY_PARAM,)
+    produces = {
+        "spin_decel": "measured angular deceleration (rad/s^2)",
+        "spin_decel_error": "|alpha_measured - alpha| / alpha (1)",
+        "spin_stop_angle": "angle turned about the normal at the last frame (rad)",
+        "spin_stop_angle_error": "|theta_end - theta_stop| / |theta_stop| (1)",
+        **TRAJECTORY,
+    }
+    primary = "spin_decel_error"
 
     def __init__(self, scene):
         super().__init__(scene)

@@ -52,7 +52,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from adapters.conventions import quat_rotate, quat_to_matrix, world_to_body_angvel
-from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
 
 RTOL = 1e-10
 ATOL = 1e-12
@@ -144,7 +144,22 @@ def _rotation_angle(q: np.ndarray, qr: np.ndarray) -> np.ndarray:
 
 class TorqueFreeRigidBody(ReferenceModel):
     name = "torque_free_rigid_body"
-    params_allowed = ("body",)
+    summary = "a free spinning body: Euler's equations integrated to 1e-10 (Dzhanibekov flips, stable spins)"
+    takes = ("one spinning body without static geometry, springs or drag; unequal principal moments need the "
+             "'gyroscopic' effect; gravity only moves the centre")
+    params = (BODY_PARAM,)
+    produces = {
+        "orientation_error": "largest rotation angle between the body's and the reference orientation (rad)",
+        "angular_velocity_error": "max_t |w - w_ref| / |w0| (1)",
+        "spin_axis_deviation": "largest angle of the spin axis from its start (rad)",
+        "spin_axis_deviation_ref": "the same for the reference (rad)",
+        "spin_axis_excess": "max(0, spin_axis_deviation - spin_axis_deviation_ref) (rad)",
+        "flip_interval": "measured mean time between intermediate-axis flips (s)",
+        "flip_interval_ref": "reference flip interval (s)",
+        "flip_period_error": "|T - T_ref| / T_ref (1; spin about the intermediate axis only)",
+        **TRAJECTORY,
+    }
+    primary = "orientation_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -168,10 +183,16 @@ class TorqueFreeRigidBody(ReferenceModel):
         t_end = scene.duration * (1 + 1e-9) + 1e-9
         key = ("torque_free", tuple(map(float, self.inertia)), tuple(map(float, self.q0)),
                tuple(map(float, self.w0)), t_end)
-        self._sol = _cached(key, lambda: solve_torque_free(self.inertia, self.q0, self.w0, t_end))
+        self._sol_key, self._t_end = key, t_end
         order = np.argsort(self.inertia)
         self.mid_axis = int(order[1])
         self.spin_axis = int(np.argmax(np.abs(self.inertia * self.w0)))
+
+    @property
+    def _sol(self):
+        """The reference solution, solved on first use (loading a scene
+        only checks that the model fits it)."""
+        return _cached(self._sol_key, lambda: solve_torque_free(self.inertia, self.q0, self.w0, self._t_end))
 
     def reference(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(q (F, 4) wxyz, w_body (F, 3)) at times t (clipped to the run)."""
@@ -239,7 +260,18 @@ class TorqueFreeRigidBody(ReferenceModel):
 
 class HeavyTop(ReferenceModel):
     name = "heavy_top"
-    params_allowed = ()
+    summary = "a symmetric top held at a pivot by stiff springs to the world: precession and nutation (ODE, 1e-10)"
+    takes = ("one symmetric body (two equal principal moments), springs between it and the world, gravity, the "
+             "'gyroscopic' effect, no static geometry")
+    produces = {
+        "precession_rate": "measured mean precession rate of the symmetry axis (rad/s)",
+        "precession_rate_ref": "the reference's (rad/s)",
+        "precession_rate_ideal": "the gyroscopic approximation m g l / (I3 w3) (rad/s)",
+        "precession_rate_error": "|measured - reference| / |reference| (1)",
+        "tilt_error": "largest |tilt - tilt_ref| of the symmetry axis (rad)",
+        **TRAJECTORY,
+    }
+    primary = "precession_rate_error"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -285,8 +317,7 @@ class HeavyTop(ReferenceModel):
         y0 = np.concatenate([b.position, b.velocity, q0, world_to_body_angvel(q0, b.angular_velocity)])
         t_end = scene.duration * (1 + 1e-9) + 1e-9
         key = ("heavy_top", self._I, self.m, self._g, tuple(self._springs_t), tuple(map(float, y0)), t_end)
-        self._sol = _cached(key, lambda: solve_ivp(self._rhs, (0.0, t_end), y0, method="DOP853",
-                                                   rtol=RTOL, atol=ATOL, dense_output=True))
+        self._sol_args = (key, y0, t_end)
         e = np.zeros(3)
         e[self.sym] = 1.0
         self.e_sym = e
@@ -352,6 +383,13 @@ class HeavyTop(ReferenceModel):
                 0.5 * (qw * q_ - qx * r + qz * p),
                 0.5 * (qw * r + qx * q_ - qy * p),
                 pd, qd, rd]
+
+    @property
+    def _sol(self):
+        """The reference solution, solved on first use."""
+        key, y0, t_end = self._sol_args
+        return _cached(key, lambda: solve_ivp(self._rhs, (0.0, t_end), y0, method="DOP853",
+                                              rtol=RTOL, atol=ATOL, dense_output=True))
 
     def reference(self, t: np.ndarray):
         y = self._sol.sol(np.clip(t, 0.0, self._sol.t[-1]))

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from adapters.conventions import quat_rotate
-from harness.references import ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
 
@@ -74,7 +74,21 @@ class LogPile(ReferenceModel):
     """
 
     name = "log_pile"
-    params_allowed = ()
+    summary = "three logs (two on level ground, one in the groove): statics predict whether friction holds the pile"
+    takes = ("three equal-radius cylinders lying level and parallel, at rest, one level ground plane, gravity "
+             "along -z, the pairs' static friction")
+    produces = {
+        "friction_demand": "tan(th / 2), the log-on-log friction ratio the pile needs (1)",
+        "ground_friction_demand": "the log-on-ground friction ratio the pile needs (1)",
+        "pile_holds": "the prediction (bool)",
+        "top_drop": "largest fall of the top log below its start (m)",
+        "top_fell": "top_drop beyond half the way to the ground (bool)",
+        "outcome_ok": "top_fell is the opposite of pile_holds (bool)",
+        "stack_drift": "largest displacement of any body from its start at any time (m)",
+        "residual_velocity": "largest speed of any body over the last 10 % of the run (m/s)",
+        **TRAJECTORY,
+    }
+    primary = "stack_drift"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -142,7 +156,14 @@ class LogPile(ReferenceModel):
 
 class StaticStack(ReferenceModel):
     name = "static_stack"
-    params_allowed = ()
+    summary = "bodies placed at rest in static equilibrium stay where they are"
+    takes = "any bodies, every one at rest at t = 0"
+    produces = {
+        "stack_drift": "largest displacement of any body from its start at any time (m)",
+        "residual_velocity": "largest speed of any body over the last 10 % of the run (m/s)",
+        **TRAJECTORY,
+    }
+    primary = "stack_drift"
 
     def __init__(self, scene):
         super().__init__(scene)

@@ -42,12 +42,20 @@ import math
 import numpy as np
 
 from adapters.conventions import quat_to_matrix
-from harness.references import ReferenceError, ReferenceModel
+from harness.references import Param, ReferenceError, ReferenceModel
 
 
 class NoTunnelling(ReferenceModel):
     name = "no_tunnelling"
-    params_allowed = ("statics",)
+    summary = "bodies must not pass through thin static geometry; spheres bounce off walls by Newton's law"
+    takes = "the watched statics (boxes as slabs, planes as half-spaces), every body's path, restitution"
+    params = (Param("statics", "list of str", None, "names of the statics to watch (default: all)"),)
+    produces = {
+        "tunnelled": "1.0 if any body's centre crossed a watched slab within its face or went below a plane, else 0.0",
+        "tunnelled_bodies": "how many bodies did",
+        "reflected_velocity_error": "without gravity, max over spheres meeting a box of |v(T) - v'| / |v . n| (1)",
+    }
+    primary = "tunnelled"
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -59,7 +67,7 @@ class NoTunnelling(ReferenceModel):
             missing = [n for n in names if n not in by_name]
             if missing:
                 raise ReferenceError(f"no_tunnelling: params.statics names unknown statics {missing}; "
-                                     f"the scene has {sorted(by_name)}")
+                                     f"the scene has {sorted(by_name)}", key="reference.params.statics")
             statics = [by_name[n] for n in names]
         if not statics:
             raise ReferenceError("no_tunnelling needs at least one static to watch")

@@ -38,8 +38,9 @@
     E(t) = translational + rotational kinetic + gravitational + spring
     potential energy (J), from :func:`harness.metrics.kinetic_energy` and
     :func:`harness.metrics.potential_energy`.  As in the metrics, the
-    gravitational zero is the lowest height a body centre reaches in *that*
-    run, so compare drifts between engines, not absolute levels.
+    potential is measured from the datum the scene fixes
+    (:func:`harness.metrics.energy_datum`, docs/METRICS.md), the same for
+    every engine, so the curves start at the same level.
 ``/metrics/<engine>/penetration``
     Per-frame deepest overlap (m) over all candidate pairs,
     :func:`harness.geometry.max_depth_per_frame` (0 when there are no pairs);

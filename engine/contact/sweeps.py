@@ -1,0 +1,204 @@
+"""Compiled projected Gauss-Seidel sweeps of the contact solve (the solve
+phase) and the impulse application of the warm start.
+
+Velocities are one (n+1, 6) array U = [v | w] with the world's row n held
+at zero: an impulse on the world is never applied.  Rows are visited in
+their (colour) order, one after the other; rows of one colour share no
+dynamic body, so this is the result of updating a colour at once.
+
+Normal rows: ``J``/``M`` (m, 12), effective masses ``mn`` (m,), bodies
+``ab`` (m, 2).  Friction patches: ``Jt``/``Mt`` (np, nr, 12) with nr = 3
+(tangent, tangent, twist) or 5 (+ two rolling rows), ``mt`` (np, nr),
+bodies ``pab`` (np, 2), the patch of each normal row ``pid`` (m,),
+friction coefficients ``mu`` (np,), twist radii ``rt`` (np,), rolling
+coefficients ``mur`` (np,), and the pins of :meth:`Rows.stop_times`
+(``pin_t`` (np,) bool with unit directions ``dir_t`` (np, 2); ``pin_r``,
+``dir_r`` for the rolling rows).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def apply_rows(U, ab, M, d, world):
+    """U[a] += M[:, :6] d, U[b] += M[:, 6:] d over rows in order (M (k, 12),
+    d (k,)); the world row untouched."""
+    for i in range(d.shape[0]):
+        di = d[i]
+        ia = ab[i, 0]
+        ib = ab[i, 1]
+        if ia != world:
+            for k in range(6):
+                U[ia, k] += M[i, k] * di
+        if ib != world:
+            for k in range(6):
+                U[ib, k] += M[i, 6 + k] * di
+
+
+@njit(cache=True)
+def apply_patches(U, pab, Mt, d, world):
+    """U[pa] += sum_r d[:, r] MtA[:, r], likewise b (Mt (np, nr, 12), d (np, nr))."""
+    nr = d.shape[1]
+    for p in range(d.shape[0]):
+        ia = pab[p, 0]
+        ib = pab[p, 1]
+        for k in range(6):
+            sa = 0.0
+            sb = 0.0
+            for r in range(nr):
+                sa += d[p, r] * Mt[p, r, k]
+                sb += d[p, r] * Mt[p, r, 6 + k]
+            if ia != world:
+                U[ia, k] += sa
+            if ib != world:
+                U[ib, k] += sb
+
+
+@njit(cache=True)
+def normal_pass(U, ab, J, M, mn, lam, target, world):
+    """One sweep of the normal rows: lam >= 0, J U >= target."""
+    for i in range(lam.shape[0]):
+        ia = ab[i, 0]
+        ib = ab[i, 1]
+        vn = 0.0
+        for k in range(6):
+            vn += J[i, k] * U[ia, k]
+        for k in range(6):
+            vn += J[i, 6 + k] * U[ib, k]
+        old = lam[i]
+        new = max(old - mn[i] * (vn - target[i]), 0.0)
+        d = new - old
+        lam[i] = new
+        if ia != world:
+            for k in range(6):
+                U[ia, k] += M[i, k] * d
+        if ib != world:
+            for k in range(6):
+                U[ib, k] += M[i, 6 + k] * d
+
+
+@njit(cache=True, inline="always")
+def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
+    """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected)."""
+    ia = pab[p, 0]
+    ib = pab[p, 1]
+    for r in range(r0, r1):
+        v = 0.0
+        for k in range(6):
+            v += Jt[p, r, k] * U[ia, k]
+        for k in range(6):
+            v += Jt[p, r, 6 + k] * U[ib, k]
+        new[r] = lam_t[p, r] - mt[p, r] * v
+
+
+@njit(cache=True, inline="always")
+def _patch_apply(U, pab, Mt, lam_t, p, r0, r1, new, world):
+    ia = pab[p, 0]
+    ib = pab[p, 1]
+    for k in range(6):
+        sa = 0.0
+        sb = 0.0
+        for r in range(r0, r1):
+            d = new[r] - lam_t[p, r]
+            sa += d * Mt[p, r, k]
+            sb += d * Mt[p, r, 6 + k]
+        if ia != world:
+            U[ia, k] += sa
+        if ib != world:
+            U[ib, k] += sb
+    for r in range(r0, r1):
+        lam_t[p, r] = new[r]
+
+
+@njit(cache=True, inline="always")
+def _onto_disc(new, i, lim, pinned, d):
+    """(new[i], new[i+1]) scaled back onto the disc of radius ``lim``, or
+    when ``pinned`` held on its rim against the unit direction ``d`` (2,)."""
+    mag = math.sqrt(new[i] ** 2 + new[i + 1] ** 2)
+    if mag > lim:
+        f = lim / mag if mag > 0 else 1.0
+        new[i] *= f
+        new[i + 1] *= f
+    if pinned:
+        new[i] = -lim * d[0]
+        new[i + 1] = -lim * d[1]
+
+
+@njit(cache=True)
+def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world):
+    """One sweep of the friction patches: tangent and twist rows (Coulomb
+    disc mu Fn, twist limit mu Fn r_twist), then the rolling rows (disc
+    mu_r Fn), Fn the patch's normal impulse at the start of the sweep."""
+    npch = lam_t.shape[0]
+    nr = lam_t.shape[1]
+    Fn = np.zeros(npch)
+    for i in range(pid.shape[0]):
+        Fn[pid[i]] += lam_n[i]
+    new = np.empty(nr)
+    for p in range(npch):
+        _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
+        lim = mu[p] * Fn[p]
+        _onto_disc(new, 0, lim, pin_t[p], dir_t[p])
+        tl = lim * rt[p]
+        new[2] = min(max(new[2], -tl), tl)
+        _patch_apply(U, pab, Mt, lam_t, p, 0, 3, new, world)
+    if nr == 5:
+        for p in range(npch):
+            _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 3, 5, new, world)
+            _onto_disc(new, 3, mur[p] * Fn[p], pin_r[p], dir_r[p])
+            _patch_apply(U, pab, Mt, lam_t, p, 3, 5, new, world)
+
+
+@njit(cache=True)
+def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt, mur,
+            pin_t, dir_t, pin_r, dir_r, iterations, tol, world):
+    """Sweeps of friction (patches) then normal rows until no impulse
+    changes by more than ``tol`` times the largest normal impulse in a
+    sweep.  Returns (sweeps done, the last sweep's largest change relative
+    to the largest normal impulse)."""
+    m = lam_n.shape[0]
+    prev_n = np.empty(m)
+    prev_t = np.empty(lam_t.shape)
+    residual = 0.0
+    for it in range(iterations):
+        prev_n[:] = lam_n
+        if friction:
+            prev_t[:] = lam_t
+            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world)
+        normal_pass(U, ab, J, M, mn, lam_n, target, world)
+        change = 0.0
+        for i in range(m):
+            change = max(change, abs(lam_n[i] - prev_n[i]))
+        if friction:
+            for p in range(lam_t.shape[0]):
+                for r in range(lam_t.shape[1]):
+                    change = max(change, abs(lam_t[p, r] - prev_t[p, r]))
+        scale = 0.0
+        for i in range(m):
+            scale = max(scale, lam_n[i])
+        residual = change / scale if scale > 0.0 else 0.0
+        if change <= tol * scale or change == 0.0:
+            return it + 1, residual
+    return iterations, residual
+
+
+@njit(cache=True)
+def iterate_normal(U, ab, J, M, mn, lam, target, iterations, tol, world):
+    """Normal rows only, with their own accumulator (split impulse)."""
+    m = lam.shape[0]
+    prev = np.empty(m)
+    for _ in range(iterations):
+        prev[:] = lam
+        normal_pass(U, ab, J, M, mn, lam, target, world)
+        change = 0.0
+        scale = 0.0
+        for i in range(m):
+            change = max(change, abs(lam[i] - prev[i]))
+            scale = max(scale, lam[i])
+        if change <= tol * scale or change == 0.0:
+            return

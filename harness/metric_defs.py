@@ -1,0 +1,103 @@
+"""The harness's own metrics: names, units, when each is reported, and which
+scenes are conservative.  A leaf (no harness imports), read by
+:mod:`harness.metrics` (which computes them), by the load-time check of
+:func:`harness.references.scene_errors` (a check or primary metric must be
+produced for its scene) and by docs/METRICS.md (tests/test_models.py checks
+that every name here is documented there).
+
+Functions take a compiled scene (``harness.scene.Scene``) by duck typing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MetricDef:
+    units: str
+    meaning: str
+    when: str  # when the metric has a value (otherwise NaN, or absent)
+
+
+ALWAYS = "reported for every run"
+GENERIC_METRICS: dict[str, MetricDef] = {
+    "max_penetration": MetricDef("m", "deepest overlap between any two shapes over the run",
+                                 "reported only with the 'contact' effect"),
+    "mean_penetration": MetricDef("m", "mean over frames with an overlap of each frame's deepest overlap",
+                                  "reported only with the 'contact' effect"),
+    "penetration_unknown_frames": MetricDef("frames", "frames where some pair's depth could not be measured",
+                                            "reported only with the 'contact' effect"),
+    "energy_initial": MetricDef("J", "mechanical energy E0 at the first frame, potential energy from the scene's datum",
+                                ALWAYS),
+    "energy_final": MetricDef("J", "mechanical energy at the last frame (same datum)", ALWAYS),
+    "energy_drift": MetricDef("1", "max_t |E(t) - E0| / E_scale",
+                              "reported only where the scene is conservative (else NaN)"),
+    "energy_dissipated": MetricDef("1", "(E0 - E(T)) / E_scale: the energy the scene's dissipation removed",
+                                   "reported only where the scene dissipates (else NaN)"),
+    "energy_gain": MetricDef("1", "max(0, max_t (E(t) - E0) / E_scale)", ALWAYS),
+    "linear_momentum_drift": MetricDef("1", "max_t |P(t) - P0| / max(|P0|, sum m |v0|)",
+                                       "reported only where no external force acts (else NaN)"),
+    "angular_momentum_drift": MetricDef("1", "max_t |L(t) - L0| / (|L0| or the sum of spin and orbital magnitudes)",
+                                        "reported only where no external torque about the centre of mass acts "
+                                        "(else NaN)"),
+    "stable": MetricDef("bool", "finite state, energy_gain <= 0.5 and bounded speeds", ALWAYS),
+    "stability_reason": MetricDef("text", "why a run is not stable ('' when it is)", ALWAYS),
+    "max_speed": MetricDef("m/s", "largest body speed over the run", ALWAYS),
+    "cpu_s_per_sim_s": MetricDef("s/s", "CPU seconds of stepping per simulated second", ALWAYS),
+    "wall_s_per_sim_s": MetricDef("s/s", "wall seconds of stepping per simulated second", ALWAYS),
+    "steps_per_s": MetricDef("1/s", "steps per wall second", ALWAYS),
+}
+
+
+def _drag(scene) -> list[str]:
+    out = []
+    for eff in ("drag_linear", "drag_quadratic"):
+        if scene.has(eff) and any(getattr(b, eff) > 0 for b in scene.bodies):
+            out.append(eff.replace("_", " "))
+    return out
+
+
+def dissipation(scene) -> list[str]:
+    """Why the scene removes mechanical energy, one phrase per cause: contact
+    pairs with friction, rolling friction or restitution < 1, dampers, drag.
+    Empty: the scene is conservative (energy_drift applies)."""
+    out: list[str] = []
+    pairs = scene.contact_pairs()
+    mus = sorted({m.friction for *_, m in pairs if m.friction > 0 or m.static_friction > 0})
+    if mus:
+        out.append("friction (mu = " + ", ".join(f"{x:g}" for x in mus) + ")")
+    if any(m.rolling_friction > 0 for *_, m in pairs):
+        out.append("rolling friction")
+    es = sorted({m.restitution for *_, m in pairs if m.restitution < 1.0})
+    if es:
+        out.append("impacts with e = " + ", ".join(f"{x:g}" for x in es) + " < 1")
+    if any(sp.damping > 0 for sp in scene.springs):
+        out.append("dampers")
+    return out + _drag(scene)
+
+
+def external_force_free(scene) -> tuple[bool, bool]:
+    """(linear momentum conserved, angular momentum about the COM conserved)
+    by the scene's physics.  Contact with statics, world springs and drag are
+    external; uniform gravity is external for P only."""
+    touches_world = scene.has("contact") and len(scene.statics) > 0
+    world_spring = any(sp.a < 0 or sp.b < 0 for sp in scene.springs)
+    free = not (touches_world or world_spring or _drag(scene))
+    gravity = bool(np.any(scene.gravity != 0))
+    return free and not gravity, free
+
+
+def generic_metrics(scene) -> set[str]:
+    """The harness metrics a check or a primary metric of this scene may name
+    (besides its model's): every harness metric, except that of the energy
+    split the one that does not apply (``energy_drift`` in a dissipative
+    scene, ``energy_dissipated`` in a conservative one: the scene calls for
+    the other).  Metrics that are NaN for other reasons (penetration
+    without contact, momentum under external forces) stay nameable, so a
+    scene varied with --set keeps loading; a check on one fails at run time."""
+    out = set(GENERIC_METRICS)
+    out.discard("energy_dissipated" if not dissipation(scene) else "energy_drift")
+    return out

@@ -1,0 +1,675 @@
+"""Strict validation and property-based fuzzing of specs, suites and the CLI.
+
+Promise under test: whatever a spec, a suite or an argument list says, the
+result is either a clear SpecError / exit 2 naming file, key path,
+expectation and value, or a run that ends in a status row -- on every
+engine, never an uncaught exception.
+
+Hypothesis profiles (``PHYSBENCH_FUZZ_PROFILE``):
+
+- ``ci`` (default): a few hundred derandomized examples in all, no example
+  database (nothing is written into the repository);
+- ``nightly``: 10,000 examples per property, random seeds, no database::
+
+      PHYSBENCH_FUZZ_PROFILE=nightly python -m pytest -q tests/test_fuzz.py
+
+  At the end of a session a summary (cases, rejections, runs per engine,
+  crashes) is printed with ``-s``.
+"""
+
+from __future__ import annotations
+
+import collections
+import copy
+import dataclasses
+import json
+import math
+import os
+import re
+import tomllib
+import warnings
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from adapters import ENGINES
+from harness import cli
+from harness.scene import REPO_ROOT, SCENARIO_DIR, load_scene
+from harness.spec import BOUNDS, SpecError, load_spec
+from harness.sweep import STATUSES, SuiteError, expand, load_suite
+
+# --------------------------------------------------------------------------
+# profiles
+
+_COMMON = dict(database=None, deadline=None, print_blob=True,
+               suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
+                                      HealthCheck.data_too_large, HealthCheck.filter_too_much])
+settings.register_profile("ci", max_examples=60, derandomize=True, **_COMMON)
+settings.register_profile("nightly", max_examples=10_000, derandomize=False, **_COMMON)
+PROFILE = os.environ.get("PHYSBENCH_FUZZ_PROFILE", "ci")
+if PROFILE not in ("ci", "nightly"):
+    raise RuntimeError(f"PHYSBENCH_FUZZ_PROFILE: expected ci or nightly, got {PROFILE!r}")
+
+
+def fuzz(scale: float = 1.0):
+    """The profile's settings, ``scale`` times its example count (CI only:
+    the nightly profile runs 10,000 examples of every property)."""
+    base = settings.get_profile(PROFILE)
+    n = base.max_examples if PROFILE == "nightly" else max(1, int(base.max_examples * scale))
+    return settings(base, max_examples=n)
+
+
+#: tallies over the session, printed at the end (pytest -s)
+TALLY: collections.Counter = collections.Counter()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _report_tally():
+    yield
+    if TALLY:
+        print(f"\nfuzz tally ({PROFILE}): " + ", ".join(f"{k} {v}" for k, v in sorted(TALLY.items())))
+
+
+# --------------------------------------------------------------------------
+# a minimal TOML writer (tests only): tables, arrays of tables, inline values
+
+
+def _key(k: str) -> str:
+    return json.dumps(k, ensure_ascii=False)
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(type(v))
+
+
+def toml_dumps(doc: dict[str, Any]) -> str:
+    lines: list[str] = []
+    for k, v in doc.items():
+        if not isinstance(v, (dict, list)) or (isinstance(v, list) and not all(isinstance(x, dict) for x in v)) \
+                or (isinstance(v, list) and not v):
+            lines.append(f"{_key(k)} = {_value(v)}")
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            lines.append(f"[{_key(k)}]")
+            lines.extend(f"{_key(a)} = {_value(b)}" for a, b in v.items())
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                lines.append(f"[[{_key(k)}]]")
+                lines.extend(f"{_key(a)} = {_value(b)}" for a, b in item.items())
+    return "\n".join(lines) + "\n"
+
+
+def test_toml_writer_round_trips():
+    for p in sorted(SCENARIO_DIR.rglob("*.toml")):
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+        assert tomllib.loads(toml_dumps(raw)) == raw, p
+
+
+# --------------------------------------------------------------------------
+# shipped specs and mutations of them
+
+SPEC_FILES = sorted(SCENARIO_DIR.rglob("*.toml")) + sorted((REPO_ROOT / "tests" / "data").glob("*.toml"))
+SUITE_FILES = sorted((REPO_ROOT / "suites").glob("*.toml"))
+RAW_SPECS = [(p, tomllib.loads(p.read_text(encoding="utf-8"))) for p in SPEC_FILES]
+
+EXTREMES = [math.inf, -math.inf, math.nan, 0.0, -0.0, -1.0, 1e308, -1e308, 1e300, 1e-300, 5e-324,
+            1e-7, 1e7, 1e12, 2**63 - 1, -(2**63), 0, 1, -1, 3, True, False, "", "x", "inf", "1e400",
+            [], [1.0], [0.0, 0.0], [math.inf, 0.0, 0.0], [1e300, 1e300, 1e300], {}, {"a": 1.0},
+            "a\"<&>'\n", "é" * 50]
+
+
+def _leaves(node: Any, path: tuple = ()) -> list[tuple]:
+    """Key paths of every value in a TOML document (tables, lists, scalars)."""
+    out = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            out.append(path + (k,))
+            out.extend(_leaves(v, path + (k,)))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            out.append(path + (i,))
+            out.extend(_leaves(v, path + (i,)))
+    return out
+
+
+def _get_parent(doc: Any, path: tuple) -> Any:
+    node = doc
+    for part in path[:-1]:
+        node = node[part]
+    return node
+
+
+def _number_near(v: Any, draw) -> Any:
+    """A number related to ``v``: scaled by a power of ten, negated, or an extreme."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return copy.deepcopy(draw(st.sampled_from(EXTREMES)))
+    k = draw(st.integers(-320, 320))
+    try:
+        return float(v) * 10.0**k * draw(st.sampled_from([1.0, -1.0]))
+    except OverflowError:
+        return math.inf
+
+
+@st.composite
+def mutated_doc(draw, docs: list[tuple[Path, dict[str, Any]]], max_mutations: int = 3):
+    """A shipped document with 1..max_mutations mutations: a value replaced
+    by an extreme value, a wrong type or a scaled number; a key dropped or
+    renamed; a list entry dropped or duplicated."""
+    path, raw = draw(st.sampled_from(docs))
+    doc = copy.deepcopy(raw)
+    for _ in range(draw(st.integers(1, max_mutations))):
+        leaves = _leaves(doc)
+        if not leaves:
+            break
+        where = draw(st.sampled_from(leaves))
+        parent = _get_parent(doc, where)
+        key = where[-1]
+        op = draw(st.sampled_from(["extreme", "near", "near", "drop", "rename", "dup"]))
+        if op == "extreme":
+            parent[key] = copy.deepcopy(draw(st.sampled_from(EXTREMES)))  # EXTREMES holds lists: never share them
+        elif op == "near":
+            v = parent[key]
+            if isinstance(v, list) and v and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+                i = draw(st.integers(0, len(v) - 1))
+                v[i] = _number_near(v[i], draw)
+            else:
+                parent[key] = _number_near(v, draw)
+        elif op == "drop":
+            del parent[key]
+        elif op == "rename" and isinstance(parent, dict):
+            parent[str(key) + draw(st.sampled_from(["_x", "s", "X"]))] = parent.pop(key)
+        elif op == "dup" and isinstance(parent, list):
+            parent.append(json.loads(json.dumps(parent[key])))
+    return path, doc
+
+
+def _write(tmp: Path, doc: dict[str, Any], name: str = "spec.toml") -> Path:
+    p = tmp / name
+    p.write_text(toml_dumps(doc), encoding="utf-8")
+    return p
+
+
+def _load_or_reject(p: Path) -> list:
+    """Every scene of the spec file at ``p`` (base and variants), or [] when
+    it is rejected.  A rejection must be a SpecError whose every line names
+    the file and a key path; anything else raised fails the test."""
+    try:
+        loaded = load_spec(p)
+        scenes = [load_scene(p, v, loaded=loaded) for v in (None, *loaded.variants)]
+    except SpecError as e:
+        assert e.errors, "a SpecError without a message"
+        for line in e.errors:
+            assert line.startswith(f"{p}: ") or line.startswith(f"{p.name}: ") or ": " in line, line
+            assert re.match(r"^[^:]+: [^:]+: .+", line), f"not '<file>: <key path>: <message>': {line!r}"
+        TALLY["spec rejected"] += 1
+        return []
+    TALLY["spec accepted"] += 1
+    return scenes
+
+
+@fuzz(scale=3.0)
+@given(case=mutated_doc(RAW_SPECS))
+def test_mutated_specs_load_or_reject(tmp_path, case):
+    """Mutated shipped specs: load_spec/load_scene return scenes or raise a
+    SpecError, never anything else (before: 2 of 1,500 random mutations
+    raised OverflowError or ZeroDivisionError from load_scene)."""
+    _, doc = case
+    scenes = _load_or_reject(_write(tmp_path, doc))
+    for sc in scenes:
+        assert all(math.isfinite(b.mass) and b.mass > 0 for b in sc.bodies)
+        assert np.isfinite(sc.inertias).all() and (sc.inertias > 0).all()
+        x, q, v, w = sc.initial_state()
+        assert np.isfinite(x).all() and np.isfinite(v).all() and np.isfinite(w).all()
+        assert np.abs(x).max(initial=0.0) <= BOUNDS["position"][1]
+
+
+# --------------------------------------------------------------------------
+# runs of whatever validates, on every engine
+
+RUN_STEPS = 4  # a generated valid scene runs this many steps at most
+
+
+def _short(scene):
+    return dataclasses.replace(scene, duration=min(scene.duration, RUN_STEPS * scene.dt))
+
+
+def _run_all(scene, engine: str) -> None:
+    from harness.runner import run
+
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        res = run(_short(scene), engine, timeout_s=60.0)
+    assert res.status in STATUSES, res.status
+    assert res.status == "ok" or res.message, f"status {res.status} without a reason"
+    row = res.row()
+    assert row["status"] == res.status and row["engine"] == engine
+    TALLY[f"run {engine} {res.status}"] += 1
+
+
+def _mostly(good, bad, odds: int = 25):
+    """``good`` values, one draw in ``odds`` from ``bad`` (out of bounds or
+    not finite): with a dozen numbers per spec, about half the specs stay
+    valid and run."""
+    # a middle value picks ``bad``: hypothesis favours the ends of a range
+    return st.integers(0, odds - 1).flatmap(lambda k: bad if k == odds // 2 else good)
+
+
+def _log_uniform(lo: float, hi: float):
+    return st.floats(math.log10(lo), math.log10(hi)).map(lambda e: 10.0**e)
+
+
+@st.composite
+def body_table(draw, i: int, planar: bool):
+    shape = draw(st.sampled_from(["sphere", "box", "capsule", "cylinder"]))
+    size = _mostly(_mostly(_log_uniform(1e-3, 10.0), st.sampled_from([1e-6, 1e4]), odds=8), st.sampled_from([1e-7, 2e4, 0.0, -0.1, math.inf, 1e300, 1e-300]))
+    b: dict[str, Any] = {"name": draw(st.sampled_from([f"b{i}", f"b\"<&>'{i}", f"body {i}" * 20])), "shape": shape}
+    if shape == "box":
+        b["half_extents"] = [draw(size), draw(size), draw(size)]
+    else:
+        b["radius"] = draw(size)
+        if shape in ("capsule", "cylinder"):
+            b["half_length"] = draw(size)
+    if draw(st.booleans()):
+        b["mass"] = draw(_mostly(_mostly(_log_uniform(1e-3, 1e3), st.sampled_from([1e-9, 1e9]), odds=8), st.sampled_from([0.0, 1e10, 1e308, math.nan])))
+    else:
+        b["density"] = draw(_mostly(_log_uniform(1e2, 1e4), st.sampled_from([1e-4, 1e300])))
+    coord = _mostly(st.floats(-10, 10), st.sampled_from([1e5, -1e5, 1e6, math.inf]))
+    speed = _mostly(_mostly(st.floats(-100, 100), st.just(5e4), odds=8), st.sampled_from([1e5, 1e6, -math.inf]))
+    b["position"] = [draw(coord), 0.0 if planar else draw(coord), draw(coord) + 10.0 * i]
+    b["velocity"] = [draw(speed), 0.0 if planar else draw(speed), draw(speed)]
+    b["angular_velocity"] = [0.0, draw(speed), 0.0] if planar else [draw(speed), draw(speed), draw(speed)]
+    if draw(st.integers(0, 4)) == 0:
+        b["pattern"] = {"kind": "column", "count": draw(_mostly(st.integers(1, 3), st.sampled_from([10_001, 10**12]),
+                                                                 odds=4))}
+    return b
+
+
+@st.composite
+def generated_doc(draw):
+    """A spec written from scratch: 1-3 bodies of any shape, a ground plane
+    or a box, any effects, planar or not, dimensions and values mostly in
+    bounds, now and then out of them or not finite."""
+    effects = draw(st.lists(st.sampled_from(["gravity", "contact", "restitution", "friction", "gyroscopic",
+                                             "drag_linear"]), unique=True))
+    dt = draw(_mostly(st.floats(1e-4, 0.05), st.sampled_from([1e-8, 2.0, 0.0, math.nan])))
+    duration = draw(_mostly(st.floats(0.05, 10.0), st.sampled_from([1e7, 1e12, 1e5, math.inf])))
+    planar = draw(st.booleans())
+    doc: dict[str, Any] = {"scenario": {"family": "fuzz", "title": "generated", "duration": duration, "dt": dt,
+                                        "effects": effects, "planar": planar}}
+    if "friction" in effects or "restitution" in effects:
+        doc["material"] = {"default": {"friction": draw(st.floats(0, 2)), "restitution": draw(st.floats(0, 1))}}
+    bodies = [draw(body_table(i, planar)) for i in range(draw(st.integers(1, 3)))]
+    if "drag_linear" in effects:
+        bodies[0]["drag_linear"] = draw(_mostly(st.floats(0, 10), st.just(1e10)))
+    doc["body"] = bodies
+    if draw(st.booleans()):
+        doc["static"] = [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "offset": draw(st.floats(-20, 0))}]
+    else:
+        doc["static"] = [{"shape": "box", "half_extents": [5.0, 5.0, 0.5], "position": [0.0, 0.0, -20.5]}]
+    return doc
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@fuzz(scale=0.7)
+@given(doc=generated_doc())
+def test_generated_specs_reject_or_run(tmp_path, engine, doc):
+    for scene in _load_or_reject(_write(tmp_path, doc)):
+        _run_all(scene, engine)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@fuzz(scale=0.7)
+@given(case=mutated_doc(RAW_SPECS, max_mutations=1))
+def test_mutated_specs_reject_or_run(tmp_path, engine, case):
+    for scene in _load_or_reject(_write(tmp_path, case[1]))[:1]:
+        _run_all(scene, engine)
+
+
+# --------------------------------------------------------------------------
+# suites
+
+RAW_SUITES = [(p, tomllib.loads(p.read_text(encoding="utf-8"))) for p in SUITE_FILES]
+
+
+@fuzz(scale=1.0)
+@given(case=mutated_doc(RAW_SUITES))
+def test_mutated_suites_load_or_reject(tmp_path, case):
+    _, doc = case
+    p = _write(tmp_path, doc, "suite.toml")
+    try:
+        suite = load_suite(p)
+    except SuiteError as e:
+        assert all(re.match(r"^[^:]+: [^:]+: .+", line) for line in e.errors), e.errors
+        TALLY["suite rejected"] += 1
+        return
+    TALLY["suite accepted"] += 1
+    points = expand(suite)
+    assert all(p.engine in suite.engines and p.repeats >= 1 for p in points)
+    assert re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", suite.name)
+
+
+def test_shipped_specs_and_suites_validate_within_bounds():
+    """The bounds reject no shipped scene, variant or suite."""
+    for p in SPEC_FILES:
+        loaded = load_spec(p)
+        for v in (None, *loaded.variants):
+            load_scene(p, v, loaded=loaded)
+    for p in SUITE_FILES:
+        assert expand(load_suite(p))
+
+
+@pytest.mark.parametrize("name", ["..", ".", ".hidden", "../../etc"])
+def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
+    doc = dict(RAW_SUITES[0][1])
+    doc = json.loads(json.dumps(doc))
+    doc["suite"]["name"] = name
+    with pytest.raises(SuiteError, match=r"suite\.name: must be a plain name"):
+        load_suite(_write(tmp_path, doc, "suite.toml"))
+    # a file whose stem is not a plain name must give suite.name
+    del doc["suite"]["name"]
+    with pytest.raises(SuiteError, match=r"suite\.name: the file name '\.\.' is not a plain name"):
+        load_suite(_write(tmp_path, doc, "...toml"))
+    from harness.sweep import confined
+
+    with pytest.raises(SuiteError, match="outside the results root"):
+        confined(tmp_path, "machine", name)
+
+
+# --------------------------------------------------------------------------
+# bounds: documented, below the runner's runaway thresholds
+
+
+def test_bounds_table_matches_docs():
+    """Every bound of harness/spec.py BOUNDS is a row of the bounds table in
+    docs/SCENARIO_FORMAT.md with the same limits."""
+    text = (REPO_ROOT / "docs" / "SCENARIO_FORMAT.md").read_text(encoding="utf-8")
+    text = text.split("\n## Bounds\n", 1)[1].split("\n## ", 1)[0]
+    rows = {m.group(1): (m.group(2).strip(), m.group(3).strip())
+            for m in re.finditer(r"^\| `([a-z_]+)` \| ([^|]+) \| ([^|]+) \|", text, re.M)}
+    for kind, (lo, hi, _unit, _what) in BOUNDS.items():
+        assert kind in rows, f"bound {kind!r} missing from the docs table"
+        assert float(rows[kind][0]) == lo and float(rows[kind][1]) == hi, (kind, rows[kind], lo, hi)
+
+
+def test_bounds_below_runaway():
+    from adapters.base import DT_SETTING
+    from harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
+
+    assert BOUNDS["speed"][1] < RUNAWAY_SPEED and BOUNDS["angular_speed"][1] < RUNAWAY_SPEED
+    assert BOUNDS["position"][1] < RUNAWAY_POSITION
+    assert (DT_SETTING.lo, DT_SETTING.hi) == BOUNDS["dt"][:2]
+
+
+def test_record_bound_before_allocation(head_on_path):
+    """A run whose recording would exceed the bound is refused before the
+    runner allocates (before: --set scenario.duration=1e12 tried 7 PiB)."""
+    import tracemalloc
+
+    from harness.runner import run
+
+    scene = load_scene(head_on_path)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match=r"beyond the bound of 1024 MiB"):
+            run(dataclasses.replace(scene, duration=1e4), "reference")
+        assert tracemalloc.get_traced_memory()[1] < 64 << 20
+    finally:
+        tracemalloc.stop()
+    with pytest.raises(ValueError, match=r"steps \(duration / dt\) exceed the bound"):
+        run(dataclasses.replace(scene, duration=1e6), "reference", {"dt": 1e-7}, record_every=10**6)
+    for bad in (0, -3, 1.5):
+        with pytest.raises(ValueError, match=r"record_every: expected an integer >= 1"):
+            run(scene, "reference", record_every=bad)
+
+
+# --------------------------------------------------------------------------
+# the CLI: every bad input exits 2 with a message
+
+
+def _cli(argv: list[str], capsys) -> tuple[int, str]:
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:  # argparse
+        rc = e.code if isinstance(e.code, int) else 2
+    return rc, capsys.readouterr().err
+
+
+@pytest.fixture
+def spec_copy(tmp_path) -> Path:
+    p = tmp_path / "block_thrown_uphill.toml"
+    p.write_bytes((SCENARIO_DIR / "friction" / "block_thrown_uphill.toml").read_bytes())
+    return p
+
+
+BAD_RUNS = [
+    (["--set", "body[0].mass=inf"], r"body\[0\]\.mass: must be a finite number, got inf"),
+    (["--set", "body[0].mass=1e308"], r"body\[0\]\.mass: must be within \[1e-09, 1e\+09\] kg, got 1e\+308"),
+    (["--set", "body[0].position=[0, 0, inf]"], r"body\[0\]\.position\[2\]: must be a finite number"),
+    (["--set", "body[0].position=[0, 0, 1e6]"], r"body\[0\]\.position\[2\]: must be within \[-100000, 100000\] m"),
+    (["--set", "body[0].half_extents=[0.1, 0.1, 1e300]"], r"body\[0\]\.half_extents\[2\]: must be within"),
+    (["--set", "body[0].half_extents=[0.1, 1e-300, 0.1]"], r"body\[0\]\.half_extents\[1\]: must be within"),
+    (["--set", "body[0].velocity=[1e6, 0, 0]"], r"body\[0\]\.velocity: norm must be <= 100000 m/s"),
+    (["--set", "scenario.duration=1e12"], r"scenario\.duration: must be within \[1e-07, 1e\+06\] s, got 1e\+12"),
+    (["--set", "scenario.duration=1e5"], r"scenario\.duration: .*beyond the bound of 1024 MiB"),
+    (["--set", "scenario.dt=1e-7", "--set", "scenario.duration=1e3"], r"steps \(duration / dt\) exceed"),
+    (["--set", "scenario.gravity=[0, 0, -1e5]"], r"scenario\.gravity: norm must be <= 10000 m/s\^2"),
+    (["--set", "material.default.friction=nan"], r"material\.default\.friction: must be a finite number"),
+    (["--set", "body[0].name=\"a\nb\""], r"body\[0\]\.name: must not contain control characters"),
+    (["--set", "dt=nan"], r"setting dt: expected a finite number, got nan"),
+    (["--set", "dt=1e-7"], r"dt = 1e-07 s, recording every 1 step\(s\): .*beyond the bound of 1024 MiB"),
+    (["--record-every", "0"], r"--record-every: expected an integer in \[1, 100000000\], got 0"),
+    (["--record-every", "-3"], r"--record-every: expected an integer in \[1, 100000000\], got -3"),
+    (["--phase", "nan"], r"--phase: expected a number 0 <= F < 1, got nan"),
+    (["--phase", "1"], r"--phase: expected a number 0 <= F < 1"),
+]
+
+
+@pytest.mark.parametrize("extra,message", BAD_RUNS, ids=[" ".join(a) for a, _ in BAD_RUNS])
+def test_bad_run_input_exits_2(spec_copy, capsys, extra, message):
+    rc, err = _cli(["run", str(spec_copy), "-e", "pymunk", "--json", *extra], capsys)
+    assert rc == 2, err
+    assert re.search(message, err), err
+    assert "Traceback" not in err
+
+
+def test_bad_files_and_ids_exit_2(tmp_path, capsys):
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(bytes(range(256)) * 4)
+    rc, err = _cli(["run", str(binary)], capsys)
+    assert rc == 2 and "not UTF-8 text (byte 0x80 at offset 128)" in err, err
+    rc, err = _cli(["run", str(tmp_path)], capsys)
+    assert rc == 2 and "is a directory; expected a spec file" in err, err
+    rc, err = _cli(["run", str(tmp_path / "missing.toml")], capsys)
+    assert rc == 2 and "no such file" in err, err
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n", encoding="utf-8")
+    rc, err = _cli(["run", str(deep)], capsys)
+    assert rc == 2 and "not valid TOML" in err, err
+    rc, err = _cli(["check", "--scenarios", "nosuch.thing", "--engines", "reference"], capsys)
+    assert rc == 2 and "nosuch.thing: <scenario>: no spec file and no scenario with this id" in err, err
+    rc, err = _cli(["sweep", "--suite", str(binary)], capsys)
+    assert rc == 2 and "not UTF-8 text" in err, err
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["check", "--jobs", "0"], r"--jobs: expected an integer in \[1, 256\], got 0"),
+    (["sweep", "--jobs", "-2"], r"--jobs: expected an integer in \[1, 256\], got -2"),
+    (["bench", "cost", "--repeats", "0"], r"--repeats: expected an integer in \[1, 1000\], got 0"),
+    (["report", "--target", "inf"], r"--target: expected a finite number > 0, got inf"),
+    (["trace", "billiards.head_on", "-o", "x.rrd", "--phase", "-0.5"], r"--phase: expected a number 0 <= F < 1"),
+])
+def test_bad_cli_values_exit_2(capsys, argv, message):
+    rc, err = _cli(argv, capsys)
+    assert rc == 2 and re.search(message, err), err
+
+
+def test_output_paths_checked_before_running(tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    cases = [
+        (["check", "--scenarios", "billiards.head_on", "--junit", str(tmp_path)], "--junit .*: is a directory"),
+        (["check", "--scenarios", "billiards.head_on", "--junit", str(tmp_path / "afile" / "j.xml")],
+         "is a file, not a directory"),
+        (["run", "billiards.head_on", "--save", str(tmp_path)], "--save .*: is a directory"),
+        (["trace", "billiards.head_on", "-o", str(tmp_path)], "-o .*: is a directory"),
+        (["sweep", "--suite", "smoke", "--out", str(tmp_path / "afile")], "--out .*: is a file; expected a directory"),
+        (["report", "--results-dir", str(tmp_path), "--out", str(tmp_path)], "--out .*: is a directory"),
+    ]
+    for argv, message in cases:
+        rc, err = _cli(argv, capsys)
+        assert rc == 2 and re.search(message, err), (argv, err)
+
+
+# CLI argument lists: parsing and validation only.  The heavy entry points
+# are replaced by stubs that record the call, so a valid list costs nothing.
+
+_TOKENS = ["--engine", "-e", "reference", "mujoco", "pymunk", "pybullet", "nosuch", "--variant", "-v", "base",
+           "--set", "-s", "dt=0.001", "dt=nan", "dt=-1", "body[0].mass=inf", "body[9].mass=1", "x=1", "=",
+           "scenario.duration=1e12", "integrator=rk4", "--json", "--record-every", "0", "-3", "1", "7",
+           "--phase", "0.5", "1.5", "nan", "--jobs", "2", "--repeats", "--timeout", "--tags", "conformance",
+           "--scenarios", "billiards.head_on", "nosuch.thing", "--engines", "--junit", "--save", "-o", "--out",
+           "--suite", "smoke", "--target", "inf", "--resume", "--no-resume", "--executor", "serial", "",
+           "--traces", "--watch",
+           "\x00", "é", "-", "--", "billiards.head_on", "friction.block_slides", "scenarios", "/nonexistent.toml"]
+
+
+class _Called(Exception):
+    pass
+
+
+@fuzz(scale=3.0)
+@given(cmd=st.sampled_from(["run", "check", "trace", "sweep", "report", "engines", "list", "bench", "nosuch"]),
+       args=st.lists(st.sampled_from(_TOKENS), max_size=8))
+def test_cli_argument_lists(tmp_path, monkeypatch, capsys, cmd, args):
+    import harness.conformance
+    import harness.report
+    import harness.runner
+    import harness.sweep
+    import harness.trace
+    from harness import bench
+
+    def stub(*a, **k):
+        raise _Called
+
+    for mod, name in [(harness.runner, "run"), (harness.conformance, "check_main"), (harness.sweep, "sweep_main"),
+                      (harness.report, "report_main"), (harness.trace, "write_rrd"), (bench, "cost"),
+                      (bench, "overhead"), (cli, "cmd_list"), (cli, "cmd_engines")]:
+        monkeypatch.setattr(mod, name, stub)
+    monkeypatch.chdir(tmp_path)  # relative output paths land in tmp
+    capsys.readouterr()  # drop the previous example's output
+    argv = [cmd, *args]
+    if cmd in ("list", "engines"):
+        argv = [cmd]
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:
+        assert e.code in (0, 2), (argv, e.code)
+        TALLY["cli rejected (argparse)"] += 1
+        return
+    except _Called:
+        TALLY["cli accepted"] += 1
+        return
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("error: "), (argv, rc, err)
+    TALLY["cli rejected"] += 1
+
+
+# --------------------------------------------------------------------------
+# security: names are escaped in MJCF; no eval/exec/pickle of spec content
+
+HOSTILE = ['q"uo\'te', "<body name=\"x\"/>", "a&amp;b&", "]]>", "x" * 10_000, "ünï-cödé ✓", "a|b/c\\d"]
+
+
+def _hostile_spec(tmp_path: Path, stem: str = "hostile") -> Path:
+    doc = {
+        "scenario": {"family": 'fam<&"ily', "title": "names with markup", "duration": 0.01, "dt": 0.002,
+                     "effects": ["gravity", "contact", "friction"], "planar": True},
+        "material": {'m<&"1': {"friction": 0.5}},
+        "body": [{"name": n, "shape": "sphere", "radius": 0.1, "mass": 1.0, "position": [3.0 * i, 0.0, 0.1],
+                  "material": 'm<&"1'} for i, n in enumerate(HOSTILE)],
+        "static": [{"name": "<ground & \"floor\">", "shape": "plane", "normal": [0.0, 0.0, 1.0]}],
+    }
+    return _write(tmp_path, doc, f"{stem}.toml")
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_hostile_names_run(tmp_path, engine):
+    """Bodies, statics, materials and a family named with quotes, '<', '&',
+    markup and 10,000 characters run on every engine (MJCF attributes are
+    escaped; pybullet builds from API calls, not URDF)."""
+    from harness.runner import run
+
+    scene = load_scene(_hostile_spec(tmp_path))
+    assert [b.name for b in scene.bodies] == HOSTILE
+    res = run(scene, engine)
+    assert res.status == "ok", res.message
+    assert res.trace.n_frames == scene.n_steps + 1
+
+
+def test_hostile_file_stem_in_mjcf(tmp_path):
+    """A scene id from a file named with a newline, quotes and '<' is the
+    MJCF model name; MuJoCo compiles it and keeps the name."""
+    import mujoco
+
+    from adapters.mujoco import _xml_escape
+    from harness.runner import run
+
+    p = _hostile_spec(tmp_path, 'we"ird\n<stem>&\t')
+    scene = load_scene(p)
+    assert run(scene, "mujoco").status == "ok"
+    xml = f'<mujoco model="{_xml_escape(scene.id)}"><worldbody/></mujoco>'
+    assert mujoco.MjModel.from_xml_string(xml) is not None
+    assert ET.fromstring(xml).get("model") == scene.id
+
+
+@pytest.mark.parametrize("text", HOSTILE + ["a\nb\tc\rd", "nul\x00and\x1f", "\ud800"])
+def test_mjcf_escape_round_trips(text):
+    from adapters.mujoco import _xml_escape
+
+    parsed = ET.fromstring(f'<m a="{_xml_escape(text)}"/>').get("a")
+    keep = re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff]", "\ufffd", text)
+    assert parsed == keep
+
+
+@pytest.mark.parametrize("name", ["a\nb", "tab\there", "nul\x00"])
+def test_control_characters_in_names_rejected(tmp_path, name):
+    doc = tomllib.loads((SCENARIO_DIR / "billiards" / "head_on.toml").read_text(encoding="utf-8"))
+    doc["body"][0]["name"] = name
+    with pytest.raises(SpecError, match=r"body\[0\]\.name: must not contain control characters"):
+        load_spec(_write(tmp_path, doc))
+
+
+def test_no_eval_exec_or_pickle_in_the_code():
+    """No code path evaluates or unpickles text: specs, suites and result
+    files are parsed as TOML, JSON and Parquet only."""
+    bad = re.compile(r"\b(eval|exec)\s*\(|\bpickle\b|\bmarshal\b|\bshelve\b|yaml\.load|__import__\s*\(")
+    hits = []
+    for d in ("harness", "adapters", "engine"):
+        for p in sorted((REPO_ROOT / d).rglob("*.py")):
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+                code = line.split("#", 1)[0]
+                if bad.search(code):
+                    hits.append(f"{p.relative_to(REPO_ROOT)}:{i}: {line.strip()}")
+    assert not hits, "\n".join(hits)
+    # the check itself can fail
+    assert bad.search("x = eval(text)") and bad.search("import pickle")
