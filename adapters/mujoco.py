@@ -91,6 +91,22 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 ENGINE = "mujoco"
 
+#: MuJoCo's warnings of the run in progress ("Nan, Inf or huge value in
+#: QACC", "contact buffer full" ...).  Without a handler MuJoCo appends them
+#: to MUJOCO_LOG.TXT in the working directory; with this one they become
+#: notes of the run and nothing is written
+#: (tests/test_execute.py::test_mujoco_warnings_write_no_log_file).
+_WARNINGS: list[str] = []
+
+
+def _on_warning(msg: str) -> None:
+    if len(_WARNINGS) < 20:  # a blow-up repeats the same warning every step
+        _WARNINGS.append(str(msg))
+
+
+if mujoco is not None:
+    mujoco.set_mju_user_warning(_on_warning)
+
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
 _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction",
@@ -267,6 +283,7 @@ class MujocoAdapter(Adapter):
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
+        _WARNINGS.clear()  # a warning belongs to the run that raised it
         self.scene = scene
         self.settings = dict(settings)
         xml, meta = build_mjcf(scene, settings, self.notes, self.info)
@@ -442,6 +459,8 @@ class MujocoAdapter(Adapter):
         self._force = None
 
     def stages(self) -> dict[str, Any]:
+        self.notes.extend(f"mujoco warning: {w}" for w in _WARNINGS)
+        _WARNINGS.clear()
         out = dict(getattr(self, "_stages", {}))
         out["steps"] = getattr(self, "steps", 0)
         return out

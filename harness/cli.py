@@ -140,24 +140,37 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
+    """The RunRequest of a command line, checked in this process before it
+    goes to a worker: a bad spec, setting or phase is exit 2 here."""
+    from adapters import get_adapter
+    from harness.execute import RunRequest, request_scene
+    from harness.phase import PhaseError
+
+    req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
+    try:
+        scene = request_scene(req)
+    except PhaseError as e:
+        raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    try:
+        get_adapter(engine).resolve_settings(scene, settings)
+    except ValueError as e:  # bad setting value
+        raise UsageError(str(e)) from None
+    return req
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from adapters import get_adapter
     from harness.conformance import BAD
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import run_isolated
 
     save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
     settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
-    scene = _phase(load_scene(args.scenario, args.variant, overrides), args.phase, settings.get("dt"))
-    try:
-        result = run(scene, args.engine, settings, record_every=args.record_every)
-    except ValueError as e:  # bad setting value
-        raise UsageError(str(e)) from None
-    if args.phase:
-        result.notes.append(f"step phase {args.phase:g}: start moved back along the free flight by "
-                            f"{args.phase:g} dt")
-    runs, outcomes = _run_checks(scene, result, settings, args)
+    req = _request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
+    # in a worker process: an engine that aborts or hangs is a status, not a dead command
+    result = run_isolated(req)
+    runs, outcomes = _run_checks(req, result, settings, args)
     if args.save:
         from harness.results import write_rows
 
@@ -177,43 +190,35 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
 
 
-def _run_checks(scene, result, settings: dict[str, Any], args: argparse.Namespace):
-    """The scene's checks that apply to this run, evaluated as ``physbench
-    check`` evaluates them (harness/conformance.py): the runs a check needs
-    beyond this one -- its step phases, an ``@dt=...`` setting -- are made
-    here, with the same settings and spec overrides.  A run at a given
-    ``--phase`` is judged on itself only (it is one phase already).
-    Returns (planned runs, outcomes)."""
-    from harness.conformance import evaluate_runs, run_planned, scene_runs
+def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace):
+    """The scene's checks that apply to the run of ``req``, evaluated as
+    ``physbench check`` evaluates them (harness/conformance.py): the runs a
+    check needs beyond this one -- its step phases, an ``@dt=...`` setting --
+    are made here, in one worker process, with the same settings and spec
+    overrides.  A run at a given ``--phase`` is judged on itself only (it is
+    one phase already).  Returns (planned runs, outcomes)."""
+    import dataclasses
 
+    from harness.conformance import evaluate_runs, scene_runs
+    from harness.execute import WorkerPool, request_scene, run_requests
+
+    scene = request_scene(dataclasses.replace(req, phase=0.0))
     runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
     if not runs:
         return runs, []
     results = {runs[0].key: result}
+    extra = {id(r): dataclasses.replace(req, settings=dict(r.settings), phase=r.phase) for r in runs[1:]}
     for r in runs[1:]:
         if not args.json:
             print(f"check run: {args.engine} {r.scenario}" + (f" phase {r.phase:g}" if r.phase else "")
                   + "".join(f" {k}={v:.6g}" if isinstance(v, float) else f" {k}={v}"
                             for k, v in r.settings.items() if settings.get(k) != v), file=sys.stderr)
-        results[r.key] = run_planned(scene, r)
+    if extra:
+        with WorkerPool(1) as pool:
+            done = {id(q): res for q, res in run_requests(extra.values(), pool)}
+        for r in runs[1:]:
+            results[r.key] = done[id(extra[id(r)])]
     return runs, evaluate_runs(runs, results)
-
-
-def _phase(scene, f: float, dt: Any = None):
-    """``scene`` shifted to step phase ``f`` (harness/phase.py); a scene
-    that does not start in free flight is a usage error naming why."""
-    if not f:
-        return scene
-    from harness.phase import PhaseError, shift_scene
-
-    try:
-        h = None if dt is None else float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"--set dt={dt!r}: expected a number of seconds") from None
-    try:
-        return shift_scene(scene, f, dt=h)
-    except PhaseError as e:
-        raise UsageError(f"--phase {f:g}: {e}") from None
 
 
 def _print_result(result, outcomes=()) -> None:
@@ -278,8 +283,7 @@ def cmd_engines(args: argparse.Namespace) -> int:
 
 def cmd_trace(args: argparse.Namespace) -> int:
     from adapters import ENGINES, get_adapter
-    from harness.runner import run
-    from harness.scene import load_scene
+    from harness.execute import WorkerPool, request_scene, run_requests
     from harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
@@ -287,12 +291,16 @@ def cmd_trace(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
                          f"or a spec file, not a folder")
     output_file("-o", args.output)
-    scene = load_scene(args.scenario, args.variant, _split_sets(args.set, set())[1] if args.set else None)
-    scene = _phase(scene, args.phase)
-    results = []
+    overrides = _split_sets(args.set, set())[1] if args.set else {}
+    reqs = []
     for e in engines:
         get_adapter(e)
-        results.append(run(scene, e, contact_cap=0 if args.watch else DEFAULT_CAP))
+        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True,
+                             contact_cap=0 if args.watch else DEFAULT_CAP))
+    scene = request_scene(reqs[0])
+    with WorkerPool(args.jobs) as pool:
+        done = {id(req): res for req, res in run_requests(reqs, pool)}
+    results = [done[id(r)] for r in reqs]
     from harness.conformance import evaluate
     from harness.trace import write_rrd
 
@@ -315,37 +323,49 @@ def cmd_check(args: argparse.Namespace) -> int:
     output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
-                      jobs=args.jobs, traces=args.traces)
+                      jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    import contextlib
+
     from harness import bench
 
-    if args.kind == "overhead":
-        # the reference engine is left out unless asked for: its steps cost
-        # milliseconds, so its overhead is lost in noise and takes minutes
-        rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
-        bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
-                               "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
-    else:
-        rows = bench.cost(repeats=args.repeats)
-        bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
-        ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
-        if len(ok) >= 2:
-            k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
-            print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
-        sc = bench.broadphase_scaling(repeats=args.repeats)
-        bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                     "medians): sap, all pairs")
-        ns = [r["n"] for r in sc["rows"]]
-        ex = sc["exponents"]
-        print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-              f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
-        b = bench.build_cost()
-        print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
-              f"of Python allocations (median of 3)")
+    out = sys.stdout
+    # with --json, stdout carries the JSON only: the tables go to stderr
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        if args.kind == "isolation":
+            from harness.execute import bench_isolation
+
+            rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
+            bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "
+                                   "this process, in a reused worker, in a fresh worker per run")
+        elif args.kind == "overhead":
+            # the reference engine is left out unless asked for: its steps cost
+            # milliseconds, so its overhead is lost in noise and takes minutes
+            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
+            bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
+                                   "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        else:
+            rows = bench.cost(repeats=args.repeats)
+            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+            ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
+            if len(ok) >= 2:
+                k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
+                print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
+            sc = bench.broadphase_scaling(repeats=args.repeats)
+            bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
+                                         "medians): sap, all pairs")
+            ns = [r["n"] for r in sc["rows"]]
+            ex = sc["exponents"]
+            print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
+            b = bench.build_cost()
+            print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
+                  f"of Python allocations (median of 3)")
     if args.json:
-        print(json.dumps(rows, default=str))
+        out.write(json.dumps(rows, default=str) + "\n")
+        out.flush()
     return 0
 
 
@@ -353,7 +373,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
-                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios)
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios,
+                      timeout_s=args.timeout)
 
 
 def cmd_limits(args: argparse.Namespace) -> int:
@@ -424,9 +445,23 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from adapters import ENGINES
+def _seconds(text: str) -> float:
+    """A --timeout value: a positive, finite number of seconds."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive, finite number of seconds, got {text!r}")
+    return v
 
+
+def build_parser() -> argparse.ArgumentParser:
+    from adapters import engine_names
+    from harness.execute import DEFAULT_TIMEOUT_S
+
+    ENGINES = engine_names()  # the shipped four and any named in PHYSBENCH_ADAPTERS
+    timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
     p = argparse.ArgumentParser(prog="physbench", description="Validation and benchmark harness for rigid-body physics engines.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -442,6 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
+    r.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
@@ -452,7 +488,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
                    help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (default 1)")
+    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="worker processes (default 1)")
+    c.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
+                        "budget (default); --no-resume always starts afresh")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -469,6 +509,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
+    t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
@@ -476,7 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_engines)
 
     b = sub.add_parser("bench", help="benchmarks: runner overhead, or reference vs pybullet cost")
-    b.add_argument("kind", choices=["overhead", "cost"])
+    b.add_argument("kind", choices=["overhead", "cost", "isolation"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
@@ -488,7 +530,10 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
     sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process"], default=None,
-                    help="default: serial for --jobs 1, a process pool otherwise")
+                    help="default: process (worker processes under a watchdog); serial runs in this process, "
+                         "without isolation")
+    sw.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+                    help="wall-clock budget per run in seconds (default: the suite's timeout_s)")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
                     help="default: resume an unfinished sweep of the same suite file, points and commit; "
                          "--resume also across commits; --no-resume always starts afresh")
@@ -538,6 +583,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from harness.execute import register_env_adapters
+
+    register_env_adapters()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

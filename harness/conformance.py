@@ -59,31 +59,34 @@ match).  ``tolerance`` also widens max/min bounds.
 
 from __future__ import annotations
 
+import datetime as _dt
+import hashlib
+import json
 import math
 import os
+import re
 import sys
 import time
-import warnings
 import xml.etree.ElementTree as ET
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, Iterable
 
-import numpy as np
-
+from harness import status as st
+from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result, make_executor
 from harness.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
 HARD_DT_LABEL = "1/30"
-RUN_TIMEOUT_S = 600.0  # wall-clock budget per run
+RUN_TIMEOUT_S = DEFAULT_TIMEOUT_S  # wall-clock budget per run (--timeout)
 BASE = "base"  # name standing for the base scenario in a check's `variants`
 
-PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR = "PASS", "FAIL", "XFAIL", "XPASS", "UNSUPPORTED", "ERROR"
-BAD = (FAIL, XPASS, ERROR)
-OUTCOMES = (PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR)
-ERROR_STATUSES = ("error", "failed", "diverged", "timeout")
+# the outcome vocabulary (harness/status.py) under the names used here
+PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR = st.PASS, st.FAIL, st.XFAIL, st.XPASS, st.CHECK_UNSUPPORTED, st.CHECK_ERROR
+BAD = st.BAD_OUTCOMES
+OUTCOMES = st.OUTCOMES
+ERROR_STATUSES = st.ERROR_STATUSES
 
 
 # ---------------------------------------------------------------------------
@@ -142,11 +145,25 @@ class RunSpec:
     path: str | None = None
     #: columns added to the run's row (primary metric and its threshold)
     row_extra: dict[str, Any] = field(default_factory=dict)
+    #: wall-clock budget of the run (s); not part of its identity
+    timeout_s: float | None = RUN_TIMEOUT_S
 
     @property
     def key(self) -> tuple:
         base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
         return base + ((self.phase,) if self.phase else ())
+
+    @property
+    def run_key(self) -> str:
+        """The run's identity as text (the ``run_key`` column of check rows):
+        ``scenario[variant]|engine|{settings}|phase``."""
+        v = f"[{self.variant}]" if self.variant else ""
+        settings = json.dumps(dict(sorted(self.settings.items())), sort_keys=True, separators=(",", ":"))
+        return f"{self.scenario}{v}|{self.engine}|{settings}|{self.phase!r}"
+
+    def request(self) -> RunRequest:
+        return RunRequest(self.path or self.scenario, self.engine, self.variant, dict(self.settings),
+                          phase=self.phase, timeout_s=self.timeout_s)
 
 
 # ---------------------------------------------------------------------------
@@ -250,10 +267,10 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
     reason = check.xfail.get(result.engine)
     o = Outcome(result.engine, result.scenario, result.variant, check.metric, PASS,
                 threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0))
-    if result.status == "unsupported":
+    if result.status == st.UNSUPPORTED:
         o.outcome, o.message = UNSUPPORTED, f"unsupported: {result.message}"
         return o
-    if result.status in ERROR_STATUSES or result.status != "ok":
+    if result.status in ERROR_STATUSES or result.status != st.OK:
         msg = f"{result.status}: {result.message}"
         if reason:
             o.outcome, o.message = XFAIL, f"xfail: {reason} ({msg})"
@@ -387,34 +404,40 @@ def primary_threshold(scene: Scene, metric: str | None = None) -> float | None:
 
 
 def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None, path: str | None = None,
-               phases: int | None = None) -> list[RunSpec]:
+               phases: int | None = None, timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
     """The runs that evaluating ``scene``'s checks on ``engine`` takes, the
     base run first (settings ``settings``, carrying the checks); then its
     step phases (``phases``, default the scene's); then one run per
     @-suffixed check setting (``settings`` with the suffix's over them).
     Empty when no check applies.  ``physbench check`` and ``physbench run``
-    both plan with it, so both give the same verdict."""
+    both plan with it, so both give the same verdict.  Each run has the
+    wall-clock budget ``timeout_s``."""
     checks = applicable_checks(scene, engine) + hard_checks(scene)
     if not checks:
         return []
     settings = dict(settings or {})
     n = scene.phases if phases is None else phases
     extra = {"primary_metric": scene.primary_metric, "primary_threshold": primary_threshold(scene)}
-    runs = [RunSpec(scene.id, scene.variant, engine, settings, checks, phases=n, path=path, row_extra=extra)]
+    runs = [RunSpec(scene.id, scene.variant, engine, settings, checks, phases=n, path=path, row_extra=extra,
+                    timeout_s=timeout_s)]
     for i in range(1, n):
-        runs.append(RunSpec(scene.id, scene.variant, engine, settings, [], phase=i / n, path=path, row_extra=extra))
+        runs.append(RunSpec(scene.id, scene.variant, engine, settings, [], phase=i / n, path=path, row_extra=extra,
+                            timeout_s=timeout_s))
     suffixes = {}
     for c in checks:
         _, st = split_metric(c.metric)
         if st:
             suffixes[c.metric.partition("@")[2]] = st
     for st in suffixes.values():
-        runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra))
+        runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra,
+                            timeout_s=timeout_s))
     return runs
 
 
-def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], list[Outcome]]:
-    """Runs to make, and ERROR outcomes for scenarios that fail to load.
+def plan(scenario_ids: list[str], engines: list[str],
+         timeout_s: float | None = RUN_TIMEOUT_S) -> tuple[list[RunSpec], list[Outcome]]:
+    """Runs to make (each with the wall-clock budget ``timeout_s``), and
+    ERROR outcomes for scenarios that fail to load.
     ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
     Two files with the same id (family.stem) raise SpecError: their rows
     could not be told apart."""
@@ -444,52 +467,24 @@ def plan(scenario_ids: list[str], engines: list[str]) -> tuple[list[RunSpec], li
                     raise SpecError([f"{loaded.label}: <scenario>: id {scene.id!r} (family.stem) is also the id of "
                                      f"{seen[scene.id]}; rename one file or change its family"])
             for eng in engines:
-                runs += scene_runs(scene, eng, path=path)
+                runs += scene_runs(scene, eng, path=path, timeout_s=timeout_s)
     return runs, errors
 
 
-def run_planned(scene: Scene, spec: RunSpec, **kw: Any):
-    """Run ``scene`` (already loaded) as ``spec`` asks: shifted to its step
-    phase, with its settings; never raises for engine trouble (an adapter
-    that cannot be loaded or a bad setting becomes a ``failed`` result)."""
-    from harness.runner import RunResult, run
-
-    try:
-        if spec.phase:
-            from harness.phase import shift_scene
-
-            scene = shift_scene(scene, spec.phase, dt=spec.settings.get("dt", scene.dt))
-        # a blow-up is recorded in the result's status; numpy's overflow
-        # warnings on the way there would only scramble the progress display
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return run(scene, spec.engine, spec.settings or None, **kw)
-    except Exception as e:  # adapter import error, bad setting ...
-        return RunResult(scene.id, spec.variant, spec.engine, "", "failed",
-                         f"could not run: {type(e).__name__}: {e}", dict(spec.settings),
-                         scene_hash=scene.content_hash, scene_path=scene.source)
-
-
 def execute(spec: RunSpec):
-    """Run one RunSpec; never raises (engine import errors become a
-    RunResult with status 'failed').  The trace is dropped (results cross
-    process boundaries)."""
-    from harness.runner import RunResult
-    from harness.scene import load_scene
-
-    try:
-        scene = load_scene(spec.path or spec.scenario, spec.variant)
-    except Exception as e:
-        return RunResult(spec.scenario, spec.variant, spec.engine, "", "error", f"scene failed to load: {e}",
-                         dict(spec.settings))
-    res = run_planned(scene, spec, timeout_s=RUN_TIMEOUT_S)
-    res.trace = None
-    return res
+    """Run one RunSpec in this process (harness.execute.execute_request):
+    never raises (engine import errors become a RunResult with status
+    'failed').  The trace is dropped (results cross process boundaries)."""
+    return execute_request(spec.request())
 
 
-def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[tuple, Any]:
-    """Execute runs (in ``jobs`` processes), with a rich progress bar on
-    stderr.  Returns {RunSpec.key: RunResult}."""
+def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
+            on_result=None) -> dict[tuple, Any]:
+    """Execute runs in ``jobs`` worker processes (harness/execute.py: a
+    worker that dies or hangs costs only its run, which becomes an error or
+    timeout result), or in this process with ``executor="inline"``; a rich
+    progress bar on stderr.  ``on_result(spec, result)`` is called as each
+    run finishes (check stores it there).  Returns {RunSpec.key: RunResult}."""
     from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -498,32 +493,21 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True) -> dict[t
     console = Console(stderr=True)
     cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
             TextColumn("{task.description}"))
-    with Progress(*cols, console=console, disable=not progress, transient=False) as bar:
+    with Progress(*cols, console=console, disable=not progress, transient=False) as bar, \
+            make_executor(executor, jobs) as ex:
         task = bar.add_task("", total=len(runs))
 
-        def label(r: RunSpec) -> str:
-            s = ",".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.settings.items())
-            return escape(f"{r.engine} {r.scenario}" + (f"[{r.variant}]" if r.variant else "") + (f" @{s}" if s else ""))
+        def run_one(r: RunSpec):
+            return execute(r)  # looked up at call time (tests patch it for inline runs)
 
-        if jobs <= 1:
-            for r in runs:
-                bar.update(task, description=label(r))
-                results[r.key] = execute(r)
-                bar.advance(task)
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                futs = {pool.submit(execute, r): r for r in runs}
-                for fut in as_completed(futs):
-                    r = futs[fut]
-                    try:
-                        results[r.key] = fut.result()
-                    except Exception as e:  # worker crashed
-                        from harness.runner import RunResult
-
-                        results[r.key] = RunResult(r.scenario, r.variant, r.engine, "", "error",
-                                                   f"worker failed: {type(e).__name__}: {e}", dict(r.settings))
-                    bar.update(task, description=label(r))
-                    bar.advance(task)
+        fn = execute if executor == "process" else run_one
+        for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
+                               on_start=lambda r: bar.update(task, description=escape(r.request().label))):
+            res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
+            results[r.key] = res
+            if on_result is not None:
+                on_result(r, res)
+            bar.advance(task)
     return results
 
 
@@ -713,36 +697,24 @@ def exit_code(outcomes: list[Outcome]) -> int:
 # entry point
 
 
-def save_rows(results: dict[tuple, Any], save_dir: str | Path | None, runs: list[RunSpec] | None = None,
-              outcomes: list[Outcome] | None = None) -> Path | None:
-    """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
-    (default results/check/); a failure to write is reported, not fatal.
-    With ``runs`` and ``outcomes``, each row also carries its scene's
-    ``primary_metric`` and ``primary_threshold`` and, as ``checks`` (JSON),
-    the outcomes evaluated on it (Outcome.as_dict): the report reads
-    verdicts and thresholds from the rows, without reloading the scene."""
-    import json
+def _row(key: tuple, result: Any) -> dict[str, Any]:
+    row = result.row()
+    # the step phase of the run (a 5th key element; 0 = the scene as written)
+    row["phase"] = float(key[4]) if len(key) > 4 else 0.0
+    return row
 
+
+def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | None:
+    """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
+    (default results/check/) in one file; a failure to write is reported,
+    not fatal.  (``check_main`` stores rows as they finish instead.)"""
     from harness.results import RESULTS_DIR, write_rows
 
     if not results:
         return None
     d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    extra = {r.key: r.row_extra for r in runs or []}
-    by_key: dict[tuple, list[dict[str, Any]]] = {}
-    for o in outcomes or []:
-        if o.key:
-            by_key.setdefault(o.key, []).append(o.as_dict())
-    rows = []
-    for key, r in results.items():
-        row = r.row()
-        # the step phase of the run (a 5th key element; 0 = the scene as written)
-        row["phase"] = float(key[4]) if len(key) > 4 else 0.0
-        row.update(extra.get(key, {}))
-        if outcomes is not None:
-            row["checks"] = json.dumps(by_key.get(key, []), sort_keys=True)
-        rows.append(row)
+    rows = [_row(key, r) for key, r in results.items()]
     try:
         return write_rows(rows, d / f"{stamp}.parquet", append=False)
     except Exception as e:  # pragma: no cover - disk trouble must not hide the verdict
@@ -754,9 +726,9 @@ def deciding_run(spec: "RunSpec", check: Check, results: dict[tuple, Any]) -> tu
     """(settings, step phase) of the run that decided ``check`` on the base
     run ``spec``: the @-suffix's settings; for a phased scene the first
     phase that failed; else the base run."""
-    name, st = split_metric(check.metric)
-    if st:
-        return st, 0.0
+    name, sett = split_metric(check.metric)
+    if sett:
+        return sett, 0.0
     if spec.phases > 1:
         for i in range(spec.phases):
             res = results.get(spec.key + ((i / spec.phases,) if i else ()))
@@ -766,15 +738,16 @@ def deciding_run(spec: "RunSpec", check: Check, results: dict[tuple, Any]) -> tu
 
 
 def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[tuple, Any],
-                   outcomes: list[Outcome]) -> list[Path]:
+                   outcomes: list[Outcome], jobs: int = 1, executor: str = "process") -> list[Path]:
     """The trace step after the verdicts (``check --traces DIR``): every
     FAIL, XFAIL and ERROR outcome's deciding run is run again with its trace
     and the engine's contacts, and one diagnosing ``.rrd`` per case
     (harness.trace.cases.case_name) goes to ``traces_dir``; each outcome
     gets its file in ``Outcome.trace``.  Load errors have no run and no
     trace.  A trace that cannot be written is reported, never fatal."""
-    from harness.scene import load_scene
+    from harness.execute import request_scene, run_requests
     from harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
+    from harness.trace.contacts import DEFAULT_CAP
 
     base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks}
     cases: dict[str, tuple] = {}
@@ -789,14 +762,15 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
         name = case_name(o.scenario, o.variant, o.engine, settings, phase)
         cases.setdefault(name, (spec, settings, phase, []))[3].append(o)
     written = []
+    reqs = {name: RunRequest(spec.path or spec.scenario, spec.engine, spec.variant, dict(settings), phase=phase,
+                             timeout_s=spec.timeout_s, keep_trace=True, contact_cap=DEFAULT_CAP)
+            for name, (spec, settings, phase, _) in cases.items()}
+    with make_executor(executor, jobs) as ex:  # a traced rerun that crashes is a status too
+        traced = {id(req): res for req, res in run_requests(reqs.values(), ex)}
     for name, (spec, settings, phase, failing) in cases.items():
         try:
-            scene = load_scene(spec.path or spec.scenario, spec.variant)
-            if phase:
-                from harness.phase import shift_scene
-
-                scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
-            res = _traced_run(scene, spec.engine, settings)
+            scene = request_scene(reqs[name])
+            res = traced[id(reqs[name])]
             res.notes.append("run again after the verdict to record this trace")
             mine = [o for o in outcomes if (o.scenario, o.variant, o.engine) == (spec.scenario, spec.variant,
                                                                                    spec.engine)]
@@ -811,46 +785,147 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
     return written
 
 
-def _traced_run(scene: Scene, engine: str, settings: dict[str, Any]):
-    from harness.runner import run
-    from harness.trace.contacts import DEFAULT_CAP
+# ---------------------------------------------------------------------------
+# the check's store: one part per finished run, resumable
 
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return run(scene, engine, settings or None, timeout_s=RUN_TIMEOUT_S, contact_cap=DEFAULT_CAP)
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], timeout_s: float | None) -> dict[str, Any]:
+    """What makes two checks "the same" (resumable one from the other): the
+    commit (a dirty tree counts as its commit: code edited between the
+    kill and the rerun is not noticed), the engines, the scenario ids, the
+    bytes of their spec files (sha256), the per-run budget, and the planned
+    run keys."""
+    from harness.runner import commit_id
+    from harness.scene import resolve_scenario
+
+    h = hashlib.sha256()
+    for sid in ids:
+        h.update(sid.encode() + b"\0")
+        try:
+            h.update(resolve_scenario(sid).read_bytes())
+        except Exception as e:  # reported as a load error outcome
+            h.update(repr(e).encode())
+        h.update(b"\0")
+    return {"commit": commit_id(), "engines": list(engines), "scenarios": list(ids),
+            "specs_hash": h.hexdigest()[:16], "timeout_s": timeout_s, "runs": [r.run_key for r in runs]}
+
+
+def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
+    """The unfinished check under ``root`` to resume (same identity, see
+    :func:`check_identity`, not locked by a running check), or a new one.
+    Returns (harness.results.PartsDir keyed by ``run_key``, resumed)."""
+    from harness.results import PartsDir, SCHEMA_VERSION, try_lock, unfinished_dirs, write_json_atomic
+
+    if resume:
+        for d, man in unfinished_dirs(root):
+            if (d.parent / f"{d.name}.parquet").exists():
+                continue  # consolidated; only its directory was left behind
+            if any(man.get(k) != v for k, v in ident.items()):
+                continue
+            fd = try_lock(d)
+            if fd < 0:
+                continue
+            man.setdefault("resumed", []).append(_now())
+            write_json_atomic(man, d / "manifest.json")
+            return PartsDir(d, man, fd, "run_key"), True
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    base = f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', ident['commit'])}"
+    cid, n = base, 0
+    while (root / cid).exists() or (root / f"{cid}.parquet").exists():
+        n += 1
+        cid = f"{base}-{n}"
+    d = root / cid
+    d.mkdir(parents=True)
+    fd = try_lock(d)
+    man = {"schema_version": SCHEMA_VERSION, "check_id": cid, "started": _now(), "finished": None, **ident}
+    write_json_atomic(man, d / "manifest.json")
+    return PartsDir(d, man, fd, "run_key"), False
 
 
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
+               timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
                traces: str | Path | None = None) -> int:
-    """Run the conformance suite; print a summary; write every run's result
-    row as Parquet (``save_dir``, default results/check/) and JUnit XML to
-    ``junit`` if given; with ``traces``, one diagnosing trace per FAIL,
-    XFAIL and ERROR case into that directory (:func:`trace_failures`).
-    Returns 1 on any FAIL, ERROR or XPASS, else 0."""
+    """Run the conformance suite; print a summary; store every run's result
+    row as it finishes (``save_dir``, default results/check/: a directory
+    ``<check_id>/`` of atomic parts while running, consolidated into
+    ``<check_id>.parquet`` at the end) and write JUnit XML to ``junit`` if
+    given; with ``traces``, one diagnosing trace per FAIL, XFAIL and ERROR
+    case into that directory (:func:`trace_failures`).  A killed check is
+    resumed by the next same check (``resume``, :func:`check_identity`):
+    its finished runs are read back, not rerun.  Runs go to ``jobs`` worker
+    processes with ``timeout_s`` seconds each (``executor="inline"``: in
+    this process).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
+
+    from harness.results import RESULTS_DIR, consolidate_parts
+    from harness.runner import RunResult
+    from harness.scene import resolve_scenario
+    from harness.spec import SpecError
 
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()
-    ids = select_scenarios(scenarios, tags)
+    ids = select_scenarios(scenarios, tags)  # raises SpecError for an unknown id, file or folder
     err = Console(stderr=True)
     if not ids:
         err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
         return 1
-    runs, load_errors = plan(ids, engines)
-    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs")
-    results = run_all(runs, jobs=max(1, int(jobs or 1)), progress=True)
+    runs, load_errors = plan(ids, engines, timeout_s)
+    root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
+    results: dict[tuple, Any] = {}
+    by_key = {r.run_key: r for r in runs}
+    for row in store.part_rows() if resumed else []:
+        r = by_key.get(row.get("run_key"))
+        if r is not None:
+            results[r.key] = RunResult.from_row(row)
+    todo = [r for r in runs if r.key not in results]
+    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs"
+              + (f"; resuming {store.path.name}: {len(runs) - len(todo)} done, {len(todo)} to run" if resumed else ""),
+              markup=False, highlight=False, soft_wrap=True)
+
+    def on_result(r: RunSpec, res: Any) -> None:
+        row = _row(r.key, res)
+        row.update(r.row_extra)
+        row.update(run_key=r.run_key, check_id=store.path.name)
+        try:
+            store.write_part(row, {"check_id": store.path.name})
+        except Exception as e:  # disk trouble must not hide the verdict
+            err.print(f"warning: could not store the row of {r.run_key}: {type(e).__name__}: {e}", markup=False)
+
+    try:
+        results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
+                               on_result=on_result))
+    except BaseException:
+        store.close()
+        raise
     outcomes = load_errors + evaluate_runs(runs, results)
     if traces:
-        written = trace_failures(traces, runs, results, outcomes)
+        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)), executor=executor)
         err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
-    saved = save_rows(results, save_dir, runs, outcomes)
-    if saved is not None:
-        err.print(f"result rows written to {saved}")
+    try:
+        # the verdicts go into the rows, so the report reads rows only
+        verdicts: dict[str, list[dict[str, Any]]] = {r.run_key: [] for r in runs}
+        run_keys = {r.key: r.run_key for r in runs}
+        for o in outcomes:
+            if o.key in run_keys:
+                verdicts[run_keys[o.key]].append(o.as_dict())
+        columns = {k: {"checks": json.dumps(v, sort_keys=True)} for k, v in verdicts.items()}
+        saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now(), columns=columns)
+        err.print(f"result rows written to {saved}", markup=False, highlight=False, soft_wrap=True)
+    except Exception as e:  # the parts stay: nothing is lost
+        err.print(f"warning: could not consolidate {store.path}: {type(e).__name__}: {e}", markup=False)
+    finally:
+        store.close()
     if junit:
         write_junit(outcomes, junit)
-        err.print(f"JUnit XML written to {junit}")
+        err.print(f"JUnit XML written to {junit}", markup=False, highlight=False, soft_wrap=True)
     err.print(f"done in {time.perf_counter() - t0:.1f} s")
     return exit_code(outcomes)
 

@@ -2,11 +2,13 @@
 duration, record states into preallocated arrays, time the stepping apart
 from set-up and metrics, and turn every failure into a recorded status.
 
-Statuses: ``ok``; ``unsupported`` (the engine cannot model the scene, with the
-reason); ``failed`` (the engine rejected the model at build time);
-``error`` (an exception while stepping); ``diverged`` (non-finite or runaway
-state); ``timeout`` (the run exceeded its wall-clock budget).  Metrics are
-computed on whatever prefix of the trace was recorded.
+Statuses (defined in harness/status.py): ``ok``; ``unsupported`` (the
+engine cannot model the scene, with the reason); ``failed`` (the engine
+rejected the model at build time); ``error`` (an exception while stepping);
+``diverged`` (non-finite or runaway state); ``timeout`` (the run exceeded
+its wall-clock budget, checked between step blocks -- a run stuck inside
+one engine call is stopped by the worker's watchdog, harness/execute.py).
+Metrics are computed on whatever prefix of the trace was recorded.
 """
 
 from __future__ import annotations
@@ -124,6 +126,40 @@ class RunResult:
         out["commit"] = self.commit
         out["timestamp"] = self.timestamp
         return out
+
+    @classmethod
+    def from_row(cls, row: dict[str, Any]) -> "RunResult":
+        """The result a stored row was made from (:meth:`row`), as far as a
+        row holds it: every column that is not identity, status, a setting,
+        timing, machine, JSON or bookkeeping column is a metric.  A resumed
+        check evaluates its finished runs from these."""
+        import json
+
+        fixed = {"scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
+                 "notes", "stages", "info", "schema_version", "phase", "run_key", "check_id"}
+        settings, timing, machine, metrics = {}, {}, {}, {}
+        for k, v in row.items():
+            if k in fixed:
+                continue
+            head, dot, tail = k.partition(".")
+            if dot and head == "setting":
+                settings[tail] = v
+            elif dot and head == "timing":
+                timing[tail] = v
+            elif dot and head == "machine":
+                machine[tail] = v
+            else:
+                metrics[k] = v
+
+        def load(key: str, default: Any) -> Any:
+            try:
+                return json.loads(row[key]) if isinstance(row.get(key), str) else default
+            except ValueError:
+                return default
+
+        return cls(row.get("scenario"), row.get("variant"), row.get("engine"), row.get("engine_version") or "",
+                   row.get("status"), row.get("message") or "", settings, metrics, timing, load("stages", {}),
+                   load("notes", []), load("info", {}), machine, row.get("commit") or "", row.get("timestamp") or "")
 
     def row(self) -> dict[str, Any]:
         """Flat row for tables and Parquet: nested dicts become dotted

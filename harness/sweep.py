@@ -27,32 +27,31 @@ finished point, so a killed sweep loses at most the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.
 
-Parallelism: ``jobs`` worker processes (``executor="process"``) or in-process
-(``"serial"``).  A worker that dies (a segfault in an engine) breaks the pool:
-the points that were in flight are retried one at a time in a fresh
-one-worker pool, so only the point that kills its worker again is recorded as
-``error``; the sweep then continues with a new pool.
+Execution: ``jobs`` reusable worker processes under a wall-clock watchdog
+(``executor="process"``, the default; harness/execute.py), or in this
+process (``"serial"``: no isolation, for debugging).  A point whose worker
+dies (abort, segfault, out-of-memory kill) gets an ``error`` row naming the
+signal with the tail of the worker's stderr; a point stuck past its budget
+(``timeout_s`` per run, times its repeats) gets a ``timeout`` row and its
+worker is replaced; no other point is touched.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
-import fcntl
 import hashlib
 import itertools
 import json
 import math
 import os
 import re
-import shutil
+import shutil  # noqa: F401 - consolidation removes part directories through it (tests patch it)
 import statistics
 import sys
 import time
 import traceback
 import warnings
-from collections import deque
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -60,8 +59,11 @@ from typing import Any, Callable, Iterable
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from harness.phase import PhaseError, phase_values, shift_scene
-from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness import status as st
+from harness.execute import RunRequest, WorkerLost, make_executor, request_scene
+from harness.phase import PhaseError, phase_values
+from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
+                             unfinished_dirs, write_json_atomic, write_parquet_atomic)
 from harness.scene import REPO_ROOT
 from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from harness.spec import SpecError, _display, _format_errors, read_toml
@@ -69,7 +71,7 @@ from harness.spec import SpecError, _display, _format_errors, read_toml
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
-STATUSES = ("ok", "unsupported", "failed", "diverged", "timeout", "error")
+STATUSES = st.RUN_STATUSES
 EXECUTORS = ("serial", "process")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
@@ -505,7 +507,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
     return blocks
 
 
-def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dict[str, dict[str, tuple[Any, ...]]],
+def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[str, tuple[Any, ...]]],
                        errors: list[str]) -> None:
     """Every point's recording fits the bounds (harness/spec.py
     record_size_error) at the smallest dt any engine sweeps: checked when
@@ -517,14 +519,15 @@ def _check_record_size(where: str, scen: list[tuple[str, str | None]], axes: dic
         if "dt" not in ax:
             continue
         dt = min(float(v) for v in ax["dt"])
-        for sid, var in scen:
+        for entry in scen:
             try:
-                sc = load_scene(sid, var)
+                sc = load_scene(entry.path or entry.scenario, entry.variant)
             except SpecError:
                 continue  # reported where the scenario is listed
             why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
             if why:
-                errors.append(f"{where}.grid.dt: {_label(sid, var)} at dt = {dt:g} on {e}: {why}")
+                errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
+                              f"{why}")
                 return
 
 
@@ -668,7 +671,8 @@ def run_point(point: Point) -> dict[str, Any]:
     settings = point.engine_settings
     if point.phase:
         try:
-            scene = shift_scene(scene, point.phase, dt=settings.get("dt", scene.dt))
+            scene = request_scene(RunRequest(point.scenario, point.engine, point.variant, settings,
+                                             phase=point.phase), base=scene)
         except PhaseError as e:
             return _status_row(point, "error", f"phase {point.phase:g}: {e}", t0, scene=scene)
     first = None
@@ -736,7 +740,7 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
 
 
 def _status_row(point: Point, status: str, message: str, t0: float, scene: Any = None,
-                tb: str | None = None) -> dict[str, Any]:
+                tb: str | None = None, stderr_tail: str | None = None) -> dict[str, Any]:
     """A row for a point that produced no RunResult (scene failed to load,
     the run raised, the worker died)."""
     from adapters import get_adapter
@@ -758,6 +762,8 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
                     scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
     if tb:
         res.info["traceback"] = tb
+    if stderr_tail:
+        res.info["stderr_tail"] = stderr_tail
     row = res.row()
     row.update(_point_columns(point, scene, row, [], t0))
     return row
@@ -771,153 +777,25 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def _normalize(df):
-    """Columns mixing types (a setting that is a bool on one engine and a
-    string on another) are stored as text, as harness.results does.  Ints
-    and floats together (a part where the column was None, one where it was
-    an int, one where it was a float) are numbers, stored as float."""
-    import numbers
-
-    for col in df.columns:
-        if df[col].dtype == object:
-            vals = [v for v in df[col] if v is not None and not (isinstance(v, float) and math.isnan(v))]
-            kinds = {type(v) for v in vals}
-            if len(kinds) > 1 and all(isinstance(v, numbers.Real) and not isinstance(v, (bool, _np_bool()))
-                                      for v in vals):
-                df[col] = df[col].map(lambda v: math.nan if v is None else float(v)).astype(float)
-            elif len(kinds) > 1:
-                df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float) and math.isnan(v))
-                                      else str(v))
-    return df
+_write_json_atomic = write_json_atomic
+_parts = list_parts
+_try_lock = try_lock
+_unfinished = unfinished_dirs
 
 
-def _np_bool() -> type:
-    import numpy as np
-
-    return np.bool_
-
-
-def _fsync_replace(tmp: Path, path: Path) -> None:
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def write_parquet_atomic(df, path: Path, metadata: dict[str, Any] | None = None) -> Path:
-    """Write a DataFrame to ``path`` atomically (temp file in the same
-    directory, fsync, rename); ``metadata`` is stored as JSON in the Parquet
-    schema metadata under ``physbench``."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table = pa.Table.from_pandas(_normalize(df), preserve_index=False)
-    meta = dict(table.schema.metadata or {})
-    meta[b"physbench"] = json.dumps({"schema_version": SCHEMA_VERSION, **(metadata or {})}, default=str).encode()
-    table = table.replace_schema_metadata(meta)
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        pq.write_table(table, tmp)
-        _fsync_replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def _write_json_atomic(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        tmp.write_text(json.dumps(obj, indent=1, default=str) + "\n", encoding="utf-8")
-        _fsync_replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _parts(d: Path) -> list[Path]:
-    return sorted(d.glob("part-*.parquet"))
-
-
-def _part_keys(d: Path) -> tuple[set[str], int]:
-    """Finished point keys stored in the parts of sweep directory ``d``, and
-    the next part number.  An unreadable part (it cannot be half-written:
-    parts are renamed into place) is set aside as ``*.bad``."""
-    import pyarrow.parquet as pq
-
-    keys: set[str] = set()
-    n = 0
-    for p in _parts(d):
-        try:
-            n = max(n, int(p.stem.split("-")[1]))
-        except (IndexError, ValueError):
-            pass
-        try:
-            keys.update(pq.read_table(p, columns=["point_key"]).column("point_key").to_pylist())
-        except Exception as e:
-            print(f"warning: unreadable part {p} set aside ({type(e).__name__}: {e}); its points rerun",
-                  file=sys.stderr)
-            p.rename(p.with_suffix(".bad"))
-    return keys, n + 1
-
-
-class _SweepDir:
-    """An open (unfinished) sweep directory, locked against a second sweep
-    resuming it at the same time (flock: released when the process dies,
-    however it dies)."""
+class _SweepDir(PartsDir):
+    """An open (unfinished) sweep directory: one part per finished point,
+    keyed by ``point_key`` (harness.results.PartsDir)."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
-        self.path = path
-        self.manifest = manifest
-        self.lock_fd = lock_fd
-        self.done, self.next_part = _part_keys(path)
-        for tmp in path.glob(".tmp-*"):  # a write in flight when killed
-            tmp.unlink()
+        super().__init__(path, manifest, lock_fd, "point_key")
 
     @property
     def sweep_id(self) -> str:
         return self.manifest["sweep_id"]
 
     def write_point(self, row: dict[str, Any]) -> Path:
-        import pandas as pd
-
-        p = self.path / f"part-{self.next_part:06d}.parquet"
-        write_parquet_atomic(pd.DataFrame([row]), p, {"sweep_id": self.sweep_id})
-        self.next_part += 1
-        self.done.add(row["point_key"])
-        return p
-
-    def close(self) -> None:
-        if self.lock_fd >= 0:
-            os.close(self.lock_fd)
-            self.lock_fd = -1
-
-
-def _try_lock(d: Path) -> int:
-    """An exclusive lock on ``d/.lock`` (fd), or -1 if another process holds it."""
-    fd = os.open(d / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        return -1
-    return fd
-
-
-def _unfinished(suite_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
-    """Unfinished sweep directories (with a readable manifest) under
-    ``suite_dir``, newest first."""
-    out = []
-    if not suite_dir.is_dir():
-        return out
-    for d in sorted(suite_dir.iterdir(), reverse=True):
-        m = d / "manifest.json"
-        if d.is_dir() and m.is_file():
-            try:
-                out.append((d, json.loads(m.read_text(encoding="utf-8"))))
-            except (OSError, ValueError):
-                continue
-    return out
+        return self.write_part(row, {"sweep_id": self.sweep_id})
 
 
 def confined(root: Path, *parts: str) -> Path:
@@ -1017,31 +895,8 @@ def consolidate(d: Path) -> Path:
     planned order, one per point key), write ``<d>.manifest.json``, then --
     only once both are safely in place -- remove ``d``.  Returns the
     consolidated file's path."""
-    import pandas as pd
-
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    frames = [pd.read_parquet(p) for p in _parts(d)]
-    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["point_key"])
-    order = {k: i for i, k in enumerate(man.get("points", []))}
-    # a point is stored once by construction; should a bug ever store one
-    # twice, the first row wins and the manifest says so
-    n = len(df)
-    df = df.drop_duplicates("point_key", keep="first")
-    man["duplicates_dropped"] = n - len(df)
-    df = df.iloc[sorted(range(len(df)), key=lambda i: order.get(df["point_key"].iat[i], len(order)))]
-    df = df.reset_index(drop=True)
-    man["finished"] = man.get("finished") or _now()
-    man["rows"] = int(len(df))
-    missing = [k for k in man.get("points", []) if k not in set(df["point_key"])]
-    man["missing"] = missing
-    out = d.parent / f"{d.name}.parquet"
-    write_parquet_atomic(df, out, {"manifest": {k: v for k, v in man.items() if k != "points"}})
-    _write_json_atomic(man, d.parent / f"{d.name}.manifest.json")
-    try:
-        shutil.rmtree(d)
-    except OSError as e:  # the rows are safe; open_sweep finishes the removal next time
-        print(f"warning: {out} written but {d} could not be removed ({type(e).__name__}: {e}); "
-              "the next sweep of this suite removes it", file=sys.stderr)
+    out, _ = consolidate_parts(d, "point_key", list(man.get("points", [])), _now())
     return out
 
 
@@ -1094,73 +949,30 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
 # executing points
 
 
-def _run_serial(todo: list[Point], on_row: Callable[[Point, dict[str, Any]], None],
-                on_start: Callable[[Point], None]) -> None:
-    for p in todo:
-        on_start(p)
-        t0 = time.perf_counter()
-        try:
-            row = run_point(p)
-        except Exception as e:  # as the process executor does: an error row, the sweep goes on
-            row = _status_row(p, "error", f"point failed: {type(e).__name__}: {e}", t0,
-                              tb=traceback.format_exc(limit=5))
-        on_row(p, row)
+def _point_budget(p: Point) -> float:
+    """Wall-clock budget of a point's worker: its timed runs, each within
+    the suite's ``timeout_s``."""
+    return p.timeout_s * max(1, p.repeats)
 
 
-def _run_process(todo: list[Point], jobs: int, on_row: Callable[[Point, dict[str, Any]], None],
-                 on_start: Callable[[Point], None]) -> None:
-    """Run points in a pool of ``jobs`` processes, at most 2 x jobs in flight
-    (so that a broken pool loses few).  When a worker dies, every point in
-    flight is retried alone in a fresh one-worker pool: the one that kills
-    its worker again gets an ``error`` row, the others their real rows; the
-    sweep then goes on with a new pool."""
-    pending = deque(todo)
-    while pending:
-        lost: list[Point] = []
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            inflight: dict[Any, Point] = {}
-            broken = False
-            while (pending and not broken) or inflight:
-                while pending and not broken and len(inflight) < 2 * jobs:
-                    p = pending.popleft()
-                    try:
-                        inflight[pool.submit(run_point, p)] = p
-                    except BrokenProcessPool:
-                        pending.appendleft(p)
-                        broken = True
-                        break
-                    on_start(p)
-                if not inflight:
-                    break
-                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                if broken:  # the pool is dead: everything in flight resolves now
-                    done, _ = wait(inflight)
-                for f in done:
-                    p = inflight.pop(f)
-                    try:
-                        row = f.result()
-                    except BrokenProcessPool:
-                        lost.append(p)
-                        broken = True
-                        continue
-                    except Exception as e:  # pickling trouble and the like
-                        row = _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", time.perf_counter())
-                    on_row(p, row)
-        for p in lost:
-            on_row(p, _run_isolated(p))
-
-
-def _run_isolated(p: Point) -> dict[str, Any]:
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=1) as solo:
-        try:
-            return solo.submit(run_point, p).result()
-        except BrokenProcessPool:
-            return _status_row(p, "error", "worker process died while running this point "
-                                           "(killed or crashed inside the engine, e.g. a segfault); "
-                                           "retried alone, it died again", t0)
-        except Exception as e:
-            return _status_row(p, "error", f"worker failed: {type(e).__name__}: {e}", t0)
+def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[str, Any]], None],
+               on_start: Callable[[Point], None]) -> None:
+    """Run points through ``executor`` (harness/execute.py: a WorkerPool or
+    the inline executor) and hand each row to ``on_row`` as it finishes.  A
+    point whose worker dies or hangs (or whose code raises) gets an
+    ``error``/``timeout`` row naming why; the other points are untouched."""
+    for p, value in executor.map(run_point, todo, budget_s=_point_budget, on_start=on_start):
+        if isinstance(value, WorkerLost):
+            t0 = time.perf_counter()
+            if value.kind == "died":
+                msg = f"{value.full_message()}".replace("this item", "this point")
+            elif value.kind == "timeout":
+                msg = value.full_message()
+            else:
+                msg = f"point failed: {value.message}"
+            value = _status_row(p, value.status, msg, t0, tb=value.traceback or None,
+                                stderr_tail=value.stderr_tail or None)
+        on_row(p, value)
 
 
 # ---------------------------------------------------------------------------
@@ -1207,12 +1019,13 @@ def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int
 
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
                out_dir: Path | None = None, resume: bool | None = None,
-               scenarios: list[str] | None = None) -> int:
+               scenarios: list[str] | None = None, timeout_s: float | None = None) -> int:
     """``physbench sweep``: run ``suite`` (a name under suites/ or a path)
     and store its rows under ``out_dir`` (default results/sweeps/).
 
     ``engines`` / ``scenarios`` restrict the suite; ``jobs`` worker processes
-    with ``executor`` ``"process"`` (default when jobs > 1) or ``"serial"``;
+    with ``executor`` ``"process"`` (the default) or ``"serial"`` (in this
+    process); ``timeout_s`` replaces the suite's per-run budget;
     ``resume``: None resumes an unfinished sweep of the same suite file,
     points and commit, True also across commits, False never (see
     :func:`open_sweep`).  Returns 0 when the sweep completed (failed runs are
@@ -1235,8 +1048,10 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     except ValueError as e:
         err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
         return 2
+    if timeout_s is not None:
+        points = [dataclasses.replace(p, timeout_s=float(timeout_s)) for p in points]
     jobs = max(1, int(jobs or 1))
-    executor = executor or ("serial" if jobs == 1 else "process")
+    executor = executor or "process"
     if executor not in EXECUTORS:
         err.print(f"error: executor {executor!r}: expected one of {', '.join(EXECUTORS)}", markup=False, soft_wrap=True)
         return 2
@@ -1275,10 +1090,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 sd.write_point(row)
                 bar.advance(task)
 
-            if executor == "serial":
-                _run_serial(todo, on_row, on_start)
-            else:
-                _run_process(todo, jobs, on_row, on_start)
+            with make_executor(executor, jobs) as ex:
+                run_points(todo, ex, on_row, on_start)
         if reqs:
             _run_limits(reqs, sd, ctx, jobs if executor == "process" else 1, err)
     except KeyboardInterrupt:

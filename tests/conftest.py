@@ -26,3 +26,30 @@ def without_effects(scene, *effects: str):
     import dataclasses
 
     return dataclasses.replace(scene, effects=frozenset(scene.effects) - set(effects))
+
+
+def _stray_outputs() -> list[str]:
+    """Files in the repository that only a run writes: anything under
+    results/ but its README (and committed baselines), MuJoCo's log."""
+    results = ROOT / "results"
+    out = [str(p.relative_to(ROOT)) for p in results.iterdir()
+           if p.name not in ("README.md", "baselines")] if results.is_dir() else []
+    out += [p.name for p in ROOT.glob("MUJOCO_LOG.TXT")]
+    return sorted(out)
+
+
+_BEFORE: list[str] = []
+
+
+def pytest_sessionstart(session):
+    _BEFORE[:] = _stray_outputs()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Tests write only to temporary directories: after the suite,
+    results/ holds only its README and no MuJoCo log is in the tree
+    (whatever was there before the session is not the suite's doing)."""
+    new = [p for p in _stray_outputs() if p not in _BEFORE]
+    if new:
+        print(f"\nerror: the test suite wrote into the repository: {', '.join(new)}", file=sys.stderr)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

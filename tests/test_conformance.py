@@ -247,11 +247,12 @@ def test_check_main_with_synthetic_runs(tmp_path, monkeypatch):
 
     monkeypatch.setattr(C, "execute", fake_execute)
     junit = tmp_path / "j.xml"
-    assert C.check_main(["good"], None, str(junit), ["billiards.head_on"]) == 0
+    kw = dict(executor="inline", save_dir=tmp_path / "rows")  # the patched execute runs in this process
+    assert C.check_main(["good"], None, str(junit), ["billiards.head_on"], **kw) == 0
     root = ET.parse(junit).getroot()
     n_variants = 1 + len(load_scene("billiards.head_on").variant_names)
     assert int(root.get("tests")) == 3 * n_variants
-    assert C.check_main(["good", "bad"], None, str(junit), ["billiards.head_on"]) == 1
+    assert C.check_main(["good", "bad"], None, str(junit), ["billiards.head_on"], **kw) == 1
     root = ET.parse(junit).getroot()
     assert int(root.get("failures")) == n_variants
 
@@ -259,7 +260,7 @@ def test_check_main_with_synthetic_runs(tmp_path, monkeypatch):
 def test_unknown_or_broken_engine_does_not_crash(tmp_path):
     # the engine cannot even be loaded: every run is recorded as failed -> ERROR
     junit = tmp_path / "j.xml"
-    code = C.check_main(["no_such_engine"], None, str(junit), ["billiards.head_on"])
+    code = C.check_main(["no_such_engine"], None, str(junit), ["billiards.head_on"], save_dir=tmp_path / "rows")
     assert code == 1
     root = ET.parse(junit).getroot()
     assert int(root.get("errors")) == int(root.get("tests")) > 0
@@ -314,7 +315,7 @@ def test_scene_phases_run_every_phase_and_combine_them(tmp_path, monkeypatch):
     assert {r.engine: r.phases for r in base} == {"pymunk": 4, "reference": 4}
     assert sorted(r.phase for r in runs if r.variant is None and r.engine == "pymunk" and not r.settings) == \
         [0.0, 0.25, 0.5, 0.75]
-    results = C.run_all(runs, progress=False)
+    results = C.run_all(runs, progress=False, executor="inline")  # SCENARIO_DIR is patched in this process
     outs = [o for o in C.evaluate_runs(runs, results) if o.variant is None and o.metric == "tunnelled"]
     by = {o.engine: o for o in outs}
     assert by["reference"].outcome == C.PASS and "all 4 step phases" in by["reference"].message

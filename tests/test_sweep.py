@@ -28,7 +28,6 @@ from harness.runner import run as _REAL_RUN
 from harness.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
-_PARENT = os.getpid()
 
 # the row contract: RunResult.row()'s identity and status, plus the sweep columns
 CONTRACT = ("scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
@@ -60,7 +59,7 @@ class FakeSweep(Adapter):
         if self.fault == "build":
             raise RuntimeError("model rejected")
         if self.fault == "crash":
-            if os.getpid() == _PARENT:  # never kill the test process itself
+            if os.environ.get("PHYSBENCH_WORKER") != "1":  # never kill the test process itself
                 raise RuntimeError("crash requested in the main process")
             os.kill(os.getpid(), signal.SIGKILL)  # like a segfault inside an engine
         time.sleep(settings["sleep_s"])
@@ -114,7 +113,7 @@ def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
 @pytest.fixture(scope="module")
 def smoke_serial(tmp_path_factory):
     out = tmp_path_factory.mktemp("smoke_serial")
-    assert S.sweep_main("smoke", out_dir=out) == 0
+    assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0
     return out
 
 
@@ -384,7 +383,7 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
     out = tmp_path / "out"
     calls = _counting_run(monkeypatch, kill_at_point=4)
     with pytest.raises(_Killed):
-        S.sweep_main("smoke", out_dir=out)
+        S.sweep_main("smoke", out_dir=out, executor="serial")
     finished = list(dict.fromkeys(calls))
     assert finished == keys[:4]
     sweep_dirs = [d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir()]
@@ -392,7 +391,7 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
     assert not list(out.glob("*/*/*.parquet"))  # not consolidated
 
     calls = _counting_run(monkeypatch, kill_at_point=None)
-    assert S.sweep_main("smoke", out_dir=out) == 0  # resumes automatically: same suite, points, commit
+    assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0  # resumes automatically: same suite, points, commit
     assert not set(calls) & set(finished)  # no finished point was run again
     assert list(dict.fromkeys(calls)) == keys[4:]
     df, man = consolidated(out)
@@ -406,16 +405,16 @@ def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
     out = tmp_path / "out"
     _counting_run(monkeypatch, kill_at_point=2)
     with pytest.raises(_Killed):
-        S.sweep_main(str(p), out_dir=out)
+        S.sweep_main(str(p), out_dir=out, executor="serial")
     p.write_text(p.read_text() + "# edited\n")  # a different suite file: not resumed
     _counting_run(monkeypatch, kill_at_point=0)
     with pytest.raises(_Killed):
-        S.sweep_main(str(p), out_dir=out)
+        S.sweep_main(str(p), out_dir=out, executor="serial")
     dirs = sorted(d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir())
     assert [len(list(d.glob("part-*"))) for d in dirs] == [2, 0]
     # resume=True resumes the newest sweep of the same suite file and points
     calls = _counting_run(monkeypatch, kill_at_point=None)
-    assert S.sweep_main(str(p), out_dir=out, resume=True) == 0
+    assert S.sweep_main(str(p), out_dir=out, resume=True, executor="serial") == 0
     assert len(calls) == 6 * 2  # the edited suite's sweep had no finished point: all 6, 2 repeats each
     assert not dirs[1].exists() and dirs[0].exists()
 
@@ -559,7 +558,7 @@ def test_a_consolidated_sweep_whose_directory_was_not_removed(tmp_path, monkeypa
         raise PermissionError(13, "Permission denied", str(path))
 
     monkeypatch.setattr(S.shutil, "rmtree", failing_rmtree)
-    assert S.sweep_main("smoke", out_dir=out) == 0  # the rows are safe: not a crash
+    assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0  # the rows are safe: not a crash
     monkeypatch.setattr(S.shutil, "rmtree", real_rmtree)
     sdir = out / S.machine_id() / "smoke"
     left = [d for d in sdir.iterdir() if d.is_dir()]
@@ -570,7 +569,7 @@ def test_a_consolidated_sweep_whose_directory_was_not_removed(tmp_path, monkeypa
     (sdir / f"{left[0].name}.manifest.json").unlink()
     calls = _counting_run(monkeypatch, kill_at_point=0)
     with pytest.raises(_Killed):  # a new sweep starts (the old one is complete) ...
-        S.sweep_main("smoke", out_dir=out)
+        S.sweep_main("smoke", out_dir=out, executor="serial")
     assert not left[0].exists()  # ... after finishing the old one's consolidation
     man = json.loads((sdir / f"{left[0].name}.manifest.json").read_text())
     assert man["rows"] == 6 and man["missing"] == []
