@@ -92,13 +92,22 @@ def body_extents(model, R: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def _emit(out_a, out_b, cnt, a, b):
+    """Write the pair (a, b) at cnt when the outputs have room (the kernels
+    count on, to report what they need); returns cnt + 1."""
+    if cnt < out_a.shape[0]:
+        out_a[cnt] = a
+        out_b[cnt] = b
+    return cnt + 1
+
+
+@njit(cache=True)
 def _plane_pairs_kernel(lo, hi, N, off, grow, out_b, out_p):
     """(body, plane) pairs, body-major, whose box [lo, hi] reaches within
     ``grow`` of the plane (unit normal N[p], offset off[p]): the box's
     lowest point along N, c . N - e . |N| - off < grow.  Returns the
     number written, or minus the number needed when the outputs are short."""
     cnt = 0
-    cap = out_b.shape[0]
     for k in range(lo.shape[0]):
         c0, c1, c2 = 0.5 * (lo[k, 0] + hi[k, 0]), 0.5 * (lo[k, 1] + hi[k, 1]), 0.5 * (lo[k, 2] + hi[k, 2])
         e0, e1, e2 = 0.5 * (hi[k, 0] - lo[k, 0]), 0.5 * (hi[k, 1] - lo[k, 1]), 0.5 * (hi[k, 2] - lo[k, 2])
@@ -106,11 +115,8 @@ def _plane_pairs_kernel(lo, hi, N, off, grow, out_b, out_p):
             low = (c0 * N[p, 0] + c1 * N[p, 1] + c2 * N[p, 2]
                    - (e0 * abs(N[p, 0]) + e1 * abs(N[p, 1]) + e2 * abs(N[p, 2])) - off[p])
             if low < grow:
-                if cnt < cap:
-                    out_b[cnt] = k
-                    out_p[cnt] = p
-                cnt += 1
-    return cnt if cnt <= cap else -cnt
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
 
 
 @njit(cache=True)
@@ -118,16 +124,12 @@ def _box_pairs_kernel(lo, hi, slo, shi, out_b, out_p):
     """(body, static box) pairs, body-major, whose boxes overlap (see
     :func:`_plane_pairs_kernel` for the return value)."""
     cnt = 0
-    cap = out_b.shape[0]
     for k in range(lo.shape[0]):
         for p in range(slo.shape[0]):
             if (lo[k, 0] <= shi[p, 0] and slo[p, 0] <= hi[k, 0] and lo[k, 1] <= shi[p, 1]
                     and slo[p, 1] <= hi[k, 1] and lo[k, 2] <= shi[p, 2] and slo[p, 2] <= hi[k, 2]):
-                if cnt < cap:
-                    out_b[cnt] = k
-                    out_p[cnt] = p
-                cnt += 1
-    return cnt if cnt <= cap else -cnt
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
 
 
 @njit(cache=True)
@@ -136,16 +138,12 @@ def _brute_kernel(lo, hi, out_i, out_j):
     :func:`_plane_pairs_kernel` for the return value)."""
     n = lo.shape[0]
     cnt = 0
-    cap = out_i.shape[0]
     for i in range(n):
         for j in range(i + 1, n):
             if (lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1]
                     and lo[j, 1] <= hi[i, 1] and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]):
-                if cnt < cap:
-                    out_i[cnt] = i
-                    out_j[cnt] = j
-                cnt += 1
-    return cnt if cnt <= cap else -cnt
+                cnt = _emit(out_i, out_j, cnt, i, j)
+    return cnt if cnt <= out_i.shape[0] else -cnt
 
 
 class PairBuffer:

@@ -96,23 +96,6 @@ def cylinder_plane(c, R, hl, r, pn, po):
     return np.repeat(np.arange(m), 8), S_n.reshape(-1, 3), S_p.reshape(-1, 3), S_g.reshape(-1), S_f.reshape(-1)
 
 
-def _cylinder_sdf(p, cc, Rc, hl, rc):
-    """Signed distance (k,) m of points ``p`` (k, 3) to solid cylinders
-    (centre ``cc``, rotation ``Rc`` with the axis as body z, half length
-    ``hl``, radius ``rc``): the distance outside, minus the depth to the
-    nearer of side and cap inside -- the signed distance of a convex set,
-    hence convex in p (what :func:`_segment_min` needs)."""
-    out = np.empty(p.shape[0])
-    _sdf_kernel(SDF_CYLINDER, _f(p), _f(cc), _f(Rc), np.stack([hl, rc, np.zeros_like(hl)], axis=1), out)
-    return out
-
-
-@njit(cache=True)
-def _sdf_kernel(kind, p, oc, oR, oh, out):
-    for k in range(p.shape[0]):
-        out[k] = sdf1(kind, p[k, 0], p[k, 1], p[k, 2], oc[k], oR[k], oh[k])
-
-
 @njit(cache=True)
 def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok):
     e0 = np.empty(3)

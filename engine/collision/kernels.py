@@ -111,15 +111,34 @@ def sphere_sphere1(ca, ra, cb, rb, n, p):
 
 
 @njit(cache=True)
+def sphere_contact(c, r, nw, gap, n, p):
+    """A sphere's contact (centre c, radius r) against a surface of outward
+    unit normal nw (3,, world) at signed gap ``gap`` (m): normal n = -nw
+    (from the sphere into the surface), the midpoint p between the two
+    surfaces; returns the gap."""
+    s = r + 0.5 * gap
+    for i in range(3):
+        p[i] = c[i] - nw[i] * s
+        n[i] = -nw[i]
+    return gap
+
+
+@njit(cache=True)
 def sphere_plane1(c, r, pn, po, n, p):
     """One sphere against the plane (unit normal pn, offset po): normal -pn
     into the plane, midpoint p; returns the gap."""
-    gap = pn[0] * c[0] + pn[1] * c[1] + pn[2] * c[2] - po - r
-    s = r + 0.5 * gap
-    for i in range(3):
-        p[i] = c[i] - pn[i] * s
-        n[i] = -pn[i]
-    return gap
+    return sphere_contact(c, r, pn, pn[0] * c[0] + pn[1] * c[1] + pn[2] * c[2] - po - r, n, p)
+
+
+@njit(cache=True)
+def surface_contact(c, r, R, w, g, out, n, p):
+    """The contact of a sphere (centre c, radius r) with a shape whose
+    outward unit normal at the sphere's closest point is R w (w (3,) in the
+    shape's frame, R its rotation) and whose signed distance to c is g (m):
+    normal n from the sphere to the shape, midpoint p; returns the gap g -
+    r.  ``out`` (3,) is scratch."""
+    to_world(R, w, out)  # the shape's outward normal, world
+    return sphere_contact(c, r, out, g - r, n, p)
 
 
 @njit(cache=True)
@@ -152,13 +171,7 @@ def sphere_box1(c, r, cb, Rb, hb, n, p):
         w[0] = w[1] = w[2] = 0.0
         w[face] = 1.0 if loc[face] >= 0.0 else -1.0
         g = -best
-    gap = g - r
-    to_world(Rb, w, diff)  # the box's outward normal, world
-    s = r + 0.5 * gap
-    for i in range(3):
-        p[i] = c[i] - diff[i] * s
-        n[i] = -diff[i]
-    return gap
+    return surface_contact(c, r, Rb, w, g, diff, n, p)
 
 
 def gather(S_n, S_p, S_g, S_f, S_ok, blocks=None):
@@ -323,13 +336,7 @@ def sphere_cylinder1(c, r, cc, Rc, hl, rc, cap, n, p):
         w[0] = w[1] = 0.0
         w[2] = 1.0 if loc[2] >= 0.0 else -1.0
         g = -pen_cap
-    gap = g - r
-    to_world(Rc, w, diff)  # the cylinder's outward normal, world
-    s = r + 0.5 * gap
-    for i in range(3):
-        p[i] = c[i] - diff[i] * s
-        n[i] = -diff[i]
-    return gap
+    return surface_contact(c, r, Rc, w, g, diff, n, p)
 
 
 #: feature ids of the rim points of :func:`cylinder_rim1`, in their order
