@@ -358,12 +358,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
             sc = bench.broadphase_scaling(repeats=args.repeats)
             bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                         "medians): sap, all pairs, former single-axis sweep")
+                                         "medians): sap, all pairs")
             ns = [r["n"] for r in sc["rows"]]
             ex = sc["exponents"]
             print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
-                  f"sweep: {ex['single_axis']:.2f})")
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
+            b = bench.build_cost()
+            print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
+                  f"of Python allocations (median of 3)")
     if args.json:
         out.write(json.dumps(rows, default=str) + "\n")
         out.flush()
