@@ -21,8 +21,8 @@ _PENDING = 0.0
 
 
 def warm_up() -> float:
-    """Compile (or load from the cache) every dynamics kernel once per
-    process; returns the seconds spent (0.0 when already done)."""
+    """Compile (or load from the cache) every dynamics and collision kernel
+    once per process; returns the seconds spent (0.0 when already done)."""
     global _READY, _PENDING
     if _READY:
         return 0.0
@@ -92,6 +92,8 @@ def warm_up() -> float:
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
     _warm_flight()
+    from engine.collision import dispatch
+    dispatch.warm_up()  # the broad and narrow phases' kernels
     dt = time.perf_counter() - t0
     _READY = True
     _PENDING += dt
