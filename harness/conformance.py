@@ -479,28 +479,32 @@ def execute(spec: RunSpec):
 
 
 def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
-            on_result=None) -> dict[tuple, Any]:
+            on_result=None, scheduler: str | None = None) -> dict[tuple, Any]:
     """Execute runs in ``jobs`` worker processes (harness/execute.py: a
     worker that dies or hangs costs only its run, which becomes an error or
-    timeout result), or in this process with ``executor="inline"``; a rich
-    progress bar on stderr.  ``on_result(spec, result)`` is called as each
+    timeout result), or in this process with ``executor="inline"``, or as
+    Dask tasks with ``executor="dask"`` (on the cluster at ``scheduler``,
+    else a LocalCluster of ``jobs`` workers; raises
+    harness.dask_executor.EnvironmentRefused); a rich progress bar on stderr.  ``on_result(spec, result)`` is called as each
     run finishes (check stores it there).  Returns {RunSpec.key: RunResult}."""
     from rich.console import Console
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
 
     results: dict[tuple, Any] = {}
     console = Console(stderr=True)
     cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-            TextColumn("{task.description}"))
-    with Progress(*cols, console=console, disable=not progress, transient=False) as bar, \
-            make_executor(executor, jobs) as ex:
+            TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
+    with make_executor(executor, jobs, scheduler, log=lambda t: console.print(t, markup=False, soft_wrap=True)) \
+            if executor == "dask" else make_executor(executor, jobs) as ex, \
+            Progress(*cols, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(runs))
 
         def run_one(r: RunSpec):
             return execute(r)  # looked up at call time (tests patch it for inline runs)
 
-        fn = execute if executor == "process" else run_one
+        fn = run_one if executor in ("inline", "serial") else execute
         for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
                                on_start=lambda r: bar.update(task, description=escape(r.request().label))):
             res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
@@ -849,7 +853,7 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
-               traces: str | Path | None = None) -> int:
+               traces: str | Path | None = None, scheduler: str | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -859,7 +863,9 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     resumed by the next same check (``resume``, :func:`check_identity`):
     its finished runs are read back, not rerun.  Runs go to ``jobs`` worker
     processes with ``timeout_s`` seconds each (``executor="inline"``: in
-    this process).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    this process; ``"dask"``: tasks on the Dask cluster at ``scheduler`` or
+    a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
+    on local worker processes).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
@@ -898,15 +904,25 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         except Exception as e:  # disk trouble must not hide the verdict
             err.print(f"warning: could not store the row of {r.run_key}: {type(e).__name__}: {e}", markup=False)
 
+    refused: tuple = ()
+    if executor == "dask":
+        from harness.dask_executor import EnvironmentRefused
+
+        refused = (EnvironmentRefused,)
     try:
         results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
-                               on_result=on_result))
+                               on_result=on_result, scheduler=scheduler))
+    except refused as e:  # the rows stored so far stay: the next same check resumes them
+        err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+        store.close()
+        return 2
     except BaseException:
         store.close()
         raise
     outcomes = load_errors + evaluate_runs(runs, results)
     if traces:
-        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)), executor=executor)
+        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)),
+                                 executor="process" if executor == "dask" else executor)
         err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
     try:

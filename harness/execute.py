@@ -205,6 +205,8 @@ class WorkerLost:
     stderr_tail: str = ""
     traceback: str = ""
     signal: str = ""
+    #: the machine.* summary of the host it ran on, when not this one (a Dask worker)
+    machine: dict[str, str] | None = None
 
     @property
     def status(self) -> str:
@@ -221,6 +223,8 @@ class WorkerLost:
 def lost_result(req: RunRequest, lost: WorkerLost):
     """The RunResult of a request whose worker raised, died or hung."""
     res = _result(req, lost.status, lost.full_message())
+    if lost.machine:
+        res.machine = dict(lost.machine)
     if lost.stderr_tail:
         res.info["stderr_tail"] = lost.stderr_tail
     if lost.traceback:
@@ -537,16 +541,26 @@ class WorkerPool:
         self.close()
 
 
-EXECUTORS = ("process", "inline")
+EXECUTORS = ("process", "inline", "dask")
 
 
-def make_executor(kind: str = "process", jobs: int = 1):
+def make_executor(kind: str = "process", jobs: int = 1, scheduler: str | None = None,
+                  log: Callable[[str], None] | None = None):
     """``process``: a :class:`WorkerPool` of ``jobs`` workers; ``inline``
-    (alias ``serial``): :class:`InlineExecutor`."""
+    (alias ``serial``): :class:`InlineExecutor`; ``dask``: a
+    harness.dask_executor.DaskExecutor on the cluster at ``scheduler``, or
+    on a LocalCluster of ``jobs`` workers (``log`` gets its description).
+    A ``scheduler`` is only for ``dask``."""
+    if scheduler and kind != "dask":
+        raise ValueError(f"a scheduler address is for the dask executor, not {kind!r}")
     if kind == "process":
         return WorkerPool(jobs)
     if kind in ("inline", "serial"):
         return InlineExecutor()
+    if kind == "dask":
+        from harness.dask_executor import DaskExecutor
+
+        return DaskExecutor(jobs, scheduler, log)
     raise ValueError(f"executor {kind!r}: expected one of {', '.join(EXECUTORS)}")
 
 

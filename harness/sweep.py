@@ -72,7 +72,7 @@ SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
 STATUSES = st.RUN_STATUSES
-EXECUTORS = ("serial", "process")
+EXECUTORS = ("serial", "process", "dask")
 # Columns this module adds to RunResult.row() (the row contract, with
 # results/README.md).
 SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
@@ -740,9 +740,11 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
 
 
 def _status_row(point: Point, status: str, message: str, t0: float, scene: Any = None,
-                tb: str | None = None, stderr_tail: str | None = None) -> dict[str, Any]:
+                tb: str | None = None, stderr_tail: str | None = None,
+                machine: dict[str, str] | None = None) -> dict[str, Any]:
     """A row for a point that produced no RunResult (scene failed to load,
-    the run raised, the worker died)."""
+    the run raised, the worker died); ``machine``: the summary of the host
+    it ran on (default this one)."""
     from adapters import get_adapter
     from harness.runner import RunResult, commit_id, machine_info
 
@@ -757,7 +759,7 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
     except Exception:
         pass  # keep the swept settings only
     res = RunResult(point.scenario, point.variant, point.engine, version, status, message, settings,
-                    machine=machine_info(), commit=commit_id(),
+                    machine=machine or machine_info(), commit=commit_id(),
                     timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                     scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
     if tb:
@@ -816,7 +818,7 @@ def _sweep_id(commit: str) -> str:
 
 
 def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | None, jobs: int,
-               executor: str, filters: dict[str, Any]) -> tuple[_SweepDir, bool]:
+               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[_SweepDir, bool]:
     """Find the sweep to resume or start a new one.  Returns (dir, resumed).
 
     Resume rule: an unfinished sweep directory of this suite on this machine
@@ -825,10 +827,13 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
     started at the same commit, with ``resume=True`` whatever its commit (its
     rows keep their own ``commit``); ``resume=False`` always starts afresh.
     The newest match wins; a directory locked by a running sweep is skipped.
+    ``machine``: the machine id the rows are filed under (default this
+    machine's; a Dask sweep's workers' own).
     """
     from harness.runner import commit_id, machine_info
 
-    suite_dir = confined(root, machine_id(), suite.name)
+    machine = machine or machine_id()
+    suite_dir = confined(root, machine, suite.name)
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
@@ -876,7 +881,7 @@ def open_sweep(suite: Suite, points: list[Point], root: Path, resume: bool | Non
         "suite_hash": suite.file_hash,
         "sweep_id": sid,
         "commit": commit,
-        "machine_id": machine_id(),
+        "machine_id": machine,
         "machine": machine_info(),
         "fingerprint": fingerprint(),
         "jobs": jobs,
@@ -971,7 +976,7 @@ def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[s
             else:
                 msg = f"point failed: {value.message}"
             value = _status_row(p, value.status, msg, t0, tb=value.traceback or None,
-                                stderr_tail=value.stderr_tail or None)
+                                stderr_tail=value.stderr_tail or None, machine=value.machine)
         on_row(p, value)
 
 
@@ -1019,13 +1024,17 @@ def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int
 
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
                out_dir: Path | None = None, resume: bool | None = None,
-               scenarios: list[str] | None = None, timeout_s: float | None = None) -> int:
+               scenarios: list[str] | None = None, timeout_s: float | None = None,
+               scheduler: str | None = None) -> int:
     """``physbench sweep``: run ``suite`` (a name under suites/ or a path)
     and store its rows under ``out_dir`` (default results/sweeps/).
 
     ``engines`` / ``scenarios`` restrict the suite; ``jobs`` worker processes
     with ``executor`` ``"process"`` (the default) or ``"serial"`` (in this
-    process); ``timeout_s`` replaces the suite's per-run budget;
+    process), or ``"dask"``: the Dask cluster at ``scheduler``, or a
+    LocalCluster of ``jobs`` workers (harness/dask_executor.py; the rows are
+    filed under the workers' machine id); ``timeout_s`` replaces the suite's
+    per-run budget;
     ``resume``: None resumes an unfinished sweep of the same suite file,
     points and commit, True also across commits, False never (see
     :func:`open_sweep`).  Returns 0 when the sweep completed (failed runs are
@@ -1033,7 +1042,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     when interrupted (the sweep can be resumed)."""
     from rich.console import Console
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
 
     err = Console(stderr=True)
     t_start = time.perf_counter()
@@ -1055,6 +1065,9 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     if executor not in EXECUTORS:
         err.print(f"error: executor {executor!r}: expected one of {', '.join(EXECUTORS)}", markup=False, soft_wrap=True)
         return 2
+    if scheduler and executor != "dask":
+        err.print(f"error: --scheduler is for --executor dask, not {executor}", markup=False)
+        return 2
     if executor == "serial" and jobs > 1:
         err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
         jobs = 1
@@ -1066,8 +1079,25 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         return 2
     root = Path(out_dir) if out_dir is not None else SWEEPS_DIR
     filters = {"engines": engines, "scenarios": scenarios}
-    sd, resumed = open_sweep(s, points, root, resume, jobs, executor, filters)
-    ctx = {"suite": s.name, "sweep_id": sd.sweep_id, "machine_id": machine_id(), "sweep_jobs": jobs,
+    ex, refused = None, ()
+    if executor == "dask":  # before the sweep directory: a refused cluster writes nothing
+        from harness.dask_executor import EnvironmentRefused
+
+        refused = (EnvironmentRefused,)
+        try:
+            ex = make_executor(executor, jobs, scheduler, log=lambda t: err.print(t, markup=False, soft_wrap=True))
+        except EnvironmentRefused as e:
+            err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+            return 2
+        jobs = ex.jobs
+    try:
+        sd, resumed = open_sweep(s, points, root, resume, jobs, executor, filters,
+                                 machine=getattr(ex, "machine_id", None))
+    except BaseException:
+        if ex is not None:
+            ex.close()
+        raise
+    ctx = {"suite": s.name, "sweep_id": sd.sweep_id, "machine_id": sd.manifest["machine_id"], "sweep_jobs": jobs,
            "schema_version": SCHEMA_VERSION}
     todo = [p for p in points if p.key not in sd.done]
     err.print(f"sweep {s.name} ({_display(s.path)}): {len(points)} points on {', '.join(dict.fromkeys(p.engine for p in points))}"
@@ -1077,7 +1107,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         err.print(f"note: {jobs} runs at a time compete for {os.cpu_count()} cores (and caches, memory "
                   "bandwidth): CPU times are not comparable with a --jobs 1 sweep; metrics are unaffected", soft_wrap=True)
     cols = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-            TextColumn("{task.description}"))
+            TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
     try:
         with Progress(*cols, console=err, disable=not err.is_terminal) as bar:
             task = bar.add_task("", total=len(todo))
@@ -1090,17 +1120,23 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 sd.write_point(row)
                 bar.advance(task)
 
-            with make_executor(executor, jobs) as ex:
+            with ex if ex is not None else make_executor(executor, jobs) as ex:
                 run_points(todo, ex, on_row, on_start)
-        if reqs:
-            _run_limits(reqs, sd, ctx, jobs if executor == "process" else 1, err)
-    except KeyboardInterrupt:
+        if reqs:  # bisections, one evaluation after another: the local process pool
+            _run_limits(reqs, sd, ctx, jobs if executor in ("process", "dask") else 1, err)
+    except (KeyboardInterrupt, *refused) as e:
+        if isinstance(e, refused):
+            err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
         sd.close()
-        return 130
+        if ex is not None:
+            ex.close()
+        return 2 if isinstance(e, refused) else 130
     except BaseException:
         sd.close()
+        if ex is not None:
+            ex.close()
         raise
     try:  # still locked: a sweep started meanwhile must not resume this directory
         out = consolidate(sd.path)
