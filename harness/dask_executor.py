@@ -58,15 +58,6 @@ class EnvironmentRefused(RuntimeError):
 # identity
 
 
-def _package_version(name: str) -> str:
-    try:
-        from importlib.metadata import version
-
-        return version(name)
-    except Exception:
-        return "absent"
-
-
 @functools.lru_cache(maxsize=1)
 def worker_identity() -> dict[str, Any]:
     """This process's environment: ``software`` (what must match between
@@ -75,14 +66,14 @@ def worker_identity() -> dict[str, Any]:
     versions) and ``machine`` (harness/fingerprint.py's flat summary: the
     hardware, which may differ and is carried in each row).  Engines are
     not imported (their package versions are read)."""
-    from harness.fingerprint import fingerprint
+    from harness.fingerprint import _version, fingerprint
     from harness.runner import commit_id, machine_info
 
     fp = fingerprint()
     software = {"commit": commit_id(), "python": fp["versions"]["python"],
                 "physbench_engine": fp["versions"]["physbench_engine"],
                 "blas": "; ".join(f"{b['library']} {b['version']}" for b in fp["blas"])}
-    software.update({p: _package_version(p) for p in PACKAGES})
+    software.update({p: _version(p) or "absent" for p in PACKAGES})
     return {"software": software, "machine": machine_info(), "pid": os.getpid()}
 
 

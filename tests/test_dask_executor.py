@@ -5,6 +5,7 @@ refused.  Every cluster is closed and no process is left behind."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -18,8 +19,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, register
+from adapters.base import Setting, register
 from harness import sweep as S
+from tests.test_sweep import FakeSweep
 
 distributed = pytest.importorskip("distributed")
 
@@ -31,21 +33,18 @@ KILL_OK_ENV = "PHYSBENCH_TEST_DASK_KILL_OK"
 MARKERS_ENV = "PHYSBENCH_TEST_DASK_MARKERS"
 
 
-class DaskFake(Adapter):
-    """Free flight; ``sleep_s`` seconds at build; ``fault`` ``kill_worker``
-    kills the Dask worker running it (the parent of its run process),
-    ``kill_worker_once`` only the first time (a marker file)."""
+class DaskFake(FakeSweep):
+    """tests/test_sweep.py's free flight, faulting otherwise: ``fault``
+    ``kill_worker`` kills the Dask worker running it (the parent of its run
+    process), ``kill_worker_once`` only the first time (a marker file)."""
 
     name = "dask_fake"
 
     @classmethod
     def capabilities(cls):
-        return Capabilities("dask_fake", "1", 3, frozenset({"sphere", "box"}), frozenset({"plane"}),
-                            frozenset({"contact", "restitution"}),
-                            {"dt": DT_SETTING,
-                             "fault": Setting("fault", "none", str, "",
-                                              choices=("none", "kill_worker", "kill_worker_once")),
-                             "sleep_s": Setting("sleep_s", 0.0, float, "", lo=0.0, hi=10.0)})
+        caps = super().capabilities()
+        fault = Setting("fault", "none", str, "", choices=("none", "kill_worker", "kill_worker_once"))
+        return dataclasses.replace(caps, engine="dask_fake", settings={**caps.settings, "fault": fault})
 
     def build(self, scene, settings):
         fault = settings["fault"]
@@ -57,18 +56,7 @@ class DaskFake(Adapter):
                 marker.touch()
                 os.kill(os.getppid(), signal.SIGKILL)  # the Dask worker, as an out-of-memory kill would
                 time.sleep(60)
-        time.sleep(settings["sleep_s"])
-        self.dt = settings["dt"]
-        self.x, self.q, self.v, self.w = (a.copy() for a in scene.initial_state())
-
-    def step(self, n=1):
-        self.x += n * self.v * self.dt
-
-    def read_state(self, pos, quat, vel, angvel):
-        pos[...] = self.x
-        quat[...] = self.q
-        vel[...] = self.v
-        angvel[...] = self.w
+        super().build(scene, {**settings, "fault": "none"})
 
 
 @pytest.fixture(autouse=True, scope="module")
