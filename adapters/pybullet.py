@@ -24,7 +24,7 @@ Translation choices, each measured in ``tests/test_adapter_pybullet.py``:
 - **Conversion point**: ``read_state`` is the only place engine state is
   turned into physbench's conventions: ``getBasePositionAndOrientation``
   gives an xyzw quaternion, converted once per call with
-  :func:`adapters.conventions.xyzw_to_wxyz`; ``getBaseVelocity`` is already
+  :func:`contract.rotation.xyzw_to_wxyz`; ``getBaseVelocity`` is already
   world-frame linear velocity of the centre of mass and world-frame angular
   velocity.  (The force loop reads the engine's own state in the engine's
   own terms and converts nothing.)
@@ -80,8 +80,8 @@ from typing import Any
 import numpy as np
 
 from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
-from harness.scene import Scene
+from contract.rotation import world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
+from contract.scene import Scene
 
 ENGINE = "pybullet"
 

@@ -2,8 +2,8 @@
 
 pymunk 7.3.1 is a 2D engine.  A planar physbench scene lives in the world x-z
 plane; the single conversion between world and engine state is
-:func:`adapters.conventions.planar_from_world` (at build) and
-:func:`adapters.conventions.world_from_planar` (in :meth:`read_state`):
+:func:`contract.conventions.planar_from_world` (at build) and
+:func:`contract.conventions.world_from_planar` (in :meth:`read_state`):
 2D x = world x, 2D y = world z, 2D counter-clockwise angular velocity w =
 world angular velocity (0, -w, 0).  A body's local frame maps the same way:
 body-local (x, z) is the 2D body-local (x, y), so a capsule or cylinder (axis
@@ -71,8 +71,8 @@ from typing import Any
 import numpy as np
 
 from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import planar_from_world, world_from_planar, world_point_to_planar
-from harness.scene import Scene
+from contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from contract.scene import Scene
 
 ENGINE = "pymunk"
 

@@ -260,7 +260,7 @@ def _scene(scenario: str, variant: str, path: str = ""):
     scenarios/.  Only a fallback: rows carry their primary metric, its
     threshold and their checks' outcomes."""
     try:
-        from harness.scene import load_scene, source_path
+        from contract.scene import load_scene, source_path
 
         f = source_path(path) if path and not _missing(path) else None
         if f is not None and f.is_file():
@@ -288,7 +288,7 @@ def scene_threshold(scenario: str, variant: str, metric: str | None, path: str =
 
 def hard_scenarios() -> set[str]:
     """Ids of the scenarios tagged 'hard' in scenarios/*.toml."""
-    from harness.scene import SCENARIO_DIR
+    from contract.scene import SCENARIO_DIR
 
     out = set()
     for p in SCENARIO_DIR.rglob("*.toml"):
@@ -372,7 +372,7 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     # series where the hash changes: history(), scene_changes())
     df["series_key"] = [k[:-len(h) - 1] if h and k.endswith("|" + h) else k
                         for k, h in zip(df["point_key"], df["scene_hash"])]
-    # step phase (harness/phase.py): 0 = the scene as written
+    # step phase (contract/phase.py): 0 = the scene as written
     col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
     ph = []
     for d, c in zip(swept, col):
@@ -877,7 +877,7 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
     over the phases in order (``.`` pass, ``x`` check failed, ``!`` not ok
     or unstable).  ``phase0`` is the outcome of the scene as written: what a
     single run (``physbench check``, a sweep without phases) sees."""
-    from harness.phase import wilson_interval
+    from contract.phase import wilson_interval
 
     df = _ensure(df)
     cols = ["machine_id", "suite", "scenario", "variant", "engine", "settings", "dt", "phases", "failures",

@@ -61,12 +61,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from harness import status as st
 from harness.execute import RunRequest, WorkerLost, make_executor, request_scene
-from harness.phase import PhaseError, phase_values
+from contract.phase import PhaseError, phase_values
 from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
                              unfinished_dirs, write_json_atomic, write_parquet_atomic)
-from harness.scene import REPO_ROOT
+from contract.scene import REPO_ROOT
 from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
-from harness.spec import SpecError, _display, _format_errors, read_toml
+from contract.spec import SpecError, _display, _format_errors, read_toml
 
 SUITE_DIR = REPO_ROOT / "suites"
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
@@ -142,7 +142,7 @@ class SweepSection(_Strict):
     scenarios: list[str] = Field(min_length=1)
     engines: list[str] | None = None
     repeats: int | None = Field(default=None, ge=1, le=MAX_REPEATS)
-    #: step phases per grid point (harness/phase.py): N runs with the start
+    #: step phases per grid point (contract/phase.py): N runs with the start
     #: moved back along the free flight by i/N dt, i = 0 .. N-1
     phases: int = Field(default=1, ge=1, le=1024)
     grid: dict[str, list[Any]] = Field(default_factory=dict)
@@ -195,7 +195,7 @@ class SuiteEntry:
     """One scenario (and variant) of a block: its id (family.name, or
     family.stem for a file outside scenarios/), the spec file when it was
     named by path (relative to the suite file, resolved), and the scene's
-    content hash (harness.scene.content_hash) when the suite was loaded."""
+    content hash (contract.scene.content_hash) when the suite was loaded."""
 
     scenario: str
     variant: str | None
@@ -258,7 +258,7 @@ class Point:
     @property
     def phase(self) -> float:
         """The step phase f (0 <= f < 1) of the point: its start moved back
-        by f dt along the free flight (harness/phase.py); 0 = as written."""
+        by f dt along the free flight (contract/phase.py); 0 = as written."""
         return float(self.settings_dict.get(PHASE_KEY, 0.0))
 
     @property
@@ -354,7 +354,7 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
     (harness.limits.validate_request).  Appends to ``errors``."""
     from adapters import engine_names, get_adapter
     from harness.limits import LimitRequest, validate_request
-    from harness.scene import scenario_ids
+    from contract.scene import scenario_ids
 
     ids = set(scenario_ids())
     known = set(engine_names())
@@ -402,8 +402,8 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""
     from adapters import engine_names, get_adapter
-    from harness.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
-    from harness.spec import load_spec
+    from contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
+    from contract.spec import load_spec
 
     known = engine_names()
     caps: dict[str, Any] = {}
@@ -509,11 +509,11 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
 
 def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[str, tuple[Any, ...]]],
                        errors: list[str]) -> None:
-    """Every point's recording fits the bounds (harness/spec.py
+    """Every point's recording fits the bounds (contract/spec.py
     record_size_error) at the smallest dt any engine sweeps: checked when
     the suite loads, before anything runs or is allocated."""
-    from harness.scene import load_scene, n_steps
-    from harness.spec import record_size_error
+    from contract.scene import load_scene, n_steps
+    from contract.spec import record_size_error
 
     for e, ax in axes.items():
         if "dt" not in ax:
@@ -644,7 +644,7 @@ machine_id = _fingerprint_machine_id
 @lru_cache(maxsize=64)
 def _scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
-    from harness.scene import load_scene
+    from contract.scene import load_scene
 
     return load_scene(scenario, variant)
 

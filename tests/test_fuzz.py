@@ -39,8 +39,8 @@ from hypothesis import strategies as st
 
 from adapters import ENGINES
 from harness import cli
-from harness.scene import REPO_ROOT, SCENARIO_DIR, load_scene
-from harness.spec import BOUNDS, SpecError, load_spec
+from contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
+from contract.spec import BOUNDS, SpecError, load_spec
 from harness.sweep import STATUSES, SuiteError, expand, load_suite
 
 # --------------------------------------------------------------------------
@@ -401,7 +401,7 @@ def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
 
 
 def test_bounds_table_matches_docs():
-    """Every bound of harness/spec.py BOUNDS is a row of the bounds table in
+    """Every bound of contract/spec.py BOUNDS is a row of the bounds table in
     docs/SCENARIO_FORMAT.md with the same limits."""
     text = (REPO_ROOT / "docs" / "SCENARIO_FORMAT.md").read_text(encoding="utf-8")
     text = text.split("\n## Bounds\n", 1)[1].split("\n## ", 1)[0]

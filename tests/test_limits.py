@@ -10,7 +10,7 @@ import pytest
 
 from harness.limits import (EVAL_ROW, FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, LimitRequest, Verdict,
                             run_search, search)
-from harness.phase import phase_values
+from contract.phase import phase_values
 
 
 def _threshold(t: float, below: bool = True):

@@ -18,7 +18,7 @@ from harness import conformance as C
 from harness import report as rp
 from harness import sweep as S
 from harness.results import write_rows
-from harness.scene import load_scene
+from contract.scene import load_scene
 from tests.test_cli import physbench
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -222,7 +222,7 @@ def test_content_hash_is_the_scene_not_the_file(tmp_path):
     assert load_scene(write_box(tmp_path / "c.toml", friction=0.3)).content_hash != ha
     assert load_scene(a, overrides={"scenario.dt": 0.001}).content_hash != ha
     # a step-phase shift keeps the hash of the scene as written
-    from harness.phase import shift_scene
+    from contract.phase import shift_scene
 
     drop = load_scene("tunnelling.thin_box_on_thin_floor")
     assert shift_scene(drop, 0.5).content_hash == drop.content_hash

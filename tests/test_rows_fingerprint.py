@@ -10,7 +10,7 @@ import pandas as pd
 
 from harness import fingerprint as F
 from harness import sweep as S
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 
 def _machine_cols(row: dict) -> dict:

@@ -25,7 +25,7 @@ from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_nam
 from harness import sweep as S
 from harness.results import SCHEMA_VERSION
 from harness.runner import run as _REAL_RUN
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -130,7 +130,7 @@ def test_shipped_suites_load():
     assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk"}
     assert len({p.key for p in pts}) == len(pts)
     # every nightly scenario has an analytic primary metric
-    from harness.scene import load_scene
+    from contract.scene import load_scene
 
     for sid in {p.scenario for p in pts}:
         assert load_scene(sid).primary_metric and load_scene(sid).reference_model

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness.geometry import Placed, _phi, _placed_body, _placed_static_box
-from harness.scene import Scene
+from contract.scene import Scene
 
 DEFAULT_CAP = 32  # contact rows per frame kept in a trace
 _N_SPREAD = 128

@@ -1,7 +1,7 @@
 """Scenario spec loading and validation: TOML -> validated pydantic spec.
 
 The spec format is described in ``docs/SCENARIO_FORMAT.md`` (and in the shared
-DESIGN.md).  This module only validates; :mod:`harness.scene` compiles a
+DESIGN.md).  This module only validates; :mod:`contract.scene` compiles a
 validated spec into the engine-neutral scene model that adapters consume.
 
 Every error names the file, the key path and what was expected, e.g.::
@@ -32,7 +32,7 @@ from pydantic import (
     model_validator,
 )
 
-from harness.references import ReferenceError
+from contract.models import MODELS, ReferenceError
 
 EFFECTS = (
     "gravity",
@@ -176,7 +176,7 @@ class SpecError(ValueError):
 class ModelRefusal(SpecError, ReferenceError):
     """The scene's reference model refused the scene at load time: a spec
     error (file, key path, exit 2) that is also the model's
-    :class:`harness.references.ReferenceError`."""
+    :class:`contract.models.ReferenceError`."""
 
 
 class _Strict(BaseModel):
@@ -201,7 +201,7 @@ class ScenarioSection(_Strict):
     primary_metric: str | None = None
     tags: list[str] = Field(default_factory=list)
     description: str | None = None
-    #: step phases the conformance checks are evaluated over (harness/phase.py):
+    #: step phases the conformance checks are evaluated over (contract/phase.py):
     #: 1 = the scene as written only; N > 1 = also N - 1 runs with the start
     #: moved back along the free flight by i/N dt, every one must pass
     phases: int = Field(default=1, ge=1, le=256)
@@ -496,8 +496,6 @@ class ReferenceSection(_Strict):
     @field_validator("model")
     @classmethod
     def _model_known(cls, v: str) -> str:
-        from harness.references import MODELS
-
         if v not in MODELS:
             raise ValueError(
                 f"unknown reference model {v!r}; expected one of {', '.join(sorted(MODELS))}"
