@@ -16,7 +16,7 @@ criterion:
   into a stored row with its verdict (the only function that runs an
   engine; small so that it can move onto another execution path).
 - :class:`LimitStore` and :func:`limits_main` -- rows stored like sweep rows
-  (``harness/sweep.py``: atomic parts, resumable: a rerun reads finished
+  (``harness/sweep_store.py``: atomic parts, resumable: a rerun reads finished
   evaluations back instead of running them again).
 
 The criterion.  A value *holds* when, in every one of the N step phases
@@ -361,7 +361,7 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
     rows whose verdict fails with the reason."""
     from harness import runner
     from contract.phase import shift_scene
-    from harness.sweep import PHASE_KEY, Point, _point_columns, _status_row
+    from harness.points import PHASE_KEY, Point, _point_columns, _status_row
 
     t0 = time.perf_counter()
     settings = dict(req.settings)
@@ -543,7 +543,7 @@ class _PoolEvaluator:
 
 
 def _died_row(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
-    from harness.sweep import Point, _status_row
+    from harness.points import Point, _status_row
 
     why = "worker process died while running this value (a crash inside the engine); retried alone, it died again"
     row = _status_row(Point(req.scenario, req.variant, req.engine, ()), "error", why, time.perf_counter())
@@ -587,7 +587,7 @@ def run_requests(reqs: list[LimitRequest], store: Callable[[dict[str, Any]], Non
 
 @dataclass(frozen=True)
 class _SearchSuite:
-    """What :func:`harness.sweep.open_sweep` needs of a suite: a name, a hash
+    """What :func:`harness.sweep_store.open_sweep` needs of a suite: a name, a hash
     naming what is planned, and a path for the manifest."""
 
     name: str
@@ -710,7 +710,7 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     evaluations back.  Returns 0 (the search ran; its outcome is data), 2
     for bad input, 130 when interrupted."""
     from harness.results import SCHEMA_VERSION
-    from harness.sweep import SWEEPS_DIR, consolidate, machine_id, open_sweep, sweep_files
+    from harness.sweep_store import SWEEPS_DIR, consolidate, machine_id, open_sweep, sweep_files
 
     errs = validate_request(req)
     if errs:

@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
-from harness.sweep import sweep_files
+from harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
 ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes

@@ -41,7 +41,9 @@ from adapters import ENGINES
 from harness import cli
 from contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
 from contract.spec import BOUNDS, SpecError, load_spec
-from harness.sweep import STATUSES, SuiteError, expand, load_suite
+from harness.suite import expand, load_suite
+from harness.sweep import STATUSES
+from harness.sweep_store import SuiteError
 
 # --------------------------------------------------------------------------
 # profiles
@@ -390,7 +392,7 @@ def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
     del doc["suite"]["name"]
     with pytest.raises(SuiteError, match=r"suite\.name: the file name '\.\.' is not a plain name"):
         load_suite(_write(tmp_path, doc, "...toml"))
-    from harness.sweep import confined
+    from harness.sweep_store import confined
 
     with pytest.raises(SuiteError, match="outside the results root"):
         confined(tmp_path, "machine", name)
