@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness.status import BROKEN_STATUSES, DIVERGED, OK, UNSUPPORTED
 from harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
@@ -57,7 +58,6 @@ MIN_COST_HISTORY = 3  # earlier ok runs a cost series needs before a change in i
 MACHINE_SHIFT_MIN_SERIES = 20  # series a night needs before its machine-wide cost shift is taken out
 ERROR_ABS_FLOOR = 1e-12  # an accuracy change must also exceed this absolutely
 MAX_SMALL_MULTIPLES = 6
-FAILED_STATUSES = ("error", "failed", "timeout")  # counted together as "error"
 
 BASE_LABEL = "base"
 
@@ -120,10 +120,6 @@ def _variant(v: Any) -> str:
     if _missing(v) or str(v) == BASE_LABEL:
         return ""
     return str(v)
-
-
-def _vlabel(v: str) -> str:
-    return v or BASE_LABEL
 
 
 def _setting_value(v: Any) -> Any:
@@ -770,9 +766,9 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
             "fraction": len(good) / n if n else math.nan,
             "unstable": sum(1 for r in recs if r["status"] == "ok" and r.get("stable_flag") is False),
             "diverged": st.count("diverged"),
-            "error": sum(st.count(s) for s in FAILED_STATUSES),
+            "error": sum(st.count(s) for s in BROKEN_STATUSES),
             "unsupported": st.count("unsupported"),
-            "other": sum(1 for s in st if s not in ("ok", "diverged", "unsupported") + FAILED_STATUSES),
+            "other": sum(1 for s in st if s not in (OK, DIVERGED, UNSUPPORTED) + BROKEN_STATUSES),
             "max_stable_dt": max(gdt) if gdt else math.nan,
             "min_unstable_dt": min(bdt) if bdt else math.nan,
             "met_checks": sum(1 for r in good if meets_checks(r) is True),

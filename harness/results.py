@@ -116,12 +116,6 @@ def write_rows(rows: Iterable[dict[str, Any]], path: str | Path, append: bool = 
     return write_parquet_atomic(df, path)
 
 
-def read_rows(path: str | Path):
-    import pandas as pd
-
-    return pd.read_parquet(path)
-
-
 # ---------------------------------------------------------------------------
 # a job's parts: one Parquet file per finished run, resumable
 

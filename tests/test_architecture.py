@@ -4,8 +4,8 @@ the tests is parsed (imports inside functions count; imports under
 
 - no module imports a module of a higher layer;
 - the contract imports nothing of ours; the engine imports only the engine;
-- adapters never import the harness; only the listed harness modules
-  import the engine directly;
+- adapters never import the harness, and only the reference adapter
+  imports the engine; only the listed harness modules import the engine;
 - there is no import cycle between modules (importing ``a.b.c`` from
   outside package ``a.b`` also runs ``a/b/__init__.py``, so that counts;
   a module inside the package was itself reached through it).
@@ -134,6 +134,8 @@ def test_leaves_and_sides():
             ttop = t.split(".")[0]
             if top in ("contract", "engine") and ttop != top:
                 bad.append(f"{m} is a leaf but imports {t}")
+            if top == "adapters" and ttop == "engine" and m != "adapters.reference":
+                bad.append(f"{m}: only the reference adapter builds the engine ({t})")
             if top == "adapters" and ttop == "harness":
                 bad.append(f"{m}: adapters stand on the contract, not the harness ({t})")
             if top == "harness" and ttop == "engine" and m not in ENGINE_USERS:
