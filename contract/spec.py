@@ -146,6 +146,18 @@ def _bound(kind: str, how: str = "value") -> Any:
     return validate
 
 
+def _one_of(what: str, choices: tuple[str, ...]) -> Any:
+    """A field validator admitting only ``choices``; the error names
+    ``what`` ("shape", "static shape") and lists the choices."""
+
+    def validate(cls: Any, v: str) -> str:
+        if v not in choices:
+            raise ValueError(f"unknown {what} {v!r}; expected one of {', '.join(choices)}")
+        return v
+
+    return validate
+
+
 def record_size_error(n_steps: int, n_bodies: int, record_every: int = 1) -> str | None:
     """Why a run of ``n_steps`` steps recording ``n_bodies`` bodies every
     ``record_every`` steps is too large to allocate (BOUNDS 'steps' and
@@ -349,14 +361,7 @@ class BodySection(_Strict):
     drag_quadratic: float = Field(default=0.0, ge=0.0)
     pattern: PatternSection | None = None
 
-    @field_validator("shape")
-    @classmethod
-    def _shape_known(cls, v: str) -> str:
-        if v not in BODY_SHAPES:
-            raise ValueError(
-                f"unknown shape {v!r}; expected one of {', '.join(BODY_SHAPES)}"
-            )
-        return v
+    _shape_known = field_validator("shape")(_one_of("shape", BODY_SHAPES))
 
     @field_validator("name", "material")
     @classmethod
@@ -409,14 +414,7 @@ class StaticSection(_Strict):
     angle: float | None = None
     material: str = "default"
 
-    @field_validator("shape")
-    @classmethod
-    def _shape_known(cls, v: str) -> str:
-        if v not in STATIC_SHAPES:
-            raise ValueError(
-                f"unknown static shape {v!r}; expected one of {', '.join(STATIC_SHAPES)}"
-            )
-        return v
+    _shape_known = field_validator("shape")(_one_of("static shape", STATIC_SHAPES))
 
     @field_validator("orientation")
     @classmethod
