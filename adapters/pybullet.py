@@ -81,7 +81,7 @@ import numpy as np
 
 from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
 from adapters.materials import solve_product_values, solve_rolling_values
-from contract.rotation import world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
+from contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from contract.scene import Scene
 
 ENGINE = "pybullet"
