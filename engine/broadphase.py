@@ -11,6 +11,9 @@ a 2D grid over the two other axes, see :func:`sap_pairs`: O(n log n)) or
 from testing every pair (``brute``); both give exactly the same pairs in
 the same order.  Body-plane pairs are candidates when the swept box
 reaches the plane's margin; body-static-box pairs when the boxes overlap.
+The swept boxes, the all-pairs test, the static pairs and the sweeps'
+loops are compiled (numba ``@njit(cache=True)``, no BLAS); the stage keeps
+its box and pair buffers between steps (:class:`PairBuffer`).
 
 Also computes ``ctx.sweep`` (n,): a bound on how far any surface point of a
 body moves in the step, h (max speed + max angular speed * bounding radius),
@@ -25,6 +28,7 @@ deterministic): ``ctx.pairs_i``/``pairs_j`` (i < j), ``ctx.plane_pairs``
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from engine.mathutil import quat_to_matrix
 from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
@@ -37,32 +41,128 @@ from engine.profile import Stage
 SAP_MIN_BODIES = 16
 
 
-def shape_groups(model) -> tuple:
-    """Index arrays of the bodies by extent rule (spheres, boxes, capsules
-    and cylinders), computed once per model."""
-    s = model.shape
-    rnd = np.flatnonzero((s == CAPSULE) | (s == CYLINDER))
-    return (np.flatnonzero(s == SPHERE), np.flatnonzero(s == BOX), rnd, s[rnd] == CAPSULE)
+@njit(cache=True)
+def _extent(shape, r, half, hl, R, e):
+    """Half-sizes e (3,) of a body's world axis-aligned box at rotation R."""
+    for i in range(3):
+        if shape == SPHERE:
+            e[i] = r
+        elif shape == BOX:
+            e[i] = abs(R[i, 0]) * half[0] + abs(R[i, 1]) * half[1] + abs(R[i, 2]) * half[2]
+        elif shape == CAPSULE:
+            e[i] = abs(R[i, 2]) * hl + r
+        else:  # cylinder: the caps' discs
+            e[i] = abs(R[i, 2]) * hl + r * np.sqrt(min(max(1.0 - R[i, 2] * R[i, 2], 0.0), 1.0))
 
 
-def body_extents(model, R: np.ndarray, groups: tuple | None = None) -> np.ndarray:
-    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations R
-    (``groups``: :func:`shape_groups`, computed here when not given)."""
+@njit(cache=True)
+def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
+                 lo, hi, sweep):
+    """Per body: the union of its boxes at the start (x0, R0) and the
+    free-flight end pose (x1, R1), grown by ``grow``, into lo, hi (n, 3);
+    and ``sweep`` (n,): h (max speed + max angular speed * bounding radius)
+    over the start (v0, w0) and end (v1, w1) velocities and the mean
+    velocity u (all (>= n, 3))."""
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    for k in range(x0.shape[0]):
+        _extent(shape[k], radius[k], half[k], half_length[k], R0[k], e0)
+        _extent(shape[k], radius[k], half[k], half_length[k], R1[k], e1)
+        for i in range(3):
+            lo[k, i] = min(x0[k, i] - e0[i], x1[k, i] - e1[i]) - grow
+            hi[k, i] = max(x0[k, i] + e0[i], x1[k, i] + e1[i]) + grow
+        vmax = np.sqrt(max(v0[k, 0] * v0[k, 0] + v0[k, 1] * v0[k, 1] + v0[k, 2] * v0[k, 2],
+                           v1[k, 0] * v1[k, 0] + v1[k, 1] * v1[k, 1] + v1[k, 2] * v1[k, 2]))
+        umax = np.sqrt(u[k, 0] * u[k, 0] + u[k, 1] * u[k, 1] + u[k, 2] * u[k, 2])
+        wmax = np.sqrt(max(w0[k, 0] * w0[k, 0] + w0[k, 1] * w0[k, 1] + w0[k, 2] * w0[k, 2],
+                           w1[k, 0] * w1[k, 0] + w1[k, 1] * w1[k, 1] + w1[k, 2] * w1[k, 2]))
+        sweep[k] = h * (max(vmax, umax) + wmax * bound_radius[k])
+
+
+def body_extents(model, R: np.ndarray) -> np.ndarray:
+    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations
+    R (n, 3, 3)."""
     n = model.n
-    sph, box, rnd, is_cap = shape_groups(model) if groups is None else groups
     ext = np.empty((n, 3))
-    if sph.size:
-        ext[sph] = model.radius[sph, None]
-    if box.size:
-        ext[box] = np.einsum("kij,kj->ki", np.abs(R[box]), model.half_extents[box])
-    if rnd.size:
-        ax = R[rnd][:, :, 2]
-        r = model.radius[rnd, None]
-        hl = model.half_length[rnd, None]
-        cap = np.abs(ax) * hl + r
-        cyl = np.abs(ax) * hl + r * np.sqrt(np.clip(1.0 - ax * ax, 0.0, 1.0))
-        ext[rnd] = np.where(is_cap[:, None], cap, cyl)
+    e = np.empty(3)
+    for k in range(n):
+        _extent(model.shape[k], model.radius[k], model.half_extents[k], model.half_length[k], R[k], e)
+        ext[k] = e
     return ext
+
+
+@njit(cache=True)
+def _emit(out_a, out_b, cnt, a, b):
+    """Write the pair (a, b) at cnt when the outputs have room (the kernels
+    count on, to report what they need); returns cnt + 1."""
+    if cnt < out_a.shape[0]:
+        out_a[cnt] = a
+        out_b[cnt] = b
+    return cnt + 1
+
+
+@njit(cache=True)
+def _plane_pairs_kernel(lo, hi, N, off, grow, out_b, out_p):
+    """(body, plane) pairs, body-major, whose box [lo, hi] reaches within
+    ``grow`` of the plane (unit normal N[p], offset off[p]): the box's
+    lowest point along N, c . N - e . |N| - off < grow.  Returns the
+    number written, or minus the number needed when the outputs are short."""
+    cnt = 0
+    for k in range(lo.shape[0]):
+        c0, c1, c2 = 0.5 * (lo[k, 0] + hi[k, 0]), 0.5 * (lo[k, 1] + hi[k, 1]), 0.5 * (lo[k, 2] + hi[k, 2])
+        e0, e1, e2 = 0.5 * (hi[k, 0] - lo[k, 0]), 0.5 * (hi[k, 1] - lo[k, 1]), 0.5 * (hi[k, 2] - lo[k, 2])
+        for p in range(N.shape[0]):
+            low = (c0 * N[p, 0] + c1 * N[p, 1] + c2 * N[p, 2]
+                   - (e0 * abs(N[p, 0]) + e1 * abs(N[p, 1]) + e2 * abs(N[p, 2])) - off[p])
+            if low < grow:
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
+
+
+@njit(cache=True)
+def _box_pairs_kernel(lo, hi, slo, shi, out_b, out_p):
+    """(body, static box) pairs, body-major, whose boxes overlap (see
+    :func:`_plane_pairs_kernel` for the return value)."""
+    cnt = 0
+    for k in range(lo.shape[0]):
+        for p in range(slo.shape[0]):
+            if (lo[k, 0] <= shi[p, 0] and slo[p, 0] <= hi[k, 0] and lo[k, 1] <= shi[p, 1]
+                    and slo[p, 1] <= hi[k, 1] and lo[k, 2] <= shi[p, 2] and slo[p, 2] <= hi[k, 2]):
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
+
+
+@njit(cache=True)
+def _brute_kernel(lo, hi, out_i, out_j):
+    """Every pair (i < j, sorted) whose boxes overlap (see
+    :func:`_plane_pairs_kernel` for the return value)."""
+    n = lo.shape[0]
+    cnt = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if (lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1]
+                    and lo[j, 1] <= hi[i, 1] and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]):
+                cnt = _emit(out_i, out_j, cnt, i, j)
+    return cnt if cnt <= out_i.shape[0] else -cnt
+
+
+class PairBuffer:
+    """Two int64 output arrays of a pair kernel, kept between calls and
+    grown geometrically (to at least twice the need) when a kernel reports
+    them short: no allocation per step in the steady state.  Returned
+    pairs are copies (the caller keeps them across steps)."""
+
+    def __init__(self, size: int = 64):
+        self.a = np.empty(size, np.int64)
+        self.b = np.empty(size, np.int64)
+
+    def run(self, kernel, *args) -> tuple[np.ndarray, np.ndarray]:
+        k = kernel(*args, self.a, self.b)
+        if k < 0:
+            self.a = np.empty(-2 * k, np.int64)
+            self.b = np.empty(-2 * k, np.int64)
+            k = kernel(*args, self.a, self.b)
+        return self.a[:k].copy(), self.b[:k].copy()
 
 
 _EMPTY = np.zeros(0, np.int64)
@@ -88,46 +188,6 @@ def _sweep_axis(lo: np.ndarray, hi: np.ndarray) -> int:
         return int(np.argmax((0.5 * lo + 0.5 * hi).var(axis=0)))
 
 
-def _sap_single_axis(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The former ``sap_pairs``: single-axis sweep and prune (same output as
-    :func:`sap_pairs`; kept for the broad-phase benchmark).
-
-    Candidates are the pairs whose intervals overlap on the sweep axis (in
-    sorted order, box q after box p with lo_q <= hi_p); they are then
-    filtered one axis at a time.  In a dense 3D cloud a slab of the sweep
-    axis holds ~n^(2/3) boxes, so the candidates grow like n^(5/3)."""
-    n = lo.shape[0]
-    if n < 2:
-        return _EMPTY, _EMPTY
-    axis = _sweep_axis(lo, hi)
-    order = np.argsort(lo[:, axis], kind="stable")
-    slo = lo[order, axis]
-    shi = hi[order, axis]
-    end = np.searchsorted(slo, shi, side="right")
-    cnt = np.maximum(end - np.arange(1, n + 1), 0)
-    total = int(cnt.sum())
-    if total == 0:
-        return _EMPTY, _EMPTY
-    P = np.repeat(np.arange(n), cnt)
-    starts = np.cumsum(cnt) - cnt
-    Q = P + 1 + (np.arange(total) - np.repeat(starts, cnt))
-    ok_sweep = (slo[P] <= shi[Q]) & (slo[Q] <= shi[P])
-    if not ok_sweep.all():  # only with degenerate (lo > hi or NaN) boxes
-        P, Q = P[ok_sweep], Q[ok_sweep]
-    for ax in range(3):
-        if ax == axis or P.size == 0:
-            continue
-        la = lo[order, ax]
-        ha = hi[order, ax]
-        ok = (la[P] <= ha[Q]) & (la[Q] <= ha[P])
-        P, Q = P[ok], Q[ok]
-    i = order[P]
-    j = order[Q]
-    a, b = np.minimum(i, j), np.maximum(i, j)
-    srt = np.lexsort((b, a))
-    return a[srt], b[srt]
-
-
 def _special_pairs(lo: np.ndarray, hi: np.ndarray, spec: np.ndarray,
                    is_spec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Overlapping pairs (i < j, unsorted) with at least one special box:
@@ -147,19 +207,32 @@ def _special_pairs(lo: np.ndarray, hi: np.ndarray, spec: np.ndarray,
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def _cells(lo: np.ndarray, hi: np.ndarray, max_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """First and last cell coordinate (int64) of intervals [lo, hi] on a
-    grid of cells ``_CELL_SCALE`` times as wide as the widest interval (at
-    most ``max_cells`` cells).  floor((x - min) / c) is monotone in x in
-    floating point too, so overlapping intervals always share a cell."""
-    mn = lo.min()
-    span = hi.max() - mn
-    c = max(_CELL_SCALE * float((hi - lo).max()), span / max_cells)
+@njit(cache=True)
+def _cells(lo, hi, order, a, max_cells, cell_scale, c0, c1):
+    """First and last cell coordinate c0, c1 (m,) int64, in sweep order, of
+    the boxes' intervals on axis ``a`` on a grid of cells ``cell_scale``
+    times as wide as the widest interval (at most ``max_cells`` cells).
+    floor((x - min) / c) is monotone in x in floating point too, so
+    overlapping intervals always share a cell."""
+    m = order.shape[0]
+    mn = np.inf
+    mx = -np.inf
+    wmax = -np.inf
+    for r in range(m):
+        k = order[r]
+        mn = min(mn, lo[k, a])
+        mx = max(mx, hi[k, a])
+        wmax = max(wmax, hi[k, a] - lo[k, a])
+    span = mx - mn
+    c = max(cell_scale * wmax, span / max_cells)
     if not (np.isfinite(c) and np.isfinite(span)) or c <= 0.0:
-        z = np.zeros(lo.shape[0], np.int64)
-        return z, z
-    return (np.floor((lo - mn) / c).astype(np.int64),
-            np.floor((hi - mn) / c).astype(np.int64))
+        c0[:] = 0
+        c1[:] = 0
+        return
+    for r in range(m):
+        k = order[r]
+        c0[r] = np.int64(np.floor((lo[k, a] - mn) / c))
+        c1[r] = np.int64(np.floor((hi[k, a] - mn) / c))
 
 
 def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -182,20 +255,23 @@ def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
       wider than the median (see ``_BIG_FACTOR``; at most ~sqrt(n) per
       axis), and boxes with lo > hi or an infinite bound (any n), are
       instead tested against all boxes (:func:`_special_pairs`);
-    * every other box is entered in each cell it covers (at most 2 x 2:
-      four runs, each already in order, merged by one stable sort); the
-      entries are sorted by the integer key cell * (m + 1) + rank of the
-      lower bound on the sweep axis (times 4, plus two bits: is the cell
-      the box's first on each grid axis), and each entry's candidates --
-      the later entries of its cell whose lower bound is <= its upper
-      bound -- are found by one searchsorted of cell * (m + 1) + number of
-      lower bounds <= its upper bound (exact: integer keys, no
+    * every other box is entered in each cell it covers (at most 2 x 2);
+      the entries are sorted by the integer key cell * (m + 1) + rank of
+      the lower bound on the sweep axis (times 4, plus two bits: is the
+      cell the box's first on each grid axis), and each entry's
+      candidates -- the later entries of its cell whose lower bound is <=
+      its upper bound -- end at the first key >= cell * (m + 1) + number
+      of lower bounds <= its upper bound (exact: integer keys, no
       floating-point combination);
     * a candidate is kept only in the cell holding the lower corner of the
       two boxes' intersection (so once, though they may share up to four
       cells), then tested on the two grid axes.
 
-    Cost O(n log n) for boxes of similar sizes, whatever the layout."""
+    Cost O(n log n) for boxes of similar sizes, whatever the layout.  The
+    sweeps' loops (candidates, keys, their sort and the tests) are
+    compiled (:func:`_sweep_kernel`, :func:`_grid_kernel`); the choice of
+    axis and path, the sort along the sweep axis and the special boxes stay
+    numpy calls (a fixed handful per call, O(n log n) work)."""
     n = lo.shape[0]
     if n < 2:
         return _EMPTY, _EMPTY
@@ -250,19 +326,7 @@ def _finite_pairs(lo: np.ndarray, hi: np.ndarray, w: np.ndarray) -> tuple[np.nda
     if total <= _SWEEP_ONLY * m:
         if total == 0:
             return _EMPTY, _EMPTY, None
-        P = np.repeat(np.arange(m), cnt)
-        Q = np.arange(total) + np.repeat(np.arange(1, m + 1) - (np.cumsum(cnt) - cnt), cnt)
-        # the sweep axis holds (lo_p <= lo_q <= hi_q, lo_q <= hi_p); the
-        # others one at a time, each on the survivors of the previous one
-        for a in range(3):
-            if a == axis:
-                continue
-            la = lo[order, a]
-            ha = hi[order, a]
-            ok = (la[P] <= ha[Q]) & (la[Q] <= ha[P])
-            P, Q = P[ok], Q[ok]
-        i, j = order[P], order[Q]
-        return np.minimum(i, j), np.maximum(i, j), None
+        return _sweep_pairs(lo, hi, axis, order, end, total)
     u, v = [a for a in range(3) if a != axis]
     wuv = w[:, (u, v)]
     mid = m // 2
@@ -292,71 +356,117 @@ def _grid_pairs(lo: np.ndarray, hi: np.ndarray, axis: int, u: int, v: int,
     if order is None:
         order = np.argsort(lo[:, axis], kind="stable")
         end = np.searchsorted(lo[order, axis], hi[order, axis], side="right")
-    # keys below: (cell * (m + 1) + rank) * 4 + 2 bits, < 2^63
+    # keys: (cell * (m + 1) + rank) * 4 + 2 bits, < 2^63
     max_cells = min(_MAX_CELLS, int(np.sqrt(2.0 ** 60 / (m + 1))))
-    u0, u1 = _cells(lo[order, u], hi[order, u], max_cells)  # in sweep order: index = rank
-    v0, v1 = _cells(lo[order, v], hi[order, v], max_cells)
-    nv = int(v1.max()) + 1
-    du = u1 - u0
-    dv = v1 - v0
+    return _grid_kernel(lo, hi, u, v, order, end, max_cells, float(_CELL_SCALE))
+
+
+@njit(cache=True)
+def _first_at_least(key, x, lo):
+    """The first index >= lo of the sorted key whose value is >= x."""
+    hi = key.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if key[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _grid_kernel(lo, hi, u, v, order, end, max_cells, cell_scale):
+    """:func:`_grid_pairs` compiled: an entry per box and grid cell it
+    covers, as the key ((cell * M + rank) << 2) | loc (M = m + 1; rank:
+    the box's place in the sweep order; loc's bit 0 set when the cell is
+    not the box's first on v, bit 1 on u); the keys sorted; each entry's
+    candidates are the later entries of its cell with rank < end (lo_q <=
+    hi_p on the sweep axis), kept only in the cell of the lower corner of
+    the two boxes' intersection (no loc bit set in both: on each grid axis
+    the cell is the first of one of the two boxes), then tested on the two
+    grid axes.  Returns (i, j) (min, max original indices, unsorted)."""
+    m = order.shape[0]
+    u0 = np.empty(m, np.int64)
+    u1 = np.empty(m, np.int64)
+    v0 = np.empty(m, np.int64)
+    v1 = np.empty(m, np.int64)
+    _cells(lo, hi, order, u, max_cells, cell_scale, u0, u1)
+    _cells(lo, hi, order, v, max_cells, cell_scale, v0, v1)
+    nv = v1.max() + 1
     M = m + 1
-    # an entry per box and cell it covers, as the key
-    # ((cell * M + rank of the box's lower bound on the sweep axis) << 2) | loc,
-    # loc's bit 0 set when the cell is not the box's first on v, bit 1 on u;
-    # lo_q <= hi_p  <=>  rank_q < end_p  (end_p: lower bounds <= hi_p)
-    k0 = (u0 * nv + v0) * M + np.arange(m)
-    if int(du.max()) <= 1 and int(dv.max()) <= 1:  # 2 x 2 cells at most (always, but for rounding)
-        # four runs, each sorted by (cell, rank) when the first one is:
-        # sorting their concatenation (timsort) merges them
-        k0.sort(kind="stable")
-        r = k0 % M
-        has_v, has_u = dv[r] == 1, du[r] == 1
-        key = np.concatenate((k0 << 2,
-                              ((k0[has_v] + M) << 2) | 1,
-                              ((k0[has_u] + nv * M) << 2) | 2,
-                              ((k0[has_u & has_v] + (nv + 1) * M) << 2) | 3))
-        key.sort(kind="stable")
-    else:
-        cnt = (du + 1) * (dv + 1)
-        rep = np.repeat(np.arange(m), cnt)
-        t = np.arange(rep.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        dve = dv[rep] + 1
-        tu, tv = t // dve, t % dve
-        loc = (tu > 0).astype(np.int64) << 1 | (tv > 0)
-        key = np.sort(((k0[rep] + (tu * nv + tv) * M) << 2) | loc)
-    kr = key >> 2
-    rank = kr % M
-    E = key.size
-    # candidates of entry p: the later entries of its cell with rank < end
-    last = np.searchsorted(key, (kr - rank + end[rank]) << 2, side="left")
-    c = last - np.arange(1, E + 1)  # >= 0: a box's own rank < its end
-    total = int(c.sum())
-    if total == 0:
-        return _EMPTY, _EMPTY
-    P = np.repeat(np.arange(E), c)
-    Q = np.arange(total) + np.repeat(np.arange(1, E + 1) - (np.cumsum(c) - c), c)
-    # once per pair: in the cell of the lower corner of the boxes'
-    # intersection, i.e. on each grid axis the cell is the first of one of
-    # the two boxes (both cover the cells from their first one on)
-    loc = (key & 3).astype(np.int8)
-    ok = (loc[P] & loc[Q]) == 0
-    i, j = rank[P[ok]], rank[Q[ok]]
-    # the sweep axis holds by construction (lo_p <= lo_q <= hi_q, lo_q <= hi_p);
-    # the grid axes one at a time, each on the survivors of the previous one
-    for a in (u, v):
-        la, ha = lo[order, a], hi[order, a]
-        ok = (la[i] <= ha[j]) & (la[j] <= ha[i])
-        i, j = i[ok], j[ok]
-    i, j = order[i], order[j]
-    return np.minimum(i, j), np.maximum(i, j)
+    E = 0
+    for r in range(m):
+        E += (u1[r] - u0[r] + 1) * (v1[r] - v0[r] + 1)
+    key = np.empty(E, np.int64)
+    e = 0
+    for r in range(m):
+        k0 = (u0[r] * nv + v0[r]) * M + r
+        for tu in range(u1[r] - u0[r] + 1):
+            for tv in range(v1[r] - v0[r] + 1):
+                loc = (2 if tu > 0 else 0) | (1 if tv > 0 else 0)
+                key[e] = ((k0 + (tu * nv + tv) * M) << 2) | loc
+                e += 1
+    key.sort()
+    last = np.empty(E, np.int64)
+    total = 0
+    for p in range(E):
+        kr = key[p] >> 2
+        rank = kr % M
+        last[p] = _first_at_least(key, (kr - rank + end[rank]) << 2, p + 1)
+        total += last[p] - p - 1
+    out_i = np.empty(total, np.int64)
+    out_j = np.empty(total, np.int64)
+    cnt = 0
+    for p in range(E):
+        lp = key[p] & 3
+        i = order[(key[p] >> 2) % M]
+        for q in range(p + 1, last[p]):
+            if lp & (key[q] & 3):
+                continue
+            j = order[(key[q] >> 2) % M]
+            if (lo[i, u] <= hi[j, u] and lo[j, u] <= hi[i, u]
+                    and lo[i, v] <= hi[j, v] and lo[j, v] <= hi[i, v]):
+                out_i[cnt] = min(i, j)
+                out_j[cnt] = max(i, j)
+                cnt += 1
+    return out_i[:cnt], out_j[:cnt]
 
 
-def brute_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@njit(cache=True)
+def _sweep_kernel(lo, hi, axis, order, end, out_i, out_j):
+    """The single-axis sweep's pairs: box order[p] with the later boxes
+    order[q] (p < q < end[p]: lo_q <= hi_p on the sweep axis), tested on
+    the two other axes (lo <= hi on each), written as (min, max) original
+    indices; returns their number."""
+    m = order.shape[0]
+    cnt = 0
+    for p in range(m):
+        i = order[p]
+        for q in range(p + 1, end[p]):
+            j = order[q]
+            ok = True
+            for a in range(3):
+                if a != axis and not (lo[i, a] <= hi[j, a] and lo[j, a] <= hi[i, a]):
+                    ok = False
+                    break
+            if ok:
+                out_i[cnt] = min(i, j)
+                out_j[cnt] = max(i, j)
+                cnt += 1
+    return cnt
+
+
+def _sweep_pairs(lo, hi, axis, order, end, total):
+    out_i = np.empty(total, np.int64)
+    out_j = np.empty(total, np.int64)
+    k = _sweep_kernel(lo, hi, axis, order, end, out_i, out_j)
+    return out_i[:k], out_j[:k], None
+
+
+def brute_pairs(lo: np.ndarray, hi: np.ndarray, buf: PairBuffer | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every pair (i < j, sorted) whose boxes [lo, hi] (n, 3) overlap, by
-    testing all n (n - 1) / 2 of them."""
-    i, j = np.triu_indices(lo.shape[0], 1)
-    ok = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
-    return i[ok], j[ok]
+    testing all n (n - 1) / 2 of them (one compiled loop)."""
+    return (buf or PairBuffer()).run(_brute_kernel, np.ascontiguousarray(lo, float), np.ascontiguousarray(hi, float))
 
 
 class BroadPhase(Stage):
@@ -370,43 +480,58 @@ class BroadPhase(Stage):
         self.margin = float(model.setting("contact_margin"))
         self.n_planes = model.plane_normal.shape[0]
         self.n_sbox = model.sbox_pos.shape[0]
-        self.groups = shape_groups(model)
+        n = model.n
+        # scratch, allocated once
+        self.lo = np.empty((n, 3))
+        self.hi = np.empty((n, 3))
+        self.R1 = np.empty((n, 3, 3))
+        self.bufs = (PairBuffer(), PairBuffer(), PairBuffer())
+        # writable copies: the kernels are compiled (and warmed, warm_up)
+        # for writable arrays, and the model's are read-only
+        self.shape = np.array(model.shape, np.int64)
+        self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
+                                                       model.bound_radius))
+        self.planes = (np.array(model.plane_normal, float), np.array(model.plane_offset, float))
+        self.sbox = (np.array(model.sbox_aabb_lo, float), np.array(model.sbox_aabb_hi, float))
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
         n = model.n
-        h = ctx.h
-        e0 = body_extents(model, ctx.R0, self.groups)
-        R1 = quat_to_matrix(ctx.q1)
-        e1 = body_extents(model, R1, self.groups)
-        vmax = np.sqrt(np.maximum(np.einsum("ki,ki->k", state.v, state.v),
-                                  np.einsum("ki,ki->k", ctx.v[:n], ctx.v[:n])))
-        umax = np.sqrt(np.einsum("ki,ki->k", ctx.u_lin, ctx.u_lin))
-        wmax = np.sqrt(np.maximum(np.einsum("ki,ki->k", state.w, state.w),
-                                  np.einsum("ki,ki->k", ctx.w[:n], ctx.w[:n])))
-        ctx.sweep[:] = h * (np.maximum(vmax, umax) + wmax * model.bound_radius)
-        grow = self.margin
-        lo = np.minimum(state.x - e0, ctx.x1 - e1) - grow
-        hi = np.maximum(state.x + e0, ctx.x1 + e1) + grow
+        lo, hi = self.lo, self.hi
+        self.R1[:] = quat_to_matrix(ctx.q1)
+        _swept_boxes(self.shape, *self.geom, state.x, ctx.R0, ctx.x1, self.R1, state.v, ctx.v, ctx.u_lin, state.w,
+                     ctx.w, float(ctx.h), self.margin, lo, hi, ctx.sweep)
         if n >= 2:
             if self.method == "sap" and n > SAP_MIN_BODIES:
                 ctx.pairs_i, ctx.pairs_j = sap_pairs(lo, hi)
             else:
-                ctx.pairs_i, ctx.pairs_j = brute_pairs(lo, hi)
+                ctx.pairs_i, ctx.pairs_j = self.bufs[0].run(_brute_kernel, lo, hi)
         if self.n_planes:
-            # lowest point of each swept box along each plane normal
-            c = 0.5 * (lo + hi)
-            ex = 0.5 * (hi - lo)
-            N = model.plane_normal
-            low = c @ N.T - ex @ np.abs(N).T - model.plane_offset[None, :]  # (n, planes)
-            bi, pk = np.nonzero(low < grow)
-            ctx.plane_pairs = (bi, pk)
+            ctx.plane_pairs = self.bufs[1].run(_plane_pairs_kernel, lo, hi, *self.planes, self.margin)
         else:
-            ctx.plane_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            ctx.plane_pairs = (_EMPTY, _EMPTY)
         if self.n_sbox:
-            ok = np.all((lo[:, None, :] <= model.sbox_aabb_hi[None]) & (model.sbox_aabb_lo[None] <= hi[:, None, :]), axis=2)
-            bi, sk = np.nonzero(ok)
-            ctx.sbox_pairs = (bi, sk)
+            ctx.sbox_pairs = self.bufs[2].run(_box_pairs_kernel, lo, hi, *self.sbox)
         else:
-            ctx.sbox_pairs = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            ctx.sbox_pairs = (_EMPTY, _EMPTY)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the broad phase's kernels, with the
+    argument types of the step (writable C-contiguous float64 and int64
+    arrays), on a tiny problem (see :mod:`engine.jit`)."""
+    n = 3
+    z3, z = np.zeros((n, 3)), np.zeros(n)
+    R = np.tile(np.eye(3), (n, 1, 1))
+    lo, hi, sw = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    _swept_boxes(np.array([SPHERE, BOX, CYLINDER], np.int64), z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, z3, R, z3,
+                 np.zeros((n + 1, 3)), z3, z3, np.zeros((n + 1, 3)), 0.01, 1e-4, lo, hi, sw)
+    buf = PairBuffer(1)
+    buf.run(_brute_kernel, lo, hi)
+    buf.run(_plane_pairs_kernel, lo, hi, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), 1e-4)
+    buf.run(_box_pairs_kernel, lo, hi, lo[:1].copy(), hi[:1].copy())
+    order = np.argsort(lo[:, 0], kind="stable")
+    end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    _sweep_pairs(lo, hi, 0, order, end, 3)
+    _grid_pairs(lo, hi, 0, 1, 2, order, end)

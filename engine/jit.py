@@ -21,8 +21,8 @@ _PENDING = 0.0
 
 
 def warm_up() -> float:
-    """Compile (or load from the cache) every dynamics kernel once per
-    process; returns the seconds spent (0.0 when already done)."""
+    """Compile (or load from the cache) every dynamics and collision kernel
+    once per process; returns the seconds spent (0.0 when already done)."""
     global _READY, _PENDING
     if _READY:
         return 0.0
@@ -59,6 +59,8 @@ def warm_up() -> float:
     sweeps.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
                    np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb)
     sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb)
+    from engine.collision import dispatch
+    dispatch.warm_up()  # the broad and narrow phases' kernels
     dt = time.perf_counter() - t0
     _READY = True
     _PENDING += dt

@@ -13,8 +13,10 @@ and ratios are printed, never asserted in tests:
   solver iterations: per-step CPU time and their ratio, plus the reference
   engine's broad-phase cost per step against n (fitted exponent).
 - ``broadphase_scaling``: the reference engine's broad phase alone
-  (``sap_pairs``; all pairs; the former single-axis sweep) on static random
-  sphere clouds of constant density, 100 to 3000 bodies: cost against n.
+  (``sap_pairs``; all pairs) on static random sphere clouds of constant
+  density, 100 to 3000 bodies: cost against n.
+- ``build_cost``: the reference engine's build (scene translation, model,
+  pipeline) of an n-sphere scene: CPU time and peak Python allocations.
 """
 
 from __future__ import annotations
@@ -243,23 +245,23 @@ def _time_call(f: Callable[[], Any], min_s: float = 0.02) -> float:
 
 def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats: int = 5,
                        brute_max: int = 3000) -> dict[str, Any]:
-    """The broad phase alone (``engine.broadphase``: ``sap_pairs``, the
-    all-pairs test ``brute_pairs``, and the former single-axis sweep) on
-    static constant-density sphere clouds (:func:`sphere_cloud`), timed
-    interleaved, medians of ``repeats``.  Returns ``{"rows": [{n, pairs,
-    sap_us, brute_us, single_axis_us}], "exponents": {method: k}}``, k the
+    """The broad phase alone (``engine.broadphase``: ``sap_pairs`` and the
+    all-pairs test ``brute_pairs``) on static constant-density sphere
+    clouds (:func:`sphere_cloud`), timed interleaved, medians of
+    ``repeats``.  Returns ``{"rows": [{n, pairs, sap_us, brute_us}],
+    "exponents": {method: k}}``, k the
     least-squares slope of log time against log n, with ``n_log_n``: the
     slope of n log n over the same sizes for reference."""
-    from engine.broadphase import _sap_single_axis, brute_pairs, sap_pairs
+    from engine.broadphase import brute_pairs, sap_pairs
 
     rows = []
     for n in sizes:
         lo, hi = sphere_cloud(n)
         a, b = sap_pairs(lo, hi)
-        for other in (brute_pairs(lo, hi) if n <= brute_max else None, _sap_single_axis(lo, hi)):
+        for other in (brute_pairs(lo, hi) if n <= brute_max else None,):
             if other is not None and not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
                 raise AssertionError(f"broad phase methods disagree at n = {n}")
-        funcs = {"sap": lambda: sap_pairs(lo, hi), "single_axis": lambda: _sap_single_axis(lo, hi)}
+        funcs = {"sap": lambda: sap_pairs(lo, hi)}
         if n <= brute_max:
             funcs["brute"] = lambda: brute_pairs(lo, hi)
         times: dict[str, list[float]] = {k: [] for k in funcs}
@@ -267,16 +269,42 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats:
             for k, f in funcs.items():
                 times[k].append(_time_call(f))
         row: dict[str, Any] = {"n": n, "pairs": int(a.size)}
-        for k in ("sap", "brute", "single_axis"):
+        for k in ("sap", "brute"):
             row[f"{k}_us"] = 1e6 * statistics.median(times[k]) if k in times else float("nan")
         rows.append(row)
     ns = [r["n"] for r in rows]
     exps: dict[str, float] = {}
-    for k in ("sap", "brute", "single_axis"):
+    for k in ("sap", "brute"):
         ok = [r for r in rows if r[f"{k}_us"] == r[f"{k}_us"]]
         exps[k] = fit_exponent([r["n"] for r in ok], [r[f"{k}_us"] for r in ok]) if len(ok) >= 2 else float("nan")
     exps["n_log_n"] = fit_exponent(ns, [n * math.log(n) for n in ns]) if len(ns) >= 2 else float("nan")
     return {"rows": rows, "exponents": exps}
+
+
+def build_cost(n: int = 10000, repeats: int = 3) -> dict[str, Any]:
+    """The reference engine's build of ``n`` spheres on a plane
+    (:func:`spheres_scene`): the scene's translation, the model and the
+    pipeline (``adapters.reference.engine_for``), no step.  Returns ``{n,
+    build_s, peak_mb}``: the median CPU time (s) of ``repeats`` builds and
+    the peak of Python allocations (MB, tracemalloc: numpy arrays included)
+    during one more."""
+    import tracemalloc
+
+    from adapters.reference import engine_for
+
+    scene = spheres_scene(n)
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        engine_for(scene, {})
+        times.append(time.process_time() - t0)
+    tracemalloc.start()
+    try:
+        engine_for(scene, {})
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return {"n": n, "build_s": statistics.median(times), "peak_mb": peak / 1e6}
 
 
 def _stage_time(profile: dict[str, Any], name: str) -> float | None:

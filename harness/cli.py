@@ -152,9 +152,12 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    from harness.runner import check_run_size
+
     try:
-        get_adapter(engine).resolve_settings(scene, settings)
-    except ValueError as e:  # bad setting value
+        resolved = get_adapter(engine).resolve_settings(scene, settings)
+        check_run_size(scene, float(resolved["dt"]), req.record_every)
+    except ValueError as e:  # bad setting value, or a recording too large to allocate
         raise UsageError(str(e)) from None
     return req
 
@@ -355,12 +358,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
             sc = bench.broadphase_scaling(repeats=args.repeats)
             bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                         "medians): sap, all pairs, former single-axis sweep")
+                                         "medians): sap, all pairs")
             ns = [r["n"] for r in sc["rows"]]
             ex = sc["exponents"]
             print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f}; former single-axis "
-                  f"sweep: {ex['single_axis']:.2f})")
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
+            b = bench.build_cost()
+            print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
+                  f"of Python allocations (median of 3)")
     if args.json:
         out.write(json.dumps(rows, default=str) + "\n")
         out.flush()

@@ -226,6 +226,20 @@ def commit_id() -> str:
         return "unknown"
 
 
+def check_run_size(scene: Scene, dt: float, record_every: Any = 1) -> int:
+    """``record_every`` as an int, after checking that a run of ``scene`` at
+    step ``dt`` fits the recording bounds (harness/spec.py
+    record_size_error): raises ValueError naming dt and the bound.  Checked
+    before anything is allocated, by the runner and, before a run goes to a
+    worker, by the CLI (tests/test_fuzz.py::test_record_bound_before_allocation)."""
+    if not isinstance(record_every, numbers.Integral) or record_every < 1:
+        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
+    too_big = record_size_error(n_steps(scene.duration, dt), scene.n_bodies, int(record_every))
+    if too_big:
+        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
+    return int(record_every)
+
+
 def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         record_every: int = 1, timeout_s: float | None = None, compute_metrics: bool = True,
         contact_cap: int = 0) -> RunResult:
@@ -258,13 +272,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
-    if not isinstance(record_every, numbers.Integral) or record_every < 1:
-        raise ValueError(f"record_every: expected an integer >= 1, got {record_every!r}")
-    record_every = int(record_every)
-    # bounded before anything is allocated (tests/test_fuzz.py::test_record_bound_before_allocation)
-    too_big = record_size_error(steps, scene.n_bodies, record_every)
-    if too_big:
-        raise ValueError(f"{scene.id}: dt = {dt:g} s, recording every {record_every} step(s): {too_big}")
+    record_every = check_run_size(scene, dt, record_every)
     n_frames = steps // record_every + 1 + (1 if steps % record_every else 0)
     trace = Trace.allocate(n_frames, scene.n_bodies)
     result.trace = trace

@@ -42,3 +42,9 @@ def test_broadphase_scaling_runs_and_fits():
     assert [r["n"] for r in out["rows"]] == [40, 120]
     assert all(r["pairs"] > 0 and _pos(r["sap_us"]) for r in out["rows"])
     assert math.isfinite(out["exponents"]["sap"])
+
+
+def test_build_cost_reports_time_and_peak_memory():
+    out = bench.build_cost(n=300, repeats=1)
+    assert out["n"] == 300
+    assert _pos(out["build_s"]) and _pos(out["peak_mb"])

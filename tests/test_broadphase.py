@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import engine.broadphase as bp
-from engine.broadphase import _sap_single_axis, brute_pairs, sap_pairs
+from engine.broadphase import brute_pairs, sap_pairs
 
 
 def naive(lo, hi):
@@ -153,7 +153,7 @@ def test_all_nan_and_all_at_one_point():
     assert check(z, z) == n * (n - 1) // 2
 
 
-def test_matches_brute_pairs_and_old_single_axis_sweep(monkeypatch):
+def test_matches_brute_pairs(monkeypatch):
     calls = use_path(monkeypatch, "default")
     rng = np.random.default_rng(11)
     n = 1500
@@ -161,5 +161,5 @@ def test_matches_brute_pairs_and_old_single_axis_sweep(monkeypatch):
 
     a, b = sap_pairs(lo, hi)
     assert calls and len(a) > n  # dense enough to take the grid path
-    for ra, rb in (brute_pairs(lo, hi), _sap_single_axis(lo, hi)):
+    for ra, rb in (brute_pairs(lo, hi),):
         assert np.array_equal(a, ra) and np.array_equal(b, rb)

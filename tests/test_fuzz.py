@@ -661,16 +661,26 @@ def test_control_characters_in_names_rejected(tmp_path, name):
         load_spec(_write(tmp_path, doc))
 
 
+# The one place pickle is allowed: the executor's channel to its own worker
+# processes (harness/execute.py).  What it unpickles was pickled by the
+# parent physbench process or by a worker it started, over that worker's
+# private pipes: never a file, a spec or anything a user hands in.
+PICKLE_CHANNEL = Path("harness") / "execute.py"
+
+
 def test_no_eval_exec_or_pickle_in_the_code():
     """No code path evaluates or unpickles text: specs, suites and result
-    files are parsed as TOML, JSON and Parquet only."""
+    files are parsed as TOML, JSON and Parquet only (pickle only on the
+    executor's private worker channel, PICKLE_CHANNEL)."""
     bad = re.compile(r"\b(eval|exec)\s*\(|\bpickle\b|\bmarshal\b|\bshelve\b|yaml\.load|__import__\s*\(")
+    no_pickle = re.compile(r"\b(eval|exec)\s*\(|\bmarshal\b|\bshelve\b|yaml\.load|__import__\s*\(")
     hits = []
     for d in ("contract", "harness", "adapters", "engine"):
         for p in sorted((REPO_ROOT / d).rglob("*.py")):
+            pattern = no_pickle if p.relative_to(REPO_ROOT) == PICKLE_CHANNEL else bad
             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
                 code = line.split("#", 1)[0]
-                if bad.search(code):
+                if pattern.search(code):
                     hits.append(f"{p.relative_to(REPO_ROOT)}:{i}: {line.strip()}")
     assert not hits, "\n".join(hits)
     # the check itself can fail

@@ -1,12 +1,13 @@
 """Narrow phase: contact points, normals and signed gaps per shape pair.
 
 One module per shape-pair family (``sphere``, ``capsule``, ``box``,
-``cylinder``, ``cylinder_pair``; shared helpers in ``common``) and the
+``cylinder``, ``cylinder_pair``; compiled helpers in ``kernels``) and the
 dispatch (``dispatch``: the collision driver).  ``TABLE`` maps a shape pair
 to a function; body-body pairs are grouped by
 their (canonically ordered) shape pair when the model is built
 (:func:`pair_kinds`), body-static pairs by the body's shape.  Every function
-is vectorised over the pairs of its group and returns
+is one compiled loop over the pairs of its group (numba ``@njit(cache=True)``,
+no BLAS) and returns
 
     (k, normal, point, gap, fid)
 

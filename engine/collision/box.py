@@ -12,21 +12,37 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.common import _CORNERS, _empty
-from engine.collision.kernels import cross3, segment_segment
+from engine.collision.kernels import cross3, empty, segment_segment
+
+
+@njit(cache=True)
+def _box_plane_kernel(c, R, half, pn, po, S_n, S_p, S_g, S_f):
+    for k in range(c.shape[0]):
+        for m in range(8):
+            sx = -1.0 if m < 4 else 1.0
+            sy = -1.0 if m % 4 < 2 else 1.0
+            sz = -1.0 if m % 2 == 0 else 1.0
+            for i in range(3):
+                S_p[k, m, i] = c[k, i] + (R[k, i, 0] * (sx * half[k, 0]) + R[k, i, 1] * (sy * half[k, 1])
+                                          + R[k, i, 2] * (sz * half[k, 2]))
+            g = S_p[k, m, 0] * pn[k, 0] + S_p[k, m, 1] * pn[k, 1] + S_p[k, m, 2] * pn[k, 2] - po[k]
+            S_g[k, m] = g
+            for i in range(3):
+                S_p[k, m, i] -= pn[k, i] * (0.5 * g)
+                S_n[k, m, i] = -pn[k, i]
+            S_f[k, m] = m
 
 
 def box_plane(c, R, half, pn, po):
-    loc = _CORNERS[None, :, :] * half[:, None, :]  # (k, 8, 3)
-    corners = c[:, None, :] + np.einsum("kij,kmj->kmi", R, loc)
-    gap = np.einsum("kmi,ki->km", corners, pn) - po[:, None]
-    k = np.repeat(np.arange(c.shape[0]), 8)
-    gap = gap.reshape(-1)
-    corners = corners.reshape(-1, 3)
-    pnr = np.repeat(pn, 8, axis=0)
-    point = corners - pnr * (0.5 * gap)[:, None]
-    fid = np.tile(np.arange(8), c.shape[0])
-    return k, -pnr, point, gap, fid
+    """Boxes (centres (k, 3), rotations (k, 3, 3), half-extents (k, 3))
+    against planes (unit normals pn (k, 3), offsets po (k,)): the eight
+    corners (``_CORNERS`` order), pair by pair; normal -pn."""
+    k = c.shape[0]
+    S_n, S_p, S_g, S_f = np.empty((k, 8, 3)), np.empty((k, 8, 3)), np.empty((k, 8)), np.empty((k, 8), np.int64)
+    if k:
+        f = np.ascontiguousarray
+        _box_plane_kernel(f(c, float), f(R, float), f(half, float), f(pn, float), f(po, float), S_n, S_p, S_g, S_f)
+    return np.repeat(np.arange(k), 8), S_n.reshape(-1, 3), S_p.reshape(-1, 3), S_g.reshape(-1), S_f.reshape(-1)
 
 
 @njit(cache=True)
@@ -305,7 +321,7 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     test_box_edge_landing_keeps_the_face_points)."""
     k = cA.shape[0]
     if k == 0:
-        return _empty()
+        return empty()
     S_n = np.zeros((k, 5, 3))
     S_p = np.zeros((k, 5, 3))
     S_g = np.zeros((k, 5))
@@ -319,7 +335,7 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     if edge.any():
         _edge_pair_face_points(S_ok[:, 1:], S_g[:, 1:], edge, se, margin)
     if not S_ok.any():
-        return _empty()
+        return empty()
     kk = np.repeat(np.arange(k), 5).reshape(k, 5)
     m = S_ok
     return kk[m], S_n[m], S_p[m], S_g[m], S_f[m]

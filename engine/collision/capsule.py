@@ -3,72 +3,139 @@ capsule-capsule (closest points of the segments, plus the end projections
 when nearly parallel so a lying capsule rests on two points), capsule-box
 (minimum of the box's signed distance along the segment by golden-section
 search -- the signed distance of a convex set is convex -- plus the end
-caps)."""
+caps).  Each is one compiled loop over the pairs; contacts come slot by
+slot (every pair's first contact, then every pair's second, ...)."""
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from engine.collision.common import _cat, _norm, _segment_closest, _segment_min, _segment_segment
-from engine.collision.sphere import sphere_box, sphere_plane, sphere_sphere
+from engine.collision.kernels import (SDF_BOX, gather, segment_closest1, segment_min1, segment_segment, slots,
+                                      sphere_box1, sphere_plane1, sphere_sphere1)
+
+#: capsule-capsule: |axis_a . axis_b| above which the end projections are
+#: added (a lying capsule rests on two points)
+PARALLEL_COS = 0.995
 
 
-def _capsule_ends(c, R, hl):
-    ax = R[:, :, 2]
-    return c - ax * hl[:, None], c + ax * hl[:, None]
+@njit(cache=True)
+def capsule_ends1(c, R, hl, e0, e1):
+    """The segment's ends e0 = c - hl z, e1 = c + hl z (z = R's column 2)."""
+    for i in range(3):
+        e0[i] = c[i] - R[i, 2] * hl
+        e1[i] = c[i] + R[i, 2] * hl
+
+
+@njit(cache=True)
+def _capsule_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f, S_ok):
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    for k in range(c.shape[0]):
+        capsule_ends1(c[k], R[k], hl[k], e0, e1)
+        S_g[k, 0] = sphere_plane1(e0, r[k], pn[k], po[k], S_n[k, 0], S_p[k, 0])
+        S_g[k, 1] = sphere_plane1(e1, r[k], pn[k], po[k], S_n[k, 1], S_p[k, 1])
+        S_f[k, 1] = 1
+        S_ok[k, 0] = S_ok[k, 1] = True
+
+
+@njit(cache=True)
+def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g):
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    q = np.empty(3)
+    for k in range(c.shape[0]):
+        capsule_ends1(c[k], R[k], hl[k], e0, e1)
+        segment_closest1(cs[k], e0, e1, q)
+        g[k] = sphere_sphere1(cs[k], rs[k], q, r[k], n[k], p[k])
+
+
+@njit(cache=True)
+def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f, S_ok):
+    a0 = np.empty(3)
+    a1 = np.empty(3)
+    b0 = np.empty(3)
+    b1 = np.empty(3)
+    pa = np.empty(3)
+    pb = np.empty(3)
+    for k in range(ca.shape[0]):
+        capsule_ends1(ca[k], Ra[k], hla[k], a0, a1)
+        capsule_ends1(cb[k], Rb[k], hlb[k], b0, b1)
+        segment_segment(a0, a1, b0, b1, pa, pb)
+        S_g[k, 0] = sphere_sphere1(pa, ra[k], pb, rb[k], S_n[k, 0], S_p[k, 0])
+        S_ok[k, 0] = True
+        if abs(Ra[k, 0, 2] * Rb[k, 0, 2] + Ra[k, 1, 2] * Rb[k, 1, 2] + Ra[k, 2, 2] * Rb[k, 2, 2]) > PARALLEL_COS:
+            segment_closest1(a0, b0, b1, pb)
+            S_g[k, 1] = sphere_sphere1(a0, ra[k], pb, rb[k], S_n[k, 1], S_p[k, 1])
+            segment_closest1(a1, b0, b1, pb)
+            S_g[k, 2] = sphere_sphere1(a1, ra[k], pb, rb[k], S_n[k, 2], S_p[k, 2])
+            segment_closest1(b0, a0, a1, pa)
+            S_g[k, 3] = sphere_sphere1(pa, ra[k], b0, rb[k], S_n[k, 3], S_p[k, 3])
+            segment_closest1(b1, a0, a1, pa)
+            S_g[k, 4] = sphere_sphere1(pa, ra[k], b1, rb[k], S_n[k, 4], S_p[k, 4])
+            for j in range(1, 5):
+                S_f[k, j] = j
+                S_ok[k, j] = True
+
+
+@njit(cache=True)
+def _capsule_box_kernel(c, R, hl, r, cb, Rb, hb, S_n, S_p, S_g, S_f, S_ok):
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    x = np.empty(3)
+    for k in range(c.shape[0]):
+        capsule_ends1(c[k], R[k], hl[k], e0, e1)
+        s = segment_min1(SDF_BOX, e0, e1, cb[k], Rb[k], hb[k], 40)[0]
+        for i in range(3):
+            x[i] = e0[i] + (e1[i] - e0[i]) * s
+        S_g[k, 0] = sphere_box1(x, r[k], cb[k], Rb[k], hb[k], S_n[k, 0], S_p[k, 0])
+        S_ok[k, 0] = True
+        # the end caps, where the minimum is not at them
+        tol = 0.02 * (2.0 * hl[k] + r[k])
+        if abs(s - 0.0) * 2.0 * hl[k] > tol:
+            S_g[k, 1] = sphere_box1(e0, r[k], cb[k], Rb[k], hb[k], S_n[k, 1], S_p[k, 1])
+            S_f[k, 1] = 1
+            S_ok[k, 1] = True
+        if abs(s - 1.0) * 2.0 * hl[k] > tol:
+            S_g[k, 2] = sphere_box1(e1, r[k], cb[k], Rb[k], hb[k], S_n[k, 2], S_p[k, 2])
+            S_f[k, 2] = 2
+            S_ok[k, 2] = True
+
+
+def _f(a):
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def _slotted(kernel, S, *args):
+    out = slots(args[0].shape[0], S)
+    if args[0].shape[0]:
+        kernel(*(_f(a) for a in args), *out)
+    return gather(*out)
 
 
 def capsule_plane(c, R, hl, r, pn, po):
-    e0, e1 = _capsule_ends(c, R, hl)
-    k0, n0, p0, g0, _ = sphere_plane(e0, r, pn, po)
-    k1, n1, p1, g1, _ = sphere_plane(e1, r, pn, po)
-    m = c.shape[0]
-    return (np.concatenate([k0, k1]), np.concatenate([n0, n1]), np.concatenate([p0, p1]),
-            np.concatenate([g0, g1]), np.concatenate([np.zeros(m, np.int64), np.ones(m, np.int64)]))
+    """Capsules (centres, rotations with the axis as body z, half lengths
+    hl, radii r) against planes: both end caps (fid 0, 1); normal -pn."""
+    return _slotted(_capsule_plane_kernel, 2, c, R, hl, r, pn, po)
 
 
 def sphere_capsule(cs, rs, c, R, hl, r):
-    e0, e1 = _capsule_ends(c, R, hl)
-    p, _ = _segment_closest(cs, e0, e1)
-    return sphere_sphere(cs, rs, p, r)
+    """Spheres against capsules: the segment's closest point as a sphere."""
+    m = c.shape[0]
+    n, p, g = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
+    if m:
+        _sphere_capsule_kernel(_f(cs), _f(rs), _f(c), _f(R), _f(hl), _f(r), n, p, g)
+    return np.arange(m), n, p, g, np.zeros(m, np.int64)
 
 
 def capsule_capsule(ca, Ra, hla, ra, cb, Rb, hlb, rb):
-    a0, a1 = _capsule_ends(ca, Ra, hla)
-    b0, b1 = _capsule_ends(cb, Rb, hlb)
-    pa, pb = _segment_segment(a0, a1, b0, b1)
-    out = [sphere_sphere(pa, ra, pb, rb)]
-    par = np.abs(np.einsum("ki,ki->k", Ra[:, :, 2], Rb[:, :, 2])) > 0.995
-    if par.any():
-        idx = np.flatnonzero(par)
-        for end, fid in ((a0, 1), (a1, 2)):
-            q, _ = _segment_closest(end[idx], b0[idx], b1[idx])
-            k, n, p, g, _ = sphere_sphere(end[idx], ra[idx], q, rb[idx])
-            out.append((idx[k], n, p, g, np.full(k.size, fid)))
-        for end, fid in ((b0, 3), (b1, 4)):
-            q, _ = _segment_closest(end[idx], a0[idx], a1[idx])
-            k, n, p, g, _ = sphere_sphere(q, ra[idx], end[idx], rb[idx])
-            out.append((idx[k], n, p, g, np.full(k.size, fid)))
-    return _cat(out)
-
-
-def _box_sdf(p, cb, Rb, hb):
-    local = np.einsum("kji,kj->ki", Rb, p - cb)
-    q = np.abs(local) - hb
-    outside = _norm(np.maximum(q, 0.0))
-    inside = np.minimum(np.max(q, axis=1), 0.0)
-    return outside + inside
+    """Capsule against capsule: the segments' closest points (fid 0), and
+    where the axes are within PARALLEL_COS the four end projections (fid
+    1-2: a's ends, 3-4: b's)."""
+    return _slotted(_capsule_capsule_kernel, 5, ca, Ra, hla, ra, cb, Rb, hlb, rb)
 
 
 def capsule_box(c, R, hl, r, cb, Rb, hb):
-    """Capsule (first) against box (second)."""
-    e0, e1 = _capsule_ends(c, R, hl)
-    d = e1 - e0
-    s = _segment_min(lambda p: _box_sdf(p, cb, Rb, hb), e0, e1)[0]
-    out = [sphere_box(e0 + d * s[:, None], r, cb, Rb, hb)]
-    for end, fid, sv in ((e0, 1, 0.0), (e1, 2, 1.0)):
-        keep = np.flatnonzero(np.abs(s - sv) * 2.0 * hl > 0.02 * (2.0 * hl + r))
-        if keep.size:
-            k, n, p, gg, _ = sphere_box(end[keep], r[keep], cb[keep], Rb[keep], hb[keep])
-            out.append((keep[k], n, p, gg, np.full(k.size, fid)))
-    return _cat(out)
+    """Capsule (first) against box (second): the segment's point of least
+    box signed distance (fid 0) and the end caps away from it (fid 1, 2)."""
+    return _slotted(_capsule_box_kernel, 3, c, R, hl, r, cb, Rb, hb)

@@ -8,19 +8,25 @@ the cylinder's rim points facing the other body)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from numba import njit
 
-from engine.mathutil import cross
-from engine.collision.common import _BOX_EDGES, _cat, _CORNERS, _EPS, _norm, _segment_closest, _segment_min, EDGE_POINT_TOL
-from engine.collision.sphere import sphere_box
-from engine.collision.capsule import _capsule_ends, sphere_capsule
+from engine.collision.capsule import capsule_ends1
+from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_CYLINDER, circle_crossings1,
+                                      cylinder_rim1, gather, norm3, segment_closest1, segment_min1, sdf1, slots,
+                                      sphere_box1, sphere_cylinder1, sphere_sphere1, to_local)
+
+__all__ = ["CYLINDER_FACE_COS", "FACE_TOL", "box_cylinder", "capsule_cylinder", "cylinder_plane", "sphere_cylinder"]
 
 
-#: m: how far outside both of a cylinder's faces a point may be and still
-#: leave through the face the pair's normal chose (:func:`sphere_cylinder`)
-FACE_TOL = 1e-9
+def _f(a):
+    return np.ascontiguousarray(a, dtype=float)
+
+
+@njit(cache=True)
+def _sphere_cylinder_kernel(c, r, cc, Rc, hl, rc, cap, n, p, g):
+    for k in range(c.shape[0]):
+        g[k] = sphere_cylinder1(c[k], r[k], cc[k], Rc[k], hl[k], rc[k], cap[k], n[k], p[k])
 
 
 def sphere_cylinder(c, r, cc, Rc, hl, rc, cap=None):
@@ -37,36 +43,27 @@ def sphere_cylinder(c, r, cc, Rc, hl, rc, cap=None):
     rim on an equal can's rim) counts as inside too, so that it does not
     flip between a radial and an axial normal from step to step.  Normal
     from sphere to cylinder; one contact (the sphere is smooth)."""
-    local = np.einsum("kji,kj->ki", Rc, c - cc)
-    rho = np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2)
-    scale = np.minimum(1.0, rc / np.where(rho > _EPS, rho, 1.0))
-    cl = np.empty_like(local)
-    cl[:, :2] = local[:, :2] * scale[:, None]
-    cl[:, 2] = np.clip(local[:, 2], -hl, hl)
-    diff = local - cl
-    dist = _norm(diff)
-    outside = dist > _EPS
-    # inside: through the side (radially; +x on the axis) or the nearer cap
-    pen_side = rc - rho
-    pen_cap = hl - np.abs(local[:, 2])
-    if cap is not None:
-        outside &= (pen_side < -FACE_TOL) | (pen_cap < -FACE_TOL)
-    radial = np.where((rho > _EPS)[:, None], local[:, :2] / np.where(rho > _EPS, rho, 1.0)[:, None],
-                      np.array([1.0, 0.0]))
-    side = pen_side < pen_cap if cap is None else ~cap
-    n_in = np.zeros_like(local)
-    n_in[:, :2] = np.where(side[:, None], radial, 0.0)
-    n_in[:, 2] = np.where(side, 0.0, np.where(local[:, 2] >= 0.0, 1.0, -1.0))
-    n_loc = np.where(outside[:, None], diff / np.where(outside, dist, 1.0)[:, None], n_in)
-    gap = np.where(outside, dist, -np.where(side, pen_side, pen_cap)) - r
-    n_out = np.einsum("kij,kj->ki", Rc, n_loc)  # cylinder outward normal, world
-    point = c - n_out * (r + 0.5 * gap)[:, None]
-    k = np.arange(c.shape[0])
-    return k, -n_out, point, gap, np.zeros(k.size, np.int64)
+    m = c.shape[0]
+    n, p, g = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
+    if m:
+        capi = np.full(m, -1, np.int64) if cap is None else np.asarray(cap, np.int64)
+        _sphere_cylinder_kernel(_f(c), _f(r), _f(cc), _f(Rc), _f(hl), _f(rc), capi, n, p, g)
+    return np.arange(m), n, p, g, np.zeros(m, np.int64)
 
 
-#: |n . axis| above which a cylinder's cap faces the plane (cos 45 deg)
-CYLINDER_FACE_COS = math.sqrt(0.5)
+@njit(cache=True)
+def _cylinder_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f):
+    drop = np.empty(8, np.bool_)
+    for k in range(c.shape[0]):
+        cylinder_rim1(c[k], R[k], hl[k], r[k], pn[k], S_p[k], drop)
+        for m in range(8):
+            g = S_p[k, m, 0] * pn[k, 0] + S_p[k, m, 1] * pn[k, 1] + S_p[k, m, 2] * pn[k, 2] - po[k]
+            h = 0.0 if drop[m] else 0.5 * g
+            for i in range(3):
+                S_p[k, m, i] -= pn[k, i] * h
+                S_n[k, m, i] = -pn[k, i]
+            S_g[k, m] = np.inf if drop[m] else g
+            S_f[k, m] = RIM_FIDS[m]
 
 
 def cylinder_plane(c, R, hl, r, pn, po):
@@ -93,93 +90,59 @@ def cylinder_plane(c, R, hl, r, pn, po):
     gaps, feature ids: 8 s + j for cap s (0: -z, 1: +z) and direction j
     (0: deepest, 1: +u, 2: highest, 3: -u))."""
     m = c.shape[0]
-    P, F, drop = _cylinder_rim(c, R, hl, r, pn)
-    gap = np.einsum("kmi,ki->km", P, pn) - po[:, None]
-    k = np.repeat(np.arange(m), 8)
-    pnr = np.repeat(pn, 8, axis=0)
-    P = (P - pn[:, None, :] * (0.5 * np.where(drop, 0.0, gap))[:, :, None]).reshape(-1, 3)
-    gap[drop] = np.inf
-    return k, -pnr, P, gap.reshape(-1), F.reshape(-1)
+    S_n, S_p, S_g, S_f = np.empty((m, 8, 3)), np.empty((m, 8, 3)), np.empty((m, 8)), np.empty((m, 8), np.int64)
+    if m:
+        _cylinder_plane_kernel(_f(c), _f(R), _f(hl), _f(r), _f(pn), _f(po), S_n, S_p, S_g, S_f)
+    return np.repeat(np.arange(m), 8), S_n.reshape(-1, 3), S_p.reshape(-1, 3), S_g.reshape(-1), S_f.reshape(-1)
 
 
-#: feature ids of the rim points of :func:`_cylinder_rim`, in their order
-_RIM_FIDS = np.array([0, 1, 2, 3, 8, 9, 10, 11])
-
-
-def _cylinder_rim(c, R, hl, r, pn):
-    """The rim points of :func:`cylinder_plane` against a surface of
-    outward normal ``pn`` (k, 3) (pointing toward the cylinder): per cap the
-    deepest (-t), +u, the highest (+t) and -u, t the component of pn in the
-    cap plane (the body's x axis when the cap faces pn).  Returns the points
-    (k, 8, 3) (cap -z first), their feature ids (k, 8) and ``drop`` (k, 8):
-    the points other than the deepest while the cap does not face pn
-    within 45 degrees (see cylinder_plane)."""
-    ax = R[:, :, 2]
-    m = c.shape[0]
-    t = pn - np.einsum("ki,ki->k", pn, ax)[:, None] * ax
-    tl = _norm(t)
-    ok = tl > 1e-6
-    tdir = np.where(ok[:, None], t / np.where(ok, tl, 1.0)[:, None], R[:, :, 0])
-    udir = cross(ax, tdir)
-    rim = np.stack([-tdir, udir, tdir, -udir], axis=1) * r[:, None, None]  # (m, 4, 3)
-    caps = c[:, None, :] + np.array([-1.0, 1.0])[None, :, None] * (ax * hl[:, None])[:, None, :]  # (m, 2, 3)
-    P = (caps[:, :, None, :] + rim[:, None, :, :]).reshape(m, 8, 3)
-    F = np.broadcast_to(_RIM_FIDS, (m, 8))
-    # the other rim points only while a cap faces the plane (within 45 deg):
-    # then they are (nearly) material points of a cap settling flat; on a
-    # cylinder lying on its side they are support points of the curved
-    # side, whose material velocity (a rolling cylinder's front point comes
-    # down at its speed) would raise speculative rows that brake the roll
-    # once the step's sweep reaches a radius (measured: a third short at dt
-    # 1/60 s over 4 s)
-    side = np.abs(np.einsum("ki,ki->k", pn, ax)) < CYLINDER_FACE_COS
-    drop = side[:, None] & (F % 8 != 0)
-    return P, F, drop
-
-
-def _cylinder_sdf(p, cc, Rc, hl, rc):
-    """Signed distance (k,) m of points ``p`` (k, 3) to solid cylinders
-    (centre ``cc``, rotation ``Rc`` with the axis as body z, half length
-    ``hl``, radius ``rc``): the distance outside, minus the depth to the
-    nearer of side and cap inside -- the signed distance of a convex set,
-    hence convex in p (what :func:`_segment_min` needs)."""
-    local = np.einsum("kji,kj->ki", Rc, p - cc)
-    dr = np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2) - rc
-    dz = np.abs(local[:, 2]) - hl
-    outside = np.sqrt(np.maximum(dr, 0.0) ** 2 + np.maximum(dz, 0.0) ** 2)
-    return outside + np.minimum(np.maximum(dr, dz), 0.0)
-
-
-def _circle_crossings(e0, e1, cc, Rc, rc):
-    """Parameters (k, 2) along the segments e0 -> e1 (k, 3) where their
-    projection on a cylinder's cap plane crosses its rim circle (radius
-    ``rc`` about the axis): the roots of |(x0 + s dx)_xy|^2 = rc^2 in the
-    cylinder's frame; NaN where there is no crossing within [0, 1] (a
-    segment along the axis, or one that misses the circle)."""
-    a0 = np.einsum("kji,kj->ki", Rc, e0 - cc)[:, :2]
-    dd = np.einsum("kji,kj->ki", Rc, e1 - e0)[:, :2]
-    A = np.einsum("ki,ki->k", dd, dd)
-    B = np.einsum("ki,ki->k", a0, dd)
-    C = np.einsum("ki,ki->k", a0, a0) - rc * rc
-    disc = B * B - A * C
-    ok = (A > _EPS * np.maximum(rc * rc, _EPS)) & (disc > 0.0)
-    sq = np.sqrt(np.where(ok, disc, 0.0))
-    Aq = np.where(ok, A, 1.0)
-    s = np.stack([(-B - sq) / Aq, (-B + sq) / Aq], axis=1)
-    return np.where(ok[:, None] & (s >= 0.0) & (s <= 1.0), s, np.nan)
-
-
-def _crossing_points(fn, e0, e1, s2, fid0):
-    """Contacts of ``fn(points, rows)`` at the circle crossings ``s2``
-    (k, 2) of the segments e0 -> e1 (k, 3), feature ids fid0, fid0 + 1."""
-    out = []
-    for j in (0, 1):
-        rows = np.flatnonzero(~np.isnan(s2[:, j]))
-        if rows.size:
-            pts = e0[rows] + (e1[rows] - e0[rows]) * s2[rows, j][:, None]
-            k, n, p, g, _ = fn(pts, rows)
-            out.append((rows[k], n, p, g, np.full(k.size, fid0 + j)))
-    return out
+@njit(cache=True)
+def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok):
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    x = np.empty(3)
+    q = np.empty(3)
+    s2 = np.empty(2)
+    oh = np.empty(3)
+    P = np.empty((8, 3))
+    drop = np.empty(8, np.bool_)
+    for k in range(c.shape[0]):
+        oh[0], oh[1], oh[2] = hlc[k], rc[k], 0.0
+        capsule_ends1(c[k], R[k], hl[k], e0, e1)
+        s = segment_min1(SDF_CYLINDER, e0, e1, cc[k], Rc[k], oh, 40)[0]
+        for i in range(3):
+            x[i] = e0[i] + (e1[i] - e0[i]) * s
+        S_g[k, 0] = sphere_cylinder1(x, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 0], S_p[k, 0])
+        S_ok[k, 0] = True
+        tol = 0.02 * (2.0 * hl[k] + r[k])
+        if abs(s - 0.0) * 2.0 * hl[k] > tol:
+            S_g[k, 1] = sphere_cylinder1(e0, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 1], S_p[k, 1])
+            S_f[k, 1] = 1
+            S_ok[k, 1] = True
+        if abs(s - 1.0) * 2.0 * hl[k] > tol:
+            S_g[k, 2] = sphere_cylinder1(e1, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 2], S_p[k, 2])
+            S_f[k, 2] = 2
+            S_ok[k, 2] = True
+        circle_crossings1(e0, e1, cc[k], Rc[k], rc[k], s2)
+        for j in range(2):
+            if not np.isnan(s2[j]):
+                for i in range(3):
+                    x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
+                S_g[k, 3 + j] = sphere_cylinder1(x, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 3 + j],
+                                                 S_p[k, 3 + j])
+                S_f[k, 3 + j] = 3 + j
+                S_ok[k, 3 + j] = True
+        # the rim facing the capsule: pn from the capsule toward the cylinder
+        cylinder_rim1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], P, drop)
+        for m in range(8):
+            sl = 5 + m
+            segment_closest1(P[m], e0, e1, q)
+            g = sphere_sphere1(P[m], 0.0, q, r[k], S_n[k, sl], S_p[k, sl])
+            for i in range(3):
+                S_n[k, sl, i] = -S_n[k, sl, i]
+            S_g[k, sl] = np.inf if drop[m] else g
+            S_f[k, sl] = 8 + RIM_FIDS[m]
+            S_ok[k, sl] = True
 
 
 def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
@@ -194,27 +157,101 @@ def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
     on the cylinder's two end points).  Normal from capsule to cylinder;
     feature ids: 0 the minimum, 1, 2 the ends, 3, 4 the crossings, 8 + the
     rim point's id."""
-    e0, e1 = _capsule_ends(c, R, hl)
-    d = e1 - e0
-    s = _segment_min(lambda p: _cylinder_sdf(p, cc, Rc, hlc, rc), e0, e1)[0]
-    first = sphere_cylinder(e0 + d * s[:, None], r, cc, Rc, hlc, rc)
-    out = [first]
-    for end, fid, sv in ((e0, 1, 0.0), (e1, 2, 1.0)):
-        keep = np.flatnonzero(np.abs(s - sv) * 2.0 * hl > 0.02 * (2.0 * hl + r))
-        if keep.size:
-            k, n, p, gg, _ = sphere_cylinder(end[keep], r[keep], cc[keep], Rc[keep], hlc[keep], rc[keep])
-            out.append((keep[k], n, p, gg, np.full(k.size, fid)))
-    out += _crossing_points(lambda pts, rows: sphere_cylinder(pts, r[rows], cc[rows], Rc[rows], hlc[rows], rc[rows]),
-                            e0, e1, _circle_crossings(e0, e1, cc, Rc, rc), 3)
-    # the rim facing the capsule: pn from the capsule toward the cylinder
-    m = c.shape[0]
-    P, F, drop = _cylinder_rim(cc, Rc, hlc, rc, first[1])
-    Pf = P.reshape(-1, 3)
-    rows = np.repeat(np.arange(m), 8)
-    k, n, p, g, _ = sphere_capsule(Pf, np.zeros(Pf.shape[0]), c[rows], R[rows], hl[rows], r[rows])
-    g = np.where(drop.reshape(-1), np.inf, g)
-    out.append((rows[k], -n, p, g, 8 + F.reshape(-1)))
-    return _cat(out)
+    out = slots(c.shape[0], 13)
+    if c.shape[0]:
+        _capsule_cylinder_kernel(_f(c), _f(R), _f(hl), _f(r), _f(cc), _f(Rc), _f(hlc), _f(rc), *out)
+    return gather(*out, blocks=[(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 13)])
+
+
+#: the twelve edges of a box in its frame: (start, end) corner multipliers,
+#: edges along x, then y, then z
+_BOX_EDGES = np.array([[[-1, sy, sz], [1, sy, sz]] for sy in (-1, 1) for sz in (-1, 1)]
+                      + [[[sx, -1, sz], [sx, 1, sz]] for sx in (-1, 1) for sz in (-1, 1)]
+                      + [[[sx, sy, -1], [sx, sy, 1]] for sx in (-1, 1) for sy in (-1, 1)], float)  # (12, 2, 3)
+_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)  # (8, 3)
+
+
+@njit(cache=True)
+def _box_point(cb, Rb, hb, mult, out):
+    """out = cb + Rb (mult * hb): a box point from its frame multipliers."""
+    for i in range(3):
+        out[i] = cb[i] + (Rb[i, 0] * (mult[0] * hb[0]) + Rb[i, 1] * (mult[1] * hb[1]) + Rb[i, 2] * (mult[2] * hb[2]))
+
+
+@njit(cache=True)
+def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners, edges,
+                         S_n, S_p, S_g, S_f, S_ok):
+    x = np.empty(3)
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    s2 = np.empty(2)
+    oh = np.empty(3)
+    dA = np.empty(3)
+    axc = np.empty(3)
+    pn = np.empty(3)
+    P = np.empty((8, 3))
+    drop = np.empty(8, np.bool_)
+    for k in range(cb.shape[0]):
+        oh[0], oh[1], oh[2] = hl[k], rc[k], 0.0
+        for m in range(8):
+            _box_point(cb[k], Rb[k], hb[k], corners[m], x)
+            S_g[k, m] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, m], S_p[k, m])
+            S_f[k, m] = m
+            S_ok[k, m] = True
+        bound = np.sqrt(hl[k] * hl[k] + rc[k] * rc[k])
+        for e in range(12):
+            _box_point(cb[k], Rb[k], hb[k], edges[e, 0], e0)
+            _box_point(cb[k], Rb[k], hb[k], edges[e, 1], e1)
+            if use_margin:
+                # the golden-section search is the costly part: only edges
+                # that may come within the margin of the bounding sphere
+                segment_closest1(cc[k], e0, e1, x)
+                if not norm3(x[0] - cc[k, 0], x[1] - cc[k, 1], x[2] - cc[k, 2]) - bound < margin[k]:
+                    continue
+            s, f_s, f_ends = segment_min1(SDF_CYLINDER, e0, e1, cc[k], Rc[k], oh, 40)
+            if f_s < f_ends - EDGE_POINT_TOL:
+                for i in range(3):
+                    x[i] = e0[i] + (e1[i] - e0[i]) * s
+                sl = 8 + e
+                S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, sl], S_p[k, sl])
+                S_f[k, sl] = 8 + e
+                S_ok[k, sl] = True
+            circle_crossings1(e0, e1, cc[k], Rc[k], rc[k], s2)
+            for j in range(2):
+                if not np.isnan(s2[j]):
+                    for i in range(3):
+                        x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
+                    sl = 20 + 12 * j + e
+                    S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, sl], S_p[k, sl])
+                    S_f[k, sl] = 20 + 2 * e + j
+                    S_ok[k, sl] = True
+        # the rim facing the box face of largest separation
+        for i in range(3):
+            x[i] = cc[k, i] - cb[k, i]
+        to_local(Rb[k], x, dA)
+        for i in range(3):
+            x[i] = Rc[k, i, 2]
+        to_local(Rb[k], x, axc)
+        f = 0
+        best = 0.0
+        for i in range(3):
+            sup = rc[k] * np.sqrt(max(1.0 - axc[i] * axc[i], 0.0)) + hl[k] * abs(axc[i])
+            sep = abs(dA[i]) - hb[k, i] - sup
+            if i == 0 or sep > best:
+                best = sep
+                f = i
+        sg = 1.0 if dA[f] >= 0.0 else -1.0
+        for i in range(3):
+            pn[i] = Rb[k, i, f] * sg
+        cylinder_rim1(cc[k], Rc[k], hl[k], rc[k], pn, P, drop)
+        for m in range(8):
+            sl = 44 + m
+            g = sphere_box1(P[m], 0.0, cb[k], Rb[k], hb[k], S_n[k, sl], S_p[k, sl])
+            for i in range(3):
+                S_n[k, sl, i] = -S_n[k, sl, i]
+            S_g[k, sl] = np.inf if drop[m] else g
+            S_f[k, sl] = 48 + RIM_FIDS[m]
+            S_ok[k, sl] = True
 
 
 def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
@@ -240,45 +277,9 @@ def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
     ``margin`` (k,) m, optional: edges farther than it from the cylinder's
     bounding sphere are not searched (their points would be dropped)."""
     m = cb.shape[0]
-    out = []
-    corners = cb[:, None, :] + np.einsum("kij,kmj->kmi", Rb, _CORNERS[None, :, :] * hb[:, None, :])
-    rows8 = np.repeat(np.arange(m), 8)
-    k, n, p, g, _ = sphere_cylinder(corners.reshape(-1, 3), np.zeros(8 * m), cc[rows8], Rc[rows8], hl[rows8], rc[rows8])
-    out.append((rows8[k], n, p, g, np.tile(np.arange(8), m)))
-    ends = cb[:, None, None, :] + np.einsum("kij,kemj->kemi", Rb, _BOX_EDGES[None] * hb[:, None, None, :])  # (m, 12, 2, 3)
-    e0 = ends[:, :, 0].reshape(-1, 3)
-    e1 = ends[:, :, 1].reshape(-1, 3)
-    rows12 = np.repeat(np.arange(m), 12)
-    edge_id = np.tile(np.arange(12), m)
-    if margin is not None:
-        # the golden-section search is the costly part: only edges that
-        # may come within the margin of the cylinder's bounding sphere
-        near = np.flatnonzero(_norm(_segment_closest(cc[rows12], e0, e1)[0] - cc[rows12])
-                              - np.sqrt(hl * hl + rc * rc)[rows12] < margin[rows12])
-        rows12, edge_id, e0, e1 = rows12[near], edge_id[near], e0[near], e1[near]
-    ccr, Rcr, hlr, rcr = cc[rows12], Rc[rows12], hl[rows12], rc[rows12]
-    if rows12.size:
-        s, f_s, f_ends = _segment_min(lambda q: _cylinder_sdf(q, ccr, Rcr, hlr, rcr), e0, e1)
-        pts = e0 + (e1 - e0) * s[:, None]
-        sel = np.flatnonzero(f_s < f_ends - EDGE_POINT_TOL)
-        if sel.size:
-            k, n, p, g, _ = sphere_cylinder(pts[sel], np.zeros(sel.size), ccr[sel], Rcr[sel], hlr[sel], rcr[sel])
-            out.append((rows12[sel[k]], n, p, g, 8 + edge_id[sel[k]]))
-        for kk, n, p, g, f in _crossing_points(
-                lambda q, rows: sphere_cylinder(q, np.zeros(rows.size), ccr[rows], Rcr[rows], hlr[rows], rcr[rows]),
-                e0, e1, _circle_crossings(e0, e1, ccr, Rcr, rcr), 0):
-            out.append((rows12[kk], n, p, g, 20 + 2 * edge_id[kk] + f))
-    # the rim facing the box face of largest separation
-    dA = np.einsum("kji,kj->ki", Rb, cc - cb)  # cylinder centre in the box frame
-    axc = np.einsum("kji,kj->ki", Rb, Rc[:, :, 2])  # cylinder axis in the box frame
-    sup = rc[:, None] * np.sqrt(np.maximum(1.0 - axc * axc, 0.0)) + hl[:, None] * np.abs(axc)
-    sep = np.abs(dA) - hb - sup
-    f = np.argmax(sep, axis=1)
-    ar = np.arange(m)
-    pn = Rb[ar, :, f] * np.where(dA[ar, f] >= 0.0, 1.0, -1.0)[:, None]
-    P, F, drop = _cylinder_rim(cc, Rc, hl, rc, pn)
-    Pf = P.reshape(-1, 3)
-    k, n, p, g, _ = sphere_box(Pf, np.zeros(8 * m), cb[rows8], Rb[rows8], hb[rows8])
-    g = np.where(drop.reshape(-1), np.inf, g)
-    out.append((rows8[k], -n, p, g, 48 + F.reshape(-1)))
-    return _cat(out)
+    out = slots(m, 52)
+    if m:
+        mg = np.zeros(m) if margin is None else _f(margin)
+        _box_cylinder_kernel(_f(cb), _f(Rb), _f(hb), _f(cc), _f(Rc), _f(hl), _f(rc), mg, margin is not None,
+                             _CORNERS, _BOX_EDGES, *out)
+    return gather(*out, blocks=[(0, 8), (8, 20), (20, 32), (32, 44), (44, 52)])

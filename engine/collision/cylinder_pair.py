@@ -7,15 +7,16 @@ point pressed in at a rim's edge leaves by chosen by the pair's
 separating-axis normal, and the touching set reduced to four points as
 box-box keeps them (:func:`cylinder_cylinder`)."""
 
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numba import njit
 
-from engine.mathutil import cross
-from engine.collision.common import _cat, _golden, _norm, _segment_min, _segment_segment, EDGE_POINT_TOL
-from engine.collision.cylinder import _circle_crossings, _crossing_points, _cylinder_rim, _cylinder_sdf, CYLINDER_FACE_COS, cylinder_plane, sphere_cylinder
+from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, GOLDEN, SDF_CYLINDER, circle_crossings1, cylinder_rim1,
+                                      gather, norm3, segment_min1, segment_segment, sdf1, slots, sphere_cylinder1)
 
 
 #: rim samples per cap for the search of a rim's minima and radius
@@ -23,18 +24,72 @@ from engine.collision.cylinder import _circle_crossings, _crossing_points, _cyli
 #: minima on a circle, and a circle crosses a cylinder's radius at most 4 times)
 RIM_SAMPLES = 16
 
+#: m: the touching set of a pair, reduced to four points, is the contacts
+#: within this of its deepest; farther ones (speculative) are all kept
+MANIFOLD_BAND = 1e-3
 
-_RIM_ANG = 2.0 * math.pi * np.arange(RIM_SAMPLES) / RIM_SAMPLES
+#: a manifold point is kept as a third or fourth only where it stands off
+#: the line of the first two by this fraction of their distance
+MANIFOLD_SPREAD = 0.01
+
+#: m: a second manifold point closer than this to the first is not kept
+MANIFOLD_MIN_SPAN = 1e-6
+
+#: candidate points of one side of a pair at most: rim support or cap
+#: square (5), rim minima and crossings (2 caps x RIM_SAMPLES each), side
+#: line minimum and crossings (3)
+_SIDE_MAX = 5 + 4 * RIM_SAMPLES + 3
 
 
-def _rim_points(centre, ex, ey, r, ang):
-    """Points (k, 3) at angles ``ang`` (k,) rad on circles of centre
-    ``centre`` (k, 3), radius ``r`` (k,) in the plane of the unit vectors
-    ``ex``, ``ey`` (k, 3)."""
-    return centre + r[:, None] * (np.cos(ang)[:, None] * ex + np.sin(ang)[:, None] * ey)
+@njit(cache=True)
+def _rim_point(cen, ex, ey, r, a, out):
+    """out = cen + r (cos a ex + sin a ey): the point at angle a (rad) on a
+    circle of centre cen (3,), radius r in the plane of ex, ey (3,)."""
+    ca, sa = np.cos(a), np.sin(a)
+    for i in range(3):
+        out[i] = cen[i] + r * (ca * ex[i] + sa * ey[i])
 
 
-def _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin):
+@njit(cache=True)
+def _rim_f(cen, ex, ey, r, a, oc, oR, oh, x):
+    _rim_point(cen, ex, ey, r, a, x)
+    return sdf1(SDF_CYLINDER, x[0], x[1], x[2], oc, oR, oh)
+
+
+@njit(cache=True)
+def _golden_rim(cen, ex, ey, r, lo, hi, oc, oR, oh, x):
+    """Golden section (40 iterations) for the minimum of the other's signed
+    distance over the rim's angles [lo, hi]; returns (angle, distance)."""
+    x1 = hi - GOLDEN * (hi - lo)
+    x2 = lo + GOLDEN * (hi - lo)
+    f1 = _rim_f(cen, ex, ey, r, x1, oc, oR, oh, x)
+    f2 = _rim_f(cen, ex, ey, r, x2, oc, oR, oh, x)
+    for _ in range(40):
+        if f1 < f2:
+            hi = x2
+            xn = hi - GOLDEN * (hi - lo)
+            fn = _rim_f(cen, ex, ey, r, xn, oc, oR, oh, x)
+            x1, x2, f1, f2 = xn, x1, fn, f1
+        else:
+            lo = x1
+            xn = lo + GOLDEN * (hi - lo)
+            fn = _rim_f(cen, ex, ey, r, xn, oc, oR, oh, x)
+            x1, x2, f1, f2 = x2, xn, f2, fn
+    s = 0.5 * (lo + hi)
+    return s, _rim_f(cen, ex, ey, r, s, oc, oR, oh, x)
+
+
+@njit(cache=True)
+def _q(x, oc, oR, orr):
+    """rho^2 - r^2 of the point x in the other cylinder's frame."""
+    w0, w1, w2 = x[0] - oc[0], x[1] - oc[1], x[2] - oc[2]
+    l0 = oR[0, 0] * w0 + oR[1, 0] * w1 + oR[2, 0] * w2
+    l1 = oR[0, 1] * w0 + oR[1, 1] * w1 + oR[2, 1] * w2
+    return l0 ** 2 + l1 ** 2 - orr ** 2
+
+
+@njit(cache=True)
+def _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, cnt):
     """Points on both rims of cylinders (c, R, hl, r) found against other
     cylinders (centre ``oc``, rotation ``oR``, radius ``orr``) by sampling
     each rim at RIM_SAMPLES angles:
@@ -54,172 +109,371 @@ def _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin):
     Samples farther than the margin (m, (k,) or None) are not refined.
     Returns (rows, points (j, 3), fid (j,)) with fid 16 + 16 cap + i for a
     minimum near sample i, 64 + 16 cap + i for a crossing after it."""
-    m = c.shape[0]
     N = RIM_SAMPLES
-    ax, ex, ey = R[:, :, 2], R[:, :, 0], R[:, :, 1]
-    centres = c[:, None, :] + np.array([-1.0, 1.0])[None, :, None] * (hl[:, None] * ax)[:, None, :]  # (m, 2, 3)
-    ring = r[:, None, None] * (np.cos(_RIM_ANG)[None, :, None] * ex[:, None, :]
-                               + np.sin(_RIM_ANG)[None, :, None] * ey[:, None, :])  # (m, N, 3)
-    P = (centres[:, :, None, :] + ring[:, None, :, :]).reshape(-1, 3)  # (m 2 N, 3)
-    rows = np.repeat(np.arange(m), 2 * N)
-    fv = sdf(rows)(P).reshape(m, 2, N)
-    prev, nxt = np.roll(fv, 1, axis=2), np.roll(fv, -1, axis=2)
-    lo_n = np.minimum(prev, nxt)
-    cand = (fv <= lo_n) & (fv < np.maximum(prev, nxt))
-    if margin is not None:
-        # the signed distance is 1-Lipschitz: within an arc of 2 pi r / N
-        # of a sample it drops at most that much
-        cand &= fv - (2.0 * math.pi / N) * r[:, None, None] < margin[:, None, None]
-    out_r, out_p, out_f = [], [], []
-    kk, cap, i = np.nonzero(cand)
-    if kk.size:
-        cen, exk, eyk, rk = centres[kk, cap], ex[kk], ey[kk], r[kk]
-        f_k = sdf(kk)
-        th, f_th = _golden(lambda a: f_k(_rim_points(cen, exk, eyk, rk, a)),
-                           _RIM_ANG[i] - 2.0 * math.pi / N, _RIM_ANG[i] + 2.0 * math.pi / N)
-        keep = np.flatnonzero(f_th < lo_n[kk, cap, i] - EDGE_POINT_TOL)
-        out_r.append(kk[keep])
-        out_p.append(_rim_points(cen[keep], exk[keep], eyk[keep], rk[keep], th[keep]))
-        out_f.append(16 + 16 * cap[keep] + i[keep])
-    # radius crossings: q = rho^2 - r^2 of the samples in the other's frame
-    loc = np.einsum("kji,kj->ki", oR[rows], P - oc[rows])
-    q = (loc[:, 0] ** 2 + loc[:, 1] ** 2 - orr[rows] ** 2).reshape(m, 2, N)
-    qn = np.roll(q, -1, axis=2)
-    # a rim on the other's radius (equal cans stacked) has q at round-off
-    # all along: no crossings there, only sign changes that at least one
-    # end makes clearly (1e-12 of r^2)
-    cross = ((q < 0.0) != (qn < 0.0)) & (np.maximum(np.abs(q), np.abs(qn)) > 1e-12 * (orr * orr)[:, None, None])
-    if margin is not None:
-        cross &= np.minimum(fv, np.roll(fv, -1, axis=2)) - (2.0 * math.pi / N) * r[:, None, None] < margin[:, None, None]
-    kk, cap, i = np.nonzero(cross)
-    if kk.size:
-        cen, exk, eyk, rk = centres[kk, cap], ex[kk], ey[kk], r[kk]
-        oRk, ock, ork = oR[kk], oc[kk], orr[kk]
-        lo = _RIM_ANG[i]
-        hi = lo + 2.0 * math.pi / N
-        neg_lo = q[kk, cap, i] < 0.0
-        for _ in range(32):  # the bracket ends 2 pi / N 2^-32 = 9e-11 rad apart
-            mid = 0.5 * (lo + hi)
-            lm = np.einsum("kji,kj->ki", oRk, _rim_points(cen, exk, eyk, rk, mid) - ock)
-            same = (lm[:, 0] ** 2 + lm[:, 1] ** 2 - ork ** 2 < 0.0) == neg_lo
-            lo = np.where(same, mid, lo)
-            hi = np.where(same, hi, mid)
-        out_r.append(kk)
-        # the bracket's end within the radius: the point is on the rim and
-        # on or inside the other's side to 1e-11 m
-        out_p.append(_rim_points(cen, exk, eyk, rk, np.where(neg_lo, lo, hi)))
-        out_f.append(64 + 16 * cap + i)
-    if not out_r:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
-    return np.concatenate(out_r), np.concatenate(out_p), np.concatenate(out_f)
+    step = 2.0 * math.pi / N
+    cen = np.empty(3)
+    ex = np.empty(3)
+    ey = np.empty(3)
+    x = np.empty(3)
+    fv = np.empty(N)
+    q = np.empty(N)
+    for i in range(3):
+        ex[i] = R[i, 0]
+        ey[i] = R[i, 1]
+    for cap in range(2):
+        sg = -1.0 if cap == 0 else 1.0
+        for i in range(3):
+            cen[i] = c[i] + sg * (hl * R[i, 2])
+        for i in range(N):
+            a = 2.0 * math.pi * i / N
+            fv[i] = _rim_f(cen, ex, ey, r, a, oc, oR, oh, x)
+            q[i] = _q(x, oc, oR, oh[1])
+        for i in range(N):
+            prev, nxt = fv[(i - 1) % N], fv[(i + 1) % N]
+            lo_n = min(prev, nxt)
+            if not (fv[i] <= lo_n and fv[i] < max(prev, nxt)):
+                continue
+            # the signed distance is 1-Lipschitz: within an arc of 2 pi r / N
+            # of a sample it drops at most that much
+            if use_margin and not fv[i] - step * r < margin:
+                continue
+            a = 2.0 * math.pi * i / N
+            th, f_th = _golden_rim(cen, ex, ey, r, a - step, a + step, oc, oR, oh, x)
+            if f_th < lo_n - EDGE_POINT_TOL:
+                _rim_point(cen, ex, ey, r, th, pts[cnt])
+                fid[cnt] = 16 + 16 * cap + i
+                cnt += 1
+        # radius crossings: sign changes of q = rho^2 - r^2; a rim on the
+        # other's radius (equal cans stacked) has q at round-off all along:
+        # only sign changes that at least one end makes clearly (1e-12 r^2)
+        for i in range(N):
+            qn = q[(i + 1) % N]
+            if (q[i] < 0.0) == (qn < 0.0) or not max(abs(q[i]), abs(qn)) > 1e-12 * (oh[1] * oh[1]):
+                continue
+            if use_margin and not min(fv[i], fv[(i + 1) % N]) - step * r < margin:
+                continue
+            lo = 2.0 * math.pi * i / N
+            hi = lo + step
+            neg_lo = q[i] < 0.0
+            for _ in range(32):  # the bracket ends 2 pi / N 2^-32 = 9e-11 rad apart
+                mid = 0.5 * (lo + hi)
+                _rim_point(cen, ex, ey, r, mid, x)
+                if (_q(x, oc, oR, oh[1]) < 0.0) == neg_lo:
+                    lo = mid
+                else:
+                    hi = mid
+            # the bracket's end within the radius: on the rim and on or
+            # inside the other's side to 1e-11 m
+            _rim_point(cen, ex, ey, r, lo if neg_lo else hi, pts[cnt])
+            fid[cnt] = 64 + 16 * cap + i
+            cnt += 1
+    return cnt
 
 
-def _cylinder_support(n, ax, hl, r):
-    """Support half-width (k,) m of cylinders (axis ``ax`` (k, 3), half
-    length ``hl``, radius ``r``) along unit directions ``n`` (k, 3)."""
-    ca = np.abs(np.einsum("ki,ki->k", n, ax))
-    return r * np.sqrt(np.maximum(1.0 - ca * ca, 0.0)) + hl * ca
+@njit(cache=True)
+def _support(n, ax, hl, r):
+    """Support half-width (m) of a cylinder (axis ax, half length hl,
+    radius r) along the unit direction n."""
+    ca = abs(n[0] * ax[0] + n[1] * ax[1] + n[2] * ax[2])
+    return r * np.sqrt(max(1.0 - ca * ca, 0.0)) + hl * ca
 
 
-def _cylinder_pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb):
+@njit(cache=True)
+def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out):
     """The pair's contact normal (k, 3) from the first cylinder toward the
     second, by the separating-axis test over three candidates: the two
     axes (a cap on the other body) and the direction between the axes'
     closest points (side on side), each oriented from first to second; the
     candidate of largest separation wins, caps preferred within 1e-9 m."""
-    pa, pb = _segment_segment(ca - axa * hla[:, None], ca + axa * hla[:, None],
-                              cb - axb * hlb[:, None], cb + axb * hlb[:, None])
-    d = pb - pa
-    dl = _norm(d)
+    p0 = np.empty(3)
+    p1 = np.empty(3)
+    q0 = np.empty(3)
+    q1 = np.empty(3)
+    pa = np.empty(3)
+    pb = np.empty(3)
+    cand = np.empty((3, 3))
+    for i in range(3):
+        p0[i] = ca[i] - axa[i] * hla
+        p1[i] = ca[i] + axa[i] * hla
+        q0[i] = cb[i] - axb[i] * hlb
+        q1[i] = cb[i] + axb[i] * hlb
+    segment_segment(p0, p1, q0, q1, pa, pb)
+    d0, d1, d2 = pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]
+    dl = norm3(d0, d1, d2)
     okd = dl > 1e-9
-    dn = np.where(okd[:, None], d / np.where(okd, dl, 1.0)[:, None], axa)
-    cand = np.stack([axa, axb, dn], axis=1)  # (k, 3, 3)
-    dc = cb - ca
-    proj = np.einsum("kci,ki->kc", cand, dc)
-    cand = cand * np.where(proj >= 0.0, 1.0, -1.0)[:, :, None]
-    sep = np.abs(proj) - np.stack([_cylinder_support(cand[:, j], axa, hla, ra)
-                                   + _cylinder_support(cand[:, j], axb, hlb, rb) for j in range(3)], axis=1)
-    sep[:, 2] = np.where(okd, sep[:, 2] - 1e-9, -np.inf)
-    j = np.argmax(sep, axis=1)
-    return cand[np.arange(ca.shape[0]), j]
+    for i in range(3):
+        cand[0, i] = axa[i]
+        cand[1, i] = axb[i]
+    if okd:
+        cand[2, 0], cand[2, 1], cand[2, 2] = d0 / dl, d1 / dl, d2 / dl
+    else:
+        for i in range(3):
+            cand[2, i] = axa[i]
+    best = 0
+    bsep = 0.0
+    for j in range(3):
+        proj = (cand[j, 0] * (cb[0] - ca[0]) + cand[j, 1] * (cb[1] - ca[1]) + cand[j, 2] * (cb[2] - ca[2]))
+        if proj < 0.0:
+            for i in range(3):
+                cand[j, i] = -cand[j, i]
+        sep = abs(proj) - (_support(cand[j], axa, hla, ra) + _support(cand[j], axb, hlb, rb))
+        if j == 2:
+            sep = sep - 1e-9 if okd else -np.inf
+        if j == 0 or sep > bsep:
+            bsep = sep
+            best = j
+    for i in range(3):
+        out[i] = cand[best, i]
 
 
-def _cylinder_points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin):
+@njit(cache=True)
+def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n, fid0, bn, bp, bg, bf, cnt):
     """One side of :func:`cylinder_cylinder`: points of cylinders (c, R,
     hl, r) against the other cylinders' exact signed distance, ``pn``
     (k, 3) the pair normal from these toward the others.  Points inside
     the other leave through its cap where pn is within 45 degrees of its
     axis, else through its side.  Returns contacts with normals from these
     toward the others."""
-    m = c.shape[0]
-    cap_face = np.abs(np.einsum("ki,ki->k", pn, oR[:, :, 2])) >= CYLINDER_FACE_COS
-
-    def contact(p, rows):
-        return sphere_cylinder(p, np.zeros(rows.size), oc[rows], oR[rows], ohl[rows], orr[rows], cap_face[rows])
-
-    def sdf(rows):
-        # gathered once per search, not at each of its 40 evaluations
-        g = (oc[rows], oR[rows], ohl[rows], orr[rows])
-        return lambda p: _cylinder_sdf(p, *g)
-
-    out = []
-    ax = R[:, :, 2]
-    cosf = np.einsum("ki,ki->k", pn, ax)
-    facing = np.abs(cosf) >= CYLINDER_FACE_COS
-    # side on: each rim's support point toward the other body (the ends of
-    # a side lying along the other)
-    side = np.flatnonzero(~facing)
-    if side.size:
-        P, F, _ = _cylinder_rim(c[side], R[side], hl[side], r[side], -pn[side])
-        P, F = P[:, [0, 4]].reshape(-1, 3), F[:, [0, 4]].reshape(-1)
-        rows = np.repeat(side, 2)
-        k, n, p, g, _ = contact(P, rows)
-        out.append((rows[k], n, p, g, F))
-    # cap on: the facing cap's material square (body x, y; a cap within
-    # the other's cap rests on it) and its rim point nearest the other's
-    # axis (the lens of two offset caps reaches farthest there).  Material
-    # points, not the support-following ones of cylinder_plane: a lens's
-    # support must not turn with the tilt's direction, which at a tilt of
-    # 1e-6 rad swings the square and tipped an offset can over its edge
-    fc = np.flatnonzero(facing)
-    if fc.size:
-        sgn = np.where(cosf[fc] >= 0.0, 1.0, -1.0)
-        capc = c[fc] + ax[fc] * (sgn * hl[fc])[:, None]
-        ex, ey = R[fc, :, 0], R[fc, :, 1]
-        to = oc[fc] - capc
-        to -= np.einsum("ki,ki->k", to, ax[fc])[:, None] * ax[fc]
-        tl = _norm(to)
-        okt = tl > 1e-9 * r[fc]
-        tdir = np.where(okt[:, None], to / np.where(okt, tl, 1.0)[:, None], ex)
-        dirs = np.stack([ex, ey, -ex, -ey, tdir], axis=1)  # (j, 5, 3)
-        P = (capc[:, None, :] + dirs * r[fc, None, None]).reshape(-1, 3)
-        rows = np.repeat(fc, 5)
-        F = (np.where(sgn > 0, 9, 1)[:, None] + np.arange(5)[None, :]).reshape(-1)
-        k, n, p, g, _ = contact(P, rows)
-        out.append((rows[k], n, p, np.where(np.repeat(okt, 5) | (np.arange(rows.size) % 5 != 4), g, np.inf), F))
+    oh = np.empty(3)
+    oh[0], oh[1], oh[2] = ohl, orr, 0.0
+    cap_face = 1 if abs(pn[0] * oR[0, 2] + pn[1] * oR[1, 2] + pn[2] * oR[2, 2]) >= CYLINDER_FACE_COS else 0
+    ax = np.empty(3)
+    for i in range(3):
+        ax[i] = R[i, 2]
+    pts = np.empty((_SIDE_MAX, 3))
+    fid = np.empty(_SIDE_MAX, np.int64)
+    infg = np.zeros(_SIDE_MAX, np.bool_)
+    m = 0
+    cosf = pn[0] * ax[0] + pn[1] * ax[1] + pn[2] * ax[2]
+    if not abs(cosf) >= CYLINDER_FACE_COS:
+        # side on: each rim's support point toward the other body (the ends
+        # of a side lying along the other)
+        mp = np.empty(3)
+        for i in range(3):
+            mp[i] = -pn[i]
+        P = np.empty((8, 3))
+        drop = np.empty(8, np.bool_)
+        cylinder_rim1(c, R, hl, r, mp, P, drop)
+        for j in (0, 4):
+            for i in range(3):
+                pts[m, i] = P[j, i]
+            fid[m] = 0 if j == 0 else 8
+            m += 1
+    else:
+        # cap on: the facing cap's material square (body x, y) and its rim
+        # point nearest the other's axis (see cylinder_cylinder)
+        sgn = 1.0 if cosf >= 0.0 else -1.0
+        capc = np.empty(3)
+        to = np.empty(3)
+        for i in range(3):
+            capc[i] = c[i] + ax[i] * (sgn * hl)
+            to[i] = oc[i] - capc[i]
+        ta = to[0] * ax[0] + to[1] * ax[1] + to[2] * ax[2]
+        for i in range(3):
+            to[i] -= ta * ax[i]
+        tl = norm3(to[0], to[1], to[2])
+        okt = tl > 1e-9 * r
+        base = 9 if sgn > 0 else 1
+        for j in range(5):
+            for i in range(3):
+                if j == 0:
+                    d = R[i, 0]
+                elif j == 1:
+                    d = R[i, 1]
+                elif j == 2:
+                    d = -R[i, 0]
+                elif j == 3:
+                    d = -R[i, 1]
+                else:
+                    d = to[i] / tl if okt else R[i, 0]
+                pts[m, i] = capc[i] + d * r
+            fid[m] = base + j
+            infg[m] = j == 4 and not okt
+            m += 1
     # the rims' minima and radius crossings
-    rows, pts, fid = _rim_search(c, R, hl, r, oc, oR, orr, sdf, margin)
-    if rows.size:
-        k, n, p, g, _ = contact(pts, rows)
-        out.append((rows[k], n, p, g, fid[k]))
+    m = _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, m)
     # the side line facing the other body: its deepest point (side across
     # side) and its crossings of the other's radius (a side lying across a cap)
-    t = pn - np.einsum("ki,ki->k", pn, ax)[:, None] * ax
-    tl = _norm(t)
-    rows = np.flatnonzero(tl > 1e-6)
-    if rows.size:
-        line = c[rows] + t[rows] * (r[rows] / tl[rows])[:, None]
-        e0 = line - ax[rows] * hl[rows, None]
-        e1 = line + ax[rows] * hl[rows, None]
-        s, f_s, f_ends = _segment_min(sdf(rows), e0, e1)
-        sel = np.flatnonzero(f_s < f_ends - EDGE_POINT_TOL)
-        if sel.size:
-            k, n, p, g, _ = contact(e0[sel] + (e1[sel] - e0[sel]) * s[sel, None], rows[sel])
-            out.append((rows[sel[k]], n, p, g, np.full(k.size, 48)))
-        for kk, n, p, g, f in _crossing_points(lambda x, rr: contact(x, rows[rr]), e0, e1,
-                                               _circle_crossings(e0, e1, oc[rows], oR[rows], orr[rows]), 49):
-            out.append((rows[kk], n, p, g, f))
-    return _cat(out)
+    t0, t1, t2 = pn[0] - cosf * ax[0], pn[1] - cosf * ax[1], pn[2] - cosf * ax[2]
+    tl = norm3(t0, t1, t2)
+    if tl > 1e-6:
+        e0 = np.empty(3)
+        e1 = np.empty(3)
+        s2 = np.empty(2)
+        sc = r / tl
+        e0[0], e0[1], e0[2] = c[0] + t0 * sc - ax[0] * hl, c[1] + t1 * sc - ax[1] * hl, c[2] + t2 * sc - ax[2] * hl
+        e1[0], e1[1], e1[2] = c[0] + t0 * sc + ax[0] * hl, c[1] + t1 * sc + ax[1] * hl, c[2] + t2 * sc + ax[2] * hl
+        s, f_s, f_ends = segment_min1(SDF_CYLINDER, e0, e1, oc, oR, oh, 40)
+        if f_s < f_ends - EDGE_POINT_TOL:
+            for i in range(3):
+                pts[m, i] = e0[i] + (e1[i] - e0[i]) * s
+            fid[m] = 48
+            m += 1
+        circle_crossings1(e0, e1, oc, oR, orr, s2)
+        for j in range(2):
+            if not np.isnan(s2[j]):
+                for i in range(3):
+                    pts[m, i] = e0[i] + (e1[i] - e0[i]) * s2[j]
+                fid[m] = 49 + j
+                m += 1
+    for t in range(m):
+        g = sphere_cylinder1(pts[t], 0.0, oc, oR, ohl, orr, cap_face, bn[cnt], bp[cnt])
+        bg[cnt] = np.inf if infg[t] else g
+        for i in range(3):
+            bn[cnt, i] *= sgn_n
+        bf[cnt] = fid0 + fid[t]
+        cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def _cylinder_cylinder_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin, use_margin, S_n, S_p, S_g, S_f, S_ok):
+    B = 2 * _SIDE_MAX
+    bn = np.empty((B, 3))
+    bp = np.empty((B, 3))
+    bg = np.empty(B)
+    bf = np.empty(B, np.int64)
+    order = np.empty(B, np.int64)
+    key = np.empty(B)
+    E = np.empty((B, 3))
+    sp = np.empty(B)
+    area = np.empty(B)
+    axa = np.empty(3)
+    axb = np.empty(3)
+    pn = np.empty(3)
+    mpn = np.empty(3)
+    for k in range(ca.shape[0]):
+        for i in range(3):
+            axa[i] = Ra[k, i, 2]
+            axb[i] = Rb[k, i, 2]
+        _pair_normal(ca[k], axa, hla[k], ra[k], cb[k], axb, hlb[k], rb[k], pn)
+        for i in range(3):
+            mpn[i] = -pn[i]
+        cnt = _points_against(ca[k], Ra[k], hla[k], ra[k], cb[k], Rb[k], hlb[k], rb[k], pn, margin[k], use_margin,
+                              1.0, 0, bn, bp, bg, bf, 0)
+        cnt = _points_against(cb[k], Rb[k], hlb[k], rb[k], ca[k], Ra[k], hla[k], ra[k], mpn, margin[k], use_margin,
+                              -1.0, 128, bn, bp, bg, bf, cnt)
+        _four_points(bn, bp, bg, bf, cnt, pn, margin[k], use_margin, order, key, E, sp, area,
+                     S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
+
+
+@njit(cache=True)
+def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp, area, S_n, S_p, S_g, S_f, S_ok):
+    """The touching set of each pair -- its contacts within MANIFOLD_BAND
+    of its deepest -- reduced to at most four points as box-box keeps them
+    (the deepest, the one farthest from it, and on either side of their
+    line the one farthest from it, all measured across the pair normal
+    ``pn`` (k, 3)), without near repeats; the pair's farther (speculative)
+    contacts are all kept.  The features of the two bodies often name the
+    same point twice (a rim crossing seen from each side) or nearly (a rim
+    support point a few mm from a crossing): with them in, a can offset on
+    an equal can turned at 2e-3 rad/s within a step instead of resting.
+    Contacts beyond the margin (k,) are dropped first.  Separated, the
+    deepest is the smallest gap: the distance stays exact."""
+    m = 0
+    first = np.inf
+    for t in range(cnt):
+        if use_margin and not bg[t] < margin:
+            continue
+        order[m] = t
+        m += 1
+        first = min(first, bg[t])
+    # deepest first, gaps within 1e-9 m of the deepest counted as ties and
+    # ordered by feature id: on a flat support the round-off must not pick
+    # another first point (and with it another four) every step
+    for a in range(m):
+        t = order[a]
+        key[t] = -np.inf if bg[t] <= first + 1e-9 else bg[t]
+    for a in range(1, m):  # insertion sort by (key, fid): stable, few points
+        t = order[a]
+        b = a - 1
+        while b >= 0 and (key[order[b]] > key[t] or (key[order[b]] == key[t] and bf[order[b]] > bf[t])):
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = t
+    # a point clear of the other body (not the pair's deepest) whose normal
+    # turns more than 45 degrees from the pair normal reaches round the
+    # other's edge (pinned by the log pile's tests): dropped
+    w = 0
+    for a in range(m):
+        t = order[a]
+        if bg[t] > first + 1e-9 and bn[t, 0] * pn[0] + bn[t, 1] * pn[1] + bn[t, 2] * pn[2] < CYLINDER_FACE_COS:
+            continue
+        order[w] = t
+        w += 1
+    m = w
+    # the touching set (within MANIFOLD_BAND of the deepest), in order
+    nn = 0
+    for a in range(m):
+        if bg[order[a]] <= first + MANIFOLD_BAND:
+            nn += 1
+    ns = 0
+    if nn:
+        near = np.empty(nn, np.int64)
+        j = 0
+        for a in range(m):
+            if bg[order[a]] <= first + MANIFOLD_BAND:
+                near[j] = order[a]
+                j += 1
+        d0 = near[0]
+        smax = 0.0
+        for a in range(nn):
+            t = near[a]
+            for i in range(3):
+                E[a, i] = bp[t, i] - bp[d0, i]
+            en = E[a, 0] * pn[0] + E[a, 1] * pn[1] + E[a, 2] * pn[2]
+            for i in range(3):
+                E[a, i] -= en * pn[i]
+            sp[a] = np.sqrt(max(E[a, 0] * E[a, 0] + E[a, 1] * E[a, 1] + E[a, 2] * E[a, 2], 0.0))
+            smax = max(smax, sp[a])
+        # the farthest point, of those within MANIFOLD_MIN_SPAN of the
+        # farthest the deepest (rows are in depth order)
+        i1 = 0
+        for a in range(nn):
+            if sp[a] >= smax - MANIFOLD_MIN_SPAN:
+                i1 = a
+                break
+        span = sp[i1]
+        i2 = 0
+        i3 = 0
+        for a in range(nn):
+            area[a] = ((E[i1, 1] * E[a, 2] - E[i1, 2] * E[a, 1]) * pn[0]
+                       + (E[i1, 2] * E[a, 0] - E[i1, 0] * E[a, 2]) * pn[1]
+                       + (E[i1, 0] * E[a, 1] - E[i1, 1] * E[a, 0]) * pn[2])
+            if area[a] > area[i2]:
+                i2 = a
+            if area[a] < area[i3]:
+                i3 = a
+        ok1 = span > MANIFOLD_MIN_SPAN
+        sel = np.zeros(nn, np.bool_)
+        sel[0] = True
+        if ok1:
+            sel[i1] = True
+            if area[i2] > MANIFOLD_SPREAD * span * span:
+                sel[i2] = True
+            if -area[i3] > MANIFOLD_SPREAD * span * span:
+                sel[i3] = True
+        for a in range(nn):  # in depth order
+            if sel[a]:
+                _put(near[a], ns, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok)
+                ns += 1
+    # the farther (speculative) contacts, all kept, in order after slot 4
+    sl = 4
+    for a in range(m):
+        t = order[a]
+        if bg[t] > first + MANIFOLD_BAND:
+            _put(t, sl, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok)
+            sl += 1
+
+
+@njit(cache=True)
+def _put(t, sl, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok):
+    for i in range(3):
+        S_n[sl, i] = bn[t, i]
+        S_p[sl, i] = bp[t, i]
+    S_g[sl] = bg[t]
+    S_f[sl] = bf[t]
+    S_ok[sl] = True
 
 
 def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
@@ -252,99 +506,11 @@ def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
     cylinder's points 0-127 (rim support 0 and 8, facing cap's square and
     nearest point 1-5 or 9-13, rim minima 16-47, side line 48-50, rim
     crossings 64-95), the second's the same plus 128."""
-    axa, axb = Ra[:, :, 2], Rb[:, :, 2]
-    pn = _cylinder_pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb)
-    k0, n0, p0, g0, f0 = _cylinder_points_against(ca, Ra, hla, ra, cb, Rb, hlb, rb, pn, margin)
-    k1, n1, p1, g1, f1 = _cylinder_points_against(cb, Rb, hlb, rb, ca, Ra, hla, ra, -pn, margin)
-    return _four_points(_cat([(k0, n0, p0, g0, f0), (k1, -n1, p1, g1, 128 + f1)]), pn, margin)
-
-
-#: m: the touching set of a pair, reduced to four points, is the contacts
-#: within this of its deepest; farther ones (speculative) are all kept
-MANIFOLD_BAND = 1e-3
-
-
-#: a manifold point is kept as a third or fourth only where it stands off
-#: the line of the first two by this fraction of their distance
-MANIFOLD_SPREAD = 0.01
-
-
-#: m: a second manifold point closer than this to the first is not kept
-MANIFOLD_MIN_SPAN = 1e-6
-
-
-def _four_points(cs, pn, margin):
-    """The touching set of each pair -- its contacts within MANIFOLD_BAND
-    of its deepest -- reduced to at most four points as box-box keeps them
-    (the deepest, the one farthest from it, and on either side of their
-    line the one farthest from it, all measured across the pair normal
-    ``pn`` (k, 3)), without near repeats; the pair's farther (speculative)
-    contacts are all kept.  The features of the two bodies often name the
-    same point twice (a rim crossing seen from each side) or nearly (a rim
-    support point a few mm from a crossing): with them in, a can offset on
-    an equal can turned at 2e-3 rad/s within a step instead of resting.
-    Contacts beyond the margin (k,) are dropped first.  Separated, the
-    deepest is the smallest gap: the distance stays exact."""
-    k, n, p, g, f = cs
-    if margin is not None:
-        keep = g < margin[k]
-        k, n, p, g, f = k[keep], n[keep], p[keep], g[keep], f[keep]
-    if k.size == 0:
-        return k, n, p, g, f
-    m = pn.shape[0]
-    first = np.full(m, np.inf)
-    np.minimum.at(first, k, g)
-    # deepest first, gaps within 1e-9 m of the deepest counted as ties and
-    # ordered by feature id: on a flat support the round-off must not pick
-    # another first point (and with it another four) every step
-    o = np.lexsort((f, np.where(g <= first[k] + 1e-9, -np.inf, g), k))
-    k, n, p, g, f = k[o], n[o], p[o], g[o], f[o]
-    # a point clear of the other body (not the pair's deepest) whose normal
-    # turns more than 45 degrees from the pair normal reaches round the
-    # other's edge, and is dropped.  Two logs of equal length side by side,
-    # one slid 0.8 um along its axis, put the longer one's rim end just past
-    # the shorter one's cap, at the round-off distance from its rim's edge
-    # with a normal along the axes: as a manifold point it stood in for the
-    # shorter one's rim end on the other's side, and the top log of a pile
-    # sank 0.1 mm at that end; as a speculative row it turned the pair's
-    # friction patch (whose normal is the mean of the rows') 63 degrees
-    # toward the axes, and the pile held at 0.22 of friction where
-    # statics needs 0.274.  Sliding along the axes, such a point moves
-    # along the other's side, not into it.
-    around = (g > first[k] + 1e-9) & (np.einsum("ki,ki->k", n, pn[k]) < CYLINDER_FACE_COS)
-    k, n, p, g, f = k[~around], n[~around], p[~around], g[~around], f[~around]
-    far = np.flatnonzero(g > first[k] + MANIFOLD_BAND)
-    near = np.flatnonzero(g <= first[k] + MANIFOLD_BAND)
-    k, n, p, g, f, rest = k[near], n[near], p[near], g[near], f[near], (k[far], n[far], p[far], g[far], f[far])
-    cnt = np.bincount(k, minlength=m)
-    W = int(cnt.max())
-    slot = np.arange(k.size) - (np.cumsum(cnt) - cnt)[k]
-    idx = np.full((m, W), -1, np.int64)
-    idx[k, slot] = np.arange(k.size)
-    valid = idx >= 0
-    E = p[np.where(valid, idx, 0)] - p[np.where(valid[:, :1], idx[:, :1], 0)]  # from each pair's deepest
-    E -= np.einsum("kwi,ki->kw", E, pn)[:, :, None] * pn[:, None, :]
-    dd = np.where(valid, np.einsum("kwi,kwi->kw", E, E), -np.inf)
-    r = np.arange(m)
-    # the farthest point, of those within MANIFOLD_MIN_SPAN of the farthest
-    # the deepest (rows are in depth order): two logs of equal length side
-    # by side, one slid along its axis, have at the shorter one's end its
-    # rim point on the other's side (normal exact) and, 7e-6 m round the
-    # rim, the longer one's rim crossing the other's radius (at 1e-9 m of
-    # overlap its normal is 1.4e-4 rad off, and it turns further as the
-    # overlap grows), 1e-10 m farther from the deepest
-    sp = np.sqrt(np.maximum(dd, 0.0))
-    i1 = np.argmax(valid & (sp >= sp.max(axis=1, keepdims=True) - MANIFOLD_MIN_SPAN), axis=1)
-    span = sp[r, i1]
-    area = np.einsum("kwi,ki->kw", cross(np.broadcast_to(E[r, i1][:, None, :], E.shape), E), pn)
-    i2 = np.argmax(np.where(valid, area, -np.inf), axis=1)
-    i3 = np.argmin(np.where(valid, area, np.inf), axis=1)
-    has = cnt > 0
-    ok1 = has & (span > MANIFOLD_MIN_SPAN)
-    ok2 = ok1 & (area[r, i2] > MANIFOLD_SPREAD * span * span)
-    ok3 = ok1 & (-area[r, i3] > MANIFOLD_SPREAD * span * span)
-    sel = np.concatenate([idx[has, 0], idx[ok1, i1[ok1]], idx[ok2, i2[ok2]], idx[ok3, i3[ok3]]])
-    sel.sort()
-    if rest[0].size == 0:
-        return k[sel], n[sel], p[sel], g[sel], f[sel]
-    return _cat([(k[sel], n[sel], p[sel], g[sel], f[sel]), rest])
+    m = ca.shape[0]
+    out = slots(m, 4 + 2 * _SIDE_MAX)
+    if m:
+        f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
+        mg = np.zeros(m) if margin is None else f(margin)
+        _cylinder_cylinder_kernel(f(ca), f(Ra), f(hla), f(ra), f(cb), f(Rb), f(hlb), f(rb), mg, margin is not None,
+                                  *out)
+    return gather(*out, blocks=[(0, 4), (4, 4 + 2 * _SIDE_MAX)])

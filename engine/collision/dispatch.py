@@ -256,8 +256,8 @@ def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margi
         for fn, sel, b_, k_, st, const, mat in groups:
             mg = margins[sel]
             G = const.get("geom")
-            if G is None:
-                G = const["geom"] = {key: _ro(v) for key, v in geom(model, k_).items()}
+            if G is None:  # writable gathers: the kernels are compiled for writable arrays
+                G = const["geom"] = geom(model, k_)
             k, nn, p, g, f = fn(_body_geom(model, X, R, b_, const), G, mg)
             keep = g < mg[k]
             if not keep.all():
@@ -307,3 +307,33 @@ def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int) -> Contacts:
         return collide_pairs(model, X, R, z, z, (np.array([a]), np.array([row])), (z, z), inf, inf, inf)
     row = int(np.flatnonzero(model.sbox_static == sidx)[0])
     return collide_pairs(model, X, R, z, z, (z, z), (np.array([a]), np.array([row])), inf, inf, inf)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every narrow-phase kernel and the
+    broad phase's, with the argument types of the step (writable
+    C-contiguous float64 and int64 arrays), on one tiny pair each (see
+    :mod:`engine.jit`)."""
+    from engine import broadphase
+
+    I = np.eye(3)[None]
+    c0, c1 = np.zeros((1, 3)), np.array([[0.0, 0.0, 0.15]])
+    r, h, pn, po, mg = np.full(1, 0.1), np.full((1, 3), 0.1), np.array([[0.0, 0.0, 1.0]]), np.zeros(1), np.ones(1)
+    sphere_sphere(c0, r, c1, r)
+    sphere_plane(c0, r, pn, po)
+    sphere_box(c0, r, c1, I, h)
+    box_plane(c0, I, h, pn, po)
+    box_box(c0, I, h, c1, I, h, mg)
+    capsule_plane(c0, I, r, r, pn, po)
+    sphere_capsule(c0, r, c1, I, r, r)
+    capsule_capsule(c0, I, r, r, c1, I, r, r)
+    capsule_box(c0, I, r, r, c1, I, h)
+    cylinder_plane(c0, I, r, r, pn, po)
+    sphere_cylinder(c0, r, c1, I, r, r)
+    sphere_cylinder(c0, r, c1, I, r, r, np.ones(1, bool))
+    box_cylinder(c0, I, h, c1, I, r, r, mg)
+    box_cylinder(c0, I, h, c1, I, r, r)
+    capsule_cylinder(c0, I, r, r, c1, I, r, r)
+    cylinder_cylinder(c0, I, r, r, c1, I, r, r, mg)
+    cylinder_cylinder(c0, I, r, r, c1, I, r, r)
+    broadphase.warm_up()

@@ -1,46 +1,58 @@
 """Sphere pairs: sphere-sphere, sphere-plane, sphere-box (exact closest
-points; normal from the sphere toward the other shape)."""
+points; normal from the sphere toward the other shape).  Each is one
+compiled loop over the pairs around the one-pair kernels of
+:mod:`engine.collision.kernels`."""
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from engine.collision.common import _EPS, _norm
+from engine.collision.kernels import sphere_box1, sphere_plane1, sphere_sphere1
+
+
+@njit(cache=True)
+def _sphere_sphere_kernel(ca, ra, cb, rb, n, p, g):
+    for k in range(ca.shape[0]):
+        g[k] = sphere_sphere1(ca[k], ra[k], cb[k], rb[k], n[k], p[k])
+
+
+@njit(cache=True)
+def _sphere_plane_kernel(c, r, pn, po, n, p, g):
+    for k in range(c.shape[0]):
+        g[k] = sphere_plane1(c[k], r[k], pn[k], po[k], n[k], p[k])
+
+
+@njit(cache=True)
+def _sphere_box_kernel(c, r, cb, Rb, hb, n, p, g):
+    for k in range(c.shape[0]):
+        g[k] = sphere_box1(c[k], r[k], cb[k], Rb[k], hb[k], n[k], p[k])
+
+
+def _f(a):
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def _one_each(kernel, *args):
+    """One contact per pair: (k, normal, point, gap, fid 0)."""
+    m = args[0].shape[0]
+    n, p, g = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
+    if m:
+        kernel(*(_f(a) for a in args), n, p, g)
+    return np.arange(m), n, p, g, np.zeros(m, np.int64)
 
 
 def sphere_sphere(ca, ra, cb, rb):
-    d = cb - ca
-    L = _norm(d)
-    ok = L > _EPS
-    n = np.where(ok[:, None], d / np.where(ok, L, 1.0)[:, None], np.array([0.0, 0.0, 1.0]))
-    gap = L - ra - rb
-    point = ca + n * (ra + 0.5 * gap)[:, None]
-    k = np.arange(ca.shape[0])
-    return k, n, point, gap, np.zeros(k.size, np.int64)
+    """Spheres (centres (k, 3), radii (k,)) against spheres: normal from a
+    to b (+z for coincident centres)."""
+    return _one_each(_sphere_sphere_kernel, ca, ra, cb, rb)
 
 
 def sphere_plane(c, r, pn, po):
-    gap = np.einsum("ki,ki->k", pn, c) - po - r
-    point = c - pn * (r + 0.5 * gap)[:, None]
-    k = np.arange(c.shape[0])
-    return k, -pn, point, gap, np.zeros(k.size, np.int64)
+    """Spheres against planes (unit normals pn (k, 3), offsets po (k,))."""
+    return _one_each(_sphere_plane_kernel, c, r, pn, po)
 
 
 def sphere_box(c, r, cb, Rb, hb):
     """Sphere (first) against box (second); normal from sphere to box."""
-    local = np.einsum("kji,kj->ki", Rb, c - cb)
-    cl = np.clip(local, -hb, hb)
-    diff = local - cl
-    dist = _norm(diff)
-    outside = dist > _EPS
-    # inside: leave through the face of least penetration
-    pen = hb - np.abs(local)
-    face = np.argmin(pen, axis=1)
-    k = np.arange(c.shape[0])
-    n_in = np.zeros_like(local)
-    n_in[k, face] = np.where(local[k, face] >= 0.0, 1.0, -1.0)
-    n_loc = np.where(outside[:, None], diff / np.where(outside, dist, 1.0)[:, None], n_in)
-    gap = np.where(outside, dist, -pen[k, face]) - r
-    n_out = np.einsum("kij,kj->ki", Rb, n_loc)  # box outward normal, world
-    point = c - n_out * (r + 0.5 * gap)[:, None]
-    return k, -n_out, point, gap, np.zeros(k.size, np.int64)
+    return _one_each(_sphere_box_kernel, c, r, cb, Rb, hb)
