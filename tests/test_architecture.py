@@ -33,6 +33,14 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
     (5, ("harness.report",)),  # report
     (6, ("harness.cli",)),  # the command line
 ]
+# Import cycles known today, each a strongly connected set of modules.  The
+# test fails when one disappears as well as when a new one forms, so this
+# list only shrinks.  engine/ is the compiled-engine work's to untangle: the
+# stage profiler imports the jit bookkeeping, which imports the collision
+# dispatch for warm-up, which imports the profiler (all function-level).
+KNOWN_CYCLES = [
+    ["engine.broadphase", "engine.collision", "engine.collision.dispatch", "engine.jit", "engine.profile"],
+]
 # harness modules that use the engine directly (all others go through adapters)
 ENGINE_USERS = {"harness.fingerprint", "harness.bench"}
 
@@ -176,7 +184,11 @@ def test_no_import_cycles():
     for v in sorted(GRAPH):
         if v not in index:
             visit(v)
-    assert not cycles, f"import cycles: {cycles}"
+    new = [c for c in cycles if c not in KNOWN_CYCLES]
+    gone = [c for c in KNOWN_CYCLES if c not in cycles]
+    assert not new, f"import cycles: {new}"
+    assert not gone, f"known cycles no longer there (remove them from KNOWN_CYCLES): {gone}"
+    assert all(c[0].startswith("engine.") for c in KNOWN_CYCLES), "only the engine's own cycles may be known"
 
 
 def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
