@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.spec import SpecError, parse_value
+from contract.spec import SpecError, parse_value
 
 
 class UsageError(Exception):
@@ -145,7 +145,7 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
     goes to a worker: a bad spec, setting or phase is exit 2 here."""
     from adapters import get_adapter
     from harness.execute import RunRequest, request_scene
-    from harness.phase import PhaseError
+    from contract.phase import PhaseError
 
     req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
     try:
@@ -445,7 +445,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from harness.scene import load_scene, scenario_ids
+    from contract.scene import load_scene, scenario_ids
 
     for sid in scenario_ids():
         try:

@@ -32,7 +32,7 @@ be a fraction such as 1/30).
 
 Step phases: a scenario with ``[scenario] phases = N`` (N > 1; its start
 must be free flight) runs every engine N times, the start moved back along
-the free flight by i/N dt (harness/phase.py); each check not bound to
+the free flight by i/N dt (contract/phase.py); each check not bound to
 another dt holds only if it holds in every phase.  One run is one draw of
 where the steps fall, and for thin walls that decides the outcome: a plate
 that a discrete engine catches in the phase as written may fall through in
@@ -75,7 +75,7 @@ from typing import Any, Iterable
 
 from harness import status as st
 from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result, make_executor
-from harness.scene import Check, Scene
+from contract.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
 HARD_DT_LABEL = "1/30"
@@ -136,7 +136,7 @@ class RunSpec:
     engine: str
     settings: dict[str, Any] = field(default_factory=dict)
     checks: list[Check] = field(default_factory=list)
-    #: step phase of the run (harness/phase.py); phase runs of a base run
+    #: step phase of the run (contract/phase.py); phase runs of a base run
     #: carry its checks too, and its outcome combines them
     phase: float = 0.0
     #: the base run's phases (``[scenario] phases``), on the base run only
@@ -355,7 +355,7 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     the files' paths, anywhere on disk.  An entry that is neither raises
     SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
     (a spec that does not load is kept: it is reported, never dropped)."""
-    from harness.scene import load_scene, scenario_ids, spec_targets
+    from contract.scene import load_scene, scenario_ids, spec_targets
 
     if scenarios:
         ids: list[str] = []
@@ -441,8 +441,8 @@ def plan(scenario_ids: list[str], engines: list[str],
     ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
     Two files with the same id (family.stem) raise SpecError: their rows
     could not be told apart."""
-    from harness.scene import load_scene, resolve_scenario
-    from harness.spec import SpecError, load_spec
+    from contract.scene import load_scene, resolve_scenario
+    from contract.spec import SpecError, load_spec
 
     runs: list[RunSpec] = []
     errors: list[Outcome] = []
@@ -804,7 +804,7 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
     bytes of their spec files (sha256), the per-run budget, and the planned
     run keys."""
     from harness.runner import commit_id
-    from harness.scene import resolve_scenario
+    from contract.scene import resolve_scenario
 
     h = hashlib.sha256()
     for sid in ids:
@@ -871,8 +871,8 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
 
     from harness.results import RESULTS_DIR, consolidate_parts
     from harness.runner import RunResult
-    from harness.scene import resolve_scenario
-    from harness.spec import SpecError
+    from contract.scene import resolve_scenario
+    from contract.spec import SpecError
 
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()

@@ -271,7 +271,7 @@ def _restore_commit(dask_worker=None):
 
 def test_a_worker_of_another_physbench_is_refused(tmp_path, cluster, capsys):
     from harness.dask_executor import DaskExecutor, EnvironmentRefused
-    from harness.sweep import run_point
+    from harness.points import run_point
 
     lc, client = cluster
     _wait_workers(client)
