@@ -74,7 +74,8 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness import status as st
-from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result, make_executor
+from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result
+from harness.executors import make_executor
 from contract.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0

@@ -544,25 +544,6 @@ class WorkerPool:
 EXECUTORS = ("process", "inline", "dask")
 
 
-def make_executor(kind: str = "process", jobs: int = 1, scheduler: str | None = None,
-                  log: Callable[[str], None] | None = None):
-    """``process``: a :class:`WorkerPool` of ``jobs`` workers; ``inline``
-    (alias ``serial``): :class:`InlineExecutor`; ``dask``: a
-    harness.dask_executor.DaskExecutor on the cluster at ``scheduler``, or
-    on a LocalCluster of ``jobs`` workers (``log`` gets its description).
-    A ``scheduler`` is only for ``dask``."""
-    if scheduler and kind != "dask":
-        raise ValueError(f"a scheduler address is for the dask executor, not {kind!r}")
-    if kind == "process":
-        return WorkerPool(jobs)
-    if kind in ("inline", "serial"):
-        return InlineExecutor()
-    if kind == "dask":
-        from harness.dask_executor import DaskExecutor
-
-        return DaskExecutor(jobs, scheduler, log)
-    raise ValueError(f"executor {kind!r}: expected one of {', '.join(EXECUTORS)}")
-
 
 def run_requests(reqs: Iterable[RunRequest], executor: Any) -> Iterator[tuple[RunRequest, Any]]:
     """(request, RunResult) for each request as it finishes, through
@@ -668,5 +649,5 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
-           "InlineExecutor", "make_executor", "run_requests", "run_isolated", "register_env_adapters",
+           "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
            "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s"]

@@ -48,7 +48,7 @@ from typing import Any
 
 from contract.spec import SpecError, _display
 from harness import status as st
-from harness.execute import make_executor
+from harness.executors import make_executor
 from harness.points import Point, run_points
 from harness.results import SCHEMA_VERSION
 from harness.suite import _label, expand, load_suite
