@@ -6,7 +6,7 @@ Every adapter module defines one :class:`Adapter` subclass with:
   defaults and allowed values, engine version);
 - :meth:`unsupported_reason` — why a scene cannot be modelled (a missing
   shape, effect or dimension), or ``None``;
-- :meth:`build` — create the engine's world from a :class:`harness.scene.Scene`
+- :meth:`build` — create the engine's world from a :class:`contract.scene.Scene`
   (never from TOML) and resolved settings;
 - :meth:`step` — advance n fixed steps;
 - :meth:`read_state` — write positions, wxyz quaternions and world-frame
@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from harness.scene import Scene
+from contract.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -254,7 +254,7 @@ def gyroscopic_reason(scene: Scene, engine: str) -> str | None:
     and nothing can exert a torque on it: no contacts, no spring or damper
     attached off its centre (gravity and drag act at the centre of mass).
     """
-    from adapters.conventions import world_to_body_angvel
+    from contract.rotation import world_to_body_angvel
 
     if "gyroscopic" in scene.effects or scene.planar:
         return None

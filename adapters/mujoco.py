@@ -1,6 +1,6 @@
 """MuJoCo adapter (mujoco 4.x, 3D; planar scenes run as 3D scenes).
 
-The model is an MJCF string written from the :class:`harness.scene.Scene`
+The model is an MJCF string written from the :class:`contract.scene.Scene`
 (never from TOML) by :func:`build_mjcf`.
 
 Bodies
@@ -23,9 +23,9 @@ state in :meth:`MujocoAdapter.build`): for free joints ``qpos[0:3]`` is the
 world position of the body origin (= centre of mass here), ``qpos[3:7]`` the
 orientation quaternion (w, x, y, z), ``qvel[0:3]`` the world linear velocity
 and ``qvel[3:6]`` the angular velocity in the **body frame**.  The initial
-one is converted with :func:`adapters.conventions.world_to_body_angvel`; the
+one is converted with :func:`contract.rotation.world_to_body_angvel`; the
 read-back applies the same rule as
-:func:`~adapters.conventions.body_to_world_angvel`, w_world = R(q) w_body,
+:func:`~contract.rotation.body_to_world_angvel`, w_world = R(q) w_body,
 as one batched product with R from ``mj_kinematics`` on the current qpos
 (the conventions function costs ~30 us per call on numpy 2, ten times a
 small model's ``mj_step``; the tests assert both agree).  ``d.xpos``,
@@ -78,8 +78,8 @@ from typing import Any
 import numpy as np
 
 from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import quat_rotate, quat_to_matrix, world_to_body_angvel
-from harness.scene import Body, Scene, Static
+from contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
+from contract.scene import Body, Scene, Static
 
 try:  # the engine; a missing mujoco only makes its runs unavailable
     import mujoco

@@ -24,7 +24,7 @@ Translation choices, each measured in ``tests/test_adapter_pybullet.py``:
 - **Conversion point**: ``read_state`` is the only place engine state is
   turned into physbench's conventions: ``getBasePositionAndOrientation``
   gives an xyzw quaternion, converted once per call with
-  :func:`adapters.conventions.xyzw_to_wxyz`; ``getBaseVelocity`` is already
+  :func:`contract.rotation.xyzw_to_wxyz`; ``getBaseVelocity`` is already
   world-frame linear velocity of the centre of mass and world-frame angular
   velocity.  (The force loop reads the engine's own state in the engine's
   own terms and converts nothing.)
@@ -80,8 +80,9 @@ from typing import Any
 import numpy as np
 
 from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
-from harness.scene import Scene
+from adapters.materials import solve_product_values, solve_rolling_values
+from contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
+from contract.scene import Scene
 
 ENGINE = "pybullet"
 
@@ -159,89 +160,6 @@ def _import_pybullet() -> Any:
             os.close(dup)
     _pb = pybullet
     return pybullet
-
-
-# --------------------------------------------------------------------------
-# materials: per-object values whose products give the pair values
-
-
-def solve_product_values(n_objects: int, pairs: list[tuple[int, int, float]]) -> tuple[np.ndarray, float, tuple[int, int, float, float] | None]:
-    """Per-object values x (n_objects,) >= 0 with x[a] * x[b] = v for every
-    pair (a, b, v), as Bullet multiplies two objects' restitution or friction.
-
-    - All pairs want the same v: x = sqrt(v) for every object in a pair (exact).
-    - Otherwise: objects whose every pair wants 0 get x = 0 (that realises all
-      their pairs); the other objects solve log x_a + log x_b = log v over
-      their pairs wanting v > 0 by least squares (minimum norm).  A pair
-      wanting 0 between two objects that also have positive pairs cannot be
-      realised.
-    - Objects in no pair get 0 (they never touch anything).
-
-    Returns (x, worst relative error, worst pair as (a, b, wanted, got) or
-    None).  The relative error of a pair is |x_a x_b - v| / v, and the
-    absolute product when v = 0.
-    """
-    x = np.zeros(n_objects)
-    if not pairs:
-        return x, 0.0, None
-    values = np.array([v for _, _, v in pairs], float)
-    if np.any(values < 0):
-        raise ValueError("pair values must be >= 0")
-    involved = sorted({a for a, _, _ in pairs} | {b for _, b, _ in pairs})
-    if np.all(values == values[0]):
-        x[involved] = math.sqrt(values[0])
-    else:
-        positive: dict[int, bool] = {}
-        for a, b, v in pairs:
-            for o in (a, b):
-                positive[o] = positive.get(o, False) or v > 0
-        free = [o for o in involved if positive[o]]  # objects with a pair wanting > 0
-        col = {o: k for k, o in enumerate(free)}
-        rows = [(a, b, v) for a, b, v in pairs if v > 0]
-        if rows:
-            A = np.zeros((len(rows), len(free)))
-            rhs = np.empty(len(rows))
-            for r, (a, b, v) in enumerate(rows):
-                A[r, col[a]] += 1.0
-                A[r, col[b]] += 1.0
-                rhs[r] = math.log(v)
-            y, *_ = np.linalg.lstsq(A, rhs, rcond=None)
-            x[free] = np.exp(y)
-    worst, worst_pair = 0.0, None
-    for a, b, v in pairs:
-        got = float(x[a] * x[b])
-        err = abs(got - v) / v if v > 0 else abs(got)
-        if err > worst:
-            worst, worst_pair = err, (a, b, float(v), got)
-    return x, worst, worst_pair
-
-
-def solve_rolling_values(friction: np.ndarray, pairs: list[tuple[int, int, float]]) -> tuple[np.ndarray, float, tuple[int, int, float, float] | None]:
-    """Per-object rolling friction r >= 0 (m) with r_a f_b + r_b f_a = R for
-    every pair (a, b, R), Bullet's rule, given the per-object (lateral)
-    friction f.  Non-negative least squares; returns (r, worst relative
-    error, worst pair) like :func:`solve_product_values`."""
-    r = np.zeros(len(friction))
-    if not pairs or all(v == 0 for _, _, v in pairs):
-        return r, 0.0, None
-    involved = sorted({a for a, _, _ in pairs} | {b for _, b, _ in pairs})
-    col = {o: k for k, o in enumerate(involved)}
-    A = np.zeros((len(pairs), len(involved)))
-    rhs = np.array([v for _, _, v in pairs], float)
-    for k, (a, b, _) in enumerate(pairs):
-        A[k, col[a]] += friction[b]
-        A[k, col[b]] += friction[a]
-    from scipy.optimize import nnls
-
-    sol, _ = nnls(A, rhs)
-    r[involved] = sol
-    worst, worst_pair = 0.0, None
-    for a, b, v in pairs:
-        got = float(r[a] * friction[b] + r[b] * friction[a])
-        err = abs(got - v) / v if v > 0 else abs(got)
-        if err > worst:
-            worst, worst_pair = err, (a, b, float(v), got)
-    return r, worst, worst_pair
 
 
 # --------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 pymunk 7.3.1 is a 2D engine.  A planar physbench scene lives in the world x-z
 plane; the single conversion between world and engine state is
-:func:`adapters.conventions.planar_from_world` (at build) and
-:func:`adapters.conventions.world_from_planar` (in :meth:`read_state`):
+:func:`contract.conventions.planar_from_world` (at build) and
+:func:`contract.conventions.world_from_planar` (in :meth:`read_state`):
 2D x = world x, 2D y = world z, 2D counter-clockwise angular velocity w =
 world angular velocity (0, -w, 0).  A body's local frame maps the same way:
 body-local (x, z) is the 2D body-local (x, y), so a capsule or cylinder (axis
@@ -71,8 +71,9 @@ from typing import Any
 import numpy as np
 
 from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.conventions import planar_from_world, world_from_planar, world_point_to_planar
-from harness.scene import Scene
+from adapters.materials import solve_pair_products
+from contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from contract.scene import Scene
 
 ENGINE = "pymunk"
 
@@ -290,8 +291,8 @@ class PymunkAdapter(Adapter):
             self.notes.append(
                 "friction: pymunk has one Coulomb coefficient; the kinetic value is used for "
                 "sticking too (static_friction differs from friction in this scene)")
-        e_sol = _solve_products({p: v.restitution for p, v in values.items()})
-        f_sol = _solve_products({p: v.friction for p, v in values.items()})
+        e_sol = solve_pair_products({p: v.restitution for p, v in values.items()}, _PAIR_RTOL)
+        f_sol = solve_pair_products({p: v.friction for p, v in values.items()}, _PAIR_RTOL)
         if e_sol is not None and f_sol is not None:
             self._material_mode = "per_shape"
             for m, shape in body_shapes + static_shapes:
@@ -603,39 +604,6 @@ def _static_shape(pm: Any, static_body: Any, s: Any) -> Any:
     verts = [(cx + ca * px - sa * py, cy + sa * px + ca * py)
              for px, py in ((-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz))]
     return pm.Poly(static_body, verts, None, 0.0)
-
-
-def _solve_products(pairs: dict[tuple[str, str], float]) -> dict[str, float] | None:
-    """Per-material values f >= 0 with f[a] * f[b] == v for every pair
-    (a, b) -> v (relative tolerance 1e-12), or None if none exist.
-
-    Materials met only in zero-valued pairs get 0.  For the others, log f[a] +
-    log f[b] = log v is solved by least squares (minimum norm: a bipartite set
-    of pairs leaves one free scale per connected group, fixed symmetrically),
-    and the products are then verified against every pair, zero pairs
-    included.  When all pairs agree this gives sqrt(v) for every material."""
-    mats = sorted({m for p in pairs for m in p})
-    positive = [(a, b, v) for (a, b), v in sorted(pairs.items()) if v > 0.0]
-    f = {m: 0.0 for m in mats}
-    if positive:
-        used = sorted({m for a, b, _ in positive for m in (a, b)})
-        col = {m: k for k, m in enumerate(used)}
-        A = np.zeros((len(positive), len(used)))
-        rhs = np.empty(len(positive))
-        for r, (a, b, v) in enumerate(positive):
-            A[r, col[a]] += 1.0
-            A[r, col[b]] += 1.0
-            rhs[r] = math.log(v)
-        x = np.linalg.lstsq(A, rhs, rcond=None)[0]
-        for m, k in col.items():
-            f[m] = math.exp(float(x[k]))
-        for (a, b, v) in positive:
-            if a == b:
-                f[a] = math.sqrt(v)  # exact in the common case of a self pair
-    for (a, b), v in pairs.items():
-        if abs(f[a] * f[b] - v) > _PAIR_RTOL * max(1.0, abs(v)):
-            return None
-    return f
 
 
 def _call_step(space: Any, h: float) -> None:

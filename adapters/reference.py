@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported
-from harness.scene import Scene
+from contract.scene import Scene
 
 
 def scene_input(scene: Scene):

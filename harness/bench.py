@@ -31,8 +31,8 @@ import numpy as np
 
 from adapters import get_adapter
 from harness.runner import run
-from harness.scene import Scene, canonical_example, compile_scene, load_scene
-from harness.spec import validate_raw
+from contract.scene import Scene, canonical_example, compile_scene, load_scene
+from contract.spec import validate_raw
 
 
 @dataclass(frozen=True)

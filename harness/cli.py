@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.spec import SpecError, parse_value
+from contract.spec import SpecError, parse_value
 
 
 class UsageError(Exception):
@@ -145,7 +145,7 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
     goes to a worker: a bad spec, setting or phase is exit 2 here."""
     from adapters import get_adapter
     from harness.execute import RunRequest, request_scene
-    from harness.phase import PhaseError
+    from contract.phase import PhaseError
 
     req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
     try:
@@ -325,8 +325,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     output_file("--junit", args.junit)
     output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
+    _scheduler_needs_dask(args)
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
-                      jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces)
+                      jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces,
+                      executor=args.executor, scheduler=args.scheduler)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -372,12 +374,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scheduler_needs_dask(args: argparse.Namespace) -> None:
+    if args.scheduler and args.executor != "dask":
+        raise UsageError(f"--scheduler {args.scheduler}: a scheduler address needs --executor dask")
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from harness.sweep import sweep_main
 
+    _scheduler_needs_dask(args)
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
                       out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios,
-                      timeout_s=args.timeout)
+                      timeout_s=args.timeout, scheduler=args.scheduler)
 
 
 def cmd_limits(args: argparse.Namespace) -> int:
@@ -437,7 +445,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from harness.scene import load_scene, scenario_ids
+    from contract.scene import load_scene, scenario_ids
 
     for sid in scenario_ids():
         try:
@@ -492,6 +500,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
     c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="worker processes (default 1)")
+    c.add_argument("--executor", choices=["process", "dask"], default="process",
+                   help="process (default): worker processes under a watchdog; dask: runs as Dask tasks "
+                        "(docs/SWEEPS.md)")
+    c.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="with --executor dask: join the cluster of this Dask scheduler (e.g. tcp://host:8786); "
+                        "default: a local cluster of --jobs workers")
     c.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
@@ -532,9 +546,12 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
     sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
-    sw.add_argument("--executor", choices=["serial", "process"], default=None,
+    sw.add_argument("--executor", choices=["serial", "process", "dask"], default=None,
                     help="default: process (worker processes under a watchdog); serial runs in this process, "
-                         "without isolation")
+                         "without isolation; dask: points as Dask tasks (docs/SWEEPS.md)")
+    sw.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="with --executor dask: join the cluster of this Dask scheduler (e.g. tcp://host:8786); "
+                         "default: a local cluster of --jobs workers")
     sw.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
                     help="wall-clock budget per run in seconds (default: the suite's timeout_s)")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,

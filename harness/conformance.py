@@ -32,7 +32,7 @@ be a fraction such as 1/30).
 
 Step phases: a scenario with ``[scenario] phases = N`` (N > 1; its start
 must be free flight) runs every engine N times, the start moved back along
-the free flight by i/N dt (harness/phase.py); each check not bound to
+the free flight by i/N dt (contract/phase.py); each check not bound to
 another dt holds only if it holds in every phase.  One run is one draw of
 where the steps fall, and for thin walls that decides the outcome: a plate
 that a discrete engine catches in the phase as written may fall through in
@@ -74,8 +74,9 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness import status as st
-from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result, make_executor
-from harness.scene import Check, Scene
+from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result
+from harness.executors import make_executor
+from contract.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
 HARD_DT_LABEL = "1/30"
@@ -136,7 +137,7 @@ class RunSpec:
     engine: str
     settings: dict[str, Any] = field(default_factory=dict)
     checks: list[Check] = field(default_factory=list)
-    #: step phase of the run (harness/phase.py); phase runs of a base run
+    #: step phase of the run (contract/phase.py); phase runs of a base run
     #: carry its checks too, and its outcome combines them
     phase: float = 0.0
     #: the base run's phases (``[scenario] phases``), on the base run only
@@ -355,7 +356,7 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     the files' paths, anywhere on disk.  An entry that is neither raises
     SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
     (a spec that does not load is kept: it is reported, never dropped)."""
-    from harness.scene import load_scene, scenario_ids, spec_targets
+    from contract.scene import load_scene, scenario_ids, spec_targets
 
     if scenarios:
         ids: list[str] = []
@@ -441,8 +442,8 @@ def plan(scenario_ids: list[str], engines: list[str],
     ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
     Two files with the same id (family.stem) raise SpecError: their rows
     could not be told apart."""
-    from harness.scene import load_scene, resolve_scenario
-    from harness.spec import SpecError, load_spec
+    from contract.scene import load_scene, resolve_scenario
+    from contract.spec import SpecError, load_spec
 
     runs: list[RunSpec] = []
     errors: list[Outcome] = []
@@ -479,28 +480,32 @@ def execute(spec: RunSpec):
 
 
 def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
-            on_result=None) -> dict[tuple, Any]:
+            on_result=None, scheduler: str | None = None) -> dict[tuple, Any]:
     """Execute runs in ``jobs`` worker processes (harness/execute.py: a
     worker that dies or hangs costs only its run, which becomes an error or
-    timeout result), or in this process with ``executor="inline"``; a rich
-    progress bar on stderr.  ``on_result(spec, result)`` is called as each
+    timeout result), or in this process with ``executor="inline"``, or as
+    Dask tasks with ``executor="dask"`` (on the cluster at ``scheduler``,
+    else a LocalCluster of ``jobs`` workers; raises
+    harness.dask_executor.EnvironmentRefused); a rich progress bar on stderr.  ``on_result(spec, result)`` is called as each
     run finishes (check stores it there).  Returns {RunSpec.key: RunResult}."""
     from rich.console import Console
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
 
     results: dict[tuple, Any] = {}
     console = Console(stderr=True)
     cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-            TextColumn("{task.description}"))
-    with Progress(*cols, console=console, disable=not progress, transient=False) as bar, \
-            make_executor(executor, jobs) as ex:
+            TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
+    with make_executor(executor, jobs, scheduler, log=lambda t: console.print(t, markup=False, soft_wrap=True)) \
+            if executor == "dask" else make_executor(executor, jobs) as ex, \
+            Progress(*cols, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(runs))
 
         def run_one(r: RunSpec):
             return execute(r)  # looked up at call time (tests patch it for inline runs)
 
-        fn = execute if executor == "process" else run_one
+        fn = run_one if executor in ("inline", "serial") else execute
         for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
                                on_start=lambda r: bar.update(task, description=escape(r.request().label))):
             res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
@@ -800,7 +805,7 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
     bytes of their spec files (sha256), the per-run budget, and the planned
     run keys."""
     from harness.runner import commit_id
-    from harness.scene import resolve_scenario
+    from contract.scene import resolve_scenario
 
     h = hashlib.sha256()
     for sid in ids:
@@ -849,7 +854,7 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
-               traces: str | Path | None = None) -> int:
+               traces: str | Path | None = None, scheduler: str | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -859,14 +864,16 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     resumed by the next same check (``resume``, :func:`check_identity`):
     its finished runs are read back, not rerun.  Runs go to ``jobs`` worker
     processes with ``timeout_s`` seconds each (``executor="inline"``: in
-    this process).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    this process; ``"dask"``: tasks on the Dask cluster at ``scheduler`` or
+    a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
+    on local worker processes).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
     from harness.results import RESULTS_DIR, consolidate_parts
     from harness.runner import RunResult
-    from harness.scene import resolve_scenario
-    from harness.spec import SpecError
+    from contract.scene import resolve_scenario
+    from contract.spec import SpecError
 
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()
@@ -898,15 +905,25 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         except Exception as e:  # disk trouble must not hide the verdict
             err.print(f"warning: could not store the row of {r.run_key}: {type(e).__name__}: {e}", markup=False)
 
+    refused: tuple = ()
+    if executor == "dask":
+        from harness.dask_executor import EnvironmentRefused
+
+        refused = (EnvironmentRefused,)
     try:
         results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
-                               on_result=on_result))
+                               on_result=on_result, scheduler=scheduler))
+    except refused as e:  # the rows stored so far stay: the next same check resumes them
+        err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+        store.close()
+        return 2
     except BaseException:
         store.close()
         raise
     outcomes = load_errors + evaluate_runs(runs, results)
     if traces:
-        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)), executor=executor)
+        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)),
+                                 executor="process" if executor == "dask" else executor)
         err.print(f"{len(written)} traces written to {traces}")
     summarize(outcomes)
     try:

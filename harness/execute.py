@@ -6,7 +6,7 @@ reusable worker processes under a wall-clock watchdog.
 - :class:`RunRequest` says what to run (scenario id or spec file, variant,
   engine, engine settings, spec overrides, step phase, budget, recording);
   :func:`request_scene` turns it into the scene to run (the one place the
-  step phase is applied, harness/phase.py);
+  step phase is applied, contract/phase.py);
 - :func:`execute_request` runs one request in this process and returns its
   :class:`harness.runner.RunResult`; it never raises (a scene that does not
   load, an engine that cannot be imported, a bad setting: a status).  It is
@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from harness import status as st
-from harness.scene import REPO_ROOT
+from contract.scene import REPO_ROOT
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
@@ -83,7 +83,7 @@ class RunRequest:
     """One run: ``scenario`` (an id ``family.name`` or a spec file path;
     a relative path is made absolute, workers run elsewhere) with
     ``variant`` on ``engine`` with engine ``settings`` and spec key
-    ``overrides`` (dotted key paths, harness.scene.load_scene), its start
+    ``overrides`` (dotted key paths, contract.scene.load_scene), its start
     moved back along the free flight by ``phase`` dt (0 <= phase < 1, 0 =
     as written), ``timeout_s`` seconds of wall-clock budget (None: no
     limit), one frame recorded every ``record_every`` steps, metrics
@@ -121,10 +121,10 @@ def request_scene(req: RunRequest, base: Any = None):
     """The scene ``req`` runs: loaded (with its overrides; or ``base``, the
     already loaded scene of ``req.scenario``/``req.variant``) and shifted
     to its step phase at the run's dt.  Raises SpecError for a bad spec,
-    harness.phase.PhaseError for a phase the scene does not allow (or a dt
+    contract.phase.PhaseError for a phase the scene does not allow (or a dt
     setting that is not a number)."""
-    from harness.phase import PhaseError, shift_scene
-    from harness.scene import load_scene
+    from contract.phase import PhaseError, shift_scene
+    from contract.scene import load_scene
 
     scene = base if base is not None else load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     if not req.phase:
@@ -205,6 +205,8 @@ class WorkerLost:
     stderr_tail: str = ""
     traceback: str = ""
     signal: str = ""
+    #: the machine.* summary of the host it ran on, when not this one (a Dask worker)
+    machine: dict[str, str] | None = None
 
     @property
     def status(self) -> str:
@@ -221,6 +223,8 @@ class WorkerLost:
 def lost_result(req: RunRequest, lost: WorkerLost):
     """The RunResult of a request whose worker raised, died or hung."""
     res = _result(req, lost.status, lost.full_message())
+    if lost.machine:
+        res.machine = dict(lost.machine)
     if lost.stderr_tail:
         res.info["stderr_tail"] = lost.stderr_tail
     if lost.traceback:
@@ -537,17 +541,8 @@ class WorkerPool:
         self.close()
 
 
-EXECUTORS = ("process", "inline")
+EXECUTORS = ("process", "inline", "dask")
 
-
-def make_executor(kind: str = "process", jobs: int = 1):
-    """``process``: a :class:`WorkerPool` of ``jobs`` workers; ``inline``
-    (alias ``serial``): :class:`InlineExecutor`."""
-    if kind == "process":
-        return WorkerPool(jobs)
-    if kind in ("inline", "serial"):
-        return InlineExecutor()
-    raise ValueError(f"executor {kind!r}: expected one of {', '.join(EXECUTORS)}")
 
 
 def run_requests(reqs: Iterable[RunRequest], executor: Any) -> Iterator[tuple[RunRequest, Any]]:
@@ -654,5 +649,5 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
-           "InlineExecutor", "make_executor", "run_requests", "run_isolated", "register_env_adapters",
+           "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
            "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s"]

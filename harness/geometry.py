@@ -110,8 +110,8 @@ from typing import Callable
 
 import numpy as np
 
-from adapters.conventions import quat_to_matrix
-from harness.scene import Body, Scene, Static
+from contract.rotation import quat_to_matrix, rotation_matrix
+from contract.scene import Body, Scene, Static
 
 #: body shapes in the canonical order of PAIR_KERNELS keys
 SHAPES = ("sphere", "capsule", "box", "cylinder")
@@ -183,8 +183,7 @@ def _placed_body(b: Body, pos: np.ndarray, quat: np.ndarray) -> Placed:
 
 
 def _static_rotation(s: Static) -> np.ndarray:
-    q = np.asarray(s.orientation if s.orientation is not None else (1.0, 0.0, 0.0, 0.0), float)
-    return quat_to_matrix(q / np.linalg.norm(q))
+    return rotation_matrix(s.orientation)
 
 
 def _placed_static_box(s: Static, n: int) -> Placed:

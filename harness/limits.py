@@ -16,11 +16,11 @@ criterion:
   into a stored row with its verdict (the only function that runs an
   engine; small so that it can move onto another execution path).
 - :class:`LimitStore` and :func:`limits_main` -- rows stored like sweep rows
-  (``harness/sweep.py``: atomic parts, resumable: a rerun reads finished
+  (``harness/sweep_store.py``: atomic parts, resumable: a rerun reads finished
   evaluations back instead of running them again).
 
 The criterion.  A value *holds* when, in every one of the N step phases
-(``harness/phase.py``; phase 0 is the scene as written), the run is ``ok``,
+(``contract/phase.py``; phase 0 is the scene as written), the run is ``ok``,
 its ``stable`` metric is true (every recorded value finite, no energy
 blow-up) and it meets every applicable check of the scene (the checks
 ``physbench check`` evaluates, with the same bounds; an ``xfail`` marks a
@@ -282,7 +282,7 @@ def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
     of a vector the spec leaves at its default (``body[0].velocity[0]`` of a
     body written without ``velocity``), the whole vector at its validated
     default."""
-    from harness.spec import parse_key_path
+    from contract.spec import parse_key_path
 
     parts = parse_key_path(path)
     if not isinstance(parts[-1], int) or len(parts) < 2:
@@ -308,8 +308,8 @@ def load_at(req: LimitRequest, value: float):
     """The request's scene with the searched spec key set to ``value`` (for
     an engine setting, the scene as written).  Raises SpecError (a value the
     spec does not accept: a negative mass, a restitution over 1)."""
-    from harness.scene import load_scene, resolve_scenario
-    from harness.spec import load_spec
+    from contract.scene import load_scene, resolve_scenario
+    from contract.spec import load_spec
 
     loaded = load_spec(resolve_scenario(req.scenario))
     overrides = dict(req.overrides)
@@ -360,8 +360,8 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
     Never raises: a scene the value makes invalid, a run that raises, are
     rows whose verdict fails with the reason."""
     from harness import runner
-    from harness.phase import shift_scene
-    from harness.sweep import PHASE_KEY, Point, _point_columns, _status_row
+    from contract.phase import shift_scene
+    from harness.points import PHASE_KEY, Point, _point_columns, _status_row
 
     t0 = time.perf_counter()
     settings = dict(req.settings)
@@ -385,7 +385,7 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"
     except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
-        from harness.spec import SpecError
+        from contract.spec import SpecError
 
         msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
         row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
@@ -419,7 +419,7 @@ Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
 
 
 def spec_hash(req: LimitRequest) -> str:
-    from harness.scene import resolve_scenario
+    from contract.scene import resolve_scenario
 
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
@@ -430,8 +430,8 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
     back (no run), every new one is run with ``evaluate`` and handed to
     ``store``.  Returns the result and its summary row (``row_kind`` =
     ``limit``; the caller stores it)."""
-    from harness.phase import phase_values
-    from harness.scene import load_scene
+    from contract.phase import phase_values
+    from contract.scene import load_scene
 
     limit_id = req.identity(spec_hash(req))
     phases = phase_values(req.phases)
@@ -543,7 +543,7 @@ class _PoolEvaluator:
 
 
 def _died_row(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
-    from harness.sweep import Point, _status_row
+    from harness.points import Point, _status_row
 
     why = "worker process died while running this value (a crash inside the engine); retried alone, it died again"
     row = _status_row(Point(req.scenario, req.variant, req.engine, ()), "error", why, time.perf_counter())
@@ -587,7 +587,7 @@ def run_requests(reqs: list[LimitRequest], store: Callable[[dict[str, Any]], Non
 
 @dataclass(frozen=True)
 class _SearchSuite:
-    """What :func:`harness.sweep.open_sweep` needs of a suite: a name, a hash
+    """What :func:`harness.sweep_store.open_sweep` needs of a suite: a name, a hash
     naming what is planned, and a path for the manifest."""
 
     name: str
@@ -611,8 +611,8 @@ def validate_request(req: LimitRequest) -> list[str]:
     spec key the scene accepts at both ends of the range, the phases are
     possible."""
     from adapters import engine_names, get_adapter
-    from harness.phase import PhaseError, shift_scene
-    from harness.spec import SpecError
+    from contract.phase import PhaseError, shift_scene
+    from contract.spec import SpecError
 
     errs: list[str] = []
     if req.engine not in engine_names():
@@ -710,7 +710,7 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     evaluations back.  Returns 0 (the search ran; its outcome is data), 2
     for bad input, 130 when interrupted."""
     from harness.results import SCHEMA_VERSION
-    from harness.sweep import SWEEPS_DIR, consolidate, machine_id, open_sweep, sweep_files
+    from harness.sweep_store import SWEEPS_DIR, consolidate, machine_id, open_sweep, sweep_files
 
     errs = validate_request(req)
     if errs:
@@ -727,7 +727,7 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     files = [p for m, _s, _sid, p, _c in sweep_files(root, [LIMITS_SUITE], machine_id(), unfinished=True)]
     cached = {k: r for k, r in stored_rows(files).items()
               if r.get("limit_id") == limit_id and r.get("commit") == commit}
-    from harness.scene import resolve_scenario
+    from contract.scene import resolve_scenario
 
     suite = _SearchSuite(LIMITS_SUITE, limit_id, Path(resolve_scenario(req.scenario)))
     sd = None

@@ -16,7 +16,7 @@ Definitions (all from the trace, never from an engine's own accounting):
   so E0 = E(first frame) is the same number on every engine for the same
   initial state.  E_scale = max(|E0|, sum m |g| r + 1e-12), r each body's
   bounding radius.  ``energy_drift`` = max_t |E(t) - E0| / E_scale where the
-  scene is conservative (:func:`harness.metric_defs.dissipation` is empty),
+  scene is conservative (:func:`contract.metric_defs.dissipation` is empty),
   NaN otherwise; ``energy_dissipated`` = (E0 - E(T)) / E_scale where it is
   not, NaN otherwise; ``energy_gain`` = max(0, max_t (E(t) - E0) / E_scale)
   always.
@@ -39,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from adapters.conventions import quat_rotate
-from harness.metric_defs import dissipation, external_force_free
-from harness.scene import Scene
+from contract.rotation import quat_rotate
+from contract.metric_defs import dissipation, external_force_free
+from contract.scene import Scene
 
 STABLE_MAX_ENERGY_GAIN = 0.5
 STABLE_SPEED_FACTOR = 100.0

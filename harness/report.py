@@ -44,7 +44,8 @@ import numpy as np
 import pandas as pd
 
 from harness.results import RESULTS_DIR, SCHEMA_VERSION
-from harness.sweep import sweep_files
+from harness.status import BROKEN_STATUSES, DIVERGED, OK, UNSUPPORTED
+from harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
 ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes
@@ -57,7 +58,6 @@ MIN_COST_HISTORY = 3  # earlier ok runs a cost series needs before a change in i
 MACHINE_SHIFT_MIN_SERIES = 20  # series a night needs before its machine-wide cost shift is taken out
 ERROR_ABS_FLOOR = 1e-12  # an accuracy change must also exceed this absolutely
 MAX_SMALL_MULTIPLES = 6
-FAILED_STATUSES = ("error", "failed", "timeout")  # counted together as "error"
 
 BASE_LABEL = "base"
 
@@ -120,10 +120,6 @@ def _variant(v: Any) -> str:
     if _missing(v) or str(v) == BASE_LABEL:
         return ""
     return str(v)
-
-
-def _vlabel(v: str) -> str:
-    return v or BASE_LABEL
 
 
 def _setting_value(v: Any) -> Any:
@@ -260,7 +256,7 @@ def _scene(scenario: str, variant: str, path: str = ""):
     scenarios/.  Only a fallback: rows carry their primary metric, its
     threshold and their checks' outcomes."""
     try:
-        from harness.scene import load_scene, source_path
+        from contract.scene import load_scene, source_path
 
         f = source_path(path) if path and not _missing(path) else None
         if f is not None and f.is_file():
@@ -288,7 +284,7 @@ def scene_threshold(scenario: str, variant: str, metric: str | None, path: str =
 
 def hard_scenarios() -> set[str]:
     """Ids of the scenarios tagged 'hard' in scenarios/*.toml."""
-    from harness.scene import SCENARIO_DIR
+    from contract.scene import SCENARIO_DIR
 
     out = set()
     for p in SCENARIO_DIR.rglob("*.toml"):
@@ -372,7 +368,7 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     # series where the hash changes: history(), scene_changes())
     df["series_key"] = [k[:-len(h) - 1] if h and k.endswith("|" + h) else k
                         for k, h in zip(df["point_key"], df["scene_hash"])]
-    # step phase (harness/phase.py): 0 = the scene as written
+    # step phase (contract/phase.py): 0 = the scene as written
     col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
     ph = []
     for d, c in zip(swept, col):
@@ -770,9 +766,9 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
             "fraction": len(good) / n if n else math.nan,
             "unstable": sum(1 for r in recs if r["status"] == "ok" and r.get("stable_flag") is False),
             "diverged": st.count("diverged"),
-            "error": sum(st.count(s) for s in FAILED_STATUSES),
+            "error": sum(st.count(s) for s in BROKEN_STATUSES),
             "unsupported": st.count("unsupported"),
-            "other": sum(1 for s in st if s not in ("ok", "diverged", "unsupported") + FAILED_STATUSES),
+            "other": sum(1 for s in st if s not in (OK, DIVERGED, UNSUPPORTED) + BROKEN_STATUSES),
             "max_stable_dt": max(gdt) if gdt else math.nan,
             "min_unstable_dt": min(bdt) if bdt else math.nan,
             "met_checks": sum(1 for r in good if meets_checks(r) is True),
@@ -877,7 +873,7 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
     over the phases in order (``.`` pass, ``x`` check failed, ``!`` not ok
     or unstable).  ``phase0`` is the outcome of the scene as written: what a
     single run (``physbench check``, a sweep without phases) sees."""
-    from harness.phase import wilson_interval
+    from contract.phase import wilson_interval
 
     df = _ensure(df)
     cols = ["machine_id", "suite", "scenario", "variant", "engine", "settings", "dt", "phases", "failures",

@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 from typing import Any, Iterable
 
-from harness.scene import REPO_ROOT
+from contract.scene import REPO_ROOT
 
 SCHEMA_VERSION = 1
 RESULTS_DIR = REPO_ROOT / "results"
@@ -114,12 +114,6 @@ def write_rows(rows: Iterable[dict[str, Any]], path: str | Path, append: bool = 
     if append and path.exists():
         df = pd.concat([pd.read_parquet(path), df], ignore_index=True)
     return write_parquet_atomic(df, path)
-
-
-def read_rows(path: str | Path):
-    import pandas as pd
-
-    return pd.read_parquet(path)
 
 
 # ---------------------------------------------------------------------------

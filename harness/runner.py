@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from adapters import get_adapter
-from harness.scene import Scene, n_steps
-from harness.spec import record_size_error
+from contract.scene import Scene, n_steps
+from contract.spec import record_size_error
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -93,7 +93,7 @@ class RunResult:
     commit: str = ""
     timestamp: str = ""
     trace: Trace | None = None
-    #: the scene's content hash (harness.scene.content_hash) and the spec
+    #: the scene's content hash (contract.scene.content_hash) and the spec
     #: file it was loaded from ('' when unknown)
     scene_hash: str = ""
     scene_path: str = ""

@@ -31,6 +31,10 @@ TIMEOUT = "timeout"
 RUN_STATUSES = (OK, UNSUPPORTED, FAILED, DIVERGED, TIMEOUT, ERROR)
 #: statuses of a run that did not produce a usable result (a check on it is ERROR)
 ERROR_STATUSES = (ERROR, FAILED, DIVERGED, TIMEOUT)
+#: statuses of a run that ended without physics to judge (could not build,
+#: raised, ran out of time): the report's stability matrix counts them
+#: together as "error", apart from "diverged"
+BROKEN_STATUSES = (ERROR, FAILED, TIMEOUT)
 
 PASS = "PASS"
 FAIL = "FAIL"

@@ -7,7 +7,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from harness.scene import canonical_example  # noqa: E402
+from contract.scene import canonical_example  # noqa: E402
 
 # ../shared/examples/head_on.toml when shared/ stands beside the repository
 # (as in CI), else the copy under tests/data
@@ -21,7 +21,7 @@ def head_on_path() -> Path:
 
 def without_effects(scene, *effects: str):
     """``scene`` with ``effects`` dropped after compilation: a spec cannot
-    give a coefficient without its effect (harness/spec.py), but adapters
+    give a coefficient without its effect (contract/spec.py), but adapters
     must still switch off an effect a compiled scene does not list."""
     import dataclasses
 

@@ -21,12 +21,12 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 from adapters import get_adapter  # noqa: E402
-from adapters.conventions import body_to_world_angvel, quat_to_matrix  # noqa: E402
+from contract.rotation import body_to_world_angvel, quat_to_matrix  # noqa: E402
 from adapters.mujoco import MujocoAdapter  # noqa: E402
 from adapters.mujoco_calibration import ZERO_TOL, calibrate  # noqa: E402
 from harness.runner import run  # noqa: E402
-from harness.scene import compile_scene, load_scene  # noqa: E402
-from harness.spec import validate_raw  # noqa: E402
+from contract.scene import compile_scene, load_scene  # noqa: E402
+from contract.spec import validate_raw  # noqa: E402
 from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -91,8 +91,8 @@ def test_import_prints_nothing():
 def test_unavailable_without_mujoco():
     code = ("import sys; sys.modules['mujoco'] = None\n"
             "from adapters.mujoco import MujocoAdapter\n"
-            "from harness.scene import compile_scene\n"
-            "from harness.spec import validate_raw\n"
+            "from contract.scene import compile_scene\n"
+            "from contract.spec import validate_raw\n"
             "c = MujocoAdapter.capabilities()\n"
             "assert not c.available and 'import mujoco failed' in c.unavailable_reason, c\n"
             "s = compile_scene(validate_raw({'scenario': {'family': 'f', 'title': 't', 'duration': 1.0,"

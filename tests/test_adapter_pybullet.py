@@ -29,7 +29,7 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from adapters.conventions import quat_to_matrix  # noqa: E402
+from contract.rotation import quat_to_matrix  # noqa: E402
 from adapters.pybullet import (  # noqa: E402
     PybulletAdapter,
     _import_pybullet,
@@ -37,8 +37,8 @@ from adapters.pybullet import (  # noqa: E402
     solve_rolling_values,
 )
 from harness.runner import run  # noqa: E402
-from harness.scene import compile_scene, load_scene  # noqa: E402
-from harness.spec import validate_raw  # noqa: E402
+from contract.scene import compile_scene, load_scene  # noqa: E402
+from contract.spec import validate_raw  # noqa: E402
 from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -107,7 +107,7 @@ def test_import_and_run_print_nothing_subprocess(head_on_path):
     code = (
         "import sys; sys.path.insert(0, sys.argv[1])\n"
         "import adapters.pybullet as m\n"
-        "from harness.scene import load_scene\n"
+        "from contract.scene import load_scene\n"
         "from harness.runner import run\n"
         "assert m.PybulletAdapter.capabilities().available\n"
         "r = run(load_scene(sys.argv[2]), 'pybullet', compute_metrics=False)\n"

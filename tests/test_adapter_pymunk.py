@@ -16,10 +16,10 @@ import pytest
 
 pymunk = pytest.importorskip("pymunk")
 
-from adapters.conventions import quat_to_matrix  # noqa: E402
+from contract.rotation import quat_to_matrix  # noqa: E402
 from adapters.pymunk import GYROSCOPIC_REASON, PymunkAdapter  # noqa: E402
 from harness.runner import run  # noqa: E402
-from harness.scene import load_scene  # noqa: E402
+from contract.scene import load_scene  # noqa: E402
 
 G = 9.81
 

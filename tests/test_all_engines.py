@@ -8,7 +8,7 @@ import pytest
 
 from adapters import ENGINES
 from harness.runner import run
-from harness.scene import load_scene, scenario_ids
+from contract.scene import load_scene, scenario_ids
 
 # metrics that are NaN by definition in some scenes (not applicable)
 MAY_BE_NAN = {"linear_momentum_drift", "angular_momentum_drift", "max_penetration", "mean_penetration",

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from adapters import ENGINES, get_adapter
-from adapters.conventions import quat_rotate
+from contract.rotation import quat_rotate
 from harness.runner import run
-from harness.scene import compile_scene
-from harness.spec import validate_raw
+from contract.scene import compile_scene
+from contract.spec import validate_raw
 
 G = 9.81
 

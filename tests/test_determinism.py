@@ -29,7 +29,7 @@ import pytest
 
 from harness.fingerprint import arithmetic_key
 from harness.runner import run
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 SCENES = ("billiards.head_on", "stacking.column_5", "tunnelling.bullet_400", "friction.block_slides",
           "gyroscopic.dzhanibekov")

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from adapters import ENGINES
-from harness.metric_defs import dissipation
+from contract.metric_defs import dissipation
 from harness.metrics import compute_metrics, energy_datum, kinetic_energy, lowest_height, potential_energy
 from harness.runner import Trace, run
-from harness.scene import compile_scene, load_scene, scenario_ids
-from harness.spec import validate_raw
+from contract.scene import compile_scene, load_scene, scenario_ids
+from contract.spec import validate_raw
 
 
 def _scene(text_raw):

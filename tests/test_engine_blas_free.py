@@ -25,7 +25,7 @@ _CODE = """
 import hashlib, sys
 import numpy as np
 from harness.runner import run
-from harness.scene import load_scene
+from contract.scene import load_scene
 for sid in sys.argv[1:]:
     r = run(load_scene(sid, overrides={"scenario.duration": 0.25}), "reference", compute_metrics=False)
     assert r.status == "ok", r.message

@@ -27,7 +27,7 @@ from engine.collision import (box_box, box_cylinder, box_plane, capsule_box, cap
                               capsule_plane, cylinder_cylinder, cylinder_plane, sphere_box, sphere_capsule,
                               sphere_cylinder)
 from engine.mathutil import quat_to_matrix
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -274,7 +274,7 @@ def test_determinism_bit_identical(tmp_path):
     code = textwrap.dedent(f"""
         import hashlib
         from adapters.reference import engine_for
-        from harness.scene import load_scene
+        from contract.scene import load_scene
         e = engine_for(load_scene({str(tmp_path / 's.toml')!r}))
         e.step(60)
         s = e.state
@@ -386,7 +386,7 @@ def test_steps_are_split_where_a_body_turns_too_far(monkeypatch):
     impacts and resolves them at their time of impact instead.  Steps of
     bodies that turn slowly are never split."""
     import engine.ccd
-    from harness.phase import shift_scene
+    from contract.phase import shift_scene
     from harness.runner import run
 
     base = load_scene("tunnelling.spinning_long_box", "spin_80")
@@ -1143,7 +1143,7 @@ def test_touching_points_that_no_event_resolves_stay_solver_rows():
     solved, the pile overlaps by at most 2.7 mm (measured, as before)."""
     from harness.bench import spheres_scene
     from harness.runner import run
-    from harness.scene import Scene
+    from contract.scene import Scene
 
     sc0 = spheres_scene(100)
     res = run(Scene(**{**sc0.__dict__, "duration": 1.5}), "reference",

@@ -15,7 +15,7 @@ import pytest
 
 from adapters.reference import engine_for
 from harness.runner import run
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 
 def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):

@@ -13,7 +13,7 @@ import pytest
 from adapters import get_adapter
 from adapters.reference import engine_for
 from harness.runner import run
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 
 def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):
@@ -130,7 +130,7 @@ def test_two_body_spring_conserves_momentum_and_energy(tmp_path, settings, energ
         """)
     eng = engine_for(sc, settings)
     m = sc.masses
-    from adapters.conventions import quat_to_matrix
+    from contract.rotation import quat_to_matrix
 
     def invariants():
         s = eng.state

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from adapters.reference import engine_for
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 G = 9.81
 MU_S, MU_K = 0.6, 0.4  # atan(0.6) = 30.96 deg

@@ -1,12 +1,12 @@
-"""The conversion functions of adapters/conventions.py, against hand values."""
+"""The conversion functions of contract/conventions.py, against hand values."""
 
 import math
 
 import numpy as np
 import pytest
 
-from adapters.conventions import (body_to_world_angvel, planar_from_world, quat_rotate, quat_to_matrix,
-                                  world_from_planar, world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz)
+from contract.conventions import planar_from_world, world_from_planar
+from contract.rotation import body_to_world_angvel, quat_rotate, quat_to_matrix, world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
 
 
 def test_quaternion_order_round_trip():
@@ -61,3 +61,20 @@ def test_quat_rotate_equals_rotation_matrix_and_writes_in_place():
     assert quat_rotate(q, v, out=out) is out
     np.testing.assert_array_equal(out, quat_rotate(q, v))
     np.testing.assert_allclose(quat_rotate(q, [0.0, 0.0, 1.0]), quat_to_matrix(q)[..., :, 2], atol=1e-15)
+
+
+def test_engine_rotation_copies_match_the_contract():
+    """The engine is a leaf and keeps its own rotation helpers
+    (engine/mathutil.py); they must agree with contract.rotation: the matrix
+    and the product bit for bit, the rotation-vector exponential to rounding."""
+    from contract.rotation import quat_exp, quat_mul
+    from engine import mathutil
+
+    rng = np.random.default_rng(7)
+    q = rng.normal(size=(64, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    p = rng.normal(size=(64, 4))
+    assert np.array_equal(mathutil.quat_to_matrix(q), quat_to_matrix(q))
+    assert np.array_equal(mathutil.quat_mul(q, p), np.array([quat_mul(a, b) for a, b in zip(q, p)]))
+    phi = rng.normal(size=(64, 3))
+    assert np.allclose(mathutil.quat_from_rotvec(phi), np.array([quat_exp(f) for f in phi]), rtol=0, atol=1e-15)

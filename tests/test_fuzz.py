@@ -39,9 +39,11 @@ from hypothesis import strategies as st
 
 from adapters import ENGINES
 from harness import cli
-from harness.scene import REPO_ROOT, SCENARIO_DIR, load_scene
-from harness.spec import BOUNDS, SpecError, load_spec
-from harness.sweep import STATUSES, SuiteError, expand, load_suite
+from contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
+from contract.spec import BOUNDS, SpecError, load_spec
+from harness.suite import expand, load_suite
+from harness.sweep import STATUSES
+from harness.sweep_store import SuiteError
 
 # --------------------------------------------------------------------------
 # profiles
@@ -390,7 +392,7 @@ def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
     del doc["suite"]["name"]
     with pytest.raises(SuiteError, match=r"suite\.name: the file name '\.\.' is not a plain name"):
         load_suite(_write(tmp_path, doc, "...toml"))
-    from harness.sweep import confined
+    from harness.sweep_store import confined
 
     with pytest.raises(SuiteError, match="outside the results root"):
         confined(tmp_path, "machine", name)
@@ -401,7 +403,7 @@ def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
 
 
 def test_bounds_table_matches_docs():
-    """Every bound of harness/spec.py BOUNDS is a row of the bounds table in
+    """Every bound of contract/spec.py BOUNDS is a row of the bounds table in
     docs/SCENARIO_FORMAT.md with the same limits."""
     text = (REPO_ROOT / "docs" / "SCENARIO_FORMAT.md").read_text(encoding="utf-8")
     text = text.split("\n## Bounds\n", 1)[1].split("\n## ", 1)[0]
@@ -673,7 +675,7 @@ def test_no_eval_exec_or_pickle_in_the_code():
     bad = re.compile(r"\b(eval|exec)\s*\(|\bpickle\b|\bmarshal\b|\bshelve\b|yaml\.load|__import__\s*\(")
     no_pickle = re.compile(r"\b(eval|exec)\s*\(|\bmarshal\b|\bshelve\b|yaml\.load|__import__\s*\(")
     hits = []
-    for d in ("harness", "adapters", "engine"):
+    for d in ("contract", "harness", "adapters", "engine"):
         for p in sorted((REPO_ROOT / d).rglob("*.py")):
             pattern = no_pickle if p.relative_to(REPO_ROOT) == PICKLE_CHANNEL else bad
             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):

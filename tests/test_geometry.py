@@ -16,8 +16,8 @@ import pytest
 
 from harness import geometry as geo
 from harness.runner import Trace
-from harness.scene import compile_scene
-from harness.spec import validate_raw
+from contract.scene import compile_scene
+from contract.spec import validate_raw
 
 S2 = math.sqrt(2.0)
 

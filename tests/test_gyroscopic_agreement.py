@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from harness.runner import run
-from harness.scene import load_scene
+from contract.scene import load_scene
 from tests.conftest import ROOT
 
 

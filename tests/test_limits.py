@@ -10,7 +10,7 @@ import pytest
 
 from harness.limits import (EVAL_ROW, FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, LimitRequest, Verdict,
                             run_search, search)
-from harness.phase import phase_values
+from contract.phase import phase_values
 
 
 def _threshold(t: float, below: bool = True):
@@ -241,7 +241,8 @@ def _suite(tmp_path, body: str):
 
 
 def _suite_errors(tmp_path, body: str) -> str:
-    from harness.sweep import SuiteError, load_suite
+    from harness.suite import load_suite
+    from harness.sweep_store import SuiteError
 
     with pytest.raises(SuiteError) as ei:
         load_suite(_suite(tmp_path, body))
@@ -261,7 +262,9 @@ def test_limit_block_validated(tmp_path):
 
 
 def test_sweep_computes_limit_blocks(tmp_path):
-    from harness.sweep import load_suite, read_sweeps, sweep_main
+    from harness.suite import load_suite
+    from harness.sweep import sweep_main
+    from harness.sweep_store import read_sweeps
 
     p = _suite(tmp_path, '[[limit]]\nscenarios = ["tunnelling.bullet_100"]\nparam = "body[0].velocity[0]"\n'
                          'range = [0.3, 10]\nphases = 2\ntol = 0.2\nchecks = ["tunnelled"]\n'

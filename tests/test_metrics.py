@@ -8,8 +8,8 @@ import pytest
 from harness.metrics import compute_metrics
 from harness.references import get_model
 from harness.runner import Trace
-from harness.scene import compile_scene, load_scene
-from harness.spec import validate_raw
+from contract.scene import compile_scene, load_scene
+from contract.spec import validate_raw
 from tests.conftest import HEAD_ON
 
 

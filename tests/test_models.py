@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.metric_defs import GENERIC_METRICS
+from contract.metric_defs import GENERIC_METRICS
 from harness.references import MODELS, describe, get_model, models_markdown
 from harness.runner import run
-from harness.scene import load_scene
-from harness.spec import SpecError
+from contract.scene import load_scene
+from contract.spec import SpecError
 from tests.conftest import ROOT
 
 HEAD_ON_TEXT = (ROOT / "tests" / "data" / "head_on.toml").read_text()

@@ -16,9 +16,9 @@ import pytest
 
 from harness import conformance as C
 from harness import report as rp
-from harness import sweep as S
+from harness import suite as SU, sweep as S, sweep_store as ST
 from harness.results import write_rows
-from harness.scene import load_scene
+from contract.scene import load_scene
 from tests.test_cli import physbench
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -170,7 +170,7 @@ def test_sweep_runs_files_and_folders_named_relative_to_the_suite(tmp_path):
         scenarios = ["../my_scenes/box_slide.toml", "../my_scenes/more/", "billiards.head_on"]
         grid = { dt = [0.002, 0.004] }
     """))
-    pts = S.expand(S.load_suite(suite))
+    pts = SU.expand(SU.load_suite(suite))
     assert sorted({(p.scenario, p.path is not None) for p in pts}) == [
         ("billiards.head_on", False), ("friction.box_b", True), ("friction.box_slide", True)]
     h = load_scene(mine / "box_slide.toml").content_hash
@@ -178,7 +178,7 @@ def test_sweep_runs_files_and_folders_named_relative_to_the_suite(tmp_path):
         f'friction.box_slide|pybullet|{{"dt":0.002}}|{h}', f'friction.box_slide|pybullet|{{"dt":0.004}}|{h}']
     out = tmp_path / "out"
     assert S.sweep_main(str(suite), out_dir=out) == 0
-    df = S.read_sweeps(out)
+    df = ST.read_sweeps(out)
     assert len(df) == 6 and set(df["status"]) == {"ok"}
     box = df[df["scenario"] == "friction.box_slide"]
     assert set(box["scene_hash"]) == {h} and set(box["primary_threshold"]) == {0.05}
@@ -222,7 +222,7 @@ def test_content_hash_is_the_scene_not_the_file(tmp_path):
     assert load_scene(write_box(tmp_path / "c.toml", friction=0.3)).content_hash != ha
     assert load_scene(a, overrides={"scenario.dt": 0.001}).content_hash != ha
     # a step-phase shift keeps the hash of the scene as written
-    from harness.phase import shift_scene
+    from contract.phase import shift_scene
 
     drop = load_scene("tunnelling.thin_box_on_thin_floor")
     assert shift_scene(drop, 0.5).content_hash == drop.content_hash

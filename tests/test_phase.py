@@ -1,4 +1,4 @@
-"""Step phase (harness/phase.py): the shifted start lies on the same exact
+"""Step phase (contract/phase.py): the shifted start lies on the same exact
 free flight, so running it forward by tau gives back the scene's start;
 scenes whose start is not free flight are refused with a clear error."""
 
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.phase import PhaseError, _qmat, _qmul, phase_values, shift_scene, wilson_interval
-from harness.scene import load_scene
+from contract.phase import PhaseError, phase_values, shift_scene, wilson_interval
+from contract.rotation import quat_exp as _qexp, quat_mul as _qmul, rotation_matrix as _qmat
+from contract.scene import load_scene
 
 
 def _forward_torque_free(q, w_world, inertia, tau):
@@ -56,7 +57,6 @@ def test_forward_free_flight_over_tau_returns_to_the_start(sid):
             if sc.has("gyroscopic"):
                 q, w = _forward_torque_free(b.orientation, b.angular_velocity, np.asarray(b.inertia), tau)
             else:
-                from harness.phase import _qexp
                 q, w = _qmul(_qexp(b.angular_velocity * tau), b.orientation), b.angular_velocity
             assert min(np.abs(q - b0.orientation).max(), np.abs(q + b0.orientation).max()) < 1e-10
             assert np.allclose(w, b0.angular_velocity, rtol=0, atol=1e-9)

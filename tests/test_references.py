@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.conventions import quat_rotate
+from contract.rotation import quat_rotate
 from harness.references import MODELS, ReferenceError, get_model
 from harness.runner import Trace
-from harness.scene import compile_scene, load_scene
-from harness.spec import validate_raw
+from contract.scene import compile_scene, load_scene
+from contract.spec import validate_raw
 
 G = 9.81
 

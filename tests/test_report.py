@@ -527,7 +527,7 @@ def test_missing_and_all_nan_columns_are_tolerated(tmp_path):
 
 def test_end_to_end_real_runs(tmp_path):
     from harness.runner import run
-    from harness.scene import load_scene
+    from contract.scene import load_scene
 
     scene = load_scene("billiards.head_on")
     rows = []

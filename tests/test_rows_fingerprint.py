@@ -9,8 +9,8 @@ import json
 import pandas as pd
 
 from harness import fingerprint as F
-from harness import sweep as S
-from harness.scene import load_scene
+from harness import points as P, sweep as S, sweep_store as ST
+from contract.scene import load_scene
 
 
 def _machine_cols(row: dict) -> dict:
@@ -23,15 +23,15 @@ def test_run_and_status_rows_carry_the_fingerprint(head_on_path):
     res = run(load_scene(head_on_path), "mujoco")
     m = _machine_cols(res.row())
     fp = F.fingerprint()
-    assert m["id"] == F.machine_id() == S.machine_id()
+    assert m["id"] == F.machine_id() == ST.machine_id()
     assert m["env_id"] == F.env_id()
     assert m["cpu"] == fp["cpu"]["model"]
     assert m["cpu_flags"] == " ".join(fp["cpu"]["flags"])
     assert m["numpy"] == fp["versions"]["numpy"] and m["scipy"] == fp["versions"]["scipy"]
     assert m["blas"] == "; ".join(f"{b['library']} {b['version']} {b['core_type']}".strip() for b in fp["blas"])
     # a row made without a run (scene failed to load, worker died) names the same machine
-    point = S.Point("billiards.head_on", None, "mujoco", (("dt", 0.001),))
-    status = S._status_row(point, "error", "test", 0.0)
+    point = P.Point("billiards.head_on", None, "mujoco", (("dt", 0.001),))
+    status = P._status_row(point, "error", "test", 0.0)
     assert _machine_cols(status) == m
 
 
@@ -40,20 +40,20 @@ def test_check_rows_and_sweep_name_one_machine(tmp_path, capsys):
 
     check_main(["mujoco"], None, None, ["billiards.head_on"], save_dir=tmp_path / "check")
     check = pd.concat(pd.read_parquet(p) for p in (tmp_path / "check").glob("*.parquet"))
-    assert set(check["machine.id"]) == {S.machine_id()}
+    assert set(check["machine.id"]) == {ST.machine_id()}
     assert S.sweep_main("smoke", engines=["mujoco"], out_dir=tmp_path / "sweeps", resume=False) == 0
-    man_path, = (tmp_path / "sweeps" / S.machine_id() / "smoke").glob("*.manifest.json")
+    man_path, = (tmp_path / "sweeps" / ST.machine_id() / "smoke").glob("*.manifest.json")
     man = json.loads(man_path.read_text())
-    assert man["machine_id"] == S.machine_id() == man["machine"]["id"]
+    assert man["machine_id"] == ST.machine_id() == man["machine"]["id"]
     assert man["fingerprint"] == json.loads(json.dumps(F.fingerprint()))
     rows = pd.read_parquet(man_path.with_name(man_path.name.replace(".manifest.json", ".parquet")))
-    assert set(rows["machine.id"]) == set(rows["machine_id"]) == {S.machine_id()}
+    assert set(rows["machine.id"]) == set(rows["machine_id"]) == {ST.machine_id()}
 
     # the report files check rows and sweep rows under the one machine id
     from harness.report import load_results
 
     df = load_results(tmp_path)
-    assert set(df["machine_id"]) == {S.machine_id()}, df["machine_id"].value_counts()
+    assert set(df["machine_id"]) == {ST.machine_id()}, df["machine_id"].value_counts()
 
 
 def test_report_groups_old_rows_by_host():

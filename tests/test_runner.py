@@ -8,7 +8,7 @@ import pytest
 from adapters import ENGINES, get_adapter
 from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, register
 from harness.runner import Trace, run
-from harness.scene import load_scene
+from contract.scene import load_scene
 from tests.conftest import HEAD_ON
 
 
@@ -120,7 +120,7 @@ def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
     machine's speed), never beyond MAX_BLOCK; every step is recorded and
     time stamps are exact multiples of dt."""
     from harness import runner
-    from harness.scene import Scene
+    from contract.scene import Scene
 
     long = Scene(**{**scene.__dict__, "duration": 20.0})
     sizes = []

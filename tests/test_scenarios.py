@@ -19,8 +19,8 @@ import pytest
 from harness import conformance as C
 from harness.references import get_model
 from harness.runner import Trace
-from harness.scene import SCENARIO_DIR, load_scene, scenario_ids
-from harness.spec import load_spec
+from contract.scene import SCENARIO_DIR, load_scene, scenario_ids
+from contract.spec import load_spec
 
 FAMILIES = ("stacking", "tunnelling", "billiards", "friction", "gyroscopic", "forces")
 IDS = scenario_ids()

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.scene import load_scene, principal_inertia
-from harness.spec import SpecError, load_spec, parse_key_path
+from contract.scene import load_scene, principal_inertia
+from contract.spec import SpecError, load_spec, parse_key_path
 from tests.conftest import HEAD_ON
 
 BASE = HEAD_ON.read_text()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,15 +18,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
 from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_names, register
-from harness import sweep as S
-from harness.results import SCHEMA_VERSION
+from harness import points as P, suite as SU, sweep as S, sweep_store as ST
+from harness.results import SCHEMA_VERSION, write_parquet_atomic
 from harness.runner import run as _REAL_RUN
-from harness.scene import load_scene
+from contract.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -99,8 +101,8 @@ def write(tmp_path: Path, text: str, name: str = "suite.toml") -> Path:
 
 
 def errors_of(path: Path) -> list[str]:
-    with pytest.raises(S.SuiteError) as e:
-        S.load_suite(path)
+    with pytest.raises(ST.SuiteError) as e:
+        SU.load_suite(path)
     return e.value.errors
 
 
@@ -122,15 +124,15 @@ def smoke_serial(tmp_path_factory):
 
 
 def test_shipped_suites_load():
-    smoke = S.load_suite("smoke")
+    smoke = SU.load_suite("smoke")
     assert smoke.name == "smoke" and smoke.path == ROOT / "suites" / "smoke.toml"
-    assert len(S.expand(smoke)) == 6
-    nightly = S.load_suite(ROOT / "suites" / "nightly.toml")
-    pts = S.expand(nightly)
+    assert len(SU.expand(smoke)) == 6
+    nightly = SU.load_suite(ROOT / "suites" / "nightly.toml")
+    pts = SU.expand(nightly)
     assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk"}
     assert len({p.key for p in pts}) == len(pts)
     # every nightly scenario has an analytic primary metric
-    from harness.scene import load_scene
+    from contract.scene import load_scene
 
     for sid in {p.scenario for p in pts}:
         assert load_scene(sid).primary_metric and load_scene(sid).reference_model
@@ -234,8 +236,8 @@ def test_expansion_is_a_cartesian_product_with_engine_axes(tmp_path):
         repeats = 1
         grid = { dt = [0.0005, 0.004] }
     """)
-    suite = S.load_suite(p)
-    pts = S.expand(suite)
+    suite = SU.load_suite(p)
+    pts = SU.expand(suite)
     by = {}
     for pt in pts:
         by.setdefault((pt.scenario, pt.variant, pt.engine), []).append(pt)
@@ -258,10 +260,10 @@ def test_expansion_is_a_cartesian_product_with_engine_axes(tmp_path):
     assert by["billiards.head_on", "elastic", "reference"][-1].key == \
         'billiards.head_on[elastic]|reference|{"dt":0.001,"integrator":"rk4"}|' + he
     # restrictions
-    assert {q.engine for q in S.expand(suite, engines=["mujoco"])} == {"mujoco"}
-    assert {q.variant for q in S.expand(suite, scenarios=["billiards.head_on[elastic]"])} == {"elastic"}
+    assert {q.engine for q in SU.expand(suite, engines=["mujoco"])} == {"mujoco"}
+    assert {q.variant for q in SU.expand(suite, scenarios=["billiards.head_on[elastic]"])} == {"elastic"}
     with pytest.raises(ValueError, match="scenario billiards.oblique is not in suite"):
-        S.expand(suite, scenarios=["billiards.oblique"])
+        SU.expand(suite, scenarios=["billiards.oblique"])
 
 
 def test_unsupported_points_give_unsupported_rows(tmp_path):
@@ -287,13 +289,13 @@ def test_unsupported_points_give_unsupported_rows(tmp_path):
 
 def test_rows_follow_the_contract(smoke_serial):
     df, man = consolidated(smoke_serial)
-    suite = S.load_suite("smoke")
+    suite = SU.load_suite("smoke")
     assert set(CONTRACT) <= set(df.columns)
     assert not [c for c in df.columns if "trace" in c]
-    assert list(df["point_key"]) == [p.key for p in S.expand(suite)]  # planned order, each once
+    assert list(df["point_key"]) == [p.key for p in SU.expand(suite)]  # planned order, each once
     assert (df["status"] == "ok").all() and (df["suite"] == "smoke").all()
     assert df["sweep_id"].nunique() == 1 and df["sweep_id"].iat[0] == man["sweep_id"]
-    assert (df["schema_version"] == SCHEMA_VERSION).all() and (df["machine_id"] == S.machine_id()).all()
+    assert (df["schema_version"] == SCHEMA_VERSION).all() and (df["machine_id"] == ST.machine_id()).all()
     assert (df["primary_metric"] == "post_impact_velocity_error").all()
     assert np.isfinite(df["primary_error"]).all()
     assert (df["primary_error"] == df["post_impact_velocity_error"]).all()
@@ -314,19 +316,19 @@ def test_head_on_on_reference_meets_the_analytic_velocities(smoke_serial):
 
 
 def test_consolidation_and_manifest(smoke_serial):
-    suite = S.load_suite("smoke")
-    sdir = smoke_serial / S.machine_id() / "smoke"
+    suite = SU.load_suite("smoke")
+    sdir = smoke_serial / ST.machine_id() / "smoke"
     files = sorted(x.name for x in sdir.iterdir())
     sid = files[0].removesuffix(".manifest.json").removesuffix(".parquet")
     assert files == [f"{sid}.manifest.json", f"{sid}.parquet"]  # the part directory is gone
     man = json.loads((sdir / f"{sid}.manifest.json").read_text())
     assert man["suite"] == "smoke" and man["suite_hash"] == suite.file_hash and man["sweep_id"] == sid
-    assert man["points"] == [p.key for p in S.expand(suite)] and man["rows"] == 6 and man["missing"] == []
-    assert man["started"] <= man["finished"] and man["machine_id"] == S.machine_id()
+    assert man["points"] == [p.key for p in SU.expand(suite)] and man["rows"] == 6 and man["missing"] == []
+    assert man["started"] <= man["finished"] and man["machine_id"] == ST.machine_id()
     assert sid.endswith(man["commit"]) and man["machine"]["cores"] == str(os.cpu_count())
     meta = json.loads(pq.read_schema(sdir / f"{sid}.parquet").metadata[b"physbench"])
     assert meta["schema_version"] == SCHEMA_VERSION and meta["manifest"]["sweep_id"] == sid
-    assert len(S.read_sweeps(smoke_serial, suite="smoke")) == 6
+    assert len(ST.read_sweeps(smoke_serial, suite="smoke")) == 6
 
 
 def test_failures_are_recorded_as_statuses(tmp_path):
@@ -366,7 +368,7 @@ def _counting_run(monkeypatch, kill_at_point: int | None):
     calls: list[str] = []
 
     def run(scene, engine, settings=None, **kw):
-        key = S.Point(scene.id, scene.variant, engine, tuple(sorted((settings or {}).items())),
+        key = P.Point(scene.id, scene.variant, engine, tuple(sorted((settings or {}).items())),
                       scene_hash=scene.content_hash).key
         if kill_at_point is not None and key not in calls and len(dict.fromkeys(calls)) == kill_at_point:
             raise _Killed()
@@ -378,15 +380,15 @@ def _counting_run(monkeypatch, kill_at_point: int | None):
 
 
 def test_resume_after_a_kill(tmp_path, monkeypatch):
-    suite = S.load_suite("smoke")
-    keys = [p.key for p in S.expand(suite)]
+    suite = SU.load_suite("smoke")
+    keys = [p.key for p in SU.expand(suite)]
     out = tmp_path / "out"
     calls = _counting_run(monkeypatch, kill_at_point=4)
     with pytest.raises(_Killed):
         S.sweep_main("smoke", out_dir=out, executor="serial")
     finished = list(dict.fromkeys(calls))
     assert finished == keys[:4]
-    sweep_dirs = [d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir()]
+    sweep_dirs = [d for d in (out / ST.machine_id() / "smoke").iterdir() if d.is_dir()]
     assert len(sweep_dirs) == 1 and len(list(sweep_dirs[0].glob("part-*.parquet"))) == 4
     assert not list(out.glob("*/*/*.parquet"))  # not consolidated
 
@@ -410,7 +412,7 @@ def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
     _counting_run(monkeypatch, kill_at_point=0)
     with pytest.raises(_Killed):
         S.sweep_main(str(p), out_dir=out, executor="serial")
-    dirs = sorted(d for d in (out / S.machine_id() / "smoke").iterdir() if d.is_dir())
+    dirs = sorted(d for d in (out / ST.machine_id() / "smoke").iterdir() if d.is_dir())
     assert [len(list(d.glob("part-*"))) for d in dirs] == [2, 0]
     # resume=True resumes the newest sweep of the same suite file and points
     calls = _counting_run(monkeypatch, kill_at_point=None)
@@ -507,9 +509,9 @@ def test_a_worker_crash_becomes_an_error_row(tmp_path):
 def _sweep_dir_with_parts(tmp_path: Path, rows: list[dict]) -> Path:
     d = tmp_path / "m" / "s" / "20260101T000000Z-x"
     d.mkdir(parents=True)
-    S._write_json_atomic({"sweep_id": d.name, "points": [r["point_key"] for r in rows]}, d / "manifest.json")
+    ST._write_json_atomic({"sweep_id": d.name, "points": [r["point_key"] for r in rows]}, d / "manifest.json")
     for i, r in enumerate(rows, 1):
-        S.write_parquet_atomic(pd.DataFrame([r]), d / f"part-{i:06d}.parquet")
+        write_parquet_atomic(pd.DataFrame([r]), d / f"part-{i:06d}.parquet")
     return d
 
 
@@ -517,7 +519,7 @@ def test_consolidation_keeps_int_and_float_parts_numeric(tmp_path):
     # one part with the column None, one int, one float: numbers, not text
     d = _sweep_dir_with_parts(tmp_path, [{"point_key": "a", "x": None}, {"point_key": "b", "x": 2},
                                          {"point_key": "c", "x": 2.5}])
-    df = pd.read_parquet(S.consolidate(d))
+    df = pd.read_parquet(ST.consolidate(d))
     assert pd.api.types.is_float_dtype(df["x"]), df["x"].tolist()
     assert math.isnan(df["x"].iat[0]) and df["x"].iat[1] == 2.0 and df["x"].iat[2] == 2.5
 
@@ -525,19 +527,19 @@ def test_consolidation_keeps_int_and_float_parts_numeric(tmp_path):
 def test_consolidation_still_stores_bool_and_text_mixes_as_text(tmp_path):
     d = _sweep_dir_with_parts(tmp_path, [{"point_key": "a", "ccd": True}, {"point_key": "b", "ccd": "events"},
                                          {"point_key": "c", "ccd": None}])
-    df = pd.read_parquet(S.consolidate(d))
+    df = pd.read_parquet(ST.consolidate(d))
     assert df["ccd"].tolist()[:2] == ["True", "events"] and df["ccd"].isna().iat[2]
 
 
 def test_a_point_that_raises_in_the_serial_executor_is_an_error_row(tmp_path, monkeypatch):
-    real = S.run_point
+    real = P.run_point
 
     def run_point(p):
         if p.settings_dict.get("dt") == 0.001 and p.engine == "mujoco":
             raise KeyError("bug in the row code")
         return real(p)
 
-    monkeypatch.setattr(S, "run_point", run_point)
+    monkeypatch.setattr(P, "run_point", run_point)
     out = tmp_path / "out"
     assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0
     df, man = consolidated(out)
@@ -552,18 +554,18 @@ def test_a_consolidated_sweep_whose_directory_was_not_removed(tmp_path, monkeypa
     process died before it): no rows twice, no rerun, and the next sweep
     finishes the removal."""
     out = tmp_path / "out"
-    real_rmtree = S.shutil.rmtree
+    real_rmtree = shutil.rmtree
 
     def failing_rmtree(path, *a, **kw):
         raise PermissionError(13, "Permission denied", str(path))
 
-    monkeypatch.setattr(S.shutil, "rmtree", failing_rmtree)
+    monkeypatch.setattr(shutil, "rmtree", failing_rmtree)
     assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0  # the rows are safe: not a crash
-    monkeypatch.setattr(S.shutil, "rmtree", real_rmtree)
-    sdir = out / S.machine_id() / "smoke"
+    monkeypatch.setattr(shutil, "rmtree", real_rmtree)
+    sdir = out / ST.machine_id() / "smoke"
     left = [d for d in sdir.iterdir() if d.is_dir()]
     assert len(left) == 1
-    rows = S.read_sweeps(out, unfinished=True)
+    rows = ST.read_sweeps(out, unfinished=True)
     assert len(rows) == 6 and rows["point_key"].is_unique  # consolidated file wins over leftover parts
     # killed before the consolidated manifest too
     (sdir / f"{left[0].name}.manifest.json").unlink()
@@ -594,7 +596,7 @@ def test_phases_expand_to_shifted_points_with_phase_zero_as_the_plain_point(tmp_
         grid = { dt = [0.004166666666666667, 0.008333333333333333] }
         phases = 4
     """)
-    pts = S.expand(S.load_suite(p))
+    pts = SU.expand(SU.load_suite(p))
     pb = [q for q in pts if q.engine == "pybullet"]
     assert [(q.settings_dict["dt"], q.phase) for q in pb] == \
         [(1 / 240, 0.0), (1 / 240, 0.25), (1 / 240, 0.5), (1 / 240, 0.75),

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from harness.runner import RunResult, Trace, run
-from harness.scene import load_scene
+from contract.scene import load_scene
 from harness.trace import write_rrd
 from harness.trace.contacts import harness_contacts
 from tests.test_trace_rrd import F32, column_array, read_rrd, static_value, temporal

@@ -23,9 +23,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.rerun_log import energy_series, quat_z_to, write_rrd
+from harness.trace import energy_series, quat_z_to, write_rrd
 from harness.runner import RunResult, Trace
-from harness.scene import load_scene
+from contract.scene import load_scene
 from tests.conftest import HEAD_ON
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
@@ -344,7 +344,7 @@ def test_box_capsule_cylinder_and_statics(tmp_path):
 
 @pytest.mark.parametrize("n", [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0.3, -0.5, 0.8]])
 def test_quat_z_to_maps_z_onto_the_normal(n):
-    from adapters.conventions import quat_rotate
+    from contract.rotation import quat_rotate
 
     n = np.asarray(n, float) / np.linalg.norm(n)
     q = quat_z_to(n)

@@ -9,60 +9,24 @@ Each model is a :class:`ReferenceModel` subclass in its own module that
 declares what it takes from the scene (``takes``), its ``params``
 (:class:`Param`: name, type, default, meaning), the metrics it produces
 (``produces``: name -> meaning with units) and its ``primary`` metric.  The
-registry ``MODELS`` holds names only (name -> "module:Class", imported
-lazily), so loading a spec never imports a model, and this package imports
-nothing of the scene contract.  ``docs/MODELS.md`` and ``physbench models``
+registry (``contract.models.MODELS``) holds names only (name ->
+"module:Class", imported lazily), so loading a spec never imports a model;
+the load-time check is there too.  ``docs/MODELS.md`` and ``physbench models``
 are both written from the declarations (:func:`describe`, :func:`models_markdown`;
 tests/test_models.py pins the document to them).
-
-:func:`scene_errors` is the load-time check (called by
-``harness.scene.compile_scene``): the model must accept the scene, and the
-primary metric and every check's metric must be produced by the model or the
-harness for this scene.
 """
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # the scene contract is below this package; no runtime import
-    from harness.scene import Scene
+from contract.models import MODELS, ReferenceError, get_model
 
-MODELS: dict[str, str] = {
-    "two_body_collision": "harness.references.collision:TwoBodyCollision",
-    "oblique_collision": "harness.references.billiards:ObliqueCollision",
-    "newtons_cradle": "harness.references.billiards:NewtonsCradle",
-    "momentum_energy": "harness.references.billiards:MomentumEnergy",
-    "bounce_heights": "harness.references.billiards:BounceHeights",
-    "static_stack": "harness.references.stacking:StaticStack",
-    "log_pile": "harness.references.stacking:LogPile",
-    "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
-    "incline_block": "harness.references.friction:InclineBlock",
-    "slide_to_rest": "harness.references.friction:SlideToRest",
-    "rolling_sphere": "harness.references.friction:RollingSphere",
-    "rolling_cylinder": "harness.references.friction:RollingCylinder",
-    "rolling_resistance": "harness.references.friction:RollingResistance",
-    "spin_to_rest": "harness.references.friction:SpinToRest",
-    "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
-    "heavy_top": "harness.references.rigid_body:HeavyTop",
-    "damped_oscillator": "harness.references.forces:DampedOscillator",
-    "drag_fall": "harness.references.forces:DragFall",
-}
-
-
-class ReferenceError(ValueError):
-    """The scene does not fit the model (wrong body count, shape...).
-    ``key`` is the spec key path the problem is about (default
-    ``reference.model``)."""
-
-    def __init__(self, message: str, key: str = "reference.model"):
-        super().__init__(message)
-        self.key = key
-
+if TYPE_CHECKING:
+    from contract.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -179,68 +143,6 @@ def trajectory_metrics(pos: np.ndarray, ref: np.ndarray) -> dict[str, float]:
         "trajectory_rmse": float(np.sqrt(np.mean(err * err))),
         "final_position_error": float(np.max(err[-1])),
     }
-
-
-def get_model(name: str) -> type[ReferenceModel]:
-    if name not in MODELS:
-        raise ReferenceError(f"unknown reference model {name!r}; known: {', '.join(sorted(MODELS))}")
-    mod, cls = MODELS[name].split(":")
-    return getattr(importlib.import_module(mod), cls)
-
-
-# --------------------------------------------------------------------------
-# load-time check
-
-
-def model_refusal(scene: "Scene", label: str) -> list[str]:
-    """Spec-error lines (``<file>: <key path>: <problem>``) when the scene's
-    reference model does not accept the compiled scene: its refusal, or any
-    failure while it reads the scene; [] when it accepts (or there is none)."""
-    if not scene.reference_model:
-        return []
-    try:
-        get_model(scene.reference_model)(scene)
-    except ReferenceError as e:
-        return [f"{label}: {e.key}: model {scene.reference_model!r} cannot model this scene: {e}"]
-    except Exception as e:  # a model that fails while reading the scene cannot model it either
-        return [f"{label}: reference.model: model {scene.reference_model!r} cannot model this scene: "
-                f"{type(e).__name__}: {e}"]
-    return []
-
-
-def scene_errors(scene: "Scene", label: str) -> list[str]:
-    """Spec-error lines for the primary metric and every check's metric
-    that neither the scene's model nor the harness produces for this scene
-    (:func:`harness.metric_defs.generic_metrics`)."""
-    from harness.metric_defs import generic_metrics
-
-    errs: list[str] = []
-    produced = generic_metrics(scene)
-    origin = "the harness"
-    if scene.reference_model:
-        produced = produced | set(get_model(scene.reference_model).produces)
-        origin = f"the harness or model {scene.reference_model!r}"
-    hint = f"; {origin} produce(s): {', '.join(sorted(produced))}"
-    if scene.primary_metric is not None and scene.primary_metric not in produced:
-        errs.append(f"{label}: scenario.primary_metric: {scene.primary_metric!r} is not produced for this scene"
-                    + _why(scene, scene.primary_metric) + hint)
-    for i, c in enumerate(scene.checks):
-        name = c.metric.partition("@")[0]
-        if name not in produced:
-            errs.append(f"{label}: check[{i}].metric: {name!r} is not produced for this scene"
-                        + _why(scene, name) + hint)
-    return errs
-
-
-def _why(scene: "Scene", metric: str) -> str:
-    from harness.metric_defs import dissipation
-
-    if metric == "energy_drift":
-        return (f" (the scene is not conservative: {'; '.join(dissipation(scene))}; check energy_dissipated "
-                "or energy_gain instead)")
-    if metric == "energy_dissipated":
-        return " (the scene is conservative: check energy_drift instead)"
-    return ""
 
 
 # --------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from adapters.conventions import world_to_body_angvel
+from contract.rotation import world_to_body_angvel
 from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
 from harness.references.collision import TwoBodyCollision
 

@@ -41,7 +41,7 @@ import math
 
 import numpy as np
 
-from adapters.conventions import quat_rotate, quat_to_matrix
+from contract.rotation import quat_rotate, quat_to_matrix
 from harness.references import BODY_PARAM, TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits

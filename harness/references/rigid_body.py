@@ -51,7 +51,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from adapters.conventions import quat_rotate, quat_to_matrix, world_to_body_angvel
+from contract.rotation import quat_mul, quat_rotate, quat_to_matrix, world_to_body_angvel
 from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
 
 RTOL = 1e-10
@@ -69,18 +69,6 @@ def _cached(key: tuple, compute):
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = compute()
     return _CACHE[key]
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of wxyz quaternions (4,)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
 
 
 def euler_rhs(inertia: np.ndarray):

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from adapters.conventions import quat_rotate
+from contract.rotation import quat_rotate
 from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at

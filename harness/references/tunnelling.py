@@ -41,7 +41,7 @@ import math
 
 import numpy as np
 
-from adapters.conventions import quat_to_matrix
+from contract.rotation import quat_to_matrix
 from harness.references import Param, ReferenceError, ReferenceModel
 
 

@@ -6,6 +6,7 @@ blueprint) and, after a conformance verdict, one file per failing case
 docs/TRACES.md.
 
 Modules: ``writer`` (layout, bodies, statics, series, :func:`write_rrd`),
+``channels`` (entity paths, scalar series),
 ``blueprint`` (default views), ``diagnose`` (ghost, error, events, context:
 numpy and text), ``contacts`` (the harness's deepest points), ``annotate``
 (logging the diagnosis), ``cases`` (the check step)."""

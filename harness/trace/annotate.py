@@ -10,8 +10,9 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
-from harness.scene import Scene
+from contract.scene import Scene
 from harness.trace import diagnose as dg
+from harness.trace.channels import _send_scalars, _time_columns, body_entity
 from harness.trace.contacts import DEFAULT_CAP, harness_contacts
 
 GHOST_COLOR = (60, 200, 90, 90)  # translucent green
@@ -23,7 +24,7 @@ THRESHOLD_GROUP = {"max_penetration": "penetration", "final_position_error": "er
 class Diagnosis:
     """What a diagnosing trace adds, for one scene: the model (or None),
     the check outcomes of every run (harness.conformance.Outcome; filtered
-    per engine), ``checks`` metric -> harness.scene.Check, the per-frame
+    per engine), ``checks`` metric -> contract.scene.Check, the per-frame
     contact cap."""
 
     def __init__(self, scene: Scene, outcomes: Sequence = (), checks: dict | None = None,
@@ -96,7 +97,6 @@ class Diagnosis:
     def log_run(self, rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene: Scene, result,
                 tr, steps: np.ndarray, t: np.ndarray, pen) -> None:
         from harness.metrics import momenta
-        from harness.trace.writer import _send_scalars, _time_columns
 
         lab = engine_path.rsplit("/", 1)[1]
         P, L = momenta(scene, tr)
@@ -106,8 +106,6 @@ class Diagnosis:
         traj = dg.model_trajectory(self.model, scene, t)
         if traj is not None:
             err = dg.error_series(tr.pos, traj[0])  # (F, n)
-            from harness.trace.writer import body_entity
-
             for i, b in enumerate(scene.bodies):
                 if np.isfinite(traj[0][:, i]).all():
                     _send_scalars(rec, body_entity(f"{metrics_path}/error", b), steps, t, err[:, i])

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
-from harness.scene import Scene
+from contract.scene import Scene
 
 TRACED_OUTCOMES = ("FAIL", "XFAIL", "ERROR")
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness.geometry import Placed, _phi, _placed_body, _placed_static_box
-from harness.scene import Scene
+from contract.scene import Scene
 
 DEFAULT_CAP = 32  # contact rows per frame kept in a trace
 _N_SPREAD = 128
@@ -142,10 +142,3 @@ def harness_contacts(scene: Scene, trace, cap: int = DEFAULT_CAP, pen=None) -> l
         rows[sel, 0:3] = support_point(A, n) - 0.5 * depths[sel, None] * n
     starts = np.r_[0, np.nonzero(np.diff(frames))[0] + 1, frames.size]
     return [(int(frames[a]), rows[a:b]) for a, b in zip(starts[:-1], starts[1:])]
-
-
-def cap_rows(rows: np.ndarray, cap: int) -> np.ndarray:
-    """The ``cap`` deepest of contact rows (k, 7), deepest first."""
-    if len(rows) <= cap:
-        return rows
-    return rows[np.argsort(-rows[:, 6], kind="stable")[:cap]]

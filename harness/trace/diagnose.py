@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from harness.scene import Scene
+from contract.scene import Scene
 
 REST_SPEED = 1e-3  # m/s: a body is at rest when |v| and |w| x bounding radius stay below this
 MAX_EVENTS = 200  # per run: a trace marks where to look, it is not a log
@@ -129,7 +129,7 @@ def find_events(scene: Scene, result, trace, *, penetration: np.ndarray | None, 
 
     - each check (``outcomes`` of this run) whose metric has a per-frame
       series (CROSSING_SERIES) and a ``max`` (``checks``: metric -> its
-      harness.scene.Check): the first frame past max (+ tolerance);
+      contract.scene.Check): the first frame past max (+ tolerance);
     - the deepest penetration (its first frame);
     - the model's own events (a body passing through a wall);
     - the first diverged frame (non-finite or runaway state);

@@ -69,13 +69,14 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
+from harness.trace.annotate import DEFAULT_CAP, Diagnosis
 from harness.trace.blueprint import default_blueprint, family_blueprint
+from harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
 
-from adapters.conventions import quat_rotate, wxyz_to_xyzw
-from harness.scene import Body, Scene, Static
+from contract.rotation import quat_rotate, wxyz_to_xyzw
+from contract.scene import Body, Scene, Static
 
 DRAWN_STATUSES = ("ok", "diverged")
-RESERVED_CHILDREN = ("static", "status", "contacts", "engine_contacts")
 MODEL_PATH = "/world/model"
 
 # One colour per run (RGBA); statics are a translucent grey.
@@ -220,19 +221,9 @@ def scene_extent(scene: Scene, traces: Sequence) -> tuple[Extent, float]:
 # logging pieces
 
 
-def _part(name: str) -> str:
-    return rr.escape_entity_path_part(name)
-
-
-def body_entity(engine_path: str, body: Body) -> str:
-    """Entity path of ``body`` under ``engine_path``."""
-    name = body.name if body.name not in RESERVED_CHILDREN else f"{body.name}_body"
-    return f"{engine_path}/{_part(name)}"
-
-
 def body_shape(body: Body, color) -> rr.AsComponents:
     """The body's shape in its own frame (centred on the body origin, long
-    axis of capsules and cylinders along +z, as in harness.scene)."""
+    axis of capsules and cylinders along +z, as in contract.scene)."""
     if body.shape == "sphere":
         r = body.radius
         # wireframe (the default) so that spin is visible
@@ -269,19 +260,6 @@ def _log_statics(rec: rr.RecordingStream, engine_path: str, scene: Scene, box: E
                                      colors=[STATIC_COLOR], fill_mode="solid"), static=True)
         else:
             raise ValueError(f"static {s.name!r}: no rerun shape for {s.shape!r}")
-
-
-def _time_columns(steps: np.ndarray, t: np.ndarray) -> list[rr.TimeColumn]:
-    return [rr.TimeColumn("step", sequence=steps), rr.TimeColumn("sim_time", duration=t)]
-
-
-def _send_scalars(rec: rr.RecordingStream, path: str, steps: np.ndarray, t: np.ndarray, y: np.ndarray) -> None:
-    ok = np.isfinite(y)
-    if not ok.any():
-        return
-    if not ok.all():
-        steps, t, y = steps[ok], t[ok], y[ok]
-    rec.send_columns(path, indexes=_time_columns(steps, t), columns=rr.Scalars.columns(scalars=y))
 
 
 def frame_steps(t: np.ndarray, dt: float | None) -> np.ndarray:
@@ -399,7 +377,7 @@ def write_rrd(path, scene: Scene, results: Sequence, *, app_id: str = "physbench
     runs overlaid (no sideways offset) with the model's ghost, error and
     momentum series, thresholds, contacts, events and context documents, and
     the scenario family's blueprint.  ``outcomes`` (harness.conformance
-    .Outcome) and ``checks`` (metric -> harness.scene.Check) feed the
+    .Outcome) and ``checks`` (metric -> contract.scene.Check) feed the
     verdicts, thresholds and crossing events; ``contact_cap`` bounds the
     contact rows per frame.
     """
@@ -413,8 +391,6 @@ def write_rrd(path, scene: Scene, results: Sequence, *, app_id: str = "physbench
     box, spacing = scene_extent(scene, [r.trace.valid() for r, d in zip(results, drawn) if d and r.status == "ok"])
     diag = None
     if diagnose:
-        from harness.trace.annotate import DEFAULT_CAP, Diagnosis
-
         diag = Diagnosis(scene, outcomes, checks, DEFAULT_CAP if contact_cap is None else contact_cap)
         drawn_labels = [lab for lab, d in zip(labels, drawn) if d]
         blueprint = family_blueprint(scene.family, drawn_labels, diag.series(drawn_labels),

@@ -1,7 +1,7 @@
 """Scenario spec loading and validation: TOML -> validated pydantic spec.
 
 The spec format is described in ``docs/SCENARIO_FORMAT.md`` (and in the shared
-DESIGN.md).  This module only validates; :mod:`harness.scene` compiles a
+DESIGN.md).  This module only validates; :mod:`contract.scene` compiles a
 validated spec into the engine-neutral scene model that adapters consume.
 
 Every error names the file, the key path and what was expected, e.g.::
@@ -32,7 +32,7 @@ from pydantic import (
     model_validator,
 )
 
-from harness.references import ReferenceError
+from contract.models import MODELS, ReferenceError
 
 EFFECTS = (
     "gravity",
@@ -146,6 +146,18 @@ def _bound(kind: str, how: str = "value") -> Any:
     return validate
 
 
+def _one_of(what: str, choices: tuple[str, ...]) -> Any:
+    """A field validator admitting only ``choices``; the error names
+    ``what`` ("shape", "static shape") and lists the choices."""
+
+    def validate(cls: Any, v: str) -> str:
+        if v not in choices:
+            raise ValueError(f"unknown {what} {v!r}; expected one of {', '.join(choices)}")
+        return v
+
+    return validate
+
+
 def record_size_error(n_steps: int, n_bodies: int, record_every: int = 1) -> str | None:
     """Why a run of ``n_steps`` steps recording ``n_bodies`` bodies every
     ``record_every`` steps is too large to allocate (BOUNDS 'steps' and
@@ -176,7 +188,7 @@ class SpecError(ValueError):
 class ModelRefusal(SpecError, ReferenceError):
     """The scene's reference model refused the scene at load time: a spec
     error (file, key path, exit 2) that is also the model's
-    :class:`harness.references.ReferenceError`."""
+    :class:`contract.models.ReferenceError`."""
 
 
 class _Strict(BaseModel):
@@ -201,7 +213,7 @@ class ScenarioSection(_Strict):
     primary_metric: str | None = None
     tags: list[str] = Field(default_factory=list)
     description: str | None = None
-    #: step phases the conformance checks are evaluated over (harness/phase.py):
+    #: step phases the conformance checks are evaluated over (contract/phase.py):
     #: 1 = the scene as written only; N > 1 = also N - 1 runs with the start
     #: moved back along the free flight by i/N dt, every one must pass
     phases: int = Field(default=1, ge=1, le=256)
@@ -349,14 +361,7 @@ class BodySection(_Strict):
     drag_quadratic: float = Field(default=0.0, ge=0.0)
     pattern: PatternSection | None = None
 
-    @field_validator("shape")
-    @classmethod
-    def _shape_known(cls, v: str) -> str:
-        if v not in BODY_SHAPES:
-            raise ValueError(
-                f"unknown shape {v!r}; expected one of {', '.join(BODY_SHAPES)}"
-            )
-        return v
+    _shape_known = field_validator("shape")(_one_of("shape", BODY_SHAPES))
 
     @field_validator("name", "material")
     @classmethod
@@ -409,14 +414,7 @@ class StaticSection(_Strict):
     angle: float | None = None
     material: str = "default"
 
-    @field_validator("shape")
-    @classmethod
-    def _shape_known(cls, v: str) -> str:
-        if v not in STATIC_SHAPES:
-            raise ValueError(
-                f"unknown static shape {v!r}; expected one of {', '.join(STATIC_SHAPES)}"
-            )
-        return v
+    _shape_known = field_validator("shape")(_one_of("static shape", STATIC_SHAPES))
 
     @field_validator("orientation")
     @classmethod
@@ -496,8 +494,6 @@ class ReferenceSection(_Strict):
     @field_validator("model")
     @classmethod
     def _model_known(cls, v: str) -> str:
-        from harness.references import MODELS
-
         if v not in MODELS:
             raise ValueError(
                 f"unknown reference model {v!r}; expected one of {', '.join(sorted(MODELS))}"

@@ -1,6 +1,6 @@
 """The engine-neutral scene model that adapters build from.
 
-A validated :class:`harness.spec.SpecModel` is compiled into a frozen
+A validated :class:`contract.spec.SpecModel` is compiled into a frozen
 :class:`Scene`: patterns expanded into bodies, masses and principal inertias
 computed, slopes turned into planes, materials resolved into the *pair*
 values the spec asks for (with absent effects zeroing restitution and
@@ -23,7 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from harness.spec import (
+from contract.models import model_refusal, scene_errors
+from contract.phase import PhaseError, shift_scene
+from contract.spec import (
     BodySection,
     bound_error,
     LoadedSpec,
@@ -496,8 +498,6 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     )
     # the reference model must accept the scene, and every checked metric
     # must be produced for it (tests/test_models.py)
-    from harness.references import model_refusal, scene_errors
-
     errs = model_refusal(scene, label)
     if errs:
         raise ModelRefusal(errs)
@@ -507,8 +507,6 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     scene = dataclasses.replace(scene, content_hash=content_hash(scene))
     if scene.phases > 1:
         # every phase must be runnable: the start must be free flight
-        from harness.phase import PhaseError, shift_scene
-
         try:
             shift_scene(scene, (scene.phases - 1) / scene.phases)
         except PhaseError as e:

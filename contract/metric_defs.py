@@ -5,7 +5,7 @@ scenes are conservative.  A leaf (no harness imports), read by
 produced for its scene) and by docs/METRICS.md (tests/test_models.py checks
 that every name here is documented there).
 
-Functions take a compiled scene (``harness.scene.Scene``) by duck typing.
+Functions take a compiled scene (``contract.scene.Scene``) by duck typing.
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.conventions import quat_to_matrix
+from contract.rotation import quat_exp, quat_mul, rotation_matrix
 
 #: effects under which the motion before t = 0 is free flight with a
 #: closed form (contacts are ruled out by the clearance test)
@@ -52,44 +52,20 @@ class PhaseError(ValueError):
     """The scene's start is not free flight, so it cannot be phase-shifted."""
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of wxyz quaternions (4,)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw])
-
-
-def _qexp(phi: np.ndarray) -> np.ndarray:
-    """Unit quaternion (wxyz) of the rotation vector phi (3,) rad."""
-    a = float(np.linalg.norm(phi))
-    if a < 1e-300:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    return np.concatenate([[math.cos(a / 2)], math.sin(a / 2) * phi / a])
-
-
-def _qmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a (not necessarily unit) wxyz quaternion."""
-    q = np.asarray(q, float)
-    return quat_to_matrix(q / np.linalg.norm(q))
-
-
 def _torque_free_back(q0: np.ndarray, w0: np.ndarray, inertia: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
     """(q, w world) of a torque-free body tau seconds before (q0, w0 world),
     principal moments ``inertia`` (3,)."""
-    R0 = _qmat(q0)
+    R0 = rotation_matrix(q0)
     wb0 = R0.T @ w0
     Lb = inertia * wb0
     if float(np.linalg.norm(np.cross(wb0, Lb))) <= 1e-12 * float(np.linalg.norm(wb0) * np.linalg.norm(Lb) + 1e-300):
         # steady rotation (isotropic, or about a principal axis): w constant in the world
-        return _qmul(_qexp(-w0 * tau), q0), w0.copy()
+        return quat_mul(quat_exp(-w0 * tau), q0), w0.copy()
     from scipy.integrate import solve_ivp
 
     def rhs(_t: float, y: np.ndarray) -> np.ndarray:
         q, wb = y[:4], y[4:]
-        dq = 0.5 * _qmul(q, np.concatenate([[0.0], wb]))
+        dq = 0.5 * quat_mul(q, np.concatenate([[0.0], wb]))
         dw = -np.cross(wb, inertia * wb) / inertia
         return np.concatenate([dq, dw])
 
@@ -97,7 +73,7 @@ def _torque_free_back(q0: np.ndarray, w0: np.ndarray, inertia: np.ndarray, tau: 
                     rtol=1e-12, atol=1e-14)
     q = sol.y[:4, -1]
     q = q / np.linalg.norm(q)
-    return q, _qmat(q) @ sol.y[4:, -1]
+    return q, rotation_matrix(q) @ sol.y[4:, -1]
 
 
 def _static_clearance(p: np.ndarray, r: float, s: Any) -> np.ndarray:
@@ -106,8 +82,7 @@ def _static_clearance(p: np.ndarray, r: float, s: Any) -> np.ndarray:
     p = np.atleast_2d(p)
     if s.shape == "plane":
         return p @ np.asarray(s.normal, float) - s.offset - r
-    q = np.asarray(s.orientation if s.orientation is not None else (1.0, 0.0, 0.0, 0.0), float)
-    local = (p - np.asarray(s.position, float)) @ _qmat(q)  # rows: R^T (p - c)
+    local = (p - np.asarray(s.position, float)) @ rotation_matrix(s.orientation)  # rows: R^T (p - c)
     h = np.asarray(s.half_extents, float)
     outside = np.linalg.norm(np.maximum(np.abs(local) - h, 0.0), axis=1)
     inside = -np.min(h - np.abs(local), axis=1)
@@ -173,7 +148,7 @@ def shift_scene(scene: Any, f: float, dt: float | None = None) -> Any:
         if gyro:
             q, w = _torque_free_back(q0, w0, np.asarray(b.inertia, float), tau)
         else:
-            q, w = _qmul(_qexp(-w0 * tau), q0), w0.copy()
+            q, w = quat_mul(quat_exp(-w0 * tau), q0), w0.copy()
         bodies.append(dataclasses.replace(b, position=x0 - v0 * tau + 0.5 * g * tau * tau, velocity=v0 - g * tau,
                                           orientation=q / np.linalg.norm(q), angular_velocity=w))
     return dataclasses.replace(scene, bodies=tuple(bodies))

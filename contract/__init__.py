@@ -1,0 +1,12 @@
+"""The scene contract: the bottom layer, imported by everyone and importing
+nothing of ours (docs/ARCHITECTURE.md; tests/test_architecture.py).
+
+- :mod:`contract.spec`: the TOML schema, bounds and load-time validation;
+- :mod:`contract.scene`: the engine-neutral compiled scene and its loaders;
+- :mod:`contract.models`: the reference-model registry (names only) and the
+  load-time model check;
+- :mod:`contract.metric_defs`: the harness's metric names and when each has a value;
+- :mod:`contract.phase`: step phases (the start moved back along free flight);
+- :mod:`contract.rotation`: quaternions, rotation matrices, angular-velocity frames;
+- :mod:`contract.conventions`: the planar (x-z) mapping of 2D engines.
+"""

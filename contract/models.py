@@ -1,0 +1,115 @@
+"""The reference-model registry of the contract: names only.
+
+``MODELS`` maps a model name to ``"module:Class"``; the class is imported
+only when a scene that names it is loaded (:func:`get_model`), the way
+``PHYSBENCH_ADAPTERS`` names plug-in adapters.  So loading a spec never
+imports a model module, and this module imports nothing above the
+contract (tests/test_architecture.py).
+
+:func:`model_refusal` and :func:`scene_errors` are the load-time check
+(called by :func:`contract.scene.compile_scene`): the model must accept the
+scene, and the primary metric and every check's metric must be produced by
+the model or the harness for this scene.  The models themselves
+(:class:`harness.references.ReferenceModel` subclasses) live in
+``harness/references/``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from contract.metric_defs import dissipation, generic_metrics
+
+if TYPE_CHECKING:
+    from contract.scene import Scene
+
+MODELS: dict[str, str] = {
+    "two_body_collision": "harness.references.collision:TwoBodyCollision",
+    "oblique_collision": "harness.references.billiards:ObliqueCollision",
+    "newtons_cradle": "harness.references.billiards:NewtonsCradle",
+    "momentum_energy": "harness.references.billiards:MomentumEnergy",
+    "bounce_heights": "harness.references.billiards:BounceHeights",
+    "static_stack": "harness.references.stacking:StaticStack",
+    "log_pile": "harness.references.stacking:LogPile",
+    "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
+    "incline_block": "harness.references.friction:InclineBlock",
+    "slide_to_rest": "harness.references.friction:SlideToRest",
+    "rolling_sphere": "harness.references.friction:RollingSphere",
+    "rolling_cylinder": "harness.references.friction:RollingCylinder",
+    "rolling_resistance": "harness.references.friction:RollingResistance",
+    "spin_to_rest": "harness.references.friction:SpinToRest",
+    "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
+    "heavy_top": "harness.references.rigid_body:HeavyTop",
+    "damped_oscillator": "harness.references.forces:DampedOscillator",
+    "drag_fall": "harness.references.forces:DragFall",
+}
+
+
+class ReferenceError(ValueError):
+    """The scene does not fit the model (wrong body count, shape...).
+    ``key`` is the spec key path the problem is about (default
+    ``reference.model``)."""
+
+    def __init__(self, message: str, key: str = "reference.model"):
+        super().__init__(message)
+        self.key = key
+
+
+def get_model(name: str) -> Any:
+    """The model class registered under ``name`` (imported on first use)."""
+    if name not in MODELS:
+        raise ReferenceError(f"unknown reference model {name!r}; known: {', '.join(sorted(MODELS))}")
+    mod, cls = MODELS[name].split(":")
+    return getattr(importlib.import_module(mod), cls)
+
+
+# --------------------------------------------------------------------------
+# load-time check
+
+
+def model_refusal(scene: "Scene", label: str) -> list[str]:
+    """Spec-error lines (``<file>: <key path>: <problem>``) when the scene's
+    reference model does not accept the compiled scene: its refusal, or any
+    failure while it reads the scene; [] when it accepts (or there is none)."""
+    if not scene.reference_model:
+        return []
+    try:
+        get_model(scene.reference_model)(scene)
+    except ReferenceError as e:
+        return [f"{label}: {e.key}: model {scene.reference_model!r} cannot model this scene: {e}"]
+    except Exception as e:  # a model that fails while reading the scene cannot model it either
+        return [f"{label}: reference.model: model {scene.reference_model!r} cannot model this scene: "
+                f"{type(e).__name__}: {e}"]
+    return []
+
+
+def scene_errors(scene: "Scene", label: str) -> list[str]:
+    """Spec-error lines for the primary metric and every check's metric
+    that neither the scene's model nor the harness produces for this scene
+    (:func:`contract.metric_defs.generic_metrics`)."""
+    errs: list[str] = []
+    produced = generic_metrics(scene)
+    origin = "the harness"
+    if scene.reference_model:
+        produced = produced | set(get_model(scene.reference_model).produces)
+        origin = f"the harness or model {scene.reference_model!r}"
+    hint = f"; {origin} produce(s): {', '.join(sorted(produced))}"
+    if scene.primary_metric is not None and scene.primary_metric not in produced:
+        errs.append(f"{label}: scenario.primary_metric: {scene.primary_metric!r} is not produced for this scene"
+                    + _why(scene, scene.primary_metric) + hint)
+    for i, c in enumerate(scene.checks):
+        name = c.metric.partition("@")[0]
+        if name not in produced:
+            errs.append(f"{label}: check[{i}].metric: {name!r} is not produced for this scene"
+                        + _why(scene, name) + hint)
+    return errs
+
+
+def _why(scene: "Scene", metric: str) -> str:
+    if metric == "energy_drift":
+        return (f" (the scene is not conservative: {'; '.join(dissipation(scene))}; check energy_dissipated "
+                "or energy_gain instead)")
+    if metric == "energy_dissipated":
+        return " (the scene is conservative: check energy_drift instead)"
+    return ""

@@ -1,0 +1,325 @@
+"""Sweeps and checks on a Dask cluster: ``--executor dask``.
+
+:class:`DaskExecutor` has the interface of harness/execute.py's executors
+(``map(fn, items, budget_s, on_start)`` yielding ``(item, value)`` as items
+finish, ``value`` possibly a :class:`harness.execute.WorkerLost`), so
+``physbench sweep`` and ``physbench check`` use it unchanged: rows stream
+back to the client, which alone writes them (the same atomic parts, the same
+resume).
+
+- **Cluster.**  With ``scheduler`` (``--scheduler ADDRESS``) it joins that
+  cluster; without, it starts a ``LocalCluster`` of ``jobs`` worker
+  processes, one thread each, on 127.0.0.1, with BLAS held to one thread and
+  a dashboard on 127.0.0.1 when bokeh is installed (else none).
+- **Points are tasks.**  Each item is one task keyed by its point key (or a
+  check run's key).  Inside the Dask worker the task runs in a
+  :class:`harness.execute.WorkerPool` subprocess, so the watchdog is the
+  local executor's: an engine that hangs past the item's budget becomes
+  ``timeout``, an abort or segfault ``error`` naming the signal, and the
+  Dask worker itself survives both.  A Dask worker that dies (killed, out of
+  memory, machine lost) has its task retried once on another worker (the
+  scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
+  makes the item ``error`` with the reason.
+- **Environment check.**  Every worker reports its identity
+  (:func:`worker_identity`: physbench commit, engine and library versions,
+  BLAS, and its machine fingerprint).  A worker whose software differs from
+  the client's is refused (:class:`EnvironmentRefused`): timings and bits
+  would not compare.  The check runs on every worker at start and again in
+  every task (a worker that joined later).  Rows are made on the worker,
+  so their ``machine.*`` columns are the worker's.
+
+Tests: tests/test_dask_executor.py.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.util
+import os
+import sys
+import threading
+from typing import Any, Callable, Iterable, Iterator
+
+from harness.execute import ADAPTERS_ENV, WorkerLost, WorkerPool, _extra_adapters, register_env_adapters
+
+#: the version pins an environment check compares (importlib.metadata names)
+PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
+#: environment that holds BLAS and OpenMP to one thread in the run processes
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                  "NUMBA_NUM_THREADS": "1"}
+
+
+class EnvironmentRefused(RuntimeError):
+    """A Dask worker runs another physbench environment than the client."""
+
+
+# ---------------------------------------------------------------------------
+# identity
+
+
+@functools.lru_cache(maxsize=1)
+def worker_identity() -> dict[str, Any]:
+    """This process's environment: ``software`` (what must match between
+    client and workers: physbench commit, Python, the physbench engine's
+    version, library and engine package versions, BLAS libraries and
+    versions) and ``machine`` (harness/fingerprint.py's flat summary: the
+    hardware, which may differ and is carried in each row).  Engines are
+    not imported (their package versions are read)."""
+    from harness.fingerprint import _version, fingerprint
+    from harness.runner import commit_id, machine_info
+
+    fp = fingerprint()
+    software = {"commit": commit_id(), "python": fp["versions"]["python"],
+                "physbench_engine": fp["versions"]["physbench_engine"],
+                "blas": "; ".join(f"{b['library']} {b['version']}" for b in fp["blas"])}
+    software.update({p: _version(p) or "absent" for p in PACKAGES})
+    return {"software": software, "machine": machine_info(), "pid": os.getpid()}
+
+
+def identity_diff(client: dict[str, Any], worker: dict[str, Any]) -> list[str]:
+    """``key: client X, worker Y`` for each software field that differs."""
+    a, b = client.get("software", {}), worker.get("software", {})
+    return [f"{k}: client {a.get(k)!r}, worker {b.get(k)!r}" for k in sorted(set(a) | set(b))
+            if a.get(k) != b.get(k)]
+
+
+def refusal(address: str, diff: list[str]) -> str:
+    return (f"dask worker {address} runs another physbench environment than this client ({'; '.join(diff)}): "
+            "its timings and bits would not compare with the others'. Install the same physbench commit and "
+            "engine versions on every worker (docs/SWEEPS.md), or stop that worker")
+
+
+# ---------------------------------------------------------------------------
+# the worker side
+
+_LOCAL = threading.local()
+_POOLS: list[WorkerPool] = []
+_POOLS_LOCK = threading.Lock()
+
+
+def _thread_pool(adapters: str, paths: tuple[str, ...]) -> WorkerPool:
+    """This Dask worker thread's run process (a WorkerPool of one), created
+    on first use and reused.  One per thread: a pool is not thread-safe, and
+    a run process dies with the thread that started it (PR_SET_PDEATHSIG;
+    Dask's executor threads live as long as the worker)."""
+    key = (adapters, paths)
+    pool = getattr(_LOCAL, "pool", None)
+    if pool is not None and _LOCAL.key == key:
+        return pool
+    if pool is not None:
+        _close(pool)
+    for p in paths:
+        if p not in sys.path:
+            sys.path.append(p)
+    if adapters:
+        register_env_adapters(adapters)  # the pool hands them on to its process
+    pool = WorkerPool(1)
+    pool.env.update(ONE_THREAD_ENV)
+    _LOCAL.pool, _LOCAL.key = pool, key
+    with _POOLS_LOCK:
+        _POOLS.append(pool)
+    return pool
+
+
+def _close(pool: WorkerPool) -> None:
+    with _POOLS_LOCK:
+        if pool in _POOLS:
+            _POOLS.remove(pool)
+    pool.close()
+
+
+def close_pools() -> None:
+    """Stop this Dask worker's run processes (the plugin's teardown)."""
+    with _POOLS_LOCK:
+        pools = list(_POOLS)
+    for p in pools:
+        _close(p)
+
+
+def run_task(fn: Callable[[Any], Any], item: Any, budget: float | None, client_identity: dict[str, Any],
+             adapters: str, paths: tuple[str, ...]) -> tuple[Any, str]:
+    """One item on a Dask worker: refuse if this worker's software differs
+    from the client's, else run ``fn(item)`` in this thread's run process
+    under the watchdog.  Returns (value or WorkerLost, worker address); a
+    WorkerLost carries this worker's machine summary."""
+    from distributed import get_worker
+
+    address = get_worker().address
+    ident = worker_identity()
+    diff = identity_diff(client_identity, ident)
+    if diff:
+        raise EnvironmentRefused(refusal(address, diff))
+    pool = _thread_pool(adapters, paths)
+    [(_, value)] = list(pool.map(fn, [item], budget_s=lambda _i: budget))
+    if isinstance(value, WorkerLost):
+        value.machine = dict(ident["machine"])
+    return value, address
+
+
+def _identity_on_worker(dask_worker=None) -> dict[str, Any]:
+    return {**worker_identity(), "address": dask_worker.address}
+
+
+def _has_bokeh() -> bool:
+    return importlib.util.find_spec("bokeh") is not None
+
+
+def _scheduler_allowed_failures(dask_scheduler=None) -> int:
+    return int(dask_scheduler.allowed_failures)
+
+
+def _plugin():
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class _Pools(WorkerPlugin):
+        """Stops a worker's run processes when the worker closes."""
+
+        idempotent = True
+        name = "physbench-run-processes"
+
+        def teardown(self, worker) -> None:
+            close_pools()
+
+    return _Pools()
+
+
+# ---------------------------------------------------------------------------
+# the client side
+
+
+def _item_key(item: Any) -> str:
+    """An item's readable key: a check run's ``run_key``, a point's ``key``."""
+    for attr in ("run_key", "key"):
+        v = getattr(item, attr, None)
+        if isinstance(v, str):
+            return v
+    return repr(item)
+
+
+class DaskExecutor:
+    """Items as Dask tasks; see the module docstring.  ``log(text)`` gets
+    the cluster's description (address, workers, dashboard)."""
+
+    def __init__(self, jobs: int = 1, scheduler: str | None = None, log: Callable[[str], None] | None = None):
+        import dask
+        from distributed import Client, LocalCluster
+
+        self.jobs = max(1, int(jobs))
+        self.log = log or (lambda text: print(text, file=sys.stderr))
+        self.cluster = None
+        self.placement: dict[str, str] = {}
+        self.dashboard: str | None = None
+        try:
+            if scheduler:
+                self.client = Client(scheduler, timeout="20s")
+            else:
+                # the scheduler runs in this process: one retry for a task whose worker died;
+                # workers hold only the task they run, so a death charges no queued task
+                with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                                      "distributed.scheduler.worker-saturation": 1.0}):
+                    self.cluster = LocalCluster(n_workers=self.jobs, threads_per_worker=1, processes=True,
+                                                host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                                env=dict(ONE_THREAD_ENV), silence_logs=40)
+                self.client = Client(self.cluster)
+        except OSError as e:
+            self._close_cluster()
+            raise EnvironmentRefused(f"cannot reach the Dask scheduler {scheduler}: {e}") from None
+        try:
+            self._start(scheduler)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, scheduler: str | None) -> None:
+        self.client.register_plugin(_plugin())
+        self.identity = worker_identity()
+        self.adapters, paths = _extra_adapters()
+        self.adapters_text = ",".join(f"{k}={v}" for k, v in self.adapters.items())
+        self.paths = tuple(paths)
+        self.workers = self.client.run(_identity_on_worker)
+        if not self.workers:
+            raise EnvironmentRefused(f"the Dask scheduler {scheduler} has no workers")
+        refused = [refusal(a, d) for a, w in self.workers.items() if (d := identity_diff(self.identity, w))]
+        if refused:
+            raise EnvironmentRefused("\n".join(refused))
+        ids = {w["machine"]["id"] for w in self.workers.values()}
+        #: the workers' common machine id (None if they differ): a sweep's rows are filed under it
+        self.machine_id = next(iter(ids)) if len(ids) == 1 else None
+        info = self.client.scheduler_info()
+        # the scheduler's HTTP server runs without bokeh too (health, metrics): a dashboard needs bokeh there
+        if "dashboard" in info.get("services", {}) and self.client.run_on_scheduler(_has_bokeh):
+            self.dashboard = self.client.dashboard_link
+        #: runs at once: the workers' threads
+        self.jobs = sum(int(w.get("nthreads", 1)) for w in info["workers"].values()) or len(self.workers)
+        retries = self.client.run_on_scheduler(_scheduler_allowed_failures)
+        where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
+        self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
+                 f"dashboard {self.dashboard or 'off (bokeh is not installed where the scheduler runs)'}")
+        if retries != 1:
+            self.log(f"note: the scheduler retries a task whose worker died {retries} times (allowed-failures); "
+                     "physbench expects 1 (docs/SWEEPS.md)")
+        if self.machine_id is None:
+            self.log("note: the workers run on different machines: each row's machine.* columns name its own; "
+                     "their timings do not compare with each other")
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
+            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
+        """Submit every item, yield (item, value) as tasks finish.  Dask
+        does not tell the client when a task starts: ``on_start(item)`` is
+        called as its result arrives, just before it is yielded.  Raises
+        EnvironmentRefused when a worker refuses (its item is not run);
+        the rows yielded before stand."""
+        from distributed import as_completed
+        from distributed.scheduler import KilledWorker
+
+        token = hashlib.sha256(os.urandom(8)).hexdigest()[:8]
+        futures = {}
+        for item in items:
+            k = f"physbench-{_item_key(item)}-{token}"
+            fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None, self.identity,
+                                     self.adapters_text, self.paths, key=k, pure=False)
+            futures[fut] = item
+        try:
+            for fut in as_completed(futures):
+                item = futures.pop(fut)
+                try:
+                    value, address = fut.result()
+                    self.placement[_item_key(item)] = address
+                except EnvironmentRefused:
+                    raise
+                except KilledWorker as e:
+                    last = getattr(e.last_worker, "address", "?")
+                    value = WorkerLost("died", f"the Dask worker died while running this item, twice (retried once "
+                                               f"on another worker; last {last}): killed from outside or out of "
+                                               "memory, see that worker's log")
+                    value.machine = dict(self.workers.get(last, {}).get("machine") or {}) or None
+                except Exception as e:
+                    value = WorkerLost("raised", f"dask task failed: {type(e).__name__}: {e}")
+                if on_start:
+                    on_start(item)
+                yield item, value
+        finally:
+            if futures:  # interrupted or refused: nothing more of this map runs
+                self.client.cancel(list(futures))
+
+    def _close_cluster(self) -> None:
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
+
+    def close(self) -> None:
+        client = getattr(self, "client", None)
+        if client is not None:
+            client.close()
+            self.client = None
+        self._close_cluster()
+
+    def __enter__(self) -> "DaskExecutor":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+__all__ = ["DaskExecutor", "EnvironmentRefused", "worker_identity", "identity_diff", "run_task", "close_pools"]

@@ -1,0 +1,242 @@
+"""The sweep store (``results/sweeps/``, asv style)::
+
+    <machine-id>/<suite>/<sweep_id>/manifest.json     while running
+    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  one per finished point
+    <machine-id>/<suite>/<sweep_id>.parquet           when complete
+    <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
+
+Every file is written atomically (harness/results.py: temp file, fsync,
+rename), one part per finished point, so a killed sweep loses at most the
+points in flight.  A sweep resumes by reading the finished point keys back
+from its parts (:func:`open_sweep`).  The one reader of the layout is
+:func:`sweep_files`.  Names that become directories are plain names
+(:func:`plain_name`, :func:`confined`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+from contract.spec import SpecError, _display
+from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
+from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
+                             unfinished_dirs, write_json_atomic)
+
+SWEEPS_DIR = RESULTS_DIR / "sweeps"
+# Columns a sweep adds to RunResult.row() (the row contract, with
+# results/README.md).
+SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
+                 "primary_threshold", "checks",
+                 "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
+                 "point_wall_s", "schema_version")
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def plain_name(name: str) -> bool:
+    """Whether ``name`` may name a directory under the results root: letters,
+    digits, '_', '-', '.', at most 100 characters, and not starting with '.'
+    (so never '.', '..' or a hidden directory).  Pinned by
+    tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
+    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
+
+
+class SuiteError(SpecError):
+    """A suite file failed to load; ``errors`` holds one line per problem,
+    ``<file>: <key path>: <what was expected, what was found>``.  A SpecError,
+    so callers that report spec errors (exit code 2) report these too."""
+
+
+# ---------------------------------------------------------------------------
+# machine id
+
+
+# the machine id sweeps are filed under is the environment fingerprint's
+# (harness/fingerprint.py): CPU model, family/model/stepping, arithmetic
+# flags, cores and OS, never the host name
+machine_id = _fingerprint_machine_id
+
+
+# ---------------------------------------------------------------------------
+# storage
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+_write_json_atomic = write_json_atomic
+_parts = list_parts
+_try_lock = try_lock
+_unfinished = unfinished_dirs
+
+
+class _SweepDir(PartsDir):
+    """An open (unfinished) sweep directory: one part per finished point,
+    keyed by ``point_key`` (harness.results.PartsDir)."""
+
+    def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
+        super().__init__(path, manifest, lock_fd, "point_key")
+
+    @property
+    def sweep_id(self) -> str:
+        return self.manifest["sweep_id"]
+
+    def write_point(self, row: dict[str, Any]) -> Path:
+        return self.write_part(row, {"sweep_id": self.sweep_id})
+
+
+def confined(root: Path, *parts: str) -> Path:
+    """``root / parts...``, each part a plain name (:func:`plain_name`), so
+    that the path stays inside ``root`` whatever a suite or machine is
+    called.  Raises SuiteError otherwise (a guard: load_suite and
+    machine_id already make plain names)."""
+    for part in parts:
+        if not plain_name(part):
+            raise SuiteError([f"{root}: <path>: {part!r} is not a plain name (letters, digits, '_', '-', '.', "
+                              f"not starting with '.'); it would name a directory outside the results root"])
+    return root.joinpath(*parts)
+
+
+def _sweep_id(commit: str) -> str:
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    return f"{stamp}-{re.sub(r'[^A-Za-z0-9.+_-]', '_', commit)}"
+
+
+def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, jobs: int,
+               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[_SweepDir, bool]:
+    """Find the sweep to resume or start a new one.  Returns (dir, resumed).
+
+    Resume rule: an unfinished sweep directory of this suite on this machine
+    whose manifest has the same suite-file hash and the same planned point
+    keys is resumed -- automatically (``resume=None``) only if it was also
+    started at the same commit, with ``resume=True`` whatever its commit (its
+    rows keep their own ``commit``); ``resume=False`` always starts afresh.
+    The newest match wins; a directory locked by a running sweep is skipped.
+    ``machine``: the machine id the rows are filed under (default this
+    machine's; a Dask sweep's workers' own).
+    """
+    from harness.runner import commit_id, machine_info
+
+    machine = machine or machine_id()
+    suite_dir = confined(root, machine, suite.name)
+    commit = commit_id()
+    keys = [p.key for p in points]
+    if resume is not False:
+        for d, man in _unfinished(suite_dir):
+            if (d.parent / f"{d.name}.parquet").exists():
+                # consolidated, but killed before its manifest was written or
+                # its directory removed: finish that (under its lock), never
+                # resume it (its points are stored)
+                fd = _try_lock(d)
+                if fd >= 0:
+                    try:
+                        consolidate(d)
+                    except (OSError, ValueError) as e:
+                        print(f"warning: could not finish consolidating {d}: {type(e).__name__}: {e}",
+                              file=sys.stderr)
+                    finally:
+                        os.close(fd)
+                continue
+            if man.get("suite_hash") != suite.file_hash or sorted(man.get("points", [])) != sorted(keys):
+                continue
+            if resume is None and man.get("commit") != commit:
+                continue
+            fd = _try_lock(d)
+            if fd < 0:
+                continue
+            man.setdefault("resumed", []).append({"at": _now(), "commit": commit, "jobs": jobs,
+                                                  "executor": executor})
+            _write_json_atomic(man, d / "manifest.json")
+            return _SweepDir(d, man, fd), True
+        if resume:
+            print(f"nothing to resume for suite {suite.name} (same suite file and points) under {suite_dir}; "
+                  "starting a new sweep", file=sys.stderr)
+    base = _sweep_id(commit)
+    sid, n = base, 0
+    while (suite_dir / sid).exists() or (suite_dir / f"{sid}.parquet").exists():
+        n += 1  # two sweeps started in the same second: the later one sorts after
+        sid = f"{base}-{n}"
+    d = suite_dir / sid
+    d.mkdir(parents=True)
+    fd = _try_lock(d)
+    man = {
+        "schema_version": SCHEMA_VERSION,
+        "suite": suite.name,
+        "suite_file": _display(suite.path),
+        "suite_hash": suite.file_hash,
+        "sweep_id": sid,
+        "commit": commit,
+        "machine_id": machine,
+        "machine": machine_info(),
+        "fingerprint": fingerprint(),
+        "jobs": jobs,
+        "executor": executor,
+        "filters": filters,
+        "started": _now(),
+        "finished": None,
+        "points": keys,
+    }
+    _write_json_atomic(man, d / "manifest.json")
+    return _SweepDir(d, man, fd), False
+
+
+def consolidate(d: Path) -> Path:
+    """Merge the parts of sweep directory ``d`` into ``<d>.parquet`` (rows in
+    planned order, one per point key), write ``<d>.manifest.json``, then --
+    only once both are safely in place -- remove ``d``.  Returns the
+    consolidated file's path."""
+    man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
+    out, _ = consolidate_parts(d, "point_key", list(man.get("points", [])), _now())
+    return out
+
+
+def sweep_files(root: str | Path | None = None, suites: Iterable[str] | None = None,
+                machine: str | None = None, unfinished: bool = True) -> list[tuple[str, str, str, Path, bool]]:
+    """Every stored sweep file under ``root`` (default results/sweeps/) as
+    (machine_id, suite, sweep_id, path, complete): the consolidated
+    ``<sweep_id>.parquet`` files and, with ``unfinished``, the parts of
+    sweeps still running or killed -- unless their consolidated file exists
+    (it wins over leftover parts).  Hidden files (temporary files about to
+    be renamed into place) are skipped.  The one reader of the storage
+    layout: the report and :func:`read_sweeps` both go through it."""
+    root = Path(root) if root is not None else SWEEPS_DIR
+    wanted = set(suites) if suites else None
+
+    def visible(paths: Iterable[Path]) -> list[Path]:
+        return sorted(p for p in paths if not p.name.startswith("."))
+
+    out = []
+    if not root.is_dir():
+        return out
+    for mdir in visible(p for p in root.iterdir() if p.is_dir()):
+        if machine is not None and mdir.name != machine:
+            continue
+        for sdir in visible(p for p in mdir.iterdir() if p.is_dir()):
+            if wanted is not None and sdir.name not in wanted:
+                continue
+            done = {p.stem: p for p in visible(sdir.glob("*.parquet"))}
+            out += [(mdir.name, sdir.name, sid, p, True) for sid, p in done.items()]
+            if unfinished:
+                for d in visible(p for p in sdir.iterdir() if p.is_dir()):
+                    if d.name not in done:
+                        out += [(mdir.name, sdir.name, d.name, p, False) for p in visible(_parts(d))]
+    return out
+
+
+def read_sweeps(root: str | Path | None = None, suite: str | None = None, machine: str | None = None,
+                unfinished: bool = False):
+    """All consolidated sweep rows under ``root`` (default results/sweeps/)
+    as one DataFrame, optionally one suite / one machine id; with
+    ``unfinished`` also the parts of sweeps still running or killed."""
+    import pandas as pd
+
+    frames = [pd.read_parquet(f) for *_, f, _ in
+              sweep_files(root, [suite] if suite else None, machine, unfinished)]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()

@@ -1,0 +1,332 @@
+"""The Dask executor (harness/dask_executor.py) on LocalClusters bound to
+127.0.0.1: the serial executor's metrics, resume after the client is
+killed, a Dask worker killed mid-run, a worker of another physbench
+refused.  Every cluster is closed and no process is left behind."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from adapters.base import Setting, register
+from harness import sweep as S
+from tests.test_sweep import FakeSweep
+
+distributed = pytest.importorskip("distributed")
+
+ROOT = Path(__file__).resolve().parent.parent
+TIMING = {"cpu_s_per_sim_s", "wall_s_per_sim_s", "steps_per_s", "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min",
+          "point_wall_s", "sweep_jobs"}
+#: set in the test clusters' workers only: the one place DaskFake may kill a process
+KILL_OK_ENV = "PHYSBENCH_TEST_DASK_KILL_OK"
+MARKERS_ENV = "PHYSBENCH_TEST_DASK_MARKERS"
+
+
+class DaskFake(FakeSweep):
+    """tests/test_sweep.py's free flight, faulting otherwise: ``fault``
+    ``kill_worker`` kills the Dask worker running it (the parent of its run
+    process), ``kill_worker_once`` only the first time (a marker file)."""
+
+    name = "dask_fake"
+
+    @classmethod
+    def capabilities(cls):
+        caps = super().capabilities()
+        fault = Setting("fault", "none", str, "", choices=("none", "kill_worker", "kill_worker_once"))
+        return dataclasses.replace(caps, engine="dask_fake", settings={**caps.settings, "fault": fault})
+
+    def build(self, scene, settings):
+        fault = settings["fault"]
+        if fault != "none":
+            if os.environ.get(KILL_OK_ENV) != "1" or os.environ.get("PHYSBENCH_WORKER") != "1":
+                raise RuntimeError("kill requested outside a test cluster's run process")
+            marker = Path(os.environ[MARKERS_ENV]) / f"killed-{settings['dt']}"
+            if fault == "kill_worker" or not marker.exists():
+                marker.touch()
+                os.kill(os.getppid(), signal.SIGKILL)  # the Dask worker, as an out-of-memory kill would
+                time.sleep(60)
+        super().build(scene, {**settings, "fault": "none"})
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fake_engine():
+    from adapters import base
+
+    register("dask_fake", lambda: DaskFake)
+    yield
+    base._REGISTRY.pop("dask_fake", None)
+
+
+def _descendants() -> set[int]:
+    """Pids of this process's descendants (Linux /proc), but for
+    multiprocessing's resource tracker (started with the first spawned
+    process, it lives as long as this process and leaves with it)."""
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(d.name))
+    out, todo = set(), [os.getpid()]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            if c not in out:
+                out.add(c)
+                todo.append(c)
+    return {p for p in out if b"resource_tracker" not in _cmdline(p)}
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _wait_gone(pids: set[int], timeout: float = 30.0) -> set[int]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        left = {p for p in pids if Path(f"/proc/{p}").exists()
+                and Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"}
+        if not left:
+            return set()
+        time.sleep(0.2)
+    return left
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A 2-worker LocalCluster on 127.0.0.1 (processes, one thread each),
+    retrying a task whose worker died once, as DaskExecutor's own."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    markers = tmp_path_factory.mktemp("dask_markers")
+    scratch = tmp_path_factory.mktemp("dask_tmp")  # a killed worker's run-process directory stays here
+    before = _descendants()
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                          "distributed.scheduler.worker-saturation": 1.0}):
+        lc = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address="127.0.0.1:0", silence_logs=50,
+                          env={KILL_OK_ENV: "1", MARKERS_ENV: str(markers), "TMPDIR": str(scratch)})
+    client = Client(lc)
+    try:
+        yield lc, client
+    finally:
+        client.close()
+        lc.close()
+        assert not _wait_gone(_descendants() - before), "the cluster left processes behind"
+
+
+def _wait_workers(client, n: int = 2, timeout: float = 60.0) -> None:
+    client.wait_for_workers(n, timeout=timeout)
+
+
+def write(tmp_path: Path, text: str, name: str = "suite.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
+    files = list(out.glob("*/*/*.parquet"))
+    assert len(files) == 1, files
+    return pd.read_parquet(files[0]), json.loads(files[0].with_suffix(".manifest.json").read_text())
+
+
+# ---------------------------------------------------------------------------
+
+
+def test_dask_gives_the_serial_metrics_on_smoke_and_a_phases_block(tmp_path):
+    """The smoke suite and a block of step phases: identical metrics and
+    statuses to the serial executor; the LocalCluster is started (2
+    workers) and closed by the executor, leaving no process behind."""
+    smoke = (ROOT / "suites" / "smoke.toml").read_text()
+    p = write(tmp_path, smoke + textwrap.dedent("""
+        [[sweep]]
+        scenarios = ["tunnelling.thin_box_on_thin_floor"]
+        engines = ["pymunk", "mujoco"]
+        grid = { dt = [0.004166666666666667] }
+        phases = 4
+    """))
+    before = _descendants()
+    a_out, b_out = tmp_path / "serial", tmp_path / "dask"
+    assert S.sweep_main(str(p), out_dir=a_out, executor="serial") == 0
+    assert S.sweep_main(str(p), jobs=2, out_dir=b_out, executor="dask") == 0
+    assert not _wait_gone(_descendants() - before), "the executor left processes behind"
+    a, _ = consolidated(a_out)
+    b, man = consolidated(b_out)
+    assert man["executor"] == "dask" and (b["sweep_jobs"] == 2).all()
+    assert len(a) == 6 + 2 * 4 and list(a["point_key"]) == list(b["point_key"])
+    assert sorted(b["phase"].unique()) == [0.0, 0.25, 0.5, 0.75]
+    cols = [c for c in a.columns if c not in TIMING and not c.startswith("timing.")
+            and pd.api.types.is_numeric_dtype(a[c]) and c != "schema_version"]
+    assert "primary_error" in cols and "max_penetration" in cols
+    for c in cols:
+        np.testing.assert_array_equal(a[c].to_numpy(float), b[c].to_numpy(float), err_msg=c)
+    assert list(a["status"]) == list(b["status"]) and (b["status"] == "ok").all()
+    # rows carry the machine of the worker that made them (the same machine here)
+    assert (b["machine.id"] == b["machine_id"]).all() and b["machine.env_id"].notna().all()
+
+
+def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_path, cluster):
+    lc, client = cluster
+    _wait_workers(client)
+    p = write(tmp_path, """
+        [suite]
+        engines = ["dask_fake"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 0.5, 0.501, 0.502, 0.503, 0.504, 0.505] }
+    """)
+    out = tmp_path / "out"
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from adapters.base import register
+        from tests.test_dask_executor import DaskFake
+        from harness.sweep import sweep_main
+        register("dask_fake", lambda: DaskFake)
+        sweep_main({str(p)!r}, out_dir={str(out)!r}, executor="dask", scheduler={lc.scheduler_address!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(out.glob("*/*/*/part-*.parquet"))) < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    before = pd.concat([pd.read_parquet(f) for f in out.glob("*/*/*/part-*.parquet")]).set_index("point_key")
+    assert 5 <= len(before) < 10 and before.index.is_unique
+    assert S.sweep_main(str(p), out_dir=out, executor="dask", scheduler=lc.scheduler_address) == 0
+    df, man = consolidated(out)
+    assert df["point_key"].is_unique and len(df) == 10 and (df["status"] == "ok").all()
+    assert len(man["resumed"]) == 1 and man["duplicates_dropped"] == 0
+    kept = df.set_index("point_key").loc[before.index]  # the rows written before the kill: not rerun
+    assert (kept["point_wall_s"] == before["point_wall_s"]).all()
+
+
+def test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row(tmp_path, cluster, capsys):
+    lc, client = cluster
+    _wait_workers(client)
+    p = write(tmp_path, """
+        [suite]
+        engines = ["dask_fake"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { fault = ["none"], dt = [0.002, 0.001] }
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { fault = ["kill_worker_once"], dt = [0.0025] }
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { fault = ["kill_worker"], dt = [0.0015] }
+    """)
+    out = tmp_path / "out"
+    assert S.sweep_main(str(p), out_dir=out, executor="dask", scheduler=lc.scheduler_address) == 0
+    df, _ = consolidated(out)
+    assert len(df) == 4 and df["point_key"].is_unique
+    fault = df["point_settings"].map(lambda s: json.loads(s)["fault"])
+    assert (df.loc[fault == "none", "status"] == "ok").all()
+    assert (df.loc[fault == "kill_worker_once", "status"] == "ok").all()  # retried on a fresh worker
+    dead = df[fault == "kill_worker"]
+    assert (dead["status"] == "error").all()
+    assert dead["message"].str.contains("the Dask worker died while running this point, twice").all()
+    assert dead["message"].str.contains("retried once").all()
+
+
+def _pretend_other_commit(dask_worker=None):
+    """Make this worker report another physbench commit (as a worker with
+    another checkout installed would)."""
+    from harness import dask_executor, runner
+
+    runner._real_commit_id = getattr(runner, "_real_commit_id", runner.commit_id)
+    runner.commit_id = lambda: "0123456789ab"
+    dask_executor.worker_identity.cache_clear()
+
+
+def _restore_commit(dask_worker=None):
+    from harness import dask_executor, runner
+
+    runner.commit_id = getattr(runner, "_real_commit_id", runner.commit_id)
+    dask_executor.worker_identity.cache_clear()
+
+
+def test_a_worker_of_another_physbench_is_refused(tmp_path, cluster, capsys):
+    from harness.dask_executor import DaskExecutor, EnvironmentRefused
+    from harness.points import run_point
+
+    lc, client = cluster
+    _wait_workers(client)
+    p = write(tmp_path, """
+        [suite]
+        engines = ["dask_fake"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { dt = [0.002, 0.001] }
+    """)
+    out = tmp_path / "out"
+    odd = sorted(client.scheduler_info()["workers"])[0]
+    client.run(_pretend_other_commit, workers=[odd])
+    try:
+        capsys.readouterr()
+        assert S.sweep_main(str(p), out_dir=out, executor="dask", scheduler=lc.scheduler_address) == 2
+        err = capsys.readouterr().err
+        assert f"dask worker {odd} runs another physbench environment than this client" in err
+        assert "commit: client" in err and "worker '0123456789ab'" in err
+        assert not out.exists()  # refused before the sweep directory is made
+    finally:
+        client.run(_restore_commit, workers=[odd])
+    # a worker that turns odd after the start refuses its task: the map stops
+    points = S.expand(S.load_suite(p))
+    with DaskExecutor(scheduler=lc.scheduler_address, log=lambda _t: None) as ex:
+        client.run(_pretend_other_commit)
+        try:
+            with pytest.raises(EnvironmentRefused, match="another physbench environment"):
+                list(ex.map(run_point, points))
+        finally:
+            client.run(_restore_commit)
+
+
+def test_check_on_dask_gives_the_inline_rows(tmp_path, cluster):
+    from harness.conformance import check_main
+
+    lc, client = cluster
+    _wait_workers(client)
+    args = dict(engines=["mujoco", "pymunk"], tags=None, junit=None, scenarios=["billiards.head_on"])
+    a_dir, b_dir = tmp_path / "inline", tmp_path / "dask"
+    code = check_main(**args, save_dir=a_dir, executor="inline")
+    assert check_main(**args, save_dir=b_dir, executor="dask", scheduler=lc.scheduler_address) == code
+    a = pd.read_parquet(next(a_dir.glob("*.parquet"))).set_index("run_key").sort_index()
+    b = pd.read_parquet(next(b_dir.glob("*.parquet"))).set_index("run_key").sort_index()
+    assert list(a.index) == list(b.index) and len(a) >= 2
+    assert list(a["status"]) == list(b["status"]) and list(a["checks"]) == list(b["checks"])
+    metrics = [c for c in ("max_penetration", "energy_drift", "momentum_drift") if c in a.columns]
+    assert metrics
+    for c in metrics:
+        np.testing.assert_array_equal(a[c].to_numpy(float), b[c].to_numpy(float), err_msg=c)
+
+
+def test_scheduler_needs_the_dask_executor(capsys):
+    from harness.cli import main
+
+    assert main(["sweep", "--suite", "smoke", "--scheduler", "tcp://127.0.0.1:1"]) == 2
+    assert "--scheduler tcp://127.0.0.1:1: a scheduler address needs --executor dask" in capsys.readouterr().err
