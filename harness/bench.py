@@ -58,7 +58,11 @@ def column_scene(n: int = 10, dt: float = 1 / 240) -> Scene:
 
 
 def spheres_scene(n: int, dt: float = 1 / 240) -> Scene:
-    side = max(1, round(n ** (1 / 3)))
+    """A grid of spheres dropped on a plane: side x side x nz, exactly ``n``
+    when some side <= n^(1/3) squares into it (100: 5x5x4, 1000: 10^3,
+    10000: 20x20x25), else the next whole layer up."""
+    cube = max(1, round(n ** (1 / 3)))
+    side = next((s for s in range(cube, 0, -1) if n % (s * s) == 0 and s * s <= n), cube)
     nz = max(1, math.ceil(n / (side * side)))
     r = 0.05
     return _scene({
