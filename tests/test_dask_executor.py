@@ -9,7 +9,6 @@ import dataclasses
 import json
 import os
 import signal
-import subprocess
 import sys
 import textwrap
 import time
@@ -21,7 +20,7 @@ import pytest
 
 from adapters.base import Setting, register
 from harness import sweep as S
-from tests.test_sweep import FakeSweep
+from tests.test_sweep import FakeSweep, consolidated, kill_after_parts, write
 
 distributed = pytest.importorskip("distributed")
 
@@ -135,18 +134,6 @@ def _wait_workers(client, n: int = 2, timeout: float = 60.0) -> None:
     client.wait_for_workers(n, timeout=timeout)
 
 
-def write(tmp_path: Path, text: str, name: str = "suite.toml") -> Path:
-    p = tmp_path / name
-    p.write_text(textwrap.dedent(text))
-    return p
-
-
-def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
-    files = list(out.glob("*/*/*.parquet"))
-    assert len(files) == 1, files
-    return pd.read_parquet(files[0]), json.loads(files[0].with_suffix(".manifest.json").read_text())
-
-
 # ---------------------------------------------------------------------------
 
 
@@ -203,16 +190,7 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
         register("dask_fake", lambda: DaskFake)
         sweep_main({str(p)!r}, out_dir={str(out)!r}, executor="dask", scheduler={lc.scheduler_address!r})
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 120
-        while len(list(out.glob("*/*/*/part-*.parquet"))) < 5 and time.monotonic() < deadline:
-            time.sleep(0.02)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-    before = pd.concat([pd.read_parquet(f) for f in out.glob("*/*/*/part-*.parquet")]).set_index("point_key")
+    before = kill_after_parts(script, out, 5, tmp_path, 120)
     assert 5 <= len(before) < 10 and before.index.is_unique
     assert S.sweep_main(str(p), out_dir=out, executor="dask", scheduler=lc.scheduler_address) == 0
     df, man = consolidated(out)

@@ -112,6 +112,22 @@ def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
     return pd.read_parquet(files[0]), json.loads(files[0].with_suffix(".manifest.json").read_text())
 
 
+def kill_after_parts(script: str, out: Path, parts: int, cwd: Path, deadline_s: float) -> pd.DataFrame:
+    """Run ``script`` (a sweep) in a fresh interpreter, SIGKILL it once
+    ``parts`` point parts are stored under ``out`` (or after ``deadline_s``),
+    and return the stored rows indexed by point key."""
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=cwd, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + deadline_s
+        while len(list(out.glob("*/*/*/part-*.parquet"))) < parts and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    return pd.concat([pd.read_parquet(f) for f in out.glob("*/*/*/part-*.parquet")]).set_index("point_key")
+
+
 @pytest.fixture(scope="module")
 def smoke_serial(tmp_path_factory):
     out = tmp_path_factory.mktemp("smoke_serial")
@@ -442,16 +458,7 @@ def test_resume_after_the_process_is_killed(tmp_path):
         register("fake_sweep", lambda: FakeSweep)
         sweep_main({str(p)!r}, out_dir={str(out)!r})
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 60
-        while len(list(out.glob("*/*/*/part-*.parquet"))) < 5 and time.monotonic() < deadline:
-            time.sleep(0.02)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-    before = pd.concat([pd.read_parquet(f) for f in out.glob("*/*/*/part-*.parquet")]).set_index("point_key")
+    before = kill_after_parts(script, out, 5, ROOT, 60)
     assert 5 <= len(before) < 8 and before.index.is_unique
     assert S.sweep_main(str(p), out_dir=out) == 0
     df, man = consolidated(out)
