@@ -91,6 +91,7 @@ def warm_up() -> float:
                lt, zb.copy())
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
+    _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
     _warm_flight()
     from engine.collision import dispatch
     dispatch.warm_up()  # the broad and narrow phases' kernels
@@ -98,6 +99,28 @@ def warm_up() -> float:
     _READY = True
     _PENDING += dt
     return dt
+
+
+def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
+    """The fused solve (engine/contact/phases.py) on three rows, two
+    patches, with and without friction, with the step's argument types."""
+    from engine.contact import phases
+
+    m, npch = r.size, pab.shape[0]
+    V = np.zeros((nb + 1, 3))
+    U = np.zeros((nb + 1, 6))
+    f1, i1 = np.ones(npch), np.ones(m)
+    for friction in (True, False):
+        k = npch if friction else 0
+        nr = 5 if friction else 3
+        phases.solve_contacts(
+            V, V.copy(), V[:nb].copy(), V[:nb].copy(), U, U.copy(), U.copy(), ab, J, M, i1.copy(), np.zeros(m),
+            r.copy(), nb, friction, friction, pab[:k], pid[:m if friction else 0], np.ones((k, nr, 12)),
+            np.ones((k, nr, 12)), np.ones((k, nr)), np.zeros((k, nr)), f1[:k].copy(), f1[:k].copy(),
+            f1[:k].copy(), f1[:k].copy(), f1[:k].copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), t[:k].copy(),
+            1e-4, True, codes, loc, a, b, br, codes, loc, r, codes, loc, r, loc, 0.01, np.zeros(k, np.bool_),
+            True, 1e-5, 400, 4, r.copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), 2, 1e-7)
+    phases.relax(V, V.copy(), U, ab, J, M, i1, np.zeros(m), r, 2, 1e-7, nb)
 
 
 def _warm_flight() -> None:
