@@ -38,7 +38,9 @@ contacts: no penetration, but no bounce).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
+from engine import flight
 from engine.mathutil import quat_to_matrix
 from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
@@ -136,11 +138,36 @@ def end_displacement(model, state, ctx) -> np.ndarray:
     0.34 mm for two boxes, beyond the end-pose check's tolerance), so a
     resting column was collided twice a step (measured 590 us of its 2.4
     ms)."""
-    n = model.n
-    dx = ctx.x1 - state.x
-    c = np.abs(np.einsum("ki,ki->k", state.q, ctx.q1))
-    s = np.sqrt(np.maximum(1.0 - np.minimum(c, 1.0) ** 2, 0.0))
-    return np.sqrt(np.einsum("ki,ki->k", dx, dx)) + 2.0 * s * model.bound_radius[:n]
+    out = ctx.info.get("end_displacement")
+    if out is None:
+        out = ctx.info["end_displacement"] = np.empty(model.n)
+    flight.end_displacement(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, out)
+    return out
+
+
+_NO_FAST = np.zeros(0, np.bool_)
+
+
+@njit(cache=True)
+def moving_pairs(sw, pi, pj, bp, bs, lim, has_fast, fast, fb, fp, fs):
+    """The pairs whose surfaces moved apart or together by more than
+    ``lim`` (m) between the start and end poses (``sw`` (n,) the bodies'
+    end displacements): body pairs ``pi``/``pj`` into ``fb``, body-plane
+    ``bp`` into ``fp``, body-static-box ``bs`` into ``fs`` (bool, written);
+    with ``has_fast`` only pairs with a body where ``fast`` (n,) holds.
+    Returns whether any pair moved."""
+    found = False
+    for k in range(pi.shape[0]):
+        i, j = pi[k], pj[k]
+        fb[k] = sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j])
+        found |= fb[k]
+    for k in range(bp.shape[0]):
+        fp[k] = sw[bp[k]] > lim and (not has_fast or fast[bp[k]])
+        found |= fp[k]
+    for k in range(bs.shape[0]):
+        fs[k] = sw[bs[k]] > lim and (not has_fast or fast[bs[k]])
+        found |= fs[k]
+    return found
 
 
 def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
@@ -178,14 +205,10 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    fb = sw[pi] + sw[pj] > lim
-    fp = sw[bp] > lim
-    fs = sw[bs] > lim
-    if fast is not None:
-        fb &= fast[pi] | fast[pj]
-        fp &= fast[bp]
-        fs &= fast[bs]
-    if not (fb.any() or fp.any() or fs.any()):
+    fb = np.empty(pi.size, np.bool_)
+    fp = np.empty(bp.size, np.bool_)
+    fs = np.empty(bs.size, np.bool_)
+    if not moving_pairs(sw, pi, pj, bp, bs, lim, fast is not None, _NO_FAST if fast is None else fast, fb, fp, fs):
         return []
     R1 = quat_to_matrix(ctx.q1)
     c = collide_pairs(model, ctx.x1, R1, pi[fb], pj[fb], (bp[fp], pk[fp]), (bs[fs], sk[fs]),

@@ -137,6 +137,9 @@ def _warm_flight() -> None:
     Iinv = np.zeros((nb + 1, 3, 3))
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
+    vw1 = np.zeros((nb + 1, 3))
+    flight.begin_step(x, q, v, v, inv_I, x.copy(), q.copy(), vw1, vw1.copy(), v.copy(), v.copy(), vw1.copy(),
+                      vw1.copy(), R, Iinv)
     z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
     idx = np.arange(nb, dtype=np.int64)
     I = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
@@ -160,6 +163,13 @@ def _warm_flight() -> None:
     flight.quadratic_drag(np.ones(nb), v, F)
     flight.springs(*models[1][3:10], x, R, v, v, F, T)
     flight.gyroscopic_torque(idx, I, R, v, T)
+    flight.max_turn_sq(v, q, idx, idx)
+    flight.end_displacement(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), np.zeros(nb))
+    from engine.ccd import moving_pairs
+
+    zb = np.zeros(nb, np.bool_)
+    for fast in (False, True):
+        moving_pairs(v[:, 0].copy(), idx, idx, idx, idx, 0.1, fast, zb, zb.copy(), zb.copy(), zb.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

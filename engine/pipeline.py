@@ -20,7 +20,7 @@ import numpy as np
 
 from engine.ccd import CCD, Impact, refine_toi
 from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
-from engine.mathutil import quat_to_matrix
+from engine.flight import max_turn_sq
 from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
@@ -160,15 +160,7 @@ def _parts(model: Model, state: State, turn) -> int:
     or capsule does not change the space it occupies and does not count."""
     limit, boxes, axisym = turn
     h = model.h
-    w2 = 0.0
-    if boxes.size:
-        wb = state.w[boxes]
-        w2 = float(np.max(np.einsum("ki,ki->k", wb, wb)))
-    if axisym.size:
-        ax = quat_to_matrix(state.q[axisym])[:, :, 2]  # the body z axis (the axis of symmetry) in the world
-        wa = state.w[axisym]
-        wp = wa - np.einsum("ki,ki->k", wa, ax)[:, None] * ax
-        w2 = max(w2, float(np.max(np.einsum("ki,ki->k", wp, wp))))
+    w2 = max_turn_sq(state.w, state.q, boxes, axisym)
     theta = math.sqrt(w2) * h
     if not theta > limit:  # (NaN: a blown-up state is not split either)
         return 1
