@@ -44,6 +44,9 @@ def warm_up() -> float:
     linalg.inverse(K + np.eye(m))
     linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))
     linalg.islands(nb, a, b)
+    from engine.contact.rows import _greedy_colours
+
+    _greedy_colours(a, b, nb, np.empty(m, np.int64))
     U = np.zeros((nb + 1, 6))
     ab = np.stack([a, b], axis=1)
     sweeps.apply_rows(U, ab, M, r, nb)
