@@ -38,7 +38,6 @@ contacts: no penetration, but no bounce).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from engine import flight
 from engine.mathutil import quat_to_matrix
@@ -156,28 +155,6 @@ def _member(x: np.ndarray, s: np.ndarray) -> np.ndarray:
     return (x.reshape(-1, 1) == s.reshape(1, -1)).any(axis=1)
 
 
-@njit(cache=True)
-def moving_pairs(sw, pi, pj, bp, bs, lim, has_fast, fast, fb, fp, fs):
-    """The pairs whose surfaces moved apart or together by more than
-    ``lim`` (m) between the start and end poses (``sw`` (n,) the bodies'
-    end displacements): body pairs ``pi``/``pj`` into ``fb``, body-plane
-    ``bp`` into ``fp``, body-static-box ``bs`` into ``fs`` (bool, written);
-    with ``has_fast`` only pairs with a body where ``fast`` (n,) holds.
-    Returns whether any pair moved."""
-    found = False
-    for k in range(pi.shape[0]):
-        i, j = pi[k], pj[k]
-        fb[k] = sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j])
-        found |= fb[k]
-    for k in range(bp.shape[0]):
-        fp[k] = sw[bp[k]] > lim and (not has_fast or fast[bp[k]])
-        found |= fp[k]
-    for k in range(bs.shape[0]):
-        fs[k] = sw[bs[k]] > lim and (not has_fast or fast[bs[k]])
-        found |= fs[k]
-    return found
-
-
 def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
     """The feature ids a search follows besides the points (see
     :func:`pair_gap`): ``fid`` where the pair's ids name material
@@ -216,7 +193,8 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     fb = np.empty(pi.size, np.bool_)
     fp = np.empty(bp.size, np.bool_)
     fs = np.empty(bs.size, np.bool_)
-    if not moving_pairs(sw, pi, pj, bp, bs, lim, fast is not None, _NO_FAST if fast is None else fast, fb, fp, fs):
+    if not flight.moving_pairs(sw, pi, pj, bp, bs, lim, fast is not None, _NO_FAST if fast is None else fast,
+                               fb, fp, fs):
         return []
     R1 = quat_to_matrix(ctx.q1)
     c = collide_pairs(model, ctx.x1, R1, pi[fb], pj[fb], (bp[fp], pk[fp]), (bs[fs], sk[fs]),

@@ -15,6 +15,11 @@ world), anchors ``s_pa``/``s_pb`` (k, 3) (body frame; world points for the
 world), ``s_k`` N/m, ``s_c`` N s/m, ``s_L0`` m (k,); the explicit
 gyroscopic torque on bodies ``g_idx`` (g,) with principal moments ``g_I``
 (g, 3).  Integrators: see engine/integrate.py (``METHOD`` codes).
+
+Also the step loop's per-step pose kernels: the start of a (mini-)step
+(:func:`begin_step`), the rotation split's turn rate (:func:`max_turn_sq`)
+and the CCD stage's end-pose check (:func:`end_displacement`,
+:func:`moving_pairs`).
 """
 
 from __future__ import annotations
@@ -652,3 +657,25 @@ def begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0):
     vp[:, :] = 0.0
     wp[:, :] = 0.0
     start_pose(q, inv_I, R0, Iinv0)
+
+
+@njit(cache=True)
+def moving_pairs(sw, pi, pj, bp, bs, lim, has_fast, fast, fb, fp, fs):
+    """The pairs whose surfaces moved apart or together by more than
+    ``lim`` (m) between the start and end poses (``sw`` (n,) the bodies'
+    end displacements): body pairs ``pi``/``pj`` into ``fb``, body-plane
+    ``bp`` into ``fp``, body-static-box ``bs`` into ``fs`` (bool, written);
+    with ``has_fast`` only pairs with a body where ``fast`` (n,) holds.
+    Returns whether any pair moved."""
+    found = False
+    for k in range(pi.shape[0]):
+        i, j = pi[k], pj[k]
+        fb[k] = sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j])
+        found |= fb[k]
+    for k in range(bp.shape[0]):
+        fp[k] = sw[bp[k]] > lim and (not has_fast or fast[bp[k]])
+        found |= fp[k]
+    for k in range(bs.shape[0]):
+        fs[k] = sw[bs[k]] > lim and (not has_fast or fast[bs[k]])
+        found |= fs[k]
+    return found

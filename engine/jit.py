@@ -168,11 +168,9 @@ def _warm_flight() -> None:
     flight.gyroscopic_torque(idx, I, R, v, T)
     flight.max_turn_sq(v, q, idx, idx)
     flight.end_displacement(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), np.zeros(nb))
-    from engine.ccd import moving_pairs
-
     zb = np.zeros(nb, np.bool_)
     for fast in (False, True):
-        moving_pairs(v[:, 0].copy(), idx, idx, idx, idx, 0.1, fast, zb, zb.copy(), zb.copy(), zb.copy())
+        flight.moving_pairs(v[:, 0].copy(), idx, idx, idx, idx, 0.1, fast, zb, zb.copy(), zb.copy(), zb.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

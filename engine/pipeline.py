@@ -15,6 +15,7 @@ which counts calls and time per stage (see profile.py).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -108,23 +109,39 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     :func:`_parts`; counted as ``rotation_splits``).
     """
     ctx = context(model, state, profile)
-    split = ctx.info.get("split")
-    if split is None or split[0] is not stages:
-        split = (stages, tuple(s for s in stages if s.family != "impact"),
-                 next((s for s in stages if s.family == "impact"), None))
-        ctx.info["split"] = split
-    _, main, impact = split
-    max_events = int(model.settings["ccd_max_events"])
-    turn = ctx.info.get("turn", False)
-    if turn is False:  # decided once: None when steps are never split
-        turn = ctx.info["turn"] = _turn_limit(model)
+    plan = ctx.info.get("plan")
+    if plan is None or plan.stages is not stages:
+        plan = ctx.info["plan"] = _plan(model, stages)
+    main, impact, max_events, turn = plan.main, plan.impact, plan.max_events, plan.turn
     for _ in range(model.substeps):
         parts = _parts(model, state, turn) if turn is not None else 1
         if parts > 1:
             profile.count("rotation_splits", parts - 1)
         for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile)
+            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops)
     state.steps += 1
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the step loop decides once per pipeline (not per step):
+    ``main`` the stages a (mini-)step runs, ``impact`` the impact stage or
+    None, ``max_events`` the setting ``ccd_max_events``, ``turn`` the
+    rotation split's limit (:func:`_turn_limit`, None: never split),
+    ``stops`` whether friction stops are looked for."""
+
+    stages: tuple
+    main: tuple
+    impact: Stage | None
+    max_events: int
+    turn: tuple | None
+    stops: bool
+
+
+def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
+    return Plan(stages, tuple(s for s in stages if s.family != "impact"),
+                next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
+                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -172,7 +189,7 @@ MAX_STOPS = 8
 
 
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile) -> None:
+             profile: Profile, allow_stops: bool) -> None:
     """One (sub)step of length h, cut at every time of impact and at every
     friction stop.
 
@@ -191,7 +208,6 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     events = 0
     stops = 0
     ctx.missed_skip.clear()
-    allow_stops = bool(model.settings["friction_stops"]) and model.has("friction")
     while True:
         warm0 = state.warm
         ctx.begin(model, state, remaining)
