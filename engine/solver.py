@@ -91,8 +91,11 @@ _NO_LT = np.zeros((0, 3))
 _NO_D = np.zeros(0)
 _NO_B = np.zeros(0, np.bool_)
 _NO_T = np.zeros((0, 2, 3))
-#: the default direct-start policy (a replaced one runs the phases from Python)
+#: the default direct-start policies, dense and sparse (a replaced one --
+#: the active-set and sparse-start tests spy on them -- runs the phases
+#: from Python)
 _DENSE_DEFAULT = dense_direct_solve
+_SPARSE_DEFAULT = Rows.sparse_normal_solve
 _AR = np.arange(64)
 _AR.flags.writeable = False
 
@@ -294,10 +297,10 @@ class Solve(Stage):
         bias = sc.take("bias", (rows.m,))
         pushed = prepare.targets(idx, touching, vn, gap, c.e, h, self.c, self.thr, self.beta, self.slop,
                                  rows.target, bias)
-        if dense_direct_solve is _DENSE_DEFAULT:
+        if dense_direct_solve is _DENSE_DEFAULT and Rows.sparse_normal_solve is _SPARSE_DEFAULT:
             # slip classes, warm start, direct start, sweeps: one compiled
             # call (engine/contact/phases.py; the same bits as the
-            # per-phase calls below, kept for a replaced direct-start policy)
+            # per-phase calls, kept for a replaced direct-start policy)
             U, U0, vt0 = self._solve_compiled(model, state, ctx, rows, topo, old, h, sc)
         else:
             U, U0, vt0 = self._solve_phases(model, state, ctx, rows, topo, old, h, sc)

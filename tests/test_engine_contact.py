@@ -190,19 +190,25 @@ def test_no_contact_effect_runs_no_collision(tmp_path):
     assert abs(tr.pos[-1, 0, 2] - (-0.5 * 9.81 * 0.25)) <= 1e-12
 
 
-@pytest.mark.parametrize("sid,settings", [
-    ("stacking.column_5", {}),
-    ("stacking.column_5", {"direct_start": False, "iterations": 7}),
-    ("friction.block_thrown_uphill", {}),
-    ("friction.rolling_resistance", {"position_correction": "baumgarte"}),
-    ("stacking.mixed_bin", {"warm_starting": False}),
+@pytest.mark.parametrize("sid,settings,sparse", [
+    ("stacking.column_5", {}, False),
+    ("stacking.column_5", {}, True),
+    ("stacking.column_5", {"direct_start": False, "iterations": 7}, False),
+    ("friction.block_thrown_uphill", {}, False),
+    ("friction.rolling_resistance", {"position_correction": "baumgarte"}, False),
+    ("stacking.mixed_bin", {"warm_starting": False}, False),
 ])
-def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, sid, settings):
+def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, sid, settings, sparse):
     """The solve's phases after preparation run as one compiled call
     (engine/contact/phases.py) with the arithmetic, in the order, of the
     per-phase Python driver it replaced (which stays for a replaced
-    direct-start policy): the final states are the same bits either way."""
+    direct-start policy): the final states are the same bits either way,
+    with the dense direct start and with the sparse one (``sparse``:
+    forced at every size)."""
     from engine import solver
+
+    if sparse:
+        monkeypatch.setattr(solver, "DIRECT_MAX_ROWS", 0)
 
     def final(fused: bool):
         monkeypatch.setattr(solver, "_DENSE_DEFAULT", solver.dense_direct_solve if fused else None)
