@@ -84,7 +84,7 @@ import numpy as np
 
 from adapters.base import gyroscopic_reason, Adapter, Capabilities, Unsupported
 from adapters.forces import PybulletForces
-from adapters.materials import per_object_factors, solve_product_values, solve_rolling_values  # noqa: F401 - re-exported
+from adapters.materials import per_object_factors
 from adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, run_notes
 from adapters.quiet import quiet_import
 from contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz

@@ -70,25 +70,16 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from adapters.base import Adapter, Capabilities, Unsupported, module_version
 from adapters.forces import DRAG_NOTE, dragged
 from adapters.materials import per_material_factors
-from adapters.pymunk_internals import ROW, BodyReader, c_stepper
+from adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
+from adapters.pymunk_internals import BodyReader, c_stepper
+from adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
 from contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from contract.scene import Scene
 
 ENGINE = "pymunk"
-
-# Static plane as a thick polygon: half-length along the line and depth into
-# the solid side (m).
-PLANE_HALF_LENGTH = 1.0e3
-PLANE_DEPTH = 1.0e3
-
-
-_SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
-_STATIC_SHAPES = frozenset({"plane", "slope", "box"})
-_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "spring", "damper",
-                      "drag_linear", "drag_quadratic"})
 
 GYROSCOPIC_REASON = (
     "pymunk is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
@@ -108,27 +99,6 @@ def _engine() -> tuple[Any, str]:
     return pm, ""
 
 
-def _settings() -> dict[str, Setting]:
-    return {
-        "dt": DT_SETTING,
-        "iterations": Setting(
-            "iterations", 10, int,
-            "contact/joint solver iterations per engine step (pymunk default 10)", lo=1, hi=10000),
-        "substeps": Setting(
-            "substeps", 1, int,
-            "engine steps per physbench step: each step() calls space.step(dt / substeps) "
-            "this many times", lo=1, hi=10000),
-        "collision_slop": Setting(
-            "collision_slop", 1e-3, float,
-            "overlap (m) that is tolerated and never pushed out; pymunk's default 0.1 is "
-            "10 cm in SI units, far too loose", lo=0.0, hi=1.0),
-        "collision_bias": Setting(
-            "collision_bias", (1.0 - 0.1) ** 60, float,
-            "fraction of the overlap beyond collision_slop left after one second of "
-            "correction (pymunk default (1 - 0.1)^60 ~ 0.0018)", lo=0.0, hi=1.0),
-    }
-
-
 class PymunkAdapter(Adapter):
     """Adapter for pymunk 7.x (2D, planar scenes in the world x-z plane)."""
 
@@ -138,23 +108,7 @@ class PymunkAdapter(Adapter):
     @classmethod
     def capabilities(cls) -> Capabilities:
         pm, why = _engine()
-        return Capabilities(
-            engine=ENGINE,
-            version=pm.version if pm is not None else module_version("pymunk"),
-            dimensions=2,
-            shapes=_SHAPES,
-            static_shapes=_STATIC_SHAPES,
-            effects=_EFFECTS,
-            settings=_settings(),
-            available=pm is not None,
-            unavailable_reason=why,
-            notes=(
-                "2D engine: planar scenes (x-z plane) only",
-                "pair friction and elasticity are products of per-shape values",
-                "position-first integration: x' = x + v dt, then v' = v + a dt",
-                "no continuous collision detection",
-            ),
-        )
+        return declaration(ENGINE, pm.version if pm is not None else module_version("pymunk"), pm is not None, why)
 
     @classmethod
     def unsupported_reason(cls, scene: Scene) -> str | None:
@@ -167,7 +121,7 @@ class PymunkAdapter(Adapter):
                 if "rolling_friction" in scene.effects:
                     return ROLLING_FRICTION_REASON
             return reason
-        return _planar_geometry_reason(scene)
+        return planar_geometry_reason(scene)
 
     # ---- life cycle --------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
@@ -203,7 +157,7 @@ class PymunkAdapter(Adapter):
             body.angle = angle
             body.velocity = (vx, vy)
             body.angular_velocity = w
-            shape = _body_shape(pm, body, b) if contact else None
+            shape = body_shape(pm, body, b) if contact else None
             space.add(body)
             if shape is not None:
                 space.add(shape)
@@ -213,7 +167,7 @@ class PymunkAdapter(Adapter):
         static_shapes = []
         if contact:
             for s in scene.statics:
-                shape = _static_shape(pm, space.static_body, s)
+                shape = static_shape(pm, space.static_body, s)
                 space.add(shape)
                 static_shapes.append((s.material, shape))
 
@@ -252,15 +206,9 @@ class PymunkAdapter(Adapter):
         # -- fast stepping and state reads -------------------------------------
         self._c_step, self._c_space_step = c_stepper(space, self._bodies) or (None, None)
         self._setup_reader(n)
-        af = pm.batch.ArbiterFields
-        self._arb_buf = pm.batch.Buffer()
         # (space.static_body only where static shapes made it: reading it
-        # creates one, which the batch reader would then visit)
-        statics = [space.static_body.id] if static_shapes else []
-        order = np.array([b.id for b in self._bodies] + statics, dtype=np.uintp)
-        self._id_order = (np.sort(order), np.argsort(order))  # sorted ids, their body index (static: n)
-        self._arb_fields = (af.BODY_A_ID | af.BODY_B_ID | af.NORMAL | af.CONTACT_COUNT | af.POINT_A_1 | af.POINT_B_1 | af.DISTANCE_1
-                            | af.POINT_A_2 | af.POINT_B_2 | af.DISTANCE_2)
+        # creates a body, which the batch reader would then visit)
+        self._arbiters = ArbiterBatch(pm.batch, space, self._bodies + ([space.static_body] if static_shapes else []))
         self._space_steps = 0
         self.info.update({
             "material_mode": self._material_mode,
@@ -297,33 +245,15 @@ class PymunkAdapter(Adapter):
 
 
     def _setup_reader(self, n: int) -> None:
-        """Batched reads of (x, y, angle, vx, vy, w) for every body: the
-        public ``pymunk.batch.get_space_bodies``, or its allocation-free twin
-        :class:`adapters.pymunk_internals.BodyReader` when pymunk's internals
-        allow.  Body order in the batch is the order of space.add (sleeping
-        is disabled, nothing is removed), verified here against body ids
-        and the state, through the public API."""
-        batch = self._pm.batch
-        fields = (batch.BodyFields.POSITION | batch.BodyFields.ANGLE | batch.BodyFields.VELOCITY
-                  | batch.BodyFields.ANGULAR_VELOCITY)
-        self._n = n
-        self._batch_fields = fields
-        self._batch_buf = batch.Buffer()
-        # The iterator visits the dynamic bodies (in order of addition) and
-        # then the static body holding the static shapes, if any.
-        check = batch.Buffer()
-        batch.get_space_bodies(self._space, fields | batch.BodyFields.BODY_ID, check)
-        ids = np.frombuffer(check.int_buf(), dtype=np.uintp)
-        self._n_iter = len(ids)
-        if list(ids[:n]) != [b.id for b in self._bodies]:
-            raise RuntimeError("pymunk batch body order differs from the order bodies were added")
-        got = np.frombuffer(check.float_buf()).reshape(self._n_iter, ROW)[:n]
-        want = np.array([(b.position.x, b.position.y, b.angle, b.velocity.x, b.velocity.y, b.angular_velocity)
-                         for b in self._bodies], float).reshape(n, ROW)
-        if not np.array_equal(got, want):
-            raise RuntimeError("pymunk batch layout is not (x, y, angle, vx, vy, w)")
+        """Batched reads of every body's state: the public
+        ``pymunk.batch.get_space_bodies`` (its order and layout verified by
+        :class:`adapters.pymunk_batch.PublicBodyBatch`), or its
+        allocation-free twin :class:`adapters.pymunk_internals.BodyReader`
+        when pymunk's internals allow."""
+        self._public = PublicBodyBatch(self._pm.batch, self._space, self._bodies)
         try:
-            self._c_each = BodyReader(self._space, fields, self._batch_buf, batch, self._n_iter, n)
+            self._c_each = BodyReader(self._space, self._public.fields, self._public.buf, self._pm.batch,
+                                      self._public.total, n)
             self._reader_kind = "c_batch"
         except Exception:  # pragma: no cover - depends on pymunk internals
             self._c_each, self._reader_kind = None, "public_batch"
@@ -386,13 +316,7 @@ class PymunkAdapter(Adapter):
 
         One batched engine read, then one vectorised call of the conversion
         point world_from_planar on the transposed (column) views."""
-        if self._c_each is not None:
-            c = self._c_each.read()
-        else:
-            buf = self._batch_buf
-            buf.clear()
-            self._pm.batch.get_space_bodies(self._space, self._batch_fields, buf)
-            c = np.frombuffer(buf.float_buf()).reshape(self._n_iter, ROW)[:self._n].T
+        c = self._c_each.read() if self._c_each is not None else self._public.read()
         world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos.T, quat.T, vel.T, angvel.T)
 
     def stages(self) -> dict[str, Any]:
@@ -424,86 +348,18 @@ class PymunkAdapter(Adapter):
         steps after their shapes separated; those report a contact count of
         0 and are left out
         (tests/test_adapter_pymunk.py::test_batched_contacts_equal_each_arbiter)."""
-        buf = self._arb_buf
-        buf.clear()
-        self._pm.batch.get_space_arbiters(self._space, self._arb_fields, buf)
-        ints = np.frombuffer(buf.int_buf(), dtype=np.uintp).reshape(-1, 3)  # body a id, body b id, count
-        # per arbiter: normal (2), then per point k = 1, 2: point_a (2), point_b (2), distance
-        f = np.frombuffer(buf.float_buf()).reshape(len(ints), 12)
-        ids, ranks = self._id_order
-        flip = np.where(ranks[np.searchsorted(ids, ints[:, 0])] > ranks[np.searchsorted(ids, ints[:, 1])], -1.0, 1.0)
-        pts = f[:, 2:].reshape(-1, 2, 5)  # (arbiters, point k, [ax, ay, bx, by, d])
-        rows = np.zeros((len(ints), 2, 7))
-        rows[:, :, 0] = 0.5 * (pts[:, :, 0] + pts[:, :, 2])
-        rows[:, :, 2] = 0.5 * (pts[:, :, 1] + pts[:, :, 3])
-        rows[:, :, 3] = (flip * f[:, 0])[:, None]
-        rows[:, :, 5] = (flip * f[:, 1])[:, None]
-        rows[:, :, 6] = -pts[:, :, 4]
-        return rows[np.arange(2)[None, :] < ints[:, 2:3]]
+        c = self._arbiters.contact_rows()  # (k, 5): 2D point, 2D normal, depth
+        out = np.zeros((len(c), 7))
+        out[:, [0, 2, 3, 5, 6]] = c  # 2D (x, y) -> world (x, 0, y), as world_from_planar maps positions
+        return out
 
     def close(self) -> None:
-        # Drop references; cffi frees the space and its bodies.
-        for name in ("_cols", "_c_data", "_farr", "_c_space", "_bodies", "_drag"):
-            if hasattr(self, name):
-                setattr(self, name, None if name != "_drag" else [])
+        # Drop references (the reader's views first); cffi frees the space and its bodies.
+        self._c_each = self._public = self._arbiters = self._bodies = None
+        self._drag = []
 
 
 # ---- helpers ------------------------------------------------------------------
-
-
-def _planar_geometry_reason(scene: Scene) -> str | None:
-    """Planar checks the spec validator does not make (pattern positions,
-    spring anchors, static boxes off the plane)."""
-    for b in scene.bodies:
-        if abs(float(b.position[1])) > 0.0:
-            return f"pymunk is 2D: body {b.name} lies off the x-z plane (y = {float(b.position[1])!r})"
-    for k, sp in enumerate(scene.springs):
-        if abs(float(sp.anchor_a[1])) > 0.0 or abs(float(sp.anchor_b[1])) > 0.0:
-            return f"pymunk is 2D: spring[{k}] has an anchor off the x-z plane (y != 0)"
-    for s in scene.statics:
-        if s.shape == "box" and abs(float(s.position[1])) >= float(s.half_extents[1]):
-            return f"pymunk is 2D: static box {s.name} does not cross the x-z plane"
-    return None
-
-
-def _body_shape(pm: Any, body: Any, b: Any) -> Any:
-    """The body's x-z cross-section as a pymunk shape (body-local (x, z) ->
-    2D local (x, y)); no mass of its own."""
-    if b.shape == "sphere":
-        return pm.Circle(body, float(b.radius))
-    if b.shape == "box":
-        hx, hz = float(b.half_extents[0]), float(b.half_extents[2])
-        return pm.Poly.create_box(body, (2.0 * hx, 2.0 * hz), 0.0)
-    if b.shape == "capsule":
-        h = float(b.half_length)
-        return pm.Segment(body, (0.0, -h), (0.0, h), float(b.radius))
-    if b.shape == "cylinder":
-        return pm.Poly.create_box(body, (2.0 * float(b.radius), 2.0 * float(b.half_length)), 0.0)
-    raise Unsupported(f"pymunk adapter has no shape {b.shape}")  # pragma: no cover
-
-
-def _static_shape(pm: Any, static_body: Any, s: Any) -> Any:
-    """A static plane (solid below n . x = offset) or box as a pymunk Poly in
-    world 2D coordinates."""
-    if s.shape == "plane":
-        nx, ny = world_point_to_planar(s.normal)
-        p0x, p0y = s.offset * nx, s.offset * ny
-        tx, ty = -ny, nx  # along the line
-        L, D = PLANE_HALF_LENGTH, PLANE_DEPTH
-        verts = [
-            (p0x - L * tx, p0y - L * ty),
-            (p0x + L * tx, p0y + L * ty),
-            (p0x + L * tx - D * nx, p0y + L * ty - D * ny),
-            (p0x - L * tx - D * nx, p0y - L * ty - D * ny),
-        ]
-        return pm.Poly(static_body, verts, None, 0.0)
-    # box: x-z cross-section, turned by its planar angle about y
-    (cx, cy), _, angle, _ = planar_from_world(s.position, np.zeros(3), s.orientation, np.zeros(3))
-    hx, hz = float(s.half_extents[0]), float(s.half_extents[2])
-    ca, sa = math.cos(angle), math.sin(angle)
-    verts = [(cx + ca * px - sa * py, cy + sa * px + ca * py)
-             for px, py in ((-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz))]
-    return pm.Poly(static_body, verts, None, 0.0)
 
 
 def _call_step(space: Any, h: float) -> None:

@@ -76,7 +76,7 @@ class BodyReader:
         data.floatArray = farr
         data.intArray = buf._int_arr
         self._ffi = ffi
-        self._data = data  # keep alive
+        self._buf, self._data = buf, data  # keep alive: the views below point into buf
         self._iter = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
         self._each = lib.cpSpaceEachBody
         self._space = space._space
