@@ -79,6 +79,7 @@ from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, 
 from adapters.forces import drag_coefficients
 from adapters.mjcf import INTEGRATORS, build_mjcf
 from adapters.mujoco_impacts import calibrate_pairs
+from adapters.quiet import collect_mujoco_warnings
 from contract.rotation import quat_rotate, world_to_body_angvel
 from contract.scene import Scene
 
@@ -92,21 +93,10 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 ENGINE = "mujoco"
 
-#: MuJoCo's warnings of the run in progress ("Nan, Inf or huge value in
-#: QACC", "contact buffer full" ...).  Without a handler MuJoCo appends them
-#: to MUJOCO_LOG.TXT in the working directory; with this one they become
-#: notes of the run and nothing is written
-#: (tests/test_execute.py::test_mujoco_warnings_write_no_log_file).
-_WARNINGS: list[str] = []
-
-
-def _on_warning(msg: str) -> None:
-    if len(_WARNINGS) < 20:  # a blow-up repeats the same warning every step
-        _WARNINGS.append(str(msg))
-
-
-if mujoco is not None:
-    mujoco.set_mju_user_warning(_on_warning)
+#: MuJoCo's warnings of the run in progress, kept instead of written to
+#: MUJOCO_LOG.TXT (:func:`adapters.quiet.collect_mujoco_warnings`); they
+#: become notes of the run.
+_WARNINGS: list[str] = collect_mujoco_warnings(mujoco) if mujoco is not None else []
 
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
@@ -114,7 +104,6 @@ _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_
                       "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic"})
 
 _CONES = ("pyramidal", "elliptic")
-
 
 
 def _settings() -> dict[str, Setting]:

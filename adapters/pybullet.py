@@ -85,7 +85,7 @@ import numpy as np
 from adapters.base import gyroscopic_reason, Adapter, Capabilities, Unsupported
 from adapters.forces import PybulletForces
 from adapters.materials import per_object_factors
-from adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, run_notes
+from adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
 from adapters.quiet import quiet_import
 from contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from contract.scene import Scene
@@ -161,31 +161,11 @@ class PybulletAdapter(Adapter):
             raise RuntimeError("pybullet could not start a DIRECT physics client")
         self._cid = cid
         dt = float(settings["dt"])
-        split = bool(settings["split_impulse"])
         maximal = bool(settings["maximal_coordinates"])
         contact = scene.has("contact")
         ccd = bool(settings["ccd"]) and contact  # nothing to sweep against without contacts
 
-        params = dict(
-            fixedTimeStep=dt,
-            numSolverIterations=int(settings["iterations"]),
-            numSubSteps=int(settings["substeps"]),
-            useSplitImpulse=int(split),
-            erp=float(settings["erp"]),
-            contactERP=float(settings["contact_erp"]),
-            frictionERP=float(settings["friction_erp"]),
-            restitutionVelocityThreshold=float(settings["restitution_velocity_threshold"]),
-            # a process-global in Bullet (gContactBreakingThreshold): always set
-            contactBreakingThreshold=float(settings["contact_breaking_threshold"]),
-        )
-        if ccd:
-            params["allowedCcdPenetration"] = float(settings["ccd_allowed_penetration"])
-        if split:
-            # Bullet uses the split impulse only for penetrations deeper than
-            # splitImpulsePenetrationThreshold (default -0.04 m: 4 cm!) and
-            # Baumgarte (velocity-adding) correction for shallower ones.  0
-            # makes every penetration use the split impulse.
-            params["splitImpulsePenetrationThreshold"] = 0.0
+        params = engine_parameters(settings, ccd)
         p.setPhysicsEngineParameter(physicsClientId=cid, **params)
         self.info["engine_parameters"] = dict(params)
         # Warm-up happens with gravity off (see below).

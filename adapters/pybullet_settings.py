@@ -93,6 +93,33 @@ def declaration(engine: str, available: bool, why: str) -> Capabilities:
     )
 
 
+def engine_parameters(settings: dict[str, Any], ccd: bool) -> dict[str, Any]:
+    """``setPhysicsEngineParameter`` keywords for resolved ``settings``
+    (``ccd``: CCD on and the scene has contacts)."""
+    split = bool(settings["split_impulse"])
+    params: dict[str, Any] = dict(
+        fixedTimeStep=float(settings["dt"]),
+        numSolverIterations=int(settings["iterations"]),
+        numSubSteps=int(settings["substeps"]),
+        useSplitImpulse=int(split),
+        erp=float(settings["erp"]),
+        contactERP=float(settings["contact_erp"]),
+        frictionERP=float(settings["friction_erp"]),
+        restitutionVelocityThreshold=float(settings["restitution_velocity_threshold"]),
+        # a process-global in Bullet (gContactBreakingThreshold): always set
+        contactBreakingThreshold=float(settings["contact_breaking_threshold"]),
+    )
+    if ccd:
+        params["allowedCcdPenetration"] = float(settings["ccd_allowed_penetration"])
+    if split:
+        # Bullet uses the split impulse only for penetrations deeper than
+        # splitImpulsePenetrationThreshold (default -0.04 m: 4 cm!) and
+        # Baumgarte (velocity-adding) correction for shallower ones.  0
+        # makes every penetration use the split impulse.
+        params["splitImpulsePenetrationThreshold"] = 0.0
+    return params
+
+
 def describe_stages(scene: Scene, settings: dict[str, Any], min_ccd_threshold: float, forces: list[str]) -> dict[str, Any]:
     """The engine features switched on for ``scene`` (the run's ``stages``)."""
     contact = scene.has("contact")

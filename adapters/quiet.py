@@ -1,4 +1,4 @@
-"""Silencing engines' C-level output.
+"""Silencing engines' C-level output and log files.
 
 Some engines print from C when imported (pybullet 3.2.7: ``pybullet build
 time: ...`` on stderr).  C-level output escapes
@@ -7,6 +7,12 @@ exit, where it would corrupt ``--json`` output.  :func:`quiet_import`
 imports a module with file descriptors 1 and 2 pointed at /dev/null and
 flushes C's buffers into /dev/null before restoring them.  Pinned by
 tests/test_adapter_pybullet.py::test_import_and_run_print_nothing_subprocess.
+
+MuJoCo appends its warnings ("Nan, Inf or huge value in QACC", "contact
+buffer full" ...) to MUJOCO_LOG.TXT in the working directory unless a
+handler takes them: :func:`collect_mujoco_warnings` installs one that keeps
+them in a list instead (tests/test_execute.py::
+test_mujoco_warnings_write_no_log_file).
 """
 
 from __future__ import annotations
@@ -16,6 +22,10 @@ import importlib
 import os
 import sys
 from types import ModuleType
+from typing import Any
+
+#: warnings kept per run at most: a blow-up repeats the same warning every step
+MAX_WARNINGS = 20
 
 
 def flush_c_stdio() -> None:
@@ -52,3 +62,16 @@ def quiet_import(name: str) -> ModuleType:
         os.close(devnull)
         for dup in saved.values():
             os.close(dup)
+
+
+def collect_mujoco_warnings(mujoco: Any) -> list[str]:
+    """Install a MuJoCo warning handler (process-wide) and return the list it
+    appends to (at most MAX_WARNINGS entries; the caller clears it per run)."""
+    warnings: list[str] = []
+
+    def on_warning(msg: str) -> None:
+        if len(warnings) < MAX_WARNINGS:
+            warnings.append(str(msg))
+
+    mujoco.set_mju_user_warning(on_warning)
+    return warnings
