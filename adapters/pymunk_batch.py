@@ -46,13 +46,26 @@ class PublicBodyBatch:
         return np.frombuffer(self.buf.float_buf()).reshape(self.total, ROW)[:self._n].T
 
 
+#: per arbiter the batch holds [normal (2), then per point k = 1, 2:
+#: point_a (2), point_b (2), distance]; GATHER picks (normal, a, b, distance)
+#: per point, MIDPOINT turns that into [point (2), normal (2), depth]
+GATHER = np.array([[0, 1, 2, 3, 4, 5, 6], [0, 1, 7, 8, 9, 10, 11]])
+MIDPOINT = np.zeros((7, 5))
+MIDPOINT[[2, 4], 0] = MIDPOINT[[3, 5], 1] = 0.5
+MIDPOINT[0, 2] = MIDPOINT[1, 3] = 1.0
+MIDPOINT[6, 4] = -1.0
+
+
 class ArbiterBatch:
     """``get_space_arbiters`` into one reused buffer, as contact rows.
 
     ``bodies`` are every body an arbiter can hold, in scene order (the
     static body last); a normal is oriented from the lower-indexed body of
     its pair toward the other, as ``Body.each_arbiter`` visited from the
-    bodies in order orients it."""
+    bodies in order orients it.  Which arbiters the batch holds (and their
+    order, and how many points each has) changes only when contacts come or
+    go: the normals' signs and the rows kept are worked out once per such
+    set and reused."""
 
     def __init__(self, batch: Any, space: Any, bodies: list) -> None:
         af = batch.ArbiterFields
@@ -60,8 +73,22 @@ class ArbiterBatch:
                        | af.DISTANCE_1 | af.POINT_A_2 | af.POINT_B_2 | af.DISTANCE_2)
         self.buf = batch.Buffer()
         self._batch, self._space = batch, space
-        order = np.array([b.id for b in bodies], dtype=np.uintp)
-        self._ids, self._index = np.sort(order), np.argsort(order)  # sorted ids, their body index
+        self._index = {b.id: k for k, b in enumerate(bodies)}
+        self._plans: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _plan(self, ints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sign of each arbiter's normal (A, 1, 1), rows kept (A, 2) bool)
+        for the batch's (body a id, body b id, count) rows (A, 3)."""
+        key = ints.tobytes()
+        plan = self._plans.get(key)
+        if plan is None:
+            if len(self._plans) > 4096:  # contact sets come and go: keep the memory bounded
+                self._plans.clear()
+            ia = np.array([self._index[int(i)] for i in ints[:, 0]], int)
+            ib = np.array([self._index[int(i)] for i in ints[:, 1]], int)
+            sign = np.where(ia > ib, -1.0, 1.0).reshape(-1, 1, 1)
+            plan = self._plans[key] = (sign, np.arange(2)[None, :] < ints[:, 2:3].astype(int))
+        return plan
 
     def contact_rows(self) -> np.ndarray:
         """(k, 5) rows [point x, y (m), unit normal x, y, depth (m, > 0 =
@@ -75,14 +102,7 @@ class ArbiterBatch:
         buf.clear()
         self._batch.get_space_arbiters(self._space, self.fields, buf)
         ints = np.frombuffer(buf.int_buf(), dtype=np.uintp).reshape(-1, 3)  # body a id, body b id, count
-        # per arbiter: normal (2), then per point k = 1, 2: point_a (2), point_b (2), distance
-        f = np.frombuffer(buf.float_buf()).reshape(len(ints), 12)
-        ia = self._index[np.searchsorted(self._ids, ints[:, 0])]
-        ib = self._index[np.searchsorted(self._ids, ints[:, 1])]
-        flip = np.where(ia > ib, -1.0, 1.0)
-        pts = f[:, 2:].reshape(-1, 2, 5)  # (arbiters, point k, [ax, ay, bx, by, d])
-        rows = np.empty((len(ints), 2, 5))
-        rows[:, :, 0:2] = 0.5 * (pts[:, :, 0:2] + pts[:, :, 2:4])
-        rows[:, :, 2:4] = (flip[:, None] * f[:, 0:2])[:, None, :]
-        rows[:, :, 4] = -pts[:, :, 4]
-        return rows[np.arange(2)[None, :] < ints[:, 2:3]]
+        sign, keep = self._plan(ints)
+        x = np.frombuffer(buf.float_buf()).reshape(len(ints), 12)[:, GATHER]  # (A, 2 points, 7)
+        x[:, :, 0:2] *= sign
+        return (x @ MIDPOINT)[keep]
