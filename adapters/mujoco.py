@@ -67,6 +67,11 @@ Materials
     two geoms (measured on 4.0.0: no duplicate contacts, the pair's solref
     wins), so broad phase stays automatic and only mixed-material scenes pay
     for explicit pairs.
+
+Sibling modules: the MJCF writer in :mod:`adapters.mjcf`, the predicted
+impacts and per-group calibration in :mod:`adapters.mujoco_impacts` (the
+1-D calibration itself in :mod:`adapters.mujoco_calibration`), the warning
+sink in :mod:`adapters.quiet`, drag coefficients in :mod:`adapters.forces`.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from adapters.mujoco_calibration import calibrate
 from contract.rotation import quat_to_matrix
 from contract.scene import Body, Scene, Static
 
@@ -107,8 +108,6 @@ def calibrate_pairs(scene: Scene, settings: dict[str, Any], notes: list[str],
     pairs with the same (e, normal gravity), at the group's fastest
     predicted impact; appends the calibration's note to ``notes`` and its
     rows to ``info["restitution_calibration"]``."""
-    from adapters.mujoco_calibration import calibrate
-
     dt = float(settings["dt"])
     integrator = settings["integrator"]
     pairs = scene.contact_pairs()

@@ -60,6 +60,13 @@ fall from rest therefore gives z_k = -g dt^2 k (k - 1) / 2 (10 steps of 0.01 s:
 -0.044145 m), v_k = -g k dt.  Overlap is removed by a separate bias velocity
 that moves positions but never enters the reported velocity; overlap below
 ``collision_slop`` is never removed.
+
+Sibling modules: settings, capabilities and shapes in
+:mod:`adapters.pymunk_scene`, the batched reads through pymunk's public API
+in :mod:`adapters.pymunk_batch`, the private shortcuts (direct
+``cpSpaceStep``, the allocation-free state reader) in
+:mod:`adapters.pymunk_internals`, material factors in
+:mod:`adapters.materials`, the drag law in :mod:`adapters.forces`.
 """
 
 from __future__ import annotations
