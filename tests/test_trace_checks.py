@@ -253,3 +253,70 @@ def test_apex_heights_are_reference_levels_and_bounces_markers(tmp_path):
     np.testing.assert_allclose(h, 1.0, rtol=1e-12)  # the still ball's bottom: 1 m up
     text = static_value(data, "/context/model", "TextDocument:text")[0]
     assert "apex heights: 0.25, 0.0625, 0.015625 m" in text
+
+
+@pytest.mark.parametrize("sid", ["billiards.ball_drop_bounce", "friction.box_slides_to_rest", "billiards.head_on"])
+def test_a_run_on_the_model_measures_its_reference_lines(sid, tmp_path):
+    """A fake engine that moves exactly like the model (positions and, for
+    the collision, velocities): each measured twin equals its reference
+    line, and the predicted moments are in the model's context text."""
+    from harness.references import get_model
+
+    scene = load_scene(sid)
+    model = get_model(scene.reference_model)(scene)
+    F = int(round(scene.duration / scene.dt)) + 1
+    res = still_result(scene, "fake", F)
+    t = res.trace.t
+    pos = model.positions(t)
+    ok = np.isfinite(pos).all(axis=2)
+    res.trace.pos[ok] = pos[ok]
+    if hasattr(model, "velocities"):
+        res.trace.vel[:, list(model.idx)] = model.velocities(t)
+    write_rrd(tmp_path / "m.rrd", scene, [res], diagnose=True)
+    data = read_rrd(tmp_path / "m.rrd")
+    series = model.reference_series()
+    assert series
+    for rs in series:
+        steps, line = scalars(data, f"/metrics/model/{rs.key}")
+        if rs.measure is None:
+            continue
+        s2, meas = scalars(data, f"/metrics/fake/predicted/{rs.key}")
+        np.testing.assert_array_equal(s2, steps)
+        np.testing.assert_allclose(meas, line, rtol=1e-9, atol=1e-12)
+    text = static_value(data, "/context/model", "TextDocument:text")[0]
+    moments = model.reference_times()
+    assert moments
+    ev = markers(data, "/events/model")
+    for tm, what in moments:
+        if tm <= scene.duration:
+            assert f"- {what}: t = {tm:.6g} s" in text
+            assert (round(tm / scene.dt), f"model: {what} at t = {tm:.6g} s") in [(s, tx) for s, _, tx in ev]
+
+
+def test_spin_to_rest_angle_line_and_stop_marker(tmp_path):
+    """A capsule turned about the plane normal exactly by the model's angle
+    theta(t) = w0 t - alpha t^2 / 2 (held at the stop): its measured angle
+    equals the line, which ends at w0^2 / (2 alpha), and the stop is marked
+    at w0 / alpha."""
+    from contract.rotation import quat_mul
+    from harness.references import get_model
+
+    scene = load_scene("friction.capsule_spins_to_rest")
+    model = get_model(scene.reference_model)(scene)
+    F = int(round(scene.duration / scene.dt)) + 1
+    res = still_result(scene, "fake", F)
+    t = res.trace.t
+    th = model.angle(t)
+    n = np.asarray(model.n, float)
+    rot = np.concatenate([np.cos(th / 2)[:, None], np.sin(th / 2)[:, None] * n[None]], axis=1)
+    q0 = np.asarray(scene.bodies[0].orientation, float)
+    res.trace.quat[:, 0] = [quat_mul(r, q0) for r in rot]
+    write_rrd(tmp_path / "s.rrd", scene, [res], diagnose=True)
+    data = read_rrd(tmp_path / "s.rrd")
+    steps, line = scalars(data, "/metrics/model/capsule/angle_turned")
+    _, meas = scalars(data, "/metrics/fake/predicted/capsule/angle_turned")
+    np.testing.assert_allclose(meas, line, atol=1e-9)
+    w0 = scene.bodies[0].angular_velocity[2]
+    assert line[-1] == pytest.approx(w0 * w0 / (2 * model.alpha), rel=1e-12)
+    (s, _, tx), = markers(data, "/events/model")
+    assert s == round(w0 / model.alpha / scene.dt) and "spin stops" in tx

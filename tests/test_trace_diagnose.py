@@ -5,6 +5,7 @@ documents, and ``check --traces``."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -206,3 +207,16 @@ def test_check_traces_writes_exactly_the_failing_cases(tmp_path):
     assert files == linked and files  # one file per failing case, no other
     assert failing == {"pymunk"}  # the reference engine's CCD passes the bullet checks
     assert str(traces / "tunnelling.bullet_100--pymunk.rrd") in files
+    # the result rows carry the same absolute path in each failing check's ``trace``
+    import json
+
+    import pandas as pd
+
+    (rows,) = list((tmp_path / "rows").glob("*.parquet"))
+    in_rows = {(r["engine"], c["metric"]): c["trace"] for _, r in pd.read_parquet(rows).iterrows()
+               for c in json.loads(r["checks"])}
+    junit_links = {(tc.get("classname").split(".")[1], tc.get("name").rpartition("::")[2]):
+                   {p.get("name"): p.get("value") for p in tc.iter("property")}.get("trace", "")
+                   for tc in root.iter("testcase")}
+    assert {k: v for k, v in in_rows.items() if k in junit_links} == junit_links
+    assert {v for v in in_rows.values() if v} == files and all(Path(v).is_absolute() for v in files)
