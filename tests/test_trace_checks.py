@@ -16,7 +16,7 @@ import pytest
 from contract.rotation import quat_rotate, world_to_body_angvel
 from contract.scene import Check, load_scene
 from harness.conformance import Outcome
-from harness.runner import RunResult, Trace
+from harness.runner import RunResult
 from harness.trace import write_rrd
 from tests.test_trace_diagnose import still_result
 from tests.test_trace_rrd import read_rrd, rerun_chunk, static_value, temporal
