@@ -320,3 +320,20 @@ def test_spin_to_rest_angle_line_and_stop_marker(tmp_path):
     assert line[-1] == pytest.approx(w0 * w0 / (2 * model.alpha), rel=1e-12)
     (s, _, tx), = markers(data, "/events/model")
     assert s == round(w0 / model.alpha / scene.dt) and "spin stops" in tx
+
+
+def test_a_failing_prediction_leaves_its_line_out_and_keeps_the_trace(tmp_path, monkeypatch):
+    from harness.references import ReferenceSeries
+    from harness.references.collision import TwoBodyCollision
+
+    def broken(t):
+        raise FloatingPointError("planted")
+
+    good = TwoBodyCollision.reference_series
+    monkeypatch.setattr(TwoBodyCollision, "reference_series",
+                        lambda self: good(self) + [ReferenceSeries("cue/broken", "m/s", "planted", broken, broken)])
+    scene = load_scene("billiards.head_on")
+    write_rrd(tmp_path / "x.rrd", scene, [still_result(scene, "fake", 51)], diagnose=True)
+    data = read_rrd(tmp_path / "x.rrd")
+    assert "/metrics/model/cue/broken" not in data and "/metrics/fake/predicted/cue/broken" not in data
+    assert len(scalars(data, "/metrics/model/cue/normal_velocity")[0]) == 51

@@ -99,7 +99,9 @@ class Diagnosis:
         as a TextLog at /events/model at step round(t / dt), and both as
         text in the Markdown document /context/model."""
         for rs in self.predicted:
-            _send_scalars(rec, f"{dg.PREDICTION_PATH}/{rs.key}", steps, t, np.asarray(rs.model(t), float))
+            y = dg.evaluate_series(rs.model, t)
+            if y is not None:
+                _send_scalars(rec, f"{dg.PREDICTION_PATH}/{rs.key}", steps, t, y)
         if self.model is None:
             return
         t_end = float(t[-1]) if t.size else 0.0
@@ -166,8 +168,9 @@ class Diagnosis:
             if name in running and name not in THRESHOLD_GROUP:
                 _send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])
         for rs in self.predicted:
-            if rs.measure is not None:
-                _send_scalars(rec, f"{metrics_path}/predicted/{rs.key}", steps, t, np.asarray(rs.measure(tr), float))
+            y = None if rs.measure is None else dg.evaluate_series(rs.measure, tr)
+            if y is not None:
+                _send_scalars(rec, f"{metrics_path}/predicted/{rs.key}", steps, t, y)
         events = dg.find_events(scene, result, tr, penetration=frame_max, error=err, model=self.model,
                                 outcomes=mine, checks=self.checks, series=running)
         if events:

@@ -86,6 +86,15 @@ def reference_series(model) -> list:
         return []
 
 
+def evaluate_series(fn, arg) -> np.ndarray | None:
+    """A ReferenceSeries' ``model(t)`` or ``measure(trace)`` as float (F,),
+    or None when it fails (the line is left out, the trace is kept)."""
+    try:
+        return np.asarray(fn(arg), float)
+    except Exception:
+        return None
+
+
 def reference_moments(model, t_end: float) -> list[tuple[float, str]]:
     """The model's predicted moments (t s, text) within [0, t_end], sorted;
     [] without a model or when it fails."""
