@@ -154,11 +154,11 @@ def run_point(point: Point) -> dict[str, Any]:
 def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
                    result: Any = None) -> dict[str, Any]:
     """The sweep's columns of a point's row.  ``checks`` (JSON) holds the
-    scene's checks on this point's run (those that apply to the engine and
-    variant, without an @-setting; evaluated as ``physbench check`` does),
-    ``primary_threshold`` the check max on the primary metric: the report
-    reads both from the row instead of reloading the scene."""
-    from harness.conformance import applicable_checks, evaluate_check, primary_threshold, split_metric
+    verdicts of the scene's checks on this point's run
+    (harness.conformance.run_verdicts), and the scene's columns
+    (harness.conformance.scene_columns: primary metric, its threshold,
+    tags): the report reads them from the row, never from the scene."""
+    from harness.conformance import run_verdicts, scene_columns, verdicts_column
 
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
@@ -167,17 +167,14 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     except (TypeError, ValueError):
         err = math.nan
     finite = [c for c in cpu if math.isfinite(c)]
-    checks = []
-    if scene is not None and result is not None:
-        checks = [evaluate_check(c, result).as_dict() for c in applicable_checks(scene, point.engine)
-                  if not split_metric(c.metric)[1]]
+    cols = scene_columns(scene) if scene is not None else {"primary_metric": None, "primary_threshold": None,
+                                                            "tags": None}
     return {
+        **cols,
         "point_key": point.key,
-        "checks": json.dumps(checks, sort_keys=True),
-        "primary_threshold": primary_threshold(scene) if scene is not None else None,
+        "checks": verdicts_column(run_verdicts(scene, result)) if scene is not None and result is not None else "[]",
         "point_settings": point.settings_json,
         "phase": point.phase,
-        "primary_metric": metric,
         "primary_error": err,
         "cpu_s_per_sim_s_median": statistics.median(finite) if finite else math.nan,
         "cpu_s_per_sim_s_min": min(finite) if finite else math.nan,

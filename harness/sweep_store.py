@@ -26,16 +26,16 @@ from typing import Any, Iterable
 
 from contract.spec import SpecError, _display
 from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
-from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
+from harness.results import (RESULTS_DIR, SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts, try_lock,
                              unfinished_dirs, write_json_atomic)
 
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
 # Columns a sweep adds to RunResult.row() (the row contract, with
-# results/README.md).
-SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
-                 "primary_threshold", "checks",
-                 "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
-                 "point_wall_s", "schema_version")
+# results/README.md): the verdict columns every check row has too, then the
+# sweep's own.
+SWEEP_COLUMNS = VERDICT_COLUMNS + ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_error",
+                                   "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id",
+                                   "sweep_jobs", "point_wall_s", "schema_version")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
