@@ -62,8 +62,8 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import io
 import math
-import os
 import re
 import sys
 import time
@@ -76,6 +76,7 @@ from typing import Any, Iterable
 from harness import status as st
 from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result
 from harness.executors import make_executor
+from harness.results import write_text_atomic
 from contract.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
@@ -666,11 +667,9 @@ def _detail(o: Outcome) -> str:
 def write_junit(outcomes: list[Outcome], path: str | Path) -> None:
     tree = junit_xml(outcomes)
     ET.indent(tree)
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tree.write(tmp, encoding="utf-8", xml_declaration=True)
-    os.replace(tmp, p)
+    buf = io.BytesIO()
+    tree.write(buf, encoding="utf-8", xml_declaration=True)
+    write_text_atomic(buf.getvalue().decode("utf-8"), path)
 
 
 def summarize(outcomes: list[Outcome], console=None) -> None:

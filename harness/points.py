@@ -18,6 +18,7 @@ from functools import lru_cache
 from typing import Any, Callable
 
 from contract.phase import PhaseError
+from harness import status as st
 from harness.execute import RunRequest, WorkerLost, request_scene
 
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
@@ -111,9 +112,9 @@ def run_point(point: Point) -> dict[str, Any]:
     try:
         scene = _scene(point.path or point.scenario, point.variant)
     except Exception as e:
-        return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+        return _status_row(point, st.ERROR, f"scene failed to load: {type(e).__name__}: {e}", t0)
     if point.scene_hash and scene.content_hash != point.scene_hash:
-        return _status_row(point, "error", f"scene changed since the sweep was planned (content hash "
+        return _status_row(point, st.ERROR, f"scene changed since the sweep was planned (content hash "
                                            f"{scene.content_hash}, planned {point.scene_hash}); sweep again", t0)
     settings = point.engine_settings
     if point.phase:
@@ -121,7 +122,7 @@ def run_point(point: Point) -> dict[str, Any]:
             scene = request_scene(RunRequest(point.scenario, point.engine, point.variant, settings,
                                              phase=point.phase), base=scene)
         except PhaseError as e:
-            return _status_row(point, "error", f"phase {point.phase:g}: {e}", t0, scene=scene)
+            return _status_row(point, st.ERROR, f"phase {point.phase:g}: {e}", t0, scene=scene)
     first = None
     cpu: list[float] = []
     # a blow-up is recorded in the status; numpy's overflow warnings on the
@@ -134,14 +135,14 @@ def run_point(point: Point) -> dict[str, Any]:
                                  compute_metrics=(i == 0))
             except Exception as e:  # a bad setting combination, an adapter import error ...
                 if first is None:
-                    return _status_row(point, "failed", f"could not run: {type(e).__name__}: {e}", t0,
+                    return _status_row(point, st.FAILED, f"could not run: {type(e).__name__}: {e}", t0,
                                        scene=scene, tb=traceback.format_exc(limit=5))
                 first.notes.append(f"repeat {i + 1} raised {type(e).__name__}: {e}; not timed")
                 break
             res.trace = None
             if first is None:
                 first = res
-            if res.status != "ok":  # a partial run's cost is no point of a work-precision curve
+            if res.status != st.OK:  # a partial run's cost is no point of a work-precision curve
                 if res is not first:
                     first.notes.append(f"repeat {i + 1} ended {res.status} ({res.message}); not timed")
                 break
@@ -163,7 +164,7 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
     try:
-        err = float(value) if row.get("status") == "ok" and value is not None else math.nan
+        err = float(value) if row.get("status") == st.OK and value is not None else math.nan
     except (TypeError, ValueError):
         err = math.nan
     finite = [c for c in cpu if math.isfinite(c)]
