@@ -63,6 +63,7 @@ import datetime as _dt
 import hashlib
 import json
 import io
+import os
 import math
 import re
 import sys
