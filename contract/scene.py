@@ -25,15 +25,10 @@ import numpy as np
 
 from contract.models import model_refusal, scene_errors
 from contract.phase import PhaseError, shift_scene
-from contract.spec import (
-    BodySection,
-    bound_error,
-    LoadedSpec,
-    ModelRefusal,
-    SpecError,
-    SpecModel,
-    load_spec,
-)
+from contract.spec.bounds import bound_error
+from contract.spec.errors import ModelRefusal, SpecError
+from contract.spec.load import LoadedSpec, load_spec
+from contract.spec.schema import BodySection, SpecModel
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = REPO_ROOT / "scenarios"
