@@ -205,6 +205,14 @@ def _plain(v: str | None) -> str | None:
     return v
 
 
+def _half_extents(cls: Any, v: Vec3 | None) -> Vec3 | None:
+    """The field validator of a box's ``half_extents`` (bodies and statics):
+    every component > 0 and within the 'length' bound; None passes."""
+    if v is not None and any(c <= 0 for c in v):
+        raise ValueError(f"must be > 0 in every component, got {list(v)}")
+    return _bounded_each("length", v)
+
+
 def _check_quat(q: tuple[float, ...]) -> tuple[float, ...]:
     n = math.sqrt(sum(c * c for c in q))
     if abs(n - 1.0) > 1e-6:
@@ -238,12 +246,7 @@ class BodySection(_Strict):
     def _name_plain(cls, v: str) -> str:
         return _plain(v)
 
-    @field_validator("half_extents")
-    @classmethod
-    def _positive_extents(cls, v: Vec3 | None) -> Vec3 | None:
-        if v is not None and any(c <= 0 for c in v):
-            raise ValueError(f"must be > 0 in every component, got {list(v)}")
-        return _bounded_each("length", v)
+    _positive_extents = field_validator("half_extents")(_half_extents)
 
     _length_bounded = field_validator("radius", "half_length")(_bound("length"))
     _mass_bounded = field_validator("mass")(_bound("mass"))
@@ -298,12 +301,7 @@ class StaticSection(_Strict):
     def _name_plain(cls, v: str | None) -> str | None:
         return _plain(v)
 
-    @field_validator("half_extents")
-    @classmethod
-    def _extents_bounded(cls, v: Vec3 | None) -> Vec3 | None:
-        if v is not None and any(c <= 0 for c in v):
-            raise ValueError(f"must be > 0 in every component, got {list(v)}")
-        return _bounded_each("length", v)
+    _extents_bounded = field_validator("half_extents")(_half_extents)
 
     _offset_bounded = field_validator("offset")(_bound("position"))
 
