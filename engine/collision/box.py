@@ -307,6 +307,32 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
             S_f[p, sl] = (16 if fl else 0) + 4 * face + t
 
 
+#: whether box pairs whose least overlap is an edge axis keep their face
+#: manifold's points (see :func:`box_box`; switched off only by the test
+#: that shows what they stop, test_time_of_impact_safeguards)
+EDGE_FACE_POINTS = True
+
+
+@njit(cache=True)
+def edge_pair_face_points(S_g, S_ok, edge, se, margin, keep):
+    """The face-manifold points (slots 1-4 of ``S_g``, ``S_ok`` (k, 5)) of
+    the edge pairs (``edge`` (k,) bool), in place: kept, their gaps clamped
+    at the pair's edge-axis separation ``se`` (k,) m (see :func:`box_box`)
+    -- and dropped where that puts them beyond the pair's ``margin`` (k,)
+    m; all dropped when not ``keep``."""
+    for t in range(S_g.shape[0]):
+        if not edge[t]:
+            continue
+        for s in range(1, 5):
+            g = S_g[t, s]
+            if np.isnan(g) or np.isnan(se[t]):
+                g = np.nan
+            elif se[t] > g:
+                g = se[t]
+            S_g[t, s] = g
+            S_ok[t, s] = keep and S_ok[t, s] and g < margin[t]
+
+
 def box_box(cA, RA, hA, cB, RB, hB, margin):
     """Separating axes + clipping; normal from A to B.  ``margin`` (k,).
 
@@ -317,7 +343,7 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     clamped at the edge axis' separation (the edge axis is the pair's least
     overlap, and no point of a body lies deeper in the other than that,
     while its overlap along a face normal may be more;
-    :func:`_edge_pair_face_points`, pinned by
+    :func:`edge_pair_face_points`, pinned by
     test_box_edge_landing_keeps_the_face_points)."""
     k = cA.shape[0]
     if k == 0:
@@ -330,22 +356,12 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     edge = np.zeros(k, bool)
     se = np.zeros(k)
     f = np.ascontiguousarray
+    mg = f(margin, float)
     _box_box_kernel(f(cA, float), f(RA, float), f(hA, float), f(cB, float), f(RB, float), f(hB, float),
-                    f(margin, float), S_n, S_p, S_g, S_f, S_ok, edge, se)
-    if edge.any():
-        _edge_pair_face_points(S_ok[:, 1:], S_g[:, 1:], edge, se, margin)
+                    mg, S_n, S_p, S_g, S_f, S_ok, edge, se)
+    edge_pair_face_points(S_g, S_ok, edge, se, mg, EDGE_FACE_POINTS)
     if not S_ok.any():
         return empty()
     kk = np.repeat(np.arange(k), 5).reshape(k, 5)
     m = S_ok
     return kk[m], S_n[m], S_p[m], S_g[m], S_f[m]
-
-
-def _edge_pair_face_points(ok: np.ndarray, gap: np.ndarray, edge: np.ndarray, se: np.ndarray,
-                           margin: np.ndarray) -> None:
-    """The face-manifold points of the edge pairs (``edge`` (k,) bool),
-    slots ``ok``, ``gap`` (k, 4), in place: kept, their gaps clamped at the
-    pair's edge-axis separation ``se`` (k,) m (see :func:`box_box`) -- and
-    dropped where that puts them beyond the pair's ``margin`` (k,) m."""
-    gap[edge] = np.maximum(gap[edge], se[edge, None])
-    ok[edge] &= gap[edge] < margin[edge, None]
