@@ -242,7 +242,25 @@ def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sweep and prune over boxes [lo, hi] (n, 3): overlapping pairs (i < j;
     lo_i <= hi_j and lo_j <= hi_i on all three axes), sorted
     lexicographically -- exactly :func:`brute_pairs`' pairs, for any input
-    (a row with a NaN overlaps nothing, as there).
+    (a row with a NaN overlaps nothing, as there).  The stage's compiled
+    path (:func:`_sap_step`: the sweep, or the hash grid for dense clouds)
+    from a fresh sort order, or, for what it leaves (non-finite or
+    inverted boxes, boxes too unequal for the grid),
+    :func:`sap_pairs_general`."""
+    n = lo.shape[0]
+    if n < 2:
+        return _EMPTY, _EMPTY
+    lo = np.ascontiguousarray(lo, float)
+    hi = np.ascontiguousarray(hi, float)
+    buf = SapBuffers(n)
+    k = buf.run(lo, hi)
+    if k == _FALLBACK:
+        return sap_pairs_general(lo, hi)
+    return buf.pi[:k].copy(), buf.pj[:k].copy()
+
+
+def sap_pairs_general(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sap_pairs` for any boxes, numpy around compiled loops:
 
     The boxes' lower bounds are sorted along the axis of largest spread
     (the sweep axis); the pairs overlapping on it are those of box p with
@@ -481,6 +499,8 @@ def brute_pairs(lo: np.ndarray, hi: np.ndarray, buf: PairBuffer | None = None) -
 #: :func:`sap_pairs` (a box with a NaN or infinite bound or lo > hi, or a
 #: dense cloud: the grid path)
 _FALLBACK = -1
+#: :func:`_sap_coherent`'s count for a dense cloud (the hash grid's case)
+_DENSE = -2
 #: the sweep axis is changed only for an axis whose box centres spread
 #: this many times more (variance): a step near a tie does not re-sort
 _AXIS_HYSTERESIS = 2.0
@@ -497,15 +517,9 @@ def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
     three axes are written to out_i, out_j sorted lexicographically
     (``code`` (capacity,) scratch) -- exactly :func:`brute_pairs`' pairs:
     the axis and the order decide only the work.  Returns their number
-    (written while they fit), or ``_FALLBACK`` for boxes that are not all
-    finite with lo <= hi, or more than ``_SWEEP_ONLY`` candidates per box
-    (then :func:`sap_pairs` runs)."""
+    (written while they fit), or ``_DENSE`` beyond ``_SWEEP_ONLY``
+    candidates per box.  The boxes are finite with lo <= hi."""
     n = lo.shape[0]
-    for k in range(n):
-        for a in range(3):
-            w = hi[k, a] - lo[k, a]
-            if not (w >= 0.0 and w < np.inf):
-                return _FALLBACK
     var = np.zeros(3)
     for a in range(3):
         mean = 0.0
@@ -548,7 +562,7 @@ def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
             q += 1
         total += q - p - 1
         if total > _SWEEP_ONLY * n:
-            return _FALLBACK
+            return _DENSE
     if cnt <= cap:
         code[:cnt].sort()
         for t in range(cnt):
@@ -557,12 +571,165 @@ def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
     return cnt
 
 
+#: the hash grid is used only while no box is wider than this many times
+#: the boxes' mean width (its cells are as wide as the widest box)
+_GRID_WIDE = 8.0
+#: the grid's cells are this much wider than the widest box, so that
+#: round-off in the cell coordinates cannot put two overlapping boxes two
+#: cells apart
+_GRID_PAD = 1e-6
+#: cells per axis at most (beyond, round-off in the coordinates could
+#: exceed the pad): sap_pairs then
+_GRID_MAX_CELLS = 1e6
+
+
+@njit(cache=True)
+def _cell_hash(cx, cy, cz, mask):
+    return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
+
+
+@njit(cache=True)
+def _hash_grid_pairs(lo, hi, start, perm, cell, key, js, out_i, out_j):
+    """Overlapping pairs (i < j, sorted lexicographically) of finite boxes
+    (lo <= hi), by a uniform grid: cells as wide as the widest box (plus
+    ``_GRID_PAD``), each box in the cell of its lower corner -- boxes that
+    overlap lie in neighbouring cells on every axis -- so each box is
+    tested against the boxes of its 27 neighbouring cells.  The cells are
+    numbered densely (x, y, z major to minor: a cell's three z neighbours
+    are one run) while there are at most ``start.size - 1`` of them (2n
+    and more), else hashed into that many buckets (a power of two; a box
+    is tested only against the boxes of a bucket whose cell is the one
+    looked for, so a hash collision adds tests, never a pair twice).
+    O(n + tests); the pairs come in order (each box's few partners are
+    sorted).  Work arrays: start (T + 1,), perm, key, js (n,), cell (n, 3).
+    Returns the number of pairs (written while they fit), or ``_FALLBACK``
+    when a box is wider than ``_GRID_WIDE`` times the mean or the grid
+    would have more than ``_GRID_MAX_CELLS`` cells per axis."""
+    n = lo.shape[0]
+    wmax = 0.0
+    wsum = 0.0
+    mn = np.empty(3)
+    mx = np.empty(3)
+    for a in range(3):
+        mn[a] = np.inf
+        mx[a] = -np.inf
+    for k in range(n):
+        for a in range(3):
+            w = hi[k, a] - lo[k, a]
+            wmax = max(wmax, w)
+            wsum += w
+            mn[a] = min(mn[a], lo[k, a])
+            mx[a] = max(mx[a], lo[k, a])
+    if wmax > _GRID_WIDE * wsum / (3 * n):
+        return _FALLBACK
+    c = wmax * (1.0 + _GRID_PAD) if wmax > 0.0 else 1.0
+    for a in range(3):
+        if (mx[a] - mn[a]) / c > _GRID_MAX_CELLS:
+            return _FALLBACK
+    T = start.shape[0] - 1
+    ny = np.int64(np.floor((mx[1] - mn[1]) / c)) + 1
+    nz = np.int64(np.floor((mx[2] - mn[2]) / c)) + 1
+    nx = np.int64(np.floor((mx[0] - mn[0]) / c)) + 1
+    dense = nx * ny * nz <= T
+    mask = T - 1
+    for t in range(T + 1):
+        start[t] = 0
+    for k in range(n):
+        for a in range(3):
+            cell[k, a] = np.int64(np.floor((lo[k, a] - mn[a]) / c))
+        if dense:
+            key[k] = (cell[k, 0] * ny + cell[k, 1]) * nz + cell[k, 2]
+        else:
+            key[k] = _cell_hash(cell[k, 0], cell[k, 1], cell[k, 2], mask)
+        start[key[k] + 1] += 1
+    for t in range(T):
+        start[t + 1] += start[t]
+    for k in range(n):  # counting sort by key (start[b] runs ahead, then is restored)
+        perm[start[key[k]]] = k
+        start[key[k]] += 1
+    for t in range(T, 0, -1):
+        start[t] = start[t - 1]
+    start[0] = 0
+    cap = out_i.shape[0]
+    cnt = 0
+    for i in range(n):
+        m = 0
+        for dx in range(-1, 2):
+            cx = cell[i, 0] + dx
+            if dense and not 0 <= cx < nx:
+                continue
+            for dy in range(-1, 2):
+                cy = cell[i, 1] + dy
+                if dense:
+                    if not 0 <= cy < ny:
+                        continue
+                    row = (cx * ny + cy) * nz
+                    u0 = start[row + max(cell[i, 2] - 1, 0)]
+                    u1 = start[row + min(cell[i, 2] + 1, nz - 1) + 1]
+                    for u in range(u0, u1):
+                        j = perm[u]
+                        if (j > i and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0]
+                                and _overlap_off_axis(lo, hi, i, j, 0)):
+                            js[m] = j
+                            m += 1
+                    continue
+                for dz in range(-1, 2):
+                    cz = cell[i, 2] + dz
+                    b = _cell_hash(cx, cy, cz, mask)
+                    for u in range(start[b], start[b + 1]):
+                        j = perm[u]
+                        if (j > i and cell[j, 0] == cx and cell[j, 1] == cy and cell[j, 2] == cz
+                                and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0]
+                                and _overlap_off_axis(lo, hi, i, j, 0)):
+                            js[m] = j
+                            m += 1
+        for a in range(1, m):  # insertion sort: few per box
+            j = js[a]
+            b = a - 1
+            while b >= 0 and js[b] > j:
+                js[b + 1] = js[b]
+                b -= 1
+            js[b + 1] = j
+        for a in range(m):
+            if cnt < cap:
+                out_i[cnt] = i
+                out_j[cnt] = js[a]
+            cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def _sap_step(lo, hi, order, state, out_i, out_j, code, grid):
+    """The body-body pairs of ``broadphase = sap`` (i < j, sorted
+    lexicographically; exactly :func:`brute_pairs`' pairs): by the sweep
+    along a persistent axis and order (:func:`_sap_coherent`) or, for a
+    dense cloud (``state[1]`` = 1 from the step the sweep found it dense
+    on), the hash grid (:func:`_hash_grid_pairs`; ``grid`` its work
+    arrays).  Returns their number, or ``_FALLBACK`` (boxes not all finite
+    with lo <= hi, or too unequal for the grid: :func:`sap_pairs` then)."""
+    n = lo.shape[0]
+    for k in range(n):
+        for a in range(3):
+            w = hi[k, a] - lo[k, a]
+            if not (w >= 0.0 and w < np.inf):
+                return _FALLBACK
+    if state[1] == 0:
+        cnt = _sap_coherent(lo, hi, order, state, out_i, out_j, code)
+        if cnt != _DENSE:
+            return cnt
+        state[1] = 1
+    cnt = _hash_grid_pairs(lo, hi, *grid, out_i, out_j)
+    if cnt == _FALLBACK:
+        state[1] = 0
+    return cnt
+
+
 @njit(cache=True)
 def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1, x1, R1, v0, v1, u, w0, w1, h, grow,
-                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, pi, pj, code, bp, pk, bs, sk):
+                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, grid, pi, pj, code, bp, pk, bs, sk):
     """The whole broad phase in one call: the end rotations R1 of q1, the
     swept boxes lo, hi and ``sweep`` (:func:`_swept_boxes`), the body-body
-    pairs (``sap``: :func:`_sap_coherent`, else every pair,
+    pairs (``sap``: :func:`_sap_step`, else every pair,
     :func:`_brute_kernel`), the body-plane and body-static-box pairs, into
     the caller's buffers.  Returns their three counts (minus the need where
     a buffer was short; ``_FALLBACK`` for the body-body pairs to be found
@@ -573,7 +740,7 @@ def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1,
     nbb = 0
     if lo.shape[0] >= 2:
         if sap:
-            nbb = _sap_coherent(lo, hi, order, state, pi, pj, code)
+            nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
             if nbb > pi.shape[0]:
                 nbb = -nbb
         else:
@@ -581,6 +748,35 @@ def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1,
     npl = _plane_pairs_kernel(lo, hi, planes_n, planes_off, grow, bp, pk) if planes_n.shape[0] else 0
     nsb = _box_pairs_kernel(lo, hi, slo, shi, bs, sk) if slo.shape[0] else 0
     return nbb, npl, nsb
+
+
+class SapBuffers:
+    """The body-body pairs' state and buffers of :func:`_sap_step` for n
+    boxes, kept between calls: the sweep's sort order and axis, the dense
+    flag, the hash grid's work arrays, the pair outputs (grown
+    geometrically: no allocation per step in the steady state)."""
+
+    def __init__(self, n: int):
+        self.order = np.arange(n, dtype=np.int64)
+        #: the sweep axis (-1: none yet), the dense flag (_sap_step)
+        self.state = np.array([-1, 0], np.int64)
+        T = 1 << int(max(2 * n, 2) - 1).bit_length()  # hash buckets: a power of two >= 2n
+        self.grid = (np.zeros(T + 1, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64),
+                     np.empty(n, np.int64), np.empty(n, np.int64))
+        self.grow(4 * n + 16)
+
+    def grow(self, m: int) -> None:
+        self.pi, self.pj, self.code = (np.empty(m, np.int64) for _ in range(3))
+
+    def run(self, lo: np.ndarray, hi: np.ndarray) -> int:
+        """:func:`_sap_step` on boxes lo, hi (n, 3) (C-contiguous float64),
+        growing the outputs when short: the pairs' number (in pi, pj) or
+        ``_FALLBACK``."""
+        while True:
+            k = _sap_step(lo, hi, self.order, self.state, self.pi, self.pj, self.code, self.grid)
+            if k <= self.pi.size:
+                return k
+            self.grow(2 * k)
 
 
 class BroadPhase(Stage):
@@ -600,9 +796,8 @@ class BroadPhase(Stage):
         self.lo = np.empty((n, 3))
         self.hi = np.empty((n, 3))
         self.R1 = np.empty((n, 3, 3))
-        self.order = np.arange(n, dtype=np.int64)
-        self.state = np.full(1, -1, np.int64)  # the sweep axis (-1: none yet)
-        self._grow(4 * n + 16, 2 * n + 16, 2 * n + 16)
+        self.pairs = SapBuffers(n)
+        self._grow(2 * n + 16, 2 * n + 16)
         # writable copies: the kernels are compiled (and warmed, warm_up)
         # for writable arrays, and the model's are read-only
         self.shape = np.array(model.shape, np.int64)
@@ -611,30 +806,31 @@ class BroadPhase(Stage):
         self.planes = (np.array(model.plane_normal, float).reshape(-1, 3), np.array(model.plane_offset, float))
         self.sbox = (np.array(model.sbox_aabb_lo, float).reshape(-1, 3), np.array(model.sbox_aabb_hi, float).reshape(-1, 3))
 
-    def _grow(self, nbb: int, npl: int, nsb: int) -> None:
-        self.pi, self.pj, self.code = (np.empty(nbb, np.int64) for _ in range(3))
+    def _grow(self, npl: int, nsb: int) -> None:
         self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
         self.bs, self.sk = np.empty(nsb, np.int64), np.empty(nsb, np.int64)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
+        P = self.pairs
         while True:
             nbb, npl, nsb = _broad_step(self.sap, self.shape, *self.geom, state.x, ctx.R0, ctx.q1, ctx.x1, self.R1,
                                         state.v, ctx.v, ctx.u_lin, state.w, ctx.w, float(ctx.h), self.margin,
-                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, self.order,
-                                        self.state, self.pi, self.pj, self.code, self.bp, self.pk, self.bs, self.sk)
+                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, P.order, P.state,
+                                        P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
             short = [max(-c, 0) for c in (nbb, npl, nsb)]
             if nbb == _FALLBACK:
                 short[0] = 0
             if not any(short):
                 break
-            self._grow(max(2 * short[0], self.pi.size), max(2 * short[1], self.bp.size),
-                       max(2 * short[2], self.bs.size))
+            if short[0]:
+                P.grow(2 * short[0])
+            self._grow(max(2 * short[1], self.bp.size), max(2 * short[2], self.bs.size))
         if nbb == _FALLBACK:
-            ctx.pairs_i, ctx.pairs_j = sap_pairs(self.lo, self.hi)
+            ctx.pairs_i, ctx.pairs_j = sap_pairs_general(self.lo, self.hi)
         else:
-            ctx.pairs_i, ctx.pairs_j = self.pi[:nbb], self.pj[:nbb]
+            ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
         ctx.plane_pairs = (self.bp[:npl], self.pk[:npl])
         ctx.sbox_pairs = (self.bs[:nsb], self.sk[:nsb])
 
@@ -650,12 +846,15 @@ def warm_up() -> None:
     q[:, 0] = 1.0
     lo, hi, sw = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     shape = np.array([SPHERE, BOX, CYLINDER], np.int64)
+    grid = (np.zeros(9, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64), np.empty(n, np.int64),
+            np.empty(n, np.int64))
     for sap in (False, True):
         i1 = np.empty(1, np.int64)
         _broad_step(sap, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
                     z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
-                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.full(1, -1, np.int64), i1, i1.copy(),
-                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
+                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+    SapBuffers(n).run(lo, hi)
     buf = PairBuffer(1)
     buf.run(_brute_kernel, lo, hi)
     order = np.argsort(lo[:, 0], kind="stable")
