@@ -14,8 +14,8 @@ reaches the plane's margin; body-static-box pairs when the boxes overlap.
 The stage is one compiled call per step (numba ``@njit(cache=True)``, no
 BLAS; :func:`_broad_step`): the swept boxes, the pairs -- sweep and prune
 along a sort order kept between steps and restored by insertion sort
-(:func:`_sap_coherent`; dense clouds and non-finite boxes fall back to
-:func:`sap_pairs`) or the all-pairs test -- and the static pairs, into
+(:func:`_sap_coherent`; dense clouds through a uniform grid, :func:`_hash_grid_pairs`;
+non-finite or very unequal boxes fall back to :func:`sap_pairs`) or the all-pairs test -- and the static pairs, into
 buffers kept between steps and grown geometrically.
 
 Also computes ``ctx.sweep`` (n,): a bound on how far any surface point of a
@@ -242,25 +242,9 @@ def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sweep and prune over boxes [lo, hi] (n, 3): overlapping pairs (i < j;
     lo_i <= hi_j and lo_j <= hi_i on all three axes), sorted
     lexicographically -- exactly :func:`brute_pairs`' pairs, for any input
-    (a row with a NaN overlaps nothing, as there).  The stage's compiled
-    path (:func:`_sap_step`: the sweep, or the hash grid for dense clouds)
-    from a fresh sort order, or, for what it leaves (non-finite or
-    inverted boxes, boxes too unequal for the grid),
-    :func:`sap_pairs_general`."""
-    n = lo.shape[0]
-    if n < 2:
-        return _EMPTY, _EMPTY
-    lo = np.ascontiguousarray(lo, float)
-    hi = np.ascontiguousarray(hi, float)
-    buf = SapBuffers(n)
-    k = buf.run(lo, hi)
-    if k == _FALLBACK:
-        return sap_pairs_general(lo, hi)
-    return buf.pi[:k].copy(), buf.pj[:k].copy()
-
-
-def sap_pairs_general(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sap_pairs` for any boxes, numpy around compiled loops:
+    (a row with a NaN overlaps nothing, as there).  The general path,
+    numpy around compiled loops (the stage runs :func:`stage_pairs`' path
+    and falls back to this one):
 
     The boxes' lower bounds are sorted along the axis of largest spread
     (the sweep axis); the pairs overlapping on it are those of box p with
@@ -487,6 +471,23 @@ def _sweep_pairs(lo, hi, axis, order, end, total):
     out_j = np.empty(total, np.int64)
     k = _sweep_kernel(lo, hi, axis, order, end, out_i, out_j)
     return out_i[:k], out_j[:k], None
+
+
+def stage_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sap_pairs`' pairs by the broad-phase stage's compiled path
+    (:func:`_sap_step`: the sweep, or the uniform grid for dense clouds)
+    from a fresh sort order, or, for what that leaves (non-finite or
+    inverted boxes, boxes too unequal for the grid), by :func:`sap_pairs`."""
+    n = lo.shape[0]
+    if n < 2:
+        return _EMPTY, _EMPTY
+    lo = np.ascontiguousarray(lo, float)
+    hi = np.ascontiguousarray(hi, float)
+    buf = SapBuffers(n)
+    k = buf.run(lo, hi)
+    if k == _FALLBACK:
+        return sap_pairs(lo, hi)
+    return buf.pi[:k].copy(), buf.pj[:k].copy()
 
 
 def brute_pairs(lo: np.ndarray, hi: np.ndarray, buf: PairBuffer | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -828,7 +829,7 @@ class BroadPhase(Stage):
                 P.grow(2 * short[0])
             self._grow(max(2 * short[1], self.bp.size), max(2 * short[2], self.bs.size))
         if nbb == _FALLBACK:
-            ctx.pairs_i, ctx.pairs_j = sap_pairs_general(self.lo, self.hi)
+            ctx.pairs_i, ctx.pairs_j = sap_pairs(self.lo, self.hi)
         else:
             ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
         ctx.plane_pairs = (self.bp[:npl], self.pk[:npl])
