@@ -761,7 +761,7 @@ class SapBuffers:
         self.order = np.arange(n, dtype=np.int64)
         #: the sweep axis (-1: none yet), the dense flag (_sap_step)
         self.state = np.array([-1, 0], np.int64)
-        T = 1 << int(max(2 * n, 2) - 1).bit_length()  # hash buckets: a power of two >= 2n
+        T = 1 << int(max(8 * n, 2) - 1).bit_length()  # grid cells or hash buckets: a power of two >= 8n
         self.grid = (np.zeros(T + 1, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64),
                      np.empty(n, np.int64), np.empty(n, np.int64))
         self.grow(4 * n + 16)

@@ -94,31 +94,16 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
     k = cA.shape[0]
     C = np.empty((3, 3))
     absC = np.empty((3, 3))
-    d = np.empty(3)
-    dA = np.empty(3)
-    dB = np.empty(3)
-    sepA = np.empty(3)
-    sepB = np.empty(3)
     Ln = np.empty((9, 3))
-    L = np.empty(3)
-    aLB = np.empty(3)
+    V = np.empty((18, 3))  # 3-vector scratch
+    d, dA, dB, sepA, sepB, L, aLB, nrm, w3 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7], V[8]
+    pa, pb, a0, a1, b0, b1, qa, qb, cr = V[9], V[10], V[11], V[12], V[13], V[14], V[15], V[16], V[17]
     P = np.empty((16, 3))
     Q = np.empty((16, 3))
-    gap = np.empty(16)
-    valid = np.empty(16, np.bool_)
-    nrm = np.empty(3)
-    w3 = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
-    a0 = np.empty(3)
-    a1 = np.empty(3)
-    b0 = np.empty(3)
-    b1 = np.empty(3)
-    qa = np.empty(3)
-    qb = np.empty(3)
     E = np.empty((16, 3))
-    cr = np.empty(3)
+    gap = np.empty(16)
     area = np.empty(16)
+    valid = np.empty(16, np.bool_)
     cand = np.empty(4, np.int64)
     for p in range(k):
         for i in range(3):

@@ -52,12 +52,8 @@ def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g):
 
 @njit(cache=True)
 def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f, S_ok):
-    a0 = np.empty(3)
-    a1 = np.empty(3)
-    b0 = np.empty(3)
-    b1 = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
+    V = np.empty((6, 3))
+    a0, a1, b0, b1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
     for k in range(ca.shape[0]):
         capsule_ends1(ca[k], Ra[k], hla[k], a0, a1)
         capsule_ends1(cb[k], Rb[k], hlb[k], b0, b1)
