@@ -25,6 +25,7 @@ from engine.collision.cylinder import (_BOX_EDGES, _CORNERS, _box_cylinder_kerne
                                        _cylinder_plane_kernel, _sphere_cylinder_kernel)
 from engine.collision.cylinder_pair import _SIDE_MAX, _cylinder_cylinder_kernel
 from engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
+from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 
 # family codes: body-body by shape pair (sphere S, box B, capsule C,
 # cylinder Y), then the body's shape against a plane (P_*) and a static box (X_*)
@@ -32,14 +33,26 @@ F_SS, F_SB, F_BB, F_SC, F_BC, F_CC, F_SY, F_BY, F_CY, F_YY = range(10)
 F_PS, F_PB, F_PC, F_PY = range(10, 14)
 F_XS, F_XB, F_XC, F_XY = range(14, 18)
 
-#: body-body family by canonical shape key sa * 8 + sb (sa <= sb; -1: none)
+#: body-body family keyed by canonically ordered shape codes
+TABLE = {(SPHERE, SPHERE): F_SS, (SPHERE, BOX): F_SB, (BOX, BOX): F_BB, (SPHERE, CAPSULE): F_SC,
+         (BOX, CAPSULE): F_BC, (CAPSULE, CAPSULE): F_CC, (SPHERE, CYLINDER): F_SY, (BOX, CYLINDER): F_BY,
+         (CAPSULE, CYLINDER): F_CY, (CYLINDER, CYLINDER): F_YY}
+#: body-plane and body-static-box family keyed by the body's shape code
+PLANE_TABLE = {SPHERE: F_PS, BOX: F_PB, CAPSULE: F_PC, CYLINDER: F_PY}
+SBOX_TABLE = {SPHERE: F_XS, BOX: F_XB, CAPSULE: F_XC, CYLINDER: F_XY}
+
+#: the tables as arrays for the kernel: body-body family by canonical
+#: shape key sa * 8 + sb (sa <= sb), body-static family by the body's
+#: shape (-1: none)
 FAMILY = np.full(32, -1, np.int64)
-for _k, _f in (((0, 0), F_SS), ((0, 1), F_SB), ((1, 1), F_BB), ((0, 2), F_SC), ((1, 2), F_BC), ((2, 2), F_CC),
-               ((0, 3), F_SY), ((1, 3), F_BY), ((2, 3), F_CY), ((3, 3), F_YY)):
-    FAMILY[_k[0] * 8 + _k[1]] = _f
-#: body-static family by the body's shape
-PLANE_FAMILY = np.array([F_PS, F_PB, F_PC, F_PY], np.int64)
-SBOX_FAMILY = np.array([F_XS, F_XB, F_XC, F_XY], np.int64)
+for (_a, _b), _f in TABLE.items():
+    FAMILY[_a * 8 + _b] = _f
+PLANE_FAMILY = np.full(4, -1, np.int64)
+SBOX_FAMILY = np.full(4, -1, np.int64)
+for _s, _f in PLANE_TABLE.items():
+    PLANE_FAMILY[_s] = _f
+for _s, _f in SBOX_TABLE.items():
+    SBOX_FAMILY[_s] = _f
 
 _YY_SLOTS = 4 + 2 * _SIDE_MAX
 #: per family its slot blocks' boundaries (-1 padded): the contacts of block

@@ -5,7 +5,7 @@ loop, contacts with their pair coefficients written into buffers kept
 between steps, :class:`Collider`).  The tables ``TABLE`` (body-body, keyed
 by canonically ordered shape codes), ``PLANE_TABLE`` and ``SBOX_TABLE``
 (body-static, keyed by the body's shape) name the supported pairs and
-their families."""
+their families (defined with the driver, :mod:`engine.collision.collide`)."""
 
 from __future__ import annotations
 
@@ -16,29 +16,10 @@ from engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
 from engine.profile import Stage
 from engine.state import Contacts
 from engine.collision import box
-from engine.collision.collide import (F_BB, F_BC, F_BY, F_CC, F_CY, F_PB, F_PC, F_PS, F_PY, F_SB, F_SC, F_SS, F_SY,
-                                      F_XB, F_XC, F_XS, F_XY, F_YY, MAX_SLOTS, collide)
+from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide
 
-
-#: body-body family (engine.collision.collide) keyed by canonically ordered shape codes
-TABLE = {
-    (SPHERE, SPHERE): F_SS,
-    (SPHERE, BOX): F_SB,
-    (BOX, BOX): F_BB,
-    (SPHERE, CAPSULE): F_SC,
-    (BOX, CAPSULE): F_BC,
-    (CAPSULE, CAPSULE): F_CC,
-    (SPHERE, CYLINDER): F_SY,
-    (BOX, CYLINDER): F_BY,
-    (CAPSULE, CYLINDER): F_CY,
-    (CYLINDER, CYLINDER): F_YY,
-}
-
-#: body-plane family keyed by the body's shape code
-PLANE_TABLE = {SPHERE: F_PS, BOX: F_PB, CAPSULE: F_PC, CYLINDER: F_PY}
-
-#: body-static-box family keyed by the body's shape code
-SBOX_TABLE = {SPHERE: F_XS, BOX: F_XB, CAPSULE: F_XC, CYLINDER: F_XY}
+__all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
+           "unsupported_pairs", "warm_up"]
 
 
 def unsupported_pairs(model) -> list[str]:
