@@ -87,8 +87,18 @@ def warm_up() -> float:
         Jt5 = np.zeros((npch, nr, 12))
         prepare.patch_rows(X, Iinv, im, P3, P3, act, pid, pab[:, 0].copy(), pab[:, 1].copy(), np.ones(npch), nb,
                            nr == 5, P, P.copy(), np.zeros(npch), t, Jt5, Jt5.copy(), np.zeros((npch, nr)))
+        prepare.rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm, r.copy(), r.copy(), True,
+                     pid, pab[:, 0].copy(), pab[:, 1].copy(), np.ones(npch), nr == 5, P, P.copy(),
+                     np.zeros(npch), t, Jt5, Jt5.copy(), np.zeros((npch, nr)), np.zeros((npch, nr)), zb.copy(),
+                     np.ones(npch), np.ones(npch))
         prepare.patch_velocity(Jt5, U, pab, 0, 2, z2.copy())
         prepare.sliding(Jt5, U, pab, np.ones(npch), 1e-4, z2.copy(), zb.copy())
+    e0 = np.zeros(0)
+    e3 = np.zeros((0, 3))
+    ei = np.zeros(0, np.int64)
+    prepare.rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm, r.copy(), r.copy(), False, ei,
+                 ei, ei, e0, False, e3, e3, e0, np.zeros((0, 2, 3)), np.zeros((0, 3, 12)), np.zeros((0, 3, 12)), e3,
+                 e3, np.zeros(0, np.bool_), e0, e0)
     prepare.targets(act, tb, vn, z3, z3, 0.01, 0.5, 0.01, 0.2, 1e-4, r.copy(), r.copy())
     lt = np.zeros((npch, 3))
     warm.match(codes, lm, a, br, codes, lm, z3, codes, P3, z3, P3, 0.01, r.copy(), True, False, pid, t,

@@ -209,7 +209,7 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     stops = 0
     ctx.missed_skip.clear()
     while True:
-        warm0 = state.warm
+        warm0 = ctx.warm0 = state.warm
         ctx.begin(model, state, remaining)
         ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
         ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0

@@ -73,7 +73,7 @@ from engine.contact.rows import (  # noqa: F401  (the solver's names, as before 
     dense_direct_solve,
     point_normal_velocity,
 )
-from engine.contact.warm import WarmCache, store_forces, warm_start  # noqa: F401
+from engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
 from engine.profile import Stage
 from engine.state import Contacts
 
@@ -139,6 +139,7 @@ class Solve(Stage):
         self.direct = bool(s["direct_start"])
         self.stops = bool(s["friction_stops"])
         self._topos: dict[bytes, Topology] = {}
+        self._warm = WarmPool()
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
@@ -331,7 +332,7 @@ class Solve(Stage):
                 ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
         if h >= WARM_MIN_STEP * model.h:
-            state.warm = store_forces(rows, h, touching)
+            state.warm = self._warm.store(rows, h, touching, old, ctx.warm0)
         else:
             # a sliver of a step (the rest of a step after a late time of
             # impact): its impulses are impulsive, not forces -- cached as

@@ -160,6 +160,9 @@ class Context:
         # the impact rows of the step being searched (ccd.refine_toi): the
         # reruns leave out exactly these, at every tau
         self.drop_rows: np.ndarray | None = None
+        # the warm-start cache the (mini-)step began with, which the step
+        # loop may restore (pipeline._substep): the solve stores into others
+        self.warm0: Any = None
         self.info: dict[str, Any] = {}
         #: the contact solve's work arrays (grown geometrically, kept)
         self.scratch = Scratch()

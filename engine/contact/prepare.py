@@ -346,6 +346,25 @@ def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
 
 
 @njit(cache=True)
+def rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc, lam_n, target, friction,
+         pid, pa, pb, cnt, rolling, P, N, r_twist, t, Jt, Mt, mt, lam_t, slip, mu, mus):
+    """The rows of a solve in one call: :func:`normal_rows`, then (with
+    ``friction``) :func:`patch_rows`; the impulses ``lam_n`` (m,) and
+    ``lam_t`` (np, nr), the ``target`` (m,) and the ``slip`` (np,) flags
+    cleared, ``mu`` (np,) set to the static coefficients ``mus`` (np,)
+    (the same arithmetic as the separate calls: tests/test_determinism.py)."""
+    normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc)
+    lam_n[:] = 0.0
+    target[:] = 0.0
+    if friction:
+        patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, rolling, P, N, r_twist, t, Jt,
+                   Mt, mt)
+        lam_t[:] = 0.0
+        slip[:] = False
+        mu[:] = mus
+
+
+@njit(cache=True)
 def targets(sel, touching, vn, gap, e, h, lever, thr, beta, slop, target, bias):
     """Normal rows' targets (the least allowed end normal velocity, m/s)
     for the contacts ``sel`` (m,) (see solver module doc): touching rows

@@ -64,6 +64,12 @@ def _pad(a: np.ndarray) -> np.ndarray:
 
 
 _NO_R = np.zeros((0, 3, 3))
+_NO_I = np.zeros(0, np.int64)
+_NO_D = np.zeros(0)
+_NO_B = np.zeros(0, np.bool_)
+_NO_P3 = np.zeros((0, 3))
+_NO_T = np.zeros((0, 2, 3))
+_NO_J = np.zeros((0, 3, 12))
 def point_normal_velocity(V, W, a, b, rA, rB, n):
     """n . (vb + wb x rB - va - wa x rA) for padded (n+1, 3) V, W."""
     rel = V[b] + cross(W[b], rB) - V[a] - cross(W[a], rA)
@@ -278,15 +284,28 @@ class Rows:
         #: cache's matching key
         self.loc = sc.take("loc", (m, 3))
         want_loc = R0 is not None
-        prepare.normal_rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point,
-                            c.normal, idx, n, self.J, self.M, self.mn, self.loc)
-        self.JA, self.JB = self.J[:, :6], self.J[:, 6:]
-        self.MA, self.MB = self.M[:, :6], self.M[:, 6:]
-        self.lam_n = sc.zeros("lam_n", (m,))
-        self.target = sc.zeros("target", (m,))
+        self.lam_n = sc.take("lam_n", (m,))
+        self.target = sc.take("target", (m,))
         self.friction = friction
         if friction:
-            self._patches(model, X, Iinv, c, sc)
+            self._patches(model, c, sc)
+            pid, pa, pb, cnt = topo.pid, topo.pa, topo.pb, topo.cnt
+            P, N, rt, t, Jt, Mt, mt = self.pcentroid, self.pnormal, self.r_twist, self.t, self.Jt, self.Mt, self.mt
+            lam_t, slip, mu, mus, rolling = self.lam_t, self.slip, self.mu, self.mus, self.rolling
+        else:
+            pid = pa = pb = _NO_I
+            cnt = rt = mu = mus = _NO_D
+            P = N = _NO_P3
+            t, Jt, Mt, mt, lam_t, slip, rolling = _NO_T, _NO_J, _NO_J, _NO_P3, _NO_P3, _NO_B, False
+        # normal rows, patches, cleared impulses: one compiled call
+        prepare.rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point, c.normal,
+                     idx, n, self.J, self.M, self.mn, self.loc, self.lam_n, self.target, friction, pid, pa, pb,
+                     cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
+        self.JA, self.JB = self.J[:, :6], self.J[:, 6:]
+        self.MA, self.MB = self.M[:, :6], self.M[:, 6:]
+        if friction:
+            self.JtA, self.JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
+            self.MtA, self.MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
 
     @property
     def contacts(self) -> Contacts:
@@ -308,7 +327,8 @@ class Rows:
         cs = self.contacts
         return cs.point - _pad(self._X)[cs.b]
 
-    def _patches(self, model, X, Iinv, c: Contacts, sc: Scratch) -> None:
+    def _patches(self, model, c: Contacts, sc: Scratch) -> None:
+        """The friction patches' work arrays (filled by prepare.rows)."""
         topo = self.topo
         self.pid = topo.pid
         self.pa, self.pb = topo.pa, topo.pb
@@ -322,12 +342,7 @@ class Rows:
         self.Jt = sc.take("Jt", (npch, nr, 12))  # [JtA | JtB], as J above
         self.Mt = sc.take("Mt", (npch, nr, 12))
         self.mt = sc.take("mt", (npch, nr))
-        prepare.patch_rows(X, Iinv, model.inv_mass, c.point, c.normal, self.idx, topo.pid, topo.pa, topo.pb,
-                           topo.cnt, model.n, rolling, self.pcentroid, self.pnormal, self.r_twist, self.t, self.Jt,
-                           self.Mt, self.mt)
-        self.JtA, self.JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
-        self.MtA, self.MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
-        self.lam_t = sc.zeros("lam_t", (npch, nr))
+        self.lam_t = sc.take("lam_t", (npch, nr))
         # pair coefficients are equal for all rows of a patch (and depend
         # only on the pair: kept in the topology)
         if topo.mus is None:
@@ -338,9 +353,8 @@ class Rows:
         self.mus = topo.mus
         self.muk = topo.muk
         self.mur = topo.mur
-        self.slip = sc.zeros("slip", (npch,), np.bool_)
+        self.slip = sc.take("slip", (npch,), np.bool_)
         self.mu = sc.take("mu", (npch,))
-        self.mu[:] = self.mus
 
     #: the last sweep's largest impulse change relative to the largest
     #: normal impulse, in the last iterate()

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from engine.contact.rows import Rows
+from engine.contact.scratch import Scratch
 
 _NO_I = np.zeros(0, np.int64)
 _NO_T = np.zeros((0, 2, 3))
@@ -114,22 +115,69 @@ def warm_start(model, old: "WarmCache", rows: Rows, h: float) -> None:
                rows.t if f else _NO_T, rows.lam_t if f else _NO_LT, np.zeros(rows.np if f else 0, np.bool_))
 
 
+def _fill(rows: Rows, h: float, touching: np.ndarray, out: "WarmCache") -> "WarmCache":
+    """Fill ``out`` (arrays sized to the rows and distinct pairs of
+    ``rows``) with the solve's forces (:func:`store`)."""
+    topo = rows.topo
+    f = rows.friction
+    store(topo.code_order, topo.codes, rows.loc, rows.lam_n, touching[rows.idx], topo.code_first,
+               topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT,
+               rows.t if f else _NO_T, h, out.codes, out.loc, out.fn, out.touch, out.pairs, out.ft, out.tw, out.rr)
+    return out
+
+
+def _sizes(rows: Rows) -> tuple[int, int]:
+    """(cached points, distinct pairs) of the cache of ``rows``."""
+    return rows.m, rows.topo.uniq_codes.size
+
+
 def store_forces(rows: Rows, h: float, touching: np.ndarray) -> "WarmCache":
     """The cache of the solve's forces for the next step's warm start
     (``touching`` (k,) bool over the stage's contacts: the rows that were
     touching at the start of the step -- a point pressed *at rest* only if
     it was; a speculative row that pressed to land its point exactly on the
-    surface did not rest).  Its arrays are its own: the step loop restores
-    an older cache for its reruns (pipeline._substep)."""
-    topo = rows.topo
-    m, p = rows.m, topo.uniq_codes.size
-    f = rows.friction
+    surface did not rest), in arrays of its own (:class:`WarmPool` reuses
+    kept ones)."""
+    m, p = _sizes(rows)
     out = WarmCache(np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(p, np.int64),
                     np.empty((p, 3)), np.empty(p), np.empty((p, 3)), np.empty(m, np.bool_))
-    store(topo.code_order, topo.codes, rows.loc, rows.lam_n, touching[rows.idx], topo.code_first,
-               topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT,
-               rows.t if f else _NO_T, h, out.codes, out.loc, out.fn, out.touch, out.pairs, out.ft, out.tw, out.rr)
-    return out
+    return _fill(rows, h, touching, out)
+
+
+class WarmPool:
+    """Kept caches for a Solve stage: :meth:`store` fills one whose arrays
+    are not those of a cache still in use, views of buffers grown
+    geometrically (no allocation per step in the steady state).
+
+    In use are at most two caches: the one the solve warm-started from
+    (``state.warm``) and the one its (mini-)step began with, which the step
+    loop restores for a rerun (pipeline._substep; the time-of-impact
+    search's reruns warm-start each from the last).  Three slots always
+    leave one free (tests/test_determinism.py pins the bits)."""
+
+    SLOTS = 3
+
+    def __init__(self) -> None:
+        self._scratch = [Scratch() for _ in range(self.SLOTS)]
+        self._cache: list[WarmCache | None] = [None] * self.SLOTS
+        self._size: list[tuple[int, int]] = [(-1, -1)] * self.SLOTS
+
+    def store(self, rows: Rows, h: float, touching: np.ndarray, busy0, busy1) -> "WarmCache":
+        """As :func:`store_forces`, into a kept cache that is neither
+        ``busy0`` nor ``busy1`` (caches, or None)."""
+        for k in range(self.SLOTS):
+            out = self._cache[k]
+            if out is None or (out is not busy0 and out is not busy1):
+                break
+        m, p = size = _sizes(rows)
+        if out is None or self._size[k] != size:
+            sc = self._scratch[k]
+            out = self._cache[k] = WarmCache(
+                sc.take("codes", (m,), np.int64), sc.take("loc", (m, 3)), sc.take("fn", (m,)),
+                sc.take("pairs", (p,), np.int64), sc.take("ft", (p, 3)), sc.take("tw", (p,)),
+                sc.take("rr", (p, 3)), sc.take("touch", (m,), np.bool_))
+            self._size[k] = size
+        return _fill(rows, h, touching, out)
 
 
 @dataclass(eq=False)
