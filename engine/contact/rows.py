@@ -301,11 +301,17 @@ class Rows:
         prepare.rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point, c.normal,
                      idx, n, self.J, self.M, self.mn, self.loc, self.lam_n, self.target, friction, pid, pa, pb,
                      cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
-        self.JA, self.JB = self.J[:, :6], self.J[:, 6:]
-        self.MA, self.MB = self.M[:, :6], self.M[:, 6:]
-        if friction:
-            self.JtA, self.JtB = self.Jt[:, :, :6], self.Jt[:, :, 6:]
-            self.MtA, self.MtB = self.Mt[:, :, :6], self.Mt[:, :, 6:]
+
+    # the body-a and body-b halves of the rows (views; the sweeps use the
+    # stacked (m, 12) and (np, nr, 12) arrays)
+    JA = property(lambda self: self.J[:, :6], doc="(m, 6) body a's Jacobian rows")
+    JB = property(lambda self: self.J[:, 6:], doc="(m, 6) body b's Jacobian rows")
+    MA = property(lambda self: self.M[:, :6], doc="(m, 6) body a's M^-1 J^T rows")
+    MB = property(lambda self: self.M[:, 6:], doc="(m, 6) body b's M^-1 J^T rows")
+    JtA = property(lambda self: self.Jt[:, :, :6], doc="(np, nr, 6) body a's friction rows")
+    JtB = property(lambda self: self.Jt[:, :, 6:], doc="(np, nr, 6) body b's friction rows")
+    MtA = property(lambda self: self.Mt[:, :, :6], doc="(np, nr, 6) body a's M^-1 Jt^T rows")
+    MtB = property(lambda self: self.Mt[:, :, 6:], doc="(np, nr, 6) body b's M^-1 Jt^T rows")
 
     @property
     def contacts(self) -> Contacts:
