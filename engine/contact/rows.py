@@ -225,6 +225,22 @@ class Topology:
         return self._masks
 
 
+def _take_rows(sc: Scratch, m: int, npch: int, nr: int, friction: bool) -> tuple:
+    """The work arrays of ``m`` normal rows (J, M (m, 12), mn (m,), loc
+    (m, 3), lam_n, target (m,)) and, with ``friction``, of ``npch``
+    patches of ``nr`` rows (P, N (np, 3), r_twist (np,), t (np, 2, 3),
+    Jt, Mt (np, nr, 12), mt, lam_t (np, nr), slip (np,) bool, mu (np,)),
+    views of the scratch ``sc``'s buffers (None without friction)."""
+    rows = (sc.take("J", (m, 12)), sc.take("M", (m, 12)), sc.take("mn", (m,)), sc.take("loc", (m, 3)),
+            sc.take("lam_n", (m,)), sc.take("target", (m,)))
+    if not friction:
+        return rows + (None,) * 10
+    return rows + (sc.take("P", (npch, 3)), sc.take("N", (npch, 3)), sc.take("r_twist", (npch,)),
+                   sc.take("t", (npch, 2, 3)), sc.take("Jt", (npch, nr, 12)), sc.take("Mt", (npch, nr, 12)),
+                   sc.take("mt", (npch, nr)), sc.take("lam_t", (npch, nr)), sc.take("slip", (npch,), np.bool_),
+                   sc.take("mu", (npch,)))
+
+
 class Rows:
     """Solver rows for a set of contacts at a pose (see module doc).
 
@@ -275,28 +291,26 @@ class Rows:
         self.ima = topo.ima
         self.imb = topo.imb
         sc = scratch if scratch is not None else Scratch()
-        # [JA | JB] and [MA | MB] in one (m, 12) array each: the sweeps use
-        # them stacked, everything else through the two views
-        self.J = sc.take("J", (m, 12))
-        self.M = sc.take("M", (m, 12))
-        self.mn = sc.take("mn", (m,))
-        #: contact points in body a's frame (with R0 given): the warm
-        #: cache's matching key
-        self.loc = sc.take("loc", (m, 3))
-        want_loc = R0 is not None
-        self.lam_n = sc.take("lam_n", (m,))
-        self.target = sc.take("target", (m,))
         self.friction = friction
+        want_loc = R0 is not None
         if friction:
-            self._patches(model, c, sc)
-            pid, pa, pb, cnt = topo.pid, topo.pa, topo.pb, topo.cnt
-            P, N, rt, t, Jt, Mt, mt = self.pcentroid, self.pnormal, self.r_twist, self.t, self.Jt, self.Mt, self.mt
-            lam_t, slip, mu, mus, rolling = self.lam_t, self.slip, self.mu, self.mus, self.rolling
+            self.np = npch = topo.np
+            self.rolling = rolling = bool(model.rolling)
+        else:
+            npch, rolling = 0, False
+        nr = 5 if rolling else 3  # friction rows per patch: tangent, tangent, twist (, roll, roll)
+        # the work arrays: views of the scratch's buffers, the same views
+        # while the sizes stay (a resting stack: every step)
+        (self.J, self.M, self.mn, self.loc, self.lam_n, self.target, P, N, rt, t, Jt, Mt, mt, lam_t, slip,
+         mu) = sc.group(("rows", m, npch, nr, friction), lambda: _take_rows(sc, m, npch, nr, friction))
+        if friction:
+            self._patches(c, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu)
+            pid, pa, pb, cnt, mus = topo.pid, topo.pa, topo.pb, topo.cnt, self.mus
         else:
             pid = pa = pb = _NO_I
             cnt = rt = mu = mus = _NO_D
             P = N = _NO_P3
-            t, Jt, Mt, mt, lam_t, slip, rolling = _NO_T, _NO_J, _NO_J, _NO_P3, _NO_P3, _NO_B, False
+            t, Jt, Mt, mt, lam_t, slip = _NO_T, _NO_J, _NO_J, _NO_P3, _NO_P3, _NO_B
         # normal rows, patches, cleared impulses: one compiled call
         prepare.rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point, c.normal,
                      idx, n, self.J, self.M, self.mn, self.loc, self.lam_n, self.target, friction, pid, pa, pb,
@@ -333,34 +347,31 @@ class Rows:
         cs = self.contacts
         return cs.point - _pad(self._X)[cs.b]
 
-    def _patches(self, model, c: Contacts, sc: Scratch) -> None:
+    def _patches(self, c: Contacts, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu) -> None:
         """The friction patches' work arrays (filled by prepare.rows)."""
         topo = self.topo
         self.pid = topo.pid
         self.pa, self.pb = topo.pa, topo.pb
-        self.np = npch = topo.np
-        self.rolling = rolling = bool(model.rolling)
-        nr = 5 if rolling else 3  # tangent, tangent, twist (, roll, roll)
-        self.pcentroid = sc.take("P", (npch, 3))
-        self.pnormal = sc.take("N", (npch, 3))
-        self.r_twist = sc.take("r_twist", (npch,))
-        self.t = sc.take("t", (npch, 2, 3))  # (np, 2, 3)
-        self.Jt = sc.take("Jt", (npch, nr, 12))  # [JtA | JtB], as J above
-        self.Mt = sc.take("Mt", (npch, nr, 12))
-        self.mt = sc.take("mt", (npch, nr))
-        self.lam_t = sc.take("lam_t", (npch, nr))
+        self.pcentroid = P  # (np, 3)
+        self.pnormal = N  # (np, 3)
+        self.r_twist = rt  # (np,)
+        self.t = t  # (np, 2, 3)
+        self.Jt = Jt  # (np, nr, 12): [JtA | JtB], as J above
+        self.Mt = Mt
+        self.mt = mt  # (np, nr)
+        self.lam_t = lam_t  # (np, nr)
         # pair coefficients are equal for all rows of a patch (and depend
         # only on the pair: kept in the topology)
         if topo.mus is None:
             first = self.idx[topo.pfirst]
             topo.mus = c.mus[first]
             topo.muk = c.muk[first]
-            topo.mur = c.mur[first] if rolling else None
+            topo.mur = c.mur[first] if self.rolling else None
         self.mus = topo.mus
         self.muk = topo.muk
         self.mur = topo.mur
-        self.slip = sc.take("slip", (npch,), np.bool_)
-        self.mu = sc.take("mu", (npch,))
+        self.slip = slip  # (np,) bool
+        self.mu = mu  # (np,)
 
     #: the last sweep's largest impulse change relative to the largest
     #: normal impulse, in the last iterate()

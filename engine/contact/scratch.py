@@ -19,6 +19,8 @@ class Scratch:
         #: the last view handed out per name, with its shape and dtype (a
         #: steady step asks for the same shapes every time: no new view)
         self._last: dict[str, tuple] = {}
+        #: the last views of a group (:meth:`group`) per group name
+        self._group: dict[str, tuple] = {}
 
     def take(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
         """A view of shape ``shape`` (contents undefined) of the buffer
@@ -40,3 +42,16 @@ class Scratch:
         out = self.take(name, shape, dtype)
         out[...] = 0
         return out
+
+    def group(self, key: tuple, make):
+        """The views ``make()`` returned for ``key`` (a tuple: the group's
+        name, then its sizes) the last time it was asked for, or ``make()``'s
+        views now (a steady step asks for the same sizes: one lookup instead
+        of one :meth:`take` per array)."""
+        last = self._group.get(key[0])
+        if last is not None and last[0] == key:
+            return last[1]
+        views = make()
+        self._group[key[0]] = (key, views)
+        return views
+
