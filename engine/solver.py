@@ -161,29 +161,36 @@ class Solve(Stage):
         n = model.n
         f = self.friction
         m = rows.m
-        U = sc.take("U", (n + 1, 6))
-        U0 = sc.take("U0", (n + 1, 6))
         npch = rows.np if f else 0
-        vt0 = sc.take("vt0", (npch, 2))
-        pin_t = sc.zeros("pin_t", (npch,), np.bool_)
-        dir_t = sc.zeros("dir_t", (npch, 2))
+        U, U0, Ud, vt0, pin_t, dir_t, matched, r_direct, mur0 = sc.group(
+            ("solve", n, npch, m), lambda: (sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)),
+                                            sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
+                                            sc.take("pin_t", (npch,), np.bool_), sc.take("dir_t", (npch, 2)),
+                                            sc.take("matched", (npch,), np.bool_), sc.take("r_direct", (m,)),
+                                            sc.take("mur0", (npch,))))
+        pin_t[:] = False
+        dir_t[:] = 0.0
         warm_on = bool(self.warm and old)
         o = old.packed if warm_on else _NO_CACHE
         if f:
             pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk = (topo.pab, topo.pid, rows.Jt, rows.Mt, rows.mt, rows.lam_t,
                                                           rows.mu, rows.mus, rows.muk)
-            mur = rows.mur if rows.mur is not None else sc.zeros("mur0", (npch,))
+            if rows.mur is not None:
+                mur = rows.mur
+            else:
+                mur = mur0
+                mur[:] = 0.0
             rt, slip, t, rolling = rows.r_twist, rows.slip, rows.t, rows.rolling
         else:
             pab, pid, Jt, Mt, mt, lam_t = _NO_P, _NO_I, _NO_F, _NO_F, _NO_LT, _NO_LT
             mu = mus = muk = mur = rt = _NO_D
             slip, t, rolling = _NO_B, _NO_T, False
         sw, rows.residual = phases.solve_contacts(
-            ctx.v, ctx.w, state.v, state.w, U, U0, sc.take("Ud", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
+            ctx.v, ctx.w, state.v, state.w, U, U0, Ud, topo.ab, rows.J, rows.M, rows.mn,
             rows.lam_n, rows.target, n, f, rolling, pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0,
             t, SLIP_TOL, warm_on, topo.codes, rows.loc, rows.a, rows.b, model.bound_radius, o[0], o[1], o[2], o[3],
-            o[4], o[5], o[6], h, sc.take("matched", (npch,), np.bool_), self.direct, RESTING_SPEED,
-            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, sc.take("r_direct", (m,)), pin_t, dir_t, self.iterations, 1e-7)
+            o[4], o[5], o[6], h, matched, self.direct, RESTING_SPEED,
+            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, r_direct, pin_t, dir_t, self.iterations, 1e-7)
         rows.sweeps = int(sw)
         return U, (U0 if f else None), (vt0 if f else None)
 
@@ -236,10 +243,9 @@ class Solve(Stage):
         # down onto a slab: tests/test_engine_collision.py; not the idle rim
         # points of a cylinder standing on its cap, nor the rattling corners
         # of a Gauss-Seidel-only box column)
-        vn = sc.take("vn", (3 * m,)).reshape(3, m)
-        touching = sc.take("touching", (m,), np.bool_)
-        impact = sc.take("impact", (m,), np.bool_)
-        codes_all = sc.take("codes", (m,), np.int64)
+        vn, touching, impact, codes_all = sc.group(
+            ("classify", m), lambda: (sc.take("vn", (3 * m,)).reshape(3, m), sc.take("touching", (m,), np.bool_),
+                                      sc.take("impact", (m,), np.bool_), sc.take("codes", (m,), np.int64)))
         old = state.warm
         o = old.packed if old else _NO_CACHE
         nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
