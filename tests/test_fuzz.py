@@ -101,7 +101,7 @@ def _report_tally(request):
     if out:
         Path(out).write_text(json.dumps({"profile": PROFILE, "jobs": JOBS, "run_steps": RUN_STEPS,
                                          "properties": {k: dict(v) for k, v in TALLY.items()},
-                                         "slowest": SLOWEST},
+                                         "slowest": SLOWEST, "reasons": REASONS},
                                         indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
@@ -132,6 +132,8 @@ def summary_lines(tallies: dict[str, collections.Counter], profile: str) -> list
             lines.append("    " + f"{e:<10}" + "".join(f"{v:>12}" for v in vals))
         for e, (secs, status, message, _spec) in sorted(SLOWEST.get(prop, {}).items()):
             lines.append(f"    slowest {e}: {secs:.2f} s, {status}" + (f" ({message[:120]})" if message else ""))
+        for reason, n in sorted(REASONS.get(prop, {}).items(), key=lambda kv: (kv[0].split(":")[0], -kv[1]))[:40]:
+            lines.append(f"    {n:>6} x {reason}")
     return lines
 
 
@@ -334,6 +336,13 @@ def engine_pool():
 
 #: per property and engine, the slowest run: (seconds, status, message, spec text)
 SLOWEST: dict[str, dict[str, tuple]] = collections.defaultdict(dict)
+#: per property, "engine status: reason" of every run not ok, numbers masked, counted
+REASONS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+
+
+def _reason(engine: str, status: str, message: str) -> str:
+    masked = re.sub(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", "#", message.splitlines()[0] if message else "")
+    return f"{engine} {status}: {masked[:160]}"
 
 
 def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, engines=ENGINES,
@@ -363,6 +372,7 @@ def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, eng
             message = value.message if isinstance(value, WorkerLost) else value[0].message
             SLOWEST[prop][engine] = (round(trip, 3), status, message, spec.read_text(encoding="utf-8"))
         if isinstance(value, WorkerLost):
+            REASONS[prop][_reason(engine, value.kind, value.message)] += 1
             if value.kind == "timeout":  # killed by the watchdog past the budget: its row is `timeout`
                 t[f"run {engine} timeout"] += 1
                 t[f"run {engine} killed"] += 1
@@ -377,6 +387,8 @@ def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, eng
         row = res.row()
         assert row["status"] == res.status and row["engine"] == engine
         t[f"run {engine} {res.status}"] += 1
+        if res.status != "ok":
+            REASONS[prop][_reason(engine, res.status, res.message)] += 1
         if secs["first"]:
             t[f"n {engine} first runs"] += 1
             t[f"ms {engine} first runs"] += 1e3 * secs["run"]
