@@ -97,12 +97,27 @@ def _report_tally(request):
             print("\n" + "\n".join(lines), flush=True)
     else:
         print("\n" + "\n".join(lines))
-    out = os.environ.get("PHYSBENCH_FUZZ_SUMMARY")
-    if out:
-        Path(out).write_text(json.dumps({"profile": PROFILE, "jobs": JOBS, "run_steps": RUN_STEPS,
-                                         "properties": {k: dict(v) for k, v in TALLY.items()},
-                                         "slowest": SLOWEST, "reasons": REASONS},
-                                        indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    write_summary()
+
+
+#: PHYSBENCH_FUZZ_SUMMARY: a JSON file the tally is written to, every
+#: SUMMARY_EVERY cases of a property and at the end (a long run killed
+#: half-way keeps its figures)
+SUMMARY = os.environ.get("PHYSBENCH_FUZZ_SUMMARY")
+SUMMARY_EVERY = 250
+
+
+def write_summary(t: collections.Counter | None = None) -> None:
+    """Write the tally to SUMMARY (if set): at the end, or when the
+    property counting ``t`` has run a multiple of SUMMARY_EVERY cases."""
+    if not SUMMARY or (t is not None and t["cases"] % SUMMARY_EVERY):
+        return
+    tmp = Path(SUMMARY + ".tmp")
+    tmp.write_text(json.dumps({"profile": PROFILE, "jobs": JOBS, "run_steps": RUN_STEPS,
+                               "properties": {k: dict(v) for k, v in TALLY.items()},
+                               "slowest": SLOWEST, "reasons": REASONS}, indent=1, sort_keys=True) + "\n",
+                   encoding="utf-8")
+    tmp.replace(SUMMARY)
 
 
 def summary_lines(tallies: dict[str, collections.Counter], profile: str) -> list[str]:
@@ -501,19 +516,20 @@ def generated_doc(draw):
     return doc
 
 
-@fuzz(scale=0.7)
+@fuzz(scale=1.0)
 @given(doc=generated_doc())
 def test_generated_specs_reject_or_run(request, tmp_path, engine_pool, doc):
     """A generated spec is rejected with a SpecError naming file and key
     path, or it runs on every engine to a status row; never a crash."""
     t = tally(request)
     t["cases"] += 1
+    write_summary(t)
     spec = _write(tmp_path, doc)
     for scene in _load_or_reject(spec, t):
         _run_engines(engine_pool, scene, t, request.node.originalname, spec)
 
 
-@fuzz(scale=0.7)
+@fuzz(scale=1.0)
 @given(case=mutated_doc(RAW_SPECS, max_mutations=1), pick=st.integers(0, 63))
 def test_mutated_specs_reject_or_run(request, tmp_path, engine_pool, case, pick):
     """A shipped spec with one mutation is rejected like a generated one, or
@@ -521,6 +537,7 @@ def test_mutated_specs_reject_or_run(request, tmp_path, engine_pool, case, pick)
     to a status row; never a crash."""
     t = tally(request)
     t["cases"] += 1
+    write_summary(t)
     spec = _write(tmp_path, case[1])
     scenes = _load_or_reject(spec, t)
     if scenes:
