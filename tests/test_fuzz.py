@@ -329,9 +329,10 @@ def test_mutated_specs_load_or_reject(request, tmp_path, case):
 #: a validated scene runs this many steps at most (tests/fuzz_worker.cut):
 #: every stage of every engine is built and stepped, at a few ms per run
 RUN_STEPS = 32
-#: wall-clock budget per run (s): the runner stops between step blocks at
-#: it, the pool's watchdog kills a worker stuck inside one call past it
-RUN_BUDGET_S = 60.0
+#: wall-clock budget per run (s; the worker is warm, tests/test_fuzz._warm):
+#: the pool's watchdog kills a worker stuck past it (plus a grace,
+#: harness.execute.grace_s) and the run is `timeout`
+RUN_BUDGET_S = 20.0
 #: worker processes running the engines (PHYSBENCH_FUZZ_JOBS, default 1)
 JOBS = int(os.environ.get("PHYSBENCH_FUZZ_JOBS", "1"))
 
@@ -347,6 +348,22 @@ def engine_pool():
 
     with WorkerPool(JOBS) as pool:
         yield pool
+
+
+def _warm(pool) -> None:
+    """Let the pool's workers import and run every engine once (head_on,
+    one step, no budget): a case's budget then covers its own run, not the
+    imports and compiled-code loading a fresh worker pays once (seconds,
+    more on a busy machine).  Called for a new pool and after a worker was
+    lost (the pool starts its replacement on the next item, this one)."""
+    from harness.execute import WorkerLost
+    from tests.fuzz_worker import run_cut
+
+    scene = load_scene(REPO_ROOT / "scenarios" / "billiards" / "head_on.toml")
+    # each engine once per worker: the pool hands the items out in order, one per idle worker
+    items = [(scene, e, 1, None) for e in ENGINES for _ in range(pool.jobs)]
+    for item, value in pool.map(run_cut, items):
+        assert not isinstance(value, WorkerLost), f"{item[1]}: warm-up: {value.full_message()}"
 
 
 #: per property and engine, the slowest run: (seconds, status, message, spec text)
@@ -369,50 +386,68 @@ def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, eng
     and fails the case with the engine, the signal or exception and the
     tail of the worker's stderr.  The slowest run per engine is kept with
     its spec (``spec``, the file ``scene`` was loaded from) in SLOWEST."""
-    from harness.execute import WorkerLost
-    from harness.runner import RunResult
     from tests.fuzz_worker import run_cut
 
     started: dict[int, float] = {}
     workers = pool.started
     crashes = []
-    items = [(scene, e, RUN_STEPS, budget_s) for e in engines]
-    for item, value in pool.map(run_cut, items, budget_s=lambda it: it[3],
-                                on_start=lambda it: started.__setitem__(id(it), time.perf_counter())):
-        trip = time.perf_counter() - started[id(item)]
-        engine = item[1]
-        t[f"run {engine} runs"] += 1
-        if trip > SLOWEST[prop].get(engine, (0.0,))[0]:
-            status = value.kind if isinstance(value, WorkerLost) else value[0].status
-            message = value.message if isinstance(value, WorkerLost) else value[0].message
-            SLOWEST[prop][engine] = (round(trip, 3), status, message, spec.read_text(encoding="utf-8"))
-        if isinstance(value, WorkerLost):
-            REASONS[prop][_reason(engine, value.kind, value.message)] += 1
-            if value.kind == "timeout":  # killed by the watchdog past the budget: its row is `timeout`
-                t[f"run {engine} timeout"] += 1
-                t[f"run {engine} killed"] += 1
-                continue
-            t[f"run {engine} crashes"] += 1
-            crashes.append(f"{engine}: worker {value.kind}: {value.full_message()}\n{value.traceback}")
-            continue
-        res, secs = value
-        assert isinstance(res, RunResult) and res.engine == engine
-        assert res.status in STATUSES, res.status
-        assert res.status == "ok" or res.message, f"{engine}: status {res.status} without a reason"
-        row = res.row()
-        assert row["status"] == res.status and row["engine"] == engine
-        t[f"run {engine} {res.status}"] += 1
-        if res.status != "ok":
-            REASONS[prop][_reason(engine, res.status, res.message)] += 1
-        if secs["first"]:
-            t[f"n {engine} first runs"] += 1
-            t[f"ms {engine} first runs"] += 1e3 * secs["run"]
-        else:
-            t[f"ms {engine} run"] += 1e3 * secs["run"]
-        t[f"ms {engine} imports"] += 1e3 * secs["imports"]
-        t[f"ms {engine} trip"] += 1e3 * (trip - secs["run"] - secs["imports"])
+    remaining = [(scene, e, RUN_STEPS, budget_s) for e in engines]
+    lost = not pool.started
+    while remaining:
+        if lost:  # a new pool, or a worker replaced: warm before the rest (abandoned runs run again)
+            _warm(pool)
+        lost = False
+        runs = pool.map(run_cut, remaining, budget_s=lambda it: it[3],
+                        on_start=lambda it: started.__setitem__(id(it), time.perf_counter()))
+        for item, value in runs:
+            remaining = [it for it in remaining if it is not item]
+            lost = _count_run(item, value, time.perf_counter() - started[id(item)], t, prop, spec, crashes)
+            if lost:
+                break
+        runs.close()
     t["workers started"] += pool.started - workers
     assert not crashes, "\n".join(crashes)
+
+
+def _count_run(item, value, trip: float, t: collections.Counter, prop: str, spec: Path, crashes: list) -> bool:
+    """Count one run of _run_engines (``value``: run_cut's reply or a
+    WorkerLost; ``trip``: s from sending it to its reply); a crash goes to
+    ``crashes``.  True when the worker was lost (died or killed)."""
+    from harness.execute import WorkerLost
+    from harness.runner import RunResult
+
+    engine = item[1]
+    t[f"run {engine} runs"] += 1
+    if trip > SLOWEST[prop].get(engine, (0.0,))[0]:
+        status = value.kind if isinstance(value, WorkerLost) else value[0].status
+        message = value.message if isinstance(value, WorkerLost) else value[0].message
+        SLOWEST[prop][engine] = (round(trip, 3), status, message, spec.read_text(encoding="utf-8"))
+    if isinstance(value, WorkerLost):
+        REASONS[prop][_reason(engine, value.kind, value.message)] += 1
+        if value.kind == "timeout":  # killed by the watchdog past the budget: its row is `timeout`
+            t[f"run {engine} timeout"] += 1
+            t[f"run {engine} killed"] += 1
+        else:
+            t[f"run {engine} crashes"] += 1
+            crashes.append(f"{engine}: worker {value.kind}: {value.full_message()}\n{value.traceback}")
+        return value.kind != "raised"
+    res, secs = value
+    assert isinstance(res, RunResult) and res.engine == engine
+    assert res.status in STATUSES, res.status
+    assert res.status == "ok" or res.message, f"{engine}: status {res.status} without a reason"
+    row = res.row()
+    assert row["status"] == res.status and row["engine"] == engine
+    t[f"run {engine} {res.status}"] += 1
+    if res.status != "ok":
+        REASONS[prop][_reason(engine, res.status, res.message)] += 1
+    if secs["first"]:
+        t[f"n {engine} first runs"] += 1
+        t[f"ms {engine} first runs"] += 1e3 * secs["run"]
+    else:
+        t[f"ms {engine} run"] += 1e3 * secs["run"]
+    t[f"ms {engine} imports"] += 1e3 * secs["imports"]
+    t[f"ms {engine} trip"] += 1e3 * (trip - secs["run"] - secs["imports"])
+    return False
 
 
 def _mostly(good, bad, odds: int = 25):
@@ -460,7 +495,7 @@ def test_engine_runs_are_isolated_and_counted(fault, counted, reason):
         _REGISTRY.pop("faulty", None)
         SLOWEST.clear()
         SLOWEST.update(slowest)
-    assert t["run faulty runs"] == 2 and t[f"run faulty {counted}"] == 2 and started == 3
+    assert t["run faulty runs"] == 2 and t[f"run faulty {counted}"] == 2 and started == 3, (t, started)
     assert t["run pymunk runs"] == 2 and t["run pymunk ok"] == 2 and t["run pymunk crashes"] == 0
     assert t["run faulty crashes"] == (2 if counted == "crashes" else 0)
 
