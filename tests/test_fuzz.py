@@ -323,6 +323,45 @@ def test_mutated_specs_load_or_reject(request, tmp_path, case):
         assert np.abs(x).max(initial=0.0) <= BOUNDS["position"][1]
 
 
+def test_a_spec_without_bodies_is_rejected(tmp_path, capsys):
+    """A spec with statics only is refused (the bodies bound is 1..10,000
+    after pattern expansion).  Found by the nightly fuzz (a mutation that
+    dropped the [[body]] list of a tests/data spec): it loaded, ran `ok` on
+    the reference engine and MuJoCo with nothing to simulate, and pybullet's
+    recording divided by its zero bodies (error: ZeroDivisionError)."""
+    doc = {"scenario": {"family": "fuzz", "title": "no bodies", "duration": 0.1, "dt": 0.01,
+                        "effects": ["gravity", "contact"]},
+           "static": [{"shape": "plane", "normal": [0.0, 0.0, 1.0]}]}
+    p = _write(tmp_path, doc)
+    with pytest.raises(SpecError, match=r"body: the scene has no bodies; expected at least 1 \[\[body\]\] table"):
+        load_spec(p)
+    rc, err = _cli(["run", str(p), "-e", "pybullet", "--json"], capsys)
+    assert rc == 2 and "body: the scene has no bodies" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("variant,model", [("sticks_20deg", "incline_block"), (None, "incline_block")])
+def test_incline_block_refuses_a_run_that_ends_before_the_stop(tmp_path, variant, model):
+    """A block thrown uphill stops at t_stop, then sticks (or slides back):
+    a run that ends before t_stop has nothing to measure after it, and the
+    model refuses it at load (exit 2, scenario.duration) as slide_to_rest
+    does.  Found by the fuzz (its runs are cut to a few steps): the
+    stick_creep metric took the maximum over no frames, and a run cut short
+    became `error: metrics failed: ValueError: zero-size array`; a run
+    still cut short after loading gets the model's reason instead."""
+    from contract.spec import ModelRefusal
+    from harness.runner import run
+    from tests.fuzz_worker import cut
+
+    p = SCENARIO_DIR / "friction" / "block_thrown_uphill.toml"
+    scene = load_scene(p, variant)
+    assert scene.reference_model == model
+    with pytest.raises(ModelRefusal, match=r"scenario\.duration: .*the run ends at 0\.1 s, before the stop at t_stop"):
+        load_scene(p, variant, {"scenario.duration": 0.1})
+    res = run(cut(scene, 8), "reference")
+    assert res.status == "error" and "before the stop at t_stop" in res.message, res.message
+    assert "zero-size array" not in res.message
+
+
 # --------------------------------------------------------------------------
 # runs of whatever validates, on every engine, in reused worker processes
 
