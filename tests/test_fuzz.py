@@ -5,18 +5,32 @@ result is either a clear SpecError / exit 2 naming file, key path,
 expectation and value, or a run that ends in a status row -- on every
 engine, never an uncaught exception.
 
+The engine-running properties validate each case in this process and run
+what validates on all four engines in worker processes reused from case to
+case (harness.execute.WorkerPool; the unit is tests/fuzz_worker.run_cut),
+each run cut to RUN_STEPS steps under a RUN_BUDGET_S wall-clock budget.  A
+worker that dies (abort, segfault) or a runner that raises is a crash:
+counted, and the case fails; a run the watchdog kills is a `timeout`.
+
 Hypothesis profiles (``PHYSBENCH_FUZZ_PROFILE``):
 
-- ``ci`` (default): a few hundred derandomized examples in all, no example
+- ``ci`` (default): a few hundred derandomized examples in all (60 cases
+  of each engine-running property, each on four engines), no example
   database (nothing is written into the repository);
-- ``nightly``: 10,000 examples per property, random seeds, no database::
+- ``nightly``: 10,000 examples per property (``PHYSBENCH_FUZZ_EXAMPLES``
+  for fewer), random seeds, no database; ``PHYSBENCH_FUZZ_JOBS`` worker
+  processes (default 1); ``PHYSBENCH_FUZZ_SUMMARY=FILE`` writes the tally
+  as JSON every 250 cases and at the end::
 
-      PHYSBENCH_FUZZ_PROFILE=nightly python -m pytest -q tests/test_fuzz.py
+      PHYSBENCH_FUZZ_PROFILE=nightly python -m pytest -q tests/test_fuzz.py \
+          --hypothesis-show-statistics
 
-  At the end of a session a summary (cases, rejections, runs per engine,
-  crashes) is printed with ``-s``.
+At the end of the module the tally is printed: per property cases and
+rejections; for the engine-running ones, per engine runs, statuses,
+crashes, milliseconds per run and per worker round trip, the slowest run
+and the reasons of the runs not ok (docs/SCENARIO_FORMAT.md, "Fuzzing",
+has the figures of a nightly run).
 """
-
 from __future__ import annotations
 
 import collections
@@ -389,8 +403,8 @@ def engine_pool():
         yield pool
 
 
-def _warm(pool) -> None:
-    """Let the pool's workers import and run every engine once (head_on,
+def _warm(pool, engines=ENGINES) -> None:
+    """Let the pool's workers import and run ``engines`` once (head_on,
     one step, no budget): a case's budget then covers its own run, not the
     imports and compiled-code loading a fresh worker pays once (seconds,
     more on a busy machine).  Called for a new pool and after a worker was
@@ -400,7 +414,7 @@ def _warm(pool) -> None:
 
     scene = load_scene(REPO_ROOT / "scenarios" / "billiards" / "head_on.toml")
     # each engine once per worker: the pool hands the items out in order, one per idle worker
-    items = [(scene, e, 1, None) for e in ENGINES for _ in range(pool.jobs)]
+    items = [(scene, e, 1, None) for e in engines for _ in range(pool.jobs)]
     for item, value in pool.map(run_cut, items):
         assert not isinstance(value, WorkerLost), f"{item[1]}: warm-up: {value.full_message()}"
 
@@ -434,7 +448,7 @@ def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, eng
     lost = not pool.started
     while remaining:
         if lost:  # a new pool, or a worker replaced: warm before the rest (abandoned runs run again)
-            _warm(pool)
+            _warm(pool, [e for e in engines if e in ENGINES])
         lost = False
         runs = pool.map(run_cut, remaining, budget_s=lambda it: it[3],
                         on_start=lambda it: started.__setitem__(id(it), time.perf_counter()))
