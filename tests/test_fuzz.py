@@ -129,7 +129,7 @@ def write_summary(t: collections.Counter | None = None) -> None:
     tmp = Path(SUMMARY + ".tmp")
     tmp.write_text(json.dumps({"profile": PROFILE, "jobs": JOBS, "run_steps": RUN_STEPS,
                                "properties": {k: dict(v) for k, v in TALLY.items()},
-                               "slowest": SLOWEST, "reasons": REASONS}, indent=1, sort_keys=True) + "\n",
+                               "slowest": SLOWEST, "reasons": REASONS, "reason_specs": REASON_SPECS}, indent=1, sort_keys=True) + "\n",
                    encoding="utf-8")
     tmp.replace(SUMMARY)
 
@@ -423,6 +423,14 @@ def _warm(pool, engines=ENGINES) -> None:
 SLOWEST: dict[str, dict[str, tuple]] = collections.defaultdict(dict)
 #: per property, "engine status: reason" of every run not ok, numbers masked, counted
 REASONS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+#: per property and reason, the spec of its first case (to reproduce it; in the JSON summary)
+REASON_SPECS: dict[str, dict[str, str]] = collections.defaultdict(dict)
+
+
+def _count_reason(prop: str, reason: str, spec: Path) -> None:
+    REASONS[prop][reason] += 1
+    if reason not in REASON_SPECS[prop]:
+        REASON_SPECS[prop][reason] = spec.read_text(encoding="utf-8")
 
 
 def _reason(engine: str, status: str, message: str) -> str:
@@ -476,7 +484,7 @@ def _count_run(item, value, trip: float, t: collections.Counter, prop: str, spec
         message = value.message if isinstance(value, WorkerLost) else value[0].message
         SLOWEST[prop][engine] = (round(trip, 3), status, message, spec.read_text(encoding="utf-8"))
     if isinstance(value, WorkerLost):
-        REASONS[prop][_reason(engine, value.kind, value.message)] += 1
+        _count_reason(prop, _reason(engine, value.kind, value.message), spec)
         if value.kind == "timeout":  # killed by the watchdog past the budget: its row is `timeout`
             t[f"run {engine} timeout"] += 1
             t[f"run {engine} killed"] += 1
@@ -492,7 +500,7 @@ def _count_run(item, value, trip: float, t: collections.Counter, prop: str, spec
     assert row["status"] == res.status and row["engine"] == engine
     t[f"run {engine} {res.status}"] += 1
     if res.status != "ok":
-        REASONS[prop][_reason(engine, res.status, res.message)] += 1
+        _count_reason(prop, _reason(engine, res.status, res.message), spec)
     if secs["first"]:
         t[f"n {engine} first runs"] += 1
         t[f"ms {engine} first runs"] += 1e3 * secs["run"]
