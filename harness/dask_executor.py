@@ -36,18 +36,17 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.util
+import itertools
 import os
 import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from harness.execute import ADAPTERS_ENV, WorkerLost, WorkerPool, _extra_adapters, register_env_adapters
+from harness.execute import (_END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
+                             register_env_adapters)
 
 #: the version pins an environment check compares (importlib.metadata names)
 PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
-#: environment that holds BLAS and OpenMP to one thread in the run processes
-ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                  "NUMBA_NUM_THREADS": "1"}
 
 
 class EnvironmentRefused(RuntimeError):
@@ -115,7 +114,6 @@ def _thread_pool(adapters: str, paths: tuple[str, ...]) -> WorkerPool:
     if adapters:
         register_env_adapters(adapters)  # the pool hands them on to its process
     pool = WorkerPool(1)
-    pool.env.update(ONE_THREAD_ENV)
     _LOCAL.pool, _LOCAL.key = pool, key
     with _POOLS_LOCK:
         _POOLS.append(pool)
@@ -210,6 +208,7 @@ class DaskExecutor:
         self.cluster = None
         self.placement: dict[str, str] = {}
         self.dashboard: str | None = None
+        self._seq = itertools.count()
         try:
             if scheduler:
                 self.client = Client(scheduler, timeout="20s")
@@ -252,6 +251,9 @@ class DaskExecutor:
             self.dashboard = self.client.dashboard_link
         #: runs at once: the workers' threads
         self.jobs = sum(int(w.get("nthreads", 1)) for w in info["workers"].values()) or len(self.workers)
+        #: tasks submitted beyond the workers' threads: one per thread waits on the scheduler, so a
+        #: worker that finishes gets its next task from there, not from a round trip to this client
+        self.lookahead = self.jobs
         retries = self.client.run_on_scheduler(_scheduler_allowed_failures)
         where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
         self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
@@ -264,24 +266,48 @@ class DaskExecutor:
                      "their timings do not compare with each other")
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
-        """Submit every item, yield (item, value) as tasks finish.  Dask
-        does not tell the client when a task starts: ``on_start(item)`` is
-        called as its result arrives, just before it is yielded.  Raises
-        EnvironmentRefused when a worker refuses (its item is not run);
-        the rows yielded before stand."""
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
+        """Submit items as the cluster has room (its threads plus
+        ``lookahead`` queued tasks), yield (item, value) as tasks finish;
+        among queued tasks, the scheduler starts those of higher
+        ``priority(item)`` first.
+        ``items`` is read lazily and may yield :data:`WAIT` (nothing to
+        run until a result is back).  Dask does not tell the client when a
+        task starts: ``on_start(item)`` is called as its result arrives,
+        just before it is yielded.  Raises EnvironmentRefused when a worker
+        refuses (its item is not run); the rows yielded before stand."""
         from distributed import as_completed
         from distributed.scheduler import KilledWorker
 
         token = hashlib.sha256(os.urandom(8)).hexdigest()[:8]
-        futures = {}
-        for item in items:
-            k = f"physbench-{_item_key(item)}-{token}"
-            fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None, self.identity,
-                                     self.adapters_text, self.paths, key=k, pure=False)
-            futures[fut] = item
+        futures: dict[Any, Any] = {}
+        done = as_completed()
+        source, more = iter(items), True
+
+        def fill() -> None:
+            nonlocal more
+            while more and len(futures) < self.jobs + self.lookahead:
+                item = next(source, _END)
+                if item is _END:
+                    more = False
+                elif item is WAIT:
+                    if not futures:
+                        raise RuntimeError("the item source waits for a result, but nothing is running")
+                    return
+                else:
+                    # unique even for items of equal keys: a repeated key would be one shared task
+                    k = f"physbench-{_item_key(item)}-{token}-{next(self._seq)}"
+                    fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None,
+                                             self.identity, self.adapters_text, self.paths, key=k, pure=False,
+                                             priority=priority(item) if priority else 0)
+                    futures[fut] = item
+                    done.add(fut)
+
         try:
-            for fut in as_completed(futures):
+            fill()
+            while futures:
+                fut = next(done)
                 item = futures.pop(fut)
                 try:
                     value, address = fut.result()
@@ -299,6 +325,7 @@ class DaskExecutor:
                 if on_start:
                     on_start(item)
                 yield item, value
+                fill()
         finally:
             if futures:  # interrupted or refused: nothing more of this map runs
                 self.client.cancel(list(futures))

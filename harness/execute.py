@@ -64,6 +64,24 @@ WORKER_ENV = "PHYSBENCH_WORKER"
 #: characters of a dead worker's stderr kept in its row
 STDERR_TAIL = 2000
 _HEADER = struct.Struct("<Q")
+#: environment of every run process: BLAS, OpenMP and numba held to one
+#: thread, so N workers use N cores (tests/test_execute.py::test_run_processes_use_one_thread)
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                  "NUMBA_NUM_THREADS": "1"}
+
+
+class _Wait:
+    """The type of :data:`WAIT`."""
+
+    def __repr__(self) -> str:
+        return "WAIT"
+
+
+#: what an executor's item iterator yields when it has nothing to run yet:
+#: the executor runs what it has in flight and asks again after the next
+#: result (a search's next value depends on the last one: harness/schedule.py)
+WAIT = _Wait()
+_END = object()
 
 
 def grace_s(budget_s: float) -> float:
@@ -267,8 +285,11 @@ class InlineExecutor:
     jobs = 1
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
         for item in items:
+            if item is WAIT:  # one item at a time: nothing is in flight to wait for
+                raise RuntimeError("the item source waits for a result, but nothing is running")
             if on_start:
                 on_start(item)
             try:
@@ -451,6 +472,7 @@ class WorkerPool:
         env = dict(os.environ)
         env[WORKER_ENV] = "1"
         env[WORKER_ENV + "_PARENT"] = str(os.getpid())
+        env.update(ONE_THREAD_ENV)
         adapters, paths = _extra_adapters()
         env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in paths if p != str(REPO_ROOT)]
                                             + [p for p in [env.get("PYTHONPATH")] if p])
@@ -465,14 +487,22 @@ class WorkerPool:
         return _Worker(self.workdir, self.env, self.started)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
-        pending = list(items)
-        pending.reverse()
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
+        source = iter(items)
+        more = True  # the source may still give items
         busy: list[_Worker] = []
         try:
-            while pending or busy:
-                while pending and len(busy) < self.jobs:
-                    item = pending.pop()
+            while more or busy:
+                while more and len(busy) < self.jobs:
+                    item = next(source, _END)
+                    if item is _END:
+                        more = False
+                        break
+                    if item is WAIT:
+                        if not busy:
+                            raise RuntimeError("the item source waits for a result, but nothing is running")
+                        break
                     budget = budget_s(item) if budget_s else None
                     w = self.idle.pop() if self.idle else self._spawn()
                     try:
@@ -650,4 +680,4 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s"]
+           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "ONE_THREAD_ENV"]

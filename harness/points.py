@@ -228,21 +228,26 @@ def _point_budget(p: Point) -> float:
     return p.timeout_s * max(1, p.repeats)
 
 
+def lost_point_row(p: Point, value: WorkerLost) -> dict[str, Any]:
+    """The ``error``/``timeout`` row of a point whose worker died, hung or
+    raised, naming why."""
+    t0 = time.perf_counter()
+    if value.kind == "died":
+        msg = f"{value.full_message()}".replace("this item", "this point")
+    elif value.kind == "timeout":
+        msg = value.full_message()
+    else:
+        msg = f"point failed: {value.message}"
+    return _status_row(p, value.status, msg, t0, tb=value.traceback or None,
+                       stderr_tail=value.stderr_tail or None, machine=value.machine)
+
+
 def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[str, Any]], None],
                on_start: Callable[[Point], None]) -> None:
     """Run points through ``executor`` (harness/execute.py: a WorkerPool or
     the inline executor) and hand each row to ``on_row`` as it finishes.  A
     point whose worker dies or hangs (or whose code raises) gets an
-    ``error``/``timeout`` row naming why; the other points are untouched."""
+    ``error``/``timeout`` row naming why; the other points are untouched.
+    (A sweep runs its points with its searches: harness/schedule.py.)"""
     for p, value in executor.map(run_point, todo, budget_s=_point_budget, on_start=on_start):
-        if isinstance(value, WorkerLost):
-            t0 = time.perf_counter()
-            if value.kind == "died":
-                msg = f"{value.full_message()}".replace("this item", "this point")
-            elif value.kind == "timeout":
-                msg = value.full_message()
-            else:
-                msg = f"point failed: {value.message}"
-            value = _status_row(p, value.status, msg, t0, tb=value.traceback or None,
-                                stderr_tail=value.stderr_tail or None, machine=value.machine)
-        on_row(p, value)
+        on_row(p, lost_point_row(p, value) if isinstance(value, WorkerLost) else value)
