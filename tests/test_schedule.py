@@ -11,8 +11,6 @@ LocalCluster (127.0.0.1) and compares every answer with the serial path.
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import math
 import textwrap
 
@@ -25,6 +23,7 @@ from harness.executors import _sleep, thread_counts
 from harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
 from harness.points import Point
 from harness.schedule import run_schedule
+from harness.sweep_bench import VirtualExecutor, replay
 
 #: a dt search on the 5-box column (scene loading only: values are answered by THRESHOLD)
 THRESHOLD = {"mujoco": 0.0071, "pybullet": 0.0033, "pymunk": 0.0191}
@@ -43,46 +42,9 @@ def _answer(item):
     return {"point_key": item.key, "status": "ok"}
 
 
-class SimExecutor:
-    """``jobs`` workers in virtual time: an item takes ``duration(item)``
-    seconds, its value is ``answer(item)`` (``fn`` is not called).  Records
-    when each item started, the worker time spent idle while the source
-    said WAIT, and the makespan."""
-
-    def __init__(self, jobs: int, duration, answer=_answer):
-        self.jobs, self.duration, self.answer = jobs, duration, answer
-        self.started: list[tuple[float, object]] = []
-        self.waits: list[float] = []
-        self.busy = 0.0
-        self.makespan = 0.0
-
-    def map(self, fn, items, budget_s=None, on_start=None, priority=None):
-        source, more, now, seq = iter(items), True, 0.0, itertools.count()
-        running: list = []
-        while more or running:
-            while more and len(running) < self.jobs:
-                item = next(source, None)
-                if item is None:
-                    more = False
-                    break
-                if item is WAIT:
-                    assert running, "WAIT with nothing in flight"
-                    self.waits.append(now)
-                    break
-                self.started.append((now, item))
-                if on_start:
-                    on_start(item)
-                heapq.heappush(running, (now + self.duration(item), next(seq), item))
-            if running:
-                now, _, item = heapq.heappop(running)
-                self.busy += self.duration(item)
-                yield item, self.answer(item)
-        self.makespan = now
-
-    @property
-    def idle(self) -> float:
-        """Worker seconds not spent on an item, over the makespan."""
-        return self.jobs * self.makespan - self.busy
+def SimExecutor(jobs, duration, answer=_answer):
+    """harness.sweep_bench's virtual-time executor answering with _answer."""
+    return VirtualExecutor(jobs, duration, answer)
 
 
 def _points(n: int) -> list[Point]:
@@ -274,3 +236,10 @@ def test_limit_blocks_on_two_workers_give_the_serial_rows(tmp_path):
     res = a[a["row_kind"] == RESULT_ROW]
     assert len(res) == 2 and res["limit_outcome"].eq("found").all()
     assert (a["row_kind"] == EVAL_ROW).sum() == res["limit_runs"].sum()
+
+    # the serial sweep replayed on two virtual workers: the searches take the stored path
+    rp = replay(a, str(p), 2)
+    timed = a[a["row_kind"].isna() | (a["row_kind"] == EVAL_ROW)]["point_wall_s"].sum()
+    assert rp["evaluations"] == res["limit_runs"].sum() and rp["points"] == 4
+    assert rp["total_s"] == pytest.approx(timed, rel=1e-9)
+    assert rp["ideal_s"] <= rp["new_s"] <= rp["old_s"] <= rp["total_s"]
