@@ -20,6 +20,14 @@ resume).
   memory, machine lost) has its task retried once on another worker (the
   scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
   makes the item ``error`` with the reason.
+- **Feeding the cluster.**  Items are read as the cluster has room: one
+  task running per worker thread and one more queued on the scheduler, so
+  a worker that finishes starts its next task without a round trip to
+  this client (tasks of equal priority start in submission order; a
+  search's evaluation, of higher priority, first: harness/schedule.py).
+  Workers hold only the task they run (``worker-saturation`` 1.0), so a
+  dying worker charges no queued task.  Results are gathered as tasks
+  finish.
 - **Environment check.**  Every worker reports its identity
   (:func:`worker_identity`: physbench commit, engine and library versions,
   BLAS, and its machine fingerprint).  A worker whose software differs from
@@ -282,7 +290,7 @@ class DaskExecutor:
 
         token = hashlib.sha256(os.urandom(8)).hexdigest()[:8]
         futures: dict[Any, Any] = {}
-        done = as_completed()
+        done = as_completed(with_results=True, raise_errors=False)  # results gathered as tasks finish
         source, more = iter(items), True
 
         def fill() -> None:
@@ -307,10 +315,14 @@ class DaskExecutor:
         try:
             fill()
             while futures:
-                fut = next(done)
+                fut, result = next(done)
                 item = futures.pop(fut)
                 try:
-                    value, address = fut.result()
+                    if fut.status == "error":  # result: (type, exception, traceback)
+                        raise result[1]
+                    if isinstance(result, BaseException):  # cancelled (from outside: not by this map)
+                        raise RuntimeError(f"cancelled: {result!r}")
+                    value, address = result
                     self.placement[_item_key(item)] = address
                 except EnvironmentRefused:
                     raise

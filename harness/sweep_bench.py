@@ -201,6 +201,38 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
             "speedup_old": total / old if old else math.nan}
 
 
+def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.column_5",
+                 engine: str = "reference") -> dict[str, Any]:
+    """CPU per simulated second of one sweep point (the suite nightly's
+    most expensive ``engine`` point of ``scenario``) run alone, then as
+    ``copies`` copies at once, each in its own run process, ``rounds``
+    times (medians of the points' ``cpu_s_per_sim_s_median``).  ``ratio`` =
+    together / alone: above 1, each core does less when all run (shared
+    caches and memory bandwidth, clock, or vCPUs that share a physical
+    core); ``copies / ratio`` bounds the speed-up any schedule reaches."""
+    import statistics
+
+    from harness.execute import WorkerPool
+    from harness.points import _scene, run_point
+    from harness.schedule import _model_cost
+    from harness.suite import expand, load_suite
+
+    pts = expand(load_suite("nightly"), [engine], [scenario])
+    point = max(pts, key=lambda p: _model_cost(_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
+
+    def cpu(pool: WorkerPool, n: int) -> list[float]:
+        return [float(r["cpu_s_per_sim_s_median"]) for _p, r in pool.map(run_point, [point] * n)]
+
+    with WorkerPool(1) as pool:
+        cpu(pool, 1)  # warm: imports, compiled kernels from the cache
+        alone = statistics.median(cpu(pool, rounds))
+    with WorkerPool(copies) as pool:
+        cpu(pool, copies)
+        together = statistics.median(cpu(pool, copies * rounds))
+    return {"point": point.key, "copies": copies, "alone_cpu_s_per_sim_s": alone,
+            "together_cpu_s_per_sim_s": together, "ratio": together / alone, "bound": copies * alone / together}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m harness.sweep_bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--suite", default="nightly")
@@ -210,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", nargs="+", type=int, default=[1, 2])
     p.add_argument("--overhead-items", type=int, default=200, help="sleeping tasks per overhead figure (0: skip)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+    p.add_argument("--core-scaling", action="store_true",
+                   help="only measure one point's CPU alone and as --jobs copies at once")
     p.add_argument("--replay", type=Path, default=None,
                    help="only replay this finished sweep file (best a 1-worker one) on --jobs virtual workers")
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
@@ -217,6 +251,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     from harness.executors import bench_overhead, make_executor, thread_counts
 
+    if args.core_scaling:
+        for jobs in args.jobs:
+            if jobs > 1:
+                print(json.dumps(core_scaling(jobs)))
+        return 0
     if args.replay is not None:
         import pandas as pd
 
