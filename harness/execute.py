@@ -78,8 +78,8 @@ class _Wait:
 
 
 #: what an executor's item iterator yields when it has nothing to run yet:
-#: the executor runs what it has in flight and asks again after the next
-#: result (a search's next value depends on the last one: harness/schedule.py)
+#: the executor runs what it has in flight and asks again once a result is
+#: in (a search's next value depends on the last one: harness/schedule.py)
 WAIT = _Wait()
 _END = object()
 
@@ -464,7 +464,13 @@ class WorkerPool:
     value)`` as items finish, in finishing order; ``value`` is what ``fn``
     returned or a :class:`WorkerLost`.  ``budget_s(item)`` is the item's
     wall-clock budget (None: unlimited): past budget + :func:`grace_s` its
-    worker is killed.  Tests: tests/test_execute.py."""
+    worker is killed.  ``items`` is read lazily, one item when a worker is
+    free (a free worker gets its next item before the consumer handles the
+    result it just gave: writing a row does not idle it); it may yield
+    :data:`WAIT` (nothing to run until a result is in).  ``priority`` is
+    for executors where items queue (Dask); here an item is read only when
+    a worker is free to run it.  Tests: tests/test_execute.py,
+    tests/test_schedule.py."""
 
     def __init__(self, jobs: int = 1):
         self.jobs = max(1, int(jobs))
@@ -492,15 +498,18 @@ class WorkerPool:
         source = iter(items)
         more = True  # the source may still give items
         busy: list[_Worker] = []
+        # finished items not yet handed to the consumer: free workers get their next item
+        # before the consumer handles these (writes rows ...), not after
+        out: list[tuple[Any, Any]] = []
         try:
-            while more or busy:
+            while more or busy or out:
                 while more and len(busy) < self.jobs:
                     item = next(source, _END)
                     if item is _END:
                         more = False
                         break
                     if item is WAIT:
-                        if not busy:
+                        if not busy and not out:
                             raise RuntimeError("the item source waits for a result, but nothing is running")
                         break
                     budget = budget_s(item) if budget_s else None
@@ -514,15 +523,19 @@ class WorkerPool:
                             w.send(fn, item, budget)
                         except (BrokenPipeError, OSError) as e:
                             w.kill()
-                            yield item, WorkerLost("died", f"worker process could not be started: {e}")
+                            out.append((item, WorkerLost("died", f"worker process could not be started: {e}")))
                             continue
                     except Exception as e:  # the item or function cannot be pickled
                         self.idle.append(w)
-                        yield item, WorkerLost("raised", f"{type(e).__name__}: {e}")
+                        out.append((item, WorkerLost("raised", f"{type(e).__name__}: {e}")))
                         continue
                     if on_start:
                         on_start(item)
                     busy.append(w)
+                if out:  # then back to the source: what it gives may depend on these results
+                    while out:
+                        yield out.pop(0)
+                    continue
                 if not busy:
                     continue
                 now = time.monotonic()
@@ -540,20 +553,20 @@ class WorkerPool:
                         tail = w.stderr_tail()
                         rc = w.kill()
                         sig, why = _death(rc)
-                        yield w.item, WorkerLost("died", f"worker process died while running this item: {why}",
-                                                 tail, signal=sig)
+                        out.append((w.item, WorkerLost("died", f"worker process died while running this item: {why}",
+                                                       tail, signal=sig)))
                         continue
                     self.idle.append(w)
                     kind, payload, tb = msg
-                    yield w.item, (payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb))
+                    out.append((w.item, payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb)))
                 now = time.monotonic()
                 for w in [w for w in busy if w.deadline <= now]:
                     busy.remove(w)
                     tail = w.stderr_tail()
                     w.kill()
-                    yield w.item, WorkerLost(
+                    out.append((w.item, WorkerLost(
                         "timeout", f"no result after {now - w.t0:.1f} s wall (budget {w.budget:g} s): "
-                                   "worker killed, stuck inside one call", tail)
+                                   "worker killed, stuck inside one call", tail)))
         finally:
             for w in busy:  # abandoned (interrupted, or the consumer stopped): nothing of theirs is kept
                 w.kill()
