@@ -110,16 +110,17 @@ class Outcome:
     #: RunSpec.key of the run the check was evaluated on (the base run for
     #: a check combined over step phases); () when there was none
     key: tuple = ()
-    #: path of the case's diagnosing trace (check --traces), else ""
+    #: absolute path of the case's diagnosing trace (check --traces), else ""
     trace: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """The outcome as stored in a row's ``checks`` column and printed by
-        ``physbench run --json``."""
+        ``physbench run --json``; ``trace``: the absolute path of its
+        ``.rrd`` or "" (docs/TRACES.md)."""
         from harness.runner import _jsonable
 
         return {"metric": self.metric, "outcome": self.outcome, "value": _jsonable(self.value),
-                "threshold": self.threshold, "message": self.message}
+                "threshold": self.threshold, "message": self.message, "trace": self.trace}
 
     @property
     def name(self) -> str:
@@ -785,7 +786,7 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
             print(f"warning: no trace for {name}: {type(e).__name__}: {e}", file=sys.stderr)
             continue
         for o in failing:
-            o.trace = str(path)
+            o.trace = os.path.abspath(path)
         written.append(path)
     return written
 

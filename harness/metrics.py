@@ -230,6 +230,45 @@ def momenta(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
     return P, orbital + spin
 
 
+def relative_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray, float]:
+    """(dE (F,) = (E(t) - E0) / E_scale, E (F,) J, E_scale (J)), E0 = E[0]: the energy
+    metrics' running form.  ``energy_drift`` is max |dE| (conservative
+    scenes), ``energy_gain`` max(0, max dE), ``energy_dissipated`` -dE at
+    the last frame (module docstring; the trace's crossing markers use it
+    per frame: tests/test_trace_diagnose.py)."""
+    trans, rot = kinetic_energy(scene, trace)
+    E = trans + rot + potential_energy(scene, trace)
+    E0 = float(E[0])
+    gn = float(np.linalg.norm(scene.gravity))
+    floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
+    scale = max(abs(E0), floor)
+    return (E - E0) / scale, E, scale
+
+
+def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Running linear and angular momentum drift, (F,) each: |P(t) - P0| /
+    max(|P0|, sum m |v0|) and |L(t) - L0| / max(|L0|, sum |I w0| + sum m
+    |r0 x v0|) (L about the centre of mass); None where the metric is NaN
+    (an external force or torque acts: module docstring).  Their maxima
+    are ``linear_momentum_drift`` and ``angular_momentum_drift``."""
+    lin_ok, ang_ok = external_force_free(scene)
+    if not (lin_ok or ang_ok):
+        return None, None
+    P, L = momenta(scene, trace)
+    m = scene.masses
+    lin = ang = None
+    if lin_ok:
+        denom = max(float(np.linalg.norm(P[0])), float(m @ np.linalg.norm(trace.vel[0], axis=1)), 1e-300)
+        lin = np.linalg.norm(P - P[0], axis=1) / denom
+    if ang_ok:
+        spin0 = np.abs(scene.inertias * _body_frame(trace.quat[0], trace.angvel[0])).sum()
+        xc = m @ trace.pos[0] / m.sum()
+        orb0 = float((m * np.linalg.norm(np.cross(trace.pos[0] - xc, trace.vel[0]), axis=1)).sum())
+        denom = max(float(np.linalg.norm(L[0])), float(spin0) + orb0, 1e-300)
+        ang = np.linalg.norm(L - L[0], axis=1) / denom if denom > 1e-300 else np.zeros(L.shape[0])
+    return lin, ang
+
+
 def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, Any]:
     """Every generic metric plus the reference model's, for one run."""
     out: dict[str, Any] = {}
@@ -257,13 +296,9 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
         out["mean_penetration"] = math.nan
 
     # --- energy (datum, scale and split: docs/METRICS.md)
-    trans, rot = kinetic_energy(scene, trace)
-    E = trans + rot + potential_energy(scene, trace)
+    dE, E, scale = relative_energy(scene, trace)
     E0 = float(E[0])
     gn = float(np.linalg.norm(scene.gravity))
-    floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
-    scale = max(abs(E0), floor)
-    dE = (E - E0) / scale
     conservative = not dissipation(scene)
     with np.errstate(invalid="ignore"):
         out["energy_drift"] = float(np.nanmax(np.abs(dE))) if conservative else math.nan
@@ -273,22 +308,9 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
     out["energy_initial"] = E0
 
     # --- momentum
-    lin_ok, ang_ok = external_force_free(scene)
-    P, L = momenta(scene, trace)
-    m = scene.masses
-    if lin_ok:
-        denom = max(float(np.linalg.norm(P[0])), float(m @ np.linalg.norm(trace.vel[0], axis=1)), 1e-300)
-        out["linear_momentum_drift"] = float(np.nanmax(np.linalg.norm(P - P[0], axis=1)) / denom)
-    else:
-        out["linear_momentum_drift"] = math.nan
-    if ang_ok:
-        spin0 = np.abs(scene.inertias * _body_frame(trace.quat[0], trace.angvel[0])).sum()
-        xc = m @ trace.pos[0] / m.sum()
-        orb0 = float((m * np.linalg.norm(np.cross(trace.pos[0] - xc, trace.vel[0]), axis=1)).sum())
-        denom = max(float(np.linalg.norm(L[0])), float(spin0) + orb0, 1e-300)
-        out["angular_momentum_drift"] = float(np.nanmax(np.linalg.norm(L - L[0], axis=1)) / denom) if denom > 1e-300 else 0.0
-    else:
-        out["angular_momentum_drift"] = math.nan
+    lin, ang = momentum_drift_series(scene, trace)
+    out["linear_momentum_drift"] = math.nan if lin is None else float(np.nanmax(lin))
+    out["angular_momentum_drift"] = math.nan if ang is None else float(np.nanmax(ang))
 
     # --- stability
     speeds = np.linalg.norm(trace.vel, axis=-1)

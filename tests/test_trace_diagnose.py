@@ -4,9 +4,12 @@ documents, and ``check --traces``."""
 
 from __future__ import annotations
 
+import json
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from harness.runner import RunResult, Trace, run
@@ -206,3 +209,18 @@ def test_check_traces_writes_exactly_the_failing_cases(tmp_path):
     assert files == linked and files  # one file per failing case, no other
     assert failing == {"pymunk"}  # the reference engine's CCD passes the bullet checks
     assert str(traces / "tunnelling.bullet_100--pymunk.rrd") in files
+    # the result rows carry the same absolute path in each failing check's ``trace``
+    (rows,) = list((tmp_path / "rows").glob("*.parquet"))
+
+    def case(r, metric):  # the JUnit testcase name of a row's check
+        v = r["variant"] if isinstance(r["variant"], str) and r["variant"] else None
+        return f"{r['scenario']}" + (f"[{v}]" if v else "") + f"::{metric}"
+
+    in_rows = {(r["engine"], case(r, c["metric"])): c["trace"]
+               for _, r in pd.read_parquet(rows).iterrows() for c in json.loads(r["checks"])}
+    junit_links = {(tc.get("classname").split(".")[1], tc.get("name")):
+                   {p.get("name"): p.get("value") for p in tc.iter("property")}.get("trace", "")
+                   for tc in root.iter("testcase")}
+    assert set(junit_links) <= set(in_rows)
+    assert {k: v for k, v in in_rows.items() if k in junit_links} == junit_links
+    assert {v for v in in_rows.values() if v} == files and all(Path(v).is_absolute() for v in files)

@@ -19,7 +19,7 @@ tests/test_models.py pins the document to them).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -53,6 +53,25 @@ TRAJECTORY = {
     "final_position_error": "largest |x - x_ref| over the bodies at the last frame (m)",
 }
 BODY_PARAM = Param("body", "str", None, "the body the model follows (default: the scene's only body)")
+
+
+@dataclass(frozen=True)
+class ReferenceSeries:
+    """A scalar the model predicts over time, drawn in traces as a
+    reference line beside the same quantity measured on each run.
+
+    ``key``: entity path tail ("<body>/<quantity>"); ``unit``; ``text``:
+    what it is, with the predicted value (the trace's context document);
+    ``model(t)``: the prediction (F,) at times t (F,) s, NaN where it says
+    nothing; ``measure(trace)``: the same quantity (F,) in a recorded
+    trace, or None for a prediction with no measured twin (an apex level
+    drawn over the measured height)."""
+
+    key: str
+    unit: str
+    text: str
+    model: Callable[[np.ndarray], np.ndarray]
+    measure: Callable[[Any], np.ndarray] | None = None
 
 
 class ReferenceModel:
@@ -121,6 +140,17 @@ class ReferenceModel:
         (post-impact velocity, apex heights, flip period, stop time...), for
         the trace's context document; {} when it has none to show."""
         return {}
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The model's scalar predictions as time series (post-impact
+        velocity, bounce heights, flips, stop), drawn as reference lines in
+        traces; [] by default."""
+        return []
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        """Moments the model predicts, (t s, text) (impact, bounces, flips,
+        stop), drawn as event markers at /events/model; [] by default."""
+        return []
 
     def events(self, trace) -> list[tuple[int, int, str]]:
         """Moments the model recognises in a recorded trace, as (frame,

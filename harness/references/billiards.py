@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from contract.rotation import world_to_body_angvel
-from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 from harness.references.collision import TwoBodyCollision
 
 
@@ -304,6 +304,40 @@ class BounceHeights(ReferenceModel):
         apex = self.reference_apexes(self.scene.duration)[:5]
         return {"first impact": f"{self.t1:.6g} s at {self.v1:.6g} m/s",
                 "apex heights (bottom above the plane)": ", ".join(f"{h:.6g}" for h in apex) + " m"}
+
+    def flights(self, duration: float) -> list[tuple[float, float, float]]:
+        """(bounce time s, next bounce time s, apex height m) of each flight
+        after a bounce whose apex :meth:`reference_apexes` lists."""
+        out, tb, v = [], self.t1, self.e * self.v1
+        for A in self.reference_apexes(duration):
+            T = 2 * v / self.g
+            out.append((tb, tb + T, A))
+            tb, v = tb + T, v * self.e
+        return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The bottom's height above the plane (m), and each apex height
+        A_n as a level over its flight."""
+        name, n, off = self.scene.bodies[0].name, self.n, self.offset
+        flights = self.flights(self.scene.duration)
+
+        def apex(t):
+            t = np.asarray(t, float)
+            out = np.full(t.shape, np.nan)
+            for t0, t1, A in flights:
+                out[(t >= t0) & (t < t1)] = A
+            return out
+
+        return [ReferenceSeries(f"{name}/height", "m", "height of the bottom above the plane", self.height,
+                                lambda tr: tr.pos[:, 0] @ n - off),
+                ReferenceSeries(f"{name}/apex_height", "m", "apex heights: "
+                                + ", ".join(f"{A:.6g}" for _, _, A in flights) + " m", apex)]
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        out = [(float(self.t1), f"first impact at {self.v1:.6g} m/s")]
+        out += [(float(t1), f"bounce {k + 2}") for k, (_, t1, _) in enumerate(self.flights(self.scene.duration))
+                if t1 <= self.scene.duration]
+        return out
 
     def reference_apexes(self, duration: float) -> list[float]:
         """Reference apex heights A_1..A_k above 1 % of h_0 reached within duration."""

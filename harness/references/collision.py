@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 
 
 class TwoBodyCollision(ReferenceModel):
@@ -123,6 +123,24 @@ class TwoBodyCollision(ReferenceModel):
         return {"impact time": f"{self.t_impact:.6g} s",
                 f"{names[0]} velocity after impact": f"{np.array2string(self.v1_post, precision=6)} m/s",
                 f"{names[1]} velocity after impact": f"{np.array2string(self.v2_post, precision=6)} m/s"}
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """Each body's velocity along the line of centres n (m/s): v.n
+        before the impact, v'.n after it (plus g.n t)."""
+        if self.t_impact is None:
+            return []
+        out = []
+        for k, (i, post) in enumerate(zip(self.idx, (self.v1_post, self.v2_post))):
+            name = self.scene.bodies[i].name
+            out.append(ReferenceSeries(
+                f"{name}/normal_velocity", "m/s",
+                f"{name} velocity along the line of centres: {float(post @ self.n):.6g} m/s after the impact",
+                lambda t, k=k: self.velocities(t)[:, k] @ self.n,
+                lambda tr, i=i: tr.vel[:, i] @ self.n))
+        return out
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        return [] if self.t_impact is None else [(float(self.t_impact), "impact")]
 
     def metrics(self, trace) -> dict[str, float]:
         i, j = self.idx

@@ -42,7 +42,8 @@ import math
 import numpy as np
 
 from contract.rotation import quat_rotate, quat_to_matrix
-from harness.references import BODY_PARAM, TRAJECTORY, Param, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import (BODY_PARAM, TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries,
+                                trajectory_metrics)
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
 
@@ -205,6 +206,17 @@ class InclineBlock(_SlopeModel):
             if self.a_back:
                 out["acceleration sliding back"] = f"{self.a_back:.6g} m/s^2"
         return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The distance travelled downhill (m), levelling off at the stop."""
+        i, x0, d = self.body.index, self.x0, self.d
+        return [ReferenceSeries(f"{self.body.name}/distance", "m", "distance travelled downhill", self.distance,
+                                lambda tr: (tr.pos[:, i] - x0) @ d)]
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        if math.isfinite(self.t_stop) and self.t_stop > 0:
+            return [(float(self.t_stop), "stop" + (" (then slides back)" if self.a_back else ""))]
+        return []
 
     def distance(self, t: np.ndarray) -> np.ndarray:
         """Reference distance travelled downhill (m) at times t (F,)."""
@@ -669,6 +681,14 @@ class SpinToRest(ReferenceModel):
         out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
         out[:, self.body.index] = self.x0
         return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The angle turned about the normal (rad), levelling off at the stop."""
+        return [ReferenceSeries(f"{self.body.name}/angle_turned", "rad",
+                                f"angle turned: {self.theta_stop:.6g} rad at the stop", self.angle, self.turned)]
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        return [(float(self.t_stop), "spin stops")]
 
     def turned(self, trace) -> np.ndarray:
         """Angle (rad, unwrapped) the capsule's axis has turned about n, (F,)."""

@@ -52,7 +52,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from contract.rotation import quat_mul, quat_rotate, quat_to_matrix, world_to_body_angvel
-from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
+                                trajectory_metrics)
 
 RTOL = 1e-10
 ATOL = 1e-12
@@ -203,11 +204,36 @@ class TorqueFreeRigidBody(ReferenceModel):
         return self.positions(t), quat
 
     def predictions(self) -> dict[str, str]:
-        distinct = len(set(np.round(self.inertia, 12))) == 3
-        if distinct and self.spin_axis == self.mid_axis:  # spun about (near) the intermediate axis
+        if self._flips():
             return {"flip period (half of the intermediate-axis cycle)":
                     f"{intermediate_flip_interval(self.inertia, self.w0):.6g} s"}
         return {}
+
+    def _flips(self) -> bool:
+        """Spun about (near) the intermediate axis of distinct moments."""
+        return len(set(np.round(self.inertia, 12))) == 3 and self.spin_axis == self.mid_axis
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The body-frame angular velocity about the intermediate axis
+        (rad/s): its sign changes are the flips."""
+        if not self._flips():
+            return []
+        i, k = self.body.index, self.mid_axis
+        return [ReferenceSeries(
+            f"{self.body.name}/w_intermediate", "rad/s",
+            f"angular velocity about the intermediate axis (body frame); flips every "
+            f"{intermediate_flip_interval(self.inertia, self.w0):.6g} s",
+            lambda t: self.reference(np.asarray(t, float))[1][:, k],
+            lambda tr: world_to_body_angvel(tr.quat[:, i], tr.angvel[:, i])[:, k])]
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        """The flips: sign changes of the reference intermediate-axis rate,
+        sampled at the scene's dt."""
+        if not self._flips():
+            return []
+        t = np.arange(0.0, self.scene.duration + 0.5 * self.scene.dt, self.scene.dt)
+        return [(float(tf), f"flip {k + 1}")
+                for k, tf in enumerate(sign_change_times(t, self.reference(t)[1][:, self.mid_axis]))]
 
     def flip_interval(self, t: np.ndarray, w_body: np.ndarray) -> float:
         """Mean time between sign changes of the intermediate-axis component

@@ -18,6 +18,9 @@ from harness.trace.contacts import DEFAULT_CAP, harness_contacts
 GHOST_COLOR = (60, 200, 90, 90)  # translucent green
 HARNESS_CONTACT_COLOR = (230, 30, 30, 255)
 ENGINE_CONTACT_COLOR = (30, 120, 230, 255)
+#: check metric -> the time-series group its threshold is drawn in; the
+#: others with a running series (diagnose.check_series) go to "checks",
+#: drawn against /metrics/<engine>/check/<metric>
 THRESHOLD_GROUP = {"max_penetration": "penetration", "final_position_error": "error", "trajectory_rmse": "error"}
 
 
@@ -35,28 +38,50 @@ class Diagnosis:
         self.checks = dict(checks or {})
         self.contact_cap = int(contact_cap)
         self.ghost = False
+        self.predicted = dg.reference_series(self.model)
 
     # ---- layout ------------------------------------------------------------
     def thresholds(self) -> dict[str, float]:
-        """check metric -> bound drawn as a line (checks with a max whose
-        metric has a per-frame series)."""
+        """Entity path -> bound drawn as a line: ``/metrics/threshold/
+        <metric>/max`` (max + tolerance) and ``.../min`` (min - tolerance)
+        of each check whose metric has a running series
+        (diagnose.CROSSING_SERIES; "@" checks are left out: their run is
+        another setting)."""
         out = {}
         for name, c in self.checks.items():
-            if name in THRESHOLD_GROUP and c.max is not None:
-                out[name] = float(c.max + (c.tolerance or 0.0))
+            if name not in dg.CROSSING_SERIES:
+                continue
+            if c.max is not None:
+                out[f"/metrics/threshold/{name}/max"] = float(c.max + (c.tolerance or 0.0))
+            if c.min is not None:
+                out[f"/metrics/threshold/{name}/min"] = float(c.min - (c.tolerance or 0.0))
         return out
 
     def series(self, labels: Sequence[str]) -> dict[str, list[str]]:
-        """Blueprint group -> entity path queries."""
+        """Blueprint group -> entity path queries: energy, momentum,
+        penetration, error, checks (the running check metrics against their
+        thresholds), ``model:<unit>`` (the model's predictions against
+        their measured twins)."""
         g: dict[str, list[str]] = {
             "energy": [f"/metrics/{lab}/energy" for lab in labels],
             "momentum": [f"/metrics/{lab}/momentum/**" for lab in labels],
             "penetration": [f"/metrics/{lab}/penetration" for lab in labels] if self.scene.has("contact") else [],
             "error": [f"/metrics/{lab}/error/**" for lab in labels] if self.model is not None else [],
+            "checks": [],
         }
-        for name in self.thresholds():
-            if g[THRESHOLD_GROUP[name]]:
-                g[THRESHOLD_GROUP[name]].append(f"/metrics/threshold/{name}")
+        for path in self.thresholds():
+            name = path.split("/")[3]
+            group = THRESHOLD_GROUP.get(name, "checks")
+            if group == "checks":
+                g["checks"] += [f"/metrics/{lab}/check/{name}" for lab in labels]
+            if g[group] or group == "checks":
+                g[group].append(path)
+        g["checks"] = list(dict.fromkeys(g["checks"]))
+        for rs in self.predicted:
+            paths = g.setdefault(f"model:{rs.unit}", [])
+            paths.append(f"{dg.PREDICTION_PATH}/{rs.key}")
+            if rs.measure is not None:
+                paths += [f"/metrics/{lab}/predicted/{rs.key}" for lab in labels]
         return g
 
     # ---- the ghost -----------------------------------------------------------
@@ -67,24 +92,37 @@ class Diagnosis:
             return
         self.ghost = True
         log_bodies(rec, "/world/model", self.scene, steps, t, traj[0], traj[1], GHOST_COLOR)
-        preds = {}
-        try:
-            preds = self.model.predictions()
-        except Exception as e:
-            preds = {"predictions failed": f"{type(e).__name__}: {e}"}
-        text = f"# reference model: {self.scene.reference_model}\n\n" + (
-            "\n".join(f"- {k}: {v}" for k, v in preds.items()) or "(no scalar predictions)")
-        rec.log("/context/model", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    def log_predictions(self, rec: rr.RecordingStream, steps: np.ndarray, t: np.ndarray, dt: float) -> None:
+        """The model's scalar predictions: each ReferenceSeries at
+        /metrics/model/<key> over the given frames, each predicted moment
+        as a TextLog at /events/model at step round(t / dt), and both as
+        text in the Markdown document /context/model."""
+        for rs in self.predicted:
+            y = dg.evaluate_series(rs.model, t)
+            if y is not None:
+                _send_scalars(rec, f"{dg.PREDICTION_PATH}/{rs.key}", steps, t, y)
+        if self.model is None:
+            return
+        t_end = float(t[-1]) if t.size else 0.0
+        rec.log("/context/model", rr.TextDocument(dg.model_markdown(self.scene, self.model, t_end),
+                                                  media_type=rr.MediaType.MARKDOWN), static=True)
+        moments = dg.reference_moments(self.model, t_end)
+        if moments:
+            tm = np.array([m[0] for m in moments])
+            st = np.rint(tm / dt).astype(np.int64) if dt and dt > 0 else np.searchsorted(t, tm)
+            rec.send_columns("/events/model", indexes=_time_columns(st, tm),
+                             columns=rr.TextLog.columns(text=[f"model: {m[1]} at t = {m[0]:.6g} s" for m in moments],
+                                                        level=["INFO"] * len(moments)))
 
     def log_thresholds(self, rec: rr.RecordingStream, steps: np.ndarray, t: np.ndarray) -> None:
-        """/metrics/threshold/<metric>: the check's bound as a line over the run."""
+        """/metrics/threshold/<metric>/{max,min}: the check's bound as a line over the run."""
         if not steps.size:
             return
         ends = np.array([0, steps.size - 1])
-        for name, bound in self.thresholds().items():
-            rec.send_columns(f"/metrics/threshold/{name}",
-                             indexes=[rr.TimeColumn("step", sequence=steps[ends]),
-                                      rr.TimeColumn("sim_time", duration=t[ends])],
+        for path, bound in self.thresholds().items():
+            rec.send_columns(path, indexes=[rr.TimeColumn("step", sequence=steps[ends]),
+                                            rr.TimeColumn("sim_time", duration=t[ends])],
                              columns=rr.Scalars.columns(scalars=np.full(2, bound)))
 
     # ---- one run -------------------------------------------------------------
@@ -125,8 +163,16 @@ class Diagnosis:
             self._log_contacts(rec, f"{engine_path}/engine_contacts", steps, t, eng, ENGINE_CONTACT_COLOR,
                                _time_columns)
             engine_note = f"{len(eng)} frames with contacts at /world/{lab}/engine_contacts"
+        running = dg.check_series(scene, tr, frame_max, err)
+        for name in self.checks:
+            if name in running and name not in THRESHOLD_GROUP:
+                _send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])
+        for rs in self.predicted:
+            y = None if rs.measure is None else dg.evaluate_series(rs.measure, tr)
+            if y is not None:
+                _send_scalars(rec, f"{metrics_path}/predicted/{rs.key}", steps, t, y)
         events = dg.find_events(scene, result, tr, penetration=frame_max, error=err, model=self.model,
-                                outcomes=mine, checks=self.checks)
+                                outcomes=mine, checks=self.checks, series=running)
         if events:
             f = np.array([e.frame for e in events])
             rec.send_columns(f"/events/{lab}", indexes=_time_columns(steps[f], t[f]),

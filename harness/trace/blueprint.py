@@ -37,7 +37,16 @@ FAMILY_GROUPS: dict[str, tuple[str, ...]] = {
 }
 DEFAULT_GROUPS = ("error", "energy", "momentum", "penetration")
 GROUP_TITLES = {"error": "error against the model (m)", "energy": "energy (J)",
-                "momentum": "momentum |P| (N s), |L| (N m s)", "penetration": "penetration (m)"}
+                "momentum": "momentum |P| (N s), |L| (N m s)", "penetration": "penetration (m)",
+                "checks": "checks: running metric and threshold (1)"}
+
+
+def group_title(group: str) -> str:
+    """A view's name: GROUP_TITLES, or "model predictions (<unit>)" for a
+    ``model:<unit>`` group."""
+    if group.startswith("model:"):
+        return f"model predictions ({group[6:]})"
+    return GROUP_TITLES[group]
 
 
 def family_blueprint(family: str, labels: Sequence[str], series: dict[str, list[str]],
@@ -46,16 +55,18 @@ def family_blueprint(family: str, labels: Sequence[str], series: dict[str, list[
     view of /world (the ghost /world/model among them) above one 3D view per
     engine side by side (that engine and the ghost); on the right the
     family's time-series groups (``series``: group -> entity paths, the
-    thresholds /metrics/threshold/... included), the events and the
-    context documents."""
+    thresholds /metrics/threshold/... included; groups the family does not
+    order follow in ``series`` order: checks, model predictions), the events
+    and the context documents."""
     model = ["/world/model/**"] if ghost else []
     world = rrb.Spatial3DView(origin="/world", name="overlaid" + (" (ghost: model)" if ghost else ""))
     side = [rrb.Spatial3DView(origin="/world", contents=[f"/world/{lab}/**", *model], name=lab) for lab in labels]
     left = rrb.Vertical(world, rrb.Horizontal(*side), row_shares=[3, 2]) if len(side) > 1 else world
     plots: list = []
-    for g in FAMILY_GROUPS.get(family, DEFAULT_GROUPS):
+    order = FAMILY_GROUPS.get(family, DEFAULT_GROUPS)
+    for g in [*order, *(g for g in series if g not in order)]:
         if series.get(g):
-            plots.append(rrb.TimeSeriesView(origin="/metrics", contents=series[g], name=GROUP_TITLES[g]))
+            plots.append(rrb.TimeSeriesView(origin="/metrics", contents=series[g], name=group_title(g)))
     texts = [rrb.TextLogView(origin="/events", name="events")]
     texts += [rrb.TextDocumentView(origin=f"/context/{lab}", name=f"{lab} context") for lab in labels]
     right = rrb.Vertical(*plots, rrb.Tabs(*texts))

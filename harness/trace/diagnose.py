@@ -71,6 +71,63 @@ def model_trajectory(model, scene: Scene, t: np.ndarray) -> tuple[np.ndarray, np
     return pos, quat
 
 
+#: where the model's ReferenceSeries go (the ghost's twin on the plots)
+PREDICTION_PATH = "/metrics/model"
+
+
+def reference_series(model) -> list:
+    """The model's ReferenceSeries (harness.references), [] without a model
+    or when it fails (a prediction must not lose the trace)."""
+    if model is None:
+        return []
+    try:
+        return list(model.reference_series())
+    except Exception:
+        return []
+
+
+def evaluate_series(fn, arg) -> np.ndarray | None:
+    """A ReferenceSeries' ``model(t)`` or ``measure(trace)`` as float (F,),
+    or None when it fails (the line is left out, the trace is kept)."""
+    try:
+        return np.asarray(fn(arg), float)
+    except Exception:
+        return None
+
+
+def reference_moments(model, t_end: float) -> list[tuple[float, str]]:
+    """The model's predicted moments (t s, text) within [0, t_end], sorted;
+    [] without a model or when it fails."""
+    if model is None:
+        return []
+    try:
+        moments = model.reference_times()
+    except Exception:
+        return []
+    return sorted((float(t), str(x)) for t, x in moments if 0.0 <= t <= t_end)
+
+
+def model_markdown(scene: Scene, model, t_end: float) -> str:
+    """/context/model: the model's name, scalar predictions, the reference
+    lines drawn (entity path, unit, what) and the predicted moments."""
+    preds = {}
+    try:
+        preds = model.predictions()
+    except Exception as e:
+        preds = {"predictions failed": f"{type(e).__name__}: {e}"}
+    lines = [f"# reference model: {scene.reference_model}", ""]
+    lines += [f"- {k}: {v}" for k, v in preds.items()] or ["(no scalar predictions)"]
+    series = reference_series(model)
+    if series:
+        lines += ["", "## reference lines", ""]
+        lines += [f"- `{PREDICTION_PATH}/{rs.key}` ({rs.unit}): {rs.text}" for rs in series]
+    moments = reference_moments(model, t_end)
+    if moments:
+        lines += ["", "## predicted moments (/events/model)", ""]
+        lines += [f"- {x}: t = {t:.6g} s" for t, x in moments]
+    return "\n".join(lines)
+
+
 def error_series(pos: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """|x - x_ref| per frame and body (m, (F, n)); NaN where the model
     places no body (the same distance as harness.references.trajectory_metrics)."""
@@ -116,40 +173,79 @@ def rest_frames(scene: Scene, trace) -> list[tuple[int, int]]:
     return sorted(out)
 
 
-#: check metric -> the per-frame series whose crossing of the check's max
-#: marks where it failed ("penetration": /metrics/<e>/penetration; "error":
-#: the largest per-body error against the model)
+#: check metric -> the per-frame running form of the metric whose first
+#: frame past the check's max marks where it failed (:func:`check_series`)
 CROSSING_SERIES = {"max_penetration": "penetration", "final_position_error": "error",
-                   "trajectory_rmse": "error"}
+                   "trajectory_rmse": "error", "energy_drift": "|E - E0| / E_scale",
+                   "energy_gain": "(E - E0) / E_scale", "energy_dissipated": "(E0 - E) / E_scale",
+                   "linear_momentum_drift": "|P - P0| / P_scale", "angular_momentum_drift": "|L - L0| / L_scale"}
+
+
+def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
+                 error: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Check metric -> its running value per frame ((F,), dimensionless
+    except penetration and error in m), the metrics' own definitions
+    (harness.metrics.relative_energy, momentum_drift_series): the metric is
+    the series' maximum (energy_dissipated: its last value).  A check with
+    a ``max`` first fails at the first frame whose value exceeds it.
+    ``penetration``: the per-frame deepest overlap (m, (F,)); ``error``:
+    per-body error against the model (m, (F, n)), its largest body counts.
+    Metrics that are NaN for the scene (energy_drift of a dissipative scene,
+    momentum drift under an external force) have no series."""
+    from contract.metric_defs import dissipation
+    from harness.metrics import momentum_drift_series, relative_energy
+
+    out: dict[str, np.ndarray] = {}
+    if penetration is not None:
+        out["max_penetration"] = penetration
+    if error is not None:
+        with np.errstate(invalid="ignore"):
+            worst = np.nanmax(np.where(np.isfinite(error), error, -np.inf), axis=1)
+        out["final_position_error"] = out["trajectory_rmse"] = worst
+    if scene.n_bodies and trace.pos.shape[0]:
+        dE = relative_energy(scene, trace)[0]
+        if dissipation(scene):
+            out["energy_dissipated"] = -dE
+        else:
+            out["energy_drift"] = np.abs(dE)
+        out["energy_gain"] = dE  # max(0, .) crosses a max >= 0 where dE does
+        lin, ang = momentum_drift_series(scene, trace)
+        if lin is not None:
+            out["linear_momentum_drift"] = lin
+        if ang is not None:
+            out["angular_momentum_drift"] = ang
+    return out
 
 
 def find_events(scene: Scene, result, trace, *, penetration: np.ndarray | None, error: np.ndarray | None,
-                model, outcomes: Sequence = (), checks: dict | None = None) -> list[Event]:
+                model, outcomes: Sequence = (), checks: dict | None = None,
+                series: dict[str, np.ndarray] | None = None) -> list[Event]:
     """Events of one run, sorted by frame (at most MAX_EVENTS):
 
-    - each check (``outcomes`` of this run) whose metric has a per-frame
-      series (CROSSING_SERIES) and a ``max`` (``checks``: metric -> its
-      contract.scene.Check): the first frame past max (+ tolerance);
+    - each check (``outcomes`` of this run) whose metric has a running
+      series (:func:`check_series`, CROSSING_SERIES) and a ``max``
+      (``checks``: metric -> its contract.scene.Check): the first frame
+      past max (+ tolerance);
     - the deepest penetration (its first frame);
     - the model's own events (a body passing through a wall);
     - the first diverged frame (non-finite or runaway state);
     - each body that moved coming to rest (REST_SPEED).
     """
     ev: list[Event] = []
-    series = {"penetration": penetration,
-              "error": None if error is None else np.nanmax(np.where(np.isfinite(error), error, -np.inf), axis=1)}
+    if series is None:
+        series = check_series(scene, trace, penetration, error)
     for o in outcomes:
         name = o.metric.partition("@")[0]
-        key = CROSSING_SERIES.get(name)
         check = (checks or {}).get(o.metric)
-        if key is None or series.get(key) is None or check is None or check.max is None:
+        y = series.get(name)
+        if y is None or check is None or check.max is None:
             continue
         bound = check.max + (check.tolerance or 0.0)
-        f = first_above(series[key], bound)
+        f = first_above(y, bound)
         if f is not None:
             ev.append(Event(f, "ERROR" if o.outcome in ("FAIL", "ERROR") else "WARN",
-                            f"check {o.metric} {o.threshold} first crossed: {key} = {series[key][f]:.6g} "
-                            f"at t = {trace.t[f]:.6g} s ({o.outcome})"))
+                            f"check {o.metric} {o.threshold} first crossed: {CROSSING_SERIES[name]} = "
+                            f"{y[f]:.6g} at t = {trace.t[f]:.6g} s ({o.outcome})"))
     if penetration is not None and penetration.size and np.nanmax(penetration) > 0:
         f = int(np.nanargmax(penetration))
         ev.append(Event(f, "INFO", f"maximum penetration {penetration[f]:.6g} m at t = {trace.t[f]:.6g} s"))

@@ -412,9 +412,11 @@ def write_rrd(path, scene: Scene, results: Sequence, *, app_id: str = "physbench
             longest = max((r for r, d in zip(results, drawn) if d), key=lambda r: r.trace.n_frames, default=None)
             if longest is not None:
                 tr = longest.trace.valid()
-                st = frame_steps(tr.t, (longest.settings or {}).get("dt") or scene.dt)
-                diag.log_ghost(rec, st, np.asarray(tr.t, float), _log_bodies)
-                diag.log_thresholds(rec, st, np.asarray(tr.t, float))
+                dt = (longest.settings or {}).get("dt") or scene.dt
+                st, tt = frame_steps(tr.t, dt), np.asarray(tr.t, float)
+                diag.log_ghost(rec, st, tt, _log_bodies)
+                diag.log_predictions(rec, st, tt, dt)
+                diag.log_thresholds(rec, st, tt)
         slot = 0  # drawn runs take consecutive slots along +y
         for k, (r, lab, d) in enumerate(zip(results, labels, drawn)):
             engine_path = f"/world/{lab}"
