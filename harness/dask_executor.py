@@ -50,8 +50,8 @@ import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from harness.execute import (_END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
-                             register_env_adapters)
+from harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
+                             register_env_adapters, take)
 
 #: the version pins an environment check compares (importlib.metadata names)
 PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
@@ -296,12 +296,10 @@ class DaskExecutor:
         def fill() -> None:
             nonlocal more
             while more and len(futures) < self.jobs + self.lookahead:
-                item = next(source, _END)
-                if item is _END:
+                item = take(source, bool(futures))
+                if item is END:
                     more = False
                 elif item is WAIT:
-                    if not futures:
-                        raise RuntimeError("the item source waits for a result, but nothing is running")
                     return
                 else:
                     # unique even for items of equal keys: a repeated key would be one shared task

@@ -81,7 +81,19 @@ class _Wait:
 #: the executor runs what it has in flight and asks again once a result is
 #: in (a search's next value depends on the last one: harness/schedule.py)
 WAIT = _Wait()
-_END = object()
+#: what :func:`take` returns when the source has no more items, ever
+END = object()
+
+
+def take(source: Iterator[Any], in_flight: bool) -> Any:
+    """The next item of an executor's item source: an item, :data:`WAIT`
+    (nothing to run until a result is in) or :data:`END`.  Raises
+    RuntimeError for WAIT with nothing ``in_flight``: no result would ever
+    come (a bug of the source)."""
+    item = next(source, END)
+    if item is WAIT and not in_flight:
+        raise RuntimeError("the item source waits for a result, but nothing is running")
+    return item
 
 
 def grace_s(budget_s: float) -> float:
@@ -287,9 +299,8 @@ class InlineExecutor:
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
             on_start: Callable[[Any], None] | None = None,
             priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
-        for item in items:
-            if item is WAIT:  # one item at a time: nothing is in flight to wait for
-                raise RuntimeError("the item source waits for a result, but nothing is running")
+        source = iter(items)
+        while (item := take(source, False)) is not END:  # one at a time: never anything in flight
             if on_start:
                 on_start(item)
             try:
@@ -504,13 +515,10 @@ class WorkerPool:
         try:
             while more or busy or out:
                 while more and len(busy) < self.jobs:
-                    item = next(source, _END)
-                    if item is _END:
+                    item = take(source, bool(busy or out))
+                    if item is END:
                         more = False
-                        break
-                    if item is WAIT:
-                        if not busy and not out:
-                            raise RuntimeError("the item source waits for a result, but nothing is running")
+                    if item is END or item is WAIT:
                         break
                     budget = budget_s(item) if budget_s else None
                     w = self.idle.pop() if self.idle else self._spawn()
@@ -693,4 +701,4 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "ONE_THREAD_ENV"]
+           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV"]

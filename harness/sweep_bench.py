@@ -101,20 +101,18 @@ class VirtualExecutor:
         import heapq
         import itertools
 
-        from harness.execute import WAIT
+        from harness.execute import END, WAIT, take
 
         source, more, now, seq = iter(items), True, 0.0, itertools.count()
         running: list = []
         while more or running:
             while more and len(running) < self.jobs:
-                item = next(source, None)
-                if item is None:
+                item = take(source, bool(running))
+                if item is END:
                     more = False
-                    break
                 if item is WAIT:
-                    if not running:
-                        raise RuntimeError("the item source waits for a result, but nothing is running")
                     self.waits.append(now)
+                if item is END or item is WAIT:
                     break
                 self.started.append((now, item))
                 if on_start:
