@@ -21,13 +21,13 @@ resume).
   scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
   makes the item ``error`` with the reason.
 - **Feeding the cluster.**  Items are read as the cluster has room: one
-  task running per worker thread and one more queued on the scheduler, so
-  a worker that finishes starts its next task without a round trip to
-  this client (tasks of equal priority start in submission order; a
-  search's evaluation, of higher priority, first: harness/schedule.py).
-  Workers hold only the task they run (``worker-saturation`` 1.0), so a
-  dying worker charges no queued task.  Results are gathered as tasks
-  finish.
+  task per worker thread, the next submitted when a result comes back.
+  Each task is its own Dask task group, so the scheduler does not queue
+  it: a task submitted ahead would wait *on a worker*, and a worker that
+  dies charges every task it holds against the retry-once rule, one it
+  never started too.  The price is a round trip through this client per
+  item (measured by harness/sweep_bench.py).  Results are
+  gathered as tasks finish.
 - **Environment check.**  Every worker reports its identity
   (:func:`worker_identity`: physbench commit, engine and library versions,
   BLAS, and its machine fingerprint).  A worker whose software differs from
@@ -259,9 +259,11 @@ class DaskExecutor:
             self.dashboard = self.client.dashboard_link
         #: runs at once: the workers' threads
         self.jobs = sum(int(w.get("nthreads", 1)) for w in info["workers"].values()) or len(self.workers)
-        #: tasks submitted beyond the workers' threads: one per thread waits on the scheduler, so a
-        #: worker that finishes gets its next task from there, not from a round trip to this client
-        self.lookahead = self.jobs
+        #: tasks submitted beyond the workers' threads.  0: a submitted task is not queued on the
+        #: scheduler (physbench's tasks are each their own task group, never "root-ish") but sent to a
+        #: worker at once, and a worker that dies charges every task it holds, one it never started
+        #: too (tests/test_dask_executor.py::test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row)
+        self.lookahead = 0
         retries = self.client.run_on_scheduler(_scheduler_allowed_failures)
         where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
         self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
