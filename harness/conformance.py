@@ -62,8 +62,9 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import math
+import io
 import os
+import math
 import re
 import sys
 import time
@@ -76,6 +77,7 @@ from typing import Any, Iterable
 from harness import status as st
 from harness.execute import DEFAULT_TIMEOUT_S, RunRequest, WorkerLost, execute_request, lost_result
 from harness.executors import make_executor
+from harness.results import write_text_atomic
 from contract.scene import Check, Scene
 
 HARD_DT = 1.0 / 30.0
@@ -405,6 +407,29 @@ def primary_threshold(scene: Scene, metric: str | None = None) -> float | None:
     return min(float(c.max) + float(c.tolerance or 0.0) for c in use) if use else None
 
 
+def scene_columns(scene: Scene) -> dict[str, Any]:
+    """The columns every check and sweep row carries from its scene, so that
+    the report reads rows only (never the scene again): the primary metric,
+    its threshold (:func:`primary_threshold`) and the scenario's tags (JSON
+    list).  The verdicts go in ``checks`` (:func:`verdicts_column`)."""
+    return {"primary_metric": scene.primary_metric, "primary_threshold": primary_threshold(scene),
+            "tags": json.dumps(list(scene.tags))}
+
+
+def run_verdicts(scene: Scene, result) -> list[Outcome]:
+    """The scene's checks that apply to the result's engine and the scene's
+    variant, without an @-setting, evaluated on ``result`` as ``physbench
+    check`` does: a sweep point's verdicts."""
+    return [evaluate_check(c, result) for c in applicable_checks(scene, result.engine)
+            if not split_metric(c.metric)[1]]
+
+
+def verdicts_column(outcomes: Iterable[Outcome]) -> str:
+    """A row's ``checks`` column: its verdicts (Outcome.as_dict: metric,
+    outcome, value, threshold, message as the reason, trace) as JSON."""
+    return json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
+
+
 def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None, path: str | None = None,
                phases: int | None = None, timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
     """The runs that evaluating ``scene``'s checks on ``engine`` takes, the
@@ -419,7 +444,7 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
         return []
     settings = dict(settings or {})
     n = scene.phases if phases is None else phases
-    extra = {"primary_metric": scene.primary_metric, "primary_threshold": primary_threshold(scene)}
+    extra = scene_columns(scene)
     runs = [RunSpec(scene.id, scene.variant, engine, settings, checks, phases=n, path=path, row_extra=extra,
                     timeout_s=timeout_s)]
     for i in range(1, n):
@@ -644,11 +669,9 @@ def _detail(o: Outcome) -> str:
 def write_junit(outcomes: list[Outcome], path: str | Path) -> None:
     tree = junit_xml(outcomes)
     ET.indent(tree)
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tree.write(tmp, encoding="utf-8", xml_declaration=True)
-    os.replace(tmp, p)
+    buf = io.BytesIO()
+    tree.write(buf, encoding="utf-8", xml_declaration=True)
+    write_text_atomic(buf.getvalue().decode("utf-8"), path)
 
 
 def summarize(outcomes: list[Outcome], console=None) -> None:
@@ -929,12 +952,12 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     summarize(outcomes)
     try:
         # the verdicts go into the rows, so the report reads rows only
-        verdicts: dict[str, list[dict[str, Any]]] = {r.run_key: [] for r in runs}
+        verdicts: dict[str, list[Outcome]] = {r.run_key: [] for r in runs}
         run_keys = {r.key: r.run_key for r in runs}
         for o in outcomes:
             if o.key in run_keys:
-                verdicts[run_keys[o.key]].append(o.as_dict())
-        columns = {k: {"checks": json.dumps(v, sort_keys=True)} for k, v in verdicts.items()}
+                verdicts[run_keys[o.key]].append(o)
+        columns = {k: {"checks": verdicts_column(v)} for k, v in verdicts.items()}
         saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now(), columns=columns)
         err.print(f"result rows written to {saved}", markup=False, highlight=False, soft_wrap=True)
     except Exception as e:  # the parts stay: nothing is lost

@@ -1,6 +1,6 @@
 """One sweep point: what to run (:class:`Point`: scenario, variant, engine,
 swept settings, phase), running it (:func:`run_point`: repeats, timing,
-the point's row) and the executor glue (:func:`run_points`: a point whose
+the point's row) and the executor glue (:func:`lost_point_row`: a point whose
 worker dies or hangs gets an ``error``/``timeout`` row; harness/execute.py).
 """
 
@@ -15,9 +15,10 @@ import traceback
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Callable
+from typing import Any
 
 from contract.phase import PhaseError
+from harness import status as st
 from harness.execute import RunRequest, WorkerLost, request_scene
 
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
@@ -111,9 +112,9 @@ def run_point(point: Point) -> dict[str, Any]:
     try:
         scene = _scene(point.path or point.scenario, point.variant)
     except Exception as e:
-        return _status_row(point, "error", f"scene failed to load: {type(e).__name__}: {e}", t0)
+        return _status_row(point, st.ERROR, f"scene failed to load: {type(e).__name__}: {e}", t0)
     if point.scene_hash and scene.content_hash != point.scene_hash:
-        return _status_row(point, "error", f"scene changed since the sweep was planned (content hash "
+        return _status_row(point, st.ERROR, f"scene changed since the sweep was planned (content hash "
                                            f"{scene.content_hash}, planned {point.scene_hash}); sweep again", t0)
     settings = point.engine_settings
     if point.phase:
@@ -121,7 +122,7 @@ def run_point(point: Point) -> dict[str, Any]:
             scene = request_scene(RunRequest(point.scenario, point.engine, point.variant, settings,
                                              phase=point.phase), base=scene)
         except PhaseError as e:
-            return _status_row(point, "error", f"phase {point.phase:g}: {e}", t0, scene=scene)
+            return _status_row(point, st.ERROR, f"phase {point.phase:g}: {e}", t0, scene=scene)
     first = None
     cpu: list[float] = []
     # a blow-up is recorded in the status; numpy's overflow warnings on the
@@ -134,14 +135,14 @@ def run_point(point: Point) -> dict[str, Any]:
                                  compute_metrics=(i == 0))
             except Exception as e:  # a bad setting combination, an adapter import error ...
                 if first is None:
-                    return _status_row(point, "failed", f"could not run: {type(e).__name__}: {e}", t0,
+                    return _status_row(point, st.FAILED, f"could not run: {type(e).__name__}: {e}", t0,
                                        scene=scene, tb=traceback.format_exc(limit=5))
                 first.notes.append(f"repeat {i + 1} raised {type(e).__name__}: {e}; not timed")
                 break
             res.trace = None
             if first is None:
                 first = res
-            if res.status != "ok":  # a partial run's cost is no point of a work-precision curve
+            if res.status != st.OK:  # a partial run's cost is no point of a work-precision curve
                 if res is not first:
                     first.notes.append(f"repeat {i + 1} ended {res.status} ({res.message}); not timed")
                 break
@@ -154,30 +155,27 @@ def run_point(point: Point) -> dict[str, Any]:
 def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
                    result: Any = None) -> dict[str, Any]:
     """The sweep's columns of a point's row.  ``checks`` (JSON) holds the
-    scene's checks on this point's run (those that apply to the engine and
-    variant, without an @-setting; evaluated as ``physbench check`` does),
-    ``primary_threshold`` the check max on the primary metric: the report
-    reads both from the row instead of reloading the scene."""
-    from harness.conformance import applicable_checks, evaluate_check, primary_threshold, split_metric
+    verdicts of the scene's checks on this point's run
+    (harness.conformance.run_verdicts), and the scene's columns
+    (harness.conformance.scene_columns: primary metric, its threshold,
+    tags): the report reads them from the row, never from the scene."""
+    from harness.conformance import run_verdicts, scene_columns, verdicts_column
 
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
     try:
-        err = float(value) if row.get("status") == "ok" and value is not None else math.nan
+        err = float(value) if row.get("status") == st.OK and value is not None else math.nan
     except (TypeError, ValueError):
         err = math.nan
     finite = [c for c in cpu if math.isfinite(c)]
-    checks = []
-    if scene is not None and result is not None:
-        checks = [evaluate_check(c, result).as_dict() for c in applicable_checks(scene, point.engine)
-                  if not split_metric(c.metric)[1]]
+    cols = scene_columns(scene) if scene is not None else {"primary_metric": None, "primary_threshold": None,
+                                                            "tags": None}
     return {
+        **cols,
         "point_key": point.key,
-        "checks": json.dumps(checks, sort_keys=True),
-        "primary_threshold": primary_threshold(scene) if scene is not None else None,
+        "checks": verdicts_column(run_verdicts(scene, result)) if scene is not None and result is not None else "[]",
         "point_settings": point.settings_json,
         "phase": point.phase,
-        "primary_metric": metric,
         "primary_error": err,
         "cpu_s_per_sim_s_median": statistics.median(finite) if finite else math.nan,
         "cpu_s_per_sim_s_min": min(finite) if finite else math.nan,
@@ -240,14 +238,3 @@ def lost_point_row(p: Point, value: WorkerLost) -> dict[str, Any]:
         msg = f"point failed: {value.message}"
     return _status_row(p, value.status, msg, t0, tb=value.traceback or None,
                        stderr_tail=value.stderr_tail or None, machine=value.machine)
-
-
-def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[str, Any]], None],
-               on_start: Callable[[Point], None]) -> None:
-    """Run points through ``executor`` (harness/execute.py: a WorkerPool or
-    the inline executor) and hand each row to ``on_row`` as it finishes.  A
-    point whose worker dies or hangs (or whose code raises) gets an
-    ``error``/``timeout`` row naming why; the other points are untouched.
-    (A sweep runs its points with its searches: harness/schedule.py.)"""
-    for p, value in executor.map(run_point, todo, budget_s=_point_budget, on_start=on_start):
-        on_row(p, lost_point_row(p, value) if isinstance(value, WorkerLost) else value)

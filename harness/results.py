@@ -1,6 +1,8 @@
 """Results store: run rows as Parquet under ``results/``, written atomically.
 
-Rows are flat dicts (harness.runner.RunResult.row()).  Every file carries the
+Rows are flat dicts (harness.runner.RunResult.row()) plus the columns of
+one schema for check and sweep rows (:data:`VERDICT_COLUMNS`, then
+:data:`CHECK_COLUMNS` or harness.sweep_store.SWEEP_COLUMNS).  Every file carries the
 schema version in its Parquet metadata and a ``schema_version`` column, so
 later readers can tell old rows from new ones.
 
@@ -26,6 +28,15 @@ from contract.scene import REPO_ROOT
 
 SCHEMA_VERSION = 1
 RESULTS_DIR = REPO_ROOT / "results"
+
+# The row schema (results/README.md): RunResult.row() columns, then
+#: columns every check and sweep row adds, so that the report reads rows
+#: only: the scene's primary metric, its threshold and tags
+#: (harness.conformance.scene_columns) and the verdicts of its checks,
+#: JSON (harness.conformance.verdicts_column)
+VERDICT_COLUMNS = ("primary_metric", "primary_threshold", "tags", "checks")
+#: columns a check row adds besides VERDICT_COLUMNS
+CHECK_COLUMNS = ("phase", "run_key", "check_id", "schema_version")
 
 
 # ---------------------------------------------------------------------------
@@ -93,14 +104,23 @@ def write_parquet_atomic(df, path: str | Path, metadata: dict[str, Any] | None =
     return path
 
 
-def write_json_atomic(obj: Any, path: Path) -> None:
+def write_text_atomic(text: str, path: str | Path) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically (temp file in the same
+    directory, fsync, rename; the directory is made if missing)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
     try:
-        tmp.write_text(json.dumps(obj, indent=1, default=str) + "\n", encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8")
         _fsync_replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+    return path
+
+
+def write_json_atomic(obj: Any, path: Path) -> None:
+    write_text_atomic(json.dumps(obj, indent=1, default=str) + "\n", path)
 
 
 def write_rows(rows: Iterable[dict[str, Any]], path: str | Path, append: bool = True) -> Path:

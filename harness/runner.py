@@ -29,6 +29,8 @@ import numpy as np
 from adapters import get_adapter
 from contract.scene import Scene, n_steps
 from contract.spec import record_size_error
+from harness import status as st
+from harness.results import CHECK_COLUMNS, VERDICT_COLUMNS
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -131,12 +133,13 @@ class RunResult:
     def from_row(cls, row: dict[str, Any]) -> "RunResult":
         """The result a stored row was made from (:meth:`row`), as far as a
         row holds it: every column that is not identity, status, a setting,
-        timing, machine, JSON or bookkeeping column is a metric.  A resumed
+        timing, machine, JSON, verdict or bookkeeping column
+        (harness.results.VERDICT_COLUMNS, CHECK_COLUMNS) is a metric.  A resumed
         check evaluates its finished runs from these."""
         import json
 
         fixed = {"scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
-                 "notes", "stages", "info", "schema_version", "phase", "run_key", "check_id"}
+                 "notes", "stages", "info", *CHECK_COLUMNS, *VERDICT_COLUMNS}
         settings, timing, machine, metrics = {}, {}, {}, {}
         for k, v in row.items():
             if k in fixed:
@@ -259,13 +262,13 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     resolved = cls.resolve_settings(scene, settings)
     result = RunResult(
         scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,
-        status="ok", message="", settings=resolved, machine=machine_info(), commit=commit_id(),
+        status=st.OK, message="", settings=resolved, machine=machine_info(), commit=commit_id(),
         timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         scene_hash=scene.content_hash, scene_path=scene.source,
     )
     reason = cls.unsupported_reason(scene)
     if reason is not None:
-        result.status, result.message = "unsupported", reason
+        result.status, result.message = st.UNSUPPORTED, reason
         return result
 
     from adapters.base import Unsupported
@@ -287,11 +290,11 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         trace.t[0] = 0.0
         trace.n_frames = 1
     except Unsupported as e:
-        result.status, result.message = "unsupported", str(e)
+        result.status, result.message = st.UNSUPPORTED, str(e)
         _finish(result, adapter, scene, trace, compute_metrics, dt)
         return result
     except Exception as e:  # the engine rejected the model
-        result.status, result.message = "failed", f"build failed: {type(e).__name__}: {e}"
+        result.status, result.message = st.FAILED, f"build failed: {type(e).__name__}: {e}"
         result.info["traceback"] = traceback.format_exc(limit=5)
         _finish(result, adapter, scene, trace, compute_metrics, dt)
         return result
@@ -340,11 +343,11 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
             trace.n_frames = frame
             bad = _runaway(trace, max(0, a - 1), frame)
             if bad:
-                result.status, result.message = "diverged", f"{bad} at t <= {done * dt:.6g} s (step <= {done})"
+                result.status, result.message = st.DIVERGED, f"{bad} at t <= {done * dt:.6g} s (step <= {done})"
                 break
             now = time.perf_counter()
             if timeout_s is not None and now - wall0 > timeout_s:
-                result.status = "timeout"
+                result.status = st.TIMEOUT
                 result.message = f"stopped after {now - wall0:.1f} s wall at step {done} of {steps}"
                 break
             if record_every == 1 and block < max_block and now - b0 < BLOCK_TARGET_S:
@@ -354,7 +357,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
             k = int(getattr(adapter, "block_done", 0))
             done += k
             frame += k
-        result.status, result.message = "error", f"step {done + 1}: {type(e).__name__}: {e}"
+        result.status, result.message = st.ERROR, f"step {done + 1}: {type(e).__name__}: {e}"
         result.info["traceback"] = traceback.format_exc(limit=5)
     cpu = time.process_time() - cpu0
     wall = time.perf_counter() - wall0
@@ -433,7 +436,7 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         adapter.close()
     except Exception as e:
         result.notes.append(f"close() raised {type(e).__name__}: {e}")
-    if compute_metrics and trace.n_frames > 0 and result.status != "unsupported":
+    if compute_metrics and trace.n_frames > 0 and result.status != st.UNSUPPORTED:
         from harness.metrics import compute_metrics as _metrics
 
         t0 = time.perf_counter()
@@ -443,11 +446,11 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)
             why = f"metrics failed: {type(e).__name__}: {e}"
-            if result.status == "ok":
-                result.status, result.message = "error", why
+            if result.status == st.OK:
+                result.status, result.message = st.ERROR, why
             else:
                 result.notes.append(why)
             result.info["metrics_traceback"] = traceback.format_exc(limit=5)
         result.timing["metrics_s"] = time.perf_counter() - t0
-        if result.status == "ok" and result.metrics.get("stable") is False:
+        if result.status == st.OK and result.metrics.get("stable") is False:
             result.notes.append("unstable: " + str(result.metrics.get("stability_reason", "")))

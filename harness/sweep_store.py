@@ -26,16 +26,16 @@ from typing import Any, Iterable
 
 from contract.spec import SpecError, _display
 from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
-from harness.results import (RESULTS_DIR, SCHEMA_VERSION, PartsDir, consolidate_parts, list_parts, try_lock,
-                             unfinished_dirs, write_json_atomic)
+from harness.results import (RESULTS_DIR, SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
+                             try_lock, unfinished_dirs, write_json_atomic)
 
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
 # Columns a sweep adds to RunResult.row() (the row contract, with
-# results/README.md).
-SWEEP_COLUMNS = ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_metric", "primary_error",
-                 "primary_threshold", "checks",
-                 "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id", "sweep_jobs",
-                 "point_wall_s", "schema_version")
+# results/README.md): the verdict columns every check row has too, then the
+# sweep's own.
+SWEEP_COLUMNS = VERDICT_COLUMNS + ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_error",
+                                   "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id",
+                                   "sweep_jobs", "point_wall_s", "schema_version")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -71,10 +71,7 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-_write_json_atomic = write_json_atomic
-_parts = list_parts
-_try_lock = try_lock
-_unfinished = unfinished_dirs
+_parts = list_parts  # the name harness/sweep.py imports
 
 
 class _SweepDir(PartsDir):
@@ -129,12 +126,12 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
     commit = commit_id()
     keys = [p.key for p in points]
     if resume is not False:
-        for d, man in _unfinished(suite_dir):
+        for d, man in unfinished_dirs(suite_dir):
             if (d.parent / f"{d.name}.parquet").exists():
                 # consolidated, but killed before its manifest was written or
                 # its directory removed: finish that (under its lock), never
                 # resume it (its points are stored)
-                fd = _try_lock(d)
+                fd = try_lock(d)
                 if fd >= 0:
                     try:
                         consolidate(d)
@@ -148,12 +145,12 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
                 continue
             if resume is None and man.get("commit") != commit:
                 continue
-            fd = _try_lock(d)
+            fd = try_lock(d)
             if fd < 0:
                 continue
             man.setdefault("resumed", []).append({"at": _now(), "commit": commit, "jobs": jobs,
                                                   "executor": executor})
-            _write_json_atomic(man, d / "manifest.json")
+            write_json_atomic(man, d / "manifest.json")
             return _SweepDir(d, man, fd), True
         if resume:
             print(f"nothing to resume for suite {suite.name} (same suite file and points) under {suite_dir}; "
@@ -165,7 +162,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         sid = f"{base}-{n}"
     d = suite_dir / sid
     d.mkdir(parents=True)
-    fd = _try_lock(d)
+    fd = try_lock(d)
     man = {
         "schema_version": SCHEMA_VERSION,
         "suite": suite.name,
@@ -183,7 +180,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         "finished": None,
         "points": keys,
     }
-    _write_json_atomic(man, d / "manifest.json")
+    write_json_atomic(man, d / "manifest.json")
     return _SweepDir(d, man, fd), False
 
 
@@ -226,7 +223,7 @@ def sweep_files(root: str | Path | None = None, suites: Iterable[str] | None = N
             if unfinished:
                 for d in visible(p for p in sdir.iterdir() if p.is_dir()):
                     if d.name not in done:
-                        out += [(mdir.name, sdir.name, d.name, p, False) for p in visible(_parts(d))]
+                        out += [(mdir.name, sdir.name, d.name, p, False) for p in visible(list_parts(d))]
     return out
 
 

@@ -272,7 +272,9 @@ def test_changed_scene_starts_a_new_series_not_a_regression(tmp_path, capsys):
 def test_report_reads_thresholds_from_rows_not_scenarios(tmp_path, monkeypatch):
     """Rows of a file outside scenarios/ carry their threshold: the report
     needs no scene to reload (the path recorded no longer exists)."""
-    monkeypatch.setattr(rp, "_scene", lambda *a, **k: pytest.fail("the report reloaded a scene"))
+    import contract.scene
+
+    monkeypatch.setattr(contract.scene, "load_scene", lambda *a, **k: pytest.fail("the report reloaded a scene"))
     rows = [dict(_sweep_row("20261120T010000Z-c", "aaaa000000000000", 1e-3), primary_threshold=2e-3,
                  checks=json.dumps([{"metric": "max_penetration", "outcome": "PASS"}]))]
     _write(tmp_path, rows)

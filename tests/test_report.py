@@ -43,6 +43,20 @@ def row(scenario=FAKE, variant=None, engine="reference", dt=0.001, status="ok", 
     return r
 
 
+def as_written(r: dict) -> dict:
+    """``r`` with the columns today's check and sweep writers add from its
+    real scenario (harness.conformance.scene_columns: primary metric, its
+    threshold, tags; the verdicts of run_verdicts on the row's values): the
+    report reads rows only, so a planted row carries them as a written one
+    does.  Rows without them are the old rows of the no-verdict tests."""
+    from contract.scene import load_scene
+    from harness.conformance import run_verdicts, scene_columns, verdicts_column
+    from harness.runner import RunResult
+
+    scene = load_scene(r["scenario"], r.get("variant") or None)
+    return {**r, **scene_columns(scene), "checks": verdicts_column(run_verdicts(scene, RunResult.from_row(r)))}
+
+
 def write_sweep(root: Path, rows, machine="m1", suite="nightly", sweep_id=None, parts=False) -> Path:
     sweep_id = sweep_id or rows[0]["sweep_id"]
     d = root / "sweeps" / machine / suite
@@ -90,8 +104,8 @@ def test_cost_to_target_picks_cheapest_point_under_target(tmp_path):
 
 
 def test_cost_to_target_uses_the_scenarios_check_max_else_target(tmp_path):
-    rows = [row(scenario="billiards.head_on", dt=0.001, error=0.01, cost=0.1),
-            row(scenario="billiards.head_on", dt=0.002, error=0.03, cost=0.05),
+    rows = [as_written(row(scenario="billiards.head_on", dt=0.001, error=0.01, cost=0.1)),
+            as_written(row(scenario="billiards.head_on", dt=0.002, error=0.03, cost=0.05)),
             row(scenario=FAKE, dt=0.001, error=0.5, cost=0.1)]
     df = load(tmp_path, rows)
     ct = rp.cost_to_target(df, target=1.0).set_index("scenario")
@@ -178,16 +192,18 @@ def test_stability_matrix_counts_statuses_and_largest_stable_dt(tmp_path):
 
 
 def test_stability_matrix_defaults_to_hard_scenarios_and_reads_check_rows(tmp_path):
-    assert "tunnelling.bullet_400" in rp.hard_scenarios()
-    assert "billiards.head_on" not in rp.hard_scenarios()
-    write_sweep(tmp_path, [row(scenario="billiards.head_on"),
-                           row(scenario="tunnelling.bullet_400", dt=0.001, metric="reflected_velocity_error")])
+    write_sweep(tmp_path, [as_written(row(scenario="billiards.head_on")),
+                           as_written(row(scenario="tunnelling.bullet_400", dt=0.001,
+                                          metric="reflected_velocity_error"))])
     # a conformance run: RunResult columns only, no sweep columns
     check = {"scenario": "tunnelling.bullet_400", "variant": None, "engine": "pybullet", "engine_version": "3",
              "status": "diverged", "message": "runaway", "stable": False, "setting.dt": 1 / 30,
              "cpu_s_per_sim_s": 0.01, "machine.host": "box", "commit": "c", "timestamp": "2026-11-21T00:00:00+00:00"}
-    write_rows([check], tmp_path / "check" / "20261121T000000Z.parquet", append=False)
+    write_rows([as_written(check)], tmp_path / "check" / "20261121T000000Z.parquet", append=False)
     df = rp.load_results(tmp_path)
+    # the tags the rows were written with (tunnelling.bullet_400.toml: tags = [..., "hard"])
+    assert "tunnelling.bullet_400" in rp.hard_scenarios(df)
+    assert "billiards.head_on" not in rp.hard_scenarios(df)
     sm = rp.stability_matrix(df)
     assert set(sm["scenario"]) == {"tunnelling.bullet_400"}
     assert "hard" in sm.attrs["selection"]
@@ -506,13 +522,14 @@ def test_unknown_schema_version_is_skipped_with_a_visible_warning(tmp_path):
 def test_missing_and_all_nan_columns_are_tolerated(tmp_path):
     # an old/foreign file: no sweep columns at all, metrics all NaN for one engine
     rows = [{"scenario": "billiards.head_on", "engine": "reference", "status": "ok", "setting.dt": dt,
-             "cpu_s_per_sim_s": 0.1 / dt * 1e-3, METRIC: 1e-3 * dt / 1e-3} for dt in (0.001, 0.002)]
+             "cpu_s_per_sim_s": 0.1 / dt * 1e-3, METRIC: 1e-3 * dt / 1e-3, "primary_metric": METRIC}
+            for dt in (0.001, 0.002)]
     rows += [{"scenario": "billiards.head_on", "engine": "mujoco", "status": "ok", "setting.dt": 0.001,
-              "cpu_s_per_sim_s": float("nan"), METRIC: float("nan")}]
+              "cpu_s_per_sim_s": float("nan"), METRIC: float("nan"), "primary_metric": METRIC}]
     write_rows(rows, tmp_path / "sweeps" / "m1" / "nightly" / f"{S1}.parquet", append=False)
     df = rp.load_results(tmp_path)
     assert set(df["suite"]) == {"nightly"} and set(df["sweep_id"]) == {S1}
-    assert set(df["primary_metric"]) == {METRIC}  # from the scene
+    assert set(df["primary_metric"]) == {METRIC}  # from the rows
     wp = rp.work_precision(df)[("billiards.head_on", "")]
     ref = next(l for l in wp["lines"] if l["engine"] == "reference")
     assert [p["dt"] for p in ref["points"]] == [0.001, 0.002] and all(p["ok"] for p in ref["points"])
@@ -535,7 +552,7 @@ def test_end_to_end_real_runs(tmp_path):
         for dt in (0.001, 0.002):
             res = run(scene, engine, {"dt": dt})
             assert res.status == "ok", res.message
-            r = res.row()
+            r = as_written(res.row())
             c = r["cpu_s_per_sim_s"]
             r.update(suite="e2e", sweep_id=S1, point_key=f"{scene.id}|base|{engine}|dt={dt}",
                      point_settings=json.dumps({"dt": dt}), primary_metric=scene.primary_metric,
@@ -592,9 +609,11 @@ def test_phase_table_counts_failures_over_phases_and_curves_use_phase_zero_only(
     rows = []
     for i, t in enumerate(outcomes):
         kw = {} if i == 0 else {"phase": i / 8}
-        rows.append(row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled",
-                        status="ok" if t is not None else "diverged", error=t if t is not None else 0.0, **kw))
-    rows.append(row(scenario=sc, engine="reference", dt=1 / 240, metric="tunnelled", error=0.0))  # no phases
+        rows.append(as_written(row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled",
+                                   status="ok" if t is not None else "diverged", error=t if t is not None else 0.0,
+                                   **kw)))
+    rows.append(as_written(row(scenario=sc, engine="reference", dt=1 / 240, metric="tunnelled",
+                               error=0.0)))  # no phases
     df = load(tmp_path, rows)
     pt = rp.phase_table(df)
     assert len(pt) == 1
@@ -620,10 +639,12 @@ def test_phase_table_takes_the_phases_of_the_latest_sweep_only(tmp_path):
     """An older sweep ran 4 phases (all failing), the latest runs 2 (both
     passing): the table shows the latest sweep's 2, not a mix."""
     sc = "tunnelling.thin_box_on_thin_floor"
-    old = [row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=1.0,
-               sweep_id="20261120T010000Z-aaaa", **({} if i == 0 else {"phase": i / 4})) for i in range(4)]
-    new = [row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=0.0,
-               sweep_id="20261121T010000Z-bbbb", **({} if i == 0 else {"phase": i / 2})) for i in range(2)]
+    old = [as_written(row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=1.0,
+                          sweep_id="20261120T010000Z-aaaa", **({} if i == 0 else {"phase": i / 4})))
+           for i in range(4)]
+    new = [as_written(row(scenario=sc, engine="pymunk", dt=1 / 240, metric="tunnelled", error=0.0,
+                          sweep_id="20261121T010000Z-bbbb", **({} if i == 0 else {"phase": i / 2})))
+           for i in range(2)]
     write_sweep(tmp_path, old)
     write_sweep(tmp_path, new)
     pt = rp.phase_table(rp.load_results(tmp_path))
@@ -671,7 +692,7 @@ def test_without_the_machine_factor_a_slower_machine_flags_unchanged_series(monk
         series.append([base, base * 1.01, base * 0.99, base * 1.08 * (1 + 0.03 * rng.standard_normal())])
     df = _many_series(30, series)
     assert rp.regressions(df).empty
-    monkeypatch.setattr(rp, "machine_shifts", lambda *a, **k: {})
+    monkeypatch.setattr(rp.trends, "machine_shifts", lambda *a, **k: {})
     assert len(rp.regressions(df)) >= 3  # +8 % +- 3 % against the 10 % floor
 
 

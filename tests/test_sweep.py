@@ -25,7 +25,7 @@ import pytest
 
 from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_names, register
 from harness import points as P, suite as SU, sweep as S, sweep_store as ST
-from harness.results import SCHEMA_VERSION, write_parquet_atomic
+from harness.results import SCHEMA_VERSION, write_json_atomic, write_parquet_atomic
 from harness.runner import run as _REAL_RUN
 from contract.scene import load_scene
 
@@ -516,7 +516,7 @@ def test_a_worker_crash_becomes_an_error_row(tmp_path):
 def _sweep_dir_with_parts(tmp_path: Path, rows: list[dict]) -> Path:
     d = tmp_path / "m" / "s" / "20260101T000000Z-x"
     d.mkdir(parents=True)
-    ST._write_json_atomic({"sweep_id": d.name, "points": [r["point_key"] for r in rows]}, d / "manifest.json")
+    write_json_atomic({"sweep_id": d.name, "points": [r["point_key"] for r in rows]}, d / "manifest.json")
     for i, r in enumerate(rows, 1):
         write_parquet_atomic(pd.DataFrame([r]), d / f"part-{i:06d}.parquet")
     return d

@@ -1,0 +1,560 @@
+"""The report's analyses: pure functions of the report's frame
+(harness.report.rows.normalise), no I/O, no scene loading -- what the
+page shows is what the rows recorded (asv's step_detect.py style).
+Tests call them on synthetic frames.
+
+Work-precision lines and frontiers, cost to reach a target and the
+accuracy ladder, at a glance, breaking points, the stability matrix, step
+phases and the failing checks; history and regressions are in
+harness.report.trends.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any, Iterable, Mapping
+
+import pandas as pd
+
+from contract.phase import wilson_interval
+from harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, fmt, settings_label
+from harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
+                            UNSUPPORTED, XFAIL)
+
+#: the row's verdicts that mean "a check not met": an expected failure is
+#: still a failure here (it says the engine is known not to hold the scene)
+NOT_MET = (FAIL, XFAIL, CHECK_ERROR, CHECK_UNSUPPORTED)
+#: the marks of :func:`phase_table`'s pattern
+PHASE_PASS, PHASE_FAIL, PHASE_NOT_OK, PHASE_UNSUPPORTED, PHASE_NO_VERDICT = ".", "x", "!", "-", "?"
+
+
+# ---------------------------------------------------------------------------
+# selections
+
+
+def _sweeps(df: pd.DataFrame) -> pd.DataFrame:
+    """Sweep grid points (breaking-point rows, ``row_kind`` set, are read by
+    :func:`breaking_points` only)."""
+    if not len(df):
+        return df
+    return df[(df["source"] == "sweep") & df["row_kind"].map(_missing)]
+
+
+def _limit_rows(df: pd.DataFrame, kind: str) -> pd.DataFrame:
+    if not len(df):
+        return df
+    return df[df["row_kind"].map(lambda v: v == kind)]
+
+
+def latest_points(df: pd.DataFrame) -> pd.DataFrame:
+    """Each sweep point's latest row per machine (by sweep_id, which sorts
+    by time)."""
+    df = _ensure(df)
+    s = _sweeps(df)
+    if s.empty:
+        return s
+    s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
+    return s.drop_duplicates(["machine_id", "point_key"], keep="last").reset_index(drop=True)
+
+
+def _unshifted(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of the scene as written (phase 0): the other step phases of a
+    point are draws of the same configuration, summarised by
+    :func:`phase_table`, not extra points of a curve."""
+    if df.empty or "phase" not in df.columns:
+        return df
+    return df[df["phase"] == 0.0]
+
+
+def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
+    c = _unshifted(df[df["source"] == "check"]) if len(df) else df
+    if c.empty:
+        return c
+    # a check run is the engine's defaults at the scene's dt (or the hard
+    # dt): keyed by dt, so that settings added between commits do not count
+    # the same run twice
+    c = c.sort_values(["_file", "timestamp"], kind="stable").copy()
+    c["_dtkey"] = [fmt(d, 9) for d in c["dt"]]
+    c = c.drop_duplicates(["machine_id", "scenario", "variant", "engine", "_dtkey"], keep="last")
+    return c.drop(columns="_dtkey").reset_index(drop=True)
+
+
+def _good(r: Mapping[str, Any]) -> bool:
+    """ok and not known to be unstable."""
+    return r["status"] == OK and r.get("stable_flag") is not False
+
+
+def _targets(df: pd.DataFrame, target: float | None,
+             targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], tuple[float | None, str]]:
+    """(scenario, variant) -> (target, where it came from)."""
+    out: dict[tuple[str, str], tuple[float | None, str]] = {}
+    if df.empty:
+        return out
+    for (sc, va), g in df.groupby(["scenario", "variant"], sort=True):
+        metric = next((m for m in g["primary_metric"] if m), None)
+        given = _lookup_target(targets, sc, va)
+        if given is not None:
+            out[(sc, va)] = (given, "given")
+            continue
+        th = next((_num(t) for t in g["primary_threshold"] if _finite(t)), None)
+        if th is not None:
+            out[(sc, va)] = (th, "check max")
+        elif target is not None:
+            out[(sc, va)] = (float(target), "--target")
+        else:
+            out[(sc, va)] = (None, "none")
+    return out
+
+
+def _lookup_target(targets: Mapping[Any, float] | float | None, sc: str, va: str) -> float | None:
+    if targets is None:
+        return None
+    if isinstance(targets, (int, float)):
+        return float(targets)
+    for k in ((sc, va), (sc, va or None), f"{sc}/{va}" if va else sc, sc):
+        if k in targets and targets[k] is not None:
+            return float(targets[k])
+    return None
+
+
+# ---------------------------------------------------------------------------
+# work-precision
+
+
+def work_precision(df: pd.DataFrame, target: float | None = None,
+                   targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], dict[str, Any]]:
+    """Per (scenario, variant): lines of (cost, primary error) points along
+    dt, one line per engine x non-dt swept settings (x machine when several).
+
+    Returns ``{(scenario, variant): {"primary_metric", "threshold",
+    "threshold_source", "clipped", "lines": [{"label", "engine", "settings",
+    "machine_id", "points": [{"dt", "cost", "error", "error_plot", "status",
+    "message", "ok", "incomplete"}...] (ascending dt)}...],
+    "not_ok": [{"label", "dt", "cost", "status", "message"}...]}}``.
+    A point is ``ok`` when its status is ok, it is not known unstable, and
+    its error and cost are finite; ``error_plot`` is the error clipped to
+    ERROR_FLOOR (``clipped`` says whether any was).
+    """
+    df = _ensure(df)
+    pts = _unshifted(latest_points(df))
+    out: dict[tuple[str, str], dict[str, Any]] = {}
+    if pts.empty:
+        return out
+    many_machines = pts["machine_id"].nunique() > 1
+    tg = _targets(pts, target, targets)
+    for (sc, va), g in pts.groupby(["scenario", "variant"], sort=True):
+        metric = next((m for m in g["primary_metric"] if m), None)
+        th, src = tg.get((sc, va), (None, "none"))
+        lines: dict[tuple, dict[str, Any]] = {}
+        not_ok = []
+        clipped = False
+        for r in g.to_dict("records"):
+            nondt = {k: v for k, v in (r["swept"] or {}).items() if k != "dt"}
+            label = " ".join(x for x in (r["engine"], settings_label(nondt)) if x)
+            if many_machines:
+                label += f" @{r['machine_id']}"
+            key = (r["engine"], json.dumps(nondt, sort_keys=True, default=str), r["machine_id"])
+            line = lines.setdefault(key, {"label": label, "engine": r["engine"], "settings": nondt,
+                                          "machine_id": r["machine_id"], "points": []})
+            err, cost = r["primary_error"], r["cost"]
+            ok = _good(r) and math.isfinite(err) and math.isfinite(cost)
+            status = r["status"] if r["status"] != OK or r.get("stable_flag") is not False else "unstable"
+            if r["status"] == OK and status == OK and not math.isfinite(err):
+                status = "no error"
+            plot = max(err, ERROR_FLOOR) if ok else math.nan
+            if ok and err < ERROR_FLOOR:
+                clipped = True
+            p = {"dt": r["dt"], "cost": cost, "error": err, "error_plot": plot, "status": status,
+                 "message": r["message"], "ok": ok, "incomplete": r["incomplete"]}
+            line["points"].append(p)
+            if not ok:
+                not_ok.append({"label": label, "dt": r["dt"], "cost": cost, "status": status,
+                               "message": r["message"]})
+        for line in lines.values():
+            line["points"].sort(key=lambda p: (math.inf if math.isnan(p["dt"]) else p["dt"]))
+        ordered = sorted(lines.values(), key=lambda l: l["label"])
+        not_ok.sort(key=lambda p: (p["label"], math.inf if math.isnan(p["dt"]) else p["dt"]))
+        out[(sc, va)] = {"scenario": sc, "variant": va, "primary_metric": metric, "threshold": th,
+                         "threshold_source": src, "clipped": clipped, "lines": ordered, "not_ok": not_ok}
+    return out
+
+
+# ---------------------------------------------------------------------------
+# cost to reach a target accuracy
+
+
+def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None = None,
+                   target: float | None = None) -> pd.DataFrame:
+    """Per (scenario, variant, engine): the cheapest point (latest sweep)
+    whose primary error <= the target, its cost and the ratio to the
+    cheapest engine that reached it; ``reached`` False with the best error
+    achieved otherwise.
+
+    ``targets``: a number for every scenario, or a mapping keyed by
+    (scenario, variant) / 'scenario/variant' / scenario; where it gives none,
+    the scenario's ``[[check]] max`` for its primary metric, else ``target``.
+    Rows without any target are left out.
+    """
+    df = _ensure(df)
+    cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
+            "settings", "dt", "cost", "error", "ratio", "best_error", "best_error_settings", "points", "note"]
+    pts = _unshifted(latest_points(df))
+    if pts.empty:
+        return pd.DataFrame(columns=cols)
+    tg = _targets(pts, target, targets)
+    rows = []
+    for (sc, va, en), g in pts.groupby(["scenario", "variant", "engine"], sort=True):
+        t, src = tg.get((sc, va), (None, "none"))
+        if t is None:
+            continue
+        recs = g.to_dict("records")
+        good = [r for r in recs if _good(r) and math.isfinite(r["primary_error"])]
+        under = [r for r in good if r["primary_error"] <= t and math.isfinite(r["cost"])]
+        metric = next((r["primary_metric"] for r in recs if r["primary_metric"]), None)
+        row = {"scenario": sc, "variant": va, "engine": en, "primary_metric": metric, "target": t,
+               "target_source": src, "points": len(recs), "ratio": math.nan, "note": ""}
+        if under:
+            best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
+            row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
+                       error=best["primary_error"], best_error=math.nan, best_error_settings="")
+        else:
+            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, error=math.nan)
+            if good:
+                b = min(good, key=lambda r: r["primary_error"])
+                row.update(best_error=b["primary_error"], best_error_settings=settings_label(b["swept"]))
+            else:
+                row.update(best_error=math.nan, best_error_settings="")
+                row["note"] = "no ok point"
+        rows.append(row)
+    out = pd.DataFrame(rows, columns=cols)
+    if out.empty:
+        return out
+    for (sc, va), g in out.groupby(["scenario", "variant"]):
+        reached = g[g["reached"].astype(bool)]
+        if len(reached):
+            cheapest = reached["cost"].min()
+            if cheapest > 0:
+                out.loc[reached.index, "ratio"] = reached["cost"] / cheapest
+    return out.sort_values(["scenario", "variant", "reached", "cost", "engine"],
+                           ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
+
+
+#: accuracies of the primary metric the report asks every engine for
+LADDER = (1e-2, 1e-4, 1e-6, 1e-9)
+
+
+def ladder(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+    """:func:`cost_to_target` at every rung of the accuracy ladder: per
+    (scenario, variant, engine, rung) the cheapest configuration reaching
+    the rung, or (``reached`` False) the best error reached and where.
+    Column ``rung`` holds the target."""
+    parts = []
+    for t in rungs:
+        ct = cost_to_target(df, targets=float(t))
+        if not ct.empty:
+            parts.append(ct.assign(rung=float(t)))
+    if not parts:
+        return pd.DataFrame(columns=["scenario", "variant", "engine", "rung", "reached", "cost", "settings"])
+    return pd.concat(parts, ignore_index=True)
+
+
+def family(scenario: str) -> str:
+    return scenario.split(".", 1)[0]
+
+
+def breaking_points(df: pd.DataFrame) -> pd.DataFrame:
+    """The latest breaking-point search per (machine, scenario, variant,
+    engine, parameter, range, overrides) from the stored ``limit`` rows
+    (``physbench limits`` and ``[[limit]]`` blocks), with its evaluations'
+    count."""
+    df = _ensure(df)
+    res = _limit_rows(df, "limit")
+    cols = ["machine_id", "scenario", "variant", "engine", "limit_param", "limit_outcome", "limit_value",
+            "limit_lo", "limit_hi", "limit_direction", "limit_failed_check", "limit_runs", "limit_cpu_s",
+            "limit_id", "limit_range_lo", "limit_range_hi", "limit_phases", "limit_overrides", "suite", "sweep_id"]
+    if res.empty:
+        return pd.DataFrame(columns=cols)
+    res = res.copy()
+    for c in cols:
+        if c not in res.columns:
+            res[c] = None
+    res = res.sort_values(["sweep_id", "timestamp"], kind="stable")
+    res = res.drop_duplicates(["machine_id", "limit_id"], keep="last")
+    return res[cols].sort_values(["scenario", "variant", "limit_param", "engine"], kind="stable").reset_index(drop=True)
+
+
+def fmt_limit(r: Mapping[str, Any], short: bool = False) -> str:
+    """A breaking point as text: ``<= 0.0072 [0.0072, 0.0076]``, ``holds to
+    HI``, ``fails at LO``, ``unsupported``."""
+    out = r.get("limit_outcome")
+    if out == "found":
+        sign = "\u2264" if r.get("limit_direction") == "below" else "\u2265"
+        txt = f"{sign} {fmt(r['limit_value'])}"
+        return txt if short else f"{txt} [{fmt(r['limit_lo'])}, {fmt(r['limit_hi'])}]"
+    if out == "holds_throughout":
+        return f"holds to {fmt(r['limit_value'])}" if short else \
+            f"holds over [{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}]"
+    if out == "fails_throughout":
+        return f"fails at {fmt(r['limit_range_lo'])}" if short else \
+            f"fails at both ends [{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}]"
+    return str(out or "?")
+
+
+def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+    """Per scenario family and ladder rung: which engine is cheapest to
+    reach the rung, counted over the family's scenarios (``wins``: engine ->
+    scenarios where it is cheapest), how many scenarios some engine reached
+    it in, out of how many."""
+    lad = ladder(df, rungs)
+    rows = []
+    if lad.empty:
+        return pd.DataFrame(columns=["family", "rung", "wins", "reached", "scenarios"])
+    lad = lad.assign(family=[family(x) for x in lad["scenario"]])
+    for (fam, rung), g in lad.groupby(["family", "rung"], sort=True):
+        wins: dict[str, int] = {}
+        reached = 0
+        scen = 0
+        for _, h in g.groupby(["scenario", "variant"], sort=True):
+            scen += 1
+            r = h[h["reached"].astype(bool) & h["cost"].map(_finite)]
+            if len(r):
+                reached += 1
+                best = r.sort_values(["cost", "engine"], kind="stable").iloc[0]["engine"]
+                wins[best] = wins.get(best, 0) + 1
+        rows.append({"family": fam, "rung": rung, "wins": dict(sorted(wins.items(), key=lambda kv: -kv[1])),
+                     "reached": reached, "scenarios": scen})
+    return pd.DataFrame(rows).sort_values(["family", "rung"], ascending=[True, False]).reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------
+# stability
+
+
+def hard_scenarios(df: pd.DataFrame) -> set[str]:
+    """Ids of the scenarios whose rows say they are tagged 'hard' (the
+    ``tags`` the rows were written with; rows without tags say nothing)."""
+    df = _ensure(df)
+    return {sc for sc, tags in zip(df["scenario"], df["tags"]) if tags and "hard" in tags}
+
+
+def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -> pd.DataFrame:
+    """Per (scenario, variant, engine) over the latest sweep points and the
+    latest conformance rows: points, ok-and-stable count and fraction,
+    unstable (ok but not stable), diverged, error (error/failed/timeout),
+    unsupported, the largest dt at which the engine was ok and stable and the
+    smallest dt at which it was not; of the ok-and-stable points, how many
+    met every check by their recorded verdicts (``met_checks``), which
+    checks failed, and how many have no verdict recorded (``no_verdict``:
+    rows written before rows carried them, never re-judged).
+
+    ``scenarios``: which scenarios to show; default the ones whose rows are
+    tagged 'hard' (:func:`hard_scenarios`), else all.
+    ``df.attrs['selection']`` says which.
+    """
+    df = _ensure(df)
+    cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
+            "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt", "met_checks", "checks_failed",
+            "max_met_dt", "no_verdict"]
+    parts = [p for p in (_unshifted(latest_points(df)), _latest_checks(df)) if not p.empty]
+    if not parts:
+        out = pd.DataFrame(columns=cols)
+        out.attrs["selection"] = "no data"
+        return out
+    data = pd.concat(parts, ignore_index=True, sort=False)
+    if scenarios is None:
+        hard = hard_scenarios(data)
+        if hard:
+            data = data[data["scenario"].isin(hard)]
+            selection = "scenarios tagged 'hard'"
+        else:
+            selection = "all scenarios (none tagged 'hard' has data)"
+    else:
+        keep = set(scenarios)
+        data = data[data["scenario"].isin(keep)]
+        selection = "selected scenarios"
+    rows = []
+    for (sc, va, en), g in data.groupby(["scenario", "variant", "engine"], sort=True):
+        recs = g.to_dict("records")
+        good = [r for r in recs if _good(r)]
+        bad = [r for r in recs if not _good(r) and r["status"] != UNSUPPORTED]
+        st = [r["status"] for r in recs]
+        gdt = [r["dt"] for r in good if math.isfinite(r["dt"])]
+        bdt = [r["dt"] for r in bad if math.isfinite(r["dt"])]
+        n = len(recs)
+        rows.append({
+            "scenario": sc, "variant": va, "engine": en, "points": n, "ok_stable": len(good),
+            "fraction": len(good) / n if n else math.nan,
+            "unstable": sum(1 for r in recs if r["status"] == OK and r.get("stable_flag") is False),
+            "diverged": st.count(DIVERGED),
+            "error": sum(st.count(s) for s in BROKEN_STATUSES),
+            "unsupported": st.count(UNSUPPORTED),
+            "other": sum(1 for s in st if s not in (OK, DIVERGED, UNSUPPORTED) + BROKEN_STATUSES),
+            "max_stable_dt": max(gdt) if gdt else math.nan,
+            "min_unstable_dt": min(bdt) if bdt else math.nan,
+            "met_checks": sum(1 for r in good if meets_checks(r) is True),
+            "checks_failed": sorted({m for r in good for m in (failed_checks(r) or [])}),
+            "max_met_dt": max((r["dt"] for r in good if meets_checks(r) is True and math.isfinite(r["dt"])),
+                              default=math.nan),
+            "no_verdict": sum(1 for r in good if failed_checks(r) is None),
+        })
+    out = pd.DataFrame(rows, columns=cols)
+    out.attrs["selection"] = selection
+    return out
+
+
+def row_verdicts(r: Mapping[str, Any]) -> list[dict] | None:
+    """The verdicts a row was written with (its ``checks``), None when it
+    carries none."""
+    v = r.get("verdicts")
+    if isinstance(v, list):
+        return v
+    if "verdicts" in r:  # normalised: None means not recorded
+        return None
+    from harness.report.rows import _json_list
+
+    return _json_list(r.get("checks"))
+
+
+def failed_checks(r: Mapping[str, Any]) -> list[str] | None:
+    """The metrics of the row's recorded verdicts that were not met (FAIL,
+    XFAIL, ERROR, UNSUPPORTED: an ``xfail`` does not make a check met);
+    None when the row has no verdict recorded (it is not re-judged)."""
+    stored = row_verdicts(r)
+    if stored is None:
+        return None
+    return sorted({str(o.get("metric")) for o in stored if o.get("outcome") in NOT_MET})
+
+
+def meets_checks(r: Mapping[str, Any]) -> bool | None:
+    """Whether an ok row met every one of its checks (None: no verdict
+    recorded)."""
+    failed = failed_checks(r)
+    if failed is None:
+        return None
+    return r["status"] == OK and not failed
+
+
+# ---------------------------------------------------------------------------
+# step phases
+
+
+def _phase_outcome(r: Mapping[str, Any]) -> str:
+    """'.' passed, 'x' a check of the primary metric failed (by the row's
+    recorded verdicts), '!' the run was not ok or not stable, '-'
+    unsupported, '?' no verdict recorded."""
+    if r["status"] == UNSUPPORTED:
+        return PHASE_UNSUPPORTED
+    if not _good(r):
+        return PHASE_NOT_OK
+    stored = row_verdicts(r)
+    if stored is None:
+        return PHASE_NO_VERDICT
+    m = r.get("primary_metric")
+    bad = any(o.get("metric") == m and o.get("outcome") in (FAIL, XFAIL, CHECK_ERROR) for o in stored)
+    return PHASE_FAIL if bad else PHASE_PASS
+
+
+def phase_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Points swept over step phases (a ``[[sweep]]`` with ``phases = N``):
+    per configuration (machine, suite, scenario, variant, engine, settings
+    without the phase), the N phases' outcomes -- failed = not ok, not
+    stable, or the scenario's check of its primary metric not met -- as a
+    failure fraction k / N with its 95 % Wilson interval, and the pattern
+    over the phases in order (``.`` pass, ``x`` check failed, ``!`` not ok
+    or unstable, ``?`` no verdict recorded: neither counted as a failure
+    nor as a pass).  ``phase0`` is the outcome of the scene as written:
+    what a single run (``physbench check``, a sweep without phases) sees."""
+    df = _ensure(df)
+    cols = ["machine_id", "suite", "scenario", "variant", "engine", "settings", "dt", "phases", "failures",
+            "fraction", "lo", "hi", "pattern", "phase0"]
+    pts = latest_points(df)
+    if pts.empty or not (pts["phase"] > 0).any():
+        return pd.DataFrame(columns=cols)
+    pts = pts.copy()
+    pts["_base"] = [settings_label({k: v for k, v in (d or {}).items() if k not in ("phase", "dt")})
+                    for d in pts["swept"]]
+    rows = []
+    pts["_dtkey"] = [fmt(d, 9) for d in pts["dt"]]
+    for key, g in pts.groupby(["machine_id", "suite", "scenario", "variant", "engine", "_base", "_dtkey"],
+                              sort=True):
+        if not (g["phase"] > 0).any():
+            continue
+        # the phases of the latest sweep that ran them: a phase that sweep no
+        # longer runs keeps an older row in latest_points, which must not mix in
+        latest = max(g.loc[g["phase"] > 0, "sweep_id"])
+        g = g[g["sweep_id"] == latest]
+        mid, suite, sc, va, en, base, _ = key
+        recs = sorted(g.to_dict("records"), key=lambda r: r["phase"])
+        pattern = "".join(_phase_outcome(r) for r in recs)
+        n = sum(1 for ch in pattern if ch not in (PHASE_UNSUPPORTED, PHASE_NO_VERDICT))
+        k = sum(1 for ch in pattern if ch in (PHASE_FAIL, PHASE_NOT_OK))
+        lo, hi = wilson_interval(k, n) if n else (math.nan, math.nan)
+        rows.append({"machine_id": mid, "suite": suite, "scenario": sc, "variant": va, "engine": en,
+                     "settings": base, "dt": recs[0]["dt"], "phases": len(recs), "failures": k,
+                     "fraction": k / n if n else math.nan, "lo": lo, "hi": hi, "pattern": pattern,
+                     "phase0": pattern[0] if recs[0]["phase"] == 0.0 else ""})
+    out = pd.DataFrame(rows, columns=cols)
+    return out.sort_values(["scenario", "variant", "engine", "settings", "dt"], ascending=[True, True, True, True, False],
+                           kind="stable").reset_index(drop=True)
+
+
+
+# ---------------------------------------------------------------------------
+# failing checks
+
+
+#: verdicts the failing-checks table lists: the bad ones (a check job's
+#: exit 1) first, then the expected failures (``check --traces`` traces both)
+LISTED_OUTCOMES = BAD_OUTCOMES + (XFAIL,)
+
+
+def failing_checks(df: pd.DataFrame) -> pd.DataFrame:
+    """The not-passing verdicts of the latest ``physbench check`` rows (per
+    machine, scenario, variant, engine and dt; phase 0, which carries a
+    phased check's combined verdict): one row per (run, check) whose
+    recorded outcome is FAIL, XPASS, ERROR or XFAIL, with the value, the
+    threshold and the reason as written, and the case's ``.rrd`` trace when
+    ``check --traces`` wrote one ('' otherwise).  Bad outcomes first.
+    ``attrs['no_verdict']``: check rows with no verdict recorded (left out,
+    not re-judged)."""
+    df = _ensure(df)
+    cols = ["machine_id", "scenario", "variant", "engine", "dt", "metric", "outcome", "value", "threshold",
+            "reason", "trace", "check_file", "timestamp"]
+    c = _latest_checks(df)
+    rows, no_verdict = [], 0
+    for r in c.to_dict("records"):
+        verdicts = row_verdicts(r)
+        if verdicts is None:
+            no_verdict += 1
+            continue
+        for v in verdicts:
+            if v.get("outcome") not in LISTED_OUTCOMES:
+                continue
+            rows.append({"machine_id": r["machine_id"], "scenario": r["scenario"], "variant": r["variant"],
+                         "engine": r["engine"], "dt": r["dt"], "metric": str(v.get("metric", "")),
+                         "outcome": v["outcome"], "value": v.get("value"), "threshold": str(v.get("threshold") or ""),
+                         "reason": str(v.get("message") or ""), "trace": str(v.get("trace") or ""),
+                         "check_file": str(r.get("_file") or ""), "timestamp": r["timestamp"]})
+    out = pd.DataFrame(rows, columns=cols)
+    if len(out):
+        rank = {o: i for i, o in enumerate(LISTED_OUTCOMES)}
+        out["_r"] = [rank[o] for o in out["outcome"]]
+        out = out.sort_values(["_r", "scenario", "variant", "engine", "metric"], kind="stable")
+        out = out.drop(columns="_r").reset_index(drop=True)
+    out.attrs["no_verdict"] = no_verdict
+    return out
+
+
+# ---------------------------------------------------------------------------
+# frontiers
+
+
+def frontier(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The Pareto frontier of (cost, error) points: ascending cost, each
+    point strictly more accurate than every cheaper one."""
+    out: list[tuple[float, float]] = []
+    for c, e in sorted(points):
+        if not out or e < out[-1][1]:
+            out.append((c, e))
+    return out

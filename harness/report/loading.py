@@ -1,0 +1,82 @@
+"""Reading stored rows: the only part of the report that touches the disk
+(results/README.md's layout: ``sweeps/`` through
+harness.sweep_store.sweep_files, ``check/*.parquet``).  Rows go through
+the one normaliser (harness.report.rows.normalise) and nothing else: no
+scene is loaded, no spec parsed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+import pandas as pd
+
+from harness.report.rows import _missing, _num, fmt, normalise
+from harness.results import RESULTS_DIR, SCHEMA_VERSION
+from harness.sweep_store import sweep_files
+
+SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
+
+
+def _read_file(path: Path, warnings: list[str], **extra: Any) -> pd.DataFrame | None:
+    try:
+        df = pd.read_parquet(path)
+    except Exception as e:  # a torn or foreign file must not sink the report
+        warnings.append(f"{path}: unreadable, skipped ({type(e).__name__}: {e})")
+        return None
+    if df.empty:
+        return None
+    if "schema_version" in df.columns:
+        sv = df["schema_version"].map(_num)
+        bad = ~sv.isin(list(SUPPORTED_SCHEMAS))
+        if bad.any():
+            versions = sorted({fmt(x) for x in df.loc[bad, "schema_version"]})
+            warnings.append(f"{path}: {int(bad.sum())} row(s) with schema_version {', '.join(versions)} skipped "
+                            f"(this report reads version {', '.join(str(v) for v in sorted(SUPPORTED_SCHEMAS))})")
+            df = df.loc[~bad]
+            if df.empty:
+                return None
+    else:
+        warnings.append(f"{path}: no schema_version column; read as version {SCHEMA_VERSION}")
+    df = df.copy()
+    df["_file"] = str(path)
+    for k, v in extra.items():
+        if k in ("suite", "sweep_id", "machine_id") and k in df.columns:
+            # the file's own column wins; the layout fills the gaps
+            df[k] = df[k].where(~df[k].map(_missing), v)
+        else:
+            df[k] = v
+    return df
+
+
+def _visible(paths: Iterable[Path]) -> list[Path]:
+    return sorted(p for p in paths if not p.name.startswith("."))
+
+
+def load_results(results_dir: str | Path | None = None, suites: list[str] | None = None) -> pd.DataFrame:
+    """All stored rows under ``results_dir`` (default ``results/``) as one
+    frame (harness.report.rows.normalise: its docstring lists the added
+    columns), with ``source`` ('sweep' or 'check') and ``incomplete`` (rows
+    of an unconsolidated sweep directory) set from where the file lies.
+    Warnings (unreadable files, unknown schema versions) are in
+    ``df.attrs['warnings']``.
+    """
+    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    warnings: list[str] = []
+    frames: list[pd.DataFrame] = []
+    for mid, suite, sid, p, complete in sweep_files(root / "sweeps", suites):
+        frames.append(_read_file(p, warnings, source="sweep", incomplete=not complete,
+                                 machine_id=mid, suite=suite, sweep_id=sid))
+    check = root / "check"
+    if check.is_dir():
+        for p in _visible(check.glob("*.parquet")):
+            frames.append(_read_file(p, warnings, source="check", incomplete=False, check_file=p.stem))
+    frames = [f for f in frames if f is not None]
+    if not frames:
+        df = normalise(pd.DataFrame())
+    else:
+        df = normalise(pd.concat(frames, ignore_index=True, sort=False))
+    if suites:
+        df = df[(df["source"] != "sweep") | df["suite"].isin(suites)].reset_index(drop=True)
+    df.attrs["warnings"] = warnings
+    return df

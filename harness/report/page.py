@@ -1,0 +1,570 @@
+"""The report's HTML: one self-contained page (no external assets, no
+JavaScript: plots are base64 ``data:`` PNGs, styles inline) from the
+report's frame, its analyses and its figures.  Every cell's text is
+escaped."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import html
+import math
+import os
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from harness.report.analysis import (_limit_rows, _sweeps, at_a_glance, breaking_points, cost_to_target,
+                                     failing_checks, fmt_limit, ladder, phase_table, stability_matrix,
+                                     work_precision)
+from harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
+                                    MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
+                                    machine_shifts, regressions, scene_change_lines, scene_changes)
+from harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
+from harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
+from harness.status import BAD_OUTCOMES, OK
+
+MAX_SMALL_MULTIPLES = 6
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em auto;max-width:1200px;
+color:#222;padding:0 1em;line-height:1.4}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h3{font-size:1.05em;margin-bottom:.3em}
+table{border-collapse:collapse;margin:.5em 0 1em;font-size:.85em}
+th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top}
+th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
+.warn{background:#fff4d6;border:1px solid #e0b000;padding:.5em 1em;margin:1em 0}
+.note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
+.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:1180px}
+.wp img,.hist img{max-width:100%}figcaption{font-size:.8em;color:#444}
+.cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
+code{background:#f4f4f4;padding:0 .2em}
+"""
+
+
+def _e(v: Any) -> str:
+    return html.escape("" if v is None else str(v), quote=True)
+
+
+def _img(b64: str, alt: str) -> str:
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{b64}">'
+
+
+def _table(header: list[str], rows: list[list[str]], raw: bool = False, row_class: list[str] | None = None) -> str:
+    """rows' cells are escaped unless ``raw`` (then they are HTML already)."""
+    h = "".join(f"<th>{_e(c)}</th>" for c in header)
+    body = []
+    for i, r in enumerate(rows):
+        cls = f' class="{row_class[i]}"' if row_class and row_class[i] else ""
+        cells = "".join(f"<td>{c if raw else _e(c)}</td>" for c in r)
+        body.append(f"<tr{cls}>{cells}</tr>")
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _date(ts: Iterable[str]) -> str:
+    ts = sorted(t for t in ts if t)
+    if not ts:
+        return "-"
+    return ts[0] if ts[0] == ts[-1] else f"{ts[0]} .. {ts[-1]}"
+
+
+def _header_html(df: pd.DataFrame) -> str:
+    out = []
+    machines = []
+    for mid, g in df.groupby("machine_id", sort=True):
+        last = g.iloc[-1]
+        info = ", ".join(f"{k}: {last[c]}" for k, c in (("cpu", "machine.cpu"),
+                                                         ("family/model", "machine.cpu_family_model"),
+                                                         ("flags", "machine.cpu_flags"), ("cores", "machine.cores"),
+                                                         ("BLAS", "machine.blas"), ("numpy", "machine.numpy"),
+                                                         ("scipy", "machine.scipy"), ("env", "machine.env_id"),
+                                                         ("platform", "machine.platform"),
+                                                         ("python", "machine.python"))
+                         if c in g.columns and not _missing(last[c]))
+        machines.append([mid, info, str(len(g))])
+    out.append("<h3>Machines</h3>" + _table(["machine", "info", "rows"], machines))
+    sweeps = []
+    classes = []
+    s = _sweeps(df)
+    if not s.empty:
+        for (mid, suite, sid), g in s.groupby(["machine_id", "suite", "sweep_id"], sort=True):
+            counts = g["status"].value_counts()
+            inc = bool(g["incomplete"].any())
+            sweeps.append([mid, suite, sid, _date(g["timestamp"]),
+                           ", ".join(sorted({c for c in g["commit"] if c})) or "-", str(len(g)),
+                           ", ".join(f"{k} {v}" for k, v in counts.items()),
+                           "incomplete (parts only)" if inc else "complete"])
+            classes.append("incomplete" if inc else "")
+        out.append("<h3>Sweeps</h3>" + _table(["machine", "suite", "sweep id", "dates", "commits", "rows",
+                                               "statuses", "state"], sweeps, row_class=classes))
+    c = df[df["source"] == "check"]
+    if not c.empty:
+        checks = []
+        for (mid, f), g in c.groupby(["machine_id", "_file"], sort=True):
+            checks.append([mid, Path(f).name, _date(g["timestamp"]),
+                           ", ".join(sorted({x for x in g["commit"] if x})) or "-", str(len(g))])
+        out.append("<h3>Conformance runs (physbench check)</h3>"
+                   + _table(["machine", "file", "dates", "commits", "rows"], checks))
+    ev = []
+    for en, g in df.groupby("engine", sort=True):
+        ev.append([en, ", ".join(sorted({v for v in g["engine_version"] if v})) or "-"])
+    out.append("<h3>Engines</h3>" + _table(["engine", "versions"], ev))
+    commits = sorted({x for x in df["commit"] if x})
+    suites = sorted({x for x in s["suite"] if x}) if not s.empty else []
+    out.insert(0, f'<p>Suites: <b>{_e(", ".join(suites) or "-")}</b>. Commits covered: '
+                  f'{_e(", ".join(commits) or "-")}. Rows: {len(df)} ({len(s)} from sweeps, {len(c)} from '
+                  f"conformance runs). Dates: {_e(_date(df['timestamp']))}.</p>")
+    return "\n".join(out)
+
+
+def _wp_html(wps: dict[tuple[str, str], dict[str, Any]]) -> str:
+    if not wps:
+        return '<p class="note">No sweep rows: nothing to draw.</p>'
+    parts = ['<p class="note">x: CPU seconds per simulated second (log); y: the scenario\'s primary error '
+             "(log); one line per engine and non-dt setting combination, points along dt (labelled). Latest "
+             "sweep of each point on each machine. Dashed: the target (the scenario's <code>[[check]] max</code> "
+             "for its primary metric, else <code>--target</code>). Red x on the top edge: runs that were not ok "
+             "(diverged, error, unstable ...), placed at their cost.</p>"]
+    for (sc, va), wp in wps.items():
+        b64 = plot_work_precision(wp)
+        title = sc + (f" / {va}" if va else "")
+        cap = [f"<b>{_e(title)}</b>: primary metric <code>{_e(wp['primary_metric'] or '?')}</code>"]
+        if wp["threshold"] is not None:
+            cap.append(f"target {_e(fmt(wp['threshold']))} ({_e(wp['threshold_source'])})")
+        else:
+            cap.append("no target (no check max; pass --target)")
+        if wp["clipped"]:
+            cap.append(f"errors below {ERROR_FLOOR:g} (exact results, error 0) are drawn at {ERROR_FLOOR:g}")
+        if any(p["incomplete"] for l in wp["lines"] for p in l["points"]):
+            cap.append("includes points of an incomplete sweep")
+        body = _img(b64, f"work-precision {title}") if b64 else '<p class="note">no drawable point</p>'
+        lst = ""
+        if wp["not_ok"]:
+            items = "".join(f"<li>{_e(p['label'])} dt={_e(fmt(p['dt']))}: <span class='bad'>{_e(p['status'])}"
+                            f"</span>{(' - ' + _e(p['message'][:200])) if p['message'] else ''}"
+                            f"{'' if math.isfinite(p['cost']) else ' (cost unknown)'}</li>"
+                            for p in wp["not_ok"])
+            lst = f"<details><summary>{len(wp['not_ok'])} point(s) not ok</summary><ul class='note'>{items}</ul></details>"
+        parts.append(f'<figure class="wp">{body}<figcaption>{"; ".join(cap)}.</figcaption>{lst}</figure>')
+    return "\n".join(parts)
+
+
+def _cost_html(ct: pd.DataFrame) -> str:
+    if ct.empty:
+        return ('<p class="note">No scenario with a target: give the scenario a <code>[[check]] max</code> for '
+                "its primary metric or pass <code>--target</code>.</p>")
+    rows = []
+    for r in ct.to_dict("records"):
+        scen = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
+        tgt = f"{_e(r['primary_metric'] or '?')} &le; {_e(fmt(r['target']))} <span class='note'>({_e(r['target_source'])})</span>"
+        if r["reached"]:
+            cfg = _e(r["settings"] or f"dt={fmt(r['dt'])}")
+            rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(fmt(r["cost"])),
+                         _e("1" if r["ratio"] == 1 else fmt(r["ratio"]) + "x")])
+        else:
+            best = (f"best error {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
+                                                             if r["best_error_settings"] else "")
+                    if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+            rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached</span>",
+                         _e(best), "-", "-"])
+    return ('<p class="note">The cheapest configuration (latest sweep) whose primary error is at most the '
+            "target, its cost and its cost relative to the cheapest engine that reaches the target.</p>"
+            + _table(["scenario", "engine", "target", "cheapest configuration", "error", "CPU s / sim s",
+                      "vs cheapest"], rows, raw=True))
+
+
+def _rung(t: float) -> str:
+    return f"{t:.0e}".replace("e-0", "e-")
+
+
+def _ladder_html(lad: pd.DataFrame) -> str:
+    if lad.empty:
+        return ""
+    rungs = sorted(set(lad["rung"]), reverse=True)
+    rows = []
+    for (sc, va, en), g in lad.groupby(["scenario", "variant", "engine"], sort=True):
+        by = {r["rung"]: r for r in g.to_dict("records")}
+        cells = [_e(sc) + (f" / {_e(va)}" if va else ""), f"<span style='color:{engine_colour(en)}'>"
+                 f"<b>{_e(en)}</b></span>", _e(next((m for m in g["primary_metric"] if m), "?"))]
+        for t in rungs:
+            r = by.get(t)
+            if r is None:
+                cells.append("-")
+            elif r["reached"]:
+                ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({fmt(r['ratio'], 2)}x)"
+                best = " <span class='good'>cheapest</span>" if r["ratio"] == 1 else ""
+                cells.append(f"{_e(fmt(r['cost']))}{_e(ratio)}{best}<br><span class='note'>"
+                             f"{_e(r['settings'])}</span>")
+            else:
+                where = (f"best {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
+                                                           if r["best_error_settings"] else "")
+                         if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+                cells.append(f"<span class='bad'>not reached</span><br><span class='note'>{_e(where)}</span>")
+        rows.append(cells)
+    return ("<h3>Accuracy ladder</h3><p class='note'>Per engine, the CPU s per simulated s of its cheapest "
+            "configuration (latest sweep) whose primary error is at most each rung, the factor over the cheapest "
+            "engine and the configuration; where it is not reached, the best error the engine reached and with "
+            "which settings.</p>"
+            + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
+
+
+def _glance_html(df: pd.DataFrame) -> str:
+    ag = at_a_glance(df)
+    bp = breaking_points(df)
+    parts = []
+    if ag.empty:
+        parts.append("<p class='note'>No sweep rows with a primary error: no accuracy ladder.</p>")
+    else:
+        rungs = sorted(set(ag["rung"]), reverse=True)
+        rows = []
+        for fam, g in ag.groupby("family", sort=True):
+            by = {r["rung"]: r for r in g.to_dict("records")}
+            cells = [f"<b>{_e(fam)}</b>"]
+            for t in rungs:
+                r = by.get(t)
+                if r is None or not r["reached"]:
+                    n = r["scenarios"] if r is not None else 0
+                    cells.append(f"<span class='bad'>none</span> <span class='note'>(0/{n})</span>")
+                    continue
+                w = ", ".join(f"<span style='color:{engine_colour(e)}'><b>{_e(e)}</b></span>"
+                              + (f" {k}" if len(r["wins"]) > 1 or k > 1 else "") for e, k in r["wins"].items())
+                cells.append(f"{w} <span class='note'>({r['reached']}/{r['scenarios']})</span>")
+            rows.append(cells)
+        parts.append("<p class='note'>Cheapest engine to reach each accuracy of the primary metric, per scenario "
+                     "family (how many of the family's scenarios it is cheapest in; in brackets, in how many "
+                     "scenarios any engine reached the accuracy). Details: <a href='#cost-to-target'>accuracy "
+                     "ladder</a>.</p>"
+                     + _table(["family"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
+    if bp.empty:
+        parts.append("<p class='note'>No breaking-point searches stored (<code>physbench limits</code> or a "
+                     "suite's <code>[[limit]]</code> blocks).</p>")
+    else:
+        engines = sorted(set(bp["engine"]))
+        rows = []
+        for (sc, va, par), g in bp.groupby(["scenario", "variant", "limit_param"], sort=True):
+            rows.append([_e(sc) + (f" / {_e(va)}" if va else ""), f"<code>{_e(par)}</code>"]
+                        + _engine_cells(g, engines, lambda r: _e(fmt_limit(r, short=True))))
+        parts.append("<p class='note'>Breaking points: the last value of the parameter at which the scene still "
+                     "met its checks and stayed stable (\u2264: holds below; \u2265: holds above). Brackets and "
+                     "the check that failed: <a href='#breaking-points'>Breaking points</a>.</p>"
+                     + _table(["scenario", "parameter"] + [f"{e}" for e in engines], rows, raw=True))
+    return "\n".join(parts)
+
+
+def _breaking_html(df: pd.DataFrame) -> str:
+    bp = breaking_points(df)
+    if bp.empty:
+        return ("<p class='note'>No breaking-point searches stored. <code>physbench limits SCENARIO --engine E "
+                "--param KEY --range LO HI</code> or a suite's <code>[[limit]]</code> block fills this in.</p>")
+    evals = _limit_rows(df, "limit_eval")
+    parts = ["<p class='note'>Each search walks the parameter from the end where the scene holds (met every "
+             "check, stayed stable, in every step phase) towards the other in steps of at most a factor 2, then "
+             "bisects the first failing step to the search's tolerance. Limit: the last value that held; "
+             "bracket: it and the nearest value that failed; the check that failed there.</p>"]
+    for (sc, va, par), g in bp.groupby(["scenario", "variant", "limit_param"], sort=True):
+        rows = []
+        for r in g.to_dict("records"):
+            rows.append([f"<span style='color:{engine_colour(r['engine'])}'><b>{_e(r['engine'])}</b></span>",
+                         _e(fmt_limit(r)), _e(r["limit_failed_check"] or "-")[:300],
+                         _e(fmt(r["limit_runs"])), _e(fmt(r["limit_cpu_s"])),
+                         _e(f"[{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}], {fmt(r['limit_phases'])} "
+                            "phase(s)")])
+        ids = set(g["limit_id"])
+        ev = evals[evals["limit_id"].isin(ids)] if len(evals) and "limit_id" in evals.columns else evals
+        metric = next((m for m in ev["primary_metric"] if m), None) if len(ev) else None
+        b64 = plot_breaking_point(ev, g, par, metric) if len(ev) else None
+        title = sc + (f" / {va}" if va else "")
+        over = next((o for o in g["limit_overrides"] if o and o != "{}"), None)
+        parts.append(f"<h3>{_e(title)}: <code>{_e(par)}</code></h3>"
+                     + (f"<p class='note'>with {_e(over)}</p>" if over else "")
+                     + _table(["engine", "limit [bracket]", "failed just past it", "runs", "CPU s", "range"],
+                              rows, raw=True)
+                     + (f"<figure class='wp'>{_img(b64, f'breaking point {title} {par}')}<figcaption>The "
+                        f"primary error along <code>{_e(par)}</code>: dots held, crosses failed; dashed, each "
+                        "engine's limit; a failed run without an error is drawn at the top.</figcaption></figure>"
+                        if b64 else ""))
+    return "\n".join(parts)
+
+
+def _colour(frac: float, n_supported: int) -> str:
+    if n_supported == 0 or not math.isfinite(frac):
+        return "#e6e6e6"
+    hue = int(round(120 * frac))  # 0 red .. 120 green
+    return f"hsl({hue},70%,80%)"
+
+
+def _engine_cells(g: pd.DataFrame, engines: list[str], cell) -> list[str]:
+    """One cell per engine (columns ``engines``) from the rows ``g`` (one per
+    engine): ``cell(row)``, or a dash where the engine has no row."""
+    by = {r["engine"]: r for r in g.to_dict("records")}
+    return [cell(by[en]) if en in by else "<span class='note'>-</span>" for en in engines]
+
+
+def _stability_html(sm: pd.DataFrame) -> str:
+    if sm.empty:
+        return '<p class="note">No sweep or conformance rows.</p>'
+    engines = sorted(sm["engine"].unique())
+    rows = []
+    def cell(r) -> str:
+        supported = r["points"] - r["unsupported"]
+        txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ran &amp; stayed finite",
+               f"<b>{r['met_checks']}/{r['points']}</b> met its checks"
+               + (f" <span class='bad'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
+                  if r["checks_failed"] else "")]
+        if r["no_verdict"]:
+            txt.append(f"{r['no_verdict']} with no verdict recorded")
+        for k in ("unstable", "diverged", "error", "unsupported", "other"):
+            if r[k]:
+                txt.append(f"{r[k]} {k}")
+        if _finite(r["max_stable_dt"]):
+            txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
+        if _finite(r["min_unstable_dt"]):
+            txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
+        if _finite(r["max_met_dt"]):
+            txt.append(f"checks met up to dt {fmt(r['max_met_dt'])}")
+        frac = r["met_checks"] / supported if supported else math.nan
+        return (f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
+                + "<br>".join(txt) + "</div>")
+
+    for (sc, va), g in sm.groupby(["scenario", "variant"], sort=True):
+        rows.append([_e(sc) + (f" / {_e(va)}" if va else "")] + _engine_cells(g, engines, cell))
+    sel = sm.attrs.get("selection", "")
+    return (f"<p class='note'>Showing {_e(sel)}. Per cell: points that ran (status ok) and stayed finite and "
+            "stable, out of all points (latest sweep points and latest <code>physbench check</code> rows); of "
+            "those, the points that also met every check of the scenario (an expected failure, xfail, is still "
+            "a check not met: it says the engine is known not to hold the scene), and which checks failed; counts "
+            "of the other outcomes; the largest dt at which the engine stayed ok and stable, the smallest at "
+            "which it did not, the largest at which it met its checks. Verdicts are the ones each row was written "
+            "with; a row written before rows carried them counts as <i>no verdict recorded</i>, never re-judged. "
+            "Colour: share of supported points that met their checks (red 0 .. green 1; grey: unsupported).</p>"
+            + _table(["scenario"] + engines, rows, raw=True))
+
+
+def _phase_html(pt: pd.DataFrame) -> str:
+    if pt.empty:
+        return ('<p class="note">No point was swept over step phases (a <code>[[sweep]]</code> block with '
+                '<code>phases = N</code>).</p>')
+    engines = sorted(pt["engine"].unique())
+    rows = []
+    keys = ["machine_id", "suite", "scenario", "variant", "settings", "dt"]
+    order = pt.sort_values(["scenario", "variant", "settings", "dt"], ascending=[True, True, True, False],
+                           kind="stable")
+    several = order[["machine_id", "suite"]].drop_duplicates().shape[0] > 1
+    def cell(r) -> str:
+        n = r["phases"] - r["pattern"].count("-") - r["pattern"].count("?")
+        if not n:
+            return f"<div class='cell' style='background:{_colour(math.nan, 0)};padding:.2em'>unsupported</div>"
+        single = {".": "single run: pass", "x": "single run: FAIL", "!": "single run: not ok",
+                  "?": "single run: no verdict recorded"}.get(r["phase0"], "")
+        return (f"<div class='cell' style='background:{_colour(1 - r['fraction'], n)};padding:.2em'>"
+                f"<b>{r['failures']}/{n}</b> failed [{fmt(r['lo'], 2)} - {fmt(r['hi'], 2)}]<br>"
+                f"<code>{_e(r['pattern'])}</code><br><span class='note'>{single}</span></div>")
+
+    for key, g in order.groupby(keys, sort=False):
+        mid, suite, sc, va, st, dt = key
+        label = _e(sc) + (f" / {_e(va)}" if va else "")
+        if several:
+            label += f"<br><span class='note'>{_e(mid)} / {_e(suite)}</span>"
+        rows.append([label, _e(st), _e(fmt(dt))] + _engine_cells(g, engines, cell))
+    return ("<p class='note'>One run per dt is one draw of the step phase: where a thin wall is caught depends "
+            "on where the steps fall. Each configuration below ran N times with its start moved back along the "
+            "exact free flight by i/N dt (i = 0 .. N-1; i = 0 is the scene as written). Failed: not ok, not "
+            "stable, or the scenario's check of its primary metric not met (expected failures count). Interval: "
+            "95 % Wilson (0/16 bounds the failure rate below 0.20). Pattern over the phases in order: "
+            "<code>.</code> pass, <code>x</code> check failed, <code>!</code> not ok or unstable, <code>?</code> no "
+            "verdict recorded (a row written before rows carried them: not counted); under it, what a "
+            "single run of the scene as written saw. Colour: share of phases passed (red 0 .. green 1).</p>"
+            + _table(["scenario", "settings", "dt"] + engines, rows, raw=True))
+
+
+def _trace_link(trace: str, page_dir: Path | None) -> str:
+    """A link to a case's ``.rrd`` trace: relative to the page when both
+    are known (a results directory moved as a whole keeps its links), else
+    the path as the check stored it."""
+    if not trace:
+        return "<span class='note'>-</span>"
+    href = trace
+    if page_dir is not None and os.path.isabs(trace):
+        try:
+            href = os.path.relpath(trace, page_dir)
+        except ValueError:  # another drive
+            href = Path(trace).as_uri()
+    return f"<a href='{_e(href)}'><code>{_e(Path(trace).name)}</code></a>"
+
+
+def _failing_html(fc: pd.DataFrame, page_dir: Path | None = None) -> str:
+    n_old = fc.attrs.get("no_verdict", 0)
+    old = (f"<p class='note'>{n_old} check row(s) written before rows carried their verdicts: no verdict "
+           "recorded, not re-judged.</p>" if n_old else "")
+    if fc.empty:
+        return old + ("<p class='note'>No failing check in the latest <code>physbench check</code> rows.</p>")
+    rows = []
+    for r in fc.to_dict("records"):
+        cls = "bad" if r["outcome"] in BAD_OUTCOMES else "note"
+        case = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
+        if _finite(r["dt"]):
+            case += f" <span class='note'>dt={_e(fmt(r['dt']))}</span>"
+        rows.append([case, f"<span style='color:{engine_colour(r['engine'])}'><b>{_e(r['engine'])}</b></span>",
+                     f"<code>{_e(r['metric'])}</code>", f"<span class='{cls}'>{_e(r['outcome'])}</span>",
+                     _e(fmt(r["value"], 4)), _e(r["threshold"] or "-"), _e(r["reason"][:400]),
+                     _trace_link(r["trace"], page_dir)])
+    n_bad = int(fc["outcome"].isin(BAD_OUTCOMES).sum())
+    return (old + f"<p class='note'>{n_bad} failing verdict(s) (FAIL, XPASS, ERROR) and {len(fc) - n_bad} expected "
+            "failure(s) (XFAIL) in the latest <code>physbench check</code> rows, as each row recorded them "
+            "(value against the threshold of that day). Trace: the case's <code>.rrd</code> from "
+            "<code>physbench check --traces DIR</code> (open with <code>rerun</code>).</p>"
+            + _table(["case", "engine", "metric", "outcome", "value", "threshold", "reason", "trace"], rows,
+                     raw=True))
+
+
+def _history_html(df: pd.DataFrame) -> str:
+    hist = history(df)
+    changed = "".join(f"<p class='note'>{_e(line)}</p>" for line in scene_change_lines(scene_changes(df)))
+    if not hist:
+        return changed + ('<p class="note">No point is in two sweeps of the same suite on the same machine with '
+                          "the same scene content yet: history starts with the second sweep.</p>")
+    reg = regressions(df, hist)
+    shifts = {k: f for k, f in machine_shifts(df, hist).items() if abs(f - 1.0) >= 0.02}
+    parts = [f"<p class='note'>{len(hist)} point(s) with history. Cost is the median CPU s per simulated s of the "
+             "repeats; a cost change is flagged when the latest median differs from the baseline (the median "
+             f"cost of the last {BASELINE_RUNS} earlier ok runs, fewer if there are fewer; a series is judged from "
+             f"its {MIN_COST_HISTORY + 1}th ok run on) by more than "
+             f"max({NOISE_FLOOR:.0%}; {NOISE_SPREADS:g} x s; {NOISE_SPREADS:g} x {MAD_TO_SIGMA:g} x MAD), s the "
+             "relative spread (median - min) / median of the repeats, the larger of the latest run's and the "
+             "baseline runs' median one, MAD the baseline runs' median absolute deviation from the baseline, "
+             "relative to it (night-to-night scatter); a cost drift (a creep the moving baseline absorbs) when "
+             f"the latest cost exceeds the cheapest plateau (median of {BASELINE_RUNS} consecutive runs) of the last "
+             f"{DRIFT_HORIZON} earlier ok runs by more than max({NOISE_FLOOR:.0%}; {NOISE_SPREADS:g} x s; "
+             f"{NOISE_SPREADS:g} x the night-to-night noise from successive differences) and the rise came over "
+             "several nights, not in one jump. Both are taken relative to the night's machine-wide factor (the "
+             "median change over all series of that night, when it has at least "
+             f"{MACHINE_SHIFT_MIN_SERIES}): a slower machine moves every series, a code change some. "
+             "An accuracy change when the primary error differs from the "
+             "best earlier one "
+             f"by more than {NOISE_FLOOR:.0%} and {ERROR_ABS_FLOOR:g} absolute; a status change from ok to anything "
+             "else is a regression. A point is compared only with sweeps of the same scene content (its "
+             "scene hash): a changed scene starts a new series.</p>", changed]
+    for (mid, suite, sid), f in sorted(shifts.items()):
+        parts.append(f"<p class='note'>Machine-wide factor {_e(mid)} / {_e(suite)} / {_e(sid)}: every series ran "
+                     f"{f - 1.0:+.1%} against its baseline (median over the series); taken out of the cost "
+                     "changes below.</p>")
+    if reg.empty:
+        parts.append("<p class='good'>No regression or improvement beyond noise.</p>")
+    else:
+        n_reg = int((reg["direction"] == "regression").sum())
+        parts.append(f"<p><span class='{'bad' if n_reg else 'good'}'>{n_reg} regression(s)</span>, "
+                     f"{len(reg) - n_reg} improvement(s).</p>")
+        rows = []
+        for r in reg.to_dict("records"):
+            d = r["direction"]
+            cls = "bad" if d == "regression" else "good"
+            if r["kind"] == "status":
+                change, prev, last, thr = "-", _e(r["previous"]), _e(r["latest"]), "-"
+            else:
+                change = _e(f"{r['change']:+.1%}") if math.isfinite(r["change"]) else "from 0"
+                prev, last, thr = _e(fmt(r["previous"])), _e(fmt(r["latest"])), _e(f"{r['threshold']:.0%}")
+            rows.append([f"<span class='{cls}'>{_e(d)}</span>", _e(r["kind"]),
+                         _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""),
+                         _e(r["engine"]), _e(r["settings"]), _e(r["machine_id"]) + " / " + _e(r["suite"]),
+                         prev, last, change, thr, _e(r["previous_sweep"]) + " &rarr; " + _e(r["latest_sweep"])])
+        parts.append(_table(["", "kind", "scenario", "engine", "settings", "machine / suite",
+                             "before (cost: baseline; drift: plateau; error: best)", "latest", "change", "noise threshold",
+                             "sweeps"], rows, raw=True))
+    # small multiples: flagged regressions first, then the largest cost moves
+    order: list[tuple[str, str, str]] = []
+    if not reg.empty:
+        for r in reg[reg["direction"] == "regression"].to_dict("records"):
+            k = (r["machine_id"], r["suite"], r["point_key"])
+            if k not in order:
+                order.append(k)
+
+    def move(g: pd.DataFrame) -> float:
+        c = g.loc[g["status"] == OK, "cost"].to_numpy(float)
+        c = c[np.isfinite(c) & (c > 0)]
+        return float(np.log(c.max() / c.min())) if len(c) >= 2 else 0.0
+
+    for k in sorted(hist, key=lambda k: -move(hist[k])):
+        if k not in order:
+            order.append(k)
+    picks = order[:MAX_SMALL_MULTIPLES]
+    series = []
+    for k in picks:
+        g = hist[k]
+        last = g.iloc[-1]
+        t = f"{last['scenario']}{' / ' + last['variant'] if last['variant'] else ''}: {last['engine']} " \
+            f"{settings_label(last['swept'] or {})}"
+        series.append((t, g))
+    b64 = plot_history(series)
+    if b64:
+        parts.append(f"<figure class='hist'>{_img(b64, 'history small multiples')}<figcaption>The "
+                     f"{len(picks)} worst series (flagged regressions first, then the largest cost moves): "
+                     "blue, cost median per sweep with a bar down to the fastest repeat; orange, primary error "
+                     "(log); red lines, sweeps where the run was not ok.</figcaption></figure>")
+    return "\n".join(parts)
+
+
+def render_html(df: pd.DataFrame, *, target: float | None = None,
+                targets: Mapping[Any, float] | float | None = None, warnings: Iterable[str] = (),
+                command: str = "physbench report", generated: str | None = None,
+                results_dir: str | Path | None = None, physbench_commit: str | None = None,
+                page_dir: str | Path | None = None) -> str:
+    """The whole page for the frame ``df`` (from
+    harness.report.loading.load_results); ``page_dir``: where the page
+    will be written (trace links are made relative to it)."""
+    df = _ensure(df)
+    warnings = list(warnings) + list(df.attrs.get("warnings", []) if hasattr(df, "attrs") else [])
+    warnings = list(dict.fromkeys(warnings))
+    generated = generated or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    if physbench_commit is None:
+        from harness.runner import commit_id
+
+        physbench_commit = commit_id()
+    where = f" under <code>{_e(results_dir)}</code>" if results_dir is not None else ""
+    sections = []
+    if warnings:
+        items = "".join(f"<li>{_e(w)}</li>" for w in warnings)
+        sections.append(f"<div class='warn'><b>Warnings</b><ul>{items}</ul></div>")
+    if df.empty:
+        sections.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
+                        "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
+                        "write.</div>")
+        body = {k: '<p class="note">No results.</p>' for k in ("glance", "wp", "cost", "stab", "phase", "hist",
+                                                               "limits", "failing")}
+        header = ""
+    else:
+        header = _header_html(df)
+        body = {"glance": _glance_html(df),
+                "wp": _wp_html(work_precision(df, target=target, targets=targets)),
+                "cost": _ladder_html(ladder(df)) + "<h3>At each scenario's own target</h3>"
+                        + _cost_html(cost_to_target(df, targets=targets, target=target)),
+                "limits": _breaking_html(df),
+                "stab": _stability_html(stability_matrix(df)),
+                "failing": _failing_html(failing_checks(df), Path(page_dir) if page_dir is not None else None),
+                "phase": _phase_html(phase_table(df)),
+                "hist": _history_html(df)}
+        inc = df[df["incomplete"]]
+        if len(inc):
+            sections.append(f"<div class='warn'>{len(inc)} row(s) come from incomplete sweeps (part files not yet "
+                            "consolidated): " + _e(", ".join(sorted(set(inc["sweep_id"])))) + ".</div>")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>physbench report</title>
+<style>{_CSS}</style></head><body>
+<h1>physbench report</h1>
+<p class="note">Generated {_e(generated)} from stored results{where}.</p>
+{''.join(sections)}
+<section id="at-a-glance"><h2>At a glance</h2>{body['glance']}</section>
+<section id="header"><h2>What this covers</h2>{header or '<p class="note">Nothing.</p>'}</section>
+<section id="work-precision"><h2>Work-precision diagrams</h2>{body['wp']}</section>
+<section id="cost-to-target"><h2>Cost to reach the target accuracy</h2>{body['cost']}</section>
+<section id="breaking-points"><h2>Breaking points</h2>{body['limits']}</section>
+<section id="stability"><h2>Stability matrix</h2>{body['stab']}</section>
+<section id="failing-checks"><h2>Failing checks</h2>{body['failing']}</section>
+<section id="phases"><h2>Hard cases over step phases</h2>{body['phase']}</section>
+<section id="history"><h2>History across runs</h2>{body['hist']}</section>
+<footer><p>Generated by <code>{_e(command)}</code> at {_e(generated)}, physbench commit
+<code>{_e(physbench_commit)}</code>. Self-contained: no external assets, no scripts.</p></footer>
+</body></html>
+"""
+
