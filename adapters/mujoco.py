@@ -1,7 +1,8 @@
 """MuJoCo adapter (mujoco 4.x, 3D; planar scenes run as 3D scenes).
 
 The model is an MJCF string written from the :class:`contract.scene.Scene`
-(never from TOML) by :func:`build_mjcf`.
+(never from TOML) by :func:`adapters.mjcf.build_mjcf`, with each contact
+pair's restitution calibrated by :func:`adapters.mujoco_impacts.calibrate_pairs`.
 
 Bodies
     One ``<body>`` per scene body with a ``<freejoint/>``, an explicit
@@ -66,20 +67,26 @@ Materials
     two geoms (measured on 4.0.0: no duplicate contacts, the pair's solref
     wins), so broad phase stays automatic and only mixed-material scenes pay
     for explicit pairs.
+
+Sibling modules: the MJCF writer in :mod:`adapters.mjcf`, the predicted
+impacts and per-group calibration in :mod:`adapters.mujoco_impacts` (the
+1-D calibration itself in :mod:`adapters.mujoco_calibration`), the warning
+sink in :mod:`adapters.quiet`, drag coefficients in :mod:`adapters.forces`.
 """
 
 from __future__ import annotations
 
-import math
-import re
-from collections import Counter
 from typing import Any
 
 import numpy as np
 
 from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
-from contract.scene import Body, Scene, Static
+from adapters.forces import drag_coefficients
+from adapters.mjcf import INTEGRATORS, build_mjcf
+from adapters.mujoco_impacts import calibrate_pairs
+from adapters.quiet import collect_mujoco_warnings
+from contract.rotation import quat_rotate, world_to_body_angvel
+from contract.scene import Scene
 
 try:  # the engine; a missing mujoco only makes its runs unavailable
     import mujoco
@@ -91,33 +98,17 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 ENGINE = "mujoco"
 
-#: MuJoCo's warnings of the run in progress ("Nan, Inf or huge value in
-#: QACC", "contact buffer full" ...).  Without a handler MuJoCo appends them
-#: to MUJOCO_LOG.TXT in the working directory; with this one they become
-#: notes of the run and nothing is written
-#: (tests/test_execute.py::test_mujoco_warnings_write_no_log_file).
-_WARNINGS: list[str] = []
-
-
-def _on_warning(msg: str) -> None:
-    if len(_WARNINGS) < 20:  # a blow-up repeats the same warning every step
-        _WARNINGS.append(str(msg))
-
-
-if mujoco is not None:
-    mujoco.set_mju_user_warning(_on_warning)
+#: MuJoCo's warnings of the run in progress, kept instead of written to
+#: MUJOCO_LOG.TXT (:func:`adapters.quiet.collect_mujoco_warnings`); they
+#: become notes of the run.
+_WARNINGS: list[str] = collect_mujoco_warnings(mujoco) if mujoco is not None else []
 
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
 _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction",
                       "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic"})
 
-#: setting value -> MJCF <option integrator=...> (mjINT_EULER, mjINT_RK4, ...)
-_INTEGRATORS = {"euler": "Euler", "rk4": "RK4", "implicit": "implicit", "implicitfast": "implicitfast"}
 _CONES = ("pyramidal", "elliptic")
-
-#: an impact slower than this (m/s) is a resting contact: calibrate at the fallback speed
-_MIN_IMPACT_SPEED = 0.05
 
 
 def _settings() -> dict[str, Setting]:
@@ -130,7 +121,7 @@ def _settings() -> dict[str, Setting]:
         # torque-free rotation far better (ENGINE_NOTES: Dzhanibekov energy
         # drift 0 % vs -14.5 %) but costs ~3x per step; sweeps vary it.
         "integrator": Setting("integrator", "implicitfast", str,
-                              "MuJoCo integrator (mjtIntegrator)", choices=tuple(_INTEGRATORS)),
+                              "MuJoCo integrator (mjtIntegrator)", choices=tuple(INTEGRATORS)),
         # elliptic: the true circular Coulomb cone (the pyramidal one is a
         # linearised approximation) and measurably less stick creep
         # (ENGINE_NOTES: 5.1 mm vs 9.1 mm over 5 s on a 20 deg slope).
@@ -156,93 +147,6 @@ def _settings() -> dict[str, Setting]:
                                      "step phase), 'averaged' the mean over eight step phases at the "
                                      "predicted impact speed", choices=("first_impact", "averaged")),
     }
-
-
-def _f(x: float) -> str:
-    """A float for MJCF, exactly (repr round-trips)."""
-    return repr(float(x))
-
-
-def _v(xs) -> str:
-    return " ".join(_f(x) for x in xs)
-
-
-def _support(b: Body, n: np.ndarray) -> float:
-    """Distance (m) from the body centre to its supporting plane with unit
-    normal n (world), at the body's initial orientation."""
-    if b.shape == "sphere":
-        return b.radius
-    nl = quat_to_matrix(b.orientation).T @ n
-    if b.shape == "box":
-        return float(np.abs(nl) @ np.asarray(b.half_extents, float))
-    a = min(abs(float(nl[2])), 1.0)
-    if b.shape == "capsule":
-        return b.radius + b.half_length * a
-    return b.half_length * a + b.radius * math.sqrt(max(0.0, 1.0 - a * a))
-
-
-def _static_plane(s: Static, x: np.ndarray) -> tuple[np.ndarray, float]:
-    """(unit normal, offset) of the static's surface facing point x."""
-    if s.shape == "plane":
-        return np.asarray(s.normal, float), float(s.offset)
-    # box: the face whose slab the point is farthest outside of
-    R = quat_to_matrix(s.orientation)
-    c = np.asarray(s.position, float)
-    p = R.T @ (x - c)
-    he = np.asarray(s.half_extents, float)
-    k = int(np.argmax(np.abs(p) - he))
-    sgn = 1.0 if p[k] >= 0 else -1.0
-    n = sgn * R[:, k]
-    return n, float(n @ c + he[k])
-
-
-def predict_impact(scene: Scene, kind_b: str, ia: int, ib: int) -> dict[str, Any]:
-    """Predict the first impact of a contact pair from the initial state.
-
-    Returns ``speed`` (m/s, normal impact speed; 0 if none is predicted),
-    ``gravity`` (m/s^2 pressing the pair together), and ``gap``/``v0`` for a
-    1-D replay of the approach (None if the approach is not a straight
-    normal one).  Body-static: motion along the surface normal under the
-    normal gravity component.  Body-body: relative straight-line motion of
-    the bounding supports (no gravity: it moves both alike); a body pair that
-    is not approaching gets the full gravity magnitude (one may come to rest
-    on the other; one group for all such pairs keeps calibrations few).
-    """
-    b = scene.bodies[ia]
-    g = scene.gravity
-    x = np.asarray(b.position, float)
-    v = np.asarray(b.velocity, float)
-    if kind_b == "static":
-        n, off = _static_plane(scene.statics[ib], x)
-        gap = float(n @ x - off - _support(b, n))
-        v0 = float(-(v @ n))
-        gn = float(-(g @ n))
-        if gap < 0.0 or (v0 <= 0.0 and gn <= 0.0):
-            return {"speed": 0.0, "gravity": max(gn, 0.0), "gap": None, "v0": None}
-        speed = math.sqrt(max(v0 * v0 + 2.0 * gn * gap, 0.0))
-        return {"speed": speed, "gravity": max(gn, 0.0), "gap": gap, "v0": v0}
-    c = scene.bodies[ib]
-    dvec = np.asarray(c.position, float) - x
-    dist = float(np.linalg.norm(dvec))
-    nhat = dvec / dist if dist > 0 else np.array([0.0, 0.0, 1.0])
-    radii = _support(b, nhat) + _support(c, nhat)
-    vrel = v - np.asarray(c.velocity, float)  # b's velocity relative to c
-    gmag = float(np.linalg.norm(g))
-    vv = float(vrel @ vrel)
-    dv = float(dvec @ vrel)
-    if dist <= radii or dv <= 0.0 or vv == 0.0:
-        gap = max(dist - radii, 0.0)
-        gn = abs(float(g @ nhat))  # falling onto the other, if that one is supported
-        return {"speed": math.sqrt(2.0 * gn * gap), "gravity": gmag, "gap": None, "v0": None}
-    disc = dv * dv - vv * (dist * dist - radii * radii)
-    if disc < 0.0:  # they miss
-        return {"speed": 0.0, "gravity": gmag, "gap": None, "v0": None}
-    t = (dv - math.sqrt(disc)) / vv
-    d_imp = dvec - vrel * t
-    n_imp = d_imp / float(np.linalg.norm(d_imp))
-    vn = float(vrel @ n_imp)
-    # replay in 1-D: approach at the normal speed, arriving after the same time
-    return {"speed": vn, "gravity": 0.0, "gap": vn * t, "v0": vn}
 
 
 class MujocoAdapter(Adapter):
@@ -286,7 +190,8 @@ class MujocoAdapter(Adapter):
         _WARNINGS.clear()  # a warning belongs to the run that raised it
         self.scene = scene
         self.settings = dict(settings)
-        xml, meta = build_mjcf(scene, settings, self.notes, self.info)
+        pair_solref = calibrate_pairs(scene, settings, self.notes, self.info)
+        xml, meta = build_mjcf(scene, settings, pair_solref, self.notes)
         self.xml = xml
         self.meta = meta
         m = mujoco.MjModel.from_xml_string(xml)
@@ -322,8 +227,7 @@ class MujocoAdapter(Adapter):
         mujoco.mj_forward(m, d)
 
         # drag: F = -(c1 + c2 |v|) v into xfrc_applied before every step
-        c1 = np.array([b.drag_linear for b in scene.bodies], float) if scene.has("drag_linear") else np.zeros(n)
-        c2 = np.array([b.drag_quadratic for b in scene.bodies], float) if scene.has("drag_quadratic") else np.zeros(n)
+        c1, c2 = drag_coefficients(scene)
         self._drag = bool(np.any(c1 > 0) or np.any(c2 > 0))
         if self._drag:
             self._c1, self._c2 = c1, c2
@@ -341,7 +245,7 @@ class MujocoAdapter(Adapter):
             "dynamic_contacts": meta["dynamic_contacts"],
             "explicit_pairs": meta["explicit_pairs"],
             "condim": meta["condim"],
-            "restitution_calibrated": meta["calibrated_groups"],
+            "restitution_calibrated": len(self.info.get("restitution_calibration", [])),
             "tendon_springs": meta["tendons"],
             "drag": self._drag,
             "gyroscopic": True,
@@ -464,196 +368,3 @@ class MujocoAdapter(Adapter):
         out = dict(getattr(self, "_stages", {}))
         out["steps"] = getattr(self, "steps", 0)
         return out
-
-
-# --------------------------------------------------------------------------
-# MJCF
-
-
-def _pair_contact(mat, cal_solref: tuple[float, float]) -> tuple[int, tuple[float, ...], tuple[float, float]]:
-    """(condim, friction 5-vector (slide, slide, torsion, roll, roll), solref)
-    for a pair material: condim 1 frictionless, 3 sliding, 6 with rolling."""
-    mu = float(mat.friction)
-    roll = float(mat.rolling_friction)
-    if roll > 0.0:
-        condim = 6
-    elif mu > 0.0:
-        condim = 3
-    else:
-        condim = 1
-    return condim, (mu, mu, 0.0, roll, roll), cal_solref
-
-
-def build_mjcf(scene: Scene, settings: dict[str, Any], notes: list[str] | None = None,
-               info: dict[str, Any] | None = None) -> tuple[str, dict[str, Any]]:
-    """The MJCF for ``scene`` with resolved ``settings``; appends notes and
-    calibration info to the given containers.  Returns (xml, meta)."""
-    from adapters.mujoco_calibration import calibrate
-
-    notes = notes if notes is not None else []
-    info = info if info is not None else {}
-    dt = float(settings["dt"])
-    integrator = settings["integrator"]
-    contact = scene.has("contact")
-    pairs = scene.contact_pairs()
-
-    # ---- restitution calibration, one per (e, gravity) group ---------------
-    groups: dict[tuple[float, float], list[tuple[int, dict[str, Any], str]]] = {}
-    for k, (ka, ia, kb, ib, mat) in enumerate(pairs):
-        pred = predict_impact(scene, kb, ia, ib)
-        label = f"{scene.bodies[ia].name}|{scene.statics[ib].name if kb == 'static' else scene.bodies[ib].name}"
-        key = (float(mat.restitution), round(pred["gravity"], 6))
-        groups.setdefault(key, []).append((k, pred, label))
-    pair_solref: dict[int, tuple[float, float]] = {}
-    calib_info = []
-    for (e, gn), members in groups.items():
-        _, lead, label = max(members, key=lambda m: m[1]["speed"])
-        common = dict(integrator=integrator, contact_steps=float(settings["contact_steps"]),
-                      speculative=bool(settings["speculative"]))
-        replay = settings.get("restitution_phase", "first_impact") == "first_impact"
-        if lead["speed"] >= _MIN_IMPACT_SPEED and lead["gap"] is not None and replay:
-            cal = calibrate(e, dt, lead["v0"], gn, gap=lead["gap"], **common)
-            against = (f"first impact of {label} replayed from the initial state "
-                       f"(gap {lead['gap']:.6g} m, normal speed {lead['v0']:.6g} m/s, "
-                       f"gravity {gn:.6g} m/s^2): impact speed {cal.speed:.6g} m/s")
-        elif lead["speed"] >= _MIN_IMPACT_SPEED:
-            cal = calibrate(e, dt, lead["speed"], gn, **common)
-            against = (f"predicted impact speed {cal.speed:.6g} m/s of {label}, gravity {gn:.6g} m/s^2, "
-                       f"averaged over 8 impact phases")
-        else:
-            cal = calibrate(e, dt, 0.0, gn, **common)
-            against = (f"no impact predicted from the initial state (resting contacts); "
-                       f"calibrated at {cal.speed:.6g} m/s, gravity {gn:.6g} m/s^2, averaged over 8 phases")
-        for k, _, _ in members:
-            pair_solref[k] = cal.solref
-        row = cal.as_dict()
-        row.update(pairs=len(members), calibrated_against=against,
-                   restitution_effect=scene.has("restitution"))
-        calib_info.append(row)
-    if calib_info:
-        info["restitution_calibration"] = calib_info
-        worst = max(calib_info, key=lambda r: abs(r["residual"]))
-        what = "restitution" if scene.has("restitution") else "inelastic contact (no 'restitution' effect, e = 0)"
-        notes.append(
-            f"MuJoCo has no restitution coefficient: {what} realised by calibrating each pair's "
-            f"solref (direct form -stiffness, -damping) with a sphere-on-plane MuJoCo simulation at "
-            f"this dt and integrator; worst residual {worst['residual']:+.4f} (e requested "
-            f"{worst['requested']:g}, achieved {worst['achieved']:.4f}; {worst['calibrated_against']}); "
-            f"impacts at other step phases bounce {worst['phase_spread'][0]:.3f}..{worst['phase_spread'][1]:.3f} "
-            f"(mean {worst['phase_mean']:.3f}) with this solref")
-
-    # ---- pair signatures: majority on the geoms, the rest explicit ----------
-    sigs: list[tuple[int, tuple[float, ...], tuple[float, float]]] = []
-    for k, (ka, ia, kb, ib, mat) in enumerate(pairs):
-        sigs.append(_pair_contact(mat, pair_solref[k]))
-    if sigs:
-        common_sig = Counter(sigs).most_common(1)[0][0]
-    else:
-        common_sig = (1, (0.0, 0.0, 0.0, 0.0, 0.0), (0.02, 1.0))
-    explicit = [(k, s) for k, s in enumerate(sigs) if s != common_sig]
-    if contact and scene.has("friction"):
-        for name, mt in scene.materials.items():
-            if mt.static_friction > mt.friction:
-                notes.append(f"MuJoCo has one friction coefficient: material {name!r} static_friction "
-                             f"{mt.static_friction:g} > friction {mt.friction:g} is modelled with the "
-                             f"kinetic value {mt.friction:g} only")
-    if contact and scene.has("rolling_friction"):
-        notes.append("rolling friction uses condim 6; MuJoCo's torsional friction is set to 0 "
-                     "(clamped internally to 1e-5)")
-    if not scene.has("gyroscopic") and any(np.ptp(b.inertia) > 1e-12 * max(b.inertia) for b in scene.bodies):
-        notes.append("MuJoCo always integrates the gyroscopic term; it is zero at t = 0 here, but "
-                     "acts on bodies with unequal inertia if they start turning off a principal axis")
-
-    ct = 1 if contact else 0
-    gcondim, gfric, gsolref = common_sig
-    geom_contact = (f'contype="{ct}" conaffinity="{ct}" condim="{gcondim}" '
-                    f'friction="{_f(gfric[0])} {_f(gfric[2])} {_f(gfric[3])}" solref="{_v(gsolref)}"')
-
-    flags = []
-    if not scene.has("gravity"):
-        flags.append('gravity="disable"')
-    if not contact:
-        flags.append('contact="disable"')
-    if not scene.springs:
-        flags.append('spring="disable" damper="disable"')
-    flags.append(f'speculative="{"enable" if settings["speculative"] else "disable"}"')
-    integ_xml = _INTEGRATORS[integrator]
-    lines = [
-        f'<mujoco model="{_xml_escape(scene.id)}">',
-        '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
-        f'  <option timestep="{_f(dt)}" gravity="{_v(scene.gravity)}" integrator="{integ_xml}" '
-        f'cone="{settings["cone"]}" impratio="{_f(settings["impratio"])}" '
-        f'iterations="{int(settings["iterations"])}" noslip_iterations="{int(settings["noslip_iterations"])}">',
-        f'    <flag {" ".join(flags)}/>',
-        '  </option>',
-        '  <worldbody>',
-    ]
-    for s in scene.statics:
-        if s.shape == "plane":
-            n = np.asarray(s.normal, float)
-            lines.append(f'    <geom name="s{s.index}" type="plane" size="0 0 1" pos="{_v(n * s.offset)}" '
-                         f'zaxis="{_v(n)}" {geom_contact}/>')
-        else:
-            lines.append(f'    <geom name="s{s.index}" type="box" size="{_v(s.half_extents)}" '
-                         f'pos="{_v(s.position)}" quat="{_v(s.orientation)}" {geom_contact}/>')
-    # world-anchored spring sites
-    for k, sp in enumerate(scene.springs):
-        if sp.a < 0:
-            lines.append(f'    <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
-        if sp.b < 0:
-            lines.append(f'    <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
-    for b in scene.bodies:
-        if b.shape == "sphere":
-            gs = f'type="sphere" size="{_f(b.radius)}"'
-        elif b.shape == "box":
-            gs = f'type="box" size="{_v(b.half_extents)}"'
-        else:
-            gs = f'type="{b.shape}" size="{_f(b.radius)} {_f(b.half_length)}"'
-        lines.append(f'    <body name="b{b.index}" pos="{_v(b.position)}" quat="{_v(b.orientation)}">')
-        lines.append('      <freejoint/>')
-        lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass)}" diaginertia="{_v(b.inertia)}"/>')
-        lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}/>')
-        for k, sp in enumerate(scene.springs):
-            if sp.a == b.index:
-                lines.append(f'      <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
-            if sp.b == b.index:
-                lines.append(f'      <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
-        lines.append('    </body>')
-    lines.append('  </worldbody>')
-    if explicit:
-        lines.append('  <contact>')
-        for k, (condim, fr, solref) in explicit:
-            ka, ia, kb, ib, _ = pairs[k]
-            g2 = f"s{ib}" if kb == "static" else f"g{ib}"
-            lines.append(f'    <pair geom1="g{ia}" geom2="{g2}" condim="{condim}" friction="{_v(fr)}" '
-                         f'solref="{_v(solref)}"/>')
-        lines.append('  </contact>')
-    if scene.springs:
-        lines.append('  <tendon>')
-        for k, sp in enumerate(scene.springs):
-            lines.append(f'    <spatial name="spring{k}" stiffness="{_f(sp.stiffness)}" '
-                         f'damping="{_f(sp.damping)}" springlength="{_f(sp.rest_length)}">')
-            lines.append(f'      <site site="sp{k}a"/>')
-            lines.append(f'      <site site="sp{k}b"/>')
-            lines.append('    </spatial>')
-        lines.append('  </tendon>')
-    lines.append('</mujoco>')
-    condims = sorted({s[0] for s in sigs})
-    meta = {
-        "dynamic_contacts": bool(contact and pairs),
-        "explicit_pairs": len(explicit),
-        "condim": (condims[0] if len(condims) == 1 else condims) if condims else None,
-        "calibrated_groups": len(calib_info),
-        "tendons": len(scene.springs),
-    }
-    return "\n".join(lines) + "\n", meta
-
-
-def _xml_escape(s: str) -> str:
-    """``s`` as the text of a double-quoted XML attribute: markup characters
-    and whitespace escaped (an attribute's raw newline or tab would be read
-    as a space), characters XML 1.0 cannot hold at all replaced by U+FFFD.
-    Pinned by tests/test_fuzz.py::test_mjcf_escape_round_trips."""
-    out = s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
-    out = out.replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
-    return re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]", "\ufffd", out)

@@ -60,6 +60,13 @@ fall from rest therefore gives z_k = -g dt^2 k (k - 1) / 2 (10 steps of 0.01 s:
 -0.044145 m), v_k = -g k dt.  Overlap is removed by a separate bias velocity
 that moves positions but never enters the reported velocity; overlap below
 ``collision_slop`` is never removed.
+
+Sibling modules: settings, capabilities and shapes in
+:mod:`adapters.pymunk_scene`, the batched reads through pymunk's public API
+in :mod:`adapters.pymunk_batch`, the private shortcuts (direct
+``cpSpaceStep``, the allocation-free state reader) in
+:mod:`adapters.pymunk_internals`, material factors in
+:mod:`adapters.materials`, the drag law in :mod:`adapters.forces`.
 """
 
 from __future__ import annotations
@@ -70,26 +77,16 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.materials import solve_pair_products
+from adapters.base import Adapter, Capabilities, Unsupported, module_version
+from adapters.forces import DRAG_NOTE, dragged
+from adapters.materials import per_material_factors
+from adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
+from adapters.pymunk_internals import BodyReader, c_stepper
+from adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
 from contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from contract.scene import Scene
 
 ENGINE = "pymunk"
-
-# Static plane as a thick polygon: half-length along the line and depth into
-# the solid side (m).
-PLANE_HALF_LENGTH = 1.0e3
-PLANE_DEPTH = 1.0e3
-
-# Relative tolerance for accepting per-shape coefficients whose products give
-# the pair values (sqrt(v)**2 may differ from v by an ulp).
-_PAIR_RTOL = 1e-12
-
-_SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
-_STATIC_SHAPES = frozenset({"plane", "slope", "box"})
-_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "spring", "damper",
-                      "drag_linear", "drag_quadratic"})
 
 GYROSCOPIC_REASON = (
     "pymunk is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
@@ -109,27 +106,6 @@ def _engine() -> tuple[Any, str]:
     return pm, ""
 
 
-def _settings() -> dict[str, Setting]:
-    return {
-        "dt": DT_SETTING,
-        "iterations": Setting(
-            "iterations", 10, int,
-            "contact/joint solver iterations per engine step (pymunk default 10)", lo=1, hi=10000),
-        "substeps": Setting(
-            "substeps", 1, int,
-            "engine steps per physbench step: each step() calls space.step(dt / substeps) "
-            "this many times", lo=1, hi=10000),
-        "collision_slop": Setting(
-            "collision_slop", 1e-3, float,
-            "overlap (m) that is tolerated and never pushed out; pymunk's default 0.1 is "
-            "10 cm in SI units, far too loose", lo=0.0, hi=1.0),
-        "collision_bias": Setting(
-            "collision_bias", (1.0 - 0.1) ** 60, float,
-            "fraction of the overlap beyond collision_slop left after one second of "
-            "correction (pymunk default (1 - 0.1)^60 ~ 0.0018)", lo=0.0, hi=1.0),
-    }
-
-
 class PymunkAdapter(Adapter):
     """Adapter for pymunk 7.x (2D, planar scenes in the world x-z plane)."""
 
@@ -139,23 +115,7 @@ class PymunkAdapter(Adapter):
     @classmethod
     def capabilities(cls) -> Capabilities:
         pm, why = _engine()
-        return Capabilities(
-            engine=ENGINE,
-            version=pm.version if pm is not None else module_version("pymunk"),
-            dimensions=2,
-            shapes=_SHAPES,
-            static_shapes=_STATIC_SHAPES,
-            effects=_EFFECTS,
-            settings=_settings(),
-            available=pm is not None,
-            unavailable_reason=why,
-            notes=(
-                "2D engine: planar scenes (x-z plane) only",
-                "pair friction and elasticity are products of per-shape values",
-                "position-first integration: x' = x + v dt, then v' = v + a dt",
-                "no continuous collision detection",
-            ),
-        )
+        return declaration(ENGINE, pm.version if pm is not None else module_version("pymunk"), pm is not None, why)
 
     @classmethod
     def unsupported_reason(cls, scene: Scene) -> str | None:
@@ -168,7 +128,7 @@ class PymunkAdapter(Adapter):
                 if "rolling_friction" in scene.effects:
                     return ROLLING_FRICTION_REASON
             return reason
-        return _planar_geometry_reason(scene)
+        return planar_geometry_reason(scene)
 
     # ---- life cycle --------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
@@ -204,7 +164,7 @@ class PymunkAdapter(Adapter):
             body.angle = angle
             body.velocity = (vx, vy)
             body.angular_velocity = w
-            shape = _body_shape(pm, body, b) if contact else None
+            shape = body_shape(pm, body, b) if contact else None
             space.add(body)
             if shape is not None:
                 space.add(shape)
@@ -214,7 +174,7 @@ class PymunkAdapter(Adapter):
         static_shapes = []
         if contact:
             for s in scene.statics:
-                shape = _static_shape(pm, space.static_body, s)
+                shape = static_shape(pm, space.static_body, s)
                 space.add(shape)
                 static_shapes.append((s.material, shape))
 
@@ -242,25 +202,20 @@ class PymunkAdapter(Adapter):
                 "and integrates that damping as an exact exponential decay over each step")
 
         # -- drag -------------------------------------------------------------
-        self._drag = []
-        if scene.has("drag_linear") or scene.has("drag_quadratic"):
-            for b, body in zip(scene.bodies, self._bodies):
-                c1 = b.drag_linear if scene.has("drag_linear") else 0.0
-                c2 = b.drag_quadratic if scene.has("drag_quadratic") else 0.0
-                if c1 > 0.0 or c2 > 0.0:
-                    self._drag.append((body, float(c1), float(c2)))
-            if self._drag:
-                self.notes.append(
-                    "drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
-                    "velocity at the start of each engine step (explicit); no angular drag")
+        self._drag = [(self._bodies[i], c1, c2) for i, c1, c2 in dragged(scene)]
+        if self._drag:
+            self.notes.append(DRAG_NOTE)
 
         self.notes.append(
             "pymunk integrates positions with the velocity from before the step (x' = x + v dt, "
             "then v' = v + a dt): free fall from rest gives z_k = -g dt^2 k (k - 1) / 2")
 
         # -- fast stepping and state reads -------------------------------------
-        self._setup_stepper()
+        self._c_step, self._c_space_step = c_stepper(space, self._bodies) or (None, None)
         self._setup_reader(n)
+        # (space.static_body only where static shapes made it: reading it
+        # creates a body, which the batch reader would then visit)
+        self._arbiters = ArbiterBatch(pm.batch, space, self._bodies + ([space.static_body] if static_shapes else []))
         self._space_steps = 0
         self.info.update({
             "material_mode": self._material_mode,
@@ -270,142 +225,53 @@ class PymunkAdapter(Adapter):
 
     def _setup_materials(self, scene: Scene, body_shapes: list, static_shapes: list) -> None:
         """Give shapes elasticity/friction so that pymunk's products equal the
-        Scene's pair values, or install exact pre_solve callbacks."""
-        counts: dict[str, int] = {}
-        for m, _ in body_shapes:
-            counts[m] = counts.get(m, 0) + 1
-        body_mats = sorted(counts)
-        static_mats = sorted({m for m, _ in static_shapes})
-        pairs: set[tuple[str, str]] = set()
-        for i, a in enumerate(body_mats):
-            if counts[a] >= 2:
-                pairs.add((a, a))
-            for b in body_mats[i + 1:]:
-                pairs.add((a, b))
-            for s in static_mats:
-                pairs.add(tuple(sorted((a, s))))  # type: ignore[arg-type]
-        if not pairs:
+        Scene's pair values (:func:`adapters.materials.per_material_factors`),
+        or install exact pre_solve callbacks where no such values exist."""
+        shapes = body_shapes + static_shapes
+        f = per_material_factors(scene, [m for m, _ in body_shapes], [m for m, _ in static_shapes], ENGINE)
+        if f is None:
             return
-        values = {p: scene.pair(*p) for p in pairs}
-        if scene.has("friction") and any(v.static_friction != v.friction for v in values.values()):
-            self.notes.append(
-                "friction: pymunk has one Coulomb coefficient; the kinetic value is used for "
-                "sticking too (static_friction differs from friction in this scene)")
-        e_sol = solve_pair_products({p: v.restitution for p, v in values.items()}, _PAIR_RTOL)
-        f_sol = solve_pair_products({p: v.friction for p, v in values.items()}, _PAIR_RTOL)
-        if e_sol is not None and f_sol is not None:
+        self.notes.extend(f.notes)
+        if f.per_shape:
             self._material_mode = "per_shape"
-            for m, shape in body_shapes + static_shapes:
-                shape.elasticity = e_sol.get(m, 0.0)
-                shape.friction = f_sol.get(m, 0.0)
+            for m, shape in shapes:
+                shape.elasticity = f.elasticity.get(m, 0.0)
+                shape.friction = f.friction.get(m, 0.0)
             return
-        # No per-shape solution: exact per-pair values from a pre_solve callback.
         self._material_mode = "pre_solve_callback"
-        mats = sorted(set(body_mats) | set(static_mats))
-        ctype = {m: k + 1 for k, m in enumerate(mats)}
-        for m, shape in body_shapes + static_shapes:
+        ctype = {m: k + 1 for k, m in enumerate(sorted({m for m, _ in shapes}))}
+        for m, shape in shapes:
             shape.collision_type = ctype[m]
             shape.elasticity = 0.0
             shape.friction = 0.0
-        for (a, b), v in values.items():
+        for (a, b), v in f.pairs.items():
             self._space.on_collision(ctype[a], ctype[b], pre_solve=_pair_setter(v.restitution, v.friction))
         self.notes.append(
             "materials: no per-shape elasticity/friction reproduces every pair value as a product; "
             "exact pair values are set in a Python pre_solve callback per touching pair per step")
 
-    _raw: np.ndarray | None = None
-
-    def _setup_stepper(self) -> None:
-        """Step through Chipmunk's cpSpaceStep directly.
-
-        pymunk's Space.step wraps that one C call in Python bookkeeping that
-        physbench never needs after build (a mass check of newly added bodies,
-        done here once instead; deferred add/remove and post-step callbacks,
-        which the adapter never registers; the pre_solve material callbacks
-        run inside cpSpaceStep either way).  The wrapper costs ~0.5 us per
-        step, more than reading the whole state back; results are
-        bit-identical (tests/test_adapter_pymunk.py compares the two)."""
-        sp = self._space
-        self._c_step = None
-        for b in self._bodies:
-            if not (b.mass > 0 and math.isfinite(b.mass) and b.moment > 0):
-                raise ValueError(f"pymunk body needs 0 < mass < inf and moment > 0, got {b.mass}, {b.moment}")
-        try:
-            from pymunk._chipmunk_cffi import lib
-
-            if getattr(sp, "threaded", False) or sp._add_later or sp._remove_later or sp._post_step_callbacks:
-                return
-            sp._bodies_to_check.clear()
-            self._c_step = lib.cpSpaceStep
-            self._c_space_step = sp._space
-        except Exception:  # pragma: no cover - depends on pymunk internals
-            self._c_step = None
 
     def _setup_reader(self, n: int) -> None:
-        """Prepare batched reads of (x, y, angle, vx, vy, w) for every body.
-
-        The fast path calls the C iterator behind pymunk.batch.get_space_bodies
-        directly into an array that is allocated once, then viewed by numpy
-        (no allocation per read).  It relies on pymunk 7's internal batch
-        structures; if they are missing it falls back to the public
-        get_space_bodies (which allocates a small struct and buffer view per
-        call).  Body order in the batch is the order of space.add (sleeping is
-        disabled, nothing is removed); it is verified here against body ids.
-        """
-        pm = self._pm
-        batch = pm.batch
-        fields = (batch.BodyFields.POSITION | batch.BodyFields.ANGLE | batch.BodyFields.VELOCITY
-                  | batch.BodyFields.ANGULAR_VELOCITY)
-        self._n = n
-        self._batch_fields = fields
-        self._batch_buf = batch.Buffer()
-        # Verify order and layout once, through the public API.  The iterator
-        # visits the dynamic bodies (in order of addition) and then the static
-        # body holding the static shapes, if any: read rows [0, n) only.
-        check = batch.Buffer()
-        batch.get_space_bodies(self._space, fields | batch.BodyFields.BODY_ID, check)
-        ids = np.frombuffer(check.int_buf(), dtype=np.uintp)
-        total = len(ids)
-        if list(ids[:n]) != [b.id for b in self._bodies]:
-            raise RuntimeError("pymunk batch body order differs from the order bodies were added")
-        got = np.frombuffer(check.float_buf()).reshape(total, 6)[:n]
-        want = np.array([(b.position.x, b.position.y, b.angle, b.velocity.x, b.velocity.y, b.angular_velocity)
-                         for b in self._bodies], float).reshape(n, 6)
-        if not np.array_equal(got, want):
-            raise RuntimeError("pymunk batch layout is not (x, y, angle, vx, vy, w)")
-        self._n_iter = total
-        self._reader_kind = "public_batch"
+        """Batched reads of every body's state: the public
+        ``pymunk.batch.get_space_bodies`` (its order and layout verified by
+        :class:`adapters.pymunk_batch.PublicBodyBatch`), or its
+        allocation-free twin :class:`adapters.pymunk_internals.BodyReader`
+        when pymunk's internals allow."""
+        self._public = PublicBodyBatch(self._pm.batch, self._space, self._bodies)
         try:
-            from pymunk._chipmunk_cffi import ffi, lib
-
-            buf = self._batch_buf
-            batch.get_space_bodies(self._space, fields, buf)  # sizes the array (capacity >= 6 total)
-            farr = buf._float_arr
-            if farr.num != 6 * total or farr.max < 6 * total:
-                raise RuntimeError("unexpected batch array size")
-            data = ffi.new("pmBatchedData *")
-            data.fields = fields.value
-            data.floatArray = farr
-            data.intArray = buf._int_arr
-            self._c_data = data  # keep alive
-            self._c_iter = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
-            self._c_each = lib.cpSpaceEachBody
-            self._c_space = self._space._space
-            self._farr = farr
-            # The array never grows again (same body count each read), so this
-            # view stays valid; the dynamic bodies' rows, columns first: (6, n).
-            self._cols = np.frombuffer(ffi.buffer(farr.arr, 8 * 6 * total), dtype=np.float64).reshape(
-                total, 6)[:n].T
+            self._c_each = BodyReader(self._space, self._public.fields, self._public.buf, self._pm.batch,
+                                      self._public.total, n)
             self._reader_kind = "c_batch"
         except Exception:  # pragma: no cover - depends on pymunk internals
-            self._c_each = None
+            self._c_each, self._reader_kind = None, "public_batch"
+
+    def _stepper(self) -> tuple[Any, Any]:
+        """(step function, its first argument): cpSpaceStep or Space.step."""
+        return (self._c_step, self._c_space_step) if self._c_step is not None else (_call_step, self._space)
 
     def step(self, n: int = 1) -> None:
         """Advance n physbench steps (n * substeps engine steps of dt/substeps)."""
-        if self._c_step is not None:
-            st, cs = self._c_step, self._c_space_step
-        else:
-            st, cs = _call_step, self._space
+        st, cs = self._stepper()
         h = self._h
         k = n * self._substeps
         if self._drag:
@@ -432,55 +298,21 @@ class PymunkAdapter(Adapter):
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, the C batch reader appending each step's raw
-        (x, y, angle, vx, vy, w) rows to one block buffer; then convert the
-        whole block once with the conversion point world_from_planar
-        (vectorised over steps and bodies).
-
-        The reader's float array is pointed at the block with a capacity
-        beyond the block's size, so it appends step after step with no
-        per-step bookkeeping in Python (pymunk grows the array only when it
-        is within two values of its capacity, which the slack row rules out);
-        a step costs the C step call and the C read call, nothing else."""
+        (x, y, angle, vx, vy, w) rows to one block buffer
+        (:meth:`BodyReader.record`); then convert the whole block once with
+        the conversion point world_from_planar (vectorised over steps and
+        bodies), also the complete steps before an exception."""
         if self._c_each is None:
             return super().step_record(n, pos, quat, vel, angvel)
-        raw = self._raw
-        total = self._n_iter
-        row = 6 * total
-        if raw is None or raw.shape[0] < n + 1:
-            from pymunk._chipmunk_cffi import ffi
-
-            # one slack row: the array never comes near its capacity
-            raw = self._raw = np.empty((max(n, 256) + 1, total, 6))
-            self._raw_ptr = ffi.cast("double *", ffi.from_buffer(raw))
-        each, space_c, it, data, farr = self._c_each, self._c_space, self._c_iter, self._c_data, self._farr
-        home, home_max = farr.arr, farr.max
         simple = not self._drag and self._substeps == 1
-        if self._c_step is not None:
-            st, cs = self._c_step, self._c_space_step
-        else:
-            st, cs = _call_step, self._space
-        h = self._h
-        farr.num = 0
-        farr.max = raw.shape[0] * row
-        farr.arr = self._raw_ptr
+        once = functools.partial(*self._stepper(), self._h) if simple else functools.partial(self.step, 1)
         try:
-            if simple:
-                for _ in range(n):
-                    st(cs, h)
-                    each(space_c, it, data)
-            else:
-                for _ in range(n):
-                    self.step(1)
-                    each(space_c, it, data)
+            self._c_each.record(n, once)
         finally:
-            k = farr.num // row  # rows complete, also after an exception
-            if farr.arr != self._raw_ptr:  # pragma: no cover - would mean pymunk reallocated
-                raise RuntimeError("pymunk batch reader reallocated the block buffer")
-            farr.arr, farr.max, farr.num = home, home_max, 0
+            k, c = self._c_each.last_block  # (6, k steps, bodies)
             self.block_done = k
             if simple:
                 self._space_steps += k
-            c = raw[:k, :self._n].transpose(2, 0, 1)  # (6, k steps, bodies)
             world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos[:k].transpose(2, 0, 1),
                               quat[:k].transpose(2, 0, 1), vel[:k].transpose(2, 0, 1),
                               angvel[:k].transpose(2, 0, 1))
@@ -491,15 +323,7 @@ class PymunkAdapter(Adapter):
 
         One batched engine read, then one vectorised call of the conversion
         point world_from_planar on the transposed (column) views."""
-        if self._c_each is not None:
-            self._farr.num = 0
-            self._c_each(self._c_space, self._c_iter, self._c_data)
-            c = self._cols
-        else:
-            buf = self._batch_buf
-            buf.clear()
-            self._pm.batch.get_space_bodies(self._space, self._batch_fields, buf)
-            c = np.frombuffer(buf.float_buf()).reshape(self._n_iter, 6)[:self._n].T
+        c = self._c_each.read() if self._c_each is not None else self._public.read()
         world_from_planar(c[0], c[1], c[3], c[4], c[2], c[5], pos.T, quat.T, vel.T, angvel.T)
 
     def stages(self) -> dict[str, Any]:
@@ -520,90 +344,29 @@ class PymunkAdapter(Adapter):
         }
 
     def contacts(self) -> np.ndarray:
-        """The arbiters' contact point sets after the last step (each
-        arbiter once): point midway between point_a and point_b, normal from
-        shape a toward shape b, depth = -distance; 2D (x, y) -> world (x, 0, y)."""
-        rows: list[list[float]] = []
-        seen: set[tuple[int, int]] = set()
+        """The touching arbiters' contact points after the last step, read in
+        one batched call (``pymunk.batch.get_space_arbiters``): point midway
+        between point_a and point_b, depth = -distance, normal from the
+        lower-indexed body toward the other body or the static (as
+        ``Body.each_arbiter`` from the bodies in order orients it); 2D
+        (x, y) -> world (x, 0, y).
 
-        def visit(arb: Any) -> None:
-            key = tuple(sorted(id(s) for s in arb.shapes))
-            if key in seen:
-                return
-            seen.add(key)
-            cps = arb.contact_point_set
-            nx, ny = cps.normal
-            for pt in cps.points:
-                rows.append([0.5 * (pt.point_a.x + pt.point_b.x), 0.0, 0.5 * (pt.point_a.y + pt.point_b.y),
-                             nx, 0.0, ny, -pt.distance])
-
-        for body in self._bodies or ():
-            body.each_arbiter(visit)
-        return np.array(rows, float).reshape(-1, 7)
+        The batch visits every cached arbiter, also those kept for a few
+        steps after their shapes separated; those report a contact count of
+        0 and are left out
+        (tests/test_adapter_pymunk.py::test_batched_contacts_equal_each_arbiter)."""
+        c = self._arbiters.contact_rows()  # (k, 5): 2D point, 2D normal, depth
+        out = np.zeros((len(c), 7))
+        out[:, [0, 2, 3, 5, 6]] = c  # 2D (x, y) -> world (x, 0, y), as world_from_planar maps positions
+        return out
 
     def close(self) -> None:
-        # Drop references; cffi frees the space and its bodies.
-        for name in ("_cols", "_c_data", "_farr", "_c_space", "_bodies", "_drag"):
-            if hasattr(self, name):
-                setattr(self, name, None if name != "_drag" else [])
+        # Drop references (the reader's views first); cffi frees the space and its bodies.
+        self._c_each = self._public = self._arbiters = self._bodies = None
+        self._drag = []
 
 
 # ---- helpers ------------------------------------------------------------------
-
-
-def _planar_geometry_reason(scene: Scene) -> str | None:
-    """Planar checks the spec validator does not make (pattern positions,
-    spring anchors, static boxes off the plane)."""
-    for b in scene.bodies:
-        if abs(float(b.position[1])) > 0.0:
-            return f"pymunk is 2D: body {b.name} lies off the x-z plane (y = {float(b.position[1])!r})"
-    for k, sp in enumerate(scene.springs):
-        if abs(float(sp.anchor_a[1])) > 0.0 or abs(float(sp.anchor_b[1])) > 0.0:
-            return f"pymunk is 2D: spring[{k}] has an anchor off the x-z plane (y != 0)"
-    for s in scene.statics:
-        if s.shape == "box" and abs(float(s.position[1])) >= float(s.half_extents[1]):
-            return f"pymunk is 2D: static box {s.name} does not cross the x-z plane"
-    return None
-
-
-def _body_shape(pm: Any, body: Any, b: Any) -> Any:
-    """The body's x-z cross-section as a pymunk shape (body-local (x, z) ->
-    2D local (x, y)); no mass of its own."""
-    if b.shape == "sphere":
-        return pm.Circle(body, float(b.radius))
-    if b.shape == "box":
-        hx, hz = float(b.half_extents[0]), float(b.half_extents[2])
-        return pm.Poly.create_box(body, (2.0 * hx, 2.0 * hz), 0.0)
-    if b.shape == "capsule":
-        h = float(b.half_length)
-        return pm.Segment(body, (0.0, -h), (0.0, h), float(b.radius))
-    if b.shape == "cylinder":
-        return pm.Poly.create_box(body, (2.0 * float(b.radius), 2.0 * float(b.half_length)), 0.0)
-    raise Unsupported(f"pymunk adapter has no shape {b.shape}")  # pragma: no cover
-
-
-def _static_shape(pm: Any, static_body: Any, s: Any) -> Any:
-    """A static plane (solid below n . x = offset) or box as a pymunk Poly in
-    world 2D coordinates."""
-    if s.shape == "plane":
-        nx, ny = world_point_to_planar(s.normal)
-        p0x, p0y = s.offset * nx, s.offset * ny
-        tx, ty = -ny, nx  # along the line
-        L, D = PLANE_HALF_LENGTH, PLANE_DEPTH
-        verts = [
-            (p0x - L * tx, p0y - L * ty),
-            (p0x + L * tx, p0y + L * ty),
-            (p0x + L * tx - D * nx, p0y + L * ty - D * ny),
-            (p0x - L * tx - D * nx, p0y - L * ty - D * ny),
-        ]
-        return pm.Poly(static_body, verts, None, 0.0)
-    # box: x-z cross-section, turned by its planar angle about y
-    (cx, cy), _, angle, _ = planar_from_world(s.position, np.zeros(3), s.orientation, np.zeros(3))
-    hx, hz = float(s.half_extents[0]), float(s.half_extents[2])
-    ca, sa = math.cos(angle), math.sin(angle)
-    verts = [(cx + ca * px - sa * py, cy + sa * px + ca * py)
-             for px, py in ((-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz))]
-    return pm.Poly(static_body, verts, None, 0.0)
 
 
 def _call_step(space: Any, h: float) -> None:

@@ -231,7 +231,7 @@ def commit_id() -> str:
 
 def check_run_size(scene: Scene, dt: float, record_every: Any = 1) -> int:
     """``record_every`` as an int, after checking that a run of ``scene`` at
-    step ``dt`` fits the recording bounds (harness/spec.py
+    step ``dt`` fits the recording bounds (contract/spec/bounds.py
     record_size_error): raises ValueError naming dt and the bound.  Checked
     before anything is allocated, by the runner and, before a run goes to a
     worker, by the CLI (tests/test_fuzz.py::test_record_bound_before_allocation)."""

@@ -382,7 +382,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
 
 def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[str, tuple[Any, ...]]],
                        errors: list[str]) -> None:
-    """Every point's recording fits the bounds (contract/spec.py
+    """Every point's recording fits the bounds (contract/spec/bounds.py
     record_size_error) at the smallest dt any engine sweeps: checked when
     the suite loads, before anything runs or is allocated."""
     from contract.scene import load_scene, n_steps

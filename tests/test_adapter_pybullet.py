@@ -30,12 +30,8 @@ import pytest
 pytest.importorskip("pybullet")
 
 from contract.rotation import quat_to_matrix  # noqa: E402
-from adapters.pybullet import (  # noqa: E402
-    PybulletAdapter,
-    _import_pybullet,
-    solve_product_values,
-    solve_rolling_values,
-)
+from adapters.materials import solve_product_values, solve_rolling_values  # noqa: E402
+from adapters.pybullet import PybulletAdapter, _import_pybullet  # noqa: E402
 from harness.runner import run  # noqa: E402
 from contract.scene import compile_scene, load_scene  # noqa: E402
 from contract.spec import validate_raw  # noqa: E402

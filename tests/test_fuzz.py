@@ -633,7 +633,7 @@ def test_hostile_file_stem_in_mjcf(tmp_path):
     MJCF model name; MuJoCo compiles it and keeps the name."""
     import mujoco
 
-    from adapters.mujoco import _xml_escape
+    from adapters.mjcf import xml_escape as _xml_escape
     from harness.runner import run
 
     p = _hostile_spec(tmp_path, 'we"ird\n<stem>&\t')
@@ -646,7 +646,7 @@ def test_hostile_file_stem_in_mjcf(tmp_path):
 
 @pytest.mark.parametrize("text", HOSTILE + ["a\nb\tc\rd", "nul\x00and\x1f", "\ud800"])
 def test_mjcf_escape_round_trips(text):
-    from adapters.mujoco import _xml_escape
+    from adapters.mjcf import xml_escape as _xml_escape
 
     parsed = ET.fromstring(f'<m a="{_xml_escape(text)}"/>').get("a")
     keep = re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff]", "\ufffd", text)

@@ -1,0 +1,116 @@
+"""Explicit forces for engines that have no element for an effect: drag on
+every engine (none has a drag element), springs and dampers on pybullet
+(MuJoCo has tendons, pymunk has DampedSpring).  Each force is evaluated
+from the state at the start of an engine step and held over it (explicit
+in time, like the engines' own gravity).
+
+The laws, in world coordinates (SI units):
+
+- drag on body i: F = -(c_linear + c_quadratic |v|) v at the centre of mass,
+  no drag torque;
+- spring/damper between anchors pa, pb (world points of the bodies'
+  body-frame anchors, or world anchors), d = pb - pa, L = |d|, u = d / L:
+  the force on a is (k (L - L0) + c (v_pb - v_pa) . u) u, on b its opposite.
+
+Pinned by tests/test_adapter_pybullet.py (springs, dampers, drag against
+analytic solutions), tests/test_adapter_mujoco.py and
+tests/test_adapter_pymunk.py (drag).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from contract.scene import Scene
+
+DRAG_NOTE = ("drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
+             "velocity at the start of each engine step (explicit); no angular drag")
+
+
+def drag_coefficients(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(c_linear (n,) kg/s, c_quadratic (n,) kg/m) per body, zero where the
+    scene lacks the effect."""
+    n = scene.n_bodies
+    c1 = np.array([b.drag_linear for b in scene.bodies], float) if scene.has("drag_linear") else np.zeros(n)
+    c2 = np.array([b.drag_quadratic for b in scene.bodies], float) if scene.has("drag_quadratic") else np.zeros(n)
+    return c1, c2
+
+
+def dragged(scene: Scene) -> list[tuple[int, float, float]]:
+    """(body index, c_linear, c_quadratic) of every body with drag."""
+    c1, c2 = drag_coefficients(scene)
+    return [(i, float(c1[i]), float(c2[i])) for i in range(scene.n_bodies) if c1[i] > 0.0 or c2[i] > 0.0]
+
+
+class PybulletForces:
+    """Springs, dampers and drag as pybullet world-frame external forces
+    (``applyExternalForce(..., WORLD_FRAME)``, cleared by Bullet after each
+    step), applied by :meth:`apply` before every step.
+
+    The engine's own state is read in the engine's own terms (xyzw
+    quaternions, world velocities); nothing is converted to physbench's
+    conventions here."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.springs = [(sp.a, sp.b, tuple(map(float, sp.anchor_a)), tuple(map(float, sp.anchor_b)),
+                         float(sp.stiffness), float(sp.rest_length), float(sp.damping))
+                        for sp in scene.springs if sp.stiffness != 0.0 or sp.damping != 0.0]
+        self.drag = dragged(scene)
+        involved = {i for sp in self.springs for i in sp[:2] if i >= 0} | {i for i, _, _ in self.drag}
+        self.bodies = sorted(involved)
+        self.kinds = sorted(({"spring"} if self.springs else set()) | ({"drag"} if self.drag else set()))
+        self._state: dict[int, tuple] = {}  # index -> (pos, xyzw, v, w) of this step
+
+    def __bool__(self) -> bool:
+        return bool(self.springs or self.drag)
+
+    def apply(self, p: Any, cid: int, ids: list[int]) -> None:
+        """Apply every force from the current state of the bodies ``ids``
+        (pybullet body ids in scene order) of client ``cid``."""
+        st = self._state
+        for i in self.bodies:
+            pos, orn = p.getBasePositionAndOrientation(ids[i], physicsClientId=cid)
+            v, w = p.getBaseVelocity(ids[i], physicsClientId=cid)
+            st[i] = (pos, orn, v, w)
+        wf = p.WORLD_FRAME
+        for ia, ib, anc_a, anc_b, k, L0, c in self.springs:
+            pa, va = self._anchor(p, ia, anc_a)
+            pb, vb = self._anchor(p, ib, anc_b)
+            d0, d1, d2 = pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]
+            L = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if L < 1e-12:
+                continue  # direction undefined; a zero-rest-length spring has zero force here anyway
+            u0, u1, u2 = d0 / L, d1 / L, d2 / L
+            rate = (vb[0] - va[0]) * u0 + (vb[1] - va[1]) * u1 + (vb[2] - va[2]) * u2
+            mag = k * (L - L0) + c * rate
+            F = (mag * u0, mag * u1, mag * u2)
+            if ia >= 0:
+                p.applyExternalForce(ids[ia], -1, F, pa, wf, physicsClientId=cid)
+            if ib >= 0:
+                p.applyExternalForce(ids[ib], -1, (-F[0], -F[1], -F[2]), pb, wf, physicsClientId=cid)
+        # after the springs: Bullet sums forces in the order applied
+        for i, cl, cq in self.drag:
+            pos, _, v, _ = st[i]
+            speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            c = cl + cq * speed
+            if c * speed != 0.0:
+                p.applyExternalForce(ids[i], -1, (-c * v[0], -c * v[1], -c * v[2]), pos, wf, physicsClientId=cid)
+
+    def _anchor(self, p: Any, i: int, anchor: tuple[float, float, float]) -> tuple[tuple, tuple]:
+        """World position and velocity of a body-frame anchor (world anchor if i < 0)."""
+        if i < 0:
+            return anchor, (0.0, 0.0, 0.0)
+        pos, orn, v, w = self._state[i]
+        # The engine's rotation matrix (double precision; p.multiplyTransforms
+        # is single precision, measured 3e-8 m errors) rotates the anchor.
+        m = p.getMatrixFromQuaternion(orn)
+        a0, a1, a2 = anchor
+        r0 = m[0] * a0 + m[1] * a1 + m[2] * a2
+        r1 = m[3] * a0 + m[4] * a1 + m[5] * a2
+        r2 = m[6] * a0 + m[7] * a1 + m[8] * a2
+        world = (pos[0] + r0, pos[1] + r1, pos[2] + r2)
+        vel = (v[0] + w[1] * r2 - w[2] * r1, v[1] + w[2] * r0 - w[0] * r2, v[2] + w[0] * r1 - w[1] * r0)
+        return world, vel

@@ -1,0 +1,169 @@
+"""MJCF for a :class:`contract.scene.Scene`: the MuJoCo model the adapter
+builds (layout in the module docstring of :mod:`adapters.mujoco`).  Every
+float is written with ``repr`` (round-trips exactly); every name from the
+scene goes through :func:`xml_escape`.  Pinned by
+tests/test_adapter_mujoco.py and tests/test_fuzz.py (hostile names).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from contract.scene import Scene
+
+#: setting value -> MJCF <option integrator=...> (mjINT_EULER, mjINT_RK4, ...)
+INTEGRATORS = {"euler": "Euler", "rk4": "RK4", "implicit": "implicit", "implicitfast": "implicitfast"}
+
+
+def _f(x: float) -> str:
+    """A float for MJCF, exactly (repr round-trips)."""
+    return repr(float(x))
+
+
+def _v(xs) -> str:
+    return " ".join(_f(x) for x in xs)
+
+
+def _pair_contact(mat, cal_solref: tuple[float, float]) -> tuple[int, tuple[float, ...], tuple[float, float]]:
+    """(condim, friction 5-vector (slide, slide, torsion, roll, roll), solref)
+    for a pair material: condim 1 frictionless, 3 sliding, 6 with rolling."""
+    mu = float(mat.friction)
+    roll = float(mat.rolling_friction)
+    if roll > 0.0:
+        condim = 6
+    elif mu > 0.0:
+        condim = 3
+    else:
+        condim = 1
+    return condim, (mu, mu, 0.0, roll, roll), cal_solref
+
+
+def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tuple[float, float]],
+               notes: list[str]) -> tuple[str, dict[str, Any]]:
+    """The MJCF for ``scene`` with resolved ``settings`` and each contact
+    pair's calibrated ``solref`` (by index into ``scene.contact_pairs()``);
+    appends notes on what MuJoCo cannot model to ``notes``.  Returns (xml,
+    meta: dynamic_contacts, explicit_pairs, condim, tendons)."""
+    dt = float(settings["dt"])
+    integrator = settings["integrator"]
+    contact = scene.has("contact")
+    pairs = scene.contact_pairs()
+
+    # ---- pair signatures: majority on the geoms, the rest explicit ----------
+    sigs: list[tuple[int, tuple[float, ...], tuple[float, float]]] = []
+    for k, (ka, ia, kb, ib, mat) in enumerate(pairs):
+        sigs.append(_pair_contact(mat, pair_solref[k]))
+    if sigs:
+        common_sig = Counter(sigs).most_common(1)[0][0]
+    else:
+        common_sig = (1, (0.0, 0.0, 0.0, 0.0, 0.0), (0.02, 1.0))
+    explicit = [(k, s) for k, s in enumerate(sigs) if s != common_sig]
+    if contact and scene.has("friction"):
+        for name, mt in scene.materials.items():
+            if mt.static_friction > mt.friction:
+                notes.append(f"MuJoCo has one friction coefficient: material {name!r} static_friction "
+                             f"{mt.static_friction:g} > friction {mt.friction:g} is modelled with the "
+                             f"kinetic value {mt.friction:g} only")
+    if contact and scene.has("rolling_friction"):
+        notes.append("rolling friction uses condim 6; MuJoCo's torsional friction is set to 0 "
+                     "(clamped internally to 1e-5)")
+    if not scene.has("gyroscopic") and any(np.ptp(b.inertia) > 1e-12 * max(b.inertia) for b in scene.bodies):
+        notes.append("MuJoCo always integrates the gyroscopic term; it is zero at t = 0 here, but "
+                     "acts on bodies with unequal inertia if they start turning off a principal axis")
+
+    ct = 1 if contact else 0
+    gcondim, gfric, gsolref = common_sig
+    geom_contact = (f'contype="{ct}" conaffinity="{ct}" condim="{gcondim}" '
+                    f'friction="{_f(gfric[0])} {_f(gfric[2])} {_f(gfric[3])}" solref="{_v(gsolref)}"')
+
+    flags = []
+    if not scene.has("gravity"):
+        flags.append('gravity="disable"')
+    if not contact:
+        flags.append('contact="disable"')
+    if not scene.springs:
+        flags.append('spring="disable" damper="disable"')
+    flags.append(f'speculative="{"enable" if settings["speculative"] else "disable"}"')
+    integ_xml = INTEGRATORS[integrator]
+    lines = [
+        f'<mujoco model="{xml_escape(scene.id)}">',
+        '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
+        f'  <option timestep="{_f(dt)}" gravity="{_v(scene.gravity)}" integrator="{integ_xml}" '
+        f'cone="{settings["cone"]}" impratio="{_f(settings["impratio"])}" '
+        f'iterations="{int(settings["iterations"])}" noslip_iterations="{int(settings["noslip_iterations"])}">',
+        f'    <flag {" ".join(flags)}/>',
+        '  </option>',
+        '  <worldbody>',
+    ]
+    for s in scene.statics:
+        if s.shape == "plane":
+            n = np.asarray(s.normal, float)
+            lines.append(f'    <geom name="s{s.index}" type="plane" size="0 0 1" pos="{_v(n * s.offset)}" '
+                         f'zaxis="{_v(n)}" {geom_contact}/>')
+        else:
+            lines.append(f'    <geom name="s{s.index}" type="box" size="{_v(s.half_extents)}" '
+                         f'pos="{_v(s.position)}" quat="{_v(s.orientation)}" {geom_contact}/>')
+    # world-anchored spring sites
+    for k, sp in enumerate(scene.springs):
+        if sp.a < 0:
+            lines.append(f'    <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
+        if sp.b < 0:
+            lines.append(f'    <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
+    for b in scene.bodies:
+        if b.shape == "sphere":
+            gs = f'type="sphere" size="{_f(b.radius)}"'
+        elif b.shape == "box":
+            gs = f'type="box" size="{_v(b.half_extents)}"'
+        else:
+            gs = f'type="{b.shape}" size="{_f(b.radius)} {_f(b.half_length)}"'
+        lines.append(f'    <body name="b{b.index}" pos="{_v(b.position)}" quat="{_v(b.orientation)}">')
+        lines.append('      <freejoint/>')
+        lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass)}" diaginertia="{_v(b.inertia)}"/>')
+        lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}/>')
+        for k, sp in enumerate(scene.springs):
+            if sp.a == b.index:
+                lines.append(f'      <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
+            if sp.b == b.index:
+                lines.append(f'      <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
+        lines.append('    </body>')
+    lines.append('  </worldbody>')
+    if explicit:
+        lines.append('  <contact>')
+        for k, (condim, fr, solref) in explicit:
+            ka, ia, kb, ib, _ = pairs[k]
+            g2 = f"s{ib}" if kb == "static" else f"g{ib}"
+            lines.append(f'    <pair geom1="g{ia}" geom2="{g2}" condim="{condim}" friction="{_v(fr)}" '
+                         f'solref="{_v(solref)}"/>')
+        lines.append('  </contact>')
+    if scene.springs:
+        lines.append('  <tendon>')
+        for k, sp in enumerate(scene.springs):
+            lines.append(f'    <spatial name="spring{k}" stiffness="{_f(sp.stiffness)}" '
+                         f'damping="{_f(sp.damping)}" springlength="{_f(sp.rest_length)}">')
+            lines.append(f'      <site site="sp{k}a"/>')
+            lines.append(f'      <site site="sp{k}b"/>')
+            lines.append('    </spatial>')
+        lines.append('  </tendon>')
+    lines.append('</mujoco>')
+    condims = sorted({s[0] for s in sigs})
+    meta = {
+        "dynamic_contacts": bool(contact and pairs),
+        "explicit_pairs": len(explicit),
+        "condim": (condims[0] if len(condims) == 1 else condims) if condims else None,
+        "tendons": len(scene.springs),
+    }
+    return "\n".join(lines) + "\n", meta
+
+
+def xml_escape(s: str) -> str:
+    """``s`` as the text of a double-quoted XML attribute: markup characters
+    and whitespace escaped (an attribute's raw newline or tab would be read
+    as a space), characters XML 1.0 cannot hold at all replaced by U+FFFD.
+    Pinned by tests/test_fuzz.py::test_mjcf_escape_round_trips."""
+    out = s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+    out = out.replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
+    return re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]", "\ufffd", out)

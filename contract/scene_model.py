@@ -1,0 +1,311 @@
+"""The compiled scene: the frozen, engine-neutral data that adapters build
+from (:class:`Scene` and its bodies, statics, springs, materials and checks),
+and its content hash.  :mod:`contract.scene` compiles and loads scenes.
+
+Conventions: SI units, Z up, quaternions (w, x, y, z), velocities in the world
+frame about the centre of mass.  Body-frame principal axes are the shape's own
+axes (a capsule or cylinder lies along its local z).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Material:
+    """Material (or pair) coefficients: restitution e in [0, 1], kinetic and
+    static Coulomb friction, rolling friction (m, as a lever arm)."""
+
+    name: str
+    restitution: float
+    friction: float
+    static_friction: float
+    rolling_friction: float = 0.0
+
+
+@dataclass(frozen=True)
+class Body:
+    """One dynamic rigid body.
+
+    ``inertia`` holds the principal moments (kg m^2, shape (3,)) about the body
+    axes; ``half_extents`` is (3,) for boxes, ``radius``/``half_length`` for
+    round shapes (capsule and cylinder axis = body z).
+    """
+
+    index: int
+    name: str
+    shape: str
+    mass: float
+    inertia: np.ndarray
+    position: np.ndarray
+    orientation: np.ndarray
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+    material: str
+    radius: float = 0.0
+    half_extents: np.ndarray | None = None
+    half_length: float = 0.0
+    drag_linear: float = 0.0
+    drag_quadratic: float = 0.0
+
+    @property
+    def bounding_radius(self) -> float:
+        """Radius (m) of the smallest origin-centred sphere holding the shape."""
+        if self.shape == "sphere":
+            return self.radius
+        if self.shape == "box":
+            return float(np.linalg.norm(self.half_extents))
+        if self.shape == "capsule":
+            return self.half_length + self.radius
+        return math.hypot(self.half_length, self.radius)
+
+    @property
+    def min_extent(self) -> float:
+        """Smallest half-size (m): how thin the shape is."""
+        if self.shape == "sphere":
+            return self.radius
+        if self.shape == "box":
+            return float(np.min(self.half_extents))
+        return min(self.radius, self.half_length + (self.radius if self.shape == "capsule" else 0.0))
+
+
+@dataclass(frozen=True)
+class Static:
+    """Fixed geometry.  ``shape`` is 'plane' or 'box'; ``kind`` remembers
+    whether a plane came from a 'slope' (then ``angle`` is its incline in
+    degrees, downhill +x).  A plane is {x : normal . x = offset}, solid below."""
+
+    index: int
+    name: str
+    shape: str
+    kind: str
+    material: str
+    normal: np.ndarray | None = None
+    offset: float = 0.0
+    position: np.ndarray | None = None
+    orientation: np.ndarray | None = None
+    half_extents: np.ndarray | None = None
+    angle: float | None = None
+
+
+@dataclass(frozen=True)
+class Spring:
+    """Hooke spring and/or dashpot between body ``a`` and ``b`` (indices; -1 is
+    the world).  Anchors are in the body frame (world frame for the world)."""
+
+    a: int
+    b: int
+    anchor_a: np.ndarray
+    anchor_b: np.ndarray
+    stiffness: float
+    rest_length: float
+    damping: float
+
+
+@dataclass(frozen=True)
+class Check:
+    metric: str
+    max: float | None = None
+    min: float | None = None
+    equals: float | bool | None = None
+    tolerance: float = 0.0
+    engines: tuple[str, ...] | None = None
+    variants: tuple[str, ...] | None = None
+    xfail: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Engine-neutral, immutable description of one scenario run."""
+
+    id: str
+    variant: str | None
+    path: Path | None
+    family: str
+    title: str
+    duration: float
+    dt: float
+    effects: frozenset[str]
+    planar: bool
+    gravity_vector: np.ndarray
+    primary_metric: str | None
+    tags: tuple[str, ...]
+    materials: dict[str, Material]
+    bodies: tuple[Body, ...]
+    statics: tuple[Static, ...]
+    springs: tuple[Spring, ...]
+    reference_model: str | None
+    reference_params: dict[str, Any]
+    checks: tuple[Check, ...]
+    variant_names: tuple[str, ...] = ()
+    #: step phases the conformance checks run over (``[scenario] phases``)
+    phases: int = 1
+    #: :func:`content_hash` of the scene as compiled (kept by
+    #: ``dataclasses.replace``, so a step-phase shift keeps the hash of the
+    #: scene as written; the phase is recorded beside it)
+    content_hash: str = ""
+
+    # ---- derived, engine-neutral helpers ---------------------------------
+
+    @property
+    def source(self) -> str:
+        """The spec file as recorded in rows: relative to the repository
+        when inside it (scenarios/...), else absolute; '' for an inline
+        spec.  :func:`source_path` reads it back."""
+        if self.path is None:
+            return ""
+        p = Path(self.path).resolve()
+        try:
+            return p.relative_to(REPO_ROOT).as_posix()
+        except ValueError:
+            return str(p)
+
+    def has(self, effect: str) -> bool:
+        return effect in self.effects
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """Gravity actually applied (m/s^2, (3,)): zero without the effect."""
+        return self.gravity_vector if "gravity" in self.effects else np.zeros(3)
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.bodies)
+
+    @property
+    def n_steps(self) -> int:
+        return n_steps(self.duration, self.dt)
+
+    @property
+    def masses(self) -> np.ndarray:
+        return np.array([b.mass for b in self.bodies], dtype=float)
+
+    @property
+    def inertias(self) -> np.ndarray:
+        """(n, 3) principal moments in the body frame."""
+        return np.array([b.inertia for b in self.bodies], dtype=float).reshape(-1, 3)
+
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(x (n,3), q wxyz (n,4), v (n,3), w (n,3)) at t = 0."""
+        return (
+            np.array([b.position for b in self.bodies], float).reshape(-1, 3),
+            np.array([b.orientation for b in self.bodies], float).reshape(-1, 4),
+            np.array([b.velocity for b in self.bodies], float).reshape(-1, 3),
+            np.array([b.angular_velocity for b in self.bodies], float).reshape(-1, 3),
+        )
+
+    def pair(self, mat_a: str, mat_b: str) -> Material:
+        """The coefficients the spec asks for when ``mat_a`` meets ``mat_b``,
+        with effects applied (no 'restitution' -> e = 0; no 'friction' -> 0;
+        no 'rolling_friction' -> 0).
+
+        Rule: equal materials give their own values; a named material meeting
+        'default' gives the named material's values (a named material says how
+        *it* behaves against the scene's default surface); two different named
+        materials must agree on each coefficient, else the spec is ambiguous and
+        compile_scene rejects it.
+        """
+        a, b = self.materials[mat_a], self.materials[mat_b]
+        if mat_a == mat_b or mat_b == "default":
+            m = a
+        elif mat_a == "default":
+            m = b
+        else:
+            m = a  # compile_scene verified that a and b agree
+        return Material(
+            name=f"{mat_a}|{mat_b}",
+            restitution=m.restitution if "restitution" in self.effects else 0.0,
+            friction=m.friction if "friction" in self.effects else 0.0,
+            static_friction=m.static_friction if "friction" in self.effects else 0.0,
+            rolling_friction=m.rolling_friction if "rolling_friction" in self.effects else 0.0,
+        )
+
+    def contact_pairs(self) -> list[tuple[str, int, str, int, Material]]:
+        """Every pair that may touch, as (kind_a, index_a, kind_b, index_b,
+        pair material) with kinds 'body' or 'static'.  Empty without 'contact'."""
+        if "contact" not in self.effects:
+            return []
+        out = []
+        n = len(self.bodies)
+        for i in range(n):
+            for j in range(i + 1, n):
+                out.append(("body", i, "body", j, self.pair(self.bodies[i].material, self.bodies[j].material)))
+            for s in self.statics:
+                out.append(("body", i, "static", s.index, self.pair(self.bodies[i].material, s.material)))
+        return out
+
+    def body_index(self, name: str) -> int:
+        for b in self.bodies:
+            if b.name == name:
+                return b.index
+        raise KeyError(name)
+
+
+def n_steps(duration: float, dt: float) -> int:
+    """Number of fixed steps that cover ``duration`` (rounded, at least 1)."""
+    return max(1, int(round(duration / dt)))
+
+
+
+# Scene fields that say what is simulated and measured; everything else
+# (id, path, title, tags, checks, variants, phases) names or judges a
+# scene without changing any number a run records.
+_CONTENT_FIELDS = ("duration", "dt", "effects", "planar", "gravity_vector", "primary_metric", "materials",
+                   "bodies", "statics", "springs", "reference_model", "reference_params")
+
+
+def _canonical(v: Any) -> Any:
+    """JSON-able canonical form: floats by repr (exact round trip, -0.0 as
+    0.0), arrays as lists, sets sorted, dataclasses as field dicts."""
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _canonical(getattr(v, f.name)) for f in dataclasses.fields(v)}
+    if isinstance(v, dict):
+        return {str(k): _canonical(x) for k, x in sorted(v.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(v, (frozenset, set)):
+        return sorted(_canonical(x) for x in v)
+    if isinstance(v, np.ndarray):
+        return [_canonical(x) for x in v.tolist()]
+    if isinstance(v, (list, tuple)):
+        return [_canonical(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v) + 0.0)
+    return v
+
+
+def content_hash(scene: Scene) -> str:
+    """16 hex digits of sha256 over the compiled scene's content (the spec
+    after its variant and overrides, patterns expanded): the same for the
+    same physics and measurement whatever the file's name, path, layout or
+    comments, different when anything simulated or measured changes (a
+    friction coefficient, a body, dt, the reference model's params).  Checks,
+    title and tags are left out: they judge or name the numbers, they do not
+    change them.  Engine settings are not scene content (rows and point keys
+    carry them apart).  Pinned by
+    tests/test_own_scenes.py::test_content_hash_is_the_scene_not_the_file."""
+    doc = {k: _canonical(getattr(scene, k)) for k in _CONTENT_FIELDS}
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def source_path(source: str) -> Path | None:
+    """A row's ``scene_path`` (:attr:`Scene.source`) -> the file, or None."""
+    if not source:
+        return None
+    p = Path(source)
+    return p if p.is_absolute() else REPO_ROOT / p
+

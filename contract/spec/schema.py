@@ -1,0 +1,414 @@
+"""The spec's schema: the effects, shapes and pattern kinds a spec may name,
+and one strict pydantic model per TOML section (unknown keys are errors,
+every float finite, physical values within contract/spec/bounds.py)."""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
+
+from contract.models import MODELS
+from contract.spec.bounds import BOUNDS, _bound, _bounded, _bounded_each, _bounded_norm, record_size_error
+
+EFFECTS = (
+    "gravity",
+    "contact",
+    "restitution",
+    "friction",
+    "rolling_friction",
+    "drag_linear",
+    "drag_quadratic",
+    "spring",
+    "damper",
+    "gyroscopic",
+)
+BODY_SHAPES = ("sphere", "box", "capsule", "cylinder")
+STATIC_SHAPES = ("plane", "box", "slope")
+PATTERN_KINDS = ("column", "pyramid", "grid", "rack", "row")
+
+# Which dimension keys each shape uses; any other dimension key is an error.
+SHAPE_DIMENSIONS = {
+    "sphere": ("radius",),
+    "box": ("half_extents",),
+    "capsule": ("radius", "half_length"),
+    "cylinder": ("radius", "half_length"),
+}
+_ALL_DIMENSIONS = ("radius", "half_extents", "half_length")
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+
+def _one_of(what: str, choices: tuple[str, ...]) -> Any:
+    """A field validator admitting only ``choices``; the error names
+    ``what`` ("shape", "static shape") and lists the choices."""
+
+    def validate(cls: Any, v: str) -> str:
+        if v not in choices:
+            raise ValueError(f"unknown {what} {v!r}; expected one of {', '.join(choices)}")
+        return v
+
+    return validate
+
+
+
+class _Strict(BaseModel):
+    # allow_inf_nan=False: every float in a spec is finite ('finite_number')
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
+
+
+def _finite(v: float, what: str = "a finite number") -> float:
+    if isinstance(v, bool) or not math.isfinite(v):
+        raise ValueError(f"must be {what}, got {v!r}")
+    return v
+
+
+class ScenarioSection(_Strict):
+    family: str = Field(min_length=1)
+    title: str = Field(min_length=1)
+    duration: float = Field(gt=0)
+    dt: float = Field(gt=0)
+    effects: list[str]
+    planar: bool = False
+    gravity: Vec3 = (0.0, 0.0, -9.81)
+    primary_metric: str | None = None
+    tags: list[str] = Field(default_factory=list)
+    description: str | None = None
+    #: step phases the conformance checks are evaluated over (contract/phase.py):
+    #: 1 = the scene as written only; N > 1 = also N - 1 runs with the start
+    #: moved back along the free flight by i/N dt, every one must pass
+    phases: int = Field(default=1, ge=1, le=256)
+
+    @field_validator("family")
+    @classmethod
+    def _family_plain(cls, v: str) -> str:
+        return _plain(v)
+
+    @field_validator("effects")
+    @classmethod
+    def _effects_known(cls, v: list[str]) -> list[str]:
+        for i, e in enumerate(v):
+            if e not in EFFECTS:
+                raise ValueError(
+                    f"[{i}] unknown effect {e!r}; expected one of {', '.join(EFFECTS)}"
+                )
+        if len(set(v)) != len(v):
+            raise ValueError(f"effects are listed twice: {v}")
+        return v
+
+    _duration_bounded = field_validator("duration")(_bound("duration"))
+    _dt_bounded = field_validator("dt")(_bound("dt"))
+    _gravity_bounded = field_validator("gravity")(_bound("gravity", "norm"))
+
+    @model_validator(mode="after")
+    def _dt_fits(self) -> "ScenarioSection":
+        if self.dt > self.duration:
+            raise ValueError(
+                f"dt ({self.dt}) must not exceed duration ({self.duration})"
+            )
+        steps = round(self.duration / self.dt)
+        if steps > BOUNDS["steps"][1]:
+            raise ValueError(f"duration / dt = {self.duration:g} / {self.dt:g}: "
+                             f"{record_size_error(int(steps), 1)}")
+        return self
+
+
+class MaterialSection(_Strict):
+    restitution: float = Field(default=0.0, ge=0.0, le=1.0)
+    friction: float = Field(default=0.0, ge=0.0)
+    static_friction: float | None = Field(default=None, ge=0.0)
+    rolling_friction: float = Field(default=0.0, ge=0.0)
+
+    _friction_bounded = field_validator("friction", "static_friction")(_bound("friction"))
+    _rolling_bounded = field_validator("rolling_friction")(_bound("rolling_friction"))
+
+    @model_validator(mode="after")
+    def _static_ge_kinetic(self) -> "MaterialSection":
+        if self.static_friction is not None and self.static_friction < self.friction:
+            raise ValueError(
+                f"static_friction ({self.static_friction}) must be >= friction "
+                f"({self.friction})"
+            )
+        return self
+
+
+class PatternSection(_Strict):
+    kind: Literal["column", "pyramid", "grid", "rack", "row"]
+    count: int | None = Field(default=None, ge=1)
+    counts: tuple[int, int, int] | None = None
+    spacing: float | Vec3 | None = None
+    gap: float = Field(default=0.0, ge=0.0)
+
+    _count_bounded = field_validator("count")(_bound("bodies"))
+    _counts_bounded = field_validator("counts")(_bound("bodies", "each"))
+    _gap_bounded = field_validator("gap")(_bound("position"))
+
+    @field_validator("spacing")
+    @classmethod
+    def _spacing_bounded(cls, v: float | Vec3 | None) -> float | Vec3 | None:
+        return _bounded("position", v) if isinstance(v, (int, float)) else _bounded_each("position", v)
+
+    def n_bodies(self) -> int:
+        """Bodies the pattern makes (pyramid: count levels, a rack: count rows)."""
+        if self.kind == "grid":
+            return math.prod(self.counts or (1,))
+        n = self.count or 1
+        return n * (n + 1) // 2 if self.kind in ("pyramid", "rack") else n
+
+    @model_validator(mode="after")
+    def _counts(self) -> "PatternSection":
+        if self.kind == "grid":
+            if self.counts is None:
+                raise ValueError("kind 'grid' needs counts = [nx, ny, nz]")
+            if any(c < 1 for c in self.counts):
+                raise ValueError(f"counts must be >= 1 each, got {list(self.counts)}")
+            if self.count is not None:
+                raise ValueError("kind 'grid' takes counts, not count")
+        else:
+            if self.count is None:
+                raise ValueError(f"kind {self.kind!r} needs count")
+            if self.counts is not None:
+                raise ValueError(f"kind {self.kind!r} takes count, not counts")
+        return self
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def name_error(name: str) -> str | None:
+    """Why ``name`` cannot name a body, static, material, variant or family,
+    or None.  Any text is a name (quotes, '<', '&', long names: adapters
+    escape them, tests/test_fuzz.py::test_hostile_names_run) except control
+    characters: names land in tables, logs, JUnit XML (XML 1.0 cannot hold
+    most of them) and rerun entity paths."""
+    m = _CONTROL.search(name)
+    if m:
+        return (f"must not contain control characters (newline, tab, NUL, ...), got {m.group()!r} at "
+                f"index {m.start()} of {name[:60]!r}{'...' if len(name) > 60 else ''}")
+    return None
+
+
+def _plain(v: str | None) -> str | None:
+    if v is not None:
+        msg = name_error(v)
+        if msg:
+            raise ValueError(msg)
+    return v
+
+
+def _half_extents(cls: Any, v: Vec3 | None) -> Vec3 | None:
+    """The field validator of a box's ``half_extents`` (bodies and statics):
+    every component > 0 and within the 'length' bound; None passes."""
+    if v is not None and any(c <= 0 for c in v):
+        raise ValueError(f"must be > 0 in every component, got {list(v)}")
+    return _bounded_each("length", v)
+
+
+def _check_quat(q: tuple[float, ...]) -> tuple[float, ...]:
+    n = math.sqrt(sum(c * c for c in q))
+    if abs(n - 1.0) > 1e-6:
+        raise ValueError(
+            f"must be a unit quaternion (w, x, y, z), got {list(q)} with norm {n:.6g}"
+        )
+    return q
+
+
+class BodySection(_Strict):
+    name: str = Field(min_length=1)
+    shape: str
+    radius: float | None = Field(default=None, gt=0)
+    half_extents: Vec3 | None = None
+    half_length: float | None = Field(default=None, gt=0)
+    mass: float | None = Field(default=None, gt=0)
+    density: float | None = Field(default=None, gt=0)
+    position: Vec3 = (0.0, 0.0, 0.0)
+    orientation: Quat = (1.0, 0.0, 0.0, 0.0)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    angular_velocity: Vec3 = (0.0, 0.0, 0.0)
+    material: str = "default"
+    drag_linear: float = Field(default=0.0, ge=0.0)
+    drag_quadratic: float = Field(default=0.0, ge=0.0)
+    pattern: PatternSection | None = None
+
+    _shape_known = field_validator("shape")(_one_of("shape", BODY_SHAPES))
+
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str) -> str:
+        return _plain(v)
+
+    _positive_extents = field_validator("half_extents")(_half_extents)
+
+    _length_bounded = field_validator("radius", "half_length")(_bound("length"))
+    _mass_bounded = field_validator("mass")(_bound("mass"))
+    _density_bounded = field_validator("density")(_bound("density"))
+    _position_bounded = field_validator("position")(_bound("position", "each"))
+    _speed_bounded = field_validator("velocity")(_bound("speed", "norm"))
+    _angular_speed_bounded = field_validator("angular_velocity")(_bound("angular_speed", "norm"))
+    _drag_bounded = field_validator("drag_linear", "drag_quadratic")(_bound("drag"))
+
+    @field_validator("orientation")
+    @classmethod
+    def _unit(cls, v: Quat) -> Quat:
+        return _check_quat(v)
+
+    @model_validator(mode="after")
+    def _dims_and_mass(self) -> "BodySection":
+        need = SHAPE_DIMENSIONS[self.shape]
+        for key in _ALL_DIMENSIONS:
+            given = getattr(self, key) is not None
+            if key in need and not given:
+                raise ValueError(f"shape {self.shape!r} needs {key}")
+            if key not in need and given:
+                raise ValueError(f"{key} is not a dimension of shape {self.shape!r}")
+        if (self.mass is None) == (self.density is None):
+            raise ValueError("give exactly one of mass or density")
+        return self
+
+
+class StaticSection(_Strict):
+    name: str | None = None
+    shape: str
+    normal: Vec3 | None = None
+    offset: float | None = None
+    half_extents: Vec3 | None = None
+    position: Vec3 | None = None
+    orientation: Quat | None = None
+    point: Vec3 | None = None
+    angle: float | None = None
+    material: str = "default"
+
+    _shape_known = field_validator("shape")(_one_of("static shape", STATIC_SHAPES))
+
+    @field_validator("orientation")
+    @classmethod
+    def _unit(cls, v: Quat | None) -> Quat | None:
+        return None if v is None else _check_quat(v)
+
+    _position_bounded = field_validator("position", "point")(_bound("position", "each"))
+
+    @field_validator("name", "material")
+    @classmethod
+    def _name_plain(cls, v: str | None) -> str | None:
+        return _plain(v)
+
+    _extents_bounded = field_validator("half_extents")(_half_extents)
+
+    _offset_bounded = field_validator("offset")(_bound("position"))
+
+    @field_validator("normal")
+    @classmethod
+    def _normal_bounded(cls, v: Vec3 | None) -> Vec3 | None:
+        if v is not None and math.sqrt(sum(c * c for c in v)) < 1e-12:
+            raise ValueError("must be a non-zero vector")
+        return _bounded_norm("normal", v)
+
+    @model_validator(mode="after")
+    def _keys_for_shape(self) -> "StaticSection":
+        allowed = {
+            "plane": {"normal", "offset"},
+            "box": {"half_extents", "position", "orientation"},
+            "slope": {"point", "angle"},
+        }[self.shape]
+        required = {
+            "plane": {"normal"},
+            "box": {"half_extents", "position"},
+            "slope": {"angle"},
+        }[self.shape]
+        for key in ("normal", "offset", "half_extents", "position", "orientation", "point", "angle"):
+            given = getattr(self, key) is not None
+            if given and key not in allowed:
+                raise ValueError(f"{key} is not a key of static shape {self.shape!r}")
+            if not given and key in required:
+                raise ValueError(f"static shape {self.shape!r} needs {key}")
+
+        if self.angle is not None and not -90.0 < self.angle < 90.0:
+            raise ValueError(f"angle must be in (-90, 90) degrees, got {self.angle}")
+        return self
+
+
+class ReferenceSection(_Strict):
+    model: str
+    params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("params")
+    @classmethod
+    def _params_finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        def walk(x: Any, where: str) -> None:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise ValueError(f"{where}: must be a finite number, got {x!r}")
+            if isinstance(x, int) and not isinstance(x, bool) and abs(x) > 2**53:
+                raise ValueError(f"{where}: must be an integer within +-2**53, got {x}")
+            if isinstance(x, dict):
+                for k, y in x.items():
+                    walk(y, f"{where}.{k}")
+            elif isinstance(x, list):
+                for i, y in enumerate(x):
+                    walk(y, f"{where}[{i}]")
+
+        for k, x in v.items():
+            walk(x, k)
+        return v
+
+    @field_validator("model")
+    @classmethod
+    def _model_known(cls, v: str) -> str:
+        if v not in MODELS:
+            raise ValueError(
+                f"unknown reference model {v!r}; expected one of {', '.join(sorted(MODELS))}"
+            )
+        return v
+
+
+class SpringSection(_Strict):
+    a: str
+    b: str
+    anchor_a: Vec3 = (0.0, 0.0, 0.0)
+    anchor_b: Vec3 = (0.0, 0.0, 0.0)
+    stiffness: float = Field(default=0.0, ge=0.0)
+    rest_length: float = Field(default=0.0, ge=0.0)
+    damping: float = Field(default=0.0, ge=0.0)
+
+    _anchor_bounded = field_validator("anchor_a", "anchor_b")(_bound("position", "each"))
+    _stiffness_bounded = field_validator("stiffness")(_bound("stiffness"))
+    _damping_bounded = field_validator("damping")(_bound("damping"))
+    _rest_length_bounded = field_validator("rest_length")(_bound("rest_length"))
+
+
+class CheckSection(_Strict):
+    metric: str
+    max: float | None = None
+    min: float | None = None
+    equals: float | bool | None = None
+    tolerance: float = Field(default=0.0, ge=0.0)
+    engines: list[str] | None = None
+    variants: list[str] | None = None
+    xfail: dict[str, str] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_bound(self) -> "CheckSection":
+        if self.max is None and self.min is None and self.equals is None:
+            raise ValueError("a check needs max, min or equals")
+        if self.equals is not None and (self.max is not None or self.min is not None):
+            raise ValueError("equals cannot be combined with max or min")
+        return self
+
+
+class SpecModel(_Strict):
+    scenario: ScenarioSection
+    material: dict[str, MaterialSection] = Field(default_factory=dict)
+    body: list[BodySection] = Field(default_factory=list)
+    static: list[StaticSection] = Field(default_factory=list)
+    spring: list[SpringSection] = Field(default_factory=list)
+    reference: ReferenceSection | None = None
+    check: list[CheckSection] = Field(default_factory=list)
+

@@ -1,0 +1,124 @@
+"""Validating a raw spec document: the schema (contract/spec/schema.py),
+then the checks that span sections (names, material references, effects a
+coefficient needs, planar rules, the scene's size)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import ValidationError
+
+from contract.spec.bounds import BOUNDS, record_size_error
+from contract.spec.errors import SpecError, _format_errors
+from contract.spec.schema import SpecModel, name_error
+
+def validate_raw(raw: dict[str, Any], label: str) -> SpecModel:
+    try:
+        spec = SpecModel.model_validate(raw)
+    except ValidationError as exc:
+        raise SpecError(_format_errors(label, exc, raw)) from None
+    errors = _cross_checks(spec, label)
+    if errors:
+        raise SpecError(errors)
+    return spec
+
+
+def _cross_checks(spec: SpecModel, label: str) -> list[str]:
+    """Checks that span sections: names, material references, planar rules."""
+    errs: list[str] = []
+    materials = set(spec.material) | {"default"}
+    for m in spec.material:
+        why = name_error(m)
+        if why:
+            errs.append(f"{label}: material: the name {why}")
+    names: dict[str, int] = {}
+    for i, b in enumerate(spec.body):
+        if b.name in names:
+            errs.append(f"{label}: body[{i}].name: duplicate body name {b.name!r} (also body[{names[b.name]}])")
+        names.setdefault(b.name, i)
+        if b.material not in materials:
+            errs.append(f"{label}: body[{i}].material: unknown material {b.material!r}; defined: {', '.join(sorted(materials))}")
+    for i, s in enumerate(spec.static):
+        if s.material not in materials:
+            errs.append(f"{label}: static[{i}].material: unknown material {s.material!r}; defined: {', '.join(sorted(materials))}")
+    effects = set(spec.scenario.effects)
+    for i, sp in enumerate(spec.spring):
+        for end in ("a", "b"):
+            who = getattr(sp, end)
+            if who != "world" and who not in names and not any(
+                b.pattern is not None and who.startswith(b.name + "_") for b in spec.body
+            ):
+                errs.append(f"{label}: spring[{i}].{end}: unknown body {who!r}; expected a body name or 'world'")
+        if sp.stiffness > 0 and "spring" not in effects:
+            errs.append(f"{label}: spring[{i}].stiffness: the scene has springs but 'spring' is not in scenario.effects")
+        if sp.damping > 0 and "damper" not in effects:
+            errs.append(f"{label}: spring[{i}].damping: the spring is damped but 'damper' is not in scenario.effects")
+    errs += _material_effects(spec, label)
+    if ("spring" in effects or "damper" in effects) and not spec.spring:
+        errs.append(f"{label}: scenario.effects: 'spring'/'damper' listed but there is no [[spring]] table")
+    for i, b in enumerate(spec.body):
+        if b.drag_linear > 0 and "drag_linear" not in effects:
+            errs.append(f"{label}: body[{i}].drag_linear: set but 'drag_linear' is not in scenario.effects")
+        if b.drag_quadratic > 0 and "drag_quadratic" not in effects:
+            errs.append(f"{label}: body[{i}].drag_quadratic: set but 'drag_quadratic' is not in scenario.effects")
+    if spec.scenario.planar:
+        g = spec.scenario.gravity
+        if abs(g[1]) > 0:
+            errs.append(f"{label}: scenario.gravity: a planar scene lies in the x-z plane, so gravity[1] must be 0, got {list(g)}")
+        for i, b in enumerate(spec.body):
+            p = f"{label}: body[{i}]"
+            if abs(b.position[1]) > 0:
+                errs.append(f"{p}.position: a planar scene lies in the x-z plane, so y must be 0, got {list(b.position)}")
+            if abs(b.velocity[1]) > 0:
+                errs.append(f"{p}.velocity: a planar scene lies in the x-z plane, so y must be 0, got {list(b.velocity)}")
+            w = b.angular_velocity
+            if abs(w[0]) > 0 or abs(w[2]) > 0:
+                errs.append(f"{p}.angular_velocity: a planar scene turns about y only, so x and z must be 0, got {list(w)}")
+            q = b.orientation
+            if abs(q[1]) > 0 or abs(q[3]) > 0:
+                errs.append(f"{p}.orientation: a planar scene turns about y only, so x and z must be 0, got {list(q)}")
+            if b.pattern is not None and b.pattern.kind in ("rack", "grid") and b.pattern.kind == "rack":
+                errs.append(f"{p}.pattern.kind: a 'rack' lies in the x-y plane and cannot be planar")
+        for i, s in enumerate(spec.static):
+            if s.normal is not None and abs(s.normal[1]) > 1e-12:
+                errs.append(f"{label}: static[{i}].normal: a planar scene lies in the x-z plane, so normal[1] must be 0, got {list(s.normal)}")
+            if s.orientation is not None and (abs(s.orientation[1]) > 0 or abs(s.orientation[3]) > 0):
+                errs.append(f"{label}: static[{i}].orientation: a planar scene turns about y only, got {list(s.orientation)}")
+    n_bodies = sum(1 if b.pattern is None else b.pattern.n_bodies() for b in spec.body)
+    if n_bodies > BOUNDS["bodies"][1]:
+        errs.append(f"{label}: body: the scene has {n_bodies} bodies after pattern expansion, beyond the bound "
+                    f"of {BOUNDS['bodies'][1]:g}")
+    else:
+        sc = spec.scenario
+        why = record_size_error(max(1, round(sc.duration / sc.dt)), n_bodies)
+        if why:
+            errs.append(f"{label}: scenario.duration: {why}")
+    for i, c in enumerate(spec.check):
+        for eng in c.xfail:
+            if c.engines is not None and eng not in c.engines:
+                errs.append(f"{label}: check[{i}].xfail.{eng}: engine is not in this check's engines {c.engines}")
+    if spec.scenario.primary_metric is not None and spec.reference is None and spec.scenario.primary_metric in (
+        "post_impact_velocity_error", "trajectory_rmse", "final_position_error"):
+        errs.append(f"{label}: scenario.primary_metric: {spec.scenario.primary_metric!r} needs a [reference] model")
+    return errs
+
+
+#: material coefficient -> the effect without which it would be ignored
+MATERIAL_EFFECTS = {"restitution": "restitution", "friction": "friction", "static_friction": "friction",
+                    "rolling_friction": "rolling_friction"}
+
+
+def _material_effects(spec: SpecModel, label: str) -> list[str]:
+    """A non-zero material coefficient whose effect the scene does not list
+    would be dropped by Scene.pair without a word: an error, as for body and
+    spring coefficients (tests/test_spec.py::test_material_coefficient_needs_its_effect)."""
+    effects = set(spec.scenario.effects)
+    errs = []
+    for name, m in spec.material.items():
+        for key, effect in MATERIAL_EFFECTS.items():
+            value = getattr(m, key)
+            if value and effect not in effects:
+                errs.append(f"{label}: material.{name}.{key}: set to {value!r} but {effect!r} is not in "
+                            f"scenario.effects (add the effect, or leave the coefficient out)")
+    return errs
+

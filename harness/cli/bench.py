@@ -1,0 +1,52 @@
+"""``physbench bench``: runner overhead, worker isolation cost, and the
+reference engine's cost against pybullet."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from harness import bench
+
+    out = sys.stdout
+    # with --json, stdout carries the JSON only: the tables go to stderr
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        if args.kind == "isolation":
+            from harness.execute import bench_isolation
+
+            rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
+            bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "
+                                   "this process, in a reused worker, in a fresh worker per run")
+        elif args.kind == "overhead":
+            # the reference engine is left out unless asked for: its steps cost
+            # milliseconds, so its overhead is lost in noise and takes minutes
+            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
+            bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
+                                   "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        else:
+            rows = bench.cost(repeats=args.repeats)
+            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+            ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
+            if len(ok) >= 2:
+                k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
+                print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
+            sc = bench.broadphase_scaling(repeats=args.repeats)
+            bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
+                                         "medians): sap, all pairs")
+            ns = [r["n"] for r in sc["rows"]]
+            ex = sc["exponents"]
+            print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
+                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
+            b = bench.build_cost()
+            print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
+                  f"of Python allocations (median of 3)")
+    if args.json:
+        out.write(json.dumps(rows, default=str) + "\n")
+        out.flush()
+    return 0
+

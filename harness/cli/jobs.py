@@ -1,0 +1,64 @@
+"""The batch jobs, each handing its checked arguments to its own module:
+``check`` (conformance), ``sweep``, ``limits`` and ``report``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, output_dir, output_file
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from harness.conformance import check_main
+
+    output_file("--junit", args.junit)
+    output_dir("--traces", args.traces)
+    scenarios = list(args.paths or []) + list(args.scenarios or [])
+    _scheduler_needs_dask(args)
+    return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
+                      jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces,
+                      executor=args.executor, scheduler=args.scheduler)
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from harness.sweep import sweep_main
+
+    _scheduler_needs_dask(args)
+    return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
+                      out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios,
+                      timeout_s=args.timeout, scheduler=args.scheduler)
+
+
+def cmd_limits(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.limits import LimitRequest, limits_main, parse_number
+
+    settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
+
+    try:
+        lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    bounds = []
+    for item in args.max or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--max {item}: expected METRIC=VALUE")
+        try:
+            bounds.append((key.strip(), parse_number(text.strip(), f"--max {key.strip()}")))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+    req = LimitRequest(args.scenario, args.variant, args.engine, args.param, lo, hi, phases=args.phases,
+                       tol=args.tol, checks=tuple(args.check or ()), settings=tuple(sorted(settings.items())),
+                       overrides=tuple(overrides.items()), bounds=tuple(sorted(bounds)))
+    return limits_main(req, out_dir=Path(args.out) if args.out else None, as_json=args.json)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from harness.report import report_main
+
+    return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
+                       out=output_file("--out", args.out), suites=args.suites, target=args.target,
+                       fail_on_regression=args.fail_on_regression)
+

@@ -1,0 +1,106 @@
+"""``physbench run``: one run of one scenario on one engine, with the
+scene's checks that apply to it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from harness.cli.common import _fmt, _request, _split_sets, output_file
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from adapters import get_adapter
+    from harness.conformance import BAD
+    from harness.execute import run_isolated
+
+    save = output_file("--save", args.save)
+    cls = get_adapter(args.engine)
+    settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
+    req = _request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
+    # in a worker process: an engine that aborts or hangs is a status, not a dead command
+    result = run_isolated(req)
+    runs, outcomes = _run_checks(req, result, settings, args)
+    if args.save:
+        from harness.results import write_rows
+
+        row = result.row()
+        row["phase"] = float(args.phase)  # 0 = the scene as written
+        if runs:
+            row.update(runs[0].row_extra)
+        row["checks"] = json.dumps([o.as_dict() for o in outcomes], sort_keys=True)
+        write_rows([row], save)
+    if args.json:
+        d = result.as_dict()
+        d["checks"] = [o.as_dict() for o in outcomes]
+        sys.stdout.write(json.dumps(d, sort_keys=False) + "\n")
+        sys.stdout.flush()
+    else:
+        _print_result(result, outcomes)
+    return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
+
+
+def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace):
+    """The scene's checks that apply to the run of ``req``, evaluated as
+    ``physbench check`` evaluates them (harness/conformance.py): the runs a
+    check needs beyond this one -- its step phases, an ``@dt=...`` setting --
+    are made here, in one worker process, with the same settings and spec
+    overrides.  A run at a given ``--phase`` is judged on itself only (it is
+    one phase already).  Returns (planned runs, outcomes)."""
+    import dataclasses
+
+    from harness.conformance import evaluate_runs, scene_runs
+    from harness.execute import WorkerPool, request_scene, run_requests
+
+    scene = request_scene(dataclasses.replace(req, phase=0.0))
+    runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
+    if not runs:
+        return runs, []
+    results = {runs[0].key: result}
+    extra = {id(r): dataclasses.replace(req, settings=dict(r.settings), phase=r.phase) for r in runs[1:]}
+    for r in runs[1:]:
+        if not args.json:
+            print(f"check run: {args.engine} {r.scenario}" + (f" phase {r.phase:g}" if r.phase else "")
+                  + "".join(f" {k}={v:.6g}" if isinstance(v, float) else f" {k}={v}"
+                            for k, v in r.settings.items() if settings.get(k) != v), file=sys.stderr)
+    if extra:
+        with WorkerPool(1) as pool:
+            done = {id(q): res for q, res in run_requests(extra.values(), pool)}
+        for r in runs[1:]:
+            results[r.key] = done[id(extra[id(r)])]
+    return runs, evaluate_runs(runs, results)
+
+
+def _print_result(result, outcomes=()) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    title = f"{result.scenario}" + (f" [{result.variant}]" if result.variant else "") + f" on {result.engine} {result.engine_version}"
+    con.print(f"[bold]{title}[/bold]: status [bold]{result.status}[/bold]" + (f" - {result.message}" if result.message else ""))
+    t = Table("metric", "value")
+    for k, v in result.metrics.items():
+        t.add_row(k, _fmt(v))
+    con.print(t)
+    s = Table("setting", "value")
+    for k, v in result.settings.items():
+        s.add_row(k, _fmt(v))
+    con.print(s)
+    if result.stages:
+        con.print("stages: " + json.dumps(result.stages, default=str))
+    for n in result.notes:
+        con.print(f"note: {n}")
+    if outcomes:
+        from rich.markup import escape
+
+        from harness.conformance import BAD, _fmt as fmt_value
+
+        c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
+        for o in outcomes:
+            style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value), f"[{style}]{o.outcome}[/]",
+                      escape(o.message))
+        con.print(c)
+

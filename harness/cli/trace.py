@@ -1,0 +1,45 @@
+"""``physbench trace``: run engines and write one rerun recording side by side."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from harness.cli.common import UsageError, _request, _split_sets, output_file
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    from adapters import ENGINES, get_adapter
+    from harness.execute import WorkerPool, request_scene, run_requests
+    from harness.trace.contacts import DEFAULT_CAP
+
+    engines = args.engines or list(ENGINES)
+    if Path(args.scenario).is_dir():
+        raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
+                         f"or a spec file, not a folder")
+    output_file("-o", args.output)
+    overrides = _split_sets(args.set, set())[1] if args.set else {}
+    reqs = []
+    for e in engines:
+        get_adapter(e)
+        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True,
+                             contact_cap=0 if args.watch else DEFAULT_CAP))
+    scene = request_scene(reqs[0])
+    with WorkerPool(args.jobs) as pool:
+        done = {id(req): res for req, res in run_requests(reqs, pool)}
+    results = [done[id(r)] for r in reqs]
+    from harness.conformance import evaluate
+    from harness.trace import write_rrd
+
+    if args.watch:
+        write_rrd(args.output, scene, results)
+    else:
+        outcomes = [o for r in results for o in evaluate(scene, r) if "@" not in o.metric]
+        write_rrd(args.output, scene, results, diagnose=True, outcomes=outcomes,
+                  checks={c.metric: c for c in scene.checks}, contact_cap=DEFAULT_CAP)
+    for r in results:
+        print(f"{r.engine}: {r.status}" + (f" ({r.message})" if r.message else ""), file=sys.stderr)
+    print(f"wrote {args.output}", file=sys.stderr)
+    return 0
+
