@@ -232,6 +232,39 @@ def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, s
         assert np.array_equal(f, p)
 
 
+@pytest.mark.parametrize("sid", ["stacking.mixed_bin", "friction.block_thrown_uphill", "stacking.column_5"])
+def test_kept_warm_caches_give_the_bits_of_fresh_ones(monkeypatch, sid):
+    """A solve stores its warm-start cache into one of three kept caches
+    (engine.contact.warm.WarmPool), never the one it warm-started from nor
+    the one its (mini-)step began with (which the step loop restores for
+    the reruns of events and friction stops): the final state is the same
+    bits as with a fresh cache per solve, and no more than three caches
+    are ever handed out."""
+    from engine.contact import warm
+
+    def final(kept: bool):
+        seen = {}  # id -> cache (kept alive: ids of freed caches are reused)
+        orig = warm.WarmPool.store
+
+        def store(self, rows, h, touching, busy0, busy1):
+            out = orig(self, rows, h, touching, busy0, busy1) if kept else warm.store_forces(rows, h, touching)
+            assert out is not busy0 and out is not busy1
+            seen[id(out)] = out
+            return out
+
+        monkeypatch.setattr(warm.WarmPool, "store", store)
+        eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), {})
+        eng.step(72)
+        s = eng.state
+        return len(seen), [a.copy() for a in (s.x, s.q, s.v, s.w)]
+
+    n_kept, kept = final(True)
+    n_fresh, fresh = final(False)
+    assert 0 < n_kept <= warm.WarmPool.SLOTS < n_fresh
+    for k, f in zip(kept, fresh):
+        assert np.array_equal(k, f)
+
+
 def test_compiled_colouring_is_the_greedy_colouring():
     """Topology's colouring (compiled, 63-bit masks; Python beyond 63
     colours at a body) is the greedy colouring row by row: no two rows of a
