@@ -515,6 +515,11 @@ class WorkerPool:
         try:
             while more or busy or out:
                 while more and len(busy) < self.jobs:
+                    if out and not self.idle:
+                        # only a fresh worker is free: hand the results over first (a consumer
+                        # that stops at a lost worker would kill it unused;
+                        # tests/test_fuzz.py::test_engine_runs_are_isolated_and_counted)
+                        break
                     item = take(source, bool(busy or out))
                     if item is END:
                         more = False
