@@ -4,6 +4,15 @@
 check`` calls; it returns the process exit code (1 on any FAIL, ERROR or
 XPASS, else 0).
 
+Modules: ``verdicts`` (the outcome vocabulary, ``Outcome``, bounds and
+their evaluation, the combination over step phases, a row's verdict
+columns; no I/O), ``plan`` (``RunSpec``, scenario selection, the runs a
+scene's checks take, the outcomes of the planned runs), ``store`` (the
+resumable parts store), ``traces`` (``check --traces``), ``junit`` and
+``summary`` (exit code and console table); this module runs them
+(``execute``, ``run_all``, ``check_main``) and re-exports the names other
+modules and the tests take from ``harness.conformance``.
+
 What runs.  For each selected scenario (all of ``scenarios/`` by default;
 else the ids, spec files and folders of spec files given, anywhere on disk:
 :func:`select_scenarios`; filtered by ``tags``: a scenario is kept if it has

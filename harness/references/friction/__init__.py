@@ -33,6 +33,13 @@ downhill spins about).
 Measured accelerations are least-squares slopes of the velocity along d
 (and of the angular velocity about e) over the run after its first 10 %
 (contacts settle in the first steps).
+
+Modules: ``slope`` (the slope and coefficients every model but the spin
+reads, and the acceleration fits), ``sliding`` (``incline_block``,
+``slide_to_rest``), ``rolling`` (``rolling_sphere``, ``rolling_cylinder``,
+``rolling_resistance``), ``spin`` (``spin_to_rest``).  This package
+re-exports the model classes (the registry, contract/models.py, names them
+here) and ``_fit_slope``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _check
 
 class RollingSphere(_SlopeModel):
     """Sphere released from rest on an incline: rolls (a = g sin a / (1 + k))
-    or slips (a = g (sin a - mu_k cos a)); see the module docstring.
+    or slips (a = g (sin a - mu_k cos a)); see the package docstring
+    (harness/references/friction/__init__.py).
 
     Metrics: ``roll_accel_error`` = |a_meas - a| / a (linear acceleration
     downhill); ``spin_accel_error`` = |alpha_meas - alpha| / alpha (angular
