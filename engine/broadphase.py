@@ -11,9 +11,12 @@ a 2D grid over the two other axes, see :func:`sap_pairs`: O(n log n)) or
 from testing every pair (``brute``); both give exactly the same pairs in
 the same order.  Body-plane pairs are candidates when the swept box
 reaches the plane's margin; body-static-box pairs when the boxes overlap.
-The swept boxes, the all-pairs test, the static pairs and the sweeps'
-loops are compiled (numba ``@njit(cache=True)``, no BLAS); the stage keeps
-its box and pair buffers between steps (:class:`PairBuffer`).
+The stage is one compiled call per step (numba ``@njit(cache=True)``, no
+BLAS; :func:`_broad_step`): the swept boxes, the pairs -- sweep and prune
+along a sort order kept between steps and restored by insertion sort
+(:func:`_sap_coherent`; dense clouds through a uniform grid, :func:`_hash_grid_pairs`;
+non-finite or very unequal boxes fall back to :func:`sap_pairs`) or the all-pairs test -- and the static pairs, into
+buffers kept between steps and grown geometrically.
 
 Also computes ``ctx.sweep`` (n,): a bound on how far any surface point of a
 body moves in the step, h (max speed + max angular speed * bounding radius),
@@ -30,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.mathutil import quat_to_matrix
+from engine.flight import q2m
 from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from engine.profile import Stage
 
@@ -239,7 +242,9 @@ def sap_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sweep and prune over boxes [lo, hi] (n, 3): overlapping pairs (i < j;
     lo_i <= hi_j and lo_j <= hi_i on all three axes), sorted
     lexicographically -- exactly :func:`brute_pairs`' pairs, for any input
-    (a row with a NaN overlaps nothing, as there).
+    (a row with a NaN overlaps nothing, as there).  The general path,
+    numpy around compiled loops (the stage runs :func:`stage_pairs`' path
+    and falls back to this one):
 
     The boxes' lower bounds are sorted along the axis of largest spread
     (the sweep axis); the pairs overlapping on it are those of box p with
@@ -433,6 +438,16 @@ def _grid_kernel(lo, hi, u, v, order, end, max_cells, cell_scale):
 
 
 @njit(cache=True)
+def _overlap_off_axis(lo, hi, i, j, axis):
+    """Whether boxes i and j overlap (lo <= hi both ways) on the two axes
+    other than ``axis``."""
+    for a in range(3):
+        if a != axis and not (lo[i, a] <= hi[j, a] and lo[j, a] <= hi[i, a]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def _sweep_kernel(lo, hi, axis, order, end, out_i, out_j):
     """The single-axis sweep's pairs: box order[p] with the later boxes
     order[q] (p < q < end[p]: lo_q <= hi_p on the sweep axis), tested on
@@ -444,12 +459,7 @@ def _sweep_kernel(lo, hi, axis, order, end, out_i, out_j):
         i = order[p]
         for q in range(p + 1, end[p]):
             j = order[q]
-            ok = True
-            for a in range(3):
-                if a != axis and not (lo[i, a] <= hi[j, a] and lo[j, a] <= hi[i, a]):
-                    ok = False
-                    break
-            if ok:
+            if _overlap_off_axis(lo, hi, i, j, axis):
                 out_i[cnt] = min(i, j)
                 out_j[cnt] = max(i, j)
                 cnt += 1
@@ -463,58 +473,367 @@ def _sweep_pairs(lo, hi, axis, order, end, total):
     return out_i[:k], out_j[:k], None
 
 
+def stage_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sap_pairs`' pairs by the broad-phase stage's compiled path
+    (:func:`_sap_step`: the sweep, or the uniform grid for dense clouds)
+    from a fresh sort order, or, for what that leaves (non-finite or
+    inverted boxes, boxes too unequal for the grid), by :func:`sap_pairs`."""
+    n = lo.shape[0]
+    if n < 2:
+        return _EMPTY, _EMPTY
+    lo = np.ascontiguousarray(lo, float)
+    hi = np.ascontiguousarray(hi, float)
+    buf = SapBuffers(n)
+    k = buf.run(lo, hi)
+    if k == _FALLBACK:
+        return sap_pairs(lo, hi)
+    return buf.pi[:k].copy(), buf.pj[:k].copy()
+
+
 def brute_pairs(lo: np.ndarray, hi: np.ndarray, buf: PairBuffer | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every pair (i < j, sorted) whose boxes [lo, hi] (n, 3) overlap, by
     testing all n (n - 1) / 2 of them (one compiled loop)."""
     return (buf or PairBuffer()).run(_brute_kernel, np.ascontiguousarray(lo, float), np.ascontiguousarray(hi, float))
 
 
+#: a count the step kernel returns when the stage must fall back to
+#: :func:`sap_pairs` (a box with a NaN or infinite bound or lo > hi, or a
+#: dense cloud: the grid path)
+_FALLBACK = -1
+#: :func:`_sap_coherent`'s count for a dense cloud (the hash grid's case)
+_DENSE = -2
+#: the sweep axis is changed only for an axis whose box centres spread
+#: this many times more (variance): a step near a tie does not re-sort
+_AXIS_HYSTERESIS = 2.0
+
+
+@njit(cache=True)
+def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
+    """Sweep and prune along a persistent sweep axis (``state[0]``, -1 at
+    first) and sort order ``order`` (n,) of the lower bounds, kept between
+    steps and restored by insertion sort (boxes move little per step:
+    O(n + swaps)); the axis changes (and ``order`` is sorted anew) only
+    when another axis' spread of box centres exceeds the current one's
+    ``_AXIS_HYSTERESIS`` times.  The pairs (i < j) overlapping on all
+    three axes are written to out_i, out_j sorted lexicographically
+    (``code`` (capacity,) scratch) -- exactly :func:`brute_pairs`' pairs:
+    the axis and the order decide only the work.  Returns their number
+    (written while they fit), or ``_DENSE`` beyond ``_SWEEP_ONLY``
+    candidates per box.  The boxes are finite with lo <= hi."""
+    n = lo.shape[0]
+    var = np.zeros(3)
+    for a in range(3):
+        mean = 0.0
+        for k in range(n):
+            mean += 0.5 * lo[k, a] + 0.5 * hi[k, a]
+        mean /= n
+        for k in range(n):
+            d = 0.5 * lo[k, a] + 0.5 * hi[k, a] - mean
+            var[a] += d * d
+    axis = state[0]
+    best = 0 if var[0] >= var[1] and var[0] >= var[2] else (1 if var[1] >= var[2] else 2)
+    if axis < 0 or not var[best] <= _AXIS_HYSTERESIS * var[axis]:
+        axis = best
+        state[0] = axis
+        srt = np.argsort(lo[:, axis], kind="mergesort")
+        for k in range(n):
+            order[k] = srt[k]
+    else:
+        for p in range(1, n):  # insertion sort by (lower bound, index)
+            t = order[p]
+            x = lo[t, axis]
+            q = p - 1
+            while q >= 0 and (lo[order[q], axis] > x or (lo[order[q], axis] == x and order[q] > t)):
+                order[q + 1] = order[q]
+                q -= 1
+            order[q + 1] = t
+    cap = out_i.shape[0]
+    cnt = 0
+    total = 0
+    for p in range(n):
+        i = order[p]
+        hp = hi[i, axis]
+        q = p + 1
+        while q < n and lo[order[q], axis] <= hp:
+            j = order[q]
+            if _overlap_off_axis(lo, hi, i, j, axis):
+                if cnt < cap:
+                    code[cnt] = min(i, j) * n + max(i, j)
+                cnt += 1
+            q += 1
+        total += q - p - 1
+        if total > _SWEEP_ONLY * n:
+            return _DENSE
+    if cnt <= cap:
+        code[:cnt].sort()
+        for t in range(cnt):
+            out_i[t] = code[t] // n
+            out_j[t] = code[t] % n
+    return cnt
+
+
+#: the hash grid is used only while no box is wider than this many times
+#: the boxes' mean width (its cells are as wide as the widest box)
+_GRID_WIDE = 8.0
+#: the grid's cells are this much wider than the widest box, so that
+#: round-off in the cell coordinates cannot put two overlapping boxes two
+#: cells apart
+_GRID_PAD = 1e-6
+#: cells per axis at most (beyond, round-off in the coordinates could
+#: exceed the pad): sap_pairs then
+_GRID_MAX_CELLS = 1e6
+
+
+@njit(cache=True)
+def _cell_hash(cx, cy, cz, mask):
+    return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
+
+
+@njit(cache=True)
+def _hash_grid_pairs(lo, hi, start, perm, cell, key, js, out_i, out_j):
+    """Overlapping pairs (i < j, sorted lexicographically) of finite boxes
+    (lo <= hi), by a uniform grid: cells as wide as the widest box (plus
+    ``_GRID_PAD``), each box in the cell of its lower corner -- boxes that
+    overlap lie in neighbouring cells on every axis -- so each box is
+    tested against the boxes of its 27 neighbouring cells.  The cells are
+    numbered densely (x, y, z major to minor: a cell's three z neighbours
+    are one run) while there are at most ``start.size - 1`` of them (2n
+    and more), else hashed into that many buckets (a power of two; a box
+    is tested only against the boxes of a bucket whose cell is the one
+    looked for, so a hash collision adds tests, never a pair twice).
+    O(n + tests); the pairs come in order (each box's few partners are
+    sorted).  Work arrays: start (T + 1,), perm, key, js (n,), cell (n, 3).
+    Returns the number of pairs (written while they fit), or ``_FALLBACK``
+    when a box is wider than ``_GRID_WIDE`` times the mean or the grid
+    would have more than ``_GRID_MAX_CELLS`` cells per axis."""
+    n = lo.shape[0]
+    wmax = 0.0
+    wsum = 0.0
+    mn = np.empty(3)
+    mx = np.empty(3)
+    for a in range(3):
+        mn[a] = np.inf
+        mx[a] = -np.inf
+    for k in range(n):
+        for a in range(3):
+            w = hi[k, a] - lo[k, a]
+            wmax = max(wmax, w)
+            wsum += w
+            mn[a] = min(mn[a], lo[k, a])
+            mx[a] = max(mx[a], lo[k, a])
+    if wmax > _GRID_WIDE * wsum / (3 * n):
+        return _FALLBACK
+    c = wmax * (1.0 + _GRID_PAD) if wmax > 0.0 else 1.0
+    for a in range(3):
+        if (mx[a] - mn[a]) / c > _GRID_MAX_CELLS:
+            return _FALLBACK
+    T = start.shape[0] - 1
+    ny = np.int64(np.floor((mx[1] - mn[1]) / c)) + 1
+    nz = np.int64(np.floor((mx[2] - mn[2]) / c)) + 1
+    nx = np.int64(np.floor((mx[0] - mn[0]) / c)) + 1
+    dense = nx * ny * nz <= T
+    mask = T - 1
+    for t in range(T + 1):
+        start[t] = 0
+    for k in range(n):
+        for a in range(3):
+            cell[k, a] = np.int64(np.floor((lo[k, a] - mn[a]) / c))
+        if dense:
+            key[k] = (cell[k, 0] * ny + cell[k, 1]) * nz + cell[k, 2]
+        else:
+            key[k] = _cell_hash(cell[k, 0], cell[k, 1], cell[k, 2], mask)
+        start[key[k] + 1] += 1
+    for t in range(T):
+        start[t + 1] += start[t]
+    for k in range(n):  # counting sort by key (start[b] runs ahead, then is restored)
+        perm[start[key[k]]] = k
+        start[key[k]] += 1
+    for t in range(T, 0, -1):
+        start[t] = start[t - 1]
+    start[0] = 0
+    cap = out_i.shape[0]
+    cnt = 0
+    for i in range(n):
+        m = 0
+        for dx in range(-1, 2):
+            cx = cell[i, 0] + dx
+            if dense and not 0 <= cx < nx:
+                continue
+            for dy in range(-1, 2):
+                cy = cell[i, 1] + dy
+                if dense:
+                    if not 0 <= cy < ny:
+                        continue
+                    row = (cx * ny + cy) * nz
+                    u0 = start[row + max(cell[i, 2] - 1, 0)]
+                    u1 = start[row + min(cell[i, 2] + 1, nz - 1) + 1]
+                    for u in range(u0, u1):
+                        j = perm[u]
+                        if (j > i and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0]
+                                and _overlap_off_axis(lo, hi, i, j, 0)):
+                            js[m] = j
+                            m += 1
+                    continue
+                for dz in range(-1, 2):
+                    cz = cell[i, 2] + dz
+                    b = _cell_hash(cx, cy, cz, mask)
+                    for u in range(start[b], start[b + 1]):
+                        j = perm[u]
+                        if (j > i and cell[j, 0] == cx and cell[j, 1] == cy and cell[j, 2] == cz
+                                and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0]
+                                and _overlap_off_axis(lo, hi, i, j, 0)):
+                            js[m] = j
+                            m += 1
+        for a in range(1, m):  # insertion sort: few per box
+            j = js[a]
+            b = a - 1
+            while b >= 0 and js[b] > j:
+                js[b + 1] = js[b]
+                b -= 1
+            js[b + 1] = j
+        for a in range(m):
+            if cnt < cap:
+                out_i[cnt] = i
+                out_j[cnt] = js[a]
+            cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def _sap_step(lo, hi, order, state, out_i, out_j, code, grid):
+    """The body-body pairs of ``broadphase = sap`` (i < j, sorted
+    lexicographically; exactly :func:`brute_pairs`' pairs): by the sweep
+    along a persistent axis and order (:func:`_sap_coherent`) or, for a
+    dense cloud (``state[1]`` = 1 from the step the sweep found it dense
+    on), the hash grid (:func:`_hash_grid_pairs`; ``grid`` its work
+    arrays).  Returns their number, or ``_FALLBACK`` (boxes not all finite
+    with lo <= hi, or too unequal for the grid: :func:`sap_pairs` then)."""
+    n = lo.shape[0]
+    for k in range(n):
+        for a in range(3):
+            w = hi[k, a] - lo[k, a]
+            if not (w >= 0.0 and w < np.inf):
+                return _FALLBACK
+    if state[1] == 0:
+        cnt = _sap_coherent(lo, hi, order, state, out_i, out_j, code)
+        if cnt != _DENSE:
+            return cnt
+        state[1] = 1
+    cnt = _hash_grid_pairs(lo, hi, *grid, out_i, out_j)
+    if cnt == _FALLBACK:
+        state[1] = 0
+    return cnt
+
+
+@njit(cache=True)
+def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1, x1, R1, v0, v1, u, w0, w1, h, grow,
+                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, grid, pi, pj, code, bp, pk, bs, sk):
+    """The whole broad phase in one call: the end rotations R1 of q1, the
+    swept boxes lo, hi and ``sweep`` (:func:`_swept_boxes`), the body-body
+    pairs (``sap``: :func:`_sap_step`, else every pair,
+    :func:`_brute_kernel`), the body-plane and body-static-box pairs, into
+    the caller's buffers.  Returns their three counts (minus the need where
+    a buffer was short; ``_FALLBACK`` for the body-body pairs to be found
+    by :func:`sap_pairs`)."""
+    q2m(q1, R1)
+    _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
+                 lo, hi, sweep)
+    nbb = 0
+    if lo.shape[0] >= 2:
+        if sap:
+            nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
+            if nbb > pi.shape[0]:
+                nbb = -nbb
+        else:
+            nbb = _brute_kernel(lo, hi, pi, pj)
+    npl = _plane_pairs_kernel(lo, hi, planes_n, planes_off, grow, bp, pk) if planes_n.shape[0] else 0
+    nsb = _box_pairs_kernel(lo, hi, slo, shi, bs, sk) if slo.shape[0] else 0
+    return nbb, npl, nsb
+
+
+class SapBuffers:
+    """The body-body pairs' state and buffers of :func:`_sap_step` for n
+    boxes, kept between calls: the sweep's sort order and axis, the dense
+    flag, the hash grid's work arrays, the pair outputs (grown
+    geometrically: no allocation per step in the steady state)."""
+
+    def __init__(self, n: int):
+        self.order = np.arange(n, dtype=np.int64)
+        #: the sweep axis (-1: none yet), the dense flag (_sap_step)
+        self.state = np.array([-1, 0], np.int64)
+        T = 1 << int(max(8 * n, 2) - 1).bit_length()  # grid cells or hash buckets: a power of two >= 8n
+        self.grid = (np.zeros(T + 1, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64),
+                     np.empty(n, np.int64), np.empty(n, np.int64))
+        self.grow(4 * n + 16)
+
+    def grow(self, m: int) -> None:
+        self.pi, self.pj, self.code = (np.empty(m, np.int64) for _ in range(3))
+
+    def run(self, lo: np.ndarray, hi: np.ndarray) -> int:
+        """:func:`_sap_step` on boxes lo, hi (n, 3) (C-contiguous float64),
+        growing the outputs when short: the pairs' number (in pi, pj) or
+        ``_FALLBACK``."""
+        while True:
+            k = _sap_step(lo, hi, self.order, self.state, self.pi, self.pj, self.code, self.grid)
+            if k <= self.pi.size:
+                return k
+            self.grow(2 * k)
+
+
 class BroadPhase(Stage):
-    """Swept-box broad phase (see module doc)."""
+    """Swept-box broad phase (see module doc): one compiled call per step
+    (:func:`_broad_step`) into buffers kept between steps and grown
+    geometrically; ``ctx.pairs_i`` ... are views of them, valid until the
+    stage's next call."""
 
     name = "broadphase"
     family = "broadphase"
 
     def __init__(self, model):
-        self.method = model.setting("broadphase")
+        self.sap = model.setting("broadphase") == "sap" and model.n > SAP_MIN_BODIES
         self.margin = float(model.setting("contact_margin"))
-        self.n_planes = model.plane_normal.shape[0]
-        self.n_sbox = model.sbox_pos.shape[0]
         n = model.n
         # scratch, allocated once
         self.lo = np.empty((n, 3))
         self.hi = np.empty((n, 3))
         self.R1 = np.empty((n, 3, 3))
-        self.bufs = (PairBuffer(), PairBuffer(), PairBuffer())
+        self.pairs = SapBuffers(n)
+        self._grow(2 * n + 16, 2 * n + 16)
         # writable copies: the kernels are compiled (and warmed, warm_up)
         # for writable arrays, and the model's are read-only
         self.shape = np.array(model.shape, np.int64)
         self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
                                                        model.bound_radius))
-        self.planes = (np.array(model.plane_normal, float), np.array(model.plane_offset, float))
-        self.sbox = (np.array(model.sbox_aabb_lo, float), np.array(model.sbox_aabb_hi, float))
+        self.planes = (np.array(model.plane_normal, float).reshape(-1, 3), np.array(model.plane_offset, float))
+        self.sbox = (np.array(model.sbox_aabb_lo, float).reshape(-1, 3), np.array(model.sbox_aabb_hi, float).reshape(-1, 3))
+
+    def _grow(self, npl: int, nsb: int) -> None:
+        self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
+        self.bs, self.sk = np.empty(nsb, np.int64), np.empty(nsb, np.int64)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
-        n = model.n
-        lo, hi = self.lo, self.hi
-        self.R1[:] = quat_to_matrix(ctx.q1)
-        _swept_boxes(self.shape, *self.geom, state.x, ctx.R0, ctx.x1, self.R1, state.v, ctx.v, ctx.u_lin, state.w,
-                     ctx.w, float(ctx.h), self.margin, lo, hi, ctx.sweep)
-        if n >= 2:
-            if self.method == "sap" and n > SAP_MIN_BODIES:
-                ctx.pairs_i, ctx.pairs_j = sap_pairs(lo, hi)
-            else:
-                ctx.pairs_i, ctx.pairs_j = self.bufs[0].run(_brute_kernel, lo, hi)
-        if self.n_planes:
-            ctx.plane_pairs = self.bufs[1].run(_plane_pairs_kernel, lo, hi, *self.planes, self.margin)
+        P = self.pairs
+        while True:
+            nbb, npl, nsb = _broad_step(self.sap, self.shape, *self.geom, state.x, ctx.R0, ctx.q1, ctx.x1, self.R1,
+                                        state.v, ctx.v, ctx.u_lin, state.w, ctx.w, float(ctx.h), self.margin,
+                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, P.order, P.state,
+                                        P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+            short = [max(-c, 0) for c in (nbb, npl, nsb)]
+            if nbb == _FALLBACK:
+                short[0] = 0
+            if not any(short):
+                break
+            if short[0]:
+                P.grow(2 * short[0])
+            self._grow(max(2 * short[1], self.bp.size), max(2 * short[2], self.bs.size))
+        if nbb == _FALLBACK:
+            ctx.pairs_i, ctx.pairs_j = sap_pairs(self.lo, self.hi)
         else:
-            ctx.plane_pairs = (_EMPTY, _EMPTY)
-        if self.n_sbox:
-            ctx.sbox_pairs = self.bufs[2].run(_box_pairs_kernel, lo, hi, *self.sbox)
-        else:
-            ctx.sbox_pairs = (_EMPTY, _EMPTY)
+            ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
+        ctx.plane_pairs = (self.bp[:npl], self.pk[:npl])
+        ctx.sbox_pairs = (self.bs[:nsb], self.sk[:nsb])
 
 
 def warm_up() -> None:
@@ -524,13 +843,21 @@ def warm_up() -> None:
     n = 3
     z3, z = np.zeros((n, 3)), np.zeros(n)
     R = np.tile(np.eye(3), (n, 1, 1))
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
     lo, hi, sw = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
-    _swept_boxes(np.array([SPHERE, BOX, CYLINDER], np.int64), z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, z3, R, z3,
-                 np.zeros((n + 1, 3)), z3, z3, np.zeros((n + 1, 3)), 0.01, 1e-4, lo, hi, sw)
+    shape = np.array([SPHERE, BOX, CYLINDER], np.int64)
+    grid = (np.zeros(9, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64), np.empty(n, np.int64),
+            np.empty(n, np.int64))
+    for sap in (False, True):
+        i1 = np.empty(1, np.int64)
+        _broad_step(sap, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
+                    z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
+                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
+                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+    SapBuffers(n).run(lo, hi)
     buf = PairBuffer(1)
     buf.run(_brute_kernel, lo, hi)
-    buf.run(_plane_pairs_kernel, lo, hi, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), 1e-4)
-    buf.run(_box_pairs_kernel, lo, hi, lo[:1].copy(), hi[:1].copy())
     order = np.argsort(lo[:, 0], kind="stable")
     end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
     _sweep_pairs(lo, hi, 0, order, end, 3)

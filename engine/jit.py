@@ -16,14 +16,15 @@ import time
 
 import numpy as np
 
+from engine.profile import add_jit_seconds
+
 _READY = False
-_PENDING = 0.0
 
 
 def warm_up() -> float:
     """Compile (or load from the cache) every dynamics and collision kernel
     once per process; returns the seconds spent (0.0 when already done)."""
-    global _READY, _PENDING
+    global _READY
     if _READY:
         return 0.0
     t0 = time.perf_counter()
@@ -96,7 +97,7 @@ def warm_up() -> float:
     dispatch.warm_up()  # the broad and narrow phases' kernels
     dt = time.perf_counter() - t0
     _READY = True
-    _PENDING += dt
+    add_jit_seconds(dt)
     return dt
 
 
@@ -142,11 +143,3 @@ def _warm_flight() -> None:
 def _ro(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
-
-
-def take_pending() -> float:
-    """JIT seconds not yet reported by a profile (then 0 until the next
-    compile)."""
-    global _PENDING
-    s, _PENDING = _PENDING, 0.0
-    return s

@@ -1,7 +1,9 @@
 """Broad phase: ``sap_pairs`` returns exactly the pairs of a naive all-pairs
 test (i < j, sorted lexicographically) on many random clouds, through each
 of its paths (single-axis sweep, grid sweep with 2 x 2 or more cells per
-box, boxes tested against all), and on degenerate input."""
+box, boxes tested against all), and on degenerate input; so does the
+broad-phase stage's compiled path (``stage_pairs``: a sweep along a kept
+order, a uniform grid for dense clouds)."""
 
 from __future__ import annotations
 
@@ -27,12 +29,16 @@ def naive(lo, hi):
 
 
 def check(lo, hi):
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        a, b = sap_pairs(lo, hi)
+    """sap_pairs (the general path, the one the module's knobs steer) and
+    the broad-phase stage's compiled sweep and grid (stage_pairs) against
+    naive."""
     ra, rb = naive(lo, hi)
-    assert a.dtype == np.int64 and b.dtype == np.int64
-    assert np.array_equal(a, ra) and np.array_equal(b, rb), (len(a), len(ra))
+    for f in (bp.stage_pairs, sap_pairs):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            a, b = f(lo, hi)
+        assert a.dtype == np.int64 and b.dtype == np.int64
+        assert np.array_equal(a, ra) and np.array_equal(b, rb), (f.__name__, len(a), len(ra))
     return len(a)
 
 
@@ -163,3 +169,40 @@ def test_matches_brute_pairs(monkeypatch):
     assert calls and len(a) > n  # dense enough to take the grid path
     for ra, rb in (brute_pairs(lo, hi),):
         assert np.array_equal(a, ra) and np.array_equal(b, rb)
+
+
+@pytest.mark.parametrize("kind", ["lattice_moving", "blob", "sparse", "outliers", "one_huge"])
+def test_stage_path_keeps_exact_pairs_as_boxes_move(kind):
+    """The stage's state carried from step to step (the sweep's order and
+    axis restored by insertion sort, the dense flag that keeps the uniform
+    grid, hashed when far outliers make the grid large): exactly
+    brute_pairs' pairs at every step, through each path."""
+    rng = np.random.default_rng(zlib.crc32(kind.encode()))
+    n = 300
+    if kind in ("lattice_moving", "outliers"):
+        s = 7
+        c = np.stack(np.meshgrid(*[np.arange(s)] * 3, indexing="ij"), -1).reshape(-1, 3)[:n] * 0.08
+        n = c.shape[0]
+        if kind == "outliers":
+            c[:3] += rng.uniform(50, 100, (3, 3))
+        e = np.full((n, 3), 0.05)
+    elif kind == "blob":
+        c, e = rng.uniform(0, 1, (n, 3)), rng.uniform(0.02, 0.12, (n, 3))
+    elif kind == "sparse":
+        c, e = rng.uniform(0, 30, (n, 3)), rng.uniform(0.01, 0.3, (n, 3))
+    else:
+        c, e = np.round(rng.uniform(0, 0.5, (n, 3)), 2), np.full((n, 3), 0.05)  # dense, with ties
+        e[0] = 5.0
+    buf = bp.SapBuffers(n)
+    seen = set()
+    for step in range(15):
+        c = c + rng.normal(0, 0.01, c.shape) * (10 if step % 5 == 0 else 1)
+        lo, hi = c - e, c + e
+        k = buf.run(lo, hi)
+        seen.add("fallback" if k == bp._FALLBACK else ("grid" if buf.state[1] else "sweep"))
+        a, b = (buf.pi[:k], buf.pj[:k]) if k != bp._FALLBACK else sap_pairs(lo, hi)
+        ra, rb = brute_pairs(lo, hi)
+        assert np.array_equal(a, ra) and np.array_equal(b, rb), (kind, step)
+    expected = {"lattice_moving": "grid", "blob": "grid", "sparse": "sweep", "outliers": "grid",
+                "one_huge": "fallback"}[kind]
+    assert expected in seen, seen

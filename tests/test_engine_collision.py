@@ -432,11 +432,7 @@ def _without(monkeypatch, what: str) -> None:
     if what == "missed":
         monkeypatch.setattr(engine.ccd, "missed_impacts", lambda *a, **k: [])
     elif what == "face_points":
-
-        def edge_point_only(ok, gap, edge, se, margin):
-            ok[edge] = False
-
-        monkeypatch.setattr(engine.collision.box, "_edge_pair_face_points", edge_point_only)
+        monkeypatch.setattr(engine.collision.box, "EDGE_FACE_POINTS", False)
     elif what == "missed_and_face_points":
         _without(monkeypatch, "missed")
         _without(monkeypatch, "face_points")

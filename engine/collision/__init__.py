@@ -1,13 +1,14 @@
 """Narrow phase: contact points, normals and signed gaps per shape pair.
 
 One module per shape-pair family (``sphere``, ``capsule``, ``box``,
-``cylinder``, ``cylinder_pair``; compiled helpers in ``kernels``) and the
-dispatch (``dispatch``: the collision driver).  ``TABLE`` maps a shape pair
-to a function; body-body pairs are grouped by
-their (canonically ordered) shape pair when the model is built
-(:func:`pair_kinds`), body-static pairs by the body's shape.  Every function
-is one compiled loop over the pairs of its group (numba ``@njit(cache=True)``,
-no BLAS) and returns
+``cylinder``, ``cylinder_pair``; compiled helpers in ``kernels``), the
+compiled driver (``collide``: every candidate pair of a step in one call,
+body-body pairs grouped by their canonically ordered shape pair,
+body-static pairs by the body's shape, each group through its family's
+loop) and the dispatch (``dispatch``: the stage, its buffers, the tables
+``TABLE``/``PLANE_TABLE``/``SBOX_TABLE`` of supported pairs).  Every family
+is one compiled loop over the pairs of its group (numba
+``@njit(cache=True)``, no BLAS); its Python function returns
 
     (k, normal, point, gap, fid)
 

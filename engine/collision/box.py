@@ -94,31 +94,16 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
     k = cA.shape[0]
     C = np.empty((3, 3))
     absC = np.empty((3, 3))
-    d = np.empty(3)
-    dA = np.empty(3)
-    dB = np.empty(3)
-    sepA = np.empty(3)
-    sepB = np.empty(3)
     Ln = np.empty((9, 3))
-    L = np.empty(3)
-    aLB = np.empty(3)
+    V = np.empty((18, 3))  # 3-vector scratch
+    d, dA, dB, sepA, sepB, L, aLB, nrm, w3 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7], V[8]
+    pa, pb, a0, a1, b0, b1, qa, qb, cr = V[9], V[10], V[11], V[12], V[13], V[14], V[15], V[16], V[17]
     P = np.empty((16, 3))
     Q = np.empty((16, 3))
-    gap = np.empty(16)
-    valid = np.empty(16, np.bool_)
-    nrm = np.empty(3)
-    w3 = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
-    a0 = np.empty(3)
-    a1 = np.empty(3)
-    b0 = np.empty(3)
-    b1 = np.empty(3)
-    qa = np.empty(3)
-    qb = np.empty(3)
     E = np.empty((16, 3))
-    cr = np.empty(3)
+    gap = np.empty(16)
     area = np.empty(16)
+    valid = np.empty(16, np.bool_)
     cand = np.empty(4, np.int64)
     for p in range(k):
         for i in range(3):
@@ -307,6 +292,32 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
             S_f[p, sl] = (16 if fl else 0) + 4 * face + t
 
 
+#: whether box pairs whose least overlap is an edge axis keep their face
+#: manifold's points (see :func:`box_box`; switched off only by the test
+#: that shows what they stop, test_time_of_impact_safeguards)
+EDGE_FACE_POINTS = True
+
+
+@njit(cache=True)
+def edge_pair_face_points(S_g, S_ok, edge, se, margin, keep):
+    """The face-manifold points (slots 1-4 of ``S_g``, ``S_ok`` (k, 5)) of
+    the edge pairs (``edge`` (k,) bool), in place: kept, their gaps clamped
+    at the pair's edge-axis separation ``se`` (k,) m (see :func:`box_box`)
+    -- and dropped where that puts them beyond the pair's ``margin`` (k,)
+    m; all dropped when not ``keep``."""
+    for t in range(S_g.shape[0]):
+        if not edge[t]:
+            continue
+        for s in range(1, 5):
+            g = S_g[t, s]
+            if np.isnan(g) or np.isnan(se[t]):
+                g = np.nan
+            elif se[t] > g:
+                g = se[t]
+            S_g[t, s] = g
+            S_ok[t, s] = keep and S_ok[t, s] and g < margin[t]
+
+
 def box_box(cA, RA, hA, cB, RB, hB, margin):
     """Separating axes + clipping; normal from A to B.  ``margin`` (k,).
 
@@ -317,7 +328,7 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     clamped at the edge axis' separation (the edge axis is the pair's least
     overlap, and no point of a body lies deeper in the other than that,
     while its overlap along a face normal may be more;
-    :func:`_edge_pair_face_points`, pinned by
+    :func:`edge_pair_face_points`, pinned by
     test_box_edge_landing_keeps_the_face_points)."""
     k = cA.shape[0]
     if k == 0:
@@ -330,22 +341,12 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     edge = np.zeros(k, bool)
     se = np.zeros(k)
     f = np.ascontiguousarray
+    mg = f(margin, float)
     _box_box_kernel(f(cA, float), f(RA, float), f(hA, float), f(cB, float), f(RB, float), f(hB, float),
-                    f(margin, float), S_n, S_p, S_g, S_f, S_ok, edge, se)
-    if edge.any():
-        _edge_pair_face_points(S_ok[:, 1:], S_g[:, 1:], edge, se, margin)
+                    mg, S_n, S_p, S_g, S_f, S_ok, edge, se)
+    edge_pair_face_points(S_g, S_ok, edge, se, mg, EDGE_FACE_POINTS)
     if not S_ok.any():
         return empty()
     kk = np.repeat(np.arange(k), 5).reshape(k, 5)
     m = S_ok
     return kk[m], S_n[m], S_p[m], S_g[m], S_f[m]
-
-
-def _edge_pair_face_points(ok: np.ndarray, gap: np.ndarray, edge: np.ndarray, se: np.ndarray,
-                           margin: np.ndarray) -> None:
-    """The face-manifold points of the edge pairs (``edge`` (k,) bool),
-    slots ``ok``, ``gap`` (k, 4), in place: kept, their gaps clamped at the
-    pair's edge-axis separation ``se`` (k,) m (see :func:`box_box`) -- and
-    dropped where that puts them beyond the pair's ``margin`` (k,) m."""
-    gap[edge] = np.maximum(gap[edge], se[edge, None])
-    ok[edge] &= gap[edge] < margin[edge, None]

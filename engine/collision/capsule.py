@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.kernels import (SDF_BOX, gather, segment_closest1, segment_min1, segment_segment, slots,
-                                      sphere_box1, sphere_plane1, sphere_sphere1)
+from engine.collision.kernels import (SDF_BOX, gather, segment_and_caps1, segment_closest1, segment_segment, slots,
+                                      sphere_plane1, sphere_sphere1)
 
 #: capsule-capsule: |axis_a . axis_b| above which the end projections are
 #: added (a lying capsule rests on two points)
@@ -52,12 +52,8 @@ def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g):
 
 @njit(cache=True)
 def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f, S_ok):
-    a0 = np.empty(3)
-    a1 = np.empty(3)
-    b0 = np.empty(3)
-    b1 = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
+    V = np.empty((6, 3))
+    a0, a1, b0, b1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
     for k in range(ca.shape[0]):
         capsule_ends1(ca[k], Ra[k], hla[k], a0, a1)
         capsule_ends1(cb[k], Rb[k], hlb[k], b0, b1)
@@ -85,21 +81,8 @@ def _capsule_box_kernel(c, R, hl, r, cb, Rb, hb, S_n, S_p, S_g, S_f, S_ok):
     x = np.empty(3)
     for k in range(c.shape[0]):
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
-        s = segment_min1(SDF_BOX, e0, e1, cb[k], Rb[k], hb[k], 40)[0]
-        for i in range(3):
-            x[i] = e0[i] + (e1[i] - e0[i]) * s
-        S_g[k, 0] = sphere_box1(x, r[k], cb[k], Rb[k], hb[k], S_n[k, 0], S_p[k, 0])
-        S_ok[k, 0] = True
-        # the end caps, where the minimum is not at them
-        tol = 0.02 * (2.0 * hl[k] + r[k])
-        if abs(s - 0.0) * 2.0 * hl[k] > tol:
-            S_g[k, 1] = sphere_box1(e0, r[k], cb[k], Rb[k], hb[k], S_n[k, 1], S_p[k, 1])
-            S_f[k, 1] = 1
-            S_ok[k, 1] = True
-        if abs(s - 1.0) * 2.0 * hl[k] > tol:
-            S_g[k, 2] = sphere_box1(e1, r[k], cb[k], Rb[k], hb[k], S_n[k, 2], S_p[k, 2])
-            S_f[k, 2] = 2
-            S_ok[k, 2] = True
+        segment_and_caps1(SDF_BOX, e0, e1, hl[k], r[k], cb[k], Rb[k], hb[k], x, S_n[k], S_p[k], S_g[k], S_f[k],
+                          S_ok[k])
 
 
 def _f(a):

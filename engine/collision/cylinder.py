@@ -12,9 +12,10 @@ import numpy as np
 from numba import njit
 
 from engine.collision.capsule import capsule_ends1
-from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_CYLINDER, circle_crossings1,
-                                      cylinder_rim1, gather, norm3, segment_closest1, segment_min1, sdf1, slots,
-                                      sphere_box1, sphere_cylinder1, sphere_sphere1, to_local)
+from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_BOX, SDF_CYLINDER,
+                                      crossing_contacts1, cylinder_rim1, gather, local_offset, norm3, rim_contacts1,
+                                      segment_and_caps1, segment_closest1, segment_min1, slots, sphere_cylinder1,
+                                      to_local)
 
 __all__ = ["CYLINDER_FACE_COS", "FACE_TOL", "box_cylinder", "capsule_cylinder", "cylinder_plane", "sphere_cylinder"]
 
@@ -98,10 +99,8 @@ def cylinder_plane(c, R, hl, r, pn, po):
 
 @njit(cache=True)
 def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok):
-    e0 = np.empty(3)
-    e1 = np.empty(3)
-    x = np.empty(3)
-    q = np.empty(3)
+    V = np.empty((4, 3))
+    e0, e1, x, q = V[0], V[1], V[2], V[3]
     s2 = np.empty(2)
     oh = np.empty(3)
     P = np.empty((8, 3))
@@ -109,40 +108,13 @@ def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S
     for k in range(c.shape[0]):
         oh[0], oh[1], oh[2] = hlc[k], rc[k], 0.0
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
-        s = segment_min1(SDF_CYLINDER, e0, e1, cc[k], Rc[k], oh, 40)[0]
-        for i in range(3):
-            x[i] = e0[i] + (e1[i] - e0[i]) * s
-        S_g[k, 0] = sphere_cylinder1(x, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 0], S_p[k, 0])
-        S_ok[k, 0] = True
-        tol = 0.02 * (2.0 * hl[k] + r[k])
-        if abs(s - 0.0) * 2.0 * hl[k] > tol:
-            S_g[k, 1] = sphere_cylinder1(e0, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 1], S_p[k, 1])
-            S_f[k, 1] = 1
-            S_ok[k, 1] = True
-        if abs(s - 1.0) * 2.0 * hl[k] > tol:
-            S_g[k, 2] = sphere_cylinder1(e1, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 2], S_p[k, 2])
-            S_f[k, 2] = 2
-            S_ok[k, 2] = True
-        circle_crossings1(e0, e1, cc[k], Rc[k], rc[k], s2)
-        for j in range(2):
-            if not np.isnan(s2[j]):
-                for i in range(3):
-                    x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
-                S_g[k, 3 + j] = sphere_cylinder1(x, r[k], cc[k], Rc[k], hlc[k], rc[k], -1, S_n[k, 3 + j],
-                                                 S_p[k, 3 + j])
-                S_f[k, 3 + j] = 3 + j
-                S_ok[k, 3 + j] = True
+        segment_and_caps1(SDF_CYLINDER, e0, e1, hl[k], r[k], cc[k], Rc[k], oh, x, S_n[k], S_p[k], S_g[k], S_f[k],
+                          S_ok[k])
+        crossing_contacts1(e0, e1, r[k], cc[k], Rc[k], hlc[k], rc[k], s2, x, 3, 1, 3, 1, S_n[k], S_p[k], S_g[k],
+                           S_f[k], S_ok[k])
         # the rim facing the capsule: pn from the capsule toward the cylinder
-        cylinder_rim1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], P, drop)
-        for m in range(8):
-            sl = 5 + m
-            segment_closest1(P[m], e0, e1, q)
-            g = sphere_sphere1(P[m], 0.0, q, r[k], S_n[k, sl], S_p[k, sl])
-            for i in range(3):
-                S_n[k, sl, i] = -S_n[k, sl, i]
-            S_g[k, sl] = np.inf if drop[m] else g
-            S_f[k, sl] = 8 + RIM_FIDS[m]
-            S_ok[k, sl] = True
+        rim_contacts1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], SDF_CYLINDER, e0, e1, Rc[k], r[k], 5, 8, P, drop, q,
+                      S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
 
 
 def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
@@ -181,14 +153,9 @@ def _box_point(cb, Rb, hb, mult, out):
 @njit(cache=True)
 def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners, edges,
                          S_n, S_p, S_g, S_f, S_ok):
-    x = np.empty(3)
-    e0 = np.empty(3)
-    e1 = np.empty(3)
+    V = np.empty((7, 3))
+    x, e0, e1, oh, dA, axc, pn = V[0], V[1], V[2], V[3], V[4], V[5], V[6]
     s2 = np.empty(2)
-    oh = np.empty(3)
-    dA = np.empty(3)
-    axc = np.empty(3)
-    pn = np.empty(3)
     P = np.empty((8, 3))
     drop = np.empty(8, np.bool_)
     for k in range(cb.shape[0]):
@@ -216,19 +183,10 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
                 S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, sl], S_p[k, sl])
                 S_f[k, sl] = 8 + e
                 S_ok[k, sl] = True
-            circle_crossings1(e0, e1, cc[k], Rc[k], rc[k], s2)
-            for j in range(2):
-                if not np.isnan(s2[j]):
-                    for i in range(3):
-                        x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
-                    sl = 20 + 12 * j + e
-                    S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, sl], S_p[k, sl])
-                    S_f[k, sl] = 20 + 2 * e + j
-                    S_ok[k, sl] = True
+            crossing_contacts1(e0, e1, 0.0, cc[k], Rc[k], hl[k], rc[k], s2, x, 20 + e, 12, 20 + 2 * e, 1, S_n[k],
+                               S_p[k], S_g[k], S_f[k], S_ok[k])
         # the rim facing the box face of largest separation
-        for i in range(3):
-            x[i] = cc[k, i] - cb[k, i]
-        to_local(Rb[k], x, dA)
+        local_offset(Rb[k], cc[k], cb[k], dA)
         for i in range(3):
             x[i] = Rc[k, i, 2]
         to_local(Rb[k], x, axc)
@@ -243,15 +201,8 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
         sg = 1.0 if dA[f] >= 0.0 else -1.0
         for i in range(3):
             pn[i] = Rb[k, i, f] * sg
-        cylinder_rim1(cc[k], Rc[k], hl[k], rc[k], pn, P, drop)
-        for m in range(8):
-            sl = 44 + m
-            g = sphere_box1(P[m], 0.0, cb[k], Rb[k], hb[k], S_n[k, sl], S_p[k, sl])
-            for i in range(3):
-                S_n[k, sl, i] = -S_n[k, sl, i]
-            S_g[k, sl] = np.inf if drop[m] else g
-            S_f[k, sl] = 48 + RIM_FIDS[m]
-            S_ok[k, sl] = True
+        rim_contacts1(cc[k], Rc[k], hl[k], rc[k], pn, SDF_BOX, cb[k], hb[k], Rb[k], 0.0, 44, 48, P, drop, x,
+                      S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
 
 
 def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):

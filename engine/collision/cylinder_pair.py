@@ -185,12 +185,8 @@ def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out):
     axes (a cap on the other body) and the direction between the axes'
     closest points (side on side), each oriented from first to second; the
     candidate of largest separation wins, caps preferred within 1e-9 m."""
-    p0 = np.empty(3)
-    p1 = np.empty(3)
-    q0 = np.empty(3)
-    q1 = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
+    V = np.empty((6, 3))
+    p0, p1, q0, q1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
     cand = np.empty((3, 3))
     for i in range(3):
         p0[i] = ca[i] - axa[i] * hla

@@ -1,9 +1,11 @@
-"""Narrow-phase dispatch (the collision driver): candidate pairs grouped by
-shape pair, each group handed to its family's function from the tables
-``TABLE`` (body-body, keyed by canonically ordered shape codes),
-``PLANE_TABLE`` and ``SBOX_TABLE`` (body-static, keyed by the body's
-shape), the results gathered into :class:`engine.state.Contacts` with
-their pair coefficients (looked up per material pair)."""
+"""Narrow-phase dispatch (the collision driver): the candidate pairs of a
+step collided in one compiled call (:func:`engine.collision.collide.collide`:
+pairs grouped by shape pair, each group through its family's compiled
+loop, contacts with their pair coefficients written into buffers kept
+between steps, :class:`Collider`).  The tables ``TABLE`` (body-body, keyed
+by canonically ordered shape codes), ``PLANE_TABLE`` and ``SBOX_TABLE``
+(body-static, keyed by the body's shape) name the supported pairs and
+their families (defined with the driver, :mod:`engine.collision.collide`)."""
 
 from __future__ import annotations
 
@@ -13,127 +15,11 @@ from engine.mathutil import quat_to_matrix
 from engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
 from engine.profile import Stage
 from engine.state import Contacts
-from engine.collision.sphere import sphere_box, sphere_plane, sphere_sphere
-from engine.collision.capsule import capsule_box, capsule_capsule, capsule_plane, sphere_capsule
-from engine.collision.box import box_box, box_plane
-from engine.collision.cylinder import box_cylinder, capsule_cylinder, cylinder_plane, sphere_cylinder
-from engine.collision.cylinder_pair import cylinder_cylinder
+from engine.collision import box
+from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide
 
-
-class _BodyGeom(dict):
-    """Geometry of the bodies ``idx``: ``c`` centres, ``R`` rotations, ``r``
-    radii, ``h`` half-extents, ``hl`` half-lengths, each gathered on first
-    use (a pair function reads only what its shapes need).  ``const``: the
-    pose-independent entries already gathered (kept by the pair groups)."""
-
-    def __init__(self, model, X, R, idx, const=None):
-        super().__init__()
-        self._src = {"c": X, "R": R, "r": model.radius, "h": model.half_extents, "hl": model.half_length}
-        self._idx = idx
-        self._const = const
-
-    def __missing__(self, key):
-        const = self._const
-        if const is not None and key in const:
-            v = self[key] = const[key]
-            return v
-        v = self[key] = self._src[key][self._idx]
-        if const is not None and key in ("r", "h", "hl"):
-            const[key] = v
-        return v
-
-
-def _body_geom(model, X, R, idx, const=None):
-    return _BodyGeom(model, X, R, idx, const)
-
-
-def _bb_sphere_sphere(A, B, margin):
-    return sphere_sphere(A["c"], A["r"], B["c"], B["r"])
-
-
-def _bb_sphere_box(A, B, margin):
-    return sphere_box(A["c"], A["r"], B["c"], B["R"], B["h"])
-
-
-def _bb_box_box(A, B, margin):
-    return box_box(A["c"], A["R"], A["h"], B["c"], B["R"], B["h"], margin)
-
-
-def _bb_sphere_capsule(A, B, margin):
-    return sphere_capsule(A["c"], A["r"], B["c"], B["R"], B["hl"], B["r"])
-
-
-def _bb_sphere_cylinder(A, B, margin):
-    return sphere_cylinder(A["c"], A["r"], B["c"], B["R"], B["hl"], B["r"])
-
-
-def _bb_box_capsule(A, B, margin):
-    # capsule_box has the capsule first: swap and flip the normal
-    k, n, p, g, f = capsule_box(B["c"], B["R"], B["hl"], B["r"], A["c"], A["R"], A["h"])
-    return k, -n, p, g, f
-
-
-def _bb_capsule_capsule(A, B, margin):
-    return capsule_capsule(A["c"], A["R"], A["hl"], A["r"], B["c"], B["R"], B["hl"], B["r"])
-
-
-def _bb_box_cylinder(A, B, margin):
-    return box_cylinder(A["c"], A["R"], A["h"], B["c"], B["R"], B["hl"], B["r"], margin)
-
-
-def _bb_capsule_cylinder(A, B, margin):
-    return capsule_cylinder(A["c"], A["R"], A["hl"], A["r"], B["c"], B["R"], B["hl"], B["r"])
-
-
-def _bb_cylinder_cylinder(A, B, margin):
-    return cylinder_cylinder(A["c"], A["R"], A["hl"], A["r"], B["c"], B["R"], B["hl"], B["r"], margin)
-
-
-def _cylinder_sbox(A, B, m):
-    # box_cylinder has the box first: swap and flip the normal
-    k, n, p, g, f = box_cylinder(B["c"], B["R"], B["h"], A["c"], A["R"], A["hl"], A["r"], m)
-    return k, -n, p, g, f
-
-
-def _plane(model, pk):
-    return dict(n=model.plane_normal[pk], o=model.plane_offset[pk])
-
-
-def _sbox(model, sk):
-    return dict(c=model.sbox_pos[sk], R=model.sbox_R[sk], h=model.sbox_half[sk])
-
-
-#: body-body functions keyed by canonically ordered shape codes
-TABLE = {
-    (SPHERE, SPHERE): _bb_sphere_sphere,
-    (SPHERE, BOX): _bb_sphere_box,
-    (BOX, BOX): _bb_box_box,
-    (SPHERE, CAPSULE): _bb_sphere_capsule,
-    (BOX, CAPSULE): _bb_box_capsule,
-    (CAPSULE, CAPSULE): _bb_capsule_capsule,
-    (SPHERE, CYLINDER): _bb_sphere_cylinder,
-    (BOX, CYLINDER): _bb_box_cylinder,
-    (CAPSULE, CYLINDER): _bb_capsule_cylinder,
-    (CYLINDER, CYLINDER): _bb_cylinder_cylinder,
-}
-
-
-#: body-plane functions keyed by the body's shape code
-PLANE_TABLE = {
-    SPHERE: lambda A, P, m: sphere_plane(A["c"], A["r"], P["n"], P["o"]),
-    BOX: lambda A, P, m: box_plane(A["c"], A["R"], A["h"], P["n"], P["o"]),
-    CAPSULE: lambda A, P, m: capsule_plane(A["c"], A["R"], A["hl"], A["r"], P["n"], P["o"]),
-    CYLINDER: lambda A, P, m: cylinder_plane(A["c"], A["R"], A["hl"], A["r"], P["n"], P["o"]),
-}
-
-
-#: body-static-box functions keyed by the body's shape code
-SBOX_TABLE = {
-    SPHERE: lambda A, B, m: sphere_box(A["c"], A["r"], B["c"], B["R"], B["h"]),
-    BOX: lambda A, B, m: box_box(A["c"], A["R"], A["h"], B["c"], B["R"], B["h"], m),
-    CAPSULE: lambda A, B, m: capsule_box(A["c"], A["R"], A["hl"], A["r"], B["c"], B["R"], B["h"]),
-    CYLINDER: _cylinder_sbox,
-}
+__all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
+           "unsupported_pairs", "warm_up"]
 
 
 def unsupported_pairs(model) -> list[str]:
@@ -155,123 +41,116 @@ def unsupported_pairs(model) -> list[str]:
     return out
 
 
-def _ro(a: np.ndarray) -> np.ndarray:
-    a.flags.writeable = False
-    return a
+def _grown(a: np.ndarray, size: int) -> np.ndarray:
+    """``a`` if it has at least ``size`` rows, else a new array of twice that
+    (geometric growth: no allocation per step in the steady state)."""
+    if a.shape[0] >= size:
+        return a
+    return np.empty((2 * size,) + a.shape[1:], a.dtype)
 
 
-def _bb_groups(model, pi, pj) -> list:
-    """Body-body candidate pairs grouped by canonically ordered shape pair:
-    [(fn, sel, a, b, const_a, const_b, (e, mus, muk, mur))] with ``sel`` the
-    pairs of the group, a/b its bodies (first/second shape) and the pair
-    coefficients per pair.  Depends only on the candidate pairs."""
-    si, sj = model.shape[pi], model.shape[pj]
-    swap = si > sj
-    a = np.where(swap, pj, pi)
-    b = np.where(swap, pi, pj)
-    sa = np.minimum(si, sj)
-    sb = np.maximum(si, sj)
-    key = sa * 8 + sb
-    out = []
-    for kv in np.unique(key):
-        sel = np.flatnonzero(key == kv)
-        fn = TABLE.get((int(kv) // 8, int(kv) % 8))
-        if fn is None:
-            continue
-        ga, gb = _ro(a[sel]), _ro(b[sel])
-        mat = tuple(_ro(t) for t in model.pair_coefficients(ga, gb, np.full(ga.size, -1, np.int64)))
-        out.append((fn, sel, ga, gb, {}, {}, mat))
-    return out
+class Collider:
+    """The narrow phase's buffers for one model and :meth:`run`, which
+    collides every candidate pair in one compiled call
+    (:func:`engine.collision.collide.collide`).  Buffers (pairs, a group's
+    gathered geometry and slots, the contacts) are kept between calls and
+    grown geometrically when the kernel reports them short: no allocation
+    per step in the steady state.  The contacts :meth:`run` returns are
+    views of the output buffers, valid until its next call."""
+
+    def __init__(self, model, pairs: int = 16, contacts: int = 64):
+        self.n = model.n
+        # writable copies: the kernel is compiled (and warmed) for writable
+        # C-contiguous arrays, the model's are read-only
+        f = lambda a, t=float: np.array(a, t)  # noqa: E731
+        self.body = (f(model.shape, np.int64), f(model.radius), f(model.half_extents), f(model.half_length),
+                     f(model.body_material, np.int64))
+        self.planes = (f(model.plane_normal).reshape(-1, 3), f(model.plane_offset), f(model.plane_static, np.int64))
+        self.sboxes = (f(model.sbox_pos).reshape(-1, 3), f(model.sbox_R).reshape(-1, 3, 3),
+                       f(model.sbox_half).reshape(-1, 3), f(model.sbox_static, np.int64))
+        self.smat = f(model.static_material, np.int64)
+        self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
+        self.margins = (np.empty(0), np.empty(0), np.empty(0))
+        self._pairs(pairs)
+        self._group(pairs, pairs * MAX_SLOTS)
+        self._out(contacts)
+
+    def _pairs(self, m: int) -> None:
+        i, z = np.empty(m, np.int64), np.empty(m)
+        self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
+                  np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64))
+        self.margins = tuple(np.empty(m) for _ in range(3))
+
+    def _group(self, k: int, slots: int) -> None:
+        def side():
+            return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros(k)
+        self.A, self.B = side(), side()
+        self.slot = (np.zeros(3 * slots), np.zeros(3 * slots), np.zeros(slots), np.zeros(slots, np.int64),
+                     np.zeros(slots, np.bool_))
+
+    def _out(self, m: int) -> None:
+        i = np.empty(m, np.int64)
+        self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
+                    np.empty(m), np.empty(m), np.empty(m), np.empty(m))
+
+    def run(self, X, R, pi, pj, plane_pairs, sbox_pairs, margins=None, margin: float = 0.0,
+            sweep: np.ndarray | None = None) -> Contacts:
+        """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)).
+
+        ``pi``/``pj`` body-body pairs (i < j); ``plane_pairs``/``sbox_pairs``
+        (body, row).  Margins (m) per pair: ``margins`` (body-body,
+        body-plane, body-static-box arrays), or, when None, ``margin`` plus
+        both bodies' ``sweep`` (n,).  Returns :class:`Contacts` with b = n
+        for statics, ordered deterministically (body-body pairs grouped by
+        shape pair, then planes, then static boxes; see
+        :mod:`engine.collision.collide`), with their pair coefficients."""
+        bp, pk = plane_pairs
+        bs, sk = sbox_pairs
+        m = max(pi.shape[0], bp.shape[0], bs.shape[0])
+        if self.W[0].shape[0] < m:
+            self._pairs(2 * m)
+        from_sweep = margins is None
+        if from_sweep:
+            margins = self.margins
+        else:
+            sweep = self.W[6]
+        while True:
+            cnt, need_k, need_s = collide(self.body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk,
+                                          margins[2], from_sweep, margin, sweep, self.planes, self.sboxes, self.smat,
+                                          self.coef, box.EDGE_FACE_POINTS, self.W, self.A, self.B, self.slot, self.out)
+            short = False
+            if need_k > self.A[0].shape[0] or need_s > self.slot[2].shape[0]:
+                self._group(2 * need_k, 2 * need_s)
+                short = True
+            if cnt > self.out[0].shape[0]:
+                self._out(2 * cnt)
+                short = True
+            if not short:
+                break
+        o = self.out
+        return Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
+                        o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
 
 
-def _static_groups(model, pairs, table, statics) -> list:
-    """Body-static candidate pairs grouped by the body's shape:
-    [(fn, sel, bodies, rows, static indices, const, (e, mus, muk, mur))]."""
-    bi, sk = pairs
-    shapes = model.shape[bi]
-    out = []
-    for s in np.unique(shapes):
-        sel = np.flatnonzero(shapes == s)
-        fn = table.get(int(s))
-        if fn is None:
-            continue
-        b_, k_ = _ro(bi[sel]), _ro(sk[sel])
-        st = _ro(statics[k_])
-        mat = tuple(_ro(t) for t in model.pair_coefficients(b_, np.full(b_.size, model.n, np.int64), st))
-        out.append((fn, sel, b_, k_, st, {}, mat))
-    return out
-
-
-#: pair groupings a narrow phase keeps (keyed by the candidate pairs);
-#: cleared when full
-GROUP_CACHE = 16
-
-
-def _cached(cache, key, make):
-    if cache is None:
-        return make()
-    v = cache.get(key)
-    if v is None:
-        if len(cache) >= GROUP_CACHE:
-            cache.clear()
-        v = cache[key] = make()
-    return v
-
-
-def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs,
-                  cache: dict | None = None) -> Contacts:
-    """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)).
-
-    ``pi``/``pj`` body-body pairs (i < j) with margins ``margin_bb``;
-    ``plane_pairs``/``sbox_pairs`` (body, row) with margins.  Returns
-    :class:`Contacts` with b = n for statics, ordered deterministically
-    (body-body by pair, then planes, then static boxes), with their pair
-    coefficients.  ``cache``: a dict in which the grouping of the candidate
-    pairs by shape (and their coefficients) is kept, keyed by the pairs --
-    it depends on nothing else, and a resting scene has the same candidates
-    every step."""
-    n = model.n
-    parts: list[Contacts] = []
-    if pi.size:
-        groups = _cached(cache, ("bb", pi.tobytes(), pj.tobytes()), lambda: _bb_groups(model, pi, pj))
-        for fn, sel, ga, gb, ca, cb, mat in groups:
-            mg = margin_bb[sel]
-            k, nn, p, g, f = fn(_body_geom(model, X, R, ga, ca), _body_geom(model, X, R, gb, cb), mg)
-            keep = g < mg[k]
-            if keep.all():
-                parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn, p, g, f,
-                                      mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
-                continue
-            k = k[keep]
-            parts.append(Contacts(ga[k], gb[k], np.full(k.size, -1, np.int64), nn[keep], p[keep], g[keep], f[keep],
-                                  mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
-    for tag, pairs, table, geom, margins, statics in (
-            ("plane", plane_pairs, PLANE_TABLE, _plane, margin_bp, model.plane_static),
-            ("sbox", sbox_pairs, SBOX_TABLE, _sbox, margin_bs, model.sbox_static)):
-        bi, sk = pairs
-        if bi.size == 0:
-            continue
-        groups = _cached(cache, (tag, bi.tobytes(), sk.tobytes()),
-                         lambda: _static_groups(model, pairs, table, statics))
-        for fn, sel, b_, k_, st, const, mat in groups:
-            mg = margins[sel]
-            G = const.get("geom")
-            if G is None:  # writable gathers: the kernels are compiled for writable arrays
-                G = const["geom"] = geom(model, k_)
-            k, nn, p, g, f = fn(_body_geom(model, X, R, b_, const), G, mg)
-            keep = g < mg[k]
-            if not keep.all():
-                k = k[keep]
-                nn, p, g, f = nn[keep], p[keep], g[keep], f[keep]
-            parts.append(Contacts(b_[k], np.full(k.size, n, np.int64), st[k], nn, p, g, f,
-                                  mat[0][k], mat[1][k], mat[2][k], mat[3][k]))
-    return Contacts.concat(parts)
+def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs) -> Contacts:
+    """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)),
+    with margins (m) ``margin_bb``, ``margin_bp``, ``margin_bs`` per pair
+    (see :meth:`Collider.run`); arrays of their own (a fresh
+    :class:`Collider`, sized for the pairs)."""
+    m = max(pi.shape[0], plane_pairs[0].shape[0], sbox_pairs[0].shape[0], 1)
+    col = Collider(model, pairs=m, contacts=8 * m)
+    f = np.ascontiguousarray
+    return col.run(f(X, float), f(R, float), f(pi, np.int64), f(pj, np.int64),
+                   (f(plane_pairs[0], np.int64), f(plane_pairs[1], np.int64)),
+                   (f(sbox_pairs[0], np.int64), f(sbox_pairs[1], np.int64)),
+                   (f(margin_bb, float), f(margin_bp, float), f(margin_bs, float)))
 
 
 class NarrowPhase(Stage):
     """Contacts at the start pose for the broad phase's pairs, with a margin
     per pair of ``contact_margin`` plus both bodies' sweep (how far they can
-    close in this step)."""
+    close in this step).  ``ctx.contacts`` are views of the stage's
+    buffers (:class:`Collider`), valid until its next call."""
 
     name = "narrowphase"
     family = "narrowphase"
@@ -279,18 +158,14 @@ class NarrowPhase(Stage):
     def __init__(self, model):
         self.margin = float(model.setting("contact_margin"))
         self.speculative = model.setting("ccd") != "off"
-        self.groups: dict = {}  # pair groupings by candidate pairs (see collide_pairs)
+        self.collider = Collider(model)
+        self.zeros = np.zeros(model.n)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
-        sw = ctx.sweep if self.speculative else np.zeros(model.n)
-        pi, pj = ctx.pairs_i, ctx.pairs_j
-        mbb = self.margin + sw[pi] + sw[pj]
-        mbp = self.margin + sw[ctx.plane_pairs[0]]
-        mbs = self.margin + sw[ctx.sbox_pairs[0]]
-        ctx.contacts = collide_pairs(model, state.x, ctx.R0, pi, pj, ctx.plane_pairs, ctx.sbox_pairs, mbb, mbp, mbs,
-                                     self.groups)
+        ctx.contacts = self.collider.run(state.x, ctx.R0, ctx.pairs_i, ctx.pairs_j, ctx.plane_pairs, ctx.sbox_pairs,
+                                         margin=self.margin, sweep=ctx.sweep if self.speculative else self.zeros)
 
 
 def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int) -> Contacts:
@@ -310,30 +185,31 @@ def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int) -> Contacts:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every narrow-phase kernel and the
-    broad phase's, with the argument types of the step (writable
-    C-contiguous float64 and int64 arrays), on one tiny pair each (see
-    :mod:`engine.jit`)."""
+    """Compile (or load from the cache) the narrow phase's driver (every
+    family's kernel with it) and the broad phase's kernels, with the
+    argument types of the step (writable C-contiguous float64 and int64
+    arrays), on a tiny scene (see :mod:`engine.jit`): one body of each
+    shape, every pair, a plane and a static box."""
+    from types import SimpleNamespace
+
     from engine import broadphase
 
-    I = np.eye(3)[None]
-    c0, c1 = np.zeros((1, 3)), np.array([[0.0, 0.0, 0.15]])
-    r, h, pn, po, mg = np.full(1, 0.1), np.full((1, 3), 0.1), np.array([[0.0, 0.0, 1.0]]), np.zeros(1), np.ones(1)
-    sphere_sphere(c0, r, c1, r)
-    sphere_plane(c0, r, pn, po)
-    sphere_box(c0, r, c1, I, h)
-    box_plane(c0, I, h, pn, po)
-    box_box(c0, I, h, c1, I, h, mg)
-    capsule_plane(c0, I, r, r, pn, po)
-    sphere_capsule(c0, r, c1, I, r, r)
-    capsule_capsule(c0, I, r, r, c1, I, r, r)
-    capsule_box(c0, I, r, r, c1, I, h)
-    cylinder_plane(c0, I, r, r, pn, po)
-    sphere_cylinder(c0, r, c1, I, r, r)
-    sphere_cylinder(c0, r, c1, I, r, r, np.ones(1, bool))
-    box_cylinder(c0, I, h, c1, I, r, r, mg)
-    box_cylinder(c0, I, h, c1, I, r, r)
-    capsule_cylinder(c0, I, r, r, c1, I, r, r)
-    cylinder_cylinder(c0, I, r, r, c1, I, r, r, mg)
-    cylinder_cylinder(c0, I, r, r, c1, I, r, r)
+    n = 4
+    I = np.eye(3)
+    z1 = np.zeros(1)
+    model = SimpleNamespace(
+        n=n, shape=np.array([SPHERE, BOX, CAPSULE, CYLINDER], np.int64), radius=np.full(n, 0.1),
+        half_extents=np.full((n, 3), 0.1), half_length=np.full(n, 0.1), body_material=np.zeros(n, np.int64),
+        plane_normal=np.array([[0.0, 0.0, 1.0]]), plane_offset=z1, plane_static=np.zeros(1, np.int64),
+        sbox_pos=np.zeros((1, 3)), sbox_R=I[None], sbox_half=np.full((1, 3), 0.1), sbox_static=np.ones(1, np.int64),
+        static_material=np.zeros(2, np.int64), pair_e=np.zeros((1, 1)), pair_mus=np.zeros((1, 1)),
+        pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
+    X = np.array([[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05], [0.1, 0.1, 0.05]])
+    R = np.tile(I, (n, 1, 1))
+    pi, pj = (np.ascontiguousarray(a, np.int64) for a in np.triu_indices(n, 1))
+    body = np.arange(n, dtype=np.int64)
+    row = np.zeros(n, np.int64)
+    col = Collider(model, pairs=1, contacts=1)  # short buffers: the growth path runs too
+    col.run(X, R, pi, pj, (body, row), (body, row), margin=1.0, sweep=np.zeros(n))
+    col.run(X, R, pi, pj, (body, row), (body, row), (np.ones(pi.size), np.ones(n), np.ones(n)))
     broadphase.warm_up()

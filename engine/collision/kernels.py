@@ -86,6 +86,15 @@ def to_local(R, x, out):
 
 
 @njit(cache=True)
+def local_offset(R, x, c, out):
+    """out = R^T (x - c): the point x (3,) in the frame of a body at c (3,)
+    with rotation R (or, for c = a point, the vector x - c in it)."""
+    w0, w1, w2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
+    for i in range(3):
+        out[i] = R[0, i] * w0 + R[1, i] * w1 + R[2, i] * w2
+
+
+@njit(cache=True)
 def to_world(R, x, out):
     """out = R x."""
     for i in range(3):
@@ -150,9 +159,7 @@ def sphere_box1(c, r, cb, Rb, hb, n, p):
     w = np.empty(3)
     loc = np.empty(3)
     diff = np.empty(3)
-    for i in range(3):
-        w[i] = c[i] - cb[i]
-    to_local(Rb, w, loc)
+    local_offset(Rb, c, cb, loc)
     for i in range(3):
         diff[i] = loc[i] - min(max(loc[i], -hb[i]), hb[i])
     dist = norm3(diff[0], diff[1], diff[2])
@@ -304,9 +311,7 @@ def sphere_cylinder1(c, r, cc, Rc, hl, rc, cap, n, p):
     w = np.empty(3)
     loc = np.empty(3)
     diff = np.empty(3)
-    for i in range(3):
-        w[i] = c[i] - cc[i]
-    to_local(Rc, w, loc)
+    local_offset(Rc, c, cc, loc)
     rho = np.sqrt(loc[0] ** 2 + loc[1] ** 2)
     scale = min(1.0, rc / (rho if rho > EPS else 1.0))
     diff[0] = loc[0] - loc[0] * scale
@@ -386,15 +391,10 @@ def circle_crossings1(e0, e1, cc, Rc, rc, out):
     on a cylinder's cap plane crosses the rim circle (radius rc about the
     axis): the roots of |(x0 + s dx)_xy|^2 = rc^2 in the cylinder's frame;
     NaN where there is no crossing within [0, 1]."""
-    w = np.empty(3)
     a = np.empty(3)
     dd = np.empty(3)
-    for i in range(3):
-        w[i] = e0[i] - cc[i]
-    to_local(Rc, w, a)
-    for i in range(3):
-        w[i] = e1[i] - e0[i]
-    to_local(Rc, w, dd)
+    local_offset(Rc, e0, cc, a)
+    local_offset(Rc, e1, e0, dd)
     A = dd[0] * dd[0] + dd[1] * dd[1]
     B = a[0] * dd[0] + a[1] * dd[1]
     C = a[0] * a[0] + a[1] * a[1] - rc * rc
@@ -408,3 +408,83 @@ def circle_crossings1(e0, e1, cc, Rc, rc, out):
             out[0] = s0
         if 0.0 <= s1 <= 1.0:
             out[1] = s1
+
+
+@njit(cache=True)
+def sphere_solid1(kind, c, r, oc, oR, oh, n, p):
+    """One sphere against a solid of :func:`sdf1`'s ``kind``: a box
+    (:func:`sphere_box1`, half-extents oh) or a cylinder
+    (:func:`sphere_cylinder1` leaving through the nearer face, half length
+    oh[0], radius oh[1]).  Normal n from the sphere, midpoint p; returns
+    the gap."""
+    if kind == SDF_BOX:
+        return sphere_box1(c, r, oc, oR, oh, n, p)
+    return sphere_cylinder1(c, r, oc, oR, oh[0], oh[1], -1, n, p)
+
+
+@njit(cache=True)
+def segment_and_caps1(kind, e0, e1, hl, r, oc, oR, oh, x, S_n, S_p, S_g, S_f, S_ok):
+    """A capsule (segment e0 -> e1 of half length hl, radius r) against a
+    solid (:func:`sphere_solid1`) into slots 0-2 of one pair's rows: the
+    segment's point of least signed distance (:func:`segment_min1`, fid 0)
+    and the end caps where the minimum is not at them (fids 1, 2).  ``x``
+    (3,) scratch.  Returns the minimum's parameter along the segment."""
+    s = segment_min1(kind, e0, e1, oc, oR, oh, 40)[0]
+    for i in range(3):
+        x[i] = e0[i] + (e1[i] - e0[i]) * s
+    S_g[0] = sphere_solid1(kind, x, r, oc, oR, oh, S_n[0], S_p[0])
+    S_ok[0] = True
+    tol = 0.02 * (2.0 * hl + r)
+    if abs(s - 0.0) * 2.0 * hl > tol:
+        S_g[1] = sphere_solid1(kind, e0, r, oc, oR, oh, S_n[1], S_p[1])
+        S_f[1] = 1
+        S_ok[1] = True
+    if abs(s - 1.0) * 2.0 * hl > tol:
+        S_g[2] = sphere_solid1(kind, e1, r, oc, oR, oh, S_n[2], S_p[2])
+        S_f[2] = 2
+        S_ok[2] = True
+    return s
+
+
+@njit(cache=True)
+def crossing_contacts1(e0, e1, r, cc, Rc, hl, rc, s2, x, sl0, sl_step, fid0, fid_step, S_n, S_p, S_g, S_f, S_ok):
+    """Spheres of radius r at the segment e0 -> e1's crossings of a
+    cylinder's radius (:func:`circle_crossings1`; cylinder centre cc,
+    rotation Rc, half length hl, radius rc) against the cylinder, into
+    slots sl0 + j sl_step of one pair's rows with fids fid0 + j fid_step
+    (j = 0, 1; none where there is no crossing).  ``s2`` (2,), ``x`` (3,)
+    scratch."""
+    circle_crossings1(e0, e1, cc, Rc, rc, s2)
+    for j in range(2):
+        if not np.isnan(s2[j]):
+            for i in range(3):
+                x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
+            sl = sl0 + sl_step * j
+            S_g[sl] = sphere_cylinder1(x, r, cc, Rc, hl, rc, -1, S_n[sl], S_p[sl])
+            S_f[sl] = fid0 + fid_step * j
+            S_ok[sl] = True
+
+
+@njit(cache=True)
+def rim_contacts1(cc, Rc, hl, rc, pn, kind, oa, ob, oR, orr, sl0, fid0, P, drop, q, S_n, S_p, S_g, S_f, S_ok):
+    """A cylinder's rim points facing a surface of normal pn (toward the
+    cylinder; :func:`cylinder_rim1`) against the other body, into slots
+    sl0.. sl0 + 7 of one pair's rows with fids fid0 + RIM_FIDS: against a
+    capsule (``kind`` SDF_CYLINDER: segment oa -> ob, radius orr; the
+    closest point on it) or a box (SDF_BOX: centre oa, rotation oR,
+    half-extents ob).  Normals from the other body toward the cylinder;
+    the points ``drop`` leaves out get gap inf.  P (8, 3), drop (8,),
+    q (3,) scratch."""
+    cylinder_rim1(cc, Rc, hl, rc, pn, P, drop)
+    for m in range(8):
+        sl = sl0 + m
+        if kind == SDF_BOX:
+            g = sphere_box1(P[m], 0.0, oa, oR, ob, S_n[sl], S_p[sl])
+        else:
+            segment_closest1(P[m], oa, ob, q)
+            g = sphere_sphere1(P[m], 0.0, q, orr, S_n[sl], S_p[sl])
+        for i in range(3):
+            S_n[sl, i] = -S_n[sl, i]
+        S_g[sl] = np.inf if drop[m] else g
+        S_f[sl] = fid0 + RIM_FIDS[m]
+        S_ok[sl] = True

@@ -1,0 +1,317 @@
+"""The narrow phase's compiled driver: every candidate pair of a step --
+body-body, body-plane, body-static-box -- collided in ONE compiled call
+(:func:`collide`), written into caller-owned contact buffers.
+
+Order (pinned by the determinism tests): body-body pairs grouped by their
+canonically ordered shape pair (ascending ``FAMILY`` key sa * 8 + sb, the
+pairs of a group in candidate order), then body-plane pairs grouped by the
+body's shape, then body-static-box pairs likewise; within a group each
+family's contacts in its own order (``BOUNDS``: slot blocks, each block
+pair by pair).  A contact is kept where its gap is below its pair's margin.
+Each group runs its family's compiled loop (the functions of
+:mod:`engine.collision.sphere` ... :mod:`engine.collision.cylinder_pair`) on
+its pairs' gathered geometry, so the contacts are bit for bit those of the
+family functions called one group at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.collision.box import _box_box_kernel, _box_plane_kernel, edge_pair_face_points
+from engine.collision.capsule import (_capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
+                                      _sphere_capsule_kernel)
+from engine.collision.cylinder import (_BOX_EDGES, _CORNERS, _box_cylinder_kernel, _capsule_cylinder_kernel,
+                                       _cylinder_plane_kernel, _sphere_cylinder_kernel)
+from engine.collision.cylinder_pair import _SIDE_MAX, _cylinder_cylinder_kernel
+from engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
+from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+
+# family codes: body-body by shape pair (sphere S, box B, capsule C,
+# cylinder Y), then the body's shape against a plane (P_*) and a static box (X_*)
+F_SS, F_SB, F_BB, F_SC, F_BC, F_CC, F_SY, F_BY, F_CY, F_YY = range(10)
+F_PS, F_PB, F_PC, F_PY = range(10, 14)
+F_XS, F_XB, F_XC, F_XY = range(14, 18)
+
+#: body-body family keyed by canonically ordered shape codes
+TABLE = {(SPHERE, SPHERE): F_SS, (SPHERE, BOX): F_SB, (BOX, BOX): F_BB, (SPHERE, CAPSULE): F_SC,
+         (BOX, CAPSULE): F_BC, (CAPSULE, CAPSULE): F_CC, (SPHERE, CYLINDER): F_SY, (BOX, CYLINDER): F_BY,
+         (CAPSULE, CYLINDER): F_CY, (CYLINDER, CYLINDER): F_YY}
+#: body-plane and body-static-box family keyed by the body's shape code
+PLANE_TABLE = {SPHERE: F_PS, BOX: F_PB, CAPSULE: F_PC, CYLINDER: F_PY}
+SBOX_TABLE = {SPHERE: F_XS, BOX: F_XB, CAPSULE: F_XC, CYLINDER: F_XY}
+
+#: the tables as arrays for the kernel: body-body family by canonical
+#: shape key sa * 8 + sb (sa <= sb), body-static family by the body's
+#: shape (-1: none)
+FAMILY = np.full(32, -1, np.int64)
+for (_a, _b), _f in TABLE.items():
+    FAMILY[_a * 8 + _b] = _f
+PLANE_FAMILY = np.full(4, -1, np.int64)
+SBOX_FAMILY = np.full(4, -1, np.int64)
+for _s, _f in PLANE_TABLE.items():
+    PLANE_FAMILY[_s] = _f
+for _s, _f in SBOX_TABLE.items():
+    SBOX_FAMILY[_s] = _f
+
+_YY_SLOTS = 4 + 2 * _SIDE_MAX
+#: per family its slot blocks' boundaries (-1 padded): the contacts of block
+#: [lo, hi) come pair by pair, slots lo..hi-1 within a pair; the number of
+#: slots per pair is the last boundary
+BOUNDS = np.full((18, 8), -1, np.int64)
+for _f, _b in ((F_SS, (0, 1)), (F_SB, (0, 1)), (F_BB, (0, 5)), (F_SC, (0, 1)), (F_BC, (0, 1, 2, 3)),
+               (F_CC, (0, 1, 2, 3, 4, 5)), (F_SY, (0, 1)), (F_BY, (0, 8, 20, 32, 44, 52)),
+               (F_CY, (0, 1, 2, 3, 4, 5, 13)), (F_YY, (0, 4, _YY_SLOTS)),
+               (F_PS, (0, 1)), (F_PB, (0, 8)), (F_PC, (0, 1, 2)), (F_PY, (0, 8)),
+               (F_XS, (0, 1)), (F_XB, (0, 5)), (F_XC, (0, 1, 2, 3)), (F_XY, (0, 8, 20, 32, 44, 52))):
+    BOUNDS[_f, :len(_b)] = _b
+#: slots per pair of each family
+SLOTS = np.array([BOUNDS[f][BOUNDS[f] >= 0][-1] for f in range(18)], np.int64)
+MAX_SLOTS = int(SLOTS.max())
+
+
+@njit(cache=True)
+def _group(key_of, nkeys, perm, start):
+    """Stable counting sort of the pairs by key_of[k] (< nkeys): perm (k,)
+    the pairs in group order, start (nkeys + 1,) the groups' bounds."""
+    for t in range(nkeys + 1):
+        start[t] = 0
+    for k in range(key_of.shape[0]):
+        start[key_of[k] + 1] += 1
+    for t in range(nkeys):
+        start[t + 1] += start[t]
+    for k in range(key_of.shape[0]):
+        t = key_of[k]
+        perm[start[t]] = k
+        start[t] += 1
+    for t in range(nkeys, 0, -1):
+        start[t] = start[t - 1]
+    start[0] = 0
+
+
+@njit(cache=True)
+def _gather_body(X, R, half, radius, hlen, idx, c, Rg, h, r, hl):
+    """The bodies idx (k,)'s centres, rotations, half-extents, radii and
+    half lengths into the first k rows of c, Rg, h, r, hl."""
+    for t in range(idx.shape[0]):
+        j = idx[t]
+        for i in range(3):
+            c[t, i] = X[j, i]
+            h[t, i] = half[j, i]
+            for l in range(3):
+                Rg[t, i, l] = R[j, i, l]
+        r[t] = radius[j]
+        hl[t] = hlen[j]
+
+
+@njit(cache=True)
+def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points):
+    """Family ``fam``'s compiled loop over the k gathered pairs (A, B: the
+    sides' (c, R, h, r, hl); a plane's normal in B's c, its offset in B's
+    r) into the slots (k, S, ...), zeroed fids and flags first.  Returns
+    whether the normals are to be negated (a family run with its sides
+    swapped).  ``face_points``: box pairs keep their face points
+    (:data:`engine.collision.box.EDGE_FACE_POINTS`)."""
+    cA, RA, hA, rA, hlA = A[0][:k], A[1][:k], A[2][:k], A[3][:k], A[4][:k]
+    cB, RB, hB, rB, hlB = B[0][:k], B[1][:k], B[2][:k], B[3][:k], B[4][:k]
+    S = S_g.shape[1]
+    for t in range(k):
+        for s in range(S):
+            S_f[t, s] = 0
+            S_ok[t, s] = False
+    if SLOTS[fam] == 1 or fam == F_PB or fam == F_PY:
+        for t in range(k):
+            for s in range(S):
+                S_ok[t, s] = True
+    n1, p1, g1 = S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0]
+    if fam == F_SS:
+        _sphere_sphere_kernel(cA, rA, cB, rB, n1, p1, g1)
+    elif fam == F_SB or fam == F_XS:
+        _sphere_box_kernel(cA, rA, cB, RB, hB, n1, p1, g1)
+    elif fam == F_BB or fam == F_XB:
+        _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se)
+        edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
+    elif fam == F_SC:
+        _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1)
+    elif fam == F_BC:
+        _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok)
+        return True
+    elif fam == F_CC:
+        _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_SY:
+        _sphere_cylinder_kernel(cA, rA, cB, RB, hlB, rB, capm1[:k], n1, p1, g1)
+    elif fam == F_BY:
+        _box_cylinder_kernel(cA, RA, hA, cB, RB, hlB, rB, mg, True, _CORNERS, _BOX_EDGES,
+                             S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_CY:
+        _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_YY:
+        _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_PS:
+        _sphere_plane_kernel(cA, rA, cB, rB, n1, p1, g1)
+    elif fam == F_PB:
+        _box_plane_kernel(cA, RA, hA, cB, rB, S_n, S_p, S_g, S_f)
+    elif fam == F_PC:
+        _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_PY:
+        _cylinder_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f)
+    elif fam == F_XC:
+        _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok)
+    elif fam == F_XY:
+        _box_cylinder_kernel(cB, RB, hB, cA, RA, hlA, rA, mg, True, _CORNERS, _BOX_EDGES,
+                             S_n, S_p, S_g, S_f, S_ok)
+        return True
+    return False
+
+
+@njit(cache=True)
+def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, coef, out, cnt):
+    """Write the kept contacts (gap < the pair's margin mg) of a group's k
+    pairs in the family's order (``BOUNDS``): bodies ga (k,), gb (k,) (or
+    the world n with statics st (k,) >= 0), their materials mat_a, mat_b
+    (k,) into the pair tables ``coef`` (e, mus, muk, mur); ``out`` (a, b,
+    sidx, normal, point, gap, fid, e, mus, muk, mur) written from cnt on
+    while there is room.  Returns the count after them."""
+    cap = out[0].shape[0]
+    bnd = BOUNDS[fam]
+    for q in range(bnd.shape[0] - 1):
+        lo, hi = bnd[q], bnd[q + 1]
+        if hi < 0:
+            break
+        for t in range(k):
+            for s in range(lo, hi):
+                if not (S_ok[t, s] and S_g[t, s] < mg[t]):
+                    continue
+                if cnt < cap:
+                    out[0][cnt] = ga[t]
+                    out[1][cnt] = gb[t]
+                    out[2][cnt] = st[t]
+                    for i in range(3):
+                        out[3][cnt, i] = -S_n[t, s, i] if neg else S_n[t, s, i]
+                        out[4][cnt, i] = S_p[t, s, i]
+                    out[5][cnt] = S_g[t, s]
+                    out[6][cnt] = S_f[t, s]
+                    ma, mb = mat_a[t], mat_b[t]
+                    out[7][cnt] = coef[0][ma, mb]
+                    out[8][cnt] = coef[1][ma, mb]
+                    out[9][cnt] = coef[2][ma, mb]
+                    out[10][cnt] = coef[3][ma, mb]
+                cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margin, sweep, planes, sboxes, smat,
+            coef, face_points, W, A, B, slot, out):
+    """Contacts of every candidate pair at the pose X (n, 3), R (n, 3, 3).
+
+    ``body`` (shape, radius, half_extents, half_length, material) over the
+    n bodies; pairs: body-body ``pi``/``pj`` (i < j), body-plane ``bp``
+    (body) / ``pk`` (plane row), body-static-box ``bs`` / ``sk``, with
+    margins (m) ``mbb``, ``mbp``, ``mbs`` -- written here as ``margin`` +
+    both bodies' ``sweep`` (n,) when ``from_sweep``; ``planes`` (normal,
+    offset, static index), ``sboxes`` (centre, rotation, half-extents,
+    static index); ``smat`` the statics' materials, ``coef`` the pair
+    tables (e, mus, muk, mur) over materials; ``face_points`` see
+    :data:`engine.collision.box.EDGE_FACE_POINTS`.
+
+    Work arrays (caller-owned, sized by :class:`engine.collision.dispatch.Collider`):
+    ``W`` (perm, group bounds (33,), keys, ga, gb, st, group margins,
+    materials a, b, edge flags, edge separations, -1s) over pairs and
+    groups, ``A``/``B`` the gathered sides (c, R, h, r, hl) over a group's
+    pairs, ``slot`` (normals, points, gaps, fids, flags) flat over a
+    group's pairs x slots.  Output ``out`` (a, b, sidx, normal, point, gap,
+    fid, e, mus, muk, mur) in the module doc's order.
+
+    Returns (contacts, pairs in the largest group, slots it needs): the
+    contacts are written only while they fit ``out`` and the groups run
+    only while they fit ``A``/``B`` and ``slot``; the caller grows what was
+    short and calls again."""
+    shape, radius, half, hlen, bmat = body
+    perm, start, key, ga, gb, st, gm, ma, mb, edge, se, capm1 = W
+    n = shape.shape[0]
+    K = A[0].shape[0]
+    cap_slots = slot[2].shape[0]
+    need_k = 0
+    need_s = 0
+    cnt = 0
+    if from_sweep:
+        for t in range(pi.shape[0]):
+            mbb[t] = margin + sweep[pi[t]] + sweep[pj[t]]
+        for t in range(bp.shape[0]):
+            mbp[t] = margin + sweep[bp[t]]
+        for t in range(bs.shape[0]):
+            mbs[t] = margin + sweep[bs[t]]
+    for part in range(3):
+        if part == 0:
+            m = pi.shape[0]
+            for t in range(m):
+                sa, sb = shape[pi[t]], shape[pj[t]]
+                key[t] = min(sa, sb) * 8 + max(sa, sb)
+            nkeys = 32
+        else:
+            m = bp.shape[0] if part == 1 else bs.shape[0]
+            for t in range(m):
+                key[t] = shape[bp[t]] if part == 1 else shape[bs[t]]
+            nkeys = 4
+        if m == 0:
+            continue
+        _group(key[:m], nkeys, perm, start)
+        for g in range(nkeys):
+            lo, hi = start[g], start[g + 1]
+            k = hi - lo
+            if k == 0:
+                continue
+            fam = FAMILY[g] if part == 0 else (PLANE_FAMILY[g] if part == 1 else SBOX_FAMILY[g])
+            if fam < 0:
+                continue
+            S = SLOTS[fam]
+            need_k = max(need_k, k)
+            need_s = max(need_s, k * S)
+            if k > K or k * S > cap_slots:
+                continue
+            for t in range(k):
+                p = perm[lo + t]
+                if part == 0:
+                    i, j = pi[p], pj[p]
+                    if shape[i] > shape[j]:
+                        i, j = j, i
+                    ga[t], gb[t], st[t] = i, j, -1
+                    gm[t] = mbb[p]
+                    ma[t], mb[t] = bmat[i], bmat[j]
+                elif part == 1:
+                    ga[t], gb[t] = bp[p], n
+                    st[t] = planes[2][pk[p]]
+                    gm[t] = mbp[p]
+                    ma[t], mb[t] = bmat[bp[p]], smat[st[t]]
+                else:
+                    ga[t], gb[t] = bs[p], n
+                    st[t] = sboxes[3][sk[p]]
+                    gm[t] = mbs[p]
+                    ma[t], mb[t] = bmat[bs[p]], smat[st[t]]
+            _gather_body(X, R, half, radius, hlen, ga[:k], A[0], A[1], A[2], A[3], A[4])
+            if part == 0:
+                _gather_body(X, R, half, radius, hlen, gb[:k], B[0], B[1], B[2], B[3], B[4])
+            elif part == 1:
+                for t in range(k):
+                    row = pk[perm[lo + t]]
+                    for i in range(3):
+                        B[0][t, i] = planes[0][row, i]
+                    B[3][t] = planes[1][row]
+            else:
+                for t in range(k):
+                    row = sk[perm[lo + t]]
+                    for i in range(3):
+                        B[0][t, i] = sboxes[0][row, i]
+                        B[2][t, i] = sboxes[2][row, i]
+                        for l in range(3):
+                            B[1][t, i, l] = sboxes[1][row, i, l]
+            S_n = slot[0][:k * S * 3].reshape((k, S, 3))
+            S_p = slot[1][:k * S * 3].reshape((k, S, 3))
+            S_g = slot[2][:k * S].reshape((k, S))
+            S_f = slot[3][:k * S].reshape((k, S))
+            S_ok = slot[4][:k * S].reshape((k, S))
+            neg = _run_family(fam, k, A, B, gm[:k], S_n, S_p, S_g, S_f, S_ok, edge[:k], se[:k], capm1,
+                             face_points)
+            cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
+    return cnt, need_k, need_s
