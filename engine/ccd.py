@@ -39,13 +39,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine import flight
 from engine.mathutil import quat_to_matrix
-from engine.model import BOX, S_BOX
+from engine.model import BOX, S_BOX, S_PLANE
 from engine.collision import collide_pairs, pair_contacts
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
-from engine.contact.rows import TOUCH_TOL, _pad, _pair_codes, _pair_codes_abs, point_normal_velocity
+from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs, point_normal_velocity
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
@@ -136,11 +137,22 @@ def end_displacement(model, state, ctx) -> np.ndarray:
     0.34 mm for two boxes, beyond the end-pose check's tolerance), so a
     resting column was collided twice a step (measured 590 us of its 2.4
     ms)."""
-    n = model.n
-    dx = ctx.x1 - state.x
-    c = np.abs(np.einsum("ki,ki->k", state.q, ctx.q1))
-    s = np.sqrt(np.maximum(1.0 - np.minimum(c, 1.0) ** 2, 0.0))
-    return np.sqrt(np.einsum("ki,ki->k", dx, dx)) + 2.0 * s * model.bound_radius[:n]
+    out = ctx.info.get("end_displacement")
+    if out is None:
+        out = ctx.info["end_displacement"] = np.empty(model.n)
+    flight.end_displacement(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, out)
+    return out
+
+
+_NO_FAST = np.zeros(0, np.bool_)
+_ORIGIN = np.zeros((1, 3))  # the world's position (statics' lever arms are from the origin)
+
+
+def _member(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """np.isin(x, s) for the few feature ids of a pair: (k,) bool."""
+    if x.size == 0 or s.size == 0:
+        return np.zeros(x.shape, bool)
+    return (x.reshape(-1, 1) == s.reshape(1, -1)).any(axis=1)
 
 
 def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
@@ -178,14 +190,11 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    fb = sw[pi] + sw[pj] > lim
-    fp = sw[bp] > lim
-    fs = sw[bs] > lim
-    if fast is not None:
-        fb &= fast[pi] | fast[pj]
-        fp &= fast[bp]
-        fs &= fast[bs]
-    if not (fb.any() or fp.any() or fs.any()):
+    fb = np.empty(pi.size, np.bool_)
+    fp = np.empty(bp.size, np.bool_)
+    fs = np.empty(bs.size, np.bool_)
+    if not flight.moving_pairs(sw, pi, pj, bp, bs, lim, fast is not None, _NO_FAST if fast is None else fast,
+                               fb, fp, fs):
         return []
     R1 = quat_to_matrix(ctx.q1)
     c = collide_pairs(model, ctx.x1, R1, pi[fb], pj[fb], (bp[fp], pk[fp]), (bs[fs], sk[fs]),
@@ -239,7 +248,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
                 # it touched in the body's frame (a capsule rolling at 1.8
                 # m/s, 30 mm a step at 1/60 s): the same feature touching
                 # at the start is the same contact
-                new &= ~np.isin(c.fid[rows], c0.fid[near])
+                new &= ~_member(c.fid[rows], c0.fid[near])
             if not new.any():
                 continue
             loc = loc[new]
@@ -252,8 +261,42 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     return out
 
 
+def _pairs_contacts(model, ctx, pairs) -> list:
+    """Each pair's contacts at the context's end pose with no margin, as
+    :func:`engine.collision.pair_contacts` gives them, from ONE collision
+    call (the rotations computed once): a layer of spheres landing together
+    is ~100 impact pairs checked at every time found, and one call per
+    pair cost 1.7 ms a step of spheres_1000's 4.4."""
+    n = model.n
+    R1 = quat_to_matrix(ctx.q1)
+    bi, bj, pa, prow, sa, srow = [], [], [], [], [], []
+    for q in pairs:
+        if q.sidx < 0:
+            bi.append(min(q.a, q.b))
+            bj.append(max(q.a, q.b))
+        elif model.static_shape[q.sidx] == S_PLANE:
+            pa.append(q.a)
+            prow.append(int(np.flatnonzero(model.plane_static == q.sidx)[0]))
+        else:
+            sa.append(q.a)
+            srow.append(int(np.flatnonzero(model.sbox_static == q.sidx)[0]))
+    arr = lambda v: np.array(v, np.int64)
+    c = collide_pairs(model, ctx.x1, R1, arr(bi), arr(bj), (arr(pa), arr(prow)), (arr(sa), arr(srow)),
+                      np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf))
+    out = []
+    for q in pairs:
+        if q.sidx < 0:
+            i, j = min(q.a, q.b), max(q.a, q.b)
+            sel = (c.a == i) & (c.b == j) & (c.sidx < 0)
+        else:
+            sel = (c.a == q.a) & (c.b == n) & (c.sidx == q.sidx)
+        out.append(c.take(np.flatnonzero(sel)))
+    return out
+
+
 def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = None,
-             exclude: np.ndarray | None = None, fids: np.ndarray | None = None) -> tuple[float, float]:
+             exclude: np.ndarray | None = None, fids: np.ndarray | None = None,
+             contacts=None) -> tuple[float, float]:
     """Signed gap (m) of a pair at the context's end pose and its rate of
     change (m/s, the normal relative velocity at the closest feature).
 
@@ -283,8 +326,11 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     down onto a box, the segment's contact left the matching radius of the
     point it started from, and the search followed only the end, which
     never closed -- it ran to the end of the step (30 iterations) with the
-    segment 3.5 mm inside the box (a random pile at 1/240 s)."""
-    c = pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx)
+    segment 3.5 mm inside the box (a random pile at 1/240 s).
+
+    ``contacts``: the pair's contacts at the end pose when already found
+    (:func:`_pairs_contacts`)."""
+    c = contacts if contacts is not None else pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx)
     if c.m == 0:
         return np.inf, 0.0
     gap = c.gap
@@ -303,7 +349,7 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
         D2[~np.isfinite(gap)] = np.inf
         best = np.argmin(D2, axis=0)
         best = best[D2[best, np.arange(loc.shape[0])] <= tol * tol]
-        same = np.isin(c.fid, fids) & np.isfinite(gap) if fids is not None else None
+        same = _member(c.fid, fids) & np.isfinite(gap) if fids is not None else None
         if best.size or (same is not None and same.any()):
             follow = np.zeros(c.m, bool)
             follow[best] = True
@@ -311,9 +357,10 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
                 follow |= same
             gap = np.where(follow, c.gap, np.inf)
     k = int(np.argmin(gap))
-    X = _pad(ctx.x1)
-    rA = c.point[k:k + 1] - X[c.a[k:k + 1]]
-    rB = c.point[k:k + 1] - X[c.b[k:k + 1]]
+    n = model.n
+    ka, kb = int(c.a[k]), int(c.b[k])
+    rA = c.point[k:k + 1] - (ctx.x1[ka:ka + 1] if ka < n else _ORIGIN)
+    rB = c.point[k:k + 1] - (ctx.x1[kb:kb + 1] if kb < n else _ORIGIN)
     vn, _ = point_normal_velocity(ctx.v, ctx.w, c.a[k:k + 1], c.b[k:k + 1], rA, rB, c.normal[k:k + 1])
     return float(c.gap[k]), float(vn[0])
 
@@ -345,8 +392,8 @@ def refine_toi(model, state, ctx, main_stages, profile) -> float:
             if not others:
                 break
             worst, g_worst = None, -TOI_TOL
-            for q in others:
-                g, _ = pair_gap(model, ctx, q.a, q.b, q.sidx, q.loc, q.excl, q.fids)
+            for q, c in zip(others, _pairs_contacts(model, ctx, others)):
+                g, _ = pair_gap(model, ctx, q.a, q.b, q.sidx, q.loc, q.excl, q.fids, contacts=c)
                 if g < g_worst:
                     worst, g_worst = q, g
             if worst is None:

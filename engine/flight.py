@@ -15,6 +15,11 @@ world), anchors ``s_pa``/``s_pb`` (k, 3) (body frame; world points for the
 world), ``s_k`` N/m, ``s_c`` N s/m, ``s_L0`` m (k,); the explicit
 gyroscopic torque on bodies ``g_idx`` (g,) with principal moments ``g_I``
 (g, 3).  Integrators: see engine/integrate.py (``METHOD`` codes).
+
+Also the step loop's per-step pose kernels: the start of a (mini-)step
+(:func:`begin_step`), the rotation split's turn rate (:func:`max_turn_sq`)
+and the CCD stage's end-pose check (:func:`end_displacement`,
+:func:`moving_pairs`).
 """
 
 from __future__ import annotations
@@ -573,3 +578,104 @@ def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, 
             u_ang[k, c] = (1.0 - lever) * w0[k, c] + lever * w1
         for c in range(4):
             q1[k, c] = q[j, c]
+
+
+@njit(cache=True)
+def max_turn_sq(w, q, boxes, axisym):
+    """The largest squared angular speed (rad/s)^2 that turns a body's
+    occupied space: |w|^2 over ``boxes`` (k,), and over the axisymmetric
+    bodies ``axisym`` (j,) the part of w perpendicular to the body z axis
+    (R(q) e_z, q (n, 4) wxyz).  Summed as the numpy expressions it replaces
+    (pipeline._parts): einsum's (p0 + p2) + p1 for three products,
+    mathutil.quat_to_matrix's entries.  0.0 for no bodies."""
+    w2 = 0.0
+    for s in range(boxes.shape[0]):
+        k = boxes[s]
+        d = (w[k, 0] * w[k, 0] + w[k, 2] * w[k, 2]) + w[k, 1] * w[k, 1]
+        if s == 0 or d > w2 or d != d:
+            w2 = d
+    wa = 0.0
+    for s in range(axisym.shape[0]):
+        k = axisym[s]
+        qw, qx, qy, qz = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+        a0 = 2 * (qx * qz + qw * qy)
+        a1 = 2 * (qy * qz + -1.0 * (qw * qx))
+        a2 = 1 - 2 * (qx * qx + 1.0 * (qy * qy))
+        wn = (w[k, 0] * a0 + w[k, 2] * a2) + w[k, 1] * a1
+        p0 = w[k, 0] - wn * a0
+        p1 = w[k, 1] - wn * a1
+        p2 = w[k, 2] - wn * a2
+        d = (p0 * p0 + p2 * p2) + p1 * p1
+        if s == 0 or d > wa or d != d:
+            wa = d
+    if axisym.shape[0] and wa > w2:  # max(w2, wa) as Python's: the first unless the second is larger
+        w2 = wa
+    return w2
+
+
+@njit(cache=True)
+def end_displacement(x0, q0, x1, q1, bound_radius, out):
+    """``out`` (n,) m: how far any surface point of each body lies from
+    where it was, end pose (x1, q1) against start pose (x0, q0):
+    |x1 - x0| + 2 sin(theta/2) r (see engine.ccd.end_displacement); summed
+    as its numpy form (einsum's (p0 + p2) + (p1 + p3) for four products,
+    (p0 + p2) + p1 for three)."""
+    for k in range(out.shape[0]):
+        c = abs((q0[k, 0] * q1[k, 0] + q0[k, 2] * q1[k, 2]) + (q0[k, 1] * q1[k, 1] + q0[k, 3] * q1[k, 3]))
+        if c > 1.0:  # np.minimum / np.maximum: NaN stays NaN
+            c = 1.0
+        t = 1.0 - c * c
+        if t < 0.0:
+            t = 0.0
+        s = math.sqrt(t)
+        d0 = x1[k, 0] - x0[k, 0]
+        d1 = x1[k, 1] - x0[k, 1]
+        d2 = x1[k, 2] - x0[k, 2]
+        out[k] = math.sqrt((d0 * d0 + d2 * d2) + d1 * d1) + 2.0 * s * bound_radius[k]
+
+
+@njit(cache=True)
+def begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0):
+    """The start of a (mini-)step (state.Context.begin): the candidate end
+    state x1, q1 (n, 3|4) and the working velocities V, W (n+1, 3) set to
+    the state's, their world row n, the force accumulators F, T (n, 3)
+    and the pseudo velocities vp, wp (n+1, 3) zeroed, and the start pose
+    (:func:`start_pose`)."""
+    n = x.shape[0]
+    for k in range(n):
+        for c in range(3):
+            x1[k, c] = x[k, c]
+            V[k, c] = v[k, c]
+            W[k, c] = w[k, c]
+            F[k, c] = 0.0
+            T[k, c] = 0.0
+        for c in range(4):
+            q1[k, c] = q[k, c]
+    for c in range(3):
+        V[n, c] = 0.0
+        W[n, c] = 0.0
+    vp[:, :] = 0.0
+    wp[:, :] = 0.0
+    start_pose(q, inv_I, R0, Iinv0)
+
+
+@njit(cache=True)
+def moving_pairs(sw, pi, pj, bp, bs, lim, has_fast, fast, fb, fp, fs):
+    """The pairs whose surfaces moved apart or together by more than
+    ``lim`` (m) between the start and end poses (``sw`` (n,) the bodies'
+    end displacements): body pairs ``pi``/``pj`` into ``fb``, body-plane
+    ``bp`` into ``fp``, body-static-box ``bs`` into ``fs`` (bool, written);
+    with ``has_fast`` only pairs with a body where ``fast`` (n,) holds.
+    Returns whether any pair moved."""
+    found = False
+    for k in range(pi.shape[0]):
+        i, j = pi[k], pj[k]
+        fb[k] = sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j])
+        found |= fb[k]
+    for k in range(bp.shape[0]):
+        fp[k] = sw[bp[k]] > lim and (not has_fast or fast[bp[k]])
+        found |= fp[k]
+    for k in range(bs.shape[0]):
+        fs[k] = sw[bs[k]] > lim and (not has_fast or fast[bs[k]])
+        found |= fs[k]
+    return found

@@ -45,6 +45,9 @@ def warm_up() -> float:
     linalg.inverse(K + np.eye(m))
     linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))
     linalg.islands(nb, a, b)
+    from engine.contact.rows import _greedy_colours
+
+    _greedy_colours(a, b, nb, np.empty(m, np.int64))
     U = np.zeros((nb + 1, 6))
     ab = np.stack([a, b], axis=1)
     sweeps.apply_rows(U, ab, M, r, nb)
@@ -92,6 +95,7 @@ def warm_up() -> float:
                lt, zb.copy())
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
+    _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
     _warm_flight()
     from engine.collision import dispatch
     dispatch.warm_up()  # the broad and narrow phases' kernels
@@ -99,6 +103,28 @@ def warm_up() -> float:
     _READY = True
     add_jit_seconds(dt)
     return dt
+
+
+def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
+    """The fused solve (engine/contact/phases.py) on three rows, two
+    patches, with and without friction, with the step's argument types."""
+    from engine.contact import phases
+
+    m, npch = r.size, pab.shape[0]
+    V = np.zeros((nb + 1, 3))
+    U = np.zeros((nb + 1, 6))
+    f1, i1 = np.ones(npch), np.ones(m)
+    for friction in (True, False):
+        k = npch if friction else 0
+        nr = 5 if friction else 3
+        phases.solve_contacts(
+            V, V.copy(), V[:nb].copy(), V[:nb].copy(), U, U.copy(), U.copy(), ab, J, M, i1.copy(), np.zeros(m),
+            r.copy(), nb, friction, friction, pab[:k], pid[:m if friction else 0], np.ones((k, nr, 12)),
+            np.ones((k, nr, 12)), np.ones((k, nr)), np.zeros((k, nr)), f1[:k].copy(), f1[:k].copy(),
+            f1[:k].copy(), f1[:k].copy(), f1[:k].copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), t[:k].copy(),
+            1e-4, True, codes, loc, a, b, br, codes, loc, r, codes, loc, r, loc, 0.01, np.zeros(k, np.bool_),
+            True, 1e-5, 400, 4, r.copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), 2, 1e-7)
+    phases.relax(V, V.copy(), U, ab, J, M, i1, np.zeros(m), r, 2, 1e-7, nb)
 
 
 def _warm_flight() -> None:
@@ -115,6 +141,9 @@ def _warm_flight() -> None:
     Iinv = np.zeros((nb + 1, 3, 3))
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
+    vw1 = np.zeros((nb + 1, 3))
+    flight.begin_step(x, q, v, v, inv_I, x.copy(), q.copy(), vw1, vw1.copy(), v.copy(), v.copy(), vw1.copy(),
+                      vw1.copy(), R, Iinv)
     z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
     idx = np.arange(nb, dtype=np.int64)
     I = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
@@ -138,6 +167,11 @@ def _warm_flight() -> None:
     flight.quadratic_drag(np.ones(nb), v, F)
     flight.springs(*models[1][3:10], x, R, v, v, F, T)
     flight.gyroscopic_torque(idx, I, R, v, T)
+    flight.max_turn_sq(v, q, idx, idx)
+    flight.end_displacement(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), np.zeros(nb))
+    zb = np.zeros(nb, np.bool_)
+    for fast in (False, True):
+        flight.moving_pairs(v[:, 0].copy(), idx, idx, idx, idx, 0.1, fast, zb, zb.copy(), zb.copy(), zb.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

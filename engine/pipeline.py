@@ -15,12 +15,13 @@ which counts calls and time per stage (see profile.py).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from engine.ccd import CCD, Impact, refine_toi
 from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
-from engine.mathutil import quat_to_matrix
+from engine.flight import max_turn_sq
 from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine.model import BOX, CAPSULE, CYLINDER, Model
@@ -108,23 +109,39 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     :func:`_parts`; counted as ``rotation_splits``).
     """
     ctx = context(model, state, profile)
-    split = ctx.info.get("split")
-    if split is None or split[0] is not stages:
-        split = (stages, tuple(s for s in stages if s.family != "impact"),
-                 next((s for s in stages if s.family == "impact"), None))
-        ctx.info["split"] = split
-    _, main, impact = split
-    max_events = int(model.settings["ccd_max_events"])
-    turn = ctx.info.get("turn", False)
-    if turn is False:  # decided once: None when steps are never split
-        turn = ctx.info["turn"] = _turn_limit(model)
+    plan = ctx.info.get("plan")
+    if plan is None or plan.stages is not stages:
+        plan = ctx.info["plan"] = _plan(model, stages)
+    main, impact, max_events, turn = plan.main, plan.impact, plan.max_events, plan.turn
     for _ in range(model.substeps):
         parts = _parts(model, state, turn) if turn is not None else 1
         if parts > 1:
             profile.count("rotation_splits", parts - 1)
         for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile)
+            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops)
     state.steps += 1
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the step loop decides once per pipeline (not per step):
+    ``main`` the stages a (mini-)step runs, ``impact`` the impact stage or
+    None, ``max_events`` the setting ``ccd_max_events``, ``turn`` the
+    rotation split's limit (:func:`_turn_limit`, None: never split),
+    ``stops`` whether friction stops are looked for."""
+
+    stages: tuple
+    main: tuple
+    impact: Stage | None
+    max_events: int
+    turn: tuple | None
+    stops: bool
+
+
+def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
+    return Plan(stages, tuple(s for s in stages if s.family != "impact"),
+                next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
+                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -160,15 +177,7 @@ def _parts(model: Model, state: State, turn) -> int:
     or capsule does not change the space it occupies and does not count."""
     limit, boxes, axisym = turn
     h = model.h
-    w2 = 0.0
-    if boxes.size:
-        wb = state.w[boxes]
-        w2 = float(np.max(np.einsum("ki,ki->k", wb, wb)))
-    if axisym.size:
-        ax = quat_to_matrix(state.q[axisym])[:, :, 2]  # the body z axis (the axis of symmetry) in the world
-        wa = state.w[axisym]
-        wp = wa - np.einsum("ki,ki->k", wa, ax)[:, None] * ax
-        w2 = max(w2, float(np.max(np.einsum("ki,ki->k", wp, wp))))
+    w2 = max_turn_sq(state.w, state.q, boxes, axisym)
     theta = math.sqrt(w2) * h
     if not theta > limit:  # (NaN: a blown-up state is not split either)
         return 1
@@ -180,7 +189,7 @@ MAX_STOPS = 8
 
 
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile) -> None:
+             profile: Profile, allow_stops: bool) -> None:
     """One (sub)step of length h, cut at every time of impact and at every
     friction stop.
 
@@ -199,7 +208,6 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     events = 0
     stops = 0
     ctx.missed_skip.clear()
-    allow_stops = bool(model.settings["friction_stops"]) and model.has("friction")
     while True:
         warm0 = state.warm
         ctx.begin(model, state, remaining)

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contact import prepare
+from engine.contact import phases, prepare
 from engine.control import EventMode, Impacts
 from engine.contact.impact import impact_solve  # noqa: F401
 from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
@@ -85,6 +85,17 @@ _NO_I = np.zeros(0, np.int64)
 #: an empty warm cache (WarmCache.packed)
 _NO_CACHE = (_NO_I, np.zeros((0, 3)), np.zeros(0), _NO_I, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
              np.zeros(0, np.bool_))
+_NO_P = np.zeros((0, 2), np.int64)
+_NO_F = np.zeros((0, 3, 12))
+_NO_LT = np.zeros((0, 3))
+_NO_D = np.zeros(0)
+_NO_B = np.zeros(0, np.bool_)
+_NO_T = np.zeros((0, 2, 3))
+#: the default direct-start policies, dense and sparse (a replaced one --
+#: the active-set and sparse-start tests spy on them -- runs the phases
+#: from Python)
+_DENSE_DEFAULT = dense_direct_solve
+_SPARSE_DEFAULT = Rows.sparse_normal_solve
 _AR = np.arange(64)
 _AR.flags.writeable = False
 
@@ -139,6 +150,68 @@ class Solve(Stage):
                 self._topos.clear()
             topo = self._topos[key] = Topology(model, c.a[sel], c.b[sel], c.sidx[sel], self.friction, True)
         return topo
+
+    def _solve_compiled(self, model, state, ctx, rows, topo, old, h, sc):
+        """Slip classes, warm start, direct start and sweeps of ``rows`` as
+        one compiled call (:func:`engine.contact.phases.solve_contacts`).
+        Returns (U (n+1, 6) the solved end velocities, U0 (n+1, 6) the start
+        velocities or None, vt0 (np, 2) the patches' start tangential
+        velocities or None); ctx.v, ctx.w hold the end velocities."""
+        n = model.n
+        f = self.friction
+        m = rows.m
+        U = sc.take("U", (n + 1, 6))
+        U0 = sc.take("U0", (n + 1, 6))
+        npch = rows.np if f else 0
+        vt0 = sc.take("vt0", (npch, 2))
+        pin_t = sc.zeros("pin_t", (npch,), np.bool_)
+        dir_t = sc.zeros("dir_t", (npch, 2))
+        warm_on = bool(self.warm and old)
+        o = old.packed if warm_on else _NO_CACHE
+        if f:
+            pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk = (topo.pab, topo.pid, rows.Jt, rows.Mt, rows.mt, rows.lam_t,
+                                                          rows.mu, rows.mus, rows.muk)
+            mur = rows.mur if rows.mur is not None else sc.zeros("mur0", (npch,))
+            rt, slip, t, rolling = rows.r_twist, rows.slip, rows.t, rows.rolling
+        else:
+            pab, pid, Jt, Mt, mt, lam_t = _NO_P, _NO_I, _NO_F, _NO_F, _NO_LT, _NO_LT
+            mu = mus = muk = mur = rt = _NO_D
+            slip, t, rolling = _NO_B, _NO_T, False
+        sw, rows.residual = phases.solve_contacts(
+            ctx.v, ctx.w, state.v, state.w, U, U0, sc.take("Ud", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
+            rows.lam_n, rows.target, n, f, rolling, pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0,
+            t, SLIP_TOL, warm_on, topo.codes, rows.loc, rows.a, rows.b, model.bound_radius, o[0], o[1], o[2], o[3],
+            o[4], o[5], o[6], h, sc.take("matched", (npch,), np.bool_), self.direct, RESTING_SPEED,
+            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, sc.take("r_direct", (m,)), pin_t, dir_t, self.iterations, 1e-7)
+        rows.sweeps = int(sw)
+        return U, (U0 if f else None), (vt0 if f else None)
+
+    def _solve_phases(self, model, state, ctx, rows, topo, old, h, sc):
+        """As :meth:`_solve_compiled`, phase by phase from Python (the
+        direct start through the module's ``dense_direct_solve``)."""
+        n = model.n
+        U0 = vt0 = None
+        if self.friction:
+            U0 = sc.take("U0", (n + 1, 6))
+            U0[:n, :3] = state.v
+            U0[:n, 3:] = state.w
+            U0[n] = 0.0
+            vt0 = sc.take("vt0", (rows.np, 2))
+            slip = sc.take("slip0", (rows.np,), np.bool_)
+            prepare.sliding(rows.Jt, U0, topo.pab, rows.r_twist, SLIP_TOL, vt0, slip)
+            rows.set_slip(slip)
+        U = sc.take("U", (n + 1, 6))
+        U[:, :3] = ctx.v
+        U[:, 3:] = ctx.w
+        if self.warm and old:
+            warm_start(model, old, rows, h)
+        if self.direct:
+            rows.direct_normal_guess(U, DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, dense_direct_solve)
+        if self.warm or self.direct:
+            rows.warm_start(U)
+        rows.sweeps = rows.solve_friction_regimes(U, self.iterations)
+        Rows.unpack(U, ctx.v, ctx.w)
+        return U, U0, vt0
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -224,25 +297,14 @@ class Solve(Stage):
         bias = sc.take("bias", (rows.m,))
         pushed = prepare.targets(idx, touching, vn, gap, c.e, h, self.c, self.thr, self.beta, self.slop,
                                  rows.target, bias)
-        if self.friction:
-            U0 = sc.take("U0", (n + 1, 6))
-            U0[:n, :3] = state.v
-            U0[:n, 3:] = state.w
-            U0[n] = 0.0
-            vt0 = sc.take("vt0", (rows.np, 2))
-            slip = sc.take("slip0", (rows.np,), np.bool_)
-            prepare.sliding(rows.Jt, U0, topo.pab, rows.r_twist, SLIP_TOL, vt0, slip)
-            rows.set_slip(slip)
-        U = sc.take("U", (n + 1, 6))
-        U[:, :3] = ctx.v
-        U[:, 3:] = ctx.w
-        if self.warm and old:
-            warm_start(model, old, rows, h)
-        if self.direct:
-            rows.direct_normal_guess(U, DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, dense_direct_solve)
-        if self.warm or self.direct:
-            rows.warm_start(U)
-        sweeps = rows.solve_friction_regimes(U, self.iterations)
+        if dense_direct_solve is _DENSE_DEFAULT and Rows.sparse_normal_solve is _SPARSE_DEFAULT:
+            # slip classes, warm start, direct start, sweeps: one compiled
+            # call (engine/contact/phases.py; the same bits as the
+            # per-phase calls, kept for a replaced direct-start policy)
+            U, U0, vt0 = self._solve_compiled(model, state, ctx, rows, topo, old, h, sc)
+        else:
+            U, U0, vt0 = self._solve_phases(model, state, ctx, rows, topo, old, h, sc)
+        sweeps = rows.sweeps
         # (only from a solve that (nearly) converged: the end velocities of
         # one cut short far from convergence are solver noise, and a
         # Gauss-Seidel-only column with 5 sweeps "stopped" 422 times in 5 s
@@ -255,18 +317,13 @@ class Solve(Stage):
                 t = float(tau.min())
                 if t < h * (1.0 - STOP_MIN_REST):
                     ctx.stop = t
-        Rows.unpack(U, ctx.v, ctx.w)
         if self.correction != "none" and pushed:
             # push-out velocities for penetration beyond the slop, solved on
             # separate (pseudo) velocities; they move positions by h vp.
             # split_impulse discards them afterwards; baumgarte keeps them in
             # the real velocity too (the classic bias: it injects energy)
-            lam = sc.zeros("lam_p", (rows.m,))
-            Up = sc.take("Up", (n + 1, 6))
-            Up[:, :3] = ctx.vp
-            Up[:, 3:] = ctx.wp
-            rows.iterate_normal(Up, lam, bias, self.iterations)
-            Rows.unpack(Up, ctx.vp, ctx.wp)
+            phases.relax(ctx.vp, ctx.wp, sc.take("Up", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
+                         sc.take("lam_p", (rows.m,)), bias, self.iterations, 1e-7, n)
             if self.correction == "baumgarte":
                 ctx.v += ctx.vp
                 ctx.w += ctx.wp

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.flight import start_pose
+from engine.flight import begin_step
 from engine.contact.scratch import Scratch
 from engine.control import Event, EventMode, Impacts, TimeOfImpact
 from engine.model import Model
@@ -166,24 +166,15 @@ class Context:
 
     def begin(self, model: Model, state: State, h: float) -> None:
         """Start a (mini-)step of length ``h`` from ``state``."""
-        n = model.n
         self.h = h
-        self.x1[:] = state.x
-        self.q1[:] = state.q
-        self.v[:n] = state.v
-        self.w[:n] = state.w
-        self.v[n] = 0.0
-        self.w[n] = 0.0
-        self.F[:] = 0.0
-        self.T[:] = 0.0
-        self.vp[:] = 0.0
-        self.wp[:] = 0.0
+        # x1, q1, v, w from the state; F, T, vp, wp zeroed; R0 and
+        # I_world^-1 = R diag(1/I) R^T (world row zero): one compiled call
+        begin_step(state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w, self.F,
+                   self.T, self.vp, self.wp, self.R0, self.Iinv0)
         self.event = None
         self.impacts = None
         self.stop = None
         self.stop_allowed = False
         # force stages first evaluate at the start state
         self.ex, self.eq, self.ev, self.ew = state.x, state.q, state.v, state.w
-        # R0 and I_world^-1 = R diag(1/I) R^T (world row zero)
-        start_pose(state.q, self._inv_I, self.R0, self.Iinv0)
         self.eR = self.R0

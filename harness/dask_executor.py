@@ -20,6 +20,14 @@ resume).
   memory, machine lost) has its task retried once on another worker (the
   scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
   makes the item ``error`` with the reason.
+- **Feeding the cluster.**  Items are read as the cluster has room: one
+  task per worker thread, the next submitted when a result comes back.
+  Each task is its own Dask task group, so the scheduler does not queue
+  it: a task submitted ahead would wait *on a worker*, and a worker that
+  dies charges every task it holds against the retry-once rule, one it
+  never started too.  The price is a round trip through this client per
+  item (measured by harness/sweep_bench.py).  Results are
+  gathered as tasks finish.
 - **Environment check.**  Every worker reports its identity
   (:func:`worker_identity`: physbench commit, engine and library versions,
   BLAS, and its machine fingerprint).  A worker whose software differs from
@@ -36,18 +44,17 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.util
+import itertools
 import os
 import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from harness.execute import ADAPTERS_ENV, WorkerLost, WorkerPool, _extra_adapters, register_env_adapters
+from harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
+                             register_env_adapters, take)
 
 #: the version pins an environment check compares (importlib.metadata names)
 PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
-#: environment that holds BLAS and OpenMP to one thread in the run processes
-ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                  "NUMBA_NUM_THREADS": "1"}
 
 
 class EnvironmentRefused(RuntimeError):
@@ -115,7 +122,6 @@ def _thread_pool(adapters: str, paths: tuple[str, ...]) -> WorkerPool:
     if adapters:
         register_env_adapters(adapters)  # the pool hands them on to its process
     pool = WorkerPool(1)
-    pool.env.update(ONE_THREAD_ENV)
     _LOCAL.pool, _LOCAL.key = pool, key
     with _POOLS_LOCK:
         _POOLS.append(pool)
@@ -210,6 +216,7 @@ class DaskExecutor:
         self.cluster = None
         self.placement: dict[str, str] = {}
         self.dashboard: str | None = None
+        self._seq = itertools.count()
         try:
             if scheduler:
                 self.client = Client(scheduler, timeout="20s")
@@ -252,6 +259,11 @@ class DaskExecutor:
             self.dashboard = self.client.dashboard_link
         #: runs at once: the workers' threads
         self.jobs = sum(int(w.get("nthreads", 1)) for w in info["workers"].values()) or len(self.workers)
+        #: tasks submitted beyond the workers' threads.  0: a submitted task is not queued on the
+        #: scheduler (physbench's tasks are each their own task group, never "root-ish") but sent to a
+        #: worker at once, and a worker that dies charges every task it holds, one it never started
+        #: too (tests/test_dask_executor.py::test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row)
+        self.lookahead = 0
         retries = self.client.run_on_scheduler(_scheduler_allowed_failures)
         where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
         self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
@@ -264,27 +276,53 @@ class DaskExecutor:
                      "their timings do not compare with each other")
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
-        """Submit every item, yield (item, value) as tasks finish.  Dask
-        does not tell the client when a task starts: ``on_start(item)`` is
-        called as its result arrives, just before it is yielded.  Raises
-        EnvironmentRefused when a worker refuses (its item is not run);
-        the rows yielded before stand."""
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
+        """Submit items as the cluster has room (its threads plus
+        ``lookahead`` queued tasks), yield (item, value) as tasks finish;
+        among queued tasks, the scheduler starts those of higher
+        ``priority(item)`` first.
+        ``items`` is read lazily and may yield :data:`WAIT` (nothing to
+        run until a result is back).  Dask does not tell the client when a
+        task starts: ``on_start(item)`` is called as its result arrives,
+        just before it is yielded.  Raises EnvironmentRefused when a worker
+        refuses (its item is not run); the rows yielded before stand."""
         from distributed import as_completed
         from distributed.scheduler import KilledWorker
 
         token = hashlib.sha256(os.urandom(8)).hexdigest()[:8]
-        futures = {}
-        for item in items:
-            k = f"physbench-{_item_key(item)}-{token}"
-            fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None, self.identity,
-                                     self.adapters_text, self.paths, key=k, pure=False)
-            futures[fut] = item
+        futures: dict[Any, Any] = {}
+        done = as_completed(with_results=True, raise_errors=False)  # results gathered as tasks finish
+        source, more = iter(items), True
+
+        def fill() -> None:
+            nonlocal more
+            while more and len(futures) < self.jobs + self.lookahead:
+                item = take(source, bool(futures))
+                if item is END:
+                    more = False
+                elif item is WAIT:
+                    return
+                else:
+                    # unique even for items of equal keys: a repeated key would be one shared task
+                    k = f"physbench-{_item_key(item)}-{token}-{next(self._seq)}"
+                    fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None,
+                                             self.identity, self.adapters_text, self.paths, key=k, pure=False,
+                                             priority=priority(item) if priority else 0)
+                    futures[fut] = item
+                    done.add(fut)
+
         try:
-            for fut in as_completed(futures):
+            fill()
+            while futures:
+                fut, result = next(done)
                 item = futures.pop(fut)
                 try:
-                    value, address = fut.result()
+                    if fut.status == "error":  # result: (type, exception, traceback)
+                        raise result[1]
+                    if isinstance(result, BaseException):  # cancelled (from outside: not by this map)
+                        raise RuntimeError(f"cancelled: {result!r}")
+                    value, address = result
                     self.placement[_item_key(item)] = address
                 except EnvironmentRefused:
                     raise
@@ -299,6 +337,7 @@ class DaskExecutor:
                 if on_start:
                     on_start(item)
                 yield item, value
+                fill()
         finally:
             if futures:  # interrupted or refused: nothing more of this map runs
                 self.client.cancel(list(futures))

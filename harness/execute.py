@@ -64,6 +64,36 @@ WORKER_ENV = "PHYSBENCH_WORKER"
 #: characters of a dead worker's stderr kept in its row
 STDERR_TAIL = 2000
 _HEADER = struct.Struct("<Q")
+#: environment of every run process: BLAS, OpenMP and numba held to one
+#: thread, so N workers use N cores (tests/test_execute.py::test_run_processes_use_one_thread)
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                  "NUMBA_NUM_THREADS": "1"}
+
+
+class _Wait:
+    """The type of :data:`WAIT`."""
+
+    def __repr__(self) -> str:
+        return "WAIT"
+
+
+#: what an executor's item iterator yields when it has nothing to run yet:
+#: the executor runs what it has in flight and asks again once a result is
+#: in (a search's next value depends on the last one: harness/schedule.py)
+WAIT = _Wait()
+#: what :func:`take` returns when the source has no more items, ever
+END = object()
+
+
+def take(source: Iterator[Any], in_flight: bool) -> Any:
+    """The next item of an executor's item source: an item, :data:`WAIT`
+    (nothing to run until a result is in) or :data:`END`.  Raises
+    RuntimeError for WAIT with nothing ``in_flight``: no result would ever
+    come (a bug of the source)."""
+    item = next(source, END)
+    if item is WAIT and not in_flight:
+        raise RuntimeError("the item source waits for a result, but nothing is running")
+    return item
 
 
 def grace_s(budget_s: float) -> float:
@@ -267,8 +297,10 @@ class InlineExecutor:
     jobs = 1
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
-        for item in items:
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
+        source = iter(items)
+        while (item := take(source, False)) is not END:  # one at a time: never anything in flight
             if on_start:
                 on_start(item)
             try:
@@ -443,7 +475,13 @@ class WorkerPool:
     value)`` as items finish, in finishing order; ``value`` is what ``fn``
     returned or a :class:`WorkerLost`.  ``budget_s(item)`` is the item's
     wall-clock budget (None: unlimited): past budget + :func:`grace_s` its
-    worker is killed.  Tests: tests/test_execute.py."""
+    worker is killed.  ``items`` is read lazily, one item when a worker is
+    free (a free worker gets its next item before the consumer handles the
+    result it just gave: writing a row does not idle it); it may yield
+    :data:`WAIT` (nothing to run until a result is in).  ``priority`` is
+    for executors where items queue (Dask); here an item is read only when
+    a worker is free to run it.  Tests: tests/test_execute.py,
+    tests/test_schedule.py."""
 
     def __init__(self, jobs: int = 1):
         self.jobs = max(1, int(jobs))
@@ -451,6 +489,7 @@ class WorkerPool:
         env = dict(os.environ)
         env[WORKER_ENV] = "1"
         env[WORKER_ENV + "_PARENT"] = str(os.getpid())
+        env.update(ONE_THREAD_ENV)
         adapters, paths = _extra_adapters()
         env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in paths if p != str(REPO_ROOT)]
                                             + [p for p in [env.get("PYTHONPATH")] if p])
@@ -465,14 +504,22 @@ class WorkerPool:
         return _Worker(self.workdir, self.env, self.started)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None) -> Iterator[tuple[Any, Any]]:
-        pending = list(items)
-        pending.reverse()
+            on_start: Callable[[Any], None] | None = None,
+            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
+        source = iter(items)
+        more = True  # the source may still give items
         busy: list[_Worker] = []
+        # finished items not yet handed to the consumer: free workers get their next item
+        # before the consumer handles these (writes rows ...), not after
+        out: list[tuple[Any, Any]] = []
         try:
-            while pending or busy:
-                while pending and len(busy) < self.jobs:
-                    item = pending.pop()
+            while more or busy or out:
+                while more and len(busy) < self.jobs:
+                    item = take(source, bool(busy or out))
+                    if item is END:
+                        more = False
+                    if item is END or item is WAIT:
+                        break
                     budget = budget_s(item) if budget_s else None
                     w = self.idle.pop() if self.idle else self._spawn()
                     try:
@@ -484,15 +531,19 @@ class WorkerPool:
                             w.send(fn, item, budget)
                         except (BrokenPipeError, OSError) as e:
                             w.kill()
-                            yield item, WorkerLost("died", f"worker process could not be started: {e}")
+                            out.append((item, WorkerLost("died", f"worker process could not be started: {e}")))
                             continue
                     except Exception as e:  # the item or function cannot be pickled
                         self.idle.append(w)
-                        yield item, WorkerLost("raised", f"{type(e).__name__}: {e}")
+                        out.append((item, WorkerLost("raised", f"{type(e).__name__}: {e}")))
                         continue
                     if on_start:
                         on_start(item)
                     busy.append(w)
+                if out:  # then back to the source: what it gives may depend on these results
+                    while out:
+                        yield out.pop(0)
+                    continue
                 if not busy:
                     continue
                 now = time.monotonic()
@@ -510,20 +561,20 @@ class WorkerPool:
                         tail = w.stderr_tail()
                         rc = w.kill()
                         sig, why = _death(rc)
-                        yield w.item, WorkerLost("died", f"worker process died while running this item: {why}",
-                                                 tail, signal=sig)
+                        out.append((w.item, WorkerLost("died", f"worker process died while running this item: {why}",
+                                                       tail, signal=sig)))
                         continue
                     self.idle.append(w)
                     kind, payload, tb = msg
-                    yield w.item, (payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb))
+                    out.append((w.item, payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb)))
                 now = time.monotonic()
                 for w in [w for w in busy if w.deadline <= now]:
                     busy.remove(w)
                     tail = w.stderr_tail()
                     w.kill()
-                    yield w.item, WorkerLost(
+                    out.append((w.item, WorkerLost(
                         "timeout", f"no result after {now - w.t0:.1f} s wall (budget {w.budget:g} s): "
-                                   "worker killed, stuck inside one call", tail)
+                                   "worker killed, stuck inside one call", tail)))
         finally:
             for w in busy:  # abandoned (interrupted, or the consumer stopped): nothing of theirs is kept
                 w.kill()
@@ -650,4 +701,4 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s"]
+           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV"]

@@ -56,7 +56,7 @@ import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Generator
 
 #: outcomes of a search
 FOUND, HOLDS_THROUGHOUT, FAILS_THROUGHOUT, UNSUPPORTED = "found", "holds_throughout", "fails_throughout", "unsupported"
@@ -165,7 +165,30 @@ def search(criterion: Callable[[float], Verdict], lo: float, hi: float, tol: flo
 
     ``log`` (default: both ends positive) bisects in log space; ``integer``
     keeps every value an integer.  See the module docstring for the walk and
-    the tolerance.  Raises ValueError for an empty or invalid range or tol."""
+    the tolerance.  Raises ValueError for an empty or invalid range or tol.
+    The search itself is :func:`search_steps`; this drives it with
+    ``criterion``."""
+    return drive(search_steps(lo, hi, tol, integer, log, param), criterion)
+
+
+def drive(steps: Generator[Any, Any, Any], answer: Callable[[Any], Any]) -> Any:
+    """Run a step generator to its end, answering each value it yields with
+    ``answer(value)``; returns the generator's return value."""
+    try:
+        question = next(steps)
+        while True:
+            question = steps.send(answer(question))
+    except StopIteration as stop:
+        return stop.value
+
+
+def search_steps(lo: float, hi: float, tol: float = 0.05, integer: bool = False, log: bool | None = None,
+                 param: str = "") -> Generator[float, Verdict, SearchResult]:
+    """:func:`search` as a generator: yields each value to evaluate,
+    receives its Verdict, returns the SearchResult.  A search is sequential
+    (each value depends on the last verdict); a scheduler runs many of
+    them at once by holding their generators (harness/schedule.py).
+    Raises ValueError (at the first ``next``) for a bad range or tol."""
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ValueError(f"range: expected two finite numbers LO < HI, got {lo!r} {hi!r}")
     if not (0.0 < tol < 1.0):
@@ -181,21 +204,21 @@ def search(criterion: Callable[[float], Verdict], lo: float, hi: float, tol: flo
     res = SearchResult(param, lo, hi, tol, FAILS_THROUGHOUT)
     seen: dict[float, Verdict] = {}
 
-    def ev(x: float) -> Verdict:
+    def ev(x: float) -> Generator[float, Verdict, Verdict]:
         if x not in seen:
-            seen[x] = criterion(x)
+            seen[x] = yield x
             res.evaluations.append((x, seen[x]))
         return seen[x]
 
     grid = _walk(lo, hi, log, integer)
-    first = ev(grid[0])
+    first = yield from ev(grid[0])
     if first.unsupported:
         res.outcome, res.failed_check = UNSUPPORTED, first.reason
         return res
     if first.holds:
         res.direction = "below"
     else:
-        last = ev(grid[-1])
+        last = yield from ev(grid[-1])
         if not last.holds:
             res.failed_check = first.reason
             return res
@@ -203,7 +226,7 @@ def search(criterion: Callable[[float], Verdict], lo: float, hi: float, tol: flo
         grid = grid[::-1]
     good, bad = grid[0], None
     for x in grid[1:]:
-        if ev(x).holds:
+        if (yield from ev(x)).holds:
             good = x
         else:
             bad = x
@@ -214,7 +237,7 @@ def search(criterion: Callable[[float], Verdict], lo: float, hi: float, tol: flo
     width = hi - lo
     while not _narrow(good, bad, log, integer, tol, width):
         m = _mid(good, bad, log, integer)
-        if ev(m).holds:
+        if (yield from ev(m)).holds:
             good = m
         else:
             bad = m
@@ -424,12 +447,51 @@ def spec_hash(req: LimitRequest) -> str:
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
 
-def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
-               evaluate: Runner = evaluate_point) -> tuple[SearchResult, dict[str, Any]]:
-    """Search ``req``: every evaluation whose key is in ``cached`` is read
-    back (no run), every new one is run with ``evaluate`` and handed to
-    ``store``.  Returns the result and its summary row (``row_kind`` =
-    ``limit``; the caller stores it)."""
+@dataclass(frozen=True)
+class EvalItem:
+    """One evaluation of a search, as an executor item: ``req``'s scene with
+    the parameter at ``value`` in step phase ``phase``.  ``key`` is the
+    row's point key (a Dask task is keyed by it)."""
+
+    req: LimitRequest
+    limit_id: str
+    value: float
+    phase: float
+
+    @property
+    def key(self) -> str:
+        return self.req.eval_key(self.limit_id, self.value, self.phase)
+
+
+def evaluate_item(item: EvalItem) -> dict[str, Any]:
+    """:func:`evaluate_point` of one EvalItem (an executor's function)."""
+    return evaluate_point(item.req, item.limit_id, item.value, item.phase)
+
+
+def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
+    """The row of an evaluation whose worker died, hung or raised
+    (``lost``: a harness.execute.WorkerLost): its status and message, and
+    a verdict that does not hold for that reason."""
+    from harness.points import Point, _status_row
+
+    req = item.req
+    why = lost.full_message().replace("this item", "this value")
+    row = _status_row(Point(req.scenario, req.variant, req.engine, (), 1, req.timeout_s), lost.status, why,
+                      time.perf_counter(), tb=lost.traceback or None, stderr_tail=lost.stderr_tail or None,
+                      machine=lost.machine)
+    row.update({"row_kind": EVAL_ROW, "point_key": item.key, "limit_id": item.limit_id, "limit_param": req.param,
+                "limit_value": float(item.value), "phase": float(item.phase), "limit_holds": False,
+                "limit_reason": why, "limit_unsupported": False, "limit_cpu_s": 0.0})
+    return row
+
+
+def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]]
+                 ) -> Generator[EvalItem, dict[str, Any], tuple[SearchResult, dict[str, Any]]]:
+    """Search ``req`` as a generator: yields each evaluation to run (an
+    :class:`EvalItem`), receives its row, returns (result, summary row).
+    Evaluations whose key is in ``cached`` are read back (not yielded);
+    every new row is handed to ``store``.  The summary row (``row_kind`` =
+    ``limit``) is the caller's to store."""
     from contract.phase import phase_values
     from contract.scene import load_scene
 
@@ -441,23 +503,24 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
 
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
     new_runs = 0
-
-    def criterion(value: float) -> Verdict:
-        nonlocal new_runs
-        rows = []
-        for f in phases:
-            key = req.eval_key(limit_id, value, f)
-            row = cached.get(key)
-            if row is None:
-                row = evaluate(req, limit_id, value, f)
-                store(row)
-                new_runs += 1
-            rows.append(row)
-            if not row.get("limit_holds"):
-                break  # one failing phase decides
-        return verdict_of_rows(rows)
-
-    res = search(criterion, req.lo, req.hi, req.tol, integer=integer, param=req.param)
+    steps = search_steps(req.lo, req.hi, req.tol, integer=integer, param=req.param)
+    try:
+        value = next(steps)
+        while True:
+            rows = []
+            for f in phases:  # one failing phase decides
+                item = EvalItem(req, limit_id, value, f)
+                row = cached.get(item.key)
+                if row is None:
+                    row = yield item
+                    store(row)
+                    new_runs += 1
+                rows.append(row)
+                if not row.get("limit_holds"):
+                    break
+            value = steps.send(verdict_of_rows(rows))
+    except StopIteration as stop:
+        res: SearchResult = stop.value
     scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     summary = {
         "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
@@ -477,6 +540,15 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
     return res, summary
 
 
+def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
+               evaluate: Runner = evaluate_point) -> tuple[SearchResult, dict[str, Any]]:
+    """Search ``req`` in this process, one evaluation after the other
+    (:func:`search_items` driven by ``evaluate``).  Returns the result and
+    its summary row (the caller stores it).  A sweep runs its searches
+    concurrently with its points instead: harness/schedule.py."""
+    return drive(search_items(req, store, cached), lambda it: evaluate(it.req, it.limit_id, it.value, it.phase))
+
+
 def stored_rows(paths: list[Path], kind: str = EVAL_ROW) -> dict[str, dict[str, Any]]:
     """Rows of ``kind`` in the Parquet files ``paths``, by point key (the
     first stored wins)."""
@@ -493,92 +565,6 @@ def stored_rows(paths: list[Path], kind: str = EVAL_ROW) -> dict[str, dict[str, 
         for r in df[df["row_kind"] == kind].to_dict("records"):
             out.setdefault(r["point_key"], r)
     return out
-
-
-class LockedWriter:
-    """Serializes part writes of a sweep directory across search threads."""
-
-    def __init__(self, sd: Any, ctx: dict[str, Any]):
-        self.sd, self.ctx, self.lock = sd, ctx, threading.Lock()
-
-    def __call__(self, row: dict[str, Any]) -> None:
-        with self.lock:
-            row.update(self.ctx)
-            self.sd.write_point(row)
-
-
-class _PoolEvaluator:
-    """``evaluate_point`` in a shared process pool, for searches running in
-    threads (one search per thread; a search is sequential).  A worker that
-    dies breaks the pool: the evaluation is retried alone in a fresh
-    one-worker pool (an error row if it dies again) and the shared pool is
-    replaced."""
-
-    def __init__(self, jobs: int):
-        from concurrent.futures import ProcessPoolExecutor
-
-        self.jobs, self.lock = jobs, threading.Lock()
-        self.pool = ProcessPoolExecutor(max_workers=jobs)
-
-    def __call__(self, req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
-        from concurrent.futures import ProcessPoolExecutor
-        from concurrent.futures.process import BrokenProcessPool
-
-        with self.lock:
-            pool = self.pool
-        try:
-            return pool.submit(evaluate_point, req, limit_id, value, phase).result()
-        except BrokenProcessPool:
-            with self.lock:
-                if self.pool is pool:
-                    self.pool = ProcessPoolExecutor(max_workers=self.jobs)
-            with ProcessPoolExecutor(max_workers=1) as solo:
-                try:
-                    return solo.submit(evaluate_point, req, limit_id, value, phase).result()
-                except BrokenProcessPool:
-                    return _died_row(req, limit_id, value, phase)
-
-    def close(self) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _died_row(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
-    from harness.points import Point, _status_row
-
-    why = "worker process died while running this value (a crash inside the engine); retried alone, it died again"
-    row = _status_row(Point(req.scenario, req.variant, req.engine, ()), "error", why, time.perf_counter())
-    row.update({"row_kind": EVAL_ROW, "point_key": req.eval_key(limit_id, value, phase), "limit_id": limit_id,
-                "limit_param": req.param, "limit_value": float(value), "phase": float(phase),
-                "limit_holds": False, "limit_reason": why, "limit_unsupported": False, "limit_cpu_s": 0.0})
-    return row
-
-
-def run_requests(reqs: list[LimitRequest], store: Callable[[dict[str, Any]], None],
-                 cached: dict[str, dict[str, Any]], jobs: int = 1,
-                 on_done: Callable[[LimitRequest, SearchResult, dict[str, Any]], None] | None = None) -> None:
-    """Run the searches ``reqs`` (``jobs`` > 1: that many at once, their
-    runs in worker processes), storing every new evaluation and each
-    search's summary row (unless its key is already ``cached``)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    def one(req: LimitRequest, evaluate: Runner) -> None:
-        res, summary = run_search(req, store, cached, evaluate)
-        if summary["point_key"] not in cached:
-            store(summary)
-        if on_done is not None:
-            on_done(req, res, summary)
-
-    if jobs <= 1:
-        for r in reqs:
-            one(r, evaluate_point)
-        return
-    ev = _PoolEvaluator(jobs)
-    try:
-        with ThreadPoolExecutor(max_workers=jobs) as threads:
-            for f in [threads.submit(one, r, ev) for r in reqs]:
-                f.result()
-    finally:
-        ev.close()
 
 
 # ---------------------------------------------------------------------------

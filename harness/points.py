@@ -1,6 +1,6 @@
 """One sweep point: what to run (:class:`Point`: scenario, variant, engine,
 swept settings, phase), running it (:func:`run_point`: repeats, timing,
-the point's row) and the executor glue (:func:`run_points`: a point whose
+the point's row) and the executor glue (:func:`lost_point_row`: a point whose
 worker dies or hangs gets an ``error``/``timeout`` row; harness/execute.py).
 """
 
@@ -15,7 +15,7 @@ import traceback
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Callable
+from typing import Any
 
 from contract.phase import PhaseError
 from harness import status as st
@@ -226,21 +226,15 @@ def _point_budget(p: Point) -> float:
     return p.timeout_s * max(1, p.repeats)
 
 
-def run_points(todo: list[Point], executor: Any, on_row: Callable[[Point, dict[str, Any]], None],
-               on_start: Callable[[Point], None]) -> None:
-    """Run points through ``executor`` (harness/execute.py: a WorkerPool or
-    the inline executor) and hand each row to ``on_row`` as it finishes.  A
-    point whose worker dies or hangs (or whose code raises) gets an
-    ``error``/``timeout`` row naming why; the other points are untouched."""
-    for p, value in executor.map(run_point, todo, budget_s=_point_budget, on_start=on_start):
-        if isinstance(value, WorkerLost):
-            t0 = time.perf_counter()
-            if value.kind == "died":
-                msg = f"{value.full_message()}".replace("this item", "this point")
-            elif value.kind == "timeout":
-                msg = value.full_message()
-            else:
-                msg = f"point failed: {value.message}"
-            value = _status_row(p, value.status, msg, t0, tb=value.traceback or None,
-                                stderr_tail=value.stderr_tail or None, machine=value.machine)
-        on_row(p, value)
+def lost_point_row(p: Point, value: WorkerLost) -> dict[str, Any]:
+    """The ``error``/``timeout`` row of a point whose worker died, hung or
+    raised, naming why."""
+    t0 = time.perf_counter()
+    if value.kind == "died":
+        msg = f"{value.full_message()}".replace("this item", "this point")
+    elif value.kind == "timeout":
+        msg = value.full_message()
+    else:
+        msg = f"point failed: {value.message}"
+    return _status_row(p, value.status, msg, t0, tb=value.traceback or None,
+                       stderr_tail=value.stderr_tail or None, machine=value.machine)

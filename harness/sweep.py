@@ -33,7 +33,9 @@ process (``"serial"``: no isolation, for debugging).  A point whose worker
 dies (abort, segfault, out-of-memory kill) gets an ``error`` row naming the
 signal with the tail of the worker's stderr; a point stuck past its budget
 (``timeout_s`` per run, times its repeats) gets a ``timeout`` row and its
-worker is replaced; no other point is touched.
+worker is replaced; no other point is touched.  The suite's breaking-point
+searches (``[[limit]]``) run on the same executor, concurrently with the
+points (harness/schedule.py): longest search and longest point first.
 """
 
 from __future__ import annotations
@@ -49,8 +51,9 @@ from typing import Any
 from contract.spec import SpecError, _display
 from harness import status as st
 from harness.executors import make_executor
-from harness.points import Point, run_points
+from harness.points import Point
 from harness.results import SCHEMA_VERSION
+from harness.schedule import expected_costs, run_schedule
 from harness.suite import _label, expand, load_suite
 from harness.sweep_store import SWEEPS_DIR, _parts, _SweepDir, consolidate, machine_id, open_sweep
 
@@ -85,19 +88,25 @@ def summarize(df, wall_s: float, console=None, title: str = "") -> None:
     console.print(table)
 
 
-def _run_limits(reqs: list[Any], sd: "_SweepDir", ctx: dict[str, Any], jobs: int, err: Any) -> None:
-    """The suite's breaking-point searches (``[[limit]]`` blocks), their rows
-    stored in the sweep's directory like its points; evaluations stored by an
-    interrupted run of this sweep are read back, not run again."""
-    from harness.limits import RESULT_ROW, LockedWriter, describe, run_requests, stored_rows
+def _store_limits(sd: "_SweepDir", ctx: dict[str, Any], err: Any):
+    """(cached evaluations and summaries read back from the sweep's parts,
+    store of an evaluation's row, on_search_done that stores a summary not
+    stored before and prints the answer)."""
+    from harness.limits import RESULT_ROW, describe, stored_rows
 
     cached = stored_rows(_parts(sd.path))
     cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
-    err.print(f"limits: {len(reqs)} breaking-point searches ({len(cached)} stored rows read back)",
-              markup=False, highlight=False)
-    run_requests(reqs, LockedWriter(sd, ctx), cached, jobs,
-                 on_done=lambda r, res, _s: err.print("limit: " + describe(res, r), markup=False,
-                                                       highlight=False, soft_wrap=True))
+
+    def store(row: dict[str, Any]) -> None:
+        row.update(ctx)
+        sd.write_point(row)
+
+    def done(req: Any, res: Any, summary: dict[str, Any]) -> None:
+        if summary["point_key"] not in cached:
+            store(summary)
+        err.print("limit: " + describe(res, req), markup=False, highlight=False, soft_wrap=True)
+
+    return cached, store, done
 
 
 def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, executor: str | None = None,
@@ -198,10 +207,13 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 sd.write_point(row)
                 bar.advance(task)
 
+            cached, store, done = _store_limits(sd, ctx, err)
+            if reqs:
+                err.print(f"limits: {len(reqs)} breaking-point searches, run with the points ({len(cached)} "
+                          "stored rows read back)", markup=False, highlight=False)
+            point_cost, search_cost = expected_costs(root, s.name, sd.manifest["machine_id"], todo, reqs)
             with ex if ex is not None else make_executor(executor, jobs) as ex:
-                run_points(todo, ex, on_row, on_start)
-        if reqs:  # bisections, one evaluation after another: the local process pool
-            _run_limits(reqs, sd, ctx, jobs if executor in ("process", "dask") else 1, err)
+                run_schedule(ex, todo, reqs, on_row, done, store, cached, on_start, point_cost, search_cost)
     except (KeyboardInterrupt, *refused) as e:
         if isinstance(e, refused):
             err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)

@@ -188,3 +188,75 @@ def test_no_contact_effect_runs_no_collision(tmp_path):
     # exact free fall (rk4 is exact for constant forces), straight through the plane
     tr = res.trace.valid()
     assert abs(tr.pos[-1, 0, 2] - (-0.5 * 9.81 * 0.25)) <= 1e-12
+
+
+@pytest.mark.parametrize("sid,settings,sparse", [
+    ("stacking.column_5", {}, False),
+    ("stacking.column_5", {}, True),
+    ("stacking.column_5", {"direct_start": False, "iterations": 7}, False),
+    ("friction.block_thrown_uphill", {}, False),
+    ("friction.rolling_resistance", {"position_correction": "baumgarte"}, False),
+    ("stacking.mixed_bin", {"warm_starting": False}, False),
+])
+def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, sid, settings, sparse):
+    """The solve's phases after preparation run as one compiled call
+    (engine/contact/phases.py) with the arithmetic, in the order, of the
+    per-phase Python driver it replaced (which stays for a replaced
+    direct-start policy): the final states are the same bits either way,
+    with the dense direct start and with the sparse one (``sparse``:
+    forced at every size)."""
+    from engine import solver
+
+    if sparse:
+        monkeypatch.setattr(solver, "DIRECT_MAX_ROWS", 0)
+
+    def final(fused: bool):
+        monkeypatch.setattr(solver, "_DENSE_DEFAULT", solver.dense_direct_solve if fused else None)
+        eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), settings)
+        calls = {"fused": 0}
+        orig = solver.Solve._solve_compiled
+
+        def spy(self, *a):
+            calls["fused"] += 1
+            return orig(self, *a)
+
+        monkeypatch.setattr(solver.Solve, "_solve_compiled", spy)
+        eng.step(72)
+        s = eng.state
+        return calls["fused"], [a.copy() for a in (s.x, s.q, s.v, s.w)]
+
+    n_fused, fused = final(True)
+    n_phases, phases = final(False)
+    assert n_fused > 0 and n_phases == 0
+    for f, p in zip(fused, phases):
+        assert np.array_equal(f, p)
+
+
+def test_compiled_colouring_is_the_greedy_colouring():
+    """Topology's colouring (compiled, 63-bit masks; Python beyond 63
+    colours at a body) is the greedy colouring row by row: no two rows of a
+    colour share a dynamic body, each row takes the lowest colour free at
+    both its bodies, rows sorted by colour stably."""
+    from engine.contact.rows import colour_order
+
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(50):
+        n, m = int(rng.integers(2, 40)), int(rng.integers(1, 300))
+        a, b = rng.integers(0, n, m), rng.integers(0, n + 1, m)
+        b[b == a] = n
+        cases.append((a, b, n))
+    cases.append((np.zeros(100, np.int64), np.arange(1, 101, dtype=np.int64), 101))  # 100 colours at body 0
+    for a, b, world in cases:
+        order, bounds = colour_order(a, b, world)
+        used: dict[int, set] = {}
+        col = np.empty(a.size, np.int64)
+        for k, (i, j) in enumerate(zip(a.tolist(), b.tolist())):
+            taken = used.get(i, set()) | (used.get(j, set()) if j != world else set())
+            c = next(c for c in range(a.size + 1) if c not in taken)
+            col[k] = c
+            used.setdefault(i, set()).add(c)
+            if j != world:
+                used.setdefault(j, set()).add(c)
+        assert np.array_equal(order, np.argsort(col, kind="stable"))
+        assert np.array_equal(bounds, np.concatenate([[0], np.cumsum(np.bincount(col))]))

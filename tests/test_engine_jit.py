@@ -14,11 +14,15 @@ from harness.bench import column_scene
 from harness.runner import run
 from adapters.reference import engine_for
 import engine.contact.sweeps as sw
+import engine.contact.phases as ph
+import engine.contact.rows as rw
+import engine.flight as fl
 sc = column_scene(3)
 first = run(sc, "reference", compute_metrics=False)
 second = engine_for(sc)
 print(first.timing["jit_s"], second.profile.jit_s, "jit_s" in first.stages)
-kernels = [sw.iterate, sw.apply_rows, sw.apply_patches]
+kernels = [sw.iterate, sw.apply_rows, sw.apply_patches, ph.solve_contacts, ph.relax, rw._greedy_colours,
+           fl.begin_step, fl.max_turn_sq, fl.end_displacement, fl.moving_pairs]
 before = [len(k.overloads) for k in kernels]
 second.step(60)
 print(before == [len(k.overloads) for k in kernels])

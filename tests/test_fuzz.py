@@ -5,18 +5,32 @@ result is either a clear SpecError / exit 2 naming file, key path,
 expectation and value, or a run that ends in a status row -- on every
 engine, never an uncaught exception.
 
+The engine-running properties validate each case in this process and run
+what validates on all four engines in worker processes reused from case to
+case (harness.execute.WorkerPool; the unit is tests/fuzz_worker.run_cut),
+each run cut to RUN_STEPS steps under a RUN_BUDGET_S wall-clock budget.  A
+worker that dies (abort, segfault) or a runner that raises is a crash:
+counted, and the case fails; a run the watchdog kills is a `timeout`.
+
 Hypothesis profiles (``PHYSBENCH_FUZZ_PROFILE``):
 
-- ``ci`` (default): a few hundred derandomized examples in all, no example
+- ``ci`` (default): a few hundred derandomized examples in all (60 cases
+  of each engine-running property, each on four engines), no example
   database (nothing is written into the repository);
-- ``nightly``: 10,000 examples per property, random seeds, no database::
+- ``nightly``: 10,000 examples per property (``PHYSBENCH_FUZZ_EXAMPLES``
+  for fewer), random seeds, no database; ``PHYSBENCH_FUZZ_JOBS`` worker
+  processes (default 1); ``PHYSBENCH_FUZZ_SUMMARY=FILE`` writes the tally
+  as JSON every 250 cases and at the end::
 
-      PHYSBENCH_FUZZ_PROFILE=nightly python -m pytest -q tests/test_fuzz.py
+      PHYSBENCH_FUZZ_PROFILE=nightly python -m pytest -q tests/test_fuzz.py \
+          --hypothesis-show-statistics
 
-  At the end of a session a summary (cases, rejections, runs per engine,
-  crashes) is printed with ``-s``.
+At the end of the module the tally is printed: per property cases and
+rejections; for the engine-running ones, per engine runs, statuses,
+crashes, milliseconds per run and per worker round trip, the slowest run
+and the reasons of the runs not ok (docs/SCENARIO_FORMAT.md, "Fuzzing",
+has the figures of a nightly run).
 """
-
 from __future__ import annotations
 
 import collections
@@ -26,6 +40,7 @@ import json
 import math
 import os
 import re
+import time
 import tomllib
 import warnings
 import xml.etree.ElementTree as ET
@@ -52,29 +67,103 @@ _COMMON = dict(database=None, deadline=None, print_blob=True,
                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                       HealthCheck.data_too_large, HealthCheck.filter_too_much])
 settings.register_profile("ci", max_examples=60, derandomize=True, **_COMMON)
-settings.register_profile("nightly", max_examples=10_000, derandomize=False, **_COMMON)
 PROFILE = os.environ.get("PHYSBENCH_FUZZ_PROFILE", "ci")
 if PROFILE not in ("ci", "nightly"):
     raise RuntimeError(f"PHYSBENCH_FUZZ_PROFILE: expected ci or nightly, got {PROFILE!r}")
+#: examples per property of the nightly profile (PHYSBENCH_FUZZ_EXAMPLES: fewer for a shorter run)
+NIGHTLY_EXAMPLES = os.environ.get("PHYSBENCH_FUZZ_EXAMPLES", "10000")
+if not NIGHTLY_EXAMPLES.isdigit() or int(NIGHTLY_EXAMPLES) < 1:
+    raise RuntimeError(f"PHYSBENCH_FUZZ_EXAMPLES: expected an integer >= 1, got {NIGHTLY_EXAMPLES!r}")
+settings.register_profile("nightly", max_examples=int(NIGHTLY_EXAMPLES), derandomize=False, **_COMMON)
 
 
 def fuzz(scale: float = 1.0):
     """The profile's settings, ``scale`` times its example count (CI only:
-    the nightly profile runs 10,000 examples of every property)."""
+    the nightly profile runs NIGHTLY_EXAMPLES, 10,000, of every property)."""
     base = settings.get_profile(PROFILE)
     n = base.max_examples if PROFILE == "nightly" else max(1, int(base.max_examples * scale))
     return settings(base, max_examples=n)
 
 
-#: tallies over the session, printed at the end (pytest -s)
-TALLY: collections.Counter = collections.Counter()
+#: tallies over the session, per property: cases, rejections, and for the
+#: engine-running properties runs, statuses, crashes and seconds per engine
+TALLY: collections.defaultdict = collections.defaultdict(collections.Counter)
+
+
+def tally(request) -> collections.Counter:
+    """The counter of the running property (the test's name without its
+    parameters)."""
+    return TALLY[request.node.originalname]
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _report_tally():
+def _report_tally(request):
+    """Print the tally after the module's tests (with or without ``-s``)
+    and, when ``PHYSBENCH_FUZZ_SUMMARY`` names a file, write it there as
+    JSON."""
     yield
-    if TALLY:
-        print(f"\nfuzz tally ({PROFILE}): " + ", ".join(f"{k} {v}" for k, v in sorted(TALLY.items())))
+    if not TALLY:
+        return
+    lines = summary_lines(TALLY, PROFILE)
+    capture = request.config.pluginmanager.get_plugin("capturemanager")
+    if capture is not None:
+        with capture.global_and_fixture_disabled():
+            print("\n" + "\n".join(lines), flush=True)
+    else:
+        print("\n" + "\n".join(lines))
+    write_summary()
+
+
+#: PHYSBENCH_FUZZ_SUMMARY: a JSON file the tally is written to, every
+#: SUMMARY_EVERY cases of a property and at the end (a long run killed
+#: half-way keeps its figures)
+SUMMARY = os.environ.get("PHYSBENCH_FUZZ_SUMMARY")
+SUMMARY_EVERY = 250
+
+
+def write_summary(t: collections.Counter | None = None) -> None:
+    """Write the tally to SUMMARY (if set): at the end, or when the
+    property counting ``t`` has run a multiple of SUMMARY_EVERY cases."""
+    if not SUMMARY or (t is not None and t["cases"] % SUMMARY_EVERY):
+        return
+    tmp = Path(SUMMARY + ".tmp")
+    tmp.write_text(json.dumps({"profile": PROFILE, "jobs": JOBS, "run_steps": RUN_STEPS,
+                               "properties": {k: dict(v) for k, v in TALLY.items()},
+                               "slowest": SLOWEST, "reasons": REASONS, "reason_specs": REASON_SPECS}, indent=1, sort_keys=True) + "\n",
+                   encoding="utf-8")
+    tmp.replace(SUMMARY)
+
+
+def summary_lines(tallies: dict[str, collections.Counter], profile: str) -> list[str]:
+    """The tally as text: one line per property (cases, rejections), and
+    for a property that runs engines a table with one row per engine:
+    runs, each status seen, crashes, and the mean milliseconds per run of
+    the run itself (build, steps, metrics), of the worker round trip around
+    it (pickling, pipes) and of imports (once per worker and engine)."""
+    lines = [f"fuzz tally (profile {profile}, {JOBS} worker(s), runs cut to {RUN_STEPS} steps)"]
+    for prop, t in sorted(tallies.items()):
+        head = ", ".join(f"{k} {t[k]}" for k in sorted(t) if not k.startswith(("run ", "ms ", "n ")))
+        lines.append(f"  {prop}: {head}")
+        engines = sorted({k.split()[1] for k in t if k.startswith("run ")})
+        if not engines:
+            continue
+        statuses = [s for s in STATUSES if any(t[f"run {e} {s}"] for e in engines)]
+        statuses += ["killed"] if any(t[f"run {e} killed"] for e in engines) else []
+        cols = ["runs", *statuses, "crashes", "ms run", "ms trip", "ms first", "s imports"]
+        lines.append("    " + f"{'engine':<10}" + "".join(f"{c:>12}" for c in cols))
+        for e in engines:
+            n = t[f"run {e} runs"]
+            vals = [n, *(t[f"run {e} {s}"] for s in statuses), t[f"run {e} crashes"]]
+            ok = n - t[f"run {e} crashes"] - t[f"run {e} killed"]  # runs that reported their times
+            first = t[f"n {e} first runs"]
+            vals += [f"{t[f'ms {e} run'] / max(ok - first, 1):.1f}", f"{t[f'ms {e} trip'] / max(ok, 1):.1f}",
+                     f"{t[f'ms {e} first runs'] / max(first, 1):.0f}", f"{t[f'ms {e} imports'] / 1e3:.1f}"]
+            lines.append("    " + f"{e:<10}" + "".join(f"{v:>12}" for v in vals))
+        for e, (secs, status, message, _spec) in sorted(SLOWEST.get(prop, {}).items()):
+            lines.append(f"    slowest {e}: {secs:.2f} s, {status}" + (f" ({message[:120]})" if message else ""))
+        for reason, n in sorted(REASONS.get(prop, {}).items(), key=lambda kv: (kv[0].split(":")[0], -kv[1]))[:40]:
+            lines.append(f"    {n:>6} x {reason}")
+    return lines
 
 
 # --------------------------------------------------------------------------
@@ -212,7 +301,7 @@ def _write(tmp: Path, doc: dict[str, Any], name: str = "spec.toml") -> Path:
     return p
 
 
-def _load_or_reject(p: Path) -> list:
+def _load_or_reject(p: Path, t: collections.Counter) -> list:
     """Every scene of the spec file at ``p`` (base and variants), or [] when
     it is rejected.  A rejection must be a SpecError whose every line names
     the file and a key path; anything else raised fails the test."""
@@ -224,20 +313,22 @@ def _load_or_reject(p: Path) -> list:
         for line in e.errors:
             assert line.startswith(f"{p}: ") or line.startswith(f"{p.name}: ") or ": " in line, line
             assert re.match(r"^[^:]+: [^:]+: .+", line), f"not '<file>: <key path>: <message>': {line!r}"
-        TALLY["spec rejected"] += 1
+        t["rejected"] += 1
         return []
-    TALLY["spec accepted"] += 1
+    t["accepted"] += 1
     return scenes
 
 
 @fuzz(scale=3.0)
 @given(case=mutated_doc(RAW_SPECS))
-def test_mutated_specs_load_or_reject(tmp_path, case):
+def test_mutated_specs_load_or_reject(request, tmp_path, case):
     """Mutated shipped specs: load_spec/load_scene return scenes or raise a
     SpecError, never anything else (before: 2 of 1,500 random mutations
     raised OverflowError or ZeroDivisionError from load_scene)."""
     _, doc = case
-    scenes = _load_or_reject(_write(tmp_path, doc))
+    t = tally(request)
+    t["cases"] += 1
+    scenes = _load_or_reject(_write(tmp_path, doc), t)
     for sc in scenes:
         assert all(math.isfinite(b.mass) and b.mass > 0 for b in sc.bodies)
         assert np.isfinite(sc.inertias).all() and (sc.inertias > 0).all()
@@ -246,27 +337,178 @@ def test_mutated_specs_load_or_reject(tmp_path, case):
         assert np.abs(x).max(initial=0.0) <= BOUNDS["position"][1]
 
 
-# --------------------------------------------------------------------------
-# runs of whatever validates, on every engine
+def test_a_spec_without_bodies_is_rejected(tmp_path, capsys):
+    """A spec with statics only is refused (the bodies bound is 1..10,000
+    after pattern expansion).  Found by the nightly fuzz (a mutation that
+    dropped the [[body]] list of a tests/data spec): it loaded, ran `ok` on
+    the reference engine and MuJoCo with nothing to simulate, and pybullet's
+    recording divided by its zero bodies (error: ZeroDivisionError)."""
+    doc = {"scenario": {"family": "fuzz", "title": "no bodies", "duration": 0.1, "dt": 0.01,
+                        "effects": ["gravity", "contact"]},
+           "static": [{"shape": "plane", "normal": [0.0, 0.0, 1.0]}]}
+    p = _write(tmp_path, doc)
+    with pytest.raises(SpecError, match=r"body: the scene has no bodies; expected at least 1 \[\[body\]\] table"):
+        load_spec(p)
+    rc, err = _cli(["run", str(p), "-e", "pybullet", "--json"], capsys)
+    assert rc == 2 and "body: the scene has no bodies" in err and "Traceback" not in err, err
 
-RUN_STEPS = 4  # a generated valid scene runs this many steps at most
 
-
-def _short(scene):
-    return dataclasses.replace(scene, duration=min(scene.duration, RUN_STEPS * scene.dt))
-
-
-def _run_all(scene, engine: str) -> None:
+@pytest.mark.parametrize("variant,model", [("sticks_20deg", "incline_block"), (None, "incline_block")])
+def test_incline_block_refuses_a_run_that_ends_before_the_stop(tmp_path, variant, model):
+    """A block thrown uphill stops at t_stop, then sticks (or slides back):
+    a run that ends before t_stop has nothing to measure after it, and the
+    model refuses it at load (exit 2, scenario.duration) as slide_to_rest
+    does.  Found by the fuzz (its runs are cut to a few steps): the
+    stick_creep metric took the maximum over no frames, and a run cut short
+    became `error: metrics failed: ValueError: zero-size array`; a run
+    still cut short after loading gets the model's reason instead."""
+    from contract.spec import ModelRefusal
     from harness.runner import run
+    from tests.fuzz_worker import cut
 
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")
-        res = run(_short(scene), engine, timeout_s=60.0)
+    p = SCENARIO_DIR / "friction" / "block_thrown_uphill.toml"
+    scene = load_scene(p, variant)
+    assert scene.reference_model == model
+    with pytest.raises(ModelRefusal, match=r"scenario\.duration: .*the run ends at 0\.1 s, before the stop at t_stop"):
+        load_scene(p, variant, {"scenario.duration": 0.1})
+    res = run(cut(scene, 8), "reference")
+    assert res.status == "error" and "before the stop at t_stop" in res.message, res.message
+    assert "zero-size array" not in res.message
+
+
+# --------------------------------------------------------------------------
+# runs of whatever validates, on every engine, in reused worker processes
+
+#: a validated scene runs this many steps at most (tests/fuzz_worker.cut):
+#: every stage of every engine is built and stepped, at a few ms per run
+RUN_STEPS = 32
+#: wall-clock budget per run (s; the worker is warm, tests/test_fuzz._warm):
+#: the pool's watchdog kills a worker stuck past it (plus a grace,
+#: harness.execute.grace_s) and the run is `timeout`
+RUN_BUDGET_S = 20.0
+#: worker processes running the engines (PHYSBENCH_FUZZ_JOBS, default 1)
+JOBS = int(os.environ.get("PHYSBENCH_FUZZ_JOBS", "1"))
+
+
+@pytest.fixture(scope="module")
+def engine_pool():
+    """Worker processes reused from case to case and engine to engine
+    (harness.execute.WorkerPool): a run costs a round trip, not a process
+    start and the engines' imports; a worker that dies (abort, segfault)
+    costs only the run it was running, which comes back as WorkerLost and
+    is counted as a crash, and a fresh worker takes the next run."""
+    from harness.execute import WorkerPool
+
+    with WorkerPool(JOBS) as pool:
+        yield pool
+
+
+def _warm(pool, engines=ENGINES) -> None:
+    """Let the pool's workers import and run ``engines`` once (head_on,
+    one step, no budget): a case's budget then covers its own run, not the
+    imports and compiled-code loading a fresh worker pays once (seconds,
+    more on a busy machine).  Called for a new pool and after a worker was
+    lost (the pool starts its replacement on the next item, this one)."""
+    from harness.execute import WorkerLost
+    from tests.fuzz_worker import run_cut
+
+    scene = load_scene(REPO_ROOT / "scenarios" / "billiards" / "head_on.toml")
+    # each engine once per worker: the pool hands the items out in order, one per idle worker
+    items = [(scene, e, 1, None) for e in engines for _ in range(pool.jobs)]
+    for item, value in pool.map(run_cut, items):
+        assert not isinstance(value, WorkerLost), f"{item[1]}: warm-up: {value.full_message()}"
+
+
+#: per property and engine, the slowest run: (seconds, status, message, spec text)
+SLOWEST: dict[str, dict[str, tuple]] = collections.defaultdict(dict)
+#: per property, "engine status: reason" of every run not ok, numbers masked, counted
+REASONS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+#: per property and reason, the spec of its first case (to reproduce it; in the JSON summary)
+REASON_SPECS: dict[str, dict[str, str]] = collections.defaultdict(dict)
+
+
+def _count_reason(prop: str, reason: str, spec: Path) -> None:
+    REASONS[prop][reason] += 1
+    if reason not in REASON_SPECS[prop]:
+        REASON_SPECS[prop][reason] = spec.read_text(encoding="utf-8")
+
+
+def _reason(engine: str, status: str, message: str) -> str:
+    masked = re.sub(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", "#", message.splitlines()[0] if message else "")
+    return f"{engine} {status}: {masked[:160]}"
+
+
+def _run_engines(pool, scene, t: collections.Counter, prop: str, spec: Path, engines=ENGINES,
+                 budget_s: float = RUN_BUDGET_S) -> None:
+    """Run ``scene`` (cut to RUN_STEPS steps) on ``engines`` in ``pool``,
+    ``budget_s`` seconds of wall clock each.
+    Each run must end in a status row with a reason unless ``ok``; a run
+    whose worker died or whose runner raised is a crash: it is counted,
+    and fails the case with the engine, the signal or exception and the
+    tail of the worker's stderr.  The slowest run per engine is kept with
+    its spec (``spec``, the file ``scene`` was loaded from) in SLOWEST."""
+    from tests.fuzz_worker import run_cut
+
+    started: dict[int, float] = {}
+    workers = pool.started
+    crashes = []
+    remaining = [(scene, e, RUN_STEPS, budget_s) for e in engines]
+    lost = not pool.started
+    while remaining:
+        if lost:  # a new pool, or a worker replaced: warm before the rest (abandoned runs run again)
+            _warm(pool, [e for e in engines if e in ENGINES])
+        lost = False
+        runs = pool.map(run_cut, remaining, budget_s=lambda it: it[3],
+                        on_start=lambda it: started.__setitem__(id(it), time.perf_counter()))
+        for item, value in runs:
+            remaining = [it for it in remaining if it is not item]
+            lost = _count_run(item, value, time.perf_counter() - started[id(item)], t, prop, spec, crashes)
+            if lost:
+                break
+        runs.close()
+    t["workers started"] += pool.started - workers
+    assert not crashes, "\n".join(crashes)
+
+
+def _count_run(item, value, trip: float, t: collections.Counter, prop: str, spec: Path, crashes: list) -> bool:
+    """Count one run of _run_engines (``value``: run_cut's reply or a
+    WorkerLost; ``trip``: s from sending it to its reply); a crash goes to
+    ``crashes``.  True when the worker was lost (died or killed)."""
+    from harness.execute import WorkerLost
+    from harness.runner import RunResult
+
+    engine = item[1]
+    t[f"run {engine} runs"] += 1
+    if trip > SLOWEST[prop].get(engine, (0.0,))[0]:
+        status = value.kind if isinstance(value, WorkerLost) else value[0].status
+        message = value.message if isinstance(value, WorkerLost) else value[0].message
+        SLOWEST[prop][engine] = (round(trip, 3), status, message, spec.read_text(encoding="utf-8"))
+    if isinstance(value, WorkerLost):
+        _count_reason(prop, _reason(engine, value.kind, value.message), spec)
+        if value.kind == "timeout":  # killed by the watchdog past the budget: its row is `timeout`
+            t[f"run {engine} timeout"] += 1
+            t[f"run {engine} killed"] += 1
+        else:
+            t[f"run {engine} crashes"] += 1
+            crashes.append(f"{engine}: worker {value.kind}: {value.full_message()}\n{value.traceback}")
+        return value.kind != "raised"
+    res, secs = value
+    assert isinstance(res, RunResult) and res.engine == engine
     assert res.status in STATUSES, res.status
-    assert res.status == "ok" or res.message, f"status {res.status} without a reason"
+    assert res.status == "ok" or res.message, f"{engine}: status {res.status} without a reason"
     row = res.row()
     assert row["status"] == res.status and row["engine"] == engine
-    TALLY[f"run {engine} {res.status}"] += 1
+    t[f"run {engine} {res.status}"] += 1
+    if res.status != "ok":
+        _count_reason(prop, _reason(engine, res.status, res.message), spec)
+    if secs["first"]:
+        t[f"n {engine} first runs"] += 1
+        t[f"ms {engine} first runs"] += 1e3 * secs["run"]
+    else:
+        t[f"ms {engine} run"] += 1e3 * secs["run"]
+    t[f"ms {engine} imports"] += 1e3 * secs["imports"]
+    t[f"ms {engine} trip"] += 1e3 * (trip - secs["run"] - secs["imports"])
+    return False
 
 
 def _mostly(good, bad, odds: int = 25):
@@ -279,6 +521,44 @@ def _mostly(good, bad, odds: int = 25):
 
 def _log_uniform(lo: float, hi: float):
     return st.floats(math.log10(lo), math.log10(hi)).map(lambda e: 10.0**e)
+
+
+@pytest.mark.parametrize("fault,counted,reason", [("abort", "crashes", "SIGABRT.*Mass must be positive"),
+                                                  ("hang", "killed", "")])
+def test_engine_runs_are_isolated_and_counted(fault, counted, reason):
+    """The fuzz properties' runs are isolated: an engine that aborts (or
+    dies of any signal, tests/test_execute.py) in a case fails that case as a crash, counted, with the
+    signal and the tail of its stderr; one that hangs is a counted
+    timeout (the watchdog kills it); the pool goes on with a fresh worker
+    and the other engine of the case, and of the next, still runs
+    (tests/faulty_adapter.py faults on request inside an engine call)."""
+    from adapters.base import _REGISTRY, register
+    from harness.execute import WorkerPool
+    from tests.faulty_adapter import FAULT_ENV, FaultyAdapter
+
+    spec = REPO_ROOT / "scenarios" / "billiards" / "head_on.toml"
+    scene = load_scene(spec)
+    register("faulty", lambda: FaultyAdapter)
+    t: collections.Counter = collections.Counter()
+    slowest = dict(SLOWEST)
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv(FAULT_ENV, f"{scene.id}:{fault}")
+            with WorkerPool(1) as pool:
+                for _ in range(2):  # the pool survives the first case and runs the second
+                    if fault == "hang":
+                        _run_engines(pool, scene, t, "isolation", spec, ("faulty", "pymunk"), budget_s=1.0)
+                    else:
+                        with pytest.raises(AssertionError, match=rf"faulty: worker died: .*{reason}"):
+                            _run_engines(pool, scene, t, "isolation", spec, ("faulty", "pymunk"))
+                started = pool.started
+    finally:
+        _REGISTRY.pop("faulty", None)
+        SLOWEST.clear()
+        SLOWEST.update(slowest)
+    assert t["run faulty runs"] == 2 and t[f"run faulty {counted}"] == 2 and started == 3, (t, started)
+    assert t["run pymunk runs"] == 2 and t["run pymunk ok"] == 2 and t["run pymunk crashes"] == 0
+    assert t["run faulty crashes"] == (2 if counted == "crashes" else 0)
 
 
 @st.composite
@@ -332,20 +612,32 @@ def generated_doc(draw):
     return doc
 
 
-@pytest.mark.parametrize("engine", ENGINES)
-@fuzz(scale=0.7)
+@fuzz(scale=1.0)
 @given(doc=generated_doc())
-def test_generated_specs_reject_or_run(tmp_path, engine, doc):
-    for scene in _load_or_reject(_write(tmp_path, doc)):
-        _run_all(scene, engine)
+def test_generated_specs_reject_or_run(request, tmp_path, engine_pool, doc):
+    """A generated spec is rejected with a SpecError naming file and key
+    path, or it runs on every engine to a status row; never a crash."""
+    t = tally(request)
+    t["cases"] += 1
+    write_summary(t)
+    spec = _write(tmp_path, doc)
+    for scene in _load_or_reject(spec, t):
+        _run_engines(engine_pool, scene, t, request.node.originalname, spec)
 
 
-@pytest.mark.parametrize("engine", ENGINES)
-@fuzz(scale=0.7)
-@given(case=mutated_doc(RAW_SPECS, max_mutations=1))
-def test_mutated_specs_reject_or_run(tmp_path, engine, case):
-    for scene in _load_or_reject(_write(tmp_path, case[1]))[:1]:
-        _run_all(scene, engine)
+@fuzz(scale=1.0)
+@given(case=mutated_doc(RAW_SPECS, max_mutations=1), pick=st.integers(0, 63))
+def test_mutated_specs_reject_or_run(request, tmp_path, engine_pool, case, pick):
+    """A shipped spec with one mutation is rejected like a generated one, or
+    one of its scenes (the base or a variant, picked) runs on every engine
+    to a status row; never a crash."""
+    t = tally(request)
+    t["cases"] += 1
+    write_summary(t)
+    spec = _write(tmp_path, case[1])
+    scenes = _load_or_reject(spec, t)
+    if scenes:
+        _run_engines(engine_pool, scenes[pick % len(scenes)], t, request.node.originalname, spec)
 
 
 # --------------------------------------------------------------------------
@@ -356,16 +648,18 @@ RAW_SUITES = [(p, tomllib.loads(p.read_text(encoding="utf-8"))) for p in SUITE_F
 
 @fuzz(scale=1.0)
 @given(case=mutated_doc(RAW_SUITES))
-def test_mutated_suites_load_or_reject(tmp_path, case):
+def test_mutated_suites_load_or_reject(request, tmp_path, case):
     _, doc = case
+    t = tally(request)
+    t["cases"] += 1
     p = _write(tmp_path, doc, "suite.toml")
     try:
         suite = load_suite(p)
     except SuiteError as e:
         assert all(re.match(r"^[^:]+: [^:]+: .+", line) for line in e.errors), e.errors
-        TALLY["suite rejected"] += 1
+        t["rejected"] += 1
         return
-    TALLY["suite accepted"] += 1
+    t["accepted"] += 1
     points = expand(suite)
     assert all(p.engine in suite.engines and p.repeats >= 1 for p in points)
     assert re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", suite.name)
@@ -562,7 +856,7 @@ class _Called(Exception):
 @fuzz(scale=3.0)
 @given(cmd=st.sampled_from(["run", "check", "trace", "sweep", "report", "engines", "list", "bench", "nosuch"]),
        args=st.lists(st.sampled_from(_TOKENS), max_size=8))
-def test_cli_argument_lists(tmp_path, monkeypatch, capsys, cmd, args):
+def test_cli_argument_lists(request, tmp_path, monkeypatch, capsys, cmd, args):
     import harness.conformance
     import harness.report
     import harness.runner
@@ -579,6 +873,8 @@ def test_cli_argument_lists(tmp_path, monkeypatch, capsys, cmd, args):
         monkeypatch.setattr(mod, name, stub)
     monkeypatch.chdir(tmp_path)  # relative output paths land in tmp
     capsys.readouterr()  # drop the previous example's output
+    t = tally(request)
+    t["cases"] += 1
     argv = [cmd, *args]
     if cmd in ("list", "engines"):
         argv = [cmd]
@@ -586,14 +882,14 @@ def test_cli_argument_lists(tmp_path, monkeypatch, capsys, cmd, args):
         rc = cli.main(argv)
     except SystemExit as e:
         assert e.code in (0, 2), (argv, e.code)
-        TALLY["cli rejected (argparse)"] += 1
+        t["rejected (argparse)"] += 1
         return
     except _Called:
-        TALLY["cli accepted"] += 1
+        t["accepted"] += 1
         return
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("error: "), (argv, rc, err)
-    TALLY["cli rejected"] += 1
+    t["rejected"] += 1
 
 
 # --------------------------------------------------------------------------

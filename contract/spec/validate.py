@@ -85,7 +85,9 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
             if s.orientation is not None and (abs(s.orientation[1]) > 0 or abs(s.orientation[3]) > 0):
                 errs.append(f"{label}: static[{i}].orientation: a planar scene turns about y only, got {list(s.orientation)}")
     n_bodies = sum(1 if b.pattern is None else b.pattern.n_bodies() for b in spec.body)
-    if n_bodies > BOUNDS["bodies"][1]:
+    if n_bodies < BOUNDS["bodies"][0]:  # tests/test_fuzz.py::test_a_spec_without_bodies_is_rejected
+        errs.append(f"{label}: body: the scene has no bodies; expected at least {BOUNDS['bodies'][0]:g} [[body]] table")
+    elif n_bodies > BOUNDS["bodies"][1]:
         errs.append(f"{label}: body: the scene has {n_bodies} bodies after pattern expansion, beyond the bound "
                     f"of {BOUNDS['bodies'][1]:g}")
     else:

@@ -16,16 +16,24 @@ import numpy as np
 class Scratch:
     def __init__(self) -> None:
         self._buf: dict[str, np.ndarray] = {}
+        #: the last view handed out per name, with its shape and dtype (a
+        #: steady step asks for the same shapes every time: no new view)
+        self._last: dict[str, tuple] = {}
 
     def take(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
         """A view of shape ``shape`` (contents undefined) of the buffer
         ``name``."""
+        last = self._last.get(name)
+        if last is not None and last[0] == shape and last[1] is dtype:
+            return last[2]
         k = shape[0]
         buf = self._buf.get(name)
         if buf is None or buf.shape[0] < k or buf.shape[1:] != tuple(shape[1:]) or buf.dtype != dtype:
             cap = max(k, 2 * buf.shape[0] if buf is not None else 0, 16)
             buf = self._buf[name] = np.empty((cap,) + tuple(shape[1:]), dtype)
-        return buf[:k]
+        view = buf[:k]
+        self._last[name] = (shape, dtype, view)
+        return view
 
     def zeros(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
         """As :meth:`take`, zeroed."""

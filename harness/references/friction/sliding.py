@@ -73,6 +73,16 @@ class InclineBlock(_SlopeModel):
                 f"{self.name}: the block slides at a constant {u0:g} m/s (slope {math.degrees(self.theta):g} deg, "
                 f"mu_k = {self.mu_k:g}): there is no acceleration to measure and no stop; give it friction, a "
                 "slope, or no speed", key=f"static[{self.slope.index}]")
+        # what follows the stop (stick_creep, return_accel) needs frames after it
+        # (tests/test_fuzz.py::test_incline_block_refuses_a_run_that_ends_before_the_stop)
+        if 0 < self.t_stop < math.inf and scene.duration <= self.t_stop:
+            raise self._ends_before_stop(scene.duration)
+
+    def _ends_before_stop(self, t_end: float) -> ReferenceError:
+        after = "it slides back" if self.a_back else "it sticks"
+        return ReferenceError(f"{self.name}: the run ends at {t_end:g} s, before the stop at t_stop = "
+                              f"{self.t_stop:.6g} s (after which {after}): nothing to measure there",
+                              key="scenario.duration")
 
     @property
     def regime(self) -> str:
@@ -115,6 +125,8 @@ class InclineBlock(_SlopeModel):
             rel = trace.pos[:, i] - (self.x0 + s_stop * self.d)
             tang = rel - np.outer(rel @ self.n, self.n)
             after = trace.t >= self.t_stop
+            if not after.any():
+                raise self._ends_before_stop(float(trace.t[-1]))
             out["stick_creep"] = float(np.nanmax(np.linalg.norm(tang[after], axis=1)))
         if self.t_stop > 0:
             w = _window(trace.t)
@@ -195,9 +207,6 @@ class SlideToRest(InclineBlock):
                 f"{math.degrees(math.atan(self.mu_s)):.6g} deg: the box stops and slides back down "
                 "(use incline_block, which models the return)", key=where)
         self.d_stop = self.u0 * self.u0 / (2.0 * abs(self.a_slide))
-        if scene.duration <= self.t_stop:
-            raise ReferenceError(f"slide_to_rest: the run ends at {scene.duration:g} s, before the stop at "
-                                 f"t_stop = {self.t_stop:.6g} s", key="scenario.duration")
 
     def metrics(self, trace) -> dict[str, float]:
         out = super().metrics(trace)

@@ -1,0 +1,220 @@
+"""The contact solve's phases after preparation as ONE compiled call
+(``solve_contacts``), named as Box2D's contact_solver.h names its own:
+slip classification, warm start (``warm_match`` then ``warm_apply``),
+direct start, solve (Gauss-Seidel sweeps with the static/kinetic switch),
+store of the velocities, relax (split-impulse position correction).
+
+Each phase is the same arithmetic, in the same order, as the Python
+driver it replaces (``rows.Rows.direct_normal_guess``,
+``solve_friction_regimes``, ``warm.warm_start``, ``Rows.unpack``), so the
+bits are those of the per-phase calls (the determinism pins of
+tests/test_determinism.py hold unchanged).  The normal rows' velocity
+residual r = target - J U is summed as numpy's einsum sums a row of six
+products (two interleaved partial sums, then added): see ``_row_residual``.
+
+Velocities: U (n+1, 6) = [v | w] with the world's row n zero; arrays and
+conventions as in :mod:`engine.contact.sweeps` and
+:mod:`engine.contact.prepare`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from engine.contact import linalg, sweeps, warm
+from engine.contact.prepare import sliding
+
+#: direct-start policy constants, mirrored from engine.contact.rows (the
+#: solve passes its module's current values at every call)
+_EPS_REL = 1e-10
+
+
+@njit(cache=True, inline="always")
+def _pack(U, V, W):
+    for i in range(U.shape[0]):
+        for k in range(3):
+            U[i, k] = V[i, k]
+            U[i, 3 + k] = W[i, k]
+
+
+@njit(cache=True, inline="always")
+def _unpack(U, V, W):
+    """V, W (n+1, 3) = U's halves, the world row n zeroed."""
+    nb = U.shape[0]
+    for i in range(nb):
+        for k in range(3):
+            V[i, k] = U[i, k]
+            W[i, k] = U[i, 3 + k]
+    for k in range(3):
+        V[nb - 1, k] = 0.0
+        W[nb - 1, k] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _dot6(J, i, c0, U, j):
+    """J[i, c0:c0+6] . U[j] summed as numpy's einsum does for six
+    products: (p0 + p2 + p4) + (p1 + p3 + p5)."""
+    e = J[i, c0] * U[j, 0]
+    o = J[i, c0 + 1] * U[j, 1]
+    e = e + J[i, c0 + 2] * U[j, 2]
+    o = o + J[i, c0 + 3] * U[j, 3]
+    e = e + J[i, c0 + 4] * U[j, 4]
+    o = o + J[i, c0 + 5] * U[j, 5]
+    return e + o
+
+
+@njit(cache=True)
+def _row_residual(J, U0, a, b, target, r):
+    """r = target - (JA . U0[a] + JB . U0[b]) (m,)."""
+    for i in range(r.shape[0]):
+        r[i] = target[i] - (_dot6(J, i, 0, U0, a[i]) + _dot6(J, i, 6, U0, b[i]))
+
+
+@njit(cache=True)
+def _lcp_res(J, M, a, b, world, r, lam):
+    """Complementarity residual of ``lam`` for K lam >= r, lam >= 0
+    (as rows.Rows._lcp_residual)."""
+    w = linalg.k_times(J, M, a, b, world, lam)
+    for i in range(w.shape[0]):
+        w[i] = w[i] - r[i]
+    return linalg.lcp_residual(w, lam)
+
+
+@njit(cache=True)
+def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt, lam_t, resting, max_rows,
+                 passes, r):
+    """The direct start (rows.Rows.direct_normal_guess): the normal rows
+    not separating (r = target - J U, with the warm friction impulses
+    applied, above -``resting``) solved as equalities -- dense active set
+    up to ``max_rows`` rows, sparse banded Cholesky per island above --
+    and kept in ``lam_n`` when their complementarity residual beats the
+    warm start's.  ``U0`` (n+1, 6) and ``r`` (m,) scratch."""
+    m = lam_n.shape[0]
+    U0[:, :] = U
+    if friction:
+        sweeps.apply_patches(U0, pab, Mt, lam_t, world)
+    _row_residual(J, U0, a, b, target, r)
+    k = 0
+    pos = False
+    for i in range(m):
+        if r[i] > -resting:
+            k += 1
+            if r[i] > 0.0:
+                pos = True
+    if k == 0 or not pos:
+        return
+    act = np.empty(k, np.int64)
+    k = 0
+    for i in range(m):
+        if r[i] > -resting:
+            act[k] = i
+            k += 1
+    if m > max_rows:
+        lam, ok = linalg.spd_solve_sparse(J, M, a, b, world, r, act, _EPS_REL)
+        for i in range(m):
+            if lam[i] < 0.0:
+                lam[i] = 0.0
+    else:
+        lam, ok, _ = linalg.dense_active_set(linalg.normal_matrix(J, M, a, b, world), r, act, _EPS_REL, passes)
+    if not ok:
+        return
+    for i in range(m):
+        if not np.isfinite(lam[i]):
+            return
+    if _lcp_res(J, M, a, b, world, r, lam) <= _lcp_res(J, M, a, b, world, r, lam_n):
+        lam_n[:] = lam
+
+
+@njit(cache=True)
+def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk, rt,
+                     mur, slip, pin_t, dir_t, pin_r, dir_r, iterations, tol, world):
+    """The solve phase (rows.Rows.solve_friction_regimes): sweeps with
+    mu_s for sticking patches; a patch whose friction (or twist) ends on
+    its mu_s limit switches to mu_k and the rows are swept again (at most
+    twice).  Returns (sweeps done, the last sweep's relative residual)."""
+    sw, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt,
+                                  mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world)
+    if not friction:
+        return sw, residual
+    npch = lam_t.shape[0]
+    Fn = np.empty(npch)
+    for _ in range(2):
+        Fn[:] = 0.0
+        for i in range(pid.shape[0]):
+            Fn[pid[i]] += lam_n[i]
+        any_sat = False
+        for p in range(npch):
+            mag = math.sqrt(lam_t[p, 0] * lam_t[p, 0] + lam_t[p, 1] * lam_t[p, 1])
+            lim = mus[p] * Fn[p] * (1 - 1e-6)
+            sat = (not slip[p]) and mus[p] > muk[p] and Fn[p] > 0 and (
+                mag >= lim or (rt[p] > 0.0 and abs(lam_t[p, 2]) >= lim * rt[p]))
+            if sat:
+                slip[p] = True
+                any_sat = True
+        if not any_sat:
+            break
+        for p in range(npch):
+            mu[p] = muk[p] if slip[p] else mus[p]
+        s2, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
+                                      rt, mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world)
+        sw += s2
+    return sw, residual
+
+
+@njit(cache=True)
+def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, friction, rolling, pab, pid, Jt, Mt,
+                   mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on, codes, loc, a, b,
+                   bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h, matched, direct, resting,
+                   max_rows, passes, r, pin_t, dir_t, iterations, tol):
+    """The solve of prepared rows, phase by phase (module doc): slip
+    classification at the start velocities V0, W0 (n, 3) (``vt0`` (np, 2),
+    ``slip`` (np,), ``mu``), the warm start matched from the cache
+    (``warm_on``; the ``o_``/``u_`` arrays of engine.contact.warm), the
+    direct start (``direct``), the warm impulses applied, the sweeps with
+    the static/kinetic switch, and the end velocities written to V, W
+    (n+1, 3) from ``U`` (packed here from V, W).  ``U0`` (n+1, 6) is left
+    holding the start velocities (with friction); ``Ud``, ``r``,
+    ``matched`` scratch; ``pin_t``/``dir_t`` the (unset) pins of the
+    sweeps.  Returns (sweeps, residual)."""
+    nb = world
+    if friction:
+        # slip classification at the start of the step (prepare.sliding)
+        for i in range(nb):
+            for k in range(3):
+                U0[i, k] = V0[i, k]
+                U0[i, 3 + k] = W0[i, k]
+        for k in range(6):
+            U0[nb, k] = 0.0
+        sliding(Jt, U0, pab, rt, slip_tol, vt0, slip)
+        for p in range(mu.shape[0]):
+            mu[p] = muk[p] if slip[p] else mus[p]
+    _pack(U, V, W)
+    if warm_on:
+        warm.match(codes, loc, a, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h, lam_n, friction,
+                   friction and rolling, pid, t, lam_t, matched)
+    if direct:
+        direct_start(U, Ud, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt, lam_t, resting, max_rows,
+                     passes, r)
+    if warm_on or direct:
+        if lam_n.shape[0]:
+            sweeps.apply_rows(U, ab, M, lam_n, world)
+            if friction:
+                sweeps.apply_patches(U, pab, Mt, lam_t, world)
+    sw, residual = friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
+                                    mus, muk, rt, mur, slip, pin_t, dir_t, pin_t, dir_t, iterations, tol, world)
+    _unpack(U, V, W)
+    return sw, residual
+
+
+@njit(cache=True)
+def relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, tol, world):
+    """Split-impulse position correction: normal rows swept on the pseudo
+    velocities Vp, Wp (n+1, 3) towards the push-out ``bias`` with their
+    own accumulator ``lam_p`` (zeroed here); ``Up`` scratch."""
+    lam_p[:] = 0.0
+    _pack(Up, Vp, Wp)
+    sweeps.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world)
+    _unpack(Up, Vp, Wp)

@@ -1,0 +1,220 @@
+"""One schedule for a sweep: its points and its breaking-point searches on
+one executor (``physbench sweep``; harness/execute.py's executors, or the
+Dask one).
+
+A sweep's points are independent of each other; a breaking-point search
+(``[[limit]]``, harness/limits.py) is a chain: each value it evaluates
+depends on the verdict of the last.  Run after the points, the searches
+leave workers idle at the tail (two workers, one search left: one idles).
+Here every search is a generator (:func:`harness.limits.search_items`)
+held by the scheduler, with at most one evaluation in flight, and the
+executor reads its items from a source that hands out:
+
+1. the next evaluation of a search, the longest search first (its expected
+   cost: ``search_cost``): chains are the critical path, a chain cannot be
+   spread over workers, so it must never wait behind a point;
+2. else the next point, longest first (``point_cost``): the short ones
+   fill the tail;
+3. else :data:`harness.execute.WAIT`: every unfinished search has its
+   evaluation in flight and no point is left; the executor asks again
+   after its next result.
+
+With one worker the order changes nothing but the progress display: the
+points run in their planned order, then the searches.
+
+Everything else is the executors': the watchdog (a point or an evaluation
+whose worker dies or hangs becomes an ``error``/``timeout`` row naming why),
+rows streamed back to this process as they finish.  Tests:
+tests/test_schedule.py.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from typing import Any, Callable, Iterator
+
+from harness.execute import WAIT, WorkerLost
+from harness.limits import EvalItem, LimitRequest, SearchResult, evaluate_item, lost_eval_row, search_items
+from harness import points as _points
+from harness.points import Point, _point_budget, lost_point_row
+
+
+def run_item(item: Point | EvalItem) -> dict[str, Any]:
+    """An executor's function for both kinds of item: the row of a point
+    or of one evaluation of a search."""
+    if isinstance(item, EvalItem):
+        return evaluate_item(item)
+    return _points.run_point(item)  # looked up per call: a test may patch harness.points.run_point
+
+
+def item_budget(item: Point | EvalItem) -> float:
+    """Wall-clock budget of an item's worker (s): a point's timed runs, an
+    evaluation's one run."""
+    if isinstance(item, EvalItem):
+        return float(item.req.timeout_s)
+    return _point_budget(item)
+
+
+def item_priority(item: Point | EvalItem) -> int:
+    """Where items queue (a Dask scheduler), evaluations go first."""
+    return 1 if isinstance(item, EvalItem) else 0
+
+
+def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest],
+                 on_point_row: Callable[[Point, dict[str, Any]], None],
+                 on_search_done: Callable[[LimitRequest, SearchResult, dict[str, Any]], None],
+                 store_eval: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]] | None = None,
+                 on_start: Callable[[Point], None] | None = None,
+                 point_cost: Callable[[Point], float] | None = None,
+                 search_cost: Callable[[LimitRequest], float] | None = None) -> None:
+    """Run ``points`` and ``searches`` through ``executor`` (module
+    docstring).  Each point's row goes to ``on_point_row`` as it finishes,
+    each new evaluation's row to ``store_eval``, each search's result and
+    summary row to ``on_search_done`` (the caller stores the summary);
+    evaluations whose key is in ``cached`` are read back, not run.
+    ``point_cost`` / ``search_cost``: expected cost (any unit, larger runs
+    first; default: the order given).  ``on_start(point)`` when a point
+    starts (harness/execute.py: Dask calls it as the result arrives)."""
+    cached = cached or {}
+    # one worker: the order does not change the wall time; keep the planned one (points, then searches)
+    parallel = getattr(executor, "jobs", 1) > 1
+    if not parallel:
+        point_cost = search_cost = None
+    order = sorted(range(len(points)), key=lambda i: -point_cost(points[i])) if point_cost else range(len(points))
+    todo = iter([points[i] for i in order])
+    seq = itertools.count()
+    ready: list[tuple[float, int, EvalItem]] = []  # heap: (-search cost, tie, item)
+    owner: dict[int, tuple[Any, LimitRequest, float]] = {}  # id(item) -> (its search's generator, req, cost)
+    active = 0
+    points_left = [True]
+
+    def advance(gen: Any, req: LimitRequest, cost: float, row: dict[str, Any] | None) -> None:
+        """Feed a search its last row (None: start it); queue its next
+        evaluation, or finish it."""
+        nonlocal active
+        try:
+            item = next(gen) if row is None else gen.send(row)
+        except StopIteration as stop:
+            active -= 1
+            res, summary = stop.value
+            on_search_done(req, res, summary)
+            return
+        owner[id(item)] = (gen, req, cost)
+        heapq.heappush(ready, (-cost, next(seq), item))
+
+    for req in sorted(searches, key=lambda r: -search_cost(r)) if search_cost else searches:
+        active += 1
+        advance(search_items(req, store_eval, cached), req, search_cost(req) if search_cost else 0.0, None)
+
+    def source() -> Iterator[Any]:
+        while True:
+            if ready and (parallel or not points_left[0]):
+                yield heapq.heappop(ready)[2]
+                continue
+            p = next(todo, None)
+            if p is not None:
+                yield p
+                continue
+            if points_left[0]:
+                points_left[0] = False
+                continue
+            if not active:
+                return
+            yield WAIT
+
+    def started(item: Any) -> None:
+        if on_start is not None and not isinstance(item, EvalItem):
+            on_start(item)
+
+    for item, value in executor.map(run_item, source(), budget_s=item_budget, on_start=started,
+                                    priority=item_priority):
+        if isinstance(item, EvalItem):
+            gen, req, cost = owner.pop(id(item))
+            advance(gen, req, cost, lost_eval_row(item, value) if isinstance(value, WorkerLost) else value)
+        else:
+            on_point_row(item, lost_point_row(item, value) if isinstance(value, WorkerLost) else value)
+    if active:  # the source ends only when every search has finished
+        raise RuntimeError(f"scheduler: {active} searches left unfinished")
+
+
+def _model_cost(scene: Any, dt: Any, runs: int) -> float:
+    """Steps x (bodies + 1) x runs: a stand-in for seconds where no earlier
+    sweep timed the item."""
+    try:
+        steps = float(scene.duration) / float(dt if dt is not None else scene.dt)
+    except (TypeError, ValueError, ZeroDivisionError):
+        steps = 1.0
+    return max(1, runs) * steps * (len(scene.bodies) + 1)
+
+
+def expected_costs(root: Any, suite: str, machine: str | None, points: list[Point], searches: list[LimitRequest]
+                   ) -> tuple[Callable[[Point], float], Callable[[LimitRequest], float]]:
+    """(point cost, search cost) of ``points`` and ``searches`` for
+    :func:`run_schedule`'s longest-first order: the wall time of the same
+    point, or the summed wall time of the same search's evaluations, in the
+    newest finished sweep of ``suite`` on ``machine`` under ``root`` (s);
+    for an item it did not time, a model (steps x bodies x runs) scaled to
+    seconds by the points both know (unscaled when none).  Only the order
+    matters."""
+    import math
+
+    from harness.points import _scene
+    from harness.sweep_store import sweep_files
+
+    wall: dict[str, float] = {}
+    search_wall: dict[str, float] = {}
+    files = sorted(f for m, _s, sid, f, _c in sweep_files(root, [suite], machine, unfinished=False))
+    if files:
+        import pandas as pd
+
+        try:
+            df = pd.read_parquet(files[-1])
+        except Exception:
+            df = pd.DataFrame()
+        if "point_wall_s" in df.columns and "point_key" in df.columns:
+            kind = df["row_kind"] if "row_kind" in df.columns else pd.Series([None] * len(df), index=df.index)
+            pts = df[kind.isna()]
+            wall = dict(zip(pts["point_key"], pts["point_wall_s"].astype(float)))
+            if "limit_id" in df.columns:
+                ev = df[kind == "limit_eval"]
+                search_wall = ev.groupby("limit_id")["point_wall_s"].sum().astype(float).to_dict()
+    from harness.limits import spec_hash
+
+    def point_model(p: Point) -> float:
+        try:
+            scene = _scene(p.path or p.scenario, p.variant)
+        except Exception:
+            return 0.0
+        return _model_cost(scene, p.engine_settings.get("dt"), p.repeats)
+
+    def search_model(r: LimitRequest) -> float:
+        try:
+            scene = _scene(r.scenario, r.variant)
+        except Exception:
+            return 0.0
+        return _model_cost(scene, dict(r.settings).get("dt"), 8 * r.phases)  # ~8 values per search
+
+    # seconds per model unit: the median over the points timed before
+    ratios = sorted(w / m for p in points if math.isfinite(w := wall.get(p.key, math.nan))
+                    and (m := point_model(p)) > 0)
+    scale = ratios[len(ratios) // 2] if ratios else 1.0
+    pc = {p.key: w if math.isfinite(w := wall.get(p.key, math.nan)) else scale * point_model(p) for p in points}
+    sc = {}
+    for r in searches:
+        try:
+            w = search_wall.get(r.identity(spec_hash(r)), math.nan)
+        except OSError:
+            w = math.nan
+        sc[id(r)] = w if math.isfinite(w) else scale * search_model(r)
+
+    def point_cost(p: Point) -> float:
+        return pc.get(p.key, 0.0)
+
+    def search_cost(r: LimitRequest) -> float:
+        return sc.get(id(r), 0.0)
+
+    return point_cost, search_cost
+
+
+__all__ = ["run_schedule", "run_item", "item_budget", "item_priority", "expected_costs"]

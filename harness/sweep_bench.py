@@ -1,0 +1,319 @@
+"""How a sweep scales with workers: ``python -m harness.sweep_bench``.
+
+Runs one suite (default: the nightly, points and ``[[limit]]`` searches)
+fresh with each executor and worker count, one after the other into one
+temporary directory (so each run but the first orders its items longest
+first by the one before: harness/schedule.py), and prints for each run:
+
+- ``wall_s``: the sweep's wall time, process start-up to consolidated file;
+- ``cpu_s``: CPU time of this process and every process it started
+  (workers, run processes, a LocalCluster's scheduler and workers;
+  ``getrusage``), so ``cpu_s / wall_s`` is how many cores it kept busy;
+- ``busy_s``: the rows' ``point_wall_s`` summed (points and search
+  evaluations): time the run processes spent on items;
+  ``idle = 1 - busy_s / (jobs x wall_s)``: the workers' share of the wall
+  time spent not running an item (start-up, scheduling round trips, and a
+  tail where some worker has nothing left to run);
+- ``step_cpu_s`` / ``step_wall_s``: the engines' stepping (first run of
+  each item), CPU and wall; ``wait = step_wall / step_cpu - 1``: how long a
+  run process waited for a core while stepping (the machine's other load);
+  ``step_cpu_s`` growing from 1 to 2 workers is each core doing less
+  (shared caches, memory bandwidth, clock);
+- ``speedup``: the 1-worker wall time of the same executor over this one.
+
+Then the scheduler overhead per item of each executor (sleeping tasks,
+harness.executors.bench_overhead) and the thread pools of its run processes
+(harness.executors.thread_counts).  Timings of a shared machine are noisy:
+compare ``cpu_s`` and ``idle`` as well as the wall time, and rerun on a
+quiet machine for the figures in docs/SWEEPS.md.  Example::
+
+    python -m harness.sweep_bench --suite nightly --executors process dask --jobs 1 2 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+
+def _cpu() -> float:
+    """CPU seconds (user + system) of this process and its waited-for descendants."""
+    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
+
+
+def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str] | None = None,
+            scenarios: list[str] | None = None) -> dict[str, Any]:
+    """One fresh sweep of ``suite`` with ``executor`` x ``jobs`` under
+    ``root`` (its earlier sweeps there give the longest-first order); the
+    figures of the module docstring."""
+    import pandas as pd
+
+    from harness.sweep import sweep_main
+    from harness.sweep_store import sweep_files
+
+    c0, t0 = _cpu(), time.perf_counter()
+    rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
+                    scenarios=scenarios)
+    wall, cpu = time.perf_counter() - t0, _cpu() - c0
+    newest = max((f for *_m, f, done in sweep_files(root, unfinished=False) if done), key=lambda f: f.stem)
+    df = pd.read_parquet(newest)
+    if rc != 0:
+        raise RuntimeError(f"sweep {suite} on {executor} x{jobs} exited {rc}")
+
+    def total(col: str) -> float:
+        return float(pd.to_numeric(df[col], errors="coerce").fillna(0.0).sum()) if col in df else math.nan
+
+    busy = total("point_wall_s")
+    step_cpu, step_wall = total("timing.step_cpu_s"), total("timing.step_wall_s")
+    kind = df["row_kind"] if "row_kind" in df else pd.Series([None] * len(df))
+    return {"executor": executor, "jobs": jobs, "points": int(kind.isna().sum()),
+            "evaluations": int((kind == "limit_eval").sum()), "searches": int((kind == "limit").sum()),
+            "errors": int(df["status"].isin(["error", "timeout"]).sum()),
+            "wall_s": wall, "cpu_s": cpu, "cores_busy": cpu / wall, "busy_s": busy,
+            "idle": 1.0 - busy / (jobs * wall), "step_cpu_s": step_cpu, "step_wall_s": step_wall,
+            "wait": step_wall / step_cpu - 1.0 if step_cpu > 0 else math.nan, "sweep_file": str(newest)}
+
+
+class VirtualExecutor:
+    """``jobs`` workers in virtual time, for replaying a schedule: an item
+    takes ``duration(item)`` seconds and its value is ``answer(item)``
+    (``fn`` is not called).  Records when each item started (``started``),
+    when the source said WAIT (``waits``), the worker seconds spent on
+    items (``busy``) and the ``makespan``.  Tests: tests/test_schedule.py."""
+
+    def __init__(self, jobs: int, duration: Any, answer: Any):
+        self.jobs, self.duration, self.answer = jobs, duration, answer
+        self.started: list[tuple[float, Any]] = []
+        self.waits: list[float] = []
+        self.busy = 0.0
+        self.makespan = 0.0
+
+    def map(self, fn: Any, items: Any, budget_s: Any = None, on_start: Any = None, priority: Any = None):
+        import heapq
+        import itertools
+
+        from harness.execute import END, WAIT, take
+
+        source, more, now, seq = iter(items), True, 0.0, itertools.count()
+        running: list = []
+        while more or running:
+            while more and len(running) < self.jobs:
+                item = take(source, bool(running))
+                if item is END:
+                    more = False
+                if item is WAIT:
+                    self.waits.append(now)
+                if item is END or item is WAIT:
+                    break
+                self.started.append((now, item))
+                if on_start:
+                    on_start(item)
+                heapq.heappush(running, (now + self.duration(item), next(seq), item))
+            if running:
+                now, _, item = heapq.heappop(running)
+                self.busy += self.duration(item)
+                yield item, self.answer(item)
+        self.makespan = now
+
+    @property
+    def idle(self) -> float:
+        """Worker seconds not spent on an item, over the makespan."""
+        return self.jobs * self.makespan - self.busy
+
+
+def _list_schedule(durations: list[float], jobs: int) -> float:
+    """Makespan of jobs taken in order by the first free of ``jobs`` workers."""
+    import heapq
+
+    free = [0.0] * jobs
+    for d in durations:
+        heapq.heapreplace(free, free[0] + d)
+    return max(free)
+
+
+def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = None,
+           scenarios: list[str] | None = None) -> dict[str, float]:
+    """The makespan on ``jobs`` uncontended workers of a sweep's items,
+    each taking the wall time it took in ``sweep`` (a DataFrame of a
+    finished sweep of ``suite``, best a 1-worker one; the searches take the
+    same path, their verdicts read from its rows): ``total_s`` (all items,
+    one worker), ``ideal_s`` (total / jobs, or the longest search if
+    longer), ``new_s`` (harness/schedule.py's order), ``old_s`` (the points
+    in planned order, then the searches, ``jobs`` at a time, each
+    sequential: the path before), and the speed-ups total / new, total /
+    old: what the schedule allows before any contention or overhead.  The
+    new order knows the items' times (as a sweep does from the one before
+    it)."""
+    import math
+
+    from harness.schedule import run_schedule
+    from harness.suite import _label, expand, load_suite
+
+    s = load_suite(suite)
+    points = expand(s, engines, scenarios)
+    reqs = [r for r in s.limits if (engines is None or r.engine in engines)
+            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+    rows = {r["point_key"]: r for r in sweep.to_dict("records")}
+
+    def duration(item: Any) -> float:
+        w = float(rows[item.key]["point_wall_s"])
+        return w if math.isfinite(w) else 0.0
+
+    def answer(item: Any) -> dict[str, Any]:
+        return dict(rows[item.key])
+
+    total = sum(duration(p) for p in points)
+    search_s: dict[int, float] = {}
+
+    def done(req: Any, res: Any, _summary: dict[str, Any]) -> None:
+        pass
+
+    ex = VirtualExecutor(1, duration, answer)
+    run_schedule(ex, [], reqs, lambda p, r: None, done, lambda r: None)
+    for _t, item in ex.started:  # each search's chain, one worker: its total
+        search_s[id(item.req)] = search_s.get(id(item.req), 0.0) + duration(item)
+    chains = [search_s.get(id(r), 0.0) for r in reqs]
+    total += sum(chains)
+    by_req = {id(r): c for r, c in zip(reqs, chains)}
+
+    new = VirtualExecutor(jobs, duration, answer)
+    run_schedule(new, points, reqs, lambda p, r: None, done, lambda r: None,
+                 point_cost=duration, search_cost=lambda r: by_req.get(id(r), 0.0))
+    old_points = VirtualExecutor(jobs, duration, answer)
+    run_schedule(old_points, points, [], lambda p, r: None, done, lambda r: None)
+    old = old_points.makespan + _list_schedule(chains, jobs)
+    ideal = max(total / jobs, max(chains, default=0.0))
+    return {"jobs": jobs, "points": len(points), "searches": len(reqs), "evaluations": len(ex.started),
+            "total_s": total, "ideal_s": ideal, "new_s": new.makespan, "old_s": old,
+            "longest_search_s": max(chains, default=0.0), "longest_point_s": max(map(duration, points), default=0.0),
+            "speedup_new": total / new.makespan if new.makespan else math.nan,
+            "speedup_old": total / old if old else math.nan}
+
+
+def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.column_5",
+                 engine: str = "reference") -> dict[str, Any]:
+    """CPU per simulated second of one sweep point (the suite nightly's
+    most expensive ``engine`` point of ``scenario``) run alone, then as
+    ``copies`` copies at once, each in its own run process, ``rounds``
+    times (medians of the points' ``cpu_s_per_sim_s_median``).  ``ratio`` =
+    together / alone: above 1, each core does less when all run (shared
+    caches and memory bandwidth, clock, or vCPUs that share a physical
+    core); ``copies / ratio`` bounds the speed-up any schedule reaches."""
+    import statistics
+
+    from harness.execute import WorkerPool
+    from harness.points import _scene, run_point
+    from harness.schedule import _model_cost
+    from harness.suite import expand, load_suite
+
+    pts = expand(load_suite("nightly"), [engine], [scenario])
+    point = max(pts, key=lambda p: _model_cost(_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
+
+    def cpu(pool: WorkerPool, n: int) -> list[float]:
+        return [float(r["cpu_s_per_sim_s_median"]) for _p, r in pool.map(run_point, [point] * n)]
+
+    with WorkerPool(1) as pool:
+        cpu(pool, 1)  # warm: imports, compiled kernels from the cache
+        alone = statistics.median(cpu(pool, rounds))
+    with WorkerPool(copies) as pool:
+        cpu(pool, copies)
+        together = statistics.median(cpu(pool, copies * rounds))
+    return {"point": point.key, "copies": copies, "alone_cpu_s_per_sim_s": alone,
+            "together_cpu_s_per_sim_s": together, "ratio": together / alone, "bound": copies * alone / together}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m harness.sweep_bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--suite", default="nightly")
+    p.add_argument("--engines", nargs="+", default=None)
+    p.add_argument("--scenarios", nargs="+", default=None, help="a subset of the suite's scenarios")
+    p.add_argument("--executors", nargs="+", default=["process", "dask"], choices=["process", "dask"])
+    p.add_argument("--jobs", nargs="+", type=int, default=[1, 2])
+    p.add_argument("--overhead-items", type=int, default=200, help="sleeping tasks per overhead figure (0: skip)")
+    p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+    p.add_argument("--core-scaling", action="store_true",
+                   help="only measure one point's CPU alone and as --jobs copies at once")
+    p.add_argument("--replay", type=Path, default=None,
+                   help="only replay this finished sweep file (best a 1-worker one) on --jobs virtual workers")
+    p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
+                                                           "directory, removed)")
+    args = p.parse_args(argv)
+    from harness.executors import bench_overhead, make_executor, thread_counts
+
+    if args.core_scaling:
+        for jobs in args.jobs:
+            if jobs > 1:
+                print(json.dumps(core_scaling(jobs)))
+        return 0
+    if args.replay is not None:
+        import pandas as pd
+
+        df = pd.read_parquet(args.replay)
+        for jobs in args.jobs:
+            print(json.dumps(replay(df, args.suite, jobs, args.engines, args.scenarios)))
+        return 0
+    rows: list[dict[str, Any]] = []
+    replays: list[dict[str, Any]] = []
+    root = args.keep or Path(tempfile.mkdtemp(prefix="physbench-sweep-bench-"))
+    try:
+        for ex in args.executors:
+            for jobs in args.jobs:
+                r = measure(root, args.suite, ex, jobs, args.engines, args.scenarios)
+                one = next((x for x in rows if x["executor"] == ex and x["jobs"] == 1), None)
+                r["speedup"] = one["wall_s"] / r["wall_s"] if one else math.nan
+                rows.append(r)
+                print(json.dumps(r), file=sys.stderr, flush=True)
+                if jobs == 1 and not replays:  # the uncontended item times: what the schedule allows
+                    import pandas as pd
+
+                    df = pd.read_parquet(r["sweep_file"])
+                    replays = [replay(df, args.suite, j, args.engines, args.scenarios) for j in args.jobs if j > 1]
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+    overhead = []
+    if args.overhead_items > 0:
+        for ex in args.executors:
+            for jobs in args.jobs:
+                for task_s in (0.0, 0.02):
+                    overhead.append(bench_overhead(ex, jobs, args.overhead_items, task_s))
+    threads = {}
+    for ex in args.executors:
+        with make_executor(ex, 1, log=lambda _t: None) as e:
+            threads[ex] = list(e.map(thread_counts, [0]))[0][1]
+
+    print(f"sweep {args.suite}" + (f", scenarios {' '.join(args.scenarios)}" if args.scenarios else ""))
+    cols = ("executor", "jobs", "points", "evaluations", "errors", "wall_s", "speedup", "cpu_s", "cores_busy",
+            "busy_s", "idle", "step_cpu_s", "step_wall_s", "wait")
+    print(" | ".join(cols))
+    for r in rows:
+        print(" | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+    for rp in replays:
+        print(f"replay of the 1-worker item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
+              f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "
+              f"points then searches {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
+              f"{rp['longest_search_s']:.1f} s, longest point {rp['longest_point_s']:.1f} s")
+    if overhead:
+        print("scheduler overhead per item (ms of worker time not in the task; sleeping tasks)")
+        for o in overhead:
+            print(f"  {o['executor']} x{o['jobs']}, {o['items']} tasks of {o['task_s'] * 1e3:g} ms: "
+                  f"{o['overhead_ms']:.2f} ms")
+    for ex, t in threads.items():
+        print(f"run process threads ({ex}): numba {t['numba']}, BLAS {t['blas']}, env {t['env']}")
+    if args.json:
+        args.json.write_text(json.dumps({"suite": args.suite, "scenarios": args.scenarios, "runs": rows, "replays": replays,
+                                         "overhead": overhead, "threads": threads}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

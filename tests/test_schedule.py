@@ -1,0 +1,248 @@
+"""A sweep's points and breaking-point searches on one executor
+(harness/schedule.py), and the executor hooks it needs (harness/execute.py:
+items read lazily, WAIT, one thread per run process).
+
+The scheduling tests run on a simulated executor in virtual time (items
+take given durations, values come from a function): the order and the
+idle worker time are exact, whatever else the machine runs.  The last test
+runs real searches with real points on the process pool and on a Dask
+LocalCluster (127.0.0.1) and compares every answer with the serial path.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness.execute import WAIT, InlineExecutor, WorkerLost, WorkerPool
+from harness.executors import _sleep, thread_counts
+from harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
+from harness.points import Point
+from harness.schedule import run_schedule
+from harness.sweep_bench import VirtualExecutor, replay
+
+#: a dt search on the 5-box column (scene loading only: values are answered by THRESHOLD)
+THRESHOLD = {"mujoco": 0.0071, "pybullet": 0.0033, "pymunk": 0.0191}
+
+
+def _req(engine: str, phases: int = 1) -> LimitRequest:
+    return LimitRequest("stacking.column_5", None, engine, "dt", 0.001, 0.05, phases=phases, tol=0.05)
+
+
+def _answer(item):
+    """A point's row, or an evaluation's: holds below the engine's THRESHOLD."""
+    if isinstance(item, EvalItem):
+        holds = item.value <= THRESHOLD[item.req.engine]
+        return {"point_key": item.key, "limit_value": item.value, "limit_holds": holds, "limit_reason": "" if holds else "too coarse",
+                "limit_cpu_s": 1.0, "phase": item.phase, "status": "ok"}
+    return {"point_key": item.key, "status": "ok"}
+
+
+def SimExecutor(jobs, duration, answer=_answer):
+    """harness.sweep_bench's virtual-time executor answering with _answer."""
+    return VirtualExecutor(jobs, duration, answer)
+
+
+def _points(n: int) -> list[Point]:
+    return [Point("billiards.head_on", None, "mujoco", (("dt", 1e-3 * (i + 1)),)) for i in range(n)]
+
+
+def _duration(item) -> float:
+    if isinstance(item, EvalItem):
+        return 1.0
+    return float(item.settings_dict["dt"]) * 1e3  # point i takes i + 1 s
+
+
+def _run(ex, points, reqs, **kw):
+    rows, evals, done = {}, [], {}
+    run_schedule(ex, points, reqs, lambda p, r: rows.__setitem__(p.key, r),
+                 lambda req, res, summary: done.__setitem__(req.engine, (res, summary)), evals.append, **kw)
+    return rows, evals, done
+
+
+def test_searches_run_with_the_points_and_give_the_serial_answers():
+    """Two workers, three searches (chains of 1 s evaluations) and twelve
+    points (1 .. 12 s): every search and point finishes, each search's
+    answer is the serial search's, and the schedule beats running the
+    searches after the points (the old path) -- the workers idle only at
+    the very end, less than one item's time."""
+    reqs = [_req(e) for e in THRESHOLD]
+    points = _points(12)
+    ex = SimExecutor(2, _duration)
+    rows, evals, done = _run(ex, points, reqs, point_cost=_duration, search_cost=lambda r: 1.0)
+    assert sorted(rows) == sorted(p.key for p in points)
+    for req in reqs:
+        serial = drive(search_items(req, lambda row: None, {}), _answer)
+        res, summary = done[req.engine]
+        assert (res.limit, res.bracket, res.runs) == (serial[0].limit, serial[0].bracket, serial[0].runs)
+        assert summary["row_kind"] == RESULT_ROW and summary["limit_runs"] == res.runs
+        assert res.limit <= THRESHOLD[req.engine] < res.bracket[1]
+    assert len(evals) == sum(done[e][0].runs for e in THRESHOLD)
+
+    # the old path: the points, then the searches on the same two workers
+    old = SimExecutor(2, _duration)
+    _run(old, points, [])
+    old_search = SimExecutor(2, _duration)
+    _run(old_search, [], reqs)
+    assert ex.busy == old.busy + old_search.busy
+    assert ex.makespan < old.makespan + old_search.makespan
+    assert ex.idle < max(_duration(p) for p in points)  # no worker waits on a chain while points are left
+    assert ex.makespan <= math.ceil(ex.busy / 2) + 1
+
+
+def test_order_chains_first_then_longest_point_first():
+    """With searches running, evaluations go out before points; the points
+    go out longest first."""
+    reqs = [_req("mujoco"), _req("pymunk")]
+    points = _points(6)
+    ex = SimExecutor(2, _duration)
+    _run(ex, points, reqs, point_cost=_duration, search_cost=lambda r: 1.0)
+    kinds = [isinstance(it, EvalItem) for _t, it in ex.started]
+    assert kinds[:2] == [True, True]  # one evaluation of each search first
+    order = [_duration(it) for _t, it in ex.started if not isinstance(it, EvalItem)]
+    assert order == sorted(order, reverse=True)
+
+
+def test_one_worker_keeps_the_planned_order():
+    """One worker: points in the planned order, then the searches (the
+    order changes no wall time there)."""
+    reqs = [_req("mujoco")]
+    points = _points(4)
+    ex = SimExecutor(1, _duration)
+    _run(ex, points, reqs, point_cost=_duration, search_cost=lambda r: 1.0)
+    items = [it for _t, it in ex.started]
+    assert items[:4] == points and all(isinstance(it, EvalItem) for it in items[4:]) and len(items) > 5
+    assert not ex.waits and ex.idle == 0.0
+
+
+def test_a_lost_evaluation_is_an_error_row_and_its_search_goes_on():
+    """An evaluation whose worker died is stored as an ``error`` row that
+    does not hold; the search treats the value as failing and finishes."""
+    lost_values = []
+
+    def answer(item):
+        if isinstance(item, EvalItem) and item.value > 0.01 and not lost_values:
+            lost_values.append(item.value)
+            return WorkerLost("died", "worker process died while running this item: SIGKILL (killed)")
+        return _answer(item)
+
+    ex = SimExecutor(2, _duration, answer)
+    rows, evals, done = _run(ex, _points(2), [_req("pymunk")])
+    bad = [r for r in evals if r["limit_value"] == lost_values[0]]
+    assert len(bad) == 1 and bad[0]["status"] == "error" and not bad[0]["limit_holds"]
+    assert "this value" in bad[0]["limit_reason"] and bad[0]["row_kind"] == EVAL_ROW
+    res, _ = done["pymunk"]
+    assert res.bracket[1] <= lost_values[0]  # the value failed: the limit lies below it
+
+
+def test_cached_evaluations_are_read_back_not_run():
+    req = _req("mujoco", phases=1)
+    ex = SimExecutor(2, _duration)
+    _r, evals, _d = _run(ex, [], [req])
+    cached = {r["point_key"]: r for r in evals}
+    again = SimExecutor(2, _duration)
+    _r, evals2, done = _run(again, [], [req], cached=cached)
+    assert evals and not evals2 and not again.started
+    assert done["mujoco"][0].limit <= THRESHOLD["mujoco"] < done["mujoco"][0].bracket[1]
+
+
+# ---------------------------------------------------------------------------
+# the executor hooks
+
+
+def test_pool_reads_items_lazily_and_waits():
+    """WorkerPool and the inline executor read one item when a worker is
+    free; WAIT holds the source until a result is in; WAIT with nothing
+    in flight is an error, not a hang."""
+    got = []
+
+    waits = []
+
+    def source():
+        yield 0.01
+        while not got:  # nothing to run until the first result is handed over
+            waits.append(len(got))
+            yield WAIT
+        yield 0.0
+
+    with WorkerPool(2) as pool:
+        for item, value in pool.map(_sleep, source()):
+            got.append(value)
+        assert got == [0.01, 0.0] and waits
+        with pytest.raises(RuntimeError, match="nothing is running"):
+            list(pool.map(_sleep, iter([WAIT])))
+    with pytest.raises(RuntimeError, match="nothing is running"):
+        list(InlineExecutor().map(_sleep, iter([0.0, WAIT])))
+
+
+def test_run_processes_use_one_thread():
+    """BLAS (threadpoolctl) and numba hold one thread in every run process:
+    N workers use N cores, whatever the machine."""
+    with WorkerPool(1) as pool:
+        [(_, got)] = list(pool.map(thread_counts, [0]))
+    assert got["numba"] == 1 and set(got["blas"].values()) <= {1}, got
+    assert set(got["env"].values()) == {"1"}
+
+
+# ---------------------------------------------------------------------------
+# real runs
+
+
+TIMING = ("cpu_s", "wall_s", "steps_per_s", "point_wall_s", "sweep_jobs", "limit_cpu_s")
+
+
+def test_limit_blocks_on_two_workers_give_the_serial_rows(tmp_path):
+    """A suite of points and two searches, run serially, on two process
+    workers and on a two-worker Dask LocalCluster: the same eval rows and
+    answers (engines are deterministic), the same point metrics."""
+    pytest.importorskip("distributed")
+    from harness.sweep import sweep_main
+    from harness.sweep_store import read_sweeps
+
+    p = tmp_path / "s.toml"
+    p.write_text(textwrap.dedent("""
+        [suite]
+        name = "mix"
+        engines = ["pymunk", "mujoco"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        grid = { dt = [0.002, 0.001] }
+        [[limit]]
+        scenarios = ["tunnelling.bullet_100"]
+        param = "body[0].velocity[0]"
+        range = [0.3, 10]
+        phases = 2
+        tol = 0.2
+        checks = ["tunnelled"]
+        set = { "static[0].position" = [0.05, 0.0, 0.0], "scenario.duration" = 0.5 }
+    """))
+    frames = {}
+    for executor, jobs in (("serial", 1), ("process", 2), ("dask", 2)):
+        out = tmp_path / executor
+        assert sweep_main(str(p), jobs=jobs, out_dir=out, executor=executor) == 0
+        frames[executor] = read_sweeps(out, suite="mix")
+    a = frames["serial"]
+    for name in ("process", "dask"):
+        b = frames[name]
+        assert sorted(a["point_key"]) == sorted(b["point_key"]) and b["point_key"].is_unique, name
+        a_, b_ = a.set_index("point_key").sort_index(), b.set_index("point_key").sort_index()
+        assert (a_["status"] == b_["status"]).all()
+        for c in ("limit_value", "limit_lo", "limit_hi", "limit_runs", "limit_holds", "primary_error",
+                  "max_penetration"):
+            np.testing.assert_array_equal(pd.to_numeric(a_[c], errors="coerce").to_numpy(float),
+                                          pd.to_numeric(b_[c], errors="coerce").to_numpy(float), err_msg=f"{name} {c}")
+    res = a[a["row_kind"] == RESULT_ROW]
+    assert len(res) == 2 and res["limit_outcome"].eq("found").all()
+    assert (a["row_kind"] == EVAL_ROW).sum() == res["limit_runs"].sum()
+
+    # the serial sweep replayed on two virtual workers: the searches take the stored path
+    rp = replay(a, str(p), 2)
+    timed = a[a["row_kind"].isna() | (a["row_kind"] == EVAL_ROW)]["point_wall_s"].sum()
+    assert rp["evaluations"] == res["limit_runs"].sum() and rp["points"] == 4
+    assert rp["total_s"] == pytest.approx(timed, rel=1e-9)
+    assert rp["ideal_s"] <= rp["new_s"] <= rp["old_s"] <= rp["total_s"]
