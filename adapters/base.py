@@ -125,6 +125,12 @@ class Adapter(abc.ABC):
     """Base class; see the module docstring for the contract."""
 
     name: str = ""
+    #: the engine's name in messages when its gyroscopic term w x I w is
+    #: always on (no switch): then :meth:`unsupported_reason` also refuses a
+    #: scene without the ``gyroscopic`` effect unless the term is provably
+    #: zero (:func:`gyroscopic_reason`); None for an engine that can leave
+    #: the term out
+    gyroscopic_always_on: str | None = None
 
     def __init__(self) -> None:
         self.notes: list[str] = []
@@ -153,7 +159,8 @@ class Adapter(abc.ABC):
     @classmethod
     def unsupported_reason(cls, scene: Scene) -> str | None:
         """Why this engine cannot model ``scene`` (None if it can).  The
-        default checks dimensions, shapes and effects against capabilities."""
+        default checks dimensions, shapes and effects against capabilities,
+        and the always-on gyroscopic term (:attr:`gyroscopic_always_on`)."""
         caps = cls.capabilities()
         if not caps.available:
             return f"{caps.engine} is not available: {caps.unavailable_reason}"
@@ -168,6 +175,8 @@ class Adapter(abc.ABC):
         missing = sorted(scene.effects - caps.effects)
         if missing:
             return f"{caps.engine} cannot model effect {', '.join(missing)}"
+        if cls.gyroscopic_always_on is not None:
+            return gyroscopic_reason(scene, cls.gyroscopic_always_on)
         return None
 
     # ---- life cycle --------------------------------------------------------

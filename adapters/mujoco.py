@@ -80,7 +80,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import gyroscopic_reason, DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
 from adapters.forces import drag_coefficients
 from adapters.mjcf import INTEGRATORS, build_mjcf
 from adapters.mujoco_impacts import calibrate_pairs
@@ -153,6 +153,7 @@ class MujocoAdapter(Adapter):
     """Adapter for MuJoCo 4.x (free rigid bodies, MJCF built from the Scene)."""
 
     name = ENGINE
+    gyroscopic_always_on = "MuJoCo"
 
     # ---- declaration -------------------------------------------------------
     @classmethod
@@ -174,13 +175,6 @@ class MujocoAdapter(Adapter):
                 "soft contacts: bodies overlap by design",
             ),
         )
-
-    @classmethod
-    def unsupported_reason(cls, scene: Scene) -> str | None:
-        reason = super().unsupported_reason(scene)
-        if reason is not None:
-            return reason
-        return gyroscopic_reason(scene, "MuJoCo")
 
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

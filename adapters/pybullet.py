@@ -82,7 +82,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import gyroscopic_reason, Adapter, Capabilities, Unsupported
+from adapters.base import Adapter, Capabilities, Unsupported
 from adapters.forces import PybulletForces
 from adapters.materials import per_object_factors
 from adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
@@ -125,6 +125,7 @@ class PybulletAdapter(Adapter):
     """Drives one pybullet DIRECT client.  See the module docstring."""
 
     name = ENGINE
+    gyroscopic_always_on = "pybullet"
 
     def __init__(self) -> None:
         super().__init__()
@@ -141,13 +142,6 @@ class PybulletAdapter(Adapter):
     @classmethod
     def capabilities(cls) -> Capabilities:
         return _capabilities()
-
-    @classmethod
-    def unsupported_reason(cls, scene: Scene) -> str | None:
-        reason = super().unsupported_reason(scene)
-        if reason is not None:
-            return reason
-        return gyroscopic_reason(scene, "pybullet")
 
     # ---- build ---------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

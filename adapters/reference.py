@@ -121,13 +121,6 @@ class ReferenceAdapter(Adapter):
             notes=("every shape pair collides, and each shape with every static (plane, slope, box)",),
         )
 
-    @classmethod
-    def unsupported_reason(cls, scene: Scene) -> str | None:
-        reason = super().unsupported_reason(scene)
-        if reason is not None:
-            return reason
-        return None
-
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         from engine.collision import unsupported_pairs
         from engine.model import build_model

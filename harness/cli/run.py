@@ -44,7 +44,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace):
     """The scene's checks that apply to the run of ``req``, evaluated as
-    ``physbench check`` evaluates them (harness/conformance.py): the runs a
+    ``physbench check`` evaluates them (harness/conformance/): the runs a
     check needs beyond this one -- its step phases, an ``@dt=...`` setting --
     are made here, in one worker process, with the same settings and spec
     overrides.  A run at a given ``--phase`` is judged on itself only (it is

@@ -1,0 +1,235 @@
+"""CI conformance: run every scenario's checks on every engine.
+
+``check_main(engines, tags, junit, scenarios, jobs)`` is what ``physbench
+check`` calls; it returns the process exit code (1 on any FAIL, ERROR or
+XPASS, else 0).
+
+Modules: ``verdicts`` (the outcome vocabulary, ``Outcome``, bounds and
+their evaluation, the combination over step phases, a row's verdict
+columns; no I/O), ``plan`` (``RunSpec``, scenario selection, the runs a
+scene's checks take, the outcomes of the planned runs), ``store`` (the
+resumable parts store), ``traces`` (``check --traces``), ``junit`` and
+``summary`` (exit code and console table); this module runs them
+(``execute``, ``run_all``, ``check_main``) and re-exports the names other
+modules and the tests take from ``harness.conformance``.
+
+What runs.  For each selected scenario (all of ``scenarios/`` by default;
+else the ids, spec files and folders of spec files given, anywhere on disk:
+:func:`select_scenarios`; filtered by ``tags``: a scenario is kept if it has
+any of them) the base scene
+and each ``[[variant]]`` are run once per engine, at the engine's default
+settings and the scene's dt, with :func:`harness.runner.run` -- but only the
+ones that some check applies to:
+
+- a check without ``variants`` applies to the base scenario and to every
+  variant; a check with ``variants = [...]`` only to the variants it names,
+  where the name ``"base"`` stands for the base scenario;
+- a check with ``engines = [...]`` applies only to those engines.
+
+Checks are read from the compiled scene of the run (so a variant sees the
+base's checks, plus whatever its overrides change).
+
+Hard cases.  Every scenario tagged ``hard`` is also checked for stability
+(metric ``stable`` must be true) on every engine, at the default dt and at
+dt = 1/30 s (settings override ``{"dt": 1/30}``), as testcases
+``<scenario>::stable`` and ``<scenario>::stable@dt=1/30`` (base scene only).
+A scenario may declare these checks itself, ``metric = "stable"`` or
+``metric = "stable@dt=1/30"``, to attach an ``xfail``; the explicit check
+then replaces the implicit one.  In general, a check metric
+``NAME@dt=VALUE`` evaluates NAME on a run whose dt is overridden (VALUE may
+be a fraction such as 1/30).
+
+Step phases: a scenario with ``[scenario] phases = N`` (N > 1; its start
+must be free flight) runs every engine N times, the start moved back along
+the free flight by i/N dt (contract/phase.py); each check not bound to
+another dt holds only if it holds in every phase.  One run is one draw of
+where the steps fall, and for thin walls that decides the outcome: a plate
+that a discrete engine catches in the phase as written may fall through in
+13 of 16 phases.  The combined outcome: ERROR if a phase errored, else
+FAIL (XFAIL with an xfail) if a phase failed, else PASS (XPASS); its
+message gives the failing count and the pattern over the phases.
+
+Outcomes, per (engine, scenario, variant, check):
+
+- PASS / FAIL: the run is ``ok`` and the metric meets / misses the bound;
+- ERROR also when the run is ``ok`` but the check's metric is missing from
+  it or NaN ("metric not computed"): a check is never silently skipped, and
+  an xfail does not cover it (nothing was measured);
+- XFAIL / XPASS: the check lists the engine in ``xfail`` (a documented
+  limitation, with the measured figure) and the run fails / passes it;
+- UNSUPPORTED: the engine reported the scene as unsupported;
+- ERROR: the run's status is error, failed, diverged or timeout (or the
+  scene would not load): counts as a failure unless xfailed (then XFAIL).
+
+Bounds: ``max`` (value <= max), ``min`` (value >= min), both if both given;
+``equals`` with ``tolerance`` (|value - equals| <= tolerance; booleans must
+match).  ``tolerance`` also widens max/min bounds.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from harness.conformance.junit import write_junit
+from harness.conformance.plan import RUN_TIMEOUT_S, RunSpec, default_engines, evaluate_runs, plan, select_scenarios
+from harness.conformance.store import _now, _row, check_identity, open_check
+from harness.conformance.summary import exit_code, summarize
+from harness.conformance.traces import trace_failures
+from harness.conformance.verdicts import Outcome, verdicts_column
+# the names other modules and the tests take from harness.conformance
+# (limits.py, points.py, cli/run.py, cli/trace.py; tests/test_conformance.py,
+# test_scenarios.py, test_own_scenes.py, test_execute.py, test_trace_*.py)
+from harness.conformance.plan import scene_runs  # noqa: F401
+from harness.conformance.store import save_rows  # noqa: F401
+from harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
+                                          _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
+                                          evaluate_check, hard_checks, run_verdicts, scene_columns, split_metric)
+from harness.execute import WorkerLost, execute_request, lost_result
+from harness.executors import make_executor
+
+
+def execute(spec: RunSpec):
+    """Run one RunSpec in this process (harness.execute.execute_request):
+    never raises (engine import errors become a RunResult with status
+    'failed').  The trace is dropped (results cross process boundaries)."""
+    return execute_request(spec.request())
+
+
+def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
+            on_result=None, scheduler: str | None = None) -> dict[tuple, Any]:
+    """Execute runs in ``jobs`` worker processes (harness/execute.py: a
+    worker that dies or hangs costs only its run, which becomes an error or
+    timeout result), or in this process with ``executor="inline"``, or as
+    Dask tasks with ``executor="dask"`` (on the cluster at ``scheduler``,
+    else a LocalCluster of ``jobs`` workers; raises
+    harness.dask_executor.EnvironmentRefused); a rich progress bar on stderr.  ``on_result(spec, result)`` is called as each
+    run finishes (check stores it there).  Returns {RunSpec.key: RunResult}."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
+
+    results: dict[tuple, Any] = {}
+    console = Console(stderr=True)
+    cols = (TextColumn("[bold]conformance"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
+    with make_executor(executor, jobs, scheduler, log=lambda t: console.print(t, markup=False, soft_wrap=True)) \
+            if executor == "dask" else make_executor(executor, jobs) as ex, \
+            Progress(*cols, console=console, disable=not progress, transient=False) as bar:
+        task = bar.add_task("", total=len(runs))
+
+        def run_one(r: RunSpec):
+            return execute(r)  # looked up at call time (tests patch it for inline runs)
+
+        fn = run_one if executor in ("inline", "serial") else execute
+        for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
+                               on_start=lambda r: bar.update(task, description=escape(r.request().label))):
+            res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
+            results[r.key] = res
+            if on_result is not None:
+                on_result(r, res)
+            bar.advance(task)
+    return results
+
+
+def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
+               scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
+               timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
+               traces: str | Path | None = None, scheduler: str | None = None) -> int:
+    """Run the conformance suite; print a summary; store every run's result
+    row as it finishes (``save_dir``, default results/check/: a directory
+    ``<check_id>/`` of atomic parts while running, consolidated into
+    ``<check_id>.parquet`` at the end) and write JUnit XML to ``junit`` if
+    given; with ``traces``, one diagnosing trace per FAIL, XFAIL and ERROR
+    case into that directory (:func:`trace_failures`).  A killed check is
+    resumed by the next same check (``resume``, :func:`check_identity`):
+    its finished runs are read back, not rerun.  Runs go to ``jobs`` worker
+    processes with ``timeout_s`` seconds each (``executor="inline"``: in
+    this process; ``"dask"``: tasks on the Dask cluster at ``scheduler`` or
+    a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
+    on local worker processes).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    SpecError for a scenario id or file that does not exist (exit 2)."""
+    from rich.console import Console
+
+    from harness.results import RESULTS_DIR, consolidate_parts
+    from harness.runner import RunResult
+    from contract.scene import resolve_scenario
+    from contract.spec import SpecError
+
+    t0 = time.perf_counter()
+    engines = list(engines) if engines else default_engines()
+    ids = select_scenarios(scenarios, tags)  # raises SpecError for an unknown id, file or folder
+    err = Console(stderr=True)
+    if not ids:
+        err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
+        return 1
+    runs, load_errors = plan(ids, engines, timeout_s)
+    root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
+    results: dict[tuple, Any] = {}
+    by_key = {r.run_key: r for r in runs}
+    for row in store.part_rows() if resumed else []:
+        r = by_key.get(row.get("run_key"))
+        if r is not None:
+            results[r.key] = RunResult.from_row(row)
+    todo = [r for r in runs if r.key not in results]
+    err.print(f"{len(ids)} scenarios, {len(engines)} engines ({', '.join(engines)}): {len(runs)} runs"
+              + (f"; resuming {store.path.name}: {len(runs) - len(todo)} done, {len(todo)} to run" if resumed else ""),
+              markup=False, highlight=False, soft_wrap=True)
+
+    def on_result(r: RunSpec, res: Any) -> None:
+        row = _row(r.key, res)
+        row.update(r.row_extra)
+        row.update(run_key=r.run_key, check_id=store.path.name)
+        try:
+            store.write_part(row, {"check_id": store.path.name})
+        except Exception as e:  # disk trouble must not hide the verdict
+            err.print(f"warning: could not store the row of {r.run_key}: {type(e).__name__}: {e}", markup=False)
+
+    refused: tuple = ()
+    if executor == "dask":
+        from harness.dask_executor import EnvironmentRefused
+
+        refused = (EnvironmentRefused,)
+    try:
+        results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
+                               on_result=on_result, scheduler=scheduler))
+    except refused as e:  # the rows stored so far stay: the next same check resumes them
+        err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+        store.close()
+        return 2
+    except BaseException:
+        store.close()
+        raise
+    outcomes = load_errors + evaluate_runs(runs, results)
+    if traces:
+        written = trace_failures(traces, runs, results, outcomes, jobs=max(1, int(jobs or 1)),
+                                 executor="process" if executor == "dask" else executor)
+        err.print(f"{len(written)} traces written to {traces}")
+    summarize(outcomes)
+    try:
+        # the verdicts go into the rows, so the report reads rows only
+        verdicts: dict[str, list[Outcome]] = {r.run_key: [] for r in runs}
+        run_keys = {r.key: r.run_key for r in runs}
+        for o in outcomes:
+            if o.key in run_keys:
+                verdicts[run_keys[o.key]].append(o)
+        columns = {k: {"checks": verdicts_column(v)} for k, v in verdicts.items()}
+        saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now(), columns=columns)
+        err.print(f"result rows written to {saved}", markup=False, highlight=False, soft_wrap=True)
+    except Exception as e:  # the parts stay: nothing is lost
+        err.print(f"warning: could not consolidate {store.path}: {type(e).__name__}: {e}", markup=False)
+    finally:
+        store.close()
+    if junit:
+        write_junit(outcomes, junit)
+        err.print(f"JUnit XML written to {junit}", markup=False, highlight=False, soft_wrap=True)
+    err.print(f"done in {time.perf_counter() - t0:.1f} s")
+    return exit_code(outcomes)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(check_main(None, None, None, sys.argv[1:] or None))

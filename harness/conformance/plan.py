@@ -1,0 +1,199 @@
+"""Planning a check: ``RunSpec`` (one run to make), the scenarios selected,
+the runs each scene's checks take (base run, step phases, @-settings), and
+the outcomes of the planned runs once their results are in."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+from harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, describe_bound,
+                                          evaluate_check, hard_checks, scene_columns, split_metric)
+from harness.execute import DEFAULT_TIMEOUT_S, RunRequest
+from contract.scene import Check, Scene
+
+RUN_TIMEOUT_S = DEFAULT_TIMEOUT_S  # wall-clock budget per run (--timeout)
+
+
+@dataclass
+class RunSpec:
+    """One run to make: a scene (scenario + variant) on an engine with
+    setting overrides, and the checks to evaluate on it."""
+
+    scenario: str
+    variant: str | None
+    engine: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    checks: list[Check] = field(default_factory=list)
+    #: step phase of the run (contract/phase.py); phase runs of a base run
+    #: carry its checks too, and its outcome combines them
+    phase: float = 0.0
+    #: the base run's phases (``[scenario] phases``), on the base run only
+    phases: int = 1
+    #: the spec file (None: ``scenario`` is an id under scenarios/)
+    path: str | None = None
+    #: columns added to the run's row (primary metric and its threshold)
+    row_extra: dict[str, Any] = field(default_factory=dict)
+    #: wall-clock budget of the run (s); not part of its identity
+    timeout_s: float | None = RUN_TIMEOUT_S
+
+    @property
+    def key(self) -> tuple:
+        base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
+        return base + ((self.phase,) if self.phase else ())
+
+    @property
+    def run_key(self) -> str:
+        """The run's identity as text (the ``run_key`` column of check rows):
+        ``scenario[variant]|engine|{settings}|phase``."""
+        v = f"[{self.variant}]" if self.variant else ""
+        settings = json.dumps(dict(sorted(self.settings.items())), sort_keys=True, separators=(",", ":"))
+        return f"{self.scenario}{v}|{self.engine}|{settings}|{self.phase!r}"
+
+    def request(self) -> RunRequest:
+        return RunRequest(self.path or self.scenario, self.engine, self.variant, dict(self.settings),
+                          phase=self.phase, timeout_s=self.timeout_s)
+
+
+def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> list[str]:
+    """The scenarios to check, as targets for :func:`plan`: every id of
+    scenarios/ by default; else each entry of ``scenarios`` -- an id stays
+    an id, a spec file or a folder (all ``*.toml`` below it, sorted) becomes
+    the files' paths, anywhere on disk.  An entry that is neither raises
+    SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
+    (a spec that does not load is kept: it is reported, never dropped)."""
+    from contract.scene import load_scene, scenario_ids, spec_targets
+
+    if scenarios:
+        ids: list[str] = []
+        for entry in scenarios:
+            for t in spec_targets(entry):
+                if t not in ids:
+                    ids.append(t)
+    else:
+        ids = scenario_ids()
+    if not tags:
+        return ids
+    keep = []
+    for sid in ids:
+        try:
+            sc = load_scene(sid)
+        except Exception:
+            keep.append(sid)  # a broken spec is reported, never silently dropped
+            continue
+        if set(sc.tags) & set(tags):
+            keep.append(sid)
+    return keep
+
+
+def default_engines() -> list[str]:
+    from adapters import ENGINES
+
+    return list(ENGINES)
+
+
+def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], message: str) -> list[Outcome]:
+    return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
+
+
+def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None, path: str | None = None,
+               phases: int | None = None, timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
+    """The runs that evaluating ``scene``'s checks on ``engine`` takes, the
+    base run first (settings ``settings``, carrying the checks); then its
+    step phases (``phases``, default the scene's); then one run per
+    @-suffixed check setting (``settings`` with the suffix's over them).
+    Empty when no check applies.  ``physbench check`` and ``physbench run``
+    both plan with it, so both give the same verdict.  Each run has the
+    wall-clock budget ``timeout_s``."""
+    checks = applicable_checks(scene, engine) + hard_checks(scene)
+    if not checks:
+        return []
+    settings = dict(settings or {})
+    n = scene.phases if phases is None else phases
+    extra = scene_columns(scene)
+    runs = [RunSpec(scene.id, scene.variant, engine, settings, checks, phases=n, path=path, row_extra=extra,
+                    timeout_s=timeout_s)]
+    for i in range(1, n):
+        runs.append(RunSpec(scene.id, scene.variant, engine, settings, [], phase=i / n, path=path, row_extra=extra,
+                            timeout_s=timeout_s))
+    suffixes = {}
+    for c in checks:
+        _, st = split_metric(c.metric)
+        if st:
+            suffixes[c.metric.partition("@")[2]] = st
+    for st in suffixes.values():
+        runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra,
+                            timeout_s=timeout_s))
+    return runs
+
+
+def plan(scenario_ids: list[str], engines: list[str],
+         timeout_s: float | None = RUN_TIMEOUT_S) -> tuple[list[RunSpec], list[Outcome]]:
+    """Runs to make (each with the wall-clock budget ``timeout_s``), and
+    ERROR outcomes for scenarios that fail to load.
+    ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
+    Two files with the same id (family.stem) raise SpecError: their rows
+    could not be told apart."""
+    from contract.scene import load_scene, resolve_scenario
+    from contract.spec import SpecError, load_spec
+
+    runs: list[RunSpec] = []
+    errors: list[Outcome] = []
+    seen: dict[str, str] = {}
+    for sid in scenario_ids:
+        try:
+            loaded = load_spec(resolve_scenario(sid))
+        except Exception as e:
+            errors += _load_error_outcomes(sid, None, engines, f"spec failed to load: {e}")
+            continue
+        # an id is run by its id; a file given by path is run from it
+        path = str(loaded.path) if (Path(sid).suffix == ".toml" or Path(sid).exists()) else None
+        for variant in [None, *loaded.variants]:
+            try:
+                scene = load_scene(sid, variant, loaded=loaded)
+            except Exception as e:
+                errors += _load_error_outcomes(sid, variant, engines, f"scene failed to compile: {e}")
+                continue
+            if variant is None:
+                where = str(loaded.path.resolve())
+                if seen.setdefault(scene.id, where) != where:
+                    raise SpecError([f"{loaded.label}: <scenario>: id {scene.id!r} (family.stem) is also the id of "
+                                     f"{seen[scene.id]}; rename one file or change its family"])
+            for eng in engines:
+                runs += scene_runs(scene, eng, path=path, timeout_s=timeout_s)
+    return runs, errors
+
+
+def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcome]:
+    """Outcomes for every planned base run (runs with checks), each with the
+    key of the run it was evaluated on."""
+    outs: list[Outcome] = []
+    for r in runs:
+        if not r.checks:
+            continue
+        res = results[r.key]
+        for c in r.checks:
+            name, st = split_metric(c.metric)
+            if st:
+                key = RunSpec(r.scenario, r.variant, r.engine, {**r.settings, **st}).key
+                other = results.get(key)
+                if other is None:
+                    o = Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
+                                threshold=describe_bound(c), message="run missing")
+                else:
+                    o = evaluate_check(c, other, name)
+            elif r.phases > 1:
+                per = [evaluate_check(c, res)]
+                for i in range(1, r.phases):
+                    other = results.get(r.key + (i / r.phases,))
+                    per.append(evaluate_check(c, other) if other is not None else
+                               Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
+                                       threshold=describe_bound(c), message=f"phase {i}/{r.phases} run missing"))
+                o, key = _combine_phases(per, c), r.key
+            else:
+                o, key = evaluate_check(c, res), r.key
+            o.key = key
+            outs.append(o)
+    return outs

@@ -1,0 +1,54 @@
+"""The console summary of a check's outcomes and its exit code."""
+
+from __future__ import annotations
+
+from harness.conformance.verdicts import (BAD, ERROR, FAIL, OUTCOMES, PASS, UNSUPPORTED, XFAIL, XPASS, Outcome,
+                                          _fmt)
+
+
+def summarize(outcomes: list[Outcome], console=None) -> None:
+    """Print a per engine x scenario count table and every FAIL/XPASS/ERROR."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = console or Console()
+    engines = sorted({o.engine for o in outcomes})
+    scenarios = sorted({o.scenario for o in outcomes})
+    table = Table(title="conformance: checks per engine (pass/fail/xfail/xpass/unsupported/error)")
+    table.add_column("scenario")
+    for e in engines:
+        table.add_column(e, justify="center")
+    cells: dict[tuple[str, str], dict[str, int]] = {}
+    for o in outcomes:
+        cells.setdefault((o.scenario, o.engine), {k: 0 for k in OUTCOMES})[o.outcome] += 1
+    for s in scenarios:
+        row = [escape(s)]
+        for e in engines:
+            c = cells.get((s, e))
+            row.append(_cell(c) if c else "-")
+        table.add_row(*row)
+    tot = {k: sum(o.outcome == k for o in outcomes) for k in OUTCOMES}
+    console.print(table)
+    console.print("totals: " + ", ".join(f"{k} {v}" for k, v in tot.items()))
+    bad = [o for o in outcomes if o.outcome in BAD]
+    if bad:
+        t2 = Table(title="failures")
+        for col in ("engine", "testcase", "outcome", "value", "threshold", "message"):
+            t2.add_column(col, overflow="fold")
+        for o in bad:
+            t2.add_row(*(escape(x) for x in (o.engine, o.name, o.outcome, _fmt(o.value), o.threshold, o.message)))
+        console.print(t2)
+
+
+def _cell(c: dict[str, int]) -> str:
+    parts = []
+    style = {PASS: "green", FAIL: "red", XFAIL: "yellow", XPASS: "magenta", UNSUPPORTED: "dim", ERROR: "red"}
+    for k in OUTCOMES:
+        if c[k]:
+            parts.append(f"[{style[k]}]{c[k]} {k.lower()}[/]")
+    return " ".join(parts)
+
+
+def exit_code(outcomes: list[Outcome]) -> int:
+    return 1 if any(o.outcome in BAD for o in outcomes) else 0

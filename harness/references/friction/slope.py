@@ -1,0 +1,98 @@
+"""The slope every friction model but the spin stands on (normal, downhill
+direction, gravity components, the pair's coefficients) and the fits of
+its measured accelerations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from contract.rotation import quat_to_matrix
+from harness.references import BODY_PARAM, Param, ReferenceError, ReferenceModel, trajectory_metrics
+
+SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
+
+
+def _fit_slope(t: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope dy/dt of y (F,) over t (F,)."""
+    tm = t - t.mean()
+    den = float(tm @ tm)
+    return float(tm @ (y - y.mean()) / den) if den > 0 else math.nan
+
+
+def _window(t: np.ndarray) -> slice:
+    start = int(np.searchsorted(t, SKIP_FRACTION * t[-1], side="left"))
+    start = min(start, max(len(t) - 3, 0))
+    return slice(start, len(t))
+
+
+def _check_axis_across(model: str, b, axis: np.ndarray) -> None:
+    """Refuse a cylinder whose axis (body z) is not along the roll axis
+    ``axis`` = n x d (lying across the slope)."""
+    q = np.asarray(b.orientation, float)
+    ez = quat_to_matrix(q / np.linalg.norm(q))[:, 2]  # the body's z axis (the cylinder's axis) in the world
+    if abs(abs(float(ez @ axis)) - 1.0) > 1e-9:
+        raise ReferenceError(f"{model} needs the cylinder's axis along the roll axis n x d = "
+                             f"{axis.round(6).tolist()}; body {b.name!r} has its axis along {ez.round(6).tolist()}")
+
+
+class _SlopeModel(ReferenceModel):
+    params = (BODY_PARAM, Param("slope", "str", None,
+                                "the slope static, or level plane, the body is on (default: the scene's only one)"))
+    SURFACE = ("one `slope` static or one level `plane` (the flat case; downhill = the initial velocity's "
+               "direction), gravity along -z, the 'contact' effect, the body-surface pair's friction")
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        self.body = self.the_body()
+        sname = self.param("slope")
+        level = [s for s in scene.statics if s.kind == "plane" and abs(float(s.normal[2]) - 1.0) <= 1e-12]
+        slopes = [s for s in list(scene.statics) if (s.kind == "slope" or s in level)
+                  and (sname is None or s.name == sname)]
+        if len(slopes) != 1:
+            named = [s for s in scene.statics if s.name == sname]
+            what = (f"static {sname!r} is a {named[0].kind} that is not level: give an incline as a 'slope'"
+                    if named else f"the scene has {len(slopes)} slopes and level planes")
+            raise ReferenceError(f"{self.name} needs exactly one slope or level plane static (or params.slope naming "
+                                 f"one); {what}", key="reference.params.slope" if sname else "static")
+        self.slope = slopes[0]
+        g = scene.gravity
+        self.gmag = float(np.linalg.norm(g))
+        if self.gmag == 0 or abs(g[0]) > 0 or abs(g[1]) > 0:
+            raise ReferenceError(f"{self.name} needs gravity along -z", key="scenario.gravity")
+        if self.slope.kind == "slope":
+            a = math.radians(self.slope.angle)
+            self.d = np.array([math.cos(a), 0.0, -math.sin(a)])
+        else:
+            a = 0.0
+            vh = self.body.velocity * np.array([1.0, 1.0, 0.0])
+            nv = float(np.linalg.norm(vh))
+            self.d = vh / nv if nv > 0 else np.array([1.0, 0.0, 0.0])
+        self.theta = a
+        self.n = self.slope.normal.copy()
+        self.axis = np.cross(self.n, self.d)  # spin axis of a ball rolling downhill
+        self.g_d = float(g @ self.d)   # = g sin a
+        self.g_n = float(-(g @ self.n))  # = g cos a
+        mat = scene.pair(self.body.material, self.slope.material)
+        self.mu_s, self.mu_k = mat.static_friction, mat.friction
+        self.x0 = self.body.position.copy()
+        self.u0 = float(self.body.velocity @ self.d)
+        if not scene.has("contact"):
+            raise ReferenceError(f"{self.name} needs the 'contact' effect", key="scenario.effects")
+
+    def along(self, trace) -> np.ndarray:
+        """Velocity along the downhill direction (F,)."""
+        return trace.vel[:, self.body.index] @ self.d
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        s = self.distance(np.asarray(t, float))
+        p = self.x0 + np.outer(s, self.d)
+        out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
+        out[:, self.body.index] = p
+        return out
+
+    def metrics(self, trace) -> dict[str, float]:
+        i = self.body.index
+        ref = self.positions(trace.t)
+        return trajectory_metrics(trace.pos[:, [i]], ref[:, [i]])
