@@ -195,3 +195,20 @@ def test_run_phase_bad_dt_and_saved_rows_carry_the_phase(tmp_path):
     assert p.returncode in (0, 1) and "Traceback" not in p.stderr
     physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--save", f)
     assert sorted(pd.read_parquet(f)["phase"]) == [0.0, 0.25]
+
+
+def test_a_closed_pipe_is_not_a_traceback():
+    """`physbench list | head -0`: the reader has closed the pipe before the
+    first line (closed here before the command starts, so the outcome does
+    not depend on timing); the command stops quietly (exit 141, 128 +
+    SIGPIPE), with no BrokenPipeError traceback on stderr."""
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "harness.cli", "list"], cwd=ROOT, stdout=w,
+                              stderr=subprocess.PIPE, timeout=300)
+    finally:
+        os.close(w)
+    err = proc.stderr.decode()
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
+    assert proc.returncode == 141, (proc.returncode, err)

@@ -24,6 +24,7 @@ settings, arguments, unknown scenario ids).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from contract.spec import SpecError
@@ -197,4 +198,11 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (`physbench list | head`): stop quietly, as
+        # other Unix tools do; stdout is pointed at devnull so that the
+        # interpreter's final flush does not raise again
+        # (tests/test_cli.py::test_a_closed_pipe_is_not_a_traceback)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a killed writer
 
