@@ -91,11 +91,12 @@ _NO_LT = np.zeros((0, 3))
 _NO_D = np.zeros(0)
 _NO_B = np.zeros(0, np.bool_)
 _NO_T = np.zeros((0, 2, 3))
-#: the default direct-start policies, dense and sparse (a replaced one --
-#: the active-set and sparse-start tests spy on them -- runs the phases
-#: from Python)
-_DENSE_DEFAULT = dense_direct_solve
-_SPARSE_DEFAULT = Rows.sparse_normal_solve
+#: run the solve's phases one by one from Python instead of the one fused
+#: compiled call: the same bits
+#: (tests/test_engine_contact.py::test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve),
+#: and the path on which a test can spy on the direct-start policies
+#: (``dense_direct_solve``, ``Rows.sparse_normal_solve``)
+PHASE_BY_PHASE = False
 _AR = np.arange(64)
 _AR.flags.writeable = False
 
@@ -304,13 +305,12 @@ class Solve(Stage):
         bias = sc.take("bias", (rows.m,))
         pushed = prepare.targets(idx, touching, vn, gap, c.e, h, self.c, self.thr, self.beta, self.slop,
                                  rows.target, bias)
-        if dense_direct_solve is _DENSE_DEFAULT and Rows.sparse_normal_solve is _SPARSE_DEFAULT:
-            # slip classes, warm start, direct start, sweeps: one compiled
-            # call (engine/contact/phases.py; the same bits as the
-            # per-phase calls, kept for a replaced direct-start policy)
-            U, U0, vt0 = self._solve_compiled(model, state, ctx, rows, topo, old, h, sc)
-        else:
+        if PHASE_BY_PHASE:
             U, U0, vt0 = self._solve_phases(model, state, ctx, rows, topo, old, h, sc)
+        else:
+            # slip classes, warm start, direct start, sweeps: one compiled
+            # call (engine/contact/phases.py)
+            U, U0, vt0 = self._solve_compiled(model, state, ctx, rows, topo, old, h, sc)
         sweeps = rows.sweeps
         # (only from a solve that (nearly) converged: the end velocities of
         # one cut short far from convergence are solver noise, and a

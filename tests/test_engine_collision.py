@@ -698,6 +698,7 @@ def test_sparse_direct_start_matches_the_dense_one(tmp_path, monkeypatch):
     sc = scene_from(tmp_path, _SETTLING_COLUMN)
     dense = run(sc, "reference", {"iterations": 10})
     monkeypatch.setattr(engine.solver, "DIRECT_MAX_ROWS", 0)
+    monkeypatch.setattr(engine.solver, "PHASE_BY_PHASE", True)  # the path the spy can see
     calls = []
     to_sparse = engine.solver.Rows.sparse_normal_solve
     monkeypatch.setattr(engine.solver.Rows, "sparse_normal_solve", lambda self, *a: calls.append(1) or to_sparse(self, *a))
@@ -1744,6 +1745,7 @@ def test_direct_start_clips_what_its_last_active_set_pass_pulls(tmp_path, monkey
         return lam, ok, pull
 
     monkeypatch.setattr(solver, "dense_direct_solve", spy)
+    monkeypatch.setattr(solver, "PHASE_BY_PHASE", True)  # the path the spy can see
     res = _cyl_run(tmp_path, _can("a", .1, .1, (0, 0, .1)) + _can("b", .12, .1, (0.071, -0.013, .3), _Q30),
                    _GROUND, duration=0.25)
     assert any(pulled)

@@ -211,7 +211,7 @@ def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, s
         monkeypatch.setattr(solver, "DIRECT_MAX_ROWS", 0)
 
     def final(fused: bool):
-        monkeypatch.setattr(solver, "_DENSE_DEFAULT", solver.dense_direct_solve if fused else None)
+        monkeypatch.setattr(solver, "PHASE_BY_PHASE", not fused)
         eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), settings)
         calls = {"fused": 0}
         orig = solver.Solve._solve_compiled
