@@ -192,7 +192,7 @@ def warm_up() -> None:
     shape, every pair, a plane and a static box."""
     from types import SimpleNamespace
 
-    from engine import broadphase
+    from engine import broadstage
 
     n = 4
     I = np.eye(3)
@@ -212,4 +212,4 @@ def warm_up() -> None:
     col = Collider(model, pairs=1, contacts=1)  # short buffers: the growth path runs too
     col.run(X, R, pi, pj, (body, row), (body, row), margin=1.0, sweep=np.zeros(n))
     col.run(X, R, pi, pj, (body, row), (body, row), (np.ones(pi.size), np.ones(n), np.ones(n)))
-    broadphase.warm_up()
+    broadstage.warm_up()
