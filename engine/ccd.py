@@ -43,6 +43,7 @@ from engine import flight
 from engine.mathutil import quat_to_matrix
 from engine.model import BOX, S_BOX, S_PLANE
 from engine.collision import collide_pairs, pair_contacts
+from engine.collision.dispatch import Collider
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
@@ -148,6 +149,17 @@ _NO_FAST = np.zeros(0, np.bool_)
 _ORIGIN = np.zeros((1, 3))  # the world's position (statics' lever arms are from the origin)
 
 
+def _collider(model, ctx) -> Collider:
+    """The collider the CCD and impact stages' collision calls run into,
+    kept in the context (their contacts are views of its buffers, valid
+    until its next call): a fresh one per call copied the model's arrays,
+    O(n) each time, ~0.3 ms a call at 30 bodies."""
+    col = ctx.info.get("ccd_collider")
+    if col is None:
+        col = ctx.info["ccd_collider"] = Collider(model)
+    return col
+
+
 def _member(x: np.ndarray, s: np.ndarray) -> np.ndarray:
     """np.isin(x, s) for the few feature ids of a pair: (k,) bool."""
     if x.size == 0 or s.size == 0:
@@ -198,7 +210,8 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
         return []
     R1 = quat_to_matrix(ctx.q1)
     c = collide_pairs(model, ctx.x1, R1, pi[fb], pj[fb], (bp[fp], pk[fp]), (bs[fs], sk[fs]),
-                      np.full(int(fb.sum()), -lim), np.full(int(fp.sum()), -lim), np.full(int(fs.sum()), -lim))
+                      np.full(int(fb.sum()), -lim), np.full(int(fp.sum()), -lim), np.full(int(fs.sum()), -lim),
+                      _collider(model, ctx))
     if c.m == 0:
         return []
     code = _pair_codes(model, c)
@@ -282,7 +295,8 @@ def _pairs_contacts(model, ctx, pairs) -> list:
             srow.append(int(np.flatnonzero(model.sbox_static == q.sidx)[0]))
     arr = lambda v: np.array(v, np.int64)
     c = collide_pairs(model, ctx.x1, R1, arr(bi), arr(bj), (arr(pa), arr(prow)), (arr(sa), arr(srow)),
-                      np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf))
+                      np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf),
+                      _collider(model, ctx))
     out = []
     for q in pairs:
         if q.sidx < 0:
@@ -330,7 +344,9 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
 
     ``contacts``: the pair's contacts at the end pose when already found
     (:func:`_pairs_contacts`)."""
-    c = contacts if contacts is not None else pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx)
+    c = contacts
+    if c is None:
+        c = pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx, _collider(model, ctx))
     if c.m == 0:
         return np.inf, 0.0
     gap = c.gap
@@ -522,7 +538,7 @@ class Impact(Stage):
         pi, pj = ctx.pairs_i, ctx.pairs_j
         c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs,
                           np.full(pi.size, tol), np.full(ctx.plane_pairs[0].size, tol),
-                          np.full(ctx.sbox_pairs[0].size, tol))
+                          np.full(ctx.sbox_pairs[0].size, tol), _collider(model, ctx))
         impact_solve(model, state, c, self.iterations, self.thr, self.friction, self.plastic)
         profile = ctx.profile
         profile.count("impacts")
