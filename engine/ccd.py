@@ -93,9 +93,11 @@ class CCD(Stage):
             # may be another end of the body, already touching or resting
             # within the slop)
             code = _pair_codes_abs(model, c.a[idx], c.b[idx], c.sidx[idx])
-            for k in [int(idx[j])] + [int(idx[i]) for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
+            of = _Groups(code)  # the code names the pair (a, b, sidx)
+            for i in [j] + [i for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]:
+                k = int(idx[i])
                 a, b, sidx = int(c.a[k]), int(c.b[k]), int(c.sidx[k])
-                same = idx[(c.a[idx] == a) & (c.b[idx] == b) & (c.sidx[idx] == sidx)]
+                same = idx[of(code[i])]
                 pairs.append(ImpactPair(a, b, sidx, np.einsum("ki,ij->kj", c.point[same] - state.x[a], ctx.R0[a]),
                                         _follow_fids(model, a, b, sidx, c.fid[same]), False, None))
             skip = code
@@ -147,6 +149,20 @@ def end_displacement(model, state, ctx) -> np.ndarray:
 
 _NO_FAST = np.zeros(0, np.bool_)
 _ORIGIN = np.zeros((1, 3))  # the world's position (statics' lever arms are from the origin)
+
+
+class _Groups:
+    """The positions of each value of an integer key array (m,), ascending
+    within a value -- what ``np.flatnonzero(key == u)`` gives -- from one
+    stable sort: a mask over all m rows per value was O(values x m), and
+    400 spheres landing together on the floor are 400 values."""
+
+    def __init__(self, key: np.ndarray):
+        self.order = np.argsort(key, kind="stable")
+        self.keys = key[self.order]
+
+    def __call__(self, u) -> np.ndarray:
+        return self.order[np.searchsorted(self.keys, u, "left"):np.searchsorted(self.keys, u, "right")]
 
 
 def _collider(model, ctx) -> Collider:
@@ -221,13 +237,14 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     if ctx.impacts is not None:
         imp_row[ctx.impacts.rows] = True
     out = []
+    rows_of, rows0_of, skips = _Groups(code), _Groups(code0), set(skip.tolist())
     for u, first in zip(*np.unique(code, return_index=True)):
         if int(u) in ctx.missed_skip:
             continue
-        is_imp = bool(np.any(skip == u))
-        rows = np.flatnonzero(code == u)
+        is_imp = int(u) in skips
+        rows = rows_of(u)
         g1 = float(c.gap[rows].min())
-        at0 = np.flatnonzero(code0 == u)
+        at0 = rows0_of(u)
         g0 = float(c0.gap[at0].min()) if at0.size else np.inf
         a, b, sidx = int(c.a[first]), int(c.b[first]), int(c.sidx[first])
         loc = np.einsum("ki,ij->kj", c.point[rows] - ctx.x1[a], R1[a])
@@ -297,20 +314,14 @@ def _pairs_contacts(model, ctx, pairs) -> list:
     c = collide_pairs(model, ctx.x1, R1, arr(bi), arr(bj), (arr(pa), arr(prow)), (arr(sa), arr(srow)),
                       np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf),
                       _collider(model, ctx))
-    # each pair's rows in ascending order, by one stable sort of a pair key
-    # (a mask over all contacts per pair was O(pairs^2): 400 spheres landing
-    # together on the floor)
-    ns = len(model.static_shape) + 1
-    key = (c.a * (n + 1) + c.b) * ns + np.where(c.sidx < 0, 0, c.sidx + 1)
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
+    rows_of = _Groups(_pair_codes(model, c))
     out = []
     for q in pairs:
         if q.sidx < 0:
-            k = (min(q.a, q.b) * (n + 1) + max(q.a, q.b)) * ns
+            u = _pair_codes_abs(model, min(q.a, q.b), max(q.a, q.b), -1)
         else:
-            k = (q.a * (n + 1) + n) * ns + q.sidx + 1
-        out.append(c.take(order[np.searchsorted(ks, k, "left"):np.searchsorted(ks, k, "right")]))
+            u = _pair_codes_abs(model, q.a, n, q.sidx)
+        out.append(c.take(rows_of(u)))
     return out
 
 
