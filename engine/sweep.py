@@ -164,7 +164,8 @@ def _hash_grid_pairs(lo, hi, start, perm, cell, key, js, out_i, out_j):
     nx = np.int64(np.floor((mx[0] - mn[0]) / c)) + 1
     dense = nx * ny * nz <= T
     mask = T - 1
-    for t in range(T + 1):
+    used = nx * ny * nz if dense else T  # the cells (buckets) numbered: start[:used + 1]
+    for t in range(used + 1):
         start[t] = 0
     for k in range(n):
         for a in range(3):
@@ -174,12 +175,12 @@ def _hash_grid_pairs(lo, hi, start, perm, cell, key, js, out_i, out_j):
         else:
             key[k] = _cell_hash(cell[k, 0], cell[k, 1], cell[k, 2], mask)
         start[key[k] + 1] += 1
-    for t in range(T):
+    for t in range(used):
         start[t + 1] += start[t]
     for k in range(n):  # counting sort by key (start[b] runs ahead, then is restored)
         perm[start[key[k]]] = k
         start[key[k]] += 1
-    for t in range(T, 0, -1):
+    for t in range(used, 0, -1):
         start[t] = start[t - 1]
     start[0] = 0
     cap = out_i.shape[0]
