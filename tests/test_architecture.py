@@ -28,8 +28,8 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
     (1, ("adapters",)),
     (2, ("harness",)),  # run, execute, metrics, geometry, references, results, status, fingerprint, trace
     (3, ("harness.conformance",)),  # check
-    (4, ("harness.limits", "harness.sweep", "harness.suite", "harness.points", "harness.sweep_store",
-         "harness.schedule", "harness.sweep_bench", "harness.bench")),  # sweep, limits, bench
+    (4, ("harness.limits", "harness.limit_eval", "harness.limit_search", "harness.sweep", "harness.suite",
+         "harness.points", "harness.sweep_store", "harness.schedule", "harness.sweep_bench", "harness.bench")),  # sweep, limits, bench
     (5, ("harness.report",)),  # report
     (6, ("harness.cli",)),  # the command line
 ]
