@@ -337,3 +337,22 @@ def test_readme_layout_names_every_module():
             if name.endswith((".py", "/")) and name not in named:
                 bad.append(f"README layout, {pkg}/: does not name {name}")
     assert not bad, "\n".join(bad)
+
+
+def test_packaging_ships_every_package():
+    """pyproject.toml's package list covers every package of the tree (a
+    subpackage left out is missing from an installed wheel: the CLI's own
+    ``harness.cli`` once was)."""
+    import fnmatch
+    import tomllib
+
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    listed = conf.get("packages")
+    pkgs = sorted(m for m, p in MODULES.items() if p.name == "__init__.py")
+    assert len(pkgs) >= 10
+    if isinstance(listed, list):
+        missing = [m for m in pkgs if m not in listed]
+    else:
+        include = listed["find"].get("include", ["*"])
+        missing = [m for m in pkgs if not any(fnmatch.fnmatchcase(m, pat) for pat in include)]
+    assert not missing, f"pyproject.toml does not ship {missing}"
