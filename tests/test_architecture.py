@@ -8,7 +8,12 @@ the tests is parsed (imports inside functions count; imports under
   imports the engine; only the listed harness modules import the engine;
 - there is no import cycle between modules (importing ``a.b.c`` from
   outside package ``a.b`` also runs ``a/b/__init__.py``, so that counts;
-  a module inside the package was itself reached through it).
+  a module inside the package was itself reached through it);
+- the report imports no scene loading and nothing that runs a scene (it
+  reads rows); the breaking-point search imports no I/O;
+- the written rules agree with the tree: docs/ARCHITECTURE.md's table with
+  ``LAYERS``, README.md's layout table with the modules, pyproject.toml's
+  packages with the packages.
 """
 
 from __future__ import annotations
