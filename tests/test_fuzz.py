@@ -981,3 +981,44 @@ def test_no_eval_exec_or_pickle_in_the_code():
     assert not hits, "\n".join(hits)
     # the check itself can fail
     assert bad.search("x = eval(text)") and bad.search("import pickle")
+
+
+# --------------------------------------------------------------------------
+# findings of the nightly fuzz, each pinned
+
+
+@pytest.mark.parametrize("x1", [[0.0, 0.0, 0.028575], [3e-321, 0.0, 0.028575], [0.05, 0.0, 0.028575]],
+                         ids=["same place", "subnormal apart", "overlapping"])
+def test_two_body_collision_refuses_an_overlapping_start(tmp_path, capsys, x1):
+    """two_body_collision predicts two spheres meeting from outside: a start
+    in overlap has no contact point, and at coincident centres no line of
+    centres.  It is refused at load (exit 2, the second body's position).
+    Found by the nightly fuzz: a mutation scaled the object ball's x by
+    1e-320, the centres were a subnormal distance apart and the model
+    divided by a normal of length 0 (NaN warning, NaN reference)."""
+    p = tmp_path / "head_on.toml"
+    p.write_bytes((SCENARIO_DIR / "billiards" / "head_on.toml").read_bytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NaN on the way is a failure, not a warning
+        with pytest.raises(SpecError, match=r"body\[1\]\.position: .*spheres 'cue' and 'object' start overlapping: "
+                                            r"their centres are .* m apart, less than r1 \+ r2 = 0\.05715 m"):
+            load_scene(p, None, {"body[1].position": x1})
+    rc, err = _cli(["run", str(p), "-e", "reference", "--json", "--set", f"body[1].position={x1}"], capsys)
+    assert rc == 2 and "start overlapping" in err and "Traceback" not in err, err
+
+
+def test_two_body_collision_touching_start_and_graze():
+    """Spheres that start exactly touching and approach meet at t = 0 along
+    the line of centres (a defined unit normal); a graze (the relative path
+    touches r1 + r2 with no approach speed) is no impact: no impulse, no
+    division by a zero approach speed."""
+    from harness.references.collision import TwoBodyCollision
+
+    p = SCENARIO_DIR / "billiards" / "head_on.toml"
+    scene = load_scene(p, None, {"body[1].position": [0.05715, 0.0, 0.028575]})
+    m = TwoBodyCollision(scene)
+    assert m.t_impact == 0.0 and np.allclose(m.n, [1.0, 0.0, 0.0]) and m.approach == pytest.approx(2.0)
+    # v = (2, 0, 0) along x; the object ball r1 + r2 above the path (no gravity here): the cue grazes it
+    scene = load_scene(p, None, {"body[1].position": [0.3, 0.0, 0.028575 + 0.05715]})
+    m = TwoBodyCollision(scene)
+    assert m.t_impact is None and m.predictions() == {"impact": "none within the relative motion"}
