@@ -1105,3 +1105,24 @@ def test_reference_engine_cancelling_patch_normals(tmp_path):
     tr = res.trace
     assert np.isfinite(tr.pos).all() and np.isfinite(tr.vel).all() and np.isfinite(tr.angvel).all()
     assert np.abs(tr.vel[:, 0] + tr.vel[:, 1]).max() < 1e-12
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="MuJoCo 4.0.0: FatalError 'collision function returned 4 contacts, expected "
+                                       "at most 2 from pairMaxContact', then heap corruption: the worker dies of "
+                                       "SIGABRT ('double free or corruption') when MjData is freed")
+def test_mujoco_fatal_contact_count_aborts():
+    """A generated spec (a 1e9 kg sphere, a thin cylinder and a capsule of
+    radius 1e4 m over a plane, at up to 5e4 m/s) on which MuJoCo corrupts its
+    heap: measured in 27 of 263 accepted generated cases of one fuzz run
+    (2,000 cases).  The job survives (the worker dies, the run is a counted
+    crash); the promise that every run ends in a status row does not hold
+    for MuJoCo here.  Strict: a MuJoCo that no longer aborts fails this
+    test, and the xfail is to be dropped."""
+    from harness.execute import WorkerLost, WorkerPool
+    from tests.fuzz_worker import run_cut
+
+    scene = load_scene(REPO_ROOT / "tests" / "data" / "fuzz" / "mujoco_fatal_contact_count.toml")
+    with WorkerPool(1) as pool:
+        [(_, value)] = list(pool.map(run_cut, [(scene, "mujoco", RUN_STEPS, RUN_BUDGET_S)]))
+    assert not isinstance(value, WorkerLost), value.full_message()
+    assert value[0].status in STATUSES
