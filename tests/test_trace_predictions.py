@@ -314,3 +314,16 @@ def test_bullet_bounce_line_and_a_planted_tunnelling_count(tmp_path):
     crossed = int(np.nonzero(d > 0)[0][0])
     assert ev == [crossed] and crossed < pass_frame * 2
     np.testing.assert_array_equal(count, (s2 >= crossed).astype(float))
+
+
+def test_trace_cost_tool_measures_a_traced_run_and_its_file(tmp_path):
+    """harness.trace.cost (docs/TRACES.md, "Cost") on a short column: one
+    row per engine with the traced run's engine contacts and the file it
+    wrote (sizes and counts only: a benchmark, no time is asserted)."""
+    from harness.trace.cost import markdown, measure
+
+    (row,) = measure("stacking.column_5", duration=0.05, repeats=1, engines=("pymunk",), out_dir=tmp_path)
+    assert row["status"] == "ok" and row["frames"] == int(round(0.05 / load_scene("stacking.column_5").dt)) + 1
+    assert row["contact_rows"] > 0  # five boxes resting on each other touch from the first step
+    assert row["size"] == (tmp_path / "pymunk.rrd").stat().st_size > row["plain_size"] > 0
+    assert markdown([row]).splitlines()[2].startswith("| pymunk |")
