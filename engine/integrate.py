@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.flight import METHOD, free_flight, integrate_positions
-from engine.rotation import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic, midpoint_rotation
+from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic, midpoint_rotation
 from engine.forces import force_model
 from engine.profile import Stage
 
