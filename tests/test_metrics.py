@@ -252,3 +252,17 @@ def test_run_with_an_undefined_metric_says_so():
     assert any(n.startswith("undefined metrics: spin_accel_error") for n in res.notes)
     spin = [o for o in evaluate(scene, res) if o.metric == "spin_accel_error"]
     assert spin and spin[0].outcome == ERROR and "angular acceleration is 0" in spin[0].message
+
+
+def test_bounce_heights_refuses_a_ball_at_rest_on_the_plane():
+    """No drop height and no impact speed: every apex ratio would divide by
+    h_0 = 0 (a resting ball's contact jitter made the metrics raise
+    ZeroDivisionError); the spec is refused at load, naming the model."""
+    from contract.spec import SpecError
+
+    raw = _set(_shipped_raw("billiards/ball_drop_bounce.toml"), ("body", 0, "position"), [0.0, 0.0, 0.05])
+    raw.pop("variant", None)
+    with pytest.raises(SpecError, match="nothing bounces"):
+        scene_from(raw)
+    raw["body"][0]["velocity"] = [0.0, 0.0, 1e-3]  # a throw from the plane is a bounce
+    assert scene_from(raw).reference_model == "bounce_heights"

@@ -270,6 +270,9 @@ class BounceHeights(ReferenceModel):
             raise ReferenceError("bounce_heights: the sphere starts below the plane")
         self.v1 = math.sqrt(vz * vz + 2 * self.g * hs)
         self.h0 = self.v1**2 / (2 * self.g)
+        if not self.h0 > 0:  # every apex ratio divides by it
+            raise ReferenceError("bounce_heights: the sphere starts at rest on the plane (no drop height, no "
+                                 "impact speed): nothing bounces", key="body")
         self.t1 = (vz + self.v1) / self.g
         self.hs, self.vz = hs, vz
         self.bounces = int(self.param("bounces", 3))
