@@ -45,6 +45,9 @@ GENERIC_METRICS: dict[str, MetricDef] = {
                                         "(else NaN)"),
     "stable": MetricDef("bool", "finite state, energy_gain <= 0.5 and bounded speeds", ALWAYS),
     "stability_reason": MetricDef("text", "why a run is not stable ('' when it is)", ALWAYS),
+    "undefined_metrics": MetricDef("text", "the metrics this run cannot define, each with the reason "
+                                   "('name: reason; ...'; those metrics are NaN, a check on them is an error)",
+                                   "reported only when some metric is undefined (a zero denominator)"),
     "max_speed": MetricDef("m/s", "largest body speed over the run", ALWAYS),
     "cpu_s_per_sim_s": MetricDef("s/s", "CPU seconds of stepping per simulated second", ALWAYS),
     "wall_s_per_sim_s": MetricDef("s/s", "wall seconds of stepping per simulated second", ALWAYS),
