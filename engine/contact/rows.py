@@ -181,6 +181,9 @@ class Topology:
         #: first row (in row order) of each distinct pair, = np.unique's return_index
         self.uniq_first = self.code_order[self.code_first]
         self._masks = None
+        #: the pair codes (contact order) it was built for, set by
+        #: solver.Solve.topology (the one-call path compares a step's codes)
+        self.key = None
         self.friction = friction
         if friction:
             self._patches(model, colour)
