@@ -93,6 +93,7 @@ def warm_up() -> float:
                      np.ones(npch), np.ones(npch))
         prepare.patch_velocity(Jt5, U, pab, 0, 2, z2.copy())
         prepare.sliding(Jt5, U, pab, np.ones(npch), 1e-4, z2.copy(), zb.copy())
+        prepare.stop_candidate(pid, r, Jt5, U, pab, z2, 1e-4, nr == 5, z2, np.ones(npch), 1e-4)
     e0 = np.zeros(0)
     e3 = np.zeros((0, 3))
     ei = np.zeros(0, np.int64)

@@ -457,6 +457,10 @@ class Rows:
         forces, second order otherwise.  Rolling rows alike, with the
         rolling angular velocity and the mu_r disc.  The impulses of the
         solve are left as they were."""
+        roll = bool(self.rolling and wr0 is not None)
+        if not prepare.stop_candidate(self.pid, self.lam_n, self.Jt, U, self.topo.pab, vt0, SLIP_TOL, roll,
+                                      wr0 if roll else vt0, self.mur if roll else _NO_D, ROLL_TOL):
+            return None  # (the common case, one compiled call; the numpy below decides the rest)
         Fn = np.bincount(self.pid, self.lam_n, self.np)
         live = Fn > 0.0
         s0 = np.sqrt(vt0[:, 0] ** 2 + vt0[:, 1] ** 2)
