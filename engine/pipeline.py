@@ -88,11 +88,7 @@ def context(model: Model, state: State, profile: Profile) -> Context:
 
 
 def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
-    n = model.n
-    state.x[:] = ctx.x1
-    state.q[:] = ctx.q1
-    state.v[:] = ctx.v[:n]
-    state.w[:] = ctx.w[:n]
+    ctx.commit(state)
     state.t += h
 
 

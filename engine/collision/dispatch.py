@@ -73,6 +73,7 @@ class Collider:
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
         self._kept = None
+        self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
         self._group(pairs, pairs * MAX_SLOTS)
         self._out(contacts)
@@ -136,8 +137,15 @@ class Collider:
             if not short:
                 break
         o = self.out
-        return Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
-                        o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        last = self._contacts
+        if last is not None and last[0] == cnt and last[1] is o:
+            # the same views of the same buffers: the same object (a steady
+            # step's solve keeps what it built from them, solver.Solve)
+            return last[2]
+        c = Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
+                     o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        self._contacts = (cnt, o, c)
+        return c
 
 
 def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs,
