@@ -176,7 +176,7 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
 def _warm_flight() -> None:
     """The free-flight kernels (engine/flight.py) on two bodies, every
     integrator, with and without a force that reads the pose."""
-    from engine import flight
+    from engine import flight, gyroscopic
 
     nb = 2
     x = np.zeros((nb, 3))
@@ -205,9 +205,9 @@ def _warm_flight() -> None:
                                inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
                                np.zeros((16, nb, 4)))
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
-    flight.implicit_gyroscopic(idx, I, R, vw, 0.01)
-    flight.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), flight.YOSHIDA, flight.YOSHIDA_MAX, R, F, v, q,
-                                      0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
+    gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01)
+    gyroscopic.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R,
+                                          F, v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
     flight.gravity(np.ones((nb, 3)), F)
     flight.linear_drag(np.ones(nb), v, F)
     flight.quadratic_drag(np.ones(nb), v, F)

@@ -27,7 +27,7 @@ from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, Integ
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.collision import NarrowPhase
 from engine.control import EventMode
-from engine.broadphase import BroadPhase
+from engine.broadstage import BroadPhase
 from engine.penalty import PenaltyContacts
 from engine.profile import Profile, Stage
 from engine.solver import Solve, _pair_codes_abs
