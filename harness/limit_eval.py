@@ -133,13 +133,50 @@ def load_at(req: LimitRequest, value: float):
     return load_scene(req.scenario, req.variant, overrides, loaded=loaded)
 
 
+def _criterion_checks(scene: Any, engine: str, checks: tuple[str, ...]) -> list[Any]:
+    """The scene's checks the criterion evaluates: applicable to ``engine``,
+    not bound to other settings, of a metric in ``checks`` (empty: all)."""
+    from harness.conformance import applicable_checks, split_metric
+
+    out = []
+    for c in applicable_checks(scene, engine):
+        name, bound = split_metric(c.metric)
+        if not bound and not (checks and name not in checks):
+            out.append(c)
+    return out
+
+
+def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
+                          bounds: tuple[tuple[str, float], ...] = ()) -> tuple[str, ...]:
+    """The reference model's metrics an evaluation need not compute: all
+    those the scene's model declares (``produces``) when the criterion
+    (:func:`judge` with these ``checks`` and ``bounds``) reads only harness
+    metrics (contract.metric_defs.GENERIC_METRICS); () when it reads any
+    other metric (the model's, or one no declaration names) or the scene
+    has no model.  Decided from the scene before the run."""
+    from contract.metric_defs import GENERIC_METRICS
+    from harness.conformance import split_metric
+
+    if not scene.reference_model:
+        return ()
+    read = {split_metric(c.metric)[0] for c in _criterion_checks(scene, engine, checks)} | {m for m, _ in bounds}
+    if read - set(GENERIC_METRICS):
+        return ()
+    from harness.references import get_model
+
+    return tuple(sorted(get_model(scene.reference_model).produces))
+
+
 def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
-          bounds: tuple[tuple[str, float], ...] = ()) -> tuple[bool, str]:
+          bounds: tuple[tuple[str, float], ...] = (), skipped: tuple[str, ...] = ()) -> tuple[bool, str]:
     """Whether one run holds (module docstring), and if not, why: the first
     failure as ``metric: message``.  ``checks``: only the scene's checks of
     these metrics (``("stable",)``: stability alone); ``bounds``: extra
-    (metric, max) criteria, a missing or NaN value failing."""
-    from harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
+    (metric, max) criteria, a missing or NaN value failing; ``skipped``:
+    metrics the run did not compute (:func:`skipped_model_metrics`): a check
+    or bound on one fails, whatever the result holds under its name
+    (tests/test_limits.py::test_judge_never_reads_a_skipped_metric)."""
+    from harness.conformance import FAIL, PASS, evaluate_check
 
     if result.status != "ok":
         return False, f"status {result.status}: {result.message}"
@@ -147,15 +184,14 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
     if stable is not None and not bool(stable):
         why = result.metrics.get("stability_reason") or "a recorded value is not finite or energy blew up"
         return False, f"stable: {why}"
-    for c in applicable_checks(scene, result.engine):
-        name, bound = split_metric(c.metric)
-        if bound or (checks and name not in checks):
-            continue
+    for c in _criterion_checks(scene, result.engine, checks):
+        if c.metric in skipped:
+            return False, f"{c.metric}: metric not computed (skipped for this evaluation)"
         o = evaluate_check(dataclasses.replace(c, xfail={}), result)
         if o.outcome != PASS:
             return False, f"{c.metric}: {o.message}" if o.outcome == FAIL else f"{c.metric}: {o.outcome} {o.message}"
     for metric, hi in bounds:
-        v = result.metrics.get(metric)
+        v = math.nan if metric in skipped else result.metrics.get(metric)
         try:
             x = float(v)
         except (TypeError, ValueError):
@@ -184,17 +220,21 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
     pt = Point(req.scenario, req.variant, req.engine,
                tuple(sorted({**settings, **({PHASE_KEY: phase} if phase else {})}.items())), 1, req.timeout_s)
     scene = None
+    skipped: tuple[str, ...] = ()
     try:
         scene = load_at(req, value)
         if phase:
             scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
+        skipped = skipped_model_metrics(scene, req.engine, req.checks, req.bounds)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s)
+            res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s, model_metrics=not skipped)
         res.trace = None
+        if skipped:
+            res.notes.append("reference model metrics not computed (the criterion reads none): " + ", ".join(skipped))
         row = res.row()
         row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
-        holds, reason = judge(scene, res, req.checks, req.bounds)
+        holds, reason = judge(scene, res, req.checks, req.bounds, skipped)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"
     except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
@@ -206,7 +246,8 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
         holds, reason, cpu, unsupported = False, f"{req.param}={value!r}: {msg}", 0.0, False
     row.update({"row_kind": EVAL_ROW, "point_key": req.eval_key(limit_id, value, phase), "limit_id": limit_id,
                 "limit_param": req.param, "limit_value": float(value), "limit_holds": bool(holds),
-                "limit_reason": reason, "limit_unsupported": bool(unsupported), "limit_cpu_s": cpu})
+                "limit_reason": reason, "limit_unsupported": bool(unsupported), "limit_cpu_s": cpu,
+                "limit_skipped_metrics": ",".join(skipped)})
     return row
 
 

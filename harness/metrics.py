@@ -269,8 +269,11 @@ def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.nd
     return lin, ang
 
 
-def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, Any]:
-    """Every generic metric plus the reference model's, for one run."""
+def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True) -> dict[str, Any]:
+    """Every generic metric plus, when ``model``, the reference model's, for
+    one run.  ``model=False`` is for callers whose criterion reads no model
+    metric (a breaking-point evaluation: harness/limit_eval.py); the model's
+    metrics are then absent, never NaN-filled or guessed."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
                   and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
@@ -335,7 +338,7 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
     out["max_speed"] = vmax
 
     # --- reference model
-    if scene.reference_model:
+    if model and scene.reference_model:
         from harness.references import UNDEFINED, get_model
 
         model = get_model(scene.reference_model)(scene)

@@ -245,8 +245,11 @@ def check_run_size(scene: Scene, dt: float, record_every: Any = 1) -> int:
 
 def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         record_every: int = 1, timeout_s: float | None = None, compute_metrics: bool = True,
-        contact_cap: int = 0) -> RunResult:
+        contact_cap: int = 0, model_metrics: bool = True) -> RunResult:
     """Run ``scene`` on ``engine`` with setting ``settings`` overrides.
+
+    ``model_metrics`` False leaves the reference model's metrics out of the
+    computed metrics (``harness.metrics.compute_metrics(model=False)``).
 
     ``contact_cap`` > 0 (tracing only) also records the engine's own contact
     points after every recorded step, at most that many per frame (the
@@ -291,12 +294,12 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         trace.n_frames = 1
     except Unsupported as e:
         result.status, result.message = st.UNSUPPORTED, str(e)
-        _finish(result, adapter, scene, trace, compute_metrics, dt)
+        _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics)
         return result
     except Exception as e:  # the engine rejected the model
         result.status, result.message = st.FAILED, f"build failed: {type(e).__name__}: {e}"
         result.info["traceback"] = traceback.format_exc(limit=5)
-        _finish(result, adapter, scene, trace, compute_metrics, dt)
+        _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics)
         return result
     result.timing["setup_s"] = time.perf_counter() - t0
     # compile time of a JIT-compiled engine (within setup_s, never in step_cpu_s)
@@ -374,7 +377,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.metrics["cpu_s_per_sim_s"] = cpu / sim_time if sim_time > 0 else float("nan")
     result.metrics["wall_s_per_sim_s"] = wall / sim_time if sim_time > 0 else float("nan")
     result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
-    _finish(result, adapter, scene, trace, compute_metrics, dt)
+    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics)
     return result
 
 
@@ -425,7 +428,8 @@ def _runaway(trace: Trace, a: int, b: int) -> str:
     return ""
 
 
-def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float) -> None:
+def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float,
+            model_metrics: bool = True) -> None:
     try:
         result.stages = adapter.stages()
     except Exception as e:  # pragma: no cover - defensive
@@ -441,7 +445,7 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
 
         t0 = time.perf_counter()
         try:
-            result.metrics.update(_metrics(scene, trace.valid(), dt=dt))
+            result.metrics.update(_metrics(scene, trace.valid(), dt=dt, model=model_metrics))
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)
