@@ -352,15 +352,3 @@ def _calibrate(e: float, dt: float, speed: float, gravity: float, gap: float | N
         phase_mean=float(np.mean(ph_es)), penetration=pen,
         s=float(s_best), evaluations=b.evaluations,
     )
-
-
-def measure_bounce(solref: tuple[float, float], dt: float, speed: float, gravity: float = 0.0,
-                   integrator: str = "implicitfast", speculative: bool = False,
-                   phase: float = 0.5) -> tuple[float, float]:
-    """Bounce ratio and max penetration (m) of one sphere-on-plane impact at
-    ``speed`` (m/s) with the given solref; the contact begins ``phase`` of a
-    step into a step.  For tests and diagnostics."""
-    b = _Bouncer(dt, gravity, integrator, speculative)
-    h = speed * dt * (2.0 + phase)
-    v = math.sqrt(max(speed * speed - 2.0 * gravity * h, 0.0))
-    return b.bounce(solref, h, v, 20_000)

@@ -11,7 +11,7 @@ The scene's types and content hash live in :mod:`contract.scene_model`, the
 shape formulas (volumes, inertias, patterns) in :mod:`contract.shapes`; this
 module re-exports the types and helpers that the rest of the project imports
 from here (``Scene``, ``Body``, ``Static``, ``Check``, ``REPO_ROOT``,
-``n_steps``, ``source_path``, ``principal_inertia``, ...).
+``n_steps``, ``principal_inertia``, ...).
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from contract.scene_model import (  # re-exported: the scene's types are importe
     Static,
     content_hash,
     n_steps,
-    source_path,
 )
 from contract.shapes import expand_pattern, principal_inertia, shape_volume
 from contract.spec.bounds import bound_error

@@ -162,7 +162,7 @@ class Scene:
     def source(self) -> str:
         """The spec file as recorded in rows: relative to the repository
         when inside it (scenarios/...), else absolute; '' for an inline
-        spec.  :func:`source_path` reads it back."""
+        spec."""
         if self.path is None:
             return ""
         p = Path(self.path).resolve()
@@ -300,12 +300,4 @@ def content_hash(scene: Scene) -> str:
     doc = {k: _canonical(getattr(scene, k)) for k in _CONTENT_FIELDS}
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def source_path(source: str) -> Path | None:
-    """A row's ``scene_path`` (:attr:`Scene.source`) -> the file, or None."""
-    if not source:
-        return None
-    p = Path(source)
-    return p if p.is_absolute() else REPO_ROOT / p
 

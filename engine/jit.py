@@ -135,6 +135,42 @@ def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None
             1e-4, True, codes, loc, a, b, br, codes, loc, r, codes, loc, r, loc, 0.01, np.zeros(k, np.bool_),
             True, 1e-5, 400, 4, r.copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), 2, 1e-7)
     phases.relax(V, V.copy(), U, ab, J, M, i1, np.zeros(m), r, 2, 1e-7, nb)
+    _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb)
+
+
+def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
+    """The solve stage's one compiled call (phases.solve_stage) with its
+    packs built by the stage's own helpers (engine/solver.py), with and
+    without friction and rolling."""
+    from types import SimpleNamespace
+
+    from engine import solver
+    from engine.contact import phases
+    from engine.contact.scratch import Scratch
+    from engine.pack import Pack
+
+    m, npch = r.size, pab.shape[0]
+    V = np.zeros((nb + 1, 3))
+    X = np.zeros((nb, 3))
+    R0 = np.tile(np.eye(3), (nb, 1, 1))
+    Iinv = np.tile(np.eye(3), (nb + 1, 1, 1))
+    kc = Pack((X, Iinv, R0, V, V.copy(), X.copy(), X.copy(), V.copy(), V.copy(), _ro(np.ones(nb + 1)), br))
+    f1 = np.ones(npch)
+    topo = SimpleNamespace(ab=ab, a=a, b=b, pid=pid, pa=pab[:, 0].copy(), pb=pab[:, 1].copy(), cnt=f1.copy(),
+                           pab=pab, codes=codes, code_order=np.arange(m, dtype=np.int64),
+                           code_first=np.arange(npch, dtype=np.int64), uniq_pid=np.arange(npch, dtype=np.int64),
+                           mus=f1.copy(), muk=f1.copy(), mur=None, np=npch)
+    cache = Pack((codes, loc, r, codes[:npch].copy(), loc[:npch].copy(), f1.copy(), loc[:npch].copy(), tb))
+    out = Pack((codes.copy(), loc.copy(), r.copy(), codes[:npch].copy(), loc[:npch].copy(), f1.copy(),
+                loc[:npch].copy(), tb.copy()))
+    vn = np.zeros((3, m))
+    for friction, rolling in ((True, False), (True, True), (False, False)):
+        k = npch if friction else 0
+        views = solver._take_stage(Scratch(), nb, m, k, 5 if rolling else 3, friction)
+        phases.solve_stage(kc, Pack(solver._topology_items(topo, friction, rolling)),
+                           Pack(solver._work_items(views, friction)), cache, out, a, b, loc, loc, r, r, a, tb, vn,
+                           0.01, 0.5, 0.01, 0.2, 1e-4, friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True,
+                           True)
 
 
 def _warm_flight() -> None:

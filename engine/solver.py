@@ -73,7 +73,9 @@ from engine.contact.rows import (  # noqa: F401  (the solver's names, as before 
     dense_direct_solve,
     point_normal_velocity,
 )
+from engine.contact.rows import _take_rows
 from engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
+from engine.pack import Pack
 from engine.profile import Stage
 from engine.state import Contacts
 
@@ -141,6 +143,10 @@ class Solve(Stage):
         self.stops = bool(s["friction_stops"])
         self._topos: dict[bytes, Topology] = {}
         self._warm = WarmPool()
+        #: the fused path's kept state: (topology, work views, Rows, work Pack)
+        #: of the last solve, and the (arrays, Pack) of the pose and velocities
+        self._prep = None
+        self._kc = None
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
@@ -153,51 +159,13 @@ class Solve(Stage):
             topo = self._topos[key] = Topology(model, c.a[sel], c.b[sel], c.sidx[sel], self.friction, True)
         return topo
 
-    def _solve_compiled(self, model, state, ctx, rows, topo, old, h, sc):
-        """Slip classes, warm start, direct start and sweeps of ``rows`` as
-        one compiled call (:func:`engine.contact.phases.solve_contacts`).
-        Returns (U (n+1, 6) the solved end velocities, U0 (n+1, 6) the start
-        velocities or None, vt0 (np, 2) the patches' start tangential
-        velocities or None); ctx.v, ctx.w hold the end velocities."""
-        n = model.n
-        f = self.friction
-        m = rows.m
-        npch = rows.np if f else 0
-        U, U0, Ud, vt0, pin_t, dir_t, matched, r_direct, mur0 = sc.group(
-            ("solve", n, npch, m), lambda: (sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)),
-                                            sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
-                                            sc.take("pin_t", (npch,), np.bool_), sc.take("dir_t", (npch, 2)),
-                                            sc.take("matched", (npch,), np.bool_), sc.take("r_direct", (m,)),
-                                            sc.take("mur0", (npch,))))
-        pin_t[:] = False
-        dir_t[:] = 0.0
-        warm_on = bool(self.warm and old)
-        o = old.packed if warm_on else _NO_CACHE
-        if f:
-            pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk = (topo.pab, topo.pid, rows.Jt, rows.Mt, rows.mt, rows.lam_t,
-                                                          rows.mu, rows.mus, rows.muk)
-            if rows.mur is not None:
-                mur = rows.mur
-            else:
-                mur = mur0
-                mur[:] = 0.0
-            rt, slip, t, rolling = rows.r_twist, rows.slip, rows.t, rows.rolling
-        else:
-            pab, pid, Jt, Mt, mt, lam_t = _NO_P, _NO_I, _NO_F, _NO_F, _NO_LT, _NO_LT
-            mu = mus = muk = mur = rt = _NO_D
-            slip, t, rolling = _NO_B, _NO_T, False
-        sw, rows.residual = phases.solve_contacts(
-            ctx.v, ctx.w, state.v, state.w, U, U0, Ud, topo.ab, rows.J, rows.M, rows.mn,
-            rows.lam_n, rows.target, n, f, rolling, pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0,
-            t, SLIP_TOL, warm_on, topo.codes, rows.loc, rows.a, rows.b, model.bound_radius, o[0], o[1], o[2], o[3],
-            o[4], o[5], o[6], h, matched, self.direct, RESTING_SPEED,
-            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, r_direct, pin_t, dir_t, self.iterations, 1e-7)
-        rows.sweeps = int(sw)
-        return U, (U0 if f else None), (vt0 if f else None)
-
     def _solve_phases(self, model, state, ctx, rows, topo, old, h, sc):
-        """As :meth:`_solve_compiled`, phase by phase from Python (the
-        direct start through the module's ``dense_direct_solve``)."""
+        """Slip classes, warm start, direct start and sweeps of ``rows``
+        phase by phase from Python (the direct start through the module's
+        ``dense_direct_solve``).  Returns (U (n+1, 6) the solved end
+        velocities, U0 (n+1, 6) the start velocities or None, vt0 (np, 2)
+        the patches' start tangential velocities or None); ctx.v, ctx.w
+        hold the end velocities."""
         n = model.n
         U0 = vt0 = None
         if self.friction:
@@ -221,6 +189,79 @@ class Solve(Stage):
         rows.sweeps = rows.solve_friction_regimes(U, self.iterations)
         Rows.unpack(U, ctx.v, ctx.w)
         return U, U0, vt0
+
+    def _stage_phases(self, model, state, ctx, c, sel, topo, touching, vn, old, h, sc):
+        """The stage after classification phase by phase from Python (the
+        flag ``PHASE_BY_PHASE``): rows, targets, :meth:`_solve_phases`,
+        relax, store (into ``state.warm`` when the step is long enough).
+        Returns (rows, U, U0, vt0, rows pushed out)."""
+        n = model.n
+        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo, scratch=sc, R0=ctx.R0)
+        idx = rows.idx  # the rows' contacts (rows are sorted by colour)
+        # touching rows: v1n >= 0 (memoryless: a target that depends on the
+        # previous step's velocity feeds solver noise back into the stack);
+        # separated rows: the end pose may just close the gap
+        bias = sc.take("bias", (rows.m,))
+        pushed = prepare.targets(idx, touching, vn, c.gap, c.e, h, self.c, self.thr, self.beta, self.slop,
+                                 rows.target, bias)
+        U, U0, vt0 = self._solve_phases(model, state, ctx, rows, topo, old, h, sc)
+        if self.correction != "none" and pushed:
+            # push-out velocities for penetration beyond the slop, solved on
+            # separate (pseudo) velocities; they move positions by h vp
+            # (split_impulse discards them afterwards)
+            phases.relax(ctx.vp, ctx.wp, sc.take("Up", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
+                         sc.take("lam_p", (rows.m,)), bias, self.iterations, 1e-7, n)
+        if h >= WARM_MIN_STEP * model.h:
+            state.warm = self._warm.store(rows, h, touching, old, ctx.warm0)
+        return rows, U, U0, vt0, pushed
+
+    def _solve_compiled(self, model, state, ctx, c, sel, nimp, topo, touching, vn, old, h, sc, store_on):
+        """The stage after classification as one compiled call
+        (:func:`engine.contact.phases.solve_stage`: rows, targets, solve,
+        relax, store; the same bits as :meth:`_stage_phases`), its kept
+        arrays handed over as a few :class:`engine.pack.Pack` s.  The Rows
+        object and the work pack are kept while the topology and the work
+        views stay (a resting stack: every step)."""
+        n = model.n
+        f = self.friction
+        m = topo.m
+        npch = topo.np if f else 0
+        rolling = f and bool(model.rolling)
+        nr = 5 if rolling else 3
+        views = sc.group(("stage", n, m, npch, nr, f), lambda: _take_stage(sc, n, m, npch, nr, f))
+        idx = topo.order if nimp == 0 else sel[topo.order]  # = Rows.idx
+        prep = self._prep
+        if prep is not None and prep[0] is topo and prep[1] is views:
+            rows, kw = prep[2], prep[3]
+            rows.idx = idx
+            rows._c = c
+            rows._X = state.x
+            rows.__dict__.pop("_cs", None)
+        else:
+            rows = Rows(model, state.x, ctx.Iinv0, c, f, sel=sel, topo=topo, scratch=sc, R0=ctx.R0,
+                        views=views[:16], prepared=True, idx=idx)
+            kw = Pack(_work_items(views, f))
+            self._prep = (topo, views, rows, kw)
+        kt = topo.__dict__.get("_kept")
+        if kt is None:
+            kt = topo._kept = Pack(_topology_items(topo, f, rolling))
+        kc = self._kc
+        live = (state.x, state.v, state.w, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, ctx.vp, ctx.wp)
+        if kc is None or any(x is not y for x, y in zip(kc[0], live)):
+            kc = self._kc = (live, Pack((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
+                                         model.inv_mass, model.bound_radius)))
+        warm_on = bool(self.warm and old)
+        ko = old.kept if warm_on else _no_cache()
+        out = self._warm.slot((m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
+        sw, rows.residual, pushed = phases.solve_stage(
+            kc[1], kt, kw, ko, out.kept if store_on else _no_cache(), c.a, c.b, c.point, c.normal, c.gap, c.e, idx,
+            touching, vn, h, self.c, self.thr, self.beta, self.slop, f, rolling, warm_on, self.direct, RESTING_SPEED,
+            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
+        rows.sweeps = int(sw)
+        if store_on:
+            state.warm = out
+        U, U0, vt0 = views[16], views[17], views[19]
+        return rows, U, (U0 if f else None), (vt0 if f else None), pushed
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -297,20 +338,12 @@ class Solve(Stage):
             state.warm = None
             return
         topo = self.topology(model, codes_all[sel] if nimp else codes_all, c, sel)
-        rows = Rows(model, state.x, ctx.Iinv0, c, self.friction, sel=sel, topo=topo, scratch=sc, R0=ctx.R0)
-        idx = rows.idx  # the rows' contacts (rows are sorted by colour)
-        # touching rows: v1n >= 0 (memoryless: a target that depends on the
-        # previous step's velocity feeds solver noise back into the stack);
-        # separated rows: the end pose may just close the gap
-        bias = sc.take("bias", (rows.m,))
-        pushed = prepare.targets(idx, touching, vn, gap, c.e, h, self.c, self.thr, self.beta, self.slop,
-                                 rows.target, bias)
+        store_on = h >= WARM_MIN_STEP * model.h
         if PHASE_BY_PHASE:
-            U, U0, vt0 = self._solve_phases(model, state, ctx, rows, topo, old, h, sc)
+            rows, U, U0, vt0, pushed = self._stage_phases(model, state, ctx, c, sel, topo, touching, vn, old, h, sc)
         else:
-            # slip classes, warm start, direct start, sweeps: one compiled
-            # call (engine/contact/phases.py)
-            U, U0, vt0 = self._solve_compiled(model, state, ctx, rows, topo, old, h, sc)
+            rows, U, U0, vt0, pushed = self._solve_compiled(model, state, ctx, c, sel, nimp, topo, touching, vn, old, h,
+                                                         sc, store_on)
         sweeps = rows.sweeps
         # (only from a solve that (nearly) converged: the end velocities of
         # one cut short far from convergence are solver noise, and a
@@ -324,22 +357,15 @@ class Solve(Stage):
                 t = float(tau.min())
                 if t < h * (1.0 - STOP_MIN_REST):
                     ctx.stop = t
-        if self.correction != "none" and pushed:
-            # push-out velocities for penetration beyond the slop, solved on
-            # separate (pseudo) velocities; they move positions by h vp.
-            # split_impulse discards them afterwards; baumgarte keeps them in
-            # the real velocity too (the classic bias: it injects energy)
-            phases.relax(ctx.vp, ctx.wp, sc.take("Up", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
-                         sc.take("lam_p", (rows.m,)), bias, self.iterations, 1e-7, n)
-            if self.correction == "baumgarte":
-                ctx.v += ctx.vp
-                ctx.w += ctx.wp
-                ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
-                ctx.w_free += ctx.wp[:n]
+        if self.correction == "baumgarte" and pushed:
+            # the classic bias: the push-out velocities stay in the real
+            # velocity too (it injects energy)
+            ctx.v += ctx.vp
+            ctx.w += ctx.wp
+            ctx.v_free += ctx.vp[:n]  # not a contact impulse for the position update: h vp moves it
+            ctx.w_free += ctx.wp[:n]
         ctx.rows = rows
-        if h >= WARM_MIN_STEP * model.h:
-            state.warm = self._warm.store(rows, h, touching, old, ctx.warm0)
-        else:
+        if not store_on:
             # a sliver of a step (the rest of a step after a late time of
             # impact): its impulses are impulsive, not forces -- cached as
             # lambda / h they came back next step as a huge impulse (a box
@@ -349,3 +375,53 @@ class Solve(Stage):
         ctx.profile.count("solver_sweeps", sweeps)
 
 
+
+
+def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool) -> tuple:
+    """The fused stage's work arrays (views of the scratch ``sc``): the rows'
+    (:func:`engine.contact.rows._take_rows`, 16), then U, U0, Ud (n+1, 6),
+    vt0 (np, 2), pin_t (np,) bool, dir_t (np, 2), matched (np,) bool,
+    r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool."""
+    return _take_rows(sc, m, npch, nr, friction) + (
+        sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)), sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
+        sc.take("pin_t", (npch,), np.bool_), sc.take("dir_t", (npch, 2)), sc.take("matched", (npch,), np.bool_),
+        sc.take("r_direct", (m,)), sc.take("bias", (m,)), sc.take("Up", (n + 1, 6)), sc.take("lam_p", (m,)),
+        sc.take("touch_rows", (m,), np.bool_))
+
+
+def _work_items(views: tuple, friction: bool) -> tuple:
+    """:func:`_take_stage`'s views as :func:`engine.contact.phases.solve_stage`
+    reads them (empty arrays for the patches without friction)."""
+    J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu = views[:16]
+    if not friction:
+        P = N = mt = lam_t = _NO_LT
+        rt = mu = _NO_D
+        t = _NO_T
+        Jt = Mt = _NO_F
+        slip = _NO_B
+    return (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu) + tuple(views[16:])
+
+
+def _topology_items(topo: Topology, friction: bool, rolling: bool) -> tuple:
+    """The topology's arrays as :func:`engine.contact.phases.solve_stage`
+    reads them (after the first rows of ``topo`` set its pair coefficients)."""
+    if friction:
+        mur = topo.mur if topo.mur is not None else np.zeros(topo.np)
+        fr = (topo.pid, topo.pa, topo.pb, topo.cnt, topo.pab)
+        coef = (topo.mus, topo.muk, mur)
+        uniq_pid = topo.uniq_pid
+    else:
+        fr = (_NO_I, _NO_I, _NO_I, _NO_D, _NO_P)
+        coef = (_NO_D, _NO_D, _NO_D)
+        uniq_pid = _NO_I
+    return (topo.ab, topo.a, topo.b) + fr + (topo.codes, topo.code_order, topo.code_first, uniq_pid) + coef
+
+
+_NO_CACHE_PACK: list = []
+
+
+def _no_cache() -> Pack:
+    """The empty warm cache as a Pack (built on first use)."""
+    if not _NO_CACHE_PACK:
+        _NO_CACHE_PACK.append(Pack(_NO_CACHE))
+    return _NO_CACHE_PACK[0]

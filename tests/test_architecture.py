@@ -8,7 +8,12 @@ the tests is parsed (imports inside functions count; imports under
   imports the engine; only the listed harness modules import the engine;
 - there is no import cycle between modules (importing ``a.b.c`` from
   outside package ``a.b`` also runs ``a/b/__init__.py``, so that counts;
-  a module inside the package was itself reached through it).
+  a module inside the package was itself reached through it);
+- the report imports no scene loading and nothing that runs a scene (it
+  reads rows); the breaking-point search imports no I/O;
+- the written rules agree with the tree: docs/ARCHITECTURE.md's table with
+  ``LAYERS``, README.md's layout table with the modules, pyproject.toml's
+  packages with the packages.
 """
 
 from __future__ import annotations
@@ -28,8 +33,8 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
     (1, ("adapters",)),
     (2, ("harness",)),  # run, execute, metrics, geometry, references, results, status, fingerprint, trace
     (3, ("harness.conformance",)),  # check
-    (4, ("harness.limits", "harness.sweep", "harness.suite", "harness.points", "harness.sweep_store",
-         "harness.schedule", "harness.sweep_bench", "harness.bench")),  # sweep, limits, bench
+    (4, ("harness.limits", "harness.limit_eval", "harness.limit_search", "harness.sweep", "harness.suite",
+         "harness.points", "harness.sweep_store", "harness.schedule", "harness.sweep_bench", "harness.bench")),  # sweep, limits, bench
     (5, ("harness.report",)),  # report
     (6, ("harness.cli",)),  # the command line
 ]
@@ -196,3 +201,163 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
     p.write_text("def f():\n    from harness.cli import main\n    from . import runner\n"
                  "    from harness.trace.writer import write_rrd\n", encoding="utf-8")
     assert _imports("harness.y", p) >= {"harness.cli", "harness.runner", "harness.trace", "harness.trace.writer"}
+
+
+# What the report may not import, directly: scene loading and compiling (the
+# spec, the scene, the model check), check evaluation, the references and
+# metrics, adapters and the engine, anything that runs a scene.  It reads
+# rows; tests/test_report_rows.py pins the same at run time (loading a scene
+# during the report fails it).
+REPORT_MAY_NOT_IMPORT = ("contract.scene", "contract.scene_model", "contract.shapes", "contract.models",
+                         "contract.spec", "adapters", "engine", "harness.conformance", "harness.references",
+                         "harness.metrics", "harness.geometry", "harness.points", "harness.suite",
+                         "harness.limits", "harness.limit_eval", "harness.execute", "harness.trace")
+# names the report may take from the runner (the commit the page was made at)
+REPORT_FROM_RUNNER = {"commit_id"}
+
+
+def _from_imports(path: Path, module: str) -> set[str]:
+    """Names imported as ``from <module> import ...`` anywhere in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    return {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == module
+            for a in n.names}
+
+
+def _report_violations(graph: dict[str, set[str]], paths: dict[str, Path]) -> list[str]:
+    bad = []
+    for m, targets in graph.items():
+        if not (m == "harness.report" or m.startswith("harness.report.")):
+            continue
+        for t in sorted(targets):
+            if any(t == p or t.startswith(p + ".") for p in REPORT_MAY_NOT_IMPORT):
+                bad.append(f"{m} imports {t}: the report reads rows only")
+        extra = _from_imports(paths[m], "harness.runner") - REPORT_FROM_RUNNER
+        if extra or "harness.runner" in targets and not _from_imports(paths[m], "harness.runner"):
+            bad.append(f"{m} takes {sorted(extra) or 'the module'} from harness.runner; only "
+                       f"{sorted(REPORT_FROM_RUNNER)} may come from there")
+    return bad
+
+
+def test_the_report_reads_rows_only():
+    assert {"harness.report", "harness.report.page", "harness.report.loading"} <= set(MODULES)
+    bad = _report_violations(GRAPH, MODULES)
+    assert not bad, "\n".join(bad)
+
+
+def test_the_report_rule_can_fail(tmp_path):
+    """A report module that loads a scene, or takes more than the commit
+    from the runner, is caught."""
+    p = tmp_path / "x.py"
+    p.write_text("def f():\n    from contract.scene import load_scene\n"
+                 "    from harness.runner import run, commit_id\n", encoding="utf-8")
+    bad = _report_violations({"harness.report.x": _imports("harness.report.x", p)}, {"harness.report.x": p})
+    assert any("contract.scene" in b for b in bad) and any("['run']" in b for b in bad), bad
+
+
+# The breaking-point search is pure logic (asv's step_detect.py is the
+# model): it imports nothing of ours and nothing that does I/O, so it is
+# tested on a fake criterion (tests/test_limits.py).
+PURE_MODULES = {"harness.limit_search": {"__future__", "math", "dataclasses", "typing"}}
+
+
+def test_pure_modules_import_no_io():
+    for m, allowed in PURE_MODULES.items():
+        tree = ast.parse(MODULES[m].read_text(encoding="utf-8"))
+        names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert names <= allowed, f"{m} imports {sorted(names - allowed)}: it is pure logic, no I/O"
+        assert not GRAPH[m], f"{m} imports {sorted(GRAPH[m])}"
+
+
+def _table_rows(path: Path, heading: str) -> list[list[str]]:
+    """The rows (cells) of the first Markdown table after ``heading``."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.strip() == heading)
+    rows, seen = [], False
+    for ln in lines[start + 1:]:
+        if ln.startswith("|"):
+            seen = True
+            cells = [c.strip() for c in ln.strip().strip("|").split("|")]
+            if not set(cells[0]) <= set("- "):
+                rows.append(cells)
+        elif seen:
+            break
+    return rows[1:]  # without the header
+
+
+def _files_named(text: str) -> set[str]:
+    """Backticked file and folder names in ``text`` (``x.py``, ``geometry/``)."""
+    import re
+
+    return set(re.findall(r"`([\w/]+(?:\.py|/))`", text))
+
+
+def test_architecture_doc_names_the_layers_of_the_test():
+    """docs/ARCHITECTURE.md's table and LAYERS say the same: every harness
+    module or package LAYERS places above layer 2 is named in that layer's
+    row, and every harness file a row of layers 2-6 names exists and is in
+    that layer."""
+    rows = _table_rows(ROOT / "docs" / "ARCHITECTURE.md", "# Architecture: layers and import rules")
+    by_layer: dict[int, set[str]] = {}
+    for cells in rows:
+        by_layer.setdefault(int(cells[0]), set()).update(_files_named(cells[1]))
+    bad = []
+    for k, prefixes in LAYERS:
+        if k <= 2:
+            continue
+        for pre in prefixes:
+            rel = pre.replace(".", "/")
+            name = Path(rel).name + ("/" if (ROOT / rel).is_dir() else ".py")
+            if not ({name, rel + "/", rel + ".py"} & by_layer.get(k, set())):
+                bad.append(f"{pre}: layer {k} in LAYERS, not named in the row of layer {k}")
+    for k, names in by_layer.items():
+        if k < 2:
+            continue
+        for name in names:
+            rel = name.removesuffix(".py").rstrip("/")
+            mod = (rel if rel.startswith("harness") else "harness/" + rel).replace("/", ".")
+            if mod in MODULES and rank(mod) != k:
+                bad.append(f"{name}: in the row of layer {k}, but LAYERS puts {mod} in layer {rank(mod)}")
+            if mod not in MODULES:
+                bad.append(f"{name}: named in the row of layer {k} but there is no module {mod}")
+    assert not bad, "\n".join(bad)
+
+
+def test_readme_layout_names_every_module():
+    """README.md's layout table matches the tree: every file or folder it
+    names exists, and every module directly under contract/, adapters/ and
+    harness/ (a file or a subpackage) is named in its package's row."""
+    rows = {cells[0].strip("`"): cells[1] for cells in _table_rows(ROOT / "README.md", "## Layout")}
+    bad = []
+    for where, text in rows.items():
+        for name in _files_named(text):
+            if not ((ROOT / where / name).exists() or (ROOT / name).is_dir()):  # or a top-level package
+                bad.append(f"README layout, {where}: names {name}, which does not exist")
+    for pkg in ("contract", "adapters", "harness"):
+        named = _files_named(rows[pkg + "/"])
+        for p in sorted((ROOT / pkg).iterdir()):
+            if p.name.startswith(("_", ".")):
+                continue
+            name = p.name + "/" if p.is_dir() and (p / "__init__.py").exists() else p.name
+            if name.endswith((".py", "/")) and name not in named:
+                bad.append(f"README layout, {pkg}/: does not name {name}")
+    assert not bad, "\n".join(bad)
+
+
+def test_packaging_ships_every_package():
+    """pyproject.toml's package list covers every package of the tree (a
+    subpackage left out is missing from an installed wheel: the CLI's own
+    ``harness.cli`` once was)."""
+    import fnmatch
+    import tomllib
+
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    listed = conf.get("packages")
+    pkgs = sorted(m for m, p in MODULES.items() if p.name == "__init__.py")
+    assert len(pkgs) >= 10
+    if isinstance(listed, list):
+        missing = [m for m in pkgs if m not in listed]
+    else:
+        include = listed["find"].get("include", ["*"])
+        missing = [m for m in pkgs if not any(fnmatch.fnmatchcase(m, pat) for pat in include)]
+    assert not missing, f"pyproject.toml does not ship {missing}"

@@ -244,15 +244,16 @@ def test_kept_warm_caches_give_the_bits_of_fresh_ones(monkeypatch, sid):
 
     def final(kept: bool):
         seen = {}  # id -> cache (kept alive: ids of freed caches are reused)
-        orig = warm.WarmPool.store
+        orig = warm.WarmPool.slot
 
-        def store(self, rows, h, touching, busy0, busy1):
-            out = orig(self, rows, h, touching, busy0, busy1) if kept else warm.store_forces(rows, h, touching)
+        # (every solve takes the cache it stores into from WarmPool.slot)
+        def slot(self, size, busy0, busy1):
+            out = orig(self, size, busy0, busy1) if kept else warm.empty_cache(*size)
             assert out is not busy0 and out is not busy1
             seen[id(out)] = out
             return out
 
-        monkeypatch.setattr(warm.WarmPool, "store", store)
+        monkeypatch.setattr(warm.WarmPool, "slot", slot)
         eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), {})
         eng.step(72)
         s = eng.state

@@ -33,7 +33,6 @@ EFFECTS = (
 )
 BODY_SHAPES = ("sphere", "box", "capsule", "cylinder")
 STATIC_SHAPES = ("plane", "box", "slope")
-PATTERN_KINDS = ("column", "pyramid", "grid", "rack", "row")
 
 # Which dimension keys each shape uses; any other dimension key is an error.
 SHAPE_DIMENSIONS = {

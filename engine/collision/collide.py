@@ -315,3 +315,15 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
                              face_points)
             cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
+
+
+@njit(cache=True)
+def collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin, sweep, face_points):
+    """:func:`collide` with the arrays kept between calls in ONE argument:
+    ``kept`` an :class:`engine.pack.Pack` of (body, planes, sboxes, smat,
+    coef, W, A, B, slot, out) (the Collider's buffers; one pointer to
+    unbox instead of ~55 arrays); ``margins`` (body-body, body-plane,
+    body-static-box); the rest as :func:`collide`."""
+    body, planes, sboxes, smat, coef, W, A, B, slot, out = kept.items
+    return collide(body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk, margins[2], from_sweep, margin,
+                   sweep, planes, sboxes, smat, coef, face_points, W, A, B, slot, out)

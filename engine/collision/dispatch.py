@@ -16,7 +16,8 @@ from engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
 from engine.profile import Stage
 from engine.state import Contacts
 from engine.collision import box
-from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide
+from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
+from engine.pack import Pack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
            "unsupported_pairs", "warm_up"]
@@ -71,17 +72,20 @@ class Collider:
         self.smat = f(model.static_material, np.int64)
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
+        self._kept = None
         self._pairs(pairs)
         self._group(pairs, pairs * MAX_SLOTS)
         self._out(contacts)
 
     def _pairs(self, m: int) -> None:
+        self._kept = None  # the buffers change: a new pack
         i, z = np.empty(m, np.int64), np.empty(m)
         self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
                   np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64))
         self.margins = tuple(np.empty(m) for _ in range(3))
 
     def _group(self, k: int, slots: int) -> None:
+        self._kept = None  # the buffers change: a new pack
         def side():
             return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros(k)
         self.A, self.B = side(), side()
@@ -89,6 +93,7 @@ class Collider:
                      np.zeros(slots, np.bool_))
 
     def _out(self, m: int) -> None:
+        self._kept = None  # the buffers change: a new pack
         i = np.empty(m, np.int64)
         self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
                     np.empty(m), np.empty(m), np.empty(m), np.empty(m))
@@ -115,9 +120,12 @@ class Collider:
         else:
             sweep = self.W[6]
         while True:
-            cnt, need_k, need_s = collide(self.body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk,
-                                          margins[2], from_sweep, margin, sweep, self.planes, self.sboxes, self.smat,
-                                          self.coef, box.EDGE_FACE_POINTS, self.W, self.A, self.B, self.slot, self.out)
+            kept = self._kept
+            if kept is None:
+                kept = self._kept = Pack((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A,
+                                          self.B, self.slot, self.out))
+            cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
+                                                 sweep, box.EDGE_FACE_POINTS)
             short = False
             if need_k > self.A[0].shape[0] or need_s > self.slot[2].shape[0]:
                 self._group(2 * need_k, 2 * need_s)

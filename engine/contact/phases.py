@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from engine.contact import linalg, sweeps, warm
-from engine.contact.prepare import sliding
+from engine.contact.prepare import rows as prepare_rows, sliding, targets as prepare_targets
 
 #: direct-start policy constants, mirrored from engine.contact.rows (the
 #: solve passes its module's current values at every call)
@@ -218,3 +218,51 @@ def relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, tol, world):
     _pack(Up, Vp, Wp)
     sweeps.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world)
     _unpack(Up, Vp, Wp)
+
+
+@njit(cache=True)
+def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching, vn, h, lever, thr, beta, slop,
+                friction, rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on,
+                store_on):
+    """The solve stage after classification as ONE compiled call: the
+    rows (:func:`engine.contact.prepare.rows`), their targets
+    (:func:`engine.contact.prepare.targets`), :func:`solve_contacts`,
+    :func:`relax` (``relax_on`` and a row to push out) and the warm
+    cache's store (``store_on``, :func:`engine.contact.warm.store`), in
+    that order, the same calls as the stage made one by one (the same
+    bits).  The kept arrays come as :class:`engine.pack.Pack` s (one
+    pointer each to unbox): ``kc`` the pose and velocities (X (n, 3),
+    Iinv (n+1, 3, 3), R0 (n, 3, 3), V, W (n+1, 3) the end velocities,
+    V0, W0 (n, 3) the start ones, Vp, Wp (n+1, 3) the pseudo velocities,
+    inverse masses (n+1,), bounding radii (n,)); ``kt`` the topology's
+    arrays; ``kw`` the rows' and the solve's work arrays; ``ko``/``kq``
+    the warm cache read and the one written (engine.contact.warm's
+    ``o_``/``u_`` arrays, then the touch flags).  The stage's contacts
+    (``ca``, ``cb``, ``point``, ``normal``, ``gap``, ``e``), ``idx`` (m,)
+    the rows' contacts in row order, ``touching`` and ``vn`` from the
+    classification.  Returns (sweeps, residual, whether a row pushes out)."""
+    X, Iinv, R0, V, W, V0, W0, Vp, Wp, inv_mass, bound_radius = kc.items
+    ab, a, b, pid, pa, pb, cnt, pab, codes, code_order, code_first, uniq_pid, mus, muk, mur = kt.items
+    (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, U, U0, Ud, vt0, pin_t, dir_t, matched,
+     r_direct, bias, Up, lam_p, touch_rows) = kw.items
+    o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, _ = ko.items
+    nb = X.shape[0]
+    prepare_rows(X, Iinv, inv_mass, R0, True, ca, cb, point, normal, idx, nb, J, M, mn, loc, lam_n, target,
+                 friction, pid, pa, pb, cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
+    pushed = prepare_targets(idx, touching, vn, gap, e, h, lever, thr, beta, slop, target, bias)
+    pin_t[:] = False
+    dir_t[:] = 0.0
+    sw, residual = solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, nb, friction, rolling, pab,
+                                  pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on,
+                                  codes, loc, a, b, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h,
+                                  matched, direct, resting, max_rows, passes, r_direct, pin_t, dir_t, iterations,
+                                  1e-7)
+    if relax_on and pushed > 0:
+        relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, 1e-7, nb)
+    if store_on:
+        q_code, q_loc, q_fn, q_pairs, q_ft, q_tw, q_rr, q_touch = kq.items
+        for i in range(idx.shape[0]):
+            touch_rows[i] = touching[idx[i]]
+        warm.store(code_order, codes, loc, lam_n, touch_rows, code_first, uniq_pid, friction, rolling, lam_t, t, h,
+                   q_code, q_loc, q_fn, q_touch, q_pairs, q_ft, q_tw, q_rr)
+    return sw, residual, pushed

@@ -273,13 +273,15 @@ class Rows:
 
     def __init__(self, model, X, Iinv, c: Contacts, friction: bool, colour: bool = True,
                  sel: np.ndarray | None = None, topo: "Topology | None" = None, scratch: Scratch | None = None,
-                 R0: np.ndarray | None = None):
+                 R0: np.ndarray | None = None, views: tuple | None = None, prepared: bool = False,
+                 idx: np.ndarray | None = None):
         n = model.n
         if topo is None:
             src = c if sel is None else c.take(sel)
             topo = Topology(model, src.a, src.b, src.sidx, friction, colour)
         # the contacts of the rows, in row (colour) order
-        idx = topo.order if sel is None else sel[topo.order]
+        if idx is None:
+            idx = topo.order if sel is None else sel[topo.order]
         self.idx = idx
         self._c = c
         self._X = X
@@ -301,8 +303,10 @@ class Rows:
         nr = 5 if rolling else 3  # friction rows per patch: tangent, tangent, twist (, roll, roll)
         # the work arrays: views of the scratch's buffers, the same views
         # while the sizes stay (a resting stack: every step)
+        if views is None:
+            views = sc.group(("rows", m, npch, nr, friction), lambda: _take_rows(sc, m, npch, nr, friction))
         (self.J, self.M, self.mn, self.loc, self.lam_n, self.target, P, N, rt, t, Jt, Mt, mt, lam_t, slip,
-         mu) = sc.group(("rows", m, npch, nr, friction), lambda: _take_rows(sc, m, npch, nr, friction))
+         mu) = views
         if friction:
             self._patches(c, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu)
             pid, pa, pb, cnt, mus = topo.pid, topo.pa, topo.pb, topo.cnt, self.mus
@@ -311,6 +315,8 @@ class Rows:
             cnt = rt = mu = mus = _NO_D
             P = N = _NO_P3
             t, Jt, Mt, mt, lam_t, slip = _NO_T, _NO_J, _NO_J, _NO_P3, _NO_P3, _NO_B
+        if prepared:
+            return  # the caller's compiled call fills the views (engine/contact/phases.py solve_stage)
         # normal rows, patches, cleared impulses: one compiled call
         prepare.rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point, c.normal,
                      idx, n, self.J, self.M, self.mn, self.loc, self.lam_n, self.target, friction, pid, pa, pb,
@@ -622,7 +628,8 @@ class Rows:
             pinned_residual = self.residual
         finally:
             self.pin = None
-            self.lam_n, self.lam_t = saved
+            self.lam_n[:] = saved[0]  # in place: the arrays are kept views (solver.Solve reuses the rows)
+            self.lam_t[:] = saved[1]
             self.residual = residual
         if pinned_residual > STOP_MAX_RESIDUAL:
             return None

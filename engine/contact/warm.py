@@ -17,6 +17,7 @@ from numba import njit
 
 from engine.contact.rows import Rows
 from engine.contact.scratch import Scratch
+from engine.pack import Pack
 
 _NO_I = np.zeros(0, np.int64)
 _NO_T = np.zeros((0, 2, 3))
@@ -138,10 +139,14 @@ def store_forces(rows: Rows, h: float, touching: np.ndarray) -> "WarmCache":
     it was; a speculative row that pressed to land its point exactly on the
     surface did not rest), in arrays of its own (:class:`WarmPool` reuses
     kept ones)."""
-    m, p = _sizes(rows)
-    out = WarmCache(np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(p, np.int64),
-                    np.empty((p, 3)), np.empty(p), np.empty((p, 3)), np.empty(m, np.bool_))
-    return _fill(rows, h, touching, out)
+    return _fill(rows, h, touching, empty_cache(*_sizes(rows)))
+
+
+def empty_cache(m: int, p: int) -> "WarmCache":
+    """A cache of ``m`` points and ``p`` distinct pairs in arrays of its
+    own, contents undefined."""
+    return WarmCache(np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(p, np.int64),
+                     np.empty((p, 3)), np.empty(p), np.empty((p, 3)), np.empty(m, np.bool_))
 
 
 class WarmPool:
@@ -165,11 +170,16 @@ class WarmPool:
     def store(self, rows: Rows, h: float, touching: np.ndarray, busy0, busy1) -> "WarmCache":
         """As :func:`store_forces`, into a kept cache that is neither
         ``busy0`` nor ``busy1`` (caches, or None)."""
+        return _fill(rows, h, touching, self.slot(_sizes(rows), busy0, busy1))
+
+    def slot(self, size: tuple[int, int], busy0, busy1) -> "WarmCache":
+        """A kept cache of ``size`` (points, distinct pairs) that is neither
+        ``busy0`` nor ``busy1`` (caches, or None), contents undefined."""
         for k in range(self.SLOTS):
             out = self._cache[k]
             if out is None or (out is not busy0 and out is not busy1):
                 break
-        m, p = size = _sizes(rows)
+        m, p = size
         if out is None or self._size[k] != size:
             sc = self._scratch[k]
             out = self._cache[k] = WarmCache(
@@ -177,7 +187,7 @@ class WarmPool:
                 sc.take("pairs", (p,), np.int64), sc.take("ft", (p, 3)), sc.take("tw", (p,)),
                 sc.take("rr", (p, 3)), sc.take("touch", (m,), np.bool_))
             self._size[k] = size
-        return _fill(rows, h, touching, out)
+        return out
 
 
 @dataclass(eq=False)
@@ -202,3 +212,12 @@ class WarmCache:
     @property
     def packed(self) -> tuple:
         return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
+
+    @property
+    def kept(self) -> Pack:
+        """:attr:`packed` as one :class:`engine.pack.Pack` (built on first
+        use; the arrays are the cache's own, never replaced)."""
+        k = self.__dict__.get("_kept")
+        if k is None:
+            k = self.__dict__["_kept"] = Pack(self.packed)
+        return k

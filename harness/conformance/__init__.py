@@ -80,7 +80,7 @@ from harness.conformance.summary import exit_code, summarize
 from harness.conformance.traces import trace_failures
 from harness.conformance.verdicts import Outcome, verdicts_column
 # the names other modules and the tests take from harness.conformance
-# (limits.py, points.py, cli/run.py, cli/trace.py; tests/test_conformance.py,
+# (limits.py, limit_eval.py, points.py, cli/run.py, cli/trace.py; tests/test_conformance.py,
 # test_scenarios.py, test_own_scenes.py, test_execute.py, test_trace_*.py)
 from harness.conformance.plan import scene_runs  # noqa: F401
 from harness.conformance.store import save_rows  # noqa: F401

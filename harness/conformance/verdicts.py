@@ -14,7 +14,6 @@ from typing import Any, Iterable
 from harness import status as st
 from contract.scene import Check, Scene
 
-HARD_DT = 1.0 / 30.0
 HARD_DT_LABEL = "1/30"
 BASE = "base"  # name standing for the base scenario in a check's `variants`
 

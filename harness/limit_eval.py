@@ -1,0 +1,339 @@
+"""One evaluation of a breaking-point search, and a search over them.
+
+:func:`evaluate_point` runs the scene at one value in one step phase and
+turns the run into a stored row with its verdict (the only function that
+runs an engine; small so that it can move onto another execution path);
+:func:`search_items` drives the pure search (harness/limit_search.py) with
+such rows, reading finished ones back; :func:`run_search` runs it in this
+process.  The command and its store are harness/limits.py.
+
+The criterion.  A value *holds* when, in every one of the N step phases
+(``contract/phase.py``; phase 0 is the scene as written), the run is ``ok``,
+its ``stable`` metric is true (every recorded value finite, no energy
+blow-up) and it meets every applicable check of the scene (the checks
+``physbench check`` evaluates, with the same bounds; an ``xfail`` marks a
+known limitation but does not make a failed check hold; checks bound to other
+settings, ``metric@dt=...``, are left out: the searched value replaces
+them).  ``checks`` restricts the criterion to checks of the named metrics
+(stability always counts).  Phases stop at the first failing one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+import traceback
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Generator
+
+from harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_steps
+
+#: row kinds (column ``row_kind``): one row per run of a search, one per search
+EVAL_ROW, RESULT_ROW = "limit_eval", "limit"
+
+
+# ---------------------------------------------------------------------------
+# one evaluation: run the scene at one value in one phase
+
+
+@dataclass(frozen=True)
+class LimitRequest:
+    """One search: ``scenario`` (an id or a spec file path) and ``variant``
+    on ``engine``; ``param`` moved over [``lo``, ``hi``]; a value holds only
+    in all ``phases`` step phases; ``tol`` relative; ``checks``: only checks
+    of these metrics count (empty: all); ``settings``: fixed engine settings
+    (not the searched one); ``overrides``: fixed dotted spec keys applied
+    before the searched one (``scenario.duration``, a wall's position);
+    ``bounds``: extra (metric, max) criteria (``energy_gain`` <= 0.01: where
+    energy starts to grow); ``timeout_s`` per run."""
+
+    scenario: str
+    variant: str | None
+    engine: str
+    param: str
+    lo: float
+    hi: float
+    phases: int = 1
+    tol: float = 0.05
+    checks: tuple[str, ...] = ()
+    settings: tuple[tuple[str, Any], ...] = ()
+    overrides: tuple[tuple[str, Any], ...] = ()
+    bounds: tuple[tuple[str, float], ...] = ()
+    timeout_s: float = 600.0
+
+    @property
+    def label(self) -> str:
+        return self.scenario + (f"[{self.variant}]" if self.variant else "")
+
+    def identity(self, spec_hash: str) -> str:
+        """16 hex digits naming the search: scene file content, variant,
+        engine, parameter, range, phases, tol, checks, fixed settings and
+        overrides."""
+        text = json.dumps([spec_hash, self.label, self.engine, self.param, self.lo, self.hi, self.phases,
+                           self.tol, list(self.checks), [list(s) for s in self.settings],
+                           [list(o) for o in self.overrides], [list(b) for b in self.bounds]], default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    def eval_key(self, limit_id: str, value: float, phase: float) -> str:
+        """Stable key of one evaluation (the row's ``point_key``)."""
+        return f"limit:{limit_id}|{self.label}|{self.engine}|{self.param}={value!r}|phase={phase!r}"
+
+
+def is_engine_setting(engine: str, param: str) -> bool:
+    from adapters import get_adapter
+
+    return param in get_adapter(engine).capabilities().settings
+
+
+def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
+    """Overrides that make ``path`` settable: when ``path`` names an element
+    of a vector the spec leaves at its default (``body[0].velocity[0]`` of a
+    body written without ``velocity``), the whole vector at its validated
+    default."""
+    from contract.spec import parse_key_path
+
+    parts = parse_key_path(path)
+    if not isinstance(parts[-1], int) or len(parts) < 2:
+        return {}
+    model = loaded.validated(variant).model_dump()
+    node: Any = model
+    for p in parts[:-1]:
+        try:
+            node = node[p]
+        except (KeyError, IndexError, TypeError):
+            return {}
+    raw: Any = loaded.raw
+    for p in parts[:-1]:
+        try:
+            raw = raw[p]
+        except (KeyError, IndexError, TypeError):
+            prefix = path[: path.rfind("[")]
+            return {prefix: list(node)} if isinstance(node, (list, tuple)) else {}
+    return {}
+
+
+def load_at(req: LimitRequest, value: float):
+    """The request's scene with the searched spec key set to ``value`` (for
+    an engine setting, the scene as written).  Raises SpecError (a value the
+    spec does not accept: a negative mass, a restitution over 1)."""
+    from contract.scene import load_scene, resolve_scenario
+    from contract.spec import load_spec
+
+    loaded = load_spec(resolve_scenario(req.scenario))
+    overrides = dict(req.overrides)
+    if is_engine_setting(req.engine, req.param):
+        return load_scene(req.scenario, req.variant, overrides or None, loaded=loaded)
+    overrides.update(_fill_vector(loaded, req.variant, req.param))
+    overrides[req.param] = value
+    return load_scene(req.scenario, req.variant, overrides, loaded=loaded)
+
+
+def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
+          bounds: tuple[tuple[str, float], ...] = ()) -> tuple[bool, str]:
+    """Whether one run holds (module docstring), and if not, why: the first
+    failure as ``metric: message``.  ``checks``: only the scene's checks of
+    these metrics (``("stable",)``: stability alone); ``bounds``: extra
+    (metric, max) criteria, a missing or NaN value failing."""
+    from harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
+
+    if result.status != "ok":
+        return False, f"status {result.status}: {result.message}"
+    stable = result.metrics.get("stable")
+    if stable is not None and not bool(stable):
+        why = result.metrics.get("stability_reason") or "a recorded value is not finite or energy blew up"
+        return False, f"stable: {why}"
+    for c in applicable_checks(scene, result.engine):
+        name, bound = split_metric(c.metric)
+        if bound or (checks and name not in checks):
+            continue
+        o = evaluate_check(dataclasses.replace(c, xfail={}), result)
+        if o.outcome != PASS:
+            return False, f"{c.metric}: {o.message}" if o.outcome == FAIL else f"{c.metric}: {o.outcome} {o.message}"
+    for metric, hi in bounds:
+        v = result.metrics.get(metric)
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = math.nan
+        if not x <= hi:
+            return False, f"{metric}: {metric} = {x:.6g}, expected <= {hi:g}" if math.isfinite(x) else \
+                f"{metric}: metric not computed"
+    return True, ""
+
+
+def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
+    """Run the request's scene with the parameter at ``value`` in step phase
+    ``phase`` and return its row: ``RunResult.row()`` plus the sweep point
+    columns and ``limit_*`` columns (``limit_holds``, ``limit_reason``).
+    Never raises: a scene the value makes invalid, a run that raises, are
+    rows whose verdict fails with the reason."""
+    from harness import runner
+    from contract.phase import shift_scene
+    from harness.points import PHASE_KEY, Point, _point_columns, _status_row
+
+    t0 = time.perf_counter()
+    settings = dict(req.settings)
+    engine_param = is_engine_setting(req.engine, req.param)
+    if engine_param:
+        settings[req.param] = value
+    pt = Point(req.scenario, req.variant, req.engine,
+               tuple(sorted({**settings, **({PHASE_KEY: phase} if phase else {})}.items())), 1, req.timeout_s)
+    scene = None
+    try:
+        scene = load_at(req, value)
+        if phase:
+            scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s)
+        res.trace = None
+        row = res.row()
+        row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
+        holds, reason = judge(scene, res, req.checks, req.bounds)
+        cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
+        unsupported = res.status == "unsupported"
+    except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
+        from contract.spec import SpecError
+
+        msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
+        row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
+                          tb=None if isinstance(e, SpecError) else traceback.format_exc(limit=5))
+        holds, reason, cpu, unsupported = False, f"{req.param}={value!r}: {msg}", 0.0, False
+    row.update({"row_kind": EVAL_ROW, "point_key": req.eval_key(limit_id, value, phase), "limit_id": limit_id,
+                "limit_param": req.param, "limit_value": float(value), "limit_holds": bool(holds),
+                "limit_reason": reason, "limit_unsupported": bool(unsupported), "limit_cpu_s": cpu})
+    return row
+
+
+def verdict_of_rows(rows: list[dict[str, Any]]) -> Verdict:
+    """A value's verdict from its phase rows (phase order): holds only if
+    every row holds; the reason is the first failing phase's."""
+    n = len(rows)
+    cpu = float(sum(float(r.get("limit_cpu_s") or 0.0) for r in rows))
+    for i, r in enumerate(rows):
+        if r.get("limit_unsupported"):
+            return Verdict(False, f"unsupported: {r.get('message', '')}", n, cpu, unsupported=True)
+        if not r.get("limit_holds"):
+            where = f" (step phase {float(r.get('phase') or 0.0):g})" if r.get("phase") else ""
+            return Verdict(False, f"{r.get('limit_reason', '')}{where}", n, cpu)
+    return Verdict(True, "", n, cpu)
+
+
+# ---------------------------------------------------------------------------
+# running a search with stored, resumable rows
+
+
+Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
+
+
+def spec_hash(req: LimitRequest) -> str:
+    from contract.scene import resolve_scenario
+
+    return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class EvalItem:
+    """One evaluation of a search, as an executor item: ``req``'s scene with
+    the parameter at ``value`` in step phase ``phase``.  ``key`` is the
+    row's point key (a Dask task is keyed by it)."""
+
+    req: LimitRequest
+    limit_id: str
+    value: float
+    phase: float
+
+    @property
+    def key(self) -> str:
+        return self.req.eval_key(self.limit_id, self.value, self.phase)
+
+
+def evaluate_item(item: EvalItem) -> dict[str, Any]:
+    """:func:`evaluate_point` of one EvalItem (an executor's function)."""
+    return evaluate_point(item.req, item.limit_id, item.value, item.phase)
+
+
+def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
+    """The row of an evaluation whose worker died, hung or raised
+    (``lost``: a harness.execute.WorkerLost): its status and message, and
+    a verdict that does not hold for that reason."""
+    from harness.points import Point, _status_row
+
+    req = item.req
+    why = lost.full_message().replace("this item", "this value")
+    row = _status_row(Point(req.scenario, req.variant, req.engine, (), 1, req.timeout_s), lost.status, why,
+                      time.perf_counter(), tb=lost.traceback or None, stderr_tail=lost.stderr_tail or None,
+                      machine=lost.machine)
+    row.update({"row_kind": EVAL_ROW, "point_key": item.key, "limit_id": item.limit_id, "limit_param": req.param,
+                "limit_value": float(item.value), "phase": float(item.phase), "limit_holds": False,
+                "limit_reason": why, "limit_unsupported": False, "limit_cpu_s": 0.0})
+    return row
+
+
+def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]]
+                 ) -> Generator[EvalItem, dict[str, Any], tuple[SearchResult, dict[str, Any]]]:
+    """Search ``req`` as a generator: yields each evaluation to run (an
+    :class:`EvalItem`), receives its row, returns (result, summary row).
+    Evaluations whose key is in ``cached`` are read back (not yielded);
+    every new row is handed to ``store``.  The summary row (``row_kind`` =
+    ``limit``) is the caller's to store."""
+    from contract.phase import phase_values
+    from contract.scene import load_scene
+
+    limit_id = req.identity(spec_hash(req))
+    phases = phase_values(req.phases)
+    integer = False
+    if is_engine_setting(req.engine, req.param):
+        from adapters import get_adapter
+
+        integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
+    new_runs = 0
+    steps = search_steps(req.lo, req.hi, req.tol, integer=integer, param=req.param)
+    try:
+        value = next(steps)
+        while True:
+            rows = []
+            for f in phases:  # one failing phase decides
+                item = EvalItem(req, limit_id, value, f)
+                row = cached.get(item.key)
+                if row is None:
+                    row = yield item
+                    store(row)
+                    new_runs += 1
+                rows.append(row)
+                if not row.get("limit_holds"):
+                    break
+            value = steps.send(verdict_of_rows(rows))
+    except StopIteration as stop:
+        res: SearchResult = stop.value
+    scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+    summary = {
+        "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
+        "scenario": scene.id, "variant": req.variant, "engine": req.engine,
+        "status": "unsupported" if res.outcome == UNSUPPORTED else "ok", "message": res.failed_check,
+        "primary_metric": scene.primary_metric, "limit_param": req.param, "limit_outcome": res.outcome,
+        "limit_value": math.nan if res.limit is None else float(res.limit),
+        "limit_lo": res.bracket[0] if res.bracket else math.nan,
+        "limit_hi": res.bracket[1] if res.bracket else math.nan,
+        "limit_direction": res.direction, "limit_failed_check": res.failed_check,
+        "limit_runs": res.runs, "limit_new_runs": new_runs, "limit_cpu_s": res.cpu_s,
+        "limit_range_lo": float(req.lo), "limit_range_hi": float(req.hi), "limit_tol": req.tol,
+        "limit_phases": req.phases, "limit_checks": ",".join(req.checks),
+        "limit_settings": json.dumps(dict(req.settings), sort_keys=True, default=str),
+        "limit_overrides": json.dumps(dict(req.overrides), sort_keys=True, default=str),
+    }
+    return res, summary
+
+
+def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
+               evaluate: Runner = evaluate_point) -> tuple[SearchResult, dict[str, Any]]:
+    """Search ``req`` in this process, one evaluation after the other
+    (:func:`search_items` driven by ``evaluate``).  Returns the result and
+    its summary row (the caller stores it).  A sweep runs its searches
+    concurrently with its points instead: harness/schedule.py."""
+    return drive(search_items(req, store, cached), lambda it: evaluate(it.req, it.limit_id, it.value, it.phase))
