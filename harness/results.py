@@ -6,11 +6,15 @@ one schema for check and sweep rows (:data:`VERDICT_COLUMNS`, then
 schema version in its Parquet metadata and a ``schema_version`` column, so
 later readers can tell old rows from new ones.
 
-One writer: :func:`write_parquet_atomic` (temp file in the same directory,
-fsync, rename; mode 0666 minus the umask, i.e. 0644 under the usual umask,
-never the 0600 of a ``mkstemp`` file).  :class:`PartsDir` is the store of a
+One way to write a file: :func:`_write_bytes_atomic` (temp file in the
+same directory, fsync, rename; mode 0666 minus the umask, i.e. 0644 under
+the usual umask, never the 0600 of a ``mkstemp`` file), under
+:func:`write_table_atomic` (a pyarrow Table), :func:`write_parquet_atomic`
+(a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
 job that writes one part per finished run and resumes after a kill
-(``physbench sweep`` and ``physbench check``).
+(``physbench sweep`` and ``physbench check``): parts are built from the row
+with pyarrow (:func:`row_table`) and merged with pyarrow
+(:func:`merge_tables`), typed as the pandas path typed them.
 """
 
 from __future__ import annotations
