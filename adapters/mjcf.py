@@ -42,13 +42,42 @@ def _pair_contact(mat, cal_solref: tuple[float, float]) -> tuple[int, tuple[floa
     return condim, (mu, mu, 0.0, roll, roll), cal_solref
 
 
+#: MuJoCo's compiler refuses a moving body whose mass or any principal
+#: inertia is not above mjMINVAL (1e-15): "mass and inertia of moving bodies
+#: must be larger than mjMINVAL" (mujoco 4.0.0; a 1e-9 kg sphere of radius
+#: 1e-6 m has 4e-22 kg m^2, inside the spec bounds).  Below MASS_FLOOR the
+#: model's masses are scaled up (:func:`mass_scale`).
+MASS_FLOOR = 1e-12
+
+
+def mass_scale(scene: Scene) -> float:
+    """The factor k (a power of two, exact in binary) every mass, principal
+    inertia (kg, kg m^2), spring stiffness and damping and drag coefficient
+    of the MuJoCo model is multiplied by: 1 unless the scene's smallest mass
+    or principal inertia is below MASS_FLOOR, then the least power of two
+    that lifts it to MASS_FLOOR.  A uniform mass scale leaves the motion
+    unchanged: gravity's force scales with the masses, MuJoCo's contact
+    (solref) and friction constraints are mass-normalised, and the forces
+    the adapter applies (springs, drag) are scaled by the same k.  Pinned by
+    tests/test_fuzz.py::test_mujoco_runs_micrometre_bodies_with_a_mass_scale."""
+    smallest = min((min(b.mass, *b.inertia) for b in scene.bodies), default=MASS_FLOOR)
+    if smallest >= MASS_FLOOR:
+        return 1.0
+    return float(2.0 ** int(np.ceil(np.log2(MASS_FLOOR / smallest))))
+
+
 def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tuple[float, float]],
                notes: list[str]) -> tuple[str, dict[str, Any]]:
     """The MJCF for ``scene`` with resolved ``settings`` and each contact
     pair's calibrated ``solref`` (by index into ``scene.contact_pairs()``);
     appends notes on what MuJoCo cannot model to ``notes``.  Returns (xml,
-    meta: dynamic_contacts, explicit_pairs, condim, tendons)."""
+    meta: dynamic_contacts, explicit_pairs, condim, tendons, mass_scale
+    (:func:`mass_scale`))."""
     dt = float(settings["dt"])
+    mscale = mass_scale(scene)
+    if mscale != 1.0:
+        notes.append(f"masses, inertias, springs and drag are scaled by {mscale:g} in MuJoCo's model (the motion "
+                     f"is unchanged): its compiler refuses a mass or principal inertia below mjMINVAL = 1e-15")
     integrator = settings["integrator"]
     contact = scene.has("contact")
     pairs = scene.contact_pairs()
@@ -122,7 +151,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
             gs = f'type="{b.shape}" size="{_f(b.radius)} {_f(b.half_length)}"'
         lines.append(f'    <body name="b{b.index}" pos="{_v(b.position)}" quat="{_v(b.orientation)}">')
         lines.append('      <freejoint/>')
-        lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass)}" diaginertia="{_v(b.inertia)}"/>')
+        lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass * mscale)}" '
+                     f'diaginertia="{_v(np.multiply(b.inertia, mscale))}"/>')
         lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}/>')
         for k, sp in enumerate(scene.springs):
             if sp.a == b.index:
@@ -142,8 +172,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
     if scene.springs:
         lines.append('  <tendon>')
         for k, sp in enumerate(scene.springs):
-            lines.append(f'    <spatial name="spring{k}" stiffness="{_f(sp.stiffness)}" '
-                         f'damping="{_f(sp.damping)}" springlength="{_f(sp.rest_length)}">')
+            lines.append(f'    <spatial name="spring{k}" stiffness="{_f(sp.stiffness * mscale)}" '
+                         f'damping="{_f(sp.damping * mscale)}" springlength="{_f(sp.rest_length)}">')
             lines.append(f'      <site site="sp{k}a"/>')
             lines.append(f'      <site site="sp{k}b"/>')
             lines.append('    </spatial>')
@@ -155,6 +185,7 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         "explicit_pairs": len(explicit),
         "condim": (condims[0] if len(condims) == 1 else condims) if condims else None,
         "tendons": len(scene.springs),
+        "mass_scale": mscale,
     }
     return "\n".join(lines) + "\n", meta
 

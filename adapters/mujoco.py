@@ -8,7 +8,8 @@ Bodies
     One ``<body>`` per scene body with a ``<freejoint/>``, an explicit
     ``<inertial mass=... diaginertia=...>`` at the body origin (so MuJoCo's
     mass and principal inertia are exactly the Scene's, whatever the geom
-    says; ``inertiafromgeom="false"``) and one geom: sphere (size r), box
+    says; ``inertiafromgeom="false"``; all scaled by one power of two when
+    the smallest is below MuJoCo's compiler floor, :func:`adapters.mjcf.mass_scale`) and one geom: sphere (size r), box
     (half extents), capsule (size r, half_length: MuJoCo's capsule size is
     the radius and the half length of the cylindrical part), cylinder (r,
     half_length).  Capsule and cylinder axes are the geom's local z = body z,
@@ -222,6 +223,7 @@ class MujocoAdapter(Adapter):
 
         # drag: F = -(c1 + c2 |v|) v into xfrc_applied before every step
         c1, c2 = drag_coefficients(scene)
+        c1, c2 = c1 * meta["mass_scale"], c2 * meta["mass_scale"]  # forces on the scaled masses (mjcf.mass_scale)
         self._drag = bool(np.any(c1 > 0) or np.any(c2 > 0))
         if self._drag:
             self._c1, self._c2 = c1, c2
@@ -241,6 +243,7 @@ class MujocoAdapter(Adapter):
             "condim": meta["condim"],
             "restitution_calibrated": len(self.info.get("restitution_calibration", [])),
             "tendon_springs": meta["tendons"],
+            "mass_scale": meta["mass_scale"],
             "drag": self._drag,
             "gyroscopic": True,
             "integrator": settings["integrator"],

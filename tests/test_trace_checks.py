@@ -337,3 +337,75 @@ def test_a_failing_prediction_leaves_its_line_out_and_keeps_the_trace(tmp_path, 
     data = read_rrd(tmp_path / "x.rrd")
     assert "/metrics/model/cue/broken" not in data and "/metrics/fake/predicted/cue/broken" not in data
     assert len(scalars(data, "/metrics/model/cue/normal_velocity")[0]) == 51
+
+
+# ---------------------------------------------------------------------------
+# energy thresholds in joules, on the energy plot
+
+
+def band(data, engine: str, metric: str) -> dict[str, float]:
+    """side -> the constant level (J) of /metrics/<engine>/energy_band/<metric>/<side>."""
+    out = {}
+    for side in ("upper", "lower"):
+        ent = f"/metrics/{engine}/energy_band/{metric}/{side}"
+        if ent in data:
+            _, y = scalars(data, ent)
+            assert len(set(y)) == 1
+            out[side] = float(y[0])
+    return out
+
+
+def test_energy_drift_band_in_joules_is_the_metrics_scale(dzhanibekov):
+    """E0 +- max x E_scale with the metric's own E_scale
+    (harness.metrics.relative_energy); the recorded energy first leaves the
+    band at the step of the crossing marker."""
+    from harness.metrics import relative_energy
+
+    scene, res, path, data = dzhanibekov
+    steps, E = scalars(data, "/metrics/mujoco/energy")
+    _, E_metric, scale = relative_energy(scene, res.trace)
+    check = next(c for c in scene.checks if c.metric == "energy_drift")
+    bound = check.max + (check.tolerance or 0.0)
+    b = band(data, "mujoco", "energy_drift")
+    assert b["upper"] == pytest.approx(E[0] + bound * scale, rel=1e-12)
+    assert b["lower"] == pytest.approx(E[0] - bound * scale, rel=1e-12)
+    assert scale == pytest.approx(abs(E[0]), rel=1e-12)  # no gravity: E_scale = |E0|
+    out = (E > b["upper"]) | (E < b["lower"])
+    hits = [s for s, _, tx in markers(data, "/events/mujoco") if tx.startswith("check energy_drift ")]
+    assert hits == [int(steps[np.nonzero(out)[0][0]])]
+    energy = next(q for name, q in blueprint_views(path).items() if name.startswith("energy"))
+    assert "/metrics/mujoco/energy_band/**" in energy
+
+
+def test_energy_gain_band_is_an_upper_level(tmp_path):
+    scene = load_scene("billiards.ball_drop_bounce")
+    res = rising_ball(scene, "fake", 0.37, 801)
+    check = next(c for c in scene.checks if c.metric == "energy_gain")
+    write_rrd(tmp_path / "g.rrd", scene, [res], diagnose=True, checks={"energy_gain": check})
+    data = read_rrd(tmp_path / "g.rrd")
+    steps, E = scalars(data, "/metrics/fake/energy")
+    b0 = scene.bodies[0]
+    g = float(np.linalg.norm(scene.gravity))
+    scale = max(abs(E[0]), b0.mass * g * b0.bounding_radius)  # docs/METRICS.md
+    assert band(data, "fake", "energy_gain") == {"upper": pytest.approx(E[0] + check.max * scale, rel=1e-12)}
+    above = int(steps[np.nonzero(E > E[0] + check.max * scale)[0][0]])
+    assert above == first_step_above(steps, (E - E[0]) / scale, check.max)
+
+
+def test_energy_dissipated_band_from_its_max_and_min(tmp_path):
+    """(E0 - E) / E_scale <= max + tol keeps E above E0 - (max + tol)
+    E_scale; >= min - tol keeps it below E0 - (min - tol) E_scale.  A
+    dissipative scene has no energy_drift series, so no energy_drift band."""
+    scene = load_scene("billiards.head_on")
+    res = still_result(scene, "fake", 201)
+    res.trace.vel[:, 0, 0] = np.linspace(2.0, 1.0, 201)
+    checks = {"energy_dissipated": Check("energy_dissipated", min=0.1, max=0.2, tolerance=0.05),
+              "energy_drift": Check("energy_drift", max=0.2)}
+    write_rrd(tmp_path / "d.rrd", scene, [res], diagnose=True, checks=checks)
+    data = read_rrd(tmp_path / "d.rrd")
+    _, E = scalars(data, "/metrics/fake/energy")
+    E0 = 0.5 * scene.bodies[0].mass * 2.0**2  # the object rests, no gravity: E_scale = E0
+    assert E[0] == pytest.approx(E0, rel=1e-12)
+    assert band(data, "fake", "energy_dissipated") == {"upper": pytest.approx(E0 - 0.05 * E0, rel=1e-12),
+                                                        "lower": pytest.approx(E0 - 0.25 * E0, rel=1e-12)}
+    assert band(data, "fake", "energy_drift") == {}

@@ -263,6 +263,16 @@ def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, roll
         for c in range(3):
             P[p, c] /= cnt[p]
         s = math.sqrt(N[p, 0] ** 2 + N[p, 1] ** 2 + N[p, 2] ** 2)
+        if not s > 1e-9 * cnt[p]:
+            # the pair's normals cancel (a capsule through a box: +n and -n
+            # rows): the patch takes its first row's normal, a unit vector
+            # (tests/test_fuzz.py::test_reference_engine_cancelling_patch_normals)
+            i0 = 0
+            while pid[i0] != p:
+                i0 += 1
+            s = 1.0
+            for c in range(3):
+                N[p, c] = normal[sel[i0], c]
         for c in range(3):
             N[p, c] /= s
     for i in range(m):

@@ -81,6 +81,50 @@ def sequential_row_collisions(m: np.ndarray, u: np.ndarray, e: float, max_sweeps
     raise RuntimeError("sequential_row_collisions did not converge")
 
 
+def row_collision_history(gap: np.ndarray, m: np.ndarray, u: np.ndarray, e: float, t_end: float,
+                          max_events: int = 10000) -> list[tuple[float, np.ndarray]]:
+    """When the independent-collision model's binary collisions happen: the
+    row of :func:`sequential_row_collisions` with its gaps, run event by
+    event.  gap (n-1,) m between neighbouring surfaces, m (n,), u (n,)
+    velocities along the row (body i+1 ahead of body i), e the restitution.
+    Returns [(t s, velocities (n,) from t on)], starting with (0, u): at
+    each time the touching approaching pairs are resolved by the same sweep
+    as :func:`sequential_row_collisions`; then the row flies to the next
+    gap that closes.  Events after t_end are left out (a touching row hands
+    the strike down at one instant)."""
+    v = np.array(u, float)
+    m = np.asarray(m, float)
+    g = np.array(gap, float)
+    tol = 1e-12 * max(float(np.max(np.abs(g), initial=0.0)), 1e-3)
+    t, out = 0.0, [(0.0, v.copy())]
+    for _ in range(max_events):
+        moved = True
+        hit = False
+        while moved:
+            moved = False
+            for i in range(len(g)):
+                if g[i] <= tol and v[i] > v[i + 1] + 1e-15 * (abs(v[i]) + abs(v[i + 1])):
+                    m1, m2, a, b = m[i], m[i + 1], v[i], v[i + 1]
+                    v[i] = ((m1 - e * m2) * a + (1 + e) * m2 * b) / (m1 + m2)
+                    v[i + 1] = ((m2 - e * m1) * b + (1 + e) * m1 * a) / (m1 + m2)
+                    moved = hit = True
+        if hit:
+            if out[-1][0] == t:
+                out[-1] = (t, v.copy())
+            else:
+                out.append((t, v.copy()))
+        closing = v[:-1] - v[1:]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wait = np.where((closing > 0) & (g > tol), g / closing, np.inf)
+        k = int(np.argmin(wait)) if wait.size else 0
+        if not wait.size or not np.isfinite(wait[k]) or t + wait[k] > t_end:
+            return out
+        g = g - closing * wait[k]
+        g[k] = 0.0
+        t += float(wait[k])
+    return out
+
+
 class NewtonsCradle(ReferenceModel):
     """A row of spheres on one line (the line through the first and last
     centres), one or more of them moving along it; no gravity along the line.
@@ -133,6 +177,63 @@ class NewtonsCradle(ReferenceModel):
         self.v_scale = float(np.max(np.abs(u)))
         if self.v_scale == 0:
             raise ReferenceError("newtons_cradle needs a moving ball")
+
+        self.order = order
+        self.m_row, self.u_row = m, u
+        r = np.array([b.radius for b in scene.bodies])[order]
+        self.gaps = np.diff(s[order]) - r[:-1] - r[1:]
+
+    def history(self) -> tuple[list[tuple[float, np.ndarray]], bool]:
+        """The collisions' timing within the run (:func:`row_collision_history`):
+        ([(t s, velocities along the row (n,) in body order from t on)],
+        timed).  ``timed`` is False when the timed row ends elsewhere than
+        the model's v' (``v_final``; a restitution whose sweeps converge
+        differently): then only the start, the first collision and v' from
+        the last collision on are drawn."""
+        hist = row_collision_history(self.gaps, self.m_row, self.u_row, self.e, self.scene.duration)
+        out = []
+        for t, vr in hist:
+            v = np.empty_like(vr)
+            v[self.order] = vr
+            out.append((t, v))
+        return out, bool(np.max(np.abs(out[-1][1] - self.v_final)) <= 1e-9 * self.v_scale)
+
+    def row_velocity(self, t: np.ndarray, i: int) -> np.ndarray:
+        """Ball i's velocity along the row (m/s) at times t (F,): piecewise
+        constant between the collisions of :meth:`history`; NaN between the
+        first and the last collision when the timing is not the model's."""
+        t = np.asarray(t, float)
+        hist, timed = self.history()
+        if not timed:
+            hist = [hist[0], (hist[1][0], np.full_like(self.v_final, np.nan)), (hist[-1][0], self.v_final)]
+        out = np.full(t.shape, np.nan)
+        for k, (t0, v) in enumerate(hist):
+            t1 = hist[k + 1][0] if k + 1 < len(hist) else np.inf
+            out[(t >= t0) & (t < t1)] = v[i]
+        return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """Each ball's velocity along the row (m/s): v(0) until the strike,
+        v' once the collisions have handed it down."""
+        ax = self.axis
+        return [ReferenceSeries(f"{b.name}/row_velocity", "m/s",
+                                f"{b.name} velocity along the row: {self.v_final[b.index]:.6g} m/s after the collisions",
+                                lambda t, i=b.index: self.row_velocity(t, i),
+                                lambda tr, i=b.index: tr.vel[:, i] @ ax)
+                for b in self.scene.bodies]
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        hist, _ = self.history()
+        if len(hist) < 2:
+            return []
+        out = [(float(hist[1][0]), "first impact")]
+        if hist[-1][0] > hist[1][0]:
+            out.append((float(hist[-1][0]), "last collision of the row"))
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        return {"velocities along the row after the collisions":
+                ", ".join(f"{b.name} {self.v_final[b.index]:.6g}" for b in self.scene.bodies) + " m/s"}
 
     def metrics(self, trace) -> dict[str, float]:
         v_end = trace.vel[-1]  # (n, 3)
@@ -199,6 +300,40 @@ class MomentumEnergy(ReferenceModel):
         ke += 0.5 * float(np.sum(sc.inertias * wb * wb))
         pe = self.g * float(m @ (pos @ self.up)) if self.up is not None else 0.0
         return ke + pe, ke
+
+    def conserves_energy(self) -> bool:
+        """Every pair of the scene's materials has restitution 1: the
+        mechanical energy is a conserved quantity of the model."""
+        sc = self.scene
+        mats = {b.material for b in sc.bodies} | {s.material for s in sc.statics}
+        return all(sc.pair(a, b).restitution == 1.0 for a in mats for b in mats)
+
+    def energy_series(self, trace) -> np.ndarray:
+        """E(t) (J, (F,)): kinetic, rotational and gravitational, the
+        metrics' own sum (:meth:`_energy`)."""
+        return np.array([self._energy(trace.pos[f], trace.quat[f], trace.vel[f], trace.angvel[f])[0]
+                         for f in range(trace.pos.shape[0])])
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """|P_h| (N s), the momentum normal to gravity, constant at |P_h(0)|;
+        with restitution 1 everywhere, E (J) constant at E(0)."""
+        P0 = float(np.linalg.norm(self.P0))
+        out = [ReferenceSeries("scene/momentum_normal_to_gravity", "N s",
+                               f"|momentum normal to gravity|: conserved at {P0:.6g} N s",
+                               lambda t: np.full(np.shape(t), P0),
+                               lambda tr: np.linalg.norm(self._horizontal(self.scene.masses @ tr.vel), axis=-1))]
+        if self.conserves_energy():
+            x0, q0, v0, w0 = self.scene.initial_state()
+            E0 = self._energy(x0, q0, v0, w0)[0]
+            out.append(ReferenceSeries("scene/energy", "J", f"mechanical energy: conserved at {E0:.6g} J (e = 1)",
+                                       lambda t: np.full(np.shape(t), E0), self.energy_series))
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        out = {"momentum normal to gravity (conserved)": f"{np.array2string(self.P0, precision=6)} N s"}
+        if self.conserves_energy():
+            out["mechanical energy (conserved, e = 1)"] = f"{self._energy(*self.scene.initial_state())[0]:.6g} J"
+        return out
 
     def metrics(self, trace) -> dict[str, float]:
         P = self._horizontal(self.scene.masses @ trace.vel[-1])

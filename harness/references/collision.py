@@ -57,6 +57,16 @@ class TwoBodyCollision(ReferenceModel):
         self.R = b1.radius + b2.radius
         self.e = scene.pair(b1.material, b2.material).restitution
         self.x1, self.x2 = b1.position.copy(), b2.position.copy()
+        # The law is the impact of two spheres meeting from outside: a start
+        # in overlap has no contact point, and at coincident centres no line
+        # of centres (a zero-length normal).  Refused at load
+        # (tests/test_fuzz.py::test_two_body_collision_refuses_an_overlapping_start).
+        dist = math.hypot(*(self.x2 - self.x1))
+        if not dist >= self.R:
+            raise ReferenceError(
+                f"spheres {b1.name!r} and {b2.name!r} start overlapping: their centres are {dist:.6g} m apart, "
+                f"less than r1 + r2 = {self.R:.6g} m; expected a start with the spheres apart "
+                f"(centre distance >= r1 + r2)", key=f"body[{idx[1]}].position")
         self.v1, self.v2 = b1.velocity.copy(), b2.velocity.copy()
         self.g = scene.gravity.copy()
         self.t_impact, self.n = self._impact()
@@ -78,12 +88,12 @@ class TwoBodyCollision(ReferenceModel):
         if a == 0 or b >= 0:
             return None, None
         disc = b * b - 4 * a * c
-        if disc < 0:
+        if disc <= 0:  # a miss, or a graze: the centres touch with no approach speed, no impulse
             return None, None
         t = (-b - math.sqrt(disc)) / (2 * a)
-        t = max(t, 0.0)
-        n = dx + dv * t
-        return t, n / np.linalg.norm(n)
+        t = max(t, 0.0)  # c >= 0 (no overlap at the start, __init__) makes t >= 0 but for rounding
+        n = dx + dv * t  # |n| = R >= 2e-6 m (the size bound): a defined normal
+        return t, n / math.hypot(*n)
 
     def _post(self):
         n, m1, m2, e = self.n, self.m1, self.m2, self.e

@@ -50,7 +50,7 @@ import math
 
 import numpy as np
 
-from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 
 _COLLINEAR = 1e-9  # relative tolerance for "along the line"
 
@@ -195,6 +195,50 @@ class DampedOscillator(ReferenceModel):
             rel = trace.pos[:, self.idx[1]] - trace.pos[:, self.idx[0]]
         return rel @ self.e - self.s_eq
 
+    def _key(self) -> str:
+        names = [self.scene.bodies[i].name for i in self.idx]
+        return names[0] if len(names) == 1 else "_".join(names)
+
+    def upward_crossings(self) -> list[float]:
+        """Times (s) within the run when an underdamped y crosses the
+        equilibrium upward: y = A e^(-gamma t) cos(wd t - phi) with
+        wd t - phi = -pi/2 + 2 pi k; [] for zeta >= 1."""
+        if self.zeta >= 1.0:
+            return []
+        phi = math.atan2((self.v0 + self.gamma * self.y0) / self.wd, self.y0)
+        k0 = math.ceil((-phi + math.pi / 2) / (2 * math.pi) - 1e-12)
+        out = []
+        while True:
+            t = (phi - math.pi / 2 + 2 * math.pi * k0) / self.wd
+            if t > self.scene.duration:
+                return out
+            if t > 0:
+                out.append(t)
+            k0 += 1
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The displacement from equilibrium along the spring's line y(t)
+        (m), and for zeta < 1 with damping its envelope A e^(-gamma t) (a
+        line with no measured twin)."""
+        key = self._key()
+        per = f"period {2 * math.pi / self.wd:.6g} s, " if self.zeta < 1.0 else ""
+        out = [ReferenceSeries(f"{key}/displacement", "m", f"displacement from equilibrium along the spring ({per}"
+                               f"zeta {self.zeta:.6g})", self.y, self.measured_y)]
+        if self.zeta < 1.0 and self.gamma > 0:
+            out.append(ReferenceSeries(f"{key}/envelope", "m", f"envelope {self.amp:.6g} e^(-{self.gamma:.6g} t) m",
+                                       lambda t: self.amp * np.exp(-self.gamma * np.asarray(t, float))))
+        return out
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        return [(t, "upward through equilibrium") for t in self.upward_crossings()]
+
+    def predictions(self) -> dict[str, str]:
+        out = {"equilibrium length": f"{self.s_eq:.6g} m", "damping ratio": f"{self.zeta:.6g}"}
+        if self.zeta < 1.0:
+            out["period"] = f"{2 * math.pi / self.wd:.6g} s"
+            out["decay rate"] = f"{self.gamma:.6g} 1/s"
+        return out
+
     def metrics(self, trace) -> dict[str, float]:
         idx = list(self.idx)
         ref = self.positions(trace.t)
@@ -331,6 +375,23 @@ class DragFall(ReferenceModel):
         out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
         out[:, self.body.index] = self.state(t)[0]
         return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The speed |v(t)| (m/s), and the terminal speed v_t as a level
+        (no measured twin) where there is one."""
+        i, name = self.body.index, self.body.name
+        law = "quadratic" if self.quadratic else "linear"
+        out = [ReferenceSeries(f"{name}/speed", "m/s", f"speed against {law} drag (time scale {self.tau:.6g} s)",
+                               lambda t: np.linalg.norm(self.state(np.asarray(t, float))[1], axis=1),
+                               lambda tr: np.linalg.norm(tr.vel[:, i], axis=1))]
+        if self.v_t > 0:
+            out.append(ReferenceSeries(f"{name}/terminal_speed", "m/s", f"terminal speed {self.v_t:.6g} m/s",
+                                       lambda t: np.full(np.shape(t), self.v_t)))
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        return {"terminal speed": f"{self.v_t:.6g} m/s", "time scale": f"{self.tau:.6g} s",
+                "speed at the end": f"{float(np.linalg.norm(self.state(np.array([self.scene.duration]))[1])):.6g} m/s"}
 
     def metrics(self, trace) -> dict[str, float]:
         i = self.body.index

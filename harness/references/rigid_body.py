@@ -430,6 +430,33 @@ class HeavyTop(ReferenceModel):
         tilt = np.arccos(np.clip(a @ up, -1.0, 1.0))
         return az, tilt
 
+    def precession_rate_ref(self) -> float:
+        """The reference's mean precession rate (rad/s): the slope of its
+        azimuth over the run sampled at the scene's dt (what
+        ``precession_rate_ref`` fits on a run of that dt)."""
+        from harness.references.friction import _fit_slope
+
+        t = np.arange(0.0, self.scene.duration + 0.5 * self.scene.dt, self.scene.dt)
+        return _fit_slope(t, self._azimuth_tilt(self.reference(t)[1])[0])
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The symmetry axis' azimuth about the vertical (rad, unwrapped: its
+        slope is the precession rate) and its tilt from the vertical (rad:
+        the nutation), from the reference solution."""
+        name = self.body.name
+        return [ReferenceSeries(f"{name}/precession_angle", "rad",
+                                f"azimuth of the symmetry axis: precesses at {self.precession_rate_ref():.6g} rad/s "
+                                f"(gyroscopic approximation {self.precession_ideal:.6g})",
+                                lambda t: self._azimuth_tilt(self.reference(np.asarray(t, float))[1])[0],
+                                lambda tr: self._azimuth_tilt(tr.quat[:, self.body.index])[0]),
+                ReferenceSeries(f"{name}/tilt", "rad", "tilt of the symmetry axis from the vertical (nutation)",
+                                lambda t: self._azimuth_tilt(self.reference(np.asarray(t, float))[1])[1],
+                                lambda tr: self._azimuth_tilt(tr.quat[:, self.body.index])[1])]
+
+    def predictions(self) -> dict[str, str]:
+        return {"precession rate (reference solution)": f"{self.precession_rate_ref():.6g} rad/s",
+                "precession rate (gyroscopic approximation m g l / (I3 w3))": f"{self.precession_ideal:.6g} rad/s"}
+
     def metrics(self, trace) -> dict[str, float]:
         out = trajectory_metrics(trace.pos, self.positions(trace.t))
         _, q_ref = self.reference(trace.t)

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from contract.rotation import quat_rotate
-from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
 
@@ -33,6 +33,23 @@ RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks 
 #: the ground (sqrt(4 r^2 - s^2) for a half spacing s): a held pile drops
 #: only by contact compliance (um to mm), a collapsed one the whole way
 COLLAPSE_FRACTION = 0.5
+
+
+def _up(scene) -> np.ndarray:
+    """Unit vector against gravity (+z without gravity)."""
+    gn = float(np.linalg.norm(scene.gravity))
+    return -scene.gravity / gn if gn > 0 else np.array([0.0, 0.0, 1.0])
+
+
+def _height_series(scene, x0: np.ndarray, bodies) -> list[ReferenceSeries]:
+    """Each of ``bodies``' height (m, along -g) held at its start: the
+    reference line of a body that should not move, with the measured height
+    as its twin (sinking, toppling and sliding off show as a departure)."""
+    up = _up(scene)
+    return [ReferenceSeries(f"{b.name}/height", "m", f"{b.name} height: stays at {float(x0[b.index] @ up):.6g} m",
+                            lambda t, h=float(x0[b.index] @ up): np.full(np.shape(t), h),
+                            lambda tr, i=b.index: tr.pos[:, i] @ up)
+            for b in bodies]
 
 
 def _rest_metrics(trace, x0: np.ndarray) -> dict[str, float]:
@@ -144,6 +161,23 @@ class LogPile(ReferenceModel):
             return None
         return np.broadcast_to(self.x0, (len(t),) + self.x0.shape).copy()
 
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The top log's drop (m): 0 while the pile holds (no line for a
+        collapse: its timing has no closed form), and the drop past which
+        the pile counts as fallen (a level, no measured twin)."""
+        top, z0, level = self.top, float(self.x0[self.top, 2]), COLLAPSE_FRACTION * self.full_drop
+        name = self.scene.bodies[top].name
+        held = np.nan if not self.holds else 0.0
+        return [ReferenceSeries(f"{name}/drop", "m", f"drop of the top log: predicted {'0 (holds)' if self.holds else 'a collapse'}",
+                                lambda t: np.full(np.shape(t), held), lambda tr: z0 - tr.pos[:, top, 2]),
+                ReferenceSeries(f"{name}/fall_level", "m", f"top_fell past a drop of {level:.6g} m "
+                                f"({COLLAPSE_FRACTION:g} of the way to the ground)", lambda t: np.full(np.shape(t), level))]
+
+    def predictions(self) -> dict[str, str]:
+        return {"outcome": "holds" if self.holds else "collapses",
+                "friction demand (log on log, ground)": f"{self.friction_demand:.6g}, {self.ground_friction_demand:.6g}",
+                "top log's drop to the ground": f"{self.full_drop:.6g} m"}
+
     def metrics(self, trace) -> dict[str, float]:
         out = trajectory_metrics(trace.pos, self.positions(trace.t)) if self.holds else {}
         drop = float(np.nanmax(self.x0[self.top, 2] - trace.pos[:, self.top, 2]))
@@ -173,6 +207,15 @@ class StaticStack(ReferenceModel):
         if np.any(v0 != 0) or np.any(w0 != 0):
             raise ReferenceError("static_stack needs every body at rest at t = 0 (velocity and angular_velocity zero)")
         self.x0 = x0
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """Each body's height held at its start (m)."""
+        return _height_series(self.scene, self.x0, self.scene.bodies)
+
+    def predictions(self) -> dict[str, str]:
+        return {"every body": "stays at its start, at rest",
+                "heights": ", ".join(f"{b.name} {float(self.x0[b.index] @ _up(self.scene)):.6g}"
+                                     for b in self.scene.bodies) + " m"}
 
     def positions(self, t: np.ndarray) -> np.ndarray:
         """Constant reference positions (F, n, 3)."""

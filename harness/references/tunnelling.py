@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from contract.rotation import quat_to_matrix
-from harness.references import Param, ReferenceError, ReferenceModel
+from harness.references import Param, ReferenceError, ReferenceModel, ReferenceSeries
 
 
 class NoTunnelling(ReferenceModel):
@@ -122,10 +122,49 @@ class NoTunnelling(ReferenceModel):
                 if np.any(np.abs(axes @ p) > half):
                     continue  # misses the face
                 if best is None or t_hit < best[0]:
-                    best = (t_hit, n, vn, self.e_by_body[b.index][s.index])
+                    best = (t_hit, n, vn, self.e_by_body[b.index][s.index], s.name)
             if best is not None:
-                _, n, vn, e = best
-                out.append((b.index, v - (1.0 + e) * vn * n, abs(vn)))
+                t_hit, n, vn, e, wall = best
+                out.append((b.index, v - (1.0 + e) * vn * n, abs(vn), t_hit, n, wall))
+        return out
+
+    # ---- predictions as lines ------------------------------------------------
+    def tunnelled_count(self, trace) -> np.ndarray:
+        """How many bodies have tunnelled by each frame (F,): the running
+        form of ``tunnelled_bodies`` (its last value), a body counted from
+        the frame :meth:`events` marks."""
+        first = {}
+        for f, i, _ in self.events(trace):
+            first[i] = min(f, first.get(i, f))
+        out = np.zeros(trace.pos.shape[0])
+        for f in first.values():
+            out[f:] += 1
+        return out
+
+    def reference_series(self) -> list[ReferenceSeries]:
+        """The count of bodies that tunnelled (0 throughout), and for each
+        bullet (a sphere whose straight path meets a box's face, no
+        gravity) its velocity along the face normal: v.n before the hit,
+        -e v.n after it (Newton's law on a frictionless wall)."""
+        out = [ReferenceSeries("scene/tunnelled_bodies", "1", "bodies that passed through a watched static: 0",
+                               lambda t: np.zeros(np.shape(t)), self.tunnelled_count)]
+        for i, v_ref, _vn, t_hit, n, wall in self._bullets:
+            name, before, after = self.scene.bodies[i].name, float(self.scene.bodies[i].velocity @ n), float(v_ref @ n)
+            out.append(ReferenceSeries(
+                f"{name}/normal_velocity", "m/s",
+                f"{name} velocity along {wall}'s normal: {before:.6g} m/s, {after:.6g} m/s after the bounce",
+                lambda t, t_hit=t_hit, before=before, after=after: np.where(np.asarray(t, float) < t_hit, before, after),
+                lambda tr, i=i, n=n: tr.vel[:, i] @ n))
+        return out
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        return [(float(t_hit), f"{self.scene.bodies[i].name} hits {wall}") for i, _v, _vn, t_hit, _n, wall in self._bullets]
+
+    def predictions(self) -> dict[str, str]:
+        out = {"tunnelled": "0 bodies (none passes through " + ", ".join(s.name for s in self.statics) + ")"}
+        for i, v_ref, _vn, t_hit, _n, wall in self._bullets:
+            out[f"{self.scene.bodies[i].name} bounces off {wall}"] = (
+                f"at t = {t_hit:.6g} s, leaving at {np.array2string(v_ref, precision=6)} m/s")
         return out
 
     # ---- metrics -------------------------------------------------------------
@@ -186,7 +225,7 @@ class NoTunnelling(ReferenceModel):
         out = {"tunnelled": 1.0 if flipped.any() else 0.0, "tunnelled_bodies": float(flipped.sum())}
         if self._bullets:
             errs = []
-            for i, v_ref, vn in self._bullets:
+            for i, v_ref, vn, *_ in self._bullets:
                 errs.append(float(np.linalg.norm(trace.vel[-1, i] - v_ref)) / vn)
             out["reflected_velocity_error"] = max(errs) if all(map(math.isfinite, errs)) else math.nan
         return out

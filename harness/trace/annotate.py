@@ -22,6 +22,37 @@ ENGINE_CONTACT_COLOR = (30, 120, 230, 255)
 #: others with a running series (diagnose.check_series) go to "checks",
 #: drawn against /metrics/<engine>/check/<metric>
 THRESHOLD_GROUP = {"max_penetration": "penetration", "final_position_error": "error", "trajectory_rmse": "error"}
+#: energy check -> the side of E0 its max bounds E(t) on: its running value
+#: is |E - E0| / E_scale (both sides), (E - E0) / E_scale (upper) or
+#: (E0 - E) / E_scale (lower; its min bounds the upper side)
+ENERGY_BAND = {"energy_drift": "both", "energy_gain": "upper", "energy_dissipated": "lower"}
+
+
+def energy_band(name: str, check, E0: float, scale: float) -> dict[str, float]:
+    """The energies (J) a check on ``name`` (ENERGY_BAND) keeps E(t) within:
+    {"upper": J, "lower": J}, the sides it bounds, from the check's max (+
+    tolerance) and min (- tolerance), E0 (J) and the metric's E_scale (J,
+    harness.metrics.relative_energy).  tests/test_trace_checks.py pins them
+    to the metric's own scale."""
+    side = ENERGY_BAND[name]
+    tol = check.tolerance or 0.0
+    out = {}
+    if check.max is not None:
+        if side in ("both", "upper"):
+            out["upper"] = E0 + (check.max + tol) * scale
+        if side in ("both", "lower"):
+            out["lower"] = E0 - (check.max + tol) * scale
+    if check.min is not None and side == "lower":  # (E0 - E) / E_scale >= min - tolerance
+        out["upper"] = E0 - (check.min - tol) * scale
+    return out
+
+
+def _send_level(rec: rr.RecordingStream, path: str, steps: np.ndarray, t: np.ndarray, value: float) -> None:
+    """A constant ``value`` at ``path`` as a line over the frames: its two ends."""
+    ends = np.array([0, steps.size - 1])
+    rec.send_columns(path, indexes=[rr.TimeColumn("step", sequence=steps[ends]),
+                                    rr.TimeColumn("sim_time", duration=t[ends])],
+                     columns=rr.Scalars.columns(scalars=np.full(2, value)))
 
 
 class Diagnosis:
@@ -63,7 +94,7 @@ class Diagnosis:
         thresholds), ``model:<unit>`` (the model's predictions against
         their measured twins)."""
         g: dict[str, list[str]] = {
-            "energy": [f"/metrics/{lab}/energy" for lab in labels],
+            "energy": [p for lab in labels for p in (f"/metrics/{lab}/energy", f"/metrics/{lab}/energy_band/**")],
             "momentum": [f"/metrics/{lab}/momentum/**" for lab in labels],
             "penetration": [f"/metrics/{lab}/penetration" for lab in labels] if self.scene.has("contact") else [],
             "error": [f"/metrics/{lab}/error/**" for lab in labels] if self.model is not None else [],
@@ -119,11 +150,25 @@ class Diagnosis:
         """/metrics/threshold/<metric>/{max,min}: the check's bound as a line over the run."""
         if not steps.size:
             return
-        ends = np.array([0, steps.size - 1])
         for path, bound in self.thresholds().items():
-            rec.send_columns(path, indexes=[rr.TimeColumn("step", sequence=steps[ends]),
-                                            rr.TimeColumn("sim_time", duration=t[ends])],
-                             columns=rr.Scalars.columns(scalars=np.full(2, bound)))
+            _send_level(rec, path, steps, t, bound)
+
+    def log_energy_band(self, rec: rr.RecordingStream, metrics_path: str, scene: Scene, tr, steps: np.ndarray,
+                        t: np.ndarray, running: dict) -> None:
+        """``<metrics_path>/energy_band/<metric>/{upper,lower}`` (J): the
+        energy checks' bounds on this run's energy plot, E0 +- bound x
+        E_scale with this run's E0 and the metric's E_scale
+        (harness.metrics.relative_energy); only checks with a running series
+        (not NaN for the scene)."""
+        names = [n for n in self.checks if n in ENERGY_BAND and n in running]
+        if not names or not steps.size:
+            return
+        from harness.metrics import relative_energy
+
+        _, E, scale = relative_energy(scene, tr)
+        for name in names:
+            for side, value in energy_band(name, self.checks[name], float(E[0]), scale).items():
+                _send_level(rec, f"{metrics_path}/energy_band/{name}/{side}", steps, t, value)
 
     # ---- one run -------------------------------------------------------------
     def log_context_only(self, rec: rr.RecordingStream, lab: str, result) -> None:
@@ -164,6 +209,7 @@ class Diagnosis:
                                _time_columns)
             engine_note = f"{len(eng)} frames with contacts at /world/{lab}/engine_contacts"
         running = dg.check_series(scene, tr, frame_max, err)
+        self.log_energy_band(rec, metrics_path, scene, tr, steps, t, running)
         for name in self.checks:
             if name in running and name not in THRESHOLD_GROUP:
                 _send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])

@@ -14,7 +14,8 @@ overlap phi(n) = h_A(n) + h_B(n) - n . (c_B - c_A) (h the support function,
 the geometry module's definition) over a candidate set: the plane's normal
 for a plane (exact); else the centre line, each box's face normals, each
 capsule or cylinder axis and the centre line's part across it, the cross
-products of those axes, and, when a shape is curved (sphere, capsule,
+products of one shape's axes with the other's (a box's own cross into its own
+face normals), and, when a shape is curved (sphere, capsule,
 cylinder, except sphere-sphere whose centre line is exact), 128 directions
 spread over the sphere.  For sphere-sphere, box-box (the 15 axes of the
 separating-axis test) and body-plane the set holds the minimiser, so the
@@ -80,13 +81,15 @@ def pair_normals(A: Placed, B: Placed) -> np.ndarray:
     set of the module docstring."""
     d = B.c - A.c
     cand = [d]
-    axes = _axes(A) + _axes(B)
+    axes_a, axes_b = _axes(A), _axes(B)
+    axes = axes_a + axes_b
     cand += axes
     for a in axes:
         cand.append(d - np.einsum("ni,ni->n", d, a)[:, None] * a)
-    for i in range(len(axes)):
-        for j in range(i + 1, len(axes)):
-            cand.append(np.cross(axes[i], axes[j]))
+    # cross products of one shape's axes with the other's: a box's own
+    # face normals cross into each other (already candidates), and a
+    # capsule or cylinder has one axis
+    cand += [np.cross(a, b) for a in axes_a for b in axes_b]
     N = A.n
     n = np.stack(cand, axis=1)  # (N, M, 3)
     curved = {A.kind, B.kind} & {"sphere", "capsule", "cylinder"}

@@ -71,6 +71,16 @@ class RollingSphere(_SlopeModel):
     def distance(self, t: np.ndarray) -> np.ndarray:
         return 0.5 * self.a * t * t
 
+    def reference_series(self):
+        """Speed a t (m/s) and spin alpha t (rad/s): rolling, alpha = a / R."""
+        return self.rolling_series(lambda t: self.a * np.asarray(t, float),
+                                   lambda t: self.alpha * np.asarray(t, float),
+                                   f"{self.a:.6g} m/s^2, spin {self.alpha:.6g} rad/s^2")
+
+    def predictions(self) -> dict[str, str]:
+        return {"regime": self.regime, "acceleration downhill": f"{self.a:.6g} m/s^2",
+                "angular acceleration about n x d": f"{self.alpha:.6g} rad/s^2"}
+
     def metrics(self, trace) -> dict[str, float]:
         out = super().metrics(trace)
         i = self.body.index
@@ -225,6 +235,33 @@ class RollingResistance(_SlopeModel):
             m = t >= t0
             tt = t[m] - t0
             out[m] = s0 + u * tt + 0.5 * a * tt * tt
+        return out
+
+    def speed(self, t: np.ndarray) -> np.ndarray:
+        """Reference speed downhill (m/s) at times t (F,): d/dt of :meth:`distance`."""
+        t = np.asarray(t, float)
+        out = np.zeros_like(t)
+        for t0, _s0, u, a in self.phases:
+            m = t >= t0
+            out[m] = u + a * (t[m] - t0)
+        return out
+
+    def reference_series(self):
+        """Speed downhill (m/s), phase by phase, and the rolling spin u / R (rad/s)."""
+        return self.rolling_series(self.speed, lambda t: self.speed(t) / self.R,
+                                   ", then ".join(f"{a:.6g} m/s^2" for *_, a in self.phases) or "holds")
+
+    def reference_times(self) -> list[tuple[float, str]]:
+        if math.isfinite(self.t_stop) and self.t_stop > 0:
+            return [(float(self.t_stop), "stop" + (" (then holds)" if self.holds else " (then rolls back)"))]
+        return []
+
+    def predictions(self) -> dict[str, str]:
+        out = {"regime": self.regime}
+        out.update({f"phase {k + 1} from t = {t0:.6g} s": f"acceleration {a:.6g} m/s^2 from {u:.6g} m/s"
+                    for k, (t0, _s, u, a) in enumerate(self.phases)})
+        if math.isfinite(self.t_stop) and self.t_stop > 0:
+            out["stop time"] = f"{self.t_stop:.6g} s"
         return out
 
     def metrics(self, trace) -> dict[str, float]:

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from contract.rotation import quat_to_matrix
-from harness.references import BODY_PARAM, Param, ReferenceError, ReferenceModel, trajectory_metrics
+from harness.references import BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
 
@@ -84,6 +84,16 @@ class _SlopeModel(ReferenceModel):
     def along(self, trace) -> np.ndarray:
         """Velocity along the downhill direction (F,)."""
         return trace.vel[:, self.body.index] @ self.d
+
+    def rolling_series(self, speed, spin, what: str) -> list[ReferenceSeries]:
+        """The body's speed downhill (m/s) and spin about n x d (rad/s) as
+        reference lines: ``speed(t)``, ``spin(t)`` the model's (``what``:
+        its accelerations, for the text), each with its measured twin
+        (:meth:`along`, the angular velocity about ``axis``)."""
+        i, ax, name = self.body.index, self.axis, self.body.name
+        return [ReferenceSeries(f"{name}/speed", "m/s", f"speed downhill ({self.regime}): {what}", speed, self.along),
+                ReferenceSeries(f"{name}/spin", "rad/s", f"angular velocity about n x d ({self.regime})", spin,
+                                lambda tr: tr.angvel[:, i] @ ax)]
 
     def positions(self, t: np.ndarray) -> np.ndarray:
         s = self.distance(np.asarray(t, float))
