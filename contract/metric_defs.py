@@ -45,6 +45,9 @@ GENERIC_METRICS: dict[str, MetricDef] = {
                                         "(else NaN)"),
     "stable": MetricDef("bool", "finite state, energy_gain <= 0.5 and bounded speeds", ALWAYS),
     "stability_reason": MetricDef("text", "why a run is not stable ('' when it is)", ALWAYS),
+    "undefined_metrics": MetricDef("text", "the metrics this run cannot define, each with the reason "
+                                   "('name: reason; ...'; those metrics are NaN, a check on them is an error)",
+                                   "reported only when some metric is undefined (a zero denominator)"),
     "max_speed": MetricDef("m/s", "largest body speed over the run", ALWAYS),
     "cpu_s_per_sim_s": MetricDef("s/s", "CPU seconds of stepping per simulated second", ALWAYS),
     "wall_s_per_sim_s": MetricDef("s/s", "wall seconds of stepping per simulated second", ALWAYS),
@@ -65,13 +68,13 @@ def dissipation(scene) -> list[str]:
     pairs with friction, rolling friction or restitution < 1, dampers, drag.
     Empty: the scene is conservative (energy_drift applies)."""
     out: list[str] = []
-    pairs = scene.contact_pairs()
-    mus = sorted({m.friction for *_, m in pairs if m.friction > 0 or m.static_friction > 0})
+    pairs = scene.contact_materials()
+    mus = sorted({m.friction for m in pairs if m.friction > 0 or m.static_friction > 0})
     if mus:
         out.append("friction (mu = " + ", ".join(f"{x:g}" for x in mus) + ")")
-    if any(m.rolling_friction > 0 for *_, m in pairs):
+    if any(m.rolling_friction > 0 for m in pairs):
         out.append("rolling friction")
-    es = sorted({m.restitution for *_, m in pairs if m.restitution < 1.0})
+    es = sorted({m.restitution for m in pairs if m.restitution < 1.0})
     if es:
         out.append("impacts with e = " + ", ".join(f"{x:g}" for x in es) + " < 1")
     if any(sp.damping > 0 for sp in scene.springs):

@@ -16,7 +16,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from engine.integrate import INTEGRATORS
+from engine import cache as _cache
+
+# before any kernel is defined: numba fixes a kernel's cache location then
+_cache.configure()
+
+from engine.integrate import INTEGRATORS  # noqa: E402
 
 #: Engine settings: name -> (default, type, doc, choices or (lo, hi)).  dt
 #: defaults to the scene's step (None).

@@ -47,16 +47,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.flight import (
-    METHOD,
-    YOSHIDA,
-    YOSHIDA_MAX,
-    energy_conserving_rotation,
-    free_flight,
-    implicit_gyroscopic,
-    integrate_positions,
-    midpoint_rotation,
-)
+from engine.flight import METHOD, free_flight, integrate_positions
+from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic, midpoint_rotation
 from engine.forces import force_model
 from engine.profile import Stage
 

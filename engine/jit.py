@@ -93,6 +93,7 @@ def warm_up() -> float:
                      np.ones(npch), np.ones(npch))
         prepare.patch_velocity(Jt5, U, pab, 0, 2, z2.copy())
         prepare.sliding(Jt5, U, pab, np.ones(npch), 1e-4, z2.copy(), zb.copy())
+        prepare.stop_candidate(pid, r, Jt5, U, pab, z2, 1e-4, nr == 5, z2, np.ones(npch), 1e-4)
     e0 = np.zeros(0)
     e3 = np.zeros((0, 3))
     ei = np.zeros(0, np.int64)
@@ -167,16 +168,20 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
     for friction, rolling in ((True, False), (True, True), (False, False)):
         k = npch if friction else 0
         views = solver._take_stage(Scratch(), nb, m, k, 5 if rolling else 3, friction)
-        phases.solve_stage(kc, Pack(solver._topology_items(topo, friction, rolling)),
-                           Pack(solver._work_items(views, friction)), cache, out, a, b, loc, loc, r, r, a, tb, vn,
-                           0.01, 0.5, 0.01, 0.2, 1e-4, friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True,
-                           True)
+        kt, kw = Pack(solver._topology_items(topo, friction, rolling)), Pack(solver._work_items(views, friction))
+        phases.solve_stage(kc, kt, kw, cache, out, a, b, loc, loc, r, r, a, tb, vn, 0.01, 0.5, 0.01, 0.2, 1e-4,
+                           friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)
+        # the whole stage of a steady step (classification first)
+        kx = Pack((X.copy(), X.copy(), vn, tb.copy(), tb.copy(), codes.copy()))
+        kk = Pack((a, b, -np.ones(m, np.int64), loc.copy(), loc.copy(), r.copy(), r.copy()))
+        phases.classify_stage(kc, kx, kt, kw, cache, out, kk, codes.copy(), a, 0, 0.01, 0.5, 0.01, 0.2, 1e-4, True,
+                              True, friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)
 
 
 def _warm_flight() -> None:
     """The free-flight kernels (engine/flight.py) on two bodies, every
     integrator, with and without a force that reads the pose."""
-    from engine import flight
+    from engine import flight, gyroscopic
 
     nb = 2
     x = np.zeros((nb, 3))
@@ -190,6 +195,13 @@ def _warm_flight() -> None:
     vw1 = np.zeros((nb + 1, 3))
     flight.begin_step(x, q, v, v, inv_I, x.copy(), q.copy(), vw1, vw1.copy(), v.copy(), v.copy(), vw1.copy(),
                       vw1.copy(), R, Iinv)
+    from engine import state
+    from engine.pack import Pack
+
+    kept = Pack((x.copy(), q.copy(), v.copy(), v.copy(), inv_I, x.copy(), q.copy(), vw1.copy(), vw1.copy(), v.copy(),
+                 v.copy(), vw1.copy(), vw1.copy(), R.copy(), Iinv.copy()))
+    state._begin_packed(kept)  # Context.begin and .commit
+    state._commit_packed(kept)
     z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
     idx = np.arange(nb, dtype=np.int64)
     I = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
@@ -205,9 +217,9 @@ def _warm_flight() -> None:
                                inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
                                np.zeros((16, nb, 4)))
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
-    flight.implicit_gyroscopic(idx, I, R, vw, 0.01)
-    flight.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), flight.YOSHIDA, flight.YOSHIDA_MAX, R, F, v, q,
-                                      0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
+    gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01)
+    gyroscopic.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R,
+                                          F, v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
     flight.gravity(np.ones((nb, 3)), F)
     flight.linear_drag(np.ones(nb), v, F)
     flight.quadratic_drag(np.ones(nb), v, F)

@@ -27,7 +27,7 @@ from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, Integ
 from engine.model import BOX, CAPSULE, CYLINDER, Model
 from engine.collision import NarrowPhase
 from engine.control import EventMode
-from engine.broadphase import BroadPhase
+from engine.broadstage import BroadPhase
 from engine.penalty import PenaltyContacts
 from engine.profile import Profile, Stage
 from engine.solver import Solve, _pair_codes_abs
@@ -88,11 +88,7 @@ def context(model: Model, state: State, profile: Profile) -> Context:
 
 
 def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
-    n = model.n
-    state.x[:] = ctx.x1
-    state.q[:] = ctx.q1
-    state.v[:] = ctx.v[:n]
-    state.w[:] = ctx.w[:n]
+    ctx.commit(state)
     state.t += h
 
 

@@ -51,6 +51,8 @@ rows, and impacts are resolved at their time of impact (impact.py).
 
 from __future__ import annotations
 
+from operator import is_
+
 import numpy as np
 
 from engine.contact import phases, prepare
@@ -147,6 +149,12 @@ class Solve(Stage):
         #: of the last solve, and the (arrays, Pack) of the pose and velocities
         self._prep = None
         self._kc = None
+        #: (classification views, topology) of the last compiled solve when
+        #: it had no impact row (the next steady step's one call), and the
+        #: (classification views, mean velocities, Pack) that call reads
+        self._fast = None
+        self._kx = None
+        self._kk = None
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
@@ -157,6 +165,7 @@ class Solve(Stage):
             if len(self._topos) >= TOPOLOGY_CACHE:
                 self._topos.clear()
             topo = self._topos[key] = Topology(model, c.a[sel], c.b[sel], c.sidx[sel], self.friction, True)
+            topo.key = codes.copy()
         return topo
 
     def _solve_phases(self, model, state, ctx, rows, topo, old, h, sc):
@@ -241,20 +250,16 @@ class Solve(Stage):
             rows = Rows(model, state.x, ctx.Iinv0, c, f, sel=sel, topo=topo, scratch=sc, R0=ctx.R0,
                         views=views[:16], prepared=True, idx=idx)
             kw = Pack(_work_items(views, f))
-            self._prep = (topo, views, rows, kw)
+            self._prep = (topo, views, rows, kw, ("stage", n, m, npch, nr, f))
         kt = topo.__dict__.get("_kept")
         if kt is None:
             kt = topo._kept = Pack(_topology_items(topo, f, rolling))
-        kc = self._kc
-        live = (state.x, state.v, state.w, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, ctx.vp, ctx.wp)
-        if kc is None or any(x is not y for x, y in zip(kc[0], live)):
-            kc = self._kc = (live, Pack((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
-                                         model.inv_mass, model.bound_radius)))
         warm_on = bool(self.warm and old)
         ko = old.kept if warm_on else _no_cache()
         out = self._warm.slot((m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
         sw, rows.residual, pushed = phases.solve_stage(
-            kc[1], kt, kw, ko, out.kept if store_on else _no_cache(), c.a, c.b, c.point, c.normal, c.gap, c.e, idx,
+            self._pose(model, state, ctx), kt, kw, ko, out.kept if store_on else _no_cache(), c.a, c.b, c.point,
+            c.normal, c.gap, c.e, idx,
             touching, vn, h, self.c, self.thr, self.beta, self.slop, f, rolling, warm_on, self.direct, RESTING_SPEED,
             DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         rows.sweeps = int(sw)
@@ -262,6 +267,73 @@ class Solve(Stage):
             state.warm = out
         U, U0, vt0 = views[16], views[17], views[19]
         return rows, U, (U0 if f else None), (vt0 if f else None), pushed
+
+    def _pose(self, model, state, ctx) -> Pack:
+        """The pose and velocities as one Pack (see phases.solve_stage),
+        kept while the arrays are the same objects (the context's, every
+        step)."""
+        kc = self._kc
+        live = (state.x, state.v, state.w, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, ctx.vp, ctx.wp)
+        if kc is None or not all(map(is_, kc[0], live)):
+            kc = self._kc = (live, Pack((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
+                                         model.inv_mass, model.bound_radius)))
+        return kc[1]
+
+    def _contacts(self, c: Contacts) -> Pack:
+        """The contacts' arrays read by phases.classify_stage as one Pack,
+        kept while ``c`` is the same object (the narrow phase hands out the
+        same Contacts while its count and buffers stay)."""
+        kk = self._kk
+        if kk is None or kk[0] is not c:
+            kk = self._kk = (c, Pack((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e)))
+        return kk[1]
+
+    def _fast_path(self, model, state, ctx, c, cl, old, h, sc, store_on):
+        """The steady step's whole stage as ONE compiled call
+        (:func:`engine.contact.phases.classify_stage`) when the last solve
+        had no impact row and its packs stay (the same classification
+        views ``cl``, work views, Rows): True when it solved, else the
+        number of impact rows it classified (it found impacts or another
+        contact graph: the caller goes on from the classification), or
+        None when it did not run (no packs kept; the phase-by-phase flag)."""
+        fast = self._fast
+        if fast is None or fast[0] is not cl or PHASE_BY_PHASE:
+            return None
+        topo = fast[1]
+        prep = self._prep
+        key = prep[4]
+        views = sc.group(key, lambda: _take_stage(sc, *key[1:]))
+        if prep[0] is not topo or prep[1] is not views:
+            return None
+        kc = self._pose(model, state, ctx)
+        kx = self._kx
+        if kx is None or kx[0] is not cl or kx[1] is not ctx.u_lin or kx[2] is not ctx.u_ang:
+            kx = self._kx = (cl, ctx.u_lin, ctx.u_ang, Pack((ctx.u_lin, ctx.u_ang) + cl))
+        rows = prep[2]
+        f = self.friction
+        warm_any = old is not None
+        warm_on = bool(self.warm and warm_any)
+        ko = old.kept if warm_any else _no_cache()
+        out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
+        idx = topo.order
+        nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
+            kc, kx[3], topo._kept, prep[3], ko, out.kept if store_on else _no_cache(), self._contacts(c), topo.key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
+            True, f, f and bool(model.rolling), warm_on, self.direct, RESTING_SPEED, DIRECT_MAX_ROWS,
+            ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
+        if not solved:
+            return nimp
+        rows.idx = idx
+        rows._c = c
+        rows._X = state.x
+        rows.__dict__.pop("_cs", None)
+        rows.residual = res
+        rows.sweeps = int(sw)
+        if store_on:
+            state.warm = out
+        U, U0, vt0 = views[16], views[17], views[19]
+        self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
+                     sliding_any)
+        return True
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -285,18 +357,27 @@ class Solve(Stage):
         # down onto a slab: tests/test_engine_collision.py; not the idle rim
         # points of a cylinder standing on its cap, nor the rattling corners
         # of a Gauss-Seidel-only box column)
-        vn, touching, impact, codes_all = sc.group(
+        cl = sc.group(
             ("classify", m), lambda: (sc.take("vn", (3 * m,)).reshape(3, m), sc.take("touching", (m,), np.bool_),
                                       sc.take("impact", (m,), np.bool_), sc.take("codes", (m,), np.int64)))
+        vn, touching, impact, codes_all = cl
         old = state.warm
-        o = old.packed if old else _NO_CACHE
-        nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
-                                c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
-                                bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching, impact,
-                                codes_all)
+        store_on = h >= WARM_MIN_STEP * model.h
+        drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
+        done = self._fast_path(model, state, ctx, c, cl, old, h, sc, store_on) if not drop else None
+        if done is True:
+            return
+        if done is None:
+            o = old.packed if old else _NO_CACHE
+            nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
+                                    c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
+                                    bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching,
+                                    impact, codes_all)
+        else:
+            nimp = done  # classified by the fused call, which left the rest to this path
         vn_free, vn0, un = vn[0], vn[1], vn[2]
         gap = c.gap
-        if ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None:
+        if drop:
             # a rerun of the time-of-impact search: the rows left out are
             # the step's impact rows, whatever tau.  Re-deciding them with
             # the rerun's length kept a row whose linear estimate fell after
@@ -338,19 +419,26 @@ class Solve(Stage):
             state.warm = None
             return
         topo = self.topology(model, codes_all[sel] if nimp else codes_all, c, sel)
-        store_on = h >= WARM_MIN_STEP * model.h
         if PHASE_BY_PHASE:
             rows, U, U0, vt0, pushed = self._stage_phases(model, state, ctx, c, sel, topo, touching, vn, old, h, sc)
         else:
             rows, U, U0, vt0, pushed = self._solve_compiled(model, state, ctx, c, sel, nimp, topo, touching, vn, old, h,
                                                          sc, store_on)
-        sweeps = rows.sweeps
+            # the next steady step may run as one call (_fast_path) while the
+            # contact graph and these packs stay
+            self._fast = (cl, topo) if nimp == 0 else None
+        self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
+
+    def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any) -> None:
+        """After the solve: the friction-stop test, Baumgarte's bias,
+        ``ctx.rows`` and the counters (``sliding_any``: a patch slides)."""
+        n = model.n
         # (only from a solve that (nearly) converged: the end velocities of
         # one cut short far from convergence are solver noise, and a
         # Gauss-Seidel-only column with 5 sweeps "stopped" 422 times in 5 s
         # and gained 20 % energy)
         if (self.friction and ctx.stop_allowed and self.stops and rows.residual <= STOP_MAX_RESIDUAL
-                and (rows.slip.any() or rows.rolling)):
+                and (sliding_any or rows.rolling)):
             wr0 = rows.patch_velocity(U0, slice(3, 5)) if rows.rolling else None
             tau = rows.stop_times(U, vt0, wr0, h, self.iterations)
             if tau is not None:
@@ -372,7 +460,7 @@ class Solve(Stage):
             # of column_5 spun up to 5e5 rad/s after a 7e-12 s remainder)
             state.warm = None
         ctx.profile.count("contact_rows", rows.m)
-        ctx.profile.count("solver_sweeps", sweeps)
+        ctx.profile.count("solver_sweeps", rows.sweeps)
 
 
 

@@ -20,7 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from numba import njit
+
 from engine.flight import begin_step
+from engine.pack import Pack
 from engine.contact.scratch import Scratch
 from engine.control import Event, EventMode, Impacts, TimeOfImpact
 from engine.model import Model
@@ -133,6 +136,7 @@ class Context:
         # energy-conserving rotation stage
         self.T_mean = np.zeros((n, 3))
         self.profile = None
+        self._kept = None
         #: how the solve treats impacts in this (mini-)step
         self.event_mode = EventMode.EVENT
         # collision products
@@ -167,13 +171,30 @@ class Context:
         #: the contact solve's work arrays (grown geometrically, kept)
         self.scratch = Scratch()
 
+    def kept(self, state: State) -> Pack:
+        """The arrays of a (mini-)step's start and commit as one Pack (see
+        engine/pack.py): the state's x, q, v, w, the body inverse inertias
+        and the context's x1, q1, v, w, F, T, vp, wp, R0, Iinv0; kept while
+        the state's arrays are the same objects (the context's never
+        change)."""
+        k = self._kept
+        if k is None or k[0] is not state.x or k[1] is not state.q or k[2] is not state.v or k[3] is not state.w:
+            k = self._kept = (state.x, state.q, state.v, state.w, Pack((
+                state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w, self.F, self.T,
+                self.vp, self.wp, self.R0, self.Iinv0)))
+        return k[4]
+
+    def commit(self, state: State) -> None:
+        """The state's pose and velocities set to the candidate end state
+        (x1, q1, v, w without the world row): one compiled call."""
+        _commit_packed(self.kept(state))
+
     def begin(self, model: Model, state: State, h: float) -> None:
         """Start a (mini-)step of length ``h`` from ``state``."""
         self.h = h
         # x1, q1, v, w from the state; F, T, vp, wp zeroed; R0 and
         # I_world^-1 = R diag(1/I) R^T (world row zero): one compiled call
-        begin_step(state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w, self.F,
-                   self.T, self.vp, self.wp, self.R0, self.Iinv0)
+        _begin_packed(self.kept(state))
         self.event = None
         self.impacts = None
         self.stop = None
@@ -181,3 +202,24 @@ class Context:
         # force stages first evaluate at the start state
         self.ex, self.eq, self.ev, self.ew = state.x, state.q, state.v, state.w
         self.eR = self.R0
+
+
+@njit(cache=True)
+def _begin_packed(k):
+    """:func:`engine.flight.begin_step` over :meth:`Context.kept`'s arrays."""
+    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = k.items
+    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
+
+
+@njit(cache=True)
+def _commit_packed(k):
+    """x, q, v, w = x1, q1, V[:n], W[:n] over :meth:`Context.kept`'s arrays
+    (copies: the same bits)."""
+    x, q, v, w, _, x1, q1, V, W, _, _, _, _, _, _ = k.items
+    for i in range(x.shape[0]):
+        for c in range(3):
+            x[i, c] = x1[i, c]
+            v[i, c] = V[i, c]
+            w[i, c] = W[i, c]
+        for c in range(4):
+            q[i, c] = q1[i, c]

@@ -12,9 +12,12 @@ and ratios are printed, never asserted in tests:
   scenes (a 10-box column, 100 and 1000 spheres on a plane) at the same dt and
   solver iterations: per-step CPU time and their ratio, plus the reference
   engine's broad-phase cost per step against n (fitted exponent).
-- ``broadphase_scaling``: the reference engine's broad phase alone
-  (``sap_pairs``; all pairs) on static random sphere clouds of constant
-  density, 100 to 3000 bodies: cost against n.
+- ``broadphase_scaling``: the reference engine's broad phase alone (what
+  the stage runs, from its kept order and from a fresh one; the general
+  ``sap_pairs``; all pairs) on static random sphere clouds of constant
+  density, 100 to 10000 bodies: cost against n.
+- ``step_scaling``: the reference engine stepping 100 to 10000 spheres
+  dropped on a plane: build, step and per-stage cost against n.
 - ``build_cost``: the reference engine's build (scene translation, model,
   pipeline) of an n-sphere scene: CPU time and peak Python allocations.
 """
@@ -247,25 +250,38 @@ def _time_call(f: Callable[[], Any], min_s: float = 0.02) -> float:
         k *= 2 if t <= 0 else max(2, min(16, int(1.5 * min_s / t) + 1))
 
 
-def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats: int = 5,
+def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000, 10000), repeats: int = 5,
                        brute_max: int = 3000) -> dict[str, Any]:
-    """The broad phase alone (``engine.broadphase``: ``sap_pairs`` and the
-    all-pairs test ``brute_pairs``) on static constant-density sphere
-    clouds (:func:`sphere_cloud`), timed interleaved, medians of
-    ``repeats``.  Returns ``{"rows": [{n, pairs, sap_us, brute_us}],
-    "exponents": {method: k}}``, k the
-    least-squares slope of log time against log n, with ``n_log_n``: the
-    slope of n log n over the same sizes for reference."""
-    from engine.broadphase import brute_pairs, sap_pairs
+    """The broad phase's body-body pairs alone on static constant-density
+    sphere clouds (:func:`sphere_cloud`), timed interleaved, medians of
+    ``repeats``: ``stage`` what the stage runs every step
+    (``engine.sweep.SapBuffers.run``: its sort order, axis and dense flag
+    kept from the call before, as in a steady run), ``stage_fresh`` the
+    same from a fresh order (``engine.broadphase.stage_pairs``), ``sap``
+    the general path the stage falls back to (``sap_pairs``) and ``brute``
+    the all-pairs test (up to ``brute_max``).  Returns ``{"rows": [{n,
+    pairs, stage_us, stage_fresh_us, sap_us, brute_us}], "exponents":
+    {method: k}}``, k the least-squares slope of log time against log n,
+    with ``n_log_n``: the slope of n log n over the same sizes for
+    reference."""
+    from engine.broadphase import brute_pairs, sap_pairs, stage_pairs
+    from engine.sweep import _FALLBACK, SapBuffers
 
+    methods = ("stage", "stage_fresh", "sap", "brute")
     rows = []
     for n in sizes:
         lo, hi = sphere_cloud(n)
         a, b = sap_pairs(lo, hi)
-        for other in (brute_pairs(lo, hi) if n <= brute_max else None,):
-            if other is not None and not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
+        kept = SapBuffers(n)
+        k = kept.run(lo, hi)
+        checks = [stage_pairs(lo, hi), (kept.pi[:k], kept.pj[:k]) if k != _FALLBACK else (a, b)]
+        if n <= brute_max:
+            checks.append(brute_pairs(lo, hi))
+        for other in checks:
+            if not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
                 raise AssertionError(f"broad phase methods disagree at n = {n}")
-        funcs = {"sap": lambda: sap_pairs(lo, hi)}
+        funcs = {"stage": lambda: kept.run(lo, hi), "stage_fresh": lambda: stage_pairs(lo, hi),
+                 "sap": lambda: sap_pairs(lo, hi)}
         if n <= brute_max:
             funcs["brute"] = lambda: brute_pairs(lo, hi)
         times: dict[str, list[float]] = {k: [] for k in funcs}
@@ -273,16 +289,53 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000), repeats:
             for k, f in funcs.items():
                 times[k].append(_time_call(f))
         row: dict[str, Any] = {"n": n, "pairs": int(a.size)}
-        for k in ("sap", "brute"):
+        for k in methods:
             row[f"{k}_us"] = 1e6 * statistics.median(times[k]) if k in times else float("nan")
         rows.append(row)
-    ns = [r["n"] for r in rows]
-    exps: dict[str, float] = {}
-    for k in ("sap", "brute"):
-        ok = [r for r in rows if r[f"{k}_us"] == r[f"{k}_us"]]
-        exps[k] = fit_exponent([r["n"] for r in ok], [r[f"{k}_us"] for r in ok]) if len(ok) >= 2 else float("nan")
-    exps["n_log_n"] = fit_exponent(ns, [n * math.log(n) for n in ns]) if len(ns) >= 2 else float("nan")
-    return {"rows": rows, "exponents": exps}
+    return {"rows": rows, "exponents": _exponents(rows, methods)}
+
+
+def _exponents(rows: list[dict[str, Any]], keys, n_key: str = "n", suffix: str = "_us") -> dict[str, float]:
+    """Per key, the fitted exponent of ``row[key + suffix]`` against
+    ``row[n_key]`` over the rows where it is a positive number (NaN with
+    fewer than two), and ``n_log_n``: n log n's over the same sizes."""
+    out: dict[str, float] = {}
+    for k in keys:
+        ok = [r for r in rows if r.get(f"{k}{suffix}", float("nan")) > 0]
+        out[k] = fit_exponent([r[n_key] for r in ok], [r[f"{k}{suffix}"] for r in ok]) if len(ok) >= 2 else float("nan")
+    ns = [r[n_key] for r in rows]
+    out["n_log_n"] = fit_exponent(ns, [n * math.log(n) for n in ns]) if len(ns) >= 2 else float("nan")
+    return out
+
+
+def step_scaling(sizes: tuple[int, ...] = (100, 1000, 3000, 10000), steps: int = 40,
+                 settings: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The reference engine stepping a grid of n spheres dropped on a plane
+    (:func:`spheres_scene`), ``steps`` steps after its build: build CPU
+    seconds, CPU per step and each pipeline stage's time per step (the
+    engine's profile), and the fitted exponent of each against n.  Returns
+    ``{"rows": [{n, build_s, step_us, <stage>_us, ...}], "exponents":
+    {"step": k, <stage>: k, "n_log_n": k}}``."""
+    cls = get_adapter("reference")
+    rows = []
+    stages: list[str] = []
+    for n in sizes:
+        scene0 = spheres_scene(n)
+        scene = Scene(**{**scene0.__dict__, "duration": steps * scene0.dt})
+        a = cls()
+        t0 = time.process_time()
+        a.build(scene, cls.resolve_settings(scene, settings))
+        build = time.process_time() - t0
+        t0 = time.process_time()
+        a.step(steps)
+        row: dict[str, Any] = {"n": n, "build_s": build, "step_us": 1e6 * (time.process_time() - t0) / steps}
+        for k, v in a.stages().items():
+            if isinstance(v, dict) and "cpu_s" in v:
+                row[f"{k}_us"] = 1e6 * v["cpu_s"] / steps
+                stages += [k] if k not in stages else []
+        a.close()
+        rows.append(row)
+    return {"rows": rows, "exponents": _exponents(rows, ["step", *stages])}
 
 
 def build_cost(n: int = 10000, repeats: int = 3) -> dict[str, Any]:

@@ -336,8 +336,12 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None) -> dict[str, A
 
     # --- reference model
     if scene.reference_model:
-        from harness.references import get_model
+        from harness.references import UNDEFINED, get_model
 
         model = get_model(scene.reference_model)(scene)
-        out.update(model.metrics(trace))
+        got = model.metrics(trace)
+        why = [w for w in (out.pop(UNDEFINED, ""), got.pop(UNDEFINED, "")) if w]
+        out.update(got)
+        if why:
+            out[UNDEFINED] = "; ".join(why)
     return out

@@ -48,3 +48,20 @@ def test_build_cost_reports_time_and_peak_memory():
     out = bench.build_cost(n=300, repeats=1)
     assert out["n"] == 300
     assert _pos(out["build_s"]) and _pos(out["peak_mb"])
+
+
+def test_broadphase_scaling_times_the_stage_path():
+    out = bench.broadphase_scaling(sizes=(40, 120), repeats=1)
+    assert all(_pos(r["stage_us"]) and _pos(r["stage_fresh_us"]) for r in out["rows"])
+    assert math.isfinite(out["exponents"]["stage"]) and math.isfinite(out["exponents"]["stage_fresh"])
+
+
+def test_step_scaling_reports_every_stage_and_fits():
+    out = bench.step_scaling(sizes=(8, 27), steps=3)
+    assert [r["n"] for r in out["rows"]] == [8, 27]
+    for r in out["rows"]:
+        assert _pos(r["build_s"]) and _pos(r["step_us"])
+        for k in ("integrate_velocities", "broadphase", "narrowphase", "solve", "integrate_positions"):
+            assert _pos(r[f"{k}_us"]), (k, r)
+    ex = out["exponents"]
+    assert math.isfinite(ex["step"]) and math.isfinite(ex["broadphase"]) and math.isfinite(ex["n_log_n"])

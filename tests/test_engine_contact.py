@@ -294,3 +294,87 @@ def test_compiled_colouring_is_the_greedy_colouring():
                 used.setdefault(j, set()).add(c)
         assert np.array_equal(order, np.argsort(col, kind="stable"))
         assert np.array_equal(bounds, np.concatenate([[0], np.cumsum(np.bincount(col))]))
+
+
+@pytest.mark.parametrize("sid,settings,steady", [
+    ("stacking.column_5", {}, 0.5),
+    ("friction.rolling_resistance", {}, 0.5),
+    ("stacking.column_5", {"direct_start": False, "iterations": 7, "warm_starting": False}, 0.5),
+])
+def test_steady_steps_solve_in_one_compiled_call(monkeypatch, sid, settings, steady):
+    """A steady step (no impact row, the contact graph of the last solve)
+    runs the whole solve stage as one compiled call
+    (engine.contact.phases.classify_stage, which compares the step's pair
+    codes with the kept topology's; ``steady`` the least fraction of the
+    solves that do), and the final state is the bits of the phase-by-phase
+    solve."""
+    from engine import solver
+    from engine.contact import phases
+
+    def final(one_call: bool):
+        monkeypatch.setattr(solver, "PHASE_BY_PHASE", not one_call)
+        eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), settings)
+        calls = {"solved": 0, "left": 0}
+        orig = phases.classify_stage
+
+        def spy(*a):
+            out = orig(*a)
+            calls["solved" if out[1] else "left"] += 1
+            return out
+
+        monkeypatch.setattr(phases, "classify_stage", spy)
+        eng.step(72)
+        s = eng.state
+        return calls, eng.profile.as_dict()["solve"]["calls"], [a.copy() for a in (s.x, s.q, s.v, s.w)]
+
+    calls, solves, one = final(True)
+    assert calls["solved"] > 0 and calls["solved"] >= steady * solves
+    none, _, phased = final(False)
+    assert none == {"solved": 0, "left": 0}
+    for f, p in zip(one, phased):
+        assert np.array_equal(f, p)
+
+
+def test_friction_stop_gate_lets_through_every_candidate():
+    """engine.contact.prepare.stop_candidate (the compiled test that opens
+    Rows.stop_times) is conservative: on random patches, many of them on
+    the thresholds, it says True whenever the numpy test of stop_times
+    finds a candidate patch (sliding or rolling), and it finds them."""
+    from engine.contact.prepare import patch_velocity, stop_candidate
+
+    rng = np.random.default_rng(5)
+    tol = 1e-4
+    found = 0
+    for trial in range(400):
+        npch, nb = int(rng.integers(1, 5)), 3
+        m = 2 * npch
+        pid = np.repeat(np.arange(npch), 2)
+        lam_n = rng.normal(size=m) * (trial % 3 != 0) + 1e-3 * (trial % 3 == 1)
+        Jt = rng.normal(size=(npch, 5, 12)) * 10.0 ** rng.integers(-6, 1)
+        U = rng.normal(size=(nb + 1, 6))
+        U[nb] = 0.0
+        pab = np.stack([rng.integers(0, nb, npch), np.full(npch, nb)], axis=1)
+        vt0 = rng.normal(size=(npch, 2)) * 10.0 ** rng.integers(-5, 0)
+        wr0 = rng.normal(size=(npch, 2)) * 10.0 ** rng.integers(-5, 0)
+        mur = np.abs(rng.normal(size=npch)) * (trial % 2)
+        ends = np.empty((npch, 2))
+        patch_velocity(Jt, U, pab, 0, 2, ends)
+        s0 = np.sqrt(vt0[:, 0] ** 2 + vt0[:, 1] ** 2)
+        if trial % 4 == 0:  # put the end projection on the threshold
+            vt0 *= (tol * (1 + 1e-15)) / s0[:, None]
+            s0 = np.sqrt(vt0[:, 0] ** 2 + vt0[:, 1] ** 2)
+        tdir = vt0 / np.where(s0 > 0.0, s0, 1.0)[:, None]
+        live = np.bincount(pid, lam_n, npch) > 0.0
+        tc = live & (s0 > tol) & (np.einsum("km,km->k", ends, tdir) < tol)
+        rolling = trial % 2 == 1
+        rends = np.empty((npch, 2))
+        patch_velocity(Jt, U, pab, 3, 5, rends)
+        r0 = np.sqrt(wr0[:, 0] ** 2 + wr0[:, 1] ** 2)
+        rdir = wr0 / np.where(r0 > 0.0, r0, 1.0)[:, None]
+        rc = live & (mur > 0.0) & (r0 > tol) & (np.einsum("km,km->k", rends, rdir) < tol)
+        numpy_says = bool(tc.any() or (rolling and rc.any()))
+        gate = stop_candidate(pid, lam_n, Jt, U, pab, vt0, tol, rolling, wr0, mur, tol)
+        if numpy_says:
+            assert gate, trial
+            found += 1
+    assert found >= 50

@@ -174,6 +174,45 @@ def test_rotated_box_vs_box_sat_depth():
     assert d[1, 0] == 0.0  # 1.22 > 0.5 + 0.5 sqrt(2): separated
 
 
+def test_box_box_matches_the_cross_product_form():
+    """The box-box kernel writes the edge axes e_i x b_k out instead of
+    calling np.cross: the same depths bit for bit (random poses, parallel
+    edges, non-finite poses give NaN), so penetration metrics are unchanged."""
+    from harness.geometry.exact import _k_box_box
+    from harness.geometry.placed import Placed
+    from harness.geometry.vector import _norm
+
+    def cross_form(A, B):
+        C = np.einsum("nji,njk->nik", A.R, B.R)
+        t = np.einsum("nj,nji->ni", B.c - A.c, A.R)
+        eye = np.broadcast_to(np.eye(3), (A.n, 3, 3))
+        bax = np.swapaxes(C, 1, 2)
+        cross = np.cross(eye[:, :, None, :], bax[:, None, :, :]).reshape(A.n, 9, 3)
+        axes = np.concatenate([eye, bax, cross], axis=1)
+        nrm = _norm(axes)
+        ok = nrm > 1e-12
+        L = axes / np.where(ok, nrm, 1.0)[..., None]
+        ra = np.einsum("nmi,ni->nm", np.abs(L), A.half_extents)
+        rb = np.einsum("nmk,nk->nm", np.abs(L @ C), B.half_extents)
+        ov = np.where(ok, ra + rb - np.abs(np.einsum("nmi,ni->nm", L, t)), np.inf)
+        return ov.min(axis=1)
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    q = rng.normal(size=(2, n, 4))
+    q[:, : n // 4] = [1.0, 0.0, 0.0, 0.0]  # aligned boxes: parallel edges
+    q[1, n // 4: n // 2] = q[0, n // 4: n // 2]
+    pos = rng.uniform(-1.0, 1.0, (2, n, 3))
+    pos[1, 7], q[0, 8, 2], q[1, 9] = np.inf, np.nan, np.nan
+    he = rng.uniform(0.05, 0.8, (2, n, 3))
+    with np.errstate(invalid="ignore"):
+        A, B = (Placed.from_pose("box", pos[k], q[k], half_extents=he[k]) for k in (0, 1))
+        got, want = _k_box_box(A, B), cross_form(A, B)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.isnan(got[[7, 8, 9]]).all() and np.isfinite(np.delete(got, [7, 8, 9])).all()
+    assert (got > 0).sum() > n // 10  # overlapping pairs are among them
+
+
 def test_box_edge_on_box_face():
     # A axis-aligned cube (half 0.5); B the same cube turned 45 degrees about y
     # stands on A's top face on its lowest edge (parallel to y, 0.5 sqrt(2)

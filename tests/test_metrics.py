@@ -143,3 +143,126 @@ def test_head_on_reference_equal_masses():
     ref = get_model("two_body_collision")(s)
     assert ref.v1_post[0] == pytest.approx(0.0) and ref.v2_post[0] == pytest.approx(2.0)
     assert ref.t_impact == pytest.approx((0.3 - 2 * 0.028575) / 2.0)
+
+
+# ---------------------------------------------------------------------------
+# metrics a run cannot define: missing with the reason, never a crash
+
+
+def _shipped_raw(rel):
+    import tomllib
+
+    from contract.scene import SCENARIO_DIR
+
+    return tomllib.loads((SCENARIO_DIR / rel).read_text(encoding="utf-8"))
+
+
+def _held_trace(scene, frames=33):
+    """The scene's initial state at frame 0, then the bodies where they
+    start, at rest (what an engine records for a body too slow to move)."""
+    x0, q0, v0, w0 = scene.initial_state()
+    F, n = frames, scene.n_bodies
+    pos = np.broadcast_to(x0, (F, n, 3)).copy()
+    vel, angvel = np.zeros((F, n, 3)), np.zeros((F, n, 3))
+    vel[0], angvel[0] = v0, w0
+    return make_trace(np.arange(F) * scene.dt, pos, vel, quat=np.broadcast_to(q0, (F, n, 4)).copy(), angvel=angvel)
+
+
+def _set(raw, path, value):
+    node = raw
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    return raw
+
+
+# Each raised ZeroDivisionError inside the model before (the nightly fuzz's
+# "metrics failed: ZeroDivisionError"): a denominator the scene makes 0.
+UNDEFINED_CASES = [
+    # a frictionless slope: the ball slides without turning, alpha = 0
+    ("friction/ball_rolls.toml", [(("material", "default", "friction"), 0.0),
+                                  (("material", "default", "static_friction"), 0.0)],
+     "spin_accel_error", "the reference angular acceleration is 0"),
+    # a heavy cue ball so slow that v.v underflows: |P0| = m |v| > 0 but KE(0) = 0
+    ("billiards/break_16.toml", [(("body", 0, "velocity"), [1e-163, 0.0, 0.0]), (("body", 0, "mass"), 100.0)],
+     "energy_error", "the initial kinetic energy KE(0) is 0"),
+    # u0^2 / (2 |a|) underflows: the stop distance is 0
+    ("friction/box_slides_to_rest.toml", [(("body", 0, "velocity"), [2e-170, 0.0, 0.0])],
+     "stop_distance_error", "the reference stop distance is 0"),
+    # w0^2 / (2 alpha) underflows: the angle turned is 0
+    ("friction/capsule_spins_to_rest.toml", [(("body", 0, "angular_velocity"), [0.0, 0.0, 1e-170])],
+     "spin_stop_angle_error", "the reference angle turned is 0"),
+]
+
+
+@pytest.mark.parametrize("rel, edits, metric, why", UNDEFINED_CASES, ids=[c[2] for c in UNDEFINED_CASES])
+def test_undefined_metric_is_missing_with_its_reason(rel, edits, metric, why):
+    from harness.conformance.verdicts import ERROR, evaluate
+    from harness.references import UNDEFINED, undefined_reason
+    from harness.runner import RunResult
+
+    raw = _shipped_raw(rel)
+    raw.pop("variant", None)
+    for path, value in edits:
+        _set(raw, path, value)
+    scene = scene_from(raw)
+    m = compute_metrics(scene, _held_trace(scene))
+    assert math.isnan(m[metric])
+    assert why in undefined_reason(m, metric), m.get(UNDEFINED)
+    # the model's other metrics are still there
+    defined = [k for k, v in m.items() if isinstance(v, float) and math.isfinite(v)]
+    assert scene.primary_metric in defined or scene.primary_metric == metric
+    # a check on it is an error that gives the reason, not a pass, a skip or an xfail
+    res = RunResult(scene.id, None, "reference", "", "ok", "", {}, m, {}, {}, [], {}, {}, "", "")
+    outs = [o for o in evaluate(scene, res) if o.metric == metric]
+    if outs:
+        assert all(o.outcome == ERROR and why in o.message for o in outs), [(o.outcome, o.message) for o in outs]
+
+
+def test_undefined_metric_helpers():
+    from harness.references import UNDEFINED, divide, undefined, undefined_reason
+
+    out = {}
+    divide(out, "a", 3.0, 2.0, "the scale")
+    divide(out, "b", 1.0, 0.0, "the scale")
+    divide(out, "c", 1.0, -0.0, "the other scale")
+    undefined(out, "d", "no apex: nothing bounced")
+    assert out["a"] == 1.5 and all(math.isnan(out[k]) for k in "bcd")
+    assert out[UNDEFINED] == "b: the scale is 0; c: the other scale is -0; d: no apex: nothing bounced"
+    assert undefined_reason(out, "d") == "no apex: nothing bounced"
+    assert undefined_reason(out, "a") == "" and undefined_reason({}, "a") == ""
+
+
+def test_run_with_an_undefined_metric_says_so():
+    """End to end on an engine: the frictionless ball runs ``ok`` with its
+    other metrics; the undefined one is named in the row and the notes, and
+    the scene's check on it is an error."""
+    from harness.conformance.verdicts import ERROR, evaluate
+    from harness.runner import run
+
+    raw = _set(_set(_shipped_raw("friction/ball_rolls.toml"), ("material", "default", "friction"), 0.0),
+               ("material", "default", "static_friction"), 0.0)
+    raw["scenario"]["duration"] = 0.25
+    raw.pop("variant", None)
+    scene = scene_from(raw)
+    res = run(scene, "pymunk")
+    assert res.status == "ok", res.message
+    assert math.isnan(res.metrics["spin_accel_error"]) and math.isfinite(res.metrics["roll_accel_error"])
+    assert "spin_accel_error" in res.row()["undefined_metrics"]
+    assert any(n.startswith("undefined metrics: spin_accel_error") for n in res.notes)
+    spin = [o for o in evaluate(scene, res) if o.metric == "spin_accel_error"]
+    assert spin and spin[0].outcome == ERROR and "angular acceleration is 0" in spin[0].message
+
+
+def test_bounce_heights_refuses_a_ball_at_rest_on_the_plane():
+    """No drop height and no impact speed: every apex ratio would divide by
+    h_0 = 0 (a resting ball's contact jitter made the metrics raise
+    ZeroDivisionError); the spec is refused at load, naming the model."""
+    from contract.spec import SpecError
+
+    raw = _set(_shipped_raw("billiards/ball_drop_bounce.toml"), ("body", 0, "position"), [0.0, 0.0, 0.05])
+    raw.pop("variant", None)
+    with pytest.raises(SpecError, match="nothing bounces"):
+        scene_from(raw)
+    raw["body"][0]["velocity"] = [0.0, 0.0, 1e-3]  # a throw from the plane is a bounce
+    assert scene_from(raw).reference_model == "bounce_heights"

@@ -166,3 +166,15 @@ def test_reference_engine_conformance(case):
         pytest.xfail("; ".join(f"{o.metric}: {o.message}" for o in xf))
     assert all(o.outcome in (C.PASS, C.UNSUPPORTED) for o in outs)
     assert not math.isnan(float(res.metrics.get("cpu_s_per_sim_s", 0.0)))
+
+
+def _coefficients(materials) -> set:
+    return {(m.friction, m.static_friction, m.rolling_friction, m.restitution) for m in materials}
+
+
+@pytest.mark.parametrize("sid", scenario_ids())
+def test_contact_materials_are_the_contact_pairs_materials(sid):
+    """Scene.contact_materials (O(n + k^2), what the dissipation metric
+    reads) holds the same pair coefficients as every contact pair."""
+    s = load_scene(sid)
+    assert _coefficients(s.contact_materials()) == _coefficients(m for *_, m in s.contact_pairs())

@@ -73,6 +73,7 @@ class Collider:
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
         self._kept = None
+        self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
         self._group(pairs, pairs * MAX_SLOTS)
         self._out(contacts)
@@ -136,17 +137,29 @@ class Collider:
             if not short:
                 break
         o = self.out
-        return Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
-                        o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        last = self._contacts
+        if last is not None and last[0] == cnt and last[1] is o:
+            # the same views of the same buffers: the same object (a steady
+            # step's solve keeps what it built from them, solver.Solve)
+            return last[2]
+        c = Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
+                     o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        self._contacts = (cnt, o, c)
+        return c
 
 
-def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs) -> Contacts:
+def collide_pairs(model, X, R, pi, pj, plane_pairs, sbox_pairs, margin_bb, margin_bp, margin_bs,
+                  collider: Collider | None = None) -> Contacts:
     """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)),
     with margins (m) ``margin_bb``, ``margin_bp``, ``margin_bs`` per pair
-    (see :meth:`Collider.run`); arrays of their own (a fresh
-    :class:`Collider`, sized for the pairs)."""
-    m = max(pi.shape[0], plane_pairs[0].shape[0], sbox_pairs[0].shape[0], 1)
-    col = Collider(model, pairs=m, contacts=8 * m)
+    (see :meth:`Collider.run`): views of ``collider``'s buffers (a
+    :class:`Collider` of ``model`` kept by the caller, valid until its next
+    call), or arrays of their own (a fresh :class:`Collider`, sized for the
+    pairs: O(n) copies of the model's arrays)."""
+    col = collider
+    if col is None:
+        m = max(pi.shape[0], plane_pairs[0].shape[0], sbox_pairs[0].shape[0], 1)
+        col = Collider(model, pairs=m, contacts=8 * m)
     f = np.ascontiguousarray
     return col.run(f(X, float), f(R, float), f(pi, np.int64), f(pj, np.int64),
                    (f(plane_pairs[0], np.int64), f(plane_pairs[1], np.int64)),
@@ -176,20 +189,21 @@ class NarrowPhase(Stage):
                                          margin=self.margin, sweep=ctx.sweep if self.speculative else self.zeros)
 
 
-def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int) -> Contacts:
+def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int, collider: Collider | None = None) -> Contacts:
     """All features of one pair at a pose, with no margin (for time-of-impact
-    refinement).  ``b`` is a body index, or n with ``sidx`` the static."""
+    refinement).  ``b`` is a body index, or n with ``sidx`` the static;
+    ``collider`` as for :func:`collide_pairs`."""
     R = q_or_R if q_or_R.ndim == 3 else quat_to_matrix(q_or_R)
     inf = np.array([np.inf])
     z = np.zeros(0, np.int64)
     if sidx < 0:
         i, j = min(a, b), max(a, b)
-        return collide_pairs(model, X, R, np.array([i]), np.array([j]), (z, z), (z, z), inf, inf, inf)
+        return collide_pairs(model, X, R, np.array([i]), np.array([j]), (z, z), (z, z), inf, inf, inf, collider)
     if model.static_shape[sidx] == S_PLANE:
         row = int(np.flatnonzero(model.plane_static == sidx)[0])
-        return collide_pairs(model, X, R, z, z, (np.array([a]), np.array([row])), (z, z), inf, inf, inf)
+        return collide_pairs(model, X, R, z, z, (np.array([a]), np.array([row])), (z, z), inf, inf, inf, collider)
     row = int(np.flatnonzero(model.sbox_static == sidx)[0])
-    return collide_pairs(model, X, R, z, z, (z, z), (np.array([a]), np.array([row])), inf, inf, inf)
+    return collide_pairs(model, X, R, z, z, (z, z), (np.array([a]), np.array([row])), inf, inf, inf, collider)
 
 
 def warm_up() -> None:
@@ -200,7 +214,7 @@ def warm_up() -> None:
     shape, every pair, a plane and a static box."""
     from types import SimpleNamespace
 
-    from engine import broadphase
+    from engine import broadstage
 
     n = 4
     I = np.eye(3)
@@ -220,4 +234,4 @@ def warm_up() -> None:
     col = Collider(model, pairs=1, contacts=1)  # short buffers: the growth path runs too
     col.run(X, R, pi, pj, (body, row), (body, row), margin=1.0, sweep=np.zeros(n))
     col.run(X, R, pi, pj, (body, row), (body, row), (np.ones(pi.size), np.ones(n), np.ones(n)))
-    broadphase.warm_up()
+    broadstage.warm_up()

@@ -8,7 +8,7 @@ A solve (``engine.solver.Solve``, once per (mini-)step) runs:
 2. **prepare** -- normal rows (Jacobians, effective masses, points in body
    a's frame), friction patches (centroid frame, tangent, twist and
    rolling rows), targets with restitution, position-correction bias
-   (``prepare``, driven by ``rows.Rows`` over a cached ``rows.Topology``);
+   (``prepare``, driven by ``rows.Rows`` over a cached ``topology.Topology``);
 3. **warm start** -- the last step's forces matched to this step's rows
    (``warm.match``) and applied (``sweeps.apply_rows``/``apply_patches``);
 4. **direct start** -- the normal rows that do not separate solved as

@@ -177,9 +177,11 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
         return 0
     cs = contacts.take(sel)
     n = model.n
-    R = quat_to_matrix(state.q)
+    # the world inverse inertias of the contacts' bodies only (the same
+    # bits per body: an O(n) pass per impact at 10,000 bodies was ~2 ms)
+    bodies = np.unique(np.concatenate([cs.a, cs.b[cs.b < n]]))
     Iinv = np.zeros((n + 1, 3, 3))
-    Iinv[:n] = world_inv_inertia(R, model.inv_inertia_body[:n])
+    Iinv[bodies] = world_inv_inertia(quat_to_matrix(state.q[bodies]), model.inv_inertia_body[bodies])
     U = Rows.pack(_pad(state.v), _pad(state.w))
     # (every row bouncing, the common case of billiards: no plastic island)
     together = _plastic_islands(model, cs) if plastic == "simultaneous" and not np.all(cs.e > 0.0) else None
@@ -255,8 +257,11 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     e = cs.e
     ra, rb = rows.a, rows.b
     ab_rows = np.concatenate([ra, rb])
-    bo = np.argsort(ab_rows, kind="stable")
-    body_rows = np.split(bo % rows.m, np.cumsum(np.bincount(ab_rows, minlength=n + 1))[:-1])
+    bo = np.argsort(ab_rows, kind="stable") % rows.m
+    # body k's rows: bo[b0[k]:b0[k + 1]] (sliced when a pair needs them: a
+    # split into n + 1 arrays cost O(n) per impact, ~5 ms at 10,000 bodies)
+    b0 = np.zeros(n + 2, np.int64)
+    np.cumsum(np.bincount(ab_rows, minlength=n + 1), out=b0[1:])
     affected: dict[int, tuple] = {}
     group_sub: dict[int, tuple] = {}
 
@@ -293,7 +298,7 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
         entry = affected.get(g)
         if entry is None:
             i, j = int(ra[idx[0]]), int(rb[idx[0]])
-            aff = np.unique(np.concatenate([body_rows[i]] + ([body_rows[j]] if j != n else [])))
+            aff = np.unique(np.concatenate([bo[b0[i]:b0[i + 1]]] + ([bo[b0[j]:b0[j + 1]]] if j != n else [])))
             entry = (aff, (rows.J[aff], ab[aff]))
             affected[g] = entry
         vcur[entry[0]] = vn_sub(entry[1])

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from engine.contact import linalg, sweeps, warm
-from engine.contact.prepare import rows as prepare_rows, sliding, targets as prepare_targets
+from engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
 
 #: direct-start policy constants, mirrored from engine.contact.rows (the
 #: solve passes its module's current values at every call)
@@ -266,3 +266,48 @@ def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching
         warm.store(code_order, codes, loc, lam_n, touch_rows, code_first, uniq_pid, friction, rolling, lam_t, t, h,
                    q_code, q_loc, q_fn, q_touch, q_pairs, q_ft, q_tw, q_rr)
     return sw, residual, pushed
+
+
+@njit(cache=True)
+def classify_stage(kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr,
+                   beta, slop, warm_any, fast, friction, rolling, warm_on, direct, resting, max_rows, passes, slip_tol,
+                   iterations, relax_on, store_on):
+    """The whole solve stage of a steady step as ONE compiled call: the
+    classification (:func:`engine.contact.prepare.classify`) and, when it
+    finds no impact row (``fast``: the caller may go on) and its pair codes
+    equal ``key`` (m,) (the pair codes, in contact order, of the topology
+    the packs were built for: the contact graph is unchanged),
+    :func:`solve_stage` over the rows ``idx`` (m,) (the topology's colour
+    order).  The same calls in the same order as the stage makes them one
+    by one (the same bits).  ``kc``, ``kt``, ``kw``, ``kq`` as in
+    :func:`solve_stage`; ``kx`` the free flight's mean velocities UL, UA
+    (n, 3) and the classification's outputs vn (3, m), touching, impact
+    (m,) bool, codes (m,) int64; ``kk`` the contacts (a, b, sidx (m,),
+    point, normal (m, 3), gap, e (m,)); ``ko`` the last solve's warm cache (empty
+    without one; ``warm_any`` whether there is one, ``warm_on`` whether
+    the solve warm-starts from it).  Returns (impact rows, solved,
+    sweeps, residual, whether a row pushes out, whether a patch slides);
+    when not ``solved`` the caller goes on from the classification."""
+    X, Iinv, R0, V, W, V0, W0, Vp, Wp, inv_mass, bound_radius = kc.items
+    UL, UA, vn, touching, impact, codes = kx.items
+    ca, cb, sidx, point, normal, gap, e = kk.items
+    o_code, o_loc, o_fn, _, _, _, _, o_touch = ko.items
+    nb = X.shape[0]
+    nimp = classify(X, V, W, V0, W0, UL, UA, ca, cb, sidx, point, normal, gap, nb, n_statics, h, thr, lever, slop,
+                    warm_any, o_code, o_loc, o_fn, o_touch, R0, bound_radius, vn, touching, impact, codes)
+    m = codes.shape[0]
+    if nimp > 0 or not fast or key.shape[0] != m:
+        return nimp, False, 0, 0.0, 0, False
+    for i in range(m):
+        if codes[i] != key[i]:
+            return nimp, False, 0, 0.0, 0, False
+    sw, residual, pushed = solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching, vn, h, lever,
+                                       thr, beta, slop, friction, rolling, warm_on, direct, resting, max_rows, passes,
+                                       slip_tol, iterations, relax_on, store_on)
+    slip = kw.items[14]
+    sliding_any = False
+    for p in range(slip.shape[0]):
+        if slip[p]:
+            sliding_any = True
+            break
+    return nimp, True, sw, residual, pushed, sliding_any

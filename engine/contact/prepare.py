@@ -342,6 +342,52 @@ def patch_velocity(Jt, U, pab, r0, r1, out):
 
 
 @njit(cache=True)
+def stop_candidate(pid, lam_n, Jt, U, pab, vt0, slip_tol, rolling, wr0, mur, roll_tol):
+    """Whether a patch may have come to rest within the step: the test that
+    opens solver.Rows.stop_times (a pressed patch, Fn > 0, that slid at the
+    start, |vt0| > ``slip_tol``, with its end velocity along the start
+    direction below ``slip_tol``; with ``rolling`` alike for the rolling
+    velocities ``wr0`` (np, 2), ``mur`` (np,) > 0 and ``roll_tol``), as
+    one compiled pass over the patches instead of its numpy.  A
+    conservative gate: it lets through every patch the numpy test could
+    pass (its end-velocity projection compared with a slack of 1e-9 of its
+    terms' magnitude, whatever the summation order of numpy's einsum), and
+    the numpy test then decides; False only when that test finds none.
+    ``U`` (nb+1, 6) end velocities, ``vt0`` (np, 2) start tangential
+    velocities, ``pid`` (m,) the rows' patches, ``lam_n`` (m,) impulses."""
+    for p in range(vt0.shape[0]):
+        ia = pab[p, 0]
+        ib = pab[p, 1]
+        s0 = math.sqrt(vt0[p, 0] * vt0[p, 0] + vt0[p, 1] * vt0[p, 1])
+        if s0 > slip_tol * (1.0 - 1e-9):
+            d0 = vt0[p, 0] / s0
+            d1 = vt0[p, 1] / s0
+            e0 = row_velocity(Jt, U, p, 0, ia, ib) * d0
+            e1 = row_velocity(Jt, U, p, 1, ia, ib) * d1
+            if e0 + e1 < slip_tol + 1e-9 * (abs(e0) + abs(e1)) and _pressed(pid, lam_n, p):
+                return True
+        if rolling and mur[p] > 0.0:
+            r0 = math.sqrt(wr0[p, 0] * wr0[p, 0] + wr0[p, 1] * wr0[p, 1])
+            if r0 > roll_tol * (1.0 - 1e-9):
+                e0 = row_velocity(Jt, U, p, 3, ia, ib) * (wr0[p, 0] / r0)
+                e1 = row_velocity(Jt, U, p, 4, ia, ib) * (wr0[p, 1] / r0)
+                if e0 + e1 < roll_tol + 1e-9 * (abs(e0) + abs(e1)) and _pressed(pid, lam_n, p):
+                    return True
+    return False
+
+
+@njit(cache=True)
+def _pressed(pid, lam_n, p):
+    """Whether patch p's rows' impulses sum (in row order, as np.bincount)
+    to more than zero."""
+    f = 0.0
+    for i in range(pid.shape[0]):
+        if pid[i] == p:
+            f += lam_n[i]
+    return f > 0.0
+
+
+@njit(cache=True)
 def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
     """Patches that slide at velocities ``U`` (see solver.Rows.sliding):
     writes the centroids' relative tangential velocities ``vt`` (np, 2) and

@@ -28,6 +28,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
             rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
             bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
                                    "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        elif args.kind == "scaling":
+            sc = bench.step_scaling()
+            rows = sc["rows"]
+            bench.print_rows(rows, "reference engine: n spheres dropped on a plane, build CPU s and CPU us per step "
+                                   "by stage (40 steps)")
+            print("fitted exponents against n: " + ", ".join(f"{k} {v:.2f}" for k, v in sc["exponents"].items()))
         else:
             rows = bench.cost(repeats=args.repeats)
             bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
@@ -37,11 +43,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
             sc = bench.broadphase_scaling(repeats=args.repeats)
             bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                         "medians): sap, all pairs")
+                                         "medians): the stage's path (kept order; fresh), sap_pairs, all pairs")
             ns = [r["n"] for r in sc["rows"]]
             ex = sc["exponents"]
-            print(f"broad phase (sap) on constant-density clouds: cost ~ n^{ex['sap']:.2f} between {ns[0]} and "
-                  f"{ns[-1]} (n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
+            print(f"broad phase on constant-density clouds between {ns[0]} and {ns[-1]}: the stage ~ "
+                  f"n^{ex['stage']:.2f} (fresh order n^{ex['stage_fresh']:.2f}), sap_pairs n^{ex['sap']:.2f} "
+                  f"(n log n: {ex['n_log_n']:.2f}; all pairs: {ex['brute']:.2f})")
             b = bench.build_cost()
             print(f"reference build of {b['n']} spheres: {b['build_s']:.3f} s CPU, peak {b['peak_mb']:.1f} MB "
                   f"of Python allocations (median of 3)")

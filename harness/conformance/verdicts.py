@@ -12,6 +12,7 @@ from fractions import Fraction
 from typing import Any, Iterable
 
 from harness import status as st
+from harness.references import undefined_reason
 from contract.scene import Check, Scene
 
 HARD_DT_LABEL = "1/30"
@@ -176,6 +177,9 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
         extra = [n for n in result.notes if n.startswith("metrics failed")]
         if extra:
             o.message += f" ({extra[0]})"
+        why = undefined_reason(result.metrics, metric)
+        if why:
+            o.message += f" (undefined on this run: {why})"
         return o
     else:
         ok = meets(check, value)

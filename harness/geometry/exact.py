@@ -72,10 +72,17 @@ def _k_box_box(A: Placed, B: Placed) -> np.ndarray:
     """SAT over the 15 axes, everything expressed in A's frame."""
     C = np.einsum("nji,njk->nik", A.R, B.R)  # C[:, i, k] = u_Ai . u_Bk
     t = np.einsum("nj,nji->ni", B.c - A.c, A.R)
-    eye = np.broadcast_to(np.eye(3), (A.n, 3, 3))
-    bax = np.swapaxes(C, 1, 2)  # rows: B's axes in A's frame
-    cross = np.cross(eye[:, :, None, :], bax[:, None, :, :]).reshape(A.n, 9, 3)
-    axes = np.concatenate([eye, bax, cross], axis=1)  # (N, 15, 3)
+    # axes (N, 15, 3): A's face normals e_i, B's b_k (columns of C) and the
+    # edge pairs e_i x b_k written out: the values of np.cross but for the
+    # sign of their zeros, which every use below takes |.| or squares of
+    # (tests/test_geometry.py::test_box_box_matches_the_cross_product_form)
+    axes = np.zeros((A.n, 15, 3))
+    axes[:, 0, 0] = axes[:, 1, 1] = axes[:, 2, 2] = 1.0
+    axes[:, 3:6] = np.swapaxes(C, 1, 2)
+    b0, b1, b2 = C[:, 0], C[:, 1], C[:, 2]  # (N, 3) over k: the components of b_k
+    axes[:, 6:9, 1], axes[:, 6:9, 2] = -b2, b1      # e_0 x b = (0, -b_2, b_1)
+    axes[:, 9:12, 0], axes[:, 9:12, 2] = b2, -b0    # e_1 x b = (b_2, 0, -b_0)
+    axes[:, 12:15, 0], axes[:, 12:15, 1] = -b1, b0  # e_2 x b = (-b_1, b_0, 0)
     nrm = _norm(axes)
     ok = nrm > 1e-12  # parallel edges give no axis (their faces are covered)
     L = axes / np.where(ok, nrm, 1.0)[..., None]

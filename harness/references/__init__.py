@@ -55,6 +55,47 @@ TRAJECTORY = {
 BODY_PARAM = Param("body", "str", None, "the body the model follows (default: the scene's only body)")
 
 
+#: the metric column naming the metrics a run could not define, each with its
+#: reason, "name: reason; name: reason" (contract.metric_defs.GENERIC_METRICS)
+UNDEFINED = "undefined_metrics"
+
+
+def undefined(out: dict[str, Any], name: str, reason: str) -> None:
+    """Record metric ``name`` as missing from this run: NaN in ``out`` and
+    "name: reason" added to ``out[UNDEFINED]``.  For a metric whose
+    definition has no value on this run (a zero denominator: no initial
+    kinetic energy, no apex to compare with): never a ZeroDivisionError that
+    costs the run every other metric, never a silent 0 or inf; a check on
+    it is an error that gives the reason (harness.conformance.verdicts;
+    tests/test_metrics.py::test_undefined_metric_is_missing_with_its_reason)."""
+    out[name] = float("nan")
+    prev = out.get(UNDEFINED)
+    out[UNDEFINED] = f"{prev}; {name}: {reason}" if prev else f"{name}: {reason}"
+
+
+def divide(out: dict[str, Any], name: str, num: float, den: float, what: str) -> None:
+    """``out[name] = num / den`` (Python floats), or :func:`undefined` with
+    the reason "``what`` is 0" when ``den`` is 0 (or NaN)."""
+    den = float(den)
+    if not abs(den) > 0.0:
+        undefined(out, name, f"{what} is {den:g}")
+    else:
+        out[name] = float(num) / den
+
+
+def undefined_reason(metrics: dict[str, Any], name: str) -> str:
+    """The reason metric ``name`` was recorded undefined (:func:`undefined`),
+    or ''."""
+    text = metrics.get(UNDEFINED)
+    if not isinstance(text, str):
+        return ""
+    for part in text.split("; "):
+        key, sep, why = part.partition(": ")
+        if sep and key == name:
+            return why
+    return ""
+
+
 @dataclass(frozen=True)
 class ReferenceSeries:
     """A scalar the model predicts over time, drawn in traces as a

@@ -16,7 +16,8 @@ import math
 import numpy as np
 
 from contract.rotation import world_to_body_angvel
-from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
+from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, divide,
+                                trajectory_metrics)
 from harness.references.collision import TwoBodyCollision
 
 
@@ -339,11 +340,11 @@ class MomentumEnergy(ReferenceModel):
         P = self._horizontal(self.scene.masses @ trace.vel[-1])
         E0, K0 = self._energy(trace.pos[0], trace.quat[0], trace.vel[0], trace.angvel[0])
         E1, _ = self._energy(trace.pos[-1], trace.quat[-1], trace.vel[-1], trace.angvel[-1])
-        return {
-            "momentum_error": float(np.linalg.norm(P - self.P0) / np.linalg.norm(self.P0)),
-            "energy_error": abs(E1 - E0) / K0,
-            "energy_loss": (E0 - E1) / K0,
-        }
+        out = {"momentum_error": float(np.linalg.norm(P - self.P0) / np.linalg.norm(self.P0))}
+        # K0 = 0 with P0 != 0: speeds so small that m v^2 underflows
+        divide(out, "energy_error", abs(E1 - E0), K0, "the initial kinetic energy KE(0)")
+        divide(out, "energy_loss", E0 - E1, K0, "the initial kinetic energy KE(0)")
+        return out
 
 
 class BounceHeights(ReferenceModel):
@@ -404,6 +405,9 @@ class BounceHeights(ReferenceModel):
             raise ReferenceError("bounce_heights: the sphere starts below the plane")
         self.v1 = math.sqrt(vz * vz + 2 * self.g * hs)
         self.h0 = self.v1**2 / (2 * self.g)
+        if not self.h0 > 0:  # every apex ratio divides by it
+            raise ReferenceError("bounce_heights: the sphere starts at rest on the plane (no drop height, no "
+                                 "impact speed): nothing bounces", key="body")
         self.t1 = (vz + self.v1) / self.g
         self.hs, self.vz = hs, vz
         self.bounces = int(self.param("bounces", 3))

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, ReferenceError
+from harness.references import TRAJECTORY, ReferenceError, divide
 from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _check_axis_across, _fit_slope, _window
 
 
@@ -89,8 +89,10 @@ class RollingSphere(_SlopeModel):
         alpha_meas = _fit_slope(trace.t[w], trace.angvel[w, i] @ self.axis)
         out["roll_accel"] = a_meas
         out["spin_accel"] = alpha_meas
-        out["roll_accel_error"] = abs(a_meas - self.a) / abs(self.a)
-        out["spin_accel_error"] = abs(alpha_meas - self.alpha) / abs(self.alpha)
+        # a frictionless slope: the body slides without turning (alpha = 0)
+        divide(out, "roll_accel_error", abs(a_meas - self.a), abs(self.a), "the reference acceleration")
+        divide(out, "spin_accel_error", abs(alpha_meas - self.alpha), abs(self.alpha),
+               "the reference angular acceleration")
         vc = trace.vel[w, i] + np.cross(trace.angvel[w, i], -self.R * self.n)
         out["rolling_slip"] = float(np.nanmax(np.linalg.norm(vc, axis=1)))
         return out
@@ -280,7 +282,8 @@ class RollingResistance(_SlopeModel):
             out["roll_accel"] = a_meas
             out["spin_accel"] = alpha_meas
             out["roll_accel_error"] = abs(a_meas - a) / abs(a)
-            out["spin_accel_error"] = abs(alpha_meas - a / self.R) / abs(a / self.R)
+            divide(out, "spin_accel_error", abs(alpha_meas - a / self.R), abs(a / self.R),
+                   "the reference angular acceleration")
             vc = trace.vel[w, i] + np.cross(trace.angvel[w, i], -self.R * self.n)
             out["rolling_slip"] = float(np.nanmax(np.linalg.norm(vc, axis=1)))
         if math.isfinite(self.t_stop) and self.holds:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, ReferenceError, ReferenceSeries
+from harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide
 from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _fit_slope, _window
 
 
@@ -214,7 +214,8 @@ class SlideToRest(InclineBlock):
         d = float((trace.pos[-1, i] - self.x0) @ self.d) * sgn
         out["stop_distance"] = d
         out["stop_distance_ref"] = self.d_stop
-        out["stop_distance_error"] = abs(d - self.d_stop) / self.d_stop
+        # d_stop = u0^2 / (2 |a|) is 0 for a speed whose square underflows
+        divide(out, "stop_distance_error", abs(d - self.d_stop), self.d_stop, "the reference stop distance")
         t = trace.t
         lo = int(np.searchsorted(t, SKIP_FRACTION * self.t_stop, side="left"))
         hi = max(int(np.searchsorted(t, 0.9 * self.t_stop, side="right")), lo + 3)
@@ -223,5 +224,5 @@ class SlideToRest(InclineBlock):
         t_meas = float(t[lo:hi].mean() - speed.mean() / slope) if slope < 0 else math.inf
         out["stop_time"] = t_meas
         out["stop_time_ref"] = self.t_stop
-        out["stop_time_error"] = abs(t_meas - self.t_stop) / self.t_stop
+        divide(out, "stop_time_error", abs(t_meas - self.t_stop), self.t_stop, "the reference stop time")
         return out

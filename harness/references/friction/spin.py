@@ -8,7 +8,7 @@ import numpy as np
 
 from contract.rotation import quat_rotate, quat_to_matrix
 from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
-                                trajectory_metrics)
+                                divide, trajectory_metrics)
 from harness.references.friction.slope import SKIP_FRACTION, _fit_slope
 
 
@@ -144,9 +144,11 @@ class SpinToRest(ReferenceModel):
         hi = max(int(np.searchsorted(t, 0.9 * t_end, side="right")), lo + 3)
         decel = -_fit_slope(t[lo:hi], spin[lo:hi])
         out["spin_decel"] = decel
-        out["spin_decel_error"] = abs(decel - self.alpha) / self.alpha
+        divide(out, "spin_decel_error", abs(decel - self.alpha), self.alpha, "the reference spin deceleration")
         if t[-1] > self.t_stop:
             th = float(self.turned(trace)[-1])
             out["spin_stop_angle"] = th
-            out["spin_stop_angle_error"] = abs(th - self.theta_stop) / abs(self.theta_stop)
+            # theta_stop = w0^2 / (2 alpha) is 0 for a spin whose square underflows
+            divide(out, "spin_stop_angle_error", abs(th - self.theta_stop), abs(self.theta_stop),
+                   "the reference angle turned")
         return out

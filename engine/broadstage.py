@@ -1,0 +1,239 @@
+"""Broad phase: which pairs may touch during this step.
+
+Each body gets an axis-aligned box swept over the step (the union of its
+boxes at the start pose and at the free-flight end pose), grown by the
+contact margin.  Candidate body-body pairs come from sweep-and-prune
+(``broadphase = sap``: sort the boxes' lower bounds along the axis of
+largest spread, every box overlaps the boxes whose lower bound lies before
+its upper bound, then test the two other axes; when that gives many
+candidates per box -- dense 3D clouds -- the same sweep within the cells of
+a 2D grid over the two other axes, see :func:`sap_pairs`: O(n log n)) or
+from testing every pair (``brute``); both give exactly the same pairs in
+the same order.  Body-plane pairs are candidates when the swept box
+reaches the plane's margin; body-static-box pairs when the boxes overlap.
+The stage is one compiled call per step (numba ``@njit(cache=True)``, no
+BLAS; :func:`_broad_step`): the swept boxes, the pairs -- sweep and prune
+along a sort order kept between steps and restored by insertion sort
+(``engine.sweep._sap_coherent``; dense clouds through a uniform grid,
+``engine.sweep._hash_grid_pairs``; non-finite or very unequal boxes fall
+back to ``engine.broadphase.sap_pairs``) or the all-pairs test -- and the static pairs, into
+buffers kept between steps and grown geometrically.
+
+Also computes ``ctx.sweep`` (n,): a bound on how far any surface point of a
+body moves in the step, h (max speed + max angular speed * bounding radius),
+which sizes the narrow phase's speculative margin and decides which bodies
+are "fast" for CCD.
+
+Outputs (all sorted, so that the contact order -- and the result -- is
+deterministic): ``ctx.pairs_i``/``pairs_j`` (i < j), ``ctx.plane_pairs``
+(body, plane row), ``ctx.sbox_pairs`` (body, static-box row).
+"""
+
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_pairs, _sweep_pairs, sap_pairs
+from engine.flight import q2m
+from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from engine.profile import Stage
+from engine.sweep import _FALLBACK, SapBuffers, _sap_step
+
+
+#: below this many bodies ``sap`` tests all pairs instead: the same pairs in
+#: the same order, with fewer numpy calls (the sweep's sorting and
+#: bookkeeping only pays for more bodies)
+SAP_MIN_BODIES = 16
+
+
+@njit(cache=True)
+def _extent(shape, r, half, hl, R, e):
+    """Half-sizes e (3,) of a body's world axis-aligned box at rotation R."""
+    for i in range(3):
+        if shape == SPHERE:
+            e[i] = r
+        elif shape == BOX:
+            e[i] = abs(R[i, 0]) * half[0] + abs(R[i, 1]) * half[1] + abs(R[i, 2]) * half[2]
+        elif shape == CAPSULE:
+            e[i] = abs(R[i, 2]) * hl + r
+        else:  # cylinder: the caps' discs
+            e[i] = abs(R[i, 2]) * hl + r * np.sqrt(min(max(1.0 - R[i, 2] * R[i, 2], 0.0), 1.0))
+
+
+@njit(cache=True)
+def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
+                 lo, hi, sweep):
+    """Per body: the union of its boxes at the start (x0, R0) and the
+    free-flight end pose (x1, R1), grown by ``grow``, into lo, hi (n, 3);
+    and ``sweep`` (n,): h (max speed + max angular speed * bounding radius)
+    over the start (v0, w0) and end (v1, w1) velocities and the mean
+    velocity u (all (>= n, 3))."""
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    for k in range(x0.shape[0]):
+        _extent(shape[k], radius[k], half[k], half_length[k], R0[k], e0)
+        _extent(shape[k], radius[k], half[k], half_length[k], R1[k], e1)
+        for i in range(3):
+            lo[k, i] = min(x0[k, i] - e0[i], x1[k, i] - e1[i]) - grow
+            hi[k, i] = max(x0[k, i] + e0[i], x1[k, i] + e1[i]) + grow
+        vmax = np.sqrt(max(v0[k, 0] * v0[k, 0] + v0[k, 1] * v0[k, 1] + v0[k, 2] * v0[k, 2],
+                           v1[k, 0] * v1[k, 0] + v1[k, 1] * v1[k, 1] + v1[k, 2] * v1[k, 2]))
+        umax = np.sqrt(u[k, 0] * u[k, 0] + u[k, 1] * u[k, 1] + u[k, 2] * u[k, 2])
+        wmax = np.sqrt(max(w0[k, 0] * w0[k, 0] + w0[k, 1] * w0[k, 1] + w0[k, 2] * w0[k, 2],
+                           w1[k, 0] * w1[k, 0] + w1[k, 1] * w1[k, 1] + w1[k, 2] * w1[k, 2]))
+        sweep[k] = h * (max(vmax, umax) + wmax * bound_radius[k])
+
+
+def body_extents(model, R: np.ndarray) -> np.ndarray:
+    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations
+    R (n, 3, 3)."""
+    n = model.n
+    ext = np.empty((n, 3))
+    e = np.empty(3)
+    for k in range(n):
+        _extent(model.shape[k], model.radius[k], model.half_extents[k], model.half_length[k], R[k], e)
+        ext[k] = e
+    return ext
+
+
+@njit(cache=True)
+def _plane_pairs_kernel(lo, hi, N, off, grow, out_b, out_p):
+    """(body, plane) pairs, body-major, whose box [lo, hi] reaches within
+    ``grow`` of the plane (unit normal N[p], offset off[p]): the box's
+    lowest point along N, c . N - e . |N| - off < grow.  Returns the
+    number written, or minus the number needed when the outputs are short."""
+    cnt = 0
+    for k in range(lo.shape[0]):
+        c0, c1, c2 = 0.5 * (lo[k, 0] + hi[k, 0]), 0.5 * (lo[k, 1] + hi[k, 1]), 0.5 * (lo[k, 2] + hi[k, 2])
+        e0, e1, e2 = 0.5 * (hi[k, 0] - lo[k, 0]), 0.5 * (hi[k, 1] - lo[k, 1]), 0.5 * (hi[k, 2] - lo[k, 2])
+        for p in range(N.shape[0]):
+            low = (c0 * N[p, 0] + c1 * N[p, 1] + c2 * N[p, 2]
+                   - (e0 * abs(N[p, 0]) + e1 * abs(N[p, 1]) + e2 * abs(N[p, 2])) - off[p])
+            if low < grow:
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
+
+
+@njit(cache=True)
+def _box_pairs_kernel(lo, hi, slo, shi, out_b, out_p):
+    """(body, static box) pairs, body-major, whose boxes overlap (see
+    :func:`_plane_pairs_kernel` for the return value)."""
+    cnt = 0
+    for k in range(lo.shape[0]):
+        for p in range(slo.shape[0]):
+            if (lo[k, 0] <= shi[p, 0] and slo[p, 0] <= hi[k, 0] and lo[k, 1] <= shi[p, 1]
+                    and slo[p, 1] <= hi[k, 1] and lo[k, 2] <= shi[p, 2] and slo[p, 2] <= hi[k, 2]):
+                cnt = _emit(out_b, out_p, cnt, k, p)
+    return cnt if cnt <= out_b.shape[0] else -cnt
+
+
+@njit(cache=True)
+def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1, x1, R1, v0, v1, u, w0, w1, h, grow,
+                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, grid, pi, pj, code, bp, pk, bs, sk):
+    """The whole broad phase in one call: the end rotations R1 of q1, the
+    swept boxes lo, hi and ``sweep`` (:func:`_swept_boxes`), the body-body
+    pairs (``sap``: :func:`_sap_step`, else every pair,
+    :func:`_brute_kernel`), the body-plane and body-static-box pairs, into
+    the caller's buffers.  Returns their three counts (minus the need where
+    a buffer was short; ``_FALLBACK`` for the body-body pairs to be found
+    by :func:`sap_pairs`)."""
+    q2m(q1, R1)
+    _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
+                 lo, hi, sweep)
+    nbb = 0
+    if lo.shape[0] >= 2:
+        if sap:
+            nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
+            if nbb > pi.shape[0]:
+                nbb = -nbb
+        else:
+            nbb = _brute_kernel(lo, hi, pi, pj)
+    npl = _plane_pairs_kernel(lo, hi, planes_n, planes_off, grow, bp, pk) if planes_n.shape[0] else 0
+    nsb = _box_pairs_kernel(lo, hi, slo, shi, bs, sk) if slo.shape[0] else 0
+    return nbb, npl, nsb
+
+
+class BroadPhase(Stage):
+    """Swept-box broad phase (see module doc): one compiled call per step
+    (:func:`_broad_step`) into buffers kept between steps and grown
+    geometrically; ``ctx.pairs_i`` ... are views of them, valid until the
+    stage's next call."""
+
+    name = "broadphase"
+    family = "broadphase"
+
+    def __init__(self, model):
+        self.sap = model.setting("broadphase") == "sap" and model.n > SAP_MIN_BODIES
+        self.margin = float(model.setting("contact_margin"))
+        n = model.n
+        # scratch, allocated once
+        self.lo = np.empty((n, 3))
+        self.hi = np.empty((n, 3))
+        self.R1 = np.empty((n, 3, 3))
+        self.pairs = SapBuffers(n)
+        self._grow(2 * n + 16, 2 * n + 16)
+        # writable copies: the kernels are compiled (and warmed, warm_up)
+        # for writable arrays, and the model's are read-only
+        self.shape = np.array(model.shape, np.int64)
+        self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
+                                                       model.bound_radius))
+        self.planes = (np.array(model.plane_normal, float).reshape(-1, 3), np.array(model.plane_offset, float))
+        self.sbox = (np.array(model.sbox_aabb_lo, float).reshape(-1, 3), np.array(model.sbox_aabb_hi, float).reshape(-1, 3))
+
+    def _grow(self, npl: int, nsb: int) -> None:
+        self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
+        self.bs, self.sk = np.empty(nsb, np.int64), np.empty(nsb, np.int64)
+
+    def __call__(self, model, state, ctx) -> None:
+        if ctx.reuse_contacts:
+            return
+        P = self.pairs
+        while True:
+            nbb, npl, nsb = _broad_step(self.sap, self.shape, *self.geom, state.x, ctx.R0, ctx.q1, ctx.x1, self.R1,
+                                        state.v, ctx.v, ctx.u_lin, state.w, ctx.w, float(ctx.h), self.margin,
+                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, P.order, P.state,
+                                        P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+            short = [max(-c, 0) for c in (nbb, npl, nsb)]
+            if nbb == _FALLBACK:
+                short[0] = 0
+            if not any(short):
+                break
+            if short[0]:
+                P.grow(2 * short[0])
+            self._grow(max(2 * short[1], self.bp.size), max(2 * short[2], self.bs.size))
+        if nbb == _FALLBACK:
+            ctx.pairs_i, ctx.pairs_j = sap_pairs(self.lo, self.hi)
+        else:
+            ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
+        ctx.plane_pairs = (self.bp[:npl], self.pk[:npl])
+        ctx.sbox_pairs = (self.bs[:nsb], self.sk[:nsb])
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the broad phase's kernels, with the
+    argument types of the step (writable C-contiguous float64 and int64
+    arrays), on a tiny problem (see :mod:`engine.jit`)."""
+    n = 3
+    z3, z = np.zeros((n, 3)), np.zeros(n)
+    R = np.tile(np.eye(3), (n, 1, 1))
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
+    lo, hi, sw = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    shape = np.array([SPHERE, BOX, CYLINDER], np.int64)
+    grid = (np.zeros(9, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64), np.empty(n, np.int64),
+            np.empty(n, np.int64))
+    for sap in (False, True):
+        i1 = np.empty(1, np.int64)
+        _broad_step(sap, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
+                    z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
+                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
+                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+    SapBuffers(n).run(lo, hi)
+    buf = PairBuffer(1)
+    buf.run(_brute_kernel, lo, hi)
+    order = np.argsort(lo[:, 0], kind="stable")
+    end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    _sweep_pairs(lo, hi, 0, order, end, 3)
+    _grid_pairs(lo, hi, 0, 1, 2, order, end)

@@ -1,0 +1,63 @@
+"""The compiled kernels' on-disk cache follows every engine source file.
+
+numba invalidates a cached kernel only when the kernel's own file changes;
+a kernel inlining a kernel of another file would keep stale machine code
+(``prepare.patch_rows`` changed while ``phases.solve_stage``, which calls it,
+was cached).  engine/cache.py names the cache directory by a digest of all
+engine sources; these tests pin that.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import engine  # noqa: F401  (configures the cache)
+from engine import cache
+
+
+def _copy(tmp_path: Path) -> Path:
+    dst = tmp_path / "engine"
+    shutil.copytree(cache.ROOT, dst, ignore=shutil.ignore_patterns("__pycache__"))
+    return dst
+
+
+def test_digest_changes_with_any_engine_source(tmp_path):
+    root = _copy(tmp_path)
+    d0 = cache.source_digest(root)
+    assert cache.source_digest(root) == d0  # stable
+    for rel in ("contact/prepare.py", "collision/box.py", "pipeline.py"):
+        p = root / rel
+        text = p.read_bytes()
+        p.write_bytes(text + b"\n# edited\n")
+        assert cache.source_digest(root) != d0, rel
+        p.write_bytes(text)
+        assert cache.source_digest(root) == d0
+    (root / "contact" / "new_stage.py").write_text("X = 1\n")
+    assert cache.source_digest(root) != d0
+
+
+def test_digest_ignores_compiled_files(tmp_path):
+    root = _copy(tmp_path)
+    d0 = cache.source_digest(root)
+    (root / "__pycache__").mkdir()
+    (root / "__pycache__" / "x.nbi").write_bytes(b"index")
+    assert cache.source_digest(root) == d0
+
+
+def test_kernels_are_cached_under_the_digest_directory():
+    from numba.core import config
+
+    from engine.contact import phases, prepare
+
+    d = cache.cache_dir()
+    assert d.name == f"numba-{cache.source_digest()}"
+    assert Path(config.CACHE_DIR) == d
+    for kernel in (phases.solve_stage, prepare.patch_rows):
+        path = Path(kernel._cache._cache_path)
+        assert d in path.parents, (kernel, path)
+
+
+def test_user_cache_dir_is_the_base(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert cache.cache_dir() == tmp_path / f"numba-{cache.source_digest()}"
