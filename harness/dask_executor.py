@@ -21,13 +21,17 @@ resume).
   scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
   makes the item ``error`` with the reason.
 - **Feeding the cluster.**  Items are read as the cluster has room: one
-  task per worker thread, the next submitted when a result comes back.
-  Each task is its own Dask task group, so the scheduler does not queue
-  it: a task submitted ahead would wait *on a worker*, and a worker that
-  dies charges every task it holds against the retry-once rule, one it
-  never started too.  The price is a round trip through this client per
-  item (measured by harness/sweep_bench.py).  Results are
-  gathered as tasks finish.
+  task per worker thread running and one more per thread waiting, the next
+  submitted when a result comes back.  The waiting tasks wait *on the
+  scheduler* (each is marked a data producer, which the scheduler queues
+  on itself while ``worker-saturation`` is finite, as on the
+  LocalCluster), so a free worker thread starts the next one without a
+  round trip through this client, and a worker that dies holds only the
+  task it runs: the retry-once rule charges no task it never started.
+  Where the scheduler does not queue (``worker-saturation`` inf) or this
+  Dask has no data-producer tasks, tasks are submitted one per thread
+  (a round trip through the client per item).  Measured by
+  harness/sweep_bench.py; results are gathered as tasks finish.
 - **Environment check.**  Every worker reports its identity
   (:func:`worker_identity`: physbench commit, engine and library versions,
   BLAS, and its machine fingerprint).  A worker whose software differs from
@@ -175,6 +179,38 @@ def _scheduler_allowed_failures(dask_scheduler=None) -> int:
     return int(dask_scheduler.allowed_failures)
 
 
+def _scheduler_queues(dask_scheduler=None) -> bool:
+    """Whether the scheduler queues root-ish tasks on itself (a finite
+    ``worker-saturation``) instead of sending them to workers at once."""
+    import math
+
+    return math.isfinite(float(dask_scheduler.WORKER_SATURATION))
+
+
+def _queued_submit() -> Callable[..., Any] | None:
+    """``submit(client, fn, *args, key=, priority=)`` making a task the
+    scheduler queues on itself until a worker thread is free (a "data
+    producer": root-ish whatever its group's size), or None where this
+    Dask has no such task (then tasks are submitted one per thread)."""
+    try:
+        import uuid
+
+        from dask._task_spec import Task
+        from distributed.client import LLGExpr
+        from distributed.spans import SpanMetadata
+
+        Task("probe", len, (), _data_producer=True)
+    except Exception:  # another Dask: no queued submission
+        return None
+
+    def submit(client: Any, fn: Callable[..., Any], *args: Any, key: str, priority: int = 0) -> Any:
+        expr = LLGExpr({key: Task(key, fn, *args, _data_producer=True)}, _determ_token=uuid.uuid4().hex)
+        return client._graph_to_futures(expr, [key], internal_priority={key: 0}, user_priority=priority,
+                                        span_metadata=SpanMetadata(collections=[{"type": "Future"}]))[key]
+
+    return submit
+
+
 def _plugin():
     from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -259,11 +295,11 @@ class DaskExecutor:
             self.dashboard = self.client.dashboard_link
         #: runs at once: the workers' threads
         self.jobs = sum(int(w.get("nthreads", 1)) for w in info["workers"].values()) or len(self.workers)
-        #: tasks submitted beyond the workers' threads.  0: a submitted task is not queued on the
-        #: scheduler (physbench's tasks are each their own task group, never "root-ish") but sent to a
-        #: worker at once, and a worker that dies charges every task it holds, one it never started
-        #: too (tests/test_dask_executor.py::test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row)
-        self.lookahead = 0
+        #: tasks submitted beyond the workers' threads: only tasks the scheduler queues on itself (a
+        #: task sent to a worker ahead would be charged if that worker died, one it never started too:
+        #: tests/test_dask_executor.py::test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row)
+        self._queued_submit = _queued_submit() if self.client.run_on_scheduler(_scheduler_queues) else None
+        self.lookahead = self.jobs if self._queued_submit is not None else 0
         retries = self.client.run_on_scheduler(_scheduler_allowed_failures)
         where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
         self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
@@ -306,9 +342,13 @@ class DaskExecutor:
                 else:
                     # unique even for items of equal keys: a repeated key would be one shared task
                     k = f"physbench-{_item_key(item)}-{token}-{next(self._seq)}"
-                    fut = self.client.submit(run_task, fn, item, budget_s(item) if budget_s else None,
-                                             self.identity, self.adapters_text, self.paths, key=k, pure=False,
-                                             priority=priority(item) if priority else 0)
+                    args = (fn, item, budget_s(item) if budget_s else None, self.identity, self.adapters_text,
+                            self.paths)
+                    prio = priority(item) if priority else 0
+                    if self._queued_submit is not None:
+                        fut = self._queued_submit(self.client, run_task, *args, key=k, priority=prio)
+                    else:
+                        fut = self.client.submit(run_task, *args, key=k, pure=False, priority=prio)
                     futures[fut] = item
                     done.add(fut)
 

@@ -11,40 +11,16 @@ reusable worker processes under a wall-clock watchdog.
   :class:`harness.runner.RunResult`; it never raises (a scene that does not
   load, an engine that cannot be imported, a bad setting: a status).  It is
   the unit a pool worker -- or a Dask task -- calls;
-- :class:`WorkerPool` runs any module-level function over items in ``jobs``
-  worker processes.  Workers are fresh interpreters (``subprocess``, not
-  ``fork``: nothing of a multi-threaded parent's locks is inherited), reused
-  from one item to the next.  A worker that dies (abort, segfault, killed
-  for memory) costs only the item it was running, which comes back as
-  :class:`WorkerLost` with the signal and the tail of the worker's stderr;
-  an item that outlives its budget is ``timeout``: its worker is killed and
-  a fresh one takes the next item.  Nothing else of the job is touched;
-- :class:`InlineExecutor` is the same interface in this process (no
-  isolation: for debugging, profiling and tests that patch the runner).
-
-Workers find adapters registered at run time (``adapters.base.register``,
-e.g. by a test) by ``module:Class`` reference: the pool passes every
-registered adapter that is not one of the shipped engines to its workers in
-``PHYSBENCH_ADAPTERS`` (``name=module:Class,...``), which the command line
-also reads at start.  Worker stdout and stderr go to a file in the pool's
-temporary directory, which is also the workers' working directory (so
-nothing an engine writes lands in the user's tree); the pool removes it.
+- the executors that run requests (:class:`WorkerPool`, worker processes
+  under a watchdog, and :class:`InlineExecutor`, this process) are
+  harness/workers.py's, re-exported here; :func:`run_requests` turns a
+  lost worker into the request's ``error``/``timeout`` result.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import importlib
-import math
 import os
-import pickle
-import select
-import shutil
-import signal
-import struct
-import subprocess
-import sys
-import tempfile
 import time
 import traceback
 import warnings
@@ -53,55 +29,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from harness import status as st
-from contract.scene import REPO_ROOT
+from harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, InlineExecutor,  # noqa: F401
+                             WorkerLost, WorkerPool, _extra_adapters, grace_s, register_env_adapters, take,
+                             worker_main)
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
-#: environment variable naming extra adapters, ``name=module:Class,...``
-ADAPTERS_ENV = "PHYSBENCH_ADAPTERS"
-#: set (to "1") in worker processes
-WORKER_ENV = "PHYSBENCH_WORKER"
-#: characters of a dead worker's stderr kept in its row
-STDERR_TAIL = 2000
-_HEADER = struct.Struct("<Q")
-#: environment of every run process: BLAS, OpenMP and numba held to one
-#: thread, so N workers use N cores (tests/test_execute.py::test_run_processes_use_one_thread)
-ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                  "NUMBA_NUM_THREADS": "1"}
-
-
-class _Wait:
-    """The type of :data:`WAIT`."""
-
-    def __repr__(self) -> str:
-        return "WAIT"
-
-
-#: what an executor's item iterator yields when it has nothing to run yet:
-#: the executor runs what it has in flight and asks again once a result is
-#: in (a search's next value depends on the last one: harness/schedule.py)
-WAIT = _Wait()
-#: what :func:`take` returns when the source has no more items, ever
-END = object()
-
-
-def take(source: Iterator[Any], in_flight: bool) -> Any:
-    """The next item of an executor's item source: an item, :data:`WAIT`
-    (nothing to run until a result is in) or :data:`END`.  Raises
-    RuntimeError for WAIT with nothing ``in_flight``: no result would ever
-    come (a bug of the source)."""
-    item = next(source, END)
-    if item is WAIT and not in_flight:
-        raise RuntimeError("the item source waits for a result, but nothing is running")
-    return item
-
-
-def grace_s(budget_s: float) -> float:
-    """Seconds the watchdog waits past an item's budget before killing its
-    worker: the runner stops stepping at the budget itself (between step
-    blocks) and still computes metrics on the partial trace, which the
-    grace leaves time for; only a worker stuck inside one call is killed."""
-    return min(60.0, 2.0 + 0.1 * budget_s)
 
 
 # ---------------------------------------------------------------------------
@@ -219,35 +152,9 @@ def execute_request(req: RunRequest):
     return res
 
 
+
 # ---------------------------------------------------------------------------
 # lost items
-
-
-@dataclass
-class WorkerLost:
-    """An item that produced no value: ``kind`` is ``raised`` (the function
-    raised), ``died`` (the worker process died: ``signal`` names the signal,
-    or the exit code) or ``timeout`` (the watchdog killed it).  ``status``
-    is the run status it stands for (error or timeout)."""
-
-    kind: str
-    message: str
-    stderr_tail: str = ""
-    traceback: str = ""
-    signal: str = ""
-    #: the machine.* summary of the host it ran on, when not this one (a Dask worker)
-    machine: dict[str, str] | None = None
-
-    @property
-    def status(self) -> str:
-        return st.TIMEOUT if self.kind == "timeout" else st.ERROR
-
-    def full_message(self) -> str:
-        tail = self.stderr_tail.strip()
-        if not tail:
-            return self.message
-        last = " | ".join(line.strip() for line in tail.splitlines()[-3:] if line.strip())
-        return f"{self.message}; stderr: {last}"
 
 
 def lost_result(req: RunRequest, lost: WorkerLost):
@@ -262,339 +169,6 @@ def lost_result(req: RunRequest, lost: WorkerLost):
     if lost.signal:
         res.info["signal"] = lost.signal
     return res
-
-
-_SIGNAL_WHY = {
-    "SIGABRT": "abort inside the engine (a failed assertion or check)",
-    "SIGSEGV": "segmentation fault inside the engine",
-    "SIGBUS": "bus error inside the engine",
-    "SIGFPE": "arithmetic fault inside the engine",
-    "SIGILL": "illegal instruction inside the engine",
-    "SIGKILL": "killed from outside the worker, e.g. by the out-of-memory killer",
-}
-
-
-def _death(rc: int) -> tuple[str, str]:
-    """(signal or exit text, description) of a worker's return code."""
-    if rc < 0:
-        try:
-            name = signal.Signals(-rc).name
-        except ValueError:
-            name = f"signal {-rc}"
-        return name, f"{name} ({_SIGNAL_WHY.get(name, 'killed by a signal')})"
-    return f"exit {rc}", f"exit code {rc}"
-
-
-# ---------------------------------------------------------------------------
-# executors
-
-
-class InlineExecutor:
-    """Items run one by one in this process: no isolation, no watchdog (a
-    crash takes the process down; the runner's own timeout still stops a
-    run between step blocks)."""
-
-    jobs = 1
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None,
-            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
-        source = iter(items)
-        while (item := take(source, False)) is not END:  # one at a time: never anything in flight
-            if on_start:
-                on_start(item)
-            try:
-                value = fn(item)
-            except Exception as e:
-                value = WorkerLost("raised", f"{type(e).__name__}: {e}", traceback=traceback.format_exc(limit=5))
-            yield item, value
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> "InlineExecutor":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
-def _extra_adapters() -> tuple[dict[str, str], list[str]]:
-    """Registered adapters that are not shipped, as {name: 'module:Class'}
-    (those a worker can import: not defined in ``__main__`` or in a
-    function), merged with the ones named in the environment; and the
-    directories their modules are imported from (a test module imported by
-    file name needs its own directory on the path)."""
-    from adapters import ENGINES
-    from adapters.base import _REGISTRY
-
-    out = _parse_adapters(os.environ.get(ADAPTERS_ENV, ""))
-    paths: list[str] = []
-    for name, loader in _REGISTRY.items():
-        if name in ENGINES or name in out:
-            continue
-        try:
-            cls = loader()
-        except Exception:
-            continue  # a broken adapter: the worker reports it when asked to run it
-        if cls.__module__ == "__main__" or "<locals>" in cls.__qualname__:
-            continue
-        out[name] = f"{cls.__module__}:{cls.__qualname__}"
-        f = getattr(sys.modules.get(cls.__module__), "__file__", None)
-        if f:
-            root = Path(f).resolve().parent
-            for _ in range(cls.__module__.count(".")):
-                root = root.parent
-            if str(root) not in paths:
-                paths.append(str(root))
-    return out, paths
-
-
-def _parse_adapters(text: str) -> dict[str, str]:
-    out = {}
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        name, _, ref = part.partition("=")
-        if not name or ":" not in ref:
-            raise ValueError(f"{ADAPTERS_ENV}: expected name=module:Class entries, got {part!r}")
-        out[name.strip()] = ref.strip()
-    return out
-
-
-def register_env_adapters(text: str | None = None) -> list[str]:
-    """Register the adapters named in ``PHYSBENCH_ADAPTERS`` (or ``text``),
-    ``name=module:Class,...``; each is imported when first asked for.
-    Returns their names."""
-    from adapters.base import register
-
-    refs = _parse_adapters(os.environ.get(ADAPTERS_ENV, "") if text is None else text)
-
-    def loader(ref: str):
-        def load():
-            mod, _, qual = ref.partition(":")
-            obj: Any = importlib.import_module(mod)
-            for part in qual.split("."):
-                obj = getattr(obj, part)
-            return obj
-        return load
-
-    for name, ref in refs.items():
-        register(name, loader(ref))
-    return list(refs)
-
-
-class _Worker:
-    """One worker process: its pipes, stderr file, and the item it runs."""
-
-    def __init__(self, workdir: Path, env: dict[str, str], n: int):
-        self.err_path = workdir / f"worker-{n}.stderr"
-        self.err = open(self.err_path, "ab")
-        self.proc = subprocess.Popen([sys.executable, "-c", "from harness.execute import worker_main; worker_main()"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.err, cwd=workdir,
-                                     env=env, close_fds=True)
-        self.fd = self.proc.stdout.fileno()
-        os.set_blocking(self.fd, False)
-        self.buf = bytearray()
-        self.item: Any = None
-        self.busy = False
-        self.deadline = math.inf
-        self.t0 = 0.0
-        self.budget: float | None = None
-        self.err_offset = 0
-
-    def send(self, fn: Callable, item: Any, budget: float | None) -> None:
-        payload = pickle.dumps((fn, item), protocol=pickle.HIGHEST_PROTOCOL)
-        self.err.flush()
-        self.err_offset = self.err_path.stat().st_size
-        self.proc.stdin.write(_HEADER.pack(len(payload)) + payload)
-        self.proc.stdin.flush()
-        self.item, self.busy, self.budget = item, True, budget
-        self.t0 = time.monotonic()
-        self.deadline = self.t0 + budget + grace_s(budget) if budget is not None else math.inf
-
-    def read(self) -> tuple[bool, Any]:
-        """Read what is there: (True, message) once a whole reply is in,
-        (True, None) at end of file (the worker died), else (False, None)."""
-        try:
-            chunk = os.read(self.fd, 1 << 20)
-        except BlockingIOError:
-            return False, None
-        if not chunk:
-            return True, None
-        self.buf += chunk
-        if len(self.buf) >= _HEADER.size:
-            (n,) = _HEADER.unpack_from(self.buf)
-            if len(self.buf) >= _HEADER.size + n:
-                msg = pickle.loads(bytes(self.buf[_HEADER.size:_HEADER.size + n]))
-                del self.buf[:_HEADER.size + n]
-                self.busy = False
-                return True, msg
-        return False, None
-
-    def stderr_tail(self) -> str:
-        try:
-            with open(self.err_path, "rb") as f:
-                f.seek(self.err_offset)
-                data = f.read()
-        except OSError:
-            return ""
-        return data[-STDERR_TAIL:].decode("utf-8", errors="replace")
-
-    def kill(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        rc = self.proc.wait()
-        self.close_files()
-        return rc
-
-    def stop(self) -> None:
-        """Ask an idle worker to leave (end of its input), kill it if it does not."""
-        try:
-            self.proc.stdin.close()
-        except OSError:
-            pass
-        try:
-            self.proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        self.close_files()
-
-    def close_files(self) -> None:
-        for f in (self.proc.stdin, self.proc.stdout, self.err):
-            try:
-                f.close()
-            except (OSError, ValueError):
-                pass
-
-
-class WorkerPool:
-    """``jobs`` reusable worker processes under a wall-clock watchdog.
-
-    ``map(fn, items, budget_s, on_start)`` runs the module-level function
-    ``fn`` on each item (both pickled to the worker) and yields ``(item,
-    value)`` as items finish, in finishing order; ``value`` is what ``fn``
-    returned or a :class:`WorkerLost`.  ``budget_s(item)`` is the item's
-    wall-clock budget (None: unlimited): past budget + :func:`grace_s` its
-    worker is killed.  ``items`` is read lazily, one item when a worker is
-    free (a free worker gets its next item before the consumer handles the
-    result it just gave: writing a row does not idle it); it may yield
-    :data:`WAIT` (nothing to run until a result is in).  ``priority`` is
-    for executors where items queue (Dask); here an item is read only when
-    a worker is free to run it.  Tests: tests/test_execute.py,
-    tests/test_schedule.py."""
-
-    def __init__(self, jobs: int = 1):
-        self.jobs = max(1, int(jobs))
-        self.workdir = Path(tempfile.mkdtemp(prefix="physbench-workers-"))
-        env = dict(os.environ)
-        env[WORKER_ENV] = "1"
-        env[WORKER_ENV + "_PARENT"] = str(os.getpid())
-        env.update(ONE_THREAD_ENV)
-        adapters, paths = _extra_adapters()
-        env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in paths if p != str(REPO_ROOT)]
-                                            + [p for p in [env.get("PYTHONPATH")] if p])
-        if adapters:
-            env[ADAPTERS_ENV] = ",".join(f"{k}={v}" for k, v in adapters.items())
-        self.env = env
-        self.idle: list[_Worker] = []
-        self.started = 0
-
-    def _spawn(self) -> _Worker:
-        self.started += 1
-        return _Worker(self.workdir, self.env, self.started)
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], budget_s: Callable[[Any], float | None] = None,
-            on_start: Callable[[Any], None] | None = None,
-            priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
-        source = iter(items)
-        more = True  # the source may still give items
-        busy: list[_Worker] = []
-        # finished items not yet handed to the consumer: free workers get their next item
-        # before the consumer handles these (writes rows ...), not after
-        out: list[tuple[Any, Any]] = []
-        try:
-            while more or busy or out:
-                while more and len(busy) < self.jobs:
-                    if out and not self.idle:
-                        # only a fresh worker is free: hand the results over first (a consumer
-                        # that stops at a lost worker would kill it unused;
-                        # tests/test_fuzz.py::test_engine_runs_are_isolated_and_counted)
-                        break
-                    item = take(source, bool(busy or out))
-                    if item is END:
-                        more = False
-                    if item is END or item is WAIT:
-                        break
-                    budget = budget_s(item) if budget_s else None
-                    w = self.idle.pop() if self.idle else self._spawn()
-                    try:
-                        w.send(fn, item, budget)
-                    except (BrokenPipeError, OSError):  # an idle worker that died: a fresh one
-                        w.kill()
-                        w = self._spawn()
-                        try:
-                            w.send(fn, item, budget)
-                        except (BrokenPipeError, OSError) as e:
-                            w.kill()
-                            out.append((item, WorkerLost("died", f"worker process could not be started: {e}")))
-                            continue
-                    except Exception as e:  # the item or function cannot be pickled
-                        self.idle.append(w)
-                        out.append((item, WorkerLost("raised", f"{type(e).__name__}: {e}")))
-                        continue
-                    if on_start:
-                        on_start(item)
-                    busy.append(w)
-                if out:  # then back to the source: what it gives may depend on these results
-                    while out:
-                        yield out.pop(0)
-                    continue
-                if not busy:
-                    continue
-                now = time.monotonic()
-                wait = max(0.0, min(w.deadline for w in busy) - now)
-                poller = select.poll()
-                for w in busy:
-                    poller.register(w.fd, select.POLLIN | select.POLLHUP | select.POLLERR)
-                ready = {fd for fd, _ in poller.poll(1e3 * min(wait, 3600.0))}
-                for w in [w for w in busy if w.fd in ready]:
-                    done, msg = w.read()
-                    if not done:
-                        continue
-                    busy.remove(w)
-                    if msg is None:  # end of file: the worker died
-                        tail = w.stderr_tail()
-                        rc = w.kill()
-                        sig, why = _death(rc)
-                        out.append((w.item, WorkerLost("died", f"worker process died while running this item: {why}",
-                                                       tail, signal=sig)))
-                        continue
-                    self.idle.append(w)
-                    kind, payload, tb = msg
-                    out.append((w.item, payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb)))
-                now = time.monotonic()
-                for w in [w for w in busy if w.deadline <= now]:
-                    busy.remove(w)
-                    tail = w.stderr_tail()
-                    w.kill()
-                    out.append((w.item, WorkerLost(
-                        "timeout", f"no result after {now - w.t0:.1f} s wall (budget {w.budget:g} s): "
-                                   "worker killed, stuck inside one call", tail)))
-        finally:
-            for w in busy:  # abandoned (interrupted, or the consumer stopped): nothing of theirs is kept
-                w.kill()
-
-    def close(self) -> None:
-        for w in self.idle:
-            w.stop()
-        self.idle = []
-        shutil.rmtree(self.workdir, ignore_errors=True)
-
-    def __enter__(self) -> "WorkerPool":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
 
 EXECUTORS = ("process", "inline", "dask")
@@ -612,58 +186,6 @@ def run_isolated(req: RunRequest):
     """One request in one fresh worker process (``physbench run``)."""
     with WorkerPool(1) as pool:
         return next(run_requests([req], pool))[1]
-
-
-# ---------------------------------------------------------------------------
-# the worker
-
-
-def _die_with_parent() -> None:
-    """Linux: SIGKILL this worker when the process that started it dies (a
-    ``kill -9`` of a check must not leave a worker hanging in an engine
-    call).  Elsewhere a worker leaves when its input closes."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
-        if str(os.getppid()) != os.environ.get(WORKER_ENV + "_PARENT", str(os.getppid())):
-            os._exit(1)  # the parent died before the call
-    except Exception:
-        pass
-
-
-def worker_main() -> None:
-    """Worker loop: read (function, item) frames from stdin, write
-    ("ok", value, "") or ("raised", message, traceback) frames.  The
-    replies go to a private copy of the original stdout; fd 1 is pointed
-    at stderr, so nothing an engine prints can corrupt them."""
-    _die_with_parent()
-    out = os.fdopen(os.dup(1), "wb")
-    os.dup2(2, 1)
-    sys.stdout = sys.stderr
-    inp = sys.stdin.buffer
-    register_env_adapters()
-    while True:
-        head = inp.read(_HEADER.size)
-        if len(head) < _HEADER.size:
-            return
-        (n,) = _HEADER.unpack(head)
-        fn, item = pickle.loads(inp.read(n))
-        try:
-            reply = ("ok", fn(item), "")
-            data = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception as e:
-            data = pickle.dumps(("raised", f"{type(e).__name__}: {e}", traceback.format_exc(limit=8)),
-                                protocol=pickle.HIGHEST_PROTOCOL)
-        sys.stderr.flush()
-        try:
-            out.write(_HEADER.pack(len(data)) + data)
-            out.flush()
-        except BrokenPipeError:  # the parent is gone
-            return
 
 
 # ---------------------------------------------------------------------------

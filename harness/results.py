@@ -6,16 +6,21 @@ one schema for check and sweep rows (:data:`VERDICT_COLUMNS`, then
 schema version in its Parquet metadata and a ``schema_version`` column, so
 later readers can tell old rows from new ones.
 
-One writer: :func:`write_parquet_atomic` (temp file in the same directory,
-fsync, rename; mode 0666 minus the umask, i.e. 0644 under the usual umask,
-never the 0600 of a ``mkstemp`` file).  :class:`PartsDir` is the store of a
+One way to write a file: :func:`_write_bytes_atomic` (temp file in the
+same directory, fsync, rename; mode 0666 minus the umask, i.e. 0644 under
+the usual umask, never the 0600 of a ``mkstemp`` file), under
+:func:`write_table_atomic` (a pyarrow Table), :func:`write_parquet_atomic`
+(a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
 job that writes one part per finished run and resumes after a kill
-(``physbench sweep`` and ``physbench check``).
+(``physbench sweep`` and ``physbench check``): parts are built from the row
+with pyarrow (:func:`row_table`) and merged with pyarrow
+(:func:`merge_tables`), typed as the pandas path typed them.
 """
 
 from __future__ import annotations
 
 import fcntl
+import functools
 import json
 import math
 import os
@@ -72,51 +77,60 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
-def _fsync_replace(tmp: Path, path: Path) -> None:
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.chmod(tmp, _file_mode())
-    os.replace(tmp, path)
-
-
-def write_parquet_atomic(df, path: str | Path, metadata: dict[str, Any] | None = None) -> Path:
-    """Write a DataFrame to ``path`` atomically (temp file in the same
-    directory, fsync, rename); ``metadata`` is stored as JSON in the Parquet
-    schema metadata under ``physbench``.  Readers never see half a file;
-    the file is readable by others as far as the umask allows (test:
-    tests/test_execute.py::test_result_files_are_readable)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    path = Path(path)
+def _write_bytes_atomic(data: bytes, path: Path) -> Path:
+    """``data`` to ``path`` atomically: a temp file in the same directory
+    (the directory is made if missing), written, fsynced, given the mode
+    ``open()`` would create, renamed into place."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    table = pa.Table.from_pandas(_normalize(df), preserve_index=False)
-    meta = dict(table.schema.metadata or {})
-    meta[b"physbench"] = json.dumps({"schema_version": SCHEMA_VERSION, **(metadata or {})}, default=str).encode()
-    table = table.replace_schema_metadata(meta)
     tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
     try:
-        pq.write_table(table, tmp)
-        _fsync_replace(tmp, path)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+            os.fchmod(fd, _file_mode())
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def write_table_atomic(table, path: str | Path, metadata: dict[str, Any] | None = None,
+                       **write_options: Any) -> Path:
+    """Write the pyarrow Table ``table`` to ``path`` atomically
+    (:func:`_write_bytes_atomic`); ``metadata`` is stored as JSON in the
+    Parquet schema metadata under ``physbench``, with the schema version.
+    Readers never see half a file; the file is readable by others as far
+    as the umask allows (test:
+    tests/test_execute.py::test_result_files_are_readable).
+    ``write_options`` go to ``pyarrow.parquet.write_table``."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    meta = dict(table.schema.metadata or {})
+    meta[b"physbench"] = json.dumps({"schema_version": SCHEMA_VERSION, **(metadata or {})}, default=str).encode()
+    buf = pa.BufferOutputStream()
+    pq.write_table(table.replace_schema_metadata(meta), buf, **write_options)
+    return _write_bytes_atomic(buf.getvalue(), Path(path))
+
+
+def write_parquet_atomic(df, path: str | Path, metadata: dict[str, Any] | None = None) -> Path:
+    """Write a DataFrame to ``path`` atomically (:func:`write_table_atomic`;
+    columns mixing types normalized first, :func:`_normalize`)."""
+    import pyarrow as pa
+
+    return write_table_atomic(pa.Table.from_pandas(_normalize(df), preserve_index=False), path, metadata)
 
 
 def write_text_atomic(text: str, path: str | Path) -> Path:
     """Write UTF-8 ``text`` to ``path`` atomically (temp file in the same
     directory, fsync, rename; the directory is made if missing)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        _fsync_replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _write_bytes_atomic(text.encode("utf-8"), Path(path))
 
 
 def write_json_atomic(obj: Any, path: Path) -> None:
@@ -137,11 +151,170 @@ def write_rows(rows: Iterable[dict[str, Any]], path: str | Path, append: bool = 
 
 
 # ---------------------------------------------------------------------------
+# rows as Arrow tables: the parts' and the merge's way, without pandas
+
+
+@functools.lru_cache(maxsize=1)
+def _scalar_types() -> dict[type, Any]:
+    """The Arrow type of a value of each Python type a row holds, as
+    ``pandas.DataFrame([row])`` then ``pyarrow.Table.from_pandas`` types it
+    (pandas 3 stores text as ``large_string``; None alone is ``null``)."""
+    import numpy as np
+    import pyarrow as pa
+
+    return {type(None): pa.null(), bool: pa.bool_(), np.bool_: pa.bool_(), int: pa.int64(), np.int64: pa.int64(),
+            float: pa.float64(), np.float64: pa.float64(), str: pa.large_string()}
+
+
+@functools.lru_cache(maxsize=64)
+def _row_schema(signature: tuple[tuple[str, Any], ...]):
+    import pyarrow as pa
+
+    return pa.schema(list(signature))
+
+
+def row_table(row: dict[str, Any]):
+    """One row as a one-row pyarrow Table typed as
+    ``Table.from_pandas(pandas.DataFrame([row]))`` types it (a float NaN is
+    stored as null, as pandas stores it), without building a DataFrame: the
+    schema comes from the values' Python types and is reused for every row
+    of the same columns and types.  A value of another type (a list, a
+    numpy scalar other than bool/int64/float64, an int beyond 64 bits) takes
+    the pandas path for its row.  Test:
+    tests/test_results_store.py::test_a_row_reads_back_as_the_pandas_path_wrote_it."""
+    import pyarrow as pa
+
+    types = _scalar_types()
+    try:
+        sig = tuple((k, types[type(v)]) for k, v in row.items())
+    except KeyError:
+        return _pandas_row_table(row)
+    try:
+        values = {k: [None if v != v else v] for k, v in row.items()}  # NaN != NaN: null, as from_pandas
+        return pa.Table.from_pydict(values, schema=_row_schema(sig))
+    except (OverflowError, pa.ArrowException):
+        return _pandas_row_table(row)
+
+
+def _pandas_row_table(row: dict[str, Any]):
+    import pandas as pd
+    import pyarrow as pa
+
+    return pa.Table.from_pandas(_normalize(pd.DataFrame([row])), preserve_index=False)
+
+
+def _kind(t: Any) -> str:
+    """A column type's kind for merging: text, int, float, bool, null or
+    the type itself (anything else)."""
+    import pyarrow.types as pt
+
+    if pt.is_string(t) or pt.is_large_string(t):
+        return "text"
+    if pt.is_integer(t):
+        return "int"
+    if pt.is_floating(t):
+        return "float"
+    if pt.is_boolean(t):
+        return "bool"
+    if pt.is_null(t):
+        return "null"
+    return str(t)
+
+
+def merge_tables(tables: list[Any]):
+    """The rows of ``tables`` (parts, each typed on its own) as one Table,
+    columns in order of first appearance, typed as ``pandas.concat`` of the
+    parts then :func:`_normalize` typed them (as pandas reads them back:
+    the same dtypes and values): a column whose parts hold one kind keeps
+    it (ints with a part that lacks the column or holds NaN become float,
+    as in pandas); a part whose float column holds only NaN does not count
+    where other parts hold a kind; ints and floats are float; bools and
+    ints in every part, no None, are ints (True = 1); any other
+    mix is text (``str`` of each value); a column missing from a part is
+    null there.  (pandas' typing of a few mixes depends on the order of
+    the parts; there the rule above decides.)
+    Test: tests/test_results_store.py::test_merged_parts_read_back_as_the_pandas_merge_wrote_them."""
+    import pyarrow as pa
+
+    if not tables:
+        return pa.table({})
+    groups: dict[Any, list[tuple[Any, int]]] = {}  # parts of one schema: typed and cast together
+    start = 0
+    for t in tables:
+        t = t.replace_schema_metadata(None)
+        groups.setdefault(t.schema, []).append((t, start))
+        start += t.num_rows
+    kinds: dict[str, set[str]] = {}
+    types: dict[str, Any] = {}
+    ks_parts: dict[str, int] = {}  # parts that have the column
+    for schema, same in groups.items():
+        for f in schema:
+            k = _kind(f.type)
+            ks = kinds.setdefault(f.name, set())
+            ks_parts[f.name] = ks_parts.get(f.name, 0) + len(same)
+            if k == "float":  # a part all NaN: pandas reads float64 NaN, which concat ignores beside other kinds
+                ks.update("nan" if t.column(f.name).null_count == t.num_rows else "float" for t, _ in same)
+                continue
+            ks.add(k)
+            if k not in ("null", "text", "int", "bool"):
+                types.setdefault(f.name, f.type)
+    target: dict[str, Any] = {}
+    for name, ks in kinds.items():
+        real = ks - {"null", "nan"}
+        if not real:
+            target[name] = pa.float64() if ks == {"nan"} else pa.null()
+        elif real == {"text"}:  # pandas 3: text with None or NaN is an object column, stored as string
+            target[name] = pa.string() if ks & {"null", "nan"} else pa.large_string()
+        elif real == {"int"}:  # with None (object): int; with NaN or a part without the column: float
+            target[name] = (pa.float64() if "null" not in ks and ("nan" in ks or ks_parts[name] < len(tables))
+                            else pa.int64())
+        elif real <= {"int", "float"}:
+            target[name] = pa.float64()
+        elif real == {"int", "bool"} and ks == real and ks_parts[name] == len(tables):
+            target[name] = pa.int64()  # bools beside ints, nothing missing: pandas makes them ints (True = 1)
+        elif real == {"bool"}:
+            target[name] = pa.bool_()
+        elif len(real) == 1 and name in types:
+            target[name] = types[name]  # one other type (a list ...): as stored
+        else:
+            target[name] = None  # a mix: text of each value
+    out = []
+    for same in groups.values():
+        t = pa.concat_tables([x for x, _ in same])
+        cols = []
+        for name, typ in target.items():
+            c = t.column(name) if name in t.column_names else None
+            if c is None or c.null_count == len(c):  # missing from this part, or null throughout
+                cols.append(pa.nulls(t.num_rows, typ if typ is not None else pa.large_string()))
+            elif typ is None:
+                cols.append(pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.large_string()))
+            elif c.type != typ:
+                cols.append(c.cast(typ))
+            else:
+                cols.append(c)
+        out.append((pa.Table.from_arrays(cols, names=list(target)),
+                    [i for x, at in same for i in range(at, at + x.num_rows)]))
+    merged = pa.concat_tables([t for t, _ in out])
+    rank = [i for _, rows in out for i in rows]  # merged row -> its row in the parts' order
+    return merged.take(pa.array(sorted(range(len(rank)), key=rank.__getitem__), pa.int64()))
+
+
+# ---------------------------------------------------------------------------
 # a job's parts: one Parquet file per finished run, resumable
 
 
 def list_parts(d: Path) -> list[Path]:
     return sorted(d.glob("part-*.parquet"))
+
+
+def read_part(p: Path, columns: list[str] | None = None):
+    """One Parquet file (a part) as a pyarrow Table, read in this thread:
+    a fraction of ``pyarrow.parquet.read_table``'s cost for a one-row
+    file (no dataset discovery, no thread pool)."""
+    import pyarrow.parquet as pq
+
+    with pq.ParquetFile(p) as f:
+        return f.read(columns=columns, use_threads=False)
 
 
 def part_keys(d: Path, key_column: str) -> tuple[set[str], int]:
@@ -159,7 +332,7 @@ def part_keys(d: Path, key_column: str) -> tuple[set[str], int]:
         except (IndexError, ValueError):
             pass
         try:
-            keys.update(pq.read_table(p, columns=[key_column]).column(key_column).to_pylist())
+            keys.update(read_part(p, [key_column]).column(key_column).to_pylist())
         except Exception as e:
             print(f"warning: unreadable part {p} set aside ({type(e).__name__}: {e}); its runs rerun",
                   file=sys.stderr)
@@ -179,6 +352,12 @@ def try_lock(d: Path) -> int:
     return fd
 
 
+#: pyarrow.parquet.write_table options of a one-row part: no compression,
+#: no column statistics (a part is read whole, once); the merged file is
+#: written with the defaults
+PART_WRITE_OPTIONS = {"compression": "none", "write_statistics": False, "use_dictionary": False}
+
+
 class PartsDir:
     """An open (unfinished) job directory: ``manifest.json`` and one
     ``part-NNNNNN.parquet`` per finished run, each identified by its
@@ -195,10 +374,11 @@ class PartsDir:
             tmp.unlink()
 
     def write_part(self, row: dict[str, Any], metadata: dict[str, Any] | None = None) -> Path:
-        import pandas as pd
-
+        """Store ``row`` as the next part (:func:`row_table`, written
+        atomically and fsynced before this returns: once the caller counts
+        the row done, it is on disk)."""
         p = self.path / f"part-{self.next_part:06d}.parquet"
-        write_parquet_atomic(pd.DataFrame([row]), p, metadata)
+        write_table_atomic(row_table(row), p, metadata, **PART_WRITE_OPTIONS)
         self.next_part += 1
         self.done.add(row[self.key_column])
         return p
@@ -210,7 +390,7 @@ class PartsDir:
 
         out = []
         for p in list_parts(self.path):
-            out.extend(pq.read_table(p).to_pylist())
+            out.extend(read_part(p).to_pylist())
         return out
 
     def close(self) -> None:
@@ -238,31 +418,43 @@ def unfinished_dirs(parent: Path) -> list[tuple[Path, dict[str, Any]]]:
 def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
                       columns: dict[str, dict[str, Any]] | None = None) -> tuple[Path, dict[str, Any]]:
     """Merge the parts of job directory ``d`` into ``<d>.parquet`` (rows in
-    ``order`` of their keys, one per key), write ``<d>.manifest.json``,
-    then -- only once both are safely in place -- remove ``d``.  ``columns``
-    maps a key to values set on its row (a check's verdicts, known only once
-    every run is in).  Returns (consolidated file, manifest)."""
-    import pandas as pd
+    ``order`` of their keys, one per key; :func:`merge_tables`), write
+    ``<d>.manifest.json``, then -- only once both are safely in place --
+    remove ``d``.  ``columns`` maps a key to values set on its row (a
+    check's verdicts, known only once every run is in).  Returns
+    (consolidated file, manifest)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    frames = [pd.read_parquet(p) for p in list_parts(d)]
-    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[key_column])
+    table = merge_tables([read_part(p) for p in list_parts(d)])
+    if key_column not in table.column_names:
+        table = table.append_column(key_column, pa.array([], pa.large_string()))
+    keys = table.column(key_column).to_pylist()
     rank = {k: i for i, k in enumerate(order)}
     # a key is stored once by construction; should a bug ever store one
     # twice, the first row wins and the manifest says so
-    n = len(df)
-    df = df.drop_duplicates(key_column, keep="first")
-    man["duplicates_dropped"] = n - len(df)
-    df = df.iloc[sorted(range(len(df)), key=lambda i: rank.get(df[key_column].iat[i], len(rank)))]
-    df = df.reset_index(drop=True)
+    first: dict[Any, int] = {}
+    for i, k in enumerate(keys):
+        first.setdefault(k, i)
+    man["duplicates_dropped"] = len(keys) - len(first)
+    rows = sorted(first.values(), key=lambda i: rank.get(keys[i], len(rank)))
+    table = table.take(pa.array(rows, pa.int64()))
+    keys = [keys[i] for i in rows]
     for col in sorted({c for v in (columns or {}).values() for c in v}):
-        df[col] = [(columns or {}).get(k, {}).get(col) for k in df[key_column]]
+        values = pa.array([(columns or {}).get(k, {}).get(col) for k in keys])
+        if pa.types.is_string(values.type):
+            values = values.cast(pa.large_string())
+        if col in table.column_names:
+            table = table.set_column(table.column_names.index(col), col, values)
+        else:
+            table = table.append_column(col, values)
     man["finished"] = man.get("finished") or finished
-    man["rows"] = int(len(df))
-    have = set(df[key_column])
+    man["rows"] = table.num_rows
+    have = set(keys)
     man["missing"] = [k for k in order if k not in have]
     out = d.parent / f"{d.name}.parquet"
-    write_parquet_atomic(df, out, {"manifest": {k: v for k, v in man.items() if k not in ("points", "runs")}})
+    write_table_atomic(table, out, {"manifest": {k: v for k, v in man.items() if k not in ("points", "runs")}})
     write_json_atomic(man, d.parent / f"{d.name}.manifest.json")
     try:
         shutil.rmtree(d)

@@ -21,7 +21,9 @@ first by the one before: harness/schedule.py), and prints for each run:
   (shared caches, memory bandwidth, clock);
 - ``speedup``: the 1-worker wall time of the same executor over this one.
 
-Then the scheduler overhead per item of each executor (sleeping tasks,
+Then the client's CPU per stored row (:func:`store_costs`: a part written
+and merged the pandas way and the Arrow way, on the 1-worker run's rows),
+the scheduler overhead per item of each executor (sleeping tasks,
 harness.executors.bench_overhead) and the thread pools of its run processes
 (harness.executors.thread_counts).  Timings of a shared machine are noisy:
 compare ``cpu_s`` and ``idle`` as well as the wall time, and rerun on a
@@ -231,6 +233,55 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
             "together_cpu_s_per_sim_s": together, "ratio": together / alone, "bound": copies * alone / together}
 
 
+def store_costs(rows: list[dict[str, Any]], limit: int = 500) -> dict[str, Any]:
+    """The client's CPU per row for storing ``rows`` (a finished sweep's
+    rows, at most ``limit``), both ways side by side, in one temporary
+    directory: a part written the pandas way (``DataFrame`` ->
+    ``Table.from_pandas`` -> Parquet, fsync, rename) and the Arrow way
+    (``PartsDir.write_part``), and the merge of those parts into one file
+    (pandas: ``read_parquet`` + ``concat``; Arrow: ``consolidate_parts``),
+    ms of CPU (``time.process_time``) per row."""
+    import pandas as pd
+
+    from harness.results import PartsDir, consolidate_parts, list_parts, write_json_atomic, write_parquet_atomic
+
+    rows = rows[:limit]
+    tmp = Path(tempfile.mkdtemp(prefix="physbench-store-bench-"))
+    try:
+        old, new = tmp / "pandas", tmp / "arrow"
+        for d in (old, new):
+            d.mkdir()
+            write_json_atomic({"points": []}, d / "manifest.json")
+        store = PartsDir(new, {}, -1, "point_key")
+        c = time.process_time()
+        for i, r in enumerate(rows):
+            write_parquet_atomic(pd.DataFrame([r]), old / f"part-{i:06d}.parquet", {"sweep_id": "bench"})
+        write_old = time.process_time() - c
+        c = time.process_time()
+        for r in rows:
+            store.write_part(r, {"sweep_id": "bench"})
+        write_new = time.process_time() - c
+        c = time.process_time()
+        df = pd.concat([pd.read_parquet(p) for p in list_parts(old)], ignore_index=True)
+        write_parquet_atomic(df, tmp / "pandas.parquet")
+        merge_old = time.process_time() - c
+        c = time.process_time()
+        consolidate_parts(new, "point_key", [r["point_key"] for r in rows], "now")
+        merge_new = time.process_time() - c
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    n = max(1, len(rows))
+    return {"rows": len(rows), "columns": max((len(r) for r in rows), default=0),
+            "part_write_pandas_ms": 1e3 * write_old / n, "part_write_arrow_ms": 1e3 * write_new / n,
+            "merge_pandas_ms": 1e3 * merge_old / n, "merge_arrow_ms": 1e3 * merge_new / n}
+
+
+def _print_store(sc: dict[str, Any]) -> None:
+    print(f"client CPU per row ({sc['rows']} rows, up to {sc['columns']} columns): part write "
+          f"{sc['part_write_pandas_ms']:.2f} ms (pandas) -> {sc['part_write_arrow_ms']:.2f} ms (Arrow); merge "
+          f"{sc['merge_pandas_ms']:.2f} ms (pandas) -> {sc['merge_arrow_ms']:.2f} ms (Arrow)")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m harness.sweep_bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--suite", default="nightly")
@@ -244,6 +295,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="only measure one point's CPU alone and as --jobs copies at once")
     p.add_argument("--replay", type=Path, default=None,
                    help="only replay this finished sweep file (best a 1-worker one) on --jobs virtual workers")
+    p.add_argument("--store", type=Path, default=None,
+                   help="only measure the client's CPU per stored row (part write, merge; pandas and Arrow) "
+                        "on the rows of this finished sweep file")
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
                                                            "directory, removed)")
     args = p.parse_args(argv)
@@ -254,6 +308,11 @@ def main(argv: list[str] | None = None) -> int:
             if jobs > 1:
                 print(json.dumps(core_scaling(jobs)))
         return 0
+    if args.store is not None:
+        import pyarrow.parquet as pq
+
+        _print_store(store_costs(pq.read_table(args.store).to_pylist()))
+        return 0
     if args.replay is not None:
         import pandas as pd
 
@@ -263,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     rows: list[dict[str, Any]] = []
     replays: list[dict[str, Any]] = []
+    store: dict[str, Any] = {}
     root = args.keep or Path(tempfile.mkdtemp(prefix="physbench-sweep-bench-"))
     try:
         for ex in args.executors:
@@ -277,6 +337,9 @@ def main(argv: list[str] | None = None) -> int:
 
                     df = pd.read_parquet(r["sweep_file"])
                     replays = [replay(df, args.suite, j, args.engines, args.scenarios) for j in args.jobs if j > 1]
+                    import pyarrow.parquet as pq
+
+                    store = store_costs(pq.read_table(r["sweep_file"]).to_pylist())
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
@@ -302,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
               f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "
               f"points then searches {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
               f"{rp['longest_search_s']:.1f} s, longest point {rp['longest_point_s']:.1f} s")
+    if store:
+        _print_store(store)
     if overhead:
         print("scheduler overhead per item (ms of worker time not in the task; sleeping tasks)")
         for o in overhead:
@@ -311,7 +376,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"run process threads ({ex}): numba {t['numba']}, BLAS {t['blas']}, env {t['env']}")
     if args.json:
         args.json.write_text(json.dumps({"suite": args.suite, "scenarios": args.scenarios, "runs": rows, "replays": replays,
-                                         "overhead": overhead, "threads": threads}, indent=1, default=float))
+                                         "overhead": overhead, "threads": threads,
+                                         "store": store}, indent=1, default=float))
     return 0
 
 

@@ -211,7 +211,8 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
 REPORT_MAY_NOT_IMPORT = ("contract.scene", "contract.scene_model", "contract.shapes", "contract.models",
                          "contract.spec", "adapters", "engine", "harness.conformance", "harness.references",
                          "harness.metrics", "harness.geometry", "harness.points", "harness.suite",
-                         "harness.limits", "harness.limit_eval", "harness.execute", "harness.trace")
+                         "harness.limits", "harness.limit_eval", "harness.execute", "harness.workers",
+                         "harness.trace")
 # names the report may take from the runner (the commit the page was made at)
 REPORT_FROM_RUNNER = {"commit_id"}
 

@@ -284,6 +284,33 @@ def test_a_worker_of_another_physbench_is_refused(tmp_path, cluster, capsys):
             client.run(_restore_commit)
 
 
+def _task_states(dask_scheduler=None) -> dict[str, int]:
+    from collections import Counter
+
+    return dict(Counter(ts.state for k, ts in dask_scheduler.tasks.items() if str(k).startswith("physbench-")))
+
+
+def test_tasks_ahead_wait_on_the_scheduler_not_on_a_worker(cluster):
+    """One task per worker thread runs and one more per thread waits, queued
+    on the scheduler (so a free thread starts it without a round trip through
+    the client, and a worker that dies holds only the task it runs: the
+    retry test above)."""
+    from harness.dask_executor import DaskExecutor
+    from harness.executors import _sleep
+
+    lc, client = cluster
+    _wait_workers(client)
+    with DaskExecutor(scheduler=lc.scheduler_address, log=lambda _t: None) as ex:
+        assert ex.jobs == 2 and ex.lookahead == 2
+        seen = []
+        for item, value in ex.map(_sleep, [0.4] * 8):
+            assert value == item
+            seen.append(client.run_on_scheduler(_task_states))
+    # at each result: the next tasks were running on the two threads, those beyond queued on the scheduler
+    assert all(s.get("processing", 0) <= 2 for s in seen), seen
+    assert any(s.get("queued", 0) >= 1 for s in seen), seen
+
+
 def test_check_on_dask_gives_the_inline_rows(tmp_path, cluster):
     from harness.conformance import check_main
 

@@ -958,10 +958,10 @@ def test_control_characters_in_names_rejected(tmp_path, name):
 
 
 # The one place pickle is allowed: the executor's channel to its own worker
-# processes (harness/execute.py).  What it unpickles was pickled by the
+# processes (harness/workers.py).  What it unpickles was pickled by the
 # parent physbench process or by a worker it started, over that worker's
 # private pipes: never a file, a spec or anything a user hands in.
-PICKLE_CHANNEL = Path("harness") / "execute.py"
+PICKLE_CHANNEL = Path("harness") / "workers.py"
 
 
 def test_no_eval_exec_or_pickle_in_the_code():

@@ -1,0 +1,156 @@
+"""The row store's Arrow path (harness/results.py: ``row_table``,
+``merge_tables``, ``PartsDir.write_part``, ``consolidate_parts``) stores
+what the pandas path stored: a row written as a part, and parts merged into
+the consolidated file, read back with the same types and values, through
+pyarrow (``to_pylist``: resume, ``part_rows``) and through pandas
+(``read_parquet``: the report, ``read_sweeps``, the limit cache).  The
+pandas path (``write_parquet_atomic(pandas.DataFrame(...))``, the
+parts concatenated with ``pandas.concat``) is the reference."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from harness import results as R
+
+
+def _rows_of_every_kind() -> list[dict]:
+    """Rows as a sweep, a check and a search store them: text, None, NaN,
+    floats, ints, bools, numpy scalars, columns present in some rows only,
+    and columns whose type differs between rows (a setting that is a bool
+    on one engine and text on another, an int on one and a float on
+    another, None on one and a number on another)."""
+    base = {"scenario": "billiards.head_on", "variant": None, "engine": "reference", "status": "ok",
+            "message": "", "metric.max_penetration_m": 1.5e-5, "metric.energy_drift": math.nan,
+            "steps": 2000, "setting.dt": 0.001, "setting.ccd": True, "setting.iterations": 10,
+            "repeats": np.int64(3), "ok": np.bool_(True), "cpu": np.float64(0.25), "tags": '["smoke"]'}
+    rows = [dict(base, point_key="a")]
+    rows.append(dict(base, point_key="b", engine="mujoco", **{"setting.ccd": "swept", "setting.iterations": 12.5,
+                                                             "metric.energy_drift": 0.01, "variant": "elastic"}))
+    rows.append(dict(base, point_key="c", row_kind="limit_eval", limit_id="x", limit_value=3,
+                     **{"metric.max_penetration_m": None, "steps": None}))
+    rows.append({"point_key": "d", "status": "error", "message": "worker process died: SIGSEGV",
+                 "setting.dt": 0.002, "row_kind": "limit", "limit_value": 2.5, "ok": False})
+    rows.append(dict(base, point_key="e", **{"setting.iterations": True, "seq": [1, 2]}))
+    rows.append(dict(base, point_key="a", status="failed"))  # a duplicate key: the first row wins
+    return rows
+
+
+@pytest.fixture(scope="module")
+def sweep_rows(tmp_path_factory) -> list[dict]:
+    """The rows a real sweep (the smoke suite, serial) stores."""
+    from harness.sweep import sweep_main
+
+    got: list[dict] = []
+    real = R.PartsDir.write_part
+
+    def keep(self, row, metadata=None):
+        got.append(dict(row))
+        return real(self, row, metadata)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(R.PartsDir, "write_part", keep)
+        assert sweep_main("smoke", executor="serial", out_dir=tmp_path_factory.mktemp("sweeps"), resume=False) == 0
+    return got
+
+
+def _same_values(a: list[dict], b: list[dict]) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert list(x) == list(y)
+        for k in x:
+            u, v = x[k], y[k]
+            assert type(u) is type(v), (k, u, v)
+            assert u == v or (isinstance(u, float) and math.isnan(u) and math.isnan(v)), (k, u, v)
+
+
+def _same_file(old, new) -> None:
+    """Two Parquet files hold the same columns, types and values, read
+    either way."""
+    a, b = pq.read_table(old), pq.read_table(new)
+    assert a.schema.names == b.schema.names
+    assert [(f.name, f.type, f.nullable) for f in a.schema] == [(f.name, f.type, f.nullable) for f in b.schema], \
+        [(f, g) for f, g in zip(a.schema, b.schema) if f != g]
+    _same_values(a.to_pylist(), b.to_pylist())
+    pd.testing.assert_frame_equal(pd.read_parquet(old), pd.read_parquet(new))
+
+
+def test_a_row_reads_back_as_the_pandas_path_wrote_it(tmp_path, sweep_rows):
+    rows = _rows_of_every_kind() + sweep_rows
+    (tmp_path / "new").mkdir()
+    store = R.PartsDir(tmp_path / "new", {}, -1, "point_key")
+    for i, row in enumerate(rows):
+        old = R.write_parquet_atomic(pd.DataFrame([row]), tmp_path / "old" / f"part-{i:06d}.parquet", {"x": 1})
+        new = store.write_part(row, {"x": 1})
+        _same_file(old, new)
+        meta = json.loads(pq.read_schema(new).metadata[b"physbench"])
+        assert meta == {"schema_version": R.SCHEMA_VERSION, "x": 1}
+    assert len(R.list_parts(store.path)) == len(rows) and store.done == {r["point_key"] for r in rows}
+
+
+def _pandas_merge(parts, key, order, columns, out):
+    """The merge as it was: pandas.concat of the parts read by pandas, the
+    first row of a key kept, planned order, then the pandas writer."""
+    df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    df = df.drop_duplicates(key, keep="first")
+    rank = {k: i for i, k in enumerate(order)}
+    df = df.iloc[sorted(range(len(df)), key=lambda i: rank.get(df[key].iat[i], len(rank)))].reset_index(drop=True)
+    for col in sorted({c for v in columns.values() for c in v}):
+        df[col] = [columns.get(k, {}).get(col) for k in df[key]]
+    return R.write_parquet_atomic(df, out)
+
+
+@pytest.mark.parametrize("which", ["every kind", "sweep"])
+def test_merged_parts_read_back_as_the_pandas_merge_wrote_them(tmp_path, sweep_rows, which):
+    rows = _rows_of_every_kind() if which == "every kind" else sweep_rows
+    d = tmp_path / "job"
+    d.mkdir()
+    R.write_json_atomic({"points": []}, d / "manifest.json")
+    store = R.PartsDir(d, {}, -1, "point_key")
+    for row in rows:
+        store.write_part(row)
+    keys = list(dict.fromkeys(r["point_key"] for r in rows))
+    order = keys[::-1][1:] + ["never run"]  # one stored key not planned: it goes last
+    columns = {k: {"checks": f'[{{"id": "{k}"}}]'} for k in keys[:2]}
+    old = _pandas_merge(R.list_parts(d), "point_key", order, columns, tmp_path / "old.parquet")
+    new, man = R.consolidate_parts(d, "point_key", order, "now", columns=columns)
+    _same_file(old, new)
+    assert not d.exists() and man["rows"] == len(keys) and man["missing"] == ["never run"]
+    assert man["duplicates_dropped"] == len(rows) - len(keys)
+    assert pq.read_table(new).column("point_key").to_pylist() == order[:-1] + [keys[-1]]
+
+
+_KINDS = {"None": None, "text": "x", "int": 3, "float": 1.5, "NaN": math.nan, "bool": True, "absent": KeyError}
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_every_mix_of_kinds_merges_as_pandas_merged_it(tmp_path, n):
+    """Every sequence of ``n`` parts whose column ``c`` is None, text, an
+    int, a float, NaN, a bool or absent merges to what pandas made of it --
+    except where pandas' answer depends on the parts' order (a float or
+    NaN part before a bool part gives floats, the reverse order text or
+    bools): there harness.results.merge_tables' documented rule decides."""
+    import itertools
+
+    checked = 0
+    for seq in itertools.product(_KINDS, repeat=n):
+        if set(seq) == {"absent"}:
+            continue
+        first_bool = seq.index("bool") if "bool" in seq else n
+        if any(k in ("float", "NaN") for k in seq[:first_bool]) and first_bool < n:
+            continue
+        d = tmp_path / "-".join(seq)
+        parts = [R.write_parquet_atomic(pd.DataFrame([{"k": f"k{i}"} | ({} if k == "absent" else {"c": _KINDS[k]})]),
+                                        d / f"part-{i:06d}.parquet") for i, k in enumerate(seq)]
+        old = R.write_parquet_atomic(pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True),
+                                     d / "old.parquet")
+        new = R.write_table_atomic(R.merge_tables([pq.read_table(p) for p in parts]), d / "new.parquet")
+        _same_file(old, new)
+        checked += 1
+    assert checked > 0.8 * (len(_KINDS) ** n)
