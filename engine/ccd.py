@@ -125,26 +125,45 @@ def _stable_features(model, a: int, b: int, sidx: int) -> bool:
     return model.static_shape[sidx] != S_BOX
 
 
-def end_displacement(model, state, ctx) -> np.ndarray:
-    """(n,) m: how far any surface point of each body lies from where it was
-    at the start of the step, end pose against start pose:
-    |x1 - x0| + 2 sin(theta/2) r, theta the turn between the two
-    orientations (cos(theta/2) = |q0 . q1|) and r the body's bounding
-    radius.  The gap of a pair changes between the two poses by at most the
-    sum of its bodies' values (a rigid motion moves the point s from the
-    centre by |dx + (R1 - R0) s| <= |dx| + 2 sin(theta/2) |s|).
+def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
+    """The broad-phase pairs whose gap may change by more than ``lim`` (m)
+    between the start and end poses, with the end pose's rotations, from
+    one compiled call (:func:`engine.flight.end_pose_pairs`) into buffers
+    kept in the context: ((body pairs i, j), (plane pairs body, row),
+    (static-box pairs body, row), margins (-lim each, as long as the
+    longest), R1 (n, 3, 3)), every array a view of a buffer valid until the
+    next call; None when no pair moved that far.
+
+    A body's end displacement, |x1 - x0| + 2 sin(theta/2) r (theta the
+    turn between the two orientations, cos(theta/2) = |q0 . q1|, r the
+    body's bounding radius), bounds how far any surface point lies from
+    where it was, so the gap of a pair changes between the two poses by at
+    most the sum of its bodies' values (a rigid motion moves the point s
+    from the centre by |dx + (R1 - R0) s| <= |dx| + 2 sin(theta/2) |s|).
 
     The broad phase's sweep bounds the same from the speeds before and
     after the solve; for resting contacts that is the speed gravity gave
     the step before the solve took it away (g h = 0.04 m/s at 1/240 s:
     0.34 mm for two boxes, beyond the end-pose check's tolerance), so a
     resting column was collided twice a step (measured 590 us of its 2.4
-    ms)."""
-    out = ctx.info.get("end_displacement")
-    if out is None:
-        out = ctx.info["end_displacement"] = np.empty(model.n)
-    flight.end_displacement(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, out)
-    return out
+    ms).  The same pairs, in the same order, as the boolean masks this
+    replaced (tests/test_ccd_end_pose.py)."""
+    pi, pj = ctx.pairs_i, ctx.pairs_j
+    bp, pk = ctx.plane_pairs
+    bs, sk = ctx.sbox_pairs
+    buf = ctx.info.get("ccd_end_pose")
+    m = max(pi.size, bp.size, bs.size, 1)
+    if buf is None or buf[0].shape[0] < m:
+        i = np.empty(2 * m, np.int64)
+        buf = ctx.info["ccd_end_pose"] = (i, i.copy(), i.copy(), i.copy(), i.copy(), i.copy(), np.empty(2 * m),
+                                           np.empty(model.n), np.empty((model.n, 3, 3)))
+    ci, cj, cbp, cpk, cbs, csk, mg, sw, R1 = buf
+    nb, npl, ns = flight.end_pose_pairs(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, lim,
+                                        fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs,
+                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, mg, R1)
+    if not nb + npl + ns:
+        return None
+    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), mg, R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
@@ -204,7 +223,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     31.8 mm gap) and then came down on the face, ending 18 mm inside.  So
     the end pose is checked, for the pairs whose surfaces move far enough
     between the start and end poses to overlap by more than the tolerance
-    (the sum of the bodies' :func:`end_displacement`: no resting contact
+    (:func:`end_pose_pairs`: no resting contact
     is ever re-collided).  A pair that
     overlaps by more than the correction slop + ``MISS_TOL`` at the end, and
     either was apart at the start or overlaps there far from where it
@@ -214,20 +233,12 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     or None: only pairs with a body where it is True are checked."""
     slop = float(model.settings["correction_slop"])
     lim = slop + MISS_TOL
-    sw = end_displacement(model, state, ctx)
-    pi, pj = ctx.pairs_i, ctx.pairs_j
-    bp, pk = ctx.plane_pairs
-    bs, sk = ctx.sbox_pairs
-    fb = np.empty(pi.size, np.bool_)
-    fp = np.empty(bp.size, np.bool_)
-    fs = np.empty(bs.size, np.bool_)
-    if not flight.moving_pairs(sw, pi, pj, bp, bs, lim, fast is not None, _NO_FAST if fast is None else fast,
-                               fb, fp, fs):
+    moved = end_pose_pairs(model, state, ctx, lim, fast)
+    if moved is None:
         return []
-    R1 = quat_to_matrix(ctx.q1)
-    c = collide_pairs(model, ctx.x1, R1, pi[fb], pj[fb], (bp[fp], pk[fp]), (bs[fs], sk[fs]),
-                      np.full(int(fb.sum()), -lim), np.full(int(fp.sum()), -lim), np.full(int(fs.sum()), -lim),
-                      _collider(model, ctx))
+    (ci, cj), planes, sboxes, mg, R1 = moved
+    c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes,
+                                  margins=(mg[:ci.size], mg[:planes[0].size], mg[:sboxes[0].size]))
     if c.m == 0:
         return []
     code = _pair_codes(model, c)

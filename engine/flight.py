@@ -19,7 +19,7 @@ gyroscopic torque on bodies ``g_idx`` (g,) with principal moments ``g_I``
 Also the step loop's per-step pose kernels: the start of a (mini-)step
 (:func:`begin_step`), the rotation split's turn rate (:func:`max_turn_sq`)
 and the CCD stage's end-pose check (:func:`end_displacement`,
-:func:`moving_pairs`).
+:func:`end_pose_pairs`).
 """
 
 from __future__ import annotations
@@ -511,22 +511,41 @@ def begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0):
 
 
 @njit(cache=True)
-def moving_pairs(sw, pi, pj, bp, bs, lim, has_fast, fast, fb, fp, fs):
-    """The pairs whose surfaces moved apart or together by more than
-    ``lim`` (m) between the start and end poses (``sw`` (n,) the bodies'
-    end displacements): body pairs ``pi``/``pj`` into ``fb``, body-plane
-    ``bp`` into ``fp``, body-static-box ``bs`` into ``fs`` (bool, written);
-    with ``has_fast`` only pairs with a body where ``fast`` (n,) holds.
-    Returns whether any pair moved."""
-    found = False
+def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk,
+                   cbs, csk, margin, R1):
+    """The CCD stage's end-pose check in one call: ``sw`` (n,) m the
+    bodies' :func:`end_displacement` (start pose x0, q0 against end pose
+    x1, q1); the pairs whose surfaces moved apart or together by more than
+    ``lim`` (m) -- body pairs ``pi``/``pj`` (the sum of both bodies'
+    values), body-plane ``bp``/``pk`` and body-static-box ``bs``/``sk`` (the
+    body's value), with ``has_fast`` only pairs with a body where ``fast``
+    (n,) holds -- copied in order into the front of ``ci``/``cj``,
+    ``cbp``/``cpk``, ``cbs``/``csk`` (int64, at least as long as their
+    inputs); ``margin`` (at least the longest count) filled with -lim; and,
+    when any pair moved, ``R1`` (n, 3, 3) the rotations of q1
+    (:func:`q2m`).  Returns the counts (body pairs, planes, static boxes)."""
+    end_displacement(x0, q0, x1, q1, bound_radius, sw)
+    nb = 0
     for k in range(pi.shape[0]):
         i, j = pi[k], pj[k]
-        fb[k] = sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j])
-        found |= fb[k]
+        if sw[i] + sw[j] > lim and (not has_fast or fast[i] or fast[j]):
+            ci[nb] = i
+            cj[nb] = j
+            nb += 1
+    npl = 0
     for k in range(bp.shape[0]):
-        fp[k] = sw[bp[k]] > lim and (not has_fast or fast[bp[k]])
-        found |= fp[k]
+        if sw[bp[k]] > lim and (not has_fast or fast[bp[k]]):
+            cbp[npl] = bp[k]
+            cpk[npl] = pk[k]
+            npl += 1
+    ns = 0
     for k in range(bs.shape[0]):
-        fs[k] = sw[bs[k]] > lim and (not has_fast or fast[bs[k]])
-        found |= fs[k]
-    return found
+        if sw[bs[k]] > lim and (not has_fast or fast[bs[k]]):
+            cbs[ns] = bs[k]
+            csk[ns] = sk[k]
+            ns += 1
+    if nb + npl + ns:
+        q2m(q1, R1)
+        for k in range(max(nb, npl, ns)):
+            margin[k] = -lim
+    return nb, npl, ns

@@ -226,10 +226,11 @@ def _warm_flight() -> None:
     flight.springs(*models[1][3:10], x, R, v, v, F, T)
     flight.gyroscopic_torque(idx, I, R, v, T)
     flight.max_turn_sq(v, q, idx, idx)
-    flight.end_displacement(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), np.zeros(nb))
     zb = np.zeros(nb, np.bool_)
     for fast in (False, True):
-        flight.moving_pairs(v[:, 0].copy(), idx, idx, idx, idx, 0.1, fast, zb, zb.copy(), zb.copy(), zb.copy())
+        flight.end_pose_pairs(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), 0.1, fast, zb, idx, idx, idx, idx, idx,
+                              idx, np.zeros(nb), idx.copy(), idx.copy(), idx.copy(), idx.copy(), idx.copy(),
+                              idx.copy(), np.zeros(nb), R.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

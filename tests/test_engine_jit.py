@@ -22,7 +22,7 @@ first = run(sc, "reference", compute_metrics=False)
 second = engine_for(sc)
 print(first.timing["jit_s"], second.profile.jit_s, "jit_s" in first.stages)
 kernels = [sw.iterate, sw.apply_rows, sw.apply_patches, ph.solve_contacts, ph.relax, rw._greedy_colours,
-           fl.begin_step, fl.max_turn_sq, fl.end_displacement, fl.moving_pairs]
+           fl.begin_step, fl.max_turn_sq, fl.end_displacement, fl.end_pose_pairs]
 before = [len(k.overloads) for k in kernels]
 second.step(60)
 print(before == [len(k.overloads) for k in kernels])
