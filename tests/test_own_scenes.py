@@ -142,6 +142,21 @@ def test_check_runs_a_spec_file_and_a_folder_from_anywhere(tmp_path):
     assert outs == {"stable": "PASS", "max_penetration": "PASS"}
 
 
+def test_check_runs_a_relative_spec_path_in_worker_processes(tmp_path, monkeypatch):
+    # `physbench check ../shared/examples/head_on.toml` errored on every
+    # check ("no such file"): the worker processes run in their own
+    # directory and were handed the path as typed
+    write_box(tmp_path / "mine" / "box_slide.toml", max_pen=0.05)
+    monkeypatch.chdir(tmp_path / "mine")
+    junit = tmp_path / "j.xml"
+    code = C.check_main(["pybullet"], None, str(junit), ["../mine/box_slide.toml"], jobs=1, executor="process",
+                        save_dir=tmp_path / "rows")
+    cases = {tc.get("name"): tc for tc in ET.parse(junit).getroot().iter("testcase")}
+    assert set(cases) == {"friction.box_slide::stable", "friction.box_slide::max_penetration"}
+    assert all(tc.find("error") is None for tc in cases.values()), ET.tostring(ET.parse(junit).getroot())[:600]
+    assert code == 0
+
+
 def test_check_from_the_command_line_takes_paths_and_refuses_unknown_ids(tmp_path):
     write_box(tmp_path / "my_scenes" / "box_slide.toml", max_pen=0.05)
     p = physbench("check", "--scenarios", "friction.no_such_scene", "--engines", "pybullet")

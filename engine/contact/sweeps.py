@@ -24,20 +24,23 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, inline="always")
+def add_row(U, ia, ib, M, i, d, world):
+    """U[ia] += M[i, :6] d, U[ib] += M[i, 6:] d; the world's row untouched."""
+    if ia != world:
+        for k in range(6):
+            U[ia, k] += M[i, k] * d
+    if ib != world:
+        for k in range(6):
+            U[ib, k] += M[i, 6 + k] * d
+
+
 @njit(cache=True)
 def apply_rows(U, ab, M, d, world):
     """U[a] += M[:, :6] d, U[b] += M[:, 6:] d over rows in order (M (k, 12),
     d (k,)); the world row untouched."""
     for i in range(d.shape[0]):
-        di = d[i]
-        ia = ab[i, 0]
-        ib = ab[i, 1]
-        if ia != world:
-            for k in range(6):
-                U[ia, k] += M[i, k] * di
-        if ib != world:
-            for k in range(6):
-                U[ib, k] += M[i, 6 + k] * di
+        add_row(U, ab[i, 0], ab[i, 1], M, i, d[i], world)
 
 
 @njit(cache=True)
@@ -72,14 +75,8 @@ def normal_pass(U, ab, J, M, mn, lam, target, world):
             vn += J[i, 6 + k] * U[ib, k]
         old = lam[i]
         new = max(old - mn[i] * (vn - target[i]), 0.0)
-        d = new - old
         lam[i] = new
-        if ia != world:
-            for k in range(6):
-                U[ia, k] += M[i, k] * d
-        if ib != world:
-            for k in range(6):
-                U[ib, k] += M[i, 6 + k] * d
+        add_row(U, ia, ib, M, i, new - old, world)
 
 
 @njit(cache=True, inline="always")

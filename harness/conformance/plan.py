@@ -5,6 +5,7 @@ the outcomes of the planned runs once their results are in."""
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -38,6 +39,13 @@ class RunSpec:
     row_extra: dict[str, Any] = field(default_factory=dict)
     #: wall-clock budget of the run (s); not part of its identity
     timeout_s: float | None = RUN_TIMEOUT_S
+
+    def __post_init__(self) -> None:
+        # the file is named absolutely here, in the client: workers run in
+        # their own directory, where a relative path names nothing
+        # (test_check_runs_a_relative_spec_path_in_worker_processes)
+        if self.path is not None and not os.path.isabs(self.path):
+            self.path = os.path.abspath(self.path)
 
     @property
     def key(self) -> tuple:
