@@ -510,6 +510,20 @@ def begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0):
     start_pose(q, inv_I, R0, Iinv0)
 
 
+@njit(cache=True, inline="always")
+def _moved_static_pairs(sw, lim, has_fast, fast, body, other, cbody, cother):
+    """Copy the (body, static) pairs whose body moved by more than ``lim``
+    (and, with ``has_fast``, is fast) in order to the front of ``cbody``/
+    ``cother``; returns their count."""
+    m = 0
+    for k in range(body.shape[0]):
+        if sw[body[k]] > lim and (not has_fast or fast[body[k]]):
+            cbody[m] = body[k]
+            cother[m] = other[k]
+            m += 1
+    return m
+
+
 @njit(cache=True)
 def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk,
                    cbs, csk, margin, R1):
@@ -532,18 +546,8 @@ def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp
             ci[nb] = i
             cj[nb] = j
             nb += 1
-    npl = 0
-    for k in range(bp.shape[0]):
-        if sw[bp[k]] > lim and (not has_fast or fast[bp[k]]):
-            cbp[npl] = bp[k]
-            cpk[npl] = pk[k]
-            npl += 1
-    ns = 0
-    for k in range(bs.shape[0]):
-        if sw[bs[k]] > lim and (not has_fast or fast[bs[k]]):
-            cbs[ns] = bs[k]
-            csk[ns] = sk[k]
-            ns += 1
+    npl = _moved_static_pairs(sw, lim, has_fast, fast, bp, pk, cbp, cpk)
+    ns = _moved_static_pairs(sw, lim, has_fast, fast, bs, sk, cbs, csk)
     if nb + npl + ns:
         q2m(q1, R1)
         for k in range(max(nb, npl, ns)):
