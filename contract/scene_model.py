@@ -255,7 +255,7 @@ class Scene:
         for b in self.bodies:
             count[b.material] = count.get(b.material, 0) + 1
         mats = list(count)
-        out = [self.pair(a, b) for a in mats for b in mats if a != b or count[a] >= 2]
+        out = [self.pair(a, b) for i, a in enumerate(mats) for b in mats[i:] if a != b or count[a] >= 2]
         out += [self.pair(a, s.material) for a in mats for s in self.statics]
         return out
 

@@ -66,19 +66,27 @@ def sequential_row_collisions(m: np.ndarray, u: np.ndarray, e: float, max_sweeps
     down the row: the last ball leaves with it, the others stop.
     """
     v = np.array(u, float)
-    m = np.asarray(m, float)
-    n = len(v)
+    _resolve_row(v, np.asarray(m, float), e, None, max_sweeps)
+    return v
+
+
+def _resolve_row(v: np.ndarray, m: np.ndarray, e: float, touching: np.ndarray | None, max_sweeps: int) -> bool:
+    """Sweep the row from the struck end, resolving each approaching pair
+    (of the ``touching`` (n-1,) bool pairs; None: all) by Newton's law in
+    place, until none approaches.  Returns whether any pair collided;
+    raises after ``max_sweeps`` sweeps."""
+    hit = False
     for _ in range(max_sweeps):
         moved = False
-        for i in range(n - 1):
-            if v[i] > v[i + 1] + 1e-15 * (abs(v[i]) + abs(v[i + 1])):
+        for i in range(len(v) - 1):
+            if (touching is None or touching[i]) and v[i] > v[i + 1] + 1e-15 * (abs(v[i]) + abs(v[i + 1])):
                 m1, m2 = m[i], m[i + 1]
                 a, b = v[i], v[i + 1]
                 v[i] = ((m1 - e * m2) * a + (1 + e) * m2 * b) / (m1 + m2)
                 v[i + 1] = ((m2 - e * m1) * b + (1 + e) * m1 * a) / (m1 + m2)
-                moved = True
+                moved = hit = True
         if not moved:
-            return v
+            return hit
     raise RuntimeError("sequential_row_collisions did not converge")
 
 
@@ -99,17 +107,7 @@ def row_collision_history(gap: np.ndarray, m: np.ndarray, u: np.ndarray, e: floa
     tol = 1e-12 * max(float(np.max(np.abs(g), initial=0.0)), 1e-3)
     t, out = 0.0, [(0.0, v.copy())]
     for _ in range(max_events):
-        moved = True
-        hit = False
-        while moved:
-            moved = False
-            for i in range(len(g)):
-                if g[i] <= tol and v[i] > v[i + 1] + 1e-15 * (abs(v[i]) + abs(v[i + 1])):
-                    m1, m2, a, b = m[i], m[i + 1], v[i], v[i + 1]
-                    v[i] = ((m1 - e * m2) * a + (1 + e) * m2 * b) / (m1 + m2)
-                    v[i + 1] = ((m2 - e * m1) * b + (1 + e) * m1 * a) / (m1 + m2)
-                    moved = hit = True
-        if hit:
+        if _resolve_row(v, m, e, g <= tol, 100000):
             if out[-1][0] == t:
                 out[-1] = (t, v.copy())
             else:
@@ -181,6 +179,7 @@ class NewtonsCradle(ReferenceModel):
 
         self.order = order
         self.m_row, self.u_row = m, u
+        self._history = None  # history(): computed once, read per ball's line
         r = np.array([b.radius for b in scene.bodies])[order]
         self.gaps = np.diff(s[order]) - r[:-1] - r[1:]
 
@@ -191,13 +190,16 @@ class NewtonsCradle(ReferenceModel):
         the model's v' (``v_final``; a restitution whose sweeps converge
         differently): then only the start, the first collision and v' from
         the last collision on are drawn."""
+        if self._history is not None:
+            return self._history
         hist = row_collision_history(self.gaps, self.m_row, self.u_row, self.e, self.scene.duration)
         out = []
         for t, vr in hist:
             v = np.empty_like(vr)
             v[self.order] = vr
             out.append((t, v))
-        return out, bool(np.max(np.abs(out[-1][1] - self.v_final)) <= 1e-9 * self.v_scale)
+        self._history = out, bool(np.max(np.abs(out[-1][1] - self.v_final)) <= 1e-9 * self.v_scale)
+        return self._history
 
     def row_velocity(self, t: np.ndarray, i: int) -> np.ndarray:
         """Ball i's velocity along the row (m/s) at times t (F,): piecewise
@@ -303,11 +305,10 @@ class MomentumEnergy(ReferenceModel):
         return ke + pe, ke
 
     def conserves_energy(self) -> bool:
-        """Every pair of the scene's materials has restitution 1: the
+        """Every pair of materials that can meet (:meth:`Scene.contact_materials`;
+        statics never touch each other) has restitution 1: the
         mechanical energy is a conserved quantity of the model."""
-        sc = self.scene
-        mats = {b.material for b in sc.bodies} | {s.material for s in sc.statics}
-        return all(sc.pair(a, b).restitution == 1.0 for a in mats for b in mats)
+        return all(p.restitution == 1.0 for p in self.scene.contact_materials())
 
     def energy_series(self, trace) -> np.ndarray:
         """E(t) (J, (F,)): kinetic, rotational and gravitational, the
