@@ -345,9 +345,14 @@ class DaskExecutor:
                     args = (fn, item, budget_s(item) if budget_s else None, self.identity, self.adapters_text,
                             self.paths)
                     prio = priority(item) if priority else 0
+                    fut = None
                     if self._queued_submit is not None:
-                        fut = self._queued_submit(self.client, run_task, *args, key=k, priority=prio)
-                    else:
+                        try:
+                            fut = self._queued_submit(self.client, run_task, *args, key=k, priority=prio)
+                        except (TypeError, AttributeError, ImportError):
+                            # the private graph API differs in this Dask: one task per thread from now on
+                            self._queued_submit, self.lookahead = None, 0
+                    if fut is None:
                         fut = self.client.submit(run_task, *args, key=k, pure=False, priority=prio)
                     futures[fut] = item
                     done.add(fut)

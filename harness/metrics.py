@@ -341,8 +341,7 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
     if model and scene.reference_model:
         from harness.references import UNDEFINED, get_model
 
-        model = get_model(scene.reference_model)(scene)
-        got = model.metrics(trace)
+        got = get_model(scene.reference_model)(scene).metrics(trace)
         why = [w for w in (out.pop(UNDEFINED, ""), got.pop(UNDEFINED, "")) if w]
         out.update(got)
         if why:

@@ -322,7 +322,6 @@ def part_keys(d: Path, key_column: str) -> tuple[set[str], int]:
     directory ``d``, and the next part number.  An unreadable part (it
     cannot be half-written: parts are renamed into place) is set aside as
     ``*.bad``."""
-    import pyarrow.parquet as pq
 
     keys: set[str] = set()
     n = 0
@@ -386,7 +385,6 @@ class PartsDir:
     def part_rows(self) -> list[dict[str, Any]]:
         """The stored rows, one dict per part, each read on its own (so a
         column's type is the one its row was written with)."""
-        import pyarrow.parquet as pq
 
         out = []
         for p in list_parts(self.path):
@@ -424,7 +422,6 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
     check's verdicts, known only once every run is in).  Returns
     (consolidated file, manifest)."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
     table = merge_tables([read_part(p) for p in list_parts(d)])

@@ -458,5 +458,7 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         result.timing["metrics_s"] = time.perf_counter() - t0
         if result.status == st.OK and result.metrics.get("stable") is False:
             result.notes.append("unstable: " + str(result.metrics.get("stability_reason", "")))
-        if result.metrics.get("undefined_metrics"):
-            result.notes.append("undefined metrics: " + str(result.metrics["undefined_metrics"]))
+        from harness.references import UNDEFINED
+
+        if result.metrics.get(UNDEFINED):
+            result.notes.append("undefined metrics: " + str(result.metrics[UNDEFINED]))

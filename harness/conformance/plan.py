@@ -5,7 +5,6 @@ the outcomes of the planned runs once their results are in."""
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -39,13 +38,6 @@ class RunSpec:
     row_extra: dict[str, Any] = field(default_factory=dict)
     #: wall-clock budget of the run (s); not part of its identity
     timeout_s: float | None = RUN_TIMEOUT_S
-
-    def __post_init__(self) -> None:
-        # the file is named absolutely here, in the client: workers run in
-        # their own directory, where a relative path names nothing
-        # (test_check_runs_a_relative_spec_path_in_worker_processes)
-        if self.path is not None and not os.path.isabs(self.path):
-            self.path = os.path.abspath(self.path)
 
     @property
     def key(self) -> tuple:
@@ -157,7 +149,9 @@ def plan(scenario_ids: list[str], engines: list[str],
             errors += _load_error_outcomes(sid, None, engines, f"spec failed to load: {e}")
             continue
         # an id is run by its id; a file given by path is run from it
-        path = str(loaded.path) if (Path(sid).suffix == ".toml" or Path(sid).exists()) else None
+        # (absolute: workers run in their own directory;
+        # test_check_runs_a_relative_spec_path_in_worker_processes)
+        path = str(loaded.path.resolve()) if (Path(sid).suffix == ".toml" or Path(sid).exists()) else None
         for variant in [None, *loaded.variants]:
             try:
                 scene = load_scene(sid, variant, loaded=loaded)
