@@ -86,18 +86,6 @@ def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1,
         sweep[k] = h * (max(vmax, umax) + wmax * bound_radius[k])
 
 
-def body_extents(model, R: np.ndarray) -> np.ndarray:
-    """Half-sizes (n, 3) of each body's world axis-aligned box at rotations
-    R (n, 3, 3)."""
-    n = model.n
-    ext = np.empty((n, 3))
-    e = np.empty(3)
-    for k in range(n):
-        _extent(model.shape[k], model.radius[k], model.half_extents[k], model.half_length[k], R[k], e)
-        ext[k] = e
-    return ext
-
-
 @njit(cache=True)
 def _plane_pairs_kernel(lo, hi, N, off, grow, out_b, out_p):
     """(body, plane) pairs, body-major, whose box [lo, hi] reaches within

@@ -242,10 +242,7 @@ class Solve(Stage):
         prep = self._prep
         if prep is not None and prep[0] is topo and prep[1] is views:
             rows, kw = prep[2], prep[3]
-            rows.idx = idx
-            rows._c = c
-            rows._X = state.x
-            rows.__dict__.pop("_cs", None)
+            rows.rebind(c, state.x, idx)
         else:
             rows = Rows(model, state.x, ctx.Iinv0, c, f, sel=sel, topo=topo, scratch=sc, R0=ctx.R0,
                         views=views[:16], prepared=True, idx=idx)
@@ -322,10 +319,7 @@ class Solve(Stage):
             ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         if not solved:
             return nimp
-        rows.idx = idx
-        rows._c = c
-        rows._X = state.x
-        rows.__dict__.pop("_cs", None)
+        rows.rebind(c, state.x, idx)
         rows.residual = res
         rows.sweeps = int(sw)
         if store_on:

@@ -42,14 +42,6 @@ def unsupported_pairs(model) -> list[str]:
     return out
 
 
-def _grown(a: np.ndarray, size: int) -> np.ndarray:
-    """``a`` if it has at least ``size`` rows, else a new array of twice that
-    (geometric growth: no allocation per step in the steady state)."""
-    if a.shape[0] >= size:
-        return a
-    return np.empty((2 * size,) + a.shape[1:], a.dtype)
-
-
 class Collider:
     """The narrow phase's buffers for one model and :meth:`run`, which
     collides every candidate pair in one compiled call

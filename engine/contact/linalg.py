@@ -24,6 +24,10 @@ import math
 import numpy as np
 from numba import njit
 
+#: Tikhonov regularisation of the direct start's normal matrix, relative to
+#: its largest diagonal entry (the dense and the sparse solve alike)
+EPS_REL = 1e-10
+
 
 @njit(cache=True, inline="always")
 def _dot6(x, i0, y, j0, i, j):

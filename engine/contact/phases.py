@@ -27,9 +27,7 @@ from numba import njit
 from engine.contact import linalg, sweeps, warm
 from engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
 
-#: direct-start policy constants, mirrored from engine.contact.rows (the
-#: solve passes its module's current values at every call)
-_EPS_REL = 1e-10
+_EPS_REL = linalg.EPS_REL  # a module global: numba compiles it in as a constant
 
 
 @njit(cache=True, inline="always")

@@ -56,10 +56,10 @@ STOP_MAX_RESIDUAL = 1e-4  # friction stops only from a solve whose last sweep ch
 
 def dense_direct_solve(K: np.ndarray, r: np.ndarray, act: np.ndarray, passes: int):
     """The dense direct start's active-set solves (compiled,
-    :func:`engine.contact.linalg.dense_active_set`, Tikhonov 1e-10 of the
+    :func:`engine.contact.linalg.dense_active_set`, Tikhonov ``linalg.EPS_REL`` of the
     largest diagonal): (lambda (m,) >= 0, ok, whether the last pass still
     pulled on a row and was clipped)."""
-    return linalg.dense_active_set(K, r, act, 1e-10, passes)
+    return linalg.dense_active_set(K, r, act, linalg.EPS_REL, passes)
 
 
 def _pad(a: np.ndarray) -> np.ndarray:
@@ -190,6 +190,15 @@ class Rows:
     MtA = property(lambda self: self.Mt[:, :, :6], doc="(np, nr, 6) body a's M^-1 Jt^T rows")
     MtB = property(lambda self: self.Mt[:, :, 6:], doc="(np, nr, 6) body b's M^-1 Jt^T rows")
 
+    def rebind(self, c: Contacts, X: np.ndarray, idx: np.ndarray) -> None:
+        """Reuse these rows for another step's contacts ``c`` (same topology
+        and work arrays): its positions X (n, 3) and row order ``idx`` (m,);
+        the row-ordered contacts are taken again when asked for."""
+        self.idx = idx
+        self._c = c
+        self._X = X
+        self.__dict__.pop("_cs", None)
+
     @property
     def contacts(self) -> Contacts:
         """The rows' contacts, in row order (gathered on first use)."""
@@ -257,7 +266,7 @@ class Rows:
         (Tikhonov-regularised), exploiting that K couples each row only
         with the rows of its two bodies: (lambda (m,), ok)
         (:func:`engine.contact.linalg.spd_solve_sparse`)."""
-        return linalg.spd_solve_sparse(self.J, self.M, self.a, self.b, self.world, r, act, 1e-10)
+        return linalg.spd_solve_sparse(self.J, self.M, self.a, self.b, self.world, r, act, linalg.EPS_REL)
 
     def k_times(self, lam: np.ndarray) -> np.ndarray:
         """K lam (m,) without forming K."""

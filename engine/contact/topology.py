@@ -112,7 +112,6 @@ class Topology:
         self.codes = _pair_codes_abs(model, a, b, sidx)
         self.code_order = np.argsort(self.codes, kind="stable")
         sc = self.codes[self.code_order]
-        self.sorted_codes = sc
         self.code_first = np.flatnonzero(np.concatenate([[True], sc[1:] != sc[:-1]]))
         self.uniq_codes = sc[self.code_first]
         #: first row (in row order) of each distinct pair, = np.unique's return_index
@@ -145,12 +144,6 @@ class Topology:
         #: first row of each patch (patch order)
         self.pfirst = first[porder]
         self.cnt = np.bincount(pid, minlength=npch).astype(float)
-        #: bins (patch, component) of the rows' points and normals
-        self.pn_bins = (pid[:, None] * 6 + np.arange(6)).ravel()
-        self.pslices = [(int(pbounds[i]), int(pbounds[i + 1])) for i in range(len(pbounds) - 1)
-                        if pbounds[i + 1] > pbounds[i]]
-        self.pima = model.inv_mass[self.pa]
-        self.pimb = model.inv_mass[self.pb]
         #: patch of each distinct pair (uniq_codes order)
         self.uniq_pid = pid[self.uniq_first]
         self.mus = self.muk = self.mur = None  # pair coefficients, from the first contacts seen
