@@ -129,10 +129,10 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     """The broad-phase pairs whose gap may change by more than ``lim`` (m)
     between the start and end poses, with the end pose's rotations, from
     one compiled call (:func:`engine.flight.end_pose_pairs`) into buffers
-    kept in the context: ((body pairs i, j), (plane pairs body, row),
-    (static-box pairs body, row), margins (-lim each, as long as the
-    longest), R1 (n, 3, 3)), every array a view of a buffer valid until the
-    next call; None when no pair moved that far.
+    kept in the context (``Context.end_pose_buffers``): ((body pairs i, j),
+    (plane pairs body, row), (static-box pairs body, row), R1 (n, 3, 3)),
+    every array a view of a buffer valid until the next call; None when no
+    pair moved that far.
 
     A body's end displacement, |x1 - x0| + 2 sin(theta/2) r (theta the
     turn between the two orientations, cos(theta/2) = |q0 . q1|, r the
@@ -151,19 +151,13 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    buf = ctx.info.get("ccd_end_pose")
-    m = max(pi.size, bp.size, bs.size, 1)
-    if buf is None or buf[0].shape[0] < m:
-        i = np.empty(2 * m, np.int64)
-        buf = ctx.info["ccd_end_pose"] = (i, i.copy(), i.copy(), i.copy(), i.copy(), i.copy(), np.empty(2 * m),
-                                           np.empty(model.n), np.empty((model.n, 3, 3)))
-    ci, cj, cbp, cpk, cbs, csk, mg, sw, R1 = buf
+    ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
     nb, npl, ns = flight.end_pose_pairs(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, lim,
                                         fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs,
-                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, mg, R1)
+                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, R1)
     if not nb + npl + ns:
         return None
-    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), mg, R1
+    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
@@ -236,9 +230,9 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     moved = end_pose_pairs(model, state, ctx, lim, fast)
     if moved is None:
         return []
-    (ci, cj), planes, sboxes, mg, R1 = moved
-    c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes,
-                                  margins=(mg[:ci.size], mg[:planes[0].size], mg[:sboxes[0].size]))
+    (ci, cj), planes, sboxes, R1 = moved
+    # every pair's margin -lim (-lim + 0 + 0: the same bits)
+    c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes, margin=-lim, sweep=ctx.no_sweep)
     if c.m == 0:
         return []
     code = _pair_codes(model, c)

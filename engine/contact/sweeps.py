@@ -14,14 +14,35 @@ friction coefficients ``mu`` (np,), twist radii ``rt`` (np,), rolling
 coefficients ``mur`` (np,), and the pins of :meth:`Rows.stop_times`
 (``pin_t`` (np,) bool with unit directions ``dir_t`` (np, 2); ``pin_r``,
 ``dir_r`` for the rolling rows).
+
+Work arrays: ``wk`` (>= :func:`work_size` (m, np, nr),) float64, kept by the
+caller (no allocation per sweep or per solve): the last sweep's impulses,
+the patches' normal impulses and one patch's new impulses
+(:func:`work_layout`).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
+
+
+def work_size(m: int, npch: int, nr: int) -> int:
+    """Length of the sweeps' work array ``wk`` for m normal rows and npch
+    patches of nr rows (see :func:`work_layout`)."""
+    return m + npch * nr + 2 * npch + 5
+
+
+@njit(cache=True, inline="always")
+def work_layout(wk, m, npch, nr):
+    """The views of ``wk``: the normal impulses before a sweep (m,), the
+    patch impulses before it (np * nr,) flat, the patches' normal impulses
+    of a friction sweep (np,), one patch's new impulses (5,), and the
+    patches' normal impulses of the static/kinetic switch (np,)."""
+    o1 = m + npch * nr
+    o2 = o1 + npch
+    return wk[:m], wk[m:o1], wk[o1:o2], wk[o2:o2 + 5], wk[o2 + 5:o2 + 5 + npch]
 
 
 @njit(cache=True, inline="always")
@@ -134,16 +155,16 @@ def _onto_disc(new, i, lim, pinned, d):
 
 
 @njit(cache=True)
-def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world):
+def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn, new):
     """One sweep of the friction patches: tangent and twist rows (Coulomb
     disc mu Fn, twist limit mu Fn r_twist), then the rolling rows (disc
-    mu_r Fn), Fn the patch's normal impulse at the start of the sweep."""
+    mu_r Fn), Fn the patch's normal impulse at the start of the sweep.
+    ``Fn`` (np,) and ``new`` (>= nr,) work arrays."""
     npch = lam_t.shape[0]
     nr = lam_t.shape[1]
-    Fn = np.zeros(npch)
+    Fn[:] = 0.0
     for i in range(pid.shape[0]):
         Fn[pid[i]] += lam_n[i]
-    new = np.empty(nr)
     for p in range(npch):
         _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
         lim = mu[p] * Fn[p]
@@ -160,28 +181,32 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
 
 @njit(cache=True)
 def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt, mur,
-            pin_t, dir_t, pin_r, dir_r, iterations, tol, world):
+            pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk):
     """Sweeps of friction (patches) then normal rows until no impulse
     changes by more than ``tol`` times the largest normal impulse in a
-    sweep.  Returns (sweeps done, the last sweep's largest change relative
-    to the largest normal impulse)."""
+    sweep; ``wk`` the work array (module doc).  Returns (sweeps done, the
+    last sweep's largest change relative to the largest normal impulse)."""
     m = lam_n.shape[0]
-    prev_n = np.empty(m)
-    prev_t = np.empty(lam_t.shape)
+    npch = lam_t.shape[0]
+    nr = lam_t.shape[1]
+    prev_n, prev_t, Fn, new, _ = work_layout(wk, m, npch, nr)
     residual = 0.0
     for it in range(iterations):
         prev_n[:] = lam_n
         if friction:
-            prev_t[:] = lam_t
-            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world)
+            for p in range(npch):
+                for r in range(nr):
+                    prev_t[p * nr + r] = lam_t[p, r]
+            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn,
+                          new)
         normal_pass(U, ab, J, M, mn, lam_n, target, world)
         change = 0.0
         for i in range(m):
             change = max(change, abs(lam_n[i] - prev_n[i]))
         if friction:
-            for p in range(lam_t.shape[0]):
-                for r in range(lam_t.shape[1]):
-                    change = max(change, abs(lam_t[p, r] - prev_t[p, r]))
+            for p in range(npch):
+                for r in range(nr):
+                    change = max(change, abs(lam_t[p, r] - prev_t[p * nr + r]))
         scale = 0.0
         for i in range(m):
             scale = max(scale, lam_n[i])
@@ -192,10 +217,11 @@ def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_
 
 
 @njit(cache=True)
-def iterate_normal(U, ab, J, M, mn, lam, target, iterations, tol, world):
-    """Normal rows only, with their own accumulator (split impulse)."""
+def iterate_normal(U, ab, J, M, mn, lam, target, iterations, tol, world, wk):
+    """Normal rows only, with their own accumulator (split impulse);
+    ``wk`` (>= m,) work array."""
     m = lam.shape[0]
-    prev = np.empty(m)
+    prev = wk[:m]
     for _ in range(iterations):
         prev[:] = lam
         normal_pass(U, ab, J, M, mn, lam, target, world)
