@@ -318,6 +318,49 @@ class Solve(Stage):
                      sliding_any)
         return True
 
+    def store_on(self, model, h: float) -> bool:
+        """Whether a (sub)step of length h stores its forces for the next."""
+        return h >= WARM_MIN_STEP * model.h
+
+    def fused_args(self, model, state, ctx, h, store_on):
+        """What :func:`engine.steady.steady_kernel` hands to
+        phases.classify_stage (as :meth:`_fast_path` does), assuming the
+        step's contacts are the last solve's in number and graph (the
+        kernel checks): (kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any,
+        warm_on, the warm cache written or None), or None when this stage
+        keeps no steady solve (the last one had an impact row, another
+        graph, the phase-by-phase flag)."""
+        fast = self._fast
+        if fast is None or PHASE_BY_PHASE:
+            return None
+        cl, topo, c = fast
+        prep = self._prep
+        sc = ctx.scratch
+        if (prep[0] is not topo or sc.peek(prep[4]) is not prep[1]
+                or sc.peek(("classify", c.m)) is not cl):
+            return None
+        old = state.warm
+        warm_any = old is not None
+        out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
+        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, prep[3],
+                old.kept if warm_any else _no_cache(), out.kept if store_on else _no_cache(), self._contacts(c),
+                topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
+
+    def fused_finish(self, model, state, ctx, out, store_on, sweeps, residual) -> None:
+        """After a steady solve in the fused step: what :meth:`_fast_path`
+        and :meth:`_finish` do after phases.classify_stage (no friction stop
+        candidate, no Baumgarte bias: the fused step's plan)."""
+        cl, topo, c = self._fast
+        rows = self._prep[2]
+        rows.rebind(c, state.x, topo.order)
+        rows.residual = residual
+        rows.sweeps = sweeps
+        state.warm = out if store_on else None
+        ctx.rows = rows
+        ctx.impacts = None
+        ctx.profile.count("contact_rows", rows.m)
+        ctx.profile.count("solver_sweeps", sweeps)
+
     def __call__(self, model, state, ctx) -> None:
         n = model.n
         h = ctx.h
@@ -409,7 +452,7 @@ class Solve(Stage):
                                                          sc, store_on)
             # the next steady step may run as one call (_fast_path) while the
             # contact graph and these packs stay
-            self._fast = (cl, topo) if nimp == 0 else None
+            self._fast = (cl, topo, c) if nimp == 0 else None
         self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
 
     def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any) -> None:

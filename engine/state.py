@@ -210,6 +210,12 @@ class Context:
         # x1, q1, v, w from the state; F, T, vp, wp zeroed; R0 and
         # I_world^-1 = R diag(1/I) R^T (world row zero): one compiled call
         _begin_packed(self.kept(state))
+        self.reset(state, h)
+
+    def reset(self, state: State, h: float) -> None:
+        """The Python side of :meth:`begin` (a compiled caller that began
+        the step itself calls only this)."""
+        self.h = h
         self.event = None
         self.impacts = None
         self.stop = None

@@ -88,6 +88,18 @@ class Collider:
         self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
                     np.empty(m), np.empty(m), np.empty(m), np.empty(m))
 
+    def packed(self):
+        """The buffers as one Pack (engine/pack.py), kept while they stay."""
+        return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
+                              self.slot, self.out))
+
+    def last_contacts(self, cnt: int) -> Contacts | None:
+        """The Contacts :meth:`run` last returned when it had ``cnt``
+        contacts in the present buffers (the views of a call made into the
+        same buffers by a compiled caller, engine/steady.py), else None."""
+        last = self._contacts
+        return last[2] if last is not None and last[0] == cnt and last[1] is self.out else None
+
     def run(self, X, R, pi, pj, plane_pairs, sbox_pairs, margins=None, margin: float = 0.0,
             sweep: np.ndarray | None = None) -> Contacts:
         """Contacts for candidate pairs at the pose (X (n, 3), R (n, 3, 3)).
@@ -110,8 +122,7 @@ class Collider:
         else:
             sweep = self.W[6]
         while True:
-            kept = self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                                  self.slot, self.out))
+            kept = self.packed()
             cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
                                                  sweep, box.EDGE_FACE_POINTS)
             short = False
