@@ -34,6 +34,7 @@ the fused call as the stage ``steady_step``.
 from __future__ import annotations
 
 import time
+from operator import is_
 
 import numpy as np
 from numba import njit
@@ -46,7 +47,8 @@ from engine.control import EventMode
 from engine.flight import begin_step, end_pose_pairs, free_flight, gravity, integrate_positions
 from engine.forces import Gravity
 from engine.integrate import IntegratePositions, IntegrateVelocities
-from engine.pack import KeptPack
+from engine import solver as _S
+from engine.pack import Pack
 from engine.solver import Solve
 
 DONE, FAIL, CCD = 0, 1, 2
@@ -59,18 +61,19 @@ NAME = "steady_step"
 
 
 @njit(cache=True)
-def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, flags, reals):
+def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, flags, step_flags, reals):
     """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
     free flight's, ``kbr`` the broad phase's and the end-pose check's,
     ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
     ... ``idx`` the solve stage's (phases.classify_stage); ``flags`` and
-    ``reals`` the plan's settings (:meth:`SteadyStep.run`).  Returns
+    ``reals`` the plan's settings, ``step_flags`` this step's
+    (:meth:`SteadyStep.run`).  Returns
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
-    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, warm_any, warm_on, store_on,
-     stops_gate, ccd_check, has_fast, relax_on, direct, friction, rolling, iterations, passes, max_rows,
-     face_points) = flags
+    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
+     rolling, iterations, passes, max_rows, face_points) = flags
+    warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
     mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
@@ -156,8 +159,8 @@ class SteadyStep:
         self.fast = np.zeros(n, np.bool_)
         self.no_sweep = np.zeros(n)
         self.mg = self.gravity.mg if self.gravity is not None else np.zeros((n, 3))
-        self._kf = KeptPack()
-        self._kbr = KeptPack()
+        self._kf = self._kf_ctx = None
+        self._kbr = self._kbr_key = None
         self.backoff = 0  # steps to run staged before trying again (after a FAIL)
         self.wait = 0
 
@@ -180,19 +183,42 @@ class SteadyStep:
             return None
         return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None)
 
-    def _flight_pack(self, state, ctx):
-        n = ctx.x1.shape[0]
-        fly = self.fly
-        return self._kf.of((self.mg, fly.fm, fly.inv_m, ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free, fly._w0,
-                            ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n]))
+    def _flight_pack(self, ctx):
+        """The free flight's arrays (and the context's views over its first
+        n rows) as one Pack, kept per context."""
+        if self._kf_ctx is not ctx:
+            n = ctx.x1.shape[0]
+            fly = self.fly
+            self._kf = Pack((self.mg, fly.fm, fly.inv_m, ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free, fly._w0,
+                             ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n]))
+            self._kf_ctx = ctx
+        return self._kf
 
     def _broad_pack(self, ctx):
+        """The broad phase's, the narrow phase's margins and the end-pose
+        check's arrays as one Pack, kept while none of its buffers grew."""
         b, col = self.broad, self.narrow.collider
         P = b.pairs
         ep = ctx.end_pose_buffers(max(P.pi.size, b.bp.size, b.bs.size))
-        return self._kbr.of((b.shape,) + b.geom + (b.R1,) + b.planes + b.sbox + (
-            b.lo, b.hi, ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, b.bp, b.pk, b.bs, b.sk, col.margins,
-            self.no_sweep, self.fast, self.fast_min) + ep)
+        key = (ctx, P.pi, P.order, P.state, P.grid, b.bp, b.bs, col.margins, ep)
+        if self._kbr_key is None or not all(map(is_, key, self._kbr_key)):
+            self._kbr = Pack((b.shape,) + b.geom + (b.R1,) + b.planes + b.sbox + (
+                b.lo, b.hi, ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, b.bp, b.pk, b.bs, b.sk,
+                col.margins, self.no_sweep, self.fast, self.fast_min) + ep)
+            self._kbr_key = key
+        return self._kbr
+
+    def _settings(self, model):
+        """The kernel's flags and reals that do not change from step to step
+        (the solver's policy constants read at each call, as the stage does)."""
+        fly, b, solve = self.fly, self.broad, self.solve
+        flags = (self.gravity is not None, fly.code, bool(fly.forces), fly.constant, fly.torque, b.sap,
+                 self.narrow.speculative, model.n_statics, solve.correction != "none", solve.direct, solve.friction,
+                 bool(solve.friction and model.rolling), solve.iterations, _S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS,
+                 box.EDGE_FACE_POINTS)
+        reals = (float(fly.c), b.margin, solve.thr, solve.beta, solve.slop, _S.RESTING_SPEED, _S.SLIP_TOL,
+                 _S.STOP_MAX_RESIDUAL, self.lim, _S.ROLL_TOL)
+        return flags, reals
 
     def ready(self) -> bool:
         """Whether the next (mini-)step tries the fused call (not while
@@ -217,19 +243,13 @@ class SteadyStep:
         col = self.narrow.collider
         if col.last_contacts(c.m) is not c:
             return FAIL
-        fly, b = self.fly, self.broad
-        ccd_check = self.ccd is not None and ctx.event_mode is EventMode.EVENT
-        stops_gate = bool(solve.friction and ctx.stop_allowed and solve.stops)
-        flags = (self.gravity is not None, fly.code, bool(fly.forces), fly.constant, fly.torque, b.sap,
-                 self.narrow.speculative, model.n_statics, warm_any, warm_on, store_on, stops_gate, ccd_check,
-                 self.has_fast, solve.correction != "none", solve.direct, solve.friction,
-                 bool(solve.friction and model.rolling), solve.iterations, _solver().ACTIVE_SET_PASSES,
-                 _solver().DIRECT_MAX_ROWS, box.EDGE_FACE_POINTS)
-        reals = (float(fly.c), b.margin, solve.thr, solve.beta, solve.slop, _solver().RESTING_SPEED,
-                 _solver().SLIP_TOL, _solver().STOP_MAX_RESIDUAL, self.lim, _solver().ROLL_TOL)
+        b = self.broad
+        step_flags = (warm_any, warm_on, store_on, bool(solve.friction and ctx.stop_allowed and solve.stops),
+                      self.ccd is not None and ctx.event_mode is EventMode.EVENT, self.has_fast)
+        flags, reals = self._settings(model)
         status, nbb, npl, nsb, cnt, sw, res = steady_kernel(
-            ctx.kept(state), self._flight_pack(state, ctx), self._broad_pack(ctx), col.packed(), kc, kx, kt, kw, ko,
-            kq, kk, key, idx, float(h), flags, reals)
+            ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), col.packed(), kc, kx, kt, kw, ko, kq, kk,
+            key, idx, float(h), flags, step_flags, reals)
         if status == FAIL:
             # not steady: stage by stage, and the next tries wait (1, 2, 4,
             # ... 64 steps while they keep failing)
@@ -254,12 +274,6 @@ def _miss_tol() -> float:
     from engine.ccd import MISS_TOL
 
     return float(MISS_TOL)
-
-
-def _solver():
-    from engine import solver
-
-    return solver
 
 
 def warm_up() -> None:
