@@ -83,21 +83,58 @@ def apply_patches(U, pab, Mt, d, world):
                 U[ib, k] += sb
 
 
+@njit(cache=True, inline="always")
+def _row_update(U, ia, ib, J, mn, lam, target, i):
+    """Row i's new accumulated impulse (lam[i] set) and its change:
+    J[i] . [U[ia] | U[ib]] summed in order (the a side, then the b side)."""
+    vn = 0.0
+    for k in range(6):
+        vn += J[i, k] * U[ia, k]
+    for k in range(6):
+        vn += J[i, 6 + k] * U[ib, k]
+    old = lam[i]
+    new = max(old - mn[i] * (vn - target[i]), 0.0)
+    lam[i] = new
+    return new - old
+
+
 @njit(cache=True)
 def normal_pass(U, ab, J, M, mn, lam, target, world):
-    """One sweep of the normal rows: lam >= 0, J U >= target."""
-    for i in range(lam.shape[0]):
+    """One sweep of the normal rows: lam >= 0, J U >= target.  Two
+    consecutive rows on no common dynamic body (rows of one colour) are
+    done side by side: neither reads what the other writes, each sums as
+    alone, so the result is the row-by-row sweep's bit for bit, with two
+    dependency chains in flight instead of one."""
+    m = lam.shape[0]
+    i = 0
+    while i < m:
         ia = ab[i, 0]
         ib = ab[i, 1]
-        vn = 0.0
-        for k in range(6):
-            vn += J[i, k] * U[ia, k]
-        for k in range(6):
-            vn += J[i, 6 + k] * U[ib, k]
-        old = lam[i]
-        new = max(old - mn[i] * (vn - target[i]), 0.0)
-        lam[i] = new
-        add_row(U, ia, ib, M, i, new - old, world)
+        if i + 1 < m:
+            ja = ab[i + 1, 0]
+            jb = ab[i + 1, 1]
+            if ((ja == world or (ja != ia and ja != ib)) and (jb == world or (jb != ia and jb != ib))):
+                v1 = 0.0
+                v2 = 0.0
+                for k in range(6):
+                    v1 += J[i, k] * U[ia, k]
+                    v2 += J[i + 1, k] * U[ja, k]
+                for k in range(6):
+                    v1 += J[i, 6 + k] * U[ib, k]
+                    v2 += J[i + 1, 6 + k] * U[jb, k]
+                o1 = lam[i]
+                n1 = max(o1 - mn[i] * (v1 - target[i]), 0.0)
+                lam[i] = n1
+                o2 = lam[i + 1]
+                n2 = max(o2 - mn[i + 1] * (v2 - target[i + 1]), 0.0)
+                lam[i + 1] = n2
+                add_row(U, ia, ib, M, i, n1 - o1, world)
+                add_row(U, ja, jb, M, i + 1, n2 - o2, world)
+                i += 2
+                continue
+        d = _row_update(U, ia, ib, J, mn, lam, target, i)
+        add_row(U, ia, ib, M, i, d, world)
+        i += 1
 
 
 @njit(cache=True, inline="always")
@@ -114,11 +151,32 @@ def row_velocity(Jt, U, p, r, ia, ib):
 
 @njit(cache=True, inline="always")
 def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
-    """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected)."""
+    """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected),
+    r1 - r0 = 3 (tangent, tangent, twist) or 2 (rolling): each row's
+    velocity summed as :func:`row_velocity` sums it, the rows' sums side by
+    side (independent chains, the same bits)."""
     ia = pab[p, 0]
     ib = pab[p, 1]
-    for r in range(r0, r1):
-        new[r] = lam_t[p, r] - mt[p, r] * row_velocity(Jt, U, p, r, ia, ib)
+    three = r1 - r0 == 3
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for k in range(6):
+        u = U[ia, k]
+        v0 += Jt[p, r0, k] * u
+        v1 += Jt[p, r0 + 1, k] * u
+        if three:
+            v2 += Jt[p, r0 + 2, k] * u
+    for k in range(6):
+        u = U[ib, k]
+        v0 += Jt[p, r0, 6 + k] * u
+        v1 += Jt[p, r0 + 1, 6 + k] * u
+        if three:
+            v2 += Jt[p, r0 + 2, 6 + k] * u
+    new[r0] = lam_t[p, r0] - mt[p, r0] * v0
+    new[r0 + 1] = lam_t[p, r0 + 1] - mt[p, r0 + 1] * v1
+    if three:
+        new[r0 + 2] = lam_t[p, r0 + 2] - mt[p, r0 + 2] * v2
 
 
 @njit(cache=True, inline="always")
