@@ -178,7 +178,7 @@ def _cost_html(ct: pd.DataFrame) -> str:
         if r["reached"]:
             cfg = _e(r["settings"] or f"dt={fmt(r['dt'])}")
             if r["cost_bound"]:
-                cfg += (f"<br><span class='note'>reached at the coarsest dt swept ({_e(r['coarse_open'])}): "
+                cfg += (f"<br><span class='note'>reached at the coarsest dt swept, {_e(r['coarse_open'])}: "
                         "coarser steps not measured</span>")
             rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(_cost_text(r)),
                          _e(_ratio_text(r))])
