@@ -142,6 +142,7 @@ def test_cost_to_target_is_an_upper_bound_where_the_coarsest_dt_swept_reaches(tm
     ct = rp.cost_to_target(df, targets={FAKE: 0.02}).set_index("engine")
     ref, pb, mj, pm = (ct.loc[e] for e in ("reference", "pybullet", "mujoco", "pymunk"))
     assert bool(ref["cost_bound"]) and ref["dt"] == 0.004 and "dt=0.004" in ref["coarse_open"]
+    assert ref["step_us"] == pytest.approx(0.5 * 0.004 * 1e6) and math.isnan(ct.loc["pymunk", "step_us"])
     assert "coarser steps not measured" in ref["note"]
     assert not bool(pb["cost_bound"]) and pb["dt"] == 0.002 and pb["coarse_open"] == ""
     assert not bool(mj["cost_bound"]) and mj["dt"] == 0.002

@@ -260,10 +260,13 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
     engine's cost is a bound and the cheapest's is not, ``\u2265`` the
     reverse, ``?`` both are bounds (the ratio is neither); the cheapest
     engine's own ratio is 1 (``=``).  ``note`` says it in words.
+    ``step_us``: the reached point's CPU microseconds per step (cost x dt
+    x 1e6): where two engines reach the target at the same dt, their ratio
+    is the ratio of these.
     """
     df = _ensure(df)
     cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
-            "settings", "dt", "cost", "error", "ratio", "best_error", "best_error_settings", "points",
+            "settings", "dt", "cost", "step_us", "error", "ratio", "best_error", "best_error_settings", "points",
             "cost_bound", "coarse_open", "fine_open", "ratio_bound", "note"]
     pts = _unshifted(latest_points(df))
     if pts.empty:
@@ -286,13 +289,14 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
         if under:
             best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
             row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
-                       error=best["primary_error"], best_error=math.nan, best_error_settings="")
+                       step_us=best["cost"] * best["dt"] * 1e6, error=best["primary_error"], best_error=math.nan,
+                       best_error_settings="")
             if ends["coarse"]:
                 row["cost_bound"] = True
                 row["note"] = (f"upper bound: reached at the coarsest dt swept, {row['coarse_open']}; "
                                "coarser steps not measured")
         else:
-            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, error=math.nan)
+            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, step_us=math.nan, error=math.nan)
             row["fine_open"] = _ends_text(ends["fine"])
             if good:
                 b = min(good, key=lambda r: r["primary_error"])

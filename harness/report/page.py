@@ -181,7 +181,7 @@ def _cost_html(ct: pd.DataFrame) -> str:
                 cfg += (f"<br><span class='note'>reached at the coarsest dt swept, {_e(r['coarse_open'])}: "
                         "coarser steps not measured</span>")
             rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(_cost_text(r)),
-                         _e(_ratio_text(r))])
+                         _e(fmt(r["step_us"])), _e(_ratio_text(r))])
         else:
             best = (f"best error {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
                                                              if r["best_error_settings"] else "")
@@ -189,15 +189,16 @@ def _cost_html(ct: pd.DataFrame) -> str:
             where = ("<br><span class='note'>at the finest dt swept: finer steps not measured</span>"
                      if r["fine_open"] else "")
             rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached within the grid</span>",
-                         _e(best) + where, "-", "-"])
+                         _e(best) + where, "-", "-", "-"])
     return ('<p class="note">The cheapest configuration (latest sweep) whose primary error is at most the '
             "target, its cost and its cost relative to the cheapest engine that reaches the target. "
             "&le; marks an upper bound: the engine reaches the target at the coarsest dt the sweep offers "
             "(on the line named), so coarser steps, not measured, may reach it for less; a ratio with "
             "&le; is an upper bound, &ge; a lower bound (the cheapest engine's cost is the bound), "
-            "~ (?) neither (both costs are bounds).</p>"
+            "~ (?) neither (both costs are bounds). Where two engines reach the target at the same dt, their "
+            "ratio is that of their CPU &micro;s per step.</p>"
             + _table(["scenario", "engine", "target", "cheapest configuration", "error", "CPU s / sim s",
-                      "vs cheapest"], rows, raw=True))
+                      "CPU \u00b5s / step", "vs cheapest"], rows, raw=True))
 
 
 def _rung(t: float) -> str:
