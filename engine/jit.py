@@ -111,10 +111,8 @@ def warm_up() -> float:
     _warm_flight()
     from engine.collision import dispatch
     dispatch.warm_up()  # the broad and narrow phases' kernels
-    _READY = True  # (the steady step's warm-up builds a pipeline: no recursion)
-    from engine import steady
-    steady.warm_up()
     dt = time.perf_counter() - t0
+    _READY = True
     add_jit_seconds(dt)
     return dt
 

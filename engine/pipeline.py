@@ -15,6 +15,7 @@ which counts calls and time per stage (see profile.py).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,15 +25,15 @@ from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, 
 from engine.flight import max_turn_sq
 from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
-from engine.model import BOX, CAPSULE, CYLINDER, Model
+from engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
 from engine.collision import NarrowPhase
 from engine.control import EventMode
 from engine.broadstage import BroadPhase
 from engine.penalty import PenaltyContacts
-from engine.profile import Profile, Stage
+from engine.profile import Profile, Stage, add_jit_seconds
 from engine.solver import Solve, _pair_codes_abs
 from engine.state import Context, State
-from engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep
+from engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
 
 
 def force_stages(model: Model) -> tuple[Stage, ...]:
@@ -74,7 +75,31 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     stages.append(IntegratePositions(model))
     if contact and not penalty and model.setting("ccd") != "off":
         stages += [CCD(model), Impact(model)]
+    if SteadyStep.build(model, stages) is not None:
+        _warm_steady(model)
     return tuple(stages)
+
+
+_STEADY_READY = [False]
+
+
+def _warm_steady(model: Model) -> None:
+    """Compile (or load) the fused steady step (engine/steady.py) once per
+    process, at build like every kernel (engine/jit.py): a few steps of
+    :func:`engine.steady.warm_scene` with this model's settings; the
+    seconds count as JIT time."""
+    if _STEADY_READY[0]:
+        return
+    _STEADY_READY[0] = True
+    t0 = time.perf_counter()
+    m = build_model(warm_scene(), {**model.settings, "dt": 1 / 240})
+    stages = build_pipeline(m)
+    st = State.from_model(m)
+    prof = Profile()
+    add_jit_seconds(prof.jit_s)  # (the Profile took them: they stay pending for the caller's)
+    for _ in range(4):
+        step(m, st, stages, prof)
+    add_jit_seconds(time.perf_counter() - t0)
 
 
 def context(model: Model, state: State, profile: Profile) -> Context:

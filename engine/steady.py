@@ -50,6 +50,7 @@ from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.pack import Pack
 from engine.solver import Solve
+from engine.state import _commit_packed
 
 DONE, FAIL, CCD = 0, 1, 2
 
@@ -131,14 +132,7 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, fl
                                        R1_end)
         if nb + nplm + nsm:
             return CCD, nbb, npl, nsb, cnt, sweeps, residual
-    # state.Context.commit
-    for i in range(x.shape[0]):
-        for c in range(3):
-            x[i, c] = x1[i, c]
-            v[i, c] = V[i, c]
-            w[i, c] = W[i, c]
-        for c in range(4):
-            q[i, c] = q1[i, c]
+    _commit_packed(kb)  # state.Context.commit
     return DONE, nbb, npl, nsb, cnt, sweeps, residual
 
 
@@ -276,11 +270,11 @@ def _miss_tol() -> float:
     return float(MISS_TOL)
 
 
-def warm_up() -> None:
-    """Compile (or load) :func:`steady_kernel` with the step's argument
-    types: two boxes resting on a plane, stepped until the fused call ran
-    (see engine/jit.py; the caller has marked the other kernels ready)."""
-    from engine import Engine
+def warm_scene():
+    """Two boxes resting on a plane (an engine.model.SceneInput): the scene
+    whose first steps compile (or load) :func:`steady_kernel` with the
+    step's argument types (engine.pipeline.build_pipeline, once per
+    process)."""
     from engine.model import SceneInput
 
     n = 2
@@ -289,16 +283,14 @@ def warm_up() -> None:
     q = f((n, 4))
     q[:, 0] = 1.0
     one = np.ones((1, 1))
-    inp = SceneInput(
+    return SceneInput(
         dt=1 / 240, effects=frozenset({"gravity", "contact", "friction"}), gravity=np.array([0.0, 0.0, -9.81]),
-        shape=("box", "box"), mass=np.ones(n), inertia=np.full((n, 3), 1 / 150), radius=z, half_extents=np.full((n, 3), 0.1),
-        half_length=z, bound_radius=np.full(n, 0.1 * 3 ** 0.5), min_extent=np.full(n, 0.1), drag_linear=z,
-        drag_quadratic=z, material=np.zeros(n, np.int64), x=np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]]), q=q,
-        v=f((n, 3)), w=f((n, 3)), static_shape=("plane",), static_material=np.zeros(1, np.int64),
-        static_normal=np.array([[0.0, 0.0, 1.0]]), static_offset=f(1), static_position=f((1, 3)),
-        static_orientation=np.array([[1.0, 0.0, 0.0, 0.0]]), static_half_extents=f((1, 3)),
-        spring_a=np.zeros(0, np.int64), spring_b=np.zeros(0, np.int64), spring_anchor_a=f((0, 3)),
-        spring_anchor_b=f((0, 3)), spring_k=f(0), spring_rest=f(0), spring_c=f(0), pair_e=0.0 * one,
-        pair_mus=0.5 * one, pair_muk=0.5 * one, pair_mur=0.0 * one)
-    eng = Engine(inp)
-    eng.step(4)
+        shape=("box", "box"), mass=np.ones(n), inertia=np.full((n, 3), 1 / 150), radius=z,
+        half_extents=np.full((n, 3), 0.1), half_length=z, bound_radius=np.full(n, 0.1 * 3 ** 0.5),
+        min_extent=np.full(n, 0.1), drag_linear=z, drag_quadratic=z, material=np.zeros(n, np.int64),
+        x=np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]]), q=q, v=f((n, 3)), w=f((n, 3)), static_shape=("plane",),
+        static_material=np.zeros(1, np.int64), static_normal=np.array([[0.0, 0.0, 1.0]]), static_offset=f(1),
+        static_position=f((1, 3)), static_orientation=np.array([[1.0, 0.0, 0.0, 0.0]]),
+        static_half_extents=f((1, 3)), spring_a=np.zeros(0, np.int64), spring_b=np.zeros(0, np.int64),
+        spring_anchor_a=f((0, 3)), spring_anchor_b=f((0, 3)), spring_k=f(0), spring_rest=f(0), spring_c=f(0),
+        pair_e=0.0 * one, pair_mus=0.5 * one, pair_muk=0.5 * one, pair_mur=0.0 * one)
