@@ -62,16 +62,17 @@ NAME = "steady_step"
 
 
 @njit(cache=True)
-def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, flags, step_flags, reals):
+def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags):
     """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
     free flight's, ``kbr`` the broad phase's and the end-pose check's,
     ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
-    ... ``idx`` the solve stage's (phases.classify_stage); ``flags`` and
-    ``reals`` the plan's settings, ``step_flags`` this step's
-    (:meth:`SteadyStep.run`).  Returns
+    ... ``idx`` the solve stage's (phases.classify_stage); ``ks`` the
+    plan's settings (a Pack of the flags and reals tuples), ``step_flags``
+    this step's (:meth:`SteadyStep.run`).  Returns
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
+    flags, reals = ks.items
     (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
@@ -155,6 +156,7 @@ class SteadyStep:
         self.mg = self.gravity.mg if self.gravity is not None else np.zeros((n, 3))
         self._kf = self._kf_ctx = None
         self._kbr = self._kbr_key = None
+        self._ks = self._ks_key = None
         self.backoff = 0  # steps to run staged before trying again (after a FAIL)
         self.wait = 0
 
@@ -204,7 +206,16 @@ class SteadyStep:
 
     def _settings(self, model):
         """The kernel's flags and reals that do not change from step to step
-        (the solver's policy constants read at each call, as the stage does)."""
+        as one Pack, kept while the solver's policy constants (read at each
+        call, as the stage reads them) stay."""
+        key = (_S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS, _S.RESTING_SPEED, _S.SLIP_TOL, _S.STOP_MAX_RESIDUAL,
+               _S.ROLL_TOL, box.EDGE_FACE_POINTS)
+        if key != self._ks_key:
+            self._ks = Pack(self._constants(model))
+            self._ks_key = key
+        return self._ks
+
+    def _constants(self, model):
         fly, b, solve = self.fly, self.broad, self.solve
         flags = (self.gravity is not None, fly.code, bool(fly.forces), fly.constant, fly.torque, b.sap,
                  self.narrow.speculative, model.n_statics, solve.correction != "none", solve.direct, solve.friction,
@@ -240,10 +251,9 @@ class SteadyStep:
         b = self.broad
         step_flags = (warm_any, warm_on, store_on, bool(solve.friction and ctx.stop_allowed and solve.stops),
                       self.ccd is not None and ctx.event_mode is EventMode.EVENT, self.has_fast)
-        flags, reals = self._settings(model)
         status, nbb, npl, nsb, cnt, sw, res = steady_kernel(
             ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), col.packed(), kc, kx, kt, kw, ko, kq, kk,
-            key, idx, float(h), flags, step_flags, reals)
+            key, idx, float(h), self._settings(model), step_flags)
         if status == FAIL:
             # not steady: stage by stage, and the next tries wait (1, 2, 4,
             # ... 64 steps while they keep failing)
