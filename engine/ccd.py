@@ -38,16 +38,16 @@ contacts: no penetration, but no bounce).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from engine import flight
-from engine.mathutil import quat_to_matrix
-from engine.model import BOX, S_BOX, S_PLANE
+from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
-from engine.collision.dispatch import Collider
+from engine.collision.dispatch import Collider, static_row
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
-from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs, point_normal_velocity
+from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
@@ -167,7 +167,6 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
 
 
 _NO_FAST = np.zeros(0, np.bool_)
-_ORIGIN = np.zeros((1, 3))  # the world's position (statics' lever arms are from the origin)
 
 
 class _Groups:
@@ -309,18 +308,16 @@ def _pairs_contacts(model, ctx, pairs) -> list:
     is ~100 impact pairs checked at every time found, and one call per
     pair cost 1.7 ms a step of spheres_1000's 4.4."""
     n = model.n
-    R1 = quat_to_matrix(ctx.q1)
+    R1 = _rotations(ctx, ctx.q1)
     bi, bj, pa, prow, sa, srow = [], [], [], [], [], []
     for q in pairs:
         if q.sidx < 0:
             bi.append(min(q.a, q.b))
             bj.append(max(q.a, q.b))
-        elif model.static_shape[q.sidx] == S_PLANE:
-            pa.append(q.a)
-            prow.append(int(np.flatnonzero(model.plane_static == q.sidx)[0]))
-        else:
-            sa.append(q.a)
-            srow.append(int(np.flatnonzero(model.sbox_static == q.sidx)[0]))
+            continue
+        plane, row = static_row(model, q.sidx)
+        (pa if plane else sa).append(q.a)
+        (prow if plane else srow).append(row)
     arr = lambda v: np.array(v, np.int64)
     c = collide_pairs(model, ctx.x1, R1, arr(bi), arr(bj), (arr(pa), arr(prow)), (arr(sa), arr(srow)),
                       np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf),
@@ -372,41 +369,121 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
 
     ``contacts``: the pair's contacts at the end pose when already found
     (:func:`_pairs_contacts`)."""
+    R1 = _rotations(ctx, ctx.q1)
     c = contacts
     if c is None:
-        c = pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx, _collider(model, ctx))
+        c = pair_contacts(model, ctx.x1, R1, a, b, sidx, _collider(model, ctx))
     if c.m == 0:
         return np.inf, 0.0
-    gap = c.gap
+    wk = ctx.info.get("ccd_gap_work")
+    if wk is None or wk.shape[0] < c.m:
+        wk = ctx.info["ccd_gap_work"] = np.empty((2 * c.m, 5))
     tol = 0.1 * float(model.bound_radius[a]) + 1e-4
-    p = None
-    if (loc is not None and loc.size) or (exclude is not None and exclude.size):
-        R1 = quat_to_matrix(ctx.q1[a:a + 1])[0]
-        p = np.einsum("ki,ij->kj", c.point - ctx.x1[a], R1)
-    if exclude is not None and exclude.size:
-        gone = np.sum((p[:, None, :] - exclude[None, :, :]) ** 2, axis=-1).min(axis=1) <= tol * tol
-        if gone.all():
+    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
+                _NO_P3 if loc is None else loc, _NO_P3 if exclude is None else exclude,
+                _NO_FID if fids is None else fids, fids is not None, wk)
+
+
+_NO_P3 = np.zeros((0, 3))
+_NO_FID = np.zeros(0, np.int64)
+
+
+def _rotations(ctx, q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of the quaternions q (n, 4) from one
+    compiled call (:func:`engine.flight.q2m`, mathutil.quat_to_matrix's
+    arithmetic) into a buffer kept in the context, valid until the next
+    call."""
+    R = ctx.info.get("ccd_R")
+    if R is None or R.shape[0] != q.shape[0]:
+        R = ctx.info["ccd_R"] = np.empty((q.shape[0], 3, 3))
+    flight.q2m(q, R)
+    return R
+
+
+@njit(cache=True)
+def _gap(point, gap, fid, ca, cb, normal, x1, R, V, W, n, a, tol, loc, excl, fids, has_fids, wk):
+    """:func:`pair_gap`'s arithmetic over a pair's contacts (points,
+    normals (m, 3), gap, fid, a, b (m,)) at the end pose (x1 (n, 3), body
+    a's rotation R (3, 3), padded velocities V, W (n+1, 3)): the points
+    to follow ``loc`` (k, 3), the points to leave out ``excl`` (j, 3) (no
+    rows: none), the feature ids ``fids`` (when ``has_fids``), matching
+    radius ``tol`` (m); ``wk`` (>= m, 5) work rows.  Returns (gap, normal
+    speed) as the numpy form did, bit for bit: the body-frame points summed
+    as einsum "ki,ij->kj" does ((p0 + p1) + p2), the normal speed as
+    einsum "ki,ki->k" ((p0 + p2) + p1) (tests/test_ccd_gap.py)."""
+    m = gap.shape[0]
+    t2 = tol * tol
+    nl, ne = loc.shape[0], excl.shape[0]
+    for i in range(m):
+        wk[i, 3] = gap[i]
+        if nl or ne:
+            d0, d1, d2 = point[i, 0] - x1[a, 0], point[i, 1] - x1[a, 1], point[i, 2] - x1[a, 2]
+            for j in range(3):
+                wk[i, j] = (d0 * R[0, j] + d1 * R[1, j]) + d2 * R[2, j]
+    if ne:
+        kept = False
+        for i in range(m):
+            dmin = np.inf
+            for k in range(ne):
+                e0, e1, e2 = wk[i, 0] - excl[k, 0], wk[i, 1] - excl[k, 1], wk[i, 2] - excl[k, 2]
+                dmin = min(dmin, (e0 * e0 + e1 * e1) + e2 * e2)
+            if dmin <= t2:
+                wk[i, 3] = np.inf
+            else:
+                kept = True
+        if not kept:
             return np.inf, 0.0
-        gap = np.where(gone, np.inf, gap)
-    if loc is not None and loc.size:
-        D2 = np.sum((p[:, None, :] - loc[None, :, :]) ** 2, axis=-1)  # (contacts, followed points)
-        D2[~np.isfinite(gap)] = np.inf
-        best = np.argmin(D2, axis=0)
-        best = best[D2[best, np.arange(loc.shape[0])] <= tol * tol]
-        same = _member(c.fid, fids) & np.isfinite(gap) if fids is not None else None
-        if best.size or (same is not None and same.any()):
-            follow = np.zeros(c.m, bool)
-            follow[best] = True
-            if same is not None:
-                follow |= same
-            gap = np.where(follow, c.gap, np.inf)
-    k = int(np.argmin(gap))
-    n = model.n
-    ka, kb = int(c.a[k]), int(c.b[k])
-    rA = c.point[k:k + 1] - (ctx.x1[ka:ka + 1] if ka < n else _ORIGIN)
-    rB = c.point[k:k + 1] - (ctx.x1[kb:kb + 1] if kb < n else _ORIGIN)
-    vn, _ = point_normal_velocity(ctx.v, ctx.w, c.a[k:k + 1], c.b[k:k + 1], rA, rB, c.normal[k:k + 1])
-    return float(c.gap[k]), float(vn[0])
+    if nl:
+        follow = False
+        for i in range(m):
+            wk[i, 4] = 0.0
+        for k in range(nl):
+            best, bd = 0, np.inf
+            for i in range(m):  # np.argmin: the first nearest, over the rows still in
+                d = np.inf
+                if np.isfinite(wk[i, 3]):
+                    e0, e1, e2 = wk[i, 0] - loc[k, 0], wk[i, 1] - loc[k, 1], wk[i, 2] - loc[k, 2]
+                    d = (e0 * e0 + e1 * e1) + e2 * e2
+                if i == 0 or d < bd:
+                    best, bd = i, d
+            if bd <= t2:
+                wk[best, 4] = 1.0
+                follow = True
+        if has_fids:
+            for i in range(m):
+                if np.isfinite(wk[i, 3]):
+                    for f in fids:
+                        if fid[i] == f:
+                            wk[i, 4] = 1.0
+                            follow = True
+                            break
+        if follow:
+            for i in range(m):
+                wk[i, 3] = gap[i] if wk[i, 4] != 0.0 else np.inf
+    k = 0
+    for i in range(1, m):
+        if wk[i, 3] < wk[k, 3]:
+            k = i
+    ka, kb = ca[k], cb[k]
+    xa0, xa1, xa2 = (x1[ka, 0], x1[ka, 1], x1[ka, 2]) if ka < n else (0.0, 0.0, 0.0)
+    xb0, xb1, xb2 = (x1[kb, 0], x1[kb, 1], x1[kb, 2]) if kb < n else (0.0, 0.0, 0.0)
+    ra0, ra1, ra2 = point[k, 0] - xa0, point[k, 1] - xa1, point[k, 2] - xa2
+    rb0, rb1, rb2 = point[k, 0] - xb0, point[k, 1] - xb1, point[k, 2] - xb2
+    # rel = V[b] + W[b] x rB - V[a] - W[a] x rA (rows.point_normal_velocity)
+    r0 = V[kb, 0] + (W[kb, 1] * rb2 - W[kb, 2] * rb1) - V[ka, 0] - (W[ka, 1] * ra2 - W[ka, 2] * ra1)
+    r1 = V[kb, 1] + (W[kb, 2] * rb0 - W[kb, 0] * rb2) - V[ka, 1] - (W[ka, 2] * ra0 - W[ka, 0] * ra2)
+    r2 = V[kb, 2] + (W[kb, 0] * rb1 - W[kb, 1] * rb0) - V[ka, 2] - (W[ka, 0] * ra1 - W[ka, 1] * ra0)
+    return gap[k], (r0 * normal[k, 0] + r2 * normal[k, 2]) + r1 * normal[k, 1]
+
+
+def warm_up() -> None:
+    """Compile (or load) :func:`_gap` with the step's argument types (see
+    engine/jit.py)."""
+    z3, i1 = np.ones((1, 3)), np.zeros(1, np.int64)
+    V = np.zeros((2, 3))
+    for has in (False, True):
+        _gap(z3, np.ones(1), i1, i1, i1 + 1, z3, z3, np.eye(3), V, V, 1, 0, 0.1, z3 if has else _NO_P3,
+             z3 if has else _NO_P3, i1 if has else _NO_FID, has, np.empty((1, 5)))
 
 
 def refine_toi(model, state, ctx, main_stages, profile) -> float:
@@ -563,7 +640,7 @@ class Impact(Stage):
         self.plastic = str(model.settings["plastic_impacts"])
 
     def __call__(self, model, state, ctx) -> None:
-        R = quat_to_matrix(state.q)
+        R = _rotations(ctx, state.q)
         tol = 10 * TOUCH_TOL
         pi, pj = ctx.pairs_i, ctx.pairs_j
         c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs,
