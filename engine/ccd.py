@@ -38,12 +38,12 @@ contacts: no penetration, but no bounce).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from engine import flight
 from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
 from engine.collision.dispatch import Collider, static_row
+from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
@@ -380,12 +380,8 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
         wk = ctx.info["ccd_gap_work"] = np.empty((2 * c.m, 5))
     tol = 0.1 * float(model.bound_radius[a]) + 1e-4
     return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
-                _NO_P3 if loc is None else loc, _NO_P3 if exclude is None else exclude,
-                _NO_FID if fids is None else fids, fids is not None, wk)
-
-
-_NO_P3 = np.zeros((0, 3))
-_NO_FID = np.zeros(0, np.int64)
+                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude,
+                NO_FID if fids is None else fids, fids is not None, wk)
 
 
 def _rotations(ctx, q: np.ndarray) -> np.ndarray:
@@ -400,90 +396,15 @@ def _rotations(ctx, q: np.ndarray) -> np.ndarray:
     return R
 
 
-@njit(cache=True)
-def _gap(point, gap, fid, ca, cb, normal, x1, R, V, W, n, a, tol, loc, excl, fids, has_fids, wk):
-    """:func:`pair_gap`'s arithmetic over a pair's contacts (points,
-    normals (m, 3), gap, fid, a, b (m,)) at the end pose (x1 (n, 3), body
-    a's rotation R (3, 3), padded velocities V, W (n+1, 3)): the points
-    to follow ``loc`` (k, 3), the points to leave out ``excl`` (j, 3) (no
-    rows: none), the feature ids ``fids`` (when ``has_fids``), matching
-    radius ``tol`` (m); ``wk`` (>= m, 5) work rows.  Returns (gap, normal
-    speed) as the numpy form did, bit for bit: the body-frame points summed
-    as einsum "ki,ij->kj" does ((p0 + p1) + p2), the normal speed as
-    einsum "ki,ki->k" ((p0 + p2) + p1) (tests/test_ccd_gap.py)."""
-    m = gap.shape[0]
-    t2 = tol * tol
-    nl, ne = loc.shape[0], excl.shape[0]
-    for i in range(m):
-        wk[i, 3] = gap[i]
-        if nl or ne:
-            d0, d1, d2 = point[i, 0] - x1[a, 0], point[i, 1] - x1[a, 1], point[i, 2] - x1[a, 2]
-            for j in range(3):
-                wk[i, j] = (d0 * R[0, j] + d1 * R[1, j]) + d2 * R[2, j]
-    if ne:
-        kept = False
-        for i in range(m):
-            dmin = np.inf
-            for k in range(ne):
-                e0, e1, e2 = wk[i, 0] - excl[k, 0], wk[i, 1] - excl[k, 1], wk[i, 2] - excl[k, 2]
-                dmin = min(dmin, (e0 * e0 + e1 * e1) + e2 * e2)
-            if dmin <= t2:
-                wk[i, 3] = np.inf
-            else:
-                kept = True
-        if not kept:
-            return np.inf, 0.0
-    if nl:
-        follow = False
-        for i in range(m):
-            wk[i, 4] = 0.0
-        for k in range(nl):
-            best, bd = 0, np.inf
-            for i in range(m):  # np.argmin: the first nearest, over the rows still in
-                d = np.inf
-                if np.isfinite(wk[i, 3]):
-                    e0, e1, e2 = wk[i, 0] - loc[k, 0], wk[i, 1] - loc[k, 1], wk[i, 2] - loc[k, 2]
-                    d = (e0 * e0 + e1 * e1) + e2 * e2
-                if i == 0 or d < bd:
-                    best, bd = i, d
-            if bd <= t2:
-                wk[best, 4] = 1.0
-                follow = True
-        if has_fids:
-            for i in range(m):
-                if np.isfinite(wk[i, 3]):
-                    for f in fids:
-                        if fid[i] == f:
-                            wk[i, 4] = 1.0
-                            follow = True
-                            break
-        if follow:
-            for i in range(m):
-                wk[i, 3] = gap[i] if wk[i, 4] != 0.0 else np.inf
-    k = 0
-    for i in range(1, m):
-        if wk[i, 3] < wk[k, 3]:
-            k = i
-    ka, kb = ca[k], cb[k]
-    xa0, xa1, xa2 = (x1[ka, 0], x1[ka, 1], x1[ka, 2]) if ka < n else (0.0, 0.0, 0.0)
-    xb0, xb1, xb2 = (x1[kb, 0], x1[kb, 1], x1[kb, 2]) if kb < n else (0.0, 0.0, 0.0)
-    ra0, ra1, ra2 = point[k, 0] - xa0, point[k, 1] - xa1, point[k, 2] - xa2
-    rb0, rb1, rb2 = point[k, 0] - xb0, point[k, 1] - xb1, point[k, 2] - xb2
-    # rel = V[b] + W[b] x rB - V[a] - W[a] x rA (rows.point_normal_velocity)
-    r0 = V[kb, 0] + (W[kb, 1] * rb2 - W[kb, 2] * rb1) - V[ka, 0] - (W[ka, 1] * ra2 - W[ka, 2] * ra1)
-    r1 = V[kb, 1] + (W[kb, 2] * rb0 - W[kb, 0] * rb2) - V[ka, 1] - (W[ka, 2] * ra0 - W[ka, 0] * ra2)
-    r2 = V[kb, 2] + (W[kb, 0] * rb1 - W[kb, 1] * rb0) - V[ka, 2] - (W[ka, 0] * ra1 - W[ka, 1] * ra0)
-    return gap[k], (r0 * normal[k, 0] + r2 * normal[k, 2]) + r1 * normal[k, 1]
-
-
 def warm_up() -> None:
-    """Compile (or load) :func:`_gap` with the step's argument types (see
+    """Compile (or load) the followed pair's gap kernel and the impact
+    solver's propagation with the step's argument types (see
     engine/jit.py)."""
-    z3, i1 = np.ones((1, 3)), np.zeros(1, np.int64)
-    V = np.zeros((2, 3))
-    for has in (False, True):
-        _gap(z3, np.ones(1), i1, i1, i1 + 1, z3, z3, np.eye(3), V, V, 1, 0, 0.1, z3 if has else _NO_P3,
-             z3 if has else _NO_P3, i1 if has else _NO_FID, has, np.empty((1, 5)))
+    from engine import ccd_gap
+    from engine.contact import impact
+
+    ccd_gap.warm_up()
+    impact.warm_up()
 
 
 def refine_toi(model, state, ctx, main_stages, profile) -> float:

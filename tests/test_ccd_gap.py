@@ -1,5 +1,5 @@
 """The time-of-impact search's gap of a followed pair (engine.ccd.pair_gap)
-is one compiled kernel (engine.ccd._gap); it must give what the numpy form
+is one compiled kernel (engine.ccd_gap.gap); it must give what the numpy form
 it replaced gave, bit for bit (the engine's final states depend on every
 search's tau).  The numpy form is kept here as the reference, and both run
 on random contacts with points followed, left out and feature ids."""
@@ -7,7 +7,7 @@ on random contacts with points followed, left out and feature ids."""
 import numpy as np
 import pytest
 
-from engine import ccd
+from engine import ccd_gap
 from engine.mathutil import cross, quat_to_matrix
 
 
@@ -77,8 +77,8 @@ def test_compiled_gap_is_the_numpy_gap_bit_for_bit(seed):
         excl = local[rng.integers(0, m, int(rng.integers(1, 3)))] if case in (2, 3, 5) else None
         fids = np.unique(fid[rng.integers(0, m, 2)]) if case >= 4 else None
         want = _numpy_gap(point, gap, fid, ca, cb, normal, x1, q1, V, W, n, a, tol, loc, excl, fids)
-        got = ccd._gap(point, gap, fid, ca, cb, normal, x1, R1[a], V, W, n, a, tol,
-                       ccd._NO_P3 if loc is None else np.ascontiguousarray(loc),
-                       ccd._NO_P3 if excl is None else np.ascontiguousarray(excl),
-                       ccd._NO_FID if fids is None else fids, fids is not None, np.empty((m, 5)))
+        got = ccd_gap.gap(point, gap, fid, ca, cb, normal, x1, R1[a], V, W, n, a, tol,
+                       ccd_gap.NO_P3 if loc is None else np.ascontiguousarray(loc),
+                       ccd_gap.NO_P3 if excl is None else np.ascontiguousarray(excl),
+                       ccd_gap.NO_FID if fids is None else fids, fids is not None, np.empty((m, 5)))
         assert np.array_equal(np.array(got), np.array(want)), (case, got, want)
