@@ -63,13 +63,25 @@ def kinetic_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
     return trans, rot
 
 
-def potential_energy(scene: Scene, trace) -> np.ndarray:
+def energy_series(scene: Scene, trace, datum: bool = True) -> np.ndarray:
+    """Total mechanical energy E (J, (F,)): translational and rotational
+    kinetic (:func:`kinetic_energy`) plus gravitational and spring
+    potential (:func:`potential_energy`), above the scene's datum (or,
+    ``datum=False``, from height 0).  The one definition the energy
+    metrics, the trace's energy plot and the models' energy lines use
+    (tests/test_trace_rrd.py::test_energy_series_is_the_metrics_definition,
+    tests/test_trace_predictions.py::test_break_conserved_momentum_and_energy_lines)."""
+    trans, rot = kinetic_energy(scene, trace)
+    return trans + rot + potential_energy(scene, trace, datum)
+
+
+def potential_energy(scene: Scene, trace, datum: bool = True) -> np.ndarray:
     """Gravitational plus spring energy (J, (F,)) above the scene's datum
-    :func:`energy_datum`."""
+    :func:`energy_datum` (``datum=False``: gravitational from height 0)."""
     g = scene.gravity
     gn = float(np.linalg.norm(g))
     F = trace.pos.shape[0]
-    pe = np.full(F, -energy_datum(scene))
+    pe = np.full(F, -energy_datum(scene) if datum else 0.0)
     if gn > 0:
         pe += gn * (trace.pos @ (-g / gn)) @ scene.masses
     for sp in scene.springs:
@@ -236,8 +248,7 @@ def relative_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray, float]
     scenes), ``energy_gain`` max(0, max dE), ``energy_dissipated`` -dE at
     the last frame (module docstring; the trace's crossing markers use it
     per frame: tests/test_trace_diagnose.py)."""
-    trans, rot = kinetic_energy(scene, trace)
-    E = trans + rot + potential_energy(scene, trace)
+    E = energy_series(scene, trace)
     E0 = float(E[0])
     gn = float(np.linalg.norm(scene.gravity))
     floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
@@ -269,11 +280,16 @@ def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.nd
     return lin, ang
 
 
-def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True) -> dict[str, Any]:
+def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True,
+                    keep: dict[str, Any] | None = None) -> dict[str, Any]:
     """Every generic metric plus, when ``model``, the reference model's, for
     one run.  ``model=False`` is for callers whose criterion reads no model
     metric (a breaking-point evaluation: harness/limit_eval.py); the model's
-    metrics are then absent, never NaN-filled or guessed."""
+    metrics are then absent, never NaN-filled or guessed.  ``keep``, when
+    given, receives the measurements a trace writer reuses:
+    ``"penetration"``, the harness.geometry.Penetration of these frames
+    (scenes with the ``contact`` effect; harness.runner hands it over on
+    the Trace)."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
                   and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
@@ -286,6 +302,8 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
         from harness.geometry import measure_penetration
 
         pen = measure_penetration(scene, trace)
+        if keep is not None:
+            keep["penetration"] = pen
         per_frame = pen.frame_max()  # (F,) deepest known overlap, 0 where none
         unknown = pen.unknown()
         out["max_penetration"] = float(per_frame.max(initial=0.0))
