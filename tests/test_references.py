@@ -913,3 +913,15 @@ def test_heavy_top_reference_precesses_at_the_analytic_rate():
     out = m.metrics(make_trace(t, x[:, None], vel[:, None], quat=q[:, None]))
     assert out["precession_rate_error"] < 1e-9
     assert out["tilt_error"] < 1e-9
+
+
+def test_fit_slope_is_the_least_squares_slope():
+    """The one slope fit the references use (friction accelerations, the
+    heavy top's precession rate): exact on a line, NaN where t does not vary."""
+    from harness.references import fit_slope
+
+    t = np.linspace(0.0, 2.0, 41)
+    assert fit_slope(t, 3.0 * t - 1.0) == pytest.approx(3.0, rel=1e-14)
+    wiggle = np.where(np.arange(41) % 2, 0.01, -0.01)  # zero mean, no trend over pairs
+    assert fit_slope(t, -0.5 * t + wiggle) == pytest.approx(np.polyfit(t, -0.5 * t + wiggle, 1)[0], rel=1e-12)
+    assert math.isnan(fit_slope(np.ones(5), np.arange(5.0)))

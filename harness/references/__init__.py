@@ -206,6 +206,14 @@ class ReferenceModel:
         return trajectory_metrics(trace.pos, ref)
 
 
+def fit_slope(t: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope dy/dt (units of y per s) of y (F,) over t (F,)
+    s; NaN when t does not vary."""
+    tm = t - t.mean()
+    den = float(tm @ tm)
+    return float(tm @ (y - y.mean()) / den) if den > 0 else float("nan")
+
+
 def trajectory_metrics(pos: np.ndarray, ref: np.ndarray) -> dict[str, float]:
     """trajectory_rmse: RMS over frames and bodies of |x - x_ref| (m);
     final_position_error: max over bodies of |x - x_ref| at the last frame (m)."""
