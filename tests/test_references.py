@@ -925,3 +925,13 @@ def test_fit_slope_is_the_least_squares_slope():
     wiggle = np.where(np.arange(41) % 2, 0.01, -0.01)  # zero mean, no trend over pairs
     assert fit_slope(t, -0.5 * t + wiggle) == pytest.approx(np.polyfit(t, -0.5 * t + wiggle, 1)[0], rel=1e-12)
     assert math.isnan(fit_slope(np.ones(5), np.arange(5.0)))
+
+
+def test_constant_series_predicts_its_value_at_every_time():
+    from harness.references import constant
+
+    f = constant(np.float64(2.5))
+    t = np.linspace(0.0, 1.0, 7)
+    y = f(t)
+    assert y.shape == (7,) and y.dtype == np.float64 and (y == 2.5).all()
+    assert f(0.3).shape == () and float(f(0.3)) == 2.5

@@ -115,6 +115,12 @@ class ReferenceSeries:
     measure: Callable[[Any], np.ndarray] | None = None
 
 
+def constant(value: float) -> Callable[[np.ndarray], np.ndarray]:
+    """A ReferenceSeries ``model`` predicting ``value`` at every time: t (F,)
+    s -> (F,) filled with it (a conserved quantity, a level)."""
+    return lambda t: np.full(np.shape(t), float(value))
+
+
 class ReferenceModel:
     """Base class.  ``__init__(scene)`` extracts parameters (raise
     ReferenceError naming what does not fit); ``metrics(trace)`` returns the

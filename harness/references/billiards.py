@@ -17,8 +17,8 @@ from typing import NamedTuple
 import numpy as np
 
 from harness.metrics import energy_series, kinetic_energy
-from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, divide,
-                                trajectory_metrics)
+from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, constant,
+                                divide, trajectory_metrics)
 from harness.references.collision import TwoBodyCollision
 
 
@@ -328,12 +328,12 @@ class MomentumEnergy(ReferenceModel):
         P0 = float(np.linalg.norm(self.P0))
         out = [ReferenceSeries("scene/momentum_normal_to_gravity", "N s",
                                f"|momentum normal to gravity|: conserved at {P0:.6g} N s",
-                               lambda t: np.full(np.shape(t), P0),
+                               constant(P0),
                                lambda tr: np.linalg.norm(self._horizontal(self.scene.masses @ tr.vel), axis=-1))]
         if self.conserves_energy():
             E0 = self._initial_energy()
             out.append(ReferenceSeries("scene/energy", "J", f"mechanical energy: conserved at {E0:.6g} J (e = 1)",
-                                       lambda t: np.full(np.shape(t), E0),
+                                       constant(E0),
                                        lambda tr: energy_series(self.scene, tr, datum=False)))
         return out
 
