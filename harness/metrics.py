@@ -280,16 +280,15 @@ def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.nd
     return lin, ang
 
 
-def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True,
-                    keep: dict[str, Any] | None = None) -> dict[str, Any]:
+def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True) -> dict[str, Any]:
     """Every generic metric plus, when ``model``, the reference model's, for
     one run.  ``model=False`` is for callers whose criterion reads no model
     metric (a breaking-point evaluation: harness/limit_eval.py); the model's
-    metrics are then absent, never NaN-filled or guessed.  ``keep``, when
-    given, receives the measurements a trace writer reuses:
-    ``"penetration"``, the harness.geometry.Penetration of these frames
-    (scenes with the ``contact`` effect; harness.runner hands it over on
-    the Trace)."""
+    metrics are then absent, never NaN-filled or guessed.  A
+    harness.runner.Trace receives the penetration measurement of its frames
+    (harness.geometry.Penetration, scenes with the ``contact`` effect) as
+    ``trace.penetration``, so that a trace writer does not measure again
+    (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
                   and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
@@ -302,8 +301,8 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
         from harness.geometry import measure_penetration
 
         pen = measure_penetration(scene, trace)
-        if keep is not None:
-            keep["penetration"] = pen
+        if hasattr(trace, "penetration"):  # a harness.runner.Trace: handed over
+            trace.penetration = pen
         per_frame = pen.frame_max()  # (F,) deepest known overlap, 0 where none
         unknown = pen.unknown()
         out["max_penetration"] = float(per_frame.max(initial=0.0))

@@ -449,9 +449,9 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
 
         t0 = time.perf_counter()
         try:
-            kept: dict[str, Any] = {}
-            result.metrics.update(_metrics(scene, trace.valid(), dt=dt, model=model_metrics, keep=kept))
-            trace.penetration = kept.get("penetration")
+            valid = trace.valid()
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics))
+            trace.penetration = valid.penetration
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

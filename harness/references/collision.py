@@ -52,7 +52,8 @@ class TwoBodyCollision(ReferenceModel):
         b1, b2 = (scene.bodies[i] for i in idx)
         for b in (b1, b2):
             if b.shape != "sphere":
-                raise ReferenceError(f"two_body_collision needs spheres, body {b.name!r} is a {b.shape}")
+                raise ReferenceError(f"two_body_collision needs spheres, body {b.name!r} is a {b.shape}",
+                                     key=scene.body_key(b.index, "shape"))
         self.m1, self.m2 = b1.mass, b2.mass
         self.R = b1.radius + b2.radius
         self.e = scene.pair(b1.material, b2.material).restitution
@@ -66,7 +67,7 @@ class TwoBodyCollision(ReferenceModel):
             raise ReferenceError(
                 f"spheres {b1.name!r} and {b2.name!r} start overlapping: their centres are {dist:.6g} m apart, "
                 f"less than r1 + r2 = {self.R:.6g} m; expected a start with the spheres apart "
-                f"(centre distance >= r1 + r2)", key=f"body[{idx[1]}].position")
+                f"(centre distance >= r1 + r2)", key=scene.body_key(idx[1], "position"))
         self.v1, self.v2 = b1.velocity.copy(), b2.velocity.copy()
         self.g = scene.gravity.copy()
         self.t_impact, self.n = self._impact()
