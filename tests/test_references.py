@@ -937,45 +937,12 @@ def test_constant_series_predicts_its_value_at_every_time():
     assert f(0.3).shape == () and float(f(0.3)) == 2.5
 
 
-_PATTERN_PAIR = """
-[scenario]
-family = "billiards"
-title = "a pattern's two balls and a cue"
-duration = 0.1
-dt = 0.001
-effects = ["contact", "restitution"]
-
-[material.default]
-restitution = 0.9
-
-[[body]]
-name = "ball"
-shape = "sphere"
-radius = 0.03
-mass = 0.17
-position = [0.0, 0.0, 0.0]
-pattern = {{ kind = "row", count = 2, spacing = {spacing} }}
-
-[[body]]
-name = "cue"
-shape = "{cue_shape}"
-radius = 0.03
-{dims}mass = 0.17
-position = [{cue_x}, 0.0, 0.0]
-velocity = [-1.0, 0.0, 0.0]
-
-[reference]
-model = "two_body_collision"
-params = {{ bodies = {bodies} }}
-"""
-
-
-@pytest.mark.parametrize("spacing, cue_x, cue_shape, bodies, key", [
-    (0.1, 0.04, "sphere", '["ball_0", "cue"]', r"body\[1\]\.position"),  # the cue: entry 1, body 2
-    (0.05, 1.0, "sphere", '["ball_0", "ball_1"]', r"body\[0\]\.pattern"),  # the pattern made the overlap
-    (0.1, 1.0, "capsule", '["ball_0", "cue"]', r"body\[1\]\.shape"),
+@pytest.mark.parametrize("spacing, b_x, b_shape, bodies, key", [
+    (1.0, 0.05, "sphere", '["a_0", "b"]', r"body\[1\]\.position"),  # b: entry 1, body 2
+    (0.05, 0.5, "sphere", '["a_0", "a_1"]', r"body\[0\]\.pattern"),  # the pattern made the overlap
+    (1.0, 0.5, "capsule", '["a_0", "b"]', r"body\[1\]\.shape"),
 ])
-def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, cue_x, cue_shape, bodies, key):
+def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, b_x, b_shape, bodies, key):
     """two_body_collision's refusals name the spec's key path -- the
     ``[[body]]`` entry (not the body's index among the bodies a pattern
     expands to), the pattern where it placed the body -- with the file, the
@@ -985,15 +952,21 @@ def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, cue_x,
     from contract.spec import SpecError
     from harness import cli
 
+    text = TWO_BODY.replace('velocity = [2.0, 0.0, 0.0]',
+                            f'velocity = [2.0, 0.0, 0.0]\npattern = {{ kind = "row", count = 2, spacing = {spacing} }}')
+    text = text.replace("position = [0.5, 0.0, 0.0]", f"position = [{b_x}, 0.0, 0.0]")
+    text = text.replace('model = "two_body_collision"', f'model = "two_body_collision"\nparams = {{ bodies = {bodies} }}')
+    if b_shape == "capsule":
+        text = text.replace('shape = "sphere"\nradius = 0.05\nmass = 3.0', 'shape = "capsule"\nradius = 0.05\n'
+                            'half_length = 0.1\nmass = 3.0')
     p = tmp_path / "pair.toml"
-    dims = "half_length = 0.05\n" if cue_shape == "capsule" else ""
-    p.write_text(_PATTERN_PAIR.format(spacing=spacing, cue_x=cue_x, cue_shape=cue_shape, dims=dims, bodies=bodies))
+    p.write_text(text)
     with pytest.raises(SpecError) as e:
         load_scene(p)
     (line,) = e.value.errors
     assert line.startswith(f"{p}: ") and re.match(key + ": ", line[len(str(p)) + 2:]), line
     assert ("start overlapping" in line and "expected a start with the spheres apart" in line
-            and "m apart, less than r1 + r2 = 0.06 m" in line) or "needs spheres, body 'cue' is a capsule" in line
+            and "m apart, less than r1 + r2 = 0.1 m" in line) or "needs spheres, body 'b' is a capsule" in line
     rc = cli.main(["run", str(p), "-e", "reference", "--json"])
     err = capsys.readouterr().err
     assert rc == 2 and re.search(key, err) and "Traceback" not in err, err
