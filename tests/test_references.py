@@ -970,3 +970,20 @@ def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, b_x, b
     rc = cli.main(["run", str(p), "-e", "reference", "--json"])
     err = capsys.readouterr().err
     assert rc == 2 and re.search(key, err) and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("model, key, names", [("two_body_collision", "bodies", '["a", "nosuch"]'),
+                                               ("no_tunnelling", "statics", '["nosuch"]')])
+def test_a_name_list_param_refuses_an_unknown_name(model, key, names):
+    """``params.bodies`` / ``params.statics`` naming what the scene does not
+    have: refused at ``reference.params.<key>``, with the unknown name and
+    the names the scene has."""
+    text = TWO_BODY.replace('model = "two_body_collision"', f'model = "{model}"\nparams = {{ {key} = {names} }}')
+    text += '[[static]]\nname = "floor"\nshape = "plane"\nnormal = [0.0, 0.0, 1.0]\noffset = -1.0\n'
+    from contract.spec import SpecError
+
+    with pytest.raises(SpecError) as e:
+        scene_from(text)
+    (line,) = e.value.errors
+    assert f": reference.params.{key}: " in line and f"unknown {key} ['nosuch']" in line, line
+    assert f"the scene has {['a', 'b'] if key == 'bodies' else ['floor']}" in line, line

@@ -155,6 +155,21 @@ class ReferenceModel:
     def param(self, key: str, default: Any = None) -> Any:
         return self.scene.reference_params.get(key, default)
 
+    def named(self, key: str, items: Any, what: str) -> list | None:
+        """The ``items`` (bodies or statics: anything with ``.name``) that
+        the list ``params.<key>`` names, in its order; None when the param
+        is not set.  A name the scene does not have is a ReferenceError at
+        ``reference.params.<key>`` that lists the names it has."""
+        names = self.param(key)
+        if names is None:
+            return None
+        by_name = {x.name: x for x in items}
+        missing = [n for n in names if n not in by_name]
+        if missing:
+            raise ReferenceError(f"{self.name}: params.{key} names unknown {what} {missing}; "
+                                 f"the scene has {sorted(by_name)}", key=f"reference.params.{key}")
+        return [by_name[n] for n in names]
+
     def the_body(self):
         """The body ``params.body`` names, else the scene's only body."""
         bname = self.param("body")

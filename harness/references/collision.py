@@ -36,18 +36,16 @@ class TwoBodyCollision(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        names = self.param("bodies")
-        if names is None:
+        chosen = self.named("bodies", scene.bodies, "bodies")
+        if chosen is None:
             if scene.n_bodies != 2:
                 raise ReferenceError(f"two_body_collision needs exactly 2 bodies (or params.bodies), the scene has {scene.n_bodies}")
             idx = (0, 1)
         else:
-            try:
-                idx = tuple(scene.body_index(n) for n in names)
-            except KeyError as e:
-                raise ReferenceError(f"no body named {e.args[0]!r}", key="reference.params.bodies") from None
+            idx = tuple(b.index for b in chosen)
             if len(idx) != 2:
-                raise ReferenceError(f"expected two body names, got {names!r}", key="reference.params.bodies")
+                raise ReferenceError(f"expected two body names, got {self.param('bodies')!r}",
+                                     key="reference.params.bodies")
         self.idx = idx
         b1, b2 = (scene.bodies[i] for i in idx)
         for b in (b1, b2):
