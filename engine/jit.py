@@ -111,6 +111,9 @@ def warm_up() -> float:
     _warm_flight()
     from engine.collision import dispatch
     dispatch.warm_up()  # the broad and narrow phases' kernels
+    from engine import ccd, penalty
+    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
+    penalty.warm_up()
     dt = time.perf_counter() - t0
     _READY = True
     add_jit_seconds(dt)

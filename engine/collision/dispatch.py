@@ -20,7 +20,7 @@ from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, 
 from engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
-           "unsupported_pairs", "warm_up"]
+           "static_row", "unsupported_pairs", "warm_up"]
 
 
 def unsupported_pairs(model) -> list[str]:
@@ -197,11 +197,18 @@ def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int, collider: Collide
     if sidx < 0:
         i, j = min(a, b), max(a, b)
         return collide_pairs(model, X, R, np.array([i]), np.array([j]), (z, z), (z, z), inf, inf, inf, collider)
-    if model.static_shape[sidx] == S_PLANE:
-        row = int(np.flatnonzero(model.plane_static == sidx)[0])
+    plane, row = static_row(model, sidx)
+    if plane:
         return collide_pairs(model, X, R, z, z, (np.array([a]), np.array([row])), (z, z), inf, inf, inf, collider)
-    row = int(np.flatnonzero(model.sbox_static == sidx)[0])
     return collide_pairs(model, X, R, z, z, (z, z), (np.array([a]), np.array([row])), inf, inf, inf, collider)
+
+
+def static_row(model, sidx: int) -> tuple[bool, int]:
+    """(whether static ``sidx`` is a plane, its row in the model's plane
+    table (``plane_*``) or static-box table (``sbox_*``))."""
+    if model.static_shape[sidx] == S_PLANE:
+        return True, int(np.flatnonzero(model.plane_static == sidx)[0])
+    return False, int(np.flatnonzero(model.sbox_static == sidx)[0])
 
 
 def warm_up() -> None:
