@@ -41,6 +41,7 @@ def warm_up() -> float:
     linalg.lcp_residual(linalg.k_times(J, M, a, b, nb, r) - r, r)
     linalg.dense_active_set(K, r, act, 1e-10, 2)
     linalg.spd_solve_sparse(J, M, a, b, nb, r, act, 1e-10)
+    linalg.direct_work_size(m, nb, True, 0)
     linalg.lu_solve(K + np.eye(m), r)
     linalg.inverse(K + np.eye(m))
     linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))
@@ -162,7 +163,8 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
     vn = np.zeros((3, m))
     for friction, rolling in ((True, False), (True, True), (False, False)):
         k = npch if friction else 0
-        views = solver._take_stage(Scratch(), nb, m, k, 5 if rolling else 3, friction)
+        views = solver._take_stage(Scratch(), nb, m, k, 5 if rolling else 3, friction,
+                                   solver._direct_size(True, nb, m, 0))
         kt, kw = Pack(solver._topology_items(topo, friction, rolling)), Pack(solver._work_items(views, friction))
         phases.solve_stage(kc, kt, kw, cache, out, a, b, loc, loc, r, r, a, tb, vn, 0.01, 0.5, 0.01, 0.2, 1e-4,
                            friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)

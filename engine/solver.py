@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contact import phases, prepare, sweeps
+from engine.contact import linalg, phases, prepare, sweeps
 from engine.control import EventMode, Impacts
 from engine.contact.impact import impact_solve  # noqa: F401
 from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
@@ -153,6 +153,9 @@ class Solve(Stage):
         self._fast = None
         self._kx = KeptPack()
         self._kk = KeptPack()
+        #: band storage (floats) of the sparse direct start's work array
+        #: (grown by :meth:`_grow_band`)
+        self._band = 0
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
@@ -235,7 +238,8 @@ class Solve(Stage):
         npch = topo.np if f else 0
         rolling = f and bool(model.rolling)
         nr = 5 if rolling else 3
-        views = sc.group(("stage", n, m, npch, nr, f), lambda: _take_stage(sc, n, m, npch, nr, f))
+        dsz = _direct_size(self.direct, n, m, self._band)
+        views = sc.group(("stage", n, m, npch, nr, f, dsz), lambda: _take_stage(sc, n, m, npch, nr, f, dsz))
         idx = topo.order if nimp == 0 else sel[topo.order]  # = Rows.idx
         prep = self._prep
         if prep is not None and prep[0] is topo and prep[1] is views:
@@ -245,7 +249,7 @@ class Solve(Stage):
             rows = Rows(model, state.x, ctx.Iinv0, c, f, sel=sel, topo=topo, scratch=sc, R0=ctx.R0,
                         views=views[:16], prepared=True, idx=idx)
             kw = Pack(_work_items(views, f))
-            self._prep = (topo, views, rows, kw, ("stage", n, m, npch, nr, f))
+            self._prep = (topo, views, rows, kw, ("stage", n, m, npch, nr, f, dsz))
         kt = topo.__dict__.get("_kept")
         if kt is None:
             kt = topo._kept = Pack(_topology_items(topo, f, rolling))
@@ -261,7 +265,21 @@ class Solve(Stage):
         if store_on:
             state.warm = out
         U, U0, vt0 = views[16], views[17], views[19]
+        self._grow_band(views, m)
         return rows, U, (U0 if f else None), (vt0 if f else None), pushed
+
+    def _grow_band(self, views, m: int) -> None:
+        """After a solve: when the sparse direct start needed more band
+        storage than its work array holds (it took a new array, the same
+        bits), the next work views hold at least twice as much and the
+        kept steady solve is dropped (it holds the old views), so a steady
+        state allocates nothing (tests/test_engine_steady.py::
+        test_steady_direct_start_allocates_nothing)."""
+        if self.direct and m > DIRECT_MAX_ROWS:
+            need = int(views[-1][0])
+            if need > self._band:
+                self._band = max(need, 2 * self._band)
+                self._prep = self._fast = None
 
     def _pose(self, model, state, ctx) -> Pack:
         """The pose and velocities as one Pack (see phases.solve_stage),
@@ -316,6 +334,7 @@ class Solve(Stage):
         U, U0, vt0 = views[16], views[17], views[19]
         self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
                      sliding_any)
+        self._grow_band(views, rows.m)
         return True
 
     def store_on(self, model, h: float) -> bool:
@@ -358,6 +377,7 @@ class Solve(Stage):
         state.warm = out if store_on else None
         ctx.rows = rows
         ctx.impacts = None
+        self._grow_band(self._prep[1], rows.m)
         ctx.profile.count("contact_rows", rows.m)
         ctx.profile.count("solver_sweeps", sweeps)
 
@@ -452,7 +472,7 @@ class Solve(Stage):
                                                          sc, store_on)
             # the next steady step may run as one call (_fast_path) while the
             # contact graph and these packs stay
-            self._fast = (cl, topo, c) if nimp == 0 else None
+            self._fast = (cl, topo, c) if nimp == 0 and self._prep is not None else None
         self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
 
     def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any) -> None:
@@ -491,19 +511,33 @@ class Solve(Stage):
 
 
 
-def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool) -> tuple:
+def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool, direct: tuple = (0, 1)) -> tuple:
     """The fused stage's work arrays (views of the scratch ``sc``): the rows'
     (:func:`engine.contact.rows._take_rows`, 16), then U, U0, Ud (n+1, 6),
     vt0 (np, 2), pin_t (np,) bool, dir_t (np, 2), matched (np,) bool,
     r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool,
-    wk (the sweeps' work array, engine.contact.sweeps.work_size).  The pins
+    wk (the sweeps' work array, engine.contact.sweeps.work_size), dwf, dwi
+    the direct start's float and int64 work arrays of lengths ``direct``
+    (engine.contact.linalg.direct_work_size; :func:`_direct_size`).  The pins
     are zeroed here, where the views are made: the fused solve never sets
     them (only :meth:`Rows.stop_times` pins, on its own arrays)."""
     return _take_rows(sc, m, npch, nr, friction) + (
         sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)), sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
         sc.zeros("pin_t", (npch,), np.bool_), sc.zeros("dir_t", (npch, 2)), sc.take("matched", (npch,), np.bool_),
         sc.take("r_direct", (m,)), sc.take("bias", (m,)), sc.take("Up", (n + 1, 6)), sc.take("lam_p", (m,)),
-        sc.take("touch_rows", (m,), np.bool_), sc.take("sweep_work", (sweeps.work_size(m, npch, nr),)))
+        sc.take("touch_rows", (m,), np.bool_), sc.take("sweep_work", (sweeps.work_size(m, npch, nr),)),
+        sc.take("direct_f", (direct[0],)), sc.take("direct_i", (direct[1],), np.int64))
+
+
+def _direct_size(direct: bool, n: int, m: int, band: int) -> tuple:
+    """The direct start's work lengths (floats, ints) for m rows on n bodies
+    (engine.contact.linalg.direct_work_size; ``band`` floats of band
+    storage for the sparse start above DIRECT_MAX_ROWS rows), (0, 1) without
+    a direct start."""
+    if not direct:
+        return 0, 1
+    nf, ni = linalg.direct_work_size(m, n, m <= DIRECT_MAX_ROWS, band)
+    return int(nf), int(ni)
 
 
 def _work_items(views: tuple, friction: bool) -> tuple:

@@ -74,35 +74,49 @@ def _k_entry_select(J, M, a, b, world, i, j):
 
 
 @njit(cache=True)
-def normal_matrix(J, M, a, b, world):
-    """K = J M^-1 J^T (m, m) of the normal rows: entry (i, j) is summed over
-    the dynamic bodies rows i and j share, aa, ab, ba, bb in that order
-    (:func:`_k_entry`); rows sharing no body are 0 and never visited (a row
-    meets only the rows of its two bodies; a row sharing both is visited
-    once, from body a)."""
+def normal_matrix_into(J, M, a, b, world, K, rows, cnt, ptr, idx):
+    """K = J M^-1 J^T (m, m) of the normal rows, written into ``K`` (zeroed
+    here): entry (i, j) is summed over the dynamic bodies rows i and j
+    share, aa, ab, ba, bb in that order (:func:`_k_entry`); rows sharing no
+    body are 0 and never visited (a row meets only the rows of its two
+    bodies; a row sharing both is visited once, from body a).  ``rows``
+    (>= m,), ``cnt`` (world+1,), ``ptr`` (world+2,), ``idx`` (>= 2m,) int64
+    scratch (:func:`body_rows_into`)."""
     m = J.shape[0]
-    K = np.zeros((m, m))
-    ptr, idx = _body_rows(a, b, world, np.arange(m))
+    K[:, :] = 0.0
+    for i in range(m):
+        rows[i] = i
+    ptr, idx = body_rows_into(a, b, world, rows[:m], cnt, ptr, idx)
     for i in range(m):
         ai = a[i]
         for side in range(2):
-            body = ai if side == 0 else b[i]
-            if body == world or (side == 1 and body == ai):
+            lo, hi = _side_range(a, b, world, ptr, i, side)
+            if side == 1 and b[i] == ai:
                 continue
-            for t in range(ptr[body], ptr[body + 1]):
+            for t in range(lo, hi):
                 j = idx[t]
                 if side == 1 and ai != world and (a[j] == ai or b[j] == ai):
                     continue  # row j meets body a[i] too: its entry is set
                 K[i, j] = _k_entry_select(J, M, a, b, world, i, j)
+
+
+@njit(cache=True)
+def normal_matrix(J, M, a, b, world):
+    """:func:`normal_matrix_into` into a new (m, m) array."""
+    m = J.shape[0]
+    K = np.empty((m, m))
+    normal_matrix_into(J, M, a, b, world, K, np.empty(m, np.int64), np.empty(world + 1, np.int64),
+                       np.empty(world + 2, np.int64), np.empty(2 * m, np.int64))
     return K
 
 
 @njit(cache=True)
-def k_times(J, M, a, b, world, lam):
+def k_times_into(J, M, a, b, world, lam, dU, out):
     """K lam (m,) as J (M^-1 J^T lam): impulses summed per body in row
-    order, then each row's velocity change."""
+    order, then each row's velocity change, written into ``out`` (>= m,)
+    (its first m returned); ``dU`` (world+1, 6) scratch (zeroed here)."""
     m = J.shape[0]
-    dU = np.zeros((world + 1, 6))
+    dU[:, :] = 0.0
     for i in range(m):
         li = lam[i]
         if li != 0.0:
@@ -113,7 +127,7 @@ def k_times(J, M, a, b, world, lam):
                     dU[b[i], k] += M[i, 6 + k] * li
     for k in range(6):
         dU[world, k] = 0.0
-    out = np.empty(m)
+    out = out[:m]
     for i in range(m):
         s = 0.0
         for k in range(6):
@@ -125,13 +139,25 @@ def k_times(J, M, a, b, world, lam):
 
 
 @njit(cache=True)
+def k_times(J, M, a, b, world, lam):
+    """:func:`k_times_into` into new arrays: K lam (m,)."""
+    return k_times_into(J, M, a, b, world, lam, np.empty((world + 1, 6)), np.empty(J.shape[0]))
+
+
+@njit(cache=True)
 def lu_solve(A, r):
     """Solve A x = r (A (k, k), r (k,)) by LU with partial pivoting.
     Returns (x, det); det = 0 and x undefined when a pivot is exactly
     zero (singular)."""
-    k = A.shape[0]
-    L = A.copy()
     x = r.copy()
+    return x, lu_inplace(A.copy(), x)
+
+
+@njit(cache=True)
+def lu_inplace(L, x):
+    """:func:`lu_solve` in place: ``L`` (k, k) overwritten by its factors,
+    ``x`` (k,) from r to the solution; returns det (0 when singular)."""
+    k = L.shape[0]
     det = 1.0
     for c in range(k):
         p = c
@@ -142,7 +168,7 @@ def lu_solve(A, r):
                 big = v
                 p = i
         if big == 0.0:
-            return x, 0.0
+            return 0.0
         if p != c:
             for j in range(k):
                 t = L[c, j]
@@ -166,7 +192,7 @@ def lu_solve(A, r):
         for j in range(c + 1, k):
             s -= L[c, j] * x[j]
         x[c] = s / L[c, c]
-    return x, det
+    return det
 
 
 @njit(cache=True)
@@ -191,23 +217,26 @@ def inverse(A):
 
 
 @njit(cache=True)
-def dense_active_set(K, r, act, eps_rel, passes):
+def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra):
     """The dense direct start's equality solves: rows ``act`` (indices into
     K (m, m)) solved as K_aa lam = r_a with Tikhonov eps = eps_rel max
     diag(K_aa); rows solved to pull (lam < 0) let go and the rest solved
-    again, up to ``passes`` solves.  Returns (lam (m,) clipped at 0, ok,
-    whether the last solve pulled on a row)."""
+    again, up to ``passes`` solves.  Writes ``lam`` (m,) (zeroed here,
+    clipped at 0); ``cur`` (>= s,) int64, ``big`` (>= s*s,) and ``ra``
+    (>= s,) scratch for s = act.size rows.  Returns (ok, whether the last
+    solve pulled on a row)."""
     m = K.shape[0]
-    lam = np.zeros(m)
-    cur = act.copy()
-    la = np.zeros(0)
+    lam[:] = 0.0
+    s = act.size
+    for i in range(s):
+        cur[i] = act[i]
+    la = ra[:0]
     for npass in range(1, passes + 1):
-        s = cur.size
-        Ka = np.empty((s, s))
-        ra = np.empty(s)
+        Ka = big[:s * s].reshape((s, s))
+        la = ra[:s]
         dmax = -np.inf
         for i in range(s):
-            ra[i] = r[cur[i]]
+            la[i] = r[cur[i]]
             for j in range(s):
                 Ka[i, j] = K[cur[i], cur[j]]
             if Ka[i, i] > dmax:
@@ -215,47 +244,59 @@ def dense_active_set(K, r, act, eps_rel, passes):
         eps = eps_rel * dmax
         for i in range(s):
             Ka[i, i] += eps
-        la, det = lu_solve(Ka, ra)
-        if det == 0.0:
-            return lam, False, False
+        if lu_inplace(Ka, la) == 0.0:
+            return False, False
         npull = 0
         for i in range(s):
             if la[i] < 0.0:
                 npull += 1
         if npull == 0 or npull == s or npass == passes:
             break
-        keep = np.empty(s - npull, np.int64)
-        q = 0
+        q = 0  # the rows kept, compacted in place (q <= i)
         for i in range(s):
             if not la[i] < 0.0:
-                keep[q] = cur[i]
+                cur[q] = cur[i]
                 q += 1
-        cur = keep
-    for i in range(cur.size):
+        s = q
+    for i in range(la.size):
         if not np.isfinite(la[i]):
-            return lam, False, False
+            lam[:] = 0.0
+            return False, False
     pulled = False
-    for i in range(cur.size):
+    for i in range(la.size):
         pulled |= la[i] < 0.0
         lam[cur[i]] = max(la[i], 0.0)
-    return lam, True, pulled
+    return True, pulled
 
 
 @njit(cache=True)
-def _body_rows(a, b, world, rows):
-    """CSR lists of the ``rows`` touching each dynamic body: (ptr (world+1,),
-    idx) with positions into ``rows``."""
-    cnt = np.zeros(world + 1, np.int64)
+def dense_active_set(K, r, act, eps_rel, passes):
+    """:func:`dense_active_set_into` into new arrays: (lam (m,), ok, pulled)."""
+    m = K.shape[0]
+    s = act.size
+    lam = np.empty(m)
+    ok, pulled = dense_active_set_into(K, r, act, eps_rel, passes, lam, np.empty(s, np.int64), np.empty(s * s),
+                                       np.empty(s))
+    return lam, ok, pulled
+
+
+@njit(cache=True)
+def body_rows_into(a, b, world, rows, cnt, ptr, idx):
+    """CSR lists of the ``rows`` touching each dynamic body: (ptr (world+2,),
+    idx) with positions into ``rows``, written into ``ptr`` and ``idx``
+    (>= 2 rows.size,); ``cnt`` (world+1,) int64 scratch."""
+    cnt[:] = 0
     for q in range(rows.size):
         i = rows[q]
         cnt[a[i]] += 1
         if b[i] != world:
             cnt[b[i]] += 1
-    ptr = np.zeros(world + 2, np.int64)
+    ptr[0] = 0
     for k in range(world + 1):
         ptr[k + 1] = ptr[k] + cnt[k]
-    fill = ptr[:-1].copy()
-    idx = np.empty(ptr[world + 1], np.int64)
+    fill = cnt  # each body's next free slot
+    for k in range(world + 1):
+        fill[k] = ptr[k]
     for q in range(rows.size):
         i = rows[q]
         idx[fill[a[i]]] = q
@@ -263,11 +304,78 @@ def _body_rows(a, b, world, rows):
         if b[i] != world:
             idx[fill[b[i]]] = q
             fill[b[i]] += 1
-    return ptr, idx
+    return ptr, idx[:ptr[world + 1]]
+
+
+@njit(cache=True, inline="always")
+def _side_range(a, b, world, ptr, i, side):
+    """The slots [lo, hi) of body a[i] (side 0) or b[i] (side 1) in the
+    CSR lists ``ptr`` of :func:`body_rows_into`; empty for the world."""
+    body = a[i] if side == 0 else b[i]
+    if body == world:
+        return 0, 0
+    return ptr[body], ptr[body + 1]
 
 
 @njit(cache=True)
-def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
+def _sort_by_key(key, val, k):
+    """Sort key[:k] ascending in place (heapsort), val[:k] along; the keys
+    are distinct, so the order is the one any sort (np.argsort) gives."""
+    for end in range(k, 1, -1):
+        start = end // 2 - 1 if end == k else 0
+        for root0 in range(start, -1, -1):
+            root = root0
+            while True:
+                c = 2 * root + 1
+                if c >= end:
+                    break
+                if c + 1 < end and key[c + 1] > key[c]:
+                    c += 1
+                if key[c] <= key[root]:
+                    break
+                key[root], key[c] = key[c], key[root]
+                val[root], val[c] = val[c], val[root]
+                root = c
+        key[0], key[end - 1] = key[end - 1], key[0]
+        val[0], val[end - 1] = val[end - 1], val[0]
+
+
+#: the direct start's int64 work (after the band need, slot 0): act, cur,
+#: rows, idx (2), deg, order, pos, nbr, nbr_key, visited rows (m,) each
+_DI_ROWS = 11
+
+
+@njit(cache=True)
+def direct_work_size(m, world, dense, band):
+    """(floats, ints): lengths of the direct start's work arrays ``dwf`` and
+    ``dwi`` for m normal rows and ``world`` dynamic bodies
+    (:func:`direct_layout`): the dense start's two (m, m) matrices, else
+    ``band`` floats of band storage for the sparse one's islands."""
+    return 3 * m + 6 * (world + 1) + (2 * m * m if dense else band), 1 + _DI_ROWS * m + 2 * world + 3
+
+
+@njit(cache=True, inline="always")
+def direct_layout(dwf, dwi, m, world):
+    """The views of the direct start's work arrays (:func:`direct_work_size`):
+    floats lam, ra (m,), w (m,), dU (world+1, 6), big (the rest: the dense
+    K and K_aa, or the sparse band); ints need (1,) (the band storage the
+    last sparse start needed), act, cur, rows (m,), cnt (world+1,), ptr
+    (world+2,), idx (2m,), deg, order, pos, nbr, nbr_key, visited (m,)."""
+    o = 3 * m + 6 * (world + 1)
+    f = (dwf[:m], dwf[m:2 * m], dwf[2 * m:3 * m], dwf[3 * m:o].reshape((world + 1, 6)), dwf[o:])
+    c0 = 1 + 3 * m
+    c1 = c0 + world + 1
+    c2 = c1 + world + 2
+    c3 = c2 + 2 * m
+    g = (dwi[:1], dwi[1:1 + m], dwi[1 + m:1 + 2 * m], dwi[1 + 2 * m:c0], dwi[c0:c1], dwi[c1:c2], dwi[c2:c3],
+         dwi[c3:c3 + m], dwi[c3 + m:c3 + 2 * m], dwi[c3 + 2 * m:c3 + 3 * m], dwi[c3 + 3 * m:c3 + 4 * m],
+         dwi[c3 + 4 * m:c3 + 5 * m], dwi[c3 + 5 * m:c3 + 6 * m])
+    return f, g
+
+
+@njit(cache=True)
+def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, cnt, ptr, idx, deg, visited, order,
+                          pos, nbr, nbr_key, need):
     """Solve K_aa lam = r_a over the rows ``rows`` (indices, ascending) with
     Tikhonov eps = eps_rel max diag(K_aa), K symmetric positive
     semi-definite and sparse (rows couple only through shared bodies).
@@ -276,15 +384,18 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
     dynamic bodies that visits a row's neighbours by increasing degree
     (Cuthill-McKee), reversed; each island is then a band of the reordered
     K, factorised by banded Cholesky (cost ~ s bw^2 for an island of s rows
-    and bandwidth bw: a column of spheres has bw 1-2).  Returns (lam (m,)
-    with zeros outside ``rows``, ok); ok is False at a non-positive pivot."""
-    m = J.shape[0]
+    and bandwidth bw: a column of spheres has bw 1-2).  Writes ``lam`` (m,)
+    (zeros outside ``rows``); returns ok, False at a non-positive pivot.
+    Scratch: ``y`` (>= s,), ``band`` (an island's band storage: a new array
+    when it is shorter; ``need[0]`` is set to the most this call needed),
+    int64 ``cnt``, ``ptr``, ``idx`` as :func:`body_rows_into`, ``deg``,
+    ``visited``, ``order``, ``pos``, ``nbr``, ``nbr_key`` (>= s,)."""
     s = rows.size
-    lam = np.zeros(m)
+    lam[:] = 0.0
+    need[0] = 0
     if s == 0:
-        return lam, True
-    ptr, idx = _body_rows(a, b, world, rows)
-    deg = np.zeros(s, np.int64)
+        return True
+    ptr, idx = body_rows_into(a, b, world, rows, cnt, ptr, idx)
     for q in range(s):
         i = rows[q]
         deg[q] = ptr[a[i] + 1] - ptr[a[i]] - 1
@@ -297,18 +408,15 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
         if d > dmax:
             dmax = d
     eps = eps_rel * dmax
-    visited = np.zeros(s, np.bool_)
-    order = np.empty(s, np.int64)
-    pos = np.full(s, -1, np.int64)
-    nbr = np.empty(s, np.int64)
-    nbr_key = np.empty(s, np.int64)
+    visited[:s] = 0
+    pos[:s] = -1
     head = 0
     for start in range(s):
         if visited[start]:
             continue
         c0 = head
         order[head] = start
-        visited[start] = True
+        visited[start] = 1
         head += 1
         tail = c0
         while tail < head:
@@ -317,20 +425,18 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
             k = 0
             i = rows[q]
             for side in range(2):
-                body = a[i] if side == 0 else b[i]
-                if body == world:
-                    continue
-                for t in range(ptr[body], ptr[body + 1]):
+                lo, hi = _side_range(a, b, world, ptr, i, side)
+                for t in range(lo, hi):
                     o = idx[t]
                     if not visited[o]:
-                        visited[o] = True
+                        visited[o] = 1
                         nbr[k] = o
                         nbr_key[k] = deg[o] * s + o
                         k += 1
             if k:
-                srt = np.argsort(nbr_key[:k])
+                _sort_by_key(nbr_key, nbr, k)
                 for t in range(k):
-                    order[head] = nbr[srt[t]]
+                    order[head] = nbr[t]
                     head += 1
         c1 = head
         n_c = c1 - c0
@@ -346,26 +452,27 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
             q = order[t]
             i = rows[q]
             for side in range(2):
-                body = a[i] if side == 0 else b[i]
-                if body == world:
-                    continue
-                for u in range(ptr[body], ptr[body + 1]):
+                lo, hi = _side_range(a, b, world, ptr, i, side)
+                for u in range(lo, hi):
                     d = abs(pos[idx[u]] - pos[q])
                     if d > bw:
                         bw = d
         # band storage: L[p, bw + (j - p)] for j in [p - bw, p]
-        L = np.zeros((n_c, bw + 1))
-        y = np.empty(n_c)
+        nl = n_c * (bw + 1)
+        need[0] = max(need[0], nl)
+        if nl <= band.size:
+            L = band[:nl].reshape((n_c, bw + 1))
+            L[:, :] = 0.0
+        else:
+            L = np.zeros((n_c, bw + 1))
         for t in range(c0, c1):
             q = order[t]
             p = t - c0
             i = rows[q]
             y[p] = r[i]
             for side in range(2):
-                body = a[i] if side == 0 else b[i]
-                if body == world:
-                    continue
-                for u in range(ptr[body], ptr[body + 1]):
+                lo, hi = _side_range(a, b, world, ptr, i, side)
+                for u in range(lo, hi):
                     o = idx[u]
                     po = pos[o]
                     if po <= p:
@@ -381,7 +488,7 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
                     acc -= L[p, bw + k - p] * L[j, bw + k - j]
                 if j == p:
                     if not acc > 0.0:
-                        return lam, False
+                        return False
                     L[p, bw] = math.sqrt(acc)
                 else:
                     L[p, bw + j - p] = acc / L[j, bw]
@@ -397,7 +504,22 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
             y[p] = acc / L[p, bw]
         for t in range(c0, c1):
             lam[rows[order[t]]] = y[t - c0]
-    return lam, True
+    return True
+
+
+@njit(cache=True)
+def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
+    """:func:`spd_solve_sparse_into` into new arrays: (lam (m,), ok)."""
+    m = J.shape[0]
+    s = rows.size
+    lam = np.empty(m)
+    e = np.empty(s, np.int64)
+    ok = spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, np.empty(s), np.empty(0),
+                               np.empty(world + 1, np.int64), np.empty(world + 2, np.int64),
+                               np.empty(2 * s, np.int64), e, np.empty(s, np.int64), np.empty(s, np.int64),
+                               np.empty(s, np.int64), np.empty(s, np.int64), np.empty(s, np.int64),
+                               np.empty(1, np.int64))
+    return lam, ok
 
 
 @njit(cache=True)

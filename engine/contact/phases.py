@@ -32,7 +32,8 @@ _EPS_REL = linalg.EPS_REL  # a module global: numba compiles it in as a constant
 #: the solve stage's work arrays in the order of its work Pack ``kw``
 #: (engine.solver._work_items builds it in this order and checks its length)
 WORK = ("J", "M", "mn", "loc", "lam_n", "target", "P", "N", "rt", "t", "Jt", "Mt", "mt", "lam_t", "slip", "mu", "U",
-        "U0", "Ud", "vt0", "pin_t", "dir_t", "matched", "r_direct", "bias", "Up", "lam_p", "touch_rows", "wk")
+        "U0", "Ud", "vt0", "pin_t", "dir_t", "matched", "r_direct", "bias", "Up", "lam_p", "touch_rows", "wk", "dwf",
+        "dwi")
 #: where ``kw.items`` holds the patches' slip flags (np,) bool
 W_SLIP = WORK.index("slip")
 
@@ -79,10 +80,10 @@ def _row_residual(J, U0, a, b, target, r):
 
 
 @njit(cache=True)
-def _lcp_res(J, M, a, b, world, r, lam):
+def _lcp_res(J, M, a, b, world, r, lam, dU, w):
     """Complementarity residual of ``lam`` for K lam >= r, lam >= 0
-    (as rows.Rows._lcp_residual)."""
-    w = linalg.k_times(J, M, a, b, world, lam)
+    (as rows.Rows._lcp_residual); ``dU`` (world+1, 6), ``w`` (m,) scratch."""
+    w = linalg.k_times_into(J, M, a, b, world, lam, dU, w)
     for i in range(w.shape[0]):
         w[i] = w[i] - r[i]
     return linalg.lcp_residual(w, lam)
@@ -90,46 +91,63 @@ def _lcp_res(J, M, a, b, world, r, lam):
 
 @njit(cache=True)
 def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt, lam_t, resting, max_rows,
-                 passes, r):
+                 passes, r, dwf, dwi):
     """The direct start (rows.Rows.direct_normal_guess): the normal rows
     not separating (r = target - J U, with the warm friction impulses
     applied, above -``resting``) solved as equalities -- dense active set
     up to ``max_rows`` rows, sparse banded Cholesky per island above --
     and kept in ``lam_n`` when their complementarity residual beats the
-    warm start's.  ``U0`` (n+1, 6) and ``r`` (m,) scratch."""
+    warm start's.  ``U0`` (n+1, 6) and ``r`` (m,) scratch; ``dwf``, ``dwi``
+    its work arrays (linalg.direct_work_size: nothing is allocated when
+    they are long enough, tests/test_engine_steady.py::
+    test_steady_direct_start_allocates_nothing; shorter ones are replaced
+    by new arrays, the same bits)."""
     m = lam_n.shape[0]
+    dense = m <= max_rows
+    nf, ni = linalg.direct_work_size(m, world, dense, 0)  # the band: new when short
+    if dwf.size < nf or dwi.size < ni:
+        dwf = np.empty(nf)
+        dwi = np.empty(ni, np.int64)
+    (lam, ra, w, dU, big), (need, act, cur, rows, cnt, ptr, idx, deg, order, pos, nbr, nbr_key, visited) = \
+        linalg.direct_layout(dwf, dwi, m, world)
+    need[0] = 0
     U0[:, :] = U
     if friction:
         sweeps.apply_patches(U0, pab, Mt, lam_t, world)
     _row_residual(J, U0, a, b, target, r)
     k = 0
-    pos = False
+    pos_ = False
     for i in range(m):
         if r[i] > -resting:
             k += 1
             if r[i] > 0.0:
-                pos = True
-    if k == 0 or not pos:
+                pos_ = True
+    if k == 0 or not pos_:
         return
-    act = np.empty(k, np.int64)
+    act = act[:k]
     k = 0
     for i in range(m):
         if r[i] > -resting:
             act[k] = i
             k += 1
-    if m > max_rows:
-        lam, ok = linalg.spd_solve_sparse(J, M, a, b, world, r, act, _EPS_REL)
+    if not dense:
+        ok = linalg.spd_solve_sparse_into(J, M, a, b, world, r, act, _EPS_REL, lam, ra, big, cnt, ptr, idx, deg,
+                                          visited, order, pos, nbr, nbr_key, need)
         for i in range(m):
             if lam[i] < 0.0:
                 lam[i] = 0.0
     else:
-        lam, ok, _ = linalg.dense_active_set(linalg.normal_matrix(J, M, a, b, world), r, act, _EPS_REL, passes)
+        if big.size < 2 * m * m:
+            big = np.empty(2 * m * m)
+        K = big[:m * m].reshape((m, m))
+        linalg.normal_matrix_into(J, M, a, b, world, K, rows, cnt, ptr, idx)
+        ok, _ = linalg.dense_active_set_into(K, r, act, _EPS_REL, passes, lam, cur, big[m * m:], ra)
     if not ok:
         return
     for i in range(m):
         if not np.isfinite(lam[i]):
             return
-    if _lcp_res(J, M, a, b, world, r, lam) <= _lcp_res(J, M, a, b, world, r, lam_n):
+    if _lcp_res(J, M, a, b, world, r, lam, dU, w) <= _lcp_res(J, M, a, b, world, r, lam_n, dU, w):
         lam_n[:] = lam
 
 
@@ -174,7 +192,7 @@ def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt,
 def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, friction, rolling, pab, pid, Jt, Mt,
                    mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on, codes, loc, a, b,
                    bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h, matched, direct, resting,
-                   max_rows, passes, r, pin_t, dir_t, iterations, tol, wk):
+                   max_rows, passes, r, pin_t, dir_t, iterations, tol, wk, dwf, dwi):
     """The solve of prepared rows, phase by phase (module doc): slip
     classification at the start velocities V0, W0 (n, 3) (``vt0`` (np, 2),
     ``slip`` (np,), ``mu``), the warm start matched from the cache
@@ -203,7 +221,7 @@ def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, 
                    friction and rolling, pid, t, lam_t, matched)
     if direct:
         direct_start(U, Ud, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt, lam_t, resting, max_rows,
-                     passes, r)
+                     passes, r, dwf, dwi)
     if warm_on or direct:
         if lam_n.shape[0]:
             sweeps.apply_rows(U, ab, M, lam_n, world)
@@ -250,7 +268,7 @@ def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching
     X, Iinv, R0, V, W, V0, W0, Vp, Wp, inv_mass, bound_radius = kc.items
     ab, a, b, pid, pa, pb, cnt, pab, codes, code_order, code_first, uniq_pid, mus, muk, mur = kt.items
     (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, U, U0, Ud, vt0, pin_t, dir_t, matched,
-     r_direct, bias, Up, lam_p, touch_rows, wk) = kw.items
+     r_direct, bias, Up, lam_p, touch_rows, wk, dwf, dwi) = kw.items
     o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, _ = ko.items
     nb = X.shape[0]
     prepare_rows(X, Iinv, inv_mass, R0, True, ca, cb, point, normal, idx, nb, J, M, mn, loc, lam_n, target,
@@ -260,7 +278,7 @@ def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching
                                   pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on,
                                   codes, loc, a, b, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h,
                                   matched, direct, resting, max_rows, passes, r_direct, pin_t, dir_t, iterations,
-                                  1e-7, wk)
+                                  1e-7, wk, dwf, dwi)
     if relax_on and pushed > 0:
         relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, 1e-7, nb, wk)
     if store_on:
