@@ -223,6 +223,20 @@ def _qd(w, q, k):
     return d0, d1, d2, d3
 
 
+@njit(cache=True, inline="always")
+def _euler_body(x0, q0, v0, w0, k, s, wd, qd, xd, vd, ad, x, q, v, w):
+    """Body k's explicit step of length s (s) from (x0, q0, v0, w0) along
+    slopes taken at another state: dq/dt at (wd, qd), dx/dt = xd, dv/dt =
+    vd, dw/dt = ad; written into x, q, v, w (quaternions (n, 4), the rest
+    (n, 3)): the midpoint method's intermediate state and its final step."""
+    d0, d1, d2, d3 = _qd(wd, qd, k)
+    _q_step(q0, k, s, d0, d1, d2, d3, q)
+    for c in range(3):
+        x[k, c] = x0[k, c] + s * xd[k, c]
+        v[k, c] = v0[k, c] + s * vd[k, c]
+        w[k, c] = w0[k, c] + s * ad[k, c]
+
+
 @njit(cache=True)
 def rotate(q, k, px, py, pz, out):
     """out[k] = exp(phi) (x) q[k], renormalised (mathutil.rotate_world)."""
@@ -294,21 +308,12 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
         elif method == 2 or method == 3:  # midpoint / Heun: one intermediate state
             s = hh if method == 2 else h
             for k in range(n):
-                d0, d1, d2, d3 = _qd(w0, q0, k)
-                _q_step(q0, k, s, d0, d1, d2, d3, qs)
-                for c in range(3):
-                    xs[k, c] = x0[k, c] + s * v0[k, c]
-                    vs[k, c] = v0[k, c] + s * a0[k, c]
-                    ws[k, c] = w0[k, c] + s * al0[k, c]
+                _euler_body(x0, q0, v0, w0, k, s, w0, q0, v0, a0, al0, xs, qs, vs, ws)
             _stage(constant, fm, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1)
             for k in range(n):
                 if method == 2:
-                    d0, d1, d2, d3 = _qd(ws, qs, k)
-                    _q_step(q0, k, h, d0, d1, d2, d3, q1)
+                    _euler_body(x0, q0, v0, w0, k, h, ws, qs, vs, a1, al1, x1, q1, v1, w1)
                     for c in range(3):
-                        x1[k, c] = x0[k, c] + h * vs[k, c]
-                        v1[k, c] = v0[k, c] + h * a1[k, c]
-                        w1[k, c] = w0[k, c] + h * al1[k, c]
                         T_mean[k, c] = T1[k, c]
                 else:
                     e0, e1, e2, e3 = _qd(w0, q0, k)
