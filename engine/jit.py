@@ -41,7 +41,6 @@ def warm_up() -> float:
     linalg.lcp_residual(linalg.k_times(J, M, a, b, nb, r) - r, r)
     linalg.dense_active_set(K, r, act, 1e-10, 2)
     linalg.spd_solve_sparse(J, M, a, b, nb, r, act, 1e-10)
-    linalg.direct_work_size(m, nb, True, 0)
     linalg.lu_solve(K + np.eye(m), r)
     linalg.inverse(K + np.eye(m))
     linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contact import linalg, phases, prepare, sweeps
+from engine.contact import phases, prepare, sweeps
 from engine.control import EventMode, Impacts
 from engine.contact.impact import impact_solve  # noqa: F401
 from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
@@ -518,7 +518,7 @@ def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool, direct: 
     r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool,
     wk (the sweeps' work array, engine.contact.sweeps.work_size), dwf, dwi
     the direct start's float and int64 work arrays of lengths ``direct``
-    (engine.contact.linalg.direct_work_size; :func:`_direct_size`).  The pins
+    (engine.contact.phases.direct_work_size; :func:`_direct_size`).  The pins
     are zeroed here, where the views are made: the fused solve never sets
     them (only :meth:`Rows.stop_times` pins, on its own arrays)."""
     return _take_rows(sc, m, npch, nr, friction) + (
@@ -531,12 +531,12 @@ def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool, direct: 
 
 def _direct_size(direct: bool, n: int, m: int, band: int) -> tuple:
     """The direct start's work lengths (floats, ints) for m rows on n bodies
-    (engine.contact.linalg.direct_work_size; ``band`` floats of band
+    (engine.contact.phases.direct_work_size; ``band`` floats of band
     storage for the sparse start above DIRECT_MAX_ROWS rows), (0, 1) without
     a direct start."""
     if not direct:
         return 0, 1
-    nf, ni = linalg.direct_work_size(m, n, m <= DIRECT_MAX_ROWS, band)
+    nf, ni = phases.direct_work_size(m, n, m <= DIRECT_MAX_ROWS, band)
     return int(nf), int(ni)
 
 

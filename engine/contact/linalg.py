@@ -53,18 +53,32 @@ def _k_entry(J, M, a, b, world, i, j):
 
 
 @njit(cache=True, inline="always")
-def _k_entry_select(J, M, a, b, world, i, j):
+def _dot6r(x, y, j, j0):
+    """x (six floats) . y[j, j0:j0+6], summed from 0.0 in order (as _dot6)."""
+    s = 0.0
+    s += x[0] * y[j, j0]
+    s += x[1] * y[j, j0 + 1]
+    s += x[2] * y[j, j0 + 2]
+    s += x[3] * y[j, j0 + 3]
+    s += x[4] * y[j, j0 + 4]
+    s += x[5] * y[j, j0 + 5]
+    return s
+
+
+@njit(cache=True, inline="always")
+def _k_entry_row(Ja, Jb, M, a, b, world, i, j):
     """:func:`_k_entry` with its four sides computed unconditionally and
-    selected (0.0 for a side the rows do not share): the same bits -- the
-    sum starts at +0.0 and a sum from +0.0 is never -0.0 in round to
-    nearest, so adding 0.0 for a skipped side leaves it as it was -- with
-    four independent products in flight instead of data-dependent branches
+    selected (0.0 for a side the rows do not share), row i of J given as
+    its halves Ja, Jb (six floats each): the same bits -- the sum starts at
+    +0.0 and a sum from +0.0 is never -0.0 in round to nearest, so adding
+    0.0 for a skipped side leaves it as it was -- with four independent
+    products in flight instead of data-dependent branches
     (tests/test_determinism.py; the dense direct start's normal matrix)."""
     ai, bi, aj, bj = a[i], b[i], a[j], b[j]
-    daa = _dot6(J, 0, M, 0, i, j)
-    dab = _dot6(J, 0, M, 6, i, j)
-    dba = _dot6(J, 6, M, 0, i, j)
-    dbb = _dot6(J, 6, M, 6, i, j)
+    daa = _dot6r(Ja, M, j, 0)
+    dab = _dot6r(Ja, M, j, 6)
+    dba = _dot6r(Jb, M, j, 0)
+    dbb = _dot6r(Jb, M, j, 6)
     s = 0.0
     s += daa if ai == aj else 0.0
     s += dab if (ai == bj and bj != world) else 0.0
@@ -73,22 +87,35 @@ def _k_entry_select(J, M, a, b, world, i, j):
     return s
 
 
+@njit(cache=True, inline="always")
+def _zero2(A):
+    """A[:, :] = 0 as a plain loop (a memset; numba's slice assignment
+    iterates generically)."""
+    for i in range(A.shape[0]):
+        for j in range(A.shape[1]):
+            A[i, j] = 0.0
+
+
 @njit(cache=True)
 def normal_matrix_into(J, M, a, b, world, K, rows, cnt, ptr, idx):
     """K = J M^-1 J^T (m, m) of the normal rows, written into ``K`` (zeroed
     here): entry (i, j) is summed over the dynamic bodies rows i and j
-    share, aa, ab, ba, bb in that order (:func:`_k_entry`); rows sharing no
-    body are 0 and never visited (a row meets only the rows of its two
+    share, aa, ab, ba, bb in that order (:func:`_k_entry_row`); rows sharing
+    no body are 0 and never visited (a row meets only the rows of its two
     bodies; a row sharing both is visited once, from body a).  ``rows``
     (>= m,), ``cnt`` (world+1,), ``ptr`` (world+2,), ``idx`` (>= 2m,) int64
     scratch (:func:`body_rows_into`)."""
     m = J.shape[0]
-    K[:, :] = 0.0
+    _zero2(K)
     for i in range(m):
         rows[i] = i
     ptr, idx = body_rows_into(a, b, world, rows[:m], cnt, ptr, idx)
     for i in range(m):
         ai = a[i]
+        # row i of J held in registers (K, an argument, may alias J for the
+        # compiler: re-read after every store otherwise)
+        Ja = (J[i, 0], J[i, 1], J[i, 2], J[i, 3], J[i, 4], J[i, 5])
+        Jb = (J[i, 6], J[i, 7], J[i, 8], J[i, 9], J[i, 10], J[i, 11])
         for side in range(2):
             lo, hi = _side_range(a, b, world, ptr, i, side)
             if side == 1 and b[i] == ai:
@@ -97,7 +124,7 @@ def normal_matrix_into(J, M, a, b, world, K, rows, cnt, ptr, idx):
                 j = idx[t]
                 if side == 1 and ai != world and (a[j] == ai or b[j] == ai):
                     continue  # row j meets body a[i] too: its entry is set
-                K[i, j] = _k_entry_select(J, M, a, b, world, i, j)
+                K[i, j] = _k_entry_row(Ja, Jb, M, a, b, world, i, j)
 
 
 @njit(cache=True)
@@ -116,7 +143,7 @@ def k_times_into(J, M, a, b, world, lam, dU, out):
     order, then each row's velocity change, written into ``out`` (>= m,)
     (its first m returned); ``dU`` (world+1, 6) scratch (zeroed here)."""
     m = J.shape[0]
-    dU[:, :] = 0.0
+    _zero2(dU)
     for i in range(m):
         li = lam[i]
         if li != 0.0:
@@ -340,39 +367,6 @@ def _sort_by_key(key, val, k):
         val[0], val[end - 1] = val[end - 1], val[0]
 
 
-#: the direct start's int64 work (after the band need, slot 0): act, cur,
-#: rows, idx (2), deg, order, pos, nbr, nbr_key, visited rows (m,) each
-_DI_ROWS = 11
-
-
-@njit(cache=True)
-def direct_work_size(m, world, dense, band):
-    """(floats, ints): lengths of the direct start's work arrays ``dwf`` and
-    ``dwi`` for m normal rows and ``world`` dynamic bodies
-    (:func:`direct_layout`): the dense start's two (m, m) matrices, else
-    ``band`` floats of band storage for the sparse one's islands."""
-    return 3 * m + 6 * (world + 1) + (2 * m * m if dense else band), 1 + _DI_ROWS * m + 2 * world + 3
-
-
-@njit(cache=True, inline="always")
-def direct_layout(dwf, dwi, m, world):
-    """The views of the direct start's work arrays (:func:`direct_work_size`):
-    floats lam, ra (m,), w (m,), dU (world+1, 6), big (the rest: the dense
-    K and K_aa, or the sparse band); ints need (1,) (the band storage the
-    last sparse start needed), act, cur, rows (m,), cnt (world+1,), ptr
-    (world+2,), idx (2m,), deg, order, pos, nbr, nbr_key, visited (m,)."""
-    o = 3 * m + 6 * (world + 1)
-    f = (dwf[:m], dwf[m:2 * m], dwf[2 * m:3 * m], dwf[3 * m:o].reshape((world + 1, 6)), dwf[o:])
-    c0 = 1 + 3 * m
-    c1 = c0 + world + 1
-    c2 = c1 + world + 2
-    c3 = c2 + 2 * m
-    g = (dwi[:1], dwi[1:1 + m], dwi[1 + m:1 + 2 * m], dwi[1 + 2 * m:c0], dwi[c0:c1], dwi[c1:c2], dwi[c2:c3],
-         dwi[c3:c3 + m], dwi[c3 + m:c3 + 2 * m], dwi[c3 + 2 * m:c3 + 3 * m], dwi[c3 + 3 * m:c3 + 4 * m],
-         dwi[c3 + 4 * m:c3 + 5 * m], dwi[c3 + 5 * m:c3 + 6 * m])
-    return f, g
-
-
 @njit(cache=True)
 def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, cnt, ptr, idx, deg, visited, order,
                           pos, nbr, nbr_key, need):
@@ -462,7 +456,7 @@ def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, cnt
         need[0] = max(need[0], nl)
         if nl <= band.size:
             L = band[:nl].reshape((n_c, bw + 1))
-            L[:, :] = 0.0
+            _zero2(L)
         else:
             L = np.zeros((n_c, bw + 1))
         for t in range(c0, c1):

@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 
 from engine.contact import linalg, sweeps, warm
 from engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
@@ -36,6 +37,39 @@ WORK = ("J", "M", "mn", "loc", "lam_n", "target", "P", "N", "rt", "t", "Jt", "Mt
         "dwi")
 #: where ``kw.items`` holds the patches' slip flags (np,) bool
 W_SLIP = WORK.index("slip")
+
+
+#: the direct start's int64 work (after the band need, slot 0): act, cur,
+#: rows, idx (2), deg, order, pos, nbr, nbr_key, visited rows (m,) each
+_DI_ROWS = 11
+
+
+@register_jitable  # plain Python when called from Python (no dispatch)
+def direct_work_size(m, world, dense, band):
+    """(floats, ints): lengths of the direct start's work arrays ``dwf`` and
+    ``dwi`` for m normal rows and ``world`` dynamic bodies
+    (:func:`direct_layout`): the dense start's two (m, m) matrices, else
+    ``band`` floats of band storage for the sparse one's islands."""
+    return 3 * m + 6 * (world + 1) + (2 * m * m if dense else band), 1 + _DI_ROWS * m + 2 * world + 3
+
+
+@njit(cache=True, inline="always")
+def direct_layout(dwf, dwi, m, world):
+    """The views of the direct start's work arrays (:func:`direct_work_size`):
+    floats lam, ra (m,), w (m,), dU (world+1, 6), big (the rest: the dense
+    K and K_aa, or the sparse band); ints need (1,) (the band storage the
+    last sparse start needed), act, cur, rows (m,), cnt (world+1,), ptr
+    (world+2,), idx (2m,), deg, order, pos, nbr, nbr_key, visited (m,)."""
+    o = 3 * m + 6 * (world + 1)
+    f = (dwf[:m], dwf[m:2 * m], dwf[2 * m:3 * m], dwf[3 * m:o].reshape((world + 1, 6)), dwf[o:])
+    c0 = 1 + 3 * m
+    c1 = c0 + world + 1
+    c2 = c1 + world + 2
+    c3 = c2 + 2 * m
+    g = (dwi[:1], dwi[1:1 + m], dwi[1 + m:1 + 2 * m], dwi[1 + 2 * m:c0], dwi[c0:c1], dwi[c1:c2], dwi[c2:c3],
+         dwi[c3:c3 + m], dwi[c3 + m:c3 + 2 * m], dwi[c3 + 2 * m:c3 + 3 * m], dwi[c3 + 3 * m:c3 + 4 * m],
+         dwi[c3 + 4 * m:c3 + 5 * m], dwi[c3 + 5 * m:c3 + 6 * m])
+    return f, g
 
 
 @njit(cache=True, inline="always")
@@ -98,18 +132,18 @@ def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt,
     up to ``max_rows`` rows, sparse banded Cholesky per island above --
     and kept in ``lam_n`` when their complementarity residual beats the
     warm start's.  ``U0`` (n+1, 6) and ``r`` (m,) scratch; ``dwf``, ``dwi``
-    its work arrays (linalg.direct_work_size: nothing is allocated when
+    its work arrays (:func:`direct_work_size`: nothing is allocated when
     they are long enough, tests/test_engine_steady.py::
     test_steady_direct_start_allocates_nothing; shorter ones are replaced
     by new arrays, the same bits)."""
     m = lam_n.shape[0]
     dense = m <= max_rows
-    nf, ni = linalg.direct_work_size(m, world, dense, 0)  # the band: new when short
+    nf, ni = direct_work_size(m, world, dense, 0)  # the band: new when short
     if dwf.size < nf or dwi.size < ni:
         dwf = np.empty(nf)
         dwi = np.empty(ni, np.int64)
     (lam, ra, w, dU, big), (need, act, cur, rows, cnt, ptr, idx, deg, order, pos, nbr, nbr_key, visited) = \
-        linalg.direct_layout(dwf, dwi, m, world)
+        direct_layout(dwf, dwi, m, world)
     need[0] = 0
     U0[:, :] = U
     if friction:
