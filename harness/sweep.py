@@ -196,7 +196,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     cols = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
             TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
     try:
-        with Progress(*cols, console=err, disable=not err.is_terminal) as bar:
+        with Progress(*cols, console=err, disable=not err.is_terminal, refresh_per_second=2) as bar:
             task = bar.add_task("", total=len(todo))
 
             def on_start(p: Point) -> None:
