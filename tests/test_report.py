@@ -118,6 +118,78 @@ def test_cost_to_target_uses_the_scenarios_check_max_else_target(tmp_path):
     assert set(rp.cost_to_target(df)["scenario"]) == {"billiards.head_on"}
 
 
+def test_cost_to_target_is_an_upper_bound_where_the_coarsest_dt_swept_reaches(tmp_path):
+    """A cost reached at the coarsest dt of a line is "at most" (coarser
+    steps were not measured); one reached at a finer dt, with the coarsest
+    point missing the target or not ok, is bracketed.  The ratio says which
+    side is the bound."""
+    rows = [
+        # reference: reaches at its coarsest dt, 0.004 -> upper bound
+        row(engine="reference", dt=0.004, error=1e-12, cost=0.5),
+        row(engine="reference", dt=0.002, error=1e-13, cost=1.0),
+        # pybullet: cheapest reaching point 0.002; its coarsest, 0.004, misses -> bracketed
+        row(engine="pybullet", dt=0.004, error=0.05, cost=0.05),
+        row(engine="pybullet", dt=0.002, error=0.01, cost=0.1),
+        row(engine="pybullet", dt=0.001, error=0.005, cost=0.2),
+        # mujoco: coarsest point diverged (closed by stability), reaches at 0.002
+        row(engine="mujoco", dt=0.004, status="diverged", cost=0.01),
+        row(engine="mujoco", dt=0.002, error=0.015, cost=0.2),
+        # pymunk: never reaches, its best error at its finest dt
+        row(engine="pymunk", dt=0.004, error=0.5, cost=0.01),
+        row(engine="pymunk", dt=0.002, error=0.3, cost=0.02),
+    ]
+    df = load(tmp_path, rows)
+    ct = rp.cost_to_target(df, targets={FAKE: 0.02}).set_index("engine")
+    ref, pb, mj, pm = (ct.loc[e] for e in ("reference", "pybullet", "mujoco", "pymunk"))
+    assert bool(ref["cost_bound"]) and ref["dt"] == 0.004 and "dt=0.004" in ref["coarse_open"]
+    assert ref["step_us"] == pytest.approx(0.5 * 0.004 * 1e6) and math.isnan(ct.loc["pymunk", "step_us"])
+    assert "coarser steps not measured" in ref["note"]
+    assert not bool(pb["cost_bound"]) and pb["dt"] == 0.002 and pb["coarse_open"] == ""
+    assert not bool(mj["cost_bound"]) and mj["dt"] == 0.002
+    # pybullet is the cheapest and exact: the reference's 5x is an upper bound
+    assert pb["ratio"] == 1 and pb["ratio_bound"] == rp.RATIO_EXACT
+    assert ref["ratio"] == pytest.approx(5.0) and ref["ratio_bound"] == rp.RATIO_AT_MOST
+    assert mj["ratio"] == pytest.approx(2.0) and mj["ratio_bound"] == rp.RATIO_EXACT
+    assert not bool(pm["reached"]) and not bool(pm["cost_bound"]) and "dt=0.002" in pm["fine_open"]
+    assert "finer steps not measured" in pm["note"]
+    page = rp.render_html(df, targets={FAKE: 0.02}, physbench_commit="x")
+    cost_section = page.split('id="cost-to-target"')[1].split("</section>")[0]
+    assert "\u2264 0.5" in cost_section and "\u2264 5x" in cost_section
+    assert "coarser steps not measured" in cost_section and "finer steps not measured" in cost_section
+
+
+def test_cost_to_target_ratio_to_a_bounded_cheapest_engine(tmp_path):
+    """When the cheapest engine's cost is the upper bound, an exact engine's
+    ratio is a lower bound; when both are bounds, the ratio is neither."""
+    rows = [
+        row(engine="mujoco", dt=0.004, error=0.01, cost=0.1),         # reaches at its coarsest: bound
+        row(engine="mujoco", dt=0.002, error=0.001, cost=0.2),
+        row(engine="pybullet", dt=0.004, error=0.05, cost=0.1),       # bracketed at 0.002
+        row(engine="pybullet", dt=0.002, error=0.01, cost=0.4),
+        row(engine="reference", dt=0.004, error=1e-9, cost=0.3),      # bound as well
+        # a second reference line whose coarsest point reaches opens the
+        # engine even though its cheapest point is on the other line
+        row(engine="pymunk", dt=0.004, error=0.03, cost=0.15, iterations=10),
+        row(engine="pymunk", dt=0.002, error=0.015, cost=0.25, iterations=10),
+        row(engine="pymunk", dt=0.004, error=0.019, cost=0.6, iterations=50),
+    ]
+    df = load(tmp_path, rows)
+    ct = rp.cost_to_target(df, targets={FAKE: 0.02}).set_index("engine")
+    assert ct.loc["mujoco", "ratio_bound"] == rp.RATIO_EXACT and ct.loc["mujoco", "ratio"] == 1
+    assert ct.loc["pybullet", "ratio_bound"] == rp.RATIO_AT_LEAST
+    assert ct.loc["reference", "ratio_bound"] == rp.RATIO_OPEN
+    pm = ct.loc["pymunk"]
+    assert pm["dt"] == 0.002 and pm["cost"] == 0.25 and bool(pm["cost_bound"])
+    assert pm["coarse_open"] == "dt=0.004 (iterations=50)"
+    # a tighter target: mujoco's coarsest point misses it (bracketed, now the
+    # cheapest exact cost), the reference's still reaches it (a bound)
+    tight = rp.cost_to_target(df, targets={FAKE: 0.005}).set_index("engine")
+    assert not bool(tight.loc["mujoco", "cost_bound"]) and tight.loc["mujoco", "ratio_bound"] == rp.RATIO_EXACT
+    assert bool(tight.loc["reference", "cost_bound"]) and tight.loc["reference", "ratio_bound"] == rp.RATIO_AT_MOST
+    assert tight.loc["reference", "ratio"] == pytest.approx(1.5)
+    assert not bool(tight.loc["pybullet", "reached"]) and tight.loc["pybullet", "fine_open"] == "dt=0.002 (defaults)"
+
+
 # ---------------------------------------------------------------------------
 # work-precision
 

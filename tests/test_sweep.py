@@ -154,6 +154,37 @@ def test_shipped_suites_load():
         assert load_scene(sid).primary_metric and load_scene(sid).reference_model
 
 
+#: the nightly's dt ladder rule (suites/nightly.toml, docs/SWEEPS.md): at
+#: least this many steps per run of every scenario of a block ...
+LADDER_MIN_STEPS = 12
+#: ... and no step coarser than this (s): twice the 1/30 s game-loop step
+LADDER_CAP = 1.0 / 15.0
+
+
+def test_nightly_dt_grids_follow_the_ladder_rule():
+    """Every [[sweep]] block of the nightly (but the step-phase one, which
+    repeats the hard cases' steps) sweeps dt as a ladder of factors of 2
+    from its finest step up to the largest step with dt <= duration / 12
+    for every scenario of the block and dt <= 1/15 s; every engine sweeps
+    the same ladder (no engine's own dt axis).  A grid that stops short of
+    the rule, or runs past it, or favours one engine, fails here."""
+    nightly = SU.load_suite(ROOT / "suites" / "nightly.toml")
+    seen = 0
+    for block in nightly.sweeps:
+        if block.phases > 1:
+            continue
+        ladders = {e: tuple(sorted(float(v) for v in block.axes[e]["dt"])) for e in block.engines}
+        assert len(set(ladders.values())) == 1, (block.description, ladders)
+        dts = next(iter(ladders.values()))
+        assert all(b / a == pytest.approx(2.0, rel=1e-9) for a, b in zip(dts, dts[1:])), (block.description, dts)
+        bound = min([LADDER_CAP] + [load_scene(e.scenario, e.variant).duration / LADDER_MIN_STEPS
+                                    for e in block.scenarios])
+        top = dts[-1]
+        assert top <= bound * (1 + 1e-9) and 2 * top > bound, (block.description, top, bound)
+        seen += 1
+    assert seen >= 8
+
+
 BASE = """
 [suite]
 engines = ["reference", "mujoco", "pymunk"]

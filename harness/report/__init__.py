@@ -41,9 +41,10 @@ import os
 import sys
 from pathlib import Path
 
-from harness.report.analysis import (LADDER, at_a_glance, breaking_points, cost_to_target, failed_checks,
-                                     failing_checks, family, fmt_limit, frontier, hard_scenarios, ladder,
-                                     latest_points, meets_checks, phase_table, stability_matrix, work_precision)
+from harness.report.analysis import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
+                                     breaking_points, cost_to_target, failed_checks, failing_checks, family, fmt_limit, frontier, grid_ends, hard_scenarios,
+                                     ladder, latest_points, meets_checks, phase_table, stability_matrix,
+                                     work_precision)
 from harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_SPREADS, history, machine_shifts,
                                     pooled_noise, regressions, scene_change_lines, scene_changes)
 from harness.report.loading import load_results
@@ -55,8 +56,10 @@ from harness.results import RESULTS_DIR, write_text_atomic
 _normalise = normalise  # the name older callers use
 
 __all__ = ["BASELINE_RUNS", "ENGINE_COLOURS", "ERROR_FLOOR", "LADDER", "NOISE_FLOOR", "NOISE_SPREADS",
+           "RATIO_AT_LEAST", "RATIO_AT_MOST", "RATIO_EXACT", "RATIO_OPEN",
            "at_a_glance", "breaking_points", "cost_to_target", "engine_colour", "failed_checks", "failing_checks",
-           "family", "fmt", "fmt_limit", "frontier", "hard_scenarios", "history", "ladder", "latest_points",
+           "family", "fmt", "fmt_limit", "frontier", "grid_ends", "hard_scenarios", "history", "ladder",
+           "latest_points",
            "load_results", "machine_shifts", "meets_checks", "normalise", "phase_table", "plot_breaking_point",
            "plot_history", "plot_work_precision", "pooled_noise", "regressions", "render_html", "report_main",
            "scene_change_lines", "scene_changes", "settings_label", "stability_matrix", "work_precision"]

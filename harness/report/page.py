@@ -15,9 +15,9 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from harness.report.analysis import (_limit_rows, _sweeps, at_a_glance, breaking_points, cost_to_target,
-                                     failing_checks, fmt_limit, ladder, phase_table, stability_matrix,
-                                     work_precision)
+from harness.report.analysis import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, _limit_rows, _sweeps,
+                                     at_a_glance, breaking_points, cost_to_target, failing_checks, fmt_limit,
+                                     ladder, phase_table, stability_matrix, work_precision)
 from harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
@@ -151,6 +151,22 @@ def _wp_html(wps: dict[tuple[str, str], dict[str, Any]]) -> str:
     return "\n".join(parts)
 
 
+def _cost_text(r: Mapping[str, Any]) -> str:
+    """A reached cost: ``<= c`` when coarser steps were not measured."""
+    return ("\u2264 " if r["cost_bound"] else "") + fmt(r["cost"])
+
+
+def _ratio_text(r: Mapping[str, Any], digits: int = 3) -> str:
+    """The ratio to the cheapest engine with what bounds it: ``<=`` (this
+    engine's cost is an upper bound), ``>=`` (the cheapest's is), ``~ ... ?``
+    (both are: the ratio is neither bound)."""
+    if r["ratio"] == 1:
+        return "1"
+    x = fmt(r["ratio"], digits) + "x"
+    mark = r.get("ratio_bound") or RATIO_EXACT
+    return {RATIO_EXACT: x, RATIO_AT_MOST: "\u2264 " + x, RATIO_AT_LEAST: "\u2265 " + x}.get(mark, f"~{x} (?)")
+
+
 def _cost_html(ct: pd.DataFrame) -> str:
     if ct.empty:
         return ('<p class="note">No scenario with a target: give the scenario a <code>[[check]] max</code> for '
@@ -161,18 +177,28 @@ def _cost_html(ct: pd.DataFrame) -> str:
         tgt = f"{_e(r['primary_metric'] or '?')} &le; {_e(fmt(r['target']))} <span class='note'>({_e(r['target_source'])})</span>"
         if r["reached"]:
             cfg = _e(r["settings"] or f"dt={fmt(r['dt'])}")
-            rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(fmt(r["cost"])),
-                         _e("1" if r["ratio"] == 1 else fmt(r["ratio"]) + "x")])
+            if r["cost_bound"]:
+                cfg += (f"<br><span class='note'>reached at the coarsest dt swept, {_e(r['coarse_open'])}: "
+                        "coarser steps not measured</span>")
+            rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(_cost_text(r)),
+                         _e(fmt(r["step_us"])), _e(_ratio_text(r))])
         else:
             best = (f"best error {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
                                                              if r["best_error_settings"] else "")
                     if _finite(r["best_error"]) else (r["note"] or "no ok point"))
-            rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached</span>",
-                         _e(best), "-", "-"])
+            where = ("<br><span class='note'>at the finest dt swept: finer steps not measured</span>"
+                     if r["fine_open"] else "")
+            rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached within the grid</span>",
+                         _e(best) + where, "-", "-", "-"])
     return ('<p class="note">The cheapest configuration (latest sweep) whose primary error is at most the '
-            "target, its cost and its cost relative to the cheapest engine that reaches the target.</p>"
+            "target, its cost and its cost relative to the cheapest engine that reaches the target. "
+            "&le; marks an upper bound: the engine reaches the target at the coarsest dt the sweep offers "
+            "(on the line named), so coarser steps, not measured, may reach it for less; a ratio with "
+            "&le; is an upper bound, &ge; a lower bound (the cheapest engine's cost is the bound), "
+            "~ (?) neither (both costs are bounds). Where two engines reach the target at the same dt, their "
+            "ratio is that of their CPU &micro;s per step.</p>"
             + _table(["scenario", "engine", "target", "cheapest configuration", "error", "CPU s / sim s",
-                      "vs cheapest"], rows, raw=True))
+                      "CPU \u00b5s / step", "vs cheapest"], rows, raw=True))
 
 
 def _rung(t: float) -> str:
@@ -193,9 +219,9 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             if r is None:
                 cells.append("-")
             elif r["reached"]:
-                ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({fmt(r['ratio'], 2)}x)"
+                ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({_ratio_text(r, 2)})"
                 best = " <span class='good'>cheapest</span>" if r["ratio"] == 1 else ""
-                cells.append(f"{_e(fmt(r['cost']))}{_e(ratio)}{best}<br><span class='note'>"
+                cells.append(f"{_e(_cost_text(r))}{_e(ratio)}{best}<br><span class='note'>"
                              f"{_e(r['settings'])}</span>")
             else:
                 where = (f"best {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
@@ -205,8 +231,8 @@ def _ladder_html(lad: pd.DataFrame) -> str:
         rows.append(cells)
     return ("<h3>Accuracy ladder</h3><p class='note'>Per engine, the CPU s per simulated s of its cheapest "
             "configuration (latest sweep) whose primary error is at most each rung, the factor over the cheapest "
-            "engine and the configuration; where it is not reached, the best error the engine reached and with "
-            "which settings.</p>"
+            "engine and the configuration (&le;: reached at the coarsest dt swept, an upper bound); where it is "
+            "not reached, the best error the engine reached and with which settings.</p>"
             + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
 
 
