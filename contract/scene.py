@@ -78,6 +78,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
             m.rolling_friction,
         )
     bodies: list[Body] = []
+    entries: list[tuple[int, bool]] = []  # per body: its [[body]] entry, made by a pattern
     seen: set[str] = set()
     for bi, b in enumerate(spec.body):
         he = np.array(b.half_extents, float) if b.half_extents is not None else None
@@ -98,6 +99,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                             f"{bound_error('position', far)}")
                 break
             seen.add(name)
+            entries.append((bi, b.pattern is not None))
             bodies.append(Body(
                 index=len(bodies), name=name, shape=b.shape, mass=float(mass), inertia=inertia,
                 position=pos, orientation=np.array(b.orientation, float),
@@ -167,6 +169,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                            dict(c.xfail)) for c in spec.check),
         variant_names=variant_names,
         phases=sc.phases,
+        body_entries=tuple(entries),
     )
     # the reference model must accept the scene, and every checked metric
     # must be produced for it (tests/test_models.py)

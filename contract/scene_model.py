@@ -155,8 +155,24 @@ class Scene:
     #: ``dataclasses.replace``, so a step-phase shift keeps the hash of the
     #: scene as written; the phase is recorded beside it)
     content_hash: str = ""
+    #: per body (by Body.index), the spec's ``[[body]]`` entry it comes from
+    #: and whether that entry's pattern made it: (entry, patterned); () for
+    #: a scene built without a spec (not scene content: no part of the hash)
+    body_entries: tuple[tuple[int, bool], ...] = ()
 
     # ---- derived, engine-neutral helpers ---------------------------------
+
+    def body_key(self, i: int, field: str) -> str:
+        """The spec key path body ``i``'s ``field`` is written under, for
+        error messages: ``body[k].<field>`` of the ``[[body]]`` entry k it
+        comes from (k counts the spec's entries, not the bodies a pattern
+        expands to); a position a pattern made is the pattern's,
+        ``body[k].pattern``; ``body[i].<field>`` for a scene built without a
+        spec.  Test: tests/test_references.py::test_two_body_refusal_names_the_spec_entry."""
+        if i >= len(self.body_entries):
+            return f"body[{i}].{field}"
+        entry, patterned = self.body_entries[i]
+        return f"body[{entry}].pattern" if patterned and field == "position" else f"body[{entry}].{field}"
 
     @property
     def source(self) -> str:

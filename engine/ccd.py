@@ -40,14 +40,14 @@ from __future__ import annotations
 import numpy as np
 
 from engine import flight
-from engine.mathutil import quat_to_matrix
-from engine.model import BOX, S_BOX, S_PLANE
+from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
-from engine.collision.dispatch import Collider
+from engine.collision.dispatch import Collider, static_row
+from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
-from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs, point_normal_velocity
+from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
@@ -129,10 +129,10 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     """The broad-phase pairs whose gap may change by more than ``lim`` (m)
     between the start and end poses, with the end pose's rotations, from
     one compiled call (:func:`engine.flight.end_pose_pairs`) into buffers
-    kept in the context: ((body pairs i, j), (plane pairs body, row),
-    (static-box pairs body, row), margins (-lim each, as long as the
-    longest), R1 (n, 3, 3)), every array a view of a buffer valid until the
-    next call; None when no pair moved that far.
+    kept in the context (``Context.end_pose_buffers``): ((body pairs i, j),
+    (plane pairs body, row), (static-box pairs body, row), R1 (n, 3, 3)),
+    every array a view of a buffer valid until the next call; None when no
+    pair moved that far.
 
     A body's end displacement, |x1 - x0| + 2 sin(theta/2) r (theta the
     turn between the two orientations, cos(theta/2) = |q0 . q1|, r the
@@ -151,23 +151,16 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    buf = ctx.info.get("ccd_end_pose")
-    m = max(pi.size, bp.size, bs.size, 1)
-    if buf is None or buf[0].shape[0] < m:
-        i = np.empty(2 * m, np.int64)
-        buf = ctx.info["ccd_end_pose"] = (i, i.copy(), i.copy(), i.copy(), i.copy(), i.copy(), np.empty(2 * m),
-                                           np.empty(model.n), np.empty((model.n, 3, 3)))
-    ci, cj, cbp, cpk, cbs, csk, mg, sw, R1 = buf
+    ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
     nb, npl, ns = flight.end_pose_pairs(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, lim,
                                         fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs,
-                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, mg, R1)
+                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, R1)
     if not nb + npl + ns:
         return None
-    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), mg, R1
+    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
-_ORIGIN = np.zeros((1, 3))  # the world's position (statics' lever arms are from the origin)
 
 
 class _Groups:
@@ -236,9 +229,9 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     moved = end_pose_pairs(model, state, ctx, lim, fast)
     if moved is None:
         return []
-    (ci, cj), planes, sboxes, mg, R1 = moved
-    c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes,
-                                  margins=(mg[:ci.size], mg[:planes[0].size], mg[:sboxes[0].size]))
+    (ci, cj), planes, sboxes, R1 = moved
+    # every pair's margin -lim (-lim + 0 + 0: the same bits)
+    c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes, margin=-lim, sweep=ctx.no_sweep)
     if c.m == 0:
         return []
     code = _pair_codes(model, c)
@@ -309,18 +302,16 @@ def _pairs_contacts(model, ctx, pairs) -> list:
     is ~100 impact pairs checked at every time found, and one call per
     pair cost 1.7 ms a step of spheres_1000's 4.4."""
     n = model.n
-    R1 = quat_to_matrix(ctx.q1)
+    R1 = _rotations(ctx, ctx.q1)
     bi, bj, pa, prow, sa, srow = [], [], [], [], [], []
     for q in pairs:
         if q.sidx < 0:
             bi.append(min(q.a, q.b))
             bj.append(max(q.a, q.b))
-        elif model.static_shape[q.sidx] == S_PLANE:
-            pa.append(q.a)
-            prow.append(int(np.flatnonzero(model.plane_static == q.sidx)[0]))
-        else:
-            sa.append(q.a)
-            srow.append(int(np.flatnonzero(model.sbox_static == q.sidx)[0]))
+            continue
+        plane, row = static_row(model, q.sidx)
+        (pa if plane else sa).append(q.a)
+        (prow if plane else srow).append(row)
     arr = lambda v: np.array(v, np.int64)
     c = collide_pairs(model, ctx.x1, R1, arr(bi), arr(bj), (arr(pa), arr(prow)), (arr(sa), arr(srow)),
                       np.full(len(bi), np.inf), np.full(len(pa), np.inf), np.full(len(sa), np.inf),
@@ -372,41 +363,42 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
 
     ``contacts``: the pair's contacts at the end pose when already found
     (:func:`_pairs_contacts`)."""
+    R1 = _rotations(ctx, ctx.q1)
     c = contacts
     if c is None:
-        c = pair_contacts(model, ctx.x1, ctx.q1, a, b, sidx, _collider(model, ctx))
+        c = pair_contacts(model, ctx.x1, R1, a, b, sidx, _collider(model, ctx))
     if c.m == 0:
         return np.inf, 0.0
-    gap = c.gap
+    wk = ctx.info.get("ccd_gap_work")
+    if wk is None or wk.shape[0] < c.m:
+        wk = ctx.info["ccd_gap_work"] = np.empty((2 * c.m, 5))
     tol = 0.1 * float(model.bound_radius[a]) + 1e-4
-    p = None
-    if (loc is not None and loc.size) or (exclude is not None and exclude.size):
-        R1 = quat_to_matrix(ctx.q1[a:a + 1])[0]
-        p = np.einsum("ki,ij->kj", c.point - ctx.x1[a], R1)
-    if exclude is not None and exclude.size:
-        gone = np.sum((p[:, None, :] - exclude[None, :, :]) ** 2, axis=-1).min(axis=1) <= tol * tol
-        if gone.all():
-            return np.inf, 0.0
-        gap = np.where(gone, np.inf, gap)
-    if loc is not None and loc.size:
-        D2 = np.sum((p[:, None, :] - loc[None, :, :]) ** 2, axis=-1)  # (contacts, followed points)
-        D2[~np.isfinite(gap)] = np.inf
-        best = np.argmin(D2, axis=0)
-        best = best[D2[best, np.arange(loc.shape[0])] <= tol * tol]
-        same = _member(c.fid, fids) & np.isfinite(gap) if fids is not None else None
-        if best.size or (same is not None and same.any()):
-            follow = np.zeros(c.m, bool)
-            follow[best] = True
-            if same is not None:
-                follow |= same
-            gap = np.where(follow, c.gap, np.inf)
-    k = int(np.argmin(gap))
-    n = model.n
-    ka, kb = int(c.a[k]), int(c.b[k])
-    rA = c.point[k:k + 1] - (ctx.x1[ka:ka + 1] if ka < n else _ORIGIN)
-    rB = c.point[k:k + 1] - (ctx.x1[kb:kb + 1] if kb < n else _ORIGIN)
-    vn, _ = point_normal_velocity(ctx.v, ctx.w, c.a[k:k + 1], c.b[k:k + 1], rA, rB, c.normal[k:k + 1])
-    return float(c.gap[k]), float(vn[0])
+    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
+                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude,
+                NO_FID if fids is None else fids, fids is not None, wk)
+
+
+def _rotations(ctx, q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of the quaternions q (n, 4) from one
+    compiled call (:func:`engine.flight.q2m`, mathutil.quat_to_matrix's
+    arithmetic) into a buffer kept in the context, valid until the next
+    call."""
+    R = ctx.info.get("ccd_R")
+    if R is None or R.shape[0] != q.shape[0]:
+        R = ctx.info["ccd_R"] = np.empty((q.shape[0], 3, 3))
+    flight.q2m(q, R)
+    return R
+
+
+def warm_up() -> None:
+    """Compile (or load) the followed pair's gap kernel and the impact
+    solver's propagation with the step's argument types (see
+    engine/jit.py)."""
+    from engine import ccd_gap
+    from engine.contact import impact
+
+    ccd_gap.warm_up()
+    impact.warm_up()
 
 
 def refine_toi(model, state, ctx, main_stages, profile) -> float:
@@ -563,7 +555,7 @@ class Impact(Stage):
         self.plastic = str(model.settings["plastic_impacts"])
 
     def __call__(self, model, state, ctx) -> None:
-        R = quat_to_matrix(state.q)
+        R = _rotations(ctx, state.q)
         tol = 10 * TOUCH_TOL
         pi, pj = ctx.pairs_i, ctx.pairs_j
         c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs,

@@ -526,7 +526,7 @@ def _moved_static_pairs(sw, lim, has_fast, fast, body, other, cbody, cother):
 
 @njit(cache=True)
 def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk,
-                   cbs, csk, margin, R1):
+                   cbs, csk, R1):
     """The CCD stage's end-pose check in one call: ``sw`` (n,) m the
     bodies' :func:`end_displacement` (start pose x0, q0 against end pose
     x1, q1); the pairs whose surfaces moved apart or together by more than
@@ -535,8 +535,7 @@ def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp
     body's value), with ``has_fast`` only pairs with a body where ``fast``
     (n,) holds -- copied in order into the front of ``ci``/``cj``,
     ``cbp``/``cpk``, ``cbs``/``csk`` (int64, at least as long as their
-    inputs); ``margin`` (at least the longest count) filled with -lim; and,
-    when any pair moved, ``R1`` (n, 3, 3) the rotations of q1
+    inputs); and, when any pair moved, ``R1`` (n, 3, 3) the rotations of q1
     (:func:`q2m`).  Returns the counts (body pairs, planes, static boxes)."""
     end_displacement(x0, q0, x1, q1, bound_radius, sw)
     nb = 0
@@ -550,6 +549,4 @@ def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp
     ns = _moved_static_pairs(sw, lim, has_fast, fast, bs, sk, cbs, csk)
     if nb + npl + ns:
         q2m(q1, R1)
-        for k in range(max(nb, npl, ns)):
-            margin[k] = -lim
     return nb, npl, ns

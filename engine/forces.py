@@ -38,34 +38,34 @@ class Gravity(Stage):
         flight.gravity(self.mg, ctx.F)
 
 
-class LinearDrag(Stage):
+class _Drag(Stage):
+    """A velocity-only drag law: its kernel adds F(c, v) into ctx.F, with
+    c the per-body coefficient array named like the stage
+    (``model.<name>``, (n,))."""
+
+    family = "forces"
+    torque = False
+    pose = False
+
+    def __init__(self, model):
+        self.c = getattr(model, self.name).copy()
+
+    def __call__(self, model, state, ctx) -> None:
+        self.kernel(self.c, ctx.ev, ctx.F)
+
+
+class LinearDrag(_Drag):
     """Stokes drag F = -c v (c = Body.drag_linear, N s/m)."""
 
     name = "drag_linear"
-    family = "forces"
-    torque = False
-    pose = False
-
-    def __init__(self, model):
-        self.c = model.drag_linear.copy()
-
-    def __call__(self, model, state, ctx) -> None:
-        flight.linear_drag(self.c, ctx.ev, ctx.F)
+    kernel = staticmethod(flight.linear_drag)
 
 
-class QuadraticDrag(Stage):
+class QuadraticDrag(_Drag):
     """Quadratic drag F = -c |v| v (c = Body.drag_quadratic, N s^2/m^2)."""
 
     name = "drag_quadratic"
-    family = "forces"
-    torque = False
-    pose = False
-
-    def __init__(self, model):
-        self.c = model.drag_quadratic.copy()
-
-    def __call__(self, model, state, ctx) -> None:
-        flight.quadratic_drag(self.c, ctx.ev, ctx.F)
+    kernel = staticmethod(flight.quadratic_drag)
 
 
 class Springs(Stage):

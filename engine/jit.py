@@ -61,8 +61,9 @@ def warm_up() -> float:
     zb = np.zeros(npch, np.bool_)
     z2 = np.zeros((npch, 2))
     sweeps.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
-                   np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb)
-    sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb)
+                   np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb,
+                   np.empty(sweeps.work_size(m, npch, 5)))
+    sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
     # preparation and warm start: two bodies and the world, three contacts
     # (the model's arrays are read-only: ``ro``, the types the step passes)
     X = np.zeros((nb, 3))
@@ -110,6 +111,9 @@ def warm_up() -> float:
     _warm_flight()
     from engine.collision import dispatch
     dispatch.warm_up()  # the broad and narrow phases' kernels
+    from engine import ccd, penalty
+    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
+    penalty.warm_up()
     dt = time.perf_counter() - t0
     _READY = True
     add_jit_seconds(dt)
@@ -117,25 +121,16 @@ def warm_up() -> float:
 
 
 def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
-    """The fused solve (engine/contact/phases.py) on three rows, two
-    patches, with and without friction, with the step's argument types."""
+    """The solve's compiled calls from Python (engine/contact/phases.py):
+    ``relax`` (the phase-by-phase path's) and the stage's fused calls
+    (``solve_contacts`` and the kernels it calls are compiled into those,
+    never called from Python: no warm-up of their own)."""
     from engine.contact import phases
 
-    m, npch = r.size, pab.shape[0]
+    m = r.size
     V = np.zeros((nb + 1, 3))
     U = np.zeros((nb + 1, 6))
-    f1, i1 = np.ones(npch), np.ones(m)
-    for friction in (True, False):
-        k = npch if friction else 0
-        nr = 5 if friction else 3
-        phases.solve_contacts(
-            V, V.copy(), V[:nb].copy(), V[:nb].copy(), U, U.copy(), U.copy(), ab, J, M, i1.copy(), np.zeros(m),
-            r.copy(), nb, friction, friction, pab[:k], pid[:m if friction else 0], np.ones((k, nr, 12)),
-            np.ones((k, nr, 12)), np.ones((k, nr)), np.zeros((k, nr)), f1[:k].copy(), f1[:k].copy(),
-            f1[:k].copy(), f1[:k].copy(), f1[:k].copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), t[:k].copy(),
-            1e-4, True, codes, loc, a, b, br, codes, loc, r, codes, loc, r, loc, 0.01, np.zeros(k, np.bool_),
-            True, 1e-5, 400, 4, r.copy(), np.zeros(k, np.bool_), np.zeros((k, 2)), 2, 1e-7)
-    phases.relax(V, V.copy(), U, ab, J, M, i1, np.zeros(m), r, 2, 1e-7, nb)
+    phases.relax(V, V.copy(), U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
     _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb)
 
 
@@ -193,8 +188,6 @@ def _warm_flight() -> None:
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
     vw1 = np.zeros((nb + 1, 3))
-    flight.begin_step(x, q, v, v, inv_I, x.copy(), q.copy(), vw1, vw1.copy(), v.copy(), v.copy(), vw1.copy(),
-                      vw1.copy(), R, Iinv)
     from engine import state
     from engine.pack import Pack
 
@@ -230,7 +223,7 @@ def _warm_flight() -> None:
     for fast in (False, True):
         flight.end_pose_pairs(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), 0.1, fast, zb, idx, idx, idx, idx, idx,
                               idx, np.zeros(nb), idx.copy(), idx.copy(), idx.copy(), idx.copy(), idx.copy(),
-                              idx.copy(), np.zeros(nb), R.copy())
+                              idx.copy(), R.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

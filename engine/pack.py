@@ -14,6 +14,8 @@ arrays are seen by both sides (they share memory).
 
 from __future__ import annotations
 
+from operator import is_
+
 from numba import njit
 from numba.core import types
 from numba.experimental import structref
@@ -48,3 +50,24 @@ def _new(items):
 @njit(cache=True)
 def _items(p):
     return p.items
+
+
+class KeptPack:
+    """One :class:`Pack` kept while the objects it holds stay the same:
+    ``kept.of(items)`` is the Pack built the last time when every item is
+    the same object (``is``) as then, else a new Pack of ``items``.  The
+    one cache of the kept packs (the step's pose, the contacts, the narrow
+    phase's buffers): a buffer grown or replaced gives a new Pack."""
+
+    __slots__ = ("_items", "_pack")
+
+    def __init__(self) -> None:
+        self._items: tuple | None = None
+        self._pack = None
+
+    def of(self, items: tuple) -> Pack:
+        last = self._items
+        if last is None or len(last) != len(items) or not all(map(is_, last, items)):
+            self._pack = Pack(items)
+            self._items = items
+        return self._pack

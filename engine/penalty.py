@@ -26,9 +26,10 @@ import math
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
 from engine.profile import Stage
-from engine.contact.rows import Rows, _pad, point_normal_velocity
+from engine.contact.rows import Rows, _pad
 
 PERIODS = 20.0
 
@@ -73,6 +74,34 @@ def damping_ratio_for(e: float) -> float:
     return 0.5 * (lo + hi)
 
 
+@njit(cache=True)
+def normal_forces(X, V, W, a, b, point, normal, gap, m_eff, fixed, kfac, zeta, h, out):
+    """Normal forces (N) of penetrating contacts (m,) into ``out``: F =
+    max(k d_mid - c vn, 0) with the spring at the predicted mid-step depth
+    d_mid = -gap - h vn / 2 (a leapfrog-like evaluation: the spring
+    neither gains nor loses energy by itself) and the dashpot at the start
+    normal speed vn (m/s, from the padded start velocities V, W (n+1, 3));
+    k = kfac when ``fixed`` (the setting), else m_eff kfac (kfac =
+    (pi / T)^2); c = 2 zeta sqrt(k m_eff).  The numpy form's arithmetic
+    (the normal speed summed as einsum "ki,ki->k": (p0 + p2) + p1; the
+    final states are pinned)."""
+    n = X.shape[0]
+    for i in range(gap.shape[0]):
+        ka, kb = a[i], b[i]
+        ra0, ra1, ra2 = point[i, 0] - X[ka, 0], point[i, 1] - X[ka, 1], point[i, 2] - X[ka, 2]
+        xb0, xb1, xb2 = (X[kb, 0], X[kb, 1], X[kb, 2]) if kb < n else (0.0, 0.0, 0.0)
+        rb0, rb1, rb2 = point[i, 0] - xb0, point[i, 1] - xb1, point[i, 2] - xb2
+        r0 = V[kb, 0] + (W[kb, 1] * rb2 - W[kb, 2] * rb1) - V[ka, 0] - (W[ka, 1] * ra2 - W[ka, 2] * ra1)
+        r1 = V[kb, 1] + (W[kb, 2] * rb0 - W[kb, 0] * rb2) - V[ka, 1] - (W[ka, 2] * ra0 - W[ka, 0] * ra2)
+        r2 = V[kb, 2] + (W[kb, 0] * rb1 - W[kb, 1] * rb0) - V[ka, 2] - (W[ka, 0] * ra1 - W[ka, 1] * ra0)
+        vn = (r0 * normal[i, 0] + r2 * normal[i, 2]) + r1 * normal[i, 1]
+        k = kfac if fixed else m_eff[i] * kfac
+        damp = 2.0 * zeta[i] * np.sqrt(k * m_eff[i])
+        f = k * (-gap[i] - 0.5 * h * vn) - damp * vn
+        out[i] = f if (f >= 0.0 or np.isnan(f)) else 0.0  # np.maximum(f, 0.0)
+    return out
+
+
 class PenaltyContacts(Stage):
     name = "penalty"
     family = "penalty"
@@ -92,21 +121,12 @@ class PenaltyContacts(Stage):
         rows = Rows(model, state.x, ctx.Iinv0, c.take(sel), self.friction, colour=False)
         cs = rows.contacts
         V0, W0 = _pad(state.v), _pad(state.w)
-        vn, rel = point_normal_velocity(V0, W0, cs.a, cs.b, rows.rA, rows.rB, cs.normal)
-        m_eff = rows.mn
-        if self.k > 0:
-            k = np.full(cs.m, self.k)
-        else:
-            T = PERIODS * model.h
-            k = m_eff * (np.pi / T) ** 2
-        zeta = np.array([damping_ratio_for(float(x)) for x in cs.e])
-        damp = 2.0 * zeta * np.sqrt(k * m_eff)
-        depth = -cs.gap
-        # spring at the predicted mid-step depth (a leapfrog-like evaluation:
-        # the spring neither gains nor loses energy by itself), dashpot at the
-        # start velocity
-        d_mid = depth - 0.5 * h * vn
-        Fn = np.maximum(k * d_mid - damp * vn, 0.0)
+        # k = m_eff (pi / T)^2 with T = PERIODS h (auto), or the setting
+        kfac = (np.pi / (PERIODS * model.h)) ** 2 if self.k <= 0 else self.k
+        e, inv = np.unique(cs.e, return_inverse=True)
+        zeta = np.array([damping_ratio_for(float(x)) for x in e])[inv]
+        Fn = normal_forces(state.x, V0, W0, cs.a, cs.b, cs.point, cs.normal, cs.gap, rows.mn, self.k > 0, kfac,
+                           zeta, h, np.empty(cs.m))
         U = Rows.pack(ctx.v, ctx.w)
         rows.apply_normal(U, Fn * h)
         if self.friction:
@@ -129,3 +149,13 @@ class PenaltyContacts(Stage):
             rows.apply_patch(U, d)
         Rows.unpack(U, ctx.v, ctx.w)
         ctx.profile.count("contact_rows", cs.m)
+
+
+def warm_up() -> None:
+    """Compile (or load) :func:`normal_forces` with the step's argument
+    types (see engine/jit.py)."""
+    one, i1 = np.ones((1, 3)), np.zeros(1, np.int64)
+    V = np.zeros((2, 3))
+    for fixed in (False, True):
+        normal_forces(one, V, V, i1, i1 + 1, one, one, -np.ones(1), np.ones(1), fixed, 1.0, np.ones(1), 0.01,
+                      np.empty(1))

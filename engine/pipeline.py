@@ -15,6 +15,7 @@ which counts calls and time per stage (see profile.py).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,14 +25,15 @@ from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, 
 from engine.flight import max_turn_sq
 from engine.jit import warm_up
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
-from engine.model import BOX, CAPSULE, CYLINDER, Model
+from engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
 from engine.collision import NarrowPhase
 from engine.control import EventMode
 from engine.broadstage import BroadPhase
 from engine.penalty import PenaltyContacts
-from engine.profile import Profile, Stage
+from engine.profile import Profile, Stage, add_jit_seconds
 from engine.solver import Solve, _pair_codes_abs
 from engine.state import Context, State
+from engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
 
 
 def force_stages(model: Model) -> tuple[Stage, ...]:
@@ -73,7 +75,31 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     stages.append(IntegratePositions(model))
     if contact and not penalty and model.setting("ccd") != "off":
         stages += [CCD(model), Impact(model)]
+    if SteadyStep.build(model, stages) is not None:
+        _warm_steady(model)
     return tuple(stages)
+
+
+_STEADY_READY = [False]
+
+
+def _warm_steady(model: Model) -> None:
+    """Compile (or load) the fused steady step (engine/steady.py) once per
+    process, at build like every kernel (engine/jit.py): a few steps of
+    :func:`engine.steady.warm_scene` with this model's settings; the
+    seconds count as JIT time."""
+    if _STEADY_READY[0]:
+        return
+    _STEADY_READY[0] = True
+    t0 = time.perf_counter()
+    m = build_model(warm_scene(), {**model.settings, "dt": 1 / 240})
+    stages = build_pipeline(m)
+    st = State.from_model(m)
+    prof = Profile()
+    add_jit_seconds(prof.jit_s)  # (the Profile took them: they stay pending for the caller's)
+    for _ in range(4):
+        step(m, st, stages, prof)
+    add_jit_seconds(time.perf_counter() - t0)
 
 
 def context(model: Model, state: State, profile: Profile) -> Context:
@@ -113,8 +139,9 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
         parts = _parts(model, state, turn) if turn is not None else 1
         if parts > 1:
             profile.count("rotation_splits", parts - 1)
+        fused = plan.fused if not profile.by_stage else None
         for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops)
+            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, fused)
     state.steps += 1
 
 
@@ -132,12 +159,16 @@ class Plan:
     max_events: int
     turn: tuple | None
     stops: bool
+    #: the steady step as one compiled call (engine/steady.py), or None
+    #: when the scene has a stage it does not cover
+    fused: SteadyStep | None = None
 
 
 def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
     return Plan(stages, tuple(s for s in stages if s.family != "impact"),
                 next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
-                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"))
+                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"),
+                SteadyStep.build(model, stages))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -185,7 +216,7 @@ MAX_STOPS = 8
 
 
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile, allow_stops: bool) -> None:
+             profile: Profile, allow_stops: bool, fused: SteadyStep | None = None) -> None:
     """One (sub)step of length h, cut at every time of impact and at every
     friction stop.
 
@@ -199,18 +230,36 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     Without the cut the stopped contact sticks for the rest of the step
     whatever the forces, an error of first order in the step (a block thrown
     up a 35 degree slope slid back 6.6 mm behind the closed form at 1/240 s).
+
+    ``fused``: the plan's steady step (engine/steady.py), tried first as
+    one compiled call; where the step is not steady it runs stage by
+    stage as before (the same bits).
     """
     remaining = h
     events = 0
     stops = 0
     ctx.missed_skip.clear()
+    try_fused = fused is not None and fused.ready()
     while True:
         warm0 = ctx.warm0 = state.warm
-        ctx.begin(model, state, remaining)
         ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
-        ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
-        for s in main:
-            profile.run(s, model, state, ctx)
+        staged = True
+        if try_fused:
+            try_fused = False
+            ctx.reset(state, remaining)
+            ctx.stop_allowed = allow_stops
+            status = fused.run(model, state, ctx, remaining, profile)
+            if status == DONE:
+                state.t += remaining
+                break
+            if status == CCD_NEEDED:
+                profile.run(main[-1], model, state, ctx)  # the CCD stage, after what the call did
+                staged = False
+        if staged:
+            ctx.begin(model, state, remaining)
+            ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
+            for s in main:
+                profile.run(s, model, state, ctx)
         if ctx.event is None and ctx.stop is not None:
             tau = ctx.stop
             state.warm = warm0

@@ -53,7 +53,11 @@ class Stage:
 class Profile:
     """Call counts and accumulated seconds per stage name."""
 
-    def __init__(self) -> None:
+    def __init__(self, by_stage: bool = False) -> None:
+        #: time every stage on its own: the step runs stage by stage, never
+        #: as the fused steady step (engine/steady.py, timed as one stage,
+        #: ``steady_step``)
+        self.by_stage = by_stage
         #: seconds the kernels took to compile or load at the build before
         #: this profile (engine/jit.py); never part of a stage's time
         self.jit_s = take_jit_seconds()

@@ -51,11 +51,9 @@ rows, and impacts are resolved at their time of impact (impact.py).
 
 from __future__ import annotations
 
-from operator import is_
-
 import numpy as np
 
-from engine.contact import phases, prepare
+from engine.contact import phases, prepare, sweeps
 from engine.control import EventMode, Impacts
 from engine.contact.impact import impact_solve  # noqa: F401
 from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
@@ -77,7 +75,7 @@ from engine.contact.rows import (  # noqa: F401  (the solver's names, as before 
 )
 from engine.contact.rows import _take_rows
 from engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
-from engine.pack import Pack
+from engine.pack import KeptPack, Pack
 from engine.profile import Stage
 from engine.state import Contacts
 
@@ -148,13 +146,13 @@ class Solve(Stage):
         #: the fused path's kept state: (topology, work views, Rows, work Pack)
         #: of the last solve, and the (arrays, Pack) of the pose and velocities
         self._prep = None
-        self._kc = None
+        self._kc = KeptPack()
         #: (classification views, topology) of the last compiled solve when
         #: it had no impact row (the next steady step's one call), and the
         #: (classification views, mean velocities, Pack) that call reads
         self._fast = None
-        self._kx = None
-        self._kk = None
+        self._kx = KeptPack()
+        self._kk = KeptPack()
 
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
@@ -219,7 +217,7 @@ class Solve(Stage):
             # separate (pseudo) velocities; they move positions by h vp
             # (split_impulse discards them afterwards)
             phases.relax(ctx.vp, ctx.wp, sc.take("Up", (n + 1, 6)), topo.ab, rows.J, rows.M, rows.mn,
-                         sc.take("lam_p", (rows.m,)), bias, self.iterations, 1e-7, n)
+                         sc.take("lam_p", (rows.m,)), bias, self.iterations, 1e-7, n, rows.sweep_work())
         if h >= WARM_MIN_STEP * model.h:
             state.warm = self._warm.store(rows, h, touching, old, ctx.warm0)
         return rows, U, U0, vt0, pushed
@@ -269,21 +267,14 @@ class Solve(Stage):
         """The pose and velocities as one Pack (see phases.solve_stage),
         kept while the arrays are the same objects (the context's, every
         step)."""
-        kc = self._kc
-        live = (state.x, state.v, state.w, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, ctx.vp, ctx.wp)
-        if kc is None or not all(map(is_, kc[0], live)):
-            kc = self._kc = (live, Pack((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
-                                         model.inv_mass, model.bound_radius)))
-        return kc[1]
+        return self._kc.of((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
+                            model.inv_mass, model.bound_radius))
 
     def _contacts(self, c: Contacts) -> Pack:
         """The contacts' arrays read by phases.classify_stage as one Pack,
-        kept while ``c`` is the same object (the narrow phase hands out the
+        kept while they are the same arrays (the narrow phase hands out the
         same Contacts while its count and buffers stay)."""
-        kk = self._kk
-        if kk is None or kk[0] is not c:
-            kk = self._kk = (c, Pack((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e)))
-        return kk[1]
+        return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e))
 
     def _fast_path(self, model, state, ctx, c, cl, old, h, sc, store_on):
         """The steady step's whole stage as ONE compiled call
@@ -303,9 +294,7 @@ class Solve(Stage):
         if prep[0] is not topo or prep[1] is not views:
             return None
         kc = self._pose(model, state, ctx)
-        kx = self._kx
-        if kx is None or kx[0] is not cl or kx[1] is not ctx.u_lin or kx[2] is not ctx.u_ang:
-            kx = self._kx = (cl, ctx.u_lin, ctx.u_ang, Pack((ctx.u_lin, ctx.u_ang) + cl))
+        kx = self._kx.of((ctx.u_lin, ctx.u_ang) + cl)
         rows = prep[2]
         f = self.friction
         warm_any = old is not None
@@ -314,7 +303,7 @@ class Solve(Stage):
         out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
         idx = topo.order
         nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
-            kc, kx[3], topo._kept, prep[3], ko, out.kept if store_on else _no_cache(), self._contacts(c), topo.key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
+            kc, kx, topo._kept, prep[3], ko, out.kept if store_on else _no_cache(), self._contacts(c), topo.key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
             True, f, f and bool(model.rolling), warm_on, self.direct, RESTING_SPEED, DIRECT_MAX_ROWS,
             ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         if not solved:
@@ -328,6 +317,49 @@ class Solve(Stage):
         self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
                      sliding_any)
         return True
+
+    def store_on(self, model, h: float) -> bool:
+        """Whether a (sub)step of length h stores its forces for the next."""
+        return h >= WARM_MIN_STEP * model.h
+
+    def fused_args(self, model, state, ctx, h, store_on):
+        """What :func:`engine.steady.steady_kernel` hands to
+        phases.classify_stage (as :meth:`_fast_path` does), assuming the
+        step's contacts are the last solve's in number and graph (the
+        kernel checks): (kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any,
+        warm_on, the warm cache written or None), or None when this stage
+        keeps no steady solve (the last one had an impact row, another
+        graph, the phase-by-phase flag)."""
+        fast = self._fast
+        if fast is None or PHASE_BY_PHASE:
+            return None
+        cl, topo, c = fast
+        prep = self._prep
+        sc = ctx.scratch
+        if (prep[0] is not topo or sc.peek(prep[4]) is not prep[1]
+                or sc.peek(("classify", c.m)) is not cl):
+            return None
+        old = state.warm
+        warm_any = old is not None
+        out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
+        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, prep[3],
+                old.kept if warm_any else _no_cache(), out.kept if store_on else _no_cache(), self._contacts(c),
+                topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
+
+    def fused_finish(self, model, state, ctx, out, store_on, sweeps, residual) -> None:
+        """After a steady solve in the fused step: what :meth:`_fast_path`
+        and :meth:`_finish` do after phases.classify_stage (no friction stop
+        candidate, no Baumgarte bias: the fused step's plan)."""
+        cl, topo, c = self._fast
+        rows = self._prep[2]
+        rows.rebind(c, state.x, topo.order)
+        rows.residual = residual
+        rows.sweeps = sweeps
+        state.warm = out if store_on else None
+        ctx.rows = rows
+        ctx.impacts = None
+        ctx.profile.count("contact_rows", rows.m)
+        ctx.profile.count("solver_sweeps", sweeps)
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -420,7 +452,7 @@ class Solve(Stage):
                                                          sc, store_on)
             # the next steady step may run as one call (_fast_path) while the
             # contact graph and these packs stay
-            self._fast = (cl, topo) if nimp == 0 else None
+            self._fast = (cl, topo, c) if nimp == 0 else None
         self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
 
     def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any) -> None:
@@ -463,12 +495,15 @@ def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool) -> tuple
     """The fused stage's work arrays (views of the scratch ``sc``): the rows'
     (:func:`engine.contact.rows._take_rows`, 16), then U, U0, Ud (n+1, 6),
     vt0 (np, 2), pin_t (np,) bool, dir_t (np, 2), matched (np,) bool,
-    r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool."""
+    r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool,
+    wk (the sweeps' work array, engine.contact.sweeps.work_size).  The pins
+    are zeroed here, where the views are made: the fused solve never sets
+    them (only :meth:`Rows.stop_times` pins, on its own arrays)."""
     return _take_rows(sc, m, npch, nr, friction) + (
         sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)), sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
-        sc.take("pin_t", (npch,), np.bool_), sc.take("dir_t", (npch, 2)), sc.take("matched", (npch,), np.bool_),
+        sc.zeros("pin_t", (npch,), np.bool_), sc.zeros("dir_t", (npch, 2)), sc.take("matched", (npch,), np.bool_),
         sc.take("r_direct", (m,)), sc.take("bias", (m,)), sc.take("Up", (n + 1, 6)), sc.take("lam_p", (m,)),
-        sc.take("touch_rows", (m,), np.bool_))
+        sc.take("touch_rows", (m,), np.bool_), sc.take("sweep_work", (sweeps.work_size(m, npch, nr),)))
 
 
 def _work_items(views: tuple, friction: bool) -> tuple:
@@ -481,7 +516,9 @@ def _work_items(views: tuple, friction: bool) -> tuple:
         t = _NO_T
         Jt = Mt = _NO_F
         slip = _NO_B
-    return (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu) + tuple(views[16:])
+    items = (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu) + tuple(views[16:])
+    assert len(items) == len(phases.WORK)  # the order phases.WORK names
+    return items
 
 
 def _topology_items(topo: Topology, friction: bool, rolling: bool) -> tuple:

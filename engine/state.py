@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from engine.flight import begin_step
-from engine.pack import Pack
+from engine.pack import KeptPack, Pack
 from engine.contact.scratch import Scratch
 from engine.control import Event, EventMode, Impacts, TimeOfImpact
 from engine.model import Model
@@ -136,7 +136,7 @@ class Context:
         # energy-conserving rotation stage
         self.T_mean = np.zeros((n, 3))
         self.profile = None
-        self._kept = None
+        self._kept = KeptPack()
         #: how the solve treats impacts in this (mini-)step
         self.event_mode = EventMode.EVENT
         # collision products
@@ -168,8 +168,27 @@ class Context:
         # loop may restore (pipeline._substep): the solve stores into others
         self.warm0: Any = None
         self.info: dict[str, Any] = {}
+        #: the CCD stage's end-pose check's buffers (engine.ccd.end_pose_pairs:
+        #: moved pairs i, j, body-plane, body-static-box pairs (int64), end
+        #: displacements (n,), end rotations (n, 3, 3)), grown geometrically
+        self._end_pose = self._end_pose_buffers(n, 2 * n + 16)
+        #: no sweep (n,) zeros: a margin that is the same for every pair
+        self.no_sweep = np.zeros(n)
         #: the contact solve's work arrays (grown geometrically, kept)
         self.scratch = Scratch()
+
+    @staticmethod
+    def _end_pose_buffers(n: int, m: int) -> tuple:
+        i = np.empty(m, np.int64)
+        return i, i.copy(), i.copy(), i.copy(), i.copy(), i.copy(), np.empty(n), np.empty((n, 3, 3))
+
+    def end_pose_buffers(self, m: int) -> tuple:
+        """The CCD end-pose check's buffers (see ``_end_pose``) for at most
+        ``m`` pairs of each kind: kept, grown geometrically."""
+        buf = self._end_pose
+        if buf[0].shape[0] < m:
+            buf = self._end_pose = self._end_pose_buffers(buf[6].shape[0], max(m, 2 * buf[0].shape[0]))
+        return buf
 
     def kept(self, state: State) -> Pack:
         """The arrays of a (mini-)step's start and commit as one Pack (see
@@ -177,12 +196,8 @@ class Context:
         and the context's x1, q1, v, w, F, T, vp, wp, R0, Iinv0; kept while
         the state's arrays are the same objects (the context's never
         change)."""
-        k = self._kept
-        if k is None or k[0] is not state.x or k[1] is not state.q or k[2] is not state.v or k[3] is not state.w:
-            k = self._kept = (state.x, state.q, state.v, state.w, Pack((
-                state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w, self.F, self.T,
-                self.vp, self.wp, self.R0, self.Iinv0)))
-        return k[4]
+        return self._kept.of((state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w,
+                              self.F, self.T, self.vp, self.wp, self.R0, self.Iinv0))
 
     def commit(self, state: State) -> None:
         """The state's pose and velocities set to the candidate end state
@@ -195,6 +210,12 @@ class Context:
         # x1, q1, v, w from the state; F, T, vp, wp zeroed; R0 and
         # I_world^-1 = R diag(1/I) R^T (world row zero): one compiled call
         _begin_packed(self.kept(state))
+        self.reset(state, h)
+
+    def reset(self, state: State, h: float) -> None:
+        """The Python side of :meth:`begin` (a compiled caller that began
+        the step itself calls only this)."""
+        self.h = h
         self.event = None
         self.impacts = None
         self.stop = None

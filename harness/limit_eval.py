@@ -153,7 +153,10 @@ def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
     (:func:`judge` with these ``checks`` and ``bounds``) reads only harness
     metrics (contract.metric_defs.GENERIC_METRICS); () when it reads any
     other metric (the model's, or one no declaration names) or the scene
-    has no model.  Decided from the scene before the run."""
+    has no model.  Decided from the scene before the run.  No model
+    produces a harness metric's name, so the criterion never reads a
+    metric skipped here (tests/test_limits_model_metrics.py::
+    test_the_criterion_never_reads_a_skipped_metric)."""
     from contract.metric_defs import GENERIC_METRICS
     from harness.conformance import split_metric
 
@@ -168,14 +171,11 @@ def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
 
 
 def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
-          bounds: tuple[tuple[str, float], ...] = (), skipped: tuple[str, ...] = ()) -> tuple[bool, str]:
+          bounds: tuple[tuple[str, float], ...] = ()) -> tuple[bool, str]:
     """Whether one run holds (module docstring), and if not, why: the first
     failure as ``metric: message``.  ``checks``: only the scene's checks of
     these metrics (``("stable",)``: stability alone); ``bounds``: extra
-    (metric, max) criteria, a missing or NaN value failing; ``skipped``:
-    metrics the run did not compute (:func:`skipped_model_metrics`): a check
-    or bound on one fails, whatever the result holds under its name
-    (tests/test_limits.py::test_judge_never_reads_a_skipped_metric)."""
+    (metric, max) criteria, a missing or NaN value failing."""
     from harness.conformance import FAIL, PASS, evaluate_check
 
     if result.status != "ok":
@@ -185,15 +185,12 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
         why = result.metrics.get("stability_reason") or "a recorded value is not finite or energy blew up"
         return False, f"stable: {why}"
     for c in _criterion_checks(scene, result.engine, checks):
-        if c.metric in skipped:
-            return False, f"{c.metric}: metric not computed (skipped for this evaluation)"
         o = evaluate_check(dataclasses.replace(c, xfail={}), result)
         if o.outcome != PASS:
             return False, f"{c.metric}: {o.message}" if o.outcome == FAIL else f"{c.metric}: {o.outcome} {o.message}"
     for metric, hi in bounds:
-        v = math.nan if metric in skipped else result.metrics.get(metric)
         try:
-            x = float(v)
+            x = float(result.metrics.get(metric))
         except (TypeError, ValueError):
             x = math.nan
         if not x <= hi:
@@ -230,11 +227,9 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
             warnings.simplefilter("ignore", RuntimeWarning)
             res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s, model_metrics=not skipped)
         res.trace = None
-        if skipped:
-            res.notes.append("reference model metrics not computed (the criterion reads none): " + ", ".join(skipped))
         row = res.row()
         row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
-        holds, reason = judge(scene, res, req.checks, req.bounds, skipped)
+        holds, reason = judge(scene, res, req.checks, req.bounds)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"
     except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
@@ -244,11 +239,22 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
         row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
                           tb=None if isinstance(e, SpecError) else traceback.format_exc(limit=5))
         holds, reason, cpu, unsupported = False, f"{req.param}={value!r}: {msg}", 0.0, False
-    row.update({"row_kind": EVAL_ROW, "point_key": req.eval_key(limit_id, value, phase), "limit_id": limit_id,
-                "limit_param": req.param, "limit_value": float(value), "limit_holds": bool(holds),
-                "limit_reason": reason, "limit_unsupported": bool(unsupported), "limit_cpu_s": cpu,
-                "limit_skipped_metrics": ",".join(skipped)})
+    row.update(_eval_columns(EvalItem(req, limit_id, value, phase), holds, reason, unsupported, cpu, skipped))
     return row
+
+
+def _eval_columns(item: "EvalItem", holds: bool, reason: str, unsupported: bool, cpu: float,
+                  skipped: tuple[str, ...]) -> dict[str, Any]:
+    """The columns every evaluation row carries, whatever became of the run
+    (:func:`evaluate_point`, :func:`lost_eval_row`): its key, the search and
+    value, the verdict, the step CPU (s) and ``limit_skipped_metrics``, the
+    one record of the model metrics it did not compute, comma-separated
+    ("" when it computed all or none ran).  Test:
+    tests/test_limits_model_metrics.py::test_every_eval_row_records_the_skipped_metrics_once."""
+    return {"row_kind": EVAL_ROW, "point_key": item.key, "limit_id": item.limit_id, "limit_param": item.req.param,
+            "limit_value": float(item.value), "phase": float(item.phase), "limit_holds": bool(holds),
+            "limit_reason": reason, "limit_unsupported": bool(unsupported), "limit_cpu_s": float(cpu),
+            "limit_skipped_metrics": ",".join(skipped)}
 
 
 def verdict_of_rows(rows: list[dict[str, Any]]) -> Verdict:
@@ -310,9 +316,7 @@ def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
     row = _status_row(Point(req.scenario, req.variant, req.engine, (), 1, req.timeout_s), lost.status, why,
                       time.perf_counter(), tb=lost.traceback or None, stderr_tail=lost.stderr_tail or None,
                       machine=lost.machine)
-    row.update({"row_kind": EVAL_ROW, "point_key": item.key, "limit_id": item.limit_id, "limit_param": req.param,
-                "limit_value": float(item.value), "phase": float(item.phase), "limit_holds": False,
-                "limit_reason": why, "limit_unsupported": False, "limit_cpu_s": 0.0})
+    row.update(_eval_columns(item, False, why, False, 0.0, ()))
     return row
 
 

@@ -63,13 +63,25 @@ def kinetic_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray]:
     return trans, rot
 
 
-def potential_energy(scene: Scene, trace) -> np.ndarray:
+def energy_series(scene: Scene, trace, datum: bool = True) -> np.ndarray:
+    """Total mechanical energy E (J, (F,)): translational and rotational
+    kinetic (:func:`kinetic_energy`) plus gravitational and spring
+    potential (:func:`potential_energy`), above the scene's datum (or,
+    ``datum=False``, from height 0).  The one definition the energy
+    metrics, the trace's energy plot and the models' energy lines use
+    (tests/test_trace_rrd.py::test_energy_series_is_the_metrics_definition,
+    tests/test_trace_predictions.py::test_break_conserved_momentum_and_energy_lines)."""
+    trans, rot = kinetic_energy(scene, trace)
+    return trans + rot + potential_energy(scene, trace, datum)
+
+
+def potential_energy(scene: Scene, trace, datum: bool = True) -> np.ndarray:
     """Gravitational plus spring energy (J, (F,)) above the scene's datum
-    :func:`energy_datum`."""
+    :func:`energy_datum` (``datum=False``: gravitational from height 0)."""
     g = scene.gravity
     gn = float(np.linalg.norm(g))
     F = trace.pos.shape[0]
-    pe = np.full(F, -energy_datum(scene))
+    pe = np.full(F, -energy_datum(scene) if datum else 0.0)
     if gn > 0:
         pe += gn * (trace.pos @ (-g / gn)) @ scene.masses
     for sp in scene.springs:
@@ -236,8 +248,7 @@ def relative_energy(scene: Scene, trace) -> tuple[np.ndarray, np.ndarray, float]
     scenes), ``energy_gain`` max(0, max dE), ``energy_dissipated`` -dE at
     the last frame (module docstring; the trace's crossing markers use it
     per frame: tests/test_trace_diagnose.py)."""
-    trans, rot = kinetic_energy(scene, trace)
-    E = trans + rot + potential_energy(scene, trace)
+    E = energy_series(scene, trace)
     E0 = float(E[0])
     gn = float(np.linalg.norm(scene.gravity))
     floor = float(sum(b.mass * gn * b.bounding_radius for b in scene.bodies)) + 1e-12
@@ -273,7 +284,11 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
     """Every generic metric plus, when ``model``, the reference model's, for
     one run.  ``model=False`` is for callers whose criterion reads no model
     metric (a breaking-point evaluation: harness/limit_eval.py); the model's
-    metrics are then absent, never NaN-filled or guessed."""
+    metrics are then absent, never NaN-filled or guessed.  A
+    harness.runner.Trace receives the penetration measurement of its frames
+    (harness.geometry.Penetration, scenes with the ``contact`` effect) as
+    ``trace.penetration``, so that a trace writer does not measure again
+    (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
                   and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
@@ -286,6 +301,8 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
         from harness.geometry import measure_penetration
 
         pen = measure_penetration(scene, trace)
+        if hasattr(trace, "penetration"):  # a harness.runner.Trace: handed over
+            trace.penetration = pen
         per_frame = pen.frame_max()  # (F,) deepest known overlap, 0 where none
         unknown = pen.unknown()
         out["max_penetration"] = float(per_frame.max(initial=0.0))

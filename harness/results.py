@@ -13,8 +13,10 @@ the usual umask, never the 0600 of a ``mkstemp`` file), under
 (a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
 job that writes one part per finished run and resumes after a kill
 (``physbench sweep`` and ``physbench check``): parts are built from the row
-with pyarrow (:func:`row_table`) and merged with pyarrow
-(:func:`merge_tables`), typed as the pandas path typed them.
+with pyarrow (:func:`row_table`, typed as ``from_pandas`` types one
+row) and merged by :func:`merge_tables`: pyarrow where the parts share a
+schema, else one ``pandas.concat`` and :func:`_normalize`, the store's
+one normaliser.
 """
 
 from __future__ import annotations
@@ -151,7 +153,7 @@ def write_rows(rows: Iterable[dict[str, Any]], path: str | Path, append: bool = 
 
 
 # ---------------------------------------------------------------------------
-# rows as Arrow tables: the parts' and the merge's way, without pandas
+# rows as Arrow tables: the parts (pyarrow) and their merge
 
 
 @functools.lru_cache(maxsize=1)
@@ -203,100 +205,40 @@ def _pandas_row_table(row: dict[str, Any]):
     return pa.Table.from_pandas(_normalize(pd.DataFrame([row])), preserve_index=False)
 
 
-def _kind(t: Any) -> str:
-    """A column type's kind for merging: text, int, float, bool, null or
-    the type itself (anything else)."""
-    import pyarrow.types as pt
-
-    if pt.is_string(t) or pt.is_large_string(t):
-        return "text"
-    if pt.is_integer(t):
-        return "int"
-    if pt.is_floating(t):
-        return "float"
-    if pt.is_boolean(t):
-        return "bool"
-    if pt.is_null(t):
-        return "null"
-    return str(t)
-
-
 def merge_tables(tables: list[Any]):
     """The rows of ``tables`` (parts, each typed on its own) as one Table,
-    columns in order of first appearance, typed as ``pandas.concat`` of the
-    parts then :func:`_normalize` typed them (as pandas reads them back:
-    the same dtypes and values): a column whose parts hold one kind keeps
-    it (ints with a part that lacks the column or holds NaN become float,
-    as in pandas); a part whose float column holds only NaN does not count
-    where other parts hold a kind; ints and floats are float; bools and
-    ints in every part, no None, are ints (True = 1); any other
-    mix is text (``str`` of each value); a column missing from a part is
-    null there.  (pandas' typing of a few mixes depends on the order of
-    the parts; there the rule above decides.)
-    Test: tests/test_results_store.py::test_merged_parts_read_back_as_the_pandas_merge_wrote_them."""
+    in the parts' order, typed as ``pandas.concat`` of the parts then
+    :func:`_normalize` types them (the store's one normaliser): parts of
+    one schema are concatenated by pyarrow; where the parts' schemas
+    differ (a column missing from some parts, or int in one and float,
+    None or text in another), each schema's rows become one DataFrame and
+    the job's frames one ``pandas.concat`` then :func:`_normalize`.
+    (pandas' typing of a few mixes depends on the order of the frames: a
+    float before a bool gives floats, the reverse text or bools; the
+    frames are in the order their schemas first appear.)
+    Tests: tests/test_results_store.py::test_merged_parts_read_back_as_the_pandas_merge_wrote_them,
+    ::test_every_mix_of_kinds_merges_as_pandas_merged_it,
+    ::test_parts_of_mixed_kinds_merge_to_one_typed_column."""
+    import pandas as pd
     import pyarrow as pa
 
     if not tables:
         return pa.table({})
-    groups: dict[Any, list[tuple[Any, int]]] = {}  # parts of one schema: typed and cast together
+    groups: dict[Any, list[tuple[Any, int]]] = {}  # parts of one schema, each with its first row's index
     start = 0
     for t in tables:
         t = t.replace_schema_metadata(None)
         groups.setdefault(t.schema, []).append((t, start))
         start += t.num_rows
-    kinds: dict[str, set[str]] = {}
-    types: dict[str, Any] = {}
-    ks_parts: dict[str, int] = {}  # parts that have the column
-    for schema, same in groups.items():
-        for f in schema:
-            k = _kind(f.type)
-            ks = kinds.setdefault(f.name, set())
-            ks_parts[f.name] = ks_parts.get(f.name, 0) + len(same)
-            if k == "float":  # a part all NaN: pandas reads float64 NaN, which concat ignores beside other kinds
-                ks.update("nan" if t.column(f.name).null_count == t.num_rows else "float" for t, _ in same)
-                continue
-            ks.add(k)
-            if k not in ("null", "text", "int", "bool"):
-                types.setdefault(f.name, f.type)
-    target: dict[str, Any] = {}
-    for name, ks in kinds.items():
-        real = ks - {"null", "nan"}
-        if not real:
-            target[name] = pa.float64() if ks == {"nan"} else pa.null()
-        elif real == {"text"}:  # pandas 3: text with None or NaN is an object column, stored as string
-            target[name] = pa.string() if ks & {"null", "nan"} else pa.large_string()
-        elif real == {"int"}:  # with None (object): int; with NaN or a part without the column: float
-            target[name] = (pa.float64() if "null" not in ks and ("nan" in ks or ks_parts[name] < len(tables))
-                            else pa.int64())
-        elif real <= {"int", "float"}:
-            target[name] = pa.float64()
-        elif real == {"int", "bool"} and ks == real and ks_parts[name] == len(tables):
-            target[name] = pa.int64()  # bools beside ints, nothing missing: pandas makes them ints (True = 1)
-        elif real == {"bool"}:
-            target[name] = pa.bool_()
-        elif len(real) == 1 and name in types:
-            target[name] = types[name]  # one other type (a list ...): as stored
-        else:
-            target[name] = None  # a mix: text of each value
-    out = []
+    if len(groups) == 1:
+        return pa.concat_tables([t for t, _ in next(iter(groups.values()))])
+    frames, rank = [], []  # rank: a frame row -> its row in the parts' order
     for same in groups.values():
-        t = pa.concat_tables([x for x, _ in same])
-        cols = []
-        for name, typ in target.items():
-            c = t.column(name) if name in t.column_names else None
-            if c is None or c.null_count == len(c):  # missing from this part, or null throughout
-                cols.append(pa.nulls(t.num_rows, typ if typ is not None else pa.large_string()))
-            elif typ is None:
-                cols.append(pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.large_string()))
-            elif c.type != typ:
-                cols.append(c.cast(typ))
-            else:
-                cols.append(c)
-        out.append((pa.Table.from_arrays(cols, names=list(target)),
-                    [i for x, at in same for i in range(at, at + x.num_rows)]))
-    merged = pa.concat_tables([t for t, _ in out])
-    rank = [i for _, rows in out for i in rows]  # merged row -> its row in the parts' order
-    return merged.take(pa.array(sorted(range(len(rank)), key=rank.__getitem__), pa.int64()))
+        frames.append(pa.concat_tables([t for t, _ in same]).to_pandas())
+        rank.extend(i for t, at in same for i in range(at, at + t.num_rows))
+    df = pd.concat(frames, ignore_index=True)
+    df = df.iloc[sorted(range(len(rank)), key=rank.__getitem__)].reset_index(drop=True)
+    return pa.Table.from_pandas(_normalize(df), preserve_index=False)
 
 
 # ---------------------------------------------------------------------------

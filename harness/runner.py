@@ -58,6 +58,10 @@ class Trace:
     vel: np.ndarray
     angvel: np.ndarray
     n_frames: int = 0
+    #: the harness's penetration measurement of the valid frames
+    #: (harness.geometry.Penetration), handed over by the metrics so that
+    #: the trace writer does not measure again; None when not measured
+    penetration: Any = None
 
     @classmethod
     def allocate(cls, n_frames: int, n_bodies: int) -> "Trace":
@@ -72,7 +76,7 @@ class Trace:
     def valid(self) -> "Trace":
         """The filled prefix (views, no copy)."""
         k = self.n_frames
-        return Trace(self.t[:k], self.pos[:k], self.quat[:k], self.vel[:k], self.angvel[:k], k)
+        return Trace(self.t[:k], self.pos[:k], self.quat[:k], self.vel[:k], self.angvel[:k], k, self.penetration)
 
 
 @dataclass
@@ -445,7 +449,9 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
 
         t0 = time.perf_counter()
         try:
-            result.metrics.update(_metrics(scene, trace.valid(), dt=dt, model=model_metrics))
+            valid = trace.valid()
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics))
+            trace.penetration = valid.penetration
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

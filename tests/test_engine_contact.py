@@ -314,6 +314,7 @@ def test_steady_steps_solve_in_one_compiled_call(monkeypatch, sid, settings, ste
     def final(one_call: bool):
         monkeypatch.setattr(solver, "PHASE_BY_PHASE", not one_call)
         eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), settings)
+        eng.profile.by_stage = True  # the stage itself (not inside the fused steady step, engine/steady.py)
         calls = {"solved": 0, "left": 0}
         orig = phases.classify_stage
 

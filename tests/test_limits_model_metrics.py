@@ -3,6 +3,7 @@ its criterion reads one (harness/limit_eval.py ``skipped_model_metrics``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -45,7 +46,7 @@ def test_generic_criterion_skips_the_model(spy):
     skipped = row["limit_skipped_metrics"].split(",")
     assert set(skipped) == set(get_model("torque_free_rigid_body").produces)
     assert "angular_velocity_error" in skipped and "angular_velocity_error" not in row
-    assert "reference model metrics not computed" in row["notes"]
+    assert not any("angular_velocity_error" in n for n in row["notes"])  # one record: the column
     assert row["status"] == "ok" and row["limit_holds"], row["limit_reason"]
     assert 0.0 <= row["energy_gain"] <= 0.01
 
@@ -88,16 +89,65 @@ def _ok_result(**metrics):
                            metrics={"stable": True, "stability_reason": "", **metrics})
 
 
-def test_judge_never_reads_a_skipped_metric():
-    """A check or a bound on a metric the run skipped does not hold, even
-    when the result carries a passing value under that name."""
+def test_the_criterion_never_reads_a_skipped_metric():
+    """An evaluation skips the model's metrics only when its criterion reads
+    harness metrics alone, and no model produces a harness metric's name:
+    so every check and bound a skipping evaluation judges is of a metric it
+    computed (harness/limit_eval.py ``skipped_model_metrics``; ``judge``
+    needs no list of skipped metrics)."""
+    from contract.metric_defs import GENERIC_METRICS
+    from contract.models import MODELS
+    from contract.scene import scenario_ids
+    from harness.conformance import split_metric
+    from harness.limit_eval import _criterion_checks
+
+    for name in MODELS:
+        assert not set(get_model(name).produces) & set(GENERIC_METRICS), name
+    seen = 0
+    for sid in scenario_ids():
+        scene = load_scene(sid)
+        if not scene.reference_model:
+            continue
+        for checks, bounds in [((), ()), (("stable",), (("energy_gain", 0.01),)),
+                               ((), ((next(iter(get_model(scene.reference_model).produces)), 1.0),))]:
+            skipped = set(skipped_model_metrics(scene, "reference", checks, bounds))
+            read = {split_metric(c.metric)[0] for c in _criterion_checks(scene, "reference", checks)}
+            assert not skipped & (read | {m for m, _ in bounds}), (sid, checks, bounds)
+            seen += bool(skipped)
+    assert seen > 0
+
+
+def test_judge_reads_the_result():
+    """A check or a bound holds on the value the result carries, fails on a
+    missing one."""
     scene = load_scene("tunnelling.bullet_100")
     res = _ok_result(tunnelled=0.0)
     assert judge(scene, res, ("tunnelled",)) == (True, "")
-    holds, why = judge(scene, res, ("tunnelled",), skipped=("tunnelled",))
-    assert not holds and why.startswith("tunnelled: metric not computed")
+    assert judge(scene, _ok_result(tunnelled=1.0), ("tunnelled",))[0] is False
     res = _ok_result(reflected_velocity_error=0.0)
     assert judge(scene, res, ("stable",), (("reflected_velocity_error", 0.02),)) == (True, "")
-    holds, why = judge(scene, res, ("stable",), (("reflected_velocity_error", 0.02),),
-                       skipped=("reflected_velocity_error",))
-    assert not holds and "metric not computed" in why
+    holds, why = judge(scene, _ok_result(), ("stable",), (("reflected_velocity_error", 0.02),))
+    assert not holds and why == "reflected_velocity_error: metric not computed"
+
+
+def test_every_eval_row_records_the_skipped_metrics_once():
+    """A run's row, a row whose value makes the spec invalid and the row of
+    an evaluation whose worker died carry the same evaluation columns, with
+    ``limit_skipped_metrics`` in each (the one record of what was skipped)."""
+    from harness.limit_eval import EvalItem, lost_eval_row
+    from harness.workers import WorkerLost
+
+    req = LimitRequest("gyroscopic.fast_spin", None, "reference", "body[0].angular_velocity[2]", 10.0, 5000.0,
+                       checks=("stable",), bounds=(("energy_gain", 0.01),),
+                       overrides=(("scenario.duration", 0.05),))
+    ran = evaluate_point(req, "x", 150.0, 0.0)
+    bad = evaluate_point(dataclasses.replace(req, param="body[0].mass"), "x", -1.0, 0.0)
+    lost = lost_eval_row(EvalItem(req, "x", 150.0, 0.5), WorkerLost("died", "worker process died: SIGKILL"))
+    cols = {"row_kind", "point_key", "limit_id", "limit_param", "limit_value", "phase", "limit_holds",
+            "limit_reason", "limit_unsupported", "limit_cpu_s", "limit_skipped_metrics"}
+    for row in (ran, bad, lost):
+        assert cols <= set(row), cols - set(row)
+    assert set(ran["limit_skipped_metrics"].split(",")) == set(get_model("torque_free_rigid_body").produces)
+    assert bad["status"] == "error" and not bad["limit_holds"] and bad["limit_skipped_metrics"] == ""
+    assert lost["status"] == "error" and lost["limit_skipped_metrics"] == "" and lost["phase"] == 0.5
+    assert lost["point_key"] == req.eval_key("x", 150.0, 0.5) and "SIGKILL" in lost["limit_reason"]

@@ -913,3 +913,77 @@ def test_heavy_top_reference_precesses_at_the_analytic_rate():
     out = m.metrics(make_trace(t, x[:, None], vel[:, None], quat=q[:, None]))
     assert out["precession_rate_error"] < 1e-9
     assert out["tilt_error"] < 1e-9
+
+
+def test_fit_slope_is_the_least_squares_slope():
+    """The one slope fit the references use (friction accelerations, the
+    heavy top's precession rate): exact on a line, NaN where t does not vary."""
+    from harness.references import fit_slope
+
+    t = np.linspace(0.0, 2.0, 41)
+    assert fit_slope(t, 3.0 * t - 1.0) == pytest.approx(3.0, rel=1e-14)
+    wiggle = np.where(np.arange(41) % 2, 0.01, -0.01)  # zero mean, no trend over pairs
+    assert fit_slope(t, -0.5 * t + wiggle) == pytest.approx(np.polyfit(t, -0.5 * t + wiggle, 1)[0], rel=1e-12)
+    assert math.isnan(fit_slope(np.ones(5), np.arange(5.0)))
+
+
+def test_constant_series_predicts_its_value_at_every_time():
+    from harness.references import constant
+
+    f = constant(np.float64(2.5))
+    t = np.linspace(0.0, 1.0, 7)
+    y = f(t)
+    assert y.shape == (7,) and y.dtype == np.float64 and (y == 2.5).all()
+    assert f(0.3).shape == () and float(f(0.3)) == 2.5
+
+
+@pytest.mark.parametrize("spacing, b_x, b_shape, bodies, key", [
+    (1.0, 0.05, "sphere", '["a_0", "b"]', r"body\[1\]\.position"),  # b: entry 1, body 2
+    (0.05, 0.5, "sphere", '["a_0", "a_1"]', r"body\[0\]\.pattern"),  # the pattern made the overlap
+    (1.0, 0.5, "capsule", '["a_0", "b"]', r"body\[1\]\.shape"),
+])
+def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, b_x, b_shape, bodies, key):
+    """two_body_collision's refusals name the spec's key path -- the
+    ``[[body]]`` entry (not the body's index among the bodies a pattern
+    expands to), the pattern where it placed the body -- with the file, the
+    expectation and the value, and the command exits 2 without a traceback."""
+    import re
+
+    from contract.spec import SpecError
+    from harness import cli
+
+    text = TWO_BODY.replace('velocity = [2.0, 0.0, 0.0]',
+                            f'velocity = [2.0, 0.0, 0.0]\npattern = {{ kind = "row", count = 2, spacing = {spacing} }}')
+    text = text.replace("position = [0.5, 0.0, 0.0]", f"position = [{b_x}, 0.0, 0.0]")
+    text = text.replace('model = "two_body_collision"', f'model = "two_body_collision"\nparams = {{ bodies = {bodies} }}')
+    if b_shape == "capsule":
+        text = text.replace('shape = "sphere"\nradius = 0.05\nmass = 3.0', 'shape = "capsule"\nradius = 0.05\n'
+                            'half_length = 0.1\nmass = 3.0')
+    p = tmp_path / "pair.toml"
+    p.write_text(text)
+    with pytest.raises(SpecError) as e:
+        load_scene(p)
+    (line,) = e.value.errors
+    assert line.startswith(f"{p}: ") and re.match(key + ": ", line[len(str(p)) + 2:]), line
+    assert ("start overlapping" in line and "expected a start with the spheres apart" in line
+            and "m apart, less than r1 + r2 = 0.1 m" in line) or "needs spheres, body 'b' is a capsule" in line
+    rc = cli.main(["run", str(p), "-e", "reference", "--json"])
+    err = capsys.readouterr().err
+    assert rc == 2 and re.search(key, err) and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("model, key, names", [("two_body_collision", "bodies", '["a", "nosuch"]'),
+                                               ("no_tunnelling", "statics", '["nosuch"]')])
+def test_a_name_list_param_refuses_an_unknown_name(model, key, names):
+    """``params.bodies`` / ``params.statics`` naming what the scene does not
+    have: refused at ``reference.params.<key>``, with the unknown name and
+    the names the scene has."""
+    text = TWO_BODY.replace('model = "two_body_collision"', f'model = "{model}"\nparams = {{ {key} = {names} }}')
+    text += '[[static]]\nname = "floor"\nshape = "plane"\nnormal = [0.0, 0.0, 1.0]\noffset = -1.0\n'
+    from contract.spec import SpecError
+
+    with pytest.raises(SpecError) as e:
+        scene_from(text)
+    (line,) = e.value.errors
+    assert f": reference.params.{key}: " in line and f"unknown {key} ['nosuch']" in line, line
+    assert f"the scene has {['a', 'b'] if key == 'bodies' else ['floor']}" in line, line

@@ -154,3 +154,40 @@ def test_every_mix_of_kinds_merges_as_pandas_merged_it(tmp_path, n):
         _same_file(old, new)
         checked += 1
     assert checked > 0.8 * (len(_KINDS) ** n)
+
+
+def test_parts_of_mixed_kinds_merge_to_one_typed_column(tmp_path):
+    """Parts whose columns disagree -- a metric NaN in one part, a float in
+    another, None in a third; a setting int in one part and float in
+    another; text beside None; a column only one part has; a column an int
+    in one part and text in another -- consolidate to one type per column:
+    numbers as float (NaN and None as null), text as text, a mix as the
+    text of each value, a column a part lacks null there."""
+    import pyarrow as pa
+
+    d = tmp_path / "job"
+    d.mkdir()
+    R.write_json_atomic({"points": []}, d / "manifest.json")
+    store = R.PartsDir(d, {}, -1, "k")
+    rows = [{"k": "a", "metric.e": math.nan, "setting.n": 3, "label": "x", "only_a": 7, "flag": True},
+            {"k": "b", "metric.e": 0.5, "setting.n": 2.5, "label": None, "flag": False},
+            {"k": "c", "metric.e": None, "setting.n": None, "label": "y", "flag": None, "mixed": 1},
+            {"k": "d", "metric.e": 0.25, "setting.n": 4, "label": "z", "flag": True, "mixed": "swept"}]
+    for row in rows:
+        store.write_part(row)
+    out, _ = R.consolidate_parts(d, "k", ["a", "b", "c", "d"], "now")
+    t = pq.read_table(out)
+    types = {f.name: f.type for f in t.schema}
+    assert types["metric.e"] == types["setting.n"] == types["only_a"] == pa.float64()
+    assert pa.types.is_string(types["label"]) or pa.types.is_large_string(types["label"])
+    assert pa.types.is_large_string(types["mixed"]) and types["flag"] == pa.bool_()
+    cols = t.to_pydict()
+    assert cols["k"] == ["a", "b", "c", "d"]
+    assert cols["metric.e"] == [None, 0.5, None, 0.25]
+    assert cols["setting.n"] == [3.0, 2.5, None, 4.0] and all(type(v) is float for v in cols["setting.n"] if v)
+    assert cols["only_a"] == [7.0, None, None, None]
+    assert cols["label"] == ["x", None, "y", "z"] and cols["flag"] == [True, False, None, True]
+    assert cols["mixed"] == [None, None, "1", "swept"]
+    df = pd.read_parquet(out)
+    assert str(df["metric.e"].dtype) == str(df["setting.n"].dtype) == "float64"
+    assert math.isnan(df["metric.e"].iat[0]) and df["setting.n"].iat[0] == 3.0

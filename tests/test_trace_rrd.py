@@ -376,3 +376,51 @@ def test_real_reference_run_round_trips(scene, tmp_path):
         np.testing.assert_allclose(column_array(df, "Transform3D:translation")[k], tr.pos[k, i], **F32)
     e = np.array([v[0] for v in temporal(data, "/metrics/reference/energy")["Scalars:scalars"]])
     np.testing.assert_allclose(e, energy_series(scene, tr), rtol=1e-12)
+
+
+# ---------------------------------------------------------------------------
+# what the write computes: once, or not at all where the run measured it
+
+
+@pytest.mark.parametrize("diagnose", [False, True])
+def test_energy_is_computed_once_per_drawn_run(scene, tmp_path, monkeypatch, diagnose):
+    """The energy plot, the diagnosis' energy bands and its crossings read
+    one computation of E(t) per drawn run (harness.metrics.energy_series)."""
+    import harness.metrics as M
+
+    calls = []
+    real = M.energy_series
+
+    def counted(sc, tr, datum=True):
+        calls.append(tr.pos.shape[0])
+        return real(sc, tr, datum)
+
+    monkeypatch.setattr(M, "energy_series", counted)
+    results = [ballistic_result(scene, e, SPEEDS[e], SPIN[e]) for e in SPEEDS]
+    checks = {c.metric: c for c in scene.checks}
+    write_rrd(tmp_path / "e.rrd", scene, results, diagnose=diagnose, checks=checks if diagnose else None)
+    assert calls == [501, 501]
+
+
+def test_the_runs_penetration_is_handed_to_the_trace(tmp_path, monkeypatch):
+    """A run of the runner carries the metrics' penetration measurement of
+    its frames on its trace; the write plots it without measuring again,
+    and measures a trace that does not carry one."""
+    import harness.geometry as G
+    from harness.runner import run
+
+    scene = load_scene(HEAD_ON)
+    res = run(scene, "reference")
+    tr = res.trace.valid()
+    assert res.status == "ok" and tr.penetration is not None and tr.penetration.n_frames == tr.n_frames
+    assert float(tr.penetration.frame_max().max()) == res.metrics["max_penetration"]
+    calls = []
+    real = G.measure_penetration
+    monkeypatch.setattr(G, "measure_penetration", lambda sc, t: calls.append(1) or real(sc, t))
+    write_rrd(tmp_path / "run.rrd", scene, [res])
+    assert calls == []
+    depth = np.array([v[0] for v in temporal(read_rrd(tmp_path / "run.rrd"),
+                                             "/metrics/reference/penetration")["Scalars:scalars"]])
+    np.testing.assert_array_equal(depth, tr.penetration.frame_max())
+    write_rrd(tmp_path / "fake.rrd", scene, [ballistic_result(scene, "fake_a", 2.0, 0.0)])
+    assert calls == [1]

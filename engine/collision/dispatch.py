@@ -17,10 +17,10 @@ from engine.profile import Stage
 from engine.state import Contacts
 from engine.collision import box
 from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
-from engine.pack import Pack
+from engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
-           "unsupported_pairs", "warm_up"]
+           "static_row", "unsupported_pairs", "warm_up"]
 
 
 def unsupported_pairs(model) -> list[str]:
@@ -64,21 +64,19 @@ class Collider:
         self.smat = f(model.static_material, np.int64)
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
-        self._kept = None
+        self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
         self._group(pairs, pairs * MAX_SLOTS)
         self._out(contacts)
 
     def _pairs(self, m: int) -> None:
-        self._kept = None  # the buffers change: a new pack
         i, z = np.empty(m, np.int64), np.empty(m)
         self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
                   np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64))
         self.margins = tuple(np.empty(m) for _ in range(3))
 
     def _group(self, k: int, slots: int) -> None:
-        self._kept = None  # the buffers change: a new pack
         def side():
             return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros(k)
         self.A, self.B = side(), side()
@@ -86,10 +84,21 @@ class Collider:
                      np.zeros(slots, np.bool_))
 
     def _out(self, m: int) -> None:
-        self._kept = None  # the buffers change: a new pack
         i = np.empty(m, np.int64)
         self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
                     np.empty(m), np.empty(m), np.empty(m), np.empty(m))
+
+    def packed(self):
+        """The buffers as one Pack (engine/pack.py), kept while they stay."""
+        return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
+                              self.slot, self.out))
+
+    def last_contacts(self, cnt: int) -> Contacts | None:
+        """The Contacts :meth:`run` last returned when it had ``cnt``
+        contacts in the present buffers (the views of a call made into the
+        same buffers by a compiled caller, engine/steady.py), else None."""
+        last = self._contacts
+        return last[2] if last is not None and last[0] == cnt and last[1] is self.out else None
 
     def run(self, X, R, pi, pj, plane_pairs, sbox_pairs, margins=None, margin: float = 0.0,
             sweep: np.ndarray | None = None) -> Contacts:
@@ -113,10 +122,7 @@ class Collider:
         else:
             sweep = self.W[6]
         while True:
-            kept = self._kept
-            if kept is None:
-                kept = self._kept = Pack((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A,
-                                          self.B, self.slot, self.out))
+            kept = self.packed()
             cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
                                                  sweep, box.EDGE_FACE_POINTS)
             short = False
@@ -191,11 +197,18 @@ def pair_contacts(model, X, q_or_R, a: int, b: int, sidx: int, collider: Collide
     if sidx < 0:
         i, j = min(a, b), max(a, b)
         return collide_pairs(model, X, R, np.array([i]), np.array([j]), (z, z), (z, z), inf, inf, inf, collider)
-    if model.static_shape[sidx] == S_PLANE:
-        row = int(np.flatnonzero(model.plane_static == sidx)[0])
+    plane, row = static_row(model, sidx)
+    if plane:
         return collide_pairs(model, X, R, z, z, (np.array([a]), np.array([row])), (z, z), inf, inf, inf, collider)
-    row = int(np.flatnonzero(model.sbox_static == sidx)[0])
     return collide_pairs(model, X, R, z, z, (z, z), (np.array([a]), np.array([row])), inf, inf, inf, collider)
+
+
+def static_row(model, sidx: int) -> tuple[bool, int]:
+    """(whether static ``sidx`` is a plane, its row in the model's plane
+    table (``plane_*``) or static-box table (``sbox_*``))."""
+    if model.static_shape[sidx] == S_PLANE:
+        return True, int(np.flatnonzero(model.plane_static == sidx)[0])
+    return False, int(np.flatnonzero(model.sbox_static == sidx)[0])
 
 
 def warm_up() -> None:

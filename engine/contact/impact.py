@@ -5,140 +5,11 @@ island (:func:`impact_solve`)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from engine.contact import linalg
-from engine.contact.rows import SLIP_TOL, TOUCH_TOL, Rows, _pad, _pair_codes
+from engine.contact import linalg, propagate
+from engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
 from engine.state import Contacts
-
-
-def _pair_block(rows: Rows, idx: np.ndarray) -> tuple:
-    """(a, b, JA, JB, MA, MB, K) of the normal rows ``idx`` of one pair,
-    gathered once per Rows (the impact solver resolves a pair many times)."""
-    cache = rows.__dict__.setdefault("_pair_blocks", {})
-    key = idx.tobytes()
-    out = cache.get(key)
-    if out is None:
-        JA, JB, MA, MB = rows.JA[idx], rows.JB[idx], rows.MA[idx], rows.MB[idx]
-        out = (rows.a[idx[0]], rows.b[idx[0]], JA, JB, MA, MB,
-               np.einsum("ik,jk->ij", JA, MA) + np.einsum("ik,jk->ij", JB, MB))
-        cache[key] = out
-    return out
-
-
-def _patch_block(rows: Rows, p: int) -> tuple:
-    """(a, b, JA, JB, MA, MB, K^-1 or None when K is singular, (mu_s, mu_k,
-    r_twist, mu_r)) of friction patch ``p`` (cached per Rows: the impact
-    solver resolves a pair many times, and the 3x3 (with rolling friction
-    5x5) block is inverted once)."""
-    cache = rows.__dict__.setdefault("_patch_blocks", {})
-    out = cache.get(p)
-    if out is None:
-        JA, JB, MA, MB = rows.JtA[p], rows.JtB[p], rows.MtA[p], rows.MtB[p]
-        K = np.einsum("ik,jk->ij", JA, MA) + np.einsum("ik,jk->ij", JB, MB)
-        Kinv, ok = linalg.inverse(K)
-        if not ok:
-            Kinv = None
-        out = (int(rows.pa[p]), int(rows.pb[p]), JA, JB, MA.T.copy(), MB.T.copy(), Kinv,
-               (float(rows.mus[p]), float(rows.muk[p]), float(rows.r_twist[p]),
-                float(rows.mur[p]) if rows.rolling else 0.0))
-        cache[p] = out
-    return out
-
-
-def _block_normal(rows: Rows, U: np.ndarray, idx: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Exact normal impulses for the rows ``idx`` of ONE pair (k <= ~8):
-    the linear complementarity problem  lambda >= 0,  K lambda >= r,
-    lambda . (K lambda - r) = 0  with K = J M^-1 J^T and r = target - vn,
-    solved by enumerating active sets (largest first; K may be singular, e.g.
-    four coplanar points).  Applies the impulses to U and returns them."""
-    from itertools import combinations
-
-    a, b, JA, JB, MA, MB, K = _pair_block(rows, idx)
-    r = target - (np.einsum("kj,j->k", JA, U[a]) + np.einsum("kj,j->k", JB, U[b]))
-    k = idx.size
-    lam = np.zeros(k)
-    if k == 1:
-        # one row (the common case: sphere contacts): the only active set is
-        # {0}, lambda = r / K -- the same tests as the enumeration below
-        K00, r0 = float(K[0, 0]), float(r[0])
-        if r0 <= 0.0:
-            return lam
-        if abs(K00) >= 1e-12 * max(1.0, abs(K00)):
-            l0 = r0 / K00
-            if l0 >= 0.0 and K00 * l0 - r0 >= -1e-9 * abs(r0):
-                lam[0] = l0
-                U[a] += MA[0] * l0
-                U[b] += MB[0] * l0
-                U[-1] = 0.0
-                return lam
-    if np.all(r <= 0.0):
-        return lam
-    scale = float(np.max(np.abs(r)))
-    found = False
-    for size in range(k, 0, -1):
-        for S in combinations(range(k), size):
-            S = list(S)
-            KS = K[np.ix_(S, S)]
-            lS, det = linalg.lu_solve(KS, r[S])
-            if abs(det) < 1e-12 * max(1.0, float(np.max(np.abs(KS)))) ** size:
-                continue
-            if np.any(lS < 0.0):
-                continue
-            trial = np.zeros(k)
-            trial[S] = lS
-            if np.all(np.einsum("ij,j->i", K, trial) - r >= -1e-9 * scale):
-                lam = trial
-                found = True
-                break
-        if found:
-            break
-    if not found:  # degenerate: fall back to projected Gauss-Seidel on the block
-        for _ in range(200):
-            for i in range(k):
-                lam[i] = max(0.0, lam[i] + (r[i] - np.einsum("j,j->", K[i], lam)) / K[i, i])
-    U[a] += np.einsum("kj,k->j", MA, lam)
-    U[b] += np.einsum("kj,k->j", MB, lam)
-    U[-1] = 0.0
-    return lam
-
-
-def _patch_impulse(rows: Rows, U: np.ndarray, p: int, Fn: float) -> None:
-    """One-shot Coulomb friction impulse on patch ``p`` after a normal
-    impulse of total ``Fn``: the impulse that stops the tangential and twist
-    (and rolling) motion (exact block, by its inverse computed once per
-    patch), kept if within the static limits -- mu_s for a patch at rest,
-    mu_k for one that slides or twists (``Rows.sliding``: it slides until it
-    stops, so kinetic friction is what has to stop it) -- else its force
-    scaled onto the mu_k disc and its twist clipped to mu_k Fn r_twist; the
-    rolling torque impulse is limited to the mu_r Fn disc."""
-    if Fn <= 0.0:
-        return
-    a, b, JA, JB, MAT, MBT, Kinv, (mus, muk, rt, mur) = _patch_block(rows, p)
-    vt = np.einsum("kj,j->k", JA, U[a]) + np.einsum("kj,j->k", JB, U[b])
-    if Kinv is not None:
-        d = -np.einsum("ij,j->i", Kinv, vt)
-    else:
-        d = -vt * rows.mt[p]
-    # the patch sticks if both the force and the twist that stop it lie
-    # within the limits; else it slides at every point: both are held to
-    # the kinetic ones
-    mu = muk if (math.hypot(vt[0], vt[1]) > SLIP_TOL or abs(vt[2]) * rt > SLIP_TOL) else mus
-    mag = math.hypot(d[0], d[1])
-    if mag > mu * Fn or (rt > 0.0 and abs(d[2]) > mu * Fn * rt):
-        if mag > muk * Fn:
-            d[:2] *= muk * Fn / mag
-        tl = muk * Fn * rt
-        d[2] = min(max(d[2], -tl), tl)
-    if d.size > 3:
-        rmag = math.hypot(d[3], d[4])
-        if rmag > mur * Fn:
-            d[3:] *= mur * Fn / rmag
-    U[a] += np.einsum("jk,k->j", MAT, d)
-    U[b] += np.einsum("jk,k->j", MBT, d)
-    U[-1] = 0.0
 
 
 def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, friction: bool,
@@ -251,77 +122,62 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     cs = rows.contacts
     code = _pair_codes(model, cs)
     uniq, inv = np.unique(code, return_inverse=True)
-    # rows of each pair (ascending), and of each body
+    # rows of each pair (ascending): go[gs[g]:gs[g + 1]]; of each body: bo[b0[k]:b0[k + 1]]
     go = np.argsort(inv, kind="stable")
-    groups = np.split(go, np.cumsum(np.bincount(inv, minlength=uniq.size))[:-1])
-    e = cs.e
-    ra, rb = rows.a, rows.b
-    ab_rows = np.concatenate([ra, rb])
+    gs = np.zeros(uniq.size + 1, np.int64)
+    np.cumsum(np.bincount(inv, minlength=uniq.size), out=gs[1:])
+    ab_rows = np.concatenate([rows.a, rows.b])
     bo = np.argsort(ab_rows, kind="stable") % rows.m
-    # body k's rows: bo[b0[k]:b0[k + 1]] (sliced when a pair needs them: a
-    # split into n + 1 arrays cost O(n) per impact, ~5 ms at 10,000 bodies)
     b0 = np.zeros(n + 2, np.int64)
     np.cumsum(np.bincount(ab_rows, minlength=n + 1), out=b0[1:])
-    affected: dict[int, tuple] = {}
-    group_sub: dict[int, tuple] = {}
-
     ab = rows.topo.ab
 
     def vn_all():
         # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
         return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
 
-    def vn_sub(sub):
-        # the same per-row arithmetic as vn_all, on a subset of the rows
-        # gathered once: sub = (J, ab) of those rows
-        Js, ABs = sub
-        return np.einsum("kj,kj->k", Js, U[ABs].reshape(-1, 12))
-
-    # normal velocities of all rows, kept current: a pair's impulses change
-    # only the rows of its two bodies
+    # normal velocities of all rows, kept current by the compiled loop: a
+    # pair's impulses change only the rows of its two bodies
     vcur = vn_all()
-
-    def resolve(g, restitution: bool):
-        idx = groups[g]
-        v = vcur[idx]
-        tgt = np.where(v < -thr, -e[idx] * v, 0.0) if restitution else np.zeros(idx.size)
-        lam = _block_normal(rows, U, idx, tgt)
-        if friction and lam.sum() > 0:
-            _patch_impulse(rows, U, int(rows.pid[idx[0]]), float(lam.sum()))
-            # friction may have changed the normal velocities: keep them >= 0
-            gs = group_sub.get(g)
-            if gs is None:
-                gs = group_sub[g] = (rows.J[idx], ab[idx])
-            v2 = vn_sub(gs)
-            if np.any(v2 < np.minimum(tgt, 0.0) - 1e-12):
-                _block_normal(rows, U, idx, np.maximum(np.minimum(tgt, 0.0), v2 * 0.0))
-        entry = affected.get(g)
-        if entry is None:
-            i, j = int(ra[idx[0]]), int(rb[idx[0]])
-            aff = np.unique(np.concatenate([bo[b0[i]:b0[i + 1]]] + ([bo[b0[j]:b0[j + 1]]] if j != n else [])))
-            entry = (aff, (rows.J[aff], ab[aff]))
-            affected[g] = entry
-        vcur[entry[0]] = vn_sub(entry[1])
-
-    settled = False
-    for _ in range(20 * len(groups) + 10):
-        j = int(np.argmin(vcur))
-        if vcur[j] >= -thr:
-            settled = True
-            break
-        resolve(int(inv[j]), True)
-    if not settled:
+    f = np.ascontiguousarray
+    if friction:
+        nr = rows.Jt.shape[1]
+        fr = (f(rows.Jt), f(rows.Mt), f(rows.mt), f(rows.pa, np.int64), f(rows.pb, np.int64), f(rows.mus, float),
+              f(rows.muk, float), f(rows.r_twist), f(rows.mur, float) if rows.rolling else np.zeros(rows.np))
+    else:
+        nr = 3
+        fr = (np.zeros((0, nr, 12)), np.zeros((0, nr, 12)), np.zeros((0, nr)), _NO_I, _NO_I, _NO_D, _NO_D, _NO_D,
+              _NO_D)
+    args = (f(rows.J), f(rows.M), f(ab, np.int64), f(cs.e, float), f(rows.pid, np.int64) if friction else _NO_I,
+            go, gs, f(inv, np.int64), bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
+    if not propagate.propagate(0, *args):
         # pinned configuration: resolve all approaches together
         v = vn_all()
-        rows.target = np.where(v < -thr, -e * v, 0.0)
+        rows.target = np.where(v < -thr, -cs.e * v, 0.0)
         rows_c = Rows(model, X, Iinv, cs, friction)
         rows_c.target = rows.target[rows_c.order]
         rows_c.solve_friction_regimes(U, iterations)
         vcur[:] = vn_all()
-    for _ in range(3):  # slow approaches stop (plastic)
-        slow = np.unique(inv[vcur < -1e-12])
-        if slow.size == 0:
-            break
-        for g in slow.tolist():
-            resolve(g, False)
+    propagate.propagate(1, *args)  # slow approaches stop (plastic)
     return rows.m
+
+
+_NO_I = np.zeros(0, np.int64)
+_NO_D = np.zeros(0)
+
+
+def warm_up() -> None:
+    """Compile (or load) the propagation kernel with the step's argument
+    types (see engine/jit.py): one pair of two rows, with and without
+    friction."""
+    J = np.ones((2, 12))
+    ab = np.array([[0, 1], [0, 1]], np.int64)
+    i2 = np.zeros(2, np.int64)
+    U = np.zeros((2, 6))
+    for friction in (False, True):
+        k = 1 if friction else 0
+        propagate.propagate(0, J, J.copy(), ab, np.ones(2), i2[:2 if friction else 0], np.arange(2, dtype=np.int64),
+                            np.array([0, 2], np.int64), i2, np.arange(2, dtype=np.int64),
+                            np.array([0, 2, 2], np.int64), U, -np.ones(2), 0.1, friction, np.ones((k, 3, 12)),
+                            np.ones((k, 3, 12)), np.ones((k, 3)), i2[:k], i2[:k] + 1, np.ones(k), np.ones(k),
+                            np.ones(k), np.ones(k), False)

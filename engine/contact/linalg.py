@@ -52,23 +52,48 @@ def _k_entry(J, M, a, b, world, i, j):
     return s
 
 
+@njit(cache=True, inline="always")
+def _k_entry_select(J, M, a, b, world, i, j):
+    """:func:`_k_entry` with its four sides computed unconditionally and
+    selected (0.0 for a side the rows do not share): the same bits -- the
+    sum starts at +0.0 and a sum from +0.0 is never -0.0 in round to
+    nearest, so adding 0.0 for a skipped side leaves it as it was -- with
+    four independent products in flight instead of data-dependent branches
+    (tests/test_determinism.py; the dense direct start's normal matrix)."""
+    ai, bi, aj, bj = a[i], b[i], a[j], b[j]
+    daa = _dot6(J, 0, M, 0, i, j)
+    dab = _dot6(J, 0, M, 6, i, j)
+    dba = _dot6(J, 6, M, 0, i, j)
+    dbb = _dot6(J, 6, M, 6, i, j)
+    s = 0.0
+    s += daa if ai == aj else 0.0
+    s += dab if (ai == bj and bj != world) else 0.0
+    s += dba if (bi == aj and bi != world) else 0.0
+    s += dbb if (bi == bj and bi != world) else 0.0
+    return s
+
+
 @njit(cache=True)
 def normal_matrix(J, M, a, b, world):
     """K = J M^-1 J^T (m, m) of the normal rows: entry (i, j) is summed over
     the dynamic bodies rows i and j share, aa, ab, ba, bb in that order
     (:func:`_k_entry`); rows sharing no body are 0 and never visited (a row
-    meets only the rows of its two bodies)."""
+    meets only the rows of its two bodies; a row sharing both is visited
+    once, from body a)."""
     m = J.shape[0]
     K = np.zeros((m, m))
     ptr, idx = _body_rows(a, b, world, np.arange(m))
     for i in range(m):
+        ai = a[i]
         for side in range(2):
-            body = a[i] if side == 0 else b[i]
-            if body == world or (side == 1 and body == a[i]):
+            body = ai if side == 0 else b[i]
+            if body == world or (side == 1 and body == ai):
                 continue
             for t in range(ptr[body], ptr[body + 1]):
                 j = idx[t]
-                K[i, j] = _k_entry(J, M, a, b, world, i, j)
+                if side == 1 and ai != world and (a[j] == ai or b[j] == ai):
+                    continue  # row j meets body a[i] too: its entry is set
+                K[i, j] = _k_entry_select(J, M, a, b, world, i, j)
     return K
 
 

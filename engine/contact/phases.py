@@ -29,6 +29,13 @@ from engine.contact.prepare import classify, rows as prepare_rows, sliding, targ
 
 _EPS_REL = linalg.EPS_REL  # a module global: numba compiles it in as a constant
 
+#: the solve stage's work arrays in the order of its work Pack ``kw``
+#: (engine.solver._work_items builds it in this order and checks its length)
+WORK = ("J", "M", "mn", "loc", "lam_n", "target", "P", "N", "rt", "t", "Jt", "Mt", "mt", "lam_t", "slip", "mu", "U",
+        "U0", "Ud", "vt0", "pin_t", "dir_t", "matched", "r_direct", "bias", "Up", "lam_p", "touch_rows", "wk")
+#: where ``kw.items`` holds the patches' slip flags (np,) bool
+W_SLIP = WORK.index("slip")
+
 
 @njit(cache=True, inline="always")
 def _pack(U, V, W):
@@ -128,17 +135,18 @@ def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt,
 
 @njit(cache=True)
 def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, mus, muk, rt,
-                     mur, slip, pin_t, dir_t, pin_r, dir_r, iterations, tol, world):
+                     mur, slip, pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk):
     """The solve phase (rows.Rows.solve_friction_regimes): sweeps with
     mu_s for sticking patches; a patch whose friction (or twist) ends on
     its mu_s limit switches to mu_k and the rows are swept again (at most
-    twice).  Returns (sweeps done, the last sweep's relative residual)."""
+    twice); ``wk`` the sweeps' work array (engine.contact.sweeps).  Returns
+    (sweeps done, the last sweep's relative residual)."""
     sw, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt,
-                                  mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world)
+                                  mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk)
     if not friction:
         return sw, residual
     npch = lam_t.shape[0]
-    Fn = np.empty(npch)
+    Fn = sweeps.work_layout(wk, lam_n.shape[0], npch, lam_t.shape[1])[4]
     for _ in range(2):
         Fn[:] = 0.0
         for i in range(pid.shape[0]):
@@ -157,7 +165,7 @@ def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt,
         for p in range(npch):
             mu[p] = muk[p] if slip[p] else mus[p]
         s2, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
-                                      rt, mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world)
+                                      rt, mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk)
         sw += s2
     return sw, residual
 
@@ -166,7 +174,7 @@ def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt,
 def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, friction, rolling, pab, pid, Jt, Mt,
                    mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on, codes, loc, a, b,
                    bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h, matched, direct, resting,
-                   max_rows, passes, r, pin_t, dir_t, iterations, tol):
+                   max_rows, passes, r, pin_t, dir_t, iterations, tol, wk):
     """The solve of prepared rows, phase by phase (module doc): slip
     classification at the start velocities V0, W0 (n, 3) (``vt0`` (np, 2),
     ``slip`` (np,), ``mu``), the warm start matched from the cache
@@ -175,8 +183,8 @@ def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, 
     the static/kinetic switch, and the end velocities written to V, W
     (n+1, 3) from ``U`` (packed here from V, W).  ``U0`` (n+1, 6) is left
     holding the start velocities (with friction); ``Ud``, ``r``,
-    ``matched`` scratch; ``pin_t``/``dir_t`` the (unset) pins of the
-    sweeps.  Returns (sweeps, residual)."""
+    ``matched``, ``wk`` (the sweeps' work array) scratch; ``pin_t``/``dir_t``
+    the (unset: all False) pins of the sweeps.  Returns (sweeps, residual)."""
     nb = world
     if friction:
         # slip classification at the start of the step (prepare.sliding)
@@ -202,19 +210,19 @@ def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, 
             if friction:
                 sweeps.apply_patches(U, pab, Mt, lam_t, world)
     sw, residual = friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
-                                    mus, muk, rt, mur, slip, pin_t, dir_t, pin_t, dir_t, iterations, tol, world)
+                                    mus, muk, rt, mur, slip, pin_t, dir_t, pin_t, dir_t, iterations, tol, world, wk)
     _unpack(U, V, W)
     return sw, residual
 
 
 @njit(cache=True)
-def relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, tol, world):
+def relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, tol, world, wk):
     """Split-impulse position correction: normal rows swept on the pseudo
     velocities Vp, Wp (n+1, 3) towards the push-out ``bias`` with their
-    own accumulator ``lam_p`` (zeroed here); ``Up`` scratch."""
+    own accumulator ``lam_p`` (zeroed here); ``Up``, ``wk`` (>= m,) scratch."""
     lam_p[:] = 0.0
     _pack(Up, Vp, Wp)
-    sweeps.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world)
+    sweeps.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world, wk)
     _unpack(Up, Vp, Wp)
 
 
@@ -242,21 +250,19 @@ def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching
     X, Iinv, R0, V, W, V0, W0, Vp, Wp, inv_mass, bound_radius = kc.items
     ab, a, b, pid, pa, pb, cnt, pab, codes, code_order, code_first, uniq_pid, mus, muk, mur = kt.items
     (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, U, U0, Ud, vt0, pin_t, dir_t, matched,
-     r_direct, bias, Up, lam_p, touch_rows) = kw.items
+     r_direct, bias, Up, lam_p, touch_rows, wk) = kw.items
     o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, _ = ko.items
     nb = X.shape[0]
     prepare_rows(X, Iinv, inv_mass, R0, True, ca, cb, point, normal, idx, nb, J, M, mn, loc, lam_n, target,
                  friction, pid, pa, pb, cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
     pushed = prepare_targets(idx, touching, vn, gap, e, h, lever, thr, beta, slop, target, bias)
-    pin_t[:] = False
-    dir_t[:] = 0.0
     sw, residual = solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, nb, friction, rolling, pab,
                                   pid, Jt, Mt, mt, lam_t, mu, mus, muk, mur, rt, slip, vt0, t, slip_tol, warm_on,
                                   codes, loc, a, b, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h,
                                   matched, direct, resting, max_rows, passes, r_direct, pin_t, dir_t, iterations,
-                                  1e-7)
+                                  1e-7, wk)
     if relax_on and pushed > 0:
-        relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, 1e-7, nb)
+        relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, 1e-7, nb, wk)
     if store_on:
         q_code, q_loc, q_fn, q_pairs, q_ft, q_tw, q_rr, q_touch = kq.items
         for i in range(idx.shape[0]):
@@ -302,7 +308,7 @@ def classify_stage(kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, th
     sw, residual, pushed = solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching, vn, h, lever,
                                        thr, beta, slop, friction, rolling, warm_on, direct, resting, max_rows, passes,
                                        slip_tol, iterations, relax_on, store_on)
-    slip = kw.items[14]
+    slip = kw.items[W_SLIP]
     sliding_any = False
     for p in range(slip.shape[0]):
         if slip[p]:

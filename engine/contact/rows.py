@@ -149,7 +149,7 @@ class Rows:
         self.a, self.b = topo.a, topo.b
         self.ima = topo.ima
         self.imb = topo.imb
-        sc = scratch if scratch is not None else Scratch()
+        sc = self._sc = scratch if scratch is not None else Scratch()
         self.friction = friction
         want_loc = R0 is not None
         if friction:
@@ -409,15 +409,21 @@ class Rows:
             sw, self.residual = sweeps.iterate(
                 U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, True, self.topo.pab,
                 self.pid, self.Jt, self.Mt, self.mt, self.lam_t, self.mu, self.r_twist, mur,
-                pin_t, dir_t, pin_r, dir_r, iterations, tol, self.world)
+                pin_t, dir_t, pin_r, dir_r, iterations, tol, self.world, self.sweep_work())
         else:
             z = np.zeros(0)
             zb = np.zeros(0, np.bool_)
             sw, self.residual = sweeps.iterate(
                 U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, False, self._NO_P,
                 np.zeros(0, np.int64), self._NO_F, self._NO_F, np.zeros((0, 3)), np.zeros((0, 3)), z, z, z,
-                zb, np.zeros((0, 2)), zb, np.zeros((0, 2)), iterations, tol, self.world)
+                zb, np.zeros((0, 2)), zb, np.zeros((0, 2)), iterations, tol, self.world, self.sweep_work())
         return int(sw)
+
+    def sweep_work(self) -> np.ndarray:
+        """The sweeps' work array for these rows (engine.contact.sweeps), a
+        view of the scratch's buffer."""
+        npch, nr = (self.np, self.lam_t.shape[1]) if self.friction else (0, 0)
+        return self._sc.take("rows_work", (sweeps.work_size(self.m, npch, nr),))
 
     def solve_friction_regimes(self, U, iterations: int) -> int:
         """Iterate with mu_s for sticking patches; a patch whose friction
@@ -532,4 +538,5 @@ class Rows:
 
     def iterate_normal(self, U, lam, target, iterations: int, tol: float = 1e-7) -> None:
         """Normal rows only, with their own accumulator (split impulse)."""
-        sweeps.iterate_normal(U, self.topo.ab, self.J, self.M, self.mn, lam, target, iterations, tol, self.world)
+        sweeps.iterate_normal(U, self.topo.ab, self.J, self.M, self.mn, lam, target, iterations, tol, self.world,
+                              self.sweep_work())

@@ -55,3 +55,9 @@ class Scratch:
         self._group[key[0]] = (key, views)
         return views
 
+
+    def peek(self, key: tuple):
+        """The views of the group ``key`` when it was the last asked for
+        under its name with these sizes, else None (nothing is made)."""
+        last = self._group.get(key[0])
+        return last[1] if last is not None and last[0] == key else None

@@ -14,14 +14,35 @@ friction coefficients ``mu`` (np,), twist radii ``rt`` (np,), rolling
 coefficients ``mur`` (np,), and the pins of :meth:`Rows.stop_times`
 (``pin_t`` (np,) bool with unit directions ``dir_t`` (np, 2); ``pin_r``,
 ``dir_r`` for the rolling rows).
+
+Work arrays: ``wk`` (>= :func:`work_size` (m, np, nr),) float64, kept by the
+caller (no allocation per sweep or per solve): the last sweep's impulses,
+the patches' normal impulses and one patch's new impulses
+(:func:`work_layout`).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
+
+
+def work_size(m: int, npch: int, nr: int) -> int:
+    """Length of the sweeps' work array ``wk`` for m normal rows and npch
+    patches of nr rows (see :func:`work_layout`)."""
+    return m + npch * nr + 2 * npch + 5
+
+
+@njit(cache=True, inline="always")
+def work_layout(wk, m, npch, nr):
+    """The views of ``wk``: the normal impulses before a sweep (m,), the
+    patch impulses before it (np * nr,) flat, the patches' normal impulses
+    of a friction sweep (np,), one patch's new impulses (5,), and the
+    patches' normal impulses of the static/kinetic switch (np,)."""
+    o1 = m + npch * nr
+    o2 = o1 + npch
+    return wk[:m], wk[m:o1], wk[o1:o2], wk[o2:o2 + 5], wk[o2 + 5:o2 + 5 + npch]
 
 
 @njit(cache=True, inline="always")
@@ -62,21 +83,58 @@ def apply_patches(U, pab, Mt, d, world):
                 U[ib, k] += sb
 
 
+@njit(cache=True, inline="always")
+def _row_update(U, ia, ib, J, mn, lam, target, i):
+    """Row i's new accumulated impulse (lam[i] set) and its change:
+    J[i] . [U[ia] | U[ib]] summed in order (the a side, then the b side)."""
+    vn = 0.0
+    for k in range(6):
+        vn += J[i, k] * U[ia, k]
+    for k in range(6):
+        vn += J[i, 6 + k] * U[ib, k]
+    old = lam[i]
+    new = max(old - mn[i] * (vn - target[i]), 0.0)
+    lam[i] = new
+    return new - old
+
+
 @njit(cache=True)
 def normal_pass(U, ab, J, M, mn, lam, target, world):
-    """One sweep of the normal rows: lam >= 0, J U >= target."""
-    for i in range(lam.shape[0]):
+    """One sweep of the normal rows: lam >= 0, J U >= target.  Two
+    consecutive rows on no common dynamic body (rows of one colour) are
+    done side by side: neither reads what the other writes, each sums as
+    alone, so the result is the row-by-row sweep's bit for bit, with two
+    dependency chains in flight instead of one."""
+    m = lam.shape[0]
+    i = 0
+    while i < m:
         ia = ab[i, 0]
         ib = ab[i, 1]
-        vn = 0.0
-        for k in range(6):
-            vn += J[i, k] * U[ia, k]
-        for k in range(6):
-            vn += J[i, 6 + k] * U[ib, k]
-        old = lam[i]
-        new = max(old - mn[i] * (vn - target[i]), 0.0)
-        lam[i] = new
-        add_row(U, ia, ib, M, i, new - old, world)
+        if i + 1 < m:
+            ja = ab[i + 1, 0]
+            jb = ab[i + 1, 1]
+            if ((ja == world or (ja != ia and ja != ib)) and (jb == world or (jb != ia and jb != ib))):
+                v1 = 0.0
+                v2 = 0.0
+                for k in range(6):
+                    v1 += J[i, k] * U[ia, k]
+                    v2 += J[i + 1, k] * U[ja, k]
+                for k in range(6):
+                    v1 += J[i, 6 + k] * U[ib, k]
+                    v2 += J[i + 1, 6 + k] * U[jb, k]
+                o1 = lam[i]
+                n1 = max(o1 - mn[i] * (v1 - target[i]), 0.0)
+                lam[i] = n1
+                o2 = lam[i + 1]
+                n2 = max(o2 - mn[i + 1] * (v2 - target[i + 1]), 0.0)
+                lam[i + 1] = n2
+                add_row(U, ia, ib, M, i, n1 - o1, world)
+                add_row(U, ja, jb, M, i + 1, n2 - o2, world)
+                i += 2
+                continue
+        d = _row_update(U, ia, ib, J, mn, lam, target, i)
+        add_row(U, ia, ib, M, i, d, world)
+        i += 1
 
 
 @njit(cache=True, inline="always")
@@ -93,11 +151,32 @@ def row_velocity(Jt, U, p, r, ia, ib):
 
 @njit(cache=True, inline="always")
 def _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, r0, r1, new, world):
-    """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected)."""
+    """new[r0:r1] = lam_t[p, r0:r1] - mt (Jt U) for patch p (unprojected),
+    r1 - r0 = 3 (tangent, tangent, twist) or 2 (rolling): each row's
+    velocity summed as :func:`row_velocity` sums it, the rows' sums side by
+    side (independent chains, the same bits)."""
     ia = pab[p, 0]
     ib = pab[p, 1]
-    for r in range(r0, r1):
-        new[r] = lam_t[p, r] - mt[p, r] * row_velocity(Jt, U, p, r, ia, ib)
+    three = r1 - r0 == 3
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for k in range(6):
+        u = U[ia, k]
+        v0 += Jt[p, r0, k] * u
+        v1 += Jt[p, r0 + 1, k] * u
+        if three:
+            v2 += Jt[p, r0 + 2, k] * u
+    for k in range(6):
+        u = U[ib, k]
+        v0 += Jt[p, r0, 6 + k] * u
+        v1 += Jt[p, r0 + 1, 6 + k] * u
+        if three:
+            v2 += Jt[p, r0 + 2, 6 + k] * u
+    new[r0] = lam_t[p, r0] - mt[p, r0] * v0
+    new[r0 + 1] = lam_t[p, r0 + 1] - mt[p, r0 + 1] * v1
+    if three:
+        new[r0 + 2] = lam_t[p, r0 + 2] - mt[p, r0 + 2] * v2
 
 
 @njit(cache=True, inline="always")
@@ -134,16 +213,16 @@ def _onto_disc(new, i, lim, pinned, d):
 
 
 @njit(cache=True)
-def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world):
+def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn, new):
     """One sweep of the friction patches: tangent and twist rows (Coulomb
     disc mu Fn, twist limit mu Fn r_twist), then the rolling rows (disc
-    mu_r Fn), Fn the patch's normal impulse at the start of the sweep."""
+    mu_r Fn), Fn the patch's normal impulse at the start of the sweep.
+    ``Fn`` (np,) and ``new`` (>= nr,) work arrays."""
     npch = lam_t.shape[0]
     nr = lam_t.shape[1]
-    Fn = np.zeros(npch)
+    Fn[:] = 0.0
     for i in range(pid.shape[0]):
         Fn[pid[i]] += lam_n[i]
-    new = np.empty(nr)
     for p in range(npch):
         _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
         lim = mu[p] * Fn[p]
@@ -160,28 +239,32 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
 
 @njit(cache=True)
 def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt, mur,
-            pin_t, dir_t, pin_r, dir_r, iterations, tol, world):
+            pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk):
     """Sweeps of friction (patches) then normal rows until no impulse
     changes by more than ``tol`` times the largest normal impulse in a
-    sweep.  Returns (sweeps done, the last sweep's largest change relative
-    to the largest normal impulse)."""
+    sweep; ``wk`` the work array (module doc).  Returns (sweeps done, the
+    last sweep's largest change relative to the largest normal impulse)."""
     m = lam_n.shape[0]
-    prev_n = np.empty(m)
-    prev_t = np.empty(lam_t.shape)
+    npch = lam_t.shape[0]
+    nr = lam_t.shape[1]
+    prev_n, prev_t, Fn, new, _ = work_layout(wk, m, npch, nr)
     residual = 0.0
     for it in range(iterations):
         prev_n[:] = lam_n
         if friction:
-            prev_t[:] = lam_t
-            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world)
+            for p in range(npch):
+                for r in range(nr):
+                    prev_t[p * nr + r] = lam_t[p, r]
+            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn,
+                          new)
         normal_pass(U, ab, J, M, mn, lam_n, target, world)
         change = 0.0
         for i in range(m):
             change = max(change, abs(lam_n[i] - prev_n[i]))
         if friction:
-            for p in range(lam_t.shape[0]):
-                for r in range(lam_t.shape[1]):
-                    change = max(change, abs(lam_t[p, r] - prev_t[p, r]))
+            for p in range(npch):
+                for r in range(nr):
+                    change = max(change, abs(lam_t[p, r] - prev_t[p * nr + r]))
         scale = 0.0
         for i in range(m):
             scale = max(scale, lam_n[i])
@@ -192,10 +275,11 @@ def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_
 
 
 @njit(cache=True)
-def iterate_normal(U, ab, J, M, mn, lam, target, iterations, tol, world):
-    """Normal rows only, with their own accumulator (split impulse)."""
+def iterate_normal(U, ab, J, M, mn, lam, target, iterations, tol, world, wk):
+    """Normal rows only, with their own accumulator (split impulse);
+    ``wk`` (>= m,) work array."""
     m = lam.shape[0]
-    prev = np.empty(m)
+    prev = wk[:m]
     for _ in range(iterations):
         prev[:] = lam
         normal_pass(U, ab, J, M, mn, lam, target, world)

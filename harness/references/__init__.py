@@ -115,6 +115,12 @@ class ReferenceSeries:
     measure: Callable[[Any], np.ndarray] | None = None
 
 
+def constant(value: float) -> Callable[[np.ndarray], np.ndarray]:
+    """A ReferenceSeries ``model`` predicting ``value`` at every time: t (F,)
+    s -> (F,) filled with it (a conserved quantity, a level)."""
+    return lambda t: np.full(np.shape(t), float(value))
+
+
 class ReferenceModel:
     """Base class.  ``__init__(scene)`` extracts parameters (raise
     ReferenceError naming what does not fit); ``metrics(trace)`` returns the
@@ -148,6 +154,21 @@ class ReferenceModel:
 
     def param(self, key: str, default: Any = None) -> Any:
         return self.scene.reference_params.get(key, default)
+
+    def named(self, key: str, items: Any, what: str) -> list | None:
+        """The ``items`` (bodies or statics: anything with ``.name``) that
+        the list ``params.<key>`` names, in its order; None when the param
+        is not set.  A name the scene does not have is a ReferenceError at
+        ``reference.params.<key>`` that lists the names it has."""
+        names = self.param(key)
+        if names is None:
+            return None
+        by_name = {x.name: x for x in items}
+        missing = [n for n in names if n not in by_name]
+        if missing:
+            raise ReferenceError(f"{self.name}: params.{key} names unknown {what} {missing}; "
+                                 f"the scene has {sorted(by_name)}", key=f"reference.params.{key}")
+        return [by_name[n] for n in names]
 
     def the_body(self):
         """The body ``params.body`` names, else the scene's only body."""
@@ -204,6 +225,14 @@ class ReferenceModel:
         if ref is None:
             return {}
         return trajectory_metrics(trace.pos, ref)
+
+
+def fit_slope(t: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope dy/dt (units of y per s) of y (F,) over t (F,)
+    s; NaN when t does not vary."""
+    tm = t - t.mean()
+    den = float(tm @ tm)
+    return float(tm @ (y - y.mean()) / den) if den > 0 else float("nan")
 
 
 def trajectory_metrics(pos: np.ndarray, ref: np.ndarray) -> dict[str, float]:

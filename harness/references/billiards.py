@@ -12,12 +12,13 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from contract.rotation import world_to_body_angvel
-from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, divide,
-                                trajectory_metrics)
+from harness.metrics import energy_series, kinetic_energy
+from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, constant,
+                                divide, trajectory_metrics)
 from harness.references.collision import TwoBodyCollision
 
 
@@ -245,6 +246,16 @@ class NewtonsCradle(ReferenceModel):
         return {"cradle_velocity_error": float(np.max(err) / self.v_scale)}
 
 
+class _States(NamedTuple):
+    """Body states of k frames: pos (k, n, 3), quat (k, n, 4) wxyz, vel
+    (k, n, 3), angvel (k, n, 3): a trace's frames for the metrics' energy."""
+
+    pos: np.ndarray
+    quat: np.ndarray
+    vel: np.ndarray
+    angvel: np.ndarray
+
+
 class MomentumEnergy(ReferenceModel):
     """Conservation laws for a many-body collision (a break).
 
@@ -281,9 +292,7 @@ class MomentumEnergy(ReferenceModel):
         g = scene.gravity
         gn = float(np.linalg.norm(g))
         self.up = -g / gn if gn > 0 else None
-        self.g = gn
-        x0, q0, v0, w0 = scene.initial_state()
-        self.P0 = self._horizontal(scene.masses @ v0)
+        self.P0 = self._horizontal(scene.masses @ scene.initial_state()[2])
         if np.linalg.norm(self.P0) == 0:
             raise ReferenceError("momentum_energy needs a non-zero initial momentum (normal to gravity)")
         for s in scene.statics:
@@ -295,14 +304,17 @@ class MomentumEnergy(ReferenceModel):
             return P
         return P - np.multiply.outer(P @ self.up, self.up)
 
-    def _energy(self, pos, quat, vel, angvel) -> float:
-        sc = self.scene
-        m = sc.masses
-        ke = 0.5 * float(m @ np.einsum("ij,ij->i", vel, vel))
-        wb = world_to_body_angvel(quat, angvel)
-        ke += 0.5 * float(np.sum(sc.inertias * wb * wb))
-        pe = self.g * float(m @ (pos @ self.up)) if self.up is not None else 0.0
-        return ke + pe, ke
+    def _energy(self, states) -> tuple[np.ndarray, np.ndarray]:
+        """(E (J, (k,)), kinetic energy (J, (k,))) of ``states`` (anything
+        with pos, quat, vel, angvel of shape (k, n, 3|4)), the metrics'
+        definition (harness.metrics.energy_series) with the potential from
+        height 0."""
+        trans, rot = kinetic_energy(self.scene, states)
+        return energy_series(self.scene, states, datum=False), trans + rot
+
+    def _initial_energy(self) -> float:
+        x0, q0, v0, w0 = self.scene.initial_state()
+        return float(self._energy(_States(x0[None], q0[None], v0[None], w0[None]))[0][0])
 
     def conserves_energy(self) -> bool:
         """Every pair of materials that can meet (:meth:`Scene.contact_materials`;
@@ -310,37 +322,33 @@ class MomentumEnergy(ReferenceModel):
         mechanical energy is a conserved quantity of the model."""
         return all(p.restitution == 1.0 for p in self.scene.contact_materials())
 
-    def energy_series(self, trace) -> np.ndarray:
-        """E(t) (J, (F,)): kinetic, rotational and gravitational, the
-        metrics' own sum (:meth:`_energy`)."""
-        return np.array([self._energy(trace.pos[f], trace.quat[f], trace.vel[f], trace.angvel[f])[0]
-                         for f in range(trace.pos.shape[0])])
-
     def reference_series(self) -> list[ReferenceSeries]:
         """|P_h| (N s), the momentum normal to gravity, constant at |P_h(0)|;
         with restitution 1 everywhere, E (J) constant at E(0)."""
         P0 = float(np.linalg.norm(self.P0))
         out = [ReferenceSeries("scene/momentum_normal_to_gravity", "N s",
                                f"|momentum normal to gravity|: conserved at {P0:.6g} N s",
-                               lambda t: np.full(np.shape(t), P0),
+                               constant(P0),
                                lambda tr: np.linalg.norm(self._horizontal(self.scene.masses @ tr.vel), axis=-1))]
         if self.conserves_energy():
-            x0, q0, v0, w0 = self.scene.initial_state()
-            E0 = self._energy(x0, q0, v0, w0)[0]
+            E0 = self._initial_energy()
             out.append(ReferenceSeries("scene/energy", "J", f"mechanical energy: conserved at {E0:.6g} J (e = 1)",
-                                       lambda t: np.full(np.shape(t), E0), self.energy_series))
+                                       constant(E0),
+                                       lambda tr: energy_series(self.scene, tr, datum=False)))
         return out
 
     def predictions(self) -> dict[str, str]:
         out = {"momentum normal to gravity (conserved)": f"{np.array2string(self.P0, precision=6)} N s"}
         if self.conserves_energy():
-            out["mechanical energy (conserved, e = 1)"] = f"{self._energy(*self.scene.initial_state())[0]:.6g} J"
+            out["mechanical energy (conserved, e = 1)"] = f"{self._initial_energy():.6g} J"
         return out
 
     def metrics(self, trace) -> dict[str, float]:
         P = self._horizontal(self.scene.masses @ trace.vel[-1])
-        E0, K0 = self._energy(trace.pos[0], trace.quat[0], trace.vel[0], trace.angvel[0])
-        E1, _ = self._energy(trace.pos[-1], trace.quat[-1], trace.vel[-1], trace.angvel[-1])
+        ends = [0, -1]
+        (E0, E1), (K0, _) = self._energy(_States(trace.pos[ends], trace.quat[ends], trace.vel[ends],
+                                                 trace.angvel[ends]))
+        E0, E1, K0 = float(E0), float(E1), float(K0)
         out = {"momentum_error": float(np.linalg.norm(P - self.P0) / np.linalg.norm(self.P0))}
         # K0 = 0 with P0 != 0: speeds so small that m v^2 underflows
         divide(out, "energy_error", abs(E1 - E0), K0, "the initial kinetic energy KE(0)")

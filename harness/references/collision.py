@@ -36,23 +36,22 @@ class TwoBodyCollision(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        names = self.param("bodies")
-        if names is None:
+        chosen = self.named("bodies", scene.bodies, "bodies")
+        if chosen is None:
             if scene.n_bodies != 2:
                 raise ReferenceError(f"two_body_collision needs exactly 2 bodies (or params.bodies), the scene has {scene.n_bodies}")
             idx = (0, 1)
         else:
-            try:
-                idx = tuple(scene.body_index(n) for n in names)
-            except KeyError as e:
-                raise ReferenceError(f"no body named {e.args[0]!r}", key="reference.params.bodies") from None
+            idx = tuple(b.index for b in chosen)
             if len(idx) != 2:
-                raise ReferenceError(f"expected two body names, got {names!r}", key="reference.params.bodies")
+                raise ReferenceError(f"expected two body names, got {self.param('bodies')!r}",
+                                     key="reference.params.bodies")
         self.idx = idx
         b1, b2 = (scene.bodies[i] for i in idx)
         for b in (b1, b2):
             if b.shape != "sphere":
-                raise ReferenceError(f"two_body_collision needs spheres, body {b.name!r} is a {b.shape}")
+                raise ReferenceError(f"two_body_collision needs spheres, body {b.name!r} is a {b.shape}",
+                                     key=scene.body_key(b.index, "shape"))
         self.m1, self.m2 = b1.mass, b2.mass
         self.R = b1.radius + b2.radius
         self.e = scene.pair(b1.material, b2.material).restitution
@@ -66,7 +65,7 @@ class TwoBodyCollision(ReferenceModel):
             raise ReferenceError(
                 f"spheres {b1.name!r} and {b2.name!r} start overlapping: their centres are {dist:.6g} m apart, "
                 f"less than r1 + r2 = {self.R:.6g} m; expected a start with the spheres apart "
-                f"(centre distance >= r1 + r2)", key=f"body[{idx[1]}].position")
+                f"(centre distance >= r1 + r2)", key=scene.body_key(idx[1], "position"))
         self.v1, self.v2 = b1.velocity.copy(), b2.velocity.copy()
         self.g = scene.gravity.copy()
         self.t_impact, self.n = self._impact()

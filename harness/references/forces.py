@@ -50,7 +50,8 @@ import math
 
 import numpy as np
 
-from harness.references import BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
+from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant,
+                                trajectory_metrics)
 
 _COLLINEAR = 1e-9  # relative tolerance for "along the line"
 
@@ -386,7 +387,7 @@ class DragFall(ReferenceModel):
                                lambda tr: np.linalg.norm(tr.vel[:, i], axis=1))]
         if self.v_t > 0:
             out.append(ReferenceSeries(f"{name}/terminal_speed", "m/s", f"terminal speed {self.v_t:.6g} m/s",
-                                       lambda t: np.full(np.shape(t), self.v_t)))
+                                       constant(self.v_t)))
         return out
 
     def predictions(self) -> dict[str, str]:

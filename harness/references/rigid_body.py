@@ -53,7 +53,7 @@ from scipy.integrate import solve_ivp
 
 from contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
 from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
-                                trajectory_metrics)
+                                fit_slope, trajectory_metrics)
 
 RTOL = 1e-10
 ATOL = 1e-12
@@ -443,13 +443,11 @@ class HeavyTop(ReferenceModel):
         return az, tilt
 
     def precession_rate_ref(self) -> float:
-        """The reference's mean precession rate (rad/s): the slope of its
-        azimuth over the run sampled at the scene's dt (what
-        ``precession_rate_ref`` fits on a run of that dt)."""
-        from harness.references.friction import _fit_slope
-
+        """The reference's mean precession rate (rad/s) over the run sampled
+        at the scene's dt (what the ``precession_rate_ref`` metric fits on a
+        run of that dt)."""
         t = np.arange(0.0, self.scene.duration + 0.5 * self.scene.dt, self.scene.dt)
-        return _fit_slope(t, self._azimuth_tilt(self.reference(t)[1])[0])
+        return fit_slope(t, self._azimuth_tilt(self.reference(t)[1])[0])
 
     def reference_series(self) -> list[ReferenceSeries]:
         """The symmetry axis' azimuth about the vertical (rad, unwrapped: its
@@ -474,10 +472,8 @@ class HeavyTop(ReferenceModel):
         _, q_ref = self.reference(trace.t)
         az, tilt = self._azimuth_tilt(trace.quat[:, 0])
         az_r, tilt_r = self._azimuth_tilt(q_ref)
-        from harness.references.friction import _fit_slope
-
-        om = _fit_slope(trace.t, az)
-        om_r = _fit_slope(trace.t, az_r)
+        om = fit_slope(trace.t, az)
+        om_r = fit_slope(trace.t, az_r)
         out["precession_rate"] = om
         out["precession_rate_ref"] = om_r
         out["precession_rate_ideal"] = self.precession_ideal

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from contract.rotation import quat_rotate
-from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
+from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
 
@@ -47,7 +47,7 @@ def _height_series(scene, x0: np.ndarray, bodies) -> list[ReferenceSeries]:
     as its twin (sinking, toppling and sliding off show as a departure)."""
     up = _up(scene)
     return [ReferenceSeries(f"{b.name}/height", "m", f"{b.name} height: stays at {float(x0[b.index] @ up):.6g} m",
-                            lambda t, h=float(x0[b.index] @ up): np.full(np.shape(t), h),
+                            constant(x0[b.index] @ up),
                             lambda tr, i=b.index: tr.pos[:, i] @ up)
             for b in bodies]
 
@@ -169,9 +169,9 @@ class LogPile(ReferenceModel):
         name = self.scene.bodies[top].name
         held = np.nan if not self.holds else 0.0
         return [ReferenceSeries(f"{name}/drop", "m", f"drop of the top log: predicted {'0 (holds)' if self.holds else 'a collapse'}",
-                                lambda t: np.full(np.shape(t), held), lambda tr: z0 - tr.pos[:, top, 2]),
+                                constant(held), lambda tr: z0 - tr.pos[:, top, 2]),
                 ReferenceSeries(f"{name}/fall_level", "m", f"top_fell past a drop of {level:.6g} m "
-                                f"({COLLAPSE_FRACTION:g} of the way to the ground)", lambda t: np.full(np.shape(t), level))]
+                                f"({COLLAPSE_FRACTION:g} of the way to the ground)", constant(level))]
 
     def predictions(self) -> dict[str, str]:
         return {"outcome": "holds" if self.holds else "collapses",

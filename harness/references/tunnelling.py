@@ -59,16 +59,9 @@ class NoTunnelling(ReferenceModel):
 
     def __init__(self, scene):
         super().__init__(scene)
-        names = self.param("statics")
-        if names is None:
+        statics = self.named("statics", scene.statics, "statics")
+        if statics is None:
             statics = list(scene.statics)
-        else:
-            by_name = {s.name: s for s in scene.statics}
-            missing = [n for n in names if n not in by_name]
-            if missing:
-                raise ReferenceError(f"no_tunnelling: params.statics names unknown statics {missing}; "
-                                     f"the scene has {sorted(by_name)}", key="reference.params.statics")
-            statics = [by_name[n] for n in names]
         if not statics:
             raise ReferenceError("no_tunnelling needs at least one static to watch")
         if scene.n_bodies == 0:

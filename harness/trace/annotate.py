@@ -154,18 +154,16 @@ class Diagnosis:
             _send_level(rec, path, steps, t, bound)
 
     def log_energy_band(self, rec: rr.RecordingStream, metrics_path: str, scene: Scene, tr, steps: np.ndarray,
-                        t: np.ndarray, running: dict) -> None:
+                        t: np.ndarray, running: dict, energy: tuple) -> None:
         """``<metrics_path>/energy_band/<metric>/{upper,lower}`` (J): the
         energy checks' bounds on this run's energy plot, E0 +- bound x
         E_scale with this run's E0 and the metric's E_scale
-        (harness.metrics.relative_energy); only checks with a running series
-        (not NaN for the scene)."""
+        (``energy``: harness.metrics.relative_energy of ``tr``); only checks
+        with a running series (not NaN for the scene)."""
         names = [n for n in self.checks if n in ENERGY_BAND and n in running]
         if not names or not steps.size:
             return
-        from harness.metrics import relative_energy
-
-        _, E, scale = relative_energy(scene, tr)
+        _, E, scale = energy
         for name in names:
             for side, value in energy_band(name, self.checks[name], float(E[0]), scale).items():
                 _send_level(rec, f"{metrics_path}/energy_band/{name}/{side}", steps, t, value)
@@ -178,7 +176,12 @@ class Diagnosis:
         rec.log(f"/context/{lab}", rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
 
     def log_run(self, rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene: Scene, result,
-                tr, steps: np.ndarray, t: np.ndarray, pen) -> None:
+                tr, steps: np.ndarray, t: np.ndarray, pen, energy: tuple) -> None:
+        """The diagnosis of one drawn run: momentum, error, contacts, check
+        series, energy bands, predictions, events, context.  ``pen``: the
+        run's harness.geometry.Penetration (None without contact);
+        ``energy``: harness.metrics.relative_energy of ``tr``, computed once
+        by the writer."""
         from harness.metrics import momenta
 
         lab = engine_path.rsplit("/", 1)[1]
@@ -208,8 +211,8 @@ class Diagnosis:
             self._log_contacts(rec, f"{engine_path}/engine_contacts", steps, t, eng, ENGINE_CONTACT_COLOR,
                                _time_columns)
             engine_note = f"{len(eng)} frames with contacts at /world/{lab}/engine_contacts"
-        running = dg.check_series(scene, tr, frame_max, err)
-        self.log_energy_band(rec, metrics_path, scene, tr, steps, t, running)
+        running = dg.check_series(scene, tr, frame_max, err, energy=energy)
+        self.log_energy_band(rec, metrics_path, scene, tr, steps, t, running, energy)
         for name in self.checks:
             if name in running and name not in THRESHOLD_GROUP:
                 _send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])

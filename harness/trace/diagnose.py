@@ -182,14 +182,16 @@ CROSSING_SERIES = {"max_penetration": "penetration", "final_position_error": "er
 
 
 def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
-                 error: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 error: np.ndarray | None = None, energy: tuple | None = None) -> dict[str, np.ndarray]:
     """Check metric -> its running value per frame ((F,), dimensionless
     except penetration and error in m), the metrics' own definitions
     (harness.metrics.relative_energy, momentum_drift_series): the metric is
     the series' maximum (energy_dissipated: its last value).  A check with
     a ``max`` first fails at the first frame whose value exceeds it.
     ``penetration``: the per-frame deepest overlap (m, (F,)); ``error``:
-    per-body error against the model (m, (F, n)), its largest body counts.
+    per-body error against the model (m, (F, n)), its largest body counts;
+    ``energy``: harness.metrics.relative_energy of ``trace`` when the
+    caller has it (computed here when None).
     Metrics that are NaN for the scene (energy_drift of a dissipative scene,
     momentum drift under an external force) have no series."""
     from contract.metric_defs import dissipation
@@ -203,7 +205,7 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
             worst = np.nanmax(np.where(np.isfinite(error), error, -np.inf), axis=1)
         out["final_position_error"] = out["trajectory_rmse"] = worst
     if scene.n_bodies and trace.pos.shape[0]:
-        dE = relative_energy(scene, trace)[0]
+        dE = (relative_energy(scene, trace) if energy is None else energy)[0]
         if dissipation(scene):
             out["energy_dissipated"] = -dE
         else:

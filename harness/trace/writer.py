@@ -36,15 +36,16 @@
     trace, get only this document, no bodies.
 ``/metrics/<engine>/energy``
     E(t) = translational + rotational kinetic + gravitational + spring
-    potential energy (J), from :func:`harness.metrics.kinetic_energy` and
-    :func:`harness.metrics.potential_energy`.  As in the metrics, the
+    potential energy (J), :func:`harness.metrics.energy_series`, computed
+    once per run (the diagnosing trace's bands and crossings reuse it).  As in the metrics, the
     potential is measured from the datum the scene fixes
     (:func:`harness.metrics.energy_datum`, docs/METRICS.md), the same for
     every engine, so the curves start at the same level.
 ``/metrics/<engine>/penetration``
     Per-frame deepest overlap (m) over all candidate pairs,
     :func:`harness.geometry.max_depth_per_frame` (0 when there are no pairs);
-    only for scenes with the ``contact`` effect.
+    only for scenes with the ``contact`` effect.  The run's own measurement
+    when the metrics handed it over (``Trace.penetration``), else measured.
 
 Timelines: ``step`` (sequence, the simulation step number round(t / dt) with
 the run's resolved ``dt``, equal to the frame index when every step is
@@ -69,6 +70,7 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
+from harness.metrics import energy_series, relative_energy
 from harness.trace.annotate import DEFAULT_CAP, Diagnosis
 from harness.trace.blueprint import default_blueprint, family_blueprint
 from harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
@@ -270,24 +272,6 @@ def frame_steps(t: np.ndarray, dt: float | None) -> np.ndarray:
     return np.arange(t.shape[0], dtype=np.int64)
 
 
-def energy_series(scene: Scene, trace) -> np.ndarray:
-    """Total mechanical energy per frame (J, (F,)), the metrics' definition."""
-    from harness.metrics import kinetic_energy, potential_energy
-
-    trans, rot = kinetic_energy(scene, trace)
-    return trans + rot + potential_energy(scene, trace)
-
-
-def penetration_series(scene: Scene, trace) -> np.ndarray:
-    """Deepest overlap per frame over all candidate pairs (m, (F,)); 0 where
-    no pair overlaps or there are no pairs; unmeasurable pairs are ignored
-    (harness.geometry.max_depth_per_frame; ~0.55 s at 1000 spheres x 600
-    frames)."""
-    from harness.geometry import max_depth_per_frame
-
-    return max_depth_per_frame(scene, trace)
-
-
 def _log_bodies(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: np.ndarray, t: np.ndarray,
                 pos: np.ndarray, quat: np.ndarray, color) -> None:
     """Each body's shape (static) and its poses pos (F, n, 3), quat (F, n, 4)
@@ -333,18 +317,18 @@ def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene
     _log_bodies(rec, engine_path, scene, steps, t, tr.pos, tr.quat, color)
     if not (F and scene.n_bodies):
         return
-    _send_scalars(rec, f"{metrics_path}/energy", steps, t, energy_series(scene, tr))
+    energy = relative_energy(scene, tr)  # (dE, E, E_scale): the plot, the bands, the crossings
+    _send_scalars(rec, f"{metrics_path}/energy", steps, t, energy[1])
     pen = None
     if scene.has("contact"):
-        if diag is None:
-            _send_scalars(rec, f"{metrics_path}/penetration", steps, t, penetration_series(scene, tr))
-        else:
+        pen = tr.penetration
+        if pen is None or pen.n_frames != F:
             from harness.geometry import measure_penetration
 
             pen = measure_penetration(scene, tr)
-            _send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())
+        _send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())
     if diag is not None:
-        diag.log_run(rec, engine_path, metrics_path, scene, result, tr, steps, t, pen)
+        diag.log_run(rec, engine_path, metrics_path, scene, result, tr, steps, t, pen, energy)
 
 
 def run_labels(results: Sequence) -> list[str]:
@@ -439,5 +423,5 @@ def write_rrd(path, scene: Scene, results: Sequence, *, app_id: str = "physbench
         rec.disconnect()
 
 
-__all__ = ["write_rrd", "scene_extent", "quat_z_to", "plane_patch", "energy_series", "penetration_series",
+__all__ = ["write_rrd", "scene_extent", "quat_z_to", "plane_patch", "energy_series",
            "default_blueprint", "run_labels", "frame_steps"]

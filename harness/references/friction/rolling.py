@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, ReferenceError, divide
-from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _check_axis_across, _fit_slope, _window
+from harness.references import TRAJECTORY, ReferenceError, divide, fit_slope
+from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _check_axis_across, _window
 
 
 class RollingSphere(_SlopeModel):
@@ -85,8 +85,8 @@ class RollingSphere(_SlopeModel):
         out = super().metrics(trace)
         i = self.body.index
         w = _window(trace.t)
-        a_meas = _fit_slope(trace.t[w], self.along(trace)[w])
-        alpha_meas = _fit_slope(trace.t[w], trace.angvel[w, i] @ self.axis)
+        a_meas = fit_slope(trace.t[w], self.along(trace)[w])
+        alpha_meas = fit_slope(trace.t[w], trace.angvel[w, i] @ self.axis)
         out["roll_accel"] = a_meas
         out["spin_accel"] = alpha_meas
         # a frictionless slope: the body slides without turning (alpha = 0)
@@ -277,8 +277,8 @@ class RollingResistance(_SlopeModel):
             lo = int(np.searchsorted(t, t0 + SKIP_FRACTION * (t1 - t0), side="left"))
             hi = int(np.searchsorted(t, t0 + 0.9 * (t1 - t0), side="right"))
             w = slice(lo, max(hi, lo + 3))
-            a_meas = _fit_slope(t[w], self.along(trace)[w])
-            alpha_meas = _fit_slope(t[w], trace.angvel[w, i] @ self.axis)
+            a_meas = fit_slope(t[w], self.along(trace)[w])
+            alpha_meas = fit_slope(t[w], trace.angvel[w, i] @ self.axis)
             out["roll_accel"] = a_meas
             out["spin_accel"] = alpha_meas
             out["roll_accel_error"] = abs(a_meas - a) / abs(a)

@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide
-from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _fit_slope, _window
+from harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide, fit_slope
+from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _window
 
 
 class InclineBlock(_SlopeModel):
@@ -132,14 +132,14 @@ class InclineBlock(_SlopeModel):
             w = _window(trace.t)
             if math.isfinite(self.t_stop):
                 w = slice(w.start, max(int(np.searchsorted(trace.t, 0.9 * self.t_stop)), w.start + 3))
-            a_meas = _fit_slope(trace.t[w], self.along(trace)[w])
+            a_meas = fit_slope(trace.t[w], self.along(trace)[w])
             out["slide_accel"] = a_meas
             out["slide_accel_error"] = abs(a_meas - self.a_slide) / abs(self.a_slide)
         if self.a_back:
             t_end = float(trace.t[-1])
             start = self.t_stop + SKIP_FRACTION * max(t_end - self.t_stop, 0.0)
             w = slice(min(int(np.searchsorted(trace.t, start)), max(len(trace.t) - 3, 0)), len(trace.t))
-            a_meas = _fit_slope(trace.t[w], self.along(trace)[w])
+            a_meas = fit_slope(trace.t[w], self.along(trace)[w])
             out["return_accel"] = a_meas
             out["return_accel_error"] = abs(a_meas - self.a_back) / abs(self.a_back)
         return out
@@ -220,7 +220,7 @@ class SlideToRest(InclineBlock):
         lo = int(np.searchsorted(t, SKIP_FRACTION * self.t_stop, side="left"))
         hi = max(int(np.searchsorted(t, 0.9 * self.t_stop, side="right")), lo + 3)
         speed = self.along(trace)[lo:hi] * sgn
-        slope = _fit_slope(t[lo:hi], speed)
+        slope = fit_slope(t[lo:hi], speed)
         t_meas = float(t[lo:hi].mean() - speed.mean() / slope) if slope < 0 else math.inf
         out["stop_time"] = t_meas
         out["stop_time_ref"] = self.t_stop

@@ -9,16 +9,10 @@ import math
 import numpy as np
 
 from contract.rotation import quat_to_matrix
-from harness.references import BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
+from harness.references import (BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, fit_slope,
+                                trajectory_metrics)
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
-
-
-def _fit_slope(t: np.ndarray, y: np.ndarray) -> float:
-    """Least-squares slope dy/dt of y (F,) over t (F,)."""
-    tm = t - t.mean()
-    den = float(tm @ tm)
-    return float(tm @ (y - y.mean()) / den) if den > 0 else math.nan
 
 
 def _window(t: np.ndarray) -> slice:

@@ -8,8 +8,8 @@ import numpy as np
 
 from contract.rotation import quat_rotate, quat_to_matrix
 from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
-                                divide, trajectory_metrics)
-from harness.references.friction.slope import SKIP_FRACTION, _fit_slope
+                                divide, fit_slope, trajectory_metrics)
+from harness.references.friction.slope import SKIP_FRACTION
 
 
 class SpinToRest(ReferenceModel):
@@ -142,7 +142,7 @@ class SpinToRest(ReferenceModel):
         t_end = min(self.t_stop, float(t[low[0]]) if low.size else math.inf)
         lo = int(np.searchsorted(t, SKIP_FRACTION * t_end, side="left"))
         hi = max(int(np.searchsorted(t, 0.9 * t_end, side="right")), lo + 3)
-        decel = -_fit_slope(t[lo:hi], spin[lo:hi])
+        decel = -fit_slope(t[lo:hi], spin[lo:hi])
         out["spin_decel"] = decel
         divide(out, "spin_decel_error", abs(decel - self.alpha), self.alpha, "the reference spin deceleration")
         if t[-1] > self.t_stop:

@@ -1,0 +1,306 @@
+"""The steady step: a (mini-)step with no event as ONE compiled call.
+
+A step of a resting or steadily sliding scene runs the same stages every
+time, and their Python glue (a stage call through the profile, the kept
+views and packs each stage looks up) cost as much as their compiled work
+(the 10-box column: ~25 of ~85 us a step).  :func:`steady_kernel` runs the
+start of the (mini-)step, gravity, the free flight, the broad phase, the
+narrow phase, the whole solve stage (:func:`engine.contact.phases.classify_stage`),
+the position update, the CCD stage's end-pose check and the commit, the
+same kernels with the same arguments in the same order as the stages call
+them one by one (the same bits: the determinism pins and the final states
+of every scenario are unchanged), and stops where the step is not steady:
+
+* ``FAIL`` -- a buffer is short, the contact count or graph changed, a row
+  is an impact, the friction-stop gate opens (a sliding patch may have
+  stopped): nothing of the state was written, and the step loop runs the
+  (mini-)step stage by stage from its start (the same bits: every stage
+  recomputes what the call wrote into the context's work arrays);
+* ``CCD`` -- a pair moved far enough between the start and end poses to
+  need the CCD stage's end-pose collision (``engine.ccd.missed_impacts``):
+  everything before it is done, and the step loop runs the CCD stage and
+  goes on as after the staged stages;
+* ``DONE`` -- committed.
+
+Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
+pipeline's plan): the fused call covers gravity (or no force), every
+integrator, no gyroscopic stage, the sequential-impulse solve without
+Baumgarte's bias and without rolling friction stops, with or without the
+CCD stage.  Other scenes, profiling by stage (``Profile.by_stage``) and the
+solver's phase-by-phase flag run the stages one by one.  The profile times
+the fused call as the stage ``steady_step``.
+"""
+
+from __future__ import annotations
+
+import time
+from operator import is_
+
+import numpy as np
+from numba import njit
+
+from engine.broadstage import BroadPhase, _broad_step
+from engine.collision import NarrowPhase, box
+from engine.collision.collide import collide_packed
+from engine.contact import phases, prepare
+from engine.control import EventMode
+from engine.flight import begin_step, end_pose_pairs, free_flight, gravity, integrate_positions
+from engine.forces import Gravity
+from engine.integrate import IntegratePositions, IntegrateVelocities
+from engine import solver as _S
+from engine.pack import Pack
+from engine.solver import Solve
+from engine.state import _commit_packed
+
+DONE, FAIL, CCD = 0, 1, 2
+
+#: most steps a failed try makes the next wait
+MAX_BACKOFF = 64
+
+#: the profile's name of the fused call
+NAME = "steady_step"
+
+
+@njit(cache=True)
+def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags):
+    """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
+    context's begin/commit pack (engine.state.Context.kept), ``kf`` the
+    free flight's, ``kbr`` the broad phase's and the end-pose check's,
+    ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
+    ... ``idx`` the solve stage's (phases.classify_stage); ``ks`` the
+    plan's settings (a Pack of the flags and reals tuples), ``step_flags``
+    this step's (:meth:`SteadyStep.run`).  Returns
+    (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
+    residual)."""
+    flags, reals = ks.items
+    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
+     rolling, iterations, passes, max_rows, face_points) = flags
+    warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
+    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
+    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
+     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
+     R1_end) = kbr.items
+    # the start of the (mini-)step (state.Context.begin), the force stage
+    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
+    if has_gravity:
+        gravity(mg, F)
+    # integrate.IntegrateVelocities
+    w0[:, :] = Wn
+    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
+                Vn, Wn, T_mean, u_lin, u_ang, work)
+    v_free[:, :] = Vn
+    w_free[:, :] = Wn
+    # broadstage.BroadPhase
+    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
+                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
+                                pj, pcode, bp, pk, bs, sk)
+    if nbb < 0 or npl < 0 or nsb < 0:
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    # collision.NarrowPhase (Collider.run)
+    W_ = kcol.items[5]
+    if W_[0].shape[0] < max(nbb, npl, nsb):
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
+                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
+    A, slot, out = kcol.items[6], kcol.items[8], kcol.items[9]
+    if need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt > out[0].shape[0] or cnt != key.shape[0]:
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    # solver.Solve (its steady path, Solve._fast_path)
+    nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
+        kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, True, friction, rolling,
+        warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
+    if not solved:
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    if stops_gate and residual <= stop_max_res and sliding_any:
+        # Solve._finish: Rows.stop_times opens with this gate
+        wi = kw.items
+        ti = kt.items
+        vt0 = wi[19]
+        if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
+                                  roll_tol):
+            return FAIL, 0, 0, 0, 0, 0, 0.0
+    # integrate.IntegratePositions
+    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
+    if ccd_check:
+        # the CCD stage's end-pose check (ccd.end_pose_pairs)
+        if has_fast:
+            for k in range(sweep.shape[0]):
+                fast[k] = sweep[k] > fast_min[k]
+        nb, nplm, nsm = end_pose_pairs(x, q, x1, q1, bound_radius, lim, has_fast, fast, pi[:nbb], pj[:nbb],
+                                       bp[:npl], pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk,
+                                       R1_end)
+        if nb + nplm + nsm:
+            return CCD, nbb, npl, nsb, cnt, sweeps, residual
+    _commit_packed(kb)  # state.Context.commit
+    return DONE, nbb, npl, nsb, cnt, sweeps, residual
+
+
+class SteadyStep:
+    """The plan's fused steady step (module doc) over the pipeline's stage
+    objects, whose kept buffers it reads and writes."""
+
+    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd):
+        self.gravity = forces[0] if forces else None
+        self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
+        n = model.n
+        s = model.settings
+        self.lim = float(s["correction_slop"]) + _miss_tol()
+        frac = ccd.fraction if ccd is not None else None
+        self.has_fast = frac is not None
+        # (n,): a body is fast when its sweep exceeds this (ccd.CCD: fraction x min extent)
+        self.fast_min = np.array(frac * model.min_extent if frac is not None else np.zeros(n), float)
+        self.fast = np.zeros(n, np.bool_)
+        self.no_sweep = np.zeros(n)
+        self.mg = self.gravity.mg if self.gravity is not None else np.zeros((n, 3))
+        self._kf = self._kf_ctx = None
+        self._kbr = self._kbr_key = None
+        self._ks = self._ks_key = None
+        self.backoff = 0  # steps to run staged before trying again (after a FAIL)
+        self.wait = 0
+
+    @staticmethod
+    def build(model, stages) -> "SteadyStep | None":
+        """The fused step for ``stages`` when the scene has only stages it
+        covers (module doc), else None: decided once, with the plan."""
+        from engine.ccd import CCD as CCDStage, Impact
+
+        forces = [s for s in stages if s.family == "forces"]
+        if any(type(s) is not Gravity for s in forces):
+            return None
+        rest = [s for s in stages if s.family != "forces"]
+        want = [IntegrateVelocities, BroadPhase, NarrowPhase, Solve, IntegratePositions]
+        tail = [type(s) for s in rest[len(want):]]
+        if [type(s) for s in rest[:len(want)]] != want or tail not in ([], [CCDStage, Impact]):
+            return None
+        fly, broad, narrow, solve, pos = rest[:5]
+        if solve.correction == "baumgarte" or (solve.friction and solve.stops and bool(model.rolling)):
+            return None
+        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None)
+
+    def _flight_pack(self, ctx):
+        """The free flight's arrays (and the context's views over its first
+        n rows) as one Pack, kept per context."""
+        if self._kf_ctx is not ctx:
+            n = ctx.x1.shape[0]
+            fly = self.fly
+            self._kf = Pack((self.mg, fly.fm, fly.inv_m, ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free, fly._w0,
+                             ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n]))
+            self._kf_ctx = ctx
+        return self._kf
+
+    def _broad_pack(self, ctx):
+        """The broad phase's, the narrow phase's margins and the end-pose
+        check's arrays as one Pack, kept while none of its buffers grew."""
+        b, col = self.broad, self.narrow.collider
+        P = b.pairs
+        ep = ctx.end_pose_buffers(max(P.pi.size, b.bp.size, b.bs.size))
+        key = (ctx, P.pi, P.order, P.state, P.grid, b.bp, b.bs, col.margins, ep)
+        if self._kbr_key is None or not all(map(is_, key, self._kbr_key)):
+            self._kbr = Pack((b.shape,) + b.geom + (b.R1,) + b.planes + b.sbox + (
+                b.lo, b.hi, ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, b.bp, b.pk, b.bs, b.sk,
+                col.margins, self.no_sweep, self.fast, self.fast_min) + ep)
+            self._kbr_key = key
+        return self._kbr
+
+    def _settings(self, model):
+        """The kernel's flags and reals that do not change from step to step
+        as one Pack, kept while the solver's policy constants (read at each
+        call, as the stage reads them) stay."""
+        key = (_S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS, _S.RESTING_SPEED, _S.SLIP_TOL, _S.STOP_MAX_RESIDUAL,
+               _S.ROLL_TOL, box.EDGE_FACE_POINTS)
+        if key != self._ks_key:
+            self._ks = Pack(self._constants(model))
+            self._ks_key = key
+        return self._ks
+
+    def _constants(self, model):
+        fly, b, solve = self.fly, self.broad, self.solve
+        flags = (self.gravity is not None, fly.code, bool(fly.forces), fly.constant, fly.torque, b.sap,
+                 self.narrow.speculative, model.n_statics, solve.correction != "none", solve.direct, solve.friction,
+                 bool(solve.friction and model.rolling), solve.iterations, _S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS,
+                 box.EDGE_FACE_POINTS)
+        reals = (float(fly.c), b.margin, solve.thr, solve.beta, solve.slop, _S.RESTING_SPEED, _S.SLIP_TOL,
+                 _S.STOP_MAX_RESIDUAL, self.lim, _S.ROLL_TOL)
+        return flags, reals
+
+    def ready(self) -> bool:
+        """Whether the next (mini-)step tries the fused call (not while
+        waiting after a failed try)."""
+        if self.wait:
+            self.wait -= 1
+            return False
+        return True
+
+    def run(self, model, state, ctx, h: float, profile) -> int:
+        """Try the (mini-)step of length ``h`` from ``state`` as one call
+        (module doc): returns DONE, FAIL or CCD; with CCD the context holds
+        what the CCD stage reads."""
+        t0 = time.perf_counter()
+        solve = self.solve
+        store_on = solve.store_on(model, h)
+        args = solve.fused_args(model, state, ctx, h, store_on)
+        if args is None:
+            return FAIL
+        kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = args
+        c = solve._fast[2]
+        col = self.narrow.collider
+        if col.last_contacts(c.m) is not c:
+            return FAIL
+        b = self.broad
+        step_flags = (warm_any, warm_on, store_on, bool(solve.friction and ctx.stop_allowed and solve.stops),
+                      self.ccd is not None and ctx.event_mode is EventMode.EVENT, self.has_fast)
+        status, nbb, npl, nsb, cnt, sw, res = steady_kernel(
+            ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), col.packed(), kc, kx, kt, kw, ko, kq, kk,
+            key, idx, float(h), self._settings(model), step_flags)
+        if status == FAIL:
+            # not steady: stage by stage, and the next tries wait (1, 2, 4,
+            # ... 64 steps while they keep failing)
+            self.backoff = min(2 * self.backoff, MAX_BACKOFF) if self.backoff else 1
+            self.wait = self.backoff
+        else:
+            self.backoff = 0
+            solve.fused_finish(model, state, ctx, out, store_on, int(sw), float(res))
+            ctx.contacts = c
+            if status == CCD:
+                P = b.pairs
+                ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
+                ctx.plane_pairs = (b.bp[:npl], b.pk[:npl])
+                ctx.sbox_pairs = (b.bs[:nsb], b.sk[:nsb])
+        dt = time.perf_counter() - t0
+        profile.calls[NAME] = profile.calls.get(NAME, 0) + 1
+        profile.seconds[NAME] = profile.seconds.get(NAME, 0.0) + dt
+        return status
+
+
+def _miss_tol() -> float:
+    from engine.ccd import MISS_TOL
+
+    return float(MISS_TOL)
+
+
+def warm_scene():
+    """Two boxes resting on a plane (an engine.model.SceneInput): the scene
+    whose first steps compile (or load) :func:`steady_kernel` with the
+    step's argument types (engine.pipeline.build_pipeline, once per
+    process)."""
+    from engine.model import SceneInput
+
+    n = 2
+    f = np.zeros
+    z = f(n)
+    q = f((n, 4))
+    q[:, 0] = 1.0
+    one = np.ones((1, 1))
+    return SceneInput(
+        dt=1 / 240, effects=frozenset({"gravity", "contact", "friction"}), gravity=np.array([0.0, 0.0, -9.81]),
+        shape=("box", "box"), mass=np.ones(n), inertia=np.full((n, 3), 1 / 150), radius=z,
+        half_extents=np.full((n, 3), 0.1), half_length=z, bound_radius=np.full(n, 0.1 * 3 ** 0.5),
+        min_extent=np.full(n, 0.1), drag_linear=z, drag_quadratic=z, material=np.zeros(n, np.int64),
+        x=np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]]), q=q, v=f((n, 3)), w=f((n, 3)), static_shape=("plane",),
+        static_material=np.zeros(1, np.int64), static_normal=np.array([[0.0, 0.0, 1.0]]), static_offset=f(1),
+        static_position=f((1, 3)), static_orientation=np.array([[1.0, 0.0, 0.0, 0.0]]),
+        static_half_extents=f((1, 3)), spring_a=np.zeros(0, np.int64), spring_b=np.zeros(0, np.int64),
+        spring_anchor_a=f((0, 3)), spring_anchor_b=f((0, 3)), spring_k=f(0), spring_rest=f(0), spring_c=f(0),
+        pair_e=0.0 * one, pair_mus=0.5 * one, pair_muk=0.5 * one, pair_mur=0.0 * one)
