@@ -57,6 +57,25 @@ from typing import Any, Callable, Iterable, Iterator
 from harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
                              register_env_adapters, take)
 
+#: Dask settings of the LocalCluster (its scheduler runs in this process, its
+#: workers on the cores the run processes use): one retry for a task whose
+#: worker died; tasks queued on the scheduler (workers hold only the task
+#: they run, so a death charges no queued task); and Dask's periodic work
+#: per process -- the workers' statistical profiler (a stack sample every
+#: 10 ms), the event-loop health tick (20 ms), the system monitor (0.5 s),
+#: the nanny's memory poll (0.1 s) and work stealing (every 0.1 s; nothing
+#: to steal with one task per thread) -- made rarer or off.  Measured in
+#: docs/SWEEPS.md (Dask's own CPU on an idle cluster of 2 workers).
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.scheduler.allowed-failures": 1,
+    "distributed.scheduler.worker-saturation": 1.0,
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.scheduler.work-stealing": False,
+}
+
 #: the version pins an environment check compares (importlib.metadata names)
 PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
 
@@ -257,10 +276,7 @@ class DaskExecutor:
             if scheduler:
                 self.client = Client(scheduler, timeout="20s")
             else:
-                # the scheduler runs in this process: one retry for a task whose worker died;
-                # workers hold only the task they run, so a death charges no queued task
-                with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                                      "distributed.scheduler.worker-saturation": 1.0}):
+                with dask.config.set(LOCAL_CLUSTER_CONFIG):
                     self.cluster = LocalCluster(n_workers=self.jobs, threads_per_worker=1, processes=True,
                                                 host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                                 env=dict(ONE_THREAD_ENV), silence_logs=40)

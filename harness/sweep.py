@@ -184,6 +184,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         if ex is not None:
             ex.close()
         raise
+    sd.write_behind()  # the loop feeding the workers and searches does not wait for fsyncs
     ctx = {"suite": s.name, "sweep_id": sd.sweep_id, "machine_id": sd.manifest["machine_id"], "sweep_jobs": jobs,
            "schema_version": SCHEMA_VERSION}
     todo = [p for p in points if p.key not in sd.done]
@@ -196,7 +197,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     cols = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
             TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
     try:
-        with Progress(*cols, console=err, disable=not err.is_terminal) as bar:
+        with Progress(*cols, console=err, disable=not err.is_terminal, refresh_per_second=2) as bar:
             task = bar.add_task("", total=len(todo))
 
             def on_start(p: Point) -> None:
@@ -217,9 +218,9 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     except (KeyboardInterrupt, *refused) as e:
         if isinstance(e, refused):
             err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+        sd.close()  # the queued rows written first
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
-        sd.close()
         if ex is not None:
             ex.close()
         return 2 if isinstance(e, refused) else 130
@@ -229,6 +230,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
             ex.close()
         raise
     try:  # still locked: a sweep started meanwhile must not resume this directory
+        sd.drain()
         out = consolidate(sd.path)
     finally:
         sd.close()

@@ -19,7 +19,12 @@ first by the one before: harness/schedule.py), and prints for each run:
   run process waited for a core while stepping (the machine's other load);
   ``step_cpu_s`` growing from 1 to 2 workers is each core doing less
   (shared caches, memory bandwidth, clock);
-- ``speedup``: the 1-worker wall time of the same executor over this one.
+- ``speedup``: the 1-worker wall time of the same executor over this one;
+- ``account``: CPU seconds by role (:class:`CpuAccount`, sampled with
+  psutil, Dask's own dependency): this process's main thread (the sweep's
+  loop, start-up, the merge), its part-writer thread, its other threads (a
+  LocalCluster's scheduler, nannies and comms, and the sampler itself), the
+  Dask worker processes and the run processes.
 
 Then the client's CPU per stored row (:func:`store_costs`: a part written
 and merged the pandas way and the Arrow way, on the 1-worker run's rows),
@@ -35,8 +40,10 @@ quiet machine for the figures in docs/SWEEPS.md.  Example::
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
+import os
 import resource
 import shutil
 import sys
@@ -52,6 +59,92 @@ def _cpu() -> float:
     return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
 
 
+class CpuAccount:
+    """CPU seconds (user + system) by role while it is entered: this
+    process's main thread, its part-writer thread, its other threads, and
+    its descendants by kind (Dask worker processes, run processes, other),
+    sampled every ``dt`` seconds (a process's CPU up to its last sample;
+    processes that exist at entry count from there).  ``report()`` is a
+    dict of role -> CPU s, ``wall_s`` and ``cores`` (the CPU cores this
+    machine has)."""
+
+    def __init__(self, dt: float = 0.2):
+        import threading
+
+        import psutil
+
+        self.dt, self._stop = dt, threading.Event()
+        self.me = psutil.Process()
+        self.main = threading.main_thread().native_id
+        self.first: dict[Any, float] = {}
+        self.last: dict[Any, float] = {}
+        self.kind: dict[Any, str] = {}
+        self.threads0 = self._threads()
+        self.threads: dict[int, float] = dict(self.threads0)
+        self.writers: set[int] = set()
+        self._thread = threading.Thread(target=self._loop, name="physbench-cpu-account", daemon=True)
+
+    def _threads(self) -> dict[int, float]:
+        return {t.id: t.user_time + t.system_time for t in self.me.threads()}
+
+    @staticmethod
+    def _kind(cmdline: str) -> str:
+        if "worker_main" in cmdline:
+            return "run processes"
+        if "multiprocessing" in cmdline:
+            return "dask worker processes"
+        return "other processes"
+
+    def sample(self, start: bool = False) -> None:
+        import threading
+
+        import psutil
+
+        for p in self.me.children(recursive=True):
+            try:
+                k = (p.pid, p.create_time())
+                c = p.cpu_times()
+                if k not in self.kind:
+                    self.kind[k] = self._kind(" ".join(p.cmdline()))
+                    self.first[k] = c.user + c.system if start else 0.0
+                self.last[k] = c.user + c.system
+            except psutil.Error:
+                pass
+        self.threads.update(self._threads())
+        self.writers |= {t.native_id for t in threading.enumerate() if t.name == "physbench-part-writer"}
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.dt):
+            self.sample()
+
+    def __enter__(self) -> "CpuAccount":
+        self.t0 = time.perf_counter()
+        self.sample(start=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.sample()
+        self._stop.set()
+        self._thread.join()
+        self.wall = time.perf_counter() - self.t0
+
+    def report(self) -> dict[str, float]:
+        import os
+
+        def used(tid: int) -> float:
+            return self.threads[tid] - self.threads0.get(tid, 0.0)
+
+        out = {"main thread": used(self.main) if self.main in self.threads else 0.0,
+               "part writer": sum(used(t) for t in self.threads if t in self.writers),
+               "other threads": sum(used(t) for t in self.threads if t != self.main and t not in self.writers)}
+        for kind in ("dask worker processes", "run processes", "other processes"):
+            out[kind] = sum(self.last[k] - self.first[k] for k in self.kind if self.kind[k] == kind)
+        out["wall_s"] = self.wall
+        out["cores"] = float(os.cpu_count() or 0)
+        return out
+
+
 def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str] | None = None,
             scenarios: list[str] | None = None) -> dict[str, Any]:
     """One fresh sweep of ``suite`` with ``executor`` x ``jobs`` under
@@ -62,9 +155,11 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     from harness.sweep import sweep_main
     from harness.sweep_store import sweep_files
 
+    load = os.getloadavg()[0]
     c0, t0 = _cpu(), time.perf_counter()
-    rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
-                    scenarios=scenarios)
+    with CpuAccount() as account:
+        rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
+                        scenarios=scenarios)
     wall, cpu = time.perf_counter() - t0, _cpu() - c0
     newest = max((f for *_m, f, done in sweep_files(root, unfinished=False) if done), key=lambda f: f.stem)
     df = pd.read_parquet(newest)
@@ -82,7 +177,8 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
             "errors": int(df["status"].isin(["error", "timeout"]).sum()),
             "wall_s": wall, "cpu_s": cpu, "cores_busy": cpu / wall, "busy_s": busy,
             "idle": 1.0 - busy / (jobs * wall), "step_cpu_s": step_cpu, "step_wall_s": step_wall,
-            "wait": step_wall / step_cpu - 1.0 if step_cpu > 0 else math.nan, "sweep_file": str(newest)}
+            "wait": step_wall / step_cpu - 1.0 if step_cpu > 0 else math.nan, "sweep_file": str(newest),
+            "load_before": load, "load_after": os.getloadavg()[0], "account": account.report()}
 
 
 class VirtualExecutor:
@@ -289,6 +385,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenarios", nargs="+", default=None, help="a subset of the suite's scenarios")
     p.add_argument("--executors", nargs="+", default=["process", "dask"], choices=["process", "dask"])
     p.add_argument("--jobs", nargs="+", type=int, default=[1, 2])
+    p.add_argument("--repeat", type=int, default=1, help="rounds of every executor and worker count, interleaved")
     p.add_argument("--overhead-items", type=int, default=200, help="sleeping tasks per overhead figure (0: skip)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     p.add_argument("--core-scaling", action="store_true",
@@ -325,21 +422,22 @@ def main(argv: list[str] | None = None) -> int:
     store: dict[str, Any] = {}
     root = args.keep or Path(tempfile.mkdtemp(prefix="physbench-sweep-bench-"))
     try:
-        for ex in args.executors:
-            for jobs in args.jobs:
-                r = measure(root, args.suite, ex, jobs, args.engines, args.scenarios)
-                one = next((x for x in rows if x["executor"] == ex and x["jobs"] == 1), None)
-                r["speedup"] = one["wall_s"] / r["wall_s"] if one else math.nan
-                rows.append(r)
-                print(json.dumps(r), file=sys.stderr, flush=True)
-                if jobs == 1 and not replays:  # the uncontended item times: what the schedule allows
-                    import pandas as pd
+        # executors interleaved, each round in full: the machine's load drifts between runs
+        for rnd, jobs, ex in itertools.product(range(args.repeat), args.jobs, args.executors):
+            r = measure(root, args.suite, ex, jobs, args.engines, args.scenarios)
+            r["round"] = rnd
+            one = next((x for x in reversed(rows) if x["executor"] == ex and x["jobs"] == 1), None)
+            r["speedup"] = one["wall_s"] / r["wall_s"] if one else math.nan
+            rows.append(r)
+            print(json.dumps(r), file=sys.stderr, flush=True)
+            if jobs == 1 and not replays:  # the uncontended item times: what the schedule allows
+                import pandas as pd
 
-                    df = pd.read_parquet(r["sweep_file"])
-                    replays = [replay(df, args.suite, j, args.engines, args.scenarios) for j in args.jobs if j > 1]
-                    import pyarrow.parquet as pq
+                df = pd.read_parquet(r["sweep_file"])
+                replays = [replay(df, args.suite, j, args.engines, args.scenarios) for j in args.jobs if j > 1]
+                import pyarrow.parquet as pq
 
-                    store = store_costs(pq.read_table(r["sweep_file"]).to_pylist())
+                store = store_costs(pq.read_table(r["sweep_file"]).to_pylist())
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
@@ -355,11 +453,18 @@ def main(argv: list[str] | None = None) -> int:
             threads[ex] = list(e.map(thread_counts, [0]))[0][1]
 
     print(f"sweep {args.suite}" + (f", scenarios {' '.join(args.scenarios)}" if args.scenarios else ""))
-    cols = ("executor", "jobs", "points", "evaluations", "errors", "wall_s", "speedup", "cpu_s", "cores_busy",
+    cols = ("round", "executor", "jobs", "points", "evaluations", "errors", "wall_s", "speedup", "cpu_s", "cores_busy",
             "busy_s", "idle", "step_cpu_s", "step_wall_s", "wait")
     print(" | ".join(cols))
     for r in rows:
         print(" | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+    print("CPU s by role (main thread: the sweep's loop, start-up and merge; other threads: a LocalCluster's "
+          "scheduler, nannies and comms, and the sampler; load average before -> after)")
+    for r in rows:
+        a = r["account"]
+        print(f"  {r['executor']} x{r['jobs']}: wall {a['wall_s']:.1f} s on {a['cores']:g} cores; "
+              + ", ".join(f"{k} {v:.1f}" for k, v in a.items() if k not in ("wall_s", "cores"))
+              + f"; load {r['load_before']:.1f} -> {r['load_after']:.1f}")
     for rp in replays:
         print(f"replay of the 1-worker item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
               f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "

@@ -18,8 +18,10 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import queue
 import re
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any, Iterable
@@ -76,17 +78,72 @@ _parts = list_parts  # the name harness/sweep.py imports
 
 class _SweepDir(PartsDir):
     """An open (unfinished) sweep directory: one part per finished point,
-    keyed by ``point_key`` (harness.results.PartsDir)."""
+    keyed by ``point_key`` (harness.results.PartsDir).  After
+    :meth:`write_behind`, :meth:`write_point` hands each row to a writer
+    thread, which stores it as its own part, in order: the caller (the
+    sweep's loop, which feeds the executor and the searches) does not wait
+    for the part's fsync."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
         super().__init__(path, manifest, lock_fd, "point_key")
+        self._queue: queue.SimpleQueue | None = None
+        self._writer: threading.Thread | None = None
+        self._write_error: BaseException | None = None
 
     @property
     def sweep_id(self) -> str:
         return self.manifest["sweep_id"]
 
-    def write_point(self, row: dict[str, Any]) -> Path:
-        return self.write_part(row, {"sweep_id": self.sweep_id})
+    def write_behind(self) -> None:
+        """Write parts on a writer thread from now on (until :meth:`drain`
+        or :meth:`close`).  A row is in ``done`` once its part is on disk;
+        a process killed with rows still queued loses them from disk only,
+        and a resume runs those points again (never twice: a part is whole
+        or absent; tests/test_sweep.py::test_resume_after_the_process_is_killed)."""
+        if self._writer is None:
+            self._queue = queue.SimpleQueue()
+            self._writer = threading.Thread(target=self._write_loop, name="physbench-part-writer", daemon=True)
+            self._writer.start()
+
+    def _write_loop(self) -> None:
+        while (row := self._queue.get()) is not None:
+            if self._write_error is None:  # after a failed write, nothing more: the caller gets the error
+                try:
+                    self.write_part(row, {"sweep_id": self.sweep_id})
+                except BaseException as e:
+                    self._write_error = e
+
+    def _raise_write_error(self) -> None:
+        if self._write_error is not None:
+            e, self._write_error = self._write_error, None
+            raise e
+
+    def write_point(self, row: dict[str, Any]) -> Path | None:
+        """Store ``row`` as the next part: at once (returns its path), or
+        after :meth:`write_behind` queued for the writer thread (returns
+        None; raises the error of an earlier failed write)."""
+        if self._writer is None:
+            return self.write_part(row, {"sweep_id": self.sweep_id})
+        self._raise_write_error()
+        self._queue.put(dict(row))  # as it is now: the caller may change its dict
+        return None
+
+    def drain(self) -> None:
+        """Wait until every queued row is on disk and stop the writer
+        thread; raises the error of a failed write."""
+        if self._writer is not None:
+            self._queue.put(None)
+            self._writer.join()
+            self._queue = self._writer = None
+        self._raise_write_error()
+
+    def close(self) -> None:
+        """Write the queued rows, then release the lock (also when a write
+        failed: its error is raised after)."""
+        try:
+            self.drain()
+        finally:
+            super().close()
 
 
 def confined(root: Path, *parts: str) -> Path:

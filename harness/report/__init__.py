@@ -41,10 +41,11 @@ import os
 import sys
 from pathlib import Path
 
-from harness.report.analysis import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
-                                     breaking_points, cost_to_target, failed_checks, failing_checks, family, fmt_limit, frontier, grid_ends, hard_scenarios,
-                                     ladder, latest_points, meets_checks, phase_table, stability_matrix,
+from harness.report.analysis import (breaking_points, failed_checks, failing_checks, fmt_limit, frontier,
+                                     hard_scenarios, latest_points, meets_checks, phase_table, stability_matrix,
                                      work_precision)
+from harness.report.cost import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
+                                 cost_to_target, family, grid_ends, ladder)
 from harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_SPREADS, history, machine_shifts,
                                     pooled_noise, regressions, scene_change_lines, scene_changes)
 from harness.report.loading import load_results

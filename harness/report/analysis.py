@@ -3,10 +3,10 @@
 page shows is what the rows recorded (asv's step_detect.py style).
 Tests call them on synthetic frames.
 
-Work-precision lines and frontiers, cost to reach a target and the
-accuracy ladder, at a glance, breaking points, the stability matrix, step
-phases and the failing checks; history and regressions are in
-harness.report.trends.
+Work-precision lines and frontiers, breaking points, the stability
+matrix, step phases and the failing checks; the cost to reach a target,
+the accuracy ladder and at a glance are in harness.report.cost, history
+and regressions in harness.report.trends.
 """
 
 from __future__ import annotations
@@ -180,177 +180,6 @@ def work_precision(df: pd.DataFrame, target: float | None = None,
     return out
 
 
-# ---------------------------------------------------------------------------
-# cost to reach a target accuracy
-
-
-#: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
-#: engine is, given which of the two costs are upper bounds
-RATIO_EXACT, RATIO_AT_MOST, RATIO_AT_LEAST, RATIO_OPEN = "=", "\u2264", "\u2265", "?"
-
-
-def _line_key(r: Mapping[str, Any]) -> str:
-    """A point's line: its swept settings but dt (one engine's rows)."""
-    return json.dumps({k: v for k, v in (r["swept"] or {}).items() if k != "dt"}, sort_keys=True, default=str)
-
-
-def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
-    """Where one engine's swept points leave its cost to reach ``target``
-    unbracketed by the grid.
-
-    ``recs``: the engine's points of one scenario (any settings); a line is
-    the points sharing every swept setting but dt.  A line is *open at the
-    coarse end* when the point at its coarsest swept dt is ok and its
-    primary error <= ``target``: coarser steps were not measured, and would
-    reach the target at a lower cost as far as the grid says, so the
-    engine's cost to reach it is an upper bound.  A line is *open at the
-    fine end* when its best ok error (> ``target``) is at its finest swept
-    dt: finer steps were not measured.  A coarsest point that is not ok
-    (diverged, unstable, refused) or misses the target closes the coarse end.
-
-    Returns ``{"coarse": [(line label, dt)...], "fine": [(line label, dt)...]}``
-    in line order.
-    """
-    lines: dict[str, list[Mapping[str, Any]]] = {}
-    for r in recs:
-        if math.isfinite(r["dt"]):
-            lines.setdefault(_line_key(r), []).append(r)
-    coarse, fine = [], []
-    for key in sorted(lines):
-        pts = sorted(lines[key], key=lambda r: r["dt"])
-        label = settings_label(json.loads(key))
-        top = pts[-1]
-        if _good(top) and math.isfinite(top["primary_error"]) and top["primary_error"] <= target:
-            coarse.append((label, top["dt"]))
-            continue
-        good = [r for r in pts if _good(r) and math.isfinite(r["primary_error"])]
-        if good and not any(r["primary_error"] <= target for r in good):
-            best = min(good, key=lambda r: (r["primary_error"], r["dt"]))
-            if best["dt"] == pts[0]["dt"]:
-                fine.append((label, best["dt"]))
-    return {"coarse": coarse, "fine": fine}
-
-
-def _ends_text(ends: list[tuple[str, float]]) -> str:
-    by: dict[str, list[str]] = {}
-    for label, dt in ends:
-        by.setdefault(fmt(dt), []).append(label or "defaults")
-    return "; ".join(f"dt={dt} ({', '.join(ls)})" for dt, ls in by.items())
-
-
-def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None = None,
-                   target: float | None = None) -> pd.DataFrame:
-    """Per (scenario, variant, engine): the cheapest point (latest sweep)
-    whose primary error <= the target, its cost and the ratio to the
-    cheapest engine that reached it; ``reached`` False with the best error
-    achieved otherwise.
-
-    ``targets``: a number for every scenario, or a mapping keyed by
-    (scenario, variant) / 'scenario/variant' / scenario; where it gives none,
-    the scenario's ``[[check]] max`` for its primary metric, else ``target``.
-    Rows without any target are left out.
-
-    The grid bounds what the table can say (:func:`grid_ends`):
-    ``cost_bound`` is True when some line of the engine reaches the target
-    at its coarsest swept dt -- the cost is then an upper bound ("at most";
-    coarser steps not measured); ``coarse_open`` names those lines and dts.
-    ``fine_open`` names, for an engine that never reaches the target, the
-    lines whose best error is at their finest swept dt (finer steps not
-    measured).  ``ratio_bound``: ``=`` both costs exact, ``\u2264`` this
-    engine's cost is a bound and the cheapest's is not, ``\u2265`` the
-    reverse, ``?`` both are bounds (the ratio is neither); the cheapest
-    engine's own ratio is 1 (``=``).  ``note`` says it in words.
-    ``step_us``: the reached point's CPU microseconds per step (cost x dt
-    x 1e6): where two engines reach the target at the same dt, their ratio
-    is the ratio of these.
-    """
-    df = _ensure(df)
-    cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
-            "settings", "dt", "cost", "step_us", "error", "ratio", "best_error", "best_error_settings", "points",
-            "cost_bound", "coarse_open", "fine_open", "ratio_bound", "note"]
-    pts = _unshifted(latest_points(df))
-    if pts.empty:
-        return pd.DataFrame(columns=cols)
-    tg = _targets(pts, target, targets)
-    rows = []
-    for (sc, va, en), g in pts.groupby(["scenario", "variant", "engine"], sort=True):
-        t, src = tg.get((sc, va), (None, "none"))
-        if t is None:
-            continue
-        recs = g.to_dict("records")
-        good = [r for r in recs if _good(r) and math.isfinite(r["primary_error"])]
-        under = [r for r in good if r["primary_error"] <= t and math.isfinite(r["cost"])]
-        metric = next((r["primary_metric"] for r in recs if r["primary_metric"]), None)
-        ends = grid_ends(recs, t)
-        row = {"scenario": sc, "variant": va, "engine": en, "primary_metric": metric, "target": t,
-               "target_source": src, "points": len(recs), "ratio": math.nan, "note": "",
-               "cost_bound": False, "coarse_open": _ends_text(ends["coarse"]), "fine_open": "",
-               "ratio_bound": ""}
-        if under:
-            best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
-            row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
-                       step_us=best["cost"] * best["dt"] * 1e6, error=best["primary_error"], best_error=math.nan,
-                       best_error_settings="")
-            if ends["coarse"]:
-                row["cost_bound"] = True
-                row["note"] = (f"upper bound: reached at the coarsest dt swept, {row['coarse_open']}; "
-                               "coarser steps not measured")
-        else:
-            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, step_us=math.nan, error=math.nan)
-            row["fine_open"] = _ends_text(ends["fine"])
-            if good:
-                b = min(good, key=lambda r: r["primary_error"])
-                row.update(best_error=b["primary_error"], best_error_settings=settings_label(b["swept"]))
-                row["note"] = "not reached within the grid" + (
-                    f"; best error at the finest dt swept, {row['fine_open']}: finer steps not measured"
-                    if ends["fine"] else "")
-            else:
-                row.update(best_error=math.nan, best_error_settings="")
-                row["note"] = "no ok point"
-        rows.append(row)
-    out = pd.DataFrame(rows, columns=cols)
-    if out.empty:
-        return out
-    for (sc, va), g in out.groupby(["scenario", "variant"]):
-        reached = g[g["reached"].astype(bool)]
-        if len(reached):
-            cheapest = reached["cost"].min()
-            if cheapest > 0:
-                out.loc[reached.index, "ratio"] = reached["cost"] / cheapest
-                first = reached.sort_values(["cost", "engine"], kind="stable").index[0]
-                cb = bool(out.at[first, "cost_bound"])
-                for i in reached.index:
-                    mine = bool(out.at[i, "cost_bound"])
-                    out.at[i, "ratio_bound"] = (RATIO_EXACT if i == first or (not mine and not cb) else
-                                                RATIO_AT_MOST if mine and not cb else
-                                                RATIO_AT_LEAST if cb and not mine else RATIO_OPEN)
-    return out.sort_values(["scenario", "variant", "reached", "cost", "engine"],
-                           ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
-
-
-#: accuracies of the primary metric the report asks every engine for
-LADDER = (1e-2, 1e-4, 1e-6, 1e-9)
-
-
-def ladder(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
-    """:func:`cost_to_target` at every rung of the accuracy ladder: per
-    (scenario, variant, engine, rung) the cheapest configuration reaching
-    the rung, or (``reached`` False) the best error reached and where.
-    Column ``rung`` holds the target."""
-    parts = []
-    for t in rungs:
-        ct = cost_to_target(df, targets=float(t))
-        if not ct.empty:
-            parts.append(ct.assign(rung=float(t)))
-    if not parts:
-        return pd.DataFrame(columns=["scenario", "variant", "engine", "rung", "reached", "cost", "settings"])
-    return pd.concat(parts, ignore_index=True)
-
-
-def family(scenario: str) -> str:
-    return scenario.split(".", 1)[0]
-
-
 def breaking_points(df: pd.DataFrame) -> pd.DataFrame:
     """The latest breaking-point search per (machine, scenario, variant,
     engine, parameter, range, overrides) from the stored ``limit`` rows
@@ -387,32 +216,6 @@ def fmt_limit(r: Mapping[str, Any], short: bool = False) -> str:
         return f"fails at {fmt(r['limit_range_lo'])}" if short else \
             f"fails at both ends [{fmt(r['limit_range_lo'])}, {fmt(r['limit_range_hi'])}]"
     return str(out or "?")
-
-
-def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
-    """Per scenario family and ladder rung: which engine is cheapest to
-    reach the rung, counted over the family's scenarios (``wins``: engine ->
-    scenarios where it is cheapest), how many scenarios some engine reached
-    it in, out of how many."""
-    lad = ladder(df, rungs)
-    rows = []
-    if lad.empty:
-        return pd.DataFrame(columns=["family", "rung", "wins", "reached", "scenarios"])
-    lad = lad.assign(family=[family(x) for x in lad["scenario"]])
-    for (fam, rung), g in lad.groupby(["family", "rung"], sort=True):
-        wins: dict[str, int] = {}
-        reached = 0
-        scen = 0
-        for _, h in g.groupby(["scenario", "variant"], sort=True):
-            scen += 1
-            r = h[h["reached"].astype(bool) & h["cost"].map(_finite)]
-            if len(r):
-                reached += 1
-                best = r.sort_values(["cost", "engine"], kind="stable").iloc[0]["engine"]
-                wins[best] = wins.get(best, 0) + 1
-        rows.append({"family": fam, "rung": rung, "wins": dict(sorted(wins.items(), key=lambda kv: -kv[1])),
-                     "reached": reached, "scenarios": scen})
-    return pd.DataFrame(rows).sort_values(["family", "rung"], ascending=[True, False]).reset_index(drop=True)
 
 
 # ---------------------------------------------------------------------------

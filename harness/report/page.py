@@ -15,9 +15,10 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from harness.report.analysis import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, _limit_rows, _sweeps,
-                                     at_a_glance, breaking_points, cost_to_target, failing_checks, fmt_limit,
-                                     ladder, phase_table, stability_matrix, work_precision)
+from harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
+                                     stability_matrix, work_precision)
+from harness.report.cost import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, at_a_glance, cost_to_target,
+                                 ladder)
 from harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
