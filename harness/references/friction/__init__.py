@@ -39,14 +39,11 @@ reads, and the acceleration fits), ``sliding`` (``incline_block``,
 ``slide_to_rest``), ``rolling`` (``rolling_sphere``, ``rolling_cylinder``,
 ``rolling_resistance``), ``spin`` (``spin_to_rest``).  This package
 re-exports the model classes (the registry, contract/models.py, names them
-here) and, as ``_fit_slope``, harness.references.fit_slope (the name
-tests/test_references.py::test_heavy_top_reference_precesses_at_the_analytic_rate
-imports).
+here).
 """
 
 from __future__ import annotations
 
 from harness.references.friction.rolling import RollingCylinder, RollingResistance, RollingSphere
 from harness.references.friction.sliding import InclineBlock, SlideToRest
-from harness.references import fit_slope as _fit_slope
 from harness.references.friction.spin import SpinToRest
