@@ -23,7 +23,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.trace import energy_series, quat_z_to, write_rrd
+from harness.metrics import energy_series
+from harness.trace import quat_z_to, write_rrd
 from harness.runner import RunResult, Trace
 from contract.scene import load_scene
 from tests.conftest import HEAD_ON

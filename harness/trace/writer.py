@@ -70,7 +70,7 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
-from harness.metrics import energy_series, relative_energy
+from harness.metrics import relative_energy
 from harness.trace.annotate import DEFAULT_CAP, Diagnosis
 from harness.trace.blueprint import default_blueprint, family_blueprint
 from harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
@@ -423,5 +423,5 @@ def write_rrd(path, scene: Scene, results: Sequence, *, app_id: str = "physbench
         rec.disconnect()
 
 
-__all__ = ["write_rrd", "scene_extent", "quat_z_to", "plane_patch", "energy_series",
+__all__ = ["write_rrd", "scene_extent", "quat_z_to", "plane_patch",
            "default_blueprint", "run_labels", "frame_steps"]
