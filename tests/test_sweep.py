@@ -449,6 +449,46 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
     assert len(man["resumed"]) == 1 and not sweep_dirs[0].exists()
 
 
+def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path, monkeypatch):
+    """The writer thread stores each queued row as its own part, in order,
+    before drain returns; a failed write is raised to the caller (by a
+    later write_point, or by drain/close), and close releases the lock."""
+    import harness.results as R
+    from harness.results import list_parts, read_part
+
+    real = R.write_table_atomic
+
+    def failing(table, path, *a, **kw):
+        if table.column("point_key")[0].as_py() == "bad":
+            raise OSError("disk full")
+        return real(table, path, *a, **kw)
+
+    monkeypatch.setattr(R, "write_table_atomic", failing)
+    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd.write_behind()
+    for k in ("a", "b", "c"):
+        assert sd.write_point({"point_key": k, "x": 1.0}) is None
+    sd.drain()
+    assert sd.done == {"a", "b", "c"}
+    assert [read_part(p).column("point_key")[0].as_py() for p in list_parts(tmp_path)] == ["a", "b", "c"]
+
+    sd.write_behind()
+    sd.write_point({"point_key": "bad", "x": 1.0})
+    with pytest.raises(OSError, match="disk full"):
+        sd.close()
+    assert sd.lock_fd == -1 and "bad" not in sd.done
+
+    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, -1)
+    sd.write_behind()
+    sd.write_point({"point_key": "bad", "x": 1.0})
+    deadline = time.monotonic() + 30
+    with pytest.raises(OSError, match="disk full"):  # raised by a later write_point once the writer failed
+        while time.monotonic() < deadline:
+            sd.write_point({"point_key": "d", "x": 1.0})
+            time.sleep(0.01)
+    sd.close()
+
+
 def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
     p = write(tmp_path, (ROOT / "suites" / "smoke.toml").read_text(), "smoke.toml")
     out = tmp_path / "out"
