@@ -48,6 +48,7 @@ import resource
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -69,8 +70,6 @@ class CpuAccount:
     machine has)."""
 
     def __init__(self, dt: float = 0.2):
-        import threading
-
         import psutil
 
         self.dt, self._stop = dt, threading.Event()
@@ -96,9 +95,9 @@ class CpuAccount:
         return "other processes"
 
     def sample(self, start: bool = False) -> None:
-        import threading
-
         import psutil
+
+        from harness.sweep_store import PART_WRITER
 
         for p in self.me.children(recursive=True):
             try:
@@ -111,7 +110,7 @@ class CpuAccount:
             except psutil.Error:
                 pass
         self.threads.update(self._threads())
-        self.writers |= {t.native_id for t in threading.enumerate() if t.name == "physbench-part-writer"}
+        self.writers |= {t.native_id for t in threading.enumerate() if t.name == PART_WRITER}
 
     def _loop(self) -> None:
         while not self._stop.wait(self.dt):
@@ -130,8 +129,6 @@ class CpuAccount:
         self.wall = time.perf_counter() - self.t0
 
     def report(self) -> dict[str, float]:
-        import os
-
         def used(tid: int) -> float:
             return self.threads[tid] - self.threads0.get(tid, 0.0)
 

@@ -76,6 +76,11 @@ def _now() -> str:
 _parts = list_parts  # the name harness/sweep.py imports
 
 
+#: the name of the sweep's part-writer thread (:meth:`_SweepDir.write_behind`;
+#: harness/sweep_bench.py accounts its CPU by it)
+PART_WRITER = "physbench-part-writer"
+
+
 class _SweepDir(PartsDir):
     """An open (unfinished) sweep directory: one part per finished point,
     keyed by ``point_key`` (harness.results.PartsDir).  After
@@ -102,7 +107,7 @@ class _SweepDir(PartsDir):
         or absent; tests/test_sweep.py::test_resume_after_the_process_is_killed)."""
         if self._writer is None:
             self._queue = queue.SimpleQueue()
-            self._writer = threading.Thread(target=self._write_loop, name="physbench-part-writer", daemon=True)
+            self._writer = threading.Thread(target=self._write_loop, name=PART_WRITER, daemon=True)
             self._writer.start()
 
     def _write_loop(self) -> None:

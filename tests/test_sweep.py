@@ -489,6 +489,34 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
     sd.close()
 
 
+def test_cpu_account_charges_the_part_writer_and_the_main_thread_apart():
+    """harness.sweep_bench.CpuAccount: CPU spent on a thread named as the
+    sweep's part writer counts as "part writer", the main thread's as
+    "main thread" (CPU seconds, not wall time)."""
+    import threading
+
+    from harness.sweep_bench import CpuAccount
+
+    def spin(cpu_s: float) -> None:
+        t0 = time.thread_time()
+        while time.thread_time() - t0 < cpu_s:
+            pass
+
+    release = threading.Event()
+    writer = threading.Thread(target=lambda: (spin(0.3), release.wait(60)), name=ST.PART_WRITER, daemon=True)
+    with CpuAccount(dt=0.05) as account:
+        writer.start()
+        spin(0.3)
+        deadline = time.monotonic() + 60  # the writer spun and is still alive at the last sample
+        while account.threads.get(writer.native_id, 0.0) < 0.29 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    release.set()
+    writer.join()
+    r = account.report()
+    assert r["part writer"] >= 0.25 and r["main thread"] >= 0.25
+    assert r["part writer"] < 0.5  # its own 0.3 s, not the main thread's as well
+
+
 def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
     p = write(tmp_path, (ROOT / "suites" / "smoke.toml").read_text(), "smoke.toml")
     out = tmp_path / "out"
