@@ -35,7 +35,7 @@ Measured accelerations are least-squares slopes of the velocity along d
 (contacts settle in the first steps).
 
 Modules: ``slope`` (the slope and coefficients every model but the spin
-reads, and the acceleration fits), ``sliding`` (``incline_block``,
+reads, and the window of the acceleration fits), ``sliding`` (``incline_block``,
 ``slide_to_rest``), ``rolling`` (``rolling_sphere``, ``rolling_cylinder``,
 ``rolling_resistance``), ``spin`` (``spin_to_rest``).  This package
 re-exports the model classes (the registry, contract/models.py, names them
