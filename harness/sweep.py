@@ -218,11 +218,13 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     except (KeyboardInterrupt, *refused) as e:
         if isinstance(e, refused):
             err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
-        sd.close()  # the queued rows written first
+        try:
+            sd.close()  # the queued rows written first (a failed write raises here)
+        finally:
+            if ex is not None:
+                ex.close()
         err.print(f"interrupted: {len(sd.done)} of {len(points)} points stored in {sd.path}; "
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
-        if ex is not None:
-            ex.close()
         return 2 if isinstance(e, refused) else 130
     except BaseException:
         sd.close()
