@@ -294,7 +294,7 @@ class Solve(Stage):
         same Contacts while its count and buffers stay)."""
         return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e))
 
-    def _fast_path(self, model, state, ctx, c, cl, old, h, sc, store_on):
+    def _fast_path(self, model, state, ctx, c, cl, h, sc, store_on):
         """The steady step's whole stage as ONE compiled call
         (:func:`engine.contact.phases.classify_stage`) when the last solve
         had no impact row and its packs stay (the same classification
@@ -311,17 +311,12 @@ class Solve(Stage):
         views = sc.group(key, lambda: _take_stage(sc, *key[1:]))
         if prep[0] is not topo or prep[1] is not views:
             return None
-        kc = self._pose(model, state, ctx)
-        kx = self._kx.of((ctx.u_lin, ctx.u_ang) + cl)
+        kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = self._steady_args(model, state, ctx, cl, topo,
+                                                                                        c, store_on)
         rows = prep[2]
         f = self.friction
-        warm_any = old is not None
-        warm_on = bool(self.warm and warm_any)
-        ko = old.kept if warm_any else _no_cache()
-        out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
-        idx = topo.order
         nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
-            kc, kx, topo._kept, prep[3], ko, out.kept if store_on else _no_cache(), self._contacts(c), topo.key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
+            kc, kx, kt, kw, ko, kq, kk, key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
             True, f, f and bool(model.rolling), warm_on, self.direct, RESTING_SPEED, DIRECT_MAX_ROWS,
             ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         if not solved:
@@ -358,10 +353,17 @@ class Solve(Stage):
         if (prep[0] is not topo or sc.peek(prep[4]) is not prep[1]
                 or sc.peek(("classify", c.m)) is not cl):
             return None
+        return self._steady_args(model, state, ctx, cl, topo, c, store_on)
+
+    def _steady_args(self, model, state, ctx, cl, topo, c, store_on) -> tuple:
+        """The kept packs phases.classify_stage reads in a steady solve
+        (:meth:`_fast_path`, :meth:`fused_args`) and the flags from the
+        state's warm cache: (kc, kx, kt, kw, ko, kq, kk, key, idx,
+        warm_any, warm_on, the warm cache written or None)."""
         old = state.warm
         warm_any = old is not None
         out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
-        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, prep[3],
+        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, self._prep[3],
                 old.kept if warm_any else _no_cache(), out.kept if store_on else _no_cache(), self._contacts(c),
                 topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
 
@@ -410,7 +412,7 @@ class Solve(Stage):
         old = state.warm
         store_on = h >= WARM_MIN_STEP * model.h
         drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
-        done = self._fast_path(model, state, ctx, c, cl, old, h, sc, store_on) if not drop else None
+        done = self._fast_path(model, state, ctx, c, cl, h, sc, store_on) if not drop else None
         if done is True:
             return
         if done is None:
