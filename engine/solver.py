@@ -313,7 +313,6 @@ class Solve(Stage):
             return None
         kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = self._steady_args(model, state, ctx, cl, topo,
                                                                                         c, store_on)
-        rows = prep[2]
         f = self.friction
         nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
             kc, kx, kt, kw, ko, kq, kk, key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
@@ -321,11 +320,7 @@ class Solve(Stage):
             ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         if not solved:
             return nimp
-        rows.rebind(c, state.x, idx)
-        rows.residual = res
-        rows.sweeps = int(sw)
-        if store_on:
-            state.warm = out
+        rows = self._steady_rows(state, c, idx, res, sw, store_on, out)
         U, U0, vt0 = views[16], views[17], views[19]
         self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
                      sliding_any)
@@ -372,16 +367,22 @@ class Solve(Stage):
         and :meth:`_finish` do after phases.classify_stage (no friction stop
         candidate, no Baumgarte bias: the fused step's plan)."""
         cl, topo, c = self._fast
-        rows = self._prep[2]
-        rows.rebind(c, state.x, topo.order)
-        rows.residual = residual
-        rows.sweeps = sweeps
-        state.warm = out if store_on else None
-        ctx.rows = rows
-        ctx.impacts = None
+        rows = self._steady_rows(state, c, topo.order, residual, sweeps, store_on, out)
+        # (the kernel ran the friction-stop gate; the plan has no bias)
+        self._finish(model, ctx, rows, None, None, None, False, ctx.h, store_on, state, False)
         self._grow_band(self._prep[1], rows.m)
-        ctx.profile.count("contact_rows", rows.m)
-        ctx.profile.count("solver_sweeps", sweeps)
+
+    def _steady_rows(self, state, c, idx, residual, sweeps, store_on, out):
+        """The kept Rows of a steady solve rebound to ``c`` (rows ``idx``)
+        with its residual and sweeps; the warm cache written (``out``)
+        becomes the state's when ``store_on``."""
+        rows = self._prep[2]
+        rows.rebind(c, state.x, idx)
+        rows.residual = residual
+        rows.sweeps = int(sweeps)
+        if store_on:
+            state.warm = out
+        return rows
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
