@@ -294,7 +294,7 @@ class Solve(Stage):
         same Contacts while its count and buffers stay)."""
         return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e))
 
-    def _fast_path(self, model, state, ctx, c, cl, old, h, sc, store_on):
+    def _fast_path(self, model, state, ctx, c, cl, h, sc, store_on):
         """The steady step's whole stage as ONE compiled call
         (:func:`engine.contact.phases.classify_stage`) when the last solve
         had no impact row and its packs stay (the same classification
@@ -311,26 +311,16 @@ class Solve(Stage):
         views = sc.group(key, lambda: _take_stage(sc, *key[1:]))
         if prep[0] is not topo or prep[1] is not views:
             return None
-        kc = self._pose(model, state, ctx)
-        kx = self._kx.of((ctx.u_lin, ctx.u_ang) + cl)
-        rows = prep[2]
+        kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = self._steady_args(model, state, ctx, cl, topo,
+                                                                                        c, store_on)
         f = self.friction
-        warm_any = old is not None
-        warm_on = bool(self.warm and warm_any)
-        ko = old.kept if warm_any else _no_cache()
-        out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
-        idx = topo.order
         nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
-            kc, kx, topo._kept, prep[3], ko, out.kept if store_on else _no_cache(), self._contacts(c), topo.key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
+            kc, kx, kt, kw, ko, kq, kk, key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
             True, f, f and bool(model.rolling), warm_on, self.direct, RESTING_SPEED, DIRECT_MAX_ROWS,
             ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
         if not solved:
             return nimp
-        rows.rebind(c, state.x, idx)
-        rows.residual = res
-        rows.sweeps = int(sw)
-        if store_on:
-            state.warm = out
+        rows = self._steady_rows(state, c, idx, res, sw, store_on, out)
         U, U0, vt0 = views[16], views[17], views[19]
         self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
                      sliding_any)
@@ -358,10 +348,17 @@ class Solve(Stage):
         if (prep[0] is not topo or sc.peek(prep[4]) is not prep[1]
                 or sc.peek(("classify", c.m)) is not cl):
             return None
+        return self._steady_args(model, state, ctx, cl, topo, c, store_on)
+
+    def _steady_args(self, model, state, ctx, cl, topo, c, store_on) -> tuple:
+        """The kept packs phases.classify_stage reads in a steady solve
+        (:meth:`_fast_path`, :meth:`fused_args`) and the flags from the
+        state's warm cache: (kc, kx, kt, kw, ko, kq, kk, key, idx,
+        warm_any, warm_on, the warm cache written or None)."""
         old = state.warm
         warm_any = old is not None
         out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
-        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, prep[3],
+        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, self._prep[3],
                 old.kept if warm_any else _no_cache(), out.kept if store_on else _no_cache(), self._contacts(c),
                 topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
 
@@ -370,16 +367,22 @@ class Solve(Stage):
         and :meth:`_finish` do after phases.classify_stage (no friction stop
         candidate, no Baumgarte bias: the fused step's plan)."""
         cl, topo, c = self._fast
-        rows = self._prep[2]
-        rows.rebind(c, state.x, topo.order)
-        rows.residual = residual
-        rows.sweeps = sweeps
-        state.warm = out if store_on else None
-        ctx.rows = rows
-        ctx.impacts = None
+        rows = self._steady_rows(state, c, topo.order, residual, sweeps, store_on, out)
+        # (the kernel ran the friction-stop gate; the plan has no bias)
+        self._finish(model, ctx, rows, None, None, None, False, ctx.h, store_on, state, False)
         self._grow_band(self._prep[1], rows.m)
-        ctx.profile.count("contact_rows", rows.m)
-        ctx.profile.count("solver_sweeps", sweeps)
+
+    def _steady_rows(self, state, c, idx, residual, sweeps, store_on, out):
+        """The kept Rows of a steady solve rebound to ``c`` (rows ``idx``)
+        with its residual and sweeps; the warm cache written (``out``)
+        becomes the state's when ``store_on``."""
+        rows = self._prep[2]
+        rows.rebind(c, state.x, idx)
+        rows.residual = residual
+        rows.sweeps = int(sweeps)
+        if store_on:
+            state.warm = out
+        return rows
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
@@ -410,7 +413,7 @@ class Solve(Stage):
         old = state.warm
         store_on = h >= WARM_MIN_STEP * model.h
         drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
-        done = self._fast_path(model, state, ctx, c, cl, old, h, sc, store_on) if not drop else None
+        done = self._fast_path(model, state, ctx, c, cl, h, sc, store_on) if not drop else None
         if done is True:
             return
         if done is None:

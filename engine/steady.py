@@ -226,12 +226,14 @@ class SteadyStep:
         return flags, reals
 
     def ready(self) -> bool:
-        """Whether the next (mini-)step tries the fused call (not while
-        waiting after a failed try)."""
+        """Whether the next (mini-)step tries the fused call: not while
+        waiting after a failed try, nor while the solve keeps no steady
+        solve (``Solve._fast``: no contact, or the last solve had an impact
+        row), where :meth:`run` could only fail before the call."""
         if self.wait:
             self.wait -= 1
             return False
-        return True
+        return self.solve._fast is not None
 
     def run(self, model, state, ctx, h: float, profile) -> int:
         """Try the (mini-)step of length ``h`` from ``state`` as one call
