@@ -183,12 +183,14 @@ def family(scenario: str) -> str:
     return scenario.split(".", 1)[0]
 
 
-def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER, lad: pd.DataFrame | None = None) -> pd.DataFrame:
     """Per scenario family and ladder rung: which engine is cheapest to
     reach the rung, counted over the family's scenarios (``wins``: engine ->
     scenarios where it is cheapest), how many scenarios some engine reached
-    it in, out of how many."""
-    lad = ladder(df, rungs)
+    it in, out of how many.  ``lad``: :func:`ladder` of ``df`` at ``rungs``
+    when the caller has it already (the page renders both)."""
+    if lad is None:
+        lad = ladder(df, rungs)
     rows = []
     if lad.empty:
         return pd.DataFrame(columns=["family", "rung", "wins", "reached", "scenarios"])

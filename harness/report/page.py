@@ -237,8 +237,8 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
 
 
-def _glance_html(df: pd.DataFrame) -> str:
-    ag = at_a_glance(df)
+def _glance_html(df: pd.DataFrame, lad: pd.DataFrame) -> str:
+    ag = at_a_glance(df, lad=lad)
     bp = breaking_points(df)
     parts = []
     if ag.empty:
@@ -562,9 +562,10 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
         header = ""
     else:
         header = _header_html(df)
-        body = {"glance": _glance_html(df),
+        lad = ladder(df)
+        body = {"glance": _glance_html(df, lad),
                 "wp": _wp_html(work_precision(df, target=target, targets=targets)),
-                "cost": _ladder_html(ladder(df)) + "<h3>At each scenario's own target</h3>"
+                "cost": _ladder_html(lad) + "<h3>At each scenario's own target</h3>"
                         + _cost_html(cost_to_target(df, targets=targets, target=target)),
                 "limits": _breaking_html(df),
                 "stab": _stability_html(stability_matrix(df)),
