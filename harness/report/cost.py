@@ -7,23 +7,17 @@ tests call them on synthetic frames (tests/test_report.py).
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from harness.report.analysis import _good, _targets, _unshifted, latest_points
+from harness.report.analysis import _good, _targets, _unshifted, latest_points, line_settings
 from harness.report.rows import _ensure, _finite, fmt, settings_label
 
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds
 RATIO_EXACT, RATIO_AT_MOST, RATIO_AT_LEAST, RATIO_OPEN = "=", "\u2264", "\u2265", "?"
-
-
-def _line_key(r: Mapping[str, Any]) -> str:
-    """A point's line: its swept settings but dt (one engine's rows)."""
-    return json.dumps({k: v for k, v in (r["swept"] or {}).items() if k != "dt"}, sort_keys=True, default=str)
 
 
 def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
@@ -43,14 +37,15 @@ def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
     Returns ``{"coarse": [(line label, dt)...], "fine": [(line label, dt)...]}``
     in line order.
     """
-    lines: dict[str, list[Mapping[str, Any]]] = {}
+    lines: dict[str, tuple[str, list[Mapping[str, Any]]]] = {}
     for r in recs:
         if math.isfinite(r["dt"]):
-            lines.setdefault(_line_key(r), []).append(r)
+            nondt, key = line_settings(r)
+            lines.setdefault(key, (settings_label(nondt), []))[1].append(r)
     coarse, fine = [], []
     for key in sorted(lines):
-        pts = sorted(lines[key], key=lambda r: r["dt"])
-        label = settings_label(json.loads(key))
+        label, pts = lines[key]
+        pts = sorted(pts, key=lambda r: r["dt"])
         top = pts[-1]
         if _good(top) and math.isfinite(top["primary_error"]) and top["primary_error"] <= target:
             coarse.append((label, top["dt"]))
