@@ -18,6 +18,9 @@ from harness.report.rows import _ensure, _finite, fmt, settings_label
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds
 RATIO_EXACT, RATIO_AT_MOST, RATIO_AT_LEAST, RATIO_OPEN = "=", "\u2264", "\u2265", "?"
+#: keyed by (this engine's cost is a bound, the cheapest engine's is)
+_RATIO_BOUND = {(False, False): RATIO_EXACT, (True, False): RATIO_AT_MOST, (False, True): RATIO_AT_LEAST,
+                (True, True): RATIO_OPEN}
 
 
 def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
@@ -147,10 +150,8 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
                 first = reached.sort_values(["cost", "engine"], kind="stable").index[0]
                 cb = bool(out.at[first, "cost_bound"])
                 for i in reached.index:
-                    mine = bool(out.at[i, "cost_bound"])
-                    out.at[i, "ratio_bound"] = (RATIO_EXACT if i == first or (not mine and not cb) else
-                                                RATIO_AT_MOST if mine and not cb else
-                                                RATIO_AT_LEAST if cb and not mine else RATIO_OPEN)
+                    out.at[i, "ratio_bound"] = (RATIO_EXACT if i == first else
+                                                _RATIO_BOUND[bool(out.at[i, "cost_bound"]), cb])
     return out.sort_values(["scenario", "variant", "reached", "cost", "engine"],
                            ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
 
