@@ -122,6 +122,13 @@ def _lookup_target(targets: Mapping[Any, float] | float | None, sc: str, va: str
 # work-precision
 
 
+def line_settings(r: Mapping[str, Any]) -> tuple[dict[str, Any], str]:
+    """A point's work-precision line within its engine: its swept settings
+    but dt, and those as a hashable key (sorted JSON)."""
+    nondt = {k: v for k, v in (r["swept"] or {}).items() if k != "dt"}
+    return nondt, json.dumps(nondt, sort_keys=True, default=str)
+
+
 def work_precision(df: pd.DataFrame, target: float | None = None,
                    targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], dict[str, Any]]:
     """Per (scenario, variant): lines of (cost, primary error) points along
@@ -150,11 +157,11 @@ def work_precision(df: pd.DataFrame, target: float | None = None,
         not_ok = []
         clipped = False
         for r in g.to_dict("records"):
-            nondt = {k: v for k, v in (r["swept"] or {}).items() if k != "dt"}
+            nondt, nondt_key = line_settings(r)
             label = " ".join(x for x in (r["engine"], settings_label(nondt)) if x)
             if many_machines:
                 label += f" @{r['machine_id']}"
-            key = (r["engine"], json.dumps(nondt, sort_keys=True, default=str), r["machine_id"])
+            key = (r["engine"], nondt_key, r["machine_id"])
             line = lines.setdefault(key, {"label": label, "engine": r["engine"], "settings": nondt,
                                           "machine_id": r["machine_id"], "points": []})
             err, cost = r["primary_error"], r["cost"]

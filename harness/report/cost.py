@@ -7,23 +7,20 @@ tests call them on synthetic frames (tests/test_report.py).
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from harness.report.analysis import _good, _targets, _unshifted, latest_points
+from harness.report.analysis import _good, _targets, _unshifted, latest_points, line_settings
 from harness.report.rows import _ensure, _finite, fmt, settings_label
 
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds
 RATIO_EXACT, RATIO_AT_MOST, RATIO_AT_LEAST, RATIO_OPEN = "=", "\u2264", "\u2265", "?"
-
-
-def _line_key(r: Mapping[str, Any]) -> str:
-    """A point's line: its swept settings but dt (one engine's rows)."""
-    return json.dumps({k: v for k, v in (r["swept"] or {}).items() if k != "dt"}, sort_keys=True, default=str)
+#: keyed by (this engine's cost is a bound, the cheapest engine's is)
+_RATIO_BOUND = {(False, False): RATIO_EXACT, (True, False): RATIO_AT_MOST, (False, True): RATIO_AT_LEAST,
+                (True, True): RATIO_OPEN}
 
 
 def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
@@ -43,14 +40,15 @@ def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
     Returns ``{"coarse": [(line label, dt)...], "fine": [(line label, dt)...]}``
     in line order.
     """
-    lines: dict[str, list[Mapping[str, Any]]] = {}
+    lines: dict[str, tuple[str, list[Mapping[str, Any]]]] = {}
     for r in recs:
         if math.isfinite(r["dt"]):
-            lines.setdefault(_line_key(r), []).append(r)
+            nondt, key = line_settings(r)
+            lines.setdefault(key, (settings_label(nondt), []))[1].append(r)
     coarse, fine = [], []
     for key in sorted(lines):
-        pts = sorted(lines[key], key=lambda r: r["dt"])
-        label = settings_label(json.loads(key))
+        label, pts = lines[key]
+        pts = sorted(pts, key=lambda r: r["dt"])
         top = pts[-1]
         if _good(top) and math.isfinite(top["primary_error"]) and top["primary_error"] <= target:
             coarse.append((label, top["dt"]))
@@ -152,10 +150,8 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
                 first = reached.sort_values(["cost", "engine"], kind="stable").index[0]
                 cb = bool(out.at[first, "cost_bound"])
                 for i in reached.index:
-                    mine = bool(out.at[i, "cost_bound"])
-                    out.at[i, "ratio_bound"] = (RATIO_EXACT if i == first or (not mine and not cb) else
-                                                RATIO_AT_MOST if mine and not cb else
-                                                RATIO_AT_LEAST if cb and not mine else RATIO_OPEN)
+                    out.at[i, "ratio_bound"] = (RATIO_EXACT if i == first else
+                                                _RATIO_BOUND[bool(out.at[i, "cost_bound"]), cb])
     return out.sort_values(["scenario", "variant", "reached", "cost", "engine"],
                            ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
 
@@ -183,12 +179,14 @@ def family(scenario: str) -> str:
     return scenario.split(".", 1)[0]
 
 
-def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
+def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER, lad: pd.DataFrame | None = None) -> pd.DataFrame:
     """Per scenario family and ladder rung: which engine is cheapest to
     reach the rung, counted over the family's scenarios (``wins``: engine ->
     scenarios where it is cheapest), how many scenarios some engine reached
-    it in, out of how many."""
-    lad = ladder(df, rungs)
+    it in, out of how many.  ``lad``: :func:`ladder` of ``df`` at ``rungs``
+    when the caller has it already (the page renders both)."""
+    if lad is None:
+        lad = ladder(df, rungs)
     rows = []
     if lad.empty:
         return pd.DataFrame(columns=["family", "rung", "wins", "reached", "scenarios"])

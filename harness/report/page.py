@@ -168,6 +168,13 @@ def _ratio_text(r: Mapping[str, Any], digits: int = 3) -> str:
     return {RATIO_EXACT: x, RATIO_AT_MOST: "\u2264 " + x, RATIO_AT_LEAST: "\u2265 " + x}.get(mark, f"~{x} (?)")
 
 
+def _best_text(r: Mapping[str, Any], prefix: str) -> str:
+    """An unreached target: the best error and its settings, else the note."""
+    if not _finite(r["best_error"]):
+        return r["note"] or "no ok point"
+    return f"{prefix} {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}" if r["best_error_settings"] else "")
+
+
 def _cost_html(ct: pd.DataFrame) -> str:
     if ct.empty:
         return ('<p class="note">No scenario with a target: give the scenario a <code>[[check]] max</code> for '
@@ -184,9 +191,7 @@ def _cost_html(ct: pd.DataFrame) -> str:
             rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(_cost_text(r)),
                          _e(fmt(r["step_us"])), _e(_ratio_text(r))])
         else:
-            best = (f"best error {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
-                                                             if r["best_error_settings"] else "")
-                    if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+            best = _best_text(r, "best error")
             where = ("<br><span class='note'>at the finest dt swept: finer steps not measured</span>"
                      if r["fine_open"] else "")
             rows.append([scen, _e(r["engine"]), tgt, "<span class='bad'>not reached within the grid</span>",
@@ -225,9 +230,7 @@ def _ladder_html(lad: pd.DataFrame) -> str:
                 cells.append(f"{_e(_cost_text(r))}{_e(ratio)}{best}<br><span class='note'>"
                              f"{_e(r['settings'])}</span>")
             else:
-                where = (f"best {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}"
-                                                           if r["best_error_settings"] else "")
-                         if _finite(r["best_error"]) else (r["note"] or "no ok point"))
+                where = _best_text(r, "best")
                 cells.append(f"<span class='bad'>not reached</span><br><span class='note'>{_e(where)}</span>")
         rows.append(cells)
     return ("<h3>Accuracy ladder</h3><p class='note'>Per engine, the CPU s per simulated s of its cheapest "
@@ -237,8 +240,8 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
 
 
-def _glance_html(df: pd.DataFrame) -> str:
-    ag = at_a_glance(df)
+def _glance_html(df: pd.DataFrame, lad: pd.DataFrame) -> str:
+    ag = at_a_glance(df, lad=lad)
     bp = breaking_points(df)
     parts = []
     if ag.empty:
@@ -562,9 +565,10 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
         header = ""
     else:
         header = _header_html(df)
-        body = {"glance": _glance_html(df),
+        lad = ladder(df)
+        body = {"glance": _glance_html(df, lad),
                 "wp": _wp_html(work_precision(df, target=target, targets=targets)),
-                "cost": _ladder_html(ladder(df)) + "<h3>At each scenario's own target</h3>"
+                "cost": _ladder_html(lad) + "<h3>At each scenario's own target</h3>"
                         + _cost_html(cost_to_target(df, targets=targets, target=target)),
                 "limits": _breaking_html(df),
                 "stab": _stability_html(stability_matrix(df)),
