@@ -167,8 +167,8 @@ def test_cost_to_target_ratio_to_a_bounded_cheapest_engine(tmp_path):
         row(engine="pybullet", dt=0.004, error=0.05, cost=0.1),       # bracketed at 0.002
         row(engine="pybullet", dt=0.002, error=0.01, cost=0.4),
         row(engine="reference", dt=0.004, error=1e-9, cost=0.3),      # bound as well
-        # a second reference line whose coarsest point reaches opens the
-        # engine even though its cheapest point is on the other line
+        # pymunk: a second line reaches at its coarsest dt but is dearer
+        # than the cheapest point (on the bracketed line): no bound
         row(engine="pymunk", dt=0.004, error=0.03, cost=0.15, iterations=10),
         row(engine="pymunk", dt=0.002, error=0.015, cost=0.25, iterations=10),
         row(engine="pymunk", dt=0.004, error=0.019, cost=0.6, iterations=50),
@@ -179,7 +179,7 @@ def test_cost_to_target_ratio_to_a_bounded_cheapest_engine(tmp_path):
     assert ct.loc["pybullet", "ratio_bound"] == rp.RATIO_AT_LEAST
     assert ct.loc["reference", "ratio_bound"] == rp.RATIO_OPEN
     pm = ct.loc["pymunk"]
-    assert pm["dt"] == 0.002 and pm["cost"] == 0.25 and bool(pm["cost_bound"])
+    assert pm["dt"] == 0.002 and pm["cost"] == 0.25 and not bool(pm["cost_bound"]) and pm["open_cost"] == 0.6
     assert pm["coarse_open"] == "dt=0.004 (iterations=50)"
     # a tighter target: mujoco's coarsest point misses it (bracketed, now the
     # cheapest exact cost), the reference's still reaches it (a bound)
@@ -188,6 +188,60 @@ def test_cost_to_target_ratio_to_a_bounded_cheapest_engine(tmp_path):
     assert bool(tight.loc["reference", "cost_bound"]) and tight.loc["reference", "ratio_bound"] == rp.RATIO_AT_MOST
     assert tight.loc["reference", "ratio"] == pytest.approx(1.5)
     assert not bool(tight.loc["pybullet", "reached"]) and tight.loc["pybullet", "fine_open"] == "dt=0.002 (defaults)"
+
+
+def test_cost_to_target_bound_is_the_cheapest_line_reaching_at_its_coarsest_dt(tmp_path):
+    """``\u2264`` bounds the engine's cost only where the cheapest line
+    reaching the target does so at its coarsest dt swept.  A dearer line
+    open at the coarse end leaves the cheapest cost exact within the grid;
+    its cost (``open_cost``) and where it reaches the target are in the note."""
+    rows = [
+        # pybullet: the cheapest line (iterations=10) is bracketed (0.004 misses);
+        # a dearer line (iterations=50) reaches at its coarsest dt, 0.004, for 0.6
+        row(engine="pybullet", dt=0.004, error=0.03, cost=0.15, iterations=10),
+        row(engine="pybullet", dt=0.002, error=0.015, cost=0.25, iterations=10),
+        row(engine="pybullet", dt=0.004, error=0.019, cost=0.6, iterations=50),
+        row(engine="pybullet", dt=0.002, error=0.01, cost=1.2, iterations=50),
+        # mujoco: the same shape, but the open line is the cheapest: a bound
+        row(engine="mujoco", dt=0.004, error=0.03, cost=0.1, iterations=10),
+        row(engine="mujoco", dt=0.002, error=0.015, cost=0.5, iterations=10),
+        row(engine="mujoco", dt=0.004, error=0.019, cost=0.3, iterations=50),
+    ]
+    df = load(tmp_path, rows)
+    ct = rp.cost_to_target(df, targets={FAKE: 0.02}).set_index("engine")
+    pb, mj = ct.loc["pybullet"], ct.loc["mujoco"]
+    assert pb["cost"] == 0.25 and pb["dt"] == 0.002 and not bool(pb["cost_bound"])
+    assert pb["open_cost"] == 0.6 and pb["coarse_open"] == "dt=0.004 (iterations=50)"
+    assert "dearer" in pb["note"] and "0.6" in pb["note"]
+    assert mj["cost"] == 0.3 and mj["dt"] == 0.004 and bool(mj["cost_bound"]) and mj["open_cost"] == 0.3
+    assert "iterations=50" in mj["note"] and "coarser steps not measured" in mj["note"]
+    # pybullet's exact 0.25 over mujoco's bound 0.3: pybullet is the cheapest, exact
+    assert pb["ratio_bound"] == rp.RATIO_EXACT and mj["ratio_bound"] == rp.RATIO_AT_MOST
+    page = rp.render_html(df, targets={FAKE: 0.02}, physbench_commit="x")
+    cost_section = page.split('id="cost-to-target"')[1].split("</section>")[0]
+    assert "\u2264 0.25" not in cost_section and "\u2264 0.3" in cost_section
+    assert "dearer lines reach the target at their coarsest dt swept (iterations=50 at dt=0.004 for 0.6)" in cost_section
+    lad = rp.ladder(df, rungs=(0.02,)).set_index("engine")
+    assert not bool(lad.loc["pybullet", "cost_bound"]) and bool(lad.loc["mujoco", "cost_bound"])
+
+
+def test_ladder_selects_and_groups_the_points_once(tmp_path, monkeypatch):
+    """The ladder is cost_to_target at each rung, with the latest points
+    selected and grouped once for all rungs, not once per rung."""
+    from harness.report import cost
+    rows = [row(engine=e, dt=dt, error=err, cost=c / dt)
+            for e, c in (("reference", 1e-3), ("pybullet", 2e-4))
+            for dt, err in ((0.004, 3e-3), (0.002, 2e-5), (0.001, 4e-7))]
+    df = load(tmp_path, rows)
+    rungs = (1e-2, 1e-4, 1e-6, 1e-9)
+    expected = pd.concat([rp.cost_to_target(df, targets=t).assign(rung=t) for t in rungs], ignore_index=True)
+    calls = []
+    real = cost.latest_points
+    monkeypatch.setattr(cost, "latest_points", lambda d: calls.append(1) or real(d))
+    lad = rp.ladder(df, rungs)
+    assert len(calls) == 1
+    pd.testing.assert_frame_equal(lad, expected)
+    assert list(lad[lad["reached"].astype(bool)].groupby("rung").size().sort_index()) == [2, 2, 2]
 
 
 # ---------------------------------------------------------------------------

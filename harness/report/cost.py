@@ -23,35 +23,29 @@ _RATIO_BOUND = {(False, False): RATIO_EXACT, (True, False): RATIO_AT_MOST, (Fals
                 (True, True): RATIO_OPEN}
 
 
-def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
-    """Where one engine's swept points leave its cost to reach ``target``
-    unbracketed by the grid.
-
-    ``recs``: the engine's points of one scenario (any settings); a line is
-    the points sharing every swept setting but dt.  A line is *open at the
-    coarse end* when the point at its coarsest swept dt is ok and its
-    primary error <= ``target``: coarser steps were not measured, and would
-    reach the target at a lower cost as far as the grid says, so the
-    engine's cost to reach it is an upper bound.  A line is *open at the
-    fine end* when its best ok error (> ``target``) is at its finest swept
-    dt: finer steps were not measured.  A coarsest point that is not ok
-    (diverged, unstable, refused) or misses the target closes the coarse end.
-
-    Returns ``{"coarse": [(line label, dt)...], "fine": [(line label, dt)...]}``
-    in line order.
-    """
+def _lines(recs: list[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:
+    """One engine's points of one scenario as its lines (points sharing
+    every swept setting but dt): ``[(line label, points by ascending dt)...]``
+    in line-key order; points without a finite dt are left out."""
     lines: dict[str, tuple[str, list[Mapping[str, Any]]]] = {}
     for r in recs:
         if math.isfinite(r["dt"]):
             nondt, key = line_settings(r)
             lines.setdefault(key, (settings_label(nondt), []))[1].append(r)
+    return [(lines[k][0], sorted(lines[k][1], key=lambda r: r["dt"])) for k in sorted(lines)]
+
+
+def _reaches(r: Mapping[str, Any], target: float) -> bool:
+    return _good(r) and math.isfinite(r["primary_error"]) and r["primary_error"] <= target
+
+
+def _ends(lines: list[tuple[str, list[Mapping[str, Any]]]], target: float) -> dict[str, Any]:
+    """:func:`grid_ends` on lines from :func:`_lines`."""
     coarse, fine = [], []
-    for key in sorted(lines):
-        label, pts = lines[key]
-        pts = sorted(pts, key=lambda r: r["dt"])
-        top = pts[-1]
-        if _good(top) and math.isfinite(top["primary_error"]) and top["primary_error"] <= target:
-            coarse.append((label, top["dt"]))
+    for label, pts in lines:
+        if _reaches(pts[-1], target):
+            costs = [r["cost"] for r in pts if _reaches(r, target) and math.isfinite(r["cost"])]
+            coarse.append((label, pts[-1]["dt"], min(costs) if costs else math.nan))
             continue
         good = [r for r in pts if _good(r) and math.isfinite(r["primary_error"])]
         if good and not any(r["primary_error"] <= target for r in good):
@@ -61,70 +55,100 @@ def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
     return {"coarse": coarse, "fine": fine}
 
 
-def _ends_text(ends: list[tuple[str, float]]) -> str:
+def grid_ends(recs: list[Mapping[str, Any]], target: float) -> dict[str, Any]:
+    """Where one engine's swept points leave its cost to reach ``target``
+    unbracketed by the grid.
+
+    ``recs``: the engine's points of one scenario (any settings); a line is
+    the points sharing every swept setting but dt.  A line is *open at the
+    coarse end* when the point at its coarsest swept dt is ok and its
+    primary error <= ``target``: coarser steps were not measured, and would
+    reach the target at a lower cost as far as the grid says, so the line's
+    cost to reach it is an upper bound.  A line is *open at the fine end*
+    when its best ok error (> ``target``) is at its finest swept dt: finer
+    steps were not measured.  A coarsest point that is not ok (diverged,
+    unstable, refused) or misses the target closes the coarse end.
+
+    Returns ``{"coarse": [(line label, coarsest dt, cost)...], "fine":
+    [(line label, dt)...]}`` in line order; ``cost`` is the line's cheapest
+    CPU s per simulated s reaching the target (NaN when no reaching point's
+    cost is known).
+    """
+    return _ends(_lines(recs), target)
+
+
+def _ends_text(ends: list[tuple[Any, ...]]) -> str:
     by: dict[str, list[str]] = {}
-    for label, dt in ends:
+    for label, dt, *_ in ends:
         by.setdefault(fmt(dt), []).append(label or "defaults")
     return "; ".join(f"dt={dt} ({', '.join(ls)})" for dt, ls in by.items())
 
 
-def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None = None,
-                   target: float | None = None) -> pd.DataFrame:
-    """Per (scenario, variant, engine): the cheapest point (latest sweep)
-    whose primary error <= the target, its cost and the ratio to the
-    cheapest engine that reached it; ``reached`` False with the best error
-    achieved otherwise.
+_COLS = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
+         "settings", "dt", "cost", "step_us", "error", "ratio", "best_error", "best_error_settings", "points",
+         "cost_bound", "open_cost", "coarse_open", "fine_open", "ratio_bound", "note"]
 
-    ``targets``: a number for every scenario, or a mapping keyed by
-    (scenario, variant) / 'scenario/variant' / scenario; where it gives none,
-    the scenario's ``[[check]] max`` for its primary metric, else ``target``.
-    Rows without any target are left out.
 
-    The grid bounds what the table can say (:func:`grid_ends`):
-    ``cost_bound`` is True when some line of the engine reaches the target
-    at its coarsest swept dt -- the cost is then an upper bound ("at most";
-    coarser steps not measured); ``coarse_open`` names those lines and dts.
-    ``fine_open`` names, for an engine that never reaches the target, the
-    lines whose best error is at their finest swept dt (finer steps not
-    measured).  ``ratio_bound``: ``=`` both costs exact, ``\u2264`` this
-    engine's cost is a bound and the cheapest's is not, ``\u2265`` the
-    reverse, ``?`` both are bounds (the ratio is neither); the cheapest
-    engine's own ratio is 1 (``=``).  ``note`` says it in words.
-    ``step_us``: the reached point's CPU microseconds per step (cost x dt
-    x 1e6): where two engines reach the target at the same dt, their ratio
-    is the ratio of these.
-    """
-    df = _ensure(df)
-    cols = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
-            "settings", "dt", "cost", "step_us", "error", "ratio", "best_error", "best_error_settings", "points",
-            "cost_bound", "coarse_open", "fine_open", "ratio_bound", "note"]
-    pts = _unshifted(latest_points(df))
+def _engine_points(df: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[tuple[str, str, str], list[dict], list]]]:
+    """The selection and grouping every target shares: the latest unshifted
+    points, and per (scenario, variant, engine) their records and lines
+    (:func:`_lines`).  :func:`ladder` does this once for all its rungs
+    (tests/test_report.py::test_ladder_selects_and_groups_the_points_once)."""
+    pts = _unshifted(latest_points(_ensure(df)))
     if pts.empty:
-        return pd.DataFrame(columns=cols)
-    tg = _targets(pts, target, targets)
+        return pts, []
+    groups = []
+    for key, g in pts.groupby(["scenario", "variant", "engine"], sort=True):
+        recs = g.to_dict("records")
+        groups.append((key, recs, _lines(recs)))
+    return pts, groups
+
+
+def _reached_row(row: dict[str, Any], under: list[Mapping[str, Any]], ends: dict[str, Any]) -> None:
+    """Fill ``row`` with the cheapest reaching point and what the grid says
+    of it: the cost is an upper bound (``cost_bound``) when the cheapest
+    line open at the coarse end (``open_cost``) is no dearer than it (or
+    its cost is unknown): that line reaches the target at its coarsest dt
+    swept, and coarser steps may reach it for less.  A dearer open line
+    leaves the cost exact within the grid and is named in the note."""
+    best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
+    row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
+               step_us=best["cost"] * best["dt"] * 1e6, error=best["primary_error"], best_error=math.nan,
+               best_error_settings="")
+    if not ends["coarse"]:
+        return
+    known = [c for *_, c in ends["coarse"] if math.isfinite(c)]
+    row["open_cost"] = min(known) if known else math.nan
+    bounding = [e for e in ends["coarse"] if not (e[2] > best["cost"])]
+    if bounding:
+        row["cost_bound"] = True
+        row["note"] = (f"upper bound: the cheapest line reaching the target does so at its coarsest dt swept, "
+                       f"{_ends_text(bounding)}; coarser steps not measured, may reach it for less")
+    else:
+        dearer = "; ".join(f"{label or 'defaults'} at dt={fmt(dt)} for {fmt(c)}" for label, dt, c in ends["coarse"])
+        row["note"] = (f"exact within the grid; dearer lines reach the target at their coarsest dt swept "
+                       f"({dearer}): coarser steps on them not measured")
+
+
+def _cost_rows(groups: list[tuple[tuple[str, str, str], list[dict], list]],
+               tg: Mapping[tuple[str, str], tuple[float | None, str]]) -> pd.DataFrame:
+    """:func:`cost_to_target`'s table from :func:`_engine_points`' groups
+    and the targets ``(scenario, variant) -> (target, source)``."""
     rows = []
-    for (sc, va, en), g in pts.groupby(["scenario", "variant", "engine"], sort=True):
+    for (sc, va, en), recs, lines in groups:
         t, src = tg.get((sc, va), (None, "none"))
         if t is None:
             continue
-        recs = g.to_dict("records")
         good = [r for r in recs if _good(r) and math.isfinite(r["primary_error"])]
         under = [r for r in good if r["primary_error"] <= t and math.isfinite(r["cost"])]
         metric = next((r["primary_metric"] for r in recs if r["primary_metric"]), None)
-        ends = grid_ends(recs, t)
+        ends = _ends(lines, t)
         row = {"scenario": sc, "variant": va, "engine": en, "primary_metric": metric, "target": t,
                "target_source": src, "points": len(recs), "ratio": math.nan, "note": "",
-               "cost_bound": False, "coarse_open": _ends_text(ends["coarse"]), "fine_open": "",
-               "ratio_bound": ""}
+               "cost_bound": False, "open_cost": math.nan, "coarse_open": _ends_text(ends["coarse"]),
+               "fine_open": "", "ratio_bound": ""}
         if under:
-            best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
-            row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
-                       step_us=best["cost"] * best["dt"] * 1e6, error=best["primary_error"], best_error=math.nan,
-                       best_error_settings="")
-            if ends["coarse"]:
-                row["cost_bound"] = True
-                row["note"] = (f"upper bound: reached at the coarsest dt swept, {row['coarse_open']}; "
-                               "coarser steps not measured")
+            _reached_row(row, under, ends)
         else:
             row.update(reached=False, settings="", dt=math.nan, cost=math.nan, step_us=math.nan, error=math.nan)
             row["fine_open"] = _ends_text(ends["fine"])
@@ -138,7 +162,7 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
                 row.update(best_error=math.nan, best_error_settings="")
                 row["note"] = "no ok point"
         rows.append(row)
-    out = pd.DataFrame(rows, columns=cols)
+    out = pd.DataFrame(rows, columns=_COLS)
     if out.empty:
         return out
     for (sc, va), g in out.groupby(["scenario", "variant"]):
@@ -156,6 +180,41 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
                            ascending=[True, True, False, True, True], kind="stable").reset_index(drop=True)
 
 
+def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None = None,
+                   target: float | None = None) -> pd.DataFrame:
+    """Per (scenario, variant, engine): the cheapest point (latest sweep)
+    whose primary error <= the target, its cost and the ratio to the
+    cheapest engine that reached it; ``reached`` False with the best error
+    achieved otherwise.
+
+    ``targets``: a number for every scenario, or a mapping keyed by
+    (scenario, variant) / 'scenario/variant' / scenario; where it gives none,
+    the scenario's ``[[check]] max`` for its primary metric, else ``target``.
+    Rows without any target are left out.
+
+    The grid bounds what the table can say (:func:`grid_ends`):
+    ``coarse_open`` names the engine's lines that reach the target at their
+    coarsest swept dt (coarser steps not measured) and ``open_cost`` is the
+    cheapest cost among them.  ``cost_bound`` is True when that is the
+    engine's cheapest cost (``open_cost`` == ``cost``): the cheapest line
+    reaching the target is open at the coarse end, and the cost is an upper
+    bound ("at most").  A dearer open line leaves ``cost`` exact within the
+    grid; the note names it and its cost.  ``fine_open`` names, for an
+    engine that never reaches the target, the lines whose best error is at
+    their finest swept dt (finer steps not measured).  ``ratio_bound``:
+    ``=`` both costs exact, ``\u2264`` this engine's cost is a bound and
+    the cheapest's is not, ``\u2265`` the reverse, ``?`` both are bounds
+    (the ratio is neither); the cheapest engine's own ratio is 1 (``=``).
+    ``note`` says it in words.  ``step_us``: the reached point's CPU
+    microseconds per step (cost x dt x 1e6): where two engines reach the
+    target at the same dt, their ratio is the ratio of these.
+    """
+    pts, groups = _engine_points(df)
+    if pts.empty:
+        return pd.DataFrame(columns=_COLS)
+    return _cost_rows(groups, _targets(pts, target, targets))
+
+
 #: accuracies of the primary metric the report asks every engine for
 LADDER = (1e-2, 1e-4, 1e-6, 1e-9)
 
@@ -164,12 +223,16 @@ def ladder(df: pd.DataFrame, rungs: Iterable[float] = LADDER) -> pd.DataFrame:
     """:func:`cost_to_target` at every rung of the accuracy ladder: per
     (scenario, variant, engine, rung) the cheapest configuration reaching
     the rung, or (``reached`` False) the best error reached and where.
-    Column ``rung`` holds the target."""
+    Column ``rung`` holds the target.  The points are selected and grouped
+    once for all rungs (:func:`_engine_points`)."""
+    pts, groups = _engine_points(df)
     parts = []
-    for t in rungs:
-        ct = cost_to_target(df, targets=float(t))
-        if not ct.empty:
-            parts.append(ct.assign(rung=float(t)))
+    if not pts.empty:
+        scen = sorted({(sc, va) for (sc, va, _), _, _ in groups})
+        for t in rungs:
+            ct = _cost_rows(groups, {k: (float(t), "given") for k in scen})
+            if not ct.empty:
+                parts.append(ct.assign(rung=float(t)))
     if not parts:
         return pd.DataFrame(columns=["scenario", "variant", "engine", "rung", "reached", "cost", "settings"])
     return pd.concat(parts, ignore_index=True)

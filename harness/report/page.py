@@ -185,9 +185,8 @@ def _cost_html(ct: pd.DataFrame) -> str:
         tgt = f"{_e(r['primary_metric'] or '?')} &le; {_e(fmt(r['target']))} <span class='note'>({_e(r['target_source'])})</span>"
         if r["reached"]:
             cfg = _e(r["settings"] or f"dt={fmt(r['dt'])}")
-            if r["cost_bound"]:
-                cfg += (f"<br><span class='note'>reached at the coarsest dt swept, {_e(r['coarse_open'])}: "
-                        "coarser steps not measured</span>")
+            if r["coarse_open"]:
+                cfg += f"<br><span class='note'>{_e(r['note'])}</span>"
             rows.append([scen, _e(r["engine"]), tgt, cfg, _e(fmt(r["error"])), _e(_cost_text(r)),
                          _e(fmt(r["step_us"])), _e(_ratio_text(r))])
         else:
@@ -198,8 +197,10 @@ def _cost_html(ct: pd.DataFrame) -> str:
                          _e(best) + where, "-", "-", "-"])
     return ('<p class="note">The cheapest configuration (latest sweep) whose primary error is at most the '
             "target, its cost and its cost relative to the cheapest engine that reaches the target. "
-            "&le; marks an upper bound: the engine reaches the target at the coarsest dt the sweep offers "
-            "(on the line named), so coarser steps, not measured, may reach it for less; a ratio with "
+            "&le; marks an upper bound on the engine's cost: its cheapest line reaching the target (named) "
+            "does so at the coarsest dt the sweep offers, so coarser steps, not measured, may reach it for "
+            "less; a dearer line open at the coarse end is named with its cost, and leaves the cost exact "
+            "within the grid; a ratio with "
             "&le; is an upper bound, &ge; a lower bound (the cheapest engine's cost is the bound), "
             "~ (?) neither (both costs are bounds). Where two engines reach the target at the same dt, their "
             "ratio is that of their CPU &micro;s per step.</p>"
@@ -227,7 +228,8 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             elif r["reached"]:
                 ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({_ratio_text(r, 2)})"
                 best = " <span class='good'>cheapest</span>" if r["ratio"] == 1 else ""
-                cells.append(f"{_e(_cost_text(r))}{_e(ratio)}{best}<br><span class='note'>"
+                tip = f" title='{_e(r['note'])}'" if r["coarse_open"] else ""
+                cells.append(f"<span{tip}>{_e(_cost_text(r))}{_e(ratio)}</span>{best}<br><span class='note'>"
                              f"{_e(r['settings'])}</span>")
             else:
                 where = _best_text(r, "best")
@@ -235,7 +237,8 @@ def _ladder_html(lad: pd.DataFrame) -> str:
         rows.append(cells)
     return ("<h3>Accuracy ladder</h3><p class='note'>Per engine, the CPU s per simulated s of its cheapest "
             "configuration (latest sweep) whose primary error is at most each rung, the factor over the cheapest "
-            "engine and the configuration (&le;: reached at the coarsest dt swept, an upper bound); where it is "
+            "engine and the configuration (&le;: an upper bound, the cheapest line reaching the rung does so at its "
+            "coarsest dt swept; the tooltip names the lines open at the coarse end); where it is "
             "not reached, the best error the engine reached and with which settings.</p>"
             + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
 
