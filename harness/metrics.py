@@ -280,15 +280,27 @@ def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.nd
     return lin, ang
 
 
-def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True) -> dict[str, Any]:
+def run_penetration(scene: Scene, trace) -> Any:
+    """The penetration measurement :func:`compute_metrics` reads: a
+    harness.geometry.Penetration of the trace's frames for a scene with the
+    ``contact`` effect, bodies and frames; None otherwise."""
+    if not scene.has("contact") or scene.n_bodies == 0 or trace.pos.shape[0] == 0:
+        return None
+    from harness.geometry import measure_penetration
+
+    return measure_penetration(scene, trace)
+
+
+def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True,
+                    pen: Any = None) -> dict[str, Any]:
     """Every generic metric plus, when ``model``, the reference model's, for
     one run.  ``model=False`` is for callers whose criterion reads no model
     metric (a breaking-point evaluation: harness/limit_eval.py); the model's
-    metrics are then absent, never NaN-filled or guessed.  A
-    harness.runner.Trace receives the penetration measurement of its frames
-    (harness.geometry.Penetration, scenes with the ``contact`` effect) as
-    ``trace.penetration``, so that a trace writer does not measure again
-    (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)."""
+    metrics are then absent, never NaN-filled or guessed.  ``pen``: the
+    trace's :func:`run_penetration` when the caller has measured it (the
+    runner does, and hands it to the trace writer); measured here
+    otherwise.  The trace is only read
+    (tests/test_metrics.py::test_compute_metrics_reads_its_trace_only)."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
                   and np.isfinite(trace.quat).all() and np.isfinite(trace.angvel).all())
@@ -298,11 +310,8 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
 
     # --- penetration
     if scene.has("contact"):
-        from harness.geometry import measure_penetration
-
-        pen = measure_penetration(scene, trace)
-        if hasattr(trace, "penetration"):  # a harness.runner.Trace: handed over
-            trace.penetration = pen
+        if pen is None:
+            pen = run_penetration(scene, trace)
         per_frame = pen.frame_max()  # (F,) deepest known overlap, 0 where none
         unknown = pen.unknown()
         out["max_penetration"] = float(per_frame.max(initial=0.0))

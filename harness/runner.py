@@ -59,8 +59,9 @@ class Trace:
     angvel: np.ndarray
     n_frames: int = 0
     #: the harness's penetration measurement of the valid frames
-    #: (harness.geometry.Penetration), handed over by the metrics so that
-    #: the trace writer does not measure again; None when not measured
+    #: (harness.geometry.Penetration, harness.metrics.run_penetration),
+    #: measured once by the runner for the metrics and kept so that the
+    #: trace writer does not measure again; None when not measured
     penetration: Any = None
 
     @classmethod
@@ -446,12 +447,16 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         result.notes.append(f"close() raised {type(e).__name__}: {e}")
     if compute_metrics and trace.n_frames > 0 and result.status != st.UNSUPPORTED:
         from harness.metrics import compute_metrics as _metrics
+        from harness.metrics import run_penetration
 
         t0 = time.perf_counter()
         try:
             valid = trace.valid()
-            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics))
-            trace.penetration = valid.penetration
+            # measured once: the metrics read it, the trace carries it to
+            # the trace writer (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)
+            pen = run_penetration(scene, valid)
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen))
+            trace.penetration = pen
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

@@ -47,6 +47,26 @@ def test_penetration_two_spheres():
     assert m["mean_penetration"] == pytest.approx(0.02)  # mean of 0.01 and 0.03 over touching frames
 
 
+def test_compute_metrics_reads_its_trace_only(monkeypatch):
+    """compute_metrics leaves its trace as it was (the runner keeps the
+    penetration measurement, harness.runner._finish), and reads a given
+    measurement instead of measuring again."""
+    import harness.geometry as G
+
+    s = ball_scene(["contact"], n=2)
+    pos = np.zeros((3, 2, 3))
+    pos[:, 1, 0] = [0.5, 0.19, 0.17]  # overlaps 0, 0.01, 0.03
+    tr = make_trace(np.arange(3) * 0.01, pos, np.zeros((3, 2, 3)))
+    m = compute_metrics(s, tr)
+    assert tr.penetration is None and m["max_penetration"] == pytest.approx(0.03)
+    from harness.metrics import run_penetration
+
+    pen = run_penetration(s, tr)
+    monkeypatch.setattr(G, "measure_penetration", lambda *a: pytest.fail("measured again"))
+    assert compute_metrics(s, tr, pen=pen) == m
+    assert run_penetration(ball_scene([], n=2), tr) is None
+
+
 def test_penetration_not_applicable_without_contact():
     s = ball_scene([], n=2)
     tr = make_trace([0.0], np.zeros((1, 2, 3)), np.zeros((1, 2, 3)))

@@ -45,7 +45,7 @@
     Per-frame deepest overlap (m) over all candidate pairs,
     :func:`harness.geometry.max_depth_per_frame` (0 when there are no pairs);
     only for scenes with the ``contact`` effect.  The run's own measurement
-    when the metrics handed it over (``Trace.penetration``), else measured.
+    when the runner kept it (``Trace.penetration``), else measured.
 
 Timelines: ``step`` (sequence, the simulation step number round(t / dt) with
 the run's resolved ``dt``, equal to the frame index when every step is
