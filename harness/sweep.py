@@ -227,9 +227,11 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                   "run the same sweep again to resume it", markup=False, soft_wrap=True)
         return 2 if isinstance(e, refused) else 130
     except BaseException:
-        sd.close()
-        if ex is not None:
-            ex.close()
+        try:
+            sd.close()  # raises a failed write the loop had not been given
+        finally:
+            if ex is not None:
+                ex.close()
         raise
     try:  # still locked: a sweep started meanwhile must not resume this directory
         sd.drain()

@@ -94,6 +94,7 @@ class _SweepDir(PartsDir):
         self._queue: queue.SimpleQueue | None = None
         self._writer: threading.Thread | None = None
         self._write_error: BaseException | None = None
+        self._write_error_raised = False
 
     @property
     def sweep_id(self) -> str:
@@ -112,21 +113,25 @@ class _SweepDir(PartsDir):
 
     def _write_loop(self) -> None:
         while (row := self._queue.get()) is not None:
-            if self._write_error is None:  # after a failed write, nothing more: the caller gets the error
+            if self._write_error is None:  # after a failed write, nothing more is written
                 try:
                     self.write_part(row, {"sweep_id": self.sweep_id})
                 except BaseException as e:
                     self._write_error = e
 
     def _raise_write_error(self) -> None:
+        # sticky: once a write failed, every later write_point and drain
+        # raises it, so that no later row is stored as if the sweep went
+        # on whole (tests/test_sweep.py::test_a_failed_write_stays_failed)
         if self._write_error is not None:
-            e, self._write_error = self._write_error, None
-            raise e
+            self._write_error_raised = True
+            raise self._write_error
 
     def write_point(self, row: dict[str, Any]) -> Path | None:
         """Store ``row`` as the next part: at once (returns its path), or
         after :meth:`write_behind` queued for the writer thread (returns
-        None; raises the error of an earlier failed write)."""
+        None; raises the error of an earlier failed write, at every call
+        after it: the row is then not queued)."""
         if self._writer is None:
             return self.write_part(row, {"sweep_id": self.sweep_id})
         self._raise_write_error()
@@ -135,7 +140,7 @@ class _SweepDir(PartsDir):
 
     def drain(self) -> None:
         """Wait until every queued row is on disk and stop the writer
-        thread; raises the error of a failed write."""
+        thread; raises the error of a failed write (every time)."""
         if self._writer is not None:
             self._queue.put(None)
             self._writer.join()
@@ -144,9 +149,15 @@ class _SweepDir(PartsDir):
 
     def close(self) -> None:
         """Write the queued rows, then release the lock (also when a write
-        failed: its error is raised after)."""
+        failed).  A failed write's error is raised here only if no earlier
+        call raised it: a caller cleaning up after that error (``except:
+        close(); raise``) is not handed it a second time."""
+        told = self._write_error_raised
         try:
             self.drain()
+        except BaseException as e:
+            if not (told and e is self._write_error):
+                raise
         finally:
             super().close()
 

@@ -489,6 +489,40 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
     sd.close()
 
 
+def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
+    """Once a queued write failed, every later write_point and drain raises
+    its error and stores nothing more: no row is written after a lost one
+    as if the sweep went on whole (rows queued behind the failed one are
+    not in ``done``, so a resume runs them again).  close releases the lock
+    and does not raise an error the caller was already given."""
+    import harness.results as R
+    from harness.results import list_parts, read_part
+
+    real = R.write_table_atomic
+
+    def failing(table, path, *a, **kw):
+        if table.column("point_key")[0].as_py() == "bad":
+            raise OSError("disk full")
+        return real(table, path, *a, **kw)
+
+    monkeypatch.setattr(R, "write_table_atomic", failing)
+    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd.write_behind()
+    for k in ("a", "bad", "b"):
+        sd.write_point({"point_key": k, "x": 1.0})
+    with pytest.raises(OSError, match="disk full"):
+        sd.drain()
+    sd.write_behind()
+    for _ in range(2):  # the caller went on after the error: still refused
+        with pytest.raises(OSError, match="disk full"):
+            sd.write_point({"point_key": "c", "x": 1.0})
+    with pytest.raises(OSError, match="disk full"):
+        sd.drain()
+    sd.close()
+    assert sd.lock_fd == -1 and sd.done == {"a"}
+    assert [read_part(p).column("point_key")[0].as_py() for p in list_parts(tmp_path)] == ["a"]
+
+
 def test_cpu_account_charges_the_part_writer_and_the_main_thread_apart():
     """harness.sweep_bench.CpuAccount: CPU spent on a thread named as the
     sweep's part writer counts as "part writer", the main thread's as
