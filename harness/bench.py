@@ -14,8 +14,9 @@ and ratios are printed, never asserted in tests:
   engine's broad-phase cost per step against n (fitted exponent).
 - ``broadphase_scaling``: the reference engine's broad phase alone (what
   the stage runs, from its kept order and from a fresh one; the general
-  ``sap_pairs``; all pairs) on static random sphere clouds of constant
-  density, 100 to 10000 bodies: cost against n.
+  ``sap_pairs``; all pairs) on random sphere clouds of constant density,
+  100 to 10000 bodies, a new cloud of the same statistics at every timed
+  call (not one input the branch predictor learns): cost against n.
 - ``step_scaling``: the reference engine stepping 100 to 10000 spheres
   dropped on a plane: build, step and per-stage cost against n.
 - ``build_cost``: the reference engine's build (scene translation, model,
@@ -225,13 +226,25 @@ def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 12
 
 
 def sphere_cloud(n: int, seed: int = 0, radius: float = 0.05, spacing: float = 2.5,
-                 margin: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    """Boxes (lo, hi) of n spheres of one radius at random in a cube of side
-    ``spacing * radius * n^(1/3)`` (constant density: ~13 % of the volume
-    filled at 2.5), grown by the contact margin; every tenth sphere is moved
-    to touch the previous one (centres 2 radii apart along x)."""
+                 margin: float = 1e-4, variant: int = 0, jitter: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (lo, hi), each (n, 3) m, of n spheres of one radius at random
+    in a cube of side ``L = spacing * radius * n^(1/3)`` (constant
+    density: ~13 % of the volume filled at 2.5), grown by the contact
+    margin; every tenth sphere is moved to touch the previous one (centres
+    2 radii apart along x).
+
+    ``variant`` j > 0: the same cloud with every centre moved by a uniform
+    offset of at most ``jitter * spacing * radius`` per axis (seeded by
+    (seed, j)), wrapped into the cube (so the centres stay uniform in it),
+    the touching pairs made again: a new input of the same statistics for
+    a benchmark that must not time the branch predictor learning one input
+    (tests/test_bench.py::test_sphere_cloud_variants_keep_the_statistics)."""
     rng = np.random.default_rng(seed)
-    c = rng.uniform(0.0, spacing * radius * n ** (1 / 3), (n, 3))
+    side = spacing * radius * n ** (1 / 3)
+    c = rng.uniform(0.0, side, (n, 3))
+    if variant:
+        step = jitter * spacing * radius
+        c = np.mod(c + np.random.default_rng([seed, variant]).uniform(-step, step, (n, 3)), side)
     c[1::10] = c[0:-1:10][: c[1::10].shape[0]] + [2 * radius, 0.0, 0.0]
     e = radius + margin
     return c - e, c + e
@@ -250,45 +263,80 @@ def _time_call(f: Callable[[], Any], min_s: float = 0.02) -> float:
         k *= 2 if t <= 0 else max(2, min(16, int(1.5 * min_s / t) + 1))
 
 
+def _time_varied(f: Callable[[], Any], inputs: list[tuple[np.ndarray, ...]], into: tuple[np.ndarray, ...],
+                 start: int = 1, min_s: float = 0.02) -> tuple[float, int]:
+    """Seconds per call of f, each call on the next of ``inputs`` in turn
+    (from index ``start``), copied into the arrays ``into`` that f reads
+    (the same memory, other values) untimed: calls until they last
+    ``min_s`` in all, the copies not counted.  Returns (seconds per call,
+    the index the next call would take)."""
+    total, k, i = 0.0, 0, start
+    while total < min_s or k == 0:
+        for dst, src in zip(into, inputs[i % len(inputs)]):
+            np.copyto(dst, src)
+        t0 = time.perf_counter()
+        f()
+        total += time.perf_counter() - t0
+        k += 1
+        i += 1
+    return total / k, i
+
+
 def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000, 10000), repeats: int = 5,
-                       brute_max: int = 3000) -> dict[str, Any]:
-    """The broad phase's body-body pairs alone on static constant-density
-    sphere clouds (:func:`sphere_cloud`), timed interleaved, medians of
-    ``repeats``: ``stage`` what the stage runs every step
-    (``engine.sweep.SapBuffers.run``: its sort order, axis and dense flag
-    kept from the call before, as in a steady run), ``stage_fresh`` the
-    same from a fresh order (``engine.broadphase.stage_pairs``), ``sap``
-    the general path the stage falls back to (``sap_pairs``) and ``brute``
-    the all-pairs test (up to ``brute_max``).  Returns ``{"rows": [{n,
-    pairs, stage_us, stage_fresh_us, sap_us, brute_us}], "exponents":
-    {method: k}}``, k the least-squares slope of log time against log n,
-    with ``n_log_n``: the slope of n log n over the same sizes for
-    reference."""
+                       brute_max: int = 3000, variants: int = 8, jitter: float = 0.2) -> dict[str, Any]:
+    """The broad phase's body-body pairs alone on constant-density sphere
+    clouds, timed interleaved, medians of ``repeats``.  Every timed call
+    gets a new input: ``variants`` clouds of the same statistics
+    (:func:`sphere_cloud` ``variant`` 0..variants-1 at ``jitter``) in turn,
+    copied into the same arrays (untimed), so that no method is timed on an
+    input the CPU's branch predictor has learnt.  ``stage`` is what the
+    stage runs every step (``engine.sweep.SapBuffers.run``: its sort order,
+    axis and dense flag kept from the call before, on the cloud before, as
+    in a steady run; its first call, which builds them, is not timed),
+    ``stage_fresh`` the same from a fresh order
+    (``engine.broadphase.stage_pairs``), ``sap`` the general path the stage
+    falls back to (``sap_pairs``) and ``brute`` the all-pairs test (up to
+    ``brute_max``).  Every method's pairs are checked equal on each cloud.
+    Returns ``{"rows": [{n, pairs, stage_us, stage_fresh_us, sap_us,
+    brute_us}], "exponents": {method: k}}``, ``pairs`` the base cloud's,
+    k the least-squares slope of log time against log n, with ``n_log_n``:
+    the slope of n log n over the same sizes for reference."""
     from engine.broadphase import brute_pairs, sap_pairs, stage_pairs
     from engine.sweep import _FALLBACK, SapBuffers
 
     methods = ("stage", "stage_fresh", "sap", "brute")
     rows = []
     for n in sizes:
-        lo, hi = sphere_cloud(n)
-        a, b = sap_pairs(lo, hi)
+        clouds = [sphere_cloud(n, variant=j, jitter=jitter) for j in range(max(1, variants))]
+        lo, hi = (x.copy() for x in clouds[0])
         kept = SapBuffers(n)
-        k = kept.run(lo, hi)
-        checks = [stage_pairs(lo, hi), (kept.pi[:k], kept.pj[:k]) if k != _FALLBACK else (a, b)]
-        if n <= brute_max:
-            checks.append(brute_pairs(lo, hi))
-        for other in checks:
-            if not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
-                raise AssertionError(f"broad phase methods disagree at n = {n}")
+        pairs = 0
+        for j, (cl, ch) in enumerate(clouds):
+            a, b = sap_pairs(cl, ch)
+            pairs = pairs or int(a.size)
+            np.copyto(lo, cl), np.copyto(hi, ch)
+            k = kept.run(lo, hi)
+            checks = [stage_pairs(cl, ch), (kept.pi[:k], kept.pj[:k]) if k != _FALLBACK else (a, b)]
+            if n <= brute_max and j == 0:
+                checks.append(brute_pairs(cl, ch))
+            for other in checks:
+                if not (np.array_equal(a, other[0]) and np.array_equal(b, other[1])):
+                    raise AssertionError(f"broad phase methods disagree at n = {n}, cloud {j}")
+        np.copyto(lo, clouds[0][0]), np.copyto(hi, clouds[0][1])
+        kept.run(lo, hi)  # the kept order of cloud 0: the timed calls start at cloud 1
         funcs = {"stage": lambda: kept.run(lo, hi), "stage_fresh": lambda: stage_pairs(lo, hi),
                  "sap": lambda: sap_pairs(lo, hi)}
         if n <= brute_max:
             funcs["brute"] = lambda: brute_pairs(lo, hi)
         times: dict[str, list[float]] = {k: [] for k in funcs}
+        # per method the next cloud: the stage's kept order is always the
+        # one of the cloud before its call's
+        nxt = dict.fromkeys(funcs, 1)
         for _ in range(repeats):
             for k, f in funcs.items():
-                times[k].append(_time_call(f))
-        row: dict[str, Any] = {"n": n, "pairs": int(a.size)}
+                t, nxt[k] = _time_varied(f, clouds, (lo, hi), start=nxt[k])
+                times[k].append(t)
+        row: dict[str, Any] = {"n": n, "pairs": pairs}
         for k in methods:
             row[f"{k}_us"] = 1e6 * statistics.median(times[k]) if k in times else float("nan")
         rows.append(row)

@@ -5,6 +5,7 @@ them, and that the broad-phase variants agree on the pairs."""
 
 import math
 
+import numpy as np
 import pytest
 
 from harness import bench
@@ -42,6 +43,51 @@ def test_broadphase_scaling_runs_and_fits():
     assert [r["n"] for r in out["rows"]] == [40, 120]
     assert all(r["pairs"] > 0 and _pos(r["sap_us"]) for r in out["rows"])
     assert math.isfinite(out["exponents"]["sap"])
+
+
+def test_broadphase_scaling_times_every_call_on_a_new_cloud(monkeypatch):
+    """No timed call sees the input of the call before it on the same
+    arrays (a branch predictor would learn one static cloud and flatter the
+    small sizes' cost), and the methods still agree on every cloud."""
+    import engine.broadphase as B
+
+    seen = []
+    real = B.sap_pairs
+
+    def recording(lo, hi):
+        seen.append((id(lo), lo.tobytes()))
+        return real(lo, hi)
+
+    monkeypatch.setattr(B, "sap_pairs", recording)
+    out = bench.broadphase_scaling(sizes=(200,), repeats=2, brute_max=0)
+    assert _pos(out["rows"][0]["sap_us"])
+    timed = [b for i, b in seen if sum(j == i for j, _ in seen) > 2]  # the shared arrays' calls
+    assert len(timed) >= 2
+    assert all(a != b for a, b in zip(timed, timed[1:]))
+
+
+def test_sphere_cloud_variants_keep_the_statistics():
+    """A variant is a new cloud of the same statistics: the same n and cube,
+    every tenth sphere touching the previous one, about as many pairs;
+    variant 0 is the base cloud, and a variant is reproducible."""
+    from engine.broadphase import sap_pairs
+
+    n, r, spacing = 3000, 0.05, 2.5
+    base = bench.sphere_cloud(n)
+    side = spacing * r * n ** (1 / 3)
+    e = r + 1e-4
+    pairs0 = sap_pairs(*base)[0].size
+    for j in (1, 2):
+        lo, hi = bench.sphere_cloud(n, variant=j)
+        c = lo + e
+        assert lo.shape == (n, 3) and not np.array_equal(lo, base[0])
+        np.testing.assert_array_equal(lo, bench.sphere_cloud(n, variant=j)[0])
+        free = np.ones(n, bool)
+        free[1::10] = False
+        assert c[free].min() >= 0.0 and c[free].max() < side
+        np.testing.assert_allclose(c[1::10] - c[0:-1:10][: c[1::10].shape[0]], [[2 * r, 0.0, 0.0]] * (n // 10),
+                                   atol=1e-12)
+        assert abs(sap_pairs(lo, hi)[0].size - pairs0) < 0.1 * pairs0
 
 
 def test_build_cost_reports_time_and_peak_memory():

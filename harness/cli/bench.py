@@ -42,8 +42,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])
                 print(f"reference broad phase: cost ~ n^{k:.2f} between n = {ok[0]['bodies']} and {ok[-1]['bodies']}")
             sc = bench.broadphase_scaling(repeats=args.repeats)
-            bench.print_rows(sc["rows"], "broad phase alone on static constant-density sphere clouds (us per call, "
-                                         "medians): the stage's path (kept order; fresh), sap_pairs, all pairs")
+            bench.print_rows(sc["rows"], "broad phase alone on constant-density sphere clouds, a new cloud at every "
+                                         "call (us per call, medians): the stage's path (kept order from the cloud "
+                                         "before; fresh), sap_pairs, all pairs")
             ns = [r["n"] for r in sc["rows"]]
             ex = sc["exponents"]
             print(f"broad phase on constant-density clouds between {ns[0]} and {ns[-1]}: the stage ~ "
