@@ -449,12 +449,10 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
     assert len(man["resumed"]) == 1 and not sweep_dirs[0].exists()
 
 
-def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path, monkeypatch):
-    """The writer thread stores each queued row as its own part, in order,
-    before drain returns; a failed write is raised to the caller (by a
-    later write_point, or by drain/close), and close releases the lock."""
+def _fail_writes_of_bad(monkeypatch) -> None:
+    """Every part write of a row whose point_key is "bad" raises OSError
+    ("disk full"); the others are written."""
     import harness.results as R
-    from harness.results import list_parts, read_part
 
     real = R.write_table_atomic
 
@@ -464,6 +462,15 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
         return real(table, path, *a, **kw)
 
     monkeypatch.setattr(R, "write_table_atomic", failing)
+
+
+def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path, monkeypatch):
+    """The writer thread stores each queued row as its own part, in order,
+    before drain returns; a failed write is raised to the caller (by a
+    later write_point, or by drain/close), and close releases the lock."""
+    from harness.results import list_parts, read_part
+
+    _fail_writes_of_bad(monkeypatch)
     sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
     sd.write_behind()
     for k in ("a", "b", "c"):
@@ -495,17 +502,9 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
     as if the sweep went on whole (rows queued behind the failed one are
     not in ``done``, so a resume runs them again).  close releases the lock
     and does not raise an error the caller was already given."""
-    import harness.results as R
     from harness.results import list_parts, read_part
 
-    real = R.write_table_atomic
-
-    def failing(table, path, *a, **kw):
-        if table.column("point_key")[0].as_py() == "bad":
-            raise OSError("disk full")
-        return real(table, path, *a, **kw)
-
-    monkeypatch.setattr(R, "write_table_atomic", failing)
+    _fail_writes_of_bad(monkeypatch)
     sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
     sd.write_behind()
     for k in ("a", "bad", "b"):
