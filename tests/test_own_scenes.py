@@ -211,7 +211,7 @@ def test_metric_exception_makes_the_run_an_error(tmp_path, monkeypatch):
     from harness import metrics
     from harness.runner import run
 
-    def broken(scene, trace, dt=None, model=True):
+    def broken(scene, trace, dt=None, model=True, pen=None):
         return 1.0 / 0.0
 
     monkeypatch.setattr(metrics, "compute_metrics", broken)
