@@ -120,8 +120,9 @@ def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
 @njit(cache=True)
 def _turns(turn, kb, h):
     """Whether the next step would be split for fast rotation
-    (pipeline._parts: not sqrt(w2) h > limit means one part)."""
-    has_turn, limit, boxes, axisym = turn
+    (pipeline._parts: not sqrt(w2) h > limit means one part); ``turn`` a
+    Pack of (split?, limit rad, boxes (k,), axisymmetric bodies (j,))."""
+    has_turn, limit, boxes, axisym = turn.items
     if not has_turn:
         return False
     w2 = max_turn_sq(kb.items[3], kb.items[1], boxes, axisym)
@@ -326,7 +327,11 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     ctx.reset(state, h)
     ctx.stop_allowed = plan.stops
     rec_on, blocks = _blocks(rec, model.n)
-    turn = _NO_TURN if plan.turn is None else (True, float(plan.turn[0]), plan.turn[1], plan.turn[2])
+    turn = fused.__dict__.get("_turn")
+    if turn is None:  # (the rotation split's limit as one Pack, made once)
+        turn = fused._turn = Pack(_NO_TURN if plan.turn is None else (True, float(plan.turn[0]),
+                                                                       np.ascontiguousarray(plan.turn[1], np.int64),
+                                                                       np.ascontiguousarray(plan.turn[2], np.int64)))
     if not steady:
         return _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0)
     a = fused.steady_args(model, state, ctx, h)

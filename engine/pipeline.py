@@ -187,6 +187,11 @@ def _plan_of(model: Model, ctx: Context, stages) -> "Plan":
     return plan
 
 
+#: most steps stepped one by one after a loop over steps that stopped at
+#: its first step (:func:`advance`)
+MAX_BLOCK_BACKOFF = 64
+
+
 def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, n: int, rec=None,
             progress: list | None = None) -> None:
     """``n`` steps, as ``n`` calls of :func:`step` give them (the same bits
@@ -201,13 +206,26 @@ def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     k = 0
     while k < n:
         got, tried = 0, None
-        if fast:
+        if fast and plan.fused is not None and plan.fused.block_wait:
+            plan.fused.block_wait -= 1
+        elif fast:
             sub = None if rec is None else (rec[0][k:], rec[1][k:], rec[2][k:], rec[3][k:])
             if plan.flight is not None:
                 plan.flight.run(model, state, ctx, profile, n - k, sub)
                 got = n - k
             elif plan.fused is not None:
                 got, tried = _loop.fused_block(model, state, ctx, plan, profile, n - k, sub)
+        if got == 0 and tried is not None:
+            # the loop stopped at its first step (a rolling contact the
+            # CCD stage checks every step): the next steps go one by one
+            # (the same bits and bookkeeping), trying a loop again after 1,
+            # 2, 4 ... 64 steps; the loop's Python costs more than the
+            # step's own (loop.fused_block)
+            f = plan.fused
+            f.block_backoff = min(2 * f.block_backoff, MAX_BLOCK_BACKOFF) if f.block_backoff else 1
+            f.block_wait = f.block_backoff
+        elif got and plan.fused is not None:
+            plan.fused.block_backoff = 0
         k += got
         if progress is not None:
             progress[0] = k

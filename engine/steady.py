@@ -224,6 +224,9 @@ class SteadyStep:
         # the same for the contact-free call (free_kernel)
         self.free_backoff = 0
         self.free_wait = 0
+        # the same for a loop over steps (engine/loop.py; pipeline.advance)
+        self.block_backoff = 0
+        self.block_wait = 0
         self._empty = Contacts.empty()
 
     @staticmethod
