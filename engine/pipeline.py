@@ -202,7 +202,8 @@ def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     middle loses no recorded frame)."""
     ctx = context(model, state, profile)
     plan = _plan_of(model, ctx, stages)
-    fast = not profile.by_stage and (rec is None or _loop.blocks_usable(rec))
+    # (one step: the step's own fused try costs less Python than a loop's)
+    fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))
     k = 0
     while k < n:
         got, tried = 0, None
