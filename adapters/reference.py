@@ -142,11 +142,23 @@ class ReferenceAdapter(Adapter):
             self.notes.append("penalty contacts: regularised Coulomb friction, no separate static friction; no CCD")
 
     def step(self, n: int = 1) -> None:
-        from engine.pipeline import step
+        from engine.pipeline import advance
 
-        m, s, st, p = self.model, self.state, self.pipeline, self.profile
-        for _ in range(n):
-            step(m, s, st, p)
+        # the steady steps n at a time in one compiled call (engine/loop.py)
+        advance(self.model, self.state, self.pipeline, self.profile, n)
+
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """As the base class's loop of step(1) and read_state, the steady
+        steps recorded inside the engine's compiled loop (engine/loop.py);
+        ``block_done`` counts the rows written."""
+        from engine.pipeline import advance
+
+        self.block_done = 0
+        done = [0]
+        try:
+            advance(self.model, self.state, self.pipeline, self.profile, n, (pos, quat, vel, angvel), done)
+        finally:
+            self.block_done = done[0]
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         s = self.state

@@ -110,10 +110,9 @@ class Engine:
             self.profile.register(s.name)
 
     def step(self, n: int = 1) -> None:
-        from engine.pipeline import step
+        from engine.pipeline import advance
 
-        for _ in range(n):
-            step(self.model, self.state, self.stages, self.profile)
+        advance(self.model, self.state, self.stages, self.profile, n)
 
 
 __all__ = ["Engine", "SETTINGS", "default_settings", "version"]

@@ -14,6 +14,7 @@ which counts calls and time per stage (see profile.py).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -34,6 +35,8 @@ from engine.profile import Profile, Stage, add_jit_seconds
 from engine.solver import Solve, _pair_codes_abs
 from engine.state import Context, State
 from engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
+from engine import loop as _loop
+from engine.loop import FlightStep
 
 
 def force_stages(model: Model) -> tuple[Stage, ...]:
@@ -77,6 +80,8 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
         stages += [CCD(model), Impact(model)]
     if SteadyStep.build(model, stages) is not None:
         _warm_steady(model)
+    elif FlightStep.build(model, stages) is not None:
+        _warm_flight(model)
     return tuple(stages)
 
 
@@ -99,6 +104,33 @@ def _warm_steady(model: Model) -> None:
     add_jit_seconds(prof.jit_s)  # (the Profile took them: they stay pending for the caller's)
     for _ in range(4):
         step(m, st, stages, prof)
+    # the loops over steps (engine/loop.py): the contact-free call's (it
+    # fails on the first step's contacts), then the steady call's
+    stages = build_pipeline(m)  # (a fresh solve stage: no steady solve kept)
+    st = State.from_model(m)
+    advance(m, st, stages, prof, 6, _loop.record_blocks(6, m.n))
+    add_jit_seconds(time.perf_counter() - t0)
+
+
+_FLIGHT_READY = [False]
+
+
+def _warm_flight(model: Model) -> None:
+    """Compile (or load) the step of a scene without contact
+    (engine/loop.py) once per process, as :func:`_warm_steady`: a few steps
+    of :func:`engine.steady.warm_scene` without contact."""
+    if _FLIGHT_READY[0]:
+        return
+    _FLIGHT_READY[0] = True
+    t0 = time.perf_counter()
+    inp = dataclasses.replace(warm_scene(), effects=frozenset({"gravity"}))
+    m = build_model(inp, {**model.settings, "dt": 1 / 240})
+    stages = build_pipeline(m)
+    st = State.from_model(m)
+    prof = Profile()
+    add_jit_seconds(prof.jit_s)
+    step(m, st, stages, prof)
+    advance(m, st, stages, prof, 2, _loop.record_blocks(2, m.n))
     add_jit_seconds(time.perf_counter() - t0)
 
 
@@ -118,7 +150,7 @@ def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
     state.t += h
 
 
-def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile) -> None:
+def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, tried=None) -> None:
     """Advance ``state`` by one step dt, as ``substeps`` substeps of
     h = dt / substeps.  A substep runs the stages in order; when the CCD
     stage reports an impact inside the substep, the substep is cut at the
@@ -131,9 +163,10 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     :func:`_parts`; counted as ``rotation_splits``).
     """
     ctx = context(model, state, profile)
-    plan = ctx.info.get("plan")
-    if plan is None or plan.stages is not stages:
-        plan = ctx.info["plan"] = _plan(model, stages)
+    plan = _plan_of(model, ctx, stages)
+    if plan.flight is not None and not profile.by_stage:
+        plan.flight.run(model, state, ctx, profile)  # a scene without contact: one call (engine/loop.py)
+        return
     main, impact, max_events, turn = plan.main, plan.impact, plan.max_events, plan.turn
     for _ in range(model.substeps):
         parts = _parts(model, state, turn) if turn is not None else 1
@@ -141,8 +174,73 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
             profile.count("rotation_splits", parts - 1)
         fused = plan.fused if not profile.by_stage else None
         for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, fused)
+            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, fused, tried)
+            tried = None
     state.steps += 1
+
+
+def _plan_of(model: Model, ctx: Context, stages) -> "Plan":
+    """The context's plan for ``stages`` (made once)."""
+    plan = ctx.info.get("plan")
+    if plan is None or plan.stages is not stages:
+        plan = ctx.info["plan"] = _plan(model, stages)
+    return plan
+
+
+#: most steps stepped one by one after a loop over steps that stopped at
+#: its first step (:func:`advance`)
+MAX_BLOCK_BACKOFF = 64
+
+
+def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, n: int, rec=None,
+            progress: list | None = None) -> None:
+    """``n`` steps, as ``n`` calls of :func:`step` give them (the same bits
+    and bookkeeping), the steady ones ``n`` at a time in one compiled call
+    (engine/loop.py).  ``rec``: (pos, quat, vel, angvel) blocks (n, n_bodies,
+    3|4) that get the state after step i in row i, or None; ``progress``: a
+    one-element list that holds the rows recorded so far (a failure in the
+    middle loses no recorded frame)."""
+    ctx = context(model, state, profile)
+    plan = _plan_of(model, ctx, stages)
+    # (one step: the step's own fused try costs less Python than a loop's)
+    fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))
+    k = 0
+    while k < n:
+        got, tried = 0, None
+        if fast and plan.fused is not None and plan.fused.block_wait:
+            plan.fused.block_wait -= 1
+        elif fast:
+            sub = None if rec is None else (rec[0][k:], rec[1][k:], rec[2][k:], rec[3][k:])
+            if plan.flight is not None:
+                plan.flight.run(model, state, ctx, profile, n - k, sub)
+                got = n - k
+            elif plan.fused is not None:
+                got, tried = _loop.fused_block(model, state, ctx, plan, profile, n - k, sub)
+        if got == 0 and tried is not None:
+            # the loop stopped at its first step (a rolling contact the
+            # CCD stage checks every step): the next steps go one by one
+            # (the same bits and bookkeeping), trying a loop again after 1,
+            # 2, 4 ... 64 steps; the loop's Python costs more than the
+            # step's own (loop.fused_block)
+            f = plan.fused
+            f.block_backoff = min(2 * f.block_backoff, MAX_BLOCK_BACKOFF) if f.block_backoff else 1
+            f.block_wait = f.block_backoff
+        elif got and plan.fused is not None:
+            plan.fused.block_backoff = 0
+        k += got
+        if progress is not None:
+            progress[0] = k
+        if k >= n:
+            break
+        step(model, state, stages, profile, tried)
+        if rec is not None:
+            rec[0][k] = state.x
+            rec[1][k] = state.q
+            rec[2][k] = state.v
+            rec[3][k] = state.w
+        k += 1
+        if progress is not None:
+            progress[0] = k
 
 
 @dataclass(frozen=True)
@@ -162,13 +260,15 @@ class Plan:
     #: the steady step as one compiled call (engine/steady.py), or None
     #: when the scene has a stage it does not cover
     fused: SteadyStep | None = None
+    #: a scene without contact's step as one compiled call (engine/loop.py)
+    flight: FlightStep | None = None
 
 
 def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
     return Plan(stages, tuple(s for s in stages if s.family != "impact"),
                 next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
                 _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"),
-                SteadyStep.build(model, stages))
+                SteadyStep.build(model, stages), FlightStep.build(model, stages))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -216,7 +316,7 @@ MAX_STOPS = 8
 
 
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile, allow_stops: bool, fused: SteadyStep | None = None) -> None:
+             profile: Profile, allow_stops: bool, fused: SteadyStep | None = None, tried=None) -> None:
     """One (sub)step of length h, cut at every time of impact and at every
     friction stop.
 
@@ -233,13 +333,15 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
 
     ``fused``: the plan's steady step (engine/steady.py), tried first as
     one compiled call; where the step is not steady it runs stage by
-    stage as before (the same bits).
+    stage as before (the same bits).  ``tried``: that try made already by
+    a loop over steps (engine/loop.py, :func:`advance`): a callable that
+    settles it and gives its status.
     """
     remaining = h
     events = 0
     stops = 0
     ctx.missed_skip.clear()
-    try_fused = fused is not None and fused.ready()
+    try_fused = tried is not None or (fused is not None and fused.ready())
     while True:
         warm0 = ctx.warm0 = state.warm
         ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
@@ -248,7 +350,11 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
             try_fused = False
             ctx.reset(state, remaining)
             ctx.stop_allowed = allow_stops
-            status = fused.run(model, state, ctx, remaining, profile)
+            if tried is not None:
+                status = tried(model, state, ctx)
+                tried = None
+            else:
+                status = fused.run(model, state, ctx, remaining, profile)
             if status == DONE:
                 state.t += remaining
                 break

@@ -50,7 +50,7 @@ from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.pack import Pack
 from engine.solver import Solve
-from engine.state import _commit_packed
+from engine.state import Contacts, _commit_packed
 
 DONE, FAIL, CCD = 0, 1, 2
 
@@ -59,6 +59,8 @@ MAX_BACKOFF = 64
 
 #: the profile's name of the fused call
 NAME = "steady_step"
+#: ... and of the contact-free call (free_kernel)
+FREE_NAME = "contact_free_step"
 
 
 @njit(cache=True)
@@ -105,22 +107,26 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
     cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
                                          sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
     A, slot, out = kcol.items[6], kcol.items[8], kcol.items[9]
-    if need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt > out[0].shape[0] or cnt != key.shape[0]:
+    if (need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt > out[0].shape[0]
+            or (cnt != 0 and cnt != key.shape[0])):
         return FAIL, 0, 0, 0, 0, 0, 0.0
-    # solver.Solve (its steady path, Solve._fast_path)
-    nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
-        kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, True, friction, rolling,
-        warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
-    if not solved:
-        return FAIL, 0, 0, 0, 0, 0, 0.0
-    if stops_gate and residual <= stop_max_res and sliding_any:
-        # Solve._finish: Rows.stop_times opens with this gate
-        wi = kw.items
-        ti = kt.items
-        vt0 = wi[19]
-        if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
-                                  roll_tol):
+    sweeps = 0
+    residual = 0.0
+    if cnt != 0:  # (no contact: Solve.__call__ leaves the velocities; SteadyStep.settle)
+        # solver.Solve (its steady path, Solve._fast_path)
+        nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
+            kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, True, friction,
+            rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
+        if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
+        if stops_gate and residual <= stop_max_res and sliding_any:
+            # Solve._finish: Rows.stop_times opens with this gate
+            wi = kw.items
+            ti = kt.items
+            vt0 = wi[19]
+            if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
+                                      roll_tol):
+                return FAIL, 0, 0, 0, 0, 0, 0.0
     # integrate.IntegratePositions
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
     if ccd_check:
@@ -135,6 +141,62 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
             return CCD, nbb, npl, nsb, cnt, sweeps, residual
     _commit_packed(kb)  # state.Context.commit
     return DONE, nbb, npl, nsb, cnt, sweeps, residual
+
+
+@njit(cache=True)
+def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
+    """One contact-free (mini-)step of length ``h`` as one call: what
+    :func:`steady_kernel` runs when its narrow phase finds no contact (no
+    solve: ``Solve.__call__`` leaves the velocities), for a stage that keeps
+    no steady solve (``Solve._fast`` None: the scene's first steps, a flight
+    after an impact).  The packs as :func:`steady_kernel`'s; FAIL when the
+    narrow phase finds a contact (nothing of the state written).  Returns
+    what :func:`steady_kernel` does (no sweeps, residual 0)."""
+    flags, reals = ks.items
+    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
+     rolling, iterations, passes, max_rows, face_points) = flags
+    warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
+    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
+    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
+     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
+     R1_end) = kbr.items
+    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
+    if has_gravity:
+        gravity(mg, F)
+    w0[:, :] = Wn
+    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
+                Vn, Wn, T_mean, u_lin, u_ang, work)
+    v_free[:, :] = Vn
+    w_free[:, :] = Wn
+    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
+                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
+                                pj, pcode, bp, pk, bs, sk)
+    if nbb < 0 or npl < 0 or nsb < 0:
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    W_ = kcol.items[5]
+    if W_[0].shape[0] < max(nbb, npl, nsb):
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
+                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
+    A, slot, out = kcol.items[6], kcol.items[8], kcol.items[9]
+    if need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt != 0:
+        return FAIL, 0, 0, 0, 0, 0, 0.0
+    # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
+    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
+    if ccd_check:
+        # the CCD stage's end-pose check, as steady_kernel's
+        if has_fast:
+            for k in range(sweep.shape[0]):
+                fast[k] = sweep[k] > fast_min[k]
+        nb, nplm, nsm = end_pose_pairs(x, q, x1, q1, bound_radius, lim, has_fast, fast, pi[:nbb], pj[:nbb],
+                                       bp[:npl], pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk,
+                                       R1_end)
+        if nb + nplm + nsm:
+            return CCD, nbb, npl, nsb, 0, 0, 0.0
+    _commit_packed(kb)
+    return DONE, nbb, npl, nsb, 0, 0, 0.0
 
 
 class SteadyStep:
@@ -159,6 +221,13 @@ class SteadyStep:
         self._ks = self._ks_key = None
         self.backoff = 0  # steps to run staged before trying again (after a FAIL)
         self.wait = 0
+        # the same for the contact-free call (free_kernel)
+        self.free_backoff = 0
+        self.free_wait = 0
+        # the same for a loop over steps (engine/loop.py; pipeline.advance)
+        self.block_backoff = 0
+        self.block_wait = 0
+        self._empty = Contacts.empty()
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -226,54 +295,131 @@ class SteadyStep:
         return flags, reals
 
     def ready(self) -> bool:
-        """Whether the next (mini-)step tries the fused call: not while
-        waiting after a failed try, nor while the solve keeps no steady
-        solve (``Solve._fast``: no contact, or the last solve had an impact
-        row), where :meth:`run` could only fail before the call."""
+        """Whether the next (mini-)step tries a fused call: not while
+        waiting after a failed try; the steady call (:func:`steady_kernel`)
+        while the solve keeps a steady solve (``Solve._fast``), else the
+        contact-free call (:func:`free_kernel`), which waits after its own
+        failed tries (a step with contacts but no steady solve: the first
+        steps of a resting scene, a landing)."""
         if self.wait:
             self.wait -= 1
             return False
-        return self.solve._fast is not None
+        if self.solve._fast is not None:
+            return True
+        if self.free_wait:
+            self.free_wait -= 1
+            return False
+        return True
 
-    def run(self, model, state, ctx, h: float, profile) -> int:
-        """Try the (mini-)step of length ``h`` from ``state`` as one call
-        (module doc): returns DONE, FAIL or CCD; with CCD the context holds
-        what the CCD stage reads."""
-        t0 = time.perf_counter()
+    def flags(self, ctx, warm_any: bool, warm_on: bool, store_on: bool) -> tuple:
+        """The kernels' ``step_flags`` for a (mini-)step of ``ctx``."""
+        solve = self.solve
+        return (warm_any, warm_on, store_on, bool(solve.friction and ctx.stop_allowed and solve.stops),
+                self.ccd is not None and ctx.event_mode is EventMode.EVENT, self.has_fast)
+
+    def steady_args(self, model, state, ctx, h: float):
+        """What :func:`steady_kernel` takes for a (mini-)step of length
+        ``h`` from ``state`` (as a tuple, after its pose packs) and what
+        :meth:`settle` needs: (kc .. idx, step flags, the warm cache
+        written, its store flag, the contacts), or None where the solve
+        keeps no steady solve or its contacts are not the narrow phase's
+        last."""
         solve = self.solve
         store_on = solve.store_on(model, h)
         args = solve.fused_args(model, state, ctx, h, store_on)
         if args is None:
-            return FAIL
+            return None
         kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = args
         c = solve._fast[2]
-        col = self.narrow.collider
-        if col.last_contacts(c.m) is not c:
-            return FAIL
-        b = self.broad
-        step_flags = (warm_any, warm_on, store_on, bool(solve.friction and ctx.stop_allowed and solve.stops),
-                      self.ccd is not None and ctx.event_mode is EventMode.EVENT, self.has_fast)
-        status, nbb, npl, nsb, cnt, sw, res = steady_kernel(
-            ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), col.packed(), kc, kx, kt, kw, ko, kq, kk,
-            key, idx, float(h), self._settings(model), step_flags)
+        if self.narrow.collider.last_contacts(c.m) is not c:
+            return None
+        return (kc, kx, kt, kw, ko, kq, kk, key, idx), self.flags(ctx, warm_any, warm_on, store_on), out, store_on, c
+
+    def packs(self, model, state, ctx) -> tuple:
+        """The kernels' first four packs (begin/commit, free flight, broad
+        phase, narrow phase) and the settings' (module doc)."""
+        return (ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
+                self._settings(model))
+
+    def run(self, model, state, ctx, h: float, profile) -> int:
+        """Try the (mini-)step of length ``h`` from ``state`` as one call
+        (module doc): returns DONE, FAIL or CCD; with CCD the context holds
+        what the CCD stage reads.  The steady call while the solve keeps a
+        steady solve, else the contact-free one."""
+        t0 = time.perf_counter()
+        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        if self.solve._fast is None:
+            res = free_kernel(kb, kf, kbr, kcol, float(h), ks, self.flags(ctx, False, False, False))
+            status = self.settle_free(model, state, ctx, res)
+            name = FREE_NAME
+        else:
+            a = self.steady_args(model, state, ctx, h)
+            if a is None:
+                return FAIL
+            solve_packs, flags, out, store_on, c = a
+            res = steady_kernel(kb, kf, kbr, kcol, *solve_packs, float(h), ks, flags)
+            status = self.settle(model, state, ctx, res, out, store_on, c)
+            name = NAME
+        dt = time.perf_counter() - t0
+        profile.calls[name] = profile.calls.get(name, 0) + 1
+        profile.seconds[name] = profile.seconds.get(name, 0.0) + dt
+        return status
+
+    def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
+        """After :func:`steady_kernel` returned ``res``: the backoff, the
+        solve's bookkeeping (``Solve.fused_finish``, or a step with no
+        contact: :meth:`_no_contact`), the pairs the CCD stage reads.
+        Returns the status."""
+        status, nbb, npl, nsb, cnt, sw, r = res
         if status == FAIL:
             # not steady: stage by stage, and the next tries wait (1, 2, 4,
             # ... 64 steps while they keep failing)
             self.backoff = min(2 * self.backoff, MAX_BACKOFF) if self.backoff else 1
             self.wait = self.backoff
-        else:
-            self.backoff = 0
-            solve.fused_finish(model, state, ctx, out, store_on, int(sw), float(res))
+            return status
+        self.backoff = 0
+        if cnt:
+            self.solve.fused_finish(model, state, ctx, out, store_on, int(sw), float(r))
             ctx.contacts = c
-            if status == CCD:
-                P = b.pairs
-                ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
-                ctx.plane_pairs = (b.bp[:npl], b.pk[:npl])
-                ctx.sbox_pairs = (b.bs[:nsb], b.sk[:nsb])
-        dt = time.perf_counter() - t0
-        profile.calls[NAME] = profile.calls.get(NAME, 0) + 1
-        profile.seconds[NAME] = profile.seconds.get(NAME, 0.0) + dt
+        else:
+            # no contact: what Solve.__call__ does then; the next steps try
+            # the contact-free call until a solve is steady again
+            self._no_contact(state, ctx)
+            self.solve._fast = None
+        if status == CCD:
+            self._pairs(ctx, nbb, npl, nsb)
         return status
+
+    def settle_free(self, model, state, ctx, res) -> int:
+        """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,
+        with the contact-free call's own backoff)."""
+        status, nbb, npl, nsb = res[0], res[1], res[2], res[3]
+        if status == FAIL:
+            self.free_backoff = min(2 * self.free_backoff, MAX_BACKOFF) if self.free_backoff else 1
+            self.free_wait = self.free_backoff
+            return status
+        self.free_backoff = 0
+        self._no_contact(state, ctx)
+        if status == CCD:
+            self._pairs(ctx, nbb, npl, nsb)
+        return status
+
+    def _no_contact(self, state, ctx) -> None:
+        """The context and state after a (mini-)step with no contact, as
+        the narrow phase and Solve.__call__ leave them: no contacts, no
+        rows, no warm-start cache."""
+        c = self.narrow.collider.last_contacts(0)
+        ctx.contacts = c if c is not None else self._empty
+        ctx.rows = None
+        state.warm = None
+
+    def _pairs(self, ctx, nbb: int, npl: int, nsb: int) -> None:
+        """The broad phase's pairs of the call, for the CCD stage."""
+        b = self.broad
+        P = b.pairs
+        ctx.pairs_i, ctx.pairs_j = P.pi[:nbb], P.pj[:nbb]
+        ctx.plane_pairs = (b.bp[:npl], b.pk[:npl])
+        ctx.sbox_pairs = (b.bs[:nsb], b.sk[:nsb])
 
 
 def _miss_tol() -> float:
