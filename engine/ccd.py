@@ -43,6 +43,7 @@ from engine import flight
 from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
 from engine.collision.dispatch import Collider, static_row
+from engine.ccd_end import end_pose_candidates
 from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
@@ -128,7 +129,7 @@ def _stable_features(model, a: int, b: int, sidx: int) -> bool:
 def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     """The broad-phase pairs whose gap may change by more than ``lim`` (m)
     between the start and end poses, with the end pose's rotations, from
-    one compiled call (:func:`engine.flight.end_pose_pairs`) into buffers
+    one compiled call (:func:`engine.ccd_end.end_pose_candidates`) into buffers
     kept in the context (``Context.end_pose_buffers``): ((body pairs i, j),
     (plane pairs body, row), (static-box pairs body, row), R1 (n, 3, 3)),
     every array a view of a buffer valid until the next call; None when no
@@ -147,20 +148,38 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     0.34 mm for two boxes, beyond the end-pose check's tolerance), so a
     resting column was collided twice a step (measured 590 us of its 2.4
     ms).  The same pairs, in the same order, as the boolean masks this
-    replaced (tests/test_ccd_end_pose.py)."""
+    replaced (tests/test_ccd_end_pose.py) -- less those whose end pose
+    provably has no contact deeper than ``lim``
+    (:func:`engine.ccd_end.end_pose_clear`: the end-pose collision would
+    find nothing in them; tests/test_ccd_end_clear.py)."""
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
     ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
-    nb, npl, ns = flight.end_pose_pairs(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, lim,
-                                        fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs,
-                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, R1)
+    nb, npl, ns = end_pose_candidates(state.x, state.q, ctx.x1, ctx.q1, *_geometry(model, ctx), lim,
+                                      fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, sw,
+                                      ci, cj, cbp, cpk, cbs, csk, R1)
     if not nb + npl + ns:
         return None
     return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
+
+
+def _geometry(model, ctx) -> tuple:
+    """The model's shape codes (n,), radii (n,), half extents (n, 3), half
+    lengths (n,), bounding radii (n,), plane normals (k, 3) and offsets
+    (k,), static boxes' AABB corners (k, 3) each: writable copies (the
+    kernels are compiled for writable arrays), kept in the context."""
+    g = ctx.info.get("ccd_geometry")
+    if g is None:
+        f = lambda a, t=float: np.array(a, t)  # noqa: E731
+        g = ctx.info["ccd_geometry"] = (
+            f(model.shape, np.int64), f(model.radius), f(model.half_extents).reshape(-1, 3), f(model.half_length),
+            f(model.bound_radius), f(model.plane_normal).reshape(-1, 3), f(model.plane_offset),
+            f(model.sbox_aabb_lo).reshape(-1, 3), f(model.sbox_aabb_hi).reshape(-1, 3))
+    return g
 
 
 class _Groups:
@@ -391,12 +410,13 @@ def _rotations(ctx, q: np.ndarray) -> np.ndarray:
 
 
 def warm_up() -> None:
-    """Compile (or load) the followed pair's gap kernel and the impact
-    solver's propagation with the step's argument types (see
+    """Compile (or load) the end-pose check's kernel, the followed pair's
+    gap kernel and the impact solver's propagation with the step's argument types (see
     engine/jit.py)."""
-    from engine import ccd_gap
+    from engine import ccd_end, ccd_gap
     from engine.contact import impact
 
+    ccd_end.warm_up()
     ccd_gap.warm_up()
     impact.warm_up()
 
