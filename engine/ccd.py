@@ -43,7 +43,7 @@ from engine import flight
 from engine.model import BOX, S_BOX
 from engine.collision import collide_pairs, pair_contacts
 from engine.collision.dispatch import Collider, static_row
-from engine.ccd_end import end_pose_candidates
+from engine.ccd_end import end_pose_candidates, missed_candidates
 from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
 from engine.contact.impact import impact_solve
@@ -156,7 +156,7 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
     ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
-    nb, npl, ns = end_pose_candidates(state.x, state.q, ctx.x1, ctx.q1, *_geometry(model, ctx), lim,
+    nb, npl, ns = end_pose_candidates(state.x, state.q, ctx.x1, ctx.q1, *_geometry(model, ctx)[:9], lim,
                                       fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, sw,
                                       ci, cj, cbp, cpk, cbs, csk, R1)
     if not nb + npl + ns:
@@ -170,7 +170,8 @@ _NO_FAST = np.zeros(0, np.bool_)
 def _geometry(model, ctx) -> tuple:
     """The model's shape codes (n,), radii (n,), half extents (n, 3), half
     lengths (n,), bounding radii (n,), plane normals (k, 3) and offsets
-    (k,), static boxes' AABB corners (k, 3) each: writable copies (the
+    (k,), static boxes' AABB corners (k, 3) each, static shape codes
+    (n_statics,): writable copies (the
     kernels are compiled for writable arrays), kept in the context."""
     g = ctx.info.get("ccd_geometry")
     if g is None:
@@ -178,7 +179,8 @@ def _geometry(model, ctx) -> tuple:
         g = ctx.info["ccd_geometry"] = (
             f(model.shape, np.int64), f(model.radius), f(model.half_extents).reshape(-1, 3), f(model.half_length),
             f(model.bound_radius), f(model.plane_normal).reshape(-1, 3), f(model.plane_offset),
-            f(model.sbox_aabb_lo).reshape(-1, 3), f(model.sbox_aabb_hi).reshape(-1, 3))
+            f(model.sbox_aabb_lo).reshape(-1, 3), f(model.sbox_aabb_hi).reshape(-1, 3),
+            f(model.static_shape, np.int64))
     return g
 
 
@@ -253,16 +255,30 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes, margin=-lim, sweep=ctx.no_sweep)
     if c.m == 0:
         return []
-    code = _pair_codes(model, c)
     c0 = ctx.contacts
-    code0 = _pair_codes(model, c0) if c0 is not None and c0.m else np.zeros(0, np.int64)
+    has0 = c0 is not None and c0.m > 0
+    # the contacts whose pairs may be missed impacts, compiled (a superset
+    # of those the rule below finds); the rule runs over their pairs only
+    # -- a landing layer of spheres overlaps the floor and its neighbours
+    # beyond lim at the end pose, every pair touching at the start
+    cand = _cand_buffer(ctx, c.m)
+    g = _geometry(model, ctx)
+    k0 = c0 if has0 else _NO_CONTACTS
+    if not missed_candidates(model.n, model.n_statics, c.a, c.b, c.sidx, c.gap, c.point, c.fid, k0.a, k0.b, k0.sidx,
+                             k0.gap, k0.point, k0.fid, ctx.impacts.rows if ctx.impacts is not None else _NO_I,
+                             np.asarray(skip, np.int64), _drop_codes(ctx), ctx.x1, R1, state.x, ctx.R0, g[4], g[0],
+                             g[9], TOUCH_TOL, lim, cand):
+        return []
+    code = _pair_codes(model, c)
+    cand_codes = set(code[cand[:c.m]].tolist())
+    code0 = _pair_codes(model, c0) if has0 else np.zeros(0, np.int64)
     imp_row = np.zeros(code0.size, bool)
     if ctx.impacts is not None:
         imp_row[ctx.impacts.rows] = True
     out = []
     rows_of, rows0_of, skips = _Groups(code), _Groups(code0), set(skip.tolist())
     for u, first in zip(*np.unique(code, return_index=True)):
-        if int(u) in ctx.missed_skip:
+        if int(u) not in cand_codes or int(u) in ctx.missed_skip:
             continue
         is_imp = int(u) in skips
         rows = rows_of(u)
@@ -312,6 +328,29 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
         out.append((tau, a, b, sidx, loc, _follow_fids(model, a, b, sidx, c.fid[rows]), excl))
     out.sort(key=lambda m: m[0])
     return out
+
+
+def _cand_buffer(ctx, m: int) -> np.ndarray:
+    """A kept (>= m,) bool buffer of the context (missed_candidates' flags)."""
+    buf = ctx.info.get("ccd_cand")
+    if buf is None or buf.shape[0] < m:
+        buf = ctx.info["ccd_cand"] = np.zeros(max(m, 2 * (0 if buf is None else buf.shape[0]), 16), np.bool_)
+    return buf
+
+
+def _drop_codes(ctx) -> np.ndarray:
+    """``ctx.missed_skip`` (pair codes left out) as an int64 array."""
+    return np.array(sorted(ctx.missed_skip), np.int64) if ctx.missed_skip else _NO_I
+
+
+class _NoContacts:
+    a = b = sidx = fid = np.zeros(0, np.int64)
+    gap = np.zeros(0)
+    point = np.zeros((0, 3))
+
+
+_NO_CONTACTS = _NoContacts()
+_NO_I = np.zeros(0, np.int64)
 
 
 def _pairs_contacts(model, ctx, pairs) -> list:

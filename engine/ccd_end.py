@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from engine.flight import end_pose_pairs
@@ -151,11 +152,110 @@ def end_pose_candidates(x0, q0, x1, q1, shape, radius, half, half_length, bound_
                           ci, cj, nb, cbp, cpk, npl, cbs, csk, ns)
 
 
-def warm_up() -> None:
-    """Compile (or load) :func:`end_pose_candidates` with the CCD stage's
-    argument types (engine/jit.py, through engine.ccd.warm_up)."""
-    import numpy as np
+#: relative slack of the matching radius in :func:`missed_candidates`: a
+#: point within (1 - NEAR_SLACK) of it is near for sure; one at the radius
+#: (up to the arithmetic's rounding, ~1e-16) is left to the Python decision
+NEAR_SLACK = 1e-9
 
+
+@njit(cache=True)
+def missed_candidates(n, n_statics, a, b, sidx, gap, point, fid, a0, b0, sidx0, gap0, point0, fid0, imp_rows, skip,
+                      drop, x1, R1, x0, R0, bound_radius, shape, static_shape, touch_tol, lim, cand):
+    """Which end-pose contacts (a, b, sidx, gap, fid (m,), point (m, 3):
+    the collision at the margin -lim of the moved pairs) may make their
+    pair a missed impact (engine.ccd.missed_impacts' rule): ``cand`` (>= m,)
+    bool set True on them; returns how many.  The start contacts a0 ...
+    fid0 (m0,) (the step's); ``imp_rows`` their impact rows; ``skip`` the
+    pair codes that are impacts already, ``drop`` those left out
+    (``ctx.missed_skip``); the start and end poses x0, R0, x1, R1; the
+    model's ``bound_radius``, ``shape`` (n,), ``static_shape``.
+
+    A contact of a pair in ``drop`` is never one.  Of a pair apart at the
+    start (no impact, least start gap > ``touch_tol``) every contact is
+    one.  Of a pair touching at the start (or an impact) a contact is one
+    when it lies, in body a's frame, farther than the matching radius (0.1
+    bounding radius + 0.1 mm) from every start contact of the pair within
+    ``lim`` (or an impact row), and, for pairs whose feature ids name
+    material features (all but box against box), its feature id is none of
+    theirs -- the same rule; the radius test with a relative slack of
+    ``NEAR_SLACK``, so that a point at the radius is left to the exact
+    decision in Python.  A superset of the contacts that decide a missed
+    impact, so the Python decision runs only over their pairs and finds
+    the same impacts (tests/test_ccd_end_clear.py)."""
+    m, m0 = gap.shape[0], gap0.shape[0]
+    ns1 = n_statics + 1
+    code0 = np.empty(m0, np.int64)
+    for k in range(m0):
+        code0[k] = (a0[k] * (n + 1) + b0[k]) * ns1 + (sidx0[k] + 1)
+    order = np.argsort(code0, kind="mergesort")
+    sorted0 = code0[order]
+    imp = np.zeros(m0, np.bool_)
+    for k in range(imp_rows.shape[0]):
+        imp[imp_rows[k]] = True
+    skips = np.sort(skip)
+    found = 0
+    for r in range(m):
+        cand[r] = False
+        u = (a[r] * (n + 1) + b[r]) * ns1 + (sidx[r] + 1)
+        dropped = False
+        for k in range(drop.shape[0]):
+            if drop[k] == u:
+                dropped = True
+        if dropped:
+            continue
+        lo = np.searchsorted(sorted0, u, side="left")
+        hi = np.searchsorted(sorted0, u, side="right")
+        g0 = np.inf
+        for k in range(lo, hi):
+            g = gap0[order[k]]
+            if g < g0:
+                g0 = g
+        t = np.searchsorted(skips, u, side="left")
+        is_imp = t < skips.shape[0] and skips[t] == u
+        if not (is_imp or not g0 > touch_tol):
+            cand[r] = True  # apart at the start
+            found += 1
+            continue
+        i = a[r]
+        d0, d1, d2 = point[r, 0] - x1[i, 0], point[r, 1] - x1[i, 1], point[r, 2] - x1[i, 2]
+        l0 = (d0 * R1[i, 0, 0] + d1 * R1[i, 1, 0]) + d2 * R1[i, 2, 0]
+        l1 = (d0 * R1[i, 0, 1] + d1 * R1[i, 1, 1]) + d2 * R1[i, 2, 1]
+        l2 = (d0 * R1[i, 0, 2] + d1 * R1[i, 1, 2]) + d2 * R1[i, 2, 2]
+        tol = 0.1 * bound_radius[i] + 1e-4
+        if shape[i] != BOX:
+            stable = True
+        elif b[r] < n:
+            stable = shape[b[r]] != BOX
+        else:
+            stable = static_shape[sidx[r]] != 1  # engine.model.S_BOX
+        dmin = np.inf
+        member = False
+        for kk in range(lo, hi):
+            k = order[kk]
+            if not (gap0[k] <= lim or imp[k]):
+                continue
+            e0, e1, e2 = point0[k, 0] - x0[i, 0], point0[k, 1] - x0[i, 1], point0[k, 2] - x0[i, 2]
+            p0 = (e0 * R0[i, 0, 0] + e1 * R0[i, 1, 0]) + e2 * R0[i, 2, 0]
+            p1 = (e0 * R0[i, 0, 1] + e1 * R0[i, 1, 1]) + e2 * R0[i, 2, 1]
+            p2 = (e0 * R0[i, 0, 2] + e1 * R0[i, 1, 2]) + e2 * R0[i, 2, 2]
+            dd = ((l0 - p0) * (l0 - p0) + (l1 - p1) * (l1 - p1)) + (l2 - p2) * (l2 - p2)
+            if dd < dmin:
+                dmin = dd
+            if fid0[k] == fid[r]:
+                member = True
+        new = not dmin <= tol * tol * (1.0 - NEAR_SLACK)
+        if stable and member:
+            new = False
+        if new:
+            cand[r] = True
+            found += 1
+    return found
+
+
+def warm_up() -> None:
+    """Compile (or load) :func:`end_pose_candidates` and
+    :func:`missed_candidates` with the CCD stage's argument types
+    (engine/jit.py, through engine.ccd.warm_up)."""
     n = 2
     x = np.zeros((n, 3))
     x[1, 2] = 1.0
@@ -169,3 +269,7 @@ def warm_up() -> None:
                             np.ones(n, np.bool_), i[:1], i[1:], i, np.zeros(n, np.int64), i, np.zeros(n, np.int64),
                             np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
                             np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3, 3)))
+    z = np.zeros(0, np.int64)
+    missed_candidates(n, 1, i[:1], i[1:], i[:1] - 1, np.zeros(1), np.zeros((1, 3)), i[:1], i[:1], i[1:], i[:1] - 1,
+                      np.zeros(1), np.zeros((1, 3)), i[:1], z, z, z, x, np.empty((n, 3, 3)), x, np.empty((n, 3, 3)),
+                      one, np.array([0, 1], np.int64), np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))

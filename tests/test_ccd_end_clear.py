@@ -276,3 +276,92 @@ def test_a_missed_impact_on_the_floor_is_still_found(tmp_path, monkeypatch):
     monkeypatch.setattr(ccd, "missed_impacts", spy)
     eng.step(1)
     assert found and found[0] == 1
+
+
+DATA = __import__("pathlib").Path(__file__).parent / "data"
+
+
+def _same(r1, r2):
+    if len(r1) != len(r2):
+        return False
+    for m1, m2 in zip(r1, r2):
+        for u, v in zip(m1, m2):
+            if isinstance(u, np.ndarray) or isinstance(v, np.ndarray):
+                if u is None or v is None or not np.array_equal(u, v):
+                    return False
+            elif u != v:
+                return False
+    return True
+
+
+@pytest.mark.parametrize("case", ["missed_impact_beside_an_overlap", "missed_impact_capsule_box",
+                                  "missed_impact_of_an_impact_pair", "missed_impact_onto_touching_box",
+                                  "impact_segment_slides_onto_box", "spheres_landing"])
+def test_missed_candidates_keep_every_missed_impact(monkeypatch, case):
+    """The compiled pre-selection (ccd_end.missed_candidates) lets the
+    Python rule of ccd.missed_impacts run over its candidate pairs only: at
+    every call, the result equals the rule's over every pair (the
+    candidates all True), and missed impacts are found."""
+    from harness import bench
+
+    if case == "spheres_landing":
+        scene, settings, steps = bench.spheres_scene(100), {"iterations": 10}, 30
+    else:
+        scene, settings, steps = load_scene(DATA / f"{case}.toml"), {}, None
+    eng = engine_for(scene, settings)
+    real_cand, real = ccd.missed_candidates, ccd.missed_impacts
+
+    def every(*args):
+        m = args[5].shape[0]  # gap
+        args[-1][:m] = True
+        return m
+
+    calls = {"n": 0, "found": 0, "pruned": 0}
+
+    def spy(model, state, ctx, skip, fast=None):
+        with monkeypatch.context() as mp:
+            mp.setattr(ccd, "missed_candidates", every)
+            ref = real(model, state, ctx, skip, fast)
+        out = real(model, state, ctx, skip, fast)
+        assert _same(out, ref), (calls, out, ref)
+        calls["n"] += 1
+        calls["found"] += len(out)
+        return out
+
+    monkeypatch.setattr(ccd, "missed_impacts", spy)
+    eng.step(steps if steps is not None else int(round(min(scene.duration, 1.0) / eng.model.dt)))
+    assert calls["n"] > 0
+    if case.startswith("missed"):
+        assert calls["found"] >= 1
+
+
+def test_landing_spheres_skip_the_python_rule(monkeypatch):
+    """Landing spheres overlap the floor and their neighbours beyond the
+    tolerance at the end pose, every pair touching at the start (a sphere
+    has one feature): no contact is a candidate, and the Python rule (its
+    pair codes, groups, per-pair numpy) does not run.  On the code before
+    it ran for every such step (~140 us a step of the landing's first 30)."""
+    from harness import bench
+
+    eng = engine_for(bench.spheres_scene(100), {"iterations": 10})
+    inside = {"on": False, "codes": 0, "calls": 0}
+    real, codes = ccd.missed_impacts, ccd._pair_codes
+
+    def spy(*a, **k):
+        inside["on"] = True
+        inside["calls"] += 1
+        try:
+            return real(*a, **k)
+        finally:
+            inside["on"] = False
+
+    def count(*a, **k):
+        inside["codes"] += inside["on"]
+        return codes(*a, **k)
+
+    monkeypatch.setattr(ccd, "missed_impacts", spy)
+    monkeypatch.setattr(ccd, "_pair_codes", count)
+    eng.step(30)
+    assert inside["calls"] >= 10
+    assert inside["codes"] == 0
+    assert eng.profile.as_dict()["counters"].get("missed_impacts", 0) == 0
