@@ -41,12 +41,12 @@ import numpy as np
 
 from engine import flight
 from engine.model import BOX, S_BOX
-from engine.collision import collide_pairs, pair_contacts
+from engine.collision import collide_pairs
 from engine.collision.dispatch import Collider, static_row
 from engine.ccd_end import end_pose_candidates, missed_candidates
 from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
-from engine.contact.impact import impact_solve
+from engine.contact.impact import ImpactKept, impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
 from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
 
@@ -82,6 +82,8 @@ class CCD(Stage):
         ctx.event = None
         if ctx.event_mode is not EventMode.EVENT:
             return
+        if ctx.impacts is None and not (ctx.pairs_i.size or ctx.plane_pairs[0].size or ctx.sbox_pairs[0].size):
+            return  # no impact row and no pair to check at the end pose (a body in flight)
         pairs = []
         t = ctx.h
         if ctx.impacts is not None:
@@ -103,7 +105,7 @@ class CCD(Stage):
                                         _follow_fids(model, a, b, sidx, c.fid[same]), False, None))
             skip = code
         else:
-            skip = np.zeros(0, np.int64)
+            skip = _NO_I
         fast = None if self.fraction is None else ctx.sweep > self.fraction * model.min_extent
         missed = missed_impacts(model, state, ctx, skip, fast)
         if missed:
@@ -424,7 +426,11 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     R1 = _rotations(ctx, ctx.q1)
     c = contacts
     if c is None:
-        c = pair_contacts(model, ctx.x1, R1, a, b, sidx, _collider(model, ctx))
+        # pair_contacts' collision of the pair (no margin), its arguments
+        # kept per pair in the context (a search calls this at every
+        # iterate)
+        pi, pj, planes, sboxes, margins = _pair_query(model, ctx, a, b, sidx)
+        c = _collider(model, ctx).run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
     if c.m == 0:
         return np.inf, 0.0
     wk = ctx.info.get("ccd_gap_work")
@@ -434,6 +440,33 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
                 NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude,
                 NO_FID if fids is None else fids, fids is not None, wk)
+
+
+def _pair_query(model, ctx, a: int, b: int, sidx: int) -> tuple:
+    """The arguments of :meth:`Collider.run` that collide one pair with no
+    margin, as :func:`engine.collision.pair_contacts` builds them: (body
+    pairs i, j, plane pairs, static-box pairs, margins), kept in the
+    context per pair."""
+    qs = ctx.info.get("ccd_pair_query")
+    if qs is None:
+        qs = ctx.info["ccd_pair_query"] = {}
+    key = (a, b, sidx)
+    q = qs.get(key)
+    if q is None:
+        if len(qs) >= 256:
+            qs.clear()
+        one = lambda v: np.array([v], np.int64)  # noqa: E731
+        z = np.zeros(0, np.int64)
+        inf = np.array([np.inf])
+        none = (z, z)
+        if sidx < 0:
+            q = (one(min(a, b)), one(max(a, b)), none, none, (inf, inf.copy(), inf.copy()))
+        else:
+            plane, row = static_row(model, sidx)
+            pair = (one(a), one(row))
+            q = (z, z, pair if plane else none, none if plane else pair, (inf, inf.copy(), inf.copy()))
+        qs[key] = q
+    return q
 
 
 def _rotations(ctx, q: np.ndarray) -> np.ndarray:
@@ -457,6 +490,7 @@ def warm_up() -> None:
 
     ccd_end.warm_up()
     ccd_gap.warm_up()
+    flight.q2m(np.zeros((1, 4)), np.empty((1, 3, 3)))  # _rotations (else loaded at the first event, ~8 ms)
     impact.warm_up()
 
 
@@ -592,11 +626,20 @@ def _rerun(model, state, ctx, stages, profile, tau: float) -> None:
     mode = ctx.event_mode
     ctx.begin(model, state, tau)
     ctx.event_mode = EventMode.DROP  # the impact itself must not be constrained on the way
-    for s in stages:
-        if s.family in ("broadphase", "narrowphase", "ccd"):
-            continue
+    for s in _rerun_stages(ctx, stages):
         profile.run(s, model, state, ctx)
     ctx.event_mode = mode
+
+
+def _rerun_stages(ctx, stages) -> tuple:
+    """The stages a rerun runs (all but the broad and narrow phases and the
+    CCD stage: the contacts are the step's), kept in the context per stage
+    list."""
+    kept = ctx.info.get("ccd_rerun")
+    if kept is None or kept[0] is not stages:
+        kept = ctx.info["ccd_rerun"] = (stages, tuple(s for s in stages
+                                                      if s.family not in ("broadphase", "narrowphase", "ccd")))
+    return kept[1]
 
 
 class Impact(Stage):
@@ -612,14 +655,19 @@ class Impact(Stage):
         self.thr = float(model.settings["restitution_threshold"])
         self.friction = model.has("friction")
         self.plastic = str(model.settings["plastic_impacts"])
+        self.kept = ImpactKept()
+        self._margin = np.full(16, 10 * TOUCH_TOL)  # (>= pairs,) the collision's margins, never written
 
     def __call__(self, model, state, ctx) -> None:
         R = _rotations(ctx, state.q)
-        tol = 10 * TOUCH_TOL
         pi, pj = ctx.pairs_i, ctx.pairs_j
-        c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs,
-                          np.full(pi.size, tol), np.full(ctx.plane_pairs[0].size, tol),
-                          np.full(ctx.sbox_pairs[0].size, tol), _collider(model, ctx))
-        impact_solve(model, state, c, self.iterations, self.thr, self.friction, self.plastic)
+        # every margin 10 TOUCH_TOL: views of a kept buffer
+        k = max(pi.size, ctx.plane_pairs[0].size, ctx.sbox_pairs[0].size)
+        if self._margin.size < k:
+            self._margin = np.full(max(k, 2 * self._margin.size), 10 * TOUCH_TOL)
+        mg = self._margin
+        c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs, mg[:pi.size],
+                          mg[:ctx.plane_pairs[0].size], mg[:ctx.sbox_pairs[0].size], _collider(model, ctx))
+        impact_solve(model, state, c, self.iterations, self.thr, self.friction, self.plastic, self.kept)
         profile = ctx.profile
         profile.count("impacts")
