@@ -193,26 +193,20 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     else:
         rows = Rows(model, X, Iinv, cs, friction, colour=False, topo=kept.topology(model, cs, friction, False),
                     scratch=kept.scratch)
-    cs = rows.contacts
-    code = _pair_codes(model, cs)
-    uniq, inv = np.unique(code, return_inverse=True)
-    # rows of each pair (ascending): go[gs[g]:gs[g + 1]]; of each body: bo[b0[k]:b0[k + 1]]
-    go = np.argsort(inv, kind="stable")
-    gs = np.zeros(uniq.size + 1, np.int64)
-    np.cumsum(np.bincount(inv, minlength=uniq.size), out=gs[1:])
-    ab_rows = np.concatenate([rows.a, rows.b])
-    bo = np.argsort(ab_rows, kind="stable") % rows.m
-    b0 = np.zeros(n + 2, np.int64)
-    np.cumsum(np.bincount(ab_rows, minlength=n + 1), out=b0[1:])
+    # (uncoloured: the rows are the contacts in their order, and the
+    # topology's codes theirs)
+    code = rows.topo.codes
     ab = rows.topo.ab
 
     def vn_all():
         # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
         return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
 
-    # normal velocities of all rows, kept current by the compiled loop: a
-    # pair's impulses change only the rows of its two bodies
-    vcur = vn_all()
+    # the rows of each pair (ascending): go[gs[g]:gs[g + 1]], inv the pair
+    # of each row; of each body: bo[b0[k]:b0[k + 1]]; the normal speeds
+    # of all rows (kept current by the compiled loop: a pair's impulses
+    # change only the rows of its two bodies): one compiled call
+    go, gs, inv, bo, b0, vcur = propagate.setup(code, ab, n, np.ascontiguousarray(rows.J), U)
     f = np.ascontiguousarray
     if friction:
         nr = rows.Jt.shape[1]
@@ -223,7 +217,7 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
         fr = (np.zeros((0, nr, 12)), np.zeros((0, nr, 12)), np.zeros((0, nr)), _NO_I, _NO_I, _NO_D, _NO_D, _NO_D,
               _NO_D)
     args = (f(rows.J), f(rows.M), f(ab, np.int64), f(cs.e, float), f(rows.pid, np.int64) if friction else _NO_I,
-            go, gs, f(inv, np.int64), bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
+            go, gs, inv, bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
     if not propagate.propagate(0, *args):
         # pinned configuration: resolve all approaches together
         v = vn_all()
@@ -245,6 +239,8 @@ def warm_up() -> None:
     inertias with the step's argument types (see engine/jit.py): one pair
     of two rows, with and without friction."""
     i1 = np.zeros(1, np.int64)
+    propagate.setup(np.array([5, 5], np.int64), np.array([[0, 1], [0, 1]], np.int64), 1, np.ones((2, 12)),
+                    np.zeros((2, 6)))
     contact_inertias(np.array([[1.0, 0.0, 0.0, 0.0]]), np.ones((1, 3)), i1, i1 + 1, np.empty((2, 3, 3)))
     J = np.ones((2, 12))
     ab = np.array([[0, 1], [0, 1]], np.int64)
