@@ -40,12 +40,14 @@ from __future__ import annotations
 import numpy as np
 
 from engine import flight
-from engine.model import BOX, S_BOX
-from engine.collision import collide_pairs, pair_contacts
-from engine.collision.dispatch import Collider, static_row
+from engine.collision import collide_pairs
+from engine.collision.dispatch import static_row
+from engine.ccd_end import missed_candidates
+from engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
+                             _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
 from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from engine.profile import Stage
-from engine.contact.impact import impact_solve
+from engine.contact.impact import ImpactKept, impact_solve
 from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
 from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
 
@@ -81,6 +83,8 @@ class CCD(Stage):
         ctx.event = None
         if ctx.event_mode is not EventMode.EVENT:
             return
+        if ctx.impacts is None and not (ctx.pairs_i.size or ctx.plane_pairs[0].size or ctx.sbox_pairs[0].size):
+            return  # no impact row and no pair to check at the end pose (a body in flight)
         pairs = []
         t = ctx.h
         if ctx.impacts is not None:
@@ -102,7 +106,7 @@ class CCD(Stage):
                                         _follow_fids(model, a, b, sidx, c.fid[same]), False, None))
             skip = code
         else:
-            skip = np.zeros(0, np.int64)
+            skip = _NO_I
         fast = None if self.fraction is None else ctx.sweep > self.fraction * model.min_extent
         missed = missed_impacts(model, state, ctx, skip, fast)
         if missed:
@@ -114,85 +118,10 @@ class CCD(Stage):
             ctx.event = Event(t, pairs[0], tuple(pairs[1:]))
 
 
-def _stable_features(model, a: int, b: int, sidx: int) -> bool:
-    """Whether the pair's contact feature ids name the same material feature
-    from pose to pose: all pairs but box against box (body or static), whose
-    ids are slots of a clipped manifold."""
-    if model.shape[a] != BOX:
-        return True
-    if b < model.n:
-        return model.shape[b] != BOX
-    return model.static_shape[sidx] != S_BOX
 
 
-def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
-    """The broad-phase pairs whose gap may change by more than ``lim`` (m)
-    between the start and end poses, with the end pose's rotations, from
-    one compiled call (:func:`engine.flight.end_pose_pairs`) into buffers
-    kept in the context (``Context.end_pose_buffers``): ((body pairs i, j),
-    (plane pairs body, row), (static-box pairs body, row), R1 (n, 3, 3)),
-    every array a view of a buffer valid until the next call; None when no
-    pair moved that far.
-
-    A body's end displacement, |x1 - x0| + 2 sin(theta/2) r (theta the
-    turn between the two orientations, cos(theta/2) = |q0 . q1|, r the
-    body's bounding radius), bounds how far any surface point lies from
-    where it was, so the gap of a pair changes between the two poses by at
-    most the sum of its bodies' values (a rigid motion moves the point s
-    from the centre by |dx + (R1 - R0) s| <= |dx| + 2 sin(theta/2) |s|).
-
-    The broad phase's sweep bounds the same from the speeds before and
-    after the solve; for resting contacts that is the speed gravity gave
-    the step before the solve took it away (g h = 0.04 m/s at 1/240 s:
-    0.34 mm for two boxes, beyond the end-pose check's tolerance), so a
-    resting column was collided twice a step (measured 590 us of its 2.4
-    ms).  The same pairs, in the same order, as the boolean masks this
-    replaced (tests/test_ccd_end_pose.py)."""
-    pi, pj = ctx.pairs_i, ctx.pairs_j
-    bp, pk = ctx.plane_pairs
-    bs, sk = ctx.sbox_pairs
-    ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
-    nb, npl, ns = flight.end_pose_pairs(state.x, state.q, ctx.x1, ctx.q1, model.bound_radius, lim,
-                                        fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs,
-                                        sk, sw, ci, cj, cbp, cpk, cbs, csk, R1)
-    if not nb + npl + ns:
-        return None
-    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), R1
 
 
-_NO_FAST = np.zeros(0, np.bool_)
-
-
-class _Groups:
-    """The positions of each value of an integer key array (m,), ascending
-    within a value -- what ``np.flatnonzero(key == u)`` gives -- from one
-    stable sort: a mask over all m rows per value was O(values x m), and
-    400 spheres landing together on the floor are 400 values."""
-
-    def __init__(self, key: np.ndarray):
-        self.order = np.argsort(key, kind="stable")
-        self.keys = key[self.order]
-
-    def __call__(self, u) -> np.ndarray:
-        return self.order[np.searchsorted(self.keys, u, "left"):np.searchsorted(self.keys, u, "right")]
-
-
-def _collider(model, ctx) -> Collider:
-    """The collider the CCD and impact stages' collision calls run into,
-    kept in the context (their contacts are views of its buffers, valid
-    until its next call): a fresh one per call copied the model's arrays,
-    O(n) each time, ~0.3 ms a call at 30 bodies."""
-    col = ctx.info.get("ccd_collider")
-    if col is None:
-        col = ctx.info["ccd_collider"] = Collider(model)
-    return col
-
-
-def _member(x: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """np.isin(x, s) for the few feature ids of a pair: (k,) bool."""
-    if x.size == 0 or s.size == 0:
-        return np.zeros(x.shape, bool)
-    return (x.reshape(-1, 1) == s.reshape(1, -1)).any(axis=1)
 
 
 def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
@@ -234,16 +163,30 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     c = _collider(model, ctx).run(ctx.x1, R1, ci, cj, planes, sboxes, margin=-lim, sweep=ctx.no_sweep)
     if c.m == 0:
         return []
-    code = _pair_codes(model, c)
     c0 = ctx.contacts
-    code0 = _pair_codes(model, c0) if c0 is not None and c0.m else np.zeros(0, np.int64)
+    has0 = c0 is not None and c0.m > 0
+    # the contacts whose pairs may be missed impacts, compiled (a superset
+    # of those the rule below finds); the rule runs over their pairs only
+    # -- a landing layer of spheres overlaps the floor and its neighbours
+    # beyond lim at the end pose, every pair touching at the start
+    cand = _cand_buffer(ctx, c.m)
+    g = _geometry(model, ctx)
+    k0 = c0 if has0 else _NO_CONTACTS
+    if not missed_candidates(model.n, model.n_statics, c.a, c.b, c.sidx, c.gap, c.point, c.fid, k0.a, k0.b, k0.sidx,
+                             k0.gap, k0.point, k0.fid, ctx.impacts.rows if ctx.impacts is not None else _NO_I,
+                             np.asarray(skip, np.int64), _drop_codes(ctx), ctx.x1, R1, state.x, ctx.R0, g[4], g[0],
+                             g[9], TOUCH_TOL, lim, cand):
+        return []
+    code = _pair_codes(model, c)
+    cand_codes = set(code[cand[:c.m]].tolist())
+    code0 = _pair_codes(model, c0) if has0 else np.zeros(0, np.int64)
     imp_row = np.zeros(code0.size, bool)
     if ctx.impacts is not None:
         imp_row[ctx.impacts.rows] = True
     out = []
     rows_of, rows0_of, skips = _Groups(code), _Groups(code0), set(skip.tolist())
     for u, first in zip(*np.unique(code, return_index=True)):
-        if int(u) in ctx.missed_skip:
+        if int(u) not in cand_codes or int(u) in ctx.missed_skip:
             continue
         is_imp = int(u) in skips
         rows = rows_of(u)
@@ -366,7 +309,11 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     R1 = _rotations(ctx, ctx.q1)
     c = contacts
     if c is None:
-        c = pair_contacts(model, ctx.x1, R1, a, b, sidx, _collider(model, ctx))
+        # pair_contacts' collision of the pair (no margin), its arguments
+        # kept per pair in the context (a search calls this at every
+        # iterate)
+        pi, pj, planes, sboxes, margins = _pair_query(model, ctx, a, b, sidx)
+        c = _collider(model, ctx).run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
     if c.m == 0:
         return np.inf, 0.0
     wk = ctx.info.get("ccd_gap_work")
@@ -378,26 +325,16 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
                 NO_FID if fids is None else fids, fids is not None, wk)
 
 
-def _rotations(ctx, q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (n, 3, 3) of the quaternions q (n, 4) from one
-    compiled call (:func:`engine.flight.q2m`, mathutil.quat_to_matrix's
-    arithmetic) into a buffer kept in the context, valid until the next
-    call."""
-    R = ctx.info.get("ccd_R")
-    if R is None or R.shape[0] != q.shape[0]:
-        R = ctx.info["ccd_R"] = np.empty((q.shape[0], 3, 3))
-    flight.q2m(q, R)
-    return R
-
-
 def warm_up() -> None:
-    """Compile (or load) the followed pair's gap kernel and the impact
-    solver's propagation with the step's argument types (see
+    """Compile (or load) the end-pose check's kernel, the followed pair's
+    gap kernel and the impact solver's propagation with the step's argument types (see
     engine/jit.py)."""
-    from engine import ccd_gap
+    from engine import ccd_end, ccd_gap
     from engine.contact import impact
 
+    ccd_end.warm_up()
     ccd_gap.warm_up()
+    flight.q2m(np.zeros((1, 4)), np.empty((1, 3, 3)))  # _rotations (else loaded at the first event, ~8 ms)
     impact.warm_up()
 
 
@@ -533,11 +470,20 @@ def _rerun(model, state, ctx, stages, profile, tau: float) -> None:
     mode = ctx.event_mode
     ctx.begin(model, state, tau)
     ctx.event_mode = EventMode.DROP  # the impact itself must not be constrained on the way
-    for s in stages:
-        if s.family in ("broadphase", "narrowphase", "ccd"):
-            continue
+    for s in _rerun_stages(ctx, stages):
         profile.run(s, model, state, ctx)
     ctx.event_mode = mode
+
+
+def _rerun_stages(ctx, stages) -> tuple:
+    """The stages a rerun runs (all but the broad and narrow phases and the
+    CCD stage: the contacts are the step's), kept in the context per stage
+    list."""
+    kept = ctx.info.get("ccd_rerun")
+    if kept is None or kept[0] is not stages:
+        kept = ctx.info["ccd_rerun"] = (stages, tuple(s for s in stages
+                                                      if s.family not in ("broadphase", "narrowphase", "ccd")))
+    return kept[1]
 
 
 class Impact(Stage):
@@ -553,14 +499,19 @@ class Impact(Stage):
         self.thr = float(model.settings["restitution_threshold"])
         self.friction = model.has("friction")
         self.plastic = str(model.settings["plastic_impacts"])
+        self.kept = ImpactKept()
+        self._margin = np.full(16, 10 * TOUCH_TOL)  # (>= pairs,) the collision's margins, never written
 
     def __call__(self, model, state, ctx) -> None:
         R = _rotations(ctx, state.q)
-        tol = 10 * TOUCH_TOL
         pi, pj = ctx.pairs_i, ctx.pairs_j
-        c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs,
-                          np.full(pi.size, tol), np.full(ctx.plane_pairs[0].size, tol),
-                          np.full(ctx.sbox_pairs[0].size, tol), _collider(model, ctx))
-        impact_solve(model, state, c, self.iterations, self.thr, self.friction, self.plastic)
+        # every margin 10 TOUCH_TOL: views of a kept buffer
+        k = max(pi.size, ctx.plane_pairs[0].size, ctx.sbox_pairs[0].size)
+        if self._margin.size < k:
+            self._margin = np.full(max(k, 2 * self._margin.size), 10 * TOUCH_TOL)
+        mg = self._margin
+        c = collide_pairs(model, state.x, R, pi, pj, ctx.plane_pairs, ctx.sbox_pairs, mg[:pi.size],
+                          mg[:ctx.plane_pairs[0].size], mg[:ctx.sbox_pairs[0].size], _collider(model, ctx))
+        impact_solve(model, state, c, self.iterations, self.thr, self.friction, self.plastic, self.kept)
         profile = ctx.profile
         profile.count("impacts")

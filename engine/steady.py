@@ -44,7 +44,8 @@ from engine.collision import NarrowPhase, box
 from engine.collision.collide import collide_packed
 from engine.contact import phases, prepare
 from engine.control import EventMode
-from engine.flight import begin_step, end_pose_pairs, free_flight, gravity, integrate_positions
+from engine.ccd_end import end_pose_candidates
+from engine.flight import begin_step, free_flight, gravity, integrate_positions
 from engine.forces import Gravity
 from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
@@ -134,9 +135,12 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
         if has_fast:
             for k in range(sweep.shape[0]):
                 fast[k] = sweep[k] > fast_min[k]
-        nb, nplm, nsm = end_pose_pairs(x, q, x1, q1, bound_radius, lim, has_fast, fast, pi[:nbb], pj[:nbb],
-                                       bp[:npl], pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk,
-                                       R1_end)
+        # the moved pairs less those whose end pose provably holds no
+        # missed impact (ccd_end.end_pose_clear): a rolling ball, a sliding
+        # block finish here (tests/test_ccd_end_clear.py)
+        nb, nplm, nsm = end_pose_candidates(x, q, x1, q1, shape, radius, half, half_length, bound_radius, planes_n,
+                                            planes_off, slo, shi, lim, has_fast, fast, pi[:nbb], pj[:nbb], bp[:npl],
+                                            pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk, R1_end)
         if nb + nplm + nsm:
             return CCD, nbb, npl, nsb, cnt, sweeps, residual
     _commit_packed(kb)  # state.Context.commit

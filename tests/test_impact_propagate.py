@@ -77,3 +77,29 @@ def test_block_normal_solves_the_pair_lcp():
     assert np.all(vn >= -1e-12)
     assert np.allclose(lam * vn, 0.0, atol=1e-12)  # complementarity
     assert np.all(U[1] == 0.0)  # the world row stays zero
+
+
+def test_setup_is_the_numpy_form():
+    """propagate.setup (one compiled call) gives impact._propagate's numpy
+    index arrays and normal speeds exactly."""
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        m = int(rng.integers(1, 12))
+        n = int(rng.integers(1, 6))
+        a = rng.integers(0, n, m)
+        b = np.where(rng.random(m) < 0.3, n, rng.integers(0, n, m))
+        ab = np.stack([a, b], axis=1).astype(np.int64)
+        code = (a * (n + 1) + b) * 3 + rng.integers(0, 2, m)
+        J, U = _values(rng, m, 12), _values(rng, n + 1, 6)
+        go, gs, inv, bo, b0, vcur = P.setup(code.astype(np.int64), ab, n, J, U)
+        uniq, inv_w = np.unique(code, return_inverse=True)
+        go_w = np.argsort(inv_w, kind="stable")
+        gs_w = np.zeros(uniq.size + 1, np.int64)
+        np.cumsum(np.bincount(inv_w, minlength=uniq.size), out=gs_w[1:])
+        ab_rows = np.concatenate([a, b])
+        bo_w = np.argsort(ab_rows, kind="stable") % m
+        b0_w = np.zeros(n + 2, np.int64)
+        np.cumsum(np.bincount(ab_rows, minlength=n + 1), out=b0_w[1:])
+        vcur_w = np.einsum("kj,kj->k", J, U[ab].reshape(-1, 12))
+        for got, want in ((go, go_w), (gs, gs_w), (inv, inv_w), (bo, bo_w), (b0, b0_w), (vcur, vcur_w)):
+            assert np.array_equal(got, want)

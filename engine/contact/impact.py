@@ -6,14 +6,58 @@ island (:func:`impact_solve`)."""
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from engine.contact import linalg, propagate
+from engine.flight import q2m
 from engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
+from engine.contact.scratch import Scratch
+from engine.contact.topology import Topology
 from engine.state import Contacts
 
 
+class ImpactKept:
+    """What the impact solves of one stage keep between calls: the
+    propagation's work arrays (a :class:`Scratch`, views grown
+    geometrically instead of ~16 new arrays per impact) and the topologies
+    of the contact sets seen (keyed by their pair codes; a Topology is a
+    function of the rows' (a, b, sidx) alone, so reuse is exact -- as the
+    solve stage's cache, engine/solver.py).  A ball bouncing on the floor
+    builds its one topology once (tests/test_impact_propagate.py)."""
+
+    #: topologies kept at most (the cache is emptied when full)
+    MAX_TOPOLOGIES = 64
+
+    def __init__(self) -> None:
+        self.scratch = Scratch()
+        self.topos: dict = {}
+        self._Iinv = self._inv_I = None
+
+    def inertia(self, n: int) -> np.ndarray:
+        """A kept (n+1, 3, 3) buffer for the world inverse inertias."""
+        if self._Iinv is None or self._Iinv.shape[0] != n + 1:
+            self._Iinv = np.empty((n + 1, 3, 3))
+        return self._Iinv
+
+    def inv_inertia(self, model) -> np.ndarray:
+        """The model's body inverse inertias (n, 3), a writable copy (the
+        kernel is compiled for writable arrays)."""
+        if self._inv_I is None:
+            self._inv_I = np.array(model.inv_inertia_body, float)
+        return self._inv_I
+
+    def topology(self, model, c: Contacts, friction: bool, colour: bool) -> Topology:
+        key = (_pair_codes(model, c).tobytes(), friction, colour)
+        topo = self.topos.get(key)
+        if topo is None:
+            if len(self.topos) >= self.MAX_TOPOLOGIES:
+                self.topos.clear()
+            topo = self.topos[key] = Topology(model, c.a, c.b, c.sidx, friction, colour)
+        return topo
+
+
 def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, friction: bool,
-                 plastic: str = "simultaneous") -> int:
+                 plastic: str = "simultaneous", kept: ImpactKept | None = None) -> int:
     """Impulsive collision response at a time of impact, on the state's
     velocities, over the touching contacts (gap <= 10 TOUCH_TOL).  Returns
     the number of rows.
@@ -40,25 +84,28 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
       0.2-1 s of CPU per impact (spheres_1000), and some did not settle
       within the propagation's budget.  ``"sequential"`` propagates these
       islands too.
-    """
-    from engine.mathutil import quat_to_matrix, world_inv_inertia
 
+    ``kept``: the stage's :class:`ImpactKept` (work arrays, topologies),
+    or None (fresh ones).
+    """
     sel = np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL)
     if sel.size == 0:
         return 0
     cs = contacts.take(sel)
     n = model.n
-    # the world inverse inertias of the contacts' bodies only (the same
-    # bits per body: an O(n) pass per impact at 10,000 bodies was ~2 ms)
-    bodies = np.unique(np.concatenate([cs.a, cs.b[cs.b < n]]))
-    Iinv = np.zeros((n + 1, 3, 3))
-    Iinv[bodies] = world_inv_inertia(quat_to_matrix(state.q[bodies]), model.inv_inertia_body[bodies])
+    # the world inverse inertias of the contacts' bodies only, the others
+    # zero (an O(n) pass per impact at 10,000 bodies was ~2 ms): one
+    # compiled call, mathutil.world_inv_inertia(quat_to_matrix(q)) bit for
+    # bit (tests/test_ccd_event_path.py)
+    Iinv = np.empty((n + 1, 3, 3)) if kept is None else kept.inertia(n)
+    inv_I = np.array(model.inv_inertia_body, float) if kept is None else kept.inv_inertia(model)
+    contact_inertias(state.q, inv_I, cs.a, cs.b, Iinv)
     U = Rows.pack(_pad(state.v), _pad(state.w))
     # (every row bouncing, the common case of billiards: no plastic island)
     together = _plastic_islands(model, cs) if plastic == "simultaneous" and not np.all(cs.e > 0.0) else None
     m = 0
     if together is None or not together.any():
-        m += _propagate(model, state.x, Iinv, cs, U, iterations, thr, friction)
+        m += _propagate(model, state.x, Iinv, cs, U, iterations, thr, friction, kept)
     else:
         m += _plastic_island_solve(model, state.x, Iinv, cs.take(np.flatnonzero(together)), U, iterations,
                                    friction)
@@ -68,6 +115,28 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     state.v[:] = U[:n, :3]
     state.w[:] = U[:n, 3:]
     return m
+
+
+@njit(cache=True)
+def contact_inertias(q, inv_I, a, b, Iinv):
+    """Iinv (n+1, 3, 3): R diag(inv_I) R^T (R the rotation of q (n, 4),
+    :func:`engine.flight.q2m`) for the bodies of the contacts (a, b (m,);
+    b = n the world), zero elsewhere -- the arithmetic of
+    flight.start_pose, which is mathutil.world_inv_inertia's bit for bit."""
+    n = q.shape[0]
+    Iinv[:, :, :] = 0.0
+    R = np.empty((1, 3, 3))
+    for r in range(2 * a.shape[0]):
+        k = a[r] if r < a.shape[0] else b[r - a.shape[0]]
+        if k >= n or Iinv[k, 0, 0] != 0.0:
+            continue  # the world, or done (a diagonal entry of R diag(1/I) R^T is > 0)
+        q2m(q[k:k + 1], R)
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for c in range(3):
+                    s += R[0, i, c] * inv_I[k, c] * R[0, j, c]
+                Iinv[k, i, j] = s
 
 
 def _plastic_islands(model, cs: Contacts) -> np.ndarray:
@@ -105,7 +174,8 @@ def _plastic_island_solve(model, X, Iinv, cs: Contacts, U: np.ndarray, iteration
     return rows.m
 
 
-def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr: float, friction: bool) -> int:
+def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr: float, friction: bool,
+               kept: ImpactKept | None = None) -> int:
     """Impulse propagation over the contacts ``cs`` on U (n+1, 6) in place:
     repeatedly take the touching pair that approaches fastest (normal speed
     above ``thr``), give it the exact pair impulse (block solve of its
@@ -116,29 +186,27 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     down the row (Newton's cradle) and symmetric contacts get symmetric
     impulses.  If the propagation does not settle (pinned ping-pong), the
     remaining approaches are resolved together by sequential impulses.
-    Returns the number of rows."""
+    Returns the number of rows; ``kept`` as :func:`impact_solve`'s."""
     n = model.n
-    rows = Rows(model, X, Iinv, cs, friction, colour=False)
-    cs = rows.contacts
-    code = _pair_codes(model, cs)
-    uniq, inv = np.unique(code, return_inverse=True)
-    # rows of each pair (ascending): go[gs[g]:gs[g + 1]]; of each body: bo[b0[k]:b0[k + 1]]
-    go = np.argsort(inv, kind="stable")
-    gs = np.zeros(uniq.size + 1, np.int64)
-    np.cumsum(np.bincount(inv, minlength=uniq.size), out=gs[1:])
-    ab_rows = np.concatenate([rows.a, rows.b])
-    bo = np.argsort(ab_rows, kind="stable") % rows.m
-    b0 = np.zeros(n + 2, np.int64)
-    np.cumsum(np.bincount(ab_rows, minlength=n + 1), out=b0[1:])
+    if kept is None:
+        rows = Rows(model, X, Iinv, cs, friction, colour=False)
+    else:
+        rows = Rows(model, X, Iinv, cs, friction, colour=False, topo=kept.topology(model, cs, friction, False),
+                    scratch=kept.scratch)
+    # (uncoloured: the rows are the contacts in their order, and the
+    # topology's codes theirs)
+    code = rows.topo.codes
     ab = rows.topo.ab
 
     def vn_all():
         # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
         return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
 
-    # normal velocities of all rows, kept current by the compiled loop: a
-    # pair's impulses change only the rows of its two bodies
-    vcur = vn_all()
+    # the rows of each pair (ascending): go[gs[g]:gs[g + 1]], inv the pair
+    # of each row; of each body: bo[b0[k]:b0[k + 1]]; the normal speeds
+    # of all rows (kept current by the compiled loop: a pair's impulses
+    # change only the rows of its two bodies): one compiled call
+    go, gs, inv, bo, b0, vcur = propagate.setup(code, ab, n, np.ascontiguousarray(rows.J), U)
     f = np.ascontiguousarray
     if friction:
         nr = rows.Jt.shape[1]
@@ -149,7 +217,7 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
         fr = (np.zeros((0, nr, 12)), np.zeros((0, nr, 12)), np.zeros((0, nr)), _NO_I, _NO_I, _NO_D, _NO_D, _NO_D,
               _NO_D)
     args = (f(rows.J), f(rows.M), f(ab, np.int64), f(cs.e, float), f(rows.pid, np.int64) if friction else _NO_I,
-            go, gs, f(inv, np.int64), bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
+            go, gs, inv, bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
     if not propagate.propagate(0, *args):
         # pinned configuration: resolve all approaches together
         v = vn_all()
@@ -167,9 +235,13 @@ _NO_D = np.zeros(0)
 
 
 def warm_up() -> None:
-    """Compile (or load) the propagation kernel with the step's argument
-    types (see engine/jit.py): one pair of two rows, with and without
-    friction."""
+    """Compile (or load) the propagation kernel and the contact bodies'
+    inertias with the step's argument types (see engine/jit.py): one pair
+    of two rows, with and without friction."""
+    i1 = np.zeros(1, np.int64)
+    propagate.setup(np.array([5, 5], np.int64), np.array([[0, 1], [0, 1]], np.int64), 1, np.ones((2, 12)),
+                    np.zeros((2, 6)))
+    contact_inertias(np.array([[1.0, 0.0, 0.0, 0.0]]), np.ones((1, 3)), i1, i1 + 1, np.empty((2, 3, 3)))
     J = np.ones((2, 12))
     ab = np.array([[0, 1], [0, 1]], np.int64)
     i2 = np.zeros(2, np.int64)

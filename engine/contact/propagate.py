@@ -320,6 +320,53 @@ def patch_impulse(Jt, Mt, mt, pa, pb, mus, muk, r_twist, mur, rolling, p, Fn, U,
 
 
 @njit(cache=True)
+def setup(code, ab, n, J, U):
+    """The propagation's index arrays and speeds for rows of pair codes
+    ``code`` (m,) between bodies ``ab`` (m, 2) (n the world), Jacobians J
+    (m, 12), velocities U (n+1, 6), as impact._propagate formed them in
+    numpy: inv (m,) the pair of each row (np.unique's inverse), go, gs
+    (np.argsort(inv, stable), the cumulated counts: the rows of pair g are
+    go[gs[g]:gs[g + 1]]), bo, b0 (the stable argsort of [a, b] modulo m and
+    the cumulated counts over n + 1 bodies: the rows of body i are
+    bo[b0[i]:b0[i + 1]]), vcur (m,) the rows' normal speeds (einsum
+    "kj,kj->k" over the gathered pair, :func:`_vn`).  Returns (go, gs, inv,
+    bo, b0, vcur) (tests/test_impact_propagate.py)."""
+    m = code.shape[0]
+    srt = np.argsort(code, kind="mergesort")
+    inv = np.empty(m, np.int64)
+    G = 0
+    for t in range(m):
+        if t == 0 or code[srt[t]] != code[srt[t - 1]]:
+            G += 1
+        inv[srt[t]] = G - 1
+    gs = np.zeros(G + 1, np.int64)
+    for r in range(m):
+        gs[inv[r] + 1] += 1
+    for g in range(G):
+        gs[g + 1] += gs[g]
+    go = np.empty(m, np.int64)
+    pos = gs[:G].copy()
+    for r in range(m):
+        go[pos[inv[r]]] = r
+        pos[inv[r]] += 1
+    b0 = np.zeros(n + 2, np.int64)
+    for r in range(2 * m):
+        b0[ab[r % m, r // m] + 1] += 1
+    for i in range(n + 1):
+        b0[i + 1] += b0[i]
+    bo = np.empty(2 * m, np.int64)
+    posb = b0[:n + 1].copy()
+    for r in range(2 * m):
+        i = ab[r % m, r // m]
+        bo[posb[i]] = r % m
+        posb[i] += 1
+    vcur = np.empty(m)
+    for r in range(m):
+        vcur[r] = _vn(J, r, U, ab[r, 0], ab[r, 1])
+    return go, gs, inv, bo, b0, vcur
+
+
+@njit(cache=True)
 def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb, mus, muk,
               r_twist, mur, rolling):
     """Impulse propagation over rows (J, M (m, 12), ab (m, 2), e, pid,

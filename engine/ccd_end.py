@@ -1,0 +1,275 @@
+"""The CCD stage's end-pose check in one compiled call: the pairs that
+moved far enough to overlap beyond the tolerance
+(:func:`engine.flight.end_pose_pairs`), less those whose end pose
+provably has no contact that deep (:func:`end_pose_clear`).
+
+A missed impact (engine/ccd.py ``missed_impacts``) is a contact of the
+end pose deeper than ``lim`` = correction slop + ``MISS_TOL``: the end-pose
+collision runs with the margin -lim and keeps only contacts whose gap is
+below it.  A pair whose least possible end gap is provably above -lim
+gives that collision no contact, so it can never be one -- a ball rolling
+on the floor, a block sliding on it, a cylinder rolling: their surfaces
+move by more than lim a step (so :func:`engine.flight.end_pose_pairs`
+keeps them), but they end resting within the slop.  Leaving such pairs
+out leaves the collision's contacts, and so every decision made from
+them, unchanged (the same bits), and lets the steady step
+(engine/steady.py) finish the step itself instead of returning to the
+Python CCD stage to find nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from engine.flight import end_pose_pairs
+
+SPHERE, BOX, CAPSULE, CYLINDER = 0, 1, 2, 3  # engine.model's shape codes
+
+#: how far (m) a pair's lower bound of its end gap must lie above -lim
+#: before it is left out: far beyond the rounding of the collision's
+#: arithmetic (~1e-16 relative) and of the bound's own (a cylinder's
+#: sqrt(1 - d^2) near d = 1: ~1e-8 of its radius), far below the depths
+#: that decide a missed impact (lim = 0.3 mm at the defaults).  Plus
+#: CLEAR_REL of the coordinates' size, for scenes far from the origin.
+CLEAR_TOL = 1e-6
+CLEAR_REL = 1e-12
+
+
+@njit(cache=True, inline="always")
+def _plane_depth(s, r, hx, hy, hz, hl, R, k, n0, n1, n2):
+    """How far body k's surface reaches below its centre along -n (unit n
+    (3,)): max over its points p of n . (x - p) -- sphere r; box the sum
+    of its half extents times |n . axis|; capsule r + half length |n .
+    axis|; cylinder half length |n . axis| + r sqrt(1 - (n . axis)^2)
+    (its rim points: the centre +- the axis' half length plus a unit
+    vector of the cap plane times r)."""
+    if s == SPHERE:
+        return r
+    d0 = n0 * R[k, 0, 0] + n1 * R[k, 1, 0] + n2 * R[k, 2, 0]
+    d1 = n0 * R[k, 0, 1] + n1 * R[k, 1, 1] + n2 * R[k, 2, 1]
+    d2 = n0 * R[k, 0, 2] + n1 * R[k, 1, 2] + n2 * R[k, 2, 2]
+    if s == BOX:
+        return hx * abs(d0) + hy * abs(d1) + hz * abs(d2)
+    if s == CAPSULE:
+        return r + hl * abs(d2)
+    t = 1.0 - d2 * d2
+    return hl * abs(d2) + r * math.sqrt(t if t > 0.0 else 0.0)
+
+
+@njit(cache=True)
+def end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi, lim, ci, cj,
+                   nb, cbp, cpk, npl, cbs, csk, ns):
+    """Leave out, in place and keeping the order, the moved pairs (the
+    front ``nb`` of ``ci``/``cj``, ``npl`` of ``cbp``/``cpk``, ``ns`` of
+    ``cbs``/``csk``, :func:`engine.flight.end_pose_pairs`) whose end pose
+    (x1 (n, 3), R1 (n, 3, 3)) provably has no contact with a gap below
+    -``lim`` (m): a lower bound of every contact's gap lies above -lim by
+    more than ``CLEAR_TOL`` (+ ``CLEAR_REL`` of the coordinates).  Returns
+    the counts left (body pairs, planes, static boxes).
+
+    The bounds (each contact's gap is a signed distance the collision
+    computes, engine/collision):
+
+    * body against plane (``planes_n``/``planes_off`` rows; every contact
+      a point p of the body, gap n . p - offset): n . x - offset - the
+      body's reach below its centre (:func:`_plane_depth`), every shape;
+    * sphere against sphere, sphere against capsule, capsule against
+      capsule (gaps |pa - pb| - ra - rb between points of their centres'
+      segments) and sphere against box (the box's exact signed distance
+      to the centre, minus the radius): |x_i - x_j| - the two bounding
+      radii;
+    * sphere against a static box: the centre's distance to the box's
+      AABB (``slo``/``shi`` (k, 3)) minus the radius (0 inside it);
+    * any other pair is kept (box against box and the cylinder pairs: a
+      clipped manifold or an approximate distance, no such bound)."""
+    thr = -lim + CLEAR_TOL
+    m = 0
+    for k in range(nb):
+        i, j = ci[k], cj[k]
+        si, sj = shape[i], shape[j]
+        round_i = si == SPHERE or si == CAPSULE
+        round_j = sj == SPHERE or sj == CAPSULE
+        keep = True
+        if (round_i and round_j) or (si == SPHERE and sj == BOX) or (si == BOX and sj == SPHERE):
+            d0, d1, d2 = x1[j, 0] - x1[i, 0], x1[j, 1] - x1[i, 1], x1[j, 2] - x1[i, 2]
+            size = abs(x1[i, 0]) + abs(x1[i, 1]) + abs(x1[i, 2])
+            bound = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - bound_radius[i] - bound_radius[j]
+            keep = not bound > thr + CLEAR_REL * size
+        if keep:
+            ci[m] = i
+            cj[m] = j
+            m += 1
+    nb = m
+    m = 0
+    for k in range(npl):
+        i, p = cbp[k], cpk[k]
+        n0, n1, n2 = planes_n[p, 0], planes_n[p, 1], planes_n[p, 2]
+        c = n0 * x1[i, 0] + n1 * x1[i, 1] + n2 * x1[i, 2]
+        bound = c - planes_off[p] - _plane_depth(shape[i], radius[i], half[i, 0], half[i, 1], half[i, 2],
+                                                 half_length[i], R1, i, n0, n1, n2)
+        if not bound > thr + CLEAR_REL * (abs(c) + abs(planes_off[p])):
+            cbp[m] = i
+            cpk[m] = p
+            m += 1
+    npl = m
+    m = 0
+    for k in range(ns):
+        i, s = cbs[k], csk[k]
+        keep = True
+        if shape[i] == SPHERE:
+            dd = 0.0
+            size = 0.0
+            for c in range(3):
+                v = x1[i, c]
+                e = slo[s, c] - v if v < slo[s, c] else (v - shi[s, c] if v > shi[s, c] else 0.0)
+                dd += e * e
+                size += abs(v)
+            keep = not math.sqrt(dd) - radius[i] > thr + CLEAR_REL * size
+        if keep:
+            cbs[m] = i
+            csk[m] = s
+            m += 1
+    return nb, npl, m
+
+
+@njit(cache=True)
+def end_pose_candidates(x0, q0, x1, q1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi,
+                        lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk, cbs, csk, R1):
+    """:func:`engine.flight.end_pose_pairs` (the pairs that moved by more
+    than ``lim``, into the front of ``ci`` ... ``csk``; R1 (n, 3, 3) the
+    rotations of q1 when any did), then :func:`end_pose_clear` over them:
+    the counts of the pairs whose end pose may hold a missed impact (body
+    pairs, planes, static boxes).  One call (the steady step's and the CCD
+    stage's, engine/ccd.py ``end_pose_pairs``)."""
+    nb, npl, ns = end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj,
+                                 cbp, cpk, cbs, csk, R1)
+    if nb + npl + ns == 0:
+        return 0, 0, 0
+    return end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi, lim,
+                          ci, cj, nb, cbp, cpk, npl, cbs, csk, ns)
+
+
+#: relative slack of the matching radius in :func:`missed_candidates`: a
+#: point within (1 - NEAR_SLACK) of it is near for sure; one at the radius
+#: (up to the arithmetic's rounding, ~1e-16) is left to the Python decision
+NEAR_SLACK = 1e-9
+
+
+@njit(cache=True)
+def missed_candidates(n, n_statics, a, b, sidx, gap, point, fid, a0, b0, sidx0, gap0, point0, fid0, imp_rows, skip,
+                      drop, x1, R1, x0, R0, bound_radius, shape, static_shape, touch_tol, lim, cand):
+    """Which end-pose contacts (a, b, sidx, gap, fid (m,), point (m, 3):
+    the collision at the margin -lim of the moved pairs) may make their
+    pair a missed impact (engine.ccd.missed_impacts' rule): ``cand`` (>= m,)
+    bool set True on them; returns how many.  The start contacts a0 ...
+    fid0 (m0,) (the step's); ``imp_rows`` their impact rows; ``skip`` the
+    pair codes that are impacts already, ``drop`` those left out
+    (``ctx.missed_skip``); the start and end poses x0, R0, x1, R1; the
+    model's ``bound_radius``, ``shape`` (n,), ``static_shape``.
+
+    A contact of a pair in ``drop`` is never one.  Of a pair apart at the
+    start (no impact, least start gap > ``touch_tol``) every contact is
+    one.  Of a pair touching at the start (or an impact) a contact is one
+    when it lies, in body a's frame, farther than the matching radius (0.1
+    bounding radius + 0.1 mm) from every start contact of the pair within
+    ``lim`` (or an impact row), and, for pairs whose feature ids name
+    material features (all but box against box), its feature id is none of
+    theirs -- the same rule; the radius test with a relative slack of
+    ``NEAR_SLACK``, so that a point at the radius is left to the exact
+    decision in Python.  A superset of the contacts that decide a missed
+    impact, so the Python decision runs only over their pairs and finds
+    the same impacts (tests/test_ccd_end_clear.py)."""
+    m, m0 = gap.shape[0], gap0.shape[0]
+    ns1 = n_statics + 1
+    code0 = np.empty(m0, np.int64)
+    for k in range(m0):
+        code0[k] = (a0[k] * (n + 1) + b0[k]) * ns1 + (sidx0[k] + 1)
+    order = np.argsort(code0, kind="mergesort")
+    sorted0 = code0[order]
+    imp = np.zeros(m0, np.bool_)
+    for k in range(imp_rows.shape[0]):
+        imp[imp_rows[k]] = True
+    skips = np.sort(skip)
+    found = 0
+    for r in range(m):
+        cand[r] = False
+        u = (a[r] * (n + 1) + b[r]) * ns1 + (sidx[r] + 1)
+        dropped = False
+        for k in range(drop.shape[0]):
+            if drop[k] == u:
+                dropped = True
+        if dropped:
+            continue
+        lo = np.searchsorted(sorted0, u, side="left")
+        hi = np.searchsorted(sorted0, u, side="right")
+        g0 = np.inf
+        for k in range(lo, hi):
+            g = gap0[order[k]]
+            if g < g0:
+                g0 = g
+        t = np.searchsorted(skips, u, side="left")
+        is_imp = t < skips.shape[0] and skips[t] == u
+        if not (is_imp or not g0 > touch_tol):
+            cand[r] = True  # apart at the start
+            found += 1
+            continue
+        i = a[r]
+        d0, d1, d2 = point[r, 0] - x1[i, 0], point[r, 1] - x1[i, 1], point[r, 2] - x1[i, 2]
+        l0 = (d0 * R1[i, 0, 0] + d1 * R1[i, 1, 0]) + d2 * R1[i, 2, 0]
+        l1 = (d0 * R1[i, 0, 1] + d1 * R1[i, 1, 1]) + d2 * R1[i, 2, 1]
+        l2 = (d0 * R1[i, 0, 2] + d1 * R1[i, 1, 2]) + d2 * R1[i, 2, 2]
+        tol = 0.1 * bound_radius[i] + 1e-4
+        if shape[i] != BOX:
+            stable = True
+        elif b[r] < n:
+            stable = shape[b[r]] != BOX
+        else:
+            stable = static_shape[sidx[r]] != 1  # engine.model.S_BOX
+        dmin = np.inf
+        member = False
+        for kk in range(lo, hi):
+            k = order[kk]
+            if not (gap0[k] <= lim or imp[k]):
+                continue
+            e0, e1, e2 = point0[k, 0] - x0[i, 0], point0[k, 1] - x0[i, 1], point0[k, 2] - x0[i, 2]
+            p0 = (e0 * R0[i, 0, 0] + e1 * R0[i, 1, 0]) + e2 * R0[i, 2, 0]
+            p1 = (e0 * R0[i, 0, 1] + e1 * R0[i, 1, 1]) + e2 * R0[i, 2, 1]
+            p2 = (e0 * R0[i, 0, 2] + e1 * R0[i, 1, 2]) + e2 * R0[i, 2, 2]
+            dd = ((l0 - p0) * (l0 - p0) + (l1 - p1) * (l1 - p1)) + (l2 - p2) * (l2 - p2)
+            if dd < dmin:
+                dmin = dd
+            if fid0[k] == fid[r]:
+                member = True
+        new = not dmin <= tol * tol * (1.0 - NEAR_SLACK)
+        if stable and member:
+            new = False
+        if new:
+            cand[r] = True
+            found += 1
+    return found
+
+
+def warm_up() -> None:
+    """Compile (or load) :func:`end_pose_candidates` and
+    :func:`missed_candidates` with the CCD stage's argument types
+    (engine/jit.py, through engine.ccd.warm_up)."""
+    n = 2
+    x = np.zeros((n, 3))
+    x[1, 2] = 1.0
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
+    i = np.arange(n, dtype=np.int64)
+    one = np.ones(n)
+    for has_fast in (False, True):
+        end_pose_candidates(x, q, x + 1.0, q.copy(), np.array([0, 1], np.int64), one, np.ones((n, 3)), one, one,
+                            np.array([[0.0, 0.0, 1.0]]), np.zeros(1), np.zeros((1, 3)), np.ones((1, 3)), 0.1, has_fast,
+                            np.ones(n, np.bool_), i[:1], i[1:], i, np.zeros(n, np.int64), i, np.zeros(n, np.int64),
+                            np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
+                            np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3, 3)))
+    z = np.zeros(0, np.int64)
+    missed_candidates(n, 1, i[:1], i[1:], i[:1] - 1, np.zeros(1), np.zeros((1, 3)), i[:1], i[:1], i[1:], i[:1] - 1,
+                      np.zeros(1), np.zeros((1, 3)), i[:1], z, z, z, x, np.empty((n, 3, 3)), x, np.empty((n, 3, 3)),
+                      one, np.array([0, 1], np.int64), np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))
