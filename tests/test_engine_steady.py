@@ -166,3 +166,55 @@ def test_steady_step_allocates_nothing(monkeypatch, _unboxed, scene, settle, int
     # the fused call ran and committed (the count below is not vacuous)
     assert done >= (0.15 if integrator == "explicit_euler" else 0.9) * steps
     assert allocations == 0
+
+
+def _islands_matrix(rng, k: int, size: int) -> np.ndarray:
+    """A symmetric positive definite (k, k) matrix of islands of about
+    ``size`` rows in shuffled order, each island's rows coupled in a chain
+    (a contact graph's normal matrix: zeros but on the shared bodies)."""
+    A = np.zeros((k, k))
+    perm = rng.permutation(k)
+    for s in range(0, k, size):
+        rows = perm[s:s + size]
+        for t, i in enumerate(rows):
+            A[i, i] = rng.uniform(1.0, 3.0)
+            if t:
+                j = rows[t - 1]
+                A[i, j] = A[j, i] = rng.uniform(-0.9, 0.9)
+    return A
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lu_skip_is_lu_bit_for_bit(seed):
+    """linalg.lu_skip_inplace (the dense direct start's LU without its
+    no-ops on zeros) gives lu_inplace's solution and determinant bit for
+    bit: on islands of rows in shuffled order, with exact ties between
+    pivot candidates, a right-hand side with signed zeros, on a dense
+    matrix, and it hands back NaN (the caller's fall-back to lu_inplace) on
+    a singular or non-finite matrix."""
+    from engine.contact import linalg
+
+    rng = np.random.default_rng(seed)
+    cases = []
+    for k, size in ((40, 8), (100, 4), (30, 30), (12, 3)):
+        A = _islands_matrix(rng, k, size)
+        r = rng.normal(size=k)
+        r[rng.random(k) < 0.2] = -0.0
+        r[rng.random(k) < 0.2] = 0.0
+        cases.append((A, r))
+    T = _islands_matrix(rng, 20, 5)
+    T[np.abs(T) > 0] = np.round(T[np.abs(T) > 0] * 4) / 4 + 1e-3  # exact ties
+    cases.append((T, np.zeros(20)))
+    cases.append((rng.normal(size=(15, 15)), rng.normal(size=15)))  # dense, not symmetric
+    for A, r in cases:
+        x0, x1 = r.copy(), r.copy()
+        d0 = linalg.lu_inplace(A.copy(), x0)
+        d1 = linalg.lu_skip_inplace(A.copy(), x1, np.empty(A.shape[0], np.int64))
+        assert np.array_equal(np.array([d0]).view(np.int64), np.array([d1]).view(np.int64))
+        assert np.array_equal(x0.view(np.int64), x1.view(np.int64))
+    S = _islands_matrix(rng, 10, 5)
+    S[3, :] = S[:, 3] = 0.0  # singular
+    N = _islands_matrix(rng, 10, 5)
+    N[2, 7] = np.inf
+    for A in (S, N):
+        assert np.isnan(linalg.lu_skip_inplace(A, np.ones(10), np.empty(10, np.int64)))

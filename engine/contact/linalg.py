@@ -223,6 +223,85 @@ def lu_inplace(L, x):
 
 
 @njit(cache=True)
+def lu_skip_inplace(L, x, nz):
+    """:func:`lu_inplace` without its exact no-ops, for a matrix of finite
+    entries mostly zero (a contact graph's normal matrix: islands, and
+    within an island rows coupled only through a shared body): returns det
+    with ``x`` the solution, the same bits, or NaN when that could not be
+    assured or the matrix is singular (then ``L`` and ``x`` are spoilt: the
+    caller redoes :func:`lu_inplace` on the matrix).  ``nz`` (>= k,) int64 scratch.
+
+    The same pivots (the same scan), the same multipliers and updates of
+    every entry that changes; skipped: a row whose multiplier is zero
+    (also skipped there), the updates L[i, j] -= f L[c, j] where L[c, j]
+    is zero, the back substitution's terms L[c, j] x[j] with L[c, j] zero,
+    the multipliers' stores and the swaps of the columns left of the pivot
+    (never read again: only x and det are returned).  Why the same bits:
+    with every value finite, f L[c, j] is a signed zero and x - (+-0) = x
+    for every x but -0.0; the active entries start as K's (sums from +0.0,
+    never -0.0) or zero and x - y is -0.0 only for x = -0.0, so no entry is
+    ever -0.0; a back substitution whose sum starts at a zero runs every
+    term.  Finiteness: a non-finite value made on the way reaches det or
+    x (every active entry becomes a pivot, a term of the back substitution
+    or a multiplier of x), and then NaN is returned.  Pinned by the bits of
+    every scenario (tests/test_determinism.py) and
+    tests/test_engine_steady.py::test_lu_skip_is_lu_bit_for_bit."""
+    k = L.shape[0]
+    det = 1.0
+    for c in range(k):
+        p = c
+        big = abs(L[c, c])
+        for i in range(c + 1, k):
+            v = abs(L[i, c])
+            if v > big:
+                big = v
+                p = i
+        if big == 0.0:  # singular (or a non-finite column): lu_inplace decides
+            return np.nan
+        if p != c:
+            for j in range(c, k):
+                t = L[c, j]
+                L[c, j] = L[p, j]
+                L[p, j] = t
+            t = x[c]
+            x[c] = x[p]
+            x[p] = t
+            det = -det
+        piv = L[c, c]
+        det *= piv
+        q = 0
+        for j in range(c + 1, k):  # row c's non-zeros right of the pivot
+            nz[q] = j
+            q += L[c, j] != 0.0
+        xc = x[c]
+        for i in range(c + 1, k):
+            e = L[i, c]
+            if e != 0.0:
+                f = e / piv
+                if f != 0.0:
+                    for t in range(q):
+                        j = nz[t]
+                        L[i, j] -= f * L[c, j]
+                    x[i] -= f * xc
+    if not np.isfinite(det):
+        return np.nan
+    for c in range(k - 1, -1, -1):
+        s = x[c]
+        if s == 0.0:  # +0.0 or -0.0: every term, as lu_inplace
+            for j in range(c + 1, k):
+                s -= L[c, j] * x[j]
+        else:
+            for j in range(c + 1, k):
+                u = L[c, j]
+                if u != 0.0:
+                    s -= u * x[j]
+        x[c] = s / L[c, c]
+        if not np.isfinite(x[c]):
+            return np.nan
+    return det
+
+
+@njit(cache=True)
 def inverse(A):
     """A^-1 (k, k) column by column (:func:`lu_solve`); (inverse, ok)."""
     k = A.shape[0]
@@ -243,15 +322,40 @@ def inverse(A):
     return out, True
 
 
+@njit(cache=True, inline="always")
+def _active_system(K, r, cur, s, eps_rel, Ka, la):
+    """Ka = K[cur, cur] + eps I (eps = eps_rel max diag), la = r[cur]
+    (s rows); returns whether every entry is finite."""
+    dmax = -np.inf
+    fin = True
+    for i in range(s):
+        la[i] = r[cur[i]]
+        fin &= np.isfinite(la[i])
+        ci = cur[i]
+        for j in range(s):
+            v = K[ci, cur[j]]
+            Ka[i, j] = v
+            fin &= np.isfinite(v)
+        if Ka[i, i] > dmax:
+            dmax = Ka[i, i]
+    eps = eps_rel * dmax
+    for i in range(s):
+        Ka[i, i] += eps
+    return fin and np.isfinite(eps)
+
+
 @njit(cache=True)
-def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra):
+def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra, nz):
     """The dense direct start's equality solves: rows ``act`` (indices into
     K (m, m)) solved as K_aa lam = r_a with Tikhonov eps = eps_rel max
     diag(K_aa); rows solved to pull (lam < 0) let go and the rest solved
     again, up to ``passes`` solves.  Writes ``lam`` (m,) (zeroed here,
-    clipped at 0); ``cur`` (>= s,) int64, ``big`` (>= s*s,) and ``ra``
-    (>= s,) scratch for s = act.size rows.  Returns (ok, whether the last
-    solve pulled on a row)."""
+    clipped at 0); ``cur``, ``nz`` (>= s,) int64, ``big`` (>= s*s,) and
+    ``ra`` (>= s,) scratch for s = act.size rows.  Each solve is
+    :func:`lu_skip_inplace` (the bits of :func:`lu_inplace`, without its
+    no-ops on the zeros of K: a pile of islands costs ~ its islands'
+    work, not s^3), :func:`lu_inplace` where that cannot vouch for its bits.
+    Returns (ok, whether the last solve pulled on a row)."""
     m = K.shape[0]
     lam[:] = 0.0
     s = act.size
@@ -261,17 +365,13 @@ def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra):
     for npass in range(1, passes + 1):
         Ka = big[:s * s].reshape((s, s))
         la = ra[:s]
-        dmax = -np.inf
-        for i in range(s):
-            la[i] = r[cur[i]]
-            for j in range(s):
-                Ka[i, j] = K[cur[i], cur[j]]
-            if Ka[i, i] > dmax:
-                dmax = Ka[i, i]
-        eps = eps_rel * dmax
-        for i in range(s):
-            Ka[i, i] += eps
-        if lu_inplace(Ka, la) == 0.0:
+        det = np.nan
+        if _active_system(K, r, cur, s, eps_rel, Ka, la):
+            det = lu_skip_inplace(Ka, la, nz)
+        if det != det:  # not vouched for: the plain LU on the system again
+            _active_system(K, r, cur, s, eps_rel, Ka, la)
+            det = lu_inplace(Ka, la)
+        if det == 0.0:
             return False, False
         npull = 0
         for i in range(s):
@@ -303,7 +403,7 @@ def dense_active_set(K, r, act, eps_rel, passes):
     s = act.size
     lam = np.empty(m)
     ok, pulled = dense_active_set_into(K, r, act, eps_rel, passes, lam, np.empty(s, np.int64), np.empty(s * s),
-                                       np.empty(s))
+                                       np.empty(s), np.empty(s, np.int64))
     return lam, ok, pulled
 
 
