@@ -67,23 +67,22 @@ def _dot6r(x, y, j, j0):
 
 @njit(cache=True, inline="always")
 def _k_entry_row(Ja, Jb, M, a, b, world, i, j):
-    """:func:`_k_entry` with its four sides computed unconditionally and
-    selected (0.0 for a side the rows do not share), row i of J given as
-    its halves Ja, Jb (six floats each): the same bits -- the sum starts at
-    +0.0 and a sum from +0.0 is never -0.0 in round to nearest, so adding
-    0.0 for a skipped side leaves it as it was -- with four independent
-    products in flight instead of data-dependent branches
-    (tests/test_determinism.py; the dense direct start's normal matrix)."""
+    """:func:`_k_entry` branch-free in two dot products, row i of J given
+    as its halves Ja, Jb (six floats each): a row's a side meets at most
+    one side of row j (aa or ab: a row's two bodies differ), so does its b
+    side (ba or bb); each half is dotted with the side of M[j] it may meet
+    and the products kept where the bodies are shared (0.0 else).  The
+    same bits as summing the four sides in order aa, ab, ba, bb: the sum
+    starts at +0.0 and a sum from +0.0 is never -0.0 in round to nearest,
+    so adding 0.0 for a side the rows do not share leaves it as it was
+    (tests/test_determinism.py; the dense direct start's normal matrix).
+    Half the products of computing all four sides and selecting."""
     ai, bi, aj, bj = a[i], b[i], a[j], b[j]
-    daa = _dot6r(Ja, M, j, 0)
-    dab = _dot6r(Ja, M, j, 6)
-    dba = _dot6r(Jb, M, j, 0)
-    dbb = _dot6r(Jb, M, j, 6)
+    d1 = _dot6r(Ja, M, j, 0 if ai == aj else 6)
+    d2 = _dot6r(Jb, M, j, 0 if bi == aj else 6)
     s = 0.0
-    s += daa if ai == aj else 0.0
-    s += dab if (ai == bj and bj != world) else 0.0
-    s += dba if (bi == aj and bi != world) else 0.0
-    s += dbb if (bi == bj and bi != world) else 0.0
+    s += d1 if (ai == aj or (ai == bj and bj != world)) else 0.0
+    s += d2 if (bi != world and (bi == aj or bi == bj)) else 0.0
     return s
 
 
@@ -224,9 +223,10 @@ def lu_inplace(L, x):
 
 @njit(cache=True)
 def lu_skip_inplace(L, x, nz):
-    """:func:`lu_inplace` without its exact no-ops, for a matrix of finite
-    entries mostly zero (a contact graph's normal matrix: islands, and
-    within an island rows coupled only through a shared body): returns det
+    """:func:`lu_inplace` without its exact no-ops, for a matrix mostly
+    zero (a contact graph's normal matrix: islands, and within an island
+    rows coupled only through a shared body) whose entries are never -0.0
+    (K's: sums from +0.0, or zero): returns det
     with ``x`` the solution, the same bits, or NaN when that could not be
     assured or the matrix is singular (then ``L`` and ``x`` are spoilt: the
     caller redoes :func:`lu_inplace` on the matrix).  ``nz`` (>= k,) int64 scratch.
@@ -241,9 +241,9 @@ def lu_skip_inplace(L, x, nz):
     for every x but -0.0; the active entries start as K's (sums from +0.0,
     never -0.0) or zero and x - y is -0.0 only for x = -0.0, so no entry is
     ever -0.0; a back substitution whose sum starts at a zero runs every
-    term.  Finiteness: a non-finite value made on the way reaches det or
-    x (every active entry becomes a pivot, a term of the back substitution
-    or a multiplier of x), and then NaN is returned.  Pinned by the bits of
+    term.  Finiteness: a non-finite value given or made on the way
+    reaches det or x (every active entry becomes a pivot, a term of the
+    back substitution or a multiplier of x), and then NaN is returned.  Pinned by the bits of
     every scenario (tests/test_determinism.py) and
     tests/test_engine_steady.py::test_lu_skip_is_lu_bit_for_bit."""
     k = L.shape[0]
@@ -325,23 +325,26 @@ def inverse(A):
 @njit(cache=True, inline="always")
 def _active_system(K, r, cur, s, eps_rel, Ka, la):
     """Ka = K[cur, cur] + eps I (eps = eps_rel max diag), la = r[cur]
-    (s rows); returns whether every entry is finite."""
-    dmax = -np.inf
-    fin = True
+    (s rows; a plain copy of K's leading block when ``cur`` is 0..s-1)."""
+    ident = True
     for i in range(s):
-        la[i] = r[cur[i]]
-        fin &= np.isfinite(la[i])
+        ident &= cur[i] == i
+    for i in range(s):
         ci = cur[i]
-        for j in range(s):
-            v = K[ci, cur[j]]
-            Ka[i, j] = v
-            fin &= np.isfinite(v)
+        la[i] = r[ci]
+        if ident:
+            for j in range(s):
+                Ka[i, j] = K[i, j]
+        else:
+            for j in range(s):
+                Ka[i, j] = K[ci, cur[j]]
+    dmax = -np.inf
+    for i in range(s):
         if Ka[i, i] > dmax:
             dmax = Ka[i, i]
     eps = eps_rel * dmax
     for i in range(s):
         Ka[i, i] += eps
-    return fin and np.isfinite(eps)
 
 
 @njit(cache=True)
@@ -365,9 +368,8 @@ def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra, nz):
     for npass in range(1, passes + 1):
         Ka = big[:s * s].reshape((s, s))
         la = ra[:s]
-        det = np.nan
-        if _active_system(K, r, cur, s, eps_rel, Ka, la):
-            det = lu_skip_inplace(Ka, la, nz)
+        _active_system(K, r, cur, s, eps_rel, Ka, la)
+        det = lu_skip_inplace(Ka, la, nz)
         if det != det:  # not vouched for: the plain LU on the system again
             _active_system(K, r, cur, s, eps_rel, Ka, la)
             det = lu_inplace(Ka, la)
