@@ -223,7 +223,8 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     Work arrays (caller-owned, sized by :class:`engine.collision.dispatch.Collider`):
     ``W`` (perm, group bounds (33,), keys, ga, gb, st, group margins,
     materials a, b, edge flags, edge separations, -1s over pairs and
-    groups; the families' scratch ``FAMILY_FW`` floats, ``FAMILY_IW`` ints), ``A``/``B`` the gathered sides (c, R, h, r, hl) over a group's
+    groups; the families' scratch ``FAMILY_FW`` floats, ``FAMILY_IW``
+    ints), ``A``/``B`` the gathered sides (c, R, h, r, hl) over a group's
     pairs, ``slot`` (normals, points, gaps, fids, flags) flat over a
     group's pairs x slots.  Output ``out`` (a, b, sidx, normal, point, gap,
     fid, e, mus, muk, mur) in the module doc's order.
