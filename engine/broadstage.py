@@ -48,18 +48,18 @@ from engine.sweep import _FALLBACK, SapBuffers, _sap_step
 SAP_MIN_BODIES = 16
 
 
-@njit(cache=True)
-def _extent(shape, r, half, hl, R, e):
-    """Half-sizes e (3,) of a body's world axis-aligned box at rotation R."""
-    for i in range(3):
-        if shape == SPHERE:
-            e[i] = r
-        elif shape == BOX:
-            e[i] = abs(R[i, 0]) * half[0] + abs(R[i, 1]) * half[1] + abs(R[i, 2]) * half[2]
-        elif shape == CAPSULE:
-            e[i] = abs(R[i, 2]) * hl + r
-        else:  # cylinder: the caps' discs
-            e[i] = abs(R[i, 2]) * hl + r * np.sqrt(min(max(1.0 - R[i, 2] * R[i, 2], 0.0), 1.0))
+@njit(cache=True, inline="always")
+def _extent_axis(shape, r, half, hl, R, i):
+    """Half-size of a body's world axis-aligned box along world axis i at
+    rotation R."""
+    if shape == SPHERE:
+        return r
+    if shape == BOX:
+        return abs(R[i, 0]) * half[0] + abs(R[i, 1]) * half[1] + abs(R[i, 2]) * half[2]
+    if shape == CAPSULE:
+        return abs(R[i, 2]) * hl + r
+    # cylinder: the caps' discs
+    return abs(R[i, 2]) * hl + r * np.sqrt(min(max(1.0 - R[i, 2] * R[i, 2], 0.0), 1.0))
 
 
 @njit(cache=True)
@@ -69,15 +69,14 @@ def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1,
     free-flight end pose (x1, R1), grown by ``grow``, into lo, hi (n, 3);
     and ``sweep`` (n,): h (max speed + max angular speed * bounding radius)
     over the start (v0, w0) and end (v1, w1) velocities and the mean
-    velocity u (all (>= n, 3))."""
-    e0 = np.empty(3)
-    e1 = np.empty(3)
+    velocity u (all (>= n, 3)).  Allocates nothing
+    (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
     for k in range(x0.shape[0]):
-        _extent(shape[k], radius[k], half[k], half_length[k], R0[k], e0)
-        _extent(shape[k], radius[k], half[k], half_length[k], R1[k], e1)
         for i in range(3):
-            lo[k, i] = min(x0[k, i] - e0[i], x1[k, i] - e1[i]) - grow
-            hi[k, i] = max(x0[k, i] + e0[i], x1[k, i] + e1[i]) + grow
+            e0 = _extent_axis(shape[k], radius[k], half[k], half_length[k], R0[k], i)
+            e1 = _extent_axis(shape[k], radius[k], half[k], half_length[k], R1[k], i)
+            lo[k, i] = min(x0[k, i] - e0, x1[k, i] - e1) - grow
+            hi[k, i] = max(x0[k, i] + e0, x1[k, i] + e1) + grow
         vmax = np.sqrt(max(v0[k, 0] * v0[k, 0] + v0[k, 1] * v0[k, 1] + v0[k, 2] * v0[k, 2],
                            v1[k, 0] * v1[k, 0] + v1[k, 1] * v1[k, 1] + v1[k, 2] * v1[k, 2]))
         umax = np.sqrt(u[k, 0] * u[k, 0] + u[k, 1] * u[k, 1] + u[k, 2] * u[k, 2])

@@ -31,6 +31,13 @@ from numba import njit
 
 METHOD = {"explicit_euler": 0, "semi_implicit_euler": 1, "midpoint": 2, "heun": 3, "rk4": 4, "velocity_verlet": 5}
 
+#: slabs of :func:`free_flight`'s work array (WORK_SLABS, n, 4): its
+#: intermediate states, accelerations, torques and sums (0-15), the
+#: rotations at an intermediate state (16-18, as (n, 3, 3)) and the rk4
+#: velocity sum (19) -- nothing is allocated per call
+#: (tests/test_engine_steady.py::test_steady_step_allocates_nothing)
+WORK_SLABS = 20
+
 
 @njit(cache=True)
 def q2m(q, R):
@@ -265,20 +272,21 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
     torque ``T_mean`` (the method's weights), the mean velocities u_lin =
     (x1 - x0) / h and u_ang = (1 - lever) w_start + lever w1.  Forces are
     re-evaluated at the method's intermediate states unless ``constant``
-    (then they equal the start's).  ``work`` (16, n, 4) scratch."""
+    (then they equal the start's).  ``work`` (:data:`WORK_SLABS`, n, 4)
+    scratch (nothing is allocated)."""
     n = x0.shape[0]
     a0, al0 = work[0, :, :3], work[1, :, :3]
     a1, al1 = work[2, :, :3], work[3, :, :3]
     xs, qs, vs, ws = work[4, :, :3], work[5], work[6, :, :3], work[7, :, :3]
     Fs, Ts = work[8, :, :3], work[9, :, :3]
-    Rs = np.empty((n, 3, 3))
+    Rs = work[16:19].reshape((12 * n,))[:9 * n].reshape((n, 3, 3))
     T1 = work[10, :, :3]
     T2 = work[11, :, :3]
     T3 = work[12, :, :3]
     Sw = work[13, :, :3]
     Sq = work[14]
     Sx = work[15, :, :3]
-    Sv = np.empty((n, 3))
+    Sv = work[19, :, :3]
     if not has_forces:
         for k in range(n):
             for c in range(3):
@@ -369,7 +377,9 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                         Sx[k, c] += wgt * vs[k, c]
                         Sv[k, c] += wgt * a1[k, c]
                         Sw[k, c] += wgt * al1[k, c]
-                ka, kal = a1.copy(), al1.copy()
+                # the next stage reads this stage's slopes before its own
+                # _stage overwrites a1, al1: no copy needed
+                ka, kal = a1, al1
             h6 = h / 6.0
             for k in range(n):
                 for c in range(3):

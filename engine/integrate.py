@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.flight import METHOD, free_flight, integrate_positions
+from engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
 from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic, midpoint_rotation
 from engine.forces import force_model
 from engine.profile import Stage
@@ -91,7 +91,7 @@ class IntegrateVelocities(Stage):
         #: the compiled force model evaluated at the intermediate states
         self.fm = force_model(model, forces)
         self._w0 = np.zeros((n, 3))
-        self._work = np.zeros((16, n, 4))
+        self._work = np.zeros((WORK_SLABS, n, 4))
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n

@@ -209,7 +209,7 @@ def _warm_flight() -> None:
         for code in flight.METHOD.values():
             flight.free_flight(code, True, False, True, fm, x, q, v, v.copy(), v, 0.01, F, T, R, np.ones(nb),
                                inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
-                               np.zeros((16, nb, 4)))
+                               np.zeros((flight.WORK_SLABS, nb, 4)))
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
     gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01)
     gyroscopic.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R,

@@ -39,7 +39,7 @@ _AXIS_HYSTERESIS = 2.0
 
 
 @njit(cache=True)
-def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
+def _sap_coherent(lo, hi, order, state, out_i, out_j, code, cs):
     """Sweep and prune along a persistent sweep axis (``state[0]``, -1 at
     first) and sort order ``order`` (n,) of the lower bounds, kept between
     steps and restored by insertion sort (boxes move little per step:
@@ -47,23 +47,18 @@ def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
     when another axis' spread of box centres exceeds the current one's
     ``_AXIS_HYSTERESIS`` times.  The pairs (i < j) overlapping on all
     three axes are written to out_i, out_j sorted lexicographically
-    (``code`` (capacity,) scratch) -- exactly :func:`brute_pairs`' pairs:
+    (``code`` (capacity,), ``cs`` (>= n + 1,) scratch) -- exactly
+    :func:`brute_pairs`' pairs:
     the axis and the order decide only the work.  Returns their number
     (written while they fit), or ``_DENSE`` beyond ``SWEEP_ONLY``
     candidates per box.  The boxes are finite with lo <= hi."""
     n = lo.shape[0]
-    var = np.zeros(3)
-    for a in range(3):
-        mean = 0.0
-        for k in range(n):
-            mean += 0.5 * lo[k, a] + 0.5 * hi[k, a]
-        mean /= n
-        for k in range(n):
-            d = 0.5 * lo[k, a] + 0.5 * hi[k, a] - mean
-            var[a] += d * d
+    v0 = _spread(lo, hi, 0)
+    v1 = _spread(lo, hi, 1)
+    v2 = _spread(lo, hi, 2)
     axis = state[0]
-    best = 0 if var[0] >= var[1] and var[0] >= var[2] else (1 if var[1] >= var[2] else 2)
-    if axis < 0 or not var[best] <= _AXIS_HYSTERESIS * var[axis]:
+    best = 0 if v0 >= v1 and v0 >= v2 else (1 if v1 >= v2 else 2)
+    if axis < 0 or not _pick3(v0, v1, v2, best) <= _AXIS_HYSTERESIS * _pick3(v0, v1, v2, axis):
         axis = best
         state[0] = axis
         srt = np.argsort(lo[:, axis], kind="mergesort")
@@ -96,11 +91,62 @@ def _sap_coherent(lo, hi, order, state, out_i, out_j, code):
         if total > SWEEP_ONLY * n:
             return _DENSE
     if cnt <= cap:
-        code[:cnt].sort()
-        for t in range(cnt):
-            out_i[t] = code[t] // n
-            out_j[t] = code[t] % n
+        _sort_codes(code, cnt, n, cs, out_i, out_j)
     return cnt
+
+
+@njit(cache=True, inline="always")
+def _spread(lo, hi, a):
+    """The variance (times n) of the box centres along axis a, summed in
+    box order."""
+    n = lo.shape[0]
+    mean = 0.0
+    for k in range(n):
+        mean += 0.5 * lo[k, a] + 0.5 * hi[k, a]
+    mean /= n
+    v = 0.0
+    for k in range(n):
+        d = 0.5 * lo[k, a] + 0.5 * hi[k, a] - mean
+        v += d * d
+    return v
+
+
+@njit(cache=True, inline="always")
+def _pick3(v0, v1, v2, a):
+    return v0 if a == 0 else (v1 if a == 1 else v2)
+
+
+@njit(cache=True)
+def _sort_codes(code, cnt, n, cs, out_i, out_j):
+    """The pairs of the unique codes ``code[:cnt]`` (min * n + max) in
+    ascending code order into ``out_i``, ``out_j``: a counting sort by
+    the first body (``cs`` (>= n + 1,) scratch), then each body's few
+    partners by insertion sort -- the order of sorting the codes, without
+    the allocations of numba's ``ndarray.sort``
+    (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    for t in range(n + 1):
+        cs[t] = 0
+    for t in range(cnt):
+        cs[code[t] // n + 1] += 1
+    for t in range(n):
+        cs[t + 1] += cs[t]
+    for t in range(cnt):
+        i = code[t] // n
+        u = cs[i]
+        out_i[u] = i
+        out_j[u] = code[t] % n
+        cs[i] = u + 1
+    b0 = 0
+    for i in range(n):  # cs[i] is now the end of body i's run
+        b1 = cs[i]
+        for a in range(b0 + 1, b1):
+            j = out_j[a]
+            b = a - 1
+            while b >= b0 and out_j[b] > j:
+                out_j[b + 1] = out_j[b]
+                b -= 1
+            out_j[b + 1] = j
+        b0 = b1
 
 
 #: the hash grid is used only while no box is wider than this many times
@@ -140,36 +186,38 @@ def _hash_grid_pairs(lo, hi, start, perm, cell, key, js, out_i, out_j):
     n = lo.shape[0]
     wmax = 0.0
     wsum = 0.0
-    mn = np.empty(3)
-    mx = np.empty(3)
-    for a in range(3):
-        mn[a] = np.inf
-        mx[a] = -np.inf
+    mn0 = mn1 = mn2 = np.inf  # the lower corners' bounds, per axis (scalars: nothing allocated)
+    mx0 = mx1 = mx2 = -np.inf
     for k in range(n):
         for a in range(3):
             w = hi[k, a] - lo[k, a]
             wmax = max(wmax, w)
             wsum += w
-            mn[a] = min(mn[a], lo[k, a])
-            mx[a] = max(mx[a], lo[k, a])
+        mn0 = min(mn0, lo[k, 0])
+        mx0 = max(mx0, lo[k, 0])
+        mn1 = min(mn1, lo[k, 1])
+        mx1 = max(mx1, lo[k, 1])
+        mn2 = min(mn2, lo[k, 2])
+        mx2 = max(mx2, lo[k, 2])
     if wmax > _GRID_WIDE * wsum / (3 * n):
         return _FALLBACK
     c = wmax * (1.0 + _GRID_PAD) if wmax > 0.0 else 1.0
-    for a in range(3):
-        if (mx[a] - mn[a]) / c > _GRID_MAX_CELLS:
-            return _FALLBACK
+    if ((mx0 - mn0) / c > _GRID_MAX_CELLS or (mx1 - mn1) / c > _GRID_MAX_CELLS
+            or (mx2 - mn2) / c > _GRID_MAX_CELLS):
+        return _FALLBACK
     T = start.shape[0] - 1
-    ny = np.int64(np.floor((mx[1] - mn[1]) / c)) + 1
-    nz = np.int64(np.floor((mx[2] - mn[2]) / c)) + 1
-    nx = np.int64(np.floor((mx[0] - mn[0]) / c)) + 1
+    ny = np.int64(np.floor((mx1 - mn1) / c)) + 1
+    nz = np.int64(np.floor((mx2 - mn2) / c)) + 1
+    nx = np.int64(np.floor((mx0 - mn0) / c)) + 1
     dense = nx * ny * nz <= T
     mask = T - 1
     used = nx * ny * nz if dense else T  # the cells (buckets) numbered: start[:used + 1]
     for t in range(used + 1):
         start[t] = 0
     for k in range(n):
-        for a in range(3):
-            cell[k, a] = np.int64(np.floor((lo[k, a] - mn[a]) / c))
+        cell[k, 0] = np.int64(np.floor((lo[k, 0] - mn0) / c))
+        cell[k, 1] = np.int64(np.floor((lo[k, 1] - mn1) / c))
+        cell[k, 2] = np.int64(np.floor((lo[k, 2] - mn2) / c))
         if dense:
             key[k] = (cell[k, 0] * ny + cell[k, 1]) * nz + cell[k, 2]
         else:
@@ -247,7 +295,7 @@ def _sap_step(lo, hi, order, state, out_i, out_j, code, grid):
             if not (w >= 0.0 and w < np.inf):
                 return _FALLBACK
     if state[1] == 0:
-        cnt = _sap_coherent(lo, hi, order, state, out_i, out_j, code)
+        cnt = _sap_coherent(lo, hi, order, state, out_i, out_j, code, grid[0])
         if cnt != _DENSE:
             return cnt
         state[1] = 1

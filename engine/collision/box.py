@@ -85,26 +85,33 @@ def _argmax3(a0, a1, a2):
     return 2 if a2 > a0 else 0
 
 
+#: lengths of :func:`_box_box_kernel`'s scratch (float64, int64)
+BOX_FW, BOX_IW = 275, 20
+
+
 @njit(cache=True)
-def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, edge, se_out):
+def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, edge, se_out, fw, iw):
     """Separating axes and contacts of box pairs (k of them), written into
     the slots (k, 5): the edge-edge point (slot 0), then up to four
     face-manifold points; ``edge`` (k,) whether the pair's axis is an edge
-    axis, ``se_out`` (k,) its best edge-axis separation (m)."""
+    axis, ``se_out`` (k,) its best edge-axis separation (m).  ``fw``
+    (>= :data:`BOX_FW`,) float64 and ``iw`` (>= :data:`BOX_IW`,) int64 its
+    scratch: nothing is allocated
+    (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
     k = cA.shape[0]
-    C = np.empty((3, 3))
-    absC = np.empty((3, 3))
-    Ln = np.empty((9, 3))
-    V = np.empty((18, 3))  # 3-vector scratch
+    C = fw[0:9].reshape((3, 3))
+    absC = fw[9:18].reshape((3, 3))
+    Ln = fw[18:45].reshape((9, 3))
+    V = fw[45:99].reshape((18, 3))  # 3-vector scratch
     d, dA, dB, sepA, sepB, L, aLB, nrm, w3 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7], V[8]
     pa, pb, a0, a1, b0, b1, qa, qb, cr = V[9], V[10], V[11], V[12], V[13], V[14], V[15], V[16], V[17]
-    P = np.empty((16, 3))
-    Q = np.empty((16, 3))
-    E = np.empty((16, 3))
-    gap = np.empty(16)
-    area = np.empty(16)
-    valid = np.empty(16, np.bool_)
-    cand = np.empty(4, np.int64)
+    P = fw[99:147].reshape((16, 3))
+    Q = fw[147:195].reshape((16, 3))
+    E = fw[195:243].reshape((16, 3))
+    gap = fw[243:259]
+    area = fw[259:275]
+    valid = iw[0:16]  # 1: the point is within the margin
+    cand = iw[16:20]
     for p in range(k):
         for i in range(3):
             d[i] = cB[p, i] - cA[p, i]
@@ -237,7 +244,7 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
             for r in range(3):
                 g += (P[v, r] - (rc[r] + nrm[r] * rh[face])) * nrm[r]
             gap[v] = g
-            valid[v] = g < margin[p]
+            valid[v] = 1 if g < margin[p] else 0
             if valid[v]:
                 nv += 1
         ns = 0
@@ -343,7 +350,7 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     f = np.ascontiguousarray
     mg = f(margin, float)
     _box_box_kernel(f(cA, float), f(RA, float), f(hA, float), f(cB, float), f(RB, float), f(hB, float),
-                    mg, S_n, S_p, S_g, S_f, S_ok, edge, se)
+                    mg, S_n, S_p, S_g, S_f, S_ok, edge, se, np.empty(BOX_FW), np.empty(BOX_IW, np.int64))
     edge_pair_face_points(S_g, S_ok, edge, se, mg, EDGE_FACE_POINTS)
     if not S_ok.any():
         return empty()

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.box import _box_box_kernel, _box_plane_kernel, edge_pair_face_points
+from engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
 from engine.collision.capsule import (_capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
                                       _sphere_capsule_kernel)
 from engine.collision.cylinder import (_BOX_EDGES, _CORNERS, _box_cylinder_kernel, _capsule_cylinder_kernel,
@@ -68,6 +68,10 @@ for _f, _b in ((F_SS, (0, 1)), (F_SB, (0, 1)), (F_BB, (0, 5)), (F_SC, (0, 1)), (
 #: slots per pair of each family
 SLOTS = np.array([BOUNDS[f][BOUNDS[f] >= 0][-1] for f in range(18)], np.int64)
 MAX_SLOTS = int(SLOTS.max())
+#: lengths of the families' per-call scratch (float64, int64) in the work
+#: arrays ``W`` (the box pairs' so far: nothing allocated per step,
+#: tests/test_engine_steady.py::test_steady_step_allocates_nothing)
+FAMILY_FW, FAMILY_IW = BOX_FW, BOX_IW
 
 
 @njit(cache=True)
@@ -105,13 +109,14 @@ def _gather_body(X, R, half, radius, hlen, idx, c, Rg, h, r, hl):
 
 
 @njit(cache=True)
-def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points):
+def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
     """Family ``fam``'s compiled loop over the k gathered pairs (A, B: the
     sides' (c, R, h, r, hl); a plane's normal in B's c, its offset in B's
     r) into the slots (k, S, ...), zeroed fids and flags first.  Returns
     whether the normals are to be negated (a family run with its sides
     swapped).  ``face_points``: box pairs keep their face points
-    (:data:`engine.collision.box.EDGE_FACE_POINTS`)."""
+    (:data:`engine.collision.box.EDGE_FACE_POINTS`); ``fw``, ``iw`` the
+    families' scratch (``FAMILY_FW``, ``FAMILY_IW``)."""
     cA, RA, hA, rA, hlA = A[0][:k], A[1][:k], A[2][:k], A[3][:k], A[4][:k]
     cB, RB, hB, rB, hlB = B[0][:k], B[1][:k], B[2][:k], B[3][:k], B[4][:k]
     S = S_g.shape[1]
@@ -129,7 +134,7 @@ def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, fac
     elif fam == F_SB or fam == F_XS:
         _sphere_box_kernel(cA, rA, cB, RB, hB, n1, p1, g1)
     elif fam == F_BB or fam == F_XB:
-        _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se)
+        _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, fw, iw)
         edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
     elif fam == F_SC:
         _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1)
@@ -217,8 +222,9 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
 
     Work arrays (caller-owned, sized by :class:`engine.collision.dispatch.Collider`):
     ``W`` (perm, group bounds (33,), keys, ga, gb, st, group margins,
-    materials a, b, edge flags, edge separations, -1s) over pairs and
-    groups, ``A``/``B`` the gathered sides (c, R, h, r, hl) over a group's
+    materials a, b, edge flags, edge separations, -1s over pairs and
+    groups; the families' scratch ``FAMILY_FW`` floats, ``FAMILY_IW``
+    ints), ``A``/``B`` the gathered sides (c, R, h, r, hl) over a group's
     pairs, ``slot`` (normals, points, gaps, fids, flags) flat over a
     group's pairs x slots.  Output ``out`` (a, b, sidx, normal, point, gap,
     fid, e, mus, muk, mur) in the module doc's order.
@@ -228,7 +234,7 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     only while they fit ``A``/``B`` and ``slot``; the caller grows what was
     short and calls again."""
     shape, radius, half, hlen, bmat = body
-    perm, start, key, ga, gb, st, gm, ma, mb, edge, se, capm1 = W
+    perm, start, key, ga, gb, st, gm, ma, mb, edge, se, capm1, fw, iw = W
     n = shape.shape[0]
     K = A[0].shape[0]
     cap_slots = slot[2].shape[0]
@@ -312,7 +318,7 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
             S_f = slot[3][:k * S].reshape((k, S))
             S_ok = slot[4][:k * S].reshape((k, S))
             neg = _run_family(fam, k, A, B, gm[:k], S_n, S_p, S_g, S_f, S_ok, edge[:k], se[:k], capm1,
-                             face_points)
+                             face_points, fw, iw)
             cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 

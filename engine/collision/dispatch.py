@@ -16,7 +16,7 @@ from engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
 from engine.profile import Stage
 from engine.state import Contacts
 from engine.collision import box
-from engine.collision.collide import MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
+from engine.collision.collide import FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
 from engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -73,7 +73,8 @@ class Collider:
     def _pairs(self, m: int) -> None:
         i, z = np.empty(m, np.int64), np.empty(m)
         self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
-                  np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64))
+                  np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64), np.zeros(FAMILY_FW),
+                  np.zeros(FAMILY_IW, np.int64))
         self.margins = tuple(np.empty(m) for _ in range(3))
 
     def _group(self, k: int, slots: int) -> None:

@@ -6,7 +6,8 @@ tests/test_engine_blas_free.py).
 * :func:`normal_matrix`: K = J M^-1 J^T over normal rows (m, m), dense;
 * :func:`lu_solve`: LU with partial pivoting (LAPACK's dgesv choices of
   pivot: the first row of largest magnitude), for the dense direct start
-  and the small blocks of the impact solver;
+  and the small blocks of the impact solver (:mod:`engine.contact.lu`,
+  re-exported here);
 * :func:`spd_solve_sparse`: the sparse direct start -- the rows split
   into islands (rows joined by a dynamic body), each ordered by reverse
   Cuthill-McKee and solved by a banded Cholesky factorisation;
@@ -23,6 +24,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from engine.contact.lu import inverse, lu_inplace, lu_skip_inplace, lu_solve, solve_batch  # noqa: F401 (re-exported)
 
 #: Tikhonov regularisation of the direct start's normal matrix, relative to
 #: its largest diagonal entry (the dense and the sparse solve alike)
@@ -67,23 +70,22 @@ def _dot6r(x, y, j, j0):
 
 @njit(cache=True, inline="always")
 def _k_entry_row(Ja, Jb, M, a, b, world, i, j):
-    """:func:`_k_entry` with its four sides computed unconditionally and
-    selected (0.0 for a side the rows do not share), row i of J given as
-    its halves Ja, Jb (six floats each): the same bits -- the sum starts at
-    +0.0 and a sum from +0.0 is never -0.0 in round to nearest, so adding
-    0.0 for a skipped side leaves it as it was -- with four independent
-    products in flight instead of data-dependent branches
-    (tests/test_determinism.py; the dense direct start's normal matrix)."""
+    """:func:`_k_entry` branch-free in two dot products, row i of J given
+    as its halves Ja, Jb (six floats each): a row's a side meets at most
+    one side of row j (aa or ab: a row's two bodies differ), so does its b
+    side (ba or bb); each half is dotted with the side of M[j] it may meet
+    and the products kept where the bodies are shared (0.0 else).  The
+    same bits as summing the four sides in order aa, ab, ba, bb: the sum
+    starts at +0.0 and a sum from +0.0 is never -0.0 in round to nearest,
+    so adding 0.0 for a side the rows do not share leaves it as it was
+    (tests/test_determinism.py; the dense direct start's normal matrix).
+    Half the products of computing all four sides and selecting."""
     ai, bi, aj, bj = a[i], b[i], a[j], b[j]
-    daa = _dot6r(Ja, M, j, 0)
-    dab = _dot6r(Ja, M, j, 6)
-    dba = _dot6r(Jb, M, j, 0)
-    dbb = _dot6r(Jb, M, j, 6)
+    d1 = _dot6r(Ja, M, j, 0 if ai == aj else 6)
+    d2 = _dot6r(Jb, M, j, 0 if bi == aj else 6)
     s = 0.0
-    s += daa if ai == aj else 0.0
-    s += dab if (ai == bj and bj != world) else 0.0
-    s += dba if (bi == aj and bi != world) else 0.0
-    s += dbb if (bi == bj and bi != world) else 0.0
+    s += d1 if (ai == aj or (ai == bj and bj != world)) else 0.0
+    s += d2 if (bi != world and (bi == aj or bi == bj)) else 0.0
     return s
 
 
@@ -171,87 +173,43 @@ def k_times(J, M, a, b, world, lam):
     return k_times_into(J, M, a, b, world, lam, np.empty((world + 1, 6)), np.empty(J.shape[0]))
 
 
-@njit(cache=True)
-def lu_solve(A, r):
-    """Solve A x = r (A (k, k), r (k,)) by LU with partial pivoting.
-    Returns (x, det); det = 0 and x undefined when a pivot is exactly
-    zero (singular)."""
-    x = r.copy()
-    return x, lu_inplace(A.copy(), x)
+@njit(cache=True, inline="always")
+def _active_system(K, r, cur, s, eps_rel, Ka, la):
+    """Ka = K[cur, cur] + eps I (eps = eps_rel max diag), la = r[cur]
+    (s rows; a plain copy of K's leading block when ``cur`` is 0..s-1)."""
+    ident = True
+    for i in range(s):
+        ident &= cur[i] == i
+    for i in range(s):
+        ci = cur[i]
+        la[i] = r[ci]
+        if ident:
+            for j in range(s):
+                Ka[i, j] = K[i, j]
+        else:
+            for j in range(s):
+                Ka[i, j] = K[ci, cur[j]]
+    dmax = -np.inf
+    for i in range(s):
+        if Ka[i, i] > dmax:
+            dmax = Ka[i, i]
+    eps = eps_rel * dmax
+    for i in range(s):
+        Ka[i, i] += eps
 
 
 @njit(cache=True)
-def lu_inplace(L, x):
-    """:func:`lu_solve` in place: ``L`` (k, k) overwritten by its factors,
-    ``x`` (k,) from r to the solution; returns det (0 when singular)."""
-    k = L.shape[0]
-    det = 1.0
-    for c in range(k):
-        p = c
-        big = abs(L[c, c])
-        for i in range(c + 1, k):
-            v = abs(L[i, c])
-            if v > big:
-                big = v
-                p = i
-        if big == 0.0:
-            return 0.0
-        if p != c:
-            for j in range(k):
-                t = L[c, j]
-                L[c, j] = L[p, j]
-                L[p, j] = t
-            t = x[c]
-            x[c] = x[p]
-            x[p] = t
-            det = -det
-        piv = L[c, c]
-        det *= piv
-        for i in range(c + 1, k):
-            f = L[i, c] / piv
-            L[i, c] = f
-            if f != 0.0:
-                for j in range(c + 1, k):
-                    L[i, j] -= f * L[c, j]
-                x[i] -= f * x[c]
-    for c in range(k - 1, -1, -1):
-        s = x[c]
-        for j in range(c + 1, k):
-            s -= L[c, j] * x[j]
-        x[c] = s / L[c, c]
-    return det
-
-
-@njit(cache=True)
-def inverse(A):
-    """A^-1 (k, k) column by column (:func:`lu_solve`); (inverse, ok)."""
-    k = A.shape[0]
-    out = np.empty((k, k))
-    e = np.zeros(k)
-    for j in range(k):
-        e[:] = 0.0
-        e[j] = 1.0
-        x, det = lu_solve(A, e)
-        if det == 0.0:
-            return out, False
-        for i in range(k):
-            out[i, j] = x[i]
-    for i in range(k):
-        for j in range(k):
-            if not np.isfinite(out[i, j]):
-                return out, False
-    return out, True
-
-
-@njit(cache=True)
-def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra):
+def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra, nz):
     """The dense direct start's equality solves: rows ``act`` (indices into
     K (m, m)) solved as K_aa lam = r_a with Tikhonov eps = eps_rel max
     diag(K_aa); rows solved to pull (lam < 0) let go and the rest solved
     again, up to ``passes`` solves.  Writes ``lam`` (m,) (zeroed here,
-    clipped at 0); ``cur`` (>= s,) int64, ``big`` (>= s*s,) and ``ra``
-    (>= s,) scratch for s = act.size rows.  Returns (ok, whether the last
-    solve pulled on a row)."""
+    clipped at 0); ``cur``, ``nz`` (>= s,) int64, ``big`` (>= s*s,) and
+    ``ra`` (>= s,) scratch for s = act.size rows.  Each solve is
+    :func:`lu_skip_inplace` (the bits of :func:`lu_inplace`, without its
+    no-ops on the zeros of K: a pile of islands costs ~ its islands'
+    work, not s^3), :func:`lu_inplace` where that cannot vouch for its bits.
+    Returns (ok, whether the last solve pulled on a row)."""
     m = K.shape[0]
     lam[:] = 0.0
     s = act.size
@@ -261,17 +219,12 @@ def dense_active_set_into(K, r, act, eps_rel, passes, lam, cur, big, ra):
     for npass in range(1, passes + 1):
         Ka = big[:s * s].reshape((s, s))
         la = ra[:s]
-        dmax = -np.inf
-        for i in range(s):
-            la[i] = r[cur[i]]
-            for j in range(s):
-                Ka[i, j] = K[cur[i], cur[j]]
-            if Ka[i, i] > dmax:
-                dmax = Ka[i, i]
-        eps = eps_rel * dmax
-        for i in range(s):
-            Ka[i, i] += eps
-        if lu_inplace(Ka, la) == 0.0:
+        _active_system(K, r, cur, s, eps_rel, Ka, la)
+        det = lu_skip_inplace(Ka, la, nz)
+        if det != det:  # not vouched for: the plain LU on the system again
+            _active_system(K, r, cur, s, eps_rel, Ka, la)
+            det = lu_inplace(Ka, la)
+        if det == 0.0:
             return False, False
         npull = 0
         for i in range(s):
@@ -303,7 +256,7 @@ def dense_active_set(K, r, act, eps_rel, passes):
     s = act.size
     lam = np.empty(m)
     ok, pulled = dense_active_set_into(K, r, act, eps_rel, passes, lam, np.empty(s, np.int64), np.empty(s * s),
-                                       np.empty(s))
+                                       np.empty(s), np.empty(s, np.int64))
     return lam, ok, pulled
 
 
@@ -530,20 +483,6 @@ def lcp_residual(w, lam):
             v = max(w[i], 0.0)
             s2 += v * v
     return s1 + s2
-
-
-@njit(cache=True)
-def solve_batch(A, f):
-    """x[k] = A[k]^-1 f[k] for (K, d, d) A and (K, d) f, each by
-    :func:`lu_solve` (a singular system gives NaN, like a LAPACK solve's
-    inf/NaN propagation would not: callers keep A regular)."""
-    out = np.empty(f.shape)
-    for k in range(A.shape[0]):
-        x, det = lu_solve(A[k], f[k])
-        if det == 0.0:
-            x[:] = np.nan
-        out[k] = x
-    return out
 
 
 @njit(cache=True)

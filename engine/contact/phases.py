@@ -175,7 +175,8 @@ def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt,
             big = np.empty(2 * m * m)
         K = big[:m * m].reshape((m, m))
         linalg.normal_matrix_into(J, M, a, b, world, K, rows, cnt, ptr, idx)
-        ok, _ = linalg.dense_active_set_into(K, r, act, _EPS_REL, passes, lam, cur, big[m * m:], ra)
+        # ``rows`` is free once K is built: the LU's scratch
+        ok, _ = linalg.dense_active_set_into(K, r, act, _EPS_REL, passes, lam, cur, big[m * m:], ra, rows)
     if not ok:
         return
     for i in range(m):

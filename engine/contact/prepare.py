@@ -41,16 +41,16 @@ def pair_code(a, b, sidx, n, n_statics):
 
 
 @njit(cache=True)
-def _point_vn(V, W, a, b, px, py, pz, nx, ny, nz, xa, xb):
-    """n . (vb + wb x rB - va - wa x rA) with rA = p - xa, rB = p - xb;
-    velocity fields (k, 3) with k = nb (body b = nb, the world, at rest) or
-    nb + 1 (its row zero)."""
-    ax = px - xa[0]
-    ay = py - xa[1]
-    az = pz - xa[2]
-    bx = px - xb[0]
-    by = py - xb[1]
-    bz = pz - xb[2]
+def _point_vn(V, W, a, b, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2):
+    """n . (vb + wb x rB - va - wa x rA) with rA = p - xa, rB = p - xb
+    (xa, xb as scalars); velocity fields (k, 3) with k = nb (body b = nb,
+    the world, at rest) or nb + 1 (its row zero)."""
+    ax = px - xa0
+    ay = py - xa1
+    az = pz - xa2
+    bx = px - xb0
+    by = py - xb1
+    bz = pz - xb2
     rx = 0.0
     ry = 0.0
     rz = 0.0
@@ -85,19 +85,20 @@ def classify(X, V1, W1, V0, W0, UL, UA, a, b, sidx, point, normal, gap, nb, n_st
     faster than ``thr`` at the start, and it would sink beyond ``slop``.
     Returns the number of impact rows."""
     m = a.shape[0]
-    zero = np.zeros(3)
     k = o_code.shape[0]
     count = 0
     for i in range(m):
         ia = a[i]
         ib = b[i]
-        xa = X[ia]
-        xb = X[ib] if ib < nb else zero
+        xa0, xa1, xa2 = X[ia, 0], X[ia, 1], X[ia, 2]
+        xb0 = xb1 = xb2 = 0.0  # the world's origin
+        if ib < nb:
+            xb0, xb1, xb2 = X[ib, 0], X[ib, 1], X[ib, 2]
         px, py, pz = point[i, 0], point[i, 1], point[i, 2]
         nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
-        v1 = _point_vn(V1, W1, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
-        v0 = _point_vn(V0, W0, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
-        un = _point_vn(UL, UA, ia, ib, px, py, pz, nx, ny, nz, xa, xb)
+        v1 = _point_vn(V1, W1, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
+        v0 = _point_vn(V0, W0, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
+        un = _point_vn(UL, UA, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
         vn[0, i] = v1
         vn[1, i] = v0
         vn[2, i] = un
@@ -123,9 +124,9 @@ def classify(X, V1, W1, V0, W0, UL, UA, a, b, sidx, point, normal, gap, nb, n_st
                 keep = sinks and (-v0 > thr)
                 if keep:
                     # a point that pressed at rest last step is no impact
-                    dx = px - xa[0]
-                    dy = py - xa[1]
-                    dz = pz - xa[2]
+                    dx = px - xa0
+                    dy = py - xa1
+                    dz = pz - xa2
                     lx = R0[ia, 0, 0] * dx + R0[ia, 1, 0] * dy + R0[ia, 2, 0] * dz
                     ly = R0[ia, 0, 1] * dx + R0[ia, 1, 1] * dy + R0[ia, 2, 1] * dz
                     lz = R0[ia, 0, 2] * dx + R0[ia, 1, 2] * dy + R0[ia, 2, 2] * dz
@@ -172,24 +173,40 @@ def _basis(nx, ny, nz):
     return t1x, t1y, t1z, t2x, t2y, t2z
 
 
-@njit(cache=True)
-def _row(J, M, i, lin, ang_a, ang_b, ima, imb, IA, IB):
-    """Fill row i of J/M (k, 12) for the direction ``lin`` (3,) (zero for
-    an angular row) with angular parts ``ang_a`` for a and ``ang_b`` for b
-    (J's a side is -lin, -ang_a); returns J[i] . M[i]."""
-    for c in range(3):
-        J[i, c] = -lin[c]
-        J[i, 3 + c] = -ang_a[c]
-        J[i, 6 + c] = lin[c]
-        J[i, 9 + c] = ang_b[c]
-        M[i, c] = -ima * lin[c]
-        M[i, 6 + c] = imb * lin[c]
+@njit(cache=True, inline="always")
+def _row(J, M, i, l0, l1, l2, a0, a1, a2, b0, b1, b2, ima, imb, IA, IB):
+    """Fill row i of J/M (k, 12) for the direction (l0, l1, l2) (zero for
+    an angular row) with angular parts (a0, a1, a2) for a and (b0, b1, b2)
+    for b (J's a side is -lin, -ang_a); returns J[i] . M[i] (summed in
+    column order).  Scalars, not 3-vectors: nothing is allocated
+    (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    J[i, 0] = -l0
+    J[i, 1] = -l1
+    J[i, 2] = -l2
+    J[i, 3] = -a0
+    J[i, 4] = -a1
+    J[i, 5] = -a2
+    J[i, 6] = l0
+    J[i, 7] = l1
+    J[i, 8] = l2
+    J[i, 9] = b0
+    J[i, 10] = b1
+    J[i, 11] = b2
+    M[i, 0] = -ima * l0
+    M[i, 1] = -ima * l1
+    M[i, 2] = -ima * l2
+    M[i, 6] = imb * l0
+    M[i, 7] = imb * l1
+    M[i, 8] = imb * l2
     for r in range(3):
         sa = 0.0
+        sa += IA[r, 0] * a0
+        sa += IA[r, 1] * a1
+        sa += IA[r, 2] * a2
         sb = 0.0
-        for c in range(3):
-            sa += IA[r, c] * ang_a[c]
-            sb += IB[r, c] * ang_b[c]
+        sb += IB[r, 0] * b0
+        sb += IB[r, 1] * b1
+        sb += IB[r, 2] * b2
         M[i, 3 + r] = -sa
         M[i, 9 + r] = sb
     k = 0.0
@@ -216,23 +233,15 @@ def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J
     module doc): ``J``/``M`` (m, 12), ``mn`` (m,) and, with ``want_loc``,
     ``loc`` (m, 3) the contact points in body a's frame (``R0`` (nb, 3, 3)
     the start rotations; the warm cache's matching key)."""
-    lin = np.empty(3)
-    angA = np.empty(3)
-    angB = np.empty(3)
     for i in range(sel.shape[0]):
         k = sel[i]
         ia = a[k]
         ib = b[k]
         ax, ay, az, bx, by, bz = _arms(point[k, 0], point[k, 1], point[k, 2], X, ia, ib, nb)
         nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
-        lin[0], lin[1], lin[2] = nx, ny, nz
-        angA[0] = ay * nz - az * ny
-        angA[1] = az * nx - ax * nz
-        angA[2] = ax * ny - ay * nx
-        angB[0] = by * nz - bz * ny
-        angB[1] = bz * nx - bx * nz
-        angB[2] = bx * ny - by * nx
-        kn = _row(J, M, i, lin, angA, angB, inv_mass[ia], inv_mass[ib], Iinv[ia], Iinv[ib])
+        kn = _row(J, M, i, nx, ny, nz, ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx,
+                  by * nz - bz * ny, bz * nx - bx * nz, bx * ny - by * nx, inv_mass[ia], inv_mass[ib], Iinv[ia],
+                  Iinv[ib])
         mn[i] = 1.0 / kn
         if not want_loc:
             continue
@@ -286,13 +295,6 @@ def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, roll
         oy -= d * N[p, 1]
         oz -= d * N[p, 2]
         r_twist[p] += math.sqrt(ox * ox + oy * oy + oz * oz)
-    lin = np.empty(3)
-    angA = np.empty(3)
-    angB = np.empty(3)
-    zero = np.zeros(3)
-    nr = Jt.shape[1]
-    Jp = np.empty((nr, 12))
-    Mp = np.empty((nr, 12))
     for p in range(npch):
         r_twist[p] /= cnt[p]
         t1x, t1y, t1z, t2x, t2y, t2z = _basis(N[p, 0], N[p, 1], N[p, 2])
@@ -305,28 +307,21 @@ def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, roll
         imb = inv_mass[ib]
         IA = Iinv[ia]
         IB = Iinv[ib]
+        Jp = Jt[p]  # (nr, 12) views: the rows are written in place
+        Mp = Mt[p]
         for r in range(2):  # tangent rows: lever arms x t
-            lin[0], lin[1], lin[2] = t[p, r, 0], t[p, r, 1], t[p, r, 2]
-            angA[0] = ay * lin[2] - az * lin[1]
-            angA[1] = az * lin[0] - ax * lin[2]
-            angA[2] = ax * lin[1] - ay * lin[0]
-            angB[0] = by * lin[2] - bz * lin[1]
-            angB[1] = bz * lin[0] - bx * lin[2]
-            angB[2] = bx * lin[1] - by * lin[0]
-            kt = _row(Jp, Mp, r, lin, angA, angB, ima, imb, IA, IB)
+            l0, l1, l2 = t[p, r, 0], t[p, r, 1], t[p, r, 2]
+            kt = _row(Jp, Mp, r, l0, l1, l2, ay * l2 - az * l1, az * l0 - ax * l2, ax * l1 - ay * l0,
+                      by * l2 - bz * l1, bz * l0 - bx * l2, bx * l1 - by * l0, ima, imb, IA, IB)
             mt[p, r] = 1.0 / kt if kt > 0.0 else 0.0
-        angA[0], angA[1], angA[2] = N[p, 0], N[p, 1], N[p, 2]
-        kt = _row(Jp, Mp, 2, zero, angA, angA, ima, imb, IA, IB)  # twist about N
+        n0, n1, n2 = N[p, 0], N[p, 1], N[p, 2]
+        kt = _row(Jp, Mp, 2, 0.0, 0.0, 0.0, n0, n1, n2, n0, n1, n2, ima, imb, IA, IB)  # twist about N
         mt[p, 2] = 1.0 / kt if kt > 0.0 else 0.0
         if rolling:
             for r in range(2):
-                angA[0], angA[1], angA[2] = t[p, r, 0], t[p, r, 1], t[p, r, 2]
-                kt = _row(Jp, Mp, 3 + r, zero, angA, angA, ima, imb, IA, IB)
+                l0, l1, l2 = t[p, r, 0], t[p, r, 1], t[p, r, 2]
+                kt = _row(Jp, Mp, 3 + r, 0.0, 0.0, 0.0, l0, l1, l2, l0, l1, l2, ima, imb, IA, IB)
                 mt[p, 3 + r] = 1.0 / kt if kt > 0.0 else 0.0
-        for r in range(nr):
-            for c in range(12):
-                Jt[p, r, c] = Jp[r, c]
-                Mt[p, r, c] = Mp[r, c]
 
 
 @njit(cache=True)
