@@ -65,6 +65,27 @@ FREE_NAME = "contact_free_step"
 
 
 @njit(cache=True)
+def _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
+    """The CCD stage's end-pose check (engine.ccd.end_pose_pairs) inside a
+    fused call: True when a pair moved far enough between the start pose
+    (x, q) and the end pose (x1, q1) to need the end-pose collision, less
+    the pairs whose end pose provably holds no missed impact
+    (ccd_end.end_pose_clear: a rolling ball, a sliding block finish in the
+    fused call, tests/test_ccd_end_clear.py).  The candidates are left in
+    the pack's buffers (ci, cj, cbp, cpk, cbs, csk) for the CCD stage."""
+    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
+     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
+     R1_end) = kbr.items
+    if has_fast:
+        for k in range(sweep.shape[0]):
+            fast[k] = sweep[k] > fast_min[k]
+    nb, nplm, nsm = end_pose_candidates(x, q, x1, q1, shape, radius, half, half_length, bound_radius, planes_n,
+                                        planes_off, slo, shi, lim, has_fast, fast, pi[:nbb], pj[:nbb], bp[:npl],
+                                        pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk, R1_end)
+    return nb + nplm + nsm > 0
+
+
+@njit(cache=True)
 def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags):
     """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
@@ -130,19 +151,8 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
                 return FAIL, 0, 0, 0, 0, 0, 0.0
     # integrate.IntegratePositions
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
-    if ccd_check:
-        # the CCD stage's end-pose check (ccd.end_pose_pairs)
-        if has_fast:
-            for k in range(sweep.shape[0]):
-                fast[k] = sweep[k] > fast_min[k]
-        # the moved pairs less those whose end pose provably holds no
-        # missed impact (ccd_end.end_pose_clear): a rolling ball, a sliding
-        # block finish here (tests/test_ccd_end_clear.py)
-        nb, nplm, nsm = end_pose_candidates(x, q, x1, q1, shape, radius, half, half_length, bound_radius, planes_n,
-                                            planes_off, slo, shi, lim, has_fast, fast, pi[:nbb], pj[:nbb], bp[:npl],
-                                            pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk, R1_end)
-        if nb + nplm + nsm:
-            return CCD, nbb, npl, nsb, cnt, sweeps, residual
+    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
+        return CCD, nbb, npl, nsb, cnt, sweeps, residual
     _commit_packed(kb)  # state.Context.commit
     return DONE, nbb, npl, nsb, cnt, sweeps, residual
 
@@ -189,16 +199,8 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
-    if ccd_check:
-        # the CCD stage's end-pose check, as steady_kernel's
-        if has_fast:
-            for k in range(sweep.shape[0]):
-                fast[k] = sweep[k] > fast_min[k]
-        nb, nplm, nsm = end_pose_pairs(x, q, x1, q1, bound_radius, lim, has_fast, fast, pi[:nbb], pj[:nbb],
-                                       bp[:npl], pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk,
-                                       R1_end)
-        if nb + nplm + nsm:
-            return CCD, nbb, npl, nsb, 0, 0, 0.0
+    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
+        return CCD, nbb, npl, nsb, 0, 0, 0.0
     _commit_packed(kb)
     return DONE, nbb, npl, nsb, 0, 0, 0.0
 
