@@ -65,6 +65,48 @@ FREE_NAME = "contact_free_step"
 
 
 @njit(cache=True)
+def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals):
+    """What :func:`steady_kernel` and :func:`free_kernel` run first: the
+    start of the (mini-)step, gravity, the free flight, the broad phase and
+    the narrow phase (the packs and the plan's flags and reals as theirs).
+    Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
+    False when a kept buffer is short (nothing of the state written: the
+    staged step recomputes everything from its start)."""
+    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
+     rolling, iterations, passes, max_rows, face_points) = flags
+    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
+    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
+     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
+     R1_end) = kbr.items
+    # the start of the (mini-)step (state.Context.begin), the force stage
+    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
+    if has_gravity:
+        gravity(mg, F)
+    # integrate.IntegrateVelocities
+    w0[:, :] = Wn
+    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
+                Vn, Wn, T_mean, u_lin, u_ang, work)
+    v_free[:, :] = Vn
+    w_free[:, :] = Wn
+    # broadstage.BroadPhase
+    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
+                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
+                                pj, pcode, bp, pk, bs, sk)
+    if nbb < 0 or npl < 0 or nsb < 0:
+        return False, 0, 0, 0, 0
+    # collision.NarrowPhase (Collider.run)
+    W_ = kcol.items[5]
+    if W_[0].shape[0] < max(nbb, npl, nsb):
+        return False, 0, 0, 0, 0
+    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
+                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
+    A, slot = kcol.items[6], kcol.items[8]
+    return need_k <= A[0].shape[0] and need_s <= slot[2].shape[0], nbb, npl, nsb, cnt
+
+
+@njit(cache=True)
 def _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
     """The CCD stage's end-pose check (engine.ccd.end_pose_pairs) inside a
     fused call: True when a pair moved far enough between the start pose
@@ -103,34 +145,8 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
     mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
-    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
-     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
-     R1_end) = kbr.items
-    # the start of the (mini-)step (state.Context.begin), the force stage
-    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
-    if has_gravity:
-        gravity(mg, F)
-    # integrate.IntegrateVelocities
-    w0[:, :] = Wn
-    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
-                Vn, Wn, T_mean, u_lin, u_ang, work)
-    v_free[:, :] = Vn
-    w_free[:, :] = Wn
-    # broadstage.BroadPhase
-    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
-                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
-                                pj, pcode, bp, pk, bs, sk)
-    if nbb < 0 or npl < 0 or nsb < 0:
-        return FAIL, 0, 0, 0, 0, 0, 0.0
-    # collision.NarrowPhase (Collider.run)
-    W_ = kcol.items[5]
-    if W_[0].shape[0] < max(nbb, npl, nsb):
-        return FAIL, 0, 0, 0, 0, 0, 0.0
-    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
-                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
-    A, slot, out = kcol.items[6], kcol.items[8], kcol.items[9]
-    if (need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt > out[0].shape[0]
-            or (cnt != 0 and cnt != key.shape[0])):
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
     sweeps = 0
     residual = 0.0
@@ -173,29 +189,8 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
     mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
-    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
-     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
-     R1_end) = kbr.items
-    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
-    if has_gravity:
-        gravity(mg, F)
-    w0[:, :] = Wn
-    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
-                Vn, Wn, T_mean, u_lin, u_ang, work)
-    v_free[:, :] = Vn
-    w_free[:, :] = Wn
-    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
-                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
-                                pj, pcode, bp, pk, bs, sk)
-    if nbb < 0 or npl < 0 or nsb < 0:
-        return FAIL, 0, 0, 0, 0, 0, 0.0
-    W_ = kcol.items[5]
-    if W_[0].shape[0] < max(nbb, npl, nsb):
-        return FAIL, 0, 0, 0, 0, 0, 0.0
-    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
-                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
-    A, slot, out = kcol.items[6], kcol.items[8], kcol.items[9]
-    if need_k > A[0].shape[0] or need_s > slot[2].shape[0] or cnt != 0:
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    if not ok or cnt != 0:
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)

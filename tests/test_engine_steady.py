@@ -135,7 +135,8 @@ def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]
         return out
 
     monkeypatch.setattr(steady, "steady_kernel", counted)
-    eng.step(steps)
+    for _ in range(steps):  # one step a call: the fused try from Python (eng.step(n) loops compiled)
+        eng.step(1)
     monkeypatch.setattr(steady, "steady_kernel", kernel)
     return seen[0], seen[1]
 
@@ -218,3 +219,24 @@ def test_lu_skip_is_lu_bit_for_bit(seed):
     N[2, 7] = np.inf
     for A in (S, N):
         assert np.isnan(linalg.lu_skip_inplace(A, np.ones(10), np.empty(10, np.int64)))
+
+
+@pytest.mark.parametrize("scene", ["column", "spheres"])
+def test_steps_run_as_a_loop_allocate_nothing_per_step(scene):
+    """``eng.step(n)`` runs consecutive steady steps inside one compiled
+    loop (engine/loop.py): what it allocates in compiled code (the loop's
+    argument unboxing, the odd step one by one) does not grow with the
+    number of steps: 400 steps allocate exactly as many arrays as 100."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    _nrt_python.memsys_enable_stats()
+    counts = []
+    for steps in (100, 400):
+        make = (lambda: column_scene(10)) if scene == "column" else (lambda: spheres_scene(100))
+        eng = engine_for(make(), {})
+        eng.step(240)
+        a0 = rtsys.get_allocation_stats().alloc
+        eng.step(steps)
+        counts.append(rtsys.get_allocation_stats().alloc - a0)
+        assert eng.profile.calls.get("steady_step", 0) > 0  # the fused steps ran
+    assert counts[1] == counts[0], counts
