@@ -128,6 +128,22 @@ def _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
 
 
 @njit(cache=True)
+def _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb):
+    """What :func:`steady_kernel` and :func:`free_kernel` run last: the
+    position update (integrate.IntegratePositions), the CCD stage's
+    end-pose check when the step has it, and the commit
+    (state.Context.commit) when nothing moved far enough to need the CCD
+    stage.  Returns DONE or CCD (nothing committed)."""
+    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
+    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
+    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
+        return CCD
+    _commit_packed(kb)
+    return DONE
+
+
+@njit(cache=True)
 def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags):
     """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
@@ -143,8 +159,6 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
-    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -165,12 +179,8 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
             if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
                                       roll_tol):
                 return FAIL, 0, 0, 0, 0, 0, 0.0
-    # integrate.IntegratePositions
-    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
-    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
-        return CCD, nbb, npl, nsb, cnt, sweeps, residual
-    _commit_packed(kb)  # state.Context.commit
-    return DONE, nbb, npl, nsb, cnt, sweeps, residual
+    status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
+    return status, nbb, npl, nsb, cnt, sweeps, residual
 
 
 @njit(cache=True)
@@ -183,21 +193,14 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     narrow phase finds a contact (nothing of the state written).  Returns
     what :func:`steady_kernel` does (no sweeps, residual 0)."""
     flags, reals = ks.items
-    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
-     rolling, iterations, passes, max_rows, face_points) = flags
-    warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
-    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
-    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    ccd_check, has_fast = step_flags[4], step_flags[5]
+    lever, lim = reals[0], reals[8]
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
     if not ok or cnt != 0:
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
-    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
-    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
-        return CCD, nbb, npl, nsb, 0, 0, 0.0
-    _commit_packed(kb)
-    return DONE, nbb, npl, nsb, 0, 0, 0.0
+    status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
+    return status, nbb, npl, nsb, 0, 0, 0.0
 
 
 class SteadyStep:
