@@ -124,7 +124,7 @@ class ReferenceAdapter(Adapter):
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         from engine.collision import unsupported_pairs
         from engine.model import build_model
-        from engine.pipeline import build_pipeline
+        from engine.pipeline import build_pipeline, prepare
         from engine.profile import Profile
         from engine.state import State
 
@@ -137,6 +137,10 @@ class ReferenceAdapter(Adapter):
         self.profile = Profile()
         for s in self.pipeline:
             self.profile.register(s.name)
+        # what the first steps would make on first use (the context, the
+        # plan, kept packs and colliders), made here: a short run's steps
+        # do not pay for it
+        prepare(self.model, self.state, self.pipeline, self.profile)
         self.info["pipeline"] = [s.name for s in self.pipeline]
         if settings.get("contact_model") == "penalty":
             self.notes.append("penalty contacts: regularised Coulomb friction, no separate static friction; no CCD")

@@ -79,6 +79,19 @@ class CCD(Stage):
         # of impact searches that rerun the whole world)
         self.fraction = float(model.settings["ccd_motion_fraction"]) if model.setting("ccd") == "toi" else None
 
+    def prime(self, model, state, ctx, main) -> None:
+        """At build (engine.pipeline.prepare): what the stage and the
+        search keep in the context, made now instead of at the first
+        event -- the collider of the CCD and impact collisions and its
+        Pack, the model's geometry, the rotations' buffer, the candidate
+        flags, the gap's work rows, the reruns' stage list."""
+        _collider(model, ctx).packed()
+        _geometry(model, ctx)
+        _rotations(ctx, state.q)
+        _cand_buffer(ctx, 16)
+        _gap_work(ctx, 8)
+        _rerun_stages(ctx, main)
+
     def __call__(self, model, state, ctx) -> None:
         ctx.event = None
         if ctx.event_mode is not EventMode.EVENT:
@@ -316,13 +329,19 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
         c = _collider(model, ctx).run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
     if c.m == 0:
         return np.inf, 0.0
-    wk = ctx.info.get("ccd_gap_work")
-    if wk is None or wk.shape[0] < c.m:
-        wk = ctx.info["ccd_gap_work"] = np.empty((2 * c.m, 5))
+    wk = _gap_work(ctx, c.m)
     tol = 0.1 * float(model.bound_radius[a]) + 1e-4
     return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
                 NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude,
                 NO_FID if fids is None else fids, fids is not None, wk)
+
+
+def _gap_work(ctx, m: int) -> np.ndarray:
+    """The gap kernel's (>= m, 5) work rows, kept in the context."""
+    wk = ctx.info.get("ccd_gap_work")
+    if wk is None or wk.shape[0] < m:
+        wk = ctx.info["ccd_gap_work"] = np.empty((2 * m, 5))
+    return wk
 
 
 def warm_up() -> None:
@@ -501,6 +520,12 @@ class Impact(Stage):
         self.plastic = str(model.settings["plastic_impacts"])
         self.kept = ImpactKept()
         self._margin = np.full(16, 10 * TOUCH_TOL)  # (>= pairs,) the collision's margins, never written
+
+    def prime(self, model, state, ctx, main) -> None:
+        """At build (engine.pipeline.prepare): the impact solve's kept
+        inertia buffers."""
+        self.kept.inertia(model.n)
+        self.kept.inv_inertia(model)
 
     def __call__(self, model, state, ctx) -> None:
         R = _rotations(ctx, state.q)

@@ -157,6 +157,10 @@ class Solve(Stage):
         #: (grown by :meth:`_grow_band`)
         self._band = 0
 
+    def prime(self, model, state, ctx, main) -> None:
+        """At build (engine.pipeline.prepare): the empty warm cache's Pack."""
+        _no_cache()
+
     def topology(self, model, codes: np.ndarray, c: Contacts, sel: np.ndarray) -> Topology:
         """The (cached) topology of the rows ``sel`` of ``c`` with pair codes
         ``codes`` (which identify (a, b, sidx) row by row)."""

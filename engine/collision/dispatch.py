@@ -181,6 +181,10 @@ class NarrowPhase(Stage):
         self.collider = Collider(model)
         self.zeros = np.zeros(model.n)
 
+    def prime(self, model, state, ctx, main) -> None:
+        """At build (engine.pipeline.prepare): the collider's Pack."""
+        self.collider.packed()
+
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return

@@ -237,7 +237,11 @@ _NO_D = np.zeros(0)
 def warm_up() -> None:
     """Compile (or load) the propagation kernel and the contact bodies'
     inertias with the step's argument types (see engine/jit.py): one pair
-    of two rows, with and without friction."""
+    of two rows, with and without friction; and the topology's kernel
+    (engine/contact/topology.py)."""
+    from engine.contact import topology
+
+    topology.warm_up()
     i1 = np.zeros(1, np.int64)
     propagate.setup(np.array([5, 5], np.int64), np.array([[0, 1], [0, 1]], np.int64), 1, np.ones((2, 12)),
                     np.zeros((2, 6)))

@@ -1,0 +1,63 @@
+"""What a fresh engine's first steps made on first use is made at build
+(engine.pipeline.prepare, called by the reference adapter): the context, the
+plan, the kept Packs, the colliders of the narrow phase and of the CCD
+stages.  Pinned here: after the adapter's build, stepping through an impact
+event (billiards.head_on) builds no Collider, no Context and no new plan,
+and the results are the bits of an engine that made them on first use."""
+
+import numpy as np
+
+from adapters.reference import ReferenceAdapter
+from contract.scene import load_scene
+
+
+def _spy(monkeypatch, cls, name="__init__"):
+    calls = []
+    orig = getattr(cls, name)
+
+    def wrapped(self, *a, **k):
+        calls.append(1)
+        return orig(self, *a, **k)
+
+    monkeypatch.setattr(cls, name, wrapped)
+    return calls
+
+
+def test_build_makes_what_the_first_event_step_used(monkeypatch):
+    from engine import pipeline
+    from engine.collision.dispatch import Collider
+    from engine.state import Context
+
+    sc = load_scene("billiards.head_on")
+    st = {"dt": 0.032, "integrator": "rk4"}
+    ad = ReferenceAdapter()
+    ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
+    ctx = ad.state._ctx
+    assert "plan" in ctx.info and "ccd_collider" in ctx.info and "ccd_geometry" in ctx.info
+    colliders = _spy(monkeypatch, Collider)
+    contexts = _spy(monkeypatch, Context)
+    plans = []
+    orig_plan = pipeline._plan
+    monkeypatch.setattr(pipeline, "_plan", lambda *a: plans.append(1) or orig_plan(*a))
+    ad.step(16)
+    assert ad.stages()["counters"]["impacts"] >= 1  # the run went through an impact event
+    assert colliders == [] and contexts == [] and plans == []
+    assert ad.state._ctx is ctx
+
+
+def test_prepare_changes_no_bit():
+    from engine import Engine
+    from adapters.reference import scene_input
+
+    for name, st in (("billiards.head_on", {"dt": 0.032}), ("friction.block_slides", {"dt": 0.064}),
+                     ("billiards.ball_drop_bounce", {"dt": 0.032})):
+        sc = load_scene(name)
+        ad = ReferenceAdapter()
+        ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
+        ad.step(30)
+        full = dict(ReferenceAdapter.resolve_settings(sc, st))
+        eng = Engine(scene_input(sc), full)  # no prepare: everything made on first use
+        assert getattr(eng.state, "_ctx", None) is None
+        eng.step(30)
+        for f in ("x", "q", "v", "w"):
+            assert np.array_equal(getattr(ad.state, f), getattr(eng.state, f)), (name, f)
