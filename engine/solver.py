@@ -417,6 +417,14 @@ class Solve(Stage):
         old = state.warm
         store_on = h >= WARM_MIN_STEP * model.h
         drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
+        if drop and self.ccd == "events" and ctx.drop_rows.size == m:
+            # a rerun of the time-of-impact search whose rows are all the
+            # step's impact rows (a lone pair's impact: billiards, a ball
+            # landing): every row is left out whatever the classification
+            # (below: keep = ~impact), so there is nothing to classify or
+            # solve -- what the path below ends in for sel.size == 0
+            state.warm = None
+            return
         done = self._fast_path(model, state, ctx, c, cl, h, sc, store_on) if not drop else None
         if done is True:
             return
