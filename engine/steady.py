@@ -24,10 +24,12 @@ of every scenario are unchanged), and stops where the step is not steady:
 
 Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
 pipeline's plan): the fused call covers gravity (or no force), every
-integrator, no gyroscopic stage, the sequential-impulse solve without
-Baumgarte's bias and without rolling friction stops, with or without the
-CCD stage.  Other scenes, profiling by stage (``Profile.by_stage``) and the
-solver's phase-by-phase flag run the stages one by one.  The profile times
+integrator, the three gyroscopic treatments (the explicit torque, the
+implicit and the energy-conserving stage: engine/steady_gyro.py), the
+sequential-impulse solve without Baumgarte's bias and without rolling
+friction stops, with or without the CCD stage.  Other scenes, profiling
+by stage (``Profile.by_stage``) and the solver's phase-by-phase flag run
+the stages one by one.  The profile times
 the fused call as the stage ``steady_step``.
 """
 
@@ -52,6 +54,7 @@ from engine import solver as _S
 from engine.pack import Pack
 from engine.solver import Solve
 from engine.state import Contacts, _commit_packed
+from engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
 
 DONE, FAIL, CCD = 0, 1, 2
 
@@ -65,10 +68,12 @@ FREE_NAME = "contact_free_step"
 
 
 @njit(cache=True)
-def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals):
+def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     """What :func:`steady_kernel` and :func:`free_kernel` run first: the
     start of the (mini-)step, gravity, the free flight, the broad phase and
-    the narrow phase (the packs and the plan's flags and reals as theirs).
+    the narrow phase (the packs and the plan's flags and reals as theirs),
+    with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
+    places.
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
     False when a kept buffer is short (nothing of the state written: the
     staged step recomputes everything from its start)."""
@@ -84,12 +89,16 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals):
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     if has_gravity:
         gravity(mg, F)
+    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (steady_gyro)
+    before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
     free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
                 Vn, Wn, T_mean, u_lin, u_ang, work)
     v_free[:, :] = Vn
     w_free[:, :] = Wn
+    # integrate.EnergyConservingRotation (steady_gyro)
+    after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     # broadstage.BroadPhase
     nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
                                 w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
@@ -154,12 +163,12 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
     this step's (:meth:`SteadyStep.run`).  Returns
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
-    flags, reals = ks.items
+    flags, reals, gy = ks.items
     (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
     sweeps = 0
@@ -192,10 +201,10 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     after an impact).  The packs as :func:`steady_kernel`'s; FAIL when the
     narrow phase finds a contact (nothing of the state written).  Returns
     what :func:`steady_kernel` does (no sweeps, residual 0)."""
-    flags, reals = ks.items
+    flags, reals, gy = ks.items
     ccd_check, has_fast = step_flags[4], step_flags[5]
     lever, lim = reals[0], reals[8]
-    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt != 0:
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
@@ -207,8 +216,11 @@ class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
 
-    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd):
-        self.gravity = forces[0] if forces else None
+    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None):
+        self.gravity = next((s for s in forces if type(s) is Gravity), None)
+        #: the gyroscopic stages' arrays (engine/steady_gyro.py), the
+        #: settings Pack's third item
+        self.gyro = gyro_items(forces, gyro)
         self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
         n = model.n
         s = model.settings
@@ -240,9 +252,9 @@ class SteadyStep:
         from engine.ccd import CCD as CCDStage, Impact
 
         forces = [s for s in stages if s.family == "forces"]
-        if any(type(s) is not Gravity for s in forces):
+        if any(type(s) not in FORCES for s in forces):
             return None
-        rest = [s for s in stages if s.family != "forces"]
+        gyro, rest = split_gyro([s for s in stages if s.family != "forces"])
         want = [IntegrateVelocities, BroadPhase, NarrowPhase, Solve, IntegratePositions]
         tail = [type(s) for s in rest[len(want):]]
         if [type(s) for s in rest[:len(want)]] != want or tail not in ([], [CCDStage, Impact]):
@@ -250,7 +262,7 @@ class SteadyStep:
         fly, broad, narrow, solve, pos = rest[:5]
         if solve.correction == "baumgarte" or (solve.friction and solve.stops and bool(model.rolling)):
             return None
-        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None)
+        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro)
 
     def _flight_pack(self, ctx):
         """The free flight's arrays (and the context's views over its first
@@ -284,7 +296,7 @@ class SteadyStep:
         key = (_S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS, _S.RESTING_SPEED, _S.SLIP_TOL, _S.STOP_MAX_RESIDUAL,
                _S.ROLL_TOL, box.EDGE_FACE_POINTS)
         if key != self._ks_key:
-            self._ks = Pack(self._constants(model))
+            self._ks = Pack(self._constants(model) + (self.gyro,))
             self._ks_key = key
         return self._ks
 
