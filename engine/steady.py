@@ -26,11 +26,12 @@ Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
 pipeline's plan): the fused call covers gravity (or no force), every
 integrator, the three gyroscopic treatments (the explicit torque, the
 implicit and the energy-conserving stage: engine/steady_gyro.py), the
-sequential-impulse solve without Baumgarte's bias and without rolling
-friction stops, with or without the CCD stage.  Other scenes, profiling
-by stage (``Profile.by_stage``) and the solver's phase-by-phase flag run
-the stages one by one.  The profile times
-the fused call as the stage ``steady_step``.
+sequential-impulse solve without Baumgarte's bias (friction stops of
+sliding and rolling contacts: the gate above, engine/steady_stops.py for
+the rolling half), with or without the CCD stage.  Other scenes,
+profiling by stage (``Profile.by_stage``) and the solver's phase-by-phase
+flag run the stages one by one.  The profile times the fused call as the
+stage ``steady_step``.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from engine.pack import Pack
 from engine.solver import Solve
 from engine.state import Contacts, _commit_packed
 from engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from engine.steady_stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 
@@ -180,13 +182,16 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
             rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
         if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
-        if stops_gate and residual <= stop_max_res and sliding_any:
-            # Solve._finish: Rows.stop_times opens with this gate
+        if stops_gate and residual <= stop_max_res and (sliding_any or rolling):
+            # Solve._finish: Rows.stop_times opens with this gate (its
+            # rolling half: steady_stops)
             wi = kw.items
             ti = kt.items
             vt0 = wi[19]
             if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
-                                      roll_tol):
+                                      roll_tol) or (rolling and rolling_candidate(
+                                          ti[3], wi[4], wi[10], wi[16], wi[17], ti[7], ti[14], roll_tol,
+                                          vt0.shape[0])):
                 return FAIL, 0, 0, 0, 0, 0, 0.0
     status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
     return status, nbb, npl, nsb, cnt, sweeps, residual
@@ -260,7 +265,7 @@ class SteadyStep:
         if [type(s) for s in rest[:len(want)]] != want or tail not in ([], [CCDStage, Impact]):
             return None
         fly, broad, narrow, solve, pos = rest[:5]
-        if solve.correction == "baumgarte" or (solve.friction and solve.stops and bool(model.rolling)):
+        if solve.correction == "baumgarte":
             return None
         return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro)
 
@@ -395,7 +400,7 @@ class SteadyStep:
             return status
         self.backoff = 0
         if cnt:
-            self.solve.fused_finish(model, state, ctx, out, store_on, int(sw), float(r))
+            self.finish_solve(model, state, ctx, out, store_on, int(sw), float(r))
             ctx.contacts = c
         else:
             # no contact: what Solve.__call__ does then; the next steps try
@@ -405,6 +410,19 @@ class SteadyStep:
         if status == CCD:
             self._pairs(ctx, nbb, npl, nsb)
         return status
+
+    def finish_solve(self, model, state, ctx, out, store_on: bool, sweeps: int, residual: float) -> None:
+        """``Solve.fused_finish`` after a fused solve, its own friction-stop
+        test off: the kernel ran the gate (sliding and rolling,
+        engine/steady_stops.py) and found no candidate, and the test
+        (``Solve._finish``) opens for any rolling contact and needs the end
+        velocities, which the fused call does not hand back."""
+        allowed = ctx.stop_allowed
+        ctx.stop_allowed = False
+        try:
+            self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
+        finally:
+            ctx.stop_allowed = allowed
 
     def settle_free(self, model, state, ctx, res) -> int:
         """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,
