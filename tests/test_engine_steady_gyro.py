@@ -5,7 +5,8 @@ update, the explicit torque) runs inside the fused call at its place of
 the staged pipeline, and every recorded frame is bit for bit the staged
 step's (one ``pipeline.step`` per step with ``Profile.by_stage``), whether
 the steps run one fused call each or many to a compiled loop
-(``pipeline.advance``)."""
+(``pipeline.advance``).  Likewise rolling friction with friction stops
+(engine/steady_stops.py: the stop gate's rolling half)."""
 
 import numpy as np
 import pytest
