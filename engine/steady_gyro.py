@@ -30,7 +30,7 @@ from numba import njit
 
 from engine.flight import gyroscopic_torque
 from engine.forces import GyroscopicTorque, Gravity
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic
+from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_rotation_into, implicit_gyroscopic
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
 
 #: the gyroscopic stage codes (as engine.loop's flight_kernel)
@@ -59,7 +59,9 @@ def gyro_items(forces, gyro) -> tuple:
     int64 and principal moments (t, 3) kg m^2, the gyroscopic stage's
     bodies (g,) int64, principal moments (g, 3) kg m^2, their inverses
     (g, 3) 1/(kg m^2), Euler coefficients (g, 3) 1/(kg m^2), Yoshida's
-    largest coefficient); absent parts as empty arrays."""
+    largest coefficient, the energy-conserving rotation's kept work arrays
+    (4, g, 3), (g, 4), (g, 3, 3): no allocation a step); absent parts as
+    empty arrays."""
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
     t = next((s for s in forces if type(s) is GyroscopicTorque), None)
     t_idx = np.ascontiguousarray(t.idx, np.int64) if t is not None else zi
@@ -70,7 +72,9 @@ def gyro_items(forces, gyro) -> tuple:
     gI = np.ascontiguousarray(gyro.I, float) if gyro is not None else z3
     ginv = np.ascontiguousarray(gyro.inv_I, float) if energy else z3
     gE = np.ascontiguousarray(gyro.E, float) if energy else z3
-    return code, t_idx, t_I, gidx, gI, ginv, gE, float(YOSHIDA_MAX)
+    ge = gidx.shape[0] if energy else 0
+    work = (np.zeros((4, ge, 3)), np.zeros((ge, 4)), np.zeros((ge, 3, 3)))
+    return (code, t_idx, t_I, gidx, gI, ginv, gE, float(YOSHIDA_MAX)) + work
 
 
 @njit(cache=True)
@@ -81,7 +85,7 @@ def before_flight(gy, R0, w, T, W, h):
     (n, 3) N m) and Catto's implicit update of the working angular
     velocities ``W`` (n+1, 3) rad/s (integrate.ImplicitGyroscopic) over
     ``h`` s; each a no-op without its stage."""
-    code, t_idx, t_I, gidx, gI, ginv, gE, ymax = gy
+    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
     gyroscopic_torque(t_idx, t_I, R0, w, T)
     if code == IMPLICIT and gidx.shape[0]:
         implicit_gyroscopic(gidx, gI, R0, W, h)
@@ -94,7 +98,7 @@ def after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang):
     ``w`` (n, 3), ``q`` (n, 4), ``R0`` and the step's mean torque
     ``T_mean`` (n, 3); writes ``q1`` (n, 4), ``W`` (n+1, 3), ``w_free``,
     ``u_ang`` (n, 3) of its bodies); a no-op without the stage."""
-    code, t_idx, t_I, gidx, gI, ginv, gE, ymax = gy
+    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
     if code == ENERGY and gidx.shape[0]:
-        energy_conserving_rotation(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free,
-                                   u_ang)
+        energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang, wk,
+                             wq, wR)

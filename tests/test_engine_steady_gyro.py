@@ -113,7 +113,7 @@ def test_the_comparison_sees_the_gyroscopic_stage(sid, settings, steps):
     eng = engine_for(scene, settings)
     fused = _plan(eng).fused
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
-    fused.gyro = (NO_GYRO, zi, z3, zi, z3, z3, z3, fused.gyro[7])
+    fused.gyro = (NO_GYRO, zi, z3, zi, z3, z3, z3) + fused.gyro[7:]
     off = _frames(eng, steps, False)
     assert _calls(eng, NAME) >= 0.5 * steps
     assert not all(np.array_equal(x, y) for x, y in zip(off, staged))
@@ -179,3 +179,52 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
     off = _frames(eng, steps, False)
     assert _calls(eng, NAME) >= 0.9 * steps
     assert not all(np.array_equal(x, y) for x, y in zip(off, staged))
+
+
+def test_the_fused_energy_conserving_rotation_allocates_nothing():
+    """The fused step's energy-conserving rotation runs on the plan's kept
+    work arrays (steady_gyro.gyro_items, gyroscopic.energy_rotation_into):
+    50 calls in compiled code allocate what one does (numba's allocation
+    counter), where the stage's own call (energy_conserving_rotation, its
+    work arrays made per call) allocates per call."""
+    from numba import njit
+    from numba.core.runtime import _nrt_python, rtsys
+
+    from engine.gyroscopic import YOSHIDA, energy_conserving_rotation, energy_rotation_into
+    from engine.integrate import EnergyConservingRotation
+
+    @njit
+    def kept(n, gy, R0, T_mean, w0, q0, h, q1, w, w_free, u_ang):
+        code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
+        for _ in range(n):
+            energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free,
+                                 u_ang, wk, wq, wR)
+
+    @njit
+    def made(n, gy, R0, T_mean, w0, q0, h, q1, w, w_free, u_ang):
+        code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
+        for _ in range(n):
+            energy_conserving_rotation(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free,
+                                       u_ang)
+
+    eng = engine_for(load_scene("friction.capsule_spins_to_rest"), {})
+    fused = _plan(eng).fused
+    gy = fused.gyro
+    assert gy[0] == ENERGY and gy[3].size == 1 and gy[8].shape == (4, 1, 3)
+    assert any(type(s) is EnergyConservingRotation for s in eng.stages)
+    n = eng.model.n
+    s = eng.state
+    R0 = np.zeros((n, 3, 3))
+    R0[:, 0, 0] = R0[:, 1, 1] = R0[:, 2, 2] = 1.0
+    args = (gy, R0, np.zeros((n, 3)), s.w.copy(), s.q.copy(), 1 / 240, np.zeros((n, 4)), np.zeros((n + 1, 3)),
+            np.zeros((n, 3)), np.zeros((n, 3)))
+    _nrt_python.memsys_enable_stats()
+
+    def allocations(f, k):
+        f(1, *args)  # (compiled)
+        before = rtsys.get_allocation_stats().alloc
+        f(k, *args)
+        return rtsys.get_allocation_stats().alloc - before
+
+    assert allocations(kept, 50) == allocations(kept, 1)
+    assert allocations(made, 50) > allocations(made, 1)
