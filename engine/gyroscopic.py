@@ -69,9 +69,14 @@ def midpoint_rotation(Lb, q, I, E, h, tol, max_iter):
     predictor, until the largest change is below tol max|L0|; then
     L1 = 2 Lm - L0, q1 = q0 (x) normalize(1, h Lm / (2 I))."""
     g = Lb.shape[0]
-    Lm = np.empty((g, 3))
-    Ln = np.empty((g, 3))
-    hE = np.empty((g, 3))
+    _midpoint(Lb, q, I, E, h, tol, max_iter, np.empty((g, 3)), np.empty((g, 3)), np.empty((g, 3)))
+
+
+@njit(cache=True)
+def _midpoint(Lb, q, I, E, h, tol, max_iter, Lm, Ln, hE):
+    """:func:`midpoint_rotation` on the work arrays ``Lm``, ``Ln``, ``hE``
+    (g, 3) each (overwritten)."""
+    g = Lb.shape[0]
     scale = 0.0
     for j in range(g):
         for c in range(3):
@@ -115,10 +120,21 @@ def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, 
     coefficients ``E`` (g, 3)): half a kick of the mean torque on the world
     angular momentum, the composed midpoint free rotation in m equal parts
     with |w| h max|yoshida| / m <= 0.5, the other half kick; writes q1,
-    w, w_free, u_ang on those bodies."""
+    w, w_free, u_ang on those bodies.  Its work arrays made per call
+    (:func:`energy_rotation_into` on kept ones: the fused steady step's)."""
     g = idx.shape[0]
-    Lb = np.empty((g, 3))
-    q = np.empty((g, 4))
+    energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang,
+                         np.empty((4, g, 3)), np.empty((g, 4)), np.empty((g, 3, 3)))
+
+
+@njit(cache=True)
+def energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang, wk,
+                         q, R1):
+    """:func:`energy_conserving_rotation` on the work arrays ``wk`` (4, g, 3)
+    (the body angular momenta and the midpoint's three), ``q`` (g, 4) and
+    ``R1`` (g, 3, 3), overwritten: no allocation."""
+    g = idx.shape[0]
+    Lb = wk[0]
     wmax2 = 0.0
     for j in range(g):
         k = idx[j]
@@ -126,12 +142,12 @@ def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, 
         wb1 = R0[k, 0, 1] * w0[k, 0] + R0[k, 1, 1] * w0[k, 1] + R0[k, 2, 1] * w0[k, 2]
         wb2 = R0[k, 0, 2] * w0[k, 0] + R0[k, 1, 2] * w0[k, 1] + R0[k, 2, 2] * w0[k, 2]
         i0, i1, i2 = I[j, 0] * wb0, I[j, 1] * wb1, I[j, 2] * wb2
-        Lw = np.empty(3)
-        for c in range(3):
-            Lw[c] = (R0[k, c, 0] * i0 + R0[k, c, 1] * i1 + R0[k, c, 2] * i2) + 0.5 * h * T_mean[k, c]
+        Lw0 = (R0[k, 0, 0] * i0 + R0[k, 0, 1] * i1 + R0[k, 0, 2] * i2) + 0.5 * h * T_mean[k, 0]
+        Lw1 = (R0[k, 1, 0] * i0 + R0[k, 1, 1] * i1 + R0[k, 1, 2] * i2) + 0.5 * h * T_mean[k, 1]
+        Lw2 = (R0[k, 2, 0] * i0 + R0[k, 2, 1] * i1 + R0[k, 2, 2] * i2) + 0.5 * h * T_mean[k, 2]
         s = 0.0
         for c in range(3):
-            Lb[j, c] = R0[k, 0, c] * Lw[0] + R0[k, 1, c] * Lw[1] + R0[k, 2, c] * Lw[2]
+            Lb[j, c] = R0[k, 0, c] * Lw0 + R0[k, 1, c] * Lw1 + R0[k, 2, c] * Lw2
             v = Lb[j, c] * inv_I[j, c]
             s += v * v
         wmax2 = max(wmax2, s)
@@ -144,8 +160,7 @@ def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, 
     hs = h / m
     for _ in range(m):
         for gy in yoshida:
-            midpoint_rotation(Lb, q, I, E, gy * hs, 1e-15, 100)
-    R1 = np.empty((g, 3, 3))
+            _midpoint(Lb, q, I, E, gy * hs, 1e-15, 100, wk[1], wk[2], wk[3])
     for j in range(g):
         s = math.sqrt(q[j, 0] ** 2 + q[j, 1] ** 2 + q[j, 2] ** 2 + q[j, 3] ** 2)
         for c in range(4):
@@ -153,14 +168,15 @@ def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, 
     q2m(q, R1)
     for j in range(g):
         k = idx[j]
-        Lw = np.empty(3)
+        L0, L1, L2 = Lb[j, 0], Lb[j, 1], Lb[j, 2]
+        Lw0 = (R1[j, 0, 0] * L0 + R1[j, 0, 1] * L1 + R1[j, 0, 2] * L2) + 0.5 * h * T_mean[k, 0]
+        Lw1 = (R1[j, 1, 0] * L0 + R1[j, 1, 1] * L1 + R1[j, 1, 2] * L2) + 0.5 * h * T_mean[k, 1]
+        Lw2 = (R1[j, 2, 0] * L0 + R1[j, 2, 1] * L1 + R1[j, 2, 2] * L2) + 0.5 * h * T_mean[k, 2]
+        b0 = (R1[j, 0, 0] * Lw0 + R1[j, 1, 0] * Lw1 + R1[j, 2, 0] * Lw2) * inv_I[j, 0]
+        b1 = (R1[j, 0, 1] * Lw0 + R1[j, 1, 1] * Lw1 + R1[j, 2, 1] * Lw2) * inv_I[j, 1]
+        b2 = (R1[j, 0, 2] * Lw0 + R1[j, 1, 2] * Lw1 + R1[j, 2, 2] * Lw2) * inv_I[j, 2]
         for c in range(3):
-            Lw[c] = (R1[j, c, 0] * Lb[j, 0] + R1[j, c, 1] * Lb[j, 1] + R1[j, c, 2] * Lb[j, 2]) + 0.5 * h * T_mean[k, c]
-        wb = np.empty(3)
-        for c in range(3):
-            wb[c] = (R1[j, 0, c] * Lw[0] + R1[j, 1, c] * Lw[1] + R1[j, 2, c] * Lw[2]) * inv_I[j, c]
-        for c in range(3):
-            w1 = R1[j, c, 0] * wb[0] + R1[j, c, 1] * wb[1] + R1[j, c, 2] * wb[2]
+            w1 = R1[j, c, 0] * b0 + R1[j, c, 1] * b1 + R1[j, c, 2] * b2
             w[k, c] = w1
             w_free[k, c] = w1
             u_ang[k, c] = (1.0 - lever) * w0[k, c] + lever * w1

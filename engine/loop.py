@@ -360,7 +360,7 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
         state.steps += done
         if solved:
             last = done - 2 if free_last else done - 1
-            solve.fused_finish(model, state, ctx, outs[last % 2], True, int(sw_last), float(res_last))
+            fused.finish_solve(model, state, ctx, outs[last % 2], True, int(sw_last), float(res_last))
             if solved > 1:
                 profile.count("contact_rows", c.m * (solved - 1))
                 profile.count("solver_sweeps", int(sw_sum))

@@ -24,11 +24,14 @@ of every scenario are unchanged), and stops where the step is not steady:
 
 Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
 pipeline's plan): the fused call covers gravity (or no force), every
-integrator, no gyroscopic stage, the sequential-impulse solve without
-Baumgarte's bias and without rolling friction stops, with or without the
-CCD stage.  Other scenes, profiling by stage (``Profile.by_stage``) and the
-solver's phase-by-phase flag run the stages one by one.  The profile times
-the fused call as the stage ``steady_step``.
+integrator, the three gyroscopic treatments (the explicit torque, the
+implicit and the energy-conserving stage: engine/steady_gyro.py), the
+sequential-impulse solve without Baumgarte's bias (friction stops of
+sliding and rolling contacts: the gate above, engine/steady_stops.py for
+the rolling half), with or without the CCD stage.  Other scenes,
+profiling by stage (``Profile.by_stage``) and the solver's phase-by-phase
+flag run the stages one by one.  The profile times the fused call as the
+stage ``steady_step``.
 """
 
 from __future__ import annotations
@@ -52,6 +55,8 @@ from engine import solver as _S
 from engine.pack import Pack
 from engine.solver import Solve
 from engine.state import Contacts, _commit_packed
+from engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from engine.steady_stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 
@@ -65,10 +70,12 @@ FREE_NAME = "contact_free_step"
 
 
 @njit(cache=True)
-def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals):
+def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     """What :func:`steady_kernel` and :func:`free_kernel` run first: the
     start of the (mini-)step, gravity, the free flight, the broad phase and
-    the narrow phase (the packs and the plan's flags and reals as theirs).
+    the narrow phase (the packs and the plan's flags and reals as theirs),
+    with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
+    places.
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
     False when a kept buffer is short (nothing of the state written: the
     staged step recomputes everything from its start)."""
@@ -84,12 +91,16 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals):
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     if has_gravity:
         gravity(mg, F)
+    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (steady_gyro)
+    before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
     free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
                 Vn, Wn, T_mean, u_lin, u_ang, work)
     v_free[:, :] = Vn
     w_free[:, :] = Wn
+    # integrate.EnergyConservingRotation (steady_gyro)
+    after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     # broadstage.BroadPhase
     nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
                                 w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
@@ -154,12 +165,12 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
     this step's (:meth:`SteadyStep.run`).  Returns
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
-    flags, reals = ks.items
+    flags, reals, gy = ks.items
     (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
     sweeps = 0
@@ -171,13 +182,16 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
             rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
         if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
-        if stops_gate and residual <= stop_max_res and sliding_any:
-            # Solve._finish: Rows.stop_times opens with this gate
+        if stops_gate and residual <= stop_max_res and (sliding_any or rolling):
+            # Solve._finish: Rows.stop_times opens with this gate (its
+            # rolling half: steady_stops)
             wi = kw.items
             ti = kt.items
             vt0 = wi[19]
             if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
-                                      roll_tol):
+                                      roll_tol) or (rolling and rolling_candidate(
+                                          ti[3], wi[4], wi[10], wi[16], wi[17], ti[7], ti[14], roll_tol,
+                                          vt0.shape[0])):
                 return FAIL, 0, 0, 0, 0, 0, 0.0
     status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
     return status, nbb, npl, nsb, cnt, sweeps, residual
@@ -192,10 +206,10 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     after an impact).  The packs as :func:`steady_kernel`'s; FAIL when the
     narrow phase finds a contact (nothing of the state written).  Returns
     what :func:`steady_kernel` does (no sweeps, residual 0)."""
-    flags, reals = ks.items
+    flags, reals, gy = ks.items
     ccd_check, has_fast = step_flags[4], step_flags[5]
     lever, lim = reals[0], reals[8]
-    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt != 0:
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
@@ -207,8 +221,11 @@ class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
 
-    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd):
-        self.gravity = forces[0] if forces else None
+    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None):
+        self.gravity = next((s for s in forces if type(s) is Gravity), None)
+        #: the gyroscopic stages' arrays (engine/steady_gyro.py), the
+        #: settings Pack's third item
+        self.gyro = gyro_items(forces, gyro)
         self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
         n = model.n
         s = model.settings
@@ -240,17 +257,17 @@ class SteadyStep:
         from engine.ccd import CCD as CCDStage, Impact
 
         forces = [s for s in stages if s.family == "forces"]
-        if any(type(s) is not Gravity for s in forces):
+        if any(type(s) not in FORCES for s in forces):
             return None
-        rest = [s for s in stages if s.family != "forces"]
+        gyro, rest = split_gyro([s for s in stages if s.family != "forces"])
         want = [IntegrateVelocities, BroadPhase, NarrowPhase, Solve, IntegratePositions]
         tail = [type(s) for s in rest[len(want):]]
         if [type(s) for s in rest[:len(want)]] != want or tail not in ([], [CCDStage, Impact]):
             return None
         fly, broad, narrow, solve, pos = rest[:5]
-        if solve.correction == "baumgarte" or (solve.friction and solve.stops and bool(model.rolling)):
+        if solve.correction == "baumgarte":
             return None
-        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None)
+        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro)
 
     def _flight_pack(self, ctx):
         """The free flight's arrays (and the context's views over its first
@@ -284,7 +301,7 @@ class SteadyStep:
         key = (_S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS, _S.RESTING_SPEED, _S.SLIP_TOL, _S.STOP_MAX_RESIDUAL,
                _S.ROLL_TOL, box.EDGE_FACE_POINTS)
         if key != self._ks_key:
-            self._ks = Pack(self._constants(model))
+            self._ks = Pack(self._constants(model) + (self.gyro,))
             self._ks_key = key
         return self._ks
 
@@ -383,7 +400,7 @@ class SteadyStep:
             return status
         self.backoff = 0
         if cnt:
-            self.solve.fused_finish(model, state, ctx, out, store_on, int(sw), float(r))
+            self.finish_solve(model, state, ctx, out, store_on, int(sw), float(r))
             ctx.contacts = c
         else:
             # no contact: what Solve.__call__ does then; the next steps try
@@ -393,6 +410,19 @@ class SteadyStep:
         if status == CCD:
             self._pairs(ctx, nbb, npl, nsb)
         return status
+
+    def finish_solve(self, model, state, ctx, out, store_on: bool, sweeps: int, residual: float) -> None:
+        """``Solve.fused_finish`` after a fused solve, its own friction-stop
+        test off: the kernel ran the gate (sliding and rolling,
+        engine/steady_stops.py) and found no candidate, and the test
+        (``Solve._finish``) opens for any rolling contact and needs the end
+        velocities, which the fused call does not hand back."""
+        allowed = ctx.stop_allowed
+        ctx.stop_allowed = False
+        try:
+            self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
+        finally:
+            ctx.stop_allowed = allowed
 
     def settle_free(self, model, state, ctx, res) -> int:
         """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,
