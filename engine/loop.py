@@ -41,6 +41,7 @@ from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, 
 from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
+from engine.borrow import Borrowed, borrow
 from engine.pack import Pack
 from engine.state import _commit_packed
 from engine.steady import CCD, DONE, FAIL, FREE_NAME, NAME, free_kernel, steady_kernel
@@ -109,6 +110,7 @@ def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
     each step's state into row k of the blocks when ``rec_on``; returns the
     time after them (``state.t`` plus h per (sub)step, added one by one as
     the step loop does)."""
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
         for s in range(substeps):
             flight_kernel(kb, kg, h)
@@ -136,6 +138,7 @@ def free_loop(n, kb, kf, kbr, kcol, h, ks, flags, turn, t, rec_on, pos, quat, ve
     at a try that is not DONE.  Returns (steps done, time after them, the
     status of the try that stopped it or NONE, its pairs (body, plane,
     static box))."""
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, NONE, 0, 0, 0
@@ -168,6 +171,7 @@ def steady_loop(n, kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kq2, kk, key, idx
     sw_last = 0
     res_last = 0.0
     dwi = kw.items[-1]
+    key, idx, pos, quat, vel, angvel = borrow((key, idx, pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
@@ -207,6 +211,8 @@ class FlightStep:
         self.names = tuple(s.name for s in forces) + tuple(s.name for s in (gyro, fly) if s is not None) + (
             "integrate_positions",)
         self._k = self._k_ctx = None
+        #: the packs handed to the loop, borrowed (engine/borrow.py)
+        self.borrowed = Borrowed()
 
     @staticmethod
     def build(model, stages) -> "FlightStep | None":
@@ -262,8 +268,9 @@ class FlightStep:
         ctx.reset(state, h)
         ctx.stop_allowed = False
         rec_on, blocks = _blocks(rec, model.n)
-        state.t = flight_loop(n, model.substeps, ctx.kept(state), self._pack(ctx), float(h), float(state.t), rec_on,
-                              *blocks)
+        b = self.borrowed.of
+        state.t = flight_loop(n, model.substeps, b(ctx.kept(state)), b(self._pack(ctx)), float(h), float(state.t),
+                              rec_on, *blocks)
         state.steps += n
         k = n * model.substeps
         calls = profile.calls
@@ -350,7 +357,8 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     flags1 = fused.flags(ctx, True, bool(solve.warm), True)
     band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    r = steady_loop(n, kb, kf, kbr, kcol, *sp[:6], out2.kept, *sp[6:], h, ks, flags0, flags1, turn, band_check,
+    r = steady_loop(n, kb, kf, kbr, kcol, *sp[:6], fused.borrowed.of(out2.kept), *sp[6:], h, ks, flags0, flags1,
+                    fused.borrowed.of(turn), band_check,
                     int(solve._band), float(state.t), rec_on, *blocks)
     done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
     raw = r[7:]
@@ -387,7 +395,7 @@ def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t
     """:func:`fused_block` of the contact-free call (:func:`free_loop`)."""
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
     done, t, pend, nbb, npl, nsb = free_loop(n, kb, kf, kbr, kcol, h, ks, fused.flags(ctx, False, False, False),
-                                             turn, float(state.t), rec_on, *blocks)
+                                             fused.borrowed.of(turn), float(state.t), rec_on, *blocks)
     if done:
         fused.free_backoff = 0
         state.t = t

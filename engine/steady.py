@@ -39,6 +39,7 @@ from operator import is_
 import numpy as np
 from numba import njit
 
+from engine.borrow import Borrowed, borrow
 from engine.broadstage import BroadPhase, _broad_step
 from engine.collision import NarrowPhase, box
 from engine.collision.collide import collide_packed
@@ -159,6 +160,7 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    key, idx = borrow((key, idx))  # (no reference counting: engine/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -232,6 +234,8 @@ class SteadyStep:
         self.block_backoff = 0
         self.block_wait = 0
         self._empty = Contacts.empty()
+        #: the packs handed to the fused calls, borrowed (engine/borrow.py)
+        self.borrowed = Borrowed()
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -337,13 +341,17 @@ class SteadyStep:
         c = solve._fast[2]
         if self.narrow.collider.last_contacts(c.m) is not c:
             return None
-        return (kc, kx, kt, kw, ko, kq, kk, key, idx), self.flags(ctx, warm_any, warm_on, store_on), out, store_on, c
+        b = self.borrowed.of
+        return ((b(kc), b(kx), b(kt), b(kw), b(ko), b(kq), b(kk), key, idx), self.flags(ctx, warm_any, warm_on, store_on),
+                out, store_on, c)
 
     def packs(self, model, state, ctx) -> tuple:
         """The kernels' first four packs (begin/commit, free flight, broad
-        phase, narrow phase) and the settings' (module doc)."""
-        return (ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
-                self._settings(model))
+        phase, narrow phase), borrowed (engine/borrow.py), and the
+        settings' (module doc)."""
+        b = self.borrowed.of
+        return (b(ctx.kept(state)), b(self._flight_pack(ctx)), b(self._broad_pack(ctx)),
+                b(self.narrow.collider.packed()), self._settings(model))
 
     def run(self, model, state, ctx, h: float, profile) -> int:
         """Try the (mini-)step of length ``h`` from ``state`` as one call
