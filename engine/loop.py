@@ -132,13 +132,15 @@ def _turns(turn, kb, h):
 
 
 @njit(cache=True)
-def free_loop(n, kb, kf, kbr, kcol, h, ks, flags, turn, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.free_kernel`, recorded as
+def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
+    """Up to ``n`` steps of :func:`engine.steady.free_kernel` (its packs
+    kb, kf, kbr, kcol, ks as one, ``kall``), recorded as
     :func:`flight_loop`'s; stops before a step split for fast rotation and
     at a try that is not DONE.  Returns (steps done, time after them, the
     status of the try that stopped it or NONE, its pairs (body, plane,
     static box))."""
     pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    kb, kf, kbr, kcol, ks = kall.items
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, NONE, 0, 0, 0
@@ -151,9 +153,12 @@ def free_loop(n, kb, kf, kbr, kcol, h, ks, flags, turn, t, rec_on, pos, quat, ve
 
 
 @njit(cache=True)
-def steady_loop(n, kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kq2, kk, key, idx, h, ks, flags0, flags1, turn,
-                band_check, band, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`: the first
+def steady_loop(n, kall, kwarm, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel, angvel):
+    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, its packs
+    as two (a Pack argument costs ~2.5 us of dispatch): ``kall`` (kb, kf,
+    kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks) as
+    :func:`engine.steady.steady_call`'s, ``kwarm`` (ko, kq1, kq2, turn): the
+    first
     warm-starts from ``ko`` with ``flags0``, step k stores into ``kq1``
     (k even) or ``kq2`` (k odd) and the next warm-starts from it with
     ``flags1`` (the pool's rotation, :meth:`engine.contact.warm.WarmPool.slot`).
@@ -170,6 +175,8 @@ def steady_loop(n, kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kq2, kk, key, idx
     sw_sum = 0
     sw_last = 0
     res_last = 0.0
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
+    ko, kq1, kq2, turn = kwarm.items
     dwi = kw.items[-1]
     key, idx, pos, quat, vel, angvel = borrow((key, idx, pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
@@ -357,9 +364,11 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     flags1 = fused.flags(ctx, True, bool(solve.warm), True)
     band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    r = steady_loop(n, kb, kf, kbr, kcol, *sp[:6], fused.borrowed.of(out2.kept), *sp[6:], h, ks, flags0, flags1,
-                    fused.borrowed.of(turn), band_check,
-                    int(solve._band), float(state.t), rec_on, *blocks)
+    kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
+    kall = fused._kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+    b = fused.borrowed.of
+    kwarm = _loop_warm(fused, ko, kq1, b(out2.kept), b(turn))
+    r = steady_loop(n, kall, kwarm, h, flags0, flags1, band_check, int(solve._band), float(state.t), rec_on, *blocks)
     done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
     raw = r[7:]
     if done:
@@ -391,11 +400,25 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     return done, tried
 
 
+def _loop_warm(fused, ko, kq1, kq2, turn) -> Pack:
+    """(ko, kq1, kq2, turn) as one Pack, kept per four (the warm pool's
+    three caches and the empty one give a few)."""
+    d = fused.__dict__.setdefault("_kloop", {})
+    key = (id(ko), id(kq1), id(kq2), id(turn))
+    e = d.get(key)
+    if e is None or e[0] is not ko or e[1] is not kq1 or e[2] is not kq2 or e[3] is not turn:
+        if len(d) >= 16:
+            d.clear()
+        e = d[key] = (ko, kq1, kq2, turn, Pack((ko, kq1, kq2, turn)))
+    return e[4]
+
+
 def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0):
     """:func:`fused_block` of the contact-free call (:func:`free_loop`)."""
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    done, t, pend, nbb, npl, nsb = free_loop(n, kb, kf, kbr, kcol, h, ks, fused.flags(ctx, False, False, False),
-                                             fused.borrowed.of(turn), float(state.t), rec_on, *blocks)
+    done, t, pend, nbb, npl, nsb = free_loop(n, fused._kfree.of((kb, kf, kbr, kcol, ks)), h,
+                                             fused.flags(ctx, False, False, False), fused.borrowed.of(turn),
+                                             float(state.t), rec_on, *blocks)
     if done:
         fused.free_backoff = 0
         state.t = t

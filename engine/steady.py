@@ -50,7 +50,7 @@ from engine.flight import begin_step, free_flight, gravity, integrate_positions
 from engine.forces import Gravity
 from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
-from engine.pack import Pack
+from engine.pack import KeptPack, Pack
 from engine.solver import Solve
 from engine.state import Contacts, _commit_packed
 
@@ -205,6 +205,26 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     return status, nbb, npl, nsb, 0, 0, 0.0
 
 
+@njit(cache=True)
+def steady_call(kall, kwarm, h, step_flags):
+    """:func:`steady_kernel` called from Python with two packs instead of
+    twelve (a Pack argument costs ~2.5 us of dispatch, its typing in
+    Python): ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx,
+    ks), the packs that stay from step to step, ``kwarm`` (ko, kq), the
+    warm caches read and written, which rotate (:meth:`SteadyStep.run`)."""
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
+    ko, kq = kwarm.items
+    return steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags)
+
+
+@njit(cache=True)
+def free_call(kall, h, step_flags):
+    """:func:`free_kernel` called from Python with one pack (kb, kf, kbr,
+    kcol, ks) (as :func:`steady_call`)."""
+    kb, kf, kbr, kcol, ks = kall.items
+    return free_kernel(kb, kf, kbr, kcol, h, ks, step_flags)
+
+
 class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
@@ -236,6 +256,10 @@ class SteadyStep:
         self._empty = Contacts.empty()
         #: the packs handed to the fused calls, borrowed (engine/borrow.py)
         self.borrowed = Borrowed()
+        # the packs of a call from Python as one (steady_call, free_call)
+        self._kall = KeptPack()
+        self._kfree = KeptPack()
+        self._kwarm: dict = {}
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -361,21 +385,32 @@ class SteadyStep:
         t0 = time.perf_counter()
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         if self.solve._fast is None:
-            res = free_kernel(kb, kf, kbr, kcol, float(h), ks, self.flags(ctx, False, False, False))
+            res = free_call(self._kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
             status = self.settle_free(model, state, ctx, res)
             name = FREE_NAME
         else:
             a = self.steady_args(model, state, ctx, h)
             if a is None:
                 return FAIL
-            solve_packs, flags, out, store_on, c = a
-            res = steady_kernel(kb, kf, kbr, kcol, *solve_packs, float(h), ks, flags)
+            (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
+            kall = self._kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+            res = steady_call(kall, self._warm_pair(ko, kq), float(h), flags)
             status = self.settle(model, state, ctx, res, out, store_on, c)
             name = NAME
         dt = time.perf_counter() - t0
         profile.calls[name] = profile.calls.get(name, 0) + 1
         profile.seconds[name] = profile.seconds.get(name, 0.0) + dt
         return status
+
+    def _warm_pair(self, ko, kq) -> Pack:
+        """(ko, kq) as one Pack, kept per pair (the warm pool's three
+        caches and the empty one give a few pairs)."""
+        e = self._kwarm.get((id(ko), id(kq)))
+        if e is None or e[0] is not ko or e[1] is not kq:
+            if len(self._kwarm) >= 16:
+                self._kwarm.clear()
+            e = self._kwarm[(id(ko), id(kq))] = (ko, kq, Pack((ko, kq)))
+        return e[2]
 
     def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
         """After :func:`steady_kernel` returned ``res``: the backoff, the
