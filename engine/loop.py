@@ -153,12 +153,12 @@ def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
 
 
 @njit(cache=True)
-def steady_loop(n, kall, kwarm, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, its packs
-    as two (a Pack argument costs ~2.5 us of dispatch): ``kall`` (kb, kf,
-    kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks) as
-    :func:`engine.steady.steady_call`'s, ``kwarm`` (ko, kq1, kq2, turn): the
-    first
+def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel,
+                angvel):
+    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, the packs
+    that stay as one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key,
+    idx, ks) as :func:`engine.steady.steady_call`'s (a Pack argument costs
+    ~2.5 us of dispatch): the first
     warm-starts from ``ko`` with ``flags0``, step k stores into ``kq1``
     (k even) or ``kq2`` (k odd) and the next warm-starts from it with
     ``flags1`` (the pool's rotation, :meth:`engine.contact.warm.WarmPool.slot`).
@@ -176,7 +176,6 @@ def steady_loop(n, kall, kwarm, h, flags0, flags1, band_check, band, t, rec_on, 
     sw_last = 0
     res_last = 0.0
     kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
-    ko, kq1, kq2, turn = kwarm.items
     dwi = kw.items[-1]
     key, idx, pos, quat, vel, angvel = borrow((key, idx, pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
@@ -365,10 +364,10 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
     kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
-    kall = fused._kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+    kall = fused.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
     b = fused.borrowed.of
-    kwarm = _loop_warm(fused, ko, kq1, b(out2.kept), b(turn))
-    r = steady_loop(n, kall, kwarm, h, flags0, flags1, band_check, int(solve._band), float(state.t), rec_on, *blocks)
+    r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(turn), h, flags0, flags1, band_check, int(solve._band),
+                    float(state.t), rec_on, *blocks)
     done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
     raw = r[7:]
     if done:
@@ -400,23 +399,10 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     return done, tried
 
 
-def _loop_warm(fused, ko, kq1, kq2, turn) -> Pack:
-    """(ko, kq1, kq2, turn) as one Pack, kept per four (the warm pool's
-    three caches and the empty one give a few)."""
-    d = fused.__dict__.setdefault("_kloop", {})
-    key = (id(ko), id(kq1), id(kq2), id(turn))
-    e = d.get(key)
-    if e is None or e[0] is not ko or e[1] is not kq1 or e[2] is not kq2 or e[3] is not turn:
-        if len(d) >= 16:
-            d.clear()
-        e = d[key] = (ko, kq1, kq2, turn, Pack((ko, kq1, kq2, turn)))
-    return e[4]
-
-
 def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0):
     """:func:`fused_block` of the contact-free call (:func:`free_loop`)."""
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    done, t, pend, nbb, npl, nsb = free_loop(n, fused._kfree.of((kb, kf, kbr, kcol, ks)), h,
+    done, t, pend, nbb, npl, nsb = free_loop(n, fused.kfree.of((kb, kf, kbr, kcol, ks)), h,
                                              fused.flags(ctx, False, False, False), fused.borrowed.of(turn),
                                              float(state.t), rec_on, *blocks)
     if done:

@@ -39,7 +39,7 @@ from operator import is_
 import numpy as np
 from numba import njit
 
-from engine.borrow import Borrowed, borrow
+from engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
 from engine.broadstage import BroadPhase, _broad_step
 from engine.collision import NarrowPhase, box
 from engine.collision.collide import collide_packed
@@ -50,7 +50,7 @@ from engine.flight import begin_step, free_flight, gravity, integrate_positions
 from engine.forces import Gravity
 from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
-from engine.pack import KeptPack, Pack
+from engine.pack import Pack
 from engine.solver import Solve
 from engine.state import Contacts, _commit_packed
 
@@ -206,23 +206,37 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
 
 
 @njit(cache=True)
-def steady_call(kall, kwarm, h, step_flags):
-    """:func:`steady_kernel` called from Python with two packs instead of
+def steady_call(kall, ko, kq, h, step_flags):
+    """:func:`steady_kernel` called from Python with three packs instead of
     twelve (a Pack argument costs ~2.5 us of dispatch, its typing in
     Python): ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx,
-    ks), the packs that stay from step to step, ``kwarm`` (ko, kq), the
-    warm caches read and written, which rotate (:meth:`SteadyStep.run`)."""
+    ks) (:func:`steady_pack`), the packs that stay from step to step,
+    borrowed (engine/borrow.py); ``ko``, ``kq`` the warm caches read and
+    written, which rotate (borrowed too)."""
     kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
-    ko, kq = kwarm.items
     return steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags)
 
 
 @njit(cache=True)
 def free_call(kall, h, step_flags):
     """:func:`free_kernel` called from Python with one pack (kb, kf, kbr,
-    kcol, ks) (as :func:`steady_call`)."""
+    kcol, ks) (:func:`free_pack`)."""
     kb, kf, kbr, kcol, ks = kall.items
     return free_kernel(kb, kf, kbr, kcol, h, ks, step_flags)
+
+
+@njit(cache=True)
+def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
+    """:func:`steady_call`'s ``kall``: the packs borrowed (valid while they
+    live: :class:`engine.borrow.BorrowedOf` holds them)."""
+    return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), borrowed(kc), borrowed(kx), borrowed(kt),
+                 borrowed(kw), borrowed(kk), key, idx, ks))
+
+
+@njit(cache=True)
+def free_pack(kb, kf, kbr, kcol, ks):
+    """:func:`free_call`'s ``kall`` (as :func:`steady_pack`)."""
+    return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), ks))
 
 
 class SteadyStep:
@@ -254,12 +268,13 @@ class SteadyStep:
         self.block_backoff = 0
         self.block_wait = 0
         self._empty = Contacts.empty()
-        #: the packs handed to the fused calls, borrowed (engine/borrow.py)
+        #: the warm caches' packs handed to the fused calls, borrowed
+        #: (engine/borrow.py)
         self.borrowed = Borrowed()
-        # the packs of a call from Python as one (steady_call, free_call)
-        self._kall = KeptPack()
-        self._kfree = KeptPack()
-        self._kwarm: dict = {}
+        #: the packs that stay as one, borrowed (steady_call, free_call and
+        #: the loops over steps)
+        self.kall = BorrowedOf(steady_pack)
+        self.kfree = BorrowedOf(free_pack)
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -366,16 +381,14 @@ class SteadyStep:
         if self.narrow.collider.last_contacts(c.m) is not c:
             return None
         b = self.borrowed.of
-        return ((b(kc), b(kx), b(kt), b(kw), b(ko), b(kq), b(kk), key, idx), self.flags(ctx, warm_any, warm_on, store_on),
-                out, store_on, c)
+        return ((kc, kx, kt, kw, b(ko), b(kq), kk, key, idx), self.flags(ctx, warm_any, warm_on, store_on), out,
+                store_on, c)
 
     def packs(self, model, state, ctx) -> tuple:
         """The kernels' first four packs (begin/commit, free flight, broad
-        phase, narrow phase), borrowed (engine/borrow.py), and the
-        settings' (module doc)."""
-        b = self.borrowed.of
-        return (b(ctx.kept(state)), b(self._flight_pack(ctx)), b(self._broad_pack(ctx)),
-                b(self.narrow.collider.packed()), self._settings(model))
+        phase, narrow phase) and the settings' (module doc)."""
+        return (ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
+                self._settings(model))
 
     def run(self, model, state, ctx, h: float, profile) -> int:
         """Try the (mini-)step of length ``h`` from ``state`` as one call
@@ -385,7 +398,7 @@ class SteadyStep:
         t0 = time.perf_counter()
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         if self.solve._fast is None:
-            res = free_call(self._kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
+            res = free_call(self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
             status = self.settle_free(model, state, ctx, res)
             name = FREE_NAME
         else:
@@ -393,24 +406,14 @@ class SteadyStep:
             if a is None:
                 return FAIL
             (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
-            kall = self._kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-            res = steady_call(kall, self._warm_pair(ko, kq), float(h), flags)
+            kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+            res = steady_call(kall, ko, kq, float(h), flags)
             status = self.settle(model, state, ctx, res, out, store_on, c)
             name = NAME
         dt = time.perf_counter() - t0
         profile.calls[name] = profile.calls.get(name, 0) + 1
         profile.seconds[name] = profile.seconds.get(name, 0.0) + dt
         return status
-
-    def _warm_pair(self, ko, kq) -> Pack:
-        """(ko, kq) as one Pack, kept per pair (the warm pool's three
-        caches and the empty one give a few pairs)."""
-        e = self._kwarm.get((id(ko), id(kq)))
-        if e is None or e[0] is not ko or e[1] is not kq:
-            if len(self._kwarm) >= 16:
-                self._kwarm.clear()
-            e = self._kwarm[(id(ko), id(kq))] = (ko, kq, Pack((ko, kq)))
-        return e[2]
 
     def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
         """After :func:`steady_kernel` returned ``res``: the backoff, the
