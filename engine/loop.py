@@ -41,6 +41,7 @@ from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, 
 from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
+from engine.borrow import Borrowed, borrow
 from engine.pack import Pack
 from engine.state import _commit_packed
 from engine.steady import CCD, DONE, FAIL, FREE_NAME, NAME, free_kernel, steady_kernel
@@ -109,6 +110,7 @@ def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
     each step's state into row k of the blocks when ``rec_on``; returns the
     time after them (``state.t`` plus h per (sub)step, added one by one as
     the step loop does)."""
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
         for s in range(substeps):
             flight_kernel(kb, kg, h)
@@ -130,12 +132,15 @@ def _turns(turn, kb, h):
 
 
 @njit(cache=True)
-def free_loop(n, kb, kf, kbr, kcol, h, ks, flags, turn, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.free_kernel`, recorded as
+def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
+    """Up to ``n`` steps of :func:`engine.steady.free_kernel` (its packs
+    kb, kf, kbr, kcol, ks as one, ``kall``), recorded as
     :func:`flight_loop`'s; stops before a step split for fast rotation and
     at a try that is not DONE.  Returns (steps done, time after them, the
     status of the try that stopped it or NONE, its pairs (body, plane,
     static box))."""
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    kb, kf, kbr, kcol, ks = kall.items
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, NONE, 0, 0, 0
@@ -148,9 +153,12 @@ def free_loop(n, kb, kf, kbr, kcol, h, ks, flags, turn, t, rec_on, pos, quat, ve
 
 
 @njit(cache=True)
-def steady_loop(n, kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kq2, kk, key, idx, h, ks, flags0, flags1, turn,
-                band_check, band, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`: the first
+def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel,
+                angvel):
+    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, the packs
+    that stay as one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key,
+    idx, ks) as :func:`engine.steady.steady_call`'s (a Pack argument costs
+    ~2.5 us of dispatch): the first
     warm-starts from ``ko`` with ``flags0``, step k stores into ``kq1``
     (k even) or ``kq2`` (k odd) and the next warm-starts from it with
     ``flags1`` (the pool's rotation, :meth:`engine.contact.warm.WarmPool.slot`).
@@ -167,7 +175,9 @@ def steady_loop(n, kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kq2, kk, key, idx
     sw_sum = 0
     sw_last = 0
     res_last = 0.0
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
     dwi = kw.items[-1]
+    key, idx, pos, quat, vel, angvel = borrow((key, idx, pos, quat, vel, angvel))  # (engine/borrow.py)
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
@@ -207,6 +217,8 @@ class FlightStep:
         self.names = tuple(s.name for s in forces) + tuple(s.name for s in (gyro, fly) if s is not None) + (
             "integrate_positions",)
         self._k = self._k_ctx = None
+        #: the packs handed to the loop, borrowed (engine/borrow.py)
+        self.borrowed = Borrowed()
 
     @staticmethod
     def build(model, stages) -> "FlightStep | None":
@@ -262,8 +274,9 @@ class FlightStep:
         ctx.reset(state, h)
         ctx.stop_allowed = False
         rec_on, blocks = _blocks(rec, model.n)
-        state.t = flight_loop(n, model.substeps, ctx.kept(state), self._pack(ctx), float(h), float(state.t), rec_on,
-                              *blocks)
+        b = self.borrowed.of
+        state.t = flight_loop(n, model.substeps, b(ctx.kept(state)), b(self._pack(ctx)), float(h), float(state.t),
+                              rec_on, *blocks)
         state.steps += n
         k = n * model.substeps
         calls = profile.calls
@@ -350,8 +363,11 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
     flags1 = fused.flags(ctx, True, bool(solve.warm), True)
     band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    r = steady_loop(n, kb, kf, kbr, kcol, *sp[:6], out2.kept, *sp[6:], h, ks, flags0, flags1, turn, band_check,
-                    int(solve._band), float(state.t), rec_on, *blocks)
+    kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
+    kall = fused.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+    b = fused.borrowed.of
+    r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(turn), h, flags0, flags1, band_check, int(solve._band),
+                    float(state.t), rec_on, *blocks)
     done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
     raw = r[7:]
     if done:
@@ -386,8 +402,9 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
 def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0):
     """:func:`fused_block` of the contact-free call (:func:`free_loop`)."""
     kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    done, t, pend, nbb, npl, nsb = free_loop(n, kb, kf, kbr, kcol, h, ks, fused.flags(ctx, False, False, False),
-                                             turn, float(state.t), rec_on, *blocks)
+    done, t, pend, nbb, npl, nsb = free_loop(n, fused.kfree.of((kb, kf, kbr, kcol, ks)), h,
+                                             fused.flags(ctx, False, False, False), fused.borrowed.of(turn),
+                                             float(state.t), rec_on, *blocks)
     if done:
         fused.free_backoff = 0
         state.t = t

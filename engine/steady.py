@@ -42,6 +42,7 @@ from operator import is_
 import numpy as np
 from numba import njit
 
+from engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
 from engine.broadstage import BroadPhase, _broad_step
 from engine.collision import NarrowPhase, box
 from engine.collision.collide import collide_packed
@@ -170,6 +171,7 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    key, idx = borrow((key, idx))  # (no reference counting: engine/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -217,6 +219,40 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
     return status, nbb, npl, nsb, 0, 0, 0.0
 
 
+@njit(cache=True)
+def steady_call(kall, ko, kq, h, step_flags):
+    """:func:`steady_kernel` called from Python with three packs instead of
+    twelve (a Pack argument costs ~2.5 us of dispatch, its typing in
+    Python): ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx,
+    ks) (:func:`steady_pack`), the packs that stay from step to step,
+    borrowed (engine/borrow.py); ``ko``, ``kq`` the warm caches read and
+    written, which rotate (borrowed too)."""
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
+    return steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags)
+
+
+@njit(cache=True)
+def free_call(kall, h, step_flags):
+    """:func:`free_kernel` called from Python with one pack (kb, kf, kbr,
+    kcol, ks) (:func:`free_pack`)."""
+    kb, kf, kbr, kcol, ks = kall.items
+    return free_kernel(kb, kf, kbr, kcol, h, ks, step_flags)
+
+
+@njit(cache=True)
+def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
+    """:func:`steady_call`'s ``kall``: the packs borrowed (valid while they
+    live: :class:`engine.borrow.BorrowedOf` holds them)."""
+    return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), borrowed(kc), borrowed(kx), borrowed(kt),
+                 borrowed(kw), borrowed(kk), key, idx, ks))
+
+
+@njit(cache=True)
+def free_pack(kb, kf, kbr, kcol, ks):
+    """:func:`free_call`'s ``kall`` (as :func:`steady_pack`)."""
+    return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), ks))
+
+
 class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
@@ -249,6 +285,13 @@ class SteadyStep:
         self.block_backoff = 0
         self.block_wait = 0
         self._empty = Contacts.empty()
+        #: the warm caches' packs handed to the fused calls, borrowed
+        #: (engine/borrow.py)
+        self.borrowed = Borrowed()
+        #: the packs that stay as one, borrowed (steady_call, free_call and
+        #: the loops over steps)
+        self.kall = BorrowedOf(steady_pack)
+        self.kfree = BorrowedOf(free_pack)
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -354,7 +397,9 @@ class SteadyStep:
         c = solve._fast[2]
         if self.narrow.collider.last_contacts(c.m) is not c:
             return None
-        return (kc, kx, kt, kw, ko, kq, kk, key, idx), self.flags(ctx, warm_any, warm_on, store_on), out, store_on, c
+        b = self.borrowed.of
+        return ((kc, kx, kt, kw, b(ko), b(kq), kk, key, idx), self.flags(ctx, warm_any, warm_on, store_on), out,
+                store_on, c)
 
     def packs(self, model, state, ctx) -> tuple:
         """The kernels' first four packs (begin/commit, free flight, broad
@@ -370,15 +415,16 @@ class SteadyStep:
         t0 = time.perf_counter()
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         if self.solve._fast is None:
-            res = free_kernel(kb, kf, kbr, kcol, float(h), ks, self.flags(ctx, False, False, False))
+            res = free_call(self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
             status = self.settle_free(model, state, ctx, res)
             name = FREE_NAME
         else:
             a = self.steady_args(model, state, ctx, h)
             if a is None:
                 return FAIL
-            solve_packs, flags, out, store_on, c = a
-            res = steady_kernel(kb, kf, kbr, kcol, *solve_packs, float(h), ks, flags)
+            (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
+            kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+            res = steady_call(kall, ko, kq, float(h), flags)
             status = self.settle(model, state, ctx, res, out, store_on, c)
             name = NAME
         dt = time.perf_counter() - t0
