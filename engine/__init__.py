@@ -96,7 +96,7 @@ class Engine:
 
     def __init__(self, inp, settings: Mapping[str, Any] | None = None):
         from engine.model import build_model
-        from engine.pipeline import build_pipeline
+        from engine.pipeline import build_pipeline, prepare
         from engine.profile import Profile
         from engine.state import State
 
@@ -108,6 +108,7 @@ class Engine:
         self.profile = Profile()
         for s in self.stages:
             self.profile.register(s.name)
+        prepare(self.model, self.state, self.stages, self.profile)  # (what the first steps would make)
 
     def step(self, n: int = 1) -> None:
         from engine.pipeline import advance

@@ -147,7 +147,7 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     plan = _plan_of(model, ctx, stages)
     ctx.kept(state)
     if plan.fused is not None:
-        plan.fused.packs(model, state, ctx)
+        plan.fused.prime(model, state, ctx)
     for s in stages:
         prime = getattr(s, "prime", None)
         if prime is not None:

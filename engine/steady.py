@@ -407,6 +407,13 @@ class SteadyStep:
         return (ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
                 self._settings(model))
 
+    def prime(self, model, state, ctx) -> None:
+        """At build (pipeline.prepare): the packs and the contact-free
+        call's borrowed pack, which a fresh engine's first try would make
+        (~50-100 us once); the steady call's waits for a steady solve."""
+        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        self.kfree.of((kb, kf, kbr, kcol, ks))
+
     def run(self, model, state, ctx, h: float, profile) -> int:
         """Try the (mini-)step of length ``h`` from ``state`` as one call
         (module doc): returns DONE, FAIL or CCD; with CCD the context holds

@@ -45,8 +45,20 @@ def test_build_makes_what_the_first_event_step_used(monkeypatch):
     assert ad.state._ctx is ctx
 
 
-def test_prepare_changes_no_bit():
+def test_engine_prepares_at_build():
     from engine import Engine
+    from adapters.reference import scene_input
+
+    sc = load_scene("billiards.head_on")
+    eng = Engine(scene_input(sc), dict(ReferenceAdapter.resolve_settings(sc, {"dt": 0.032})))
+    assert "plan" in eng.state._ctx.info and "ccd_collider" in eng.state._ctx.info
+
+
+def test_prepare_changes_no_bit():
+    from engine.model import build_model
+    from engine.pipeline import advance, build_pipeline
+    from engine.profile import Profile
+    from engine.state import State
     from adapters.reference import scene_input
 
     for name, st in (("billiards.head_on", {"dt": 0.032}), ("friction.block_slides", {"dt": 0.064}),
@@ -56,8 +68,9 @@ def test_prepare_changes_no_bit():
         ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
         ad.step(30)
         full = dict(ReferenceAdapter.resolve_settings(sc, st))
-        eng = Engine(scene_input(sc), full)  # no prepare: everything made on first use
-        assert getattr(eng.state, "_ctx", None) is None
-        eng.step(30)
+        model = build_model(scene_input(sc), full)  # no prepare: everything made on first use
+        state, stages = State.from_model(model), build_pipeline(model)
+        assert getattr(state, "_ctx", None) is None
+        advance(model, state, stages, Profile(), 30)
         for f in ("x", "q", "v", "w"):
-            assert np.array_equal(getattr(ad.state, f), getattr(eng.state, f)), (name, f)
+            assert np.array_equal(getattr(ad.state, f), getattr(state, f)), (name, f)
