@@ -144,7 +144,7 @@ def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, NONE, 0, 0, 0
-        status, nbb, npl, nsb, cnt, sw, res = free_kernel(kb, kf, kbr, kcol, h, ks, flags)
+        status, nbb, npl, nsb, cnt, sw, res = free_kernel(kall, h, flags)
         if status != DONE:
             return k, t, status, nbb, npl, nsb
         t += h
@@ -157,7 +157,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
                 angvel):
     """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, the packs
     that stay as one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key,
-    idx, ks) as :func:`engine.steady.steady_call`'s (a Pack argument costs
+    idx, ks) as :func:`engine.steady.steady_kernel`'s (a Pack argument costs
     ~2.5 us of dispatch): the first
     warm-starts from ``ko`` with ``flags0``, step k stores into ``kq1``
     (k even) or ``kq2`` (k odd) and the next warm-starts from it with
@@ -182,11 +182,11 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
         if _turns(turn, kb, h):
             return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
         if k == 0:
-            r = steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq1, kk, key, idx, h, ks, flags0)
+            r = steady_kernel(kall, ko, kq1, h, flags0)
         elif k % 2 == 1:
-            r = steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, kq1, kq2, kk, key, idx, h, ks, flags1)
+            r = steady_kernel(kall, kq1, kq2, h, flags1)
         else:
-            r = steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, kq2, kq1, kk, key, idx, h, ks, flags1)
+            r = steady_kernel(kall, kq2, kq1, h, flags1)
         status, nbb, npl, nsb, cnt, sw, res = r
         if status != DONE:
             return k, t, solved, sw_sum, sw_last, res_last, False, status, nbb, npl, nsb, cnt, sw, res

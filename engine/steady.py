@@ -156,8 +156,13 @@ def _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, 
 
 
 @njit(cache=True)
-def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags):
-    """One steady (mini-)step of length ``h`` (module doc).  ``kb`` the
+def steady_kernel(kall, ko, kq, h, step_flags):
+    """One steady (mini-)step of length ``h`` (module doc).  ``kall`` the
+    packs that stay from step to step (kb, kf, kbr, kcol, kc, kx, kt, kw,
+    kk, key, idx, ks), borrowed (:func:`steady_pack`; one argument: a Pack
+    argument costs ~2.5 us of dispatch, and one entry compiles the fused
+    step once, where a wrapper compiled it again); ``ko``, ``kq`` the warm
+    caches read and written, which rotate.  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
     free flight's, ``kbr`` the broad phase's and the end-pose check's,
     ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
@@ -166,6 +171,7 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
     this step's (:meth:`SteadyStep.run`).  Returns
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
     flags, reals, gy = ks.items
     (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
      rolling, iterations, passes, max_rows, face_points) = flags
@@ -200,14 +206,16 @@ def steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks
 
 
 @njit(cache=True)
-def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
+def free_kernel(kall, h, step_flags):
     """One contact-free (mini-)step of length ``h`` as one call: what
     :func:`steady_kernel` runs when its narrow phase finds no contact (no
     solve: ``Solve.__call__`` leaves the velocities), for a stage that keeps
     no steady solve (``Solve._fast`` None: the scene's first steps, a flight
     after an impact).  The packs as :func:`steady_kernel`'s; FAIL when the
     narrow phase finds a contact (nothing of the state written).  Returns
-    what :func:`steady_kernel` does (no sweeps, residual 0)."""
+    what :func:`steady_kernel` does (no sweeps, residual 0).  ``kall``:
+    (kb, kf, kbr, kcol, ks) borrowed (:func:`free_pack`)."""
+    kb, kf, kbr, kcol, ks = kall.items
     flags, reals, gy = ks.items
     ccd_check, has_fast = step_flags[4], step_flags[5]
     lever, lim = reals[0], reals[8]
@@ -220,28 +228,8 @@ def free_kernel(kb, kf, kbr, kcol, h, ks, step_flags):
 
 
 @njit(cache=True)
-def steady_call(kall, ko, kq, h, step_flags):
-    """:func:`steady_kernel` called from Python with three packs instead of
-    twelve (a Pack argument costs ~2.5 us of dispatch, its typing in
-    Python): ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx,
-    ks) (:func:`steady_pack`), the packs that stay from step to step,
-    borrowed (engine/borrow.py); ``ko``, ``kq`` the warm caches read and
-    written, which rotate (borrowed too)."""
-    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
-    return steady_kernel(kb, kf, kbr, kcol, kc, kx, kt, kw, ko, kq, kk, key, idx, h, ks, step_flags)
-
-
-@njit(cache=True)
-def free_call(kall, h, step_flags):
-    """:func:`free_kernel` called from Python with one pack (kb, kf, kbr,
-    kcol, ks) (:func:`free_pack`)."""
-    kb, kf, kbr, kcol, ks = kall.items
-    return free_kernel(kb, kf, kbr, kcol, h, ks, step_flags)
-
-
-@njit(cache=True)
 def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
-    """:func:`steady_call`'s ``kall``: the packs borrowed (valid while they
+    """:func:`steady_kernel`'s ``kall``: the packs borrowed (valid while they
     live: :class:`engine.borrow.BorrowedOf` holds them)."""
     return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), borrowed(kc), borrowed(kx), borrowed(kt),
                  borrowed(kw), borrowed(kk), key, idx, ks))
@@ -249,7 +237,7 @@ def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
 
 @njit(cache=True)
 def free_pack(kb, kf, kbr, kcol, ks):
-    """:func:`free_call`'s ``kall`` (as :func:`steady_pack`)."""
+    """:func:`free_kernel`'s ``kall`` (as :func:`steady_pack`)."""
     return Pack((borrowed(kb), borrowed(kf), borrowed(kbr), borrowed(kcol), ks))
 
 
@@ -288,7 +276,7 @@ class SteadyStep:
         #: the warm caches' packs handed to the fused calls, borrowed
         #: (engine/borrow.py)
         self.borrowed = Borrowed()
-        #: the packs that stay as one, borrowed (steady_call, free_call and
+        #: the packs that stay as one, borrowed (steady_kernel, free_kernel and
         #: the loops over steps)
         self.kall = BorrowedOf(steady_pack)
         self.kfree = BorrowedOf(free_pack)
@@ -422,7 +410,7 @@ class SteadyStep:
         t0 = time.perf_counter()
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         if self.solve._fast is None:
-            res = free_call(self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
+            res = free_kernel(self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
             status = self.settle_free(model, state, ctx, res)
             name = FREE_NAME
         else:
@@ -431,7 +419,7 @@ class SteadyStep:
                 return FAIL
             (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
             kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-            res = steady_call(kall, ko, kq, float(h), flags)
+            res = steady_kernel(kall, ko, kq, float(h), flags)
             status = self.settle(model, state, ctx, res, out, store_on, c)
             name = NAME
         dt = time.perf_counter() - t0

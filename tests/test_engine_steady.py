@@ -121,7 +121,7 @@ def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]
     from numba.core.runtime import _nrt_python, rtsys
 
     _nrt_python.memsys_enable_stats()
-    kernel = steady.steady_call
+    kernel = steady.steady_kernel
     seen = [0, 0]
 
     def counted(*args):
@@ -134,10 +134,10 @@ def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]
         seen[1] += (a2 - a1) - (a1 - a0)
         return out
 
-    monkeypatch.setattr(steady, "steady_call", counted)
+    monkeypatch.setattr(steady, "steady_kernel", counted)
     for _ in range(steps):  # one step a call: the fused try from Python (eng.step(n) loops compiled)
         eng.step(1)
-    monkeypatch.setattr(steady, "steady_call", kernel)
+    monkeypatch.setattr(steady, "steady_kernel", kernel)
     return seen[0], seen[1]
 
 
