@@ -177,7 +177,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     res_last = 0.0
     kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
     dwi = kw.items[-1]
-    key, idx, pos, quat, vel, angvel = borrow((key, idx, pos, quat, vel, angvel))  # (engine/borrow.py)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py; steady_kernel borrows key, idx)
     for k in range(n):
         if _turns(turn, kb, h):
             return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
@@ -279,11 +279,9 @@ class FlightStep:
                               rec_on, *blocks)
         state.steps += n
         k = n * model.substeps
-        calls = profile.calls
         for name in self.names:
-            calls[name] = calls.get(name, 0) + k
-        calls[FLIGHT_NAME] = calls.get(FLIGHT_NAME, 0) + k
-        profile.seconds[FLIGHT_NAME] = profile.seconds.get(FLIGHT_NAME, 0.0) + (time.perf_counter() - t0)
+            profile.charge(name, k, 0.0)
+        profile.charge(FLIGHT_NAME, k, time.perf_counter() - t0)
 
 
 _NO_REC: dict = {}
@@ -387,8 +385,7 @@ def fused_block(model, state, ctx, plan, profile, n: int, rec):
             solve._fast = None
     calls = done + (pend != NONE)
     if calls:
-        profile.calls[NAME] = profile.calls.get(NAME, 0) + calls
-        profile.seconds[NAME] = profile.seconds.get(NAME, 0.0) + (time.perf_counter() - t0)
+        profile.charge(NAME, calls, time.perf_counter() - t0)
     if pend == NONE:
         return done, None
     out_p = outs[done % 2]
@@ -412,8 +409,7 @@ def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t
         fused._no_contact(state, ctx)
     calls = done + (pend != NONE)
     if calls:
-        profile.calls[FREE_NAME] = profile.calls.get(FREE_NAME, 0) + calls
-        profile.seconds[FREE_NAME] = profile.seconds.get(FREE_NAME, 0.0) + (time.perf_counter() - t0)
+        profile.charge(FREE_NAME, calls, time.perf_counter() - t0)
     if pend == NONE:
         return done, None
     raw = (pend, nbb, npl, nsb, 0, 0, 0.0)

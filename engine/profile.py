@@ -72,10 +72,13 @@ class Profile:
     def run(self, stage: Stage, model, state, ctx) -> None:
         t0 = time.perf_counter()
         stage(model, state, ctx)
-        dt = time.perf_counter() - t0
-        name = stage.name
-        self.calls[name] = self.calls.get(name, 0) + 1
-        self.seconds[name] = self.seconds.get(name, 0.0) + dt
+        self.charge(stage.name, 1, time.perf_counter() - t0)
+
+    def charge(self, name: str, calls: int, seconds: float) -> None:
+        """Count ``calls`` calls of ``name`` taking ``seconds`` (s) in all
+        (a stage's, or a fused call's: engine/steady.py, engine/loop.py)."""
+        self.calls[name] = self.calls.get(name, 0) + calls
+        self.seconds[name] = self.seconds.get(name, 0.0) + seconds
 
     def count(self, key: str, k: int = 1) -> None:
         self.counters[key] = self.counters.get(key, 0) + k

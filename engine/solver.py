@@ -368,12 +368,15 @@ class Solve(Stage):
 
     def fused_finish(self, model, state, ctx, out, store_on, sweeps, residual) -> None:
         """After a steady solve in the fused step: what :meth:`_fast_path`
-        and :meth:`_finish` do after phases.classify_stage (no friction stop
-        candidate, no Baumgarte bias: the fused step's plan)."""
+        and :meth:`_finish` do after phases.classify_stage, without the
+        friction-stop test: the kernel ran its gate (sliding and rolling,
+        engine/steady_stops.py) and found no candidate, and the test opens
+        for any rolling contact and needs the end velocities, which the
+        fused call does not hand back.  No Baumgarte bias: the fused step's
+        plan has none."""
         cl, topo, c = self._fast
         rows = self._steady_rows(state, c, topo.order, residual, sweeps, store_on, out)
-        # (the kernel ran the friction-stop gate; the plan has no bias)
-        self._finish(model, ctx, rows, None, None, None, False, ctx.h, store_on, state, False)
+        self._finish(model, ctx, rows, None, None, None, False, ctx.h, store_on, state, False, stop_test=False)
         self._grow_band(self._prep[1], rows.m)
 
     def _steady_rows(self, state, c, idx, residual, sweeps, store_on, out):
@@ -490,15 +493,17 @@ class Solve(Stage):
             self._fast = (cl, topo, c) if nimp == 0 and self._prep is not None else None
         self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
 
-    def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any) -> None:
-        """After the solve: the friction-stop test, Baumgarte's bias,
-        ``ctx.rows`` and the counters (``sliding_any``: a patch slides)."""
+    def _finish(self, model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, sliding_any,
+                stop_test: bool = True) -> None:
+        """After the solve: the friction-stop test (unless ``stop_test`` is
+        False), Baumgarte's bias, ``ctx.rows`` and the counters
+        (``sliding_any``: a patch slides)."""
         n = model.n
         # (only from a solve that (nearly) converged: the end velocities of
         # one cut short far from convergence are solver noise, and a
         # Gauss-Seidel-only column with 5 sweeps "stopped" 422 times in 5 s
         # and gained 20 % energy)
-        if (self.friction and ctx.stop_allowed and self.stops and rows.residual <= STOP_MAX_RESIDUAL
+        if (stop_test and self.friction and ctx.stop_allowed and self.stops and rows.residual <= STOP_MAX_RESIDUAL
                 and (sliding_any or rows.rolling)):
             wr0 = rows.patch_velocity(U0, slice(3, 5)) if rows.rolling else None
             tau = rows.stop_times(U, vt0, wr0, h, self.iterations)

@@ -70,9 +70,11 @@ NAME = "steady_step"
 FREE_NAME = "contact_free_step"
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
-    """What :func:`steady_kernel` and :func:`free_kernel` run first: the
+    """(Inlined into its two callers: as a function of its own it compiled
+    the whole flight and narrow phase once more; engine/README.md
+    "Compile time".)  What :func:`steady_kernel` and :func:`free_kernel` run first: the
     start of the (mini-)step, gravity, the free flight, the broad phase and
     the narrow phase (the packs and the plan's flags and reals as theirs),
     with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
@@ -113,7 +115,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     if W_[0].shape[0] < max(nbb, npl, nsb):
         return False, 0, 0, 0, 0
     cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
-                                         sk[:nsb], True, margin, sweep if speculative else no_sweep, face_points)
+                                         sk[:nsb], bool(True), margin, sweep if speculative else no_sweep, face_points)
     A, slot = kcol.items[6], kcol.items[8]
     return need_k <= A[0].shape[0] and need_s <= slot[2].shape[0], nbb, npl, nsb, cnt
 
@@ -186,7 +188,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     if cnt != 0:  # (no contact: Solve.__call__ leaves the velocities; SteadyStep.settle)
         # solver.Solve (its steady path, Solve._fast_path)
         nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
-            kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, True, friction,
+            kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, bool(True), friction,
             rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
         if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -196,7 +198,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
             wi = kw.items
             ti = kt.items
             vt0 = wi[19]
-            if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, False, vt0, wi[8][:0],
+            if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, bool(False), vt0, wi[8][:0],
                                       roll_tol) or (rolling and rolling_candidate(
                                           ti[3], wi[4], wi[10], wi[16], wi[17], ti[7], ti[14], roll_tol,
                                           vt0.shape[0])):
@@ -422,9 +424,7 @@ class SteadyStep:
             res = steady_kernel(kall, ko, kq, float(h), flags)
             status = self.settle(model, state, ctx, res, out, store_on, c)
             name = NAME
-        dt = time.perf_counter() - t0
-        profile.calls[name] = profile.calls.get(name, 0) + 1
-        profile.seconds[name] = profile.seconds.get(name, 0.0) + dt
+        profile.charge(name, 1, time.perf_counter() - t0)
         return status
 
     def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
@@ -453,17 +453,8 @@ class SteadyStep:
         return status
 
     def finish_solve(self, model, state, ctx, out, store_on: bool, sweeps: int, residual: float) -> None:
-        """``Solve.fused_finish`` after a fused solve, its own friction-stop
-        test off: the kernel ran the gate (sliding and rolling,
-        engine/steady_stops.py) and found no candidate, and the test
-        (``Solve._finish``) opens for any rolling contact and needs the end
-        velocities, which the fused call does not hand back."""
-        allowed = ctx.stop_allowed
-        ctx.stop_allowed = False
-        try:
-            self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
-        finally:
-            ctx.stop_allowed = allowed
+        """``Solve.fused_finish`` after a fused solve."""
+        self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
 
     def settle_free(self, model, state, ctx, res) -> int:
         """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,

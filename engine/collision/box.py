@@ -229,7 +229,7 @@ def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, ed
             P[1, r] = fc - U + V
             P[2, r] = fc - U - V
             P[3, r] = fc + U - V
-        cnt = 4
+        cnt = np.int64(4)  # (typed: a literal 4 would compile _clip twice)
         a_lo = 1 if face == 0 else 0
         a_hi = 1 if face == 2 else 2
         for a in (a_lo, a_hi):

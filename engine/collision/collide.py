@@ -240,7 +240,7 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     cap_slots = slot[2].shape[0]
     need_k = 0
     need_s = 0
-    cnt = 0
+    cnt = np.int64(0)  # (typed, not Literal[int](0): _emit compiles once; engine/README.md "Compile time")
     if from_sweep:
         for t in range(pi.shape[0]):
             mbb[t] = margin + sweep[pi[t]] + sweep[pj[t]]

@@ -162,7 +162,7 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
         oh[0], oh[1], oh[2] = hl[k], rc[k], 0.0
         for m in range(8):
             _box_point(cb[k], Rb[k], hb[k], corners[m], x)
-            S_g[k, m] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, m], S_p[k, m])
+            S_g[k, m] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], np.int64(-1), S_n[k, m], S_p[k, m])
             S_f[k, m] = m
             S_ok[k, m] = True
         bound = np.sqrt(hl[k] * hl[k] + rc[k] * rc[k])
@@ -180,7 +180,7 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
                 for i in range(3):
                     x[i] = e0[i] + (e1[i] - e0[i]) * s
                 sl = 8 + e
-                S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], -1, S_n[k, sl], S_p[k, sl])
+                S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], np.int64(-1), S_n[k, sl], S_p[k, sl])
                 S_f[k, sl] = 8 + e
                 S_ok[k, sl] = True
             crossing_contacts1(e0, e1, 0.0, cc[k], Rc[k], hl[k], rc[k], s2, x, 20 + e, 12, 20 + 2 * e, 1, S_n[k],

@@ -239,7 +239,7 @@ def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n
     pts = np.empty((_SIDE_MAX, 3))
     fid = np.empty(_SIDE_MAX, np.int64)
     infg = np.zeros(_SIDE_MAX, np.bool_)
-    m = 0
+    m = np.int64(0)
     cosf = pn[0] * ax[0] + pn[1] * ax[1] + pn[2] * ax[2]
     if not abs(cosf) >= CYLINDER_FACE_COS:
         # side on: each rim's support point toward the other body (the ends
@@ -346,9 +346,9 @@ def _cylinder_cylinder_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin, use_marg
         for i in range(3):
             mpn[i] = -pn[i]
         cnt = _points_against(ca[k], Ra[k], hla[k], ra[k], cb[k], Rb[k], hlb[k], rb[k], pn, margin[k], use_margin,
-                              1.0, 0, bn, bp, bg, bf, 0)
+                              1.0, np.int64(0), bn, bp, bg, bf, np.int64(0))  # (typed ints: one compile; see below)
         cnt = _points_against(cb[k], Rb[k], hlb[k], rb[k], ca[k], Ra[k], hla[k], ra[k], mpn, margin[k], use_margin,
-                              -1.0, 128, bn, bp, bg, bf, cnt)
+                              -1.0, np.int64(128), bn, bp, bg, bf, cnt)
         _four_points(bn, bp, bg, bf, cnt, pn, margin[k], use_margin, order, key, E, sp, area,
                      S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
 
@@ -366,7 +366,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
     an equal can turned at 2e-3 rad/s within a step instead of resting.
     Contacts beyond the margin (k,) are dropped first.  Separated, the
     deepest is the smallest gap: the distance stays exact."""
-    m = 0
+    m = np.int64(0)
     first = np.inf
     for t in range(cnt):
         if use_margin and not bg[t] < margin:
@@ -403,7 +403,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
     for a in range(m):
         if bg[order[a]] <= first + MANIFOLD_BAND:
             nn += 1
-    ns = 0
+    ns = np.int64(0)
     if nn:
         near = np.empty(nn, np.int64)
         j = 0
@@ -454,7 +454,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
                 _put(near[a], ns, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok)
                 ns += 1
     # the farther (speculative) contacts, all kept, in order after slot 4
-    sl = 4
+    sl = np.int64(4)
     for a in range(m):
         t = order[a]
         if bg[t] > first + MANIFOLD_BAND:

@@ -419,7 +419,7 @@ def sphere_solid1(kind, c, r, oc, oR, oh, n, p):
     the gap."""
     if kind == SDF_BOX:
         return sphere_box1(c, r, oc, oR, oh, n, p)
-    return sphere_cylinder1(c, r, oc, oR, oh[0], oh[1], -1, n, p)
+    return sphere_cylinder1(c, r, oc, oR, oh[0], oh[1], np.int64(-1), n, p)
 
 
 @njit(cache=True)
@@ -460,7 +460,7 @@ def crossing_contacts1(e0, e1, r, cc, Rc, hl, rc, s2, x, sl0, sl_step, fid0, fid
             for i in range(3):
                 x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
             sl = sl0 + sl_step * j
-            S_g[sl] = sphere_cylinder1(x, r, cc, Rc, hl, rc, -1, S_n[sl], S_p[sl])
+            S_g[sl] = sphere_cylinder1(x, r, cc, Rc, hl, rc, np.int64(-1), S_n[sl], S_p[sl])
             S_f[sl] = fid0 + fid_step * j
             S_ok[sl] = True
 

@@ -306,7 +306,7 @@ def solve_stage(kc, kt, kw, ko, kq, ca, cb, point, normal, gap, e, idx, touching
      r_direct, bias, Up, lam_p, touch_rows, wk, dwf, dwi) = kw.items
     o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, _ = ko.items
     nb = X.shape[0]
-    prepare_rows(X, Iinv, inv_mass, R0, True, ca, cb, point, normal, idx, nb, J, M, mn, loc, lam_n, target,
+    prepare_rows(X, Iinv, inv_mass, R0, bool(True), ca, cb, point, normal, idx, nb, J, M, mn, loc, lam_n, target,
                  friction, pid, pa, pb, cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
     pushed = prepare_targets(idx, touching, vn, gap, e, h, lever, thr, beta, slop, target, bias)
     sw, residual = solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, nb, friction, rolling, pab,

@@ -387,7 +387,7 @@ def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
     """Patches that slide at velocities ``U`` (see solver.Rows.sliding):
     writes the centroids' relative tangential velocities ``vt`` (np, 2) and
     ``slip`` (np,) bool."""
-    patch_velocity(Jt, U, pab, 0, 2, vt)
+    patch_velocity(Jt, U, pab, np.int64(0), np.int64(2), vt)
     for p in range(Jt.shape[0]):
         ia = pab[p, 0]
         ib = pab[p, 1]

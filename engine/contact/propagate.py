@@ -401,7 +401,7 @@ def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, frictio
                     j = i
             if vcur[j] >= -thr:
                 return True
-            _resolve(inv[j], True, J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
+            _resolve(inv[j], bool(True), J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
                      mus, muk, r_twist, mur, rolling, K, have, Kinv, ok, tgt, lam, r, world)
         return False
     for _ in range(3):
@@ -415,7 +415,7 @@ def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, frictio
             break
         for g in range(G):
             if mark[g]:
-                _resolve(g, False, J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
+                _resolve(g, bool(False), J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
                          mus, muk, r_twist, mur, rolling, K, have, Kinv, ok, tgt, lam, r, world)
     return True
 
