@@ -14,8 +14,8 @@ energy-conserving); the profile times it as the stage ``flight_step``.
 caller's (n, n_bodies, 3|4) blocks: consecutive steps that the step loop
 would run as one fused call each (the steady step, the contact-free step:
 engine/steady.py; a scene's :class:`FlightStep`) run inside ONE compiled
-call that loops over them (:func:`steady_loop`, :func:`free_loop`,
-:func:`flight_loop`) and stops at the first step that is not steady; that
+call that loops over them (:func:`engine.steady.steady_loop`,
+:func:`engine.steady.free_loop`, :func:`flight_loop`) and stops at the first step that is not steady; that
 step then runs through :func:`engine.pipeline.step` (with the loop's try of
 it, so nothing is computed twice).  The bookkeeping between the steps --
 ``Solve.fused_finish``, the warm-start pool's rotation, the profile's calls
@@ -28,7 +28,6 @@ out as one sum.  A profile by stage (``Profile.by_stage``) and scenes with
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -36,20 +35,18 @@ from numba import njit
 
 from engine.control import EventMode
 from engine.flight import (begin_step, free_flight, gravity, gyroscopic_torque, integrate_positions, linear_drag,
-                           max_turn_sq, quadratic_drag, springs)
+                           quadratic_drag, springs)
 from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
 from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.borrow import Borrowed, borrow
 from engine.pack import Pack
-from engine.state import _commit_packed
-from engine.steady import CCD, DONE, FAIL, FREE_NAME, NAME, free_kernel, steady_kernel
+from engine.state import _commit_packed, record_packed
+from engine.steady import _NO_TURN, _no_records, FREE_NAME, NAME, NONE, free_loop, steady_loop
 
 #: the profile's name of a no-contact scene's step (FlightStep)
 FLIGHT_NAME = "flight_step"
-#: no try pending after a loop (it stopped before trying the next step)
-NONE = -1
 #: gyroscopic stage codes of flight_kernel
 NO_GYRO, IMPLICIT, ENERGY = 0, 1, 2
 
@@ -91,20 +88,6 @@ def flight_kernel(kb, kg, h):
 
 
 @njit(cache=True)
-def _record(kb, k, rec_on, pos, quat, vel, angvel):
-    """The state after a step into row ``k`` of the record blocks."""
-    if rec_on:
-        x, q, v, w = kb.items[0], kb.items[1], kb.items[2], kb.items[3]
-        for i in range(x.shape[0]):
-            for c in range(3):
-                pos[k, i, c] = x[i, c]
-                vel[k, i, c] = v[i, c]
-                angvel[k, i, c] = w[i, c]
-            for c in range(4):
-                quat[k, i, c] = q[i, c]
-
-
-@njit(cache=True)
 def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
     """``n`` steps of ``substeps`` (sub)steps of :func:`flight_kernel`,
     each step's state into row k of the blocks when ``rec_on``; returns the
@@ -115,93 +98,8 @@ def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
         for s in range(substeps):
             flight_kernel(kb, kg, h)
             t += h
-        _record(kb, k, rec_on, pos, quat, vel, angvel)
+        record_packed(kb, k, rec_on, pos, quat, vel, angvel)
     return t
-
-
-@njit(cache=True)
-def _turns(turn, kb, h):
-    """Whether the next step would be split for fast rotation
-    (pipeline._parts: not sqrt(w2) h > limit means one part); ``turn`` a
-    Pack of (split?, limit rad, boxes (k,), axisymmetric bodies (j,))."""
-    has_turn, limit, boxes, axisym = turn.items
-    if not has_turn:
-        return False
-    w2 = max_turn_sq(kb.items[3], kb.items[1], boxes, axisym)
-    return math.sqrt(w2) * h > limit
-
-
-@njit(cache=True)
-def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
-    """Up to ``n`` steps of :func:`engine.steady.free_kernel` (its packs
-    kb, kf, kbr, kcol, ks as one, ``kall``), recorded as
-    :func:`flight_loop`'s; stops before a step split for fast rotation and
-    at a try that is not DONE.  Returns (steps done, time after them, the
-    status of the try that stopped it or NONE, its pairs (body, plane,
-    static box))."""
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
-    kb, kf, kbr, kcol, ks = kall.items
-    for k in range(n):
-        if _turns(turn, kb, h):
-            return k, t, NONE, 0, 0, 0
-        status, nbb, npl, nsb, cnt, sw, res = free_kernel(kall, h, flags)
-        if status != DONE:
-            return k, t, status, nbb, npl, nsb
-        t += h
-        _record(kb, k, rec_on, pos, quat, vel, angvel)
-    return n, t, NONE, 0, 0, 0
-
-
-@njit(cache=True)
-def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel,
-                angvel):
-    """Up to ``n`` steps of :func:`engine.steady.steady_kernel`, the packs
-    that stay as one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key,
-    idx, ks) as :func:`engine.steady.steady_kernel`'s (a Pack argument costs
-    ~2.5 us of dispatch): the first
-    warm-starts from ``ko`` with ``flags0``, step k stores into ``kq1``
-    (k even) or ``kq2`` (k odd) and the next warm-starts from it with
-    ``flags1`` (the pool's rotation, :meth:`engine.contact.warm.WarmPool.slot`).
-    Stops before a step split for fast rotation, at a try that is not DONE
-    (not counted), after a step with no contact (the solve's bookkeeping
-    changes: SteadyStep.settle) and after one whose sparse direct start
-    needed more band storage than ``band`` (``band_check``; Solve._grow_band).
-    Returns (steps done, time after them, steps solved (with contacts), the
-    sum of their sweeps but the last's, the last's sweeps and residual,
-    whether the last step had no contact, then the stopping try's status
-    or NONE and its result as steady_kernel's (pairs, contacts, sweeps,
-    residual))."""
-    solved = 0
-    sw_sum = 0
-    sw_last = 0
-    res_last = 0.0
-    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
-    dwi = kw.items[-1]
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py; steady_kernel borrows key, idx)
-    for k in range(n):
-        if _turns(turn, kb, h):
-            return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
-        if k == 0:
-            r = steady_kernel(kall, ko, kq1, h, flags0)
-        elif k % 2 == 1:
-            r = steady_kernel(kall, kq1, kq2, h, flags1)
-        else:
-            r = steady_kernel(kall, kq2, kq1, h, flags1)
-        status, nbb, npl, nsb, cnt, sw, res = r
-        if status != DONE:
-            return k, t, solved, sw_sum, sw_last, res_last, False, status, nbb, npl, nsb, cnt, sw, res
-        t += h
-        _record(kb, k, rec_on, pos, quat, vel, angvel)
-        if cnt == 0:
-            return k + 1, t, solved, sw_sum, sw_last, res_last, True, NONE, 0, 0, 0, 0, 0, 0.0
-        if solved:
-            sw_sum += sw_last
-        solved += 1
-        sw_last = sw
-        res_last = res
-        if band_check and dwi[0] > band:
-            return k + 1, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
-    return n, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
 
 
 class FlightStep:
@@ -284,9 +182,6 @@ class FlightStep:
         profile.charge(FLIGHT_NAME, k, time.perf_counter() - t0)
 
 
-_NO_REC: dict = {}
-
-
 def _blocks(rec, nb: int) -> tuple:
     """(record?, the four blocks) for the loops: ``rec`` when its arrays
     are float64 C-contiguous (what the loops are compiled for), else
@@ -294,10 +189,7 @@ def _blocks(rec, nb: int) -> tuple:
     if rec is not None and all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
                                for a in rec):
         return True, tuple(rec)
-    z = _NO_REC.get(nb)
-    if z is None:
-        z = _NO_REC[nb] = (np.zeros((0, nb, 3)), np.zeros((0, nb, 4)), np.zeros((0, nb, 3)), np.zeros((0, nb, 3)))
-    return False, z
+    return False, _no_records(nb)
 
 
 def blocks_usable(rec) -> bool:
@@ -310,9 +202,6 @@ def record_blocks(n: int, nb: int) -> tuple:
     angvel), NaN-filled."""
     return (np.full((n, nb, 3), np.nan), np.full((n, nb, 4), np.nan), np.full((n, nb, 3), np.nan),
             np.full((n, nb, 3), np.nan))
-
-
-_NO_TURN = (False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
 def fused_block(model, state, ctx, plan, profile, n: int, rec):

@@ -244,3 +244,19 @@ def _commit_packed(k):
             w[i, c] = W[i, c]
         for c in range(4):
             q[i, c] = q1[i, c]
+
+
+@njit(cache=True)
+def record_packed(kb, k, rec_on, pos, quat, vel, angvel):
+    """The state after a step (the context's kept pack ``kb``, as
+    :func:`_commit_packed`'s) into row ``k`` of the record blocks (pos,
+    vel, angvel (n, n_bodies, 3), quat (n, n_bodies, 4)) when ``rec_on``."""
+    if rec_on:
+        x, q, v, w = kb.items[0], kb.items[1], kb.items[2], kb.items[3]
+        for i in range(x.shape[0]):
+            for c in range(3):
+                pos[k, i, c] = x[i, c]
+                vel[k, i, c] = v[i, c]
+                angvel[k, i, c] = w[i, c]
+            for c in range(4):
+                quat[k, i, c] = q[i, c]

@@ -36,6 +36,7 @@ stage ``steady_step``.
 
 from __future__ import annotations
 
+import math
 import time
 from operator import is_
 
@@ -49,17 +50,22 @@ from engine.collision.collide import collide_packed
 from engine.contact import phases, prepare
 from engine.control import EventMode
 from engine.ccd_end import end_pose_candidates
-from engine.flight import begin_step, free_flight, gravity, integrate_positions
+from engine.flight import begin_step, free_flight, gravity, integrate_positions, max_turn_sq
 from engine.forces import Gravity
 from engine.integrate import IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.pack import Pack
 from engine.solver import Solve
-from engine.state import Contacts, _commit_packed
+from engine.state import Contacts, _commit_packed, record_packed
 from engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
 from engine.steady_stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
+#: no try pending after a loop (it stopped before trying the next step)
+NONE = -1
+#: the rotation split's Pack when a loop is not to check it (one step
+#: from Python: pipeline._parts split it already)
+_NO_TURN = (False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 #: most steps a failed try makes the next wait
 MAX_BACKOFF = 64
@@ -157,7 +163,7 @@ def _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, 
     return DONE
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def steady_kernel(kall, ko, kq, h, step_flags):
     """One steady (mini-)step of length ``h`` (module doc).  ``kall`` the
     packs that stay from step to step (kb, kf, kbr, kcol, kc, kx, kt, kw,
@@ -207,7 +213,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     return status, nbb, npl, nsb, cnt, sweeps, residual
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def free_kernel(kall, h, step_flags):
     """One contact-free (mini-)step of length ``h`` as one call: what
     :func:`steady_kernel` runs when its narrow phase finds no contact (no
@@ -227,6 +233,110 @@ def free_kernel(kall, h, step_flags):
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
     status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
     return status, nbb, npl, nsb, 0, 0, 0.0
+
+
+@njit(cache=True)
+def _turns(turn, kb, h):
+    """Whether the next step would be split for fast rotation
+    (pipeline._parts: not sqrt(w2) h > limit means one part); ``turn`` a
+    Pack of (split?, limit rad, boxes (k,), axisymmetric bodies (j,))."""
+    has_turn, limit, boxes, axisym = turn.items
+    if not has_turn:
+        return False
+    w2 = max_turn_sq(kb.items[3], kb.items[1], boxes, axisym)
+    return math.sqrt(w2) * h > limit
+
+
+@njit(cache=True)
+def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
+    """Up to ``n`` steps of :func:`free_kernel` (its packs kb, kf, kbr,
+    kcol, ks as one, ``kall``), each step's state into row k of the record
+    blocks when ``rec_on`` (engine/loop.py); stops before a step split for
+    fast rotation and at a try that is not DONE.  Returns (steps done, time
+    after them, the status of the try that stopped it or NONE, the last
+    try's pairs (body, plane, static box)).  The contact-free call's one
+    compiled entry: one step from Python is ``n`` = 1
+    (:meth:`SteadyStep.run`)."""
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    kb = kall.items[0]
+    nbb = npl = nsb = 0
+    for k in range(n):
+        if _turns(turn, kb, h):
+            return k, t, NONE, 0, 0, 0
+        status, nbb, npl, nsb, cnt, sw, res = free_kernel(kall, h, flags)
+        if status != DONE:
+            return k, t, status, nbb, npl, nsb
+        t += h
+        record_packed(kb, k, rec_on, pos, quat, vel, angvel)
+    return n, t, NONE, nbb, npl, nsb
+
+
+@njit(cache=True)
+def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel,
+                angvel):
+    """Up to ``n`` steps of :func:`steady_kernel`, the packs that stay as
+    one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks) as
+    its (a Pack argument costs ~2.5 us of dispatch): the first warm-starts
+    from ``ko`` with ``flags0``, step k stores into ``kq1`` (k even) or
+    ``kq2`` (k odd) and the next warm-starts from it with ``flags1`` (the
+    pool's rotation, :meth:`engine.contact.warm.WarmPool.slot`).  Stops
+    before a step split for fast rotation, at a try that is not DONE (not
+    counted), after a step with no contact (the solve's bookkeeping
+    changes: SteadyStep.settle) and after one whose sparse direct start
+    needed more band storage than ``band`` (``band_check``;
+    Solve._grow_band).  Returns (steps done, time after them, steps solved
+    (with contacts), the sum of their sweeps but the last's, the last's
+    sweeps and residual, whether the last step had no contact, then the
+    stopping try's status or NONE and the last try's result as
+    steady_kernel's (pairs, contacts, sweeps, residual)).  The steady
+    call's one compiled entry: one step from Python is ``n`` = 1
+    (:meth:`SteadyStep.run`), and :func:`steady_kernel` is inlined at its
+    one call site here (two entries compiled the whole step twice)."""
+    solved = 0
+    sw_sum = 0
+    sw_last = 0
+    res_last = 0.0
+    kb, kw = kall.items[0], kall.items[7]
+    dwi = kw.items[-1]
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py; steady_kernel borrows key, idx)
+    nbb = npl = nsb = cnt = sw = 0
+    res = 0.0
+    for k in range(n):
+        if _turns(turn, kb, h):
+            return k, t, solved, sw_sum, sw_last, res_last, False, NONE, 0, 0, 0, 0, 0, 0.0
+        if k == 0:
+            kr, ks_, fl = ko, kq1, flags0
+        elif k % 2 == 1:
+            kr, ks_, fl = kq1, kq2, flags1
+        else:
+            kr, ks_, fl = kq2, kq1, flags1
+        status, nbb, npl, nsb, cnt, sw, res = steady_kernel(kall, kr, ks_, h, fl)
+        if status != DONE:
+            return k, t, solved, sw_sum, sw_last, res_last, False, status, nbb, npl, nsb, cnt, sw, res
+        t += h
+        record_packed(kb, k, rec_on, pos, quat, vel, angvel)
+        if cnt == 0:
+            return k + 1, t, solved, sw_sum, sw_last, res_last, True, NONE, nbb, npl, nsb, cnt, sw, res
+        if solved:
+            sw_sum += sw_last
+        solved += 1
+        sw_last = sw
+        res_last = res
+        if band_check and dwi[0] > band:
+            return k + 1, t, solved, sw_sum, sw_last, res_last, False, NONE, nbb, npl, nsb, cnt, sw, res
+    return n, t, solved, sw_sum, sw_last, res_last, False, NONE, nbb, npl, nsb, cnt, sw, res
+
+
+_NO_REC: dict = {}
+
+
+def _no_records(nb: int) -> tuple:
+    """Empty record blocks (0, nb, 3|4) for a loop that records nothing,
+    made once per body count."""
+    z = _NO_REC.get(nb)
+    if z is None:
+        z = _NO_REC[nb] = (np.zeros((0, nb, 3)), np.zeros((0, nb, 4)), np.zeros((0, nb, 3)), np.zeros((0, nb, 3)))
+    return z
 
 
 @njit(cache=True)
@@ -282,6 +392,8 @@ class SteadyStep:
         #: the loops over steps)
         self.kall = BorrowedOf(steady_pack)
         self.kfree = BorrowedOf(free_pack)
+        #: the loops' rotation-split Pack for one step from Python (none)
+        self._no_turn = Pack(_NO_TURN)
 
     @staticmethod
     def build(model, stages) -> "SteadyStep | None":
@@ -411,9 +523,14 @@ class SteadyStep:
         steady solve, else the contact-free one."""
         t0 = time.perf_counter()
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        # one step of the loops (their one compiled entry each), no
+        # rotation split to check (pipeline._parts did), nothing recorded
+        turn = self.borrowed.of(self._no_turn)
+        rec = _no_records(model.n)
         if self.solve._fast is None:
-            res = free_kernel(self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False))
-            status = self.settle_free(model, state, ctx, res)
+            r = free_loop(1, self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False),
+                          turn, 0.0, False, *rec)
+            status = self.settle_free(model, state, ctx, (DONE if r[2] == NONE else r[2],) + r[3:6])
             name = FREE_NAME
         else:
             a = self.steady_args(model, state, ctx, h)
@@ -421,8 +538,8 @@ class SteadyStep:
                 return FAIL
             (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
             kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-            res = steady_kernel(kall, ko, kq, float(h), flags)
-            status = self.settle(model, state, ctx, res, out, store_on, c)
+            r = steady_loop(1, kall, ko, kq, kq, turn, float(h), flags, flags, False, 0, 0.0, False, *rec)
+            status = self.settle(model, state, ctx, (DONE if r[7] == NONE else r[7],) + r[8:], out, store_on, c)
             name = NAME
         profile.charge(name, 1, time.perf_counter() - t0)
         return status
