@@ -39,3 +39,35 @@ def test_jit_time_is_reported_once_and_no_step_compiles():
     assert float(jit_second) == 0.0  # later builds find them ready
     assert in_stages == "True"
     assert line2 == "True"  # the steps ran on the kernels the build prepared: no new specialisation
+
+
+def test_python_m_engine_fills_the_cache_a_run_then_loads():
+    """``python -m engine`` (what CI runs before the tests, .ci/run)
+    compiles or loads the kernels in the cache directory it names (the
+    engine's own, engine/cache.py); a later process running a contact
+    scene and a scene without contact at the default settings then
+    compiles nothing: every kernel it calls comes from that cache
+    (numba's ``numba:compile`` events are raised only for a compile, a
+    cache hit raises none)."""
+    from engine.cache import cache_dir
+
+    env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}
+    out = subprocess.run([sys.executable, "-m", "engine"], capture_output=True, text=True, cwd=REPO, env=env,
+                         timeout=900)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("engine kernels compiled or loaded in "), out.stdout
+    assert str(cache_dir()) in out.stdout
+    code = """
+from numba.core import event
+with event.install_recorder("numba:compile") as rec:
+    from harness.bench import column_scene
+    from harness.runner import run
+    from contract.scene import load_scene
+    run(column_scene(3), "reference", compute_metrics=False)
+    run(load_scene("forces.drag_linear_fall"), "reference", compute_metrics=False)
+print(sorted({ev.data["dispatcher"].py_func.__qualname__ for _, ev in rec.buffer if ev.is_start}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, env=env,
+                         timeout=900)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
