@@ -427,35 +427,82 @@ def _fib_dirs(n):
     return np.stack([r * np.cos(ph), r * np.sin(ph), z], axis=1)
 
 
+def _nelder_mead_batch(f, x0, step, xatol, fatol, maxiter):
+    """Nelder-Mead as scipy.optimize.minimize(method="Nelder-Mead") does it
+    (adaptive=False: reflection 1, expansion 2, contraction 1/2, shrink
+    1/2; the same order of tests and the same stopping rule: every vertex
+    within xatol of the best and every value within fatol of its value, or
+    ``maxiter`` iterations counted from 1), for many independent problems in
+    lockstep: x0 (..., k) holds one start per problem, the initial simplex
+    is x0 and x0 + step along each axis, and f maps points (..., k) to
+    values (...) -- so each step evaluates f once for all problems at once
+    instead of once per problem.  A problem that has stopped is left as it
+    is.  Returns the best value of each problem (...)."""
+    k = x0.shape[-1]
+    sim = x0[..., None, :] + np.concatenate([np.zeros((1, k)), step * np.eye(k)])  # (..., k + 1, k)
+    fsim = np.stack([f(sim[..., j, :]) for j in range(k + 1)], axis=-1)
+
+    def sort(sim, fsim):
+        i = np.argsort(fsim, axis=-1)
+        return np.take_along_axis(sim, i[..., None], -2), np.take_along_axis(fsim, i, -1)
+
+    sim, fsim = sort(sim, fsim)
+    active = np.ones(fsim.shape[:-1], bool)
+    for _ in range(1, maxiter):
+        active &= ~((np.abs(sim[..., 1:, :] - sim[..., :1, :]).max(axis=(-2, -1)) <= xatol)
+                    & (np.abs(fsim[..., :1] - fsim[..., 1:]).max(axis=-1) <= fatol))
+        if not active.any():
+            break
+        xbar = sim[..., :-1, :].sum(axis=-2) / k
+        worst, f_worst = sim[..., -1, :], fsim[..., -1]
+        xr = 2.0 * xbar - worst
+        fxr = f(xr)
+        expand = fxr < fsim[..., 0]
+        reflect = ~expand & (fxr < fsim[..., -2])
+        outside = ~expand & ~reflect & (fxr < f_worst)  # contract outside, else inside
+        x2 = np.where(expand[..., None], 3.0 * xbar - 2.0 * worst,
+                      np.where(outside[..., None], 1.5 * xbar - 0.5 * worst, 0.5 * xbar + 0.5 * worst))
+        f2 = f(x2)
+        take2 = np.where(expand, f2 < fxr, np.where(outside, f2 <= fxr, f2 < f_worst)) & ~reflect
+        shrink = active & ~expand & ~reflect & ~take2
+        replace = active & ~shrink
+        new_x = np.where(take2[..., None], x2, xr)
+        new_f = np.where(take2, f2, fxr)
+        sim[..., -1, :] = np.where(replace[..., None], new_x, worst)
+        fsim[..., -1] = np.where(replace, new_f, f_worst)
+        if shrink.any():
+            shrunk = sim[..., :1, :] + 0.5 * (sim[..., 1:, :] - sim[..., :1, :])
+            f_shrunk = np.stack([f(shrunk[..., j, :]) for j in range(k)], axis=-1)
+            sim[..., 1:, :] = np.where(shrink[..., None, None], shrunk, sim[..., 1:, :])
+            fsim[..., 1:] = np.where(shrink[..., None], f_shrunk, fsim[..., 1:])
+        sim, fsim = sort(sim, fsim)
+    return fsim[..., 0]
+
+
 def _brute_min_phi(A, B, n_dirs=20000, starts=5):
     """min over unit n of phi, by a Fibonacci sphere and then Nelder-Mead (in
     angles about the start direction) from the best starts: an upper bound of
-    the true minimum, found without any knowledge of the shapes' features."""
-    from scipy.optimize import minimize
-
+    the true minimum, found without any knowledge of the shapes' features.
+    The Nelder-Mead runs of every pair and start go in lockstep
+    (_nelder_mead_batch), phi evaluated for all of them at once."""
     D = _fib_dirs(n_dirs)
-    out = np.empty(A.n)
+    d = B.c - A.c
+    best = np.empty(A.n)
+    n0 = np.empty((A.n, starts, 3))
     for e in range(A.n):
-        a, b = A.take([e]), B.take([e])
-        d = b.c - a.c
-        v = geo._phi(a, b, d, D[None])[0]
-        best = v.min()
-        for i0 in np.argsort(v)[:starts]:
-            n0 = D[i0]
-            t1 = np.cross(n0, [1.0, 0, 0] if abs(n0[0]) < 0.9 else [0, 1.0, 0])
-            t1 /= np.linalg.norm(t1)
-            t2 = np.cross(n0, t1)
+        v = geo._phi(A.take([e]), B.take([e]), d[e:e + 1], D[None])[0]
+        best[e] = v.min()
+        n0[e] = D[np.argsort(v)[:starts]]
+    t1 = np.cross(n0, np.where(np.abs(n0[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.cross(n0, t1)
 
-            def f(x):
-                n = n0 + x[0] * t1 + x[1] * t2
-                return geo._phi(a, b, d, (n / np.linalg.norm(n))[None, None])[0, 0]
+    def f(x):  # (A.n, starts, 2) -> (A.n, starts)
+        n = n0 + x[..., :1] * t1 + x[..., 1:] * t2
+        return geo._phi(A, B, d, n / np.linalg.norm(n, axis=-1, keepdims=True))
 
-            res = minimize(f, [0.0, 0.0], method="Nelder-Mead",
-                           options={"xatol": 1e-12, "fatol": 1e-15, "maxiter": 2000,
-                                    "initial_simplex": [[0, 0], [0.02, 0], [0, 0.02]]})
-            best = min(best, res.fun)
-        out[e] = best
-    return out
+    fun = _nelder_mead_batch(f, np.zeros((A.n, starts, 2)), step=0.02, xatol=1e-12, fatol=1e-15, maxiter=2000)
+    return np.minimum(best, fun.min(axis=1))
 
 
 def _random_placed(rng, kind, dims, centres):
