@@ -1266,6 +1266,22 @@ def _cyl_sdf_local_and_grad(u, hl, rc):
     return _cyl_sdf_local(u, hl, rc), g
 
 
+def _lbfgsb_min(f, starts, bounds):
+    """The smallest of the L-BFGS-B minima of f (which returns its value and
+    gradient) from each of ``starts`` (ftol 1e-15, gtol 1e-12), for the
+    reference minimisations.  BLAS is held to one thread while they run:
+    scipy's L-BFGS-B calls OpenBLAS on its small matrices, whose woken
+    threads busy-wait, and with another process on the other core that made
+    these minimisations 20-40x slower; one thread gives the same minima bit
+    for bit (value, point and iteration count of all 1265 runs checked)."""
+    from scipy.optimize import minimize
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        return min(minimize(f, x0, jac=True, bounds=bounds, method="L-BFGS-B",
+                            options={"ftol": 1e-15, "gtol": 1e-12}).fun for x0 in starts)
+
+
 def _random_rotation(rng):
     q = rng.normal(size=4)
     return quat_to_matrix((q / np.linalg.norm(q))[None])[0]
@@ -1278,8 +1294,6 @@ def test_box_cylinder_gap_is_the_exact_distance():
     the box's coordinates, from five starts, given the signed distance's
     gradient by the chain rule through the box's pose).  Every candidate's
     gap is the exact distance of its own point, so none may be smaller."""
-    from scipy.optimize import minimize
-
     rng = np.random.default_rng(7)
     checked = 0
     while checked < 40:
@@ -1294,9 +1308,7 @@ def test_box_cylinder_gap_is_the_exact_distance():
             val, grad = _cyl_sdf_local_and_grad(Rc.T @ (Rb @ u - cc), hl, rc)
             return val, Rb.T @ (Rc @ grad)
 
-        true = min(minimize(f, x0, jac=True, bounds=list(zip(-hb, hb)), method="L-BFGS-B",
-                            options={"ftol": 1e-15, "gtol": 1e-12}).fun
-                   for x0 in [np.zeros(3)] + [rng.uniform(-hb, hb) for _ in range(4)])
+        true = _lbfgsb_min(f, [np.zeros(3)] + [rng.uniform(-hb, hb) for _ in range(4)], list(zip(-hb, hb)))
         if true <= 1e-4:
             continue  # overlapping or touching: the distance is what this test checks
         k, n, p, g, fid = box_cylinder(np.zeros((1, 3)), Rb[None], hb[None], cc[None], Rc[None],
@@ -1572,8 +1584,6 @@ def test_cylinder_cylinder_gap_is_the_exact_distance():
     starts; the signed distance's gradient is given by the chain rule
     through the polar map and the poses).  Every candidate's gap is the
     exact distance of its own point, so none may be smaller."""
-    from scipy.optimize import minimize
-
     rng = np.random.default_rng(9)
     checked = 0
     while checked < 40:
@@ -1594,8 +1604,7 @@ def test_cylinder_cylinder_gap_is_the_exact_distance():
 
         starts = [np.array([rng.uniform(0, ra), rng.uniform(0, 2 * math.pi), rng.uniform(-hla, hla)])
                   for _ in range(12)]
-        true = min(minimize(f, x0, jac=True, bounds=[(0, ra), (None, None), (-hla, hla)], method="L-BFGS-B",
-                            options={"ftol": 1e-15, "gtol": 1e-12}).fun for x0 in starts)
+        true = _lbfgsb_min(f, starts, [(0, ra), (None, None), (-hla, hla)])
         if true <= 1e-4:
             continue
         k, n, p, g, fid = cylinder_cylinder(np.zeros((1, 3)), Ra[None], np.array([hla]), np.array([ra]), cb[None],
