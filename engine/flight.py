@@ -263,15 +263,6 @@ def rotate(q, k, px, py, pz, out):
     out[k, 0], out[k, 1], out[k, 2], out[k, 3] = w / nrm, x / nrm, y / nrm, z / nrm
 
 
-@njit(cache=True, inline="always")
-def _slab3(work, i, n):
-    """Slab ``i`` of :func:`free_flight`'s work array as a C-contiguous
-    (n, 3) array: its first 3n values.  (Not ``work[i, :, :3]``, a strided
-    'A' view: the force and flight kernels would compile a second time for
-    it; engine/README.md "Compile time".)"""
-    return work[i].reshape((4 * n,))[:3 * n].reshape((n, 3))
-
-
 @njit(cache=True)
 def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_start, h, F, T, R0, inv_m, inv_I, lever,
                 x1, q1, v1, w1, T_mean, u_lin, u_ang, work):
@@ -284,18 +275,23 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
     (then they equal the start's).  ``work`` (:data:`WORK_SLABS`, n, 4)
     scratch (nothing is allocated)."""
     n = x0.shape[0]
-    a0, al0 = _slab3(work, 0, n), _slab3(work, 1, n)
-    a1, al1 = _slab3(work, 2, n), _slab3(work, 3, n)
-    xs, qs, vs, ws = _slab3(work, 4, n), work[5], _slab3(work, 6, n), _slab3(work, 7, n)
-    Fs, Ts = _slab3(work, 8, n), _slab3(work, 9, n)
+    # (the 3-vector slabs are strided work[i, :, :3] views: the force and
+    # flight kernels compile a second time for this 'A' layout, ~10 s of a
+    # cold compile, but a C-contiguous view needs numba's reshape, ~1 us
+    # for the 13 slabs of every call -- +25 % on a one-body flight step;
+    # engine/README.md "Compile time")
+    a0, al0 = work[0, :, :3], work[1, :, :3]
+    a1, al1 = work[2, :, :3], work[3, :, :3]
+    xs, qs, vs, ws = work[4, :, :3], work[5], work[6, :, :3], work[7, :, :3]
+    Fs, Ts = work[8, :, :3], work[9, :, :3]
     Rs = work[16:19].reshape((12 * n,))[:9 * n].reshape((n, 3, 3))
-    T1 = _slab3(work, 10, n)
-    T2 = _slab3(work, 11, n)
-    T3 = _slab3(work, 12, n)
-    Sw = _slab3(work, 13, n)
+    T1 = work[10, :, :3]
+    T2 = work[11, :, :3]
+    T3 = work[12, :, :3]
+    Sw = work[13, :, :3]
     Sq = work[14]
-    Sx = _slab3(work, 15, n)
-    Sv = _slab3(work, 19, n)
+    Sx = work[15, :, :3]
+    Sv = work[19, :, :3]
     if not has_forces:
         for k in range(n):
             for c in range(3):
