@@ -15,8 +15,8 @@ caller's (n, n_bodies, 3|4) blocks: consecutive steps that the step loop
 would run as one fused call each (the steady step, the contact-free step:
 engine/steady.py; a scene's :class:`FlightStep`) run inside ONE compiled
 call that loops over them (:func:`engine.steady.steady_loop`,
-:func:`engine.steady.free_loop`, :func:`flight_loop`) and stops at the first step that is not steady; that
-step then runs through :func:`engine.pipeline.step` (with the loop's try of
+:func:`engine.steady.free_loop`, :func:`flight_loop`) and stops at the
+first step that is not steady; that step then runs through :func:`engine.pipeline.step` (with the loop's try of
 it, so nothing is computed twice).  The bookkeeping between the steps --
 ``Solve.fused_finish``, the warm-start pool's rotation, the profile's calls
 and counters, ``state.t`` and ``state.steps``, ``ctx.contacts``, the

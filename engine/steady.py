@@ -78,11 +78,10 @@ FREE_NAME = "contact_free_step"
 
 @njit(cache=True, inline="always")
 def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
-    """(Inlined into its two callers: as a function of its own it compiled
-    the whole flight and narrow phase once more; engine/README.md
-    "Compile time".)  What :func:`steady_kernel` and :func:`free_kernel` run first: the
-    start of the (mini-)step, gravity, the free flight, the broad phase and
-    the narrow phase (the packs and the plan's flags and reals as theirs),
+    """What :func:`steady_kernel` and :func:`free_kernel` run first (inlined
+    into both: engine/README.md "Compile time"): the start of the
+    (mini-)step, gravity, the free flight, the broad phase and the narrow
+    phase (the packs and the plan's flags and reals as theirs),
     with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
     places.
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
@@ -167,10 +166,10 @@ def _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, 
 def steady_kernel(kall, ko, kq, h, step_flags):
     """One steady (mini-)step of length ``h`` (module doc).  ``kall`` the
     packs that stay from step to step (kb, kf, kbr, kcol, kc, kx, kt, kw,
-    kk, key, idx, ks), borrowed (:func:`steady_pack`; one argument: a Pack
-    argument costs ~2.5 us of dispatch, and one entry compiles the fused
-    step once, where a wrapper compiled it again); ``ko``, ``kq`` the warm
-    caches read and written, which rotate.  ``kb`` the
+    kk, key, idx, ks), borrowed (:func:`steady_pack`); ``ko``, ``kq`` the
+    warm caches read and written, which rotate.  Inlined into
+    :func:`steady_loop`, its one caller and the fused step's one compiled
+    entry (engine/README.md "Compile time").  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
     free flight's, ``kbr`` the broad phase's and the end-pose check's,
     ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
