@@ -30,15 +30,32 @@ def without_effects(scene, *effects: str):
 
 def _stray_outputs() -> list[str]:
     """Files in the repository that only a run writes: anything under
-    results/ but its README (and committed baselines), MuJoCo's log."""
+    results/ but its README (and committed baselines), MuJoCo's log,
+    Hypothesis's storage directory."""
     results = ROOT / "results"
     out = [str(p.relative_to(ROOT)) for p in results.iterdir()
            if p.name not in ("README.md", "baselines")] if results.is_dir() else []
     out += [p.name for p in ROOT.glob("MUJOCO_LOG.TXT")]
+    out += [p.name for p in ROOT.glob(".hypothesis")]
     return sorted(out)
 
 
 _BEFORE: list[str] = []
+
+
+def pytest_configure(config):
+    """Hypothesis keeps a storage directory (its cache of the constants in
+    the code under test, even with ``database=None``) in ``./.hypothesis``
+    unless told otherwise: a temporary one per process instead."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from hypothesis.configuration import set_hypothesis_home_dir
+
+    home = tempfile.mkdtemp(prefix="physbench-hypothesis-")
+    set_hypothesis_home_dir(home)
+    atexit.register(shutil.rmtree, home, ignore_errors=True)
 
 
 def pytest_sessionstart(session):

@@ -3,6 +3,7 @@ loads its kernels at build (engine/jit.py), reports those seconds once as
 the profile's ``jit_s`` and the runner's ``timing.jit_s``, and no step
 compiles."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -51,7 +52,9 @@ def test_python_m_engine_fills_the_cache_a_run_then_loads():
     cache hit raises none)."""
     from engine.cache import cache_dir
 
-    env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}
+    # (a user's NUMBA_CACHE_DIR is where both the engine and this process look)
+    env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
+           **{k: v for k, v in os.environ.items() if k == "NUMBA_CACHE_DIR"}}
     out = subprocess.run([sys.executable, "-m", "engine"], capture_output=True, text=True, cwd=REPO, env=env,
                          timeout=900)
     assert out.returncode == 0, out.stderr
