@@ -13,6 +13,7 @@ Use::
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -64,8 +65,11 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
 }
 
 
+@functools.cache
 def version() -> str:
-    """physbench's version (pyproject.toml, or installed metadata)."""
+    """physbench's version (pyproject.toml, or installed metadata); read
+    once a process (importlib.metadata parses the package's metadata file,
+    ~1-3 ms, and every build's capabilities ask for it)."""
     try:
         from importlib.metadata import version as _v
 
