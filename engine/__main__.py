@@ -4,24 +4,50 @@ fresh machine (a CI job, an image build), so the first scene does not pay
 for it.  Builds what a contact scene and a scene without contact build:
 every kernel of :func:`engine.jit.warm_up`, the fused steady step and the
 flight step, at the default settings (engine/README.md "Compile time").
-A scene with other settings may still compile a kernel of its own."""
+A scene with other settings may still compile a kernel of its own.
+
+numba compiles on one core, so with ``--jobs 2`` (the default where the
+machine has two cores or more) the two halves of the warm-up -- the
+collision side (:func:`engine.jit.warm_collision`) in a second process,
+the dynamics (:func:`engine.jit.warm_dynamics`) in this one -- compile at
+once; then this process loads them from the cache and compiles the fused
+steps, which need both."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import os
+import subprocess
+import sys
 import time
 
-from engine import Engine
+from engine import Engine, jit
 from engine.cache import cache_dir
 from engine.steady import warm_scene
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m engine", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), choices=(1, 2),
+                    help="processes compiling at once (default: 2 on a machine with two cores or more)")
+    ap.add_argument("--part", choices=("collision",), help=argparse.SUPPRESS)  # the second process's half
+    args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    if args.part:
+        jit.warm_collision()
+        return 0
+    if args.jobs > 1:
+        other = subprocess.Popen([sys.executable, "-m", "engine", "--part", "collision"])
+        jit.warm_dynamics()
+        if other.wait() != 0:  # whatever it missed, the warm-up below compiles here
+            print("python -m engine: the collision half's process failed; compiling it here", file=sys.stderr)
     Engine(warm_scene())  # the warm-up's kernels and the fused steady step
     Engine(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})))  # the flight step
-    print(f"engine kernels compiled or loaded in {time.perf_counter() - t0:.1f} s (cache: {cache_dir()})")
+    print(f"engine kernels compiled or loaded in {time.perf_counter() - t0:.1f} s with {args.jobs} process(es) "
+          f"(cache: {cache_dir()})")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -28,6 +28,31 @@ def warm_up() -> float:
     if _READY:
         return 0.0
     t0 = time.perf_counter()
+    warm_dynamics()
+    warm_collision()
+    dt = time.perf_counter() - t0
+    _READY = True
+    add_jit_seconds(dt)
+    return dt
+
+
+def warm_collision() -> None:
+    """The broad and narrow phases', the time-of-impact search's, the impact
+    solver's and the penalty contacts' kernels (half of :func:`warm_up`:
+    ``python -m engine`` compiles the two halves in two processes at once,
+    engine/__main__.py)."""
+    from engine.collision import dispatch
+
+    dispatch.warm_up()  # the broad and narrow phases' kernels
+    from engine import ccd, penalty
+
+    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
+    penalty.warm_up()
+
+
+def warm_dynamics() -> None:
+    """The contact solve's and the free flight's kernels (the other half of
+    :func:`warm_up`)."""
     from engine.contact import linalg, prepare, sweeps, warm
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
@@ -109,15 +134,6 @@ def warm_up() -> float:
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
     _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
     _warm_flight()
-    from engine.collision import dispatch
-    dispatch.warm_up()  # the broad and narrow phases' kernels
-    from engine import ccd, penalty
-    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
-    penalty.warm_up()
-    dt = time.perf_counter() - t0
-    _READY = True
-    add_jit_seconds(dt)
-    return dt
 
 
 def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
