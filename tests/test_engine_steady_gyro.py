@@ -237,7 +237,7 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
     for scene in ("friction.cylinder_rolls", "friction.capsule_spins_to_rest", "gyroscopic.dzhanibekov")
     for g in (None, "implicit", "explicit")] + [
     ("forces.spring_pair", {}), ("forces.spring_pair", {"integrator": "rk4"}), ("forces.damped_spring", {}),
-    ("friction.cylinder_rolls", {"integrator": "rk4"})])
+    ("friction.cylinder_rolls", {"integrator": "rk4"}), ("stacking.cans", {}), ("stacking.log_pile", {})])
 def test_every_gyroscopic_setting_steps_without_allocating(scene, settings):
     """Steps taken n at a time (``eng.step(n)``: one compiled loop,
     engine/loop.py) allocate no array per step in compiled code (numba's
@@ -248,7 +248,7 @@ def test_every_gyroscopic_setting_steps_without_allocating(scene, settings):
     solves (7 a step on a rolling cylinder), the explicit torque's
     normalised quaternions at the integrator's intermediate states, the
     springs' forces, the capsule's (2) and cylinder's (1) collision
-    scratch."""
+    scratch, the cylinder pairs' (cans 278, log pile 165 a step)."""
     from numba.core.runtime import _nrt_python, rtsys
 
     _nrt_python.memsys_enable_stats()
