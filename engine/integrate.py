@@ -48,8 +48,8 @@ from __future__ import annotations
 import numpy as np
 
 from engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
-from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic, implicit_work,
-                               midpoint_rotation)
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work, midpoint_rotation)
 from engine.forces import force_model
 from engine.profile import Stage
 

@@ -37,7 +37,8 @@ from engine.control import EventMode
 from engine.flight import (begin_step, free_flight, gravity, gyroscopic_torque, integrate_positions, linear_drag,
                            quadratic_drag, springs)
 from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic, implicit_work
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.borrow import Borrowed, borrow

@@ -30,7 +30,8 @@ from numba import njit
 
 from engine.flight import gyroscopic_torque
 from engine.forces import GyroscopicTorque, Gravity
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic, implicit_work
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
 
 #: the gyroscopic stage codes (as engine.loop's flight_kernel)
