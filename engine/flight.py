@@ -39,21 +39,27 @@ METHOD = {"explicit_euler": 0, "semi_implicit_euler": 1, "midpoint": 2, "heun": 
 WORK_SLABS = 20
 
 
+@njit(cache=True, inline="always")
+def _rot_row(R, k, w, x, y, z):
+    """R[k] (3, 3) the rotation matrix of the quaternion (w, x, y, z) (the
+    arithmetic of mathutil.quat_to_matrix)."""
+    R[k, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[k, 0, 1] = 2 * (x * y - w * z)
+    R[k, 0, 2] = 2 * (x * z + w * y)
+    R[k, 1, 0] = 2 * (x * y + w * z)
+    R[k, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[k, 1, 2] = 2 * (y * z - w * x)
+    R[k, 2, 0] = 2 * (x * z - w * y)
+    R[k, 2, 1] = 2 * (y * z + w * x)
+    R[k, 2, 2] = 1 - 2 * (x * x + y * y)
+
+
 @njit(cache=True)
 def q2m(q, R):
     """Rotation matrices R (n, 3, 3) of the quaternions q (n, 4) wxyz (the
     arithmetic of mathutil.quat_to_matrix)."""
     for k in range(q.shape[0]):
-        w, x, y, z = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
-        R[k, 0, 0] = 1 - 2 * (y * y + z * z)
-        R[k, 0, 1] = 2 * (x * y - w * z)
-        R[k, 0, 2] = 2 * (x * z + w * y)
-        R[k, 1, 0] = 2 * (x * y + w * z)
-        R[k, 1, 1] = 1 - 2 * (x * x + z * z)
-        R[k, 1, 2] = 2 * (y * z - w * x)
-        R[k, 2, 0] = 2 * (x * z - w * y)
-        R[k, 2, 1] = 2 * (y * z + w * x)
-        R[k, 2, 2] = 1 - 2 * (x * x + y * y)
+        _rot_row(R, k, q[k, 0], q[k, 1], q[k, 2], q[k, 3])
 
 
 @njit(cache=True)
@@ -96,44 +102,54 @@ def _end(i, anchor, x, R, v, w):
     return x[i, 0] + rx, x[i, 1] + ry, x[i, 2] + rz, rx, ry, rz, vx, vy, vz
 
 
+@njit(cache=True, inline="always")
+def _spring(s, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w):
+    """Spring s's force on body a, f u (N, 3 components: tension f along u,
+    see :func:`springs`), and its lever arms r_a, r_b (m) from the bodies'
+    centres to the anchor points."""
+    pax, pay, paz, rax, ray, raz, vax, vay, vaz = _end(s_a[s], s_pa[s], x, R, v, w)
+    pbx, pby, pbz, rbx, rby, rbz, vbx, vby, vbz = _end(s_b[s], s_pb[s], x, R, v, w)
+    dx, dy, dz = pbx - pax, pby - pay, pbz - paz
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    ux = uy = uz = 0.0
+    if L > 1e-12:
+        ux, uy, uz = dx / L, dy / L, dz / L
+    f = s_k[s] * (L - s_L0[s]) + s_c[s] * ((vbx - vax) * ux + (vby - vay) * uy + (vbz - vaz) * uz)
+    return f * ux, f * uy, f * uz, rax, ray, raz, rbx, rby, rbz
+
+
 @njit(cache=True)
 def springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w, F, T):
     """Hooke springs and dashpots between anchor points (see
     forces.Springs): tension f = k (L - L0) + c (v_pb - v_pa) . u along
     u = (p_b - p_a) / L (0 when L <= 1e-12 m); body a gets +f u at p_a,
     body b -f u at p_b, with their torques r x F.  Forces on a are added
-    first over all springs, then those on b."""
+    first over all springs, then those on b: the b pass computes each
+    spring's f u again from the unchanged x, R, v, w (the same bits as
+    keeping it, and no array a call: tests/test_engine_steady_gyro.py::
+    test_every_gyroscopic_setting_steps_without_allocating)."""
     k = s_a.shape[0]
-    fu = np.empty((k, 3))
     for s in range(k):
-        pax, pay, paz, rax, ray, raz, vax, vay, vaz = _end(s_a[s], s_pa[s], x, R, v, w)
-        pbx, pby, pbz, rbx, rby, rbz, vbx, vby, vbz = _end(s_b[s], s_pb[s], x, R, v, w)
-        dx, dy, dz = pbx - pax, pby - pay, pbz - paz
-        L = math.sqrt(dx * dx + dy * dy + dz * dz)
-        ux = uy = uz = 0.0
-        if L > 1e-12:
-            ux, uy, uz = dx / L, dy / L, dz / L
-        f = s_k[s] * (L - s_L0[s]) + s_c[s] * ((vbx - vax) * ux + (vby - vay) * uy + (vbz - vaz) * uz)
-        fu[s, 0], fu[s, 1], fu[s, 2] = f * ux, f * uy, f * uz
+        fu0, fu1, fu2, rax, ray, raz, rbx, rby, rbz = _spring(s, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w)
         i = s_a[s]
         if i >= 0:
-            F[i, 0] += fu[s, 0]
-            F[i, 1] += fu[s, 1]
-            F[i, 2] += fu[s, 2]
-            T[i, 0] += ray * fu[s, 2] - raz * fu[s, 1]
-            T[i, 1] += raz * fu[s, 0] - rax * fu[s, 2]
-            T[i, 2] += rax * fu[s, 1] - ray * fu[s, 0]
+            F[i, 0] += fu0
+            F[i, 1] += fu1
+            F[i, 2] += fu2
+            T[i, 0] += ray * fu2 - raz * fu1
+            T[i, 1] += raz * fu0 - rax * fu2
+            T[i, 2] += rax * fu1 - ray * fu0
     for s in range(k):
         i = s_b[s]
         if i < 0:
             continue
-        pbx, pby, pbz, rbx, rby, rbz, vbx, vby, vbz = _end(i, s_pb[s], x, R, v, w)
-        F[i, 0] -= fu[s, 0]
-        F[i, 1] -= fu[s, 1]
-        F[i, 2] -= fu[s, 2]
-        T[i, 0] += rby * -fu[s, 2] - rbz * -fu[s, 1]
-        T[i, 1] += rbz * -fu[s, 0] - rbx * -fu[s, 2]
-        T[i, 2] += rbx * -fu[s, 1] - rby * -fu[s, 0]
+        fu0, fu1, fu2, rax, ray, raz, rbx, rby, rbz = _spring(s, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w)
+        F[i, 0] -= fu0
+        F[i, 1] -= fu1
+        F[i, 2] -= fu2
+        T[i, 0] += rby * -fu2 - rbz * -fu1
+        T[i, 1] += rbz * -fu0 - rbx * -fu2
+        T[i, 2] += rbx * -fu1 - rby * -fu0
 
 
 @njit(cache=True)
@@ -165,12 +181,10 @@ def evaluate(fm, x, q, v, w, R, F, T):
     F[:, :] = 0.0
     T[:, :] = 0.0
     if s_a.shape[0] or g_idx.shape[0]:
-        qn = np.empty((q.shape[0], 4))
+        # (the normalised quaternion as scalars, no array: q2m's arithmetic)
         for k in range(q.shape[0]):
             s = math.sqrt(q[k, 0] ** 2 + q[k, 1] ** 2 + q[k, 2] ** 2 + q[k, 3] ** 2)
-            for c in range(4):
-                qn[k, c] = q[k, c] / s
-        q2m(qn, R)
+            _rot_row(R, k, q[k, 0] / s, q[k, 1] / s, q[k, 2] / s, q[k, 3] / s)
     gravity(mg, F)
     linear_drag(c_lin, v, F)
     quadratic_drag(c_quad, v, F)

@@ -1,6 +1,6 @@
 """Compiled rotation kernels of the gyroscopic stages (engine/integrate.py):
 Catto's implicit gyroscopic step (:func:`implicit_gyroscopic`) and the
-energy-conserving free rotation (:func:`energy_conserving_rotation`: the
+energy-conserving free rotation (:func:`energy_rotation_into`: the
 implicit-midpoint Lie-Poisson step composed by Yoshida's triple jump).
 
 Loops over the gyroscopic bodies with a fixed order, no BLAS (the bits do
@@ -22,15 +22,18 @@ from engine.flight import q2m
 
 
 @njit(cache=True)
-def implicit_gyroscopic(idx, I, R0, w, h):
+def implicit_gyroscopic(idx, I, R0, w, h, Jm, fw):
     """Catto's implicit gyroscopic update of w (n+1, 3) in place on the
     bodies ``idx`` (principal moments ``I`` (g, 3)): one Newton iteration on
     I (w2 - w1) + h w2 x I w2 = 0 in the body frame,
-    J = I + h ([w1]x I - [I w1]x), w2 = w1 - J^-1 (h w1 x I w1)."""
+    J = I + h ([w1]x I - [I w1]x), w2 = w1 - J^-1 (h w1 x I w1).  Work
+    arrays (overwritten, kept by the caller: nothing is allocated,
+    tests/test_engine_steady_gyro.py::test_every_gyroscopic_setting_steps_without_allocating):
+    ``Jm`` (g, 3, 3) the Newton matrices, ``fw`` (2, g, 3) the right-hand
+    sides (then the corrections) and the body-frame velocities."""
     g = idx.shape[0]
-    Jm = np.zeros((g, 3, 3))
-    f = np.empty((g, 3))
-    wb = np.empty((g, 3))
+    f = fw[0]
+    wb = fw[1]
     for j in range(g):
         k = idx[j]
         for i in range(3):
@@ -46,12 +49,25 @@ def implicit_gyroscopic(idx, I, R0, w, h):
         for r in range(3):
             for c in range(3):
                 Jm[j, r, c] = (I[j, r] if r == c else 0.0) + h * (S[r][c] * I[j, c] - L[r][c])
-    d = solve_batch(Jm, f)
+    solve_batch(Jm, f)  # f becomes the correction d = J^-1 f
+    d = f
     for j in range(g):
         k = idx[j]
         b0, b1, b2 = wb[j, 0] - d[j, 0], wb[j, 1] - d[j, 1], wb[j, 2] - d[j, 2]
         for i in range(3):
             w[k, i] = R0[k, i, 0] * b0 + R0[k, i, 1] * b1 + R0[k, i, 2] * b2
+
+
+def implicit_work(g: int) -> tuple:
+    """Kept work arrays of :func:`implicit_gyroscopic` for g bodies: (Jm
+    (g, 3, 3), fw (2, g, 3))."""
+    return np.zeros((g, 3, 3)), np.zeros((2, g, 3))
+
+
+def energy_work(g: int) -> tuple:
+    """Kept work arrays of :func:`energy_rotation_into` for g bodies: (wk
+    (4, g, 3), q (g, 4), R1 (g, 3, 3))."""
+    return np.zeros((4, g, 3)), np.zeros((g, 4)), np.zeros((g, 3, 3))
 
 
 #: Yoshida's fourth-order triple jump for a symmetric second-order method
@@ -113,26 +129,18 @@ def _midpoint(Lb, q, I, E, h, tol, max_iter, Lm, Ln, hE):
 
 
 @njit(cache=True)
-def energy_conserving_rotation(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free,
-                               u_ang):
+def energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang, wk,
+                         q, R1):
     """The energy-conserving rotation stage (integrate.EnergyConservingRotation)
     on the bodies ``idx`` (principal moments ``I``, ``inv_I``, Euler
     coefficients ``E`` (g, 3)): half a kick of the mean torque on the world
     angular momentum, the composed midpoint free rotation in m equal parts
     with |w| h max|yoshida| / m <= 0.5, the other half kick; writes q1,
-    w, w_free, u_ang on those bodies.  Its work arrays made per call
-    (:func:`energy_rotation_into` on kept ones: the fused steady step's)."""
-    g = idx.shape[0]
-    energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang,
-                         np.empty((4, g, 3)), np.empty((g, 4)), np.empty((g, 3, 3)))
-
-
-@njit(cache=True)
-def energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang, wk,
-                         q, R1):
-    """:func:`energy_conserving_rotation` on the work arrays ``wk`` (4, g, 3)
-    (the body angular momenta and the midpoint's three), ``q`` (g, 4) and
-    ``R1`` (g, 3, 3), overwritten: no allocation."""
+    w, w_free, u_ang on those bodies.  On the caller's kept work arrays
+    (:func:`energy_work`) ``wk`` (4, g, 3) (the body angular momenta and the
+    midpoint's three), ``q`` (g, 4) and ``R1`` (g, 3, 3), overwritten: no
+    allocation (every caller: the stage, the flight step, the fused steady
+    step)."""
     g = idx.shape[0]
     Lb = wk[0]
     wmax2 = 0.0

@@ -48,7 +48,8 @@ from __future__ import annotations
 import numpy as np
 
 from engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic, midpoint_rotation
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work, midpoint_rotation)
 from engine.forces import force_model
 from engine.profile import Stage
 
@@ -115,10 +116,12 @@ class ImplicitGyroscopic(Stage):
     def __init__(self, model):
         self.idx = np.flatnonzero(~model.isotropic).astype(np.int64)
         self.I = np.array(model.inertia_body[self.idx], float)
+        #: the kernel's work arrays (Jm, fw), kept: nothing allocated a step
+        self.work = implicit_work(self.idx.size)
 
     def __call__(self, model, state, ctx) -> None:
         if self.idx.size:
-            implicit_gyroscopic(self.idx, self.I, ctx.R0, ctx.w, ctx.h)
+            implicit_gyroscopic(self.idx, self.I, ctx.R0, ctx.w, ctx.h, *self.work)
 
 
 def euler_coefficients(I: np.ndarray) -> np.ndarray:
@@ -174,6 +177,8 @@ class EnergyConservingRotation(Stage):
         self.inv_I = 1.0 / self.I
         self.E = euler_coefficients(self.I)
         self.c = float(model.contact_lever)
+        #: the kernel's work arrays (wk, q, R1), kept: nothing allocated a step
+        self.work = energy_work(self.idx.size)
 
     def __call__(self, model, state, ctx) -> None:
         # The midpoint fixed point contracts like |w| h: at game steps and
@@ -182,9 +187,8 @@ class EnergyConservingRotation(Stage):
         # |w| h |g|max / m <= 0.5; each part conserves E and L exactly, so
         # splitting only adds accuracy (m = 1 for ordinary spins).
         if self.idx.size:
-            energy_conserving_rotation(self.idx, self.I, self.inv_I, self.E, YOSHIDA, YOSHIDA_MAX, ctx.R0,
-                                       ctx.T_mean, state.w, state.q, ctx.h, self.c, ctx.q1, ctx.w, ctx.w_free,
-                                       ctx.u_ang)
+            energy_rotation_into(self.idx, self.I, self.inv_I, self.E, YOSHIDA, YOSHIDA_MAX, ctx.R0, ctx.T_mean,
+                                 state.w, state.q, ctx.h, self.c, ctx.q1, ctx.w, ctx.w_free, ctx.u_ang, *self.work)
 
 
 class IntegratePositions(Stage):

@@ -68,7 +68,7 @@ def warm_dynamics() -> None:
     linalg.spd_solve_sparse(J, M, a, b, nb, r, act, 1e-10)
     linalg.lu_solve(K + np.eye(m), r)
     linalg.inverse(K + np.eye(m))
-    linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))
+    linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))  # (in place)
     linalg.islands(nb, a, b)
     from engine.contact.rows import _greedy_colours
 
@@ -227,9 +227,9 @@ def _warm_flight() -> None:
                                inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
                                np.zeros((flight.WORK_SLABS, nb, 4)))
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
-    gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01)
-    gyroscopic.energy_conserving_rotation(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R,
-                                          F, v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
+    gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01, *gyroscopic.implicit_work(nb))
+    gyroscopic.energy_rotation_into(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R, F, v, q,
+                                    0.01, 0.5, q.copy(), vw, v.copy(), v.copy(), *gyroscopic.energy_work(nb))
     flight.gravity(np.ones((nb, 3)), F)
     flight.linear_drag(np.ones(nb), v, F)
     flight.quadratic_drag(np.ones(nb), v, F)

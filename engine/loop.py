@@ -37,7 +37,8 @@ from engine.control import EventMode
 from engine.flight import (begin_step, free_flight, gravity, gyroscopic_torque, integrate_positions, linear_drag,
                            quadratic_drag, springs)
 from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_conserving_rotation, implicit_gyroscopic
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.borrow import Borrowed, borrow
@@ -62,7 +63,8 @@ def flight_kernel(kb, kg, h):
     (:meth:`FlightStep._pack`)."""
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
     (flags, fm, inv_m, lever, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn, gidx, gI, ginv, gE,
-     ymax) = kg.items
+     ymax, gwork) = kg.items
+    wk, wq, wR, gJ, gf = gwork
     method, has_forces, constant, torque, gyro = flags
     mg, c_lin, c_quad, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, t_idx, t_I = fm
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
@@ -73,7 +75,7 @@ def flight_kernel(kb, kg, h):
     springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R0, v, w, F, T)
     gyroscopic_torque(t_idx, t_I, R0, w, T)
     if gyro == IMPLICIT and gidx.shape[0]:
-        implicit_gyroscopic(gidx, gI, R0, W, h)
+        implicit_gyroscopic(gidx, gI, R0, W, h, gJ, gf)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
     free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
@@ -81,8 +83,8 @@ def flight_kernel(kb, kg, h):
     v_free[:, :] = Vn
     w_free[:, :] = Wn
     if gyro == ENERGY and gidx.shape[0]:
-        energy_conserving_rotation(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free,
-                                   u_ang)
+        energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang,
+                             wk, wq, wR)
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
     _commit_packed(kb)
 
@@ -153,10 +155,14 @@ class FlightStep:
             ginv = g.inv_I if isinstance(g, EnergyConservingRotation) else z3
             gE = g.E if isinstance(g, EnergyConservingRotation) else z3
             flags = (fly.code, bool(fly.forces), fly.constant, fly.torque, self.code)
+            # the gyroscopic kernels' kept work arrays (nothing allocated a step)
+            ng = gidx.shape[0]
+            gwork = energy_work(ng if self.code == ENERGY else 0) + implicit_work(ng if self.code == IMPLICIT else 0)
             self._k = Pack((flags, fly.fm, fly.inv_m, float(fly.c), ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free,
                             fly._w0, ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n],
                             np.ascontiguousarray(gidx, np.int64), np.ascontiguousarray(gI, float),
-                            np.ascontiguousarray(ginv, float), np.ascontiguousarray(gE, float), float(YOSHIDA_MAX)))
+                            np.ascontiguousarray(ginv, float), np.ascontiguousarray(gE, float), float(YOSHIDA_MAX),
+                            gwork))
             self._k_ctx = ctx
         return self._k
 

@@ -30,7 +30,8 @@ from numba import njit
 
 from engine.flight import gyroscopic_torque
 from engine.forces import GyroscopicTorque, Gravity
-from engine.gyroscopic import YOSHIDA, YOSHIDA_MAX, energy_rotation_into, implicit_gyroscopic
+from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+                               implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
 
 #: the gyroscopic stage codes (as engine.loop's flight_kernel)
@@ -60,8 +61,8 @@ def gyro_items(forces, gyro) -> tuple:
     bodies (g,) int64, principal moments (g, 3) kg m^2, their inverses
     (g, 3) 1/(kg m^2), Euler coefficients (g, 3) 1/(kg m^2), Yoshida's
     largest coefficient, the energy-conserving rotation's kept work arrays
-    (4, g, 3), (g, 4), (g, 3, 3): no allocation a step); absent parts as
-    empty arrays."""
+    (4, g, 3), (g, 4), (g, 3, 3), the implicit update's (g, 3, 3), (2, g, 3):
+    no allocation a step); absent parts as empty arrays."""
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
     t = next((s for s in forces if type(s) is GyroscopicTorque), None)
     t_idx = np.ascontiguousarray(t.idx, np.int64) if t is not None else zi
@@ -73,8 +74,8 @@ def gyro_items(forces, gyro) -> tuple:
     ginv = np.ascontiguousarray(gyro.inv_I, float) if energy else z3
     gE = np.ascontiguousarray(gyro.E, float) if energy else z3
     ge = gidx.shape[0] if energy else 0
-    work = (np.zeros((4, ge, 3)), np.zeros((ge, 4)), np.zeros((ge, 3, 3)))
-    return (code, t_idx, t_I, gidx, gI, ginv, gE, float(YOSHIDA_MAX)) + work
+    gi = gidx.shape[0] if code == IMPLICIT else 0
+    return (code, t_idx, t_I, gidx, gI, ginv, gE, float(YOSHIDA_MAX)) + energy_work(ge) + implicit_work(gi)
 
 
 @njit(cache=True)
@@ -85,10 +86,10 @@ def before_flight(gy, R0, w, T, W, h):
     (n, 3) N m) and Catto's implicit update of the working angular
     velocities ``W`` (n+1, 3) rad/s (integrate.ImplicitGyroscopic) over
     ``h`` s; each a no-op without its stage."""
-    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
+    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR, gJ, gf = gy
     gyroscopic_torque(t_idx, t_I, R0, w, T)
     if code == IMPLICIT and gidx.shape[0]:
-        implicit_gyroscopic(gidx, gI, R0, W, h)
+        implicit_gyroscopic(gidx, gI, R0, W, h, gJ, gf)
 
 
 @njit(cache=True)
@@ -98,7 +99,7 @@ def after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang):
     ``w`` (n, 3), ``q`` (n, 4), ``R0`` and the step's mean torque
     ``T_mean`` (n, 3); writes ``q1`` (n, 4), ``W`` (n+1, 3), ``w_free``,
     ``u_ang`` (n, 3) of its bodies); a no-op without the stage."""
-    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR = gy
+    code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR, gJ, gf = gy
     if code == ENERGY and gidx.shape[0]:
         energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang, wk,
                              wq, wR)

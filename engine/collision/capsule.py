@@ -18,6 +18,11 @@ from engine.collision.kernels import (SDF_BOX, gather, segment_and_caps1, segmen
 #: added (a lying capsule rests on two points)
 PARALLEL_COS = 0.995
 
+#: length of the capsule kernels' float scratch ``fw`` (their 3-vectors as
+#: slices of the collider's kept work: nothing allocated a call,
+#: tests/test_engine_steady_gyro.py::test_every_gyroscopic_setting_steps_without_allocating)
+CAPSULE_FW = 18
+
 
 @njit(cache=True)
 def capsule_ends1(c, R, hl, e0, e1):
@@ -28,9 +33,9 @@ def capsule_ends1(c, R, hl, e0, e1):
 
 
 @njit(cache=True)
-def _capsule_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f, S_ok):
-    e0 = np.empty(3)
-    e1 = np.empty(3)
+def _capsule_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f, S_ok, fw):
+    e0 = fw[0:3]
+    e1 = fw[3:6]
     for k in range(c.shape[0]):
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
         S_g[k, 0] = sphere_plane1(e0, r[k], pn[k], po[k], S_n[k, 0], S_p[k, 0])
@@ -40,10 +45,10 @@ def _capsule_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f, S_ok):
 
 
 @njit(cache=True)
-def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g):
-    e0 = np.empty(3)
-    e1 = np.empty(3)
-    q = np.empty(3)
+def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g, fw):
+    e0 = fw[0:3]
+    e1 = fw[3:6]
+    q = fw[6:9]
     for k in range(c.shape[0]):
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
         segment_closest1(cs[k], e0, e1, q)
@@ -51,8 +56,8 @@ def _sphere_capsule_kernel(cs, rs, c, R, hl, r, n, p, g):
 
 
 @njit(cache=True)
-def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f, S_ok):
-    V = np.empty((6, 3))
+def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f, S_ok, fw):
+    V = fw[:18].reshape((6, 3))
     a0, a1, b0, b1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
     for k in range(ca.shape[0]):
         capsule_ends1(ca[k], Ra[k], hla[k], a0, a1)
@@ -75,10 +80,10 @@ def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f
 
 
 @njit(cache=True)
-def _capsule_box_kernel(c, R, hl, r, cb, Rb, hb, S_n, S_p, S_g, S_f, S_ok):
-    e0 = np.empty(3)
-    e1 = np.empty(3)
-    x = np.empty(3)
+def _capsule_box_kernel(c, R, hl, r, cb, Rb, hb, S_n, S_p, S_g, S_f, S_ok, fw):
+    e0 = fw[0:3]
+    e1 = fw[3:6]
+    x = fw[6:9]
     for k in range(c.shape[0]):
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
         segment_and_caps1(SDF_BOX, e0, e1, hl[k], r[k], cb[k], Rb[k], hb[k], x, S_n[k], S_p[k], S_g[k], S_f[k],
@@ -92,7 +97,7 @@ def _f(a):
 def _slotted(kernel, S, *args):
     out = slots(args[0].shape[0], S)
     if args[0].shape[0]:
-        kernel(*(_f(a) for a in args), *out)
+        kernel(*(_f(a) for a in args), *out, np.empty(CAPSULE_FW))
     return gather(*out)
 
 
@@ -107,7 +112,7 @@ def sphere_capsule(cs, rs, c, R, hl, r):
     m = c.shape[0]
     n, p, g = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
     if m:
-        _sphere_capsule_kernel(_f(cs), _f(rs), _f(c), _f(R), _f(hl), _f(r), n, p, g)
+        _sphere_capsule_kernel(_f(cs), _f(rs), _f(c), _f(R), _f(hl), _f(r), n, p, g, np.empty(CAPSULE_FW))
     return np.arange(m), n, p, g, np.zeros(m, np.int64)
 
 

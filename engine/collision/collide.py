@@ -19,11 +19,11 @@ import numpy as np
 from numba import njit
 
 from engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
-from engine.collision.capsule import (_capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
+from engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
                                       _sphere_capsule_kernel)
-from engine.collision.cylinder import (_BOX_EDGES, _CORNERS, _box_cylinder_kernel, _capsule_cylinder_kernel,
-                                       _cylinder_plane_kernel, _sphere_cylinder_kernel)
-from engine.collision.cylinder_pair import _SIDE_MAX, _cylinder_cylinder_kernel
+from engine.collision.cylinder import (CYLINDER_FW, _BOX_EDGES, _CORNERS, _box_cylinder_kernel,
+                                       _capsule_cylinder_kernel, _cylinder_plane_kernel, _sphere_cylinder_kernel)
+from engine.collision.cylinder_pair import YY_FW, YY_IW, _SIDE_MAX, _cylinder_cylinder_kernel
 from engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
 from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 
@@ -69,9 +69,10 @@ for _f, _b in ((F_SS, (0, 1)), (F_SB, (0, 1)), (F_BB, (0, 5)), (F_SC, (0, 1)), (
 SLOTS = np.array([BOUNDS[f][BOUNDS[f] >= 0][-1] for f in range(18)], np.int64)
 MAX_SLOTS = int(SLOTS.max())
 #: lengths of the families' per-call scratch (float64, int64) in the work
-#: arrays ``W`` (the box pairs' so far: nothing allocated per step,
-#: tests/test_engine_steady.py::test_steady_step_allocates_nothing)
-FAMILY_FW, FAMILY_IW = BOX_FW, BOX_IW
+#: arrays ``W`` (the box, capsule and cylinder families'; nothing allocated
+#: per step: tests/test_engine_steady.py::test_steady_step_allocates_nothing,
+#: tests/test_engine_steady_gyro.py::test_every_gyroscopic_setting_steps_without_allocating;
+FAMILY_FW, FAMILY_IW = max(BOX_FW, CAPSULE_FW, CYLINDER_FW, YY_FW), max(BOX_IW, YY_IW)
 
 
 @njit(cache=True)
@@ -137,34 +138,34 @@ def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, fac
         _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, fw, iw)
         edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
     elif fam == F_SC:
-        _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1)
+        _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1, fw)
     elif fam == F_BC:
-        _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok)
+        _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok, fw)
         return True
     elif fam == F_CC:
-        _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok)
+        _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
     elif fam == F_SY:
         _sphere_cylinder_kernel(cA, rA, cB, RB, hlB, rB, capm1[:k], n1, p1, g1)
     elif fam == F_BY:
         _box_cylinder_kernel(cA, RA, hA, cB, RB, hlB, rB, mg, True, _CORNERS, _BOX_EDGES,
-                             S_n, S_p, S_g, S_f, S_ok)
+                             S_n, S_p, S_g, S_f, S_ok, fw)
     elif fam == F_CY:
-        _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok)
+        _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
     elif fam == F_YY:
-        _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok)
+        _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
     elif fam == F_PS:
         _sphere_plane_kernel(cA, rA, cB, rB, n1, p1, g1)
     elif fam == F_PB:
         _box_plane_kernel(cA, RA, hA, cB, rB, S_n, S_p, S_g, S_f)
     elif fam == F_PC:
-        _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok)
+        _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
     elif fam == F_PY:
         _cylinder_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f)
     elif fam == F_XC:
-        _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok)
+        _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok, fw)
     elif fam == F_XY:
         _box_cylinder_kernel(cB, RB, hB, cA, RA, hlA, rA, mg, True, _CORNERS, _BOX_EDGES,
-                             S_n, S_p, S_g, S_f, S_ok)
+                             S_n, S_p, S_g, S_f, S_ok, fw)
         return True
     return False
 

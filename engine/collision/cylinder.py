@@ -20,6 +20,12 @@ from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TO
 __all__ = ["CYLINDER_FACE_COS", "FACE_TOL", "box_cylinder", "capsule_cylinder", "cylinder_plane", "sphere_cylinder"]
 
 
+#: length of the cylinder kernels' float scratch ``fw`` (their small vectors
+#: and matrices as slices of the collider's kept work: nothing allocated a
+#: call, tests/test_engine_steady_gyro.py::test_every_gyroscopic_setting_steps_without_allocating)
+CYLINDER_FW = 47
+
+
 def _f(a):
     return np.ascontiguousarray(a, dtype=float)
 
@@ -54,16 +60,16 @@ def sphere_cylinder(c, r, cc, Rc, hl, rc, cap=None):
 
 @njit(cache=True)
 def _cylinder_plane_kernel(c, R, hl, r, pn, po, S_n, S_p, S_g, S_f):
-    drop = np.empty(8, np.bool_)
     for k in range(c.shape[0]):
-        cylinder_rim1(c[k], R[k], hl[k], r[k], pn[k], S_p[k], drop)
+        side = cylinder_rim1(c[k], R[k], hl[k], r[k], pn[k], S_p[k])
         for m in range(8):
+            drop = side and m % 4 != 0
             g = S_p[k, m, 0] * pn[k, 0] + S_p[k, m, 1] * pn[k, 1] + S_p[k, m, 2] * pn[k, 2] - po[k]
-            h = 0.0 if drop[m] else 0.5 * g
+            h = 0.0 if drop else 0.5 * g
             for i in range(3):
                 S_p[k, m, i] -= pn[k, i] * h
                 S_n[k, m, i] = -pn[k, i]
-            S_g[k, m] = np.inf if drop[m] else g
+            S_g[k, m] = np.inf if drop else g
             S_f[k, m] = RIM_FIDS[m]
 
 
@@ -98,13 +104,12 @@ def cylinder_plane(c, R, hl, r, pn, po):
 
 
 @njit(cache=True)
-def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok):
-    V = np.empty((4, 3))
+def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok, fw):
+    V = fw[:12].reshape((4, 3))
     e0, e1, x, q = V[0], V[1], V[2], V[3]
-    s2 = np.empty(2)
-    oh = np.empty(3)
-    P = np.empty((8, 3))
-    drop = np.empty(8, np.bool_)
+    s2 = fw[12:14]
+    oh = fw[14:17]
+    P = fw[17:41].reshape((8, 3))
     for k in range(c.shape[0]):
         oh[0], oh[1], oh[2] = hlc[k], rc[k], 0.0
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
@@ -113,7 +118,7 @@ def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S
         crossing_contacts1(e0, e1, r[k], cc[k], Rc[k], hlc[k], rc[k], s2, x, 3, 1, 3, 1, S_n[k], S_p[k], S_g[k],
                            S_f[k], S_ok[k])
         # the rim facing the capsule: pn from the capsule toward the cylinder
-        rim_contacts1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], SDF_CYLINDER, e0, e1, Rc[k], r[k], 5, 8, P, drop, q,
+        rim_contacts1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], SDF_CYLINDER, e0, e1, Rc[k], r[k], 5, 8, P, q,
                       S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
 
 
@@ -131,7 +136,8 @@ def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
     rim point's id."""
     out = slots(c.shape[0], 13)
     if c.shape[0]:
-        _capsule_cylinder_kernel(_f(c), _f(R), _f(hl), _f(r), _f(cc), _f(Rc), _f(hlc), _f(rc), *out)
+        _capsule_cylinder_kernel(_f(c), _f(R), _f(hl), _f(r), _f(cc), _f(Rc), _f(hlc), _f(rc), *out,
+                                 np.empty(CYLINDER_FW))
     return gather(*out, blocks=[(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 13)])
 
 
@@ -152,12 +158,11 @@ def _box_point(cb, Rb, hb, mult, out):
 
 @njit(cache=True)
 def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners, edges,
-                         S_n, S_p, S_g, S_f, S_ok):
-    V = np.empty((7, 3))
+                         S_n, S_p, S_g, S_f, S_ok, fw):
+    V = fw[:21].reshape((7, 3))
     x, e0, e1, oh, dA, axc, pn = V[0], V[1], V[2], V[3], V[4], V[5], V[6]
-    s2 = np.empty(2)
-    P = np.empty((8, 3))
-    drop = np.empty(8, np.bool_)
+    s2 = fw[21:23]
+    P = fw[23:47].reshape((8, 3))
     for k in range(cb.shape[0]):
         oh[0], oh[1], oh[2] = hl[k], rc[k], 0.0
         for m in range(8):
@@ -201,7 +206,7 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
         sg = 1.0 if dA[f] >= 0.0 else -1.0
         for i in range(3):
             pn[i] = Rb[k, i, f] * sg
-        rim_contacts1(cc[k], Rc[k], hl[k], rc[k], pn, SDF_BOX, cb[k], hb[k], Rb[k], 0.0, 44, 48, P, drop, x,
+        rim_contacts1(cc[k], Rc[k], hl[k], rc[k], pn, SDF_BOX, cb[k], hb[k], Rb[k], 0.0, 44, 48, P, x,
                       S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
 
 
@@ -232,5 +237,5 @@ def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
     if m:
         mg = np.zeros(m) if margin is None else _f(margin)
         _box_cylinder_kernel(_f(cb), _f(Rb), _f(hb), _f(cc), _f(Rc), _f(hl), _f(rc), mg, margin is not None,
-                             _CORNERS, _BOX_EDGES, *out)
+                             _CORNERS, _BOX_EDGES, *out, np.empty(CYLINDER_FW))
     return gather(*out, blocks=[(0, 8), (8, 20), (20, 32), (32, 44), (44, 52)])

@@ -40,6 +40,20 @@ MANIFOLD_MIN_SPAN = 1e-6
 #: line minimum and crossings (3)
 _SIDE_MAX = 5 + 4 * RIM_SAMPLES + 3
 
+#: the kernel's scratch as slices of the collider's kept work (nothing
+#: allocated a call or a pair, tests/test_engine_steady_gyro.py::
+#: test_every_gyroscopic_setting_steps_without_allocating): floats -- a
+#: pair's candidates (bn, bp (B, 3), bg, key (B,), E (B, 3), sp, area (B,)),
+#: the axes and normals (12), :func:`_pair_normal`'s (27), one side's
+#: (:func:`_points_against`: _SIDE_FW) --; ints -- bf, order, near, sel
+#: (B,) and one side's fid, infg (_SIDE_MAX,)
+_B = 2 * _SIDE_MAX
+_RIM_FW = 12 + 2 * RIM_SAMPLES
+_SIDE_FW = 3 * _SIDE_MAX + 47 + _RIM_FW
+_PAIR_FW = 13 * _B + 12 + 27
+YY_FW = _PAIR_FW + _SIDE_FW
+YY_IW = 4 * _B + 2 * _SIDE_MAX
+
 
 @njit(cache=True)
 def _rim_point(cen, ex, ey, r, a, out):
@@ -89,7 +103,7 @@ def _q(x, oc, oR, orr):
 
 
 @njit(cache=True)
-def _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, cnt):
+def _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, cnt, rw):
     """Points on both rims of cylinders (c, R, hl, r) found against other
     cylinders (centre ``oc``, rotation ``oR``, radius ``orr``) by sampling
     each rim at RIM_SAMPLES angles:
@@ -108,15 +122,16 @@ def _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, cnt):
 
     Samples farther than the margin (m, (k,) or None) are not refined.
     Returns (rows, points (j, 3), fid (j,)) with fid 16 + 16 cap + i for a
-    minimum near sample i, 64 + 16 cap + i for a crossing after it."""
+    minimum near sample i, 64 + 16 cap + i for a crossing after it.
+    ``rw`` (_RIM_FW,) scratch."""
     N = RIM_SAMPLES
     step = 2.0 * math.pi / N
-    cen = np.empty(3)
-    ex = np.empty(3)
-    ey = np.empty(3)
-    x = np.empty(3)
-    fv = np.empty(N)
-    q = np.empty(N)
+    cen = rw[0:3]
+    ex = rw[3:6]
+    ey = rw[6:9]
+    x = rw[9:12]
+    fv = rw[12:12 + N]
+    q = rw[12 + N:12 + 2 * N]
     for i in range(3):
         ex[i] = R[i, 0]
         ey[i] = R[i, 1]
@@ -179,15 +194,16 @@ def _support(n, ax, hl, r):
 
 
 @njit(cache=True)
-def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out):
+def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out, pw):
     """The pair's contact normal (k, 3) from the first cylinder toward the
     second, by the separating-axis test over three candidates: the two
     axes (a cap on the other body) and the direction between the axes'
     closest points (side on side), each oriented from first to second; the
-    candidate of largest separation wins, caps preferred within 1e-9 m."""
-    V = np.empty((6, 3))
+    candidate of largest separation wins, caps preferred within 1e-9 m.
+    ``pw`` (27,) scratch."""
+    V = pw[0:18].reshape((6, 3))
     p0, p1, q0, q1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
-    cand = np.empty((3, 3))
+    cand = pw[18:27].reshape((3, 3))
     for i in range(3):
         p0[i] = ca[i] - axa[i] * hla
         p1[i] = ca[i] + axa[i] * hla
@@ -223,33 +239,37 @@ def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out):
 
 
 @njit(cache=True)
-def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n, fid0, bn, bp, bg, bf, cnt):
+def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n, fid0, bn, bp, bg, bf, cnt, sw,
+                    siw):
     """One side of :func:`cylinder_cylinder`: points of cylinders (c, R,
     hl, r) against the other cylinders' exact signed distance, ``pn``
     (k, 3) the pair normal from these toward the others.  Points inside
     the other leave through its cap where pn is within 45 degrees of its
     axis, else through its side.  Returns contacts with normals from these
-    toward the others."""
-    oh = np.empty(3)
+    toward the others.  ``sw`` (_SIDE_FW,), ``siw`` (2 _SIDE_MAX,) int64
+    scratch."""
+    oh = sw[0:3]
     oh[0], oh[1], oh[2] = ohl, orr, 0.0
     cap_face = 1 if abs(pn[0] * oR[0, 2] + pn[1] * oR[1, 2] + pn[2] * oR[2, 2]) >= CYLINDER_FACE_COS else 0
-    ax = np.empty(3)
+    ax = sw[3:6]
     for i in range(3):
         ax[i] = R[i, 2]
-    pts = np.empty((_SIDE_MAX, 3))
-    fid = np.empty(_SIDE_MAX, np.int64)
-    infg = np.zeros(_SIDE_MAX, np.bool_)
+    o = 6 + 3 * _SIDE_MAX
+    pts = sw[6:o].reshape((_SIDE_MAX, 3))
+    fid = siw[0:_SIDE_MAX]
+    infg = siw[_SIDE_MAX:2 * _SIDE_MAX]  # (0/1 flags)
+    for t in range(_SIDE_MAX):
+        infg[t] = 0
     m = np.int64(0)
     cosf = pn[0] * ax[0] + pn[1] * ax[1] + pn[2] * ax[2]
     if not abs(cosf) >= CYLINDER_FACE_COS:
         # side on: each rim's support point toward the other body (the ends
         # of a side lying along the other)
-        mp = np.empty(3)
+        mp = sw[o:o + 3]
         for i in range(3):
             mp[i] = -pn[i]
-        P = np.empty((8, 3))
-        drop = np.empty(8, np.bool_)
-        cylinder_rim1(c, R, hl, r, mp, P, drop)
+        P = sw[o + 3:o + 27].reshape((8, 3))
+        cylinder_rim1(c, R, hl, r, mp, P)
         for j in (0, 4):
             for i in range(3):
                 pts[m, i] = P[j, i]
@@ -259,8 +279,8 @@ def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n
         # cap on: the facing cap's material square (body x, y) and its rim
         # point nearest the other's axis (see cylinder_cylinder)
         sgn = 1.0 if cosf >= 0.0 else -1.0
-        capc = np.empty(3)
-        to = np.empty(3)
+        capc = sw[o + 27:o + 30]
+        to = sw[o + 30:o + 33]
         for i in range(3):
             capc[i] = c[i] + ax[i] * (sgn * hl)
             to[i] = oc[i] - capc[i]
@@ -287,15 +307,15 @@ def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n
             infg[m] = j == 4 and not okt
             m += 1
     # the rims' minima and radius crossings
-    m = _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, m)
+    m = _rim_search(c, R, hl, r, oc, oR, oh, margin, use_margin, pts, fid, m, sw[o + 41:o + 41 + _RIM_FW])
     # the side line facing the other body: its deepest point (side across
     # side) and its crossings of the other's radius (a side lying across a cap)
     t0, t1, t2 = pn[0] - cosf * ax[0], pn[1] - cosf * ax[1], pn[2] - cosf * ax[2]
     tl = norm3(t0, t1, t2)
     if tl > 1e-6:
-        e0 = np.empty(3)
-        e1 = np.empty(3)
-        s2 = np.empty(2)
+        e0 = sw[o + 33:o + 36]
+        e1 = sw[o + 36:o + 39]
+        s2 = sw[o + 39:o + 41]
         sc = r / tl
         e0[0], e0[1], e0[2] = c[0] + t0 * sc - ax[0] * hl, c[1] + t1 * sc - ax[1] * hl, c[2] + t2 * sc - ax[2] * hl
         e1[0], e1[1], e1[2] = c[0] + t0 * sc + ax[0] * hl, c[1] + t1 * sc + ax[1] * hl, c[2] + t2 * sc + ax[2] * hl
@@ -323,38 +343,47 @@ def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n
 
 
 @njit(cache=True)
-def _cylinder_cylinder_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin, use_margin, S_n, S_p, S_g, S_f, S_ok):
-    B = 2 * _SIDE_MAX
-    bn = np.empty((B, 3))
-    bp = np.empty((B, 3))
-    bg = np.empty(B)
-    bf = np.empty(B, np.int64)
-    order = np.empty(B, np.int64)
-    key = np.empty(B)
-    E = np.empty((B, 3))
-    sp = np.empty(B)
-    area = np.empty(B)
-    axa = np.empty(3)
-    axb = np.empty(3)
-    pn = np.empty(3)
-    mpn = np.empty(3)
+def _cylinder_cylinder_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin, use_margin, S_n, S_p, S_g, S_f, S_ok, fw,
+                              iw):
+    """:func:`cylinder_cylinder` over the pairs into the slots; ``fw``
+    (>= YY_FW,) float64 and ``iw`` (>= YY_IW,) int64 scratch."""
+    B = _B
+    bn = fw[0:3 * B].reshape((B, 3))
+    bp = fw[3 * B:6 * B].reshape((B, 3))
+    bg = fw[6 * B:7 * B]
+    key = fw[7 * B:8 * B]
+    E = fw[8 * B:11 * B].reshape((B, 3))
+    sp = fw[11 * B:12 * B]
+    area = fw[12 * B:13 * B]
+    axa = fw[13 * B:13 * B + 3]
+    axb = fw[13 * B + 3:13 * B + 6]
+    pn = fw[13 * B + 6:13 * B + 9]
+    mpn = fw[13 * B + 9:13 * B + 12]
+    pw = fw[13 * B + 12:_PAIR_FW]
+    sw = fw[_PAIR_FW:_PAIR_FW + _SIDE_FW]
+    bf = iw[0:B]
+    order = iw[B:2 * B]
+    near_w = iw[2 * B:3 * B]
+    sel_w = iw[3 * B:4 * B]
+    siw = iw[4 * B:4 * B + 2 * _SIDE_MAX]
     for k in range(ca.shape[0]):
         for i in range(3):
             axa[i] = Ra[k, i, 2]
             axb[i] = Rb[k, i, 2]
-        _pair_normal(ca[k], axa, hla[k], ra[k], cb[k], axb, hlb[k], rb[k], pn)
+        _pair_normal(ca[k], axa, hla[k], ra[k], cb[k], axb, hlb[k], rb[k], pn, pw)
         for i in range(3):
             mpn[i] = -pn[i]
         cnt = _points_against(ca[k], Ra[k], hla[k], ra[k], cb[k], Rb[k], hlb[k], rb[k], pn, margin[k], use_margin,
-                              1.0, np.int64(0), bn, bp, bg, bf, np.int64(0))  # (typed ints: one compile; see below)
+                              1.0, np.int64(0), bn, bp, bg, bf, np.int64(0), sw, siw)  # (typed ints: one compile)
         cnt = _points_against(cb[k], Rb[k], hlb[k], rb[k], ca[k], Ra[k], hla[k], ra[k], mpn, margin[k], use_margin,
-                              -1.0, np.int64(128), bn, bp, bg, bf, cnt)
+                              -1.0, np.int64(128), bn, bp, bg, bf, cnt, sw, siw)
         _four_points(bn, bp, bg, bf, cnt, pn, margin[k], use_margin, order, key, E, sp, area,
-                     S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
+                     S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k], near_w, sel_w)
 
 
 @njit(cache=True)
-def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp, area, S_n, S_p, S_g, S_f, S_ok):
+def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp, area, S_n, S_p, S_g, S_f, S_ok,
+                 near_w, sel_w):
     """The touching set of each pair -- its contacts within MANIFOLD_BAND
     of its deepest -- reduced to at most four points as box-box keeps them
     (the deepest, the one farthest from it, and on either side of their
@@ -365,7 +394,8 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
     support point a few mm from a crossing): with them in, a can offset on
     an equal can turned at 2e-3 rad/s within a step instead of resting.
     Contacts beyond the margin (k,) are dropped first.  Separated, the
-    deepest is the smallest gap: the distance stays exact."""
+    deepest is the smallest gap: the distance stays exact.  ``near_w``,
+    ``sel_w`` (B,) int64 scratch."""
     m = np.int64(0)
     first = np.inf
     for t in range(cnt):
@@ -405,7 +435,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
             nn += 1
     ns = np.int64(0)
     if nn:
-        near = np.empty(nn, np.int64)
+        near = near_w[:nn]
         j = 0
         for a in range(m):
             if bg[order[a]] <= first + MANIFOLD_BAND:
@@ -441,7 +471,9 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
             if area[a] < area[i3]:
                 i3 = a
         ok1 = span > MANIFOLD_MIN_SPAN
-        sel = np.zeros(nn, np.bool_)
+        sel = sel_w[:nn]  # (0/1 flags)
+        for a in range(nn):
+            sel[a] = 0
         sel[0] = True
         if ok1:
             sel[i1] = True
@@ -508,5 +540,5 @@ def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
         f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
         mg = np.zeros(m) if margin is None else f(margin)
         _cylinder_cylinder_kernel(f(ca), f(Ra), f(hla), f(ra), f(cb), f(Rb), f(hlb), f(rb), mg, margin is not None,
-                                  *out)
+                                  *out, np.empty(YY_FW), np.empty(YY_IW, np.int64))
     return gather(*out, blocks=[(0, 4), (4, 4 + 2 * _SIDE_MAX)])

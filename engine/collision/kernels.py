@@ -45,18 +45,15 @@ def clip01(x):
 def segment_segment(p0, p1, q0, q1, pa, pb):
     """Closest points pa, pb (3,) (written in place) between segments
     [p0, p1] and [q0, q1] (Ericson 5.1.9)."""
-    d1 = np.empty(3)
-    d2 = np.empty(3)
-    r = np.empty(3)
-    for i in range(3):
-        d1[i] = p1[i] - p0[i]
-        d2[i] = q1[i] - q0[i]
-        r[i] = p0[i] - q0[i]
-    a = dot3(d1, d1)
-    e = dot3(d2, d2)
-    f = dot3(d2, r)
-    c = dot3(d1, r)
-    b = dot3(d1, d2)
+    # (scalars, not 3-vectors: no array a call; dot3's order of sums)
+    d10, d11, d12 = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
+    d20, d21, d22 = q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]
+    r0, r1, r2 = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
+    a = d10 * d10 + d11 * d11 + d12 * d12
+    e = d20 * d20 + d21 * d21 + d22 * d22
+    f = d20 * r0 + d21 * r1 + d22 * r2
+    c = d10 * r0 + d11 * r1 + d12 * r2
+    b = d10 * d20 + d11 * d21 + d12 * d22
     denom = a * e - b * b
     s = 0.0
     if denom > EPS * max(a * e, EPS):
@@ -68,9 +65,12 @@ def segment_segment(p0, p1, q0, q1, pa, pb):
     elif t > 1.0:
         t = 1.0
         s = clip01((b - c) / a if a > EPS else 0.0)
-    for i in range(3):
-        pa[i] = p0[i] + d1[i] * s
-        pb[i] = q0[i] + d2[i] * t
+    pa[0] = p0[0] + d10 * s
+    pb[0] = q0[0] + d20 * t
+    pa[1] = p0[1] + d11 * s
+    pb[1] = q0[1] + d21 * t
+    pa[2] = p0[2] + d12 * s
+    pb[2] = q0[2] + d22 * t
 
 
 @njit(cache=True)
@@ -140,14 +140,33 @@ def sphere_plane1(c, r, pn, po, n, p):
 
 
 @njit(cache=True)
-def surface_contact(c, r, R, w, g, out, n, p):
+def surface_contact(c, r, R, w0, w1, w2, g, n, p):
     """The contact of a sphere (centre c, radius r) with a shape whose
-    outward unit normal at the sphere's closest point is R w (w (3,) in the
-    shape's frame, R its rotation) and whose signed distance to c is g (m):
-    normal n from the sphere to the shape, midpoint p; returns the gap g -
-    r.  ``out`` (3,) is scratch."""
-    to_world(R, w, out)  # the shape's outward normal, world
-    return sphere_contact(c, r, out, g - r, n, p)
+    outward unit normal at the sphere's closest point is R w (w = (w0, w1,
+    w2) in the shape's frame, R its rotation) and whose signed distance to
+    c is g (m): normal n from the sphere to the shape, midpoint p; returns
+    the gap g - r.  (:func:`to_world` and :func:`sphere_contact`'s
+    arithmetic on scalars: no array a call.)"""
+    o0 = R[0, 0] * w0 + R[0, 1] * w1 + R[0, 2] * w2  # the shape's outward normal, world
+    o1 = R[1, 0] * w0 + R[1, 1] * w1 + R[1, 2] * w2
+    o2 = R[2, 0] * w0 + R[2, 1] * w1 + R[2, 2] * w2
+    gap = g - r
+    s = r + 0.5 * gap
+    p[0] = c[0] - o0 * s
+    n[0] = -o0
+    p[1] = c[1] - o1 * s
+    n[1] = -o1
+    p[2] = c[2] - o2 * s
+    n[2] = -o2
+    return gap
+
+
+@njit(cache=True, inline="always")
+def _local3(R, x, c):
+    """:func:`local_offset` as a tuple: R^T (x - c)."""
+    w0, w1, w2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
+    return (R[0, 0] * w0 + R[1, 0] * w1 + R[2, 0] * w2, R[0, 1] * w0 + R[1, 1] * w1 + R[2, 1] * w2,
+            R[0, 2] * w0 + R[1, 2] * w1 + R[2, 2] * w2)
 
 
 @njit(cache=True)
@@ -155,17 +174,15 @@ def sphere_box1(c, r, cb, Rb, hb, n, p):
     """One sphere (centre c, radius r) against a box (centre cb, rotation
     Rb, half-extents hb): exact closest points; a centre inside leaves
     through the face of least penetration (the first of equal ones).
-    Normal n from the sphere to the box, midpoint p; returns the gap."""
-    w = np.empty(3)
-    loc = np.empty(3)
-    diff = np.empty(3)
-    local_offset(Rb, c, cb, loc)
-    for i in range(3):
-        diff[i] = loc[i] - min(max(loc[i], -hb[i]), hb[i])
-    dist = norm3(diff[0], diff[1], diff[2])
+    Normal n from the sphere to the box, midpoint p; returns the gap.
+    (Scalars, no array: nothing allocated a pair.)"""
+    loc = _local3(Rb, c, cb)
+    d0 = loc[0] - min(max(loc[0], -hb[0]), hb[0])
+    d1 = loc[1] - min(max(loc[1], -hb[1]), hb[1])
+    d2 = loc[2] - min(max(loc[2], -hb[2]), hb[2])
+    dist = norm3(d0, d1, d2)
     if dist > EPS:
-        for i in range(3):
-            w[i] = diff[i] / dist
+        w0, w1, w2 = d0 / dist, d1 / dist, d2 / dist
         g = dist
     else:
         face = 0
@@ -175,10 +192,12 @@ def sphere_box1(c, r, cb, Rb, hb, n, p):
             if pen < best:
                 best = pen
                 face = i
-        w[0] = w[1] = w[2] = 0.0
-        w[face] = 1.0 if loc[face] >= 0.0 else -1.0
+        sg = 1.0 if loc[face] >= 0.0 else -1.0
+        w0 = sg if face == 0 else 0.0
+        w1 = sg if face == 1 else 0.0
+        w2 = sg if face == 2 else 0.0
         g = -best
-    return surface_contact(c, r, Rb, w, g, diff, n, p)
+    return surface_contact(c, r, Rb, w0, w1, w2, g, n, p)
 
 
 def gather(S_n, S_p, S_g, S_f, S_ok, blocks=None):
@@ -262,9 +281,7 @@ def segment_min1(kind, e0, e1, oc, oR, oh, iters):
     iterations, one evaluation each: 40 leave a bracket of 4e-9), then the
     ends compared exactly (where the distance is flat the end wins).
     Returns (s, the distance there, the smaller of the ends' distances)."""
-    d = np.empty(3)
-    for i in range(3):
-        d[i] = e1[i] - e0[i]
+    d = (e1[0] - e0[0], e1[1] - e0[1], e1[2] - e0[2])  # (a tuple: no array a call)
     lo, hi = 0.0, 1.0
     x1 = hi - GOLDEN * (hi - lo)
     x2 = lo + GOLDEN * (hi - lo)
@@ -307,17 +324,14 @@ def sphere_cylinder1(c, r, cc, Rc, hl, rc, cap, n, p):
     closest points (see :func:`engine.collision.sphere_cylinder`; ``cap``
     -1: inside leaves through the nearer face, 1: through the cap, 0:
     through the side).  Normal n from the sphere to the cylinder, midpoint
-    p; returns the gap."""
-    w = np.empty(3)
-    loc = np.empty(3)
-    diff = np.empty(3)
-    local_offset(Rc, c, cc, loc)
+    p; returns the gap.  (Scalars, no array: nothing allocated a pair.)"""
+    loc = _local3(Rc, c, cc)
     rho = np.sqrt(loc[0] ** 2 + loc[1] ** 2)
     scale = min(1.0, rc / (rho if rho > EPS else 1.0))
-    diff[0] = loc[0] - loc[0] * scale
-    diff[1] = loc[1] - loc[1] * scale
-    diff[2] = loc[2] - min(max(loc[2], -hl), hl)
-    dist = norm3(diff[0], diff[1], diff[2])
+    d0 = loc[0] - loc[0] * scale
+    d1 = loc[1] - loc[1] * scale
+    d2 = loc[2] - min(max(loc[2], -hl), hl)
+    dist = norm3(d0, d1, d2)
     outside = dist > EPS
     pen_side = rc - rho
     pen_cap = hl - abs(loc[2])
@@ -327,21 +341,20 @@ def sphere_cylinder1(c, r, cc, Rc, hl, rc, cap, n, p):
     else:
         side = pen_side < pen_cap
     if outside:
-        for i in range(3):
-            w[i] = diff[i] / dist
+        w0, w1, w2 = d0 / dist, d1 / dist, d2 / dist
         g = dist
     elif side:
         if rho > EPS:
-            w[0], w[1] = loc[0] / rho, loc[1] / rho
+            w0, w1 = loc[0] / rho, loc[1] / rho
         else:
-            w[0], w[1] = 1.0, 0.0
-        w[2] = 0.0
+            w0, w1 = 1.0, 0.0
+        w2 = 0.0
         g = -pen_side
     else:
-        w[0] = w[1] = 0.0
-        w[2] = 1.0 if loc[2] >= 0.0 else -1.0
+        w0 = w1 = 0.0
+        w2 = 1.0 if loc[2] >= 0.0 else -1.0
         g = -pen_cap
-    return surface_contact(c, r, Rc, w, g, diff, n, p)
+    return surface_contact(c, r, Rc, w0, w1, w2, g, n, p)
 
 
 #: feature ids of the rim points of :func:`cylinder_rim1`, in their order
@@ -349,14 +362,15 @@ RIM_FIDS = np.array([0, 1, 2, 3, 8, 9, 10, 11])
 
 
 @njit(cache=True)
-def cylinder_rim1(c, R, hl, r, pn, P, drop):
+def cylinder_rim1(c, R, hl, r, pn, P):
     """The rim points of a cylinder against a surface of outward normal pn
     (3,) (toward the cylinder), written to P (8, 3): per cap (-z first) the
     deepest (-t), +u, the highest (+t) and -u, t the component of pn in the
-    cap plane (the body's x axis when the cap faces pn), u = axis x t;
-    ``drop`` (8,): the points other than the deepest while the cap does
-    not face pn within 45 degrees (see
-    :func:`engine.collision.cylinder_plane`)."""
+    cap plane (the body's x axis when the cap faces pn), u = axis x t.
+    Returns whether the cap does not face pn within 45 degrees: then the
+    points other than each cap's deepest (m % 4 != 0) are to be dropped
+    (see :func:`engine.collision.cylinder_plane`; a bool, not a (8,) array:
+    nothing allocated a call)."""
     dn = pn[0] * R[0, 2] + pn[1] * R[1, 2] + pn[2] * R[2, 2]
     t0, t1, t2 = pn[0] - dn * R[0, 2], pn[1] - dn * R[1, 2], pn[2] - dn * R[2, 2]
     tl = norm3(t0, t1, t2)
@@ -382,7 +396,7 @@ def cylinder_rim1(c, R, hl, r, pn, P, drop):
             P[m, 0] = (c[0] + sg * (a0 * hl)) + d0 * r
             P[m, 1] = (c[1] + sg * (a1 * hl)) + d1 * r
             P[m, 2] = (c[2] + sg * (a2 * hl)) + d2 * r
-            drop[m] = side and j != 0
+    return side
 
 
 @njit(cache=True)
@@ -391,10 +405,8 @@ def circle_crossings1(e0, e1, cc, Rc, rc, out):
     on a cylinder's cap plane crosses the rim circle (radius rc about the
     axis): the roots of |(x0 + s dx)_xy|^2 = rc^2 in the cylinder's frame;
     NaN where there is no crossing within [0, 1]."""
-    a = np.empty(3)
-    dd = np.empty(3)
-    local_offset(Rc, e0, cc, a)
-    local_offset(Rc, e1, e0, dd)
+    a = _local3(Rc, e0, cc)  # (tuples: no array a call)
+    dd = _local3(Rc, e1, e0)
     A = dd[0] * dd[0] + dd[1] * dd[1]
     B = a[0] * dd[0] + a[1] * dd[1]
     C = a[0] * a[0] + a[1] * a[1] - rc * rc
@@ -466,16 +478,16 @@ def crossing_contacts1(e0, e1, r, cc, Rc, hl, rc, s2, x, sl0, sl_step, fid0, fid
 
 
 @njit(cache=True)
-def rim_contacts1(cc, Rc, hl, rc, pn, kind, oa, ob, oR, orr, sl0, fid0, P, drop, q, S_n, S_p, S_g, S_f, S_ok):
+def rim_contacts1(cc, Rc, hl, rc, pn, kind, oa, ob, oR, orr, sl0, fid0, P, q, S_n, S_p, S_g, S_f, S_ok):
     """A cylinder's rim points facing a surface of normal pn (toward the
     cylinder; :func:`cylinder_rim1`) against the other body, into slots
     sl0.. sl0 + 7 of one pair's rows with fids fid0 + RIM_FIDS: against a
     capsule (``kind`` SDF_CYLINDER: segment oa -> ob, radius orr; the
     closest point on it) or a box (SDF_BOX: centre oa, rotation oR,
     half-extents ob).  Normals from the other body toward the cylinder;
-    the points ``drop`` leaves out get gap inf.  P (8, 3), drop (8,),
-    q (3,) scratch."""
-    cylinder_rim1(cc, Rc, hl, rc, pn, P, drop)
+    the points :func:`cylinder_rim1` drops get gap inf.  P (8, 3), q (3,)
+    scratch."""
+    side = cylinder_rim1(cc, Rc, hl, rc, pn, P)
     for m in range(8):
         sl = sl0 + m
         if kind == SDF_BOX:
@@ -485,6 +497,6 @@ def rim_contacts1(cc, Rc, hl, rc, pn, kind, oa, ob, oR, orr, sl0, fid0, P, drop,
             g = sphere_sphere1(P[m], 0.0, q, orr, S_n[sl], S_p[sl])
         for i in range(3):
             S_n[sl, i] = -S_n[sl, i]
-        S_g[sl] = np.inf if drop[m] else g
+        S_g[sl] = np.inf if side and m % 4 != 0 else g
         S_f[sl] = fid0 + RIM_FIDS[m]
         S_ok[sl] = True

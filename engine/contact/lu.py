@@ -167,13 +167,12 @@ def inverse(A):
 
 @njit(cache=True)
 def solve_batch(A, f):
-    """x[k] = A[k]^-1 f[k] for (K, d, d) A and (K, d) f, each by
-    :func:`lu_solve` (a singular system gives NaN, like a LAPACK solve's
-    inf/NaN propagation would not: callers keep A regular)."""
-    out = np.empty(f.shape)
+    """f[k] <- A[k]^-1 f[k] in place for (K, d, d) A and (K, d) f, each by
+    :func:`lu_inplace` on A[k] (overwritten by its factors; the arithmetic of
+    :func:`lu_solve`, nothing allocated); a singular system gives NaN (like a
+    LAPACK solve's inf/NaN propagation would not: callers keep A
+    regular)."""
     for k in range(A.shape[0]):
-        x, det = lu_solve(A[k], f[k])
-        if det == 0.0:
+        x = f[k]
+        if lu_inplace(A[k], x) == 0.0:
             x[:] = np.nan
-        out[k] = x
-    return out
