@@ -1115,10 +1115,12 @@ def test_mujoco_fatal_contact_count():
     whether the heap corruption then aborts the worker ('double free or
     corruption', SIGABRT, when MjData is freed) depends on the process's
     heap (it did in the fuzz worker and standalone, not in a full suite
-    run).  Found once in a run of the generated-spec property (its first
-    crash, after about 540 cases).  Measured, either way: the worker dies
-    of SIGABRT, or the run is a status row naming MuJoCo's fatal error.  A
-    MuJoCo without the bug runs it to another row and fails this test."""
+    run), and so does how: in a worker of the suite run on two pytest-xdist
+    workers the corrupted heap ended in SIGSEGV instead.  Found once in a
+    run of the generated-spec property (its first crash, after about 540
+    cases).  Measured, each way: the worker dies of SIGABRT or SIGSEGV, or
+    the run is a status row naming MuJoCo's fatal error.  A MuJoCo without
+    the bug runs it to another row and fails this test."""
     from harness.execute import WorkerLost, WorkerPool
     from tests.fuzz_worker import run_cut
 
@@ -1126,7 +1128,7 @@ def test_mujoco_fatal_contact_count():
     with WorkerPool(1) as pool:
         [(_, value)] = list(pool.map(run_cut, [(scene, "mujoco", RUN_STEPS, RUN_BUDGET_S)]))
     if isinstance(value, WorkerLost):
-        assert value.kind == "died" and "SIGABRT" in value.full_message(), value.full_message()
+        assert value.kind == "died" and value.signal in ("SIGABRT", "SIGSEGV"), value.full_message()
     else:
         res = value[0]
         assert res.status in STATUSES and "pairMaxContact" in res.message, (res.status, res.message)
