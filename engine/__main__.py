@@ -29,8 +29,9 @@ from engine.steady import warm_scene
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m engine", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), choices=(1, 2),
-                    help="processes compiling at once (default: 2 on a machine with two cores or more)")
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    ap.add_argument("--jobs", type=int, default=min(2, cores), choices=(1, 2),
+                    help="processes compiling at once (default: 2 where this process may use two cores or more)")
     ap.add_argument("--part", choices=("collision",), help=argparse.SUPPRESS)  # the second process's half
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
