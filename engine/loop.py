@@ -37,19 +37,16 @@ from engine.control import EventMode
 from engine.flight import (begin_step, free_flight, gravity, gyroscopic_torque, integrate_positions, linear_drag,
                            quadratic_drag, springs)
 from engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
-from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
-                               implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from engine import solver as _S
 from engine.borrow import Borrowed, borrow
 from engine.pack import Pack
 from engine.state import _commit_packed, record_packed
 from engine.steady import _NO_TURN, _no_records, FREE_NAME, NAME, NONE, free_loop, steady_loop
+from engine.steady_gyro import after_flight, before_flight, gyro_items
 
 #: the profile's name of a no-contact scene's step (FlightStep)
 FLIGHT_NAME = "flight_step"
-#: gyroscopic stage codes of flight_kernel
-NO_GYRO, IMPLICIT, ENERGY = 0, 1, 2
 
 
 @njit(cache=True)
@@ -62,10 +59,8 @@ def flight_kernel(kb, kg, h):
     begin/commit pack (engine.state.Context.kept), ``kg`` the plan's
     (:meth:`FlightStep._pack`)."""
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
-    (flags, fm, inv_m, lever, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn, gidx, gI, ginv, gE,
-     ymax, gwork) = kg.items
-    wk, wq, wR, gJ, gf = gwork
-    method, has_forces, constant, torque, gyro = flags
+    flags, fm, inv_m, lever, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn, gy = kg.items
+    method, has_forces, constant, torque = flags
     mg, c_lin, c_quad, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, t_idx, t_I = fm
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     # the force stages, evaluated at the start state (ctx.ex ... = state, ctx.eR = R0)
@@ -74,17 +69,17 @@ def flight_kernel(kb, kg, h):
     quadratic_drag(c_quad, v, F)
     springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R0, v, w, F, T)
     gyroscopic_torque(t_idx, t_I, R0, w, T)
-    if gyro == IMPLICIT and gidx.shape[0]:
-        implicit_gyroscopic(gidx, gI, R0, W, h, gJ, gf)
+    # integrate.ImplicitGyroscopic (the explicit torque is the force model's
+    # here: gyro_items' is empty, engine/steady_gyro.py)
+    before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
     free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
                 Vn, Wn, T_mean, u_lin, u_ang, work)
     v_free[:, :] = Vn
     w_free[:, :] = Wn
-    if gyro == ENERGY and gidx.shape[0]:
-        energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang,
-                             wk, wq, wR)
+    # integrate.EnergyConservingRotation
+    after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
     _commit_packed(kb)
 
@@ -111,7 +106,10 @@ class FlightStep:
     def __init__(self, model, forces, fly, gyro):
         self.fly = fly
         self.gyro = gyro
-        self.code = NO_GYRO if gyro is None else (IMPLICIT if isinstance(gyro, ImplicitGyroscopic) else ENERGY)
+        #: the gyroscopic stage's arrays and kept work, as the fused steady
+        #: step's (steady_gyro.gyro_items; no explicit torque there: the
+        #: force model has it)
+        self.gy = gyro_items((), gyro)
         #: the stages the call runs: each counts its calls (its seconds are
         #: the call's, ``flight_step``)
         self.names = tuple(s.name for s in forces) + tuple(s.name for s in (gyro, fly) if s is not None) + (
@@ -148,21 +146,10 @@ class FlightStep:
         context."""
         if self._k_ctx is not ctx:
             n = ctx.x1.shape[0]
-            fly, g = self.fly, self.gyro
-            z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
-            gidx = g.idx if g is not None else zi
-            gI = g.I if g is not None else z3
-            ginv = g.inv_I if isinstance(g, EnergyConservingRotation) else z3
-            gE = g.E if isinstance(g, EnergyConservingRotation) else z3
-            flags = (fly.code, bool(fly.forces), fly.constant, fly.torque, self.code)
-            # the gyroscopic kernels' kept work arrays (nothing allocated a step)
-            ng = gidx.shape[0]
-            gwork = energy_work(ng if self.code == ENERGY else 0) + implicit_work(ng if self.code == IMPLICIT else 0)
+            fly = self.fly
+            flags = (fly.code, bool(fly.forces), fly.constant, fly.torque)
             self._k = Pack((flags, fly.fm, fly.inv_m, float(fly.c), ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free,
-                            fly._w0, ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n],
-                            np.ascontiguousarray(gidx, np.int64), np.ascontiguousarray(gI, float),
-                            np.ascontiguousarray(ginv, float), np.ascontiguousarray(gE, float), float(YOSHIDA_MAX),
-                            gwork))
+                            fly._w0, ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n], self.gy))
             self._k_ctx = ctx
         return self._k
 

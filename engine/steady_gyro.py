@@ -20,7 +20,9 @@ the same places of the step (:func:`before_flight` after gravity,
 the same bits as the stages one by one (tests/test_engine_steady_gyro.py).
 The plan's arrays for them are one tuple (:func:`gyro_items`), the third
 item of the steady step's settings Pack, so the loops over steps
-(engine/loop.py) pass them on unchanged.
+(engine/loop.py) pass them on unchanged; a scene without contact's
+flight step (engine/loop.py, ``flight_kernel``) runs the same two calls
+on its own tuple (without the explicit torque: its force model has it).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energ
                                implicit_work)
 from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
 
-#: the gyroscopic stage codes (as engine.loop's flight_kernel)
+#: the gyroscopic stage codes
 NO_GYRO, IMPLICIT, ENERGY = 0, 1, 2
 
 #: the force stages the fused step covers

@@ -45,7 +45,7 @@ def clip01(x):
 def segment_segment(p0, p1, q0, q1, pa, pb):
     """Closest points pa, pb (3,) (written in place) between segments
     [p0, p1] and [q0, q1] (Ericson 5.1.9)."""
-    # (scalars, not 3-vectors: no array a call; dot3's order of sums)
+    # (scalars, not 3-vectors: no array a call; each dot product summed x, y, z)
     d10, d11, d12 = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
     d20, d21, d22 = q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]
     r0, r1, r2 = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
@@ -89,16 +89,15 @@ def to_local(R, x, out):
 def local_offset(R, x, c, out):
     """out = R^T (x - c): the point x (3,) in the frame of a body at c (3,)
     with rotation R (or, for c = a point, the vector x - c in it)."""
+    out[0], out[1], out[2] = _local3(R, x, c)
+
+
+@njit(cache=True, inline="always")
+def _local3(R, x, c):
+    """:func:`local_offset` as a tuple: R^T (x - c)."""
     w0, w1, w2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
-    for i in range(3):
-        out[i] = R[0, i] * w0 + R[1, i] * w1 + R[2, i] * w2
-
-
-@njit(cache=True)
-def to_world(R, x, out):
-    """out = R x."""
-    for i in range(3):
-        out[i] = R[i, 0] * x[0] + R[i, 1] * x[1] + R[i, 2] * x[2]
+    return (R[0, 0] * w0 + R[1, 0] * w1 + R[2, 0] * w2, R[0, 1] * w0 + R[1, 1] * w1 + R[2, 1] * w2,
+            R[0, 2] * w0 + R[1, 2] * w1 + R[2, 2] * w2)
 
 
 @njit(cache=True)
@@ -122,8 +121,8 @@ def sphere_sphere1(ca, ra, cb, rb, n, p):
 @njit(cache=True)
 def sphere_contact(c, r, nw, gap, n, p):
     """A sphere's contact (centre c, radius r) against a surface of outward
-    unit normal nw (3,, world) at signed gap ``gap`` (m): normal n = -nw
-    (from the sphere into the surface), the midpoint p between the two
+    unit normal nw (a 3-tuple, world) at signed gap ``gap`` (m): normal n =
+    -nw (from the sphere into the surface), the midpoint p between the two
     surfaces; returns the gap."""
     s = r + 0.5 * gap
     for i in range(3):
@@ -136,7 +135,7 @@ def sphere_contact(c, r, nw, gap, n, p):
 def sphere_plane1(c, r, pn, po, n, p):
     """One sphere against the plane (unit normal pn, offset po): normal -pn
     into the plane, midpoint p; returns the gap."""
-    return sphere_contact(c, r, pn, pn[0] * c[0] + pn[1] * c[1] + pn[2] * c[2] - po - r, n, p)
+    return sphere_contact(c, r, (pn[0], pn[1], pn[2]), pn[0] * c[0] + pn[1] * c[1] + pn[2] * c[2] - po - r, n, p)
 
 
 @njit(cache=True)
@@ -145,28 +144,11 @@ def surface_contact(c, r, R, w0, w1, w2, g, n, p):
     outward unit normal at the sphere's closest point is R w (w = (w0, w1,
     w2) in the shape's frame, R its rotation) and whose signed distance to
     c is g (m): normal n from the sphere to the shape, midpoint p; returns
-    the gap g - r.  (:func:`to_world` and :func:`sphere_contact`'s
-    arithmetic on scalars: no array a call.)"""
+    the gap g - r.  (Scalars and a tuple: no array a call.)"""
     o0 = R[0, 0] * w0 + R[0, 1] * w1 + R[0, 2] * w2  # the shape's outward normal, world
     o1 = R[1, 0] * w0 + R[1, 1] * w1 + R[1, 2] * w2
     o2 = R[2, 0] * w0 + R[2, 1] * w1 + R[2, 2] * w2
-    gap = g - r
-    s = r + 0.5 * gap
-    p[0] = c[0] - o0 * s
-    n[0] = -o0
-    p[1] = c[1] - o1 * s
-    n[1] = -o1
-    p[2] = c[2] - o2 * s
-    n[2] = -o2
-    return gap
-
-
-@njit(cache=True, inline="always")
-def _local3(R, x, c):
-    """:func:`local_offset` as a tuple: R^T (x - c)."""
-    w0, w1, w2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
-    return (R[0, 0] * w0 + R[1, 0] * w1 + R[2, 0] * w2, R[0, 1] * w0 + R[1, 1] * w1 + R[2, 1] * w2,
-            R[0, 2] * w0 + R[1, 2] * w1 + R[2, 2] * w2)
+    return sphere_contact(c, r, (o0, o1, o2), g - r, n, p)
 
 
 @njit(cache=True)
