@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import importlib
 
-from adapters.base import Adapter, Capabilities, Setting, Unsupported, engine_names, get_adapter, register
+from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, engine_names, get_adapter, register
 
 ENGINES = ("reference", "mujoco", "pybullet", "pymunk")
 
 
 def _loader(module: str, cls: str):
     def load() -> type[Adapter]:
-        return getattr(importlib.import_module(f"adapters.{module}"), cls)
+        return getattr(importlib.import_module(f"physbench.adapters.{module}"), cls)
 
     return load
 

@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from contract.scene import Scene
+from physbench.contract.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -263,7 +263,7 @@ def gyroscopic_reason(scene: Scene, engine: str) -> str | None:
     and nothing can exert a torque on it: no contacts, no spring or damper
     attached off its centre (gravity and drag act at the centre of mass).
     """
-    from contract.rotation import world_to_body_angvel
+    from physbench.contract.rotation import world_to_body_angvel
 
     if "gyroscopic" in scene.effects or scene.planar:
         return None

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from contract.scene import Scene
+from physbench.contract.scene import Scene
 
 DRAG_NOTE = ("drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
              "velocity at the start of each engine step (explicit); no angular drag")

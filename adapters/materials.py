@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contract.scene import Material, Scene
+from physbench.contract.scene import Material, Scene
 
 #: relative residual above which a per-object product solve counts as failed
 OBJECT_TOLERANCE = 1e-9

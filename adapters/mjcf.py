@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from contract.scene import Scene
+from physbench.contract.scene import Scene
 
 #: setting value -> MJCF <option integrator=...> (mjINT_EULER, mjINT_RK4, ...)
 INTEGRATORS = {"euler": "Euler", "rk4": "RK4", "implicit": "implicit", "implicitfast": "implicitfast"}

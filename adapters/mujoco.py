@@ -81,13 +81,13 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from adapters.forces import drag_coefficients
-from adapters.mjcf import INTEGRATORS, build_mjcf
-from adapters.mujoco_impacts import calibrate_pairs
-from adapters.quiet import collect_mujoco_warnings
-from contract.rotation import quat_rotate, world_to_body_angvel
-from contract.scene import Scene
+from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.forces import drag_coefficients
+from physbench.adapters.mjcf import INTEGRATORS, build_mjcf
+from physbench.adapters.mujoco_impacts import calibrate_pairs
+from physbench.adapters.quiet import collect_mujoco_warnings
+from physbench.contract.rotation import quat_rotate, world_to_body_angvel
+from physbench.contract.scene import Scene
 
 try:  # the engine; a missing mujoco only makes its runs unavailable
     import mujoco

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from adapters.mujoco_calibration import calibrate
-from contract.rotation import quat_to_matrix
-from contract.scene import Body, Scene, Static
+from physbench.adapters.mujoco_calibration import calibrate
+from physbench.contract.rotation import quat_to_matrix
+from physbench.contract.scene import Body, Scene, Static
 
 #: an impact slower than this (m/s) is a resting contact: calibrate at the fallback speed
 MIN_IMPACT_SPEED = 0.05

@@ -82,13 +82,13 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import Adapter, Capabilities, Unsupported
-from adapters.forces import PybulletForces
-from adapters.materials import per_object_factors
-from adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
-from adapters.quiet import quiet_import
-from contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
-from contract.scene import Scene
+from physbench.adapters.base import Adapter, Capabilities, Unsupported
+from physbench.adapters.forces import PybulletForces
+from physbench.adapters.materials import per_object_factors
+from physbench.adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
+from physbench.adapters.quiet import quiet_import
+from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
+from physbench.contract.scene import Scene
 
 ENGINE = "pybullet"
 

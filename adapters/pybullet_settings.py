@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Capabilities, Setting, module_version
-from contract.scene import Scene
+from physbench.adapters.base import DT_SETTING, Capabilities, Setting, module_version
+from physbench.contract.scene import Scene
 
 # Bullet clamps every combined friction and rolling friction to this value
 # (btManifoldResult::calculateCombined*Friction).

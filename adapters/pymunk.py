@@ -77,14 +77,14 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import Adapter, Capabilities, Unsupported, module_version
-from adapters.forces import DRAG_NOTE, dragged
-from adapters.materials import per_material_factors
-from adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
-from adapters.pymunk_internals import BodyReader, c_stepper
-from adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
-from contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
-from contract.scene import Scene
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters.forces import DRAG_NOTE, dragged
+from physbench.adapters.materials import per_material_factors
+from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
+from physbench.adapters.pymunk_internals import BodyReader, c_stepper
+from physbench.adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
+from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from physbench.contract.scene import Scene
 
 ENGINE = "pymunk"
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from adapters.pymunk_internals import ROW
+from physbench.adapters.pymunk_internals import ROW
 
 
 class PublicBodyBatch:

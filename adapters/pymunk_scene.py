@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Capabilities, Setting, Unsupported
-from contract.conventions import planar_from_world, world_point_to_planar
-from contract.scene import Scene
+from physbench.adapters.base import DT_SETTING, Capabilities, Setting, Unsupported
+from physbench.contract.conventions import planar_from_world, world_point_to_planar
+from physbench.contract.scene import Scene
 
 # Static plane as a thick polygon: half-length along the line and depth into
 # the solid side (m).

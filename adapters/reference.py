@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported
-from contract.scene import Scene
+from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported
+from physbench.contract.scene import Scene
 
 
 def scene_input(scene: Scene):
@@ -24,7 +24,7 @@ def scene_input(scene: Scene):
     per-body and per-static arrays, and the pair coefficients
     (``Scene.pair``, with the static friction at least the kinetic one) over
     every pair of the materials the bodies and statics use."""
-    from engine.model import SceneInput
+    from physbench.engine.model import SceneInput
 
     bodies, statics = scene.bodies, sorted(scene.statics, key=lambda s: s.index)
     if [s.index for s in statics] != list(range(len(statics))):
@@ -82,13 +82,13 @@ def scene_input(scene: Scene):
 def engine_for(scene: Scene, settings: dict[str, Any] | None = None):
     """An :class:`engine.Engine` for the harness ``scene`` (settings over
     the engine's defaults)."""
-    from engine import Engine
+    from physbench.engine import Engine
 
     return Engine(scene_input(scene), settings)
 
 
 def _settings() -> dict[str, Setting]:
-    from engine import SETTINGS
+    from physbench.engine import SETTINGS
 
     out = {"dt": DT_SETTING}
     for name, (default, kind, doc, allowed) in SETTINGS.items():
@@ -107,7 +107,7 @@ class ReferenceAdapter(Adapter):
 
     @classmethod
     def capabilities(cls) -> Capabilities:
-        from engine import version
+        from physbench.engine import version
 
         return Capabilities(
             engine="reference",
@@ -122,11 +122,11 @@ class ReferenceAdapter(Adapter):
         )
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
-        from engine.collision import unsupported_pairs
-        from engine.model import build_model
-        from engine.pipeline import build_pipeline, prepare
-        from engine.profile import Profile
-        from engine.state import State
+        from physbench.engine.collision import unsupported_pairs
+        from physbench.engine.model import build_model
+        from physbench.engine.pipeline import build_pipeline, prepare
+        from physbench.engine.profile import Profile
+        from physbench.engine.state import State
 
         self.model = build_model(scene_input(scene), settings)
         missing = unsupported_pairs(self.model)
@@ -146,7 +146,7 @@ class ReferenceAdapter(Adapter):
             self.notes.append("penalty contacts: regularised Coulomb friction, no separate static friction; no CCD")
 
     def step(self, n: int = 1) -> None:
-        from engine.pipeline import advance
+        from physbench.engine.pipeline import advance
 
         # the steady steps n at a time in one compiled call (engine/loop.py)
         advance(self.model, self.state, self.pipeline, self.profile, n)
@@ -155,7 +155,7 @@ class ReferenceAdapter(Adapter):
         """As the base class's loop of step(1) and read_state, the steady
         steps recorded inside the engine's compiled loop (engine/loop.py);
         ``block_done`` counts the rows written."""
-        from engine.pipeline import advance
+        from physbench.engine.pipeline import advance
 
         self.block_done = 0
         done = [0]

@@ -19,30 +19,30 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from contract.metric_defs import dissipation, generic_metrics
+from physbench.contract.metric_defs import dissipation, generic_metrics
 
 if TYPE_CHECKING:
-    from contract.scene import Scene
+    from physbench.contract.scene import Scene
 
 MODELS: dict[str, str] = {
-    "two_body_collision": "harness.references.collision:TwoBodyCollision",
-    "oblique_collision": "harness.references.billiards:ObliqueCollision",
-    "newtons_cradle": "harness.references.billiards:NewtonsCradle",
-    "momentum_energy": "harness.references.billiards:MomentumEnergy",
-    "bounce_heights": "harness.references.billiards:BounceHeights",
-    "static_stack": "harness.references.stacking:StaticStack",
-    "log_pile": "harness.references.stacking:LogPile",
-    "no_tunnelling": "harness.references.tunnelling:NoTunnelling",
-    "incline_block": "harness.references.friction:InclineBlock",
-    "slide_to_rest": "harness.references.friction:SlideToRest",
-    "rolling_sphere": "harness.references.friction:RollingSphere",
-    "rolling_cylinder": "harness.references.friction:RollingCylinder",
-    "rolling_resistance": "harness.references.friction:RollingResistance",
-    "spin_to_rest": "harness.references.friction:SpinToRest",
-    "torque_free_rigid_body": "harness.references.rigid_body:TorqueFreeRigidBody",
-    "heavy_top": "harness.references.rigid_body:HeavyTop",
-    "damped_oscillator": "harness.references.forces:DampedOscillator",
-    "drag_fall": "harness.references.forces:DragFall",
+    "two_body_collision": "physbench.harness.references.collision:TwoBodyCollision",
+    "oblique_collision": "physbench.harness.references.billiards:ObliqueCollision",
+    "newtons_cradle": "physbench.harness.references.billiards:NewtonsCradle",
+    "momentum_energy": "physbench.harness.references.billiards:MomentumEnergy",
+    "bounce_heights": "physbench.harness.references.billiards:BounceHeights",
+    "static_stack": "physbench.harness.references.stacking:StaticStack",
+    "log_pile": "physbench.harness.references.stacking:LogPile",
+    "no_tunnelling": "physbench.harness.references.tunnelling:NoTunnelling",
+    "incline_block": "physbench.harness.references.friction:InclineBlock",
+    "slide_to_rest": "physbench.harness.references.friction:SlideToRest",
+    "rolling_sphere": "physbench.harness.references.friction:RollingSphere",
+    "rolling_cylinder": "physbench.harness.references.friction:RollingCylinder",
+    "rolling_resistance": "physbench.harness.references.friction:RollingResistance",
+    "spin_to_rest": "physbench.harness.references.friction:SpinToRest",
+    "torque_free_rigid_body": "physbench.harness.references.rigid_body:TorqueFreeRigidBody",
+    "heavy_top": "physbench.harness.references.rigid_body:HeavyTop",
+    "damped_oscillator": "physbench.harness.references.forces:DampedOscillator",
+    "drag_fall": "physbench.harness.references.forces:DragFall",
 }
 
 

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from contract.rotation import quat_exp, quat_mul, rotation_matrix
+from physbench.contract.rotation import quat_exp, quat_mul, rotation_matrix
 
 #: effects under which the motion before t = 0 is free flight with a
 #: closed form (contacts are ruled out by the clearance test)

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from contract.models import model_refusal, scene_errors
-from contract.phase import PhaseError, shift_scene
-from contract.scene_model import (  # re-exported: the scene's types are imported from here
+from physbench.contract.models import model_refusal, scene_errors
+from physbench.contract.phase import PhaseError, shift_scene
+from physbench.contract.scene_model import (  # re-exported: the scene's types are imported from here
     REPO_ROOT,
     Body,
     Check,
@@ -36,11 +36,11 @@ from contract.scene_model import (  # re-exported: the scene's types are importe
     content_hash,
     n_steps,
 )
-from contract.shapes import expand_pattern, principal_inertia, shape_volume
-from contract.spec.bounds import bound_error
-from contract.spec.errors import ModelRefusal, SpecError
-from contract.spec.load import LoadedSpec, load_spec
-from contract.spec.schema import SpecModel
+from physbench.contract.shapes import expand_pattern, principal_inertia, shape_volume
+from physbench.contract.spec.bounds import bound_error
+from physbench.contract.spec.errors import ModelRefusal, SpecError
+from physbench.contract.spec.load import LoadedSpec, load_spec
+from physbench.contract.spec.schema import SpecModel
 
 # read at call time: tests point it at a folder of their own
 SCENARIO_DIR = REPO_ROOT / "scenarios"

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from contract.spec.schema import BodySection
+from physbench.contract.spec.schema import BodySection
 
 def shape_volume(shape: str, radius: float, half_extents: np.ndarray | None, half_length: float) -> float:
     if shape == "sphere":

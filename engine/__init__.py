@@ -4,7 +4,7 @@ defaults are what they are.
 
 Use::
 
-    from engine import Engine
+    from physbench.engine import Engine
     eng = Engine(inp, {"dt": 1e-3})   # inp: engine.model.SceneInput; settings: defaults from SETTINGS
     eng.step(100)
     eng.state.x, eng.state.q, eng.state.v, eng.state.w
@@ -17,12 +17,12 @@ import functools
 from pathlib import Path
 from typing import Any, Mapping
 
-from engine import cache as _cache
+from physbench.engine import cache as _cache
 
 # before any kernel is defined: numba fixes a kernel's cache location then
 _cache.configure()
 
-from engine.integrate import INTEGRATORS  # noqa: E402
+from physbench.engine.integrate import INTEGRATORS  # noqa: E402
 
 #: Engine settings: name -> (default, type, doc, choices or (lo, hi)).  dt
 #: defaults to the scene's step (None).
@@ -99,10 +99,10 @@ class Engine:
     ``scene_input`` translates a harness scene; ``engine_for`` does both)."""
 
     def __init__(self, inp, settings: Mapping[str, Any] | None = None):
-        from engine.model import build_model
-        from engine.pipeline import build_pipeline, prepare
-        from engine.profile import Profile
-        from engine.state import State
+        from physbench.engine.model import build_model
+        from physbench.engine.pipeline import build_pipeline, prepare
+        from physbench.engine.profile import Profile
+        from physbench.engine.state import State
 
         full = default_settings(inp)
         full.update(settings or {})
@@ -115,7 +115,7 @@ class Engine:
         prepare(self.model, self.state, self.stages, self.profile)  # (what the first steps would make)
 
     def step(self, n: int = 1) -> None:
-        from engine.pipeline import advance
+        from physbench.engine.pipeline import advance
 
         advance(self.model, self.state, self.stages, self.profile, n)
 

@@ -1,4 +1,4 @@
-"""``python -m engine``: compile (or load) the engine's kernels into the
+"""``python -m physbench.engine``: compile (or load) the engine's kernels into the
 on-disk cache and print the seconds it took -- ahead of a first run on a
 fresh machine (a CI job, an image build), so the first scene does not pay
 for it.  Builds what a contact scene and a scene without contact build:
@@ -22,13 +22,13 @@ import subprocess
 import sys
 import time
 
-from engine import Engine, jit
-from engine.cache import cache_dir
-from engine.steady import warm_scene
+from physbench.engine import Engine, jit
+from physbench.engine.cache import cache_dir
+from physbench.engine.steady import warm_scene
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m engine", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m physbench.engine", description=__doc__.split("\n\n")[0])
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap.add_argument("--jobs", type=int, default=min(2, cores), choices=(1, 2),
                     help="processes compiling at once (default: 2 where this process may use two cores or more)")
@@ -39,10 +39,10 @@ def main(argv: list[str] | None = None) -> int:
         jit.warm_collision()
         return 0
     if args.jobs > 1:
-        other = subprocess.Popen([sys.executable, "-m", "engine", "--part", "collision"])
+        other = subprocess.Popen([sys.executable, "-m", "physbench.engine", "--part", "collision"])
         jit.warm_dynamics()
         if other.wait() != 0:  # whatever it missed, the warm-up below compiles here
-            print("python -m engine: the collision half's process failed; compiling it here", file=sys.stderr)
+            print("python -m physbench.engine: the collision half's process failed; compiling it here", file=sys.stderr)
     Engine(warm_scene())  # the warm-up's kernels and the fused steady step
     Engine(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})))  # the flight step
     print(f"engine kernels compiled or loaded in {time.perf_counter() - t0:.1f} s with {args.jobs} process(es) "

@@ -27,7 +27,7 @@ from numba import njit
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-from engine.pack import Pack
+from physbench.engine.pack import Pack
 
 
 def _no_records(context, builder, ty, val):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.sweep import _FALLBACK, SWEEP_ONLY, SapBuffers, _overlap_off_axis
+from physbench.engine.sweep import _FALLBACK, SWEEP_ONLY, SapBuffers, _overlap_off_axis
 
 
 @njit(cache=True)

@@ -35,11 +35,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_pairs, _sweep_pairs, sap_pairs
-from engine.flight import q2m
-from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
-from engine.profile import Stage
-from engine.sweep import _FALLBACK, SapBuffers, _sap_step
+from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_pairs, _sweep_pairs, sap_pairs
+from physbench.engine.flight import q2m
+from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from physbench.engine.profile import Stage
+from physbench.engine.sweep import _FALLBACK, SapBuffers, _sap_step
 
 
 #: below this many bodies ``sap`` tests all pairs instead: the same pairs in

@@ -39,17 +39,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine import flight
-from engine.collision import collide_pairs
-from engine.collision.dispatch import static_row
-from engine.ccd_end import missed_candidates
-from engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
+from physbench.engine import flight
+from physbench.engine.collision import collide_pairs
+from physbench.engine.collision.dispatch import static_row
+from physbench.engine.ccd_end import missed_candidates
+from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
                              _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
-from engine.ccd_gap import NO_FID, NO_P3, gap as _gap
-from engine.profile import Stage
-from engine.contact.impact import ImpactKept, impact_solve
-from engine.control import Event, EventMode, ImpactPair, TimeOfImpact
-from engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
+from physbench.engine.ccd_gap import NO_FID, NO_P3, gap as _gap
+from physbench.engine.profile import Stage
+from physbench.engine.contact.impact import ImpactKept, impact_solve
+from physbench.engine.control import Event, EventMode, ImpactPair, TimeOfImpact
+from physbench.engine.contact.rows import TOUCH_TOL, _pair_codes, _pair_codes_abs
 
 TOI_TOL = 1e-9  # m
 TOI_MAX_ITER = 30  # Newton needs 2-3; bisection (the safeguard) halves the bracket each time
@@ -357,8 +357,8 @@ def warm_up() -> None:
     """Compile (or load) the end-pose check's kernel, the followed pair's
     gap kernel and the impact solver's propagation with the step's argument types (see
     engine/jit.py)."""
-    from engine import ccd_end, ccd_gap
-    from engine.contact import impact
+    from physbench.engine import ccd_end, ccd_gap
+    from physbench.engine.contact import impact
 
     ccd_end.warm_up()
     ccd_gap.warm_up()

@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.flight import end_pose_pairs
+from physbench.engine.flight import end_pose_pairs
 
 SPHERE, BOX, CAPSULE, CYLINDER = 0, 1, 2, 3  # engine.model's shape codes
 

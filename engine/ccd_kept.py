@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine import flight
-from engine.ccd_end import end_pose_candidates
-from engine.collision.dispatch import Collider, static_row
-from engine.model import BOX, S_BOX
+from physbench.engine import flight
+from physbench.engine.ccd_end import end_pose_candidates
+from physbench.engine.collision.dispatch import Collider, static_row
+from physbench.engine.model import BOX, S_BOX
 
 
 def _stable_features(model, a: int, b: int, sidx: int) -> bool:

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine import flight
-from engine.profile import Stage
+from physbench.engine import flight
+from physbench.engine.profile import Stage
 
 
 class Gravity(Stage):

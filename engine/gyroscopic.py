@@ -17,8 +17,8 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.contact.linalg import solve_batch
-from engine.flight import q2m
+from physbench.engine.contact.linalg import solve_batch
+from physbench.engine.flight import q2m
 
 
 @njit(cache=True)

@@ -47,11 +47,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
-from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+from physbench.engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
+from physbench.engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
                                implicit_work, midpoint_rotation)
-from engine.forces import force_model
-from engine.profile import Stage
+from physbench.engine.forces import force_model
+from physbench.engine.profile import Stage
 
 INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
 ORDERS = {"explicit_euler": 1, "semi_implicit_euler": 1, "midpoint": 2, "heun": 2, "rk4": 4, "velocity_verlet": 2}

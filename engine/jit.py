@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from engine.profile import add_jit_seconds
+from physbench.engine.profile import add_jit_seconds
 
 _READY = False
 
@@ -39,12 +39,12 @@ def warm_up() -> float:
 def warm_collision() -> None:
     """The broad and narrow phases', the time-of-impact search's, the impact
     solver's and the penalty contacts' kernels (half of :func:`warm_up`:
-    ``python -m engine`` compiles the two halves in two processes at once,
+    ``python -m physbench.engine`` compiles the two halves in two processes at once,
     engine/__main__.py)."""
-    from engine.collision import dispatch
+    from physbench.engine.collision import dispatch
 
     dispatch.warm_up()  # the broad and narrow phases' kernels
-    from engine import ccd, penalty
+    from physbench.engine import ccd, penalty
 
     ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
     penalty.warm_up()
@@ -53,7 +53,7 @@ def warm_collision() -> None:
 def warm_dynamics() -> None:
     """The contact solve's and the free flight's kernels (the other half of
     :func:`warm_up`)."""
-    from engine.contact import linalg, prepare, sweeps, warm
+    from physbench.engine.contact import linalg, prepare, sweeps, warm
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
     J = np.ones((m, 12))
@@ -70,7 +70,7 @@ def warm_dynamics() -> None:
     linalg.inverse(K + np.eye(m))
     linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))  # (in place)
     linalg.islands(nb, a, b)
-    from engine.contact.rows import _greedy_colours
+    from physbench.engine.contact.rows import _greedy_colours
 
     _greedy_colours(a, b, nb, np.empty(m, np.int64))
     U = np.zeros((nb + 1, 6))
@@ -141,7 +141,7 @@ def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None
     ``relax`` (the phase-by-phase path's) and the stage's fused calls
     (``solve_contacts`` and the kernels it calls are compiled into those,
     never called from Python: no warm-up of their own)."""
-    from engine.contact import phases
+    from physbench.engine.contact import phases
 
     m = r.size
     V = np.zeros((nb + 1, 3))
@@ -156,10 +156,10 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
     without friction and rolling."""
     from types import SimpleNamespace
 
-    from engine import solver
-    from engine.contact import phases
-    from engine.contact.scratch import Scratch
-    from engine.pack import Pack
+    from physbench.engine import solver
+    from physbench.engine.contact import phases
+    from physbench.engine.contact.scratch import Scratch
+    from physbench.engine.pack import Pack
 
     m, npch = r.size, pab.shape[0]
     V = np.zeros((nb + 1, 3))
@@ -193,7 +193,7 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
 def _warm_flight() -> None:
     """The free-flight kernels (engine/flight.py) on two bodies, every
     integrator, with and without a force that reads the pose."""
-    from engine import flight, gyroscopic
+    from physbench.engine import flight, gyroscopic
 
     nb = 2
     x = np.zeros((nb, 3))
@@ -205,8 +205,8 @@ def _warm_flight() -> None:
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
     vw1 = np.zeros((nb + 1, 3))
-    from engine import state
-    from engine.pack import Pack
+    from physbench.engine import state
+    from physbench.engine.pack import Pack
 
     kept = Pack((x.copy(), q.copy(), v.copy(), v.copy(), inv_I, x.copy(), q.copy(), vw1.copy(), vw1.copy(), v.copy(),
                  v.copy(), vw1.copy(), vw1.copy(), R.copy(), Iinv.copy()))

@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from engine.mathutil import quat_to_matrix
+from physbench.engine.mathutil import quat_to_matrix
 
 # shape codes (body shapes)
 SPHERE, BOX, CAPSULE, CYLINDER = 0, 1, 2, 3

@@ -28,8 +28,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from engine.profile import Stage
-from engine.contact.rows import Rows, _pad
+from physbench.engine.profile import Stage
+from physbench.engine.contact.rows import Rows, _pad
 
 PERIODS = 20.0
 

@@ -21,22 +21,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.ccd import CCD, Impact, refine_toi
-from engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
-from engine.flight import max_turn_sq
-from engine.jit import warm_up
-from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
-from engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
-from engine.collision import NarrowPhase
-from engine.control import EventMode
-from engine.broadstage import BroadPhase
-from engine.penalty import PenaltyContacts
-from engine.profile import Profile, Stage, add_jit_seconds
-from engine.solver import Solve, _pair_codes_abs
-from engine.state import Context, State
-from engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
-from engine import loop as _loop
-from engine.loop import FlightStep
+from physbench.engine.ccd import CCD, Impact, refine_toi
+from physbench.engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
+from physbench.engine.flight import max_turn_sq
+from physbench.engine.jit import warm_up
+from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
+from physbench.engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
+from physbench.engine.collision import NarrowPhase
+from physbench.engine.control import EventMode
+from physbench.engine.broadstage import BroadPhase
+from physbench.engine.penalty import PenaltyContacts
+from physbench.engine.profile import Profile, Stage, add_jit_seconds
+from physbench.engine.solver import Solve, _pair_codes_abs
+from physbench.engine.state import Context, State
+from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
+from physbench.engine import loop as _loop
+from physbench.engine.loop import FlightStep
 
 
 def force_stages(model: Model) -> tuple[Stage, ...]:

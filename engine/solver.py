@@ -53,10 +53,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contact import phases, prepare, sweeps
-from engine.control import EventMode, Impacts
-from engine.contact.impact import impact_solve  # noqa: F401
-from engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
+from physbench.engine.contact import phases, prepare, sweeps
+from physbench.engine.control import EventMode, Impacts
+from physbench.engine.contact.impact import impact_solve  # noqa: F401
+from physbench.engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
     ACTIVE_SET_PASSES,
     DIRECT_MAX_ROWS,
     RESTING_SPEED,
@@ -73,11 +73,11 @@ from engine.contact.rows import (  # noqa: F401  (the solver's names, as before 
     dense_direct_solve,
     point_normal_velocity,
 )
-from engine.contact.rows import _take_rows
-from engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
-from engine.pack import KeptPack, Pack
-from engine.profile import Stage
-from engine.state import Contacts
+from physbench.engine.contact.rows import _take_rows
+from physbench.engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
+from physbench.engine.pack import KeptPack, Pack
+from physbench.engine.profile import Stage
+from physbench.engine.state import Contacts
 
 STOP_MIN_REST = 1e-6  # a friction stop this close to a step's end (fraction of it) does not cut the step
 WARM_MIN_STEP = 1e-3  # (sub)steps shorter than this fraction of the model's step cache no forces

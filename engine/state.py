@@ -22,11 +22,11 @@ import numpy as np
 
 from numba import njit
 
-from engine.flight import begin_step
-from engine.pack import KeptPack, Pack
-from engine.contact.scratch import Scratch
-from engine.control import Event, EventMode, Impacts, TimeOfImpact
-from engine.model import Model
+from physbench.engine.flight import begin_step
+from physbench.engine.pack import KeptPack, Pack
+from physbench.engine.contact.scratch import Scratch
+from physbench.engine.control import Event, EventMode, Impacts, TimeOfImpact
+from physbench.engine.model import Model
 
 
 @dataclass(eq=False)

@@ -43,22 +43,22 @@ from operator import is_
 import numpy as np
 from numba import njit
 
-from engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
-from engine.broadstage import BroadPhase, _broad_step
-from engine.collision import NarrowPhase, box
-from engine.collision.collide import collide_packed
-from engine.contact import phases, prepare
-from engine.control import EventMode
-from engine.ccd_end import end_pose_candidates
-from engine.flight import begin_step, free_flight, gravity, integrate_positions, max_turn_sq
-from engine.forces import Gravity
-from engine.integrate import IntegratePositions, IntegrateVelocities
-from engine import solver as _S
-from engine.pack import Pack
-from engine.solver import Solve
-from engine.state import Contacts, _commit_packed, record_packed
-from engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
-from engine.steady_stops import rolling_candidate
+from physbench.engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
+from physbench.engine.broadstage import BroadPhase, _broad_step
+from physbench.engine.collision import NarrowPhase, box
+from physbench.engine.collision.collide import collide_packed
+from physbench.engine.contact import phases, prepare
+from physbench.engine.control import EventMode
+from physbench.engine.ccd_end import end_pose_candidates
+from physbench.engine.flight import begin_step, free_flight, gravity, integrate_positions, max_turn_sq
+from physbench.engine.forces import Gravity
+from physbench.engine.integrate import IntegratePositions, IntegrateVelocities
+from physbench.engine import solver as _S
+from physbench.engine.pack import Pack
+from physbench.engine.solver import Solve
+from physbench.engine.state import Contacts, _commit_packed, record_packed
+from physbench.engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from physbench.engine.steady_stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 #: no try pending after a loop (it stopped before trying the next step)
@@ -398,7 +398,7 @@ class SteadyStep:
     def build(model, stages) -> "SteadyStep | None":
         """The fused step for ``stages`` when the scene has only stages it
         covers (module doc), else None: decided once, with the plan."""
-        from engine.ccd import CCD as CCDStage, Impact
+        from physbench.engine.ccd import CCD as CCDStage, Impact
 
         forces = [s for s in stages if s.family == "forces"]
         if any(type(s) not in FORCES for s in forces):
@@ -605,7 +605,7 @@ class SteadyStep:
 
 
 def _miss_tol() -> float:
-    from engine.ccd import MISS_TOL
+    from physbench.engine.ccd import MISS_TOL
 
     return float(MISS_TOL)
 
@@ -615,7 +615,7 @@ def warm_scene():
     whose first steps compile (or load) :func:`steady_kernel` with the
     step's argument types (engine.pipeline.build_pipeline, once per
     process)."""
-    from engine.model import SceneInput
+    from physbench.engine.model import SceneInput
 
     n = 2
     f = np.zeros

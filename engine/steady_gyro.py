@@ -30,11 +30,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.flight import gyroscopic_torque
-from engine.forces import GyroscopicTorque, Gravity
-from engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
+from physbench.engine.flight import gyroscopic_torque
+from physbench.engine.forces import GyroscopicTorque, Gravity
+from physbench.engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
                                implicit_work)
-from engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
+from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic
 
 #: the gyroscopic stage codes
 NO_GYRO, IMPLICIT, ENERGY = 0, 1, 2

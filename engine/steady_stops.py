@@ -21,8 +21,8 @@ import math
 
 from numba import njit
 
-from engine.contact.prepare import _pressed
-from engine.contact.sweeps import row_velocity
+from physbench.engine.contact.prepare import _pressed
+from physbench.engine.contact.sweeps import row_velocity
 
 
 @njit(cache=True)

@@ -33,10 +33,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from adapters import get_adapter
-from harness.runner import run
-from contract.scene import Scene, canonical_example, compile_scene, load_scene
-from contract.spec import validate_raw
+from physbench.adapters import get_adapter
+from physbench.harness.runner import run
+from physbench.contract.scene import Scene, canonical_example, compile_scene, load_scene
+from physbench.contract.spec import validate_raw
 
 
 @dataclass(frozen=True)
@@ -301,8 +301,8 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000, 10000), r
     brute_us}], "exponents": {method: k}}``, ``pairs`` the base cloud's,
     k the least-squares slope of log time against log n, with ``n_log_n``:
     the slope of n log n over the same sizes for reference."""
-    from engine.broadphase import brute_pairs, sap_pairs, stage_pairs
-    from engine.sweep import _FALLBACK, SapBuffers
+    from physbench.engine.broadphase import brute_pairs, sap_pairs, stage_pairs
+    from physbench.engine.sweep import _FALLBACK, SapBuffers
 
     methods = ("stage", "stage_fresh", "sap", "brute")
     rows = []
@@ -398,7 +398,7 @@ def build_cost(n: int = 10000, repeats: int = 3) -> dict[str, Any]:
     during one more."""
     import tracemalloc
 
-    from adapters.reference import engine_for
+    from physbench.adapters.reference import engine_for
 
     scene = spheres_scene(n)
     times = []

@@ -54,7 +54,7 @@ import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
+from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
                              register_env_adapters, take)
 
 #: Dask settings of the LocalCluster (its scheduler runs in this process, its
@@ -96,8 +96,8 @@ def worker_identity() -> dict[str, Any]:
     versions) and ``machine`` (harness/fingerprint.py's flat summary: the
     hardware, which may differ and is carried in each row).  Engines are
     not imported (their package versions are read)."""
-    from harness.fingerprint import _version, fingerprint
-    from harness.runner import commit_id, machine_info
+    from physbench.harness.fingerprint import _version, fingerprint
+    from physbench.harness.runner import commit_id, machine_info
 
     fp = fingerprint()
     software = {"commit": commit_id(), "python": fp["versions"]["python"],

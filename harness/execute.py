@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from harness import status as st
-from harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, InlineExecutor,  # noqa: F401
+from physbench.harness import status as st
+from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, InlineExecutor,  # noqa: F401
                              WorkerLost, WorkerPool, _extra_adapters, grace_s, register_env_adapters, take,
                              worker_main)
 
@@ -86,8 +86,8 @@ def request_scene(req: RunRequest, base: Any = None):
     to its step phase at the run's dt.  Raises SpecError for a bad spec,
     contract.phase.PhaseError for a phase the scene does not allow (or a dt
     setting that is not a number)."""
-    from contract.phase import PhaseError, shift_scene
-    from contract.scene import load_scene
+    from physbench.contract.phase import PhaseError, shift_scene
+    from physbench.contract.scene import load_scene
 
     scene = base if base is not None else load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     if not req.phase:
@@ -104,11 +104,11 @@ def _result(req: RunRequest, status: str, message: str, scene: Any = None):
     """A RunResult for a request that produced none of its own (scene did
     not load, the run could not start, the worker died or hung): the
     engine's version and resolved settings where they can be had."""
-    from harness.runner import RunResult, commit_id, machine_info
+    from physbench.harness.runner import RunResult, commit_id, machine_info
 
     settings, version = dict(req.settings), ""
     try:
-        from adapters import get_adapter
+        from physbench.adapters import get_adapter
 
         cls = get_adapter(req.engine)
         version = cls.capabilities().version
@@ -127,7 +127,7 @@ def execute_request(req: RunRequest):
     ``req.keep_trace``."""
     import numpy as np
 
-    from harness import runner
+    from physbench.harness import runner
 
     try:
         scene = request_scene(req)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from typing import Callable
 
-from harness.execute import InlineExecutor, WorkerPool
+from physbench.harness.execute import InlineExecutor, WorkerPool
 
 #: executor names: ``serial`` is an alias of ``inline`` (no isolation)
 EXECUTOR_KINDS = ("process", "inline", "serial", "dask")
@@ -31,7 +31,7 @@ def make_executor(kind: str = "process", jobs: int = 1, scheduler: str | None = 
     if kind in ("inline", "serial"):
         return InlineExecutor()
     if kind == "dask":
-        from harness.dask_executor import DaskExecutor
+        from physbench.harness.dask_executor import DaskExecutor
 
         return DaskExecutor(jobs, scheduler, log)
     raise ValueError(f"executor {kind!r}: expected one of {', '.join(EXECUTOR_KINDS)}")
@@ -52,7 +52,7 @@ def thread_counts(_item: object = None) -> dict:
     import numba
     import threadpoolctl
 
-    from harness.execute import ONE_THREAD_ENV
+    from physbench.harness.execute import ONE_THREAD_ENV
 
     return {"numba": numba.get_num_threads(),
             "blas": {f"{i['internal_api']} {i.get('version') or ''}".strip(): i["num_threads"]

@@ -120,7 +120,7 @@ def _version(mod: str) -> str:
 @functools.lru_cache(maxsize=1)
 def fingerprint() -> dict[str, Any]:
     """The environment fingerprint (a JSON-able dict; cached per process)."""
-    from engine import version as engine_version
+    from physbench.engine import version as engine_version
 
     return {
         "cpu": cpu_info(),

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Generator
 
-from harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_steps
+from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_steps
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
 EVAL_ROW, RESULT_ROW = "limit_eval", "limit"
@@ -85,7 +85,7 @@ class LimitRequest:
 
 
 def is_engine_setting(engine: str, param: str) -> bool:
-    from adapters import get_adapter
+    from physbench.adapters import get_adapter
 
     return param in get_adapter(engine).capabilities().settings
 
@@ -95,7 +95,7 @@ def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
     of a vector the spec leaves at its default (``body[0].velocity[0]`` of a
     body written without ``velocity``), the whole vector at its validated
     default."""
-    from contract.spec import parse_key_path
+    from physbench.contract.spec import parse_key_path
 
     parts = parse_key_path(path)
     if not isinstance(parts[-1], int) or len(parts) < 2:
@@ -121,8 +121,8 @@ def load_at(req: LimitRequest, value: float):
     """The request's scene with the searched spec key set to ``value`` (for
     an engine setting, the scene as written).  Raises SpecError (a value the
     spec does not accept: a negative mass, a restitution over 1)."""
-    from contract.scene import load_scene, resolve_scenario
-    from contract.spec import load_spec
+    from physbench.contract.scene import load_scene, resolve_scenario
+    from physbench.contract.spec import load_spec
 
     loaded = load_spec(resolve_scenario(req.scenario))
     overrides = dict(req.overrides)
@@ -136,7 +136,7 @@ def load_at(req: LimitRequest, value: float):
 def _criterion_checks(scene: Any, engine: str, checks: tuple[str, ...]) -> list[Any]:
     """The scene's checks the criterion evaluates: applicable to ``engine``,
     not bound to other settings, of a metric in ``checks`` (empty: all)."""
-    from harness.conformance import applicable_checks, split_metric
+    from physbench.harness.conformance import applicable_checks, split_metric
 
     out = []
     for c in applicable_checks(scene, engine):
@@ -157,15 +157,15 @@ def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
     produces a harness metric's name, so the criterion never reads a
     metric skipped here (tests/test_limits_model_metrics.py::
     test_the_criterion_never_reads_a_skipped_metric)."""
-    from contract.metric_defs import GENERIC_METRICS
-    from harness.conformance import split_metric
+    from physbench.contract.metric_defs import GENERIC_METRICS
+    from physbench.harness.conformance import split_metric
 
     if not scene.reference_model:
         return ()
     read = {split_metric(c.metric)[0] for c in _criterion_checks(scene, engine, checks)} | {m for m, _ in bounds}
     if read - set(GENERIC_METRICS):
         return ()
-    from harness.references import get_model
+    from physbench.harness.references import get_model
 
     return tuple(sorted(get_model(scene.reference_model).produces))
 
@@ -176,7 +176,7 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
     failure as ``metric: message``.  ``checks``: only the scene's checks of
     these metrics (``("stable",)``: stability alone); ``bounds``: extra
     (metric, max) criteria, a missing or NaN value failing."""
-    from harness.conformance import FAIL, PASS, evaluate_check
+    from physbench.harness.conformance import FAIL, PASS, evaluate_check
 
     if result.status != "ok":
         return False, f"status {result.status}: {result.message}"
@@ -205,9 +205,9 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
     columns and ``limit_*`` columns (``limit_holds``, ``limit_reason``).
     Never raises: a scene the value makes invalid, a run that raises, are
     rows whose verdict fails with the reason."""
-    from harness import runner
-    from contract.phase import shift_scene
-    from harness.points import PHASE_KEY, Point, _point_columns, _status_row
+    from physbench.harness import runner
+    from physbench.contract.phase import shift_scene
+    from physbench.harness.points import PHASE_KEY, Point, _point_columns, _status_row
 
     t0 = time.perf_counter()
     settings = dict(req.settings)
@@ -233,7 +233,7 @@ def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float)
         cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
         unsupported = res.status == "unsupported"
     except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
-        from contract.spec import SpecError
+        from physbench.contract.spec import SpecError
 
         msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
         row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
@@ -279,7 +279,7 @@ Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
 
 
 def spec_hash(req: LimitRequest) -> str:
-    from contract.scene import resolve_scenario
+    from physbench.contract.scene import resolve_scenario
 
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
@@ -309,7 +309,7 @@ def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
     """The row of an evaluation whose worker died, hung or raised
     (``lost``: a harness.execute.WorkerLost): its status and message, and
     a verdict that does not hold for that reason."""
-    from harness.points import Point, _status_row
+    from physbench.harness.points import Point, _status_row
 
     req = item.req
     why = lost.full_message().replace("this item", "this value")
@@ -327,14 +327,14 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
     Evaluations whose key is in ``cached`` are read back (not yielded);
     every new row is handed to ``store``.  The summary row (``row_kind`` =
     ``limit``) is the caller's to store."""
-    from contract.phase import phase_values
-    from contract.scene import load_scene
+    from physbench.contract.phase import phase_values
+    from physbench.contract.scene import load_scene
 
     limit_id = req.identity(spec_hash(req))
     phases = phase_values(req.phases)
     integer = False
     if is_engine_setting(req.engine, req.param):
-        from adapters import get_adapter
+        from physbench.adapters import get_adapter
 
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
     new_runs = 0

@@ -39,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from contract.rotation import quat_rotate
-from contract.metric_defs import dissipation, external_force_free
-from contract.scene import Scene
+from physbench.contract.rotation import quat_rotate
+from physbench.contract.metric_defs import dissipation, external_force_free
+from physbench.contract.scene import Scene
 
 STABLE_MAX_ENERGY_GAIN = 0.5
 STABLE_SPEED_FACTOR = 100.0
@@ -286,7 +286,7 @@ def run_penetration(scene: Scene, trace) -> Any:
     ``contact`` effect, bodies and frames; None otherwise."""
     if not scene.has("contact") or scene.n_bodies == 0 or trace.pos.shape[0] == 0:
         return None
-    from harness.geometry import measure_penetration
+    from physbench.harness.geometry import measure_penetration
 
     return measure_penetration(scene, trace)
 
@@ -365,7 +365,7 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
 
     # --- reference model
     if model and scene.reference_model:
-        from harness.references import UNDEFINED, get_model
+        from physbench.harness.references import UNDEFINED, get_model
 
         got = get_model(scene.reference_model)(scene).metrics(trace)
         why = [w for w in (out.pop(UNDEFINED, ""), got.pop(UNDEFINED, "")) if w]

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-from contract.phase import PhaseError
-from harness import status as st
-from harness.execute import RunRequest, WorkerLost, request_scene
+from physbench.contract.phase import PhaseError
+from physbench.harness import status as st
+from physbench.harness.execute import RunRequest, WorkerLost, request_scene
 
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
 #: the point setting that carries a step phase (not an engine setting)
@@ -92,7 +92,7 @@ class Point:
 @lru_cache(maxsize=64)
 def _scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
-    from contract.scene import load_scene
+    from physbench.contract.scene import load_scene
 
     return load_scene(scenario, variant)
 
@@ -106,7 +106,7 @@ def run_point(point: Point) -> dict[str, Any]:
     ``cpu_s_per_sim_s`` keeps the runner's figure for the part that ran).
     Never raises for engine trouble; returns the flat row with the point
     columns (the sweep-wide ones are added by the caller)."""
-    from harness import runner
+    from physbench.harness import runner
 
     t0 = time.perf_counter()
     try:
@@ -159,7 +159,7 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     (harness.conformance.run_verdicts), and the scene's columns
     (harness.conformance.scene_columns: primary metric, its threshold,
     tags): the report reads them from the row, never from the scene."""
-    from harness.conformance import run_verdicts, scene_columns, verdicts_column
+    from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
 
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
@@ -190,8 +190,8 @@ def _status_row(point: Point, status: str, message: str, t0: float, scene: Any =
     """A row for a point that produced no RunResult (scene failed to load,
     the run raised, the worker died); ``machine``: the summary of the host
     it ran on (default this one)."""
-    from adapters import get_adapter
-    from harness.runner import RunResult, commit_id, machine_info
+    from physbench.adapters import get_adapter
+    from physbench.harness.runner import RunResult, commit_id, machine_info
 
     settings = point.engine_settings
     version = ""

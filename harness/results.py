@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 from typing import Any, Iterable
 
-from contract.scene import REPO_ROOT
+from physbench.contract.scene import REPO_ROOT
 
 SCHEMA_VERSION = 1
 RESULTS_DIR = REPO_ROOT / "results"

@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from adapters import get_adapter
-from contract.scene import Scene, n_steps
-from contract.spec import record_size_error
-from harness import status as st
-from harness.results import CHECK_COLUMNS, VERDICT_COLUMNS
+from physbench.adapters import get_adapter
+from physbench.contract.scene import Scene, n_steps
+from physbench.contract.spec import record_size_error
+from physbench.harness import status as st
+from physbench.harness.results import CHECK_COLUMNS, VERDICT_COLUMNS
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
@@ -213,7 +213,7 @@ def machine_info() -> dict[str, str]:
     arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
     One mechanism for check, run and sweep rows
     (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
-    from harness.fingerprint import summary
+    from physbench.harness.fingerprint import summary
 
     return dict(summary())
 
@@ -279,7 +279,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
         result.status, result.message = st.UNSUPPORTED, reason
         return result
 
-    from adapters.base import Unsupported
+    from physbench.adapters.base import Unsupported
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
@@ -446,8 +446,8 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
     except Exception as e:
         result.notes.append(f"close() raised {type(e).__name__}: {e}")
     if compute_metrics and trace.n_frames > 0 and result.status != st.UNSUPPORTED:
-        from harness.metrics import compute_metrics as _metrics
-        from harness.metrics import run_penetration
+        from physbench.harness.metrics import compute_metrics as _metrics
+        from physbench.harness.metrics import run_penetration
 
         t0 = time.perf_counter()
         try:
@@ -469,7 +469,7 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         result.timing["metrics_s"] = time.perf_counter() - t0
         if result.status == st.OK and result.metrics.get("stable") is False:
             result.notes.append("unstable: " + str(result.metrics.get("stability_reason", "")))
-        from harness.references import UNDEFINED
+        from physbench.harness.references import UNDEFINED
 
         if result.metrics.get(UNDEFINED):
             result.notes.append("undefined metrics: " + str(result.metrics[UNDEFINED]))

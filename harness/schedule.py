@@ -34,10 +34,10 @@ import heapq
 import itertools
 from typing import Any, Callable, Iterator
 
-from harness.execute import WAIT, WorkerLost
-from harness.limits import EvalItem, LimitRequest, SearchResult, evaluate_item, lost_eval_row, search_items
-from harness import points as _points
-from harness.points import Point, _point_budget, lost_point_row
+from physbench.harness.execute import WAIT, WorkerLost
+from physbench.harness.limits import EvalItem, LimitRequest, SearchResult, evaluate_item, lost_eval_row, search_items
+from physbench.harness import points as _points
+from physbench.harness.points import Point, _point_budget, lost_point_row
 
 
 def run_item(item: Point | EvalItem) -> dict[str, Any]:
@@ -159,8 +159,8 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     matters."""
     import math
 
-    from harness.points import _scene
-    from harness.sweep_store import sweep_files
+    from physbench.harness.points import _scene
+    from physbench.harness.sweep_store import sweep_files
 
     wall: dict[str, float] = {}
     search_wall: dict[str, float] = {}
@@ -179,7 +179,7 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
             if "limit_id" in df.columns:
                 ev = df[kind == "limit_eval"]
                 search_wall = ev.groupby("limit_id")["point_wall_s"].sum().astype(float).to_dict()
-    from harness.limits import spec_hash
+    from physbench.harness.limits import spec_hash
 
     def point_model(p: Point) -> float:
         try:

@@ -21,11 +21,11 @@ from typing import Any, Iterable
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from contract.phase import phase_values
-from contract.scene import REPO_ROOT
-from contract.spec import SpecError, _display, _format_errors, read_toml
-from harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
-from harness.sweep_store import _NAME, SuiteError, plain_name
+from physbench.contract.phase import phase_values
+from physbench.contract.scene import REPO_ROOT
+from physbench.contract.spec import SpecError, _display, _format_errors, read_toml
+from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
+from physbench.harness.sweep_store import _NAME, SuiteError, plain_name
 
 SUITE_DIR = REPO_ROOT / "suites"
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
@@ -225,9 +225,9 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
     """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
     engine), each validated as ``physbench limits`` validates its arguments
     (harness.limits.validate_request).  Appends to ``errors``."""
-    from adapters import engine_names, get_adapter
-    from harness.limits import LimitRequest, validate_request
-    from contract.scene import scenario_ids
+    from physbench.adapters import engine_names, get_adapter
+    from physbench.harness.limits import LimitRequest, validate_request
+    from physbench.contract.scene import scenario_ids
 
     ids = set(scenario_ids())
     known = set(engine_names())
@@ -274,9 +274,9 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
     """Cross-checks pydantic cannot make: engines registered, scenario ids
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""
-    from adapters import engine_names, get_adapter
-    from contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
-    from contract.spec import load_spec
+    from physbench.adapters import engine_names, get_adapter
+    from physbench.contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
+    from physbench.contract.spec import load_spec
 
     known = engine_names()
     caps: dict[str, Any] = {}
@@ -385,8 +385,8 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     """Every point's recording fits the bounds (contract/spec/bounds.py
     record_size_error) at the smallest dt any engine sweeps: checked when
     the suite loads, before anything runs or is allocated."""
-    from contract.scene import load_scene, n_steps
-    from contract.spec import record_size_error
+    from physbench.contract.scene import load_scene, n_steps
+    from physbench.contract.spec import record_size_error
 
     for e, ax in axes.items():
         if "dt" not in ax:

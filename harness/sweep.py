@@ -48,14 +48,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from contract.spec import SpecError, _display
-from harness import status as st
-from harness.executors import make_executor
-from harness.points import Point
-from harness.results import SCHEMA_VERSION
-from harness.schedule import expected_costs, run_schedule
-from harness.suite import _label, expand, load_suite
-from harness.sweep_store import SWEEPS_DIR, _parts, _SweepDir, consolidate, machine_id, open_sweep
+from physbench.contract.spec import SpecError, _display
+from physbench.harness import status as st
+from physbench.harness.executors import make_executor
+from physbench.harness.points import Point
+from physbench.harness.results import SCHEMA_VERSION
+from physbench.harness.schedule import expected_costs, run_schedule
+from physbench.harness.suite import _label, expand, load_suite
+from physbench.harness.sweep_store import SWEEPS_DIR, _parts, _SweepDir, consolidate, machine_id, open_sweep
 
 STATUSES = st.RUN_STATUSES
 EXECUTORS = ("serial", "process", "dask")
@@ -92,7 +92,7 @@ def _store_limits(sd: "_SweepDir", ctx: dict[str, Any], err: Any):
     """(cached evaluations and summaries read back from the sweep's parts,
     store of an evaluation's row, on_search_done that stores a summary not
     stored before and prints the answer)."""
-    from harness.limits import RESULT_ROW, describe, stored_rows
+    from physbench.harness.limits import RESULT_ROW, describe, stored_rows
 
     cached = stored_rows(_parts(sd.path))
     cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
@@ -168,7 +168,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     filters = {"engines": engines, "scenarios": scenarios}
     ex, refused = None, ()
     if executor == "dask":  # before the sweep directory: a refused cluster writes nothing
-        from harness.dask_executor import EnvironmentRefused
+        from physbench.harness.dask_executor import EnvironmentRefused
 
         refused = (EnvironmentRefused,)
         try:

@@ -1,4 +1,4 @@
-"""How a sweep scales with workers: ``python -m harness.sweep_bench``.
+"""How a sweep scales with workers: ``python -m physbench.harness.sweep_bench``.
 
 Runs one suite (default: the nightly, points and ``[[limit]]`` searches)
 fresh with each executor and worker count, one after the other into one
@@ -34,7 +34,7 @@ harness.executors.bench_overhead) and the thread pools of its run processes
 compare ``cpu_s`` and ``idle`` as well as the wall time, and rerun on a
 quiet machine for the figures in docs/SWEEPS.md.  Example::
 
-    python -m harness.sweep_bench --suite nightly --executors process dask --jobs 1 2 --json out.json
+    python -m physbench.harness.sweep_bench --suite nightly --executors process dask --jobs 1 2 --json out.json
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ class CpuAccount:
     def sample(self, start: bool = False) -> None:
         import psutil
 
-        from harness.sweep_store import PART_WRITER
+        from physbench.harness.sweep_store import PART_WRITER
 
         for p in self.me.children(recursive=True):
             try:
@@ -149,8 +149,8 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     figures of the module docstring."""
     import pandas as pd
 
-    from harness.sweep import sweep_main
-    from harness.sweep_store import sweep_files
+    from physbench.harness.sweep import sweep_main
+    from physbench.harness.sweep_store import sweep_files
 
     load = os.getloadavg()[0]
     c0, t0 = _cpu(), time.perf_counter()
@@ -196,7 +196,7 @@ class VirtualExecutor:
         import heapq
         import itertools
 
-        from harness.execute import END, WAIT, take
+        from physbench.harness.execute import END, WAIT, take
 
         source, more, now, seq = iter(items), True, 0.0, itertools.count()
         running: list = []
@@ -250,8 +250,8 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     it)."""
     import math
 
-    from harness.schedule import run_schedule
-    from harness.suite import _label, expand, load_suite
+    from physbench.harness.schedule import run_schedule
+    from physbench.harness.suite import _label, expand, load_suite
 
     s = load_suite(suite)
     points = expand(s, engines, scenarios)
@@ -305,10 +305,10 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
     core); ``copies / ratio`` bounds the speed-up any schedule reaches."""
     import statistics
 
-    from harness.execute import WorkerPool
-    from harness.points import _scene, run_point
-    from harness.schedule import _model_cost
-    from harness.suite import expand, load_suite
+    from physbench.harness.execute import WorkerPool
+    from physbench.harness.points import _scene, run_point
+    from physbench.harness.schedule import _model_cost
+    from physbench.harness.suite import expand, load_suite
 
     pts = expand(load_suite("nightly"), [engine], [scenario])
     point = max(pts, key=lambda p: _model_cost(_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
@@ -336,7 +336,7 @@ def store_costs(rows: list[dict[str, Any]], limit: int = 500) -> dict[str, Any]:
     ms of CPU (``time.process_time``) per row."""
     import pandas as pd
 
-    from harness.results import PartsDir, consolidate_parts, list_parts, write_json_atomic, write_parquet_atomic
+    from physbench.harness.results import PartsDir, consolidate_parts, list_parts, write_json_atomic, write_parquet_atomic
 
     rows = rows[:limit]
     tmp = Path(tempfile.mkdtemp(prefix="physbench-store-bench-"))
@@ -376,7 +376,7 @@ def _print_store(sc: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m harness.sweep_bench", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m physbench.harness.sweep_bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--suite", default="nightly")
     p.add_argument("--engines", nargs="+", default=None)
     p.add_argument("--scenarios", nargs="+", default=None, help="a subset of the suite's scenarios")
@@ -395,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
                                                            "directory, removed)")
     args = p.parse_args(argv)
-    from harness.executors import bench_overhead, make_executor, thread_counts
+    from physbench.harness.executors import bench_overhead, make_executor, thread_counts
 
     if args.core_scaling:
         for jobs in args.jobs:

@@ -26,9 +26,9 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from contract.spec import SpecError, _display
-from harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
-from harness.results import (RESULTS_DIR, SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
+from physbench.contract.spec import SpecError, _display
+from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
+from physbench.harness.results import (RESULTS_DIR, SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
                              try_lock, unfinished_dirs, write_json_atomic)
 
 SWEEPS_DIR = RESULTS_DIR / "sweeps"
@@ -192,7 +192,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
     ``machine``: the machine id the rows are filed under (default this
     machine's; a Dask sweep's workers' own).
     """
-    from harness.runner import commit_id, machine_info
+    from physbench.harness.runner import commit_id, machine_info
 
     machine = machine or machine_id()
     suite_dir = confined(root, machine, suite.name)

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from harness import status as st
-from contract.scene import REPO_ROOT
+from physbench.harness import status as st
+from physbench.contract.scene import REPO_ROOT
 
 #: environment variable naming extra adapters, ``name=module:Class,...``
 ADAPTERS_ENV = "PHYSBENCH_ADAPTERS"
@@ -184,8 +184,8 @@ def _extra_adapters() -> tuple[dict[str, str], list[str]]:
     function), merged with the ones named in the environment; and the
     directories their modules are imported from (a test module imported by
     file name needs its own directory on the path)."""
-    from adapters import ENGINES
-    from adapters.base import _REGISTRY
+    from physbench.adapters import ENGINES
+    from physbench.adapters.base import _REGISTRY
 
     out = _parse_adapters(os.environ.get(ADAPTERS_ENV, ""))
     paths: list[str] = []
@@ -223,7 +223,7 @@ def register_env_adapters(text: str | None = None) -> list[str]:
     """Register the adapters named in ``PHYSBENCH_ADAPTERS`` (or ``text``),
     ``name=module:Class,...``; each is imported when first asked for.
     Returns their names."""
-    from adapters.base import register
+    from physbench.adapters.base import register
 
     refs = _parse_adapters(os.environ.get(ADAPTERS_ENV, "") if text is None else text)
 
@@ -247,7 +247,7 @@ class _Worker:
     def __init__(self, workdir: Path, env: dict[str, str], n: int):
         self.err_path = workdir / f"worker-{n}.stderr"
         self.err = open(self.err_path, "ab")
-        self.proc = subprocess.Popen([sys.executable, "-c", "from harness.workers import worker_main; worker_main()"],
+        self.proc = subprocess.Popen([sys.executable, "-c", "from physbench.harness.workers import worker_main; worker_main()"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.err, cwd=workdir,
                                      env=env, close_fds=True)
         self.fd = self.proc.stdout.fileno()

@@ -7,7 +7,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from contract.scene import canonical_example  # noqa: E402
+from physbench.contract.scene import canonical_example  # noqa: E402
 
 # ../shared/examples/head_on.toml when shared/ stands beside the repository
 # (as in CI), else the copy under tests/data

@@ -16,7 +16,7 @@ import dataclasses
 import os
 import time
 
-from adapters.pybullet import PybulletAdapter
+from physbench.adapters.pybullet import PybulletAdapter
 
 FAULT_ENV = "FAULTY_FAULT"
 KINDS = ("abort", "segfault", "hang", "exit")

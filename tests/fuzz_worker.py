@@ -39,8 +39,8 @@ def run_cut(item: tuple[Any, str, int, float]) -> tuple[Any, dict[str, float]]:
 
     scene, engine, steps, timeout_s = item
     t0 = time.perf_counter()
-    from adapters import get_adapter
-    from harness import runner
+    from physbench.adapters import get_adapter
+    from physbench.harness import runner
 
     get_adapter(engine).capabilities()
     t1 = time.perf_counter()

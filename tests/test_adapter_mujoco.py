@@ -20,13 +20,13 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from adapters import get_adapter  # noqa: E402
-from contract.rotation import body_to_world_angvel, quat_to_matrix  # noqa: E402
-from adapters.mujoco import MujocoAdapter  # noqa: E402
-from adapters.mujoco_calibration import ZERO_TOL, calibrate  # noqa: E402
-from harness.runner import run  # noqa: E402
-from contract.scene import compile_scene, load_scene  # noqa: E402
-from contract.spec import validate_raw  # noqa: E402
+from physbench.adapters import get_adapter  # noqa: E402
+from physbench.contract.rotation import body_to_world_angvel, quat_to_matrix  # noqa: E402
+from physbench.adapters.mujoco import MujocoAdapter  # noqa: E402
+from physbench.adapters.mujoco_calibration import ZERO_TOL, calibrate  # noqa: E402
+from physbench.harness.runner import run  # noqa: E402
+from physbench.contract.scene import compile_scene, load_scene  # noqa: E402
+from physbench.contract.spec import validate_raw  # noqa: E402
 from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,7 +82,7 @@ def bounce_ratio(tr, radius, g, i=0):
 
 
 def test_import_prints_nothing():
-    out = subprocess.run([sys.executable, "-c", "import adapters.mujoco, adapters.mujoco_calibration"],
+    out = subprocess.run([sys.executable, "-c", "import physbench.adapters.mujoco, physbench.adapters.mujoco_calibration"],
                          capture_output=True, text=True, cwd=ROOT, env={"PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stderr
     assert out.stdout == ""
@@ -90,9 +90,9 @@ def test_import_prints_nothing():
 
 def test_unavailable_without_mujoco():
     code = ("import sys; sys.modules['mujoco'] = None\n"
-            "from adapters.mujoco import MujocoAdapter\n"
-            "from contract.scene import compile_scene\n"
-            "from contract.spec import validate_raw\n"
+            "from physbench.adapters.mujoco import MujocoAdapter\n"
+            "from physbench.contract.scene import compile_scene\n"
+            "from physbench.contract.spec import validate_raw\n"
             "c = MujocoAdapter.capabilities()\n"
             "assert not c.available and 'import mujoco failed' in c.unavailable_reason, c\n"
             "s = compile_scene(validate_raw({'scenario': {'family': 'f', 'title': 't', 'duration': 1.0,"

@@ -29,12 +29,12 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from contract.rotation import quat_to_matrix  # noqa: E402
-from adapters.materials import solve_product_values, solve_rolling_values  # noqa: E402
-from adapters.pybullet import PybulletAdapter, _import_pybullet  # noqa: E402
-from harness.runner import run  # noqa: E402
-from contract.scene import compile_scene, load_scene  # noqa: E402
-from contract.spec import validate_raw  # noqa: E402
+from physbench.contract.rotation import quat_to_matrix  # noqa: E402
+from physbench.adapters.materials import solve_product_values, solve_rolling_values  # noqa: E402
+from physbench.adapters.pybullet import PybulletAdapter, _import_pybullet  # noqa: E402
+from physbench.harness.runner import run  # noqa: E402
+from physbench.contract.scene import compile_scene, load_scene  # noqa: E402
+from physbench.contract.spec import validate_raw  # noqa: E402
 from tests.conftest import without_effects  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -102,9 +102,9 @@ def test_import_and_run_print_nothing_subprocess(head_on_path):
     stdout or stderr, so `--json` output stays clean even through a pipe."""
     code = (
         "import sys; sys.path.insert(0, sys.argv[1])\n"
-        "import adapters.pybullet as m\n"
-        "from contract.scene import load_scene\n"
-        "from harness.runner import run\n"
+        "import physbench.adapters.pybullet as m\n"
+        "from physbench.contract.scene import load_scene\n"
+        "from physbench.harness.runner import run\n"
         "assert m.PybulletAdapter.capabilities().available\n"
         "r = run(load_scene(sys.argv[2]), 'pybullet', compute_metrics=False)\n"
         "assert r.status == 'ok', r.message\n"
@@ -488,7 +488,7 @@ def test_ccd_allowed_penetration_decides_whether_the_sweep_acts(allowed, dt, tun
     adapter's default), and at every dt with 1 mm (measured; the phase of
     the steps decides the uncaught case, 0.88 of phases tunnel at 1/240 s,
     and this phase is one of them)."""
-    from harness.references import get_model
+    from physbench.harness.references import get_model
     scene = load_scene("tunnelling.thin_box_on_thin_floor", None, {"scenario.dt": dt})
     settings = {} if allowed is None else {"ccd_allowed_penetration": allowed}
     res, tr = ok_run(scene, settings)

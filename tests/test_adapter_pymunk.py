@@ -16,10 +16,10 @@ import pytest
 
 pymunk = pytest.importorskip("pymunk")
 
-from contract.rotation import quat_to_matrix  # noqa: E402
-from adapters.pymunk import GYROSCOPIC_REASON, PymunkAdapter  # noqa: E402
-from harness.runner import run  # noqa: E402
-from contract.scene import load_scene  # noqa: E402
+from physbench.contract.rotation import quat_to_matrix  # noqa: E402
+from physbench.adapters.pymunk import GYROSCOPIC_REASON, PymunkAdapter  # noqa: E402
+from physbench.harness.runner import run  # noqa: E402
+from physbench.contract.scene import load_scene  # noqa: E402
 
 G = 9.81
 
@@ -824,7 +824,7 @@ def test_private_paths_equal_public_paths(tmp_path, monkeypatch, text):
     the allocation-free batch reader and its block recorder) equals a run
     through the public calls only (Space.step, pymunk.batch.get_space_bodies
     per step), bit for bit."""
-    import adapters.pymunk as am
+    import physbench.adapters.pymunk as am
 
     sc = scene_from(tmp_path, globals()[text])
     fast, _ = run_ok(sc)

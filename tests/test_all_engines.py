@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from adapters import ENGINES
-from harness.runner import run
-from contract.scene import load_scene, scenario_ids
+from physbench.adapters import ENGINES
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene, scenario_ids
 
 # metrics that are NaN by definition in some scenes (not applicable)
 MAY_BE_NAN = {"linear_momentum_drift", "angular_momentum_drift", "max_penetration", "mean_penetration",

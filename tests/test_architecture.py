@@ -29,14 +29,14 @@ PACKAGES = ("contract", "engine", "adapters", "harness")
 # run/metrics layer.  Imports go to the same or a lower rank only (same-rank
 # imports are fine while they make no cycle).
 LAYERS: list[tuple[int, tuple[str, ...]]] = [
-    (0, ("contract", "engine")),
-    (1, ("adapters",)),
-    (2, ("harness",)),  # run, execute, metrics, geometry, references, results, status, fingerprint, trace
-    (3, ("harness.conformance",)),  # check
-    (4, ("harness.limits", "harness.limit_eval", "harness.limit_search", "harness.sweep", "harness.suite",
-         "harness.points", "harness.sweep_store", "harness.schedule", "harness.sweep_bench", "harness.bench")),  # sweep, limits, bench
-    (5, ("harness.report",)),  # report
-    (6, ("harness.cli",)),  # the command line
+    (0, ("physbench", "physbench.contract", "physbench.engine")),
+    (1, ("physbench.adapters",)),
+    (2, ("physbench.harness",)),  # run, execute, metrics, geometry, references, results, status, fingerprint, trace
+    (3, ("physbench.harness.conformance",)),  # check
+    (4, ("physbench.harness.limits", "physbench.harness.limit_eval", "physbench.harness.limit_search", "physbench.harness.sweep", "physbench.harness.suite",
+         "physbench.harness.points", "physbench.harness.sweep_store", "physbench.harness.schedule", "physbench.harness.sweep_bench", "physbench.harness.bench")),  # sweep, limits, bench
+    (5, ("physbench.harness.report",)),  # report
+    (6, ("physbench.harness.cli",)),  # the command line
 ]
 # Import cycles known today, each a strongly connected set of modules.  The
 # test fails when one disappears as well as when a new one forms, so this
@@ -45,7 +45,7 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
 # seconds' bookkeeping).
 KNOWN_CYCLES: list[list[str]] = []
 # harness modules that use the engine directly (all others go through adapters)
-ENGINE_USERS = {"harness.fingerprint", "harness.bench"}
+ENGINE_USERS = {"physbench.harness.fingerprint", "physbench.harness.bench"}
 
 
 def _modules() -> dict[str, Path]:
@@ -56,7 +56,8 @@ def _modules() -> dict[str, Path]:
             parts = list(rel.parts)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
-            out[".".join(parts)] = p
+            out[".".join(["physbench", *parts])] = p
+    out["physbench"] = ROOT / "__init__.py"
     return out
 
 
@@ -126,7 +127,7 @@ def rank(mod: str) -> int:
 
 
 def test_every_module_parses_and_has_a_layer():
-    assert {"contract.scene", "contract.rotation", "engine", "adapters.base", "harness.cli"} <= set(MODULES)
+    assert {"physbench.contract.scene", "physbench.contract.rotation", "physbench.engine", "physbench.adapters.base", "physbench.harness.cli"} <= set(MODULES)
     for m in MODULES:
         rank(m)
 
@@ -140,12 +141,12 @@ def test_no_upward_imports():
 def test_leaves_and_sides():
     bad = []
     for m, targets in GRAPH.items():
-        top = m.split(".")[0]
+        top = m.split(".")[1] if "." in m else m
         for t in targets:
-            ttop = t.split(".")[0]
+            ttop = t.split(".")[1] if "." in t else t
             if top in ("contract", "engine") and ttop != top:
                 bad.append(f"{m} is a leaf but imports {t}")
-            if top == "adapters" and ttop == "engine" and m != "adapters.reference":
+            if top == "adapters" and ttop == "engine" and m != "physbench.adapters.reference":
                 bad.append(f"{m}: only the reference adapter builds the engine ({t})")
             if top == "adapters" and ttop == "harness":
                 bad.append(f"{m}: adapters stand on the contract, not the harness ({t})")
@@ -191,16 +192,16 @@ def test_no_import_cycles():
     gone = [c for c in KNOWN_CYCLES if c not in cycles]
     assert not new, f"import cycles: {new}"
     assert not gone, f"known cycles no longer there (remove them from KNOWN_CYCLES): {gone}"
-    assert all(c[0].startswith("engine.") for c in KNOWN_CYCLES), "only the engine's own cycles may be known"
+    assert all(c[0].startswith("physbench.engine.") for c in KNOWN_CYCLES), "only the engine's own cycles may be known"
 
 
 def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
     """The rules cannot pass by missing imports: an import inside a function
     and a relative import are both seen."""
     p = tmp_path / "x.py"
-    p.write_text("def f():\n    from harness.cli import main\n    from . import runner\n"
-                 "    from harness.trace.writer import write_rrd\n", encoding="utf-8")
-    assert _imports("harness.y", p) >= {"harness.cli", "harness.runner", "harness.trace", "harness.trace.writer"}
+    p.write_text("def f():\n    from physbench.harness.cli import main\n    from . import runner\n"
+                 "    from physbench.harness.trace.writer import write_rrd\n", encoding="utf-8")
+    assert _imports("physbench.harness.y", p) >= {"physbench.harness.cli", "physbench.harness.runner", "physbench.harness.trace", "physbench.harness.trace.writer"}
 
 
 # What the report may not import, directly: scene loading and compiling (the
@@ -208,11 +209,11 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
 # metrics, adapters and the engine, anything that runs a scene.  It reads
 # rows; tests/test_report_rows.py pins the same at run time (loading a scene
 # during the report fails it).
-REPORT_MAY_NOT_IMPORT = ("contract.scene", "contract.scene_model", "contract.shapes", "contract.models",
-                         "contract.spec", "adapters", "engine", "harness.conformance", "harness.references",
-                         "harness.metrics", "harness.geometry", "harness.points", "harness.suite",
-                         "harness.limits", "harness.limit_eval", "harness.execute", "harness.workers",
-                         "harness.trace")
+REPORT_MAY_NOT_IMPORT = ("physbench.contract.scene", "physbench.contract.scene_model", "physbench.contract.shapes", "physbench.contract.models",
+                         "physbench.contract.spec", "physbench.adapters", "physbench.engine", "physbench.harness.conformance", "physbench.harness.references",
+                         "physbench.harness.metrics", "physbench.harness.geometry", "physbench.harness.points", "physbench.harness.suite",
+                         "physbench.harness.limits", "physbench.harness.limit_eval", "physbench.harness.execute", "physbench.harness.workers",
+                         "physbench.harness.trace")
 # names the report may take from the runner (the commit the page was made at)
 REPORT_FROM_RUNNER = {"commit_id"}
 
@@ -227,20 +228,20 @@ def _from_imports(path: Path, module: str) -> set[str]:
 def _report_violations(graph: dict[str, set[str]], paths: dict[str, Path]) -> list[str]:
     bad = []
     for m, targets in graph.items():
-        if not (m == "harness.report" or m.startswith("harness.report.")):
+        if not (m == "physbench.harness.report" or m.startswith("physbench.harness.report.")):
             continue
         for t in sorted(targets):
             if any(t == p or t.startswith(p + ".") for p in REPORT_MAY_NOT_IMPORT):
                 bad.append(f"{m} imports {t}: the report reads rows only")
-        extra = _from_imports(paths[m], "harness.runner") - REPORT_FROM_RUNNER
-        if extra or "harness.runner" in targets and not _from_imports(paths[m], "harness.runner"):
+        extra = _from_imports(paths[m], "physbench.harness.runner") - REPORT_FROM_RUNNER
+        if extra or "physbench.harness.runner" in targets and not _from_imports(paths[m], "physbench.harness.runner"):
             bad.append(f"{m} takes {sorted(extra) or 'the module'} from harness.runner; only "
                        f"{sorted(REPORT_FROM_RUNNER)} may come from there")
     return bad
 
 
 def test_the_report_reads_rows_only():
-    assert {"harness.report", "harness.report.page", "harness.report.loading"} <= set(MODULES)
+    assert {"physbench.harness.report", "physbench.harness.report.page", "physbench.harness.report.loading"} <= set(MODULES)
     bad = _report_violations(GRAPH, MODULES)
     assert not bad, "\n".join(bad)
 
@@ -249,16 +250,16 @@ def test_the_report_rule_can_fail(tmp_path):
     """A report module that loads a scene, or takes more than the commit
     from the runner, is caught."""
     p = tmp_path / "x.py"
-    p.write_text("def f():\n    from contract.scene import load_scene\n"
-                 "    from harness.runner import run, commit_id\n", encoding="utf-8")
-    bad = _report_violations({"harness.report.x": _imports("harness.report.x", p)}, {"harness.report.x": p})
-    assert any("contract.scene" in b for b in bad) and any("['run']" in b for b in bad), bad
+    p.write_text("def f():\n    from physbench.contract.scene import load_scene\n"
+                 "    from physbench.harness.runner import run, commit_id\n", encoding="utf-8")
+    bad = _report_violations({"physbench.harness.report.x": _imports("physbench.harness.report.x", p)}, {"physbench.harness.report.x": p})
+    assert any("physbench.contract.scene" in b for b in bad) and any("['run']" in b for b in bad), bad
 
 
 # The breaking-point search is pure logic (asv's step_detect.py is the
 # model): it imports nothing of ours and nothing that does I/O, so it is
 # tested on a fake criterion (tests/test_limits.py).
-PURE_MODULES = {"harness.limit_search": {"__future__", "math", "dataclasses", "typing"}}
+PURE_MODULES = {"physbench.harness.limit_search": {"__future__", "math", "dataclasses", "typing"}}
 
 
 def test_pure_modules_import_no_io():
@@ -307,7 +308,7 @@ def test_architecture_doc_names_the_layers_of_the_test():
         if k <= 2:
             continue
         for pre in prefixes:
-            rel = pre.replace(".", "/")
+            rel = pre.removeprefix("physbench.").replace(".", "/")
             name = Path(rel).name + ("/" if (ROOT / rel).is_dir() else ".py")
             if not ({name, rel + "/", rel + ".py"} & by_layer.get(k, set())):
                 bad.append(f"{pre}: layer {k} in LAYERS, not named in the row of layer {k}")
@@ -316,7 +317,7 @@ def test_architecture_doc_names_the_layers_of_the_test():
             continue
         for name in names:
             rel = name.removesuffix(".py").rstrip("/")
-            mod = (rel if rel.startswith("harness") else "harness/" + rel).replace("/", ".")
+            mod = "physbench." + (rel if rel.startswith("harness") else "harness/" + rel).replace("/", ".")
             if mod in MODULES and rank(mod) != k:
                 bad.append(f"{name}: in the row of layer {k}, but LAYERS puts {mod} in layer {rank(mod)}")
             if mod not in MODULES:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from harness import bench
+from physbench.harness import bench
 
 
 def _pos(x):
@@ -49,7 +49,7 @@ def test_broadphase_scaling_times_every_call_on_a_new_cloud(monkeypatch):
     """No timed call sees the input of the call before it on the same
     arrays (a branch predictor would learn one static cloud and flatter the
     small sizes' cost), and the methods still agree on every cloud."""
-    import engine.broadphase as B
+    import physbench.engine.broadphase as B
 
     seen = []
     real = B.sap_pairs
@@ -70,7 +70,7 @@ def test_sphere_cloud_variants_keep_the_statistics():
     """A variant is a new cloud of the same statistics: the same n and cube,
     every tenth sphere touching the previous one, about as many pairs;
     variant 0 is the base cloud, and a variant is reproducible."""
-    from engine.broadphase import sap_pairs
+    from physbench.engine.broadphase import sap_pairs
 
     n, r, spacing = 3000, 0.05, 2.5
     base = bench.sphere_cloud(n)

@@ -13,8 +13,8 @@ import zlib
 import numpy as np
 import pytest
 
-import engine.broadphase as bp
-from engine.broadphase import brute_pairs, sap_pairs
+import physbench.engine.broadphase as bp
+from physbench.engine.broadphase import brute_pairs, sap_pairs
 
 
 def naive(lo, hi):

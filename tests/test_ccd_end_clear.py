@@ -22,11 +22,11 @@ import textwrap
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from contract.scene import load_scene
-from engine import ccd, ccd_end, flight
-from engine.collision import collide_pairs
-from engine.mathutil import quat_to_matrix
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
+from physbench.engine import ccd, ccd_end, flight
+from physbench.engine.collision import collide_pairs
+from physbench.engine.mathutil import quat_to_matrix
 
 SCENE = """
 [scenario]
@@ -302,7 +302,7 @@ def test_missed_candidates_keep_every_missed_impact(monkeypatch, case):
     Python rule of ccd.missed_impacts run over its candidate pairs only: at
     every call, the result equals the rule's over every pair (the
     candidates all True), and missed impacts are found."""
-    from harness import bench
+    from physbench.harness import bench
 
     if case == "spheres_landing":
         scene, settings, steps = bench.spheres_scene(100), {"iterations": 10}, 30
@@ -341,7 +341,7 @@ def test_landing_spheres_skip_the_python_rule(monkeypatch):
     has one feature): no contact is a candidate, and the Python rule (its
     pair codes, groups, per-pair numpy) does not run.  On the code before
     it ran for every such step (~140 us a step of the landing's first 30)."""
-    from harness import bench
+    from physbench.harness import bench
 
     eng = engine_for(bench.spheres_scene(100), {"iterations": 10})
     inside = {"on": False, "codes": 0, "calls": 0}

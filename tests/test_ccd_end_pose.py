@@ -17,11 +17,11 @@ import textwrap
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from contract.scene import load_scene
-from engine import flight
-from engine.collision import collide_pairs
-from engine.mathutil import quat_to_matrix
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
+from physbench.engine import flight
+from physbench.engine.collision import collide_pairs
+from physbench.engine.mathutil import quat_to_matrix
 
 SCENE = """
 [scenario]

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-import engine.contact.impact as impact
-import engine.contact.rows as rows
-from adapters.reference import engine_for
-from contract.scene import load_scene
+import physbench.engine.contact.impact as impact
+import physbench.engine.contact.rows as rows
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
 
 
 def test_a_bouncing_ball_builds_its_impact_topology_once(monkeypatch):
@@ -51,7 +51,7 @@ def test_contact_inertias_are_world_inv_inertia_bit_for_bit():
     """impact.contact_inertias: the contact bodies' world inverse inertias
     as mathutil.world_inv_inertia(quat_to_matrix(q)) gives them, zero for
     the other bodies and the world row."""
-    from engine.mathutil import quat_to_matrix, world_inv_inertia
+    from physbench.engine.mathutil import quat_to_matrix, world_inv_inertia
 
     rng = np.random.default_rng(3)
     n = 9

@@ -7,12 +7,12 @@ on random contacts with points followed, left out and feature ids."""
 import numpy as np
 import pytest
 
-from engine import ccd_gap
-from engine.mathutil import cross, quat_to_matrix
+from physbench.engine import ccd_gap
+from physbench.engine.mathutil import cross, quat_to_matrix
 
 
 def _numpy_gap(point, gap, fid, ca, cb, normal, x1, q1, V, W, n, a, tol, loc, exclude, fids):
-    """engine.ccd.pair_gap before it was compiled (numpy over the pair's
+    """physbench.engine.ccd.pair_gap before it was compiled (numpy over the pair's
     contacts)."""
     p = None
     if (loc is not None and loc.size) or (exclude is not None and exclude.size):

@@ -19,7 +19,7 @@ COLLISION = ["post_impact_velocity_error", "trajectory_rmse", "final_position_er
 
 def physbench(*args, check=False):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p = subprocess.run([sys.executable, "-m", "harness.cli", *map(str, args)], capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", *map(str, args)], capture_output=True, text=True,
                        cwd=ROOT, env=env, timeout=300)
     if check:
         assert p.returncode == 0, p.stderr
@@ -151,7 +151,7 @@ def test_sweep_then_report_from_the_command_line(tmp_path, capsys):
     """`physbench sweep --suite smoke` then `physbench report` on its output:
     both exit 0, the sweep's rows land under the given root, and the page is
     written where asked."""
-    from harness.cli import main
+    from physbench.harness.cli import main
 
     sweeps = tmp_path / "sweeps"
     assert main(["sweep", "--suite", "smoke", "--out", str(sweeps), "--no-resume"]) == 0
@@ -168,7 +168,7 @@ def test_sweep_then_report_from_the_command_line(tmp_path, capsys):
 
 
 def test_sweep_bad_suite_is_exit_2(tmp_path, capsys):
-    from harness.cli import main
+    from physbench.harness.cli import main
 
     bad = tmp_path / "bad.toml"
     bad.write_text('[suite]\nengines = ["warp"]\n[[sweep]]\nscenarios = ["billiards.head_on"]\n', encoding="utf-8")
@@ -212,7 +212,7 @@ def test_a_closed_pipe_is_not_a_traceback():
     r, w = os.pipe()
     os.close(r)
     try:
-        proc = subprocess.run([sys.executable, "-m", "harness.cli", "list"], cwd=ROOT, stdout=w,
+        proc = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "list"], cwd=ROOT, stdout=w,
                               stderr=subprocess.PIPE, timeout=300)
     finally:
         os.close(w)

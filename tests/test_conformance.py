@@ -7,9 +7,9 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from harness import conformance as C
-from harness.runner import RunResult
-from contract.scene import Check, load_scene
+from physbench.harness import conformance as C
+from physbench.harness.runner import RunResult
+from physbench.contract.scene import Check, load_scene
 
 
 def result(metrics=None, status="ok", message="", engine="mujoco", scenario="fam.scn", variant=None):
@@ -299,7 +299,7 @@ def test_combine_phases_holds_only_if_every_phase_holds():
 def test_scene_phases_run_every_phase_and_combine_them(tmp_path, monkeypatch):
     """The thin plate over 4 phases: pymunk (no CCD) fails in some of them
     (its expected failure), the reference engine passes in all."""
-    import contract.scene as scene_mod
+    import physbench.contract.scene as scene_mod
 
     spec = (load_scene("tunnelling.thin_box_on_thin_floor").path).read_text()
     assert "\nphases = 16\n" in spec
@@ -327,7 +327,7 @@ def test_scene_phases_run_every_phase_and_combine_them(tmp_path, monkeypatch):
 
 
 def test_phases_need_a_start_in_free_flight(tmp_path):
-    from contract.spec import SpecError
+    from physbench.contract.spec import SpecError
 
     spec = load_scene("stacking.column_5").path.read_text()
     spec = spec.replace("[scenario]\n", "[scenario]\nphases = 4\n", 1)

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from adapters import ENGINES, get_adapter
-from contract.rotation import quat_rotate
-from harness.runner import run
-from contract.scene import compile_scene
-from contract.spec import validate_raw
+from physbench.adapters import ENGINES, get_adapter
+from physbench.contract.rotation import quat_rotate
+from physbench.harness.runner import run
+from physbench.contract.scene import compile_scene
+from physbench.contract.spec import validate_raw
 
 G = 9.81
 

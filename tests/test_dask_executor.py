@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from adapters.base import Setting, register
-from harness import sweep as S
+from physbench.adapters.base import Setting, register
+from physbench.harness import sweep as S
 from tests.test_sweep import FakeSweep, consolidated, kill_after_parts, write
 
 distributed = pytest.importorskip("distributed")
@@ -60,7 +60,7 @@ class DaskFake(FakeSweep):
 
 @pytest.fixture(autouse=True, scope="module")
 def _fake_engine():
-    from adapters import base
+    from physbench.adapters import base
 
     register("dask_fake", lambda: DaskFake)
     yield
@@ -184,9 +184,9 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
     script = textwrap.dedent(f"""
         import sys
         sys.path.insert(0, {str(ROOT)!r})
-        from adapters.base import register
+        from physbench.adapters.base import register
         from tests.test_dask_executor import DaskFake
-        from harness.sweep import sweep_main
+        from physbench.harness.sweep import sweep_main
         register("dask_fake", lambda: DaskFake)
         sweep_main({str(p)!r}, out_dir={str(out)!r}, executor="dask", scheduler={lc.scheduler_address!r})
     """)
@@ -233,7 +233,7 @@ def test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row(tmp_path
 def _pretend_other_commit(dask_worker=None):
     """Make this worker report another physbench commit (as a worker with
     another checkout installed would)."""
-    from harness import dask_executor, runner
+    from physbench.harness import dask_executor, runner
 
     runner._real_commit_id = getattr(runner, "_real_commit_id", runner.commit_id)
     runner.commit_id = lambda: "0123456789ab"
@@ -241,15 +241,15 @@ def _pretend_other_commit(dask_worker=None):
 
 
 def _restore_commit(dask_worker=None):
-    from harness import dask_executor, runner
+    from physbench.harness import dask_executor, runner
 
     runner.commit_id = getattr(runner, "_real_commit_id", runner.commit_id)
     dask_executor.worker_identity.cache_clear()
 
 
 def test_a_worker_of_another_physbench_is_refused(tmp_path, cluster, capsys):
-    from harness.dask_executor import DaskExecutor, EnvironmentRefused
-    from harness.points import run_point
+    from physbench.harness.dask_executor import DaskExecutor, EnvironmentRefused
+    from physbench.harness.points import run_point
 
     lc, client = cluster
     _wait_workers(client)
@@ -295,8 +295,8 @@ def test_tasks_ahead_wait_on_the_scheduler_not_on_a_worker(cluster):
     on the scheduler (so a free thread starts it without a round trip through
     the client, and a worker that dies holds only the task it runs: the
     retry test above)."""
-    from harness.dask_executor import DaskExecutor
-    from harness.executors import _sleep
+    from physbench.harness.dask_executor import DaskExecutor
+    from physbench.harness.executors import _sleep
 
     lc, client = cluster
     _wait_workers(client)
@@ -312,7 +312,7 @@ def test_tasks_ahead_wait_on_the_scheduler_not_on_a_worker(cluster):
 
 
 def test_check_on_dask_gives_the_inline_rows(tmp_path, cluster):
-    from harness.conformance import check_main
+    from physbench.harness.conformance import check_main
 
     lc, client = cluster
     _wait_workers(client)
@@ -331,7 +331,7 @@ def test_check_on_dask_gives_the_inline_rows(tmp_path, cluster):
 
 
 def test_scheduler_needs_the_dask_executor(capsys):
-    from harness.cli import main
+    from physbench.harness.cli import main
 
     assert main(["sweep", "--suite", "smoke", "--scheduler", "tcp://127.0.0.1:1"]) == 2
     assert "--scheduler tcp://127.0.0.1:1: a scheduler address needs --executor dask" in capsys.readouterr().err

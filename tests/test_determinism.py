@@ -27,9 +27,9 @@ import sys
 import numpy as np
 import pytest
 
-from harness.fingerprint import arithmetic_key
-from harness.runner import run
-from contract.scene import load_scene
+from physbench.harness.fingerprint import arithmetic_key
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
 
 SCENES = ("billiards.head_on", "stacking.column_5", "tunnelling.bullet_400", "friction.block_slides",
           "gyroscopic.dzhanibekov")

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from adapters import ENGINES
-from contract.metric_defs import dissipation
-from harness.metrics import compute_metrics, energy_datum, kinetic_energy, lowest_height, potential_energy
-from harness.runner import Trace, run
-from contract.scene import compile_scene, load_scene, scenario_ids
-from contract.spec import validate_raw
+from physbench.adapters import ENGINES
+from physbench.contract.metric_defs import dissipation
+from physbench.harness.metrics import compute_metrics, energy_datum, kinetic_energy, lowest_height, potential_energy
+from physbench.harness.runner import Trace, run
+from physbench.contract.scene import compile_scene, load_scene, scenario_ids
+from physbench.contract.spec import validate_raw
 
 
 def _scene(text_raw):

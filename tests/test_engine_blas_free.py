@@ -24,8 +24,8 @@ CORE_TYPES = ("Prescott", "Sandybridge", "Haswell")
 _CODE = """
 import hashlib, sys
 import numpy as np
-from harness.runner import run
-from contract.scene import load_scene
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
 for sid in sys.argv[1:]:
     r = run(load_scene(sid, overrides={"scenario.duration": 0.25}), "reference", compute_metrics=False)
     assert r.status == "ok", r.message

@@ -19,9 +19,10 @@ REPO = Path(__file__).resolve().parent.parent
 def test_import_engine_loads_no_harness_adapters_or_pydantic():
     code = textwrap.dedent("""
         import json, sys
-        import engine, engine.model, engine.pipeline, engine.collision, engine.broadphase
+        import physbench.engine, physbench.engine.model, physbench.engine.pipeline, physbench.engine.collision, physbench.engine.broadphase
+        from physbench import engine
         bad = sorted(m for m in sys.modules
-                     if m.split(".")[0] in ("harness", "adapters", "pydantic"))
+                     if m.startswith(("physbench.harness", "physbench.adapters", "pydantic")))
         print(json.dumps(bad))
     """)
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
@@ -31,7 +32,7 @@ def test_import_engine_loads_no_harness_adapters_or_pydantic():
 
 def _spheres(n: int, materials: int):
     """A SceneInput of n spheres on a plane, with ``materials`` materials."""
-    from engine.model import SceneInput
+    from physbench.engine.model import SceneInput
 
     M = materials + 1
     rng = np.random.default_rng(0)
@@ -56,8 +57,8 @@ def _spheres(n: int, materials: int):
 
 
 def test_model_size_is_linear_in_bodies_and_coefficients_are_looked_up_per_pair():
-    from engine import default_settings
-    from engine.model import build_model
+    from physbench.engine import default_settings
+    from physbench.engine.model import build_model
 
     n, mats = 3000, 3
     inp, tab = _spheres(n, mats)

@@ -12,8 +12,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import engine  # noqa: F401  (configures the cache)
-from engine import cache
+import physbench.engine  # noqa: F401  (configures the cache)
+
+from physbench import engine
+from physbench.engine import cache
 
 
 def _copy(tmp_path: Path) -> Path:
@@ -48,7 +50,7 @@ def test_digest_ignores_compiled_files(tmp_path):
 def test_kernels_are_cached_under_the_digest_directory():
     from numba.core import config
 
-    from engine.contact import phases, prepare
+    from physbench.engine.contact import phases, prepare
 
     d = cache.cache_dir()
     assert d.name == f"numba-{cache.source_digest()}"

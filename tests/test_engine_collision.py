@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from engine.broadphase import brute_pairs, sap_pairs
-from engine.collision import (box_box, box_cylinder, box_plane, capsule_box, capsule_capsule, capsule_cylinder,
+from physbench.adapters.reference import engine_for
+from physbench.engine.broadphase import brute_pairs, sap_pairs
+from physbench.engine.collision import (box_box, box_cylinder, box_plane, capsule_box, capsule_capsule, capsule_cylinder,
                               capsule_plane, cylinder_cylinder, cylinder_plane, sphere_box, sphere_capsule,
                               sphere_cylinder)
-from engine.mathutil import quat_to_matrix
-from contract.scene import load_scene
+from physbench.engine.mathutil import quat_to_matrix
+from physbench.contract.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -273,8 +273,8 @@ def test_determinism_bit_identical(tmp_path):
     assert runs[0] == runs[1]
     code = textwrap.dedent(f"""
         import hashlib
-        from adapters.reference import engine_for
-        from contract.scene import load_scene
+        from physbench.adapters.reference import engine_for
+        from physbench.contract.scene import load_scene
         e = engine_for(load_scene({str(tmp_path / 's.toml')!r}))
         e.step(60)
         s = e.state
@@ -349,8 +349,8 @@ def test_spinning_bar_far_end_is_an_impact_not_a_speculative_row(dt):
     and the search follows the impact's own points: the largest overlap in
     any phase is 0.26, 0.019, 0.012, 0.064 mm (with the later fixes of the
     time-of-impact search)."""
-    from harness.references import get_model
-    from harness.runner import run
+    from physbench.harness.references import get_model
+    from physbench.harness.runner import run
     base = load_scene("tunnelling.spinning_long_box")
     b = base.bodies[0]
     g = 9.81
@@ -385,9 +385,10 @@ def test_steps_are_split_where_a_body_turns_too_far(monkeypatch):
     for missed impacts (``engine.ccd.missed_impacts``) finds the dips as
     impacts and resolves them at their time of impact instead.  Steps of
     bodies that turn slowly are never split."""
-    import engine.ccd
-    from contract.phase import shift_scene
-    from harness.runner import run
+    import physbench.engine.ccd
+    from physbench import engine
+    from physbench.contract.phase import shift_scene
+    from physbench.harness.runner import run
 
     base = load_scene("tunnelling.spinning_long_box", "spin_80")
     dt = 1 / 30
@@ -425,9 +426,12 @@ def _without(monkeypatch, what: str) -> None:
     the end-pose check of pairs that are impacts already, the face-manifold
     points of box pairs whose least overlap is an edge
     axis, or the plain end of a step whose search found no impact."""
-    import engine.ccd
-    import engine.collision.box
-    import engine.pipeline
+    import physbench.engine.ccd
+    from physbench import engine
+    import physbench.engine.collision.box
+    from physbench import engine
+    import physbench.engine.pipeline
+    from physbench import engine
 
     if what == "missed":
         monkeypatch.setattr(engine.ccd, "missed_impacts", lambda *a, **k: [])
@@ -524,7 +528,7 @@ TOI_CASES = {
 @pytest.mark.parametrize("case", sorted(TOI_CASES))
 def test_time_of_impact_safeguards(monkeypatch, case, guard):
     """Each fuzz case (``TOI_CASES``) with its safeguard on and off."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     name, what, counter, bound, without = TOI_CASES[case]
     if not guard:
@@ -550,7 +554,7 @@ def test_impact_search_converges_in_a_few_reruns(name):
     (bisection crept towards the end of the step).  Measured before the
     fixes: 60 and 32 search iterations for 2 impacts; now 6 for 1 and 4 for
     2."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene(DATA / name), "reference")
     assert res.status == "ok", res.message
@@ -574,7 +578,7 @@ def test_box_edge_landing_keeps_the_face_points(monkeypatch, face_points):
     of the step (the edge contact sliding on while the box turns: the
     second-order drift left to position correction); with the edge point
     alone, 120 iterations for 3 impacts, an impact dropped, 5.7 mm."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     if not face_points:
         _without(monkeypatch, "face_points")
@@ -602,7 +606,7 @@ def test_search_that_finds_no_impact_ends_a_plain_step(monkeypatch, clear_end):
     impact again: measured 60 events in 60 steps, 1240 solver sweeps; now
     the first step's only (2 search iterations), 62 sweeps.  Either way
     the box stays put."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     if not clear_end:
         _without(monkeypatch, "clear_end")
@@ -657,9 +661,10 @@ def test_impact_search_stops_at_touching_when_it_stalls(tmp_path, monkeypatch, s
     (largest |gap| at a stop 9.2e-7 m, 1.4e-9 m without), the column's
     overlap is the same (0.45 mm, from Gauss-Seidel alone) and it gains no
     energy."""
-    import engine.ccd
-    from engine.solver import TOUCH_TOL
-    from harness.runner import run
+    import physbench.engine.ccd
+    from physbench import engine
+    from physbench.engine.solver import TOUCH_TOL
+    from physbench.harness.runner import run
 
     if not stall:
         monkeypatch.setattr(engine.ccd, "STALL_RATIO", math.inf)
@@ -692,8 +697,9 @@ def test_sparse_direct_start_matches_the_dense_one(tmp_path, monkeypatch):
     the ten-sphere landing column, the sparse path gives the dense path's
     trajectory (measured: identical) and the same overlap (1e-10 m);
     Gauss-Seidel alone leaves 0.45 mm (the stall test above)."""
-    import engine.solver
-    from harness.runner import run
+    import physbench.engine.solver
+    from physbench import engine
+    from physbench.harness.runner import run
 
     sc = scene_from(tmp_path, _SETTLING_COLUMN)
     dense = run(sc, "reference", {"iterations": 10})
@@ -716,8 +722,9 @@ def test_impact_search_reruns_leave_out_the_same_rows_at_every_tau(monkeypatch):
     (``ctx.drop_rows``), not re-decided with each rerun's length: with
     them re-decided, the rocking corner's search runs to the iteration
     limit."""
-    import engine.ccd
-    from harness.runner import run
+    import physbench.engine.ccd
+    from physbench import engine
+    from physbench.harness.runner import run
 
     _without(monkeypatch, "rows")
     res = run(load_scene(DATA / "impact_search_corner_rocking_down.toml"), "reference")
@@ -731,7 +738,7 @@ def test_other_impact_pairs_are_checked_at_the_time_found(monkeypatch):
     of the step, and it is the check of the step's other impact pairs at
     the time found that switches to the box's corner (measured 0.13 mm, 3
     switches; 17.9 mm without that check too)."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     _without(monkeypatch, "rows")
     res = run(load_scene(DATA / "impact_behind_a_held_pair.toml"), "reference")
@@ -750,7 +757,7 @@ def test_missed_impact_search_leaves_out_where_the_pair_touched():
     impact is resolved.  The deepest overlap stays near the one it started
     with: 2.2 mm (measured).  When the search counted the old overlap, it
     went to tau = 0, the impact was dropped, and the box sank 10.9 mm."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene(DATA / "missed_impact_beside_an_overlap.toml"), "reference")
     assert res.status == "ok", res.message
@@ -770,7 +777,7 @@ def test_end_pose_check_covers_pairs_that_are_impacts_already(monkeypatch, check
     from their impact rows and touching points are another impact of the
     pair): measured 4.2 mm, the overlap the pair started with (1.6 mm)
     sliding on at 1/60 s; 13.7 mm when impact pairs were skipped."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     if not checked:
         _without(monkeypatch, "impact_pairs")
@@ -792,7 +799,7 @@ def test_settling_stop_of_the_impact_search_is_kept():
     32 times over: the event budget was spent, and the landing box was left
     a speculative row that ended 13.9 mm in the floor (44 impact events in
     3 steps).  Measured now: 0.01 mm, 25 events."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene(DATA / "impact_search_settling_box.toml"), "reference")
     assert res.status == "ok", res.message
@@ -811,7 +818,7 @@ def test_impact_events_inside_a_rattling_gauss_seidel_column_add_no_energy():
     gained 16 x its energy and was thrown 8 m.  The rest of a step after an
     event now starts cold: no energy gained, and the column drifts less
     than with no such events at all (5.4 cm)."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene("stacking.column_5"), "reference", {"direct_start": False, "dt": 0.008, "iterations": 5})
     assert res.status == "ok"
@@ -1030,8 +1037,8 @@ def test_plastic_impact_on_a_row_is_one_simultaneous_impact(tmp_path, plastic):
     threshold (0.01 m/s), then stop the slow approaches one sweep at a
     time: the balls leave with a spread of speeds (measured: 1.2e-2 m/s;
     simultaneous: 2.8e-10) that the next step's contact solve takes out."""
-    from engine.collision import collide_pairs
-    from engine.solver import impact_solve
+    from physbench.engine.collision import collide_pairs
+    from physbench.engine.solver import impact_solve
 
     sc = scene_from(tmp_path, _STRUCK_ROWS.replace("[-0.1, 0, 0]", "[-0.05, 0, 0]")
                     .replace("[-0.1, 0.2, 0]", "[-0.05, 0.2, 0]"))
@@ -1067,8 +1074,9 @@ def test_resting_column_is_not_collided_again_at_its_end_pose(tmp_path, monkeypa
     before and after the solve: gravity's g h before it), every pair of the
     resting column was collided twice a step (590 us of its 2.4 ms,
     measured)."""
-    import engine.ccd
-    from harness.runner import run
+    import physbench.engine.ccd
+    from physbench import engine
+    from physbench.harness.runner import run
 
     calls = []
     collide = engine.ccd.collide_pairs
@@ -1116,7 +1124,7 @@ def test_ccd_toi_leaves_slow_impacts_discrete(tmp_path, ccd):
         position = [0.0513, 0, 0]
         velocity = [-0.5, 0, 0]
         """)
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(sc, "reference", {"ccd": ccd})
     assert res.status == "ok", res.message
@@ -1138,9 +1146,9 @@ def test_touching_points_that_no_event_resolves_stay_solver_rows():
     restitution target.  Treating it as an impact nobody resolves (dropped
     from the rows) let 100 falling spheres sink 0.46 m into each other;
     solved, the pile overlaps by at most 2.7 mm (measured, as before)."""
-    from harness.bench import spheres_scene
-    from harness.runner import run
-    from contract.scene import Scene
+    from physbench.harness.bench import spheres_scene
+    from physbench.harness.runner import run
+    from physbench.contract.scene import Scene
 
     sc0 = spheres_scene(100)
     res = run(Scene(**{**sc0.__dict__, "duration": 1.5}), "reference",
@@ -1153,7 +1161,7 @@ def test_sphere_strikes_a_cylinder_head_on(tmp_path):
     """A 1 kg ball at 2 m/s strikes a 2 kg standing cylinder's side through
     its centre (no gravity, e = 0.8): the 1D law, v1 = (m1 - e m2) u / (m1 +
     m2) = -0.4 m/s, v2 = (1 + e) m1 u / (m1 + m2) = 1.2 m/s, no spin."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     sc = scene_from(tmp_path, """
         [scenario]
@@ -1191,7 +1199,7 @@ def test_sphere_rests_on_a_cylinder_cap(tmp_path):
     """A ball resting on a standing cylinder's cap (on the ground) stays put
     for 2 s; a ball dropped beside the axis lands on the cap and stays
     there too (its friction holds it, no contact point moves)."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     text = """
         [scenario]
@@ -1398,7 +1406,7 @@ _CYL_SCENE = """
 
 def _cyl_run(tmp_path, bodies: str, statics: str, duration: float = 2.0,
              effects=("gravity", "contact", "friction", "gyroscopic")):
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     # friction 0.5 and restitution 0.5 where the scene has the effect (a
     # coefficient without its effect is a spec error)
@@ -1748,8 +1756,8 @@ def test_log_pile_holds_exactly_from_the_friction_statics_needs(tmp_path, share,
     (Measured: the threshold lies between 0.273 and 0.276; before the
     cylinder pair dropped points reaching round the other's edge, the pile
     held at 0.22.)"""
-    from harness.references import get_model
-    from harness.runner import run
+    from physbench.harness.references import get_model
+    from physbench.harness.runner import run
 
     mu = 0.2741678 * share
     text = LOG_PILE.read_text().replace("friction = 0.32\nstatic_friction = 0.32",
@@ -1776,7 +1784,7 @@ def test_direct_start_clips_what_its_last_active_set_pass_pulls(tmp_path, monkey
     support's edge pulls on the first one, which the active set once met by
     letting those rows go without solving again (a shape mismatch that
     stopped the run: found at 200 iterations on stacking.log_pile)."""
-    from engine import solver
+    from physbench.engine import solver
 
     monkeypatch.setattr(solver, "ACTIVE_SET_PASSES", 1)
     pulled = []

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from harness.runner import run
-from contract.scene import load_scene
+from physbench.adapters.reference import engine_for
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
 
 
 def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):
@@ -205,7 +205,7 @@ def test_fused_solve_is_bit_identical_to_the_phase_by_phase_solve(monkeypatch, s
     direct-start policy): the final states are the same bits either way,
     with the dense direct start and with the sparse one (``sparse``:
     forced at every size)."""
-    from engine import solver
+    from physbench.engine import solver
 
     if sparse:
         monkeypatch.setattr(solver, "DIRECT_MAX_ROWS", 0)
@@ -240,7 +240,7 @@ def test_kept_warm_caches_give_the_bits_of_fresh_ones(monkeypatch, sid):
     the reruns of events and friction stops): the final state is the same
     bits as with a fresh cache per solve, and no more than three caches
     are ever handed out."""
-    from engine.contact import warm
+    from physbench.engine.contact import warm
 
     def final(kept: bool):
         seen = {}  # id -> cache (kept alive: ids of freed caches are reused)
@@ -271,7 +271,7 @@ def test_compiled_colouring_is_the_greedy_colouring():
     colours at a body) is the greedy colouring row by row: no two rows of a
     colour share a dynamic body, each row takes the lowest colour free at
     both its bodies, rows sorted by colour stably."""
-    from engine.contact.rows import colour_order
+    from physbench.engine.contact.rows import colour_order
 
     rng = np.random.default_rng(3)
     cases = []
@@ -308,8 +308,8 @@ def test_steady_steps_solve_in_one_compiled_call(monkeypatch, sid, settings, ste
     codes with the kept topology's; ``steady`` the least fraction of the
     solves that do), and the final state is the bits of the phase-by-phase
     solve."""
-    from engine import solver
-    from engine.contact import phases
+    from physbench.engine import solver
+    from physbench.engine.contact import phases
 
     def final(one_call: bool):
         monkeypatch.setattr(solver, "PHASE_BY_PHASE", not one_call)
@@ -337,11 +337,11 @@ def test_steady_steps_solve_in_one_compiled_call(monkeypatch, sid, settings, ste
 
 
 def test_friction_stop_gate_lets_through_every_candidate():
-    """engine.contact.prepare.stop_candidate (the compiled test that opens
+    """physbench.engine.contact.prepare.stop_candidate (the compiled test that opens
     Rows.stop_times) is conservative: on random patches, many of them on
     the thresholds, it says True whenever the numpy test of stop_times
     finds a candidate patch (sliding or rolling), and it finds them."""
-    from engine.contact.prepare import patch_velocity, stop_candidate
+    from physbench.engine.contact.prepare import patch_velocity, stop_candidate
 
     rng = np.random.default_rng(5)
     tol = 1e-4

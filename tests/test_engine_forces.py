@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters import get_adapter
-from adapters.reference import engine_for
-from harness.runner import run
-from contract.scene import load_scene
+from physbench.adapters import get_adapter
+from physbench.adapters.reference import engine_for
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
 
 
 def scene_from(tmp_path: Path, text: str, name: str = "s.toml"):
@@ -130,7 +130,7 @@ def test_two_body_spring_conserves_momentum_and_energy(tmp_path, settings, energ
         """)
     eng = engine_for(sc, settings)
     m = sc.masses
-    from contract.rotation import quat_to_matrix
+    from physbench.contract.rotation import quat_to_matrix
 
     def invariants():
         s = eng.state
@@ -261,9 +261,9 @@ def test_adapter_contract(tmp_path):
         position = [1, 0, 0]
         """)
     # every shape pair collides (cylinder-cylinder was the last one missing)
-    from adapters.reference import scene_input
-    from engine.model import build_model
-    from engine.collision import TABLE, unsupported_pairs
+    from physbench.adapters.reference import scene_input
+    from physbench.engine.model import build_model
+    from physbench.engine.collision import TABLE, unsupported_pairs
 
     assert cls.unsupported_reason(sc) is None
     assert unsupported_pairs(build_model(scene_input(sc), cls.resolve_settings(sc, {}))) == []

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from contract.scene import load_scene
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
 
 G = 9.81
 MU_S, MU_K = 0.6, 0.4  # atan(0.6) = 30.96 deg
@@ -313,7 +313,7 @@ def test_rolling_friction_turnaround_is_exact_with_friction_stops(tmp_path):
     holds the stop applies one resistance for all of it, an error of first
     order in the step: measured 0.59 mm at 1/240 s (the stop 25 % into a
     step), 4.0 mm at 0.008 s."""
-    from harness.references import get_model
+    from physbench.harness.references import get_model
 
     for dt in (1 / 240, 0.004, 0.008):
         errs = {}
@@ -391,7 +391,7 @@ def test_rolling_rows_exist_only_with_rolling_friction(tmp_path):
     """An absent effect costs nothing: without 'rolling_friction' (or with
     mu_r = 0) a patch has its three friction rows only, and the ball rolls
     on as without the effect."""
-    from engine.solver import Rows
+    from physbench.engine.solver import Rows
 
     seen = {}
     orig = Rows._patches
@@ -433,7 +433,7 @@ def test_rolling_friction_on_a_line_contact():
     points, one patch) rolls against mu_r N like the ball, with k = 1/2:
     a = -2/3 (mu_r / r) g on flat ground, to round-off, and stops within a
     micrometre of the closed form's 1.5291 m."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene("friction.cylinder_rolling_resistance"), "reference")
     assert res.status == "ok", res.message
@@ -476,7 +476,7 @@ def test_capsule_spinning_in_place_stops_by_kinetic_friction(dt):
     w0^2 / (2 alpha) = 0.74773 rad, within 1e-3 (a stop that stays is not
     cut: its error is second order in the step).  Classed by its centroid
     alone the patch kept mu_s = 2 mu_k and stopped after 0.374 rad."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene("friction.capsule_spins_to_rest"), "reference", {"dt": dt})
     assert res.status == "ok", res.message
@@ -496,7 +496,7 @@ def test_spinning_capsule_landing_flat_keeps_what_kinetic_twist_leaves(tmp_path,
     mu_s the 0.088 N m s that stops the spin fit in mu_s J h = 0.089: the
     bounce stopped it dead.)  Measured in the air after the bounce, or
     (e = 0) on the ground, where mu_k m g h keeps decelerating it."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     sc = capsule_scene(tmp_path, ("restitution",) if e else (), {
         "position = [0.0, 0.0, 0.02]": "position = [0.0, 0.0, 0.07]",
@@ -523,7 +523,7 @@ def test_twist_past_its_static_limit_breaks_free(tmp_path, tau):
     on the mu_s limit, so the patch cannot stick and slides with mu_k from
     the first step: w = (tau - mu_k m g h) h / I after it (held at the mu_s
     limit it got 0.105 rad/s instead of 0.384)."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     k = tau / 0.2 / 10.0  # each spring pulls tau / (2 h) N from 10 m away
     springs = "".join(f'\n[[spring]]\na = "capsule"\nb = "world"\nanchor_a = [0.0, 0.0, {0.1 * end}]\n'

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contract.rotation import quat_to_matrix
-from adapters.reference import engine_for
-from engine.mathutil import quat_mul
-from contract.scene import load_scene
+from physbench.contract.rotation import quat_to_matrix
+from physbench.adapters.reference import engine_for
+from physbench.engine.mathutil import quat_mul
+from physbench.contract.scene import load_scene
 
 ORDERS = {"explicit_euler": 1, "semi_implicit_euler": 1, "midpoint": 2, "heun": 2, "rk4": 4, "velocity_verlet": 2}
 

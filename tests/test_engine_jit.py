@@ -11,13 +11,13 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 
 _CODE = """
-from harness.bench import column_scene
-from harness.runner import run
-from adapters.reference import engine_for
-import engine.contact.sweeps as sw
-import engine.contact.phases as ph
-import engine.contact.rows as rw
-import engine.flight as fl
+from physbench.harness.bench import column_scene
+from physbench.harness.runner import run
+from physbench.adapters.reference import engine_for
+import physbench.engine.contact.sweeps as sw
+import physbench.engine.contact.phases as ph
+import physbench.engine.contact.rows as rw
+import physbench.engine.flight as fl
 sc = column_scene(3)
 first = run(sc, "reference", compute_metrics=False)
 second = engine_for(sc)
@@ -43,19 +43,19 @@ def test_jit_time_is_reported_once_and_no_step_compiles():
 
 
 def test_python_m_engine_fills_the_cache_a_run_then_loads():
-    """``python -m engine`` (what CI runs before the tests, .ci/run)
+    """``python -m physbench.engine`` (what CI runs before the tests, .ci/run)
     compiles or loads the kernels in the cache directory it names (the
     engine's own, engine/cache.py); a later process running a contact
     scene and a scene without contact at the default settings then
     compiles nothing: every kernel it calls comes from that cache
     (numba's ``numba:compile`` events are raised only for a compile, a
     cache hit raises none)."""
-    from engine.cache import cache_dir
+    from physbench.engine.cache import cache_dir
 
     # (a user's NUMBA_CACHE_DIR is where both the engine and this process look)
     env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
            **{k: v for k, v in os.environ.items() if k == "NUMBA_CACHE_DIR"}}
-    out = subprocess.run([sys.executable, "-m", "engine"], capture_output=True, text=True, cwd=REPO, env=env,
+    out = subprocess.run([sys.executable, "-m", "physbench.engine"], capture_output=True, text=True, cwd=REPO, env=env,
                          timeout=900)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("engine kernels compiled or loaded in "), out.stdout
@@ -63,9 +63,9 @@ def test_python_m_engine_fills_the_cache_a_run_then_loads():
     code = """
 from numba.core import event
 with event.install_recorder("numba:compile") as rec:
-    from harness.bench import column_scene
-    from harness.runner import run
-    from contract.scene import load_scene
+    from physbench.harness.bench import column_scene
+    from physbench.harness.runner import run
+    from physbench.contract.scene import load_scene
     run(column_scene(3), "reference", compute_metrics=False)
     run(load_scene("forces.drag_linear_fall"), "reference", compute_metrics=False)
 print(sorted({ev.data["dispatcher"].py_func.__qualname__ for _, ev in rec.buffer if ev.is_start}))

@@ -7,12 +7,12 @@ with the bits of the step stage by stage."""
 import numpy as np
 import pytest
 
-from adapters.reference import ReferenceAdapter, engine_for, scene_input
-from contract.scene import load_scene
-from engine import default_settings, pipeline
-from engine.loop import FLIGHT_NAME
-from engine.steady import FREE_NAME, NAME
-from harness.bench import column_scene
+from physbench.adapters.reference import ReferenceAdapter, engine_for, scene_input
+from physbench.contract.scene import load_scene
+from physbench.engine import default_settings, pipeline
+from physbench.engine.loop import FLIGHT_NAME
+from physbench.engine.steady import FREE_NAME, NAME
+from physbench.harness.bench import column_scene
 
 
 def _state(eng):

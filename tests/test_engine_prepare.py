@@ -7,8 +7,8 @@ and the results are the bits of an engine that made them on first use."""
 
 import numpy as np
 
-from adapters.reference import ReferenceAdapter
-from contract.scene import load_scene
+from physbench.adapters.reference import ReferenceAdapter
+from physbench.contract.scene import load_scene
 
 
 def _spy(monkeypatch, cls, name="__init__"):
@@ -24,9 +24,9 @@ def _spy(monkeypatch, cls, name="__init__"):
 
 
 def test_build_makes_what_the_first_event_step_used(monkeypatch):
-    from engine import pipeline
-    from engine.collision.dispatch import Collider
-    from engine.state import Context
+    from physbench.engine import pipeline
+    from physbench.engine.collision.dispatch import Collider
+    from physbench.engine.state import Context
 
     sc = load_scene("billiards.head_on")
     st = {"dt": 0.032, "integrator": "rk4"}
@@ -46,8 +46,8 @@ def test_build_makes_what_the_first_event_step_used(monkeypatch):
 
 
 def test_engine_prepares_at_build():
-    from engine import Engine
-    from adapters.reference import scene_input
+    from physbench.engine import Engine
+    from physbench.adapters.reference import scene_input
 
     sc = load_scene("billiards.head_on")
     eng = Engine(scene_input(sc), dict(ReferenceAdapter.resolve_settings(sc, {"dt": 0.032})))
@@ -55,11 +55,11 @@ def test_engine_prepares_at_build():
 
 
 def test_prepare_changes_no_bit():
-    from engine.model import build_model
-    from engine.pipeline import advance, build_pipeline
-    from engine.profile import Profile
-    from engine.state import State
-    from adapters.reference import scene_input
+    from physbench.engine.model import build_model
+    from physbench.engine.pipeline import advance, build_pipeline
+    from physbench.engine.profile import Profile
+    from physbench.engine.state import State
+    from physbench.adapters.reference import scene_input
 
     for name, st in (("billiards.head_on", {"dt": 0.032}), ("friction.block_slides", {"dt": 0.064}),
                      ("billiards.ball_drop_bounce", {"dt": 0.032})):

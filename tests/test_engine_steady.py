@@ -6,9 +6,9 @@ steady; which scenes it covers is decided once, with the plan."""
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from contract.scene import load_scene
-from harness.bench import column_scene, spheres_scene
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
+from physbench.harness.bench import column_scene, spheres_scene
 
 
 def _final(scene, settings, by_stage: bool, steps: int):
@@ -91,7 +91,7 @@ def test_steady_direct_start_allocates_nothing(monkeypatch, sparse):
     the normal matrix, the active set's and the ordering's arrays), with the
     dense start and with the sparse one (every start sparse: its band
     storage grows once, then is kept)."""
-    import engine.solver as solver
+    import physbench.engine.solver as solver
 
     if sparse:
         monkeypatch.setattr(solver, "DIRECT_MAX_ROWS", 0)
@@ -117,7 +117,7 @@ def _unboxed():
 def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]:
     """(fused calls that committed, compiled allocations inside them beyond
     the unboxing of their arguments) over ``steps`` steps of ``eng``."""
-    import engine.steady as steady
+    import physbench.engine.steady as steady
     from numba.core.runtime import _nrt_python, rtsys
 
     _nrt_python.memsys_enable_stats()
@@ -193,7 +193,7 @@ def test_lu_skip_is_lu_bit_for_bit(seed):
     pivot candidates, a right-hand side with signed zeros, on a dense
     matrix, and it hands back NaN (the caller's fall-back to lu_inplace) on
     a singular or non-finite matrix."""
-    from engine.contact import linalg
+    from physbench.engine.contact import linalg
 
     rng = np.random.default_rng(seed)
     cases = []

@@ -11,11 +11,11 @@ the steps run one fused call each or many to a compiled loop
 import numpy as np
 import pytest
 
-from adapters.reference import engine_for
-from contract.scene import load_scene
-from engine import pipeline
-from engine.steady import FREE_NAME, NAME
-from engine.steady_gyro import ENERGY, IMPLICIT, NO_GYRO
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
+from physbench.engine import pipeline
+from physbench.engine.steady import FREE_NAME, NAME
+from physbench.engine.steady_gyro import ENERGY, IMPLICIT, NO_GYRO
 
 
 def _frames(eng, steps, by_stage):
@@ -163,7 +163,7 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
     not cut at its rolling stop in a fused step, and its frames differ
     from the staged step's.  (It rolls without slipping: only the gate's
     rolling half, engine/steady_stops.py, sees the stop.)"""
-    from engine.steady import SteadyStep
+    from physbench.engine.steady import SteadyStep
 
     scene = load_scene("friction.rolling_resistance", "uphill_5deg")
     settings = {"dt": 0.016}
@@ -191,8 +191,8 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
     from numba import njit
     from numba.core.runtime import _nrt_python, rtsys
 
-    from engine.gyroscopic import YOSHIDA, energy_rotation_into
-    from engine.integrate import EnergyConservingRotation
+    from physbench.engine.gyroscopic import YOSHIDA, energy_rotation_into
+    from physbench.engine.integrate import EnergyConservingRotation
 
     @njit
     def kept(n, gy, R0, T_mean, w0, q0, h, q1, w, w_free, u_ang):

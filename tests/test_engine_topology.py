@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from engine.contact.topology import Topology
+from physbench.engine.contact.topology import Topology
 
 
 def _graph(rng, n, ns, m):

@@ -20,9 +20,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from adapters.base import _REGISTRY, register
-from harness import conformance as C
-from harness.execute import RunRequest, WorkerLost, WorkerPool, run_isolated
+from physbench.adapters.base import _REGISTRY, register
+from physbench.harness import conformance as C
+from physbench.harness.execute import RunRequest, WorkerLost, WorkerPool, run_isolated
 from tests.faulty_adapter import FAULT_ENV, FaultyAdapter, die, worker_pid
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -81,13 +81,13 @@ def test_a_fault_costs_only_its_own_run(tmp_path, monkeypatch, jobs, fault, stat
 
 def test_run_command_reports_an_abort_as_a_status(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT), PHYSBENCH_ADAPTERS=ADAPTER_REF, **{FAULT_ENV: f"{FAULTY}:abort"})
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "run", FAULTY, "-e", "faulty", "--json"],
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "run", FAULTY, "-e", "faulty", "--json"],
                        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
     assert p.returncode == 1, p.stderr
     (line,) = p.stdout.strip().splitlines()  # one JSON object, no raw abort (exit 134)
     d = json.loads(line)
     assert d["status"] == "error" and "SIGABRT" in d["message"] and d["engine"] == "faulty"
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "run", FAULTY, "-e", "faulty", "--timeout", "0"],
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "run", FAULTY, "-e", "faulty", "--timeout", "0"],
                        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
     assert p.returncode == 2 and "--timeout" in p.stderr and "Traceback" not in p.stderr
     assert not list(tmp_path.iterdir())  # nothing written into the working directory
@@ -100,9 +100,9 @@ def test_a_killed_check_resumes_without_losing_or_rerunning_a_row(tmp_path):
     exactly as they were stored."""
     rows = tmp_path / "check"
     env = dict(os.environ, PYTHONPATH=str(ROOT), PHYSBENCH_ADAPTERS=ADAPTER_REF, **{FAULT_ENV: f"{FAULTY}:hang"})
-    code = f"import sys; from harness.conformance import check_main; sys.exit(check_main(['faulty'], None, " \
+    code = f"import sys; from physbench.harness.conformance import check_main; sys.exit(check_main(['faulty'], None, " \
            f"{str(tmp_path / 'j.xml')!r}, {[GOOD, FAULTY]!r}, save_dir={str(rows)!r}))"
-    proc = subprocess.Popen([sys.executable, "-c", "from harness.execute import register_env_adapters; "
+    proc = subprocess.Popen([sys.executable, "-c", "from physbench.harness.execute import register_env_adapters; "
                              "register_env_adapters(); " + code], cwd=tmp_path, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -143,14 +143,14 @@ def test_pool_reuses_workers_and_replaces_a_dead_one():
 
 
 def test_check_unknown_scenario_is_exit_2(capsys):
-    from harness.cli import main
+    from physbench.harness.cli import main
 
     assert main(["check", "--scenarios", "nosuch.thing"]) == 2
     assert "nosuch.thing" in capsys.readouterr().err
 
 
 def test_result_files_are_readable(tmp_path):
-    from harness.results import write_rows
+    from physbench.harness.results import write_rows
 
     old = os.umask(0o022)
     try:
@@ -163,7 +163,7 @@ def test_result_files_are_readable(tmp_path):
 def test_mujoco_warnings_write_no_log_file(tmp_path, monkeypatch):
     import numpy as np
 
-    import adapters.mujoco as am
+    import physbench.adapters.mujoco as am
 
     mujoco = am.mujoco
     monkeypatch.chdir(tmp_path)
@@ -180,7 +180,7 @@ def test_mujoco_warnings_write_no_log_file(tmp_path, monkeypatch):
 
 def test_bench_json_is_json_only(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "bench", "isolation", "--repeats", "1", "--json"],
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "bench", "isolation", "--repeats", "1", "--json"],
                        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
     assert p.returncode == 0, p.stderr
     (row,) = json.loads(p.stdout)  # stdout is the JSON and nothing else; the table went to stderr
@@ -188,7 +188,7 @@ def test_bench_json_is_json_only(tmp_path):
 
 
 def test_run_isolated_equals_in_process():
-    from harness.execute import execute_request
+    from physbench.harness.execute import execute_request
 
     req = RunRequest("billiards.head_on", "pybullet", phase=0.25)
     a, b = execute_request(req), run_isolated(req)

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from harness import fingerprint as F
+from physbench.harness import fingerprint as F
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -52,7 +52,7 @@ def test_a_library_upgrade_is_another_environment_on_the_same_machine():
 
 
 def test_blas_core_type_enters_the_arithmetic_key():
-    code = "from harness.fingerprint import arithmetic_key; print(arithmetic_key())"
+    code = "from physbench.harness.fingerprint import arithmetic_key; print(arithmetic_key())"
     keys = {}
     for core in ("Prescott", "Sandybridge"):
         env = dict(os.environ, OPENBLAS_CORETYPE=core, PYTHONPATH=str(ROOT))

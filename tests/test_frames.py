@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from contract.conventions import planar_from_world, world_from_planar
-from contract.rotation import body_to_world_angvel, quat_rotate, quat_to_matrix, world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
+from physbench.contract.conventions import planar_from_world, world_from_planar
+from physbench.contract.rotation import body_to_world_angvel, quat_rotate, quat_to_matrix, world_to_body_angvel, wxyz_to_xyzw, xyzw_to_wxyz
 
 
 def test_quaternion_order_round_trip():
@@ -67,8 +67,8 @@ def test_engine_rotation_copies_match_the_contract():
     """The engine is a leaf and keeps its own rotation helpers
     (engine/mathutil.py); they must agree with contract.rotation: the matrix
     and the product bit for bit, the rotation-vector exponential to rounding."""
-    from contract.rotation import quat_exp, quat_mul
-    from engine import mathutil
+    from physbench.contract.rotation import quat_exp, quat_mul
+    from physbench.engine import mathutil
 
     rng = np.random.default_rng(7)
     q = rng.normal(size=(64, 4))

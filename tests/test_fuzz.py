@@ -52,13 +52,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from adapters import ENGINES
-from harness import cli
-from contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
-from contract.spec import BOUNDS, SpecError, load_spec
-from harness.suite import expand, load_suite
-from harness.sweep import STATUSES
-from harness.sweep_store import SuiteError
+from physbench.adapters import ENGINES
+from physbench.harness import cli
+from physbench.contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
+from physbench.contract.spec import BOUNDS, SpecError, load_spec
+from physbench.harness.suite import expand, load_suite
+from physbench.harness.sweep import STATUSES
+from physbench.harness.sweep_store import SuiteError
 
 # --------------------------------------------------------------------------
 # profiles
@@ -362,8 +362,8 @@ def test_incline_block_refuses_a_run_that_ends_before_the_stop(tmp_path, variant
     stick_creep metric took the maximum over no frames, and a run cut short
     became `error: metrics failed: ValueError: zero-size array`; a run
     still cut short after loading gets the model's reason instead."""
-    from contract.spec import ModelRefusal
-    from harness.runner import run
+    from physbench.contract.spec import ModelRefusal
+    from physbench.harness.runner import run
     from tests.fuzz_worker import cut
 
     p = SCENARIO_DIR / "friction" / "block_thrown_uphill.toml"
@@ -397,7 +397,7 @@ def engine_pool():
     start and the engines' imports; a worker that dies (abort, segfault)
     costs only the run it was running, which comes back as WorkerLost and
     is counted as a crash, and a fresh worker takes the next run."""
-    from harness.execute import WorkerPool
+    from physbench.harness.execute import WorkerPool
 
     with WorkerPool(JOBS) as pool:
         yield pool
@@ -409,7 +409,7 @@ def _warm(pool, engines=ENGINES) -> None:
     imports and compiled-code loading a fresh worker pays once (seconds,
     more on a busy machine).  Called for a new pool and after a worker was
     lost (the pool starts its replacement on the next item, this one)."""
-    from harness.execute import WorkerLost
+    from physbench.harness.execute import WorkerLost
     from tests.fuzz_worker import run_cut
 
     scene = load_scene(REPO_ROOT / "scenarios" / "billiards" / "head_on.toml")
@@ -474,8 +474,8 @@ def _count_run(item, value, trip: float, t: collections.Counter, prop: str, spec
     """Count one run of _run_engines (``value``: run_cut's reply or a
     WorkerLost; ``trip``: s from sending it to its reply); a crash goes to
     ``crashes``.  True when the worker was lost (died or killed)."""
-    from harness.execute import WorkerLost
-    from harness.runner import RunResult
+    from physbench.harness.execute import WorkerLost
+    from physbench.harness.runner import RunResult
 
     engine = item[1]
     t[f"run {engine} runs"] += 1
@@ -532,8 +532,8 @@ def test_engine_runs_are_isolated_and_counted(fault, counted, reason):
     timeout (the watchdog kills it); the pool goes on with a fresh worker
     and the other engine of the case, and of the next, still runs
     (tests/faulty_adapter.py faults on request inside an engine call)."""
-    from adapters.base import _REGISTRY, register
-    from harness.execute import WorkerPool
+    from physbench.adapters.base import _REGISTRY, register
+    from physbench.harness.execute import WorkerPool
     from tests.faulty_adapter import FAULT_ENV, FaultyAdapter
 
     spec = REPO_ROOT / "scenarios" / "billiards" / "head_on.toml"
@@ -686,7 +686,7 @@ def test_suite_name_cannot_escape_the_results_root(tmp_path, name):
     del doc["suite"]["name"]
     with pytest.raises(SuiteError, match=r"suite\.name: the file name '\.\.' is not a plain name"):
         load_suite(_write(tmp_path, doc, "...toml"))
-    from harness.sweep_store import confined
+    from physbench.harness.sweep_store import confined
 
     with pytest.raises(SuiteError, match="outside the results root"):
         confined(tmp_path, "machine", name)
@@ -709,8 +709,8 @@ def test_bounds_table_matches_docs():
 
 
 def test_bounds_below_runaway():
-    from adapters.base import DT_SETTING
-    from harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
+    from physbench.adapters.base import DT_SETTING
+    from physbench.harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
 
     assert BOUNDS["speed"][1] < RUNAWAY_SPEED and BOUNDS["angular_speed"][1] < RUNAWAY_SPEED
     assert BOUNDS["position"][1] < RUNAWAY_POSITION
@@ -722,7 +722,7 @@ def test_record_bound_before_allocation(head_on_path):
     runner allocates (before: --set scenario.duration=1e12 tried 7 PiB)."""
     import tracemalloc
 
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     scene = load_scene(head_on_path)
     tracemalloc.start()
@@ -857,12 +857,17 @@ class _Called(Exception):
 @given(cmd=st.sampled_from(["run", "check", "trace", "sweep", "report", "engines", "list", "bench", "nosuch"]),
        args=st.lists(st.sampled_from(_TOKENS), max_size=8))
 def test_cli_argument_lists(request, tmp_path, monkeypatch, capsys, cmd, args):
-    import harness.conformance
-    import harness.report
-    import harness.runner
-    import harness.sweep
-    import harness.trace
-    from harness import bench
+    import physbench.harness.conformance
+    from physbench import harness
+    import physbench.harness.report
+    from physbench import harness
+    import physbench.harness.runner
+    from physbench import harness
+    import physbench.harness.sweep
+    from physbench import harness
+    import physbench.harness.trace
+    from physbench import harness
+    from physbench.harness import bench
 
     def stub(*a, **k):
         raise _Called
@@ -915,7 +920,7 @@ def test_hostile_names_run(tmp_path, engine):
     """Bodies, statics, materials and a family named with quotes, '<', '&',
     markup and 10,000 characters run on every engine (MJCF attributes are
     escaped; pybullet builds from API calls, not URDF)."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     scene = load_scene(_hostile_spec(tmp_path))
     assert [b.name for b in scene.bodies] == HOSTILE
@@ -929,8 +934,8 @@ def test_hostile_file_stem_in_mjcf(tmp_path):
     MJCF model name; MuJoCo compiles it and keeps the name."""
     import mujoco
 
-    from adapters.mjcf import xml_escape as _xml_escape
-    from harness.runner import run
+    from physbench.adapters.mjcf import xml_escape as _xml_escape
+    from physbench.harness.runner import run
 
     p = _hostile_spec(tmp_path, 'we"ird\n<stem>&\t')
     scene = load_scene(p)
@@ -942,7 +947,7 @@ def test_hostile_file_stem_in_mjcf(tmp_path):
 
 @pytest.mark.parametrize("text", HOSTILE + ["a\nb\tc\rd", "nul\x00and\x1f", "\ud800"])
 def test_mjcf_escape_round_trips(text):
-    from adapters.mjcf import xml_escape as _xml_escape
+    from physbench.adapters.mjcf import xml_escape as _xml_escape
 
     parsed = ET.fromstring(f'<m a="{_xml_escape(text)}"/>').get("a")
     keep = re.sub("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff]", "\ufffd", text)
@@ -1012,7 +1017,7 @@ def test_two_body_collision_touching_start_and_graze():
     the line of centres (a defined unit normal); a graze (the relative path
     touches r1 + r2 with no approach speed) is no impact: no impulse, no
     division by a zero approach speed."""
-    from harness.references.collision import TwoBodyCollision
+    from physbench.harness.references.collision import TwoBodyCollision
 
     p = SCENARIO_DIR / "billiards" / "head_on.toml"
     scene = load_scene(p, None, {"body[1].position": [0.05715, 0.0, 0.028575]})
@@ -1049,8 +1054,8 @@ def test_mujoco_runs_micrometre_bodies_with_a_mass_scale(tmp_path):
     1e-6 m (4e-22 kg m^2) falls freely as g t^2 / 2 says, and a 1e-9 kg pair
     with spring, damper and drag moves as the same pair of 1 kg does with
     every coefficient 1e9 times larger (the same accelerations)."""
-    from adapters.mjcf import MASS_FLOOR, mass_scale
-    from harness.runner import run
+    from physbench.adapters.mjcf import MASS_FLOOR, mass_scale
+    from physbench.harness.runner import run
 
     drop = {"scenario": {"family": "fuzz", "title": "micrometre drop", "duration": 0.05, "dt": 0.001,
                          "effects": ["gravity", "contact"]},
@@ -1091,7 +1096,7 @@ def test_reference_engine_cancelling_patch_normals(tmp_path):
     patch normal's normalisation).  The run is ok and, with no gravity,
     conserves linear momentum exactly (the two equal masses move as
     opposites) with every value finite."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     doc = {"scenario": {"family": "fuzz", "title": "capsule through a box", "duration": 0.1, "dt": 0.01,
                         "effects": ["contact", "friction", "restitution"]},
@@ -1121,7 +1126,7 @@ def test_mujoco_fatal_contact_count():
     cases).  Measured, each way: the worker dies of SIGABRT or SIGSEGV, or
     the run is a status row naming MuJoCo's fatal error.  A MuJoCo without
     the bug runs it to another row and fails this test."""
-    from harness.execute import WorkerLost, WorkerPool
+    from physbench.harness.execute import WorkerLost, WorkerPool
     from tests.fuzz_worker import run_cut
 
     scene = load_scene(REPO_ROOT / "tests" / "data" / "fuzz" / "mujoco_fatal_contact_count.toml")

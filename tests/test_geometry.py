@@ -1,4 +1,4 @@
-"""harness.geometry: overlap depths against hand-computed values.
+"""physbench.harness.geometry: overlap depths against hand-computed values.
 
 Scenes are built the way the harness builds them (spec dict -> validate_raw ->
 compile_scene) and traces are filled by hand.  Every expected value below is
@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from harness import geometry as geo
-from harness.runner import Trace
-from contract.scene import compile_scene
-from contract.spec import validate_raw
+from physbench.harness import geometry as geo
+from physbench.harness.runner import Trace
+from physbench.contract.scene import compile_scene
+from physbench.contract.spec import validate_raw
 
 S2 = math.sqrt(2.0)
 
@@ -178,9 +178,9 @@ def test_box_box_matches_the_cross_product_form():
     """The box-box kernel writes the edge axes e_i x b_k out instead of
     calling np.cross: the same depths bit for bit (random poses, parallel
     edges, non-finite poses give NaN), so penetration metrics are unchanged."""
-    from harness.geometry.exact import _k_box_box
-    from harness.geometry.placed import Placed
-    from harness.geometry.vector import _norm
+    from physbench.harness.geometry.exact import _k_box_box
+    from physbench.harness.geometry.placed import Placed
+    from physbench.harness.geometry.vector import _norm
 
     def cross_form(A, B):
         C = np.einsum("nji,njk->nik", A.R, B.R)

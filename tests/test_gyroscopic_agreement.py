@@ -17,8 +17,8 @@ for MuJoCo and pybullet (their gyroscopic handling has no switch).
 import numpy as np
 import pytest
 
-from harness.runner import run
-from contract.scene import load_scene
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
 from tests.conftest import ROOT
 
 

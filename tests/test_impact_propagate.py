@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from engine.contact import propagate as P
+from physbench.engine.contact import propagate as P
 
 
 def _values(rng, *shape):

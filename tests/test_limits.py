@@ -8,9 +8,9 @@ import math
 import pandas as pd
 import pytest
 
-from harness.limits import (EVAL_ROW, FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, LimitRequest, Verdict,
+from physbench.harness.limits import (EVAL_ROW, FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, LimitRequest, Verdict,
                             run_search, search)
-from contract.phase import phase_values
+from physbench.contract.phase import phase_values
 
 
 def _threshold(t: float, below: bool = True):
@@ -177,7 +177,7 @@ def test_pymunk_tunnelling_speed_follows_step_geometry():
 
 
 def _cli(args, capsys):
-    from harness.cli import main
+    from physbench.harness.cli import main
 
     rc = main(args)
     out = capsys.readouterr()
@@ -241,8 +241,8 @@ def _suite(tmp_path, body: str):
 
 
 def _suite_errors(tmp_path, body: str) -> str:
-    from harness.suite import load_suite
-    from harness.sweep_store import SuiteError
+    from physbench.harness.suite import load_suite
+    from physbench.harness.sweep_store import SuiteError
 
     with pytest.raises(SuiteError) as ei:
         load_suite(_suite(tmp_path, body))
@@ -262,9 +262,9 @@ def test_limit_block_validated(tmp_path):
 
 
 def test_sweep_computes_limit_blocks(tmp_path):
-    from harness.suite import load_suite
-    from harness.sweep import sweep_main
-    from harness.sweep_store import read_sweeps
+    from physbench.harness.suite import load_suite
+    from physbench.harness.sweep import sweep_main
+    from physbench.harness.sweep_store import read_sweeps
 
     p = _suite(tmp_path, '[[limit]]\nscenarios = ["tunnelling.bullet_100"]\nparam = "body[0].velocity[0]"\n'
                          'range = [0.3, 10]\nphases = 2\ntol = 0.2\nchecks = ["tunnelled"]\n'

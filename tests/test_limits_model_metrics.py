@@ -9,9 +9,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from contract.scene import load_scene
-from harness.limit_eval import LimitRequest, evaluate_point, judge, skipped_model_metrics
-from harness.references import get_model
+from physbench.contract.scene import load_scene
+from physbench.harness.limit_eval import LimitRequest, evaluate_point, judge, skipped_model_metrics
+from physbench.harness.references import get_model
 
 
 @pytest.fixture
@@ -95,11 +95,11 @@ def test_the_criterion_never_reads_a_skipped_metric():
     so every check and bound a skipping evaluation judges is of a metric it
     computed (harness/limit_eval.py ``skipped_model_metrics``; ``judge``
     needs no list of skipped metrics)."""
-    from contract.metric_defs import GENERIC_METRICS
-    from contract.models import MODELS
-    from contract.scene import scenario_ids
-    from harness.conformance import split_metric
-    from harness.limit_eval import _criterion_checks
+    from physbench.contract.metric_defs import GENERIC_METRICS
+    from physbench.contract.models import MODELS
+    from physbench.contract.scene import scenario_ids
+    from physbench.harness.conformance import split_metric
+    from physbench.harness.limit_eval import _criterion_checks
 
     for name in MODELS:
         assert not set(get_model(name).produces) & set(GENERIC_METRICS), name
@@ -134,8 +134,8 @@ def test_every_eval_row_records_the_skipped_metrics_once():
     """A run's row, a row whose value makes the spec invalid and the row of
     an evaluation whose worker died carry the same evaluation columns, with
     ``limit_skipped_metrics`` in each (the one record of what was skipped)."""
-    from harness.limit_eval import EvalItem, lost_eval_row
-    from harness.workers import WorkerLost
+    from physbench.harness.limit_eval import EvalItem, lost_eval_row
+    from physbench.harness.workers import WorkerLost
 
     req = LimitRequest("gyroscopic.fast_spin", None, "reference", "body[0].angular_velocity[2]", 10.0, 5000.0,
                        checks=("stable",), bounds=(("energy_gain", 0.01),),

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from harness.metrics import compute_metrics
-from harness.references import get_model
-from harness.runner import Trace
-from contract.scene import compile_scene, load_scene
-from contract.spec import validate_raw
+from physbench.harness.metrics import compute_metrics
+from physbench.harness.references import get_model
+from physbench.harness.runner import Trace
+from physbench.contract.scene import compile_scene, load_scene
+from physbench.contract.spec import validate_raw
 from tests.conftest import HEAD_ON
 
 
@@ -51,7 +51,7 @@ def test_compute_metrics_reads_its_trace_only(monkeypatch):
     """compute_metrics leaves its trace as it was (the runner keeps the
     penetration measurement, harness.runner._finish), and reads a given
     measurement instead of measuring again."""
-    import harness.geometry as G
+    import physbench.harness.geometry as G
 
     s = ball_scene(["contact"], n=2)
     pos = np.zeros((3, 2, 3))
@@ -59,7 +59,7 @@ def test_compute_metrics_reads_its_trace_only(monkeypatch):
     tr = make_trace(np.arange(3) * 0.01, pos, np.zeros((3, 2, 3)))
     m = compute_metrics(s, tr)
     assert tr.penetration is None and m["max_penetration"] == pytest.approx(0.03)
-    from harness.metrics import run_penetration
+    from physbench.harness.metrics import run_penetration
 
     pen = run_penetration(s, tr)
     monkeypatch.setattr(G, "measure_penetration", lambda *a: pytest.fail("measured again"))
@@ -172,7 +172,7 @@ def test_head_on_reference_equal_masses():
 def _shipped_raw(rel):
     import tomllib
 
-    from contract.scene import SCENARIO_DIR
+    from physbench.contract.scene import SCENARIO_DIR
 
     return tomllib.loads((SCENARIO_DIR / rel).read_text(encoding="utf-8"))
 
@@ -217,9 +217,9 @@ UNDEFINED_CASES = [
 
 @pytest.mark.parametrize("rel, edits, metric, why", UNDEFINED_CASES, ids=[c[2] for c in UNDEFINED_CASES])
 def test_undefined_metric_is_missing_with_its_reason(rel, edits, metric, why):
-    from harness.conformance.verdicts import ERROR, evaluate
-    from harness.references import UNDEFINED, undefined_reason
-    from harness.runner import RunResult
+    from physbench.harness.conformance.verdicts import ERROR, evaluate
+    from physbench.harness.references import UNDEFINED, undefined_reason
+    from physbench.harness.runner import RunResult
 
     raw = _shipped_raw(rel)
     raw.pop("variant", None)
@@ -240,7 +240,7 @@ def test_undefined_metric_is_missing_with_its_reason(rel, edits, metric, why):
 
 
 def test_undefined_metric_helpers():
-    from harness.references import UNDEFINED, divide, undefined, undefined_reason
+    from physbench.harness.references import UNDEFINED, divide, undefined, undefined_reason
 
     out = {}
     divide(out, "a", 3.0, 2.0, "the scale")
@@ -257,8 +257,8 @@ def test_run_with_an_undefined_metric_says_so():
     """End to end on an engine: the frictionless ball runs ``ok`` with its
     other metrics; the undefined one is named in the row and the notes, and
     the scene's check on it is an error."""
-    from harness.conformance.verdicts import ERROR, evaluate
-    from harness.runner import run
+    from physbench.harness.conformance.verdicts import ERROR, evaluate
+    from physbench.harness.runner import run
 
     raw = _set(_set(_shipped_raw("friction/ball_rolls.toml"), ("material", "default", "friction"), 0.0),
                ("material", "default", "static_friction"), 0.0)
@@ -278,7 +278,7 @@ def test_bounce_heights_refuses_a_ball_at_rest_on_the_plane():
     """No drop height and no impact speed: every apex ratio would divide by
     h_0 = 0 (a resting ball's contact jitter made the metrics raise
     ZeroDivisionError); the spec is refused at load, naming the model."""
-    from contract.spec import SpecError
+    from physbench.contract.spec import SpecError
 
     raw = _set(_shipped_raw("billiards/ball_drop_bounce.toml"), ("body", 0, "position"), [0.0, 0.0, 0.05])
     raw.pop("variant", None)

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contract.metric_defs import GENERIC_METRICS
-from harness.references import MODELS, describe, get_model, models_markdown
-from harness.runner import run
-from contract.scene import load_scene
-from contract.spec import SpecError
+from physbench.contract.metric_defs import GENERIC_METRICS
+from physbench.harness.references import MODELS, describe, get_model, models_markdown
+from physbench.harness.runner import run
+from physbench.contract.scene import load_scene
+from physbench.contract.spec import SpecError
 from tests.conftest import ROOT
 
 HEAD_ON_TEXT = (ROOT / "tests" / "data" / "head_on.toml").read_text()
@@ -61,26 +61,26 @@ def test_metrics_md_documents_every_harness_metric():
 
 def test_models_cli_prints_the_declarations(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "models", "--json"], capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "models", "--json"], capture_output=True, text=True,
                        cwd=tmp_path, env=env, timeout=120)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout) == json.loads(json.dumps(describe()))
     assert {d["name"] for d in json.loads(p.stdout)} == set(MODELS)
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "models", "slide_to_rest"], capture_output=True,
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "models", "slide_to_rest"], capture_output=True,
                        text=True, cwd=tmp_path, env=env, timeout=120)
     assert p.returncode == 0 and "stop_distance_error" in p.stdout and "param slope" in p.stdout
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "models", "nosuch"], capture_output=True,
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "models", "nosuch"], capture_output=True,
                        text=True, cwd=tmp_path, env=env, timeout=120)
     assert p.returncode == 2 and "unknown model 'nosuch'" in p.stderr and "Traceback" not in p.stderr
 
 
 def test_registry_imports_no_scene_and_no_model():
-    code = ("import sys; import harness.references as r; "
-            "print(sorted(m for m in sys.modules if m.startswith('harness')))")
+    code = ("import sys; import physbench.harness.references as r; "
+            "print(sorted(m for m in sys.modules if m.startswith('physbench.harness')))")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                        env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
     assert p.returncode == 0, p.stderr
-    assert p.stdout.strip() == "['harness', 'harness.references']"
+    assert p.stdout.strip() == "['physbench.harness', 'physbench.harness.references']"
 
 
 # ---------------------------------------------------------------------------
@@ -166,7 +166,7 @@ def test_check_and_primary_metrics_must_be_produced(tmp_path):
 def test_cli_run_reports_a_refused_scene_with_exit_2(tmp_path):
     p = tmp_path / "flat.toml"
     p.write_text(_flat())
-    r = subprocess.run([sys.executable, "-m", "harness.cli", "run", str(p)], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "run", str(p)], capture_output=True, text=True,
                        cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert r.returncode == 2 and "static[0]" in r.stderr and "Traceback" not in r.stderr
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from harness import conformance as C
-from harness import report as rp
-from harness import suite as SU, sweep as S, sweep_store as ST
-from harness.results import write_rows
-from contract.scene import load_scene
+from physbench.harness import conformance as C
+from physbench.harness import report as rp
+from physbench.harness import suite as SU, sweep as S, sweep_store as ST
+from physbench.harness.results import write_rows
+from physbench.contract.scene import load_scene
 from tests.test_cli import physbench
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -208,8 +208,8 @@ def test_sweep_runs_files_and_folders_named_relative_to_the_suite(tmp_path):
 
 
 def test_metric_exception_makes_the_run_an_error(tmp_path, monkeypatch):
-    from harness import metrics
-    from harness.runner import run
+    from physbench.harness import metrics
+    from physbench.harness.runner import run
 
     def broken(scene, trace, dt=None, model=True, pen=None):
         return 1.0 / 0.0
@@ -237,7 +237,7 @@ def test_content_hash_is_the_scene_not_the_file(tmp_path):
     assert load_scene(write_box(tmp_path / "c.toml", friction=0.3)).content_hash != ha
     assert load_scene(a, overrides={"scenario.dt": 0.001}).content_hash != ha
     # a step-phase shift keeps the hash of the scene as written
-    from contract.phase import shift_scene
+    from physbench.contract.phase import shift_scene
 
     drop = load_scene("tunnelling.thin_box_on_thin_floor")
     assert shift_scene(drop, 0.5).content_hash == drop.content_hash
@@ -287,7 +287,8 @@ def test_changed_scene_starts_a_new_series_not_a_regression(tmp_path, capsys):
 def test_report_reads_thresholds_from_rows_not_scenarios(tmp_path, monkeypatch):
     """Rows of a file outside scenarios/ carry their threshold: the report
     needs no scene to reload (the path recorded no longer exists)."""
-    import contract.scene
+    import physbench.contract.scene
+    from physbench import contract
 
     monkeypatch.setattr(contract.scene, "load_scene", lambda *a, **k: pytest.fail("the report reloaded a scene"))
     rows = [dict(_sweep_row("20261120T010000Z-c", "aaaa000000000000", 1e-3), primary_threshold=2e-3,

@@ -6,8 +6,8 @@ a static), with the stiffness automatic and set."""
 import numpy as np
 import pytest
 
-from engine import penalty
-from engine.contact.rows import _pad, point_normal_velocity
+from physbench.engine import penalty
+from physbench.engine.contact.rows import _pad, point_normal_velocity
 
 
 def _numpy_forces(X, V0, W0, a, b, point, normal, gap, m_eff, k_setting, h, zeta, model_h):

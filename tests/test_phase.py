@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contract.phase import PhaseError, phase_values, shift_scene, wilson_interval
-from contract.rotation import quat_exp as _qexp, quat_mul as _qmul, rotation_matrix as _qmat
-from contract.scene import load_scene
+from physbench.contract.phase import PhaseError, phase_values, shift_scene, wilson_interval
+from physbench.contract.rotation import quat_exp as _qexp, quat_mul as _qmul, rotation_matrix as _qmat
+from physbench.contract.scene import load_scene
 
 
 def _forward_torque_free(q, w_world, inertia, tau):
@@ -82,7 +82,7 @@ def test_dzhanibekov_shift_is_not_a_constant_rotation():
 def test_reference_engine_run_from_a_shifted_start_samples_the_same_motion():
     """A ball in free fall (rk4 is exact for constant gravity): the shifted
     run's frames are the original motion at t - tau."""
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     sc = load_scene("tunnelling.thin_box_on_thin_floor")
     sc = dataclasses.replace(sc, duration=0.2)

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.rotation import quat_rotate
-from harness.references import MODELS, ReferenceError, get_model
-from harness.runner import Trace
-from contract.scene import compile_scene, load_scene
-from contract.spec import validate_raw
+from physbench.contract.rotation import quat_rotate
+from physbench.harness.references import MODELS, ReferenceError, get_model
+from physbench.harness.runner import Trace
+from physbench.contract.scene import compile_scene, load_scene
+from physbench.contract.spec import validate_raw
 
 G = 9.81
 
@@ -761,7 +761,7 @@ def test_no_tunnelling_floor_slab():
 
 
 def test_sequential_row_collisions():
-    from harness.references.billiards import sequential_row_collisions
+    from physbench.harness.references.billiards import sequential_row_collisions
 
     # equal masses, e = 1: the striker's velocity ends in the last ball
     v = sequential_row_collisions(np.ones(5), np.array([1.0, 0, 0, 0, 0]), 1.0)
@@ -812,7 +812,7 @@ def test_momentum_energy():
 
 
 def test_dzhanibekov_reference_invariants_and_period():
-    from harness.references.rigid_body import intermediate_flip_interval
+    from physbench.harness.references.rigid_body import intermediate_flip_interval
 
     sc = load_scene("gyroscopic.dzhanibekov")
     m = get_model("torque_free_rigid_body")(sc)
@@ -850,8 +850,8 @@ def test_torque_free_rhs_matches_the_array_form():
     is the non-finite state's inf * 0 in quat_mul, made on purpose."""
     from scipy.integrate import solve_ivp
 
-    from contract.rotation import quat_mul
-    from harness.references.rigid_body import RTOL, ATOL, euler_rhs
+    from physbench.contract.rotation import quat_mul
+    from physbench.harness.references.rigid_body import RTOL, ATOL, euler_rhs
 
     def array_form(inertia):
         I1, I2, I3 = inertia
@@ -908,7 +908,7 @@ def test_heavy_top_reference_precesses_at_the_analytic_rate():
     t = np.linspace(0.0, sc.duration, 3001)
     x, q = m.reference(t)
     az, tilt = m._azimuth_tilt(q)
-    from harness.references import fit_slope
+    from physbench.harness.references import fit_slope
 
     assert fit_slope(t, az) == pytest.approx(2.054348, rel=1e-3)
     assert np.max(np.abs(tilt - math.radians(30))) < 0.01  # steady: no nutation to speak of
@@ -922,7 +922,7 @@ def test_heavy_top_reference_precesses_at_the_analytic_rate():
 def test_fit_slope_is_the_least_squares_slope():
     """The one slope fit the references use (friction accelerations, the
     heavy top's precession rate): exact on a line, NaN where t does not vary."""
-    from harness.references import fit_slope
+    from physbench.harness.references import fit_slope
 
     t = np.linspace(0.0, 2.0, 41)
     assert fit_slope(t, 3.0 * t - 1.0) == pytest.approx(3.0, rel=1e-14)
@@ -932,7 +932,7 @@ def test_fit_slope_is_the_least_squares_slope():
 
 
 def test_constant_series_predicts_its_value_at_every_time():
-    from harness.references import constant
+    from physbench.harness.references import constant
 
     f = constant(np.float64(2.5))
     t = np.linspace(0.0, 1.0, 7)
@@ -953,8 +953,8 @@ def test_two_body_refusal_names_the_spec_entry(tmp_path, capsys, spacing, b_x, b
     expectation and the value, and the command exits 2 without a traceback."""
     import re
 
-    from contract.spec import SpecError
-    from harness import cli
+    from physbench.contract.spec import SpecError
+    from physbench.harness import cli
 
     text = TWO_BODY.replace('velocity = [2.0, 0.0, 0.0]',
                             f'velocity = [2.0, 0.0, 0.0]\npattern = {{ kind = "row", count = 2, spacing = {spacing} }}')
@@ -984,7 +984,7 @@ def test_a_name_list_param_refuses_an_unknown_name(model, key, names):
     the names the scene has."""
     text = TWO_BODY.replace('model = "two_body_collision"', f'model = "{model}"\nparams = {{ {key} = {names} }}')
     text += '[[static]]\nname = "floor"\nshape = "plane"\nnormal = [0.0, 0.0, 1.0]\noffset = -1.0\n'
-    from contract.spec import SpecError
+    from physbench.contract.spec import SpecError
 
     with pytest.raises(SpecError) as e:
         scene_from(text)

@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import report as rp
-from harness.results import write_rows
+from physbench.harness import report as rp
+from physbench.harness.results import write_rows
 
 FAKE = "test.fake_scene"  # a scenario id with no spec: targets come from arguments
 METRIC = "post_impact_velocity_error"
@@ -49,9 +49,9 @@ def as_written(r: dict) -> dict:
     threshold, tags; the verdicts of run_verdicts on the row's values): the
     report reads rows only, so a planted row carries them as a written one
     does.  Rows without them are the old rows of the no-verdict tests."""
-    from contract.scene import load_scene
-    from harness.conformance import run_verdicts, scene_columns, verdicts_column
-    from harness.runner import RunResult
+    from physbench.contract.scene import load_scene
+    from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
+    from physbench.harness.runner import RunResult
 
     scene = load_scene(r["scenario"], r.get("variant") or None)
     return {**r, **scene_columns(scene), "checks": verdicts_column(run_verdicts(scene, RunResult.from_row(r)))}
@@ -228,7 +228,7 @@ def test_cost_to_target_bound_is_the_cheapest_line_reaching_at_its_coarsest_dt(t
 def test_ladder_selects_and_groups_the_points_once(tmp_path, monkeypatch):
     """The ladder is cost_to_target at each rung, with the latest points
     selected and grouped once for all rungs, not once per rung."""
-    from harness.report import cost
+    from physbench.harness.report import cost
     rows = [row(engine=e, dt=dt, error=err, cost=c / dt)
             for e, c in (("reference", 1e-3), ("pybullet", 2e-4))
             for dt, err in ((0.004, 3e-3), (0.002, 2e-5), (0.001, 4e-7))]
@@ -669,8 +669,8 @@ def test_missing_and_all_nan_columns_are_tolerated(tmp_path):
 
 
 def test_end_to_end_real_runs(tmp_path):
-    from harness.runner import run
-    from contract.scene import load_scene
+    from physbench.harness.runner import run
+    from physbench.contract.scene import load_scene
 
     scene = load_scene("billiards.head_on")
     rows = []

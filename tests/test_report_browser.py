@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import report as rp
-from harness.results import write_rows
+from physbench.harness import report as rp
+from physbench.harness.results import write_rows
 from tests.test_report import as_written
 
 SID = "20261124T010000Z-abcd"

@@ -12,15 +12,16 @@ import re
 import pandas as pd
 import pytest
 
-from harness import report as rp
-from harness.results import VERDICT_COLUMNS, write_rows
-from harness.sweep_store import SWEEP_COLUMNS
+from physbench.harness import report as rp
+from physbench.harness.results import VERDICT_COLUMNS, write_rows
+from physbench.harness.sweep_store import SWEEP_COLUMNS
 from tests.test_report import METRIC, S1, row, write_sweep
 
 
 def _no_scene_loading(monkeypatch):
     """Loading a scene or reading a spec during the report fails the test."""
-    import contract.scene
+    import physbench.contract.scene
+    from physbench import contract
 
     def refuse(*a, **k):
         raise AssertionError("the report loaded a scene")
@@ -111,8 +112,8 @@ def test_check_and_sweep_rows_share_the_verdict_columns(tmp_path):
     the scene's threshold and tags and each check's verdict; the check's
     failing verdicts name their trace, and the report lists them."""
     pytest.importorskip("pymunk")
-    from harness.conformance import check_main
-    from harness.points import Point, run_point
+    from physbench.harness.conformance import check_main
+    from physbench.harness.points import Point, run_point
 
     traces = tmp_path / "traces"
     check_main(["pymunk"], None, None, ["tunnelling.bullet_100"], save_dir=tmp_path / "check", traces=traces)

@@ -17,7 +17,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from harness import results as R
+from physbench.harness import results as R
 
 
 def _rows_of_every_kind() -> list[dict]:
@@ -45,7 +45,7 @@ def _rows_of_every_kind() -> list[dict]:
 @pytest.fixture(scope="module")
 def sweep_rows(tmp_path_factory) -> list[dict]:
     """The rows a real sweep (the smoke suite, serial) stores."""
-    from harness.sweep import sweep_main
+    from physbench.harness.sweep import sweep_main
 
     got: list[dict] = []
     real = R.PartsDir.write_part

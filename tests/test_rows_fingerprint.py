@@ -8,9 +8,9 @@ import json
 
 import pandas as pd
 
-from harness import fingerprint as F
-from harness import points as P, sweep as S, sweep_store as ST
-from contract.scene import load_scene
+from physbench.harness import fingerprint as F
+from physbench.harness import points as P, sweep as S, sweep_store as ST
+from physbench.contract.scene import load_scene
 
 
 def _machine_cols(row: dict) -> dict:
@@ -18,7 +18,7 @@ def _machine_cols(row: dict) -> dict:
 
 
 def test_run_and_status_rows_carry_the_fingerprint(head_on_path):
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     res = run(load_scene(head_on_path), "mujoco")
     m = _machine_cols(res.row())
@@ -36,7 +36,7 @@ def test_run_and_status_rows_carry_the_fingerprint(head_on_path):
 
 
 def test_check_rows_and_sweep_name_one_machine(tmp_path, capsys):
-    from harness.conformance import check_main
+    from physbench.harness.conformance import check_main
 
     check_main(["mujoco"], None, None, ["billiards.head_on"], save_dir=tmp_path / "check")
     check = pd.concat(pd.read_parquet(p) for p in (tmp_path / "check").glob("*.parquet"))
@@ -50,7 +50,7 @@ def test_check_rows_and_sweep_name_one_machine(tmp_path, capsys):
     assert set(rows["machine.id"]) == set(rows["machine_id"]) == {ST.machine_id()}
 
     # the report files check rows and sweep rows under the one machine id
-    from harness.report import load_results
+    from physbench.harness.report import load_results
 
     df = load_results(tmp_path)
     assert set(df["machine_id"]) == {ST.machine_id()}, df["machine_id"].value_counts()
@@ -58,7 +58,7 @@ def test_check_rows_and_sweep_name_one_machine(tmp_path, capsys):
 
 def test_report_groups_old_rows_by_host():
     """Rows written before the fingerprint (no machine.id) still group by host."""
-    from harness.report import _normalise
+    from physbench.harness.report import _normalise
 
     df = pd.DataFrame([
         {"scenario": "a.b", "engine": "mujoco", "machine.host": "oldbox", "source": "check"},
@@ -73,7 +73,7 @@ def test_report_groups_old_rows_by_host():
 def test_rows_made_without_a_run_name_the_machine():
     """A RunResult built for a run that never started (a scene that failed to
     load, an engine that cannot be imported) still names its machine."""
-    from harness.runner import RunResult
+    from physbench.harness.runner import RunResult
 
     row = RunResult("a.b", None, "no_such_engine", "", "error", "scene failed to load", {}).row()
     assert row["machine.id"] == F.machine_id() and row["machine.env_id"] == F.env_id()

@@ -5,10 +5,10 @@ step/read loop bit for bit on every engine."""
 import numpy as np
 import pytest
 
-from adapters import ENGINES, get_adapter
-from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, register
-from harness.runner import Trace, run
-from contract.scene import load_scene
+from physbench.adapters import ENGINES, get_adapter
+from physbench.adapters.base import Adapter, Capabilities, DT_SETTING, Setting, register
+from physbench.harness.runner import Trace, run
+from physbench.contract.scene import load_scene
 from tests.conftest import HEAD_ON
 
 
@@ -53,7 +53,7 @@ class Fake(Adapter):
 
 @pytest.fixture(autouse=True, scope="module")
 def _fake_engine():
-    from adapters import base
+    from physbench.adapters import base
 
     register("fake", lambda: Fake)
     yield
@@ -119,8 +119,8 @@ def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
     than BLOCK_TARGET_S (set here, so the test does not depend on the
     machine's speed), never beyond MAX_BLOCK; every step is recorded and
     time stamps are exact multiples of dt."""
-    from harness import runner
-    from contract.scene import Scene
+    from physbench.harness import runner
+    from physbench.contract.scene import Scene
 
     long = Scene(**{**scene.__dict__, "duration": 20.0})
     sizes = []

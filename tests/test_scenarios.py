@@ -16,11 +16,11 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from harness import conformance as C
-from harness.references import get_model
-from harness.runner import Trace
-from contract.scene import SCENARIO_DIR, load_scene, scenario_ids
-from contract.spec import load_spec
+from physbench.harness import conformance as C
+from physbench.harness.references import get_model
+from physbench.harness.runner import Trace
+from physbench.contract.scene import SCENARIO_DIR, load_scene, scenario_ids
+from physbench.contract.spec import load_spec
 
 FAMILIES = ("stacking", "tunnelling", "billiards", "friction", "gyroscopic", "forces")
 IDS = scenario_ids()
@@ -62,7 +62,7 @@ def test_spec_is_complete(sid):
     assert sc.reference_model, "every scenario names a reference model"
     assert sc.checks, "every scenario has checks"
     known = set(sc.variant_names) | {C.BASE}
-    from adapters import ENGINES
+    from physbench.adapters import ENGINES
 
     for c in sc.checks:
         if c.variants is not None:
@@ -90,7 +90,7 @@ def _static_trace(sc, frames: int = 3) -> Trace:
 def test_variant_compiles_and_metrics_exist(case):
     """The reference model accepts the scene and every checked metric is one
     the harness produces for it (names are checked on a motionless trace)."""
-    from harness.metrics import compute_metrics
+    from physbench.harness.metrics import compute_metrics
 
     sid, variant = case
     sc = load_scene(sid, variant)
@@ -123,7 +123,7 @@ def _marks(case):
 
 def _reference_available() -> str | None:
     try:
-        from adapters import get_adapter
+        from physbench.adapters import get_adapter
 
         cls = get_adapter("reference")
         caps = cls.capabilities()
@@ -142,7 +142,7 @@ def test_reference_engine_conformance(case):
     why = _reference_available()
     if why:
         pytest.skip(f"reference engine unavailable: {why}")
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     sid, variant = case
     sc = load_scene(sid, variant)

@@ -18,12 +18,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.execute import WAIT, InlineExecutor, WorkerLost, WorkerPool
-from harness.executors import _sleep, thread_counts
-from harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
-from harness.points import Point
-from harness.schedule import run_schedule
-from harness.sweep_bench import VirtualExecutor, replay
+from physbench.harness.execute import WAIT, InlineExecutor, WorkerLost, WorkerPool
+from physbench.harness.executors import _sleep, thread_counts
+from physbench.harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
+from physbench.harness.points import Point
+from physbench.harness.schedule import run_schedule
+from physbench.harness.sweep_bench import VirtualExecutor, replay
 
 #: a dt search on the 5-box column (scene loading only: values are answered by THRESHOLD)
 THRESHOLD = {"mujoco": 0.0071, "pybullet": 0.0033, "pymunk": 0.0191}
@@ -43,7 +43,7 @@ def _answer(item):
 
 
 def SimExecutor(jobs, duration, answer=_answer):
-    """harness.sweep_bench's virtual-time executor answering with _answer."""
+    """physbench.harness.sweep_bench's virtual-time executor answering with _answer."""
     return VirtualExecutor(jobs, duration, answer)
 
 
@@ -200,8 +200,8 @@ def test_limit_blocks_on_two_workers_give_the_serial_rows(tmp_path):
     workers and on a two-worker Dask LocalCluster: the same eval rows and
     answers (engines are deterministic), the same point metrics."""
     pytest.importorskip("distributed")
-    from harness.sweep import sweep_main
-    from harness.sweep_store import read_sweeps
+    from physbench.harness.sweep import sweep_main
+    from physbench.harness.sweep_store import read_sweeps
 
     p = tmp_path / "s.toml"
     p.write_text(textwrap.dedent("""

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.scene import load_scene, principal_inertia
-from contract.spec import SpecError, load_spec, parse_key_path
+from physbench.contract.scene import load_scene, principal_inertia
+from physbench.contract.spec import SpecError, load_spec, parse_key_path
 from tests.conftest import HEAD_ON
 
 BASE = HEAD_ON.read_text()
@@ -142,7 +142,7 @@ def test_material_coefficient_needs_its_effect(tmp_path, key, value, effect):
     assert f"s.toml: material.default.{key}: set to {value} but '{effect}' is not in scenario.effects" \
         in "\n".join(e.value.errors)
     root = Path(__file__).resolve().parent.parent
-    r = subprocess.run([sys.executable, "-m", "harness.cli", "run", str(p), "--engine", "reference"],
+    r = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "run", str(p), "--engine", "reference"],
                        capture_output=True, text=True, cwd=root, timeout=120)
     assert r.returncode == 2 and f"material.default.{key}: set to {value}" in r.stderr
     assert "Traceback" not in r.stderr

@@ -23,11 +23,11 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_names, register
-from harness import points as P, suite as SU, sweep as S, sweep_store as ST
-from harness.results import SCHEMA_VERSION, write_json_atomic, write_parquet_atomic
-from harness.runner import run as _REAL_RUN
-from contract.scene import load_scene
+from physbench.adapters.base import Adapter, Capabilities, DT_SETTING, Setting, engine_names, register
+from physbench.harness import points as P, suite as SU, sweep as S, sweep_store as ST
+from physbench.harness.results import SCHEMA_VERSION, write_json_atomic, write_parquet_atomic
+from physbench.harness.runner import run as _REAL_RUN
+from physbench.contract.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -87,7 +87,7 @@ class FakeSweep(Adapter):
 
 @pytest.fixture(autouse=True, scope="module")
 def _fake_engine():
-    from adapters import base
+    from physbench.adapters import base
 
     register("fake_sweep", lambda: FakeSweep)
     yield
@@ -148,7 +148,7 @@ def test_shipped_suites_load():
     assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk"}
     assert len({p.key for p in pts}) == len(pts)
     # every nightly scenario has an analytic primary metric
-    from contract.scene import load_scene
+    from physbench.contract.scene import load_scene
 
     for sid in {p.scenario for p in pts}:
         assert load_scene(sid).primary_metric and load_scene(sid).reference_model
@@ -409,7 +409,7 @@ class _Killed(BaseException):
 def _counting_run(monkeypatch, kill_at_point: int | None):
     """Patch harness.runner.run to record the point key of every call, and
     to die on the first call of the ``kill_at_point``-th point (0-based)."""
-    from harness import runner
+    from physbench.harness import runner
 
     real = _REAL_RUN  # not runner.run: that may be an earlier patch
     calls: list[str] = []
@@ -452,7 +452,7 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
 def _fail_writes_of_bad(monkeypatch) -> None:
     """Every part write of a row whose point_key is "bad" raises OSError
     ("disk full"); the others are written."""
-    import harness.results as R
+    import physbench.harness.results as R
 
     real = R.write_table_atomic
 
@@ -468,7 +468,7 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
     """The writer thread stores each queued row as its own part, in order,
     before drain returns; a failed write is raised to the caller (by a
     later write_point, or by drain/close), and close releases the lock."""
-    from harness.results import list_parts, read_part
+    from physbench.harness.results import list_parts, read_part
 
     _fail_writes_of_bad(monkeypatch)
     sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
@@ -502,7 +502,7 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
     as if the sweep went on whole (rows queued behind the failed one are
     not in ``done``, so a resume runs them again).  close releases the lock
     and does not raise an error the caller was already given."""
-    from harness.results import list_parts, read_part
+    from physbench.harness.results import list_parts, read_part
 
     _fail_writes_of_bad(monkeypatch)
     sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
@@ -523,12 +523,12 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
 
 
 def test_cpu_account_charges_the_part_writer_and_the_main_thread_apart():
-    """harness.sweep_bench.CpuAccount: CPU spent on a thread named as the
+    """physbench.harness.sweep_bench.CpuAccount: CPU spent on a thread named as the
     sweep's part writer counts as "part writer", the main thread's as
     "main thread" (CPU seconds, not wall time)."""
     import threading
 
-    from harness.sweep_bench import CpuAccount
+    from physbench.harness.sweep_bench import CpuAccount
 
     def spin(cpu_s: float) -> None:
         t0 = time.thread_time()
@@ -584,9 +584,9 @@ def test_resume_after_the_process_is_killed(tmp_path):
     script = textwrap.dedent(f"""
         import sys
         sys.path.insert(0, {str(ROOT)!r})
-        from adapters.base import register
+        from physbench.adapters.base import register
         from tests.test_sweep import FakeSweep
-        from harness.sweep import sweep_main
+        from physbench.harness.sweep import sweep_main
         register("fake_sweep", lambda: FakeSweep)
         sweep_main({str(p)!r}, out_dir={str(out)!r})
     """)

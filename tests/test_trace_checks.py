@@ -13,11 +13,11 @@ import math
 import numpy as np
 import pytest
 
-from contract.rotation import quat_rotate, world_to_body_angvel
-from contract.scene import Check, load_scene
-from harness.conformance import Outcome
-from harness.runner import RunResult
-from harness.trace import write_rrd
+from physbench.contract.rotation import quat_rotate, world_to_body_angvel
+from physbench.contract.scene import Check, load_scene
+from physbench.harness.conformance import Outcome
+from physbench.harness.runner import RunResult
+from physbench.harness.trace import write_rrd
 from tests.test_trace_diagnose import still_result
 from tests.test_trace_rrd import read_rrd, rerun_chunk, static_value, temporal
 
@@ -63,8 +63,8 @@ def blueprint_views(path) -> dict[str, list[str]]:
 @pytest.fixture(scope="module")
 def dzhanibekov(tmp_path_factory):
     pytest.importorskip("mujoco")
-    from harness.conformance import evaluate
-    from harness.runner import run
+    from physbench.harness.conformance import evaluate
+    from physbench.harness.runner import run
 
     scene = load_scene("gyroscopic.dzhanibekov")
     res = run(scene, "mujoco")
@@ -110,7 +110,7 @@ def test_angular_momentum_drift_marker_at_the_first_step_past_its_threshold(dzha
 
 
 def test_flip_predictions_as_reference_line_and_markers(dzhanibekov):
-    from harness.references.rigid_body import intermediate_flip_interval
+    from physbench.harness.references.rigid_body import intermediate_flip_interval
 
     scene, res, _, data = dzhanibekov
     body = scene.bodies[0]
@@ -175,8 +175,8 @@ def test_energy_gain_marker_at_the_step_computed_from_the_recorded_energy(tmp_pa
 def test_dissipation_and_momentum_crossings_and_a_min_threshold():
     """energy_dissipated (a max given here), linear momentum drift, and the
     min bound drawn for the slide-to-rest scene's energy_dissipated >= 0.99."""
-    from harness.trace import diagnose as dg
-    from harness.trace.annotate import Diagnosis
+    from physbench.harness.trace import diagnose as dg
+    from physbench.harness.trace.annotate import Diagnosis
 
     scene = load_scene("billiards.head_on")
     F = 201
@@ -260,7 +260,7 @@ def test_a_run_on_the_model_measures_its_reference_lines(sid, tmp_path):
     """A fake engine that moves exactly like the model (positions and, for
     the collision, velocities): each measured twin equals its reference
     line, and the predicted moments are in the model's context text."""
-    from harness.references import get_model
+    from physbench.harness.references import get_model
 
     scene = load_scene(sid)
     model = get_model(scene.reference_model)(scene)
@@ -298,8 +298,8 @@ def test_spin_to_rest_angle_line_and_stop_marker(tmp_path):
     theta(t) = w0 t - alpha t^2 / 2 (held at the stop): its measured angle
     equals the line, which ends at w0^2 / (2 alpha), and the stop is marked
     at w0 / alpha."""
-    from contract.rotation import quat_mul
-    from harness.references import get_model
+    from physbench.contract.rotation import quat_mul
+    from physbench.harness.references import get_model
 
     scene = load_scene("friction.capsule_spins_to_rest")
     model = get_model(scene.reference_model)(scene)
@@ -323,8 +323,8 @@ def test_spin_to_rest_angle_line_and_stop_marker(tmp_path):
 
 
 def test_a_failing_prediction_leaves_its_line_out_and_keeps_the_trace(tmp_path, monkeypatch):
-    from harness.references import ReferenceSeries
-    from harness.references.collision import TwoBodyCollision
+    from physbench.harness.references import ReferenceSeries
+    from physbench.harness.references.collision import TwoBodyCollision
 
     def broken(t):
         raise FloatingPointError("planted")
@@ -359,7 +359,7 @@ def test_energy_drift_band_in_joules_is_the_metrics_scale(dzhanibekov):
     """E0 +- max x E_scale with the metric's own E_scale
     (harness.metrics.relative_energy); the recorded energy first leaves the
     band at the step of the crossing marker."""
-    from harness.metrics import relative_energy
+    from physbench.harness.metrics import relative_energy
 
     scene, res, path, data = dzhanibekov
     steps, E = scalars(data, "/metrics/mujoco/energy")

@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.runner import RunResult, Trace, run
-from contract.scene import load_scene
-from harness.trace import write_rrd
-from harness.trace.contacts import harness_contacts
+from physbench.harness.runner import RunResult, Trace, run
+from physbench.contract.scene import load_scene
+from physbench.harness.trace import write_rrd
+from physbench.harness.trace.contacts import harness_contacts
 from tests.test_trace_rrd import F32, column_array, read_rrd, static_value, temporal
 
 pytest.importorskip("rerun.chunk")
@@ -35,7 +35,7 @@ def still_result(scene, engine: str, n_frames: int) -> RunResult:
 
 
 def model_of(scene):
-    from harness.references import get_model
+    from physbench.harness.references import get_model
 
     return get_model(scene.reference_model)(scene)
 
@@ -95,7 +95,7 @@ def bullet(tmp_path_factory):
     scene = load_scene("tunnelling.bullet_100")
     res = run(scene, "pymunk", contact_cap=16)
     assert res.status == "ok" and res.metrics["tunnelled"] == 1.0  # pymunk has no CCD: the planted failure
-    from harness.conformance import evaluate
+    from physbench.harness.conformance import evaluate
 
     outcomes = [o for o in evaluate(scene, res) if "@" not in o.metric]
     path = tmp_path_factory.mktemp("bullet") / "b.rrd"
@@ -146,8 +146,8 @@ def test_harness_contact_of_a_sphere_in_a_plane_is_exact():
 
 
 def test_harness_contact_normal_of_two_boxes_is_the_separating_axis():
-    from harness.geometry import Placed
-    from harness.trace.contacts import pair_normals
+    from physbench.harness.geometry import Placed
+    from physbench.harness.trace.contacts import pair_normals
 
     R = np.eye(3)[None]
     A = Placed("box", np.array([[0.0, 0.0, 0.0]]), R, half_extents=[0.5, 0.5, 0.5])
@@ -187,7 +187,7 @@ def test_plain_run_records_no_contacts():
 
 def test_check_traces_writes_exactly_the_failing_cases(tmp_path):
     pytest.importorskip("pymunk")
-    from harness.conformance import FAIL, XFAIL, ERROR, check_main
+    from physbench.harness.conformance import FAIL, XFAIL, ERROR, check_main
 
     junit = tmp_path / "j.xml"
     traces = tmp_path / "traces"

@@ -17,9 +17,9 @@ import math
 import numpy as np
 import pytest
 
-from contract.rotation import quat_rotate
-from contract.scene import load_scene
-from harness.trace import write_rrd
+from physbench.contract.rotation import quat_rotate
+from physbench.contract.scene import load_scene
+from physbench.harness.trace import write_rrd
 from tests.test_trace_checks import markers, scalars
 from tests.test_trace_diagnose import model_of, still_result
 from tests.test_trace_rrd import read_rrd, static_value
@@ -317,10 +317,10 @@ def test_bullet_bounce_line_and_a_planted_tunnelling_count(tmp_path):
 
 
 def test_trace_cost_tool_measures_a_traced_run_and_its_file(tmp_path):
-    """harness.trace.cost (docs/TRACES.md, "Cost") on a short column: one
+    """physbench.harness.trace.cost (docs/TRACES.md, "Cost") on a short column: one
     row per engine with the traced run's engine contacts and the file it
     wrote (sizes and counts only: a benchmark, no time is asserted)."""
-    from harness.trace.cost import markdown, measure
+    from physbench.harness.trace.cost import markdown, measure
 
     (row,) = measure("stacking.column_5", duration=0.05, repeats=1, engines=("pymunk",), out_dir=tmp_path)
     assert row["status"] == "ok" and row["frames"] == int(round(0.05 / load_scene("stacking.column_5").dt)) + 1

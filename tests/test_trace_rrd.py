@@ -1,4 +1,4 @@
-"""harness.rerun_log.write_rrd: one .rrd with every run side by side.
+"""physbench.harness.rerun_log.write_rrd: one .rrd with every run side by side.
 
 Most tests use hand-made traces whose physics is known in closed form (two
 spheres in free flight, no gravity, one spinning about z), so they do not
@@ -23,10 +23,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.metrics import energy_series
-from harness.trace import quat_z_to, write_rrd
-from harness.runner import RunResult, Trace
-from contract.scene import load_scene
+from physbench.harness.metrics import energy_series
+from physbench.harness.trace import quat_z_to, write_rrd
+from physbench.harness.runner import RunResult, Trace
+from physbench.contract.scene import load_scene
 from tests.conftest import HEAD_ON
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
@@ -345,7 +345,7 @@ def test_box_capsule_cylinder_and_statics(tmp_path):
 
 @pytest.mark.parametrize("n", [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0.3, -0.5, 0.8]])
 def test_quat_z_to_maps_z_onto_the_normal(n):
-    from contract.rotation import quat_rotate
+    from physbench.contract.rotation import quat_rotate
 
     n = np.asarray(n, float) / np.linalg.norm(n)
     q = quat_z_to(n)
@@ -358,7 +358,7 @@ def test_quat_z_to_maps_z_onto_the_normal(n):
 
 
 def test_real_reference_run_round_trips(scene, tmp_path):
-    from harness.runner import run
+    from physbench.harness.runner import run
 
     try:
         result = run(scene, "reference")
@@ -387,7 +387,7 @@ def test_real_reference_run_round_trips(scene, tmp_path):
 def test_energy_is_computed_once_per_drawn_run(scene, tmp_path, monkeypatch, diagnose):
     """The energy plot, the diagnosis' energy bands and its crossings read
     one computation of E(t) per drawn run (harness.metrics.energy_series)."""
-    import harness.metrics as M
+    import physbench.harness.metrics as M
 
     calls = []
     real = M.energy_series
@@ -407,8 +407,8 @@ def test_the_runs_penetration_is_handed_to_the_trace(tmp_path, monkeypatch):
     """A run of the runner carries the metrics' penetration measurement of
     its frames on its trace; the write plots it without measuring again,
     and measures a trace that does not carry one."""
-    import harness.geometry as G
-    from harness.runner import run
+    import physbench.harness.geometry as G
+    from physbench.harness.runner import run
 
     scene = load_scene(HEAD_ON)
     res = run(scene, "reference")

@@ -20,9 +20,9 @@ and physical quantities must lie within the bounds of :data:`BOUNDS`
 ``tests/test_fuzz.py::test_bounds_table_matches_docs`` keeps the two equal).
 """
 
-from contract.spec.bounds import BOUNDS, record_size_error
-from contract.spec.errors import ModelRefusal, SpecError, _format_errors
-from contract.spec.load import LoadedSpec, _display, load_spec, read_toml
-from contract.spec.overrides import parse_key_path, parse_value
-from contract.spec.schema import SpecModel
-from contract.spec.validate import validate_raw
+from physbench.contract.spec.bounds import BOUNDS, record_size_error
+from physbench.contract.spec.errors import ModelRefusal, SpecError, _format_errors
+from physbench.contract.spec.load import LoadedSpec, _display, load_spec, read_toml
+from physbench.contract.spec.overrides import parse_key_path, parse_value
+from physbench.contract.spec.schema import SpecModel
+from physbench.contract.spec.validate import validate_raw

@@ -9,7 +9,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from contract.models import ReferenceError
+from physbench.contract.models import ReferenceError
 
 class SpecError(ValueError):
     """A scenario spec failed to load.  ``errors`` holds one line per problem,

@@ -9,10 +9,10 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from contract.spec.errors import SpecError
-from contract.spec.overrides import apply_override
-from contract.spec.schema import SpecModel, name_error
-from contract.spec.validate import validate_raw
+from physbench.contract.spec.errors import SpecError
+from physbench.contract.spec.overrides import apply_override
+from physbench.contract.spec.schema import SpecModel, name_error
+from physbench.contract.spec.validate import validate_raw
 
 class LoadedSpec:
     """A validated spec with its variants.  ``raw`` is the TOML document minus

@@ -7,7 +7,7 @@ import re
 import tomllib
 from typing import Any
 
-from contract.spec.errors import _loc_to_path
+from physbench.contract.spec.errors import _loc_to_path
 
 _TOKEN = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
 

@@ -16,8 +16,8 @@ from pydantic import (
     model_validator,
 )
 
-from contract.models import MODELS
-from contract.spec.bounds import BOUNDS, _bound, _bounded, _bounded_each, _bounded_norm, record_size_error
+from physbench.contract.models import MODELS
+from physbench.contract.spec.bounds import BOUNDS, _bound, _bounded, _bounded_each, _bounded_norm, record_size_error
 
 EFFECTS = (
     "gravity",

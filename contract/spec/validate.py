@@ -8,9 +8,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from contract.spec.bounds import BOUNDS, record_size_error
-from contract.spec.errors import SpecError, _format_errors
-from contract.spec.schema import SpecModel, name_error
+from physbench.contract.spec.bounds import BOUNDS, record_size_error
+from physbench.contract.spec.errors import SpecError, _format_errors
+from physbench.contract.spec.schema import SpecModel, name_error
 
 def validate_raw(raw: dict[str, Any], label: str) -> SpecModel:
     try:

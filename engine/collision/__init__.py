@@ -54,13 +54,13 @@ Pairs:
   box-box keeps them (:func:`cylinder_cylinder`).
 """
 
-from engine.collision.box import box_box, box_plane
-from engine.collision.capsule import capsule_box, capsule_capsule, capsule_plane, sphere_capsule
-from engine.collision.cylinder import box_cylinder, capsule_cylinder, cylinder_plane, sphere_cylinder
-from engine.collision.cylinder_pair import cylinder_cylinder
-from engine.collision.dispatch import (PLANE_TABLE, SBOX_TABLE, TABLE, NarrowPhase, collide_pairs, pair_contacts,
+from physbench.engine.collision.box import box_box, box_plane
+from physbench.engine.collision.capsule import capsule_box, capsule_capsule, capsule_plane, sphere_capsule
+from physbench.engine.collision.cylinder import box_cylinder, capsule_cylinder, cylinder_plane, sphere_cylinder
+from physbench.engine.collision.cylinder_pair import cylinder_cylinder
+from physbench.engine.collision.dispatch import (PLANE_TABLE, SBOX_TABLE, TABLE, NarrowPhase, collide_pairs, pair_contacts,
                                        unsupported_pairs)
-from engine.collision.sphere import sphere_box, sphere_plane, sphere_sphere
+from physbench.engine.collision.sphere import sphere_box, sphere_plane, sphere_sphere
 
 __all__ = ["NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "box_box", "box_cylinder", "box_plane",
            "capsule_box", "capsule_capsule", "capsule_cylinder", "capsule_plane", "collide_pairs",

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.kernels import cross3, empty, segment_segment
+from physbench.engine.collision.kernels import cross3, empty, segment_segment
 
 
 @njit(cache=True)

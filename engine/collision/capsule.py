@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.kernels import (SDF_BOX, gather, segment_and_caps1, segment_closest1, segment_segment, slots,
+from physbench.engine.collision.kernels import (SDF_BOX, gather, segment_and_caps1, segment_closest1, segment_segment, slots,
                                       sphere_plane1, sphere_sphere1)
 
 #: capsule-capsule: |axis_a . axis_b| above which the end projections are

@@ -18,14 +18,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
-from engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
+from physbench.engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
+from physbench.engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
                                       _sphere_capsule_kernel)
-from engine.collision.cylinder import (CYLINDER_FW, _BOX_EDGES, _CORNERS, _box_cylinder_kernel,
+from physbench.engine.collision.cylinder import (CYLINDER_FW, _BOX_EDGES, _CORNERS, _box_cylinder_kernel,
                                        _capsule_cylinder_kernel, _cylinder_plane_kernel, _sphere_cylinder_kernel)
-from engine.collision.cylinder_pair import YY_FW, YY_IW, _SIDE_MAX, _cylinder_cylinder_kernel
-from engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
-from engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from physbench.engine.collision.cylinder_pair import YY_FW, YY_IW, _SIDE_MAX, _cylinder_cylinder_kernel
+from physbench.engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
+from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 
 # family codes: body-body by shape pair (sphere S, box B, capsule C,
 # cylinder Y), then the body's shape against a plane (P_*) and a static box (X_*)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.capsule import capsule_ends1
-from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_BOX, SDF_CYLINDER,
+from physbench.engine.collision.capsule import capsule_ends1
+from physbench.engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_BOX, SDF_CYLINDER,
                                       crossing_contacts1, cylinder_rim1, gather, local_offset, norm3, rim_contacts1,
                                       segment_and_caps1, segment_closest1, segment_min1, slots, sphere_cylinder1,
                                       to_local)

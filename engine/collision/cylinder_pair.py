@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, GOLDEN, SDF_CYLINDER, circle_crossings1, cylinder_rim1,
+from physbench.engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, GOLDEN, SDF_CYLINDER, circle_crossings1, cylinder_rim1,
                                       gather, norm3, segment_min1, segment_segment, sdf1, slots, sphere_cylinder1)
 
 

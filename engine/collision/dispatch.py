@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.mathutil import quat_to_matrix
-from engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
-from engine.profile import Stage
-from engine.state import Contacts
-from engine.collision import box
-from engine.collision.collide import FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
-from engine.pack import KeptPack
+from physbench.engine.mathutil import quat_to_matrix
+from physbench.engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
+from physbench.engine.profile import Stage
+from physbench.engine.state import Contacts
+from physbench.engine.collision import box
+from physbench.engine.collision.collide import FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
+from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
            "static_row", "unsupported_pairs", "warm_up"]
@@ -224,7 +224,7 @@ def warm_up() -> None:
     shape, every pair, a plane and a static box."""
     from types import SimpleNamespace
 
-    from engine import broadstage
+    from physbench.engine import broadstage
 
     n = 4
     I = np.eye(3)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.collision.kernels import sphere_box1, sphere_plane1, sphere_sphere1
+from physbench.engine.collision.kernels import sphere_box1, sphere_plane1, sphere_sphere1
 
 
 @njit(cache=True)

@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.contact import linalg, propagate
-from engine.flight import q2m
-from engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
-from engine.contact.scratch import Scratch
-from engine.contact.topology import Topology
-from engine.state import Contacts
+from physbench.engine.contact import linalg, propagate
+from physbench.engine.flight import q2m
+from physbench.engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
+from physbench.engine.contact.scratch import Scratch
+from physbench.engine.contact.topology import Topology
+from physbench.engine.state import Contacts
 
 
 class ImpactKept:
@@ -240,7 +240,7 @@ def warm_up() -> None:
     inertias with the step's argument types (see engine/jit.py): one pair
     of two rows, with and without friction; and the topology's kernel
     (engine/contact/topology.py)."""
-    from engine.contact import topology
+    from physbench.engine.contact import topology
 
     topology.warm_up()
     i1 = np.zeros(1, np.int64)

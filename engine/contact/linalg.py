@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.contact.lu import inverse, lu_inplace, lu_skip_inplace, lu_solve, solve_batch  # noqa: F401 (re-exported)
+from physbench.engine.contact.lu import inverse, lu_inplace, lu_skip_inplace, lu_solve, solve_batch  # noqa: F401 (re-exported)
 
 #: Tikhonov regularisation of the direct start's normal matrix, relative to
 #: its largest diagonal entry (the dense and the sparse solve alike)

@@ -25,8 +25,8 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from engine.contact import linalg, sweeps, warm
-from engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
+from physbench.engine.contact import linalg, sweeps, warm
+from physbench.engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
 
 _EPS_REL = linalg.EPS_REL  # a module global: numba compiles it in as a constant
 

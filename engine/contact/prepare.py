@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.contact.sweeps import row_velocity
+from physbench.engine.contact.sweeps import row_velocity
 
 
 @njit(cache=True)

@@ -19,8 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.contact import linalg
-from engine.contact.rows import SLIP_TOL
+from physbench.engine.contact import linalg
+from physbench.engine.contact.rows import SLIP_TOL
 
 
 @njit(cache=True)

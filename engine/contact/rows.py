@@ -32,17 +32,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contact import linalg, prepare, sweeps
-from engine.contact.scratch import Scratch
-from engine.contact.topology import (  # noqa: F401  (the names rows.py had before the split)
+from physbench.engine.contact import linalg, prepare, sweeps
+from physbench.engine.contact.scratch import Scratch
+from physbench.engine.contact.topology import (  # noqa: F401  (the names rows.py had before the split)
     Topology,
     _greedy_colours,
     _pair_codes,
     _pair_codes_abs,
     colour_order,
 )
-from engine.mathutil import cross
-from engine.state import Contacts
+from physbench.engine.mathutil import cross
+from physbench.engine.state import Contacts
 
 TOUCH_TOL = 1e-6  # m: a contact whose gap is below this is touching
 DIRECT_MAX_ROWS = 400  # rows up to which the direct start is a dense LU solve; above, sparse (banded Cholesky per island)

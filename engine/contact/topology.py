@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.state import Contacts
+from physbench.engine.state import Contacts
 
 @njit(cache=True)
 def _greedy_colours(a, b, world, col):

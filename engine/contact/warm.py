@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from engine.contact.rows import Rows
-from engine.contact.scratch import Scratch
-from engine.pack import Pack
+from physbench.engine.contact.rows import Rows
+from physbench.engine.contact.scratch import Scratch
+from physbench.engine.pack import Pack
 
 _NO_I = np.zeros(0, np.int64)
 _NO_T = np.zeros((0, 2, 3))

@@ -27,9 +27,9 @@ import argparse
 import os
 import sys
 
-from contract.spec import SpecError
-from harness.cli.bench import cmd_bench
-from harness.cli.common import (
+from physbench.contract.spec import SpecError
+from physbench.harness.cli.bench import cmd_bench
+from physbench.harness.cli.common import (
     MAX_JOBS,
     MAX_RECORD_EVERY,
     MAX_REPEATS,
@@ -39,10 +39,10 @@ from harness.cli.common import (
     _positive_float,
     _seconds,
 )
-from harness.cli.info import cmd_engines, cmd_list, cmd_models
-from harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
-from harness.cli.run import cmd_run
-from harness.cli.trace import cmd_trace
+from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
+from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
+from physbench.harness.cli.run import cmd_run
+from physbench.harness.cli.trace import cmd_trace
 
 # build_parser binds each subcommand to the cmd_* name in this module at
 # call time, so a patched harness.cli.cmd_* is what runs
@@ -50,8 +50,8 @@ from harness.cli.trace import cmd_trace
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from adapters import engine_names
-    from harness.execute import DEFAULT_TIMEOUT_S
+    from physbench.adapters import engine_names
+    from physbench.harness.execute import DEFAULT_TIMEOUT_S
 
     ENGINES = engine_names()  # the shipped four and any named in PHYSBENCH_ADAPTERS
     timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
@@ -185,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from harness.execute import register_env_adapters
+    from physbench.harness.execute import register_env_adapters
 
     register_env_adapters()
     args = build_parser().parse_args(argv)

@@ -1,7 +1,7 @@
-"""``python -m harness.cli``: the ``physbench`` command."""
+"""``python -m physbench.harness.cli``: the ``physbench`` command."""
 
 import sys
 
-from harness.cli import main
+from physbench.harness.cli import main
 
 sys.exit(main())

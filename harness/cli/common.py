@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from contract.spec import parse_value
+from physbench.contract.spec import parse_value
 
 
 class UsageError(Exception):
@@ -122,16 +122,16 @@ def _fmt(v: Any) -> str:
 def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
     """The RunRequest of a command line, checked in this process before it
     goes to a worker: a bad spec, setting or phase is exit 2 here."""
-    from adapters import get_adapter
-    from harness.execute import RunRequest, request_scene
-    from contract.phase import PhaseError
+    from physbench.adapters import get_adapter
+    from physbench.harness.execute import RunRequest, request_scene
+    from physbench.contract.phase import PhaseError
 
     req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
     try:
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
-    from harness.runner import check_run_size
+    from physbench.harness.runner import check_run_size
 
     try:
         resolved = get_adapter(engine).resolve_settings(scene, settings)

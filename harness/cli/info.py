@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 
-from contract.spec import SpecError
-from harness.cli.common import UsageError, _fmt
+from physbench.contract.spec import SpecError
+from physbench.harness.cli.common import UsageError, _fmt
 
 
 def cmd_engines(args: argparse.Namespace) -> int:
-    from adapters import ENGINES, get_adapter
+    from physbench.adapters import ENGINES, get_adapter
 
     caps = []
     for name in ENGINES:
@@ -39,7 +39,7 @@ def cmd_engines(args: argparse.Namespace) -> int:
 
 def cmd_models(args: argparse.Namespace) -> int:
     """The reference models' declarations (the same text as docs/MODELS.md)."""
-    from harness.references import MODELS, describe
+    from physbench.harness.references import MODELS, describe
 
     if args.name is not None and args.name not in MODELS:
         raise UsageError(f"models: unknown model {args.name!r}; known: {', '.join(sorted(MODELS))}")
@@ -61,7 +61,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from contract.scene import load_scene, scenario_ids
+    from physbench.contract.scene import load_scene, scenario_ids
 
     for sid in scenario_ids():
         try:

@@ -6,11 +6,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, output_dir, output_file
+from physbench.harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, output_dir, output_file
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from harness.conformance import check_main
+    from physbench.harness.conformance import check_main
 
     output_file("--junit", args.junit)
     output_dir("--traces", args.traces)
@@ -22,7 +22,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from harness.sweep import sweep_main
+    from physbench.harness.sweep import sweep_main
 
     _scheduler_needs_dask(args)
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
@@ -31,8 +31,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_limits(args: argparse.Namespace) -> int:
-    from adapters import get_adapter
-    from harness.limits import LimitRequest, limits_main, parse_number
+    from physbench.adapters import get_adapter
+    from physbench.harness.limits import LimitRequest, limits_main, parse_number
 
     settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
 
@@ -56,7 +56,7 @@ def cmd_limits(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from harness.report import report_main
+    from physbench.harness.report import report_main
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
                        out=output_file("--out", args.out), suites=args.suites, target=args.target,

@@ -8,13 +8,13 @@ import json
 import sys
 from typing import Any
 
-from harness.cli.common import _fmt, _request, _split_sets, output_file
+from physbench.harness.cli.common import _fmt, _request, _split_sets, output_file
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from adapters import get_adapter
-    from harness.conformance import BAD
-    from harness.execute import run_isolated
+    from physbench.adapters import get_adapter
+    from physbench.harness.conformance import BAD
+    from physbench.harness.execute import run_isolated
 
     save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
@@ -24,7 +24,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     result = run_isolated(req)
     runs, outcomes = _run_checks(req, result, settings, args)
     if args.save:
-        from harness.results import write_rows
+        from physbench.harness.results import write_rows
 
         row = result.row()
         row["phase"] = float(args.phase)  # 0 = the scene as written
@@ -51,8 +51,8 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
     one phase already).  Returns (planned runs, outcomes)."""
     import dataclasses
 
-    from harness.conformance import evaluate_runs, scene_runs
-    from harness.execute import WorkerPool, request_scene, run_requests
+    from physbench.harness.conformance import evaluate_runs, scene_runs
+    from physbench.harness.execute import WorkerPool, request_scene, run_requests
 
     scene = request_scene(dataclasses.replace(req, phase=0.0))
     runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
@@ -95,7 +95,7 @@ def _print_result(result, outcomes=()) -> None:
     if outcomes:
         from rich.markup import escape
 
-        from harness.conformance import BAD, _fmt as fmt_value
+        from physbench.harness.conformance import BAD, _fmt as fmt_value
 
         c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
         for o in outcomes:

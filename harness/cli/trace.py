@@ -6,13 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from harness.cli.common import UsageError, _request, _split_sets, output_file
+from physbench.harness.cli.common import UsageError, _request, _split_sets, output_file
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
-    from adapters import ENGINES, get_adapter
-    from harness.execute import WorkerPool, request_scene, run_requests
-    from harness.trace.contacts import DEFAULT_CAP
+    from physbench.adapters import ENGINES, get_adapter
+    from physbench.harness.execute import WorkerPool, request_scene, run_requests
+    from physbench.harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
     if Path(args.scenario).is_dir():
@@ -29,8 +29,8 @@ def cmd_trace(args: argparse.Namespace) -> int:
     with WorkerPool(args.jobs) as pool:
         done = {id(req): res for req, res in run_requests(reqs, pool)}
     results = [done[id(r)] for r in reqs]
-    from harness.conformance import evaluate
-    from harness.trace import write_rrd
+    from physbench.harness.conformance import evaluate
+    from physbench.harness.trace import write_rrd
 
     if args.watch:
         write_rrd(args.output, scene, results)

@@ -73,22 +73,22 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.conformance.junit import write_junit
-from harness.conformance.plan import RUN_TIMEOUT_S, RunSpec, default_engines, evaluate_runs, plan, select_scenarios
-from harness.conformance.store import _now, _row, check_identity, open_check
-from harness.conformance.summary import exit_code, summarize
-from harness.conformance.traces import trace_failures
-from harness.conformance.verdicts import Outcome, verdicts_column
+from physbench.harness.conformance.junit import write_junit
+from physbench.harness.conformance.plan import RUN_TIMEOUT_S, RunSpec, default_engines, evaluate_runs, plan, select_scenarios
+from physbench.harness.conformance.store import _now, _row, check_identity, open_check
+from physbench.harness.conformance.summary import exit_code, summarize
+from physbench.harness.conformance.traces import trace_failures
+from physbench.harness.conformance.verdicts import Outcome, verdicts_column
 # the names other modules and the tests take from harness.conformance
 # (limits.py, limit_eval.py, points.py, cli/run.py, cli/trace.py; tests/test_conformance.py,
 # test_scenarios.py, test_own_scenes.py, test_execute.py, test_trace_*.py)
-from harness.conformance.plan import scene_runs  # noqa: F401
-from harness.conformance.store import save_rows  # noqa: F401
-from harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
+from physbench.harness.conformance.plan import scene_runs  # noqa: F401
+from physbench.harness.conformance.store import save_rows  # noqa: F401
+from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
                                           _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
                                           evaluate_check, hard_checks, run_verdicts, scene_columns, split_metric)
-from harness.execute import WorkerLost, execute_request, lost_result
-from harness.executors import make_executor
+from physbench.harness.execute import WorkerLost, execute_request, lost_result
+from physbench.harness.executors import make_executor
 
 
 def execute(spec: RunSpec):
@@ -154,10 +154,10 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
-    from harness.results import RESULTS_DIR, consolidate_parts
-    from harness.runner import RunResult
-    from contract.scene import resolve_scenario
-    from contract.spec import SpecError
+    from physbench.harness.results import RESULTS_DIR, consolidate_parts
+    from physbench.harness.runner import RunResult
+    from physbench.contract.scene import resolve_scenario
+    from physbench.contract.spec import SpecError
 
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()
@@ -191,7 +191,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
 
     refused: tuple = ()
     if executor == "dask":
-        from harness.dask_executor import EnvironmentRefused
+        from physbench.harness.dask_executor import EnvironmentRefused
 
         refused = (EnvironmentRefused,)
     try:

@@ -6,8 +6,8 @@ import io
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, _fmt
-from harness.results import write_text_atomic
+from physbench.harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, _fmt
+from physbench.harness.results import write_text_atomic
 
 
 def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:

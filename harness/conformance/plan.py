@@ -9,10 +9,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, describe_bound,
+from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, describe_bound,
                                           evaluate_check, hard_checks, scene_columns, split_metric)
-from harness.execute import DEFAULT_TIMEOUT_S, RunRequest
-from contract.scene import Check, Scene
+from physbench.harness.execute import DEFAULT_TIMEOUT_S, RunRequest
+from physbench.contract.scene import Check, Scene
 
 RUN_TIMEOUT_S = DEFAULT_TIMEOUT_S  # wall-clock budget per run (--timeout)
 
@@ -64,7 +64,7 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     the files' paths, anywhere on disk.  An entry that is neither raises
     SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
     (a spec that does not load is kept: it is reported, never dropped)."""
-    from contract.scene import load_scene, scenario_ids, spec_targets
+    from physbench.contract.scene import load_scene, scenario_ids, spec_targets
 
     if scenarios:
         ids: list[str] = []
@@ -89,7 +89,7 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
 
 
 def default_engines() -> list[str]:
-    from adapters import ENGINES
+    from physbench.adapters import ENGINES
 
     return list(ENGINES)
 
@@ -136,8 +136,8 @@ def plan(scenario_ids: list[str], engines: list[str],
     ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
     Two files with the same id (family.stem) raise SpecError: their rows
     could not be told apart."""
-    from contract.scene import load_scene, resolve_scenario
-    from contract.spec import SpecError, load_spec
+    from physbench.contract.scene import load_scene, resolve_scenario
+    from physbench.contract.spec import SpecError, load_spec
 
     runs: list[RunSpec] = []
     errors: list[Outcome] = []

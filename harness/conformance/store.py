@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.conformance.plan import RunSpec
+from physbench.harness.conformance.plan import RunSpec
 
 
 def _row(key: tuple, result: Any) -> dict[str, Any]:
@@ -25,7 +25,7 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
     """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
     (default results/check/) in one file; a failure to write is reported,
     not fatal.  (``check_main`` stores rows as they finish instead.)"""
-    from harness.results import RESULTS_DIR, write_rows
+    from physbench.harness.results import RESULTS_DIR, write_rows
 
     if not results:
         return None
@@ -49,8 +49,8 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
     kill and the rerun is not noticed), the engines, the scenario ids, the
     bytes of their spec files (sha256), the per-run budget, and the planned
     run keys."""
-    from harness.runner import commit_id
-    from contract.scene import resolve_scenario
+    from physbench.harness.runner import commit_id
+    from physbench.contract.scene import resolve_scenario
 
     h = hashlib.sha256()
     for sid in ids:
@@ -68,7 +68,7 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
     """The unfinished check under ``root`` to resume (same identity, see
     :func:`check_identity`, not locked by a running check), or a new one.
     Returns (harness.results.PartsDir keyed by ``run_key``, resumed)."""
-    from harness.results import PartsDir, SCHEMA_VERSION, try_lock, unfinished_dirs, write_json_atomic
+    from physbench.harness.results import PartsDir, SCHEMA_VERSION, try_lock, unfinished_dirs, write_json_atomic
 
     if resume:
         for d, man in unfinished_dirs(root):

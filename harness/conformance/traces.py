@@ -8,11 +8,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.conformance.plan import RunSpec
-from harness.conformance.verdicts import ERROR, FAIL, XFAIL, Outcome, evaluate_check, split_metric
-from harness.execute import RunRequest
-from harness.executors import make_executor
-from contract.scene import Check
+from physbench.harness.conformance.plan import RunSpec
+from physbench.harness.conformance.verdicts import ERROR, FAIL, XFAIL, Outcome, evaluate_check, split_metric
+from physbench.harness.execute import RunRequest
+from physbench.harness.executors import make_executor
+from physbench.contract.scene import Check
 
 
 def deciding_run(spec: "RunSpec", check: Check, results: dict[tuple, Any]) -> tuple[dict[str, Any], float]:
@@ -38,9 +38,9 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
     (harness.trace.cases.case_name) goes to ``traces_dir``; each outcome
     gets its file in ``Outcome.trace``.  Load errors have no run and no
     trace.  A trace that cannot be written is reported, never fatal."""
-    from harness.execute import request_scene, run_requests
-    from harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
-    from harness.trace.contacts import DEFAULT_CAP
+    from physbench.harness.execute import request_scene, run_requests
+    from physbench.harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
+    from physbench.harness.trace.contacts import DEFAULT_CAP
 
     base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks}
     cases: dict[str, tuple] = {}

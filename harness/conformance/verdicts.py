@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from fractions import Fraction
 from typing import Any, Iterable
 
-from harness import status as st
-from harness.references import undefined_reason
-from contract.scene import Check, Scene
+from physbench.harness import status as st
+from physbench.harness.references import undefined_reason
+from physbench.contract.scene import Check, Scene
 
 HARD_DT_LABEL = "1/30"
 BASE = "base"  # name standing for the base scenario in a check's `variants`
@@ -48,7 +48,7 @@ class Outcome:
         """The outcome as stored in a row's ``checks`` column and printed by
         ``physbench run --json``; ``trace``: the absolute path of its
         ``.rrd`` or "" (docs/TRACES.md)."""
-        from harness.runner import _jsonable
+        from physbench.harness.runner import _jsonable
 
         return {"metric": self.metric, "outcome": self.outcome, "value": _jsonable(self.value),
                 "threshold": self.threshold, "message": self.message, "trace": self.trace}

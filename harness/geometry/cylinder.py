@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.geometry.exact import _seg_cyl_distance
-from harness.geometry.placed import Placed
-from harness.geometry.search import (
+from physbench.harness.geometry.exact import _seg_cyl_distance
+from physbench.harness.geometry.placed import Placed
+from physbench.harness.geometry.search import (
     _box_vertices,
     _circle_closest_to_origin,
     _circle_min,
@@ -18,8 +18,8 @@ from harness.geometry.search import (
     _rims,
     _search,
 )
-from harness.geometry.support import _phi
-from harness.geometry.vector import _unit_or
+from physbench.harness.geometry.support import _phi
+from physbench.harness.geometry.vector import _unit_or
 
 def _k_box_cylinder(Bx: Placed, Y: Placed) -> np.ndarray:
     """Boundary pieces of Bx - Y and their normals: box faces (+-u_k), caps

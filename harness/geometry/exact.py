@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.geometry.placed import Placed
-from harness.geometry.vector import _dot, _golden, _norm
+from physbench.harness.geometry.placed import Placed
+from physbench.harness.geometry.vector import _dot, _golden, _norm
 
 _SEG_ITERS = 60       # golden-section steps for segment-vs-convex distances
 

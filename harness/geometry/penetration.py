@@ -9,11 +9,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contract.scene import Body, Scene
-from harness.geometry.cull import _ALL_PAIRS_MAX, _body_events, _radius_classes
-from harness.geometry.dispatch import PAIR_KERNELS, pair_depth
-from harness.geometry.placed import SHAPES, Placed, _ORDER, _placed_static_box, _static_rotation
-from harness.geometry.support import plane_gap
+from physbench.contract.scene import Body, Scene
+from physbench.harness.geometry.cull import _ALL_PAIRS_MAX, _body_events, _radius_classes
+from physbench.harness.geometry.dispatch import PAIR_KERNELS, pair_depth
+from physbench.harness.geometry.placed import SHAPES, Placed, _ORDER, _placed_static_box, _static_rotation
+from physbench.harness.geometry.support import plane_gap
 
 @dataclass
 class Penetration:

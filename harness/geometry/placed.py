@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from contract.rotation import quat_to_matrix, rotation_matrix
-from contract.scene import Body, Static
+from physbench.contract.rotation import quat_to_matrix, rotation_matrix
+from physbench.contract.scene import Body, Static
 
 #: body shapes in the canonical order of PAIR_KERNELS keys
 SHAPES = ("sphere", "capsule", "box", "cylinder")

@@ -10,9 +10,9 @@ from typing import Callable
 
 import numpy as np
 
-from harness.geometry.placed import Placed
-from harness.geometry.support import _phi
-from harness.geometry.vector import _dot, _golden, _norm, _perp_basis, _sq, _unit_or
+from physbench.harness.geometry.placed import Placed
+from physbench.harness.geometry.support import _phi
+from physbench.harness.geometry.vector import _dot, _golden, _norm, _perp_basis, _sq, _unit_or
 
 _CIRCLE_SAMPLES = 72  # samples on a great circle of normals (5 degrees apart)
 _CIRCLE_REFINE = 3    # lowest sampled local minima refined per circle

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from contract.scene import Body, Static
-from harness.geometry.placed import Placed, _placed_body
-from harness.geometry.vector import _norm
+from physbench.contract.scene import Body, Static
+from physbench.harness.geometry.placed import Placed, _placed_body
+from physbench.harness.geometry.vector import _norm
 
 def _support(G: Placed, n: np.ndarray) -> np.ndarray:
     """h_G(n) = max over the shape of n . (x - c), for unit n (N, M, 3) -> (N, M)."""

@@ -23,10 +23,10 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from contract.models import MODELS, ReferenceError, get_model
+from physbench.contract.models import MODELS, ReferenceError, get_model
 
 if TYPE_CHECKING:
-    from contract.scene import Scene
+    from physbench.contract.scene import Scene
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from harness.metrics import energy_series, kinetic_energy
-from harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, constant,
+from physbench.harness.metrics import energy_series, kinetic_energy
+from physbench.harness.references import (TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, constant,
                                 divide, trajectory_metrics)
-from harness.references.collision import TwoBodyCollision
+from physbench.harness.references.collision import TwoBodyCollision
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
+from physbench.harness.references import TRAJECTORY, Param, ReferenceError, ReferenceModel, ReferenceSeries, trajectory_metrics
 
 
 class TwoBodyCollision(ReferenceModel):

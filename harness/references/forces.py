@@ -50,7 +50,7 @@ import math
 
 import numpy as np
 
-from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant,
+from physbench.harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant,
                                 trajectory_metrics)
 
 _COLLINEAR = 1e-9  # relative tolerance for "along the line"

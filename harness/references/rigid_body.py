@@ -51,8 +51,8 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
-from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
+from physbench.contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
+from physbench.harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
                                 fit_slope, trajectory_metrics)
 
 RTOL = 1e-10

@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from contract.rotation import quat_rotate
-from harness.references import TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant, trajectory_metrics
+from physbench.contract.rotation import quat_rotate
+from physbench.harness.references import TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries, constant, trajectory_metrics
 
 RESIDUAL_WINDOW = 0.10  # last fraction of the run that residual_velocity looks at
 

@@ -41,8 +41,8 @@ import math
 
 import numpy as np
 
-from contract.rotation import quat_to_matrix
-from harness.references import Param, ReferenceError, ReferenceModel, ReferenceSeries
+from physbench.contract.rotation import quat_to_matrix
+from physbench.harness.references import Param, ReferenceError, ReferenceModel, ReferenceSeries
 
 
 class NoTunnelling(ReferenceModel):

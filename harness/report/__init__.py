@@ -41,18 +41,18 @@ import os
 import sys
 from pathlib import Path
 
-from harness.report.analysis import (breaking_points, failed_checks, failing_checks, fmt_limit, frontier,
+from physbench.harness.report.analysis import (breaking_points, failed_checks, failing_checks, fmt_limit, frontier,
                                      hard_scenarios, latest_points, meets_checks, phase_table, stability_matrix,
                                      work_precision)
-from harness.report.cost import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
+from physbench.harness.report.cost import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
                                  cost_to_target, family, grid_ends, ladder)
-from harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_SPREADS, history, machine_shifts,
+from physbench.harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_SPREADS, history, machine_shifts,
                                     pooled_noise, regressions, scene_change_lines, scene_changes)
-from harness.report.loading import load_results
-from harness.report.page import render_html
-from harness.report.plots import ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_history, plot_work_precision
-from harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
-from harness.results import RESULTS_DIR, write_text_atomic
+from physbench.harness.report.loading import load_results
+from physbench.harness.report.page import render_html
+from physbench.harness.report.plots import ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_history, plot_work_precision
+from physbench.harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
+from physbench.harness.results import RESULTS_DIR, write_text_atomic
 
 _normalise = normalise  # the name older callers use
 

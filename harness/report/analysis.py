@@ -17,9 +17,9 @@ from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from contract.phase import wilson_interval
-from harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, fmt, settings_label
-from harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
+from physbench.contract.phase import wilson_interval
+from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, fmt, settings_label
+from physbench.harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
                             UNSUPPORTED, XFAIL)
 
 #: the row's verdicts that mean "a check not met": an expected failure is
@@ -309,7 +309,7 @@ def row_verdicts(r: Mapping[str, Any]) -> list[dict] | None:
         return v
     if "verdicts" in r:  # normalised: None means not recorded
         return None
-    from harness.report.rows import _json_list
+    from physbench.harness.report.rows import _json_list
 
     return _json_list(r.get("checks"))
 

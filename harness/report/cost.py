@@ -12,8 +12,8 @@ from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from harness.report.analysis import _good, _targets, _unshifted, latest_points, line_settings
-from harness.report.rows import _ensure, _finite, fmt, settings_label
+from physbench.harness.report.analysis import _good, _targets, _unshifted, latest_points, line_settings
+from physbench.harness.report.rows import _ensure, _finite, fmt, settings_label
 
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds

@@ -11,9 +11,9 @@ from typing import Any, Iterable
 
 import pandas as pd
 
-from harness.report.rows import _missing, _num, fmt, normalise
-from harness.results import RESULTS_DIR, SCHEMA_VERSION
-from harness.sweep_store import sweep_files
+from physbench.harness.report.rows import _missing, _num, fmt, normalise
+from physbench.harness.results import RESULTS_DIR, SCHEMA_VERSION
+from physbench.harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
 

@@ -15,16 +15,16 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
+from physbench.harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
                                      stability_matrix, work_precision)
-from harness.report.cost import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, at_a_glance, cost_to_target,
+from physbench.harness.report.cost import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, at_a_glance, cost_to_target,
                                  ladder)
-from harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
+from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
-from harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
-from harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
-from harness.status import BAD_OUTCOMES, OK
+from physbench.harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
+from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
+from physbench.harness.status import BAD_OUTCOMES, OK
 
 MAX_SMALL_MULTIPLES = 6
 
@@ -551,7 +551,7 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
     warnings = list(dict.fromkeys(warnings))
     generated = generated or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     if physbench_commit is None:
-        from harness.runner import commit_id
+        from physbench.harness.runner import commit_id
 
         physbench_commit = commit_id()
     where = f" under <code>{_e(results_dir)}</code>" if results_dir is not None else ""

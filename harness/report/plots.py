@@ -11,9 +11,9 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from harness.report.analysis import frontier
-from harness.report.rows import ERROR_FLOOR, _finite, settings_label
-from harness.status import OK
+from physbench.harness.report.analysis import frontier
+from physbench.harness.report.rows import ERROR_FLOOR, _finite, settings_label
+from physbench.harness.status import OK
 
 
 def _figure(w: float, h: float):

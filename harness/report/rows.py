@@ -20,8 +20,8 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from harness.status import OK
-from harness.sweep_store import SWEEP_COLUMNS
+from physbench.harness.status import OK
+from physbench.harness.sweep_store import SWEEP_COLUMNS
 
 ERROR_FLOOR = 1e-16  # exact results (error 0) are drawn at this floor on log axes
 BASE_LABEL = "base"

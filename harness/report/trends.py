@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pandas as pd
 
-from harness.report.analysis import _sweeps
-from harness.report.rows import ERROR_FLOOR, _ensure, settings_label
-from harness.status import OK
+from physbench.harness.report.analysis import _sweeps
+from physbench.harness.report.rows import ERROR_FLOOR, _ensure, settings_label
+from physbench.harness.status import OK
 
 NOISE_FLOOR = 0.10  # relative change below which nothing is ever flagged
 NOISE_SPREADS = 3.0  # ... and the multiple of the repeats' relative spread (and of the nightly scatter)

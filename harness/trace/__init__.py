@@ -11,8 +11,8 @@ Modules: ``writer`` (layout, bodies, statics, series, :func:`write_rrd`),
 numpy and text), ``contacts`` (the harness's deepest points), ``annotate``
 (logging the diagnosis), ``cases`` (the check step)."""
 
-from harness.trace.blueprint import default_blueprint, family_blueprint
-from harness.trace.writer import frame_steps, plane_patch, quat_z_to, run_labels, scene_extent, write_rrd
+from physbench.harness.trace.blueprint import default_blueprint, family_blueprint
+from physbench.harness.trace.writer import frame_steps, plane_patch, quat_z_to, run_labels, scene_extent, write_rrd
 
 __all__ = ["write_rrd", "scene_extent", "quat_z_to", "plane_patch",
            "default_blueprint", "family_blueprint", "run_labels", "frame_steps"]

@@ -10,10 +10,10 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
-from contract.scene import Scene
-from harness.trace import diagnose as dg
-from harness.trace.channels import _send_scalars, _time_columns, body_entity
-from harness.trace.contacts import DEFAULT_CAP, harness_contacts
+from physbench.contract.scene import Scene
+from physbench.harness.trace import diagnose as dg
+from physbench.harness.trace.channels import _send_scalars, _time_columns, body_entity
+from physbench.harness.trace.contacts import DEFAULT_CAP, harness_contacts
 
 GHOST_COLOR = (60, 200, 90, 90)  # translucent green
 HARNESS_CONTACT_COLOR = (230, 30, 30, 255)
@@ -182,7 +182,7 @@ class Diagnosis:
         run's harness.geometry.Penetration (None without contact);
         ``energy``: harness.metrics.relative_energy of ``tr``, computed once
         by the writer."""
-        from harness.metrics import momenta
+        from physbench.harness.metrics import momenta
 
         lab = engine_path.rsplit("/", 1)[1]
         P, L = momenta(scene, tr)

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
-from contract.scene import Scene
+from physbench.contract.scene import Scene
 
 TRACED_OUTCOMES = ("FAIL", "XFAIL", "ERROR")
 
@@ -39,7 +39,7 @@ def write_case_trace(out_dir: str | Path, scene: Scene, results: Sequence, outco
     """Write the diagnosing trace of one case: ``results`` (RunResults with
     traces; engine contacts where recorded) of ``scene`` with the case's
     ``outcomes``.  Returns the path written."""
-    from harness.trace.writer import write_rrd
+    from physbench.harness.trace.writer import write_rrd
 
     results = list(results)
     if name is None:

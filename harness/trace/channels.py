@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from contract.scene import Body
+from physbench.contract.scene import Body
 
 #: children of an engine's entity that are not bodies
 RESERVED_CHILDREN = ("static", "status", "contacts", "engine_contacts")

@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.geometry import Placed, _phi, _placed_body, _placed_static_box
-from contract.scene import Scene
+from physbench.harness.geometry import Placed, _phi, _placed_body, _placed_static_box
+from physbench.contract.scene import Scene
 
 DEFAULT_CAP = 32  # contact rows per frame kept in a trace
 _N_SPREAD = 128
@@ -113,7 +113,7 @@ def harness_contacts(scene: Scene, trace, cap: int = DEFAULT_CAP, pen=None) -> l
     docstring).  ``pen``: a :class:`harness.geometry.Penetration` of this
     trace if the caller has one."""
     if pen is None:
-        from harness.geometry import measure_penetration
+        from physbench.harness.geometry import measure_penetration
 
         pen = measure_penetration(scene, trace)
     ok = np.isfinite(pen.depths) & (pen.depths > 0)

@@ -2,7 +2,7 @@
 diagnosing write, side by side in one process, per engine (docs/TRACES.md,
 "Cost").
 
-    python -m harness.trace.cost [--scenario stacking.column_10] [--duration 10]
+    python -m physbench.harness.trace.cost [--scenario stacking.column_10] [--duration 10]
         [--repeats 5] [--engines mujoco,pybullet,pymunk,reference] [--out DIR]
 
 Every repeat runs each engine's plain run, traced run (engine contacts
@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from contract.scene import load_scene
+from physbench.contract.scene import load_scene
 
 
 def _cpu(fn):
@@ -37,9 +37,9 @@ def measure(scenario: str = "stacking.column_10", duration: float = 10.0, repeat
     ``write_rrd``, and of a plain-trace write; the first write in the
     process (rerun's lazy imports); frames, engine contact rows and the
     .rrd size (bytes)."""
-    from harness.runner import run
-    from harness.trace import write_rrd
-    from harness.trace.contacts import DEFAULT_CAP
+    from physbench.harness.runner import run
+    from physbench.harness.trace import write_rrd
+    from physbench.harness.trace.contacts import DEFAULT_CAP
 
     scene = load_scene(scenario, overrides={"scenario.duration": duration})
     tmp = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix="trace_cost_"))
@@ -79,7 +79,7 @@ def markdown(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m harness.trace.cost", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m physbench.harness.trace.cost", description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenario", default="stacking.column_10")
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--repeats", type=int, default=5)

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from contract.scene import Scene
+from physbench.contract.scene import Scene
 
 REST_SPEED = 1e-3  # m/s: a body is at rest when |v| and |w| x bounding radius stay below this
 MAX_EVENTS = 200  # per run: a trace marks where to look, it is not a log
@@ -35,7 +35,7 @@ def reference_model(scene: Scene):
     not fit: the metrics say why)."""
     if not scene.reference_model:
         return None
-    from harness.references import get_model
+    from physbench.harness.references import get_model
 
     try:
         return get_model(scene.reference_model)(scene)
@@ -144,7 +144,7 @@ def first_above(series: np.ndarray, bound: float) -> int | None:
 def divergence_frame(trace) -> int | None:
     """First frame with a non-finite or runaway state (the runner's bounds),
     or None."""
-    from harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
+    from physbench.harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
 
     with np.errstate(invalid="ignore"):
         bad = ~(np.abs(trace.pos) <= RUNAWAY_POSITION).all(axis=(1, 2))
@@ -194,8 +194,8 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
     caller has it (computed here when None).
     Metrics that are NaN for the scene (energy_drift of a dissipative scene,
     momentum drift under an external force) have no series."""
-    from contract.metric_defs import dissipation
-    from harness.metrics import momentum_drift_series, relative_energy
+    from physbench.contract.metric_defs import dissipation
+    from physbench.harness.metrics import momentum_drift_series, relative_energy
 
     out: dict[str, np.ndarray] = {}
     if penetration is not None:

@@ -70,13 +70,13 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
-from harness.metrics import relative_energy
-from harness.trace.annotate import DEFAULT_CAP, Diagnosis
-from harness.trace.blueprint import default_blueprint, family_blueprint
-from harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
+from physbench.harness.metrics import relative_energy
+from physbench.harness.trace.annotate import DEFAULT_CAP, Diagnosis
+from physbench.harness.trace.blueprint import default_blueprint, family_blueprint
+from physbench.harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
 
-from contract.rotation import quat_rotate, wxyz_to_xyzw
-from contract.scene import Body, Scene, Static
+from physbench.contract.rotation import quat_rotate, wxyz_to_xyzw
+from physbench.contract.scene import Body, Scene, Static
 
 DRAWN_STATUSES = ("ok", "diverged")
 MODEL_PATH = "/world/model"
@@ -323,7 +323,7 @@ def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene
     if scene.has("contact"):
         pen = tr.penetration
         if pen is None or pen.n_frames != F:
-            from harness.geometry import measure_penetration
+            from physbench.harness.geometry import measure_penetration
 
             pen = measure_penetration(scene, tr)
         _send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())

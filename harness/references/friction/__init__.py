@@ -44,6 +44,6 @@ here).
 
 from __future__ import annotations
 
-from harness.references.friction.rolling import RollingCylinder, RollingResistance, RollingSphere
-from harness.references.friction.sliding import InclineBlock, SlideToRest
-from harness.references.friction.spin import SpinToRest
+from physbench.harness.references.friction.rolling import RollingCylinder, RollingResistance, RollingSphere
+from physbench.harness.references.friction.sliding import InclineBlock, SlideToRest
+from physbench.harness.references.friction.spin import SpinToRest

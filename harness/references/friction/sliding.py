@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide, fit_slope
-from harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _window
+from physbench.harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide, fit_slope
+from physbench.harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _window
 
 
 class InclineBlock(_SlopeModel):

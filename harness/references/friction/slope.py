@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from contract.rotation import quat_to_matrix
-from harness.references import (BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, fit_slope,
+from physbench.contract.rotation import quat_to_matrix
+from physbench.harness.references import (BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, fit_slope,
                                 trajectory_metrics)
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits

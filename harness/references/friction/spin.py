@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
-from contract.rotation import quat_rotate, quat_to_matrix
-from harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
+from physbench.contract.rotation import quat_rotate, quat_to_matrix
+from physbench.harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
                                 divide, fit_slope, trajectory_metrics)
-from harness.references.friction.slope import SKIP_FRACTION
+from physbench.harness.references.friction.slope import SKIP_FRACTION
 
 
 class SpinToRest(ReferenceModel):
