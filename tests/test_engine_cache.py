@@ -63,3 +63,26 @@ def test_kernels_are_cached_under_the_digest_directory():
 def test_user_cache_dir_is_the_base(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert cache.cache_dir() == tmp_path / f"numba-{cache.source_digest()}"
+
+
+def test_the_cache_does_not_depend_on_where_the_engine_lies():
+    """A kernel's cache path and stamp name no absolute path and no file
+    time: an installed wheel, a CI runner's fresh workspace and a checkout
+    with the same engine sources share one cache (issue 39)."""
+    from physbench.engine.contact import phases
+
+    impl = phases.solve_stage._cache._impl
+    loc = impl.locator
+    assert type(loc).__name__ == "EngineCacheLocator"
+    assert Path(loc.get_cache_path()) == cache.cache_dir() / "contact"
+    assert str(cache.ROOT) not in loc.get_cache_path()
+    assert loc.get_source_stamp() == cache.source_digest()
+    # the same kernel file under another root maps to the same place
+    other = type(loc).from_function(phases.solve_stage.py_func, str(cache.ROOT / "contact" / "phases.py"))
+    assert other.get_cache_path() == loc.get_cache_path()
+    assert type(loc).from_function(phases.solve_stage.py_func, "/elsewhere/x.py") is None
+
+
+def test_nothing_is_cached_inside_the_package(monkeypatch):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert cache.ROOT not in cache.cache_dir().parents
