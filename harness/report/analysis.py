@@ -526,9 +526,10 @@ def unexpected_failures(df: pd.DataFrame, runs: pd.DataFrame | None = None) -> p
     variant, engine and metric; the columns of :func:`failing_checks`.
 
     ``attrs['earlier']``: the bad verdicts of :func:`failing_checks` (the
-    latest verdict per case over every check file) that come from an
-    earlier run of their engine, which the latest run did not repeat: a
-    small check after a full one leaves them standing."""
+    latest verdict per case and machine over every check file) that come
+    from an earlier run of their engine and whose case (scenario, variant,
+    dt) the engine's latest run did not repeat on any machine: a small
+    check after a full one leaves them standing."""
     df = _ensure(df)
     if runs is None:
         runs = latest_check_runs(df)
@@ -540,10 +541,14 @@ def unexpected_failures(df: pd.DataFrame, runs: pd.DataFrame | None = None) -> p
     c = df[(df["source"] == "check").to_numpy()
            & np.array([latest.get(e) == f for e, f in zip(df["engine"], df["_file"])], dtype=bool)]
     out, _ = _verdict_table(c, BAD_OUTCOMES)
+    # a case the engine's latest run repeated (same scenario, variant, dt;
+    # on any machine) is judged by that run
+    repeated = {(r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) for r in c.to_dict("records")}
     fc = failing_checks(df)
-    earlier = fc[fc["outcome"].isin(BAD_OUTCOMES).to_numpy()
-                 & np.array([latest.get(e) != f for e, f in zip(fc["engine"], fc["check_file"])], dtype=bool)]
-    earlier = earlier.reset_index(drop=True)
+    keep = [latest.get(r["engine"]) != r["check_file"]
+            and (r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) not in repeated
+            for r in fc.to_dict("records")]
+    earlier = fc[fc["outcome"].isin(BAD_OUTCOMES).to_numpy() & np.array(keep, dtype=bool)].reset_index(drop=True)
     out.attrs["earlier"] = earlier
     return out
 

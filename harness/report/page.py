@@ -46,7 +46,7 @@ th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
 .incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:100%}
 .wp img,.hist img{max-width:100%}figure.hist{margin:1em 0}figcaption{font-size:.8em;color:#444}
-.cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
+.cell{font-size:.8em;white-space:nowrap;min-width:13em}.cell .wrap{white-space:normal;overflow-wrap:anywhere}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
 details{margin:.5em 0}summary{cursor:pointer}details details{margin-left:1em}
 code{background:#f4f4f4;padding:0 .2em}
 """
@@ -288,7 +288,17 @@ def _runs_html(runs: pd.DataFrame) -> str:
         attrs.append(f"data-engine='{_e(r['engine'])}'")
     several = runs["check_run"].nunique() > 1
     names = {"other": "other", "no_verdict": "no verdict"}
-    return ("<p class='note'>Each engine's latest <code>physbench check</code> run (one check file is one run"
+    failed = [r["engine"] for r in runs.to_dict("records") if r["passed"] is False]
+    unknown = [r["engine"] for r in runs.to_dict("records") if r["passed"] is None]
+    if failed:
+        answer = (f"<p class='bad'>No: the latest run of {len(failed)} of {len(runs)} engine(s) "
+                  f"({_e(', '.join(failed))}) has unexpected failures.</p>")
+    elif unknown:
+        answer = (f"<p class='note'>No verdict recorded for {_e(', '.join(unknown))}; the other engines' latest "
+                  "runs passed.</p>")
+    else:
+        answer = f"<p class='good'>Yes: the latest run of every engine ({len(runs)}) passed.</p>"
+    return (answer + "<p class='note'>Each engine's latest <code>physbench check</code> run (one check file is one run"
             + ("; the engines' latest runs differ" if several else "") + "): the verdicts it recorded, one per "
             "check and case. It passed when none is FAIL, XPASS or ERROR; an XFAIL is a known limitation "
             "(listed, folded, under <a href='#failing-checks'>Failing checks</a>).</p>"
@@ -454,7 +464,7 @@ def _stability_html(sm: pd.DataFrame) -> str:
         supported = r["points"] - r["unsupported"]
         txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ran &amp; stayed finite",
                f"<b>{r['met_checks']}/{r['points']}</b> met its checks"
-               + (f" <span class='bad'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
+               + (f" <span class='bad wrap'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
                   if r["checks_failed"] else "")]
         if r["no_verdict"]:
             txt.append(f"{r['no_verdict']} with no verdict recorded")
@@ -537,6 +547,12 @@ def _trace_link(trace: str, page_dir: Path | None) -> str:
     return f"<a href='{_e(href)}'><code>{_e(Path(trace).name)}</code></a>"
 
 
+def _run_cell(r: Mapping[str, Any]) -> str:
+    """The check run a verdict comes from (its file's stem) and the machine."""
+    run = Path(r["check_file"]).stem if r["check_file"] else "-"
+    return f"<code>{_e(run)}</code><br><span class='note'>{_e(r['machine_id'])}</span>"
+
+
 def _xfail_html(xf: pd.DataFrame, page_dir: Path | None) -> str:
     """The expected failures, folded: one closed block, inside it one closed
     block per engine, its rows grouped by scenario, each with its measured
@@ -573,15 +589,16 @@ def _failing_html(fc: pd.DataFrame, page_dir: Path | None = None) -> str:
     for r in bad.to_dict("records"):
         rows.append([_case(r), _engine(r["engine"]), f"<code>{_e(r['metric'])}</code>",
                      f"<span class='bad'>{_e(r['outcome'])}</span>", _e(fmt(r["value"], 4)),
-                     _e(r["threshold"] or "-"), _e(r["reason"][:400]), _trace_link(r["trace"], page_dir)])
+                     _e(r["threshold"] or "-"), _e(r["reason"][:400]), _trace_link(r["trace"], page_dir),
+                     _run_cell(r)])
         attrs.append(f"data-outcome='{_e(r['outcome'])}'")
     n_bad = len(bad)
-    table = (_table(["case", "engine", "metric", "outcome", "value", "threshold", "reason", "trace"], rows,
+    table = (_table(["case", "engine", "metric", "outcome", "value", "threshold", "reason", "trace", "run"], rows,
                     raw=True, row_attr=attrs) if rows else
              "<p class='good'>No FAIL, XPASS or ERROR.</p>")
     return (old + f"<p class='note'>{n_bad} failing verdict(s) (FAIL, XPASS, ERROR) and {len(fc) - n_bad} expected "
             "failure(s) (XFAIL) in the latest <code>physbench check</code> rows (the latest verdict of each case "
-            "over every check run), as each row recorded them (value against the threshold of that day); the "
+            "on each machine over every check run), as each row recorded them (value against the threshold of that day); the "
             "expected failures are folded below, per engine and scenario. Trace: the case's <code>.rrd</code> "
             "from <code>physbench check --traces DIR</code> (open with <code>rerun</code>).</p>"
             + table + _xfail_html(fc[fc["outcome"] == XFAIL], page_dir))
