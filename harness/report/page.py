@@ -302,8 +302,8 @@ def _runs_html(runs: pd.DataFrame) -> str:
             + ("; the engines' latest runs differ" if several else "") + "): the verdicts it recorded, one per "
             "check and case. It passed when none is FAIL, XPASS or ERROR; an XFAIL is a known limitation "
             "(listed, folded, under <a href='#failing-checks'>Failing checks</a>).</p>"
-            + _table(["engine", "latest run"] + list(OUTCOMES) + [names[k] for k in extra]
-                     + ["commit", "machine", "date", "run"], rows, raw=True, row_attr=attrs))
+            + _table(["engine", "verdict"] + list(OUTCOMES) + [names[k] for k in extra]
+                     + ["commit", "machine", "date", "check run"], rows, raw=True, row_attr=attrs))
 
 
 def _value_vs(r: Mapping[str, Any]) -> str:
