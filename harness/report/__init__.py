@@ -6,17 +6,18 @@ Input (see results/README.md and docs/REPORT.md):
   (consolidated) and ``results/sweeps/<machine-id>/<suite>/<sweep_id>/part-*.parquet``
   (a sweep still running or killed: read, and marked *incomplete*);
 - conformance rows, ``results/check/*.parquet`` (``physbench check``), used
-  for the stability matrix.
+  for at a glance, the stability matrix and the failing checks.
 
 Sections: at a glance (three questions answered from whatever rows exist:
 did each engine's latest ``physbench check`` run pass, with its verdict
 counts, commit, machine and date; what failed unexpectedly, FAIL, XPASS
 and ERROR with value against threshold and trace; what accuracy costs, per
 scenario family the cheapest engine to reach each accuracy of the ladder
-1e-2 .. 1e-9 and each engine's breaking points), header (machines, commits, suites, sweeps, engine versions), work-precision
-diagrams (a frontier per engine, one colour per engine in every plot), cost
-to reach each rung of the accuracy ladder and each scenario's own target,
-breaking points (``physbench limits`` / ``[[limit]]`` rows), stability matrix
+1e-2 .. 1e-9 and each engine's breaking points), header (machines,
+commits, suites, sweeps, engine versions), work-precision diagrams (a
+frontier per engine, one colour per engine in every plot), cost to reach
+each rung of the accuracy ladder and each scenario's own target, breaking
+points (``physbench limits`` / ``[[limit]]`` rows), stability matrix
 ("ran and stayed finite" apart from "met its checks"), failing checks (the
 latest check's FAIL, XPASS, ERROR and XFAIL verdicts with value, threshold,
 reason and a link to the case's ``.rrd`` trace; the XFAILs folded per engine
@@ -29,9 +30,10 @@ The report reads rows only: thresholds, verdicts and tags are the ones each
 row was written with (harness.report.rows); old rows without them show
 "no verdict recorded", never re-judged against today's scenarios.
 
-The page has no external assets and no JavaScript; every table and plot
-fits 1280-1600 px windows (a wide table scrolls inside its own box): plots are matplotlib (Agg)
-PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are HTML.
+The page has no external assets and no JavaScript: plots are matplotlib
+(Agg) PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are
+HTML.  Every table and plot fits 1280-1600 px windows (a wide table scrolls
+inside its own box).
 
 The package, by seam: ``loading`` (the only module that reads files),
 ``rows`` (value helpers and the one normaliser of stored rows), ``analysis``

@@ -1,7 +1,11 @@
 """The report's HTML: one self-contained page (no external assets, no
 JavaScript: plots are base64 ``data:`` PNGs, styles inline) from the
 report's frame, its analyses and its figures.  Every cell's text is
-escaped."""
+escaped.  Order: one line naming what was left out (only when rows were),
+At a glance (harness.report.glance.first_screen), the sections, Data (what
+reading the rows found), footer.  Every table sits in its own box that
+scrolls sideways when the table is wider than the column, so the page never
+does (tests/test_report_browser.py measures it at 1280, 1400 and 1600 px)."""
 
 from __future__ import annotations
 
@@ -18,8 +22,7 @@ import pandas as pd
 from physbench.harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
                                               stability_matrix, work_precision)
 from physbench.harness.report.glance import first_screen, left_out, xfail_total
-from physbench.harness.report.cost import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target,
-                                 ladder)
+from physbench.harness.report.cost import RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target
 from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
