@@ -609,6 +609,8 @@ def test_empty_results_dir_writes_a_page_that_says_so(tmp_path, capsys):
     assert rp.report_main(tmp_path / "does_not_exist", out=out) == 1
     page = out.read_text()
     assert "No results found" in page and '<section id="history">' in page
+    sm = json.loads((tmp_path / "summary.json").read_text())  # beside the page, saying there is nothing
+    assert sm["rows"] == {"check": 0, "sweep": 0} and sm["conformance"]["passed"] is None and sm["ladder"] == []
     captured = capsys.readouterr()
     assert str(out) in captured.out and "no results" in captured.err
     (tmp_path / "empty" / "sweeps").mkdir(parents=True)
