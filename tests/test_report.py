@@ -609,6 +609,8 @@ def test_empty_results_dir_writes_a_page_that_says_so(tmp_path, capsys):
     assert rp.report_main(tmp_path / "does_not_exist", out=out) == 1
     page = out.read_text()
     assert "No results found" in page and '<section id="history">' in page
+    sm = json.loads((tmp_path / "summary.json").read_text())  # beside the page, saying there is nothing
+    assert sm["rows"] == {"check": 0, "sweep": 0} and sm["conformance"]["passed"] is None and sm["ladder"] == []
     captured = capsys.readouterr()
     assert str(out) in captured.out and "no results" in captured.err
     (tmp_path / "empty" / "sweeps").mkdir(parents=True)
@@ -643,6 +645,40 @@ def test_unknown_schema_version_is_skipped_with_a_visible_warning(tmp_path):
     assert any("schema_version 99" in w for w in ws) and any("unreadable" in w for w in ws)
     page = rp.render_html(df, physbench_commit="x")
     assert "schema_version 99 skipped" in page
+
+
+def test_data_notes_go_to_the_end_and_only_rows_left_out_get_a_line_on_top(tmp_path):
+    """A file without a schema_version column is read (a note in Data at
+    the end, nothing above At a glance); an unreadable file and rows of an
+    unknown version are left out: one line on top says so, Data names them."""
+    d = tmp_path / "sweeps" / "m1" / "nightly"
+    d.mkdir(parents=True)
+    pd.DataFrame([row(sweep_id=S1)]).to_parquet(d / f"{S1}.parquet")  # no schema_version column
+    df = rp.load_results(tmp_path)
+    assert len(df) == 1 and [n["kind"] for n in df.attrs["data_notes"]] == ["no_schema_version"]
+    page = rp.render_html(df, physbench_commit="x")
+    top, rest = page.split('<section id="at-a-glance">')
+    assert "schema_version" not in top and "Left out" not in top and "class='warn'" not in top
+    data = rest.split('<section id="data">')[1].split("</section>")[0]
+    assert "1 file(s), 1 row(s), without a <code>schema_version</code> column: read as version 1" in data
+    assert f"{S1}.parquet" in data
+    # now rows left out as well
+    pd.DataFrame([dict(row(sweep_id=S2), schema_version=99)] * 2).to_parquet(d / f"{S2}.parquet")
+    (d / "garbage.parquet").write_text("not parquet")
+    df = rp.load_results(tmp_path)
+    assert sorted(n["kind"] for n in df.attrs["data_notes"] if n["left_out"]) == ["schema_skipped", "unreadable"]
+    page = rp.render_html(df, physbench_commit="x")
+    top, rest = page.split('<section id="at-a-glance">')
+    assert top.count("<p class='leftout'") == 1 and "garbage.parquet" not in top
+    assert ("Left out of this page:</b> 1 unreadable file(s); 2 row(s) of a schema version this report does not "
+            "read, in 1 file(s)") in top
+    data = rest.split('<section id="data">')[1].split("</section>")[0]
+    assert "garbage.parquet: unreadable, skipped" in data and "2 row(s) with schema_version 99 skipped" in data
+    # nothing to say
+    clean = tmp_path / "clean"
+    write_sweep(clean, [row(sweep_id=S1)])
+    page = rp.render_html(rp.load_results(clean), physbench_commit="x")
+    assert "no row was left out" in page.split('<section id="data">')[1]
 
 
 def test_missing_and_all_nan_columns_are_tolerated(tmp_path):

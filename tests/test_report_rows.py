@@ -116,7 +116,7 @@ def test_check_and_sweep_rows_share_the_verdict_columns(tmp_path):
     from physbench.harness.points import Point, run_point
 
     traces = tmp_path / "traces"
-    check_main(["pymunk"], None, None, ["tunnelling.bullet_100"], save_dir=tmp_path / "check", traces=traces)
+    code = check_main(["pymunk"], None, None, ["tunnelling.bullet_100"], save_dir=tmp_path / "check", traces=traces)
     (f,) = (tmp_path / "check").glob("*.parquet")
     check = pd.read_parquet(f)
     base = check[(check["phase"] == 0.0) & (check["setting.dt"] == check["setting.dt"].max())].iloc[0]
@@ -135,3 +135,12 @@ def test_check_and_sweep_rows_share_the_verdict_columns(tmp_path):
     assert all(v["trace"] == "" for v in sv.values())  # a sweep writes no traces
     fc = rp.failing_checks(rp.load_results(tmp_path))
     assert ("tunnelled", "XFAIL", str(rrd)) in set(zip(fc["metric"], fc["outcome"], fc["trace"]))
+    # the first screen and summary.json on the real check's rows: the check's own exit code, and
+    # every verdict the check stored (phased runs carry theirs on phase 0 only) counted once
+    assert rp.report_main(tmp_path) == 0
+    sm = json.loads((tmp_path / "summary.json").read_text())
+    (eng,) = sm["conformance"]["engines"]
+    assert eng["engine"] == "pymunk" and eng["check_run"] == f.stem and eng["rows"] == len(check)
+    stored = [v["outcome"] for c in check["checks"] for v in json.loads(c)]
+    assert eng["counts"] == {o: stored.count(o) for o in eng["counts"]} and sum(eng["counts"].values()) == len(stored)
+    assert eng["counts"]["XFAIL"] >= 1 and sm["conformance"]["passed"] is (code == 0)

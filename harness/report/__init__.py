@@ -6,44 +6,57 @@ Input (see results/README.md and docs/REPORT.md):
   (consolidated) and ``results/sweeps/<machine-id>/<suite>/<sweep_id>/part-*.parquet``
   (a sweep still running or killed: read, and marked *incomplete*);
 - conformance rows, ``results/check/*.parquet`` (``physbench check``), used
-  for the stability matrix.
+  for at a glance, the stability matrix and the failing checks.
 
-Sections: at a glance (per scenario family the cheapest engine to reach
-each accuracy of the ladder 1e-2 .. 1e-9, each engine's breaking points),
-header (machines, commits, suites, sweeps, engine versions), work-precision
-diagrams (a frontier per engine, one colour per engine in every plot), cost
-to reach each rung of the accuracy ladder and each scenario's own target,
-breaking points (``physbench limits`` / ``[[limit]]`` rows), stability matrix
+Sections: at a glance (three questions answered from whatever rows exist:
+did each engine's latest ``physbench check`` run pass, with its verdict
+counts, commit, machine and date; what failed unexpectedly, FAIL, XPASS
+and ERROR with value against threshold and trace; what accuracy costs, per
+scenario family the cheapest engine to reach each accuracy of the ladder
+1e-2 .. 1e-9 and each engine's breaking points), header (machines,
+commits, suites, sweeps, engine versions), work-precision diagrams (a
+frontier per engine, one colour per engine in every plot), cost to reach
+each rung of the accuracy ladder and each scenario's own target, breaking
+points (``physbench limits`` / ``[[limit]]`` rows), stability matrix
 ("ran and stayed finite" apart from "met its checks"), failing checks (the
 latest check's FAIL, XPASS, ERROR and XFAIL verdicts with value, threshold,
-reason and a link to the case's ``.rrd`` trace), step phases, history across
-runs (regressions flagged only beyond noise), footer.
+reason and a link to the case's ``.rrd`` trace; the XFAILs folded per engine
+and scenario), step phases, history across runs (regressions flagged only
+beyond noise), data (files and rows left out or read as the current schema;
+what left rows out also gets one line at the top), footer.  Beside the page,
+``summary.json`` holds the first screen's numbers (harness.report.glance).
 
 The report reads rows only: thresholds, verdicts and tags are the ones each
 row was written with (harness.report.rows); old rows without them show
 "no verdict recorded", never re-judged against today's scenarios.
 
-The page has no external assets and no JavaScript: plots are matplotlib (Agg)
-PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are HTML.
+The page has no external assets and no JavaScript: plots are matplotlib
+(Agg) PNGs embedded as base64 ``data:`` URIs, styles are inline, tables are
+HTML.  Every table and plot fits 1280-1600 px windows (a wide table scrolls
+inside its own box).
 
 The package, by seam: ``loading`` (the only module that reads files),
 ``rows`` (value helpers and the one normaliser of stored rows), ``analysis``
 and ``trends`` (pure functions of the frame: work-precision, cost to
-target, breaking points, stability, step phases, failing checks; history
-and regressions beyond noise), ``plots`` (matplotlib), ``page`` (HTML).
+target, breaking points, stability, step phases, failing checks, the latest
+conformance run per engine; history and regressions beyond noise),
+``glance`` (the first screen and summary.json's data), ``plots``
+(matplotlib), ``page`` (HTML).
 The names below are the report's interface; the CLI entry is
 :func:`report_main`.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import os
 import sys
 from pathlib import Path
 
 from physbench.harness.report.analysis import (breaking_points, failed_checks, failing_checks, fmt_limit, frontier,
-                                     hard_scenarios, latest_points, meets_checks, phase_table, stability_matrix,
-                                     work_precision)
+                                              hard_scenarios, latest_check_runs, latest_points, meets_checks,
+                                              phase_table, stability_matrix, unexpected_failures, work_precision)
+from physbench.harness.report.glance import SUMMARY_VERSION, first_screen, summary
 from physbench.harness.report.cost import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
                                  cost_to_target, family, grid_ends, ladder)
 from physbench.harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_SPREADS, history, machine_shifts,
@@ -52,24 +65,27 @@ from physbench.harness.report.loading import load_results
 from physbench.harness.report.page import render_html
 from physbench.harness.report.plots import ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_history, plot_work_precision
 from physbench.harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
-from physbench.harness.results import RESULTS_DIR, write_text_atomic
+from physbench.harness.results import RESULTS_DIR, write_json_atomic, write_text_atomic
 
 _normalise = normalise  # the name older callers use
 
 __all__ = ["BASELINE_RUNS", "ENGINE_COLOURS", "ERROR_FLOOR", "LADDER", "NOISE_FLOOR", "NOISE_SPREADS",
-           "RATIO_AT_LEAST", "RATIO_AT_MOST", "RATIO_EXACT", "RATIO_OPEN",
+           "RATIO_AT_LEAST", "RATIO_AT_MOST", "RATIO_EXACT", "RATIO_OPEN", "SUMMARY_VERSION",
            "at_a_glance", "breaking_points", "cost_to_target", "engine_colour", "failed_checks", "failing_checks",
-           "family", "fmt", "fmt_limit", "frontier", "grid_ends", "hard_scenarios", "history", "ladder",
-           "latest_points",
+           "family", "first_screen", "fmt", "fmt_limit", "frontier", "grid_ends", "hard_scenarios", "history",
+           "ladder", "latest_check_runs", "latest_points",
            "load_results", "machine_shifts", "meets_checks", "normalise", "phase_table", "plot_breaking_point",
            "plot_history", "plot_work_precision", "pooled_noise", "regressions", "render_html", "report_main",
-           "scene_change_lines", "scene_changes", "settings_label", "stability_matrix", "work_precision"]
+           "scene_change_lines", "scene_changes", "settings_label", "stability_matrix", "summary",
+           "unexpected_failures", "work_precision"]
 
 
 def report_main(results_dir: Path | None = None, out: Path | None = None, suites: list[str] | None = None,
                 target: float | None = None, fail_on_regression: bool = False) -> int:
-    """Write the report (default ``<results_dir>/report.html``) and print its
-    path and one line per regression flagged beyond noise.  Returns 0; 1
+    """Write the report (default ``<results_dir>/report.html``) and, beside
+    it, ``summary.json`` (the first screen's numbers:
+    harness.report.glance.summary), and print the page's path and one line
+    per regression flagged beyond noise.  Returns 0; 1
     when there were no usable result rows (the page is still written and
     says so); 3 when ``fail_on_regression`` and a regression is flagged (for
     a nightly pipeline that should go red)."""
@@ -90,9 +106,17 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
     warnings = df.attrs.get("warnings", [])
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
+    from physbench.harness.runner import commit_id
+
+    generated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    physbench_commit = commit_id()
+    first = first_screen(df)
     page = render_html(df, target=target, warnings=warnings, command=" ".join(cmd), results_dir=root,
-                       page_dir=os.path.abspath(out.parent))
+                       page_dir=os.path.abspath(out.parent), generated=generated,
+                       physbench_commit=physbench_commit, first=first)
     write_text_atomic(page, out)
+    write_json_atomic(summary(first, generated=generated, physbench_commit=physbench_commit, report=out.name,
+                              notes=df.attrs.get("data_notes", [])), out.parent / "summary.json")
     if df.empty:
         print(f"no results under {root}{' for suites ' + ', '.join(suites) if suites else ''}; "
               f"wrote an empty report to {out}", file=sys.stderr)

@@ -4,7 +4,8 @@ page shows is what the rows recorded (asv's step_detect.py style).
 Tests call them on synthetic frames.
 
 Work-precision lines and frontiers, breaking points, the stability
-matrix, step phases and the failing checks; the cost to reach a target,
+matrix, step phases, the failing checks and each engine's latest
+conformance run; the cost to reach a target,
 the accuracy ladder and at a glance are in harness.report.cost, history
 and regressions in harness.report.trends.
 """
@@ -13,14 +14,16 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+import numpy as np
 import pandas as pd
 
 from physbench.contract.phase import wilson_interval
 from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, fmt, settings_label
 from physbench.harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
-                            UNSUPPORTED, XFAIL)
+                                     OUTCOMES, UNSUPPORTED, XFAIL)
 
 #: the row's verdicts that mean "a check not met": an expected failure is
 #: still a failure here (it says the engine is known not to hold the scene)
@@ -407,6 +410,41 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
 LISTED_OUTCOMES = BAD_OUTCOMES + (XFAIL,)
 
 
+_VERDICT_COLS = ["machine_id", "scenario", "variant", "engine", "dt", "metric", "outcome", "value", "threshold",
+                 "reason", "trace", "check_file", "timestamp"]
+
+
+def _verdict_table(c: pd.DataFrame, outcomes: Iterable[str]) -> tuple[pd.DataFrame, int]:
+    """The verdicts of the check rows ``c`` whose recorded outcome is one of
+    ``outcomes``, one row per (run, check), in ``outcomes``' order then by
+    scenario, variant, engine and metric; and how many rows of ``c`` at
+    phase 0 carry no verdict (left out, not re-judged).  Rows of the other
+    step phases carry none of their own (a phased check's combined verdict
+    is on phase 0)."""
+    outcomes = tuple(outcomes)
+    rows, no_verdict = [], 0
+    for r in c.to_dict("records"):
+        verdicts = row_verdicts(r)
+        if verdicts is None:
+            no_verdict += r.get("phase", 0.0) == 0.0
+            continue
+        for v in verdicts:
+            if v.get("outcome") not in outcomes:
+                continue
+            rows.append({"machine_id": r["machine_id"], "scenario": r["scenario"], "variant": r["variant"],
+                         "engine": r["engine"], "dt": r["dt"], "metric": str(v.get("metric", "")),
+                         "outcome": v["outcome"], "value": v.get("value"), "threshold": str(v.get("threshold") or ""),
+                         "reason": str(v.get("message") or ""), "trace": str(v.get("trace") or ""),
+                         "check_file": str(r.get("_file") or ""), "timestamp": r["timestamp"]})
+    out = pd.DataFrame(rows, columns=_VERDICT_COLS)
+    if len(out):
+        rank = {o: i for i, o in enumerate(outcomes)}
+        out["_r"] = [rank[o] for o in out["outcome"]]
+        out = out.sort_values(["_r", "scenario", "variant", "engine", "metric"], kind="stable")
+        out = out.drop(columns="_r").reset_index(drop=True)
+    return out, int(no_verdict)
+
+
 def failing_checks(df: pd.DataFrame) -> pd.DataFrame:
     """The not-passing verdicts of the latest ``physbench check`` rows (per
     machine, scenario, variant, engine and dt; phase 0, which carries a
@@ -417,30 +455,101 @@ def failing_checks(df: pd.DataFrame) -> pd.DataFrame:
     ``attrs['no_verdict']``: check rows with no verdict recorded (left out,
     not re-judged)."""
     df = _ensure(df)
-    cols = ["machine_id", "scenario", "variant", "engine", "dt", "metric", "outcome", "value", "threshold",
-            "reason", "trace", "check_file", "timestamp"]
-    c = _latest_checks(df)
-    rows, no_verdict = [], 0
-    for r in c.to_dict("records"):
-        verdicts = row_verdicts(r)
-        if verdicts is None:
-            no_verdict += 1
-            continue
-        for v in verdicts:
-            if v.get("outcome") not in LISTED_OUTCOMES:
-                continue
-            rows.append({"machine_id": r["machine_id"], "scenario": r["scenario"], "variant": r["variant"],
-                         "engine": r["engine"], "dt": r["dt"], "metric": str(v.get("metric", "")),
-                         "outcome": v["outcome"], "value": v.get("value"), "threshold": str(v.get("threshold") or ""),
-                         "reason": str(v.get("message") or ""), "trace": str(v.get("trace") or ""),
-                         "check_file": str(r.get("_file") or ""), "timestamp": r["timestamp"]})
-    out = pd.DataFrame(rows, columns=cols)
-    if len(out):
-        rank = {o: i for i, o in enumerate(LISTED_OUTCOMES)}
-        out["_r"] = [rank[o] for o in out["outcome"]]
-        out = out.sort_values(["_r", "scenario", "variant", "engine", "metric"], kind="stable")
-        out = out.drop(columns="_r").reset_index(drop=True)
+    out, no_verdict = _verdict_table(_latest_checks(df), LISTED_OUTCOMES)
     out.attrs["no_verdict"] = no_verdict
+    return out
+
+
+# ---------------------------------------------------------------------------
+# the latest conformance run per engine
+
+
+CHECK_RUN_COLS = ["engine", "check_run", "check_file", "machine_id", "commit", "date", "rows", *OUTCOMES, "other",
+                  "no_verdict", "passed"]
+
+
+def _latest_files(c: pd.DataFrame) -> dict[str, str]:
+    """engine -> the file of its latest ``physbench check`` run: the file
+    holding the engine's latest row (timestamps are UTC ISO 8601 text, which
+    sorts by time; the file name, ``<UTC stamp>-<commit>``, breaks ties)."""
+    out = {}
+    for en, g in c.groupby("engine", sort=True):
+        last = g.groupby("_file")["timestamp"].max()
+        out[en] = max(last.index, key=lambda f: (last[f], Path(f).name))
+    return out
+
+
+def latest_check_runs(df: pd.DataFrame) -> pd.DataFrame:
+    """Per engine, its latest ``physbench check`` run (one check file is one
+    run; :func:`_latest_files`): the run's name (``check_run``, the file's
+    stem), the machine(s), commit(s) and date (the latest row's timestamp)
+    of the engine's rows in it, how many rows, and the count of each
+    recorded verdict outcome (PASS, FAIL, XFAIL, XPASS, UNSUPPORTED, ERROR;
+    ``other``: an outcome outside that vocabulary), rows at phase 0
+    without verdicts (``no_verdict``: written before rows carried them,
+    never re-judged), and ``passed``: no FAIL, XPASS, ERROR or other
+    outcome (None when no row carries a verdict).  Sorted by engine."""
+    df = _ensure(df)
+    c = df[df["source"] == "check"] if len(df) else df
+    if c.empty:
+        return pd.DataFrame(columns=CHECK_RUN_COLS)
+    rows = []
+    for en, f in _latest_files(c).items():
+        g = c[(c["engine"] == en) & (c["_file"] == f)]
+        counts = dict.fromkeys(OUTCOMES, 0)
+        other = no_verdict = 0
+        for r in g.to_dict("records"):
+            verdicts = row_verdicts(r)
+            if verdicts is None:
+                no_verdict += r["phase"] == 0.0
+                continue
+            for v in verdicts:
+                o = v.get("outcome")
+                if o in counts:
+                    counts[o] += 1
+                else:
+                    other += 1
+        judged = sum(counts.values()) + other
+        bad = sum(counts[o] for o in BAD_OUTCOMES) + other
+        rows.append({"engine": en, "check_run": Path(f).stem, "check_file": f,
+                     "machine_id": ", ".join(sorted(set(g["machine_id"]))),
+                     "commit": ", ".join(sorted({x for x in g["commit"] if x})) or "-",
+                     "date": max(g["timestamp"]) or "-", "rows": len(g), **counts, "other": other,
+                     "no_verdict": int(no_verdict), "passed": (bad == 0) if judged else None})
+    return pd.DataFrame(rows, columns=CHECK_RUN_COLS)
+
+
+def unexpected_failures(df: pd.DataFrame, runs: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The FAIL, XPASS and ERROR verdicts of each engine's latest
+    ``physbench check`` run (:func:`latest_check_runs`; ``runs``: that
+    table when the caller has it), in that order, then by scenario,
+    variant, engine and metric; the columns of :func:`failing_checks`.
+
+    ``attrs['earlier']``: the bad verdicts of :func:`failing_checks` (the
+    latest verdict per case and machine over every check file) that come
+    from an earlier run of their engine and whose case (scenario, variant,
+    dt) the engine's latest run did not repeat on any machine: a small
+    check after a full one leaves them standing."""
+    df = _ensure(df)
+    if runs is None:
+        runs = latest_check_runs(df)
+    empty = pd.DataFrame(columns=_VERDICT_COLS)
+    if runs.empty:
+        empty.attrs["earlier"] = empty.copy()
+        return empty
+    latest = dict(zip(runs["engine"], runs["check_file"]))
+    c = df[(df["source"] == "check").to_numpy()
+           & np.array([latest.get(e) == f for e, f in zip(df["engine"], df["_file"])], dtype=bool)]
+    out, _ = _verdict_table(c, BAD_OUTCOMES)
+    # a case the engine's latest run repeated (same scenario, variant, dt;
+    # on any machine) is judged by that run
+    repeated = {(r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) for r in c.to_dict("records")}
+    fc = failing_checks(df)
+    keep = [latest.get(r["engine"]) != r["check_file"]
+            and (r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) not in repeated
+            for r in fc.to_dict("records")]
+    earlier = fc[fc["outcome"].isin(BAD_OUTCOMES).to_numpy() & np.array(keep, dtype=bool)].reset_index(drop=True)
+    out.attrs["earlier"] = earlier
     return out
 
 

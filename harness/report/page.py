@@ -1,7 +1,11 @@
 """The report's HTML: one self-contained page (no external assets, no
 JavaScript: plots are base64 ``data:`` PNGs, styles inline) from the
 report's frame, its analyses and its figures.  Every cell's text is
-escaped."""
+escaped.  Order: one line naming what was left out (only when rows were),
+At a glance (harness.report.glance.first_screen), the sections, Data (what
+reading the rows found), footer.  Every table sits in its own box that
+scrolls sideways when the table is wider than the column, so the page never
+does (tests/test_report_browser.py measures it at 1280, 1400 and 1600 px)."""
 
 from __future__ import annotations
 
@@ -16,31 +20,37 @@ import numpy as np
 import pandas as pd
 
 from physbench.harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
-                                     stability_matrix, work_precision)
-from physbench.harness.report.cost import (RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, at_a_glance, cost_to_target,
-                                 ladder)
+                                              stability_matrix, work_precision)
+from physbench.harness.report.glance import first_screen, left_out, xfail_total
+from physbench.harness.report.cost import RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target
 from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
 from physbench.harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
 from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
-from physbench.harness.status import BAD_OUTCOMES, OK
+from physbench.harness.status import BAD_OUTCOMES, OK, OUTCOMES, XFAIL
 
 MAX_SMALL_MULTIPLES = 6
+#: unexpected failures listed on the first screen, at most (all of them in
+#: Failing checks and summary.json)
+GLANCE_MAX_UNEXPECTED = 20
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em auto;max-width:1200px;
-color:#222;padding:0 1em;line-height:1.4}
+color:#222;padding:0 1em;line-height:1.4;overflow-wrap:break-word}
 h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:2em}
-h3{font-size:1.05em;margin-bottom:.3em}
+h3{font-size:1.05em;margin-bottom:.3em}h4{font-size:.95em;margin:.6em 0 .2em}
+.scroll{overflow-x:auto;max-width:100%}
 table{border-collapse:collapse;margin:.5em 0 1em;font-size:.85em}
 th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .warn{background:#fff4d6;border:1px solid #e0b000;padding:.5em 1em;margin:1em 0}
+.leftout{background:#fff4d6;border-left:4px solid #e0b000;padding:.3em .8em;margin:.8em 0}
 .note{color:#555;font-size:.85em}.bad{color:#b00020;font-weight:600}.good{color:#087a2a;font-weight:600}
-.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:1180px}
-.wp img,.hist img{max-width:100%}figcaption{font-size:.8em;color:#444}
-.cell{font-size:.8em;white-space:nowrap}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
+.incomplete{background:#ffe8c2}.wp{display:inline-block;vertical-align:top;margin:0 1em 1.5em 0;max-width:100%}
+.wp img,.hist img{max-width:100%}figure.hist{margin:1em 0}figcaption{font-size:.8em;color:#444}
+.cell{font-size:.8em;white-space:nowrap;min-width:13em}.cell .wrap{white-space:normal;overflow-wrap:anywhere}footer{margin-top:3em;color:#666;font-size:.8em;border-top:1px solid #ccc}
+details{margin:.5em 0}summary{cursor:pointer}details details{margin-left:1em}
 code{background:#f4f4f4;padding:0 .2em}
 """
 
@@ -53,15 +63,20 @@ def _img(b64: str, alt: str) -> str:
     return f'<img alt="{_e(alt)}" src="data:image/png;base64,{b64}">'
 
 
-def _table(header: list[str], rows: list[list[str]], raw: bool = False, row_class: list[str] | None = None) -> str:
-    """rows' cells are escaped unless ``raw`` (then they are HTML already)."""
+def _table(header: list[str], rows: list[list[str]], raw: bool = False, row_class: list[str] | None = None,
+           row_attr: list[str] | None = None) -> str:
+    """rows' cells are escaped unless ``raw`` (then they are HTML already);
+    ``row_attr``: raw attribute text per row (``data-outcome='FAIL'``).  The
+    table sits in its own box that scrolls sideways when the table is wider
+    than the page (the page itself never does: test_report_browser)."""
     h = "".join(f"<th>{_e(c)}</th>" for c in header)
     body = []
     for i, r in enumerate(rows):
         cls = f' class="{row_class[i]}"' if row_class and row_class[i] else ""
+        attr = f" {row_attr[i]}" if row_attr and row_attr[i] else ""
         cells = "".join(f"<td>{c if raw else _e(c)}</td>" for c in r)
-        body.append(f"<tr{cls}>{cells}</tr>")
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+        body.append(f"<tr{cls}{attr}>{cells}</tr>")
+    return f"<div class='scroll'><table><thead><tr>{h}</tr></thead><tbody>{''.join(body)}</tbody></table></div>"
 
 
 def _date(ts: Iterable[str]) -> str:
@@ -243,12 +258,120 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             + _table(["scenario", "engine", "metric"] + [f"\u2264 {_rung(t)}" for t in rungs], rows, raw=True))
 
 
-def _glance_html(df: pd.DataFrame, lad: pd.DataFrame) -> str:
-    ag = at_a_glance(df, lad=lad)
-    bp = breaking_points(df)
+def _case(r: Mapping[str, Any]) -> str:
+    """A check case as HTML: scenario / variant, dt."""
+    case = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
+    if _finite(r["dt"]):
+        case += f" <span class='note'>dt={_e(fmt(r['dt']))}</span>"
+    return case
+
+
+def _engine(en: str) -> str:
+    return f"<span style='color:{engine_colour(en)}'><b>{_e(en)}</b></span>"
+
+
+def _runs_html(runs: pd.DataFrame) -> str:
+    """Did the latest conformance run pass? One row per engine."""
+    extra = [k for k in ("other", "no_verdict") if len(runs) and runs[k].sum()]
+    rows, attrs = [], []
+    for r in runs.to_dict("records"):
+        if r["passed"] is None:
+            verdict = "<span class='note'>no verdict recorded</span>"
+        elif r["passed"]:
+            verdict = "<span class='good'>passed</span>"
+        else:
+            verdict = "<span class='bad'>failed</span>"
+        counts = []
+        for o in OUTCOMES:
+            n = int(r[o])
+            cls = "bad" if n and o in BAD_OUTCOMES else ("note" if not n else "")
+            counts.append(f"<span class='{cls}'>{n}</span>" if cls else str(n))
+        rows.append([_engine(r["engine"]), verdict] + counts + [str(int(r[k])) for k in extra]
+                    + [_e(r["commit"]), _e(r["machine_id"]), _e(r["date"]), f"<code>{_e(r['check_run'])}</code>"])
+        attrs.append(f"data-engine='{_e(r['engine'])}'")
+    several = runs["check_run"].nunique() > 1
+    names = {"other": "other", "no_verdict": "no verdict"}
+    failed = [r["engine"] for r in runs.to_dict("records") if r["passed"] is False]
+    unknown = [r["engine"] for r in runs.to_dict("records") if r["passed"] is None]
+    if failed:
+        answer = (f"<p class='bad'>No: the latest run of {len(failed)} of {len(runs)} engine(s) "
+                  f"({_e(', '.join(failed))}) has unexpected failures.</p>")
+    elif unknown:
+        answer = (f"<p class='note'>No verdict recorded for {_e(', '.join(unknown))}; the other engines' latest "
+                  "runs passed.</p>")
+    else:
+        answer = f"<p class='good'>Yes: the latest run of every engine ({len(runs)}) passed.</p>"
+    return (answer + "<p class='note'>Each engine's latest <code>physbench check</code> run (one check file is one run"
+            + ("; the engines' latest runs differ" if several else "") + "): the verdicts it recorded, one per "
+            "check and case. It passed when none is FAIL, XPASS or ERROR; an XFAIL is a known limitation "
+            "(listed, folded, under <a href='#failing-checks'>Failing checks</a>).</p>"
+            + _table(["engine", "verdict"] + list(OUTCOMES) + [names[k] for k in extra]
+                     + ["commit", "machine", "date", "check run"], rows, raw=True, row_attr=attrs))
+
+
+def _value_vs(r: Mapping[str, Any]) -> str:
+    th = r["threshold"]
+    return _e(fmt(r["value"], 4)) + (f" <span class='note'>vs {_e(th)}</span>" if th else "")
+
+
+def _unexpected_html(first: Mapping[str, Any], page_dir: Path | None) -> str:
+    """What failed unexpectedly? The FAIL, XPASS and ERROR verdicts of the
+    engines' latest runs, at most GLANCE_MAX_UNEXPECTED of them."""
+    un, earlier = first["unexpected"], first["earlier"]
+    n_x = xfail_total(first)
+    parts = []
+    if un.empty:
+        parts.append("<p class='good'>No unexpected failure: every verdict of the latest runs is PASS, XFAIL or "
+                     "UNSUPPORTED.</p>")
+    else:
+        rows, attrs = [], []
+        for r in un.head(GLANCE_MAX_UNEXPECTED).to_dict("records"):
+            rows.append([f"<span class='bad'>{_e(r['outcome'])}</span>", _engine(r["engine"]), _case(r),
+                         f"<code>{_e(r['metric'])}</code>", _value_vs(r), _e(r["reason"][:200]),
+                         _trace_link(r["trace"], page_dir)])
+            attrs.append(f"data-outcome='{_e(r['outcome'])}'")
+        more = len(un) - len(rows)
+        parts.append(f"<p class='bad'>{len(un)} unexpected failure(s) (FAIL, XPASS, ERROR) in the latest runs"
+                     + (f"; the first {len(rows)} here, all under <a href='#failing-checks'>Failing checks</a>"
+                        if more else "") + ".</p>"
+                     + _table(["outcome", "engine", "case", "metric", "value vs threshold", "reason", "trace"],
+                              rows, raw=True, row_attr=attrs))
+    if len(earlier):
+        per = ", ".join(f"{en} {n}" for en, n in earlier["engine"].value_counts().sort_index().items())
+        parts.append(f"<p class='note'>Still standing from earlier check runs, whose cases the latest runs did not "
+                     f"repeat: {len(earlier)} unexpected failure(s) ({_e(per)}), listed under "
+                     "<a href='#failing-checks'>Failing checks</a>.</p>")
+    if n_x:
+        parts.append(f"<p class='note'>{n_x} known failure(s) (XFAIL) in the latest runs, folded under "
+                     "<a href='#failing-checks'>Failing checks</a> with their measured figures.</p>")
+    return "\n".join(parts)
+
+
+def _glance_html(first: Mapping[str, Any], page_dir: Path | None = None) -> str:
+    """The first screen: three questions, answered from whatever rows exist
+    (harness.report.glance.first_screen)."""
+    runs = first["runs"]
+    parts = ["<h3>Did the latest conformance run pass?</h3>"]
+    if runs.empty:
+        parts.append("<p class='note'>No <code>physbench check</code> rows stored: run <code>physbench check</code> "
+                     "to answer this and the next question.</p>")
+    else:
+        parts.append(_runs_html(runs))
+        parts.append("<h3>What failed unexpectedly?</h3>")
+        parts.append(_unexpected_html(first, page_dir))
+    parts.append("<h3>What does accuracy cost?</h3>")
+    parts.append(_accuracy_html(first["glance"], first["breaking_points"]))
+    return "\n".join(parts)
+
+
+def _accuracy_html(ag: pd.DataFrame, bp: pd.DataFrame) -> str:
+    """What accuracy costs: the ladder per scenario family and the breaking
+    points (harness.report.glance.first_screen's ``glance`` and
+    ``breaking_points``)."""
     parts = []
     if ag.empty:
-        parts.append("<p class='note'>No sweep rows with a primary error: no accuracy ladder.</p>")
+        parts.append("<p class='note'>No sweep rows with a primary error: no accuracy ladder "
+                     "(<code>physbench sweep</code> fills it in).</p>")
     else:
         rungs = sorted(set(ag["rung"]), reverse=True)
         rows = []
@@ -344,7 +467,7 @@ def _stability_html(sm: pd.DataFrame) -> str:
         supported = r["points"] - r["unsupported"]
         txt = [f"<b>{r['ok_stable']}/{r['points']}</b> ran &amp; stayed finite",
                f"<b>{r['met_checks']}/{r['points']}</b> met its checks"
-               + (f" <span class='bad'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
+               + (f" <span class='bad wrap'>(failed: {_e(', '.join(r['checks_failed']))})</span>"
                   if r["checks_failed"] else "")]
         if r["no_verdict"]:
             txt.append(f"{r['no_verdict']} with no verdict recorded")
@@ -427,29 +550,61 @@ def _trace_link(trace: str, page_dir: Path | None) -> str:
     return f"<a href='{_e(href)}'><code>{_e(Path(trace).name)}</code></a>"
 
 
+def _run_cell(r: Mapping[str, Any]) -> str:
+    """The check run a verdict comes from (its file's stem) and the machine."""
+    run = Path(r["check_file"]).stem if r["check_file"] else "-"
+    return f"<code>{_e(run)}</code><br><span class='note'>{_e(r['machine_id'])}</span>"
+
+
+def _xfail_html(xf: pd.DataFrame, page_dir: Path | None) -> str:
+    """The expected failures, folded: one closed block, inside it one closed
+    block per engine, its rows grouped by scenario, each with its measured
+    figure against the threshold."""
+    if xf.empty:
+        return ""
+    per = []
+    for en, g in xf.groupby("engine", sort=True):
+        rows, attrs = [], []
+        for sc, h in g.groupby(["scenario", "variant"], sort=True):
+            for i, r in enumerate(h.to_dict("records")):
+                rows.append([_case(r) if i == 0 else "", f"<code>{_e(r['metric'])}</code>",
+                             _e(fmt(r["value"], 4)), _e(r["threshold"] or "-"), _e(r["reason"][:400]),
+                             _trace_link(r["trace"], page_dir)])
+                attrs.append("data-outcome='XFAIL'")
+        n_sc = g[["scenario", "variant"]].drop_duplicates().shape[0]
+        per.append(f"<details><summary>{_engine(en)}: {len(g)} XFAIL in {n_sc} scenario(s)</summary>"
+                   + _table(["case", "metric", "value", "threshold", "reason", "trace"], rows, raw=True,
+                            row_attr=attrs) + "</details>")
+    n_sc = xf[["scenario", "variant"]].drop_duplicates().shape[0]
+    return (f"<details id='xfail'><summary>{len(xf)} expected failure(s) (XFAIL) in {n_sc} scenario(s) on "
+            f"{xf['engine'].nunique()} engine(s): known limitations, each with its measured figure</summary>"
+            + "".join(per) + "</details>")
+
+
 def _failing_html(fc: pd.DataFrame, page_dir: Path | None = None) -> str:
     n_old = fc.attrs.get("no_verdict", 0)
     old = (f"<p class='note'>{n_old} check row(s) written before rows carried their verdicts: no verdict "
            "recorded, not re-judged.</p>" if n_old else "")
     if fc.empty:
         return old + ("<p class='note'>No failing check in the latest <code>physbench check</code> rows.</p>")
-    rows = []
-    for r in fc.to_dict("records"):
-        cls = "bad" if r["outcome"] in BAD_OUTCOMES else "note"
-        case = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
-        if _finite(r["dt"]):
-            case += f" <span class='note'>dt={_e(fmt(r['dt']))}</span>"
-        rows.append([case, f"<span style='color:{engine_colour(r['engine'])}'><b>{_e(r['engine'])}</b></span>",
-                     f"<code>{_e(r['metric'])}</code>", f"<span class='{cls}'>{_e(r['outcome'])}</span>",
-                     _e(fmt(r["value"], 4)), _e(r["threshold"] or "-"), _e(r["reason"][:400]),
-                     _trace_link(r["trace"], page_dir)])
-    n_bad = int(fc["outcome"].isin(BAD_OUTCOMES).sum())
+    bad = fc[fc["outcome"].isin(BAD_OUTCOMES)]
+    rows, attrs = [], []
+    for r in bad.to_dict("records"):
+        rows.append([_case(r), _engine(r["engine"]), f"<code>{_e(r['metric'])}</code>",
+                     f"<span class='bad'>{_e(r['outcome'])}</span>", _e(fmt(r["value"], 4)),
+                     _e(r["threshold"] or "-"), _e(r["reason"][:400]), _trace_link(r["trace"], page_dir),
+                     _run_cell(r)])
+        attrs.append(f"data-outcome='{_e(r['outcome'])}'")
+    n_bad = len(bad)
+    table = (_table(["case", "engine", "metric", "outcome", "value", "threshold", "reason", "trace", "run"], rows,
+                    raw=True, row_attr=attrs) if rows else
+             "<p class='good'>No FAIL, XPASS or ERROR.</p>")
     return (old + f"<p class='note'>{n_bad} failing verdict(s) (FAIL, XPASS, ERROR) and {len(fc) - n_bad} expected "
-            "failure(s) (XFAIL) in the latest <code>physbench check</code> rows, as each row recorded them "
-            "(value against the threshold of that day). Trace: the case's <code>.rrd</code> from "
-            "<code>physbench check --traces DIR</code> (open with <code>rerun</code>).</p>"
-            + _table(["case", "engine", "metric", "outcome", "value", "threshold", "reason", "trace"], rows,
-                     raw=True))
+            "failure(s) (XFAIL) in the latest <code>physbench check</code> rows (the latest verdict of each case "
+            "on each machine over every check run), as each row recorded them (value against the threshold of that day); the "
+            "expected failures are folded below, per engine and scenario. Trace: the case's <code>.rrd</code> "
+            "from <code>physbench check --traces DIR</code> (open with <code>rerun</code>).</p>"
+            + table + _xfail_html(fc[fc["outcome"] == XFAIL], page_dir))
 
 
 def _history_html(df: pd.DataFrame) -> str:
@@ -538,56 +693,105 @@ def _history_html(df: pd.DataFrame) -> str:
     return "\n".join(parts)
 
 
+def _left_out_line(notes: list[Mapping[str, Any]]) -> str:
+    """One line at the top naming what the data notes left out of the page
+    (unreadable files, rows of a schema version this report does not
+    read); '' when nothing was."""
+    lo = left_out(notes)
+    if not lo:
+        return ""
+    unreadable = [n for n in lo if n["kind"] == "unreadable"]
+    rows = sum(int(n["rows"] or 0) for n in lo if n["kind"] != "unreadable")
+    what = []
+    if unreadable:
+        what.append(f"{len(unreadable)} unreadable file(s)")
+    if rows:
+        files = sum(1 for n in lo if n["kind"] != "unreadable")
+        what.append(f"{rows} row(s) of a schema version this report does not read, in {files} file(s)")
+    return (f"<p class='leftout' id='left-out'><b>Left out of this page:</b> {_e('; '.join(what))} "
+            "(<a href='#data'>Data</a>).</p>")
+
+
+def _data_html(notes: list[Mapping[str, Any]], warnings: list[str], df: pd.DataFrame) -> str:
+    """What reading the stored rows found: files and rows left out, files
+    read as the current schema for want of a ``schema_version`` column,
+    incomplete sweeps, other warnings."""
+    parts = []
+    lo = left_out(notes)
+    if lo:
+        parts.append("<h3>Left out</h3><ul>" + "".join(f"<li>{_e(n['text'])}</li>" for n in lo) + "</ul>")
+    nos = [n for n in notes if n["kind"] == "no_schema_version"]
+    if nos:
+        version = nos[0]["text"].rsplit(" ", 1)[-1]
+        parts.append(f"<p>{len(nos)} file(s), {sum(int(n['rows'] or 0) for n in nos)} row(s), without a "
+                     f"<code>schema_version</code> column: read as version {_e(version)}.</p>"
+                     f"<details><summary>the files</summary><ul class='note'>"
+                     + "".join(f"<li>{_e(n['path'])}</li>" for n in nos) + "</ul></details>")
+    known = {n["text"] for n in notes}
+    other = [w for w in warnings if w not in known]
+    if other:
+        parts.append("<h3>Other warnings</h3><ul>" + "".join(f"<li>{_e(w)}</li>" for w in other) + "</ul>")
+    inc = df[df["incomplete"]] if len(df) else df
+    if len(inc):
+        parts.append(f"<p>{len(inc)} row(s) come from incomplete sweeps (part files not yet consolidated): "
+                     + _e(", ".join(sorted(set(inc["sweep_id"])))) + "; they are shown, marked incomplete.</p>")
+    if not parts:
+        return "<p class='good'>Every stored file was read as this report's schema; no row was left out.</p>"
+    return "\n".join(parts)
+
+
 def render_html(df: pd.DataFrame, *, target: float | None = None,
                 targets: Mapping[Any, float] | float | None = None, warnings: Iterable[str] = (),
                 command: str = "physbench report", generated: str | None = None,
                 results_dir: str | Path | None = None, physbench_commit: str | None = None,
-                page_dir: str | Path | None = None) -> str:
+                page_dir: str | Path | None = None, first: Mapping[str, Any] | None = None) -> str:
     """The whole page for the frame ``df`` (from
     harness.report.loading.load_results); ``page_dir``: where the page
-    will be written (trace links are made relative to it)."""
+    will be written (trace links are made relative to it); ``first``:
+    harness.report.glance.first_screen of ``df`` when the caller has it
+    (report_main writes the same numbers to summary.json).  ``warnings``
+    and the frame's data notes go to the Data section at the end; only
+    what left rows out gets one line at the top."""
     df = _ensure(df)
-    warnings = list(warnings) + list(df.attrs.get("warnings", []) if hasattr(df, "attrs") else [])
+    notes = list(df.attrs.get("data_notes", []))
+    warnings = list(warnings) + list(df.attrs.get("warnings", []))
     warnings = list(dict.fromkeys(warnings))
     generated = generated or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     if physbench_commit is None:
         from physbench.harness.runner import commit_id
 
         physbench_commit = commit_id()
+    pdir = Path(page_dir) if page_dir is not None else None
     where = f" under <code>{_e(results_dir)}</code>" if results_dir is not None else ""
-    sections = []
-    if warnings:
-        items = "".join(f"<li>{_e(w)}</li>" for w in warnings)
-        sections.append(f"<div class='warn'><b>Warnings</b><ul>{items}</ul></div>")
+    top = [_left_out_line(notes)]
     if df.empty:
-        sections.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
-                        "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
-                        "write.</div>")
+        top.append(f"<div class='warn'><b>No results found</b>{where}. Run <code>physbench sweep</code> "
+                   "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
+                   "write.</div>")
         body = {k: '<p class="note">No results.</p>' for k in ("glance", "wp", "cost", "stab", "phase", "hist",
                                                                "limits", "failing")}
         header = ""
     else:
         header = _header_html(df)
-        lad = ladder(df)
-        body = {"glance": _glance_html(df, lad),
+        if first is None:
+            first = first_screen(df)
+        lad = first["ladder"]
+        body = {"glance": _glance_html(first, pdir),
                 "wp": _wp_html(work_precision(df, target=target, targets=targets)),
                 "cost": _ladder_html(lad) + "<h3>At each scenario's own target</h3>"
                         + _cost_html(cost_to_target(df, targets=targets, target=target)),
                 "limits": _breaking_html(df),
                 "stab": _stability_html(stability_matrix(df)),
-                "failing": _failing_html(failing_checks(df), Path(page_dir) if page_dir is not None else None),
+                "failing": _failing_html(failing_checks(df), pdir),
                 "phase": _phase_html(phase_table(df)),
                 "hist": _history_html(df)}
-        inc = df[df["incomplete"]]
-        if len(inc):
-            sections.append(f"<div class='warn'>{len(inc)} row(s) come from incomplete sweeps (part files not yet "
-                            "consolidated): " + _e(", ".join(sorted(set(inc["sweep_id"])))) + ".</div>")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>physbench report</title>
+<meta name="viewport" content="width=device-width, initial-scale=1">
 <style>{_CSS}</style></head><body>
 <h1>physbench report</h1>
 <p class="note">Generated {_e(generated)} from stored results{where}.</p>
-{''.join(sections)}
+{''.join(top)}
 <section id="at-a-glance"><h2>At a glance</h2>{body['glance']}</section>
 <section id="header"><h2>What this covers</h2>{header or '<p class="note">Nothing.</p>'}</section>
 <section id="work-precision"><h2>Work-precision diagrams</h2>{body['wp']}</section>
@@ -597,8 +801,8 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
 <section id="failing-checks"><h2>Failing checks</h2>{body['failing']}</section>
 <section id="phases"><h2>Hard cases over step phases</h2>{body['phase']}</section>
 <section id="history"><h2>History across runs</h2>{body['hist']}</section>
+<section id="data"><h2>Data</h2>{_data_html(notes, warnings, df)}</section>
 <footer><p>Generated by <code>{_e(command)}</code> at {_e(generated)}, physbench commit
 <code>{_e(physbench_commit)}</code>. Self-contained: no external assets, no scripts.</p></footer>
 </body></html>
 """
-

@@ -278,7 +278,9 @@ def _ensure(df: pd.DataFrame) -> pd.DataFrame:
     if "swept" in df.columns and "cost" in df.columns:
         return df
     warnings = list(df.attrs.get("warnings", []))
+    notes = list(df.attrs.get("data_notes", []))
     out = normalise(df)
     out.attrs["warnings"] = warnings
+    out.attrs["data_notes"] = notes
     return out
 
