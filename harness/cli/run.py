@@ -100,7 +100,7 @@ def _print_result(result, outcomes=()) -> None:
         c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
         for o in outcomes:
             style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
-            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value), f"[{style}]{o.outcome}[/]",
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value, o.bounds), f"[{style}]{o.outcome}[/]",
                       escape(o.message))
         con.print(c)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from physbench.harness.conformance.verdicts import (BAD, ERROR, FAIL, OUTCOMES, PASS, UNSUPPORTED, XFAIL, XPASS, Outcome,
-                                          _fmt)
+                                          _fmt, case_names)
 
 
 def summarize(outcomes: list[Outcome], console=None) -> None:
@@ -36,8 +36,9 @@ def summarize(outcomes: list[Outcome], console=None) -> None:
         t2 = Table(title="failures")
         for col in ("engine", "testcase", "outcome", "value", "threshold", "message"):
             t2.add_column(col, overflow="fold")
+        names = {id(o): n for o, n in zip(outcomes, case_names(outcomes))}
         for o in bad:
-            t2.add_row(*(escape(x) for x in (o.engine, o.name, o.outcome, _fmt(o.value), o.threshold, o.message)))
+            t2.add_row(*(escape(x) for x in (o.engine, names[id(o)], o.outcome, _fmt(o.value, o.bounds), o.threshold, o.message)))
         console.print(t2)
 
 
