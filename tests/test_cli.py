@@ -219,3 +219,66 @@ def test_a_closed_pipe_is_not_a_traceback():
     err = proc.stderr.decode()
     assert "Traceback" not in err and "BrokenPipeError" not in err, err
     assert proc.returncode == 141, (proc.returncode, err)
+
+
+# --- issue 40: wider --set, legible tables
+
+
+def test_set_takes_fractions_and_engine_settings(monkeypatch):
+    """--set dt=1/240 is 1/240 s (as @dt=1/30 in a check); ENGINE:KEY=VALUE
+    sets one engine's setting in check and trace, validated up front."""
+    from physbench.harness import cli
+    from physbench.harness.cli.common import UsageError, _split_sets, engine_sets, set_value
+
+    assert set_value("1/240") == 1 / 240 and set_value("1e-3") == 1e-3 and set_value("rk4") == "rk4"
+    assert _split_sets(["dt=1/240", "scenario.dt=1/60"], {"dt"}) == ({"dt": 1 / 240}, {"scenario.dt": 1 / 60})
+    per, rest = engine_sets(["mujoco:impratio=10", "dt=1/240", "material.default.friction=0.3"], ["mujoco", "pymunk"])
+    assert per == {"mujoco": {"impratio": 10.0, "dt": 1 / 240}, "pymunk": {"dt": 1 / 240}}
+    assert rest == ["material.default.friction=0.3"]
+    for bad, why in ((["pybullet:erp=0.2"], "engine 'pybullet' is not among the engines"),
+                     (["impratio=10"], "not a setting of pymunk; give it per engine as ENGINE:impratio=VALUE"),
+                     (["mujoco:wobble=1"], "not a setting of mujoco"),
+                     (["mujoco:impratio=-1"], "mujoco:impratio")):
+        with pytest.raises(UsageError, match=why):
+            engine_sets(bad, ["mujoco", "pymunk"])
+    # check hands them to its runs: the settings arrive in check_main
+    seen = {}
+    monkeypatch.setattr("physbench.harness.conformance.check_main", lambda **kw: seen.update(kw) or 0)
+    assert cli.main(["check", "billiards.head_on", "--engines", "mujoco", "pymunk", "--set", "mujoco:impratio=10"]) == 0
+    assert seen["settings"] == {"mujoco": {"impratio": 10.0}}
+    assert cli.main(["check", "billiards.head_on", "--set", "body[0].mass=2"]) == 2
+    # the settings reach the runs' keys (and so their rows)
+    from physbench.harness import conformance as C
+
+    runs, _ = C.plan(["billiards.head_on"], ["mujoco", "pymunk"], settings={"mujoco": {"impratio": 10.0}})
+    assert {r.engine: r.settings.get("impratio") for r in runs} == {"mujoco": 10.0, "pymunk": None}
+
+
+def test_run_set_dt_fraction():
+    r = physbench("run", HEAD_ON, "-e", "reference", "--json", "--set", "dt=1/240", check=True)
+    assert json.loads(r.stdout)["settings"]["dt"] == 1 / 240
+
+
+def test_tables_keep_names_whole_without_a_terminal(monkeypatch):
+    """Printed to a log (no terminal): 160 columns (or COLUMNS), and the
+    scenario and test-case names are never cut or wrapped."""
+    from io import StringIO
+
+    from physbench.harness import conformance as C
+    from physbench.harness.console import LOG_WIDTH, console
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    assert console(file=StringIO()).width == LOG_WIDTH == 160
+    monkeypatch.setenv("COLUMNS", "220")
+    assert console(file=StringIO()).width == 220
+    monkeypatch.delenv("COLUMNS")
+    long_s = "friction.a_rather_long_scenario_name_that_a_ci_log_must_show_whole"
+    outs = [C.Outcome(e, long_s, "variant_with_a_long_name", "bounce_ratio_error@dt=1/30", C.FAIL, 0.5, "<= 0.1",
+                      "bounce_ratio_error = 0.5, expected <= 0.1 " + "and a long message " * 8)
+            for e in ("reference", "mujoco", "pybullet", "pymunk", "rapier")]
+    buf = StringIO()
+    C.summarize(outs, console(file=buf))
+    text = buf.getvalue()
+    assert all(len(line) <= LOG_WIDTH for line in text.splitlines())
+    assert long_s in text
+    assert f"{long_s}[variant_with_a_long_name]::bounce_ratio_error@dt=1/30" in text

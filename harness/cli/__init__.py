@@ -1,8 +1,9 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
-    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
+    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--set [E:]k=v]... [--junit FILE] [--traces DIR]
+    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--set [E:]k=v]... [--watch] -o FILE.rrd
+    physbench validate FILE|SCENARIO [--variant V] [--engines ...] [--json]
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
     physbench models [NAME] [--json]
@@ -11,14 +12,17 @@
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
 dotted key path into the spec (``material.default.restitution=0.5``,
 ``body[0].velocity=[3,0,0]``).  Values are TOML (``true``, ``1e-3``,
-``"rk4"``); a bare word is a string.
+``"rk4"``) or a fraction (``dt=1/240``); a bare word is a string.  ``check``
+and ``trace`` also take ``ENGINE:KEY=VALUE``, one engine's setting
+(``mujoco:impratio=10``).
 
 ``run`` evaluates the scene's checks that apply to the run as ``check``
 does (making the step-phase and ``@dt=...`` runs they need) and lists them.
 
 Exit codes: 0 success, 1 a check failed unexpectedly (FAIL, XPASS, ERROR;
 check and run) or the run's status is not ok (run), 2 bad input (spec,
-settings, arguments, unknown scenario ids).
+settings, arguments, unknown scenario ids), 5 nothing to check (check: no
+check applied to any scene, each scene's reason printed).
 """
 
 from __future__ import annotations
@@ -92,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
                         "budget (default); --no-resume always starts afresh")
+    c.add_argument("--set", "-s", action="append", default=[], metavar="[ENGINE:]KEY=VALUE",
+                   help="engine settings for every run: ENGINE:KEY=VALUE for one engine (mujoco:impratio=10), "
+                        "KEY=VALUE for a setting every checked engine has (dt=1/240); a check's @dt=... wins")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -100,8 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("scenario")
     t.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     t.add_argument("--variant", "-v", default=None)
-    t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
-                   help="dotted spec keys only (engine settings differ per engine)")
+    t.add_argument("--set", "-s", action="append", default=[], metavar="[ENGINE:]KEY=VALUE",
+                   help="ENGINE:KEY=VALUE sets one engine's setting (mujoco:impratio=10); KEY=VALUE a setting every "
+                        "traced engine has (dt=1/240) or a dotted spec key (material.default.restitution=0.5)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")

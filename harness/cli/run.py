@@ -74,13 +74,16 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
 
 
 def _print_result(result, outcomes=()) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    from physbench.harness.console import console, name_column
+
+    con = console()
     title = f"{result.scenario}" + (f" [{result.variant}]" if result.variant else "") + f" on {result.engine} {result.engine_version}"
     con.print(f"[bold]{title}[/bold]: status [bold]{result.status}[/bold]" + (f" - {result.message}" if result.message else ""))
-    t = Table("metric", "value")
+    t = Table()
+    name_column(t, "metric", result.metrics)
+    t.add_column("value", overflow="fold")
     for k, v in result.metrics.items():
         t.add_row(k, _fmt(v))
     con.print(t)
@@ -97,7 +100,10 @@ def _print_result(result, outcomes=()) -> None:
 
         from physbench.harness.conformance import BAD, _fmt as fmt_value
 
-        c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
+        c = Table(title="checks (as physbench check)")
+        name_column(c, "check", [o.metric for o in outcomes])
+        for col in ("threshold", "value", "outcome", "reason"):
+            c.add_column(col, overflow="fold")
         for o in outcomes:
             style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
             c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value, o.bounds), f"[{style}]{o.outcome}[/]",

@@ -161,7 +161,8 @@ def _idle_lines(idle: list[tuple[str, str | None, str]]) -> list[str]:
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
-               traces: str | Path | None = None, scheduler: str | None = None) -> int:
+               traces: str | Path | None = None, scheduler: str | None = None,
+               settings: dict[str, dict[str, Any]] | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -173,7 +174,9 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     processes with ``timeout_s`` seconds each (``executor="inline"``: in
     this process; ``"dask"``: tasks on the Dask cluster at ``scheduler`` or
     a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
-    on local worker processes).  Returns 1 on any FAIL, ERROR or XPASS, 5
+    on local worker processes).  ``settings``: engine -> setting overrides
+    for that engine's runs (``check --set ENGINE:KEY=VALUE``; a check's
+    ``@dt=...`` setting wins over them).  Returns 1 on any FAIL, ERROR or XPASS, 5
     (:data:`NOTHING_CHECKED`) when no check applied to any run, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
@@ -192,7 +195,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         return 1
     notes: list[str] = []
     idle: list[tuple[str, str | None, str]] = []
-    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle)
+    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings)
     for line in notes:  # check engines not installed here (harness.conformance.plan.engine_names_in_checks)
         err.print(f"note: {line}", markup=False, highlight=False, soft_wrap=True)
     for line in _idle_lines(idle):

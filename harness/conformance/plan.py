@@ -187,7 +187,8 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
 
 def plan(scenario_ids: list[str], engines: list[str],
          timeout_s: float | None = RUN_TIMEOUT_S, notes: list[str] | None = None,
-         idle: list[tuple[str, str | None, str]] | None = None) -> tuple[list[RunSpec], list[Outcome]]:
+         idle: list[tuple[str, str | None, str]] | None = None,
+         settings: dict[str, dict[str, Any]] | None = None) -> tuple[list[RunSpec], list[Outcome]]:
     """Runs to make (each with the wall-clock budget ``timeout_s``), and
     ERROR outcomes for scenarios that fail to load (a check naming an
     unknown engine is such a failure: :func:`engine_names_in_checks`).
@@ -195,7 +196,8 @@ def plan(scenario_ids: list[str], engines: list[str],
     Two files with the same id (family.stem) raise SpecError: their rows
     could not be told apart.  ``notes`` (when given) receives a line per
     check engine that is not installed here; ``idle`` a (scenario,
-    variant, :func:`idle_reason`) per scene to which no check applies."""
+    variant, :func:`idle_reason`) per scene to which no check applies.
+    ``settings``: engine -> setting overrides of every run on it."""
     from physbench.contract.scene import load_scene, resolve_scenario
     from physbench.contract.spec import SpecError, load_spec
 
@@ -230,7 +232,7 @@ def plan(scenario_ids: list[str], engines: list[str],
                                      f"{seen[scene.id]}; rename one file or change its family"])
             n = len(runs)
             for eng in engines:
-                runs += scene_runs(scene, eng, path=path, timeout_s=timeout_s)
+                runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s)
             if idle is not None and len(runs) == n:
                 idle.append((scene.id, variant, idle_reason(scene, engines)))
     return runs, errors
