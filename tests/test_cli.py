@@ -282,3 +282,63 @@ def test_tables_keep_names_whole_without_a_terminal(monkeypatch):
     assert all(len(line) <= LOG_WIDTH for line in text.splitlines())
     assert long_s in text
     assert f"{long_s}[variant_with_a_long_name]::bounce_ratio_error@dt=1/30" in text
+
+
+def test_validate_reports_without_stepping(tmp_path, monkeypatch):
+    """physbench validate: the compiled scene, initial contacts, the model's
+    predictions and which checks apply to which engines; no run (the
+    runner is never called); exit 2 on a bad spec."""
+    import physbench.harness.runner as runner
+    from physbench.harness import cli
+
+    def no_runs(*a, **k):
+        raise AssertionError("validate must not step")
+
+    monkeypatch.setattr(runner, "run", no_runs)
+    spec = (ROOT / "scenarios" / "friction" / "ball_rolls.toml").read_text()
+    spec += '\n[[check]]\nmetric = "max_penetration"\nmax = 0.001\nengines = ["mujoco", "genesis"]\nxfail = { mujoco = "m" }\n'
+    p = tmp_path / "ball.toml"
+    p.write_text(spec)
+    r = physbench("validate", p, "--json", "--engines", "reference", "mujoco", "pymunk")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["steps"] == 480 and [b["name"] for b in d["bodies"]] == ["ball"]
+    # the ball rests on the slope: touching, measured by the harness's geometry
+    (c,) = d["initial_contacts"]
+    assert c["state"] == "touching" and abs(c["overlap_m"]) < 1e-15 and "slope 'slope'" in c["b"]
+    # the model's prediction, against the closed form a = 5/7 g sin 20
+    import math
+
+    assert d["predictions"]["roll_accel_ref"] == pytest.approx(5 / 7 * 9.81 * math.sin(math.radians(20)), rel=1e-12)
+    assert d["predictions_text"]["regime"] == "roll"
+    checks = {x["metric"]: x for x in d["checks"]}
+    scenes = ["base", *d["variants"]]
+    assert d["variants"] == ["angle_30", "small_ball"]
+    assert checks["roll_accel_error"]["applies_to"] == {v: ["reference", "mujoco", "pymunk"] for v in scenes}
+    assert checks["max_penetration"]["applies_to"] == {v: ["mujoco"] for v in scenes}
+    assert checks["max_penetration"]["xfail"] == ["mujoco"]
+    assert d["not_installed"] == [f"{p}: check[4].engines: engine 'genesis' is not installed here (engines here: "
+                                  f"reference, mujoco, pybullet, pymunk); its checks run only where it is"]
+    # the text report, in this process (the runner patched above never runs)
+    assert cli.main(["validate", str(p)]) == 0
+    # a bad spec is exit 2 with the errors, as for every command
+    p.write_text(spec.replace('engines = ["mujoco", "genesis"]', 'engines = ["mujoco", "mujocco"]'))
+    r = physbench("validate", p)
+    assert r.returncode == 2 and "check[4].engines: unknown engine 'mujocco'; did you mean 'mujoco'?" in r.stderr
+    r = physbench("run", p, "--engine", "pymunk")
+    assert r.returncode == 2 and "unknown engine 'mujocco'" in r.stderr
+
+
+def test_run_shows_the_models_predictions():
+    """run --json carries the model's predictions beside the measured values."""
+    r = physbench("run", HEAD_ON, "-e", "reference", "--json", check=True)
+    d = json.loads(r.stdout)
+    # Newton's law of restitution, e = 0.9, equal masses, 2 m/s onto a ball at rest
+    post = d["predictions"]["post_impact_velocity_ref"]
+    assert post["cue"] == pytest.approx([0.1, 0.0, 0.0], abs=1e-12)
+    assert post["object"] == pytest.approx([1.9, 0.0, 0.0], abs=1e-12)
+    assert d["predictions"]["impact_time_ref"] == pytest.approx((0.3 - 2 * 0.028575) / 2.0, rel=1e-12)
+    assert "impact time" in d["predictions_text"]
+    r = physbench("run", ROOT / "scenarios" / "friction" / "ball_rolls.toml", "-e", "reference", check=True)
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("│ roll_accel "))
+    assert line.count("2.39658") == 2  # measured and predicted, side by side

@@ -78,6 +78,59 @@ def initial_overlaps(scene: Scene) -> list[Overlap]:
     return sorted(out, key=lambda o: -o.depth)
 
 
+#: a clearance (m) below which two shapes at the start count as touching
+#: (:func:`initial_contacts`)
+CONTACT_GAP = 1e-9
+
+
+def initial_contacts(scene: Scene, gap: float = CONTACT_GAP) -> list[Overlap]:
+    """Every pair of shapes touching or overlapping in ``scene``'s initial
+    poses: signed overlap > -``gap`` m (``depth`` < 0 is a clearance
+    smaller than ``gap``, 0 exact contact, > 0 an overlap), deepest first.
+    Unlike :func:`initial_overlaps` it sees shapes that touch exactly
+    (a ball resting on its plane); for ``physbench validate``.  Empty
+    without the ``contact`` effect."""
+    from physbench.contract.geometry.dispatch import signed_gap
+    from physbench.contract.geometry.placed import _placed_body, _placed_static_box
+    from physbench.contract.geometry.support import plane_gap
+
+    if not scene.has("contact") or scene.n_bodies == 0:
+        return []
+    bodies = scene.bodies
+    pos = np.array([b.position for b in bodies], float)
+    quat = np.array([b.orientation for b in bodies], float)
+    rb = np.array([b.bounding_radius for b in bodies], float)
+    placed = [_placed_body(b, pos[i:i + 1], quat[i:i + 1]) for i, b in enumerate(bodies)]
+    out: list[Overlap] = []
+    for st in scene.statics:
+        for i, b in enumerate(bodies):
+            if st.shape == "plane":
+                d = float(plane_gap(placed[i], st.normal, st.offset)[0])
+            elif st.shape == "box":
+                d = float(signed_gap(placed[i], _placed_static_box(st, 1))[0])
+            else:
+                continue
+            if d > -gap:
+                out.append(Overlap(i, "static", st.index, d, _body_what(scene, i), _static_what(scene, st.index)))
+    n = len(bodies)
+    if n > 1:
+        if n <= 2000:
+            ii, jj = np.triu_indices(n, 1)
+            near = np.linalg.norm(pos[ii] - pos[jj], axis=1) <= rb[ii] + rb[jj] + gap
+            pairs = zip(ii[near].tolist(), jj[near].tolist())
+        else:
+            from scipy.spatial import cKDTree
+
+            pairs = (p for p in cKDTree(pos).query_pairs(2 * float(rb.max()) + gap)
+                     if np.linalg.norm(pos[p[0]] - pos[p[1]]) <= rb[p[0]] + rb[p[1]] + gap)
+        for i, j in pairs:
+            i, j = min(i, j), max(i, j)
+            d = float(signed_gap(placed[i], placed[j])[0])
+            if d > -gap:
+                out.append(Overlap(i, "body", j, d, _body_what(scene, i), _body_what(scene, j)))
+    return sorted(out, key=lambda o: -o.depth)
+
+
 def overlap_errors(scene: Scene, label: str, tolerance: float) -> list[str]:
     """Spec-error lines for the initial overlaps deeper than ``tolerance`` m:
     each names both shapes, the depth and the key paths."""

@@ -47,6 +47,7 @@ from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
 from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
 from physbench.harness.cli.run import cmd_run
 from physbench.harness.cli.trace import cmd_trace
+from physbench.harness.cli.validate import cmd_validate
 
 # build_parser binds each subcommand to the cmd_* name in this module at
 # call time, so a patched harness.cli.cmd_* is what runs
@@ -119,6 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
+
+    va = sub.add_parser("validate", help="dry run of one spec: the compiled scene, initial contacts, the model's "
+                                         "predictions and which checks apply to which engines, without stepping")
+    va.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    va.add_argument("--variant", "-v", default=None)
+    va.add_argument("--engines", nargs="+", default=None, help="the engines to plan the checks for (default all)")
+    va.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    va.set_defaults(func=cmd_validate)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
     e.add_argument("--json", action="store_true")

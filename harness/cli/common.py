@@ -200,8 +200,13 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    from physbench.contract.spec import SpecError
+    from physbench.harness.conformance.plan import engine_names_in_checks
     from physbench.harness.runner import check_run_size
 
+    bad, _ = engine_names_in_checks(scene, scene.source or str(args.scenario))
+    if bad:  # a misspelt engine in a check is a spec error for every command
+        raise SpecError(bad)
     try:
         resolved = get_adapter(engine).resolve_settings(scene, settings)
         check_run_size(scene, float(resolved["dt"]), req.record_every)
