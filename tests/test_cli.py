@@ -192,7 +192,8 @@ def test_run_phase_reproduces_a_phase_sweep_point_and_refuses_non_free_flight():
 
 
 def test_run_phase_bad_dt_and_saved_rows_carry_the_phase(tmp_path):
-    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.5", "--set", "dt=1/30")
+    # (dt=1/30 is a number: --set takes fractions, test_set_takes_fractions_and_engine_settings)
+    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.5", "--set", "dt=fast")
     assert out.returncode == 2 and "expected a number of seconds" in out.stderr
     import pandas as pd
     f = tmp_path / "rows.parquet"
