@@ -428,7 +428,7 @@ def test_check_engine_names_are_validated(tmp_path):
     from physbench.harness.conformance.plan import engine_names_in_checks
 
     known = ["reference", "mujoco", "pybullet", "pymunk"]
-    text = _BALL + ('[[check]]\nmetric = "stable"\nequals = true\nengines = ["mujocco", "genesis"]\n'
+    text = _BALL + ('[[check]]\nmetric = "stable"\nequals = true\nengines = ["mujocco", "mujoco_mjx"]\n'
                     '[[check]]\nmetric = "stable"\nequals = true\nxfail = { pybulet = "r", reference = "r" }\n')
     p = tmp_path / "c.toml"
     p.write_text(text)
@@ -439,7 +439,7 @@ def test_check_engine_names_are_validated(tmp_path):
         "pybullet, pymunk)",
         "L: check[1].xfail.pybulet: unknown engine 'pybulet'; did you mean 'pybullet'? (engines here: reference, "
         "mujoco, pybullet, pymunk)"]
-    assert absent == ["L: check[0].engines: engine 'genesis' is not installed here (engines here: reference, "
+    assert absent == ["L: check[0].engines: engine 'mujoco_mjx' is not installed here (engines here: reference, "
                       "mujoco, pybullet, pymunk); its checks run only where it is"]
     # in a check: the scene does not run, every engine gets an ERROR naming the key path
     runs, errs = C.plan([str(p)], ["reference"])

@@ -124,7 +124,8 @@ def engine_names_in_checks(scene: Scene, label: str, known: Iterable[str] | None
         for key, name in places:
             if name in known:
                 continue
-            near = difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+            # a near miss: similarity >= 0.8 ("mujocco", "pybulet"; "mujoco_mjx" is not one)
+            near = difflib.get_close_matches(name, known, n=1, cutoff=0.8)
             if near:
                 errors.append(f"{label}: {key}: unknown engine {name!r}; did you mean {near[0]!r}? "
                               f"(engines here: {', '.join(known)})")
