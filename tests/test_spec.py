@@ -300,3 +300,38 @@ def test_model_metric_without_reference_says_add_reference(tmp_path):
     p.write_text(ROLLS.replace('metric = "roll_accel_error"', 'metric = "roll_acel_error"'))
     with pytest.raises(SpecError, match=r"check\[0\]\.metric: 'roll_acel_error' is not produced"):
         load_scene(p)
+
+
+def test_buried_body_pair_names_both_bodies(tmp_path):
+    """Two boxes of a column placed 3 mm into each other: the error names
+    both bodies, their key paths and the depth (0.003 m, the overlap of
+    two aligned boxes along z)."""
+    p = tmp_path / "stack.toml"
+    p.write_text("""
+[scenario]
+family = "t"
+title = "two boxes"
+duration = 0.1
+dt = 0.01
+effects = ["gravity", "contact"]
+[[body]]
+name = "low"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+position = [0.0, 0.0, 0.05]
+[[body]]
+name = "high"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+position = [0.0, 0.0, 0.147]
+[[static]]
+shape = "plane"
+normal = [0.0, 0.0, 1.0]
+""")
+    with pytest.raises(SpecError) as exc:
+        load_scene(p)
+    (err,) = exc.value.errors
+    assert err.startswith(f"{p}: body[0].position: the start is buried: body 'low' (body[0].position) overlaps "
+                          f"body 'high' (body[1].position) by 0.003 m, deeper than"), err
