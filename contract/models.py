@@ -95,15 +95,41 @@ def scene_errors(scene: "Scene", label: str) -> list[str]:
         produced = produced | set(get_model(scene.reference_model).produces)
         origin = f"the harness or model {scene.reference_model!r}"
     hint = f"; {origin} produce(s): {', '.join(sorted(produced))}"
-    if scene.primary_metric is not None and scene.primary_metric not in produced:
-        errs.append(f"{label}: scenario.primary_metric: {scene.primary_metric!r} is not produced for this scene"
-                    + _why(scene, scene.primary_metric) + hint)
-    for i, c in enumerate(scene.checks):
-        name = c.metric.partition("@")[0]
-        if name not in produced:
-            errs.append(f"{label}: check[{i}].metric: {name!r} is not produced for this scene"
-                        + _why(scene, name) + hint)
+    wanted = [("scenario.primary_metric", scene.primary_metric)] if scene.primary_metric is not None else []
+    wanted += [(f"check[{i}].metric", c.metric.partition("@")[0]) for i, c in enumerate(scene.checks)]
+    missing = [(key, name) for key, name in wanted if name not in produced]
+    if not scene.reference_model:
+        # metrics only a model produces, in a scene without one: one error that
+        # says what to add, not one per check listing the harness's metrics
+        # (tests/test_spec.py::test_model_metric_without_reference_says_add_reference)
+        by_model = {name: _models_producing(name) for _, name in missing}
+        need = [(key, name) for key, name in missing if by_model[name]]
+        if need:
+            names = list(dict.fromkeys(name for _, name in need))
+            common = set.intersection(*(set(by_model[n]) for n in names))
+            cands = sorted(common) if common else sorted({m for n in names for m in by_model[n]})
+            errs.append(f"{label}: reference: {', '.join(repr(n) for n in names)} ({', '.join(k for k, _ in need)}) "
+                        f"{'is a metric' if len(names) == 1 else 'are metrics'} of a reference model, and the scene "
+                        f"has none: add [reference] model = {cands[0]!r}"
+                        + (f" (or one of {', '.join(cands[1:])})" if len(cands) > 1 else "")
+                        + " (physbench models lists them)")
+            missing = [(key, name) for key, name in missing if not by_model[name]]
+    for key, name in missing:
+        errs.append(f"{label}: {key}: {name!r} is not produced for this scene" + _why(scene, name) + hint)
     return errs
+
+
+def _models_producing(metric: str) -> list[str]:
+    """The registered models that produce ``metric`` (imports each model's
+    class: called only on a spec error)."""
+    out = []
+    for name in MODELS:
+        try:
+            if metric in get_model(name).produces:
+                out.append(name)
+        except Exception:  # a model that cannot be imported produces nothing here
+            continue
+    return out
 
 
 def _why(scene: "Scene", metric: str) -> str:

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.contract.geometry.start import overlap_errors
 from physbench.contract.models import model_refusal, scene_errors
 from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene_model import (  # re-exported: the scene's types are imported from here
@@ -177,6 +178,11 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
     if errs:
         raise ModelRefusal(errs)
     errs = scene_errors(scene, label)
+    if errs:
+        raise SpecError(errs)
+    # a start buried inside geometry is a typo, not a scene
+    # (tests/test_spec.py::test_buried_start_is_a_spec_error)
+    errs = overlap_errors(scene, label, spec.scenario.max_initial_overlap)
     if errs:
         raise SpecError(errs)
     scene = dataclasses.replace(scene, content_hash=content_hash(scene))

@@ -6,7 +6,7 @@ Definitions (all from the trace, never from an engine's own accounting):
 - ``max_penetration`` / ``mean_penetration`` (m): the deepest overlap between
   any two shapes over the run / the mean of each frame's deepest overlap over
   the frames where something overlaps (0 if nothing ever does).  Measured by
-  :mod:`harness.geometry` (depth = the shortest move that separates the two
+  :mod:`contract.geometry` (depth = the shortest move that separates the two
   shapes); ``penetration_unknown_frames`` counts frames where some pair could
   not be measured.  NaN without the ``contact`` effect (shapes are
   meant to pass through each other then).
@@ -282,11 +282,11 @@ def momentum_drift_series(scene: Scene, trace) -> tuple[np.ndarray | None, np.nd
 
 def run_penetration(scene: Scene, trace) -> Any:
     """The penetration measurement :func:`compute_metrics` reads: a
-    harness.geometry.Penetration of the trace's frames for a scene with the
+    contract.geometry.Penetration of the trace's frames for a scene with the
     ``contact`` effect, bodies and frames; None otherwise."""
     if not scene.has("contact") or scene.n_bodies == 0 or trace.pos.shape[0] == 0:
         return None
-    from physbench.harness.geometry import measure_penetration
+    from physbench.contract.geometry import measure_penetration
 
     return measure_penetration(scene, trace)
 

@@ -59,7 +59,7 @@ class Trace:
     angvel: np.ndarray
     n_frames: int = 0
     #: the harness's penetration measurement of the valid frames
-    #: (harness.geometry.Penetration, harness.metrics.run_penetration),
+    #: (contract.geometry.Penetration, harness.metrics.run_penetration),
     #: measured once by the runner for the metrics and kept so that the
     #: trace writer does not measure again; None when not measured
     penetration: Any = None

@@ -443,6 +443,7 @@ duration = 0.5
 dt = 0.001
 planar = true
 effects = ["gravity", "contact", "friction"]
+max_initial_overlap = 2e-4  # 0.1 mm deep on purpose (test_slope_slide_kinetic_friction)
 
 [material.default]
 friction = 0.2

@@ -29,9 +29,9 @@ PACKAGES = ("contract", "engine", "adapters", "harness")
 # run/metrics layer.  Imports go to the same or a lower rank only (same-rank
 # imports are fine while they make no cycle).
 LAYERS: list[tuple[int, tuple[str, ...]]] = [
-    (0, ("physbench", "physbench.contract", "physbench.engine")),
+    (0, ("physbench", "physbench.contract", "physbench.engine")),  # contract: spec, scene, geometry, ...; engine
     (1, ("physbench.adapters",)),
-    (2, ("physbench.harness",)),  # run, execute, metrics, geometry, references, results, status, fingerprint, trace
+    (2, ("physbench.harness",)),  # run, execute, metrics, references, results, status, fingerprint, trace
     (3, ("physbench.harness.conformance",)),  # check
     (4, ("physbench.harness.limits", "physbench.harness.limit_eval", "physbench.harness.limit_search", "physbench.harness.sweep", "physbench.harness.suite",
          "physbench.harness.points", "physbench.harness.sweep_store", "physbench.harness.schedule", "physbench.harness.sweep_bench", "physbench.harness.bench")),  # sweep, limits, bench
@@ -211,7 +211,7 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
 # during the report fails it).
 REPORT_MAY_NOT_IMPORT = ("physbench.contract.scene", "physbench.contract.scene_model", "physbench.contract.shapes", "physbench.contract.models",
                          "physbench.contract.spec", "physbench.adapters", "physbench.engine", "physbench.harness.conformance", "physbench.harness.references",
-                         "physbench.harness.metrics", "physbench.harness.geometry", "physbench.harness.points", "physbench.harness.suite",
+                         "physbench.harness.metrics", "physbench.contract.geometry", "physbench.harness.points", "physbench.harness.suite",
                          "physbench.harness.limits", "physbench.harness.limit_eval", "physbench.harness.execute", "physbench.harness.workers",
                          "physbench.harness.trace")
 # names the report may take from the runner (the commit the page was made at)

@@ -192,7 +192,8 @@ def test_run_phase_reproduces_a_phase_sweep_point_and_refuses_non_free_flight():
 
 
 def test_run_phase_bad_dt_and_saved_rows_carry_the_phase(tmp_path):
-    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.5", "--set", "dt=1/30")
+    # (dt=1/30 is a number: --set takes fractions, test_set_takes_fractions_and_engine_settings)
+    out = physbench("run", "tunnelling.thin_box_on_thin_floor", "-e", "pymunk", "--phase", "0.5", "--set", "dt=fast")
     assert out.returncode == 2 and "expected a number of seconds" in out.stderr
     import pandas as pd
     f = tmp_path / "rows.parquet"
@@ -219,3 +220,126 @@ def test_a_closed_pipe_is_not_a_traceback():
     err = proc.stderr.decode()
     assert "Traceback" not in err and "BrokenPipeError" not in err, err
     assert proc.returncode == 141, (proc.returncode, err)
+
+
+# --- issue 40: wider --set, legible tables
+
+
+def test_set_takes_fractions_and_engine_settings(monkeypatch):
+    """--set dt=1/240 is 1/240 s (as @dt=1/30 in a check); ENGINE:KEY=VALUE
+    sets one engine's setting in check and trace, validated up front."""
+    from physbench.harness import cli
+    from physbench.harness.cli.common import UsageError, _split_sets, engine_sets, set_value
+
+    assert set_value("1/240") == 1 / 240 and set_value("1e-3") == 1e-3 and set_value("rk4") == "rk4"
+    assert _split_sets(["dt=1/240", "scenario.dt=1/60"], {"dt"}) == ({"dt": 1 / 240}, {"scenario.dt": 1 / 60})
+    per, rest = engine_sets(["mujoco:impratio=10", "dt=1/240", "material.default.friction=0.3"], ["mujoco", "pymunk"])
+    assert per == {"mujoco": {"impratio": 10.0, "dt": 1 / 240}, "pymunk": {"dt": 1 / 240}}
+    assert rest == ["material.default.friction=0.3"]
+    for bad, why in ((["pybullet:erp=0.2"], "engine 'pybullet' is not among the engines"),
+                     (["impratio=10"], "not a setting of pymunk; give it per engine as ENGINE:impratio=VALUE"),
+                     (["mujoco:wobble=1"], "not a setting of mujoco"),
+                     (["mujoco:impratio=-1"], "mujoco:impratio")):
+        with pytest.raises(UsageError, match=why):
+            engine_sets(bad, ["mujoco", "pymunk"])
+    # check hands them to its runs: the settings arrive in check_main
+    seen = {}
+    monkeypatch.setattr("physbench.harness.conformance.check_main", lambda **kw: seen.update(kw) or 0)
+    assert cli.main(["check", "billiards.head_on", "--engines", "mujoco", "pymunk", "--set", "mujoco:impratio=10"]) == 0
+    assert seen["settings"] == {"mujoco": {"impratio": 10.0}}
+    assert cli.main(["check", "billiards.head_on", "--set", "body[0].mass=2"]) == 2
+    # the settings reach the runs' keys (and so their rows)
+    from physbench.harness import conformance as C
+
+    runs, _ = C.plan(["billiards.head_on"], ["mujoco", "pymunk"], settings={"mujoco": {"impratio": 10.0}})
+    assert {r.engine: r.settings.get("impratio") for r in runs} == {"mujoco": 10.0, "pymunk": None}
+
+
+def test_run_set_dt_fraction():
+    r = physbench("run", HEAD_ON, "-e", "reference", "--json", "--set", "dt=1/240", check=True)
+    assert json.loads(r.stdout)["settings"]["dt"] == 1 / 240
+
+
+def test_tables_keep_names_whole_without_a_terminal(monkeypatch):
+    """Printed to a log (no terminal): 160 columns (or COLUMNS), and the
+    scenario and test-case names are never cut or wrapped."""
+    from io import StringIO
+
+    from physbench.harness import conformance as C
+    from physbench.harness.console import LOG_WIDTH, console
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    assert console(file=StringIO()).width == LOG_WIDTH == 160
+    monkeypatch.setenv("COLUMNS", "220")
+    assert console(file=StringIO()).width == 220
+    monkeypatch.delenv("COLUMNS")
+    long_s = "friction.a_rather_long_scenario_name_that_a_ci_log_must_show_whole"
+    outs = [C.Outcome(e, long_s, "variant_with_a_long_name", "bounce_ratio_error@dt=1/30", C.FAIL, 0.5, "<= 0.1",
+                      "bounce_ratio_error = 0.5, expected <= 0.1 " + "and a long message " * 8)
+            for e in ("reference", "mujoco", "pybullet", "pymunk", "rapier")]
+    buf = StringIO()
+    C.summarize(outs, console(file=buf))
+    text = buf.getvalue()
+    assert all(len(line) <= LOG_WIDTH for line in text.splitlines())
+    assert long_s in text
+    assert f"{long_s}[variant_with_a_long_name]::bounce_ratio_error@dt=1/30" in text
+
+
+def test_validate_reports_without_stepping(tmp_path, monkeypatch):
+    """physbench validate: the compiled scene, initial contacts, the model's
+    predictions and which checks apply to which engines; no run (the
+    runner is never called); exit 2 on a bad spec."""
+    import physbench.harness.runner as runner
+    from physbench.harness import cli
+
+    def no_runs(*a, **k):
+        raise AssertionError("validate must not step")
+
+    monkeypatch.setattr(runner, "run", no_runs)
+    spec = (ROOT / "scenarios" / "friction" / "ball_rolls.toml").read_text()
+    spec += '\n[[check]]\nmetric = "max_penetration"\nmax = 0.001\nengines = ["mujoco", "genesis"]\nxfail = { mujoco = "m" }\n'
+    p = tmp_path / "ball.toml"
+    p.write_text(spec)
+    r = physbench("validate", p, "--json", "--engines", "reference", "mujoco", "pymunk")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["steps"] == 480 and [b["name"] for b in d["bodies"]] == ["ball"]
+    # the ball rests on the slope: touching, measured by the harness's geometry
+    (c,) = d["initial_contacts"]
+    assert c["state"] == "touching" and abs(c["overlap_m"]) < 1e-15 and "slope 'slope'" in c["b"]
+    # the model's prediction, against the closed form a = 5/7 g sin 20
+    import math
+
+    assert d["predictions"]["roll_accel_ref"] == pytest.approx(5 / 7 * 9.81 * math.sin(math.radians(20)), rel=1e-12)
+    assert d["predictions_text"]["regime"] == "roll"
+    checks = {x["metric"]: x for x in d["checks"]}
+    scenes = ["base", *d["variants"]]
+    assert d["variants"] == ["angle_30", "small_ball"]
+    assert checks["roll_accel_error"]["applies_to"] == {v: ["reference", "mujoco", "pymunk"] for v in scenes}
+    assert checks["max_penetration"]["applies_to"] == {v: ["mujoco"] for v in scenes}
+    assert checks["max_penetration"]["xfail"] == ["mujoco"]
+    assert d["not_installed"] == [f"{p}: check[4].engines: engine 'genesis' is not installed here (engines here: "
+                                  f"reference, mujoco, pybullet, pymunk); its checks run only where it is"]
+    # the text report, in this process (the runner patched above never runs)
+    assert cli.main(["validate", str(p)]) == 0
+    # a bad spec is exit 2 with the errors, as for every command
+    p.write_text(spec.replace('engines = ["mujoco", "genesis"]', 'engines = ["mujoco", "mujocco"]'))
+    r = physbench("validate", p)
+    assert r.returncode == 2 and "check[4].engines: unknown engine 'mujocco'; did you mean 'mujoco'?" in r.stderr
+    r = physbench("run", p, "--engine", "pymunk")
+    assert r.returncode == 2 and "unknown engine 'mujocco'" in r.stderr
+
+
+def test_run_shows_the_models_predictions():
+    """run --json carries the model's predictions beside the measured values."""
+    r = physbench("run", HEAD_ON, "-e", "reference", "--json", check=True)
+    d = json.loads(r.stdout)
+    # Newton's law of restitution, e = 0.9, equal masses, 2 m/s onto a ball at rest
+    post = d["predictions"]["post_impact_velocity_ref"]
+    assert post["cue"] == pytest.approx([0.1, 0.0, 0.0], abs=1e-12)
+    assert post["object"] == pytest.approx([1.9, 0.0, 0.0], abs=1e-12)
+    assert d["predictions"]["impact_time_ref"] == pytest.approx((0.3 - 2 * 0.028575) / 2.0, rel=1e-12)
+    assert "impact time" in d["predictions_text"]
+    r = physbench("run", ROOT / "scenarios" / "friction" / "ball_rolls.toml", "-e", "reference", check=True)
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("│ roll_accel "))
+    assert line.count("2.39658") == 2  # measured and predicted, side by side

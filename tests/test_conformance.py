@@ -8,6 +8,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from physbench.harness import conformance as C
+from physbench.harness.conformance.junit import junit_xml
+from physbench.harness.conformance.verdicts import describe_bound
 from physbench.harness.runner import RunResult
 from physbench.contract.scene import Check, load_scene
 
@@ -335,3 +337,133 @@ def test_phases_need_a_start_in_free_flight(tmp_path):
     p.write_text(spec)
     with pytest.raises(SpecError, match=r"scenario.phases: 4 step phases need a start in free flight: .*box_0"):
         load_scene(p)
+
+
+# ---------------------------------------------------------------------------
+# issue 40: verdicts a newcomer can trust
+
+
+def test_verdict_prints_the_digits_that_decide_it():
+    """0.0010000000000002507 against max 0.001 is a FAIL, and the message
+    shows the digits that make it one; a value far from its bound keeps 6."""
+    o = C.evaluate_check(Check("max_penetration", max=0.001), result({"max_penetration": 0.0010000000000002507}))
+    assert o.outcome == C.FAIL
+    assert o.message == "max_penetration = 0.0010000000000003, expected <= 0.001"  # not "0.001"
+    v = float(o.message.split(" = ")[1].split(",")[0])
+    assert v > 0.001  # the printed text reads back on the failing side
+    o = C.evaluate_check(Check("x", min=0.25), result({"x": 0.24999999}))
+    assert o.message == "x = 0.24999999, expected >= 0.25"
+    assert C.evaluate_check(Check("x", max=0.5), result({"x": 0.123456789})).message == "x = 0.123457, expected <= 0.5"
+    # the bound is printed as written, not rounded
+    assert describe_bound(Check("x", max=0.0123456789)) == "<= 0.0123456789"
+    # the failures table and JUnit print the same digits
+    from io import StringIO
+
+    from rich.console import Console
+
+    o = C.evaluate_check(Check("max_penetration", max=0.001), result({"max_penetration": 0.0010000000000002507}))
+    buf = StringIO()
+    C.summarize([o], Console(file=buf, width=250))
+    assert "0.0010000000000003" in buf.getvalue()
+    case = junit_xml([o]).getroot().find("testsuite/testcase")
+    assert "value 0.0010000000000003, threshold <= 0.001" in case.find("failure").text
+
+
+def test_junit_case_names_are_unique():
+    """Two checks on one metric (different bounds, or the same twice) become
+    distinct test cases that say what differs; other names stay as they were."""
+    r = result({"max_penetration": 0.002, "err": 0.1}, scenario="fam.scn")
+    outs = [C.evaluate_check(Check("max_penetration", max=0.001), r),
+            C.evaluate_check(Check("max_penetration", max=0.01), r),
+            C.evaluate_check(Check("err", max=1.0), r),
+            C.evaluate_check(Check("err", max=1.0), r),
+            C.evaluate_check(Check("err", max=1.0), result({"err": 0.1}, engine="pymunk", scenario="fam.scn"))]
+    root = junit_xml(outs).getroot()
+    names = [(s.get("name"), c.get("name")) for s in root.findall("testsuite") for c in s.findall("testcase")]
+    assert names == [("mujoco", "fam.scn::max_penetration[<= 0.001]"), ("mujoco", "fam.scn::max_penetration[<= 0.01]"),
+                     ("mujoco", "fam.scn::err[<= 1]"), ("mujoco", "fam.scn::err[<= 1]#2"),
+                     ("pymunk", "fam.scn::err")]
+
+
+def _spec_dir(tmp_path, text):
+    d = tmp_path / "specs"
+    d.mkdir(exist_ok=True)
+    (d / "a.toml").write_text(text)
+    return d
+
+
+_BALL = """
+[scenario]
+family = "t"
+title = "ball"
+duration = 0.1
+dt = 0.01
+effects = ["gravity"]
+[[body]]
+name = "ball"
+shape = "sphere"
+radius = 0.1
+mass = 1.0
+"""
+
+
+def test_check_with_nothing_to_check_exits_5(tmp_path, capsys):
+    """A check in which no check applies to anything exits 5 (as pytest) and
+    says per scene why; no empty table."""
+    d = _spec_dir(tmp_path, _BALL)
+    (d / "b.toml").write_text(_BALL.replace('title = "ball"', 'title = "b"') +
+                              '[[check]]\nmetric = "stable"\nequals = true\nengines = ["pybullet"]\n')
+    code = C.check_main(["reference"], None, None, [str(d)], executor="inline", save_dir=tmp_path / "rows")
+    err = capsys.readouterr().err
+    assert code == C.NOTHING_CHECKED == 5
+    assert "nothing to check: t.a: no [[check]] tables" in err
+    assert "nothing to check: t.b: none of its 1 checks applies to engines reference (stable: engines ['pybullet'] only)" in err
+    assert "conformance: checks per engine" not in err and not (tmp_path / "rows").exists()
+
+
+def test_check_engine_names_are_validated(tmp_path):
+    """A misspelt engine in a check's engines or xfail is a spec error (the
+    scene is an ERROR in check, exit 2 in run); a name far from any engine
+    here is taken as a plug-in not installed, and listed."""
+    from physbench.harness.conformance.plan import engine_names_in_checks
+
+    known = ["reference", "mujoco", "pybullet", "pymunk"]
+    text = _BALL + ('[[check]]\nmetric = "stable"\nequals = true\nengines = ["mujocco", "mujoco_mjx"]\n'
+                    '[[check]]\nmetric = "stable"\nequals = true\nxfail = { pybulet = "r", reference = "r" }\n')
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    scene = load_scene(p)
+    errors, absent = engine_names_in_checks(scene, "L", known)
+    assert errors == [
+        "L: check[0].engines: unknown engine 'mujocco'; did you mean 'mujoco'? (engines here: reference, mujoco, "
+        "pybullet, pymunk)",
+        "L: check[1].xfail.pybulet: unknown engine 'pybulet'; did you mean 'pybullet'? (engines here: reference, "
+        "mujoco, pybullet, pymunk)"]
+    assert absent == ["L: check[0].engines: engine 'mujoco_mjx' is not installed here (engines here: reference, "
+                      "mujoco, pybullet, pymunk); its checks run only where it is"]
+    # in a check: the scene does not run, every engine gets an ERROR naming the key path
+    runs, errs = C.plan([str(p)], ["reference"])
+    assert runs == [] and len(errs) == 1 and errs[0].outcome == C.ERROR
+    assert "check[0].engines: unknown engine 'mujocco'; did you mean 'mujoco'?" in errs[0].message
+
+
+def test_check_rows_carry_the_schema_version(tmp_path, monkeypatch):
+    """check's Parquet has the schema_version column (the report reads it
+    without a warning about the tool's own files)."""
+    import pandas as pd
+
+    from physbench.harness.report.loading import load_results
+    from physbench.harness.results import SCHEMA_VERSION
+
+    def fake_execute(spec):
+        return result({"post_impact_velocity_error": 0.001, "linear_momentum_drift": 0.0, "max_penetration": 0.0,
+                       "stable": True}, engine=spec.engine, scenario=spec.scenario, variant=spec.variant)
+
+    monkeypatch.setattr(C, "execute", fake_execute)
+    rows = tmp_path / "results" / "check"
+    assert C.check_main(["good"], None, None, ["billiards.head_on"], executor="inline", save_dir=rows) == 0
+    files = list(rows.glob("*.parquet"))
+    assert len(files) == 1
+    df = pd.read_parquet(files[0])
+    assert (df["schema_version"] == SCHEMA_VERSION).all() and len(df) > 0
+    assert not any("schema_version" in w for w in load_results(tmp_path / "results").attrs.get("warnings", []))

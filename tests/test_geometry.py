@@ -1,4 +1,4 @@
-"""physbench.harness.geometry: overlap depths against hand-computed values.
+"""physbench.contract.geometry: overlap depths against hand-computed values.
 
 Scenes are built the way the harness builds them (spec dict -> validate_raw ->
 compile_scene) and traces are filled by hand.  Every expected value below is
@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from physbench.harness import geometry as geo
+from physbench.contract import geometry as geo
 from physbench.harness.runner import Trace
 from physbench.contract.scene import compile_scene
 from physbench.contract.spec import validate_raw
@@ -26,8 +26,9 @@ S2 = math.sqrt(2.0)
 
 def make_scene(bodies, statics=(), effects=("contact",)):
     raw = {
+        # the poses come from the traces: the scene's own start may overlap
         "scenario": {"family": "test", "title": "geometry", "duration": 1.0, "dt": 0.01,
-                     "effects": list(effects)},
+                     "effects": list(effects), "max_initial_overlap": 1e6},
         "body": [dict(b) for b in bodies],
         "static": [dict(s) for s in statics],
     }
@@ -178,9 +179,9 @@ def test_box_box_matches_the_cross_product_form():
     """The box-box kernel writes the edge axes e_i x b_k out instead of
     calling np.cross: the same depths bit for bit (random poses, parallel
     edges, non-finite poses give NaN), so penetration metrics are unchanged."""
-    from physbench.harness.geometry.exact import _k_box_box
-    from physbench.harness.geometry.placed import Placed
-    from physbench.harness.geometry.vector import _norm
+    from physbench.contract.geometry.exact import _k_box_box
+    from physbench.contract.geometry.placed import Placed
+    from physbench.contract.geometry.vector import _norm
 
     def cross_form(A, B):
         C = np.einsum("nji,njk->nik", A.R, B.R)

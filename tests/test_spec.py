@@ -159,6 +159,7 @@ title = "t"
 duration = 1.0
 dt = 0.01
 effects = ["gravity", "contact"]
+max_initial_overlap = 1.0  # the pyramid starts inside the slope: opted in
 [[body]]
 name = "box"
 shape = "box"
@@ -192,3 +193,145 @@ def test_inertia_formulas():
     assert np.allclose(principal_inertia("cylinder", 12.0, 1.0, None, 1.0), [7, 7, 6])
     # capsule with h -> 0 is a sphere
     assert np.allclose(principal_inertia("capsule", 1.0, 1.0, None, 1e-12), [0.4] * 3)
+
+
+# --- issue 40: buried starts and type slips
+
+
+@pytest.mark.parametrize("text,message", [
+    (_replace("max = 0.02", 'max = "0.02"'),
+     "check[0].max: expected a number, got '0.02' (text, in quotes: write the value without them)"),
+    (_replace("max = 0.02", "max = true"), "check[0].max: expected a number, got true"),
+    (_replace("max = 0.02", "max = 0.02\nmin = 0.0"),
+     "check[0]: give one of max or min, not both (max = 0.02, min = 0.0); write two [[check]] tables for a range"),
+    (_replace('name = "cue"', 'name = "cue"\nvelocity = ["2.0", 0.0, 0.0]', 1).replace(
+        "velocity = [2.0, 0.0, 0.0]\n", "", 1), "body[0].velocity: expected a number, got '2.0'"),
+    (_replace("planar = true", 'planar = "true"'), "scenario.planar: expected true or false, got 'true'"),
+], ids=["max as text", "max as boolean", "max and min", "vector component as text", "boolean as text"])
+def test_type_slips_are_refused(tmp_path, text, message):
+    """A number in quotes, a boolean where a number goes, and a check with
+    both max and min are refused, never read as something else."""
+    p = tmp_path / "slip.toml"
+    p.write_text(text)
+    with pytest.raises(SpecError) as exc:
+        load_spec(p)
+    assert any(e == f"{p}: {message}" or e.startswith(f"{p}: {message}") for e in exc.value.errors), exc.value.errors
+
+
+ROLLS = (Path(__file__).resolve().parent.parent / "scenarios" / "friction" / "ball_rolls.toml").read_text()
+
+
+def _ball_on_slope(tmp_path, radius="radius = 0.1", angle="angle = 20.0", extra=""):
+    text = ROLLS.replace("radius = 0.1", radius, 1).replace("angle = 20.0", angle, 1)
+    text = text.replace('tags = ["conformance"]', 'tags = ["conformance"]' + extra, 1)
+    p = tmp_path / "ball.toml"
+    p.write_text(text)
+    return p
+
+
+def test_buried_start_is_a_spec_error(tmp_path):
+    """A start inside geometry deeper than scenario.max_initial_overlap is a
+    spec error naming both shapes, the depth and the key paths (issue 40:
+    a radius typed as 150 for 150 mm; a slope angle in radians)."""
+    c = np.array([0.03420201433256687, 0.0, 0.09396926207859085])  # the ball's centre in the file
+    # the angle in radians: the plane through 0 with normal (sin a, 0, cos a)
+    a = 0.3490658503988659
+    depth = 0.1 - (math.sin(math.radians(a)) * c[0] + math.cos(math.radians(a)) * c[2])
+    p = _ball_on_slope(tmp_path, angle=f"angle = {a!r}")
+    with pytest.raises(SpecError) as exc:
+        load_scene(p)
+    assert exc.value.errors == [
+        f"{p}: body[0].position: the start is buried: body 'ball' (body[0].position) overlaps slope 'slope' "
+        f"(static[0].angle) by {depth:.6g} m, deeper than scenario.max_initial_overlap = 1e-06 m (check units: "
+        f"lengths in m, angles in degrees); move the shapes apart, or set [scenario] max_initial_overlap where the "
+        f"overlap is the point"]
+    assert 0.0057 < depth < 0.0059  # 5.8 mm inside
+    # the radius in millimetres: buried by 150 - 0.1 m
+    p = _ball_on_slope(tmp_path, radius="radius = 150.0")
+    with pytest.raises(SpecError, match=r"overlaps slope 'slope' \(static\[0\]\.angle\) by 149\.9 m"):
+        load_scene(p)
+    # opted in: the same start loads
+    assert load_scene(_ball_on_slope(tmp_path, radius="radius = 150.0", extra="\nmax_initial_overlap = 150.0"))
+
+
+def test_touching_start_is_accepted(tmp_path):
+    """Shapes placed exactly in contact overlap by rounding only (~1e-17 m):
+    every shipped stack and resting body loads; an overlap within the
+    tolerance loads; past it, not."""
+    from physbench.contract.geometry.start import MAX_INITIAL_OVERLAP, initial_overlaps
+
+    s = load_scene("stacking.column_5")
+    ov = initial_overlaps(s)
+    assert ov and max(o.depth for o in ov) < 1e-15  # touching, counted, far below the tolerance
+    n = np.array([math.sin(math.radians(20.0)), 0.0, math.cos(math.radians(20.0))])
+    for sink, ok in ((0.5 * MAX_INITIAL_OVERLAP, True), (2 * MAX_INITIAL_OVERLAP, False)):
+        c = (0.1 - sink) * n
+        text = ROLLS.replace("position = [0.03420201433256687, 0.0, 0.09396926207859085]",
+                             f"position = [{float(c[0])!r}, 0.0, {float(c[2])!r}]")
+        p = tmp_path / f"sink_{ok}.toml"
+        p.write_text(text)
+        if ok:
+            assert initial_overlaps(load_scene(p))[0].depth == pytest.approx(sink, rel=1e-6)
+        else:
+            with pytest.raises(SpecError, match="the start is buried"):
+                load_scene(p)
+
+
+def test_model_metric_without_reference_says_add_reference(tmp_path):
+    """Checks on a model's metrics in a scene without [reference]: one
+    error that says which model to add, not one per check listing the
+    harness's metrics."""
+    text = ROLLS.replace('[reference]\nmodel = "rolling_sphere"\n', "")
+    text += '\n[[check]]\nmetric = "max_penetration"\nmax = 0.01\n'
+    p = tmp_path / "noref.toml"
+    p.write_text(text)
+    with pytest.raises(SpecError) as exc:
+        load_scene(p)
+    errs = exc.value.errors
+    assert len(errs) == 1, errs
+    assert errs[0].startswith(f"{p}: reference: 'roll_accel_error', 'spin_accel_error', 'rolling_slip' "
+                              f"(scenario.primary_metric, check[0].metric, check[1].metric, check[2].metric) are "
+                              f"metrics of a reference model, and the scene has none: add [reference] model = "), errs
+    # every model producing all three, named
+    assert errs[0].endswith("add [reference] model = 'rolling_cylinder' (or one of rolling_resistance, "
+                            "rolling_sphere) (physbench models lists them)"), errs
+    assert "max_penetration" not in errs[0]  # the harness's metrics are not listed
+    # a metric no model and no harness code produces keeps its own error, with the list
+    p.write_text(ROLLS.replace('metric = "roll_accel_error"', 'metric = "roll_acel_error"'))
+    with pytest.raises(SpecError, match=r"check\[0\]\.metric: 'roll_acel_error' is not produced"):
+        load_scene(p)
+
+
+def test_buried_body_pair_names_both_bodies(tmp_path):
+    """Two boxes of a column placed 3 mm into each other: the error names
+    both bodies, their key paths and the depth (0.003 m, the overlap of
+    two aligned boxes along z)."""
+    p = tmp_path / "stack.toml"
+    p.write_text("""
+[scenario]
+family = "t"
+title = "two boxes"
+duration = 0.1
+dt = 0.01
+effects = ["gravity", "contact"]
+[[body]]
+name = "low"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+position = [0.0, 0.0, 0.05]
+[[body]]
+name = "high"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+position = [0.0, 0.0, 0.147]
+[[static]]
+shape = "plane"
+normal = [0.0, 0.0, 1.0]
+""")
+    with pytest.raises(SpecError) as exc:
+        load_scene(p)
+    (err,) = exc.value.errors
+    assert err.startswith(f"{p}: body[0].position: the start is buried: body 'low' (body[0].position) overlaps "
+                          f"body 'high' (body[1].position) by 0.003 m, deeper than"), err

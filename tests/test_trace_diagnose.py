@@ -146,7 +146,7 @@ def test_harness_contact_of_a_sphere_in_a_plane_is_exact():
 
 
 def test_harness_contact_normal_of_two_boxes_is_the_separating_axis():
-    from physbench.harness.geometry import Placed
+    from physbench.contract.geometry import Placed
     from physbench.harness.trace.contacts import pair_normals
 
     R = np.eye(3)[None]

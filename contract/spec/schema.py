@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -16,6 +16,7 @@ from pydantic import (
     model_validator,
 )
 
+from physbench.contract.geometry.start import MAX_INITIAL_OVERLAP
 from physbench.contract.models import MODELS
 from physbench.contract.spec.bounds import BOUNDS, _bound, _bounded, _bounded_each, _bounded_norm, record_size_error
 
@@ -60,9 +61,47 @@ def _one_of(what: str, choices: tuple[str, ...]) -> Any:
 
 
 
+def _admits(annotation: Any, kinds: tuple[type, ...]) -> bool:
+    """Whether a field's type admits a value of one of ``kinds`` anywhere
+    in it (``str | None``, ``dict[str, str]``, ``tuple[float, ...]``: the
+    outer type and its arguments)."""
+    if annotation in kinds or annotation is Any:
+        return True
+    return any(_admits(a, kinds) for a in get_args(annotation))
+
+
+def _parses(text: str) -> bool:
+    """Whether ``text`` reads as a number or a boolean (a value quoted by slip)."""
+    if text.strip().lower() in ("true", "false"):
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 class _Strict(BaseModel):
     # allow_inf_nan=False: every float in a spec is finite ('finite_number')
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_type_slips(cls, v: Any, info: Any) -> Any:
+        """A number written as text (``max = "0.001"``) or as true/false,
+        where the key takes numbers, is refused, never converted
+        (tests/test_spec.py::test_type_slips_are_refused): pydantic's lax
+        mode would read "0.001" as 0.001 and true as 1.0."""
+        ann = cls.model_fields[info.field_name].annotation
+        items = v if isinstance(v, (list, tuple)) else [v]
+        for x in items:
+            if isinstance(x, str) and not _admits(ann, (str,)) and _admits(ann, (float, int, bool)):
+                what = "a number" if _admits(ann, (float, int)) else "true or false"
+                raise ValueError(f"expected {what}, got {x!r}" + (" (text, in quotes: write the value without them)"
+                                                                 if _parses(x) else ""))
+            if isinstance(x, bool) and not _admits(ann, (bool,)) and _admits(ann, (float, int)):
+                raise ValueError(f"expected a number, got {str(x).lower()}")
+        return v
 
 
 def _finite(v: float, what: str = "a finite number") -> float:
@@ -86,6 +125,9 @@ class ScenarioSection(_Strict):
     #: 1 = the scene as written only; N > 1 = also N - 1 runs with the start
     #: moved back along the free flight by i/N dt, every one must pass
     phases: int = Field(default=1, ge=1, le=256)
+    #: the deepest overlap (m) the initial poses may have (contract/geometry/start.py);
+    #: raise it only where an overlap at the start is the point of the scene
+    max_initial_overlap: float = Field(default=MAX_INITIAL_OVERLAP, ge=0.0, le=1e6)
 
     @field_validator("family")
     @classmethod
@@ -399,6 +441,10 @@ class CheckSection(_Strict):
             raise ValueError("a check needs max, min or equals")
         if self.equals is not None and (self.max is not None or self.min is not None):
             raise ValueError("equals cannot be combined with max or min")
+        if self.max is not None and self.min is not None:
+            # one bound per check (tests/test_spec.py::test_type_slips_are_refused)
+            raise ValueError(f"give one of max or min, not both (max = {self.max!r}, min = {self.min!r}); "
+                             f"write two [[check]] tables for a range")
         return self
 
 

@@ -1,8 +1,9 @@
 """``physbench`` command line: the user's three jobs.
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
-    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--junit FILE] [--traces DIR]
-    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--watch] -o FILE.rrd
+    physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--set [E:]k=v]... [--junit FILE] [--traces DIR]
+    physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--set [E:]k=v]... [--watch] -o FILE.rrd
+    physbench validate FILE|SCENARIO [--variant V] [--engines ...] [--json]
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
     physbench models [NAME] [--json]
@@ -11,14 +12,17 @@
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
 dotted key path into the spec (``material.default.restitution=0.5``,
 ``body[0].velocity=[3,0,0]``).  Values are TOML (``true``, ``1e-3``,
-``"rk4"``); a bare word is a string.
+``"rk4"``) or a fraction (``dt=1/240``); a bare word is a string.  ``check``
+and ``trace`` also take ``ENGINE:KEY=VALUE``, one engine's setting
+(``mujoco:impratio=10``).
 
 ``run`` evaluates the scene's checks that apply to the run as ``check``
 does (making the step-phase and ``@dt=...`` runs they need) and lists them.
 
 Exit codes: 0 success, 1 a check failed unexpectedly (FAIL, XPASS, ERROR;
 check and run) or the run's status is not ok (run), 2 bad input (spec,
-settings, arguments, unknown scenario ids).
+settings, arguments, unknown scenario ids), 5 nothing to check (check: no
+check applied to any scene, each scene's reason printed).
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
 from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
 from physbench.harness.cli.run import cmd_run
 from physbench.harness.cli.trace import cmd_trace
+from physbench.harness.cli.validate import cmd_validate
 
 # build_parser binds each subcommand to the cmd_* name in this module at
 # call time, so a patched harness.cli.cmd_* is what runs
@@ -92,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
                         "budget (default); --no-resume always starts afresh")
+    c.add_argument("--set", "-s", action="append", default=[], metavar="[ENGINE:]KEY=VALUE",
+                   help="engine settings for every run: ENGINE:KEY=VALUE for one engine (mujoco:impratio=10), "
+                        "KEY=VALUE for a setting every checked engine has (dt=1/240); a check's @dt=... wins")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
     c.set_defaults(func=cmd_check)
@@ -100,8 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("scenario")
     t.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     t.add_argument("--variant", "-v", default=None)
-    t.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
-                   help="dotted spec keys only (engine settings differ per engine)")
+    t.add_argument("--set", "-s", action="append", default=[], metavar="[ENGINE:]KEY=VALUE",
+                   help="ENGINE:KEY=VALUE sets one engine's setting (mujoco:impratio=10); KEY=VALUE a setting every "
+                        "traced engine has (dt=1/240) or a dotted spec key (material.default.restitution=0.5)")
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
@@ -111,6 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
+
+    va = sub.add_parser("validate", help="dry run of one spec: the compiled scene, initial contacts, the model's "
+                                         "predictions and which checks apply to which engines, without stepping")
+    va.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    va.add_argument("--variant", "-v", default=None)
+    va.add_argument("--engines", nargs="+", default=None, help="the engines to plan the checks for (default all)")
+    va.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    va.set_defaults(func=cmd_validate)
 
     e = sub.add_parser("engines", help="engines, versions, capabilities and settings")
     e.add_argument("--json", action="store_true")

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,73 @@ from physbench.contract.spec import parse_value
 
 class UsageError(Exception):
     pass
+
+
+_FRACTION = re.compile(r"^\s*[+-]?\d+(\.\d*)?\s*/\s*\d+(\.\d*)?\s*$")
+
+
+def set_value(text: str) -> Any:
+    """A --set value: TOML (``1e-3``, ``true``, ``[1,2,3]``, ``"rk4"``), a
+    fraction ``1/240`` as its float (as ``@dt=1/30`` in a check's metric),
+    else a bare word as a string (tests/test_cli.py::test_set_takes_fractions_and_engine_settings)."""
+    if _FRACTION.match(text):
+        try:
+            return float(Fraction(text.replace(" ", "")))
+        except ZeroDivisionError:
+            raise UsageError(f"--set: {text!r} divides by zero") from None
+    return parse_value(text)
+
+
+def engine_sets(pairs: list[str], engines: list[str]) -> tuple[dict[str, dict[str, Any]], list[str]]:
+    """Split ``--set`` items of ``check`` and ``trace``: ``ENGINE:KEY=VALUE``
+    sets one engine's setting, ``KEY=VALUE`` where KEY is a setting of every
+    engine in ``engines`` sets it for all.  Returns (per engine settings, the
+    remaining items: dotted spec keys).  Every engine setting is validated
+    here (engine among ``engines``, key one of its settings, value of its
+    kind): a UsageError (exit 2) otherwise."""
+    from physbench.adapters import get_adapter
+
+    per: dict[str, dict[str, Any]] = {e: {} for e in engines}
+    rest: list[str] = []
+    caps = {}
+
+    def settings_of(e: str) -> dict[str, Any]:
+        if e not in caps:
+            caps[e] = get_adapter(e).capabilities().settings
+        return caps[e]
+
+    for item in pairs or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--set {item}: expected key=value or engine:key=value")
+        key = key.strip()
+        head, colon, tail = key.partition(":")
+        if colon:
+            eng, name = head.strip(), tail.strip()
+            if eng not in per:
+                raise UsageError(f"--set {key}: engine {eng!r} is not among the engines of this command "
+                                 f"({', '.join(engines)})")
+            targets = [eng]
+        elif "." in key or "[" in key:
+            rest.append(item)
+            continue
+        else:
+            name = key
+            lacking = [e for e in engines if name not in settings_of(e)]
+            if lacking:
+                raise UsageError(f"--set {name}: not a setting of {', '.join(lacking)}; give it per engine as "
+                                 f"ENGINE:{name}=VALUE, or a dotted spec key (e.g. material.default.restitution)")
+            targets = list(engines)
+        value = set_value(text.strip())
+        for e in targets:
+            known = settings_of(e)
+            if name not in known:
+                raise UsageError(f"--set {key}: not a setting of {e} ({', '.join(sorted(known))})")
+            try:
+                per[e][name] = known[name].coerce(value)
+            except ValueError as err:
+                raise UsageError(f"--set {key}: {err}") from None
+    return per, rest
 
 
 def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -25,7 +94,7 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
             raise UsageError(f"--set {item}: expected key=value")
         key, _, text = item.partition("=")
         key = key.strip()
-        value = parse_value(text.strip())
+        value = set_value(text.strip())
         if key in engine_settings:
             settings[key] = value
         elif "." in key or "[" in key:
@@ -131,8 +200,13 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
+    from physbench.contract.spec import SpecError
+    from physbench.harness.conformance.plan import engine_names_in_checks
     from physbench.harness.runner import check_run_size
 
+    bad, _ = engine_names_in_checks(scene, scene.source or str(args.scenario))
+    if bad:  # a misspelt engine in a check is a spec error for every command
+        raise SpecError(bad)
     try:
         resolved = get_adapter(engine).resolve_settings(scene, settings)
         check_run_size(scene, float(resolved["dt"]), req.record_every)

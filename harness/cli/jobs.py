@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from physbench.harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, output_dir, output_file
+from physbench.harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, engine_sets, output_dir, output_file
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -16,9 +16,18 @@ def cmd_check(args: argparse.Namespace) -> int:
     output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
     _scheduler_needs_dask(args)
+    settings = None
+    if args.set:
+        from physbench.harness.conformance import default_engines
+
+        per, rest = engine_sets(args.set, list(args.engines or default_engines()))
+        if rest:
+            raise UsageError(f"--set {rest[0]}: check takes engine settings only (ENGINE:KEY=VALUE or KEY=VALUE); "
+                             f"vary the spec with a [[variant]]")
+        settings = {e: s for e, s in per.items() if s}
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
                       jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces,
-                      executor=args.executor, scheduler=args.scheduler)
+                      executor=args.executor, scheduler=args.scheduler, settings=settings)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -23,6 +23,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # in a worker process: an engine that aborts or hangs is a status, not a dead command
     result = run_isolated(req)
     runs, outcomes = _run_checks(req, result, settings, args)
+    values, text = _predictions(req)
     if args.save:
         from physbench.harness.results import write_rows
 
@@ -35,10 +36,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         d = result.as_dict()
         d["checks"] = [o.as_dict() for o in outcomes]
+        # the model's predictions beside the measured values (docs/METRICS.md, Predictions)
+        d["predictions"] = values
+        d["predictions_text"] = text
         sys.stdout.write(json.dumps(d, sort_keys=False) + "\n")
         sys.stdout.flush()
     else:
-        _print_result(result, outcomes)
+        _print_result(result, outcomes, values, text)
     return 0 if result.status == "ok" and not any(o.outcome in BAD for o in outcomes) else 1
 
 
@@ -73,17 +77,55 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
     return runs, evaluate_runs(runs, results)
 
 
-def _print_result(result, outcomes=()) -> None:
-    from rich.console import Console
+def _fmt_pred(v: Any) -> str:
+    """A prediction value: a number as the metrics are printed, a list or a
+    table of them (per body) element by element."""
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_fmt_pred(x)}" for k, x in v.items())
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt_pred(x) for x in v) + "]"
+    return _fmt(v)
+
+
+def _predictions(req) -> tuple[dict[str, Any], dict[str, str]]:
+    """The scene's model predictions (harness.references.predict), for the
+    scene as written (step phase 0, with the run's spec overrides)."""
+    import dataclasses
+
+    from physbench.harness.execute import request_scene
+    from physbench.harness.references.predict import predictions
+
+    return predictions(request_scene(dataclasses.replace(req, phase=0.0)))
+
+
+def _print_result(result, outcomes=(), values=None, text=None) -> None:
     from rich.table import Table
 
-    con = Console()
+    from physbench.harness.console import console, name_column
+
+    con = console()
     title = f"{result.scenario}" + (f" [{result.variant}]" if result.variant else "") + f" on {result.engine} {result.engine_version}"
     con.print(f"[bold]{title}[/bold]: status [bold]{result.status}[/bold]" + (f" - {result.message}" if result.message else ""))
-    t = Table("metric", "value")
+    values = values or {}
+    t = Table()
+    name_column(t, "metric", result.metrics)
+    t.add_column("value", overflow="fold")
+    # a prediction beside the metric it predicts (roll_accel_ref beside roll_accel)
+    twins = {k[:-4]: k for k in values if k.endswith("_ref") and k[:-4] in result.metrics}
+    if twins:
+        t.add_column("model predicts", overflow="fold")
     for k, v in result.metrics.items():
-        t.add_row(k, _fmt(v))
+        t.add_row(k, _fmt(v), *([_fmt_pred(values[twins[k]]) if k in twins else ""] if twins else []))
     con.print(t)
+    if values or text:
+        p = Table(title="the reference model predicts")
+        name_column(p, "prediction", [*values, *(text or {})])
+        p.add_column("value", overflow="fold")
+        for k, v in values.items():
+            p.add_row(k, _fmt_pred(v))
+        for k, v in (text or {}).items():
+            p.add_row(k, str(v))
+        con.print(p)
     s = Table("setting", "value")
     for k, v in result.settings.items():
         s.add_row(k, _fmt(v))
@@ -97,10 +139,13 @@ def _print_result(result, outcomes=()) -> None:
 
         from physbench.harness.conformance import BAD, _fmt as fmt_value
 
-        c = Table("check", "threshold", "value", "outcome", "reason", title="checks (as physbench check)")
+        c = Table(title="checks (as physbench check)")
+        name_column(c, "check", [o.metric for o in outcomes])
+        for col in ("threshold", "value", "outcome", "reason"):
+            c.add_column(col, overflow="fold")
         for o in outcomes:
             style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
-            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value), f"[{style}]{o.outcome}[/]",
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value, o.bounds), f"[{style}]{o.outcome}[/]",
                       escape(o.message))
         con.print(c)
 

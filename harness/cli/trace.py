@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from physbench.harness.cli.common import UsageError, _request, _split_sets, output_file
+from physbench.harness.cli.common import UsageError, _request, _split_sets, engine_sets, output_file
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
@@ -19,11 +19,13 @@ def cmd_trace(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.scenario}: trace records one scene side by side on engines: give a scenario id "
                          f"or a spec file, not a folder")
     output_file("-o", args.output)
-    overrides = _split_sets(args.set, set())[1] if args.set else {}
+    # ENGINE:KEY=VALUE for one engine, KEY=VALUE for a setting every engine has; dotted spec keys
+    per_engine, rest = engine_sets(args.set, engines)
+    overrides = _split_sets(rest, set())[1] if rest else {}
     reqs = []
     for e in engines:
         get_adapter(e)
-        reqs.append(_request(args, e, {}, overrides, timeout_s=args.timeout, keep_trace=True,
+        reqs.append(_request(args, e, per_engine[e], overrides, timeout_s=args.timeout, keep_trace=True,
                              contact_cap=0 if args.watch else DEFAULT_CAP))
     scene = request_scene(reqs[0])
     with WorkerPool(args.jobs) as pool:

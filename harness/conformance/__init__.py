@@ -2,7 +2,8 @@
 
 ``check_main(engines, tags, junit, scenarios, jobs)`` is what ``physbench
 check`` calls; it returns the process exit code (1 on any FAIL, ERROR or
-XPASS, else 0).
+XPASS; 5 when no check applied to anything, each scene's reason printed;
+else 0).
 
 Modules: ``verdicts`` (the outcome vocabulary, ``Outcome``, bounds and
 their evaluation, the combination over step phases, a row's verdict
@@ -135,10 +136,33 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor:
     return results
 
 
+#: exit code of a check in which no check applied to any run (as pytest's
+#: "no tests collected"): never 0, since nothing was shown to hold
+NOTHING_CHECKED = 5
+
+
+def _idle_lines(idle: list[tuple[str, str | None, str]]) -> list[str]:
+    """One line per scenario to which no check applied, with the reason
+    (its variants folded in when they share it)."""
+    by: dict[str, list[tuple[str | None, str]]] = {}
+    for sid, variant, why in idle:
+        by.setdefault(sid, []).append((variant, why))
+    out = []
+    for sid, items in by.items():
+        whys = {w for _, w in items}
+        if len(whys) == 1:
+            nv = sum(v is not None for v, _ in items)
+            out.append(f"{sid}{f' (and its {nv} variants)' if nv else ''}: {items[0][1]}")
+        else:
+            out += [f"{sid}{f'[{v}]' if v else ''}: {w}" for v, w in items]
+    return out
+
+
 def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | None,
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
-               traces: str | Path | None = None, scheduler: str | None = None) -> int:
+               traces: str | Path | None = None, scheduler: str | None = None,
+               settings: dict[str, dict[str, Any]] | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -150,11 +174,14 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     processes with ``timeout_s`` seconds each (``executor="inline"``: in
     this process; ``"dask"``: tasks on the Dask cluster at ``scheduler`` or
     a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
-    on local worker processes).  Returns 1 on any FAIL, ERROR or XPASS, else 0; raises
+    on local worker processes).  ``settings``: engine -> setting overrides
+    for that engine's runs (``check --set ENGINE:KEY=VALUE``; a check's
+    ``@dt=...`` setting wins over them).  Returns 1 on any FAIL, ERROR or XPASS, 5
+    (:data:`NOTHING_CHECKED`) when no check applied to any run, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
-    from physbench.harness.results import RESULTS_DIR, consolidate_parts
+    from physbench.harness.results import RESULTS_DIR, SCHEMA_VERSION, consolidate_parts
     from physbench.harness.runner import RunResult
     from physbench.contract.scene import resolve_scenario
     from physbench.contract.spec import SpecError
@@ -166,7 +193,18 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     if not ids:
         err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
         return 1
-    runs, load_errors = plan(ids, engines, timeout_s)
+    notes: list[str] = []
+    idle: list[tuple[str, str | None, str]] = []
+    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings)
+    for line in notes:  # check engines not installed here (harness.conformance.plan.engine_names_in_checks)
+        err.print(f"note: {line}", markup=False, highlight=False, soft_wrap=True)
+    for line in _idle_lines(idle):
+        err.print(f"nothing to check: {line}", markup=False, highlight=False, soft_wrap=True)
+    if not runs and not load_errors:
+        # nothing applied anywhere: not a pass (tests/test_cli.py::test_check_with_nothing_to_check_exits_5)
+        err.print(f"no check applies: {len(ids)} scenarios, engines {', '.join(engines)}; exit {NOTHING_CHECKED}",
+                  markup=False, highlight=False, soft_wrap=True)
+        return NOTHING_CHECKED
     root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
     store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
     results: dict[tuple, Any] = {}
@@ -183,7 +221,8 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     def on_result(r: RunSpec, res: Any) -> None:
         row = _row(r.key, res)
         row.update(r.row_extra)
-        row.update(run_key=r.run_key, check_id=store.path.name)
+        # the store's schema version in every row, as sweeps write it (the report reads it)
+        row.update(run_key=r.run_key, check_id=store.path.name, schema_version=SCHEMA_VERSION)
         try:
             store.write_part(row, {"check_id": store.path.name})
         except Exception as e:  # disk trouble must not hide the verdict

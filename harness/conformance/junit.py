@@ -6,13 +6,14 @@ import io
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from physbench.harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, _fmt
+from physbench.harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, _fmt, case_names
 from physbench.harness.results import write_text_atomic
 
 
 def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
     """JUnit XML: one <testsuite> per engine; testcase name
-    '<scenario>[<variant>]::<metric>', classname 'physbench.<engine>.<family>'.
+    '<scenario>[<variant>]::<metric>', unique in its suite (the bound added
+    where one metric is checked twice: :func:`case_names`), classname 'physbench.<engine>.<family>'.
     FAIL -> <failure>; ERROR -> <error>; XPASS -> <failure> 'unexpected pass';
     XFAIL -> <skipped> 'xfail: reason'; UNSUPPORTED -> <skipped>.  A
     testcase with a trace (check --traces) carries it as
@@ -23,6 +24,7 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
     for o in outcomes:
         by_engine.setdefault(o.engine, []).append(o)
     totals = dict(tests=0, failures=0, errors=0, skipped=0)
+    names = {id(o): n for o, n in zip(outcomes, case_names(outcomes))}
     for eng, outs in by_engine.items():
         counts = dict(tests=len(outs),
                       failures=sum(o.outcome in (FAIL, XPASS) for o in outs),
@@ -35,7 +37,7 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
             totals[k] += counts[k]
         for o in outs:
             family = o.scenario.split(".")[0]
-            tc = ET.SubElement(suite, "testcase", name=o.name, classname=f"physbench.{eng}.{family}",
+            tc = ET.SubElement(suite, "testcase", name=names[id(o)], classname=f"physbench.{eng}.{family}",
                                time=f"{o.time_s:.3f}")
             if o.trace:
                 props = ET.SubElement(tc, "properties")
@@ -56,7 +58,7 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
 
 
 def _detail(o: Outcome) -> str:
-    return f"metric {o.metric}: value {_fmt(o.value)}, threshold {o.threshold}\n{o.message}"
+    return f"metric {o.metric}: value {_fmt(o.value, o.bounds)}, threshold {o.threshold}\n{o.message}"
 
 
 def write_junit(outcomes: list[Outcome], path: str | Path) -> None:

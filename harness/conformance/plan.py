@@ -94,6 +94,63 @@ def default_engines() -> list[str]:
     return list(ENGINES)
 
 
+def engine_names_in_checks(scene: Scene, label: str, known: Iterable[str] | None = None) -> tuple[list[str], list[str]]:
+    """The engine names a scene's checks give (``engines = [...]`` and the
+    keys of ``xfail``), held against the engines registered here
+    (``known``, default :func:`physbench.adapters.engine_names`: the shipped
+    ones and the plug-ins installed).  Returns (errors, not installed):
+
+    - an unregistered name that is a near miss of a registered one
+      (``"mujocco"``) is a spec error naming the key path and the likely
+      name: a typo would silently drop the check, or hang an xfail on no
+      engine (tests/test_conformance.py::test_check_engine_names_are_validated);
+    - any other unregistered name is taken as a plug-in engine not installed
+      here: allowed (the scene may serve other machines), and listed, one
+      line per key path, so that a check that does not run says why.
+
+    Only the names are read: an xfail value may be a reason or a table."""
+    import difflib
+
+    if known is None:
+        from physbench.adapters import engine_names
+
+        known = engine_names()
+    known = list(known)
+    errors: list[str] = []
+    absent: list[str] = []
+    for i, c in enumerate(scene.checks):
+        places = [(f"check[{i}].engines", e) for e in (c.engines or ())]
+        places += [(f"check[{i}].xfail.{e}", e) for e in c.xfail]
+        for key, name in places:
+            if name in known:
+                continue
+            # a near miss: similarity >= 0.8 ("mujocco", "pybulet"; "mujoco_mjx" is not one)
+            near = difflib.get_close_matches(name, known, n=1, cutoff=0.8)
+            if near:
+                errors.append(f"{label}: {key}: unknown engine {name!r}; did you mean {near[0]!r}? "
+                              f"(engines here: {', '.join(known)})")
+            else:
+                absent.append(f"{label}: {key}: engine {name!r} is not installed here (engines here: "
+                              f"{', '.join(known)}); its checks run only where it is")
+    return errors, absent
+
+
+def idle_reason(scene: Scene, engines: Iterable[str]) -> str:
+    """Why no check of ``scene`` applies to any of ``engines`` (``physbench
+    check`` says it once per scene, and exits 5 when nothing at all ran)."""
+    engines = list(engines)
+    if not scene.checks:
+        return "no [[check]] tables" + (" (the base scene is not tagged 'hard')" if scene.variant is None else "")
+    whys = []
+    for c in scene.checks:
+        if c.variants is not None and (scene.variant or "base") not in c.variants:
+            whys.append(f"{c.metric}: variants {list(c.variants)} only")
+        elif c.engines is not None:
+            whys.append(f"{c.metric}: engines {list(c.engines)} only")
+    return (f"none of its {len(scene.checks)} checks applies to engines {', '.join(engines)}"
+            + (f" ({'; '.join(whys)})" if whys else ""))
+
+
 def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], message: str) -> list[Outcome]:
     return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
 
@@ -130,12 +187,18 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
 
 
 def plan(scenario_ids: list[str], engines: list[str],
-         timeout_s: float | None = RUN_TIMEOUT_S) -> tuple[list[RunSpec], list[Outcome]]:
+         timeout_s: float | None = RUN_TIMEOUT_S, notes: list[str] | None = None,
+         idle: list[tuple[str, str | None, str]] | None = None,
+         settings: dict[str, dict[str, Any]] | None = None) -> tuple[list[RunSpec], list[Outcome]]:
     """Runs to make (each with the wall-clock budget ``timeout_s``), and
-    ERROR outcomes for scenarios that fail to load.
+    ERROR outcomes for scenarios that fail to load (a check naming an
+    unknown engine is such a failure: :func:`engine_names_in_checks`).
     ``scenario_ids``: ids or spec file paths (:func:`select_scenarios`).
     Two files with the same id (family.stem) raise SpecError: their rows
-    could not be told apart."""
+    could not be told apart.  ``notes`` (when given) receives a line per
+    check engine that is not installed here; ``idle`` a (scenario,
+    variant, :func:`idle_reason`) per scene to which no check applies.
+    ``settings``: engine -> setting overrides of every run on it."""
     from physbench.contract.scene import load_scene, resolve_scenario
     from physbench.contract.spec import SpecError, load_spec
 
@@ -155,16 +218,24 @@ def plan(scenario_ids: list[str], engines: list[str],
         for variant in [None, *loaded.variants]:
             try:
                 scene = load_scene(sid, variant, loaded=loaded)
+                bad, absent = engine_names_in_checks(scene, loaded.label)
+                if bad:
+                    raise SpecError(bad)
             except Exception as e:
                 errors += _load_error_outcomes(sid, variant, engines, f"scene failed to compile: {e}")
                 continue
+            if notes is not None and variant is None:
+                notes.extend(a for a in absent if a not in notes)
             if variant is None:
                 where = str(loaded.path.resolve())
                 if seen.setdefault(scene.id, where) != where:
                     raise SpecError([f"{loaded.label}: <scenario>: id {scene.id!r} (family.stem) is also the id of "
                                      f"{seen[scene.id]}; rename one file or change its family"])
+            n = len(runs)
             for eng in engines:
-                runs += scene_runs(scene, eng, path=path, timeout_s=timeout_s)
+                runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s)
+            if idle is not None and len(runs) == n:
+                idle.append((scene.id, variant, idle_reason(scene, engines)))
     return runs, errors
 
 

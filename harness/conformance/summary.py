@@ -3,22 +3,23 @@
 from __future__ import annotations
 
 from physbench.harness.conformance.verdicts import (BAD, ERROR, FAIL, OUTCOMES, PASS, UNSUPPORTED, XFAIL, XPASS, Outcome,
-                                          _fmt)
+                                          _fmt, case_names)
 
 
 def summarize(outcomes: list[Outcome], console=None) -> None:
     """Print a per engine x scenario count table and every FAIL/XPASS/ERROR."""
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
-    console = console or Console()
+    from physbench.harness.console import console as make_console, name_column
+
+    console = console or make_console()
     engines = sorted({o.engine for o in outcomes})
     scenarios = sorted({o.scenario for o in outcomes})
     table = Table(title="conformance: checks per engine (pass/fail/xfail/xpass/unsupported/error)")
-    table.add_column("scenario")
+    name_column(table, "scenario", scenarios)
     for e in engines:
-        table.add_column(e, justify="center")
+        table.add_column(e, justify="center", overflow="fold")
     cells: dict[tuple[str, str], dict[str, int]] = {}
     for o in outcomes:
         cells.setdefault((o.scenario, o.engine), {k: 0 for k in OUTCOMES})[o.outcome] += 1
@@ -33,11 +34,14 @@ def summarize(outcomes: list[Outcome], console=None) -> None:
     console.print("totals: " + ", ".join(f"{k} {v}" for k, v in tot.items()))
     bad = [o for o in outcomes if o.outcome in BAD]
     if bad:
+        names = {id(o): n for o, n in zip(outcomes, case_names(outcomes))}
         t2 = Table(title="failures")
-        for col in ("engine", "testcase", "outcome", "value", "threshold", "message"):
+        t2.add_column("engine", no_wrap=True)
+        name_column(t2, "testcase", [names[id(o)] for o in bad])
+        for col in ("outcome", "value", "threshold", "message"):
             t2.add_column(col, overflow="fold")
         for o in bad:
-            t2.add_row(*(escape(x) for x in (o.engine, o.name, o.outcome, _fmt(o.value), o.threshold, o.message)))
+            t2.add_row(*(escape(x) for x in (o.engine, names[id(o)], o.outcome, _fmt(o.value, o.bounds), o.threshold, o.message)))
         console.print(t2)
 
 

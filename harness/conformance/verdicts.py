@@ -43,6 +43,9 @@ class Outcome:
     key: tuple = ()
     #: absolute path of the case's diagnosing trace (check --traces), else ""
     trace: str = ""
+    #: the check's numeric bounds (max, min, equals +- tolerance), for
+    #: printing the value with the digits that tell it from them (:func:`_fmt`)
+    bounds: tuple = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The outcome as stored in a row's ``checks`` column and printed by
@@ -57,6 +60,29 @@ class Outcome:
     def name(self) -> str:
         v = f"[{self.variant}]" if self.variant else ""
         return f"{self.scenario}{v}::{self.metric}"
+
+
+def case_names(outcomes: list[Outcome]) -> list[str]:
+    """Each outcome's test-case name, unique per engine: ``Outcome.name``
+    (``scenario[variant]::metric``, the @-setting part of the metric), and
+    where two checks of one engine share it (the same metric bounded twice)
+    the bound as well, ``...::max_penetration[<= 0.001]``; a check written
+    twice with the same bound gets ``#2``, ``#3`` after the first
+    (tests/test_conformance.py::test_junit_case_names_are_unique)."""
+    from collections import Counter
+
+    base = [(o.engine, o.name) for o in outcomes]
+    dup = Counter(base)
+    named = [(e, f"{n}[{o.threshold}]" if dup[(e, n)] > 1 else n) for (e, n), o in zip(base, outcomes)]
+    dup2, seen = Counter(named), Counter()
+    out = []
+    for e, n in named:
+        if dup2[(e, n)] > 1:
+            seen[(e, n)] += 1
+            if seen[(e, n)] > 1:
+                n = f"{n}#{seen[(e, n)]}"
+        out.append(n)
+    return out
 
 
 def split_metric(metric: str) -> tuple[str, dict[str, Any]]:
@@ -97,16 +123,37 @@ def check_applies(check: Check, engine: str, variant: str | None) -> bool:
     return True
 
 
+def _num(x: float) -> str:
+    """A bound as written: the shortest text that reads back as the same
+    float ('0.001', '1e-06', '0.0123456789'), never rounded to 6 digits."""
+    x = float(x)
+    for p in range(6, 18):
+        text = f"{x:.{p}g}"
+        if float(text) == x:
+            return text
+    return repr(x)
+
+
 def describe_bound(check: Check) -> str:
-    tol = f" +- {check.tolerance:g}" if check.tolerance else ""
+    tol = f" +- {_num(check.tolerance)}" if check.tolerance else ""
     if check.equals is not None:
-        return f"== {check.equals!r}{tol}" if isinstance(check.equals, bool) else f"== {check.equals:g}{tol}"
+        return f"== {check.equals!r}{tol}" if isinstance(check.equals, bool) else f"== {_num(check.equals)}{tol}"
     parts = []
     if check.min is not None:
-        parts.append(f">= {check.min:g}")
+        parts.append(f">= {_num(check.min)}")
     if check.max is not None:
-        parts.append(f"<= {check.max:g}")
+        parts.append(f"<= {_num(check.max)}")
     return " and ".join(parts) + tol
+
+
+def check_bounds(check: Check) -> tuple[float, ...]:
+    """The numbers a value is compared with: max + tol, min - tol,
+    equals -+ tol (booleans: none)."""
+    tol = float(check.tolerance or 0.0)
+    if check.equals is not None:
+        return () if isinstance(check.equals, bool) else (float(check.equals) - tol, float(check.equals) + tol)
+    return tuple(float(b) for b in ((None if check.max is None else check.max + tol),
+                                    (None if check.min is None else check.min - tol)) if b is not None)
 
 
 def _is_missing(value: Any) -> bool:
@@ -140,13 +187,27 @@ def meets(check: Check, value: Any) -> bool:
     return True
 
 
-def _fmt(value: Any) -> str:
+def _fmt(value: Any, bounds: Iterable[float] = ()) -> str:
+    """A metric value in a verdict: 6 significant digits, or as many more
+    as it takes to tell it from each of ``bounds`` -- the digits that show
+    why 0.0010000000000002507 fails ``<= 0.001`` (the text then reads back
+    on the same side of every bound as the value;
+    tests/test_conformance.py::test_verdict_prints_the_digits_that_decide_it)."""
     if isinstance(value, bool) or value is None:
         return repr(value)
     try:
-        return f"{float(value):.6g}"
+        v = float(value)
     except (TypeError, ValueError):
         return repr(value)
+    if not math.isfinite(v):
+        return repr(v)
+    bounds = [float(b) for b in bounds]
+    for p in range(6, 18):
+        text = f"{v:.{p}g}"
+        r = float(text)
+        if all((r < b) == (v < b) and (r > b) == (v > b) for b in bounds):
+            return text
+    return repr(v)
 
 
 def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outcome:
@@ -155,7 +216,8 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
     metric = metric_name or split_metric(check.metric)[0]
     reason = check.xfail.get(result.engine)
     o = Outcome(result.engine, result.scenario, result.variant, check.metric, PASS,
-                threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0))
+                threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0),
+                bounds=check_bounds(check))
     if result.status == st.UNSUPPORTED:
         o.outcome, o.message = UNSUPPORTED, f"unsupported: {result.message}"
         return o
@@ -183,7 +245,7 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
         return o
     else:
         ok = meets(check, value)
-        msg = f"{metric} = {_fmt(value)}, expected {o.threshold}"
+        msg = f"{metric} = {_fmt(value, o.bounds)}, expected {o.threshold}"
         if metric == "stable" and not ok and result.metrics.get("stability_reason"):
             msg += f" ({result.metrics['stability_reason']})"
     if reason:
@@ -288,7 +350,7 @@ def _combine_phases(per: list[Outcome], check: Check) -> Outcome:
     pattern = "".join(_PHASE_MARK.get(o.outcome, "?") for o in per)
     o0 = per[0]
     out = Outcome(o0.engine, o0.scenario, o0.variant, o0.metric, o0.outcome, o0.value, o0.threshold,
-                  o0.message, sum(o.time_s for o in per))
+                  o0.message, sum(o.time_s for o in per), bounds=check_bounds(check))
     if all(o.outcome == UNSUPPORTED for o in per):
         return out
     if any(o.outcome == UNSUPPORTED for o in per):

@@ -179,7 +179,7 @@ class Diagnosis:
                 tr, steps: np.ndarray, t: np.ndarray, pen, energy: tuple) -> None:
         """The diagnosis of one drawn run: momentum, error, contacts, check
         series, energy bands, predictions, events, context.  ``pen``: the
-        run's harness.geometry.Penetration (None without contact);
+        run's contract.geometry.Penetration (None without contact);
         ``energy``: harness.metrics.relative_energy of ``tr``, computed once
         by the writer."""
         from physbench.harness.metrics import momenta

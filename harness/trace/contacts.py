@@ -1,7 +1,7 @@
 """Contacts for traces: the harness's own deepest points, and bounding.
 
 :func:`harness_contacts` turns the harness's penetration measurement
-(:func:`harness.geometry.measure_penetration`, the same depths the metrics
+(:func:`contract.geometry.measure_penetration`, the same depths the metrics
 use) into contact rows per frame, in the row layout of
 :meth:`adapters.base.Adapter.contacts`: [point x, y, z (m), unit normal
 x, y, z, depth (m, > 0)], (k, 7) per frame, only frames where some pair
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.harness.geometry import Placed, _phi, _placed_body, _placed_static_box
+from physbench.contract.geometry import Placed, _phi, _placed_body, _placed_static_box
 from physbench.contract.scene import Scene
 
 DEFAULT_CAP = 32  # contact rows per frame kept in a trace
@@ -110,10 +110,10 @@ def pair_normals(A: Placed, B: Placed) -> np.ndarray:
 def harness_contacts(scene: Scene, trace, cap: int = DEFAULT_CAP, pen=None) -> list[tuple[int, np.ndarray]]:
     """[(frame, rows (k, 7))] for the frames where some pair overlaps, the
     ``cap`` deepest pairs each, deepest first (layout in the module
-    docstring).  ``pen``: a :class:`harness.geometry.Penetration` of this
+    docstring).  ``pen``: a :class:`contract.geometry.Penetration` of this
     trace if the caller has one."""
     if pen is None:
-        from physbench.harness.geometry import measure_penetration
+        from physbench.contract.geometry import measure_penetration
 
         pen = measure_penetration(scene, trace)
     ok = np.isfinite(pen.depths) & (pen.depths > 0)

@@ -43,7 +43,7 @@
     every engine, so the curves start at the same level.
 ``/metrics/<engine>/penetration``
     Per-frame deepest overlap (m) over all candidate pairs,
-    :func:`harness.geometry.max_depth_per_frame` (0 when there are no pairs);
+    :func:`contract.geometry.max_depth_per_frame` (0 when there are no pairs);
     only for scenes with the ``contact`` effect.  The run's own measurement
     when the runner kept it (``Trace.penetration``), else measured.
 
@@ -323,7 +323,7 @@ def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene
     if scene.has("contact"):
         pen = tr.penetration
         if pen is None or pen.n_frames != F:
-            from physbench.harness.geometry import measure_penetration
+            from physbench.contract.geometry import measure_penetration
 
             pen = measure_penetration(scene, tr)
         _send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())

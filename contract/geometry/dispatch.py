@@ -9,9 +9,9 @@ from typing import Callable
 
 import numpy as np
 
-from physbench.contract.scene import Body, Static
-from physbench.harness.geometry.cylinder import _k_box_cylinder, _k_capsule_cylinder, _k_cylinder_cylinder
-from physbench.harness.geometry.exact import (
+from physbench.contract.scene_model import Body, Static
+from physbench.contract.geometry.cylinder import _k_box_cylinder, _k_capsule_cylinder, _k_cylinder_cylinder
+from physbench.contract.geometry.exact import (
     _k_box_box,
     _k_capsule_box,
     _k_capsule_capsule,
@@ -20,8 +20,8 @@ from physbench.harness.geometry.exact import (
     _k_sphere_cylinder,
     _k_sphere_sphere,
 )
-from physbench.harness.geometry.placed import SHAPES, Placed, _ORDER, _placed_body, _placed_static_box
-from physbench.harness.geometry.support import depth_body_plane
+from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, _placed_body, _placed_static_box
+from physbench.contract.geometry.support import depth_body_plane
 
 _CHUNK = 32768        # events per kernel call (bounds temporary memory)
 

@@ -1,7 +1,7 @@
 """Overlap depths of every pair of shapes in every frame of a trace, stored
 sparsely (:class:`Penetration`): bodies against statics, and body pairs that
-survive the culling (harness/geometry/cull.py) grouped by shape pair and
-measured by the kernels of the dispatch table (harness/geometry/dispatch.py)."""
+survive the culling (contract/geometry/cull.py) grouped by shape pair and
+measured by the kernels of the dispatch table (contract/geometry/dispatch.py)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from physbench.contract.scene import Body, Scene
-from physbench.harness.geometry.cull import _ALL_PAIRS_MAX, _body_events, _radius_classes
-from physbench.harness.geometry.dispatch import PAIR_KERNELS, pair_depth
-from physbench.harness.geometry.placed import SHAPES, Placed, _ORDER, _placed_static_box, _static_rotation
-from physbench.harness.geometry.support import plane_gap
+from physbench.contract.scene_model import Body, Scene
+from physbench.contract.geometry.cull import _ALL_PAIRS_MAX, _body_events, _radius_classes
+from physbench.contract.geometry.dispatch import PAIR_KERNELS, pair_depth
+from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, _placed_static_box, _static_rotation
+from physbench.contract.geometry.support import plane_gap
 
 @dataclass
 class Penetration:

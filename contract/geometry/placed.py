@@ -1,5 +1,5 @@
 """Placed shapes: N shapes of one kind at their poses, the input of every
-geometry kernel (harness/geometry/), and the scene's bodies and static boxes
+geometry kernel (contract/geometry/), and the scene's bodies and static boxes
 turned into them."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.contract.rotation import quat_to_matrix, rotation_matrix
-from physbench.contract.scene import Body, Static
+from physbench.contract.scene_model import Body, Static
 
 #: body shapes in the canonical order of PAIR_KERNELS keys
 SHAPES = ("sphere", "capsule", "box", "cylinder")

@@ -1,8 +1,8 @@
 """The support-function search for pairs with a cylinder: s = min of phi over
 a candidate set of normals that contains the minimiser -- fixed axes, closest
 points of ridges, rim-rim local minima and great circles of normals (the
-method and its measured accuracy are in harness/geometry/__init__.py).  The
-kernels that use it are in harness/geometry/cylinder.py."""
+method and its measured accuracy are in contract/geometry/__init__.py).  The
+kernels that use it are in contract/geometry/cylinder.py."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from typing import Callable
 
 import numpy as np
 
-from physbench.harness.geometry.placed import Placed
-from physbench.harness.geometry.support import _phi
-from physbench.harness.geometry.vector import _dot, _golden, _norm, _perp_basis, _sq, _unit_or
+from physbench.contract.geometry.placed import Placed
+from physbench.contract.geometry.support import _phi
+from physbench.contract.geometry.vector import _dot, _golden, _norm, _perp_basis, _sq, _unit_or
 
 _CIRCLE_SAMPLES = 72  # samples on a great circle of normals (5 degrees apart)
 _CIRCLE_REFINE = 3    # lowest sampled local minima refined per circle

@@ -1,15 +1,15 @@
 """Signed-gap kernels of the pairs with a cylinder that have no closed form:
 box-cylinder, capsule-cylinder (exact while the capsule's core segment is
 outside the cylinder) and cylinder-cylinder, each a candidate set for the
-support-function search of harness/geometry/search.py."""
+support-function search of contract/geometry/search.py."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from physbench.harness.geometry.exact import _seg_cyl_distance
-from physbench.harness.geometry.placed import Placed
-from physbench.harness.geometry.search import (
+from physbench.contract.geometry.exact import _seg_cyl_distance
+from physbench.contract.geometry.placed import Placed
+from physbench.contract.geometry.search import (
     _box_vertices,
     _circle_closest_to_origin,
     _circle_min,
@@ -18,8 +18,8 @@ from physbench.harness.geometry.search import (
     _rims,
     _search,
 )
-from physbench.harness.geometry.support import _phi
-from physbench.harness.geometry.vector import _unit_or
+from physbench.contract.geometry.support import _phi
+from physbench.contract.geometry.vector import _unit_or
 
 def _k_box_cylinder(Bx: Placed, Y: Placed) -> np.ndarray:
     """Boundary pieces of Bx - Y and their normals: box faces (+-u_k), caps

@@ -111,8 +111,8 @@ chunk.  Only non-zero depths are stored.  Measured (2-core x86-64, numpy
 10 stacked cylinders x 2400 frames 3.5 s (cylinder pairs dominate).
 """
 
-from physbench.harness.geometry.cull import _ALL_PAIRS_MAX
-from physbench.harness.geometry.dispatch import (
+from physbench.contract.geometry.cull import _ALL_PAIRS_MAX
+from physbench.contract.geometry.dispatch import (
     BODY_PAIRS,
     PAIR_KERNELS,
     STATIC_PAIRS,
@@ -120,6 +120,6 @@ from physbench.harness.geometry.dispatch import (
     pair_depth,
     signed_gap,
 )
-from physbench.harness.geometry.penetration import Penetration, max_depth_per_frame, measure_penetration, penetration_depths
-from physbench.harness.geometry.placed import SHAPES, Placed, _placed_body, _placed_static_box
-from physbench.harness.geometry.support import _phi, _support, depth_body_plane, plane_gap
+from physbench.contract.geometry.penetration import Penetration, max_depth_per_frame, measure_penetration, penetration_depths
+from physbench.contract.geometry.placed import SHAPES, Placed, _placed_body, _placed_static_box
+from physbench.contract.geometry.support import _phi, _support, depth_body_plane, plane_gap

@@ -1,14 +1,14 @@
 """Closed-form signed-gap kernels: sphere vs every shape, capsule-capsule,
 box-box (separating axes) and capsule-box, and the convex segment-distance
 searches that capsule-box and capsule-cylinder share (accuracy in the table
-of harness/geometry/__init__.py)."""
+of contract/geometry/__init__.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from physbench.harness.geometry.placed import Placed
-from physbench.harness.geometry.vector import _dot, _golden, _norm
+from physbench.contract.geometry.placed import Placed
+from physbench.contract.geometry.vector import _dot, _golden, _norm
 
 _SEG_ITERS = 60       # golden-section steps for segment-vs-convex distances
 

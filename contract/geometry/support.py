@@ -1,15 +1,15 @@
 """Support functions h_X(n) of the body shapes, the overlap phi(n) of two
 shapes' projections on n (the support function of the Minkowski difference
-A - B, see harness/geometry/__init__.py), and the body-vs-plane family,
+A - B, see contract/geometry/__init__.py), and the body-vs-plane family,
 which is exact from the support function alone."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from physbench.contract.scene import Body, Static
-from physbench.harness.geometry.placed import Placed, _placed_body
-from physbench.harness.geometry.vector import _norm
+from physbench.contract.scene_model import Body, Static
+from physbench.contract.geometry.placed import Placed, _placed_body
+from physbench.contract.geometry.vector import _norm
 
 def _support(G: Placed, n: np.ndarray) -> np.ndarray:
     """h_G(n) = max over the shape of n . (x - c), for unit n (N, M, 3) -> (N, M)."""
