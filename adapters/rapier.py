@@ -1,0 +1,324 @@
+"""Rapier adapter (``rapier3d`` 0.36 Python bindings: 3D, single precision;
+planar scenes run as 3D scenes).
+
+Precision
+    Rapier computes in f32: positions, velocities and quaternions come back
+    rounded to 24-bit mantissas (a relative 6e-8; 6e-8 m at 1 m from the
+    origin), which puts a floor under every error metric the harness forms
+    from them (docs/ENGINE_FINDINGS.md gives the measured floor).
+
+Stepping
+    ``PhysicsWorld.step()`` advances ``integration_parameters.dt``.  Rapier's
+    TGS-soft solver splits every step into ``num_solver_iterations``
+    substeps of dt/S, each with ``num_internal_pgs_iterations`` PGS sweeps,
+    and integrates each substep velocity first (v += a h, then x += v h):
+    free fall from rest gives z_k = -g dt^2 k (k + 1/S) / 2
+    (tests/test_adapter_rapier.py::test_free_fall_substeps).
+
+Bodies
+    A dynamic body per scene body, posed at its centre of mass (Rapier takes
+    quaternions as (x, y, z, w)), its velocities world-frame (Rapier's
+    ``angvel`` is world-frame), sleeping off, damping 0.  Mass and principal
+    inertia are the Scene's, given as the body's additional mass properties
+    (colliders have density 0), so no shape formula of Rapier's enters.
+
+Shapes
+    sphere -> ball; box -> cuboid (half extents); capsule -> ``capsule_z``
+    (axis = body z); cylinder -> ``cylinder`` (Rapier's axis is its local y),
+    turned +90 degrees about x so that its axis is body z.  Statics: a plane
+    (or slope) is a ``halfspace`` with outward normal n through offset * n;
+    a static box is a cuboid.  Without ``contact`` no collider exists at all.
+
+Materials
+    Rapier combines a pair per collider rule (the higher-priority rule of the
+    two wins).  Every collider gets ``MULTIPLY`` for friction and
+    restitution, and per-material values whose products give every pair
+    (:func:`adapters.materials.per_material_factors`; per-object values by
+    least squares with the residual in the notes where no per-material ones
+    exist).  Rapier has one Coulomb coefficient: the kinetic friction is used
+    (noted where static_friction differs).  Rapier has no rolling resistance:
+    ``rolling_friction`` is unsupported.
+
+Effects
+    gravity -> world gravity; springs, dampers and drag are explicit forces
+    from the state at the start of each step (:class:`adapters.forces.StateForces`,
+    held over its substeps; noted in the row).  gyroscopic: Rapier's
+    per-body switch ``gyroscopic_forces`` is on exactly when the scene lists
+    the effect.  Rapier integrates the term w x I w implicitly (one
+    linearised implicit step of the Euler equations per substep), so
+    torque-free rotation loses energy; without it the angular velocity is
+    simply held.
+
+Contacts
+    :meth:`RapierAdapter.contacts` reads the narrow phase's solver contacts
+    (world points; manifold normal from collider 1 toward collider 2; depth =
+    -dist, so speculative contacts within the prediction distance come out
+    negative).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.forces import DRAG_NOTE, StateForces
+from physbench.adapters.materials import per_material_factors, per_object_factors
+from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
+from physbench.contract.scene import Scene
+
+try:  # the engine; a missing rapier3d only makes its runs unavailable
+    import rapier3d as rp
+
+    _IMPORT_ERROR = ""
+except Exception as _e:  # pragma: no cover - depends on the environment
+    rp = None
+    _IMPORT_ERROR = f"import rapier3d failed: {type(_e).__name__}: {_e}"
+
+ENGINE = "rapier"
+
+ROLLING_FRICTION_REASON = "Rapier 0.36 has no rolling resistance (rolling_friction)"
+
+_SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
+_STATIC_SHAPES = frozenset({"plane", "slope", "box"})
+_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "drag_linear", "drag_quadratic",
+                      "spring", "damper", "gyroscopic"})
+
+
+def _settings() -> dict[str, Setting]:
+    return {
+        "dt": DT_SETTING,
+        "iterations": Setting(
+            "iterations", 4, int,
+            "num_solver_iterations: TGS-soft substeps per step, each dt/iterations long "
+            "(Rapier default 4)", lo=1, hi=1000),
+        "pgs_iterations": Setting(
+            "pgs_iterations", 1, int,
+            "num_internal_pgs_iterations: PGS sweeps of the contacts per substep (Rapier default 1)",
+            lo=1, hi=1000),
+        "contact_frequency": Setting(
+            "contact_frequency", 30.0, float,
+            "contact_softness.natural_frequency (Hz) of the soft contact constraint between "
+            "dynamic bodies; Rapier default 30 (its static contacts use "
+            "static_contact_frequency)", lo=0.1, hi=1e5),
+        "static_contact_frequency": Setting(
+            "static_contact_frequency", 60.0, float,
+            "static_contact_softness.natural_frequency (Hz): contacts with fixed colliders "
+            "(Rapier default 60)", lo=0.1, hi=1e5),
+        "contact_damping_ratio": Setting(
+            "contact_damping_ratio", 10.0, float,
+            "damping ratio of both contact softnesses (Rapier default 10)", lo=0.0, hi=1e4),
+        "ccd": Setting(
+            "ccd", False, bool,
+            "ccd_enabled on every body: Rapier's nonlinear time-of-impact sweep for bodies "
+            "moving more than their thickness per step (Rapier default off)"),
+        "max_ccd_substeps": Setting(
+            "max_ccd_substeps", 1, int,
+            "max_ccd_substeps: time-of-impact substeps per step with ccd on (Rapier default 1)",
+            lo=1, hi=100),
+        "friction_model": Setting(
+            "friction_model", "simplified", str,
+            "friction_model: 'simplified' (one friction constraint per manifold plus a twist "
+            "constraint; Rapier default) or 'coulomb' (one per contact point)",
+            choices=("simplified", "coulomb")),
+    }
+
+
+class RapierAdapter(Adapter):
+    """Adapter for rapier3d 0.36 (see the module docstring)."""
+
+    name = ENGINE
+
+    @classmethod
+    def capabilities(cls) -> Capabilities:
+        return Capabilities(
+            engine=ENGINE,
+            version=rp.__version__ if rp is not None else module_version("rapier3d"),
+            dimensions=3,
+            shapes=_SHAPES,
+            static_shapes=_STATIC_SHAPES,
+            effects=_EFFECTS,
+            settings=_settings(),
+            available=rp is not None,
+            unavailable_reason=_IMPORT_ERROR,
+            notes=(
+                "single precision (f32) throughout",
+                "TGS-soft solver: each step is `iterations` substeps",
+                "friction and restitution combine by product (MULTIPLY rule on every collider)",
+                "one Coulomb coefficient: static friction = kinetic friction",
+                "no rolling resistance",
+                "springs, dampers and drag are explicit forces from the state at the start of each step",
+                "gyroscopic term switchable per body (on when the scene lists it)",
+            ),
+        )
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        reason = super().unsupported_reason(scene)
+        if reason is not None and cls.capabilities().available and "rolling_friction" in scene.effects:
+            return ROLLING_FRICTION_REASON
+        return reason
+
+    # ---- build -------------------------------------------------------------
+    def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        reason = self.unsupported_reason(scene)
+        if reason is not None:
+            raise Unsupported(reason)
+        world = rp.PhysicsWorld(gravity=tuple(float(g) for g in scene.gravity))
+        ip = world.integration_parameters  # a live view: edited in place
+        ip.dt = float(settings["dt"])
+        ip.num_solver_iterations = int(settings["iterations"])
+        ip.num_internal_pgs_iterations = int(settings["pgs_iterations"])
+        zeta = float(settings["contact_damping_ratio"])
+        ip.contact_softness = rp.SpringCoefficients(float(settings["contact_frequency"]), zeta)
+        ip.static_contact_softness = rp.SpringCoefficients(float(settings["static_contact_frequency"]), zeta)
+        ip.max_ccd_substeps = int(settings["max_ccd_substeps"])
+        ip.friction_model = rp.FrictionModel.COULOMB if settings["friction_model"] == "coulomb" \
+            else rp.FrictionModel.SIMPLIFIED
+        self._world = world
+        contact = scene.has("contact")
+        ccd = bool(settings["ccd"]) and contact
+        gyro = scene.has("gyroscopic")
+
+        e_of, f_of = self._materials(scene) if contact else ({}, {})
+        mul = rp.CoefficientCombineRule.MULTIPLY
+
+        def material(c: Any, key: Any) -> Any:
+            return (c.friction(f_of.get(key, 0.0)).restitution(e_of.get(key, 0.0))
+                    .friction_combine_rule(mul).restitution_combine_rule(mul))
+
+        self._handles = []
+        for b in scene.bodies:
+            builder = (rp.RigidBodyBuilder(rp.RigidBodyType.DYNAMIC)
+                       .position((tuple(map(float, b.position)), tuple(map(float, wxyz_to_xyzw(b.orientation)))))
+                       .linvel(tuple(map(float, b.velocity))).angvel(tuple(map(float, b.angular_velocity)))
+                       .can_sleep(False).ccd_enabled(ccd).gyroscopic_forces(gyro)
+                       .additional_mass_properties(rp.MassProperties(
+                           mass=float(b.mass), principal_inertia=tuple(map(float, b.inertia)))))
+            colliders = [material(_body_collider(b).density(0.0), ("body", b.index))] if contact else []
+            self._handles.append(world.add_body(builder, colliders))
+        if contact:
+            for s in scene.statics:
+                world.add_collider(material(_static_collider(s), ("static", s.index)))
+
+        self._forces = StateForces(scene) or None
+        if self._forces:
+            self.notes.append(DRAG_NOTE if self._forces.kinds == ["drag"] else
+                              "springs, dampers and drag: explicit forces (Hooke spring, dashpot along the "
+                              "spring line, F = -(c1 + c2 |v|) v) from the state at the start of each step, "
+                              "held over Rapier's substeps; Rapier's own SpringJoint is not used")
+        self._n = scene.n_bodies
+        self._buf = np.empty((self._n, 13))
+        self.steps = 0
+        self._stages = {
+            "gravity": bool(np.any(scene.gravity != 0)), "contact": contact, "ccd": ccd,
+            "gyroscopic": gyro, "external_forces": self._forces.kinds if self._forces else [],
+            "substeps": int(settings["iterations"]), "pgs_iterations": int(settings["pgs_iterations"]),
+        }
+
+    def _materials(self, scene: Scene) -> tuple[dict, dict]:
+        """(restitution, friction) per collider key ('body', i) / ('static',
+        j): per-material values whose products give every pair, else
+        per-object least-squares values (residual noted)."""
+        f = per_material_factors(scene, [b.material for b in scene.bodies], [s.material for s in scene.statics],
+                                 ENGINE)
+        keys = [("body", b.index) for b in scene.bodies] + [("static", s.index) for s in scene.statics]
+        mats = [b.material for b in scene.bodies] + [s.material for s in scene.statics]
+        if f is None:
+            return {}, {}
+        self.notes.extend(f.notes)
+        if f.per_shape:
+            self.info["material_mode"] = "per_material"
+            return ({k: f.elasticity.get(m, 0.0) for k, m in zip(keys, mats)},
+                    {k: f.friction.get(m, 0.0) for k, m in zip(keys, mats)})
+        o = per_object_factors(scene, ENGINE, math.inf)
+        self.notes.extend(n for n in o.notes if "rolling" not in n and "one Coulomb" not in n)
+        self.info["material_mode"] = "per_object"
+        self.info["material_residual"] = o.info["material_residual"]
+        return dict(zip(keys, map(float, o.restitution))), dict(zip(keys, map(float, o.friction)))
+
+    # ---- stepping ----------------------------------------------------------
+    def step(self, n: int = 1) -> None:
+        world = self._world
+        if self._forces is None:
+            for _ in range(n):
+                world.step()
+        else:
+            bodies, handles = world.rigid_bodies, self._handles
+            pos, quat, vel, angvel = (np.empty((self._n, k)) for k in (3, 4, 3, 3))
+            idx = self._forces.bodies
+            for _ in range(n):
+                self.read_state(pos, quat, vel, angvel)
+                F, T = self._forces.evaluate(pos, quat, vel, angvel)
+                for i in idx:
+                    rb = bodies[handles[i]]
+                    rb.reset_forces(False)
+                    rb.reset_torques(False)
+                    rb.add_force(tuple(F[i]), False)
+                    rb.add_torque(tuple(T[i]), False)
+                world.step()
+        self.steps += n
+
+    def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
+        m/s and angular (n, 3) rad/s velocities, world frame, about the
+        centre of mass: four reads per body (Rapier has no batched read of
+        rigid bodies), gathered into one (n, 13) buffer and converted once
+        (Rapier's (x, y, z, w) quaternion to wxyz)."""
+        buf, bodies = self._buf, self._world.rigid_bodies
+        for k, h in enumerate(self._handles):
+            rb = bodies[h]
+            buf[k] = (*rb.translation.to_tuple(), *rb.rotation.to_tuple(), *rb.linvel.to_tuple(),
+                      *rb.angvel.to_tuple())
+        pos[...] = buf[:, 0:3]
+        quat[...] = xyzw_to_wxyz(buf[:, 3:7])
+        vel[...] = buf[:, 7:10]
+        angvel[...] = buf[:, 10:13]
+
+    def contacts(self) -> np.ndarray:
+        """The narrow phase's solver contacts after the last step: rows
+        [world point (midway between the two bodies' points), manifold normal
+        (from collider 1 toward collider 2), depth = -dist]."""
+        rows = []
+        bodies = self._world.rigid_bodies
+        for pair in self._world.narrow_phase.contact_pairs():
+            for m in pair.manifolds:
+                d = m.data
+                n = d.normal.to_tuple()
+                for c in d.solver_contacts:
+                    p1, p2 = d.solver_contact_world_points(c, bodies)
+                    p = 0.5 * (np.asarray(p1.to_tuple()) + np.asarray(p2.to_tuple()))
+                    rows.append((*p, *n, -float(c.dist)))
+        return np.array(rows, float).reshape(-1, 7)
+
+    def stages(self) -> dict[str, Any]:
+        return {**getattr(self, "_stages", {}), "steps": getattr(self, "steps", 0)}
+
+    def close(self) -> None:
+        self._world = None
+        self._handles = []
+
+
+# ---- shapes -------------------------------------------------------------------
+
+def _body_collider(b: Any) -> Any:
+    """The body's collider builder in the body frame (centre of mass at the origin)."""
+    if b.shape == "sphere":
+        return rp.Collider.ball(float(b.radius))
+    if b.shape == "box":
+        return rp.Collider.cuboid(*map(float, b.half_extents))
+    if b.shape == "capsule":
+        return rp.Collider.capsule_z(float(b.half_length), float(b.radius))
+    # cylinder: Rapier's axis is local y; +90 degrees about x turns y onto z
+    return rp.Collider.cylinder(float(b.half_length), float(b.radius)).rotation((0.5 * math.pi, 0.0, 0.0))
+
+
+def _static_collider(s: Any) -> Any:
+    """A parentless collider for a static plane (halfspace) or box."""
+    if s.shape == "plane":
+        n = tuple(map(float, s.normal))
+        return rp.Collider.halfspace(n).translation(tuple(float(s.offset) * c for c in n))
+    return rp.Collider.cuboid(*map(float, s.half_extents)).position(
+        (tuple(map(float, s.position)), tuple(map(float, wxyz_to_xyzw(s.orientation)))))
