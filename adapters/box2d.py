@@ -150,13 +150,15 @@ class Box2dAdapter(Adapter):
         self._p, self._q, self._v = (np.zeros((n, 2), np.float32) for _ in range(3))
         self._w = np.zeros(n, np.float32)
 
-        self._forces = StateForces(scene) or None
+        self._spring_mode = settings["springs"]
+        explicit = self._add_springs(scene)
+        self._forces = StateForces(scene, springs=explicit) or None
         if self._forces:
             self.notes.append(DRAG_NOTE if self._forces.kinds == ["drag"] else
                               "springs, dampers and drag: explicit forces (Hooke spring, dashpot along the spring "
                               "line, F = -(c1 + c2 |v|) v) from the state at the start of each step, held over "
-                              "Box2D's substeps; Box2D's distance-joint spring (set by frequency and damping "
-                              "ratio of the joint's effective mass) is not used")
+                              "Box2D's substeps (a spring with an anchor off a centre of mass, or a damper "
+                              "without a spring, has no exact distance-joint counterpart)")
         vmax = max((float(np.linalg.norm(b.velocity)) for b in scene.bodies), default=0.0)
         if vmax > float(settings["max_linear_speed"]):
             self.notes.append(f"Box2D clamps every speed to max_linear_speed = {settings['max_linear_speed']:g} m/s; "
@@ -164,7 +166,46 @@ class Box2dAdapter(Adapter):
         self.steps = 0
         self._stages = {"gravity": bool(np.any(scene.gravity != 0)), "contact": contact,
                         "continuous": world.continuous_enabled, "bullets": bullet, "substeps": self._substeps,
+                        "spring_joints": self._n_joints,
                         "external_forces": self._forces.kinds if self._forces else []}
+
+    def _add_springs(self, scene: Scene) -> list:
+        """Springs anchored at centres of mass (or the world) become Box2D
+        distance joints with a spring; returns the others (explicit forces).
+
+        Box2D sets a joint spring by frequency f and damping ratio z of the
+        joint's effective mass along its axis, m_eff = 1 / (1/m_a + 1/m_b)
+        (1/m = 0 for the world) when both anchors are centres of mass; then
+        f = sqrt(k / m_eff) / (2 pi) and z = c / (2 sqrt(k m_eff)) give
+        exactly the spec's k (N/m) and c (N s/m).  Off-centre anchors add
+        rotational terms that change with the pose: no constant f, z fits."""
+        b2, explicit, joints = self._b2, [], 0
+        ground = None
+        for sp in scene.springs:
+            if sp.stiffness == 0.0 and sp.damping == 0.0:
+                continue
+            centred = all(i < 0 or not np.any(np.asarray(anc) != 0.0)
+                          for i, anc in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b)))
+            if sp.stiffness <= 0.0 or not centred or self._spring_mode == "force":
+                explicit.append(sp)
+                continue
+            if ground is None:
+                ground = self._world.create_body(b2.body_def(type=b2.BodyType.STATIC, position=(0.0, 0.0)))
+            inv = sum(1.0 / scene.bodies[i].mass for i in (sp.a, sp.b) if i >= 0)
+            m_eff = 1.0 / inv
+            ends = [(ground, world_point_to_planar(anc)) if i < 0 else (self._bodies[i], (0.0, 0.0))
+                    for i, anc in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b))]
+            self._world.create_distance_joint(
+                body_a=ends[0][0], body_b=ends[1][0], local_anchor_a=ends[0][1], local_anchor_b=ends[1][1],
+                length=float(sp.rest_length), enable_spring=True, enable_limit=False, collide_connected=True,
+                hertz=float(np.sqrt(sp.stiffness / m_eff) / (2.0 * np.pi)),
+                damping_ratio=float(sp.damping / (2.0 * np.sqrt(sp.stiffness * m_eff))))
+            joints += 1
+        if joints:
+            self.notes.append("springs anchored at centres of mass: Box2D distance joints with a spring, frequency "
+                              "and damping ratio set from the spec's k and c and the joint's effective mass")
+        self._n_joints = joints
+        return explicit
 
     # ---- stepping ----------------------------------------------------------
     def step(self, n: int = 1) -> None:

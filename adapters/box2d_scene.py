@@ -59,6 +59,11 @@ def settings() -> dict[str, Setting]:
             "bullets", False, bool,
             "isBullet on every body: time-of-impact sweeps against dynamic bodies too "
             "(Box2D default off)"),
+        "springs": Setting(
+            "springs", "joint", str,
+            "'joint': a spring anchored at centres of mass is a Box2D distance joint with a spring (implicit "
+            "soft constraint); 'force': every spring and damper is an explicit force held over the step",
+            choices=("joint", "force")),
         "max_linear_speed": Setting(
             "max_linear_speed", 400.0, float,
             "maximumLinearSpeed (m/s): Box2D clamps every body's speed to it (Box2D default "

@@ -130,10 +130,14 @@ class StateForces:
     returns (force (n, 3) N, torque (n, 3) N m, world frame), arrays owned
     by this object and overwritten by the next call."""
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, springs: bool | list = True) -> None:
+        """``springs``: True for every spring of the scene, False for none
+        (the engine has its own element), or the list of Scene springs to
+        apply as forces."""
+        chosen = scene.springs if springs is True else (springs or [])
         self.springs = [(sp.a, sp.b, np.asarray(sp.anchor_a, float), np.asarray(sp.anchor_b, float),
                          float(sp.stiffness), float(sp.rest_length), float(sp.damping))
-                        for sp in scene.springs if sp.stiffness != 0.0 or sp.damping != 0.0]
+                        for sp in chosen if sp.stiffness != 0.0 or sp.damping != 0.0]
         self.drag = dragged(scene)
         self.bodies = sorted({i for sp in self.springs for i in sp[:2] if i >= 0} | {i for i, _, _ in self.drag})
         self.kinds = sorted(({"spring"} if self.springs else set()) | ({"drag"} if self.drag else set()))

@@ -118,6 +118,11 @@ def _settings() -> dict[str, Setting]:
             "max_ccd_substeps", 1, int,
             "max_ccd_substeps: time-of-impact substeps per step with ccd on (Rapier default 1)",
             lo=1, hi=100),
+        "springs": Setting(
+            "springs", "joint", str,
+            "'joint': springs and dampers are Rapier SpringJoints (force-based, implicit in each substep); "
+            "'force': explicit forces from the state at the start of each step",
+            choices=("joint", "force")),
         "friction_model": Setting(
             "friction_model", "simplified", str,
             "friction_model: 'simplified' (one friction constraint per manifold plus a twist "
@@ -203,20 +208,42 @@ class RapierAdapter(Adapter):
             for s in scene.statics:
                 world.add_collider(material(_static_collider(s), ("static", s.index)))
 
-        self._forces = StateForces(scene) or None
+        joints = settings["springs"] == "joint"
+        self._n_springs = self._add_springs(scene) if joints else 0
+        self._forces = StateForces(scene, springs=not joints) or None
         if self._forces:
-            self.notes.append(DRAG_NOTE if self._forces.kinds == ["drag"] else
-                              "springs, dampers and drag: explicit forces (Hooke spring, dashpot along the "
-                              "spring line, F = -(c1 + c2 |v|) v) from the state at the start of each step, "
-                              "held over Rapier's substeps; Rapier's own SpringJoint is not used")
+            self.notes.append(DRAG_NOTE + "; held over Rapier's substeps" if joints else
+                              "springs, dampers and drag: explicit forces from the state at the start of each "
+                              "step, held over Rapier's substeps")
         self._n = scene.n_bodies
         self._buf = np.empty((self._n, 13))
         self.steps = 0
         self._stages = {
             "gravity": bool(np.any(scene.gravity != 0)), "contact": contact, "ccd": ccd,
-            "gyroscopic": gyro, "external_forces": self._forces.kinds if self._forces else [],
+            "gyroscopic": gyro, "spring_joints": self._n_springs,
+            "external_forces": self._forces.kinds if self._forces else [],
             "substeps": int(settings["iterations"]), "pgs_iterations": int(settings["pgs_iterations"]),
         }
+
+    def _add_springs(self, scene: Scene) -> int:
+        """Every spring/damper as a Rapier ``SpringJoint`` with the force-based
+        model: stiffness (N/m) and damping (N s/m) as the spec gives them,
+        between the anchors (a fixed body at the origin holds world anchors),
+        solved implicitly in each substep; contacts between the two bodies stay on."""
+        springs = [sp for sp in scene.springs if sp.stiffness != 0.0 or sp.damping != 0.0]
+        if not springs:
+            return 0
+        world = self._world
+        ground = world.add_body(rp.RigidBodyBuilder(rp.RigidBodyType.FIXED), [])
+        for sp in springs:
+            joint = (rp.SpringJoint.builder(float(sp.rest_length), float(sp.stiffness), float(sp.damping))
+                     .local_anchor1(tuple(map(float, sp.anchor_a))).local_anchor2(tuple(map(float, sp.anchor_b)))
+                     .spring_model(rp.MotorModel.FORCE_BASED).contacts_enabled(True).build())
+            world.impulse_joints.insert(ground if sp.a < 0 else self._handles[sp.a],
+                                        ground if sp.b < 0 else self._handles[sp.b], joint, True)
+        self.notes.append("springs and dampers: Rapier SpringJoint (force-based model: the spec's stiffness and "
+                          "damping between the anchors), solved implicitly in every substep")
+        return len(springs)
 
     def _materials(self, scene: Scene) -> tuple[dict, dict]:
         """(restitution, friction) per collider key ('body', i) / ('static',
