@@ -247,10 +247,10 @@ class Box2dAdapter(Adapter):
         toward shape B), depth = -separation]."""
         ev = self._world.get_contact_events()
         rows = []
-        for e in ev.begin_events:
+        for e in ev.begin_events():
             m = e.manifold
             nx, ny = m.normal.x, m.normal.y
-            for mp in m.points[:m.point_count]:
+            for mp in m.points():
                 rows.append((mp.point.x, 0.0, mp.point.y, nx, 0.0, ny, -float(mp.separation)))
         return np.array(rows, float).reshape(-1, 7)
 
