@@ -226,6 +226,43 @@ class Box2dAdapter(Adapter):
                 world.step(dt, sub)
         self.steps += n
 
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Step n times, each step's four batched f32 reads written straight
+        into one preallocated block (no allocation per step), then the whole
+        block converted once by world_from_planar, also the complete steps
+        before an exception."""
+        if self._forces is not None:
+            return super().step_record(n, pos, quat, vel, angvel)
+        nb = len(self._bodies)
+        blk, wblk = getattr(self, "_block", (None, None))
+        if blk is None or blk.shape[0] < n:
+            # pyb2d3 silently copies a non-contiguous output array (and then
+            # writes nothing back): every output below is a C-contiguous view
+            blk, wblk = self._block = (np.zeros((max(n, 256), 3, nb, 2), np.float32),
+                                       np.zeros((max(n, 256), nb), np.float32))
+        world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
+        gp, gq, gv, gw = bt.get_positions, bt.get_rotations, bt.get_linear_velocities, bt.get_angular_velocities
+        done = 0
+        try:
+            for i in range(n):
+                world.step(dt, sub)
+                done += 1
+                b = blk[i]
+                gp(b[0])
+                gq(b[1])
+                gv(b[2])
+                gw(wblk[i])
+        finally:
+            self.steps += done
+            self.block_done = done
+            if done and nb:
+                b = blk[:done].astype(float)  # (k, 3, nb, 2)
+                angle = np.arctan2(b[:, 1, :, 1], b[:, 1, :, 0])
+                world_from_planar(b[:, 0, :, 0], b[:, 0, :, 1], b[:, 2, :, 0], b[:, 2, :, 1], angle,
+                                  wblk[:done].astype(float),
+                                  pos[:done].transpose(2, 0, 1), quat[:done].transpose(2, 0, 1),
+                                  vel[:done].transpose(2, 0, 1), angvel[:done].transpose(2, 0, 1))
+
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
         m/s and angular (n, 3) rad/s velocities: four batched f32 reads into
