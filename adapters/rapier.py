@@ -56,6 +56,10 @@ Contacts
     (world points; manifold normal from collider 1 toward collider 2; depth =
     -dist, so speculative contacts within the prediction distance come out
     negative).
+
+Sibling modules: settings and colliders in :mod:`adapters.rapier_scene`, the
+force laws in :mod:`adapters.forces`, material factors in
+:mod:`adapters.materials`.
 """
 
 from __future__ import annotations
@@ -65,9 +69,11 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
+from physbench.adapters.rapier_scene import EFFECTS, SHAPES, STATIC_SHAPES, body_collider, static_collider
+from physbench.adapters.rapier_scene import settings as rapier_settings
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from physbench.contract.scene import Scene
 
@@ -83,56 +89,6 @@ ENGINE = "rapier"
 
 ROLLING_FRICTION_REASON = "Rapier 0.36 has no rolling resistance (rolling_friction)"
 
-_SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
-_STATIC_SHAPES = frozenset({"plane", "slope", "box"})
-_EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "drag_linear", "drag_quadratic",
-                      "spring", "damper", "gyroscopic"})
-
-
-def _settings() -> dict[str, Setting]:
-    return {
-        "dt": DT_SETTING,
-        "iterations": Setting(
-            "iterations", 4, int,
-            "num_solver_iterations: TGS-soft substeps per step, each dt/iterations long "
-            "(Rapier default 4)", lo=1, hi=1000),
-        "pgs_iterations": Setting(
-            "pgs_iterations", 1, int,
-            "num_internal_pgs_iterations: PGS sweeps of the contacts per substep (Rapier default 1)",
-            lo=1, hi=1000),
-        "contact_frequency": Setting(
-            "contact_frequency", 30.0, float,
-            "contact_softness.natural_frequency (Hz) of the soft contact constraint between "
-            "dynamic bodies; Rapier default 30 (its static contacts use "
-            "static_contact_frequency)", lo=0.1, hi=1e5),
-        "static_contact_frequency": Setting(
-            "static_contact_frequency", 60.0, float,
-            "static_contact_softness.natural_frequency (Hz): contacts with fixed colliders "
-            "(Rapier default 60)", lo=0.1, hi=1e5),
-        "contact_damping_ratio": Setting(
-            "contact_damping_ratio", 10.0, float,
-            "damping ratio of both contact softnesses (Rapier default 10)", lo=0.0, hi=1e4),
-        "ccd": Setting(
-            "ccd", False, bool,
-            "ccd_enabled on every body: Rapier's nonlinear time-of-impact sweep for bodies "
-            "moving more than their thickness per step (Rapier default off)"),
-        "max_ccd_substeps": Setting(
-            "max_ccd_substeps", 1, int,
-            "max_ccd_substeps: time-of-impact substeps per step with ccd on (Rapier default 1)",
-            lo=1, hi=100),
-        "springs": Setting(
-            "springs", "joint", str,
-            "'joint': springs and dampers are Rapier SpringJoints (force-based, implicit in each substep); "
-            "'force': explicit forces from the state at the start of each step",
-            choices=("joint", "force")),
-        "friction_model": Setting(
-            "friction_model", "simplified", str,
-            "friction_model: 'simplified' (one friction constraint per manifold plus a twist "
-            "constraint; Rapier default) or 'coulomb' (one per contact point)",
-            choices=("simplified", "coulomb")),
-    }
-
-
 class RapierAdapter(Adapter):
     """Adapter for rapier3d 0.36 (see the module docstring)."""
 
@@ -144,10 +100,10 @@ class RapierAdapter(Adapter):
             engine=ENGINE,
             version=rp.__version__ if rp is not None else module_version("rapier3d"),
             dimensions=3,
-            shapes=_SHAPES,
-            static_shapes=_STATIC_SHAPES,
-            effects=_EFFECTS,
-            settings=_settings(),
+            shapes=SHAPES,
+            static_shapes=STATIC_SHAPES,
+            effects=EFFECTS,
+            settings=rapier_settings(),
             available=rp is not None,
             unavailable_reason=_IMPORT_ERROR,
             notes=(
@@ -204,11 +160,11 @@ class RapierAdapter(Adapter):
                        .can_sleep(False).ccd_enabled(ccd).gyroscopic_forces(gyro)
                        .additional_mass_properties(rp.MassProperties(
                            mass=float(b.mass), principal_inertia=tuple(map(float, b.inertia)))))
-            colliders = [material(_body_collider(b).density(0.0), ("body", b.index))] if contact else []
+            colliders = [material(body_collider(rp, b).density(0.0), ("body", b.index))] if contact else []
             self._handles.append(world.add_body(builder, colliders))
         if contact:
             for s in scene.statics:
-                world.add_collider(material(_static_collider(s), ("static", s.index)))
+                world.add_collider(material(static_collider(rp, s), ("static", s.index)))
 
         joints = settings["springs"] == "joint"
         self._n_springs = self._add_springs(scene) if joints else 0
@@ -360,26 +316,3 @@ class RapierAdapter(Adapter):
         self._world = None
         self._handles = []
         self._bodies = []
-
-
-# ---- shapes -------------------------------------------------------------------
-
-def _body_collider(b: Any) -> Any:
-    """The body's collider builder in the body frame (centre of mass at the origin)."""
-    if b.shape == "sphere":
-        return rp.Collider.ball(float(b.radius))
-    if b.shape == "box":
-        return rp.Collider.cuboid(*map(float, b.half_extents))
-    if b.shape == "capsule":
-        return rp.Collider.capsule_z(float(b.half_length), float(b.radius))
-    # cylinder: Rapier's axis is local y; +90 degrees about x turns y onto z
-    return rp.Collider.cylinder(float(b.half_length), float(b.radius)).rotation((0.5 * math.pi, 0.0, 0.0))
-
-
-def _static_collider(s: Any) -> Any:
-    """A parentless collider for a static plane (halfspace) or box."""
-    if s.shape == "plane":
-        n = tuple(map(float, s.normal))
-        return rp.Collider.halfspace(n).translation(tuple(float(s.offset) * c for c in n))
-    return rp.Collider.cuboid(*map(float, s.half_extents)).position(
-        (tuple(map(float, s.position)), tuple(map(float, wxyz_to_xyzw(s.orientation)))))
