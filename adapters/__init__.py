@@ -7,7 +7,7 @@ import importlib
 
 from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, engine_names, get_adapter, register
 
-ENGINES = ("reference", "mujoco", "pybullet", "pymunk")
+ENGINES = ("reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d")
 
 
 def _loader(module: str, cls: str):
@@ -21,5 +21,7 @@ register("reference", _loader("reference", "ReferenceAdapter"))
 register("mujoco", _loader("mujoco", "MujocoAdapter"))
 register("pybullet", _loader("pybullet", "PybulletAdapter"))
 register("pymunk", _loader("pymunk", "PymunkAdapter"))
+register("rapier", _loader("rapier", "RapierAdapter"))
+register("box2d", _loader("box2d", "Box2dAdapter"))
 
 __all__ = ["Adapter", "Capabilities", "Setting", "Unsupported", "ENGINES", "engine_names", "get_adapter"]

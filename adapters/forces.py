@@ -13,8 +13,9 @@ The laws, in world coordinates (SI units):
   the force on a is (k (L - L0) + c (v_pb - v_pa) . u) u, on b its opposite.
 
 Pinned by tests/test_adapter_pybullet.py (springs, dampers, drag against
-analytic solutions), tests/test_adapter_mujoco.py and
-tests/test_adapter_pymunk.py (drag).
+analytic solutions), tests/test_adapter_mujoco.py,
+tests/test_adapter_pymunk.py (drag), tests/test_adapter_rapier.py and
+tests/test_adapter_box2d.py (:class:`StateForces`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.contract.rotation import quat_rotate
 from physbench.contract.scene import Scene
 
 DRAG_NOTE = ("drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
@@ -114,3 +116,65 @@ class PybulletForces:
         world = (pos[0] + r0, pos[1] + r1, pos[2] + r2)
         vel = (v[0] + w[1] * r2 - w[2] * r1, v[1] + w[2] * r0 - w[0] * r2, v[2] + w[0] * r1 - w[1] * r0)
         return world, vel
+
+
+class StateForces:
+    """Springs, dampers and drag from the bodies' world state arrays, for
+    engines whose force input is a per-body force and torque about the
+    centre of mass (Rapier, Box2D).  The same laws as
+    :class:`PybulletForces` (module docstring), evaluated once per engine
+    step from the state at its start and held over the step's substeps.
+
+    :meth:`evaluate` takes positions (n, 3) m, wxyz quaternions (n, 4),
+    linear (n, 3) m/s and angular (n, 3) rad/s velocities, world frame, and
+    returns (force (n, 3) N, torque (n, 3) N m, world frame), arrays owned
+    by this object and overwritten by the next call."""
+
+    def __init__(self, scene: Scene, springs: bool | list = True) -> None:
+        """``springs``: True for every spring of the scene, False for none
+        (the engine has its own element), or the list of Scene springs to
+        apply as forces."""
+        chosen = scene.springs if springs is True else (springs or [])
+        self.springs = [(sp.a, sp.b, np.asarray(sp.anchor_a, float), np.asarray(sp.anchor_b, float),
+                         float(sp.stiffness), float(sp.rest_length), float(sp.damping))
+                        for sp in chosen if sp.stiffness != 0.0 or sp.damping != 0.0]
+        self.drag = dragged(scene)
+        self.bodies = sorted({i for sp in self.springs for i in sp[:2] if i >= 0} | {i for i, _, _ in self.drag})
+        self.kinds = sorted(({"spring"} if self.springs else set()) | ({"drag"} if self.drag else set()))
+        n = scene.n_bodies
+        self.force = np.zeros((n, 3))
+        self.torque = np.zeros((n, 3))
+
+    def __bool__(self) -> bool:
+        return bool(self.springs or self.drag)
+
+    def evaluate(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                 angvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        F, T = self.force, self.torque
+        F[...] = 0.0
+        T[...] = 0.0
+        for ia, ib, anc_a, anc_b, k, L0, c in self.springs:
+            ends = []
+            for i, anc in ((ia, anc_a), (ib, anc_b)):
+                if i < 0:
+                    ends.append((anc, np.zeros(3), None))
+                else:
+                    r = quat_rotate(quat[i], anc)
+                    ends.append((pos[i] + r, vel[i] + np.cross(angvel[i], r), r))
+            (pa, va, ra), (pb, vb, rb) = ends
+            d = pb - pa
+            L = float(np.linalg.norm(d))
+            if L < 1e-12:
+                continue  # direction undefined
+            u = d / L
+            f = (k * (L - L0) + c * float((vb - va) @ u)) * u  # on a; -f on b
+            if ia >= 0:
+                F[ia] += f
+                T[ia] += np.cross(ra, f)
+            if ib >= 0:
+                F[ib] -= f
+                T[ib] -= np.cross(rb, f)
+        for i, cl, cq in self.drag:
+            v = vel[i]
+            F[i] -= (cl + cq * float(np.linalg.norm(v))) * v
+        return F, T

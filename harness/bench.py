@@ -9,9 +9,11 @@ and ratios are printed, never asserted in tests:
   (``Adapter.bare_loop(n)``) and vs the adapter's fastest bare stepping
   (``Adapter.step(n)``), all after the same build.  Ratios runner / bare.
 - ``cost``: the reference engine vs pybullet (maximal coordinates) on the same
-  scenes (a 10-box column, 100 and 1000 spheres on a plane) at the same dt and
-  solver iterations: per-step CPU time and their ratio, plus the reference
-  engine's broad-phase cost per step against n (fitted exponent).
+  scenes (a 10-box column, 100 and 1000 spheres on a plane, a planar
+  10-box pyramid) at the same dt and solver iterations: per-step CPU time and
+  their ratio, plus the reference engine's broad-phase cost per step against
+  n (fitted exponent); MuJoCo, pymunk, Rapier and Box2D per-step CPU time on
+  the same scenes at their own defaults.
 - ``broadphase_scaling``: the reference engine's broad phase alone (what
   the stage runs, from its kept order and from a fresh one; the general
   ``sap_pairs``; all pairs) on random sphere clouds of constant density,
@@ -181,21 +183,31 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
 REFERENCE_FAST_SETTINGS = {"integrator": "semi_implicit_euler", "ccd": "toi"}
 
 
+#: engines timed beside the reference and pybullet in ``cost``, each at its
+#: own default settings (their solver settings mean different things:
+#: Rapier's iterations and Box2D's substeps are substeps of a soft step)
+COST_OTHERS = ("mujoco", "pymunk", "rapier", "box2d")
+
+
 def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 120,
-         iterations: int = 10) -> list[dict[str, Any]]:
+         iterations: int = 10, others: tuple[str, ...] = COST_OTHERS) -> list[dict[str, Any]]:
     """Reference engine vs pybullet per-step cost on the same scenes,
     interleaved.  Same dt (1/240) and solver iterations for both.  The
     reference runs twice: at its defaults (accurate) and with
     REFERENCE_FAST_SETTINGS (its cheapest sound configuration), so the
     table shows what its accuracy costs as well as how far its floor is from
-    pybullet's."""
+    pybullet's.  Every engine of ``others`` is timed on the same scenes at
+    its default settings (``<engine>_us_per_step``; NaN where it cannot run
+    the scene: the 2D engines run only the planar pyramid)."""
     table = [BenchScene("column_10", lambda: column_scene(10), steps)]
     table += [BenchScene(f"spheres_{n}", (lambda n=n: spheres_scene(n)), steps) for n in sizes]
+    table += [BenchScene("pyramid_10", lambda: pyramid_scene(4), steps)]
     configs = {
         "reference": ("reference", {"iterations": iterations}),
         "reference_fast": ("reference", {"iterations": iterations, **REFERENCE_FAST_SETTINGS}),
         "pybullet": ("pybullet", {"iterations": iterations}),
     }
+    configs.update({e: (e, {}) for e in others})
     rows = []
     for bs in table:
         scene0 = bs.create()
@@ -205,6 +217,8 @@ def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 12
         for _ in range(repeats):
             for name, (engine, settings) in configs.items():
                 cls = get_adapter(engine)
+                if cls.unsupported_reason(scene) is not None:
+                    continue
                 a = cls()
                 st = cls.resolve_settings(scene, settings)
                 a.build(scene, st)
@@ -218,10 +232,13 @@ def cost(repeats: int = 3, sizes: tuple[int, ...] = (100, 1000), steps: int = 12
                         broad.append(b / bs.steps)
                 a.close()
         ref, fast, pb = (statistics.median(times[k]) for k in ("reference", "reference_fast", "pybullet"))
-        rows.append({"scene": bs.name, "bodies": scene.n_bodies, "reference_us_per_step": 1e6 * ref,
-                     "pybullet_us_per_step": 1e6 * pb, "ratio_reference_over_pybullet": ref / pb,
-                     "reference_fast_us_per_step": 1e6 * fast, "ratio_fast_over_pybullet": fast / pb,
-                     "reference_broadphase_us_per_step": 1e6 * statistics.median(broad) if broad else float("nan")})
+        row = {"scene": bs.name, "bodies": scene.n_bodies, "reference_us_per_step": 1e6 * ref,
+               "pybullet_us_per_step": 1e6 * pb, "ratio_reference_over_pybullet": ref / pb,
+               "reference_fast_us_per_step": 1e6 * fast, "ratio_fast_over_pybullet": fast / pb,
+               "reference_broadphase_us_per_step": 1e6 * statistics.median(broad) if broad else float("nan")}
+        for e in others:
+            row[f"{e}_us_per_step"] = 1e6 * statistics.median(times[e]) if times[e] else float("nan")
+        rows.append(row)
     return rows
 
 

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from physbench.adapters import get_adapter
 from physbench.harness import bench
 
 
@@ -18,8 +19,14 @@ def _pos(x):
 def test_cost_rows_are_consistent():
     pytest.importorskip("pybullet")
     rows = bench.cost(repeats=1, sizes=(8,), steps=3, iterations=4)
-    assert [r["scene"] for r in rows] == ["column_10", "spheres_8"]
+    assert [r["scene"] for r in rows] == ["column_10", "spheres_8", "pyramid_10"]
     for r in rows:
+        # every engine on the same scenes; the 2D ones only on the planar pyramid
+        for e in bench.COST_OTHERS:
+            avail = get_adapter(e).capabilities().available
+            planar_only = get_adapter(e).capabilities().dimensions == 2
+            want = avail and (r["scene"] == "pyramid_10" or not planar_only)
+            assert _pos(r[f"{e}_us_per_step"]) == want, (e, r["scene"], r[f"{e}_us_per_step"])
         for k in ("reference_us_per_step", "reference_fast_us_per_step", "pybullet_us_per_step"):
             assert _pos(r[k]), (k, r[k])
         assert r["ratio_reference_over_pybullet"] == pytest.approx(r["reference_us_per_step"] / r["pybullet_us_per_step"])

@@ -29,6 +29,10 @@ def _available(engine):
         return False
 
 
+#: engines computing in f32: one f32 unit (2^-23 at 1 m) per substep of
+#: their default 4 per step bounds the rounding of x += v h over a step
+F32_FLOOR = {"rapier": 4 * 2.0 ** -23, "box2d": 4 * 2.0 ** -23}
+
 engines = pytest.mark.parametrize("engine", [
     pytest.param(e, marks=pytest.mark.skipif(not _available(e), reason=f"{e} adapter not available")) for e in ENGINES])
 
@@ -62,7 +66,10 @@ def test_free_fall(engine):
     # any first-order integrator is within g dt T of the exact parabola
     assert abs(tr.pos[-1, 0, 2] - z_exact) <= G * s.dt * T * 1.0001
     assert tr.vel[-1, 0, 2] == pytest.approx(-G * T, abs=G * s.dt * 1.0001)
-    assert tr.pos[-1, 0, 0] == pytest.approx(1.0 * T, abs=1e-9)   # no hidden damping
+    # no hidden damping; an f32 engine rounds x += v h at every substep
+    # (F32_FLOOR; measured 2.7e-5 m on Rapier, 9.3e-6 m on Box2D at x = 1 m)
+    floor = F32_FLOOR.get(engine, 0.0) * round(T / s.dt)
+    assert tr.pos[-1, 0, 0] == pytest.approx(1.0 * T, abs=max(1e-9, floor))
     assert tr.vel[-1, 0, 0] == pytest.approx(1.0, abs=1e-9)
 
 

@@ -41,7 +41,9 @@ E0_SCENES = ["billiards.head_on", "billiards.ball_drop_bounce", "friction.box_sl
 @pytest.mark.parametrize("sid", E0_SCENES)
 def test_initial_energy_is_the_same_on_every_engine(sid):
     """The first frame of every engine that runs the scene has the same E0,
-    to 1e-12 relative, and it is the scene's own initial energy."""
+    to 1e-12 relative (1e-6 for the f32 engines, whose state is read back
+    rounded to f32: measured <= 2.1e-7), and it is the scene's own initial
+    energy."""
     sc = load_scene(sid)
     short = load_scene(sid, overrides={"scenario.duration": sc.duration})  # same scene, own object
     expect = _e0(sc, _frame0(sc))
@@ -54,7 +56,8 @@ def test_initial_energy_is_the_same_on_every_engine(sid):
         seen[eng] = _e0(short, r.trace.valid())
     assert len(seen) >= 2, seen
     for eng, e0 in seen.items():
-        assert abs(e0 - expect) <= 1e-12 * max(abs(expect), 1.0), (sid, eng, e0, expect)
+        rtol = 1e-6 if eng in ("rapier", "box2d") else 1e-12
+        assert abs(e0 - expect) <= rtol * max(abs(expect), 1.0), (sid, eng, e0, expect)
     print(sid, {k: f"{v:.15g}" for k, v in seen.items()})
 
 

@@ -924,7 +924,12 @@ def test_hostile_names_run(tmp_path, engine):
     """Bodies, statics, materials and a family named with quotes, '<', '&',
     markup and 10,000 characters run on every engine (MJCF attributes are
     escaped; pybullet builds from API calls, not URDF)."""
+    from physbench.adapters import get_adapter
     from physbench.harness.runner import run
+
+    caps = get_adapter(engine).capabilities()
+    if not caps.available:
+        pytest.skip(f"{engine} is not installed: {caps.unavailable_reason}")
 
     scene = load_scene(_hostile_spec(tmp_path))
     assert [b.name for b in scene.bodies] == HOSTILE

@@ -154,6 +154,8 @@ def test_record_every(scene):
 @pytest.mark.parametrize("engine", ENGINES)
 def test_block_recording_equals_step_loop(engine, scene):
     cls = get_adapter(engine)
+    if not cls.capabilities().available:
+        pytest.skip(f"{engine} is not installed: {cls.capabilities().unavailable_reason}")
     st = cls.resolve_settings(scene)
     n, nb = 300, scene.n_bodies
     outs = []

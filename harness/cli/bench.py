@@ -25,7 +25,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         elif args.kind == "overhead":
             # the reference engine is left out unless asked for: its steps cost
             # milliseconds, so its overhead is lost in noise and takes minutes
-            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet"], repeats=args.repeats)
+            rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet", "rapier", "box2d"],
+                                  repeats=args.repeats)
             bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
                                    "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
         elif args.kind == "scaling":
@@ -36,7 +37,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
             print("fitted exponents against n: " + ", ".join(f"{k} {v:.2f}" for k, v in sc["exponents"].items()))
         else:
             rows = bench.cost(repeats=args.repeats)
-            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations")
+            bench.print_rows(rows, "reference engine vs pybullet (maximal coordinates), same dt and iterations; "
+                                   "MuJoCo, pymunk, Rapier and Box2D at their defaults (NaN: scene not supported)")
             ok = [r for r in rows if r["scene"].startswith("spheres_") and r["reference_broadphase_us_per_step"] == r["reference_broadphase_us_per_step"]]
             if len(ok) >= 2:
                 k = bench.fit_exponent([r["bodies"] for r in ok], [r["reference_broadphase_us_per_step"] for r in ok])

@@ -1,0 +1,300 @@
+"""Box2D v3 adapter (``pyb2d3`` 0.11 bindings of Box2D >= 3.1): planar
+scenes only, single precision.
+
+Planar mapping (as for pymunk): a planar scene lives in the world x-z
+plane; :func:`contract.conventions.planar_from_world` at build and
+:func:`contract.conventions.world_from_planar` in :meth:`Box2dAdapter.read_state`
+are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
+w = world angular velocity (0, -w, 0)).  Mass = ``Body.mass`` and rotational
+inertia = ``Body.inertia[1]`` (I_yy of the 3D body, exact for rotations about
+y), set as the body's mass data after its shape (density 0).
+
+Shapes (the x-z cross-section through the centre): sphere -> circle; box ->
+box of half sizes (x, z); capsule -> capsule from (0, -h) to (0, h);
+cylinder -> box 2r x 2h, its axial section (a planar cylinder's axis lies in
+the plane).  Statics: a plane or slope is a static box 400 m long and 10 m
+deep on its solid side, its top face on the plane's line; a static box is
+its x-z cross-section.
+
+Stepping: ``World.step(dt, substeps)``.  Box2D's soft step splits a step
+into ``substeps`` substeps of dt/S; each integrates velocities then
+positions (free fall from rest: z_k = -g dt^2 k (k + 1/S) / 2) and solves
+contacts as soft springs of ``contact_hertz`` (capped by Box2D at a quarter
+of the substep rate) with ``contact_damping_ratio``, pushing overlap out at
+no more than ``contact_push_speed``; restitution is applied after the
+substeps to contacts that approached faster than ``restitution_threshold``.
+Speeds are clamped to ``max_linear_speed``.  Sleeping is off.
+
+Materials: Box2D mixes a pair by friction sqrt(f_a f_b), restitution
+max(e_a, e_b), rolling resistance max(c_a, c_b) x the larger shape radius
+(its rolling coefficient is dimensionless; the spec's is a lever arm in m,
+so c = mu_r / r).  pyb2d3 exposes no mixing callbacks: per-shape values are
+solved (:func:`adapters.box2d_scene.shape_materials`), residuals noted.  One
+Coulomb coefficient: the kinetic one.
+
+Effects: gravity; contact absent -> bodies get no shape at all; springs,
+dampers and drag are explicit forces from the state at the start of each
+step (:class:`adapters.forces.StateForces`), held over its substeps and
+noted; ``gyroscopic`` is unsupported (identically zero in 2D).
+
+Contacts: pyb2d3 gives contact data only as begin/end/hit events, not as a
+per-step list.  :meth:`Box2dAdapter.contacts` returns the manifold points of
+the contacts that began touching in the last step.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
+                                            static_pose)
+from physbench.adapters.forces import DRAG_NOTE, StateForces
+from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from physbench.contract.scene import Scene
+
+ENGINE = "box2d"
+
+GYROSCOPIC_REASON = (
+    "Box2D is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
+    "principal axis, so the gyroscopic term w x I w is identically zero and the effect "
+    "cannot be exercised")
+
+
+@functools.lru_cache(maxsize=1)
+def _engine() -> tuple[Any, str]:
+    """(pyb2d3 module or None, reason it is unavailable)."""
+    try:
+        import pyb2d3 as b2
+    except Exception as e:  # pragma: no cover - depends on the environment
+        return None, f"import pyb2d3 failed: {type(e).__name__}: {e}"
+    return b2, ""
+
+
+class Box2dAdapter(Adapter):
+    """Adapter for Box2D v3 through pyb2d3 (2D, planar scenes in the x-z plane)."""
+
+    name = ENGINE
+
+    @classmethod
+    def capabilities(cls) -> Capabilities:
+        b2, why = _engine()
+        return declaration(ENGINE, module_version("pyb2d3"), b2 is not None, why)
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        reason = super().unsupported_reason(scene)
+        if reason is not None:
+            if cls.capabilities().available and scene.planar and "gyroscopic" in scene.effects:
+                return GYROSCOPIC_REASON
+            return reason
+        return planar_geometry_reason(scene)
+
+    # ---- build -------------------------------------------------------------
+    def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        reason = self.unsupported_reason(scene)
+        if reason is not None:
+            raise Unsupported(reason)
+        b2, _ = _engine()
+        self._b2 = b2
+        self._dt = float(settings["dt"])
+        self._substeps = int(settings["substeps"])
+        world = b2.World(gravity=world_point_to_planar(scene.gravity),
+                         contact_hertz=float(settings["contact_hertz"]),
+                         contact_damping_ratio=float(settings["contact_damping_ratio"]),
+                         restitution_threshold=float(settings["restitution_threshold"]),
+                         maximum_linear_speed=float(settings["max_linear_speed"]))
+        world.set_contact_tuning(float(settings["contact_hertz"]), float(settings["contact_damping_ratio"]),
+                                 float(settings["contact_push_speed"]))
+        world.sleeping_enabled = False
+        contact = scene.has("contact")
+        world.continuous_enabled = bool(settings["continuous"]) and contact
+        bullet = bool(settings["bullets"]) and contact
+        self._world = world
+
+        geoms = [body_shape(b2, b) for b in scene.bodies] if contact else []
+        mats = shape_materials(scene, [r for _, r in geoms], self.notes, self.info) if contact else None
+
+        def shape_def(k: int) -> Any:
+            f, e, c = (float(x) for x in mats[k])
+            return b2.shape_def(density=0.0, enable_contact_events=True,
+                                material=b2.surface_material(friction=f, restitution=e, rolling_resistance=c))
+
+        self._bodies = []
+        for b in scene.bodies:
+            (x, y), (vx, vy), angle, w = planar_from_world(b.position, b.velocity, b.orientation,
+                                                           b.angular_velocity)
+            body = world.create_body(b2.body_def(
+                type=b2.BodyType.DYNAMIC, position=(x, y), rotation=rot(b2, angle), linear_velocity=(vx, vy),
+                angular_velocity=w, enable_sleep=False, is_bullet=bullet, linear_damping=0.0,
+                angular_damping=0.0))
+            if contact:
+                body.create_shape(shape_def(b.index), geoms[b.index][0])
+            md = b2.MassData()
+            md.mass, md.rotational_inertia, md.center = float(b.mass), float(b.inertia[1]), (0.0, 0.0)
+            body.mass_data = md
+            self._bodies.append(body)
+        if contact:
+            for s in scene.statics:
+                (x, y), angle, (hx, hy), centre = static_pose(s)
+                ground = world.create_body(b2.body_def(type=b2.BodyType.STATIC, position=(x, y),
+                                                       rotation=rot(b2, angle)))
+                ground.create_shape(shape_def(scene.n_bodies + s.index), b2.box(hx, hy, center=centre))
+        self._batch = b2.Bodies()
+        for body in self._bodies:
+            self._batch.append(body)
+        n = scene.n_bodies
+        self._p, self._q, self._v = (np.zeros((n, 2), np.float32) for _ in range(3))
+        self._w = np.zeros(n, np.float32)
+
+        self._spring_mode = settings["springs"]
+        explicit = self._add_springs(scene)
+        self._forces = StateForces(scene, springs=explicit) or None
+        if self._forces:
+            self.notes.append(DRAG_NOTE if self._forces.kinds == ["drag"] else
+                              "springs, dampers and drag: explicit forces (Hooke spring, dashpot along the spring "
+                              "line, F = -(c1 + c2 |v|) v) from the state at the start of each step, held over "
+                              "Box2D's substeps (a spring with an anchor off a centre of mass, or a damper "
+                              "without a spring, has no exact distance-joint counterpart)")
+        vmax = max((float(np.linalg.norm(b.velocity)) for b in scene.bodies), default=0.0)
+        if vmax > float(settings["max_linear_speed"]):
+            self.notes.append(f"Box2D clamps every speed to max_linear_speed = {settings['max_linear_speed']:g} m/s; "
+                              f"a body starts at {vmax:g} m/s")
+        self.steps = 0
+        self._stages = {"gravity": bool(np.any(scene.gravity != 0)), "contact": contact,
+                        "continuous": world.continuous_enabled, "bullets": bullet, "substeps": self._substeps,
+                        "spring_joints": self._n_joints,
+                        "external_forces": self._forces.kinds if self._forces else []}
+
+    def _add_springs(self, scene: Scene) -> list:
+        """Springs anchored at centres of mass (or the world) become Box2D
+        distance joints with a spring; returns the others (explicit forces).
+
+        Box2D sets a joint spring by frequency f and damping ratio z of the
+        joint's effective mass along its axis, m_eff = 1 / (1/m_a + 1/m_b)
+        (1/m = 0 for the world) when both anchors are centres of mass; then
+        f = sqrt(k / m_eff) / (2 pi) and z = c / (2 sqrt(k m_eff)) give
+        exactly the spec's k (N/m) and c (N s/m).  Off-centre anchors add
+        rotational terms that change with the pose: no constant f, z fits."""
+        b2, explicit, joints = self._b2, [], 0
+        ground = None
+        for sp in scene.springs:
+            if sp.stiffness == 0.0 and sp.damping == 0.0:
+                continue
+            centred = all(i < 0 or not np.any(np.asarray(anc) != 0.0)
+                          for i, anc in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b)))
+            if sp.stiffness <= 0.0 or not centred or self._spring_mode == "force":
+                explicit.append(sp)
+                continue
+            if ground is None:
+                ground = self._world.create_body(b2.body_def(type=b2.BodyType.STATIC, position=(0.0, 0.0)))
+            inv = sum(1.0 / scene.bodies[i].mass for i in (sp.a, sp.b) if i >= 0)
+            m_eff = 1.0 / inv
+            ends = [(ground, world_point_to_planar(anc)) if i < 0 else (self._bodies[i], (0.0, 0.0))
+                    for i, anc in ((sp.a, sp.anchor_a), (sp.b, sp.anchor_b))]
+            self._world.create_distance_joint(
+                body_a=ends[0][0], body_b=ends[1][0], local_anchor_a=ends[0][1], local_anchor_b=ends[1][1],
+                length=float(sp.rest_length), enable_spring=True, enable_limit=False, collide_connected=True,
+                hertz=float(np.sqrt(sp.stiffness / m_eff) / (2.0 * np.pi)),
+                damping_ratio=float(sp.damping / (2.0 * np.sqrt(sp.stiffness * m_eff))))
+            joints += 1
+        if joints:
+            self.notes.append("springs anchored at centres of mass: Box2D distance joints with a spring, frequency "
+                              "and damping ratio set from the spec's k and c and the joint's effective mass")
+        self._n_joints = joints
+        return explicit
+
+    # ---- stepping ----------------------------------------------------------
+    def step(self, n: int = 1) -> None:
+        world, dt, sub = self._world, self._dt, self._substeps
+        if self._forces is None:
+            for _ in range(n):
+                world.step(dt, sub)
+        else:
+            k = len(self._bodies)
+            pos, quat, vel, angvel = np.empty((k, 3)), np.empty((k, 4)), np.empty((k, 3)), np.empty((k, 3))
+            for _ in range(n):
+                self.read_state(pos, quat, vel, angvel)
+                F, T = self._forces.evaluate(pos, quat, vel, angvel)
+                for i in self._forces.bodies:
+                    body = self._bodies[i]
+                    body.apply_force_to_center((float(F[i, 0]), float(F[i, 2])), False)
+                    body.apply_torque(-float(T[i, 1]), False)  # 2D counter-clockwise = world -y
+                world.step(dt, sub)
+        self.steps += n
+
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Step n times, each step's four batched f32 reads written straight
+        into one preallocated block (no allocation per step), then the whole
+        block converted once by world_from_planar, also the complete steps
+        before an exception."""
+        if self._forces is not None:
+            return super().step_record(n, pos, quat, vel, angvel)
+        nb = len(self._bodies)
+        blk, wblk = getattr(self, "_block", (None, None))
+        if blk is None or blk.shape[0] < n:
+            # pyb2d3 silently copies a non-contiguous output array (and then
+            # writes nothing back): every output below is a C-contiguous view
+            blk, wblk = self._block = (np.zeros((max(n, 256), 3, nb, 2), np.float32),
+                                       np.zeros((max(n, 256), nb), np.float32))
+        world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
+        gp, gq, gv, gw = bt.get_positions, bt.get_rotations, bt.get_linear_velocities, bt.get_angular_velocities
+        done = 0
+        try:
+            for i in range(n):
+                world.step(dt, sub)
+                done += 1
+                b = blk[i]
+                gp(b[0])
+                gq(b[1])
+                gv(b[2])
+                gw(wblk[i])
+        finally:
+            self.steps += done
+            self.block_done = done
+            if done and nb:
+                b = blk[:done].astype(float)  # (k, 3, nb, 2)
+                angle = np.arctan2(b[:, 1, :, 1], b[:, 1, :, 0])
+                world_from_planar(b[:, 0, :, 0], b[:, 0, :, 1], b[:, 2, :, 0], b[:, 2, :, 1], angle,
+                                  wblk[:done].astype(float),
+                                  pos[:done].transpose(2, 0, 1), quat[:done].transpose(2, 0, 1),
+                                  vel[:done].transpose(2, 0, 1), angvel[:done].transpose(2, 0, 1))
+
+    def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
+        m/s and angular (n, 3) rad/s velocities: four batched f32 reads into
+        preallocated arrays, then one vectorised world_from_planar."""
+        bt = self._batch
+        bt.get_positions(self._p)
+        bt.get_rotations(self._q)
+        bt.get_linear_velocities(self._v)
+        bt.get_angular_velocities(self._w)
+        p, q, v = self._p.astype(float), self._q.astype(float), self._v.astype(float)
+        angle = np.arctan2(q[:, 1], q[:, 0])
+        world_from_planar(p[:, 0], p[:, 1], v[:, 0], v[:, 1], angle, self._w.astype(float), pos.T, quat.T,
+                          vel.T, angvel.T)
+
+    def contacts(self) -> np.ndarray:
+        """Manifold points of the contacts that began touching in the last
+        step (Box2D's begin-touch events; pyb2d3 has no per-step contact
+        list): rows [world point (x, 0, z), manifold normal (from shape A
+        toward shape B), depth = -separation]."""
+        ev = self._world.get_contact_events()
+        rows = []
+        for e in ev.begin_events():
+            m = e.manifold
+            nx, ny = m.normal.x, m.normal.y
+            for mp in m.points():
+                rows.append((mp.point.x, 0.0, mp.point.y, nx, 0.0, ny, -float(mp.separation)))
+        return np.array(rows, float).reshape(-1, 7)
+
+    def stages(self) -> dict[str, Any]:
+        return {**getattr(self, "_stages", {}), "steps": getattr(self, "steps", 0)}
+
+    def close(self) -> None:
+        self._batch = None
+        self._bodies = []
+        self._world = None

@@ -1,0 +1,367 @@
+"""Tests of the Rapier adapter (adapters/rapier.py) against closed forms.
+
+Every expected value is computed here from the scene (masses, radii, e, mu,
+g, k) and from the integration scheme Rapier documents (TGS-soft: each step
+is ``iterations`` substeps, each velocity first).  Rapier computes in f32:
+tolerances near the f32 resolution say so, with the measured figure.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rapier3d = pytest.importorskip("rapier3d")
+
+from physbench.adapters.rapier import ROLLING_FRICTION_REASON, RapierAdapter  # noqa: E402
+from physbench.contract.scene import load_scene  # noqa: E402
+from physbench.harness.runner import run  # noqa: E402
+
+G = 9.81
+F32 = 2.0 ** -23  # f32 relative resolution (one unit in the last place at 1.0 is 2^-23)
+
+
+def scene_from(tmp_path: Path, text: str, variant: str | None = None):
+    p = tmp_path / "scene.toml"
+    p.write_text(text, encoding="utf-8")
+    return load_scene(p, variant)
+
+
+def run_ok(scene, settings=None, **kw):
+    r = run(scene, "rapier", settings, compute_metrics=False, **kw)
+    assert r.status == "ok", r.message
+    return r, r.trace.valid()
+
+
+def spec(effects, bodies, statics="", duration=1.0, dt=0.001, planar=False, material="", extra=""):
+    """A spec text: scenario header, [material.default] lines, bodies, statics."""
+    return (f'[scenario]\nfamily = "test"\ntitle = "t"\nduration = {duration}\ndt = {dt}\n'
+            f'planar = {"true" if planar else "false"}\neffects = {effects!r}\n'.replace("'", '"')
+            + (f"\n[material.default]\n{material}\n" if material else "") + bodies + statics + extra)
+
+
+GROUND = '\n[[static]]\nname = "ground"\nshape = "plane"\nnormal = [0.0, 0.0, 1.0]\n'
+
+
+def ball(z=0.1, r=0.1, vx=0.0, vz=0.0, name="ball", extra=""):
+    return (f'\n[[body]]\nname = "{name}"\nshape = "sphere"\nradius = {r}\nmass = 1.0\n'
+            f'position = [0.0, 0.0, {z}]\nvelocity = [{vx}, 0.0, {vz}]\n{extra}')
+
+
+# ---------------------------------------------------------------------------
+# declaration and settings
+
+
+def test_capabilities_and_settings():
+    caps = RapierAdapter.capabilities()
+    assert caps.available, caps.unavailable_reason
+    assert caps.version == rapier3d.__version__ and caps.dimensions == 3
+    assert caps.shapes == {"sphere", "box", "capsule", "cylinder"}
+    assert caps.static_shapes == {"plane", "slope", "box"}
+    assert "gyroscopic" in caps.effects and "rolling_friction" not in caps.effects
+    s = caps.settings
+    assert s["iterations"].default == 4 and s["pgs_iterations"].default == 1
+    assert s["contact_frequency"].default == 30.0 and s["contact_damping_ratio"].default == 10.0
+    assert s["ccd"].default is False and s["max_ccd_substeps"].default == 1
+    assert s["friction_model"].default == "simplified" and s["springs"].default == "joint"
+    # the adapter's defaults are Rapier's own
+    ip = rapier3d.IntegrationParameters()
+    assert ip.num_solver_iterations == s["iterations"].default
+    assert ip.num_internal_pgs_iterations == s["pgs_iterations"].default
+    assert ip.contact_softness.natural_frequency == s["contact_frequency"].default
+    assert ip.static_contact_softness.natural_frequency == s["static_contact_frequency"].default
+    assert ip.max_ccd_substeps == s["max_ccd_substeps"].default
+
+
+def test_settings_are_validated(head_on_path):
+    sc = load_scene(head_on_path)
+    res = RapierAdapter.resolve_settings(sc, {"iterations": "8", "ccd": "true"})
+    assert res["iterations"] == 8 and res["ccd"] is True and res["dt"] == sc.dt
+    for bad in ({"iterations": 0}, {"contact_frequency": -1.0}, {"friction_model": "magic"},
+                {"springs": "rope"}, {"bogus": 1}):
+        with pytest.raises(ValueError):
+            RapierAdapter.resolve_settings(sc, bad)
+
+
+def test_settings_reach_the_engine(head_on_path):
+    sc = load_scene(head_on_path)
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc, {
+        "iterations": 7, "pgs_iterations": 3, "contact_frequency": 45.0, "static_contact_frequency": 90.0,
+        "contact_damping_ratio": 2.0, "max_ccd_substeps": 5, "friction_model": "coulomb", "dt": 0.002}))
+    ip = a._world.integration_parameters
+    assert ip.num_solver_iterations == 7 and ip.num_internal_pgs_iterations == 3
+    assert ip.contact_softness.natural_frequency == 45.0 and ip.contact_softness.damping_ratio == 2.0
+    assert ip.static_contact_softness.natural_frequency == 90.0
+    assert ip.max_ccd_substeps == 5 and ip.friction_model == rapier3d.FrictionModel.COULOMB
+    assert ip.dt == pytest.approx(0.002, rel=F32)
+    a.close()
+
+
+# ---------------------------------------------------------------------------
+# the canonical spec: Newton's law of restitution
+
+
+@pytest.mark.parametrize("variant", [None, "elastic", "plastic"])
+def test_head_on_newton(head_on_path, variant):
+    sc = load_scene(head_on_path, variant)
+    r, tr = run_ok(sc)
+    m1, m2 = sc.masses
+    e = sc.pair(sc.bodies[0].material, sc.bodies[1].material).restitution
+    u1, u2 = sc.bodies[0].velocity[0], sc.bodies[1].velocity[0]
+    v1 = ((m1 - e * m2) * u1 + (1 + e) * m2 * u2) / (m1 + m2)
+    v2 = ((m2 - e * m1) * u2 + (1 + e) * m1 * u1) / (m1 + m2)
+    err = np.abs(tr.vel[-1, :, 0] - [v1, v2]).max()
+    print(f"rapier head_on[{variant}] e={e}: velocity error {err:.3g} m/s")
+    # f32: a few units in the last place of 2 m/s (measured 0 .. 7.2e-7)
+    assert err <= 4 * 2.0 * F32 * 4
+    P = tr.vel[:, :, 0] @ sc.masses
+    assert np.abs(P - P[0]).max() / abs(P[0]) <= 1e-6  # measured <= 6.9e-7 (f32 sums)
+    assert r.info["material_mode"] == "per_material"
+
+
+# ---------------------------------------------------------------------------
+# integration scheme
+
+
+@pytest.mark.parametrize("substeps", [1, 4])
+def test_free_fall_substeps(tmp_path, substeps):
+    """S substeps of h = dt/S, velocity first: after k steps v = -g k dt and
+    z = z0 - g h^2 (kS)(kS + 1)/2 = z0 - g dt^2 k (k + 1/S) / 2."""
+    sc = scene_from(tmp_path, spec(["gravity"], ball(z=1.0), duration=0.1, dt=0.01))
+    _, tr = run_ok(sc, {"iterations": substeps})
+    k = np.arange(len(tr.t))
+    z = 1.0 - G * 0.01 ** 2 * k * (k + 1.0 / substeps) / 2.0
+    np.testing.assert_allclose(tr.pos[:, 0, 2], z, rtol=0, atol=4 * F32)
+    np.testing.assert_allclose(tr.vel[:, 0, 2], -G * 0.01 * k, rtol=0, atol=4 * F32)
+
+
+# ---------------------------------------------------------------------------
+# shapes, materials, contact
+
+
+SHAPES = """
+[[body]]
+name = "ball"
+shape = "sphere"
+radius = 0.1
+mass = 1.0
+position = [0.0, 0.0, 0.1]
+
+[[body]]
+name = "box"
+shape = "box"
+half_extents = [0.1, 0.15, 0.05]
+mass = 2.0
+position = [1.0, 0.0, 0.05]
+
+[[body]]
+name = "capsule"
+shape = "capsule"
+radius = 0.05
+half_length = 0.2
+mass = 1.0
+position = [2.0, 0.0, 0.05]
+orientation = [0.7071067811865476, 0.7071067811865475, 0.0, 0.0]
+
+[[body]]
+name = "cylinder"
+shape = "cylinder"
+radius = 0.1
+half_length = 0.05
+mass = 1.0
+position = [3.0, 0.0, 0.05]
+"""
+
+
+def test_shapes_rest_at_their_heights(tmp_path):
+    """Each shape rests on the plane with its centre at its support height
+    (sphere r, box half z, capsule lying: r, cylinder upright: half length),
+    sunk by the soft contact's sag; the sag is the same for every shape
+    (measured 0.069-0.108 mm at 60 Hz static contacts)."""
+    sc = scene_from(tmp_path, spec(["gravity", "contact"], SHAPES, GROUND, duration=1.0, dt=1 / 240))
+    _, tr = run_ok(sc)
+    want = np.array([0.1, 0.05, 0.05, 0.05])
+    sag = want - tr.pos[-1, :, 2]
+    print(f"rapier resting sag per shape (mm): {np.round(sag * 1e3, 4)}")
+    assert np.all(sag >= 0.0) and np.all(sag <= 2e-4)
+    assert np.abs(tr.vel[-1]).max() <= 1e-3  # at rest
+
+
+def test_cylinder_axis_is_body_z(tmp_path):
+    """An upright cylinder (axis = body z) lands flat at its half length; laid
+    on its side (axis turned onto world x) it lands at its radius."""
+    side = SHAPES.split("[[body]]")[4].replace("position = [3.0, 0.0, 0.05]",
+                                               "position = [3.0, 0.0, 0.1]\norientation = [0.7071067811865476, "
+                                               "0.0, 0.7071067811865475, 0.0]")
+    sc = scene_from(tmp_path, spec(["gravity", "contact"], "[[body]]" + side, GROUND, duration=0.5, dt=1 / 240))
+    _, tr = run_ok(sc)
+    assert abs(tr.pos[-1, 0, 2] - 0.1) <= 2e-4
+
+
+@pytest.mark.parametrize("e", [0.5, 0.8])
+def test_restitution_bounce_velocity(tmp_path, e):
+    """A ball falling from rest hits the floor at v = sqrt(2 g h) and leaves
+    at e v (Rapier's coefficient is native: no calibration)."""
+    h = 0.5
+    sc = scene_from(tmp_path, spec(["gravity", "contact", "restitution"], ball(z=0.1 + h), GROUND,
+                                   duration=0.45, dt=0.001, material=f"restitution = {e}"))
+    _, tr = run_ok(sc)
+    vz = tr.vel[:, 0, 2]
+    up = np.argmax(vz > 0)
+    assert up > 0
+    ratio = vz[up] / math.sqrt(2 * G * h)
+    print(f"rapier bounce ratio {ratio:.5f} for e = {e}")
+    assert abs(ratio - e) <= 0.01  # measured 0.5: 0.4986, 0.8: 0.7981 (landing within a step of gravity)
+
+
+def test_pair_values_by_product(tmp_path):
+    """Ball 'a' of material 'rubber' (e 0.8) and ball 'b' of the default
+    material (e 0.5) on a default floor: the pairs want rubber|default = 0.8
+    and default|default = 0.5.  Under the MULTIPLY rule that takes per-material
+    values sqrt(0.5) and 0.8 / sqrt(0.5) (> 1: Rapier takes it), and each
+    ball bounces at its pair value."""
+    text = spec(["gravity", "contact", "restitution"],
+                ball(z=0.6, name="a", extra='material = "rubber"\n')
+                + ball(z=0.6, name="b").replace("[0.0, 0.0, 0.6]", "[1.0, 0.0, 0.6]"),
+                GROUND, duration=0.45, dt=0.001, material="restitution = 0.5",
+                extra="\n[material.rubber]\nrestitution = 0.8\n")
+    r, tr = run_ok(scene_from(tmp_path, text))
+    v = math.sqrt(2 * G * 0.5)
+    for i, e in enumerate((0.8, 0.5)):
+        vz = tr.vel[:, i, 2]
+        got = vz[np.argmax(vz > 0)] / v
+        print(f"ball {i}: bounce {got:.5f} for pair e = {e}")
+        assert abs(got - e) <= 0.01
+    assert r.info["material_mode"] == "per_material"
+
+
+def test_sliding_deceleration_mu_g(tmp_path):
+    """A box sliding on a level floor decelerates at mu g until it stops at
+    v0^2 / (2 mu g)."""
+    mu, v0 = 0.4, 2.0
+    box = ('\n[[body]]\nname = "box"\nshape = "box"\nhalf_extents = [0.1, 0.1, 0.1]\nmass = 1.0\n'
+           f'position = [0.0, 0.0, 0.1]\nvelocity = [{v0}, 0.0, 0.0]\n')
+    sc = scene_from(tmp_path, spec(["gravity", "contact", "friction"], box, GROUND, duration=0.8, dt=1 / 240,
+                                   material=f"friction = {mu}\nstatic_friction = {mu}"))
+    _, tr = run_ok(sc)
+    t, vx = tr.t, tr.vel[:, 0, 0]
+    sliding = (t > 0.05) & (vx > 0.3)
+    a = np.polyfit(t[sliding], vx[sliding], 1)[0]
+    print(f"rapier sliding deceleration {-a:.5f} vs mu g {mu * G:.5f}")
+    assert abs(-a / (mu * G) - 1.0) <= 0.005  # measured 5e-6 relative
+    assert abs(tr.pos[-1, 0, 0] - v0 ** 2 / (2 * mu * G)) <= 0.01
+
+
+def test_no_contact_means_no_colliders(head_on_path):
+    from tests.conftest import without_effects
+
+    sc = without_effects(load_scene(head_on_path), "contact", "restitution")
+    _, tr = run_ok(sc)
+    # f32 free flight: x += v h in 2000 substeps of 0.25 ms rounds at every
+    # add (measured 1.9e-5 m at x = 1 m); bound: one f32 ulp of x per substep
+    n_sub = 4 * (len(tr.t) - 1)
+    np.testing.assert_allclose(tr.pos[-1, :, 0], [2.0 * tr.t[-1], 0.3], rtol=0, atol=n_sub * F32)
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc))
+    assert len(a._world.colliders) == 0
+    a.close()
+
+
+def test_contacts_are_read_from_the_narrow_phase(tmp_path):
+    """A ball resting on the floor: Rapier's solver contact is at the ball's
+    lowest point with the normal along z, overlapping by the soft sag."""
+    sc = scene_from(tmp_path, spec(["gravity", "contact"], ball(z=0.1), GROUND, duration=0.2, dt=1 / 240))
+    r = run(sc, "rapier", compute_metrics=False, contact_cap=4)
+    assert r.status == "ok" and r.contacts
+    frame, rows = r.contacts[-1]
+    assert rows.shape[1] == 7
+    assert np.allclose(np.abs(rows[:, 5]), 1.0) and np.allclose(rows[:, 3:5], 0.0)
+    assert np.all(np.abs(rows[:, 0:2]) <= 1e-6) and np.all(np.abs(rows[:, 2]) <= 1e-3)
+    assert np.all(rows[:, 6] >= 0.0) and np.all(rows[:, 6] <= 2e-4)
+
+
+def test_rolling_friction_is_unsupported(head_on_path):
+    sc = load_scene(head_on_path, None, {"scenario.effects": ["contact", "restitution", "rolling_friction"]})
+    r = run(sc, "rapier", compute_metrics=False)
+    assert r.status == "unsupported" and r.message == ROLLING_FRICTION_REASON
+
+
+# ---------------------------------------------------------------------------
+# gyroscopic switch, continuous collision, springs, drag
+
+TUMBLER = """
+[[body]]
+name = "box"
+shape = "box"
+half_extents = [0.3, 0.2, 0.05]
+mass = 1.0
+angular_velocity = [0.5, 0.0, 3.0]
+"""
+
+
+def test_gyroscopic_switch(tmp_path):
+    """Without 'gyroscopic' the term is off: a box spinning about a
+    non-principal axis keeps its angular velocity.  With it, w changes while
+    the angular momentum L = R I R^T w stays (within Rapier's implicit
+    integration: measured 0.06 % over 1 s at dt 1 ms)."""
+    off = scene_from(tmp_path, spec([], TUMBLER, duration=1.0))
+    _, tr = run_ok(off)
+    np.testing.assert_allclose(tr.angvel[-1, 0], [0.5, 0.0, 3.0], rtol=0, atol=1e-5)
+    on = scene_from(tmp_path, spec(["gyroscopic"], TUMBLER, duration=1.0))
+    _, tr = run_ok(on)
+    from physbench.contract.rotation import quat_to_matrix
+
+    I = np.diag(on.bodies[0].inertia)
+    L = np.array([quat_to_matrix(q) @ I @ quat_to_matrix(q).T @ w for q, w in zip(tr.quat[:, 0], tr.angvel[:, 0])])
+    assert np.abs(tr.angvel[-1, 0] - [0.5, 0.0, 3.0]).max() > 0.05  # the term acts (measured 0.098)
+    drift = np.linalg.norm(L - L[0], axis=1).max() / np.linalg.norm(L[0])
+    print(f"rapier gyroscopic on: |L| drift {drift:.3g}")
+    assert drift <= 0.005
+
+
+@pytest.mark.parametrize("ccd", [False, True])
+def test_bullet_is_returned_in_every_phase(ccd):
+    """bullet_100 (100 m/s, 0.42 m per step, against a 4 mm wall) started at
+    eight step phases: Rapier's speculative contact stops it and returns it at
+    -e v = -50 m/s in every phase, with or without ccd (the row records the
+    flag); what the scenario's xfail records is that its centre first crosses
+    the wall's mid-plane."""
+    from physbench.contract.phase import shift_scene
+
+    sc = load_scene("tunnelling.bullet_100")
+    for k in range(8):
+        r, tr = run_ok(shift_scene(sc, k / 8), {"ccd": ccd})
+        assert tr.vel[-1, 0, 0] == pytest.approx(-50.0, rel=1e-6)
+        assert r.stages["ccd"] is ccd
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc, {"ccd": ccd}))
+    assert a._world.rigid_bodies[a._handles[0]].ccd_enabled is ccd
+    a.close()
+
+
+@pytest.mark.parametrize("springs", ["joint", "force"])
+def test_spring_period(tmp_path, springs):
+    """A 1 kg ball on a k = 40 N/m spring to the world, no gravity: period
+    2 pi sqrt(m/k).  Both the SpringJoint and the explicit force keep it
+    (zero crossings of x measured within 0.02 % of the period)."""
+    body = ball(z=0.0).replace("position = [0.0, 0.0, 0.0]", "position = [0.6, 0.0, 0.0]")
+    extra = ('\n[[spring]]\na = "world"\nb = "ball"\nanchor_a = [0.0, 0.0, 0.0]\nstiffness = 40.0\n'
+             'rest_length = 0.5\n')
+    r, tr = run_ok(scene_from(tmp_path, spec(["spring"], body, duration=3.0, extra=extra)), {"springs": springs})
+    x = tr.pos[:, 0, 0] - 0.5
+    s = np.nonzero(np.diff(np.sign(x)) > 0)[0]
+    tc = tr.t[s] - x[s] * (tr.t[s + 1] - tr.t[s]) / (x[s + 1] - x[s])
+    period = np.diff(tc).mean()
+    assert abs(period / (2 * math.pi * math.sqrt(1 / 40.0)) - 1) <= 2e-3
+    assert r.stages["spring_joints"] == (1 if springs == "joint" else 0)
+
+
+def test_linear_drag(tmp_path):
+    """Linear drag c v, no gravity: v(t) = v0 exp(-c t / m)."""
+    body = ball(z=0.0, vx=3.0, extra="drag_linear = 0.5\n")
+    _, tr = run_ok(scene_from(tmp_path, spec(["drag_linear"], body, duration=2.0)))
+    np.testing.assert_allclose(tr.vel[:, 0, 0], 3.0 * np.exp(-0.5 * tr.t), rtol=2e-3)
