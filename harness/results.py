@@ -11,12 +11,12 @@ same directory, fsync, rename; mode 0666 minus the umask, i.e. 0644 under
 the usual umask, never the 0600 of a ``mkstemp`` file), under
 :func:`write_table_atomic` (a pyarrow Table), :func:`write_parquet_atomic`
 (a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
-job that writes one part per finished run and resumes after a kill
-(``physbench sweep`` and ``physbench check``): parts are built from the row
-with pyarrow (:func:`row_table`, typed as ``from_pandas`` types one
-row) and merged by :func:`merge_tables`: pyarrow where the parts share a
-schema, else one ``pandas.concat`` and :func:`_normalize`, the store's
-one normaliser.
+job that writes its finished runs' rows as parts and resumes after a kill
+(``physbench sweep``: several rows to a part; ``physbench check``): parts
+are built from the rows with pyarrow, one schema per part (:func:`rows_table`,
+typed as ``from_pandas`` types each row) and merged by :func:`merge_tables`:
+pyarrow where the parts share a schema, else one ``pandas.concat`` and
+:func:`_normalize`, the store's one normaliser.
 """
 
 from __future__ import annotations

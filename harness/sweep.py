@@ -23,7 +23,7 @@ Storage (asv style, ``results/sweeps/``)::
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (temp file, fsync, rename); the rows of
-about half a second go into one part, so a killed sweep loses at most those
+about a second go into one part, so a killed sweep loses at most those
 and the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.

@@ -152,25 +152,33 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     from physbench.harness.sweep import sweep_main
     from physbench.harness.sweep_store import sweep_files
 
-    from physbench.harness import schedule
+    from physbench.harness import schedule, sweep
 
     units: list[int] = []
-    real_batched = schedule.batched
+    loop: list[float] = []
+    real_batched, real_schedule = schedule.batched, sweep.run_schedule
 
     def counted(*a: Any, **kw: Any) -> list[Any]:  # the executor's units of points (tasks, with Dask)
         out = real_batched(*a, **kw)
         units.append(len(out))
         return out
 
+    def timed(*a: Any, **kw: Any) -> None:  # the main thread's CPU in the sweep's loop, apart from start and end
+        c = time.thread_time()
+        try:
+            real_schedule(*a, **kw)
+        finally:
+            loop.append(time.thread_time() - c)
+
     load = os.getloadavg()[0]
     c0, t0 = _cpu(), time.perf_counter()
-    schedule.batched = counted
+    schedule.batched, sweep.run_schedule = counted, timed
     try:
         with CpuAccount() as account:
             rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
                             scenarios=scenarios)
     finally:
-        schedule.batched = real_batched
+        schedule.batched, sweep.run_schedule = real_batched, real_schedule
     wall, cpu = time.perf_counter() - t0, _cpu() - c0
     newest = max((f for *_m, f, done in sweep_files(root, unfinished=False) if done), key=lambda f: f.stem)
     df = pd.read_parquet(newest)
@@ -186,7 +194,7 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     evaluations = int((kind == "limit_eval").sum())
     return {"executor": executor, "jobs": jobs, "points": int(kind.isna().sum()),
             "evaluations": evaluations, "searches": int((kind == "limit").sum()),
-            "tasks": sum(units) + evaluations if units else None,
+            "tasks": sum(units) + evaluations if units else None, "loop_cpu_s": sum(loop),
             "errors": int(df["status"].isin(["error", "timeout"]).sum()),
             "wall_s": wall, "cpu_s": cpu, "cores_busy": cpu / wall, "busy_s": busy,
             "idle": 1.0 - busy / (jobs * wall), "step_cpu_s": step_cpu, "step_wall_s": step_wall,
@@ -411,8 +419,8 @@ PROJECT_WORKERS = (8, 32, 128)
 def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> dict[str, Any]:
     """Amdahl's projection from one measured sweep (:func:`measure`): per
     item (point or search evaluation), the serial CPU -- the client's
-    (main thread: the loop, receiving results, start-up, the merge; the part
-    writer) and the scheduler's (a LocalCluster's scheduler, comms and
+    (main thread: start-up, the loop feeding the executor and receiving
+    results (``client_loop_ms``), the merge; the part writer) and the scheduler's (a LocalCluster's scheduler, comms and
     nannies run in the client's other threads; with the process executor
     those hold only the sampler) -- against the parallel CPU (run
     processes: the points' own CPU; Dask worker processes: their task
@@ -421,6 +429,7 @@ def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> 
     reach if nothing else limits them (ms per item)."""
     a = run["account"]
     items = max(1, run["points"] + run["evaluations"])
+    loop = run.get("loop_cpu_s", math.nan)
     client = 1e3 * (a["main thread"] + a["part writer"]) / items
     sched = 1e3 * a["other threads"] / items
     point = 1e3 * a["run processes"] / items
@@ -428,15 +437,17 @@ def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> 
     serial, parallel = client + sched, point + worker
     s = serial / (serial + parallel) if serial + parallel > 0 else math.nan
     return {"executor": run["executor"], "jobs": run["jobs"], "items": items, "tasks": run.get("tasks"),
-            "client_ms": client, "scheduler_ms": sched, "serial_ms": serial, "point_cpu_ms": point,
-            "worker_ms": worker, "serial_fraction": s,
+            "client_ms": client, "client_loop_ms": 1e3 * loop / items, "writer_ms": 1e3 * a["part writer"] / items,
+            "start_end_s": a["main thread"] - loop, "scheduler_ms": sched, "serial_ms": serial,
+            "point_cpu_ms": point, "worker_ms": worker, "serial_fraction": s,
             "speedup": {n: 1.0 / (s + (1.0 - s) / n) for n in workers}}
 
 
 def _print_scaling(sc: dict[str, Any]) -> None:
     print(f"  {sc['executor']} x{sc['jobs']}: {sc['items']} items" + (f" in {sc['tasks']} tasks" if sc["tasks"] else "")
-          + f"; serial CPU per item {sc['serial_ms']:.2f} ms (client {sc['client_ms']:.2f}, scheduler and comms "
-          f"{sc['scheduler_ms']:.2f}); point CPU {sc['point_cpu_ms']:.1f} ms + Dask worker {sc['worker_ms']:.2f} ms; "
+          + f"; serial CPU per item {sc['serial_ms']:.2f} ms (client {sc['client_ms']:.2f}: its loop "
+          f"{sc['client_loop_ms']:.2f}, part writer {sc['writer_ms']:.2f}, start-up and merge {sc['start_end_s']:.1f} s "
+          f"in all; scheduler and comms {sc['scheduler_ms']:.2f}); point CPU {sc['point_cpu_ms']:.1f} ms + Dask worker {sc['worker_ms']:.2f} ms; "
           f"serial fraction {sc['serial_fraction']:.4f}; Amdahl on "
           + ", ".join(f"{n} workers {v:.1f}x" for n, v in sc["speedup"].items()))
 

@@ -6,7 +6,7 @@
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename); the rows of about half a second go into one part (one per row
+rename); the rows of about a second go into one part (one per row
 schema), so a killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
 :func:`sweep_files`.  Names that become directories are plain names
@@ -78,7 +78,7 @@ _parts = list_parts  # the name harness/sweep.py imports
 
 #: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
 #: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows
-PART_FLUSH_S = 0.5
+PART_FLUSH_S = 1.0
 PART_MAX_ROWS = 1000
 #: the name of the sweep's part-writer thread (:meth:`_SweepDir.write_behind`;
 #: harness/sweep_bench.py accounts its CPU by it)
