@@ -63,8 +63,8 @@ from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, Batch, WorkerL
                              members, register_env_adapters, take)
 
 #: Dask settings of the LocalCluster (its scheduler runs in this process, its
-#: workers on the cores the run processes use): one retry for a task whose
-#: worker died; tasks queued on the scheduler (workers hold only the task
+#: workers on the cores the run processes use): no retry by the scheduler for
+#: a task whose worker died (the client retries, point by point); tasks queued on the scheduler (workers hold only the task
 #: they run, so a death charges no queued task); and Dask's periodic work
 #: per process -- the workers' statistical profiler (a stack sample every
 #: 10 ms), the event-loop health tick (20 ms), the system monitor (0.5 s),
