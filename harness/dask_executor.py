@@ -194,8 +194,8 @@ def run_task(fn: Callable[[Any], Any], item: Any, budget: Any, client_identity: 
     pool = _thread_pool(adapters, paths)
     items = members(item)
     budgets = dict(zip(map(id, items), budget if isinstance(item, Batch) else (budget,)))
-    got = {id(i): v for i, v in pool.map(fn, [item], budget_s=lambda i: budgets[id(i)])}
-    values = [got[id(i)] for i in items]
+    # the pool yields a unit's items in their order (after a lost one, the rest run on in order)
+    values = [v for _i, v in pool.map(fn, [item], budget_s=lambda i: budgets[id(i)])]
     for v in values:
         if isinstance(v, WorkerLost):
             v.machine = dict(ident["machine"])
