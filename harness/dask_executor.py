@@ -11,15 +11,20 @@ resume).
   cluster; without, it starts a ``LocalCluster`` of ``jobs`` worker
   processes, one thread each, on 127.0.0.1, with BLAS held to one thread and
   a dashboard on 127.0.0.1 when bokeh is installed (else none).
-- **Points are tasks.**  Each item is one task keyed by its point key (or a
-  check run's key).  Inside the Dask worker the task runs in a
-  :class:`harness.execute.WorkerPool` subprocess, so the watchdog is the
-  local executor's: an engine that hangs past the item's budget becomes
-  ``timeout``, an abort or segfault ``error`` naming the signal, and the
-  Dask worker itself survives both.  A Dask worker that dies (killed, out of
-  memory, machine lost) has its task retried once on another worker (the
-  scheduler's ``allowed-failures``, 1 on the LocalCluster); a second death
-  makes the item ``error`` with the reason.
+- **Points are tasks, short ones batched.**  Each item -- or a
+  :class:`harness.execute.Batch` of short points, about :data:`BATCH_S`
+  seconds of expected work (harness/schedule.py) -- is one task keyed by
+  its (first) point key (or a check run's key).  Inside the Dask worker the
+  task runs in a :class:`harness.execute.WorkerPool` subprocess, so the
+  watchdog is the local executor's, per item: an engine that hangs past
+  the item's budget becomes ``timeout``, an abort or segfault ``error``
+  naming the signal (a batch's other items keep their rows or run on), and
+  the Dask worker itself survives both.  A Dask worker that dies (killed,
+  out of memory, machine lost) costs its task: this client runs a batch's
+  items again one by one (its finished rows were on that worker), an item
+  alone once more; an item whose own task's worker dies a second time is
+  an ``error`` row with the reason.  The scheduler should not retry by itself
+  (``allowed-failures`` 0, as on the LocalCluster).
 - **Feeding the cluster.**  Items are read as the cluster has room: one
   task per worker thread running and one more per thread waiting, the next
   submitted when a result comes back.  The waiting tasks wait *on the
@@ -54,12 +59,12 @@ import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, WorkerPool, _extra_adapters,
-                             register_env_adapters, take)
+from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, Batch, WorkerLost, WorkerPool, _extra_adapters,
+                             members, register_env_adapters, take)
 
 #: Dask settings of the LocalCluster (its scheduler runs in this process, its
-#: workers on the cores the run processes use): one retry for a task whose
-#: worker died; tasks queued on the scheduler (workers hold only the task
+#: workers on the cores the run processes use): no retry by the scheduler for
+#: a task whose worker died (the client retries, point by point); tasks queued on the scheduler (workers hold only the task
 #: they run, so a death charges no queued task); and Dask's periodic work
 #: per process -- the workers' statistical profiler (a stack sample every
 #: 10 ms), the event-loop health tick (20 ms), the system monitor (0.5 s),
@@ -67,7 +72,7 @@ from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, WorkerLost, Wo
 #: to steal with one task per thread) -- made rarer or off.  Measured in
 #: docs/SWEEPS.md (Dask's own CPU on an idle cluster of 2 workers).
 LOCAL_CLUSTER_CONFIG = {
-    "distributed.scheduler.allowed-failures": 1,
+    "distributed.scheduler.allowed-failures": 0,
     "distributed.scheduler.worker-saturation": 1.0,
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
@@ -75,6 +80,10 @@ LOCAL_CLUSTER_CONFIG = {
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.scheduler.work-stealing": False,
 }
+
+#: expected seconds of work per task: points are batched up to it (harness/schedule.py), as Dask's
+#: own guidance asks ("tasks of ~100 ms or more": a task costs ~1.5 ms of scheduler CPU)
+BATCH_S = 0.1
 
 #: the version pins an environment check compares (importlib.metadata names)
 PACKAGES = ("numpy", "scipy", "numba", "mujoco", "pybullet", "pymunk", "threadpoolctl")
@@ -166,12 +175,15 @@ def close_pools() -> None:
         _close(p)
 
 
-def run_task(fn: Callable[[Any], Any], item: Any, budget: float | None, client_identity: dict[str, Any],
+def run_task(fn: Callable[[Any], Any], item: Any, budget: Any, client_identity: dict[str, Any],
              adapters: str, paths: tuple[str, ...]) -> tuple[Any, str]:
-    """One item on a Dask worker: refuse if this worker's software differs
-    from the client's, else run ``fn(item)`` in this thread's run process
-    under the watchdog.  Returns (value or WorkerLost, worker address); a
-    WorkerLost carries this worker's machine summary."""
+    """One item -- or a :class:`Batch` of items -- on a Dask worker: refuse
+    if this worker's software differs from the client's, else run
+    ``fn(item)`` in this thread's run process under the watchdog (a
+    batch's items one after the other, each under its own budget:
+    ``budget`` is then a tuple, one per item).  Returns (value or
+    WorkerLost, worker address), for a batch (list of values, address);
+    a WorkerLost carries this worker's machine summary."""
     from distributed import get_worker
 
     address = get_worker().address
@@ -180,10 +192,14 @@ def run_task(fn: Callable[[Any], Any], item: Any, budget: float | None, client_i
     if diff:
         raise EnvironmentRefused(refusal(address, diff))
     pool = _thread_pool(adapters, paths)
-    [(_, value)] = list(pool.map(fn, [item], budget_s=lambda _i: budget))
-    if isinstance(value, WorkerLost):
-        value.machine = dict(ident["machine"])
-    return value, address
+    items = members(item)
+    budgets = dict(zip(map(id, items), budget if isinstance(item, Batch) else (budget,)))
+    # the pool yields a unit's items in their order (after a lost one, the rest run on in order)
+    values = [v for _i, v in pool.map(fn, [item], budget_s=lambda i: budgets[id(i)])]
+    for v in values:
+        if isinstance(v, WorkerLost):
+            v.machine = dict(ident["machine"])
+    return (values if isinstance(item, Batch) else values[0]), address
 
 
 def _identity_on_worker(dask_worker=None) -> dict[str, Any]:
@@ -272,6 +288,8 @@ class DaskExecutor:
         self.placement: dict[str, str] = {}
         self.dashboard: str | None = None
         self._seq = itertools.count()
+        #: expected seconds of work per task (harness/schedule.py batches points up to it)
+        self.batch_s = BATCH_S
         try:
             if scheduler:
                 self.client = Client(scheduler, timeout="20s")
@@ -320,9 +338,9 @@ class DaskExecutor:
         where = f"scheduler {scheduler}" if scheduler else "LocalCluster on 127.0.0.1"
         self.log(f"dask: {where}, {len(self.workers)} workers ({self.jobs} threads) on {len(ids)} machine type(s); "
                  f"dashboard {self.dashboard or 'off (bokeh is not installed where the scheduler runs)'}")
-        if retries != 1:
-            self.log(f"note: the scheduler retries a task whose worker died {retries} times (allowed-failures); "
-                     "physbench expects 1 (docs/SWEEPS.md)")
+        if retries != 0:
+            self.log(f"note: the scheduler retries a task whose worker died {retries} times itself "
+                     "(allowed-failures); physbench retries each point once and expects 0 (docs/SWEEPS.md)")
         if self.machine_id is None:
             self.log("note: the workers run on different machines: each row's machine.* columns name its own; "
                      "their timings do not compare with each other")
@@ -346,58 +364,81 @@ class DaskExecutor:
         futures: dict[Any, Any] = {}
         done = as_completed(with_results=True, raise_errors=False)  # results gathered as tasks finish
         source, more = iter(items), True
+        # items to submit again, alone, before the source's next: those of a batch whose worker died,
+        # and an item whose worker died the first time (each runs once more; ids: retried already)
+        again: list[Any] = []
+        retried: set[int] = set()
+
+        def submit(unit: Any) -> None:
+            # unique even for items of equal keys: a repeated key would be one shared task
+            k = f"physbench-{_item_key(unit)}-{token}-{next(self._seq)}"
+            its = members(unit)
+            budgets = tuple(budget_s(i) if budget_s else None for i in its)
+            args = (fn, unit, budgets if isinstance(unit, Batch) else budgets[0], self.identity,
+                    self.adapters_text, self.paths)
+            prio = max(priority(i) for i in its) if priority else 0
+            fut = None
+            if self._queued_submit is not None:
+                try:
+                    fut = self._queued_submit(self.client, run_task, *args, key=k, priority=prio)
+                except (TypeError, AttributeError, ImportError):
+                    # the private graph API differs in this Dask: one task per thread from now on
+                    self._queued_submit, self.lookahead = None, 0
+            if fut is None:
+                fut = self.client.submit(run_task, *args, key=k, pure=False, priority=prio)
+            futures[fut] = unit
+            done.add(fut)
 
         def fill() -> None:
             nonlocal more
-            while more and len(futures) < self.jobs + self.lookahead:
-                item = take(source, bool(futures))
-                if item is END:
+            while (more or again) and len(futures) < self.jobs + self.lookahead:
+                unit = again.pop(0) if again else take(source, bool(futures))
+                if unit is END:
                     more = False
-                elif item is WAIT:
+                elif unit is WAIT:
                     return
                 else:
-                    # unique even for items of equal keys: a repeated key would be one shared task
-                    k = f"physbench-{_item_key(item)}-{token}-{next(self._seq)}"
-                    args = (fn, item, budget_s(item) if budget_s else None, self.identity, self.adapters_text,
-                            self.paths)
-                    prio = priority(item) if priority else 0
-                    fut = None
-                    if self._queued_submit is not None:
-                        try:
-                            fut = self._queued_submit(self.client, run_task, *args, key=k, priority=prio)
-                        except (TypeError, AttributeError, ImportError):
-                            # the private graph API differs in this Dask: one task per thread from now on
-                            self._queued_submit, self.lookahead = None, 0
-                    if fut is None:
-                        fut = self.client.submit(run_task, *args, key=k, pure=False, priority=prio)
-                    futures[fut] = item
-                    done.add(fut)
+                    submit(unit)
 
         try:
             fill()
             while futures:
                 fut, result = next(done)
-                item = futures.pop(fut)
+                unit = futures.pop(fut)
+                its = members(unit)
                 try:
                     if fut.status == "error":  # result: (type, exception, traceback)
                         raise result[1]
                     if isinstance(result, BaseException):  # cancelled (from outside: not by this map)
                         raise RuntimeError(f"cancelled: {result!r}")
                     value, address = result
-                    self.placement[_item_key(item)] = address
+                    values = value if isinstance(unit, Batch) else [value]
+                    for i in its:
+                        self.placement[_item_key(i)] = address
                 except EnvironmentRefused:
                     raise
                 except KilledWorker as e:
                     last = getattr(e.last_worker, "address", "?")
-                    value = WorkerLost("died", f"the Dask worker died while running this item, twice (retried once "
-                                               f"on another worker; last {last}): killed from outside or out of "
-                                               "memory, see that worker's log")
-                    value.machine = dict(self.workers.get(last, {}).get("machine") or {}) or None
+                    if isinstance(unit, Batch) or id(unit) not in retried:
+                        # the worker died: a batch's items run again one by one (its finished rows were on
+                        # that worker, and which item it was running is not known here: each keeps its own
+                        # retry), an item alone runs once more; its second death is the item's error row
+                        if not isinstance(unit, Batch):
+                            retried.add(id(unit))
+                        again.extend(its)
+                        fill()
+                        continue
+                    lost = WorkerLost("died", f"the Dask worker died while running this item, twice (retried once "
+                                              f"on another worker; last {last}): killed from outside or out of "
+                                              "memory, see that worker's log")
+                    lost.machine = dict(self.workers.get(last, {}).get("machine") or {}) or None
+                    values = [lost]
                 except Exception as e:
-                    value = WorkerLost("raised", f"dask task failed: {type(e).__name__}: {e}")
-                if on_start:
-                    on_start(item)
-                yield item, value
+                    values = [WorkerLost("raised", f"dask task failed: {type(e).__name__}: {e}")] * len(its)
+                for i, v in zip(its, values):
+                    if on_start:
+                        on_start(i)
+                    yield i, v
                 fill()
         finally:
             if futures:  # interrupted or refused: nothing more of this map runs

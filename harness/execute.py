@@ -29,9 +29,9 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
-from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, InlineExecutor,  # noqa: F401
-                             WorkerLost, WorkerPool, _extra_adapters, grace_s, register_env_adapters, take,
-                             worker_main)
+from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
+                             InlineExecutor, WorkerLost, WorkerPool, _extra_adapters, grace_s, members,
+                             register_env_adapters, take, worker_main)
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
@@ -228,4 +228,5 @@ def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine:
 
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV"]
+           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
+           "members"]

@@ -11,12 +11,12 @@ same directory, fsync, rename; mode 0666 minus the umask, i.e. 0644 under
 the usual umask, never the 0600 of a ``mkstemp`` file), under
 :func:`write_table_atomic` (a pyarrow Table), :func:`write_parquet_atomic`
 (a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
-job that writes one part per finished run and resumes after a kill
-(``physbench sweep`` and ``physbench check``): parts are built from the row
-with pyarrow (:func:`row_table`, typed as ``from_pandas`` types one
-row) and merged by :func:`merge_tables`: pyarrow where the parts share a
-schema, else one ``pandas.concat`` and :func:`_normalize`, the store's
-one normaliser.
+job that writes its finished runs' rows as parts and resumes after a kill
+(``physbench sweep``: several rows to a part; ``physbench check``): parts
+are built from the rows with pyarrow, one schema per part (:func:`rows_table`,
+typed as ``from_pandas`` types each row) and merged by :func:`merge_tables`:
+pyarrow where the parts share a schema, else one ``pandas.concat`` and
+:func:`_normalize`, the store's one normaliser.
 """
 
 from __future__ import annotations
@@ -175,27 +175,49 @@ def _row_schema(signature: tuple[tuple[str, Any], ...]):
     return pa.schema(list(signature))
 
 
+def row_signature(row: dict[str, Any]) -> tuple[tuple[str, Any], ...] | None:
+    """The Arrow schema of ``row`` as (column, type) pairs, from its values'
+    Python types (:func:`_scalar_types`), or None for a row holding a value
+    of another type (a list, another numpy scalar: the pandas path types
+    it).  Rows of one signature share one part (:func:`rows_table`)."""
+    types = _scalar_types()
+    try:
+        return tuple((k, types[type(v)]) for k, v in row.items())
+    except KeyError:
+        return None
+
+
+def rows_table(rows: list[dict[str, Any]], signature: tuple[tuple[str, Any], ...] | None = None):
+    """Rows of one :func:`row_signature` as one pyarrow Table, built column
+    by column with that one schema (no DataFrame, no per-row table), typed
+    as ``Table.from_pandas(pandas.DataFrame([row]))`` types each row (a float
+    NaN stored as null, as pandas stores it): the same table as the rows'
+    one-row tables concatenated.  A value the schema cannot hold (an int
+    beyond 64 bits) sends the rows through the pandas path one by one.
+    Test: tests/test_results_store.py::test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one."""
+    import pyarrow as pa
+
+    sig = signature if signature is not None else row_signature(rows[0])
+    if sig is None:
+        return pa.concat_tables([_pandas_row_table(r) for r in rows])
+    try:
+        arrays = [pa.array([r[k] for r in rows], t, from_pandas=True) if t == pa.float64()  # NaN -> null
+                  else pa.array([r[k] for r in rows], t) for k, t in sig]
+        return pa.Table.from_arrays(arrays, schema=_row_schema(sig))
+    except (OverflowError, pa.ArrowException):
+        return pa.concat_tables([_pandas_row_table(r) for r in rows])
+
+
 def row_table(row: dict[str, Any]):
     """One row as a one-row pyarrow Table typed as
     ``Table.from_pandas(pandas.DataFrame([row]))`` types it (a float NaN is
     stored as null, as pandas stores it), without building a DataFrame: the
     schema comes from the values' Python types and is reused for every row
-    of the same columns and types.  A value of another type (a list, a
-    numpy scalar other than bool/int64/float64, an int beyond 64 bits) takes
-    the pandas path for its row.  Test:
+    of the same columns and types (:func:`rows_table`).  A value of another
+    type (a list, a numpy scalar other than bool/int64/float64, an int
+    beyond 64 bits) takes the pandas path for its row.  Test:
     tests/test_results_store.py::test_a_row_reads_back_as_the_pandas_path_wrote_it."""
-    import pyarrow as pa
-
-    types = _scalar_types()
-    try:
-        sig = tuple((k, types[type(v)]) for k, v in row.items())
-    except KeyError:
-        return _pandas_row_table(row)
-    try:
-        values = {k: [None if v != v else v] for k, v in row.items()}  # NaN != NaN: null, as from_pandas
-        return pa.Table.from_pydict(values, schema=_row_schema(sig))
-    except (OverflowError, pa.ArrowException):
-        return _pandas_row_table(row)
+    return rows_table([row])
 
 
 def _pandas_row_table(row: dict[str, Any]):
@@ -293,16 +315,16 @@ def try_lock(d: Path) -> int:
     return fd
 
 
-#: pyarrow.parquet.write_table options of a one-row part: no compression,
+#: pyarrow.parquet.write_table options of a part: no compression,
 #: no column statistics (a part is read whole, once); the merged file is
 #: written with the defaults
 PART_WRITE_OPTIONS = {"compression": "none", "write_statistics": False, "use_dictionary": False}
 
 
 class PartsDir:
-    """An open (unfinished) job directory: ``manifest.json`` and one
-    ``part-NNNNNN.parquet`` per finished run, each identified by its
-    ``key_column`` value; locked against a second process resuming it at
+    """An open (unfinished) job directory: ``manifest.json`` and
+    ``part-NNNNNN.parquet`` files holding the finished runs' rows (one or
+    more per part), each identified by its ``key_column`` value; locked against a second process resuming it at
     the same time."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int, key_column: str):
@@ -315,18 +337,34 @@ class PartsDir:
             tmp.unlink()
 
     def write_part(self, row: dict[str, Any], metadata: dict[str, Any] | None = None) -> Path:
-        """Store ``row`` as the next part (:func:`row_table`, written
-        atomically and fsynced before this returns: once the caller counts
-        the row done, it is on disk)."""
-        p = self.path / f"part-{self.next_part:06d}.parquet"
-        write_table_atomic(row_table(row), p, metadata, **PART_WRITE_OPTIONS)
-        self.next_part += 1
-        self.done.add(row[self.key_column])
-        return p
+        """Store ``row`` as the next part (:meth:`write_rows` of one row)."""
+        return self.write_rows([row], metadata)[0]
+
+    def write_rows(self, rows: list[dict[str, Any]], metadata: dict[str, Any] | None = None) -> list[Path]:
+        """Store ``rows`` as the next parts: one part per :func:`row_signature`
+        among them (its rows in their order, :func:`rows_table`; the parts
+        in the order their signatures first appear, so a merge types the
+        columns as it typed one part per row), each written atomically and
+        fsynced before this returns: once the caller counts a row done, it
+        is on disk.  A part is whole or absent, so a kill loses whole
+        parts, never half a row.  Returns the parts' paths."""
+        groups: dict[Any, tuple[Any, list[dict[str, Any]]]] = {}  # a row the pandas path types: a part alone
+        for i, row in enumerate(rows):
+            sig = row_signature(row)
+            groups.setdefault(sig if sig is not None else i, (sig, []))[1].append(row)
+        paths = []
+        for sig, same in groups.values():
+            p = self.path / f"part-{self.next_part:06d}.parquet"
+            table = rows_table(same, sig)
+            write_table_atomic(table, p, metadata, **PART_WRITE_OPTIONS)
+            self.next_part += 1
+            self.done.update(r[self.key_column] for r in same)
+            paths.append(p)
+        return paths
 
     def part_rows(self) -> list[dict[str, Any]]:
-        """The stored rows, one dict per part, each read on its own (so a
-        column's type is the one its row was written with)."""
+        """The stored rows, one dict per row, each part read on its own (so
+        a column's type is the one its row was written with)."""
 
         out = []
         for p in list_parts(self.path):

@@ -34,7 +34,7 @@ import heapq
 import itertools
 from typing import Any, Callable, Iterator
 
-from physbench.harness.execute import WAIT, WorkerLost
+from physbench.harness.execute import WAIT, Batch, WorkerLost
 from physbench.harness.limits import EvalItem, LimitRequest, SearchResult, evaluate_item, lost_eval_row, search_items
 from physbench.harness import points as _points
 from physbench.harness.points import Point, _point_budget, lost_point_row
@@ -61,6 +61,40 @@ def item_priority(item: Point | EvalItem) -> int:
     return 1 if isinstance(item, EvalItem) else 0
 
 
+#: at most this many points in one batch (a batch's rows come back together on Dask)
+BATCH_MAX = 64
+#: expected seconds of a point no earlier sweep timed, when none of the sweep's points was timed
+#: before: a fixed part (process hand-over, scene, metrics) and one per model unit
+#: (:func:`_model_cost`: steps x (bodies + 1) x runs), fitted on a nightly subset's 538 points
+DEFAULT_POINT_S = 0.02
+DEFAULT_UNIT_S = 5e-6
+
+
+def batched(points: list[Point], cost: Callable[[Point], float] | None, target_s: float) -> list[Any]:
+    """``points`` (in their order) as the executor's units: runs of
+    consecutive points whose expected seconds (``cost``) add up to at least
+    ``target_s`` (at most :data:`BATCH_MAX`) as one :class:`Batch`; a point
+    expected to take ``target_s`` or more alone, as itself.  No ``cost``
+    or ``target_s`` <= 0: every point alone.  Test:
+    tests/test_schedule.py::test_points_are_batched_to_the_target_work."""
+    if cost is None or target_s <= 0:
+        return list(points)
+    units, run, total = [], [], 0.0
+    for p in points:
+        c = cost(p)
+        if c >= target_s and not run:
+            units.append(p)
+            continue
+        run.append(p)
+        total += c
+        if total >= target_s or len(run) >= BATCH_MAX:
+            units.append(run[0] if len(run) == 1 else Batch(tuple(run)))
+            run, total = [], 0.0
+    if run:
+        units.append(run[0] if len(run) == 1 else Batch(tuple(run)))
+    return units
+
+
 def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest],
                  on_point_row: Callable[[Point, dict[str, Any]], None],
                  on_search_done: Callable[[LimitRequest, SearchResult, dict[str, Any]], None],
@@ -73,16 +107,20 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
     each new evaluation's row to ``store_eval``, each search's result and
     summary row to ``on_search_done`` (the caller stores the summary);
     evaluations whose key is in ``cached`` are read back, not run.
-    ``point_cost`` / ``search_cost``: expected cost (any unit, larger runs
-    first; default: the order given).  ``on_start(point)`` when a point
+    ``point_cost`` / ``search_cost``: expected seconds (larger runs
+    first; default: the order given); points are batched by ``point_cost``
+    into units of the executor's ``batch_s`` seconds (:func:`batched`).  ``on_start(point)`` when a point
     starts (harness/execute.py: Dask calls it as the result arrives)."""
     cached = cached or {}
     # one worker: the order does not change the wall time; keep the planned one (points, then searches)
     parallel = getattr(executor, "jobs", 1) > 1
+    order = sorted(range(len(points)), key=lambda i: -point_cost(points[i])) if point_cost and parallel \
+        else range(len(points))
     if not parallel:
-        point_cost = search_cost = None
-    order = sorted(range(len(points)), key=lambda i: -point_cost(points[i])) if point_cost else range(len(points))
-    todo = iter([points[i] for i in order])
+        search_cost = None
+    # points batched into units of the executor's batch_s expected seconds (Dask: a task's own cost is
+    # worth it only for ~0.1 s of work); searches are chains, one evaluation at a time, never batched
+    todo = iter(batched([points[i] for i in order], point_cost, float(getattr(executor, "batch_s", 0.0) or 0.0)))
     seq = itertools.count()
     ready: list[tuple[float, int, EvalItem]] = []  # heap: (-search cost, tie, item)
     owner: dict[int, tuple[Any, LimitRequest, float]] = {}  # id(item) -> (its search's generator, req, cost)
@@ -155,8 +193,9 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     point, or the summed wall time of the same search's evaluations, in the
     newest finished sweep of ``suite`` on ``machine`` under ``root`` (s);
     for an item it did not time, a model (steps x bodies x runs) scaled to
-    seconds by the points both know (unscaled when none).  Only the order
-    matters."""
+    seconds by the points both know, or, when none, the default estimate
+    (:data:`DEFAULT_POINT_S` + :data:`DEFAULT_UNIT_S` per unit).  They
+    order the items and size the batches (:func:`batched`)."""
     import math
 
     from physbench.harness.points import _scene
@@ -195,18 +234,19 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
             return 0.0
         return _model_cost(scene, dict(r.settings).get("dt"), 8 * r.phases)  # ~8 values per search
 
-    # seconds per model unit: the median over the points timed before
+    # seconds per model unit: the median over the points timed before; none: the default estimate
     ratios = sorted(w / m for p in points if math.isfinite(w := wall.get(p.key, math.nan))
                     and (m := point_model(p)) > 0)
-    scale = ratios[len(ratios) // 2] if ratios else 1.0
-    pc = {p.key: w if math.isfinite(w := wall.get(p.key, math.nan)) else scale * point_model(p) for p in points}
+    scale, fixed = (ratios[len(ratios) // 2], 0.0) if ratios else (DEFAULT_UNIT_S, DEFAULT_POINT_S)
+    pc = {p.key: w if math.isfinite(w := wall.get(p.key, math.nan)) else fixed + scale * point_model(p)
+          for p in points}
     sc = {}
     for r in searches:
         try:
             w = search_wall.get(r.identity(spec_hash(r)), math.nan)
         except OSError:
             w = math.nan
-        sc[id(r)] = w if math.isfinite(w) else scale * search_model(r)
+        sc[id(r)] = w if math.isfinite(w) else fixed * 8 * r.phases + scale * search_model(r)
 
     def point_cost(p: Point) -> float:
         return pc.get(p.key, 0.0)
@@ -217,4 +257,4 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     return point_cost, search_cost
 
 
-__all__ = ["run_schedule", "run_item", "item_budget", "item_priority", "expected_costs"]
+__all__ = ["run_schedule", "run_item", "item_budget", "item_priority", "expected_costs", "batched", "BATCH_MAX"]

@@ -18,12 +18,13 @@ runs, ``machine_id``, ``sweep_jobs``, ``point_wall_s`` and ``schema_version``
 Storage (asv style, ``results/sweeps/``)::
 
     <machine-id>/<suite>/<sweep_id>/manifest.json     while running
-    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  one per finished point
+    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  finished points' rows
     <machine-id>/<suite>/<sweep_id>.parquet           when complete
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
-Every file is written atomically (temp file, fsync, rename), one part per
-finished point, so a killed sweep loses at most the points in flight.  A
+Every file is written atomically (temp file, fsync, rename); the rows of
+about a second go into one part, so a killed sweep loses at most those
+and the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.
 

@@ -152,11 +152,33 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     from physbench.harness.sweep import sweep_main
     from physbench.harness.sweep_store import sweep_files
 
+    from physbench.harness import schedule, sweep
+
+    units: list[int] = []
+    loop: list[float] = []
+    real_batched, real_schedule = schedule.batched, sweep.run_schedule
+
+    def counted(*a: Any, **kw: Any) -> list[Any]:  # the executor's units of points (tasks, with Dask)
+        out = real_batched(*a, **kw)
+        units.append(len(out))
+        return out
+
+    def timed(*a: Any, **kw: Any) -> None:  # the main thread's CPU in the sweep's loop, apart from start and end
+        c = time.thread_time()
+        try:
+            real_schedule(*a, **kw)
+        finally:
+            loop.append(time.thread_time() - c)
+
     load = os.getloadavg()[0]
     c0, t0 = _cpu(), time.perf_counter()
-    with CpuAccount() as account:
-        rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
-                        scenarios=scenarios)
+    schedule.batched, sweep.run_schedule = counted, timed
+    try:
+        with CpuAccount() as account:
+            rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
+                            scenarios=scenarios)
+    finally:
+        schedule.batched, sweep.run_schedule = real_batched, real_schedule
     wall, cpu = time.perf_counter() - t0, _cpu() - c0
     newest = max((f for *_m, f, done in sweep_files(root, unfinished=False) if done), key=lambda f: f.stem)
     df = pd.read_parquet(newest)
@@ -169,8 +191,10 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     busy = total("point_wall_s")
     step_cpu, step_wall = total("timing.step_cpu_s"), total("timing.step_wall_s")
     kind = df["row_kind"] if "row_kind" in df else pd.Series([None] * len(df))
+    evaluations = int((kind == "limit_eval").sum())
     return {"executor": executor, "jobs": jobs, "points": int(kind.isna().sum()),
-            "evaluations": int((kind == "limit_eval").sum()), "searches": int((kind == "limit").sum()),
+            "evaluations": evaluations, "searches": int((kind == "limit").sum()),
+            "tasks": sum(units) + evaluations if units else None, "loop_cpu_s": sum(loop),
             "errors": int(df["status"].isin(["error", "timeout"]).sum()),
             "wall_s": wall, "cpu_s": cpu, "cores_busy": cpu / wall, "busy_s": busy,
             "idle": 1.0 - busy / (jobs * wall), "step_cpu_s": step_cpu, "step_wall_s": step_wall,
@@ -326,53 +350,106 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
             "together_cpu_s_per_sim_s": together, "ratio": together / alone, "bound": copies * alone / together}
 
 
-def store_costs(rows: list[dict[str, Any]], limit: int = 500) -> dict[str, Any]:
+def store_costs(rows: list[dict[str, Any]], limit: int = 2000, batch: int = 32) -> dict[str, Any]:
     """The client's CPU per row for storing ``rows`` (a finished sweep's
-    rows, at most ``limit``), both ways side by side, in one temporary
-    directory: a part written the pandas way (``DataFrame`` ->
-    ``Table.from_pandas`` -> Parquet, fsync, rename) and the Arrow way
-    (``PartsDir.write_part``), and the merge of those parts into one file
-    (pandas: ``read_parquet`` + ``concat``; Arrow: ``consolidate_parts``),
-    ms of CPU (``time.process_time``) per row."""
+    rows, at most ``limit``), three ways side by side, in one temporary
+    directory: a part per row the pandas way (``DataFrame`` ->
+    ``Table.from_pandas`` -> Parquet, fsync, rename), a part per row the
+    Arrow way (``PartsDir.write_part``), and ``batch`` rows at a time
+    (``PartsDir.write_rows``: one part per row signature, as the sweep's
+    part writer stores each half second of rows); and the merge of each
+    store's parts into one file (pandas: ``read_parquet`` + ``concat``;
+    Arrow: ``consolidate_parts``).  ms of CPU (``time.process_time``) per
+    row; ``client_ms`` = write + merge of the batched parts."""
     import pandas as pd
 
     from physbench.harness.results import PartsDir, consolidate_parts, list_parts, write_json_atomic, write_parquet_atomic
 
     rows = rows[:limit]
+    n = max(1, len(rows))
     tmp = Path(tempfile.mkdtemp(prefix="physbench-store-bench-"))
+    out: dict[str, Any] = {"rows": len(rows), "columns": max((len(r) for r in rows), default=0), "batch": batch}
     try:
-        old, new = tmp / "pandas", tmp / "arrow"
-        for d in (old, new):
+        dirs = {k: tmp / k for k in ("pandas", "row", "batch")}
+        for d in dirs.values():
             d.mkdir()
             write_json_atomic({"points": []}, d / "manifest.json")
-        store = PartsDir(new, {}, -1, "point_key")
         c = time.process_time()
         for i, r in enumerate(rows):
-            write_parquet_atomic(pd.DataFrame([r]), old / f"part-{i:06d}.parquet", {"sweep_id": "bench"})
-        write_old = time.process_time() - c
+            write_parquet_atomic(pd.DataFrame([r]), dirs["pandas"] / f"part-{i:06d}.parquet", {"sweep_id": "bench"})
+        out["part_write_pandas_ms"] = 1e3 * (time.process_time() - c) / n
+        store = PartsDir(dirs["row"], {}, -1, "point_key")
         c = time.process_time()
         for r in rows:
             store.write_part(r, {"sweep_id": "bench"})
-        write_new = time.process_time() - c
+        out["part_write_row_ms"] = 1e3 * (time.process_time() - c) / n
+        store = PartsDir(dirs["batch"], {}, -1, "point_key")
         c = time.process_time()
-        df = pd.concat([pd.read_parquet(p) for p in list_parts(old)], ignore_index=True)
+        for i in range(0, len(rows), batch):
+            store.write_rows(rows[i:i + batch], {"sweep_id": "bench"})
+        out["part_write_batch_ms"] = 1e3 * (time.process_time() - c) / n
+        out["parts_batch"] = len(list_parts(dirs["batch"]))
+        c = time.process_time()
+        df = pd.concat([pd.read_parquet(p) for p in list_parts(dirs["pandas"])], ignore_index=True)
         write_parquet_atomic(df, tmp / "pandas.parquet")
-        merge_old = time.process_time() - c
-        c = time.process_time()
-        consolidate_parts(new, "point_key", [r["point_key"] for r in rows], "now")
-        merge_new = time.process_time() - c
+        out["merge_pandas_ms"] = 1e3 * (time.process_time() - c) / n
+        for k in ("row", "batch"):
+            c = time.process_time()
+            consolidate_parts(dirs[k], "point_key", [r["point_key"] for r in rows], "now")
+            out[f"merge_{k}_ms"] = 1e3 * (time.process_time() - c) / n
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    n = max(1, len(rows))
-    return {"rows": len(rows), "columns": max((len(r) for r in rows), default=0),
-            "part_write_pandas_ms": 1e3 * write_old / n, "part_write_arrow_ms": 1e3 * write_new / n,
-            "merge_pandas_ms": 1e3 * merge_old / n, "merge_arrow_ms": 1e3 * merge_new / n}
+    out["client_row_ms"] = out["part_write_row_ms"] + out["merge_row_ms"]
+    out["client_ms"] = out["part_write_batch_ms"] + out["merge_batch_ms"]
+    return out
 
 
 def _print_store(sc: dict[str, Any]) -> None:
-    print(f"client CPU per row ({sc['rows']} rows, up to {sc['columns']} columns): part write "
-          f"{sc['part_write_pandas_ms']:.2f} ms (pandas) -> {sc['part_write_arrow_ms']:.2f} ms (Arrow); merge "
-          f"{sc['merge_pandas_ms']:.2f} ms (pandas) -> {sc['merge_arrow_ms']:.2f} ms (Arrow)")
+    print(f"client CPU per stored row ({sc['rows']} rows, up to {sc['columns']} columns): part write "
+          f"{sc['part_write_pandas_ms']:.2f} ms (pandas, a part per row) / {sc['part_write_row_ms']:.2f} ms "
+          f"(Arrow, a part per row) / {sc['part_write_batch_ms']:.2f} ms (Arrow, {sc['batch']} rows at a time: "
+          f"{sc['parts_batch']} parts); merge {sc['merge_pandas_ms']:.2f} / {sc['merge_row_ms']:.2f} / "
+          f"{sc['merge_batch_ms']:.2f} ms; write + merge {sc['client_row_ms']:.2f} -> {sc['client_ms']:.2f} ms")
+
+
+#: worker counts the scaling projection is made for
+PROJECT_WORKERS = (8, 32, 128)
+
+
+def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> dict[str, Any]:
+    """Amdahl's projection from one measured sweep (:func:`measure`): per
+    item (point or search evaluation), the serial CPU -- the client's
+    (main thread: start-up, the loop feeding the executor and receiving
+    results (``client_loop_ms``), the merge; the part writer) and the scheduler's (a LocalCluster's scheduler, comms and
+    nannies run in the client's other threads; with the process executor
+    those hold only the sampler) -- against the parallel CPU (run
+    processes: the points' own CPU; Dask worker processes: their task
+    handling and transport).  ``speedup[N]`` = 1 / (s + (1 - s) / N), s =
+    serial / (serial + parallel): what N workers on cores of their own
+    reach if nothing else limits them (ms per item)."""
+    a = run["account"]
+    items = max(1, run["points"] + run["evaluations"])
+    loop = run.get("loop_cpu_s", math.nan)
+    client = 1e3 * (a["main thread"] + a["part writer"]) / items
+    sched = 1e3 * a["other threads"] / items
+    point = 1e3 * a["run processes"] / items
+    worker = 1e3 * a["dask worker processes"] / items
+    serial, parallel = client + sched, point + worker
+    s = serial / (serial + parallel) if serial + parallel > 0 else math.nan
+    return {"executor": run["executor"], "jobs": run["jobs"], "items": items, "tasks": run.get("tasks"),
+            "client_ms": client, "client_loop_ms": 1e3 * loop / items, "writer_ms": 1e3 * a["part writer"] / items,
+            "start_end_s": a["main thread"] - loop, "scheduler_ms": sched, "serial_ms": serial,
+            "point_cpu_ms": point, "worker_ms": worker, "serial_fraction": s,
+            "speedup": {n: 1.0 / (s + (1.0 - s) / n) for n in workers}}
+
+
+def _print_scaling(sc: dict[str, Any]) -> None:
+    print(f"  {sc['executor']} x{sc['jobs']}: {sc['items']} items" + (f" in {sc['tasks']} tasks" if sc["tasks"] else "")
+          + f"; serial CPU per item {sc['serial_ms']:.2f} ms (client {sc['client_ms']:.2f}: its loop "
+          f"{sc['client_loop_ms']:.2f}, part writer {sc['writer_ms']:.2f}, start-up and merge {sc['start_end_s']:.1f} s "
+          f"in all; scheduler and comms {sc['scheduler_ms']:.2f}); point CPU {sc['point_cpu_ms']:.1f} ms + Dask worker {sc['worker_ms']:.2f} ms; "
+          f"serial fraction {sc['serial_fraction']:.4f}; Amdahl on "
+          + ", ".join(f"{n} workers {v:.1f}x" for n, v in sc["speedup"].items()))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -392,10 +469,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--store", type=Path, default=None,
                    help="only measure the client's CPU per stored row (part write, merge; pandas and Arrow) "
                         "on the rows of this finished sweep file")
+    p.add_argument("--dask-batch-s", type=float, default=None,
+                   help="expected seconds of work per Dask task (default harness.dask_executor.BATCH_S; "
+                        "0: one point per task)")
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
                                                            "directory, removed)")
     args = p.parse_args(argv)
     from physbench.harness.executors import bench_overhead, make_executor, thread_counts
+
+    if args.dask_batch_s is not None:
+        from physbench.harness import dask_executor
+
+        dask_executor.BATCH_S = args.dask_batch_s
 
     if args.core_scaling:
         for jobs in args.jobs:
@@ -427,11 +512,12 @@ def main(argv: list[str] | None = None) -> int:
             r["speedup"] = one["wall_s"] / r["wall_s"] if one else math.nan
             rows.append(r)
             print(json.dumps(r), file=sys.stderr, flush=True)
-            if jobs == 1 and not replays:  # the uncontended item times: what the schedule allows
+            if not replays:  # the item times of the first run (best a 1-worker one): what the schedule allows
                 import pandas as pd
 
                 df = pd.read_parquet(r["sweep_file"])
-                replays = [replay(df, args.suite, j, args.engines, args.scenarios) for j in args.jobs if j > 1]
+                replays = [replay(df, args.suite, j, args.engines, args.scenarios)
+                           for j in sorted({j for j in args.jobs if j > 1} | set(PROJECT_WORKERS))]
                 import pyarrow.parquet as pq
 
                 store = store_costs(pq.read_table(r["sweep_file"]).to_pylist())
@@ -462,8 +548,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {r['executor']} x{r['jobs']}: wall {a['wall_s']:.1f} s on {a['cores']:g} cores; "
               + ", ".join(f"{k} {v:.1f}" for k, v in a.items() if k not in ("wall_s", "cores"))
               + f"; load {r['load_before']:.1f} -> {r['load_after']:.1f}")
+    print("serial CPU per item and Amdahl's projection (workers on cores of their own; harness.sweep_bench.scaling)")
+    scalings = [scaling(r) for r in rows]
+    for sc in scalings:
+        _print_scaling(sc)
     for rp in replays:
-        print(f"replay of the 1-worker item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
+        print(f"replay of the first run's item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
               f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "
               f"points then searches {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
               f"{rp['longest_search_s']:.1f} s, longest point {rp['longest_point_s']:.1f} s")
@@ -477,7 +567,8 @@ def main(argv: list[str] | None = None) -> int:
     for ex, t in threads.items():
         print(f"run process threads ({ex}): numba {t['numba']}, BLAS {t['blas']}, env {t['env']}")
     if args.json:
-        args.json.write_text(json.dumps({"suite": args.suite, "scenarios": args.scenarios, "runs": rows, "replays": replays,
+        args.json.write_text(json.dumps({"suite": args.suite, "scenarios": args.scenarios, "runs": rows,
+                                         "scaling": scalings, "replays": replays,
                                          "overhead": overhead, "threads": threads,
                                          "store": store}, indent=1, default=float))
     return 0

@@ -1,13 +1,13 @@
 """The sweep store (``results/sweeps/``, asv style)::
 
     <machine-id>/<suite>/<sweep_id>/manifest.json     while running
-    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  one per finished point
+    <machine-id>/<suite>/<sweep_id>/part-000001.parquet  finished points' rows
     <machine-id>/<suite>/<sweep_id>.parquet           when complete
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename), one part per finished point, so a killed sweep loses at most the
-points in flight.  A sweep resumes by reading the finished point keys back
+rename); the rows of about a second go into one part (one per row
+schema), so a killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
 :func:`sweep_files`.  Names that become directories are plain names
 (:func:`plain_name`, :func:`confined`).
@@ -76,18 +76,23 @@ def _now() -> str:
 _parts = list_parts  # the name harness/sweep.py imports
 
 
+#: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
+#: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows
+PART_FLUSH_S = 1.0
+PART_MAX_ROWS = 1000
 #: the name of the sweep's part-writer thread (:meth:`_SweepDir.write_behind`;
 #: harness/sweep_bench.py accounts its CPU by it)
 PART_WRITER = "physbench-part-writer"
 
 
 class _SweepDir(PartsDir):
-    """An open (unfinished) sweep directory: one part per finished point,
+    """An open (unfinished) sweep directory: parts of finished points' rows,
     keyed by ``point_key`` (harness.results.PartsDir).  After
     :meth:`write_behind`, :meth:`write_point` hands each row to a writer
-    thread, which stores it as its own part, in order: the caller (the
+    thread, which stores the rows of each :data:`PART_FLUSH_S` seconds
+    together (one part per row signature, in order): the caller (the
     sweep's loop, which feeds the executor and the searches) does not wait
-    for the part's fsync."""
+    for the parts' encoding and fsync."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], lock_fd: int):
         super().__init__(path, manifest, lock_fd, "point_key")
@@ -102,8 +107,9 @@ class _SweepDir(PartsDir):
 
     def write_behind(self) -> None:
         """Write parts on a writer thread from now on (until :meth:`drain`
-        or :meth:`close`).  A row is in ``done`` once its part is on disk;
-        a process killed with rows still queued loses them from disk only,
+        or :meth:`close`), :data:`PART_FLUSH_S` seconds of rows at a time.
+        A row is in ``done`` once its part is on disk; a process killed
+        with rows still queued loses them from disk only,
         and a resume runs those points again (never twice: a part is whole
         or absent; tests/test_sweep.py::test_resume_after_the_process_is_killed)."""
         if self._writer is None:
@@ -112,10 +118,26 @@ class _SweepDir(PartsDir):
             self._writer.start()
 
     def _write_loop(self) -> None:
-        while (row := self._queue.get()) is not None:
+        end = False
+        while not end:
+            batch = [self._queue.get()]
+            if batch[0] is None:
+                return
+            # the rows of the next PART_FLUSH_S seconds (at most PART_MAX_ROWS) go into one write: one part per
+            # row signature, so a part's encoding and the merge's read are paid per batch, not per row
+            flush = time.monotonic() + PART_FLUSH_S
+            while len(batch) < PART_MAX_ROWS:
+                try:
+                    row = self._queue.get(timeout=max(0.0, flush - time.monotonic()))
+                except queue.Empty:
+                    break
+                if row is None:
+                    end = True
+                    break
+                batch.append(row)
             if self._write_error is None:  # after a failed write, nothing more is written
                 try:
-                    self.write_part(row, {"sweep_id": self.sweep_id})
+                    self.write_rows(batch, {"sweep_id": self.sweep_id})
                 except BaseException as e:
                     self._write_error = e
 

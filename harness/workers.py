@@ -83,6 +83,30 @@ def take(source: Iterator[Any], in_flight: bool) -> Any:
     return item
 
 
+@dataclass(frozen=True)
+class Batch:
+    """Items one worker runs one after the other in one hand-over (a Dask
+    task, a run process's request): the executors' map takes a Batch from
+    its source like an item and yields ``(item, value)`` for each of its
+    ``items``, each under its own budget.  Where a worker dies or hangs in
+    the middle, the items it finished keep their values, the one it was
+    running is lost (:class:`WorkerLost`) and the rest run again
+    (harness/schedule.py makes batches; tests/test_execute.py)."""
+
+    items: tuple[Any, ...]
+
+    @property
+    def key(self) -> str:
+        first = getattr(self.items[0], "key", None) if self.items else None
+        return f"batch{len(self.items)}-{first if isinstance(first, str) else repr(self.items[:1])}"
+
+
+def members(unit: Any) -> tuple[Any, ...]:
+    """The items of an executor's unit of work: a :class:`Batch`'s items,
+    or the one item."""
+    return unit.items if isinstance(unit, Batch) else (unit,)
+
+
 def grace_s(budget_s: float) -> float:
     """Seconds the watchdog waits past an item's budget before killing its
     worker: the runner stops stepping at the budget itself (between step
@@ -159,14 +183,15 @@ class InlineExecutor:
             on_start: Callable[[Any], None] | None = None,
             priority: Callable[[Any], int] | None = None) -> Iterator[tuple[Any, Any]]:
         source = iter(items)
-        while (item := take(source, False)) is not END:  # one at a time: never anything in flight
-            if on_start:
-                on_start(item)
-            try:
-                value = fn(item)
-            except Exception as e:
-                value = WorkerLost("raised", f"{type(e).__name__}: {e}", traceback=traceback.format_exc(limit=5))
-            yield item, value
+        while (unit := take(source, False)) is not END:  # one at a time: never anything in flight
+            for item in members(unit):
+                if on_start:
+                    on_start(item)
+                try:
+                    value = fn(item)
+                except Exception as e:
+                    value = WorkerLost("raised", f"{type(e).__name__}: {e}", traceback=traceback.format_exc(limit=5))
+                yield item, value
 
     def close(self) -> None:
         pass
@@ -253,41 +278,74 @@ class _Worker:
         self.fd = self.proc.stdout.fileno()
         os.set_blocking(self.fd, False)
         self.buf = bytearray()
-        self.item: Any = None
+        self.items: tuple[Any, ...] = ()  # the unit's items; self.index: the one running
+        self.index = 0
+        self.budgets: list[float | None] = []
         self.busy = False
         self.deadline = math.inf
         self.t0 = 0.0
-        self.budget: float | None = None
         self.err_offset = 0
 
-    def send(self, fn: Callable, item: Any, budget: float | None) -> None:
-        payload = pickle.dumps((fn, item), protocol=pickle.HIGHEST_PROTOCOL)
+    @property
+    def item(self) -> Any:
+        """The item running (or the last one run)."""
+        return self.items[min(self.index, len(self.items) - 1)]
+
+    @property
+    def budget(self) -> float | None:
+        return self.budgets[min(self.index, len(self.budgets) - 1)]
+
+    def send(self, fn: Callable, unit: Any, budgets: list[float | None]) -> None:
+        """Hand ``unit`` (an item or a :class:`Batch`) over; ``budgets``: one per item."""
+        payload = pickle.dumps((fn, unit), protocol=pickle.HIGHEST_PROTOCOL)
         self.err.flush()
         self.err_offset = self.err_path.stat().st_size
         self.proc.stdin.write(_HEADER.pack(len(payload)) + payload)
         self.proc.stdin.flush()
-        self.item, self.busy, self.budget = item, True, budget
-        self.t0 = time.monotonic()
-        self.deadline = self.t0 + budget + grace_s(budget) if budget is not None else math.inf
+        self.items, self.index, self.budgets, self.busy = members(unit), 0, budgets, True
+        self._start_item()
 
-    def read(self) -> tuple[bool, Any]:
-        """Read what is there: (True, message) once a whole reply is in,
-        (True, None) at end of file (the worker died), else (False, None)."""
+    def _start_item(self) -> None:
+        # each item of a batch is watched under its own budget, from when the one before replied
+        self.t0 = time.monotonic()
+        b = self.budget
+        self.deadline = self.t0 + b + grace_s(b) if b is not None else math.inf
+
+    def read(self) -> tuple[bool, list[Any]]:
+        """Read what is there: (eof, the whole replies in), one reply per
+        item; eof: the worker died (end of file)."""
         try:
             chunk = os.read(self.fd, 1 << 20)
         except BlockingIOError:
-            return False, None
+            return False, []
         if not chunk:
-            return True, None
+            return True, []
         self.buf += chunk
-        if len(self.buf) >= _HEADER.size:
+        msgs = []
+        while len(self.buf) >= _HEADER.size:
             (n,) = _HEADER.unpack_from(self.buf)
-            if len(self.buf) >= _HEADER.size + n:
-                msg = pickle.loads(bytes(self.buf[_HEADER.size:_HEADER.size + n]))
-                del self.buf[:_HEADER.size + n]
-                self.busy = False
-                return True, msg
-        return False, None
+            if len(self.buf) < _HEADER.size + n:
+                break
+            msgs.append(pickle.loads(bytes(self.buf[_HEADER.size:_HEADER.size + n])))
+            del self.buf[:_HEADER.size + n]
+        return False, msgs
+
+    def replied(self) -> Any:
+        """Count the running item's reply in: returns the item; the next
+        item of the unit starts its clock, or the worker is free."""
+        item = self.items[self.index]
+        self.index += 1
+        if self.index < len(self.items):
+            self._start_item()
+        else:
+            self.busy = False
+        return item
+
+    def rest(self) -> Any:
+        """The unit's items after the running one (not started): None, an
+        item, or a Batch."""
+        rest = self.items[self.index + 1:]
+        return None if not rest else rest[0] if len(rest) == 1 else Batch(rest)
 
     def stderr_tail(self) -> str:
         try:
@@ -368,41 +426,51 @@ class WorkerPool:
         source = iter(items)
         more = True  # the source may still give items
         busy: list[_Worker] = []
+        # the items of a batch after one whose worker died or hung: run before the source's next
+        again: list[Any] = []
         # finished items not yet handed to the consumer: free workers get their next item
         # before the consumer handles these (writes rows ...), not after
         out: list[tuple[Any, Any]] = []
+
+        def lost(w: _Worker, value: WorkerLost) -> None:
+            out.append((w.item, value))
+            rest = w.rest()
+            if rest is not None:
+                again.append(rest)
+
         try:
-            while more or busy or out:
-                while more and len(busy) < self.jobs:
+            while more or busy or out or again:
+                while (more or again) and len(busy) < self.jobs:
                     if out and not self.idle:
                         # only a fresh worker is free: hand the results over first (a consumer
                         # that stops at a lost worker would kill it unused;
                         # tests/test_fuzz.py::test_engine_runs_are_isolated_and_counted)
                         break
-                    item = take(source, bool(busy or out))
-                    if item is END:
+                    unit = again.pop(0) if again else take(source, bool(busy or out))
+                    if unit is END:
                         more = False
-                    if item is END or item is WAIT:
+                    if unit is END or unit is WAIT:
                         break
-                    budget = budget_s(item) if budget_s else None
+                    budgets = [budget_s(i) if budget_s else None for i in members(unit)]
                     w = self.idle.pop() if self.idle else self._spawn()
                     try:
-                        w.send(fn, item, budget)
+                        w.send(fn, unit, budgets)
                     except (BrokenPipeError, OSError):  # an idle worker that died: a fresh one
                         w.kill()
                         w = self._spawn()
                         try:
-                            w.send(fn, item, budget)
+                            w.send(fn, unit, budgets)
                         except (BrokenPipeError, OSError) as e:
                             w.kill()
-                            out.append((item, WorkerLost("died", f"worker process could not be started: {e}")))
+                            out.extend((i, WorkerLost("died", f"worker process could not be started: {e}"))
+                                       for i in members(unit))
                             continue
                     except Exception as e:  # the item or function cannot be pickled
                         self.idle.append(w)
-                        out.append((item, WorkerLost("raised", f"{type(e).__name__}: {e}")))
+                        out.extend((i, WorkerLost("raised", f"{type(e).__name__}: {e}")) for i in members(unit))
                         continue
                     if on_start:
-                        on_start(item)
+                        on_start(w.item)
                     busy.append(w)
                 if out:  # then back to the source: what it gives may depend on these results
                     while out:
@@ -417,28 +485,29 @@ class WorkerPool:
                     poller.register(w.fd, select.POLLIN | select.POLLHUP | select.POLLERR)
                 ready = {fd for fd, _ in poller.poll(1e3 * min(wait, 3600.0))}
                 for w in [w for w in busy if w.fd in ready]:
-                    done, msg = w.read()
-                    if not done:
-                        continue
-                    busy.remove(w)
-                    if msg is None:  # end of file: the worker died
+                    eof, msgs = w.read()
+                    for kind, payload, tb in msgs:
+                        item = w.replied()
+                        out.append((item, payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb)))
+                        if w.busy and on_start:
+                            on_start(w.item)
+                    if not w.busy:
+                        busy.remove(w)
+                        self.idle.append(w)
+                    elif eof:  # end of file: the worker died
+                        busy.remove(w)
                         tail = w.stderr_tail()
                         rc = w.kill()
                         sig, why = _death(rc)
-                        out.append((w.item, WorkerLost("died", f"worker process died while running this item: {why}",
-                                                       tail, signal=sig)))
-                        continue
-                    self.idle.append(w)
-                    kind, payload, tb = msg
-                    out.append((w.item, payload if kind == "ok" else WorkerLost("raised", payload, traceback=tb)))
+                        lost(w, WorkerLost("died", f"worker process died while running this item: {why}", tail,
+                                           signal=sig))
                 now = time.monotonic()
                 for w in [w for w in busy if w.deadline <= now]:
                     busy.remove(w)
                     tail = w.stderr_tail()
                     w.kill()
-                    out.append((w.item, WorkerLost(
-                        "timeout", f"no result after {now - w.t0:.1f} s wall (budget {w.budget:g} s): "
-                                   "worker killed, stuck inside one call", tail)))
+                    lost(w, WorkerLost("timeout", f"no result after {now - w.t0:.1f} s wall (budget {w.budget:g} s): "
+                                                  "worker killed, stuck inside one call", tail))
         finally:
             for w in busy:  # abandoned (interrupted, or the consumer stopped): nothing of theirs is kept
                 w.kill()
@@ -478,8 +547,9 @@ def _die_with_parent() -> None:
 
 
 def worker_main() -> None:
-    """Worker loop: read (function, item) frames from stdin, write
-    ("ok", value, "") or ("raised", message, traceback) frames.  The
+    """Worker loop: read (function, item or :class:`Batch`) frames from
+    stdin, write one ("ok", value, "") or ("raised", message, traceback)
+    frame per item, as each finishes.  The
     replies go to a private copy of the original stdout; fd 1 is pointed
     at stderr, so nothing an engine prints can corrupt them."""
     _die_with_parent()
@@ -493,20 +563,21 @@ def worker_main() -> None:
         if len(head) < _HEADER.size:
             return
         (n,) = _HEADER.unpack(head)
-        fn, item = pickle.loads(inp.read(n))
-        try:
-            reply = ("ok", fn(item), "")
-            data = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception as e:
-            data = pickle.dumps(("raised", f"{type(e).__name__}: {e}", traceback.format_exc(limit=8)),
-                                protocol=pickle.HIGHEST_PROTOCOL)
-        sys.stderr.flush()
-        try:
-            out.write(_HEADER.pack(len(data)) + data)
-            out.flush()
-        except BrokenPipeError:  # the parent is gone
-            return
+        fn, unit = pickle.loads(inp.read(n))
+        for item in members(unit):  # one reply per item, sent as it finishes
+            try:
+                reply = ("ok", fn(item), "")
+                data = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception as e:
+                data = pickle.dumps(("raised", f"{type(e).__name__}: {e}", traceback.format_exc(limit=8)),
+                                    protocol=pickle.HIGHEST_PROTOCOL)
+            sys.stderr.flush()
+            try:
+                out.write(_HEADER.pack(len(data)) + data)
+                out.flush()
+            except BrokenPipeError:  # the parent is gone
+                return
 
 
-__all__ = ["WorkerLost", "WorkerPool", "InlineExecutor", "register_env_adapters", "worker_main", "grace_s",
+__all__ = ["WorkerLost", "WorkerPool", "InlineExecutor", "Batch", "members", "register_env_adapters", "worker_main", "grace_s",
            "WAIT", "END", "take", "ONE_THREAD_ENV", "ADAPTERS_ENV", "WORKER_ENV"]

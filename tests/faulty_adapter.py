@@ -69,3 +69,14 @@ def die(_item):
     """Kill the process running it, as the out-of-memory killer would (pool tests)."""
     if os.environ.get("PHYSBENCH_WORKER") == "1":
         os.kill(os.getpid(), 9)
+
+
+def batch_item(item):
+    """(what, n): "pid" returns (n, this process's pid), "die" kills this
+    process (only in a worker), "hang" sleeps for a minute."""
+    what, n = item
+    if what == "die":
+        die(n)
+    if what == "hang":
+        time.sleep(60)
+    return n, os.getpid()

@@ -109,14 +109,15 @@ def _wait_gone(pids: set[int], timeout: float = 30.0) -> set[int]:
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """A 2-worker LocalCluster on 127.0.0.1 (processes, one thread each),
-    retrying a task whose worker died once, as DaskExecutor's own."""
+    its scheduler not retrying a task whose worker died (the client
+    retries), as DaskExecutor's own."""
     import dask
     from distributed import Client, LocalCluster
 
     markers = tmp_path_factory.mktemp("dask_markers")
     scratch = tmp_path_factory.mktemp("dask_tmp")  # a killed worker's run-process directory stays here
     before = _descendants()
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0}):
         lc = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address="127.0.0.1:0", silence_logs=50,
@@ -178,7 +179,7 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
         repeats = 1
         [[sweep]]
         scenarios = ["billiards.head_on"]
-        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 0.5, 0.501, 0.502, 0.503, 0.504, 0.505] }
+        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 1.0, 1.001, 1.002, 1.003, 1.004, 1.005] }
     """)
     out = tmp_path / "out"
     script = textwrap.dedent(f"""
@@ -222,8 +223,8 @@ def test_a_dask_worker_killed_mid_run_is_retried_once_then_an_error_row(tmp_path
     df, _ = consolidated(out)
     assert len(df) == 4 and df["point_key"].is_unique
     fault = df["point_settings"].map(lambda s: json.loads(s)["fault"])
-    assert (df.loc[fault == "none", "status"] == "ok").all()
-    assert (df.loc[fault == "kill_worker_once", "status"] == "ok").all()  # retried on a fresh worker
+    assert (df.loc[fault == "none", "status"] == "ok").all(), df[["point_settings", "status", "message"]].to_dict("records")
+    assert (df.loc[fault == "kill_worker_once", "status"] == "ok").all(), df[["point_settings", "status", "message"]].to_dict("records")  # retried on a fresh worker
     dead = df[fault == "kill_worker"]
     assert (dead["status"] == "error").all()
     assert dead["message"].str.contains("the Dask worker died while running this point, twice").all()
@@ -335,3 +336,160 @@ def test_scheduler_needs_the_dask_executor(capsys):
 
     assert main(["sweep", "--suite", "smoke", "--scheduler", "tcp://127.0.0.1:1"]) == 2
     assert "--scheduler tcp://127.0.0.1:1: a scheduler address needs --executor dask" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------
+# a real cluster: `dask scheduler` and `dask worker` processes on loopback
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Cluster:
+    """``dask scheduler`` and ``dask worker`` processes on 127.0.0.1, started
+    as a team starts them (the recipe in docs/SWEEPS.md); each in its own
+    session, so that stopping one stops its nanny's worker too."""
+
+    def __init__(self, tmp: Path, env: dict[str, str]):
+        import shutil
+
+        self.dask = shutil.which("dask", path=str(Path(sys.executable).parent)) or shutil.which("dask")
+        if self.dask is None:
+            pytest.skip("the dask command is not installed")
+        self.tmp, self.env, self.procs = tmp, env, []
+        self.address = f"tcp://127.0.0.1:{_free_port()}"
+
+    def start(self, *args: str, extra_env: dict[str, str] | None = None):
+        import subprocess
+
+        log = open(self.tmp / f"dask-{len(self.procs)}.log", "wb")
+        p = subprocess.Popen([self.dask, *args], cwd=self.tmp, env={**self.env, **(extra_env or {})},
+                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.procs.append(p)
+        return p
+
+    def worker(self, extra_env: dict[str, str] | None = None, *args: str):
+        return self.start("worker", self.address, "--host", "127.0.0.1", "--nworkers", "1", "--nthreads", "1",
+                          "--no-dashboard", "--death-timeout", "60", *args, extra_env=extra_env)
+
+    def wait_workers(self, n: int, timeout: float = 120.0) -> None:
+        from distributed import Client
+
+        with Client(self.address, timeout="60s") as c:
+            c.wait_for_workers(n, timeout=timeout)
+
+    def stop(self, p) -> None:
+        import subprocess
+
+        try:
+            os.killpg(p.pid, signal.SIGTERM)
+            p.wait(timeout=20)
+        except ProcessLookupError:
+            pass
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+    def close(self) -> None:
+        for p in reversed(self.procs):
+            self.stop(p)
+
+
+def test_a_real_cluster_gives_the_serial_metrics_keeps_a_killed_batch_and_refuses_another_physbench(tmp_path):
+    """`dask scheduler` and two `dask worker` processes on 127.0.0.1;
+    `physbench sweep --executor dask --scheduler ...` (a subprocess, as a
+    team runs it): the serial executor's metrics (real engines and the fake
+    one); a point that kills its Dask worker in the middle of a batch costs
+    that point's error row only (every other point of the batch is ok) and
+    the sweep finishes; a third worker of another physbench commit makes the
+    sweep refuse the cluster (exit 2, the worker and the field named, nothing
+    written).  Every process is stopped."""
+    import subprocess
+
+    from physbench.harness import schedule
+    from physbench.harness.execute import Batch
+
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    suite = write(tmp_path, """
+        [suite]
+        engines = ["mujoco", "pymunk", "dask_fake"]
+        repeats = 1
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        engines = ["mujoco", "pymunk"]
+        grid = { dt = [0.002, 0.001] }
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        engines = ["dask_fake"]
+        grid = { dt = [0.002, 0.001, 0.0025, 0.004], sleep_s = [0.0, 0.01], fault = ["none"] }
+        [[sweep]]
+        scenarios = ["billiards.head_on"]
+        engines = ["dask_fake"]
+        grid = { dt = [0.0015], fault = ["kill_worker"] }
+    """)
+    points = S.expand(S.load_suite(suite))
+    cost, _ = schedule.expected_costs(tmp_path / "none", "suite", None, points, [])
+    units = schedule.batched(sorted(points, key=lambda p: -cost(p)), cost, 0.1)
+    killer = next(p for p in points if "kill_worker" in p.key)
+    assert any(isinstance(u, Batch) and killer in u.items and len(u.items) > 1 for u in units)  # mid-batch
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+           "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0",
+           "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
+           "PHYSBENCH_ADAPTERS": "dask_fake=tests.test_dask_executor:DaskFake"}
+    worker_env = {KILL_OK_ENV: "1", MARKERS_ENV: str(markers), "TMPDIR": str(tmp_path)}
+    cluster = _Cluster(tmp_path, env)
+    before = _descendants()
+    try:
+        cluster.start("scheduler", "--host", "127.0.0.1", "--port", cluster.address.rsplit(":", 1)[1],
+                      "--no-dashboard")
+        for _ in range(2):
+            cluster.worker(worker_env)
+        cluster.wait_workers(2)
+
+        def sweep(out: Path) -> subprocess.CompletedProcess:
+            return subprocess.run([str(Path(sys.executable).parent / "physbench"), "sweep", "--suite", str(suite),
+                                   "--executor", "dask", "--scheduler", cluster.address, "--out", str(out)],
+                                  cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+
+        serial, dask_out = tmp_path / "serial", tmp_path / "dask"
+        assert S.sweep_main(str(suite), out_dir=serial, executor="serial",
+                            engines=["mujoco", "pymunk"]) == 0
+        r = sweep(dask_out)
+        assert r.returncode == 0, r.stderr[-3000:]
+        assert "note: the scheduler retries" not in r.stderr  # allowed-failures 0, as the recipe says
+        b, man = consolidated(dask_out)
+        assert man["executor"] == "dask" and len(b) == len(points) and b["point_key"].is_unique
+        dead = b[b["point_key"] == killer.key]
+        assert dead["status"].tolist() == ["error"]
+        assert "the Dask worker died while running this point, twice" in dead["message"].iat[0]
+        assert (b.drop(dead.index)["status"] == "ok").all()  # the killed batch's other points: rows, ok
+        a, _ = consolidated(serial)
+        real = b[b["engine"].isin(["mujoco", "pymunk"])].set_index("point_key").loc[list(a["point_key"])]
+        cols = [c for c in a.columns if c not in TIMING and not c.startswith("timing.")
+                and pd.api.types.is_numeric_dtype(a[c]) and c != "schema_version"]
+        assert "primary_error" in cols and "max_penetration" in cols
+        for c in cols:
+            np.testing.assert_array_equal(a[c].to_numpy(float), real[c].to_numpy(float), err_msg=c)
+        assert list(a["status"]) == list(real["status"])
+
+        # a third worker of another physbench commit (a preloaded module makes it report one)
+        odd = tmp_path / "odd_physbench.py"
+        odd.write_text("from physbench.harness import runner\nrunner.commit_id = lambda: '0123456789ab'\n")
+        cluster.worker(worker_env, "--preload", str(odd))
+        cluster.wait_workers(3)
+        r = sweep(tmp_path / "refused")
+        assert r.returncode == 2, r.stderr[-3000:]
+        assert "runs another physbench environment than this client" in r.stderr
+        assert "worker '0123456789ab'" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "refused").exists()
+    finally:
+        cluster.close()
+    assert not _wait_gone(_descendants() - before), "the cluster left processes behind"

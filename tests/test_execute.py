@@ -23,7 +23,7 @@ import pytest
 from physbench.adapters.base import _REGISTRY, register
 from physbench.harness import conformance as C
 from physbench.harness.execute import RunRequest, WorkerLost, WorkerPool, run_isolated
-from tests.faulty_adapter import FAULT_ENV, FaultyAdapter, die, worker_pid
+from tests.faulty_adapter import FAULT_ENV, FaultyAdapter, batch_item, die, worker_pid
 
 ROOT = Path(__file__).resolve().parent.parent
 FAULTY = "friction.ball_rolls"  # faulted in its base scene; its variants and block_slides pass on pybullet
@@ -140,6 +140,33 @@ def test_pool_reuses_workers_and_replaces_a_dead_one():
         assert isinstance(lost, WorkerLost) and lost.kind == "died" and lost.signal == "SIGKILL"
         again = dict(pool.map(worker_pid, [4]))[4]
         assert again not in out.values() and pool.started == 2
+
+
+def test_a_batch_keeps_its_finished_items_and_reruns_the_rest():
+    """A Batch runs its items one after the other in one worker, each
+    replied as it finishes and watched under its own budget: where the
+    worker dies or hangs, the items before keep their values, the running
+    one is lost (died / timeout), and the items after run in a fresh worker."""
+    from physbench.harness.execute import Batch
+
+    units = [Batch((("pid", 1), ("pid", 2), ("die", 3), ("pid", 4), ("pid", 5))),
+             Batch((("pid", 6), ("hang", 7), ("pid", 8))), ("pid", 9)]
+    budget = {"pid": 30.0, "die": 30.0, "hang": 1.0}
+    starts = []
+    with WorkerPool(1) as pool:
+        out = list(pool.map(batch_item, units, budget_s=lambda it: budget[it[0]], on_start=starts.append))
+        assert pool.started == 3, out  # the first worker died, the second was killed at item 7's budget
+    got = dict(out)
+    assert [it for it, _ in out] == [("pid", 1), ("pid", 2), ("die", 3), ("pid", 4), ("pid", 5), ("pid", 6),
+                                     ("hang", 7), ("pid", 8), ("pid", 9)]
+    assert sorted(starts) == sorted(it for it, _ in out)  # each item started once
+    lost = got[("die", 3)]
+    assert isinstance(lost, WorkerLost) and lost.kind == "died" and lost.signal == "SIGKILL"
+    hung = got[("hang", 7)]
+    assert isinstance(hung, WorkerLost) and hung.kind == "timeout" and "budget 1 s" in hung.message
+    pids = {n: v[1] for (what, n), v in got.items() if what == "pid"}
+    assert pids[1] == pids[2] != pids[4] == pids[5] == pids[6] != pids[8] == pids[9]
+    assert all(got[("pid", n)][0] == n for n in pids)
 
 
 def test_check_unknown_scenario_is_exit_2(capsys):

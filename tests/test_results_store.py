@@ -48,14 +48,14 @@ def sweep_rows(tmp_path_factory) -> list[dict]:
     from physbench.harness.sweep import sweep_main
 
     got: list[dict] = []
-    real = R.PartsDir.write_part
+    real = R.PartsDir.write_rows
 
-    def keep(self, row, metadata=None):
-        got.append(dict(row))
-        return real(self, row, metadata)
+    def keep(self, rows, metadata=None):
+        got.extend(dict(row) for row in rows)
+        return real(self, rows, metadata)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(R.PartsDir, "write_part", keep)
+        mp.setattr(R.PartsDir, "write_rows", keep)
         assert sweep_main("smoke", executor="serial", out_dir=tmp_path_factory.mktemp("sweeps"), resume=False) == 0
     return got
 
@@ -191,3 +191,31 @@ def test_parts_of_mixed_kinds_merge_to_one_typed_column(tmp_path):
     df = pd.read_parquet(out)
     assert str(df["metric.e"].dtype) == str(df["setting.n"].dtype) == "float64"
     assert math.isnan(df["metric.e"].iat[0]) and df["setting.n"].iat[0] == 3.0
+
+
+def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, sweep_rows):
+    """``PartsDir.write_rows`` stores rows several to a part (one part per
+    row signature, in the order the signatures first appear): each row
+    reads back with the types and values its own one-row part held, and
+    the merged file is the one the one-row parts merge to."""
+    rows = _rows_of_every_kind() + sweep_rows + _rows_of_every_kind()[:3]
+    one, many = tmp_path / "one", tmp_path / "many"
+    for d in (one, many):
+        d.mkdir()
+        R.write_json_atomic({"points": []}, d / "manifest.json")
+    a, b = R.PartsDir(one, {}, -1, "point_key"), R.PartsDir(many, {}, -1, "point_key")
+    for row in rows:
+        a.write_part(row)
+    paths = b.write_rows(rows[:5]) + b.write_rows(rows[5:])
+    groups: dict = {}
+    for i, row in enumerate(rows[:5]):
+        groups.setdefault(R.row_signature(row) or i, []).append(i)
+    for i, row in enumerate(rows[5:], 5):
+        groups.setdefault(("second", R.row_signature(row) or i), []).append(i)
+    assert len(paths) == len(groups) < len(rows) and b.done == a.done
+    assert sum(pq.read_metadata(p).num_rows for p in paths) == len(rows)
+    one_rows = a.part_rows()
+    _same_values([one_rows[i] for same in groups.values() for i in same], b.part_rows())
+    order = list(dict.fromkeys(r["point_key"] for r in rows))[::-1]
+    _same_file(R.consolidate_parts(one, "point_key", order, "now")[0],
+               R.consolidate_parts(many, "point_key", order, "now")[0])

@@ -246,3 +246,37 @@ def test_limit_blocks_on_two_workers_give_the_serial_rows(tmp_path):
     assert rp["evaluations"] == res["limit_runs"].sum() and rp["points"] == 4
     assert rp["total_s"] == pytest.approx(timed, rel=1e-9)
     assert rp["ideal_s"] <= rp["new_s"] <= rp["old_s"] <= rp["total_s"]
+
+
+def test_points_are_batched_to_the_target_work():
+    """harness.schedule.batched: consecutive points whose expected seconds
+    add up to the target go into one Batch (at most BATCH_MAX points); a
+    point expected to reach the target alone stays alone; no target or
+    no cost: every point alone.  Run through run_schedule, every point
+    gives its row once, as unbatched."""
+    from physbench.harness.execute import Batch
+    from physbench.harness.schedule import BATCH_MAX, batched
+
+    pts = _points(200)
+    cost = dict(zip((p.key for p in pts), [0.5, 0.03, 0.03, 0.03, 0.03, 0.2, 0.06, 0.06, 0.01] + [0.001] * 191))
+    units = batched(pts, lambda p: cost[p.key], 0.1)
+    assert units[0] is pts[0] and units[2] is pts[5]
+    assert isinstance(units[1], Batch) and units[1].items == tuple(pts[1:5])  # 0.12 s
+    assert isinstance(units[3], Batch) and units[3].items == tuple(pts[6:8])
+    assert units[4].items == tuple(pts[8:8 + BATCH_MAX])  # 0.073 s, but BATCH_MAX points
+    assert [p for u in units for p in (u.items if isinstance(u, Batch) else (u,))] == pts
+    assert batched(pts, None, 0.1) == pts and batched(pts, lambda p: cost[p.key], 0.0) == pts
+
+    import physbench.harness.points as P
+
+    ex = InlineExecutor()
+    ex.batch_s = 0.1
+    got, rows = [], []
+    real = P.run_point
+    P.run_point = lambda p: {"point_key": p.key, "status": "ok"}
+    try:
+        run_schedule(ex, pts, [], lambda p, r: rows.append((p, r["point_key"])), lambda *a: None, lambda r: None,
+                     on_start=got.append, point_cost=lambda p: cost[p.key])
+    finally:
+        P.run_point = real
+    assert [p for p, _ in rows] == pts == got and all(p.key == k for p, k in rows)

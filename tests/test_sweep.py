@@ -112,15 +112,20 @@ def consolidated(out: Path) -> tuple[pd.DataFrame, dict]:
     return pd.read_parquet(files[0]), json.loads(files[0].with_suffix(".manifest.json").read_text())
 
 
-def kill_after_parts(script: str, out: Path, parts: int, cwd: Path, deadline_s: float) -> pd.DataFrame:
+def stored_rows(d: Path) -> int:
+    """Rows in the parts under ``d`` (a part holds one or more rows)."""
+    return sum(pq.read_metadata(p).num_rows for p in d.glob("**/part-*.parquet"))
+
+
+def kill_after_parts(script: str, out: Path, rows: int, cwd: Path, deadline_s: float) -> pd.DataFrame:
     """Run ``script`` (a sweep) in a fresh interpreter, SIGKILL it once
-    ``parts`` point parts are stored under ``out`` (or after ``deadline_s``),
-    and return the stored rows indexed by point key."""
+    ``rows`` point rows are stored in parts under ``out`` (or after
+    ``deadline_s``), and return the stored rows indexed by point key."""
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=cwd, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + deadline_s
-        while len(list(out.glob("*/*/*/part-*.parquet"))) < parts and time.monotonic() < deadline:
+        while stored_rows(out) < rows and time.monotonic() < deadline:
             time.sleep(0.02)
     finally:
         proc.send_signal(signal.SIGKILL)
@@ -436,7 +441,7 @@ def test_resume_after_a_kill(tmp_path, monkeypatch):
     finished = list(dict.fromkeys(calls))
     assert finished == keys[:4]
     sweep_dirs = [d for d in (out / ST.machine_id() / "smoke").iterdir() if d.is_dir()]
-    assert len(sweep_dirs) == 1 and len(list(sweep_dirs[0].glob("part-*.parquet"))) == 4
+    assert len(sweep_dirs) == 1 and stored_rows(sweep_dirs[0]) == 4
     assert not list(out.glob("*/*/*.parquet"))  # not consolidated
 
     calls = _counting_run(monkeypatch, kill_at_point=None)
@@ -457,7 +462,7 @@ def _fail_writes_of_bad(monkeypatch) -> None:
     real = R.write_table_atomic
 
     def failing(table, path, *a, **kw):
-        if table.column("point_key")[0].as_py() == "bad":
+        if "bad" in table.column("point_key").to_pylist():
             raise OSError("disk full")
         return real(table, path, *a, **kw)
 
@@ -465,8 +470,8 @@ def _fail_writes_of_bad(monkeypatch) -> None:
 
 
 def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path, monkeypatch):
-    """The writer thread stores each queued row as its own part, in order,
-    before drain returns; a failed write is raised to the caller (by a
+    """The writer thread stores the queued rows (several to a part), in
+    order, before drain returns; a failed write is raised to the caller (by a
     later write_point, or by drain/close), and close releases the lock."""
     from physbench.harness.results import list_parts, read_part
 
@@ -477,7 +482,7 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
         assert sd.write_point({"point_key": k, "x": 1.0}) is None
     sd.drain()
     assert sd.done == {"a", "b", "c"}
-    assert [read_part(p).column("point_key")[0].as_py() for p in list_parts(tmp_path)] == ["a", "b", "c"]
+    assert [k for p in list_parts(tmp_path) for k in read_part(p).column("point_key").to_pylist()] == ["a", "b", "c"]
 
     sd.write_behind()
     sd.write_point({"point_key": "bad", "x": 1.0})
@@ -507,7 +512,11 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
     _fail_writes_of_bad(monkeypatch)
     sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
     sd.write_behind()
-    for k in ("a", "bad", "b"):
+    sd.write_point({"point_key": "a", "x": 1.0})
+    deadline = time.monotonic() + 30
+    while "a" not in sd.done and time.monotonic() < deadline:  # "a" on disk in a part of its own
+        time.sleep(0.01)
+    for k in ("bad", "b"):
         sd.write_point({"point_key": k, "x": 1.0})
     with pytest.raises(OSError, match="disk full"):
         sd.drain()
@@ -519,7 +528,7 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
         sd.drain()
     sd.close()
     assert sd.lock_fd == -1 and sd.done == {"a"}
-    assert [read_part(p).column("point_key")[0].as_py() for p in list_parts(tmp_path)] == ["a"]
+    assert [k for p in list_parts(tmp_path) for k in read_part(p).column("point_key").to_pylist()] == ["a"]
 
 
 def test_cpu_account_charges_the_part_writer_and_the_main_thread_apart():
@@ -561,7 +570,7 @@ def test_resume_rule_needs_the_same_suite_file(tmp_path, monkeypatch):
     with pytest.raises(_Killed):
         S.sweep_main(str(p), out_dir=out, executor="serial")
     dirs = sorted(d for d in (out / ST.machine_id() / "smoke").iterdir() if d.is_dir())
-    assert [len(list(d.glob("part-*"))) for d in dirs] == [2, 0]
+    assert [stored_rows(d) for d in dirs] == [2, 0]
     # resume=True resumes the newest sweep of the same suite file and points
     calls = _counting_run(monkeypatch, kill_at_point=None)
     assert S.sweep_main(str(p), out_dir=out, resume=True, executor="serial") == 0
@@ -578,7 +587,7 @@ def test_resume_after_the_process_is_killed(tmp_path):
         repeats = 1
         [[sweep]]
         scenarios = ["billiards.head_on"]
-        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 0.2, 0.201, 0.202, 0.203] }
+        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 1.0, 1.001, 1.002, 1.003] }
     """)
     out = tmp_path / "out"
     script = textwrap.dedent(f"""
