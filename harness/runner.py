@@ -382,8 +382,50 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.metrics["cpu_s_per_sim_s"] = cpu / sim_time if sim_time > 0 else float("nan")
     result.metrics["wall_s_per_sim_s"] = wall / sim_time if sim_time > 0 else float("nan")
     result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
-    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics)
+    refined = None
+    if compute_metrics and model_metrics and result.status == st.OK:
+        refined = _refined_runs(scene, engine, resolved, dt, record_every, timeout_s, wall0, result)
+    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics, refined)
     return result
+
+
+def _refined_runs(scene: Scene, engine: str, resolved: dict[str, Any], dt: float, record_every: int,
+                  timeout_s: float | None, wall0: float, result: RunResult) -> list | str | None:
+    """The reference runs a self-consistency model asks for (its
+    ``refined_dts``: the same engine, scene and settings at finer steps,
+    recording at this run's frame times), as their valid traces; a str
+    saying why when one of them is not ok (its metrics are then undefined
+    with that reason); None for a model that asks for none.  They share
+    this run's wall-clock budget and are timed apart from its stepping
+    (``timing.refine_s``): the run's cost columns stay its own
+    (tests/test_self_consistency.py)."""
+    if not scene.reference_model:
+        return None
+    from physbench.harness.references import get_model
+
+    try:
+        model = get_model(scene.reference_model)(scene)
+    except Exception:
+        return None  # the load-time check refuses such a scene; the metrics say why
+    dts = getattr(model, "refined_dts", None)
+    if dts is None:
+        return None
+    t0 = time.perf_counter()
+    traces: list | str = []
+    for h, every in zip(dts(dt), model.refined_record_every(record_every)):
+        left = None if timeout_s is None else max(0.0, timeout_s - (time.perf_counter() - wall0))
+        try:
+            sub = run(scene, engine, {**resolved, "dt": h}, record_every=every, timeout_s=left,
+                      compute_metrics=False)
+        except ValueError as e:  # a step below the engine's bound, a recording beyond the bounds
+            traces = f"no refined run at dt = {h:.6g} s: {e}"
+            break
+        if sub.status != st.OK or sub.trace is None:
+            traces = f"the refined run at dt = {h:.6g} s ended {sub.status}: {sub.message}"
+            break
+        traces.append(sub.trace.valid())
+    result.timing["refine_s"] = time.perf_counter() - t0
+    return traces
 
 
 def _keep_contacts(adapter: Any, frame: int, result: RunResult, cap: int) -> None:
@@ -434,7 +476,7 @@ def _runaway(trace: Trace, a: int, b: int) -> str:
 
 
 def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float,
-            model_metrics: bool = True) -> None:
+            model_metrics: bool = True, refined: list | str | None = None) -> None:
     try:
         result.stages = adapter.stages()
     except Exception as e:  # pragma: no cover - defensive
@@ -455,7 +497,7 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             # measured once: the metrics read it, the trace carries it to
             # the trace writer (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)
             pen = run_penetration(scene, valid)
-            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen))
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, refined=refined))
             trace.penetration = pen
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
