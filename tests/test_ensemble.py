@@ -210,3 +210,27 @@ def test_resting_stack_is_predictable_on_the_reference_engine(tmp_path):
     assert out["predictable"] is True
     assert out["final_spread"] < 1e-3
     assert out["amplification"] < 5
+
+
+# ---------------------------------------------------------------------------
+# the command
+
+
+def test_cli_ensemble_verdict_and_bad_input(tmp_path, capsys):
+    import json
+
+    from physbench.harness.cli import main
+
+    stack = _write(tmp_path, STACK, n=8)
+    assert main(["ensemble", stack, "--n", "2", "--json"]) == 0  # predictable: exit 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["members"] == 2 and out["predictable"] is True
+    assert out["perturbation"]["position"] == 1e-4 and out["perturbation"]["n"] == 2
+    # bad input: exit 2 with the key named, never a traceback
+    no_block = _write(tmp_path, STACK.split("[perturbation]")[0], "plain.toml", n=0)
+    assert main(["ensemble", no_block]) == 2
+    assert "has no [perturbation] block: give --sigma" in capsys.readouterr().err
+    assert main(["ensemble", stack, "--sigma", "-1"]) == 2
+    assert "perturbation.position" in capsys.readouterr().err
+    assert main(["ensemble", stack, "--set", "body[0].mass=2"]) == 2
+    assert "engine settings only" in capsys.readouterr().err
