@@ -111,7 +111,7 @@ def test_variant_compiles_and_metrics_exist(case):
 # default pytest run stays a few minutes; `pytest -m slow` covers the rest.
 SLOW_BASE = {
     "stacking.long_settle", "stacking.pyramid", "stacking.column_10", "friction.block_sticks",
-    "billiards.break_16",
+    "billiards.break_16", "stacking.poured_bin",
 }
 
 
