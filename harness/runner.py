@@ -291,6 +291,12 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     adapter = cls()
     if contact_cap:
         result.contacts = []
+    # contact forces after every recorded step, only when a check or the
+    # primary metric names a contact-law metric (stepping one step at a
+    # time costs: docs/METRICS.md); a str: why the adapter has none
+    from physbench.contract.metric_defs import wants_contact_forces
+
+    forces: list | str | None = [] if compute_metrics and wants_contact_forces(scene) else None
     t0 = time.perf_counter()
     try:
         adapter.build(scene, resolved)
@@ -327,7 +333,9 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                 # work lost to a blow-up and let adapters record in bulk
                 n = min(block, steps - done)
                 adapter.block_done = 0
-                if contact_cap:
+                if forces is not None:
+                    forces = _step_record_forces(adapter, n, frame, trace, result, contact_cap, forces)
+                elif contact_cap:
                     _step_record_contacts(adapter, n, frame, trace, result, contact_cap)
                 else:
                     adapter.step_record(n, pos[frame:frame + n], quat[frame:frame + n],
@@ -344,6 +352,8 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                     adapter.read_state(pos[frame], quat[frame], vel[frame], angvel[frame])
                     if contact_cap:
                         _keep_contacts(adapter, frame, result, contact_cap)
+                    if forces is not None:
+                        forces = _keep_forces(adapter, frame, forces)
                     tt[frame] = done * dt
                     frame += 1
                     if done >= steps:
@@ -385,8 +395,35 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     refined = None
     if compute_metrics and model_metrics and result.status == st.OK:
         refined = _refined_runs(scene, engine, resolved, dt, record_every, timeout_s, wall0, result)
-    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics, refined)
+    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics, refined, forces)
     return result
+
+
+def _keep_forces(adapter: Any, frame: int, forces: list | str) -> list | str:
+    """``forces`` with the adapter's contact forces after ``frame``
+    appended; the adapter's reason (a str) once it has none."""
+    if isinstance(forces, str):
+        return forces
+    rows = adapter.contact_forces()
+    if rows is None:
+        return f"{adapter.name}: {adapter.contact_forces_reason}"
+    forces.append((frame, {k: np.array(v) for k, v in rows.items()}))
+    return forces
+
+
+def _step_record_forces(adapter: Any, n: int, frame: int, trace: Trace, result: RunResult, cap: int,
+                        forces: list | str) -> list | str:
+    """The block of ``n`` steps from ``frame`` one step at a time, the
+    contact forces (and, with ``cap``, the contacts) read after each."""
+    for i in range(n):
+        adapter.step(1)
+        f = frame + i
+        adapter.read_state(trace.pos[f], trace.quat[f], trace.vel[f], trace.angvel[f])
+        forces = _keep_forces(adapter, f, forces)
+        if cap:
+            _keep_contacts(adapter, f, result, cap)
+        adapter.block_done = i + 1
+    return forces
 
 
 def _refined_runs(scene: Scene, engine: str, resolved: dict[str, Any], dt: float, record_every: int,
@@ -476,7 +513,8 @@ def _runaway(trace: Trace, a: int, b: int) -> str:
 
 
 def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float,
-            model_metrics: bool = True, refined: list | str | None = None) -> None:
+            model_metrics: bool = True, refined: list | str | None = None,
+            forces: list | str | None = None) -> None:
     try:
         result.stages = adapter.stages()
     except Exception as e:  # pragma: no cover - defensive
@@ -499,6 +537,10 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             pen = run_penetration(scene, valid)
             result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, refined=refined))
             trace.penetration = pen
+            if forces is not None:
+                from physbench.harness.contact_laws import merge_into, run_contact_laws
+
+                merge_into(result.metrics, run_contact_laws(scene, forces, valid))
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

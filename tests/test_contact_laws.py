@@ -12,6 +12,7 @@ import pytest
 
 from physbench.harness.contact_laws import (LAWS, contact_law_metrics, cone_violation, dissipation_residual,
                                             no_forces, signorini_residual)
+from physbench.contract.scene import load_scene
 from physbench.harness.references import undefined_reason
 
 RNG = np.random.default_rng(46)
@@ -30,7 +31,7 @@ def _lawful(R: int = 40):
         d = RNG.normal(size=2)
         d = np.array([d[0], d[1], 0.0]) / np.hypot(*d)
         if i % 2:  # sliding: on the edge, opposing the slip
-            slip[i] = RNG.uniform(0.01, 2.0) * d
+            slip[i] = RNG.uniform(0.05, 2.0) * d
             lam_t[i] = -mu[i] * lam_n[i] * d
         else:  # sticking: strictly inside
             lam_t[i] = RNG.uniform(0.0, 0.99) * mu[i] * lam_n[i] * d
@@ -128,3 +129,106 @@ def test_an_engine_without_forces_gets_undefined_with_its_reason():
     for name in LAWS:
         assert math.isnan(m[f"{name}_max"])
         assert undefined_reason(m, f"{name}_max") == "pymunk: the adapter reads no contact impulses"
+
+
+# ---------------------------------------------------------------------------
+# the reference engine's contact forces, recorded only when asked
+
+SCENE = """
+[scenario]
+family = "laws"
+title = "contact laws"
+duration = 0.5
+dt = 0.004166666666666667
+effects = ["gravity", "contact", "friction", "gyroscopic"]
+{primary}
+
+[material.default]
+friction = 0.3
+static_friction = 0.4
+
+[[body]]
+name = "block"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+{pose}
+
+[[static]]
+name = "ground"
+{ground}
+{checks}
+"""
+FLAT = ('position = [0.0, 0.0, 0.05]', 'shape = "plane"\nnormal = [0.0, 0.0, 1.0]')
+# block_slides' block on its 35 degree slope (mu 0.3 < tan 35): it slides from the start
+SLOPE = ('position = [0.028678821817552304, 0.0, 0.04095760221444959]\n'
+         'orientation = [0.9537169507482269, 0.0, 0.3007057995042731, 0.0]',
+         'shape = "slope"\nangle = 35.0\npoint = [0.0, 0.0, 0.0]')
+CHECKS = """
+[[check]]
+metric = "cone_violation_max"
+max = 1e-9
+
+[[check]]
+metric = "signorini_residual_max"
+max = 1e-9
+"""
+
+
+def _law_scene(tmp_path, where, checks=CHECKS, primary=""):
+    p = tmp_path / "laws.toml"
+    p.write_text(SCENE.format(pose=where[0], ground=where[1], checks=checks, primary=primary))
+    return load_scene(str(p))
+
+
+def test_resting_box_on_the_reference_engine(tmp_path):
+    """The box's weight on the floor at a zero gap: Signorini's residual and
+    the cone violation at solver tolerance; nothing slides, so maximum
+    dissipation has no row and is undefined with the reason."""
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), "reference")
+    m = res.metrics
+    assert res.status == "ok", res.message
+    assert m["signorini_residual_rows"] == 120  # one patch on every step
+    assert m["signorini_residual_max"] < 1e-9  # N m: 9.81 N at a gap below 1e-10 m
+    assert m["cone_violation_max"] == 0.0
+    assert m["adhesion_max"] == 0.0
+    assert math.isnan(m["dissipation_residual_max"])
+    assert "no sliding contact" in undefined_reason(m, "dissipation_residual_max")
+
+
+def test_sliding_block_obeys_maximum_dissipation_on_the_reference_engine(tmp_path):
+    """The block sliding down the slope: friction mu_k lam_n, opposing the
+    slip, at every step it slides."""
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, SLOPE), "reference")
+    m = res.metrics
+    assert res.status == "ok", res.message
+    assert m["dissipation_residual_rows"] >= 100
+    assert m["dissipation_residual_max"] < 1e-6  # rad
+    assert m["dissipation_shortfall_max"] < 1e-6
+    assert m["cone_violation_max"] < 1e-9
+    # the normal force is the weight's normal part, m g cos 35 = 8.036 N: the residuals read real forces
+    assert m["signorini_residual_max"] < 1e-9
+
+
+def test_forces_are_recorded_only_when_asked(tmp_path):
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT, checks=""), "reference")
+    assert "cone_violation_max" not in res.metrics
+    res = run(_law_scene(tmp_path, FLAT, checks="", primary='primary_metric = "cone_violation_mean"'), "reference")
+    assert res.metrics["cone_violation_mean"] == 0.0
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, engine):
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), engine)
+    if res.status == "unsupported":
+        pytest.skip(res.message)
+    assert math.isnan(res.metrics["cone_violation_max"])
+    assert undefined_reason(res.metrics, "cone_violation_max").startswith(f"{engine}: the adapter reads no")
