@@ -394,7 +394,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
     refined = None
     if compute_metrics and model_metrics and result.status == st.OK:
-        refined = _refined_runs(scene, engine, resolved, dt, record_every, timeout_s, wall0, result)
+        refined = _refined_runs(scene, engine, settings, dt, record_every, timeout_s, wall0, result)
     _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics, refined, forces)
     return result
 
@@ -426,11 +426,13 @@ def _step_record_forces(adapter: Any, n: int, frame: int, trace: Trace, result: 
     return forces
 
 
-def _refined_runs(scene: Scene, engine: str, resolved: dict[str, Any], dt: float, record_every: int,
+def _refined_runs(scene: Scene, engine: str, settings: dict[str, Any] | None, dt: float, record_every: int,
                   timeout_s: float | None, wall0: float, result: RunResult) -> list | str | None:
     """The reference runs a self-consistency model asks for (its
-    ``refined_dts``: the same engine, scene and settings at finer steps,
-    recording at this run's frame times), as their valid traces; a str
+    ``refined_dts``: the same engine and scene with the same setting
+    overrides ``settings`` at finer steps -- a setting whose default
+    depends on dt takes its default at the finer dt, as a run made there
+    would --, recording at this run's frame times), as their valid traces; a str
     saying why when one of them is not ok (its metrics are then undefined
     with that reason); None for a model that asks for none.  They share
     this run's wall-clock budget and are timed apart from its stepping
@@ -452,7 +454,7 @@ def _refined_runs(scene: Scene, engine: str, resolved: dict[str, Any], dt: float
     for h, every in zip(dts(dt), model.refined_record_every(record_every)):
         left = None if timeout_s is None else max(0.0, timeout_s - (time.perf_counter() - wall0))
         try:
-            sub = run(scene, engine, {**resolved, "dt": h}, record_every=every, timeout_s=left,
+            sub = run(scene, engine, {**(settings or {}), "dt": h}, record_every=every, timeout_s=left,
                       compute_metrics=False)
         except ValueError as e:  # a step below the engine's bound, a recording beyond the bounds
             traces = f"no refined run at dt = {h:.6g} s: {e}"
