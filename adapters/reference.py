@@ -144,6 +144,7 @@ class ReferenceAdapter(Adapter):
         self.info["pipeline"] = [s.name for s in self.pipeline]
         if settings.get("contact_model") == "penalty":
             self.notes.append("penalty contacts: regularised Coulomb friction, no separate static friction; no CCD")
+            self.contact_forces_reason = "penalty contacts keep no per-contact forces the adapter can read"
 
     def step(self, n: int = 1) -> None:
         from physbench.engine.pipeline import advance
@@ -200,6 +201,8 @@ class ReferenceAdapter(Adapter):
         lam_t the friction force on b, the point the mean of the pair's
         contact points, the gap their smallest.  No cache after a step
         (a sliver step before an impact stores none): no rows."""
+        if self.contact_forces_reason.startswith("penalty"):
+            return None
         st = getattr(self, "state", None)
         ctx = getattr(st, "_ctx", None)
         c = getattr(ctx, "contacts", None)

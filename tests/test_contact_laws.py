@@ -232,3 +232,11 @@ def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, engine):
         pytest.skip(res.message)
     assert math.isnan(res.metrics["cone_violation_max"])
     assert undefined_reason(res.metrics, "cone_violation_max").startswith(f"{engine}: the adapter reads no")
+
+
+def test_reference_penalty_contacts_are_undefined_with_the_reason(tmp_path):
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), "reference", {"contact_model": "penalty"})
+    assert math.isnan(res.metrics["cone_violation_max"])
+    assert "penalty contacts keep no per-contact forces" in undefined_reason(res.metrics, "cone_violation_max")
