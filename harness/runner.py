@@ -537,7 +537,8 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             # measured once: the metrics read it, the trace carries it to
             # the trace writer (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)
             pen = run_penetration(scene, valid)
-            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, refined=refined))
+            extra = {"refined": refined} if refined is not None else {}  # only self-consistency scenes have them
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, **extra))
             trace.penetration = pen
             if forces is not None:
                 from physbench.harness.contact_laws import merge_into, run_contact_laws
