@@ -76,12 +76,24 @@ def contact_law_metrics() -> set[str]:
     return {f"{n}_{s}" for n in CONTACT_LAWS for s in ("max", "mean", "rows")}
 
 
-def wants_contact_forces(scene) -> bool:
-    """Whether a check or the primary metric of ``scene`` names a
-    contact-law metric: only then does a run record contact forces."""
+def wants_contact_forces(scene, engine: str | None = None) -> bool:
+    """Whether the primary metric of ``scene``, or a check that applies to
+    it on ``engine`` (its ``engines`` and ``variants`` scopes; None: any
+    engine), names a contact-law metric: only then does a run record
+    contact forces."""
     names = contact_law_metrics()
-    asked = [c.metric.partition("@")[0] for c in getattr(scene, "checks", ())]
-    return bool(set(asked) & names) or getattr(scene, "primary_metric", None) in names
+    if getattr(scene, "primary_metric", None) in names:
+        return True
+    variant = getattr(scene, "variant", None) or "base"
+    for c in getattr(scene, "checks", ()):
+        if c.metric.partition("@")[0] not in names:
+            continue
+        if engine is not None and c.engines is not None and engine not in c.engines:
+            continue
+        if c.variants is not None and variant not in c.variants:
+            continue
+        return True
+    return False
 
 
 def _drag(scene) -> list[str]:

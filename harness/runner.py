@@ -296,7 +296,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     # time costs: docs/METRICS.md); a str: why the adapter has none
     from physbench.contract.metric_defs import wants_contact_forces
 
-    forces: list | str | None = [] if compute_metrics and wants_contact_forces(scene) else None
+    forces: list | str | None = [] if compute_metrics and wants_contact_forces(scene, engine) else None
     t0 = time.perf_counter()
     try:
         adapter.build(scene, resolved)
@@ -333,7 +333,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                 # work lost to a blow-up and let adapters record in bulk
                 n = min(block, steps - done)
                 adapter.block_done = 0
-                if forces is not None:
+                if isinstance(forces, list):  # a str: the adapter has none, step in blocks again
                     forces = _step_record_forces(adapter, n, frame, trace, result, contact_cap, forces)
                 elif contact_cap:
                     _step_record_contacts(adapter, n, frame, trace, result, contact_cap)

@@ -215,10 +215,15 @@ def test_sliding_block_obeys_maximum_dissipation_on_the_reference_engine(tmp_pat
 
 
 def test_forces_are_recorded_only_when_asked(tmp_path):
+    from physbench.contract.metric_defs import wants_contact_forces
     from physbench.harness.runner import run
 
     res = run(_law_scene(tmp_path, FLAT, checks=""), "reference")
     assert "cone_violation_max" not in res.metrics
+    scoped = _law_scene(tmp_path, FLAT, checks=CHECKS.replace("max = 1e-9", 'max = 1e-9\nengines = ["reference"]'))
+    assert wants_contact_forces(scoped, "reference") and not wants_contact_forces(scoped, "mujoco")
+    by_variant = _law_scene(tmp_path, FLAT, checks=CHECKS.replace("max = 1e-9", 'max = 1e-9\nvariants = ["v"]'))
+    assert not wants_contact_forces(by_variant, "reference")  # the base scene: the checks name variant v only
     res = run(_law_scene(tmp_path, FLAT, checks="", primary='primary_metric = "cone_violation_mean"'), "reference")
     assert res.metrics["cone_violation_mean"] == 0.0
 
