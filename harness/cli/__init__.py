@@ -7,6 +7,7 @@
     physbench engines [--json]
     physbench models [NAME] [--json]
     physbench ensemble SCENARIO|FILE [--engine E] [--n N] [--sigma M] [--seed S] [--threshold M] [--json]
+    physbench consensus SCENARIO|FILE [--engines ...] [--json]
     physbench list
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
@@ -41,7 +42,7 @@ from physbench.harness.cli.common import (
     _seconds,
 )
 from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
-from physbench.harness.cli.ensemble import cmd_ensemble
+from physbench.harness.cli.ensemble import cmd_consensus, cmd_ensemble
 from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
 from physbench.harness.cli.run import cmd_run
 from physbench.harness.cli.trace import cmd_trace
@@ -192,6 +193,15 @@ def build_parser() -> argparse.ArgumentParser:
     en.add_argument("--json", action="store_true")
     en.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     en.set_defaults(func=cmd_ensemble)
+
+    cs = sub.add_parser("consensus", help="how far apart the engines' converged runs of a scene are")
+    cs.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    cs.add_argument("--engines", nargs="+", default=list(ENGINES), choices=ENGINES)
+    cs.add_argument("--variant", "-v", default=None)
+    cs.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    cs.add_argument("--json", action="store_true")
+    cs.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    cs.set_defaults(func=cmd_consensus)
 
     mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
     mo.add_argument("name", nargs="?", default=None, help="one model (default: all)")
