@@ -226,6 +226,25 @@ class Adapter(abc.ABC):
         plain run."""
         return None
 
+    #: why :meth:`contact_forces` gives None (the contact-law metrics are
+    #: then undefined with this reason, never 0)
+    contact_forces_reason: str = "the adapter reads no contact forces from its engine"
+
+    def contact_forces(self) -> dict[str, np.ndarray] | None:
+        """The engine's contact forces over the last step, one row per
+        contact (or per contact patch, where the engine's friction acts on
+        a patch): ``a`` (R,) int body index; ``b`` (R,) int body index, -1
+        for a static; ``static`` (R,) int static index (scene.statics) or
+        -1; ``point`` (R, 3) m world; ``normal`` (R, 3) unit, from a toward
+        b; ``gap`` (R,) m signed (< 0 overlap) as the engine measured it;
+        ``lam_n`` (R,) N the normal force on b along ``normal``; ``lam_t``
+        (R, 3) N the friction force on b (world).  None when the adapter
+        cannot read them (:attr:`contact_forces_reason`).  Called after
+        every step only when a check or the scene asks for a contact-law
+        metric (contract.metric_defs.wants_contact_forces), never in a
+        plain run."""
+        return None
+
     def stages(self) -> dict[str, Any]:
         """Per-stage counters/profile (reference engine) or the engine features
         switched on (other engines)."""

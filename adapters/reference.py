@@ -144,6 +144,7 @@ class ReferenceAdapter(Adapter):
         self.info["pipeline"] = [s.name for s in self.pipeline]
         if settings.get("contact_model") == "penalty":
             self.notes.append("penalty contacts: regularised Coulomb friction, no separate static friction; no CCD")
+            self.contact_forces_reason = "penalty contacts keep no per-contact forces the adapter can read"
 
     def step(self, n: int = 1) -> None:
         from physbench.engine.pipeline import advance
@@ -190,5 +191,55 @@ class ReferenceAdapter(Adapter):
         except AttributeError:
             return None
 
+    def contact_forces(self) -> dict[str, np.ndarray] | None:
+        """Per contact patch (a pair's points: the engine's friction acts
+        on the patch, its cone on the sum of the points' normal forces),
+        from the warm-start cache the step's solve left (engine/contact/
+        warm.py: the points' normal forces ``fn`` N and the pair's friction
+        force ``ft`` N, applied +to b, -to a) and the step's contact rows
+        (normal a -> b, gap): lam_n the sum of the points' normal forces,
+        lam_t the friction force on b, the point the mean of the pair's
+        contact points, the gap their smallest.  No cache after a step
+        (a sliver step before an impact stores none): no rows."""
+        if self.contact_forces_reason.startswith("penalty"):
+            return None
+        st = getattr(self, "state", None)
+        ctx = getattr(st, "_ctx", None)
+        c = getattr(ctx, "contacts", None)
+        w = getattr(st, "warm", None)
+        if w is None or c is None or len(w.pairs) == 0 or c.m == 0:
+            return _NO_FORCES
+        from physbench.engine.contact.topology import _pair_codes
+
+        m = self.model
+        n, ns = m.n, m.n_statics
+        codes = _pair_codes(m, c)
+        keep = np.isin(codes, w.pairs)
+        uniq, inv = np.unique(codes[keep], return_inverse=True)  # sorted, as w.pairs
+        at = np.searchsorted(w.pairs, uniq)
+        k = uniq.size
+        cnt = np.bincount(inv, minlength=k).astype(float)
+        point = np.stack([np.bincount(inv, c.point[keep][:, j], k) for j in range(3)], axis=1) / cnt[:, None]
+        nrm = np.stack([np.bincount(inv, c.normal[keep][:, j], k) for j in range(3)], axis=1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        gap = np.full(k, np.inf)
+        np.minimum.at(gap, inv, np.asarray(c.gap)[keep])
+        wl = np.searchsorted(w.pairs, w.codes)  # each cached point's pair
+        lam_n = np.bincount(wl, w.fn, w.pairs.size)[at]
+        ft = np.asarray(w.ft, float)[at]
+        lam_t = ft - np.sum(ft * nrm, axis=1, keepdims=True) * nrm
+        sidx = uniq % (ns + 1) - 1
+        q = uniq // (ns + 1)
+        b = q % (n + 1)
+        a = q // (n + 1)
+        return {"a": a.astype(np.int64), "b": np.where(b >= n, -1, b).astype(np.int64),
+                "static": sidx.astype(np.int64), "point": point, "normal": nrm, "gap": gap, "lam_n": lam_n,
+                "lam_t": lam_t}
+
     def close(self) -> None:
         pass
+
+
+_NO_FORCES = {"a": np.zeros(0, np.int64), "b": np.zeros(0, np.int64), "static": np.zeros(0, np.int64),
+              "point": np.zeros((0, 3)), "normal": np.zeros((0, 3)), "gap": np.zeros(0), "lam_n": np.zeros(0),
+              "lam_t": np.zeros((0, 3))}

@@ -55,6 +55,47 @@ GENERIC_METRICS: dict[str, MetricDef] = {
 }
 
 
+#: the contact-law residual families (harness/contact_laws.py): each gives
+#: the metrics <name>_max, <name>_mean and <name>_rows, computed only when a
+#: check or the primary metric names one of them (recording contact forces
+#: costs time); docs/METRICS.md defines them
+CONTACT_LAWS: dict[str, str] = {
+    "signorini_residual": "|lam_n gap| over all contact rows (N m): force across a gap or penetration under force",
+    "separation_force": "normal force on contact rows apart by more than 1e-6 m (N)",
+    "adhesion": "max(0, -lam_n) over all contact rows: a pulling normal force (N)",
+    "cone_violation": "max(0, |lam_t| - mu lam_n) / lam_n over rows with lam_n > 0: friction outside the "
+                      "Coulomb cone, relative to the normal force",
+    "dissipation_residual": "angle between the friction force and the opposite of the slip on sliding rows (rad)",
+    "dissipation_shortfall": "max(0, mu lam_n - |lam_t|) / (mu lam_n) on sliding rows: sliding friction short "
+                             "of the cone's edge, relative",
+}
+
+
+def contact_law_metrics() -> set[str]:
+    """Every column the contact-law residuals give."""
+    return {f"{n}_{s}" for n in CONTACT_LAWS for s in ("max", "mean", "rows")}
+
+
+def wants_contact_forces(scene, engine: str | None = None) -> bool:
+    """Whether the primary metric of ``scene``, or a check that applies to
+    it on ``engine`` (its ``engines`` and ``variants`` scopes; None: any
+    engine), names a contact-law metric: only then does a run record
+    contact forces."""
+    names = contact_law_metrics()
+    if getattr(scene, "primary_metric", None) in names:
+        return True
+    variant = getattr(scene, "variant", None) or "base"
+    for c in getattr(scene, "checks", ()):
+        if c.metric.partition("@")[0] not in names:
+            continue
+        if engine is not None and c.engines is not None and engine not in c.engines:
+            continue
+        if c.variants is not None and variant not in c.variants:
+            continue
+        return True
+    return False
+
+
 def _drag(scene) -> list[str]:
     out = []
     for eff in ("drag_linear", "drag_quadratic"):
@@ -102,5 +143,7 @@ def generic_metrics(scene) -> set[str]:
     without contact, momentum under external forces) stay nameable, so a
     scene varied with --set keeps loading; a check on one fails at run time."""
     out = set(GENERIC_METRICS)
+    if scene.has("contact"):
+        out |= contact_law_metrics()
     out.discard("energy_dissipated" if not dissipation(scene) else "energy_drift")
     return out

@@ -43,6 +43,7 @@ MODELS: dict[str, str] = {
     "heavy_top": "physbench.harness.references.rigid_body:HeavyTop",
     "damped_oscillator": "physbench.harness.references.forces:DampedOscillator",
     "drag_fall": "physbench.harness.references.forces:DragFall",
+    "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 
 

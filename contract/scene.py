@@ -153,6 +153,10 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                               sp.stiffness if "spring" in spec.scenario.effects else 0.0,
                               sp.rest_length,
                               sp.damping if "damper" in spec.scenario.effects else 0.0))
+    if spec.perturbation is not None and spec.perturbation.bodies is not None:
+        unknown = [n for n in spec.perturbation.bodies if n not in index]
+        if unknown:
+            errs.append(f"{label}: perturbation.bodies: unknown bodies {unknown}; the scene has {sorted(index)}")
     if errs:
         raise SpecError(errs)
     sc = spec.scenario
@@ -171,6 +175,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         variant_names=variant_names,
         phases=sc.phases,
         body_entries=tuple(entries),
+        perturbation=spec.perturbation.model_dump() if spec.perturbation is not None else None,
     )
     # the reference model must accept the scene, and every checked metric
     # must be produced for it (tests/test_models.py)

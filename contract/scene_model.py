@@ -159,6 +159,9 @@ class Scene:
     #: and whether that entry's pattern made it: (entry, patterned); () for
     #: a scene built without a spec (not scene content: no part of the hash)
     body_entries: tuple[tuple[int, bool], ...] = ()
+    #: the ``[perturbation]`` block as a dict (harness/ensemble.py), None
+    #: without one; judges the scene, changes no run (not in the hash)
+    perturbation: dict[str, Any] | None = None
 
     # ---- derived, engine-neutral helpers ---------------------------------
 

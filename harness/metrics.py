@@ -292,14 +292,16 @@ def run_penetration(scene: Scene, trace) -> Any:
 
 
 def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = True,
-                    pen: Any = None) -> dict[str, Any]:
+                    pen: Any = None, refined: Any = None) -> dict[str, Any]:
     """Every generic metric plus, when ``model``, the reference model's, for
     one run.  ``model=False`` is for callers whose criterion reads no model
     metric (a breaking-point evaluation: harness/limit_eval.py); the model's
     metrics are then absent, never NaN-filled or guessed.  ``pen``: the
     trace's :func:`run_penetration` when the caller has measured it (the
     runner does, and hands it to the trace writer); measured here
-    otherwise.  The trace is only read
+    otherwise.  ``refined``: the traces of the reference runs a
+    self-consistency model asked for (harness.runner._refined_runs), or why
+    they are missing.  The trace is only read
     (tests/test_metrics.py::test_compute_metrics_reads_its_trace_only)."""
     out: dict[str, Any] = {}
     finite = bool(np.isfinite(trace.pos).all() and np.isfinite(trace.vel).all()
@@ -367,7 +369,10 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
     if model and scene.reference_model:
         from physbench.harness.references import UNDEFINED, get_model
 
-        got = get_model(scene.reference_model)(scene).metrics(trace)
+        ref = get_model(scene.reference_model)(scene)
+        if refined is not None:
+            ref.refined = refined
+        got = ref.metrics(trace)
         why = [w for w in (out.pop(UNDEFINED, ""), got.pop(UNDEFINED, "")) if w]
         out.update(got)
         if why:

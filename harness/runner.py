@@ -291,6 +291,12 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     adapter = cls()
     if contact_cap:
         result.contacts = []
+    # contact forces after every recorded step, only when a check or the
+    # primary metric names a contact-law metric (stepping one step at a
+    # time costs: docs/METRICS.md); a str: why the adapter has none
+    from physbench.contract.metric_defs import wants_contact_forces
+
+    forces: list | str | None = [] if compute_metrics and wants_contact_forces(scene, engine) else None
     t0 = time.perf_counter()
     try:
         adapter.build(scene, resolved)
@@ -327,7 +333,9 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                 # work lost to a blow-up and let adapters record in bulk
                 n = min(block, steps - done)
                 adapter.block_done = 0
-                if contact_cap:
+                if isinstance(forces, list):  # a str: the adapter has none, step in blocks again
+                    forces = _step_record_forces(adapter, n, frame, trace, result, contact_cap, forces)
+                elif contact_cap:
                     _step_record_contacts(adapter, n, frame, trace, result, contact_cap)
                 else:
                     adapter.step_record(n, pos[frame:frame + n], quat[frame:frame + n],
@@ -344,6 +352,8 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                     adapter.read_state(pos[frame], quat[frame], vel[frame], angvel[frame])
                     if contact_cap:
                         _keep_contacts(adapter, frame, result, contact_cap)
+                    if forces is not None:
+                        forces = _keep_forces(adapter, frame, forces)
                     tt[frame] = done * dt
                     frame += 1
                     if done >= steps:
@@ -382,8 +392,79 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     result.metrics["cpu_s_per_sim_s"] = cpu / sim_time if sim_time > 0 else float("nan")
     result.metrics["wall_s_per_sim_s"] = wall / sim_time if sim_time > 0 else float("nan")
     result.metrics["steps_per_s"] = done / wall if wall > 0 else float("nan")
-    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics)
+    refined = None
+    if compute_metrics and model_metrics and result.status == st.OK:
+        refined = _refined_runs(scene, engine, settings, dt, record_every, timeout_s, wall0, result)
+    _finish(result, adapter, scene, trace, compute_metrics, dt, model_metrics, refined, forces)
     return result
+
+
+def _keep_forces(adapter: Any, frame: int, forces: list | str) -> list | str:
+    """``forces`` with the adapter's contact forces after ``frame``
+    appended; the adapter's reason (a str) once it has none."""
+    if isinstance(forces, str):
+        return forces
+    rows = adapter.contact_forces()
+    if rows is None:
+        return f"{adapter.name}: {adapter.contact_forces_reason}"
+    forces.append((frame, {k: np.array(v) for k, v in rows.items()}))
+    return forces
+
+
+def _step_record_forces(adapter: Any, n: int, frame: int, trace: Trace, result: RunResult, cap: int,
+                        forces: list | str) -> list | str:
+    """The block of ``n`` steps from ``frame`` one step at a time, the
+    contact forces (and, with ``cap``, the contacts) read after each."""
+    for i in range(n):
+        adapter.step(1)
+        f = frame + i
+        adapter.read_state(trace.pos[f], trace.quat[f], trace.vel[f], trace.angvel[f])
+        forces = _keep_forces(adapter, f, forces)
+        if cap:
+            _keep_contacts(adapter, f, result, cap)
+        adapter.block_done = i + 1
+    return forces
+
+
+def _refined_runs(scene: Scene, engine: str, settings: dict[str, Any] | None, dt: float, record_every: int,
+                  timeout_s: float | None, wall0: float, result: RunResult) -> list | str | None:
+    """The reference runs a self-consistency model asks for (its
+    ``refined_dts``: the same engine and scene with the same setting
+    overrides ``settings`` at finer steps -- a setting whose default
+    depends on dt takes its default at the finer dt, as a run made there
+    would --, recording at this run's frame times), as their valid traces; a str
+    saying why when one of them is not ok (its metrics are then undefined
+    with that reason); None for a model that asks for none.  They share
+    this run's wall-clock budget and are timed apart from its stepping
+    (``timing.refine_s``): the run's cost columns stay its own
+    (tests/test_self_consistency.py)."""
+    if not scene.reference_model:
+        return None
+    from physbench.harness.references import get_model
+
+    try:
+        model = get_model(scene.reference_model)(scene)
+    except Exception:
+        return None  # the load-time check refuses such a scene; the metrics say why
+    dts = getattr(model, "refined_dts", None)
+    if dts is None:
+        return None
+    t0 = time.perf_counter()
+    traces: list | str = []
+    for h, every in zip(dts(dt), model.refined_record_every(record_every)):
+        left = None if timeout_s is None else max(0.0, timeout_s - (time.perf_counter() - wall0))
+        try:
+            sub = run(scene, engine, {**(settings or {}), "dt": h}, record_every=every, timeout_s=left,
+                      compute_metrics=False)
+        except ValueError as e:  # a step below the engine's bound, a recording beyond the bounds
+            traces = f"no refined run at dt = {h:.6g} s: {e}"
+            break
+        if sub.status != st.OK or sub.trace is None:
+            traces = f"the refined run at dt = {h:.6g} s ended {sub.status}: {sub.message}"
+            break
+        traces.append(sub.trace.valid())
+    result.timing["refine_s"] = time.perf_counter() - t0
+    return traces
 
 
 def _keep_contacts(adapter: Any, frame: int, result: RunResult, cap: int) -> None:
@@ -434,7 +515,8 @@ def _runaway(trace: Trace, a: int, b: int) -> str:
 
 
 def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float,
-            model_metrics: bool = True) -> None:
+            model_metrics: bool = True, refined: list | str | None = None,
+            forces: list | str | None = None) -> None:
     try:
         result.stages = adapter.stages()
     except Exception as e:  # pragma: no cover - defensive
@@ -455,8 +537,13 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             # measured once: the metrics read it, the trace carries it to
             # the trace writer (tests/test_trace_rrd.py::test_the_runs_penetration_is_handed_to_the_trace)
             pen = run_penetration(scene, valid)
-            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen))
+            extra = {"refined": refined} if refined is not None else {}  # only self-consistency scenes have them
+            result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, **extra))
             trace.penetration = pen
+            if forces is not None:
+                from physbench.harness.contact_laws import merge_into, run_contact_laws
+
+                merge_into(result.metrics, run_contact_laws(scene, forces, valid))
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

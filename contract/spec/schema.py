@@ -448,6 +448,29 @@ class CheckSection(_Strict):
         return self
 
 
+class PerturbationSection(_Strict):
+    """``[perturbation]``: the ensemble of perturbed starts that judges the
+    scene's predictability (harness/ensemble.py): ``n`` members, Gaussian
+    standard deviations per component (m, m/s, rad, rad/s), the seed, the
+    perturbed bodies (default all), the bound on the final spread (m)."""
+
+    n: int = Field(default=16, ge=2, le=1000)
+    position: float = Field(default=0.0, ge=0.0, le=1.0)
+    velocity: float = Field(default=0.0, ge=0.0, le=100.0)
+    orientation: float = Field(default=0.0, ge=0.0, le=math.pi)
+    angular_velocity: float = Field(default=0.0, ge=0.0, le=1000.0)
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
+    bodies: list[str] | None = None
+    threshold: float = Field(default=0.01, gt=0.0, le=1e6)
+
+    @model_validator(mode="after")
+    def _some_noise(self) -> "PerturbationSection":
+        if not (self.position or self.velocity or self.orientation or self.angular_velocity):
+            raise ValueError("every standard deviation (position, velocity, orientation, angular_velocity) is 0: "
+                             "the members would all be the same run")
+        return self
+
+
 class SpecModel(_Strict):
     scenario: ScenarioSection
     material: dict[str, MaterialSection] = Field(default_factory=dict)
@@ -456,4 +479,5 @@ class SpecModel(_Strict):
     spring: list[SpringSection] = Field(default_factory=list)
     reference: ReferenceSection | None = None
     check: list[CheckSection] = Field(default_factory=list)
+    perturbation: PerturbationSection | None = None
 

@@ -7,6 +7,8 @@
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
     physbench engines [--json]
     physbench models [NAME] [--json]
+    physbench ensemble SCENARIO|FILE [--engine E] [--n N] [--sigma M] [--seed S] [--threshold M] [--json]
+    physbench consensus SCENARIO|FILE [--engines ...] [--json]
     physbench list
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
@@ -44,6 +46,7 @@ from physbench.harness.cli.common import (
     _seconds,
 )
 from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
+from physbench.harness.cli.ensemble import cmd_consensus, cmd_ensemble
 from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
 from physbench.harness.cli.run import cmd_run
 from physbench.harness.cli.trace import cmd_trace
@@ -190,6 +193,32 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
     rp.set_defaults(func=cmd_report)
+
+    en = sub.add_parser("ensemble", help="predictability: N runs from perturbed starts, their outcome spread")
+    en.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    en.add_argument("--engine", "-e", default="reference", choices=ENGINES)
+    en.add_argument("--variant", "-v", default=None)
+    en.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE", help="an engine setting")
+    en.add_argument("--n", type=_int_in(2, 1000), default=None, help="members (default: the scene's [perturbation])")
+    en.add_argument("--sigma", type=float, default=None, metavar="M", help="position noise per component (m)")
+    en.add_argument("--sigma-velocity", type=float, default=None, metavar="M/S")
+    en.add_argument("--sigma-orientation", type=float, default=None, metavar="RAD")
+    en.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None)
+    en.add_argument("--threshold", type=float, default=None, metavar="M",
+                    help="largest final spread of a predictable scene (m; default 0.01)")
+    en.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    en.add_argument("--json", action="store_true")
+    en.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    en.set_defaults(func=cmd_ensemble)
+
+    cs = sub.add_parser("consensus", help="how far apart the engines' converged runs of a scene are")
+    cs.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
+    cs.add_argument("--engines", nargs="+", default=list(ENGINES), choices=ENGINES)
+    cs.add_argument("--variant", "-v", default=None)
+    cs.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    cs.add_argument("--json", action="store_true")
+    cs.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    cs.set_defaults(func=cmd_consensus)
 
     mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
     mo.add_argument("name", nargs="?", default=None, help="one model (default: all)")

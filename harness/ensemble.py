@@ -1,0 +1,266 @@
+"""Predictability (Chung and Pollard 2016): how much the outcome of a scene
+on an engine moves when its start moves a little.
+
+An ensemble is N runs of one scene on one engine, each from the scene's
+start perturbed by independent Gaussian noise (:class:`Perturbation`: a
+standard deviation for positions, velocities, orientations and angular
+velocities, a seed; ``[perturbation]`` in the spec or
+``physbench ensemble --n N --sigma S``).  The runs are items on the same
+executors as every other run (harness.executors: worker processes under
+the watchdog, or this process), each made by the runner
+(:func:`run_member`), so a member that dies or hangs costs only itself and
+becomes its status.
+
+The outcome and its spread (:func:`summarize`):
+
+- ``final_spread`` (m): over the bodies, the largest RMS distance of the
+  members' final positions from their mean (``final_spread_by_body``);
+- ``orientation_spread`` (rad): over the bodies, the largest RMS rotation
+  angle of the members' final orientations from the first member's;
+- ``events`` per member: impact events counted from the recorded
+  velocities (:func:`impact_events`), and ``event_spread`` = max - min;
+- ``amplification``: ``final_spread`` / the spread of the start positions
+  actually drawn (undefined without position noise);
+- ``predictable``: every member ``ok`` and ``final_spread`` <=
+  ``threshold`` (m); None, with the reason, when a member is not ok.
+
+tests/test_ensemble.py: a sphere dropped onto the apex of another sphere is
+unpredictable, a resting stack predictable, on the reference engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from physbench.harness import status as st
+
+#: m: the default bound on final_spread for a ``predictable`` verdict
+DEFAULT_THRESHOLD = 0.01
+#: m/s: a velocity change (beyond what gravity makes in a frame) above this is an impact event
+JUMP_SPEED = 0.05
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """The ensemble: ``n`` members; Gaussian standard deviations
+    ``position`` (m, per component), ``velocity`` (m/s), ``orientation``
+    (rad, per component of a rotation vector applied to the body's
+    orientation), ``angular_velocity`` (rad/s); ``seed``; the perturbed
+    ``bodies`` (names, None: all); ``threshold`` (m) on ``final_spread``
+    for a ``predictable`` verdict.  Planar scenes are perturbed in their
+    x-z plane only (rotations about y)."""
+
+    n: int = 16
+    position: float = 0.0
+    velocity: float = 0.0
+    orientation: float = 0.0
+    angular_velocity: float = 0.0
+    seed: int = 0
+    bodies: tuple[str, ...] | None = None
+    threshold: float = DEFAULT_THRESHOLD
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.n, int) or self.n < 2:
+            raise ValueError(f"perturbation.n: expected an integer >= 2, got {self.n!r}")
+        for k in ("position", "velocity", "orientation", "angular_velocity"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"perturbation.{k}: expected a finite number >= 0, got {v!r}")
+        if not (self.position or self.velocity or self.orientation or self.angular_velocity):
+            raise ValueError("perturbation: every standard deviation is 0: the members would all be the same run")
+        if not (isinstance(self.threshold, (int, float)) and self.threshold > 0):
+            raise ValueError(f"perturbation.threshold: expected a number > 0 (m), got {self.threshold!r}")
+
+    @classmethod
+    def of_scene(cls, scene: Any, **over: Any) -> "Perturbation":
+        """The scene's ``[perturbation]`` block (its keys over the
+        defaults), then the keyword overrides that are not None."""
+        d = dict(getattr(scene, "perturbation", None) or {})
+        d.update({k: v for k, v in over.items() if v is not None})
+        if d.get("bodies") is not None:
+            d["bodies"] = tuple(d["bodies"])
+        return cls(**d)
+
+
+def _rotvec_quat(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion (wxyz) of rotation vector r (3,) rad."""
+    a = float(np.linalg.norm(r))
+    if a == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[math.cos(a / 2)], math.sin(a / 2) * r / a])
+
+
+def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    w1, v1 = p[0], p[1:]
+    w2, v2 = q[0], q[1:]
+    return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+
+def perturb_scene(scene: Any, p: Perturbation, member: int):
+    """``scene`` with the start of member ``member`` (0-based): each
+    perturbed body's position, velocity, angular velocity moved by
+    N(0, sigma^2) per component and its orientation turned by a rotation
+    vector drawn so; the draws are the seed's and the member's only
+    (numpy default_rng([seed, member])), so a member is the same start on
+    every engine and every run."""
+    rng = np.random.default_rng([int(p.seed), int(member)])
+    names = set(p.bodies) if p.bodies is not None else None
+    if names is not None:
+        missing = sorted(names - {b.name for b in scene.bodies})
+        if missing:
+            raise ValueError(f"perturbation.bodies: unknown bodies {missing}; the scene has "
+                             f"{[b.name for b in scene.bodies]}")
+    plane = np.array([1.0, 0.0, 1.0]) if scene.planar else np.ones(3)
+    axis = np.array([0.0, 1.0, 0.0]) if scene.planar else np.ones(3)
+    bodies = []
+    for b in scene.bodies:
+        # draw for every body, perturbed or not: a body's draws do not depend on which others are listed
+        dx, dv, dr, dw = (rng.normal(size=3) for _ in range(4))
+        if names is not None and b.name not in names:
+            bodies.append(b)
+            continue
+        q = _qmul(_rotvec_quat(p.orientation * dr * axis), np.asarray(b.orientation, float))
+        bodies.append(dataclasses.replace(
+            b, position=np.asarray(b.position, float) + p.position * dx * plane,
+            velocity=np.asarray(b.velocity, float) + p.velocity * dv * plane,
+            angular_velocity=np.asarray(b.angular_velocity, float) + p.angular_velocity * dw * axis,
+            orientation=q / np.linalg.norm(q)))
+    return dataclasses.replace(scene, bodies=tuple(bodies))
+
+
+def impact_events(scene: Any, vel: np.ndarray, dt_frame: float) -> int:
+    """Impact events in recorded velocities vel (F, n, 3) m/s, frames
+    ``dt_frame`` s apart: a frame where some body's velocity change, less
+    what gravity makes (g dt_frame), exceeds JUMP_SPEED + |g| dt_frame m/s
+    starts an event (the |g| dt_frame: a body at rest on a support changes
+    by 0, which is |g| dt_frame from free fall); consecutive such frames
+    are one event."""
+    if vel.shape[0] < 2:
+        return 0
+    g = np.asarray(scene.gravity, float)
+    dv = np.diff(vel, axis=0) - g * dt_frame
+    tol = JUMP_SPEED + float(np.linalg.norm(g)) * dt_frame
+    jump = (np.linalg.norm(dv, axis=-1) > tol).any(axis=1)  # (F-1,)
+    starts = jump & ~np.concatenate([[False], jump[:-1]])
+    return int(starts.sum())
+
+
+@dataclass(frozen=True)
+class Member:
+    """One member run: the scene (an id or a spec file's path) and variant
+    on ``engine`` with ``settings`` (sorted pairs), started as member
+    ``index`` of ``perturbation``; ``timeout_s`` of wall-clock budget."""
+
+    scenario: str
+    variant: str | None
+    engine: str
+    settings: tuple[tuple[str, Any], ...]
+    perturbation: Perturbation
+    index: int
+    timeout_s: float | None = 600.0
+
+    @property
+    def label(self) -> str:
+        return f"{self.engine} {self.scenario} member {self.index}"
+
+
+def run_member(m: Member) -> dict[str, Any]:
+    """Run one member (in a worker or this process): its status, message,
+    final positions (n, 3) and orientations (n, 4) as lists, start
+    positions (n, 3), impact event count, CPU seconds of stepping.  Never
+    raises for engine trouble (a status)."""
+    from physbench.contract.scene import load_scene
+    from physbench.harness import runner
+
+    out: dict[str, Any] = {"index": m.index, "status": st.ERROR, "message": ""}
+    try:
+        scene = perturb_scene(load_scene(m.scenario, m.variant), m.perturbation, m.index)
+    except Exception as e:
+        out["message"] = f"scene failed to load or perturb: {type(e).__name__}: {e}"
+        return out
+    res = runner.run(scene, m.engine, dict(m.settings) or None, timeout_s=m.timeout_s, compute_metrics=False)
+    out["status"], out["message"] = res.status, res.message
+    tr = res.trace.valid() if res.trace is not None else None
+    if tr is None or tr.n_frames == 0:
+        return out
+    out["start"] = np.array([b.position for b in scene.bodies], float).tolist()
+    out["final_pos"] = tr.pos[-1].tolist()
+    out["final_quat"] = tr.quat[-1].tolist()
+    dt = float(res.settings.get("dt", scene.dt))
+    out["events"] = impact_events(scene, tr.vel, dt)
+    out["step_cpu_s"] = float(res.timing.get("step_cpu_s", math.nan))
+    return out
+
+
+def summarize(members: list[dict[str, Any]], threshold: float) -> dict[str, Any]:
+    """The ensemble's outcome spread and verdict (module docstring) from
+    :func:`run_member` results."""
+    from physbench.harness.references.self_consistency import rotation_angle
+
+    out: dict[str, Any] = {"members": len(members), "threshold": float(threshold)}
+    bad = [m for m in members if m.get("status") != st.OK]
+    out["members_ok"] = len(members) - len(bad)
+    have = [m for m in members if "final_pos" in m]
+    if len(have) >= 2:
+        x = np.array([m["final_pos"] for m in have])  # (N, n, 3)
+        per_body = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=-1), axis=0))  # (n,)
+        out["final_spread_by_body"] = per_body.tolist()
+        out["final_spread"] = float(per_body.max())
+        q = np.array([m["final_quat"] for m in have])
+        ang = rotation_angle(q, q[:1])  # (N, n)
+        out["orientation_spread"] = float(np.sqrt(np.mean(ang * ang, axis=0)).max())
+        x0 = np.array([m["start"] for m in have])
+        start = float(np.sqrt(np.mean(np.sum((x0 - x0.mean(axis=0)) ** 2, axis=-1), axis=0)).max())
+        out["start_spread"] = start
+        out["amplification"] = out["final_spread"] / start if start > 0 else None
+        ev = [int(m["events"]) for m in have]
+        out["events_min"], out["events_max"] = min(ev), max(ev)
+        out["event_spread"] = max(ev) - min(ev)
+    if bad:
+        out["predictable"] = None
+        out["why"] = (f"{len(bad)} of {len(members)} members not ok (first: member {bad[0]['index']} "
+                      f"{bad[0]['status']}: {bad[0].get('message', '')})")
+    elif "final_spread" not in out:
+        out["predictable"] = None
+        out["why"] = "fewer than two members recorded a final state"
+    else:
+        out["predictable"] = bool(out["final_spread"] <= threshold)
+        out["why"] = (f"final spread {out['final_spread']:.3g} m {'<=' if out['predictable'] else '>'} "
+                      f"threshold {threshold:g} m")
+    return out
+
+
+def run_ensemble(scenario: str, engine: str, perturbation: Perturbation | None = None, *,
+                 variant: str | None = None, settings: dict[str, Any] | None = None, jobs: int = 1,
+                 executor: str = "process", timeout_s: float | None = 600.0, **over: Any) -> dict[str, Any]:
+    """Run the ensemble of ``scenario`` (an id or a spec file) on
+    ``engine``: ``perturbation``, else the scene's ``[perturbation]`` with
+    the keyword overrides (n, position, ...); the members go to ``jobs``
+    worker processes (``executor="inline"``: this process).  Returns the
+    :func:`summarize` dict plus ``scenario``, ``engine``, ``perturbation``
+    and ``per_member`` (index, status, events, final positions)."""
+    from physbench.contract.scene import load_scene
+    from physbench.harness.executors import make_executor
+    from physbench.harness.execute import WorkerLost
+
+    if perturbation is None:
+        perturbation = Perturbation.of_scene(load_scene(scenario, variant), **over)
+    members = [Member(scenario, variant, engine, tuple(sorted((settings or {}).items())), perturbation, i,
+                      timeout_s) for i in range(perturbation.n)]
+    results: list[dict[str, Any]] = []
+    with make_executor(executor, max(1, int(jobs))) as ex:
+        for m, value in ex.map(run_member, members, budget_s=lambda m: m.timeout_s):
+            if isinstance(value, WorkerLost):
+                value = {"index": m.index, "status": value.status, "message": value.full_message()}
+            results.append(value)
+    results.sort(key=lambda r: r["index"])
+    out = summarize(results, perturbation.threshold)
+    out.update(scenario=scenario, engine=engine, perturbation=dataclasses.asdict(perturbation),
+               per_member=[{k: r.get(k) for k in ("index", "status", "message", "events", "final_pos")}
+                           for r in results])
+    return out

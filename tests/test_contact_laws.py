@@ -1,0 +1,247 @@
+"""Contact-law residuals (harness/contact_laws.py) on planted contact
+forces: rows that obey each law give 0, rows that break it by a known
+amount give exactly that amount, and no rows give ``undefined`` with the
+reason, never 0."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from physbench.harness.contact_laws import (LAWS, contact_law_metrics, cone_violation, dissipation_residual,
+                                            no_forces, signorini_residual)
+from physbench.contract.scene import load_scene
+from physbench.harness.references import undefined_reason
+
+RNG = np.random.default_rng(46)
+
+
+def _lawful(R: int = 40):
+    """R rows that satisfy every law: pressed rows at gap 0 with friction
+    inside the cone; the sliding ones (every other) on the cone's edge
+    opposing the slip; separated rows (gap > 0) carry no force."""
+    lam_n = RNG.uniform(0.5, 5.0, R)
+    gap = np.zeros(R)
+    mu = RNG.uniform(0.2, 0.9, R)
+    slip = np.zeros((R, 3))
+    lam_t = np.zeros((R, 3))
+    for i in range(R):
+        d = RNG.normal(size=2)
+        d = np.array([d[0], d[1], 0.0]) / np.hypot(*d)
+        if i % 2:  # sliding: on the edge, opposing the slip
+            slip[i] = RNG.uniform(0.05, 2.0) * d
+            lam_t[i] = -mu[i] * lam_n[i] * d
+        else:  # sticking: strictly inside
+            lam_t[i] = RNG.uniform(0.0, 0.99) * mu[i] * lam_n[i] * d
+    lam_n[-4:] = 0.0
+    gap[-4:] = RNG.uniform(1e-3, 1e-2, 4)
+    lam_t[-4:] = 0.0
+    slip[-4:] = 0.0
+    return lam_n, lam_t, gap, slip, mu
+
+
+def test_lawful_rows_give_zero_residuals():
+    lam_n, lam_t, gap, slip, mu = _lawful()
+    m = contact_law_metrics(lam_n, lam_t, gap, slip, mu)
+    for name in ("signorini_residual", "separation_force", "adhesion", "cone_violation", "dissipation_shortfall"):
+        assert m[f"{name}_max"] == pytest.approx(0.0, abs=1e-12), name
+    assert m["dissipation_residual_max"] < 1e-7  # an angle from atan2 of a rounding-size cross product
+    assert m["signorini_residual_rows"] == 40
+    assert m["cone_violation_rows"] == 36
+    assert m["dissipation_residual_rows"] == 18
+    assert m["separation_force_rows"] == 4
+
+
+def test_signorini_finds_the_planted_force_at_a_gap():
+    lam_n, lam_t, gap, slip, mu = _lawful()
+    # row 3: 2.5 N pressing across a 4 mm gap; row 5: 1.5 N pulling (adhesion) at contact
+    lam_n[3], gap[3] = 2.5, 4e-3
+    lam_n[5] = -1.5
+    m = signorini_residual(lam_n, gap)
+    assert m["signorini_residual_max"] == pytest.approx(2.5 * 4e-3, rel=1e-12)
+    assert m["signorini_residual_mean"] == pytest.approx(2.5 * 4e-3 / 40, rel=1e-12)
+    assert m["separation_force_max"] == pytest.approx(2.5, rel=1e-12)
+    assert m["separation_force_rows"] == 5
+    assert m["adhesion_max"] == pytest.approx(1.5, rel=1e-12)
+    # penetration under force is a residual too: 3 N at a 2 mm overlap
+    lam_n, gap = np.array([3.0, 1.0]), np.array([-2e-3, 0.0])
+    assert signorini_residual(lam_n, gap)["signorini_residual_max"] == pytest.approx(6e-3, rel=1e-12)
+
+
+@pytest.mark.parametrize("excess", [1e-6, 0.05, 0.5, 3.0])
+def test_cone_violation_finds_the_planted_excess(excess):
+    """Friction pushed to (1 + excess) mu lam_n on one row: the relative
+    violation is exactly excess mu."""
+    lam_n, lam_t, gap, slip, mu = _lawful()
+    i = 6
+    d = lam_t[i] / np.linalg.norm(lam_t[i]) if np.linalg.norm(lam_t[i]) else np.array([1.0, 0, 0])
+    lam_t[i] = (1 + excess) * mu[i] * lam_n[i] * d
+    m = cone_violation(lam_n, lam_t, mu)
+    assert m["cone_violation_max"] == pytest.approx(excess * mu[i], rel=1e-9)
+    assert m["cone_violation_mean"] == pytest.approx(excess * mu[i] / 36, rel=1e-9)
+
+
+@pytest.mark.parametrize("angle", [1e-6, 0.1, 1.0, math.pi / 2, 3.0])
+def test_dissipation_finds_the_planted_misalignment(angle):
+    """A sliding row's friction rotated by ``angle`` in the tangent plane
+    away from -slip: the residual is exactly that angle."""
+    lam_n, lam_t, gap, slip, mu = _lawful()
+    i = 7  # sliding
+    c, s = math.cos(angle), math.sin(angle)
+    x, y, z = lam_t[i]
+    lam_t[i] = (c * x - s * y, s * x + c * y, z)
+    m = dissipation_residual(lam_n, lam_t, slip, mu)
+    assert m["dissipation_residual_max"] == pytest.approx(angle, rel=1e-9)
+    assert m["dissipation_shortfall_max"] == pytest.approx(0.0, abs=1e-12)  # still on the edge
+
+
+def test_dissipation_finds_the_planted_shortfall_and_works_in_2d():
+    lam_n = np.array([2.0, 4.0])
+    mu = np.array([0.5, 0.25])
+    slip = np.array([[1.0, 0.0], [0.0, -3.0]])
+    lam_t = np.array([[-0.7, 0.0], [0.0, 1.0]])  # 70 % and 100 % of mu lam_n = 1.0
+    m = dissipation_residual(lam_n, lam_t, slip, mu)
+    assert m["dissipation_shortfall_max"] == pytest.approx(0.3, rel=1e-12)
+    assert m["dissipation_shortfall_mean"] == pytest.approx(0.15, rel=1e-12)
+    assert m["dissipation_residual_max"] == pytest.approx(0.0, abs=1e-15)
+    # friction along the slip (pushing it on): misaligned by pi
+    m = dissipation_residual(lam_n[:1], -lam_t[:1], slip[:1], mu[:1])
+    assert m["dissipation_residual_max"] == pytest.approx(math.pi, rel=1e-12)
+
+
+def test_no_rows_are_undefined_with_the_reason_never_zero():
+    z = np.zeros(0)
+    m = contact_law_metrics(z, np.zeros((0, 3)), z, np.zeros((0, 3)), z)
+    for name in ("signorini_residual", "cone_violation", "dissipation_residual"):
+        assert math.isnan(m[f"{name}_max"]) and math.isnan(m[f"{name}_mean"])
+        assert undefined_reason(m, f"{name}_max"), name
+        assert m[f"{name}_rows"] == 0
+    # resting rows only: nothing slides, so no dissipation residual
+    m = dissipation_residual(np.ones(3), np.zeros((3, 3)), np.zeros((3, 3)), np.full(3, 0.5))
+    assert math.isnan(m["dissipation_residual_max"])
+    assert "sliding" in undefined_reason(m, "dissipation_residual_max")
+
+
+def test_an_engine_without_forces_gets_undefined_with_its_reason():
+    m = no_forces("pymunk: the adapter reads no contact impulses")
+    for name in LAWS:
+        assert math.isnan(m[f"{name}_max"])
+        assert undefined_reason(m, f"{name}_max") == "pymunk: the adapter reads no contact impulses"
+
+
+# ---------------------------------------------------------------------------
+# the reference engine's contact forces, recorded only when asked
+
+SCENE = """
+[scenario]
+family = "laws"
+title = "contact laws"
+duration = 0.5
+dt = 0.004166666666666667
+effects = ["gravity", "contact", "friction", "gyroscopic"]
+{primary}
+
+[material.default]
+friction = 0.3
+static_friction = 0.4
+
+[[body]]
+name = "block"
+shape = "box"
+half_extents = [0.1, 0.1, 0.05]
+mass = 1.0
+{pose}
+
+[[static]]
+name = "ground"
+{ground}
+{checks}
+"""
+FLAT = ('position = [0.0, 0.0, 0.05]', 'shape = "plane"\nnormal = [0.0, 0.0, 1.0]')
+# block_slides' block on its 35 degree slope (mu 0.3 < tan 35): it slides from the start
+SLOPE = ('position = [0.028678821817552304, 0.0, 0.04095760221444959]\n'
+         'orientation = [0.9537169507482269, 0.0, 0.3007057995042731, 0.0]',
+         'shape = "slope"\nangle = 35.0\npoint = [0.0, 0.0, 0.0]')
+CHECKS = """
+[[check]]
+metric = "cone_violation_max"
+max = 1e-9
+
+[[check]]
+metric = "signorini_residual_max"
+max = 1e-9
+"""
+
+
+def _law_scene(tmp_path, where, checks=CHECKS, primary=""):
+    p = tmp_path / "laws.toml"
+    p.write_text(SCENE.format(pose=where[0], ground=where[1], checks=checks, primary=primary))
+    return load_scene(str(p))
+
+
+def test_resting_box_on_the_reference_engine(tmp_path):
+    """The box's weight on the floor at a zero gap: Signorini's residual and
+    the cone violation at solver tolerance; nothing slides, so maximum
+    dissipation has no row and is undefined with the reason."""
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), "reference")
+    m = res.metrics
+    assert res.status == "ok", res.message
+    assert m["signorini_residual_rows"] == 120  # one patch on every step
+    assert m["signorini_residual_max"] < 1e-9  # N m: 9.81 N at a gap below 1e-10 m
+    assert m["cone_violation_max"] == 0.0
+    assert m["adhesion_max"] == 0.0
+    assert math.isnan(m["dissipation_residual_max"])
+    assert "no sliding contact" in undefined_reason(m, "dissipation_residual_max")
+
+
+def test_sliding_block_obeys_maximum_dissipation_on_the_reference_engine(tmp_path):
+    """The block sliding down the slope: friction mu_k lam_n, opposing the
+    slip, at every step it slides."""
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, SLOPE), "reference")
+    m = res.metrics
+    assert res.status == "ok", res.message
+    assert m["dissipation_residual_rows"] >= 100
+    assert m["dissipation_residual_max"] < 1e-6  # rad
+    assert m["dissipation_shortfall_max"] < 1e-6
+    assert m["cone_violation_max"] < 1e-9
+    # the normal force is the weight's normal part, m g cos 35 = 8.036 N: the residuals read real forces
+    assert m["signorini_residual_max"] < 1e-9
+
+
+def test_forces_are_recorded_only_when_asked(tmp_path):
+    from physbench.contract.metric_defs import wants_contact_forces
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT, checks=""), "reference")
+    assert "cone_violation_max" not in res.metrics
+    scoped = _law_scene(tmp_path, FLAT, checks=CHECKS.replace("max = 1e-9", 'max = 1e-9\nengines = ["reference"]'))
+    assert wants_contact_forces(scoped, "reference") and not wants_contact_forces(scoped, "mujoco")
+    by_variant = _law_scene(tmp_path, FLAT, checks=CHECKS.replace("max = 1e-9", 'max = 1e-9\nvariants = ["v"]'))
+    assert not wants_contact_forces(by_variant, "reference")  # the base scene: the checks name variant v only
+    res = run(_law_scene(tmp_path, FLAT, checks="", primary='primary_metric = "cone_violation_mean"'), "reference")
+    assert res.metrics["cone_violation_mean"] == 0.0
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, engine):
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), engine)
+    if res.status == "unsupported":
+        pytest.skip(res.message)
+    assert math.isnan(res.metrics["cone_violation_max"])
+    assert undefined_reason(res.metrics, "cone_violation_max").startswith(f"{engine}: the adapter reads no")
+
+
+def test_reference_penalty_contacts_are_undefined_with_the_reason(tmp_path):
+    from physbench.harness.runner import run
+
+    res = run(_law_scene(tmp_path, FLAT), "reference", {"contact_model": "penalty"})
+    assert math.isnan(res.metrics["cone_violation_max"])
+    assert "penalty contacts keep no per-contact forces" in undefined_reason(res.metrics, "cone_violation_max")
