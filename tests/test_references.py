@@ -264,9 +264,17 @@ def test_stop_position_error_and_creep_are_apart():
     out = m.metrics(trace(d_ref + 0.005, 0.002))
     assert out["stop_position_error"] == pytest.approx(0.007, abs=1e-12)
     # at rest from the last decelerating frame (speed <= a dt = 3.9 mm/s,
-    # the next one's creep faster): at most a dt^2 / 2 = 2e-6 m short of
-    # the stop, then the 2 mm
+    # still moving at the next): at most a dt^2 / 2 = 2e-6 m short of the
+    # stop, then the 2 mm
     assert out["creep"] == pytest.approx(0.002, abs=2e-6)
+    # a soft stop: the closed form down to 10 mm/s, then an exponential tail
+    # (time constant 50 ms) that never reaches zero: at rest from the first
+    # frame at <= a dt (3.9 mm/s), creep the tail's rest, <= 3.9e-3 * 0.05 m
+    a, t1, tau = 2.0 / m.t_stop, m.t_stop - 0.01 / (2.0 / m.t_stop), 0.05
+    v = np.where(t < t1, 2.0 - a * t, 0.01 * np.exp(-(t - t1) / tau))
+    s = np.where(t < t1, 2.0 * t - 0.5 * a * t * t, 2.0 * t1 - 0.5 * a * t1 * t1 + 0.01 * tau * (1 - np.exp(-(t - t1) / tau)))
+    out = m.metrics(make_trace(t, (m.x0 + np.outer(s, m.d))[:, None], np.outer(v, m.d)[:, None]))
+    assert 0.0 < out["creep"] <= a * 1e-3 * tau
     never = make_trace(t, (m.x0 + np.outer(0.5 * t, m.d))[:, None], np.outer(np.full_like(t, 0.5), m.d)[:, None])
     out = m.metrics(never)
     assert math.isnan(out["creep"]) and "never came to rest" in undefined_reason(out, "creep")

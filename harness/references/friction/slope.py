@@ -19,8 +19,8 @@ STOP_METRICS = {
                            "frames from the reference stop time on (m)",
     "creep": "largest displacement within the slope's plane after the body came to rest, from its position then: "
              "the first frame whose speed along the initial motion is at most |a| dt_frame (what the reference "
-             "deceleration a takes off in one frame interval) and no longer falling; the first frame for a start "
-             "at rest (m)",
+             "deceleration a takes off in one frame interval) and either <= 0 or still > 0 at the next frame; "
+             "the first frame for a start at rest (m)",
 }
 
 
@@ -116,9 +116,11 @@ class _SlopeModel(ReferenceModel):
         ``s_stop`` (m) downhill, decelerating at ``decel`` (m/s^2), and
         holds there.  At rest: the first frame k whose speed along the
         initial motion is <= |decel| (t_k+1 - t_k) (a body still sliding or
-        rolling with that speed stops within the frame interval) and no
-        more than the next frame's (no longer decelerating): an engine that
-        stops the body dead reads creep 0 from the frame it stopped at.  The first measures where
+        rolling with that speed stops within the frame interval) and that
+        is either stopped (speed <= 0) or still moving on at the next frame
+        (a soft stop's slow tail, or creep): an engine that stops the body
+        dead reads creep 0 from the frame it stopped at, not from the frame
+        before.  The first measures where
         it stopped (the stop distance's error, plus any creep), the second
         only how far it moved once at rest, from wherever that was
         (tests/test_references.py::test_stop_position_error_and_creep_are_apart).
@@ -137,7 +139,10 @@ class _SlopeModel(ReferenceModel):
             speed = self.along(trace) * math.copysign(1.0, self.u0)
             dt = np.diff(t)
             slow = speed <= abs(decel) * np.append(dt, dt[-1:])  # the last frame: the last interval
-            held = np.append(speed[:-1] <= speed[1:], True)
+            # stopped (or turned), or still moving on at the next frame (a
+            # soft stop's slow tail, or creep): not a frame that a stop
+            # still to come within the interval would leave behind
+            held = (speed <= 0.0) | np.append(speed[1:] > 0.0, False)
             rest = np.flatnonzero(slow & held)
             if rest.size == 0:
                 undefined(out, "creep", "the body never came to rest in the run (its speed along the motion never "
