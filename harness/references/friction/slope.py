@@ -114,17 +114,17 @@ class _SlopeModel(ReferenceModel):
         """``stop_position_error`` and ``creep`` (:data:`STOP_METRICS`, m)
         into ``out`` for a body the model stops at ``t_stop`` (s) after
         ``s_stop`` (m) downhill, decelerating at ``decel`` (m/s^2), and
-        holds there.  At rest: the first frame k whose speed along the
-        initial motion is <= |decel| (t_k+1 - t_k) (a body still sliding or
-        rolling with that speed stops within the frame interval) and that
-        is either stopped (speed <= 0) or still moving on at the next frame
-        (a soft stop's slow tail, or creep): an engine that stops the body
-        dead reads creep 0 from the frame it stopped at, not from the frame
-        before.  The first measures where
-        it stopped (the stop distance's error, plus any creep), the second
-        only how far it moved once at rest, from wherever that was
+        holds there.  The first measures where it stopped (the stop
+        distance's error, plus any creep), the second only how far it moved
+        once at rest, from wherever that was
         (tests/test_references.py::test_stop_position_error_and_creep_are_apart).
-        ``creep`` is undefined for a body that never came to rest in the run."""
+        At rest: the first frame k whose speed along the initial motion is
+        <= |decel| (t_k+1 - t_k) (a body still sliding or rolling with that
+        speed stops within the frame interval) and that is either stopped
+        (speed <= 0) or still moving on at the next frame (a soft stop's slow
+        tail, or creep): an engine that stops the body dead reads creep 0
+        from the frame it stopped at, not from the frame before.  ``creep``
+        is undefined for a body that never came to rest in the run."""
         i, n = self.body.index, self.n
 
         def in_plane(rel):
