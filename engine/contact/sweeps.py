@@ -226,8 +226,9 @@ def _rolling_step(mt, lam_t, p, new, lim):
     (tests/test_engine_friction.py::test_cylinder_rolling_resistance_at_every_heading).
     At that fixed point the per-row update also lands outside the disc, so
     the switch is consistent; m <= 2 / lambda_max of the 2x2 block, so the
-    sweeps still converge.  Inside the disc (a patch that holds) and for
-    rows with equal mt (a sphere) nothing changes, bit for bit."""
+    sweeps still converge.  Inside the disc (a patch that holds) nothing
+    changes, bit for bit; a sphere's two mt differ by round-off at most, and
+    so does its step (friction.rolling_resistance moved by <= 2.3e-15 m)."""
     m3 = mt[p, 3]
     m4 = mt[p, 4]
     if m3 == m4 or not (m3 > 0.0 and m4 > 0.0) or new[3] * new[3] + new[4] * new[4] <= lim * lim:
