@@ -1,8 +1,17 @@
-"""Explicit forces for engines that have no element for an effect: drag on
-every engine (none has a drag element), springs and dampers on pybullet
-(MuJoCo has tendons, pymunk has DampedSpring).  Each force is evaluated
-from the state at the start of an engine step and held over it (explicit
-in time, like the engines' own gravity).
+"""Explicit forces for engines that have no element for an effect, and the
+calibration of the engines' own drag models where they have one.
+
+Drag uses the engine's own model where it reproduces the spec's law (each
+calibrated to the spec's coefficients, as restitution is): MuJoCo's
+ellipsoid fluid model for spheres (:func:`mujoco_fluid`), Bullet's
+per-body ``linearDamping`` for linear drag (:func:`bullet_linear_damping`),
+pymunk's ``space.damping`` for linear drag shared by every body
+(:func:`pymunk_damping`).  Elsewhere drag is physbench's force law applied
+as an external force each step, and the row says so (:data:`DRAG_EXTERNAL`
+in ``notes`` and ``info["drag"]``).  Springs and dampers on pybullet are
+external forces too (MuJoCo has tendons, pymunk has DampedSpring).  Each
+external force is evaluated from the state at the start of an engine step
+and held over it (explicit in time, like the engines' own gravity).
 
 The laws, in world coordinates (SI units):
 
@@ -25,10 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from physbench.contract.conventions import DRAG_EXTERNAL  # noqa: F401 (the adapters' name for it)
 from physbench.contract.rotation import quat_rotate
 from physbench.contract.scene import Scene
 
-DRAG_NOTE = ("drag: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
+DRAG_NOTE = (f"{DRAG_EXTERNAL}: F = -(c_linear + c_quadratic |v|) v on the centre of mass, evaluated at the "
              "velocity at the start of each engine step (explicit); no angular drag")
 
 
@@ -47,6 +57,95 @@ def dragged(scene: Scene) -> list[tuple[int, float, float]]:
     return [(i, float(c1[i]), float(c2[i])) for i in range(scene.n_bodies) if c1[i] > 0.0 or c2[i] > 0.0]
 
 
+def _external(why: str) -> str:
+    return f"{DRAG_EXTERNAL} ({why})"
+
+
+def mujoco_fluid(scene: Scene, mscale: float = 1.0) -> tuple[dict[str, Any] | None, str]:
+    """MuJoCo's ellipsoid fluid model set to the spec's drag, or why not.
+
+    For a sphere of radius r the model's force with only the blunt drag
+    coefficient C_b and the viscosity beta (density rho; slender, angular,
+    Kutta and Magnus coefficients 0) is F = -(6 pi r beta + C_b rho pi r^2
+    |v|) v, the spec's law with c_linear = 6 pi r beta and c_quadratic =
+    C_b rho pi r^2 (rho = 1 here; forces on MuJoCo's masses scaled by
+    ``mscale``).  beta and rho are global: every body must be a sphere
+    (a body without a fluid geom would get MuJoCo's inertia-box drag) with
+    one beta for all (c_linear / (6 pi r) equal).  The model adds a torque
+    -8 pi r^3 beta w and, with rho > 0, added-mass forces on a spinning
+    body that the spec does not have: no body may spin (no initial angular
+    velocity, no friction, no springs to turn one).  Returns ({"viscosity",
+    "density", "blunt" (n,)}, "") or (None, the reason) when drag is present
+    but the model cannot reproduce it; (None, "") without drag."""
+    c1, c2 = drag_coefficients(scene)
+    if not (np.any(c1 > 0) or np.any(c2 > 0)):
+        return None, ""
+    if any(b.shape != "sphere" for b in scene.bodies):
+        return None, "MuJoCo's fluid model is isotropic only for spheres, and its density and viscosity are global"
+    if scene.has("friction") or scene.springs or any(np.any(b.angular_velocity != 0) for b in scene.bodies):
+        return None, "MuJoCo's fluid model adds a viscous torque and added-mass forces on a spinning body"
+    r = np.array([b.radius for b in scene.bodies], float)
+    beta = c1 * mscale / (6.0 * math.pi * r)
+    if np.ptp(beta) > 1e-12 * max(float(np.max(beta)), 1e-300):
+        return None, "the bodies' c_linear / (6 pi r) differ, and MuJoCo's viscosity is global"
+    return {"viscosity": float(beta[0]), "density": 1.0 if np.any(c2 > 0) else 0.0,
+            "blunt": c2 * mscale / (math.pi * r * r)}, ""
+
+
+def bullet_linear_damping(scene: Scene) -> dict[int, float]:
+    """Bullet's per-body ``linearDamping`` d for the spec's linear drag:
+    Bullet scales the velocity by (1 - d)^dt each step, the exact decay
+    e^(-c_linear dt / m) of m v' = -c_linear v when d = 1 - e^(-c_linear / m).
+    {body index: d} for the bodies with linear drag."""
+    c1, _ = drag_coefficients(scene)
+    return {i: float(-math.expm1(-c1[i] / scene.bodies[i].mass)) for i in range(scene.n_bodies) if c1[i] > 0}
+
+
+def bullet_drag_notes(scene: Scene, damping: dict[int, float], maximal: bool, notes: list[str],
+                      info: dict[str, Any]) -> None:
+    """Say in ``notes`` and ``info["drag"]`` which drag Bullet carries
+    (``damping``: :func:`bullet_linear_damping`'s, empty on btMultiBody
+    bases) and which is applied as an external force."""
+    drag = dragged(scene)
+    if not drag:
+        return
+    if damping:
+        notes.append("linear drag: Bullet's linearDamping d = 1 - e^(-c_linear / m) per body (the velocity is "
+                     "scaled by (1 - d)^dt each step, the exact decay of m v' = -c_linear v)")
+    external = [(i, c1, c2) for i, c1, c2 in drag if c2 > 0 or i not in damping]
+    if not external:
+        info["drag"] = "Bullet's linearDamping = 1 - e^(-c_linear / m)"
+        return
+    why = ("Bullet has no quadratic drag" if any(c2 > 0 for _, _, c2 in external) else
+           "a btMultiBody base's damping is -m d (1 + |v|) v, another law")
+    if not maximal and any(c1 > 0 for _, c1, _ in external) and "quadratic" in why:
+        why += "; a btMultiBody base's damping is another law"
+    info["drag"] = f"{DRAG_EXTERNAL} ({why})" + ("; linear drag: Bullet's linearDamping" if damping else "")
+    notes.append(f"{DRAG_NOTE} ({why})" if not damping else
+                 f"quadratic drag: {DRAG_EXTERNAL}, F = -c_quadratic |v| v at the centre of mass from the velocity "
+                 "at the start of each step (explicit)")
+
+
+def pymunk_damping(scene: Scene) -> tuple[float | None, str]:
+    """pymunk's ``space.damping`` (velocity kept per second) for the spec's
+    linear drag, e^(-c_linear / m), or why not: it is one value for the
+    whole space and damps the angular velocity too, so every body must have
+    the same c_linear / m, no quadratic drag, and none may spin (no initial
+    angular velocity, no friction or springs to turn one).  (None, "")
+    without drag."""
+    c1, c2 = drag_coefficients(scene)
+    if not (np.any(c1 > 0) or np.any(c2 > 0)):
+        return None, ""
+    if np.any(c2 > 0):
+        return None, "pymunk has no quadratic drag"
+    k = c1 / np.array([b.mass for b in scene.bodies], float)
+    if np.ptp(k) > 1e-12 * float(np.max(k)):
+        return None, "the bodies' c_linear / m differ, and pymunk's damping is one value for the space"
+    if scene.has("friction") or scene.springs or any(np.any(b.angular_velocity != 0) for b in scene.bodies):
+        return None, "pymunk's damping damps the angular velocity too"
+    return float(math.exp(-float(k[0]))), ""
+
+
 class PybulletForces:
     """Springs, dampers and drag as pybullet world-frame external forces
     (``applyExternalForce(..., WORLD_FRAME)``, cleared by Bullet after each
@@ -56,11 +155,15 @@ class PybulletForces:
     quaternions, world velocities); nothing is converted to physbench's
     conventions here."""
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, damped: frozenset[int] = frozenset()) -> None:
+        """``damped``: bodies whose linear drag Bullet's linearDamping
+        carries (:func:`bullet_linear_damping`): their c_linear is left out
+        here."""
         self.springs = [(sp.a, sp.b, tuple(map(float, sp.anchor_a)), tuple(map(float, sp.anchor_b)),
                          float(sp.stiffness), float(sp.rest_length), float(sp.damping))
                         for sp in scene.springs if sp.stiffness != 0.0 or sp.damping != 0.0]
-        self.drag = dragged(scene)
+        self.drag = [(i, 0.0 if i in damped else c1, c2) for i, c1, c2 in dragged(scene)
+                     if c2 > 0.0 or i not in damped]
         involved = {i for sp in self.springs for i in sp[:2] if i >= 0} | {i for i, _, _ in self.drag}
         self.bodies = sorted(involved)
         self.kinds = sorted(({"spring"} if self.springs else set()) | ({"drag"} if self.drag else set()))

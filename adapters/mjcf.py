@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from physbench.contract.scene import Scene
+from physbench.adapters.forces import mujoco_fluid
 
 #: setting value -> MJCF <option integrator=...> (mjINT_EULER, mjINT_RK4, ...)
 INTEGRATORS = {"euler": "Euler", "rk4": "RK4", "implicit": "implicit", "implicitfast": "implicitfast"}
@@ -72,13 +73,16 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
     pair's calibrated ``solref`` (by index into ``scene.contact_pairs()``);
     appends notes on what MuJoCo cannot model to ``notes``.  Returns (xml,
     meta: dynamic_contacts, explicit_pairs, condim, tendons, mass_scale
-    (:func:`mass_scale`))."""
+    (:func:`mass_scale`), fluid (:func:`adapters.forces.mujoco_fluid`'s
+    parameters when MuJoCo's fluid model carries the drag, else None),
+    fluid_refused (why it cannot, '' without drag))."""
     dt = float(settings["dt"])
     mscale = mass_scale(scene)
     if mscale != 1.0:
         notes.append(f"masses, inertias, springs and drag are scaled by {mscale:g} in MuJoCo's model (the motion "
                      f"is unchanged): its compiler refuses a mass or principal inertia below mjMINVAL = 1e-15")
     integrator = settings["integrator"]
+    fluid, fluid_refused = mujoco_fluid(scene, mscale)
     contact = scene.has("contact")
     pairs = scene.contact_pairs()
 
@@ -115,7 +119,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
     if not contact:
         flags.append('contact="disable"')
     if not scene.springs:
-        flags.append('spring="disable" damper="disable"')
+        # the damper flag also gates the fluid forces (no joint has damping)
+        flags.append('spring="disable"' + ('' if fluid else ' damper="disable"'))
     flags.append(f'speculative="{"enable" if settings["speculative"] else "disable"}"')
     integ_xml = INTEGRATORS[integrator]
     lines = [
@@ -123,7 +128,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
         f'  <option timestep="{_f(dt)}" gravity="{_v(scene.gravity)}" integrator="{integ_xml}" '
         f'cone="{settings["cone"]}" impratio="{_f(settings["impratio"])}" '
-        f'iterations="{int(settings["iterations"])}" noslip_iterations="{int(settings["noslip_iterations"])}">',
+        f'iterations="{int(settings["iterations"])}" noslip_iterations="{int(settings["noslip_iterations"])}"'
+        + (f' density="{_f(fluid["density"])}" viscosity="{_f(fluid["viscosity"])}"' if fluid else "") + '>',
         f'    <flag {" ".join(flags)}/>',
         '  </option>',
         '  <worldbody>',
@@ -153,7 +159,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         lines.append('      <freejoint/>')
         lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass * mscale)}" '
                      f'diaginertia="{_v(np.multiply(b.inertia, mscale))}"/>')
-        lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}/>')
+        fl = f' fluidshape="ellipsoid" fluidcoef="{_f(fluid["blunt"][b.index])} 0 0 0 0"' if fluid else ""
+        lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}{fl}/>')
         for k, sp in enumerate(scene.springs):
             if sp.a == b.index:
                 lines.append(f'      <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
@@ -186,6 +193,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         "condim": (condims[0] if len(condims) == 1 else condims) if condims else None,
         "tendons": len(scene.springs),
         "mass_scale": mscale,
+        "fluid": fluid,
+        "fluid_refused": fluid_refused,
     }
     return "\n".join(lines) + "\n", meta
 

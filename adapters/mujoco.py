@@ -51,9 +51,13 @@ Effects (everything absent is switched off)
     spring, damper  a spatial tendon between two sites with ``stiffness``,
                 ``damping`` and ``springlength`` = rest length: exactly a
                 Hooke spring / dashpot between the anchor points.
-    drag_linear, drag_quadratic  F = -(c1 + c2 |v|) v on the centre of mass,
-                written into ``xfrc_applied`` before every engine step from
-                the current velocity (explicit in time; no drag torque).
+    drag_linear, drag_quadratic  MuJoCo's ellipsoid fluid model calibrated
+                to F = -(c1 + c2 |v|) v where it reproduces it (spheres that
+                do not spin: :func:`adapters.forces.mujoco_fluid`), then
+                integrated by MuJoCo's integrator; else that force written
+                into ``xfrc_applied`` before every engine step from the
+                current velocity (explicit in time; no drag torque), and the
+                row says so (notes, info["drag"]).
     gyroscopic  MuJoCo always integrates w x I w and cannot switch it off: a
                 scene without the effect where it matters at t = 0 (unequal
                 inertia and w not along a principal axis) is unsupported.
@@ -82,7 +86,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from physbench.adapters.forces import drag_coefficients
+from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, drag_coefficients
 from physbench.adapters.mjcf import INTEGRATORS, build_mjcf
 from physbench.adapters.mujoco_impacts import calibrate_pairs
 from physbench.adapters.quiet import collect_mujoco_warnings
@@ -221,19 +225,28 @@ class MujocoAdapter(Adapter):
         self._ang[...] = world_to_body_angvel(q0, w0)  # world -> body frame
         mujoco.mj_forward(m, d)
 
-        # drag: F = -(c1 + c2 |v|) v into xfrc_applied before every step
+        # drag: MuJoCo's fluid model where it carries the spec's law, else
+        # F = -(c1 + c2 |v|) v into xfrc_applied before every step
+        # (tests/test_adapter_mujoco.py::test_drag_uses_the_fluid_model_where_it_can)
         c1, c2 = drag_coefficients(scene)
         c1, c2 = c1 * meta["mass_scale"], c2 * meta["mass_scale"]  # forces on the scaled masses (mjcf.mass_scale)
-        self._drag = bool(np.any(c1 > 0) or np.any(c2 > 0))
+        fluid = meta["fluid"]
+        if fluid:
+            self.info["drag"] = (f"MuJoCo's ellipsoid fluid model: viscosity {fluid['viscosity']:.6g}, density "
+                                 f"{fluid['density']:g}, blunt drag coefficient per sphere c_quadratic / (pi r^2)")
+            self.notes.append("drag: MuJoCo's ellipsoid fluid model (fluidshape=ellipsoid), calibrated to "
+                              "F = -(c_linear + c_quadratic |v|) v: viscosity c_linear / (6 pi r), density 1, blunt "
+                              "drag coefficient c_quadratic / (pi r^2), its other coefficients 0")
+        self._drag = not fluid and bool(np.any(c1 > 0) or np.any(c2 > 0))
         if self._drag:
+            self.info["drag"] = f"{DRAG_EXTERNAL} ({meta['fluid_refused']})"
             self._c1, self._c2 = c1, c2
             self._force = d.xfrc_applied[1:n + 1, 0:3]
             assert np.shares_memory(self._force, d.xfrc_applied)
             self._sq = np.empty((n, 3))
             self._speed = np.empty(n)
             self._coef_col = self._speed[:, None]
-            self.notes.append("drag is a force at the centre of mass from the velocity at the start of "
-                              "each step (explicit); no drag torque")
+            self.notes.append(f"{DRAG_NOTE} ({meta['fluid_refused']})")
         self._stages = {
             "engine": ENGINE,
             "gravity": scene.has("gravity"),
@@ -244,7 +257,7 @@ class MujocoAdapter(Adapter):
             "restitution_calibrated": len(self.info.get("restitution_calibration", [])),
             "tendon_springs": meta["tendons"],
             "mass_scale": meta["mass_scale"],
-            "drag": self._drag,
+            "drag": "fluid" if fluid else ("external" if self._drag else False),
             "gyroscopic": True,
             "integrator": settings["integrator"],
             "cone": settings["cone"],

@@ -43,10 +43,14 @@ Translation choices, each measured in ``tests/test_adapter_pybullet.py``:
   exactly when the term is provably zero (planar scenes; bodies with equal
   moments; bodies at rest or spinning about a principal axis with no torque
   source); otherwise it is reported unsupported.
-- **Springs, dampers and drag** are applied as world-frame external forces
+- **Linear drag** is Bullet's own ``linearDamping`` per body, calibrated to
+  the spec's c_linear (:func:`adapters.forces.bullet_linear_damping`;
+  btRigidBody only: a btMultiBody base's damping is another law).
+- **Springs, dampers, quadratic drag** (and linear drag on btMultiBody bases)
+  are applied as world-frame external forces
   (``applyExternalForce(..., WORLD_FRAME)``) computed from the state at the
   start of each step (explicit in the force, like the engine's own gravity;
-  :class:`adapters.forces.PybulletForces`).
+  :class:`adapters.forces.PybulletForces`), and the row says so for drag.
 - **Contacts** (measured, see the settings): by default penetration is
   corrected Baumgarte-style (``contact_erp * depth / dt`` added to the
   contact's target velocity), which adds 2.3 % of the approach speed to
@@ -83,7 +87,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import Adapter, Capabilities, Unsupported
-from physbench.adapters.forces import PybulletForces
+from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
 from physbench.adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
 from physbench.adapters.quiet import quiet_import
@@ -187,6 +191,7 @@ class PybulletAdapter(Adapter):
             return shape_cache[key]
 
         # ---- dynamic bodies ------------------------------------------------
+        damping = bullet_linear_damping(scene) if maximal else {}  # linear drag, btRigidBody's own
         min_ccd_threshold = math.inf
         for b in scene.bodies:
             if b.shape == "sphere":
@@ -205,7 +210,7 @@ class PybulletAdapter(Adapter):
             dyn = dict(
                 mass=float(b.mass),  # must accompany localInertiaDiagonal, see module docstring
                 localInertiaDiagonal=[float(c) for c in b.inertia],
-                linearDamping=0.0, angularDamping=0.0,
+                linearDamping=damping.get(k, 0.0), angularDamping=0.0,
                 lateralFriction=float(friction[k]), spinningFriction=0.0,
                 rollingFriction=float(rolling[k]), restitution=float(restitution[k]),
                 activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
@@ -261,7 +266,8 @@ class PybulletAdapter(Adapter):
         p.setGravity(float(g[0]), float(g[1]), float(g[2]), physicsClientId=cid)
 
         # ---- external forces -------------------------------------------------
-        self._forces = PybulletForces(scene) or None
+        self._forces = PybulletForces(scene, frozenset(damping)) or None
+        bullet_drag_notes(scene, damping, maximal, self.notes, self.info)
 
         self._xyzw = np.zeros((nb, 4))
         self._stage = describe_stages(scene, settings, min_ccd_threshold, self._forces.kinds if self._forces else [])

@@ -88,7 +88,8 @@ def declaration(engine: str, available: bool, why: str) -> Capabilities:
             "restitution and friction combine by product; per-body values are solved so that pairs match the spec",
             "one Coulomb coefficient: static friction = kinetic friction",
             "gyroscopic term always on (no switch)",
-            "springs, dampers and drag are applied as external forces from the state at the start of each step",
+            "linear drag is Bullet's linearDamping (btRigidBody); springs, dampers and quadratic drag are applied as "
+            "external forces from the state at the start of each step",
         ),
     )
 

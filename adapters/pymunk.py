@@ -49,9 +49,12 @@ Effects: ``gravity`` -> ``space.gravity``; without ``contact`` bodies get no
 shapes at all (no broad or narrow phase runs: cheaper than shapes filtered
 with ``ShapeFilter(categories=0)``, with the same physics: nothing collides);
 ``restitution``/``friction`` absent -> the Scene's pair values are 0;
-``spring``/``damper`` -> ``DampedSpring``; ``drag_linear``/``drag_quadratic``
--> a force F = -(c1 + c2 |v|) v on the centre of mass, set before each engine
-step; ``gyroscopic`` and ``rolling_friction`` are unsupported.
+``spring``/``damper`` -> ``DampedSpring``; ``drag_linear`` -> pymunk's own
+``space.damping`` = e^(-c1 / m) where every body shares c1 / m and none spins
+(:func:`adapters.forces.pymunk_damping`), else, and for ``drag_quadratic``,
+a force F = -(c1 + c2 |v|) v on the centre of mass set before each engine
+step (the row says so: notes, info["drag"]); ``gyroscopic`` and
+``rolling_friction`` are unsupported.
 
 Integration order (Chipmunk): each step first moves positions with the old
 velocities, x' = x + v dt, then detects contacts at x', then updates
@@ -78,7 +81,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
-from physbench.adapters.forces import DRAG_NOTE, dragged
+from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
 from physbench.adapters.materials import per_material_factors
 from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
 from physbench.adapters.pymunk_internals import BodyReader, c_stepper
@@ -202,9 +205,18 @@ class PymunkAdapter(Adapter):
                 "and integrates that damping as an exact exponential decay over each step")
 
         # -- drag -------------------------------------------------------------
-        self._drag = [(self._bodies[i], c1, c2) for i, c1, c2 in dragged(scene)]
+        # pymunk's damping where it carries the linear drag, else the force law
+        # (tests/test_adapter_pymunk.py::test_linear_drag_is_pymunk_damping)
+        damping, why = pymunk_damping(scene)
+        if damping is not None:
+            self._space.damping = damping
+            self.info["drag"] = "pymunk's space.damping = e^(-c_linear / m)"
+            self.notes.append(f"linear drag: pymunk's space.damping = e^(-c_linear / m) = {damping:.9g} (the velocity "
+                              "is scaled by damping^dt each step, the exact decay of m v' = -c_linear v)")
+        self._drag = [] if damping is not None else [(self._bodies[i], c1, c2) for i, c1, c2 in dragged(scene)]
         if self._drag:
-            self.notes.append(DRAG_NOTE)
+            self.info["drag"] = f"{DRAG_EXTERNAL} ({why})"
+            self.notes.append(f"{DRAG_NOTE} ({why})")
 
         self.notes.append(
             "pymunk integrates positions with the velocity from before the step (x' = x + v dt, "

@@ -17,6 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
+#: the words an adapter puts in a row's ``notes`` and ``info["drag"]`` when the
+#: row's drag is physbench's own force law applied as an external force, not
+#: the engine's drag model (adapters.forces; the report marks such rows)
+DRAG_EXTERNAL = "drag applied as an external force each step"
+
 
 # ---- planar (x-z) mapping -------------------------------------------------
 

@@ -558,15 +558,30 @@ def test_first_step_uses_the_exact_inertia():
 
 
 def test_linear_and_quadratic_drag():
+    """Linear drag is Bullet's own linearDamping d = 1 - e^(-c / m): the
+    velocity decays exactly as e^(-c t / m); quadratic drag (Bullet has
+    none) is the external force law, one explicit step each, and the row
+    says so."""
+    from physbench.adapters.forces import DRAG_EXTERNAL
+
     m, dt = 2.0, 0.01
     for effect, key, c in (("drag_linear", "drag_linear", 0.5), ("drag_quadratic", "drag_quadratic", 0.3)):
         scene = make_scene([effect], [sphere(m=m, vel=(3, 0, 4), **{key: c})], duration=1.0, dt=dt)
-        _, tr = ok_run(scene)
+        res, tr = ok_run(scene)
         v = np.array([3.0, 0.0, 4.0])
+        if effect == "drag_linear":
+            assert res.info["drag"].startswith("Bullet's linearDamping")
+            assert not any(DRAG_EXTERNAL in n for n in res.notes)
+            np.testing.assert_allclose(tr.vel[:, 0], np.outer(np.exp(-c * tr.t / m), v), rtol=1e-12, atol=1e-14)
+            continue
+        assert res.info["drag"].startswith(DRAG_EXTERNAL) and any(DRAG_EXTERNAL in n for n in res.notes)
         for f in range(1, len(tr.t)):
-            coef = c if effect == "drag_linear" else c * np.linalg.norm(v)
-            v = v - dt * coef * v / m
+            v = v - dt * c * np.linalg.norm(v) * v / m
             assert np.allclose(tr.vel[f, 0], v, rtol=1e-12, atol=1e-14)
+    # btMultiBody bases damp by another law: their linear drag is the force law
+    scene = make_scene(["drag_linear"], [sphere(m=m, vel=(3, 0, 4), drag_linear=0.5)], duration=0.1, dt=dt)
+    res, _ = ok_run(scene, {"maximal_coordinates": False})
+    assert res.info["drag"].startswith(DRAG_EXTERNAL)
 
 
 def test_rolling_friction_deceleration():

@@ -665,6 +665,24 @@ def test_drag(tmp_path):
     np.testing.assert_allclose(tr.vel[:, :, 0] / tr.vel[:, :, 2], 0.75, rtol=1e-12)
 
 
+def test_linear_drag_is_pymunk_damping(tmp_path):
+    """Linear drag alone, one c / m for every body: pymunk's own
+    space.damping = e^(-c / m), so the speed decays exactly as e^(-c t / m)
+    (the explicit force law read (1 - c dt / m)^k); with quadratic drag in
+    the scene (test_drag) pymunk has no model and the row says so."""
+    from physbench.adapters.forces import DRAG_EXTERNAL
+
+    text = DRAG.replace('effects = ["drag_linear", "drag_quadratic"]', 'effects = ["drag_linear"]').replace(
+        "drag_quadratic = 0.5", "drag_linear = 0.5")
+    r, tr = run_ok(scene_from(tmp_path, text))
+    assert r.info["drag"].startswith("pymunk's space.damping") and r.stages["drag_bodies"] == 0
+    assert not any(DRAG_EXTERNAL in n for n in r.notes)
+    speed = np.linalg.norm(tr.vel, axis=2)
+    np.testing.assert_allclose(speed, np.repeat(5.0 * np.exp(-0.5 * tr.t / 2.0)[:, None], 2, axis=1), rtol=1e-12)
+    r, _ = run_ok(scene_from(tmp_path, DRAG))
+    assert r.info["drag"] == f"{DRAG_EXTERNAL} (pymunk has no quadratic drag)"
+
+
 # ---------------------------------------------------------------------------
 # state reads
 

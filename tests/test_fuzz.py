@@ -359,7 +359,7 @@ def test_incline_block_refuses_a_run_that_ends_before_the_stop(tmp_path, variant
     a run that ends before t_stop has nothing to measure after it, and the
     model refuses it at load (exit 2, scenario.duration) as slide_to_rest
     does.  Found by the fuzz (its runs are cut to a few steps): the
-    stick_creep metric took the maximum over no frames, and a run cut short
+    stop metric (stop_position_error) took the maximum over no frames, and a run cut short
     became `error: metrics failed: ValueError: zero-size array`; a run
     still cut short after loading gets the model's reason instead."""
     from physbench.contract.spec import ModelRefusal

@@ -233,7 +233,7 @@ def test_slide_to_rest_closed_form_and_reference_engine(tmp_path, angle, u0):
     r = run(sc, "reference")
     assert r.status == "ok"
     out = r.metrics
-    print(angle, u0, {k: out[k] for k in ("stop_distance_error", "stop_time_error", "stick_creep")})
+    print(angle, u0, {k: out[k] for k in ("stop_distance_error", "stop_time_error", "stop_position_error", "creep")})
     assert out["stop_distance_error"] <= 1e-6
     assert out["stop_time_error"] <= 1e-6
 
@@ -271,13 +271,58 @@ def test_damped_oscillator_on_the_reference_engine(sid):
         assert out["decay_rate_error"] <= 1e-6
 
 
+def _lowest_by_ode(y0: float, v0: float, gam: float, w0: float, T: float) -> float:
+    """min_t y over [0, T] of y'' + 2 gam y' + w0^2 y = 0 from (y0, v0),
+    by an independent numerical solution with an event at y' = 0."""
+    sol = solve_ivp(lambda _t, y: [y[1], -2 * gam * y[1] - w0 * w0 * y[0]], (0, T), [y0, v0],
+                    events=lambda _t, y: y[1], rtol=1e-12, atol=1e-14, dense_output=True)
+    cands = [y0, *sol.y_events[0][:, 0], sol.y[0, -1]]
+    return float(min(cands))
+
+
+@pytest.mark.parametrize("zeta,v0", [(2.0, 5.0), (2.0, 9.0), (1.0, 4.0), (0.3, 2.0), (0.0, 1.0), (3.0, -2.0)])
+def test_damped_oscillator_bounds_the_real_motion(zeta, v0):
+    """The anchor bound is the motion's real lowest point, damping included.
+    forces.damped_spring (k 40 N/m, 1 kg: w0 = 6.3246 rad/s, s_eq =
+    0.74525 m below the anchor) started at equilibrium, thrown up toward
+    the anchor at v0: the undamped bound |y0| + v0 / w0 = 0.79 m for 5 m/s
+    reached the anchor, though with zeta = 2 the body rises only 0.173 m.
+    Checked against an independent numerical solution; a throw that does
+    reach the anchor is still refused."""
+    w0 = math.sqrt(40.0)
+    c = 2 * zeta * w0
+    z_eq = 2.0 - (0.5 + 9.81 / 40.0)
+    over = {"spring[0].damping": c, "body[0].position": [0.0, 0.0, z_eq], "body[0].velocity": [0.0, 0.0, v0]}
+    truth = _lowest_by_ode(0.0, -v0, zeta * w0, w0, 20.0)  # y along e = -z: thrown up is y' < 0
+    if 0.74525 + truth > 0:
+        m = get_model("damped_oscillator")(load_scene("forces.damped_spring", overrides=over))
+        assert m.y0 == pytest.approx(0.0, abs=1e-9) and m.v0 == pytest.approx(-v0)
+        assert m.lowest() == pytest.approx(truth, abs=1e-9)
+    else:
+        with pytest.raises(SpecError, match="would reach the spring's anchor"):
+            load_scene("forces.damped_spring", overrides=over)
+
+
+def test_damped_oscillator_overdamped_throw_loads():
+    """The scene the old bound refused: zeta = 2, thrown up at 5 m/s from
+    equilibrium; by hand y = v0 / (r1 - r2) (e^(r1 t) - e^(r2 t)) with
+    r = -gamma +- sqrt(gamma^2 - w0^2) = -1.694659, -23.603562 1/s peaks at
+    t = ln(r2 / r1) / (r1 - r2) = 0.120221 s, 0.172787 m above it."""
+    w0 = math.sqrt(40.0)
+    z_eq = 2.0 - (0.5 + 9.81 / 40.0)
+    m = get_model("damped_oscillator")(load_scene("forces.damped_spring", overrides={
+        "spring[0].damping": 4 * w0, "body[0].position": [0.0, 0.0, z_eq], "body[0].velocity": [0.0, 0.0, 5.0]}))
+    assert m.stationary_times() == pytest.approx([0.120221], abs=1e-6)
+    assert m.lowest() == pytest.approx(-0.172787, abs=1e-6)
+
+
 def test_damped_oscillator_refuses_what_it_cannot_model():
     with pytest.raises(SpecError, match=r"spring\[0\]\.anchor_b"):
         load_scene("forces.damped_spring", overrides={"spring[0].anchor_b": [0.1, 0.0, 0.0]})
     with pytest.raises(SpecError, match=r"body: .*along the spring's line"):
         load_scene("forces.damped_spring", overrides={"body[0].velocity": [1.0, 0.0, 0.0]})
     with pytest.raises(SpecError, match="would reach the spring's anchor"):
-        load_scene("forces.damped_spring", overrides={"body[0].position": [0.0, 0.0, 0.5]})
+        load_scene("forces.damped_spring", overrides={"body[0].position": [0.0, 0.0, 0.2]})
 
 
 # ---------------------------------------------------------------------------

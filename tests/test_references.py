@@ -166,7 +166,7 @@ def test_incline_block_slides_30deg_mu_0_2():
     out = m.metrics(_along_slope_trace(m, 3.2058582, 2.0))
     assert out["slide_accel_error"] == pytest.approx(0.0, abs=1e-6)
     assert out["trajectory_rmse"] == pytest.approx(0.0, abs=1e-6)
-    assert "stick_creep" not in out
+    assert "stop_position_error" not in out and "creep" not in out
     # a block accelerating 1 % too fast
     out = m.metrics(_along_slope_trace(m, 1.01 * m.a_slide, 2.0))
     assert out["slide_accel_error"] == pytest.approx(0.01, rel=1e-9)
@@ -182,7 +182,9 @@ def test_incline_block_sticks_below_friction_angle():
     # in-plane 2 mm counts
     pos = m.x0 + np.outer(0.002 * t / 5.0, m.d) - np.outer(0.0005 * np.minimum(t, 1.0), m.n)
     out = m.metrics(make_trace(t, pos[:, None]))
-    assert out["stick_creep"] == pytest.approx(0.002, rel=1e-9)
+    # at rest from the start: both measure the displacement from the start
+    assert out["creep"] == pytest.approx(0.002, rel=1e-9)
+    assert out["stop_position_error"] == pytest.approx(0.002, rel=1e-9)
     assert "slide_accel_error" not in out
 
 
@@ -225,13 +227,57 @@ def test_incline_block_thrown_uphill_stops_and_slides_back():
     assert out["final_position_error"] == pytest.approx(0.0, abs=1e-12)
     assert out["slide_accel_error"] == pytest.approx(0.0, abs=1e-9)
     assert out["return_accel_error"] == pytest.approx(0.0, abs=1e-9)
-    assert "stick_creep" not in out
+    assert "stop_position_error" not in out and "creep" not in out
     # a turnaround 1/480 s late (half a step at 1/240 s): the slide back keeps
     # its acceleration but ends a_back * delay * (T - t_stop - delay / 2) off
     d = 1 / 480
     out = m.metrics(trace(d))
     assert out["return_accel_error"] == pytest.approx(0.0, abs=1e-9)
     assert out["final_position_error"] == pytest.approx(m.a_back * d * (1.5 - m.t_stop - d / 2), rel=1e-9)
+
+
+def test_stop_position_error_and_creep_are_apart():
+    """friction.box_slides_to_rest (2 m/s, mu_k 0.4 on the level: stops
+    after d = 4 / (2 * 0.4 * 9.81) = 0.509684 m at t = 0.509684 s).  A box
+    that decelerates too weakly, stops 5 mm past that point, and then creeps
+    2 mm further: stop_position_error (from the reference stop point) reads
+    7 mm, creep (from where it came to rest) 2 mm; a box that stops exactly
+    where it should and stays reads 0 for both.  One that never comes to
+    rest has no creep, with the reason."""
+    from physbench.harness.references import undefined_reason
+
+    m = get_model("slide_to_rest")(load_scene("friction.box_slides_to_rest"))
+    d_ref = 4.0 / (2 * 0.4 * G)
+    assert m.d_stop == pytest.approx(d_ref, rel=1e-12) and m.t_stop == pytest.approx(d_ref, rel=1e-12)
+    t = np.linspace(0.0, 1.0, 1001)
+
+    def trace(d_stop, creep):
+        a = 4.0 / (2 * d_stop)  # the deceleration that stops 2 m/s after d_stop
+        ts = 2.0 / a
+        s = np.where(t < ts, 2.0 * t - 0.5 * a * t * t, d_stop + creep * (t - ts) / (1.0 - ts))
+        v = np.where(t < ts, 2.0 - a * t, creep / (1.0 - ts))
+        return make_trace(t, (m.x0 + np.outer(s, m.d))[:, None], np.outer(v, m.d)[:, None])
+
+    out = m.metrics(trace(d_ref, 0.0))
+    assert out["stop_position_error"] == pytest.approx(0.0, abs=1e-12)
+    assert out["creep"] == pytest.approx(0.0, abs=1e-12)
+    out = m.metrics(trace(d_ref + 0.005, 0.002))
+    assert out["stop_position_error"] == pytest.approx(0.007, abs=1e-12)
+    # at rest from the last decelerating frame (speed <= a dt = 3.9 mm/s,
+    # still moving at the next): at most a dt^2 / 2 = 2e-6 m short of the
+    # stop, then the 2 mm
+    assert out["creep"] == pytest.approx(0.002, abs=2e-6)
+    # a soft stop: the closed form down to 10 mm/s, then an exponential tail
+    # (time constant 50 ms) that never reaches zero: at rest from the first
+    # frame at <= a dt (3.9 mm/s), creep the tail's rest, <= 3.9e-3 * 0.05 m
+    a, t1, tau = 2.0 / m.t_stop, m.t_stop - 0.01 / (2.0 / m.t_stop), 0.05
+    v = np.where(t < t1, 2.0 - a * t, 0.01 * np.exp(-(t - t1) / tau))
+    s = np.where(t < t1, 2.0 * t - 0.5 * a * t * t, 2.0 * t1 - 0.5 * a * t1 * t1 + 0.01 * tau * (1 - np.exp(-(t - t1) / tau)))
+    out = m.metrics(make_trace(t, (m.x0 + np.outer(s, m.d))[:, None], np.outer(v, m.d)[:, None]))
+    assert 0.0 < out["creep"] <= a * 1e-3 * tau
+    never = make_trace(t, (m.x0 + np.outer(0.5 * t, m.d))[:, None], np.outer(np.full_like(t, 0.5), m.d)[:, None])
+    out = m.metrics(never)
+    assert math.isnan(out["creep"]) and "never came to rest" in undefined_reason(out, "creep")
 
 
 # ---------------------------------------------------------------------------
@@ -372,7 +418,8 @@ def test_rolling_resistance_metrics_on_exact_and_planted_traces():
     assert out["roll_accel_error"] == pytest.approx(0.0, abs=1e-9)
     assert out["spin_accel_error"] == pytest.approx(0.0, abs=1e-9)
     assert out["rolling_slip"] == pytest.approx(0.0, abs=1e-12)
-    assert out["stick_creep"] == pytest.approx(0.0, abs=1e-12)
+    assert out["stop_position_error"] == pytest.approx(0.0, abs=1e-12)
+    assert out["creep"] == pytest.approx(0.0, abs=1e-12)
     assert out["final_position_error"] == pytest.approx(0.0, abs=1e-12)
     # planted: 2 % weaker deceleration, and a slip of 0.03 m/s
     a2 = 0.98 * m.phases[0][3]
@@ -381,9 +428,12 @@ def test_rolling_resistance_metrics_on_exact_and_planted_traces():
                                angvel=np.outer((u2 - 0.03) / m.R, m.axis)[:, None]))
     assert out["roll_accel_error"] == pytest.approx(0.02, abs=1e-9)
     assert out["rolling_slip"] == pytest.approx(0.03, abs=1e-9)
-    # a ball that stops 5 mm too far and stays there
-    out = m.metrics(make_trace(t, (pos + np.outer(np.where(t >= m.t_stop, 0.005, 0.0), m.d))[:, None]))
-    assert out["stick_creep"] == pytest.approx(0.005, abs=1e-12)
+    # a ball that stops 5 mm too far and stays there: off the stop point,
+    # no creep
+    out = m.metrics(make_trace(t, (pos + np.outer(np.where(t >= m.t_stop, 0.005, 0.0), m.d))[:, None],
+                               vel[:, None]))
+    assert out["stop_position_error"] == pytest.approx(0.005, abs=1e-12)
+    assert out["creep"] == pytest.approx(0.0, abs=1e-12)
     assert out["final_position_error"] == pytest.approx(0.005, abs=1e-12)
 
 
@@ -567,14 +617,62 @@ def test_bounce_heights_e_0_5():
     assert m.height(np.array([1.36, 2.0])) == pytest.approx([0.0, 0.0], abs=1e-12)
     assert m.height(np.array([m.t1 + 0.5 * m.v1 / G]))[0] == pytest.approx(0.25)
     out = m.metrics(_bounce_trace(1.0, 0.5, 0.05, 3.0))
-    assert out["bounce_ratio_error"] < 2e-3  # sampling of the apex only
+    assert out["bounce_ratio_error"] < 1e-9  # apexes from the state: no sampling floor
     assert out["trajectory_rmse"] < 1e-3
     # a ball that bounces with e = 0.6 instead: error 0.1
     out = m.metrics(_bounce_trace(1.0, 0.6, 0.05, 3.0))
-    assert out["bounce_ratio_error"] == pytest.approx(0.1, abs=2e-3)
+    assert out["bounce_ratio_error"] == pytest.approx(0.1, abs=1e-9)
     # a ball that does not bounce at all: error e
     out = m.metrics(_bounce_trace(1.0, 0.0, 0.05, 3.0))
     assert out["bounce_ratio_error"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("dt", [1e-3, 1 / 60])
+def test_bounce_apex_comes_from_the_state(dt):
+    """Each apex is h + v^2 / (2 g) at the frame where the flight turns
+    down, not the highest sampled frame (which misses it by up to
+    g dt^2 / 8, 0.35 mm at 1/60 s: e_3 = sqrt(A_3 / A_2) off by ~1e-2).
+    Planted: bounces with e = 0.5 but the second rebound 1 % faster
+    (apex A_2 = 0.0625 * 1.01^2): e_2 = 0.505, e_3 = 0.5 / 1.01, so the
+    error is max(0.005, 0.5 - 0.5 / 1.01) = 0.005 exactly, at either frame
+    rate."""
+    m = get_model("bounce_heights")(scene_from(BOUNCE))
+    t = np.arange(0.0, 3.0 + dt / 2, dt)
+    # event-driven by hand: drop from 1 m, rebound speeds v1 e, v1 e^2 1.01, v1 e^3 1.01
+    v1 = math.sqrt(2 * G)
+    ups = [0.5 * v1, 0.25 * v1 * 1.01, 0.125 * v1 * 1.01, 0.0625 * v1 * 1.01]
+    t_b = [math.sqrt(2 / G)]
+    for u in ups[:-1]:
+        t_b.append(t_b[-1] + 2 * u / G)
+    h = 1.0 - 0.5 * G * t * t
+    vz = -G * t
+    for tb, u in zip(t_b, ups):
+        s = t - tb
+        fl = s >= 0
+        h[fl] = u * s[fl] - 0.5 * G * s[fl] ** 2
+        vz[fl] = u - G * s[fl]
+    h = np.maximum(h, 0.0)
+    pos = np.zeros((len(t), 1, 3))
+    pos[:, 0, 2] = h + 0.05
+    vel = np.zeros((len(t), 1, 3))
+    vel[:, 0, 2] = vz
+    tr = make_trace(t, pos, vel)
+    apexes = m.measured_apexes(tr)
+    np.testing.assert_allclose(apexes[:3], [u * u / (2 * G) for u in ups[:3]], rtol=1e-12)
+    out = m.metrics(tr)
+    assert out["bounce_ratio_error"] == pytest.approx(0.005, abs=1e-12)
+
+
+def test_bounce_ratio_is_exact_on_the_reference_engine():
+    """The reference engine's flights are exact (h + v^2 / 2g conserved to
+    round-off): the metric reads round-off, not frame sampling (it read
+    2.4e-5 at e^2 = 0.98 from the highest sampled frame)."""
+    from physbench.harness.runner import run
+
+    for over in ({}, {"material.default.restitution": math.sqrt(0.98)}):
+        res = run(load_scene("billiards.ball_drop_bounce", overrides=over), "reference")
+        assert res.status == "ok", res.message
+        assert res.metrics["bounce_ratio_error"] <= 1e-9, (over, res.metrics["bounce_ratio_error"])
 
 
 # ---------------------------------------------------------------------------

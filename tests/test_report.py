@@ -874,3 +874,22 @@ def test_pooled_noise_of_the_engine_widens_a_quiet_series_threshold():
     # with no other series the same steady one is flagged (the 10 % floor rules)
     reg1 = rp.regressions(_many_series(1, [[0.01, 0.01, 0.01, 0.0125]]))
     assert list(reg1["scenario"]) == ["fam.s000"]
+
+
+def test_report_marks_drag_applied_by_physbench(tmp_path):
+    """A row whose notes say its drag was physbench's force law applied as an
+    external force (not the engine's drag model) is listed by engine and
+    scenario under "Drag applied by physbench"; rows with the engine's own
+    drag, or none, are not."""
+    from physbench.contract.conventions import DRAG_EXTERNAL
+
+    ext = row(engine="pybullet", scenario="forces.drag_quadratic_fall")
+    ext["notes"] = json.dumps([f"{DRAG_EXTERNAL}: F = -(c_linear + c_quadratic |v|) v ... (Bullet has no quadratic drag)"])
+    own = row(engine="mujoco", scenario="forces.drag_quadratic_fall")
+    own["notes"] = json.dumps(["drag: MuJoCo's ellipsoid fluid model (fluidshape=ellipsoid), calibrated ..."])
+    page = rp.render_html(load(tmp_path, [ext, own, row()]), physbench_commit="x")
+    assert "Drag applied by physbench" in page
+    section = page.split("Drag applied by physbench", 1)[1].split("</table>", 1)[0]
+    assert "pybullet" in section and "forces.drag_quadratic_fall" in section and "mujoco" not in section
+    page = rp.render_html(load(tmp_path / "b", [own, row()]), physbench_commit="x")
+    assert "Drag applied by physbench" not in page

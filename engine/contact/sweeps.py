@@ -212,6 +212,34 @@ def _onto_disc(new, i, lim, pinned, d):
         new[i + 1] = -lim * d[1]
 
 
+@njit(cache=True, inline="always")
+def _rolling_step(mt, lam_t, p, new, lim):
+    """The rolling rows' update ``new[3:5]`` of a patch on the rim of its
+    disc (radius ``lim``), given the per-row update lam - mt w_r in
+    ``new``: when the two rows' effective masses differ (a cylinder's axis
+    between the patch tangents) and the per-row update leaves the disc, one
+    common step lam - m w_r, m = 2 / (1/mt3 + 1/mt4), for both rows.  A
+    common step keeps the update along the rolling velocity w_r, so the
+    rim's fixed point is lam = -lim w_r / |w_r|: mu_r Fn against the
+    rolling (maximum dissipation).  Per-row steps turned it off w_r by the
+    anisotropy of the rows' effective masses, whatever the iterations
+    (tests/test_engine_friction.py::test_cylinder_rolling_resistance_at_every_heading).
+    At that fixed point the per-row update also lands outside the disc, so
+    the switch is consistent; m <= 2 / lambda_max of the 2x2 block, so the
+    sweeps still converge.  Inside the disc (a patch that holds) nothing
+    changes, bit for bit; a sphere's two mt differ by round-off at most, and
+    so does its step (friction.rolling_resistance moved by <= 2.3e-15 m)."""
+    m3 = mt[p, 3]
+    m4 = mt[p, 4]
+    if m3 == m4 or not (m3 > 0.0 and m4 > 0.0) or new[3] * new[3] + new[4] * new[4] <= lim * lim:
+        return
+    l3 = lam_t[p, 3]
+    l4 = lam_t[p, 4]
+    m = 2.0 * m3 * m4 / (m3 + m4)
+    new[3] = l3 + (m / m3) * (new[3] - l3)  # lam - m w_r, with new - lam = -mt w_r
+    new[4] = l4 + (m / m4) * (new[4] - l4)
+
+
 @njit(cache=True)
 def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn, new):
     """One sweep of the friction patches: tangent and twist rows (Coulomb
@@ -233,6 +261,7 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
     if nr == 5:
         for p in range(npch):
             _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 3, 5, new, world)
+            _rolling_step(mt, lam_t, p, new, mur[p] * Fn[p])
             _onto_disc(new, 3, mur[p] * Fn[p], pin_r[p], dir_r[p])
             _patch_apply(U, pab, Mt, lam_t, p, 3, 5, new, world)
 

@@ -367,7 +367,9 @@ class BounceHeights(ReferenceModel):
     Metrics:
 
     - ``bounce_ratio_error``: the measured restitution of each bounce,
-      e_n = sqrt(A_n / A_{n-1}) from the measured apex heights A (A_0 = h_0),
+      e_n = sqrt(A_n / A_{n-1}) from the measured apex heights A (A_0 = h_0;
+      each A_n = h + v_n^2 / (2 g) at the frame where the normal velocity
+      turns down, so frame sampling does not limit it),
       against e: max over the first ``bounces`` (params, default 3) bounces
       whose reference apex is above 1 % of h_0 and inside the run of
       |e_n - e| (absolute; a missing bounce counts as e_n = 0).  For e = 0 the
@@ -382,7 +384,7 @@ class BounceHeights(ReferenceModel):
     params = (Param("bounces", "int", 3, "how many bounces bounce_ratio_error looks at"),)
     produces = {
         "bounce_ratio_error": "max over the first `bounces` bounces of |e_n - e|, e_n = sqrt(A_n / A_n-1) "
-                              "from measured apex heights (1)",
+                              "from measured apex heights A = h + v_n^2 / (2 g) at the turn of the flight (1)",
         "first_bounce_ratio": "measured sqrt(A_1 / h_0) (1)",
         **TRAJECTORY,
     }
@@ -504,24 +506,31 @@ class BounceHeights(ReferenceModel):
         return out
 
     def measured_apexes(self, trace) -> list[float]:
-        """Apex heights after each bounce: the highest point between an
-        upward crossing of the normal velocity (a bounce) and the next
-        downward crossing.  Apexes below 0.1 % of h_0 are contact jitter,
-        not bounces, and are ignored; a low real bounce (below the 1 % that
-        decides which *reference* bounces are checked) still counts, so a
-        weak bounce is measured as weak rather than as missing."""
+        """Apex heights (m) after each bounce, from the state: a bounce is
+        an upward crossing of the normal velocity, its apex the frame where
+        that velocity turns down again; of the two frames around the turn
+        the one nearer the top (smaller |v_n|) gives A = h + v_n^2 / (2 g),
+        the height the ballistic flight through that state reaches.  Frame
+        sampling then adds nothing: a flight that conserves h + v_n^2 / 2g
+        reads its apex to round-off (the highest sampled frame would miss it
+        by up to g dt^2 / 8; tests/test_references.py::
+        test_bounce_apex_comes_from_the_state).  Apexes below 0.1 % of h_0
+        are contact jitter, not bounces, and are ignored; a low real bounce
+        (below the 1 % that decides which *reference* bounces are checked)
+        still counts, so a weak bounce is measured as weak rather than as
+        missing."""
         h = trace.pos[:, 0] @ self.n - self.offset
         vz = trace.vel[:, 0] @ self.n
         out = []
         k = 1
         F = len(h)
         bounced = False
-        start = 0
         while k < F:
             if not bounced and vz[k - 1] <= 0 < vz[k] and k > 1:
-                bounced, start = True, k
+                bounced = True
             elif bounced and vz[k - 1] > 0 >= vz[k]:
-                A = float(np.max(h[start:k + 1]))
+                j = k if -vz[k] < vz[k - 1] else k - 1
+                A = float(h[j] + vz[j] * vz[j] / (2.0 * self.g))
                 if A >= self.JITTER_FRACTION * self.h0:
                     out.append(A)
                 bounced = False

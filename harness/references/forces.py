@@ -23,8 +23,10 @@ w0 = sqrt(k / m_eff), damping ratio zeta = gamma / w0:
 Successive extremes of an underdamped y are T / 2 apart and shrink by
 e^(-gamma T / 2): ln |y_peak| is a straight line of slope -gamma in t.
 With L0 > 0 the spring must stay on one side of its anchor (s > 0): a scene
-whose envelope reaches the anchor is refused (the force's direction would
-flip, not modelled).
+whose motion reaches the anchor is refused (the force's direction would
+flip, not modelled).  The bound is the motion's real lowest point: y0 or
+the y at the zeros of y' for t >= 0 (underdamped the first two, later
+extremes shrink; critically and overdamped at most one, the overshoot).
 
 Drag (``drag_fall``).  One body, gravity g (or none), one drag law:
 
@@ -158,10 +160,45 @@ class DampedOscillator(ReferenceModel):
         if self.amp == 0:
             raise ReferenceError("damped_oscillator needs a start away from equilibrium (displacement or speed)",
                                  key="body")
-        if self.L0 > 0 and self.s_eq - self.amp <= 0:
-            raise ReferenceError(f"damped_oscillator: the motion (amplitude {self.amp:.6g} m about {self.s_eq:.6g} m) "
-                                 "would reach the spring's anchor, where its force turns round (not modelled)",
-                                 key="spring[0].rest_length")
+        # the anchor bound is the motion's real lowest point, damping included
+        # (tests/test_references.py::test_damped_oscillator_bounds_the_real_motion)
+        self.y_min = self.lowest()
+        if self.L0 > 0 and self.s_eq + self.y_min <= 0:
+            raise ReferenceError(f"damped_oscillator: the motion (lowest point {self.y_min:.6g} m from the "
+                                 f"equilibrium at {self.s_eq:.6g} m from the anchor) would reach the spring's anchor, "
+                                 "where its force turns round (not modelled)", key="spring[0].rest_length")
+
+    def stationary_times(self) -> list[float]:
+        """Times t >= 0 (s) at which y' = 0: the extremes of the motion.
+        Underdamped, the first two (one of each sign; later ones shrink by
+        e^(-gamma T / 2)); critically and overdamped, the one overshoot if
+        there is one (y' = 0 has at most one root)."""
+        y0, v0, gm, w0 = self.y0, self.v0, self.gamma, self.w0
+        if self.zeta < 1.0:
+            wd = self.wd
+            # y' = e^(-gm t) (v0 cos wd t - (y0 wd + gm b) sin wd t), b = (v0 + gm y0) / wd
+            q = y0 * wd + gm * (v0 + gm * y0) / wd
+            phi = math.atan2(v0, q) % math.pi  # first root of tan(wd t) = v0 / q in [0, pi)
+            return [phi / wd, (phi + math.pi) / wd]
+        if self.zeta == 1.0:
+            # y' = e^(-gm t) (v0 - gm (v0 + gm y0) t)
+            den = gm * (v0 + gm * y0)
+            return [v0 / den] if den != 0 and v0 / den > 0 else []
+        root = math.sqrt(gm * gm - w0 * w0)
+        r1, r2 = -gm + root, -gm - root
+        A = (v0 - r2 * y0) / (r1 - r2)
+        B = y0 - A
+        # y' = A r1 e^(r1 t) + B r2 e^(r2 t) = 0  <=>  e^((r1 - r2) t) = -B r2 / (A r1)
+        if A == 0 or B == 0:
+            return []
+        arg = -B * r2 / (A * r1)
+        return [math.log(arg) / (r1 - r2)] if arg > 1.0 else []
+
+    def lowest(self) -> float:
+        """The least displacement y (m) over t >= 0: the start, an extreme
+        (:meth:`stationary_times`), or the equilibrium it tends to."""
+        ts = self.stationary_times()
+        return float(min([self.y0, 0.0] + list(self.y(np.array(ts, float))))) if ts else min(self.y0, 0.0)
 
     def y(self, t: np.ndarray) -> np.ndarray:
         """Displacement from equilibrium along e (m) at times t (F,)."""

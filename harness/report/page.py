@@ -28,6 +28,7 @@ from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
 from physbench.harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
 from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
+from physbench.contract.conventions import DRAG_EXTERNAL
 from physbench.harness.status import BAD_OUTCOMES, OK, OUTCOMES, XFAIL
 
 MAX_SMALL_MULTIPLES = 6
@@ -86,6 +87,22 @@ def _date(ts: Iterable[str]) -> str:
     return ts[0] if ts[0] == ts[-1] else f"{ts[0]} .. {ts[-1]}"
 
 
+def _external_drag_html(df: pd.DataFrame) -> str:
+    """The engines and scenarios whose drag was physbench's force law applied
+    as an external force, not the engine's own drag model (rows whose notes
+    carry :data:`contract.conventions.DRAG_EXTERNAL`); '' when none
+    (tests/test_report.py::test_report_marks_drag_applied_by_physbench)."""
+    if "notes" not in df.columns:
+        return ""
+    marked = df[df["notes"].map(lambda v: isinstance(v, str) and DRAG_EXTERNAL in v)]
+    if marked.empty:
+        return ""
+    rows = [[en, ", ".join(sorted(set(g["scenario"])))] for en, g in marked.groupby("engine", sort=True)]
+    return ("<h3>Drag applied by physbench</h3><p class='note'>On these rows the engine has no drag model for the "
+            f"scene, so the drag is physbench's own force law ({_e(DRAG_EXTERNAL)}): they measure physbench's force "
+            "code on that engine, not the engine's drag.</p>" + _table(["engine", "scenarios"], rows))
+
+
 def _header_html(df: pd.DataFrame) -> str:
     out = []
     machines = []
@@ -127,6 +144,7 @@ def _header_html(df: pd.DataFrame) -> str:
     for en, g in df.groupby("engine", sort=True):
         ev.append([en, ", ".join(sorted({v for v in g["engine_version"] if v})) or "-"])
     out.append("<h3>Engines</h3>" + _table(["engine", "versions"], ev))
+    out.append(_external_drag_html(df))
     commits = sorted({x for x in df["commit"] if x})
     suites = sorted({x for x in s["suite"] if x}) if not s.empty else []
     out.insert(0, f'<p>Suites: <b>{_e(", ".join(suites) or "-")}</b>. Commits covered: '

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from physbench.harness.references import TRAJECTORY, ReferenceError, divide, fit_slope
-from physbench.harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _check_axis_across, _window
+from physbench.harness.references.friction.slope import SKIP_FRACTION, STOP_METRICS, _SlopeModel, _check_axis_across, _window
 
 
 class RollingSphere(_SlopeModel):
@@ -155,11 +155,12 @@ class RollingResistance(_SlopeModel):
     phase, fitted after its first 10 % and before 90 % of t_stop, relative
     to |a|), ``roll_accel`` and ``spin_accel`` the fitted values,
     ``rolling_slip`` (m/s) the largest contact-point speed over that
-    window; ``stick_creep`` (m) for a ball that holds: its largest
-    displacement within the slope's plane from the reference stopping point
-    after it (stopping distance errors show up here and in
-    ``final_position_error``); plus ``trajectory_rmse`` and
-    ``final_position_error``.
+    window; for a body that stops (or starts at rest) and holds,
+    ``stop_position_error`` (m) its largest distance within the slope's
+    plane from the reference stop point from the reference stop time on
+    (the stop distance's error plus any creep) and ``creep`` (m) its largest
+    displacement within the slope's plane after it came to rest, from where
+    it came to rest; plus ``trajectory_rmse`` and ``final_position_error``.
     """
 
     name = "rolling_resistance"
@@ -173,7 +174,7 @@ class RollingResistance(_SlopeModel):
         "spin_accel": "fitted angular acceleration (rad/s^2)",
         "spin_accel_error": "|alpha_measured - a / R| / |a / R| (1)",
         "rolling_slip": "largest contact-point speed over the fitted window (m/s)",
-        "stick_creep": "largest displacement within the slope's plane from the reference stop after it (m)",
+        **STOP_METRICS,
         **TRAJECTORY,
     }
     primary = "roll_accel_error"
@@ -286,11 +287,7 @@ class RollingResistance(_SlopeModel):
                    "the reference angular acceleration")
             vc = trace.vel[w, i] + np.cross(trace.angvel[w, i], -self.R * self.n)
             out["rolling_slip"] = float(np.nanmax(np.linalg.norm(vc, axis=1)))
-        if math.isfinite(self.t_stop) and self.holds:
-            s_stop = float(self.distance(np.array([self.t_stop]))[0])
-            rel = trace.pos[:, i] - (self.x0 + s_stop * self.d)
-            tang = rel - np.outer(rel @ self.n, self.n)
-            after = t >= self.t_stop
-            if after.any():
-                out["stick_creep"] = float(np.nanmax(np.linalg.norm(tang[after], axis=1)))
+        if math.isfinite(self.t_stop) and self.holds and (t >= self.t_stop).any():
+            self.stop_metrics(trace, out, self.t_stop, float(self.distance(np.array([self.t_stop]))[0]),
+                              self.phases[0][3] if self.phases else 0.0)
         return out

@@ -8,15 +8,20 @@ import math
 import numpy as np
 
 from physbench.harness.references import TRAJECTORY, ReferenceError, ReferenceSeries, divide, fit_slope
-from physbench.harness.references.friction.slope import SKIP_FRACTION, _SlopeModel, _window
+from physbench.harness.references.friction.slope import SKIP_FRACTION, STOP_METRICS, _SlopeModel, _window
 
 
 class InclineBlock(_SlopeModel):
     """Block on an incline: sticks below atan(mu_s), slides above.
 
-    Metrics: ``stick_creep`` (m, sticking regime): the largest displacement
-    of the block within the slope's plane (the normal component, sinking into
-    a soft contact, left out) at any time; ``slide_accel_error`` (sliding
+    Metrics, for a block that stops (or starts at rest) and holds
+    (distances within the slope's plane: the normal component, sinking into
+    a soft contact, left out): ``stop_position_error`` (m) the largest
+    distance from the reference stop point from the reference stop time on
+    (where it stopped: the stop distance's error plus any creep);
+    ``creep`` (m) the largest displacement after the body came to rest,
+    from where it came to rest (for a start at rest both are the largest
+    displacement from the start); ``slide_accel_error`` (sliding
     regime): |a_measured - a| / |a| with a = g (sin a - mu_k cos a);
     ``slide_accel`` the measured value (m/s^2).  Each is reported only in its
     regime (a block with an initial velocity that stops reports both).
@@ -26,7 +31,7 @@ class InclineBlock(_SlopeModel):
     back down with a_back = g (sin a - mu_k cos a) from rest: then
     ``return_accel_error`` = |a_measured - a_back| / a_back over the slide
     back (after its first 10 %), ``return_accel`` the measured value, and
-    no ``stick_creep``.  The trajectory metrics follow the whole path: a
+    no ``stop_position_error`` or ``creep``.  The trajectory metrics follow the whole path: a
     turnaround late by a fraction of a step leaves a constant velocity
     error, and the position error grows linearly after it.
     """
@@ -39,7 +44,7 @@ class InclineBlock(_SlopeModel):
     produces = {
         "slide_accel": "measured acceleration along the slope while sliding (m/s^2)",
         "slide_accel_error": "|a_measured - a| / |a| while sliding (1)",
-        "stick_creep": "largest displacement within the slope's plane after the (reference) stop (m)",
+        **STOP_METRICS,
         "return_accel": "measured acceleration of the slide back after a stop on a steep slope (m/s^2)",
         "return_accel_error": "|a_measured - a_back| / a_back (1)",
         **TRAJECTORY,
@@ -73,7 +78,7 @@ class InclineBlock(_SlopeModel):
                 f"{self.name}: the block slides at a constant {u0:g} m/s (slope {math.degrees(self.theta):g} deg, "
                 f"mu_k = {self.mu_k:g}): there is no acceleration to measure and no stop; give it friction, a "
                 "slope, or no speed", key=f"static[{self.slope.index}]")
-        # what follows the stop (stick_creep, return_accel) needs frames after it
+        # what follows the stop (stop_position_error, creep, return_accel) needs frames after it
         # (tests/test_fuzz.py::test_incline_block_refuses_a_run_that_ends_before_the_stop)
         if 0 < self.t_stop < math.inf and scene.duration <= self.t_stop:
             raise self._ends_before_stop(scene.duration)
@@ -120,14 +125,9 @@ class InclineBlock(_SlopeModel):
         out = super().metrics(trace)
         i = self.body.index
         if math.isfinite(self.t_stop) and not self.a_back:
-            # displacement within the slope plane after the (reference) stop
-            s_stop = float(self.distance(np.array([self.t_stop]))[0])
-            rel = trace.pos[:, i] - (self.x0 + s_stop * self.d)
-            tang = rel - np.outer(rel @ self.n, self.n)
-            after = trace.t >= self.t_stop
-            if not after.any():
+            if not (trace.t >= self.t_stop).any():
                 raise self._ends_before_stop(float(trace.t[-1]))
-            out["stick_creep"] = float(np.nanmax(np.linalg.norm(tang[after], axis=1)))
+            self.stop_metrics(trace, out, self.t_stop, float(self.distance(np.array([self.t_stop]))[0]), self.a_slide)
         if self.t_stop > 0:
             w = _window(trace.t)
             if math.isfinite(self.t_stop):
@@ -166,7 +166,7 @@ class SlideToRest(InclineBlock):
     ``stop_time`` (s) where the least-squares line of the speed along the
     motion (10 % to 90 % of t_stop) reaches zero, ``stop_time_error`` =
     |t_meas - t_stop| / t_stop; incline_block's ``slide_accel(_error)``,
-    ``stick_creep`` and the trajectory metrics.
+    ``stop_position_error``, ``creep`` and the trajectory metrics.
     """
 
     name = "slide_to_rest"
@@ -184,7 +184,7 @@ class SlideToRest(InclineBlock):
         "stop_time_error": "|t_measured - t_stop| / t_stop (1)",
         "slide_accel": InclineBlock.produces["slide_accel"],
         "slide_accel_error": InclineBlock.produces["slide_accel_error"],
-        "stick_creep": InclineBlock.produces["stick_creep"],
+        **STOP_METRICS,
         **TRAJECTORY,
     }
     primary = "stop_distance_error"

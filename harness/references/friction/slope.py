@@ -10,9 +10,18 @@ import numpy as np
 
 from physbench.contract.rotation import quat_to_matrix
 from physbench.harness.references import (BODY_PARAM, Param, ReferenceError, ReferenceModel, ReferenceSeries, fit_slope,
-                                trajectory_metrics)
+                                trajectory_metrics, undefined)
 
 SKIP_FRACTION = 0.10  # initial part of the run left out of acceleration fits
+#: the two metrics of a body that comes to rest and should stay there
+STOP_METRICS = {
+    "stop_position_error": "largest distance within the slope's plane from the reference stop point, over the "
+                           "frames from the reference stop time on (m)",
+    "creep": "largest displacement within the slope's plane after the body came to rest, from its position then: "
+             "the first frame whose speed along the initial motion is at most |a| dt_frame (what the reference "
+             "deceleration a takes off in one frame interval) and either <= 0 or still > 0 at the next frame; "
+             "the first frame for a start at rest (m)",
+}
 
 
 def _window(t: np.ndarray) -> slice:
@@ -100,3 +109,44 @@ class _SlopeModel(ReferenceModel):
         i = self.body.index
         ref = self.positions(trace.t)
         return trajectory_metrics(trace.pos[:, [i]], ref[:, [i]])
+
+    def stop_metrics(self, trace, out: dict, t_stop: float, s_stop: float, decel: float) -> None:
+        """``stop_position_error`` and ``creep`` (:data:`STOP_METRICS`, m)
+        into ``out`` for a body the model stops at ``t_stop`` (s) after
+        ``s_stop`` (m) downhill, decelerating at ``decel`` (m/s^2), and
+        holds there.  The first measures where it stopped (the stop
+        distance's error, plus any creep), the second only how far it moved
+        once at rest, from wherever that was
+        (tests/test_references.py::test_stop_position_error_and_creep_are_apart).
+        At rest: the first frame k whose speed along the initial motion is
+        <= |decel| (t_k+1 - t_k) (a body still sliding or rolling with that
+        speed stops within the frame interval) and that is either stopped
+        (speed <= 0) or still moving on at the next frame (a soft stop's slow
+        tail, or creep): an engine that stops the body dead reads creep 0
+        from the frame it stopped at, not from the frame before.  ``creep``
+        is undefined for a body that never came to rest in the run."""
+        i, n = self.body.index, self.n
+
+        def in_plane(rel):
+            return np.linalg.norm(rel - np.outer(rel @ n, n), axis=1)
+
+        pos, t = trace.pos[:, i], trace.t
+        after = t >= t_stop
+        out["stop_position_error"] = float(np.nanmax(in_plane(pos[after] - (self.x0 + s_stop * self.d))))
+        if self.u0 == 0.0:
+            k = 0
+        else:
+            speed = self.along(trace) * math.copysign(1.0, self.u0)
+            dt = np.diff(t)
+            slow = speed <= abs(decel) * np.append(dt, dt[-1:])  # the last frame: the last interval
+            # stopped (or turned), or still moving on at the next frame (a
+            # soft stop's slow tail, or creep): not a frame that a stop
+            # still to come within the interval would leave behind
+            held = (speed <= 0.0) | np.append(speed[1:] > 0.0, False)
+            rest = np.flatnonzero(slow & held)
+            if rest.size == 0:
+                undefined(out, "creep", "the body never came to rest in the run (its speed along the motion never "
+                                        "fell to what the reference deceleration takes off in one frame)")
+                return
+            k = int(rest[0])
+        out["creep"] = float(np.nanmax(in_plane(pos[k:] - pos[k])))
