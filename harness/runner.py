@@ -267,6 +267,11 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     """
     cls = get_adapter(engine)
     caps = cls.capabilities()
+    # an engine whose kernels numba compiles says so on stderr while it does
+    # (harness/compile_progress.py; nothing when they load from the cache)
+    from physbench.harness.compile_progress import watch
+
+    watch()
     resolved = cls.resolve_settings(scene, settings)
     result = RunResult(
         scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,

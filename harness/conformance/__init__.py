@@ -154,7 +154,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
-    from physbench.harness.results import RESULTS_DIR, consolidate_parts
+    from physbench.harness.results import consolidate_parts, results_dir
     from physbench.harness.runner import RunResult
     from physbench.contract.scene import resolve_scenario
     from physbench.contract.spec import SpecError
@@ -167,7 +167,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         err.print(f"no scenarios selected (tags: {tags}, scenarios: {scenarios})")
         return 1
     runs, load_errors = plan(ids, engines, timeout_s)
-    root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    root = Path(save_dir) if save_dir is not None else results_dir() / "check"
     store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
     results: dict[tuple, Any] = {}
     by_key = {r.run_key: r for r in runs}

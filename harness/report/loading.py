@@ -12,7 +12,7 @@ from typing import Any, Iterable
 import pandas as pd
 
 from physbench.harness.report.rows import _missing, _num, fmt, normalise
-from physbench.harness.results import RESULTS_DIR, SCHEMA_VERSION
+from physbench.harness.results import SCHEMA_VERSION, results_dir as _results_dir
 from physbench.harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
@@ -61,7 +61,7 @@ def load_results(results_dir: str | Path | None = None, suites: list[str] | None
     Warnings (unreadable files, unknown schema versions) are in
     ``df.attrs['warnings']``.
     """
-    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    root = Path(results_dir) if results_dir is not None else _results_dir()
     warnings: list[str] = []
     frames: list[pd.DataFrame] = []
     for mid, suite, sid, p, complete in sweep_files(root / "sweeps", suites):
