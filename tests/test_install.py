@@ -304,3 +304,65 @@ def test_compile_progress_lines(tmp_path):
     timing = json.loads((tmp_path / "cache" / "compile-seconds.json").read_text())
     assert timing["kernels"] == 1 and timing["seconds"] > 0
     assert "\r" not in p.stderr  # not a terminal: plain lines
+
+
+TOY_JIT_ADAPTER = '''
+import dataclasses
+
+import numba
+
+from physbench.adapters.pymunk import PymunkAdapter
+
+
+@numba.njit
+def _toy(x):
+    return x + 1.0
+
+
+class ToyJitAdapter(PymunkAdapter):
+    """pymunk, after compiling a numba kernel in build (not cached: every
+    worker compiles it)."""
+
+    name = "toyjit"
+
+    @classmethod
+    def capabilities(cls):
+        return dataclasses.replace(super().capabilities(), engine="toyjit")
+
+    def build(self, scene, settings):
+        _toy(1.0)
+        super().build(scene, settings)
+'''
+
+
+def test_a_worker_compiling_talks_on_the_parents_stderr(tmp_path, monkeypatch, capfd):
+    """A run in a worker process that compiles a kernel: the progress lines
+    reach the command's own stderr (not the worker's captured one)."""
+    import importlib
+
+    from physbench.adapters.base import _ORIGINS, _REGISTRY, register
+    from physbench.harness.execute import RunRequest, run_isolated
+
+    (tmp_path / "toyjit_adapter.py").write_text(TOY_JIT_ADAPTER, encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("toyjit_adapter")
+    register("toyjit", lambda: mod.ToyJitAdapter)
+    try:
+        res = run_isolated(RunRequest(str(ROOT / "tests" / "data" / "head_on.toml"), "toyjit", timeout_s=300))
+    finally:
+        _REGISTRY.pop("toyjit", None)
+        _ORIGINS.pop("toyjit", None)
+    assert res.status == "ok", res.message
+    err = capfd.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("physbench:")]
+    assert lines and lines[0].startswith("physbench: compiling numba kernels") and "toyjit_adapter._toy" in lines[0]
+    assert lines[-1].startswith("physbench: compiled 1 kernel(s)")
+
+
+def test_physbench_compile_warms_the_cache():
+    """`physbench compile` (python -m physbench.engine's work): exit 0 and
+    the seconds it took; with a warm cache it loads and prints no progress."""
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "compile", "--jobs", "1"],
+                       capture_output=True, text=True, timeout=1800)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "engine kernels compiled or loaded in" in p.stdout
