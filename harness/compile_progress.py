@@ -17,7 +17,8 @@ it before warming the cache.
   lines, not thousands.
 
 Worker processes write to the parent's stderr (harness/workers.py passes
-it as ``PHYSBENCH_PROGRESS_FD``), not to their own captured stderr.
+it as ``PHYSBENCH_PROGRESS_FD``; :func:`take_parent_stream`), not to their
+own captured stderr.
 
 The estimate is the longest compile this engine version took before on this
 machine, kept in a small timing file beside the compiled kernels
@@ -51,6 +52,22 @@ TYPICAL_S = 180.0
 TIMING_FILE = "compile-seconds.json"
 
 _installed: "CompileProgress | None" = None
+#: (fd, shared) taken from the environment by a worker at start (take_parent_stream)
+_parent_stream: tuple[int, bool] | None = None
+
+
+def take_parent_stream() -> None:
+    """In a worker process, at start: take the parent's stream from the
+    environment and remove it there, so that no process this one starts
+    inherits a descriptor number it was not given."""
+    global _parent_stream
+    fd = os.environ.pop(PROGRESS_FD_ENV, None)
+    shared = os.environ.pop(PROGRESS_SHARED_ENV, None) == "1"
+    if fd:
+        try:
+            _parent_stream = (int(fd), shared)
+        except ValueError:
+            _parent_stream = None
 
 
 def _fmt_s(s: float) -> str:
@@ -200,18 +217,19 @@ class CompileProgress:
 
 def _stream() -> tuple[TextIO, bool]:
     """Where progress goes, and whether the line may be rewritten in place."""
-    fd = os.environ.get(PROGRESS_FD_ENV)
     stream: TextIO = sys.stderr
-    if fd:
+    shared = False
+    if _parent_stream is not None:
+        fd, shared = _parent_stream
         try:
-            stream = os.fdopen(int(fd), "w", buffering=1, closefd=False)
+            stream = os.fdopen(fd, "w", buffering=1, closefd=False)
         except (OSError, ValueError):
-            stream = sys.stderr
+            stream, shared = sys.stderr, False
     try:
         tty = stream.isatty()
     except (OSError, ValueError, AttributeError):
         tty = False
-    return stream, tty and os.environ.get(PROGRESS_SHARED_ENV) != "1"
+    return stream, tty and not shared
 
 
 def watch(force: bool = False) -> "CompileProgress | None":

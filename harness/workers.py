@@ -44,15 +44,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
+from physbench.harness.compile_progress import PROGRESS_FD_ENV, PROGRESS_SHARED_ENV, take_parent_stream
 
 #: environment variable naming extra adapters, ``name=module:Class,...``
 ADAPTERS_ENV = "PHYSBENCH_ADAPTERS"
 #: set (to "1") in worker processes
 WORKER_ENV = "PHYSBENCH_WORKER"
-#: the file descriptor a worker writes compile progress to, and whether several share it
-#: (harness/compile_progress.py)
-PROGRESS_FD_ENV = "PHYSBENCH_PROGRESS_FD"
-PROGRESS_SHARED_ENV = "PHYSBENCH_PROGRESS_SHARED"
 #: characters of a dead worker's stderr kept in its row
 STDERR_TAIL = 2000
 _HEADER = struct.Struct("<Q")
@@ -516,6 +513,7 @@ def worker_main() -> None:
     os.dup2(2, 1)
     sys.stdout = sys.stderr
     inp = sys.stdin.buffer
+    take_parent_stream()  # compile progress to the parent's stderr
     register_env_adapters()
     while True:
         head = inp.read(_HEADER.size)

@@ -149,6 +149,15 @@ def test_the_wheel_runs_from_anywhere_and_writes_nothing_into_the_install(venv, 
     assert set(rows["engine"]) == {"reference", "pymunk"}
     # the recorded spec path of a shipped scene is as in a checkout
     assert set(rows.loc[rows["scenario"] == "billiards.head_on", "scene_path"]) == {"scenarios/billiards/head_on.toml"}
+
+    # a shipped suite, a trace and the report, from the same directory
+    swept = _run([physbench, "sweep", "--suite", "smoke", "--engines", "pymunk"], work, env)
+    assert swept.returncode == 0, swept.stdout[-2000:] + swept.stderr[-2000:]
+    assert list((work / "results" / "sweeps").rglob("*.parquet"))
+    traced = _run([physbench, "trace", "billiards.head_on", "--engines", "pymunk", "-o", "head_on.rrd"], work, env)
+    assert traced.returncode == 0 and (work / "head_on.rrd").is_file(), traced.stderr[-2000:]
+    reported = _run([physbench, "report"], work, env)
+    assert reported.returncode == 0 and (work / "results" / "report.html").is_file(), reported.stderr[-2000:]
     assert _snapshot(venv.site) == before, "something was written inside the installed package's site-packages"
 
 
