@@ -32,6 +32,7 @@ from __future__ import annotations
 import atexit
 import json
 import os
+import shutil
 import sys
 import threading
 import time
@@ -168,19 +169,19 @@ class CompileProgress:
     def _line(self, now: float, first: bool = False) -> str:
         el = self.elapsed(now)
         if self.estimate_s is not None:
-            est = (f"~{_fmt_s(max(0.0, self.estimate_s - el))} left of ~{_fmt_s(self.estimate_s)} "
-                   f"(this machine's last full compile)")
+            est = f"~{_fmt_s(max(0.0, self.estimate_s - el))} left of ~{_fmt_s(self.estimate_s)} (the last compile here)"
         else:
             est = f"a first compile takes about {_fmt_s(TYPICAL_S)} on 2 cores"
         if first:
-            return (f"physbench: compiling numba kernels (once per engine version; later runs load them from the "
-                    f"cache): {self.current}; {est}")
-        return f"physbench: compiling kernels: {_fmt_s(el)} elapsed, {self.kernels} done, now {self.current}; {est}"
+            return (f"physbench: compiling numba kernels, now {self.current}; {est} (once per engine version: "
+                    f"later runs load them from the cache)")
+        return f"physbench: compiling kernels: {_fmt_s(el)} elapsed, {self.kernels} done; {est}; now {self.current}"
 
     def _write(self, text: str, now: float, final: bool = False) -> None:
         try:
-            if self.interactive:
-                self.stream.write("\r\x1b[K" + text + ("\n" if final else ""))
+            if self.interactive:  # one line, cut to the terminal's width (a wrapped line cannot be rewritten)
+                width = shutil.get_terminal_size((100, 20)).columns - 1
+                self.stream.write("\r\x1b[K" + text[:max(20, width)] + ("\n" if final else ""))
             else:
                 self.stream.write(text + "\n")
             self.stream.flush()
@@ -198,7 +199,7 @@ class CompileProgress:
                 if self.depth == 0 and now - self.last_event >= self.idle_s:
                     self.finish(now)
                     continue
-                if now - self.last_line >= (1.0 if self.interactive else self.log_every_s):
+                if self.depth > 0 and now - self.last_line >= (1.0 if self.interactive else self.log_every_s):
                     self._write(self._line(now), now)
 
     def finish(self, now: float | None = None) -> None:
