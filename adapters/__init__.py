@@ -1,11 +1,12 @@
 """Engine adapters.  Each module holds one Adapter subclass; the registry
 imports them lazily so that a missing engine only affects its own runs.
 
-The shipped engines are registered here, one line each; plug-in engines
-come from the ``physbench.adapters`` entry points of installed
-distributions (contract/plugins.py), registered after them under their
-entry-point names.  A plug-in whose name is already taken is not
-registered: :data:`PLUGIN_PROBLEMS` says so (``physbench engines`` shows it).
+The shipped engines are registered here, one line each (and named in
+:data:`ENGINES`); plug-in engines come from the ``physbench.adapters``
+entry points of installed distributions (contract/plugins.py), registered
+after them under their entry-point names.  A plug-in whose name is already
+taken is not registered: :data:`PLUGIN_PROBLEMS` says so (``physbench
+engines`` shows it).
 """
 
 from __future__ import annotations
@@ -13,10 +14,10 @@ from __future__ import annotations
 import importlib
 
 from physbench.adapters.base import (Adapter, Capabilities, Setting, Unsupported, engine_names, engine_origin,
-                                     get_adapter, register)
+                                     get_adapter, register, set_origin)
 from physbench.contract.plugins import ADAPTERS_GROUP, plugins
 
-SHIPPED = "physbench"
+ENGINES = ("reference", "mujoco", "pybullet", "pymunk")
 
 
 def _loader(module: str, cls: str):
@@ -26,13 +27,13 @@ def _loader(module: str, cls: str):
     return load
 
 
-register("reference", _loader("reference", "ReferenceAdapter"), SHIPPED)
-register("mujoco", _loader("mujoco", "MujocoAdapter"), SHIPPED)
-register("pybullet", _loader("pybullet", "PybulletAdapter"), SHIPPED)
-register("pymunk", _loader("pymunk", "PymunkAdapter"), SHIPPED)
+register("reference", _loader("reference", "ReferenceAdapter"))
+register("mujoco", _loader("mujoco", "MujocoAdapter"))
+register("pybullet", _loader("pybullet", "PybulletAdapter"))
+register("pymunk", _loader("pymunk", "PymunkAdapter"))
 
-#: the shipped engines (every name registered above)
-ENGINES = tuple(engine_names())
+for _name in engine_names():  # the lines above: shipped with physbench
+    set_origin(_name, "physbench")
 
 #: plug-ins that were not registered, each with the reason
 PLUGIN_PROBLEMS: list[str] = []

@@ -312,6 +312,11 @@ def engine_names() -> list[str]:
     return list(_REGISTRY)
 
 
+def set_origin(name: str, origin: str) -> None:
+    """Record where engine ``name``'s adapter comes from."""
+    _ORIGINS[name] = origin
+
+
 def engine_origin(name: str) -> str:
     """Where engine ``name``'s adapter comes from (see :data:`_ORIGINS`)."""
     return _ORIGINS.get(name, "run time")
