@@ -375,3 +375,34 @@ def test_physbench_compile_warms_the_cache():
                        capture_output=True, text=True, timeout=1800)
     assert p.returncode == 0, p.stderr[-2000:]
     assert "engine kernels compiled or loaded in" in p.stdout
+
+
+def test_check_leaves_out_shipped_engines_that_are_not_installed(monkeypatch, capsys):
+    """`check` without --engines runs the installed engines; a shipped one
+    whose extra is not installed is left out, and stderr says how to add it."""
+    import dataclasses
+
+    import physbench.adapters as A
+    from physbench.adapters.base import _ORIGINS, _REGISTRY, register, set_origin
+    from physbench.adapters.pymunk import PymunkAdapter
+    from physbench.harness.conformance.plan import default_engines
+
+    class Missing(PymunkAdapter):
+        name = "missing_engine"
+
+        @classmethod
+        def capabilities(cls):
+            return dataclasses.replace(super().capabilities(), engine="missing_engine", available=False,
+                                       unavailable_reason="No module named 'missing_engine'")
+
+    register("missing_engine", lambda: Missing)
+    set_origin("missing_engine", "physbench")
+    monkeypatch.setattr(A, "ENGINES", A.ENGINES + ("missing_engine",))
+    try:
+        got = default_engines()
+    finally:
+        _REGISTRY.pop("missing_engine", None)
+        _ORIGINS.pop("missing_engine", None)
+    installed = [e for e in A.ENGINES if e != "missing_engine" and A.get_adapter(e).capabilities().available]
+    assert "missing_engine" not in got and set(installed) <= set(got)
+    assert "pip install 'physbench[missing_engine]'" in capsys.readouterr().err
