@@ -168,8 +168,10 @@ class CompileProgress:
 
     def _line(self, now: float, first: bool = False) -> str:
         el = self.elapsed(now)
-        if self.estimate_s is not None:
-            est = f"~{_fmt_s(max(0.0, self.estimate_s - el))} left of ~{_fmt_s(self.estimate_s)} (the last compile here)"
+        if self.estimate_s is not None and el <= self.estimate_s:
+            est = f"~{_fmt_s(self.estimate_s - el)} left of ~{_fmt_s(self.estimate_s)} (the last compile here)"
+        elif self.estimate_s is not None:
+            est = f"longer than the last compile here ({_fmt_s(self.estimate_s)})"
         else:
             est = f"a first compile takes about {_fmt_s(TYPICAL_S)} on 2 cores"
         if first:

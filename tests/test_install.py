@@ -313,6 +313,10 @@ def test_compile_progress_lines(tmp_path):
     timing = json.loads((tmp_path / "cache" / "compile-seconds.json").read_text())
     assert timing["kernels"] == 1 and timing["seconds"] > 0
     assert "\r" not in p.stderr  # not a terminal: plain lines
+    # the next compile (the kernels here are not cached) estimates from the timing file
+    again = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    first = next(ln for ln in again.stderr.splitlines() if ln.startswith("physbench:"))
+    assert "(the last compile here)" in first or "longer than the last compile here" in first, first
 
 
 TOY_JIT_ADAPTER = '''
