@@ -191,8 +191,9 @@ def _extra_adapters() -> tuple[dict[str, str], list[str]]:
     out = _parse_adapters(os.environ.get(ADAPTERS_ENV, ""))
     paths: list[str] = []
     for name, loader in _REGISTRY.items():
-        # shipped engines and entry-point plug-ins register themselves in the worker
-        if engine_origin(name) != "run time" or name in out:
+        # shipped engines and entry-point plug-ins register themselves in the
+        # worker; adapters registered at run time or from PHYSBENCH_ADAPTERS are passed on
+        if engine_origin(name) not in ("run time", ADAPTERS_ENV) or name in out:
             continue
         try:
             cls = loader()
@@ -365,8 +366,13 @@ class WorkerPool:
         env.update(ONE_THREAD_ENV)
         adapters, paths = _extra_adapters()
         # physbench itself is imported as this process imported it (installed, or
-        # an editable install's finder); the folders of run-time registered
-        # adapters' modules are added
+        # an editable install's finder); added: a checkout's root (its tests'
+        # modules hold functions and adapters workers run) and the folders of
+        # run-time registered adapters' modules
+        from physbench.contract.data import checkout_root
+
+        root = checkout_root()
+        paths = ([str(root)] if root is not None else []) + [p for p in paths if p != str(root)]
         if paths:
             env["PYTHONPATH"] = os.pathsep.join(paths + [p for p in [env.get("PYTHONPATH")] if p])
         if adapters:
