@@ -149,6 +149,10 @@ def test_the_wheel_runs_from_anywhere_and_writes_nothing_into_the_install(venv, 
     assert set(rows["engine"]) == {"reference", "pymunk"}
     # the recorded spec path of a shipped scene is as in a checkout
     assert set(rows.loc[rows["scenario"] == "billiards.head_on", "scene_path"]) == {"scenarios/billiards/head_on.toml"}
+    # an installed package is no checkout: rows name its version, not some git tree around it
+    from importlib.metadata import version
+
+    assert set(rows["commit"]) == {f"physbench-{version('physbench')}"}
 
     # a shipped suite, a trace and the report, from the same directory
     swept = _run([physbench, "sweep", "--suite", "smoke", "--engines", "pymunk"], work, env)
