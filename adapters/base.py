@@ -314,14 +314,31 @@ def gyroscopic_reason(scene: Scene, engine: str) -> str | None:
 # ---- registry ---------------------------------------------------------------
 
 _REGISTRY: dict[str, Callable[[], type[Adapter]]] = {}
+#: engine name -> where its adapter comes from: "physbench" (shipped), a
+#: plug-in's distribution "name version", or "run time" (register() from code)
+_ORIGINS: dict[str, str] = {}
 
 
-def register(name: str, loader: Callable[[], type[Adapter]]) -> None:
+def register(name: str, loader: Callable[[], type[Adapter]], origin: str = "run time") -> None:
+    """Register the adapter class ``loader()`` returns under ``name`` (the
+    loader runs when the engine is first asked for: a broken adapter costs
+    its own runs only, as their ``failed`` rows)."""
     _REGISTRY[name] = loader
+    _ORIGINS[name] = origin
 
 
 def engine_names() -> list[str]:
     return list(_REGISTRY)
+
+
+def set_origin(name: str, origin: str) -> None:
+    """Record where engine ``name``'s adapter comes from."""
+    _ORIGINS[name] = origin
+
+
+def engine_origin(name: str) -> str:
+    """Where engine ``name``'s adapter comes from (see :data:`_ORIGINS`)."""
+    return _ORIGINS.get(name, "run time")
 
 
 def get_adapter(name: str) -> type[Adapter]:

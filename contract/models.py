@@ -1,10 +1,13 @@
 """The reference-model registry of the contract: names only.
 
 ``MODELS`` maps a model name to ``"module:Class"``; the class is imported
-only when a scene that names it is loaded (:func:`get_model`), the way
-``PHYSBENCH_ADAPTERS`` names plug-in adapters.  So loading a spec never
-imports a model module, and this module imports nothing above the
-contract (tests/test_architecture.py).
+only when a scene that names it is loaded (:func:`get_model`).  So loading
+a spec never imports a model module, and this module imports nothing above
+the contract (tests/test_architecture.py).  ``MODELS`` holds the shipped
+models (:data:`SHIPPED_MODELS`) and then the ``physbench.models`` entry
+points of installed distributions (contract/plugins.py; a name already
+taken is left out and named in :data:`PLUGIN_PROBLEMS`); a plug-in model
+that fails to import refuses the scenes that name it, as a spec error.
 
 :func:`model_refusal` and :func:`scene_errors` are the load-time check
 (called by :func:`contract.scene.compile_scene`): the model must accept the
@@ -20,11 +23,12 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from physbench.contract.metric_defs import dissipation, generic_metrics
+from physbench.contract.plugins import MODELS_GROUP, plugins
 
 if TYPE_CHECKING:
     from physbench.contract.scene import Scene
 
-MODELS: dict[str, str] = {
+SHIPPED_MODELS: dict[str, str] = {
     "two_body_collision": "physbench.harness.references.collision:TwoBodyCollision",
     "oblique_collision": "physbench.harness.references.billiards:ObliqueCollision",
     "newtons_cradle": "physbench.harness.references.billiards:NewtonsCradle",
@@ -45,6 +49,21 @@ MODELS: dict[str, str] = {
     "drag_fall": "physbench.harness.references.forces:DragFall",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
+#: every model: the shipped ones, then the plug-ins
+MODELS: dict[str, str] = dict(SHIPPED_MODELS)
+#: model name -> "physbench" or the plug-in's distribution ("name version")
+MODEL_ORIGINS: dict[str, str] = {name: "physbench" for name in SHIPPED_MODELS}
+#: plug-in models that were not registered, each with the reason
+PLUGIN_PROBLEMS: list[str] = []
+for _p in plugins(MODELS_GROUP):
+    if _p.name in MODELS:
+        PLUGIN_PROBLEMS.append(f"{_p.name} = {_p.value!r} ({_p.dist}): not registered, the name is taken by "
+                               f"{MODEL_ORIGINS[_p.name]}'s {_p.name}")
+    elif ":" not in _p.value:
+        PLUGIN_PROBLEMS.append(f"{_p.name} = {_p.value!r} ({_p.dist}): not registered, expected module:Class")
+    else:
+        MODELS[_p.name] = _p.value
+        MODEL_ORIGINS[_p.name] = _p.dist
 
 
 class ReferenceError(ValueError):
@@ -61,8 +80,11 @@ def get_model(name: str) -> Any:
     """The model class registered under ``name`` (imported on first use)."""
     if name not in MODELS:
         raise ReferenceError(f"unknown reference model {name!r}; known: {', '.join(sorted(MODELS))}")
-    mod, cls = MODELS[name].split(":")
-    return getattr(importlib.import_module(mod), cls)
+    mod, _, qual = MODELS[name].partition(":")
+    obj: Any = importlib.import_module(mod.strip())
+    for part in qual.strip().split("."):
+        obj = getattr(obj, part)
+    return obj
 
 
 # --------------------------------------------------------------------------

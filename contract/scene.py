@@ -10,7 +10,7 @@ friction).  Adapters never read TOML; they read a Scene.
 The scene's types and content hash live in :mod:`contract.scene_model`, the
 shape formulas (volumes, inertias, patterns) in :mod:`contract.shapes`; this
 module re-exports the types and helpers that the rest of the project imports
-from here (``Scene``, ``Body``, ``Static``, ``Check``, ``REPO_ROOT``,
+from here (``Scene``, ``Body``, ``Static``, ``Check``,
 ``n_steps``, ``principal_inertia``, ...).
 """
 
@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from physbench.contract.data import SHIPPED_SCENARIOS, checkout_root
 from physbench.contract.geometry.start import overlap_errors
 from physbench.contract.models import model_refusal, scene_errors
 from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene_model import (  # re-exported: the scene's types are imported from here
-    REPO_ROOT,
     Body,
     Check,
     Material,
@@ -42,9 +42,11 @@ from physbench.contract.spec.bounds import bound_error
 from physbench.contract.spec.errors import ModelRefusal, SpecError
 from physbench.contract.spec.load import LoadedSpec, load_spec
 from physbench.contract.spec.schema import SpecModel
+from physbench.contract.xfail import Xfail
 
-# read at call time: tests point it at a folder of their own
-SCENARIO_DIR = REPO_ROOT / "scenarios"
+# the shipped scenarios (package data, contract/data.py); read at call
+# time: tests point it at a folder of their own
+SCENARIO_DIR = SHIPPED_SCENARIOS
 
 
 # --------------------------------------------------------------------------
@@ -171,7 +173,8 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         checks=tuple(Check(c.metric, c.max, c.min, c.equals, c.tolerance,
                            tuple(c.engines) if c.engines is not None else None,
                            tuple(c.variants) if c.variants is not None else None,
-                           dict(c.xfail)) for c in spec.check),
+                           {e: Xfail.of(e, x if isinstance(x, str) else x.model_dump())
+                            for e, x in c.xfail.items()}) for c in spec.check),
         variant_names=variant_names,
         phases=sc.phases,
         body_entries=tuple(entries),
@@ -246,10 +249,15 @@ def spec_targets(entry: str | Path, base: Path | None = None) -> list[str]:
 
 
 def canonical_example() -> Path:
-    """The canonical spec: ../shared/examples/head_on.toml beside the
-    repository, else the copy kept under tests/data."""
-    shared = REPO_ROOT.parent / "shared" / "examples" / "head_on.toml"
-    return shared if shared.is_file() else REPO_ROOT / "tests" / "data" / "head_on.toml"
+    """The canonical spec: in a checkout, ../shared/examples/head_on.toml
+    beside the repository, else the copy kept under tests/data; in an
+    installed package, the shipped billiards.head_on (the canonical spec
+    with its xfails and variants: the same scene)."""
+    root = checkout_root()
+    if root is not None:
+        shared = root.parent / "shared" / "examples" / "head_on.toml"
+        return shared if shared.is_file() else root / "tests" / "data" / "head_on.toml"
+    return SHIPPED_SCENARIOS / "billiards" / "head_on.toml"
 
 
 def scenario_ids() -> list[str]:

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
 @dataclass(frozen=True)
@@ -122,7 +121,9 @@ class Check:
     tolerance: float = 0.0
     engines: tuple[str, ...] | None = None
     variants: tuple[str, ...] | None = None
-    xfail: dict[str, str] = field(default_factory=dict)
+    #: engine -> known limitation (contract.xfail.Xfail; a plain reason
+    #: string is accepted too: measured on contract.xfail.MEASURED_ON's version)
+    xfail: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -179,16 +180,15 @@ class Scene:
 
     @property
     def source(self) -> str:
-        """The spec file as recorded in rows: relative to the repository
-        when inside it (scenarios/...), else absolute; '' for an inline
-        spec."""
+        """The spec file as recorded in rows: relative to the package's
+        folder when inside it (``scenarios/...``, the same for a checkout and
+        an installed wheel: contract.data.recorded_path), else absolute; ''
+        for an inline spec."""
         if self.path is None:
             return ""
-        p = Path(self.path).resolve()
-        try:
-            return p.relative_to(REPO_ROOT).as_posix()
-        except ValueError:
-            return str(p)
+        from physbench.contract.data import recorded_path
+
+        return recorded_path(Path(self.path))
 
     def has(self, effect: str) -> bool:
         return effect in self.effects

@@ -201,14 +201,14 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     evaluations back.  Returns 0 (the search ran; its outcome is data), 2
     for bad input, 130 when interrupted."""
     from physbench.harness.results import SCHEMA_VERSION
-    from physbench.harness.sweep_store import SWEEPS_DIR, consolidate, machine_id, open_sweep, sweep_files
+    from physbench.harness.sweep_store import consolidate, sweeps_dir, machine_id, open_sweep, sweep_files
 
     errs = validate_request(req)
     if errs:
         for e in errs:
             print(f"error: {req.label}: {e}", file=sys.stderr)
         return 2
-    root = Path(out_dir) if out_dir is not None else SWEEPS_DIR
+    root = Path(out_dir) if out_dir is not None else sweeps_dir()
     limit_id = req.identity(spec_hash(req))
     from physbench.harness.runner import commit_id
 

@@ -1,4 +1,11 @@
-"""Results store: run rows as Parquet under ``results/``, written atomically.
+"""Results store: run rows as Parquet under the results directory, written
+atomically.
+
+The results directory (:func:`results_dir`) is ``./results`` under the
+working directory, unless ``--results-dir`` (the commands that write or read
+results) or the ``PHYSBENCH_RESULTS`` variable names another; it is never
+inside the installed package.  Run from the repository's root, it is the
+repository's own ``results/``.
 
 Rows are flat dicts (harness.runner.RunResult.row()) plus the columns of
 one schema for check and sweep rows (:data:`VERDICT_COLUMNS`, then
@@ -31,10 +38,31 @@ import sys
 from pathlib import Path
 from typing import Any, Iterable
 
-from physbench.contract.scene import REPO_ROOT
-
 SCHEMA_VERSION = 1
-RESULTS_DIR = REPO_ROOT / "results"
+#: environment variable naming the results directory
+RESULTS_ENV = "PHYSBENCH_RESULTS"
+#: the results directory a command line's ``--results-dir`` set (harness.cli.main), else None
+_override: Path | None = None
+
+
+def results_dir() -> Path:
+    """The results directory, read at call time: ``--results-dir`` of the
+    running command, else ``$PHYSBENCH_RESULTS``, else ``./results`` under
+    the working directory (absolute).  Test:
+    tests/test_install.py::test_results_dir_flag_and_variable."""
+    if _override is not None:
+        return _override
+    env = os.environ.get(RESULTS_ENV, "").strip()
+    return (Path(env) if env else Path("results")).absolute()
+
+
+def set_results_dir(path: str | Path | None) -> Path | None:
+    """Set (or with None clear) the results directory of this process;
+    returns the previous setting.  The command line sets it from
+    ``--results-dir``."""
+    global _override
+    old, _override = _override, (Path(path).absolute() if path is not None else None)
+    return old
 
 # The row schema (results/README.md): RunResult.row() columns, then
 #: columns every check and sweep row adds, so that the report reads rows

@@ -220,7 +220,19 @@ def machine_info() -> dict[str, str]:
 
 @functools.lru_cache(maxsize=1)
 def commit_id() -> str:
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    """The checkout's commit (``+dirty`` with uncommitted changes); for an
+    installed package, which is no checkout (its folder may still lie in
+    some other project's git tree), ``physbench-<version>``."""
+    from physbench.contract.data import checkout_root
+
+    if checkout_root() is None:
+        from importlib.metadata import version
+
+        try:
+            return f"physbench-{version('physbench')}"
+        except Exception:
+            return "unknown"
+    root = str(checkout_root())
     try:
         out = subprocess.run(["git", "-C", root, "rev-parse", "--short=12", "HEAD"],
                              capture_output=True, text=True, timeout=5)
@@ -267,6 +279,11 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     """
     cls = get_adapter(engine)
     caps = cls.capabilities()
+    # an engine whose kernels numba compiles says so on stderr while it does
+    # (harness/compile_progress.py; nothing when they load from the cache)
+    from physbench.harness.compile_progress import watch
+
+    watch()
     resolved = cls.resolve_settings(scene, settings)
     result = RunResult(
         scenario=scene.id, variant=scene.variant, engine=engine, engine_version=caps.version,

@@ -22,12 +22,13 @@ from typing import Any, Iterable
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from physbench.contract.phase import phase_values
-from physbench.contract.scene import REPO_ROOT
+from physbench.contract.data import SHIPPED_SUITES
 from physbench.contract.spec import SpecError, _display, _format_errors, read_toml
 from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
 from physbench.harness.sweep_store import _NAME, SuiteError, plain_name
 
-SUITE_DIR = REPO_ROOT / "suites"
+#: the shipped suites (package data, contract/data.py)
+SUITE_DIR = SHIPPED_SUITES
 _SCENARIO_ENTRY = re.compile(r"^([^\[\]]+?)(?:\[([^\[\]]+)\])?$")
 
 
@@ -270,7 +271,7 @@ def _engines_text(engines: Iterable[str]) -> str:
     return f"engine{'s' if len(engines) > 1 else ''} {', '.join(engines)}"
 
 
-def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = REPO_ROOT) -> list[SweepBlock]:
+def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = SHIPPED_SUITES) -> list[SweepBlock]:
     """Cross-checks pydantic cannot make: engines registered, scenario ids
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""

@@ -56,7 +56,7 @@ from physbench.harness.points import Point
 from physbench.harness.results import SCHEMA_VERSION
 from physbench.harness.schedule import expected_costs, run_schedule
 from physbench.harness.suite import _label, expand, load_suite
-from physbench.harness.sweep_store import SWEEPS_DIR, _parts, _SweepDir, consolidate, machine_id, open_sweep
+from physbench.harness.sweep_store import _parts, _SweepDir, consolidate, machine_id, open_sweep, sweeps_dir
 
 STATUSES = st.RUN_STATUSES
 EXECUTORS = ("serial", "process", "dask")
@@ -165,7 +165,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
                   markup=False)
         return 2
-    root = Path(out_dir) if out_dir is not None else SWEEPS_DIR
+    root = Path(out_dir) if out_dir is not None else sweeps_dir()
     filters = {"engines": engines, "scenarios": scenarios}
     ex, refused = None, ()
     if executor == "dask":  # before the sweep directory: a refused cluster writes nothing

@@ -28,10 +28,15 @@ from typing import Any, Iterable
 
 from physbench.contract.spec import SpecError, _display
 from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
-from physbench.harness.results import (RESULTS_DIR, SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
-                             try_lock, unfinished_dirs, write_json_atomic)
+from physbench.harness.results import (SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
+                             results_dir, try_lock, unfinished_dirs, write_json_atomic)
 
-SWEEPS_DIR = RESULTS_DIR / "sweeps"
+
+def sweeps_dir() -> Path:
+    """The sweeps root: ``sweeps/`` under the results directory
+    (harness.results.results_dir, read at call time)."""
+    return results_dir() / "sweeps"
+
 # Columns a sweep adds to RunResult.row() (the row contract, with
 # results/README.md): the verdict columns every check row has too, then the
 # sweep's own.
@@ -298,7 +303,7 @@ def sweep_files(root: str | Path | None = None, suites: Iterable[str] | None = N
     (it wins over leftover parts).  Hidden files (temporary files about to
     be renamed into place) are skipped.  The one reader of the storage
     layout: the report and :func:`read_sweeps` both go through it."""
-    root = Path(root) if root is not None else SWEEPS_DIR
+    root = Path(root) if root is not None else sweeps_dir()
     wanted = set(suites) if suites else None
 
     def visible(paths: Iterable[Path]) -> list[Path]:

@@ -13,11 +13,13 @@ run processes inside each Dask worker, harness/dask_executor.py).
 - :class:`InlineExecutor` is the same interface in this process (no
   isolation: for debugging, profiling and tests that patch the runner).
 
-Workers find adapters registered at run time (``adapters.base.register``,
-e.g. by a test) by ``module:Class`` reference: the pool passes every
-registered adapter that is not one of the shipped engines to its workers in
+Workers register the shipped engines and the entry-point plug-ins
+themselves (importing ``physbench.adapters``).  Adapters registered at run
+time (``adapters.base.register``: a test's faulty engine, a notebook's own
+adapter) reach them by ``module:Class`` reference: the pool passes them in
 ``PHYSBENCH_ADAPTERS`` (``name=module:Class,...``), which the command line
-also reads at start.  Worker stdout and stderr go to a file in the pool's
+also reads at start, so an adapter not packaged as a plug-in can be named
+there too.  Worker stdout and stderr go to a file in the pool's
 temporary directory, which is also the workers' working directory (so
 nothing an engine writes lands in the user's tree); the pool removes it.
 """
@@ -42,7 +44,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
-from physbench.contract.scene import REPO_ROOT
+from physbench.harness.compile_progress import PROGRESS_FD_ENV, PROGRESS_SHARED_ENV, take_parent_stream
 
 #: environment variable naming extra adapters, ``name=module:Class,...``
 ADAPTERS_ENV = "PHYSBENCH_ADAPTERS"
@@ -209,13 +211,14 @@ def _extra_adapters() -> tuple[dict[str, str], list[str]]:
     function), merged with the ones named in the environment; and the
     directories their modules are imported from (a test module imported by
     file name needs its own directory on the path)."""
-    from physbench.adapters import ENGINES
-    from physbench.adapters.base import _REGISTRY
+    from physbench.adapters.base import _REGISTRY, engine_origin
 
     out = _parse_adapters(os.environ.get(ADAPTERS_ENV, ""))
     paths: list[str] = []
     for name, loader in _REGISTRY.items():
-        if name in ENGINES or name in out:
+        # shipped engines and entry-point plug-ins register themselves in the
+        # worker; adapters registered at run time or from PHYSBENCH_ADAPTERS are passed on
+        if engine_origin(name) not in ("run time", ADAPTERS_ENV) or name in out:
             continue
         try:
             cls = loader()
@@ -262,8 +265,19 @@ def register_env_adapters(text: str | None = None) -> list[str]:
         return load
 
     for name, ref in refs.items():
-        register(name, loader(ref))
+        register(name, loader(ref), ADAPTERS_ENV)
     return list(refs)
+
+
+def _progress_fd() -> int | None:
+    """A duplicate of this process's stderr for the workers' compile
+    progress, or None when stderr has no file descriptor."""
+    try:
+        fd = os.dup(sys.stderr.fileno())
+    except (AttributeError, OSError, ValueError):
+        return None
+    os.set_inheritable(fd, True)
+    return fd
 
 
 class _Worker:
@@ -272,9 +286,10 @@ class _Worker:
     def __init__(self, workdir: Path, env: dict[str, str], n: int):
         self.err_path = workdir / f"worker-{n}.stderr"
         self.err = open(self.err_path, "ab")
+        fd = env.get(PROGRESS_FD_ENV)
         self.proc = subprocess.Popen([sys.executable, "-c", "from physbench.harness.workers import worker_main; worker_main()"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.err, cwd=workdir,
-                                     env=env, close_fds=True)
+                                     env=env, close_fds=True, pass_fds=(int(fd),) if fd else ())
         self.fd = self.proc.stdout.fileno()
         os.set_blocking(self.fd, False)
         self.buf = bytearray()
@@ -408,10 +423,24 @@ class WorkerPool:
         env[WORKER_ENV + "_PARENT"] = str(os.getpid())
         env.update(ONE_THREAD_ENV)
         adapters, paths = _extra_adapters()
-        env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in paths if p != str(REPO_ROOT)]
-                                            + [p for p in [env.get("PYTHONPATH")] if p])
+        # physbench itself is imported as this process imported it (installed, or
+        # an editable install's finder); added: a checkout's root (its tests'
+        # modules hold functions and adapters workers run) and the folders of
+        # run-time registered adapters' modules
+        from physbench.contract.data import checkout_root
+
+        root = checkout_root()
+        paths = ([str(root)] if root is not None else []) + [p for p in paths if p != str(root)]
+        if paths:
+            env["PYTHONPATH"] = os.pathsep.join(paths + [p for p in [env.get("PYTHONPATH")] if p])
         if adapters:
             env[ADAPTERS_ENV] = ",".join(f"{k}={v}" for k, v in adapters.items())
+        # compile progress goes to this process's stderr, not the worker's
+        # captured one (harness/compile_progress.py)
+        self.progress_fd = _progress_fd()
+        if self.progress_fd is not None:
+            env[PROGRESS_FD_ENV] = str(self.progress_fd)
+            env[PROGRESS_SHARED_ENV] = "1" if self.jobs > 1 else "0"
         self.env = env
         self.idle: list[_Worker] = []
         self.started = 0
@@ -517,6 +546,9 @@ class WorkerPool:
             w.stop()
         self.idle = []
         shutil.rmtree(self.workdir, ignore_errors=True)
+        if self.progress_fd is not None:
+            os.close(self.progress_fd)
+            self.progress_fd = None
 
     def __enter__(self) -> "WorkerPool":
         return self
@@ -557,6 +589,7 @@ def worker_main() -> None:
     os.dup2(2, 1)
     sys.stdout = sys.stderr
     inp = sys.stdin.buffer
+    take_parent_stream()  # compile progress to the parent's stderr
     register_env_adapters()
     while True:
         head = inp.read(_HEADER.size)

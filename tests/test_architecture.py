@@ -45,7 +45,8 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
 # seconds' bookkeeping).
 KNOWN_CYCLES: list[list[str]] = []
 # harness modules that use the engine directly (all others go through adapters)
-ENGINE_USERS = {"physbench.harness.fingerprint", "physbench.harness.bench"}
+ENGINE_USERS = {"physbench.harness.fingerprint", "physbench.harness.bench",
+                "physbench.harness.cli.compile"}  # physbench compile wraps python -m physbench.engine
 
 
 def _modules() -> dict[str, Path]:

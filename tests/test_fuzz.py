@@ -54,11 +54,13 @@ from hypothesis import strategies as st
 
 from physbench.adapters import ENGINES
 from physbench.harness import cli
-from physbench.contract.scene import REPO_ROOT, SCENARIO_DIR, load_scene
+from physbench.contract.scene import SCENARIO_DIR, load_scene
 from physbench.contract.spec import BOUNDS, SpecError, load_spec
 from physbench.harness.suite import expand, load_suite
 from physbench.harness.sweep import STATUSES
 from physbench.harness.sweep_store import SuiteError
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
 
 # --------------------------------------------------------------------------
 # profiles

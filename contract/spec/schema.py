@@ -425,6 +425,23 @@ class SpringSection(_Strict):
     _rest_length_bounded = field_validator("rest_length")(_bound("rest_length"))
 
 
+class XfailSection(_Strict):
+    """The table form of a known limitation (contract/xfail.py)."""
+
+    reason: str
+    measured_on: str | None = None
+    versions: str | None = None
+
+    @model_validator(mode="after")
+    def _versions(self) -> "XfailSection":
+        from physbench.contract.xfail import spec_error
+
+        why = spec_error("", self.model_dump())
+        if why:
+            raise ValueError(why)
+        return self
+
+
 class CheckSection(_Strict):
     metric: str
     max: float | None = None
@@ -433,7 +450,9 @@ class CheckSection(_Strict):
     tolerance: float = Field(default=0.0, ge=0.0)
     engines: list[str] | None = None
     variants: list[str] | None = None
-    xfail: dict[str, str] = Field(default_factory=dict)
+    #: engine -> known limitation: a reason (measured on contract.xfail.MEASURED_ON's
+    #: version) or a table with reason, measured_on, versions
+    xfail: dict[str, str | XfailSection] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _one_bound(self) -> "CheckSection":

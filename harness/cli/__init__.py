@@ -10,6 +10,11 @@
     physbench ensemble SCENARIO|FILE [--engine E] [--n N] [--sigma M] [--seed S] [--threshold M] [--json]
     physbench consensus SCENARIO|FILE [--engines ...] [--json]
     physbench list
+    physbench compile [--jobs N]
+
+``--results-dir DIR`` (check, sweep, limits, report) and the
+``PHYSBENCH_RESULTS`` variable name the results directory; by default it is
+``./results`` under the working directory (harness/results.py).
 
 ``--set`` takes either an engine setting (``dt=0.002``, ``integrator=rk4``) or a
 dotted key path into the spec (``material.default.restitution=0.5``,
@@ -44,7 +49,9 @@ from physbench.harness.cli.common import (
     _phase_value,
     _positive_float,
     _seconds,
+    output_dir,
 )
+from physbench.harness.cli.compile import cmd_compile
 from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
 from physbench.harness.cli.ensemble import cmd_consensus, cmd_ensemble
 from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sweep
@@ -61,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
     from physbench.adapters import engine_names
     from physbench.harness.execute import DEFAULT_TIMEOUT_S
 
-    ENGINES = engine_names()  # the shipped four and any named in PHYSBENCH_ADAPTERS
+    ENGINES = engine_names()  # the shipped engines, entry-point plug-ins and any named in PHYSBENCH_ADAPTERS
+    results_help = "results directory (default ./results, or $PHYSBENCH_RESULTS)"
     timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
     p = argparse.ArgumentParser(prog="physbench", description="Validation and benchmark harness for rigid-body physics engines.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -105,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "KEY=VALUE for a setting every checked engine has (dt=1/240); a check's @dt=... wins")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
+    c.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     c.set_defaults(func=cmd_check)
 
     t = sub.add_parser("trace", help="run engines and write one rerun recording side by side")
@@ -159,7 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
                     help="default: resume an unfinished sweep of the same suite file, points and commit; "
                          "--resume also across commits; --no-resume always starts afresh")
-    sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    sw.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default <results-dir>/sweeps)")
+    sw.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     sw.set_defaults(func=cmd_sweep)
 
     lm = sub.add_parser("limits", help="breaking point: where a scene stops holding as one parameter moves")
@@ -179,13 +189,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="extra criterion: the metric must stay <= VALUE (e.g. energy_gain=0.01); repeatable")
     lm.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE",
                     help="fixed engine setting or dotted spec key for every run of the search")
-    lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default results/sweeps)")
+    lm.add_argument("--out", default=None, metavar="DIR", help="sweeps root (default <results-dir>/sweeps)")
+    lm.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     lm.add_argument("--json", action="store_true",
                     help="print one JSON object (limit, bracket, failed_check, runs, cpu_s, ...) on stdout")
     lm.set_defaults(func=cmd_limits)
 
     rp = sub.add_parser("report", help="one self-contained HTML page from stored sweep and check results")
-    rp.add_argument("--results-dir", default=None, metavar="DIR", help="default results/")
+    rp.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
     rp.add_argument("--target", type=_positive_float, default=None,
@@ -225,17 +236,28 @@ def build_parser() -> argparse.ArgumentParser:
     mo.add_argument("--json", action="store_true", help="print the declarations as JSON")
     mo.set_defaults(func=cmd_models)
 
-    ls = sub.add_parser("list", help="the scenarios in scenarios/")
+    ls = sub.add_parser("list", help="the shipped scenarios with tags and variants")
     ls.set_defaults(func=cmd_list)
+
+    co = sub.add_parser("compile", help="compile the reference engine's kernels into the on-disk cache ahead of a "
+                                        "first run (python -m physbench.engine)")
+    co.add_argument("--jobs", type=int, default=None, choices=(1, 2),
+                    help="processes compiling at once (default: 2 where two cores or more may be used)")
+    co.set_defaults(func=cmd_compile)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    from physbench.harness import results
     from physbench.harness.execute import register_env_adapters
 
     register_env_adapters()
     args = build_parser().parse_args(argv)
+    # --results-dir, for this command (results.results_dir reads it)
+    previous = results.set_results_dir(None)
     try:
+        if getattr(args, "results_dir", None) is not None:
+            results.set_results_dir(output_dir("--results-dir", args.results_dir))
         return int(args.func(args) or 0)
     except SpecError as e:
         for line in e.errors:
@@ -251,4 +273,6 @@ def main(argv: list[str] | None = None) -> int:
         # (tests/test_cli.py::test_a_closed_pipe_is_not_a_traceback)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141  # 128 + SIGPIPE, what a shell reports for a killed writer
+    finally:
+        results.set_results_dir(previous)
 

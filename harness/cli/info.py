@@ -9,31 +9,57 @@ from physbench.contract.spec import SpecError
 from physbench.harness.cli.common import UsageError, _fmt
 
 
-def cmd_engines(args: argparse.Namespace) -> int:
-    from physbench.adapters import ENGINES, get_adapter
+def _xfail_ranges(engine: str, version: str, shipped: dict) -> str:
+    """Whether ``version`` lies inside the ranges the shipped xfails of
+    ``engine`` were measured for (contract/xfail.py)."""
+    from physbench.contract.xfail import Xfail
 
+    parts = []
+    for (measured, rng), n in sorted(shipped.get(engine, {}).items()):
+        inside = Xfail("", measured, rng).covers(version)
+        verdict = {True: "inside", False: "OUTSIDE: run as plain checks", None: "not comparable"}[inside]
+        parts.append(f"{n} measured on {measured or '?'} ({rng or 'any version'}): {verdict}")
+    return "; ".join(parts) or "no shipped xfails"
+
+
+def cmd_engines(args: argparse.Namespace) -> int:
+    """Every registered engine (shipped, plug-ins, run time) with its
+    version, where it comes from, whether that version is inside the ranges
+    the shipped known limitations were measured for, capabilities and
+    settings; plug-ins that failed to load are listed with their error."""
+    from physbench.adapters import PLUGIN_PROBLEMS, engine_names, engine_origin, get_adapter
+    from physbench.contract.xfail import shipped_xfails
+
+    shipped = shipped_xfails()
     caps = []
-    for name in ENGINES:
+    for name in engine_names():
         try:
-            caps.append(get_adapter(name).capabilities().as_dict())
+            c = get_adapter(name).capabilities().as_dict()
         except Exception as e:  # a broken adapter module is reported, not fatal
-            caps.append({"engine": name, "available": False, "error": f"{type(e).__name__}: {e}"})
+            c = {"engine": name, "available": False, "error": f"{type(e).__name__}: {e}"}
+        c["origin"] = engine_origin(name)
+        if "error" not in c:
+            c["xfail_ranges"] = _xfail_ranges(name, str(c.get("version", "")), shipped)
+        caps.append(c)
     if args.json:
         print(json.dumps(caps, indent=2, default=str))
         return 0
     from rich.console import Console
     from rich.table import Table
 
-    t = Table("engine", "version", "available", "dims", "shapes", "effects", "settings (default)")
+    t = Table("engine", "version", "from", "available", "shipped xfails' versions", "dims", "shapes", "effects",
+              "settings (default)")
     for c in caps:
         if "error" in c:
-            t.add_row(c["engine"], "", "no", "", "", "", c["error"])
+            t.add_row(c["engine"], "", c["origin"], "no", "", "", "", "", c["error"])
             continue
-        t.add_row(c["engine"], c["version"], "yes" if c["available"] else "no", str(c["dimensions"]),
-                  ", ".join(c["shapes"]), ", ".join(c["effects"]),
+        t.add_row(c["engine"], c["version"], c["origin"], "yes" if c["available"] else "no", c["xfail_ranges"],
+                  str(c["dimensions"]), ", ".join(c["shapes"]), ", ".join(c["effects"]),
                   ", ".join(f"{k}={_fmt(v['default']) if v['default'] is not None else 'scene'}"
                             for k, v in c["settings"].items()))
-    Console(width=200).print(t)
+    Console(width=240).print(t)
+    for line in PLUGIN_PROBLEMS:
+        print(f"plug-in: {line}")
     return 0
 
 
@@ -47,8 +73,14 @@ def cmd_models(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(descs if args.name is None else descs[0]))
         return 0
+    from physbench.contract.models import PLUGIN_PROBLEMS
+
     for d in descs:
-        print(f"{d['name']}: {d['summary']}")
+        if "error" in d:
+            print(f"{d['name']} (from {d['origin']}): cannot be loaded: {d['error']}")
+            print()
+            continue
+        print(f"{d['name']} (from {d['origin']}): {d['summary']}")
         print(f"  takes: {d['takes']}")
         for p in d["params"]:
             default = "-" if p["default"] is None else repr(p["default"])
@@ -57,6 +89,8 @@ def cmd_models(args: argparse.Namespace) -> int:
         for m, meaning in d["produces"].items():
             print(f"    {m}: {meaning}")
         print()
+    for line in PLUGIN_PROBLEMS:
+        print(f"plug-in: {line}")
     return 0
 
 

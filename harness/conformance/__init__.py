@@ -181,7 +181,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
-    from physbench.harness.results import RESULTS_DIR, SCHEMA_VERSION, consolidate_parts
+    from physbench.harness.results import SCHEMA_VERSION, consolidate_parts, results_dir
     from physbench.harness.runner import RunResult
     from physbench.contract.scene import resolve_scenario
     from physbench.contract.spec import SpecError
@@ -205,7 +205,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         err.print(f"no check applies: {len(ids)} scenarios, engines {', '.join(engines)}; exit {NOTHING_CHECKED}",
                   markup=False, highlight=False, soft_wrap=True)
         return NOTHING_CHECKED
-    root = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    root = Path(save_dir) if save_dir is not None else results_dir() / "check"
     store, resumed = open_check(root, check_identity(ids, engines, runs, timeout_s), resume)
     results: dict[tuple, Any] = {}
     by_key = {r.run_key: r for r in runs}

@@ -89,9 +89,26 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
 
 
 def default_engines() -> list[str]:
-    from physbench.adapters import ENGINES
+    """The engines ``check`` runs when none are named: every registered
+    engine (shipped, plug-ins) except shipped ones that are not installed
+    (their extra was not: stderr says which; ``--engines`` naming one still
+    runs it, as ``unsupported`` rows).  A plug-in that fails to load stays
+    in: its rows carry its error."""
+    import sys
 
-    return list(ENGINES)
+    from physbench.adapters import ENGINES, engine_names, get_adapter
+
+    out, missing = [], []
+    for name in engine_names():
+        try:
+            available = get_adapter(name).capabilities().available
+        except Exception:
+            available = name not in ENGINES
+        (out if available else missing).append(name)
+    if missing:
+        print(f"check: left out, not installed: {', '.join(missing)} (pip install "
+              f"'physbench[{','.join(missing)}]' adds them)", file=sys.stderr)
+    return out
 
 
 def engine_names_in_checks(scene: Scene, label: str, known: Iterable[str] | None = None) -> tuple[list[str], list[str]]:

@@ -25,11 +25,11 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
     """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
     (default results/check/) in one file; a failure to write is reported,
     not fatal.  (``check_main`` stores rows as they finish instead.)"""
-    from physbench.harness.results import RESULTS_DIR, write_rows
+    from physbench.harness.results import results_dir, write_rows
 
     if not results:
         return None
-    d = Path(save_dir) if save_dir is not None else RESULTS_DIR / "check"
+    d = Path(save_dir) if save_dir is not None else results_dir() / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     rows = [_row(key, r) for key, r in results.items()]
     try:

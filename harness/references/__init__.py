@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from physbench.contract.models import MODELS, ReferenceError, get_model
+from physbench.contract.models import MODEL_ORIGINS, MODELS, SHIPPED_MODELS, ReferenceError, get_model
 
 if TYPE_CHECKING:
     from physbench.contract.scene import Scene
@@ -255,9 +255,14 @@ def describe(name: str | None = None) -> list[dict[str, Any]]:
     produces {metric: meaning}, primary."""
     out = []
     for n in sorted(MODELS) if name is None else [name]:
-        cls = get_model(n)
+        try:
+            cls = get_model(n)
+        except Exception as e:  # a broken plug-in model: listed with its error
+            out.append({"name": n, "origin": MODEL_ORIGINS.get(n, ""), "error": f"{type(e).__name__}: {e}"})
+            continue
         out.append({
             "name": n,
+            "origin": MODEL_ORIGINS.get(n, ""),
             "summary": cls.summary,
             "takes": cls.takes,
             "params": [{"name": p.name, "type": p.type, "default": p.default, "meaning": p.meaning}
@@ -288,7 +293,7 @@ def models_markdown() -> str:
         "| model | what it models | primary metric |",
         "| --- | --- | --- |",
     ]
-    descs = describe()
+    descs = [d for d in describe() if d["name"] in SHIPPED_MODELS]  # the shipped models, not plug-ins
     for d in descs:
         lines.append(f"| [`{d['name']}`](#{d['name']}) | {d['summary']} | `{d['primary']}` |")
     for d in descs:

@@ -65,7 +65,7 @@ from physbench.harness.report.loading import load_results
 from physbench.harness.report.page import render_html
 from physbench.harness.report.plots import ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_history, plot_work_precision
 from physbench.harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
-from physbench.harness.results import RESULTS_DIR, write_json_atomic, write_text_atomic
+from physbench.harness.results import results_dir as _results_dir, write_json_atomic, write_text_atomic
 
 _normalise = normalise  # the name older callers use
 
@@ -89,7 +89,7 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
     when there were no usable result rows (the page is still written and
     says so); 3 when ``fail_on_regression`` and a regression is flagged (for
     a nightly pipeline that should go red)."""
-    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    root = Path(results_dir) if results_dir is not None else _results_dir()
     out = Path(out) if out is not None else root / "report.html"
     cmd = ["physbench", "report"]
     if results_dir is not None:

@@ -20,7 +20,7 @@ from typing import Any, Iterable
 import pandas as pd
 
 from physbench.harness.report.rows import _missing, _num, fmt, normalise
-from physbench.harness.results import RESULTS_DIR, SCHEMA_VERSION
+from physbench.harness.results import SCHEMA_VERSION, results_dir as _results_dir
 from physbench.harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
@@ -85,7 +85,7 @@ def load_results(results_dir: str | Path | None = None, suites: list[str] | None
     schema version) are in ``df.attrs['warnings']`` as text and in
     ``df.attrs['data_notes']`` as notes (:func:`_note`).
     """
-    root = Path(results_dir) if results_dir is not None else RESULTS_DIR
+    root = Path(results_dir) if results_dir is not None else _results_dir()
     notes: list[dict[str, Any]] = []
     frames: list[pd.DataFrame] = []
     for mid, suite, sid, p, complete in sweep_files(root / "sweeps", suites):
