@@ -322,8 +322,10 @@ def test_validate_reports_without_stepping(tmp_path, monkeypatch):
     assert checks["roll_accel_error"]["applies_to"] == {v: ["reference", "mujoco", "pymunk"] for v in scenes}
     assert checks["max_penetration"]["applies_to"] == {v: ["mujoco"] for v in scenes}
     assert checks["max_penetration"]["xfail"] == ["mujoco"]
+    from physbench.adapters import engine_names
+
     assert d["not_installed"] == [f"{p}: check[4].engines: engine 'genesis' is not installed here (engines here: "
-                                  f"reference, mujoco, pybullet, pymunk); its checks run only where it is"]
+                                  f"{', '.join(engine_names())}); its checks run only where it is"]
     # the text report, in this process (the runner patched above never runs)
     assert cli.main(["validate", str(p)]) == 0
     # a bad spec is exit 2 with the errors, as for every command

@@ -119,6 +119,8 @@ def test_engines_says_whether_each_version_is_inside_the_shipped_ranges(capsys):
     shipped = shipped_xfails()
     assert set(shipped) >= {"mujoco", "pybullet", "pymunk"}
     for engine, ranges in shipped.items():
+        if engine not in MEASURED_ON:  # no recorded version (the reference engine's own): any version
+            continue
         assert (MEASURED_ON[engine], default_range(MEASURED_ON[engine])) in ranges
     assert main(["engines", "--json"]) == 0
     rows = {r["engine"]: r for r in json.loads(capsys.readouterr().out)}
