@@ -43,6 +43,8 @@ MODELS: dict[str, str] = {
     "heavy_top": "physbench.harness.references.rigid_body:HeavyTop",
     "damped_oscillator": "physbench.harness.references.forces:DampedOscillator",
     "drag_fall": "physbench.harness.references.forces:DragFall",
+    "pendulum": "physbench.harness.references.joints:Pendulum",
+    "slider": "physbench.harness.references.joints:Slider",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 

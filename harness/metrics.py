@@ -42,6 +42,7 @@ import numpy as np
 from physbench.contract.rotation import quat_rotate
 from physbench.contract.metric_defs import dissipation, external_force_free
 from physbench.contract.scene import Scene
+from physbench.harness.joints import joint_metrics
 
 STABLE_MAX_ENERGY_GAIN = 0.5
 STABLE_SPEED_FACTOR = 100.0
@@ -364,6 +365,7 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
     out["stable"] = not reasons
     out["stability_reason"] = "; ".join(reasons)
     out["max_speed"] = vmax
+    out.update(joint_metrics(scene, trace))  # {} without joints (harness/joints.py)
 
     # --- reference model
     if model and scene.reference_model:

@@ -1,0 +1,110 @@
+"""Joint violation measured from recorded states: ``joint_drift`` (m) and
+``joint_axis_drift`` (rad), the same arithmetic for every engine (never an
+engine's own constraint error; definitions in contract/metric_defs.py and
+docs/METRICS.md).
+
+Each side of a joint carries the joint's anchor and axis in its own frame
+(:class:`contract.scene_model.Joint`); at frame f side s puts them in the
+world as ``p_s = x_s + R(q_s) a_s`` and ``u_s = R(q_s) e_s`` (the world side
+stays put).  Per kind:
+
+- revolute: |p_b - p_o| (m) and the angle between u_b and u_o (rad);
+- spherical: |p_b - p_o| (m);
+- prismatic: the part of p_b - p_o off u_o (m) and the relative rotation
+  since the start (rad: a slider neither turns nor twists);
+- fixed: |p_b - p_o| (m) and the relative rotation since the start (rad).
+
+Tests: tests/test_joint_drift.py (planted violations of known size).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from physbench.contract.rotation import quat_rotate
+
+
+def _side(trace, i: int, v: np.ndarray, point: bool) -> np.ndarray:
+    """World positions (point) or directions of the body-frame vector v (3,)
+    carried by body i over the frames: (F, 3); body -1 (the world) keeps v."""
+    F = trace.pos.shape[0]
+    if i < 0:
+        return np.broadcast_to(v, (F, 3))
+    w = quat_rotate(trace.quat[:, i], np.broadcast_to(v, (F, 3)))
+    return trace.pos[:, i] + w if point else w
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _relative(trace, i: int) -> np.ndarray:
+    """Orientations (F, 4) wxyz of side i (identity for the world)."""
+    F = trace.pos.shape[0]
+    if i < 0:
+        return np.tile([1.0, 0.0, 0.0, 0.0], (F, 1))
+    return _unit(np.asarray(trace.quat[:, i], float))
+
+
+def _rotation_since_start(trace, b: int, o: int) -> np.ndarray:
+    """Angle (F,) rad of the relative rotation r(t) = q_o(t)^-1 q_b(t)
+    measured against r(0): 2 acos |<r(t), r(0)>| (sign-blind: q and -q are
+    one rotation)."""
+    qb, qo = _relative(trace, b), _relative(trace, o)
+    # r = conj(qo) * qb, per frame
+    w1, x1, y1, z1 = qo[:, 0], -qo[:, 1], -qo[:, 2], -qo[:, 3]
+    w2, x2, y2, z2 = qb[:, 0], qb[:, 1], qb[:, 2], qb[:, 3]
+    r = np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                  w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                  w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                  w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+    dot = np.abs(r @ r[0])
+    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle (F,) rad between direction rows u, v (F, 3), by atan2 (exact
+    near 0, where acos loses half the digits)."""
+    c = np.einsum("ij,ij->i", u, v)
+    s = np.linalg.norm(np.cross(u, v), axis=-1)
+    return np.arctan2(s, c)
+
+
+def joint_violations(scene, trace) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per joint of ``scene`` (in order), (positional violation (F,) m,
+    angular violation (F,) rad) over the trace's frames."""
+    out = []
+    for j in scene.joints:
+        pb = _side(trace, j.body, j.anchor_body, True)
+        po = _side(trace, j.other, j.anchor_other, True)
+        d = pb - po
+        zero = np.zeros(d.shape[0])
+        if j.kind == "prismatic":
+            u = _side(trace, j.other, j.axis_other, False)
+            u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+            off = d - np.einsum("ij,ij->i", d, u)[:, None] * u
+            out.append((np.linalg.norm(off, axis=-1), _rotation_since_start(trace, j.body, j.other)))
+            continue
+        sep = np.linalg.norm(d, axis=-1)
+        if j.kind == "revolute":
+            ub = _side(trace, j.body, j.axis_body, False)
+            uo = _side(trace, j.other, j.axis_other, False)
+            out.append((sep, _angle(ub, uo)))
+        elif j.kind == "fixed":
+            out.append((sep, _rotation_since_start(trace, j.body, j.other)))
+        else:  # spherical: a point constraint only
+            out.append((sep, zero))
+    return out
+
+
+def joint_metrics(scene, trace) -> dict[str, float]:
+    """``joint_drift`` (m) and ``joint_axis_drift`` (rad): the largest
+    violation over frames and joints; {} for a scene without joints.  A
+    non-finite state gives NaN (the run is then not stable anyway)."""
+    if not scene.joints:
+        return {}
+    v = joint_violations(scene, trace)
+    lin = np.concatenate([a for a, _ in v])
+    ang = np.concatenate([b for _, b in v])
+    return {"joint_drift": float(np.max(lin)) if np.isfinite(lin).all() else float("nan"),
+            "joint_axis_drift": float(np.max(ang)) if np.isfinite(ang).all() else float("nan")}

@@ -1,0 +1,260 @@
+"""Closed forms for jointed bodies: a physical pendulum on a hinge, a block
+on a slider.
+
+Pendulum (``pendulum``).  One body on one revolute joint to the world, hinge
+axis u, anchor a, gravity g.  Only the part of g across the axis turns the
+body: G = |g - (g . u) u|, e1 = (g - (g . u) u) / G (down), e2 = u x e1.  The
+centre of mass sits at r = x - a; its part across the axis has length d (the
+pendulum's length) and angle theta from e1 towards e2:
+theta = atan2(r . e2, r . e1).  With I the moment of inertia about the hinge
+line (the body's own about u plus m d^2),
+
+    I theta'' = -m G d sin theta,   wn = sqrt(m G d / I).
+
+Energy fixes the amplitude: cos theta_max = cos theta0 - theta0'^2 / (2 wn^2),
+k = sin(theta_max / 2), m_e = k^2.  The motion, through Jacobi's elliptic
+functions (scipy.special.ellipj), is
+
+    sin(theta / 2) = k sn(wn t + u0 | m_e),   theta' = 2 k wn cn(wn t + u0 | m_e),
+
+with u0 = F(phi0 | m_e), sin phi0 = sin(theta0 / 2) / k (incomplete integral
+F, scipy.special.ellipkinc), or 2K - F(phi0 | m_e) when the body starts
+swinging back (theta0' < 0).  The period at any amplitude is
+T = 4 K(m_e) / wn = 4 sqrt(I / (m G d)) K(sin(theta_max / 2)).  A start that
+goes over the top (cos theta_max <= -1) or never swings (k = 0) is refused.
+
+Slider (``slider``).  One body on one prismatic joint to the world, slide
+axis u, no friction: s'' = g . u along the axis (a = g sin alpha on an
+incline of angle alpha), x(t) = x0 + (v0 t + (g . u) t^2 / 2) u.
+
+Tests: tests/test_joint_models.py (each against scipy's solve_ivp of the
+equation of motion, or the kinematics, computed in the test).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import ellipj, ellipk, ellipkinc
+
+from physbench.contract.rotation import quat_to_matrix
+from physbench.harness.references import (TRAJECTORY, ReferenceError, ReferenceModel, divide, fit_slope,
+                                          trajectory_metrics)
+
+#: relative tolerance on "the start is a rotation about the joint"
+_RIGID = 1e-9
+
+
+def _one_world_joint(model: ReferenceModel, kind: str):
+    """The scene's only joint, of ``kind``, to the world; its body."""
+    sc = model.scene
+    if len(sc.joints) != 1:
+        raise ReferenceError(f"{model.name} needs exactly one [[joint]], the scene has {len(sc.joints)}",
+                             key="joint")
+    j = sc.joints[0]
+    if j.kind != kind:
+        raise ReferenceError(f"{model.name} needs a {kind} joint, got {j.kind!r}", key="joint[0].kind")
+    if j.other != -1:
+        raise ReferenceError(f"{model.name} needs a joint to the world, got one to "
+                             f"{sc.bodies[j.other].name!r}", key="joint[0].other")
+    if sc.n_bodies != 1:
+        raise ReferenceError(f"{model.name} needs exactly one body, the scene has {sc.n_bodies}")
+    for eff in ("contact", "spring", "damper", "drag_linear", "drag_quadratic"):
+        if sc.has(eff):
+            raise ReferenceError(f"{model.name} models the joint and gravity only; the scene lists {eff!r}",
+                                 key="scenario.effects")
+    return j, sc.bodies[j.body]
+
+
+def _crossings(t: np.ndarray, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """Times (s) where y (F,) crosses 0 upwards, located by the cubic
+    Hermite interpolant of (y, dy) on each frame interval (Newton from the
+    linear guess); intervals with |jump| > pi (an angle wrapping over the top)
+    are skipped."""
+    i = np.nonzero((y[:-1] <= 0.0) & (y[1:] > 0.0) & (np.abs(y[1:] - y[:-1]) < math.pi))[0]
+    out = []
+    for k in i:
+        h = t[k + 1] - t[k]
+        y0, y1, m0, m1 = y[k], y[k + 1], dy[k] * h, dy[k + 1] * h
+        s = -y0 / (y1 - y0)
+        for _ in range(8):
+            s2, s3 = s * s, s * s * s
+            f = (2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * y1 + (s3 - s2) * m1
+            df = (6 * s2 - 6 * s) * y0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * y1 + (3 * s2 - 2 * s) * m1
+            if df == 0.0:
+                break
+            s = min(1.0, max(0.0, s - f / df))
+        out.append(t[k] + s * h)
+    return np.array(out)
+
+
+class Pendulum(ReferenceModel):
+    name = "pendulum"
+    summary = ("a rigid body on a revolute joint to the world under gravity: the physical pendulum at any "
+               "amplitude, through Jacobi's elliptic functions")
+    takes = ("exactly one body and one revolute [[joint]] to the world (its anchor and hinge axis), gravity "
+             "across the axis, the body's mass and inertia; a start that is a rotation about the hinge "
+             "(angular velocity along the axis, velocity = w x (x - anchor)). Refuses contact, springs and "
+             "drag, a start that goes over the top, and one at rest hanging straight down. Energy: the "
+             "harness's energy_drift; the joint: joint_drift")
+    produces = {
+        "period": "measured mean time between upward crossings of theta = 0 (s; Hermite-interpolated from the "
+                  "angle and the angular velocity about the axis)",
+        "period_ref": "4 sqrt(I / (m g d)) K(sin(theta_max / 2)) (s)",
+        "period_error": "|T - T_ref| / T_ref (1; inf with fewer than two upward crossings in the run)",
+        "angle_error": "max_t |theta - theta_ref| (rad), theta the angle of the centre of mass about the hinge "
+                       "from straight down",
+        "amplitude_ref": "theta_max (rad)",
+        **TRAJECTORY,
+    }
+    primary = "period_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        j, b = _one_world_joint(self, "revolute")
+        self.joint, self.body = j, b
+        u = j.axis
+        g = scene.gravity
+        gp = g - (g @ u) * u
+        G = float(np.linalg.norm(gp))
+        if not G > 0.0:
+            raise ReferenceError("gravity has no part across the hinge axis: the pendulum has no restoring "
+                                 "torque", key="scenario.gravity")
+        e1 = gp / G
+        e2 = np.cross(u, e1)
+        r0 = b.position - j.anchor
+        self.along = float(r0 @ u)
+        rp = r0 - self.along * u
+        d = float(np.linalg.norm(rp))
+        k_idx = scene.body_key(b.index, "position")
+        if not d > 0.0:
+            raise ReferenceError("the centre of mass lies on the hinge line: no restoring torque", key=k_idx)
+        R = quat_to_matrix(b.orientation)
+        I = float(u @ (R @ np.diag(b.inertia) @ R.T) @ u) + b.mass * d * d
+        w0 = float(b.angular_velocity @ u)
+        scale = abs(w0) * d + math.sqrt(G * d)
+        if np.linalg.norm(b.angular_velocity - w0 * u) * d > _RIGID * scale:
+            raise ReferenceError(f"the start turns about more than the hinge axis {u.tolist()}: angular_velocity "
+                                 f"{b.angular_velocity.tolist()}", key=scene.body_key(b.index, "angular_velocity"))
+        if np.linalg.norm(b.velocity - w0 * np.cross(u, r0)) > _RIGID * scale:
+            raise ReferenceError(f"the start is not a rotation about the hinge: velocity {b.velocity.tolist()} "
+                                 f"!= w x (x - anchor) = {(w0 * np.cross(u, r0)).tolist()}",
+                                 key=scene.body_key(b.index, "velocity"))
+        self.u, self.e1, self.e2, self.G, self.d, self.I = u, e1, e2, G, d, I
+        self.wn = math.sqrt(b.mass * G * d / I)
+        th0 = math.atan2(float(rp @ e2), float(rp @ e1))
+        cmax = math.cos(th0) - w0 * w0 / (2 * self.wn ** 2)
+        if cmax <= -1.0 + 1e-12:
+            raise ReferenceError(f"the start goes over the top (cos theta_max = {cmax:.6g} <= -1): the model is "
+                                 f"the swinging pendulum", key=scene.body_key(b.index, "angular_velocity"))
+        k2 = (1.0 - cmax) / 2.0
+        if not k2 > 0.0:
+            raise ReferenceError("the pendulum starts at rest hanging straight down: it never swings", key=k_idx)
+        self.k, self.m = math.sqrt(k2), k2
+        self.theta0, self.w0 = th0, w0
+        self.theta_max = 2.0 * math.asin(self.k)
+        self.K = float(ellipk(self.m))
+        phi0 = math.asin(max(-1.0, min(1.0, math.sin(th0 / 2) / self.k)))
+        F0 = float(ellipkinc(phi0, self.m))
+        self.u0 = F0 if w0 >= 0.0 else 2.0 * self.K - F0
+        self.T = 4.0 * self.K / self.wn
+
+    # ---- the closed form ---------------------------------------------------
+    def angle(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(theta (F,) rad, theta' (F,) rad/s) at times t (F,) s."""
+        sn, cn, _, _ = ellipj(self.wn * np.asarray(t, float) + self.u0, self.m)
+        return 2.0 * np.arcsin(np.clip(self.k * sn, -1.0, 1.0)), 2.0 * self.k * self.wn * cn
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        th, _ = self.angle(t)
+        out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
+        j = self.joint
+        out[:, self.body.index] = (j.anchor + self.along * self.u
+                                   + self.d * (np.cos(th)[:, None] * self.e1 + np.sin(th)[:, None] * self.e2))
+        return out
+
+    def measured_angle(self, trace) -> tuple[np.ndarray, np.ndarray]:
+        """(theta (F,) rad, theta' (F,) rad/s) of the recorded body."""
+        i = self.body.index
+        r = trace.pos[:, i] - self.joint.anchor
+        return np.arctan2(r @ self.e2, r @ self.e1), trace.angvel[:, i] @ self.u
+
+    def predictions(self) -> dict[str, str]:
+        return {"period": f"{self.T:.9g} s", "amplitude": f"{math.degrees(self.theta_max):.6g} deg",
+                "small-angle period": f"{2 * math.pi / self.wn:.9g} s"}
+
+    def metrics(self, trace) -> dict[str, float]:
+        t = np.asarray(trace.t, float)
+        out: dict[str, float] = {}
+        i = self.body.index
+        ref = self.positions(t)[:, [i]]
+        out.update(trajectory_metrics(trace.pos[:, [i]], ref))
+        th, dth = self.measured_angle(trace)
+        th_ref, _ = self.angle(t)
+        diff = np.angle(np.exp(1j * (th - th_ref)))
+        out["angle_error"] = float(np.max(np.abs(diff))) if np.isfinite(diff).all() else float("nan")
+        out["amplitude_ref"] = self.theta_max
+        out["period_ref"] = self.T
+        c = _crossings(t, th, dth) if np.isfinite(th).all() and np.isfinite(dth).all() else np.array([])
+        if len(c) >= 2:
+            T = float((c[-1] - c[0]) / (len(c) - 1))
+            out["period"] = T
+            out["period_error"] = abs(T - self.T) / self.T
+        else:
+            out["period"] = float("nan")
+            out["period_error"] = float("inf")
+        return out
+
+
+class Slider(ReferenceModel):
+    name = "slider"
+    summary = "a body on a frictionless prismatic joint to the world: uniform acceleration g . u along the slide"
+    takes = ("exactly one body and one prismatic [[joint]] to the world (its slide axis u), gravity; a start "
+             "moving along the axis without turning. Refuses contact, springs and drag. The joint: joint_drift")
+    produces = {
+        "slider_position_error": "max_t |x - x_ref| (m), x_ref = x0 + (v0 t + (g . u) t^2 / 2) u",
+        "slider_acceleration": "measured acceleration along the axis: the least-squares slope of the velocity "
+                               "along u (m/s^2)",
+        "slider_acceleration_ref": "g . u (m/s^2; g sin alpha on an incline of angle alpha)",
+        "slider_acceleration_error": "|a - a_ref| / |a_ref| (1; undefined when the axis is level)",
+        **TRAJECTORY,
+    }
+    primary = "slider_acceleration_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        j, b = _one_world_joint(self, "prismatic")
+        self.joint, self.body = j, b
+        u = j.axis
+        v0 = float(b.velocity @ u)
+        scale = abs(v0) + 1.0
+        if np.linalg.norm(b.velocity - v0 * u) > _RIGID * scale:
+            raise ReferenceError(f"the start moves off the slide axis {u.tolist()}: velocity {b.velocity.tolist()}",
+                                 key=scene.body_key(b.index, "velocity"))
+        if np.linalg.norm(b.angular_velocity) > 0.0:
+            raise ReferenceError("a slider does not turn: the start's angular_velocity must be 0",
+                                 key=scene.body_key(b.index, "angular_velocity"))
+        self.u, self.v0, self.a = u, v0, float(scene.gravity @ u)
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, float)
+        out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
+        s = self.v0 * t + 0.5 * self.a * t * t
+        out[:, self.body.index] = self.body.position + s[:, None] * self.u
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        return {"acceleration along the slide": f"{self.a:.9g} m/s^2"}
+
+    def metrics(self, trace) -> dict[str, float]:
+        t = np.asarray(trace.t, float)
+        i = self.body.index
+        ref = self.positions(t)[:, [i]]
+        out = trajectory_metrics(trace.pos[:, [i]], ref)
+        out["slider_position_error"] = float(np.max(np.linalg.norm(trace.pos[:, i] - ref[:, 0], axis=-1)))
+        a = fit_slope(t, trace.vel[:, i] @ self.u)
+        out["slider_acceleration"] = a
+        out["slider_acceleration_ref"] = self.a
+        divide(out, "slider_acceleration_error", abs(a - self.a), abs(self.a), "the acceleration along the axis")
+        return out
