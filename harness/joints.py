@@ -46,20 +46,28 @@ def _relative(trace, i: int) -> np.ndarray:
     return _unit(np.asarray(trace.quat[:, i], float))
 
 
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a b of quaternion rows (F, 4) wxyz."""
+    w1, x1, y1, z1 = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    w2, x2, y2, z2 = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                     w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+
+
+def _conj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
 def _rotation_since_start(trace, b: int, o: int) -> np.ndarray:
     """Angle (F,) rad of the relative rotation r(t) = q_o(t)^-1 q_b(t)
-    measured against r(0): 2 acos |<r(t), r(0)>| (sign-blind: q and -q are
-    one rotation)."""
-    qb, qo = _relative(trace, b), _relative(trace, o)
-    # r = conj(qo) * qb, per frame
-    w1, x1, y1, z1 = qo[:, 0], -qo[:, 1], -qo[:, 2], -qo[:, 3]
-    w2, x2, y2, z2 = qb[:, 0], qb[:, 1], qb[:, 2], qb[:, 3]
-    r = np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                  w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                  w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                  w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
-    dot = np.abs(r @ r[0])
-    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+    against r(0): the angle of c = r(0)^-1 r(t), 2 atan2(|c_xyz|, |c_w|)
+    (sign-blind, q and -q being one rotation; exact near 0, where acos of
+    the dot product loses half the digits)."""
+    r = _qmul(_conj(_relative(trace, o)), _relative(trace, b))
+    c = _qmul(np.broadcast_to(_conj(r[0]), r.shape), r)
+    return 2.0 * np.arctan2(np.linalg.norm(c[:, 1:], axis=-1), np.abs(c[:, 0]))
 
 
 def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
