@@ -142,6 +142,7 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
             lines.append(f'    <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
         if sp.b < 0:
             lines.append(f'    <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
+    held = {j.body: j for j in scene.joints}  # joints to the world only (joint_tree_reason)
     for b in scene.bodies:
         if b.shape == "sphere":
             gs = f'type="sphere" size="{_f(b.radius)}"'
@@ -150,7 +151,7 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         else:
             gs = f'type="{b.shape}" size="{_f(b.radius)} {_f(b.half_length)}"'
         lines.append(f'    <body name="b{b.index}" pos="{_v(b.position)}" quat="{_v(b.orientation)}">')
-        lines.append('      <freejoint/>')
+        lines.append(joint_xml(held[b.index]) if b.index in held else '      <freejoint/>')
         lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass * mscale)}" '
                      f'diaginertia="{_v(np.multiply(b.inertia, mscale))}"/>')
         lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}/>')
@@ -188,6 +189,88 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         "mass_scale": mscale,
     }
     return "\n".join(lines) + "\n", meta
+
+
+#: contract joint kind -> MJCF joint type; a fixed joint to the world is a
+#: body without a joint (welded to its parent, the world)
+JOINT_TYPES = {"revolute": "hinge", "spherical": "ball", "prismatic": "slide", "fixed": None}
+
+
+def joint_xml(j) -> str:
+    """The MJCF ``<joint>`` line of joint ``j`` (to the world), in its
+    body's frame: anchor and axis as compiled (contract Joint.anchor_body,
+    axis_body), no limits, damping, armature or friction loss; '' for a
+    fixed joint (no degree of freedom)."""
+    kind = JOINT_TYPES[j.kind]
+    if kind is None:
+        return ""
+    axis = f' axis="{_v(j.axis_body)}"' if j.axis_body is not None else ""
+    return (f'      <joint name="j{j.index}" type="{kind}" pos="{_v(j.anchor_body)}"{axis} '
+            f'damping="0" armature="0" frictionloss="0"/>')
+
+
+def joint_tree_reason(scene: Scene) -> str | None:
+    """Why this adapter cannot build the scene's joints yet, or None: it
+    builds each body's one joint to the world (hinge, ball, slide, or a weld
+    for fixed); joints between bodies (chains, loops: the body tree and
+    equality constraints) and drag on a jointed scene are not yet built."""
+    seen: set[int] = set()
+    for k, j in enumerate(scene.joints):
+        if j.other >= 0:
+            return (f"joints: MuJoCo adapter builds joints to the world only; joint[{k}] joins two bodies "
+                    f"(chains come with the body tree)")
+        if j.body in seen:
+            return f"joints: MuJoCo adapter builds one joint per body; body {scene.bodies[j.body].name!r} has more"
+        seen.add(j.body)
+    if scene.joints and (scene.has("drag_linear") or scene.has("drag_quadratic")):
+        return "joints: MuJoCo adapter applies drag to free bodies only"
+    return None
+
+
+def joint_start(scene: Scene, m: Any, d: Any) -> None:
+    """Write the scene's initial state into MuJoCo's qpos/qvel (bodies in
+    scene order are bodies 1..n; a body's pose at the start is its MJCF pose,
+    so a joint's qpos is 0 and its quaternion the identity).  A start the
+    joint cannot hold (a hinge body moving other than by turning about the
+    hinge, a slider turning or moving off its axis, a welded body moving) is
+    a ValueError with the reason: reduced coordinates would drop it."""
+    from physbench.contract.rotation import world_to_body_angvel
+
+    held = {j.body: j for j in scene.joints}
+    x0, q0, v0, w0 = scene.initial_state()
+    scale = 1.0 + float(np.max(np.abs(v0), initial=0.0))
+    for i, b in enumerate(scene.bodies):
+        jnt = [k for k in range(m.njnt) if m.jnt_bodyid[k] == i + 1]
+        j = held.get(i)
+        if j is None:  # a free body
+            qa, da = m.jnt_qposadr[jnt[0]], m.jnt_dofadr[jnt[0]]
+            d.qpos[qa:qa + 7] = np.concatenate([x0[i], q0[i]])
+            d.qvel[da:da + 3] = v0[i]
+            d.qvel[da + 3:da + 6] = world_to_body_angvel(q0[i], w0[i])
+            continue
+        r = x0[i] - j.anchor
+        w = w0[i]
+        if j.kind == "revolute":
+            rate = float(w @ j.axis)
+            bad = np.linalg.norm(w - rate * j.axis) + np.linalg.norm(v0[i] - rate * np.cross(j.axis, r)) / scale
+            value = [rate]
+        elif j.kind == "spherical":
+            bad = np.linalg.norm(v0[i] - np.cross(w, r)) / scale
+            value = list(world_to_body_angvel(q0[i], w))  # a ball joint's qvel is in the body frame
+            d.qpos[m.jnt_qposadr[jnt[0]]:m.jnt_qposadr[jnt[0]] + 4] = (1.0, 0.0, 0.0, 0.0)
+        elif j.kind == "prismatic":
+            rate = float(v0[i] @ j.axis)
+            bad = np.linalg.norm(w) + np.linalg.norm(v0[i] - rate * j.axis) / scale
+            value = [rate]
+        else:
+            bad, value = np.linalg.norm(w) + np.linalg.norm(v0[i]) / scale, []
+        if bad > 1e-9:
+            raise ValueError(f"joints: body {b.name!r} starts with a motion its {j.kind} joint does not allow "
+                             f"(velocity {v0[i].tolist()}, angular velocity {w.tolist()}); MuJoCo's reduced "
+                             f"coordinates would drop it")
+        if value:
+            da = m.jnt_dofadr[jnt[0]]
+            d.qvel[da:da + len(value)] = value
 
 
 def xml_escape(s: str) -> str:

@@ -78,6 +78,38 @@ def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.arctan2(s, c)
 
 
+def held_lowest_height(scene, body, up: np.ndarray) -> float | None:
+    """The lowest height (m, along the unit ``up``) the centre of ``body``
+    can reach while one joint holds it to the world, or None when no joint
+    does (then free fall bounds it, harness.metrics.lowest_height).  Revolute:
+    the bottom of the circle its centre turns on about the hinge line;
+    spherical: the anchor's height less the centre's distance from it;
+    fixed: where it starts; prismatic: its start lowered by the slide a
+    frictionless axis allows in the scene's duration T (as on an incline).
+    Joints between bodies are not counted (None unless a world joint holds
+    the body).  Test: tests/test_joint_drift.py::test_energy_datum_of_a_held_body."""
+    for j in scene.joints:
+        if j.body != body.index or j.other >= 0:
+            continue
+        r = body.position - j.anchor
+        h0 = float(body.position @ up)
+        if j.kind == "fixed":
+            return h0
+        if j.kind == "spherical":
+            return float(j.anchor @ up) - float(np.linalg.norm(r))
+        u = j.axis
+        if j.kind == "revolute":
+            centre = j.anchor + (r @ u) * u
+            radius = float(np.linalg.norm(r - (r @ u) * u))
+            across = float(np.linalg.norm(up - (up @ u) * u))
+            return min(h0, float(centre @ up) - radius * across)
+        s = abs(float(u @ up))  # prismatic
+        gn = float(np.linalg.norm(scene.gravity))
+        T = scene.duration
+        return h0 - s * (abs(float(body.velocity @ u)) * T + 0.5 * gn * s * T * T)
+    return None
+
+
 def joint_violations(scene, trace) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per joint of ``scene`` (in order), (positional violation (F,) m,
     angular violation (F,) rad) over the trace's frames."""

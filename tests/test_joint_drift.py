@@ -138,3 +138,25 @@ def test_compute_metrics_reports_joint_drift_and_not_momentum_for_a_world_joint(
     assert m["joint_drift"] == pytest.approx(1e-3, rel=1e-9)
     # the joint to the world is an external force: no momentum conservation claimed
     assert math.isnan(m["linear_momentum_drift"]) and math.isnan(m["angular_momentum_drift"])
+
+
+def test_energy_datum_of_a_held_body(tmp_path):
+    """A hinge body's datum is the bottom of its circle, not where free fall
+    would take it: the box's centre at (0, 0, 1), the hinge line through
+    (0, 0, 1.3) along (0, 1, 1)/sqrt 2; the circle's centre, radius and tilt
+    are computed here."""
+    from physbench.harness.metrics import lowest_height
+    s = _scene(tmp_path, "revolute")
+    u = np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0)
+    r = np.array([0.0, 0.0, -0.3])
+    centre_z = 1.3 + (r @ u) * u[2]
+    radius = np.linalg.norm(r - (r @ u) * u)
+    up = np.array([0.0, 0.0, 1.0])
+    across = np.linalg.norm(up - (up @ u) * u)
+    assert lowest_height(s, s.bodies[0]) == pytest.approx(centre_z - radius * across, rel=1e-14)
+    sph = _scene(tmp_path, "spherical", axis="")
+    assert lowest_height(sph, sph.bodies[0]) == pytest.approx(1.3 - 0.3, rel=1e-14)
+    fixed = _scene(tmp_path, "fixed", axis="")
+    assert lowest_height(fixed, fixed.bodies[0]) == pytest.approx(1.0, rel=1e-14)
+    # the free body b still falls freely for the scene's 1 s
+    assert lowest_height(s, s.bodies[1]) == pytest.approx(1.0 - 0.5 * 9.81, rel=1e-14)
