@@ -45,6 +45,7 @@ MODELS: dict[str, str] = {
     "drag_fall": "physbench.harness.references.forces:DragFall",
     "pendulum": "physbench.harness.references.joints:Pendulum",
     "slider": "physbench.harness.references.joints:Slider",
+    "conical_pendulum": "physbench.harness.references.joints:ConicalPendulum",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 

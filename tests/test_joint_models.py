@@ -236,3 +236,103 @@ def test_shipped_pendulum_scenes_load_with_their_periods():
     wide = get_model("pendulum")(load_scene("joints.pendulum", variant="release_170"))
     assert base.T == pytest.approx(2.04201013, rel=1e-8)
     assert wide.T == pytest.approx(4.89597042, rel=1e-8)
+
+
+CONICAL = """
+[scenario]
+family = "joints"
+title = "t"
+duration = 3.0
+dt = 0.001
+effects = ["gravity", "joint"]
+
+[[body]]
+name = "bob"
+shape = "sphere"
+radius = 0.1
+mass = 1.5
+position = {position}
+velocity = {velocity}
+angular_velocity = {angular_velocity}
+
+[[joint]]
+kind = "spherical"
+body = "bob"
+anchor = [0.0, 0.0, 2.0]
+
+[reference]
+model = "conical_pendulum"
+"""
+
+
+def _conical(tmp_path, L=0.9, alpha_deg=35.0, rate_factor=1.0):
+    a = math.radians(alpha_deg)
+    r = np.array([L * math.sin(a), 0.0, -L * math.cos(a)])
+    w = rate_factor * math.sqrt(9.81 / (L * math.cos(a)))  # the closed form, written here
+    wv = np.array([0.0, 0.0, w])
+    p = tmp_path / "c.toml"
+    p.write_text(CONICAL.format(position=_vec(np.array([0.0, 0.0, 2.0]) + r), velocity=_vec(np.cross(wv, r)),
+                                angular_velocity=_vec(wv)))
+    return p, r, w
+
+
+def _rigid_pivot_ode(s, r0, t):
+    """The bob as a rigid body about the anchor, integrated here: world
+    inertia about the pivot I_p = R (I_c + m (|r|^2 1 - r r^T)) R^T,
+    d(I_p w)/dt = r x m g; centre offsets r(t) (F, 3)."""
+    b = s.bodies[0]
+    Ib = np.diag(b.inertia) + b.mass * (r0 @ r0 * np.eye(3) - np.outer(r0, r0))
+    g = np.array([0.0, 0.0, -9.81])
+
+    def rot(q):
+        w, x, y, z = q / np.linalg.norm(q)
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+    def f(_, y):
+        q, w = y[:4], y[4:]
+        R = rot(q)
+        Ip = R @ Ib @ R.T
+        r = R @ r0
+        wdot = np.linalg.solve(Ip, np.cross(r, b.mass * g) - np.cross(w, Ip @ w))
+        qw, qx, qy, qz = q
+        wx, wy, wz = w
+        qdot = 0.5 * np.array([-wx * qx - wy * qy - wz * qz, wx * qw + wy * qz - wz * qy,
+                               wy * qw + wz * qx - wx * qz, wz * qw + wx * qy - wy * qx])
+        return np.concatenate([qdot, wdot])
+
+    sol = solve_ivp(f, (0.0, t[-1]), np.concatenate([[1.0, 0.0, 0.0, 0.0], b.angular_velocity]), t_eval=t,
+                    rtol=1e-12, atol=1e-13, method="DOP853")
+    return np.array([rot(q) @ r0 for q in sol.y[:4].T])
+
+
+def test_conical_pendulum_rate_against_the_rigid_body_integrated(tmp_path):
+    p, r0, w = _conical(tmp_path)
+    s = load_scene(p)
+    m = get_model("conical_pendulum")(s)
+    assert m.w == pytest.approx(w, rel=1e-14) and m.alpha == pytest.approx(math.radians(35.0), rel=1e-14)
+    t = np.linspace(0.0, 3.0, 601)
+    r = _rigid_pivot_ode(s, r0, t)
+    # the integrated motion stays on the cone and turns at the closed form's rate
+    F = len(t)
+    tr = SimpleNamespace(t=t, pos=(np.array([0.0, 0.0, 2.0]) + r)[:, None, :],
+                         quat=np.tile([1.0, 0.0, 0.0, 0.0], (F, 1, 1)), vel=np.zeros((F, 1, 3)),
+                         angvel=np.zeros((F, 1, 3)))
+    out = m.metrics(tr)
+    assert out["cone_angle_error"] < 1e-8
+    assert out["cone_rate_error"] < 1e-9
+    assert out["trajectory_rmse"] < 1e-8
+    # planted: the same circle turning 0.2 % fast
+    fast = m.positions(t * 1.002)
+    tr.pos = fast
+    out = m.metrics(tr)
+    assert out["cone_rate_error"] == pytest.approx(2e-3, rel=1e-9)
+    assert out["cone_angle_error"] < 1e-12
+
+
+def test_conical_pendulum_refuses_an_unsteady_start(tmp_path):
+    p, _, _ = _conical(tmp_path, rate_factor=1.01)
+    with pytest.raises(ModelRefusal) as e:
+        load_scene(p)
+    assert "body[0].angular_velocity" in str(e.value)

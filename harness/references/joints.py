@@ -27,6 +27,14 @@ Slider (``slider``).  One body on one prismatic joint to the world, slide
 axis u, no friction: s'' = g . u along the axis (a = g sin alpha on an
 incline of angle alpha), x(t) = x0 + (v0 t + (g . u) t^2 / 2) u.
 
+Conical pendulum (``conical_pendulum``).  One body with equal principal
+moments on one spherical joint to the world, its centre a distance L from
+the anchor at the cone angle alpha from straight down, turning as one piece
+at rate w about the vertical.  The rate of change of the angular momentum
+about the anchor, w up x L_anchor = m w^2 L^2 sin alpha cos alpha (the
+body's own inertia, isotropic, adds nothing), equals gravity's torque
+m g L sin alpha: w^2 = g / (L cos alpha).
+
 Tests: tests/test_joint_models.py (each against scipy's solve_ivp of the
 equation of motion, or the kinematics, computed in the test).
 """
@@ -257,4 +265,87 @@ class Slider(ReferenceModel):
         out["slider_acceleration"] = a
         out["slider_acceleration_ref"] = self.a
         divide(out, "slider_acceleration_error", abs(a - self.a), abs(self.a), "the acceleration along the axis")
+        return out
+
+
+class ConicalPendulum(ReferenceModel):
+    name = "conical_pendulum"
+    summary = ("a body with equal principal moments on a spherical joint to the world, in steady circular motion "
+               "about the vertical: w^2 = g / (L cos alpha)")
+    takes = ("exactly one body with equal principal moments (a sphere: its own spin then exerts no gyroscopic "
+             "torque) and one spherical [[joint]] to the world below which it hangs, gravity; the start must be "
+             "the steady motion: turning as one rigid piece with the rod at w = sqrt(g / (L cos alpha)) about "
+             "the vertical through the anchor (angular velocity w up, velocity w x (x - anchor)), L the "
+             "anchor-centre distance, alpha the cone angle. Refuses contact, springs and drag, and any other start")
+    produces = {
+        "cone_angle_error": "max_t |alpha(t) - alpha| (rad), alpha(t) the angle between the anchor-centre line and "
+                            "straight down",
+        "cone_rate": "measured rate about the vertical: the least-squares slope of the unwrapped azimuth of the "
+                     "centre (rad/s)",
+        "cone_rate_ref": "sqrt(g / (L cos alpha)) (rad/s)",
+        "cone_rate_error": "|w_measured - w| / w (1)",
+        **TRAJECTORY,
+    }
+    primary = "cone_rate_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        j, b = _one_world_joint(self, "spherical")
+        self.joint, self.body = j, b
+        if np.ptp(b.inertia) > 1e-12 * float(np.max(b.inertia)):
+            raise ReferenceError(f"{self.name} needs equal principal moments (a sphere), got {b.inertia.tolist()}",
+                                 key=scene.body_key(b.index, "shape"))
+        g = scene.gravity
+        G = float(np.linalg.norm(g))
+        if not G > 0.0:
+            raise ReferenceError("the conical pendulum needs gravity", key="scenario.effects")
+        up = -g / G
+        r = b.position - j.anchor
+        L = float(np.linalg.norm(r))
+        cos_a = float(-(r @ up)) / L if L > 0 else 0.0
+        if not 1e-9 < cos_a < 1.0 - 1e-12:
+            raise ReferenceError(f"the body must hang below the anchor and off the vertical (cos alpha = {cos_a:.6g})",
+                                 key=scene.body_key(b.index, "position"))
+        w = math.sqrt(G / (L * cos_a))
+        scale = w * L
+        pos_key = scene.body_key(b.index, "angular_velocity")
+        if np.linalg.norm(b.angular_velocity - w * up) * L > 1e-9 * scale:
+            raise ReferenceError(f"the steady motion turns at w = sqrt(g / (L cos alpha)) = {w:.9g} rad/s about "
+                                 f"{up.tolist()}; angular_velocity is {b.angular_velocity.tolist()}", key=pos_key)
+        if np.linalg.norm(b.velocity - w * np.cross(up, r)) > 1e-9 * scale:
+            raise ReferenceError(f"the steady motion has velocity w x (x - anchor) = "
+                                 f"{(w * np.cross(up, r)).tolist()}, got {b.velocity.tolist()}",
+                                 key=scene.body_key(b.index, "velocity"))
+        self.up, self.L, self.w = up, L, w
+        self.alpha = math.acos(cos_a)
+        self.e1 = (r - (r @ up) * up) / np.linalg.norm(r - (r @ up) * up)
+        self.e2 = np.cross(up, self.e1)
+        self.h = float(r @ up)  # the centre's height below the anchor (< 0)
+        self.rho = float(np.linalg.norm(r - (r @ up) * up))
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, float)
+        out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
+        phi = self.w * t
+        out[:, self.body.index] = (self.joint.anchor + self.h * self.up
+                                   + self.rho * (np.cos(phi)[:, None] * self.e1 + np.sin(phi)[:, None] * self.e2))
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        return {"rate": f"{self.w:.9g} rad/s", "cone angle": f"{math.degrees(self.alpha):.6g} deg",
+                "period": f"{2 * math.pi / self.w:.9g} s"}
+
+    def metrics(self, trace) -> dict[str, float]:
+        t = np.asarray(trace.t, float)
+        i = self.body.index
+        out = trajectory_metrics(trace.pos[:, [i]], self.positions(t)[:, [i]])
+        r = trace.pos[:, i] - self.joint.anchor
+        down = -(r @ self.up) / np.linalg.norm(r, axis=-1)
+        side = np.linalg.norm(r - (r @ self.up)[:, None] * self.up, axis=-1) / np.linalg.norm(r, axis=-1)
+        alpha = np.arctan2(side, down)
+        out["cone_angle_error"] = float(np.max(np.abs(alpha - self.alpha)))
+        phi = np.unwrap(np.arctan2(r @ self.e2, r @ self.e1))
+        out["cone_rate"] = fit_slope(t, phi)
+        out["cone_rate_ref"] = self.w
+        out["cone_rate_error"] = abs(out["cone_rate"] - self.w) / self.w
         return out
