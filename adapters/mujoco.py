@@ -273,6 +273,9 @@ class MujocoAdapter(Adapter):
         mujoco.mj_forward(m, d)
         self._drag = False
         self._res = np.empty(6)
+        # scene body i is MuJoCo's body "b<i>", numbered depth-first through the tree
+        self._ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"b{i}") for i in range(scene.n_bodies)],
+                             dtype=int)
         self._stages = {"engine": ENGINE, "gravity": scene.has("gravity"), "contact": scene.has("contact"),
                         "joints": len(scene.joints), "dofs": int(m.nv), "mass_scale": meta["mass_scale"],
                         "gyroscopic": True, "integrator": settings["integrator"]}
@@ -361,11 +364,11 @@ class MujocoAdapter(Adapter):
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             mujoco.mj_comVel(m, d)
-            n = self.n_bodies
-            np.copyto(pos, d.xpos[1:n + 1])
-            np.copyto(quat, d.xquat[1:n + 1])
-            for i in range(n):
-                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, i + 1, res, 0)
+            ids = self._ids
+            np.copyto(pos, d.xpos[ids])
+            np.copyto(quat, d.xquat[ids])
+            for i, bid in enumerate(ids):
+                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(bid), res, 0)
                 angvel[i] = res[0:3]
                 vel[i] = res[3:6]
             return

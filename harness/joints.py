@@ -86,8 +86,39 @@ def held_lowest_height(scene, body, up: np.ndarray) -> float | None:
     spherical: the anchor's height less the centre's distance from it;
     fixed: where it starts; prismatic: its start lowered by the slide a
     frictionless axis allows in the scene's duration T (as on an incline).
-    Joints between bodies are not counted (None unless a world joint holds
-    the body).  Test: tests/test_joint_drift.py::test_energy_datum_of_a_held_body."""
+    Held through other bodies (a chain), the world anchor's height less the
+    length of the path of rigid pieces to it (anchor to anchor within each
+    body, then to the centre), through revolute, spherical and fixed joints
+    (a slider on the path: None).  Test:
+    tests/test_joint_drift.py::test_energy_datum_of_a_held_body."""
+    direct = _direct(scene, body, up)
+    if direct is not None:
+        return direct
+    # breadth-first from the body to the world over the joints; each step
+    # adds the distance from the point where we entered a body to its next anchor
+    from collections import deque
+
+    start = (body.index, body.position)
+    seen = {body.index}
+    queue = deque([(start, 0.0)])
+    while queue:
+        (i, entry), length = queue.popleft()
+        for j in scene.joints:
+            if i not in (j.body, j.other) or j.kind == "prismatic":
+                continue
+            nxt = j.other if j.body == i else j.body
+            step = length + float(np.linalg.norm(j.anchor - entry))
+            if nxt < 0:
+                return min(float(body.position @ up), float(j.anchor @ up) - step)
+            if nxt not in seen:
+                seen.add(nxt)
+                queue.append(((nxt, j.anchor), step))
+    return None
+
+
+def _direct(scene, body, up: np.ndarray) -> float | None:
+    """held_lowest_height for a body that a joint holds to the world
+    directly, or None."""
     for j in scene.joints:
         if j.body != body.index or j.other >= 0:
             continue

@@ -160,3 +160,12 @@ def test_energy_datum_of_a_held_body(tmp_path):
     assert lowest_height(fixed, fixed.bodies[0]) == pytest.approx(1.0, rel=1e-14)
     # the free body b still falls freely for the scene's 1 s
     assert lowest_height(s, s.bodies[1]) == pytest.approx(1.0 - 0.5 * 9.81, rel=1e-14)
+
+
+def test_energy_datum_of_a_chain_is_the_chain_hanging_straight_down():
+    """joints.chain_10: link k (centre 0.1 k + 0.05 m out along x, hinged at
+    0.1 k) can hang no lower than 2 - (0.1 k + 0.05) m."""
+    from physbench.harness.metrics import lowest_height
+    s = load_scene("joints.chain_10")
+    for k, b in enumerate(s.bodies):
+        assert lowest_height(s, b) == pytest.approx(2.0 - (0.1 * k + 0.05), rel=1e-12)
