@@ -46,6 +46,7 @@ MODELS: dict[str, str] = {
     "pendulum": "physbench.harness.references.joints:Pendulum",
     "slider": "physbench.harness.references.joints:Slider",
     "conical_pendulum": "physbench.harness.references.joints:ConicalPendulum",
+    "hanging_chain": "physbench.harness.references.joints:HangingChain",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 

@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from physbench.contract.models import get_model
-from physbench.contract.scene import load_scene
+from physbench.contract.scene import SCENARIO_DIR, load_scene
 from physbench.contract.spec import ModelRefusal, SpecError
 
 PENDULUM = """
@@ -336,3 +336,35 @@ def test_conical_pendulum_refuses_an_unsteady_start(tmp_path):
     with pytest.raises(ModelRefusal) as e:
         load_scene(p)
     assert "body[0].angular_velocity" in str(e.value)
+
+
+def test_hanging_chain_rest_and_sag_on_planted_traces(tmp_path):
+    s = load_scene("joints.chain_load_100")
+    m = get_model("hanging_chain")(s)
+    x0 = np.array([b.position for b in s.bodies])
+    t = np.linspace(0.0, 2.0, 11)
+    pos = np.broadcast_to(x0, (11,) + x0.shape).copy()
+    F, n = pos.shape[:2]
+    tr = SimpleNamespace(t=t, pos=pos, quat=np.tile([1.0, 0.0, 0.0, 0.0], (F, n, 1)), vel=np.zeros((F, n, 3)),
+                         angvel=np.zeros((F, n, 3)))
+    assert m.metrics(tr) == {"chain_rest_error": 0.0, "chain_sag": 0.0}
+    # planted: the load (the lowest body) sinks 2 mm by the end, a link swings 3 mm sideways at frame 4
+    load = s.body_index("load")
+    tr.pos[:, load, 2] -= np.linspace(0.0, 2e-3, 11)
+    tr.pos[4, s.body_index("link_5"), 0] += 3e-3
+    out = m.metrics(tr)
+    assert out["chain_sag"] == pytest.approx(2e-3, rel=1e-9)
+    assert out["chain_rest_error"] == pytest.approx(3e-3, rel=1e-9)
+
+
+def test_hanging_chain_refuses_a_chain_off_the_vertical(tmp_path):
+    text = (SCENARIO_DIR / "joints" / "chain_load_100.toml").read_text()
+    p = tmp_path / "c.toml"
+    p.write_text(text.replace("position = [0.0, 0.0, 0.85]", "position = [0.01, 0.0, 0.85]"))
+    with pytest.raises(ModelRefusal) as e:
+        load_scene(p)
+    assert "body[1].position" in str(e.value) and "does not hang on the vertical" in str(e.value)
+    p.write_text(text.replace("position = [0.0, 0.0, 0.85]", "position = [0.0, 0.0, 0.85]\nvelocity = [0.1, 0.0, 0.0]"))
+    with pytest.raises(ModelRefusal) as e:
+        load_scene(p)
+    assert "body[1].velocity" in str(e.value)

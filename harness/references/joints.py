@@ -35,6 +35,11 @@ about the anchor, w up x L_anchor = m w^2 L^2 sin alpha cos alpha (the
 body's own inertia, isotropic, adds nothing), equals gravity's torque
 m g L sin alpha: w^2 = g / (L cos alpha).
 
+Hanging chain (``hanging_chain``).  Bodies at rest hanging straight down
+from one world joint, each through joints whose anchors lie on the vertical
+below it: every joint force is vertical and balances the weight below it,
+so the exact motion is none at all, whatever the mass ratio of an end load.
+
 Tests: tests/test_joint_models.py (each against scipy's solve_ivp of the
 equation of motion, or the kinematics, computed in the test).
 """
@@ -348,4 +353,69 @@ class ConicalPendulum(ReferenceModel):
         out["cone_rate"] = fit_slope(t, phi)
         out["cone_rate_ref"] = self.w
         out["cone_rate_error"] = abs(out["cone_rate"] - self.w) / self.w
+        return out
+
+
+class HangingChain(ReferenceModel):
+    name = "hanging_chain"
+    summary = "bodies hanging at rest from the world through joints: a static equilibrium that must stay put"
+    takes = ("bodies at rest (no velocity, no angular velocity), every one held to the world through [[joint]] "
+             "tables (revolute, spherical or fixed; no slider), every joint's anchor and every body's centre on "
+             "the vertical line through a world joint's anchor, below it: each link hangs straight down from "
+             "the one above, whatever the masses (an end load of any ratio). Refuses contact, springs and drag")
+    produces = {
+        "chain_rest_error": "max over frames and bodies of |x - x0| (m): how far the chain leaves its rest",
+        "chain_sag": "max over frames of the lowest body's drop below its start (m; 0 when it never drops)",
+    }
+    primary = "chain_rest_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        sc = scene
+        for eff in ("contact", "spring", "damper", "drag_linear", "drag_quadratic"):
+            if sc.has(eff):
+                raise ReferenceError(f"{self.name} models joints and gravity only; the scene lists {eff!r}",
+                                     key="scenario.effects")
+        g = sc.gravity
+        G = float(np.linalg.norm(g))
+        if not G > 0.0:
+            raise ReferenceError("a hanging chain needs gravity", key="scenario.effects")
+        down = g / G
+        roots = [j for j in sc.joints if j.other < 0]
+        if len(roots) != 1:
+            raise ReferenceError(f"{self.name} needs exactly one joint to the world, the scene has {len(roots)}",
+                                 key="joint")
+        top = roots[0].anchor
+        for k, j in enumerate(sc.joints):
+            if j.kind == "prismatic":
+                raise ReferenceError("a slider has no rest on a vertical line", key=f"joint[{k}].kind")
+            if self._off(j.anchor - top, down) > 1e-9 * (1.0 + np.linalg.norm(j.anchor - top)):
+                raise ReferenceError(f"the anchor {j.anchor.tolist()} is off the vertical through the top anchor "
+                                     f"{top.tolist()}", key=f"joint[{k}].anchor")
+        held = {j.body for j in sc.joints} | {j.other for j in sc.joints if j.other >= 0}
+        for b in sc.bodies:
+            r = b.position - top
+            if b.index not in held:
+                raise ReferenceError(f"body {b.name!r} is not held by any joint", key="joint")
+            if self._off(r, down) > 1e-9 * (1.0 + np.linalg.norm(r)) or float(r @ down) <= 0.0:
+                raise ReferenceError(f"body {b.name!r} at {b.position.tolist()} does not hang on the vertical "
+                                     f"below {top.tolist()}", key=sc.body_key(b.index, "position"))
+            if np.any(b.velocity != 0.0) or np.any(b.angular_velocity != 0.0):
+                raise ReferenceError(f"body {b.name!r} must start at rest", key=sc.body_key(b.index, "velocity"))
+        self.down = down
+        self.lowest = max(sc.bodies, key=lambda b: float(b.position @ down)).index
+
+    @staticmethod
+    def _off(r: np.ndarray, down: np.ndarray) -> float:
+        return float(np.linalg.norm(r - (r @ down) * down))
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        x0 = np.array([b.position for b in self.scene.bodies], float)
+        return np.broadcast_to(x0, (len(t),) + x0.shape).copy()
+
+    def metrics(self, trace) -> dict[str, float]:
+        x0 = self.positions(np.asarray(trace.t, float))
+        out = {"chain_rest_error": float(np.max(np.linalg.norm(trace.pos - x0, axis=-1)))}
+        drop = (trace.pos[:, self.lowest] - x0[:, self.lowest]) @ self.down
+        out["chain_sag"] = max(0.0, float(np.max(drop)))
         return out
