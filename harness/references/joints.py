@@ -20,8 +20,11 @@ functions (scipy.special.ellipj), is
 with u0 = F(phi0 | m_e), sin phi0 = sin(theta0 / 2) / k (incomplete integral
 F, scipy.special.ellipkinc), or 2K - F(phi0 | m_e) when the body starts
 swinging back (theta0' < 0).  The period at any amplitude is
-T = 4 K(m_e) / wn = 4 sqrt(I / (m G d)) K(sin(theta_max / 2)).  A start that
-goes over the top (cos theta_max <= -1) or never swings (k = 0) is refused.
+T = 4 K(m_e) / wn = 4 sqrt(I / (m G d)) K(sin(theta_max / 2)).  A start with
+k > 1 whirls over the top: theta / 2 = s am(k wn t + u0 | 1 / k^2), u0 =
+F(s theta0 / 2 | 1 / k^2), s the sense of turning, theta' = 2 s k wn dn(...),
+one turn in T = 2 K(1 / k^2) / (k wn).  A start on the separatrix (k = 1)
+or one that never swings (k = 0) is refused.
 
 Slider (``slider``).  One body on one prismatic joint to the world, slide
 axis u, no friction: s'' = g . u along the axis (a = g sin alpha on an
@@ -105,20 +108,23 @@ def _crossings(t: np.ndarray, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
 class Pendulum(ReferenceModel):
     name = "pendulum"
     summary = ("a rigid body on a revolute joint to the world under gravity: the physical pendulum at any "
-               "amplitude, through Jacobi's elliptic functions")
+               "amplitude, swinging or whirling over the top, through Jacobi's elliptic functions")
     takes = ("exactly one body and one revolute [[joint]] to the world (its anchor and hinge axis), gravity "
              "across the axis, the body's mass and inertia; a start that is a rotation about the hinge "
              "(angular velocity along the axis, velocity = w x (x - anchor)). Refuses contact, springs and "
-             "drag, a start that goes over the top, and one at rest hanging straight down. Energy: the "
+             "drag, a start on the separatrix (reaching the top at rest), and one at rest hanging straight "
+             "down. Energy: the "
              "harness's energy_drift; the joint: joint_drift")
     produces = {
         "period": "measured mean time between upward crossings of theta = 0 (s; Hermite-interpolated from the "
-                  "angle and the angular velocity about the axis)",
-        "period_ref": "4 sqrt(I / (m g d)) K(sin(theta_max / 2)) (s)",
+                  "angle and the angular velocity about the axis; whirling, crossings in the sense of turning: "
+                  "the time of one turn)",
+        "period_ref": "4 sqrt(I / (m g d)) K(k), k = sin(theta_max / 2); whirling (k > 1): "
+                      "2 sqrt(I / (m g d)) K(1 / k^2) / k, one turn (s)",
         "period_error": "|T - T_ref| / T_ref (1; inf with fewer than two upward crossings in the run)",
         "angle_error": "max_t |theta - theta_ref| (rad), theta the angle of the centre of mass about the hinge "
                        "from straight down",
-        "amplitude_ref": "theta_max (rad)",
+        "amplitude_ref": "theta_max (rad; pi for a pendulum whirling over the top, which passes it)",
         **TRAJECTORY,
     }
     primary = "period_error"
@@ -158,24 +164,40 @@ class Pendulum(ReferenceModel):
         self.wn = math.sqrt(b.mass * G * d / I)
         th0 = math.atan2(float(rp @ e2), float(rp @ e1))
         cmax = math.cos(th0) - w0 * w0 / (2 * self.wn ** 2)
-        if cmax <= -1.0 + 1e-12:
-            raise ReferenceError(f"the start goes over the top (cos theta_max = {cmax:.6g} <= -1): the model is "
-                                 f"the swinging pendulum", key=scene.body_key(b.index, "angular_velocity"))
         k2 = (1.0 - cmax) / 2.0
+        if abs(k2 - 1.0) < 1e-9:
+            raise ReferenceError(f"the start is on the separatrix (k^2 = {k2:.12g}): it would take forever to reach "
+                                 f"the top", key=scene.body_key(b.index, "angular_velocity"))
         if not k2 > 0.0:
             raise ReferenceError("the pendulum starts at rest hanging straight down: it never swings", key=k_idx)
-        self.k, self.m = math.sqrt(k2), k2
+        self.k = math.sqrt(k2)
         self.theta0, self.w0 = th0, w0
-        self.theta_max = 2.0 * math.asin(self.k)
-        self.K = float(ellipk(self.m))
-        phi0 = math.asin(max(-1.0, min(1.0, math.sin(th0 / 2) / self.k)))
-        F0 = float(ellipkinc(phi0, self.m))
-        self.u0 = F0 if w0 >= 0.0 else 2.0 * self.K - F0
-        self.T = 4.0 * self.K / self.wn
+        #: swinging (k < 1) or whirling over the top (k > 1)
+        self.whirls = k2 > 1.0
+        if not self.whirls:
+            self.m = k2
+            self.theta_max = 2.0 * math.asin(self.k)
+            self.K = float(ellipk(self.m))
+            phi0 = math.asin(max(-1.0, min(1.0, math.sin(th0 / 2) / self.k)))
+            F0 = float(ellipkinc(phi0, self.m))
+            self.u0 = F0 if w0 >= 0.0 else 2.0 * self.K - F0
+            self.T = 4.0 * self.K / self.wn
+        else:
+            # theta / 2 = s am(k wn t + u0 | 1 / k^2), s the sense of turning;
+            # one turn takes 2 K(1 / k^2) / (k wn)
+            self.m = 1.0 / k2
+            self.theta_max = math.pi
+            self.K = float(ellipk(self.m))
+            self.sense = 1.0 if w0 > 0.0 else -1.0
+            self.u0 = float(ellipkinc(self.sense * th0 / 2.0, self.m))
+            self.T = 2.0 * self.K / (self.k * self.wn)
 
     # ---- the closed form ---------------------------------------------------
     def angle(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(theta (F,) rad, theta' (F,) rad/s) at times t (F,) s."""
+        if self.whirls:
+            _, _, dn, ph = ellipj(self.k * self.wn * np.asarray(t, float) + self.u0, self.m)
+            return self.sense * 2.0 * ph, self.sense * 2.0 * self.k * self.wn * dn
         sn, cn, _, _ = ellipj(self.wn * np.asarray(t, float) + self.u0, self.m)
         return 2.0 * np.arcsin(np.clip(self.k * sn, -1.0, 1.0)), 2.0 * self.k * self.wn * cn
 
@@ -194,6 +216,9 @@ class Pendulum(ReferenceModel):
         return np.arctan2(r @ self.e2, r @ self.e1), trace.angvel[:, i] @ self.u
 
     def predictions(self) -> dict[str, str]:
+        if self.whirls:
+            return {"one turn": f"{self.T:.9g} s", "motion": "whirls over the top",
+                    "small-angle period": f"{2 * math.pi / self.wn:.9g} s"}
         return {"period": f"{self.T:.9g} s", "amplitude": f"{math.degrees(self.theta_max):.6g} deg",
                 "small-angle period": f"{2 * math.pi / self.wn:.9g} s"}
 
@@ -207,7 +232,9 @@ class Pendulum(ReferenceModel):
         th_ref, _ = self.angle(t)
         diff = np.angle(np.exp(1j * (th - th_ref)))
         out["angle_error"] = float(np.max(np.abs(diff))) if np.isfinite(diff).all() else float("nan")
-        out["amplitude_ref"] = self.theta_max
+        out["amplitude_ref"] = self.theta_max  # pi when it whirls: it passes the top
+        if self.whirls and self.sense < 0:  # turning backwards: time the upward crossings of -theta
+            th, dth = -th, -dth
         out["period_ref"] = self.T
         c = _crossings(t, th, dth) if np.isfinite(th).all() and np.isfinite(dth).all() else np.array([])
         if len(c) >= 2:
