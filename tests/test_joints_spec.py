@@ -138,6 +138,14 @@ def test_joint_errors_name_the_key(tmp_path, joints, effects, planar, want):
     assert "s.toml" in msg
 
 
+def test_phases_and_perturbation_refuse_joints(tmp_path):
+    p = _write(tmp_path, [{}], extra='\n[perturbation]\nposition = 0.001\n')
+    assert "perturbation: perturbed starts would pull the joints apart" in _error(p)
+    text = p.read_text().replace("\n[perturbation]\nposition = 0.001\n", "").replace("dt = 0.01", "dt = 0.01\nphases = 4")
+    p.write_text(text)
+    assert "scenario.phases: step phases shift a start in free flight" in _error(p)
+
+
 def test_planar_accepts_hinge_about_y_and_slider_in_xz(tmp_path):
     s = load_scene(_write(tmp_path, [{"axis": "axis = [0.0, -1.0, 0.0]"},
                                      {"kind": "prismatic", "body": "link_0", "anchor": "[0.0, 0.0, 2.0]",

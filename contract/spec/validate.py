@@ -125,6 +125,9 @@ def _joint_checks(spec: SpecModel, label: str, names: dict[str, int]) -> list[st
                     f"scenario.effects (add it: joints are an effect an engine must model)")
     if "joint" in effects and not spec.joint:
         errs.append(f"{label}: scenario.effects: 'joint' listed but there is no [[joint]] table")
+    if spec.joint and spec.perturbation is not None:
+        errs.append(f"{label}: perturbation: perturbed starts would pull the joints apart at t = 0 (a perturbation "
+                    f"that keeps the joints is not built yet); leave [perturbation] out of a scene with joints")
     if spec.joint and spec.scenario.phases > 1:
         errs.append(f"{label}: scenario.phases: step phases shift a start in free flight; a scene with joints "
                     f"has none (leave phases at 1)")
