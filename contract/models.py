@@ -47,6 +47,7 @@ MODELS: dict[str, str] = {
     "slider": "physbench.harness.references.joints:Slider",
     "conical_pendulum": "physbench.harness.references.joints:ConicalPendulum",
     "hanging_chain": "physbench.harness.references.joints:HangingChain",
+    "double_pendulum": "physbench.harness.references.joints:DoublePendulum",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 

@@ -389,3 +389,54 @@ def test_whirling_pendulum_metrics_on_the_integrated_trace(tmp_path):
     out = m.metrics(_trace(s, k, t, th, w))
     assert out["period_error"] < 1e-8 and out["angle_error"] < 1e-8
     assert out["amplitude_ref"] == math.pi
+
+
+def test_double_pendulum_modes_against_the_integrated_nonlinear_motion():
+    """joints.double_pendulum: the frequencies against the roots of
+    det(K - w^2 M) = 0 solved here by the quadratic formula, and the
+    measured ones from a trace of the full nonlinear equations of motion
+    (integrated here) within the small-amplitude shift (~theta^2 / 16)."""
+    s = load_scene("joints.double_pendulum")
+    m = get_model("double_pendulum")(s)
+    g, L, r = 9.81, 1.0, 0.05
+    Ic = 0.4 * 1.0 * r * r  # each sphere's own moment, 1 kg
+    M11, M12, M22 = Ic + 1.0 * L * L + 1.0 * L * L, 1.0 * L * L, Ic + 1.0 * L * L
+    K1, K2 = g * 2.0 * L, g * 1.0 * L
+    a = M11 * M22 - M12 * M12
+    b = -(K1 * M22 + K2 * M11)
+    c = K1 * K2
+    w2 = sorted(((-b - math.sqrt(b * b - 4 * a * c)) / (2 * a), (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)))
+    np.testing.assert_allclose(m.w, np.sqrt(w2), rtol=1e-12)
+
+    def f(_, y):
+        t1, t2, w1, w2_ = y
+        d = t1 - t2
+        A = np.array([[M11, M12 * math.cos(d)], [M12 * math.cos(d), M22]])
+        rhs = np.array([-M12 * w2_ * w2_ * math.sin(d) - K1 * math.sin(t1),
+                        M12 * w1 * w1 * math.sin(d) - K2 * math.sin(t2)])
+        return [w1, w2_, *np.linalg.solve(A, rhs)]
+
+    t = np.arange(0.0, 12.0 + 1e-12, 0.005)
+    sol = solve_ivp(f, (0.0, 12.0), [0.01, 0.02, 0.0, 0.0], t_eval=t, rtol=1e-12, atol=1e-14, method="DOP853")
+    t1, t2, w1, w2_ = sol.y
+    # the trace: the two sphere centres, each turning with its link (e1 = -z, e2 = -x)
+    x1 = np.stack([-L * np.sin(t1), np.zeros_like(t), 2.0 - L * np.cos(t1)], axis=-1)
+    x2 = x1 + np.stack([-L * np.sin(t2), np.zeros_like(t), -L * np.cos(t2)], axis=-1)
+    F = len(t)
+    # the bodies start turned by (0.01, 0.02): their frames at theta are the start's turned on by theta - theta0
+    q0 = np.array([b.orientation for b in s.bodies])
+    assert np.allclose(q0, [1.0, 0.0, 0.0, 0.0])
+    dq1 = np.stack([np.cos((t1 - 0.01) / 2), 0 * t, np.sin((t1 - 0.01) / 2), 0 * t], axis=-1)
+    dq2 = np.stack([np.cos((t2 - 0.02) / 2), 0 * t, np.sin((t2 - 0.02) / 2), 0 * t], axis=-1)
+    angvel = np.zeros((F, 2, 3))
+    angvel[:, 0, 1], angvel[:, 1, 1] = w1, w2_
+    tr = SimpleNamespace(t=t, pos=np.stack([x1, x2], axis=1), quat=np.stack([dq1, dq2], axis=1),
+                         vel=np.zeros((F, 2, 3)), angvel=angvel)
+    out = m.metrics(tr)
+    assert out["mode_frequency_error_1"] < 5e-5 and out["mode_frequency_error_2"] < 5e-5
+    assert out["linear_amplitude"] == pytest.approx(0.02, rel=1e-12)
+    # planted: the same motion 0.5 % slow
+    slow = SimpleNamespace(**{**tr.__dict__, "t": t * 1.005, "angvel": angvel / 1.005})
+    out = m.metrics(slow)
+    assert out["mode_frequency_error_1"] == pytest.approx(1 - 1 / 1.005, abs=5e-5)
+    assert out["mode_frequency_error_2"] == pytest.approx(1 - 1 / 1.005, abs=5e-5)

@@ -43,6 +43,16 @@ from one world joint, each through joints whose anchors lie on the vertical
 below it: every joint force is vertical and balances the weight below it,
 so the exact motion is none at all, whatever the mass ratio of an end load.
 
+Double pendulum (``double_pendulum``).  Two bodies on parallel hinges, the
+first to the world, the second to the first; theta1 the angle of the first
+link (world anchor to second anchor, length l1, the first centre on it at
+d1), theta2 that of the second body's centre (d2 from its hinge).  At small
+amplitude M theta'' + K theta = 0 with M = [[I1 + m2 l1^2, m2 l1 d2],
+[m2 l1 d2, I2 + m2 d2^2]] (I1 about the world hinge, I2 about the second
+body's centre) and K = diag(g (m1 d1 + m2 l1), g m2 d2): the normal modes are
+the roots of det(K - w^2 M) = 0, and the modal coordinates q = Phi^T M theta
+(Phi the M-orthonormal modes) each swing at one frequency.
+
 Tests: tests/test_joint_models.py (each against scipy's solve_ivp of the
 equation of motion, or the kinematics, computed in the test).
 """
@@ -445,4 +455,131 @@ class HangingChain(ReferenceModel):
         out = {"chain_rest_error": float(np.max(np.linalg.norm(trace.pos - x0, axis=-1)))}
         drop = (trace.pos[:, self.lowest] - x0[:, self.lowest]) @ self.down
         out["chain_sag"] = max(0.0, float(np.max(drop)))
+        return out
+
+
+class DoublePendulum(ReferenceModel):
+    name = "double_pendulum"
+    summary = ("two bodies on parallel hinges (the first to the world, the second to the first) at small "
+               "amplitude: the two normal-mode frequencies in closed form")
+    takes = ("exactly two bodies and two revolute [[joint]] tables with parallel axes: the first body to the "
+             "world, the second to the first; the first body's centre on the line from the world anchor to the "
+             "second anchor; gravity across the axes; a start at rest (any small angles: both modes are "
+             "measured when both are excited). Refuses contact, springs and drag. Large amplitudes: check the "
+             "harness's energy_drift and joint_drift instead")
+    produces = {
+        "mode_frequency_ref_1": "the lower normal-mode angular frequency (rad/s): M^-1 K's smaller eigenvalue's root",
+        "mode_frequency_ref_2": "the higher normal-mode angular frequency (rad/s)",
+        "mode_frequency_error_1": "|w1 - w1_ref| / w1_ref, w1 measured from the upward zero crossings of the "
+                                  "first modal coordinate q = Phi^T M theta (1; inf with fewer than two crossings)",
+        "mode_frequency_error_2": "the same for the second mode (1)",
+        "mode_frequency_error": "the larger of the two (1)",
+        "linear_amplitude": "the largest hinge angle at the start (rad): the model is exact as it goes to 0",
+    }
+    primary = "mode_frequency_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        sc = scene
+        for eff in ("contact", "spring", "damper", "drag_linear", "drag_quadratic"):
+            if sc.has(eff):
+                raise ReferenceError(f"{self.name} models the hinges and gravity only; the scene lists {eff!r}",
+                                     key="scenario.effects")
+        if sc.n_bodies != 2 or len(sc.joints) != 2:
+            raise ReferenceError(f"{self.name} needs two bodies and two joints, the scene has {sc.n_bodies} and "
+                                 f"{len(sc.joints)}", key="joint")
+        j0 = next((j for j in sc.joints if j.other < 0), None)
+        if j0 is None:
+            raise ReferenceError("one joint must hold a body to the world", key="joint")
+        j1 = next(j for j in sc.joints if j is not j0)
+        if not (j1.kind == j0.kind == "revolute") or j1.other != j0.body or j1.body == j0.body:
+            raise ReferenceError("two revolute joints: body 1 to the world, body 2 to body 1", key="joint")
+        u = j0.axis
+        if np.linalg.norm(np.cross(u, j1.axis)) > 1e-9:
+            raise ReferenceError(f"the hinge axes must be parallel, got {u.tolist()} and {j1.axis.tolist()}",
+                                 key=f"joint[{j1.index}].axis")
+        b1, b2 = sc.bodies[j0.body], sc.bodies[j1.body]
+        for b in (b1, b2):
+            if np.any(b.velocity != 0.0) or np.any(b.angular_velocity != 0.0):
+                raise ReferenceError("the model starts at rest", key=sc.body_key(b.index, "velocity"))
+        g = sc.gravity
+        gp = g - (g @ u) * u
+        G = float(np.linalg.norm(gp))
+        if not G > 0.0:
+            raise ReferenceError("gravity has no part across the hinges", key="scenario.gravity")
+        e1 = gp / G
+        e2 = np.cross(u, e1)
+
+        def across(v):
+            return v - (v @ u) * u
+
+        l1v = across(j1.anchor - j0.anchor)
+        l1 = float(np.linalg.norm(l1v))
+        c1 = across(b1.position - j0.anchor)
+        if not l1 > 0.0 or np.linalg.norm(np.cross(l1v, c1)) > 1e-9 * l1 * (1.0 + np.linalg.norm(c1)):
+            raise ReferenceError("body 1's centre must lie on the line from the world anchor to the second anchor",
+                                 key=sc.body_key(b1.index, "position"))
+        d1 = float(c1 @ l1v) / l1  # signed, along the link
+        c2 = across(b2.position - j1.anchor)
+        d2 = float(np.linalg.norm(c2))
+        if not d2 > 0.0:
+            raise ReferenceError("body 2's centre lies on its hinge line", key=sc.body_key(b2.index, "position"))
+
+        def own(b):
+            R = quat_to_matrix(b.orientation)
+            return float(u @ (R @ np.diag(b.inertia) @ R.T) @ u)
+
+        m1, m2 = b1.mass, b2.mass
+        I1 = own(b1) + m1 * d1 * d1
+        M = np.array([[I1 + m2 * l1 * l1, m2 * l1 * d2], [m2 * l1 * d2, own(b2) + m2 * d2 * d2]])
+        K = np.diag([G * (m1 * d1 + m2 * l1), G * m2 * d2])
+        if K[0, 0] <= 0.0:
+            raise ReferenceError("the first link is not held down by gravity (its centre of mass is above the "
+                                 "pivot)", key=sc.body_key(b1.index, "position"))
+        # generalised symmetric eigenproblem K phi = w^2 M phi, by the Cholesky factor of M
+        Lc = np.linalg.cholesky(M)
+        A = np.linalg.solve(Lc, np.linalg.solve(Lc, K).T).T
+        lam, V = np.linalg.eigh(A)
+        self.Phi = np.linalg.solve(Lc.T, V)  # M-orthonormal modes (columns)
+        self.w = np.sqrt(lam)
+        self.M, self.u, self.e1, self.e2 = M, u, e1, e2
+        self.j0, self.j1, self.b1, self.b2 = j0, j1, b1, b2
+        th = self._angles(np.array([b1.position]), np.array([j1.anchor]), np.array([b2.position]))
+        self.amplitude = float(np.max(np.abs(th)))
+
+    def _angles(self, x1, a1, x2) -> np.ndarray:
+        """(F, 2) angles (rad) from straight down of link 1 (the world anchor
+        to the second anchor) and link 2 (the second anchor to body 2's centre)."""
+        r1 = a1 - self.j0.anchor
+        r2 = x2 - a1
+        return np.stack([np.arctan2(r1 @ self.e2, r1 @ self.e1), np.arctan2(r2 @ self.e2, r2 @ self.e1)], axis=-1)
+
+    def predictions(self) -> dict[str, str]:
+        return {"mode 1": f"{self.w[0]:.9g} rad/s (period {2 * math.pi / self.w[0]:.9g} s)",
+                "mode 2": f"{self.w[1]:.9g} rad/s (period {2 * math.pi / self.w[1]:.9g} s)"}
+
+    def metrics(self, trace) -> dict[str, float]:
+        from physbench.contract.rotation import quat_rotate
+
+        t = np.asarray(trace.t, float)
+        i1, i2 = self.b1.index, self.b2.index
+        a1 = trace.pos[:, i1] + quat_rotate(trace.quat[:, i1], np.broadcast_to(self.j1.anchor_other, (len(t), 3)))
+        th = self._angles(trace.pos[:, i1], a1, trace.pos[:, i2])
+        dth = np.stack([trace.angvel[:, i1] @ self.u, trace.angvel[:, i2] @ self.u], axis=-1)
+        q = th @ (self.M @ self.Phi)  # modal coordinates Phi^T M theta
+        dq = dth @ (self.M @ self.Phi)
+        out = {"mode_frequency_ref_1": float(self.w[0]), "mode_frequency_ref_2": float(self.w[1]),
+               "linear_amplitude": self.amplitude}
+        worst = 0.0
+        for k in (0, 1):
+            ok = np.isfinite(q[:, k]).all() and np.isfinite(dq[:, k]).all()
+            c = _crossings(t, q[:, k], dq[:, k]) if ok else np.array([])
+            if len(c) >= 2:
+                w = 2 * math.pi * (len(c) - 1) / float(c[-1] - c[0])
+                err = abs(w - self.w[k]) / self.w[k]
+            else:
+                err = float("inf")
+            out[f"mode_frequency_error_{k + 1}"] = err
+            worst = max(worst, err)
+        out["mode_frequency_error"] = worst
         return out
