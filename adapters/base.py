@@ -98,6 +98,9 @@ class Capabilities:
     available: bool = True
     unavailable_reason: str = ""
     notes: tuple[str, ...] = ()
+    #: the [[joint]] kinds the adapter builds (contract JOINT_KINDS); the
+    #: 'joint' effect is declared apart, in ``effects``
+    joint_kinds: frozenset[str] = frozenset()
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -108,6 +111,7 @@ class Capabilities:
             "shapes": sorted(self.shapes),
             "static_shapes": sorted(self.static_shapes),
             "effects": sorted(self.effects),
+            "joint_kinds": sorted(self.joint_kinds),
             "settings": {k: {"default": s.default, "allowed": s.describe(), "doc": s.doc} for k, s in self.settings.items()},
             "notes": list(self.notes),
         }
@@ -172,6 +176,9 @@ class Adapter(abc.ABC):
         missing = sorted({s.kind for s in scene.statics} - caps.static_shapes)
         if missing:
             return f"{caps.engine} has no static shape {', '.join(missing)}"
+        why = joint_reason(scene, caps)
+        if why:
+            return why
         missing = sorted(scene.effects - caps.effects)
         if missing:
             return f"{caps.engine} cannot model effect {', '.join(missing)}"
@@ -252,6 +259,25 @@ class Adapter(abc.ABC):
 
 
 # ---- shared rules -------------------------------------------------------------
+
+#: the reason of an adapter that builds no joints (tests/test_joints_spec.py)
+NO_JOINTS_REASON = "joints: not yet modelled by this adapter"
+
+
+def joint_reason(scene: Scene, caps: Capabilities) -> str | None:
+    """Why ``caps`` cannot build the scene's joints, or None: no 'joint'
+    effect (:data:`NO_JOINTS_REASON`), or a kind the adapter lacks.  Joints
+    are never silently dropped."""
+    joints = getattr(scene, "joints", ())
+    if not joints and "joint" not in scene.effects:
+        return None
+    if "joint" not in caps.effects:
+        return NO_JOINTS_REASON
+    kinds = sorted({j.kind for j in joints} - caps.joint_kinds)
+    if kinds:
+        return f"joints: {caps.engine} has no {', '.join(kinds)} joint in this adapter"
+    return None
+
 
 def _unequal_inertia(inertia: np.ndarray) -> bool:
     i = np.asarray(inertia, float)

@@ -148,25 +148,45 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
             lines.append(f'    <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
         if sp.b < 0:
             lines.append(f'    <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
-    for b in scene.bodies:
+    held = {j.body: j for j in scene.joints}  # each body's one joint, to its parent (joint_tree_reason)
+    children: dict[int, list[int]] = {}
+    for j in scene.joints:
+        children.setdefault(j.other, []).append(j.body)
+    from physbench.contract.rotation import quat_mul, quat_to_matrix
+
+    def emit(b, pad: str) -> None:
         if b.shape == "sphere":
             gs = f'type="sphere" size="{_f(b.radius)}"'
         elif b.shape == "box":
             gs = f'type="box" size="{_v(b.half_extents)}"'
         else:
             gs = f'type="{b.shape}" size="{_f(b.radius)} {_f(b.half_length)}"'
-        lines.append(f'    <body name="b{b.index}" pos="{_v(b.position)}" quat="{_v(b.orientation)}">')
-        lines.append('      <freejoint/>')
-        lines.append(f'      <inertial pos="0 0 0" mass="{_f(b.mass * mscale)}" '
+        j = held.get(b.index)
+        pos, quat = b.position, b.orientation
+        if j is not None and j.other >= 0:  # nested: the pose relative to the parent body
+            o = scene.bodies[j.other]
+            pos = quat_to_matrix(o.orientation).T @ (b.position - o.position)
+            quat = quat_mul(o.orientation * np.array([1.0, -1.0, -1.0, -1.0]), b.orientation)
+        lines.append(f'{pad}<body name="b{b.index}" pos="{_v(pos)}" quat="{_v(quat)}">')
+        jx = joint_xml(j, pad + "  ") if j is not None else f'{pad}  <freejoint/>'
+        if jx:
+            lines.append(jx)
+        lines.append(f'{pad}  <inertial pos="0 0 0" mass="{_f(b.mass * mscale)}" '
                      f'diaginertia="{_v(np.multiply(b.inertia, mscale))}"/>')
         fl = f' fluidshape="ellipsoid" fluidcoef="{_f(fluid["blunt"][b.index])} 0 0 0 0"' if fluid else ""
-        lines.append(f'      <geom name="g{b.index}" {gs} {geom_contact}{fl}/>')
+        lines.append(f'{pad}  <geom name="g{b.index}" {gs} {geom_contact}{fl}/>')
         for k, sp in enumerate(scene.springs):
             if sp.a == b.index:
-                lines.append(f'      <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
+                lines.append(f'{pad}  <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
             if sp.b == b.index:
-                lines.append(f'      <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
-        lines.append('    </body>')
+                lines.append(f'{pad}  <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
+        for c in children.get(b.index, []):
+            emit(scene.bodies[c], pad + "  ")
+        lines.append(f'{pad}</body>')
+
+    for b in scene.bodies:
+        if b.index not in held or held[b.index].other < 0:  # the roots: free bodies and bodies held by the world
+            emit(b, "    ")
     lines.append('  </worldbody>')
     if explicit:
         lines.append('  <contact>')
@@ -197,6 +217,106 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
         "fluid_refused": fluid_refused,
     }
     return "\n".join(lines) + "\n", meta
+
+
+#: contract joint kind -> MJCF joint type; a fixed joint to the world is a
+#: body without a joint (welded to its parent, the world)
+JOINT_TYPES = {"revolute": "hinge", "spherical": "ball", "prismatic": "slide", "fixed": None}
+
+
+def joint_xml(j, pad: str = "      ") -> str:
+    """The MJCF ``<joint>`` line of joint ``j`` (to its parent: the world or
+    the ``other`` body), in its body's frame: anchor and axis as compiled
+    (contract Joint.anchor_body, axis_body), no limits, damping, armature or
+    friction loss; '' for a fixed joint (no degree of freedom: a weld)."""
+    kind = JOINT_TYPES[j.kind]
+    if kind is None:
+        return ""
+    axis = f' axis="{_v(j.axis_body)}"' if j.axis_body is not None else ""
+    return (f'{pad}<joint name="j{j.index}" type="{kind}" pos="{_v(j.anchor_body)}"{axis} '
+            f'damping="0" armature="0" frictionloss="0"/>')
+
+
+def joint_tree_reason(scene: Scene) -> str | None:
+    """Why this adapter cannot build the scene's joints yet, or None.  It
+    builds a body tree: each joint nests its ``body`` in ``other`` (the
+    world or a body) with a hinge, ball or slide, a weld for fixed; so a
+    body may be the ``body`` of one joint only, and the joints may not close
+    a loop (loops need equality constraints: not yet built).  Drag on a
+    jointed scene is not built either."""
+    seen: dict[int, int] = {}
+    for k, j in enumerate(scene.joints):
+        if j.body in seen:
+            return (f"joints: MuJoCo adapter builds a body tree, each body the 'body' of one joint; "
+                    f"{scene.bodies[j.body].name!r} is that of joint[{seen[j.body]}] and joint[{k}]")
+        seen[j.body] = k
+    parent = {j.body: j.other for j in scene.joints}
+    for start in parent:
+        i, steps = start, 0
+        while i in parent and steps <= len(parent):
+            i, steps = parent[i], steps + 1
+        if steps > len(parent):
+            return ("joints: MuJoCo adapter builds a body tree; the joints close a loop (equality constraints "
+                    "for loops are not yet built)")
+    if scene.joints and (scene.has("drag_linear") or scene.has("drag_quadratic")):
+        return "joints: MuJoCo adapter applies drag to free bodies only"
+    return None
+
+
+def joint_start(scene: Scene, m: Any, d: Any) -> None:
+    """Write the scene's initial state into MuJoCo's qpos/qvel (scene body
+    i is MuJoCo's body "b<i>"; a body's pose at the start is its MJCF pose,
+    so a joint's qpos is 0 and its quaternion the identity; a joint's rate
+    is the body's motion relative to its parent).  A start the
+    joint cannot hold (a hinge body moving other than by turning about the
+    hinge, a slider turning or moving off its axis, a welded body moving) is
+    a ValueError with the reason: reduced coordinates would drop it."""
+    from physbench.contract.rotation import world_to_body_angvel
+
+    import mujoco
+
+    held = {j.body: j for j in scene.joints}
+    x0, q0, v0, w0 = scene.initial_state()
+    scale = 1.0 + float(np.max(np.abs(v0), initial=0.0))
+    for i, b in enumerate(scene.bodies):
+        bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"b{i}")
+        jnt = [k for k in range(m.njnt) if m.jnt_bodyid[k] == bid]
+        j = held.get(i)
+        if j is None:  # a free body
+            qa, da = m.jnt_qposadr[jnt[0]], m.jnt_dofadr[jnt[0]]
+            d.qpos[qa:qa + 7] = np.concatenate([x0[i], q0[i]])
+            d.qvel[da:da + 3] = v0[i]
+            d.qvel[da + 3:da + 6] = world_to_body_angvel(q0[i], w0[i])
+            continue
+        r = x0[i] - j.anchor
+        # the motion relative to the parent (the world: at rest)
+        w, v = w0[i].copy(), v0[i].copy()
+        if j.other >= 0:
+            o = j.other
+            w -= w0[o]
+            v -= v0[o] + np.cross(w0[o], x0[i] - x0[o])
+        if j.kind == "revolute":
+            rate = float(w @ j.axis)
+            bad = np.linalg.norm(w - rate * j.axis) + np.linalg.norm(v - rate * np.cross(j.axis, r)) / scale
+            value = [rate]
+        elif j.kind == "spherical":
+            bad = np.linalg.norm(v - np.cross(w, r)) / scale
+            value = list(world_to_body_angvel(q0[i], w))  # a ball joint's qvel is in the body frame
+            d.qpos[m.jnt_qposadr[jnt[0]]:m.jnt_qposadr[jnt[0]] + 4] = (1.0, 0.0, 0.0, 0.0)
+        elif j.kind == "prismatic":
+            rate = float(v @ j.axis)
+            bad = np.linalg.norm(w) + np.linalg.norm(v - rate * j.axis) / scale
+            value = [rate]
+        else:
+            bad, value = np.linalg.norm(w) + np.linalg.norm(v) / scale, []
+        if bad > 1e-9:
+            raise ValueError(f"joints: body {b.name!r} starts with a motion its {j.kind} joint does not allow "
+                             f"(velocity {v.tolist()}, angular velocity {w.tolist()} relative to its other side); "
+                             f"MuJoCo's reduced "
+                             f"coordinates would drop it")
+        if value:
+            da = m.jnt_dofadr[jnt[0]]
+            d.qvel[da:da + len(value)] = value
 
 
 def xml_escape(s: str) -> str:

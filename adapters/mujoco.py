@@ -87,7 +87,7 @@ import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, drag_coefficients
-from physbench.adapters.mjcf import INTEGRATORS, build_mjcf
+from physbench.adapters.mjcf import INTEGRATORS, JOINT_TYPES, build_mjcf, joint_start, joint_tree_reason
 from physbench.adapters.mujoco_impacts import calibrate_pairs
 from physbench.adapters.quiet import collect_mujoco_warnings
 from physbench.contract.rotation import quat_rotate, world_to_body_angvel
@@ -111,7 +111,7 @@ _WARNINGS: list[str] = collect_mujoco_warnings(mujoco) if mujoco is not None els
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
 _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction",
-                      "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic"})
+                      "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic", "joint"})
 
 _CONES = ("pyramidal", "elliptic")
 
@@ -173,6 +173,7 @@ class MujocoAdapter(Adapter):
             settings=_settings(),
             available=mujoco is not None,
             unavailable_reason=_IMPORT_ERROR,
+            joint_kinds=frozenset(JOINT_TYPES),
             notes=(
                 "restitution is calibrated per pair (solref), not native",
                 "one friction coefficient: no static/kinetic split",
@@ -180,6 +181,10 @@ class MujocoAdapter(Adapter):
                 "soft contacts: bodies overlap by design",
             ),
         )
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        return super().unsupported_reason(scene) or joint_tree_reason(scene)
 
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
@@ -199,6 +204,10 @@ class MujocoAdapter(Adapter):
         self.n_bodies = scene.n_bodies
         self._roll_state = None
         n = scene.n_bodies
+        self._jointed = bool(scene.joints)
+        if self._jointed:
+            self._build_jointed(scene, settings, meta)
+            return
 
         # the free joints come in body order: qpos 7 and qvel 6 per body
         if n:
@@ -265,6 +274,26 @@ class MujocoAdapter(Adapter):
         }
         self.steps = 0
 
+    def _build_jointed(self, scene: Scene, settings: dict[str, Any], meta: dict[str, Any]) -> None:
+        """A scene with joints (to the world: mjcf.joint_tree_reason): the
+        state is read from the bodies' world poses and velocities
+        (:meth:`read_state`), not from free-joint coordinates."""
+        m, d = self.m, self.d
+        try:
+            joint_start(scene, m, d)
+        except ValueError as e:
+            raise Unsupported(str(e)) from None
+        mujoco.mj_forward(m, d)
+        self._drag = False
+        self._res = np.empty(6)
+        # scene body i is MuJoCo's body "b<i>", numbered depth-first through the tree
+        self._ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"b{i}") for i in range(scene.n_bodies)],
+                             dtype=int)
+        self._stages = {"engine": ENGINE, "gravity": scene.has("gravity"), "contact": scene.has("contact"),
+                        "joints": len(scene.joints), "dofs": int(m.nv), "mass_scale": meta["mass_scale"],
+                        "gyroscopic": True, "integrator": settings["integrator"]}
+        self.steps = 0
+
     # ---- stepping ----------------------------------------------------------
     def step(self, n: int = 1) -> None:
         m, d = self.m, self.d
@@ -304,7 +333,7 @@ class MujocoAdapter(Adapter):
         states are those of a plain mj_step loop (a test asserts equality).
         Scenes with drag need a Python force update before each step and use
         the per-step loop."""
-        if self._drag or self.m.nq != 7 * self.n_bodies:
+        if self._drag or self._jointed or self.m.nq != 7 * self.n_bodies:
             return super().step_record(n, pos, quat, vel, angvel)
         from mujoco import rollout
 
@@ -340,6 +369,22 @@ class MujocoAdapter(Adapter):
         return d.qacc_warmstart
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        if self._jointed:
+            # poses and velocities of the current qpos/qvel (after mj_step the
+            # derived quantities are a step old); no solver call, so the warm
+            # start is untouched
+            m, d, res = self.m, self.d, self._res
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            ids = self._ids
+            np.copyto(pos, d.xpos[ids])
+            np.copyto(quat, d.xquat[ids])
+            for i, bid in enumerate(ids):
+                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(bid), res, 0)
+                angvel[i] = res[0:3]
+                vel[i] = res[3:6]
+            return
         np.copyto(pos, self._pos)
         np.copyto(quat, self._quat)
         np.copyto(vel, self._lin)

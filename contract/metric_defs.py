@@ -55,6 +55,20 @@ GENERIC_METRICS: dict[str, MetricDef] = {
 }
 
 
+#: the joint metrics (harness/joints.py), reported for scenes with [[joint]]
+#: tables: measured from the recorded positions and orientations, the same
+#: for every engine (never an engine's own constraint error)
+JOINT_METRICS: dict[str, MetricDef] = {
+    "joint_drift": MetricDef("m", "max over frames and joints of the positional violation: the separation of the "
+                             "two sides' anchor points (revolute, spherical, fixed), a slider's off-axis "
+                             "displacement (prismatic)", "reported only for scenes with [[joint]] tables"),
+    "joint_axis_drift": MetricDef("rad", "max over frames and joints of the angular violation: the angle between "
+                                  "the two sides' hinge axes (revolute), the relative rotation since the start "
+                                  "(prismatic, fixed); 0 with spherical joints only",
+                                  "reported only for scenes with [[joint]] tables"),
+}
+
+
 #: the contact-law residual families (harness/contact_laws.py): each gives
 #: the metrics <name>_max, <name>_mean and <name>_rows, computed only when a
 #: check or the primary metric names one of them (recording contact forces
@@ -126,10 +140,12 @@ def dissipation(scene) -> list[str]:
 def external_force_free(scene) -> tuple[bool, bool]:
     """(linear momentum conserved, angular momentum about the COM conserved)
     by the scene's physics.  Contact with statics, world springs and drag are
-    external; uniform gravity is external for P only."""
+    external, and so are joints to the world; uniform gravity is external
+    for P only."""
     touches_world = scene.has("contact") and len(scene.statics) > 0
     world_spring = any(sp.a < 0 or sp.b < 0 for sp in scene.springs)
-    free = not (touches_world or world_spring or _drag(scene))
+    world_joint = any(j.other < 0 for j in getattr(scene, "joints", ()))
+    free = not (touches_world or world_spring or world_joint or _drag(scene))
     gravity = bool(np.any(scene.gravity != 0))
     return free and not gravity, free
 
@@ -145,5 +161,7 @@ def generic_metrics(scene) -> set[str]:
     out = set(GENERIC_METRICS)
     if scene.has("contact"):
         out |= contact_law_metrics()
+    if getattr(scene, "joints", ()):
+        out |= set(JOINT_METRICS)
     out.discard("energy_dissipated" if not dissipation(scene) else "energy_drift")
     return out

@@ -47,6 +47,11 @@ SHIPPED_MODELS: dict[str, str] = {
     "heavy_top": "physbench.harness.references.rigid_body:HeavyTop",
     "damped_oscillator": "physbench.harness.references.forces:DampedOscillator",
     "drag_fall": "physbench.harness.references.forces:DragFall",
+    "pendulum": "physbench.harness.references.joints:Pendulum",
+    "slider": "physbench.harness.references.joints:Slider",
+    "conical_pendulum": "physbench.harness.references.joints:ConicalPendulum",
+    "hanging_chain": "physbench.harness.references.joints:HangingChain",
+    "double_pendulum": "physbench.harness.references.joints:DoublePendulum",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 #: every model: the shipped ones, then the plug-ins

@@ -30,6 +30,7 @@ from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene_model import (  # re-exported: the scene's types are imported from here
     Body,
     Check,
+    Joint,
     Material,
     Scene,
     Spring,
@@ -155,6 +156,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                               sp.stiffness if "spring" in spec.scenario.effects else 0.0,
                               sp.rest_length,
                               sp.damping if "damper" in spec.scenario.effects else 0.0))
+    joints = _compile_joints(spec, bodies, index, label, errs)
     if spec.perturbation is not None and spec.perturbation.bodies is not None:
         unknown = [n for n in spec.perturbation.bodies if n not in index]
         if unknown:
@@ -179,6 +181,7 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         phases=sc.phases,
         body_entries=tuple(entries),
         perturbation=spec.perturbation.model_dump() if spec.perturbation is not None else None,
+        joints=joints,
     )
     # the reference model must accept the scene, and every checked metric
     # must be produced for it (tests/test_models.py)
@@ -203,6 +206,73 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
                              f"{e}"]) from None
     return scene
 
+
+#: an anchor further than this many bounding radii from the centre of each of
+#: a joint's two bodies is "far from both bodies", a spec error
+#: (tests/test_joints_spec.py::test_anchor_far_from_both_bodies)
+JOINT_REACH = 2.0
+
+
+def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], label: str,
+                    errs: list[str]) -> tuple[Joint, ...]:
+    """The ``[[joint]]`` tables as :class:`Joint` (anchor and axis also in
+    each side's frame); appends to ``errs`` an unknown body (a pattern's
+    name beyond its count), an anchor far from both bodies (two-body joints:
+    the world is everywhere, so a pendulum bob may hang at any distance
+    from its pivot) and a body named twice in one fixed chain (a loop of
+    fixed joints, world included)."""
+    from physbench.contract.rotation import quat_to_matrix
+
+    out: list[Joint] = []
+    # fixed chains: union-find over body indices, the world as -1
+    parent: dict[int, int] = {}
+
+    def root(i: int) -> int:
+        while parent.get(i, i) != i:
+            i = parent[i]
+        return i
+
+    for k, j in enumerate(spec.joint):
+        p = f"{label}: joint[{k}]"
+        ib = index.get(j.body)
+        io = -1 if j.other == "world" else index.get(j.other)
+        if ib is None or io is None:
+            which, who = ("body", j.body) if ib is None else ("other", j.other)
+            errs.append(f"{p}.{which}: unknown body {who!r}; the scene has {sorted(index)}")
+            continue
+        anchor = np.array(j.anchor, float)
+        if io >= 0:
+            near = [float(np.linalg.norm(anchor - bodies[i].position)) / bodies[i].bounding_radius for i in (ib, io)]
+            if min(near) > JOINT_REACH:
+                errs.append(f"{p}.anchor: {list(j.anchor)} is far from both bodies ({near[0]:.3g} and "
+                            f"{near[1]:.3g} bounding radii from the centres of {j.body!r} and {j.other!r}; "
+                            f"expected within {JOINT_REACH:g} of one of them)")
+                continue
+        if j.kind == "fixed":
+            ra, ro = root(ib), root(io)
+            if ra == ro:
+                errs.append(f"{p}.body: {j.body!r} is named twice in one fixed chain (it is already fixed to "
+                            f"{j.other!r} through other fixed joints): a loop of fixed joints")
+                continue
+            parent[ra] = ro
+        axis = None if j.axis is None else np.array(j.axis, float) / np.linalg.norm(j.axis)
+
+        def local(i: int, v: np.ndarray, point: bool) -> np.ndarray:
+            if i < 0:
+                return v.copy()
+            R = quat_to_matrix(bodies[i].orientation)
+            return R.T @ (v - bodies[i].position if point else v)
+
+        out.append(Joint(
+            index=len(out), name=j.name or f"joint_{k}", kind=j.kind, body=ib, other=io, anchor=anchor, axis=axis,
+            anchor_body=local(ib, anchor, True), anchor_other=local(io, anchor, True),
+            axis_body=None if axis is None else local(ib, axis, False),
+            axis_other=None if axis is None else local(io, axis, False)))
+    names = [jt.name for jt in out]
+    for k, n in enumerate(names):
+        if names.index(n) != k:
+            errs.append(f"{label}: joint[{k}].name: duplicate joint name {n!r}")
+    return tuple(out)
 
 
 def resolve_scenario(name: str | Path) -> Path:

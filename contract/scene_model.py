@@ -113,6 +113,34 @@ class Spring:
 
 
 @dataclass(frozen=True)
+class Joint:
+    """One ``[[joint]]``: body ``body`` held to ``other`` (indices; -1 is the
+    world).  ``kind`` is revolute, spherical, prismatic or fixed.
+
+    ``anchor`` (m, (3,)) is the joint's world point at the start and
+    ``axis`` its unit world axis at the start ((3,); revolute: the hinge,
+    prismatic: the slide; None for spherical and fixed).  The same point and
+    axis are stored in each side's frame, the frame the joint moves with:
+    ``anchor_body``/``axis_body`` in ``body``'s frame (from its centre of
+    mass), ``anchor_other``/``axis_other`` in ``other``'s frame (the world
+    frame when ``other`` is -1).  A joint holds while the two sides' anchors
+    coincide (prismatic: differ along the axis only) and, revolute, their
+    axes agree (harness/joints.py measures it)."""
+
+    index: int
+    name: str
+    kind: str
+    body: int
+    other: int
+    anchor: np.ndarray
+    axis: np.ndarray | None
+    anchor_body: np.ndarray
+    anchor_other: np.ndarray
+    axis_body: np.ndarray | None = None
+    axis_other: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class Check:
     metric: str
     max: float | None = None
@@ -163,6 +191,8 @@ class Scene:
     #: the ``[perturbation]`` block as a dict (harness/ensemble.py), None
     #: without one; judges the scene, changes no run (not in the hash)
     perturbation: dict[str, Any] | None = None
+    #: the ``[[joint]]`` tables, compiled (joint k is ``joint[k]`` in the spec)
+    joints: tuple[Joint, ...] = ()
 
     # ---- derived, engine-neutral helpers ---------------------------------
 
@@ -331,6 +361,8 @@ def content_hash(scene: Scene) -> str:
     carry them apart).  Pinned by
     tests/test_own_scenes.py::test_content_hash_is_the_scene_not_the_file."""
     doc = {k: _canonical(getattr(scene, k)) for k in _CONTENT_FIELDS}
+    if scene.joints:  # absent when empty: scenes without joints keep their hashes
+        doc["joints"] = _canonical(scene.joints)
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -42,6 +42,7 @@ import numpy as np
 from physbench.contract.rotation import quat_rotate
 from physbench.contract.metric_defs import dissipation, external_force_free
 from physbench.contract.scene import Scene
+from physbench.harness.joints import held_lowest_height, joint_metrics
 
 STABLE_MAX_ENERGY_GAIN = 0.5
 STABLE_SPEED_FACTOR = 100.0
@@ -99,7 +100,9 @@ def lowest_height(scene: Scene, body) -> float:
     start lowered by the slide a frictionless plane allows in the scene's
     duration T, sin a (|v0| T + g sin a T^2 / 2); with several planes
     beneath it the highest of these; with none, where free fall from its
-    initial state takes it within T.  Never above the start."""
+    initial state takes it within T; held by a joint to the world, no lower
+    than the joint lets it (harness.joints.held_lowest_height).  Never above
+    the start."""
     g = scene.gravity
     gn = float(np.linalg.norm(g))
     up = -g / gn
@@ -107,6 +110,9 @@ def lowest_height(scene: Scene, body) -> float:
     T = scene.duration
     v_up = float(body.velocity @ up)
     low = h0 + min(0.0, v_up * T - 0.5 * gn * T * T)  # free fall
+    held = held_lowest_height(scene, body, up)  # a joint to the world holds it up
+    if held is not None:
+        low = max(low, held)
     if scene.has("contact"):
         bounds = []
         for s in scene.statics:
@@ -364,6 +370,7 @@ def compute_metrics(scene: Scene, trace, dt: float | None = None, model: bool = 
     out["stable"] = not reasons
     out["stability_reason"] = "; ".join(reasons)
     out["max_speed"] = vmax
+    out.update(joint_metrics(scene, trace))  # {} without joints (harness/joints.py)
 
     # --- reference model
     if model and scene.reference_model:

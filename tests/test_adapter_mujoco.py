@@ -114,7 +114,8 @@ def test_capabilities_and_settings():
     assert caps.shapes == {"sphere", "box", "capsule", "cylinder"}
     assert caps.static_shapes == {"plane", "slope", "box"}
     assert {"gravity", "contact", "restitution", "friction", "rolling_friction", "spring", "damper",
-            "drag_linear", "drag_quadratic", "gyroscopic"} == caps.effects
+            "drag_linear", "drag_quadratic", "gyroscopic", "joint"} == caps.effects
+    assert caps.joint_kinds == {"revolute", "spherical", "prismatic", "fixed"}
     st = caps.settings
     assert st["integrator"].default == "implicitfast" and set(st["integrator"].choices) == {
         "euler", "rk4", "implicit", "implicitfast"}

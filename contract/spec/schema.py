@@ -31,7 +31,12 @@ EFFECTS = (
     "spring",
     "damper",
     "gyroscopic",
+    "joint",
 )
+#: the kinds a ``[[joint]]`` may be (docs/SCENARIO_FORMAT.md, "Joints")
+JOINT_KINDS = ("revolute", "spherical", "prismatic", "fixed")
+#: the kinds that take an ``axis`` (a hinge axis, a slide axis); the others refuse one
+JOINT_AXIS_KINDS = ("revolute", "prismatic")
 BODY_SHAPES = ("sphere", "box", "capsule", "cylinder")
 STATIC_SHAPES = ("plane", "box", "slope")
 
@@ -442,6 +447,45 @@ class XfailSection(_Strict):
         return self
 
 
+class JointSection(_Strict):
+    """``[[joint]]``: ``body`` held to ``other`` ("world" or a body's name)
+    at the world point ``anchor`` (m, at the start); ``axis`` (world frame,
+    any length > 0, normalised on compile) is the hinge axis of a revolute
+    joint and the slide axis of a prismatic one, and is refused for the
+    other kinds (it would be ignored)."""
+
+    name: str | None = Field(default=None, min_length=1)
+    kind: str
+    body: str = Field(min_length=1)
+    other: str = Field(default="world", min_length=1)
+    anchor: Vec3
+    axis: Vec3 | None = None
+
+    _kind_known = field_validator("kind")(_one_of("joint kind", JOINT_KINDS))
+    _anchor_bounded = field_validator("anchor")(_bound("position", "each"))
+
+    @field_validator("name", "body", "other")
+    @classmethod
+    def _name_plain(cls, v: str | None) -> str | None:
+        return _plain(v)
+
+    @field_validator("axis")
+    @classmethod
+    def _axis_nonzero(cls, v: Vec3 | None) -> Vec3 | None:
+        # tests/test_joints_spec.py::test_zero_axis_names_the_key
+        if v is not None and math.sqrt(sum(c * c for c in v)) < 1e-12:
+            raise ValueError(f"the axis must have a non-zero length, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _axis_for_kind(self) -> "JointSection":
+        if self.kind in JOINT_AXIS_KINDS and self.axis is None:
+            raise ValueError(f"a {self.kind} joint needs axis = [x, y, z] (world frame, at the start)")
+        if self.kind not in JOINT_AXIS_KINDS and self.axis is not None:
+            raise ValueError(f"a {self.kind} joint takes no axis (only {' and '.join(JOINT_AXIS_KINDS)} joints do)")
+        return self
+
+
 class CheckSection(_Strict):
     metric: str
     max: float | None = None
@@ -496,6 +540,7 @@ class SpecModel(_Strict):
     body: list[BodySection] = Field(default_factory=list)
     static: list[StaticSection] = Field(default_factory=list)
     spring: list[SpringSection] = Field(default_factory=list)
+    joint: list[JointSection] = Field(default_factory=list)
     reference: ReferenceSection | None = None
     check: list[CheckSection] = Field(default_factory=list)
     perturbation: PerturbationSection | None = None

@@ -54,6 +54,7 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
         if sp.damping > 0 and "damper" not in effects:
             errs.append(f"{label}: spring[{i}].damping: the spring is damped but 'damper' is not in scenario.effects")
     errs += _material_effects(spec, label)
+    errs += _joint_checks(spec, label, names)
     if ("spring" in effects or "damper" in effects) and not spec.spring:
         errs.append(f"{label}: scenario.effects: 'spring'/'damper' listed but there is no [[spring]] table")
     for i, b in enumerate(spec.body):
@@ -102,6 +103,54 @@ def _cross_checks(spec: SpecModel, label: str) -> list[str]:
     if spec.scenario.primary_metric is not None and spec.reference is None and spec.scenario.primary_metric in (
         "post_impact_velocity_error", "trajectory_rmse", "final_position_error"):
         errs.append(f"{label}: scenario.primary_metric: {spec.scenario.primary_metric!r} needs a [reference] model")
+    return errs
+
+
+def _known_body(spec: SpecModel, names: dict[str, int], who: str) -> bool:
+    """Whether ``who`` names a body of the spec: a [[body]] name, or a
+    pattern's ``<name>_<i>`` (the pattern's count is checked on compile)."""
+    return who in names or any(b.pattern is not None and who.startswith(b.name + "_") for b in spec.body)
+
+
+def _joint_checks(spec: SpecModel, label: str, names: dict[str, int]) -> list[str]:
+    """[[joint]] against the rest of the spec: the 'joint' effect, the body
+    names, a joint of a body to itself, step phases, the planar rules
+    (revolute about y, prismatic in x-z, anchors at y = 0, no spherical
+    joint).  The anchor's distance and fixed chains need the compiled scene
+    (:func:`contract.scene.compile_scene`).  Tests: tests/test_joints_spec.py."""
+    errs: list[str] = []
+    effects = set(spec.scenario.effects)
+    if spec.joint and "joint" not in effects:
+        errs.append(f"{label}: joint: the scene has {len(spec.joint)} [[joint]] table(s) but 'joint' is not in "
+                    f"scenario.effects (add it: joints are an effect an engine must model)")
+    if "joint" in effects and not spec.joint:
+        errs.append(f"{label}: scenario.effects: 'joint' listed but there is no [[joint]] table")
+    if spec.joint and spec.perturbation is not None:
+        errs.append(f"{label}: perturbation: perturbed starts would pull the joints apart at t = 0 (a perturbation "
+                    f"that keeps the joints is not built yet); leave [perturbation] out of a scene with joints")
+    if spec.joint and spec.scenario.phases > 1:
+        errs.append(f"{label}: scenario.phases: step phases shift a start in free flight; a scene with joints "
+                    f"has none (leave phases at 1)")
+    for i, j in enumerate(spec.joint):
+        p = f"{label}: joint[{i}]"
+        if not _known_body(spec, names, j.body):
+            errs.append(f"{p}.body: unknown body {j.body!r}; expected a body's name")
+        if j.other != "world" and not _known_body(spec, names, j.other):
+            errs.append(f"{p}.other: unknown body {j.other!r}; expected a body's name or 'world'")
+        if j.body == j.other:
+            errs.append(f"{p}.other: a joint between a body and itself (body = other = {j.body!r})")
+        if spec.scenario.planar:
+            if abs(j.anchor[1]) > 0:
+                errs.append(f"{p}.anchor: a planar scene lies in the x-z plane, so y must be 0, got {list(j.anchor)}")
+            if j.kind == "spherical":
+                errs.append(f"{p}.kind: a planar scene turns about y only: use a revolute joint with "
+                            f"axis = [0, 1, 0], not a spherical one")
+            elif j.kind == "revolute" and j.axis is not None and (abs(j.axis[0]) > 0 or abs(j.axis[2]) > 0):
+                errs.append(f"{p}.axis: a planar scene turns about y only, so a hinge axis must be [0, +-1, 0], "
+                            f"got {list(j.axis)}")
+            elif j.kind == "prismatic" and j.axis is not None and abs(j.axis[1]) > 0:
+                errs.append(f"{p}.axis: a planar scene lies in the x-z plane, so a slide axis must have y = 0, "
+                            f"got {list(j.axis)}")
     return errs
 
 
