@@ -131,7 +131,9 @@ def cluster(tmp_path_factory):
         assert not _wait_gone(_descendants() - before), "the cluster left processes behind"
 
 
-def _wait_workers(client, n: int = 2, timeout: float = 60.0) -> None:
+def _wait_workers(client, n: int = 2, timeout: float = 180.0) -> None:
+    # a start-up wait, not a measurement: on a loaded 2-core machine (the
+    # suite's other worker compiling) a dask worker took over 60 s to arrive
     client.wait_for_workers(n, timeout=timeout)
 
 
