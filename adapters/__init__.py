@@ -7,7 +7,7 @@ import importlib
 
 from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, engine_names, get_adapter, register
 
-ENGINES = ("reference", "mujoco", "pybullet", "pymunk")
+ENGINES = ("reference", "mujoco", "pybullet", "pymunk", "drake", "mjx")
 
 
 def _loader(module: str, cls: str):
@@ -21,5 +21,7 @@ register("reference", _loader("reference", "ReferenceAdapter"))
 register("mujoco", _loader("mujoco", "MujocoAdapter"))
 register("pybullet", _loader("pybullet", "PybulletAdapter"))
 register("pymunk", _loader("pymunk", "PymunkAdapter"))
+register("drake", _loader("drake", "DrakeAdapter"))
+register("mjx", _loader("mjx", "MjxAdapter"))
 
 __all__ = ["Adapter", "Capabilities", "Setting", "Unsupported", "ENGINES", "engine_names", "get_adapter"]
