@@ -14,7 +14,10 @@ Bodies
     normal, a static box a ``Box`` welded to the world.
 State
     Positions of a free body are [qw qx qy qz x y z], velocities [w; v], both
-    world frame (read straight from the plant's state vector).
+    world frame (read straight from the plant's state vector).  A discrete
+    plant does not renormalise its quaternions (a rolling ball's norm grows
+    to 2.2 in 2 s at dt 1/240); Drake's kinematics use q / |q|, and so does
+    the read-back.
 Contact (point contact; hydroelastic with point fallback as a setting)
     Stiffness per body k = m omega^2, omega = pi / (contact_steps dt); statics
     are 1e20 N/m, so Drake's series rule gives every pair k = m_eff omega^2
@@ -37,14 +40,13 @@ Effects
 
 from __future__ import annotations
 
-import logging
 import math
 from typing import Any
 
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from physbench.adapters.drake_contact import ZERO_E, contact_omega, hc_alpha, kv_beta
+from physbench.adapters.drake_contact import ZERO_E, contact_omega, discrete_param, hc_alpha, quiet_drake
 from physbench.adapters.forces import drag_coefficients
 from physbench.contract.scene import Scene
 
@@ -83,10 +85,14 @@ MIN_IMPACT_SPEED = 0.05
 def _settings() -> dict[str, Setting]:
     return {
         "dt": DT_SETTING,
-        "time_step": Setting("time_step", None, float, "plant time step (s); default: dt; 0: continuous "
-                             "time with the error-controlled integrator", lo=0.0, hi=1.0),
-        "approximation": Setting("approximation", "lagged", str, "discrete contact approximation "
-                                 "(Drake's default lagged)", choices=("lagged", "similar", "sap", "tamsi")),
+        "time_step": Setting("time_step", -1.0, float, "plant time step (s); -1: dt; 0: continuous "
+                             "time with the error-controlled integrator", lo=-1.0, hi=1.0),
+        # similar: Drake's documented choice where strong transients matter
+        # (impacts); lagged (Drake's default) weakly couples friction and sticks
+        # a block that should slide under the heavy dissipation that realises
+        # e = 0 (friction.block_slides: error 0.999 lagged, 0.0022 similar)
+        "approximation": Setting("approximation", "similar", str, "discrete contact approximation",
+                                 choices=("similar", "lagged", "sap", "tamsi")),
         "contact_model": Setting("contact_model", "point", str, "point contact, or hydroelastic with point "
                                  "contact where a pair has no hydroelastic model",
                                  choices=("point", "hydroelastic_with_fallback")),
@@ -96,11 +102,11 @@ def _settings() -> dict[str, Setting]:
                             lo=1e-12, hi=1.0),
         "contact_steps": Setting("contact_steps", 10.0, float, "contact stiffness as the duration in dt of "
                                  "an undamped impact: k = m_eff (pi / (contact_steps dt))^2", lo=1.0, hi=1000.0),
-        "point_stiffness": Setting("point_stiffness", None, float, "point-contact stiffness of every body "
-                                   "(N/m); default: from contact_steps", lo=1e-3, hi=1e15),
-        "dissipation": Setting("dissipation", None, float, "Hunt-Crossley dissipation of every body (s/m; "
-                               "tamsi/similar/lagged/continuous); default: calibrated to the restitution",
-                               lo=0.0, hi=1e6),
+        "point_stiffness": Setting("point_stiffness", 0.0, float, "point-contact stiffness of every body "
+                                   "(N/m); 0: m (pi / (contact_steps dt))^2", lo=0.0, hi=1e15),
+        "dissipation": Setting("dissipation", -1.0, float, "Hunt-Crossley dissipation of every body (s/m; "
+                               "tamsi/similar/lagged/continuous); -1: calibrated to the restitution",
+                               lo=-1.0, hi=1e6),
         "hydroelastic_modulus": Setting("hydroelastic_modulus", 1e7, float, "hydroelastic modulus of "
                                         "the bodies (Pa)", lo=1e3, hi=1e12),
     }
@@ -133,14 +139,29 @@ class DrakeAdapter(Adapter):
                             f"{sp.a}->{sp.b} has rest length {sp.rest_length:g} m")
         return reason
 
+    @classmethod
+    def resolve_settings(cls, scene: Scene, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+        """As the base, and a negative time_step or dissipation must be -1 (the
+        default's marker)."""
+        out = super().resolve_settings(scene, overrides)
+        for key in ("time_step", "dissipation"):
+            if out[key] < 0.0 and out[key] != -1.0:
+                raise ValueError(f"setting {key}: expected -1 (default) or a value >= 0, got {out[key]!r}")
+        return out
+
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        with quiet_drake():
+            self._build(scene, settings)
+
+    def _build(self, scene: Scene, settings: dict[str, Any]) -> None:
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
         self.scene, self.settings, self.n = scene, dict(settings), scene.n_bodies
         dt = self.dt = float(settings["dt"])
-        ts = dt if settings["time_step"] is None else float(settings["time_step"])
+        ts = float(settings["time_step"])
+        ts = dt if ts < 0.0 else ts
         if 0.0 < ts and abs(ts - dt) > 1e-12 * dt:
             self.notes.append(f"the plant steps at time_step {ts:g} s, states are sampled every dt {dt:g} s")
         contact = scene.has("contact") and bool(scene.contact_pairs())
@@ -161,20 +182,14 @@ class DrakeAdapter(Adapter):
                          "cylinder": lambda: Cylinder(b.radius, 2.0 * b.half_length)}[b.shape]()
                 plant.RegisterCollisionGeometry(body, RigidTransform(), shape, f"g{b.index}",
                                                 material(b.index, True))
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.ERROR)  # "half spaces ... deformable contact": no deformables here
-        try:
-            for s in scene.statics if contact else ():
-                if s.shape == "plane":
-                    n = np.asarray(s.normal, float)
-                    X, shape = HalfSpace.MakePose(n, n * s.offset), HalfSpace()
-                else:
-                    X = RigidTransform(Quaternion(*s.orientation), np.asarray(s.position, float))
-                    shape = Box(*(2.0 * np.asarray(s.half_extents)))
-                plant.RegisterCollisionGeometry(plant.world_body(), X, shape, f"s{s.index}", material(s.index, False))
-        finally:
-            drake_log.setLevel(level)
+        for s in scene.statics if contact else ():
+            if s.shape == "plane":
+                n = np.asarray(s.normal, float)
+                X, shape = HalfSpace.MakePose(n, n * s.offset), HalfSpace()
+            else:
+                X = RigidTransform(Quaternion(*s.orientation), np.asarray(s.position, float))
+                shape = Box(*(2.0 * np.asarray(s.half_extents)))
+            plant.RegisterCollisionGeometry(plant.world_body(), X, shape, f"s{s.index}", material(s.index, False))
         for sp in scene.springs:
             if sp.stiffness or sp.damping:
                 ba = plant.world_body() if sp.a < 0 else bodies[sp.a]
@@ -238,29 +253,46 @@ class DrakeAdapter(Adapter):
                               "does not realise here")
         e = es.pop()
         (mus, muk), = fr
-        if settings["dissipation"] is not None:
+        if settings["dissipation"] >= 0.0:
             if scene.has("restitution"):
                 raise Unsupported(f"dissipation is set to {settings['dissipation']:g} s/m, so the scene's "
                                   f"restitution e = {e:g} cannot be realised")
             d, tau = float(settings["dissipation"]), None
             self.notes.append(f"Hunt-Crossley dissipation {d:g} s/m as set; not calibrated")
-        elif sap:
-            tau, d = kv_beta(e) / omega, None
-            self.notes.append(
-                f"Drake has no restitution coefficient: e = {e:g}{' (no restitution effect)' if not scene.has('restitution') else ''}"
-                f"{f', realised as {ZERO_E}' if e < ZERO_E else ''} by SAP's Kelvin-Voigt relaxation time "
-                f"tau = beta(e) / omega = {tau:.6g} s (beta {kv_beta(e):.6g}, omega {omega:.6g} rad/s)")
+        elif scene.has("restitution") and (settings["point_stiffness"] > 0 or settings["contact_model"] != "point"):
+            raise Unsupported(f"the restitution calibration assumes point contact with k = m omega^2 "
+                              f"(point_stiffness 0); with point_stiffness {settings['point_stiffness']:g} N/m and "
+                              f"contact_model {settings['contact_model']} the scene's e = {e:g} is not realised")
         else:
             from physbench.adapters.mujoco_impacts import predict_impact
 
             speed = max(predict_impact(scene, kb, ia, ib)["speed"] for _, ia, kb, ib, _ in pairs)
             v = speed if speed >= MIN_IMPACT_SPEED else FALLBACK_SPEED
-            d, tau = hc_alpha(e) / v, None
-            self.notes.append(
-                f"Drake has no restitution coefficient: e = {e:g}{' (no restitution effect)' if not scene.has('restitution') else ''}"
-                f"{f', realised as {ZERO_E}' if e < ZERO_E else ''} by Hunt-Crossley dissipation "
-                f"d = alpha(e) / v_impact = {d:.6g} s/m (alpha {hc_alpha(e):.6g}, v_impact {v:.6g} m/s: "
-                f"{'the fastest predicted first impact' if speed >= MIN_IMPACT_SPEED else 'no impact predicted'})")
+            label = " (no restitution effect)" if not scene.has("restitution") else ""
+            as_zero = f", realised as {ZERO_E}" if e < ZERO_E else ""
+            if ts == 0.0:
+                alpha = hc_alpha(e)
+                how = f"the continuous-time Hunt-Crossley map alpha(e) = {alpha:.6g}"
+            else:
+                steps = math.pi / (omega * ts)  # duration of an undamped contact in plant steps
+                alpha, reach = discrete_param(e, settings["approximation"], steps)
+                if math.isnan(alpha):
+                    raise Unsupported(
+                        f"Drake has no restitution coefficient and its discrete {settings['approximation']} step "
+                        f"dissipates by itself: with {steps:.4g} steps per undamped contact (contact_steps) a "
+                        f"contact without dissipation bounces at {reach:.4f} (Drake's own 1-D bounce, 4 impact "
+                        f"phases), below the scene's e = {e:g}; more contact_steps or time_step = 0 realise it")
+                how = (f"Drake's own discrete {settings['approximation']} bounce at {steps:.4g} steps per contact "
+                       f"(4 impact phases; {reach:.4f} without dissipation): "
+                       f"{'beta' if sap else 'alpha'}(e) = {alpha:.6g}")
+            if sap:
+                tau, d = alpha / omega, None
+                what = f"SAP's Kelvin-Voigt relaxation time tau = beta(e) / omega = {tau:.6g} s (omega {omega:.6g} rad/s)"
+            else:
+                d, tau = alpha / v, None
+                what = (f"Hunt-Crossley dissipation d = alpha(e) / v_impact = {d:.6g} s/m (v_impact {v:.6g} m/s: "
+                        f"{'the fastest predicted first impact' if speed >= MIN_IMPACT_SPEED else 'no impact predicted'})")
+            self.notes.append(f"Drake has no restitution coefficient: e = {e:g}{label}{as_zero} by {what}, from {how}")
         self.info["contact_parameters"] = {"restitution": e, "omega": omega, "hunt_crossley_dissipation": d,
                                            "relaxation_time": tau, "friction": [mus, muk]}
         hydro = settings["contact_model"] != "point"
@@ -276,7 +308,7 @@ class DrakeAdapter(Adapter):
             if hydro and is_body:
                 b = scene.bodies[i]
                 AddCompliantHydroelasticProperties(0.5 * b.min_extent, float(settings["hydroelastic_modulus"]), p)
-            elif hydro and scene.statics[i].shape != "plane":
+            elif hydro:
                 AddRigidHydroelasticProperties(p)
             return p
 
@@ -326,16 +358,19 @@ class DrakeAdapter(Adapter):
             raise RuntimeError(f"Drake's log sink missed {int(np.sum(rows < 0))} of {n} step samples")
         st = data[:, rows].T  # (n, nq + nv)
         pos[...], quat[...], vel[...], angvel[...] = st[:, self._ip], st[:, self._iq], st[:, self._iv], st[:, self._iw]
+        quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
         self._state = st[-1]
         self.block_done = n
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         st = self._state
         pos[...], quat[...], vel[...], angvel[...] = st[self._ip], st[self._iq], st[self._iv], st[self._iw]
+        quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
 
     def contacts(self) -> np.ndarray:
-        """The plant's point-pair contact results at the current state: point
-        (midpoint of the witness points), normal nhat_BA_W, depth."""
+        """The plant's point-pair contact results: for a discrete plant those
+        the last step solved, found at its start (the sampled output port);
+        point, normal nhat_BA_W (from B into A), depth (> 0 overlap)."""
         cr = self.plant.get_contact_results_output_port().Eval(self.pctx)
         k = cr.num_point_pair_contacts()
         out = np.empty((k, 7))

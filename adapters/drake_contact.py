@@ -30,7 +30,9 @@ direct integration, bounce ratios of runs against e).
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import logging
 import math
 
 #: the bounce ratio that stands for e = 0 (neither law reaches 0)
@@ -103,3 +105,100 @@ def contact_omega(dt: float, contact_steps: float) -> float:
     stiffness is m omega^2, and Drake's series combination of two bodies'
     stiffness gives m_eff omega^2)."""
     return math.pi / (contact_steps * dt)
+
+
+# ---- discrete time: Drake's own 1-D bounce ------------------------------------
+
+@contextlib.contextmanager
+def quiet_drake():
+    """Drake's log at ERROR while building: a rigid half space draws a warning
+    about deformable contact, and there are no deformable bodies here."""
+    log = logging.getLogger("drake")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+_R = 100.0  # m: the calibration sphere's radius, far above its overlap (~3 m)
+#: impact phases (fraction of a step) the discrete calibration averages over
+PHASES = (0.125, 0.375, 0.625, 0.875)
+
+
+def discrete_bounce(param: float, approximation: str, contact_steps: float, phases=PHASES) -> float:
+    """Mean bounce ratio of Drake's discrete plant (``approximation``, time
+    step 1 s, omega = pi / contact_steps) for a unit-mass sphere hitting a
+    half space at 1 m/s without gravity, over the impact ``phases``.
+    ``param`` is alpha = d v (Hunt–Crossley) or beta = tau omega (SAP): the
+    scaled problem depends on nothing else, so the result holds for every
+    dt, mass and speed (pinned by tests/test_adapter_drake.py: the runs'
+    bounce ratios)."""
+
+    with quiet_drake():
+        return _discrete_bounce(param, approximation, contact_steps, phases)
+
+
+def _discrete_bounce(param: float, approximation: str, contact_steps: float, phases) -> float:
+    import numpy as np
+    from pydrake.geometry import AddContactMaterial, HalfSpace, ProximityProperties, Sphere
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
+    from pydrake.multibody.tree import SpatialInertia, UnitInertia
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    omega = math.pi / contact_steps
+    sap = approximation == "sap"
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=1.0, contact_model="point",
+                                                      discrete_contact_approximation=approximation), builder)
+    ball = plant.AddRigidBody("ball", SpatialInertia(1.0, np.zeros(3), UnitInertia(0.1, 0.1, 0.1)))
+    for body, shape, X, k in ((ball, Sphere(_R), RigidTransform(), omega ** 2),
+                              (plant.world_body(), HalfSpace(), RigidTransform(), 1e20)):
+        p = ProximityProperties()
+        AddContactMaterial(dissipation=0.0 if sap else param, point_stiffness=k,
+                           friction=CoulombFriction(0.0, 0.0), properties=p)
+        if sap:
+            p.AddProperty("material", "relaxation_time", param / omega)
+        plant.RegisterCollisionGeometry(body, X, shape, "g" if body is ball else "s", p)
+    plant.mutable_gravity_field().set_gravity_vector(np.zeros(3))
+    plant.Finalize()
+    sim = Simulator(builder.Build())
+    ctx = sim.get_mutable_context()
+    pctx = plant.GetMyMutableContextFromRoot(ctx)
+    out = []
+    for ph in phases:
+        x = np.zeros(13)
+        x[0], x[6], x[12] = 1.0, _R + 2.0 - ph, -1.0  # qw, z = r + gap (m), vz (m/s)
+        ctx.SetTime(0.0)
+        plant.SetPositionsAndVelocities(pctx, x)
+        sim.Initialize()
+        e = 0.0
+        for k in range(1, int(20 * contact_steps) + 10):
+            sim.AdvanceTo(float(k))
+            z, vz = plant.GetPositions(pctx)[6], plant.GetVelocities(pctx)[5]
+            if z > _R and vz > 0.0:
+                e = vz
+                break
+        out.append(e)
+    return float(sum(out) / len(out))
+
+
+@functools.lru_cache(maxsize=256)
+def discrete_param(e: float, approximation: str, contact_steps: float) -> tuple[float, float]:
+    """(parameter, reach): alpha (or beta for SAP) whose discrete bounce
+    (:func:`discrete_bounce`) is ``e`` (e = 0 as ZERO_E), and the bounce at
+    zero dissipation, the most this step can realise (then the parameter is
+    nan when e exceeds it)."""
+    reach = discrete_bounce(0.0, approximation, contact_steps)
+    target = max(float(e), ZERO_E)
+    if target > reach:
+        return math.nan, reach
+    fn = functools.partial(_bounded, approximation=approximation, contact_steps=contact_steps)
+    return _invert(fn, target), reach
+
+
+def _bounded(p: float, approximation: str, contact_steps: float) -> float:
+    return discrete_bounce(p, approximation, contact_steps)
