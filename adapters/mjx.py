@@ -157,6 +157,7 @@ class MjxAdapter(Adapter):
                               "each step (explicit, inside the scan); no drag torque")
         self._block = _block_fn(n, drag)
         self._c = (jax.numpy.asarray(c1 * meta["mass_scale"]), jax.numpy.asarray(c2 * meta["mass_scale"]))
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
         t0 = time.perf_counter()
         try:
             self._compiled = jax.jit(self._block).lower(self.mx, self.dx, self._c, 0).compile()
