@@ -348,15 +348,25 @@ class DrakeAdapter(Adapter):
         log = self.log.GetMutableLog(self.lctx)
         log.Clear()
         t0 = self.steps
-        self._advance(n)
+        blew_up = None
+        try:
+            self._advance(n)
+        except RuntimeError as e:
+            # a state that overflowed: SceneGraph refuses its non-finite pose.
+            # The steps logged before it are kept and the rest recorded as
+            # NaN, so that the runner reports the run as diverged.
+            if "non-finite" not in str(e):
+                raise
+            blew_up = str(e)
+            self.notes.append(f"Drake stopped at a non-finite state: {e}")
         times, data = log.sample_times(), log.data()
         k = np.rint(times / self.dt).astype(np.int64) - t0
         keep = (k >= 1) & (k <= n)
         rows = np.full(n, -1)
         rows[k[keep] - 1] = np.nonzero(keep)[0]  # the last sample at each step time wins
-        if np.any(rows < 0):
+        if np.any(rows < 0) and blew_up is None:
             raise RuntimeError(f"Drake's log sink missed {int(np.sum(rows < 0))} of {n} step samples")
-        st = data[:, rows].T  # (n, nq + nv)
+        st = np.where(rows[:, None] >= 0, data[:, np.maximum(rows, 0)].T if data.size else np.nan, np.nan)
         pos[...], quat[...], vel[...], angvel[...] = st[:, self._ip], st[:, self._iq], st[:, self._iv], st[:, self._iw]
         quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
         self._state = st[-1]
