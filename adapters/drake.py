@@ -41,26 +41,22 @@ Effects
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
-from physbench.adapters.drake_contact import ZERO_E, contact_omega, discrete_param, hc_alpha, quiet_drake
+from physbench.adapters.drake_contact import contact_materials, quiet_drake
 from physbench.adapters.forces import drag_coefficients
 from physbench.contract.scene import Scene
 
 try:
     import pydrake  # noqa: F401
     from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
-                                  AddRigidHydroelasticProperties, Box, Capsule, Cylinder, HalfSpace,
-                                  ProximityProperties, Sphere)
+    from pydrake.geometry import Box, Capsule, Cylinder, HalfSpace, Sphere
     from pydrake.math import RigidTransform
     from pydrake.multibody.math import SpatialForce
-    from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction, ExternallyAppliedSpatialForce,
-                                         MultibodyPlantConfig)
+    from pydrake.multibody.plant import AddMultibodyPlant, ExternallyAppliedSpatialForce, MultibodyPlantConfig
     from pydrake.multibody.tree import LinearSpringDamper, SpatialInertia, UnitInertia
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
     from pydrake.systems.framework import DiagramBuilder
@@ -78,9 +74,6 @@ _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "drag_lin
 #: error-controlled integrators of the continuous-time plant (time_step = 0)
 INTEGRATORS = ("runge_kutta3", "runge_kutta5", "bogacki_shampine3", "implicit_euler", "radau3",
                "velocity_implicit_euler")
-STATIC_STIFFNESS = 1e20  # N/m: series with a body's k leaves the body's
-FALLBACK_SPEED = 1.0  # m/s: impact speed of a resting or unpredicted contact
-MIN_IMPACT_SPEED = 0.05
 
 
 def _settings() -> dict[str, Setting]:
@@ -176,7 +169,7 @@ class DrakeAdapter(Adapter):
         if model == "auto":
             model = "point" if scene.has("restitution") else "hydroelastic_with_fallback"
         settings = self.settings = dict(settings, contact_model=model)
-        material = self._materials(scene, settings, ts) if contact else None
+        material = contact_materials(scene, settings, ts, self.notes, self.info) if contact else None
         builder = DiagramBuilder()
         cfg = MultibodyPlantConfig(time_step=ts, contact_model=model,
                                    discrete_contact_approximation=settings["approximation"] if ts > 0 else "")
@@ -243,87 +236,6 @@ class DrakeAdapter(Adapter):
                         "integrator": settings["integrator"] if ts == 0 else None,
                         "contact_model": model, "contact": contact, "drag": bool(self._drag),
                         "springs": len(scene.springs), "gyroscopic": True}
-
-    def _materials(self, scene: Scene, settings: dict[str, Any], ts: float):
-        """Return material(index, is_body) -> ProximityProperties realising
-        every contact pair (stiffness, dissipation, friction), after checking
-        that they can be realised; fills notes and info."""
-        pairs = scene.contact_pairs()
-        sap = ts > 0 and settings["approximation"] == "sap"
-        omega = contact_omega(self.dt, float(settings["contact_steps"]))
-        es = {float(m.restitution) if scene.has("restitution") else 0.0 for *_, m in pairs}
-        fr = {(float(max(m.static_friction, m.friction)), float(m.friction)) if scene.has("friction") else (0.0, 0.0)
-              for *_, m in pairs}
-        if len(fr) > 1:
-            raise Unsupported(f"Drake combines two geometries' friction as 2ab/(a+b); the scene's pairs ask for "
-                              f"{len(fr)} different (static, kinetic) values {sorted(fr)}, which per-geometry "
-                              "values do not realise here")
-        if len(es) > 1:
-            raise Unsupported(f"Drake combines two geometries' dissipation; the scene's pairs ask for {len(es)} "
-                              f"different restitution values {sorted(es)}, which one per-geometry dissipation "
-                              "does not realise here")
-        e = es.pop()
-        (mus, muk), = fr
-        if settings["dissipation"] >= 0.0:
-            if scene.has("restitution"):
-                raise Unsupported(f"dissipation is set to {settings['dissipation']:g} s/m, so the scene's "
-                                  f"restitution e = {e:g} cannot be realised")
-            d, tau = float(settings["dissipation"]), None
-            self.notes.append(f"Hunt-Crossley dissipation {d:g} s/m as set; not calibrated")
-        elif scene.has("restitution") and (settings["point_stiffness"] > 0 or settings["contact_model"] != "point"):
-            raise Unsupported(f"the restitution calibration assumes point contact with k = m omega^2 "
-                              f"(point_stiffness 0); with point_stiffness {settings['point_stiffness']:g} N/m and "
-                              f"contact_model {settings['contact_model']} the scene's e = {e:g} is not realised")
-        else:
-            from physbench.adapters.mujoco_impacts import predict_impact
-
-            speed = max(predict_impact(scene, kb, ia, ib)["speed"] for _, ia, kb, ib, _ in pairs)
-            v = speed if speed >= MIN_IMPACT_SPEED else FALLBACK_SPEED
-            label = " (no restitution effect)" if not scene.has("restitution") else ""
-            as_zero = f", realised as {ZERO_E}" if e < ZERO_E else ""
-            if ts == 0.0:
-                alpha = hc_alpha(e)
-                how = f"the continuous-time Hunt-Crossley map alpha(e) = {alpha:.6g}"
-            else:
-                steps = math.pi / (omega * ts)  # duration of an undamped contact in plant steps
-                alpha, reach = discrete_param(e, settings["approximation"], steps)
-                if math.isnan(alpha):
-                    raise Unsupported(
-                        f"Drake has no restitution coefficient and its discrete {settings['approximation']} step "
-                        f"dissipates by itself: with {steps:.4g} steps per undamped contact (contact_steps) a "
-                        f"contact without dissipation bounces at {reach:.4f} (Drake's own 1-D bounce, 4 impact "
-                        f"phases), below the scene's e = {e:g}; more contact_steps or time_step = 0 realise it")
-                how = (f"Drake's own discrete {settings['approximation']} bounce at {steps:.4g} steps per contact "
-                       f"(4 impact phases; {reach:.4f} without dissipation): "
-                       f"{'beta' if sap else 'alpha'}(e) = {alpha:.6g}")
-            if sap:
-                tau, d = alpha / omega, None
-                what = f"SAP's Kelvin-Voigt relaxation time tau = beta(e) / omega = {tau:.6g} s (omega {omega:.6g} rad/s)"
-            else:
-                d, tau = alpha / v, None
-                what = (f"Hunt-Crossley dissipation d = alpha(e) / v_impact = {d:.6g} s/m (v_impact {v:.6g} m/s: "
-                        f"{'the fastest predicted first impact' if speed >= MIN_IMPACT_SPEED else 'no impact predicted'})")
-            self.notes.append(f"Drake has no restitution coefficient: e = {e:g}{label}{as_zero} by {what}, from {how}")
-        self.info["contact_parameters"] = {"restitution": e, "omega": omega, "hunt_crossley_dissipation": d,
-                                           "relaxation_time": tau, "friction": [mus, muk]}
-        hydro = settings["contact_model"] != "point"
-        k_set = settings["point_stiffness"]
-
-        def material(i: int, is_body: bool):
-            p = ProximityProperties()
-            k = (k_set if k_set else scene.bodies[i].mass * omega ** 2) if is_body else STATIC_STIFFNESS
-            AddContactMaterial(dissipation=d if d is not None else 0.0, point_stiffness=k,
-                               friction=CoulombFriction(mus, muk), properties=p)
-            if tau is not None:
-                p.AddProperty("material", "relaxation_time", tau)
-            if hydro and is_body:
-                b = scene.bodies[i]
-                AddCompliantHydroelasticProperties(0.5 * b.min_extent, float(settings["hydroelastic_modulus"]), p)
-            elif hydro:
-                AddRigidHydroelasticProperties(p)
-            return p
-
-        return material
 
     # ---- stepping ----------------------------------------------------------
     def _advance(self, n: int) -> None:

@@ -35,6 +35,8 @@ import functools
 import logging
 import math
 
+from physbench.adapters.base import Unsupported
+
 #: the bounce ratio that stands for e = 0 (neither law reaches 0)
 ZERO_E = 0.005
 
@@ -202,3 +204,99 @@ def discrete_param(e: float, approximation: str, contact_steps: float) -> tuple[
 
 def _bounded(p: float, approximation: str, contact_steps: float) -> float:
     return discrete_bounce(p, approximation, contact_steps)
+
+
+# ---- the scene's contact materials ----------------------------------------------
+
+STATIC_STIFFNESS = 1e20  # N/m: in series with a body's k it leaves the body's
+FALLBACK_SPEED = 1.0  # m/s: impact speed of a resting or unpredicted contact
+MIN_IMPACT_SPEED = 0.05
+
+
+def contact_materials(scene, settings: dict, ts: float, notes: list, info: dict):
+    """Return material(index, is_body) -> Drake ProximityProperties realising
+    every contact pair of ``scene`` (stiffness, dissipation, friction) with
+    resolved ``settings`` and plant time step ``ts`` (s; 0 continuous), after
+    checking that they can be realised (else raise Unsupported with the
+    reason); appends the mapping to ``notes`` and ``info``."""
+    from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
+                                  AddRigidHydroelasticProperties, ProximityProperties)
+    from pydrake.multibody.plant import CoulombFriction
+
+    pairs = scene.contact_pairs()
+    sap = ts > 0 and settings["approximation"] == "sap"
+    omega = contact_omega(float(settings["dt"]), float(settings["contact_steps"]))
+    es = {float(m.restitution) if scene.has("restitution") else 0.0 for *_, m in pairs}
+    fr = {(float(max(m.static_friction, m.friction)), float(m.friction)) if scene.has("friction") else (0.0, 0.0)
+          for *_, m in pairs}
+    if len(fr) > 1:
+        raise Unsupported(f"Drake combines two geometries' friction as 2ab/(a+b); the scene's pairs ask for "
+                          f"{len(fr)} different (static, kinetic) values {sorted(fr)}, which per-geometry "
+                          "values do not realise here")
+    if len(es) > 1:
+        raise Unsupported(f"Drake combines two geometries' dissipation; the scene's pairs ask for {len(es)} "
+                          f"different restitution values {sorted(es)}, which one per-geometry dissipation "
+                          "does not realise here")
+    e = es.pop()
+    (mus, muk), = fr
+    if settings["dissipation"] >= 0.0:
+        if scene.has("restitution"):
+            raise Unsupported(f"dissipation is set to {settings['dissipation']:g} s/m, so the scene's "
+                              f"restitution e = {e:g} cannot be realised")
+        d, tau = float(settings["dissipation"]), None
+        notes.append(f"Hunt-Crossley dissipation {d:g} s/m as set; not calibrated")
+    elif scene.has("restitution") and (settings["point_stiffness"] > 0 or settings["contact_model"] != "point"):
+        raise Unsupported(f"the restitution calibration assumes point contact with k = m omega^2 "
+                          f"(point_stiffness 0); with point_stiffness {settings['point_stiffness']:g} N/m and "
+                          f"contact_model {settings['contact_model']} the scene's e = {e:g} is not realised")
+    else:
+        from physbench.adapters.mujoco_impacts import predict_impact
+
+        speed = max(predict_impact(scene, kb, ia, ib)["speed"] for _, ia, kb, ib, _ in pairs)
+        v = speed if speed >= MIN_IMPACT_SPEED else FALLBACK_SPEED
+        label = " (no restitution effect)" if not scene.has("restitution") else ""
+        as_zero = f", realised as {ZERO_E}" if e < ZERO_E else ""
+        if ts == 0.0:
+            alpha = hc_alpha(e)
+            how = f"the continuous-time Hunt-Crossley map alpha(e) = {alpha:.6g}"
+        else:
+            steps = math.pi / (omega * ts)  # duration of an undamped contact in plant steps
+            alpha, reach = discrete_param(e, settings["approximation"], steps)
+            if math.isnan(alpha):
+                raise Unsupported(
+                    f"Drake has no restitution coefficient and its discrete {settings['approximation']} step "
+                    f"dissipates by itself: with {steps:.4g} steps per undamped contact (contact_steps) a "
+                    f"contact without dissipation bounces at {reach:.4f} (Drake's own 1-D bounce, 4 impact "
+                    f"phases), below the scene's e = {e:g}; more contact_steps or time_step = 0 realise it")
+            how = (f"Drake's own discrete {settings['approximation']} bounce at {steps:.4g} steps per contact "
+                   f"(4 impact phases; {reach:.4f} without dissipation): "
+                   f"{'beta' if sap else 'alpha'}(e) = {alpha:.6g}")
+        if sap:
+            tau, d = alpha / omega, None
+            what = f"SAP's Kelvin-Voigt relaxation time tau = beta(e) / omega = {tau:.6g} s (omega {omega:.6g} rad/s)"
+        else:
+            d, tau = alpha / v, None
+            what = (f"Hunt-Crossley dissipation d = alpha(e) / v_impact = {d:.6g} s/m (v_impact {v:.6g} m/s: "
+                    f"{'the fastest predicted first impact' if speed >= MIN_IMPACT_SPEED else 'no impact predicted'})")
+        notes.append(f"Drake has no restitution coefficient: e = {e:g}{label}{as_zero} by {what}, from {how}")
+    info["contact_parameters"] = {"restitution": e, "omega": omega, "hunt_crossley_dissipation": d,
+                                       "relaxation_time": tau, "friction": [mus, muk]}
+    hydro = settings["contact_model"] != "point"
+    k_set = settings["point_stiffness"]
+
+    def material(i: int, is_body: bool):
+        p = ProximityProperties()
+        k = (k_set if k_set else scene.bodies[i].mass * omega ** 2) if is_body else STATIC_STIFFNESS
+        AddContactMaterial(dissipation=d if d is not None else 0.0, point_stiffness=k,
+                           friction=CoulombFriction(mus, muk), properties=p)
+        if tau is not None:
+            p.AddProperty("material", "relaxation_time", tau)
+        if hydro and is_body:
+            b = scene.bodies[i]
+            AddCompliantHydroelasticProperties(0.5 * b.min_extent, float(settings["hydroelastic_modulus"]), p)
+        elif hydro:
+            AddRigidHydroelasticProperties(p)
+        return p
+
+    return material
+
