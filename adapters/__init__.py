@@ -17,7 +17,7 @@ from physbench.adapters.base import (Adapter, Capabilities, Setting, Unsupported
                                      get_adapter, register, set_origin)
 from physbench.contract.plugins import ADAPTERS_GROUP, plugins
 
-ENGINES = ("reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d")
+ENGINES = ("reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d", "drake", "mjx")
 
 
 def _loader(module: str, cls: str):
@@ -33,6 +33,8 @@ register("pybullet", _loader("pybullet", "PybulletAdapter"))
 register("pymunk", _loader("pymunk", "PymunkAdapter"))
 register("rapier", _loader("rapier", "RapierAdapter"))
 register("box2d", _loader("box2d", "Box2dAdapter"))
+register("drake", _loader("drake", "DrakeAdapter"))
+register("mjx", _loader("mjx", "MjxAdapter"))
 
 for _name in engine_names():  # the lines above: shipped with physbench
     set_origin(_name, "physbench")

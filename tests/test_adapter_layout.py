@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ADAPTERS = Path(__file__).resolve().parent.parent / "adapters"
-ENGINE_MODULES = ("reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d")
+ENGINE_MODULES = ("reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d", "drake", "mjx")
 MAX_LINES = 260  # "about 250"
 PYMUNK_PRIVATE = ("_chipmunk_cffi", "_add_later", "_remove_later", "_post_step_callbacks", "_bodies_to_check",
                   "_float_arr", "_int_arr")

@@ -11,10 +11,18 @@ import pytest
 
 from tests.conftest import HEAD_ON, ROOT
 
+def _mjx_installed() -> bool:
+    try:
+        return importlib.util.find_spec("mujoco.mjx") is not None and importlib.util.find_spec("jax") is not None
+    except ImportError:
+        return False
+
+
 #: the engines whose package is installed (rapier and box2d are extras: a
 #: missing one is listed by `physbench engines` as unavailable)
 ENGINES = ["reference", "mujoco", "pybullet", "pymunk"] + [
-    e for e, mod in (("rapier", "rapier3d"), ("box2d", "pyb2d3")) if importlib.util.find_spec(mod) is not None]
+    e for e, mod in (("rapier", "rapier3d"), ("box2d", "pyb2d3"), ("drake", "pydrake"), ("mjx", "mujoco.mjx"))
+    if importlib.util.find_spec(mod.split(".")[0]) is not None and (mod != "mujoco.mjx" or _mjx_installed())]
 # metric names of DESIGN.md every run result carries
 GENERIC = ["max_penetration", "mean_penetration", "energy_drift", "energy_gain", "linear_momentum_drift",
            "angular_momentum_drift", "stable", "cpu_s_per_sim_s", "wall_s_per_sim_s", "steps_per_s"]
@@ -123,11 +131,14 @@ def test_set_engine_setting_and_spec_key():
 
 
 def test_engines_lists_all_four():
+    from physbench.adapters import ENGINES as ALL
+
     r = physbench("engines", "--json", check=True)
     caps = {c["engine"]: c for c in json.loads(r.stdout)}
-    assert set(ENGINES) <= set(caps) <= set(ENGINES) | {"rapier", "box2d"}
+    assert set(caps) == set(ALL) >= set(ENGINES)  # the optional engines are listed, installed or not
     for name, c in caps.items():
-        assert c["available"] == (name in ENGINES) and c["version"] and "dt" in c["settings"]
+        assert c["version"] and "dt" in c["settings"]
+        assert c["available"] == (name in ENGINES), name
     assert caps["pymunk"]["dimensions"] == 2 and caps["mujoco"]["dimensions"] == 3
 
 

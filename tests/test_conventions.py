@@ -153,7 +153,11 @@ def test_planar_sign(engine):
 # a slide 4.4 % slow at its defaults; the conformance scenarios report that.
 # Here it runs with split impulse and a tight contact margin, which remove
 # those artefacts, so the test isolates the material convention.
-ISOLATE_CONTACT = {"pybullet": {"split_impulse": True, "contact_breaking_threshold": 1e-4}}
+# Drake's discrete step dissipates by itself (an e above 0.65 is unsupported
+# at 10 steps per contact, docs/ENGINE_FINDINGS.md): continuous time isolates
+# its restitution map.
+ISOLATE_CONTACT = {"pybullet": {"split_impulse": True, "contact_breaking_threshold": 1e-4},
+                   "drake": {"time_step": 0.0}}
 
 
 def _bounce_ratio(tr):

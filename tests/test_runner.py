@@ -151,12 +151,17 @@ def test_record_every(scene):
     assert tr.t[-1] == pytest.approx(0.5) and tr.t[1] == pytest.approx(7 * scene.dt)
 
 
+#: settings under which an engine runs the head-on scene at all: Drake's
+#: discrete step cannot realise its e = 0.9 (unsupported), continuous time can
+BLOCK_SETTINGS = {"drake": {"time_step": 0.0}}
+
+
 @pytest.mark.parametrize("engine", ENGINES)
 def test_block_recording_equals_step_loop(engine, scene):
     cls = get_adapter(engine)
     if not cls.capabilities().available:
         pytest.skip(f"{engine} is not installed: {cls.capabilities().unavailable_reason}")
-    st = cls.resolve_settings(scene)
+    st = cls.resolve_settings(scene, BLOCK_SETTINGS.get(engine))
     n, nb = 300, scene.n_bodies
     outs = []
     for block in (False, True):

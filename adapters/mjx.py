@@ -1,0 +1,235 @@
+"""MJX adapter: MuJoCo's JAX port (mujoco-mjx 3.17 on jax's CPU backend).
+
+The model is MuJoCo's: the same MJCF (:func:`adapters.mjcf.build_mjcf`),
+the same per-pair restitution calibration (:func:`adapters.mujoco_impacts.
+calibrate_pairs`, run on MuJoCo's C engine), compiled by MuJoCo and handed
+to MJX with ``mjx.put_model``.  MJX runs it in float64 (``jax_enable_x64``,
+set process-wide at import), so differences from MuJoCo are MJX's own
+algorithms, not single precision.
+
+Stepping
+    ``step_record`` runs a block of up to BLOCK steps in one
+    ``jax.lax.scan`` of ``mjx.step`` compiled once per model (a step i >= n
+    of the block is skipped by ``lax.cond``, so any n <= BLOCK reuses the
+    one compiled function); longer requests run several blocks.  Drag is a
+    force from the velocity at the start of each step, written into
+    ``xfrc_applied`` inside the scan (as the MuJoCo adapter does in Python).
+    Compilation happens in :meth:`MjxAdapter.build` and its wall time is
+    reported apart as ``jit_s``; compiled functions persist in JAX's
+    compilation cache under ``$XDG_CACHE_HOME/physbench/jax`` (default
+    ``~/.cache/physbench/jax``; ``PHYSBENCH_JAX_CACHE`` overrides), so a
+    second process with the same model shape loads instead of compiling.
+State
+    As in MuJoCo: qpos [x y z qw qx qy qz], qvel [v (world), w (body)] per
+    free body; the angular velocity is rotated to the world frame with the
+    recorded quaternions (:func:`contract.rotation.quat_rotate`).
+Settings
+    MuJoCo's, less what MJX does not implement: no noslip solver and no
+    speculative contacts (both off).  ``ls_iterations``: MJX's line-search
+    iterations.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.forces import drag_coefficients
+from physbench.adapters.mjcf import build_mjcf
+from physbench.adapters.mujoco_impacts import calibrate_pairs
+from physbench.contract.rotation import quat_rotate, world_to_body_angvel
+from physbench.contract.scene import Scene
+
+ENGINE = "mjx"
+#: steps per compiled scan block
+BLOCK = 256
+
+
+def cache_dir() -> Path:
+    """Where JAX's persistent compilation cache lives (never in the package)."""
+    env = os.environ.get("PHYSBENCH_JAX_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "physbench" / "jax"
+
+
+def _import():
+    import logging
+
+    logging.getLogger("absl").setLevel(logging.ERROR)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_platforms", "cpu")
+    jax.config.update("jax_compilation_cache_dir", str(cache_dir()))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    from physbench.adapters.quiet import quiet_import
+
+    mjx = quiet_import("mujoco.mjx")  # prints "Failed to import warp" without the GPU backend
+    return jax, mjx
+
+
+try:
+    import mujoco
+
+    jax, mjx = _import()
+    _IMPORT_ERROR = ""
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    jax = mjx = mujoco = None
+    _IMPORT_ERROR = f"import mujoco.mjx / jax failed: {_e}"
+
+
+def _settings() -> dict[str, Setting]:
+    from physbench.adapters.mujoco import _settings as mujoco_settings
+
+    s = mujoco_settings()
+    for name in ("noslip_iterations", "speculative"):
+        del s[name]
+    s["integrator"] = Setting("integrator", "implicitfast", str, "MJX integrator",
+                              choices=("euler", "implicitfast", "rk4"))
+    s["ls_iterations"] = Setting("ls_iterations", 50, int, "MJX line-search iterations (MuJoCo default 50)",
+                                 lo=1, hi=10000)
+    return s
+
+
+class MjxAdapter(Adapter):
+    """Adapter for MJX (MuJoCo in JAX, CPU, float64)."""
+
+    name = ENGINE
+    gyroscopic_always_on = "MJX"
+
+    @classmethod
+    def capabilities(cls) -> Capabilities:
+        from physbench.adapters.mujoco import _EFFECTS, _SHAPES, _STATIC_SHAPES
+
+        return Capabilities(
+            engine=ENGINE, version=module_version("mujoco-mjx"), dimensions=3, shapes=_SHAPES,
+            static_shapes=_STATIC_SHAPES, effects=_EFFECTS, settings=_settings(),
+            available=mjx is not None, unavailable_reason=_IMPORT_ERROR,
+            notes=("MuJoCo's model (same MJCF and restitution calibration) stepped by MJX in float64",
+                   "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts"))
+
+    def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        reason = self.unsupported_reason(scene)
+        if reason is not None:
+            raise Unsupported(reason)
+        self.scene, self.settings, self.n = scene, dict(settings), scene.n_bodies
+        full = dict(settings, noslip_iterations=0, speculative=False)
+        pair_solref = calibrate_pairs(scene, full, self.notes, self.info)
+        xml, meta = build_mjcf(scene, full, pair_solref, self.notes)
+        self.xml, self.meta = xml, meta
+        m = mujoco.MjModel.from_xml_string(xml)
+        m.opt.ls_iterations = int(settings["ls_iterations"])
+        if settings["cone"] == "elliptic" and not np.any(m.geom_condim > 1) and not np.any(m.pair_dim > 1):
+            # mujoco-mjx 3.17's elliptic-cone solver fails to trace without a
+            # frictional contact (an empty float index array); without
+            # friction both cones give the same constraint rows
+            m.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+            self.notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
+                              "solver without friction; the two are the same constraint without friction)")
+        d = mujoco.MjData(m)
+        n = self.n
+        x0, q0, v0, w0 = scene.initial_state()
+        qpos, qvel = d.qpos.reshape(n, 7), d.qvel.reshape(n, 6)
+        qpos[:, 0:3], qpos[:, 3:7], qvel[:, 0:3] = x0, q0, v0
+        qvel[:, 3:6] = world_to_body_angvel(q0, w0)
+        mujoco.mj_forward(m, d)
+        self.m = m
+        try:
+            self.mx = mjx.put_model(m)
+        except NotImplementedError as e:
+            raise Unsupported(f"MJX cannot model this scene: {e}") from None
+        dx = mjx.put_data(m, d)
+        # put_data keeps some int32 fields that mjx.step returns as int64 under
+        # x64: cast to the step's own output types (traced, not compiled)
+        shapes = jax.eval_shape(mjx.step, self.mx, dx)
+        self.dx = jax.tree_util.tree_map(lambda a, s: jax.numpy.asarray(a, s.dtype), dx, shapes)
+        c1, c2 = drag_coefficients(scene)
+        drag = bool(np.any(c1 > 0) or np.any(c2 > 0))
+        if drag:
+            self.notes.append("drag is a force at the centre of mass from the velocity at the start of "
+                              "each step (explicit, inside the scan); no drag torque")
+        self._block = _block_fn(n, drag)
+        self._c = (jax.numpy.asarray(c1 * meta["mass_scale"]), jax.numpy.asarray(c2 * meta["mass_scale"]))
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
+        t0 = time.perf_counter()
+        try:
+            self._compiled = jax.jit(self._block).lower(self.mx, self.dx, self._c, 0).compile()
+        except NotImplementedError as e:
+            raise Unsupported(f"MJX cannot model this scene: {e}") from None
+        self.jit_s = time.perf_counter() - t0
+        self._last = (x0, q0, v0, np.asarray(w0, float))
+        self.steps = 0
+        self._stages = {"engine": ENGINE, "integrator": settings["integrator"], "cone": settings["cone"],
+                        "condim": meta["condim"], "explicit_pairs": meta["explicit_pairs"],
+                        "mass_scale": meta["mass_scale"], "drag": drag, "block": BLOCK, "float64": True,
+                        "restitution_calibrated": len(self.info.get("restitution_calibration", []))}
+
+    def _run_block(self, n: int):
+        """Advance n <= BLOCK steps; the (n, nq) and (n, nv) states after each."""
+        self.dx, (qp, qv) = self._compiled(self.mx, self.dx, self._c, n)
+        self.steps += n
+        return np.asarray(qp)[:n], np.asarray(qv)[:n]
+
+    def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """n steps in blocks of one compiled scan each; the block is
+        converted to physbench's conventions at once."""
+        self.block_done = 0
+        nb = self.n
+        while self.block_done < n:
+            k = min(BLOCK, n - self.block_done)
+            qp, qv = self._run_block(k)
+            qp, qv = qp.reshape(k, nb, 7), qv.reshape(k, nb, 6)
+            s = slice(self.block_done, self.block_done + k)
+            pos[s], quat[s], vel[s] = qp[..., 0:3], qp[..., 3:7], qv[..., 0:3]
+            quat_rotate(quat[s], qv[..., 3:6], out=angvel[s])
+            self._last = (pos[s.stop - 1], quat[s.stop - 1], vel[s.stop - 1], angvel[s.stop - 1])
+            self.block_done += k
+
+    def step(self, n: int = 1) -> None:
+        nb = self.n
+        buf = [np.empty((n, nb, 3)), np.empty((n, nb, 4)), np.empty((n, nb, 3)), np.empty((n, nb, 3))]
+        self.step_record(n, *buf)
+
+    def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        for out, src in zip((pos, quat, vel, angvel), self._last):
+            np.copyto(out, src)
+
+    def stages(self) -> dict[str, Any]:
+        out = dict(getattr(self, "_stages", {}))
+        out["steps"] = getattr(self, "steps", 0)
+        if hasattr(self, "jit_s"):
+            out["jit_s"] = self.jit_s
+        return out
+
+    def close(self) -> None:
+        self.mx = self.dx = self._compiled = None
+
+
+def _block_fn(n_bodies: int, drag: bool):
+    """(mx, dx, (c1, c2), n) -> (dx after n steps, (qpos, qvel) (BLOCK, nq|nv)):
+    BLOCK iterations of a lax.scan, step i applied when i < n."""
+    jnp, lax = jax.numpy, jax.lax
+
+    def one(mx, dx, c):
+        if drag:
+            v = dx.qvel.reshape(n_bodies, 6)[:, 0:3]
+            coef = c[0] + c[1] * jnp.sqrt(jnp.sum(v * v, axis=1))
+            f = jnp.zeros((n_bodies + 1, 6)).at[1:, 0:3].set(-coef[:, None] * v)
+            dx = dx.replace(xfrc_applied=f)
+        return mjx.step(mx, dx)
+
+    def block(mx, dx, c, n):
+        def body(dx, i):
+            dx = lax.cond(i < n, lambda d: one(mx, d, c), lambda d: d, dx)
+            return dx, (dx.qpos, dx.qvel)
+
+        return lax.scan(body, dx, jnp.arange(BLOCK))
+
+    return block
