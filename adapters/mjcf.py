@@ -68,14 +68,15 @@ def mass_scale(scene: Scene) -> float:
 
 
 def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tuple[float, float]],
-               notes: list[str]) -> tuple[str, dict[str, Any]]:
+               notes: list[str], fluid_drag: bool = True) -> tuple[str, dict[str, Any]]:
     """The MJCF for ``scene`` with resolved ``settings`` and each contact
     pair's calibrated ``solref`` (by index into ``scene.contact_pairs()``);
     appends notes on what MuJoCo cannot model to ``notes``.  Returns (xml,
     meta: dynamic_contacts, explicit_pairs, condim, tendons, mass_scale
     (:func:`mass_scale`), fluid (:func:`adapters.forces.mujoco_fluid`'s
     parameters when MuJoCo's fluid model carries the drag, else None),
-    fluid_refused (why it cannot, '' without drag))."""
+    fluid_refused (why it cannot, '' without drag)).  ``fluid_drag=False``
+    never uses the fluid model (MJX: its implicitfast has none)."""
     dt = float(settings["dt"])
     mscale = mass_scale(scene)
     if mscale != 1.0:
@@ -83,6 +84,8 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
                      f"is unchanged): its compiler refuses a mass or principal inertia below mjMINVAL = 1e-15")
     integrator = settings["integrator"]
     fluid, fluid_refused = mujoco_fluid(scene, mscale)
+    if not fluid_drag and fluid:
+        fluid, fluid_refused = None, "MJX applies drag inside its scan, not through MuJoCo's fluid model"
     contact = scene.has("contact")
     pairs = scene.contact_pairs()
 

@@ -122,7 +122,7 @@ class MjxAdapter(Adapter):
         self.scene, self.settings, self.n = scene, dict(settings), scene.n_bodies
         full = dict(settings, noslip_iterations=0, speculative=False)
         pair_solref = calibrate_pairs(scene, full, self.notes, self.info)
-        xml, meta = build_mjcf(scene, full, pair_solref, self.notes)
+        xml, meta = build_mjcf(scene, full, pair_solref, self.notes, fluid_drag=False)
         self.xml, self.meta = xml, meta
         m = mujoco.MjModel.from_xml_string(xml)
         m.opt.ls_iterations = int(settings["ls_iterations"])
