@@ -86,7 +86,7 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 
 def _settings() -> dict[str, Setting]:
-    from physbench.adapters.mujoco import _settings as mujoco_settings
+    from physbench.adapters.mujoco_settings import mujoco_settings
 
     s = mujoco_settings()
     for name in ("noslip_iterations", "speculative"):

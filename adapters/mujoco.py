@@ -85,10 +85,11 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, drag_coefficients
-from physbench.adapters.mjcf import INTEGRATORS, JOINT_TYPES, build_mjcf, joint_start, joint_tree_reason
+from physbench.adapters.mjcf import JOINT_TYPES, build_mjcf, joint_start, joint_tree_reason
 from physbench.adapters.mujoco_impacts import calibrate_pairs
+from physbench.adapters.mujoco_settings import mujoco_settings
 from physbench.adapters.quiet import collect_mujoco_warnings
 from physbench.contract.rotation import quat_rotate, world_to_body_angvel
 from physbench.contract.scene import Scene
@@ -113,47 +114,6 @@ _STATIC_SHAPES = frozenset({"plane", "slope", "box"})
 _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction",
                       "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic", "joint"})
 
-_CONES = ("pyramidal", "elliptic")
-
-
-def _settings() -> dict[str, Setting]:
-    return {
-        "dt": DT_SETTING,
-        # implicitfast: MuJoCo's recommended integrator.  It is semi-implicit
-        # Euler with the velocity-dependent forces (tendon dampers here)
-        # integrated implicitly, so stiff dampers stay stable, at the cost of
-        # Euler for free bodies (no Coriolis derivatives).  RK4 conserves
-        # torque-free rotation far better (ENGINE_NOTES: Dzhanibekov energy
-        # drift 0 % vs -14.5 %) but costs ~3x per step; sweeps vary it.
-        "integrator": Setting("integrator", "implicitfast", str,
-                              "MuJoCo integrator (mjtIntegrator)", choices=tuple(INTEGRATORS)),
-        # elliptic: the true circular Coulomb cone (the pyramidal one is a
-        # linearised approximation) and measurably less stick creep
-        # (ENGINE_NOTES: 5.1 mm vs 9.1 mm over 5 s on a 20 deg slope).
-        "cone": Setting("cone", "elliptic", str, "friction cone (mjtCone)", choices=_CONES),
-        "impratio": Setting("impratio", 1.0, float,
-                            "ratio of frictional to normal constraint impedance (MuJoCo default 1; "
-                            "larger -> less slip when sticking)", lo=1.0, hi=1e6),
-        "noslip_iterations": Setting("noslip_iterations", 0, int,
-                                     "noslip post-solver iterations (MuJoCo default 0)", lo=0, hi=10000),
-        "iterations": Setting("iterations", 100, int,
-                              "main constraint solver iterations (MuJoCo default 100)", lo=1, hi=100000),
-        "speculative": Setting("speculative", False, bool,
-                               "MuJoCo 4.0 speculative contacts (mjENBL_SPECULATIVE): contacts are "
-                               "created before touching, which stops tunnelling", ),
-        "contact_steps": Setting("contact_steps", 10.0, float,
-                                 "contact stiffness, as the duration in time steps of an undamped "
-                                 "impact: K = (pi / (contact_steps * dt))^2.  Fewer steps: stiffer, "
-                                 "less penetration, more scatter of the bounce with the impact "
-                                 "phase (see adapters/mujoco_calibration.py)", lo=2.0, hi=1000.0),
-        "restitution_phase": Setting("restitution_phase", "first_impact", str,
-                                     "what the restitution calibration matches: 'first_impact' replays "
-                                     "the scene's predicted first impact of each pair group (speed and "
-                                     "step phase), 'averaged' the mean over eight step phases at the "
-                                     "predicted impact speed", choices=("first_impact", "averaged")),
-    }
-
-
 class MujocoAdapter(Adapter):
     """Adapter for MuJoCo 4.x (free rigid bodies, MJCF built from the Scene)."""
 
@@ -170,7 +130,7 @@ class MujocoAdapter(Adapter):
             shapes=_SHAPES,
             static_shapes=_STATIC_SHAPES,
             effects=_EFFECTS,
-            settings=_settings(),
+            settings=mujoco_settings(),
             available=mujoco is not None,
             unavailable_reason=_IMPORT_ERROR,
             joint_kinds=frozenset(JOINT_TYPES),
