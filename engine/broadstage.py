@@ -14,8 +14,8 @@ reaches the plane's margin; body-static-box pairs when the boxes overlap.
 The stage is one compiled call per step (numba ``@njit(cache=True)``, no
 BLAS; :func:`_broad_step`): the swept boxes, the pairs -- sweep and prune
 along a sort order kept between steps and restored by insertion sort
-(``engine.sweep._sap_coherent``; dense clouds through a uniform grid,
-``engine.sweep._hash_grid_pairs``; non-finite or very unequal boxes fall
+(``engine.sap._sap_coherent``; dense clouds through a uniform grid,
+``engine.sap._hash_grid_pairs``; non-finite or very unequal boxes fall
 back to ``engine.broadphase.sap_pairs``) or the all-pairs test -- and the static pairs, into
 buffers kept between steps and grown geometrically.
 
@@ -39,7 +39,7 @@ from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_
 from physbench.engine.flight import q2m
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from physbench.engine.profile import Stage
-from physbench.engine.sweep import _FALLBACK, SapBuffers, _sap_step
+from physbench.engine.sap import _FALLBACK, SapBuffers, _sap_step
 
 
 #: below this many bodies ``sap`` tests all pairs instead: the same pairs in

@@ -18,42 +18,97 @@ import numpy as np
 
 from physbench.engine.profile import add_jit_seconds
 
-_READY = False
+#: the parts compiled (or loaded) in this process (:func:`parts`)
+_READY: set = set()
 
 
-def warm_up() -> float:
-    """Compile (or load from the cache) every dynamics and collision kernel
-    once per process; returns the seconds spent (0.0 when already done)."""
-    global _READY
-    if _READY:
+def parts(model=None) -> tuple:
+    """The kernel groups ``model``'s stages call (the same decision as
+    :func:`engine.pipeline.build_pipeline`'s): the free flight always; with
+    contact the broad phase, the narrow phase for the scene's shape-pair
+    families (:func:`engine.collision.collide.families`), and the impulse
+    solve and time-of-impact handling or the penalty contacts.  ``None``:
+    every group, every family."""
+    from physbench.engine.collision.collide import ALL_FAMILIES, families
+
+    if model is None:
+        return ("flight",), ("solve",), ("broad",), ("narrow", ALL_FAMILIES), ("ccd",), ("penalty",)
+    out = [("flight",)]
+    if model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0:
+        out += [("broad",), ("narrow", families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]))]
+        if model.setting("contact_model") == "penalty":
+            out.append(("penalty",))
+        else:
+            out.append(("solve",))
+            if model.setting("ccd") != "off":
+                out.append(("ccd",))
+    return tuple(out)
+
+
+def warm_up(model=None) -> float:
+    """Compile (or load from the cache) the kernels ``model`` needs
+    (:func:`parts`; ``None``: all of them), each group once per process;
+    returns the seconds spent (0.0 when all were done already)."""
+    todo = [p for p in parts(model) if p not in _READY]
+    if not todo:
         return 0.0
     t0 = time.perf_counter()
-    warm_dynamics()
-    warm_collision()
+    for p in todo:
+        _warm_part(p)
+        _READY.add(p)
     dt = time.perf_counter() - t0
-    _READY = True
     add_jit_seconds(dt)
     return dt
 
 
-def warm_collision() -> None:
-    """The broad and narrow phases', the time-of-impact search's, the impact
-    solver's and the penalty contacts' kernels (half of :func:`warm_up`:
-    ``python -m physbench.engine`` compiles the two halves in two processes at once,
+def _warm_part(p: tuple) -> None:
+    if p[0] == "flight":
+        _warm_flight()
+    elif p[0] == "solve":
+        _warm_solve()
+    elif p[0] == "broad":
+        from physbench.engine import broadstage
+
+        broadstage.warm_up()
+    elif p[0] == "narrow":
+        from physbench.engine.collision import dispatch
+
+        dispatch.warm_up(p[1])
+    elif p[0] == "ccd":
+        from physbench.engine import ccd
+
+        ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
+    elif p[0] == "penalty":
+        from physbench.engine import penalty
+
+        penalty.warm_up()
+    else:  # pragma: no cover
+        raise ValueError(f"unknown kernel group {p!r}")
+
+
+def warm_collision(fams: list | None = None) -> None:
+    """The broad phase's, the narrow phase's (for each families tuple of
+    ``fams``, engine.collision.collide.families; None: every family), the
+    time-of-impact search's, the impact solver's and the penalty contacts'
+    kernels (the collision half of the warm-up: ``python -m
+    physbench.engine`` compiles the two halves in two processes at once,
     engine/__main__.py)."""
-    from physbench.engine.collision import dispatch
+    from physbench.engine.collision.collide import ALL_FAMILIES
 
-    dispatch.warm_up()  # the broad and narrow phases' kernels
-    from physbench.engine import ccd, penalty
-
-    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
-    penalty.warm_up()
+    for p in [("broad",)] + [("narrow", f) for f in (fams or [ALL_FAMILIES])] + [("ccd",), ("penalty",)]:
+        _warm_part(p)
 
 
 def warm_dynamics() -> None:
     """The contact solve's and the free flight's kernels (the other half of
-    :func:`warm_up`)."""
-    from physbench.engine.contact import linalg, prepare, sweeps, warm
+    :func:`warm_up` with no model)."""
+    _warm_solve()
+    _warm_flight()
+
+
+def _warm_solve() -> None:
+    """The contact solve's kernels (and the contact topology's)."""
+    from physbench.engine.contact import gauss_seidel, linalg, prepare, warm
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
     J = np.ones((m, 12))
@@ -75,20 +130,20 @@ def warm_dynamics() -> None:
     _greedy_colours(a, b, nb, np.empty(m, np.int64))
     U = np.zeros((nb + 1, 6))
     ab = np.stack([a, b], axis=1)
-    sweeps.apply_rows(U, ab, M, r, nb)
+    gauss_seidel.apply_rows(U, ab, M, r, nb)
     npch = 2
     pab = np.array([[0, 1], [0, 2]], np.int64)
     pid = np.array([0, 1, 1], np.int64)
     Jt = np.ones((npch, 5, 12))
     Mt = np.full((npch, 5, 12), 0.1)
     lam_t = np.zeros((npch, 5))
-    sweeps.apply_patches(U, pab, Mt, lam_t, nb)
+    gauss_seidel.apply_patches(U, pab, Mt, lam_t, nb)
     zb = np.zeros(npch, np.bool_)
     z2 = np.zeros((npch, 2))
-    sweeps.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
+    gauss_seidel.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
                    np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb,
-                   np.empty(sweeps.work_size(m, npch, 5)))
-    sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
+                   np.empty(gauss_seidel.work_size(m, npch, 5)))
+    gauss_seidel.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
     # preparation and warm start: two bodies and the world, three contacts
     # (the model's arrays are read-only: ``ro``, the types the step passes)
     X = np.zeros((nb, 3))
@@ -133,7 +188,9 @@ def warm_dynamics() -> None:
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
     _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
-    _warm_flight()
+    from physbench.engine.contact import topology
+
+    topology.warm_up()
 
 
 def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
