@@ -25,17 +25,21 @@ _READY: set = set()
 def parts(model=None) -> tuple:
     """The kernel groups ``model``'s stages call (the same decision as
     :func:`engine.pipeline.build_pipeline`'s): the free flight always; with
-    contact the broad phase, the narrow phase for the scene's shape-pair
+    contact the broad phase (with the sweep's kernels only where it sweeps,
+    engine.broadstage.uses_sap), the narrow phase for the scene's shape-pair
     families (:func:`engine.collision.collide.families`), and the impulse
     solve and time-of-impact handling or the penalty contacts.  ``None``:
     every group, every family."""
+    from physbench.engine.broadstage import uses_sap
     from physbench.engine.collision.collide import ALL_FAMILIES, families
 
     if model is None:
-        return ("flight",), ("solve",), ("broad",), ("narrow", ALL_FAMILIES), ("ccd",), ("penalty",)
+        return (("flight",), ("solve",), ("broad", False), ("broad", True), ("narrow", ALL_FAMILIES), ("ccd",),
+                ("penalty",))
     out = [("flight",)]
     if model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0:
-        out += [("broad",), ("narrow", families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]))]
+        out += [("broad", uses_sap(model)),
+                ("narrow", families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]))]
         if model.setting("contact_model") == "penalty":
             out.append(("penalty",))
         else:
@@ -69,7 +73,7 @@ def _warm_part(p: tuple) -> None:
     elif p[0] == "broad":
         from physbench.engine import broadstage
 
-        broadstage.warm_up()
+        broadstage.warm_up(p[1])
     elif p[0] == "narrow":
         from physbench.engine.collision import dispatch
 
@@ -95,7 +99,8 @@ def warm_collision(fams: list | None = None) -> None:
     engine/__main__.py)."""
     from physbench.engine.collision.collide import ALL_FAMILIES
 
-    for p in [("broad",)] + [("narrow", f) for f in (fams or [ALL_FAMILIES])] + [("ccd",), ("penalty",)]:
+    for p in ([("broad", False), ("broad", True)] + [("narrow", f) for f in (fams or [ALL_FAMILIES])]
+              + [("ccd",), ("penalty",)]):
         _warm_part(p)
 
 

@@ -30,7 +30,7 @@ from physbench.engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
 from physbench.engine.collision import NarrowPhase
 from physbench.engine.collision.collide import families
 from physbench.engine.control import EventMode
-from physbench.engine.broadstage import BroadPhase
+from physbench.engine.broadstage import BroadPhase, uses_sap
 from physbench.engine.penalty import PenaltyContacts
 from physbench.engine.profile import Profile, Stage, add_jit_seconds
 from physbench.engine.solver import Solve, _pair_codes_abs
@@ -86,19 +86,21 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     return tuple(stages)
 
 
-#: the shape-pair families (engine.collision.collide.families) whose fused
-#: steady step this process compiled or loaded (:func:`_warm_steady`)
+#: the (shape-pair families (engine.collision.collide.families), whether the
+#: broad phase sweeps) whose fused steady step this process compiled or
+#: loaded (:func:`_warm_steady`)
 _STEADY_READY: set = set()
 
 
 def _warm_steady(model: Model) -> None:
     """Compile (or load) the fused steady step (engine/steady.py) once per
-    process and shape-pair families (the narrow phase's part of its
-    argument types, engine.collision.collide.families), at build like
+    process, shape-pair families and broad phase (the parts of its argument
+    types that follow the scene: engine.collision.collide.families,
+    engine.broadstage.uses_sap), at build like
     every kernel (engine/jit.py): a few steps of
     :func:`engine.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
-    key = families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0])
+    key = (families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]), uses_sap(model))
     if key in _STEADY_READY:
         return
     _STEADY_READY.add(key)

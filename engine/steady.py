@@ -658,9 +658,12 @@ def warm_scene(shapes: tuple = ("box", "box"), plane: bool = True, static_box: b
 
 
 def warm_scene_for(model):
-    """:func:`warm_scene` with ``model``'s shape-pair families: each of its
-    shapes (twice where it has two bodies of it), a plane and a static box
-    where it has them."""
+    """:func:`warm_scene` with ``model``'s shape-pair families and broad
+    phase: each of its shapes (twice where it has two bodies of it), a
+    plane and a static box where it has them; where the model's broad
+    phase sweeps (more than ``SAP_MIN_BODIES`` bodies), as many more bodies
+    of its most frequent shape."""
+    from physbench.engine.broadstage import SAP_MIN_BODIES, uses_sap
     from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 
     names = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", CYLINDER: "cylinder"}
@@ -668,4 +671,7 @@ def warm_scene_for(model):
     shapes = []
     for code in sorted(set(int(c) for c in shape)):
         shapes += [names[code]] * min(2, int(np.sum(shape == code)))
+    if uses_sap(model):
+        most = names[int(np.argmax(np.bincount(shape.astype(np.int64), minlength=4)))]
+        shapes += [most] * (SAP_MIN_BODIES + 1 - len(shapes))
     return warm_scene(tuple(shapes), plane=model.plane_normal.shape[0] > 0, static_box=model.sbox_pos.shape[0] > 0)

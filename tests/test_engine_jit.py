@@ -102,13 +102,21 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     assert [p[0] for p in parts(off)] == ["flight", "broad", "narrow", "solve"]
     free = build_model(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})), defaults)
     assert parts(free) == (("flight",),)
-    assert len(parts(None)) == 6  # every group, every family: python -m physbench.engine's halves
+    assert ("broad", False) in got  # two bodies: all pairs, the sweep not compiled
+    many = build_model(warm_scene(("sphere",) * 20, plane=True), defaults)
+    assert ("broad", True) in parts(many)
+    assert ("broad", False) in parts(build_model(warm_scene(("sphere",) * 20, plane=True),
+                                                 defaults | {"broadphase": "brute"}))
+    assert len(parts(None)) == 7  # every group, every family: python -m physbench.engine's halves
     # the fused step's warm scene has the model's families
     from physbench.engine.collision.collide import families
 
+    from physbench.engine.broadstage import uses_sap
+
     for shapes, plane, sbox in ((("sphere", "sphere"), False, False), (("box", "box", "cylinder"), True, False),
-                                (("capsule",), False, True)):
+                                (("capsule",), False, True), (("sphere",) + ("box",) * 19, True, False)):
         m = build_model(warm_scene(shapes, plane, sbox), defaults)
         w = build_model(warm_scene_for(m), defaults)
         assert families(w.shape, w.plane_normal.shape[0], w.sbox_pos.shape[0]) == \
             families(m.shape, m.plane_normal.shape[0], m.sbox_pos.shape[0])
+        assert uses_sap(w) == uses_sap(m) and w.n <= max(m.n, 17)
