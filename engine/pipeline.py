@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from physbench.engine.ccd import CCD, Impact, refine_toi
-from physbench.engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
+from physbench.engine.forces import force_stages
 from physbench.engine.flight import max_turn_sq
 from physbench.engine.jit import warm_up
 from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
@@ -38,23 +38,6 @@ from physbench.engine.state import Context, State
 from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
 from physbench.engine import loop as _loop
 from physbench.engine.loop import FlightStep
-
-
-def force_stages(model: Model) -> tuple[Stage, ...]:
-    """The force stages for the scene's smooth effects."""
-    out: list[Stage] = []
-    if model.has("gravity") and np.any(model.gravity != 0.0):
-        out.append(Gravity(model))
-    if model.has("drag_linear") and np.any(model.drag_linear > 0):
-        out.append(LinearDrag(model))
-    if model.has("drag_quadratic") and np.any(model.drag_quadratic > 0):
-        out.append(QuadraticDrag(model))
-    if (model.has("spring") or model.has("damper")) and model.spring_a.size and (
-            np.any(model.spring_k > 0) or np.any(model.spring_c > 0)):
-        out.append(Springs(model))
-    if model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and np.any(~model.isotropic):
-        out.append(GyroscopicTorque(model))
-    return tuple(out)
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:

@@ -93,21 +93,24 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     defaults = {k: v[0] for k, v in SETTINGS.items()} | {"dt": 1 / 240}
     two = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults)
     got = parts(two)
-    assert [p[0] for p in got] == ["flight", "broad", "narrow", "solve", "ccd"]
+    assert [p[0] for p in got] == ["flight", "force", "broad", "narrow", "solve", "ccd"]  # (the warm scene's gravity)
+    assert ("force", "Gravity") in got
     fams = dict((p[0], p[1:]) for p in got)["narrow"][0]
     assert [f for f in range(N_FAMILIES) if fams[f]] == [F_SS]
     pen = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"contact_model": "penalty"})
-    assert [p[0] for p in parts(pen)] == ["flight", "broad", "narrow", "penalty"]
+    assert [p[0] for p in parts(pen)] == ["flight", "force", "broad", "narrow", "penalty"]
     off = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"ccd": "off"})
-    assert [p[0] for p in parts(off)] == ["flight", "broad", "narrow", "solve"]
+    assert [p[0] for p in parts(off)] == ["flight", "force", "broad", "narrow", "solve"]
     free = build_model(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})), defaults)
-    assert parts(free) == (("flight",),)
+    assert parts(free) == (("flight",), ("force", "Gravity"))
+    still = build_model(dataclasses.replace(warm_scene(), effects=frozenset()), defaults)
+    assert parts(still) == (("flight",),)  # no force, no gyroscopic kernel
     assert ("broad", False) in got  # two bodies: all pairs, the sweep not compiled
     many = build_model(warm_scene(("sphere",) * 20, plane=True), defaults)
     assert ("broad", True) in parts(many)
     assert ("broad", False) in parts(build_model(warm_scene(("sphere",) * 20, plane=True),
                                                  defaults | {"broadphase": "brute"}))
-    assert len(parts(None)) == 7  # every group, every family: python -m physbench.engine's halves
+    assert len(parts(None)) == 14  # every group, every family: python -m physbench.engine's halves
     # the fused step's warm scene has the model's families
     from physbench.engine.collision.collide import families
 
