@@ -49,7 +49,7 @@ def parts(model=None) -> tuple:
         out.append(("gyro", "implicit" if mode == "implicit" else "energy"))
     if model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0:
         out += [("broad", uses_sap(model)),
-                ("narrow", families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]))]
+                ("narrow", families(model.shape))]
         if model.setting("contact_model") == "penalty":
             out.append(("penalty",))
         else:

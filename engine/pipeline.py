@@ -83,7 +83,7 @@ def _warm_steady(model: Model) -> None:
     every kernel (engine/jit.py): a few steps of
     :func:`engine.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
-    key = (families(model.shape, model.plane_normal.shape[0], model.sbox_pos.shape[0]), uses_sap(model))
+    key = (families(model.shape), uses_sap(model))
     if key in _STEADY_READY:
         return
     _STEADY_READY.add(key)

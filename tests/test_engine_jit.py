@@ -85,7 +85,7 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     import dataclasses
 
     from physbench.engine import SETTINGS
-    from physbench.engine.collision.collide import F_SS, N_FAMILIES
+    from physbench.engine.collision.collide import F_PS, F_SS, F_XS, N_FAMILIES
     from physbench.engine.jit import parts
     from physbench.engine.model import build_model
     from physbench.engine.steady import warm_scene, warm_scene_for
@@ -96,7 +96,7 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     assert [p[0] for p in got] == ["flight", "force", "broad", "narrow", "solve", "ccd"]  # (the warm scene's gravity)
     assert ("force", "Gravity") in got
     fams = dict((p[0], p[1:]) for p in got)["narrow"][0]
-    assert [f for f in range(N_FAMILIES) if fams[f]] == [F_SS]
+    assert [f for f in range(N_FAMILIES) if fams[f]] == [F_SS, F_PS, F_XS]
     pen = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"contact_model": "penalty"})
     assert [p[0] for p in parts(pen)] == ["flight", "force", "broad", "narrow", "penalty"]
     off = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"ccd": "off"})
@@ -120,6 +120,5 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
                                 (("capsule",), False, True), (("sphere",) + ("box",) * 19, True, False)):
         m = build_model(warm_scene(shapes, plane, sbox), defaults)
         w = build_model(warm_scene_for(m), defaults)
-        assert families(w.shape, w.plane_normal.shape[0], w.sbox_pos.shape[0]) == \
-            families(m.shape, m.plane_normal.shape[0], m.sbox_pos.shape[0])
+        assert families(w.shape) == families(m.shape)
         assert uses_sap(w) == uses_sap(m) and w.n <= max(m.n, 17)

@@ -117,26 +117,28 @@ N_FAMILIES = 18
 ALL_FAMILIES = (True,) * N_FAMILIES
 
 
-def families(shape, n_planes: int, n_sboxes: int) -> tuple:
-    """The families a scene's contacts can need, as the driver's
-    ``fams`` argument: an 18-tuple, entry ``f`` True when family ``f``
-    can occur (a body-body pair of two present shapes -- one shape with
-    itself only when two bodies have it --, a present shape against a
-    plane or a static box when the scene has one), else None.  The tuple's
-    *type* selects what is compiled: the driver compiles the kernels of
-    the families that are True only (a two-sphere scene compiles the
-    sphere-sphere kernel, not box-cylinder: tests/test_engine_collision.py::
-    test_driver_compiles_only_the_scenes_families)."""
-    shape = np.asarray(shape, np.int64)
-    present = sorted(set(int(s) for s in shape))
+def families(shape) -> tuple:
+    """The families compiled for a scene of bodies of shapes ``shape``
+    (codes), as the driver's ``fams`` argument: an 18-tuple, entry ``f``
+    True when family ``f`` is compiled, else None -- every body-body
+    family between two present shapes (a shape with itself too) and each
+    present shape against a plane and a static box, whatever the scene's
+    statics and counts: one variant per set of shapes, so that the
+    shipped scenarios need few of them (each variant compiles the driver
+    and the fused step again).  The tuple's *type* selects what is
+    compiled: the driver compiles the kernels of the families that are
+    True only (a scene of spheres compiles the sphere-sphere, -plane and
+    -box kernels, not box-cylinder:
+    tests/test_engine_collision.py::test_driver_compiles_only_the_scenes_families)."""
+    present = sorted(set(int(s) for s in np.asarray(shape, np.int64)))
     on = [None] * N_FAMILIES
     for a in present:
         for b in present:
-            if a <= b and (a, b) in TABLE and (a != b or int(np.sum(shape == a)) >= 2):
+            if a <= b and (a, b) in TABLE:
                 on[TABLE[(a, b)]] = True
-        if n_planes and a in PLANE_TABLE:
+        if a in PLANE_TABLE:
             on[PLANE_TABLE[a]] = True
-        if n_sboxes and a in SBOX_TABLE:
+        if a in SBOX_TABLE:
             on[SBOX_TABLE[a]] = True
     return tuple(on)
 

@@ -66,8 +66,8 @@ class Collider:
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
         #: the families the driver is compiled for (collide.families: the
-        #: scene's shapes, planes and static boxes; its type picks the kernels)
-        self.fams = families(model.shape, self.planes[0].shape[0], self.sboxes[0].shape[0])
+        #: scene's shapes; its type picks the kernels)
+        self.fams = families(model.shape)
         self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
