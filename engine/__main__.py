@@ -1,10 +1,12 @@
 """``python -m physbench.engine``: compile (or load) the engine's kernels into the
 on-disk cache and print the seconds it took -- ahead of a first run on a
 fresh machine (a CI job, an image build), so the first scene does not pay
-for it.  Builds what a contact scene and a scene without contact build:
-every kernel of :func:`engine.jit.warm_up`, the fused steady step and the
-flight step, at the default settings (engine/README.md "Compile time").
-A scene with other settings may still compile a kernel of its own.
+for it.  Builds what the scenes of :data:`WARM` build at the default
+settings -- boxes on a plane, a sphere on a plane (the scenes of boxes
+and of spheres), a scene without contact: their kernels (:func:`engine.jit.warm_up`), the fused
+steady step of each one's shape-pair families and the flight step
+(engine/README.md "Compiled code and compile time").  A scene of other shapes or settings
+may still compile a kernel of its own.
 
 numba compiles on one core, so with ``--jobs 2`` (the default where the
 machine has two cores or more) the two halves of the warm-up -- the
@@ -24,7 +26,16 @@ import time
 
 from physbench.engine import Engine, jit
 from physbench.engine.cache import cache_dir
+from physbench.engine.collision.collide import families
 from physbench.engine.steady import warm_scene
+
+#: the contact scenes whose kernels are compiled ahead: (shapes, plane)
+WARM = ((("box", "box"), True), (("sphere",), True))
+
+
+def _families() -> list[tuple]:
+    code = {"sphere": 0, "box": 1, "capsule": 2, "cylinder": 3}
+    return [families([code[s] for s in shapes]) for shapes, plane in WARM]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,14 +47,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.part:
-        jit.warm_collision()
+        jit.warm_collision(_families())
         return 0
     if args.jobs > 1:
         other = subprocess.Popen([sys.executable, "-m", "physbench.engine", "--part", "collision"])
         jit.warm_dynamics()
         if other.wait() != 0:  # whatever it missed, the warm-up below compiles here
             print("python -m physbench.engine: the collision half's process failed; compiling it here", file=sys.stderr)
-    Engine(warm_scene())  # the warm-up's kernels and the fused steady step
+    for shapes, plane in WARM:  # the warm-up's kernels and each one's fused steady step
+        Engine(warm_scene(shapes, plane))
     Engine(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})))  # the flight step
     print(f"engine kernels compiled or loaded in {time.perf_counter() - t0:.1f} s with {args.jobs} process(es) "
           f"(cache: {cache_dir()})")

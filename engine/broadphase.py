@@ -2,7 +2,7 @@
 sweep and prune :func:`sap_pairs` (any boxes, NaN and infinite bounds
 included; numpy around compiled loops), the all-pairs test
 :func:`brute_pairs`, and :func:`stage_pairs`, the stage's own compiled path
-(engine/sweep.py) from a fresh order.  All give exactly the same pairs
+(engine/sap.py) from a fresh order.  All give exactly the same pairs
 (i < j) in lexicographic order (tests/test_broadphase.py).  The stage that
 runs them every step is engine/broadstage.py.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from physbench.engine.sweep import _FALLBACK, SWEEP_ONLY, SapBuffers, _overlap_off_axis
+from physbench.engine.sap import _FALLBACK, SWEEP_ONLY, SapBuffers, _overlap_off_axis
 
 
 @njit(cache=True)
@@ -66,7 +66,7 @@ _EMPTY = np.zeros(0, np.int64)
 _BIG_FACTOR = 4.0
 #: the single-axis sweep's candidates are used when at most this many per
 #: box; beyond, the sweep runs within grid cells (the stage's sweep switches
-#: to its grid at the same count: engine/sweep.py)
+#: to its grid at the same count: engine/sap.py)
 _SWEEP_ONLY = SWEEP_ONLY
 #: grid cells are this many times as wide as the widest (gridded) box
 _CELL_SCALE = 1.0

@@ -14,8 +14,8 @@ reaches the plane's margin; body-static-box pairs when the boxes overlap.
 The stage is one compiled call per step (numba ``@njit(cache=True)``, no
 BLAS; :func:`_broad_step`): the swept boxes, the pairs -- sweep and prune
 along a sort order kept between steps and restored by insertion sort
-(``engine.sweep._sap_coherent``; dense clouds through a uniform grid,
-``engine.sweep._hash_grid_pairs``; non-finite or very unequal boxes fall
+(``engine.sap._sap_coherent``; dense clouds through a uniform grid,
+``engine.sap._hash_grid_pairs``; non-finite or very unequal boxes fall
 back to ``engine.broadphase.sap_pairs``) or the all-pairs test -- and the static pairs, into
 buffers kept between steps and grown geometrically.
 
@@ -39,7 +39,7 @@ from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_
 from physbench.engine.flight import q2m
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from physbench.engine.profile import Stage
-from physbench.engine.sweep import _FALLBACK, SapBuffers, _sap_step
+from physbench.engine.sap import _FALLBACK, SapBuffers, _sap_step
 
 
 #: below this many bodies ``sap`` tests all pairs instead: the same pairs in
@@ -131,7 +131,7 @@ def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1,
                  lo, hi, sweep)
     nbb = 0
     if lo.shape[0] >= 2:
-        if sap:
+        if sap is not None:
             nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
             if nbb > pi.shape[0]:
                 nbb = -nbb
@@ -152,7 +152,11 @@ class BroadPhase(Stage):
     family = "broadphase"
 
     def __init__(self, model):
-        self.sap = model.setting("broadphase") == "sap" and model.n > SAP_MIN_BODIES
+        #: True, or None where the scene never sweeps: the type selects
+        #: :func:`_broad_step`'s compiled variant (a scene of a few bodies
+        #: does not compile the sweep; tests/test_engine_jit.py::
+        #: test_a_scene_warms_only_the_kernel_groups_its_stages_call)
+        self.sap = True if uses_sap(model) else None
         self.margin = float(model.setting("contact_margin"))
         n = model.n
         # scratch, allocated once
@@ -198,10 +202,17 @@ class BroadPhase(Stage):
         ctx.sbox_pairs = (self.bs[:nsb], self.sk[:nsb])
 
 
-def warm_up() -> None:
+def uses_sap(model) -> bool:
+    """Whether the broad phase of ``model`` sweeps (``broadphase = sap``
+    and more than ``SAP_MIN_BODIES`` bodies), else it tests all pairs."""
+    return model.setting("broadphase") == "sap" and model.n > SAP_MIN_BODIES
+
+
+def warm_up(sap: bool = True) -> None:
     """Compile (or load from the cache) the broad phase's kernels, with the
     argument types of the step (writable C-contiguous float64 and int64
-    arrays), on a tiny problem (see :mod:`engine.jit`)."""
+    arrays), on a tiny problem (see :mod:`engine.jit`): all pairs, and with
+    ``sap`` the sweep's kernels and the general ``sap_pairs``' too."""
     n = 3
     z3, z = np.zeros((n, 3)), np.zeros(n)
     R = np.tile(np.eye(3), (n, 1, 1))
@@ -211,12 +222,14 @@ def warm_up() -> None:
     shape = np.array([SPHERE, BOX, CYLINDER], np.int64)
     grid = (np.zeros(9, np.int64), np.empty(n, np.int64), np.empty((n, 3), np.int64), np.empty(n, np.int64),
             np.empty(n, np.int64))
-    for sap in (False, True):
+    for flag in ((True,) if sap else (None,)):
         i1 = np.empty(1, np.int64)
-        _broad_step(sap, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
+        _broad_step(flag, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
                     z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
                     z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
                     i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+    if not sap:
+        return
     SapBuffers(n).run(lo, hi)
     buf = PairBuffer(1)
     buf.run(_brute_kernel, lo, hi)

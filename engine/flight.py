@@ -293,7 +293,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
     # flight kernels compile a second time for this 'A' layout, ~10 s of a
     # cold compile, but a C-contiguous view needs numba's reshape, ~1 us
     # for the 13 slabs of every call -- +25 % on a one-body flight step;
-    # engine/README.md "Compile time")
+    # engine/README.md "Compiled code and compile time")
     a0, al0 = work[0, :, :3], work[1, :, :3]
     a1, al1 = work[2, :, :3], work[3, :, :3]
     xs, qs, vs, ws = work[4, :, :3], work[5], work[6, :, :3], work[7, :, :3]

@@ -134,3 +134,20 @@ def force_model(model, stages) -> tuple:
             raise TypeError(f"no compiled form of the force stage {s.name}")
     assert mg.shape[0] in (0, n)
     return (mg, c_lin, c_quad) + tuple(sp) + (g_idx, g_I)
+
+
+def force_stages(model) -> tuple[Stage, ...]:
+    """The force stages for the scene's smooth effects."""
+    out: list[Stage] = []
+    if model.has("gravity") and np.any(model.gravity != 0.0):
+        out.append(Gravity(model))
+    if model.has("drag_linear") and np.any(model.drag_linear > 0):
+        out.append(LinearDrag(model))
+    if model.has("drag_quadratic") and np.any(model.drag_quadratic > 0):
+        out.append(QuadraticDrag(model))
+    if (model.has("spring") or model.has("damper")) and model.spring_a.size and (
+            np.any(model.spring_k > 0) or np.any(model.spring_c > 0)):
+        out.append(Springs(model))
+    if model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and np.any(~model.isotropic):
+        out.append(GyroscopicTorque(model))
+    return tuple(out)

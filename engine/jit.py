@@ -18,42 +18,119 @@ import numpy as np
 
 from physbench.engine.profile import add_jit_seconds
 
-_READY = False
+#: the force stages' classes (engine/forces.py) by name
+FORCE_KINDS = ("Gravity", "LinearDrag", "QuadraticDrag", "Springs", "GyroscopicTorque")
+
+#: the parts compiled (or loaded) in this process (:func:`parts`)
+_READY: set = set()
 
 
-def warm_up() -> float:
-    """Compile (or load from the cache) every dynamics and collision kernel
-    once per process; returns the seconds spent (0.0 when already done)."""
-    global _READY
-    if _READY:
+def parts(model=None) -> tuple:
+    """The kernel groups ``model``'s stages call (the same decision as
+    :func:`engine.pipeline.build_pipeline`'s): the free flight always, each
+    force stage's own kernel (engine.forces.force_stages), the gyroscopic
+    stage's; with
+    contact the broad phase (with the sweep's kernels only where it sweeps,
+    engine.broadstage.uses_sap), the narrow phase for the scene's shape-pair
+    families (:func:`engine.collision.collide.families`), and the impulse
+    solve and time-of-impact handling or the penalty contacts.  ``None``:
+    every group, every family."""
+    from physbench.engine.broadstage import uses_sap
+    from physbench.engine.collision.collide import ALL_FAMILIES, families
+
+    if model is None:
+        return ((("flight",),) + tuple(("force", k) for k in FORCE_KINDS) + (("gyro", "implicit"), ("gyro", "energy"))
+                + (("solve",), ("broad", False), ("broad", True), ("narrow", ALL_FAMILIES), ("ccd",), ("penalty",)))
+    from physbench.engine.forces import force_stages
+
+    out = [("flight",)] + [("force", type(s).__name__) for s in force_stages(model)]
+    mode = model.setting("gyroscopic")
+    if model.has("gyroscopic") and np.any(~model.isotropic) and mode != "explicit":
+        out.append(("gyro", "implicit" if mode == "implicit" else "energy"))
+    if model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0:
+        out += [("broad", uses_sap(model)),
+                ("narrow", families(model.shape))]
+        if model.setting("contact_model") == "penalty":
+            out.append(("penalty",))
+        else:
+            out.append(("solve",))
+            if model.setting("ccd") != "off":
+                out.append(("ccd",))
+    return tuple(out)
+
+
+def warm_up(model=None) -> float:
+    """Compile (or load from the cache) the kernels ``model`` needs
+    (:func:`parts`; ``None``: all of them), each group once per process;
+    returns the seconds spent (0.0 when all were done already)."""
+    todo = [p for p in parts(model) if p not in _READY]
+    if not todo:
         return 0.0
     t0 = time.perf_counter()
-    warm_dynamics()
-    warm_collision()
+    for p in todo:
+        _warm_part(p)
+        _READY.add(p)
     dt = time.perf_counter() - t0
-    _READY = True
     add_jit_seconds(dt)
     return dt
 
 
-def warm_collision() -> None:
-    """The broad and narrow phases', the time-of-impact search's, the impact
-    solver's and the penalty contacts' kernels (half of :func:`warm_up`:
-    ``python -m physbench.engine`` compiles the two halves in two processes at once,
+def _warm_part(p: tuple) -> None:
+    if p[0] == "flight":
+        _warm_flight()
+    elif p[0] == "force":
+        _warm_force(p[1])
+    elif p[0] == "gyro":
+        _warm_gyro(p[1])
+    elif p[0] == "solve":
+        _warm_solve()
+    elif p[0] == "broad":
+        from physbench.engine import broadstage
+
+        broadstage.warm_up(p[1])
+    elif p[0] == "narrow":
+        from physbench.engine.collision import dispatch
+
+        dispatch.warm_up(p[1])
+    elif p[0] == "ccd":
+        from physbench.engine import ccd
+
+        ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
+    elif p[0] == "penalty":
+        from physbench.engine import penalty
+
+        penalty.warm_up()
+    else:  # pragma: no cover
+        raise ValueError(f"unknown kernel group {p!r}")
+
+
+def warm_collision(fams: list | None = None) -> None:
+    """The broad phase's, the narrow phase's (for each families tuple of
+    ``fams``, engine.collision.collide.families; None: every family), the
+    time-of-impact search's, the impact solver's and the penalty contacts'
+    kernels (the collision half of the warm-up: ``python -m
+    physbench.engine`` compiles the two halves in two processes at once,
     engine/__main__.py)."""
-    from physbench.engine.collision import dispatch
+    from physbench.engine.collision.collide import ALL_FAMILIES
 
-    dispatch.warm_up()  # the broad and narrow phases' kernels
-    from physbench.engine import ccd, penalty
-
-    ccd.warm_up()  # the time-of-impact search's and impact solver's kernels
-    penalty.warm_up()
+    for p in ([("broad", False), ("broad", True)] + [("narrow", f) for f in (fams or [ALL_FAMILIES])]
+              + [("ccd",), ("penalty",)]):
+        _warm_part(p)
 
 
 def warm_dynamics() -> None:
-    """The contact solve's and the free flight's kernels (the other half of
-    :func:`warm_up`)."""
-    from physbench.engine.contact import linalg, prepare, sweeps, warm
+    """The contact solve's, the free flight's, the force stages' and the
+    gyroscopic stages' kernels (the other half of :func:`warm_up` with no
+    model)."""
+    _warm_solve()
+    for p in parts(None):
+        if p[0] in ("flight", "force", "gyro"):
+            _warm_part(p)
+
+
+def _warm_solve() -> None:
+    """The contact solve's kernels (and the contact topology's)."""
+    from physbench.engine.contact import gauss_seidel, linalg, prepare, warm
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
     J = np.ones((m, 12))
@@ -75,20 +152,20 @@ def warm_dynamics() -> None:
     _greedy_colours(a, b, nb, np.empty(m, np.int64))
     U = np.zeros((nb + 1, 6))
     ab = np.stack([a, b], axis=1)
-    sweeps.apply_rows(U, ab, M, r, nb)
+    gauss_seidel.apply_rows(U, ab, M, r, nb)
     npch = 2
     pab = np.array([[0, 1], [0, 2]], np.int64)
     pid = np.array([0, 1, 1], np.int64)
     Jt = np.ones((npch, 5, 12))
     Mt = np.full((npch, 5, 12), 0.1)
     lam_t = np.zeros((npch, 5))
-    sweeps.apply_patches(U, pab, Mt, lam_t, nb)
+    gauss_seidel.apply_patches(U, pab, Mt, lam_t, nb)
     zb = np.zeros(npch, np.bool_)
     z2 = np.zeros((npch, 2))
-    sweeps.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
+    gauss_seidel.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
                    np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb,
-                   np.empty(sweeps.work_size(m, npch, 5)))
-    sweeps.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
+                   np.empty(gauss_seidel.work_size(m, npch, 5)))
+    gauss_seidel.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
     # preparation and warm start: two bodies and the world, three contacts
     # (the model's arrays are read-only: ``ro``, the types the step passes)
     X = np.zeros((nb, 3))
@@ -133,7 +210,9 @@ def warm_dynamics() -> None:
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
                codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
     _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
-    _warm_flight()
+    from physbench.engine.contact import topology
+
+    topology.warm_up()
 
 
 def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
@@ -190,57 +269,88 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
                               True, friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)
 
 
-def _warm_flight() -> None:
-    """The free-flight kernels (engine/flight.py) on two bodies, every
-    integrator, with and without a force that reads the pose."""
-    from physbench.engine import flight, gyroscopic
-
-    nb = 2
+def _flight_arrays(nb: int = 2):
     x = np.zeros((nb, 3))
     q = np.zeros((nb, 4))
     q[:, 0] = 1.0
-    v = np.ones((nb, 3))
-    R = np.zeros((nb, 3, 3))
+    idx = np.arange(nb, dtype=np.int64)
+    I = np.array([[1.0, 2.0, 3.0]] * nb)
+    z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
+    springs = (z3, np.ones(nb), np.ones(nb), np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)),
+               np.ones((1, 3)), np.ones(1), np.ones(1), np.ones(1), idx, I)
+    plain = (np.ones((nb, 3)), z1, z1, zi, zi, z3, z3, z1, z1, z1, zi, z3)
+    return x, q, np.ones((nb, 3)), np.zeros((nb, 3, 3)), idx, I, plain, springs
+
+
+def _warm_flight() -> None:
+    """The free-flight kernels (engine/flight.py) on two bodies, every
+    integrator (the force kernels are compiled into it), the position
+    update, the start and commit of a (mini-)step, the turn limit and the
+    end-pose check."""
+    from physbench.engine import flight, state
+    from physbench.engine.pack import Pack
+
+    nb = 2
+    x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
     Iinv = np.zeros((nb + 1, 3, 3))
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
     vw1 = np.zeros((nb + 1, 3))
-    from physbench.engine import state
-    from physbench.engine.pack import Pack
-
     kept = Pack((x.copy(), q.copy(), v.copy(), v.copy(), inv_I, x.copy(), q.copy(), vw1.copy(), vw1.copy(), v.copy(),
                  v.copy(), vw1.copy(), vw1.copy(), R.copy(), Iinv.copy()))
     state._begin_packed(kept)  # Context.begin and .commit
     state._commit_packed(kept)
-    z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
-    idx = np.arange(nb, dtype=np.int64)
-    I = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
-    models = ((np.ones((nb, 3)), z1, z1, zi, zi, z3, z3, z1, z1, z1, zi, z3),
-              (z3, np.ones(nb), np.ones(nb), np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)),
-               np.ones((1, 3)), np.ones(1), np.ones(1), np.ones(1), idx, I))
-    F, T = np.zeros((nb, 3)), np.zeros((nb, 3))
+    F = np.zeros((nb, 3))
     vw = np.zeros((nb + 1, 3))
-    for fm in models:
-        flight.evaluate(fm, x, q, v, v, R, F, T)
+    for fm in (plain, springs):  # (one signature: the same types)
         for code in flight.METHOD.values():
-            flight.free_flight(code, True, False, True, fm, x, q, v, v.copy(), v, 0.01, F, T, R, np.ones(nb),
+            flight.free_flight(code, True, False, True, fm, x, q, v, v.copy(), v, 0.01, F, F.copy(), R, np.ones(nb),
                                inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
                                np.zeros((flight.WORK_SLABS, nb, 4)))
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
-    gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01, *gyroscopic.implicit_work(nb))
-    gyroscopic.energy_rotation_into(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R, F, v, q,
-                                    0.01, 0.5, q.copy(), vw, v.copy(), v.copy(), *gyroscopic.energy_work(nb))
-    flight.gravity(np.ones((nb, 3)), F)
-    flight.linear_drag(np.ones(nb), v, F)
-    flight.quadratic_drag(np.ones(nb), v, F)
-    flight.springs(*models[1][3:10], x, R, v, v, F, T)
-    flight.gyroscopic_torque(idx, I, R, v, T)
     flight.max_turn_sq(v, q, idx, idx)
     zb = np.zeros(nb, np.bool_)
     for fast in (False, True):
         flight.end_pose_pairs(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), 0.1, fast, zb, idx, idx, idx, idx, idx,
                               idx, np.zeros(nb), idx.copy(), idx.copy(), idx.copy(), idx.copy(), idx.copy(),
                               idx.copy(), R.copy())
+
+
+def _warm_force(kind: str) -> None:
+    """The force stage ``kind``'s own kernel (engine/forces.py), as the
+    stage calls it (C-contiguous arrays of the context)."""
+    from physbench.engine import flight
+
+    nb = 2
+    x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
+    F, T = np.zeros((nb, 3)), np.zeros((nb, 3))
+    if kind == "Gravity":
+        flight.gravity(np.ones((nb, 3)), F)
+    elif kind == "LinearDrag":
+        flight.linear_drag(np.ones(nb), v, F)
+    elif kind == "QuadraticDrag":
+        flight.quadratic_drag(np.ones(nb), v, F)
+    elif kind == "Springs":
+        flight.springs(*springs[3:10], x, R, v, v, F, T)
+    elif kind == "GyroscopicTorque":
+        flight.gyroscopic_torque(idx, I, R, v, T)
+
+
+def _warm_gyro(mode: str) -> None:
+    """The gyroscopic stage's kernel (engine/gyroscopic.py): the implicit
+    update or the energy-conserving rotation."""
+    from physbench.engine import gyroscopic
+
+    nb = 2
+    x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
+    vw = np.zeros((nb + 1, 3))
+    if mode == "implicit":
+        gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01, *gyroscopic.implicit_work(nb))
+    else:
+        F = np.zeros((nb, 3))
+        gyroscopic.energy_rotation_into(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R, F,
+                                        v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy(),
+                                        *gyroscopic.energy_work(nb))
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

@@ -29,44 +29,6 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return R.reshape(q.shape[:-1] + (3, 3))
 
 
-def _blas_thread_setter():
-    """numpy's bundled OpenBLAS ``openblas_set_num_threads_local`` (thread-
-    local, returns the previous count), or None when it cannot be found."""
-    import ctypes
-    import glob
-    import os
-
-    libdir = os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs")
-    for path in sorted(glob.glob(os.path.join(libdir, "*openblas*.so*"))):
-        try:
-            lib = ctypes.CDLL(path)
-            fn = lib.openblas_set_num_threads_local
-            fn.argtypes = [ctypes.c_int]
-            fn.restype = ctypes.c_int
-            return fn
-        except (OSError, AttributeError):
-            continue
-    return None
-
-
-_SET_BLAS_THREADS = _blas_thread_setter()
-
-
-def solve_small(K: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """np.linalg.solve with numpy's OpenBLAS held to one thread for the call
-    (thread-local, restored after).  For the engine's small systems
-    (10-400 rows) threading never pays, and on a loaded machine a threaded
-    LAPACK call waiting for busy cores was measured 500 times slower
-    (90 ms instead of 0.15 ms for 100 rows)."""
-    if _SET_BLAS_THREADS is None:
-        return np.linalg.solve(K, r)
-    prev = _SET_BLAS_THREADS(1)
-    try:
-        return np.linalg.solve(K, r)
-    finally:
-        _SET_BLAS_THREADS(prev)
-
-
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b over the last axis (broadcasting); much cheaper than np.cross
     for the small stacks the engine uses."""
@@ -126,32 +88,6 @@ def rotate_world(q: np.ndarray, phi: np.ndarray, out: np.ndarray | None = None) 
     return r
 
 
-def normalize_quat(q: np.ndarray) -> np.ndarray:
-    """Renormalise (k, 4) quaternions in place and return them."""
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    return q
-
-
 def world_inv_inertia(R: np.ndarray, inv_inertia_body: np.ndarray) -> np.ndarray:
     """I_world^-1 = R diag(1/I) R^T, (k, 3, 3) from (k, 3, 3) and (k, 3)."""
     return np.einsum("kij,kj,klj->kil", R, inv_inertia_body, R)
-
-
-def apply_world_inertia(R: np.ndarray, inertia_body: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """I_world w = R (I_body (R^T w)) for (k, 3, 3), (k, 3), (k, 3)."""
-    wb = np.einsum("kji,kj->ki", R, w)
-    return np.einsum("kij,kj->ki", R, inertia_body * wb)
-
-
-def perpendicular_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (k, 3) completing unit normals n (k, 3) to a
-    right-handed orthonormal basis (n, t1, t2).  Deterministic: t1 is n x e
-    for the world axis e least aligned with n."""
-    k = n.shape[0]
-    idx = np.argmin(np.abs(n), axis=1)
-    e = np.zeros((k, 3))
-    e[np.arange(k), idx] = 1.0
-    t1 = cross(n, e)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = cross(n, t1)
-    return t1, t2

@@ -22,45 +22,29 @@ from dataclasses import dataclass
 import numpy as np
 
 from physbench.engine.ccd import CCD, Impact, refine_toi
-from physbench.engine.forces import Gravity, GyroscopicTorque, LinearDrag, QuadraticDrag, Springs
+from physbench.engine.forces import force_stages
 from physbench.engine.flight import max_turn_sq
 from physbench.engine.jit import warm_up
 from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
 from physbench.engine.collision import NarrowPhase
+from physbench.engine.collision.collide import families
 from physbench.engine.control import EventMode
-from physbench.engine.broadstage import BroadPhase
+from physbench.engine.broadstage import BroadPhase, uses_sap
 from physbench.engine.penalty import PenaltyContacts
 from physbench.engine.profile import Profile, Stage, add_jit_seconds
 from physbench.engine.solver import Solve, _pair_codes_abs
 from physbench.engine.state import Context, State
-from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene
+from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
 from physbench.engine import loop as _loop
 from physbench.engine.loop import FlightStep
 
 
-def force_stages(model: Model) -> tuple[Stage, ...]:
-    """The force stages for the scene's smooth effects."""
-    out: list[Stage] = []
-    if model.has("gravity") and np.any(model.gravity != 0.0):
-        out.append(Gravity(model))
-    if model.has("drag_linear") and np.any(model.drag_linear > 0):
-        out.append(LinearDrag(model))
-    if model.has("drag_quadratic") and np.any(model.drag_quadratic > 0):
-        out.append(QuadraticDrag(model))
-    if (model.has("spring") or model.has("damper")) and model.spring_a.size and (
-            np.any(model.spring_k > 0) or np.any(model.spring_c > 0)):
-        out.append(Springs(model))
-    if model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and np.any(~model.isotropic):
-        out.append(GyroscopicTorque(model))
-    return tuple(out)
-
-
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
     """The ordered stages for ``model`` (see module doc).  Compiles (or
-    loads) the engine's kernels first, so that no step does
+    loads) the kernels its stages call first, so that no step does
     (:func:`engine.jit.warm_up`)."""
-    warm_up()
+    warm_up(model)
     forces = force_stages(model)
     stages: list[Stage] = list(forces)
     mode = model.setting("gyroscopic")
@@ -85,19 +69,26 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     return tuple(stages)
 
 
-_STEADY_READY = [False]
+#: the (shape-pair families (engine.collision.collide.families), whether the
+#: broad phase sweeps) whose fused steady step this process compiled or
+#: loaded (:func:`_warm_steady`)
+_STEADY_READY: set = set()
 
 
 def _warm_steady(model: Model) -> None:
     """Compile (or load) the fused steady step (engine/steady.py) once per
-    process, at build like every kernel (engine/jit.py): a few steps of
-    :func:`engine.steady.warm_scene` with this model's settings; the
+    process, shape-pair families and broad phase (the parts of its argument
+    types that follow the scene: engine.collision.collide.families,
+    engine.broadstage.uses_sap), at build like
+    every kernel (engine/jit.py): a few steps of
+    :func:`engine.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
-    if _STEADY_READY[0]:
+    key = (families(model.shape), uses_sap(model))
+    if key in _STEADY_READY:
         return
-    _STEADY_READY[0] = True
+    _STEADY_READY.add(key)
     t0 = time.perf_counter()
-    m = build_model(warm_scene(), {**model.settings, "dt": 1 / 240})
+    m = build_model(warm_scene_for(model), {**model.settings, "dt": 1 / 240})
     stages = build_pipeline(m)
     st = State.from_model(m)
     prof = Profile()
@@ -112,16 +103,18 @@ def _warm_steady(model: Model) -> None:
     add_jit_seconds(time.perf_counter() - t0)
 
 
-_FLIGHT_READY = [False]
+#: whether this process compiled or loaded the flight step (:func:`_warm_flight`)
+_flight_ready = False
 
 
 def _warm_flight(model: Model) -> None:
     """Compile (or load) the step of a scene without contact
     (engine/loop.py) once per process, as :func:`_warm_steady`: a few steps
     of :func:`engine.steady.warm_scene` without contact."""
-    if _FLIGHT_READY[0]:
+    global _flight_ready
+    if _flight_ready:
         return
-    _FLIGHT_READY[0] = True
+    _flight_ready = True
     t0 = time.perf_counter()
     inp = dataclasses.replace(warm_scene(), effects=frozenset({"gravity"}))
     m = build_model(inp, {**model.settings, "dt": 1 / 240})

@@ -19,19 +19,21 @@ from typing import Any
 #: Kept here, not in engine/jit.py, so that this module imports nothing of
 #: the engine: jit -> collision -> profile is then no cycle
 #: (tests/test_architecture.py).
-_JIT_PENDING = [0.0]
+_jit_pending = 0.0
 
 
 def add_jit_seconds(s: float) -> None:
     """Record s seconds of compiling or loading kernels, reported by the
     next :class:`Profile`."""
-    _JIT_PENDING[0] += s
+    global _jit_pending
+    _jit_pending += s
 
 
 def take_jit_seconds() -> float:
     """JIT seconds not yet reported by a profile (then 0 until the next
     compile)."""
-    s, _JIT_PENDING[0] = _JIT_PENDING[0], 0.0
+    global _jit_pending
+    s, _jit_pending = _jit_pending, 0.0
     return s
 
 

@@ -44,7 +44,7 @@ The solve runs as named phases (engine/contact/__init__.py lists them):
 classify and prepare (engine/contact/prepare.py, rows.py), warm start
 (warm.py), direct start (linalg.py; its policy, the module constants
 ``DIRECT_MAX_ROWS``, ``ACTIVE_SET_PASSES`` and ``dense_direct_solve`` here,
-read at each call), solve (sweeps.py), friction stops, position
+read at each call), solve (gauss_seidel.py), friction stops, position
 correction, store (warm.py); restitution targets are prepared with the
 rows, and impacts are resolved at their time of impact (impact.py).
 """
@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.engine.contact import phases, prepare, sweeps
+from physbench.engine.contact import gauss_seidel, phases, prepare
 from physbench.engine.control import EventMode, Impacts
 from physbench.engine.contact.impact import impact_solve  # noqa: F401
 from physbench.engine.contact.rows import (  # noqa: F401  (the solver's names, as before the split)
@@ -536,7 +536,7 @@ def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool, direct: 
     (:func:`engine.contact.rows._take_rows`, 16), then U, U0, Ud (n+1, 6),
     vt0 (np, 2), pin_t (np,) bool, dir_t (np, 2), matched (np,) bool,
     r_direct (m,), bias (m,), Up (n+1, 6), lam_p (m,), touch_rows (m,) bool,
-    wk (the sweeps' work array, engine.contact.sweeps.work_size), dwf, dwi
+    wk (the sweeps' work array, engine.contact.gauss_seidel.work_size), dwf, dwi
     the direct start's float and int64 work arrays of lengths ``direct``
     (engine.contact.phases.direct_work_size; :func:`_direct_size`).  The pins
     are zeroed here, where the views are made: the fused solve never sets
@@ -545,7 +545,7 @@ def _take_stage(sc, n: int, m: int, npch: int, nr: int, friction: bool, direct: 
         sc.take("U", (n + 1, 6)), sc.take("U0", (n + 1, 6)), sc.take("Ud", (n + 1, 6)), sc.take("vt0", (npch, 2)),
         sc.zeros("pin_t", (npch,), np.bool_), sc.zeros("dir_t", (npch, 2)), sc.take("matched", (npch,), np.bool_),
         sc.take("r_direct", (m,)), sc.take("bias", (m,)), sc.take("Up", (n + 1, 6)), sc.take("lam_p", (m,)),
-        sc.take("touch_rows", (m,), np.bool_), sc.take("sweep_work", (sweeps.work_size(m, npch, nr),)),
+        sc.take("touch_rows", (m,), np.bool_), sc.take("sweep_work", (gauss_seidel.work_size(m, npch, nr),)),
         sc.take("direct_f", (direct[0],)), sc.take("direct_i", (direct[1],), np.int64))
 
 

@@ -79,7 +79,7 @@ FREE_NAME = "contact_free_step"
 @njit(cache=True, inline="always")
 def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     """What :func:`steady_kernel` and :func:`free_kernel` run first (inlined
-    into both: engine/README.md "Compile time"): the start of the
+    into both: engine/README.md "Compiled code and compile time"): the start of the
     (mini-)step, gravity, the free flight, the broad phase and the narrow
     phase (the packs and the plan's flags and reals as theirs),
     with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
@@ -169,7 +169,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     kk, key, idx, ks), borrowed (:func:`steady_pack`); ``ko``, ``kq`` the
     warm caches read and written, which rotate.  Inlined into
     :func:`steady_loop`, its one caller and the fused step's one compiled
-    entry (engine/README.md "Compile time").  ``kb`` the
+    entry (engine/README.md "Compiled code and compile time").  ``kb`` the
     context's begin/commit pack (engine.state.Context.kept), ``kf`` the
     free flight's, ``kbr`` the broad phase's and the end-pose check's,
     ``kcol`` the narrow phase's (engine.collision.dispatch.Collider), ``kc``
@@ -610,27 +610,68 @@ def _miss_tol() -> float:
     return float(MISS_TOL)
 
 
-def warm_scene():
-    """Two boxes resting on a plane (an engine.model.SceneInput): the scene
-    whose first steps compile (or load) :func:`steady_kernel` with the
-    step's argument types (engine.pipeline.build_pipeline, once per
-    process)."""
+def warm_scene(shapes: tuple = ("box", "box"), plane: bool = True, static_box: bool = False):
+    """A small contact scene (an engine.model.SceneInput) whose first steps
+    compile (or load) the fused steps with the step's argument types
+    (engine.pipeline.build_pipeline, once per process and shape-pair
+    families): bodies of ``shapes`` (0.1 m sizes, body z up) stacked in
+    touching contact along z under gravity -- on a plane at z = 0 when
+    ``plane``, else falling together --, and a static box far off when
+    ``static_box``.
+    Its families (:func:`engine.collision.collide.families`) are those of
+    any scene with the same shapes (each twice when the other scene has two
+    of it), statics and planes.  The default: two boxes resting on a plane."""
     from physbench.engine.model import SceneInput
 
-    n = 2
+    n = len(shapes)
     f = np.zeros
-    z = f(n)
+    r = np.array([0.1 if s in ("sphere", "capsule", "cylinder") else 0.0 for s in shapes])
+    hl = np.array([0.1 if s in ("capsule", "cylinder") else 0.0 for s in shapes])
+    he = np.array([[0.1, 0.1, 0.1] if s == "box" else [0.0, 0.0, 0.0] for s in shapes])
+    # half-height along body z: a sphere's radius, a box's half-extent, a
+    # capsule's half-length plus radius, a cylinder's half-length
+    up = np.array([{"sphere": 0.1, "box": 0.1, "capsule": 0.2, "cylinder": 0.1}[s] for s in shapes])
+    x = f((n, 3))
+    x[:, 2] = 2 * np.cumsum(up) - up
     q = f((n, 4))
     q[:, 0] = 1.0
     one = np.ones((1, 1))
+    statics = (("plane",) if plane else ()) + (("box",) if static_box else ())
+    ns = len(statics)
+    normal = np.array([[0.0, 0.0, 1.0]] * ns).reshape(ns, 3)
+    pos = f((ns, 3))
+    pos[[i for i, s in enumerate(statics) if s == "box"], 0] = 100.0
+    hs = np.array([[0.0, 0.0, 0.0] if s == "plane" else [0.1, 0.1, 0.1] for s in statics]).reshape(ns, 3)
+    rot = np.tile([1.0, 0.0, 0.0, 0.0], (ns, 1))
     return SceneInput(
-        dt=1 / 240, effects=frozenset({"gravity", "contact", "friction"}), gravity=np.array([0.0, 0.0, -9.81]),
-        shape=("box", "box"), mass=np.ones(n), inertia=np.full((n, 3), 1 / 150), radius=z,
-        half_extents=np.full((n, 3), 0.1), half_length=z, bound_radius=np.full(n, 0.1 * 3 ** 0.5),
-        min_extent=np.full(n, 0.1), drag_linear=z, drag_quadratic=z, material=np.zeros(n, np.int64),
-        x=np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]]), q=q, v=f((n, 3)), w=f((n, 3)), static_shape=("plane",),
-        static_material=np.zeros(1, np.int64), static_normal=np.array([[0.0, 0.0, 1.0]]), static_offset=f(1),
-        static_position=f((1, 3)), static_orientation=np.array([[1.0, 0.0, 0.0, 0.0]]),
-        static_half_extents=f((1, 3)), spring_a=np.zeros(0, np.int64), spring_b=np.zeros(0, np.int64),
-        spring_anchor_a=f((0, 3)), spring_anchor_b=f((0, 3)), spring_k=f(0), spring_rest=f(0), spring_c=f(0),
-        pair_e=0.0 * one, pair_mus=0.5 * one, pair_muk=0.5 * one, pair_mur=0.0 * one)
+        dt=1 / 240, effects=frozenset({"gravity", "contact", "friction"}),
+        gravity=np.array([0.0, 0.0, -9.81]), shape=tuple(shapes), mass=np.ones(n),
+        inertia=np.full((n, 3), 1 / 150), radius=r, half_extents=he, half_length=hl,
+        bound_radius=np.array([np.sqrt((he[i] ** 2).sum()) + r[i] + hl[i] if shapes[i] != "cylinder" else np.hypot(r[i], hl[i])
+                                for i in range(n)]), min_extent=np.full(n, 0.1), drag_linear=f(n),
+        drag_quadratic=f(n), material=np.zeros(n, np.int64), x=x, q=q, v=f((n, 3)), w=f((n, 3)),
+        static_shape=statics, static_material=np.zeros(ns, np.int64), static_normal=normal, static_offset=f(ns),
+        static_position=pos, static_orientation=rot, static_half_extents=hs, spring_a=np.zeros(0, np.int64),
+        spring_b=np.zeros(0, np.int64), spring_anchor_a=f((0, 3)), spring_anchor_b=f((0, 3)), spring_k=f(0),
+        spring_rest=f(0), spring_c=f(0), pair_e=0.0 * one, pair_mus=0.5 * one, pair_muk=0.5 * one,
+        pair_mur=0.0 * one)
+
+
+def warm_scene_for(model):
+    """:func:`warm_scene` with ``model``'s shape-pair families and broad
+    phase: each of its shapes (twice where it has two bodies of it), a
+    plane and a static box where it has them; where the model's broad
+    phase sweeps (more than ``SAP_MIN_BODIES`` bodies), as many more bodies
+    of its most frequent shape."""
+    from physbench.engine.broadstage import SAP_MIN_BODIES, uses_sap
+    from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+
+    names = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", CYLINDER: "cylinder"}
+    shape = np.asarray(model.shape)
+    shapes = []
+    for code in sorted(set(int(c) for c in shape)):
+        shapes += [names[code]] * min(2, int(np.sum(shape == code)))
+    if uses_sap(model):
+        most = names[int(np.argmax(np.bincount(shape.astype(np.int64), minlength=4)))]
+        shapes += [most] * (SAP_MIN_BODIES + 1 - len(shapes))
+    return warm_scene(tuple(shapes), plane=model.plane_normal.shape[0] > 0, static_box=model.sbox_pos.shape[0] > 0)

@@ -10,7 +10,7 @@ find a rolling contact that came to rest inside the step.  That test
 rolling velocities ``wr0 = Rows.patch_velocity(U0, slice(3, 5))``;
 :func:`rolling_candidate` is its rolling half with ``wr0`` computed in the
 same loop from the same rows and start velocities (the same sums,
-``sweeps.row_velocity``), so no (np, 2) buffer is needed, and it decides
+``gauss_seidel.row_velocity``), so no (np, 2) buffer is needed, and it decides
 exactly as the staged gate does (the same bits:
 tests/test_engine_steady_gyro.py::test_rolling_friction_with_stops_takes_the_fused_step).
 """
@@ -22,7 +22,7 @@ import math
 from numba import njit
 
 from physbench.engine.contact.prepare import _pressed
-from physbench.engine.contact.sweeps import row_velocity
+from physbench.engine.contact.gauss_seidel import row_velocity
 
 
 @njit(cache=True)

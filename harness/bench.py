@@ -307,7 +307,7 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000, 10000), r
     (:func:`sphere_cloud` ``variant`` 0..variants-1 at ``jitter``) in turn,
     copied into the same arrays (untimed), so that no method is timed on an
     input the CPU's branch predictor has learnt.  ``stage`` is what the
-    stage runs every step (``engine.sweep.SapBuffers.run``: its sort order,
+    stage runs every step (``engine.sap.SapBuffers.run``: its sort order,
     axis and dense flag kept from the call before, on the cloud before, as
     in a steady run; its first call, which builds them, is not timed),
     ``stage_fresh`` the same from a fresh order
@@ -319,7 +319,7 @@ def broadphase_scaling(sizes: tuple[int, ...] = (100, 300, 1000, 3000, 10000), r
     k the least-squares slope of log time against log n, with ``n_log_n``:
     the slope of n log n over the same sizes for reference."""
     from physbench.engine.broadphase import brute_pairs, sap_pairs, stage_pairs
-    from physbench.engine.sweep import _FALLBACK, SapBuffers
+    from physbench.engine.sap import _FALLBACK, SapBuffers
 
     methods = ("stage", "stage_fresh", "sap", "brute")
     rows = []
@@ -460,3 +460,92 @@ def print_rows(rows: list[dict[str, Any]], title: str) -> None:
         t.add_row(*[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     # wide enough for every header in full: the names are the figures' units
     Console(width=max(120, sum(max(len(c), 10) + 3 for c in cols) + 4)).print(t)
+
+
+# ---------------------------------------------------------------------------
+# compile time (the reference engine's cold and warm start)
+
+#: a fresh process: build the reference engine for each scenario id given
+#: (default variant, default settings), step it 3 steps; prints one JSON
+#: object: seconds from the process' start to the first step done, CPU s
+#: and the functions numba compiled (numba's ``numba:compile`` events;
+#: a cache hit raises none)
+_START_CODE = """
+import json, sys, time
+t0 = time.perf_counter()
+from numba.core import event
+names = set()
+with event.install_recorder("numba:compile") as rec:
+    from physbench.adapters.reference import engine_for
+    from physbench.contract.scene import load_scene
+    first = None
+    for sid in sys.argv[1:]:
+        eng = engine_for(load_scene(sid))
+        eng.step(3)
+        if first is None:
+            first = time.perf_counter() - t0
+names = sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer if e.is_start})
+print(json.dumps({"first_step_s": first, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time(),
+                  "compiled": names}))
+"""
+
+
+def _child(cmd: list[str], cache: str, timeout: float) -> dict[str, Any]:
+    """Run ``cmd`` with NUMBA_CACHE_DIR ``cache``: its wall s, its (and
+    its children's) CPU s, its stdout."""
+    import os
+    import resource
+    import subprocess
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd[:4])} ... exited {out.returncode}: {out.stderr[-2000:]}")
+    return {"wall_s": wall, "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), "stdout": out.stdout}
+
+
+def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
+                 timeout: float = 3600.0) -> list[dict[str, Any]]:
+    """The reference engine's start, each in fresh processes: ``physbench
+    run <scenario> -e reference`` with an empty compiled-kernel cache
+    (cold: a temporary NUMBA_CACHE_DIR) and again on the cache it filled
+    (warm); a process building the scenario's engine and stepping it, cold
+    and warm (seconds to its first step, the functions numba compiled); and
+    with ``everything``, one process building and stepping every shipped
+    scenario on an empty cache (what they all compile).  Rows: wall s,
+    CPU s (the process and its workers), seconds to the first step, the
+    number of functions compiled."""
+    import json
+    import sys
+    import tempfile
+
+    from physbench.contract.scene import scenario_ids
+
+    rows: list[dict[str, Any]] = []
+
+    def row(what: str, r: dict[str, Any], first=None, compiled=None) -> None:
+        rows.append({"measure": what, "wall_s": round(r["wall_s"], 2), "cpu_s": round(r["cpu_s"], 2),
+                     "first_step_s": None if first is None else round(first, 2),
+                     "compiled": None if compiled is None else len(compiled)})
+
+    cli = [sys.executable, "-m", "physbench.harness.cli", "run", scenario, "-e", "reference", "--json"]
+    start = [sys.executable, "-c", _START_CODE]
+    with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
+        row(f"physbench run {scenario}, cold", _child(cli, cache, timeout))
+        row(f"physbench run {scenario}, warm", _child(cli, cache, timeout))
+    with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
+        for kind in ("cold", "warm"):
+            r = _child(start + [scenario], cache, timeout)
+            info = json.loads(r["stdout"].strip().splitlines()[-1])
+            row(f"build and step {scenario}, {kind}", r, info["first_step_s"], info["compiled"])
+    if everything:
+        ids = scenario_ids()
+        with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
+            r = _child(start + ids, cache, timeout)
+            info = json.loads(r["stdout"].strip().splitlines()[-1])
+            row(f"build and step all {len(ids)} shipped scenarios, cold", r, info["first_step_s"], info["compiled"])
+    return rows

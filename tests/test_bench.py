@@ -118,3 +118,34 @@ def test_step_scaling_reports_every_stage_and_fits():
             assert _pos(r[f"{k}_us"]), (k, r)
     ex = out["exponents"]
     assert math.isfinite(ex["step"]) and math.isfinite(ex["broadphase"]) and math.isfinite(ex["n_log_n"])
+
+
+def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled(monkeypatch):
+    """``physbench bench compile``: each cold measurement starts on a new,
+    empty NUMBA_CACHE_DIR; the warm one of the same command reuses the
+    cache the cold one filled; rows carry the figures each child reported
+    (no real compile here: the children are stood in for)."""
+    import json
+    import os
+
+    calls = []
+
+    def child(cmd, cache, timeout):
+        calls.append((cmd, cache, sorted(os.listdir(cache))))
+        with open(os.path.join(cache, f"marker{len(calls)}"), "w"):
+            pass
+        out = json.dumps({"first_step_s": 0.5, "wall_s": 1.0, "cpu_s": 0.75, "compiled": ["a", "b"]})
+        return {"wall_s": 2.0 + len(calls), "cpu_s": 1.5, "stdout": out + "\n"}
+
+    monkeypatch.setattr(bench, "_child", child)
+    rows = bench.compile_time("billiards.head_on", everything=True)
+    assert [r["measure"].rsplit(", ", 1)[1] for r in rows] == ["cold", "warm", "cold", "warm", "cold"]
+    (c1, d1, l1), (c2, d2, l2), (c3, d3, l3), (c4, d4, l4), (c5, d5, l5) = calls
+    assert l1 == [] and l3 == [] and l5 == []  # cold: an empty cache
+    assert d2 == d1 and l2 == ["marker1"] and d4 == d3 and l4 == ["marker3"]  # warm: the cold run's cache
+    assert len({d1, d3, d5}) == 3
+    assert c1[-5:] == ["run", "billiards.head_on", "-e", "reference", "--json"]
+    assert c3[-1] == "billiards.head_on" and len(c5) > 10  # every shipped scenario in one process
+    assert [r["wall_s"] for r in rows] == [3.0, 4.0, 5.0, 6.0, 7.0]
+    assert rows[0]["first_step_s"] is None and rows[2]["first_step_s"] == 0.5 and rows[4]["compiled"] == 2
+    assert not any(os.path.exists(d) for d in (d1, d3, d5))  # temporary

@@ -7,7 +7,7 @@ conserving rotation) and a billiards impact (time of impact, impact solve)
 run in fresh processes under three core types; their final states hash
 the same.  A source scan keeps BLAS-dispatched calls out of the dynamics
 modules (compiled loops with a fixed summation order replace them:
-engine/contact/linalg.py, engine/contact/sweeps.py)."""
+engine/contact/linalg.py, engine/contact/gauss_seidel.py)."""
 
 from __future__ import annotations
 

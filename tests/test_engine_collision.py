@@ -1803,3 +1803,76 @@ def test_direct_start_clips_what_its_last_active_set_pass_pulls(tmp_path, monkey
     # one pass, clipped, is the weaker start (measured 1.6e-5 m here; 1e-9
     # with the default passes), not a broken one
     assert res.metrics["max_penetration"] <= 1e-4
+
+
+def test_driver_families_follow_the_scene():
+    """collide.families: the families of the shapes present -- every
+    body-body family between two of them (a shape with itself too), each
+    against a plane and a static box -- and no other."""
+    from physbench.engine.collision.collide import (F_BB, F_BY, F_PB, F_PS, F_PY, F_SB, F_SS, F_SY, F_XB, F_XS,
+                                                    F_XY, F_YY, N_FAMILIES, families)
+    from physbench.engine.model import BOX, CYLINDER, SPHERE
+
+    def on(fams):
+        return {f for f in range(N_FAMILIES) if fams[f] is True}
+
+    assert all(f is None or f is True for f in families([SPHERE, SPHERE]))
+    assert on(families([SPHERE, SPHERE])) == on(families([SPHERE])) == {F_SS, F_PS, F_XS}
+    assert on(families([SPHERE, BOX])) == {F_SS, F_SB, F_BB, F_PS, F_PB, F_XS, F_XB}
+    assert on(families([CYLINDER, BOX, SPHERE])) == {F_SS, F_SB, F_BB, F_SY, F_BY, F_YY, F_PS, F_PB, F_PY, F_XS,
+                                                      F_XB, F_XY}
+
+
+def test_driver_compiles_only_the_scenes_families(tmp_path):
+    """A two-sphere scene's narrow phase compiles the kernels of the
+    sphere's families (sphere-sphere, -plane, -box) and no other (issue
+    42: a two-sphere scene must not compile box-cylinder); a pair of a family the driver was not compiled for
+    raises instead of giving no contact.  A fresh process on an empty
+    compiled-kernel cache (numba's ``numba:compile`` events: only
+    compiles, never cache hits)."""
+    code = textwrap.dedent("""
+        import numpy as np
+        from numba.core import event
+        with event.install_recorder("numba:compile") as rec:
+            from physbench.engine.collision import dispatch
+            from physbench.engine.collision.collide import families
+            dispatch.warm_up(families([0, 0]))
+        print(sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer if e.is_start}))
+        """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    assert out.returncode == 0, out.stderr
+    names = out.stdout.strip()
+    for own in ("_sphere_sphere_kernel", "_sphere_plane_kernel", "_sphere_box_kernel"):
+        assert f"'{own}'" in names, own
+    for other in ("_box_box_kernel", "_sphere_capsule_kernel", "_capsule_box_kernel",
+                  "_capsule_capsule_kernel", "_sphere_cylinder_kernel", "_box_cylinder_kernel",
+                  "_capsule_cylinder_kernel", "_cylinder_cylinder_kernel", "_box_plane_kernel",
+                  "_capsule_plane_kernel", "_cylinder_plane_kernel"):
+        assert f"'{other}'" not in names, other
+
+
+def test_a_pair_of_a_family_not_compiled_raises():
+    """The driver compiled for spheres meets a sphere-capsule pair: it
+    raises (never a silent lack of contact)."""
+    from physbench.engine.collision.collide import families
+    from physbench.engine.collision.dispatch import Collider
+    from physbench.engine.model import CAPSULE, SPHERE
+    from physbench.engine.pack import KeptPack
+    from types import SimpleNamespace
+
+    n = 2
+    z = np.zeros(0, np.int64)
+    model = SimpleNamespace(
+        n=n, shape=np.array([SPHERE, CAPSULE]), radius=np.full(n, 0.1), half_extents=np.full((n, 3), 0.1),
+        half_length=np.zeros(n), body_material=np.zeros(n, np.int64), plane_normal=np.zeros((0, 3)),
+        plane_offset=np.zeros(0), plane_static=z, sbox_pos=np.zeros((0, 3)), sbox_R=np.zeros((0, 3, 3)),
+        sbox_half=np.zeros((0, 3)), sbox_static=z, static_material=z, pair_e=np.zeros((1, 1)),
+        pair_mus=np.zeros((1, 1)), pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
+    col = Collider(model)
+    col.fams = families([SPHERE, SPHERE])
+    col._kept = KeptPack()
+    X = np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0]])
+    with pytest.raises(RuntimeError, match="not compiled for"):
+        col.run(X, np.tile(np.eye(3), (n, 1, 1)), np.array([0]), np.array([1]), (z, z), (z, z), margin=0.1,
+                sweep=np.zeros(n))

@@ -491,7 +491,7 @@ def test_cylinder_rolling_resistance_at_every_heading(tmp_path, deg):
     rim's resistance off the rolling velocity, roll_accel -0.32651 (10 deg)
     and -0.32589 (30, 60 deg), relative errors 1.5e-3 and 3.4e-3 (exact at
     0, 45, 90), whatever the iterations.  One common step for both rolling
-    rows on the rim (engine/contact/sweeps.py, _rolling_step) resists the
+    rows on the rim (engine/contact/gauss_seidel.py, _rolling_step) resists the
     rolling velocity itself: what is left is the sweeps' convergence, which
     falls with the iterations (measured at 10 deg: 8.2e-9 at 5, 1.7e-9 at 10,
     1.1e-10 at the default 20, 6.2e-12 at 30, 2.5e-12 at 50; 30 and 60 deg

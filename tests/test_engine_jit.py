@@ -14,7 +14,7 @@ _CODE = """
 from physbench.harness.bench import column_scene
 from physbench.harness.runner import run
 from physbench.adapters.reference import engine_for
-import physbench.engine.contact.sweeps as sw
+import physbench.engine.contact.gauss_seidel as sw
 import physbench.engine.contact.phases as ph
 import physbench.engine.contact.rows as rw
 import physbench.engine.flight as fl
@@ -74,3 +74,51 @@ print(sorted({ev.data["dispatcher"].py_func.__qualname__ for _, ev in rec.buffer
                          timeout=900)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
+    """engine.jit.parts: the free flight always; with contact the broad
+    phase, the narrow phase for the scene's families only, and the
+    impulse solve with time-of-impact handling or the penalty contacts;
+    without contact nothing else (issue 42: a two-sphere scene does not
+    compile box-cylinder).  No kernel is compiled here."""
+    import dataclasses
+
+    from physbench.engine import SETTINGS
+    from physbench.engine.collision.collide import F_PS, F_SS, F_XS, N_FAMILIES
+    from physbench.engine.jit import parts
+    from physbench.engine.model import build_model
+    from physbench.engine.steady import warm_scene, warm_scene_for
+
+    defaults = {k: v[0] for k, v in SETTINGS.items()} | {"dt": 1 / 240}
+    two = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults)
+    got = parts(two)
+    assert [p[0] for p in got] == ["flight", "force", "broad", "narrow", "solve", "ccd"]  # (the warm scene's gravity)
+    assert ("force", "Gravity") in got
+    fams = dict((p[0], p[1:]) for p in got)["narrow"][0]
+    assert [f for f in range(N_FAMILIES) if fams[f]] == [F_SS, F_PS, F_XS]
+    pen = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"contact_model": "penalty"})
+    assert [p[0] for p in parts(pen)] == ["flight", "force", "broad", "narrow", "penalty"]
+    off = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"ccd": "off"})
+    assert [p[0] for p in parts(off)] == ["flight", "force", "broad", "narrow", "solve"]
+    free = build_model(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})), defaults)
+    assert parts(free) == (("flight",), ("force", "Gravity"))
+    still = build_model(dataclasses.replace(warm_scene(), effects=frozenset()), defaults)
+    assert parts(still) == (("flight",),)  # no force, no gyroscopic kernel
+    assert ("broad", False) in got  # two bodies: all pairs, the sweep not compiled
+    many = build_model(warm_scene(("sphere",) * 20, plane=True), defaults)
+    assert ("broad", True) in parts(many)
+    assert ("broad", False) in parts(build_model(warm_scene(("sphere",) * 20, plane=True),
+                                                 defaults | {"broadphase": "brute"}))
+    assert len(parts(None)) == 14  # every group, every family: python -m physbench.engine's halves
+    # the fused step's warm scene has the model's families
+    from physbench.engine.collision.collide import families
+
+    from physbench.engine.broadstage import uses_sap
+
+    for shapes, plane, sbox in ((("sphere", "sphere"), False, False), (("box", "box", "cylinder"), True, False),
+                                (("capsule",), False, True), (("sphere",) + ("box",) * 19, True, False)):
+        m = build_model(warm_scene(shapes, plane, sbox), defaults)
+        w = build_model(warm_scene_for(m), defaults)
+        assert families(w.shape) == families(m.shape)
+        assert uses_sap(w) == uses_sap(m) and w.n <= max(m.n, 17)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numba.core import types
+from numba.extending import overload
 
 from physbench.engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
 from physbench.engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
@@ -109,65 +111,126 @@ def _gather_body(X, R, half, radius, hlen, idx, c, Rg, h, r, hl):
         hl[t] = hlen[j]
 
 
-@njit(cache=True)
-def _run_family(fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
+#: the number of families; every family (the driver of a scene with every
+#: shape, a plane and a static box)
+N_FAMILIES = 18
+ALL_FAMILIES = (True,) * N_FAMILIES
+
+
+def families(shape) -> tuple:
+    """The families compiled for a scene of bodies of shapes ``shape``
+    (codes), as the driver's ``fams`` argument: an 18-tuple, entry ``f``
+    True when family ``f`` is compiled, else None -- every body-body
+    family between two present shapes (a shape with itself too) and each
+    present shape against a plane and a static box, whatever the scene's
+    statics and counts: one variant per set of shapes, so that the
+    shipped scenarios need few of them (each variant compiles the driver
+    and the fused step again).  The tuple's *type* selects what is
+    compiled: the driver compiles the kernels of the families that are
+    True only (a scene of spheres compiles the sphere-sphere, -plane and
+    -box kernels, not box-cylinder:
+    tests/test_engine_collision.py::test_driver_compiles_only_the_scenes_families)."""
+    present = sorted(set(int(s) for s in np.asarray(shape, np.int64)))
+    on = [None] * N_FAMILIES
+    for a in present:
+        for b in present:
+            if a <= b and (a, b) in TABLE:
+                on[TABLE[(a, b)]] = True
+        if a in PLANE_TABLE:
+            on[PLANE_TABLE[a]] = True
+        if a in SBOX_TABLE:
+            on[SBOX_TABLE[a]] = True
+    return tuple(on)
+
+
+def _run_family(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
     """Family ``fam``'s compiled loop over the k gathered pairs (A, B: the
     sides' (c, R, h, r, hl); a plane's normal in B's c, its offset in B's
     r) into the slots (k, S, ...), zeroed fids and flags first.  Returns
     whether the normals are to be negated (a family run with its sides
-    swapped).  ``face_points``: box pairs keep their face points
+    swapped).  ``fams`` (:func:`families`) says which families are
+    compiled: only their kernels are typed and linked (the branches of the
+    others are pruned before typing); a family not compiled raises.
+    ``face_points``: box pairs keep their face points
     (:data:`engine.collision.box.EDGE_FACE_POINTS`); ``fw``, ``iw`` the
-    families' scratch (``FAMILY_FW``, ``FAMILY_IW``)."""
-    cA, RA, hA, rA, hlA = A[0][:k], A[1][:k], A[2][:k], A[3][:k], A[4][:k]
-    cB, RB, hB, rB, hlB = B[0][:k], B[1][:k], B[2][:k], B[3][:k], B[4][:k]
-    S = S_g.shape[1]
-    for t in range(k):
-        for s in range(S):
-            S_f[t, s] = 0
-            S_ok[t, s] = False
-    if SLOTS[fam] == 1 or fam == F_PB or fam == F_PY:
+    families' scratch (``FAMILY_FW``, ``FAMILY_IW``).  Compiled code only
+    (its implementation is :func:`_family_runner`'s, chosen by ``fams``'
+    type)."""
+    raise NotImplementedError("compiled code only")
+
+
+@overload(_run_family)
+def _run_family_typed(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
+    if not isinstance(fams, types.BaseTuple) or len(fams.types) != N_FAMILIES:
+        return None
+    return _family_runner(tuple(not isinstance(t, types.NoneType) for t in fams.types))
+
+
+def _family_runner(on):
+    """:func:`_run_family`'s implementation for the families ``on`` (18
+    bools): each family's branch is guarded by a constant, so numba prunes
+    the branches of the others before typing and never compiles their
+    kernels."""
+    ss, sb, bb, sc, bc, cc = on[F_SS], on[F_SB] or on[F_XS], on[F_BB] or on[F_XB], on[F_SC], on[F_BC], on[F_CC]
+    sy, by, cy, yy = on[F_SY], on[F_BY], on[F_CY], on[F_YY]
+    ps, pb, pc, py, xc, xy = on[F_PS], on[F_PB], on[F_PC], on[F_PY], on[F_XC], on[F_XY]
+
+    def impl(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
+        cA, RA, hA, rA, hlA = A[0][:k], A[1][:k], A[2][:k], A[3][:k], A[4][:k]
+        cB, RB, hB, rB, hlB = B[0][:k], B[1][:k], B[2][:k], B[3][:k], B[4][:k]
+        S = S_g.shape[1]
         for t in range(k):
             for s in range(S):
-                S_ok[t, s] = True
-    n1, p1, g1 = S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0]
-    if fam == F_SS:
-        _sphere_sphere_kernel(cA, rA, cB, rB, n1, p1, g1)
-    elif fam == F_SB or fam == F_XS:
-        _sphere_box_kernel(cA, rA, cB, RB, hB, n1, p1, g1)
-    elif fam == F_BB or fam == F_XB:
-        _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, fw, iw)
-        edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
-    elif fam == F_SC:
-        _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1, fw)
-    elif fam == F_BC:
-        _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok, fw)
-        return True
-    elif fam == F_CC:
-        _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-    elif fam == F_SY:
-        _sphere_cylinder_kernel(cA, rA, cB, RB, hlB, rB, capm1[:k], n1, p1, g1)
-    elif fam == F_BY:
-        _box_cylinder_kernel(cA, RA, hA, cB, RB, hlB, rB, mg, True, _CORNERS, _BOX_EDGES,
-                             S_n, S_p, S_g, S_f, S_ok, fw)
-    elif fam == F_CY:
-        _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-    elif fam == F_YY:
-        _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
-    elif fam == F_PS:
-        _sphere_plane_kernel(cA, rA, cB, rB, n1, p1, g1)
-    elif fam == F_PB:
-        _box_plane_kernel(cA, RA, hA, cB, rB, S_n, S_p, S_g, S_f)
-    elif fam == F_PC:
-        _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-    elif fam == F_PY:
-        _cylinder_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f)
-    elif fam == F_XC:
-        _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok, fw)
-    elif fam == F_XY:
-        _box_cylinder_kernel(cB, RB, hB, cA, RA, hlA, rA, mg, True, _CORNERS, _BOX_EDGES,
-                             S_n, S_p, S_g, S_f, S_ok, fw)
-        return True
-    return False
+                S_f[t, s] = 0
+                S_ok[t, s] = False
+        if SLOTS[fam] == 1 or fam == F_PB or fam == F_PY:
+            for t in range(k):
+                for s in range(S):
+                    S_ok[t, s] = True
+        n1, p1, g1 = S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0]
+        if ss and fam == F_SS:
+            _sphere_sphere_kernel(cA, rA, cB, rB, n1, p1, g1)
+        elif sb and (fam == F_SB or fam == F_XS):
+            _sphere_box_kernel(cA, rA, cB, RB, hB, n1, p1, g1)
+        elif bb and (fam == F_BB or fam == F_XB):
+            _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, fw, iw)
+            edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
+        elif sc and fam == F_SC:
+            _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1, fw)
+        elif bc and fam == F_BC:
+            _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok, fw)
+            return True
+        elif cc and fam == F_CC:
+            _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
+        elif sy and fam == F_SY:
+            _sphere_cylinder_kernel(cA, rA, cB, RB, hlB, rB, capm1[:k], n1, p1, g1)
+        elif by and fam == F_BY:
+            _box_cylinder_kernel(cA, RA, hA, cB, RB, hlB, rB, mg, True, _CORNERS, _BOX_EDGES,
+                                 S_n, S_p, S_g, S_f, S_ok, fw)
+        elif cy and fam == F_CY:
+            _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
+        elif yy and fam == F_YY:
+            _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
+        elif ps and fam == F_PS:
+            _sphere_plane_kernel(cA, rA, cB, rB, n1, p1, g1)
+        elif pb and fam == F_PB:
+            _box_plane_kernel(cA, RA, hA, cB, rB, S_n, S_p, S_g, S_f)
+        elif pc and fam == F_PC:
+            _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
+        elif py and fam == F_PY:
+            _cylinder_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f)
+        elif xc and fam == F_XC:
+            _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok, fw)
+        elif xy and fam == F_XY:
+            _box_cylinder_kernel(cB, RB, hB, cA, RA, hlA, rA, mg, True, _CORNERS, _BOX_EDGES,
+                                 S_n, S_p, S_g, S_f, S_ok, fw)
+            return True
+        else:
+            raise RuntimeError("a collision family this scene's driver was not compiled for "
+                               "(engine.collision.collide.families)")
+        return False
+
+    return impl
 
 
 @njit(cache=True)
@@ -208,7 +271,7 @@ def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, c
 
 @njit(cache=True)
 def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margin, sweep, planes, sboxes, smat,
-            coef, face_points, W, A, B, slot, out):
+            coef, face_points, fams, W, A, B, slot, out):
     """Contacts of every candidate pair at the pose X (n, 3), R (n, 3, 3).
 
     ``body`` (shape, radius, half_extents, half_length, material) over the
@@ -219,7 +282,8 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     offset, static index), ``sboxes`` (centre, rotation, half-extents,
     static index); ``smat`` the statics' materials, ``coef`` the pair
     tables (e, mus, muk, mur) over materials; ``face_points`` see
-    :data:`engine.collision.box.EDGE_FACE_POINTS`.
+    :data:`engine.collision.box.EDGE_FACE_POINTS`; ``fams`` the families
+    compiled (:func:`families`: a pair of another family raises).
 
     Work arrays (caller-owned, sized by :class:`engine.collision.dispatch.Collider`):
     ``W`` (perm, group bounds (33,), keys, ga, gb, st, group margins,
@@ -241,7 +305,7 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     cap_slots = slot[2].shape[0]
     need_k = 0
     need_s = 0
-    cnt = np.int64(0)  # (typed, not Literal[int](0): _emit compiles once; engine/README.md "Compile time")
+    cnt = np.int64(0)  # (typed, not Literal[int](0): _emit compiles once; engine/README.md "Compiled code and compile time")
     if from_sweep:
         for t in range(pi.shape[0]):
             mbb[t] = margin + sweep[pi[t]] + sweep[pj[t]]
@@ -318,8 +382,8 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
             S_g = slot[2][:k * S].reshape((k, S))
             S_f = slot[3][:k * S].reshape((k, S))
             S_ok = slot[4][:k * S].reshape((k, S))
-            neg = _run_family(fam, k, A, B, gm[:k], S_n, S_p, S_g, S_f, S_ok, edge[:k], se[:k], capm1,
-                             face_points, fw, iw)
+            neg = _run_family(fams, fam, k, A, B, gm[:k], S_n, S_p, S_g, S_f, S_ok, edge[:k], se[:k], capm1,
+                              face_points, fw, iw)
             cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 
@@ -328,9 +392,10 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
 def collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin, sweep, face_points):
     """:func:`collide` with the arrays kept between calls in ONE argument:
     ``kept`` an :class:`engine.pack.Pack` of (body, planes, sboxes, smat,
-    coef, W, A, B, slot, out) (the Collider's buffers; one pointer to
+    coef, W, A, B, slot, out, fams) (the Collider's buffers and the
+    scene's :func:`families`, whose type selects the compiled kernels; one pointer to
     unbox instead of ~55 arrays); ``margins`` (body-body, body-plane,
     body-static-box); the rest as :func:`collide`."""
-    body, planes, sboxes, smat, coef, W, A, B, slot, out = kept.items
+    body, planes, sboxes, smat, coef, W, A, B, slot, out, fams = kept.items
     return collide(body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk, margins[2], from_sweep, margin,
-                   sweep, planes, sboxes, smat, coef, face_points, W, A, B, slot, out)
+                   sweep, planes, sboxes, smat, coef, face_points, fams, W, A, B, slot, out)

@@ -16,7 +16,8 @@ from physbench.engine.model import BOX, CAPSULE, CYLINDER, S_PLANE, SPHERE
 from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
-from physbench.engine.collision.collide import FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE, collide_packed
+from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
+                                                collide_packed, families, ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -64,6 +65,9 @@ class Collider:
         self.smat = f(model.static_material, np.int64)
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
+        #: the families the driver is compiled for (collide.families: the
+        #: scene's shapes; its type picks the kernels)
+        self.fams = families(model.shape)
         self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
@@ -92,7 +96,7 @@ class Collider:
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
         return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                              self.slot, self.out))
+                              self.slot, self.out, self.fams))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
@@ -216,15 +220,14 @@ def static_row(model, sidx: int) -> tuple[bool, int]:
     return False, int(np.flatnonzero(model.sbox_static == sidx)[0])
 
 
-def warm_up() -> None:
-    """Compile (or load from the cache) the narrow phase's driver (every
-    family's kernel with it) and the broad phase's kernels, with the
-    argument types of the step (writable C-contiguous float64 and int64
-    arrays), on a tiny scene (see :mod:`engine.jit`): one body of each
-    shape, every pair, a plane and a static box."""
+def warm_up(fams: tuple = ALL_FAMILIES) -> None:
+    """Compile (or load from the cache) the narrow phase's driver for the
+    families ``fams`` (:func:`engine.collision.collide.families`; only
+    their kernels), with the argument types of the step (writable
+    C-contiguous float64 and int64 arrays), on a tiny scene (see
+    :mod:`engine.jit`): one body of each shape, a plane and a static box,
+    no candidate pair (what is compiled does not depend on the pairs)."""
     from types import SimpleNamespace
-
-    from physbench.engine import broadstage
 
     n = 4
     I = np.eye(3)
@@ -238,10 +241,8 @@ def warm_up() -> None:
         pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
     X = np.array([[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05], [0.1, 0.1, 0.05]])
     R = np.tile(I, (n, 1, 1))
-    pi, pj = (np.ascontiguousarray(a, np.int64) for a in np.triu_indices(n, 1))
-    body = np.arange(n, dtype=np.int64)
-    row = np.zeros(n, np.int64)
-    col = Collider(model, pairs=1, contacts=1)  # short buffers: the growth path runs too
-    col.run(X, R, pi, pj, (body, row), (body, row), margin=1.0, sweep=np.zeros(n))
-    col.run(X, R, pi, pj, (body, row), (body, row), (np.ones(pi.size), np.ones(n), np.ones(n)))
-    broadstage.warm_up()
+    col = Collider(model, pairs=1, contacts=1)
+    col.fams = fams
+    z = np.zeros(0, np.int64)
+    col.run(X, R, z, z, (z, z), (z, z), margin=1.0, sweep=np.zeros(n))
+    col.run(X, R, z, z, (z, z), (z, z), (np.ones(0), np.ones(0), np.ones(0)))

@@ -13,7 +13,7 @@ residual r = target - J U is summed as numpy's einsum sums a row of six
 products (two interleaved partial sums, then added): see ``_row_residual``.
 
 Velocities: U (n+1, 6) = [v | w] with the world's row n zero; arrays and
-conventions as in :mod:`engine.contact.sweeps` and
+conventions as in :mod:`engine.contact.gauss_seidel` and
 :mod:`engine.contact.prepare`.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from physbench.engine.contact import linalg, sweeps, warm
+from physbench.engine.contact import gauss_seidel, linalg, warm
 from physbench.engine.contact.prepare import classify, rows as prepare_rows, sliding, targets as prepare_targets
 
 _EPS_REL = linalg.EPS_REL  # a module global: numba compiles it in as a constant
@@ -147,7 +147,7 @@ def direct_start(U, U0, ab, J, M, a, b, world, lam_n, target, friction, pab, Mt,
     need[0] = 0
     U0[:, :] = U
     if friction:
-        sweeps.apply_patches(U0, pab, Mt, lam_t, world)
+        gauss_seidel.apply_patches(U0, pab, Mt, lam_t, world)
     _row_residual(J, U0, a, b, target, r)
     k = 0
     pos_ = False
@@ -192,14 +192,14 @@ def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt,
     """The solve phase (rows.Rows.solve_friction_regimes): sweeps with
     mu_s for sticking patches; a patch whose friction (or twist) ends on
     its mu_s limit switches to mu_k and the rows are swept again (at most
-    twice); ``wk`` the sweeps' work array (engine.contact.sweeps).  Returns
+    twice); ``wk`` the sweeps' work array (engine.contact.gauss_seidel).  Returns
     (sweeps done, the last sweep's relative residual)."""
-    sw, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt,
+    sw, residual = gauss_seidel.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt,
                                   mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk)
     if not friction:
         return sw, residual
     npch = lam_t.shape[0]
-    Fn = sweeps.work_layout(wk, lam_n.shape[0], npch, lam_t.shape[1])[4]
+    Fn = gauss_seidel.work_layout(wk, lam_n.shape[0], npch, lam_t.shape[1])[4]
     for _ in range(2):
         Fn[:] = 0.0
         for i in range(pid.shape[0]):
@@ -217,7 +217,7 @@ def friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt,
             break
         for p in range(npch):
             mu[p] = muk[p] if slip[p] else mus[p]
-        s2, residual = sweeps.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
+        s2, residual = gauss_seidel.iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
                                       rt, mur, pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk)
         sw += s2
     return sw, residual
@@ -259,9 +259,9 @@ def solve_contacts(V, W, V0, W0, U, U0, Ud, ab, J, M, mn, lam_n, target, world, 
                      passes, r, dwf, dwi)
     if warm_on or direct:
         if lam_n.shape[0]:
-            sweeps.apply_rows(U, ab, M, lam_n, world)
+            gauss_seidel.apply_rows(U, ab, M, lam_n, world)
             if friction:
-                sweeps.apply_patches(U, pab, Mt, lam_t, world)
+                gauss_seidel.apply_patches(U, pab, Mt, lam_t, world)
     sw, residual = friction_regimes(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu,
                                     mus, muk, rt, mur, slip, pin_t, dir_t, pin_t, dir_t, iterations, tol, world, wk)
     _unpack(U, V, W)
@@ -275,7 +275,7 @@ def relax(Vp, Wp, Up, ab, J, M, mn, lam_p, bias, iterations, tol, world, wk):
     own accumulator ``lam_p`` (zeroed here); ``Up``, ``wk`` (>= m,) scratch."""
     lam_p[:] = 0.0
     _pack(Up, Vp, Wp)
-    sweeps.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world, wk)
+    gauss_seidel.iterate_normal(Up, ab, J, M, mn, lam_p, bias, iterations, tol, world, wk)
     _unpack(Up, Vp, Wp)
 
 

@@ -6,7 +6,7 @@ masses, and the patches' relative velocities.
 Loops over rows (and patches) in row order; no BLAS, a fixed summation
 order (the bits do not depend on the BLAS kernel:
 tests/test_engine_blas_free.py).  Conventions as in
-:mod:`engine.contact.sweeps`: bodies 0..n-1, the world n (its inverse mass
+:mod:`engine.contact.gauss_seidel`: bodies 0..n-1, the world n (its inverse mass
 and inverse inertia zero, its position the origin); a contact joins body
 ``a`` to ``b`` with its normal from a toward b.
 
@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from physbench.engine.contact.sweeps import row_velocity
+from physbench.engine.contact.gauss_seidel import row_velocity
 
 
 @njit(cache=True)

@@ -17,7 +17,7 @@ discards them after the step (no energy); ``baumgarte`` keeps them in the
 real velocity too (the classic velocity bias, which injects energy).
 
 Gauss-Seidel: rows are coloured greedily so that no dynamic body appears
-twice in a colour and visited colour by colour (engine/contact/sweeps.py);
+twice in a colour and visited colour by colour (engine/contact/gauss_seidel.py);
 deterministic (fixed order).
 
 Everything that depends only on the contact graph -- which bodies the rows
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.engine.contact import linalg, prepare, sweeps
+from physbench.engine.contact import gauss_seidel, linalg, prepare
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.contact.topology import (  # noqa: F401  (the names rows.py had before the split)
     Topology,
@@ -375,11 +375,11 @@ class Rows:
 
     def apply_normal(self, U, d) -> None:
         """Add normal impulses d (m,) to U (np.add.at: bodies may repeat)."""
-        sweeps.apply_rows(U, self.topo.ab, self.M, d, self.world)
+        gauss_seidel.apply_rows(U, self.topo.ab, self.M, d, self.world)
 
     def apply_patch(self, U, d) -> None:
         """Add patch friction impulses d (np, 3) to U."""
-        sweeps.apply_patches(U, self.topo.pab, self.Mt, d, self.world)
+        gauss_seidel.apply_patches(U, self.topo.pab, self.Mt, d, self.world)
 
     def warm_start(self, U) -> None:
         if self.m:
@@ -387,7 +387,7 @@ class Rows:
             if self.friction:
                 self.apply_patch(U, self.lam_t)
 
-    # ---- projected Gauss-Seidel (compiled: engine/contact/sweeps.py) --------
+    # ---- projected Gauss-Seidel (compiled: engine/contact/gauss_seidel.py) --------
     _NO_F = np.zeros((0, 3, 12))
     _NO_P = np.zeros((0, 2), np.int64)
 
@@ -406,24 +406,24 @@ class Rows:
                 pin_r = pin[2] if pin[2] is not None else np.zeros(npch, np.bool_)
                 dir_r = np.ascontiguousarray(pin[3]) if pin[3] is not None else np.zeros((npch, 2))
             mur = self.mur if self.mur is not None else np.zeros(npch)
-            sw, self.residual = sweeps.iterate(
+            sw, self.residual = gauss_seidel.iterate(
                 U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, True, self.topo.pab,
                 self.pid, self.Jt, self.Mt, self.mt, self.lam_t, self.mu, self.r_twist, mur,
                 pin_t, dir_t, pin_r, dir_r, iterations, tol, self.world, self.sweep_work())
         else:
             z = np.zeros(0)
             zb = np.zeros(0, np.bool_)
-            sw, self.residual = sweeps.iterate(
+            sw, self.residual = gauss_seidel.iterate(
                 U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, False, self._NO_P,
                 np.zeros(0, np.int64), self._NO_F, self._NO_F, np.zeros((0, 3)), np.zeros((0, 3)), z, z, z,
                 zb, np.zeros((0, 2)), zb, np.zeros((0, 2)), iterations, tol, self.world, self.sweep_work())
         return int(sw)
 
     def sweep_work(self) -> np.ndarray:
-        """The sweeps' work array for these rows (engine.contact.sweeps), a
+        """The sweeps' work array for these rows (engine.contact.gauss_seidel), a
         view of the scratch's buffer."""
         npch, nr = (self.np, self.lam_t.shape[1]) if self.friction else (0, 0)
-        return self._sc.take("rows_work", (sweeps.work_size(self.m, npch, nr),))
+        return self._sc.take("rows_work", (gauss_seidel.work_size(self.m, npch, nr),))
 
     def solve_friction_regimes(self, U, iterations: int) -> int:
         """Iterate with mu_s for sticking patches; a patch whose friction
@@ -538,5 +538,5 @@ class Rows:
 
     def iterate_normal(self, U, lam, target, iterations: int, tol: float = 1e-7) -> None:
         """Normal rows only, with their own accumulator (split impulse)."""
-        sweeps.iterate_normal(U, self.topo.ab, self.J, self.M, self.mn, lam, target, iterations, tol, self.world,
+        gauss_seidel.iterate_normal(U, self.topo.ab, self.J, self.M, self.mn, lam, target, iterations, tol, self.world,
                               self.sweep_work())

@@ -145,8 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_engines)
 
-    b = sub.add_parser("bench", help="benchmarks: runner overhead, reference vs pybullet cost, reference scaling")
-    b.add_argument("kind", choices=["overhead", "cost", "isolation", "scaling"])
+    b = sub.add_parser("bench", help="benchmarks: runner overhead, reference vs pybullet cost, reference scaling, "
+                                     "reference compile time (cold and warm start)")
+    b.add_argument("kind", choices=["overhead", "cost", "isolation", "scaling", "compile"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")

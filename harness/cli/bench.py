@@ -1,5 +1,5 @@
-"""``physbench bench``: runner overhead, worker isolation cost, and the
-reference engine's cost against pybullet."""
+"""``physbench bench``: runner overhead, worker isolation cost, the
+reference engine's cost against pybullet, and its compile time."""
 
 from __future__ import annotations
 
@@ -29,6 +29,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                   repeats=args.repeats)
             bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
                                    "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+        elif args.kind == "compile":
+            # fresh processes, each on a temporary compiled-kernel cache
+            # (--engines and --repeats do not apply: one cold start is minutes)
+            rows = bench.compile_time()
+            bench.print_rows(rows, "reference engine start in fresh processes, on an empty compiled-kernel cache "
+                                   "(cold) and on the cache it filled (warm): wall s, CPU s (with workers), s to "
+                                   "the first step, functions numba compiled")
         elif args.kind == "scaling":
             sc = bench.step_scaling()
             rows = sc["rows"]
