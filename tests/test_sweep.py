@@ -150,7 +150,7 @@ def test_shipped_suites_load():
     assert len(SU.expand(smoke)) == 6
     nightly = SU.load_suite(ROOT / "suites" / "nightly.toml")
     pts = SU.expand(nightly)
-    assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d"}
+    assert {p.engine for p in pts} == {"reference", "mujoco", "pybullet", "pymunk", "rapier", "box2d", "drake", "mjx"}
     assert len({p.key for p in pts}) == len(pts)
     # every nightly scenario has an analytic primary metric
     from physbench.contract.scene import load_scene
