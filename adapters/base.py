@@ -295,6 +295,13 @@ def _about_principal_axis(w_body: np.ndarray, inertia: np.ndarray) -> bool:
     return float(moments.max() - moments.min()) <= 1e-9 * float(moments.max())
 
 
+def planar_gyroscopic_reason(engine: str) -> str:
+    """Why a 2D engine (pymunk, Box2D) cannot exercise the gyroscopic effect."""
+    return (f"{engine} is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
+            "principal axis, so the gyroscopic term w x I w is identically zero and the effect "
+            "cannot be exercised")
+
+
 def gyroscopic_reason(scene: Scene, engine: str) -> str | None:
     """Why an engine whose gyroscopic term w x I w is always on cannot run a
     scene that omits the ``gyroscopic`` effect, or None when the term is

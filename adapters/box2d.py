@@ -49,7 +49,8 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+                                     planar_gyroscopic_reason)
 from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
                                             static_pose)
 from physbench.adapters.forces import DRAG_NOTE, StateForces
@@ -58,10 +59,7 @@ from physbench.contract.scene import Scene
 
 ENGINE = "box2d"
 
-GYROSCOPIC_REASON = (
-    "Box2D is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
-    "principal axis, so the gyroscopic term w x I w is identically zero and the effect "
-    "cannot be exercised")
+GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
 
 
 @functools.lru_cache(maxsize=1)

@@ -80,7 +80,8 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+                                     planar_gyroscopic_reason)
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
 from physbench.adapters.materials import per_material_factors
 from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
@@ -91,10 +92,7 @@ from physbench.contract.scene import Scene
 
 ENGINE = "pymunk"
 
-GYROSCOPIC_REASON = (
-    "pymunk is 2D: bodies turn about one fixed axis (world y), which planar scenes make a "
-    "principal axis, so the gyroscopic term w x I w is identically zero and the effect "
-    "cannot be exercised")
+GYROSCOPIC_REASON = planar_gyroscopic_reason("pymunk")
 ROLLING_FRICTION_REASON = "pymunk has no rolling resistance (rolling_friction)"
 
 
