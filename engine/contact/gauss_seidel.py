@@ -31,18 +31,19 @@ from numba import njit
 def work_size(m: int, npch: int, nr: int) -> int:
     """Length of the sweeps' work array ``wk`` for m normal rows and npch
     patches of nr rows (see :func:`work_layout`)."""
-    return m + npch * nr + 2 * npch + 5
+    return m + npch * nr + 2 * npch + 40
 
 
 @njit(cache=True, inline="always")
 def work_layout(wk, m, npch, nr):
     """The views of ``wk``: the normal impulses before a sweep (m,), the
     patch impulses before it (np * nr,) flat, the patches' normal impulses
-    of a friction sweep (np,), one patch's new impulses (5,), and the
+    of a friction sweep (np,), one patch's new impulses and block scratch
+    (40,: :func:`_rolling_block`), and the
     patches' normal impulses of the static/kinetic switch (np,)."""
     o1 = m + npch * nr
     o2 = o1 + npch
-    return wk[:m], wk[m:o1], wk[o1:o2], wk[o2:o2 + 5], wk[o2 + 5:o2 + 5 + npch]
+    return wk[:m], wk[m:o1], wk[o1:o2], wk[o2:o2 + 40], wk[o2 + 40:o2 + 40 + npch]
 
 
 @njit(cache=True, inline="always")
@@ -213,31 +214,92 @@ def _onto_disc(new, i, lim, pinned, d):
 
 
 @njit(cache=True, inline="always")
-def _rolling_step(mt, lam_t, p, new, lim):
-    """The rolling rows' update ``new[3:5]`` of a patch on the rim of its
-    disc (radius ``lim``), given the per-row update lam - mt w_r in
-    ``new``: when the two rows' effective masses differ (a cylinder's axis
-    between the patch tangents) and the per-row update leaves the disc, one
-    common step lam - m w_r, m = 2 / (1/mt3 + 1/mt4), for both rows.  A
-    common step keeps the update along the rolling velocity w_r, so the
-    rim's fixed point is lam = -lim w_r / |w_r|: mu_r Fn against the
-    rolling (maximum dissipation).  Per-row steps turned it off w_r by the
-    anisotropy of the rows' effective masses, whatever the iterations
+def _rolling_block(U, pab, Jt, Mt, mt, lam_t, p, lim_t, tl, lim_r, pin_t, dir_t, pin_r, dir_r, w, world):
+    """One patch of five rows (tangent, tangent, twist, rolling, rolling)
+    solved as a block: the per-row updates of :func:`friction_pass`
+    (Coulomb disc ``lim_t``, twist limit ``tl``, rolling disc ``lim_r``)
+    repeated on the patch's own velocities v = v0 + W (lam - lam0), W (5, 5)
+    = Jt Mt^T its Delassus block, until no impulse moves (at most 200
+    passes), then applied to ``U`` once.  The rolling rows take one common
+    step on the rim (:func:`_rolling_step`).  Swept against the rest of the
+    scene one row at a time, a cylinder whose axis lay between the patch
+    tangents converged at about 0.75 a sweep through the coupling of its
+    tangent and rolling rows (relative error 1.1e-10 at 20 sweeps); solved
+    as a block it is exact at every heading
+    (tests/test_engine_friction.py::test_cylinder_rolling_resistance_at_every_heading).
+    ``w`` (40,) scratch: new (5,), lam (5,), v (5,), W (25,)."""
+    ia = pab[p, 0]
+    ib = pab[p, 1]
+    for r in range(5):
+        w[5 + r] = lam_t[p, r]
+        w[10 + r] = row_velocity(Jt, U, p, r, ia, ib)
+        for c in range(5):
+            x = 0.0
+            for k in range(12):
+                x += Jt[p, r, k] * Mt[p, c, k]
+            w[15 + 5 * r + c] = x
+    scale = lim_t + lim_r + abs(tl)
+    for _ in range(200):
+        change = 0.0
+        for r0 in (0, 3):
+            r1 = 3 if r0 == 0 else 5
+            for r in range(r0, r1):
+                w[r] = w[5 + r] - mt[p, r] * w[10 + r]
+            if r0 == 0:
+                _onto_disc(w, 0, lim_t, pin_t, dir_t)
+                w[2] = min(max(w[2], -tl), tl)
+            else:
+                _rolling_step(mt, w, p, lim_r)
+                _onto_disc(w, 3, lim_r, pin_r, dir_r)
+            for r in range(r0, r1):
+                d = w[r] - w[5 + r]
+                if d != 0.0:
+                    change = max(change, abs(d))
+                    for q in range(5):
+                        w[10 + q] += w[15 + 5 * q + r] * d
+                    w[5 + r] = w[r]
+        if not change > 1e-15 * scale:
+            break
+    for k in range(6):
+        sa = 0.0
+        sb = 0.0
+        for r in range(5):
+            d = w[5 + r] - lam_t[p, r]
+            sa += d * Mt[p, r, k]
+            sb += d * Mt[p, r, 6 + k]
+        if ia != world:
+            U[ia, k] += sa
+        if ib != world:
+            U[ib, k] += sb
+    for r in range(5):
+        lam_t[p, r] = w[5 + r]
+
+
+@njit(cache=True, inline="always")
+def _rolling_step(mt, w, p, lim):
+    """The rolling rows' update ``w[3:5]`` of a patch on the rim of its
+    disc (radius ``lim``), given the per-row update lam - mt w_r in ``w``
+    and lam in ``w[8:10]``: when the two rows' effective masses differ (a
+    cylinder's axis between the patch tangents) and the per-row update
+    leaves the disc, one common step lam - m w_r, m = 2 / (1/mt3 + 1/mt4),
+    for both rows.  A common step keeps the update along the rolling
+    velocity w_r, so the rim's fixed point is lam = -lim w_r / |w_r|: mu_r
+    Fn against the rolling (maximum dissipation).  Per-row steps turned it
+    off w_r by the anisotropy of the rows' effective masses, whatever the
+    iterations
     (tests/test_engine_friction.py::test_cylinder_rolling_resistance_at_every_heading).
     At that fixed point the per-row update also lands outside the disc, so
     the switch is consistent; m <= 2 / lambda_max of the 2x2 block, so the
-    sweeps still converge.  Inside the disc (a patch that holds) nothing
-    changes, bit for bit; a sphere's two mt differ by round-off at most, and
-    so does its step (friction.rolling_resistance moved by <= 2.3e-15 m)."""
+    passes still converge.  Inside the disc nothing changes."""
     m3 = mt[p, 3]
     m4 = mt[p, 4]
-    if m3 == m4 or not (m3 > 0.0 and m4 > 0.0) or new[3] * new[3] + new[4] * new[4] <= lim * lim:
+    if m3 == m4 or not (m3 > 0.0 and m4 > 0.0) or w[3] * w[3] + w[4] * w[4] <= lim * lim:
         return
-    l3 = lam_t[p, 3]
-    l4 = lam_t[p, 4]
+    l3 = w[8]
+    l4 = w[9]
     m = 2.0 * m3 * m4 / (m3 + m4)
-    new[3] = l3 + (m / m3) * (new[3] - l3)  # lam - m w_r, with new - lam = -mt w_r
-    new[4] = l4 + (m / m4) * (new[4] - l4)
+    w[3] = l3 + (m / m3) * (w[3] - l3)  # lam - m w_r, with new - lam = -mt w_r
+    w[4] = l4 + (m / m4) * (w[4] - l4)
 
 
 @njit(cache=True)
@@ -251,6 +313,12 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
     Fn[:] = 0.0
     for i in range(pid.shape[0]):
         Fn[pid[i]] += lam_n[i]
+    if nr == 5:  # patches with rolling rows: each solved as a block
+        for p in range(npch):
+            lim = mu[p] * Fn[p]
+            _rolling_block(U, pab, Jt, Mt, mt, lam_t, p, lim, lim * rt[p], mur[p] * Fn[p], pin_t[p], dir_t[p],
+                           pin_r[p], dir_r[p], new, world)
+        return
     for p in range(npch):
         _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
         lim = mu[p] * Fn[p]
@@ -258,12 +326,6 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
         tl = lim * rt[p]
         new[2] = min(max(new[2], -tl), tl)
         _patch_apply(U, pab, Mt, lam_t, p, 0, 3, new, world)
-    if nr == 5:
-        for p in range(npch):
-            _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 3, 5, new, world)
-            _rolling_step(mt, lam_t, p, new, mur[p] * Fn[p])
-            _onto_disc(new, 3, mur[p] * Fn[p], pin_r[p], dir_r[p])
-            _patch_apply(U, pab, Mt, lam_t, p, 3, 5, new, world)
 
 
 @njit(cache=True)
