@@ -51,6 +51,10 @@ Translation choices, each measured in ``tests/test_adapter_pybullet.py``:
   (``applyExternalForce(..., WORLD_FRAME)``) computed from the state at the
   start of each step (explicit in the force, like the engine's own gravity;
   :class:`adapters.forces.PybulletForces`), and the row says so for drag.
+- **Joints** are ``createConstraint`` constraints between the bodies' bases
+  (maximal coordinates), built in :mod:`adapters.pybullet_joints`: a hinge
+  is two point2point constraints along its axis (pybullet has no revolute
+  constraint), a prismatic joint needs ``maximal_coordinates = false``.
 - **Contacts** (measured, see the settings): by default penetration is
   corrected Baumgarte-style (``contact_erp * depth / dt`` added to the
   contact's target velocity), which adds 2.3 % of the approach speed to
@@ -89,6 +93,7 @@ import numpy as np
 from physbench.adapters.base import Adapter, Capabilities, Unsupported
 from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
+from physbench.adapters.pybullet_joints import add_joints, prismatic_reason
 from physbench.adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
 from physbench.adapters.quiet import quiet_import
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
@@ -154,12 +159,15 @@ class PybulletAdapter(Adapter):
             raise Unsupported(reason)
         p = _import_pybullet()
         self._p = p
+        maximal = bool(settings["maximal_coordinates"])
+        why = prismatic_reason(scene, maximal)  # before connecting: nothing to close
+        if why:
+            raise Unsupported(why)
         cid = p.connect(p.DIRECT)
         if cid < 0:
             raise RuntimeError("pybullet could not start a DIRECT physics client")
         self._cid = cid
         dt = float(settings["dt"])
-        maximal = bool(settings["maximal_coordinates"])
         contact = scene.has("contact")
         ccd = bool(settings["ccd"]) and contact  # nothing to sweep against without contacts
 
@@ -262,6 +270,8 @@ class PybulletAdapter(Adapter):
                                               [float(c) for c in wxyz_to_xyzw(b.orientation)], physicsClientId=cid)
             p.resetBaseVelocity(bid, [float(c) for c in b.velocity], [float(c) for c in b.angular_velocity],
                                 physicsClientId=cid)
+        if scene.joints:  # constraints between the bases, at the starting poses (adapters/pybullet_joints.py)
+            add_joints(p, cid, scene, self._ids, maximal, self.notes, self.info)
         g = scene.gravity
         p.setGravity(float(g[0]), float(g[1]), float(g[2]), physicsClientId=cid)
 
