@@ -21,6 +21,15 @@ chance).  Locked axes: Rapier's LOCKED_REVOLUTE_AXES (free: angular x),
 LOCKED_PRISMATIC_AXES (free: linear x), LOCKED_SPHERICAL_AXES,
 LOCKED_FIXED_AXES.  Contacts between jointed bodies are off (Rapier's
 default), no limits or motors.
+
+Multibody starts: Rapier gives every multibody degree of freedom a joint
+damping of 0.1 and a generalized velocity of 0, whatever the bodies'
+velocities; the adapter sets the damping to 0 and each joint's rate from
+the scene's starting velocities (revolute: the relative angular velocity
+along the axis; prismatic: the relative anchor velocity along the axis;
+spherical: the relative angular velocity in the parent's joint frame), and
+refuses a start the joint cannot carry (a motion the joint does not allow
+would be dropped silently).
 """
 
 from __future__ import annotations
@@ -131,7 +140,61 @@ def add_joints(rp: Any, world: Any, scene: Scene, handles: list[Any], form: str,
         else:
             world.impulse_joints.insert(h1, h2, joint, True)
         n += 1
+    if form == "multibody":
+        _start_multibody(world, scene, handles)
     notes.append(f"joints: Rapier generic joints with explicit frames, {form} form "
                  f"({'maximal coordinates, solver rows' if form == 'impulse' else 'reduced coordinates'})")
     info["joints"] = {"form": form, "joints": n}
     return n
+
+
+def _start_multibody(world: Any, scene: Scene, handles: list[Any]) -> None:
+    """Zero Rapier's default multibody joint damping and set each joint's
+    rate from the starting velocities; ValueError when a body starts with a
+    motion its joint does not allow."""
+    mj = world.multibody_joints
+    bodies = scene.bodies
+
+    def state(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if i < 0:
+            return np.zeros(3), np.zeros(3), np.zeros(3)
+        b = bodies[i]
+        return np.asarray(b.position, float), np.asarray(b.velocity, float), np.asarray(b.angular_velocity, float)
+
+    rates: dict[Any, dict[int, list[float]]] = {}
+    for j in scene.joints:
+        xo, vo, wo = state(j.other)
+        xb, vb, wb = state(j.body)
+        a = np.asarray(j.anchor, float)
+        va = vo + np.cross(wo, a - xo)  # the parent's material point at the anchor
+        if j.kind == "revolute":
+            q = [float(np.dot(wb - wo, j.axis))]
+            w_exp = wo + q[0] * j.axis
+            v_exp = va + np.cross(w_exp, xb - a)
+        elif j.kind == "prismatic":
+            w_exp = wo
+            q = [float(np.dot(vb - (vo + np.cross(wo, xb - xo)), j.axis))]
+            v_exp = vo + np.cross(wo, xb - xo) + q[0] * j.axis
+        elif j.kind == "spherical":
+            r = np.eye(3) if j.other < 0 else quat_to_matrix(np.asarray(bodies[j.other].orientation, float))
+            q = [float(c) for c in r.T @ (wb - wo)]
+            w_exp = wb
+            v_exp = va + np.cross(wb, xb - a)
+        else:  # fixed
+            q = []
+            w_exp = wo
+            v_exp = vo + np.cross(wo, xb - xo)
+        scale = 1.0 + float(np.linalg.norm(vb)) + float(np.linalg.norm(wb))
+        if np.linalg.norm(w_exp - wb) > 1e-9 * scale or np.linalg.norm(v_exp - vb) > 1e-9 * scale:
+            raise ValueError(f"joints: body {bodies[j.body].name!r} starts with a motion its {j.kind} joint does "
+                             f"not allow (Rapier multibody joints carry the joint's own motion only)")
+        link = mj.rigid_body_link(handles[j.body])
+        mb = mj.get_multibody(link.multibody)
+        rates.setdefault(link.multibody, {})[mb.get_link(link.id).assembly_id] = q
+    for index, by_link in rates.items():
+        mb = mj.get_multibody(index)
+        mb.set_damping([0.0] * mb.ndofs)
+        v = [0.0] * mb.ndofs
+        for start, q in by_link.items():
+            v[start:start + len(q)] = q
+        mb.set_generalized_velocity(v)
