@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters.base import Unsupported
 from physbench.contract.rotation import quat_to_matrix
 from physbench.contract.scene import Scene
 
@@ -150,8 +151,8 @@ def add_joints(rp: Any, world: Any, scene: Scene, handles: list[Any], form: str,
 
 def _start_multibody(world: Any, scene: Scene, handles: list[Any]) -> None:
     """Zero Rapier's default multibody joint damping and set each joint's
-    rate from the starting velocities; ValueError when a body starts with a
-    motion its joint does not allow."""
+    rate from the starting velocities; :class:`Unsupported` when a body
+    starts with a motion its joint does not allow."""
     mj = world.multibody_joints
     bodies = scene.bodies
 
@@ -186,7 +187,7 @@ def _start_multibody(world: Any, scene: Scene, handles: list[Any]) -> None:
             v_exp = vo + np.cross(wo, xb - xo)
         scale = 1.0 + float(np.linalg.norm(vb)) + float(np.linalg.norm(wb))
         if np.linalg.norm(w_exp - wb) > 1e-9 * scale or np.linalg.norm(v_exp - vb) > 1e-9 * scale:
-            raise ValueError(f"joints: body {bodies[j.body].name!r} starts with a motion its {j.kind} joint does "
+            raise Unsupported(f"joints: body {bodies[j.body].name!r} starts with a motion its {j.kind} joint does "
                              f"not allow (Rapier multibody joints carry the joint's own motion only)")
         link = mj.rigid_body_link(handles[j.body])
         mb = mj.get_multibody(link.multibody)
