@@ -67,6 +67,11 @@ SETTINGS: dict[str, Setting] = {
     "maximal_coordinates": Setting("maximal_coordinates", True, bool,
                                    "useMaximalCoordinates: btRigidBody (true) or btMultiBody base (false: 100 m/s speed cap, explicit gyroscopic term; "
                                    "the form prismatic joints need: adapters/pybullet_joints.py)"),
+    "joints": Setting("joints", "constraint", str,
+                      "the form of [[joint]] tables: 'constraint' = createConstraint between the bodies (maximal "
+                      "coordinates; a hinge is two point2point constraints); 'links' = one createMultiBody whose "
+                      "links are the bodies, hanging from the world (reduced coordinates; trees only)",
+                      choices=("constraint", "links")),
     "restitution_velocity_threshold": Setting("restitution_velocity_threshold", 0.0, float,
                                               "restitutionVelocityThreshold (m/s): impacts slower than this do not bounce (pybullet default 0.2)",
                                               lo=0.0, hi=1000.0),

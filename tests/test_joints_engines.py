@@ -24,7 +24,8 @@ KINDS = {
 }
 
 #: (engine, settings) pairs: every form an adapter offers
-FORMS = [("pybullet", {}), ("pymunk", {}), ("box2d", {}), ("rapier", {}), ("rapier", {"joints": "multibody"})]
+FORMS = [("pybullet", {}), ("pybullet", {"joints": "links"}), ("pymunk", {}), ("box2d", {}), ("rapier", {}),
+         ("rapier", {"joints": "multibody"})]
 
 
 def _caps(engine):
@@ -120,7 +121,7 @@ def test_small_amplitude_pendulum_period(tmp_path, engine, settings):
 # ---- slider: a = g sin(alpha) -------------------------------------------------------
 
 SLIDER_FORMS = [("pymunk", {}), ("box2d", {}), ("rapier", {}), ("rapier", {"joints": "multibody"}),
-                ("pybullet", {"maximal_coordinates": False})]
+                ("pybullet", {"maximal_coordinates": False}), ("pybullet", {"joints": "links"})]
 MULTIBODY_LAG = ("Rapier 0.36.1 multibody: a link's rigid-body velocity lags the multibody's generalized velocity "
                  "by one substep (dt / 4): measured v / (g sin(30 deg) t) = 1 - 4.9e-4 after 500 steps, "
                  "1 - 1 / (S k) at S substeps and step k")
@@ -214,7 +215,8 @@ anchor = [0.15, 0.0, 1.0]
 
 # ---- spherical (3D engines) ---------------------------------------------------------------
 
-SPHERICAL_FORMS = [("pybullet", {}), ("rapier", {}), ("rapier", {"joints": "multibody"})]
+SPHERICAL_FORMS = [("pybullet", {}), ("pybullet", {"joints": "links"}), ("rapier", {}),
+                   ("rapier", {"joints": "multibody"})]
 
 
 @pytest.mark.parametrize("engine, settings", SPHERICAL_FORMS, ids=_ids(SPHERICAL_FORMS))
@@ -262,6 +264,36 @@ def test_pybullet_prismatic_needs_multibody_bases(tmp_path):
     assert r.status == "unsupported"
     assert "no prismatic joint between maximal-coordinate rigid bodies" in r.message
     assert "maximal_coordinates = false" in r.message
+
+
+def test_pybullet_links_form_builds_trees_hanging_from_the_world(tmp_path):
+    """The links form is one multibody whose fixed base is the world: a
+    free body beside it, or a start the joint cannot carry, is unsupported
+    with the reason; the hinge then holds to 1e-12 m."""
+    _caps("pybullet")
+    body = """
+[[body]]
+name = "a"
+shape = "sphere"
+radius = 0.1
+mass = 1.0
+position = [0.5, 0.0, 1.0]
+velocity = VEL
+angular_velocity = ANG
+"""
+    body = body.replace("ANG", "[0.0, 0.0, 0.0]")
+    hinge = '[[joint]]\nkind = "revolute"\nbody = "a"\nanchor = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\n'
+    free = '\n[[body]]\nname = "free"\nshape = "sphere"\nradius = 0.1\nmass = 1.0\nposition = [3.0, 0.0, 1.0]\n'
+    r = run(_write(tmp_path, body.replace("VEL", "[0.0, 0.0, 0.0]") + free, hinge, 0.1), "pybullet",
+            {"joints": "links"})
+    assert r.status == "unsupported" and "'free' is not" in r.message
+    r = run(_write(tmp_path, body.replace("VEL", "[-0.3, 0.0, 0.0]"), hinge, 0.1), "pybullet", {"joints": "links"})
+    assert r.status == "unsupported" and "starts with a motion its revolute joint does not allow" in r.message
+    turning = body.replace("VEL", "[0.0, 0.0, -1.0]").replace("angular_velocity = [0.0, 0.0, 0.0]",
+                                                               "angular_velocity = [0.0, 2.0, 0.0]")  # v = w x r
+    r = run(_write(tmp_path, turning, hinge, 0.5), "pybullet", {"joints": "links"})
+    assert r.status == "ok", r.message
+    assert r.metrics["joint_drift"] < 1e-12 and r.metrics["joint_axis_drift"] < 1e-12
 
 
 @pytest.mark.parametrize("engine", ["pymunk", "box2d"])
