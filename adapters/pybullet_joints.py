@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import Unsupported
+from physbench.adapters.joint_rates import start_rate
 from physbench.contract.rotation import quat_mul, wxyz_to_xyzw
 from physbench.contract.scene import Scene
 
@@ -232,7 +233,9 @@ class LinkTree:
                                                physicsClientId=cid)
             elif j.kind != "fixed":
                 p.setJointMotorControl2(mb, k, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
-            rate = _rate(scene, j, R)
+            rate = start_rate(scene, j, "pybullet's links form")
+            if j.kind == "spherical":  # in the link frame (the body's)
+                rate = R[i].T @ rate
             if j.kind == "spherical":
                 p.resetJointStateMultiDof(mb, k, [0.0, 0.0, 0.0, 1.0], targetVelocity=_v(rate), physicsClientId=cid)
             elif j.kind != "fixed":
@@ -258,41 +261,6 @@ class LinkTree:
             vel[k] = s[6]
             angvel[k] = s[7]
         quat[...] = xyzw_to_wxyz(self._xyzw)
-
-
-def _rate(scene: Scene, j: Any, R: dict) -> np.ndarray:
-    """The joint's starting rate from the bodies' starting velocities
-    (revolute, prismatic: (1,); spherical: (3,) in the link frame; fixed:
-    (0,)); :class:`Unsupported` when the body's start is not a motion the
-    joint allows."""
-    def state(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if i < 0:
-            return np.zeros(3), np.zeros(3), np.zeros(3)
-        b = scene.bodies[i]
-        return (np.asarray(b.position, float), np.asarray(b.velocity, float), np.asarray(b.angular_velocity, float))
-
-    xo, vo, wo = state(j.other)
-    xb, vb, wb = state(j.body)
-    a = np.asarray(j.anchor, float)
-    va = vo + np.cross(wo, a - xo)
-    if j.kind == "revolute":
-        q = np.array([np.dot(wb - wo, j.axis)])
-        w_exp = wo + q[0] * j.axis
-        v_exp = va + np.cross(w_exp, xb - a)
-    elif j.kind == "prismatic":
-        q = np.array([np.dot(vb - (vo + np.cross(wo, xb - xo)), j.axis)])
-        w_exp, v_exp = wo, vo + np.cross(wo, xb - xo) + q[0] * j.axis
-    elif j.kind == "spherical":
-        q = R[j.body].T @ (wb - wo)
-        w_exp, v_exp = wb, va + np.cross(wb, xb - a)
-    else:
-        q = np.zeros(0)
-        w_exp, v_exp = wo, vo + np.cross(wo, xb - xo)
-    scale = 1.0 + float(np.linalg.norm(vb)) + float(np.linalg.norm(wb))
-    if np.linalg.norm(w_exp - wb) > 1e-9 * scale or np.linalg.norm(v_exp - vb) > 1e-9 * scale:
-        raise Unsupported(f"joints: body {scene.bodies[j.body].name!r} starts with a motion its {j.kind} joint "
-                          f"does not allow (pybullet links carry the joint's own motion only)")
-    return q
 
 
 def _conj(q: np.ndarray) -> np.ndarray:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import Unsupported
+from physbench.adapters.joint_rates import start_rate
 from physbench.contract.rotation import quat_to_matrix
 from physbench.contract.scene import Scene
 
@@ -154,41 +155,9 @@ def _start_multibody(world: Any, scene: Scene, handles: list[Any]) -> None:
     rate from the starting velocities; :class:`Unsupported` when a body
     starts with a motion its joint does not allow."""
     mj = world.multibody_joints
-    bodies = scene.bodies
-
-    def state(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if i < 0:
-            return np.zeros(3), np.zeros(3), np.zeros(3)
-        b = bodies[i]
-        return np.asarray(b.position, float), np.asarray(b.velocity, float), np.asarray(b.angular_velocity, float)
-
     rates: dict[Any, dict[int, list[float]]] = {}
     for j in scene.joints:
-        xo, vo, wo = state(j.other)
-        xb, vb, wb = state(j.body)
-        a = np.asarray(j.anchor, float)
-        va = vo + np.cross(wo, a - xo)  # the parent's material point at the anchor
-        if j.kind == "revolute":
-            q = [float(np.dot(wb - wo, j.axis))]
-            w_exp = wo + q[0] * j.axis
-            v_exp = va + np.cross(w_exp, xb - a)
-        elif j.kind == "prismatic":
-            w_exp = wo
-            q = [float(np.dot(vb - (vo + np.cross(wo, xb - xo)), j.axis))]
-            v_exp = vo + np.cross(wo, xb - xo) + q[0] * j.axis
-        elif j.kind == "spherical":
-            r = np.eye(3) if j.other < 0 else quat_to_matrix(np.asarray(bodies[j.other].orientation, float))
-            q = [float(c) for c in r.T @ (wb - wo)]
-            w_exp = wb
-            v_exp = va + np.cross(wb, xb - a)
-        else:  # fixed
-            q = []
-            w_exp = wo
-            v_exp = vo + np.cross(wo, xb - xo)
-        scale = 1.0 + float(np.linalg.norm(vb)) + float(np.linalg.norm(wb))
-        if np.linalg.norm(w_exp - wb) > 1e-9 * scale or np.linalg.norm(v_exp - vb) > 1e-9 * scale:
-            raise Unsupported(f"joints: body {bodies[j.body].name!r} starts with a motion its {j.kind} joint does "
-                             f"not allow (Rapier multibody joints carry the joint's own motion only)")
+        q = [float(c) for c in start_rate(scene, j, "Rapier's multibody form")]  # spherical: world = joint frame
         link = mj.rigid_body_link(handles[j.body])
         mb = mj.get_multibody(link.multibody)
         rates.setdefault(link.multibody, {})[mb.get_link(link.id).assembly_id] = q

@@ -370,3 +370,77 @@ def test_rapier_multibody_whirl_keeps_its_start(tmp_path):
     assert r.status == "ok", r.message
     assert r.metrics["period_error"] < 1e-4
     assert r.metrics["energy_drift"] < 1e-3
+
+
+# ---- reduced forms: the scene's starting velocities become joint rates ---------------
+
+REDUCED_FORMS = [("pybullet", {"joints": "links"}), ("rapier", {"joints": "multibody"}), ("drake", {})]
+
+
+@pytest.mark.parametrize("engine, settings", REDUCED_FORMS, ids=_ids(REDUCED_FORMS))
+def test_reduced_forms_start_with_the_scene_velocities(tmp_path, engine, settings):
+    """No gravity: a body turned 90 deg about x hangs from a ball joint on a
+    second body that turns about a hinge, both spinning.  The reduced forms
+    turn the starting velocities into joint rates (adapters/joint_rates.py),
+    each in its engine's joint frame: the first recorded state (after the
+    build) reads back every body's velocity and angular velocity (to 1e-5:
+    Rapier is f32), and one step later the bodies have moved by about
+    v dt."""
+    _caps(engine)
+    w1 = np.array([0.0, 0.0, 1.5])  # hinge about z through (0, 0, 1); upper body at (0.4, 0, 1)
+    x1 = np.array([0.4, 0.0, 1.0])
+    v1 = np.cross(w1, x1 - [0.0, 0.0, 1.0])
+    w2 = np.array([1.0, 2.0, 3.0])  # ball at (0.4, 0, 0.8), lower body at (0.4, 0, 0.6)
+    a2, x2 = np.array([0.4, 0.0, 0.8]), np.array([0.4, 0.0, 0.6])
+    v2 = v1 + np.cross(w1, a2 - x1) + np.cross(w2, x2 - a2)
+    h = math.sqrt(0.5)
+
+    def vec(v):
+        return "[" + ", ".join(repr(float(c)) for c in v) + "]"
+
+    s = load_scene(_write_free(tmp_path, f"""
+[[body]]
+name = "upper"
+shape = "box"
+half_extents = [0.1, 0.05, 0.05]
+mass = 1.0
+position = {vec(x1)}
+orientation = [{h!r}, 0.0, {h!r}, 0.0]
+velocity = {vec(v1)}
+angular_velocity = {vec(w1)}
+
+[[body]]
+name = "lower"
+shape = "box"
+half_extents = [0.1, 0.05, 0.03]
+mass = 0.5
+position = {vec(x2)}
+orientation = [{h!r}, {h!r}, 0.0, 0.0]
+velocity = {vec(v2)}
+angular_velocity = {vec(w2)}
+
+[[joint]]
+kind = "revolute"
+body = "upper"
+anchor = [0.0, 0.0, 1.0]
+axis = [0.0, 0.0, 1.0]
+
+[[joint]]
+kind = "spherical"
+body = "lower"
+other = "upper"
+anchor = {vec(a2)}
+"""))
+    r = run(s, engine, settings)
+    assert r.status == "ok", r.message
+    tr = r.trace.valid()
+    np.testing.assert_allclose(tr.angvel[0], [w1, w2], atol=1e-5)
+    np.testing.assert_allclose(tr.vel[0], [v1, v2], atol=1e-5)
+    np.testing.assert_allclose(tr.pos[1] - tr.pos[0], 1e-3 * np.array([v1, v2]), atol=1e-5)
+
+
+def _write_free(tmp_path, body):
+    p = tmp_path / "free.toml"
+    p.write_text('[scenario]\nfamily = "joints"\ntitle = "t"\nduration = 0.01\ndt = 0.001\n'
+                 'effects = ["joint", "gyroscopic"]\n' + body)
+    return p
