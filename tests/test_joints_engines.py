@@ -1,4 +1,4 @@
-"""Joints on pybullet, pymunk, Box2D and Rapier: each adapter builds the
+"""Joints on pybullet, pymunk, Box2D, Rapier and Drake (when installed): each adapter builds the
 kinds it declares and the harness measures the runs against closed forms
 computed here (pendulum period, slider acceleration, a fixed joint at
 rest), with joint drift bounded; a kind or form an engine lacks is
@@ -17,6 +17,7 @@ G = 9.81
 
 #: the kinds each adapter declares (Capabilities.joint_kinds)
 KINDS = {
+    "drake": {"revolute", "spherical", "prismatic", "fixed"},
     "pybullet": {"revolute", "spherical", "prismatic", "fixed"},
     "pymunk": {"revolute", "prismatic", "fixed"},
     "box2d": {"revolute", "prismatic", "fixed"},
@@ -25,7 +26,7 @@ KINDS = {
 
 #: (engine, settings) pairs: every form an adapter offers
 FORMS = [("pybullet", {}), ("pybullet", {"joints": "links"}), ("pymunk", {}), ("box2d", {}), ("rapier", {}),
-         ("rapier", {"joints": "multibody"})]
+         ("rapier", {"joints": "multibody"}), ("drake", {})]
 
 
 def _caps(engine):
@@ -121,7 +122,7 @@ def test_small_amplitude_pendulum_period(tmp_path, engine, settings):
 # ---- slider: a = g sin(alpha) -------------------------------------------------------
 
 SLIDER_FORMS = [("pymunk", {}), ("box2d", {}), ("rapier", {}), ("rapier", {"joints": "multibody"}),
-                ("pybullet", {"maximal_coordinates": False}), ("pybullet", {"joints": "links"})]
+                ("pybullet", {"maximal_coordinates": False}), ("pybullet", {"joints": "links"}), ("drake", {})]
 MULTIBODY_LAG = ("Rapier 0.36.1 multibody: a link's rigid-body velocity lags the multibody's generalized velocity "
                  "by one substep (dt / 4): measured v / (g sin(30 deg) t) = 1 - 4.9e-4 after 500 steps, "
                  "1 - 1 / (S k) at S substeps and step k")
@@ -216,7 +217,7 @@ anchor = [0.15, 0.0, 1.0]
 # ---- spherical (3D engines) ---------------------------------------------------------------
 
 SPHERICAL_FORMS = [("pybullet", {}), ("pybullet", {"joints": "links"}), ("rapier", {}),
-                   ("rapier", {"joints": "multibody"})]
+                   ("rapier", {"joints": "multibody"}), ("drake", {})]
 
 
 @pytest.mark.parametrize("engine, settings", SPHERICAL_FORMS, ids=_ids(SPHERICAL_FORMS))
@@ -358,6 +359,25 @@ axis = [0.0, 1.0, 0.0]
     assert "starts with a motion its revolute joint does not allow" in r.message
     # the impulse form builds both
     assert run(_write(tmp_path, bodies.replace("VZ", "0.0"), loop, 0.1), "rapier").status == "ok"
+
+
+def test_drake_tree_refuses_loops_and_drag(tmp_path):
+    """Drake's MultibodyPlant is a tree: joints closing a loop are
+    unsupported with the reason, and so is drag on a jointed scene (the
+    adapter applies drag to free bodies only)."""
+    cls, _ = _caps("drake")
+    bodies = ('[[body]]\nname = "a"\nshape = "sphere"\nradius = 0.1\nmass = 1.0\nposition = [0.5, 0.0, 1.0]\n'
+              '[[body]]\nname = "b"\nshape = "sphere"\nradius = 0.1\nmass = 1.0\nposition = [0.5, 0.0, 0.75]\n')
+    loop = ('[[joint]]\nkind = "revolute"\nbody = "a"\nother = "b"\nanchor = [0.5, 0.0, 0.875]\naxis = [0.0, 1.0, 0.0]\n'
+            '[[joint]]\nkind = "revolute"\nbody = "b"\nother = "a"\nanchor = [0.5, 0.0, 0.875]\naxis = [0.0, 1.0, 0.0]\n')
+    why = cls.unsupported_reason(_write(tmp_path, bodies, loop, 0.1))
+    assert why is not None and "the joints close a loop" in why
+    p = tmp_path / "drag.toml"
+    p.write_text('[scenario]\nfamily = "joints"\ntitle = "t"\nduration = 0.1\ndt = 0.001\n'
+                 'effects = ["gravity", "joint", "drag_linear"]\n' + bodies.replace("mass = 1.0\n", "mass = 1.0\ndrag_linear = 0.1\n", 1)
+                 + '[[joint]]\nkind = "revolute"\nbody = "a"\nanchor = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\n')
+    why = cls.unsupported_reason(load_scene(p))
+    assert why is not None and "drag to free bodies only" in why
 
 
 def test_rapier_multibody_whirl_keeps_its_start(tmp_path):
