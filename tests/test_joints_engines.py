@@ -25,8 +25,8 @@ KINDS = {
 }
 
 #: (engine, settings) pairs: every form an adapter offers
-FORMS = [("pybullet", {}), ("pybullet", {"joints": "links"}), ("pymunk", {}), ("box2d", {}), ("rapier", {}),
-         ("rapier", {"joints": "multibody"}), ("drake", {})]
+FORMS = [("pybullet", {}), ("pybullet", {"maximal_coordinates": False}), ("pybullet", {"joints": "links"}),
+         ("pymunk", {}), ("box2d", {}), ("rapier", {}), ("rapier", {"joints": "multibody"}), ("drake", {})]
 
 
 def _caps(engine):
