@@ -27,7 +27,7 @@ damping of 0.1 and a generalized velocity of 0, whatever the bodies'
 velocities; the adapter sets the damping to 0 and each joint's rate from
 the scene's starting velocities (revolute: the relative angular velocity
 along the axis; prismatic: the relative anchor velocity along the axis;
-spherical: the relative angular velocity in the parent's joint frame), and
+spherical: the relative angular velocity in the joint frame, world-aligned at the start), and
 refuses a start the joint cannot carry (a motion the joint does not allow
 would be dropped silently).
 """
@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Unsupported
 from physbench.adapters.joint_rates import start_rate
 from physbench.contract.rotation import quat_to_matrix
 from physbench.contract.scene import Scene
