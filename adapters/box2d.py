@@ -35,7 +35,8 @@ Coulomb coefficient: the kinetic one.
 Effects: gravity; contact absent -> bodies get no shape at all; springs,
 dampers and drag are explicit forces from the state at the start of each
 step (:class:`adapters.forces.StateForces`), held over its substeps and
-noted; ``gyroscopic`` is unsupported (identically zero in 2D).
+noted; ``joint`` -> Box2D revolute, prismatic and weld joints
+(:mod:`adapters.box2d_joints`); ``gyroscopic`` is unsupported (identically zero in 2D).
 
 Contacts: pyb2d3 gives contact data only as begin/end/hit events, not as a
 per-step list.  :meth:`Box2dAdapter.contacts` returns the manifold points of
@@ -51,6 +52,7 @@ import numpy as np
 
 from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
                                      planar_gyroscopic_reason)
+from physbench.adapters.box2d_joints import add_joints
 from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
                                             static_pose)
 from physbench.adapters.forces import DRAG_NOTE, StateForces
@@ -148,6 +150,8 @@ class Box2dAdapter(Adapter):
         self._p, self._q, self._v = (np.zeros((n, 2), np.float32) for _ in range(3))
         self._w = np.zeros(n, np.float32)
 
+        if scene.joints:  # adapters/box2d_joints.py
+            add_joints(b2, world, scene, self._bodies, self.notes, self.info)
         self._spring_mode = settings["springs"]
         explicit = self._add_springs(scene)
         self._forces = StateForces(scene, springs=explicit) or None

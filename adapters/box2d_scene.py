@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Capabilities, Setting
+from physbench.adapters.box2d_joints import JOINT_KINDS
 from physbench.contract.conventions import planar_from_world, world_point_to_planar
 from physbench.contract.scene import Scene
 
@@ -74,7 +75,7 @@ def settings() -> dict[str, Setting]:
 def declaration(engine: str, version: str, available: bool, why: str) -> Capabilities:
     return Capabilities(
         engine=engine, version=version, dimensions=2, shapes=SHAPES, static_shapes=STATIC_SHAPES,
-        effects=EFFECTS, settings=settings(), available=available, unavailable_reason=why,
+        effects=EFFECTS | {"joint"}, joint_kinds=JOINT_KINDS, settings=settings(), available=available, unavailable_reason=why,
         notes=(
             "2D engine: planar scenes (x-z plane) only; single precision (f32)",
             "soft step: contacts are springs of contact_hertz solved over `substeps` substeps",

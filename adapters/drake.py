@@ -36,7 +36,9 @@ Effects
     spring/damper (``LinearSpringDamper``; a zero rest length is
     unsupported: Drake requires a positive free length), drag (a held force
     on the applied-spatial-force port before every step; those scenes step
-    one dt per ``AdvanceTo``), gyroscopic (always on).  No rolling friction.
+    one dt per ``AdvanceTo``), gyroscopic (always on), joint (the plant's
+    own joints in a tree, :mod:`adapters.drake_joints`; the bodies then read
+    through the plant's kinematics).  No rolling friction.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
 from physbench.adapters.drake_contact import contact_materials, quiet_drake
+from physbench.adapters.drake_joints import JOINT_KINDS, add_joints, read_bodies, start_state, tree_reason
 from physbench.adapters.forces import drag_coefficients
 from physbench.contract.scene import Scene
 
@@ -122,7 +125,8 @@ class DrakeAdapter(Adapter):
     def capabilities(cls) -> Capabilities:
         return Capabilities(
             engine=ENGINE, version=module_version("drake"), dimensions=3, shapes=_SHAPES,
-            static_shapes=frozenset({"plane", "slope", "box"}), effects=_EFFECTS, settings=_settings(),
+            static_shapes=frozenset({"plane", "slope", "box"}), effects=_EFFECTS | {"joint"},
+            joint_kinds=JOINT_KINDS, settings=_settings(),
             available=pydrake is not None, unavailable_reason=_IMPORT_ERROR,
             notes=("no restitution coefficient: dissipation calibrated to e (Hunt-Crossley or SAP "
                    "relaxation time), e = 0 realised as 0.005",
@@ -131,7 +135,7 @@ class DrakeAdapter(Adapter):
 
     @classmethod
     def unsupported_reason(cls, scene: Scene) -> str | None:
-        reason = super().unsupported_reason(scene)
+        reason = super().unsupported_reason(scene) or tree_reason(scene)
         if reason is None:
             for sp in scene.springs:
                 if sp.rest_length <= 0.0 and (sp.stiffness or sp.damping):
@@ -201,6 +205,8 @@ class DrakeAdapter(Adapter):
                 plant.AddForceElement(LinearSpringDamper(ba, np.asarray(sp.anchor_a, float), bb,
                                                          np.asarray(sp.anchor_b, float), sp.rest_length,
                                                          sp.stiffness, sp.damping))
+        joints = add_joints(plant, scene, bodies) if scene.joints else []  # adapters/drake_joints.py
+        self._bodies = bodies if joints else None
         plant.mutable_gravity_field().set_gravity_vector(
             np.asarray(scene.gravity, float) if scene.has("gravity") else np.zeros(3))
         plant.Finalize()
@@ -210,15 +216,18 @@ class DrakeAdapter(Adapter):
         ctx = self.sim.get_mutable_context()
         self.pctx = plant.GetMyMutableContextFromRoot(ctx)
         self.lctx = self.log.GetMyContextFromRoot(ctx)
-        x0, q0, v0, w0 = scene.initial_state()
-        qi = np.array([bd.floating_positions_start() for bd in bodies], int).reshape(-1, 1)
-        vi = np.array([plant.num_positions() + bd.floating_velocities_start_in_v() for bd in bodies],
-                      int).reshape(-1, 1)
-        self._iq, self._ip = qi + np.arange(4), qi + 4 + np.arange(3)  # (n, 4) and (n, 3) state indices
-        self._iw, self._iv = vi + np.arange(3), vi + 3 + np.arange(3)
-        state = np.zeros(plant.num_positions() + plant.num_velocities())
-        state[self._iq], state[self._ip], state[self._iw], state[self._iv] = q0, x0, w0, v0
-        plant.SetPositionsAndVelocities(self.pctx, state)
+        if joints:  # joint coordinates: bodies are read through the plant's kinematics
+            start_state(plant, self.pctx, scene, bodies, joints)
+        else:
+            x0, q0, v0, w0 = scene.initial_state()
+            qi = np.array([bd.floating_positions_start() for bd in bodies], int).reshape(-1, 1)
+            vi = np.array([plant.num_positions() + bd.floating_velocities_start_in_v() for bd in bodies],
+                          int).reshape(-1, 1)
+            self._iq, self._ip = qi + np.arange(4), qi + 4 + np.arange(3)  # (n, 4) and (n, 3) state indices
+            self._iw, self._iv = vi + np.arange(3), vi + 3 + np.arange(3)
+            state = np.zeros(plant.num_positions() + plant.num_velocities())
+            state[self._iq], state[self._ip], state[self._iw], state[self._iv] = q0, x0, w0, v0
+            plant.SetPositionsAndVelocities(self.pctx, state)
         if ts == 0.0:
             integ = ResetIntegratorFromFlags(self.sim, settings["integrator"], dt)
             integ.set_target_accuracy(float(settings["accuracy"]))
@@ -231,6 +240,10 @@ class DrakeAdapter(Adapter):
         self.sim.Initialize()
         self._state = plant.GetPositionsAndVelocities(self.pctx)
         self.steps = 0
+        if joints:
+            self.notes.append("joints: MultibodyPlant joints (reduced coordinates), states read through the "
+                              "plant's kinematics after every step")
+            self.info["joints"] = {"form": "MultibodyPlant tree (reduced)", "joints": len(joints)}
         self._stages = {"engine": ENGINE, "time_step": ts, "continuous": ts == 0.0,
                         "approximation": settings["approximation"] if ts > 0 else None,
                         "integrator": settings["integrator"] if ts == 0 else None,
@@ -249,7 +262,7 @@ class DrakeAdapter(Adapter):
             self.sim.AdvanceTo(self.steps * self.dt)
 
     def _apply_drag(self) -> None:
-        x = self.plant.GetPositionsAndVelocities(self.pctx)
+        x = self.plant.GetPositionsAndVelocities(self.pctx)  # free bodies only (drag refuses joints)
         forces = []
         for (idx, c1, c2), iv in zip(self._drag, self._iv):
             v = x[iv]
@@ -266,7 +279,10 @@ class DrakeAdapter(Adapter):
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """n steps in one AdvanceTo; the log sink's samples at the n step
         times are the recorded states (a test asserts they equal a step(1)
-        loop's)."""
+        loop's).  Jointed scenes step one dt at a time and read the bodies
+        through the plant's kinematics."""
+        if self._bodies is not None:
+            return super().step_record(n, pos, quat, vel, angvel)
         self.block_done = 0
         log = self.log.GetMutableLog(self.lctx)
         log.Clear()
@@ -296,6 +312,8 @@ class DrakeAdapter(Adapter):
         self.block_done = n
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        if self._bodies is not None:
+            return read_bodies(self.plant, self.pctx, self._bodies, pos, quat, vel, angvel)
         st = self._state
         pos[...], quat[...], vel[...], angvel[...] = st[self._ip], st[self._iq], st[self._iv], st[self._iw]
         quat /= np.linalg.norm(quat, axis=-1, keepdims=True)

@@ -51,6 +51,13 @@ Translation choices, each measured in ``tests/test_adapter_pybullet.py``:
   (``applyExternalForce(..., WORLD_FRAME)``) computed from the state at the
   start of each step (explicit in the force, like the engine's own gravity;
   :class:`adapters.forces.PybulletForces`), and the row says so for drag.
+- **Joints** (:mod:`adapters.pybullet_joints`), setting ``joints``: by
+  default ``constraint``, ``createConstraint`` constraints between the
+  bodies' bases (maximal coordinates, any joint graph): a hinge is two
+  point2point constraints along its axis (pybullet has no revolute
+  constraint), a prismatic joint needs ``maximal_coordinates = false``;
+  ``links``, every body a link of one ``createMultiBody`` hanging from the
+  world (reduced coordinates, trees only).
 - **Contacts** (measured, see the settings): by default penetration is
   corrected Baumgarte-style (``contact_erp * depth / dt`` added to the
   contact's target velocity), which adds 2.3 % of the approach speed to
@@ -89,6 +96,7 @@ import numpy as np
 from physbench.adapters.base import Adapter, Capabilities, Unsupported
 from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
+from physbench.adapters.pybullet_joints import LinkTree, add_joints, form_reason
 from physbench.adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
 from physbench.adapters.quiet import quiet_import
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
@@ -139,6 +147,7 @@ class PybulletAdapter(Adapter):
         self._static_ids: list[int] = []
         self._xyzw: np.ndarray = np.zeros((0, 4))
         self._forces: PybulletForces | None = None
+        self._links: LinkTree | None = None
         self._stage: dict[str, Any] = {}
         self._steps = 0
 
@@ -154,12 +163,15 @@ class PybulletAdapter(Adapter):
             raise Unsupported(reason)
         p = _import_pybullet()
         self._p = p
+        maximal = bool(settings["maximal_coordinates"])
+        why = form_reason(scene, settings)  # before connecting: nothing to close
+        if why:
+            raise Unsupported(why)
         cid = p.connect(p.DIRECT)
         if cid < 0:
             raise RuntimeError("pybullet could not start a DIRECT physics client")
         self._cid = cid
         dt = float(settings["dt"])
-        maximal = bool(settings["maximal_coordinates"])
         contact = scene.has("contact")
         ccd = bool(settings["ccd"]) and contact  # nothing to sweep against without contacts
 
@@ -190,16 +202,20 @@ class PybulletAdapter(Adapter):
                 shape_cache[key] = sid
             return shape_cache[key]
 
+        def body_shape(b: Any) -> int:
+            if b.shape == "sphere":
+                return shape_id("sphere", radius=float(b.radius))
+            if b.shape == "box":
+                return shape_id("box", halfExtents=[float(h) for h in b.half_extents])
+            # capsule / cylinder: Bullet's Z variants, total height 2 * half_length
+            return shape_id(b.shape, radius=float(b.radius), height=2.0 * float(b.half_length))
+
         # ---- dynamic bodies ------------------------------------------------
         damping = bullet_linear_damping(scene) if maximal else {}  # linear drag, btRigidBody's own
         min_ccd_threshold = math.inf
-        for b in scene.bodies:
-            if b.shape == "sphere":
-                sid = shape_id("sphere", radius=float(b.radius))
-            elif b.shape == "box":
-                sid = shape_id("box", halfExtents=[float(h) for h in b.half_extents])
-            else:  # capsule / cylinder: Bullet's Z variants, total height 2 * half_length
-                sid = shape_id(b.shape, radius=float(b.radius), height=2.0 * float(b.half_length))
+        links = bool(scene.joints) and settings["joints"] == "links"
+        for b in (() if links else scene.bodies):  # the links form builds its bodies below
+            sid = body_shape(b)
             xyzw = [float(c) for c in wxyz_to_xyzw(b.orientation)]
             bid = p.createMultiBody(baseMass=float(b.mass), baseCollisionShapeIndex=sid,
                                     basePosition=[float(c) for c in b.position], baseOrientation=xyzw,
@@ -262,6 +278,14 @@ class PybulletAdapter(Adapter):
                                               [float(c) for c in wxyz_to_xyzw(b.orientation)], physicsClientId=cid)
             p.resetBaseVelocity(bid, [float(c) for c in b.velocity], [float(c) for c in b.angular_velocity],
                                 physicsClientId=cid)
+        if links:  # one multibody of links (adapters/pybullet_joints.py)
+            self._links = LinkTree(p, cid, scene, body_shape, lambda b: dict(
+                mass=float(b.mass), localInertiaDiagonal=[float(c) for c in b.inertia], linearDamping=0.0,
+                angularDamping=0.0, lateralFriction=float(friction[b.index]), spinningFriction=0.0,
+                rollingFriction=float(rolling[b.index]), restitution=float(restitution[b.index])),
+                contact, self.notes, self.info)
+        elif scene.joints:  # constraints between the bases, at the starting poses (adapters/pybullet_joints.py)
+            add_joints(p, cid, scene, self._ids, maximal, self.notes, self.info)
         g = scene.gravity
         p.setGravity(float(g[0]), float(g[1]), float(g[2]), physicsClientId=cid)
 
@@ -293,6 +317,11 @@ class PybulletAdapter(Adapter):
         self._steps += n
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        if self._links is not None:  # one getLinkStates call per step
+            return super().step_record(n, pos, quat, vel, angvel)
+        self._record(n, pos, quat, vel, angvel)
+
+    def _record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times and record every step.  pybullet has no batched state
         read: each body costs two calls per step (~1 us each, the bound of
         this adapter's overhead).  Their tuples are only appended to lists
@@ -333,6 +362,8 @@ class PybulletAdapter(Adapter):
         mass.  pybullet forces one call per body per quantity (tuples); the
         quaternions go through one preallocated xyzw buffer and are converted
         to wxyz in a single place."""
+        if self._links is not None:
+            return self._links.read(pos, quat, vel, angvel)
         p, cid = self._p, self._cid
         xyzw = self._xyzw
         for k, bid in enumerate(self._ids):

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Capabilities, Setting, module_version
+from physbench.adapters.pybullet_joints import JOINT_KINDS
 from physbench.contract.scene import Scene
 
 # Bullet clamps every combined friction and rolling friction to this value
@@ -36,7 +37,7 @@ SETTINGS: dict[str, Setting] = {
                              "false = Baumgarte: contact_erp * depth / dt is added to the contact's target velocity (energy gain in "
                              "impacts, stable stacks).  pybullet's own default uses the split impulse only for penetrations deeper "
                              "than 4 cm, i.e. behaves like false in small scenes"),
-    "erp": Setting("erp", 0.2, float, "erp: error reduction of non-contact constraints (joints; physbench scenes have none, measured: no effect on contacts; pybullet default 0.2)", lo=0.0, hi=1.0),
+    "erp": Setting("erp", 0.2, float, "erp: error reduction of non-contact constraints (the joints' constraint error corrected per step; measured: no effect on contacts; pybullet default 0.2)", lo=0.0, hi=1.0),
     "contact_erp": Setting("contact_erp", 0.08, float, "contactERP: fraction of a contact's penetration corrected per step, by Baumgarte velocity or by the split impulse (pybullet default 0.08)", lo=0.0, hi=1.0),
     "friction_erp": Setting("friction_erp", 0.2, float, "frictionERP: positional correction of friction anchors, which physbench does not enable (pybullet default 0.2)", lo=0.0, hi=1.0),
     "contact_breaking_threshold": Setting("contact_breaking_threshold", 0.02, float,
@@ -64,7 +65,13 @@ SETTINGS: dict[str, Setting] = {
                                        "0.001 it is caught at every dt",
                                        lo=0.0, hi=10.0),
     "maximal_coordinates": Setting("maximal_coordinates", True, bool,
-                                   "useMaximalCoordinates: btRigidBody (true) or btMultiBody base (false: 100 m/s speed cap, explicit gyroscopic term)"),
+                                   "useMaximalCoordinates: btRigidBody (true) or btMultiBody base (false: 100 m/s speed cap, explicit gyroscopic term; "
+                                   "the form prismatic joints need: adapters/pybullet_joints.py)"),
+    "joints": Setting("joints", "constraint", str,
+                      "the form of [[joint]] tables: 'constraint' = createConstraint between the bodies (maximal "
+                      "coordinates; a hinge is two point2point constraints); 'links' = one createMultiBody whose "
+                      "links are the bodies, hanging from the world (reduced coordinates; trees only)",
+                      choices=("constraint", "links")),
     "restitution_velocity_threshold": Setting("restitution_velocity_threshold", 0.0, float,
                                               "restitutionVelocityThreshold (m/s): impacts slower than this do not bounce (pybullet default 0.2)",
                                               lo=0.0, hi=1000.0),
@@ -80,7 +87,8 @@ def declaration(engine: str, available: bool, why: str) -> Capabilities:
         shapes=frozenset({"sphere", "box", "capsule", "cylinder"}),
         static_shapes=frozenset({"plane", "slope", "box"}),
         effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction",
-                           "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic"}),
+                           "drag_linear", "drag_quadratic", "spring", "damper", "gyroscopic", "joint"}),
+        joint_kinds=JOINT_KINDS,
         settings=dict(SETTINGS),
         available=available,
         unavailable_reason=why,

@@ -53,7 +53,8 @@ with ``ShapeFilter(categories=0)``, with the same physics: nothing collides);
 ``space.damping`` = e^(-c1 / m) where every body shares c1 / m and none spins
 (:func:`adapters.forces.pymunk_damping`), else, and for ``drag_quadratic``,
 a force F = -(c1 + c2 |v|) v on the centre of mass set before each engine
-step (the row says so: notes, info["drag"]); ``gyroscopic`` and
+step (the row says so: notes, info["drag"]); ``joint`` -> Chipmunk
+constraints (:mod:`adapters.pymunk_joints`); ``gyroscopic`` and
 ``rolling_friction`` are unsupported.
 
 Integration order (Chipmunk): each step first moves positions with the old
@@ -85,6 +86,7 @@ from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
 from physbench.adapters.materials import per_material_factors
 from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
+from physbench.adapters.pymunk_joints import add_joints
 from physbench.adapters.pymunk_internals import BodyReader, c_stepper
 from physbench.adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
 from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
@@ -201,6 +203,10 @@ class PymunkAdapter(Adapter):
             self.notes.append(
                 "damper: pymunk's DampedSpring damps the relative velocity along the spring line "
                 "and integrates that damping as an exact exponential decay over each step")
+
+        # -- joints (adapters/pymunk_joints.py) --------------------------------
+        if scene.joints:
+            add_joints(pm, space, scene, self._bodies, self.notes, self.info)
 
         # -- drag -------------------------------------------------------------
         # pymunk's damping where it carries the linear drag, else the force law

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Capabilities, Setting, Unsupported
+from physbench.adapters.pymunk_joints import JOINT_KINDS
 from physbench.contract.conventions import planar_from_world, world_point_to_planar
 from physbench.contract.scene import Scene
 
@@ -63,7 +64,8 @@ def declaration(engine: str, version: str, available: bool, why: str) -> Capabil
         dimensions=2,
         shapes=SHAPES,
         static_shapes=STATIC_SHAPES,
-        effects=EFFECTS,
+        effects=EFFECTS | {"joint"},
+        joint_kinds=JOINT_KINDS,
         settings=_settings(),
         available=available,
         unavailable_reason=why,

@@ -40,7 +40,9 @@ Materials
     ``rolling_friction`` is unsupported.
 
 Effects
-    gravity -> world gravity; springs, dampers and drag are explicit forces
+    joint -> Rapier generic joints with explicit frames, impulse (maximal)
+    or multibody (reduced) by the setting ``joints``
+    (:mod:`adapters.rapier_joints`).  gravity -> world gravity; springs, dampers and drag are explicit forces
     from the state at the start of each step (:class:`adapters.forces.StateForces`,
     held over its substeps; noted in the row).  gyroscopic: Rapier's
     per-body switch ``gyroscopic_forces`` is on exactly when the scene lists
@@ -72,6 +74,7 @@ import numpy as np
 from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
+from physbench.adapters.rapier_joints import JOINT_KINDS, add_joints, tree_reason
 from physbench.adapters.rapier_scene import EFFECTS, SHAPES, STATIC_SHAPES, body_collider, static_collider
 from physbench.adapters.rapier_scene import settings as rapier_settings
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
@@ -102,7 +105,8 @@ class RapierAdapter(Adapter):
             dimensions=3,
             shapes=SHAPES,
             static_shapes=STATIC_SHAPES,
-            effects=EFFECTS,
+            effects=EFFECTS | {"joint"},
+            joint_kinds=JOINT_KINDS,
             settings=rapier_settings(),
             available=rp is not None,
             unavailable_reason=_IMPORT_ERROR,
@@ -129,6 +133,10 @@ class RapierAdapter(Adapter):
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
+        if scene.joints and settings["joints"] == "multibody":
+            why = tree_reason(scene)
+            if why:
+                raise Unsupported(why)
         world = rp.PhysicsWorld(gravity=tuple(float(g) for g in scene.gravity))
         ip = world.integration_parameters  # a live view: edited in place
         ip.dt = float(settings["dt"])
@@ -166,6 +174,8 @@ class RapierAdapter(Adapter):
             for s in scene.statics:
                 world.add_collider(material(static_collider(rp, s), ("static", s.index)))
 
+        if scene.joints:  # adapters/rapier_joints.py
+            add_joints(rp, world, scene, self._handles, settings["joints"], self.notes, self.info)
         joints = settings["springs"] == "joint"
         self._n_springs = self._add_springs(scene) if joints else 0
         self._forces = StateForces(scene, springs=not joints) or None

@@ -51,6 +51,10 @@ def settings() -> dict[str, Setting]:
             "max_ccd_substeps", 1, int,
             "max_ccd_substeps: time-of-impact substeps per step with ccd on (Rapier default 1)",
             lo=1, hi=100),
+        "joints": Setting(
+            "joints", "impulse", str,
+            "'impulse': [[joint]] tables are impulse joints (maximal coordinates, solver rows; any graph); "
+            "'multibody': multibody joints (reduced coordinates; trees only)", choices=("impulse", "multibody")),
         "springs": Setting(
             "springs", "joint", str,
             "'joint': springs and dampers are Rapier SpringJoints (force-based, implicit in each substep); "
