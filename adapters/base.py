@@ -221,6 +221,23 @@ class Adapter(abc.ABC):
         call, a direct C entry point) override it."""
         self.step(n)
 
+    def bare_record(self, n: int, n_bodies: int) -> None:
+        """Advance ``n`` steps by the engine's public step call in a plain
+        Python loop, reading after every step every body's position,
+        orientation, linear and angular velocity by the engine's cheapest
+        public read and keeping it, in the engine's own form (rows of a
+        preallocated block, or a list of what the engine returns), converted
+        to nothing: what any caller recording a trajectory pays at least, the
+        baseline of ``physbench bench overhead``'s ``ratio``.  The default
+        is step(1) and read_state() (which also converts) into rows of
+        (n, ``n_bodies``, 3|4) blocks; adapters with a cheaper raw read
+        override it."""
+        pos, vel, angvel = (np.empty((n, n_bodies, 3)) for _ in range(3))
+        quat = np.empty((n, n_bodies, 4))
+        for i in range(n):
+            self.step(1)
+            self.read_state(pos[i], quat[i], vel[i], angvel[i])
+
     def close(self) -> None:  # noqa: B027 - optional
         pass
 

@@ -283,6 +283,20 @@ class MujocoAdapter(Adapter):
             f(m, d)
         self.steps += n
 
+    def bare_record(self, n: int, n_bodies: int) -> None:
+        """The overhead benchmark's baseline: mj_step(m, d) and a copy of
+        d.qpos and d.qvel (MuJoCo's state, in its own form) into rows of a
+        preallocated block, n times in a Python loop."""
+        if self._drag:
+            return super().bare_record(n, n_bodies)
+        m, d, f = self.m, self.d, mujoco.mj_step
+        qpos, qvel = np.empty((n, m.nq)), np.empty((n, m.nv))
+        for i in range(n):
+            f(m, d)
+            qpos[i] = d.qpos
+            qvel[i] = d.qvel
+        self.steps += n
+
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step and record a block of n steps in compiled code.
 

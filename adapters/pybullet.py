@@ -81,6 +81,7 @@ the force law in :mod:`adapters.forces`, the silent import in
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from typing import Any
 
@@ -292,6 +293,24 @@ class PybulletAdapter(Adapter):
                 p.stepSimulation(physicsClientId=cid)
         self._steps += n
 
+    def bare_record(self, n: int, n_bodies: int) -> None:
+        """The overhead benchmark's baseline: stepSimulation and, per body,
+        getBasePositionAndOrientation and getBaseVelocity (pybullet's only
+        state reads), their tuples kept in lists, n times."""
+        if self._forces:
+            return super().bare_record(n, n_bodies)
+        p, cid, ids = self._p, self._cid, self._ids
+        st, gpo, gv = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
+        po: list = []
+        ve: list = []
+        apo, ave = po.append, ve.append
+        for _ in range(n):
+            st(cid)
+            for bid in ids:
+                apo(gpo(bid, cid))
+                ave(gv(bid, cid))
+        self._steps += n
+
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times and record every step.  pybullet has no batched state
         read: each body costs two calls per step (~1 us each, the bound of
@@ -321,11 +340,15 @@ class PybulletAdapter(Adapter):
             self.block_done = k
             if k:
                 m = k * nb
-                po, ve = po[:m], ve[:m]
-                pos[:k] = np.array([t[0] for t in po]).reshape(k, nb, 3)
-                quat[:k] = xyzw_to_wxyz(np.array([t[1] for t in po]).reshape(k, nb, 4))
-                vel[:k] = np.array([t[0] for t in ve]).reshape(k, nb, 3)
-                angvel[:k] = np.array([t[1] for t in ve]).reshape(k, nb, 3)
+                # the tuples flattened in C (no Python loop over rows):
+                # (x, y, z, qx, qy, qz, qw) and (vx, vy, vz, wx, wy, wz)
+                flat = itertools.chain.from_iterable
+                a = np.fromiter(flat(flat(po[:m])), float, count=7 * m).reshape(k, nb, 7)
+                b = np.fromiter(flat(flat(ve[:m])), float, count=6 * m).reshape(k, nb, 6)
+                pos[:k] = a[..., 0:3]
+                quat[:k] = xyzw_to_wxyz(a[..., 3:7])
+                vel[:k] = b[..., 0:3]
+                angvel[:k] = b[..., 3:6]
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Write positions (n, 3) m, quaternions (n, 4) wxyz, linear (n, 3) m/s

@@ -72,6 +72,7 @@ import numpy as np
 from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
+from physbench.adapters.rapier_batch import SetBytesReader, getter_rows
 from physbench.adapters.rapier_scene import EFFECTS, SHAPES, STATIC_SHAPES, body_collider, static_collider
 from physbench.adapters.rapier_scene import settings as rapier_settings
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
@@ -173,11 +174,16 @@ class RapierAdapter(Adapter):
             self.notes.append(DRAG_NOTE + "; held over Rapier's substeps" if joints else
                               "springs, dampers and drag: explicit forces from the state at the start of each "
                               "step, held over Rapier's substeps")
-        # live proxies (they follow the engine's state; measured 1.65 us per
-        # body per read against 2.33 us for a lookup by handle every time)
+        # live proxies (they follow the engine's state): the getters' fallback
+        # and the byte reader's check
         self._bodies = [world.rigid_bodies[h] for h in self._handles]
         self._n = scene.n_bodies
-        self._buf = np.empty((self._n, 13))
+        try:  # one call per step for every body's state (adapters.rapier_batch)
+            self._reader: SetBytesReader | None = SetBytesReader(rp, world, self._bodies)
+        except ValueError as e:
+            self._reader = None
+            self.info["state_reader_fallback"] = str(e)
+        self.info["state_reader"] = "set_bytes" if self._reader is not None else "getters"
         self.steps = 0
         self._stages = {
             "gravity": bool(np.any(scene.gravity != 0)), "contact": contact, "ccd": ccd,
@@ -249,49 +255,68 @@ class RapierAdapter(Adapter):
         self.steps += n
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """Step n times recording every step: the engine's per-body tuples
-        are only appended to a list while stepping (Rapier has no batched
-        read: four calls per body per step bound this adapter's overhead)
-        and converted to the (n, bodies, 3|4) blocks once, also the complete
-        steps before an exception."""
-        if self._forces is not None:
+        """Step n times recording every step: one ``to_bytes()`` of the
+        rigid-body set per step, appended to a list, decoded and converted
+        to the (n, bodies, 3|4) blocks once (:class:`adapters.rapier_batch.SetBytesReader`,
+        its last row checked against the getters), also the complete steps
+        before an exception."""
+        if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
-        world, bodies = self._world, self._bodies
-        rows: list = []
-        add = rows.append
-        done = 0
+        world, reader = self._world, self._reader
+        step, blob = world.step, reader.blob
+        blobs: list = []
+        add = blobs.append
         try:
             for _ in range(n):
-                world.step()
-                done += 1
-                for rb in bodies:
-                    add((*rb.translation.to_tuple(), *rb.rotation.to_tuple(), *rb.linvel.to_tuple(),
-                         *rb.angvel.to_tuple()))
+                step()
+                add(blob())
         finally:
-            self.steps += done
-            k = len(rows) // max(1, self._n) if self._n else done
+            k = len(blobs)
+            self.steps += k
             self.block_done = k
-            if k and self._n:
-                a = np.array(rows[:k * self._n], float).reshape(k, self._n, 13)
-                pos[:k] = a[..., 0:3]
-                quat[:k] = xyzw_to_wxyz(a[..., 3:7])
-                vel[:k] = a[..., 7:10]
-                angvel[:k] = a[..., 10:13]
+            reader.decode_into(blobs, pos[:k], quat[:k], vel[:k], angvel[:k])
+        if k and self._n:
+            reader.check(reader.decode(blobs[-1:])[0])
+
+    @staticmethod
+    def _write(a: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Rows [qx, qy, qz, qw, x, y, z, v, w] (..., 13) into the harness's
+        arrays (Rapier's (x, y, z, w) quaternion to wxyz)."""
+        pos[...] = a[..., 4:7]
+        quat[...] = xyzw_to_wxyz(a[..., 0:4])
+        vel[...] = a[..., 7:10]
+        angvel[...] = a[..., 10:13]
+
+    def bare_record(self, n: int, n_bodies: int) -> None:
+        """The overhead benchmark's baseline: world.step() and the cheapest
+        read of every body's state, kept in a list (one
+        ``RigidBodySet.to_bytes()``; the four getters per body without the
+        byte reader), n times, nothing decoded."""
+        if self._forces is not None:
+            return super().bare_record(n, n_bodies)
+        step = self._world.step
+        kept: list = []
+        add = kept.append
+        if self._reader is not None:
+            blob = self._reader.blob
+            for _ in range(n):
+                step()
+                add(blob())
+        else:
+            for _ in range(n):
+                step()
+                for rb in self._bodies:
+                    add((rb.translation.to_tuple(), rb.rotation.to_tuple(), rb.linvel.to_tuple(),
+                         rb.angvel.to_tuple()))
+        self.steps += n
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
         m/s and angular (n, 3) rad/s velocities, world frame, about the
-        centre of mass: four reads per body (Rapier has no batched read of
-        rigid bodies), gathered into one (n, 13) buffer and converted once
-        (Rapier's (x, y, z, w) quaternion to wxyz)."""
-        buf = self._buf
-        for k, rb in enumerate(self._bodies):
-            buf[k] = (*rb.translation.to_tuple(), *rb.rotation.to_tuple(), *rb.linvel.to_tuple(),
-                      *rb.angvel.to_tuple())
-        pos[...] = buf[:, 0:3]
-        quat[...] = xyzw_to_wxyz(buf[:, 3:7])
-        vel[...] = buf[:, 7:10]
-        angvel[...] = buf[:, 10:13]
+        centre of mass: one ``to_bytes()`` of the set decoded (the four
+        getters per body without the byte reader)."""
+        a = self._reader.decode([self._reader.blob()])[0] if self._reader is not None else getter_rows(self._bodies)
+        self._write(a, pos, quat, vel, angvel)
 
     def contacts(self) -> np.ndarray:
         """The narrow phase's solver contacts after the last step: rows
@@ -316,3 +341,4 @@ class RapierAdapter(Adapter):
         self._world = None
         self._handles = []
         self._bodies = []
+        self._reader = None
