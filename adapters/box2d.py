@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
                                      planar_gyroscopic_reason)
 from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
@@ -272,22 +273,7 @@ class Box2dAdapter(Adapter):
                           np.moveaxis(pos, -1, 0), np.moveaxis(quat, -1, 0), np.moveaxis(vel, -1, 0),
                           np.moveaxis(angvel, -1, 0))
 
-    def bare_record(self, n: int, n_bodies: int) -> None:
-        """The overhead benchmark's baseline: World.step and the three
-        batched f32 reads (transforms, linear and angular velocities) into
-        rows of one preallocated block, n times, nothing converted."""
-        if self._forces is not None:
-            return super().bare_record(n, n_bodies)
-        world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
-        step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
-        nb = len(self._bodies)
-        t, v, w = np.zeros((n, nb, 4), np.float32), np.zeros((n, nb, 2), np.float32), np.zeros((n, nb), np.float32)
-        for i in range(n):
-            step(dt, sub)
-            gt(t[i])
-            gv(v[i])
-            gw(w[i])
-        self.steps += n
+    bare_record = bare_loops.box2d
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)

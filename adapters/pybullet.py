@@ -87,6 +87,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import Adapter, Capabilities, Unsupported
 from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
@@ -293,23 +294,7 @@ class PybulletAdapter(Adapter):
                 p.stepSimulation(physicsClientId=cid)
         self._steps += n
 
-    def bare_record(self, n: int, n_bodies: int) -> None:
-        """The overhead benchmark's baseline: stepSimulation and, per body,
-        getBasePositionAndOrientation and getBaseVelocity (pybullet's only
-        state reads), their tuples kept in lists, n times."""
-        if self._forces:
-            return super().bare_record(n, n_bodies)
-        p, cid, ids = self._p, self._cid, self._ids
-        st, gpo, gv = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
-        po: list = []
-        ve: list = []
-        apo, ave = po.append, ve.append
-        for _ in range(n):
-            st(cid)
-            for bid in ids:
-                apo(gpo(bid, cid))
-                ave(gv(bid, cid))
-        self._steps += n
+    bare_record = bare_loops.pybullet
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times and record every step.  pybullet has no batched state

@@ -80,6 +80,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
                                      planar_gyroscopic_reason)
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
@@ -306,19 +307,7 @@ class PymunkAdapter(Adapter):
             st(h)
         self._space_steps += n
 
-    def bare_record(self, n: int, n_bodies: int) -> None:
-        """The overhead benchmark's baseline: the public space.step(dt) and
-        the public batched read ``pymunk.batch.get_space_bodies`` of every
-        body's (x, y, angle, vx, vy, w), appended to one buffer (which
-        pymunk grows), n times."""
-        if self._drag or self._substeps != 1:
-            return super().bare_record(n, n_bodies)
-        st, h, space = self._space.step, self._h, self._space
-        get, fields, buf = self._pm.batch.get_space_bodies, self._public.fields, self._pm.batch.Buffer()
-        for _ in range(n):
-            st(h)
-            get(space, fields, buf)
-        self._space_steps += n
+    bare_record = bare_loops.pymunk
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, the C batch reader appending each step's raw

@@ -69,6 +69,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
@@ -287,28 +288,7 @@ class RapierAdapter(Adapter):
         vel[...] = a[..., 7:10]
         angvel[...] = a[..., 10:13]
 
-    def bare_record(self, n: int, n_bodies: int) -> None:
-        """The overhead benchmark's baseline: world.step() and the cheapest
-        read of every body's state, kept in a list (one
-        ``RigidBodySet.to_bytes()``; the four getters per body without the
-        byte reader), n times, nothing decoded."""
-        if self._forces is not None:
-            return super().bare_record(n, n_bodies)
-        step = self._world.step
-        kept: list = []
-        add = kept.append
-        if self._reader is not None:
-            blob = self._reader.blob
-            for _ in range(n):
-                step()
-                add(blob())
-        else:
-            for _ in range(n):
-                step()
-                for rb in self._bodies:
-                    add((rb.translation.to_tuple(), rb.rotation.to_tuple(), rb.linvel.to_tuple(),
-                         rb.angvel.to_tuple()))
-        self.steps += n
+    bare_record = bare_loops.rapier
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
