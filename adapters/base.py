@@ -21,6 +21,8 @@ residuals, effective engine parameters) which land in the run result.
 from __future__ import annotations
 
 import abc
+import functools
+import importlib
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -395,6 +397,21 @@ def get_adapter(name: str) -> type[Adapter]:
     if name not in _REGISTRY:
         raise ValueError(f"unknown engine {name!r}; known: {', '.join(_REGISTRY)}")
     return _REGISTRY[name]()
+
+
+@functools.lru_cache(maxsize=None)
+def optional_import(module: str, *also: str) -> tuple[Any, str]:
+    """(the engine's package, "") or (None, why it is unavailable):
+    ``module`` (and the submodules ``also``, e.g. ``pymunk.batch``) imported
+    once, on first use.  A missing or broken engine only makes its own runs
+    unavailable (its capabilities say why), never the others'."""
+    try:
+        mod = importlib.import_module(module)
+        for sub in also:
+            importlib.import_module(sub)
+    except Exception as e:  # pragma: no cover - depends on the environment
+        return None, f"import {module} failed: {type(e).__name__}: {e}"
+    return mod, ""
 
 
 def module_version(mod_name: str) -> str:

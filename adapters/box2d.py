@@ -44,13 +44,12 @@ the contacts that began touching in the last step.
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import numpy as np
 
 from physbench.adapters import bare_loops
-from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version, optional_import,
                                      planar_gyroscopic_reason)
 from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
                                             static_pose)
@@ -63,16 +62,6 @@ ENGINE = "box2d"
 GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
 
 
-@functools.lru_cache(maxsize=1)
-def _engine() -> tuple[Any, str]:
-    """(pyb2d3 module or None, reason it is unavailable)."""
-    try:
-        import pyb2d3 as b2
-    except Exception as e:  # pragma: no cover - depends on the environment
-        return None, f"import pyb2d3 failed: {type(e).__name__}: {e}"
-    return b2, ""
-
-
 class Box2dAdapter(Adapter):
     """Adapter for Box2D v3 through pyb2d3 (2D, planar scenes in the x-z plane)."""
 
@@ -80,7 +69,7 @@ class Box2dAdapter(Adapter):
 
     @classmethod
     def capabilities(cls) -> Capabilities:
-        b2, why = _engine()
+        b2, why = optional_import("pyb2d3")
         return declaration(ENGINE, module_version("pyb2d3"), b2 is not None, why)
 
     @classmethod
@@ -97,7 +86,7 @@ class Box2dAdapter(Adapter):
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
-        b2, _ = _engine()
+        b2, _ = optional_import("pyb2d3")
         self._b2 = b2
         self._dt = float(settings["dt"])
         self._substeps = int(settings["substeps"])

@@ -81,7 +81,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters import bare_loops
-from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version, optional_import,
                                      planar_gyroscopic_reason)
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
 from physbench.adapters.materials import per_material_factors
@@ -97,17 +97,6 @@ GYROSCOPIC_REASON = planar_gyroscopic_reason("pymunk")
 ROLLING_FRICTION_REASON = "pymunk has no rolling resistance (rolling_friction)"
 
 
-@functools.lru_cache(maxsize=1)
-def _engine() -> tuple[Any, str]:
-    """(pymunk module or None, reason it is unavailable)."""
-    try:
-        import pymunk as pm  # the engine, not this module (absolute import)
-        import pymunk.batch  # noqa: F401 - fast state reads
-    except Exception as e:  # pragma: no cover - depends on the environment
-        return None, f"import pymunk failed: {type(e).__name__}: {e}"
-    return pm, ""
-
-
 class PymunkAdapter(Adapter):
     """Adapter for pymunk 7.x (2D, planar scenes in the world x-z plane)."""
 
@@ -116,7 +105,7 @@ class PymunkAdapter(Adapter):
     # ---- declaration -------------------------------------------------------
     @classmethod
     def capabilities(cls) -> Capabilities:
-        pm, why = _engine()
+        pm, why = optional_import("pymunk", "pymunk.batch")
         return declaration(ENGINE, pm.version if pm is not None else module_version("pymunk"), pm is not None, why)
 
     @classmethod
@@ -137,7 +126,7 @@ class PymunkAdapter(Adapter):
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
-        pm, _ = _engine()
+        pm, _ = optional_import("pymunk", "pymunk.batch")
         self._pm = pm
         n = scene.n_bodies
         dt = float(settings["dt"])

@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters import bare_loops
-from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version, optional_import
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
 from physbench.adapters.rapier_batch import SetBytesReader, getter_rows
@@ -79,13 +79,7 @@ from physbench.adapters.rapier_scene import settings as rapier_settings
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from physbench.contract.scene import Scene
 
-try:  # the engine; a missing rapier3d only makes its runs unavailable
-    import rapier3d as rp
-
-    _IMPORT_ERROR = ""
-except Exception as _e:  # pragma: no cover - depends on the environment
-    rp = None
-    _IMPORT_ERROR = f"import rapier3d failed: {type(_e).__name__}: {_e}"
+rp, _IMPORT_ERROR = optional_import("rapier3d")  # the engine; a missing rapier3d only makes its runs unavailable
 
 ENGINE = "rapier"
 
