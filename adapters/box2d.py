@@ -51,9 +51,9 @@ import numpy as np
 from physbench.adapters import bare_loops
 from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version, optional_import,
                                      planar_gyroscopic_reason)
-from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
-                                            static_pose)
+from physbench.adapters.box2d_scene import body_shape, declaration, rot, shape_materials, static_pose
 from physbench.adapters.forces import DRAG_NOTE, StateForces
+from physbench.adapters.planar import planar_geometry_reason
 from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from physbench.contract.scene import Scene
 
@@ -79,7 +79,7 @@ class Box2dAdapter(Adapter):
             if cls.capabilities().available and scene.planar and "gyroscopic" in scene.effects:
                 return GYROSCOPIC_REASON
             return reason
-        return planar_geometry_reason(scene)
+        return planar_geometry_reason(scene, "Box2D")
 
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:

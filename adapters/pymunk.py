@@ -87,7 +87,8 @@ from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_
 from physbench.adapters.materials import per_material_factors
 from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
 from physbench.adapters.pymunk_internals import BodyReader, c_stepper
-from physbench.adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
+from physbench.adapters.planar import planar_geometry_reason
+from physbench.adapters.pymunk_scene import body_shape, declaration, static_shape
 from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from physbench.contract.scene import Scene
 
@@ -119,7 +120,7 @@ class PymunkAdapter(Adapter):
                 if "rolling_friction" in scene.effects:
                     return ROLLING_FRICTION_REASON
             return reason
-        return planar_geometry_reason(scene)
+        return planar_geometry_reason(scene, "pymunk")
 
     # ---- life cycle --------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
