@@ -13,7 +13,7 @@ Stepping
     substeps of dt/S, each with ``num_internal_pgs_iterations`` PGS sweeps,
     and integrates each substep velocity first (v += a h, then x += v h):
     free fall from rest gives z_k = -g dt^2 k (k + 1/S) / 2
-    (tests/test_adapter_rapier.py::test_free_fall_substeps).
+    (tests/test_closed_forms.py::test_free_fall).
 
 Bodies
     A dynamic body per scene body, posed at its centre of mass (Rapier takes

@@ -102,42 +102,9 @@ def test_settings_reach_the_engine(head_on_path):
     a.close()
 
 
-# ---------------------------------------------------------------------------
-# the canonical spec: Newton's law of restitution
-
-
-@pytest.mark.parametrize("variant", [None, "elastic", "plastic"])
-def test_head_on_newton(head_on_path, variant):
-    sc = load_scene(head_on_path, variant)
-    r, tr = run_ok(sc)
-    m1, m2 = sc.masses
-    e = sc.pair(sc.bodies[0].material, sc.bodies[1].material).restitution
-    u1, u2 = sc.bodies[0].velocity[0], sc.bodies[1].velocity[0]
-    v1 = ((m1 - e * m2) * u1 + (1 + e) * m2 * u2) / (m1 + m2)
-    v2 = ((m2 - e * m1) * u2 + (1 + e) * m1 * u1) / (m1 + m2)
-    err = np.abs(tr.vel[-1, :, 0] - [v1, v2]).max()
-    print(f"rapier head_on[{variant}] e={e}: velocity error {err:.3g} m/s")
-    # f32: a few units in the last place of 2 m/s (measured 0 .. 7.2e-7)
-    assert err <= 4 * 2.0 * F32 * 4
-    P = tr.vel[:, :, 0] @ sc.masses
-    assert np.abs(P - P[0]).max() / abs(P[0]) <= 1e-6  # measured <= 6.9e-7 (f32 sums)
-    assert r.info["material_mode"] == "per_material"
-
-
-# ---------------------------------------------------------------------------
-# integration scheme
-
-
-@pytest.mark.parametrize("substeps", [1, 4])
-def test_free_fall_substeps(tmp_path, substeps):
-    """S substeps of h = dt/S, velocity first: after k steps v = -g k dt and
-    z = z0 - g h^2 (kS)(kS + 1)/2 = z0 - g dt^2 k (k + 1/S) / 2."""
-    sc = scene_from(tmp_path, spec(["gravity"], ball(z=1.0), duration=0.1, dt=0.01))
-    _, tr = run_ok(sc, {"iterations": substeps})
-    k = np.arange(len(tr.t))
-    z = 1.0 - G * 0.01 ** 2 * k * (k + 1.0 / substeps) / 2.0
-    np.testing.assert_allclose(tr.pos[:, 0, 2], z, rtol=0, atol=4 * F32)
-    np.testing.assert_allclose(tr.vel[:, 0, 2], -G * 0.01 * k, rtol=0, atol=4 * F32)
+# Newton's law on the canonical spec, free fall under the substep scheme, a
+# bounce at e and sliding at mu g: tests/test_closed_forms.py (shared with
+# Box2D and pymunk)
 
 
 # ---------------------------------------------------------------------------
@@ -203,22 +170,6 @@ def test_cylinder_axis_is_body_z(tmp_path):
     assert abs(tr.pos[-1, 0, 2] - 0.1) <= 2e-4
 
 
-@pytest.mark.parametrize("e", [0.5, 0.8])
-def test_restitution_bounce_velocity(tmp_path, e):
-    """A ball falling from rest hits the floor at v = sqrt(2 g h) and leaves
-    at e v (Rapier's coefficient is native: no calibration)."""
-    h = 0.5
-    sc = scene_from(tmp_path, spec(["gravity", "contact", "restitution"], ball(z=0.1 + h), GROUND,
-                                   duration=0.45, dt=0.001, material=f"restitution = {e}"))
-    _, tr = run_ok(sc)
-    vz = tr.vel[:, 0, 2]
-    up = np.argmax(vz > 0)
-    assert up > 0
-    ratio = vz[up] / math.sqrt(2 * G * h)
-    print(f"rapier bounce ratio {ratio:.5f} for e = {e}")
-    assert abs(ratio - e) <= 0.01  # measured 0.5: 0.4986, 0.8: 0.7981 (landing within a step of gravity)
-
-
 def test_pair_values_by_product(tmp_path):
     """Ball 'a' of material 'rubber' (e 0.8) and ball 'b' of the default
     material (e 0.5) on a default floor: the pairs want rubber|default = 0.8
@@ -238,23 +189,6 @@ def test_pair_values_by_product(tmp_path):
         print(f"ball {i}: bounce {got:.5f} for pair e = {e}")
         assert abs(got - e) <= 0.01
     assert r.info["material_mode"] == "per_material"
-
-
-def test_sliding_deceleration_mu_g(tmp_path):
-    """A box sliding on a level floor decelerates at mu g until it stops at
-    v0^2 / (2 mu g)."""
-    mu, v0 = 0.4, 2.0
-    box = ('\n[[body]]\nname = "box"\nshape = "box"\nhalf_extents = [0.1, 0.1, 0.1]\nmass = 1.0\n'
-           f'position = [0.0, 0.0, 0.1]\nvelocity = [{v0}, 0.0, 0.0]\n')
-    sc = scene_from(tmp_path, spec(["gravity", "contact", "friction"], box, GROUND, duration=0.8, dt=1 / 240,
-                                   material=f"friction = {mu}\nstatic_friction = {mu}"))
-    _, tr = run_ok(sc)
-    t, vx = tr.t, tr.vel[:, 0, 0]
-    sliding = (t > 0.05) & (vx > 0.3)
-    a = np.polyfit(t[sliding], vx[sliding], 1)[0]
-    print(f"rapier sliding deceleration {-a:.5f} vs mu g {mu * G:.5f}")
-    assert abs(-a / (mu * G) - 1.0) <= 0.005  # measured 5e-6 relative
-    assert abs(tr.pos[-1, 0, 0] - v0 ** 2 / (2 * mu * G)) <= 0.01
 
 
 def test_no_contact_means_no_colliders(head_on_path):
