@@ -136,6 +136,7 @@ class RapierAdapter(Adapter):
         ip.max_ccd_substeps = int(settings["max_ccd_substeps"])
         ip.friction_model = rp.FrictionModel.COULOMB if settings["friction_model"] == "coulomb" \
             else rp.FrictionModel.SIMPLIFIED
+        ip.contact_recycling = bool(settings["contact_recycling"])
         self._world = world
         contact = scene.has("contact")
         ccd = bool(settings["ccd"]) and contact
@@ -154,6 +155,7 @@ class RapierAdapter(Adapter):
                        .position((tuple(map(float, b.position)), tuple(map(float, wxyz_to_xyzw(b.orientation)))))
                        .linvel(tuple(map(float, b.velocity))).angvel(tuple(map(float, b.angular_velocity)))
                        .can_sleep(False).ccd_enabled(ccd).gyroscopic_forces(gyro)
+                       .allow_fast_rotation(bool(settings["fast_rotation"]))
                        .additional_mass_properties(rp.MassProperties(
                            mass=float(b.mass), principal_inertia=tuple(map(float, b.inertia)))))
             colliders = [material(body_collider(rp, b).density(0.0), ("body", b.index))] if contact else []
