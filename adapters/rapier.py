@@ -57,9 +57,14 @@ Contacts
     -dist, so speculative contacts within the prediction distance come out
     negative).
 
+State reads
+    One ``RigidBodySet.to_bytes()`` per step holds every body's state
+    (:mod:`adapters.rapier_batch`, checked against the per-body getters after
+    every recorded block); the four getters per body are the fallback.
+
 Sibling modules: settings and colliders in :mod:`adapters.rapier_scene`, the
-force laws in :mod:`adapters.forces`, material factors in
-:mod:`adapters.materials`.
+state reader in :mod:`adapters.rapier_batch`, the force laws in
+:mod:`adapters.forces`, material factors in :mod:`adapters.materials`.
 """
 
 from __future__ import annotations
