@@ -260,8 +260,8 @@ class RapierAdapter(Adapter):
         """Step n times recording every step: one ``to_bytes()`` of the
         rigid-body set per step, appended to a list, decoded and converted
         to the (n, bodies, 3|4) blocks once (:class:`adapters.rapier_batch.SetBytesReader`,
-        its last row checked against the getters), also the complete steps
-        before an exception."""
+        its last row checked against the getters on up to 16 bodies), also
+        the complete steps before an exception."""
         if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
         world, reader = self._world, self._reader
@@ -278,7 +278,7 @@ class RapierAdapter(Adapter):
             self.block_done = k
             reader.decode_into(blobs, pos[:k], quat[:k], vel[:k], angvel[:k])
         if k and self._n:
-            reader.check(reader.decode(blobs[-1:])[0])
+            reader.check(reader.decode(blobs[-1:])[0], sample=16)
 
     @staticmethod
     def _write(a: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:

@@ -402,4 +402,6 @@ def test_set_bytes_reader_check_raises_on_a_mismatch(head_on_path):
     row[1, 5] += 1e-6  # a translation off by anything
     with pytest.raises(RuntimeError, match="differs from the getters"):
         a._reader.check(row)
+    with pytest.raises(RuntimeError, match="differs from the getters"):
+        a._reader.check(row, sample=2)  # a sample keeps the first and the last body
     a.close()
