@@ -258,27 +258,37 @@ class RapierAdapter(Adapter):
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times recording every step: one ``to_bytes()`` of the
-        rigid-body set per step, appended to a list, decoded and converted
-        to the (n, bodies, 3|4) blocks once (:class:`adapters.rapier_batch.SetBytesReader`,
-        its last row checked against the getters on up to 16 bodies), also
-        the complete steps before an exception."""
+        rigid-body set per step, copied into a reused row buffer, decoded
+        and converted to the (n, bodies, 3|4) blocks once
+        (:class:`adapters.rapier_batch.SetBytesReader`, its last row checked
+        against the getters on up to 16 bodies), also the complete steps
+        before an exception."""
         if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
-        world, reader = self._world, self._reader
-        step, blob = world.step, reader.blob
-        blobs: list = []
-        add = blobs.append
+        reader = self._reader
+        step, blob = self._world.step, reader.blob
+        odd: dict = {}  # rows whose bytes have another length than the block's first
+        L, k = 0, 0
         try:
-            for _ in range(n):
+            for k in range(1, n + 1):
                 step()
-                add(blob())
+                b = blob()
+                if k == 1:
+                    L = len(b)
+                    rows = reader.rows(n, L)
+                try:
+                    rows[(k - 1) * L:k * L] = b
+                except ValueError:
+                    odd[k - 1] = b
+            k = n + 1
         finally:
-            k = len(blobs)
+            k -= 1  # complete steps (the k-th raised if we left early)
             self.steps += k
             self.block_done = k
-            reader.decode_into(blobs, pos[:k], quat[:k], vel[:k], angvel[:k])
-        if k and self._n:
-            reader.check(reader.decode(blobs[-1:])[0], sample=16)
+            reader.rows_into(k, L, odd, pos[:k], quat[:k], vel[:k], angvel[:k])
+        if k and self._n:  # what landed in the last recorded row, against the getters
+            i = k - 1
+            reader.check(np.concatenate([quat[i][:, [1, 2, 3, 0]], pos[i], vel[i], angvel[i]], axis=1), sample=16)
 
     @staticmethod
     def _write(a: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:

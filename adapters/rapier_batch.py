@@ -103,6 +103,7 @@ class SetBytesReader:
         #: bodies of one serialised length (one collider each, or none):
         #: the decode is then two strided views over all bodies at once
         self._stride = lengths[0] if lengths and len(set(lengths)) == 1 else None
+        self._rows: memoryview | None = None
         #: bytes up to the end of the last body's velocity
         self.need = int(self._offsets[-1]) + delta + VELOCITY if bodies else 0
         if self.need > len(blob):
@@ -112,19 +113,12 @@ class SetBytesReader:
         except RuntimeError as e:
             raise ValueError(str(e)) from None
 
-    def _views(self, blobs: list) -> list:
+    def _views(self, raw: Any, k: int, L: int) -> list:
         """Per group of bodies (all at once when they share one serialised
         length, else one by one): (body slice, (k, m, 7) f32 poses
         [qx, qy, qz, qw, x, y, z], (k, m, 6) f32 velocities) gathered from
-        the joined bytes by strided record views: no per-row Python work."""
-        k = len(blobs)
-        # the set's bytes after its bodies change length (8 bytes per body
-        # fewer after the first step, measured): unequal rows are cut to the bodies
-        L = len(blobs[0])
-        if any(len(b) != L for b in blobs):
-            L = self.need
-            blobs = [b[:L] for b in blobs]
-        raw = b"".join(blobs)
+        ``raw``, k rows of L bytes, by strided record views: no per-row
+        Python work."""
         d = self._delta
         pose_t, vel_t = np.dtype(f"V{ROTATION + TRANSLATION}"), np.dtype(f"V{VELOCITY}")
 
@@ -140,28 +134,51 @@ class SetBytesReader:
         return [(slice(i, i + 1), f32(pose_t, t - ROTATION, 1, 0, 7), f32(vel_t, t + d, 1, 0, 6))
                 for i, t in enumerate(self._offsets.tolist())]
 
+    def _joined(self, blobs: list) -> tuple[bytes, int]:
+        """(the blobs joined, their row length): the set's bytes after its
+        bodies change length (8 bytes per body fewer after the first step,
+        measured), so unequal rows are cut to the bodies."""
+        L = len(blobs[0])
+        if any(len(b) != L for b in blobs):
+            L = self.need
+            blobs = [b[:L] for b in blobs]
+        return b"".join(blobs), L
+
     def decode(self, blobs: list) -> np.ndarray:
         """(k, n, 13) float64 rows of k blobs, in the layout of :func:`getter_rows`."""
         out = np.empty((len(blobs), len(self._bodies), 13))
         if len(blobs) and len(self._bodies):
-            for sl, pose, vel in self._views(blobs):
+            raw, L = self._joined(blobs)
+            for sl, pose, vel in self._views(raw, len(blobs), L):
                 out[:, sl, 0:7] = pose
                 out[:, sl, 7:13] = vel
         return out
 
-    def decode_into(self, blobs: list, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
-                    angvel: np.ndarray) -> None:
-        """k blobs straight into the harness's (k, n, 3|4) arrays: positions,
-        wxyz quaternions (Rapier's x, y, z, w reordered), linear and angular
-        velocities; returns nothing, allocates only the joined bytes."""
-        if not (len(blobs) and len(self._bodies)):
+    def rows(self, n: int, L: int) -> memoryview:
+        """A reused buffer for n rows of L bytes (the runner's blocks copy
+        each step's bytes into it: no allocation, and no fresh pages to
+        fault in, per block)."""
+        if self._rows is None or len(self._rows) < n * L:
+            self._rows = memoryview(bytearray(n * L))
+        return self._rows
+
+    def rows_into(self, k: int, L: int, odd: dict, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                  angvel: np.ndarray) -> None:
+        """The first k rows of :meth:`rows` (L bytes each; ``odd``: row ->
+        bytes of another length, decoded apart) straight into the harness's
+        (k, n, 3|4) arrays: positions, wxyz quaternions (Rapier's x, y, z, w
+        reordered), linear and angular velocities."""
+        if not (k and len(self._bodies)):
             return
-        for sl, pose, v in self._views(blobs):
-            pos[:, sl] = pose[..., 4:7]
-            quat[:, sl, 0] = pose[..., 3]
-            quat[:, sl, 1:4] = pose[..., 0:3]
-            vel[:, sl] = v[..., 0:3]
-            angvel[:, sl] = v[..., 3:6]
+        parts = [(slice(0, k), self._views(self._rows, k, L))]
+        parts += [(slice(i, i + 1), self._views(b, 1, len(b))) for i, b in odd.items() if i < k]
+        for rows, views in parts:
+            for sl, pose, v in views:
+                pos[rows, sl] = pose[..., 4:7]
+                quat[rows, sl, 0] = pose[..., 3]
+                quat[rows, sl, 1:4] = pose[..., 0:3]
+                vel[rows, sl] = v[..., 0:3]
+                angvel[rows, sl] = v[..., 3:6]
 
     def check(self, last: np.ndarray, sample: int | None = None) -> None:
         """Raise RuntimeError unless ``last`` (n, 13) is the getters' state

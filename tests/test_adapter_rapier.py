@@ -405,3 +405,65 @@ def test_set_bytes_reader_check_raises_on_a_mismatch(head_on_path):
     with pytest.raises(RuntimeError, match="differs from the getters"):
         a._reader.check(row, sample=2)  # a sample keeps the first and the last body
     a.close()
+
+
+def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
+    """An exception in the k-th step of a block leaves the k - 1 steps
+    before it recorded and converted (block_done says how many), equal to a
+    plain step-and-read loop."""
+    sc = load_scene(head_on_path)
+    n, k = 300, 137
+    ref = RapierAdapter()
+    ref.build(sc, RapierAdapter.resolve_settings(sc))
+    want = [np.zeros((k - 1, 2, j)) for j in (3, 4, 3, 3)]
+    for i in range(k - 1):
+        ref.step(1)
+        ref.read_state(*(w[i] for w in want))
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc))
+
+    class Failing:
+        def __init__(self, world):
+            self.world, self.calls = world, 0
+            self.rigid_bodies = world.rigid_bodies
+
+        def step(self):
+            self.calls += 1
+            if self.calls == k:
+                raise RuntimeError("engine failure")
+            self.world.step()
+
+    a._world = Failing(a._world)
+    got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
+    with pytest.raises(RuntimeError, match="engine failure"):
+        a.step_record(n, *got)
+    assert a.block_done == k - 1
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g[:k - 1], w)
+        assert np.isnan(g[k - 1:]).all()
+
+
+def test_rows_of_another_length_are_decoded_apart(head_on_path):
+    """A step whose set bytes have another length than the block's first
+    (the set shrinks by 8 bytes per body after the first step) is decoded
+    on its own, to the same state as the getters'."""
+    from physbench.adapters.rapier_batch import getter_rows
+
+    sc = load_scene(head_on_path)
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc))
+    r = a._reader
+    first = r.blob()  # before any step: longer
+    a.step(1)
+    after = r.blob()
+    assert len(first) != len(after)
+    L = len(after)
+    r.rows(2, L)[0:L] = after
+    out = [np.zeros((2, 2, j)) for j in (3, 4, 3, 3)]
+    r.rows_into(2, L, {1: after + b"\0" * 8}, *out)
+    want = getter_rows(a._bodies)
+    for row in (0, 1):
+        np.testing.assert_array_equal(out[0][row], want[:, 4:7])
+        np.testing.assert_array_equal(out[2][row], want[:, 7:10])
+        np.testing.assert_allclose(out[1][row][:, [1, 2, 3, 0]], want[:, 0:4], rtol=0, atol=QUAT_TOL)
+    a.close()
