@@ -21,6 +21,8 @@ residuals, effective engine parameters) which land in the run result.
 from __future__ import annotations
 
 import abc
+import functools
+import importlib
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -221,6 +223,23 @@ class Adapter(abc.ABC):
         call, a direct C entry point) override it."""
         self.step(n)
 
+    def bare_record(self, n: int, n_bodies: int) -> None:
+        """Advance ``n`` steps by the engine's public step call in a plain
+        Python loop, reading after every step every body's position,
+        orientation, linear and angular velocity by the engine's cheapest
+        public read and keeping it, in the engine's own form (rows of a
+        preallocated block, or a list of what the engine returns), converted
+        to nothing: what any caller recording a trajectory pays at least, the
+        baseline of ``physbench bench overhead``'s ``ratio``.  The default
+        is step(1) and read_state() (which also converts) into rows of
+        (n, ``n_bodies``, 3|4) blocks; adapters with a cheaper raw read
+        override it."""
+        pos, vel, angvel = (np.empty((n, n_bodies, 3)) for _ in range(3))
+        quat = np.empty((n, n_bodies, 4))
+        for i in range(n):
+            self.step(1)
+            self.read_state(pos[i], quat[i], vel[i], angvel[i])
+
     def close(self) -> None:  # noqa: B027 - optional
         pass
 
@@ -378,6 +397,21 @@ def get_adapter(name: str) -> type[Adapter]:
     if name not in _REGISTRY:
         raise ValueError(f"unknown engine {name!r}; known: {', '.join(_REGISTRY)}")
     return _REGISTRY[name]()
+
+
+@functools.lru_cache(maxsize=None)
+def optional_import(module: str, *also: str) -> tuple[Any, str]:
+    """(the engine's package, "") or (None, why it is unavailable):
+    ``module`` (and the submodules ``also``, e.g. ``pymunk.batch``) imported
+    once, on first use.  A missing or broken engine only makes its own runs
+    unavailable (its capabilities say why), never the others'."""
+    try:
+        mod = importlib.import_module(module)
+        for sub in also:
+            importlib.import_module(sub)
+    except Exception as e:  # pragma: no cover - depends on the environment
+        return None, f"import {module} failed: {type(e).__name__}: {e}"
+    return mod, ""
 
 
 def module_version(mod_name: str) -> str:

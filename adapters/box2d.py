@@ -45,33 +45,23 @@ the contacts that began touching in the last step.
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+from physbench.adapters import bare_loops
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version, optional_import,
                                      planar_gyroscopic_reason)
 from physbench.adapters.box2d_joints import add_joints
-from physbench.adapters.box2d_scene import (body_shape, declaration, planar_geometry_reason, rot, shape_materials,
-                                            static_pose)
+from physbench.adapters.box2d_scene import body_shape, declaration, rot, shape_materials, static_pose
 from physbench.adapters.forces import DRAG_NOTE, StateForces
+from physbench.adapters.planar import planar_geometry_reason
 from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from physbench.contract.scene import Scene
 
 ENGINE = "box2d"
 
 GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
-
-
-@functools.lru_cache(maxsize=1)
-def _engine() -> tuple[Any, str]:
-    """(pyb2d3 module or None, reason it is unavailable)."""
-    try:
-        import pyb2d3 as b2
-    except Exception as e:  # pragma: no cover - depends on the environment
-        return None, f"import pyb2d3 failed: {type(e).__name__}: {e}"
-    return b2, ""
 
 
 class Box2dAdapter(Adapter):
@@ -81,7 +71,7 @@ class Box2dAdapter(Adapter):
 
     @classmethod
     def capabilities(cls) -> Capabilities:
-        b2, why = _engine()
+        b2, why = optional_import("pyb2d3")
         return declaration(ENGINE, module_version("pyb2d3"), b2 is not None, why)
 
     @classmethod
@@ -91,14 +81,14 @@ class Box2dAdapter(Adapter):
             if cls.capabilities().available and scene.planar and "gyroscopic" in scene.effects:
                 return GYROSCOPIC_REASON
             return reason
-        return planar_geometry_reason(scene)
+        return planar_geometry_reason(scene, "Box2D")
 
     # ---- build -------------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
-        b2, _ = _engine()
+        b2, _ = optional_import("pyb2d3")
         self._b2 = b2
         self._dt = float(settings["dt"])
         self._substeps = int(settings["substeps"])
@@ -147,8 +137,7 @@ class Box2dAdapter(Adapter):
         for body in self._bodies:
             self._batch.append(body)
         n = scene.n_bodies
-        self._p, self._q, self._v = (np.zeros((n, 2), np.float32) for _ in range(3))
-        self._w = np.zeros(n, np.float32)
+        self._t, self._v, self._w = np.zeros((n, 4), np.float32), np.zeros((n, 2), np.float32), np.zeros(n, np.float32)
 
         if scene.joints:  # adapters/box2d_joints.py
             add_joints(b2, world, scene, self._bodies, self.notes, self.info)
@@ -229,55 +218,65 @@ class Box2dAdapter(Adapter):
         self.steps += n
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """Step n times, each step's four batched f32 reads written straight
-        into one preallocated block (no allocation per step), then the whole
-        block converted once by world_from_planar, also the complete steps
-        before an exception."""
+        """Step n times, each step's three batched f32 reads (transforms,
+        linear and angular velocities) written straight into rows of one
+        preallocated block through views made with the block (no allocation
+        per step), then the whole block converted once by world_from_planar,
+        also the complete steps before an exception."""
         if self._forces is not None:
             return super().step_record(n, pos, quat, vel, angvel)
         nb = len(self._bodies)
-        blk, wblk = getattr(self, "_block", (None, None))
-        if blk is None or blk.shape[0] < n:
+        blk = getattr(self, "_block", None)
+        if blk is None or len(blk[0]) < n:
             # pyb2d3 silently copies a non-contiguous output array (and then
-            # writes nothing back): every output below is a C-contiguous view
-            blk, wblk = self._block = (np.zeros((max(n, 256), 3, nb, 2), np.float32),
-                                       np.zeros((max(n, 256), nb), np.float32))
+            # writes nothing back): every row view below is C-contiguous.
+            # Room for 4 blocks of this size: the row views are made once
+            # per row, and reused by the blocks after
+            m = max(4 * n, 256)
+            blk = self._block = (np.zeros((m, nb, 4), np.float32), np.zeros((m, nb, 2), np.float32),
+                                 np.zeros((m, nb), np.float32), [])
+        t, v, w, rows = blk
+        if len(rows) < n:
+            rows.extend((t[i], v[i], w[i]) for i in range(len(rows), n))
         world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
-        gp, gq, gv, gw = bt.get_positions, bt.get_rotations, bt.get_linear_velocities, bt.get_angular_velocities
+        step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
         done = 0
         try:
-            for i in range(n):
-                world.step(dt, sub)
+            for ti, vi, wi in rows[:n]:
+                step(dt, sub)
                 done += 1
-                b = blk[i]
-                gp(b[0])
-                gq(b[1])
-                gv(b[2])
-                gw(wblk[i])
+                gt(ti)
+                gv(vi)
+                gw(wi)
         finally:
             self.steps += done
             self.block_done = done
             if done and nb:
-                b = blk[:done].astype(float)  # (k, 3, nb, 2)
-                angle = np.arctan2(b[:, 1, :, 1], b[:, 1, :, 0])
-                world_from_planar(b[:, 0, :, 0], b[:, 0, :, 1], b[:, 2, :, 0], b[:, 2, :, 1], angle,
-                                  wblk[:done].astype(float),
-                                  pos[:done].transpose(2, 0, 1), quat[:done].transpose(2, 0, 1),
-                                  vel[:done].transpose(2, 0, 1), angvel[:done].transpose(2, 0, 1))
+                self._convert(t[:done], v[:done], w[:done], pos[:done], quat[:done], vel[:done], angvel[:done])
+
+    @staticmethod
+    def _convert(t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                 angvel: np.ndarray) -> None:
+        """Box2D's f32 transforms (..., nb, 4) [x, y, cos, sin], velocities
+        (..., nb, 2) and angular velocities (..., nb) into the harness's
+        world arrays (..., nb, 3|4), vectorised through world_from_planar."""
+        t, v = t.astype(float), v.astype(float)
+        angle = np.arctan2(t[..., 3], t[..., 2])
+        world_from_planar(t[..., 0], t[..., 1], v[..., 0], v[..., 1], angle, w.astype(float),
+                          np.moveaxis(pos, -1, 0), np.moveaxis(quat, -1, 0), np.moveaxis(vel, -1, 0),
+                          np.moveaxis(angvel, -1, 0))
+
+    bare_record = bare_loops.box2d
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
-        m/s and angular (n, 3) rad/s velocities: four batched f32 reads into
-        preallocated arrays, then one vectorised world_from_planar."""
+        m/s and angular (n, 3) rad/s velocities: three batched f32 reads
+        into preallocated arrays, then one vectorised world_from_planar."""
         bt = self._batch
-        bt.get_positions(self._p)
-        bt.get_rotations(self._q)
+        bt.get_transforms(self._t)
         bt.get_linear_velocities(self._v)
         bt.get_angular_velocities(self._w)
-        p, q, v = self._p.astype(float), self._q.astype(float), self._v.astype(float)
-        angle = np.arctan2(q[:, 1], q[:, 0])
-        world_from_planar(p[:, 0], p[:, 1], v[:, 0], v[:, 1], angle, self._w.astype(float), pos.T, quat.T,
-                          vel.T, angvel.T)
+        self._convert(self._t, self._v, self._w, pos, quat, vel, angvel)
 
     def contacts(self) -> np.ndarray:
         """Manifold points of the contacts that began touching in the last
@@ -298,5 +297,6 @@ class Box2dAdapter(Adapter):
 
     def close(self) -> None:
         self._batch = None
+        self._block = None
         self._bodies = []
         self._world = None

@@ -15,7 +15,7 @@ import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Capabilities, Setting
 from physbench.adapters.box2d_joints import JOINT_KINDS
-from physbench.contract.conventions import planar_from_world, world_point_to_planar
+from physbench.adapters.planar import plane_line, planar_shape, static_box_pose
 from physbench.contract.scene import Scene
 
 #: a static plane is a box this long along the line and this deep on its
@@ -87,20 +87,6 @@ def declaration(engine: str, version: str, available: bool, why: str) -> Capabil
     )
 
 
-def planar_geometry_reason(scene: Scene) -> str | None:
-    """Planar checks the spec validator does not make."""
-    for b in scene.bodies:
-        if abs(float(b.position[1])) > 0.0:
-            return f"Box2D is 2D: body {b.name} lies off the x-z plane (y = {float(b.position[1])!r})"
-    for k, sp in enumerate(scene.springs):
-        if abs(float(sp.anchor_a[1])) > 0.0 or abs(float(sp.anchor_b[1])) > 0.0:
-            return f"Box2D is 2D: spring[{k}] has an anchor off the x-z plane (y != 0)"
-    for s in scene.statics:
-        if s.shape == "box" and abs(float(s.position[1])) >= float(s.half_extents[1]):
-            return f"Box2D is 2D: static box {s.name} does not cross the x-z plane"
-    return None
-
-
 def rot(b2: Any, angle: float) -> Any:
     """An exact Box2D rotation (b2MakeRot approximates cos and sin: 4.4e-4 off at 0.3 rad)."""
     r = b2.Rot()
@@ -109,16 +95,15 @@ def rot(b2: Any, angle: float) -> Any:
 
 
 def body_shape(b2: Any, b: Any) -> tuple[Any, float]:
-    """(Box2D geometry of the body's x-z cross-section in its local frame,
-    the shape's radius as Box2D's rolling resistance takes it)."""
-    if b.shape == "sphere":
-        return b2.circle(radius=float(b.radius)), float(b.radius)
-    if b.shape == "box":
-        return b2.box(float(b.half_extents[0]), float(b.half_extents[2])), 0.0
-    if b.shape == "capsule":
-        h = float(b.half_length)
-        return b2.capsule((0.0, -h), (0.0, h), float(b.radius)), float(b.radius)
-    return b2.box(float(b.radius), float(b.half_length)), 0.0  # cylinder: its axial section
+    """(Box2D geometry of the body's planar stand-in
+    (:func:`adapters.planar.planar_shape`) in its local frame, the shape's
+    radius as Box2D's rolling resistance takes it: 0 for a box)."""
+    p = planar_shape(b)
+    if p.kind == "circle":
+        return b2.circle(radius=p.radius), p.radius
+    if p.kind == "box":
+        return b2.box(p.half[0], p.half[1]), 0.0
+    return b2.capsule((0.0, -p.half[1]), (0.0, p.half[1]), p.radius), p.radius  # capsule
 
 
 def static_pose(s: Any) -> tuple[tuple[float, float], float, tuple[float, float], tuple[float, float]]:
@@ -126,11 +111,11 @@ def static_pose(s: Any) -> tuple[tuple[float, float], float, tuple[float, float]
     of a static's Box2D box: a plane's origin lies on its line, with the box
     below it on the solid side."""
     if s.shape == "plane":
-        nx, ny = world_point_to_planar(s.normal)
+        origin, (nx, ny) = plane_line(s)
         angle = math.atan2(ny, nx) - 0.5 * math.pi  # local +y = the normal
-        return (s.offset * nx, s.offset * ny), angle, (PLANE_HALF_LENGTH, PLANE_DEPTH), (0.0, -PLANE_DEPTH)
-    (cx, cy), _, angle, _ = planar_from_world(s.position, np.zeros(3), s.orientation, np.zeros(3))
-    return (cx, cy), angle, (float(s.half_extents[0]), float(s.half_extents[2])), (0.0, 0.0)
+        return origin, angle, (PLANE_HALF_LENGTH, PLANE_DEPTH), (0.0, -PLANE_DEPTH)
+    centre, angle, half = static_box_pose(s)
+    return centre, angle, half, (0.0, 0.0)
 
 
 def shape_materials(scene: Scene, radii: list[float], notes: list[str], info: dict) -> np.ndarray:

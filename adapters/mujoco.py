@@ -85,6 +85,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, drag_coefficients
 from physbench.adapters.mjcf import JOINT_TYPES, build_mjcf, joint_start, joint_tree_reason
@@ -273,15 +274,8 @@ class MujocoAdapter(Adapter):
                 mujoco.mj_step(m, d)
         self.steps += n
 
-    def bare_loop(self, n: int) -> None:
-        """The engine's public step call in a Python loop: mj_step(m, d) n
-        times (step() instead hands n to mj_step, which loops in C)."""
-        if self._drag:
-            return self.step(n)
-        m, d, f = self.m, self.d, mujoco.mj_step
-        for _ in range(n):
-            f(m, d)
-        self.steps += n
+    bare_loop = bare_loops.mujoco_bare_loop
+    bare_record = bare_loops.mujoco
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step and record a block of n steps in compiled code.

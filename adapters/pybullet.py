@@ -88,11 +88,13 @@ the force law in :mod:`adapters.forces`, the silent import in
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from typing import Any
 
 import numpy as np
 
+from physbench.adapters import bare_loops
 from physbench.adapters.base import Adapter, Capabilities, Unsupported
 from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
@@ -316,6 +318,8 @@ class PybulletAdapter(Adapter):
                 p.stepSimulation(physicsClientId=cid)
         self._steps += n
 
+    bare_record = bare_loops.pybullet
+
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         if self._links is not None:  # one getLinkStates call per step
             return super().step_record(n, pos, quat, vel, angvel)
@@ -350,11 +354,15 @@ class PybulletAdapter(Adapter):
             self.block_done = k
             if k:
                 m = k * nb
-                po, ve = po[:m], ve[:m]
-                pos[:k] = np.array([t[0] for t in po]).reshape(k, nb, 3)
-                quat[:k] = xyzw_to_wxyz(np.array([t[1] for t in po]).reshape(k, nb, 4))
-                vel[:k] = np.array([t[0] for t in ve]).reshape(k, nb, 3)
-                angvel[:k] = np.array([t[1] for t in ve]).reshape(k, nb, 3)
+                # the tuples flattened in C (no Python loop over rows):
+                # (x, y, z, qx, qy, qz, qw) and (vx, vy, vz, wx, wy, wz)
+                flat = itertools.chain.from_iterable
+                a = np.fromiter(flat(flat(po[:m])), float, count=7 * m).reshape(k, nb, 7)
+                b = np.fromiter(flat(flat(ve[:m])), float, count=6 * m).reshape(k, nb, 6)
+                pos[:k] = a[..., 0:3]
+                quat[:k] = xyzw_to_wxyz(a[..., 3:7])
+                vel[:k] = b[..., 0:3]
+                angvel[:k] = b[..., 3:6]
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Write positions (n, 3) m, quaternions (n, 4) wxyz, linear (n, 3) m/s

@@ -81,14 +81,16 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version,
+from physbench.adapters import bare_loops
+from physbench.adapters.base import (Adapter, Capabilities, Unsupported, module_version, optional_import,
                                      planar_gyroscopic_reason)
 from physbench.adapters.forces import DRAG_EXTERNAL, DRAG_NOTE, dragged, pymunk_damping
 from physbench.adapters.materials import per_material_factors
 from physbench.adapters.pymunk_batch import ArbiterBatch, PublicBodyBatch
 from physbench.adapters.pymunk_joints import add_joints
 from physbench.adapters.pymunk_internals import BodyReader, c_stepper
-from physbench.adapters.pymunk_scene import body_shape, declaration, planar_geometry_reason, static_shape
+from physbench.adapters.planar import planar_geometry_reason
+from physbench.adapters.pymunk_scene import body_shape, declaration, static_shape
 from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
 from physbench.contract.scene import Scene
 
@@ -96,17 +98,6 @@ ENGINE = "pymunk"
 
 GYROSCOPIC_REASON = planar_gyroscopic_reason("pymunk")
 ROLLING_FRICTION_REASON = "pymunk has no rolling resistance (rolling_friction)"
-
-
-@functools.lru_cache(maxsize=1)
-def _engine() -> tuple[Any, str]:
-    """(pymunk module or None, reason it is unavailable)."""
-    try:
-        import pymunk as pm  # the engine, not this module (absolute import)
-        import pymunk.batch  # noqa: F401 - fast state reads
-    except Exception as e:  # pragma: no cover - depends on the environment
-        return None, f"import pymunk failed: {type(e).__name__}: {e}"
-    return pm, ""
 
 
 class PymunkAdapter(Adapter):
@@ -117,7 +108,7 @@ class PymunkAdapter(Adapter):
     # ---- declaration -------------------------------------------------------
     @classmethod
     def capabilities(cls) -> Capabilities:
-        pm, why = _engine()
+        pm, why = optional_import("pymunk", "pymunk.batch")
         return declaration(ENGINE, pm.version if pm is not None else module_version("pymunk"), pm is not None, why)
 
     @classmethod
@@ -131,14 +122,14 @@ class PymunkAdapter(Adapter):
                 if "rolling_friction" in scene.effects:
                     return ROLLING_FRICTION_REASON
             return reason
-        return planar_geometry_reason(scene)
+        return planar_geometry_reason(scene, "pymunk")
 
     # ---- life cycle --------------------------------------------------------
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
-        pm, _ = _engine()
+        pm, _ = optional_import("pymunk", "pymunk.batch")
         self._pm = pm
         n = scene.n_bodies
         dt = float(settings["dt"])
@@ -311,6 +302,8 @@ class PymunkAdapter(Adapter):
         for _ in range(n):
             st(h)
         self._space_steps += n
+
+    bare_record = bare_loops.pymunk
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, the C batch reader appending each step's raw

@@ -11,12 +11,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
-from physbench.adapters.base import DT_SETTING, Capabilities, Setting, Unsupported
+from physbench.adapters.base import DT_SETTING, Capabilities, Setting
+from physbench.adapters.planar import plane_line, planar_shape, static_box_pose
 from physbench.adapters.pymunk_joints import JOINT_KINDS
-from physbench.contract.conventions import planar_from_world, world_point_to_planar
-from physbench.contract.scene import Scene
 
 # Static plane as a thick polygon: half-length along the line and depth into
 # the solid side (m).
@@ -78,43 +75,22 @@ def declaration(engine: str, version: str, available: bool, why: str) -> Capabil
     )
 
 
-def planar_geometry_reason(scene: Scene) -> str | None:
-    """Planar checks the spec validator does not make (pattern positions,
-    spring anchors, static boxes off the plane)."""
-    for b in scene.bodies:
-        if abs(float(b.position[1])) > 0.0:
-            return f"pymunk is 2D: body {b.name} lies off the x-z plane (y = {float(b.position[1])!r})"
-    for k, sp in enumerate(scene.springs):
-        if abs(float(sp.anchor_a[1])) > 0.0 or abs(float(sp.anchor_b[1])) > 0.0:
-            return f"pymunk is 2D: spring[{k}] has an anchor off the x-z plane (y != 0)"
-    for s in scene.statics:
-        if s.shape == "box" and abs(float(s.position[1])) >= float(s.half_extents[1]):
-            return f"pymunk is 2D: static box {s.name} does not cross the x-z plane"
-    return None
-
-
 def body_shape(pm: Any, body: Any, b: Any) -> Any:
-    """The body's x-z cross-section as a pymunk shape (body-local (x, z) ->
-    2D local (x, y)); no mass of its own."""
-    if b.shape == "sphere":
-        return pm.Circle(body, float(b.radius))
-    if b.shape == "box":
-        hx, hz = float(b.half_extents[0]), float(b.half_extents[2])
-        return pm.Poly.create_box(body, (2.0 * hx, 2.0 * hz), 0.0)
-    if b.shape == "capsule":
-        h = float(b.half_length)
-        return pm.Segment(body, (0.0, -h), (0.0, h), float(b.radius))
-    if b.shape == "cylinder":
-        return pm.Poly.create_box(body, (2.0 * float(b.radius), 2.0 * float(b.half_length)), 0.0)
-    raise Unsupported(f"pymunk adapter has no shape {b.shape}")  # pragma: no cover
+    """The body's planar stand-in (:func:`adapters.planar.planar_shape`) as a
+    pymunk shape (2D local (x, y)); no mass of its own."""
+    p = planar_shape(b)
+    if p.kind == "circle":
+        return pm.Circle(body, p.radius)
+    if p.kind == "box":
+        return pm.Poly.create_box(body, (2.0 * p.half[0], 2.0 * p.half[1]), 0.0)
+    return pm.Segment(body, (0.0, -p.half[1]), (0.0, p.half[1]), p.radius)  # capsule
 
 
 def static_shape(pm: Any, static_body: Any, s: Any) -> Any:
     """A static plane (solid below n . x = offset) or box as a pymunk Poly in
     world 2D coordinates."""
     if s.shape == "plane":
-        nx, ny = world_point_to_planar(s.normal)
-        p0x, p0y = s.offset * nx, s.offset * ny
+        (p0x, p0y), (nx, ny) = plane_line(s)
         tx, ty = -ny, nx  # along the line
         L, D = PLANE_HALF_LENGTH, PLANE_DEPTH
         verts = [
@@ -125,8 +101,7 @@ def static_shape(pm: Any, static_body: Any, s: Any) -> Any:
         ]
         return pm.Poly(static_body, verts, None, 0.0)
     # box: x-z cross-section, turned by its planar angle about y
-    (cx, cy), _, angle, _ = planar_from_world(s.position, np.zeros(3), s.orientation, np.zeros(3))
-    hx, hz = float(s.half_extents[0]), float(s.half_extents[2])
+    (cx, cy), angle, (hx, hz) = static_box_pose(s)
     ca, sa = math.cos(angle), math.sin(angle)
     verts = [(cx + ca * px - sa * py, cy + sa * px + ca * py)
              for px, py in ((-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz))]

@@ -13,7 +13,7 @@ Stepping
     substeps of dt/S, each with ``num_internal_pgs_iterations`` PGS sweeps,
     and integrates each substep velocity first (v += a h, then x += v h):
     free fall from rest gives z_k = -g dt^2 k (k + 1/S) / 2
-    (tests/test_adapter_rapier.py::test_free_fall_substeps).
+    (tests/test_closed_forms.py::test_free_fall).
 
 Bodies
     A dynamic body per scene body, posed at its centre of mass (Rapier takes
@@ -59,9 +59,14 @@ Contacts
     -dist, so speculative contacts within the prediction distance come out
     negative).
 
+State reads
+    One ``RigidBodySet.to_bytes()`` per step holds every body's state
+    (:mod:`adapters.rapier_batch`, checked against the per-body getters after
+    every recorded block); the four getters per body are the fallback.
+
 Sibling modules: settings and colliders in :mod:`adapters.rapier_scene`, the
-force laws in :mod:`adapters.forces`, material factors in
-:mod:`adapters.materials`.
+state reader in :mod:`adapters.rapier_batch`, the force laws in
+:mod:`adapters.forces`, material factors in :mod:`adapters.materials`.
 """
 
 from __future__ import annotations
@@ -71,22 +76,18 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
+from physbench.adapters import bare_loops
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version, optional_import
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.materials import per_material_factors, per_object_factors
+from physbench.adapters.rapier_batch import SetBytesReader, getter_rows
 from physbench.adapters.rapier_joints import JOINT_KINDS, add_joints, tree_reason
 from physbench.adapters.rapier_scene import EFFECTS, SHAPES, STATIC_SHAPES, body_collider, static_collider
 from physbench.adapters.rapier_scene import settings as rapier_settings
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from physbench.contract.scene import Scene
 
-try:  # the engine; a missing rapier3d only makes its runs unavailable
-    import rapier3d as rp
-
-    _IMPORT_ERROR = ""
-except Exception as _e:  # pragma: no cover - depends on the environment
-    rp = None
-    _IMPORT_ERROR = f"import rapier3d failed: {type(_e).__name__}: {_e}"
+rp, _IMPORT_ERROR = optional_import("rapier3d")  # the engine; a missing rapier3d only makes its runs unavailable
 
 ENGINE = "rapier"
 
@@ -148,6 +149,7 @@ class RapierAdapter(Adapter):
         ip.max_ccd_substeps = int(settings["max_ccd_substeps"])
         ip.friction_model = rp.FrictionModel.COULOMB if settings["friction_model"] == "coulomb" \
             else rp.FrictionModel.SIMPLIFIED
+        ip.contact_recycling = bool(settings["contact_recycling"])
         self._world = world
         contact = scene.has("contact")
         ccd = bool(settings["ccd"]) and contact
@@ -166,6 +168,7 @@ class RapierAdapter(Adapter):
                        .position((tuple(map(float, b.position)), tuple(map(float, wxyz_to_xyzw(b.orientation)))))
                        .linvel(tuple(map(float, b.velocity))).angvel(tuple(map(float, b.angular_velocity)))
                        .can_sleep(False).ccd_enabled(ccd).gyroscopic_forces(gyro)
+                       .allow_fast_rotation(bool(settings["fast_rotation"]))
                        .additional_mass_properties(rp.MassProperties(
                            mass=float(b.mass), principal_inertia=tuple(map(float, b.inertia)))))
             colliders = [material(body_collider(rp, b).density(0.0), ("body", b.index))] if contact else []
@@ -183,11 +186,16 @@ class RapierAdapter(Adapter):
             self.notes.append(DRAG_NOTE + "; held over Rapier's substeps" if joints else
                               "springs, dampers and drag: explicit forces from the state at the start of each "
                               "step, held over Rapier's substeps")
-        # live proxies (they follow the engine's state; measured 1.65 us per
-        # body per read against 2.33 us for a lookup by handle every time)
+        # live proxies (they follow the engine's state): the getters' fallback
+        # and the byte reader's check
         self._bodies = [world.rigid_bodies[h] for h in self._handles]
         self._n = scene.n_bodies
-        self._buf = np.empty((self._n, 13))
+        try:  # one call per step for every body's state (adapters.rapier_batch)
+            self._reader: SetBytesReader | None = SetBytesReader(rp, world, self._bodies)
+        except ValueError as e:
+            self._reader = None
+            self.info["state_reader_fallback"] = str(e)
+        self.info["state_reader"] = "set_bytes" if self._reader is not None else "getters"
         self.steps = 0
         self._stages = {
             "gravity": bool(np.any(scene.gravity != 0)), "contact": contact, "ccd": ccd,
@@ -259,49 +267,57 @@ class RapierAdapter(Adapter):
         self.steps += n
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """Step n times recording every step: the engine's per-body tuples
-        are only appended to a list while stepping (Rapier has no batched
-        read: four calls per body per step bound this adapter's overhead)
-        and converted to the (n, bodies, 3|4) blocks once, also the complete
-        steps before an exception."""
-        if self._forces is not None:
+        """Step n times recording every step: one ``to_bytes()`` of the
+        rigid-body set per step, copied into a reused row buffer, decoded
+        and converted to the (n, bodies, 3|4) blocks once
+        (:class:`adapters.rapier_batch.SetBytesReader`, its last row checked
+        against the getters on up to 16 bodies), also the complete steps
+        before an exception."""
+        if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
-        world, bodies = self._world, self._bodies
-        rows: list = []
-        add = rows.append
-        done = 0
+        reader = self._reader
+        step, blob = self._world.step, reader.blob
+        odd: dict = {}  # rows whose bytes have another length than the block's first
+        L, k = 0, 0
         try:
-            for _ in range(n):
-                world.step()
-                done += 1
-                for rb in bodies:
-                    add((*rb.translation.to_tuple(), *rb.rotation.to_tuple(), *rb.linvel.to_tuple(),
-                         *rb.angvel.to_tuple()))
+            for k in range(1, n + 1):
+                step()
+                b = blob()
+                if k == 1:
+                    L = len(b)
+                    rows = reader.rows(n, L)
+                try:
+                    rows[(k - 1) * L:k * L] = b
+                except ValueError:
+                    odd[k - 1] = b
+            k = n + 1
         finally:
-            self.steps += done
-            k = len(rows) // max(1, self._n) if self._n else done
+            k -= 1  # complete steps (the k-th raised if we left early)
+            self.steps += k
             self.block_done = k
-            if k and self._n:
-                a = np.array(rows[:k * self._n], float).reshape(k, self._n, 13)
-                pos[:k] = a[..., 0:3]
-                quat[:k] = xyzw_to_wxyz(a[..., 3:7])
-                vel[:k] = a[..., 7:10]
-                angvel[:k] = a[..., 10:13]
+            reader.rows_into(k, L, odd, pos[:k], quat[:k], vel[:k], angvel[:k])
+        if k and self._n:  # what landed in the last recorded row, against the getters
+            i = k - 1
+            reader.check(np.concatenate([quat[i][:, [1, 2, 3, 0]], pos[i], vel[i], angvel[i]], axis=1), sample=16)
+
+    @staticmethod
+    def _write(a: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """Rows [qx, qy, qz, qw, x, y, z, v, w] (..., 13) into the harness's
+        arrays (Rapier's (x, y, z, w) quaternion to wxyz)."""
+        pos[...] = a[..., 4:7]
+        quat[...] = xyzw_to_wxyz(a[..., 0:4])
+        vel[...] = a[..., 7:10]
+        angvel[...] = a[..., 10:13]
+
+    bare_record = bare_loops.rapier
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
         m/s and angular (n, 3) rad/s velocities, world frame, about the
-        centre of mass: four reads per body (Rapier has no batched read of
-        rigid bodies), gathered into one (n, 13) buffer and converted once
-        (Rapier's (x, y, z, w) quaternion to wxyz)."""
-        buf = self._buf
-        for k, rb in enumerate(self._bodies):
-            buf[k] = (*rb.translation.to_tuple(), *rb.rotation.to_tuple(), *rb.linvel.to_tuple(),
-                      *rb.angvel.to_tuple())
-        pos[...] = buf[:, 0:3]
-        quat[...] = xyzw_to_wxyz(buf[:, 3:7])
-        vel[...] = buf[:, 7:10]
-        angvel[...] = buf[:, 10:13]
+        centre of mass: one ``to_bytes()`` of the set decoded (the four
+        getters per body without the byte reader)."""
+        a = self._reader.decode([self._reader.blob()])[0] if self._reader is not None else getter_rows(self._bodies)
+        self._write(a, pos, quat, vel, angvel)
 
     def contacts(self) -> np.ndarray:
         """The narrow phase's solver contacts after the last step: rows
@@ -326,3 +342,4 @@ class RapierAdapter(Adapter):
         self._world = None
         self._handles = []
         self._bodies = []
+        self._reader = None

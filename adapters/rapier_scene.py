@@ -65,6 +65,15 @@ def settings() -> dict[str, Setting]:
             "friction_model: 'simplified' (one friction constraint per manifold plus a twist "
             "constraint; Rapier default) or 'coulomb' (one per contact point)",
             choices=("simplified", "coulomb")),
+        "contact_recycling": Setting(
+            "contact_recycling", True, bool,
+            "contact_recycling: keep a manifold's normal and points while they stay within the recycle "
+            "distance (Rapier default on; docs/ENGINE_FINDINGS.md: it tilts oblique impacts found "
+            "within the 2 cm prediction distance)"),
+        "fast_rotation": Setting(
+            "fast_rotation", False, bool,
+            "allow_fast_rotation on every body: lift Rapier's cap of angular speed at pi/4 rad per step "
+            "(Rapier default off: capped)"),
     }
 
 

@@ -5,9 +5,11 @@ style of Box2D's benchmark, timed interleaved over several repeats; medians
 and ratios are printed, never asserted in tests:
 
 - ``overhead``: per engine, the same scene stepped by the runner with full
-  state recording every step vs a bare loop of the engine's own step call
-  (``Adapter.bare_loop(n)``) and vs the adapter's fastest bare stepping
-  (``Adapter.step(n)``), all after the same build.  Ratios runner / bare.
+  state recording every step vs the bare loop (``Adapter.bare_record``: the
+  engine's step call and its cheapest read of every body's state, in a
+  Python loop), vs the step call alone (``Adapter.bare_loop(n)``) and vs the
+  adapter's fastest bare stepping (``Adapter.step(n)``), all after the same
+  build.  Ratios runner / each.
 - ``cost``: the reference engine vs pybullet (maximal coordinates) on the same
   scenes (a 10-box column, 100 and 1000 spheres on a plane, a planar
   10-box pyramid) at the same dt and solver iterations: per-step CPU time and
@@ -102,14 +104,19 @@ def _time_bare(engine: str, scene: Scene, steps: int, settings: dict[str, Any] |
                loop: str = "bare_loop") -> float:
     """CPU seconds of ``steps`` steps by the adapter's ``loop`` method
     (``bare_loop``: the engine's public step call in a Python loop;
-    ``step``: the adapter's fastest stepping, e.g. MuJoCo's C loop), after
-    the same build as the runner's."""
+    ``step``: the adapter's fastest stepping, e.g. MuJoCo's C loop;
+    ``bare_record``: the public step call and the engine's cheapest read of
+    every body's state after each step), after the same build as the
+    runner's."""
     cls = get_adapter(engine)
     a = cls()
     a.build(scene, cls.resolve_settings(scene, settings))
     f = getattr(a, loop)
     c0 = time.process_time()
-    f(steps)
+    if loop == "bare_record":
+        f(steps, scene.n_bodies)
+    else:
+        f(steps)
     c = time.process_time() - c0
     a.close()
     return c
@@ -136,13 +143,18 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
     """Runner-with-recording vs bare engine loops, interleaved.  Returns rows.
 
     Per scene and engine, each repeat times, one after the other on fresh
-    builds: the engine's public step call in a Python loop (``api``: the
-    issue's baseline, e.g. ``mujoco.mj_step(m, d)`` or ``space.step(dt)``),
-    the adapter's fastest bare stepping (``fast``: MuJoCo's ``mj_step(m, d,
-    n)`` looping in C, pymunk's cpSpaceStep without its Python wrapper), and
-    the runner recording every step.  ``ratio`` = runner / api and
-    ``ratio_vs_fast`` = runner / fast (the stricter yardstick: what recording
-    costs over the cheapest way to step at all), medians over repeats.
+    builds: the engine's public step call in a Python loop (``api``, e.g.
+    ``mujoco.mj_step(m, d)`` or ``space.step(dt)``); the adapter's fastest
+    bare stepping (``fast``: MuJoCo's ``mj_step(m, d, n)`` looping in C,
+    pymunk's cpSpaceStep without its Python wrapper); the bare loop (``bare``:
+    the public step call and, after every step, the engine's cheapest read
+    of every body's position, orientation and velocities in its own form,
+    ``Adapter.bare_record``: what any caller recording a trajectory pays at
+    least); and the runner recording every step.  ``ratio`` = runner / bare
+    (the runner's own overhead: conversion, storage, checks), ``ratio_vs_api``
+    = runner / api and ``ratio_vs_fast`` = runner / fast (what recording
+    costs in all over stepping alone), ``read_us_per_step`` = bare - api (the
+    engine's read), medians over repeats.
     """
     rows = []
     for bs, dur in OVERHEAD_SCENES:
@@ -154,22 +166,25 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
                 rows.append({"scene": bs.name, "engine": engine, "status": "unsupported"})
                 continue
             steps = scene.n_steps
-            api, fast, runner = [], [], []
+            api, fast, bare, runner = [], [], [], []
             _time_bare(engine, scene, min(steps, 200), None)  # warm-up (imports, caches)
             _time_runner(engine, scene, None)
             for _ in range(repeats):
                 api.append(_time_bare(engine, scene, steps, None, "bare_loop"))
                 fast.append(_time_bare(engine, scene, steps, None, "step"))
+                bare.append(_time_bare(engine, scene, steps, None, "bare_record"))
                 runner.append(_time_runner(engine, scene, None))
-            ma, mf, mr = statistics.median(api), statistics.median(fast), statistics.median(runner)
+            ma, mf, mb, mr = (statistics.median(x) for x in (api, fast, bare, runner))
             rows.append({
                 "scene": bs.name, "engine": engine, "status": "ok", "steps": steps,
                 "api_us_per_step": 1e6 * ma / steps,
                 "fast_us_per_step": 1e6 * mf / steps,
+                "bare_us_per_step": 1e6 * mb / steps,
                 "runner_us_per_step": 1e6 * mr / steps,
-                "ratio": mr / ma,
+                "ratio": mr / mb,
+                "ratio_vs_api": mr / ma,
                 "ratio_vs_fast": mr / mf,
-                "recording_us_per_step": 1e6 * (mr - mf) / steps,
+                "read_us_per_step": 1e6 * (mb - ma) / steps,
             })
     return rows
 

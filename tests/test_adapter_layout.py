@@ -41,3 +41,19 @@ def test_pymunk_internals_in_one_module():
     users = sorted(p.name for p in ADAPTERS.glob("*.py")
                    if any(name in p.read_text(encoding="utf-8") for name in PYMUNK_PRIVATE))
     assert users == ["pymunk_internals.py"]
+
+
+def test_optional_import_names_why_an_engine_is_missing():
+    """adapters.base.optional_import: a present package comes back with no
+    reason (its submodules imported too); a missing one is (None, the
+    import's error), never an exception -- the engine is then unavailable,
+    the others unaffected."""
+    from physbench.adapters.base import optional_import
+
+    mod, why = optional_import("json", "json.decoder")
+    assert why == "" and mod.__name__ == "json" and hasattr(mod, "decoder")
+    mod, why = optional_import("no_such_engine_package_xyz")
+    assert mod is None
+    assert why.startswith("import no_such_engine_package_xyz failed: ModuleNotFoundError:")
+    mod, why = optional_import("json", "json.no_such_submodule_xyz")
+    assert mod is None and "json.no_such_submodule_xyz" in why

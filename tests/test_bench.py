@@ -40,9 +40,12 @@ def test_overhead_rows_are_consistent():
     assert {(r["scene"].split()[0], r["engine"]) for r in rows if r["status"] == "unsupported"} == {("column_10", "pymunk")}
     assert len(ok) == 5
     for r in ok:
-        assert _pos(r["api_us_per_step"]) and _pos(r["fast_us_per_step"]) and _pos(r["runner_us_per_step"])
-        assert r["ratio"] == pytest.approx(r["runner_us_per_step"] / r["api_us_per_step"])
+        for k in ("api", "fast", "bare", "runner"):
+            assert _pos(r[f"{k}_us_per_step"]), (k, r)
+        assert r["ratio"] == pytest.approx(r["runner_us_per_step"] / r["bare_us_per_step"])
+        assert r["ratio_vs_api"] == pytest.approx(r["runner_us_per_step"] / r["api_us_per_step"])
         assert r["ratio_vs_fast"] == pytest.approx(r["runner_us_per_step"] / r["fast_us_per_step"])
+        assert r["read_us_per_step"] == pytest.approx(r["bare_us_per_step"] - r["api_us_per_step"])
 
 
 def test_broadphase_scaling_runs_and_fits():
@@ -149,3 +152,30 @@ def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled
     assert [r["wall_s"] for r in rows] == [3.0, 4.0, 5.0, 6.0, 7.0]
     assert rows[0]["first_step_s"] is None and rows[2]["first_step_s"] == 0.5 and rows[4]["compiled"] == 2
     assert not any(os.path.exists(d) for d in (d1, d3, d5))  # temporary
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "pymunk", "pybullet", "rapier", "box2d"])
+def test_bare_record_steps_the_same_simulation(engine):
+    """The overhead benchmark's bare loop (Adapter.bare_record: step call and
+    raw state read, kept) advances the scene exactly as the adapter's
+    step(n): the same state bit for bit, on the bench's planar pyramid
+    (contacts and friction), so `ratio` compares like with like."""
+    cls = get_adapter(engine)
+    if not cls.capabilities().available:
+        pytest.skip(f"{engine} not installed")
+    scene = bench.pyramid_scene(4)
+    states = []
+    for loop in ("step", "bare_record"):
+        a = cls()
+        a.build(scene, cls.resolve_settings(scene))
+        if loop == "step":
+            a.step(300)
+        else:
+            a.bare_record(300, scene.n_bodies)
+        out = [np.empty((scene.n_bodies, k)) for k in (3, 4, 3, 3)]
+        a.read_state(*out)
+        a.close()
+        states.append(out)
+    assert np.abs(states[0][0][:, 2] - 0.1).max() < 1.0  # the pyramid is there, finite
+    for x, y in zip(*states):
+        np.testing.assert_array_equal(x, y)

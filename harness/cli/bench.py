@@ -27,8 +27,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
             # milliseconds, so its overhead is lost in noise and takes minutes
             rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet", "rapier", "box2d"],
                                   repeats=args.repeats)
-            bench.print_rows(rows, "runner recording every step vs bare loops: api = the engine's step call in a "
-                                   "Python loop, fast = the adapter's fastest stepping (CPU time, medians)")
+            bench.print_rows(rows, "runner recording every step vs bare loops: bare = the engine's step call and its "
+                                   "cheapest read of every body's state in a Python loop (ratio = runner / bare), "
+                                   "api = the step call alone, fast = the adapter's fastest stepping (CPU time, "
+                                   "medians)")
         elif args.kind == "compile":
             # fresh processes, each on a temporary compiled-kernel cache
             # (--engines and --repeats do not apply: one cold start is minutes)
