@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Generator
 
-from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_steps
+from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
 EVAL_ROW, RESULT_ROW = "limit_eval", "limit"
@@ -320,13 +320,38 @@ def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
     return row
 
 
-def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]]
-                 ) -> Generator[EvalItem, dict[str, Any], tuple[SearchResult, dict[str, Any]]]:
-    """Search ``req`` as a generator: yields each evaluation to run (an
-    :class:`EvalItem`), receives its row, returns (result, summary row).
-    Evaluations whose key is in ``cached`` are read back (not yielded);
-    every new row is handed to ``store``.  The summary row (``row_kind`` =
-    ``limit``) is the caller's to store."""
+def _decided(rows: list[dict[str, Any] | None]) -> bool:
+    """Whether a value's verdict is known from its phase rows (phase order,
+    None where not run): every phase up to and including the first failing
+    one, or all phases, have a row."""
+    for r in rows:
+        if r is None:
+            return False
+        if not r.get("limit_holds"):
+            return True
+    return True
+
+
+def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
+                 width: int | Callable[[], int] = 1
+                 ) -> Generator[list[EvalItem], list[dict[str, Any]], tuple[SearchResult, dict[str, Any]]]:
+    """Search ``req`` as a generator: yields each round of evaluations to
+    run at once (a list of :class:`EvalItem`), receives their rows (a list,
+    in the same order), returns (result, summary row).
+
+    ``width`` (a number, or a function asked before each round): at most
+    this many items a round (at least one).  The pure search
+    (:func:`harness.limit_search.search_rounds`) gets ``width // phases``
+    values a round (at least one); a value's step phases run side by side,
+    up to ``width`` at a time, in phase order, and a value is decided once
+    its phases up to the first failing one have rows (its verdict is
+    :func:`verdict_of_rows` of those: the reason is the first failing
+    phase's, as one phase after the other).  Width 1 is the one-at-a-time
+    search: one item a round, phases in order, stopping at the first
+    failing one.  Evaluations whose key is in ``cached`` are read back (not
+    yielded); every new row is handed to ``store``.  The summary row
+    (``row_kind`` = ``limit``) is the caller's to store.  Tests:
+    tests/test_schedule.py::test_wide_rounds_give_the_serial_answers_sooner."""
     from physbench.contract.phase import phase_values
     from physbench.contract.scene import load_scene
 
@@ -337,25 +362,53 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
         from physbench.adapters import get_adapter
 
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
-    new_runs = 0
-    steps = search_steps(req.lo, req.hi, req.tol, integer=integer, param=req.param)
+    wide: Callable[[], int] = width if callable(width) else (lambda: int(width))
+    budget = [1]
+
+    def values_per_round() -> int:
+        budget[0] = max(1, int(wide()))
+        return max(1, budget[0] // len(phases))
+
+    new_runs = rounds = 0
+    steps = search_rounds(req.lo, req.hi, req.tol, integer=integer, param=req.param, width=values_per_round)
     try:
-        value = next(steps)
+        values = next(steps)
         while True:
-            rows = []
-            for f in phases:  # one failing phase decides
-                item = EvalItem(req, limit_id, value, f)
-                row = cached.get(item.key)
-                if row is None:
-                    row = yield item
+            rows = {v: [cached.get(EvalItem(req, limit_id, v, f).key) for f in phases] for v in values}
+            first_round = True
+            while not all(_decided(rows[v]) for v in values):
+                n = budget[0] if first_round else max(1, int(wide()))
+                first_round = False
+                todo: list[tuple[float, int]] = []
+                for v in values:  # the phases a value still needs: those before its first known failure
+                    for i, r in enumerate(rows[v]):
+                        if r is not None and not r.get("limit_holds"):
+                            break
+                        if r is None:
+                            todo.append((v, i))
+                items = [EvalItem(req, limit_id, v, phases[i]) for v, i in todo[:n]]
+                got = yield items
+                rounds += 1
+                for (v, i), row in zip(todo[:n], got):
                     store(row)
                     new_runs += 1
-                rows.append(row)
-                if not row.get("limit_holds"):
-                    break
-            value = steps.send(verdict_of_rows(rows))
+                    rows[v][i] = row
+            verdicts = {}
+            for v in values:
+                done = []
+                for r in rows[v]:
+                    if r is None:
+                        break
+                    done.append(r)
+                    if not r.get("limit_holds"):
+                        break
+                ran = [r for r in rows[v] if r is not None]  # a wide round may have run phases past the failing one
+                verdicts[v] = dataclasses.replace(verdict_of_rows(done), runs=len(ran), cpu_s=float(
+                    sum(float(r.get("limit_cpu_s") or 0.0) for r in ran)))
+            values = steps.send(verdicts)
     except StopIteration as stop:
         res: SearchResult = stop.value
+    res.rounds = rounds  # rounds of runs (a value's phases may take several; rows read back take none)
     scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     summary = {
         "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
@@ -366,7 +419,7 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
         "limit_lo": res.bracket[0] if res.bracket else math.nan,
         "limit_hi": res.bracket[1] if res.bracket else math.nan,
         "limit_direction": res.direction, "limit_failed_check": res.failed_check,
-        "limit_runs": res.runs, "limit_new_runs": new_runs, "limit_cpu_s": res.cpu_s,
+        "limit_runs": res.runs, "limit_new_runs": new_runs, "limit_rounds": res.rounds, "limit_cpu_s": res.cpu_s,
         "limit_range_lo": float(req.lo), "limit_range_hi": float(req.hi), "limit_tol": req.tol,
         "limit_phases": req.phases, "limit_checks": ",".join(req.checks),
         "limit_settings": json.dumps(dict(req.settings), sort_keys=True, default=str),
@@ -381,4 +434,5 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
     (:func:`search_items` driven by ``evaluate``).  Returns the result and
     its summary row (the caller stores it).  A sweep runs its searches
     concurrently with its points instead: harness/schedule.py."""
-    return drive(search_items(req, store, cached), lambda it: evaluate(it.req, it.limit_id, it.value, it.phase))
+    return drive(search_items(req, store, cached),
+                 lambda items: [evaluate(it.req, it.limit_id, it.value, it.phase) for it in items])

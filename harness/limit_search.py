@@ -93,7 +93,7 @@ class SearchResult:
     def as_dict(self) -> dict[str, Any]:
         return {"limit": self.limit, "bracket": list(self.bracket) if self.bracket else None,
                 "failed_check": self.failed_check or None, "runs": self.runs, "cpu_s": self.cpu_s,
-                "rounds": self.rounds, "outcome": self.outcome, "direction": self.direction, "param": self.param,
+                "outcome": self.outcome, "direction": self.direction, "param": self.param,
                 "range": [self.lo, self.hi], "tol": self.tol,
                 "evaluations": [{"value": x, "holds": v.holds, "reason": v.reason or None} for x, v in self.evaluations]}
 

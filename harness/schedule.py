@@ -7,20 +7,27 @@ A sweep's points are independent of each other; a breaking-point search
 depends on the verdict of the last.  Run after the points, the searches
 leave workers idle at the tail (two workers, one search left: one idles).
 Here every search is a generator (:func:`harness.limits.search_items`)
-held by the scheduler, with at most one evaluation in flight, and the
-executor reads its items from a source that hands out:
+held by the scheduler, with at most one round of evaluations in flight:
+once every point has been handed out, a round holds up to
+``jobs // unfinished searches`` items (at least one; one before that),
+the value the chain needs next, its other step phases and the values the
+chain may need after it (harness/limit_search.py "Rounds"), so a chain
+spreads over the workers the other searches leave; the answers are the
+one-at-a-time answers.  The executor reads its items from a source that
+hands out:
 
 1. the next evaluation of a search, the longest search first (its expected
-   cost: ``search_cost``): chains are the critical path, a chain cannot be
-   spread over workers, so it must never wait behind a point;
+   cost: ``search_cost``): chains are the critical path, so they must
+   never wait behind a point;
 2. else the next point, longest first (``point_cost``): the short ones
    fill the tail;
 3. else :data:`harness.execute.WAIT`: every unfinished search has its
-   evaluation in flight and no point is left; the executor asks again
+   round in flight and no point is left; the executor asks again
    after its next result.
 
 With one worker the order changes nothing but the progress display: the
-points run in their planned order, then the searches.
+points run in their planned order, then the searches, one evaluation at
+a time.
 
 Everything else is the executors': the watchdog (a point or an evaluation
 whose worker dies or hangs becomes an ``error``/``timeout`` row naming why),
@@ -101,7 +108,7 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
                  store_eval: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]] | None = None,
                  on_start: Callable[[Point], None] | None = None,
                  point_cost: Callable[[Point], float] | None = None,
-                 search_cost: Callable[[LimitRequest], float] | None = None) -> None:
+                 search_cost: Callable[[LimitRequest], float] | None = None, wide_rounds: bool = True) -> None:
     """Run ``points`` and ``searches`` through ``executor`` (module
     docstring).  Each point's row goes to ``on_point_row`` as it finishes,
     each new evaluation's row to ``store_eval``, each search's result and
@@ -110,7 +117,8 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
     ``point_cost`` / ``search_cost``: expected seconds (larger runs
     first; default: the order given); points are batched by ``point_cost``
     into units of the executor's ``batch_s`` seconds (:func:`batched`).  ``on_start(point)`` when a point
-    starts (harness/execute.py: Dask calls it as the result arrives)."""
+    starts (harness/execute.py: Dask calls it as the result arrives).  ``wide_rounds`` False: every
+    search one evaluation at a time, whatever the workers (the benchmark's comparison)."""
     cached = cached or {}
     # one worker: the order does not change the wall time; keep the planned one (points, then searches)
     parallel = getattr(executor, "jobs", 1) > 1
@@ -119,31 +127,50 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
     if not parallel:
         search_cost = None
     # points batched into units of the executor's batch_s expected seconds (Dask: a task's own cost is
-    # worth it only for ~0.1 s of work); searches are chains, one evaluation at a time, never batched
+    # worth it only for ~0.1 s of work); a search's evaluations are never batched (a round's go out side by side)
     todo = iter(batched([points[i] for i in order], point_cost, float(getattr(executor, "batch_s", 0.0) or 0.0)))
     seq = itertools.count()
     ready: list[tuple[float, int, EvalItem]] = []  # heap: (-search cost, tie, item)
     owner: dict[int, tuple[Any, LimitRequest, float]] = {}  # id(item) -> (its search's generator, req, cost)
+    rounds: dict[int, tuple[list[EvalItem], dict[int, dict[str, Any]]]] = {}  # id(gen) -> (round, rows so far)
     active = 0
-    points_left = [True]
+    points_left = [bool(points)]
 
-    def advance(gen: Any, req: LimitRequest, cost: float, row: dict[str, Any] | None) -> None:
-        """Feed a search its last row (None: start it); queue its next
-        evaluation, or finish it."""
+    def width() -> int:
+        """Items a search's next round may hold: once no point is left to
+        hand out, the workers shared out over the unfinished searches; 1
+        before that, and with one worker (the one-at-a-time search)."""
+        if not (parallel and wide_rounds) or points_left[0]:
+            return 1  # while points wait, a worker has a point to run: a wide round's extra values would cost
+        return max(1, getattr(executor, "jobs", 1) // max(1, active))
+
+    def advance(gen: Any, req: LimitRequest, cost: float, got: list[dict[str, Any]] | None) -> None:
+        """Feed a search its last round's rows (None: start it); queue its
+        next round, or finish it."""
         nonlocal active
         try:
-            item = next(gen) if row is None else gen.send(row)
+            items = next(gen) if got is None else gen.send(got)
         except StopIteration as stop:
             active -= 1
             res, summary = stop.value
             on_search_done(req, res, summary)
             return
-        owner[id(item)] = (gen, req, cost)
-        heapq.heappush(ready, (-cost, next(seq), item))
+        rounds[id(gen)] = (items, {})
+        for item in items:
+            owner[id(item)] = (gen, req, cost)
+            heapq.heappush(ready, (-cost, next(seq), item))
 
+    def answered(item: EvalItem, row: dict[str, Any]) -> None:
+        gen, req, cost = owner.pop(id(item))
+        items, got = rounds[id(gen)]
+        got[id(item)] = row
+        if len(got) == len(items):
+            del rounds[id(gen)]
+            advance(gen, req, cost, [got[id(it)] for it in items])
+
+    active = len(searches)
     for req in sorted(searches, key=lambda r: -search_cost(r)) if search_cost else searches:
-        active += 1
-        advance(search_items(req, store_eval, cached), req, search_cost(req) if search_cost else 0.0, None)
+        advance(search_items(req, store_eval, cached, width), req, search_cost(req) if search_cost else 0.0, None)
 
     def source() -> Iterator[Any]:
         while True:
@@ -168,8 +195,7 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
     for item, value in executor.map(run_item, source(), budget_s=item_budget, on_start=started,
                                     priority=item_priority):
         if isinstance(item, EvalItem):
-            gen, req, cost = owner.pop(id(item))
-            advance(gen, req, cost, lost_eval_row(item, value) if isinstance(value, WorkerLost) else value)
+            answered(item, lost_eval_row(item, value) if isinstance(value, WorkerLost) else value)
         else:
             on_point_row(item, lost_point_row(item, value) if isinstance(value, WorkerLost) else value)
     if active:  # the source ends only when every search has finished

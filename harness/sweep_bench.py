@@ -264,12 +264,18 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     """The makespan on ``jobs`` uncontended workers of a sweep's items,
     each taking the wall time it took in ``sweep`` (a DataFrame of a
     finished sweep of ``suite``, best a 1-worker one; the searches take the
-    same path, their verdicts read from its rows): ``total_s`` (all items,
-    one worker), ``ideal_s`` (total / jobs, or the longest search if
-    longer), ``new_s`` (harness/schedule.py's order), ``old_s`` (the points
-    in planned order, then the searches, ``jobs`` at a time, each
-    sequential: the path before), and the speed-ups total / new, total /
-    old: what the schedule allows before any contention or overhead.  The
+    same path, their verdicts read from its rows, in rounds as wide as the
+    virtual workers allow: a value the stored search did not evaluate holds
+    on its limit's side and takes the mean time of its evaluations):
+    ``total_s`` (all items,
+    one worker), ``ideal_s`` (total / jobs), ``new_s``
+    (harness/schedule.py's order and rounds), ``narrow_s`` (the same, every
+    search one value at a time: the schedule before wide rounds), ``work_s`` (the worker
+    seconds it spent: total and a wide round's extra evaluations),
+    ``old_s`` (the points in planned order, then the searches, ``jobs`` at
+    a time, each one value at a time: the path before), and the speed-ups
+    total / new, total / old: what the schedule allows before any
+    contention or overhead.  The
     new order knows the items' times (as a sweep does from the one before
     it)."""
     import math
@@ -281,14 +287,32 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     points = expand(s, engines, scenarios)
     reqs = [r for r in s.limits if (engines is None or r.engine in engines)
             and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
-    rows = {r["point_key"]: r for r in sweep.to_dict("records")}
+    records = sweep.to_dict("records")
+    rows = {r["point_key"]: r for r in records}
+    # a wide round's values the stored (serial) search did not evaluate: they hold on the limit's side of
+    # its bracket and take the mean time of its stored evaluations; the search's decisions never read them
+    summaries = {r["limit_id"]: r for r in records if r.get("row_kind") == "limit"}
+    mean_s: dict[str, list[float]] = {}
+    for r in records:
+        if r.get("row_kind") == "limit_eval" and math.isfinite(w := float(r.get("point_wall_s", math.nan))):
+            mean_s.setdefault(r["limit_id"], []).append(w)
+
+    def modelled(item: Any) -> dict[str, Any]:
+        s = summaries.get(item.limit_id, {})
+        limit, outcome = s.get("limit_value", math.nan), s.get("limit_outcome")
+        holds = outcome == "holds_throughout" or (outcome == "found" and (
+            item.value <= limit if s.get("limit_direction") == "below" else item.value >= limit))
+        ws = mean_s.get(item.limit_id, [0.0])
+        return {"point_key": item.key, "limit_value": item.value, "phase": item.phase, "limit_holds": bool(holds),
+                "limit_reason": "" if holds else "modelled", "limit_cpu_s": 0.0, "status": "ok",
+                "point_wall_s": sum(ws) / len(ws)}
 
     def duration(item: Any) -> float:
-        w = float(rows[item.key]["point_wall_s"])
+        w = float((rows.get(item.key) or modelled(item))["point_wall_s"])
         return w if math.isfinite(w) else 0.0
 
     def answer(item: Any) -> dict[str, Any]:
-        return dict(rows[item.key])
+        return dict(rows.get(item.key) or modelled(item))
 
     total = sum(duration(p) for p in points)
     search_s: dict[int, float] = {}
@@ -307,14 +331,19 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     new = VirtualExecutor(jobs, duration, answer)
     run_schedule(new, points, reqs, lambda p, r: None, done, lambda r: None,
                  point_cost=duration, search_cost=lambda r: by_req.get(id(r), 0.0))
+    narrow = VirtualExecutor(jobs, duration, answer)
+    run_schedule(narrow, points, reqs, lambda p, r: None, done, lambda r: None,
+                 point_cost=duration, search_cost=lambda r: by_req.get(id(r), 0.0), wide_rounds=False)
     old_points = VirtualExecutor(jobs, duration, answer)
     run_schedule(old_points, points, [], lambda p, r: None, done, lambda r: None)
     old = old_points.makespan + _list_schedule(chains, jobs)
-    ideal = max(total / jobs, max(chains, default=0.0))
+    ideal = total / jobs
     return {"jobs": jobs, "points": len(points), "searches": len(reqs), "evaluations": len(ex.started),
-            "total_s": total, "ideal_s": ideal, "new_s": new.makespan, "old_s": old,
+            "total_s": total, "ideal_s": ideal, "new_s": new.makespan, "narrow_s": narrow.makespan,
+            "old_s": old, "work_s": new.busy,
             "longest_search_s": max(chains, default=0.0), "longest_point_s": max(map(duration, points), default=0.0),
             "speedup_new": total / new.makespan if new.makespan else math.nan,
+            "speedup_narrow": total / narrow.makespan if narrow.makespan else math.nan,
             "speedup_old": total / old if old else math.nan}
 
 
@@ -554,8 +583,10 @@ def main(argv: list[str] | None = None) -> int:
         _print_scaling(sc)
     for rp in replays:
         print(f"replay of the first run's item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
-              f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "
-              f"points then searches {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
+              f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x; "
+              f"{rp['work_s']:.1f} s of work with the wide rounds' extra evaluations; one value at a time "
+              f"{rp['narrow_s']:.1f} s, {rp['speedup_narrow']:.2f}x), "
+              f"points then searches one value at a time {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
               f"{rp['longest_search_s']:.1f} s, longest point {rp['longest_point_s']:.1f} s")
     if store:
         _print_store(store)
