@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from physbench.harness.limit_eval import load_at as _load_at
 from physbench.harness.limit_eval import (EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, Runner, evaluate_item,
                                 evaluate_point, is_engine_setting, judge, load_at, lost_eval_row, run_search,
                                 search_items, spec_hash, verdict_of_rows)
@@ -106,6 +107,13 @@ def validate_request(req: LimitRequest) -> list[str]:
     from physbench.contract.spec import SpecError
 
     errs: list[str] = []
+    scenes: dict[float, Any] = {}
+
+    def load_at(req: LimitRequest, value: float) -> Any:  # each end's scene loaded once (SpecError: each time)
+        if value not in scenes:
+            scenes[value] = _load_at(req, value)
+        return scenes[value]
+
     if req.engine not in engine_names():
         return [f"--engine: unknown engine {req.engine!r}; known: {', '.join(engine_names())}"]
     if not (req.lo < req.hi):

@@ -389,15 +389,24 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     from physbench.contract.scene import load_scene, n_steps
     from physbench.contract.spec import record_size_error
 
+    scenes: dict[int, Any] = {}  # a scene does not depend on the engine: loaded once per entry
+
+    def scene_of(i: int, entry: SuiteEntry) -> Any:
+        if i not in scenes:
+            try:
+                scenes[i] = load_scene(entry.path or entry.scenario, entry.variant)
+            except SpecError:
+                scenes[i] = None  # reported where the scenario is listed
+        return scenes[i]
+
     for e, ax in axes.items():
         if "dt" not in ax:
             continue
         dt = min(float(v) for v in ax["dt"])
-        for entry in scen:
-            try:
-                sc = load_scene(entry.path or entry.scenario, entry.variant)
-            except SpecError:
-                continue  # reported where the scenario is listed
+        for i, entry in enumerate(scen):
+            sc = scene_of(i, entry)
+            if sc is None:
+                continue
             why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
             if why:
                 errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "

@@ -63,7 +63,9 @@ def _cpu() -> float:
 class CpuAccount:
     """CPU seconds (user + system) by role while it is entered: this
     process's main thread, its part-writer thread, its other threads, and
-    its descendants by kind (Dask worker processes, run processes, other),
+    its descendants by kind (Dask worker processes, run processes, other)
+    and, apart, the sampler thread's own CPU (``sampler``: no part of the
+    sweep; it counted as ``other threads`` before),
     sampled every ``dt`` seconds (a process's CPU up to its last sample;
     processes that exist at entry count from there).  ``report()`` is a
     dict of role -> CPU s, ``wall_s`` and ``cores`` (the CPU cores this
@@ -132,9 +134,12 @@ class CpuAccount:
         def used(tid: int) -> float:
             return self.threads[tid] - self.threads0.get(tid, 0.0)
 
+        me = self._thread.native_id  # the sampler: the measurement's own CPU, no part of the sweep's
         out = {"main thread": used(self.main) if self.main in self.threads else 0.0,
                "part writer": sum(used(t) for t in self.threads if t in self.writers),
-               "other threads": sum(used(t) for t in self.threads if t != self.main and t not in self.writers)}
+               "other threads": sum(used(t) for t in self.threads
+                                    if t != self.main and t not in self.writers and t != me),
+               "sampler": used(me) if me in self.threads else 0.0}
         for kind in ("dask worker processes", "run processes", "other processes"):
             out[kind] = sum(self.last[k] - self.first[k] for k in self.kind if self.kind[k] == kind)
         out["wall_s"] = self.wall
@@ -451,7 +456,8 @@ def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> 
     (main thread: start-up, the loop feeding the executor and receiving
     results (``client_loop_ms``), the merge; the part writer) and the scheduler's (a LocalCluster's scheduler, comms and
     nannies run in the client's other threads; with the process executor
-    those hold only the sampler) -- against the parallel CPU (run
+    there are none: its transport to the run processes is the main
+    thread's; the sampler's own CPU is left out) -- against the parallel CPU (run
     processes: the points' own CPU; Dask worker processes: their task
     handling and transport).  ``speedup[N]`` = 1 / (s + (1 - s) / N), s =
     serial / (serial + parallel): what N workers on cores of their own
