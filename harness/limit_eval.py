@@ -20,17 +20,19 @@ them).  ``checks`` restricts the criterion to checks of the named metrics
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
 import math
-import time
 import traceback
-import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Generator
 
+from physbench.harness.execute import RunRequest
+from physbench.harness.points import lost_row, request_row
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
@@ -201,46 +203,12 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
 
 def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
     """Run the request's scene with the parameter at ``value`` in step phase
-    ``phase`` and return its row: ``RunResult.row()`` plus the sweep point
-    columns and ``limit_*`` columns (``limit_holds``, ``limit_reason``).
+    ``phase`` and return its row (harness.points.request_row of the
+    evaluation's request: ``RunResult.row()``, the sweep's point columns
+    and the ``limit_*`` columns, ``limit_holds`` and ``limit_reason``).
     Never raises: a scene the value makes invalid, a run that raises, are
     rows whose verdict fails with the reason."""
-    from physbench.harness import runner
-    from physbench.contract.phase import shift_scene
-    from physbench.harness.points import PHASE_KEY, Point, _point_columns, _status_row
-
-    t0 = time.perf_counter()
-    settings = dict(req.settings)
-    engine_param = is_engine_setting(req.engine, req.param)
-    if engine_param:
-        settings[req.param] = value
-    pt = Point(req.scenario, req.variant, req.engine,
-               tuple(sorted({**settings, **({PHASE_KEY: phase} if phase else {})}.items())), 1, req.timeout_s)
-    scene = None
-    skipped: tuple[str, ...] = ()
-    try:
-        scene = load_at(req, value)
-        if phase:
-            scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
-        skipped = skipped_model_metrics(scene, req.engine, req.checks, req.bounds)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s, model_metrics=not skipped)
-        res.trace = None
-        row = res.row()
-        row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
-        holds, reason = judge(scene, res, req.checks, req.bounds)
-        cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
-        unsupported = res.status == "unsupported"
-    except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
-        from physbench.contract.spec import SpecError
-
-        msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
-        row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
-                          tb=None if isinstance(e, SpecError) else traceback.format_exc(limit=5))
-        holds, reason, cpu, unsupported = False, f"{req.param}={value!r}: {msg}", 0.0, False
-    row.update(_eval_columns(EvalItem(req, limit_id, value, phase), holds, reason, unsupported, cpu, skipped))
-    return row
+    return request_row(EvalItem(req, limit_id, value, phase).request())
 
 
 def _eval_columns(item: "EvalItem", holds: bool, reason: str, unsupported: bool, cpu: float,
@@ -284,11 +252,32 @@ def spec_hash(req: LimitRequest) -> str:
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
 
+def _filled(req: LimitRequest) -> tuple[tuple[str, Any], ...]:
+    """:func:`_fill_vector` of the searched key (it does not depend on the
+    value); () for an engine setting or a scene that does not load."""
+    return _filled_at(req.scenario, req.variant, req.engine, req.param)
+
+
+@lru_cache(maxsize=256)
+def _filled_at(scenario: str, variant: str | None, engine: str, param: str) -> tuple[tuple[str, Any], ...]:
+    from physbench.contract.scene import resolve_scenario
+    from physbench.contract.spec import load_spec
+
+    if is_engine_setting(engine, param):
+        return ()
+    try:
+        return tuple(_fill_vector(load_spec(resolve_scenario(scenario)), variant, param).items())
+    except Exception:
+        return ()  # the run's own load reports it
+
+
 @dataclass(frozen=True)
 class EvalItem:
-    """One evaluation of a search, as an executor item: ``req``'s scene with
-    the parameter at ``value`` in step phase ``phase``.  ``key`` is the
-    row's point key (a Dask task is keyed by it)."""
+    """One evaluation of a search: ``req``'s scene with the parameter at
+    ``value`` in step phase ``phase``.  ``key`` is the row's point key.
+    The executors run its :meth:`request`, whose ``probe`` it is: it adds
+    the evaluation's columns (its verdict, :func:`judge`) to the one row
+    builder's row (harness.points.request_row, failure_row)."""
 
     req: LimitRequest
     limit_id: str
@@ -299,25 +288,53 @@ class EvalItem:
     def key(self) -> str:
         return self.req.eval_key(self.limit_id, self.value, self.phase)
 
+    def request(self) -> RunRequest:
+        """The run of this evaluation: the engine setting, or the spec key
+        (the fixed overrides, the vector it is an element of, then the
+        value), at the step phase, one run within the search's timeout."""
+        req = self.req
+        settings = dict(req.settings)
+        overrides = dict(req.overrides)
+        if is_engine_setting(req.engine, req.param):
+            settings[req.param] = self.value
+        else:
+            overrides.update(copy.deepcopy(dict(_filled(req))))  # a vector default: a list of its own
+            overrides[req.param] = self.value
+        return RunRequest(req.scenario, req.engine, req.variant, settings, overrides, phase=self.phase,
+                          timeout_s=req.timeout_s, key=self.key, probe=self)
+
+    def skipped_metrics(self, scene: Any) -> tuple[str, ...]:
+        return skipped_model_metrics(scene, self.req.engine, self.req.checks, self.req.bounds)
+
+    def load_error(self, e: BaseException) -> tuple[str, str | None]:
+        """(message, traceback) of a scene the value does not load into."""
+        from physbench.contract.spec import SpecError
+
+        msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
+        return f"{self.req.param}={self.value!r}: {msg}", \
+            None if isinstance(e, SpecError) else traceback.format_exc(limit=5)
+
+    def columns(self, scene: Any, result: Any, skipped: tuple[str, ...]) -> dict[str, Any]:
+        """The evaluation's columns of a run: its verdict and step CPU."""
+        holds, reason = judge(scene, result, self.req.checks, self.req.bounds)
+        cpu = float(result.timing.get("step_cpu_s", 0.0) or 0.0)
+        return _eval_columns(self, holds, reason, result.status == "unsupported", cpu, skipped)
+
+    def failed_columns(self, message: str) -> dict[str, Any]:
+        """The evaluation's columns when it produced no run: fails, for ``message``."""
+        return _eval_columns(self, False, message, False, 0.0, ())
+
 
 def evaluate_item(item: EvalItem) -> dict[str, Any]:
-    """:func:`evaluate_point` of one EvalItem (an executor's function)."""
-    return evaluate_point(item.req, item.limit_id, item.value, item.phase)
+    """The row of one EvalItem (harness.points.request_row of its request)."""
+    return request_row(item.request())
 
 
 def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
     """The row of an evaluation whose worker died, hung or raised
     (``lost``: a harness.execute.WorkerLost): its status and message, and
-    a verdict that does not hold for that reason."""
-    from physbench.harness.points import Point, _status_row
-
-    req = item.req
-    why = lost.full_message().replace("this item", "this value")
-    row = _status_row(Point(req.scenario, req.variant, req.engine, (), 1, req.timeout_s), lost.status, why,
-                      time.perf_counter(), tb=lost.traceback or None, stderr_tail=lost.stderr_tail or None,
-                      machine=lost.machine)
-    row.update(_eval_columns(item, False, why, False, 0.0, ()))
-    return row
+    a verdict that does not hold for that reason (harness.points.lost_row)."""
+    return lost_row(item.request(), lost)
 
 
 def _decided(rows: list[dict[str, Any] | None]) -> bool:
@@ -336,8 +353,9 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
                  width: int | Callable[[], int] = 1
                  ) -> Generator[list[EvalItem], list[dict[str, Any]], tuple[SearchResult, dict[str, Any]]]:
     """Search ``req`` as a generator: yields each round of evaluations to
-    run at once (a list of :class:`EvalItem`), receives their rows (a list,
-    in the same order), returns (result, summary row).
+    run at once (a list of RunRequests, each with its :class:`EvalItem` as
+    ``probe``), receives their rows (a list, in the same order), returns
+    (result, summary row).
 
     ``width`` (a number, or a function asked before each round): at most
     this many items a round (at least one).  The pure search
@@ -386,7 +404,7 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
                             break
                         if r is None:
                             todo.append((v, i))
-                items = [EvalItem(req, limit_id, v, phases[i]) for v, i in todo[:n]]
+                items = [EvalItem(req, limit_id, v, phases[i]).request() for v, i in todo[:n]]
                 got = yield items
                 rounds += 1
                 for (v, i), row in zip(todo[:n], got):
@@ -435,4 +453,4 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
     its summary row (the caller stores it).  A sweep runs its searches
     concurrently with its points instead: harness/schedule.py."""
     return drive(search_items(req, store, cached),
-                 lambda items: [evaluate(it.req, it.limit_id, it.value, it.phase) for it in items])
+                 lambda reqs: [evaluate(r.probe.req, r.probe.limit_id, r.probe.value, r.probe.phase) for r in reqs])

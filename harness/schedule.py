@@ -41,31 +41,26 @@ import heapq
 import itertools
 from typing import Any, Callable, Iterator
 
-from physbench.harness.execute import WAIT, Batch, WorkerLost
-from physbench.harness.limits import EvalItem, LimitRequest, SearchResult, evaluate_item, lost_eval_row, search_items
+from physbench.harness.execute import WAIT, Batch, RunRequest, WorkerLost
+from physbench.harness.limits import LimitRequest, SearchResult, search_items
 from physbench.harness import points as _points
-from physbench.harness.points import Point, _point_budget, lost_point_row
+from physbench.harness.points import Point, lost_row
 
 
-def run_item(item: Point | EvalItem) -> dict[str, Any]:
-    """An executor's function for both kinds of item: the row of a point
-    or of one evaluation of a search."""
-    if isinstance(item, EvalItem):
-        return evaluate_item(item)
-    return _points.run_point(item)  # looked up per call: a test may patch harness.points.run_point
+def run_item(req: RunRequest) -> dict[str, Any]:
+    """The executors' function: the row of a request, a point's or one
+    evaluation's of a search (harness.points.request_row)."""
+    return _points.request_row(req)  # looked up per call: a test may patch harness.points.request_row
 
 
-def item_budget(item: Point | EvalItem) -> float:
-    """Wall-clock budget of an item's worker (s): a point's timed runs, an
-    evaluation's one run."""
-    if isinstance(item, EvalItem):
-        return float(item.req.timeout_s)
-    return _point_budget(item)
+def item_budget(req: RunRequest) -> float | None:
+    """Wall-clock budget of a request's worker: its timed runs."""
+    return req.budget_s
 
 
-def item_priority(item: Point | EvalItem) -> int:
+def item_priority(req: RunRequest) -> int:
     """Where items queue (a Dask scheduler), evaluations go first."""
-    return 1 if isinstance(item, EvalItem) else 0
+    return 1 if req.probe is not None else 0
 
 
 #: at most this many points in one batch (a batch's rows come back together on Dask)
@@ -77,8 +72,8 @@ DEFAULT_POINT_S = 0.02
 DEFAULT_UNIT_S = 5e-6
 
 
-def batched(points: list[Point], cost: Callable[[Point], float] | None, target_s: float) -> list[Any]:
-    """``points`` (in their order) as the executor's units: runs of
+def batched(points: list[Any], cost: Callable[[Any], float] | None, target_s: float) -> list[Any]:
+    """``points`` (in their order; points' requests, in a sweep) as the executor's units: runs of
     consecutive points whose expected seconds (``cost``) add up to at least
     ``target_s`` (at most :data:`BATCH_MAX`) as one :class:`Batch`; a point
     expected to take ``target_s`` or more alone, as itself.  No ``cost``
@@ -128,11 +123,19 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
         search_cost = None
     # points batched into units of the executor's batch_s expected seconds (Dask: a task's own cost is
     # worth it only for ~0.1 s of work); a search's evaluations are never batched (a round's go out side by side)
-    todo = iter(batched([points[i] for i in order], point_cost, float(getattr(executor, "batch_s", 0.0) or 0.0)))
+    # the executors' items are requests (harness.execute.RunRequest), a point's made from it; plan: id -> point
+    plan: dict[int, Point] = {}
+    requests = []
+    for i in order:
+        req = points[i].request()
+        plan[id(req)] = points[i]
+        requests.append(req)
+    req_cost = (lambda r: point_cost(plan[id(r)])) if point_cost else None
+    todo = iter(batched(requests, req_cost, float(getattr(executor, "batch_s", 0.0) or 0.0)))
     seq = itertools.count()
-    ready: list[tuple[float, int, EvalItem]] = []  # heap: (-search cost, tie, item)
+    ready: list[tuple[float, int, RunRequest]] = []  # heap: (-search cost, tie, item)
     owner: dict[int, tuple[Any, LimitRequest, float]] = {}  # id(item) -> (its search's generator, req, cost)
-    rounds: dict[int, tuple[list[EvalItem], dict[int, dict[str, Any]]]] = {}  # id(gen) -> (round, rows so far)
+    rounds: dict[int, tuple[list[RunRequest], dict[int, dict[str, Any]]]] = {}  # id(gen) -> (round, rows so far)
     active = 0
     points_left = [bool(points)]
 
@@ -160,7 +163,7 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
             owner[id(item)] = (gen, req, cost)
             heapq.heappush(ready, (-cost, next(seq), item))
 
-    def answered(item: EvalItem, row: dict[str, Any]) -> None:
+    def answered(item: RunRequest, row: dict[str, Any]) -> None:
         gen, req, cost = owner.pop(id(item))
         items, got = rounds[id(gen)]
         got[id(item)] = row
@@ -188,16 +191,17 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
                 return
             yield WAIT
 
-    def started(item: Any) -> None:
-        if on_start is not None and not isinstance(item, EvalItem):
-            on_start(item)
+    def started(item: RunRequest) -> None:
+        if on_start is not None and item.probe is None and id(item) in plan:
+            on_start(plan[id(item)])
 
     for item, value in executor.map(run_item, source(), budget_s=item_budget, on_start=started,
                                     priority=item_priority):
-        if isinstance(item, EvalItem):
-            answered(item, lost_eval_row(item, value) if isinstance(value, WorkerLost) else value)
+        row = lost_row(item, value) if isinstance(value, WorkerLost) else value
+        if item.probe is not None:
+            answered(item, row)
         else:
-            on_point_row(item, lost_point_row(item, value) if isinstance(value, WorkerLost) else value)
+            on_point_row(plan.pop(id(item)), row)
     if active:  # the source ends only when every search has finished
         raise RuntimeError(f"scheduler: {active} searches left unfinished")
 

@@ -302,13 +302,14 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
         if r.get("row_kind") == "limit_eval" and math.isfinite(w := float(r.get("point_wall_s", math.nan))):
             mean_s.setdefault(r["limit_id"], []).append(w)
 
-    def modelled(item: Any) -> dict[str, Any]:
+    def modelled(req: Any) -> dict[str, Any]:
+        item = req.probe
         s = summaries.get(item.limit_id, {})
         limit, outcome = s.get("limit_value", math.nan), s.get("limit_outcome")
         holds = outcome == "holds_throughout" or (outcome == "found" and (
             item.value <= limit if s.get("limit_direction") == "below" else item.value >= limit))
         ws = mean_s.get(item.limit_id, [0.0])
-        return {"point_key": item.key, "limit_value": item.value, "phase": item.phase, "limit_holds": bool(holds),
+        return {"point_key": req.key, "limit_value": item.value, "phase": item.phase, "limit_holds": bool(holds),
                 "limit_reason": "" if holds else "modelled", "limit_cpu_s": 0.0, "status": "ok",
                 "point_wall_s": sum(ws) / len(ws)}
 
@@ -328,7 +329,7 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     ex = VirtualExecutor(1, duration, answer)
     run_schedule(ex, [], reqs, lambda p, r: None, done, lambda r: None)
     for _t, item in ex.started:  # each search's chain, one worker: its total
-        search_s[id(item.req)] = search_s.get(id(item.req), 0.0) + duration(item)
+        search_s[id(item.probe.req)] = search_s.get(id(item.probe.req), 0.0) + duration(item)
     chains = [search_s.get(id(r), 0.0) for r in reqs]
     total += sum(chains)
     by_req = {id(r): c for r, c in zip(reqs, chains)}

@@ -33,13 +33,14 @@ def _req(engine: str, phases: int = 1) -> LimitRequest:
     return LimitRequest("stacking.column_5", None, engine, "dt", 0.001, 0.05, phases=phases, tol=0.05)
 
 
-def _answer(item):
+def _answer(req):
     """A point's row, or an evaluation's: holds below the engine's THRESHOLD."""
-    if isinstance(item, EvalItem):
+    if req.probe is not None:
+        item = req.probe
         holds = item.value <= THRESHOLD[item.req.engine]
         return {"point_key": item.key, "limit_value": item.value, "limit_holds": holds, "limit_reason": "" if holds else "too coarse",
                 "limit_cpu_s": 1.0, "phase": item.phase, "status": "ok"}
-    return {"point_key": item.key, "status": "ok"}
+    return {"point_key": req.key, "status": "ok"}
 
 
 def _answer_round(items):
@@ -56,9 +57,11 @@ def _points(n: int) -> list[Point]:
 
 
 def _duration(item) -> float:
-    if isinstance(item, EvalItem):
+    if isinstance(item, Point):
+        return float(item.settings_dict["dt"]) * 1e3  # point i takes i + 1 s
+    if item.probe is not None:
         return 1.0
-    return float(item.settings_dict["dt"]) * 1e3  # point i takes i + 1 s
+    return float(item.settings["dt"]) * 1e3
 
 
 def _run(ex, points, reqs, **kw):
@@ -105,9 +108,9 @@ def test_order_chains_first_then_longest_point_first():
     points = _points(6)
     ex = SimExecutor(2, _duration)
     _run(ex, points, reqs, point_cost=_duration, search_cost=lambda r: 1.0)
-    kinds = [isinstance(it, EvalItem) for _t, it in ex.started]
+    kinds = [it.probe is not None for _t, it in ex.started]
     assert kinds[:2] == [True, True]  # one evaluation of each search first
-    order = [_duration(it) for _t, it in ex.started if not isinstance(it, EvalItem)]
+    order = [_duration(it) for _t, it in ex.started if it.probe is None]
     assert order == sorted(order, reverse=True)
 
 
@@ -119,7 +122,8 @@ def test_one_worker_keeps_the_planned_order():
     ex = SimExecutor(1, _duration)
     _run(ex, points, reqs, point_cost=_duration, search_cost=lambda r: 1.0)
     items = [it for _t, it in ex.started]
-    assert items[:4] == points and all(isinstance(it, EvalItem) for it in items[4:]) and len(items) > 5
+    assert [it.key for it in items[:4]] == [p.key for p in points] and len(items) > 5
+    assert all(isinstance(it.probe, EvalItem) for it in items[4:])
     assert not ex.waits and ex.idle == 0.0
 
 
@@ -129,8 +133,8 @@ def test_a_lost_evaluation_is_an_error_row_and_its_search_goes_on():
     lost_values = []
 
     def answer(item):
-        if isinstance(item, EvalItem) and item.value > 0.01 and not lost_values:
-            lost_values.append(item.value)
+        if item.probe is not None and item.probe.value > 0.01 and not lost_values:
+            lost_values.append(item.probe.value)
             return WorkerLost("died", "worker process died while running this item: SIGKILL (killed)")
         return _answer(item)
 
@@ -154,16 +158,17 @@ def test_cached_evaluations_are_read_back_not_run():
     assert done["mujoco"][0].limit <= THRESHOLD["mujoco"] < done["mujoco"][0].bracket[1]
 
 
-def _phase_answer(item):
+def _phase_answer(req):
     """Holds below a threshold that falls with the step phase: a value
     between phase 0's and phase 0.75's threshold fails only in a later
     phase, so its reason names the first failing phase."""
-    if isinstance(item, EvalItem):
+    if req.probe is not None:
+        item = req.probe
         holds = item.value <= THRESHOLD[item.req.engine] * (1.0 - 0.4 * item.phase)
         return {"point_key": item.key, "limit_value": item.value, "limit_holds": holds,
                 "limit_reason": "" if holds else f"too coarse at {item.phase}", "limit_cpu_s": 1.0,
                 "phase": item.phase, "status": "ok"}
-    return {"point_key": item.key, "status": "ok"}
+    return {"point_key": req.key, "status": "ok"}
 
 
 @pytest.mark.parametrize("jobs", [4, 16, 64])
@@ -323,11 +328,11 @@ def test_points_are_batched_to_the_target_work():
     ex = InlineExecutor()
     ex.batch_s = 0.1
     got, rows = [], []
-    real = P.run_point
-    P.run_point = lambda p: {"point_key": p.key, "status": "ok"}
+    real = P.request_row
+    P.request_row = lambda r: {"point_key": r.key, "status": "ok"}
     try:
         run_schedule(ex, pts, [], lambda p, r: rows.append((p, r["point_key"])), lambda *a: None, lambda r: None,
                      on_start=got.append, point_cost=lambda p: cost[p.key])
     finally:
-        P.run_point = real
+        P.request_row = real
     assert [p for p, _ in rows] == pts == got and all(p.key == k for p, k in rows)
