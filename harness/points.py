@@ -21,7 +21,7 @@ import time
 import traceback
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Any
 
 from physbench.contract.phase import PhaseError
@@ -66,7 +66,7 @@ class Point:
         """The swept settings the engine gets (the phase is the harness's)."""
         return {k: v for k, v in self.settings if k != PHASE_KEY}
 
-    @property
+    @cached_property
     def settings_json(self) -> str:
         """The swept settings as canonical JSON (sorted keys, shortest
         round-trip floats)."""
@@ -76,7 +76,7 @@ class Point:
     def label(self) -> str:
         return self.scenario + (f"[{self.variant}]" if self.variant else "")
 
-    @property
+    @cached_property
     def key(self) -> str:
         """Stable identity across runs and nights:
         ``scenario[variant]|engine|{"dt":0.001,...}|<scene hash>``.  Repeats
