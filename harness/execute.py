@@ -28,12 +28,11 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import os
-import time
 import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
@@ -226,45 +225,7 @@ def run_isolated(req: RunRequest):
         return next(run_requests([req], pool))[1]
 
 
-# ---------------------------------------------------------------------------
-# benchmark
-
-
-def _noop(x: Any) -> Any:
-    return x
-
-
-def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine: str = "mujoco") -> dict[str, Any]:
-    """Per-run cost of isolation (ms of wall time per run, medians): one
-    ``engine`` run of ``scenario`` in this process, in a reused worker,
-    and in a fresh worker per run; and the bare round trip of an empty item
-    through a reused worker.  ``physbench bench isolation``."""
-    import statistics
-
-    req = RunRequest(scenario, engine, compute_metrics=True)
-    execute_request(req)  # warm: imports, caches
-
-    def timed(f: Callable[[], Any], n: int) -> float:
-        ts = []
-        for _ in range(n):
-            t = time.perf_counter()
-            f()
-            ts.append(time.perf_counter() - t)
-        return 1e3 * statistics.median(ts)
-
-    inline = timed(lambda: execute_request(req), runs)
-    with WorkerPool(1) as pool:
-        list(pool.map(_noop, [0]))  # start the worker
-        list(run_requests([req], pool))
-        rt = timed(lambda: list(pool.map(_noop, [0])), runs)
-        reused = timed(lambda: list(run_requests([req], pool)), runs)
-    fresh = timed(lambda: run_isolated(req), max(3, runs // 5))
-    return {"scenario": scenario, "engine": engine, "runs": runs, "in_process_ms": inline,
-            "reused_worker_ms": reused, "fresh_worker_ms": fresh, "round_trip_ms": rt,
-            "reused_overhead_ms": reused - inline, "fresh_overhead_ms": fresh - inline}
-
-
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "failure_result", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
+           "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
            "members"]

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from collections import deque
 from typing import Any, Callable, Generator, Iterable, Iterator
 
 #: outcomes of a search
@@ -178,9 +177,8 @@ def _tree(good: float, bad: float, log: bool, integer: bool, tol: float, width: 
     it holds and of the half it keeps if it fails, and so on, down to
     brackets narrower than ``tol``.  The first 2**d - 1 of them are every
     value the next d bisection steps may evaluate."""
-    queue = deque([(good, bad)])
-    while queue:
-        g, b = queue.popleft()
+    queue = [(good, bad)]
+    for g, b in queue:  # the list grows as it is read: breadth first
         if _narrow(g, b, log, integer, tol, width):
             continue
         m = _mid(g, b, log, integer)

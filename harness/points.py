@@ -105,7 +105,7 @@ class Point:
 
 
 @lru_cache(maxsize=64)
-def _scene(scenario: str, variant: str | None):
+def cached_scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
     from physbench.contract.scene import load_scene
 
@@ -120,7 +120,7 @@ def run_point(point: Point) -> dict[str, Any]:
 def _request_scene(req: RunRequest) -> Any:
     """The scene of a row's request, phase applied: a scene without
     overrides comes from a per-process cache."""
-    base = None if req.overrides else _scene(req.scenario, req.variant)
+    base = None if req.overrides else cached_scene(req.scenario, req.variant)
     return request_scene(req, base=base)
 
 

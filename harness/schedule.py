@@ -67,7 +67,7 @@ def item_priority(req: RunRequest) -> int:
 BATCH_MAX = 64
 #: expected seconds of a point no earlier sweep timed, when none of the sweep's points was timed
 #: before: a fixed part (process hand-over, scene, metrics) and one per model unit
-#: (:func:`_model_cost`: steps x (bodies + 1) x runs), fitted on a nightly subset's 538 points
+#: (:func:`model_cost`: steps x (bodies + 1) x runs), fitted on a nightly subset's 538 points
 DEFAULT_POINT_S = 0.02
 DEFAULT_UNIT_S = 5e-6
 
@@ -206,7 +206,7 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
         raise RuntimeError(f"scheduler: {active} searches left unfinished")
 
 
-def _model_cost(scene: Any, dt: Any, runs: int) -> float:
+def model_cost(scene: Any, dt: Any, runs: int) -> float:
     """Steps x (bodies + 1) x runs: a stand-in for seconds where no earlier
     sweep timed the item."""
     try:
@@ -228,7 +228,7 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     order the items and size the batches (:func:`batched`)."""
     import math
 
-    from physbench.harness.points import _scene
+    from physbench.harness.points import cached_scene
     from physbench.harness.sweep_store import sweep_files
 
     wall: dict[str, float] = {}
@@ -252,17 +252,17 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
 
     def point_model(p: Point) -> float:
         try:
-            scene = _scene(p.path or p.scenario, p.variant)
+            scene = cached_scene(p.path or p.scenario, p.variant)
         except Exception:
             return 0.0
-        return _model_cost(scene, p.engine_settings.get("dt"), p.repeats)
+        return model_cost(scene, p.engine_settings.get("dt"), p.repeats)
 
     def search_model(r: LimitRequest) -> float:
         try:
-            scene = _scene(r.scenario, r.variant)
+            scene = cached_scene(r.scenario, r.variant)
         except Exception:
             return 0.0
-        return _model_cost(scene, dict(r.settings).get("dt"), 8 * r.phases)  # ~8 values per search
+        return model_cost(scene, dict(r.settings).get("dt"), 8 * r.phases)  # ~8 values per search
 
     # seconds per model unit: the median over the points timed before; none: the default estimate
     ratios = sorted(w / m for p in points if math.isfinite(w := wall.get(p.key, math.nan))
@@ -287,4 +287,5 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     return point_cost, search_cost
 
 
-__all__ = ["run_schedule", "run_item", "item_budget", "item_priority", "expected_costs", "batched", "BATCH_MAX"]
+__all__ = ["run_schedule", "run_item", "item_budget", "item_priority", "expected_costs", "batched", "model_cost",
+           "BATCH_MAX"]

@@ -409,7 +409,7 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
                 continue
             why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
             if why:
-                errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
+                errors.append(f"{where}.grid.dt: {scenario_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
                               f"{why}")
                 return
 
@@ -477,15 +477,15 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
-            if not any(s == sid or s == _label(sid, var) for sid, var in listed):
+            if not any(s == sid or s == scenario_label(sid, var) for sid, var in listed):
                 raise ValueError(f"scenario {s} is not in suite {suite.name} "
-                                 f"(its scenarios: {', '.join(sorted({_label(*x) for x in listed}))})")
+                                 f"(its scenarios: {', '.join(sorted({scenario_label(*x) for x in listed}))})")
     points: list[Point] = []
     seen: set[str] = set()
     for b in suite.sweeps:
         for entry in b.scenarios:
             sid, var = entry.scenario, entry.variant
-            if scenarios is not None and sid not in scenarios and _label(sid, var) not in scenarios:
+            if scenarios is not None and sid not in scenarios and scenario_label(sid, var) not in scenarios:
                 continue
             for e in b.engines:
                 if engines is not None and e not in engines:
@@ -506,5 +506,5 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     return points
 
 
-def _label(sid: str, var: str | None) -> str:
+def scenario_label(sid: str, var: str | None) -> str:
     return sid + (f"[{var}]" if var else "")

@@ -29,8 +29,8 @@ first by the one before: harness/schedule.py), and prints for each run:
 Then the client's CPU per stored row (:func:`store_costs`: a part written
 and merged the pandas way and the Arrow way, on the 1-worker run's rows),
 the scheduler overhead per item of each executor (sleeping tasks,
-harness.executors.bench_overhead) and the thread pools of its run processes
-(harness.executors.thread_counts).  Timings of a shared machine are noisy:
+harness.exec_bench.bench_overhead) and the thread pools of its run processes
+(harness.exec_bench.thread_counts).  Timings of a shared machine are noisy:
 compare ``cpu_s`` and ``idle`` as well as the wall time, and rerun on a
 quiet machine for the figures in docs/SWEEPS.md.  Example::
 
@@ -286,12 +286,12 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     import math
 
     from physbench.harness.schedule import run_schedule
-    from physbench.harness.suite import _label, expand, load_suite
+    from physbench.harness.suite import scenario_label, expand, load_suite
 
     s = load_suite(suite)
     points = expand(s, engines, scenarios)
     reqs = [r for r in s.limits if (engines is None or r.engine in engines)
-            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+            and (scenarios is None or r.scenario in scenarios or scenario_label(r.scenario, r.variant) in scenarios)]
     records = sweep.to_dict("records")
     rows = {r["point_key"]: r for r in records}
     # a wide round's values the stored (serial) search did not evaluate: they hold on the limit's side of
@@ -365,12 +365,12 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
     import statistics
 
     from physbench.harness.execute import WorkerPool
-    from physbench.harness.points import _scene, run_point
-    from physbench.harness.schedule import _model_cost
+    from physbench.harness.points import cached_scene, run_point
+    from physbench.harness.schedule import model_cost
     from physbench.harness.suite import expand, load_suite
 
     pts = expand(load_suite("nightly"), [engine], [scenario])
-    point = max(pts, key=lambda p: _model_cost(_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
+    point = max(pts, key=lambda p: model_cost(cached_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
 
     def cpu(pool: WorkerPool, n: int) -> list[float]:
         return [float(r["cpu_s_per_sim_s_median"]) for _p, r in pool.map(run_point, [point] * n)]
@@ -511,7 +511,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
                                                            "directory, removed)")
     args = p.parse_args(argv)
-    from physbench.harness.executors import bench_overhead, make_executor, thread_counts
+    from physbench.harness.exec_bench import bench_overhead, thread_counts
+    from physbench.harness.executors import make_executor
 
     if args.dask_batch_s is not None:
         from physbench.harness import dask_executor

@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 from physbench.harness.execute import WAIT, InlineExecutor, WorkerLost, WorkerPool
-from physbench.harness.executors import _sleep, thread_counts
+from physbench.harness.exec_bench import sleep_task as _sleep, thread_counts
 from physbench.harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
 from physbench.harness.points import Point
 from physbench.harness.schedule import run_schedule
