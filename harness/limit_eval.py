@@ -31,9 +31,16 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Generator
 
+from physbench.adapters import get_adapter
+from physbench.contract.metric_defs import GENERIC_METRICS
+from physbench.contract.phase import phase_values
+from physbench.contract.scene import load_scene, resolve_scenario
+from physbench.contract.spec import SpecError, load_spec, parse_key_path
+from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 from physbench.harness.execute import RunRequest
-from physbench.harness.points import lost_row, request_row
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
+from physbench.harness.points import lost_row, request_row
+from physbench.harness.references import get_model
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
 EVAL_ROW, RESULT_ROW = "limit_eval", "limit"
@@ -87,7 +94,6 @@ class LimitRequest:
 
 
 def is_engine_setting(engine: str, param: str) -> bool:
-    from physbench.adapters import get_adapter
 
     return param in get_adapter(engine).capabilities().settings
 
@@ -97,7 +103,6 @@ def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
     of a vector the spec leaves at its default (``body[0].velocity[0]`` of a
     body written without ``velocity``), the whole vector at its validated
     default."""
-    from physbench.contract.spec import parse_key_path
 
     parts = parse_key_path(path)
     if not isinstance(parts[-1], int) or len(parts) < 2:
@@ -123,8 +128,6 @@ def load_at(req: LimitRequest, value: float):
     """The request's scene with the searched spec key set to ``value`` (for
     an engine setting, the scene as written).  Raises SpecError (a value the
     spec does not accept: a negative mass, a restitution over 1)."""
-    from physbench.contract.scene import load_scene, resolve_scenario
-    from physbench.contract.spec import load_spec
 
     loaded = load_spec(resolve_scenario(req.scenario))
     overrides = dict(req.overrides)
@@ -138,7 +141,6 @@ def load_at(req: LimitRequest, value: float):
 def _criterion_checks(scene: Any, engine: str, checks: tuple[str, ...]) -> list[Any]:
     """The scene's checks the criterion evaluates: applicable to ``engine``,
     not bound to other settings, of a metric in ``checks`` (empty: all)."""
-    from physbench.harness.conformance import applicable_checks, split_metric
 
     out = []
     for c in applicable_checks(scene, engine):
@@ -159,15 +161,12 @@ def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
     produces a harness metric's name, so the criterion never reads a
     metric skipped here (tests/test_limits_model_metrics.py::
     test_the_criterion_never_reads_a_skipped_metric)."""
-    from physbench.contract.metric_defs import GENERIC_METRICS
-    from physbench.harness.conformance import split_metric
 
     if not scene.reference_model:
         return ()
     read = {split_metric(c.metric)[0] for c in _criterion_checks(scene, engine, checks)} | {m for m, _ in bounds}
     if read - set(GENERIC_METRICS):
         return ()
-    from physbench.harness.references import get_model
 
     return tuple(sorted(get_model(scene.reference_model).produces))
 
@@ -178,7 +177,6 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
     failure as ``metric: message``.  ``checks``: only the scene's checks of
     these metrics (``("stable",)``: stability alone); ``bounds``: extra
     (metric, max) criteria, a missing or NaN value failing."""
-    from physbench.harness.conformance import FAIL, PASS, evaluate_check
 
     if result.status != "ok":
         return False, f"status {result.status}: {result.message}"
@@ -247,7 +245,6 @@ Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
 
 
 def spec_hash(req: LimitRequest) -> str:
-    from physbench.contract.scene import resolve_scenario
 
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
@@ -260,8 +257,6 @@ def _filled(req: LimitRequest) -> tuple[tuple[str, Any], ...]:
 
 @lru_cache(maxsize=256)
 def _filled_at(scenario: str, variant: str | None, engine: str, param: str) -> tuple[tuple[str, Any], ...]:
-    from physbench.contract.scene import resolve_scenario
-    from physbench.contract.spec import load_spec
 
     if is_engine_setting(engine, param):
         return ()
@@ -308,7 +303,6 @@ class EvalItem:
 
     def load_error(self, e: BaseException) -> tuple[str, str | None]:
         """(message, traceback) of a scene the value does not load into."""
-        from physbench.contract.spec import SpecError
 
         msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
         return f"{self.req.param}={self.value!r}: {msg}", \
@@ -370,14 +364,11 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
     yielded); every new row is handed to ``store``.  The summary row
     (``row_kind`` = ``limit``) is the caller's to store.  Tests:
     tests/test_schedule.py::test_wide_rounds_give_the_serial_answers_sooner."""
-    from physbench.contract.phase import phase_values
-    from physbench.contract.scene import load_scene
 
     limit_id = req.identity(spec_hash(req))
     phases = phase_values(req.phases)
     integer = False
     if is_engine_setting(req.engine, req.param):
-        from physbench.adapters import get_adapter
 
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
     wide: Callable[[], int] = width if callable(width) else (lambda: int(width))

@@ -25,7 +25,10 @@ from functools import cached_property, lru_cache
 from typing import Any
 
 from physbench.contract.phase import PhaseError
+from physbench.contract.scene import load_scene
+from physbench.harness import runner
 from physbench.harness import status as st
+from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
 from physbench.harness.execute import RunRequest, WorkerLost, failure_result, request_scene
 
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
@@ -107,7 +110,6 @@ class Point:
 @lru_cache(maxsize=64)
 def cached_scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
-    from physbench.contract.scene import load_scene
 
     return load_scene(scenario, variant)
 
@@ -136,7 +138,6 @@ def request_row(req: RunRequest) -> dict[str, Any]:
     probe's columns (its verdict).  Never raises for engine trouble: a
     scene that does not load, a run that raises are :func:`failure_row`
     rows.  The sweep-wide columns are added by the caller."""
-    from physbench.harness import runner
 
     t0 = time.perf_counter()
     probe = req.probe
@@ -196,7 +197,6 @@ def _request_columns(req: RunRequest, scene: Any, row: dict[str, Any], cpu: list
     (harness.conformance.run_verdicts), and the scene's columns
     (harness.conformance.scene_columns: primary metric, its threshold,
     tags): the report reads them from the row, never from the scene."""
-    from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
 
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None

@@ -41,10 +41,11 @@ import heapq
 import itertools
 from typing import Any, Callable, Iterator
 
-from physbench.harness.execute import WAIT, Batch, RunRequest, WorkerLost
-from physbench.harness.limits import LimitRequest, SearchResult, search_items
 from physbench.harness import points as _points
-from physbench.harness.points import Point, lost_row
+from physbench.harness.execute import WAIT, Batch, RunRequest, WorkerLost
+from physbench.harness.limits import LimitRequest, SearchResult, search_items, spec_hash
+from physbench.harness.points import Point, cached_scene, lost_row
+from physbench.harness.sweep_store import sweep_files
 
 
 def run_item(req: RunRequest) -> dict[str, Any]:
@@ -228,8 +229,6 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
     order the items and size the batches (:func:`batched`)."""
     import math
 
-    from physbench.harness.points import cached_scene
-    from physbench.harness.sweep_store import sweep_files
 
     wall: dict[str, float] = {}
     search_wall: dict[str, float] = {}
@@ -248,7 +247,6 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
             if "limit_id" in df.columns:
                 ev = df[kind == "limit_eval"]
                 search_wall = ev.groupby("limit_id")["point_wall_s"].sum().astype(float).to_dict()
-    from physbench.harness.limits import spec_hash
 
     def point_model(p: Point) -> float:
         try:
