@@ -94,7 +94,6 @@ class LimitRequest:
 
 
 def is_engine_setting(engine: str, param: str) -> bool:
-
     return param in get_adapter(engine).capabilities().settings
 
 
@@ -245,7 +244,6 @@ Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
 
 
 def spec_hash(req: LimitRequest) -> str:
-
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
 
 
@@ -257,7 +255,6 @@ def _filled(req: LimitRequest) -> tuple[tuple[str, Any], ...]:
 
 @lru_cache(maxsize=256)
 def _filled_at(scenario: str, variant: str | None, engine: str, param: str) -> tuple[tuple[str, Any], ...]:
-
     if is_engine_setting(engine, param):
         return ()
     try:
@@ -369,7 +366,6 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
     phases = phase_values(req.phases)
     integer = False
     if is_engine_setting(req.engine, req.param):
-
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
     wide: Callable[[], int] = width if callable(width) else (lambda: int(width))
     budget = [1]

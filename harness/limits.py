@@ -9,7 +9,6 @@ stable.
 
 Three layers, kept apart so that the search can be tested on a fake
 criterion:
-
 - harness/limit_search.py -- pure logic: bracket, then bisect, on a
   criterion ``value -> Verdict``; no runs, no storage (the walk and the
   tolerance are described there).

@@ -15,7 +15,6 @@ chain may need after it (harness/limit_search.py "Rounds"), so a chain
 spreads over the workers the other searches leave; the answers are the
 one-at-a-time answers.  The executor reads its items from a source that
 hands out:
-
 1. the next evaluation of a search, the longest search first (its expected
    cost: ``search_cost``): chains are the critical path, so they must
    never wait behind a point;
