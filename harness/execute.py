@@ -1,16 +1,22 @@
 """One execution path: a run request, executed in this process or in
 reusable worker processes under a wall-clock watchdog.
 
-``physbench run``, ``check``, ``sweep`` and ``trace`` all go through here:
+``physbench run``, ``check``, ``trace``, ``sweep`` and ``limits`` all go
+through here, with one kind of work item:
 
 - :class:`RunRequest` says what to run (scenario id or spec file, variant,
-  engine, engine settings, spec overrides, step phase, budget, recording);
+  engine, engine settings, spec overrides, step phase, budget, recording;
+  for a stored row also its key, timed repeats and, for one evaluation of
+  a breaking-point search, its ``probe``: harness/limit_eval.py);
   :func:`request_scene` turns it into the scene to run (the one place the
   step phase is applied, contract/phase.py);
 - :func:`execute_request` runs one request in this process and returns its
-  :class:`harness.runner.RunResult`; it never raises (a scene that does not
-  load, an engine that cannot be imported, a bad setting: a status).  It is
-  the unit a pool worker -- or a Dask task -- calls;
+  :class:`harness.runner.RunResult` (``run``, ``check``, ``trace``);
+  :func:`harness.points.request_row` the stored row of one (``sweep``,
+  ``limits``: a point's or an evaluation's).  Neither raises: a scene that
+  does not load, an engine that cannot be imported, a bad setting, a
+  worker that died are statuses, all built by :func:`failure_result` (the
+  one failure builder; :func:`harness.points.failure_row` is its row);
 - the executors that run requests (:class:`WorkerPool`, worker processes
   under a watchdog, and :class:`InlineExecutor`, this process) are
   harness/workers.py's, re-exported here; :func:`run_requests` turns a
@@ -19,14 +25,14 @@ reusable worker processes under a wall-clock watchdog.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import os
-import time
 import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
@@ -48,11 +54,21 @@ class RunRequest:
     ``variant`` on ``engine`` with engine ``settings`` and spec key
     ``overrides`` (dotted key paths, contract.scene.load_scene), its start
     moved back along the free flight by ``phase`` dt (0 <= phase < 1, 0 =
-    as written), ``timeout_s`` seconds of wall-clock budget (None: no
-    limit), one frame recorded every ``record_every`` steps, metrics
-    computed when ``compute_metrics``, the trace (and contacts, with
-    ``contact_cap``) returned when ``keep_trace`` (``physbench trace``,
-    ``check --traces``; they cross process boundaries)."""
+    as written), ``timeout_s`` seconds of wall-clock budget per run (None:
+    no limit), one frame recorded every ``record_every`` steps, metrics
+    computed when ``compute_metrics`` (the reference model's too when
+    ``model_metrics``), the trace (and contacts, with ``contact_cap``)
+    returned when ``keep_trace`` (``physbench trace``, ``check --traces``;
+    they cross process boundaries).
+
+    A stored row's request (``sweep``, ``limits``;
+    harness.points.request_row) also has: ``key``, the row's
+    ``point_key``; ``repeats``, the timed runs (metrics from the first);
+    ``scene_hash``, the content hash the scene must still have;
+    ``row_settings``, the ``point_settings`` column (default: the settings
+    and the phase as JSON); ``probe``, for one evaluation of a
+    breaking-point search, its criterion and columns
+    (harness.limit_eval.EvalItem)."""
 
     scenario: str
     engine: str
@@ -67,6 +83,12 @@ class RunRequest:
     #: > 0: also record the engine's contacts, at most this many per frame
     #: (tracing only; harness.runner.run)
     contact_cap: int = 0
+    model_metrics: bool = True
+    key: str = ""
+    repeats: int = 1
+    scene_hash: str = ""
+    row_settings: str | None = None
+    probe: Any = None
 
     def __post_init__(self) -> None:
         p = Path(self.scenario)
@@ -78,6 +100,12 @@ class RunRequest:
         s = ",".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.settings.items())
         return (f"{self.engine} {self.scenario}" + (f"[{self.variant}]" if self.variant else "")
                 + (f" @{s}" if s else "") + (f" phase {self.phase:g}" if self.phase else ""))
+
+    @property
+    def budget_s(self) -> float | None:
+        """The wall-clock budget of the request's worker: each timed run
+        within ``timeout_s`` (None: no limit)."""
+        return None if self.timeout_s is None else float(self.timeout_s) * max(1, self.repeats)
 
 
 def request_scene(req: RunRequest, base: Any = None):
@@ -100,10 +128,16 @@ def request_scene(req: RunRequest, base: Any = None):
     return shift_scene(scene, req.phase, dt=h)
 
 
-def _result(req: RunRequest, status: str, message: str, scene: Any = None):
-    """A RunResult for a request that produced none of its own (scene did
-    not load, the run could not start, the worker died or hung): the
-    engine's version and resolved settings where they can be had."""
+def failure_result(req: RunRequest, status: str, message: str, scene: Any = None, lost: WorkerLost | None = None,
+                   tb: str | None = None):
+    """The RunResult of a request that produced none of its own (the scene
+    did not load, the run could not start, the worker raised, died or hung:
+    ``lost``): ``status`` and ``message``, the engine's version and the
+    settings resolved for the scene where they can be had (the scene loaded
+    here when not given), the machine it ran on (``lost.machine``, else
+    this one), the traceback and the worker's stderr tail in ``info``.
+    The one failure builder of every command; its row is
+    harness.points.failure_row."""
     from physbench.harness.runner import RunResult, commit_id, machine_info
 
     settings, version = dict(req.settings), ""
@@ -112,13 +146,24 @@ def _result(req: RunRequest, status: str, message: str, scene: Any = None):
 
         cls = get_adapter(req.engine)
         version = cls.capabilities().version
-        if scene is not None:
-            settings = cls.resolve_settings(scene, req.settings)
+        if scene is None:
+            scene = request_scene(dataclasses.replace(req, phase=0.0))
+        settings = cls.resolve_settings(scene, req.settings)
     except Exception:
         pass  # keep the requested settings
-    return RunResult(getattr(scene, "id", req.scenario), req.variant, req.engine, version, status, message,
-                     settings, machine=machine_info(), commit=commit_id(),
-                     timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    res = RunResult(getattr(scene, "id", None) or req.scenario, req.variant, req.engine, version, status, message,
+                    settings, machine=dict(lost.machine) if lost is not None and lost.machine else machine_info(),
+                    commit=commit_id(), timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                    scene_hash=req.scene_hash,
+                    scene_path=getattr(scene, "source", "") or (req.scenario if req.scenario.endswith(".toml") else ""))
+    tb = tb or (lost.traceback if lost is not None else None)
+    if tb:
+        res.info["traceback"] = tb
+    if lost is not None and lost.stderr_tail:
+        res.info["stderr_tail"] = lost.stderr_tail
+    if lost is not None and lost.signal:
+        res.info["signal"] = lost.signal
+    return res
 
 
 def execute_request(req: RunRequest):
@@ -132,7 +177,7 @@ def execute_request(req: RunRequest):
     try:
         scene = request_scene(req)
     except Exception as e:
-        return _result(req, st.ERROR, f"scene failed to load: {e}")
+        return failure_result(req, st.ERROR, f"scene failed to load: {e}")
     try:
         # a blow-up is recorded in the result's status; numpy's overflow
         # warnings on the way there would only flood stderr
@@ -140,10 +185,10 @@ def execute_request(req: RunRequest):
             warnings.simplefilter("ignore", RuntimeWarning)
             res = runner.run(scene, req.engine, dict(req.settings) or None, record_every=req.record_every,
                              timeout_s=req.timeout_s, compute_metrics=req.compute_metrics,
-                             contact_cap=req.contact_cap)
+                             contact_cap=req.contact_cap, model_metrics=req.model_metrics)
     except Exception as e:  # adapter import error, bad setting ...
-        res = _result(req, st.FAILED, f"could not run: {type(e).__name__}: {e}", scene)
-        res.info["traceback"] = traceback.format_exc(limit=5)
+        res = failure_result(req, st.FAILED, f"could not run: {type(e).__name__}: {e}", scene,
+                             tb=traceback.format_exc(limit=5))
     if req.phase:
         res.notes.append(f"step phase {req.phase:g}: start moved back along the free flight by {req.phase:g} dt")
     if not req.keep_trace:
@@ -158,17 +203,9 @@ def execute_request(req: RunRequest):
 
 
 def lost_result(req: RunRequest, lost: WorkerLost):
-    """The RunResult of a request whose worker raised, died or hung."""
-    res = _result(req, lost.status, lost.full_message())
-    if lost.machine:
-        res.machine = dict(lost.machine)
-    if lost.stderr_tail:
-        res.info["stderr_tail"] = lost.stderr_tail
-    if lost.traceback:
-        res.info["traceback"] = lost.traceback
-    if lost.signal:
-        res.info["signal"] = lost.signal
-    return res
+    """The RunResult of a request whose worker raised, died or hung
+    (:func:`failure_result`)."""
+    return failure_result(req, lost.status, lost.full_message(), lost=lost)
 
 
 EXECUTORS = ("process", "inline", "dask")
@@ -178,7 +215,7 @@ EXECUTORS = ("process", "inline", "dask")
 def run_requests(reqs: Iterable[RunRequest], executor: Any) -> Iterator[tuple[RunRequest, Any]]:
     """(request, RunResult) for each request as it finishes, through
     ``executor``; a lost worker becomes the request's error/timeout result."""
-    for req, value in executor.map(execute_request, reqs, budget_s=lambda r: r.timeout_s):
+    for req, value in executor.map(execute_request, reqs, budget_s=lambda r: r.budget_s):
         yield req, (lost_result(req, value) if isinstance(value, WorkerLost) else value)
 
 
@@ -188,45 +225,7 @@ def run_isolated(req: RunRequest):
         return next(run_requests([req], pool))[1]
 
 
-# ---------------------------------------------------------------------------
-# benchmark
-
-
-def _noop(x: Any) -> Any:
-    return x
-
-
-def bench_isolation(runs: int = 50, scenario: str = "billiards.head_on", engine: str = "mujoco") -> dict[str, Any]:
-    """Per-run cost of isolation (ms of wall time per run, medians): one
-    ``engine`` run of ``scenario`` in this process, in a reused worker,
-    and in a fresh worker per run; and the bare round trip of an empty item
-    through a reused worker.  ``physbench bench isolation``."""
-    import statistics
-
-    req = RunRequest(scenario, engine, compute_metrics=True)
-    execute_request(req)  # warm: imports, caches
-
-    def timed(f: Callable[[], Any], n: int) -> float:
-        ts = []
-        for _ in range(n):
-            t = time.perf_counter()
-            f()
-            ts.append(time.perf_counter() - t)
-        return 1e3 * statistics.median(ts)
-
-    inline = timed(lambda: execute_request(req), runs)
-    with WorkerPool(1) as pool:
-        list(pool.map(_noop, [0]))  # start the worker
-        list(run_requests([req], pool))
-        rt = timed(lambda: list(pool.map(_noop, [0])), runs)
-        reused = timed(lambda: list(run_requests([req], pool)), runs)
-    fresh = timed(lambda: run_isolated(req), max(3, runs // 5))
-    return {"scenario": scenario, "engine": engine, "runs": runs, "in_process_ms": inline,
-            "reused_worker_ms": reused, "fresh_worker_ms": fresh, "round_trip_ms": rt,
-            "reused_overhead_ms": reused - inline, "fresh_overhead_ms": fresh - inline}
-
-
-__all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "lost_result", "WorkerPool",
+__all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "failure_result", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
-           "bench_isolation", "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
+           "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
            "members"]

@@ -20,18 +20,27 @@ them).  ``checks`` restricts the criterion to checks of the named metrics
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
 import math
-import time
 import traceback
-import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Generator
 
-from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_steps
+from physbench.adapters import get_adapter
+from physbench.contract.metric_defs import GENERIC_METRICS
+from physbench.contract.phase import phase_values
+from physbench.contract.scene import load_scene, resolve_scenario
+from physbench.contract.spec import SpecError, load_spec, parse_key_path
+from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
+from physbench.harness.execute import RunRequest
+from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
+from physbench.harness.points import lost_row, request_row
+from physbench.harness.references import get_model
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
 EVAL_ROW, RESULT_ROW = "limit_eval", "limit"
@@ -85,8 +94,6 @@ class LimitRequest:
 
 
 def is_engine_setting(engine: str, param: str) -> bool:
-    from physbench.adapters import get_adapter
-
     return param in get_adapter(engine).capabilities().settings
 
 
@@ -95,7 +102,6 @@ def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
     of a vector the spec leaves at its default (``body[0].velocity[0]`` of a
     body written without ``velocity``), the whole vector at its validated
     default."""
-    from physbench.contract.spec import parse_key_path
 
     parts = parse_key_path(path)
     if not isinstance(parts[-1], int) or len(parts) < 2:
@@ -121,8 +127,6 @@ def load_at(req: LimitRequest, value: float):
     """The request's scene with the searched spec key set to ``value`` (for
     an engine setting, the scene as written).  Raises SpecError (a value the
     spec does not accept: a negative mass, a restitution over 1)."""
-    from physbench.contract.scene import load_scene, resolve_scenario
-    from physbench.contract.spec import load_spec
 
     loaded = load_spec(resolve_scenario(req.scenario))
     overrides = dict(req.overrides)
@@ -136,7 +140,6 @@ def load_at(req: LimitRequest, value: float):
 def _criterion_checks(scene: Any, engine: str, checks: tuple[str, ...]) -> list[Any]:
     """The scene's checks the criterion evaluates: applicable to ``engine``,
     not bound to other settings, of a metric in ``checks`` (empty: all)."""
-    from physbench.harness.conformance import applicable_checks, split_metric
 
     out = []
     for c in applicable_checks(scene, engine):
@@ -157,15 +160,12 @@ def skipped_model_metrics(scene: Any, engine: str, checks: tuple[str, ...] = (),
     produces a harness metric's name, so the criterion never reads a
     metric skipped here (tests/test_limits_model_metrics.py::
     test_the_criterion_never_reads_a_skipped_metric)."""
-    from physbench.contract.metric_defs import GENERIC_METRICS
-    from physbench.harness.conformance import split_metric
 
     if not scene.reference_model:
         return ()
     read = {split_metric(c.metric)[0] for c in _criterion_checks(scene, engine, checks)} | {m for m, _ in bounds}
     if read - set(GENERIC_METRICS):
         return ()
-    from physbench.harness.references import get_model
 
     return tuple(sorted(get_model(scene.reference_model).produces))
 
@@ -176,7 +176,6 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
     failure as ``metric: message``.  ``checks``: only the scene's checks of
     these metrics (``("stable",)``: stability alone); ``bounds``: extra
     (metric, max) criteria, a missing or NaN value failing."""
-    from physbench.harness.conformance import FAIL, PASS, evaluate_check
 
     if result.status != "ok":
         return False, f"status {result.status}: {result.message}"
@@ -201,46 +200,12 @@ def judge(scene: Any, result: Any, checks: tuple[str, ...] = (),
 
 def evaluate_point(req: LimitRequest, limit_id: str, value: float, phase: float) -> dict[str, Any]:
     """Run the request's scene with the parameter at ``value`` in step phase
-    ``phase`` and return its row: ``RunResult.row()`` plus the sweep point
-    columns and ``limit_*`` columns (``limit_holds``, ``limit_reason``).
+    ``phase`` and return its row (harness.points.request_row of the
+    evaluation's request: ``RunResult.row()``, the sweep's point columns
+    and the ``limit_*`` columns, ``limit_holds`` and ``limit_reason``).
     Never raises: a scene the value makes invalid, a run that raises, are
     rows whose verdict fails with the reason."""
-    from physbench.harness import runner
-    from physbench.contract.phase import shift_scene
-    from physbench.harness.points import PHASE_KEY, Point, _point_columns, _status_row
-
-    t0 = time.perf_counter()
-    settings = dict(req.settings)
-    engine_param = is_engine_setting(req.engine, req.param)
-    if engine_param:
-        settings[req.param] = value
-    pt = Point(req.scenario, req.variant, req.engine,
-               tuple(sorted({**settings, **({PHASE_KEY: phase} if phase else {})}.items())), 1, req.timeout_s)
-    scene = None
-    skipped: tuple[str, ...] = ()
-    try:
-        scene = load_at(req, value)
-        if phase:
-            scene = shift_scene(scene, phase, dt=settings.get("dt", scene.dt))
-        skipped = skipped_model_metrics(scene, req.engine, req.checks, req.bounds)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            res = runner.run(scene, req.engine, settings, timeout_s=req.timeout_s, model_metrics=not skipped)
-        res.trace = None
-        row = res.row()
-        row.update(_point_columns(pt, scene, row, [float(res.metrics.get("cpu_s_per_sim_s", math.nan))], t0, res))
-        holds, reason = judge(scene, res, req.checks, req.bounds)
-        cpu = float(res.timing.get("step_cpu_s", 0.0) or 0.0)
-        unsupported = res.status == "unsupported"
-    except Exception as e:  # the value makes the spec invalid, a bad setting, an engine import error
-        from physbench.contract.spec import SpecError
-
-        msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
-        row = _status_row(pt, "error", f"{req.param}={value!r}: {msg}", t0, scene=scene,
-                          tb=None if isinstance(e, SpecError) else traceback.format_exc(limit=5))
-        holds, reason, cpu, unsupported = False, f"{req.param}={value!r}: {msg}", 0.0, False
-    row.update(_eval_columns(EvalItem(req, limit_id, value, phase), holds, reason, unsupported, cpu, skipped))
-    return row
+    return request_row(EvalItem(req, limit_id, value, phase).request())
 
 
 def _eval_columns(item: "EvalItem", holds: bool, reason: str, unsupported: bool, cpu: float,
@@ -279,16 +244,32 @@ Runner = Callable[[LimitRequest, str, float, float], dict[str, Any]]
 
 
 def spec_hash(req: LimitRequest) -> str:
-    from physbench.contract.scene import resolve_scenario
-
     return hashlib.sha256(Path(resolve_scenario(req.scenario)).read_bytes()).hexdigest()[:16]
+
+
+def _filled(req: LimitRequest) -> tuple[tuple[str, Any], ...]:
+    """:func:`_fill_vector` of the searched key (it does not depend on the
+    value); () for an engine setting or a scene that does not load."""
+    return _filled_at(req.scenario, req.variant, req.engine, req.param)
+
+
+@lru_cache(maxsize=256)
+def _filled_at(scenario: str, variant: str | None, engine: str, param: str) -> tuple[tuple[str, Any], ...]:
+    if is_engine_setting(engine, param):
+        return ()
+    try:
+        return tuple(_fill_vector(load_spec(resolve_scenario(scenario)), variant, param).items())
+    except Exception:
+        return ()  # the run's own load reports it
 
 
 @dataclass(frozen=True)
 class EvalItem:
-    """One evaluation of a search, as an executor item: ``req``'s scene with
-    the parameter at ``value`` in step phase ``phase``.  ``key`` is the
-    row's point key (a Dask task is keyed by it)."""
+    """One evaluation of a search: ``req``'s scene with the parameter at
+    ``value`` in step phase ``phase``.  ``key`` is the row's point key.
+    The executors run its :meth:`request`, whose ``probe`` it is: it adds
+    the evaluation's columns (its verdict, :func:`judge`) to the one row
+    builder's row (harness.points.request_row, failure_row)."""
 
     req: LimitRequest
     limit_id: str
@@ -299,63 +280,140 @@ class EvalItem:
     def key(self) -> str:
         return self.req.eval_key(self.limit_id, self.value, self.phase)
 
+    def request(self) -> RunRequest:
+        """The run of this evaluation: the engine setting, or the spec key
+        (the fixed overrides, the vector it is an element of, then the
+        value), at the step phase, one run within the search's timeout."""
+        req = self.req
+        settings = dict(req.settings)
+        overrides = dict(req.overrides)
+        if is_engine_setting(req.engine, req.param):
+            settings[req.param] = self.value
+        else:
+            overrides.update(copy.deepcopy(dict(_filled(req))))  # a vector default: a list of its own
+            overrides[req.param] = self.value
+        return RunRequest(req.scenario, req.engine, req.variant, settings, overrides, phase=self.phase,
+                          timeout_s=req.timeout_s, key=self.key, probe=self)
+
+    def skipped_metrics(self, scene: Any) -> tuple[str, ...]:
+        return skipped_model_metrics(scene, self.req.engine, self.req.checks, self.req.bounds)
+
+    def load_error(self, e: BaseException) -> tuple[str, str | None]:
+        """(message, traceback) of a scene the value does not load into."""
+
+        msg = "; ".join(e.errors) if isinstance(e, SpecError) else f"{type(e).__name__}: {e}"
+        return f"{self.req.param}={self.value!r}: {msg}", \
+            None if isinstance(e, SpecError) else traceback.format_exc(limit=5)
+
+    def columns(self, scene: Any, result: Any, skipped: tuple[str, ...]) -> dict[str, Any]:
+        """The evaluation's columns of a run: its verdict and step CPU."""
+        holds, reason = judge(scene, result, self.req.checks, self.req.bounds)
+        cpu = float(result.timing.get("step_cpu_s", 0.0) or 0.0)
+        return _eval_columns(self, holds, reason, result.status == "unsupported", cpu, skipped)
+
+    def failed_columns(self, message: str) -> dict[str, Any]:
+        """The evaluation's columns when it produced no run: fails, for ``message``."""
+        return _eval_columns(self, False, message, False, 0.0, ())
+
 
 def evaluate_item(item: EvalItem) -> dict[str, Any]:
-    """:func:`evaluate_point` of one EvalItem (an executor's function)."""
-    return evaluate_point(item.req, item.limit_id, item.value, item.phase)
+    """The row of one EvalItem (harness.points.request_row of its request)."""
+    return request_row(item.request())
 
 
 def lost_eval_row(item: EvalItem, lost: Any) -> dict[str, Any]:
     """The row of an evaluation whose worker died, hung or raised
     (``lost``: a harness.execute.WorkerLost): its status and message, and
-    a verdict that does not hold for that reason."""
-    from physbench.harness.points import Point, _status_row
-
-    req = item.req
-    why = lost.full_message().replace("this item", "this value")
-    row = _status_row(Point(req.scenario, req.variant, req.engine, (), 1, req.timeout_s), lost.status, why,
-                      time.perf_counter(), tb=lost.traceback or None, stderr_tail=lost.stderr_tail or None,
-                      machine=lost.machine)
-    row.update(_eval_columns(item, False, why, False, 0.0, ()))
-    return row
+    a verdict that does not hold for that reason (harness.points.lost_row)."""
+    return lost_row(item.request(), lost)
 
 
-def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]]
-                 ) -> Generator[EvalItem, dict[str, Any], tuple[SearchResult, dict[str, Any]]]:
-    """Search ``req`` as a generator: yields each evaluation to run (an
-    :class:`EvalItem`), receives its row, returns (result, summary row).
-    Evaluations whose key is in ``cached`` are read back (not yielded);
-    every new row is handed to ``store``.  The summary row (``row_kind`` =
-    ``limit``) is the caller's to store."""
-    from physbench.contract.phase import phase_values
-    from physbench.contract.scene import load_scene
+def _decided(rows: list[dict[str, Any] | None]) -> bool:
+    """Whether a value's verdict is known from its phase rows (phase order,
+    None where not run): every phase up to and including the first failing
+    one, or all phases, have a row."""
+    for r in rows:
+        if r is None:
+            return False
+        if not r.get("limit_holds"):
+            return True
+    return True
+
+
+def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
+                 width: int | Callable[[], int] = 1
+                 ) -> Generator[list[EvalItem], list[dict[str, Any]], tuple[SearchResult, dict[str, Any]]]:
+    """Search ``req`` as a generator: yields each round of evaluations to
+    run at once (a list of RunRequests, each with its :class:`EvalItem` as
+    ``probe``), receives their rows (a list, in the same order), returns
+    (result, summary row).
+
+    ``width`` (a number, or a function asked before each round): at most
+    this many items a round (at least one).  The pure search
+    (:func:`harness.limit_search.search_rounds`) gets ``width // phases``
+    values a round (at least one); a value's step phases run side by side,
+    up to ``width`` at a time, in phase order, and a value is decided once
+    its phases up to the first failing one have rows (its verdict is
+    :func:`verdict_of_rows` of those: the reason is the first failing
+    phase's, as one phase after the other).  Width 1 is the one-at-a-time
+    search: one item a round, phases in order, stopping at the first
+    failing one.  Evaluations whose key is in ``cached`` are read back (not
+    yielded); every new row is handed to ``store``.  The summary row
+    (``row_kind`` = ``limit``) is the caller's to store.  Tests:
+    tests/test_schedule.py::test_wide_rounds_give_the_serial_answers_sooner."""
 
     limit_id = req.identity(spec_hash(req))
     phases = phase_values(req.phases)
     integer = False
     if is_engine_setting(req.engine, req.param):
-        from physbench.adapters import get_adapter
-
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
-    new_runs = 0
-    steps = search_steps(req.lo, req.hi, req.tol, integer=integer, param=req.param)
+    wide: Callable[[], int] = width if callable(width) else (lambda: int(width))
+    budget = [1]
+
+    def values_per_round() -> int:
+        budget[0] = max(1, int(wide()))
+        return max(1, budget[0] // len(phases))
+
+    new_runs = rounds = 0
+    steps = search_rounds(req.lo, req.hi, req.tol, integer=integer, param=req.param, width=values_per_round)
     try:
-        value = next(steps)
+        values = next(steps)
         while True:
-            rows = []
-            for f in phases:  # one failing phase decides
-                item = EvalItem(req, limit_id, value, f)
-                row = cached.get(item.key)
-                if row is None:
-                    row = yield item
+            rows = {v: [cached.get(EvalItem(req, limit_id, v, f).key) for f in phases] for v in values}
+            first_round = True
+            while not all(_decided(rows[v]) for v in values):
+                n = budget[0] if first_round else max(1, int(wide()))
+                first_round = False
+                todo: list[tuple[float, int]] = []
+                for v in values:  # the phases a value still needs: those before its first known failure
+                    for i, r in enumerate(rows[v]):
+                        if r is not None and not r.get("limit_holds"):
+                            break
+                        if r is None:
+                            todo.append((v, i))
+                items = [EvalItem(req, limit_id, v, phases[i]).request() for v, i in todo[:n]]
+                got = yield items
+                rounds += 1
+                for (v, i), row in zip(todo[:n], got):
                     store(row)
                     new_runs += 1
-                rows.append(row)
-                if not row.get("limit_holds"):
-                    break
-            value = steps.send(verdict_of_rows(rows))
+                    rows[v][i] = row
+            verdicts = {}
+            for v in values:
+                done = []
+                for r in rows[v]:
+                    if r is None:
+                        break
+                    done.append(r)
+                    if not r.get("limit_holds"):
+                        break
+                ran = [r for r in rows[v] if r is not None]  # a wide round may have run phases past the failing one
+                verdicts[v] = dataclasses.replace(verdict_of_rows(done), runs=len(ran), cpu_s=float(
+                    sum(float(r.get("limit_cpu_s") or 0.0) for r in ran)))
+            values = steps.send(verdicts)
     except StopIteration as stop:
         res: SearchResult = stop.value
+    res.rounds = rounds  # rounds of runs (a value's phases may take several; rows read back take none)
     scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     summary = {
         "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
@@ -366,7 +424,7 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
         "limit_lo": res.bracket[0] if res.bracket else math.nan,
         "limit_hi": res.bracket[1] if res.bracket else math.nan,
         "limit_direction": res.direction, "limit_failed_check": res.failed_check,
-        "limit_runs": res.runs, "limit_new_runs": new_runs, "limit_cpu_s": res.cpu_s,
+        "limit_runs": res.runs, "limit_new_runs": new_runs, "limit_rounds": res.rounds, "limit_cpu_s": res.cpu_s,
         "limit_range_lo": float(req.lo), "limit_range_hi": float(req.hi), "limit_tol": req.tol,
         "limit_phases": req.phases, "limit_checks": ",".join(req.checks),
         "limit_settings": json.dumps(dict(req.settings), sort_keys=True, default=str),
@@ -381,4 +439,5 @@ def run_search(req: LimitRequest, store: Callable[[dict[str, Any]], None], cache
     (:func:`search_items` driven by ``evaluate``).  Returns the result and
     its summary row (the caller stores it).  A sweep runs its searches
     concurrently with its points instead: harness/schedule.py."""
-    return drive(search_items(req, store, cached), lambda it: evaluate(it.req, it.limit_id, it.value, it.phase))
+    return drive(search_items(req, store, cached),
+                 lambda reqs: [evaluate(r.probe.req, r.probe.limit_id, r.probe.value, r.probe.phase) for r in reqs])

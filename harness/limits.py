@@ -9,7 +9,6 @@ stable.
 
 Three layers, kept apart so that the search can be tested on a fake
 criterion:
-
 - harness/limit_search.py -- pure logic: bracket, then bisect, on a
   criterion ``value -> Verdict``; no runs, no storage (the walk and the
   tolerance are described there).
@@ -35,16 +34,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from physbench.adapters import engine_names, get_adapter
+from physbench.contract.phase import PhaseError, shift_scene
+from physbench.contract.scene import resolve_scenario
+from physbench.contract.spec import SpecError
+from physbench.harness.conformance import applicable_checks, split_metric
+from physbench.harness.results import SCHEMA_VERSION
+from physbench.harness.runner import commit_id
+from physbench.harness.sweep_store import consolidate, machine_id, open_sweep, sweep_files, sweeps_dir
+from physbench.harness.limit_eval import load_at as _load_at
 from physbench.harness.limit_eval import (EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, Runner, evaluate_item,
                                 evaluate_point, is_engine_setting, judge, load_at, lost_eval_row, run_search,
                                 search_items, spec_hash, verdict_of_rows)
-from physbench.harness.limit_search import (FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, MAX_WALK, UNSUPPORTED, SearchResult,
-                                  Verdict, drive, search, search_steps)
+from physbench.harness.limit_search import (FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, MAX_WALK, UNSUPPORTED,
+                                            SearchResult, Verdict, drive, search, search_rounds, search_steps)
 
 __all__ = ["EVAL_ROW", "FAILS_THROUGHOUT", "FOUND", "HOLDS_THROUGHOUT", "LIMITS_SUITE", "MAX_WALK", "RESULT_ROW",
            "UNSUPPORTED", "EvalItem", "LimitRequest", "Runner", "SearchResult", "Verdict", "describe", "drive",
            "evaluate_item", "evaluate_point", "is_engine_setting", "judge", "limits_main", "load_at",
-           "lost_eval_row", "parse_number", "run_search", "search", "search_items", "search_steps", "spec_hash",
+           "lost_eval_row", "parse_number", "run_search", "search", "search_items", "search_rounds", "search_steps", "spec_hash",
            "stored_rows", "validate_request", "verdict_of_rows"]
 
 #: the suite name under which ``physbench limits`` stores its rows
@@ -101,11 +109,15 @@ def validate_request(req: LimitRequest) -> list[str]:
     loads, the engine exists, the parameter is a setting of the engine or a
     spec key the scene accepts at both ends of the range, the phases are
     possible."""
-    from physbench.adapters import engine_names, get_adapter
-    from physbench.contract.phase import PhaseError, shift_scene
-    from physbench.contract.spec import SpecError
 
     errs: list[str] = []
+    scenes: dict[float, Any] = {}
+
+    def load_at(req: LimitRequest, value: float) -> Any:  # each end's scene loaded once (SpecError: each time)
+        if value not in scenes:
+            scenes[value] = _load_at(req, value)
+        return scenes[value]
+
     if req.engine not in engine_names():
         return [f"--engine: unknown engine {req.engine!r}; known: {', '.join(engine_names())}"]
     if not (req.lo < req.hi):
@@ -144,7 +156,6 @@ def validate_request(req: LimitRequest) -> list[str]:
     if req.checks:
         try:
             sc = load_at(req, req.lo)
-            from physbench.harness.conformance import applicable_checks, split_metric
 
             have = {split_metric(c.metric)[0] for c in applicable_checks(sc, req.engine)} | {"stable"}
             for m in req.checks:
@@ -200,8 +211,6 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     A search interrupted or rerun at the same commit reads its finished
     evaluations back.  Returns 0 (the search ran; its outcome is data), 2
     for bad input, 130 when interrupted."""
-    from physbench.harness.results import SCHEMA_VERSION
-    from physbench.harness.sweep_store import consolidate, sweeps_dir, machine_id, open_sweep, sweep_files
 
     errs = validate_request(req)
     if errs:
@@ -210,7 +219,6 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
         return 2
     root = Path(out_dir) if out_dir is not None else sweeps_dir()
     limit_id = req.identity(spec_hash(req))
-    from physbench.harness.runner import commit_id
 
     commit = commit_id()
     # finished evaluations of this search at this commit: every stored file of
@@ -218,7 +226,6 @@ def limits_main(req: LimitRequest, out_dir: Path | None = None, as_json: bool = 
     files = [p for m, _s, _sid, p, _c in sweep_files(root, [LIMITS_SUITE], machine_id(), unfinished=True)]
     cached = {k: r for k, r in stored_rows(files).items()
               if r.get("limit_id") == limit_id and r.get("commit") == commit}
-    from physbench.contract.scene import resolve_scenario
 
     suite = _SearchSuite(LIMITS_SUITE, limit_id, Path(resolve_scenario(req.scenario)))
     sd = None

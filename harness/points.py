@@ -1,12 +1,19 @@
-"""One sweep point: what to run (:class:`Point`: scenario, variant, engine,
-swept settings, phase), running it (:func:`run_point`: repeats, timing,
-the point's row) and the executor glue (:func:`lost_point_row`: a point whose
-worker dies or hangs gets an ``error``/``timeout`` row; harness/execute.py).
+"""A stored row of one request: a sweep point's or a search evaluation's.
+
+:class:`Point` is one point of a suite's plan (scenario, variant, engine,
+swept settings, phase); :meth:`Point.request` is the
+:class:`harness.execute.RunRequest` the executors run.  The one row
+builder: :func:`request_row` runs a request (repeats, timing) and returns
+its row; :func:`failure_row` is the row of a request that produced no run
+(the scene did not load, the run raised, the worker died or hung:
+harness.execute.failure_result) -- for a point and for an evaluation of a
+breaking-point search alike (the request's ``probe`` adds the
+evaluation's columns, harness/limit_eval.py).
 """
 
 from __future__ import annotations
 
-import datetime as _dt
+import dataclasses
 import json
 import math
 import statistics
@@ -14,12 +21,15 @@ import time
 import traceback
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Any
 
 from physbench.contract.phase import PhaseError
+from physbench.contract.scene import load_scene
+from physbench.harness import runner
 from physbench.harness import status as st
-from physbench.harness.execute import RunRequest, WorkerLost, request_scene
+from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
+from physbench.harness.execute import RunRequest, WorkerLost, failure_result, request_scene
 
 RUN_TIMEOUT_S = 600.0  # default wall-clock budget per run (suite.timeout_s)
 #: the point setting that carries a step phase (not an engine setting)
@@ -59,7 +69,7 @@ class Point:
         """The swept settings the engine gets (the phase is the harness's)."""
         return {k: v for k, v in self.settings if k != PHASE_KEY}
 
-    @property
+    @cached_property
     def settings_json(self) -> str:
         """The swept settings as canonical JSON (sorted keys, shortest
         round-trip floats)."""
@@ -69,13 +79,21 @@ class Point:
     def label(self) -> str:
         return self.scenario + (f"[{self.variant}]" if self.variant else "")
 
-    @property
+    @cached_property
     def key(self) -> str:
         """Stable identity across runs and nights:
         ``scenario[variant]|engine|{"dt":0.001,...}|<scene hash>``.  Repeats
         and timeouts are not part of it (they change how a point is
         measured, not what); the scene's content is."""
         return self.series_key + (f"|{self.scene_hash}" if self.scene_hash else "")
+
+    def request(self) -> RunRequest:
+        """The request that runs this point (the executors' work item):
+        its engine settings, phase, timed repeats, budget per run, key and
+        scene hash."""
+        return RunRequest(self.path or self.scenario, self.engine, self.variant, self.engine_settings,
+                          phase=self.phase, timeout_s=self.timeout_s, key=self.key, repeats=self.repeats,
+                          scene_hash=self.scene_hash, row_settings=self.settings_json)
 
     @property
     def series_key(self) -> str:
@@ -90,56 +108,72 @@ class Point:
 
 
 @lru_cache(maxsize=64)
-def _scene(scenario: str, variant: str | None):
+def cached_scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
-    from physbench.contract.scene import load_scene
 
     return load_scene(scenario, variant)
 
 
 def run_point(point: Point) -> dict[str, Any]:
-    """Run one point: the first run gives the row (metrics, status); while
-    runs are ``ok``, ``point.repeats`` runs in all are timed (metrics computed
-    on the first only: the engines are deterministic, and metric code is not
-    what is timed).  Only ok runs count in the median and minimum CPU time
-    (``repeats`` of them); a run that is not ok is not repeated (the row's
-    ``cpu_s_per_sim_s`` keeps the runner's figure for the part that ran).
-    Never raises for engine trouble; returns the flat row with the point
-    columns (the sweep-wide ones are added by the caller)."""
-    from physbench.harness import runner
+    """The row of one point (:func:`request_row` of its request)."""
+    return request_row(point.request())
+
+
+def _request_scene(req: RunRequest) -> Any:
+    """The scene of a row's request, phase applied: a scene without
+    overrides comes from a per-process cache."""
+    base = None if req.overrides else cached_scene(req.scenario, req.variant)
+    return request_scene(req, base=base)
+
+
+def request_row(req: RunRequest) -> dict[str, Any]:
+    """Run ``req`` and return its stored row (``sweep``, ``limits``): the
+    first run gives the row (metrics, status); while runs are ``ok``,
+    ``req.repeats`` runs in all are timed (metrics computed on the first
+    only: the engines are deterministic, and metric code is not what is
+    timed).  Only ok runs count in the median and minimum CPU time; a run
+    that is not ok is not repeated (the row's ``cpu_s_per_sim_s`` keeps
+    the runner's figure for the part that ran).  A request with a
+    ``probe`` (one evaluation of a breaking-point search) also gets the
+    probe's columns (its verdict).  Never raises for engine trouble: a
+    scene that does not load, a run that raises are :func:`failure_row`
+    rows.  The sweep-wide columns are added by the caller."""
 
     t0 = time.perf_counter()
+    probe = req.probe
+    scene = None
     try:
-        scene = _scene(point.path or point.scenario, point.variant)
+        scene = _request_scene(req)
     except Exception as e:
-        return _status_row(point, st.ERROR, f"scene failed to load: {type(e).__name__}: {e}", t0)
-    if point.scene_hash and scene.content_hash != point.scene_hash:
-        return _status_row(point, st.ERROR, f"scene changed since the sweep was planned (content hash "
-                                           f"{scene.content_hash}, planned {point.scene_hash}); sweep again", t0)
-    settings = point.engine_settings
-    if point.phase:
-        try:
-            scene = request_scene(RunRequest(point.scenario, point.engine, point.variant, settings,
-                                             phase=point.phase), base=scene)
-        except PhaseError as e:
-            return _status_row(point, st.ERROR, f"phase {point.phase:g}: {e}", t0, scene=scene)
+        if probe is not None:
+            msg, tb = probe.load_error(e)
+            return failure_row(req, st.ERROR, msg, t0, scene=scene, tb=tb)
+        what = f"phase {req.phase:g}: {e}" if isinstance(e, PhaseError) else \
+            f"scene failed to load: {type(e).__name__}: {e}"
+        return failure_row(req, st.ERROR, what, t0)
+    if req.scene_hash and scene.content_hash != req.scene_hash:
+        return failure_row(req, st.ERROR, f"scene changed since the sweep was planned (content hash "
+                                          f"{scene.content_hash}, planned {req.scene_hash}); sweep again", t0)
+    skipped = probe.skipped_metrics(scene) if probe is not None else ()
     first = None
     cpu: list[float] = []
     # a blow-up is recorded in the status; numpy's overflow warnings on the
     # way there would only scramble the progress display
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for i in range(point.repeats):
+        for i in range(max(1, req.repeats)):
             try:
-                res = runner.run(scene, point.engine, settings, timeout_s=point.timeout_s,
-                                 compute_metrics=(i == 0))
+                res = runner.run(scene, req.engine, dict(req.settings), timeout_s=req.timeout_s,
+                                 compute_metrics=req.compute_metrics and i == 0,
+                                 model_metrics=req.model_metrics and not skipped)
             except Exception as e:  # a bad setting combination, an adapter import error ...
                 if first is None:
-                    return _status_row(point, st.FAILED, f"could not run: {type(e).__name__}: {e}", t0,
+                    return failure_row(req, st.FAILED, f"could not run: {type(e).__name__}: {e}", t0,
                                        scene=scene, tb=traceback.format_exc(limit=5))
                 first.notes.append(f"repeat {i + 1} raised {type(e).__name__}: {e}; not timed")
                 break
             res.trace = None
+            res.contacts = None
             if first is None:
                 first = res
             if res.status != st.OK:  # a partial run's cost is no point of a work-precision curve
@@ -147,19 +181,22 @@ def run_point(point: Point) -> dict[str, Any]:
                     first.notes.append(f"repeat {i + 1} ended {res.status} ({res.message}); not timed")
                 break
             cpu.append(float(res.metrics.get("cpu_s_per_sim_s", math.nan)))
+    if probe is not None and not cpu:  # an evaluation's row times its one run, whatever its status
+        cpu = [float(first.metrics.get("cpu_s_per_sim_s", math.nan))]
     row = first.row()
-    row.update(_point_columns(point, scene, row, cpu, t0, first))
+    row.update(_request_columns(req, scene, row, cpu, t0, first))
+    if probe is not None:
+        row.update(probe.columns(scene, first, skipped))
     return row
 
 
-def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
-                   result: Any = None) -> dict[str, Any]:
-    """The sweep's columns of a point's row.  ``checks`` (JSON) holds the
-    verdicts of the scene's checks on this point's run
+def _request_columns(req: RunRequest, scene: Any, row: dict[str, Any], cpu: list[float], t0: float,
+                     result: Any = None) -> dict[str, Any]:
+    """The sweep's columns of a request's row.  ``checks`` (JSON) holds the
+    verdicts of the scene's checks on this run
     (harness.conformance.run_verdicts), and the scene's columns
     (harness.conformance.scene_columns: primary metric, its threshold,
     tags): the report reads them from the row, never from the scene."""
-    from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
 
     metric = getattr(scene, "primary_metric", None)
     value = row.get(metric) if metric else None
@@ -170,12 +207,14 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     finite = [c for c in cpu if math.isfinite(c)]
     cols = scene_columns(scene) if scene is not None else {"primary_metric": None, "primary_threshold": None,
                                                             "tags": None}
+    settings = req.row_settings if req.row_settings is not None else json.dumps(
+        {**req.settings, **({PHASE_KEY: req.phase} if req.phase else {})}, sort_keys=True, separators=(",", ":"))
     return {
         **cols,
-        "point_key": point.key,
+        "point_key": req.key,
         "checks": verdicts_column(run_verdicts(scene, result)) if scene is not None and result is not None else "[]",
-        "point_settings": point.settings_json,
-        "phase": point.phase,
+        "point_settings": settings,
+        "phase": float(req.phase),
         "primary_error": err,
         "cpu_s_per_sim_s_median": statistics.median(finite) if finite else math.nan,
         "cpu_s_per_sim_s_min": min(finite) if finite else math.nan,
@@ -184,57 +223,44 @@ def _point_columns(point: Point, scene: Any, row: dict[str, Any], cpu: list[floa
     }
 
 
-def _status_row(point: Point, status: str, message: str, t0: float, scene: Any = None,
-                tb: str | None = None, stderr_tail: str | None = None,
-                machine: dict[str, str] | None = None) -> dict[str, Any]:
-    """A row for a point that produced no RunResult (scene failed to load,
-    the run raised, the worker died); ``machine``: the summary of the host
-    it ran on (default this one)."""
-    from physbench.adapters import get_adapter
-    from physbench.harness.runner import RunResult, commit_id, machine_info
-
-    settings = point.engine_settings
-    version = ""
-    try:
-        cls = get_adapter(point.engine)
-        version = cls.capabilities().version
-        if scene is None:
-            scene = _scene(point.path or point.scenario, point.variant)
-        settings = cls.resolve_settings(scene, settings)
-    except Exception:
-        pass  # keep the swept settings only
-    res = RunResult(point.scenario, point.variant, point.engine, version, status, message, settings,
-                    machine=machine or machine_info(), commit=commit_id(),
-                    timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                    scene_hash=point.scene_hash, scene_path=getattr(scene, "source", "") or (point.path or ""))
-    if tb:
-        res.info["traceback"] = tb
-    if stderr_tail:
-        res.info["stderr_tail"] = stderr_tail
+def failure_row(req: RunRequest, status: str, message: str, t0: float | None = None, scene: Any = None,
+                tb: str | None = None, lost: WorkerLost | None = None) -> dict[str, Any]:
+    """The row of a request that produced no run (its scene did not load,
+    the run raised, the worker died or hung: ``lost``): the RunResult of
+    harness.execute.failure_result (status, message, engine version,
+    resolved settings, machine, traceback, stderr tail) with the request's
+    row columns, and for an evaluation its probe's failing verdict.  The
+    one failure-row builder of ``sweep`` and ``limits``."""
+    t0 = time.perf_counter() if t0 is None else t0
+    if scene is None:  # for the resolved settings and the scene's columns, where it loads
+        try:
+            scene = _request_scene(dataclasses.replace(req, phase=0.0))
+        except Exception:
+            scene = None
+    res = failure_result(req, status, message, scene, lost=lost, tb=tb)
     row = res.row()
-    row.update(_point_columns(point, scene, row, [], t0))
+    row.update(_request_columns(req, scene, row, [], t0))
+    if req.probe is not None:
+        row.update(req.probe.failed_columns(message))
     return row
+
+
+def lost_row(req: RunRequest, lost: WorkerLost) -> dict[str, Any]:
+    """The ``error``/``timeout`` row of a request whose worker died, hung
+    or raised, naming why (this point, this value)."""
+    noun = "value" if req.probe is not None else "point"
+    if lost.kind == "raised" and req.probe is None:
+        msg = f"point failed: {lost.message}"
+    else:
+        msg = lost.full_message().replace("this item", f"this {noun}")
+    return failure_row(req, lost.status, msg, lost=lost)
 
 
 # ---------------------------------------------------------------------------
 # executing points
 
 
-def _point_budget(p: Point) -> float:
-    """Wall-clock budget of a point's worker: its timed runs, each within
-    the suite's ``timeout_s``."""
-    return p.timeout_s * max(1, p.repeats)
-
-
 def lost_point_row(p: Point, value: WorkerLost) -> dict[str, Any]:
     """The ``error``/``timeout`` row of a point whose worker died, hung or
-    raised, naming why."""
-    t0 = time.perf_counter()
-    if value.kind == "died":
-        msg = f"{value.full_message()}".replace("this item", "this point")
-    elif value.kind == "timeout":
-        msg = value.full_message()
-    else:
-        msg = f"point failed: {value.message}"
-    return _status_row(p, value.status, msg, t0, tb=value.traceback or None,
-                       stderr_tail=value.stderr_tail or None, machine=value.machine)
+    raised (:func:`lost_row` of its request)."""
+    return lost_row(p.request(), value)

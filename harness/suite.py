@@ -389,18 +389,27 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     from physbench.contract.scene import load_scene, n_steps
     from physbench.contract.spec import record_size_error
 
+    scenes: dict[int, Any] = {}  # a scene does not depend on the engine: loaded once per entry
+
+    def scene_of(i: int, entry: SuiteEntry) -> Any:
+        if i not in scenes:
+            try:
+                scenes[i] = load_scene(entry.path or entry.scenario, entry.variant)
+            except SpecError:
+                scenes[i] = None  # reported where the scenario is listed
+        return scenes[i]
+
     for e, ax in axes.items():
         if "dt" not in ax:
             continue
         dt = min(float(v) for v in ax["dt"])
-        for entry in scen:
-            try:
-                sc = load_scene(entry.path or entry.scenario, entry.variant)
-            except SpecError:
-                continue  # reported where the scenario is listed
+        for i, entry in enumerate(scen):
+            sc = scene_of(i, entry)
+            if sc is None:
+                continue
             why = record_size_error(n_steps(sc.duration, dt), sc.n_bodies)
             if why:
-                errors.append(f"{where}.grid.dt: {_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
+                errors.append(f"{where}.grid.dt: {scenario_label(entry.scenario, entry.variant)} at dt = {dt:g} on {e}: "
                               f"{why}")
                 return
 
@@ -468,15 +477,15 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     listed |= {(r.scenario, r.variant) for r in suite.limits}
     if scenarios is not None:
         for s in scenarios:
-            if not any(s == sid or s == _label(sid, var) for sid, var in listed):
+            if not any(s == sid or s == scenario_label(sid, var) for sid, var in listed):
                 raise ValueError(f"scenario {s} is not in suite {suite.name} "
-                                 f"(its scenarios: {', '.join(sorted({_label(*x) for x in listed}))})")
+                                 f"(its scenarios: {', '.join(sorted({scenario_label(*x) for x in listed}))})")
     points: list[Point] = []
     seen: set[str] = set()
     for b in suite.sweeps:
         for entry in b.scenarios:
             sid, var = entry.scenario, entry.variant
-            if scenarios is not None and sid not in scenarios and _label(sid, var) not in scenarios:
+            if scenarios is not None and sid not in scenarios and scenario_label(sid, var) not in scenarios:
                 continue
             for e in b.engines:
                 if engines is not None and e not in engines:
@@ -497,5 +506,5 @@ def expand(suite: Suite, engines: list[str] | None = None, scenarios: list[str] 
     return points
 
 
-def _label(sid: str, var: str | None) -> str:
+def scenario_label(sid: str, var: str | None) -> str:
     return sid + (f"[{var}]" if var else "")

@@ -55,7 +55,7 @@ from physbench.harness.executors import make_executor
 from physbench.harness.points import Point
 from physbench.harness.results import SCHEMA_VERSION
 from physbench.harness.schedule import expected_costs, run_schedule
-from physbench.harness.suite import _label, expand, load_suite
+from physbench.harness.suite import scenario_label, expand, load_suite
 from physbench.harness.sweep_store import _parts, _SweepDir, consolidate, machine_id, open_sweep, sweeps_dir
 
 STATUSES = st.RUN_STATUSES
@@ -160,7 +160,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         err.print(f"note: executor serial runs one point at a time; jobs={jobs} ignored")
         jobs = 1
     reqs = [r for r in s.limits if (engines is None or r.engine in engines)
-            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
+            and (scenarios is None or r.scenario in scenarios or scenario_label(r.scenario, r.variant) in scenarios)]
     if not points and not reqs:
         err.print(f"error: suite {s.name}: no points selected (engines {engines}, scenarios {scenarios})",
                   markup=False)

@@ -29,8 +29,8 @@ first by the one before: harness/schedule.py), and prints for each run:
 Then the client's CPU per stored row (:func:`store_costs`: a part written
 and merged the pandas way and the Arrow way, on the 1-worker run's rows),
 the scheduler overhead per item of each executor (sleeping tasks,
-harness.executors.bench_overhead) and the thread pools of its run processes
-(harness.executors.thread_counts).  Timings of a shared machine are noisy:
+harness.exec_bench.bench_overhead) and the thread pools of its run processes
+(harness.exec_bench.thread_counts).  Timings of a shared machine are noisy:
 compare ``cpu_s`` and ``idle`` as well as the wall time, and rerun on a
 quiet machine for the figures in docs/SWEEPS.md.  Example::
 
@@ -63,7 +63,9 @@ def _cpu() -> float:
 class CpuAccount:
     """CPU seconds (user + system) by role while it is entered: this
     process's main thread, its part-writer thread, its other threads, and
-    its descendants by kind (Dask worker processes, run processes, other),
+    its descendants by kind (Dask worker processes, run processes, other)
+    and, apart, the sampler thread's own CPU (``sampler``: no part of the
+    sweep; it counted as ``other threads`` before),
     sampled every ``dt`` seconds (a process's CPU up to its last sample;
     processes that exist at entry count from there).  ``report()`` is a
     dict of role -> CPU s, ``wall_s`` and ``cores`` (the CPU cores this
@@ -132,9 +134,12 @@ class CpuAccount:
         def used(tid: int) -> float:
             return self.threads[tid] - self.threads0.get(tid, 0.0)
 
+        me = self._thread.native_id  # the sampler: the measurement's own CPU, no part of the sweep's
         out = {"main thread": used(self.main) if self.main in self.threads else 0.0,
                "part writer": sum(used(t) for t in self.threads if t in self.writers),
-               "other threads": sum(used(t) for t in self.threads if t != self.main and t not in self.writers)}
+               "other threads": sum(used(t) for t in self.threads
+                                    if t != self.main and t not in self.writers and t != me),
+               "sampler": used(me) if me in self.threads else 0.0}
         for kind in ("dask worker processes", "run processes", "other processes"):
             out[kind] = sum(self.last[k] - self.first[k] for k in self.kind if self.kind[k] == kind)
         out["wall_s"] = self.wall
@@ -264,31 +269,56 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     """The makespan on ``jobs`` uncontended workers of a sweep's items,
     each taking the wall time it took in ``sweep`` (a DataFrame of a
     finished sweep of ``suite``, best a 1-worker one; the searches take the
-    same path, their verdicts read from its rows): ``total_s`` (all items,
-    one worker), ``ideal_s`` (total / jobs, or the longest search if
-    longer), ``new_s`` (harness/schedule.py's order), ``old_s`` (the points
-    in planned order, then the searches, ``jobs`` at a time, each
-    sequential: the path before), and the speed-ups total / new, total /
-    old: what the schedule allows before any contention or overhead.  The
+    same path, their verdicts read from its rows, in rounds as wide as the
+    virtual workers allow: a value the stored search did not evaluate holds
+    on its limit's side and takes the mean time of its evaluations):
+    ``total_s`` (all items,
+    one worker), ``ideal_s`` (total / jobs), ``new_s``
+    (harness/schedule.py's order and rounds), ``narrow_s`` (the same, every
+    search one value at a time: the schedule before wide rounds), ``work_s`` (the worker
+    seconds it spent: total and a wide round's extra evaluations),
+    ``old_s`` (the points in planned order, then the searches, ``jobs`` at
+    a time, each one value at a time: the path before), and the speed-ups
+    total / new, total / old: what the schedule allows before any
+    contention or overhead.  The
     new order knows the items' times (as a sweep does from the one before
     it)."""
     import math
 
     from physbench.harness.schedule import run_schedule
-    from physbench.harness.suite import _label, expand, load_suite
+    from physbench.harness.suite import scenario_label, expand, load_suite
 
     s = load_suite(suite)
     points = expand(s, engines, scenarios)
     reqs = [r for r in s.limits if (engines is None or r.engine in engines)
-            and (scenarios is None or r.scenario in scenarios or _label(r.scenario, r.variant) in scenarios)]
-    rows = {r["point_key"]: r for r in sweep.to_dict("records")}
+            and (scenarios is None or r.scenario in scenarios or scenario_label(r.scenario, r.variant) in scenarios)]
+    records = sweep.to_dict("records")
+    rows = {r["point_key"]: r for r in records}
+    # a wide round's values the stored (serial) search did not evaluate: they hold on the limit's side of
+    # its bracket and take the mean time of its stored evaluations; the search's decisions never read them
+    summaries = {r["limit_id"]: r for r in records if r.get("row_kind") == "limit"}
+    mean_s: dict[str, list[float]] = {}
+    for r in records:
+        if r.get("row_kind") == "limit_eval" and math.isfinite(w := float(r.get("point_wall_s", math.nan))):
+            mean_s.setdefault(r["limit_id"], []).append(w)
+
+    def modelled(req: Any) -> dict[str, Any]:
+        item = req.probe
+        s = summaries.get(item.limit_id, {})
+        limit, outcome = s.get("limit_value", math.nan), s.get("limit_outcome")
+        holds = outcome == "holds_throughout" or (outcome == "found" and (
+            item.value <= limit if s.get("limit_direction") == "below" else item.value >= limit))
+        ws = mean_s.get(item.limit_id, [0.0])
+        return {"point_key": req.key, "limit_value": item.value, "phase": item.phase, "limit_holds": bool(holds),
+                "limit_reason": "" if holds else "modelled", "limit_cpu_s": 0.0, "status": "ok",
+                "point_wall_s": sum(ws) / len(ws)}
 
     def duration(item: Any) -> float:
-        w = float(rows[item.key]["point_wall_s"])
+        w = float((rows.get(item.key) or modelled(item))["point_wall_s"])
         return w if math.isfinite(w) else 0.0
 
     def answer(item: Any) -> dict[str, Any]:
-        return dict(rows[item.key])
+        return dict(rows.get(item.key) or modelled(item))
 
     total = sum(duration(p) for p in points)
     search_s: dict[int, float] = {}
@@ -299,7 +329,7 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     ex = VirtualExecutor(1, duration, answer)
     run_schedule(ex, [], reqs, lambda p, r: None, done, lambda r: None)
     for _t, item in ex.started:  # each search's chain, one worker: its total
-        search_s[id(item.req)] = search_s.get(id(item.req), 0.0) + duration(item)
+        search_s[id(item.probe.req)] = search_s.get(id(item.probe.req), 0.0) + duration(item)
     chains = [search_s.get(id(r), 0.0) for r in reqs]
     total += sum(chains)
     by_req = {id(r): c for r, c in zip(reqs, chains)}
@@ -307,14 +337,19 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     new = VirtualExecutor(jobs, duration, answer)
     run_schedule(new, points, reqs, lambda p, r: None, done, lambda r: None,
                  point_cost=duration, search_cost=lambda r: by_req.get(id(r), 0.0))
+    narrow = VirtualExecutor(jobs, duration, answer)
+    run_schedule(narrow, points, reqs, lambda p, r: None, done, lambda r: None,
+                 point_cost=duration, search_cost=lambda r: by_req.get(id(r), 0.0), wide_rounds=False)
     old_points = VirtualExecutor(jobs, duration, answer)
     run_schedule(old_points, points, [], lambda p, r: None, done, lambda r: None)
     old = old_points.makespan + _list_schedule(chains, jobs)
-    ideal = max(total / jobs, max(chains, default=0.0))
+    ideal = total / jobs
     return {"jobs": jobs, "points": len(points), "searches": len(reqs), "evaluations": len(ex.started),
-            "total_s": total, "ideal_s": ideal, "new_s": new.makespan, "old_s": old,
+            "total_s": total, "ideal_s": ideal, "new_s": new.makespan, "narrow_s": narrow.makespan,
+            "old_s": old, "work_s": new.busy,
             "longest_search_s": max(chains, default=0.0), "longest_point_s": max(map(duration, points), default=0.0),
             "speedup_new": total / new.makespan if new.makespan else math.nan,
+            "speedup_narrow": total / narrow.makespan if narrow.makespan else math.nan,
             "speedup_old": total / old if old else math.nan}
 
 
@@ -330,12 +365,12 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
     import statistics
 
     from physbench.harness.execute import WorkerPool
-    from physbench.harness.points import _scene, run_point
-    from physbench.harness.schedule import _model_cost
+    from physbench.harness.points import cached_scene, run_point
+    from physbench.harness.schedule import model_cost
     from physbench.harness.suite import expand, load_suite
 
     pts = expand(load_suite("nightly"), [engine], [scenario])
-    point = max(pts, key=lambda p: _model_cost(_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
+    point = max(pts, key=lambda p: model_cost(cached_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
 
     def cpu(pool: WorkerPool, n: int) -> list[float]:
         return [float(r["cpu_s_per_sim_s_median"]) for _p, r in pool.map(run_point, [point] * n)]
@@ -422,7 +457,8 @@ def scaling(run: dict[str, Any], workers: tuple[int, ...] = PROJECT_WORKERS) -> 
     (main thread: start-up, the loop feeding the executor and receiving
     results (``client_loop_ms``), the merge; the part writer) and the scheduler's (a LocalCluster's scheduler, comms and
     nannies run in the client's other threads; with the process executor
-    those hold only the sampler) -- against the parallel CPU (run
+    there are none: its transport to the run processes is the main
+    thread's; the sampler's own CPU is left out) -- against the parallel CPU (run
     processes: the points' own CPU; Dask worker processes: their task
     handling and transport).  ``speedup[N]`` = 1 / (s + (1 - s) / N), s =
     serial / (serial + parallel): what N workers on cores of their own
@@ -475,7 +511,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keep", type=Path, default=None, help="store the sweeps here (default: a temporary "
                                                            "directory, removed)")
     args = p.parse_args(argv)
-    from physbench.harness.executors import bench_overhead, make_executor, thread_counts
+    from physbench.harness.exec_bench import bench_overhead, thread_counts
+    from physbench.harness.executors import make_executor
 
     if args.dask_batch_s is not None:
         from physbench.harness import dask_executor
@@ -554,8 +591,10 @@ def main(argv: list[str] | None = None) -> int:
         _print_scaling(sc)
     for rp in replays:
         print(f"replay of the first run's item times on {rp['jobs']} uncontended workers: total {rp['total_s']:.1f} s, "
-              f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x), "
-              f"points then searches {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
+              f"ideal {rp['ideal_s']:.1f} s; this schedule {rp['new_s']:.1f} s ({rp['speedup_new']:.2f}x; "
+              f"{rp['work_s']:.1f} s of work with the wide rounds' extra evaluations; one value at a time "
+              f"{rp['narrow_s']:.1f} s, {rp['speedup_narrow']:.2f}x), "
+              f"points then searches one value at a time {rp['old_s']:.1f} s ({rp['speedup_old']:.2f}x); longest search "
               f"{rp['longest_search_s']:.1f} s, longest point {rp['longest_point_s']:.1f} s")
     if store:
         _print_store(store)

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from physbench.harness.limits import (EVAL_ROW, FAILS_THROUGHOUT, FOUND, HOLDS_THROUGHOUT, LimitRequest, Verdict,
-                            run_search, search)
+                                      drive, run_search, search, search_steps)
 from physbench.contract.phase import phase_values
 
 
@@ -283,3 +283,61 @@ def test_sweep_computes_limit_blocks(tmp_path):
         assert ev[ev["limit_value"] == r["limit_value"]]["limit_holds"].all()
         other = r["limit_hi"] if r["limit_direction"] == "below" else r["limit_lo"]
         assert not ev[ev["limit_value"] == other]["limit_holds"].all()
+
+
+# --- rounds: several values at once, the same answer --------------------------
+
+
+def _window(x: float) -> Verdict:
+    return Verdict(not (0.1 < x <= 0.5), "window")
+
+
+@pytest.mark.parametrize("case", [
+    dict(crit=lambda x: Verdict(x <= 0.0123, "past"), lo=1e-4, hi=1.0, tol=0.01),
+    dict(crit=lambda x: Verdict(x <= 0.37, "past"), lo=1e-4, hi=1.0, tol=0.05),
+    dict(crit=lambda x: Verdict(x >= 37, "few"), lo=1, hi=200, tol=0.05, integer=True),
+    dict(crit=lambda x: Verdict(x <= 0.62, "past"), lo=0.0, hi=1.0, tol=0.01),
+    dict(crit=lambda x: Verdict(x <= 10.0, "past"), lo=0.1, hi=5.0, tol=0.05),
+    dict(crit=lambda x: Verdict(x <= 0.01, "past"), lo=0.1, hi=5.0, tol=0.05),
+    dict(crit=_window, lo=0.01, hi=100.0, tol=0.02),
+])
+def test_wider_rounds_give_the_same_answer_in_fewer_rounds(case):
+    """Width 1 is the one-at-a-time search value for value (``search_steps``);
+    wider rounds (2, 3, 7, 15 values) give the same outcome, limit, bracket,
+    direction and failed check for monotone and non-monotone criteria, with
+    every round's first value one the one-at-a-time search evaluates; the
+    rounds drop once 3 or more values go at once (two bisection levels per
+    round), and the wider search evaluates every value of the narrow one."""
+    kw = {k: v for k, v in case.items() if k != "crit"}
+    crit = case["crit"]
+    serial_values = []
+    one = drive(search_steps(**kw), lambda x: serial_values.append(x) or crit(x))
+    assert [x for x, _ in one.evaluations] == serial_values and one.rounds == one.runs == len(serial_values)
+    assert search(crit, **kw, width=1).evaluations == one.evaluations
+    answer = (one.outcome, one.limit, one.bracket, one.direction, one.failed_check)
+    for width in (2, 3, 7, 15):
+        wide = search(crit, **kw, width=width)
+        assert (wide.outcome, wide.limit, wide.bracket, wide.direction, wide.failed_check) == answer, width
+        assert {x for x, _ in wide.evaluations} >= set(serial_values)
+        assert wide.rounds <= one.rounds
+        if one.outcome == FOUND and width >= 3:
+            assert wide.rounds < one.rounds, (width, wide.rounds, one.rounds)
+    if one.outcome == FOUND:
+        # 7 values a round: three bisection levels per round, the walk 7 steps at a time
+        assert search(crit, **kw, width=7).rounds <= 2 + math.ceil((one.rounds - 1) / 3)
+
+
+def test_rounds_hold_the_bracket_of_a_monotone_threshold():
+    """A deterministic monotone criterion: at every width the bracket holds
+    the threshold, is as narrow as asked, and bisection rounds fall as
+    log2(width + 1) levels each."""
+    t, tol = 0.0123, 0.01
+    crit = lambda x: Verdict(x <= t, "past")
+    rounds = {}
+    for width in (1, 3, 7, 15, 31):
+        r = search(crit, 1e-4, 1.0, tol, width=width)
+        lo, hi = r.bracket
+        assert lo <= t < hi and hi / lo - 1 <= tol
+        rounds[width] = r.rounds
+    assert rounds[1] > rounds[3] > rounds[7] > rounds[15] >= rounds[31]
+    assert rounds[31] <= 4, rounds

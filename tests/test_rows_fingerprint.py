@@ -31,7 +31,7 @@ def test_run_and_status_rows_carry_the_fingerprint(head_on_path):
     assert m["blas"] == "; ".join(f"{b['library']} {b['version']} {b['core_type']}".strip() for b in fp["blas"])
     # a row made without a run (scene failed to load, worker died) names the same machine
     point = P.Point("billiards.head_on", None, "mujoco", (("dt", 0.001),))
-    status = P._status_row(point, "error", "test", 0.0)
+    status = P.failure_row(point.request(), "error", "test", 0.0)
     assert _machine_cols(status) == m
 
 

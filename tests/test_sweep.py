@@ -680,14 +680,14 @@ def test_consolidation_still_stores_bool_and_text_mixes_as_text(tmp_path):
 
 
 def test_a_point_that_raises_in_the_serial_executor_is_an_error_row(tmp_path, monkeypatch):
-    real = P.run_point
+    real = P.request_row
 
-    def run_point(p):
-        if p.settings_dict.get("dt") == 0.001 and p.engine == "mujoco":
+    def request_row(r):
+        if r.settings.get("dt") == 0.001 and r.engine == "mujoco":
             raise KeyError("bug in the row code")
-        return real(p)
+        return real(r)
 
-    monkeypatch.setattr(P, "run_point", run_point)
+    monkeypatch.setattr(P, "request_row", request_row)
     out = tmp_path / "out"
     assert S.sweep_main("smoke", out_dir=out, executor="serial") == 0
     df, man = consolidated(out)

@@ -69,6 +69,7 @@ match).  ``tolerance`` also widens max/min bounds.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -88,15 +89,16 @@ from physbench.harness.conformance.store import save_rows  # noqa: F401
 from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
                                           _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
                                           evaluate_check, hard_checks, run_verdicts, scene_columns, split_metric)
-from physbench.harness.execute import WorkerLost, execute_request, lost_result
+from physbench.harness.execute import RunRequest, WorkerLost, execute_request, lost_result
 from physbench.harness.executors import make_executor
 
 
-def execute(spec: RunSpec):
-    """Run one RunSpec in this process (harness.execute.execute_request):
-    never raises (engine import errors become a RunResult with status
-    'failed').  The trace is dropped (results cross process boundaries)."""
-    return execute_request(spec.request())
+def execute(item: RunSpec | RunRequest):
+    """Run one request (or a RunSpec's) in this process
+    (harness.execute.execute_request): never raises (engine import errors
+    become a RunResult with status 'failed').  The trace is dropped
+    (results cross process boundaries)."""
+    return execute_request(item.request() if isinstance(item, RunSpec) else item)
 
 
 def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
@@ -122,13 +124,21 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor:
             Progress(*cols, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(runs))
 
-        def run_one(r: RunSpec):
-            return execute(r)  # looked up at call time (tests patch it for inline runs)
+        def run_one(q: RunRequest):
+            return execute(q)  # looked up at call time (tests patch it for inline runs)
 
+        # the executors' items are requests (harness.execute.RunRequest), keyed by the run's run_key
+        spec_of = {}
+        reqs = []
+        for r in runs:
+            q = dataclasses.replace(r.request(), key=r.run_key)
+            spec_of[id(q)] = r
+            reqs.append(q)
         fn = run_one if executor in ("inline", "serial") else execute
-        for r, value in ex.map(fn, runs, budget_s=lambda r: r.timeout_s,
-                               on_start=lambda r: bar.update(task, description=escape(r.request().label))):
-            res = lost_result(r.request(), value) if isinstance(value, WorkerLost) else value
+        for q, value in ex.map(fn, reqs, budget_s=lambda q: q.budget_s,
+                               on_start=lambda q: bar.update(task, description=escape(q.label))):
+            r = spec_of.pop(id(q))
+            res = lost_result(q, value) if isinstance(value, WorkerLost) else value
             results[r.key] = res
             if on_result is not None:
                 on_result(r, res)
