@@ -31,42 +31,7 @@ def test_spread_of_planted_traces():
     assert math.isnan(spread({"a": _trace(0.0)}, 0.1)["consensus_spread"])  # one engine: no spread
 
 
-SPRING = """
-[scenario]
-family = "selfcheck"
-title = "spring pair"
-duration = 2.0
-dt = 0.02
-planar = true
-effects = ["spring"]
-primary_metric = "self_consistency_error"
-
-[[body]]
-name = "light"
-shape = "sphere"
-radius = 0.05
-mass = 1.0
-position = [-0.4, 0.0, 1.0]
-
-[[body]]
-name = "heavy"
-shape = "sphere"
-radius = 0.05
-mass = 2.0
-position = [0.2, 0.0, 1.0]
-
-[[spring]]
-a = "light"
-b = "heavy"
-stiffness = 20.0
-rest_length = 0.5
-
-[reference]
-model = "self_consistency"
-"""
-
-
-def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
+def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path, spring_pair):
     """Each engine at dt/4 through the executor; the spread is the largest
     distance between those runs, made again here with the runner.
     Measured (dt/4 = 5 ms): 1.02e-3 m, pymunk 7.3.1 against mujoco 4.0.0
@@ -77,7 +42,7 @@ def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
     from physbench.harness.runner import run
 
     p = tmp_path / "spring.toml"
-    p.write_text(textwrap.dedent(SPRING))
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
     engines = ["reference", "mujoco", "pybullet", "pymunk"]
     out = run_consensus(str(p), engines, executor="inline")
     ran = [e for e in engines if out["runs"][e][0] == "ok"]
@@ -90,13 +55,13 @@ def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
     assert 1e-6 < out["consensus_spread"] < 1e-2
 
 
-def test_cli_consensus(tmp_path, capsys):
+def test_cli_consensus(tmp_path, capsys, spring_pair):
     import json
 
     from physbench.harness.cli import main
 
     p = tmp_path / "spring.toml"
-    p.write_text(textwrap.dedent(SPRING))
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
     assert main(["consensus", str(p), "--engines", "reference", "mujoco", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert [(q["a"], q["b"]) for q in out["pairs"]] == [("mujoco", "reference")]
