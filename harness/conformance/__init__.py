@@ -95,7 +95,15 @@ from physbench.harness.executors import make_executor
 def execute(spec: RunSpec):
     """Run one RunSpec in this process (harness.execute.execute_request):
     never raises (engine import errors become a RunResult with status
-    'failed').  The trace is dropped (results cross process boundaries)."""
+    'failed').  The trace is dropped (results cross process boundaries).
+    An ensemble spec runs its members here, one after the other
+    (harness.ensemble.ensemble_result), each with the per-member budget."""
+    if spec.ensemble:
+        from physbench.harness.ensemble import ensemble_result
+
+        per = None if spec.timeout_s is None else spec.timeout_s / spec.ensemble.n
+        return ensemble_result(spec.path or spec.scenario, spec.variant, spec.engine, dict(spec.settings),
+                               spec.ensemble, timeout_s=per)
     return execute_request(spec.request())
 
 
@@ -162,7 +170,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
                traces: str | Path | None = None, scheduler: str | None = None,
-               settings: dict[str, dict[str, Any]] | None = None) -> int:
+               settings: dict[str, dict[str, Any]] | None = None, ensemble: dict[str, Any] | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -176,7 +184,10 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
     on local worker processes).  ``settings``: engine -> setting overrides
     for that engine's runs (``check --set ENGINE:KEY=VALUE``; a check's
-    ``@dt=...`` setting wins over them).  Returns 1 on any FAIL, ERROR or XPASS, 5
+    ``@dt=...`` setting wins over them).  ``ensemble`` (``check --ensemble
+    N --sigma S --threshold T``: n, position, threshold): the ensemble
+    check ``predictable`` on every base scene with noise to draw
+    (harness.conformance.plan.plan).  Returns 1 on any FAIL, ERROR or XPASS, 5
     (:data:`NOTHING_CHECKED`) when no check applied to any run, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
@@ -195,7 +206,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         return 1
     notes: list[str] = []
     idle: list[tuple[str, str | None, str]] = []
-    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings)
+    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings, ensemble=ensemble)
     for line in notes:  # check engines not installed here (harness.conformance.plan.engine_names_in_checks)
         err.print(f"note: {line}", markup=False, highlight=False, soft_wrap=True)
     for line in _idle_lines(idle):
