@@ -98,6 +98,11 @@ def execute(spec: RunSpec):
     'failed').  The trace is dropped (results cross process boundaries).
     An ensemble spec runs its members here, one after the other
     (harness.ensemble.ensemble_result), each with the per-member budget."""
+    if spec.consensus:
+        from physbench.harness.consensus import consensus_result
+
+        per = None if spec.timeout_s is None else spec.timeout_s / len(spec.consensus)
+        return consensus_result(spec.path or spec.scenario, spec.variant, list(spec.consensus), timeout_s=per)
     if spec.ensemble:
         from physbench.harness.ensemble import ensemble_result
 

@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, describe_bound,
+from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, check_applies,
+                                                   describe_bound,
                                           evaluate_check, hard_checks, scene_columns, split_metric)
 from physbench.harness.execute import DEFAULT_TIMEOUT_S, RunRequest
 from physbench.contract.scene import Check, Scene
@@ -42,11 +43,15 @@ class RunSpec:
     #: (harness.ensemble.Perturbation; harness.ensemble.ensemble_result):
     #: the run of the scene's checks on ENSEMBLE_METRICS (``predictable``)
     ensemble: Any = None
+    #: the engines of a consensus run (engine ``consensus``: their runs at
+    #: dt / k^2 compared, harness.consensus.consensus_result); () otherwise
+    consensus: tuple = ()
 
     @property
     def key(self) -> tuple:
         base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
-        return base + ((self.phase,) if self.phase else ()) + (("ensemble", self.ensemble) if self.ensemble else ())
+        return (base + ((self.phase,) if self.phase else ()) + (("ensemble", self.ensemble) if self.ensemble else ())
+                + (("consensus", self.consensus) if self.consensus else ()))
 
     @property
     def run_key(self) -> str:
@@ -60,6 +65,8 @@ class RunSpec:
             import dataclasses
 
             out += "|ensemble" + json.dumps(dataclasses.asdict(self.ensemble), sort_keys=True, separators=(",", ":"))
+        if self.consensus:
+            out += "|consensus" + json.dumps(list(self.consensus), separators=(",", ":"))
         return out
 
     def request(self) -> RunRequest:
@@ -189,7 +196,8 @@ def ensemble_checks(scene: Scene, engine: str, ensemble: dict[str, Any] | None) 
     True`` unless the scene declares a ``predictable`` check itself."""
     from physbench.harness.ensemble import ENSEMBLE_METRICS
 
-    out = [c for c in applicable_checks(scene, engine) if split_metric(c.metric)[0] in ENSEMBLE_METRICS]
+    out = [c for c in scene.checks if check_applies(c, engine, scene.variant)
+           and split_metric(c.metric)[0] in ENSEMBLE_METRICS]
     if ensemble and scene.variant is None and not any(c.metric == "predictable" for c in scene.checks):
         out.append(Check(metric="predictable", equals=True))
     return out
@@ -219,8 +227,6 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
     Empty when no check applies.  ``physbench check`` and ``physbench run``
     both plan with it, so both give the same verdict.  Each run has the
     wall-clock budget ``timeout_s``."""
-    from physbench.harness.ensemble import ENSEMBLE_METRICS
-
     ens = ensemble_checks(scene, engine, ensemble) if ensembles else []
     ens_run: list[RunSpec] = []
     if ens:
@@ -228,8 +234,7 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
         ens_run = [RunSpec(scene.id, scene.variant, engine, dict(settings or {}), ens, path=path,
                            row_extra={**scene_columns(scene), "ensemble": json.dumps(_asdict(p), sort_keys=True)},
                            timeout_s=None if timeout_s is None else timeout_s * p.n, ensemble=p)]
-    checks = [c for c in applicable_checks(scene, engine) + hard_checks(scene)
-              if split_metric(c.metric)[0] not in ENSEMBLE_METRICS]
+    checks = applicable_checks(scene, engine) + hard_checks(scene)
     if not checks:
         return ens_run
     settings = dict(settings or {})
@@ -249,6 +254,29 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
         runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra,
                             timeout_s=timeout_s))
     return runs + ens_run
+
+
+#: the engine name of a consensus run's row and outcomes
+CONSENSUS = "consensus"
+
+
+def consensus_runs(scene: Scene, engines: list[str], path: str | None = None,
+                   timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
+    """The consensus run of ``scene``'s checks on CONSENSUS_METRICS
+    (``consensus_spread``), one per set of engines they name (a check's
+    ``engines``, else all of ``engines``): engine :data:`CONSENSUS`, the
+    engines in ``consensus``, the budget ``timeout_s`` per engine."""
+    from physbench.contract.metric_defs import CONSENSUS_METRICS
+
+    groups: dict[tuple, list[Check]] = {}
+    for c in scene.checks:
+        if c.metric not in CONSENSUS_METRICS or (c.variants is not None and (scene.variant or "base") not in c.variants):
+            continue
+        who = tuple(e for e in engines if c.engines is None or e in c.engines)
+        groups.setdefault(who, []).append(c)
+    return [RunSpec(scene.id, scene.variant, CONSENSUS, {}, cs, path=path, row_extra=scene_columns(scene),
+                    timeout_s=None if timeout_s is None else timeout_s * max(1, len(who)), consensus=who)
+            for who, cs in groups.items()]
 
 
 def _asdict(p: Any) -> dict[str, Any]:
@@ -321,6 +349,7 @@ def plan(scenario_ids: list[str], engines: list[str],
                 else:
                     errors += _load_error_outcomes(sid, variant, engines, f"ensemble: {e}")
                     runs = runs[:n]
+            runs += consensus_runs(scene, engines, path=path, timeout_s=timeout_s)
             if idle is not None and len(runs) == n:
                 idle.append((scene.id, variant, idle_reason(scene, engines)))
     return runs, errors
