@@ -322,3 +322,37 @@ def test_check_ensemble_without_noise_and_bad_flags(tmp_path, capsys):
     assert "--sigma and --threshold go with --ensemble N" in capsys.readouterr().err
     assert main(["check", plain, "--ensemble", "3", "--sigma", "-1"]) == 2
     assert "--sigma: expected a finite number > 0" in capsys.readouterr().err
+
+
+def test_check_traces_follow_the_plain_run_not_the_ensemble(tmp_path, monkeypatch):
+    """``check --traces``: a failing check of the plain run is traced from
+    the plain run even when the same scene and engine also have an ensemble
+    run (which carries its own checks); the ensemble's verdict has no one
+    run to trace."""
+    import types
+
+    import physbench.harness.execute as ex
+    import physbench.harness.trace.cases as cases
+    from physbench.contract.scene import Check
+    from physbench.harness.conformance.plan import RunSpec
+    from physbench.harness.conformance.traces import trace_failures
+    from physbench.harness.conformance.verdicts import FAIL, Outcome
+
+    stack = _write(tmp_path, STACK, "stack.toml", n=2)
+    sid = load_scene(stack).id
+    plain = RunSpec(sid, None, "reference", {}, [Check(metric="stable", equals=True)], path=stack)
+    ens = RunSpec(sid, None, "reference", {}, [Check(metric="predictable", equals=True)], path=stack,
+                  ensemble=Perturbation(n=2, position=1e-4))
+    asked = []
+
+    def fake_requests(reqs, executor):
+        for r in reqs:
+            asked.append(r)
+            yield r, types.SimpleNamespace(notes=[])
+
+    monkeypatch.setattr(ex, "run_requests", fake_requests)
+    monkeypatch.setattr(cases, "write_case_trace", lambda d, scene, res, mine, name, checks: tmp_path / f"{name}.rrd")
+    outs = [Outcome("reference", sid, None, "stable", FAIL), Outcome("reference", sid, None, "predictable", FAIL)]
+    written = trace_failures(tmp_path, [plain, ens], {}, outs, executor="inline")
+    assert len(asked) == 1 and asked[0].engine == "reference" and asked[0].settings == {}
+    assert len(written) == 1 and outs[0].trace and not outs[1].trace
