@@ -340,6 +340,7 @@ def plan(scenario_ids: list[str], engines: list[str],
                     runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s,
                                        ensemble=ensemble, ensembles=True)
             except ValueError as e:  # an ensemble check without noise to draw
+                runs = runs[:n]
                 if ensemble and not scene.perturbation and not any(
                         split_metric(c.metric)[0] in _ensemble_metrics() for c in scene.checks):
                     if notes is not None:
@@ -348,7 +349,6 @@ def plan(scenario_ids: list[str], engines: list[str],
                         runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s)
                 else:
                     errors += _load_error_outcomes(sid, variant, engines, f"ensemble: {e}")
-                    runs = runs[:n]
             runs += consensus_runs(scene, engines, path=path, timeout_s=timeout_s)
             if idle is not None and len(runs) == n:
                 idle.append((scene.id, variant, idle_reason(scene, engines)))
