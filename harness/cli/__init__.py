@@ -2,6 +2,7 @@
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
     physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--set [E:]k=v]... [--junit FILE] [--traces DIR]
+                    [--ensemble N [--sigma M] [--threshold M]]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--set [E:]k=v]... [--watch] -o FILE.rrd
     physbench validate FILE|SCENARIO [--variant V] [--engines ...] [--json]
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
