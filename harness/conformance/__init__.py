@@ -87,7 +87,8 @@ from physbench.harness.conformance.plan import scene_runs  # noqa: F401
 from physbench.harness.conformance.store import save_rows  # noqa: F401
 from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
                                           _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
-                                          evaluate_check, hard_checks, run_verdicts, scene_columns, split_metric)
+                                          evaluate_check, hard_checks, judged_apart, run_verdicts, scene_columns,
+                                          split_metric)
 from physbench.harness.execute import WorkerLost, execute_request, lost_result
 from physbench.harness.executors import make_executor
 
