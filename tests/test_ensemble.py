@@ -356,3 +356,19 @@ def test_check_traces_follow_the_plain_run_not_the_ensemble(tmp_path, monkeypatc
     written = trace_failures(tmp_path, [plain, ens], {}, outs, executor="inline")
     assert len(asked) == 1 and asked[0].engine == "reference" and asked[0].settings == {}
     assert len(written) == 1 and outs[0].trace and not outs[1].trace
+
+
+def test_run_leaves_ensemble_checks_to_check(tmp_path, capsys):
+    """``physbench run`` evaluates the checks one run answers and says which
+    it leaves to ``physbench check`` (an ensemble's measures)."""
+    import json
+
+    from physbench.harness.cli import main
+
+    text = STACK.replace("duration = 2.0", "duration = 0.1") + '\n[[check]]\nmetric = "predictable"\nequals = true\n' \
+        '\n[[check]]\nmetric = "stable"\nequals = true\n'
+    p = _write(tmp_path, text, "declared.toml", n=2)
+    assert main(["run", p, "-e", "reference", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert [c["metric"] for c in json.loads(cap.out)["checks"]] == ["stable"]
+    assert "note: predictable: judged on an ensemble or the engines' consensus, by physbench check" in cap.err
