@@ -293,16 +293,19 @@ def ensemble_result(scenario: str, variant: str | None, engine: str, settings: d
     from physbench.harness.references import undefined
     from physbench.harness.runner import RunResult, commit_id
 
-    t0 = time.perf_counter()
-    try:
-        version = get_adapter(engine).capabilities().version
-    except Exception:
-        version = ""
     from physbench.contract.scene import load_scene
 
+    t0 = time.perf_counter()
     scene = load_scene(scenario, variant)
+    resolved = dict(settings)
+    try:
+        cls = get_adapter(engine)
+        version = cls.capabilities().version
+        resolved = cls.resolve_settings(scene, dict(settings) or None)  # the members' settings, as a run's row has them
+    except Exception:  # an engine that is not installed: its members say so
+        version = ""
     res = RunResult(scenario=scene.id, variant=variant, engine=engine, engine_version=version, status=st.OK,
-                    message="", settings=dict(settings), commit=commit_id(), scene_hash=scene.content_hash,
+                    message="", settings=resolved, commit=commit_id(), scene_hash=scene.content_hash,
                     scene_path=scene.source)
     out = run_ensemble(scenario, engine, p, variant=variant, settings=settings or None, executor="inline",
                        timeout_s=timeout_s)

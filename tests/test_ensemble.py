@@ -299,6 +299,7 @@ def test_check_ensemble_gives_a_predictable_row_and_junit_case(tmp_path, capsys)
     assert json.loads(a["checks"])[0]["outcome"] == "FAIL"
     assert json.loads(s["checks"])[0]["outcome"] == "PASS"
     assert "|ensemble{" in a["run_key"]
+    assert a["setting.dt"] == 0.002  # the members' settings, resolved as a run's
 
 
 def test_check_ensemble_without_noise_and_bad_flags(tmp_path, capsys):
