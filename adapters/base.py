@@ -268,8 +268,12 @@ class Adapter(abc.ABC):
         cannot read them (:attr:`contact_forces_reason`).  Called after
         every step only when a check or the scene asks for a contact-law
         metric (contract.metric_defs.wants_contact_forces), never in a
-        plain run."""
-        return None
+        plain run.  The shipped adapters' readers are in
+        adapters/contact_forces.py, keyed by the adapter's name."""
+        from physbench.adapters.contact_forces import READERS
+
+        reader = READERS.get(self.name)
+        return None if reader is None else reader(self)
 
     def stages(self) -> dict[str, Any]:
         """Per-stage counters/profile (reference engine) or the engine features

@@ -169,6 +169,7 @@ class PymunkAdapter(Adapter):
         if contact:
             for s in scene.statics:
                 shape = static_shape(pm, space.static_body, s)
+                shape.physbench_static = s.index  # adapters.contact_forces reads it
                 space.add(shape)
                 static_shapes.append((s.material, shape))
 

@@ -85,6 +85,39 @@ CONTACT_LAWS: dict[str, str] = {
 }
 
 
+#: the measures of a scene's ensemble of perturbed starts
+#: (harness/ensemble.py): a check on one of them is evaluated on the
+#: ensemble's row (``physbench check`` runs the ensemble from the scene's
+#: ``[perturbation]``, or ``check --ensemble N --sigma S``), never on a plain run
+ENSEMBLE_METRICS: dict[str, MetricDef] = {
+    "predictable": MetricDef("bool", "every member ok and final_spread <= the ensemble's threshold (m)",
+                             "reported on ensemble rows; undefined, with the reason, when a member is not ok"),
+    "final_spread": MetricDef("m", "over the bodies, the largest RMS distance of the members' final positions "
+                              "from their mean", "reported on ensemble rows"),
+    "orientation_spread": MetricDef("rad", "over the bodies, the largest RMS rotation of the members' final "
+                                    "orientations from the first member's", "reported on ensemble rows"),
+    "start_spread": MetricDef("m", "final_spread's measure of the start positions drawn",
+                              "reported on ensemble rows"),
+    "amplification": MetricDef("1", "final_spread / start_spread",
+                               "reported on ensemble rows with position noise"),
+    "event_spread": MetricDef("events", "the largest minus the smallest impact event count of a member",
+                              "reported on ensemble rows"),
+    "events_min": MetricDef("events", "the fewest impact events of a member", "reported on ensemble rows"),
+    "events_max": MetricDef("events", "the most impact events of a member", "reported on ensemble rows"),
+}
+
+#: the engines' consensus at fine steps (harness/consensus.py): a check on
+#: one of them is evaluated on the scene's consensus row (engine
+#: ``consensus``), made by ``physbench check`` from the checked engines'
+#: runs at dt / k^2
+CONSENSUS_METRICS: dict[str, MetricDef] = {
+    "consensus_spread": MetricDef("m", "the largest self-consistency distance (positions) between two engines' "
+                                  "runs at dt / k^2", "reported on consensus rows with two engines ok"),
+    "consensus_spread_angle": MetricDef("rad", "the same for orientations",
+                                        "reported on consensus rows with two engines ok"),
+}
+
+
 def contact_law_metrics() -> set[str]:
     """Every column the contact-law residuals give."""
     return {f"{n}_{s}" for n in CONTACT_LAWS for s in ("max", "mean", "rows")}
@@ -158,7 +191,7 @@ def generic_metrics(scene) -> set[str]:
     the other).  Metrics that are NaN for other reasons (penetration
     without contact, momentum under external forces) stay nameable, so a
     scene varied with --set keeps loading; a check on one fails at run time."""
-    out = set(GENERIC_METRICS)
+    out = set(GENERIC_METRICS) | set(ENSEMBLE_METRICS) | set(CONSENSUS_METRICS)
     if scene.has("contact"):
         out |= contact_law_metrics()
     if getattr(scene, "joints", ()):

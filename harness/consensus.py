@@ -78,3 +78,56 @@ def run_consensus(scenario: str, engines: list[str], *, variant: str | None = No
     out = spread(traces, scene.dt, compare, bodies)
     out.update(scenario=scene.id, dt_fine=h, compare=compare, runs=runs)
     return out
+
+
+def consensus_result(scenario: str, variant: str | None, engines: list[str], timeout_s: float | None = 600.0):
+    """The consensus of ``engines`` on ``scenario`` as one
+    harness.runner.RunResult (a check row of engine ``consensus``):
+    ``unsupported`` when no engine could run the scene, else ``ok`` with
+    ``consensus_spread`` and ``consensus_spread_angle`` as metrics
+    (undefined, with the reason, when fewer than two engines ran ok: a
+    check on them is then an ERROR), each engine's version in
+    ``engine_version`` and its run's status, every pair's distance,
+    ``dt_fine`` and ``compare`` in ``info``.  The engines' runs are made
+    one after the other in this process (a check runs this in a worker;
+    each run has ``timeout_s``)."""
+    import time
+
+    from physbench.adapters import get_adapter
+    from physbench.contract.scene import load_scene
+    from physbench.harness.references import undefined
+    from physbench.harness.runner import RunResult, commit_id
+
+    t0 = time.perf_counter()
+    scene = load_scene(scenario, variant)
+    versions = []
+    for e in engines:
+        try:
+            versions.append(f"{e} {get_adapter(e).capabilities().version}")
+        except Exception:
+            versions.append(e)
+    res = RunResult(scenario=scene.id, variant=variant, engine="consensus", engine_version=", ".join(versions),
+                    status=st.OK, message="", settings={}, commit=commit_id(), scene_hash=scene.content_hash,
+                    scene_path=scene.source)
+    out = run_consensus(scenario, engines, variant=variant, executor="inline", timeout_s=timeout_s)
+    res.info.update(runs={e: list(v) for e, v in out["runs"].items()}, pairs=out["pairs"], dt_fine=out["dt_fine"],
+                    compare=out["compare"])
+    ok = [e for e, (s, _) in out["runs"].items() if s == st.OK]
+    if all(s == st.UNSUPPORTED for s, _ in out["runs"].values()):
+        res.status = st.UNSUPPORTED
+        res.message = "; ".join(f"{e}: {m}" for e, (_, m) in out["runs"].items())
+        return res
+    if len(ok) < 2:
+        why = (f"fewer than two engines ran ok at dt = {out['dt_fine']:.6g} s ("
+               + ", ".join(f"{e} {s}" for e, (s, _) in out["runs"].items()) + ")")
+        undefined(res.metrics, "consensus_spread", why)
+        undefined(res.metrics, "consensus_spread_angle", why)
+        res.message = why
+    else:
+        res.metrics["consensus_spread"] = out["consensus_spread"]
+        res.metrics["consensus_spread_angle"] = out["consensus_spread_angle"]
+        worst = max((p for p in out["pairs"] if p["frames"] > 0), key=lambda p: p["distance"])
+        res.message = (f"{len(ok)} engines at dt = {out['dt_fine']:.6g} s; farthest apart: {worst['a']} - "
+                       f"{worst['b']} {worst['distance']:.4g} m")
+    res.timing["step_wall_s"] = time.perf_counter() - t0
+    return res

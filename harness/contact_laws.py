@@ -193,6 +193,36 @@ def slip_velocity(rows: dict[str, np.ndarray], pos: np.ndarray, vel: np.ndarray,
     return rel - np.sum(rel * nrm, axis=1, keepdims=True) * nrm
 
 
+def own_gap(scene: Any, rows: dict[str, np.ndarray], pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """The rows' ``gap`` (R,) m, the harness's own where the adapter gives
+    NaN (an engine whose gap is not trusted or not reported): the signed
+    distance of the row's pair (body a and body b or static) at the
+    recorded pose (pos (n, 3), quat (n, 4) wxyz, after the step), by
+    contract.geometry (< 0 overlap; the pair's, not the point's: every
+    row of a pair gets its deepest).  NaN where no kernel covers the pair.
+    tests/test_contact_laws.py::test_a_nan_gap_is_the_harness_own."""
+    gap = np.array(rows["gap"], float)
+    todo = np.flatnonzero(np.isnan(gap))
+    if todo.size == 0:
+        return gap
+    from physbench.contract.geometry.dispatch import signed_gap
+    from physbench.contract.geometry.placed import _placed_body, _placed_static_box
+    from physbench.contract.geometry.support import plane_gap
+
+    statics = {x.index: x for x in scene.statics}
+    for r in todo:
+        a, b, s = int(rows["a"][r]), int(rows["b"][r]), int(rows["static"][r])
+        A = _placed_body(scene.bodies[a], pos[a:a + 1], quat[a:a + 1])
+        if b >= 0:
+            over = signed_gap(A, _placed_body(scene.bodies[b], pos[b:b + 1], quat[b:b + 1]))
+        else:
+            st = statics[s]
+            over = (plane_gap(A, st.normal, st.offset) if st.shape == "plane"
+                    else signed_gap(A, _placed_static_box(st, 1)))
+        gap[r] = -float(over[0])
+    return gap
+
+
 def run_contact_laws(scene: Any, records: list | str, trace) -> dict[str, Any]:
     """The residuals of a run: ``records`` [(frame, rows)] of the
     adapter's contact_forces() after each recorded step (frame indexes
@@ -210,7 +240,7 @@ def run_contact_laws(scene: Any, records: list | str, trace) -> dict[str, Any]:
             continue
         parts["lam_n"].append(rows["lam_n"])
         parts["lam_t"].append(rows["lam_t"])
-        parts["gap"].append(rows["gap"])
+        parts["gap"].append(own_gap(scene, rows, trace.pos[frame], trace.quat[frame]))
         parts["slip"].append(slip_velocity(rows, trace.pos[frame], trace.vel[frame], trace.angvel[frame]))
         ms, mk = [], []
         for a, s, b in zip(rows["a"], rows["static"], rows["b"]):

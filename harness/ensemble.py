@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from physbench.contract.metric_defs import ENSEMBLE_METRICS as _ENSEMBLE_DEFS
 from physbench.harness import status as st
 
 #: m: the default bound on final_spread for a ``predictable`` verdict
@@ -264,3 +265,65 @@ def run_ensemble(scenario: str, engine: str, perturbation: Perturbation | None =
                per_member=[{k: r.get(k) for k in ("index", "status", "message", "events", "final_pos")}
                            for r in results])
     return out
+
+
+#: the outcome measures a check may bound (``[[check]] metric =
+#: "predictable"``, ``equals = true``; or ``final_spread``, ...): a check on
+#: one of them is evaluated on the scene's ensemble, not on its plain run
+#: (harness.conformance: ``check --ensemble N``)
+ENSEMBLE_METRICS = tuple(_ENSEMBLE_DEFS)
+#: the ensemble row's measures besides ENSEMBLE_METRICS
+_ROW_EXTRA = ("members", "members_ok", "threshold")
+
+
+def ensemble_result(scenario: str, variant: str | None, engine: str, settings: dict[str, Any],
+                    p: Perturbation, timeout_s: float | None = 600.0):
+    """The ensemble of ``scenario`` on ``engine`` as one
+    harness.runner.RunResult (a check row): status ``unsupported`` when
+    every member is, else ``ok`` with the measures of :func:`summarize` as
+    metrics (``predictable`` True/False, or undefined with the reason when
+    a member is not ok: a check on it is then an ERROR, never a pass),
+    ``ensemble_threshold`` the bound (m), the perturbation and each
+    member's status in ``info``.  The members run one after the other in
+    this process (a check runs this in a worker; each member has
+    ``timeout_s``)."""
+    import time
+
+    from physbench.adapters import get_adapter
+    from physbench.harness.references import undefined
+    from physbench.harness.runner import RunResult, commit_id
+
+    from physbench.contract.scene import load_scene
+
+    t0 = time.perf_counter()
+    scene = load_scene(scenario, variant)
+    resolved = dict(settings)
+    try:
+        cls = get_adapter(engine)
+        version = cls.capabilities().version
+        resolved = cls.resolve_settings(scene, dict(settings) or None)  # the members' settings, as a run's row has them
+    except Exception:  # an engine that is not installed: its members say so
+        version = ""
+    res = RunResult(scenario=scene.id, variant=variant, engine=engine, engine_version=version, status=st.OK,
+                    message="", settings=resolved, commit=commit_id(), scene_hash=scene.content_hash,
+                    scene_path=scene.source)
+    out = run_ensemble(scenario, engine, p, variant=variant, settings=settings or None, executor="inline",
+                       timeout_s=timeout_s)
+    res.info["perturbation"] = out["perturbation"]
+    res.info["members"] = [{"index": m["index"], "status": m["status"], "events": m.get("events")}
+                           for m in out["per_member"]]
+    unsupported = [m for m in out["per_member"] if m["status"] == st.UNSUPPORTED]
+    if len(unsupported) == len(out["per_member"]):
+        res.status, res.message = st.UNSUPPORTED, unsupported[0]["message"]
+        return res
+    for k in ENSEMBLE_METRICS + _ROW_EXTRA:
+        v = out.get(k)
+        name = "ensemble_threshold" if k == "threshold" else k
+        if v is None:
+            undefined(res.metrics, name, "no position noise: the start spread is 0"
+                      if k == "amplification" and "final_spread" in out else out["why"])
+        else:
+            res.metrics[name] = v
+    res.message = out["why"]
+    res.timing["step_wall_s"] = time.perf_counter() - t0
+    return res

@@ -68,7 +68,9 @@ class RunRequest:
     ``row_settings``, the ``point_settings`` column (default: the settings
     and the phase as JSON); ``probe``, for one evaluation of a
     breaking-point search, its criterion and columns
-    (harness.limit_eval.EvalItem)."""
+    (harness.limit_eval.EvalItem).  A check's request may instead stand for
+    an ensemble of perturbed starts (``ensemble``) or a consensus of
+    engines (``consensus``)."""
 
     scenario: str
     engine: str
@@ -89,6 +91,10 @@ class RunRequest:
     scene_hash: str = ""
     row_settings: str | None = None
     probe: Any = None
+    #: check's ensemble of perturbed starts (harness.ensemble.Perturbation)
+    #: or consensus engines (harness.conformance.execute runs these)
+    ensemble: Any = None
+    consensus: tuple = ()
 
     def __post_init__(self) -> None:
         p = Path(self.scenario)

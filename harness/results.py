@@ -71,7 +71,8 @@ def set_results_dir(path: str | Path | None) -> Path | None:
 #: JSON (harness.conformance.verdicts_column)
 VERDICT_COLUMNS = ("primary_metric", "primary_threshold", "tags", "checks")
 #: columns a check row adds besides VERDICT_COLUMNS
-CHECK_COLUMNS = ("phase", "run_key", "check_id", "schema_version")
+#: (``ensemble``: the perturbation of an ensemble row, JSON; absent on a plain run's)
+CHECK_COLUMNS = ("phase", "run_key", "check_id", "schema_version", "ensemble")
 
 
 # ---------------------------------------------------------------------------

@@ -19,6 +19,50 @@ def head_on_path() -> Path:
     return HEAD_ON
 
 
+SPRING_PAIR = """
+[scenario]
+family = "selfcheck"
+title = "spring pair judged by itself"
+duration = 2.0
+dt = 0.02
+planar = true
+effects = ["spring"]
+primary_metric = "self_consistency_error"
+
+[[body]]
+name = "light"
+shape = "sphere"
+radius = 0.05
+mass = 1.0
+position = [-0.4, 0.0, 1.0]
+
+[[body]]
+name = "heavy"
+shape = "sphere"
+radius = 0.05
+mass = 2.0
+position = [0.2, 0.0, 1.0]
+
+[[spring]]
+a = "light"
+b = "heavy"
+stiffness = 20.0
+rest_length = 0.5
+
+[reference]
+model = "self_consistency"
+{params}
+"""
+
+
+@pytest.fixture
+def spring_pair() -> str:
+    """A spec without a closed form in use: two spheres on a spring, free
+    of gravity, judged by self-consistency (tests/test_self_consistency.py,
+    tests/test_consensus.py); ``{params}`` takes the reference's params line."""
+    return SPRING_PAIR
+
+
 def without_effects(scene, *effects: str):
     """``scene`` with ``effects`` dropped after compilation: a spec cannot
     give a coefficient without its effect (contract/spec.py), but adapters

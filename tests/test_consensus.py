@@ -31,42 +31,7 @@ def test_spread_of_planted_traces():
     assert math.isnan(spread({"a": _trace(0.0)}, 0.1)["consensus_spread"])  # one engine: no spread
 
 
-SPRING = """
-[scenario]
-family = "selfcheck"
-title = "spring pair"
-duration = 2.0
-dt = 0.02
-planar = true
-effects = ["spring"]
-primary_metric = "self_consistency_error"
-
-[[body]]
-name = "light"
-shape = "sphere"
-radius = 0.05
-mass = 1.0
-position = [-0.4, 0.0, 1.0]
-
-[[body]]
-name = "heavy"
-shape = "sphere"
-radius = 0.05
-mass = 2.0
-position = [0.2, 0.0, 1.0]
-
-[[spring]]
-a = "light"
-b = "heavy"
-stiffness = 20.0
-rest_length = 0.5
-
-[reference]
-model = "self_consistency"
-"""
-
-
-def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
+def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path, spring_pair):
     """Each engine at dt/4 through the executor; the spread is the largest
     distance between those runs, made again here with the runner.
     Measured (dt/4 = 5 ms): 1.02e-3 m, pymunk 7.3.1 against mujoco 4.0.0
@@ -77,7 +42,7 @@ def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
     from physbench.harness.runner import run
 
     p = tmp_path / "spring.toml"
-    p.write_text(textwrap.dedent(SPRING))
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
     engines = ["reference", "mujoco", "pybullet", "pymunk"]
     out = run_consensus(str(p), engines, executor="inline")
     ran = [e for e in engines if out["runs"][e][0] == "ok"]
@@ -90,16 +55,57 @@ def test_consensus_of_a_spring_pair_is_the_distance_of_the_fine_runs(tmp_path):
     assert 1e-6 < out["consensus_spread"] < 1e-2
 
 
-def test_cli_consensus(tmp_path, capsys):
+def test_cli_consensus(tmp_path, capsys, spring_pair):
     import json
 
     from physbench.harness.cli import main
 
     p = tmp_path / "spring.toml"
-    p.write_text(textwrap.dedent(SPRING))
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
     assert main(["consensus", str(p), "--engines", "reference", "mujoco", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert [(q["a"], q["b"]) for q in out["pairs"]] == [("mujoco", "reference")]
     assert out["consensus_spread"] == out["pairs"][0]["distance"] > 0
     assert main(["consensus", str(p), "--engines", "reference", "--json"]) == 1  # one engine: no consensus
     assert main(["consensus", str(tmp_path / "missing.toml")]) == 2
+
+
+def test_check_gives_a_consensus_row_and_case(tmp_path, spring_pair):
+    """A scene with ``[[check]] metric = "consensus_spread"``: ``physbench
+    check`` runs the checked engines at dt / k^2 as one run of its own, a
+    row of engine ``consensus`` with the spread (as ``physbench consensus``
+    gives it) and a JUnit case in the ``consensus`` suite; the plain runs'
+    checks are not asked for it.  Two bounds either side of the measured
+    spread: one PASSes, one FAILs (exit 1)."""
+    import json
+    import xml.etree.ElementTree as ET
+
+    import pandas as pd
+
+    from physbench.harness.cli import main
+    from physbench.harness.conformance.plan import plan
+
+    p = tmp_path / "spring.toml"
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
+    spread_ = run_consensus(str(p), ["reference", "mujoco"], executor="inline")["consensus_spread"]
+    assert spread_ > 0
+    checks = (f'\n[[check]]\nmetric = "consensus_spread"\nmax = {spread_ * 2}\n'
+              f'\n[[check]]\nmetric = "consensus_spread"\nmax = {spread_ / 2}\n'
+              f'engines = ["reference", "mujoco"]\n')
+    p.write_text(textwrap.dedent(spring_pair.format(params="")) + checks)
+    runs, errors = plan([str(p)], ["reference", "mujoco"])
+    assert not errors and [r.engine for r in runs] == ["consensus"]  # no plain run is asked for it
+    assert runs[0].consensus == ("reference", "mujoco") and len(runs[0].checks) == 2
+    junit, rows = tmp_path / "out.xml", tmp_path / "rows"
+    code = main(["check", str(p), "--engines", "reference", "mujoco", "--junit", str(junit),
+                 "--results-dir", str(rows)])
+    assert code == 1
+    suites = {s.get("name"): s for s in ET.parse(junit).getroot().iter("testsuite")}
+    assert set(suites) == {"consensus"}
+    assert [tc.find("failure") is None for tc in suites["consensus"].iter("testcase")] == [True, False]
+    df = pd.concat([pd.read_parquet(q) for q in rows.rglob("*.parquet")])
+    (row,) = df.to_dict("records")
+    assert row["engine"] == "consensus" and row["status"] == "ok"
+    assert row["consensus_spread"] == pytest.approx(spread_, rel=1e-12)
+    assert row["engine_version"].startswith("reference ") and ", mujoco " in row["engine_version"]
+    assert [v["outcome"] for v in json.loads(row["checks"])] == ["PASS", "FAIL"]

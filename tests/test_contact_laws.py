@@ -228,7 +228,7 @@ def test_forces_are_recorded_only_when_asked(tmp_path):
     assert res.metrics["cone_violation_mean"] == 0.0
 
 
-@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+@pytest.mark.parametrize("engine", ["rapier", "drake"])
 def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, engine):
     from physbench.harness.runner import run
 
@@ -245,3 +245,146 @@ def test_reference_penalty_contacts_are_undefined_with_the_reason(tmp_path):
     res = run(_law_scene(tmp_path, FLAT), "reference", {"contact_model": "penalty"})
     assert math.isnan(res.metrics["cone_violation_max"])
     assert "penalty contacts keep no per-contact forces" in undefined_reason(res.metrics, "cone_violation_max")
+
+
+# ---- every engine's contact forces: two cubes resting on the floor -----------
+
+STACK = """
+[scenario]
+family = "laws"
+title = "two cubes resting"
+duration = 0.5
+dt = 0.004166666666666667
+effects = ["gravity", "contact", "friction"]
+planar = true
+
+[material.default]
+friction = 0.3
+static_friction = 0.4
+
+[[body]]
+name = "low"
+shape = "box"
+half_extents = [0.05, 0.05, 0.05]
+mass = 1.0
+position = [0.0, 0.0, 0.05]
+
+[[body]]
+name = "high"
+shape = "box"
+half_extents = [0.05, 0.05, 0.05]
+mass = 0.5
+position = [0.0, 0.0, 0.15]
+
+[[static]]
+name = "ground"
+shape = "plane"
+normal = [0.0, 0.0, 1.0]
+
+[[check]]
+metric = "signorini_residual_max"
+max = 1e-9
+
+[[check]]
+metric = "cone_violation_max"
+max = 1e-9
+"""
+G = 9.81
+#: measured on the resting cubes (docs/ENGINE_FINDINGS.md, "Contact-law
+#: residuals"): signorini_residual_max N m and cone_violation_max, each
+#: bound 1.5x the figure (the reference engine: its solver tolerance)
+RESTING = {
+    "reference": (1e-9, 0.0),          # 6.2e-11 N m: a zero gap under 4.9 and 14.7 N
+    "mujoco": (1.8e-3, 0.0),           # 1.18e-3 N m: soft contacts sink 7.2e-5 m under the load
+    "pybullet": (4.8e-3, math.sqrt(2) * 0.3 - 0.4 + 1e-12),  # 3.2e-3 N m; the pyramid's corner
+    "pymunk": (4.6e-3, 0.0),           # 3.1e-3 N m: overlap kept below collision_slop
+}
+
+
+def _engine_adapter(scene, engine):
+    from physbench.adapters import get_adapter
+
+    cls = get_adapter(engine)
+    if cls.unsupported_reason(scene) is not None:
+        pytest.skip(cls.unsupported_reason(scene))
+    ad = cls()
+    try:
+        ad.build(scene, cls.resolve_settings(scene, None))
+    except Exception as e:  # the engine is not installed here
+        if type(e).__name__ == "Unsupported":
+            pytest.skip(str(e))
+        raise
+    return ad
+
+
+@pytest.mark.parametrize("engine", list(RESTING))
+def test_resting_box_forces_on_every_engine(tmp_path, engine):
+    """Two cubes (1 kg below, 0.5 kg on top) at rest on the floor: the
+    adapter's rows carry the weights, (m1 + m2) g on the floor's rows and
+    m2 g between the cubes, positive along normals from a to b (down into
+    the floor, up into the upper cube), with no friction left at rest;
+    and the run's residuals are those measured for the engine."""
+    from physbench.harness.runner import run
+
+    p = tmp_path / "stack.toml"
+    p.write_text(STACK)
+    scene = load_scene(str(p))
+    ad = _engine_adapter(scene, engine)
+    for _ in range(120):
+        ad.step(1)
+    rows = ad.contact_forces()
+    ad.close()
+    floor = rows["b"] < 0
+    assert set(rows["static"][floor]) == {0} and set(rows["a"][floor]) == {0}
+    assert set(rows["a"][~floor]) == {0} and set(rows["b"][~floor]) == {1}
+    assert rows["lam_n"][floor].sum() == pytest.approx(1.5 * G, rel=2e-3)
+    assert rows["lam_n"][~floor].sum() == pytest.approx(0.5 * G, rel=2e-3)
+    assert np.all(rows["normal"][floor][:, 2] < -0.999) and np.all(rows["normal"][~floor][:, 2] > 0.999)
+    assert np.abs(rows["lam_t"].sum(axis=0)).max() < 1e-2 * G  # N: at rest
+    res = run(scene, engine)
+    assert res.status in ("ok", "failed_check"), res.message
+    sig, cone = RESTING[engine]
+    m = res.metrics
+    assert m["signorini_residual_rows"] >= 240  # at least one row per pair per step
+    assert 0.0 <= m["signorini_residual_max"] < sig
+    assert 0.0 <= m["cone_violation_max"] <= cone
+    assert m["adhesion_max"] == 0.0
+
+
+def test_pybullet_friction_is_a_pyramid(tmp_path):
+    """Bullet clamps its two lateral frictions one by one: the friction
+    reaches sqrt(2) mu on the pyramid's corner (mu 0.3 -> 0.424 lam_n,
+    0.024 over a cone of mu_s 0.4) and aims up to 45 degrees off the slip
+    of a block sliding down a slope (MuJoCo's elliptic cone: 0)."""
+    from physbench.harness.runner import run
+
+    checks = CHECKS.replace("cone_violation_max", "dissipation_residual_max")
+    scene = _law_scene(tmp_path, SLOPE, checks=checks)
+    res = run(scene, "pybullet")
+    if res.status == "unsupported":
+        pytest.skip(res.message)
+    m = res.metrics
+    assert m["cone_violation_max"] == pytest.approx(math.sqrt(2) * 0.3 - 0.4, abs=1e-9)
+    assert m["dissipation_residual_rows"] >= 100
+    assert 0.5 < m["dissipation_residual_mean"] < m["dissipation_residual_max"] < math.pi / 4 + 0.01  # rad
+    assert m["dissipation_shortfall_max"] < 1e-9  # each direction clamped at mu lam_n: |lam_t| >= mu lam_n
+    res = run(scene, "mujoco")
+    if res.status != "unsupported":
+        assert res.metrics["dissipation_residual_max"] < 1e-9
+        assert res.metrics["cone_violation_max"] == 0.0
+
+
+def test_a_nan_gap_is_the_harness_own(tmp_path):
+    """An adapter's NaN gap is replaced by the pair's signed distance from
+    the harness's geometry at the recorded pose; a reported gap is kept."""
+    from physbench.harness.contact_laws import own_gap
+
+    p = tmp_path / "stack.toml"
+    p.write_text(STACK)
+    scene = load_scene(str(p))
+    pos = np.array([[0.0, 0.0, 0.049], [0.03, 0.0, 0.152]])  # low sinks 1 mm; high 3 mm above it
+    quat = np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+    rows = {"a": np.array([0, 0, 0]), "b": np.array([-1, 1, 1]), "static": np.array([0, -1, -1]),
+            "gap": np.array([np.nan, np.nan, 7.0])}
+    gap = own_gap(scene, rows, pos, quat)
+    assert gap == pytest.approx([-1e-3, 3e-3, 7.0], abs=1e-12)

@@ -258,3 +258,118 @@ def test_cli_ensemble_verdict_and_bad_input(tmp_path, capsys):
     assert "perturbation.position" in capsys.readouterr().err
     assert main(["ensemble", stack, "--set", "body[0].mass=2"]) == 2
     assert "engine settings only" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------
+# the ensemble as a check (physbench check --ensemble N)
+
+
+def test_check_ensemble_gives_a_predictable_row_and_junit_case(tmp_path, capsys):
+    """``check --ensemble 3``: each scene with a [perturbation] gets the
+    check ``predictable == True`` on its ensemble, a stored row of its own
+    (the spread as metrics, the perturbation in ``ensemble``) and a JUnit
+    case: the apex FAILs (exit 1), the resting column PASSes; a scene
+    without noise to draw is checked as before, with a note."""
+    import json
+    import xml.etree.ElementTree as ET
+
+    import pandas as pd
+
+    from physbench.harness.cli import main
+
+    apex = _write(tmp_path, APEX, "apex.toml", n=8)
+    stack = _write(tmp_path, STACK, "stack.toml", n=8)
+    junit = tmp_path / "out.xml"
+    rows = tmp_path / "rows"
+    code = main(["check", apex, stack, "--engines", "reference", "--ensemble", "3", "--threshold", "0.005",
+                 "--junit", str(junit), "--results-dir", str(rows)])
+    err = capsys.readouterr().err
+    assert code == 1, err
+    cases = {tc.get("name"): tc for tc in ET.parse(junit).getroot().iter("testcase")}
+    assert set(cases) == {"predictability.apex::predictable", "predictability.stack::predictable"}
+    assert cases["predictability.apex::predictable"].find("failure") is not None
+    assert cases["predictability.stack::predictable"].find("failure") is None
+    df = pd.concat([pd.read_parquet(p) for p in rows.rglob("*.parquet")])
+    by = {r["scenario"]: r for r in df.to_dict("records")}
+    a, s = by["predictability.apex"], by["predictability.stack"]
+    assert json.loads(a["ensemble"])["n"] == 3 and json.loads(a["ensemble"])["threshold"] == 0.005
+    assert a["members"] == 3 and a["members_ok"] == 3
+    assert a["final_spread"] > 0.1 and not a["predictable"]
+    assert s["final_spread"] < 1e-3 and s["predictable"]
+    assert json.loads(a["checks"])[0]["outcome"] == "FAIL"
+    assert json.loads(s["checks"])[0]["outcome"] == "PASS"
+    assert "|ensemble{" in a["run_key"]
+    assert a["setting.dt"] == 0.002  # the members' settings, resolved as a run's
+
+
+def test_check_ensemble_without_noise_and_bad_flags(tmp_path, capsys):
+    from physbench.harness.cli import main
+    from physbench.harness.conformance.plan import plan
+
+    plain = _write(tmp_path, STACK.split("[perturbation]")[0] + '\n[[check]]\nmetric = "stable"\nequals = true\n',
+                   "plain.toml", n=0)
+    notes: list[str] = []
+    runs, errors = plan([plain], ["reference"], notes=notes, ensemble={"n": 3, "position": None, "threshold": None})
+    assert [r.ensemble for r in runs] == [None] and not errors
+    assert notes == ["predictability.plain: no ensemble: no [perturbation] block and no --sigma"]
+    runs, _ = plan([plain], ["reference"], ensemble={"n": 3, "position": 1e-4, "threshold": None})
+    assert runs[-1].ensemble.n == 3 and runs[-1].ensemble.position == 1e-4
+    # a declared predictable check without noise is an error of the scene, never skipped
+    declared = _write(tmp_path, STACK.split("[perturbation]")[0] + '\n[[check]]\nmetric = "predictable"\n'
+                      'equals = true\n', "declared.toml", n=0)
+    runs, errors = plan([declared], ["reference"])
+    assert runs == [] and errors and "ensemble: perturbation" in errors[0].message
+    assert main(["check", plain, "--sigma", "1e-4"]) == 2
+    assert "--sigma and --threshold go with --ensemble N" in capsys.readouterr().err
+    assert main(["check", plain, "--ensemble", "3", "--sigma", "-1"]) == 2
+    assert "--sigma: expected a finite number > 0" in capsys.readouterr().err
+
+
+def test_check_traces_follow_the_plain_run_not_the_ensemble(tmp_path, monkeypatch):
+    """``check --traces``: a failing check of the plain run is traced from
+    the plain run even when the same scene and engine also have an ensemble
+    run (which carries its own checks); the ensemble's verdict has no one
+    run to trace."""
+    import types
+
+    import physbench.harness.execute as ex
+    import physbench.harness.trace.cases as cases
+    from physbench.contract.scene import Check
+    from physbench.harness.conformance.plan import RunSpec
+    from physbench.harness.conformance.traces import trace_failures
+    from physbench.harness.conformance.verdicts import FAIL, Outcome
+
+    stack = _write(tmp_path, STACK, "stack.toml", n=2)
+    sid = load_scene(stack).id
+    plain = RunSpec(sid, None, "reference", {}, [Check(metric="stable", equals=True)], path=stack)
+    ens = RunSpec(sid, None, "reference", {}, [Check(metric="predictable", equals=True)], path=stack,
+                  ensemble=Perturbation(n=2, position=1e-4))
+    asked = []
+
+    def fake_requests(reqs, executor):
+        for r in reqs:
+            asked.append(r)
+            yield r, types.SimpleNamespace(notes=[])
+
+    monkeypatch.setattr(ex, "run_requests", fake_requests)
+    monkeypatch.setattr(cases, "write_case_trace", lambda d, scene, res, mine, name, checks: tmp_path / f"{name}.rrd")
+    outs = [Outcome("reference", sid, None, "stable", FAIL), Outcome("reference", sid, None, "predictable", FAIL)]
+    written = trace_failures(tmp_path, [plain, ens], {}, outs, executor="inline")
+    assert len(asked) == 1 and asked[0].engine == "reference" and asked[0].settings == {}
+    assert len(written) == 1 and outs[0].trace and not outs[1].trace
+
+
+def test_run_leaves_ensemble_checks_to_check(tmp_path, capsys):
+    """``physbench run`` evaluates the checks one run answers and says which
+    it leaves to ``physbench check`` (an ensemble's measures)."""
+    import json
+
+    from physbench.harness.cli import main
+
+    text = STACK.replace("duration = 2.0", "duration = 0.1") + '\n[[check]]\nmetric = "predictable"\nequals = true\n' \
+        '\n[[check]]\nmetric = "stable"\nequals = true\n'
+    p = _write(tmp_path, text, "declared.toml", n=2)
+    assert main(["run", p, "-e", "reference", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert [c["metric"] for c in json.loads(cap.out)["checks"]] == ["stable"]
+    assert "note: predictable: judged on an ensemble or the engines' consensus, by physbench check" in cap.err

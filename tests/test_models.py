@@ -54,9 +54,24 @@ def test_models_md_is_written_from_the_declarations():
 
 
 def test_metrics_md_documents_every_harness_metric():
+    from physbench.contract.metric_defs import CONSENSUS_METRICS, CONTACT_LAWS, ENSEMBLE_METRICS
+
     text = (ROOT / "docs" / "METRICS.md").read_text()
-    for name in GENERIC_METRICS:
+    for name in [*GENERIC_METRICS, *ENSEMBLE_METRICS, *CONSENSUS_METRICS, *CONTACT_LAWS]:
         assert f"`{name}`" in text, name
+
+
+def test_models_cli_lists_the_judges_of_scenes_without_a_model(tmp_path):
+    """``physbench models`` ends with what judges a scene without a closed
+    form: the contact-law residuals, the ensemble's and the consensus's
+    measures (docs/MODELS.md's last section, the same lines)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.run([sys.executable, "-m", "physbench.harness.cli", "models"], capture_output=True, text=True,
+                       cwd=tmp_path, env=env, timeout=120)
+    assert p.returncode == 0, p.stderr
+    tail = p.stdout.split("Judging a scene without a model:")[1]
+    for name in ("signorini_residual", "cone_violation", "predictable", "final_spread", "consensus_spread"):
+        assert f"`{name}`" in tail, name
 
 
 def test_models_cli_prints_the_declarations(tmp_path):

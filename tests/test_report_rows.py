@@ -144,3 +144,73 @@ def test_check_and_sweep_rows_share_the_verdict_columns(tmp_path):
     stored = [v["outcome"] for c in check["checks"] for v in json.loads(c)]
     assert eng["counts"] == {o: stored.count(o) for o in eng["counts"]} and sum(eng["counts"].values()) == len(stored)
     assert eng["counts"]["XFAIL"] >= 1 and sm["conformance"]["passed"] is (code == 0)
+
+
+def test_contact_laws_predictability_and_consensus_from_rows(tmp_path, monkeypatch):
+    """Check rows carrying contact-law residuals, ensemble rows and a
+    consensus row: the report's tables read them (the largest residual per
+    engine and where, undefined never 0; the hard scenes' ensembles with
+    their verdicts; the consensus) and its section shows them with one
+    plot; ensemble and consensus rows are not runs of the stability
+    matrix.  No scene is loaded."""
+    laws = dict(signorini_residual_max=6.2e-11, cone_violation_max=0.0, dissipation_residual_max=1e-7,
+                adhesion_max=0.0, separation_force_max=float("nan"))
+    pb = dict(signorini_residual_max=3.2e-3, cone_violation_max=0.0243, dissipation_residual_max=0.786,
+              adhesion_max=0.0, separation_force_max=float("nan"))
+    nan = {k: float("nan") for k in laws}
+    hard = json.dumps(["hard"])
+    ens = json.dumps({"n": 8, "position": 1e-4, "threshold": 0.01})
+    pv = [{"metric": "predictable", "outcome": "FAIL", "value": False, "threshold": "== True", "message": "m"}]
+    rows = [
+        dict(_check_row("reference", [], scenario="laws.stack"), **laws),
+        dict(_check_row("reference", [], scenario="laws.slope"), **dict(laws, signorini_residual_max=2e-9)),
+        dict(_check_row("pybullet", [], scenario="laws.stack"), **pb),
+        dict(_check_row("rapier", [], scenario="laws.stack"), **nan,
+             undefined_metrics="cone_violation_max: rapier: the adapter reads no contact forces from its engine"),
+        dict(_check_row("reference", pv, scenario="hard.apex"), tags=hard, ensemble=ens, members=8, members_ok=8,
+             final_spread=0.524, amplification=4.5e3, event_spread=3, ensemble_threshold=0.01, predictable=False,
+             stable=None),
+        dict(_check_row("mujoco", [dict(pv[0], outcome="PASS", value=True)], scenario="hard.apex"), tags=hard,
+             ensemble=ens, members=8, members_ok=8, final_spread=1e-4, amplification=0.9, event_spread=0,
+             ensemble_threshold=0.01, predictable=True, stable=None),
+        dict(_check_row("reference", [], scenario="hard.apex"), tags=hard),  # its plain run
+        dict(_check_row("consensus", [{"metric": "consensus_spread", "outcome": "PASS", "value": 1e-3,
+                                       "threshold": "<= 0.01", "message": ""}], scenario="selfcheck.spring"),
+             engine_version="reference 0.1.0, mujoco 4.0.0", consensus_spread=1.02e-3, consensus_spread_angle=0.0,
+             message="2 engines at dt = 0.005 s; farthest apart: mujoco - reference 0.00102 m", stable=None),
+    ]
+    write_rows(rows, tmp_path / "check" / "20261124T000000Z-c.parquet", append=False)
+    _no_scene_loading(monkeypatch)
+    df = rp.load_results(tmp_path)
+    cl = rp.contact_law_table(df).set_index("engine")
+    assert list(cl.index) == ["pybullet", "reference"]  # rapier: no value, not a row of zeros
+    assert cl.loc["reference", "signorini_residual_max"] == 2e-9
+    assert cl.loc["reference", "signorini_residual_where"] == "laws.slope"
+    assert cl.loc["reference", "rows"] == 2 and cl.loc["reference", "scenarios"] == 2
+    assert cl.loc["pybullet", "cone_violation_max"] == 0.0243
+    assert math.isnan(cl.loc["pybullet", "separation_force_max"])
+    pt = rp.predictability_table(df)
+    assert pt.attrs["selection"] == "scenarios tagged 'hard'"
+    assert list(zip(pt["engine"], pt["predictable"], pt["verdict"])) == [("mujoco", True, "PASS"),
+                                                                        ("reference", False, "FAIL")]
+    assert list(pt["final_spread"]) == [1e-4, 0.524]
+    ct = rp.consensus_table(df)
+    assert list(ct["consensus_spread"]) == [1.02e-3] and ct["verdicts"][0] == "consensus_spread PASS"
+    sm = rp.stability_matrix(df)
+    assert set(sm["engine"]) == {"reference"} and list(sm["points"]) == [1]  # the plain run only
+    page = rp.render_html(df, physbench_commit="x")
+    sec = page.split('<section id="judging">')[1].split("</section>")[0]
+    assert sec.count("<img ") == 1
+    assert "3.2e-03" in sec or "0.0032" in sec
+    assert "<span class='note'>undefined</span>" in sec  # separation_force: no row has a value
+    assert sec.count("data-predictable='False'") == 1 and sec.count("data-predictable='True'") == 1
+    assert "0.524" in sec and "not predictable</span> (FAIL)" in sec
+    assert "consensus_spread PASS" in sec and "farthest apart: mujoco - reference" in sec
+
+
+def test_judging_section_without_rows(tmp_path):
+    write_rows([_check_row("reference", [])], tmp_path / "check" / "20261124T000000Z-c.parquet", append=False)
+    page = rp.render_html(rp.load_results(tmp_path), physbench_commit="x")
+    sec = page.split('<section id="judging">')[1].split("</section>")[0]
+    assert "No row carries contact-law residuals" in sec and "No ensemble rows" in sec
+    assert "<img " not in sec

@@ -17,41 +17,6 @@ from physbench.harness.references.self_consistency import (distances, observed_o
                                                            shared_frames)
 from physbench.harness.runner import Trace
 
-SPRING = """
-[scenario]
-family = "selfcheck"
-title = "spring pair judged by itself"
-duration = 2.0
-dt = 0.02
-planar = true
-effects = ["spring"]
-primary_metric = "self_consistency_error"
-
-[[body]]
-name = "light"
-shape = "sphere"
-radius = 0.05
-mass = 1.0
-position = [-0.4, 0.0, 1.0]
-
-[[body]]
-name = "heavy"
-shape = "sphere"
-radius = 0.05
-mass = 2.0
-position = [0.2, 0.0, 1.0]
-
-[[spring]]
-a = "light"
-b = "heavy"
-stiffness = 20.0
-rest_length = 0.5
-
-[reference]
-model = "self_consistency"
-{params}
-"""
-
 TUMBLE = """
 [scenario]
 family = "selfcheck"
@@ -163,19 +128,19 @@ def test_observed_order_at_the_rounding_floor_is_undefined():
                                         ("params = { compare = \"energy\" }", "reference.params.compare"),
                                         ("params = { bodies = [\"nobody\"] }", "reference.params.bodies"),
                                         ("params = { refine = 2.5 }", "reference.params.refine")])
-def test_bad_params_are_spec_errors(tmp_path, params, key):
+def test_bad_params_are_spec_errors(tmp_path, params, key, spring_pair):
     with pytest.raises(SpecError) as e:
-        _scene(tmp_path, SPRING.format(params=params))
+        _scene(tmp_path, spring_pair.format(params=params))
     assert key in str(e.value)
 
 
-def test_without_the_runner_the_metrics_are_undefined_with_the_reason(tmp_path):
+def test_without_the_runner_the_metrics_are_undefined_with_the_reason(tmp_path, spring_pair):
     """compute_metrics alone (no refined runs) never makes up a number."""
     from physbench.harness import runner
     from physbench.harness.metrics import compute_metrics
     from physbench.harness.references import undefined_reason
 
-    sc = _scene(tmp_path, SPRING.format(params=""))
+    sc = _scene(tmp_path, spring_pair.format(params=""))
     res = runner.run(sc, "reference", compute_metrics=False)
     m = compute_metrics(sc, res.trace.valid(), dt=sc.dt)
     assert math.isnan(m["self_consistency_error"])
@@ -187,13 +152,13 @@ def test_without_the_runner_the_metrics_are_undefined_with_the_reason(tmp_path):
 
 
 @pytest.mark.parametrize("integrator,order", [("rk4", 4.0), ("heun", 2.0), ("semi_implicit_euler", 1.0)])
-def test_observed_order_of_the_reference_integrators_on_a_spring_pair(tmp_path, integrator, order):
+def test_observed_order_of_the_reference_integrators_on_a_spring_pair(tmp_path, integrator, order, spring_pair):
     """The spring pair has a closed form, but it is not used: the order
     comes from the engine's own runs at dt, dt/2, dt/4 only.  Measured
     (dt = 0.02 s): rk4 3.991, heun 1.994, semi-implicit Euler 1.056."""
     from physbench.harness import runner
 
-    sc = _scene(tmp_path, SPRING.format(params=""))
+    sc = _scene(tmp_path, spring_pair.format(params=""))
     res = runner.run(sc, "reference", {"integrator": integrator})
     assert res.status == "ok", res.message
     m = res.metrics
@@ -208,13 +173,13 @@ def test_observed_order_of_the_reference_integrators_on_a_spring_pair(tmp_path, 
 
 
 @pytest.mark.parametrize("engine", ["mujoco", "pybullet", "pymunk"])
-def test_observed_order_of_the_other_engines_on_a_spring_pair(tmp_path, engine):
+def test_observed_order_of_the_other_engines_on_a_spring_pair(tmp_path, engine, spring_pair):
     """Each engine's own default step, judged by itself: first order
     (semi-implicit Euler and its kin).  Measured: mujoco 4.0.0 1.056,
     pybullet 3.2.7 1.056, pymunk 7.3.1 0.946."""
     from physbench.harness import runner
 
-    sc = _scene(tmp_path, SPRING.format(params=""))
+    sc = _scene(tmp_path, spring_pair.format(params=""))
     res = runner.run(sc, engine)
     if res.status == "unsupported":
         pytest.skip(res.message)
@@ -236,15 +201,15 @@ def test_observed_order_of_rk4_on_a_tumbling_body(tmp_path):
     assert math.isnan(res.metrics["observed_order"])
 
 
-def test_final_state_and_k3(tmp_path):
+def test_final_state_and_k3(tmp_path, spring_pair):
     from physbench.harness import runner
 
-    sc = _scene(tmp_path, SPRING.format(params='params = { refine = 3, compare = "final_state" }'))
+    sc = _scene(tmp_path, spring_pair.format(params='params = { refine = 3, compare = "final_state" }'))
     res = runner.run(sc, "reference", {"integrator": "rk4"})
     assert res.metrics["observed_order"] == pytest.approx(4.0, abs=0.2)
 
 
-def test_a_refined_run_that_fails_makes_the_metrics_undefined(tmp_path):
+def test_a_refined_run_that_fails_makes_the_metrics_undefined(tmp_path, spring_pair):
     """dt/k^2 below the engine's smallest step: no refined run, and the
     metrics say so (never 0)."""
     from physbench.adapters import get_adapter
@@ -254,7 +219,7 @@ def test_a_refined_run_that_fails_makes_the_metrics_undefined(tmp_path):
     lo = get_adapter("reference").capabilities().settings["dt"].lo
     if lo is None or lo <= 0:
         pytest.skip("the reference engine's dt has no lower bound")
-    text = SPRING.format(params="params = { refine = 16 }").replace("duration = 2.0", "duration = 0.001").replace("dt = 0.02", "dt = 0.0001")
+    text = spring_pair.format(params="params = { refine = 16 }").replace("duration = 2.0", "duration = 0.001").replace("dt = 0.02", "dt = 0.0001")
     sc = _scene(tmp_path, text)
     dt = 100 * lo  # dt/256 is below the bound
     res = runner.run(sc, "reference", {"dt": dt})
@@ -262,7 +227,7 @@ def test_a_refined_run_that_fails_makes_the_metrics_undefined(tmp_path):
     assert "refined run" in undefined_reason(res.metrics, "self_consistency_error")
 
 
-def test_a_sweep_point_gets_a_work_precision_point(tmp_path):
+def test_a_sweep_point_gets_a_work_precision_point(tmp_path, spring_pair):
     """The sweep's point rows (harness.points.run_point) carry the primary
     error from self-consistency beside the run's own cost, and the error
     falls as dt^4 for rk4: a work-precision curve for a scene without a
@@ -270,7 +235,7 @@ def test_a_sweep_point_gets_a_work_precision_point(tmp_path):
     from physbench.harness.points import Point, run_point
 
     p = tmp_path / "s.toml"
-    p.write_text(textwrap.dedent(SPRING.format(params="")))
+    p.write_text(textwrap.dedent(spring_pair.format(params="")))
     rows = {}
     for dt in (0.04, 0.02, 0.01):
         pt = Point("selfcheck.s", None, "reference", (("dt", dt), ("integrator", "rk4")), path=str(p))

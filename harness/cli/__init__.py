@@ -2,6 +2,7 @@
 
     physbench run SCENARIO|FILE [--engine E] [--variant V] [--set k=v]... [--json]
     physbench check [SCENARIO|FILE|DIR ...] [--engines ...] [--tags ...] [--set [E:]k=v]... [--junit FILE] [--traces DIR]
+                    [--ensemble N [--sigma M] [--threshold M]]
     physbench trace SCENARIO|FILE [--engines ...] [--variant V] [--set [E:]k=v]... [--watch] -o FILE.rrd
     physbench validate FILE|SCENARIO [--variant V] [--engines ...] [--json]
     physbench limits SCENARIO|FILE --engine E --param KEY --range LO HI [--phases N] [--tol REL] [--json]
@@ -113,6 +114,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "KEY=VALUE for a setting every checked engine has (dt=1/240); a check's @dt=... wins")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
+    c.add_argument("--ensemble", type=_int_in(2, 100000), default=None, metavar="N",
+                   help="also judge predictability: N runs from perturbed starts per scene and engine (the scene's "
+                        "[perturbation], or --sigma), the check predictable == true (docs/METRICS.md)")
+    c.add_argument("--sigma", type=float, default=None, metavar="M",
+                   help="with --ensemble: position noise (m, standard deviation) over the scene's [perturbation]")
+    c.add_argument("--threshold", type=float, default=None, metavar="M",
+                   help="with --ensemble: the largest final spread (m) of a predictable scene (default the "
+                        "scene's, else 0.01)")
     c.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     c.set_defaults(func=cmd_check)
 

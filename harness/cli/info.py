@@ -89,6 +89,13 @@ def cmd_models(args: argparse.Namespace) -> int:
         for m, meaning in d["produces"].items():
             print(f"    {m}: {meaning}")
         print()
+    if args.name is None:
+        from physbench.harness.references import judge_lines
+
+        print("Judging a scene without a model:")
+        for line in judge_lines():
+            print(f"  {line}".rstrip())
+        print()
     for line in PLUGIN_PROBLEMS:
         print(f"plug-in: {line}")
     return 0

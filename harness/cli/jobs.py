@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from physbench.harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, engine_sets, output_dir, output_file
@@ -25,9 +26,17 @@ def cmd_check(args: argparse.Namespace) -> int:
             raise UsageError(f"--set {rest[0]}: check takes engine settings only (ENGINE:KEY=VALUE or KEY=VALUE); "
                              f"vary the spec with a [[variant]]")
         settings = {e: s for e, s in per.items() if s}
+    ensemble = None
+    if args.ensemble is not None:
+        for flag, v in (("--sigma", args.sigma), ("--threshold", args.threshold)):
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise UsageError(f"{flag}: expected a finite number > 0 (m), got {v!r}")
+        ensemble = {"n": args.ensemble, "position": args.sigma, "threshold": args.threshold}
+    elif args.sigma is not None or args.threshold is not None:
+        raise UsageError("--sigma and --threshold go with --ensemble N")
     return check_main(engines=args.engines, tags=args.tags, junit=args.junit, scenarios=scenarios or None,
                       jobs=args.jobs, timeout_s=args.timeout, resume=args.resume, traces=args.traces,
-                      executor=args.executor, scheduler=args.scheduler, settings=settings)
+                      executor=args.executor, scheduler=args.scheduler, settings=settings, ensemble=ensemble)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

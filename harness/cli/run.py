@@ -59,6 +59,12 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
     from physbench.harness.execute import WorkerPool, request_scene, run_requests
 
     scene = request_scene(dataclasses.replace(req, phase=0.0))
+    from physbench.harness.conformance import check_applies, judged_apart
+
+    apart = [c.metric for c in scene.checks if check_applies(c, args.engine, scene.variant) and judged_apart(c)]
+    if apart:
+        print(f"note: {', '.join(apart)}: judged on an ensemble or the engines' consensus, by physbench check "
+              "(not by one run)", file=sys.stderr)
     runs = scene_runs(scene, args.engine, settings, phases=1 if args.phase else None)
     if not runs:
         return runs, []

@@ -88,7 +88,8 @@ from physbench.harness.conformance.plan import scene_runs  # noqa: F401
 from physbench.harness.conformance.store import save_rows  # noqa: F401
 from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
                                           _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
-                                          evaluate_check, hard_checks, run_verdicts, scene_columns, split_metric)
+                                          evaluate_check, hard_checks, judged_apart, run_verdicts, scene_columns,
+                                          split_metric)
 from physbench.harness.execute import RunRequest, WorkerLost, execute_request, lost_result
 from physbench.harness.executors import make_executor
 
@@ -97,8 +98,23 @@ def execute(item: RunSpec | RunRequest):
     """Run one request (or a RunSpec's) in this process
     (harness.execute.execute_request): never raises (engine import errors
     become a RunResult with status 'failed').  The trace is dropped
-    (results cross process boundaries)."""
-    return execute_request(item.request() if isinstance(item, RunSpec) else item)
+    (results cross process boundaries).  An ensemble request runs its
+    members here, one after the other (harness.ensemble.ensemble_result),
+    and a consensus request its engines' refined runs
+    (harness.consensus.consensus_result), each with its share of the
+    budget."""
+    q = item.request() if isinstance(item, RunSpec) else item
+    if q.consensus:
+        from physbench.harness.consensus import consensus_result
+
+        per = None if q.timeout_s is None else q.timeout_s / len(q.consensus)
+        return consensus_result(q.scenario, q.variant, list(q.consensus), timeout_s=per)
+    if q.ensemble:
+        from physbench.harness.ensemble import ensemble_result
+
+        per = None if q.timeout_s is None else q.timeout_s / q.ensemble.n
+        return ensemble_result(q.scenario, q.variant, q.engine, dict(q.settings), q.ensemble, timeout_s=per)
+    return execute_request(q)
 
 
 def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor: str = "process",
@@ -172,7 +188,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
                scenarios: list[str] | None, jobs: int = 1, save_dir: str | Path | None = None,
                timeout_s: float | None = RUN_TIMEOUT_S, executor: str = "process", resume: bool = True,
                traces: str | Path | None = None, scheduler: str | None = None,
-               settings: dict[str, dict[str, Any]] | None = None) -> int:
+               settings: dict[str, dict[str, Any]] | None = None, ensemble: dict[str, Any] | None = None) -> int:
     """Run the conformance suite; print a summary; store every run's result
     row as it finishes (``save_dir``, default results/check/: a directory
     ``<check_id>/`` of atomic parts while running, consolidated into
@@ -186,7 +202,10 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     a LocalCluster of ``jobs`` workers; the traces of ``traces`` are rerun
     on local worker processes).  ``settings``: engine -> setting overrides
     for that engine's runs (``check --set ENGINE:KEY=VALUE``; a check's
-    ``@dt=...`` setting wins over them).  Returns 1 on any FAIL, ERROR or XPASS, 5
+    ``@dt=...`` setting wins over them).  ``ensemble`` (``check --ensemble
+    N --sigma S --threshold T``: n, position, threshold): the ensemble
+    check ``predictable`` on every base scene with noise to draw
+    (harness.conformance.plan.plan).  Returns 1 on any FAIL, ERROR or XPASS, 5
     (:data:`NOTHING_CHECKED`) when no check applied to any run, else 0; raises
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
@@ -205,7 +224,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
         return 1
     notes: list[str] = []
     idle: list[tuple[str, str | None, str]] = []
-    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings)
+    runs, load_errors = plan(ids, engines, timeout_s, notes=notes, idle=idle, settings=settings, ensemble=ensemble)
     for line in notes:  # check engines not installed here (harness.conformance.plan.engine_names_in_checks)
         err.print(f"note: {line}", markup=False, highlight=False, soft_wrap=True)
     for line in _idle_lines(idle):

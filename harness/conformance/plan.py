@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, describe_bound,
+from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, check_applies,
+                                                   describe_bound,
                                           evaluate_check, hard_checks, scene_columns, split_metric)
 from physbench.harness.execute import DEFAULT_TIMEOUT_S, RunRequest
 from physbench.contract.scene import Check, Scene
@@ -38,23 +39,40 @@ class RunSpec:
     row_extra: dict[str, Any] = field(default_factory=dict)
     #: wall-clock budget of the run (s); not part of its identity
     timeout_s: float | None = RUN_TIMEOUT_S
+    #: an ensemble of perturbed starts instead of one run
+    #: (harness.ensemble.Perturbation; harness.ensemble.ensemble_result):
+    #: the run of the scene's checks on ENSEMBLE_METRICS (``predictable``)
+    ensemble: Any = None
+    #: the engines of a consensus run (engine ``consensus``: their runs at
+    #: dt / k^2 compared, harness.consensus.consensus_result); () otherwise
+    consensus: tuple = ()
 
     @property
     def key(self) -> tuple:
         base = (self.scenario, self.variant, self.engine, tuple(sorted(self.settings.items())))
-        return base + ((self.phase,) if self.phase else ())
+        return (base + ((self.phase,) if self.phase else ()) + (("ensemble", self.ensemble) if self.ensemble else ())
+                + (("consensus", self.consensus) if self.consensus else ()))
 
     @property
     def run_key(self) -> str:
         """The run's identity as text (the ``run_key`` column of check rows):
-        ``scenario[variant]|engine|{settings}|phase``."""
+        ``scenario[variant]|engine|{settings}|phase``, and for an ensemble
+        ``|ensemble{perturbation}``."""
         v = f"[{self.variant}]" if self.variant else ""
         settings = json.dumps(dict(sorted(self.settings.items())), sort_keys=True, separators=(",", ":"))
-        return f"{self.scenario}{v}|{self.engine}|{settings}|{self.phase!r}"
+        out = f"{self.scenario}{v}|{self.engine}|{settings}|{self.phase!r}"
+        if self.ensemble:
+            import dataclasses
+
+            out += "|ensemble" + json.dumps(dataclasses.asdict(self.ensemble), sort_keys=True, separators=(",", ":"))
+        if self.consensus:
+            out += "|consensus" + json.dumps(list(self.consensus), separators=(",", ":"))
+        return out
 
     def request(self) -> RunRequest:
         return RunRequest(self.path or self.scenario, self.engine, self.variant, dict(self.settings),
-                          phase=self.phase, timeout_s=self.timeout_s)
+                          phase=self.phase, timeout_s=self.timeout_s, ensemble=self.ensemble,
+                          consensus=tuple(self.consensus))
 
 
 def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> list[str]:
@@ -172,18 +190,54 @@ def _load_error_outcomes(sid: str, variant: str | None, engines: Iterable[str], 
     return [Outcome(e, sid, variant, "load", ERROR, message=message) for e in engines]
 
 
+def ensemble_checks(scene: Scene, engine: str, ensemble: dict[str, Any] | None) -> list[Check]:
+    """The checks of ``scene`` on ``engine`` that its ensemble answers
+    (metrics in harness.ensemble.ENSEMBLE_METRICS), and with ``ensemble``
+    (``check --ensemble N``) on a base scene the implicit ``predictable ==
+    True`` unless the scene declares a ``predictable`` check itself."""
+    from physbench.harness.ensemble import ENSEMBLE_METRICS
+
+    out = [c for c in scene.checks if check_applies(c, engine, scene.variant)
+           and split_metric(c.metric)[0] in ENSEMBLE_METRICS]
+    if ensemble and scene.variant is None and not any(c.metric == "predictable" for c in scene.checks):
+        out.append(Check(metric="predictable", equals=True))
+    return out
+
+
+def ensemble_spec(scene: Scene, ensemble: dict[str, Any] | None):
+    """The Perturbation of ``scene``'s ensemble: its ``[perturbation]``
+    with the ``check --ensemble N --sigma S --threshold T`` values over it
+    (``ensemble``: n, position, threshold; None values left out).  Raises
+    ValueError (no noise: neither a block nor --sigma)."""
+    from physbench.harness.ensemble import Perturbation
+
+    return Perturbation.of_scene(scene, **(ensemble or {}))
+
+
 def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None, path: str | None = None,
-               phases: int | None = None, timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
+               phases: int | None = None, timeout_s: float | None = RUN_TIMEOUT_S,
+               ensemble: dict[str, Any] | None = None, ensembles: bool = False) -> list[RunSpec]:
     """The runs that evaluating ``scene``'s checks on ``engine`` takes, the
     base run first (settings ``settings``, carrying the checks); then its
     step phases (``phases``, default the scene's); then one run per
-    @-suffixed check setting (``settings`` with the suffix's over them).
+    @-suffixed check setting (``settings`` with the suffix's over them);
+    with ``ensembles``, last, the ensemble run of the checks on its
+    measures (:func:`ensemble_checks`; ``ensemble`` the CLI's values over
+    the scene's ``[perturbation]``; its budget ``timeout_s`` per member).
+    Without ``ensembles`` (``physbench run``) those checks are left out.
     Empty when no check applies.  ``physbench check`` and ``physbench run``
     both plan with it, so both give the same verdict.  Each run has the
     wall-clock budget ``timeout_s``."""
+    ens = ensemble_checks(scene, engine, ensemble) if ensembles else []
+    ens_run: list[RunSpec] = []
+    if ens:
+        p = ensemble_spec(scene, ensemble)  # ValueError: planned as a load error (plan)
+        ens_run = [RunSpec(scene.id, scene.variant, engine, dict(settings or {}), ens, path=path,
+                           row_extra={**scene_columns(scene), "ensemble": json.dumps(_asdict(p), sort_keys=True)},
+                           timeout_s=None if timeout_s is None else timeout_s * p.n, ensemble=p)]
     checks = applicable_checks(scene, engine) + hard_checks(scene)
     if not checks:
-        return []
+        return ens_run
     settings = dict(settings or {})
     n = scene.phases if phases is None else phases
     extra = scene_columns(scene)
@@ -200,13 +254,43 @@ def scene_runs(scene: Scene, engine: str, settings: dict[str, Any] | None = None
     for st in suffixes.values():
         runs.append(RunSpec(scene.id, scene.variant, engine, {**settings, **st}, [], path=path, row_extra=extra,
                             timeout_s=timeout_s))
-    return runs
+    return runs + ens_run
+
+
+#: the engine name of a consensus run's row and outcomes
+CONSENSUS = "consensus"
+
+
+def consensus_runs(scene: Scene, engines: list[str], path: str | None = None,
+                   timeout_s: float | None = RUN_TIMEOUT_S) -> list[RunSpec]:
+    """The consensus run of ``scene``'s checks on CONSENSUS_METRICS
+    (``consensus_spread``), one per set of engines they name (a check's
+    ``engines``, else all of ``engines``): engine :data:`CONSENSUS`, the
+    engines in ``consensus``, the budget ``timeout_s`` per engine."""
+    from physbench.contract.metric_defs import CONSENSUS_METRICS
+
+    groups: dict[tuple, list[Check]] = {}
+    for c in scene.checks:
+        if c.metric not in CONSENSUS_METRICS or (c.variants is not None and (scene.variant or "base") not in c.variants):
+            continue
+        who = tuple(e for e in engines if c.engines is None or e in c.engines)
+        groups.setdefault(who, []).append(c)
+    return [RunSpec(scene.id, scene.variant, CONSENSUS, {}, cs, path=path, row_extra=scene_columns(scene),
+                    timeout_s=None if timeout_s is None else timeout_s * max(1, len(who)), consensus=who)
+            for who, cs in groups.items()]
+
+
+def _asdict(p: Any) -> dict[str, Any]:
+    import dataclasses
+
+    return dataclasses.asdict(p)
 
 
 def plan(scenario_ids: list[str], engines: list[str],
          timeout_s: float | None = RUN_TIMEOUT_S, notes: list[str] | None = None,
          idle: list[tuple[str, str | None, str]] | None = None,
-         settings: dict[str, dict[str, Any]] | None = None) -> tuple[list[RunSpec], list[Outcome]]:
+         settings: dict[str, dict[str, Any]] | None = None,
+         ensemble: dict[str, Any] | None = None) -> tuple[list[RunSpec], list[Outcome]]:
     """Runs to make (each with the wall-clock budget ``timeout_s``), and
     ERROR outcomes for scenarios that fail to load (a check naming an
     unknown engine is such a failure: :func:`engine_names_in_checks`).
@@ -215,7 +299,10 @@ def plan(scenario_ids: list[str], engines: list[str],
     could not be told apart.  ``notes`` (when given) receives a line per
     check engine that is not installed here; ``idle`` a (scenario,
     variant, :func:`idle_reason`) per scene to which no check applies.
-    ``settings``: engine -> setting overrides of every run on it."""
+    ``settings``: engine -> setting overrides of every run on it.
+    ``ensemble`` (``check --ensemble N``: n, position, threshold): every
+    base scene with a ``[perturbation]`` block (or any, with a position
+    sigma) also gets the check ``predictable == True`` on its ensemble."""
     from physbench.contract.scene import load_scene, resolve_scenario
     from physbench.contract.spec import SpecError, load_spec
 
@@ -249,11 +336,30 @@ def plan(scenario_ids: list[str], engines: list[str],
                     raise SpecError([f"{loaded.label}: <scenario>: id {scene.id!r} (family.stem) is also the id of "
                                      f"{seen[scene.id]}; rename one file or change its family"])
             n = len(runs)
-            for eng in engines:
-                runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s)
+            try:
+                for eng in engines:
+                    runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s,
+                                       ensemble=ensemble, ensembles=True)
+            except ValueError as e:  # an ensemble check without noise to draw
+                runs = runs[:n]
+                if ensemble and not scene.perturbation and not any(
+                        split_metric(c.metric)[0] in _ensemble_metrics() for c in scene.checks):
+                    if notes is not None:
+                        notes.append(f"{scene.id}: no ensemble: no [perturbation] block and no --sigma")
+                    for eng in engines:
+                        runs += scene_runs(scene, eng, (settings or {}).get(eng), path=path, timeout_s=timeout_s)
+                else:
+                    errors += _load_error_outcomes(sid, variant, engines, f"ensemble: {e}")
+            runs += consensus_runs(scene, engines, path=path, timeout_s=timeout_s)
             if idle is not None and len(runs) == n:
                 idle.append((scene.id, variant, idle_reason(scene, engines)))
     return runs, errors
+
+
+def _ensemble_metrics() -> tuple[str, ...]:
+    from physbench.harness.ensemble import ENSEMBLE_METRICS
+
+    return ENSEMBLE_METRICS
 
 
 def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcome]:

@@ -16,8 +16,9 @@ from physbench.harness.conformance.plan import RunSpec
 
 def _row(key: tuple, result: Any) -> dict[str, Any]:
     row = result.row()
-    # the step phase of the run (a 5th key element; 0 = the scene as written)
-    row["phase"] = float(key[4]) if len(key) > 4 else 0.0
+    # the step phase of the run (a float 5th key element; 0 = the scene as
+    # written; an ensemble's key ends in ("ensemble", perturbation) instead)
+    row["phase"] = float(key[4]) if len(key) > 4 and isinstance(key[4], float) else 0.0
     return row
 
 

@@ -42,7 +42,8 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
     from physbench.harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
     from physbench.harness.trace.contacts import DEFAULT_CAP
 
-    base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks}
+    # plain runs only: an ensemble's or the consensus's verdicts have no one run to trace
+    base = {(r.scenario, r.variant, r.engine): r for r in runs if r.checks and not r.ensemble and not r.consensus}
     cases: dict[str, tuple] = {}
     for o in outcomes:
         spec = base.get((o.scenario, o.variant, o.engine))

@@ -264,9 +264,21 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
 
 
 def applicable_checks(scene: Scene, engine: str) -> list[Check]:
-    """The scene's checks that apply to ``engine`` and the scene's variant
-    (all of them, including @-suffixed ones)."""
-    return [c for c in scene.checks if check_applies(c, engine, scene.variant)]
+    """The scene's checks that apply to a run of ``engine`` and the scene's
+    variant (including @-suffixed ones); not those a run cannot answer,
+    on an ensemble's or the engines' consensus's measures
+    (:func:`judged_apart`: ``physbench check`` plans their own runs)."""
+    return [c for c in scene.checks if check_applies(c, engine, scene.variant) and not judged_apart(c)]
+
+
+def judged_apart(check: Check) -> bool:
+    """Whether ``check`` bounds a measure of the scene's ensemble
+    (contract.metric_defs.ENSEMBLE_METRICS) or of the engines' consensus
+    (CONSENSUS_METRICS): evaluated on a run of its own, never a plain run's."""
+    from physbench.contract.metric_defs import CONSENSUS_METRICS, ENSEMBLE_METRICS
+
+    name = split_metric(check.metric)[0]
+    return name in ENSEMBLE_METRICS or name in CONSENSUS_METRICS
 
 
 def hard_checks(scene: Scene) -> list[Check]:

@@ -309,4 +309,25 @@ def models_markdown() -> str:
         lines += ["", f"**Metrics** (primary: `{d['primary']}`):", ""]
         for m, meaning in d["produces"].items():
             lines.append(f"- `{m}`: {meaning}")
+    lines += ["", "## Judging a scene without a model", ""] + judge_lines()
     return "\n".join(lines) + "\n"
+
+
+def judge_lines() -> list[str]:
+    """What judges a scene that has no closed form besides
+    ``self_consistency`` (docs/MODELS.md's last section, ``physbench
+    models``' last lines): the contact-law residuals, the ensemble's
+    measures and the engines' consensus, from contract.metric_defs."""
+    from physbench.contract.metric_defs import CONSENSUS_METRICS, CONTACT_LAWS, ENSEMBLE_METRICS
+
+    out = ["Checks may name these in any scene (docs/METRICS.md defines them).", "",
+           "**Contact-law residuals** (each as `<name>_max`, `<name>_mean`, `<name>_rows`; recorded only when a "
+           "check or the primary metric names one; undefined, with the reason, on an engine whose adapter reads "
+           "no contact forces):", ""]
+    out += [f"- `{n}`: {meaning}" for n, meaning in CONTACT_LAWS.items()]
+    out += ["", "**Predictability** (on the scene's ensemble of perturbed starts, its `[perturbation]` or "
+            "`physbench check --ensemble N --sigma S`; a row of its own):", ""]
+    out += [f"- `{n}` ({d.units}): {d.meaning}" for n, d in ENSEMBLE_METRICS.items()]
+    out += ["", "**Consensus** (the checked engines' runs at dt / k^2 compared; a row of engine `consensus`):", ""]
+    out += [f"- `{n}` ({d.units}): {d.meaning}" for n, d in CONSENSUS_METRICS.items()]
+    return out

@@ -53,9 +53,10 @@ import os
 import sys
 from pathlib import Path
 
-from physbench.harness.report.analysis import (breaking_points, failed_checks, failing_checks, fmt_limit, frontier,
-                                              hard_scenarios, latest_check_runs, latest_points, meets_checks,
-                                              phase_table, stability_matrix, unexpected_failures, work_precision)
+from physbench.harness.report.analysis import (breaking_points, consensus_table, contact_law_table, failed_checks,
+                                              failing_checks, fmt_limit, frontier, hard_scenarios, latest_check_runs,
+                                              latest_points, meets_checks, phase_table, predictability_table,
+                                              stability_matrix, unexpected_failures, work_precision)
 from physbench.harness.report.glance import SUMMARY_VERSION, first_screen, summary
 from physbench.harness.report.cost import (LADDER, RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, RATIO_OPEN, at_a_glance,
                                  cost_to_target, family, grid_ends, ladder)
@@ -63,7 +64,8 @@ from physbench.harness.report.trends import (BASELINE_RUNS, NOISE_FLOOR, NOISE_S
                                     pooled_noise, regressions, scene_change_lines, scene_changes)
 from physbench.harness.report.loading import load_results
 from physbench.harness.report.page import render_html
-from physbench.harness.report.plots import ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_history, plot_work_precision
+from physbench.harness.report.plots import (ENGINE_COLOURS, engine_colour, plot_breaking_point, plot_contact_laws,
+                                          plot_history, plot_work_precision)
 from physbench.harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
 from physbench.harness.results import results_dir as _results_dir, write_json_atomic, write_text_atomic
 
@@ -71,10 +73,12 @@ _normalise = normalise  # the name older callers use
 
 __all__ = ["BASELINE_RUNS", "ENGINE_COLOURS", "ERROR_FLOOR", "LADDER", "NOISE_FLOOR", "NOISE_SPREADS",
            "RATIO_AT_LEAST", "RATIO_AT_MOST", "RATIO_EXACT", "RATIO_OPEN", "SUMMARY_VERSION",
-           "at_a_glance", "breaking_points", "cost_to_target", "engine_colour", "failed_checks", "failing_checks",
+           "at_a_glance", "breaking_points", "consensus_table", "contact_law_table", "cost_to_target",
+           "engine_colour", "failed_checks", "failing_checks",
            "family", "first_screen", "fmt", "fmt_limit", "frontier", "grid_ends", "hard_scenarios", "history",
            "ladder", "latest_check_runs", "latest_points",
            "load_results", "machine_shifts", "meets_checks", "normalise", "phase_table", "plot_breaking_point",
+           "plot_contact_laws", "predictability_table",
            "plot_history", "plot_work_precision", "pooled_noise", "regressions", "render_html", "report_main",
            "scene_change_lines", "scene_changes", "settings_label", "stability_matrix", "summary",
            "unexpected_failures", "work_precision"]

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from physbench.contract.phase import wilson_interval
-from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, fmt, settings_label
+from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, _truthy, fmt, settings_label
 from physbench.harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
                                      OUTCOMES, UNSUPPORTED, XFAIL)
 
@@ -79,7 +79,7 @@ def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
     # the same run twice
     c = c.sort_values(["_file", "timestamp"], kind="stable").copy()
     c["_dtkey"] = [fmt(d, 9) for d in c["dt"]]
-    c = c.drop_duplicates(["machine_id", "scenario", "variant", "engine", "_dtkey"], keep="last")
+    c = c.drop_duplicates(["machine_id", "scenario", "variant", "engine", "_dtkey", "judge"], keep="last")
     return c.drop(columns="_dtkey").reset_index(drop=True)
 
 
@@ -257,7 +257,9 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
             "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt", "met_checks", "checks_failed",
             "max_met_dt", "no_verdict"]
-    parts = [p for p in (_unshifted(latest_points(df)), _latest_checks(df)) if not p.empty]
+    checks = _latest_checks(df)
+    checks = checks[checks["judge"] == ""] if len(checks) else checks  # ensembles, consensus: not a run's stability
+    parts = [p for p in (_unshifted(latest_points(df)), checks) if not p.empty]
     if not parts:
         out = pd.DataFrame(columns=cols)
         out.attrs["selection"] = "no data"
@@ -565,3 +567,101 @@ def frontier(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
         if not out or e < out[-1][1]:
             out.append((c, e))
     return out
+
+
+# ---------------------------------------------------------------------------
+# judging scenes without a model: contact laws, predictability, consensus
+
+#: the contact-law residuals the report shows, with units (docs/METRICS.md)
+LAW_COLUMNS = (("signorini_residual", "N m"), ("cone_violation", "1"), ("dissipation_residual", "rad"),
+               ("adhesion", "N"), ("separation_force", "N"))
+
+
+def contact_law_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Per engine, over its latest check rows and latest sweep points (the
+    scene as written) that carry contact-law residuals: the largest
+    ``<law>_max`` of each law in LAW_COLUMNS (NaN where no row has one),
+    the scenario it came from (``<law>_where``), and how many rows and
+    scenarios carried any.  Rows of a run without forces carry NaN (the
+    reason in their ``undefined_metrics``): they count as no value, never
+    as 0.  Sorted by engine."""
+    df = _ensure(df)
+    cols = ["engine", "rows", "scenarios"] + [f"{n}_{k}" for n, _ in LAW_COLUMNS for k in ("max", "where")]
+    checks = _latest_checks(df)
+    checks = checks[checks["judge"] == ""] if len(checks) else checks
+    parts = [p for p in (_unshifted(latest_points(df)), checks) if not p.empty]
+    if not parts:
+        return pd.DataFrame(columns=cols)
+    data = pd.concat(parts, ignore_index=True, sort=False)
+    present = [f"{n}_max" for n, _ in LAW_COLUMNS if f"{n}_max" in data.columns]
+    if not present:
+        return pd.DataFrame(columns=cols)
+    rows = []
+    for en, g in data.groupby("engine", sort=True):
+        recs = [r for r in g.to_dict("records") if r["status"] == OK and any(_finite(r.get(c)) for c in present)]
+        if not recs:
+            continue
+        out: dict[str, Any] = {"engine": en, "rows": len(recs), "scenarios": len({r["scenario"] for r in recs})}
+        for n, _ in LAW_COLUMNS:
+            vals = [(_num(r.get(f"{n}_max")), r["scenario"]) for r in recs if _finite(r.get(f"{n}_max"))]
+            best = max(vals, default=(math.nan, ""))
+            out[f"{n}_max"], out[f"{n}_where"] = best
+        rows.append(out)
+    return pd.DataFrame(rows, columns=cols)
+
+
+PREDICTABILITY_COLS = ["scenario", "variant", "engine", "members", "members_ok", "final_spread", "amplification",
+                       "event_spread", "threshold", "predictable", "verdict"]
+
+
+def predictability_table(df: pd.DataFrame) -> pd.DataFrame:
+    """The latest ensemble row (``check --ensemble``, or a scene's
+    ``predictable`` check) per machine, scenario, variant and engine, of
+    the scenarios tagged 'hard' (else of all, ``attrs['selection']`` says
+    which): members (ok of all), final spread (m), amplification, event
+    spread, the threshold (m), predictable (True/False/None: a member not
+    ok) and the recorded verdict of its ``predictable`` check ('' when it
+    carries none)."""
+    df = _ensure(df)
+    c = _latest_checks(df)
+    c = c[c["judge"] == "ensemble"] if len(c) else c
+    if c.empty:
+        out = pd.DataFrame(columns=PREDICTABILITY_COLS)
+        out.attrs["selection"] = "no data"
+        return out
+    hard = {sc for sc, tags in zip(c["scenario"], c["tags"]) if tags and "hard" in tags}
+    if hard:
+        c = c[c["scenario"].isin(hard)]
+    rows = []
+    for r in c.sort_values(["scenario", "variant", "engine"], kind="stable").to_dict("records"):
+        verdict = next((v.get("outcome", "") for v in (row_verdicts(r) or []) if v.get("metric") == "predictable"), "")
+        rows.append({"scenario": r["scenario"], "variant": r["variant"], "engine": r["engine"],
+                     "members": _num(r.get("members")), "members_ok": _num(r.get("members_ok")),
+                     "final_spread": _num(r.get("final_spread")), "amplification": _num(r.get("amplification")),
+                     "event_spread": _num(r.get("event_spread")), "threshold": _num(r.get("ensemble_threshold")),
+                     "predictable": _truthy(r.get("predictable")) if r["status"] == OK else None, "verdict": verdict})
+    out = pd.DataFrame(rows, columns=PREDICTABILITY_COLS)
+    out.attrs["selection"] = "scenarios tagged 'hard'" if hard else "all scenarios (none tagged 'hard' has an ensemble)"
+    return out
+
+
+CONSENSUS_COLS = ["scenario", "variant", "engines", "status", "consensus_spread", "consensus_spread_angle",
+                  "message", "verdicts"]
+
+
+def consensus_table(df: pd.DataFrame) -> pd.DataFrame:
+    """The latest consensus row (engine ``consensus``) per machine,
+    scenario and variant: the engines and their versions, status, the
+    spreads (m, rad), the row's message (the farthest pair) and its
+    recorded verdicts ('metric OUTCOME; ...')."""
+    df = _ensure(df)
+    c = _latest_checks(df)
+    c = c[c["judge"] == "consensus"] if len(c) else c
+    rows = []
+    for r in c.sort_values(["scenario", "variant"], kind="stable").to_dict("records"):
+        vs = row_verdicts(r) or []
+        rows.append({"scenario": r["scenario"], "variant": r["variant"], "engines": r["engine_version"],
+                     "status": r["status"], "consensus_spread": _num(r.get("consensus_spread")),
+                     "consensus_spread_angle": _num(r.get("consensus_spread_angle")), "message": r["message"],
+                     "verdicts": "; ".join(f"{v.get('metric')} {v.get('outcome')}" for v in vs)})
+    return pd.DataFrame(rows, columns=CONSENSUS_COLS)

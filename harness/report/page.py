@@ -19,14 +19,16 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import (_limit_rows, _sweeps, breaking_points, failing_checks, fmt_limit, phase_table,
-                                              stability_matrix, work_precision)
+from physbench.harness.report.analysis import (LAW_COLUMNS, _limit_rows, _sweeps, breaking_points, consensus_table,
+                                              contact_law_table, failing_checks, fmt_limit, phase_table,
+                                              predictability_table, stability_matrix, work_precision)
 from physbench.harness.report.glance import first_screen, left_out, xfail_total
 from physbench.harness.report.cost import RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target
 from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
                                     MAD_TO_SIGMA, MIN_COST_HISTORY, NOISE_FLOOR, NOISE_SPREADS, history,
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
-from physbench.harness.report.plots import engine_colour, plot_breaking_point, plot_history, plot_work_precision
+from physbench.harness.report.plots import (engine_colour, plot_breaking_point, plot_contact_laws, plot_history,
+                                          plot_work_precision)
 from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
 from physbench.contract.conventions import DRAG_EXTERNAL
 from physbench.harness.status import BAD_OUTCOMES, OK, OUTCOMES, XFAIL
@@ -516,6 +518,66 @@ def _stability_html(sm: pd.DataFrame) -> str:
             + _table(["scenario"] + engines, rows, raw=True))
 
 
+def _judge_html(df: pd.DataFrame) -> str:
+    """Judging scenes without a model: per engine the contact-law
+    residuals (a table and one plot), the predictability of the hard
+    scenes (their ensembles), the engines' consensus; from the rows only."""
+    parts = ["<h3>Contact-law residuals</h3>"]
+    cl = contact_law_table(df)
+    if cl.empty:
+        parts.append("<p class='note'>No row carries contact-law residuals (a scene records contact forces only "
+                     "when a check or its primary metric names one).</p>")
+    else:
+        rows = []
+        for r in cl.to_dict("records"):
+            cells = [_e(r["engine"]), f"{r['rows']} ({r['scenarios']})"]
+            for n, _ in LAW_COLUMNS:
+                v = r[f"{n}_max"]
+                cells.append(f"{fmt(v, 3)} <span class='note'>{_e(r[f'{n}_where'])}</span>" if _finite(v)
+                             else "<span class='note'>undefined</span>")
+            rows.append(cells)
+        head = ["engine", "rows (scenarios)"] + [f"{n} max ({u})" for n, u in LAW_COLUMNS]
+        parts.append("<p class='note'>Largest residual over each engine's latest check rows and sweep points "
+                     "(the scene as written) that carry them, with the scenario it came from; <i>undefined</i>: no "
+                     "row has a value (no contact forces from that engine's adapter, no sliding contact). "
+                     "docs/METRICS.md defines them.</p>" + _table(head, rows, raw=True))
+        png = plot_contact_laws(cl)
+        if png:
+            parts.append(f"<figure class='hist'>{_img(png, 'contact-law residuals per engine')}<figcaption>Largest "
+                         "residual per engine, log scale; 0 drawn at 1e-16.</figcaption></figure>")
+    parts.append("<h3>Predictability</h3>")
+    pt = predictability_table(df)
+    if pt.empty:
+        parts.append("<p class='note'>No ensemble rows (<code>physbench check --ensemble N</code>, or a scene's "
+                     "<code>predictable</code> check, writes them).</p>")
+    else:
+        rows, attrs = [], []
+        for r in pt.to_dict("records"):
+            p = r["predictable"]
+            verdict = {True: "<span class='good'>predictable</span>", False: "<span class='bad'>not "
+                       "predictable</span>", None: "<span class='bad'>undefined</span>"}[p]
+            rows.append([_e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""), _e(r["engine"]),
+                         f"{fmt(r['members_ok'])}/{fmt(r['members'])}", fmt(r["final_spread"], 3),
+                         fmt(r["amplification"], 3), fmt(r["event_spread"]), fmt(r["threshold"]),
+                         verdict + (f" ({_e(r['verdict'])})" if r["verdict"] else "")])
+            attrs.append(f"data-predictable='{_e(p)}'")
+        parts.append(f"<p class='note'>Showing {_e(pt.attrs.get('selection', ''))}: the latest ensemble of each "
+                     "scene on each engine, N runs from starts perturbed by Gaussian noise (docs/METRICS.md); the "
+                     "final spread (m) against the threshold (m) decides, with the check's recorded verdict.</p>"
+                     + _table(["scenario", "engine", "members ok", "final spread (m)", "amplification",
+                               "event spread", "threshold (m)", "verdict"], rows, raw=True, row_attr=attrs))
+    ct = consensus_table(df)
+    if not ct.empty:
+        rows = [[_e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else ""), _e(r["engines"]),
+                 _e(r["status"]), fmt(r["consensus_spread"], 3), fmt(r["consensus_spread_angle"], 3),
+                 _e(r["message"]), _e(r["verdicts"])] for r in ct.to_dict("records")]
+        parts.append("<h3>Consensus across engines</h3><p class='note'>The checked engines' runs at dt / k^2, "
+                     "compared; the largest distance between two of them.</p>"
+                     + _table(["scenario", "engines", "status", "consensus_spread (m)", "angle (rad)", "farthest",
+                               "verdicts"], rows, raw=True))
+    return "\n".join(parts)
+
+
 def _phase_html(pt: pd.DataFrame) -> str:
     if pt.empty:
         return ('<p class="note">No point was swept over step phases (a <code>[[sweep]]</code> block with '
@@ -787,7 +849,7 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
                    "(or <code>physbench check</code>) first; this page fills in from the Parquet rows they "
                    "write.</div>")
         body = {k: '<p class="note">No results.</p>' for k in ("glance", "wp", "cost", "stab", "phase", "hist",
-                                                               "limits", "failing")}
+                                                               "limits", "failing", "judge")}
         header = ""
     else:
         header = _header_html(df)
@@ -802,6 +864,7 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
                 "stab": _stability_html(stability_matrix(df)),
                 "failing": _failing_html(failing_checks(df), pdir),
                 "phase": _phase_html(phase_table(df)),
+                "judge": _judge_html(df),
                 "hist": _history_html(df)}
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>physbench report</title>
@@ -818,6 +881,7 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
 <section id="stability"><h2>Stability matrix</h2>{body['stab']}</section>
 <section id="failing-checks"><h2>Failing checks</h2>{body['failing']}</section>
 <section id="phases"><h2>Hard cases over step phases</h2>{body['phase']}</section>
+<section id="judging"><h2>Judging scenes without a model</h2>{body['judge']}</section>
 <section id="history"><h2>History across runs</h2>{body['hist']}</section>
 <section id="data"><h2>Data</h2>{_data_html(notes, warnings, df)}</section>
 <footer><p>Generated by <code>{_e(command)}</code> at {_e(generated)}, physbench commit

@@ -212,3 +212,35 @@ def plot_history(series: list[tuple[str, pd.DataFrame]]) -> str | None:
         ax.set_title(_mpl_text(title), fontsize=7)
     return _png(fig)
 
+
+
+#: where a residual of exactly 0 is drawn on the contact-law plot's log axes
+LAW_FLOOR = 1e-16
+
+
+def plot_contact_laws(table: pd.DataFrame) -> str | None:
+    """The contact-law residuals of harness.report.analysis.contact_law_table
+    as base64 PNG (None without a finite value): one panel per law
+    (Signorini N m, cone violation, dissipation rad), one bar per engine in
+    its colour, log axis; a residual of exactly 0 drawn at LAW_FLOOR and
+    labelled 0, a missing one left out."""
+    laws = (("signorini_residual", "Signorini |lam_n gap| (N m)"), ("cone_violation", "cone violation (1)"),
+            ("dissipation_residual", "dissipation angle (rad)"))
+    if table is None or table.empty or not any(
+            _finite(v) for n, _ in laws if f"{n}_max" in table.columns for v in table[f"{n}_max"]):
+        return None
+    fig = _figure(9.0, 2.8)
+    axes = fig.subplots(1, len(laws))
+    engines = list(table["engine"])
+    for ax, (n, title) in zip(axes, laws):
+        vals = [float(v) if _finite(v) else math.nan for v in table[f"{n}_max"]]
+        for i, (en, v) in enumerate(zip(engines, vals)):
+            if math.isnan(v):
+                continue
+            ax.bar(i, max(v, LAW_FLOOR), color=engine_colour(en), log=True)
+            if v == 0.0:
+                ax.annotate("0", (i, LAW_FLOOR), ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(range(len(engines)), [_mpl_text(e) for e in engines], rotation=30, fontsize=8)
+        ax.set_title(_mpl_text(title), fontsize=9)
+        ax.set_ylim(LAW_FLOOR / 10, None)
+    return _png(fig)

@@ -166,7 +166,8 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
     ``variant`` ('' for the base scene), ``dt``, ``cost`` (CPU s per
     simulated s: the sweep's median of repeats, else the run's own),
     ``cost_min``, ``stable_flag`` (True/False/None), ``swept`` (dict of
-    swept settings), ``series_key``, ``phase``, ``verdicts`` (list of
+    swept settings), ``series_key``, ``phase``, ``judge`` ('ensemble',
+    'consensus' or '' for a plain run), ``verdicts`` (list of
     verdict dicts, None when not recorded) and ``tags`` (tuple, None when
     not recorded)."""
     df = df.copy()
@@ -228,6 +229,12 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
         keys.append(str(pk))
     df["swept"] = swept
     df["point_key"] = keys
+    # what a check row judges besides a plain run: an ensemble of perturbed
+    # starts (its ``ensemble`` column) or the engines' consensus (engine
+    # ``consensus``); '' for a plain run
+    ens = list(df["ensemble"]) if "ensemble" in df.columns else [None] * len(df)
+    df["judge"] = ["consensus" if e == "consensus" else ("ensemble" if not _missing(x) else "")
+                   for e, x in zip(df["engine"], ens)]
     df["scene_hash"] = ["" if _missing(h) else str(h) for h in df["scene_hash"]]
     df["scene_path"] = ["" if _missing(h) else str(h) for h in df["scene_path"]]
     # a point's series: its key without the scene hash (history splits a

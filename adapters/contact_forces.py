@@ -1,0 +1,142 @@
+"""The contact forces of the shipped third-party adapters, read through
+each engine's public API after a step (:meth:`adapters.base.Adapter.
+contact_forces` calls the reader named for the adapter): one row per
+contact (MuJoCo, pybullet) or per contact patch (pymunk, whose public API
+sums an arbiter's points), in the contract of ``contact_forces``: ``a``
+body index, ``b`` body index or -1 with ``static`` the static's index,
+``point`` (R, 3) m, ``normal`` (R, 3) unit from a toward b, ``gap`` (R,)
+m (< 0 overlap, as the engine measured it), ``lam_n`` (R,) N the normal
+force on b along ``normal``, ``lam_t`` (R, 3) N the friction force on b.
+
+Sign conventions, each measured on two cubes resting on a floor
+(tests/test_contact_laws.py::test_resting_box_forces_on_every_engine: the
+normal forces carry the weights, positive, along normals from a to b).
+Only called when a check asks for a contact-law metric; none of this runs
+in a plain run.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+Rows = dict[str, np.ndarray]
+
+
+def mujoco_rows(ad: Any) -> Rows:
+    """MuJoCo 3.x/4.x: one row per ``d.contact`` (the last ``mj_step``'s,
+    found at its start).  ``mj_contactForce`` gives the force in the
+    contact frame (rows: normal from geom1 toward geom2, tangent 1, 2) on
+    geom2; to the world, divided by the model's mass scale
+    (adapters.mjcf.mass_scale: forces scale with the masses); gap =
+    ``dist``.  A static on geom1's side is made side b: the normal and the
+    friction on b negate, lam_n stays."""
+    import mujoco
+
+    m, d = ad.m, ad.d
+    k = int(d.ncon)
+    if getattr(ad, "_geom_side", None) is None:
+        # geom -> (scene body index or -1, static index or -1): bodies are
+        # "b<i>", statics' geoms "s<index>" (adapters.mjcf)
+        body = np.full(m.nbody, -1, np.int64)
+        for i in range(ad.n_bodies):
+            body[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"b{i}")] = i
+        gs = np.full(m.ngeom, -1, np.int64)
+        for g in range(m.ngeom):
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
+            if name[:1] == "s" and name[1:].isdigit():
+                gs[g] = int(name[1:])
+        ad._geom_side = (body[m.geom_bodyid], gs)
+    gb, gs = ad._geom_side
+    f = np.empty((k, 6))
+    for i in range(k):
+        mujoco.mj_contactForce(m, d, i, f[i])
+    c = d.contact
+    frame = c.frame[:k].reshape(k, 3, 3)
+    g1, g2 = c.geom1[:k], c.geom2[:k]
+    scale = ad.meta["mass_scale"]
+    nrm = frame[:, 0].copy()
+    lam_t = np.einsum("kj,kji->ki", f[:, 1:3], frame[:, 1:3]) / scale
+    flip = gb[g1] < 0  # a static is geom1
+    nrm[flip] *= -1.0
+    lam_t[flip] *= -1.0
+    return {"a": np.where(flip, gb[g2], gb[g1]), "b": np.where(flip, -1, gb[g2]),
+            "static": np.where(flip, gs[g1], np.where(gb[g2] < 0, gs[g2], -1)), "point": c.pos[:k].copy(),
+            "normal": nrm, "gap": c.dist[:k].copy(), "lam_n": f[:, 0] / scale, "lam_t": lam_t}
+
+
+def pybullet_rows(ad: Any) -> Rows:
+    """pybullet 3.2: one row per ``getContactPoints`` point after the
+    step.  The force on A is normalForce along contactNormalOnB (B toward
+    A) plus lateralFriction1 and 2 along their directions (Bullet applies
+    each constraint's impulse + to A, - to B).  Row a is A's body (B's
+    when A is a static): the normal a -> b and the force on b are those on
+    A negated (kept when swapped), lam_n = normalForce either way; gap =
+    contactDistance; point midway between positionOnA and positionOnB."""
+    p, cid = ad._p, ad._cid
+    side = getattr(ad, "_contact_side", None)
+    if side is None:
+        side = {bid: (i, -1) for i, bid in enumerate(ad._ids)}
+        side.update({sid: (-1, k) for k, sid in enumerate(ad._static_ids)})
+        ad._contact_side = side
+    pts = p.getContactPoints(physicsClientId=cid)
+    k = len(pts)
+    out = {"a": np.empty(k, np.int64), "b": np.empty(k, np.int64), "static": np.empty(k, np.int64),
+           "point": np.empty((k, 3)), "normal": np.empty((k, 3)), "gap": np.empty(k), "lam_n": np.empty(k),
+           "lam_t": np.empty((k, 3))}
+    for i, c in enumerate(pts):
+        (ia, sa), (ib, sb) = side[c[1]], side[c[2]]
+        sign = 1.0 if ia < 0 else -1.0
+        out["a"][i], out["b"][i], out["static"][i] = (ib, -1, sa) if ia < 0 else (ia, ib, sb)
+        out["point"][i] = 0.5 * (np.asarray(c[5]) + np.asarray(c[6]))
+        out["normal"][i] = sign * np.asarray(c[7])
+        out["gap"][i] = c[8]
+        out["lam_n"][i] = c[9]
+        out["lam_t"][i] = sign * (np.asarray(c[11]) * c[10] + np.asarray(c[13]) * c[12])
+    return out
+
+
+def pymunk_rows(ad: Any) -> Rows:
+    """pymunk 7: one row per touching arbiter, taken from body a (the
+    lower scene index, or the body facing a static).  Measured on pymunk
+    7.3.1: an arbiter's normal points from its first body toward its
+    second and ``total_impulse`` is the impulse on the first (a circle
+    resting on a segment gets +m g dt), whichever order ``each_arbiter``
+    gives the bodies in.  The force on b is its impulse over the last
+    substep / the substep's dt, split into the normal part and the 2D
+    tangential rest; point the mean of the points' midpoints, gap their
+    smallest distance; 2D (x, y) -> world (x, 0, y) as positions map."""
+    bodies, h = ad._bodies, ad._h
+    index = {id(b): i for i, b in enumerate(bodies)}
+    rows: list[tuple] = []
+    for i, body in enumerate(bodies):
+        arbs: list = []
+        body.each_arbiter(arbs.append)
+        for arb in arbs:
+            first = arb.bodies[0] is body
+            j = index.get(id(arb.bodies[1] if first else arb.bodies[0]), -1)
+            ps = arb.contact_point_set
+            if -1 < j < i or not ps.points:
+                continue  # visited from body j, or no point
+            sign = 1.0 if first else -1.0  # orient first -> second as a -> b
+            n = ps.normal * sign
+            imp = arb.total_impulse * -sign  # on b
+            jn = imp.x * n.x + imp.y * n.y
+            st = getattr(arb.shapes[1 if first else 0], "physbench_static", -1) if j < 0 else -1
+            mid = [(0.5 * (q.point_a.x + q.point_b.x), 0.5 * (q.point_a.y + q.point_b.y)) for q in ps.points]
+            rows.append((i, j, st, np.mean(mid, axis=0), (n.x, n.y), min(q.distance for q in ps.points),
+                         jn / h, ((imp.x - jn * n.x) / h, (imp.y - jn * n.y) / h)))
+    k = len(rows)
+    out = {"a": np.array([r[0] for r in rows], np.int64), "b": np.array([r[1] for r in rows], np.int64),
+           "static": np.array([r[2] for r in rows], np.int64), "point": np.zeros((k, 3)),
+           "normal": np.zeros((k, 3)), "gap": np.array([r[5] for r in rows], float),
+           "lam_n": np.array([r[6] for r in rows], float), "lam_t": np.zeros((k, 3))}
+    for key, col in (("point", 3), ("normal", 4), ("lam_t", 7)):
+        if k:
+            out[key][:, [0, 2]] = [r[col] for r in rows]
+    return out
+
+
+#: the reader of each shipped adapter that has one (by adapter name)
+READERS: dict[str, Callable[[Any], Rows]] = {"mujoco": mujoco_rows, "pybullet": pybullet_rows, "pymunk": pymunk_rows}
