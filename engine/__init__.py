@@ -60,6 +60,11 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
                        "margin", (0.0, 1.0)),
     "correction_beta": (0.2, float, "fraction of the penetration removed per step", (0.0, 1.0)),
     "correction_slop": (1e-4, float, "penetration (m) left uncorrected", (0.0, 1.0)),
+    "joint_projection": ("newton", str, "with joints: after each step the pose is projected back onto the joints "
+                         "by Newton's method and the velocities onto their tangent (newton), or not (off: the "
+                         "drift of the index-reduced equations grows)", ("newton", "off")),
+    "joint_tolerance": (1e-12, float, "with joints: the largest joint residual the projection leaves (m; 1 for "
+                        "the axis rows)", (1e-15, 1e-3)),
     "penalty_stiffness": (0.0, float, "penalty contact stiffness (N/m); 0 = auto from the effective mass",
                           (0.0, 1e12)),
 }

@@ -43,7 +43,12 @@ from physbench.engine.loop import FlightStep
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
     """The ordered stages for ``model`` (see module doc).  Compiles (or
     loads) the kernels its stages call first, so that no step does
-    (:func:`engine.jit.warm_up`)."""
+    (:func:`engine.jit.warm_up`).  A scene with joints steps on the staged
+    path: its force stages, then the joint step (engine/joints/)."""
+    if model.joints is not None:
+        from physbench.engine.joints import joint_stages
+
+        return joint_stages(model, force_stages(model))
     warm_up(model)
     forces = force_stages(model)
     stages: list[Stage] = list(forces)
