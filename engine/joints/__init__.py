@@ -20,7 +20,10 @@ side's frame or None.
 Settings: ``joint_projection`` (``newton``: the post-stabilisation above;
 ``off``: the index-reduced ODE alone, whose drift grows with time),
 ``joint_tolerance`` (the largest row residual the projection leaves, m
-for positions, 1 for the axis rows).
+for positions, 1 for the axis rows), ``joint_max_turn`` (a step in which
+a body would turn by more than this many rad, at its start rate or at the
+rate of the scene's fastest gravity swing, sqrt(|g| / shortest anchor
+arm), runs as equal parts that do not; counted as ``joint_splits``).
 Not modelled (:func:`unsupported_reason`): joints together with contact,
 the ``velocity_verlet`` and ``semi_implicit_euler`` integrators, and the
 implicit or energy-conserving gyroscopic treatments of anisotropic
@@ -52,6 +55,8 @@ _TABLEAUS = {
 
 #: Newton iterations of the position projection at most a step
 MAX_ITER = 20
+#: parts a step is split into at most (setting ``joint_max_turn``)
+MAX_PARTS = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,7 +167,8 @@ def unsupported_reason(model) -> str | None:
 class JointFlight(Stage):
     """The joint step (engine/joints/step.py) from the state into the
     context's candidate end state (x1, q1, v, w); forces from the force
-    stages' compiled model.  Counts ``joint_newton_iterations``; the
+    stages' compiled model.  Counts ``joint_newton_iterations`` and
+    ``joint_splits``; the
     largest residual left is ``self.residual``."""
 
     name = "joint_step"
@@ -194,6 +200,12 @@ class JointFlight(Stage):
                    np.zeros(r), np.zeros(r), z3(), z3())
         self.st = (z3(), np.zeros((n, 4)), z3(), z3(), np.zeros((4, n, 3)), np.zeros((4, n, 4)),
                    np.zeros((4, n, 3)), np.zeros((4, n, 3)))
+        self.max_turn = float(model.setting("joint_max_turn"))
+        arms = np.linalg.norm(np.concatenate([jm.pa, jm.pb[jm.rb >= 0]]), axis=1)
+        arms = arms[arms > 0]
+        g = float(np.linalg.norm(model.gravity)) if model.has("gravity") else 0.0
+        #: the fastest small swing of a row's anchor arm under gravity (rad/s)
+        self.w_g = float(np.sqrt(g / arms.min())) if arms.size else 0.0
         self.residual = 0.0
         self.dropped = 0
         self._warm(model)
@@ -203,7 +215,8 @@ class JointFlight(Stage):
 
         return joint_step(self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A,
                           self.B, np.int64(self.S), x0, q0, v0, w0, float(h), x1, q1, v1, w1, self.wk, self.st,
-                          bool(self.project), float(self.tol), np.int64(MAX_ITER))
+                          bool(self.project), float(self.tol), np.int64(MAX_ITER), float(self.w_g),
+                          float(self.max_turn), np.int64(MAX_PARTS))
 
     def _warm(self, model) -> None:
         """Compile (or load) the joint step at build, on copies of the
@@ -221,12 +234,14 @@ class JointFlight(Stage):
 
     def __call__(self, model, state, ctx) -> None:
         n = model.n
-        it, worst, dropped = self._run(state.x, state.q, state.v, state.w, ctx.h, ctx.x1, ctx.q1, ctx.v[:n],
+        parts, it, worst, dropped = self._run(state.x, state.q, state.v, state.w, ctx.h, ctx.x1, ctx.q1, ctx.v[:n],
                                        ctx.w[:n])
         self.residual = worst
         self.dropped = dropped
         if it:
             ctx.profile.count("joint_newton_iterations", it)
+        if parts > 1:
+            ctx.profile.count("joint_splits", parts - 1)
 
 
 def joint_stages(model, forces) -> tuple[Stage, ...]:

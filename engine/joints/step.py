@@ -109,28 +109,25 @@ def _qdot(w, q, k):
 
 
 @njit(cache=True)
-def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h, x1, q1, v1, w1, wk, st, project_on,
-               tol, max_iter):
-    """One step of length h (s) from (x0, q0, v0, w0) into (x1, q1, v1,
-    w1) by the explicit Runge-Kutta method of S stages (A (4, 4), B (4,):
-    its tableau), the accelerations constrained (:func:`accelerations`),
-    then, when ``project_on``, :func:`project`.  ``st`` the stage arrays
-    (xs, qs, vs, ws, kx, kq, kv, kw).  Returns (Newton iterations, largest
-    |C| after the step, redundant rows dropped at the first stage)."""
+def _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, wk, st):
+    """One explicit Runge-Kutta step of length h (s) of the constrained
+    ODE (A (4, 4), B (4,): the tableau of S stages), in place on (x, q, v,
+    w); quaternions renormalised.  Returns the rows dropped as redundant
+    at its first stage."""
     xs, qs, vs, ws, kx, kq, kv, kw = st
-    n = x0.shape[0]
+    n = x.shape[0]
     dropped = 0
     for i in range(S):
         for k in range(n):
             for c in range(3):
-                sx, sv, sw = x0[k, c], v0[k, c], w0[k, c]
+                sx, sv, sw = x[k, c], v[k, c], w[k, c]
                 for j in range(i):
                     sx += h * A[i, j] * kx[j, k, c]
                     sv += h * A[i, j] * kv[j, k, c]
                     sw += h * A[i, j] * kw[j, k, c]
                 xs[k, c], vs[k, c], ws[k, c] = sx, sv, sw
             for c in range(4):
-                sq = q0[k, c]
+                sq = q[k, c]
                 for j in range(i):
                     sq += h * A[i, j] * kq[j, k, c]
                 qs[k, c] = sq
@@ -144,23 +141,67 @@ def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h,
             kq[i, k, 0], kq[i, k, 1], kq[i, k, 2], kq[i, k, 3] = d0, d1, d2, d3
     for k in range(n):
         for c in range(3):
-            sx, sv, sw = x0[k, c], v0[k, c], w0[k, c]
+            sx, sv, sw = x[k, c], v[k, c], w[k, c]
             for i in range(S):
                 sx += h * B[i] * kx[i, k, c]
                 sv += h * B[i] * kv[i, k, c]
                 sw += h * B[i] * kw[i, k, c]
-            x1[k, c], v1[k, c], w1[k, c] = sx, sv, sw
+            x[k, c], v[k, c], w[k, c] = sx, sv, sw
         s2 = 0.0
         for c in range(4):
-            sq = q0[k, c]
+            sq = q[k, c]
             for i in range(S):
                 sq += h * B[i] * kq[i, k, c]
-            q1[k, c] = sq
+            q[k, c] = sq
             s2 += sq * sq
         nq = math.sqrt(s2)
         for c in range(4):
-            q1[k, c] /= nq
-    it, worst = 0, 0.0
-    if project_on:
-        it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter)
-    return it, worst, dropped
+            q[k, c] /= nq
+    return dropped
+
+
+@njit(cache=True)
+def parts_for(w, h, w_g, max_turn, max_parts):
+    """Equal parts of a step of length h such that no body turns by more
+    than ``max_turn`` (rad) in one at its start rate, nor does the
+    fastest gravity pendulum of the rows (rate ``w_g`` = sqrt(|g| / the
+    shortest anchor arm), rad/s); 1 when ``max_turn`` is 0, at most
+    ``max_parts``."""
+    if max_turn <= 0.0:
+        return 1
+    top = w_g * w_g
+    for k in range(w.shape[0]):
+        s = w[k, 0] ** 2 + w[k, 1] ** 2 + w[k, 2] ** 2
+        if s > top:
+            top = s
+    turn = math.sqrt(top) * h
+    if not turn > max_turn:  # (NaN: a blown-up state is not split)
+        return 1
+    p = int(math.ceil(turn / max_turn))
+    return p if p < max_parts else max_parts
+
+
+@njit(cache=True)
+def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h, x1, q1, v1, w1, wk, st, project_on,
+               tol, max_iter, w_g, max_turn, max_parts):
+    """One step of length h (s) from (x0, q0, v0, w0) into (x1, q1, v1,
+    w1): :func:`parts_for` equal parts, each an explicit Runge-Kutta step
+    of the constrained ODE (:func:`_rk_part`) followed, when
+    ``project_on``, by :func:`project`.  ``st`` the stage arrays (xs, qs,
+    vs, ws, kx, kq, kv, kw).  Returns (parts, Newton iterations, largest
+    |C| after the step, redundant rows dropped)."""
+    n = x0.shape[0]
+    for k in range(n):
+        for c in range(3):
+            x1[k, c], v1[k, c], w1[k, c] = x0[k, c], v0[k, c], w0[k, c]
+        for c in range(4):
+            q1[k, c] = q0[k, c]
+    parts = parts_for(w0, h, w_g, max_turn, max_parts)
+    hp = h / parts
+    its, worst, dropped = 0, 0.0, 0
+    for p in range(parts):
+        dropped = _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x1, q1, v1, w1, hp, wk, st)
+        if project_on:
+            it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter)
+            its += it
+    return parts, its, worst, dropped
