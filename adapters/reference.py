@@ -137,7 +137,7 @@ class ReferenceAdapter(Adapter):
         from physbench.engine.profile import Profile
         from physbench.engine.state import State
 
-        from physbench.engine.joints import unsupported_reason as joint_reason
+        from physbench.engine.joints.table import unsupported_reason as joint_reason
 
         self.model = build_model(scene_input(scene), settings)
         why = joint_reason(self.model)

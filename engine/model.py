@@ -203,7 +203,7 @@ class Model:
     rolling: bool
     contact_lever: float
     info: Mapping[str, Any] = field(default_factory=dict)
-    #: the joints as constraint rows (engine.joints.JointModel), None without
+    #: the joints as constraint rows (engine.joints.table.JointModel), None without
     joints: Any = None
 
     # ---- convenience --------------------------------------------------
@@ -312,6 +312,6 @@ def _joints(inp: SceneInput):
     """The joint rows (engine/joints/), None for a scene without joints."""
     if not getattr(inp, "joints", ()):
         return None
-    from physbench.engine.joints import build_joints
+    from physbench.engine.joints.table import build_joints
 
     return build_joints(inp)

@@ -46,7 +46,7 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     (:func:`engine.jit.warm_up`).  A scene with joints steps on the staged
     path: its force stages, then the joint step (engine/joints/)."""
     if model.joints is not None:
-        from physbench.engine.joints import joint_stages
+        from physbench.engine.joints.stage import joint_stages
 
         return joint_stages(model, force_stages(model))
     warm_up(model)

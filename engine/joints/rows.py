@@ -19,7 +19,7 @@ world: at rest, its frame the world's).  Three row types:
 The bias is d2C/dt2 at zero accelerations, so that J u' + bias = 0 is the
 acceleration-level constraint (engine/joints/solve.py).
 
-Per joint kind (engine/joints/__init__.py builds the rows): spherical 3
+Per joint kind (engine/joints/table.py builds the rows): spherical 3
 POINT; revolute 3 POINT + 2 DOT (the body's hinge axis against two
 perpendiculars of the other's); fixed 3 POINT + 3 DOT (the two frames'
 axes pairwise); prismatic 2 SLIDE + 3 DOT.  J's columns per row: [0:3]
@@ -82,8 +82,8 @@ def _put(J, r, c, v):
 
 @njit(cache=True)
 def eval_rows(jm, x, R, v, w, want_bias, C, J, bias):
-    """Rows of the joint model ``jm`` (engine/joints/__init__.py
-    :func:`row_table`) at the pose (x (n, 3), R (n, 3, 3)) and velocities
+    """Rows of the joint model ``jm`` (engine/joints/table.py
+    ``JointModel.table``) at the pose (x (n, 3), R (n, 3, 3)) and velocities
     (v, w (n, 3)): C (r,) residuals (m for POINT and SLIDE, 1 for DOT),
     J (r, 12), and, when ``want_bias``, bias (r,) = (dJ/dt) u."""
     rt, ra, rb, rk, pa0, pb0, s0, t0 = jm

@@ -17,7 +17,7 @@ C(x, q) = 0 along M^-1 J^T (the smallest change in the mass metric:
 x += dx, q <- exp(dtheta) q), to ``tol`` (setting ``joint_tolerance``)
 in at most ``max_iter`` iterations, and the velocities by one exact
 projection u -= M^-1 J^T K^-1 J u.  Everything is in kept work arrays
-(engine/joints/__init__.py ``JointWork``); nothing is allocated.
+(kept by the stage, engine/joints/stage.py); nothing is allocated.
 Tests: tests/test_engine_joints.py.
 """
 

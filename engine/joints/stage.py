@@ -1,0 +1,107 @@
+"""The joint stage: the joint step (engine/joints/step.py) in place of the
+free flight and the position update (engine/joints/__init__.py)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from physbench.engine.joints.table import TABLEAUS, JointModel, unsupported_reason
+from physbench.engine.profile import Stage, add_jit_seconds
+
+#: Newton iterations of the position projection at most a step
+MAX_ITER = 20
+#: parts a step is split into at most (setting ``joint_max_turn``)
+MAX_PARTS = 4096
+
+
+class JointFlight(Stage):
+    """The joint step (engine/joints/step.py) from the state into the
+    context's candidate end state (x1, q1, v, w); forces from the force
+    stages' compiled model.  Counts ``joint_newton_iterations`` and
+    ``joint_splits``; the
+    largest residual left is ``self.residual``."""
+
+    name = "joint_step"
+    family = "integrate"
+
+    def __init__(self, model, forces):
+        from physbench.engine.forces import force_model
+
+        jm: JointModel = model.joints
+        n, r, bw = model.n, jm.rows, jm.bw
+        self.jm = jm.table
+        self.bw = int(bw)
+        self.fm = force_model(model, forces)
+        self.has_forces = bool(forces)
+        self.inv_m = np.array(model.inv_mass[:n], float)
+        self.inv_I = np.array(model.inv_inertia_body[:n], float)
+        a, b = TABLEAUS[model.setting("integrator")]
+        self.S = len(b)
+        self.A = np.zeros((4, 4))
+        for i, row in enumerate(a):
+            self.A[i + 1, :len(row)] = row
+        self.B = np.zeros(4)
+        self.B[:self.S] = b
+        self.project = model.setting("joint_projection") == "newton"
+        self.tol = float(model.setting("joint_tolerance"))
+        z3 = lambda: np.zeros((n, 3))  # noqa: E731
+        self.wk = (np.zeros((n, 3, 3)), np.zeros((n, 3, 3)), z3(), z3(), np.zeros(r), np.zeros((r, 12)),
+                   np.zeros((r, 12)), np.zeros(r), np.zeros((r, bw + 1)), np.zeros((r, bw + 1)), np.zeros(r),
+                   np.zeros(r), np.zeros(r), z3(), z3())
+        self.st = (z3(), np.zeros((n, 4)), z3(), z3(), np.zeros((4, n, 3)), np.zeros((4, n, 4)),
+                   np.zeros((4, n, 3)), np.zeros((4, n, 3)))
+        self.max_turn = float(model.setting("joint_max_turn"))
+        arms = np.linalg.norm(np.concatenate([jm.pa, jm.pb[jm.rb >= 0]]), axis=1)
+        arms = arms[arms > 0]
+        g = float(np.linalg.norm(model.gravity)) if model.has("gravity") else 0.0
+        #: the fastest small swing of a row's anchor arm under gravity (rad/s)
+        self.w_g = float(np.sqrt(g / arms.min())) if arms.size else 0.0
+        self.residual = 0.0
+        self.dropped = 0
+        self._warm(model)
+
+    def _run(self, x0, q0, v0, w0, h, x1, q1, v1, w1):
+        from physbench.engine.joints.step import joint_step
+
+        return joint_step(self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A,
+                          self.B, np.int64(self.S), x0, q0, v0, w0, float(h), x1, q1, v1, w1, self.wk, self.st,
+                          bool(self.project), float(self.tol), np.int64(MAX_ITER), float(self.w_g),
+                          float(self.max_turn), np.int64(MAX_PARTS))
+
+    def _warm(self, model) -> None:
+        """Compile (or load) the joint step at build, on copies of the
+        initial state: no step compiles; the seconds are JIT time."""
+        from physbench.engine.state import Context, State
+
+        t0 = time.perf_counter()
+        st = State.from_model(model)
+        ctx = Context(model)
+        ctx.begin(model, st, model.h)  # (the staged step's begin and commit kernels)
+        n = model.n
+        self._run(st.x, st.q, st.v, st.w, model.h, ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n])
+        ctx.commit(st)
+        add_jit_seconds(time.perf_counter() - t0)
+
+    def __call__(self, model, state, ctx) -> None:
+        n = model.n
+        parts, it, worst, dropped = self._run(state.x, state.q, state.v, state.w, ctx.h, ctx.x1, ctx.q1, ctx.v[:n],
+                                       ctx.w[:n])
+        self.residual = worst
+        self.dropped = dropped
+        if it:
+            ctx.profile.count("joint_newton_iterations", it)
+        if parts > 1:
+            ctx.profile.count("joint_splits", parts - 1)
+
+
+def joint_stages(model, forces) -> tuple[Stage, ...]:
+    """The stages of a scene with joints: the force stages, then the joint
+    step (module doc).  Raises ValueError for what is not modelled."""
+    why = unsupported_reason(model)
+    if why:
+        raise ValueError(why)
+    return tuple(forces) + (JointFlight(model, forces),)
+
+
