@@ -65,7 +65,7 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
                          "drift of the index-reduced equations grows)", ("newton", "off")),
     "joint_tolerance": (1e-12, float, "with joints: the largest joint residual the projection leaves (m; 1 for "
                         "the axis rows)", (1e-15, 1e-3)),
-    "joint_max_turn": (0.05, float, "with joints: a step in which a body would turn by more than this (rad), at "
+    "joint_max_turn": (0.02, float, "with joints: a step in which a body would turn by more than this (rad), at "
                        "its rate or the fastest gravity swing of a joint's arm, runs as equal parts that do not; "
                        "0 = never split", (0.0, 100.0)),
     "penalty_stiffness": (0.0, float, "penalty contact stiffness (N/m); 0 = auto from the effective mass",
