@@ -220,6 +220,10 @@ def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     one-element list that holds the rows recorded so far (a failure in the
     middle loses no recorded frame)."""
     ctx = context(model, state, profile)
+    if model.joints is not None and not profile.by_stage:
+        # a scene with joints: n steps as one compiled call (engine/joints/stage.py)
+        stages[-1].run_block(model, state, ctx, profile, n, rec, progress)
+        return
     plan = _plan_of(model, ctx, stages)
     # (one step: the step's own fused try costs less Python than a loop's)
     fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))

@@ -418,3 +418,38 @@ def test_four_bar_loop_closes_on_the_reference():
     assert r.metrics["joint_drift"] < 1e-9 and r.metrics["joint_axis_drift"] < 1e-9
     assert r.metrics["four_bar_position_error"] < 1e-9
     assert r.metrics["energy_drift"] < 1e-6
+
+
+@pytest.mark.parametrize("name, dt", [("joints.chain_10", 1 / 30), ("joints.four_bar", 1e-3)])
+def test_the_loop_over_steps_gives_the_staged_steps_bits(name, dt):
+    """pipeline.advance runs a joint scene's steps as one compiled call
+    (engine/joints/step.py joint_block); step by step through the stage
+    (a profile by stage) gives the same bits, splits and time."""
+    from physbench.adapters.reference import engine_for
+
+    s = load_scene(name)
+    a, b = engine_for(s, {"dt": dt}), engine_for(s, {"dt": dt})
+    b.profile.by_stage = True
+    a.step(40)
+    b.step(40)
+    for u, v in ((a.state.x, b.state.x), (a.state.q, b.state.q), (a.state.v, b.state.v), (a.state.w, b.state.w)):
+        assert np.array_equal(u, v)
+    assert a.state.t == b.state.t and a.state.steps == b.state.steps == 40
+    ca, cb = a.profile.as_dict()["counters"], b.profile.as_dict()["counters"]
+    assert ca == cb and ca.get("joint_newton_iterations", 0) > 0
+    assert a.profile.as_dict()["joint_step"]["calls"] == b.profile.as_dict()["joint_step"]["calls"] == 40
+
+
+def test_no_joint_step_compiles():
+    """The build compiles (or loads) the joint step, its loop over steps
+    and the staged step's begin and commit: stepping compiles nothing."""
+    from numba.core import event
+
+    from physbench.adapters.reference import engine_for
+
+    eng = engine_for(load_scene("joints.double_pendulum"))
+    with event.install_recorder("numba:compile") as rec:
+        eng.step(3)
+        eng.profile.by_stage = True
+        eng.step(2)
+    assert not [ev for _, ev in rec.buffer if ev.is_start]

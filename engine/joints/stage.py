@@ -70,6 +70,45 @@ class JointFlight(Stage):
                           bool(self.project), float(self.tol), np.int64(MAX_ITER), float(self.w_g),
                           float(self.max_turn), np.int64(MAX_PARTS))
 
+    def _block_args(self):
+        return (self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A, self.B,
+                np.int64(self.S))
+
+    def run_block(self, model, state, ctx, profile, n: int, rec=None, progress=None) -> None:
+        """``n`` steps from ``state`` in one compiled call
+        (engine/joints/step.py ``joint_block``: the staged steps' bits),
+        recorded into ``rec`` ((pos, quat, vel, angvel) blocks of n rows)
+        when given; counted and timed as ``n * substeps`` calls of this
+        stage.  ``progress``: a one-element list set to the rows done."""
+        from physbench.engine.joints.step import joint_block
+
+        t0 = time.perf_counter()
+        nb = model.n
+        rec_on = rec is not None and all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
+                                         for a in rec)
+        self._stats[:] = 0.0
+        # blocks the loop cannot write: one step a call, recorded here
+        calls = ((n, tuple(rec) if rec_on else self._no_rec),) if rec is None or rec_on else \
+            tuple((1, self._no_rec) for _ in range(n))
+        for k, (m, blocks) in enumerate(calls):
+            state.t = joint_block(*self._block_args(), state.x, state.q, state.v, state.w, float(model.h),
+                                  np.int64(model.substeps), float(state.t), ctx.x1, ctx.q1, ctx.v[:nb], ctx.w[:nb],
+                                  self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
+                                  float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), np.int64(m),
+                                  bool(rec_on), *blocks, self._stats)
+            if rec is not None and not rec_on:
+                for a, src in zip(rec, (state.x, state.q, state.v, state.w)):
+                    a[k] = src
+        state.steps += n
+        if progress is not None:
+            progress[0] = n
+        self.residual = float(self._stats[2])
+        if self._stats[0]:
+            profile.count("joint_splits", int(self._stats[0]))
+        if self._stats[1]:
+            profile.count("joint_newton_iterations", int(self._stats[1]))
+        profile.charge(self.name, n * model.substeps, time.perf_counter() - t0)
+
     def _warm(self, model) -> None:
         """Compile (or load) the joint step at build, on copies of the
         initial state: no step compiles; the seconds are JIT time."""
@@ -82,6 +121,17 @@ class JointFlight(Stage):
         n = model.n
         self._run(st.x, st.q, st.v, st.w, model.h, ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n])
         ctx.commit(st)
+        # the loop over steps (run_block), on the same copies
+        self._stats = np.zeros(3)
+        nb = model.n
+        self._no_rec = (np.zeros((0, nb, 3)), np.zeros((0, nb, 4)), np.zeros((0, nb, 3)), np.zeros((0, nb, 3)))
+        from physbench.engine.joints.step import joint_block
+
+        joint_block(*self._block_args(), st.x, st.q, st.v, st.w, float(model.h), np.int64(1), 0.0, ctx.x1, ctx.q1,
+                    ctx.v[:nb], ctx.w[:nb], self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
+                    float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), np.int64(1), bool(True),
+                    *(np.zeros((1, nb, 3)), np.zeros((1, nb, 4)), np.zeros((1, nb, 3)), np.zeros((1, nb, 3))),
+                    self._stats)
         add_jit_seconds(time.perf_counter() - t0)
 
     def __call__(self, model, state, ctx) -> None:
@@ -97,11 +147,13 @@ class JointFlight(Stage):
 
 
 def joint_stages(model, forces) -> tuple[Stage, ...]:
-    """The stages of a scene with joints: the force stages, then the joint
-    step (module doc).  Raises ValueError for what is not modelled."""
+    """The stages of a scene with joints: the joint step alone (it
+    evaluates the force stages' compiled model at every Runge-Kutta stage
+    itself, the start included).  Raises ValueError for what is not
+    modelled."""
     why = unsupported_reason(model)
     if why:
         raise ValueError(why)
-    return tuple(forces) + (JointFlight(model, forces),)
+    return (JointFlight(model, forces),)
 
 

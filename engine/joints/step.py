@@ -205,3 +205,41 @@ def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h,
             it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter)
             its += it
     return parts, its, worst, dropped
+
+
+@njit(cache=True)
+def joint_block(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, substeps, t, x1, q1, v1, w1, wk, st,
+                project_on, tol, max_iter, w_g, max_turn, max_parts, n, rec_on, pos, quat, vel, angvel, stats):
+    """``n`` steps of ``substeps`` (sub)steps of length h (s) from the
+    state (x, q, v, w), each :func:`joint_step` into (x1, q1, v1, w1) and
+    committed (copied back): the same arithmetic as the staged step's
+    stage and commit, so the same bits.  When ``rec_on`` the state after
+    step k goes to row k of pos, quat, vel, angvel.  stats (3,) += (splits,
+    Newton iterations), stats[2] = the last largest residual.  Returns the
+    time t (s) advanced as the staged steps advance it."""
+    nb = x.shape[0]
+    for k in range(n):
+        for _ in range(substeps):
+            parts, its, worst, dropped = joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, x1,
+                                                    q1, v1, w1, wk, st, project_on, tol, max_iter, w_g, max_turn,
+                                                    max_parts)
+            for i in range(nb):
+                for c in range(3):
+                    x[i, c] = x1[i, c]
+                    v[i, c] = v1[i, c]
+                    w[i, c] = w1[i, c]
+                for c in range(4):
+                    q[i, c] = q1[i, c]
+            t += h
+            stats[0] += parts - 1
+            stats[1] += its
+            stats[2] = worst
+        if rec_on:
+            for i in range(nb):
+                for c in range(3):
+                    pos[k, i, c] = x[i, c]
+                    vel[k, i, c] = v[i, c]
+                    angvel[k, i, c] = w[i, c]
+                for c in range(4):
+                    quat[k, i, c] = q[i, c]
+    return t
