@@ -1,13 +1,14 @@
 """Joints in the reference engine: maximal coordinates, constraint rows
 solved exactly inside the integrator, post-stabilised.
 
-A scene with the ``joint`` effect steps on the staged path with one joint
-stage in place of the free flight and the position update (decided once,
-in :func:`engine.pipeline.build_pipeline`): the force stages at the start
-state, then the stage ``stage.JointFlight`` (engine/joints/step.py: an explicit
-Runge-Kutta step whose accelerations satisfy the joints' rows exactly,
-the end pose projected onto C = 0 by Newton's method and the velocities
-onto J u = 0).  Files: ``table.py`` (the joints as rows, what is not
+A scene with joints has one stage, ``stage.JointFlight``, in place of
+the force stages, the free flight and the position update (decided once,
+in :func:`engine.pipeline.build_pipeline`): engine/joints/step.py, an
+explicit Runge-Kutta step whose accelerations satisfy the joints' rows
+exactly (the force stages' compiled model evaluated at every stage), the
+end pose projected onto C = 0 by Newton's method and the velocities onto
+J u = 0.  ``pipeline.advance`` runs n steps as one compiled call
+(``step.joint_block``), the same bits as the stage step by step.  Files: ``table.py`` (the joints as rows, what is not
 modelled), ``rows.py`` (the rows' residuals, Jacobians and biases),
 ``solve.py`` (the band solve of K = J M^-1 J^T), ``step.py`` (the
 integrator and the projection), ``stage.py`` (the stage).
