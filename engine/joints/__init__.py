@@ -11,7 +11,8 @@ J u = 0.  ``pipeline.advance`` runs n steps as one compiled call
 (``step.joint_block``), the same bits as the stage step by step.  Files: ``table.py`` (the joints as rows, what is not
 modelled), ``rows.py`` (the rows' residuals, Jacobians and biases),
 ``solve.py`` (the band solve of K = J M^-1 J^T), ``step.py`` (the
-integrator and the projection), ``stage.py`` (the stage).
+integrator and the projection), ``sequential.py`` (the sequential-impulse
+alternative), ``stage.py`` (the stage).
 
 Input (``SceneInput.joints``): one tuple per joint, ``(kind, body, other,
 anchor_body, anchor_other, axis_body, axis_other)``: kind one of
@@ -20,7 +21,10 @@ anchor_body, anchor_other, axis_body, axis_other)``: kind one of
 the world), the axis (unit, revolute: hinge; prismatic: slide) in each
 side's frame or None.
 
-Settings: ``joint_projection`` (``newton``: the post-stabilisation above;
+Settings: ``joint_solver`` (``direct``: the above; ``sequential_impulse``:
+velocity-level rows by projected Gauss-Seidel with Baumgarte drift
+correction, warm-started, semi-implicit Euler: ``sequential.py``),
+``joint_baumgarte`` (its Baumgarte factor), ``joint_projection`` (``newton``: the post-stabilisation above;
 ``off``: the index-reduced ODE alone, whose drift grows with time),
 ``joint_tolerance`` (the largest row residual the projection leaves, m
 for positions, 1 for the axis rows), ``joint_max_turn`` (a step in which
@@ -28,7 +32,8 @@ a body would turn by more than this many rad, at its start rate or at the
 rate of the scene's fastest gravity swing, sqrt(|g| / shortest anchor
 arm), runs as equal parts that do not; counted as ``joint_splits``).
 Not modelled (``table.unsupported_reason``): joints together with contact,
-the ``velocity_verlet`` and ``semi_implicit_euler`` integrators, and the
+the ``velocity_verlet`` and ``semi_implicit_euler`` integrators (the
+latter but with sequential impulses, which need it), and the
 implicit or energy-conserving gyroscopic treatments of anisotropic
 bodies (the joint step integrates w x I w explicitly: setting
 ``gyroscopic = explicit``).

@@ -37,7 +37,8 @@ class JointFlight(Stage):
         self.has_forces = bool(forces)
         self.inv_m = np.array(model.inv_mass[:n], float)
         self.inv_I = np.array(model.inv_inertia_body[:n], float)
-        a, b = TABLEAUS[model.setting("integrator")]
+        # (sequential impulses run semi-implicit Euler of their own: no tableau)
+        a, b = TABLEAUS.get(model.setting("integrator"), ([], [1.0]))
         self.S = len(b)
         self.A = np.zeros((4, 4))
         for i, row in enumerate(a):
@@ -53,6 +54,12 @@ class JointFlight(Stage):
         self.st = (z3(), np.zeros((n, 4)), z3(), z3(), np.zeros((4, n, 3)), np.zeros((4, n, 4)),
                    np.zeros((4, n, 3)), np.zeros((4, n, 3)))
         self.max_turn = float(model.setting("joint_max_turn"))
+        #: joint_solver = sequential_impulse (engine/joints/sequential.py)
+        self.si = model.setting("joint_solver") == "sequential_impulse"
+        self.iterations = int(model.setting("iterations"))
+        self.beta = float(model.setting("joint_baumgarte"))
+        #: the rows' impulses of the last step (N s; the warm start)
+        self.lam = np.zeros(r)
         arms = np.linalg.norm(np.concatenate([jm.pa, jm.pb[jm.rb >= 0]]), axis=1)
         arms = arms[arms > 0]
         g = float(np.linalg.norm(model.gravity)) if model.has("gravity") else 0.0
@@ -68,7 +75,12 @@ class JointFlight(Stage):
         return joint_step(self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A,
                           self.B, np.int64(self.S), x0, q0, v0, w0, float(h), x1, q1, v1, w1, self.wk, self.st,
                           bool(self.project), float(self.tol), np.int64(MAX_ITER), float(self.w_g),
-                          float(self.max_turn), np.int64(MAX_PARTS))
+                          float(self.max_turn), np.int64(MAX_PARTS), *self._si())
+
+    def _si(self) -> tuple:
+        """The sequential-impulse arguments of the kernels: (on, passes,
+        Baumgarte factor, the kept impulses)."""
+        return bool(self.si), np.int64(self.iterations), float(self.beta), self.lam
 
     def _block_args(self):
         return (self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A, self.B,
@@ -94,7 +106,7 @@ class JointFlight(Stage):
             state.t = joint_block(*self._block_args(), state.x, state.q, state.v, state.w, float(model.h),
                                   np.int64(model.substeps), float(state.t), ctx.x1, ctx.q1, ctx.v[:nb], ctx.w[:nb],
                                   self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
-                                  float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), np.int64(m),
+                                  float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), *self._si(), np.int64(m),
                                   bool(rec_on), *blocks, self._stats)
             if rec is not None and not rec_on:
                 for a, src in zip(rec, (state.x, state.q, state.v, state.w)):
@@ -129,9 +141,10 @@ class JointFlight(Stage):
 
         joint_block(*self._block_args(), st.x, st.q, st.v, st.w, float(model.h), np.int64(1), 0.0, ctx.x1, ctx.q1,
                     ctx.v[:nb], ctx.w[:nb], self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
-                    float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), np.int64(1), bool(True),
+                    float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), *self._si(), np.int64(1), bool(True),
                     *(np.zeros((1, nb, 3)), np.zeros((1, nb, 4)), np.zeros((1, nb, 3)), np.zeros((1, nb, 3))),
                     self._stats)
+        self.lam[:] = 0.0  # (the warm-up's impulses are no warm start)
         add_jit_seconds(time.perf_counter() - t0)
 
     def __call__(self, model, state, ctx) -> None:

@@ -29,6 +29,7 @@ from numba import njit
 
 from physbench.engine.flight import evaluate, rotate
 from physbench.engine.joints.rows import eval_rows, frames
+from physbench.engine.joints.sequential import si_part
 from physbench.engine.joints.solve import apply_rows, assemble, band_solve, factor, mass_times_rows, rows_times
 
 
@@ -61,9 +62,10 @@ def accelerations(jm, bw, fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
 
 
 @njit(cache=True)
-def project(jm, bw, inv_m, inv_I, x, q, v, w, wk, tol, max_iter):
-    """Newton's method on C(x, q) = 0 along M^-1 J^T, then u onto J u = 0
-    (module doc).  Returns (iterations, largest |C| left (m or 1))."""
+def project(jm, bw, inv_m, inv_I, x, q, v, w, wk, tol, max_iter, velocities):
+    """Newton's method on C(x, q) = 0 along M^-1 J^T, then, when
+    ``velocities``, u onto J u = 0 (module doc).  Returns (iterations,
+    largest |C| left (m or 1))."""
     R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam, y, dv, dw = wk
     ra, rb = jm[1], jm[2]
     n = x.shape[0]
@@ -90,6 +92,8 @@ def project(jm, bw, inv_m, inv_I, x, q, v, w, wk, tol, max_iter):
             for c in range(3):
                 x[k, c] += dv[k, c]
             rotate(q, k, dw[k, 0], dw[k, 1], dw[k, 2], q)
+    if not velocities:
+        return it, worst
     # velocities onto the tangent at the final pose (J, R, Iinv are its)
     mass_times_rows(ra, rb, J, inv_m, Iinv, MJ)
     assemble(ra, rb, J, MJ, bw, Kb)
@@ -183,12 +187,14 @@ def parts_for(w, h, w_g, max_turn, max_parts):
 
 @njit(cache=True)
 def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h, x1, q1, v1, w1, wk, st, project_on,
-               tol, max_iter, w_g, max_turn, max_parts):
+               tol, max_iter, w_g, max_turn, max_parts, si_on, iterations, beta, lam):
     """One step of length h (s) from (x0, q0, v0, w0) into (x1, q1, v1,
     w1): :func:`parts_for` equal parts, each an explicit Runge-Kutta step
     of the constrained ODE (:func:`_rk_part`) followed, when
     ``project_on``, by :func:`project`.  ``st`` the stage arrays (xs, qs,
-    vs, ws, kx, kq, kv, kw).  Returns (parts, Newton iterations, largest
+    vs, ws, kx, kq, kv, kw).  ``si_on``: each part is instead the
+    sequential-impulse step (engine/joints/sequential.py: ``iterations``
+    passes, Baumgarte ``beta``, the warm-start impulses ``lam`` (r,)).  Returns (parts, Newton iterations, largest
     |C| after the step, redundant rows dropped)."""
     n = x0.shape[0]
     for k in range(n):
@@ -200,16 +206,23 @@ def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h,
     hp = h / parts
     its, worst, dropped = 0, 0.0, 0
     for p in range(parts):
-        dropped = _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x1, q1, v1, w1, hp, wk, st)
+        if si_on:
+            si_part(jm, fm, has_forces, inv_m, inv_I, x1, q1, v1, w1, hp, iterations, beta, lam, wk)
+        else:
+            dropped = _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x1, q1, v1, w1, hp, wk, st)
         if project_on:
-            it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter)
+            # (after sequential impulses the positions only: their next
+            # solve takes the velocities, and a projection of the
+            # symplectic Euler step's velocities loses energy at O(h))
+            it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter, not si_on)
             its += it
     return parts, its, worst, dropped
 
 
 @njit(cache=True)
 def joint_block(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, substeps, t, x1, q1, v1, w1, wk, st,
-                project_on, tol, max_iter, w_g, max_turn, max_parts, n, rec_on, pos, quat, vel, angvel, stats):
+                project_on, tol, max_iter, w_g, max_turn, max_parts, si_on, iterations, beta, lam, n, rec_on, pos, quat,
+                vel, angvel, stats):
     """``n`` steps of ``substeps`` (sub)steps of length h (s) from the
     state (x, q, v, w), each :func:`joint_step` into (x1, q1, v1, w1) and
     committed (copied back): the same arithmetic as the staged step's
@@ -222,7 +235,7 @@ def joint_block(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, su
         for _ in range(substeps):
             parts, its, worst, dropped = joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, x1,
                                                     q1, v1, w1, wk, st, project_on, tol, max_iter, w_g, max_turn,
-                                                    max_parts)
+                                                    max_parts, si_on, iterations, beta, lam)
             for i in range(nb):
                 for c in range(3):
                     x[i, c] = x1[i, c]

@@ -117,7 +117,11 @@ def unsupported_reason(model) -> str | None:
         return ("joints with contact: the reference engine does not yet couple its joint solve with the contact "
                 "solve")
     integ = model.setting("integrator")
-    if integ not in TABLEAUS:
+    if model.setting("joint_solver") == "sequential_impulse":
+        if integ != "semi_implicit_euler":
+            return (f"joints: joint_solver = sequential_impulse runs with integrator = semi_implicit_euler (the "
+                    f"velocity-level solve of Box2D and Bullet), not {integ}")
+    elif integ not in TABLEAUS:
         return f"joints: the joint step has no {integ} integrator (it has {', '.join(TABLEAUS)})"
     if (model.has("gyroscopic") and np.any(~model.isotropic) and model.setting("gyroscopic") != "explicit"):
         return (f"joints: gyroscopic = {model.setting('gyroscopic')} is not in the joint step (it integrates "
