@@ -76,6 +76,8 @@ def scene_input(scene: Scene):
         spring_k=np.array([s.stiffness for s in sp], float), spring_rest=np.array([s.rest_length for s in sp], float),
         spring_c=np.array([s.damping for s in sp], float),
         pair_e=tabs[0], pair_mus=tabs[1], pair_muk=tabs[2], pair_mur=tabs[3], scene=scene,
+        joints=tuple((j.kind, j.body, j.other, j.anchor_body, j.anchor_other, j.axis_body, j.axis_other)
+                     for j in getattr(scene, "joints", ())),
     )
 
 
@@ -102,6 +104,12 @@ def _settings() -> dict[str, Setting]:
     return out
 
 
+def _joint_kinds() -> frozenset[str]:
+    from physbench.engine.joints import KINDS
+
+    return frozenset(KINDS)
+
+
 class ReferenceAdapter(Adapter):
     name = "reference"
 
@@ -116,7 +124,8 @@ class ReferenceAdapter(Adapter):
             shapes=frozenset({"sphere", "box", "capsule", "cylinder"}),
             static_shapes=frozenset({"plane", "slope", "box"}),
             effects=frozenset({"gravity", "contact", "restitution", "friction", "rolling_friction", "drag_linear",
-                               "drag_quadratic", "spring", "damper", "gyroscopic"}),
+                               "drag_quadratic", "spring", "damper", "gyroscopic", "joint"}),
+            joint_kinds=_joint_kinds(),
             settings=_settings(),
             notes=("every shape pair collides, and each shape with every static (plane, slope, box)",),
         )
@@ -128,7 +137,12 @@ class ReferenceAdapter(Adapter):
         from physbench.engine.profile import Profile
         from physbench.engine.state import State
 
+        from physbench.engine.joints.table import unsupported_reason as joint_reason
+
         self.model = build_model(scene_input(scene), settings)
+        why = joint_reason(self.model)
+        if why:
+            raise Unsupported(why)
         missing = unsupported_pairs(self.model)
         if missing:
             raise Unsupported(f"reference engine has no narrow phase for {', '.join(missing)}")

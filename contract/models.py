@@ -52,6 +52,7 @@ SHIPPED_MODELS: dict[str, str] = {
     "conical_pendulum": "physbench.harness.references.joints:ConicalPendulum",
     "hanging_chain": "physbench.harness.references.joints:HangingChain",
     "double_pendulum": "physbench.harness.references.joints:DoublePendulum",
+    "four_bar": "physbench.harness.references.joints:FourBar",
     "self_consistency": "physbench.harness.references.self_consistency:SelfConsistency",
 }
 #: every model: the shipped ones, then the plug-ins

@@ -60,6 +60,20 @@ SETTINGS: dict[str, tuple[Any, type, str, Any]] = {
                        "margin", (0.0, 1.0)),
     "correction_beta": (0.2, float, "fraction of the penetration removed per step", (0.0, 1.0)),
     "correction_slop": (1e-4, float, "penetration (m) left uncorrected", (0.0, 1.0)),
+    "joint_solver": ("direct", str, "with joints: the joint forces solved exactly at every integrator stage "
+                     "(direct), or velocity-level rows by sequential impulses with Baumgarte drift correction, "
+                     "warm-started (sequential_impulse: needs integrator = semi_implicit_euler; `iterations` "
+                     "passes)", ("direct", "sequential_impulse")),
+    "joint_baumgarte": (0.2, float, "with joint_solver = sequential_impulse: the fraction of a joint's drift "
+                        "removed per step", (0.0, 1.0)),
+    "joint_projection": ("newton", str, "with joints: after each step the pose is projected back onto the joints "
+                         "by Newton's method and the velocities onto their tangent (newton), or not (off: the "
+                         "drift of the index-reduced equations grows)", ("newton", "off")),
+    "joint_tolerance": (1e-12, float, "with joints: the largest joint residual the projection leaves (m; 1 for "
+                        "the axis rows)", (1e-15, 1e-3)),
+    "joint_max_turn": (0.02, float, "with joints: a step in which a body would turn by more than this (rad), at "
+                       "its rate or the fastest gravity swing of a joint's arm, runs as equal parts that do not; "
+                       "0 = never split", (0.0, 100.0)),
     "penalty_stiffness": (0.0, float, "penalty contact stiffness (N/m); 0 = auto from the effective mass",
                           (0.0, 1e12)),
 }

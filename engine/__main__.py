@@ -3,7 +3,7 @@ on-disk cache and print the seconds it took -- ahead of a first run on a
 fresh machine (a CI job, an image build), so the first scene does not pay
 for it.  Builds what the scenes of :data:`WARM` build at the default
 settings -- boxes on a plane, a sphere on a plane (the scenes of boxes
-and of spheres), a scene without contact: their kernels (:func:`engine.jit.warm_up`), the fused
+and of spheres), a scene without contact, a hinged body: their kernels (:func:`engine.jit.warm_up`), the fused
 steady step of each one's shape-pair families and the flight step
 (engine/README.md "Compiled code and compile time").  A scene of other shapes or settings
 may still compile a kernel of its own.
@@ -38,6 +38,23 @@ def _families() -> list[tuple]:
     return [families([code[s] for s in shapes]) for shapes, plane in WARM]
 
 
+def _joint_scene():
+    """:func:`warm_scene` without contact, its first body hung on a hinge
+    (about y, 0.5 m above its centre) to the world: the joint step's
+    kernels, which every joint scene shares."""
+    import numpy as np
+
+    from physbench.engine.mathutil import quat_to_matrix
+
+    inp = warm_scene()
+    q = np.asarray(inp.q, float)[0]
+    R = quat_to_matrix((q / np.linalg.norm(q)).reshape(1, 4))[0]
+    arm = np.array([0.0, 0.0, 0.5])
+    y = np.array([0.0, 1.0, 0.0])
+    hinge = ("revolute", 0, -1, arm, np.asarray(inp.x, float)[0] + R @ arm, R.T @ y, y)
+    return dataclasses.replace(inp, effects=frozenset({"gravity", "joint"}), joints=(hinge,))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m physbench.engine", description=__doc__.split("\n\n")[0])
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -57,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     for shapes, plane in WARM:  # the warm-up's kernels and each one's fused steady step
         Engine(warm_scene(shapes, plane))
     Engine(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})))  # the flight step
+    Engine(_joint_scene())  # the joint step and its loop (engine/joints/)
     print(f"engine kernels compiled or loaded in {time.perf_counter() - t0:.1f} s with {args.jobs} process(es) "
           f"(cache: {cache_dir()})")
     return 0

@@ -79,7 +79,8 @@ class SceneInput:
     the scene's absent effects already zeroed.  ``effects``: the effect
     names; ``gravity`` (3,) m/s^2 as applied; ``dt`` s.  ``scene``: the
     caller's own scene object, kept on the model for the caller and never
-    read by the engine."""
+    read by the engine.  ``joints``: one tuple per joint (engine/joints/,
+    its module doc), empty without joints."""
 
     dt: float
     effects: frozenset
@@ -118,6 +119,7 @@ class SceneInput:
     pair_muk: np.ndarray
     pair_mur: np.ndarray
     scene: Any = None
+    joints: tuple = ()
 
     @property
     def n_bodies(self) -> int:
@@ -201,6 +203,8 @@ class Model:
     rolling: bool
     contact_lever: float
     info: Mapping[str, Any] = field(default_factory=dict)
+    #: the joints as constraint rows (engine.joints.table.JointModel), None without
+    joints: Any = None
 
     # ---- convenience --------------------------------------------------
     def setting(self, name: str) -> Any:
@@ -300,5 +304,14 @@ def build_model(inp: SceneInput, settings: Mapping[str, Any]) -> Model:
         body_material=_ro(np.asarray(inp.material, np.int64).reshape(n)),
         static_material=_ro(np.asarray(inp.static_material, np.int64).reshape(ns)),
         pair_e=f(inp.pair_e), pair_mus=f(inp.pair_mus), pair_muk=f(inp.pair_muk), pair_mur=f(inp.pair_mur),
-        rolling=_rolling(inp), contact_lever=CONTACT_LEVER[integrator],
+        rolling=_rolling(inp), contact_lever=CONTACT_LEVER[integrator], joints=_joints(inp),
     )
+
+
+def _joints(inp: SceneInput):
+    """The joint rows (engine/joints/), None for a scene without joints."""
+    if not getattr(inp, "joints", ()):
+        return None
+    from physbench.engine.joints.table import build_joints
+
+    return build_joints(inp)

@@ -43,7 +43,12 @@ from physbench.engine.loop import FlightStep
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
     """The ordered stages for ``model`` (see module doc).  Compiles (or
     loads) the kernels its stages call first, so that no step does
-    (:func:`engine.jit.warm_up`)."""
+    (:func:`engine.jit.warm_up`).  A scene with joints steps on the staged
+    path: its force stages, then the joint step (engine/joints/)."""
+    if model.joints is not None:
+        from physbench.engine.joints.stage import joint_stages
+
+        return joint_stages(model, force_stages(model))
     warm_up(model)
     forces = force_stages(model)
     stages: list[Stage] = list(forces)
@@ -215,6 +220,10 @@ def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     one-element list that holds the rows recorded so far (a failure in the
     middle loses no recorded frame)."""
     ctx = context(model, state, profile)
+    if model.joints is not None and not profile.by_stage:
+        # a scene with joints: n steps as one compiled call (engine/joints/stage.py)
+        stages[-1].run_block(model, state, ctx, profile, n, rec, progress)
+        return
     plan = _plan_of(model, ctx, stages)
     # (one step: the step's own fused try costs less Python than a loop's)
     fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))

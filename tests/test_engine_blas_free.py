@@ -59,7 +59,7 @@ def test_final_states_are_the_same_under_every_blas_core_type():
 #: the dynamics modules of the step (the collision modules are scanned by
 #: their own tests)
 DYNAMICS = ("solver.py", "integrate.py", "forces.py", "flight.py", "gyroscopic.py", "ccd.py", "pipeline.py", "state.py",
-            "penalty.py", "contact")
+            "penalty.py", "contact", "joints")
 _BLAS = re.compile(r"(\s@\s|\s@=|np\.dot\b|\.dot\(|matmul|np\.linalg\.(solve|inv|det|lstsq|pinv|eig|cholesky|qr|svd)|"
                    r"scipy|tensordot|optimize=True)")
 

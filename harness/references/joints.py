@@ -53,8 +53,22 @@ body's centre) and K = diag(g (m1 d1 + m2 l1), g m2 d2): the normal modes are
 the roots of det(K - w^2 M) = 0, and the modal coordinates q = Phi^T M theta
 (Phi the M-orthonormal modes) each swing at one frequency.
 
+Four-bar linkage (``four_bar``).  A crank (pivot O2, length a), a coupler
+(b) and a rocker (pivot O4, length c) on four parallel hinges, the ground
+O2 O4 of length d.  At crank angle theta the crank pin is A = O2 + a (cos
+theta e1 + sin theta e2) and the coupler-rocker pin B the intersection of
+the circles |B - A| = b and |B - O4| = c on the start's side of A O4
+(closed-form position kinematics); the coupler's and rocker's rates per
+unit crank rate solve A' + w3 u x (B - A) = w4 u x (B - O4).  One degree
+of freedom: the kinetic energy is I_eff(theta) theta'^2 / 2, so energy
+gives theta'(theta)^2 = 2 (E - V(theta)) / I_eff(theta) and one crank turn
+takes T = integral of d theta / |theta'| (a smooth periodic integrand: the
+trapezoid rule on a uniform grid is spectrally exact).
+
 Tests: tests/test_joint_models.py (each against scipy's solve_ivp of the
-equation of motion, or the kinematics, computed in the test).
+equation of motion, or the kinematics, computed in the test);
+tests/test_engine_joints.py (the four-bar against a loop closure solved by
+root finding and scipy's quad, computed in the test).
 """
 
 from __future__ import annotations
@@ -582,4 +596,255 @@ class DoublePendulum(ReferenceModel):
             out[f"mode_frequency_error_{k + 1}"] = err
             worst = max(worst, err)
         out["mode_frequency_error"] = worst
+        return out
+
+
+class FourBar(ReferenceModel):
+    name = "four_bar"
+    summary = ("a closed four-bar linkage (crank, coupler and rocker on four parallel hinges, two of them to the "
+               "world) whose crank turns all the way round: the coupler and rocker where the closed-form "
+               "kinematics put them, the crank's rate and period from its energy")
+    takes = ("exactly three bodies and four revolute [[joint]] tables with parallel axes: the crank (the body of "
+             "the first joint to the world) and the rocker (of the second) each hinged to the world, the coupler "
+             "hinged to both; gravity (any, or none); a start that moves the linkage as one degree of freedom "
+             "(velocities and angular velocities those of the crank's rate, to 1e-9 relative), with the energy "
+             "to turn the crank all the way round and no toggle position (the coupler and rocker never "
+             "in line). Refuses contact, springs and drag. Loop closure: the harness's joint_drift")
+    produces = {
+        "crank_period": "measured time of one crank turn (s): the time of the last whole turn in the run over the "
+                        "number of turns (Hermite-interpolated from the crank angle and rate)",
+        "crank_period_ref": "the integral over a turn of d theta / theta'(theta), theta'(theta)^2 = "
+                            "2 (E - V(theta)) / I_eff(theta) (s; periodic trapezoid rule, spectrally exact)",
+        "crank_period_error": "|T - T_ref| / T_ref (1; inf before one whole turn)",
+        "crank_rate_error": "max_t |theta' - theta'_ref(theta)| / max |theta'_ref| over the measured crank angle "
+                            "theta (1)",
+        "crank_angle_error": "max_t |theta - theta_ref(t)| (rad), theta_ref(t) the inverse of t(theta) = "
+                             "integral of d theta / theta'",
+        "four_bar_position_error": "max_t over the three bodies of |x - x_ref(theta)| (m), x_ref where the "
+                                   "closed-form kinematics (the coupler-rocker pin on the intersection of two "
+                                   "circles) put the centre for the measured crank angle",
+    }
+    primary = "crank_period_error"
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        sc = scene
+        for eff in ("contact", "spring", "damper", "drag_linear", "drag_quadratic"):
+            if sc.has(eff):
+                raise ReferenceError(f"{self.name} models the hinges and gravity only; the scene lists {eff!r}",
+                                     key="scenario.effects")
+        if sc.n_bodies != 3 or len(sc.joints) != 4 or any(j.kind != "revolute" for j in sc.joints):
+            raise ReferenceError(f"{self.name} needs three bodies and four revolute joints, the scene has "
+                                 f"{sc.n_bodies} bodies and joints {[j.kind for j in sc.joints]}", key="joint")
+        world = [j for j in sc.joints if j.other < 0]
+        pins = [j for j in sc.joints if j.other >= 0]
+        if len(world) != 2 or world[0].body == world[1].body:
+            raise ReferenceError("two joints must hold two different bodies (crank, rocker) to the world", key="joint")
+        jc, jr = world
+        crank, rocker = jc.body, jr.body
+        coupler = ({0, 1, 2} - {crank, rocker}).pop()
+        pa = next((j for j in pins if {j.body, j.other} == {crank, coupler}), None)
+        pb = next((j for j in pins if {j.body, j.other} == {rocker, coupler}), None)
+        if pa is None or pb is None:
+            raise ReferenceError("the coupler must be hinged to the crank and to the rocker", key="joint")
+        u = jc.axis
+        for j in sc.joints:
+            if np.linalg.norm(np.cross(u, j.axis)) > 1e-9:
+                raise ReferenceError(f"the hinge axes must be parallel, got {u.tolist()} and {j.axis.tolist()}",
+                                     key=f"joint[{j.index}].axis")
+        self.u = u
+
+        def across(v):
+            return v - (v @ u) * u
+
+        ground = across(jr.anchor - jc.anchor)
+        d = float(np.linalg.norm(ground))
+        if not d > 0.0:
+            raise ReferenceError("the two world hinges coincide across the axis", key=f"joint[{jr.index}].anchor")
+        e1 = ground / d
+        e2 = np.cross(u, e1)
+        self.e1, self.e2 = e1, e2
+        O2, O4, A, B = jc.anchor, jr.anchor, pa.anchor, pb.anchor
+        self.O2, self.O4 = O2, O4
+        self.a = float(np.linalg.norm(across(A - O2)))
+        self.b = float(np.linalg.norm(across(B - A)))
+        self.c = float(np.linalg.norm(across(B - O4)))
+        if min(self.a, self.b, self.c) <= 0.0:
+            raise ReferenceError("a link has zero length across the axes", key="joint")
+        # the pins' offsets along the axis, kept as they move
+        self.A_along, self.B_along = float((A - O2) @ u), float((B - O4) @ u)
+        # the branch of the pin B: on which side of the line A -> O4
+        self.sigma = 1.0 if float(np.cross(across(O4 - A), across(B - A)) @ u) < 0.0 else -1.0
+        self.bodies = (sc.bodies[crank], sc.bodies[coupler], sc.bodies[rocker])
+        # each centre in the frame of its link (from, to): (along, across, axis) components
+        self.local = []
+        for b, (P, Q) in zip(self.bodies, ((O2, A), (A, B), (O4, B))):
+            ev = across(Q - P)
+            ev = ev / np.linalg.norm(ev)
+            nv = np.cross(u, ev)
+            r = b.position - P
+            self.local.append((float(r @ ev), float(r @ nv), float(r @ u)))
+
+        def own(b):
+            R = quat_to_matrix(b.orientation)
+            return float(u @ (R @ np.diag(b.inertia) @ R.T) @ u)
+
+        self.m = np.array([b.mass for b in self.bodies])
+        self.Iu = np.array([own(b) for b in self.bodies])
+        self.g = np.array(sc.gravity, float)
+        th0 = float(self._angle(A))
+        # the start: one degree of freedom at the crank's rate
+        w0 = float(sc.bodies[crank].angular_velocity @ u)
+        x, v, w = self._kinematics(np.array([th0]))
+        scale = abs(w0) * (self.a + self.b + self.c) + 1e-12
+        for k, b in enumerate(self.bodies):
+            if (np.linalg.norm(b.velocity - w0 * v[0, k]) > 1e-9 * scale
+                    or np.linalg.norm(b.angular_velocity - w0 * w[0, k] * u) > 1e-9 * scale / self.a):
+                raise ReferenceError(f"body {b.name!r} does not start with the motion the crank's rate {w0:g} "
+                                     f"rad/s gives it (velocity {(w0 * v[0, k]).tolist()}, angular velocity "
+                                     f"{(w0 * w[0, k] * u).tolist()})", key=sc.body_key(b.index, "velocity"))
+        if w0 == 0.0:
+            raise ReferenceError("the crank starts at rest", key=sc.body_key(crank, "angular_velocity"))
+        self.theta0, self.w0 = th0, w0
+        self.sense = 1.0 if w0 > 0 else -1.0
+        self.E = 0.5 * float(self._inertia(np.array([th0]))[0]) * w0 * w0 + float(self._potential(np.array([th0]))[0])
+        # one turn on a uniform grid (periodic: the trapezoid rule converges spectrally)
+        N = 1 << 14
+        grid = th0 + self.sense * 2 * math.pi * np.arange(N) / N
+        rate = self.rate(grid)
+        if not np.all(np.isfinite(rate)) or np.min(np.abs(rate)) <= 0.0:
+            raise ReferenceError("the crank does not turn all the way round (too little energy, or a toggle "
+                                 "position)", key=sc.body_key(crank, "angular_velocity"))
+        self.T = float(np.sum(1.0 / np.abs(rate)) * 2 * math.pi / N)
+        # t(theta) over one turn by Simpson's rule on pairs of a fine grid,
+        # for theta_ref(t) (a cubic Hermite spline through (t, theta, theta'))
+        M = 1 << 14
+        th = th0 + self.sense * 2 * math.pi * np.arange(2 * M + 1) / (2 * M)
+        f = 1.0 / np.abs(self.rate(th))
+        hstep = 2 * math.pi / (2 * M)
+        seg = hstep / 3.0 * (f[0:-1:2] + 4 * f[1::2] + f[2::2])
+        self._t = np.concatenate([[0.0], np.cumsum(seg)])
+        self._th = th[::2]
+        self._rate = self.rate(self._th)
+
+    # ---- the closed form ---------------------------------------------------
+    def _angle(self, A) -> np.ndarray:
+        r = A - self.O2
+        return np.arctan2(r @ self.e2, r @ self.e1)
+
+    def _kinematics(self, theta: np.ndarray):
+        """Centres x (F, 3, 3) m, their velocities per unit crank rate
+        v (F, 3, 3) m/rad and the bodies' rates per unit crank rate w (F, 3)
+        (crank, coupler, rocker) at crank angles theta (F,)."""
+        u, e1, e2 = self.u, self.e1, self.e2
+        th = np.asarray(theta, float)[:, None]
+        dirA = np.cos(th) * e1 + np.sin(th) * e2
+        A = self.O2 + self.a * dirA + self.A_along * u
+        D = self.O4 - A
+        D = D - (D @ u)[:, None] * u
+        L = np.linalg.norm(D, axis=1)[:, None]
+        s = (self.b ** 2 - self.c ** 2 + L ** 2) / (2 * L)
+        h = np.sqrt(np.maximum(self.b ** 2 - s * s, 0.0)) * np.where(self.b ** 2 - s * s >= 0, 1.0, np.nan)
+        dn = np.cross(u, D / L)
+        B = A + s * D / L - self.sigma * h * dn
+        B = B - ((B - self.O4) @ u)[:, None] * u + self.B_along * u
+        # velocities: A' = a u x dirA; A' + w3 u x (B - A) = w4 u x (B - O4)
+        Ad = self.a * np.cross(u, dirA)
+        p3 = np.cross(u, B - A)
+        p4 = np.cross(u, B - self.O4)
+        # 2x2 in the plane (e1, e2): [p3, -p4] (w3, w4) = -A'
+        m11, m12 = p3 @ e1, -(p4 @ e1)
+        m21, m22 = p3 @ e2, -(p4 @ e2)
+        r1, r2 = -(Ad @ e1), -(Ad @ e2)
+        det = m11 * m22 - m12 * m21
+        w3 = (r1 * m22 - m12 * r2) / det
+        w4 = (m11 * r2 - m21 * r1) / det
+        F = th.shape[0]
+        x = np.empty((F, 3, 3))
+        v = np.empty((F, 3, 3))
+        w = np.stack([np.ones(F), w3, w4], axis=1)
+        for k, (P, Q) in enumerate(((self.O2 + 0 * A, A), (A, B), (self.O4 + 0 * A, B))):
+            ev = Q - P
+            ev = ev - (ev @ u)[:, None] * u
+            ev = ev / np.linalg.norm(ev, axis=1)[:, None]
+            nv = np.cross(u, ev)
+            al, ac, ax = self.local[k]
+            x[:, k] = P + al * ev + ac * nv + ax * u
+        v[:, 0] = np.cross(u, x[:, 0] - self.O2)
+        v[:, 1] = Ad + w3[:, None] * np.cross(u, x[:, 1] - A)
+        v[:, 2] = w4[:, None] * np.cross(u, x[:, 2] - self.O4)
+        return x, v, w
+
+    def _inertia(self, theta) -> np.ndarray:
+        """I_eff (F,) kg m^2: the kinetic energy over theta'^2 / 2."""
+        _, v, w = self._kinematics(theta)
+        return np.sum(self.m * np.sum(v * v, axis=-1) + self.Iu * w * w, axis=1)
+
+    def _potential(self, theta) -> np.ndarray:
+        x, _, _ = self._kinematics(theta)
+        return -np.sum(self.m * (x @ self.g), axis=1)
+
+    def rate(self, theta) -> np.ndarray:
+        """The crank's rate theta' (F,) rad/s at crank angles theta (F,),
+        from the energy (NaN where the crank cannot reach)."""
+        k = 2.0 * (self.E - self._potential(theta)) / self._inertia(theta)
+        return self.sense * np.sqrt(np.where(k > 0, k, np.nan))
+
+    def angle(self, t: np.ndarray) -> np.ndarray:
+        """theta_ref (F,) rad at times t (F,) s (unwrapped, from theta0)."""
+        from scipy.interpolate import CubicHermiteSpline
+
+        t = np.asarray(t, float)
+        turns = np.floor(t / self.T)
+        tt = t - turns * self.T
+        sp = CubicHermiteSpline(self._t, self._th, self._rate)
+        return sp(np.clip(tt, 0.0, self._t[-1])) + self.sense * 2 * math.pi * turns
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        x, _, _ = self._kinematics(self.angle(t))
+        out = np.full((len(t), self.scene.n_bodies, 3), np.nan)
+        for k, b in enumerate(self.bodies):
+            out[:, b.index] = x[:, k]
+        return out
+
+    def predictions(self) -> dict[str, str]:
+        return {"one crank turn": f"{self.T:.9g} s",
+                "links": f"crank {self.a:.6g} m, coupler {self.b:.6g} m, rocker {self.c:.6g} m, ground "
+                         f"{float(np.linalg.norm((self.O4 - self.O2) - ((self.O4 - self.O2) @ self.u) * self.u)):.6g} m"}
+
+    def metrics(self, trace) -> dict[str, float]:
+        from physbench.contract.rotation import quat_rotate
+
+        t = np.asarray(trace.t, float)
+        ic = self.bodies[0].index
+        pa = next(j for j in self.scene.joints if j.other >= 0 and ic in (j.body, j.other))
+        local = pa.anchor_body if pa.body == ic else pa.anchor_other
+        # the crank pin where the crank carries it: the crank angle
+        A = trace.pos[:, ic] + quat_rotate(trace.quat[:, ic], np.broadcast_to(local, (len(t), 3)))
+        th = np.unwrap(self._angle(A))
+        dth = trace.angvel[:, ic] @ self.u
+        out: dict[str, float] = {"crank_period_ref": self.T}
+        if not (np.isfinite(th).all() and np.isfinite(dth).all()):
+            nan = float("nan")
+            out.update(crank_period=nan, crank_period_error=float("inf"), crank_rate_error=nan,
+                       crank_angle_error=nan, four_bar_position_error=nan)
+            return out
+        y = self.sense * (th - self.theta0)
+        turns = int(np.floor(np.max(y) / (2 * math.pi)))
+        if turns >= 1:
+            c = _crossings(t, y - 2 * math.pi * turns, self.sense * dth)
+            T = float(c[-1]) / turns if len(c) else float("nan")
+            out["crank_period"] = T
+            out["crank_period_error"] = abs(T - self.T) / self.T if np.isfinite(T) else float("inf")
+        else:
+            out["crank_period"] = float("nan")
+            out["crank_period_error"] = float("inf")
+        ref_rate = self.rate(th)
+        out["crank_rate_error"] = float(np.max(np.abs(dth - ref_rate)) / np.max(np.abs(self._rate)))
+        out["crank_angle_error"] = float(np.max(np.abs(th - self.angle(t))))
+        x, _, _ = self._kinematics(th)
+        err = 0.0
+        for k, b in enumerate(self.bodies):
+            err = max(err, float(np.max(np.linalg.norm(trace.pos[:, b.index] - x[:, k], axis=1))))
+        out["four_bar_position_error"] = err
         return out
