@@ -120,3 +120,16 @@ def test_bad_and_unsupported():
                     "angular_velocity": [0.1, 5.0, 0.2]}])
     r = run(s, "mjx", None, compute_metrics=False)
     assert r.status == "unsupported" and "gyroscopic" in r.message
+
+
+def test_too_many_convex_pairs_are_unsupported():
+    # MJX collides every body pair every step: stacking.pyramid (15 boxes,
+    # 105 pairs) runs; its levels_7 variant (28 boxes, 378 pairs) is
+    # unsupported with the count and the measured cost, never a timeout
+    from physbench.adapters.mjx import MAX_CONVEX_PAIRS
+    from physbench.contract.scene import load_scene
+
+    assert MjxAdapter.unsupported_reason(load_scene("stacking.pyramid")) is None
+    why = MjxAdapter.unsupported_reason(load_scene("stacking.pyramid", "levels_7"))
+    assert why is not None and "28 boxes and cylinders make 378 convex pairs" in why
+    assert f"beyond the {MAX_CONVEX_PAIRS}" in why and 105 < MAX_CONVEX_PAIRS < 378
