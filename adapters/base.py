@@ -213,6 +213,31 @@ class Adapter(abc.ABC):
             self.read_state(pos[i], quat[i], vel[i], angvel[i])
             self.block_done = i + 1
 
+    # ---- batched worlds (optional) ------------------------------------------
+    #: True when the adapter steps many copies of one scene, differing only
+    #: in their start (positions, orientations, velocities), in one call
+    #: (:meth:`build_batch`, :meth:`step_record_batch`); the harness hands
+    #: it such batches (harness/batch.py) and runs one world at a time
+    #: through :meth:`build` otherwise.
+    batched: bool = False
+
+    def build_batch(self, scenes: "list[Scene]", settings: dict[str, Any]) -> None:
+        """Build W = len(scenes) worlds of one scene: the scenes differ only
+        in their bodies' start (harness/batch.py checks it); any compile
+        time goes into ``stages()['jit_s']``."""
+        raise NotImplementedError(f"{self.name} runs no batches")
+
+    def read_state_batch(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """:meth:`read_state` of every world into (W, n, 3|4) arrays."""
+        raise NotImplementedError(f"{self.name} runs no batches")
+
+    def step_record_batch(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                          angvel: np.ndarray) -> None:
+        """:meth:`step_record` of every world at once: ``n`` steps, the state
+        after step i+1 of world w into [w, i] of the (W, n, n_bodies, 3|4)
+        blocks."""
+        raise NotImplementedError(f"{self.name} runs no batches")
+
     def bare_loop(self, n: int) -> None:
         """Advance ``n`` steps by the engine's public step call in a plain
         Python loop, recording nothing: the baseline of the overhead

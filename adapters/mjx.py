@@ -51,10 +51,13 @@ BLOCK = 256
 #: body shapes whose pairs MJX collides by its general convex routine
 CONVEX_SHAPES = frozenset({"box", "cylinder"})
 #: the most such body pairs a scene may have (MJX evaluates every pair every
-#: step): stacking.pyramid, 15 boxes = 105 pairs, costs 52 ms per step on a
-#: 2-core CPU; its 28-box variant (378 pairs) did not compile and run 5 s
-#: within 400 s (tests/test_adapter_mjx.py::test_too_many_convex_pairs_are_unsupported)
-MAX_CONVEX_PAIRS = 200
+#: step; XLA's compile grows with them): stacking.column_10, 10 boxes = 45
+#: pairs, compiles in 193 s cold and steps in 7 ms; stacking.pyramid, 15
+#: boxes = 105 pairs, steps in 52 ms with a warm compilation cache, but its
+#: cold compile did not finish within 400 s on a loaded 2-core machine, nor
+#: did the 28-box variant's (378 pairs)
+#: (tests/test_adapter_mjx.py::test_too_many_convex_pairs_are_unsupported)
+MAX_CONVEX_PAIRS = 100
 
 
 def cache_dir() -> Path:
@@ -131,11 +134,18 @@ class MjxAdapter(Adapter):
         pairs = k * (k - 1) // 2
         if pairs > MAX_CONVEX_PAIRS:
             return (f"MJX evaluates every body pair's collision every step: {k} boxes and cylinders make {pairs} "
-                    f"convex pairs, beyond the {MAX_CONVEX_PAIRS} it runs in reasonable time here (105 pairs cost "
-                    f"52 ms per step on a 2-core CPU; 378 did not compile and run 5 s within 400 s)")
+                    f"convex pairs, beyond the {MAX_CONVEX_PAIRS} it compiles and runs in reasonable time on a "
+                    f"2-core CPU (45 pairs: 193 s cold compile, 7 ms per step; 105 pairs: 52 ms per step, and a "
+                    f"cold compile that did not finish within 400 s)")
         return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        self._model(scene, settings)
+        self._compile(self._block, self.dx)
+
+    def _model(self, scene: Scene, settings: dict[str, Any]) -> None:
+        """The MuJoCo model of ``scene`` on MJX (self.m, self.mx), its
+        start as MJX data (self.dx) and the block function (not compiled)."""
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
@@ -177,19 +187,68 @@ class MjxAdapter(Adapter):
                               "each step (explicit, inside the scan); no drag torque")
         self._block = _block_fn(n, drag)
         self._c = (jax.numpy.asarray(c1 * meta["mass_scale"]), jax.numpy.asarray(c2 * meta["mass_scale"]))
-        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
-        t0 = time.perf_counter()
-        try:
-            self._compiled = jax.jit(self._block).lower(self.mx, self.dx, self._c, 0).compile()
-        except NotImplementedError as e:
-            raise Unsupported(f"MJX cannot model this scene: {e}") from None
-        self.jit_s = time.perf_counter() - t0
         self._last = (x0, q0, v0, np.asarray(w0, float))
         self.steps = 0
         self._stages = {"engine": ENGINE, "integrator": settings["integrator"], "cone": settings["cone"],
                         "condim": meta["condim"], "explicit_pairs": meta["explicit_pairs"],
                         "mass_scale": meta["mass_scale"], "drag": drag, "block": BLOCK, "float64": True,
                         "restitution_calibrated": len(self.info.get("restitution_calibration", []))}
+
+    def _compile(self, fn, dx) -> None:
+        """Compile ``fn`` (a block function) for ``dx``; its wall time is jit_s."""
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
+        t0 = time.perf_counter()
+        try:
+            self._compiled = jax.jit(fn).lower(self.mx, dx, self._c, 0).compile()
+        except NotImplementedError as e:
+            raise Unsupported(f"MJX cannot model this scene: {e}") from None
+        self.jit_s = time.perf_counter() - t0
+
+    # ---- batched worlds: one vmap of the scan over the worlds' starts ------
+    batched = True
+
+    def build_batch(self, scenes: list[Scene], settings: dict[str, Any]) -> None:
+        """W worlds of one model: the data of scenes[0] broadcast over a
+        leading world axis with each world's qpos and qvel; the block
+        function vmapped over it (one compile; jit_s).  Every other field
+        of the data is recomputed from qpos and qvel by the first step."""
+        self._model(scenes[0], settings)
+        w, nb = len(scenes), self.n
+        qpos, qvel = np.empty((w, nb, 7)), np.empty((w, nb, 6))
+        starts = []
+        for k, sc in enumerate(scenes):
+            x0, q0, v0, w0 = sc.initial_state()
+            qpos[k, :, 0:3], qpos[k, :, 3:7], qvel[k, :, 0:3] = x0, q0, v0
+            qvel[k, :, 3:6] = world_to_body_angvel(q0, w0)
+            starts.append((x0, q0, v0, np.asarray(w0, float)))
+        jnp = jax.numpy
+        dxb = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (w,) + a.shape), self.dx)
+        self.dx = dxb.replace(qpos=jnp.asarray(qpos.reshape(w, -1), dxb.qpos.dtype),
+                              qvel=jnp.asarray(qvel.reshape(w, -1), dxb.qvel.dtype))
+        self.worlds = w
+        self._last_batch = tuple(np.stack([s[i] for s in starts]) for i in range(4))
+        self._compile(jax.vmap(self._block, in_axes=(None, 0, None, None)), self.dx)
+        self._stages["worlds"] = w
+
+    def read_state_batch(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        for out, src in zip((pos, quat, vel, angvel), self._last_batch):
+            np.copyto(out, src)
+
+    def step_record_batch(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                          angvel: np.ndarray) -> None:
+        """n steps of every world, BLOCK steps per compiled call; (W, n, nb, .) out."""
+        w, nb, done = self.worlds, self.n, 0
+        while done < n:
+            k = min(BLOCK, n - done)
+            self.dx, (qp, qv) = self._compiled(self.mx, self.dx, self._c, k)
+            self.steps += k
+            qp = np.asarray(qp)[:, :k].reshape(w, k, nb, 7)
+            qv = np.asarray(qv)[:, :k].reshape(w, k, nb, 6)
+            s = slice(done, done + k)
+            pos[:, s], quat[:, s], vel[:, s] = qp[..., 0:3], qp[..., 3:7], qv[..., 0:3]
+            quat_rotate(quat[:, s], qv[..., 3:6], out=angvel[:, s])
+            done += k
+        self._last_batch = (pos[:, n - 1], quat[:, n - 1], vel[:, n - 1], angvel[:, n - 1])
 
     def _run_block(self, n: int):
         """Advance n <= BLOCK steps; the (n, nq) and (n, nv) states after each."""
