@@ -23,6 +23,13 @@ State
     As in MuJoCo: qpos [x y z qw qx qy qz], qvel [v (world), w (body)] per
     free body; the angular velocity is rotated to the world frame with the
     recorded quaternions (:func:`contract.rotation.quat_rotate`).
+Batches
+    ``build_batch``/``step_record_batch`` (``batched = True``) run W starts
+    of one scene as one ``jax.vmap`` of the compiled scan over a leading
+    world axis of the data; a model field that differs between the worlds
+    (the restitution calibration replays each start's first impact) gets a
+    world axis too.  harness/batch.py hands such batches over
+    (tests/test_batch.py: equal to the sequential MJX runs to 1e-12).
 Settings
     MuJoCo's, less what MJX does not implement: no noslip solver and no
     speculative contacts (both off).  ``ls_iterations``: MJX's line-search
@@ -123,7 +130,8 @@ class MjxAdapter(Adapter):
             static_shapes=_STATIC_SHAPES, effects=_EFFECTS, settings=_settings(),
             available=mjx is not None, unavailable_reason=_IMPORT_ERROR,
             notes=("MuJoCo's model (same MJCF and restitution calibration) stepped by MJX in float64",
-                   "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts"))
+                   "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts",
+                   "batched: many starts of one scene in one vmap call (physbench ensemble)"))
 
     @classmethod
     def unsupported_reason(cls, scene: Scene) -> str | None:
@@ -150,19 +158,8 @@ class MjxAdapter(Adapter):
         if reason is not None:
             raise Unsupported(reason)
         self.scene, self.settings, self.n = scene, dict(settings), scene.n_bodies
-        full = dict(settings, noslip_iterations=0, speculative=False)
-        pair_solref = calibrate_pairs(scene, full, self.notes, self.info)
-        xml, meta = build_mjcf(scene, full, pair_solref, self.notes, fluid_drag=False)
+        m, xml, meta = _mj_model(scene, settings, self.notes, self.info)
         self.xml, self.meta = xml, meta
-        m = mujoco.MjModel.from_xml_string(xml)
-        m.opt.ls_iterations = int(settings["ls_iterations"])
-        if settings["cone"] == "elliptic" and not np.any(m.geom_condim > 1) and not np.any(m.pair_dim > 1):
-            # mujoco-mjx 3.17's elliptic-cone solver fails to trace without a
-            # frictional contact (an empty float index array); without
-            # friction both cones give the same constraint rows
-            m.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-            self.notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
-                              "solver without friction; the two are the same constraint without friction)")
         d = mujoco.MjData(m)
         n = self.n
         x0, q0, v0, w0 = scene.initial_state()
@@ -214,6 +211,19 @@ class MjxAdapter(Adapter):
         of the data is recomputed from qpos and qvel by the first step."""
         self._model(scenes[0], settings)
         w, nb = len(scenes), self.n
+        # each world's own model where its start changes it (MuJoCo's
+        # restitution calibration replays each start's first impact): the
+        # parameters that differ get a world axis
+        mxs, differ = [self.mx], 0
+        for sc in scenes[1:]:
+            m, xml, _ = _mj_model(sc, settings, [], {})
+            differ += xml != self.xml
+            mxs.append(self.mx if xml == self.xml else mjx.put_model(m))
+        mx_axes = None
+        if differ:
+            self.mx, mx_axes = _batched_models(mxs)
+            self.notes.append(f"{differ} of {w} worlds have their own calibrated contact parameters "
+                              f"(batched model fields)")
         qpos, qvel = np.empty((w, nb, 7)), np.empty((w, nb, 6))
         starts = []
         for k, sc in enumerate(scenes):
@@ -227,8 +237,9 @@ class MjxAdapter(Adapter):
                               qvel=jnp.asarray(qvel.reshape(w, -1), dxb.qvel.dtype))
         self.worlds = w
         self._last_batch = tuple(np.stack([s[i] for s in starts]) for i in range(4))
-        self._compile(jax.vmap(self._block, in_axes=(None, 0, None, None)), self.dx)
+        self._compile(jax.vmap(self._block, in_axes=(mx_axes, 0, None, None)), self.dx)
         self._stages["worlds"] = w
+        self._stages["worlds_with_own_model"] = differ
 
     def read_state_batch(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         for out, src in zip((pos, quat, vel, angvel), self._last_batch):
@@ -289,6 +300,47 @@ class MjxAdapter(Adapter):
 
     def close(self) -> None:
         self.mx = self.dx = self._compiled = None
+
+
+def _mj_model(scene: Scene, settings: dict[str, Any], notes: list[str], info: dict[str, Any]):
+    """(MjModel, MJCF text, MJCF meta) of ``scene``: MuJoCo's, whose
+    restitution calibration replays the first impact of this start."""
+    full = dict(settings, noslip_iterations=0, speculative=False)
+    pair_solref = calibrate_pairs(scene, full, notes, info)
+    xml, meta = build_mjcf(scene, full, pair_solref, notes, fluid_drag=False)
+    m = mujoco.MjModel.from_xml_string(xml)
+    m.opt.ls_iterations = int(settings["ls_iterations"])
+    if settings["cone"] == "elliptic" and not np.any(m.geom_condim > 1) and not np.any(m.pair_dim > 1):
+        # mujoco-mjx 3.17's elliptic-cone solver fails to trace without a
+        # frictional contact (an empty float index array); without
+        # friction both cones give the same constraint rows
+        m.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+        notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
+                     "solver without friction; the two are the same constraint without friction)")
+    return m, xml, meta
+
+
+def _batched_models(mxs: list):
+    """The worlds' MJX models as one: (model, in_axes) where a leaf equal
+    in every world is world 0's (axis None) and one that differs is stacked
+    (axis 0).  Raises ValueError when the models' structure differs."""
+    tu = jax.tree_util
+    leaves0, tree = tu.tree_flatten(mxs[0])
+    per = [leaves0]
+    for mx in mxs[1:]:
+        leaves, t = tu.tree_flatten(mx)
+        if t != tree:
+            raise ValueError("the worlds' MJX models differ in structure: not one model")
+        per.append(leaves)
+    out, axes = [], []
+    for i, leaf in enumerate(leaves0):
+        if all(p[i] is leaf or np.array_equal(np.asarray(p[i]), np.asarray(leaf)) for p in per[1:]):
+            out.append(leaf)
+            axes.append(None)
+        else:
+            out.append(jax.numpy.stack([p[i] for p in per]))
+            axes.append(0)
+    return tu.tree_unflatten(tree, out), tu.tree_unflatten(tree, axes)
 
 
 def _block_fn(n_bodies: int, drag: bool):
