@@ -13,6 +13,10 @@ Every adapter module defines one :class:`Adapter` subclass with:
   linear/angular velocities into preallocated arrays (frame ``k``);
 - :meth:`close`.
 
+Optionally ``batched = True`` with :meth:`build_batch`,
+:meth:`read_state_batch` and :meth:`step_record_batch`: many starts of one
+scene stepped in one call (MJX); harness/batch.py hands such batches over.
+
 Adapters also fill ``self.notes`` (approximations the engine forces, e.g. a
 missing static/kinetic friction split) and ``self.info`` (calibration
 residuals, effective engine parameters) which land in the run result.
