@@ -129,6 +129,13 @@ class Unsupported(Exception):
     model; the run is recorded as ``unsupported`` with this message."""
 
 
+class NotOneBatch(Exception):
+    """Raised by build_batch() when the starts do not make one model for
+    the engine (its model depends on the start: MuJoCo's explicit contact
+    pairs come from the impacts predicted from it); the harness then runs
+    the worlds one at a time and says why."""
+
+
 class Adapter(abc.ABC):
     """Base class; see the module docstring for the contract."""
 

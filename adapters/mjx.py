@@ -26,9 +26,10 @@ State
 Batches
     ``build_batch``/``step_record_batch`` (``batched = True``) run W starts
     of one scene as one ``jax.vmap`` of the compiled scan over a leading
-    world axis of the data; a model field that differs between the worlds
-    (the restitution calibration replays each start's first impact) gets a
-    world axis too.  harness/batch.py hands such batches over
+    world axis of the data; a model array that differs between the worlds
+    (the reference pose; the restitution calibration replays each start's
+    first impact) gets a world axis too; models of different structure are
+    refused (NotOneBatch: the harness runs the worlds one at a time).  harness/batch.py hands such batches over
     (tests/test_batch.py: equal to the sequential MJX runs to 1e-12).
 Settings
     MuJoCo's, less what MJX does not implement: no noslip solver and no
@@ -45,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, NotOneBatch, Setting, Unsupported, module_version
 from physbench.adapters.forces import drag_coefficients
 from physbench.adapters.mjcf import build_mjcf
 from physbench.adapters.mujoco_impacts import calibrate_pairs
@@ -222,8 +223,9 @@ class MjxAdapter(Adapter):
         mx_axes = None
         if differ:
             self.mx, mx_axes = _batched_models(mxs)
-            self.notes.append(f"{differ} of {w} worlds have their own calibrated contact parameters "
-                              f"(batched model fields)")
+            self.notes.append(f"{differ} of {w} worlds have their own model arrays (the start pose and the "
+                              f"restitution calibration enter MuJoCo's model: batched fields); the model "
+                              f"statistics (mean inertia, extent) are world 0's")
         qpos, qvel = np.empty((w, nb, 7)), np.empty((w, nb, 6))
         starts = []
         for k, sc in enumerate(scenes):
@@ -321,16 +323,22 @@ def _mj_model(scene: Scene, settings: dict[str, Any], notes: list[str], info: di
 
 
 def _batched_models(mxs: list):
-    """The worlds' MJX models as one: (model, in_axes) where a leaf equal
-    in every world is world 0's (axis None) and one that differs is stacked
-    (axis 0).  Raises ValueError when the models' structure differs."""
+    """The worlds' MJX models as one: (model, in_axes) where an array leaf
+    equal in every world is world 0's (axis None) and one that differs is
+    stacked (axis 0).  The static part (MJX keeps ``stat``, the model
+    statistics of the reference pose, out of the arrays) is world 0's.
+    Raises NotOneBatch when the worlds' arrays do not match in number or
+    shape."""
     tu = jax.tree_util
     leaves0, tree = tu.tree_flatten(mxs[0])
     per = [leaves0]
     for mx in mxs[1:]:
-        leaves, t = tu.tree_flatten(mx)
-        if t != tree:
-            raise ValueError("the worlds' MJX models differ in structure: not one model")
+        leaves, _ = tu.tree_flatten(mx)
+        bad = [i for i, (a, b) in enumerate(zip(leaves, leaves0)) if np.shape(a) != np.shape(b)]
+        if len(leaves) != len(leaves0) or bad:
+            raise NotOneBatch(f"the worlds' MuJoCo models differ in structure ({len(leaves)} vs {len(leaves0)} "
+                              f"arrays; shapes differ at {bad[:3]}: e.g. an explicit contact pair for an impact "
+                              f"predicted from one start and not from another)")
         per.append(leaves)
     out, axes = [], []
     for i, leaf in enumerate(leaves0):

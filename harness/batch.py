@@ -11,6 +11,10 @@ A batched run's ``timing``: ``jit_s`` and ``setup_s`` are the batch's
 stepping time and the cost per world-step in microseconds.  A world whose
 state turns non-finite or runs away is ``diverged`` from that frame on
 (the runner's rule, :func:`runner._runaway`), the others stay ``ok``.
+An adapter whose model depends on the start may refuse a batch
+(``adapters.base.NotOneBatch``: MJX when MuJoCo's explicit contact pairs
+differ between the starts); the worlds then run one at a time, each result
+noting why.
 
 What may differ between the scenes: the bodies' position, orientation,
 velocity and angular velocity.  Anything else (a mass, a material, dt, the
@@ -63,7 +67,7 @@ def run_batch(scenes: list[Any], engine: str, settings: dict[str, Any] | None = 
     batch when the adapter is ``batched`` and ``batch``, else one
     :func:`runner.run` each.  One RunResult per scene, in order."""
     from physbench.adapters import get_adapter
-    from physbench.adapters.base import Unsupported
+    from physbench.adapters.base import NotOneBatch, Unsupported
     from physbench.contract.scene import n_steps
     from physbench.harness import runner
 
@@ -103,6 +107,12 @@ def run_batch(scenes: list[Any], engine: str, settings: dict[str, Any] | None = 
         adapter.read_state_batch(pos[:, 0], quat[:, 0], vel[:, 0], angvel[:, 0])
     except Unsupported as e:
         return all_(st.UNSUPPORTED, str(e))
+    except NotOneBatch as e:  # one run each, saying why
+        adapter.close()
+        out = [runner.run(sc, engine, settings, timeout_s=timeout_s, compute_metrics=False) for sc in scenes]
+        for r in out:
+            r.notes.append(f"run one at a time: {engine} cannot batch these starts: {e}")
+        return out
     except Exception as e:  # the engine rejected the model
         return all_(st.FAILED, f"build failed: {type(e).__name__}: {e}")
     setup_s = time.perf_counter() - t0

@@ -19,12 +19,13 @@ from physbench.harness.runner import run
 
 def drop_scene(mass: float = 1.0, duration: float = 0.4):
     """Two spheres dropped spinning and sliding onto a plane (contact,
-    friction), dt 2 ms."""
+    friction), dt 2 ms, 0.5 m apart, never meeting (so MuJoCo's model of
+    every start has the same contact pairs)."""
     raw = {"scenario": {"family": "batch", "title": "t", "duration": duration, "dt": 0.002,
                         "effects": ["gravity", "contact", "friction"]},
            "material": {"default": {"friction": 0.5, "static_friction": 0.5, "restitution": 0.0}},
            "body": [{"name": "a", "shape": "sphere", "radius": 0.1, "mass": mass,
-                     "position": [0, 0, 0.3], "angular_velocity": [1.0, 2.0, 0.5], "velocity": [0.5, 0, 0]},
+                     "position": [0, 0, 0.3], "angular_velocity": [1.0, 2.0, 0.5], "velocity": [0, 0.5, 0]},
                     {"name": "ball", "shape": "sphere", "radius": 0.05, "mass": 0.3, "position": [0.5, 0, 0.2]}],
            "static": [{"name": "floor", "shape": "plane", "normal": [0, 0, 1]}]}
     return compile_scene(validate_raw(raw, "<batch test>"))
@@ -121,3 +122,24 @@ def test_the_ensemble_hands_a_batched_engine_one_batch(monkeypatch):
         assert a["status"] == b["status"] == "ok" and a["events"] == b["events"]
         np.testing.assert_allclose(a["final_pos"], b["final_pos"], rtol=0, atol=1e-12)
     assert batched["final_spread"] == pytest.approx(plain["final_spread"], rel=1e-9)
+
+
+def test_a_refused_batch_runs_one_world_at_a_time(monkeypatch):
+    # an adapter whose model depends on the start refuses the batch
+    # (NotOneBatch); the worlds then run as plain runs, each noting why
+    from physbench.adapters import get_adapter
+    from physbench.adapters.base import NotOneBatch
+
+    cls = get_adapter("mujoco")
+
+    def build_batch(self, scenes, settings):
+        raise NotOneBatch("the contact pairs differ")
+
+    monkeypatch.setattr(cls, "build_batch", build_batch, raising=False)
+    monkeypatch.setattr(cls, "batched", True, raising=False)
+    scenes = members(drop_scene(duration=0.1), 2)
+    out = run_batch(scenes, "mujoco")
+    for sc, r in zip(scenes, out):
+        assert r.status == "ok" and "batch" not in r.info
+        assert any("cannot batch these starts: the contact pairs differ" in n for n in r.notes)
+        np.testing.assert_array_equal(r.trace.valid().pos, run(sc, "mujoco", compute_metrics=False).trace.valid().pos)
