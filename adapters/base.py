@@ -13,6 +13,10 @@ Every adapter module defines one :class:`Adapter` subclass with:
   linear/angular velocities into preallocated arrays (frame ``k``);
 - :meth:`close`.
 
+Optionally ``batched = True`` with :meth:`build_batch`,
+:meth:`read_state_batch` and :meth:`step_record_batch`: many starts of one
+scene stepped in one call (MJX); harness/batch.py hands such batches over.
+
 Adapters also fill ``self.notes`` (approximations the engine forces, e.g. a
 missing static/kinetic friction split) and ``self.info`` (calibration
 residuals, effective engine parameters) which land in the run result.
@@ -127,6 +131,13 @@ class Unsupported(Exception):
     model; the run is recorded as ``unsupported`` with this message."""
 
 
+class NotOneBatch(Exception):
+    """Raised by build_batch() when the starts do not make one model for
+    the engine (its model depends on the start: MuJoCo's explicit contact
+    pairs come from the impacts predicted from it); the harness then runs
+    the worlds one at a time and says why."""
+
+
 class Adapter(abc.ABC):
     """Base class; see the module docstring for the contract."""
 
@@ -214,6 +225,31 @@ class Adapter(abc.ABC):
             self.step(1)
             self.read_state(pos[i], quat[i], vel[i], angvel[i])
             self.block_done = i + 1
+
+    # ---- batched worlds (optional) ------------------------------------------
+    #: True when the adapter steps many copies of one scene, differing only
+    #: in their start (positions, orientations, velocities), in one call
+    #: (:meth:`build_batch`, :meth:`step_record_batch`); the harness hands
+    #: it such batches (harness/batch.py) and runs one world at a time
+    #: through :meth:`build` otherwise.
+    batched: bool = False
+
+    def build_batch(self, scenes: "list[Scene]", settings: dict[str, Any]) -> None:
+        """Build W = len(scenes) worlds of one scene: the scenes differ only
+        in their bodies' start (harness/batch.py checks it); any compile
+        time goes into ``stages()['jit_s']``."""
+        raise NotImplementedError(f"{self.name} runs no batches")
+
+    def read_state_batch(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """:meth:`read_state` of every world into (W, n, 3|4) arrays."""
+        raise NotImplementedError(f"{self.name} runs no batches")
+
+    def step_record_batch(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                          angvel: np.ndarray) -> None:
+        """:meth:`step_record` of every world at once: ``n`` steps, the state
+        after step i+1 of world w into [w, i] of the (W, n, n_bodies, 3|4)
+        blocks."""
+        raise NotImplementedError(f"{self.name} runs no batches")
 
     def bare_loop(self, n: int) -> None:
         """Advance ``n`` steps by the engine's public step call in a plain

@@ -23,6 +23,14 @@ State
     As in MuJoCo: qpos [x y z qw qx qy qz], qvel [v (world), w (body)] per
     free body; the angular velocity is rotated to the world frame with the
     recorded quaternions (:func:`contract.rotation.quat_rotate`).
+Batches
+    ``build_batch``/``step_record_batch`` (``batched = True``) run W starts
+    of one scene as one ``jax.vmap`` of the compiled scan over a leading
+    world axis of the data; a model array that differs between the worlds
+    (the reference pose; the restitution calibration replays each start's
+    first impact) gets a world axis too; models of different structure are
+    refused (NotOneBatch: the harness runs the worlds one at a time).  harness/batch.py hands such batches over
+    (tests/test_batch.py: equal to the sequential MJX runs to 1e-12).
 Settings
     MuJoCo's, less what MJX does not implement: no noslip solver and no
     speculative contacts (both off).  ``ls_iterations``: MJX's line-search
@@ -38,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, NotOneBatch, Setting, Unsupported, module_version
 from physbench.adapters.forces import drag_coefficients
 from physbench.adapters.mjcf import build_mjcf
 from physbench.adapters.mujoco_impacts import calibrate_pairs
@@ -48,6 +56,16 @@ from physbench.contract.scene import Scene
 ENGINE = "mjx"
 #: steps per compiled scan block
 BLOCK = 256
+#: body shapes whose pairs MJX collides by its general convex routine
+CONVEX_SHAPES = frozenset({"box", "cylinder"})
+#: the most such body pairs a scene may have (MJX evaluates every pair every
+#: step; XLA's compile grows with them): stacking.column_10, 10 boxes = 45
+#: pairs, compiles in 193 s cold and steps in 7 ms; stacking.pyramid, 15
+#: boxes = 105 pairs, steps in 52 ms with a warm compilation cache, but its
+#: cold compile did not finish within 400 s on a loaded 2-core machine, nor
+#: did the 28-box variant's (378 pairs)
+#: (tests/test_adapter_mjx.py::test_too_many_convex_pairs_are_unsupported)
+MAX_CONVEX_PAIRS = 100
 
 
 def cache_dir() -> Path:
@@ -113,26 +131,36 @@ class MjxAdapter(Adapter):
             static_shapes=_STATIC_SHAPES, effects=_EFFECTS, settings=_settings(),
             available=mjx is not None, unavailable_reason=_IMPORT_ERROR,
             notes=("MuJoCo's model (same MJCF and restitution calibration) stepped by MJX in float64",
-                   "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts"))
+                   "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts",
+                   "batched: many starts of one scene in one vmap call (physbench ensemble)"))
+
+    @classmethod
+    def unsupported_reason(cls, scene: Scene) -> str | None:
+        why = super().unsupported_reason(scene)
+        if why is not None:
+            return why
+        k = sum(b.shape in CONVEX_SHAPES for b in scene.bodies)
+        pairs = k * (k - 1) // 2
+        if pairs > MAX_CONVEX_PAIRS:
+            return (f"MJX evaluates every body pair's collision every step: {k} boxes and cylinders make {pairs} "
+                    f"convex pairs, beyond the {MAX_CONVEX_PAIRS} it compiles and runs in reasonable time on a "
+                    f"2-core CPU (45 pairs: 193 s cold compile, 7 ms per step; 105 pairs: 52 ms per step, and a "
+                    f"cold compile that did not finish within 400 s)")
+        return None
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
+        self._model(scene, settings)
+        self._compile(self._block, self.dx)
+
+    def _model(self, scene: Scene, settings: dict[str, Any]) -> None:
+        """The MuJoCo model of ``scene`` on MJX (self.m, self.mx), its
+        start as MJX data (self.dx) and the block function (not compiled)."""
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
         self.scene, self.settings, self.n = scene, dict(settings), scene.n_bodies
-        full = dict(settings, noslip_iterations=0, speculative=False)
-        pair_solref = calibrate_pairs(scene, full, self.notes, self.info)
-        xml, meta = build_mjcf(scene, full, pair_solref, self.notes, fluid_drag=False)
+        m, xml, meta = _mj_model(scene, settings, self.notes, self.info)
         self.xml, self.meta = xml, meta
-        m = mujoco.MjModel.from_xml_string(xml)
-        m.opt.ls_iterations = int(settings["ls_iterations"])
-        if settings["cone"] == "elliptic" and not np.any(m.geom_condim > 1) and not np.any(m.pair_dim > 1):
-            # mujoco-mjx 3.17's elliptic-cone solver fails to trace without a
-            # frictional contact (an empty float index array); without
-            # friction both cones give the same constraint rows
-            m.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-            self.notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
-                              "solver without friction; the two are the same constraint without friction)")
         d = mujoco.MjData(m)
         n = self.n
         x0, q0, v0, w0 = scene.initial_state()
@@ -157,19 +185,83 @@ class MjxAdapter(Adapter):
                               "each step (explicit, inside the scan); no drag torque")
         self._block = _block_fn(n, drag)
         self._c = (jax.numpy.asarray(c1 * meta["mass_scale"]), jax.numpy.asarray(c2 * meta["mass_scale"]))
-        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
-        t0 = time.perf_counter()
-        try:
-            self._compiled = jax.jit(self._block).lower(self.mx, self.dx, self._c, 0).compile()
-        except NotImplementedError as e:
-            raise Unsupported(f"MJX cannot model this scene: {e}") from None
-        self.jit_s = time.perf_counter() - t0
         self._last = (x0, q0, v0, np.asarray(w0, float))
         self.steps = 0
         self._stages = {"engine": ENGINE, "integrator": settings["integrator"], "cone": settings["cone"],
                         "condim": meta["condim"], "explicit_pairs": meta["explicit_pairs"],
                         "mass_scale": meta["mass_scale"], "drag": drag, "block": BLOCK, "float64": True,
                         "restitution_calibrated": len(self.info.get("restitution_calibration", []))}
+
+    def _compile(self, fn, dx) -> None:
+        """Compile ``fn`` (a block function) for ``dx``; its wall time is jit_s."""
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))  # the environment of this run
+        t0 = time.perf_counter()
+        try:
+            self._compiled = jax.jit(fn).lower(self.mx, dx, self._c, 0).compile()
+        except NotImplementedError as e:
+            raise Unsupported(f"MJX cannot model this scene: {e}") from None
+        self.jit_s = time.perf_counter() - t0
+
+    # ---- batched worlds: one vmap of the scan over the worlds' starts ------
+    batched = True
+
+    def build_batch(self, scenes: list[Scene], settings: dict[str, Any]) -> None:
+        """W worlds of one model: the data of scenes[0] broadcast over a
+        leading world axis with each world's qpos and qvel; the block
+        function vmapped over it (one compile; jit_s).  Every other field
+        of the data is recomputed from qpos and qvel by the first step."""
+        self._model(scenes[0], settings)
+        w, nb = len(scenes), self.n
+        # each world's own model where its start changes it (MuJoCo's
+        # restitution calibration replays each start's first impact): the
+        # parameters that differ get a world axis
+        mxs, differ = [self.mx], 0
+        for sc in scenes[1:]:
+            m, xml, _ = _mj_model(sc, settings, [], {})
+            differ += xml != self.xml
+            mxs.append(self.mx if xml == self.xml else mjx.put_model(m))
+        mx_axes = None
+        if differ:
+            self.mx, mx_axes = _batched_models(mxs)
+            self.notes.append(f"{differ} of {w} worlds have their own model arrays (the start pose and the "
+                              f"restitution calibration enter MuJoCo's model: batched fields); the model "
+                              f"statistics (mean inertia, extent) are world 0's")
+        qpos, qvel = np.empty((w, nb, 7)), np.empty((w, nb, 6))
+        starts = []
+        for k, sc in enumerate(scenes):
+            x0, q0, v0, w0 = sc.initial_state()
+            qpos[k, :, 0:3], qpos[k, :, 3:7], qvel[k, :, 0:3] = x0, q0, v0
+            qvel[k, :, 3:6] = world_to_body_angvel(q0, w0)
+            starts.append((x0, q0, v0, np.asarray(w0, float)))
+        jnp = jax.numpy
+        dxb = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (w,) + a.shape), self.dx)
+        self.dx = dxb.replace(qpos=jnp.asarray(qpos.reshape(w, -1), dxb.qpos.dtype),
+                              qvel=jnp.asarray(qvel.reshape(w, -1), dxb.qvel.dtype))
+        self.worlds = w
+        self._last_batch = tuple(np.stack([s[i] for s in starts]) for i in range(4))
+        self._compile(jax.vmap(self._block, in_axes=(mx_axes, 0, None, None)), self.dx)
+        self._stages["worlds"] = w
+        self._stages["worlds_with_own_model"] = differ
+
+    def read_state_batch(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        for out, src in zip((pos, quat, vel, angvel), self._last_batch):
+            np.copyto(out, src)
+
+    def step_record_batch(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
+                          angvel: np.ndarray) -> None:
+        """n steps of every world, BLOCK steps per compiled call; (W, n, nb, .) out."""
+        w, nb, done = self.worlds, self.n, 0
+        while done < n:
+            k = min(BLOCK, n - done)
+            self.dx, (qp, qv) = self._compiled(self.mx, self.dx, self._c, k)
+            self.steps += k
+            qp = np.asarray(qp)[:, :k].reshape(w, k, nb, 7)
+            qv = np.asarray(qv)[:, :k].reshape(w, k, nb, 6)
+            s = slice(done, done + k)
+            pos[:, s], quat[:, s], vel[:, s] = qp[..., 0:3], qp[..., 3:7], qv[..., 0:3]
+            quat_rotate(quat[:, s], qv[..., 3:6], out=angvel[:, s])
+            done += k
+        self._last_batch = (pos[:, n - 1], quat[:, n - 1], vel[:, n - 1], angvel[:, n - 1])
 
     def _run_block(self, n: int):
         """Advance n <= BLOCK steps; the (n, nq) and (n, nv) states after each."""
@@ -210,6 +302,53 @@ class MjxAdapter(Adapter):
 
     def close(self) -> None:
         self.mx = self.dx = self._compiled = None
+
+
+def _mj_model(scene: Scene, settings: dict[str, Any], notes: list[str], info: dict[str, Any]):
+    """(MjModel, MJCF text, MJCF meta) of ``scene``: MuJoCo's, whose
+    restitution calibration replays the first impact of this start."""
+    full = dict(settings, noslip_iterations=0, speculative=False)
+    pair_solref = calibrate_pairs(scene, full, notes, info)
+    xml, meta = build_mjcf(scene, full, pair_solref, notes, fluid_drag=False)
+    m = mujoco.MjModel.from_xml_string(xml)
+    m.opt.ls_iterations = int(settings["ls_iterations"])
+    if settings["cone"] == "elliptic" and not np.any(m.geom_condim > 1) and not np.any(m.pair_dim > 1):
+        # mujoco-mjx 3.17's elliptic-cone solver fails to trace without a
+        # frictional contact (an empty float index array); without
+        # friction both cones give the same constraint rows
+        m.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+        notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
+                     "solver without friction; the two are the same constraint without friction)")
+    return m, xml, meta
+
+
+def _batched_models(mxs: list):
+    """The worlds' MJX models as one: (model, in_axes) where an array leaf
+    equal in every world is world 0's (axis None) and one that differs is
+    stacked (axis 0).  The static part (MJX keeps ``stat``, the model
+    statistics of the reference pose, out of the arrays) is world 0's.
+    Raises NotOneBatch when the worlds' arrays do not match in number or
+    shape."""
+    tu = jax.tree_util
+    leaves0, tree = tu.tree_flatten(mxs[0])
+    per = [leaves0]
+    for mx in mxs[1:]:
+        leaves, _ = tu.tree_flatten(mx)
+        bad = [i for i, (a, b) in enumerate(zip(leaves, leaves0)) if np.shape(a) != np.shape(b)]
+        if len(leaves) != len(leaves0) or bad:
+            raise NotOneBatch(f"the worlds' MuJoCo models differ in structure ({len(leaves)} vs {len(leaves0)} "
+                              f"arrays; shapes differ at {bad[:3]}: e.g. an explicit contact pair for an impact "
+                              f"predicted from one start and not from another)")
+        per.append(leaves)
+    out, axes = [], []
+    for i, leaf in enumerate(leaves0):
+        if all(p[i] is leaf or np.array_equal(np.asarray(p[i]), np.asarray(leaf)) for p in per[1:]):
+            out.append(leaf)
+            axes.append(None)
+        else:
+            out.append(jax.numpy.stack([p[i] for p in per]))
+            axes.append(0)
+    return tu.tree_unflatten(tree, out), tu.tree_unflatten(tree, axes)
 
 
 def _block_fn(n_bodies: int, drag: bool):

@@ -17,8 +17,10 @@ test_mujoco_warnings_write_no_log_file).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import importlib
+import io
 import os
 import sys
 from types import ModuleType
@@ -52,8 +54,11 @@ def quiet_import(name: str) -> ModuleType:
     try:
         for fd in saved:
             os.dup2(devnull, fd)
+        # Python-level prints too, when sys.stdout is not fd 1 (pytest's
+        # capsys; mujoco.mjx prints "Failed to import warp" with print())
         try:
-            return importlib.import_module(name)
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                return importlib.import_module(name)
         finally:
             flush_c_stdio()
             for fd, dup in saved.items():

@@ -6,6 +6,7 @@ A check's ``xfail`` maps an engine to a known limitation, in one of two forms
     xfail = { mujoco = "soft contacts: measured 6.0 mm" }
     xfail = { mujoco = { reason = "soft contacts: measured 6.0 mm", measured_on = "4.0.0",
                          versions = ">=4.0,<4.2" } }
+    xfail = { drake = { reason = "measured 4.5 mm (base), 10.7 mm (plastic)", variants = ["base", "plastic"] } }
 
 The plain string means: measured on the version :data:`MEASURED_ON` records
 for that engine (the versions the shipped xfails were measured on).  The
@@ -15,6 +16,13 @@ that range the check runs as a plain check and its verdict says which version
 the limitation was measured on (:func:`xfail_for`).  An engine without a
 recorded version (a plug-in whose xfail is a plain string) has no range: the
 limitation applies to every version.
+
+The table's ``variants`` (the spec's variant names, ``"base"`` for the scene
+as written) keys the limitation to those scenes of the spec: in any other
+variant the check is a plain check for that engine (no note: the limitation
+was not declared there).  Without ``variants`` it holds in every variant
+that keeps the check's xfail table (a variant's ``"check[N].xfail"``
+override replaces the table for that variant).
 
 Tests: tests/test_xfail_versions.py.
 """
@@ -35,18 +43,25 @@ MEASURED_ON: dict[str, str] = {
     "pymunk": "7.3.1",
     "rapier": "0.36.1",
     "box2d": "0.11.1",  # pyb2d3's version (the binding's; Box2D >= 3.1 inside)
+    "drake": "1.51.1",
+    "mjx": "3.17.0",  # mujoco-mjx's version
 }
+
+#: the name of the scene as written among a check's ``variants``
+BASE_VARIANT = "base"
 
 
 @dataclass(frozen=True)
 class Xfail:
     """One engine's known limitation on one check: the ``reason`` (with the
     measured figure), the engine version it was ``measured_on`` ('' when
-    unknown) and the ``versions`` it applies to ('' = the default range)."""
+    unknown), the ``versions`` it applies to ('' = the default range) and
+    the spec ``variants`` it applies to (None = every variant)."""
 
     reason: str
     measured_on: str = ""
     versions: str = ""
+    variants: tuple[str, ...] | None = None
 
     @classmethod
     def of(cls, engine: str, value: Any) -> "Xfail":
@@ -54,8 +69,10 @@ class Xfail:
         if isinstance(value, Xfail):
             return value
         if isinstance(value, Mapping):
+            variants = value.get("variants")
             return cls(str(value.get("reason", "")), str(value.get("measured_on") or MEASURED_ON.get(engine, "")),
-                       str(value.get("versions") or ""))
+                       str(value.get("versions") or ""),
+                       None if variants is None else tuple(str(v) for v in variants))
         return cls(str(value), MEASURED_ON.get(engine, ""))
 
     @property
@@ -66,6 +83,11 @@ class Xfail:
         if self.versions:
             return self.versions
         return default_range(self.measured_on) if self.measured_on else ""
+
+    def holds_in(self, variant: str | None) -> bool:
+        """Whether the limitation is declared for the scene ``variant``
+        (None or "base": the scene as written)."""
+        return self.variants is None or (variant or BASE_VARIANT) in self.variants
 
     def covers(self, version: str) -> bool | None:
         """True when ``version`` lies in :attr:`range` (every version when
@@ -119,18 +141,30 @@ def spec_error(engine: str, value: Any) -> str | None:
             SpecifierSet(versions)
         except (InvalidSpecifier, TypeError):
             return f"versions: expected a version range such as \">=4.0,<4.2\", got {versions!r}"
+    variants = value.get("variants")
+    if variants is not None:
+        if (not isinstance(variants, (list, tuple)) or not variants
+                or not all(isinstance(v, str) and v.strip() for v in variants)):
+            return f"variants: expected a non-empty list of variant names such as [\"base\", \"elastic\"], got {variants!r}"
+        if len(set(variants)) != len(variants):
+            return f"variants: a variant is named twice in {list(variants)}"
     return None
 
 
-def xfail_for(xfails: Mapping[str, Any], engine: str, version: str) -> tuple[str | None, str]:
-    """(reason, note) of ``engine`` at ``version`` for a check's ``xfails``:
-    the reason when a known limitation applies, else None; the note says why
-    one was set aside (the version lies outside the range it was measured
-    for) or could not be compared, '' otherwise."""
+def xfail_for(xfails: Mapping[str, Any], engine: str, version: str,
+              variant: str | None = None) -> tuple[str | None, str]:
+    """(reason, note) of ``engine`` at ``version`` in the scene ``variant``
+    (None: the scene as written) for a check's ``xfails``: the reason when a
+    known limitation applies, else None; the note says why one was set
+    aside (the version lies outside the range it was measured for) or could
+    not be compared, '' otherwise.  A limitation keyed to other variants
+    does not apply, without a note (tests/test_xfail_variants.py)."""
     value = xfails.get(engine)
     if value is None:
         return None, ""
     xf = Xfail.of(engine, value)
+    if not xf.holds_in(variant):
+        return None, ""
     inside = xf.covers(version)
     if inside is None:
         if not version or version == "unknown":
@@ -184,4 +218,4 @@ def shipped_xfails(root: Any = None) -> dict[str, dict[tuple[str, str], int]]:
     return out
 
 
-__all__ = ["MEASURED_ON", "Xfail", "default_range", "parse_version", "shipped_xfails", "spec_error", "xfail_for"]
+__all__ = ["BASE_VARIANT", "MEASURED_ON", "Xfail", "default_range", "parse_version", "shipped_xfails", "spec_error", "xfail_for"]

@@ -185,6 +185,11 @@ def run_member(m: Member) -> dict[str, Any]:
         out["message"] = f"scene failed to load or perturb: {type(e).__name__}: {e}"
         return out
     res = runner.run(scene, m.engine, dict(m.settings) or None, timeout_s=m.timeout_s, compute_metrics=False)
+    return _member_out(out, scene, res)
+
+
+def _member_out(out: dict[str, Any], scene: Any, res: Any) -> dict[str, Any]:
+    """A member's dict (:func:`run_member`) from its run result."""
     out["status"], out["message"] = res.status, res.message
     tr = res.trace.valid() if res.trace is not None else None
     if tr is None or tr.n_frames == 0:
@@ -195,7 +200,46 @@ def run_member(m: Member) -> dict[str, Any]:
     dt = float(res.settings.get("dt", scene.dt))
     out["events"] = impact_events(scene, tr.vel, dt)
     out["step_cpu_s"] = float(res.timing.get("step_cpu_s", math.nan))
+    if "batch" in res.info:
+        out["batch"] = dict(res.info["batch"])
     return out
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """All members of an ensemble as one item: one batch of an adapter that
+    steps many worlds in one call (``Adapter.batched``, harness/batch.py)."""
+
+    members: tuple[Member, ...]
+
+    @property
+    def timeout_s(self) -> float | None:
+        return self.members[0].timeout_s
+
+    @property
+    def label(self) -> str:
+        m = self.members[0]
+        return f"{m.engine} {m.scenario} batch of {len(self.members)} members"
+
+
+def run_members_batched(job: BatchJob) -> list[dict[str, Any]]:
+    """Run every member of ``job`` as one batch (in a worker or this
+    process): the same member dicts as :func:`run_member`, each with
+    ``batch`` (worlds, the batch's stepping time, us per world-step)."""
+    from physbench.contract.scene import load_scene
+    from physbench.harness.batch import run_batch
+
+    m0 = job.members[0]
+    outs = [{"index": m.index, "status": st.ERROR, "message": ""} for m in job.members]
+    try:
+        base = load_scene(m0.scenario, m0.variant)
+        scenes = [perturb_scene(base, m.perturbation, m.index) for m in job.members]
+    except Exception as e:
+        for o in outs:
+            o["message"] = f"scene failed to load or perturb: {type(e).__name__}: {e}"
+        return outs
+    results = run_batch(scenes, m0.engine, dict(m0.settings) or None, timeout_s=m0.timeout_s)
+    return [_member_out(o, sc, r) for o, sc, r in zip(outs, scenes, results)]
 
 
 def summarize(members: list[dict[str, Any]], threshold: float) -> dict[str, Any]:
@@ -238,13 +282,18 @@ def summarize(members: list[dict[str, Any]], threshold: float) -> dict[str, Any]
 
 def run_ensemble(scenario: str, engine: str, perturbation: Perturbation | None = None, *,
                  variant: str | None = None, settings: dict[str, Any] | None = None, jobs: int = 1,
-                 executor: str = "process", timeout_s: float | None = 600.0, **over: Any) -> dict[str, Any]:
+                 executor: str = "process", timeout_s: float | None = 600.0, batch: bool = True,
+                 **over: Any) -> dict[str, Any]:
     """Run the ensemble of ``scenario`` (an id or a spec file) on
     ``engine``: ``perturbation``, else the scene's ``[perturbation]`` with
     the keyword overrides (n, position, ...); the members go to ``jobs``
     worker processes (``executor="inline"``: this process).  Returns the
     :func:`summarize` dict plus ``scenario``, ``engine``, ``perturbation``
-    and ``per_member`` (index, status, events, final positions)."""
+    and ``per_member`` (index, status, events, final positions).  An
+    engine whose adapter steps many worlds in one call (``batched``: MJX)
+    gets every member as one batch, one item on the executor (``batch``
+    False: one run each); ``batch`` in the result then records the worlds
+    and the cost per world-step (harness/batch.py), else it is None."""
     from physbench.contract.scene import load_scene
     from physbench.harness.executors import make_executor
     from physbench.harness.execute import WorkerLost
@@ -253,14 +302,25 @@ def run_ensemble(scenario: str, engine: str, perturbation: Perturbation | None =
         perturbation = Perturbation.of_scene(load_scene(scenario, variant), **over)
     members = [Member(scenario, variant, engine, tuple(sorted((settings or {}).items())), perturbation, i,
                       timeout_s) for i in range(perturbation.n)]
+    from physbench.adapters import get_adapter
+
     results: list[dict[str, Any]] = []
+    batched = batch and bool(getattr(get_adapter(engine), "batched", False))
     with make_executor(executor, max(1, int(jobs))) as ex:
-        for m, value in ex.map(run_member, members, budget_s=lambda m: m.timeout_s):
-            if isinstance(value, WorkerLost):
-                value = {"index": m.index, "status": value.status, "message": value.full_message()}
-            results.append(value)
+        if batched:
+            for job, value in ex.map(run_members_batched, [BatchJob(tuple(members))], budget_s=lambda j: j.timeout_s):
+                if isinstance(value, WorkerLost):
+                    value = [{"index": m.index, "status": value.status, "message": value.full_message()}
+                             for m in job.members]
+                results.extend(value)
+        else:
+            for m, value in ex.map(run_member, members, budget_s=lambda m: m.timeout_s):
+                if isinstance(value, WorkerLost):
+                    value = {"index": m.index, "status": value.status, "message": value.full_message()}
+                results.append(value)
     results.sort(key=lambda r: r["index"])
     out = summarize(results, perturbation.threshold)
+    out["batch"] = next((r["batch"] for r in results if "batch" in r), None)
     out.update(scenario=scenario, engine=engine, perturbation=dataclasses.asdict(perturbation),
                per_member=[{k: r.get(k) for k in ("index", "status", "message", "events", "final_pos")}
                            for r in results])

@@ -120,3 +120,19 @@ def test_bad_and_unsupported():
                     "angular_velocity": [0.1, 5.0, 0.2]}])
     r = run(s, "mjx", None, compute_metrics=False)
     assert r.status == "unsupported" and "gyroscopic" in r.message
+
+
+def test_too_many_convex_pairs_are_unsupported():
+    # MJX collides every body pair every step: stacking.column_10 (10
+    # boxes, 45 pairs) runs; the pyramid (15 boxes, 105 pairs) and its
+    # levels_7 variant (28 boxes, 378 pairs) are unsupported with the count
+    # and the measured cost, never a timeout
+    from physbench.adapters.mjx import MAX_CONVEX_PAIRS
+    from physbench.contract.scene import load_scene
+
+    assert MjxAdapter.unsupported_reason(load_scene("stacking.column_10")) is None
+    for variant, text in ((None, "15 boxes and cylinders make 105 convex pairs"),
+                          ("levels_7", "28 boxes and cylinders make 378 convex pairs")):
+        why = MjxAdapter.unsupported_reason(load_scene("stacking.pyramid", variant))
+        assert why is not None and text in why and f"beyond the {MAX_CONVEX_PAIRS}" in why
+    assert 45 <= MAX_CONVEX_PAIRS < 105

@@ -107,6 +107,7 @@ def load_spec(path: str | Path) -> LoadedSpec:
         if name in variants:
             errors.append(f"{label}: variant[{i}].name: duplicate variant name {name!r}")
         variants[name] = {k: val for k, val in v.items() if k != "name"}
+    errors += _xfail_variant_errors(label, raw, variants)
     if errors:
         raise SpecError(errors)
     loaded = LoadedSpec(p, raw, variants)
@@ -114,3 +115,35 @@ def load_spec(path: str | Path) -> LoadedSpec:
     for name in variants:
         loaded.validated(name)
     return loaded
+
+
+def _xfail_variant_errors(label: str, raw: dict[str, Any], variants: dict[str, dict[str, Any]]) -> list[str]:
+    """A known limitation's ``variants`` (``check[N].xfail.<engine>.variants``)
+    must name the spec's variants or "base": a typo would key the xfail to
+    no scene (tests/test_xfail_variants.py)."""
+    from physbench.contract.xfail import BASE_VARIANT
+
+    known = [BASE_VARIANT, *variants]
+    errs: list[str] = []
+
+    def scan(where: str, table: Any) -> None:
+        if not isinstance(table, dict):
+            return
+        for eng, value in table.items():
+            names = value.get("variants") if isinstance(value, dict) else None
+            if not isinstance(names, list):
+                continue  # absent, or of the wrong type: the schema reports it
+            for n in names:
+                if isinstance(n, str) and n not in known:
+                    errs.append(f"{label}: {where}.{eng}.variants: unknown variant {n!r}; this spec has: "
+                                f"{', '.join(known)}")
+
+    checks = raw.get("check")
+    for i, c in enumerate(checks if isinstance(checks, list) else []):
+        if isinstance(c, dict):
+            scan(f"check[{i}].xfail", c.get("xfail"))
+    for name, over in variants.items():
+        for key, value in over.items():
+            if isinstance(key, str) and key.endswith(".xfail"):
+                scan(f"variant {name!r}: {key}", value)
+    return errs

@@ -436,6 +436,8 @@ class XfailSection(_Strict):
     reason: str
     measured_on: str | None = None
     versions: str | None = None
+    #: the spec's variants it holds in ("base": the scene as written); None: every one
+    variants: list[str] | None = None
 
     @model_validator(mode="after")
     def _versions(self) -> "XfailSection":
@@ -495,7 +497,7 @@ class CheckSection(_Strict):
     engines: list[str] | None = None
     variants: list[str] | None = None
     #: engine -> known limitation: a reason (measured on contract.xfail.MEASURED_ON's
-    #: version) or a table with reason, measured_on, versions
+    #: version) or a table with reason, measured_on, versions, variants
     xfail: dict[str, str | XfailSection] = Field(default_factory=dict)
 
     @model_validator(mode="after")

@@ -228,6 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     en.add_argument("--threshold", type=float, default=None, metavar="M",
                     help="largest final spread of a predictable scene (m; default 0.01)")
     en.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    en.add_argument("--no-batch", dest="batch", action="store_false",
+                    help="one run per member even where the engine steps many worlds in one call (MJX)")
     en.add_argument("--json", action="store_true")
     en.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     en.set_defaults(func=cmd_ensemble)

@@ -35,11 +35,14 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
         hint = "" if scene.perturbation else f" ({scene.id} has no [perturbation] block: give --sigma)"
         raise UsageError(f"{e}{hint}") from None
     out = run_ensemble(args.scenario, args.engine, p, variant=args.variant, settings=settings, jobs=args.jobs,
-                       timeout_s=args.timeout)
+                       timeout_s=args.timeout, batch=args.batch)
     if args.json:
         sys.stdout.write(json.dumps(out) + "\n")
     else:
         print(f"{scene.id} on {args.engine}: {out['members_ok']} of {out['members']} members ok")
+        if out.get("batch"):
+            b = out["batch"]
+            print(f"  one batch of {b['worlds']} worlds: {b['us_per_world_step']:.4g} us CPU per world-step")
         for k, unit in (("final_spread", "m"), ("orientation_spread", "rad"), ("start_spread", "m"),
                         ("amplification", ""), ("event_spread", "events")):
             if out.get(k) is not None:

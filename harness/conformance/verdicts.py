@@ -217,7 +217,8 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
     metric = metric_name or split_metric(check.metric)[0]
     # a known limitation applies within the engine versions it was measured
     # for; outside them the check is a plain one and says so (contract/xfail.py)
-    reason, version_note = xfail_for(check.xfail, result.engine, getattr(result, "engine_version", "") or "")
+    reason, version_note = xfail_for(check.xfail, result.engine, getattr(result, "engine_version", "") or "",
+                                     getattr(result, "variant", None))
     o = Outcome(result.engine, result.scenario, result.variant, check.metric, PASS,
                 threshold=describe_bound(check), time_s=float(result.timing.get("step_wall_s", 0.0) or 0.0),
                 bounds=check_bounds(check))
