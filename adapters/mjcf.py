@@ -151,9 +151,10 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
             lines.append(f'    <site name="sp{k}a" pos="{_v(sp.anchor_a)}"/>')
         if sp.b < 0:
             lines.append(f'    <site name="sp{k}b" pos="{_v(sp.anchor_b)}"/>')
-    held = {j.body: j for j in scene.joints}  # each body's one joint, to its parent (joint_tree_reason)
+    tree, loops = joint_tree(scene)
+    held = {j.body: j for j in tree}  # each body's one joint, to its parent (joint_tree)
     children: dict[int, list[int]] = {}
-    for j in scene.joints:
+    for j in tree:
         children.setdefault(j.other, []).append(j.body)
     from physbench.contract.rotation import quat_mul, quat_to_matrix
 
@@ -199,6 +200,12 @@ def build_mjcf(scene: Scene, settings: dict[str, Any], pair_solref: dict[int, tu
             lines.append(f'    <pair geom1="g{ia}" geom2="{g2}" condim="{condim}" friction="{_v(fr)}" '
                          f'solref="{_v(solref)}"/>')
         lines.append('  </contact>')
+    if loops:  # the loops' joints: a point held in common (joint_tree, loop_reason)
+        lines.append('  <equality>')
+        for j in loops:
+            b2 = f' body2="b{j.other}"' if j.other >= 0 else ""
+            lines.append(f'    <connect name="loop{j.index}" body1="b{j.body}"{b2} anchor="{_v(j.anchor_body)}"/>')
+        lines.append('  </equality>')
     if scene.springs:
         lines.append('  <tendon>')
         for k, sp in enumerate(scene.springs):
@@ -240,27 +247,55 @@ def joint_xml(j, pad: str = "      ") -> str:
             f'damping="0" armature="0" frictionloss="0"/>')
 
 
+def joint_tree(scene: Scene) -> tuple[list, list]:
+    """The scene's joints split into the body tree's and the loops':
+    taken in order, a joint nests its ``body`` in ``other`` (the world or a
+    body) unless its body is already nested or nesting it would close a
+    loop; such a joint closes a loop and becomes an equality constraint
+    (:func:`loop_reason` says which it can be).  Returns (tree, loops)."""
+    parent: dict[int, int] = {}
+    tree, loops = [], []
+    for j in scene.joints:
+        i = j.other
+        while i in parent:  # does `other` hang below `body`?
+            i = parent[i]
+            if i == j.body:
+                break
+        if j.body in parent or i == j.body or j.other == j.body:
+            loops.append(j)
+        else:
+            parent[j.body] = j.other
+            tree.append(j)
+    return tree, loops
+
+
+def loop_reason(scene: Scene, loops: list) -> str | None:
+    """Why a loop-closing joint cannot be an equality constraint here, or
+    None.  A ``connect`` equality holds a point: exactly a spherical joint,
+    and exactly a revolute joint when every joint of the scene is a
+    revolute joint about the same axis (a planar linkage: the tree's hinges
+    already hold the relative turn to that axis)."""
+    for j in loops:
+        if j.kind == "spherical":
+            continue
+        if j.kind == "revolute" and all(k.kind == "revolute" and np.linalg.norm(np.cross(k.axis, j.axis)) <= 1e-12
+                                        for k in scene.joints):
+            continue
+        return (f"joints: MuJoCo adapter closes a loop with a connect equality (a point), which is a {j.kind} joint "
+                f"only in a planar linkage of parallel hinges; joint {j.name!r} is not one")
+    return None
+
+
 def joint_tree_reason(scene: Scene) -> str | None:
-    """Why this adapter cannot build the scene's joints yet, or None.  It
-    builds a body tree: each joint nests its ``body`` in ``other`` (the
-    world or a body) with a hinge, ball or slide, a weld for fixed; so a
-    body may be the ``body`` of one joint only, and the joints may not close
-    a loop (loops need equality constraints: not yet built).  Drag on a
-    jointed scene is not built either."""
-    seen: dict[int, int] = {}
-    for k, j in enumerate(scene.joints):
-        if j.body in seen:
-            return (f"joints: MuJoCo adapter builds a body tree, each body the 'body' of one joint; "
-                    f"{scene.bodies[j.body].name!r} is that of joint[{seen[j.body]}] and joint[{k}]")
-        seen[j.body] = k
-    parent = {j.body: j.other for j in scene.joints}
-    for start in parent:
-        i, steps = start, 0
-        while i in parent and steps <= len(parent):
-            i, steps = parent[i], steps + 1
-        if steps > len(parent):
-            return ("joints: MuJoCo adapter builds a body tree; the joints close a loop (equality constraints "
-                    "for loops are not yet built)")
+    """Why this adapter cannot build the scene's joints, or None.  It
+    builds a body tree (:func:`joint_tree`): each tree joint nests its
+    ``body`` in ``other`` with a hinge, ball or slide, a weld for fixed;
+    a joint that closes a loop is a ``connect`` equality
+    (:func:`loop_reason`).  Drag on a jointed scene is not built."""
+    _, loops = joint_tree(scene)
+    why = loop_reason(scene, loops)
+    if why:
+        return why
     if scene.joints and (scene.has("drag_linear") or scene.has("drag_quadratic")):
         return "joints: MuJoCo adapter applies drag to free bodies only"
     return None
@@ -278,7 +313,7 @@ def joint_start(scene: Scene, m: Any, d: Any) -> None:
 
     import mujoco
 
-    held = {j.body: j for j in scene.joints}
+    held = {j.body: j for j in joint_tree(scene)[0]}  # a loop's joint has no coordinates
     x0, q0, v0, w0 = scene.initial_state()
     scale = 1.0 + float(np.max(np.abs(v0), initial=0.0))
     for i, b in enumerate(scene.bodies):
