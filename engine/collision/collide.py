@@ -117,23 +117,31 @@ N_FAMILIES = 18
 ALL_FAMILIES = (True,) * N_FAMILIES
 
 
+#: the tiers of shapes the driver is compiled for: a scene's families are
+#: those of the first tier holding every shape it has (:func:`families`)
+SHAPE_TIERS = ((SPHERE,), (SPHERE, BOX), (SPHERE, BOX, CAPSULE, CYLINDER))
+
+
 def families(shape) -> tuple:
     """The families compiled for a scene of bodies of shapes ``shape``
     (codes), as the driver's ``fams`` argument: an 18-tuple, entry ``f``
-    True when family ``f`` is compiled, else None -- every body-body
-    family between two present shapes (a shape with itself too) and each
-    present shape against a plane and a static box, whatever the scene's
-    statics and counts: one variant per set of shapes, so that the
-    shipped scenarios need few of them (each variant compiles the driver
-    and the fused step again).  The tuple's *type* selects what is
-    compiled: the driver compiles the kernels of the families that are
-    True only (a scene of spheres compiles the sphere-sphere, -plane and
-    -box kernels, not box-cylinder:
+    True when family ``f`` is compiled, else None.  The families are those
+    of the first of :data:`SHAPE_TIERS` that holds every shape present
+    (spheres; spheres and boxes; every shape): every body-body family
+    between two of the tier's shapes (a shape with itself too) and each of
+    its shapes against a plane and a static box, whatever the scene's
+    statics and counts.  So the driver, and each fused step that calls it,
+    compiles in at most three variants over every scene (each variant
+    compiles them again: tests/test_engine_collision.py::test_driver_families_follow_the_scene),
+    and the tuple's *type* selects what is compiled: the driver compiles
+    the kernels of the families that are True only (a scene of spheres
+    compiles the sphere-sphere, -plane and -box kernels, not box-cylinder:
     tests/test_engine_collision.py::test_driver_compiles_only_the_scenes_families)."""
-    present = sorted(set(int(s) for s in np.asarray(shape, np.int64)))
+    present = set(int(s) for s in np.asarray(shape, np.int64))
+    tier = next((t for t in SHAPE_TIERS if present <= set(t)), SHAPE_TIERS[-1])
     on = [None] * N_FAMILIES
-    for a in present:
-        for b in present:
+    for a in tier:
+        for b in tier:
             if a <= b and (a, b) in TABLE:
                 on[TABLE[(a, b)]] = True
         if a in PLANE_TABLE:
