@@ -531,8 +531,12 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
         rows.append({"measure": what, "wall_s": round(r["wall_s"], 2), "cpu_s": round(r["cpu_s"], 2),
                      "first_step_s": None if first is None else round(first, 2),
                      "compiled": None if compiled is None else len(compiled)})
+        print(f"bench compile: {json.dumps(rows[-1])}", file=sys.stderr, flush=True)  # (minutes apart)
 
-    cli = [sys.executable, "-m", "physbench.harness.cli", "run", scenario, "-e", "reference", "--json"]
+    # (the run's own wall-clock budget is the bench's: a cold compile on a
+    # loaded machine can pass the run's default)
+    cli = [sys.executable, "-m", "physbench.harness.cli", "run", scenario, "-e", "reference", "--json",
+           "--timeout", str(timeout)]
     start = [sys.executable, "-c", _START_CODE]
     with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
         row(f"physbench run {scenario}, cold", _child(cli, cache, timeout))
