@@ -2,11 +2,14 @@
 on-disk cache and print the seconds it took -- ahead of a first run on a
 fresh machine (a CI job, an image build), so the first scene does not pay
 for it.  Builds what the scenes of :data:`WARM` build at the default
-settings -- boxes on a plane, a sphere on a plane (the scenes of boxes
-and of spheres), a scene without contact, a hinged body: their kernels (:func:`engine.jit.warm_up`), the fused
-steady step of each one's shape-pair families and the flight step
-(engine/README.md "Compiled code and compile time").  A scene of other shapes or settings
-may still compile a kernel of its own.
+settings -- boxes on a plane, and spheres on a plane numerous enough for
+the broad phase to sweep: their kernels (:func:`engine.jit.warm_up`) and
+the fused steady step of either broad phase (the same for every shape:
+engine.collision.collide.family_table), every shape-pair family's
+function, the flight step of a scene without contact and the joint step
+of a hinged body (engine/README.md
+"Compiled code and compile time").  A scene of other settings may still
+compile a kernel of its own.
 
 numba compiles on one core, so with ``--jobs 2`` (the default where the
 machine has two cores or more) the two halves of the warm-up -- the
@@ -26,16 +29,12 @@ import time
 
 from physbench.engine import Engine, jit
 from physbench.engine.cache import cache_dir
-from physbench.engine.collision.collide import families
+from physbench.engine.broadstage import SAP_MIN_BODIES
 from physbench.engine.steady import warm_scene
 
-#: the contact scenes whose kernels are compiled ahead: (shapes, plane)
-WARM = ((("box", "box"), True), (("sphere",), True))
-
-
-def _families() -> list[tuple]:
-    code = {"sphere": 0, "box": 1, "capsule": 2, "cylinder": 3}
-    return [families([code[s] for s in shapes]) for shapes, plane in WARM]
+#: the contact scenes whose kernels are compiled ahead: (shapes, plane):
+#: all pairs and the sweep
+WARM = ((("box", "box"), True), (("sphere",) * (SAP_MIN_BODIES + 1), True))
 
 
 def _joint_scene():
@@ -64,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.part:
-        jit.warm_collision(_families())
+        jit.warm_collision()  # every family's function
         return 0
     if args.jobs > 1:
         other = subprocess.Popen([sys.executable, "-m", "physbench.engine", "--part", "collision"])

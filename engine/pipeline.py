@@ -28,7 +28,6 @@ from physbench.engine.jit import warm_up
 from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, Model, build_model
 from physbench.engine.collision import NarrowPhase
-from physbench.engine.collision.collide import families
 from physbench.engine.control import EventMode
 from physbench.engine.broadstage import BroadPhase, uses_sap
 from physbench.engine.penalty import PenaltyContacts
@@ -74,21 +73,20 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     return tuple(stages)
 
 
-#: the (shape-pair families (engine.collision.collide.families), whether the
-#: broad phase sweeps) whose fused steady step this process compiled or
-#: loaded (:func:`_warm_steady`)
+#: the broad phases (whether it sweeps) whose fused steady step this
+#: process compiled or loaded (:func:`_warm_steady`)
 _STEADY_READY: set = set()
 
 
 def _warm_steady(model: Model) -> None:
     """Compile (or load) the fused steady step (engine/steady.py) once per
-    process, shape-pair families and broad phase (the parts of its argument
-    types that follow the scene: engine.collision.collide.families,
-    engine.broadstage.uses_sap), at build like
+    process and broad phase (the part of its argument types that follows
+    the scene: engine.broadstage.uses_sap; the narrow phase's families do
+    not change them, engine.collision.collide.family_table), at build like
     every kernel (engine/jit.py): a few steps of
     :func:`engine.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
-    key = (families(model.shape), uses_sap(model))
+    key = uses_sap(model)
     if key in _STEADY_READY:
         return
     _STEADY_READY.add(key)

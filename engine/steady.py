@@ -613,8 +613,8 @@ def _miss_tol() -> float:
 def warm_scene(shapes: tuple = ("box", "box"), plane: bool = True, static_box: bool = False):
     """A small contact scene (an engine.model.SceneInput) whose first steps
     compile (or load) the fused steps with the step's argument types
-    (engine.pipeline.build_pipeline, once per process and shape-pair
-    families): bodies of ``shapes`` (0.1 m sizes, body z up) stacked in
+    (engine.pipeline.build_pipeline, once per process and broad phase)
+    and the kernels of its shape-pair families: bodies of ``shapes`` (0.1 m sizes, body z up) stacked in
     touching contact along z under gravity -- on a plane at z = 0 when
     ``plane``, else falling together --, and a static box far off when
     ``static_box``.

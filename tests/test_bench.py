@@ -147,7 +147,7 @@ def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled
     assert l1 == [] and l3 == [] and l5 == []  # cold: an empty cache
     assert d2 == d1 and l2 == ["marker1"] and d4 == d3 and l4 == ["marker3"]  # warm: the cold run's cache
     assert len({d1, d3, d5}) == 3
-    assert c1[-5:] == ["run", "billiards.head_on", "-e", "reference", "--json"]
+    assert c1[-7:] == ["run", "billiards.head_on", "-e", "reference", "--json", "--timeout", "3600.0"]
     assert c3[-1] == "billiards.head_on" and len(c5) > 10  # every shipped scenario in one process
     assert [r["wall_s"] for r in rows] == [3.0, 4.0, 5.0, 6.0, 7.0]
     assert rows[0]["first_step_s"] is None and rows[2]["first_step_s"] == 0.5 and rows[4]["compiled"] == 2

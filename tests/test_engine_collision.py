@@ -1823,6 +1823,41 @@ def test_driver_families_follow_the_scene():
                                                       F_XB, F_XY}
 
 
+def test_driver_type_is_the_same_for_every_family_set():
+    """The narrow phase's buffers, as the driver and the fused steps take
+    them (the Collider's Pack), have one numba type whatever shapes a scene
+    has: the families' functions sit behind one first-class function type
+    (collide.family_table), so the driver and each fused step compile once,
+    not once per set of shapes (issue 42); a scene's families are still
+    only its own (each family's function compiled only where present)."""
+    from itertools import combinations
+    from types import SimpleNamespace
+
+    from numba import typeof
+
+    from physbench.engine.collision.collide import N_FAMILIES, _missing, families, family_table
+    from physbench.engine.collision.dispatch import Collider
+    from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+
+    def model(shapes):
+        n = len(shapes)
+        z = np.zeros(0, np.int64)
+        return SimpleNamespace(
+            n=n, shape=np.array(shapes, np.int64), radius=np.full(n, 0.1), half_extents=np.full((n, 3), 0.1),
+            half_length=np.zeros(n), body_material=np.zeros(n, np.int64), plane_normal=np.zeros((0, 3)),
+            plane_offset=np.zeros(0), plane_static=z, sbox_pos=np.zeros((0, 3)), sbox_R=np.zeros((0, 3, 3)),
+            sbox_half=np.zeros((0, 3)), sbox_static=z, static_material=z, pair_e=np.zeros((1, 1)),
+            pair_mus=np.zeros((1, 1)), pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
+
+    shapes = (SPHERE, BOX, CAPSULE, CYLINDER)
+    mixes = [list(c) for k in range(1, 5) for c in combinations(shapes, k)]
+    assert len({families(m) for m in mixes}) == len(mixes)  # 15 sets of families ...
+    assert len({typeof(Collider(model(m)).packed()) for m in mixes}) == 1  # ... one type
+    table = family_table(families([SPHERE, SPHERE]))
+    assert len(table) == N_FAMILIES
+    assert sum(f.py_func is not _missing for f in table) == 3  # sphere-sphere, -plane, -static box
+
+
 def test_driver_compiles_only_the_scenes_families(tmp_path):
     """A two-sphere scene's narrow phase compiles the kernels of the
     sphere's families (sphere-sphere, -plane, -box) and no other (issue

@@ -46,8 +46,9 @@ def test_python_m_engine_fills_the_cache_a_run_then_loads():
     """``python -m physbench.engine`` (what CI runs before the tests, .ci/run)
     compiles or loads the kernels in the cache directory it names (the
     engine's own, engine/cache.py); a later process running a contact
-    scene and a scene without contact at the default settings then
-    compiles nothing: every kernel it calls comes from that cache
+    scene (boxes) and a scene without contact at the default settings then
+    compiles nothing, nor does one of spheres with impacts or of
+    cylinders: every kernel it calls comes from that cache
     (numba's ``numba:compile`` events are raised only for a compile, a
     cache hit raises none)."""
     from physbench.engine.cache import cache_dir
@@ -68,6 +69,9 @@ with event.install_recorder("numba:compile") as rec:
     from physbench.contract.scene import load_scene
     run(column_scene(3), "reference", compute_metrics=False)
     run(load_scene("forces.drag_linear_fall"), "reference", compute_metrics=False)
+    # spheres with impacts, and cylinders: other families, the same fused step
+    run(load_scene("billiards.head_on"), "reference", compute_metrics=False)
+    run(load_scene("friction.cylinder_rolls"), "reference", compute_metrics=False)
 print(sorted({ev.data["dispatcher"].py_func.__qualname__ for _, ev in rec.buffer if ev.is_start}))
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, env=env,

@@ -15,10 +15,12 @@ family functions called one group at a time."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
-from numba import njit
+from numba import njit, typeof
 from numba.core import types
-from numba.extending import overload
+from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from physbench.engine.collision.box import BOX_FW, BOX_IW, _box_box_kernel, _box_plane_kernel, edge_pair_face_points
 from physbench.engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel, _capsule_capsule_kernel, _capsule_plane_kernel,
@@ -119,17 +121,16 @@ ALL_FAMILIES = (True,) * N_FAMILIES
 
 def families(shape) -> tuple:
     """The families compiled for a scene of bodies of shapes ``shape``
-    (codes), as the driver's ``fams`` argument: an 18-tuple, entry ``f``
-    True when family ``f`` is compiled, else None -- every body-body
-    family between two present shapes (a shape with itself too) and each
-    present shape against a plane and a static box, whatever the scene's
-    statics and counts: one variant per set of shapes, so that the
-    shipped scenarios need few of them (each variant compiles the driver
-    and the fused step again).  The tuple's *type* selects what is
-    compiled: the driver compiles the kernels of the families that are
-    True only (a scene of spheres compiles the sphere-sphere, -plane and
-    -box kernels, not box-cylinder:
-    tests/test_engine_collision.py::test_driver_compiles_only_the_scenes_families)."""
+    (codes): an 18-tuple, entry ``f`` True when family ``f`` is compiled,
+    else None -- every body-body family between two present shapes (a
+    shape with itself too) and each present shape against a plane and a
+    static box, whatever the scene's statics and counts.  Only these
+    families' kernels are compiled (:func:`family_table`: a scene of
+    spheres compiles the sphere-sphere, -plane and -box kernels, not
+    box-cylinder:
+    tests/test_engine_collision.py::test_driver_compiles_only_the_scenes_families);
+    the driver and the fused steps that call it are compiled once whatever
+    the families (tests/test_engine_collision.py::test_driver_type_is_the_same_for_every_family_set)."""
     present = sorted(set(int(s) for s in np.asarray(shape, np.int64)))
     on = [None] * N_FAMILIES
     for a in present:
@@ -143,94 +144,211 @@ def families(shape) -> tuple:
     return tuple(on)
 
 
-def _run_family(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
-    """Family ``fam``'s compiled loop over the k gathered pairs (A, B: the
-    sides' (c, R, h, r, hl); a plane's normal in B's c, its offset in B's
-    r) into the slots (k, S, ...), zeroed fids and flags first.  Returns
-    whether the normals are to be negated (a family run with its sides
-    swapped).  ``fams`` (:func:`families`) says which families are
-    compiled: only their kernels are typed and linked (the branches of the
-    others are pruned before typing); a family not compiled raises.
-    ``face_points``: box pairs keep their face points
-    (:data:`engine.collision.box.EDGE_FACE_POINTS`); ``fw``, ``iw`` the
-    families' scratch (``FAMILY_FW``, ``FAMILY_IW``).  Compiled code only
-    (its implementation is :func:`_family_runner`'s, chosen by ``fams``'
-    type)."""
-    raise NotImplementedError("compiled code only")
+# ---------------------------------------------------------------------------
+# The families' compiled loops behind one type.  Each family runs through a
+# function of one signature (:func:`_signature`: the family code, the group's
+# pair count and the driver's buffers), compiled on its own and only when a
+# scene has the family (:func:`family_table`); the driver calls it through a
+# tuple of 18 first-class function values, whose type is the same whatever
+# families a scene has.  So the driver, and every fused step that calls it,
+# compiles once, not once per set of families; a family a scene lacks is
+# :func:`_missing`, which raises.
 
-
-@overload(_run_family)
-def _run_family_typed(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
-    if not isinstance(fams, types.BaseTuple) or len(fams.types) != N_FAMILIES:
-        return None
-    return _family_runner(tuple(not isinstance(t, types.NoneType) for t in fams.types))
-
-
-def _family_runner(on):
-    """:func:`_run_family`'s implementation for the families ``on`` (18
-    bools): each family's branch is guarded by a constant, so numba prunes
-    the branches of the others before typing and never compiles their
-    kernels."""
-    ss, sb, bb, sc, bc, cc = on[F_SS], on[F_SB] or on[F_XS], on[F_BB] or on[F_XB], on[F_SC], on[F_BC], on[F_CC]
-    sy, by, cy, yy = on[F_SY], on[F_BY], on[F_CY], on[F_YY]
-    ps, pb, pc, py, xc, xy = on[F_PS], on[F_PB], on[F_PC], on[F_PY], on[F_XC], on[F_XY]
-
-    def impl(fams, fam, k, A, B, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, capm1, face_points, fw, iw):
-        cA, RA, hA, rA, hlA = A[0][:k], A[1][:k], A[2][:k], A[3][:k], A[4][:k]
-        cB, RB, hB, rB, hlB = B[0][:k], B[1][:k], B[2][:k], B[3][:k], B[4][:k]
-        S = S_g.shape[1]
+@njit(cache=True)
+def _slots(fam, k, slot):
+    """The group's slot views (k, S, ...) of the flat ``slot`` buffers
+    (normals, points, gaps, fids, flags), fids and flags zeroed, and the
+    flags set where the family writes every slot (one slot per pair, the
+    box- and cylinder-plane families)."""
+    S = SLOTS[fam]
+    S_n = slot[0][:k * S * 3].reshape((k, S, 3))
+    S_p = slot[1][:k * S * 3].reshape((k, S, 3))
+    S_g = slot[2][:k * S].reshape((k, S))
+    S_f = slot[3][:k * S].reshape((k, S))
+    S_ok = slot[4][:k * S].reshape((k, S))
+    for t in range(k):
+        for s in range(S):
+            S_f[t, s] = 0
+            S_ok[t, s] = False
+    if S == 1 or fam == F_PB or fam == F_PY:
         for t in range(k):
             for s in range(S):
-                S_f[t, s] = 0
-                S_ok[t, s] = False
-        if SLOTS[fam] == 1 or fam == F_PB or fam == F_PY:
-            for t in range(k):
-                for s in range(S):
-                    S_ok[t, s] = True
-        n1, p1, g1 = S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0]
-        if ss and fam == F_SS:
-            _sphere_sphere_kernel(cA, rA, cB, rB, n1, p1, g1)
-        elif sb and (fam == F_SB or fam == F_XS):
-            _sphere_box_kernel(cA, rA, cB, RB, hB, n1, p1, g1)
-        elif bb and (fam == F_BB or fam == F_XB):
-            _box_box_kernel(cA, RA, hA, cB, RB, hB, mg, S_n, S_p, S_g, S_f, S_ok, edge, se, fw, iw)
-            edge_pair_face_points(S_g, S_ok, edge, se, mg, face_points)
-        elif sc and fam == F_SC:
-            _sphere_capsule_kernel(cA, rA, cB, RB, hlB, rB, n1, p1, g1, fw)
-        elif bc and fam == F_BC:
-            _capsule_box_kernel(cB, RB, hlB, rB, cA, RA, hA, S_n, S_p, S_g, S_f, S_ok, fw)
-            return True
-        elif cc and fam == F_CC:
-            _capsule_capsule_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-        elif sy and fam == F_SY:
-            _sphere_cylinder_kernel(cA, rA, cB, RB, hlB, rB, capm1[:k], n1, p1, g1)
-        elif by and fam == F_BY:
-            _box_cylinder_kernel(cA, RA, hA, cB, RB, hlB, rB, mg, True, _CORNERS, _BOX_EDGES,
-                                 S_n, S_p, S_g, S_f, S_ok, fw)
-        elif cy and fam == F_CY:
-            _capsule_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-        elif yy and fam == F_YY:
-            _cylinder_cylinder_kernel(cA, RA, hlA, rA, cB, RB, hlB, rB, mg, True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
-        elif ps and fam == F_PS:
-            _sphere_plane_kernel(cA, rA, cB, rB, n1, p1, g1)
-        elif pb and fam == F_PB:
-            _box_plane_kernel(cA, RA, hA, cB, rB, S_n, S_p, S_g, S_f)
-        elif pc and fam == F_PC:
-            _capsule_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f, S_ok, fw)
-        elif py and fam == F_PY:
-            _cylinder_plane_kernel(cA, RA, hlA, rA, cB, rB, S_n, S_p, S_g, S_f)
-        elif xc and fam == F_XC:
-            _capsule_box_kernel(cA, RA, hlA, rA, cB, RB, hB, S_n, S_p, S_g, S_f, S_ok, fw)
-        elif xy and fam == F_XY:
-            _box_cylinder_kernel(cB, RB, hB, cA, RA, hlA, rA, mg, True, _CORNERS, _BOX_EDGES,
-                                 S_n, S_p, S_g, S_f, S_ok, fw)
-            return True
-        else:
-            raise RuntimeError("a collision family this scene's driver was not compiled for "
-                               "(engine.collision.collide.families)")
-        return False
+                S_ok[t, s] = True
+    return S_n, S_p, S_g, S_f, S_ok
 
-    return impl
+
+# Each family's loop over the k gathered pairs (A, B: the sides' (c, R, h,
+# r, hl); a plane's normal in B's c, its offset in B's r) into the slots;
+# returns whether the normals are to be negated (a family run with its sides
+# swapped).  ``gm``, ``edge``, ``se``, ``capm1`` over the group's pairs;
+# ``face_points`` see engine.collision.box.EDGE_FACE_POINTS; ``fw``, ``iw``
+# the families' scratch (FAMILY_FW, FAMILY_IW).  Plain functions: compiled
+# with :func:`_signature` by :func:`_compiled`.
+
+def _ss(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _sphere_sphere_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    return False
+
+
+def _sb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XS
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _sphere_box_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    return False
+
+
+def _bb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XB
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    mg, ed, sep = gm[:k], edge[:k], se[:k]
+    _box_box_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[2][:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
+                    sep, fw, iw)
+    edge_pair_face_points(S_g, S_ok, ed, sep, mg, face_points)
+    return False
+
+
+def _sc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _sphere_capsule_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :],
+                           S_g[:, 0], fw)
+    return False
+
+
+def _bc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _capsule_box_kernel(B[0][:k], B[1][:k], B[4][:k], B[3][:k], A[0][:k], A[1][:k], A[2][:k], S_n, S_p, S_g, S_f,
+                        S_ok, fw)
+    return True
+
+
+def _cc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _capsule_capsule_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+                            S_p, S_g, S_f, S_ok, fw)
+    return False
+
+
+def _sy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _sphere_cylinder_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], capm1[:k], S_n[:, 0, :],
+                            S_p[:, 0, :], S_g[:, 0])
+    return False
+
+
+def _by(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _box_cylinder_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], gm[:k], True,
+                         _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
+    return False
+
+
+def _cy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _capsule_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+                             S_p, S_g, S_f, S_ok, fw)
+    return False
+
+
+def _yy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _cylinder_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k],
+                              gm[:k], True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
+    return False
+
+
+def _ps(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _sphere_plane_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    return False
+
+
+def _pb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _box_plane_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    return False
+
+
+def _pc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _capsule_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f, S_ok, fw)
+    return False
+
+
+def _py(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _cylinder_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    return False
+
+
+def _xc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _capsule_box_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n, S_p, S_g, S_f,
+                        S_ok, fw)
+    return False
+
+
+def _xy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    _box_cylinder_kernel(B[0][:k], B[1][:k], B[2][:k], A[0][:k], A[1][:k], A[4][:k], A[3][:k], gm[:k], True,
+                         _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
+    return True
+
+
+def _missing(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
+    if k >= 0:  # (always: typed as the others, returning a bool)
+        raise RuntimeError("a collision family this scene's driver was not compiled for "
+                           "(engine.collision.collide.families)")
+    return False
+
+
+#: each family's function (the sphere-box and box-box loops serve a static
+#: box too)
+_FAMILY_FN = {F_SS: _ss, F_SB: _sb, F_BB: _bb, F_SC: _sc, F_BC: _bc, F_CC: _cc, F_SY: _sy, F_BY: _by, F_CY: _cy,
+              F_YY: _yy, F_PS: _ps, F_PB: _pb, F_PC: _pc, F_PY: _py, F_XS: _sb, F_XB: _bb, F_XC: _xc, F_XY: _xy}
+
+
+def _signature():
+    """The families' one signature: bool(fam, k, A, B, gm, slot, edge, se,
+    capm1, face_points, fw, iw), the types of the driver's buffers
+    (:class:`engine.collision.dispatch.Collider`: writable C-contiguous
+    float64, int64 and bool arrays)."""
+    f1, i1, b1 = np.zeros(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
+    side = typeof((np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)), f1, f1))
+    return types.boolean(types.int64, types.int64, side, side, typeof(f1), typeof((f1, f1, f1, i1, b1)),
+                         typeof(b1), typeof(f1), typeof(i1), types.boolean, typeof(f1), typeof(i1))
+
+
+#: the functions compiled (or loaded) in this process, by plain function
+_COMPILED: dict = {}
+#: the tables made in this process, by families
+_TABLES: dict = {}
+
+
+def _compiled(fn):
+    """``fn`` compiled with :func:`_signature` (or loaded from the cache),
+    once per process."""
+    d = _COMPILED.get(fn)
+    if d is None:
+        d = _COMPILED[fn] = njit(_signature(), cache=True)(fn)
+    return d
+
+
+# numba calls the typing of a tuple of compiled functions (family_table's,
+# in every Pack of the driver's buffers) experimental; it is what keeps the
+# driver's type one (see above), so its warning is not repeated to users
+warnings.filterwarnings("ignore", message="First-class function type", category=NumbaExperimentalFeatureWarning)
+
+
+def family_table(fams: tuple) -> tuple:
+    """The driver's ``fams`` argument for the families ``fams``
+    (:func:`families`): 18 compiled functions of one signature, family
+    ``f``'s where ``fams[f]`` is True (compiled, or loaded from the cache,
+    here, once per process), else :func:`_missing`'s.  The same tuple for
+    the same families (a kept Pack stays)."""
+    key = tuple(f is True for f in fams)
+    t = _TABLES.get(key)
+    if t is None:
+        t = _TABLES[key] = tuple(_compiled(_FAMILY_FN[f] if key[f] else _missing) for f in range(N_FAMILIES))
+    return t
 
 
 @njit(cache=True)
@@ -282,8 +400,9 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     offset, static index), ``sboxes`` (centre, rotation, half-extents,
     static index); ``smat`` the statics' materials, ``coef`` the pair
     tables (e, mus, muk, mur) over materials; ``face_points`` see
-    :data:`engine.collision.box.EDGE_FACE_POINTS`; ``fams`` the families
-    compiled (:func:`families`: a pair of another family raises).
+    :data:`engine.collision.box.EDGE_FACE_POINTS`; ``fams`` the families'
+    functions (:func:`family_table`: a pair of a family not compiled
+    raises).
 
     Work arrays (caller-owned, sized by :class:`engine.collision.dispatch.Collider`):
     ``W`` (perm, group bounds (33,), keys, ga, gb, st, group margins,
@@ -377,13 +496,12 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
                         B[2][t, i] = sboxes[2][row, i]
                         for l in range(3):
                             B[1][t, i, l] = sboxes[1][row, i, l]
+            neg = fams[fam](fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw)
             S_n = slot[0][:k * S * 3].reshape((k, S, 3))
             S_p = slot[1][:k * S * 3].reshape((k, S, 3))
             S_g = slot[2][:k * S].reshape((k, S))
             S_f = slot[3][:k * S].reshape((k, S))
             S_ok = slot[4][:k * S].reshape((k, S))
-            neg = _run_family(fams, fam, k, A, B, gm[:k], S_n, S_p, S_g, S_f, S_ok, edge[:k], se[:k], capm1,
-                              face_points, fw, iw)
             cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 
@@ -393,7 +511,7 @@ def collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, marg
     """:func:`collide` with the arrays kept between calls in ONE argument:
     ``kept`` an :class:`engine.pack.Pack` of (body, planes, sboxes, smat,
     coef, W, A, B, slot, out, fams) (the Collider's buffers and the
-    scene's :func:`families`, whose type selects the compiled kernels; one pointer to
+    scene's :func:`family_table`, whose type is the same for every scene; one pointer to
     unbox instead of ~55 arrays); ``margins`` (body-body, body-plane,
     body-static-box); the rest as :func:`collide`."""
     body, planes, sboxes, smat, coef, W, A, B, slot, out, fams = kept.items

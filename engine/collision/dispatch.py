@@ -17,7 +17,7 @@ from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
-                                                collide_packed, families, ALL_FAMILIES)
+                                                collide_packed, families, family_table, ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -65,8 +65,8 @@ class Collider:
         self.smat = f(model.static_material, np.int64)
         self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
-        #: the families the driver is compiled for (collide.families: the
-        #: scene's shapes; its type picks the kernels)
+        #: the families compiled for the driver (collide.families: the
+        #: scene's shapes; the others raise, collide.family_table)
         self.fams = families(model.shape)
         self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
@@ -96,7 +96,7 @@ class Collider:
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
         return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                              self.slot, self.out, self.fams))
+                              self.slot, self.out, family_table(self.fams)))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
