@@ -291,6 +291,10 @@ class Adapter(abc.ABC):
     #: why :meth:`contact_forces` gives None (the contact-law metrics are
     #: then undefined with this reason, never 0)
     contact_forces_reason: str = "the adapter reads no contact forces from its engine"
+    #: why the rows of :meth:`contact_forces` carry NaN ``lam_t`` (the
+    #: engine's friction cannot be read; "" when it can): the friction laws
+    #: are then undefined with this reason, Signorini's still measured
+    friction_forces_reason: str = ""
 
     def contact_forces(self) -> dict[str, np.ndarray] | None:
         """The engine's contact forces over the last step, one row per

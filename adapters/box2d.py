@@ -40,7 +40,9 @@ noted; ``joint`` -> Box2D revolute, prismatic and weld joints
 
 Contacts: pyb2d3 gives contact data only as begin/end/hit events, not as a
 per-step list.  :meth:`Box2dAdapter.contacts` returns the manifold points of
-the contacts that began touching in the last step.
+the contacts that began touching in the last step.  No contact forces can be
+read (:attr:`Box2dAdapter.contact_forces_reason`): the contact-law metrics
+are undefined with that reason.
 """
 
 from __future__ import annotations
@@ -68,6 +70,12 @@ class Box2dAdapter(Adapter):
     """Adapter for Box2D v3 through pyb2d3 (2D, planar scenes in the x-z plane)."""
 
     name = ENGINE
+    #: measured on pyb2d3 0.11.1 (docs/ENGINE_FINDINGS.md, "Contact-law residuals")
+    contact_forces_reason = (
+        "the adapter reads no contact forces: pyb2d3 0.11 binds no per-step contact data (Box2D's "
+        "b2Body_GetContactData / b2Shape_GetContactData), its begin-touch events carry the manifold from before "
+        "the solve (impulses 0), and its debug draw labels totalNormalImpulse, the impulse summed over every "
+        "solve and relax pass of the substeps (2 m g dt on a resting box), not a force")
 
     @classmethod
     def capabilities(cls) -> Capabilities:

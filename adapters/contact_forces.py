@@ -1,12 +1,15 @@
 """The contact forces of the shipped third-party adapters, read through
 each engine's public API after a step (:meth:`adapters.base.Adapter.
 contact_forces` calls the reader named for the adapter): one row per
-contact (MuJoCo, pybullet) or per contact patch (pymunk, whose public API
-sums an arbiter's points), in the contract of ``contact_forces``: ``a``
+contact (MuJoCo, pybullet, Rapier) or per contact patch (pymunk, whose
+public API sums an arbiter's points), in the contract of ``contact_forces``: ``a``
 body index, ``b`` body index or -1 with ``static`` the static's index,
 ``point`` (R, 3) m, ``normal`` (R, 3) unit from a toward b, ``gap`` (R,)
 m (< 0 overlap, as the engine measured it), ``lam_n`` (R,) N the normal
-force on b along ``normal``, ``lam_t`` (R, 3) N the friction force on b.
+force on b along ``normal``, ``lam_t`` (R, 3) N the friction force on b
+(NaN rows where the engine's friction cannot be read: the harness then
+leaves the friction laws undefined with the adapter's
+``friction_forces_reason``).
 
 Sign conventions, each measured on two cubes resting on a floor
 (tests/test_contact_laws.py::test_resting_box_forces_on_every_engine: the
@@ -138,5 +141,78 @@ def pymunk_rows(ad: Any) -> Rows:
     return out
 
 
+def _rapier_tangents(force_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rapier's friction basis of a contact whose force on body 1 points
+    along ``force_dir`` (3,) unit: t1 its ``orthonormal_vector`` (the
+    branch-free basis of Duff et al. 2017, sign from z), t2 = force_dir x
+    t1.  Rapier 0.36 builds it from the normal alone (not from the bodies'
+    velocities), which the momentum check pins
+    (tests/test_contact_laws.py::test_rapier_friction_basis_balances_momentum)."""
+    x, y, z = force_dir
+    s = 1.0 if z >= 0.0 else -1.0
+    a = -1.0 / (s + z)
+    t1 = np.array([x * y * a, s + y * y * a, -y])
+    return t1, np.cross(force_dir, t1)
+
+
+def rapier_rows(ad: Any) -> Rows:
+    """Rapier 0.36 (rapier3d bindings): one row per solver contact of
+    every manifold (the contacts the solver saw, speculative ones within
+    the prediction distance included).  Measured on the resting cubes:
+    ``ContactData.impulse`` is the normal impulse over the whole step (its
+    TGS substeps summed: four points carry (m1 + m2) g dt), applied along
+    -normal to collider 1's body, so lam_n = impulse / dt along the
+    manifold normal (collider 1 toward 2) on collider 2's body;
+    ``tangent_impulse`` (2,) is the friction impulse on body 1 along
+    :func:`_rapier_tangents` of -normal.  It is per point only with
+    ``friction_model = "coulomb"``: Rapier's default "simplified" model
+    solves one friction and one twist constraint per manifold and writes
+    neither to the points (measured: 0 on a block sliding down a slope), so
+    lam_t is NaN and the friction laws undefined.  A static on collider 1's
+    side is made side b (normal and friction negate, lam_n stays); gap =
+    the solver contact's ``dist``; point midway between its two world
+    points."""
+    import rapier3d as rp
+
+    w = ad._world
+    dt = float(w.integration_parameters.dt)
+    coulomb = w.integration_parameters.friction_model == rp.FrictionModel.COULOMB
+    ad.friction_forces_reason = "" if coulomb else (
+        "friction_model 'simplified' (Rapier's default) solves one friction and one twist constraint per "
+        "manifold and the bindings expose neither impulse (per-point friction needs friction_model = 'coulomb')")
+    body_of = {h.index: i for i, h in enumerate(ad._handles)}
+    bodies = w.rigid_bodies
+    rows: list[tuple] = []
+    for pair in w.narrow_phase.contact_pairs():
+        for m in pair.manifolds:
+            d = m.data
+            if not d.solver_contacts:
+                continue
+            n = np.array(d.normal.to_tuple(), float)
+            t1, t2 = _rapier_tangents(-n)
+            r1 = body_of[d.rigid_body1.index] if d.rigid_body1 is not None else -1
+            r2 = body_of[d.rigid_body2.index] if d.rigid_body2 is not None else -1
+            flip = r1 < 0
+            st = ad._static_of.get((pair.collider1 if flip else pair.collider2).index, -1)
+            sign = -1.0 if flip else 1.0
+            for c in d.solver_contacts:
+                pt = m.points[c.contact_id]
+                p1, p2 = d.solver_contact_world_points(c, bodies)
+                ti = pt.tangent_impulse
+                f1 = (ti[0] * t1 + ti[1] * t2) / dt  # friction on body 1
+                rows.append((r2 if flip else r1, -1 if flip or r2 < 0 else r2, st,
+                             0.5 * (np.array(p1.to_tuple()) + np.array(p2.to_tuple())), sign * n, float(c.dist),
+                             float(pt.impulse) / dt, f1 if flip else -f1))
+    k = len(rows)
+    out = {"a": np.array([r[0] for r in rows], np.int64), "b": np.array([r[1] for r in rows], np.int64),
+           "static": np.array([r[2] for r in rows], np.int64), "point": np.array([r[3] for r in rows]).reshape(k, 3),
+           "normal": np.array([r[4] for r in rows]).reshape(k, 3), "gap": np.array([r[5] for r in rows], float),
+           "lam_n": np.array([r[6] for r in rows], float), "lam_t": np.array([r[7] for r in rows]).reshape(k, 3)}
+    if not coulomb:
+        out["lam_t"][:] = np.nan
+    return out
+
+
 #: the reader of each shipped adapter that has one (by adapter name)
-READERS: dict[str, Callable[[Any], Rows]] = {"mujoco": mujoco_rows, "pybullet": pybullet_rows, "pymunk": pymunk_rows}
+READERS: dict[str, Callable[[Any], Rows]] = {"mujoco": mujoco_rows, "pybullet": pybullet_rows, "pymunk": pymunk_rows,
+                                             "rapier": rapier_rows}

@@ -173,9 +173,9 @@ class RapierAdapter(Adapter):
                            mass=float(b.mass), principal_inertia=tuple(map(float, b.inertia)))))
             colliders = [material(body_collider(rp, b).density(0.0), ("body", b.index))] if contact else []
             self._handles.append(world.add_body(builder, colliders))
-        if contact:
-            for s in scene.statics:
-                world.add_collider(material(static_collider(rp, s), ("static", s.index)))
+        # collider handle index -> scene static index (adapters.contact_forces.rapier_rows)
+        self._static_of = {world.add_collider(material(static_collider(rp, s), ("static", s.index))).index: s.index
+                           for s in scene.statics} if contact else {}
 
         if scene.joints:  # adapters/rapier_joints.py
             add_joints(rp, world, scene, self._handles, settings["joints"], self.notes, self.info)

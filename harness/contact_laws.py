@@ -223,13 +223,17 @@ def own_gap(scene: Any, rows: dict[str, np.ndarray], pos: np.ndarray, quat: np.n
     return gap
 
 
-def run_contact_laws(scene: Any, records: list | str, trace) -> dict[str, Any]:
+def run_contact_laws(scene: Any, records: list | str, trace, friction_reason: str = "") -> dict[str, Any]:
     """The residuals of a run: ``records`` [(frame, rows)] of the
     adapter's contact_forces() after each recorded step (frame indexes
     ``trace``: harness.runner.Trace), or a str saying why there are none
     (:func:`no_forces`).  mu from the scene's pair materials: the static
     coefficient (at least the kinetic one) for the cone, where a sticking
-    patch may go up to it; the kinetic one on sliding rows."""
+    patch may go up to it; the kinetic one on sliding rows.  Rows whose
+    lam_t is NaN (friction the engine does not expose) take part in
+    Signorini's law only; with no other row the friction laws are
+    undefined with ``friction_reason`` (the adapter's), never 0
+    (tests/test_contact_laws.py::test_unread_friction_leaves_the_friction_laws_undefined)."""
     if isinstance(records, str):
         return no_forces(records)
     parts: dict[str, list] = {k: [] for k in ("lam_n", "lam_t", "gap", "slip", "mu_s", "mu_k")}
@@ -259,8 +263,16 @@ def run_contact_laws(scene: Any, records: list | str, trace) -> dict[str, Any]:
     else:
         cat = {k: np.concatenate(v) for k, v in parts.items()}
     out: dict[str, Any] = {}
-    for part in (signorini_residual(cat["lam_n"], cat["gap"]), cone_violation(cat["lam_n"], cat["lam_t"], cat["mu_s"]),
-                 dissipation_residual(cat["lam_n"], cat["lam_t"], cat["slip"], cat["mu_k"])):
+    _merge(out, signorini_residual(cat["lam_n"], cat["gap"]))
+    read = np.all(np.isfinite(_tangent(cat["lam_t"], cat["lam_n"].size)), axis=1)
+    if cat["lam_n"].size and not read.any():
+        why = friction_reason or "the engine's friction forces were not read (NaN lam_t)"
+        for name in ("cone_violation", "dissipation_residual", "dissipation_shortfall"):
+            _put(out, name, np.zeros(0), why)
+        return out
+    f = {k: cat[k][read] for k in ("lam_n", "lam_t", "slip", "mu_s", "mu_k")}
+    for part in (cone_violation(f["lam_n"], f["lam_t"], f["mu_s"]),
+                 dissipation_residual(f["lam_n"], f["lam_t"], f["slip"], f["mu_k"])):
         _merge(out, part)
     return out
 

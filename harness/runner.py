@@ -560,7 +560,8 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             if forces is not None:
                 from physbench.harness.contact_laws import merge_into, run_contact_laws
 
-                merge_into(result.metrics, run_contact_laws(scene, forces, valid))
+                why = getattr(adapter, "friction_forces_reason", "")
+                merge_into(result.metrics, run_contact_laws(scene, forces, valid, why and f"{adapter.name}: {why}"))
         except Exception as e:
             # no ok without its metrics: a run whose metrics cannot be
             # computed is an error (tests/test_runner.py::test_metric_failure_is_an_error)

@@ -208,6 +208,42 @@ def test_contact_laws_predictability_and_consensus_from_rows(tmp_path, monkeypat
     assert "consensus_spread PASS" in sec and "farthest apart: mujoco - reference" in sec
 
 
+def test_consensus_is_no_engine_at_a_glance(tmp_path, monkeypatch):
+    """A check file holding an engine's rows and a consensus row (engine
+    ``consensus``) with a failed verdict: at a glance and in summary.json
+    only the engine is an engine (its counts, its verdict: passed), the
+    consensus's FAIL is no unexpected failure of an engine, now or as an
+    earlier run's, and it is shown in the judging section."""
+    from physbench.harness.report.glance import first_screen, summary
+
+    ok = [{"metric": "stable", "outcome": "PASS", "value": True, "threshold": "== True", "message": ""}]
+    bad = [{"metric": "consensus_spread", "outcome": "FAIL", "value": 0.3, "threshold": "<= 0.01",
+            "message": "consensus_spread = 0.3, expected <= 0.01"}]
+    cons = dict(_check_row("consensus", bad, scenario="selfcheck.spring"), engine_version="reference 0.1.0, mujoco 4",
+                consensus_spread=0.3, consensus_spread_angle=0.0, stable=None,
+                message="2 engines at dt = 0.005 s; farthest apart: mujoco - reference 0.3 m")
+    write_rows([_check_row("reference", ok), cons], tmp_path / "check" / "20261124T000000Z-c.parquet", append=False)
+    # a later check of the engine alone: the consensus's file is an earlier run
+    write_rows([dict(_check_row("reference", ok), timestamp="2026-11-25T00:00:00+00:00")],
+               tmp_path / "check" / "20261125T000000Z-c.parquet", append=False)
+    _no_scene_loading(monkeypatch)
+    df = rp.load_results(tmp_path)
+    assert set(df["engine"]) == {"reference", "consensus"}  # both rows were read
+    first = first_screen(df)
+    assert list(first["runs"]["engine"]) == ["reference"]
+    assert first["runs"]["PASS"].tolist() == [1] and first["runs"]["FAIL"].tolist() == [0]
+    assert first["unexpected"].empty and first["earlier"].empty
+    js = summary(first, generated="t", physbench_commit="x")
+    assert [e["engine"] for e in js["conformance"]["engines"]] == ["reference"]
+    assert js["conformance"]["passed"] is True and js["conformance"]["totals"]["FAIL"] == 0
+    assert js["unexpected"] == [] and js["unexpected_earlier"] == []
+    page = rp.render_html(df, physbench_commit="x")
+    glance = page.split('<section id="at-a-glance">')[1].split("</section>")[0]
+    assert "consensus" not in glance and "reference" in glance
+    sec = page.split('<section id="judging">')[1].split("</section>")[0]
+    assert "consensus_spread FAIL" in sec
+
+
 def test_judging_section_without_rows(tmp_path):
     write_rows([_check_row("reference", [])], tmp_path / "check" / "20261124T000000Z-c.parquet", append=False)
     page = rp.render_html(rp.load_results(tmp_path), physbench_commit="x")

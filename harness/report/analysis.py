@@ -490,9 +490,13 @@ def latest_check_runs(df: pd.DataFrame) -> pd.DataFrame:
     ``other``: an outcome outside that vocabulary), rows at phase 0
     without verdicts (``no_verdict``: written before rows carried them,
     never re-judged), and ``passed``: no FAIL, XPASS, ERROR or other
-    outcome (None when no row carries a verdict).  Sorted by engine."""
+    outcome (None when no row carries a verdict).  Sorted by engine.
+    Engines only: the engines' consensus (rows of engine ``consensus``,
+    judge ``consensus``) is no engine and belongs to the judging section
+    (:func:`consensus_table`; tests/test_report_rows.py::
+    test_consensus_is_no_engine_at_a_glance)."""
     df = _ensure(df)
-    c = df[df["source"] == "check"] if len(df) else df
+    c = df[(df["source"] == "check") & (df["judge"] != "consensus")] if len(df) else df
     if c.empty:
         return pd.DataFrame(columns=CHECK_RUN_COLS)
     rows = []
@@ -547,7 +551,8 @@ def unexpected_failures(df: pd.DataFrame, runs: pd.DataFrame | None = None) -> p
     # on any machine) is judged by that run
     repeated = {(r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) for r in c.to_dict("records")}
     fc = failing_checks(df)
-    keep = [latest.get(r["engine"]) != r["check_file"]
+    consensus = set(df.loc[df["judge"] == "consensus", "engine"]) if len(df) else set()
+    keep = [r["engine"] not in consensus and latest.get(r["engine"]) != r["check_file"]
             and (r["scenario"], r["variant"], r["engine"], fmt(r["dt"], 9)) not in repeated
             for r in fc.to_dict("records")]
     earlier = fc[fc["outcome"].isin(BAD_OUTCOMES).to_numpy() & np.array(keep, dtype=bool)].reset_index(drop=True)
