@@ -47,8 +47,9 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import DT_SETTING, Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Unsupported, module_version
 from physbench.adapters.drake_contact import contact_materials, quiet_drake
+from physbench.adapters.drake_settings import settings as drake_settings
 from physbench.adapters.drake_joints import JOINT_KINDS, add_joints, read_bodies, start_state, tree_reason
 from physbench.adapters.forces import drag_coefficients
 from physbench.contract.scene import Scene
@@ -74,47 +75,6 @@ ENGINE = "drake"
 _SHAPES = frozenset({"sphere", "box", "capsule", "cylinder"})
 _EFFECTS = frozenset({"gravity", "contact", "restitution", "friction", "drag_linear", "drag_quadratic",
                       "spring", "damper", "gyroscopic"})
-#: error-controlled integrators of the continuous-time plant (time_step = 0)
-INTEGRATORS = ("runge_kutta3", "runge_kutta5", "bogacki_shampine3", "implicit_euler", "radau3",
-               "velocity_implicit_euler")
-
-
-def _settings() -> dict[str, Setting]:
-    return {
-        "dt": DT_SETTING,
-        "time_step": Setting("time_step", -1.0, float, "plant time step (s); -1: dt; 0: continuous "
-                             "time with the error-controlled integrator", lo=-1.0, hi=1.0),
-        # similar: Drake's documented choice where strong transients matter
-        # (impacts); lagged (Drake's default) weakly couples friction and sticks
-        # a block that should slide under the heavy dissipation that realises
-        # e = 0 (friction.block_slides: error 0.999 lagged, 0.0022 similar)
-        "approximation": Setting("approximation", "similar", str, "discrete contact approximation",
-                                 choices=("similar", "lagged", "sap", "tamsi")),
-        # auto: hydroelastic (Drake's default model) except where the scene
-        # asks for restitution, which only point contact's calibrated
-        # dissipation realises.  Box stacks need it: a box-box pair's point
-        # contact is one point, and column_5 drifts 0.48 m with it, 0.5 mm
-        # hydroelastic (docs/ENGINE_FINDINGS.md)
-        "contact_model": Setting("contact_model", "auto", str, "point; hydroelastic_with_fallback (point "
-                                 "contact where a pair has no hydroelastic model); auto: point when the scene "
-                                 "has restitution, else hydroelastic_with_fallback",
-                                 choices=("auto", "point", "hydroelastic_with_fallback")),
-        "integrator": Setting("integrator", "runge_kutta3", str, "integrator when time_step = 0",
-                              choices=INTEGRATORS),
-        "accuracy": Setting("accuracy", 1e-3, float, "integrator target accuracy when time_step = 0",
-                            lo=1e-12, hi=1.0),
-        "contact_steps": Setting("contact_steps", 10.0, float, "contact stiffness as the duration in dt of "
-                                 "an undamped impact: k = m_eff (pi / (contact_steps dt))^2", lo=1.0, hi=1000.0),
-        "point_stiffness": Setting("point_stiffness", 0.0, float, "point-contact stiffness of every body "
-                                   "(N/m); 0: m (pi / (contact_steps dt))^2", lo=0.0, hi=1e15),
-        "dissipation": Setting("dissipation", -1.0, float, "Hunt-Crossley dissipation of every body (s/m; "
-                               "tamsi/similar/lagged/continuous); -1: calibrated to the restitution",
-                               lo=-1.0, hi=1e6),
-        "hydroelastic_modulus": Setting("hydroelastic_modulus", 1e7, float, "hydroelastic modulus of "
-                                        "the bodies (Pa)", lo=1e3, hi=1e12),
-    }
-
-
 class DrakeAdapter(Adapter):
     """Adapter for Drake's MultibodyPlant (free rigid bodies)."""
 
@@ -126,7 +86,7 @@ class DrakeAdapter(Adapter):
         return Capabilities(
             engine=ENGINE, version=module_version("drake"), dimensions=3, shapes=_SHAPES,
             static_shapes=frozenset({"plane", "slope", "box"}), effects=_EFFECTS | {"joint"},
-            joint_kinds=JOINT_KINDS, settings=_settings(),
+            joint_kinds=JOINT_KINDS, settings=drake_settings(),
             available=pydrake is not None, unavailable_reason=_IMPORT_ERROR,
             notes=("no restitution coefficient: dissipation calibrated to e (Hunt-Crossley or SAP "
                    "relaxation time), e = 0 realised as 0.005",

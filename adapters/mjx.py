@@ -46,8 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, NotOneBatch, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version
 from physbench.adapters.forces import drag_coefficients
+from physbench.adapters.mjx_batch import batched_models
 from physbench.adapters.mjcf import build_mjcf
 from physbench.adapters.mujoco_impacts import calibrate_pairs
 from physbench.contract.rotation import quat_rotate, world_to_body_angvel
@@ -222,7 +223,7 @@ class MjxAdapter(Adapter):
             mxs.append(self.mx if xml == self.xml else mjx.put_model(m))
         mx_axes = None
         if differ:
-            self.mx, mx_axes = _batched_models(mxs)
+            self.mx, mx_axes = batched_models(mxs)
             self.notes.append(f"{differ} of {w} worlds have their own model arrays (the start pose and the "
                               f"restitution calibration enter MuJoCo's model: batched fields); the model "
                               f"statistics (mean inertia, extent) are world 0's")
@@ -320,35 +321,6 @@ def _mj_model(scene: Scene, settings: dict[str, Any], notes: list[str], info: di
         notes.append("no frictional contact: the cone is pyramidal (MJX 3.17 cannot trace its elliptic "
                      "solver without friction; the two are the same constraint without friction)")
     return m, xml, meta
-
-
-def _batched_models(mxs: list):
-    """The worlds' MJX models as one: (model, in_axes) where an array leaf
-    equal in every world is world 0's (axis None) and one that differs is
-    stacked (axis 0).  The static part (MJX keeps ``stat``, the model
-    statistics of the reference pose, out of the arrays) is world 0's.
-    Raises NotOneBatch when the worlds' arrays do not match in number or
-    shape."""
-    tu = jax.tree_util
-    leaves0, tree = tu.tree_flatten(mxs[0])
-    per = [leaves0]
-    for mx in mxs[1:]:
-        leaves, _ = tu.tree_flatten(mx)
-        bad = [i for i, (a, b) in enumerate(zip(leaves, leaves0)) if np.shape(a) != np.shape(b)]
-        if len(leaves) != len(leaves0) or bad:
-            raise NotOneBatch(f"the worlds' MuJoCo models differ in structure ({len(leaves)} vs {len(leaves0)} "
-                              f"arrays; shapes differ at {bad[:3]}: e.g. an explicit contact pair for an impact "
-                              f"predicted from one start and not from another)")
-        per.append(leaves)
-    out, axes = [], []
-    for i, leaf in enumerate(leaves0):
-        if all(p[i] is leaf or np.array_equal(np.asarray(p[i]), np.asarray(leaf)) for p in per[1:]):
-            out.append(leaf)
-            axes.append(None)
-        else:
-            out.append(jax.numpy.stack([p[i] for p in per]))
-            axes.append(0)
-    return tu.tree_unflatten(tree, out), tu.tree_unflatten(tree, axes)
 
 
 def _block_fn(n_bodies: int, drag: bool):

@@ -99,32 +99,12 @@ from physbench.adapters.base import Adapter, Capabilities, Unsupported
 from physbench.adapters.forces import PybulletForces, bullet_drag_notes, bullet_linear_damping
 from physbench.adapters.materials import per_object_factors
 from physbench.adapters.pybullet_joints import LinkTree, add_joints, form_reason
-from physbench.adapters.pybullet_settings import MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters, run_notes
-from physbench.adapters.quiet import quiet_import
+from physbench.adapters.pybullet_settings import (MAX_COMBINED_FRICTION, declaration, describe_stages, engine_parameters,
+                                                 import_pybullet as _import_pybullet, run_notes)
 from physbench.contract.rotation import wxyz_to_xyzw, xyzw_to_wxyz
 from physbench.contract.scene import Scene
 
 ENGINE = "pybullet"
-
-_pb: Any = None
-_import_error: str | None = None
-
-
-def _import_pybullet() -> Any:
-    """pybullet, imported once without a byte of output
-    (:func:`adapters.quiet.quiet_import`); an import failure is kept and
-    raised again as ImportError on every later call."""
-    global _pb, _import_error
-    if _pb is None:
-        if _import_error is not None:
-            raise ImportError(_import_error)
-        try:
-            _pb = quiet_import("pybullet")
-        except Exception as e:  # ImportError, or a broken binary
-            _import_error = f"{type(e).__name__}: {e}"
-            raise ImportError(_import_error) from None
-    return _pb
-
 
 @functools.lru_cache(maxsize=1)
 def _capabilities() -> Capabilities:

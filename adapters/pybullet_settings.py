@@ -12,6 +12,7 @@ import numpy as np
 
 from physbench.adapters.base import DT_SETTING, Capabilities, Setting, module_version
 from physbench.adapters.pybullet_joints import JOINT_KINDS
+from physbench.adapters.quiet import quiet_import
 from physbench.contract.scene import Scene
 
 # Bullet clamps every combined friction and rolling friction to this value
@@ -178,3 +179,23 @@ def run_notes(scene: Scene, settings: dict[str, Any], dt: float, forces: bool, n
     if settings["contact_breaking_threshold"] != SETTINGS["contact_breaking_threshold"].default:
         notes.append("contact_breaking_threshold is process-global in Bullet: other pybullet clients in this "
                           "process use it too until they are rebuilt")
+
+
+_pb: Any = None
+_import_error: str | None = None
+
+
+def import_pybullet() -> Any:
+    """pybullet, imported once without a byte of output
+    (:func:`adapters.quiet.quiet_import`); an import failure is kept and
+    raised again as ImportError on every later call."""
+    global _pb, _import_error
+    if _pb is None:
+        if _import_error is not None:
+            raise ImportError(_import_error)
+        try:
+            _pb = quiet_import("pybullet")
+        except Exception as e:  # ImportError, or a broken binary
+            _import_error = f"{type(e).__name__}: {e}"
+            raise ImportError(_import_error) from None
+    return _pb
