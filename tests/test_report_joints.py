@@ -43,7 +43,10 @@ def _sweep_rows() -> list[dict]:
 LIMITS = [("joints.chain_load_100", None, "body[1].mass", {"reference": 1000.0, "pybullet": 0.9, "pymunk": 0.35},
            (0.1, 1000.0)),
           ("joints.pendulum", "release_170", "dt", {"reference": 0.05, "mujoco": 0.011, "box2d": 0.0042},
-           (0.00025, 0.05))]
+           (0.00025, 0.05)),
+          # the chain length: the pattern's count, whole links
+          ("joints.chain_10", None, "body[0].pattern.count", {"reference": 200, "rapier": 112, "pymunk": 1},
+           (1, 200))]
 
 
 def _limit_rows() -> list[dict]:
@@ -109,6 +112,8 @@ def test_joints_breaking_points_and_the_family_in_the_ladder(tmp_path):
     assert got[("joints.chain_load_100", "", "body[1].mass", "pybullet")]["limit_value"] == 0.9
     assert got[("joints.chain_load_100", "", "body[1].mass", "reference")]["limit_outcome"] == "holds_throughout"
     assert got[("joints.pendulum", "release_170", "dt", "box2d")]["limit_value"] == 0.0042
+    assert got[("joints.chain_10", "", "body[0].pattern.count", "rapier")]["limit_value"] == 112
+    assert rp.fmt_limit(got[("joints.chain_10", "", "body[0].pattern.count", "rapier")], short=True) == "\u2264 112"
     glance = rp.at_a_glance(df)
     assert "joints" in set(glance["family"])
 
@@ -124,4 +129,6 @@ def test_joints_family_on_the_page(tmp_path, monkeypatch):
     bp = page.split('id="breaking-points"')[1].split("</section>")[0]
     assert "joints.chain_load_100: <code>body[1].mass</code>" in bp
     assert "joints.pendulum / release_170: <code>dt</code>" in bp
+    assert "joints.chain_10: <code>body[0].pattern.count</code>" in bp
+    assert bp.count("<img") == len(LIMITS)  # each search's plot
     assert "joint_drift: 0.0012 &gt; 0.001" in bp
