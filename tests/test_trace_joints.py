@@ -146,3 +146,33 @@ def test_spherical_joint_has_anchors_but_no_axis(tmp_path):
     np.testing.assert_allclose(p[0], p[1], atol=1e-6)  # at rest at the start: one point
     np.testing.assert_allclose(p[1], scene.joints[0].anchor, atol=1e-6)
     assert f"/world/fake/joints/{name}/axis" not in data
+
+
+def test_diagnosing_trace_draws_the_joint_drift_series(tmp_path):
+    """The diagnosing trace's running joint_drift is the planted sink delta
+    (its maximum the metric), drawn against the check's 0.1 mm, and the
+    crossing is marked at the first step past it (computed here from delta)."""
+    from physbench.harness.conformance import Outcome
+
+    scene = load_scene("joints.pendulum")
+    res = _planted(scene)
+    checks = {c.metric: c for c in scene.checks if c.metric in ("joint_drift", "joint_axis_drift")
+              and (c.variants is None or "base" in c.variants)}
+    assert checks["joint_drift"].max == 1e-4
+    o = Outcome("fake", scene.id, None, "joint_drift", "FAIL", 1e-3, "<= 0.0001")
+    path = tmp_path / "d.rrd"
+    write_rrd(path, scene, [res], diagnose=True, outcomes=[o], checks=checks)
+    data = read_rrd(path)
+    t = np.arange(N) * 0.01
+    theta, psi, delta = _motion(t)
+    df = temporal(data, "/metrics/fake/check/joint_drift")
+    y = np.array([v[0] for v in df["Scalars:scalars"]])
+    np.testing.assert_allclose(y, delta, atol=2e-9)
+    ang = temporal(data, "/metrics/fake/check/joint_axis_drift")
+    np.testing.assert_allclose([v[0] for v in ang["Scalars:scalars"]], np.abs(psi), atol=1e-9)
+    thr = temporal(data, "/metrics/threshold/joint_drift/max")
+    assert {v[0] for v in thr["Scalars:scalars"]} == {1e-4}
+    first = int(np.nonzero(delta > 1e-4)[0][0])
+    events = temporal(data, "/events/fake")
+    hits = [s for s, tx in zip(events["step"], events["TextLog:text"]) if str(tx[0]).startswith("check joint_drift ")]
+    assert hits == [first]
