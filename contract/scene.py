@@ -246,10 +246,10 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
         if j.chain is None:
             made = [(j.body, j.other, np.array(j.anchor, float), j.name)]
         else:
-            entry = next(b for b in spec.body if b.name == j.chain)  # a row or column (spec.validate)
-            links = [n for n, _ in expand_pattern(entry)]  # link 0, 1, ... in the pattern's order
-            if any(n not in index for n in links):
-                continue  # the pattern's own error is reported
+            entry = next((b for b in spec.body if b.name == j.chain), None)  # a row or column (spec.validate)
+            links = [n for n, _ in expand_pattern(entry)] if entry is not None and entry.pattern else []
+            if not links or any(n not in index for n in links):
+                continue  # spec.validate reports the chain, the pattern its own errors
             x0 = bodies[index[links[0]]].position
             made = [(n, j.other if i == 0 else links[i - 1],
                      np.array(j.anchor, float) + (bodies[index[n]].position - x0),
