@@ -224,6 +224,7 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
     from physbench.contract.rotation import quat_to_matrix
 
     out: list[Joint] = []
+    table: list[int] = []  # per joint made: its [[joint]] table
     # fixed chains: union-find over body indices, the world as -1
     parent: dict[int, int] = {}
 
@@ -232,46 +233,63 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
             i = parent[i]
         return i
 
+    def local(i: int, v: np.ndarray, point: bool) -> np.ndarray:
+        if i < 0:
+            return v.copy()
+        R = quat_to_matrix(bodies[i].orientation)
+        return R.T @ (v - bodies[i].position if point else v)
+
     for k, j in enumerate(spec.joint):
         p = f"{label}: joint[{k}]"
-        ib = index.get(j.body)
-        io = -1 if j.other == "world" else index.get(j.other)
-        if ib is None or io is None:
-            which, who = ("body", j.body) if ib is None else ("other", j.other)
-            errs.append(f"{p}.{which}: unknown body {who!r}; the scene has {sorted(index)}")
-            continue
-        anchor = np.array(j.anchor, float)
-        if io >= 0:
-            near = [float(np.linalg.norm(anchor - bodies[i].position)) / bodies[i].bounding_radius for i in (ib, io)]
-            if min(near) > JOINT_REACH:
-                errs.append(f"{p}.anchor: {list(j.anchor)} is far from both bodies ({near[0]:.3g} and "
-                            f"{near[1]:.3g} bounding radii from the centres of {j.body!r} and {j.other!r}; "
-                            f"expected within {JOINT_REACH:g} of one of them)")
+        # (body name, other name, anchor, name) per joint the table makes:
+        # one, or one per link of a chain (its anchor moved with the pattern)
+        if j.chain is None:
+            made = [(j.body, j.other, np.array(j.anchor, float), j.name)]
+        else:
+            entry = next((b for b in spec.body if b.name == j.chain), None)  # a row or column (spec.validate)
+            links = [n for n, _ in expand_pattern(entry)] if entry is not None and entry.pattern else []
+            if not links or any(n not in index for n in links):
+                continue  # spec.validate reports the chain, the pattern its own errors
+            x0 = bodies[index[links[0]]].position
+            made = [(n, j.other if i == 0 else links[i - 1],
+                     np.array(j.anchor, float) + (bodies[index[n]].position - x0),
+                     None if j.name is None else f"{j.name}_{i}") for i, n in enumerate(links)]
+        for body, other, anchor, name in made:
+            pl = p if j.chain is None else f"{p} ({body!r} of chain {j.chain!r})"
+            ib = index.get(body)
+            io = -1 if other == "world" else index.get(other)
+            if ib is None or io is None:
+                which, who = ("body", body) if ib is None else ("other", other)
+                errs.append(f"{pl}.{which}: unknown body {who!r}; the scene has {sorted(index)}")
                 continue
-        if j.kind == "fixed":
-            ra, ro = root(ib), root(io)
-            if ra == ro:
-                errs.append(f"{p}.body: {j.body!r} is named twice in one fixed chain (it is already fixed to "
-                            f"{j.other!r} through other fixed joints): a loop of fixed joints")
-                continue
-            parent[ra] = ro
-        axis = None if j.axis is None else np.array(j.axis, float) / np.linalg.norm(j.axis)
-
-        def local(i: int, v: np.ndarray, point: bool) -> np.ndarray:
-            if i < 0:
-                return v.copy()
-            R = quat_to_matrix(bodies[i].orientation)
-            return R.T @ (v - bodies[i].position if point else v)
-
-        out.append(Joint(
-            index=len(out), name=j.name or f"joint_{k}", kind=j.kind, body=ib, other=io, anchor=anchor, axis=axis,
-            anchor_body=local(ib, anchor, True), anchor_other=local(io, anchor, True),
-            axis_body=None if axis is None else local(ib, axis, False),
-            axis_other=None if axis is None else local(io, axis, False)))
+            if io >= 0:
+                near = [float(np.linalg.norm(anchor - bodies[i].position)) / bodies[i].bounding_radius
+                        for i in (ib, io)]
+                if min(near) > JOINT_REACH:
+                    errs.append(f"{pl}.anchor: {anchor.tolist()} is far from both bodies ({near[0]:.3g} and "
+                                f"{near[1]:.3g} bounding radii from the centres of {body!r} and {other!r}; "
+                                f"expected within {JOINT_REACH:g} of one of them)")
+                    continue
+            if j.kind == "fixed":
+                ra, ro = root(ib), root(io)
+                if ra == ro:
+                    errs.append(f"{pl}.body: {body!r} is named twice in one fixed chain (it is already fixed to "
+                                f"{other!r} through other fixed joints): a loop of fixed joints")
+                    continue
+                parent[ra] = ro
+            axis = None if j.axis is None else np.array(j.axis, float) / np.linalg.norm(j.axis)
+            # default names count the joints made so far: a chain's joints and
+            # the tables after it never share one (tests/test_joint_chain.py)
+            table.append(k)
+            out.append(Joint(
+                index=len(out), name=name or f"joint_{len(out)}", kind=j.kind, body=ib, other=io, anchor=anchor,
+                axis=axis, anchor_body=local(ib, anchor, True), anchor_other=local(io, anchor, True),
+                axis_body=None if axis is None else local(ib, axis, False),
+                axis_other=None if axis is None else local(io, axis, False)))
     names = [jt.name for jt in out]
     for k, n in enumerate(names):
         if names.index(n) != k:
-            errs.append(f"{label}: joint[{k}].name: duplicate joint name {n!r}")
+            errs.append(f"{label}: joint[{table[k]}].name: duplicate joint name {n!r}")
     return tuple(out)
 
 

@@ -141,25 +141,43 @@ def _direct(scene, body, up: np.ndarray) -> float | None:
     return None
 
 
-def joint_violations(scene, trace) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per joint of ``scene`` (in order), (positional violation (F,) m,
-    angular violation (F,) rad) over the trace's frames."""
+def joint_world(scene, trace) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]]:
+    """Per joint of ``scene`` (in order), where its two sides hold it in the
+    world over the trace's frames: (anchor point of ``body`` (F, 3) m,
+    anchor point of ``other`` (F, 3) m, axis carried by ``body`` (F, 3),
+    axis carried by ``other`` (F, 3)); the axes are unit directions for
+    revolute and prismatic joints, None for spherical and fixed ones.  The
+    world side (other = -1) stays at the joint's start.  What
+    :func:`joint_violations` measures and what a trace draws
+    (harness/trace/writer.py, tests/test_trace_joints.py)."""
     out = []
     for j in scene.joints:
         pb = _side(trace, j.body, j.anchor_body, True)
         po = _side(trace, j.other, j.anchor_other, True)
+        ub = uo = None
+        if j.kind in ("revolute", "prismatic"):
+            ub = _side(trace, j.body, j.axis_body, False)
+            uo = _side(trace, j.other, j.axis_other, False)
+            ub = ub / np.linalg.norm(ub, axis=-1, keepdims=True)
+            uo = uo / np.linalg.norm(uo, axis=-1, keepdims=True)
+        out.append((pb, po, ub, uo))
+    return out
+
+
+def joint_violations(scene, trace) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per joint of ``scene`` (in order), (positional violation (F,) m,
+    angular violation (F,) rad) over the trace's frames."""
+    out = []
+    for j, (pb, po, ub, uo) in zip(scene.joints, joint_world(scene, trace)):
         d = pb - po
         zero = np.zeros(d.shape[0])
         if j.kind == "prismatic":
-            u = _side(trace, j.other, j.axis_other, False)
-            u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+            u = uo
             off = d - np.einsum("ij,ij->i", d, u)[:, None] * u
             out.append((np.linalg.norm(off, axis=-1), _rotation_since_start(trace, j.body, j.other)))
             continue
         sep = np.linalg.norm(d, axis=-1)
         if j.kind == "revolute":
-            ub = _side(trace, j.body, j.axis_body, False)
-            uo = _side(trace, j.other, j.axis_other, False)
             out.append((sep, _angle(ub, uo)))
         elif j.kind == "fixed":
             out.append((sep, _rotation_since_start(trace, j.body, j.other)))

@@ -36,6 +36,7 @@ from physbench.contract.metric_defs import GENERIC_METRICS
 from physbench.contract.phase import phase_values
 from physbench.contract.scene import load_scene, resolve_scenario
 from physbench.contract.spec import SpecError, load_spec, parse_key_path
+from physbench.contract.spec.schema import integer_key
 from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 from physbench.harness.execute import RunRequest
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
@@ -123,6 +124,15 @@ def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
     return {}
 
 
+def _spec_value(param: str, value: float) -> float | int:
+    """``value`` as the spec key ``param`` takes it: a whole number as an
+    int for an integer key (a count), else unchanged (a fraction stays a
+    float, which the spec then refuses with the key's path)."""
+    if integer_key(param) and float(value).is_integer():
+        return int(value)
+    return value
+
+
 def load_at(req: LimitRequest, value: float):
     """The request's scene with the searched spec key set to ``value`` (for
     an engine setting, the scene as written).  Raises SpecError (a value the
@@ -133,7 +143,7 @@ def load_at(req: LimitRequest, value: float):
     if is_engine_setting(req.engine, req.param):
         return load_scene(req.scenario, req.variant, overrides or None, loaded=loaded)
     overrides.update(_fill_vector(loaded, req.variant, req.param))
-    overrides[req.param] = value
+    overrides[req.param] = _spec_value(req.param, value)
     return load_scene(req.scenario, req.variant, overrides, loaded=loaded)
 
 
@@ -291,7 +301,7 @@ class EvalItem:
             settings[req.param] = self.value
         else:
             overrides.update(copy.deepcopy(dict(_filled(req))))  # a vector default: a list of its own
-            overrides[req.param] = self.value
+            overrides[req.param] = _spec_value(req.param, self.value)
         return RunRequest(req.scenario, req.engine, req.variant, settings, overrides, phase=self.phase,
                           timeout_s=req.timeout_s, key=self.key, probe=self)
 
@@ -364,9 +374,10 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
 
     limit_id = req.identity(spec_hash(req))
     phases = phase_values(req.phases)
-    integer = False
     if is_engine_setting(req.engine, req.param):
         integer = get_adapter(req.engine).capabilities().settings[req.param].kind is int
+    else:
+        integer = integer_key(req.param)  # a count (body[k].pattern.count): whole numbers
     wide: Callable[[], int] = width if callable(width) else (lambda: int(width))
     budget = [1]
 

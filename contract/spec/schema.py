@@ -454,11 +454,21 @@ class JointSection(_Strict):
     at the world point ``anchor`` (m, at the start); ``axis`` (world frame,
     any length > 0, normalised on compile) is the hinge axis of a revolute
     joint and the slide axis of a prismatic one, and is refused for the
-    other kinds (it would be ignored)."""
+    other kinds (it would be ignored).
+
+    ``chain`` instead of ``body``: the name of a ``row`` or ``column``
+    pattern of bodies, joined link to link, one joint per link (compiled in
+    contract.scene._compile_joints): ``<chain>_0`` held to ``other`` at
+    ``anchor``, ``<chain>_i`` to ``<chain>_<i-1>`` at ``anchor`` moved by
+    the pattern's offset of link i from link 0.  The chain's length is
+    the pattern's ``count``, a spec key (``body[k].pattern.count``) that
+    variants, ``--set`` and breaking-point searches can vary.  Tests:
+    tests/test_joint_chain.py."""
 
     name: str | None = Field(default=None, min_length=1)
     kind: str
-    body: str = Field(min_length=1)
+    body: str | None = Field(default=None, min_length=1)
+    chain: str | None = Field(default=None, min_length=1)
     other: str = Field(default="world", min_length=1)
     anchor: Vec3
     axis: Vec3 | None = None
@@ -466,7 +476,15 @@ class JointSection(_Strict):
     _kind_known = field_validator("kind")(_one_of("joint kind", JOINT_KINDS))
     _anchor_bounded = field_validator("anchor")(_bound("position", "each"))
 
-    @field_validator("name", "body", "other")
+    @model_validator(mode="after")
+    def _body_or_chain(self) -> "JointSection":
+        if self.body is None and self.chain is None:
+            raise ValueError("a joint needs body = <a body's name> (or chain = <a patterned body's name>)")
+        if self.body is not None and self.chain is not None:
+            raise ValueError(f"give body or chain, not both (body = {self.body!r}, chain = {self.chain!r})")
+        return self
+
+    @field_validator("name", "body", "chain", "other")
     @classmethod
     def _name_plain(cls, v: str | None) -> str | None:
         return _plain(v)
@@ -547,3 +565,43 @@ class SpecModel(_Strict):
     check: list[CheckSection] = Field(default_factory=list)
     perturbation: PerturbationSection | None = None
 
+
+
+def integer_key(path: str) -> bool:
+    """Whether the dotted spec key ``path`` ('body[0].pattern.count') holds
+    an integer in the schema (a count), so that a breaking-point search
+    over it steps in whole numbers; False for any other key and for a path
+    the schema does not have.  Test:
+    tests/test_joint_chain.py::test_integer_spec_keys."""
+    import types
+    import typing
+
+    from physbench.contract.spec.overrides import parse_key_path
+
+    def unwrap(t: Any) -> Any:
+        if typing.get_origin(t) in (typing.Union, types.UnionType):
+            args = [a for a in typing.get_args(t) if a is not type(None)]
+            return args[0] if len(args) == 1 else None
+        return t
+
+    try:
+        parts = parse_key_path(path)
+    except ValueError:
+        return False
+    t: Any = SpecModel
+    for part in parts:
+        t = unwrap(t)
+        if isinstance(part, int):
+            if typing.get_origin(t) is not list:
+                return False
+            t = typing.get_args(t)[0]
+        elif isinstance(t, type) and issubclass(t, BaseModel):
+            f = t.model_fields.get(part)
+            if f is None:
+                return False
+            t = f.annotation
+        elif typing.get_origin(t) is dict:
+            t = typing.get_args(t)[1]
+        else:
+            return False
+    return unwrap(t) is int

@@ -112,6 +112,29 @@ def _known_body(spec: SpecModel, names: dict[str, int], who: str) -> bool:
     return who in names or any(b.pattern is not None and who.startswith(b.name + "_") for b in spec.body)
 
 
+#: the body patterns a ``[[joint]] chain`` runs along (link i next to link i-1)
+CHAIN_PATTERNS = ("row", "column")
+
+
+def _chain_checks(spec: SpecModel, p: str, j) -> list[str]:
+    """A ``[[joint]]``'s ``chain``: the name of a [[body]] whose pattern is
+    a row or a column, and ``other`` not one of its links.  Tests:
+    tests/test_joint_chain.py::test_chain_errors_name_the_key."""
+    b = next((b for b in spec.body if b.name == j.chain), None)
+    if b is None or b.pattern is None:
+        pats = [x.name for x in spec.body if x.pattern is not None]
+        what = "a [[body]] without a pattern" if b is not None else "no [[body]]"
+        return [f"{p}.chain: expected the name of a [[body]] with a pattern (its bodies are the links), got "
+                f"{j.chain!r} ({what}); patterned bodies: {pats}"]
+    if b.pattern.kind not in CHAIN_PATTERNS:
+        return [f"{p}.chain: body {j.chain!r} has a {b.pattern.kind!r} pattern; a chain runs along a "
+                f"{' or a '.join(repr(k) for k in CHAIN_PATTERNS)} (link i next to link i-1)"]
+    if j.other != "world" and j.other.startswith(j.chain + "_") and j.other[len(j.chain) + 1:].isdigit():
+        return [f"{p}.other: {j.other!r} is a link of the chain {j.chain!r} itself; expected 'world' or "
+                f"another body's name"]
+    return []
+
+
 def _joint_checks(spec: SpecModel, label: str, names: dict[str, int]) -> list[str]:
     """[[joint]] against the rest of the spec: the 'joint' effect, the body
     names, a joint of a body to itself, step phases, the planar rules
@@ -133,11 +156,13 @@ def _joint_checks(spec: SpecModel, label: str, names: dict[str, int]) -> list[st
                     f"has none (leave phases at 1)")
     for i, j in enumerate(spec.joint):
         p = f"{label}: joint[{i}]"
-        if not _known_body(spec, names, j.body):
+        if j.chain is not None:
+            errs.extend(_chain_checks(spec, p, j))
+        elif not _known_body(spec, names, j.body):
             errs.append(f"{p}.body: unknown body {j.body!r}; expected a body's name")
         if j.other != "world" and not _known_body(spec, names, j.other):
             errs.append(f"{p}.other: unknown body {j.other!r}; expected a body's name or 'world'")
-        if j.body == j.other:
+        if j.body is not None and j.body == j.other:
             errs.append(f"{p}.other: a joint between a body and itself (body = other = {j.body!r})")
         if spec.scenario.planar:
             if abs(j.anchor[1]) > 0:

@@ -9,7 +9,7 @@ import rerun as rr
 from physbench.contract.scene import Body
 
 #: children of an engine's entity that are not bodies
-RESERVED_CHILDREN = ("static", "status", "contacts", "engine_contacts")
+RESERVED_CHILDREN = ("static", "status", "contacts", "engine_contacts", "joints")
 
 
 def _part(name: str) -> str:
@@ -20,6 +20,12 @@ def body_entity(engine_path: str, body: Body) -> str:
     """Entity path of ``body`` under ``engine_path``."""
     name = body.name if body.name not in RESERVED_CHILDREN else f"{body.name}_body"
     return f"{engine_path}/{_part(name)}"
+
+
+def joint_entity(engine_path: str, joint) -> str:
+    """Entity path of ``joint`` (contract.scene_model.Joint) under
+    ``engine_path``: ``<engine_path>/joints/<joint name>``."""
+    return f"{engine_path}/joints/{_part(joint.name)}"
 
 
 def _time_columns(steps: np.ndarray, t: np.ndarray) -> list[rr.TimeColumn]:

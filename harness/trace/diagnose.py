@@ -178,7 +178,8 @@ def rest_frames(scene: Scene, trace) -> list[tuple[int, int]]:
 CROSSING_SERIES = {"max_penetration": "penetration", "final_position_error": "error",
                    "trajectory_rmse": "error", "energy_drift": "|E - E0| / E_scale",
                    "energy_gain": "(E - E0) / E_scale", "energy_dissipated": "(E0 - E) / E_scale",
-                   "linear_momentum_drift": "|P - P0| / P_scale", "angular_momentum_drift": "|L - L0| / L_scale"}
+                   "linear_momentum_drift": "|P - P0| / P_scale", "angular_momentum_drift": "|L - L0| / L_scale",
+                   "joint_drift": "joint separation (m)", "joint_axis_drift": "joint misalignment (rad)"}
 
 
 def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
@@ -190,6 +191,8 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
     a ``max`` first fails at the first frame whose value exceeds it.
     ``penetration``: the per-frame deepest overlap (m, (F,)); ``error``:
     per-body error against the model (m, (F, n)), its largest body counts;
+    with joints, ``joint_drift`` (m) and ``joint_axis_drift`` (rad), the
+    largest violation over the joints per frame;
     ``energy``: harness.metrics.relative_energy of ``trace`` when the
     caller has it (computed here when None).
     Metrics that are NaN for the scene (energy_drift of a dissipative scene,
@@ -216,6 +219,15 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
             out["linear_momentum_drift"] = lin
         if ang is not None:
             out["angular_momentum_drift"] = ang
+    if scene.joints and trace.pos.shape[0]:
+        # the largest violation over the joints per frame: joint_drift and
+        # joint_axis_drift are these series' maxima (harness.joints;
+        # tests/test_trace_joints.py::test_diagnosing_trace_draws_the_joint_drift_series)
+        from physbench.harness.joints import joint_violations
+
+        v = joint_violations(scene, trace)
+        out["joint_drift"] = np.max(np.stack([a for a, _ in v]), axis=0)
+        out["joint_axis_drift"] = np.max(np.stack([b for _, b in v]), axis=0)
     return out
 
 

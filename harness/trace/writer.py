@@ -24,8 +24,20 @@
     sent columnar (one ``send_columns`` per body for all frames), quaternion
     converted from physbench's wxyz to rerun's xyzw.  Frames where the body's
     pose is not finite (a diverged run's last frames) are left out.
-    A body named ``static`` or ``status`` is logged as ``<name>_body`` so it
-    cannot parent the statics or the status document.
+    A body named ``static``, ``status``, ``contacts``, ``engine_contacts``
+    or ``joints`` is logged as ``<name>_body`` so it cannot parent the
+    statics, the status document, the contacts or the joints.
+``/world/<engine>/joints/<joint name>/anchors``
+    Scenes with ``[[joint]]`` tables: per recorded frame, two points (m,
+    world frame): the joint's anchor carried by its ``body`` (the run's
+    colour) and the one carried by ``other`` (dark grey; the world side
+    stays put), each side's recorded pose applied to its local anchor, the
+    points ``joint_drift`` measures (:func:`harness.joints.joint_world`).
+    A joint that holds shows them as one point.
+``/world/<engine>/joints/<joint name>/axis``
+    Revolute and prismatic joints: two ``Arrows3D`` from those points along
+    each side's world axis, 2 x the body's bounding radius long; a hinge
+    that holds shows them as one arrow.
 ``/world/<engine>/static/<name>``
     Fixed geometry, static: a box as ``Boxes3D``; a plane (infinite) as a thin
     box patch whose top face lies on the plane, oriented by the normal and
@@ -73,7 +85,8 @@ import rerun as rr
 from physbench.harness.metrics import relative_energy
 from physbench.harness.trace.annotate import DEFAULT_CAP, Diagnosis
 from physbench.harness.trace.blueprint import default_blueprint, family_blueprint
-from physbench.harness.trace.channels import _part, _send_scalars, _time_columns, body_entity
+from physbench.harness.joints import joint_world
+from physbench.harness.trace.channels import _part, _send_scalars, _time_columns, body_entity, joint_entity
 
 from physbench.contract.rotation import quat_rotate, wxyz_to_xyzw
 from physbench.contract.scene import Body, Scene, Static
@@ -304,6 +317,44 @@ def _log_bodies(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: 
         rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(translation=p, quaternion=q))
 
 
+#: a joint's axis arrows are this many times its body's bounding radius long
+AXIS_ARROW_FACTOR = 2.0
+
+
+def _log_joints(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: np.ndarray, t: np.ndarray,
+                tr, color) -> None:
+    """Each joint of ``scene`` as its two sides hold it, per recorded frame
+    (harness.joints.joint_world, the points joint_drift measures):
+    ``<joint>/anchors`` two points (m, world frame), the anchor carried by
+    ``body`` then the one carried by ``other``; revolute and prismatic
+    joints also ``<joint>/axis``, two arrows from those points along each
+    side's axis, AXIS_ARROW_FACTOR x the body's bounding radius long.
+    Frames where a side is not finite are left out."""
+    if not scene.joints or not steps.size:
+        return
+    other_color = (20, 20, 20, 255)
+    for j, (pb, po, ub, uo) in zip(scene.joints, joint_world(scene, tr)):
+        path = joint_entity(engine_path, j)
+        pts = np.stack([pb, po], axis=1)  # (F, 2, 3)
+        ok = np.isfinite(pts).all(axis=(1, 2))
+        if ub is not None:
+            axes = np.stack([ub, uo], axis=1)
+            ok &= np.isfinite(axes).all(axis=(1, 2))
+        if not ok.any():
+            continue
+        n = int(ok.sum())
+        idx = _time_columns(steps[ok], t[ok])
+        lengths = np.full(n, 2)
+        colors = np.tile(np.array([color, other_color], np.uint8), (n, 1))
+        rec.send_columns(f"{path}/anchors", indexes=idx, columns=rr.Points3D.columns(
+            positions=pts[ok].reshape(-1, 3).astype(np.float32), colors=colors).partition(lengths))
+        if ub is not None:
+            length = AXIS_ARROW_FACTOR * scene.bodies[j.body].bounding_radius
+            rec.send_columns(f"{path}/axis", indexes=idx, columns=rr.Arrows3D.columns(
+                origins=pts[ok].reshape(-1, 3).astype(np.float32),
+                vectors=(length * axes[ok]).reshape(-1, 3).astype(np.float32), colors=colors).partition(lengths))
+
+
 def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene: Scene, result,
              color, box: Extent, diag: "Diagnosis | None" = None) -> None:
     """Bodies, statics and metric series of one drawn run (and, with
@@ -315,6 +366,7 @@ def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene
     t = np.asarray(tr.t, float)
     _log_statics(rec, engine_path, scene, box)
     _log_bodies(rec, engine_path, scene, steps, t, tr.pos, tr.quat, color)
+    _log_joints(rec, engine_path, scene, steps, t, tr, color)
     if not (F and scene.n_bodies):
         return
     energy = relative_energy(scene, tr)  # (dE, E, E_scale): the plot, the bands, the crossings
