@@ -286,16 +286,32 @@ def loop_reason(scene: Scene, loops: list) -> str | None:
     return None
 
 
+#: the deepest body tree MuJoCo's XML parser reads (measured on 4.0.1:
+#: tests/test_joints_mujoco.py::test_a_chain_past_the_xml_nesting_is_unsupported)
+MAX_NESTING = 496
+
+
 def joint_tree_reason(scene: Scene) -> str | None:
     """Why this adapter cannot build the scene's joints, or None.  It
     builds a body tree (:func:`joint_tree`): each tree joint nests its
     ``body`` in ``other`` with a hinge, ball or slide, a weld for fixed;
     a joint that closes a loop is a ``connect`` equality
     (:func:`loop_reason`).  Drag on a jointed scene is not built."""
-    _, loops = joint_tree(scene)
+    tree, loops = joint_tree(scene)
     why = loop_reason(scene, loops)
     if why:
         return why
+    parent = {j.body: j.other for j in tree}
+    depth = 0
+    for i in parent:
+        d = 0
+        while i in parent:
+            i, d = parent[i], d + 1
+        depth = max(depth, d)
+    if depth > MAX_NESTING:
+        return (f"joints: a chain {depth} bodies deep nests {depth} MJCF <body> elements, past what MuJoCo's XML "
+                f"parser reads (a chain of {MAX_NESTING} builds, {MAX_NESTING + 1} does not: 'Element nesting is "
+                f"too deep', 4.0.1)")
     if scene.joints and (scene.has("drag_linear") or scene.has("drag_quadratic")):
         return "joints: MuJoCo adapter applies drag to free bodies only"
     return None

@@ -137,3 +137,27 @@ def test_a_planar_loop_closes_with_a_connect_equality():
     assert r.status == "ok", r.message
     assert 1e-6 < r.metrics["joint_drift"] < 1e-2
     assert r.metrics["joint_axis_drift"] < 1e-9
+
+
+@pytest.mark.parametrize("links", [496, 497])
+def test_a_chain_past_the_xml_nesting_is_unsupported(links):
+    """MuJoCo's XML parser refuses elements nested past its depth: a chain
+    of 496 links builds, one of 497 is unsupported with the reason, never
+    a failed run (a bare MJCF of 497 nested bodies is refused by MuJoCo
+    itself, asserted here so a MuJoCo that lifts the limit shows)."""
+    import mujoco
+
+    from physbench.adapters.mjcf import MAX_NESTING, joint_tree_reason
+
+    s = load_scene("joints.chain_10", overrides={"body[0].pattern.count": links})
+    why = joint_tree_reason(s)
+    if links <= MAX_NESTING:
+        assert why is None
+    else:
+        assert why is not None and "Element nesting is too deep" in why
+    xml = "<mujoco><worldbody>" + "<body><geom size='0.1'/>" * links + "</body>" * links + "</worldbody></mujoco>"
+    if links <= MAX_NESTING:
+        mujoco.MjModel.from_xml_string(xml)
+    else:
+        with pytest.raises(ValueError, match="nesting"):
+            mujoco.MjModel.from_xml_string(xml)
