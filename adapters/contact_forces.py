@@ -213,6 +213,70 @@ def rapier_rows(ad: Any) -> Rows:
     return out
 
 
+def _drake_rows_out(rows: list[tuple]) -> Rows:
+    k = len(rows)
+    return {"a": np.array([r[0] for r in rows], np.int64), "b": np.array([r[1] for r in rows], np.int64),
+            "static": np.array([r[2] for r in rows], np.int64), "point": np.array([r[3] for r in rows]).reshape(k, 3),
+            "normal": np.array([r[4] for r in rows]).reshape(k, 3), "gap": np.array([r[5] for r in rows], float),
+            "lam_n": np.array([r[6] for r in rows], float), "lam_t": np.array([r[7] for r in rows]).reshape(k, 3)}
+
+
+def drake_rows(ad: Any) -> Rows:
+    """Drake 1.x: the plant's ``ContactResults`` (for a discrete plant
+    those of the last step, found at its start), evaluated only here.
+    Geometry -> side by name: bodies' geometries "g<i>", statics' "s<k>".
+
+    Point contact: one row per ``point_pair_contact_info``: its
+    ``contact_force`` is the force on body B at the contact point,
+    ``nhat_BA_W`` points from B into A and ``depth`` > 0 is overlap, so
+    the normal A -> B is -nhat, gap = -depth.  Hydroelastic contact: one
+    row per contact surface (a patch, as the reference engine's and
+    pymunk's rows), at its ``centroid`` with the resultant force
+    ``F_Ac_W`` (on the body of geometry M, at the centroid; the force on N
+    is its negative), normal M -> N the negated area-weighted mean of the
+    face normals (Drake's point out of N into M); gap NaN: a pressure
+    field has no one gap, the harness takes the pair's own signed distance
+    at the recorded pose (harness.contact_laws.own_gap).  The torque
+    about the centroid is not a row's (it is not a contact law's).  A
+    static on side a is made side b: the normal and the force on b
+    negate, lam_n stays.  Measured on the resting cubes
+    (tests/test_contact_laws.py::test_resting_box_forces_on_every_engine):
+    each patch carries the weight above it."""
+    plant, ctx = ad.plant, ad.pctx
+    insp = plant.EvalSceneGraphInspector(ctx)
+    side: dict = getattr(ad, "_geom_side", None) or {}
+    ad._geom_side = side
+
+    def of(gid) -> tuple[int, int]:  # geometry -> (body index or -1, static index or -1)
+        if gid not in side:
+            name = insp.GetName(gid).rsplit("::", 1)[-1]
+            side[gid] = (int(name[1:]), -1) if name[0] == "g" else (-1, int(name[1:]))
+        return side[gid]
+
+    cr = plant.get_contact_results_output_port().Eval(ctx)
+    rows: list[tuple] = []
+
+    def add(ga, gb, point, n, gap, f_b) -> None:
+        (ia, sa), (ib, sb) = of(ga), of(gb)
+        if ia < 0:  # a static on side a: swap
+            (ia, sa), (ib, sb), n, f_b = (ib, sb), (ia, sa), -n, -f_b
+        lam = float(f_b @ n)
+        rows.append((ia, ib, sb, np.asarray(point, float), n, gap, lam, f_b - lam * n))
+
+    for i in range(cr.num_point_pair_contacts()):
+        info = cr.point_pair_contact_info(i)
+        pp = info.point_pair()
+        add(pp.id_A, pp.id_B, info.contact_point(), -np.asarray(pp.nhat_BA_W, float), -float(pp.depth),
+            np.asarray(info.contact_force(), float))
+    for i in range(cr.num_hydroelastic_contacts()):
+        info = cr.hydroelastic_contact_info(i)
+        s = info.contact_surface()
+        n = -sum(s.area(f) * np.asarray(s.face_normal(f), float) for f in range(s.num_faces()))
+        add(s.id_M(), s.id_N(), s.centroid(), n / np.linalg.norm(n), float("nan"),
+            -np.asarray(info.F_Ac_W().translational(), float))
+    return _drake_rows_out(rows)
+
+
 #: the reader of each shipped adapter that has one (by adapter name)
 READERS: dict[str, Callable[[Any], Rows]] = {"mujoco": mujoco_rows, "pybullet": pybullet_rows, "pymunk": pymunk_rows,
-                                             "rapier": rapier_rows}
+                                             "rapier": rapier_rows, "drake": drake_rows}
