@@ -1,8 +1,10 @@
 """The contact forces of the shipped third-party adapters, read through
 each engine's public API after a step (:meth:`adapters.base.Adapter.
 contact_forces` calls the reader named for the adapter): one row per
-contact (MuJoCo, pybullet, Rapier) or per contact patch (pymunk, whose
-public API sums an arbiter's points), in the contract of ``contact_forces``: ``a``
+contact (MuJoCo, MJX, pybullet, Rapier, Drake's point pairs) or per contact
+patch (pymunk, whose public API sums an arbiter's points; Drake's
+hydroelastic surfaces, a resultant at the centroid), in the contract of
+``contact_forces``: ``a``
 body index, ``b`` body index or -1 with ``static`` the static's index,
 ``point`` (R, 3) m, ``normal`` (R, 3) unit from a toward b, ``gap`` (R,)
 m (< 0 overlap, as the engine measured it), ``lam_n`` (R,) N the normal
