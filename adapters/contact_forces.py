@@ -85,7 +85,8 @@ def mujoco_rows(ad: Any) -> Rows:
 
 
 def mjx_rows(ad: Any) -> Rows:
-    """MJX (mujoco-mjx 3.x/4.x): the MuJoCo reader's rows (:func:`_mj_rows`) from the last
+    """MJX (mujoco-mjx 3.17; ``Data._impl`` holds its contacts and constraint
+    forces): the MuJoCo reader's rows (:func:`_mj_rows`) from the last
     step's MJX data, copied off the device here only (never inside the
     compiled scan).  MJX keeps a fixed set of candidate contacts, each
     with ``dim`` constraint rows at ``efc_address`` in ``efc_force``
