@@ -1,8 +1,10 @@
 """The contact forces of the shipped third-party adapters, read through
 each engine's public API after a step (:meth:`adapters.base.Adapter.
 contact_forces` calls the reader named for the adapter): one row per
-contact (MuJoCo, pybullet, Rapier) or per contact patch (pymunk, whose
-public API sums an arbiter's points), in the contract of ``contact_forces``: ``a``
+contact (MuJoCo, MJX, pybullet, Rapier, Drake's point pairs) or per contact
+patch (pymunk, whose public API sums an arbiter's points; Drake's
+hydroelastic surfaces, a resultant at the centroid), in the contract of
+``contact_forces``: ``a``
 body index, ``b`` body index or -1 with ``static`` the static's index,
 ``point`` (R, 3) m, ``normal`` (R, 3) unit from a toward b, ``gap`` (R,)
 m (< 0 overlap, as the engine measured it), ``lam_n`` (R,) N the normal
@@ -27,23 +29,15 @@ import numpy as np
 Rows = dict[str, np.ndarray]
 
 
-def mujoco_rows(ad: Any) -> Rows:
-    """MuJoCo 3.x/4.x: one row per ``d.contact`` (the last ``mj_step``'s,
-    found at its start).  ``mj_contactForce`` gives the force in the
-    contact frame (rows: normal from geom1 toward geom2, tangent 1, 2) on
-    geom2; to the world, divided by the model's mass scale
-    (adapters.mjcf.mass_scale: forces scale with the masses); gap =
-    ``dist``.  A static on geom1's side is made side b: the normal and the
-    friction on b negate, lam_n stays."""
+def _mj_geom_side(ad: Any) -> tuple[np.ndarray, np.ndarray]:
+    """geom -> scene body index or -1, geom -> static index or -1 (cached
+    on ``ad``): bodies are "b<i>", statics' geoms "s<index>" (adapters.mjcf)."""
     import mujoco
 
-    m, d = ad.m, ad.d
-    k = int(d.ncon)
+    m, n_bodies = ad.m, ad.scene.n_bodies
     if getattr(ad, "_geom_side", None) is None:
-        # geom -> (scene body index or -1, static index or -1): bodies are
-        # "b<i>", statics' geoms "s<index>" (adapters.mjcf)
         body = np.full(m.nbody, -1, np.int64)
-        for i in range(ad.n_bodies):
+        for i in range(n_bodies):
             body[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"b{i}")] = i
         gs = np.full(m.ngeom, -1, np.int64)
         for g in range(m.ngeom):
@@ -51,13 +45,18 @@ def mujoco_rows(ad: Any) -> Rows:
             if name[:1] == "s" and name[1:].isdigit():
                 gs[g] = int(name[1:])
         ad._geom_side = (body[m.geom_bodyid], gs)
-    gb, gs = ad._geom_side
-    f = np.empty((k, 6))
-    for i in range(k):
-        mujoco.mj_contactForce(m, d, i, f[i])
-    c = d.contact
-    frame = c.frame[:k].reshape(k, 3, 3)
-    g1, g2 = c.geom1[:k], c.geom2[:k]
+    return ad._geom_side
+
+
+def _mj_rows(ad: Any, f: np.ndarray, frame: np.ndarray, g1: np.ndarray, g2: np.ndarray, pos: np.ndarray,
+             dist: np.ndarray) -> Rows:
+    """Rows of k MuJoCo contacts from their forces ``f`` (k, >= 3) in the
+    contact frame (normal, tangent 1, tangent 2; on geom2), ``frame`` (k,
+    3, 3) rows those axes, geoms, points and distances: to the world,
+    divided by the model's mass scale (adapters.mjcf.mass_scale: forces
+    scale with the masses).  A static on geom1's side is made side b: the
+    normal and the friction on b negate, lam_n stays."""
+    gb, gs = _mj_geom_side(ad)
     scale = ad.meta["mass_scale"]
     nrm = frame[:, 0].copy()
     lam_t = np.einsum("kj,kji->ki", f[:, 1:3], frame[:, 1:3]) / scale
@@ -65,8 +64,61 @@ def mujoco_rows(ad: Any) -> Rows:
     nrm[flip] *= -1.0
     lam_t[flip] *= -1.0
     return {"a": np.where(flip, gb[g2], gb[g1]), "b": np.where(flip, -1, gb[g2]),
-            "static": np.where(flip, gs[g1], np.where(gb[g2] < 0, gs[g2], -1)), "point": c.pos[:k].copy(),
-            "normal": nrm, "gap": c.dist[:k].copy(), "lam_n": f[:, 0] / scale, "lam_t": lam_t}
+            "static": np.where(flip, gs[g1], np.where(gb[g2] < 0, gs[g2], -1)), "point": np.array(pos, float),
+            "normal": nrm, "gap": np.array(dist, float), "lam_n": f[:, 0] / scale, "lam_t": lam_t}
+
+
+def mujoco_rows(ad: Any) -> Rows:
+    """MuJoCo 3.x/4.x: one row per ``d.contact`` (the last ``mj_step``'s,
+    found at its start).  ``mj_contactForce`` gives the force in the
+    contact frame (rows: normal from geom1 toward geom2, tangent 1, 2) on
+    geom2 (:func:`_mj_rows` to the world); gap = ``dist``."""
+    import mujoco
+
+    m, d = ad.m, ad.d
+    k = int(d.ncon)
+    f = np.zeros((k, 6))
+    for i in range(k):
+        mujoco.mj_contactForce(m, d, i, f[i])
+    c = d.contact
+    return _mj_rows(ad, f, c.frame[:k].reshape(k, 3, 3), c.geom1[:k], c.geom2[:k], c.pos[:k], c.dist[:k])
+
+
+def mjx_rows(ad: Any) -> Rows:
+    """MJX (mujoco-mjx 3.17; ``Data._impl`` holds its contacts and constraint
+    forces): the MuJoCo reader's rows (:func:`_mj_rows`) from the last
+    step's MJX data, copied off the device here only (never inside the
+    compiled scan).  MJX keeps a fixed set of candidate contacts, each
+    with ``dim`` constraint rows at ``efc_address`` in ``efc_force``
+    whether touching or not; the contacts are those with dist <= 0 (as
+    ``mjx.get_data`` selects them).  The force in the contact frame is
+    ``mj_contactForce``'s, done on the arrays: elliptic cones the rows
+    themselves, pyramidal ones decoded (normal = the sum of the 2(dim-1)
+    edge forces, tangent j = mu_j (f_2j - f_2j+1)).  Not through
+    ``mjx.get_data`` and ``mj_contactForce``: get_data leaves the MjContact
+    fields MJX lacks (``exclude`` among them) as arena garbage, and
+    mj_contactForce skips a contact whose ``exclude`` is not 0 (measured
+    on the resting cubes: contacts lost, forces of 1e200 N read)."""
+    import jax
+
+    c = jax.device_get(ad.dx._impl.contact)
+    efc = np.asarray(jax.device_get(ad.dx._impl.efc_force))
+    on = np.nonzero(np.asarray(c.dist) <= 0.0)[0]
+    k = len(on)
+    dim, addr = np.asarray(c.dim)[on], np.asarray(c.efc_address)[on]
+    mu = np.asarray(c.friction)[on]
+    f = np.zeros((k, 6))
+    pyramidal = int(ad.m.opt.cone) == 0  # mjCONE_PYRAMIDAL
+    for i in range(k):
+        n, a = int(dim[i]), int(addr[i])
+        if pyramidal and n > 1:
+            p = efc[a:a + 2 * (n - 1)]
+            f[i, 0] = p.sum()
+            f[i, 1:n] = mu[i, :n - 1] * (p[0::2] - p[1::2])
+        else:
+            f[i, :n] = efc[a:a + n]
+    return _mj_rows(ad, f, np.asarray(c.frame)[on].reshape(k, 3, 3), np.asarray(c.geom1)[on],
+                    np.asarray(c.geom2)[on], np.asarray(c.pos)[on], np.asarray(c.dist)[on])
 
 
 def pybullet_rows(ad: Any) -> Rows:
@@ -213,6 +265,71 @@ def rapier_rows(ad: Any) -> Rows:
     return out
 
 
+def _drake_rows_out(rows: list[tuple]) -> Rows:
+    k = len(rows)
+    return {"a": np.array([r[0] for r in rows], np.int64), "b": np.array([r[1] for r in rows], np.int64),
+            "static": np.array([r[2] for r in rows], np.int64), "point": np.array([r[3] for r in rows]).reshape(k, 3),
+            "normal": np.array([r[4] for r in rows]).reshape(k, 3), "gap": np.array([r[5] for r in rows], float),
+            "lam_n": np.array([r[6] for r in rows], float), "lam_t": np.array([r[7] for r in rows]).reshape(k, 3)}
+
+
+def drake_rows(ad: Any) -> Rows:
+    """Drake 1.x: the plant's ``ContactResults`` (for a discrete plant
+    those of the last step, found at its start), evaluated only here.
+    Geometry -> side by name: bodies' geometries "g<i>", statics' "s<k>".
+
+    Point contact: one row per ``point_pair_contact_info``: its
+    ``contact_force`` is the force on body B at the contact point,
+    ``nhat_BA_W`` points from B into A and ``depth`` > 0 is overlap, so
+    the normal A -> B is -nhat, gap = -depth.  Hydroelastic contact: one
+    row per contact surface (a patch, as the reference engine's and
+    pymunk's rows), at its ``centroid`` with the resultant force
+    ``F_Ac_W`` (on the body of geometry M, at the centroid; the force on N
+    is its negative), normal M -> N the negated area-weighted mean of the
+    face normals (Drake's point out of N into M); gap NaN: a pressure
+    field has no one gap, the harness takes the pair's own signed distance
+    at the recorded pose (harness.contact_laws.own_gap).  The torque
+    about the centroid is not a row's (it is not a contact law's).  A
+    static on side a is made side b: the normal and the force on b
+    negate, lam_n stays.  Measured on the resting cubes
+    (tests/test_contact_laws.py::test_resting_box_forces_on_every_engine):
+    each patch carries the weight above it."""
+    plant, ctx = ad.plant, ad.pctx
+    insp = plant.EvalSceneGraphInspector(ctx)
+    side: dict = getattr(ad, "_geom_side", None) or {}
+    ad._geom_side = side
+
+    def of(gid) -> tuple[int, int]:  # geometry -> (body index or -1, static index or -1)
+        if gid not in side:
+            name = insp.GetName(gid).rsplit("::", 1)[-1]
+            side[gid] = (int(name[1:]), -1) if name[0] == "g" else (-1, int(name[1:]))
+        return side[gid]
+
+    cr = plant.get_contact_results_output_port().Eval(ctx)
+    rows: list[tuple] = []
+
+    def add(ga, gb, point, n, gap, f_b) -> None:
+        (ia, sa), (ib, sb) = of(ga), of(gb)
+        if ia < 0:  # a static on side a: swap
+            (ia, sa), (ib, sb), n, f_b = (ib, sb), (ia, sa), -n, -f_b
+        lam = float(f_b @ n)
+        rows.append((ia, ib, sb, np.asarray(point, float), n, gap, lam, f_b - lam * n))
+
+    for i in range(cr.num_point_pair_contacts()):
+        info = cr.point_pair_contact_info(i)
+        pp = info.point_pair()
+        add(pp.id_A, pp.id_B, info.contact_point(), -np.asarray(pp.nhat_BA_W, float), -float(pp.depth),
+            np.asarray(info.contact_force(), float))
+    for i in range(cr.num_hydroelastic_contacts()):
+        info = cr.hydroelastic_contact_info(i)
+        s = info.contact_surface()
+        n = -sum(s.area(f) * np.asarray(s.face_normal(f), float) for f in range(s.num_faces()))
+        add(s.id_M(), s.id_N(), s.centroid(), n / np.linalg.norm(n), float("nan"),
+            -np.asarray(info.F_Ac_W().translational(), float))
+    return _drake_rows_out(rows)
+
+
 #: the reader of each shipped adapter that has one (by adapter name)
 READERS: dict[str, Callable[[Any], Rows]] = {"mujoco": mujoco_rows, "pybullet": pybullet_rows, "pymunk": pymunk_rows,
-                                             "rapier": rapier_rows}
+                                             "rapier": rapier_rows, "drake": drake_rows,
+                                             "mjx": mjx_rows}

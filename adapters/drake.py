@@ -39,6 +39,11 @@ Effects
     one dt per ``AdvanceTo``), gyroscopic (always on), joint (the plant's
     own joints in a tree, :mod:`adapters.drake_joints`; the bodies then read
     through the plant's kinematics).  No rolling friction.
+Contact forces
+    Read from the plant's ``ContactResults`` only when a check asks for a
+    contact-law metric (:func:`adapters.contact_forces.drake_rows`: a row
+    per point pair, or per hydroelastic surface at its centroid with the
+    resultant force).
 """
 
 from __future__ import annotations

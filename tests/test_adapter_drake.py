@@ -260,3 +260,28 @@ def test_unsupported_reasons(case, match):
     r = run(s, "drake", settings or None, compute_metrics=False)
     assert r.status == "unsupported"
     assert __import__("re").search(match, r.message), r.message
+
+
+@pytest.mark.parametrize("model", ["point", "hydroelastic_with_fallback"])
+def test_contact_forces_of_a_resting_sphere(model):
+    """adapters.contact_forces.drake_rows on a 2 kg ball resting on the
+    floor: one row (a point pair, or one hydroelastic surface) carrying
+    m g along the normal from the ball into the floor, no friction at
+    rest; a point pair's gap is minus the sag g / omega^2, a surface's NaN
+    (the harness measures its own).  The resting-cubes test of every engine
+    is tests/test_contact_laws.py::test_resting_box_forces_on_every_engine."""
+    s = scene(["gravity", "contact", "friction"], [{"name": "b", "shape": "sphere", "mass": 2.0, "radius": 0.1,
+                                                    "position": [0, 0, 0.1]}], [PLANE], material=mat(mu=0.5))
+    ad = DrakeAdapter()
+    ad.build(s, DrakeAdapter.resolve_settings(s, {"contact_model": model}))
+    ad.step(600)  # 1.2 s: the landing's ring has died out (measured within 8e-7 of m g)
+    rows = ad.contact_forces()
+    ad.close()
+    assert list(rows["a"]) == [0] and list(rows["b"]) == [-1] and list(rows["static"]) == [0]
+    assert rows["lam_n"][0] == pytest.approx(2.0 * G, rel=2e-6)
+    np.testing.assert_allclose(rows["normal"][0], [0, 0, -1], atol=1e-9)
+    assert np.abs(rows["lam_t"][0]).max() < 1e-6 * G
+    if model == "point":
+        assert rows["gap"][0] == pytest.approx(-G * (10 * 0.002 / math.pi) ** 2, abs=1.5e-6)
+    else:
+        assert math.isnan(rows["gap"][0])

@@ -136,3 +136,39 @@ def test_too_many_convex_pairs_are_unsupported():
         why = MjxAdapter.unsupported_reason(load_scene("stacking.pyramid", variant))
         assert why is not None and text in why and f"beyond the {MAX_CONVEX_PAIRS}" in why
     assert 45 <= MAX_CONVEX_PAIRS < 105
+
+
+@pytest.mark.parametrize("cone", ["elliptic", "pyramidal"])
+def test_contact_forces_equal_mujocos(cone):
+    """adapters.contact_forces.mjx_rows on a 2 kg box resting on the floor
+    (a touching start, 0.3 s): MuJoCo's rows of the same model -- four
+    corner points, each m g / 4 along the normal into the floor, the same
+    gaps -- read from MJX's raw constraint forces (pyramids decoded).  The
+    resting-cubes test of every engine is tests/test_contact_laws.py::
+    test_resting_box_forces_on_every_engine."""
+    s = scene(["gravity", "contact", "friction", "gyroscopic"],
+              [{"name": "b", "shape": "box", "mass": 2.0, "half_extents": [0.1, 0.1, 0.05], "position": [0, 0, 0.05]}],
+              [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0}],
+              material={"default": {"friction": 0.5}})
+    rows = {}
+    for engine in ("mjx", "mujoco"):
+        cls = get_adapter(engine)
+        ad = cls()
+        ad.build(s, cls.resolve_settings(s, {"cone": cone}))
+        ad.step(150)
+        r = ad.contact_forces()
+        ad.close()
+        order = np.lexsort(np.round(r["point"][:, :2], 6).T)  # the same points in the same order
+        rows[engine] = {k: v[order] for k, v in r.items()}
+    x, m = rows["mjx"], rows["mujoco"]
+    assert len(x["a"]) == 4 and set(x["b"]) == {-1} and set(x["static"]) == {0}
+    assert x["lam_n"].sum() == pytest.approx(2.0 * G, rel=1e-7)  # measured 2.6e-9, 9.8e-9
+    np.testing.assert_allclose(x["normal"], np.tile([0.0, 0.0, -1.0], (4, 1)), atol=1e-12)
+    for k in ("lam_n", "gap", "point"):
+        np.testing.assert_allclose(x[k], m[k], rtol=0, atol=TOL_FORCES[k], err_msg=k)
+    assert np.abs(x["lam_t"]).max() < 1e-9
+
+
+#: MJX against MuJoCo on the resting box, measured (elliptic, pyramidal):
+#: lam_n 1.6e-8, 4.8e-8 N; gap 1.8e-12, 6.5e-12 m; point 9e-13, 3.2e-12 m
+TOL_FORCES = {"lam_n": 1e-6, "gap": 1e-10, "point": 1e-10}

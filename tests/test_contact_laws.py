@@ -228,15 +228,38 @@ def test_forces_are_recorded_only_when_asked(tmp_path):
     assert res.metrics["cone_violation_mean"] == 0.0
 
 
-@pytest.mark.parametrize("engine", ["drake"])
-def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, engine):
+def test_an_adapter_without_forces_is_undefined_never_zero(tmp_path, monkeypatch):
+    """An adapter with no reader (every shipped 3D engine has one now:
+    MuJoCo's removed here) gives undefined with the base reason, never 0."""
+    from physbench.adapters import contact_forces
     from physbench.harness.runner import run
 
-    res = run(_law_scene(tmp_path, FLAT), engine)
+    monkeypatch.delitem(contact_forces.READERS, "mujoco")
+    res = run(_law_scene(tmp_path, FLAT), "mujoco")
     if res.status == "unsupported":
         pytest.skip(res.message)
     assert math.isnan(res.metrics["cone_violation_max"])
-    assert undefined_reason(res.metrics, "cone_violation_max").startswith(f"{engine}: the adapter reads no")
+    assert undefined_reason(res.metrics, "cone_violation_max") == (
+        "mujoco: the adapter reads no contact forces from its engine")
+
+
+@pytest.mark.parametrize("cone", ["elliptic", "pyramidal"])
+def test_mjx_forces_decode_both_cones(tmp_path, cone):
+    """MJX's rows come from its raw constraint forces (adapters.
+    contact_forces.mjx_rows): on a block sliding down a 35 degree slope
+    (mu 0.3) the friction is exactly mu lam_n and opposes the slip with
+    either cone (a pyramid read as elliptic rows, or undecoded, would put
+    the friction off mu lam_n and off the slip), as on MuJoCo."""
+    from physbench.harness.runner import run
+
+    checks = CHECKS.replace("cone_violation_max", "dissipation_residual_max")
+    res = run(_law_scene(tmp_path, SLOPE, checks=checks), "mjx", {"cone": cone})
+    if res.status == "unsupported":
+        pytest.skip(res.message)
+    m = res.metrics
+    assert m["dissipation_residual_rows"] >= 100  # measured 110 (elliptic), 102 (pyramidal)
+    assert m["dissipation_residual_max"] < 1e-9 and m["dissipation_shortfall_max"] < 1e-9  # 8.9e-15, 1.4e-14 rad; 0
+    assert m["cone_violation_max"] < 1e-9
 
 
 def test_reference_penalty_contacts_are_undefined_with_the_reason(tmp_path):
@@ -299,6 +322,8 @@ RESTING = {
     "pybullet": (4.8e-3, math.sqrt(2) * 0.3 - 0.4 + 1e-12),  # 3.2e-3 N m; the pyramid's corner
     "pymunk": (4.6e-3, 0.0),           # 3.1e-3 N m: overlap kept below collision_slop
     "rapier": (5.8e-4, 0.0),           # 3.87e-4 N m: soft contacts sink 1.05e-4 m under the load
+    "mjx": (1.8e-3, 0.0),              # 1.18e-3 N m: MuJoCo's model, MuJoCo's figure
+    "drake": (1.7e-4, 0.0),            # 1.10e-4 N m: one hydroelastic patch per pair, the harness's own gap
 }
 #: settings an engine needs for its friction to be read: Rapier's default
 #: "simplified" friction exposes no impulse (test_rapier_default_friction_is_undefined)
@@ -327,7 +352,11 @@ def test_resting_box_forces_on_every_engine(tmp_path, engine):
     adapter's rows carry the weights, (m1 + m2) g on the floor's rows and
     m2 g between the cubes, positive along normals from a to b (down into
     the floor, up into the upper cube), with no friction left at rest;
-    and the run's residuals are those measured for the engine."""
+    and the run's residuals are those measured for the engine.  The sums
+    hold whatever an engine's rows are: points (4 per face), a patch
+    (reference, pymunk) or a hydroelastic surface's resultant (Drake:
+    one per pair, gap NaN -> the harness's own).  Tolerance rel 2e-3 of
+    the weight on every engine."""
     from physbench.harness.runner import run
 
     p = tmp_path / "stack.toml"
