@@ -181,8 +181,12 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
         repeats = 1
         [[sweep]]
         scenarios = ["billiards.head_on"]
-        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 1.0, 1.001, 1.002, 1.003, 1.004, 1.005] }
+        grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 2.5, 2.501, 2.502, 2.503, 2.504, 2.505] }
     """)
+    # the six slow points take three rounds of 2.5 s on two workers, past two
+    # part flushes (sweep_store.PART_FLUSH_S = 2 s): the kill lands after 5
+    # rows are stored and before the tenth (with 1 s points every row could
+    # be done by the first flush that held 5)
     out = tmp_path / "out"
     script = textwrap.dedent(f"""
         import sys
