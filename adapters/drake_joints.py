@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.joint_rates import start_rate
+from physbench.adapters.joint_rates import closes_loop, held_twice, start_rate
 from physbench.contract.rotation import quat_to_matrix
 from physbench.contract.scene import Scene
 
@@ -40,20 +40,13 @@ def tree_reason(scene: Scene) -> str | None:
     """Why Drake's tree cannot hold the scene's joints, or None."""
     if scene.joints and (scene.has("drag_linear") or scene.has("drag_quadratic")):
         return "joints: the Drake adapter applies drag to free bodies only"
-    held: dict[int, int] = {}
-    for k, j in enumerate(scene.joints):
-        if j.body in held:
-            return (f"joints: Drake's MultibodyPlant is a tree, each body the 'body' of one joint; "
-                    f"{scene.bodies[j.body].name!r} is that of joint[{held[j.body]}] and joint[{k}]")
-        held[j.body] = k
-    parent = {j.body: j.other for j in scene.joints}
-    for start in parent:
-        seen, i = set(), start
-        while i >= 0 and i in parent:
-            if i in seen:
-                return "joints: Drake's MultibodyPlant is a tree; the joints close a loop"
-            seen.add(i)
-            i = parent[i]
+    twice = held_twice(scene)
+    if twice:
+        b, k0, k1 = twice
+        return (f"joints: Drake's MultibodyPlant is a tree, each body the 'body' of one joint; "
+                f"{scene.bodies[b].name!r} is that of joint[{k0}] and joint[{k1}]")
+    if closes_loop(scene):
+        return "joints: Drake's MultibodyPlant is a tree; the joints close a loop"
     return None
 
 

@@ -1,6 +1,7 @@
-"""A joint's starting rate from the scene's starting velocities, for the
-adapters that build joints in reduced coordinates (pybullet links, Rapier
-multibody, Drake): there a body's velocity is its parent's plus the
+"""What the adapters that build joints in reduced coordinates (pybullet
+links, Rapier multibody, Drake) share: whether the joints form a tree
+(:func:`held_twice`, :func:`closes_loop`), and a joint's starting rate
+from the scene's starting velocities.  In reduced coordinates a body's velocity is its parent's plus the
 joint's own motion, so the scene's velocities must be such a motion and
 become the joint's rate.  A start the joint cannot carry is
 :class:`Unsupported` (it would be dropped silently otherwise).
@@ -61,3 +62,28 @@ def start_rate(scene: Scene, j: Any, engine: str) -> np.ndarray:
         raise Unsupported(f"joints: body {scene.bodies[j.body].name!r} starts with a motion its {j.kind} joint "
                           f"does not allow ({engine} carries the joint's own motion only)")
     return q
+
+
+def held_twice(scene: Scene) -> tuple[int, int, int] | None:
+    """(body, first joint, second joint) of the first body that is the
+    ``body`` of two joints, or None: a tree holds each body by one joint."""
+    held: dict[int, int] = {}
+    for k, j in enumerate(scene.joints):
+        if j.body in held:
+            return j.body, held[j.body], k
+        held[j.body] = k
+    return None
+
+
+def closes_loop(scene: Scene) -> bool:
+    """Whether following each joint's ``body`` to its ``other`` comes back
+    to a body already passed (the joints close a loop)."""
+    parent = {j.body: j.other for j in scene.joints}
+    for start in parent:
+        seen, i = set(), start
+        while i >= 0 and i in parent:
+            if i in seen:
+                return True
+            seen.add(i)
+            i = parent[i]
+    return False

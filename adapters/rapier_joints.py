@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.joint_rates import start_rate
+from physbench.adapters.joint_rates import closes_loop, held_twice, start_rate
 from physbench.contract.rotation import quat_to_matrix
 from physbench.contract.scene import Scene
 
@@ -51,21 +51,14 @@ _LOCKED = {"revolute": "LOCKED_REVOLUTE_AXES", "prismatic": "LOCKED_PRISMATIC_AX
 
 def tree_reason(scene: Scene) -> str | None:
     """Why the multibody form cannot hold the scene's joints, or None."""
-    held: dict[int, int] = {}
-    for k, j in enumerate(scene.joints):
-        if j.body in held:
-            return (f"joints: Rapier multibody joints build a tree, each body the 'body' of one joint; "
-                    f"{scene.bodies[j.body].name!r} is that of joint[{held[j.body]}] and joint[{k}] "
-                    f"(setting joints = impulse builds it)")
-        held[j.body] = k
-    parent = {j.body: j.other for j in scene.joints}
-    for start in parent:
-        seen, i = set(), start
-        while i >= 0 and i in parent:
-            if i in seen:
-                return "joints: Rapier multibody joints build a tree; the joints close a loop (setting joints = impulse)"
-            seen.add(i)
-            i = parent[i]
+    twice = held_twice(scene)
+    if twice:
+        b, k0, k1 = twice
+        return (f"joints: Rapier multibody joints build a tree, each body the 'body' of one joint; "
+                f"{scene.bodies[b].name!r} is that of joint[{k0}] and joint[{k1}] "
+                f"(setting joints = impulse builds it)")
+    if closes_loop(scene):
+        return "joints: Rapier multibody joints build a tree; the joints close a loop (setting joints = impulse)"
     return None
 
 
