@@ -25,6 +25,25 @@ def xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
     return np.asarray(q)[..., [3, 0, 1, 2]]
 
 
+def dot(a: np.ndarray, b: np.ndarray) -> float:
+    """a . b of two 1-D vectors, summed left to right in Python floats.  A
+    1-D ``a @ b`` or ``np.linalg.norm(a)`` calls BLAS ``ddot``, whose
+    rounding depends on the kernel OpenBLAS picks (``OPENBLAS_CORETYPE``):
+    a scene built with it would differ in its last bits from one machine to
+    the next (tests/test_engine_blas_free.py)."""
+    return sum((float(x) * float(y) for x, y in zip(a, b)), 0.0)
+
+
+def norm(a: np.ndarray) -> float:
+    """|a| of a 1-D vector without BLAS (:func:`dot`)."""
+    return math.sqrt(dot(a, a))
+
+
+def transpose_apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R^T v for a (3, 3) matrix and a (3,) vector without BLAS (:func:`dot`)."""
+    return np.array([dot(R[:, i], v) for i in range(3)])
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) wxyz."""
     q = np.asarray(q, float)
@@ -46,7 +65,7 @@ def rotation_matrix(q: np.ndarray | None) -> np.ndarray:
     """Rotation matrix (3, 3) of a wxyz quaternion (4,) that need not be of
     unit length (it is normalised first); None is the identity."""
     q = np.asarray(q if q is not None else (1.0, 0.0, 0.0, 0.0), float)
-    return quat_to_matrix(q / np.linalg.norm(q))
+    return quat_to_matrix(q / norm(q))
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -62,7 +81,7 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def quat_exp(phi: np.ndarray) -> np.ndarray:
     """Unit quaternion (wxyz, (4,)) of the rotation vector phi (3,) rad."""
     phi = np.asarray(phi, float)
-    a = float(np.linalg.norm(phi))
+    a = norm(phi)
     if a < 1e-300:
         return np.array([1.0, 0.0, 0.0, 0.0])
     return np.concatenate([[math.cos(a / 2)], math.sin(a / 2) * phi / a])

@@ -27,6 +27,7 @@ from physbench.contract.data import SHIPPED_SCENARIOS, checkout_root
 from physbench.contract.geometry.start import overlap_errors
 from physbench.contract.models import model_refusal, scene_errors
 from physbench.contract.phase import PhaseError, shift_scene
+from physbench.contract.rotation import dot, norm, quat_to_matrix, transpose_apply
 from physbench.contract.scene_model import (  # re-exported: the scene's types are imported from here
     Body,
     Check,
@@ -116,13 +117,13 @@ def compile_scene(spec: SpecModel, path: Path | None = None, variant: str | None
         name = s.name or f"static_{si}"
         if s.shape == "plane":
             n = np.array(s.normal, float)
-            n /= np.linalg.norm(n)
+            n /= norm(n)
             statics.append(Static(si, name, "plane", "plane", s.material, normal=n, offset=float(s.offset or 0.0)))
         elif s.shape == "slope":
             a = math.radians(s.angle)
             n = np.array([math.sin(a), 0.0, math.cos(a)])
             pt = np.array(s.point if s.point is not None else (0.0, 0.0, 0.0), float)
-            statics.append(Static(si, name, "plane", "slope", s.material, normal=n, offset=float(n @ pt), angle=float(s.angle)))
+            statics.append(Static(si, name, "plane", "slope", s.material, normal=n, offset=dot(n, pt), angle=float(s.angle)))
         else:
             statics.append(Static(si, name, "box", "box", s.material,
                                   position=np.array(s.position, float),
@@ -221,8 +222,6 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
     the world is everywhere, so a pendulum bob may hang at any distance
     from its pivot) and a body named twice in one fixed chain (a loop of
     fixed joints, world included)."""
-    from physbench.contract.rotation import quat_to_matrix
-
     out: list[Joint] = []
     table: list[int] = []  # per joint made: its [[joint]] table
     # fixed chains: union-find over body indices, the world as -1
@@ -237,7 +236,7 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
         if i < 0:
             return v.copy()
         R = quat_to_matrix(bodies[i].orientation)
-        return R.T @ (v - bodies[i].position if point else v)
+        return transpose_apply(R, v - bodies[i].position if point else v)
 
     for k, j in enumerate(spec.joint):
         p = f"{label}: joint[{k}]"
@@ -277,7 +276,7 @@ def _compile_joints(spec: SpecModel, bodies: list[Body], index: dict[str, int], 
                                 f"{other!r} through other fixed joints): a loop of fixed joints")
                     continue
                 parent[ra] = ro
-            axis = None if j.axis is None else np.array(j.axis, float) / np.linalg.norm(j.axis)
+            axis = None if j.axis is None else np.array(j.axis, float) / norm(np.array(j.axis, float))
             # default names count the joints made so far: a chain's joints and
             # the tables after it never share one (tests/test_joint_chain.py)
             table.append(k)

@@ -64,7 +64,7 @@ class Body:
         if self.shape == "sphere":
             return self.radius
         if self.shape == "box":
-            return float(np.linalg.norm(self.half_extents))
+            return math.sqrt(sum((float(h) * float(h) for h in self.half_extents), 0.0))  # no BLAS: contract.rotation.dot
         if self.shape == "capsule":
             return self.half_length + self.radius
         return math.hypot(self.half_length, self.radius)

@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-SCENES = ("stacking.column_5", "friction.block_slides", "gyroscopic.dzhanibekov", "billiards.head_on")
+SCENES = ("stacking.column_5", "friction.block_slides", "gyroscopic.dzhanibekov", "billiards.head_on",
+          "joints.four_bar")
 CORE_TYPES = ("Prescott", "Sandybridge", "Haswell")
 
 _CODE = """
@@ -64,6 +65,12 @@ _BLAS = re.compile(r"(\s@\s|\s@=|np\.dot\b|\.dot\(|matmul|np\.linalg\.(solve|inv
                    r"scipy|tensordot|optimize=True)")
 
 
+def _blas(code: str) -> bool:
+    """A BLAS-dispatched call in ``code``: the patterns above, or a 1-D
+    ``np.linalg.norm`` (no ``axis``: it is ``sqrt(ddot(a, a))``)."""
+    return bool(_BLAS.search(code)) or ("np.linalg.norm(" in code and "axis" not in code)
+
+
 def test_the_dynamics_modules_call_no_blas():
     bad = []
     for name in DYNAMICS:
@@ -73,6 +80,27 @@ def test_the_dynamics_modules_call_no_blas():
                 code = line.split("#", 1)[0]
                 if code.strip().startswith(("@njit", "@staticmethod", "@property", "@classmethod", "@dataclass")):
                     continue
-                if _BLAS.search(code) and not code.lstrip().startswith(('"', "'")):
+                if _blas(code) and not code.lstrip().startswith(('"', "'")):
                     bad.append(f"{f.relative_to(REPO)}:{k}: {line.strip()}")
+    assert not bad, "\n".join(bad)
+
+
+#: the contract modules that build a scene's numbers (poses, joint frames,
+#: plane offsets) before any engine sees them
+SCENE_BUILDING = ("scene.py", "scene_model.py", "rotation.py", "shapes.py")
+
+
+def test_building_a_scene_calls_no_blas():
+    """A 1-D ``@`` or ``np.linalg.norm`` in the scene's construction made
+    joints.four_bar's joint frames differ in their last bits under
+    Prescott; contract.rotation.dot and norm sum in a fixed order."""
+    bad = []
+    for name in SCENE_BUILDING:
+        f = REPO / "contract" / name
+        for k, line in enumerate(f.read_text().splitlines(), 1):
+            code = line.split("#", 1)[0]
+            if _blas(code) and not code.lstrip().startswith(('"', "'", "1-D")):
+                bad.append(f"{f.relative_to(REPO)}:{k}: {line.strip()}")
+    # the joint reach check measures, it builds nothing: allowed
+    bad = [b for b in bad if "near = [" not in b]
     assert not bad, "\n".join(bad)

@@ -62,7 +62,7 @@ class JointFlight(Stage):
         self.lam = np.zeros(r)
         arms = np.linalg.norm(np.concatenate([jm.pa, jm.pb[jm.rb >= 0]]), axis=1)
         arms = arms[arms > 0]
-        g = float(np.linalg.norm(model.gravity)) if model.has("gravity") else 0.0
+        g = float(np.sqrt(np.sum(np.asarray(model.gravity, float) ** 2))) if model.has("gravity") else 0.0
         #: the fastest small swing of a row's anchor arm under gravity (rad/s)
         self.w_g = float(np.sqrt(g / arms.min())) if arms.size else 0.0
         self.residual = 0.0

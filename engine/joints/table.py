@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from physbench.engine.joints import KINDS
@@ -49,12 +51,19 @@ class JointModel:
         return int(self.rt.shape[0])
 
 
+def _norm(v: np.ndarray) -> float:
+    """|v| of a 1-D vector, summed left to right: ``np.linalg.norm`` of a
+    1-D array calls BLAS, whose rounding depends on the CPU kernel
+    (tests/test_engine_blas_free.py)."""
+    return math.sqrt(sum((float(x) * float(x) for x in v), 0.0))
+
+
 def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit u to an orthonormal frame."""
-    u = u / np.linalg.norm(u)
+    u = u / _norm(u)
     e = np.eye(3)[int(np.argmin(np.abs(u)))]
     p1 = np.cross(u, e)
-    p1 /= np.linalg.norm(p1)
+    p1 /= _norm(p1)
     return p1, np.cross(u, p1)
 
 
@@ -62,7 +71,7 @@ def _rot(q: np.ndarray) -> np.ndarray:
     from physbench.engine.mathutil import quat_to_matrix
 
     q = np.asarray(q, float)
-    return quat_to_matrix((q / np.linalg.norm(q)).reshape(1, 4))[0]
+    return quat_to_matrix((q / _norm(q)).reshape(1, 4))[0]
 
 
 def build_joints(inp) -> JointModel | None:
