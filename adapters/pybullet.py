@@ -164,7 +164,7 @@ class PybulletAdapter(Adapter):
         p.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
 
         # ---- materials -----------------------------------------------------
-        nb, ns = scene.n_bodies, len(scene.statics)
+        nb = scene.n_bodies
         mats = per_object_factors(scene, ENGINE, MAX_COMBINED_FRICTION)
         self.notes.extend(mats.notes)
         self.info.update(mats.info)

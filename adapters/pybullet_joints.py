@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from physbench.adapters.base import Unsupported
-from physbench.adapters.joint_rates import start_rate
+from physbench.adapters.joint_rates import closes_loop, held_twice, start_rate
 from physbench.contract.rotation import quat_mul, wxyz_to_xyzw
 from physbench.contract.scene import Scene
 
@@ -147,20 +147,15 @@ def links_reason(scene: Scene) -> str | None:
     base is the world), each body the ``body`` of one joint, and the
     explicit forces act on free bodies only."""
     why = "joints: pybullet's links form (joints = links) "
-    held: dict[int, Any] = {}
-    for j in scene.joints:
-        if j.body in held:
-            return why + f"builds a tree: {scene.bodies[j.body].name!r} is the body of two joints"
-        held[j.body] = j
-    for b in scene.bodies:
-        seen, i = set(), b.index
-        while i >= 0:
-            if i not in held:
-                return why + f"needs every body held to the world by a chain of joints; {scene.bodies[i].name!r} is not"
-            if i in seen:
-                return why + "builds a tree; the joints close a loop"
-            seen.add(i)
-            i = held[i].other
+    twice = held_twice(scene)
+    if twice is not None:
+        return why + f"builds a tree: {scene.bodies[twice[0]].name!r} is the body of two joints"
+    held = {j.body for j in scene.joints}
+    loose = next((b for b in scene.bodies if b.index not in held), None)
+    if loose is not None:
+        return why + f"needs every body held to the world by a chain of joints; {loose.name!r} is not"
+    if closes_loop(scene):
+        return why + "builds a tree; the joints close a loop"
     if scene.springs or scene.has("drag_linear") or scene.has("drag_quadratic"):
         return why + "applies no springs, dampers or drag"
     return None
