@@ -33,7 +33,7 @@ import math
 
 from numba import njit
 
-from physbench.engine.flight import _rot_row
+from physbench.engine.flight import _rot_row, evaluate
 
 POINT, DOT, SLIDE = 0, 1, 2
 
@@ -49,6 +49,25 @@ def frames(q, inv_I, R, Iinv):
             for j in range(3):
                 Iinv[k, i, j] = (R[k, i, 0] * inv_I[k, 0] * R[k, j, 0] + R[k, i, 1] * inv_I[k, 1] * R[k, j, 1]
                                  + R[k, i, 2] * inv_I[k, 2] * R[k, j, 2])
+
+
+@njit(cache=True)
+def free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
+    """The frames (wk's R, Iinv), the force model's F, T (wk) at (x, q, v,
+    w) and the unconstrained accelerations a = F / m, al = I^-1 T (n, 3)
+    (m s^-2, rad s^-2): the set-up both joint solvers share (step.py's
+    exact solve, sequential.py's impulses)."""
+    R, Iinv, F, T = wk[0], wk[1], wk[2], wk[3]
+    frames(q, inv_I, R, Iinv)
+    if has_forces:
+        evaluate(fm, x, q, v, w, R, F, T)
+    else:
+        F[:, :] = 0.0
+        T[:, :] = 0.0
+    for k in range(x.shape[0]):
+        for c in range(3):
+            a[k, c] = F[k, c] * inv_m[k]
+            al[k, c] = Iinv[k, c, 0] * T[k, 0] + Iinv[k, c, 1] * T[k, 1] + Iinv[k, c, 2] * T[k, 2]
 
 
 @njit(cache=True, inline="always")

@@ -27,8 +27,8 @@ from __future__ import annotations
 
 from numba import njit
 
-from physbench.engine.flight import evaluate, rotate
-from physbench.engine.joints.rows import eval_rows, frames
+from physbench.engine.flight import rotate
+from physbench.engine.joints.rows import eval_rows, free_accelerations
 from physbench.engine.joints.solve import mass_times_rows
 
 
@@ -40,16 +40,11 @@ def si_part(jm, fm, has_forces, inv_m, inv_I, x, q, v, w, h, iterations, beta, l
     R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam2, y, dv, dw = wk
     ra, rb = jm[1], jm[2]
     n = x.shape[0]
-    frames(q, inv_I, R, Iinv)
-    if has_forces:
-        evaluate(fm, x, q, v, w, R, F, T)
-    else:
-        F[:, :] = 0.0
-        T[:, :] = 0.0
+    free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, dv, dw)
     for k in range(n):
         for c in range(3):
-            v[k, c] += h * F[k, c] * inv_m[k]
-            w[k, c] += h * (Iinv[k, c, 0] * T[k, 0] + Iinv[k, c, 1] * T[k, 1] + Iinv[k, c, 2] * T[k, 2])
+            v[k, c] += h * dv[k, c]
+            w[k, c] += h * dw[k, c]
     eval_rows(jm, x, R, v, w, False, C, J, bias)
     mass_times_rows(ra, rb, J, inv_m, Iinv, MJ)
     m = C.shape[0]

@@ -27,8 +27,8 @@ import math
 
 from numba import njit
 
-from physbench.engine.flight import evaluate, rotate
-from physbench.engine.joints.rows import eval_rows, frames
+from physbench.engine.flight import rotate
+from physbench.engine.joints.rows import eval_rows, frames, free_accelerations
 from physbench.engine.joints.sequential import si_part
 from physbench.engine.joints.solve import apply_rows, assemble, band_solve, factor, mass_times_rows, rows_times
 
@@ -39,16 +39,7 @@ def accelerations(jm, bw, fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
     doc).  Returns the rows dropped as redundant."""
     R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam, y, dv, dw = wk
     ra, rb = jm[1], jm[2]
-    frames(q, inv_I, R, Iinv)
-    if has_forces:
-        evaluate(fm, x, q, v, w, R, F, T)
-    else:
-        F[:, :] = 0.0
-        T[:, :] = 0.0
-    for k in range(x.shape[0]):
-        for c in range(3):
-            a[k, c] = F[k, c] * inv_m[k]
-            al[k, c] = Iinv[k, c, 0] * T[k, 0] + Iinv[k, c, 1] * T[k, 1] + Iinv[k, c, 2] * T[k, 2]
+    free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al)
     eval_rows(jm, x, R, v, w, True, C, J, bias)
     mass_times_rows(ra, rb, J, inv_m, Iinv, MJ)
     assemble(ra, rb, J, MJ, bw, Kb)
