@@ -3,8 +3,8 @@ scenes only, single precision.
 
 Planar mapping (as for pymunk): a planar scene lives in the world x-z
 plane; :func:`contract.conventions.planar_from_world` at build and
-:func:`contract.conventions.world_from_planar` in :meth:`Box2dAdapter.read_state`
-are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
+:func:`contract.conventions.world_from_planar`'s mapping in :meth:`Box2dAdapter._convert`
+(vectorised over a block) are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
 w = world angular velocity (0, -w, 0)).  Mass = ``Body.mass`` and rotational
 inertia = ``Body.inertia[1]`` (I_yy of the 3D body, exact for rotations about
 y), set as the body's mass data after its shape (density 0).
@@ -58,7 +58,7 @@ from physbench.adapters.box2d_joints import add_joints
 from physbench.adapters.box2d_scene import body_shape, declaration, rot, shape_materials, static_pose
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.planar import planar_geometry_reason
-from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from physbench.contract.conventions import planar_from_world, world_point_to_planar
 from physbench.contract.scene import Scene
 
 ENGINE = "box2d"
@@ -229,7 +229,7 @@ class Box2dAdapter(Adapter):
         """Step n times, each step's three batched f32 reads (transforms,
         linear and angular velocities) written straight into rows of one
         preallocated block through views made with the block (no allocation
-        per step), then the whole block converted once by world_from_planar,
+        per step), then the whole block converted once (:meth:`_convert`),
         also the complete steps before an exception."""
         if self._forces is not None:
             return super().step_record(n, pos, quat, vel, angvel)
@@ -262,24 +262,44 @@ class Box2dAdapter(Adapter):
             if done and nb:
                 self._convert(t[:done], v[:done], w[:done], pos[:done], quat[:done], vel[:done], angvel[:done])
 
-    @staticmethod
-    def _convert(t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
-                 angvel: np.ndarray) -> None:
+    def _convert(self, t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray,
+                 vel: np.ndarray, angvel: np.ndarray) -> None:
         """Box2D's f32 transforms (..., nb, 4) [x, y, cos, sin], velocities
         (..., nb, 2) and angular velocities (..., nb) into the harness's
-        world arrays (..., nb, 3|4), vectorised through world_from_planar."""
-        t, v = t.astype(float), v.astype(float)
-        angle = np.arctan2(t[..., 3], t[..., 2])
-        world_from_planar(t[..., 0], t[..., 1], v[..., 0], v[..., 1], angle, w.astype(float),
-                          np.moveaxis(pos, -1, 0), np.moveaxis(quat, -1, 0), np.moveaxis(vel, -1, 0),
-                          np.moveaxis(angvel, -1, 0))
+        world arrays (..., nb, 3|4): the mapping of
+        :func:`contract.conventions.world_from_planar` (x, y -> world x, z;
+        angle = atan2(sin, cos) in float64, quaternion (cos a/2, 0,
+        -sin a/2, 0); w -> (0, -w, 0)), vectorised over the block into the
+        output arrays and two reused float64 scratch arrays: 12 array
+        operations, no temporary
+        (tests/test_adapter_box2d.py::test_block_conversion_is_world_from_planar)."""
+        shape = t.shape[:-1]
+        m = int(np.prod(shape))
+        if m == 0:
+            return
+        s = getattr(self, "_scratch", None)
+        if s is None or s.shape[1] < m:
+            s = self._scratch = np.empty((2, max(m, 1024)))
+        a, h = s[0, :m].reshape(shape), s[1, :m].reshape(shape)
+        np.arctan2(t[..., 3], t[..., 2], out=a, dtype=np.float64)  # float32 -> float64 exactly, then atan2
+        np.multiply(0.5, a, out=h)
+        np.cos(h, out=quat[..., 0])
+        np.sin(h, out=a)
+        np.negative(a, out=quat[..., 2])
+        quat[..., 1::2] = 0.0
+        pos[..., 0::2] = t[..., 0:2]
+        pos[..., 1] = 0.0
+        vel[..., 0::2] = v
+        vel[..., 1] = 0.0
+        np.negative(w, out=angvel[..., 1])
+        angvel[..., 0::2] = 0.0
 
     bare_record = bare_loops.box2d
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
         m/s and angular (n, 3) rad/s velocities: three batched f32 reads
-        into preallocated arrays, then one vectorised world_from_planar."""
+        into preallocated arrays, then :meth:`_convert`."""
         bt = self._batch
         bt.get_transforms(self._t)
         bt.get_linear_velocities(self._v)
@@ -306,5 +326,6 @@ class Box2dAdapter(Adapter):
     def close(self) -> None:
         self._batch = None
         self._block = None
+        self._scratch = None
         self._bodies = []
         self._world = None

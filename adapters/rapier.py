@@ -278,33 +278,38 @@ class RapierAdapter(Adapter):
         and converted to the (n, bodies, 3|4) blocks once
         (:class:`adapters.rapier_batch.SetBytesReader`, its last row checked
         against the getters on up to 16 bodies), also the complete steps
-        before an exception."""
+        before an exception.  Per step: the step call, the set's bytes and
+        one slice assignment into the buffer, nothing else."""
         if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
+        if n <= 0:
+            self.block_done = 0
+            return
         reader = self._reader
         step, blob = self._world.step, reader.blob
         odd: dict = {}  # rows whose bytes have another length than the block's first
-        L, k = 0, 0
+        L, k = 0, 0  # k: complete steps
         try:
-            for k in range(1, n + 1):
+            step()
+            b = blob()
+            L = len(b)  # the first step's length is the block's row length
+            rows, spans = reader.block(n, L)
+            rows[spans[0]] = b
+            k = 1
+            for k, sl in enumerate(spans[1:n], 1):
                 step()
                 b = blob()
-                if k == 1:
-                    L = len(b)
-                    rows = reader.rows(n, L)
                 try:
-                    rows[(k - 1) * L:k * L] = b
+                    rows[sl] = b
                 except ValueError:
-                    odd[k - 1] = b
-            k = n + 1
+                    odd[k] = b
+            k = n
         finally:
-            k -= 1  # complete steps (the k-th raised if we left early)
             self.steps += k
             self.block_done = k
             reader.rows_into(k, L, odd, pos[:k], quat[:k], vel[:k], angvel[:k])
-        if k and self._n:  # what landed in the last recorded row, against the getters
-            i = k - 1
-            reader.check(np.concatenate([quat[i][:, [1, 2, 3, 0]], pos[i], vel[i], angvel[i]], axis=1), sample=16)
+        if self._n:  # what landed in the last recorded row, against the getters
+            reader.check_state(pos[n - 1], quat[n - 1], vel[n - 1], angvel[n - 1], sample=16)
 
     @staticmethod
     def _write(a: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:

@@ -458,7 +458,8 @@ def test_rows_of_another_length_are_decoded_apart(head_on_path):
     after = r.blob()
     assert len(first) != len(after)
     L = len(after)
-    r.rows(2, L)[0:L] = after
+    rows, spans = r.block(2, L)
+    rows[spans[0]] = after
     out = [np.zeros((2, 2, j)) for j in (3, 4, 3, 3)]
     r.rows_into(2, L, {1: after + b"\0" * 8}, *out)
     want = getter_rows(a._bodies)
