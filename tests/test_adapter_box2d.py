@@ -341,3 +341,40 @@ def test_block_conversion_is_world_from_planar():
         a._convert(tt, vv, ww, *got)
         for g, x in zip(got, want):
             assert np.array_equal(g.view(np.uint64), x.view(np.uint64))
+
+
+def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
+    """An exception in the k-th step of a block (past the first staging
+    chunk) leaves the k - 1 steps before it recorded and converted
+    (block_done says how many), equal to a plain step-and-read loop."""
+    from physbench.adapters import box2d
+
+    sc = load_scene(head_on_path)
+    n, k = 300, box2d.CHUNK + 9
+    ref = Box2dAdapter()
+    ref.build(sc, Box2dAdapter.resolve_settings(sc))
+    want = [np.zeros((k - 1, 2, j)) for j in (3, 4, 3, 3)]
+    for i in range(k - 1):
+        ref.step(1)
+        ref.read_state(*(x[i] for x in want))
+    a = Box2dAdapter()
+    a.build(sc, Box2dAdapter.resolve_settings(sc))
+
+    class Failing:
+        def __init__(self, world):
+            self.world, self.calls = world, 0
+
+        def step(self, dt, sub):
+            self.calls += 1
+            if self.calls == k:
+                raise RuntimeError("engine failure")
+            self.world.step(dt, sub)
+
+    a._world = Failing(a._world)
+    got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
+    with pytest.raises(RuntimeError, match="engine failure"):
+        a.step_record(n, *got)
+    assert a.block_done == k - 1 and a.steps == k - 1
+    for g, x in zip(got, want):
+        np.testing.assert_array_equal(g[:k - 1], x)
+        assert np.isnan(g[k - 1:]).all()
