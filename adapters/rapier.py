@@ -93,12 +93,12 @@ ENGINE = "rapier"
 
 ROLLING_FRICTION_REASON = "Rapier 0.36 has no rolling resistance (rolling_friction)"
 
-#: steps whose set bytes are decoded at once while recording: the row buffer
-#: (~0.5 kB per body and step) then stays in the CPU's cache between its
-#: writing and its reading (measured on the bench's 10-box column: the
-#: runner's own work 1.2 us per step less than decoding every 1024 steps;
-#: 64 and 256 no better)
-CHUNK = 128
+#: bytes of set bytes decoded at once while recording (CHUNK_BYTES over a
+#: step's length, 32 to 1024 steps): the row buffer (~0.5 kB per body and
+#: step) then stays in the CPU's cache between its writing and its reading
+#: (measured on the bench's 10-box column: the runner's own work 1.2 us per
+#: step less than decoding every 1024 steps)
+CHUNK_BYTES = 256 << 10
 
 class RapierAdapter(Adapter):
     """Adapter for rapier3d 0.36 (see the module docstring)."""
@@ -282,7 +282,7 @@ class RapierAdapter(Adapter):
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times recording every step: one ``to_bytes()`` of the
         rigid-body set per step, copied into a reused row buffer and, every
-        :data:`CHUNK` steps, decoded and converted into the (n, bodies,
+        :data:`CHUNK_BYTES` of them, decoded and converted into the (n, bodies,
         3|4) blocks at once (:class:`adapters.rapier_batch.SetBytesReader`;
         the block's last row checked against the getters on up to 16
         bodies), also the complete steps before an exception.  Per step:
@@ -291,8 +291,9 @@ class RapierAdapter(Adapter):
         if self._forces is not None or self._reader is None:
             return super().step_record(n, pos, quat, vel, angvel)
         self.block_done = 0
-        for c in range(0, n, CHUNK):
-            m = min(CHUNK, n - c)
+        chunk = max(32, min(1024, CHUNK_BYTES // max(1, self._reader.need)))
+        for c in range(0, n, chunk):
+            m = min(chunk, n - c)
             self._record(m, pos[c:c + m], quat[c:c + m], vel[c:c + m], angvel[c:c + m])
         if n > 0 and self._n:  # what landed in the last recorded row, against the getters
             self._reader.check_state(pos[n - 1], quat[n - 1], vel[n - 1], angvel[n - 1], sample=16)
