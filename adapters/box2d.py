@@ -3,8 +3,8 @@ scenes only, single precision.
 
 Planar mapping (as for pymunk): a planar scene lives in the world x-z
 plane; :func:`contract.conventions.planar_from_world` at build and
-:func:`contract.conventions.world_from_planar` in :meth:`Box2dAdapter.read_state`
-are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
+:func:`contract.conventions.world_from_planar`'s mapping in :meth:`Box2dAdapter._convert`
+(vectorised over a block) are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
 w = world angular velocity (0, -w, 0)).  Mass = ``Body.mass`` and rotational
 inertia = ``Body.inertia[1]`` (I_yy of the 3D body, exact for rotations about
 y), set as the body's mass data after its shape (density 0).
@@ -47,6 +47,7 @@ are undefined with that reason.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -58,12 +59,19 @@ from physbench.adapters.box2d_joints import add_joints
 from physbench.adapters.box2d_scene import body_shape, declaration, rot, shape_materials, static_pose
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.planar import planar_geometry_reason
-from physbench.contract.conventions import planar_from_world, world_from_planar, world_point_to_planar
+from physbench.contract.conventions import planar_from_world, world_point_to_planar
 from physbench.contract.scene import Scene
 
 ENGINE = "box2d"
 
 GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
+
+#: steps recorded into the staging block between two conversions: its row
+#: views are made once per adapter (three views per row; made per block
+#: row, up to the runner's largest block, they cost ~0.8 us per recorded
+#: step on the bench's 10-box pyramid, measured) and the block stays in
+#: cache until it is converted
+CHUNK = 128
 
 
 class Box2dAdapter(Adapter):
@@ -227,25 +235,31 @@ class Box2dAdapter(Adapter):
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, each step's three batched f32 reads (transforms,
-        linear and angular velocities) written straight into rows of one
-        preallocated block through views made with the block (no allocation
-        per step), then the whole block converted once by world_from_planar,
-        also the complete steps before an exception."""
+        linear and angular velocities) written straight into a row of a
+        reused staging block of :data:`CHUNK` rows through views made once
+        (no allocation per step), converted (:meth:`_convert`) into the
+        (n, bodies, 3|4) blocks every CHUNK steps, while the staging rows
+        are still in cache; also the complete steps before an exception."""
         if self._forces is not None:
             return super().step_record(n, pos, quat, vel, angvel)
+        self.block_done = 0
+        for c in range(0, n, CHUNK):
+            m = min(CHUNK, n - c)
+            self._record(m, pos[c:c + m], quat[c:c + m], vel[c:c + m], angvel[c:c + m])
+
+    def _record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+        """:meth:`step_record`'s chunk of n <= CHUNK steps (``block_done``
+        and ``steps`` count the complete ones)."""
         nb = len(self._bodies)
         blk = getattr(self, "_block", None)
-        if blk is None or len(blk[0]) < n:
+        if blk is None:
             # pyb2d3 silently copies a non-contiguous output array (and then
-            # writes nothing back): every row view below is C-contiguous.
-            # Room for 4 blocks of this size: the row views are made once
-            # per row, and reused by the blocks after
-            m = max(4 * n, 256)
-            blk = self._block = (np.zeros((m, nb, 4), np.float32), np.zeros((m, nb, 2), np.float32),
-                                 np.zeros((m, nb), np.float32), [])
+            # writes nothing back): every row view below is C-contiguous,
+            # made once for the adapter's life
+            t, v, w = (np.zeros((CHUNK, nb, 4), np.float32), np.zeros((CHUNK, nb, 2), np.float32),
+                       np.zeros((CHUNK, nb), np.float32))
+            blk = self._block = (t, v, w, [(t[i], v[i], w[i]) for i in range(CHUNK)])
         t, v, w, rows = blk
-        if len(rows) < n:
-            rows.extend((t[i], v[i], w[i]) for i in range(len(rows), n))
         world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
         step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
         done = 0
@@ -258,28 +272,54 @@ class Box2dAdapter(Adapter):
                 gw(wi)
         finally:
             self.steps += done
-            self.block_done = done
+            self.block_done += done
             if done and nb:
                 self._convert(t[:done], v[:done], w[:done], pos[:done], quat[:done], vel[:done], angvel[:done])
 
-    @staticmethod
-    def _convert(t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
-                 angvel: np.ndarray) -> None:
+    def _convert(self, t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray,
+                 vel: np.ndarray, angvel: np.ndarray) -> None:
         """Box2D's f32 transforms (..., nb, 4) [x, y, cos, sin], velocities
         (..., nb, 2) and angular velocities (..., nb) into the harness's
-        world arrays (..., nb, 3|4), vectorised through world_from_planar."""
-        t, v = t.astype(float), v.astype(float)
-        angle = np.arctan2(t[..., 3], t[..., 2])
-        world_from_planar(t[..., 0], t[..., 1], v[..., 0], v[..., 1], angle, w.astype(float),
-                          np.moveaxis(pos, -1, 0), np.moveaxis(quat, -1, 0), np.moveaxis(vel, -1, 0),
-                          np.moveaxis(angvel, -1, 0))
+        world arrays (..., nb, 3|4): the mapping of
+        :func:`contract.conventions.world_from_planar` (x, y -> world x, z;
+        angle = atan2(sin, cos) in float64, quaternion (cos a/2, 0,
+        -sin a/2, 0); w -> (0, -w, 0)), vectorised over the block into the
+        output arrays and two reused float64 scratch arrays: 15 array
+        operations, no temporary
+        (tests/test_adapter_box2d.py::test_block_conversion_is_world_from_planar)."""
+        shape = t.shape[:-1]
+        m = math.prod(shape)
+        if m == 0:
+            return
+        s = getattr(self, "_scratch", None)
+        if s is None or s.shape[1] < m:
+            s = self._scratch = np.empty((2, max(m, 1024)))
+        a, h = s[0, :m].reshape(shape), s[1, :m].reshape(shape)
+        np.arctan2(t[..., 3], t[..., 2], out=a, dtype=np.float64)  # float32 -> float64 exactly, then atan2
+        np.multiply(0.5, a, out=h)
+        np.cos(h, out=quat[..., 0])
+        np.sin(h, out=a)
+        np.negative(a, out=quat[..., 2])
+        quat[..., 1::2] = 0.0
+        # one component per assignment: each is then one long strided loop
+        # (a (..., 2) pair of components would be loops of two: 2.6x slower,
+        # measured)
+        pos[..., 0] = t[..., 0]
+        pos[..., 1] = 0.0
+        pos[..., 2] = t[..., 1]
+        vel[..., 0] = v[..., 0]
+        vel[..., 1] = 0.0
+        vel[..., 2] = v[..., 1]
+        angvel[..., 0] = 0.0
+        np.negative(w, out=angvel[..., 1])
+        angvel[..., 2] = 0.0
 
     bare_record = bare_loops.box2d
 
     def read_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """World positions (n, 3) m, wxyz quaternions (n, 4), linear (n, 3)
         m/s and angular (n, 3) rad/s velocities: three batched f32 reads
-        into preallocated arrays, then one vectorised world_from_planar."""
+        into preallocated arrays, then :meth:`_convert`."""
         bt = self._batch
         bt.get_transforms(self._t)
         bt.get_linear_velocities(self._v)
@@ -306,5 +346,6 @@ class Box2dAdapter(Adapter):
     def close(self) -> None:
         self._batch = None
         self._block = None
+        self._scratch = None
         self._bodies = []
         self._world = None

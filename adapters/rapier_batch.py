@@ -104,6 +104,9 @@ class SetBytesReader:
         #: the decode is then two strided views over all bodies at once
         self._stride = lengths[0] if lengths and len(set(lengths)) == 1 else None
         self._rows: memoryview | None = None
+        self._spans: list = []
+        self._samples: dict = {}
+        self._L = 0
         #: bytes up to the end of the last body's velocity
         self.need = int(self._offsets[-1]) + delta + VELOCITY if bodies else 0
         if self.need > len(blob):
@@ -116,22 +119,21 @@ class SetBytesReader:
     def _views(self, raw: Any, k: int, L: int) -> list:
         """Per group of bodies (all at once when they share one serialised
         length, else one by one): (body slice, (k, m, 7) f32 poses
-        [qx, qy, qz, qw, x, y, z], (k, m, 6) f32 velocities) gathered from
-        ``raw``, k rows of L bytes, by strided record views: no per-row
-        Python work."""
+        [qx, qy, qz, qw, x, y, z], (k, m, 6) f32 velocities) viewed in
+        ``raw``, k rows of L bytes, by strided views: no per-row
+        Python work, no copy."""
         d = self._delta
-        pose_t, vel_t = np.dtype(f"V{ROTATION + TRANSLATION}"), np.dtype(f"V{VELOCITY}")
 
-        def f32(dtype: np.dtype, offset: int, m: int, stride: int, width: int) -> np.ndarray:
-            # one record per (row, body) copied whole (memcpy each), then
-            # read as aligned f32
-            v = np.ndarray((k, m), dtype, raw, offset, (L, stride)).copy()
-            return v.view(F32).reshape(k, m, width)
+        def f32(offset: int, m: int, stride: int, width: int) -> np.ndarray:
+            # a view, no copy: its strides are byte distances (L and a
+            # body's serialised length need not be multiples of 4, so it
+            # may be unaligned; numpy reads it as such)
+            return np.ndarray((k, m, width), F32, raw, offset, (L, stride, 4))
 
         if self._stride is not None:
             t0, S, n = int(self._offsets[0]), self._stride, len(self._bodies)
-            return [(slice(0, n), f32(pose_t, t0 - ROTATION, n, S, 7), f32(vel_t, t0 + d, n, S, 6))]
-        return [(slice(i, i + 1), f32(pose_t, t - ROTATION, 1, 0, 7), f32(vel_t, t + d, 1, 0, 6))
+            return [(slice(0, n), f32(t0 - ROTATION, n, S, 7), f32(t0 + d, n, S, 6))]
+        return [(slice(i, i + 1), f32(t - ROTATION, 1, 0, 7), f32(t + d, 1, 0, 6))
                 for i, t in enumerate(self._offsets.tolist())]
 
     def _joined(self, blobs: list) -> tuple[bytes, int]:
@@ -154,20 +156,27 @@ class SetBytesReader:
                 out[:, sl, 7:13] = vel
         return out
 
-    def rows(self, n: int, L: int) -> memoryview:
-        """A reused buffer for n rows of L bytes (the runner's blocks copy
-        each step's bytes into it: no allocation, and no fresh pages to
-        fault in, per block)."""
-        if self._rows is None or len(self._rows) < n * L:
-            self._rows = memoryview(bytearray(n * L))
-        return self._rows
+    def block(self, n: int, L: int) -> tuple[memoryview, list]:
+        """A reused buffer of at least n rows of L bytes and the slices of
+        its first n rows (the runner's blocks copy each step's bytes into
+        row i by ``buf[spans[i]] = blob``: no allocation, no arithmetic and
+        no fresh pages to fault in, per step).  Buffer and slices are kept
+        for the next block of the same row length."""
+        if self._rows is None or len(self._rows) < n * L or self._L != L:
+            cap = max(n, len(self._rows) // L if self._rows is not None and self._L == L else 0)
+            self._rows = memoryview(bytearray(cap * L))
+            self._spans = [slice(i * L, (i + 1) * L) for i in range(cap)]
+            self._L = L
+        return self._rows, self._spans
 
     def rows_into(self, k: int, L: int, odd: dict, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray,
                   angvel: np.ndarray) -> None:
-        """The first k rows of :meth:`rows` (L bytes each; ``odd``: row ->
-        bytes of another length, decoded apart) straight into the harness's
-        (k, n, 3|4) arrays: positions, wxyz quaternions (Rapier's x, y, z, w
-        reordered), linear and angular velocities."""
+        """The first k rows of :meth:`block`'s buffer (L bytes each;
+        ``odd``: row -> bytes of another length, decoded apart) straight
+        into the harness's (k, n, 3|4) arrays: positions, wxyz quaternions
+        (Rapier's x, y, z, w reordered), linear and angular velocities, by
+        five strided f32 -> float64 assignments over the whole block, read
+        in place from the row bytes."""
         if not (k and len(self._bodies)):
             return
         parts = [(slice(0, k), self._views(self._rows, k, L))]
@@ -179,6 +188,36 @@ class SetBytesReader:
                 quat[rows, sl, 1:4] = pose[..., 0:3]
                 vel[rows, sl] = v[..., 0:3]
                 angvel[rows, sl] = v[..., 3:6]
+
+    def _sample(self, sample: int | None) -> list:
+        """Indices of the bodies checked: all, or ``sample`` of them evenly
+        spread from the first to the last (cached per sample size)."""
+        n = len(self._bodies)
+        key = None if sample is None or n <= sample else int(sample)
+        got = self._samples.get(key)
+        if got is None:
+            idx = range(n) if key is None else np.unique(np.linspace(0, n - 1, key).round().astype(int))
+            got = self._samples[key] = [int(i) for i in idx]
+        return got
+
+    def check_state(self, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray,
+                    sample: int | None = None) -> None:
+        """:meth:`check` of one recorded state in the harness's layout:
+        positions (n, 3), wxyz quaternions (n, 4), linear and angular
+        velocities (n, 3).  Compared in Python floats, body by body (a few
+        bodies: cheaper than array calls); anything unequal goes to
+        :meth:`check`, which decides (NaN equals NaN) and raises."""
+        P, Q, V, W = pos.tolist(), quat.tolist(), vel.tolist(), angvel.tolist()
+        bodies, tol = self._bodies, QUAT_TOL
+        for i in self._sample(sample):
+            rb = bodies[i]
+            x, y, z, w = rb.rotation.to_tuple()
+            q = Q[i]
+            if not (rb.translation.to_tuple() == tuple(P[i]) and rb.linvel.to_tuple() == tuple(V[i])
+                    and rb.angvel.to_tuple() == tuple(W[i]) and abs(w - q[0]) <= tol and abs(x - q[1]) <= tol
+                    and abs(y - q[2]) <= tol and abs(z - q[3]) <= tol):
+                self.check(np.concatenate([quat[:, [1, 2, 3, 0]], pos, vel, angvel], axis=1), sample)
+                return
 
     def check(self, last: np.ndarray, sample: int | None = None) -> None:
         """Raise RuntimeError unless ``last`` (n, 13) is the getters' state

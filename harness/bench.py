@@ -29,6 +29,7 @@ and ratios are printed, never asserted in tests:
 
 from __future__ import annotations
 
+import gc
 import math
 import statistics
 import time
@@ -150,12 +151,34 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
     the public step call and, after every step, the engine's cheapest read
     of every body's position, orientation and velocities in its own form,
     ``Adapter.bare_record``: what any caller recording a trajectory pays at
-    least); and the runner recording every step.  ``ratio`` = runner / bare
-    (the runner's own overhead: conversion, storage, checks), ``ratio_vs_api``
-    = runner / api and ``ratio_vs_fast`` = runner / fast (what recording
-    costs in all over stepping alone), ``read_us_per_step`` = bare - api (the
-    engine's read), medians over repeats.
+    least); and the runner recording every step.  The order alternates
+    from one repeat to the next (api, fast, bare, runner; then runner,
+    bare, fast, api; ...), so that a machine getting busier or quieter
+    during the repeats weighs on bare and runner alike.
+
+    ``ratio`` = runner / bare (the runner's own overhead: conversion,
+    storage, checks), ``ratio_vs_api`` = runner / api and ``ratio_vs_fast``
+    = runner / fast (what recording costs in all over stepping alone),
+    ``read_us_per_step`` = bare - api (the engine's read), all of medians
+    over repeats; the spread: ``ratio_lo`` and ``ratio_hi``, the least and
+    the greatest runner / bare of one repeat, and ``bare_spread`` and
+    ``runner_spread``, (max - min) / median of each timing over repeats.
+
+    The objects alive when it starts (the imported engines and libraries,
+    ~10^5) are frozen out of the garbage collector's reach meanwhile
+    (``gc.freeze``): a full collection, which a timed loop may set off,
+    then scans only what the benchmark made since, not ~0.1 s of the
+    process's imports (measured), on whichever side of a ratio it falls.
     """
+    gc.collect()
+    gc.freeze()
+    try:
+        return _overhead(engines, repeats, duration)
+    finally:
+        gc.unfreeze()
+
+
+def _overhead(engines: list[str], repeats: int, duration: float | None) -> list[dict[str, Any]]:
     rows = []
     for bs, dur in OVERHEAD_SCENES:
         scene0 = bs.create()
@@ -166,15 +189,21 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
                 rows.append({"scene": bs.name, "engine": engine, "status": "unsupported"})
                 continue
             steps = scene.n_steps
-            api, fast, bare, runner = [], [], [], []
+            times: dict[str, list[float]] = {"api": [], "fast": [], "bare": [], "runner": []}
+            timers = {
+                "api": lambda: _time_bare(engine, scene, steps, None, "bare_loop"),
+                "fast": lambda: _time_bare(engine, scene, steps, None, "step"),
+                "bare": lambda: _time_bare(engine, scene, steps, None, "bare_record"),
+                "runner": lambda: _time_runner(engine, scene, None),
+            }
             _time_bare(engine, scene, min(steps, 200), None)  # warm-up (imports, caches)
             _time_runner(engine, scene, None)
-            for _ in range(repeats):
-                api.append(_time_bare(engine, scene, steps, None, "bare_loop"))
-                fast.append(_time_bare(engine, scene, steps, None, "step"))
-                bare.append(_time_bare(engine, scene, steps, None, "bare_record"))
-                runner.append(_time_runner(engine, scene, None))
-            ma, mf, mb, mr = (statistics.median(x) for x in (api, fast, bare, runner))
+            order = list(timers)
+            for i in range(repeats):
+                for k in (order if i % 2 == 0 else order[::-1]):
+                    times[k].append(timers[k]())
+            ma, mf, mb, mr = (statistics.median(times[k]) for k in order)
+            paired = [r / b for r, b in zip(times["runner"], times["bare"])]
             rows.append({
                 "scene": bs.name, "engine": engine, "status": "ok", "steps": steps,
                 "api_us_per_step": 1e6 * ma / steps,
@@ -182,6 +211,10 @@ def overhead(engines: list[str], repeats: int = 5, duration: float | None = None
                 "bare_us_per_step": 1e6 * mb / steps,
                 "runner_us_per_step": 1e6 * mr / steps,
                 "ratio": mr / mb,
+                "ratio_lo": min(paired),
+                "ratio_hi": max(paired),
+                "bare_spread": (max(times["bare"]) - min(times["bare"])) / mb,
+                "runner_spread": (max(times["runner"]) - min(times["runner"])) / mr,
                 "ratio_vs_api": mr / ma,
                 "ratio_vs_fast": mr / mf,
                 "read_us_per_step": 1e6 * (mb - ma) / steps,

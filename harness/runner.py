@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import functools
+import json
 import math
 import numbers
 import os
@@ -22,27 +23,44 @@ import subprocess
 import time
 import traceback
 from dataclasses import dataclass, field
+from importlib.metadata import version as _dist_version
 from typing import Any
 
 import numpy as np
 
 from physbench.adapters import get_adapter
+from physbench.adapters.base import Unsupported
+from physbench.contract.data import checkout_root
+from physbench.contract.metric_defs import wants_contact_forces
 from physbench.contract.scene import Scene, n_steps
 from physbench.contract.spec import record_size_error
 from physbench.harness import status as st
+from physbench.harness.compile_progress import watch
+from physbench.harness.contact_laws import merge_into, run_contact_laws
+from physbench.harness.fingerprint import summary
+from physbench.harness.metrics import compute_metrics as _metrics
+from physbench.harness.metrics import run_penetration
+from physbench.harness.references import UNDEFINED, get_model
 from physbench.harness.results import CHECK_COLUMNS, VERDICT_COLUMNS
 
 # A state this far from the origin or this fast is a blow-up, not physics.
 RUNAWAY_POSITION = 1e6  # m
 RUNAWAY_SPEED = 1e6  # m/s or rad/s
 CHECK_EVERY = 256  # steps in the first recorded block / between finiteness checks
-# Blocks grow (doubling) while one takes less than BLOCK_TARGET_S of wall time,
+# Blocks grow (doubling) while one takes less than BLOCK_TARGET_S of CPU time,
 # up to MAX_BLOCK steps and BLOCK_BYTES of recorded state: the per-block cost
 # (the adapter's call into compiled code, one vectorised conversion, one
 # finiteness check) is then spread over enough steps to vanish beside the
-# engine's own, while a blow-up or a timeout is still seen within ~0.1 s.
+# engine's own, while a blow-up is still seen within ~0.05 s of CPU.  CPU
+# time: on a loaded machine wall time would keep blocks small, and their
+# per-block cost large, exactly when the run is timed against others
+# (``physbench bench overhead``); a block also stops growing once it takes
+# BLOCK_WALL_S of wall time, so that a timeout is seen within ~2
+# BLOCK_WALL_S of wall time even for an engine whose steps wait rather than
+# compute (tests/test_runner.py::test_blocks_grow_and_lose_nothing).
 MAX_BLOCK = 8192
 BLOCK_TARGET_S = 0.02
+BLOCK_WALL_S = 0.25
 BLOCK_BYTES = 8 << 20
 
 
@@ -141,8 +159,6 @@ class RunResult:
         timing, machine, JSON, verdict or bookkeeping column
         (harness.results.VERDICT_COLUMNS, CHECK_COLUMNS) is a metric.  A resumed
         check evaluates its finished runs from these."""
-        import json
-
         fixed = {"scenario", "variant", "engine", "engine_version", "status", "message", "commit", "timestamp",
                  "notes", "stages", "info", *CHECK_COLUMNS, *VERDICT_COLUMNS}
         settings, timing, machine, metrics = {}, {}, {}, {}
@@ -173,8 +189,6 @@ class RunResult:
         """Flat row for tables and Parquet: nested dicts become dotted
         columns ('setting.dt', 'timing.setup_s'); lists and the stage profile
         are JSON strings."""
-        import json
-
         d = self.as_dict()
         row: dict[str, Any] = {}
         for k, v in d.items():
@@ -213,8 +227,6 @@ def machine_info() -> dict[str, str]:
     arithmetic flags, cores, BLAS, numpy/scipy/numba/Python versions, host).
     One mechanism for check, run and sweep rows
     (tests/test_fuzz.py::test_rows_and_manifests_carry_the_fingerprint)."""
-    from physbench.harness.fingerprint import summary
-
     return dict(summary())
 
 
@@ -223,13 +235,9 @@ def commit_id() -> str:
     """The checkout's commit (``+dirty`` with uncommitted changes); for an
     installed package, which is no checkout (its folder may still lie in
     some other project's git tree), ``physbench-<version>``."""
-    from physbench.contract.data import checkout_root
-
     if checkout_root() is None:
-        from importlib.metadata import version
-
         try:
-            return f"physbench-{version('physbench')}"
+            return f"physbench-{_dist_version('physbench')}"
         except Exception:
             return "unknown"
     root = str(checkout_root())
@@ -281,8 +289,6 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     caps = cls.capabilities()
     # an engine whose kernels numba compiles says so on stderr while it does
     # (harness/compile_progress.py; nothing when they load from the cache)
-    from physbench.harness.compile_progress import watch
-
     watch()
     resolved = cls.resolve_settings(scene, settings)
     result = RunResult(
@@ -295,8 +301,6 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     if reason is not None:
         result.status, result.message = st.UNSUPPORTED, reason
         return result
-
-    from physbench.adapters.base import Unsupported
 
     dt = float(resolved["dt"])
     steps = n_steps(scene.duration, dt)
@@ -311,8 +315,6 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     # contact forces after every recorded step, only when a check or the
     # primary metric names a contact-law metric (stepping one step at a
     # time costs: docs/METRICS.md); a str: why the adapter has none
-    from physbench.contract.metric_defs import wants_contact_forces
-
     forces: list | str | None = [] if compute_metrics and wants_contact_forces(scene, engine) else None
     t0 = time.perf_counter()
     try:
@@ -344,7 +346,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     max_block = max(CHECK_EVERY, min(MAX_BLOCK, BLOCK_BYTES // (8 * 13 * max(1, scene.n_bodies))))
     try:
         while done < steps:
-            b0 = time.perf_counter()
+            b0, w0 = time.process_time(), time.perf_counter()
             if record_every == 1:
                 # a block of steps recorded every step; blocks bound the
                 # work lost to a blow-up and let adapters record in bulk
@@ -385,7 +387,8 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
                 result.status = st.TIMEOUT
                 result.message = f"stopped after {now - wall0:.1f} s wall at step {done} of {steps}"
                 break
-            if record_every == 1 and block < max_block and now - b0 < BLOCK_TARGET_S:
+            if (record_every == 1 and block < max_block and time.process_time() - b0 < BLOCK_TARGET_S
+                    and now - w0 < BLOCK_WALL_S):
                 block = min(2 * block, max_block)
     except Exception as e:
         if record_every == 1:
@@ -457,8 +460,6 @@ def _refined_runs(scene: Scene, engine: str, settings: dict[str, Any] | None, dt
     (tests/test_self_consistency.py)."""
     if not scene.reference_model:
         return None
-    from physbench.harness.references import get_model
-
     try:
         model = get_model(scene.reference_model)(scene)
     except Exception:
@@ -514,13 +515,14 @@ def _step_record_contacts(adapter: Any, n: int, frame: int, trace: Trace, result
 def _runaway(trace: Trace, a: int, b: int) -> str:
     """Describe a non-finite or runaway state in frames [a, b), or ''.
 
-    One reduction per array: a NaN or infinity makes the maximum fail the
-    ``<=`` test, so the finite case costs four calls; the message is worked
-    out only when something is wrong."""
-    lim = {"pos": RUNAWAY_POSITION, "quat": 2.0, "vel": RUNAWAY_SPEED, "angvel": RUNAWAY_SPEED}
-    for name, bound in lim.items():
+    Two reductions per array and no temporary: |x| <= bound for every
+    element exactly when max <= bound and -min <= bound, and a NaN makes
+    the maximum and the minimum NaN, which fails the ``<=`` test; the
+    message is worked out only when something is wrong
+    (tests/test_runner.py::test_runaway_finds_every_bad_value)."""
+    for name, bound in _RUNAWAY_BOUNDS:
         chunk = getattr(trace, name)[a:b]
-        if chunk.size and not float(np.abs(chunk).max()) <= bound:
+        if chunk.size and not (chunk.max() <= bound and -chunk.min() <= bound):
             if not np.isfinite(chunk).all():
                 return f"non-finite {name}"
             if name == "pos":
@@ -529,6 +531,10 @@ def _runaway(trace: Trace, a: int, b: int) -> str:
                 return "quaternion norm beyond 2 (not a rotation)"
             return f"speed beyond {RUNAWAY_SPEED:g}"
     return ""
+
+
+#: (trace array, bound on every component's magnitude) for :func:`_runaway`
+_RUNAWAY_BOUNDS = (("pos", RUNAWAY_POSITION), ("quat", 2.0), ("vel", RUNAWAY_SPEED), ("angvel", RUNAWAY_SPEED))
 
 
 def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute_metrics: bool, dt: float,
@@ -545,9 +551,6 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
     except Exception as e:
         result.notes.append(f"close() raised {type(e).__name__}: {e}")
     if compute_metrics and trace.n_frames > 0 and result.status != st.UNSUPPORTED:
-        from physbench.harness.metrics import compute_metrics as _metrics
-        from physbench.harness.metrics import run_penetration
-
         t0 = time.perf_counter()
         try:
             valid = trace.valid()
@@ -558,8 +561,6 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
             result.metrics.update(_metrics(scene, valid, dt=dt, model=model_metrics, pen=pen, **extra))
             trace.penetration = pen
             if forces is not None:
-                from physbench.harness.contact_laws import merge_into, run_contact_laws
-
                 why = getattr(adapter, "friction_forces_reason", "")
                 merge_into(result.metrics, run_contact_laws(scene, forces, valid, why and f"{adapter.name}: {why}"))
         except Exception as e:
@@ -574,7 +575,5 @@ def _finish(result: RunResult, adapter: Any, scene: Scene, trace: Trace, compute
         result.timing["metrics_s"] = time.perf_counter() - t0
         if result.status == st.OK and result.metrics.get("stable") is False:
             result.notes.append("unstable: " + str(result.metrics.get("stability_reason", "")))
-        from physbench.harness.references import UNDEFINED
-
         if result.metrics.get(UNDEFINED):
             result.notes.append("undefined metrics: " + str(result.metrics[UNDEFINED]))

@@ -311,3 +311,70 @@ def test_linear_drag(tmp_path):
     body = ball(z=0.0, vx=3.0, extra="drag_linear = 0.5\n")
     _, tr = run_ok(scene_from(tmp_path, spec(["drag_linear"], body, duration=2.0)))
     np.testing.assert_allclose(tr.vel[:, 0, 0], 3.0 * np.exp(-0.5 * tr.t), rtol=2e-3)
+
+
+def test_block_conversion_is_world_from_planar():
+    """The block conversion (Box2dAdapter._convert: reused scratch, outputs
+    written in place) gives, bit for bit, what
+    contract.conventions.world_from_planar gives on the same float32 states
+    converted to float64 (angle = atan2(sin, cos)), for a block and for one
+    state, at angles all round the circle (both signs of zero, +-pi)."""
+    from physbench.contract.conventions import world_from_planar
+
+    rng = np.random.default_rng(7)
+    k, nb = 300, 7
+    ang = rng.uniform(-np.pi, np.pi, (k, nb))
+    ang[0, :4] = [0.0, np.pi, -np.pi, 1e-9]
+    t = np.stack([rng.normal(0, 3, (k, nb)), rng.normal(0, 3, (k, nb)), np.cos(ang), np.sin(ang)], -1).astype(np.float32)
+    t[0, 4, 2:] = [1.0, -0.0]
+    v = rng.normal(0, 5, (k, nb, 2)).astype(np.float32)
+    w = rng.normal(0, 20, (k, nb)).astype(np.float32)
+    a = Box2dAdapter()
+    for sl in (np.s_[:], np.s_[5]):
+        tt, vv, ww = t[sl], v[sl], w[sl]
+        shape = ww.shape
+        want = [np.full((*shape, m), np.nan) for m in (3, 4, 3, 3)]
+        t64 = tt.astype(float)
+        world_from_planar(t64[..., 0], t64[..., 1], vv[..., 0].astype(float), vv[..., 1].astype(float),
+                          np.arctan2(t64[..., 3], t64[..., 2]), ww.astype(float), *(np.moveaxis(x, -1, 0) for x in want))
+        got = [np.full((*shape, m), np.nan) for m in (3, 4, 3, 3)]
+        a._convert(tt, vv, ww, *got)
+        for g, x in zip(got, want):
+            assert np.array_equal(g.view(np.uint64), x.view(np.uint64))
+
+
+def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
+    """An exception in the k-th step of a block (past the first staging
+    chunk) leaves the k - 1 steps before it recorded and converted
+    (block_done says how many), equal to a plain step-and-read loop."""
+    from physbench.adapters import box2d
+
+    sc = load_scene(head_on_path)
+    n, k = 300, box2d.CHUNK + 9
+    ref = Box2dAdapter()
+    ref.build(sc, Box2dAdapter.resolve_settings(sc))
+    want = [np.zeros((k - 1, 2, j)) for j in (3, 4, 3, 3)]
+    for i in range(k - 1):
+        ref.step(1)
+        ref.read_state(*(x[i] for x in want))
+    a = Box2dAdapter()
+    a.build(sc, Box2dAdapter.resolve_settings(sc))
+
+    class Failing:
+        def __init__(self, world):
+            self.world, self.calls = world, 0
+
+        def step(self, dt, sub):
+            self.calls += 1
+            if self.calls == k:
+                raise RuntimeError("engine failure")
+            self.world.step(dt, sub)
+
+    a._world = Failing(a._world)
+    got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
+    with pytest.raises(RuntimeError, match="engine failure"):
+        a.step_record(n, *got)
+    assert a.block_done == k - 1 and a.steps == k - 1
+    for g, x in zip(got, want):
+        np.testing.assert_array_equal(g[:k - 1], x)
+        assert np.isnan(g[k - 1:]).all()

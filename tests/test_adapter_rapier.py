@@ -407,10 +407,40 @@ def test_set_bytes_reader_check_raises_on_a_mismatch(head_on_path):
     a.close()
 
 
-def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
-    """An exception in the k-th step of a block leaves the k - 1 steps
-    before it recorded and converted (block_done says how many), equal to a
-    plain step-and-read loop."""
+def test_check_state_reads_the_harness_layout(head_on_path):
+    """The check after every recorded block (SetBytesReader.check_state,
+    Python floats on the harness's arrays) passes the state read_state
+    recorded, also a quaternion within QUAT_TOL, and raises on a
+    translation or velocity off by anything or a quaternion beyond
+    QUAT_TOL, also on the last body of a sample."""
+    sc = load_scene(head_on_path)
+    a = RapierAdapter()
+    a.build(sc, RapierAdapter.resolve_settings(sc))
+    a.step(3)
+    st = [np.zeros((2, j)) for j in (3, 4, 3, 3)]
+    a.read_state(*st)
+    r = a._reader
+    r.check_state(*st)
+    r.check_state(*st, sample=2)
+    for arr, idx, dv in [(0, (1, 2), 1e-9), (2, (0, 0), 1e-9), (3, (1, 1), 1e-9), (1, (1, 0), 2 * QUAT_TOL),
+                         (1, (0, 3), -2 * QUAT_TOL)]:
+        bad = [x.copy() for x in st]
+        bad[arr][idx] += dv
+        with pytest.raises(RuntimeError, match="differs from the getters"):
+            r.check_state(*bad, sample=2)
+    near = [x.copy() for x in st]
+    near[1][1, 2] += 0.5 * QUAT_TOL
+    r.check_state(*near)
+    a.close()
+
+
+def test_block_recording_keeps_frames_before_an_engine_error(head_on_path, monkeypatch):
+    """An exception in the k-th step of a block (in its fifth decoded chunk
+    of 32 steps) leaves the k - 1 steps before it recorded and converted
+    (block_done says how many), equal to a plain step-and-read loop."""
+    from physbench.adapters import rapier
+
+    monkeypatch.setattr(rapier, "CHUNK_BYTES", 1)  # chunks of 32 steps, the least
     sc = load_scene(head_on_path)
     n, k = 300, 137
     ref = RapierAdapter()
@@ -437,7 +467,7 @@ def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
     got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
     with pytest.raises(RuntimeError, match="engine failure"):
         a.step_record(n, *got)
-    assert a.block_done == k - 1
+    assert a.block_done == k - 1 and a.steps == k - 1
     for g, w in zip(got, want):
         np.testing.assert_array_equal(g[:k - 1], w)
         assert np.isnan(g[k - 1:]).all()
@@ -458,7 +488,8 @@ def test_rows_of_another_length_are_decoded_apart(head_on_path):
     after = r.blob()
     assert len(first) != len(after)
     L = len(after)
-    r.rows(2, L)[0:L] = after
+    rows, spans = r.block(2, L)
+    rows[spans[0]] = after
     out = [np.zeros((2, 2, j)) for j in (3, 4, 3, 3)]
     r.rows_into(2, L, {1: after + b"\0" * 8}, *out)
     want = getter_rows(a._bodies)

@@ -3,6 +3,7 @@ rows.  Nothing here asserts a time: only that every figure is measured
 (finite, positive), that ratios are the ratios of the figures printed beside
 them, and that the broad-phase variants agree on the pairs."""
 
+import gc
 import math
 
 import numpy as np
@@ -46,6 +47,49 @@ def test_overhead_rows_are_consistent():
         assert r["ratio_vs_api"] == pytest.approx(r["runner_us_per_step"] / r["api_us_per_step"])
         assert r["ratio_vs_fast"] == pytest.approx(r["runner_us_per_step"] / r["fast_us_per_step"])
         assert r["read_us_per_step"] == pytest.approx(r["bare_us_per_step"] - r["api_us_per_step"])
+        assert r["ratio_lo"] == pytest.approx(r["ratio"]) == pytest.approx(r["ratio_hi"])  # one repeat
+        assert r["bare_spread"] == 0.0 == r["runner_spread"]
+
+
+def test_overhead_interleaves_and_reports_the_spread(monkeypatch):
+    """Every repeat times api, fast, bare and runner, in alternating order
+    (ABAB: the second repeat backwards), each on its own build, with the
+    objects alive at the start frozen out of the collector's reach;
+    ``ratio`` is of the medians, ``ratio_lo``/``ratio_hi`` the extreme
+    runner / bare of one repeat, the spreads (max - min) / median."""
+    calls = []
+    fake = {"bare_loop": [4.0, 4.0, 4.0], "step": [3.0, 3.0, 3.0], "bare_record": [10.0, 12.0, 11.0]}
+    runner_t = [11.0, 12.6, 11.0]
+
+    frozen = []
+
+    def time_bare(engine, scene, steps, settings, loop="bare_loop"):
+        frozen.append(gc.get_freeze_count())
+        if steps < scene.n_steps:
+            return 0.0  # the warm-up
+        calls.append(loop)
+        return fake[loop][sum(c == loop for c in calls) - 1]
+
+    warm = []
+
+    def time_runner(engine, scene, settings):
+        if not warm:  # the warm-up run, before the repeats
+            warm.append(1)
+            return 0.0
+        calls.append("runner")
+        return runner_t[calls.count("runner") - 1]
+
+    pytest.importorskip("mujoco")
+    monkeypatch.setattr(bench, "_time_bare", time_bare)
+    monkeypatch.setattr(bench, "_time_runner", time_runner)
+    monkeypatch.setattr(bench, "OVERHEAD_SCENES", bench.OVERHEAD_SCENES[:1])
+    (r,) = bench.overhead(["mujoco"], repeats=3)
+    assert min(frozen) > 0 and gc.get_freeze_count() == 0  # frozen while timing, every object back after
+    assert calls == ["bare_loop", "step", "bare_record", "runner", "runner", "bare_record", "step", "bare_loop",
+                     "bare_loop", "step", "bare_record", "runner"]
+    assert r["ratio"] == pytest.approx(11.0 / 11.0)
+    assert r["ratio_lo"] == pytest.approx(11.0 / 11.0) and r["ratio_hi"] == pytest.approx(11.0 / 10.0)
+    assert r["bare_spread"] == pytest.approx(2.0 / 11.0) and r["runner_spread"] == pytest.approx(1.6 / 11.0)
 
 
 def test_broadphase_scaling_runs_and_fits():

@@ -208,13 +208,13 @@ def test_sweep_runs_files_and_folders_named_relative_to_the_suite(tmp_path):
 
 
 def test_metric_exception_makes_the_run_an_error(tmp_path, monkeypatch):
-    from physbench.harness import metrics
+    from physbench.harness import runner
     from physbench.harness.runner import run
 
     def broken(scene, trace, dt=None, model=True, pen=None):
         return 1.0 / 0.0
 
-    monkeypatch.setattr(metrics, "compute_metrics", broken)
+    monkeypatch.setattr(runner, "_metrics", broken)  # harness.metrics.compute_metrics as the runner calls it
     r = run(load_scene(write_box(tmp_path / "box.toml", max_pen=0.05)), "pybullet")
     assert r.status == "error" and r.message.startswith("metrics failed: ZeroDivisionError")
     outs = C.evaluate(load_scene(tmp_path / "box.toml"), r)

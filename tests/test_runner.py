@@ -113,12 +113,13 @@ def test_bad_setting_is_a_value_error(scene):
         run(scene, "fake", {"fault": "sometimes"})
 
 
-@pytest.mark.parametrize("target_s, grows", [(1e9, True), (0.0, False)])
-def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
-    """Blocks start at CHECK_EVERY steps and double while a block is quicker
-    than BLOCK_TARGET_S (set here, so the test does not depend on the
-    machine's speed), never beyond MAX_BLOCK; every step is recorded and
-    time stamps are exact multiples of dt."""
+@pytest.mark.parametrize("target_s, wall_s, grows", [(1e9, 1e9, True), (0.0, 1e9, False), (1e9, 0.0, False)])
+def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, wall_s, grows):
+    """Blocks start at CHECK_EVERY steps and double while a block takes
+    less than BLOCK_TARGET_S of CPU time and BLOCK_WALL_S of wall time (set
+    here, so the test does not depend on the machine's speed), never beyond
+    MAX_BLOCK; every step is recorded and time stamps are exact multiples of
+    dt."""
     from physbench.harness import runner
     from physbench.contract.scene import Scene
 
@@ -132,6 +133,7 @@ def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
 
     monkeypatch.setattr(Fake, "step_record", counting)
     monkeypatch.setattr(runner, "BLOCK_TARGET_S", target_s)
+    monkeypatch.setattr(runner, "BLOCK_WALL_S", wall_s)
     r = run(long, "fake")
     assert r.status == "ok" and r.trace.n_frames == long.n_steps + 1
     assert sum(sizes) == long.n_steps and sizes[0] == runner.CHECK_EVERY
@@ -143,6 +145,29 @@ def test_blocks_grow_and_lose_nothing(scene, monkeypatch, target_s, grows):
     tr = r.trace.valid()
     np.testing.assert_array_equal(tr.t, np.arange(long.n_steps + 1) * long.dt)
     assert np.isfinite(tr.pos).all()
+
+
+@pytest.mark.parametrize("name, bound", [("pos", 1e6), ("quat", 2.0), ("vel", 1e6), ("angvel", 1e6)])
+def test_runaway_finds_every_bad_value(name, bound):
+    """_runaway (max and min per array, no temporary) reports a NaN, an
+    infinity of either sign and a component beyond its bound of either sign,
+    in any frame of the range and only there; a state at the bound is none."""
+    from physbench.harness.runner import _runaway
+
+    tr = Trace.allocate(6, 3)
+    for a in (tr.pos, tr.quat, tr.vel, tr.angvel):
+        a[...] = 0.5
+    arr = getattr(tr, name)
+    arr[2, 1, 0] = -bound
+    arr[4, 2, 1] = bound
+    assert _runaway(tr, 0, 6) == ""
+    for bad, what in [(np.nan, "non-finite"), (np.inf, "non-finite"), (-np.inf, "non-finite"),
+                      (bound * 1.5, "beyond"), (-bound * 1.5, "beyond")]:
+        arr[3, 0, 2] = bad
+        msg = _runaway(tr, 1, 5)
+        assert what in msg and (name in msg or name != "quat" and what == "beyond"), (bad, msg)
+        assert _runaway(tr, 4, 6) == ""  # the frame is outside [4, 6)
+        arr[3, 0, 2] = 0.5
 
 
 def test_record_every(scene):

@@ -25,12 +25,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         elif args.kind == "overhead":
             # the reference engine is left out unless asked for: its steps cost
             # milliseconds, so its overhead is lost in noise and takes minutes
+            load0 = _load()
             rows = bench.overhead(args.engines or ["mujoco", "pymunk", "pybullet", "rapier", "box2d"],
                                   repeats=args.repeats)
             bench.print_rows(rows, "runner recording every step vs bare loops: bare = the engine's step call and its "
                                    "cheapest read of every body's state in a Python loop (ratio = runner / bare), "
                                    "api = the step call alone, fast = the adapter's fastest stepping (CPU time, "
-                                   "medians)")
+                                   f"medians of {args.repeats} repeats timed in alternating order; ratio_lo/hi: the "
+                                   "extreme runner / bare of one repeat; spreads: (max - min) / median)")
+            print(f"load average (1, 5, 15 min) before: {load0}, after: {_load()}")
         elif args.kind == "compile":
             # fresh processes, each on a temporary compiled-kernel cache
             # (--engines and --repeats do not apply: one cold start is minutes)
@@ -69,3 +72,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         out.flush()
     return 0
 
+
+def _load() -> str:
+    """The machine's load averages, or 'n/a' where the OS has none."""
+    import os
+
+    try:
+        return ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    except (AttributeError, OSError):
+        return "n/a"
