@@ -18,7 +18,6 @@ import functools
 import json
 import math
 import numbers
-import os
 import subprocess
 import time
 import traceback
