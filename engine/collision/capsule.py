@@ -67,12 +67,13 @@ def _capsule_capsule_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, S_n, S_p, S_g, S_f
     along the axis from slot 0's point (nearer, it is slot 0's contact
     again).  No angle decides: the driver keeps a slot only when its gap
     is below the pair's margin (the contact margin plus both bodies'
-    motion in the step), so two capsules lying along each other at any
-    shallow angle rest on two points, and a spinning one's far end,
-    closing within the step, has a speculative row there; crossing
+    motion in the step), so a capsule lying along another rests on two
+    points where both ends of the overlap touch, and a far end closing
+    within the step (a capsule slapping down on another at a shallow
+    angle) has a speculative row there before it arrives; crossing
     capsules' clipped ends lie far beyond the margin
     (tests/test_engine_collision.py::test_capsule_capsule_clipped_manifold,
-    tests/test_engine_collision.py::test_capsules_at_8_degrees_rest_on_two_points)."""
+    tests/test_engine_collision.py::test_capsule_landing_on_another_at_8_degrees_stays_out)."""
     V = fw[:18].reshape((6, 3))
     a0, a1, b0, b1, pa, pb = V[0], V[1], V[2], V[3], V[4], V[5]
     for k in range(ca.shape[0]):
