@@ -692,3 +692,36 @@ def test_a_solve_cut_short_ends_inside_the_cone():
     assert np.hypot(*lt[:2]) < 5.0 * ln
     _sweep(d, 1)
     assert d["lam_t"][0] == pytest.approx(lt, rel=1e-12) and d["U"][0] == pytest.approx(U, rel=1e-12)
+
+
+def test_a_solve_cut_short_keeps_rolling_friction_inside_its_disc_too():
+    """The same patch with rolling rows (nr = 5: the rolling torques about
+    the tangents, limit mu_r Fn; the patch solved as a block), cut off
+    after one sweep: the block puts the friction and the rolling torque on
+    their limits at the start's normal impulse 2, the normal row then
+    lowers it to 0.97, so the sweep alone leaves both discs 2.06 times too
+    large (measured on the engine without the final scaling).  Every limit
+    holds at the final normal impulse -- the tangent disc mu Fn, the twist
+    mu Fn r_t, the rolling disc mu_r Fn, both discs on their edge -- and
+    the velocities carry exactly the impulses applied."""
+    from physbench.engine.contact import gauss_seidel as gs
+
+    d = _one_patch(0.5)
+    Jt = np.zeros((1, 5, 12))
+    Jt[0, :3] = d["Jt"][0]
+    Jt[0, 3, 3:6] = np.eye(3)[0]  # rolling about the tangents
+    Jt[0, 4, 3:6] = np.eye(3)[1]
+    d.update(Jt=Jt, Mt=Jt.copy(), mt=1.0 / np.sum(Jt * Jt, axis=2), lam_t=np.zeros((1, 5)), mur=np.array([0.05]))
+    U0 = d["U"].copy()
+    zb, z2 = np.zeros(1, np.bool_), np.zeros((1, 2))
+    sweeps, _ = gs.iterate(d["U"], d["ab"], d["J"], d["M"], d["mn"], d["lam_n"], d["target"], True, d["pab"],
+                           d["pid"], d["Jt"], d["Mt"], d["mt"], d["lam_t"], d["mu"], d["rt"], d["mur"], zb, z2, zb, z2,
+                           1, 1e-7, 1, np.empty(gs.work_size(1, 1, 5)))
+    assert sweeps == 1
+    ln, lt = d["lam_n"][0], d["lam_t"][0]
+    assert ln > 0.0
+    assert np.hypot(*lt[:2]) == pytest.approx(0.5 * ln, rel=1e-12)
+    assert abs(lt[2]) <= 0.5 * ln * 0.01 * (1 + 1e-12)
+    assert np.hypot(*lt[3:5]) == pytest.approx(0.05 * ln, rel=1e-12)
+    applied = d["J"][0, :6] * (ln - 2.0) + Jt[0, :, :6].T @ lt
+    assert d["U"][0] == pytest.approx(U0[0] + applied, abs=1e-12)
