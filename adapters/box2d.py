@@ -80,10 +80,12 @@ class Box2dAdapter(Adapter):
     name = ENGINE
     #: measured on pyb2d3 0.11.1 (docs/ENGINE_FINDINGS.md, "Contact-law residuals")
     contact_forces_reason = (
-        "the adapter reads no contact forces: pyb2d3 0.11 binds no per-step contact data (Box2D's "
-        "b2Body_GetContactData / b2Shape_GetContactData), its begin-touch events carry the manifold from before "
-        "the solve (impulses 0), and its debug draw labels totalNormalImpulse, the impulse summed over every "
-        "solve and relax pass of the substeps (2 m g dt on a resting box), not a force")
+        "the adapter reads no contact forces: pyb2d3 0.11 (Box2D v3.1) binds none of the calls that give a contact's "
+        "manifold after the solve (b2Body_GetContactData, b2Shape_GetContactData: its ContactData type is returned "
+        "by nothing, nor b2World_SetPreSolveCallback), its begin-touch events carry the manifold from before the "
+        "solve (impulses 0), and its debug draw cannot set useDrawingBounds (the path that draws normalImpulse): "
+        "the path it takes draws totalNormalImpulse, the impulse summed over every solve and relax pass of the "
+        "substeps (2 m g dt on a resting box), not a force, with no shape ids")
 
     @classmethod
     def capabilities(cls) -> Capabilities:

@@ -441,6 +441,57 @@ def test_box2d_forces_are_undefined_with_the_bindings_reason(tmp_path):
         assert "b2Shape_GetContactData" in why and "totalNormalImpulse" in why
 
 
+def test_box2d_binds_no_contact_data(tmp_path):
+    """What the Box2D adapter's undefined reason says is missing, measured
+    on the installed pyb2d3: no call returns a contact's manifold after the
+    solve (Box2D v3.1's b2Body_GetContactData / b2Shape_GetContactData, a
+    pre-solve callback), the begin-touch manifold of a box landing on
+    another carries zero impulses, and the debug draw's impulse segments
+    are totalNormalImpulse (2 m g dt per resting pair, summed over the
+    points), not the last substep's normal impulse m g dt / S.  Fails once
+    a pyb2d3 binds a route: then Box2D's force reader is to be written."""
+    b2 = pytest.importorskip("pyb2d3")
+    from physbench.adapters import get_adapter
+
+    for cls in (b2.Body, b2.Shape, b2.World):
+        assert not [n for n in dir(cls) if "contact_data" in n or "manifold" in n], cls
+    assert not [n for n in dir(b2.World) if "pre_solve" in n]
+    assert not [n for n in dir(b2.DebugDrawBase) if "use_drawing" in n]
+    p = tmp_path / "stack.toml"
+    p.write_text(STACK.replace("position = [0.0, 0.0, 0.15]", "position = [0.0, 0.0, 0.2]"))
+    sc = load_scene(str(p))
+    cls = get_adapter("box2d")
+    settings = cls.resolve_settings(sc, {})
+    ad = cls()
+    ad.build(sc, settings)
+    began = []
+    for _ in range(240):
+        ad.step(1)
+        for e in ad._world.get_contact_events().begin_events():
+            began += [(q.normal_impulse, q.tangent_impulse, q.total_normal_impulse) for q in e.manifold.points()]
+    assert len(began) >= 4 and not np.any(began)  # the floor's and the landing box's points
+
+    class Segments(b2.DebugDraw):
+        def __init__(self):
+            super().__init__()
+            self.seg = []
+
+        def draw_segment(self, p1, p2, color):
+            self.seg.append((tuple(p1), tuple(p2), color))
+
+    d = Segments()
+    d.draw_contacts = d.draw_contact_impulses = True
+    d.drawing_bounds = b2.aabb(lower_bound=(-10, -10), upper_bound=(10, 10))
+    ad._world.draw(d, call_begin_end=False)
+    # normal segments (magenta 0xFF00FF) point up from the points: a pair's
+    # lengths sum to the weight above it times 2 dt, at any substep count
+    up = sorted(float(np.hypot(q[0] - p[0], q[1] - p[1])) for p, q, c in d.seg if c == 0xFF00FF)
+    dt = float(settings["dt"])
+    assert len(up) == 4
+    assert sum(up[:2]) == pytest.approx(2 * G * 0.5 * dt, rel=1e-3)
+    assert sum(up[2:]) == pytest.approx(2 * G * 1.5 * dt, rel=1e-3)
+
+
 def test_rapier_default_friction_is_undefined(tmp_path):
     """Rapier's default friction model keeps one friction impulse per
     manifold that the bindings do not expose: the adapter's rows carry NaN

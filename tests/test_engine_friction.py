@@ -607,3 +607,121 @@ def test_twist_past_its_static_limit_breaks_free(tmp_path, tau):
     else:
         assert w[1] == pytest.approx((tau - 0.3 * G * 0.1) / CAPSULE_I * h, rel=1e-3)
         assert res.trace.t[1] == pytest.approx(h)
+
+
+def _one_patch(mu: float):
+    """One body (unit mass and inertia) against the world: a normal row
+    along z and a friction patch (tangents x, y, twist about z) at the
+    contact point r = (-0.3, 0, -0.5) from its centre, so a friction
+    impulse along x turns the body and changes the normal row's velocity
+    (the Delassus block couples them: J . Mt_x = r_x r_z).  The warm normal
+    impulse 2 was applied already and is too large: the body separates at
+    1 m/s while sliding at 2 m/s.  Returns the solve's arrays."""
+    r = np.array([-0.3, 0.0, -0.5])
+    n, t1, t2 = np.eye(3)[2], np.eye(3)[0], np.eye(3)[1]
+    J = np.zeros((1, 12))
+    J[0, :6] = np.r_[n, np.cross(r, n)]
+    Jt = np.zeros((1, 3, 12))
+    for k, t in enumerate((t1, t2)):
+        Jt[0, k, :6] = np.r_[t, np.cross(r, t)]
+    Jt[0, 2, 3:6] = n  # twist
+    U = np.zeros((2, 6))
+    U[0, :3] = [2.0, 0.0, 1.0]
+    return dict(U=U, ab=np.array([[0, 1]]), J=J, M=J.copy(), mn=1.0 / np.sum(J * J, axis=1), lam_n=np.array([2.0]),
+                target=np.zeros(1), pab=np.array([[0, 1]]), pid=np.array([0]), Jt=Jt, Mt=Jt.copy(),
+                mt=1.0 / np.maximum(np.sum(Jt * Jt, axis=2), 1e-300), lam_t=np.zeros((1, 3)), mu=np.array([mu]),
+                rt=np.array([0.01]), mur=np.zeros(1))
+
+
+def _sweep(d, iterations):
+    from physbench.engine.contact import gauss_seidel as gs
+
+    zb, z2 = np.zeros(1, np.bool_), np.zeros((1, 2))
+    return gs.iterate(d["U"], d["ab"], d["J"], d["M"], d["mn"], d["lam_n"], d["target"], True, d["pab"], d["pid"],
+                      d["Jt"], d["Mt"], d["mt"], d["lam_t"], d["mu"], d["rt"], d["mur"], zb, z2, zb, z2, iterations,
+                      1e-7, 1, np.empty(gs.work_size(1, 1, 3)))
+
+
+def _one_sweep_by_hand(d):
+    """The sweep of :func:`engine.contact.gauss_seidel.iterate` computed
+    here: the patch's three rows from the velocities at its start, the
+    tangent pair scaled onto the disc mu Fn (Fn the warm normal impulse),
+    the twist clamped at mu Fn r_t, applied; then the normal row.
+    Returns (lam_n, lam_t (3,), U) after it."""
+    U = d["U"][0].copy()
+    Jt, mt = d["Jt"][0, :, :6], d["mt"][0]
+    lim = d["mu"][0] * d["lam_n"][0]
+    lt = -mt * (Jt @ U)
+    lt[:2] *= min(1.0, lim / np.hypot(*lt[:2]))
+    lt[2] = np.clip(lt[2], -lim * d["rt"][0], lim * d["rt"][0])
+    U = U + Jt.T @ lt
+    J = d["J"][0, :6]
+    ln = max(d["lam_n"][0] - d["mn"][0] * (J @ U), 0.0)
+    return ln, lt, U + J * (ln - d["lam_n"][0])
+
+
+def test_a_solve_cut_short_ends_inside_the_cone():
+    """A Gauss-Seidel sweep clamps the friction against the normal impulse
+    at its start; the normal row swept after it may lower it.  Cut off
+    there (the sweep limit, here 1), the impulses would leave the cone --
+    computed by hand: friction mu Fn_start = 1 over a final normal impulse
+    of 0.945 (mu 0.5: 2.1 times the cone).  The solve ends with the
+    patch scaled back onto the cone at the final normal impulse, along the
+    same direction, the velocities carrying exactly the impulses applied
+    (U - U_start = M lam_n_change + Mt lam_t), as
+    engine.contact.gauss_seidel.onto_cone does (stacking.poured_bin: 20
+    times the cone at 20 sweeps before it).  A patch inside its cone is
+    left as the sweep left it."""
+    d = _one_patch(0.5)
+    ln, lt, U = _one_sweep_by_hand(d)
+    assert np.hypot(*lt[:2]) > 2.0 * 0.5 * ln  # the sweep alone leaves the cone
+    U0 = d["U"].copy()
+    sweeps, _ = _sweep(d, 1)
+    assert sweeps == 1
+    assert d["lam_n"][0] == pytest.approx(ln, rel=1e-12)
+    got = d["lam_t"][0]
+    assert np.hypot(*got[:2]) == pytest.approx(0.5 * ln, rel=1e-12)  # on the cone's edge
+    assert got[:2] == pytest.approx(lt[:2] * 0.5 * ln / np.hypot(*lt[:2]), rel=1e-12)  # the same direction
+    assert abs(got[2]) <= 0.5 * ln * 0.01 * (1 + 1e-12)  # the twist within its limit
+    applied = d["J"][0, :6] * (d["lam_n"][0] - 2.0) + d["Jt"][0, :, :6].T @ got
+    assert d["U"][0] == pytest.approx(U0[0] + applied, abs=1e-12)
+    assert np.all(d["U"][1] == 0.0)  # the world is never moved
+    # mu 5: inside the cone after the sweep: exactly the sweep's numbers
+    d = _one_patch(5.0)
+    ln, lt, U = _one_sweep_by_hand(d)
+    assert np.hypot(*lt[:2]) < 5.0 * ln
+    _sweep(d, 1)
+    assert d["lam_t"][0] == pytest.approx(lt, rel=1e-12) and d["U"][0] == pytest.approx(U, rel=1e-12)
+
+
+def test_a_solve_cut_short_keeps_rolling_friction_inside_its_disc_too():
+    """The same patch with rolling rows (nr = 5: the rolling torques about
+    the tangents, limit mu_r Fn; the patch solved as a block), cut off
+    after one sweep: the block puts the friction and the rolling torque on
+    their limits at the start's normal impulse 2, the normal row then
+    lowers it to 0.97, so the sweep alone leaves both discs 2.06 times too
+    large (measured on the engine without the final scaling).  Every limit
+    holds at the final normal impulse -- the tangent disc mu Fn, the twist
+    mu Fn r_t, the rolling disc mu_r Fn, both discs on their edge -- and
+    the velocities carry exactly the impulses applied."""
+    from physbench.engine.contact import gauss_seidel as gs
+
+    d = _one_patch(0.5)
+    Jt = np.zeros((1, 5, 12))
+    Jt[0, :3] = d["Jt"][0]
+    Jt[0, 3, 3:6] = np.eye(3)[0]  # rolling about the tangents
+    Jt[0, 4, 3:6] = np.eye(3)[1]
+    d.update(Jt=Jt, Mt=Jt.copy(), mt=1.0 / np.sum(Jt * Jt, axis=2), lam_t=np.zeros((1, 5)), mur=np.array([0.05]))
+    U0 = d["U"].copy()
+    zb, z2 = np.zeros(1, np.bool_), np.zeros((1, 2))
+    sweeps, _ = gs.iterate(d["U"], d["ab"], d["J"], d["M"], d["mn"], d["lam_n"], d["target"], True, d["pab"],
+                           d["pid"], d["Jt"], d["Mt"], d["mt"], d["lam_t"], d["mu"], d["rt"], d["mur"], zb, z2, zb, z2,
+                           1, 1e-7, 1, np.empty(gs.work_size(1, 1, 5)))
+    assert sweeps == 1
+    ln, lt = d["lam_n"][0], d["lam_t"][0]
+    assert ln > 0.0
+    assert np.hypot(*lt[:2]) == pytest.approx(0.5 * ln, rel=1e-12)
+    assert abs(lt[2]) <= 0.5 * ln * 0.01 * (1 + 1e-12)
+    assert np.hypot(*lt[3:5]) == pytest.approx(0.05 * ln, rel=1e-12)
+    applied = d["J"][0, :6] * (ln - 2.0) + Jt[0, :, :6].T @ lt
+    assert d["U"][0] == pytest.approx(U0[0] + applied, abs=1e-12)

@@ -32,8 +32,8 @@ Pairs:
   clamped at the edge axis' separation (:func:`box_box`).
 * capsules: their segment's closest points make sphere-like contacts:
   capsule-plane (both end caps), sphere-capsule, capsule-capsule (closest
-  points, plus the end projections when nearly parallel so a lying capsule
-  rests on two points), capsule-box (minimum of the box's signed distance
+  points, plus the ends of the segments' overlap, kept within the margin,
+  so a capsule lying along another rests on two points), capsule-box (minimum of the box's signed distance
   along the segment by golden-section search -- the signed distance of a
   convex set is convex -- plus the end caps).
 * cylinder-plane: per cap the rim points that follow the support (the
