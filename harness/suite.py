@@ -233,6 +233,7 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
     ids = set(scenario_ids())
     known = set(engine_names())
     out: list[Any] = []
+    scenes: dict[Any, Any] = {}  # loaded once for all the engines' requests (harness.limits.validate_request)
     for bi, lb in enumerate(model.limit):
         where = f"{label}: limit[{bi}]"
         engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
@@ -259,7 +260,7 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
                 req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
                                    tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
                                    model.suite.timeout_s)
-                problems = validate_request(req)
+                problems = validate_request(req, scenes)
                 errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
                 if not problems:
                     out.append(req)

@@ -29,7 +29,7 @@ from typing import Any, Iterable
 from physbench.contract.spec import SpecError, _display
 from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from physbench.harness.results import (SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
-                             results_dir, try_lock, unfinished_dirs, write_json_atomic)
+                             read_frame, results_dir, try_lock, unfinished_dirs, write_json_atomic)
 
 
 def sweeps_dir() -> Path:
@@ -336,6 +336,6 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
     ``unfinished`` also the parts of sweeps still running or killed."""
     import pandas as pd
 
-    frames = [pd.read_parquet(f) for *_, f, _ in
+    frames = [read_frame(f) for *_, f, _ in
               sweep_files(root, [suite] if suite else None, machine, unfinished)]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
