@@ -36,8 +36,12 @@ from typing import Any, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
-                             InlineExecutor, WorkerLost, WorkerPool, _extra_adapters, grace_s, members,
+                             InlineExecutor, WorkerLost, WorkerPool, extra_adapters, grace_s, members,
                              register_env_adapters, take, worker_main)
+from physbench.contract.phase import PhaseError, shift_scene
+from physbench.contract.scene import load_scene
+from physbench.harness.runner import RunResult, commit_id, machine_info
+from physbench.harness import runner
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
@@ -120,8 +124,6 @@ def request_scene(req: RunRequest, base: Any = None):
     to its step phase at the run's dt.  Raises SpecError for a bad spec,
     contract.phase.PhaseError for a phase the scene does not allow (or a dt
     setting that is not a number)."""
-    from physbench.contract.phase import PhaseError, shift_scene
-    from physbench.contract.scene import load_scene
 
     scene = base if base is not None else load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     if not req.phase:
@@ -144,7 +146,6 @@ def failure_result(req: RunRequest, status: str, message: str, scene: Any = None
     this one), the traceback and the worker's stderr tail in ``info``.
     The one failure builder of every command; its row is
     harness.points.failure_row."""
-    from physbench.harness.runner import RunResult, commit_id, machine_info
 
     settings, version = dict(req.settings), ""
     try:
@@ -178,7 +179,6 @@ def execute_request(req: RunRequest):
     ``req.keep_trace``."""
     import numpy as np
 
-    from physbench.harness import runner
 
     try:
         scene = request_scene(req)

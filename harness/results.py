@@ -306,25 +306,51 @@ PART_SCHEMA_COLUMN = "__row_schema"
 PART_SCHEMAS_KEY = "row_schemas"
 
 
-def _packs(tables: list[Any]) -> list[list[int]]:
-    """``tables`` (indices, in order) in runs of consecutive tables whose
-    columns agree in type where two of them have a column (a null-typed
-    column agrees with any): the tables one part holds."""
+def _packs(schemas: list[Any]) -> list[list[int]]:
+    """``schemas`` (each a pyarrow Schema or (name, type) pairs; indices, in
+    order) in runs of consecutive ones whose columns agree in type where
+    two of them have a column (a null-typed column agrees with any): the
+    tables one part holds."""
     import pyarrow as pa
 
+    null = pa.null()
     runs: list[list[int]] = []
     types: dict[str, Any] = {}
-    for i, t in enumerate(tables):
-        agree = bool(runs) and all(f.type == pa.null() or types.get(f.name, f.type) in (f.type, pa.null())
-                                   for f in t.schema)
+    for i, sch in enumerate(schemas):
+        fields = [(f.name, f.type) for f in sch] if isinstance(sch, pa.Schema) else sch
+        agree = bool(runs) and all(t == null or types.get(n, t) in (t, null) for n, t in fields)
         if not agree:
             runs.append([])
             types = {}
         runs[-1].append(i)
-        for f in t.schema:
-            if f.type != pa.null() or f.name not in types:
-                types[f.name] = f.type
+        for n, t in fields:
+            if t != null or n not in types:
+                types[n] = t
     return runs
+
+
+def _signature_part(groups: list[tuple[tuple[tuple[str, Any], ...], list[dict[str, Any]]]]):
+    """Rows of several signatures whose columns agree (:func:`_packs`) as
+    :func:`one_part_table` makes them from their :func:`rows_table` s,
+    built straight from the rows: one array per column of the union, not
+    one per column of each signature.  Raises what pyarrow raises for a
+    value its type cannot hold (the caller then takes the tables' path)."""
+    import pyarrow as pa
+
+    null, f64 = pa.null(), pa.float64()
+    types: dict[str, Any] = {}
+    for sig, _ in groups:
+        for n, t in sig:
+            if t != null or n not in types:
+                types[n] = t
+    index = {n: i for i, n in enumerate(types)}
+    rows = [r for _, same in groups for r in same]
+    arrays = [pa.array([r.get(n) for r in rows], t, from_pandas=True) if t == f64  # NaN -> null, as rows_table
+              else pa.array([r.get(n) for r in rows], t) for n, t in types.items()]
+    arrays.append(pa.array([k for k, (_, same) in enumerate(groups) for _ in same], pa.int32()))
+    schema = pa.schema(list(types.items()) + [(PART_SCHEMA_COLUMN, pa.int32())])
+    schemas = [[[index[n] for n, _ in sig], [index[n] for n, t in sig if t == null]] for sig, _ in groups]
+    return pa.Table.from_arrays(arrays, schema=schema), schemas
 
 
 def one_part_table(tables: list[Any]) -> tuple[Any, list[list[list[int]]] | None]:
@@ -479,17 +505,29 @@ class PartsDir:
         for i, row in enumerate(rows):
             sig = row_signature(row)
             groups.setdefault(sig if sig is not None else i, (sig, []))[1].append(row)
-        tables = [(rows_table(same, sig), same) for sig, same in groups.values()]
+        import pyarrow as pa
+
+        listed = list(groups.values())
+        # a row the pandas path types (no signature): its own table first, for its schema
+        alone = {i: rows_table(same, None) for i, (sig, same) in enumerate(listed) if sig is None}
         paths = []
-        for run in _packs([t for t, _ in tables]):
+        for run in _packs([alone[i].schema if i in alone else listed[i][0] for i in range(len(listed))]):
             p = self.path / f"part-{self.next_part:06d}.parquet"
-            table, schemas = one_part_table([tables[i][0] for i in run])
+            table = schemas = None
+            if len(run) > 1 and not any(i in alone for i in run):
+                try:
+                    table, schemas = _signature_part([listed[i] for i in run])
+                except (OverflowError, pa.ArrowException):
+                    table = None
+            if table is None:
+                table, schemas = one_part_table([alone[i] if i in alone else rows_table(listed[i][1], listed[i][0])
+                                                 for i in run])
             meta = dict(metadata or {})
             if schemas is not None:
                 meta[PART_SCHEMAS_KEY] = schemas
             write_table_atomic(table, p, meta, **PART_WRITE_OPTIONS)
             self.next_part += 1
-            self.done.update(r[self.key_column] for i in run for r in tables[i][1])
+            self.done.update(r[self.key_column] for i in run for r in listed[i][1])
             paths.append(p)
         return paths
 

@@ -30,6 +30,7 @@ from physbench.contract.spec import SpecError, _display
 from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from physbench.harness.results import (SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
                              read_frame, results_dir, try_lock, unfinished_dirs, write_json_atomic)
+from physbench.harness.runner import commit_id, machine_info
 
 
 def sweeps_dir() -> Path:
@@ -43,7 +44,8 @@ def sweeps_dir() -> Path:
 SWEEP_COLUMNS = VERDICT_COLUMNS + ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_error",
                                    "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id",
                                    "sweep_jobs", "point_wall_s", "schema_version")
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: a plain name (:func:`plain_name`) before its other rules: letters, digits, '_', '-', '.'
+PLAIN_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
 def plain_name(name: str) -> bool:
@@ -51,7 +53,7 @@ def plain_name(name: str) -> bool:
     digits, '_', '-', '.', at most 100 characters, and not starting with '.'
     (so never '.', '..' or a hidden directory).  Pinned by
     tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
-    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
+    return bool(PLAIN_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
 
 
 class SuiteError(SpecError):
@@ -78,21 +80,18 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-_parts = list_parts  # the name harness/sweep.py imports
-
-
 #: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
 #: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows.
-#: A part's cost per row falls with its rows (sweep_bench --store: 0.52 ms a row 32 at a time, 4.3 ms one at a time);
+#: A part's cost per row falls with its rows (harness/selfbench/sweep.py --store);
 #: 2 workers finish about 12 rows a second, so 2 s gives about 24 rows a write
 PART_FLUSH_S = 2.0
 PART_MAX_ROWS = 1000
-#: the name of the sweep's part-writer thread (:meth:`_SweepDir.write_behind`;
-#: harness/sweep_bench.py accounts its CPU by it)
+#: the name of the sweep's part-writer thread (:meth:`SweepDir.write_behind`;
+#: harness/selfbench/sweep.py accounts its CPU by it)
 PART_WRITER = "physbench-part-writer"
 
 
-class _SweepDir(PartsDir):
+class SweepDir(PartsDir):
     """An open (unfinished) sweep directory: parts of finished points' rows,
     keyed by ``point_key`` (harness.results.PartsDir).  After
     :meth:`write_behind`, :meth:`write_point` hands each row to a writer
@@ -209,7 +208,7 @@ def _sweep_id(commit: str) -> str:
 
 
 def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, jobs: int,
-               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[_SweepDir, bool]:
+               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[SweepDir, bool]:
     """Find the sweep to resume or start a new one.  Returns (dir, resumed).
 
     Resume rule: an unfinished sweep directory of this suite on this machine
@@ -221,7 +220,6 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
     ``machine``: the machine id the rows are filed under (default this
     machine's; a Dask sweep's workers' own).
     """
-    from physbench.harness.runner import commit_id, machine_info
 
     machine = machine or machine_id()
     suite_dir = confined(root, machine, suite.name)
@@ -253,7 +251,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
             man.setdefault("resumed", []).append({"at": _now(), "commit": commit, "jobs": jobs,
                                                   "executor": executor})
             write_json_atomic(man, d / "manifest.json")
-            return _SweepDir(d, man, fd), True
+            return SweepDir(d, man, fd), True
         if resume:
             print(f"nothing to resume for suite {suite.name} (same suite file and points) under {suite_dir}; "
                   "starting a new sweep", file=sys.stderr)
@@ -283,7 +281,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         "points": keys,
     }
     write_json_atomic(man, d / "manifest.json")
-    return _SweepDir(d, man, fd), False
+    return SweepDir(d, man, fd), False
 
 
 def consolidate(d: Path) -> Path:
