@@ -20,8 +20,10 @@ the usual umask, never the 0600 of a ``mkstemp`` file), under
 (a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
 job that writes its finished runs' rows as parts and resumes after a kill
 (``physbench sweep``: several rows to a part; ``physbench check``): parts
-are built from the rows with pyarrow, one schema per part (:func:`rows_table`,
-typed as ``from_pandas`` types each row) and merged by :func:`merge_tables`:
+are built from the rows with pyarrow, one table per row schema (:func:`rows_table`,
+typed as ``from_pandas`` types each row), tables whose columns agree stored
+as one part (:func:`one_part_table`, read back split by :func:`read_part_tables`)
+and merged by :func:`merge_tables`:
 pyarrow where the parts share a schema, else one ``pandas.concat`` and
 :func:`_normalize`, the store's one normaliser.
 """

@@ -6,8 +6,9 @@
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename); the rows of about a second go into one part (one per row
-schema), so a killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
+rename); the rows of about two seconds go into one part (or a few, where
+their columns' types disagree: harness.results.PartsDir.write_rows), so a
+killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
 :func:`sweep_files`.  Names that become directories are plain names
 (:func:`plain_name`, :func:`confined`).

@@ -161,13 +161,13 @@ class CpuAccount:
 
 
 def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str] | None = None,
-            scenarios: list[str] | None = None) -> dict[str, Any]:
+            scenarios: list[str] | None = None, scheduler: str | None = None) -> dict[str, Any]:
     """One fresh sweep of ``suite`` with ``executor`` x ``jobs`` under
     ``root`` (its earlier sweeps there give the longest-first order); the
-    figures of the module docstring."""
+    figures of the module docstring.  ``scheduler``: a Dask cluster's
+    address (``dask`` only; its scheduler's and workers' CPU is then not
+    this machine's, and not counted)."""
     import pandas as pd
-
-
 
     units: list[int] = []
     loop: list[float] = []
@@ -191,7 +191,7 @@ def measure(root: Path, suite: str, executor: str, jobs: int, engines: list[str]
     try:
         with CpuAccount() as account:
             rc = sweep_main(suite, engines=engines, jobs=jobs, executor=executor, out_dir=root, resume=False,
-                            scenarios=scenarios)
+                            scenarios=scenarios, scheduler=scheduler)
     finally:
         schedule.batched, sweep.run_schedule = real_batched, real_schedule
     wall, cpu = time.perf_counter() - t0, _cpu() - c0
@@ -507,6 +507,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--store", type=Path, default=None,
                    help="only measure the client's CPU per stored row (part write, merge; pandas and Arrow) "
                         "on the rows of this finished sweep file")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="the dask executor joins this cluster (tcp://host:8786) instead of a LocalCluster: the "
+                        "client's serial CPU per item on a real cluster (its scheduler's CPU is not counted)")
     p.add_argument("--dask-batch-s", type=float, default=None,
                    help="expected seconds of work per Dask task (default harness.dask_executor.BATCH_S; "
                         "0: one point per task)")
@@ -543,7 +546,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # executors interleaved, each round in full: the machine's load drifts between runs
         for rnd, jobs, ex in itertools.product(range(args.repeat), args.jobs, args.executors):
-            r = measure(root, args.suite, ex, jobs, args.engines, args.scenarios)
+            r = measure(root, args.suite, ex, jobs, args.engines, args.scenarios,
+                        args.scheduler if ex == "dask" else None)
             r["round"] = rnd
             one = next((x for x in reversed(rows) if x["executor"] == ex and x["jobs"] == 1), None)
             r["speedup"] = one["wall_s"] / r["wall_s"] if one else math.nan
