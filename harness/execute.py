@@ -179,7 +179,6 @@ def execute_request(req: RunRequest):
     ``req.keep_trace``."""
     import numpy as np
 
-
     try:
         scene = request_scene(req)
     except Exception as e:

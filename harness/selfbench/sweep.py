@@ -113,7 +113,6 @@ class CpuAccount:
     def sample(self, start: bool = False) -> None:
         import psutil
 
-
         for p in self.me.children(recursive=True):
             try:
                 k = (p.pid, p.create_time())
@@ -235,7 +234,6 @@ class VirtualExecutor:
         import heapq
         import itertools
 
-
         source, more, now, seq = iter(items), True, 0.0, itertools.count()
         running: list = []
         while more or running:
@@ -293,7 +291,6 @@ def replay(sweep: Any, suite: str, jobs: int = 2, engines: list[str] | None = No
     new order knows the items' times (as a sweep does from the one before
     it)."""
     import math
-
 
     s = load_suite(suite)
     points = expand(s, engines, scenarios)
@@ -371,7 +368,6 @@ def core_scaling(copies: int = 2, rounds: int = 3, scenario: str = "stacking.col
     core); ``copies / ratio`` bounds the speed-up any schedule reaches."""
     import statistics
 
-
     pts = expand(load_suite("nightly"), [engine], [scenario])
     point = max(pts, key=lambda p: model_cost(cached_scene(p.scenario, p.variant), p.engine_settings.get("dt"), p.repeats))
 
@@ -400,7 +396,6 @@ def store_costs(rows: list[dict[str, Any]], limit: int = 2000, batch: int = 32) 
     Arrow: ``consolidate_parts``).  ms of CPU (``time.process_time``) per
     row; ``client_ms`` = write + merge of the batched parts."""
     import pandas as pd
-
 
     rows = rows[:limit]
     n = max(1, len(rows))
