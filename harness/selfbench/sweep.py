@@ -494,6 +494,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", nargs="+", type=int, default=[1, 2])
     p.add_argument("--repeat", type=int, default=1, help="rounds of every executor and worker count, interleaved")
     p.add_argument("--overhead-items", type=int, default=200, help="sleeping tasks per overhead figure (0: skip)")
+    p.add_argument("--store-rows", type=int, default=2000,
+                   help="rows of the first run the client's storing cost is measured on (0: skip; minutes for 2000)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     p.add_argument("--core-scaling", action="store_true",
                    help="only measure one point's CPU alone and as --jobs copies at once")
@@ -556,7 +558,8 @@ def main(argv: list[str] | None = None) -> int:
                            for j in sorted({j for j in args.jobs if j > 1} | set(PROJECT_WORKERS))]
                 import pyarrow.parquet as pq
 
-                store = store_costs(pq.read_table(r["sweep_file"]).to_pylist())
+                if args.store_rows > 0:
+                    store = store_costs(pq.read_table(r["sweep_file"]).to_pylist(), limit=args.store_rows)
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
