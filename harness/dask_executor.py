@@ -62,7 +62,7 @@ from typing import Any, Callable, Iterable, Iterator
 from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, Batch, WorkerLost, WorkerPool, extra_adapters,
                              members, register_env_adapters, take)
 from physbench.harness.fingerprint import fingerprint, package_version
-from physbench.harness.runner import commit_id, machine_info
+from physbench.harness import runner  # runner.commit_id read at call time (tests pretend another commit)
 
 #: Dask settings of the LocalCluster (its scheduler runs in this process, its
 #: workers on the cores the run processes use): no retry by the scheduler for
@@ -109,11 +109,11 @@ def worker_identity() -> dict[str, Any]:
     not imported (their package versions are read)."""
 
     fp = fingerprint()
-    software = {"commit": commit_id(), "python": fp["versions"]["python"],
+    software = {"commit": runner.commit_id(), "python": fp["versions"]["python"],
                 "physbench_engine": fp["versions"]["physbench_engine"],
                 "blas": "; ".join(f"{b['library']} {b['version']}" for b in fp["blas"])}
     software.update({p: package_version(p) or "absent" for p in PACKAGES})
-    return {"software": software, "machine": machine_info(), "pid": os.getpid()}
+    return {"software": software, "machine": runner.machine_info(), "pid": os.getpid()}
 
 
 def identity_diff(client: dict[str, Any], worker: dict[str, Any]) -> list[str]:

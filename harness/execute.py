@@ -40,8 +40,7 @@ from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, 
                              register_env_adapters, take, worker_main)
 from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene import load_scene
-from physbench.harness.runner import RunResult, commit_id, machine_info
-from physbench.harness import runner
+from physbench.harness import runner  # its names read at call time (tests patch them)
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
@@ -158,9 +157,9 @@ def failure_result(req: RunRequest, status: str, message: str, scene: Any = None
         settings = cls.resolve_settings(scene, req.settings)
     except Exception:
         pass  # keep the requested settings
-    res = RunResult(getattr(scene, "id", None) or req.scenario, req.variant, req.engine, version, status, message,
-                    settings, machine=dict(lost.machine) if lost is not None and lost.machine else machine_info(),
-                    commit=commit_id(), timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    res = runner.RunResult(getattr(scene, "id", None) or req.scenario, req.variant, req.engine, version, status, message,
+                    settings, machine=dict(lost.machine) if lost is not None and lost.machine else runner.machine_info(),
+                    commit=runner.commit_id(), timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                     scene_hash=req.scene_hash,
                     scene_path=getattr(scene, "source", "") or (req.scenario if req.scenario.endswith(".toml") else ""))
     tb = tb or (lost.traceback if lost is not None else None)

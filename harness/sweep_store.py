@@ -31,7 +31,7 @@ from physbench.contract.spec import SpecError, _display
 from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from physbench.harness.results import (SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
                              read_frame, results_dir, try_lock, unfinished_dirs, write_json_atomic)
-from physbench.harness.runner import commit_id, machine_info
+from physbench.harness import runner  # runner.commit_id read at call time
 
 
 def sweeps_dir() -> Path:
@@ -224,7 +224,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
 
     machine = machine or machine_id()
     suite_dir = confined(root, machine, suite.name)
-    commit = commit_id()
+    commit = runner.commit_id()
     keys = [p.key for p in points]
     if resume is not False:
         for d, man in unfinished_dirs(suite_dir):
@@ -272,7 +272,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine,
-        "machine": machine_info(),
+        "machine": runner.machine_info(),
         "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
