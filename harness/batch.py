@@ -36,6 +36,12 @@ from typing import Any
 import numpy as np
 
 from physbench.harness import status as st
+from physbench.contract.scene import content_hash
+from physbench.adapters import get_adapter
+from physbench.adapters.base import NotOneBatch, Unsupported
+from physbench.contract.scene import n_steps
+from physbench.harness import runner
+from physbench.harness.runner import _runaway
 
 #: the body fields a batch's scenes may differ in
 START_FIELDS = ("position", "orientation", "velocity", "angular_velocity")
@@ -49,7 +55,6 @@ def _without_start(scene: Any) -> Any:
 
 def same_but_start(scenes: list[Any]) -> str | None:
     """Why ``scenes`` are not one scene with different starts, or None."""
-    from physbench.contract.scene import content_hash
 
     if not scenes:
         return "an empty batch"
@@ -66,10 +71,6 @@ def run_batch(scenes: list[Any], engine: str, settings: dict[str, Any] | None = 
     """Run ``scenes`` (one scene, different starts) on ``engine``: as one
     batch when the adapter is ``batched`` and ``batch``, else one
     :func:`runner.run` each.  One RunResult per scene, in order."""
-    from physbench.adapters import get_adapter
-    from physbench.adapters.base import NotOneBatch, Unsupported
-    from physbench.contract.scene import n_steps
-    from physbench.harness import runner
 
     why = same_but_start(scenes)
     if why:
@@ -148,7 +149,6 @@ def run_batch(scenes: list[Any], engine: str, settings: dict[str, Any] | None = 
 def _first_bad_frame(tr: Any) -> tuple[int, str] | None:
     """The first frame whose state is non-finite or runs away (the
     runner's bounds), with what, or None."""
-    from physbench.harness.runner import _runaway
 
     if not _runaway(tr, 0, tr.n_frames):
         return None

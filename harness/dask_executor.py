@@ -36,7 +36,7 @@ resume).
   Where the scheduler does not queue (``worker-saturation`` inf) or this
   Dask has no data-producer tasks, tasks are submitted one per thread
   (a round trip through the client per item).  Measured by
-  harness/sweep_bench.py; results are gathered as tasks finish.
+  harness/selfbench/sweep.py; results are gathered as tasks finish.
 - **Environment check.**  Every worker reports its identity
   (:func:`worker_identity`: physbench commit, engine and library versions,
   BLAS, and its machine fingerprint).  A worker whose software differs from
@@ -59,8 +59,10 @@ import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
-from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, Batch, WorkerLost, WorkerPool, _extra_adapters,
+from physbench.harness.execute import (END, ONE_THREAD_ENV, WAIT, Batch, WorkerLost, WorkerPool, extra_adapters,
                              members, register_env_adapters, take)
+from physbench.harness.fingerprint import fingerprint, package_version
+from physbench.harness import runner  # runner.commit_id read at call time (tests pretend another commit)
 
 #: Dask settings of the LocalCluster (its scheduler runs in this process, its
 #: workers on the cores the run processes use): no retry by the scheduler for
@@ -105,15 +107,13 @@ def worker_identity() -> dict[str, Any]:
     versions) and ``machine`` (harness/fingerprint.py's flat summary: the
     hardware, which may differ and is carried in each row).  Engines are
     not imported (their package versions are read)."""
-    from physbench.harness.fingerprint import _version, fingerprint
-    from physbench.harness.runner import commit_id, machine_info
 
     fp = fingerprint()
-    software = {"commit": commit_id(), "python": fp["versions"]["python"],
+    software = {"commit": runner.commit_id(), "python": fp["versions"]["python"],
                 "physbench_engine": fp["versions"]["physbench_engine"],
                 "blas": "; ".join(f"{b['library']} {b['version']}" for b in fp["blas"])}
-    software.update({p: _version(p) or "absent" for p in PACKAGES})
-    return {"software": software, "machine": machine_info(), "pid": os.getpid()}
+    software.update({p: package_version(p) or "absent" for p in PACKAGES})
+    return {"software": software, "machine": runner.machine_info(), "pid": os.getpid()}
 
 
 def identity_diff(client: dict[str, Any], worker: dict[str, Any]) -> list[str]:
@@ -311,7 +311,7 @@ class DaskExecutor:
     def _start(self, scheduler: str | None) -> None:
         self.client.register_plugin(_plugin())
         self.identity = worker_identity()
-        self.adapters, paths = _extra_adapters()
+        self.adapters, paths = extra_adapters()
         self.adapters_text = ",".join(f"{k}={v}" for k, v in self.adapters.items())
         self.paths = tuple(paths)
         self.workers = self.client.run(_identity_on_worker)

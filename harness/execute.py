@@ -36,8 +36,11 @@ from typing import Any, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
-                             InlineExecutor, WorkerLost, WorkerPool, _extra_adapters, grace_s, members,
+                             InlineExecutor, WorkerLost, WorkerPool, extra_adapters, grace_s, members,
                              register_env_adapters, take, worker_main)
+from physbench.contract.phase import PhaseError, shift_scene
+from physbench.contract.scene import load_scene
+from physbench.harness import runner  # its names read at call time (tests patch them)
 
 #: default wall-clock budget per run (s)
 DEFAULT_TIMEOUT_S = 600.0
@@ -120,8 +123,6 @@ def request_scene(req: RunRequest, base: Any = None):
     to its step phase at the run's dt.  Raises SpecError for a bad spec,
     contract.phase.PhaseError for a phase the scene does not allow (or a dt
     setting that is not a number)."""
-    from physbench.contract.phase import PhaseError, shift_scene
-    from physbench.contract.scene import load_scene
 
     scene = base if base is not None else load_scene(req.scenario, req.variant, dict(req.overrides) or None)
     if not req.phase:
@@ -144,7 +145,6 @@ def failure_result(req: RunRequest, status: str, message: str, scene: Any = None
     this one), the traceback and the worker's stderr tail in ``info``.
     The one failure builder of every command; its row is
     harness.points.failure_row."""
-    from physbench.harness.runner import RunResult, commit_id, machine_info
 
     settings, version = dict(req.settings), ""
     try:
@@ -157,9 +157,9 @@ def failure_result(req: RunRequest, status: str, message: str, scene: Any = None
         settings = cls.resolve_settings(scene, req.settings)
     except Exception:
         pass  # keep the requested settings
-    res = RunResult(getattr(scene, "id", None) or req.scenario, req.variant, req.engine, version, status, message,
-                    settings, machine=dict(lost.machine) if lost is not None and lost.machine else machine_info(),
-                    commit=commit_id(), timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    res = runner.RunResult(getattr(scene, "id", None) or req.scenario, req.variant, req.engine, version, status, message,
+                    settings, machine=dict(lost.machine) if lost is not None and lost.machine else runner.machine_info(),
+                    commit=runner.commit_id(), timestamp=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                     scene_hash=req.scene_hash,
                     scene_path=getattr(scene, "source", "") or (req.scenario if req.scenario.endswith(".toml") else ""))
     tb = tb or (lost.traceback if lost is not None else None)
@@ -177,8 +177,6 @@ def execute_request(req: RunRequest):
     trouble (statuses, harness/status.py).  The trace is dropped unless
     ``req.keep_trace``."""
     import numpy as np
-
-    from physbench.harness import runner
 
     try:
         scene = request_scene(req)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+from physbench.harness.dask_executor import DaskExecutor  # imports Dask only when one is made
 from physbench.harness.execute import InlineExecutor, WorkerPool
 
 #: executor names: ``serial`` is an alias of ``inline`` (no isolation)
@@ -30,7 +31,5 @@ def make_executor(kind: str = "process", jobs: int = 1, scheduler: str | None = 
     if kind in ("inline", "serial"):
         return InlineExecutor()
     if kind == "dask":
-        from physbench.harness.dask_executor import DaskExecutor
-
         return DaskExecutor(jobs, scheduler, log)
     raise ValueError(f"executor {kind!r}: expected one of {', '.join(EXECUTOR_KINDS)}")

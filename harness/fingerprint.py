@@ -108,7 +108,7 @@ def numpy_simd() -> list[str]:
     return [t for t in __cpu_dispatch__ if __cpu_features__.get(t)]
 
 
-def _version(mod: str) -> str:
+def package_version(mod: str) -> str:
     try:
         from importlib.metadata import version
 
@@ -120,7 +120,7 @@ def _version(mod: str) -> str:
 @functools.lru_cache(maxsize=1)
 def fingerprint() -> dict[str, Any]:
     """The environment fingerprint (a JSON-able dict; cached per process)."""
-    from physbench.engine import version as engine_version
+    from physbench.engine import version as engine_version  # the engine (numba) only once a fingerprint is taken
 
     return {
         "cpu": cpu_info(),
@@ -128,9 +128,9 @@ def fingerprint() -> dict[str, Any]:
         "numpy_simd": numpy_simd(),
         "versions": {
             "python": platform.python_version(),
-            "numpy": _version("numpy"),
-            "scipy": _version("scipy"),
-            "numba": _version("numba"),
+            "numpy": package_version("numpy"),
+            "scipy": package_version("scipy"),
+            "numba": package_version("numba"),
             "physbench_engine": engine_version(),
         },
         "os": platform.system(),

@@ -95,7 +95,19 @@ class LimitRequest:
 
 
 def is_engine_setting(engine: str, param: str) -> bool:
-    return param in get_adapter(engine).capabilities().settings
+    return param in _setting_names(get_adapter(engine))
+
+
+@lru_cache(maxsize=64)
+def _setting_names(cls: type) -> frozenset[str]:
+    """An adapter class's setting names (its capabilities cost up to a ms
+    each; a sweep's client asks for every evaluation it hands out)."""
+    return frozenset(cls.capabilities().settings)
+
+
+@lru_cache(maxsize=1024)
+def _integer_key(param: str) -> bool:
+    return integer_key(param)  # the schema walk costs ~0.2 ms; asked once per evaluation
 
 
 def _fill_vector(loaded: Any, variant: str | None, path: str) -> dict[str, Any]:
@@ -128,7 +140,7 @@ def _spec_value(param: str, value: float) -> float | int:
     """``value`` as the spec key ``param`` takes it: a whole number as an
     int for an integer key (a count), else unchanged (a fraction stays a
     float, which the spec then refuses with the key's path)."""
-    if integer_key(param) and float(value).is_integer():
+    if _integer_key(param) and float(value).is_integer():
         return int(value)
     return value
 

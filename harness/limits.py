@@ -39,7 +39,7 @@ from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene import resolve_scenario
 from physbench.contract.spec import SpecError
 from physbench.harness.conformance import applicable_checks, split_metric
-from physbench.harness.results import SCHEMA_VERSION
+from physbench.harness.results import SCHEMA_VERSION, read_frame
 from physbench.harness.runner import commit_id
 from physbench.harness.sweep_store import consolidate, machine_id, open_sweep, sweep_files, sweeps_dir
 from physbench.harness.limit_eval import load_at as _load_at
@@ -65,12 +65,10 @@ LIMITS_SUITE = "limits"
 def stored_rows(paths: list[Path], kind: str = EVAL_ROW) -> dict[str, dict[str, Any]]:
     """Rows of ``kind`` in the Parquet files ``paths``, by point key (the
     first stored wins)."""
-    import pandas as pd
-
     out: dict[str, dict[str, Any]] = {}
     for p in paths:
         try:
-            df = pd.read_parquet(p)
+            df = read_frame(p)
         except Exception:
             continue
         if "row_kind" not in df.columns:
@@ -104,19 +102,24 @@ def parse_number(text: str, what: str) -> float:
     return v
 
 
-def validate_request(req: LimitRequest) -> list[str]:
+def validate_request(req: LimitRequest, scenes: dict[Any, Any] | None = None) -> list[str]:
     """Problems with a request, one line each (empty: fine): the scenario
     loads, the engine exists, the parameter is a setting of the engine or a
     spec key the scene accepts at both ends of the range, the phases are
-    possible."""
+    possible.  ``scenes``: the scenes loaded so far, shared between the
+    requests of a suite (harness.suite's check: one search block is a
+    request per engine, all loading the same scenes at the same ends)."""
 
     errs: list[str] = []
-    scenes: dict[float, Any] = {}
+    scenes = {} if scenes is None else scenes
 
     def load_at(req: LimitRequest, value: float) -> Any:  # each end's scene loaded once (SpecError: each time)
-        if value not in scenes:
-            scenes[value] = _load_at(req, value)
-        return scenes[value]
+        # what harness.limit_eval.load_at loads: for an engine setting the scene as written, whatever the value
+        key = (req.scenario, req.variant, repr(req.overrides)) + (
+            (None,) if is_engine_setting(req.engine, req.param) else (req.param, value))
+        if key not in scenes:
+            scenes[key] = _load_at(req, value)
+        return scenes[key]
 
     if req.engine not in engine_names():
         return [f"--engine: unknown engine {req.engine!r}; known: {', '.join(engine_names())}"]

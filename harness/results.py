@@ -20,8 +20,10 @@ the usual umask, never the 0600 of a ``mkstemp`` file), under
 (a DataFrame) and the text writers.  :class:`PartsDir` is the store of a
 job that writes its finished runs' rows as parts and resumes after a kill
 (``physbench sweep``: several rows to a part; ``physbench check``): parts
-are built from the rows with pyarrow, one schema per part (:func:`rows_table`,
-typed as ``from_pandas`` types each row) and merged by :func:`merge_tables`:
+are built from the rows with pyarrow, one table per row schema (:func:`rows_table`,
+typed as ``from_pandas`` types each row), tables whose columns agree stored
+as one part (:func:`one_part_table`, read back split by :func:`read_part_tables`)
+and merged by :func:`merge_tables`:
 pyarrow where the parts share a schema, else one ``pandas.concat`` and
 :func:`_normalize`, the store's one normaliser.
 """
@@ -300,6 +302,128 @@ def list_parts(d: Path) -> list[Path]:
     return sorted(d.glob("part-*.parquet"))
 
 
+#: a part holding rows of several row schemas (:func:`one_part_table`): the column naming each row's own,
+#: an index into the list stored under this key in the part's ``physbench`` metadata
+PART_SCHEMA_COLUMN = "__row_schema"
+PART_SCHEMAS_KEY = "row_schemas"
+
+
+def _packs(schemas: list[Any]) -> list[list[int]]:
+    """``schemas`` (each a pyarrow Schema or (name, type) pairs; indices, in
+    order) in runs of consecutive ones whose columns agree in type where
+    two of them have a column (a null-typed column agrees with any): the
+    tables one part holds."""
+    import pyarrow as pa
+
+    null = pa.null()
+    runs: list[list[int]] = []
+    types: dict[str, Any] = {}
+    for i, sch in enumerate(schemas):
+        fields = [(f.name, f.type) for f in sch] if isinstance(sch, pa.Schema) else sch
+        agree = bool(runs) and all(t == null or types.get(n, t) in (t, null) for n, t in fields)
+        if not agree:
+            runs.append([])
+            types = {}
+        runs[-1].append(i)
+        for n, t in fields:
+            if t != null or n not in types:
+                types[n] = t
+    return runs
+
+
+def _signature_part(groups: list[tuple[tuple[tuple[str, Any], ...], list[dict[str, Any]]]]):
+    """Rows of several signatures whose columns agree (:func:`_packs`) as
+    :func:`one_part_table` makes them from their :func:`rows_table` s,
+    built straight from the rows: one array per column of the union, not
+    one per column of each signature.  Raises what pyarrow raises for a
+    value its type cannot hold (the caller then takes the tables' path)."""
+    import pyarrow as pa
+
+    null, f64 = pa.null(), pa.float64()
+    types: dict[str, Any] = {}
+    for sig, _ in groups:
+        for n, t in sig:
+            if t != null or n not in types:
+                types[n] = t
+    index = {n: i for i, n in enumerate(types)}
+    rows = [r for _, same in groups for r in same]
+    arrays = [pa.array([r.get(n) for r in rows], t, from_pandas=True) if t == f64  # NaN -> null, as rows_table
+              else pa.array([r.get(n) for r in rows], t) for n, t in types.items()]
+    arrays.append(pa.array([k for k, (_, same) in enumerate(groups) for _ in same], pa.int32()))
+    schema = pa.schema(list(types.items()) + [(PART_SCHEMA_COLUMN, pa.int32())])
+    schemas = [[[index[n] for n, _ in sig], [index[n] for n, t in sig if t == null]] for sig, _ in groups]
+    return pa.Table.from_arrays(arrays, schema=schema), schemas
+
+
+def one_part_table(tables: list[Any]) -> tuple[Any, list[list[list[int]]] | None]:
+    """Tables whose columns agree in type (:func:`_packs`) as one table to
+    store as one part, and what :func:`read_part_tables` needs to give the
+    tables back: (table, None) for one table; for several, their columns'
+    union in the order they first appear (a table lacking a column, or
+    holding it null-typed, has nulls of the union's type there) plus
+    :data:`PART_SCHEMA_COLUMN`, each row's table, and per table [its
+    columns, those of them null-typed] as indices into the union.  A part
+    so costs one Parquet write, whatever the row signatures among its rows
+    (tests/test_results_store.py::test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one)."""
+    import pyarrow as pa
+
+    if len(tables) == 1:
+        return tables[0], None
+    types: dict[str, Any] = {}
+    for t in tables:
+        for f in t.schema:
+            if f.type != pa.null() or f.name not in types:
+                types[f.name] = f.type
+    index = {n: i for i, n in enumerate(types)}
+    schema = pa.schema(list(types.items()) + [(PART_SCHEMA_COLUMN, pa.int32())])
+    parts, schemas = [], []
+    for k, t in enumerate(tables):
+        n, have = t.num_rows, {f.name: f.type for f in t.schema}
+        cols = [t.column(c) if c in have and have[c] == ty else pa.nulls(n, ty) for c, ty in types.items()]
+        parts.append(pa.Table.from_arrays(cols + [pa.array([k] * n, pa.int32())], schema=schema))
+        schemas.append([[index[f.name] for f in t.schema], [index[f.name] for f in t.schema if f.type == pa.null()]])
+    return pa.concat_tables(parts).combine_chunks(), schemas
+
+
+def read_part_tables(p: Path) -> list[Any]:
+    """The tables a part holds (:func:`read_part`), each with its own row
+    schema: one, or those :func:`one_part_table` stored together, given
+    back as they were (columns, order, types, values)."""
+    import pyarrow as pa
+
+    t = read_part(p)
+    meta = json.loads((t.schema.metadata or {}).get(b"physbench", b"{}"))
+    schemas = meta.get(PART_SCHEMAS_KEY)
+    if not schemas:
+        return [t]
+    names, fields = t.column_names, [f.remove_metadata() for f in t.schema]
+    which = t.column(PART_SCHEMA_COLUMN).to_pylist()
+    out, start = [], 0
+    while start < len(which):
+        k, end = which[start], start
+        while end < len(which) and which[end] == k:
+            end += 1
+        cols, nulls = schemas[k][0], set(schemas[k][1])
+        rows = t.slice(start, end - start)
+        out.append(pa.Table.from_arrays(
+            [pa.nulls(end - start) if i in nulls else rows.column(i) for i in cols],
+            schema=pa.schema([pa.field(names[i], pa.null()) if i in nulls else fields[i] for i in cols])))
+        start = end
+    return out
+
+
+def read_frame(p: Path):
+    """A stored Parquet file (a consolidated sweep, a part) as a DataFrame,
+    one row per stored row: the rows of a part of several row schemas
+    with the union of their columns (pandas.concat of its tables)."""
+    import pandas as pd
+
+    tables = read_part_tables(p) if p.name.startswith("part-") else None
+    if not tables or len(tables) == 1:
+        return pd.read_parquet(p)
+    return pd.concat([t.to_pandas() for t in tables], ignore_index=True)
+
+
 def read_part(p: Path, columns: list[str] | None = None):
     """One Parquet file (a part) as a pyarrow Table, read in this thread:
     a fraction of ``pyarrow.parquet.read_table``'s cost for a one-row
@@ -370,24 +494,42 @@ class PartsDir:
         return self.write_rows([row], metadata)[0]
 
     def write_rows(self, rows: list[dict[str, Any]], metadata: dict[str, Any] | None = None) -> list[Path]:
-        """Store ``rows`` as the next parts: one part per :func:`row_signature`
-        among them (its rows in their order, :func:`rows_table`; the parts
+        """Store ``rows`` as the next parts: one table per :func:`row_signature`
+        among them (its rows in their order, :func:`rows_table`; the tables
         in the order their signatures first appear, so a merge types the
-        columns as it typed one part per row), each written atomically and
+        columns as it typed one part per row), consecutive tables whose
+        columns agree in type sharing one part (:func:`one_part_table`: a
+        sweep's rows of different engines and statuses, one write), each written atomically and
         fsynced before this returns: once the caller counts a row done, it
         is on disk.  A part is whole or absent, so a kill loses whole
         parts, never half a row.  Returns the parts' paths."""
-        groups: dict[Any, tuple[Any, list[dict[str, Any]]]] = {}  # a row the pandas path types: a part alone
+        groups: dict[Any, tuple[Any, list[dict[str, Any]]]] = {}  # a row the pandas path types: a table alone
         for i, row in enumerate(rows):
             sig = row_signature(row)
             groups.setdefault(sig if sig is not None else i, (sig, []))[1].append(row)
+        import pyarrow as pa
+
+        listed = list(groups.values())
+        # a row the pandas path types (no signature): its own table first, for its schema
+        alone = {i: rows_table(same, None) for i, (sig, same) in enumerate(listed) if sig is None}
         paths = []
-        for sig, same in groups.values():
+        for run in _packs([alone[i].schema if i in alone else listed[i][0] for i in range(len(listed))]):
             p = self.path / f"part-{self.next_part:06d}.parquet"
-            table = rows_table(same, sig)
-            write_table_atomic(table, p, metadata, **PART_WRITE_OPTIONS)
+            table = schemas = None
+            if len(run) > 1 and not any(i in alone for i in run):
+                try:
+                    table, schemas = _signature_part([listed[i] for i in run])
+                except (OverflowError, pa.ArrowException):
+                    table = None
+            if table is None:
+                table, schemas = one_part_table([alone[i] if i in alone else rows_table(listed[i][1], listed[i][0])
+                                                 for i in run])
+            meta = dict(metadata or {})
+            if schemas is not None:
+                meta[PART_SCHEMAS_KEY] = schemas
+            write_table_atomic(table, p, meta, **PART_WRITE_OPTIONS)
             self.next_part += 1
-            self.done.update(r[self.key_column] for r in same)
+            self.done.update(r[self.key_column] for i in run for r in listed[i][1])
             paths.append(p)
         return paths
 
@@ -397,7 +539,8 @@ class PartsDir:
 
         out = []
         for p in list_parts(self.path):
-            out.extend(read_part(p).to_pylist())
+            for t in read_part_tables(p):
+                out.extend(t.to_pylist())
         return out
 
     def close(self) -> None:
@@ -433,7 +576,7 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
     import pyarrow as pa
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    table = merge_tables([read_part(p) for p in list_parts(d)])
+    table = merge_tables([t for p in list_parts(d) for t in read_part_tables(p)])
     if key_column not in table.column_names:
         table = table.append_column(key_column, pa.array([], pa.large_string()))
     keys = table.column(key_column).to_pylist()

@@ -25,7 +25,14 @@ from physbench.contract.phase import phase_values
 from physbench.contract.data import SHIPPED_SUITES
 from physbench.contract.spec import SpecError, _display, _format_errors, read_toml
 from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
-from physbench.harness.sweep_store import _NAME, SuiteError, plain_name
+from physbench.harness.sweep_store import PLAIN_NAME, SuiteError, plain_name
+from physbench.adapters import engine_names, get_adapter
+from physbench.harness.limits import LimitRequest, validate_request
+from physbench.contract.scene import scenario_ids
+from physbench.contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
+from physbench.contract.spec import load_spec
+from physbench.contract.scene import load_scene, n_steps
+from physbench.contract.spec import record_size_error
 
 #: the shipped suites (package data, contract/data.py)
 SUITE_DIR = SHIPPED_SUITES
@@ -58,7 +65,7 @@ class SuiteSection(_Strict):
     @field_validator("name")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
-        if v is not None and not _NAME.match(v):
+        if v is not None and not PLAIN_NAME.match(v):
             raise ValueError(f"must be a plain name (letters, digits, '_', '-', '.'): it names a directory, got {v!r}")
         if v is not None and not plain_name(v):
             raise ValueError(f"must be a plain name not starting with '.' and of at most 100 characters: it names "
@@ -226,13 +233,11 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
     """The ``[[limit]]`` blocks as LimitRequests, one per (block, scenario,
     engine), each validated as ``physbench limits`` validates its arguments
     (harness.limits.validate_request).  Appends to ``errors``."""
-    from physbench.adapters import engine_names, get_adapter
-    from physbench.harness.limits import LimitRequest, validate_request
-    from physbench.contract.scene import scenario_ids
 
     ids = set(scenario_ids())
     known = set(engine_names())
     out: list[Any] = []
+    scenes: dict[Any, Any] = {}  # loaded once for all the engines' requests (harness.limits.validate_request)
     for bi, lb in enumerate(model.limit):
         where = f"{label}: limit[{bi}]"
         engines = _block_engines(lb.engines, model.suite.engines, known, where, errors)
@@ -259,7 +264,7 @@ def _check_limits(model: SuiteModel, label: str, errors: list[str]) -> list[Any]
                 req = LimitRequest(sid, var, e, lb.param, lb.range[0], lb.range[1], lb.phases, lb.tol,
                                    tuple(lb.checks), settings, overrides, tuple(sorted(lb.max.items())),
                                    model.suite.timeout_s)
-                problems = validate_request(req)
+                problems = validate_request(req, scenes)
                 errors.extend(f"{where} ({entry} on {e}): {msg}" for msg in problems)
                 if not problems:
                     out.append(req)
@@ -275,9 +280,6 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
     """Cross-checks pydantic cannot make: engines registered, scenario ids
     and variants exist, every grid key is a setting of the engines it applies
     to and every value is allowed by that setting.  Appends to ``errors``."""
-    from physbench.adapters import engine_names, get_adapter
-    from physbench.contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
-    from physbench.contract.spec import load_spec
 
     known = engine_names()
     caps: dict[str, Any] = {}
@@ -386,8 +388,6 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     """Every point's recording fits the bounds (contract/spec/bounds.py
     record_size_error) at the smallest dt any engine sweeps: checked when
     the suite loads, before anything runs or is allocated."""
-    from physbench.contract.scene import load_scene, n_steps
-    from physbench.contract.spec import record_size_error
 
     scenes: dict[int, Any] = {}  # a scene does not depend on the engine: loaded once per entry
 

@@ -51,12 +51,14 @@ from typing import Any
 
 from physbench.contract.spec import SpecError, _display
 from physbench.harness import status as st
+from physbench.harness.dask_executor import EnvironmentRefused
 from physbench.harness.executors import make_executor
+from physbench.harness.limits import RESULT_ROW, describe, stored_rows
 from physbench.harness.points import Point
-from physbench.harness.results import SCHEMA_VERSION
+from physbench.harness.results import SCHEMA_VERSION, list_parts
 from physbench.harness.schedule import expected_costs, run_schedule
 from physbench.harness.suite import scenario_label, expand, load_suite
-from physbench.harness.sweep_store import _parts, _SweepDir, consolidate, machine_id, open_sweep, sweeps_dir
+from physbench.harness.sweep_store import SweepDir, consolidate, machine_id, open_sweep, sweeps_dir
 
 STATUSES = st.RUN_STATUSES
 EXECUTORS = ("serial", "process", "dask")
@@ -89,14 +91,12 @@ def summarize(df, wall_s: float, console=None, title: str = "") -> None:
     console.print(table)
 
 
-def _store_limits(sd: "_SweepDir", ctx: dict[str, Any], err: Any):
+def _store_limits(sd: "SweepDir", ctx: dict[str, Any], err: Any):
     """(cached evaluations and summaries read back from the sweep's parts,
     store of an evaluation's row, on_search_done that stores a summary not
     stored before and prints the answer)."""
-    from physbench.harness.limits import RESULT_ROW, describe, stored_rows
-
-    cached = stored_rows(_parts(sd.path))
-    cached.update(stored_rows(_parts(sd.path), RESULT_ROW))
+    cached = stored_rows(list_parts(sd.path))
+    cached.update(stored_rows(list_parts(sd.path), RESULT_ROW))
 
     def store(row: dict[str, Any]) -> None:
         row.update(ctx)
@@ -169,8 +169,6 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     filters = {"engines": engines, "scenarios": scenarios}
     ex, refused = None, ()
     if executor == "dask":  # before the sweep directory: a refused cluster writes nothing
-        from physbench.harness.dask_executor import EnvironmentRefused
-
         refused = (EnvironmentRefused,)
         try:
             ex = make_executor(executor, jobs, scheduler, log=lambda t: err.print(t, markup=False, soft_wrap=True))

@@ -6,8 +6,9 @@
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename); the rows of about a second go into one part (one per row
-schema), so a killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
+rename); the rows of about two seconds go into one part (or a few, where
+their columns' types disagree: harness.results.PartsDir.write_rows), so a
+killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
 :func:`sweep_files`.  Names that become directories are plain names
 (:func:`plain_name`, :func:`confined`).
@@ -29,7 +30,8 @@ from typing import Any, Iterable
 from physbench.contract.spec import SpecError, _display
 from physbench.harness.fingerprint import fingerprint, machine_id as _fingerprint_machine_id
 from physbench.harness.results import (SCHEMA_VERSION, VERDICT_COLUMNS, PartsDir, consolidate_parts, list_parts,
-                             results_dir, try_lock, unfinished_dirs, write_json_atomic)
+                             read_frame, results_dir, try_lock, unfinished_dirs, write_json_atomic)
+from physbench.harness import runner  # runner.commit_id read at call time
 
 
 def sweeps_dir() -> Path:
@@ -43,7 +45,8 @@ def sweeps_dir() -> Path:
 SWEEP_COLUMNS = VERDICT_COLUMNS + ("suite", "sweep_id", "point_key", "point_settings", "phase", "primary_error",
                                    "cpu_s_per_sim_s_median", "cpu_s_per_sim_s_min", "repeats", "machine_id",
                                    "sweep_jobs", "point_wall_s", "schema_version")
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: a plain name (:func:`plain_name`) before its other rules: letters, digits, '_', '-', '.'
+PLAIN_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
 def plain_name(name: str) -> bool:
@@ -51,7 +54,7 @@ def plain_name(name: str) -> bool:
     digits, '_', '-', '.', at most 100 characters, and not starting with '.'
     (so never '.', '..' or a hidden directory).  Pinned by
     tests/test_fuzz.py::test_suite_name_cannot_escape_the_results_root."""
-    return bool(_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
+    return bool(PLAIN_NAME.match(name)) and not name.startswith(".") and len(name) <= 100
 
 
 class SuiteError(SpecError):
@@ -78,21 +81,18 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-_parts = list_parts  # the name harness/sweep.py imports
-
-
 #: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
 #: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows.
-#: A part's cost per row falls with its rows (sweep_bench --store: 0.52 ms a row 32 at a time, 4.3 ms one at a time);
+#: A part's cost per row falls with its rows (harness/selfbench/sweep.py --store);
 #: 2 workers finish about 12 rows a second, so 2 s gives about 24 rows a write
 PART_FLUSH_S = 2.0
 PART_MAX_ROWS = 1000
-#: the name of the sweep's part-writer thread (:meth:`_SweepDir.write_behind`;
-#: harness/sweep_bench.py accounts its CPU by it)
+#: the name of the sweep's part-writer thread (:meth:`SweepDir.write_behind`;
+#: harness/selfbench/sweep.py accounts its CPU by it)
 PART_WRITER = "physbench-part-writer"
 
 
-class _SweepDir(PartsDir):
+class SweepDir(PartsDir):
     """An open (unfinished) sweep directory: parts of finished points' rows,
     keyed by ``point_key`` (harness.results.PartsDir).  After
     :meth:`write_behind`, :meth:`write_point` hands each row to a writer
@@ -209,7 +209,7 @@ def _sweep_id(commit: str) -> str:
 
 
 def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, jobs: int,
-               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[_SweepDir, bool]:
+               executor: str, filters: dict[str, Any], machine: str | None = None) -> tuple[SweepDir, bool]:
     """Find the sweep to resume or start a new one.  Returns (dir, resumed).
 
     Resume rule: an unfinished sweep directory of this suite on this machine
@@ -221,11 +221,10 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
     ``machine``: the machine id the rows are filed under (default this
     machine's; a Dask sweep's workers' own).
     """
-    from physbench.harness.runner import commit_id, machine_info
 
     machine = machine or machine_id()
     suite_dir = confined(root, machine, suite.name)
-    commit = commit_id()
+    commit = runner.commit_id()
     keys = [p.key for p in points]
     if resume is not False:
         for d, man in unfinished_dirs(suite_dir):
@@ -253,7 +252,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
             man.setdefault("resumed", []).append({"at": _now(), "commit": commit, "jobs": jobs,
                                                   "executor": executor})
             write_json_atomic(man, d / "manifest.json")
-            return _SweepDir(d, man, fd), True
+            return SweepDir(d, man, fd), True
         if resume:
             print(f"nothing to resume for suite {suite.name} (same suite file and points) under {suite_dir}; "
                   "starting a new sweep", file=sys.stderr)
@@ -273,7 +272,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         "sweep_id": sid,
         "commit": commit,
         "machine_id": machine,
-        "machine": machine_info(),
+        "machine": runner.machine_info(),
         "fingerprint": fingerprint(),
         "jobs": jobs,
         "executor": executor,
@@ -283,7 +282,7 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
         "points": keys,
     }
     write_json_atomic(man, d / "manifest.json")
-    return _SweepDir(d, man, fd), False
+    return SweepDir(d, man, fd), False
 
 
 def consolidate(d: Path) -> Path:
@@ -336,6 +335,6 @@ def read_sweeps(root: str | Path | None = None, suite: str | None = None, machin
     ``unfinished`` also the parts of sweeps still running or killed."""
     import pandas as pd
 
-    frames = [pd.read_parquet(f) for *_, f, _ in
+    frames = [read_frame(f) for *_, f, _ in
               sweep_files(root, [suite] if suite else None, machine, unfinished)]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()

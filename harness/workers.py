@@ -45,6 +45,8 @@ from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.compile_progress import PROGRESS_FD_ENV, PROGRESS_SHARED_ENV, take_parent_stream
+from physbench.adapters.base import _REGISTRY, engine_origin
+from physbench.adapters.base import register
 
 #: environment variable naming extra adapters, ``name=module:Class,...``
 ADAPTERS_ENV = "PHYSBENCH_ADAPTERS"
@@ -205,13 +207,12 @@ class InlineExecutor:
         self.close()
 
 
-def _extra_adapters() -> tuple[dict[str, str], list[str]]:
+def extra_adapters() -> tuple[dict[str, str], list[str]]:
     """Registered adapters that are not shipped, as {name: 'module:Class'}
     (those a worker can import: not defined in ``__main__`` or in a
     function), merged with the ones named in the environment; and the
     directories their modules are imported from (a test module imported by
     file name needs its own directory on the path)."""
-    from physbench.adapters.base import _REGISTRY, engine_origin
 
     out = _parse_adapters(os.environ.get(ADAPTERS_ENV, ""))
     paths: list[str] = []
@@ -251,7 +252,6 @@ def register_env_adapters(text: str | None = None) -> list[str]:
     """Register the adapters named in ``PHYSBENCH_ADAPTERS`` (or ``text``),
     ``name=module:Class,...``; each is imported when first asked for.
     Returns their names."""
-    from physbench.adapters.base import register
 
     refs = _parse_adapters(os.environ.get(ADAPTERS_ENV, "") if text is None else text)
 
@@ -422,7 +422,7 @@ class WorkerPool:
         env[WORKER_ENV] = "1"
         env[WORKER_ENV + "_PARENT"] = str(os.getpid())
         env.update(ONE_THREAD_ENV)
-        adapters, paths = _extra_adapters()
+        adapters, paths = extra_adapters()
         # physbench itself is imported as this process imported it (installed, or
         # an editable install's finder); added: a checkout's root (its tests'
         # modules hold functions and adapters workers run) and the folders of

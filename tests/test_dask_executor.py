@@ -303,7 +303,7 @@ def test_tasks_ahead_wait_on_the_scheduler_not_on_a_worker(cluster):
     the client, and a worker that dies holds only the task it runs: the
     retry test above)."""
     from physbench.harness.dask_executor import DaskExecutor
-    from physbench.harness.exec_bench import sleep_task as _sleep
+    from physbench.harness.selfbench.executors import sleep_task as _sleep
 
     lc, client = cluster
     _wait_workers(client)

@@ -194,10 +194,16 @@ def test_parts_of_mixed_kinds_merge_to_one_typed_column(tmp_path):
 
 
 def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, sweep_rows):
-    """``PartsDir.write_rows`` stores rows several to a part (one part per
-    row signature, in the order the signatures first appear): each row
-    reads back with the types and values its own one-row part held, and
-    the merged file is the one the one-row parts merge to."""
+    """``PartsDir.write_rows`` stores rows several to a part: one table per
+    row signature, in the order the signatures first appear, consecutive
+    tables whose columns agree in type in one part (a column two of them
+    hold with different non-null types starts a new part): each row reads
+    back with the types and values its own one-row part held, the report's
+    and the limit cache's reader (``read_frame``) sees one row per row
+    without the part's bookkeeping column, and the merged file is the one
+    the one-row parts merge to."""
+    import pyarrow as pa
+
     rows = _rows_of_every_kind() + sweep_rows + _rows_of_every_kind()[:3]
     one, many = tmp_path / "one", tmp_path / "many"
     for d in (one, many):
@@ -212,10 +218,23 @@ def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, swee
         groups.setdefault(R.row_signature(row) or i, []).append(i)
     for i, row in enumerate(rows[5:], 5):
         groups.setdefault(("second", R.row_signature(row) or i), []).append(i)
-    assert len(paths) == len(groups) < len(rows) and b.done == a.done
+    # rows a and b disagree in type (setting.ccd bool / text, setting.iterations int / float): two parts;
+    # the smoke sweep's rows, of several signatures, share parts
+    assert 2 < len(paths) < len(groups) < len(rows) and b.done == a.done
     assert sum(pq.read_metadata(p).num_rows for p in paths) == len(rows)
+    several = [p for p in paths if len(R.read_part_tables(p)) > 1]
+    assert several and all(R.PART_SCHEMA_COLUMN in pq.read_schema(p).names for p in several)
+    for p in paths:  # a part's tables agree in every column they share
+        types: dict = {}
+        for t in R.read_part_tables(p):
+            for f in t.schema:
+                if f.type != pa.null():
+                    assert types.setdefault(f.name, f.type) == f.type, (p, f)
     one_rows = a.part_rows()
     _same_values([one_rows[i] for same in groups.values() for i in same], b.part_rows())
+    framed = pd.concat([R.read_frame(p) for p in paths], ignore_index=True)
+    assert R.PART_SCHEMA_COLUMN not in framed.columns and len(framed) == len(rows)
+    assert framed["point_key"].tolist() == [rows[i]["point_key"] for same in groups.values() for i in same]
     order = list(dict.fromkeys(r["point_key"] for r in rows))[::-1]
     _same_file(R.consolidate_parts(one, "point_key", order, "now")[0],
                R.consolidate_parts(many, "point_key", order, "now")[0])

@@ -19,11 +19,11 @@ import pandas as pd
 import pytest
 
 from physbench.harness.execute import WAIT, InlineExecutor, WorkerLost, WorkerPool
-from physbench.harness.exec_bench import sleep_task as _sleep, thread_counts
+from physbench.harness.selfbench.executors import sleep_task as _sleep, thread_counts
 from physbench.harness.limits import EVAL_ROW, RESULT_ROW, EvalItem, LimitRequest, drive, search_items
 from physbench.harness.points import Point
 from physbench.harness.schedule import run_schedule
-from physbench.harness.sweep_bench import VirtualExecutor, replay
+from physbench.harness.selfbench.sweep import VirtualExecutor, replay
 
 #: a dt search on the 5-box column (scene loading only: values are answered by THRESHOLD)
 THRESHOLD = {"mujoco": 0.0071, "pybullet": 0.0033, "pymunk": 0.0191}
@@ -48,7 +48,7 @@ def _answer_round(items):
 
 
 def SimExecutor(jobs, duration, answer=_answer):
-    """physbench.harness.sweep_bench's virtual-time executor answering with _answer."""
+    """physbench.harness.selfbench.sweep's virtual-time executor answering with _answer."""
     return VirtualExecutor(jobs, duration, answer)
 
 

@@ -476,7 +476,7 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
     from physbench.harness.results import list_parts, read_part
 
     _fail_writes_of_bad(monkeypatch)
-    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd = ST.SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
     sd.write_behind()
     for k in ("a", "b", "c"):
         assert sd.write_point({"point_key": k, "x": 1.0}) is None
@@ -490,7 +490,7 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
         sd.close()
     assert sd.lock_fd == -1 and "bad" not in sd.done
 
-    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, -1)
+    sd = ST.SweepDir(tmp_path, {"sweep_id": "s"}, -1)
     sd.write_behind()
     sd.write_point({"point_key": "bad", "x": 1.0})
     deadline = time.monotonic() + 30
@@ -510,7 +510,7 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
     from physbench.harness.results import list_parts, read_part
 
     _fail_writes_of_bad(monkeypatch)
-    sd = ST._SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd = ST.SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
     sd.write_behind()
     sd.write_point({"point_key": "a", "x": 1.0})
     deadline = time.monotonic() + 30
@@ -532,12 +532,12 @@ def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
 
 
 def test_cpu_account_charges_the_part_writer_and_the_main_thread_apart():
-    """physbench.harness.sweep_bench.CpuAccount: CPU spent on a thread named as the
+    """physbench.harness.selfbench.sweep.CpuAccount: CPU spent on a thread named as the
     sweep's part writer counts as "part writer", the main thread's as
     "main thread" (CPU seconds, not wall time)."""
     import threading
 
-    from physbench.harness.sweep_bench import CpuAccount
+    from physbench.harness.selfbench.sweep import CpuAccount
 
     def spin(cpu_s: float) -> None:
         t0 = time.thread_time()

@@ -317,10 +317,10 @@ def test_bullet_bounce_line_and_a_planted_tunnelling_count(tmp_path):
 
 
 def test_trace_cost_tool_measures_a_traced_run_and_its_file(tmp_path):
-    """physbench.harness.trace.cost (docs/TRACES.md, "Cost") on a short column: one
+    """physbench.harness.selfbench.trace_cost (docs/TRACES.md, "Cost") on a short column: one
     row per engine with the traced run's engine contacts and the file it
     wrote (sizes and counts only: a benchmark, no time is asserted)."""
-    from physbench.harness.trace.cost import markdown, measure
+    from physbench.harness.selfbench.trace_cost import markdown, measure
 
     (row,) = measure("stacking.column_5", duration=0.05, repeats=1, engines=("pymunk",), out_dir=tmp_path)
     assert row["status"] == "ok" and row["frames"] == int(round(0.05 / load_scene("stacking.column_5").dt)) + 1

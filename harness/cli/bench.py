@@ -17,7 +17,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     # with --json, stdout carries the JSON only: the tables go to stderr
     with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
         if args.kind == "isolation":
-            from physbench.harness.exec_bench import bench_isolation
+            from physbench.harness.selfbench.executors import bench_isolation  # physbench's own bench: only here
 
             rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
             bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "

@@ -49,7 +49,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from physbench.contract.rotation import quat_rotate, quat_to_matrix, world_to_body_angvel
 from physbench.harness.references import (BODY_PARAM, TRAJECTORY, ReferenceError, ReferenceModel, ReferenceSeries,
@@ -100,6 +99,8 @@ def solve_torque_free(inertia: np.ndarray, q0: np.ndarray, w0_body: np.ndarray, 
                       t_eval: np.ndarray | None = None):
     """Integrate Euler's equations + quaternion kinematics; returns the
     solve_ivp solution (dense output on)."""
+    from scipy.integrate import solve_ivp  # heavy (0.3 s); a sweep's client loads this module only to check scenes
+
     y0 = np.concatenate([q0, w0_body])
     return solve_ivp(euler_rhs(np.asarray(inertia, float)), (0.0, t_end), y0, method="DOP853",
                      rtol=RTOL, atol=ATOL, dense_output=True, t_eval=t_eval)
@@ -413,6 +414,8 @@ class HeavyTop(ReferenceModel):
     @property
     def _sol(self):
         """The reference solution, solved on first use."""
+        from scipy.integrate import solve_ivp  # heavy: see solve_torque_free
+
         key, y0, t_end = self._sol_args
         return _cached(key, lambda: solve_ivp(self._rhs, (0.0, t_end), y0, method="DOP853",
                                               rtol=RTOL, atol=ATOL, dense_output=True))

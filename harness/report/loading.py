@@ -20,7 +20,7 @@ from typing import Any, Iterable
 import pandas as pd
 
 from physbench.harness.report.rows import _missing, _num, fmt, normalise
-from physbench.harness.results import SCHEMA_VERSION, results_dir as _results_dir
+from physbench.harness.results import SCHEMA_VERSION, read_frame, results_dir as _results_dir
 from physbench.harness.sweep_store import sweep_files
 
 SUPPORTED_SCHEMAS = frozenset({SCHEMA_VERSION})
@@ -40,7 +40,7 @@ def _note(notes: list[dict[str, Any]], path: Path, kind: str, text: str, rows: i
 
 def _read_file(path: Path, notes: list[dict[str, Any]], **extra: Any) -> pd.DataFrame | None:
     try:
-        df = pd.read_parquet(path)
+        df = read_frame(path)
     except Exception as e:  # a torn or foreign file must not sink the report
         _note(notes, path, UNREADABLE, f"{path}: unreadable, skipped ({type(e).__name__}: {e})")
         return None

@@ -1,9 +1,9 @@
 """physbench's own benchmarks of its execution path, apart from the run
 path a user's command takes: the cost of isolating a run in a worker
 process (``physbench bench isolation``), the executors' overhead per item
-on sleeping tasks (``physbench bench executors``, harness/sweep_bench.py)
+on sleeping tasks (``python -m physbench.harness.selfbench.sweep``)
 and the thread pools a run process uses.  The sweep's scaling benchmark is
-harness/sweep_bench.py.
+harness/selfbench/sweep.py.
 """
 
 from __future__ import annotations
