@@ -28,11 +28,8 @@ from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
 from physbench.harness.sweep_store import PLAIN_NAME, SuiteError, plain_name
 from physbench.adapters import engine_names, get_adapter
 from physbench.harness.limits import LimitRequest, validate_request
-from physbench.contract.scene import scenario_ids
-from physbench.contract.scene import load_scene, resolve_scenario, scenario_ids, spec_targets
-from physbench.contract.spec import load_spec
-from physbench.contract.scene import load_scene, n_steps
-from physbench.contract.spec import record_size_error
+from physbench.contract.scene import load_scene, n_steps, resolve_scenario, scenario_ids, spec_targets
+from physbench.contract.spec import load_spec, record_size_error
 
 #: the shipped suites (package data, contract/data.py)
 SUITE_DIR = SHIPPED_SUITES

@@ -56,11 +56,10 @@ from physbench.harness.sweep import sweep_main
 from physbench.harness.sweep_store import sweep_files
 from physbench.harness import schedule, sweep
 from physbench.harness.schedule import run_schedule
-from physbench.harness.suite import scenario_label, expand, load_suite
+from physbench.harness.suite import expand, load_suite, scenario_label
 from physbench.harness.execute import WorkerPool
 from physbench.harness.points import cached_scene, run_point
 from physbench.harness.schedule import model_cost
-from physbench.harness.suite import expand, load_suite
 from physbench.harness.results import PartsDir, consolidate_parts, list_parts, write_json_atomic, write_parquet_atomic
 from physbench.harness.selfbench.executors import bench_overhead, thread_counts
 from physbench.harness.executors import make_executor
