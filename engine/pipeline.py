@@ -34,9 +34,9 @@ from physbench.engine.penalty import PenaltyContacts
 from physbench.engine.profile import Profile, Stage, add_jit_seconds
 from physbench.engine.solver import Solve, _pair_codes_abs
 from physbench.engine.state import Context, State
-from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
-from physbench.engine import loop as _loop
-from physbench.engine.loop import FlightStep
+from physbench.engine.fused.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
+from physbench.engine.fused import loop as _loop
+from physbench.engine.fused.loop import FlightStep
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:

@@ -10,8 +10,8 @@ import pytest
 from physbench.adapters.reference import ReferenceAdapter, engine_for, scene_input
 from physbench.contract.scene import load_scene
 from physbench.engine import default_settings, pipeline
-from physbench.engine.loop import FLIGHT_NAME
-from physbench.engine.steady import FREE_NAME, NAME
+from physbench.engine.fused.loop import FLIGHT_NAME
+from physbench.engine.fused.steady import FREE_NAME, NAME
 from physbench.harness.bench import column_scene
 
 

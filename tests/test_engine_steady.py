@@ -117,7 +117,7 @@ def _unboxed():
 def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]:
     """(fused calls that committed, compiled allocations inside them beyond
     the unboxing of their arguments) over ``steps`` steps of ``eng``."""
-    import physbench.engine.steady as steady
+    import physbench.engine.fused.steady as steady
     from numba.core.runtime import _nrt_python, rtsys
 
     _nrt_python.memsys_enable_stats()

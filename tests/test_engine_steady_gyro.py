@@ -14,8 +14,8 @@ import pytest
 from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
 from physbench.engine import pipeline
-from physbench.engine.steady import FREE_NAME, NAME
-from physbench.engine.steady_gyro import ENERGY, IMPLICIT, NO_GYRO
+from physbench.engine.fused.steady import FREE_NAME, NAME
+from physbench.engine.fused.gyro import ENERGY, IMPLICIT, NO_GYRO
 
 
 def _frames(eng, steps, by_stage):
@@ -163,7 +163,7 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
     not cut at its rolling stop in a fused step, and its frames differ
     from the staged step's.  (It rolls without slipping: only the gate's
     rolling half, engine/steady_stops.py, sees the stop.)"""
-    from physbench.engine.steady import SteadyStep
+    from physbench.engine.fused.steady import SteadyStep
 
     scene = load_scene("friction.rolling_resistance", "uphill_5deg")
     settings = {"dt": 0.016}

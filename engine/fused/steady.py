@@ -43,7 +43,7 @@ from operator import is_
 import numpy as np
 from numba import njit
 
-from physbench.engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
+from physbench.engine.fused.borrow import Borrowed, BorrowedOf, borrow, borrowed
 from physbench.engine.broadstage import BroadPhase, _broad_step
 from physbench.engine.collision import NarrowPhase, box
 from physbench.engine.collision.collide import collide_packed
@@ -57,8 +57,8 @@ from physbench.engine import solver as _S
 from physbench.engine.pack import Pack
 from physbench.engine.solver import Solve
 from physbench.engine.state import Contacts, _commit_packed, record_packed
-from physbench.engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
-from physbench.engine.steady_stops import rolling_candidate
+from physbench.engine.fused.gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from physbench.engine.fused.stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 #: no try pending after a loop (it stopped before trying the next step)

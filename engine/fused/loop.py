@@ -39,11 +39,11 @@ from physbench.engine.flight import (begin_step, free_flight, gravity, gyroscopi
 from physbench.engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
 from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
 from physbench.engine import solver as _S
-from physbench.engine.borrow import Borrowed, borrow
+from physbench.engine.fused.borrow import Borrowed, borrow
 from physbench.engine.pack import Pack
 from physbench.engine.state import _commit_packed, record_packed
-from physbench.engine.steady import _NO_TURN, _no_records, FREE_NAME, NAME, NONE, free_loop, steady_loop
-from physbench.engine.steady_gyro import after_flight, before_flight, gyro_items
+from physbench.engine.fused.steady import _NO_TURN, _no_records, FREE_NAME, NAME, NONE, free_loop, steady_loop
+from physbench.engine.fused.gyro import after_flight, before_flight, gyro_items
 
 #: the profile's name of a no-contact scene's step (FlightStep)
 FLIGHT_NAME = "flight_step"
