@@ -194,7 +194,7 @@ class ReferenceAdapter(Adapter):
         from the step context the pipeline keeps on the state: point midway
         between the surfaces, normal from body a toward b, depth = -gap;
         None if the engine keeps them in another form."""
-        ctx = getattr(getattr(self, "state", None), "_ctx", None)
+        ctx = getattr(getattr(self, "state", None), "ctx", None)
         if ctx is None:
             return None
         c = getattr(ctx, "contacts", None)
@@ -218,7 +218,7 @@ class ReferenceAdapter(Adapter):
         if self.contact_forces_reason.startswith("penalty"):
             return None
         st = getattr(self, "state", None)
-        ctx = getattr(st, "_ctx", None)
+        ctx = getattr(st, "ctx", None)
         c = getattr(ctx, "contacts", None)
         w = getattr(st, "warm", None)
         if w is None or c is None or len(w.pairs) == 0 or c.m == 0:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,9 +34,8 @@ from physbench.engine.penalty import PenaltyContacts
 from physbench.engine.profile import Profile, Stage, add_jit_seconds
 from physbench.engine.solver import Solve, _pair_codes_abs
 from physbench.engine.state import Context, State
-from physbench.engine.fused.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
-from physbench.engine.fused import loop as _loop
-from physbench.engine.fused.loop import FlightStep
+from physbench.engine import fused
+from physbench.engine.fused.steady import blocks_usable, record_blocks, warm_scene, warm_scene_for
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
@@ -66,9 +65,10 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     stages.append(IntegratePositions(model))
     if contact and not penalty and model.setting("ccd") != "off":
         stages += [CCD(model), Impact(model)]
-    if SteadyStep.build(model, stages) is not None:
+    fast = fused.build(model, stages)
+    if isinstance(fast, fused.SteadyStep):
         _warm_steady(model)
-    elif FlightStep.build(model, stages) is not None:
+    elif fast is not None:
         _warm_flight(model)
     return tuple(stages)
 
@@ -102,7 +102,7 @@ def _warm_steady(model: Model) -> None:
     # fails on the first step's contacts), then the steady call's
     stages = build_pipeline(m)  # (a fresh solve stage: no steady solve kept)
     st = State.from_model(m)
-    advance(m, st, stages, prof, 6, _loop.record_blocks(6, m.n))
+    advance(m, st, stages, prof, 6, record_blocks(6, m.n))
     add_jit_seconds(time.perf_counter() - t0)
 
 
@@ -126,7 +126,7 @@ def _warm_flight(model: Model) -> None:
     prof = Profile()
     add_jit_seconds(prof.jit_s)
     step(m, st, stages, prof)
-    advance(m, st, stages, prof, 2, _loop.record_blocks(2, m.n))
+    advance(m, st, stages, prof, 2, record_blocks(2, m.n))
     add_jit_seconds(time.perf_counter() - t0)
 
 
@@ -142,8 +142,9 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     ctx = context(model, state, profile)
     plan = _plan_of(model, ctx, stages)
     ctx.kept(state)
-    if plan.fused is not None:
-        plan.fused.prime(model, state, ctx)
+    prime = getattr(plan.fast, "prime", None)
+    if prime is not None:
+        prime(model, state, ctx)
     for s in stages:
         prime = getattr(s, "prime", None)
         if prime is not None:
@@ -152,12 +153,10 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
 
 
 def context(model: Model, state: State, profile: Profile) -> Context:
-    """The state's scratch context (created on first use)."""
-    ctx = getattr(state, "_ctx", None)
+    """The state's scratch context (``state.ctx``, created on first use)."""
+    ctx = state.ctx
     if ctx is None:
-        ctx = Context(model)
-        ctx.profile = profile
-        state._ctx = ctx
+        ctx = state.ctx = Context(model)
     ctx.profile = profile
     return ctx
 
@@ -167,8 +166,59 @@ def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
     state.t += h
 
 
-def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, tried=None) -> None:
-    """Advance ``state`` by one step dt, as ``substeps`` substeps of
+def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile) -> None:
+    """Advance ``state`` by one step dt: :func:`advance` of one step."""
+    advance(model, state, stages, profile, 1)
+
+
+def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, n: int, rec=None,
+            progress: list | None = None) -> None:
+    """``n`` steps: each through the fast path's door (engine/fused/,
+    :func:`engine.fused.advance`: whole steps as compiled calls, the bits
+    of the staged step), and where it stops, one :func:`staged` step.
+    ``rec``: (pos, quat, vel, angvel) blocks (n, n_bodies, 3|4) that get the
+    state after step i in row i, or None; ``progress``: a one-element list
+    that holds the rows recorded so far (a failure in the middle loses no
+    recorded frame)."""
+    ctx = context(model, state, profile)
+    if model.joints is not None and not profile.by_stage:
+        # a scene with joints: n steps as one compiled call (engine/joints/stage.py)
+        stages[-1].run_block(model, state, ctx, profile, n, rec, progress)
+        return
+    plan = _plan_of(model, ctx, stages)
+    # (the door records into the blocks when its loops can write them;
+    # else it steps one at a time, and each row is written here)
+    direct = rec is None or blocks_usable(rec)
+    k = 0
+    while k < n:
+        got, stop = fused.advance(model, state, ctx, plan, n - k if direct else 1,
+                                  None if rec is None or not direct else tuple(a[k:] for a in rec))
+        if got and not direct:
+            _record(rec, k, state)
+        k += got
+        if progress is not None:
+            progress[0] = k
+        if k >= n:
+            break
+        if got and stop == fused.NONE:
+            continue  # (it stopped before trying the next step: it may run it)
+        staged(model, state, stages, profile, stop == fused.CCD)
+        if rec is not None:
+            _record(rec, k, state)
+        k += 1
+        if progress is not None:
+            progress[0] = k
+
+
+def _record(rec, k: int, state: State) -> None:
+    rec[0][k] = state.x
+    rec[1][k] = state.q
+    rec[2][k] = state.v
+    rec[3][k] = state.w
+
+
+def staged(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, resume: bool = False) -> None:
+    """One step dt stage by stage, as ``substeps`` substeps of
     h = dt / substeps.  A substep runs the stages in order; when the CCD
     stage reports an impact inside the substep, the substep is cut at the
     time of impact (refined on the integrated trajectory), the impact
@@ -177,91 +227,29 @@ def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile
     and not staying at rest, :func:`_substep`).
     A substep in which a non-round body would turn by more than
     ``max_rotation_per_step`` runs as equal parts that do not (see
-    :func:`_parts`; counted as ``rotation_splits``).
+    :func:`_parts`; counted as ``rotation_splits``).  ``resume``: the door
+    ran the step as far as its CCD stage (:func:`engine.fused.advance`),
+    which goes on from there.
     """
     ctx = context(model, state, profile)
     plan = _plan_of(model, ctx, stages)
-    if plan.flight is not None and not profile.by_stage:
-        plan.flight.run(model, state, ctx, profile)  # a scene without contact: one call (engine/loop.py)
-        return
     main, impact, max_events, turn = plan.main, plan.impact, plan.max_events, plan.turn
     for _ in range(model.substeps):
-        parts = _parts(model, state, turn) if turn is not None else 1
+        parts = _parts(model, state, turn) if turn is not None and not resume else 1
         if parts > 1:
             profile.count("rotation_splits", parts - 1)
-        fused = plan.fused if not profile.by_stage else None
         for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, fused, tried)
-            tried = None
+            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, resume)
+            resume = False
     state.steps += 1
 
 
 def _plan_of(model: Model, ctx: Context, stages) -> "Plan":
     """The context's plan for ``stages`` (made once)."""
-    plan = ctx.info.get("plan")
+    plan = ctx.plan
     if plan is None or plan.stages is not stages:
-        plan = ctx.info["plan"] = _plan(model, stages)
+        plan = ctx.plan = _plan(model, stages)
     return plan
-
-
-#: most steps stepped one by one after a loop over steps that stopped at
-#: its first step (:func:`advance`)
-MAX_BLOCK_BACKOFF = 64
-
-
-def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, n: int, rec=None,
-            progress: list | None = None) -> None:
-    """``n`` steps, as ``n`` calls of :func:`step` give them (the same bits
-    and bookkeeping), the steady ones ``n`` at a time in one compiled call
-    (engine/loop.py).  ``rec``: (pos, quat, vel, angvel) blocks (n, n_bodies,
-    3|4) that get the state after step i in row i, or None; ``progress``: a
-    one-element list that holds the rows recorded so far (a failure in the
-    middle loses no recorded frame)."""
-    ctx = context(model, state, profile)
-    if model.joints is not None and not profile.by_stage:
-        # a scene with joints: n steps as one compiled call (engine/joints/stage.py)
-        stages[-1].run_block(model, state, ctx, profile, n, rec, progress)
-        return
-    plan = _plan_of(model, ctx, stages)
-    # (one step: the step's own fused try costs less Python than a loop's)
-    fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))
-    k = 0
-    while k < n:
-        got, tried = 0, None
-        if fast and plan.fused is not None and plan.fused.block_wait:
-            plan.fused.block_wait -= 1
-        elif fast:
-            sub = None if rec is None else (rec[0][k:], rec[1][k:], rec[2][k:], rec[3][k:])
-            if plan.flight is not None:
-                plan.flight.run(model, state, ctx, profile, n - k, sub)
-                got = n - k
-            elif plan.fused is not None:
-                got, tried = _loop.fused_block(model, state, ctx, plan, profile, n - k, sub)
-        if got == 0 and tried is not None:
-            # the loop stopped at its first step (a rolling contact the
-            # CCD stage checks every step): the next steps go one by one
-            # (the same bits and bookkeeping), trying a loop again after 1,
-            # 2, 4 ... 64 steps; the loop's Python costs more than the
-            # step's own (loop.fused_block)
-            f = plan.fused
-            f.block_backoff = min(2 * f.block_backoff, MAX_BLOCK_BACKOFF) if f.block_backoff else 1
-            f.block_wait = f.block_backoff
-        elif got and plan.fused is not None:
-            plan.fused.block_backoff = 0
-        k += got
-        if progress is not None:
-            progress[0] = k
-        if k >= n:
-            break
-        step(model, state, stages, profile, tried)
-        if rec is not None:
-            rec[0][k] = state.x
-            rec[1][k] = state.q
-            rec[2][k] = state.v
-            rec[3][k] = state.w
-        k += 1
-        if progress is not None:
-            progress[0] = k
 
 
 @dataclass(frozen=True)
@@ -278,18 +266,19 @@ class Plan:
     max_events: int
     turn: tuple | None
     stops: bool
-    #: the steady step as one compiled call (engine/steady.py), or None
-    #: when the scene has a stage it does not cover
-    fused: SteadyStep | None = None
-    #: a scene without contact's step as one compiled call (engine/loop.py)
-    flight: FlightStep | None = None
+    #: the scene's compiled step behind the door (:func:`engine.fused.build`:
+    #: engine.fused.FlightStep or engine.fused.SteadyStep), or None
+    fast: object = None
+    #: when the door tries again after a failed try
+    backoff: fused.Backoff = field(default_factory=fused.Backoff)
 
 
 def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
+    turn = _turn_limit(model)
     return Plan(stages, tuple(s for s in stages if s.family != "impact"),
                 next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
-                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"),
-                SteadyStep.build(model, stages), FlightStep.build(model, stages))
+                turn, bool(model.settings["friction_stops"]) and model.has("friction"),
+                fused.build(model, stages, turn))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -337,7 +326,7 @@ MAX_STOPS = 8
 
 
 def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile, allow_stops: bool, fused: SteadyStep | None = None, tried=None) -> None:
+             profile: Profile, allow_stops: bool, resume: bool = False) -> None:
     """One (sub)step of length h, cut at every time of impact and at every
     friction stop.
 
@@ -352,37 +341,24 @@ def _substep(model: Model, state: State, ctx: Context, main, impact, max_events:
     whatever the forces, an error of first order in the step (a block thrown
     up a 35 degree slope slid back 6.6 mm behind the closed form at 1/240 s).
 
-    ``fused``: the plan's steady step (engine/steady.py), tried first as
-    one compiled call; where the step is not steady it runs stage by
-    stage as before (the same bits).  ``tried``: that try made already by
-    a loop over steps (engine/loop.py, :func:`advance`): a callable that
-    settles it and gives its status.
+    ``resume``: the door (:func:`engine.fused.advance`) ran the (sub)step
+    as far as its CCD stage and left the context as the stages before it
+    would (``ctx.warm0`` the warm-start cache the step began with): the
+    CCD stage runs, and the (sub)step goes on from there.
     """
     remaining = h
     events = 0
     stops = 0
-    ctx.missed_skip.clear()
-    try_fused = tried is not None or (fused is not None and fused.ready())
+    if not resume:
+        ctx.missed_skip.clear()
     while True:
-        warm0 = ctx.warm0 = state.warm
-        ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
-        staged = True
-        if try_fused:
-            try_fused = False
-            ctx.reset(state, remaining)
-            ctx.stop_allowed = allow_stops
-            if tried is not None:
-                status = tried(model, state, ctx)
-                tried = None
-            else:
-                status = fused.run(model, state, ctx, remaining, profile)
-            if status == DONE:
-                state.t += remaining
-                break
-            if status == CCD_NEEDED:
-                profile.run(main[-1], model, state, ctx)  # the CCD stage, after what the call did
-                staged = False
-        if staged:
+        if resume:
+            resume = False
+            warm0 = ctx.warm0
+            profile.run(main[-1], model, state, ctx)  # the CCD stage, after what the door's call did
+        else:
+            warm0 = ctx.warm0 = state.warm
+            ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
             ctx.begin(model, state, remaining)
             ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
             for s in main:

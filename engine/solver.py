@@ -399,6 +399,7 @@ class Solve(Stage):
         ctx.impacts = None
         if c is None or c.m == 0:
             state.warm = None
+            self._fast = None  # (no steady solve kept: the fused step tries its contact-free call)
             return
         m = c.m
         sc = ctx.scratch

@@ -1,13 +1,33 @@
-"""The steady step as one compiled call (engine/steady.py): the same bits
-as the step stage by stage, on every kind of step it meets (resting,
-sliding, landing, impacts, friction stops), and it runs where a scene is
-steady; which scenes it covers is decided once, with the plan."""
+"""The contract between the staged and the fused step (engine/fused/).
+
+The engine has two paths for a step: the staged step (engine/pipeline.py,
+one stage object after the other) and the fast path behind one door
+(``engine.fused.advance``: the steady, contact-free and flight steps as
+compiled calls, runs of them as one compiled loop).  The contract:
+
+1. a step on the fast path gives the staged step's bits: every recorded
+   frame and the final state, bit for bit, on every kind of step either
+   path meets (resting, sliding, rolling, landing, impacts, friction
+   stops, every integrator and gyroscopic treatment);
+2. it leaves the staged step's bookkeeping: the profile's calls and
+   counters (``contact_rows``, ``solver_sweeps``), ``state.t``,
+   ``state.steps``, the warm-start cache, the contacts;
+3. which scenes the fast path covers is decided once, with the plan, and
+   where it runs it runs for most steps of a steady scene.
+
+This module pins the contract for the steady step (and 3.); with it,
+tests/test_engine_steady_gyro.py (the gyroscopic stages, rolling friction
+with stops) and tests/test_engine_loop.py (runs of steps as one loop, the
+contact-free and flight steps) are the contract.  A physics change to a
+stage that the fused step also runs must keep them passing: they compare
+the two paths, not fixed numbers (tests/test_determinism.py pins those)."""
 
 import numpy as np
 import pytest
 
 from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
+from physbench.engine.fused import SteadyStep
 from physbench.harness.bench import column_scene, spheres_scene
 
 
@@ -65,8 +85,8 @@ def test_steady_scenes_step_in_one_call(make, steps, share):
 def test_plan_decides_once_what_the_fused_step_covers(sid, settings, covered):
     eng = engine_for(load_scene(sid), settings)
     eng.step(2)
-    plan = eng.state._ctx.info["plan"]
-    assert (plan.fused is not None) == covered
+    plan = eng.state.ctx.plan
+    assert isinstance(plan.fast, SteadyStep) == covered
 
 
 def _kernel_allocations(settings: dict, steps: int) -> int:

@@ -1,12 +1,13 @@
-"""Contact scenes with a gyroscopic stage take the fused steady step
-(engine/steady.py with engine/steady_gyro.py): each of the three
+"""Part of the contract between the staged and the fused step (stated in
+tests/test_engine_steady.py): contact scenes with a gyroscopic stage take
+the fused steady step (engine/fused/steady.py with engine/fused/gyro.py): each of the three
 gyroscopic treatments (the energy-conserving rotation, the implicit
 update, the explicit torque) runs inside the fused call at its place of
 the staged pipeline, and every recorded frame is bit for bit the staged
 step's (one ``pipeline.step`` per step with ``Profile.by_stage``), whether
 the steps run one fused call each or many to a compiled loop
 (``pipeline.advance``).  Likewise rolling friction with friction stops
-(engine/steady_stops.py: the stop gate's rolling half)."""
+(engine/fused/stops.py: the stop gate's rolling half)."""
 
 import numpy as np
 import pytest
@@ -80,7 +81,7 @@ def test_gyroscopic_contact_scene_takes_the_fused_step_with_the_staged_bits(sid,
     assert NAME not in ref.profile.as_dict() and FREE_NAME not in ref.profile.as_dict()
 
     one = engine_for(scene, settings)
-    fused = _plan(one).fused
+    fused = _plan(one).fast
     assert fused is not None  # decided once, with the plan: the scene is covered
     assert fused.gyro[0] == code
     assert (fused.gyro[1].size > 0) == torque
@@ -111,7 +112,7 @@ def test_the_comparison_sees_the_gyroscopic_stage(sid, settings, steps):
     scene = load_scene(sid)
     staged = _frames(engine_for(scene, settings), steps, True)
     eng = engine_for(scene, settings)
-    fused = _plan(eng).fused
+    fused = _plan(eng).fast
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
     fused.gyro = (NO_GYRO, zi, z3, zi, z3, z3, z3) + fused.gyro[7:]
     fused._ks_key = None  # (the engine made its settings Pack at build: pipeline.prepare)
@@ -141,7 +142,7 @@ def test_rolling_friction_with_stops_takes_the_fused_step(sid, variant, settings
     ref = engine_for(scene, settings)
     staged = _frames(ref, steps, True)
     one = engine_for(scene, settings)
-    fused = _plan(one).fused
+    fused = _plan(one).fast
     assert fused is not None
     frames = _frames(one, steps, False)
     for x, y in zip(staged, frames):
@@ -210,7 +211,7 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
                                  u_ang, np.empty((4, g, 3)), np.empty((g, 4)), np.empty((g, 3, 3)))
 
     eng = engine_for(load_scene("friction.capsule_spins_to_rest"), {})
-    fused = _plan(eng).fused
+    fused = _plan(eng).fast
     gy = fused.gyro
     assert gy[0] == ENERGY and gy[3].size == 1 and gy[8].shape == (4, 1, 3)
     assert any(type(s) is EnergyConservingRotation for s in eng.stages)

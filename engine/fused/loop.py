@@ -10,27 +10,15 @@ linear and quadratic drag, springs and dampers, the explicit gyroscopic
 torque), every integrator and both gyroscopic stages (implicit,
 energy-conserving); the profile times it as the stage ``flight_step``.
 
-:func:`advance` -- ``n`` steps, recording each step's state into the
-caller's (n, n_bodies, 3|4) blocks: consecutive steps that the step loop
-would run as one fused call each (the steady step, the contact-free step:
-engine/steady.py; a scene's :class:`FlightStep`) run inside ONE compiled
-call that loops over them (:func:`engine.steady.steady_loop`,
-:func:`engine.steady.free_loop`, :func:`flight_loop`) and stops at the
-first step that is not steady; that step then runs through :func:`engine.pipeline.step` (with the loop's try of
-it, so nothing is computed twice).  The bookkeeping between the steps --
-``Solve.fused_finish``, the warm-start pool's rotation, the profile's calls
-and counters, ``state.t`` and ``state.steps``, ``ctx.contacts``, the
-backoff -- comes out as with one :func:`engine.pipeline.step` per step
-(tests/test_engine_loop.py); the profile's seconds are the loop's, shared
-out as one sum.  A profile by stage (``Profile.by_stage``) and scenes with
-``substeps`` > 1 (contact scenes) step one by one.
+Several steps in one call: :meth:`FlightStep.advance` runs ``n`` steps
+in :func:`flight_loop`, recording each step's state into the caller's
+(n, n_bodies, 3|4) blocks (the door: engine/fused/__init__.py).
 """
 
 from __future__ import annotations
 
 import time
 
-import numpy as np
 from numba import njit
 
 from physbench.engine.control import EventMode
@@ -38,11 +26,10 @@ from physbench.engine.flight import (begin_step, free_flight, gravity, gyroscopi
                            quadratic_drag, springs)
 from physbench.engine.forces import GyroscopicTorque, Gravity, LinearDrag, QuadraticDrag, Springs
 from physbench.engine.integrate import EnergyConservingRotation, ImplicitGyroscopic, IntegratePositions, IntegrateVelocities
-from physbench.engine import solver as _S
 from physbench.engine.fused.borrow import Borrowed, borrow
 from physbench.engine.pack import Pack
 from physbench.engine.state import _commit_packed, record_packed
-from physbench.engine.fused.steady import _NO_TURN, _no_records, FREE_NAME, NAME, NONE, free_loop, steady_loop
+from physbench.engine.fused.steady import NONE, blocks
 from physbench.engine.fused.gyro import after_flight, before_flight, gyro_items
 
 #: the profile's name of a no-contact scene's step (FlightStep)
@@ -153,6 +140,16 @@ class FlightStep:
             self._k_ctx = ctx
         return self._k
 
+    def call(self) -> str:
+        """The compiled call :meth:`advance` makes (its profile name)."""
+        return FLIGHT_NAME
+
+    def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
+        """The door's step (engine/fused/__init__.py): :meth:`run`, which
+        never stops early.  Returns (n, NONE)."""
+        self.run(model, state, ctx, ctx.profile, n, rec)
+        return n, NONE
+
     def run(self, model, state, ctx, profile, n: int = 1, rec=None) -> None:
         """``n`` steps (``model.substeps`` (sub)steps each) from ``state``,
         recorded into ``rec`` ((pos, quat, vel, angvel) blocks of n rows)
@@ -164,139 +161,12 @@ class FlightStep:
         ctx.event_mode = EventMode.SPECULATIVE
         ctx.reset(state, h)
         ctx.stop_allowed = False
-        rec_on, blocks = _blocks(rec, model.n)
+        rec_on, blocks_ = blocks(rec, model.n)
         b = self.borrowed.of
         state.t = flight_loop(n, model.substeps, b(ctx.kept(state)), b(self._pack(ctx)), float(h), float(state.t),
-                              rec_on, *blocks)
+                              rec_on, *blocks_)
         state.steps += n
         k = n * model.substeps
         for name in self.names:
             profile.charge(name, k, 0.0)
         profile.charge(FLIGHT_NAME, k, time.perf_counter() - t0)
-
-
-def _blocks(rec, nb: int) -> tuple:
-    """(record?, the four blocks) for the loops: ``rec`` when its arrays
-    are float64 C-contiguous (what the loops are compiled for), else
-    empty blocks (and the caller records)."""
-    if rec is not None and all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
-                               for a in rec):
-        return True, tuple(rec)
-    return False, _no_records(nb)
-
-
-def blocks_usable(rec) -> bool:
-    """Whether the loops can write the record blocks ``rec`` themselves."""
-    return _blocks(rec, 0)[0]
-
-
-def record_blocks(n: int, nb: int) -> tuple:
-    """Record blocks for ``n`` steps of ``nb`` bodies (pos, quat, vel,
-    angvel), NaN-filled."""
-    return (np.full((n, nb, 3), np.nan), np.full((n, nb, 4), np.nan), np.full((n, nb, 3), np.nan),
-            np.full((n, nb, 3), np.nan))
-
-
-def fused_block(model, state, ctx, plan, profile, n: int, rec):
-    """Up to ``n`` steps of a contact scene from ``state`` in one compiled
-    loop (module doc) when the step loop would try the fused call first:
-    returns (steps done, the try of the next step or None).  The try is a
-    callable ``(model, state, ctx) -> status`` that settles it, for
-    :func:`engine.pipeline._substep`."""
-    fused = plan.fused
-    if fused is None or model.substeps != 1 or fused.wait:
-        return 0, None
-    solve = fused.solve
-    steady = solve._fast is not None
-    if not steady and fused.free_wait:
-        return 0, None
-    t0 = time.perf_counter()
-    h = float(model.h)
-    # the context as pipeline._substep leaves it for its first try
-    ctx.missed_skip.clear()
-    ctx.warm0 = old = state.warm
-    ctx.event_mode = (EventMode.EVENT if plan.impact is not None and plan.max_events > 0
-                      else EventMode.SPECULATIVE)
-    ctx.reset(state, h)
-    ctx.stop_allowed = plan.stops
-    rec_on, blocks = _blocks(rec, model.n)
-    turn = fused.__dict__.get("_turn")
-    if turn is None:  # (the rotation split's limit as one Pack, made once)
-        turn = fused._turn = Pack(_NO_TURN if plan.turn is None else (True, float(plan.turn[0]),
-                                                                       np.ascontiguousarray(plan.turn[1], np.int64),
-                                                                       np.ascontiguousarray(plan.turn[2], np.int64)))
-    if not steady:
-        return _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0)
-    a = fused.steady_args(model, state, ctx, h)
-    if a is None:
-        return 0, None
-    sp, flags0, out1, store_on, c = a
-    if not store_on:
-        return 0, None
-    # the pool's rotation: step k stores into outs[k % 2] (WarmPool.slot)
-    pool = solve._warm
-    size = (c.m, int(solve._fast[1].uniq_codes.size))
-    out2 = pool.slot(size, out1, out1)
-    if pool.slot(size, out2, out2) is not out1:
-        n = min(n, 2)
-    outs = (out1, out2)
-    flags1 = fused.flags(ctx, True, bool(solve.warm), True)
-    band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
-    kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
-    kall = fused.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-    b = fused.borrowed.of
-    r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(turn), h, flags0, flags1, band_check, int(solve._band),
-                    float(state.t), rec_on, *blocks)
-    done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
-    raw = r[7:]
-    if done:
-        fused.backoff = 0
-        state.t = t
-        state.steps += done
-        if solved:
-            last = done - 2 if free_last else done - 1
-            fused.finish_solve(model, state, ctx, outs[last % 2], True, int(sw_last), float(res_last))
-            if solved > 1:
-                profile.count("contact_rows", c.m * (solved - 1))
-                profile.count("solver_sweeps", int(sw_sum))
-            ctx.contacts = c
-        ctx.warm0 = old if done == 1 else outs[(done - 2) % 2]
-        if free_last:
-            fused._no_contact(state, ctx)
-            solve._fast = None
-    calls = done + (pend != NONE)
-    if calls:
-        profile.charge(NAME, calls, time.perf_counter() - t0)
-    if pend == NONE:
-        return done, None
-    out_p = outs[done % 2]
-
-    def tried(model, state, ctx):
-        return fused.settle(model, state, ctx, raw, out_p, True, c)
-
-    return done, tried
-
-
-def _free_block(model, state, ctx, fused, profile, n, h, turn, rec_on, blocks, t0):
-    """:func:`fused_block` of the contact-free call (:func:`free_loop`)."""
-    kb, kf, kbr, kcol, ks = fused.packs(model, state, ctx)
-    done, t, pend, nbb, npl, nsb = free_loop(n, fused.kfree.of((kb, kf, kbr, kcol, ks)), h,
-                                             fused.flags(ctx, False, False, False), fused.borrowed.of(turn),
-                                             float(state.t), rec_on, *blocks)
-    if done:
-        fused.free_backoff = 0
-        state.t = t
-        state.steps += done
-        fused._no_contact(state, ctx)
-    calls = done + (pend != NONE)
-    if calls:
-        profile.charge(FREE_NAME, calls, time.perf_counter() - t0)
-    if pend == NONE:
-        return done, None
-    raw = (pend, nbb, npl, nsb, 0, 0, 0.0)
-
-    def tried(model, state, ctx):
-        return fused.settle_free(model, state, ctx, raw)
-
-    return done, tried

@@ -63,12 +63,6 @@ from physbench.engine.fused.stops import rolling_candidate
 DONE, FAIL, CCD = 0, 1, 2
 #: no try pending after a loop (it stopped before trying the next step)
 NONE = -1
-#: the rotation split's Pack when a loop is not to check it (one step
-#: from Python: pipeline._parts split it already)
-_NO_TURN = (False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-#: most steps a failed try makes the next wait
-MAX_BACKOFF = 64
 
 #: the profile's name of the fused call
 NAME = "steady_step"
@@ -338,6 +332,27 @@ def _no_records(nb: int) -> tuple:
     return z
 
 
+def blocks(rec, nb: int) -> tuple:
+    """(record?, the four blocks) for the loops: ``rec`` when given, else
+    empty blocks."""
+    if rec is not None:
+        return True, tuple(rec)
+    return False, _no_records(nb)
+
+
+def blocks_usable(rec) -> bool:
+    """Whether the loops can write the record blocks ``rec`` themselves
+    (float64, C-contiguous, writeable: what they are compiled for)."""
+    return all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable for a in rec)
+
+
+def record_blocks(n: int, nb: int) -> tuple:
+    """Record blocks for ``n`` steps of ``nb`` bodies (pos, quat, vel,
+    angvel), NaN-filled."""
+    return (np.full((n, nb, 3), np.nan), np.full((n, nb, 4), np.nan), np.full((n, nb, 3), np.nan),
+            np.full((n, nb, 3), np.nan))
+
+
 @njit(cache=True)
 def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
     """:func:`steady_kernel`'s ``kall``: the packs borrowed (valid while they
@@ -356,7 +371,7 @@ class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
 
-    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None):
+    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None, turn=None):
         self.gravity = next((s for s in forces if type(s) is Gravity), None)
         #: the gyroscopic stages' arrays (engine/steady_gyro.py), the
         #: settings Pack's third item
@@ -375,14 +390,6 @@ class SteadyStep:
         self._kf = self._kf_ctx = None
         self._kbr = self._kbr_key = None
         self._ks = self._ks_key = None
-        self.backoff = 0  # steps to run staged before trying again (after a FAIL)
-        self.wait = 0
-        # the same for the contact-free call (free_kernel)
-        self.free_backoff = 0
-        self.free_wait = 0
-        # the same for a loop over steps (engine/loop.py; pipeline.advance)
-        self.block_backoff = 0
-        self.block_wait = 0
         self._empty = Contacts.empty()
         #: the warm caches' packs handed to the fused calls, borrowed
         #: (engine/borrow.py)
@@ -391,15 +398,22 @@ class SteadyStep:
         #: the loops over steps)
         self.kall = BorrowedOf(steady_pack)
         self.kfree = BorrowedOf(free_pack)
-        #: the loops' rotation-split Pack for one step from Python (none)
-        self._no_turn = Pack(_NO_TURN)
+        #: the rotation split's limit as the loops read it (:func:`_turns`;
+        #: ``turn`` the plan's, pipeline._turn_limit: None never splits)
+        self.turn = Pack((False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64)) if turn is None else (
+            True, float(turn[0]), np.ascontiguousarray(turn[1], np.int64), np.ascontiguousarray(turn[2], np.int64)))
 
     @staticmethod
-    def build(model, stages) -> "SteadyStep | None":
+    def build(model, stages, turn=None) -> "SteadyStep | None":
         """The fused step for ``stages`` when the scene has only stages it
-        covers (module doc), else None: decided once, with the plan."""
+        covers (module doc) and steps whole (``substeps`` 1), else None:
+        decided once, with the plan (``turn`` its rotation split's limit).
+        The solver's phase-by-phase flag (``solver.PHASE_BY_PHASE``, read
+        here) keeps every solve staged."""
         from physbench.engine.ccd import CCD as CCDStage, Impact
 
+        if model.substeps != 1 or _S.PHASE_BY_PHASE:
+            return None
         forces = [s for s in stages if s.family == "forces"]
         if any(type(s) not in FORCES for s in forces):
             return None
@@ -411,7 +425,7 @@ class SteadyStep:
         fly, broad, narrow, solve, pos = rest[:5]
         if solve.correction == "baumgarte":
             return None
-        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro)
+        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro, turn)
 
     def _flight_pack(self, ctx):
         """The free flight's arrays (and the context's views over its first
@@ -459,23 +473,6 @@ class SteadyStep:
                  _S.STOP_MAX_RESIDUAL, self.lim, _S.ROLL_TOL)
         return flags, reals
 
-    def ready(self) -> bool:
-        """Whether the next (mini-)step tries a fused call: not while
-        waiting after a failed try; the steady call (:func:`steady_kernel`)
-        while the solve keeps a steady solve (``Solve._fast``), else the
-        contact-free call (:func:`free_kernel`), which waits after its own
-        failed tries (a step with contacts but no steady solve: the first
-        steps of a resting scene, a landing)."""
-        if self.wait:
-            self.wait -= 1
-            return False
-        if self.solve._fast is not None:
-            return True
-        if self.free_wait:
-            self.free_wait -= 1
-            return False
-        return True
-
     def flags(self, ctx, warm_any: bool, warm_on: bool, store_on: bool) -> tuple:
         """The kernels' ``step_flags`` for a (mini-)step of ``ctx``."""
         solve = self.solve
@@ -515,47 +512,118 @@ class SteadyStep:
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         self.kfree.of((kb, kf, kbr, kcol, ks))
 
-    def run(self, model, state, ctx, h: float, profile) -> int:
-        """Try the (mini-)step of length ``h`` from ``state`` as one call
-        (module doc): returns DONE, FAIL or CCD; with CCD the context holds
-        what the CCD stage reads.  The steady call while the solve keeps a
-        steady solve, else the contact-free one."""
+    def call(self) -> str:
+        """The compiled call :meth:`advance` makes next (its profile name):
+        the steady call while the solve keeps a steady solve, else the
+        contact-free call."""
+        return FREE_NAME if self.solve._fast is None else NAME
+
+    def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
+        """Up to ``n`` steps from ``state`` in one compiled loop
+        (:func:`steady_loop` while the solve keeps a steady solve, else
+        :func:`free_loop`), each step's state into row k of the blocks
+        ``rec`` when given: the door's step (engine/fused/__init__.py).
+        Returns (steps done, the status of the try that stopped the loop,
+        settled, or NONE).  With CCD the context holds what the CCD stage
+        reads, and the staged step goes on from it; with FAIL nothing of
+        that step was kept.  The bookkeeping between the steps --
+        ``Solve.fused_finish``, the warm-start pool's rotation, the
+        profile's calls and counters, ``state.t`` and ``state.steps``,
+        ``ctx.contacts`` -- comes out as with one staged step per step
+        (tests/test_engine_loop.py); the profile's seconds are the loop's."""
         t0 = time.perf_counter()
+        h = float(model.h)
+        # the context as the staged step begins a step
+        ctx.missed_skip.clear()
+        ctx.warm0 = old = state.warm
+        ctx.event_mode = (EventMode.EVENT if plan.impact is not None and plan.max_events > 0
+                          else EventMode.SPECULATIVE)
+        ctx.reset(state, h)
+        ctx.stop_allowed = plan.stops
+        rec_on, blocks_ = blocks(rec, model.n)
+        solve = self.solve
+        if solve._fast is None:
+            return self._free_advance(model, state, ctx, plan, n, h, rec_on, blocks_, t0)
+        a = self.steady_args(model, state, ctx, h)
+        if a is None:
+            return 0, NONE
+        sp, flags0, out1, store_on, c = a
+        if not store_on:
+            return 0, NONE
+        # the pool's rotation: step k stores into outs[k % 2] (WarmPool.slot)
+        pool = solve._warm
+        size = (c.m, int(solve._fast[1].uniq_codes.size))
+        out2 = pool.slot(size, out1, out1)
+        if pool.slot(size, out2, out2) is not out1:
+            n = min(n, 2)
+        outs = (out1, out2)
+        flags1 = self.flags(ctx, True, bool(solve.warm), True)
+        band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
-        # one step of the loops (their one compiled entry each), no
-        # rotation split to check (pipeline._parts did), nothing recorded
-        turn = self.borrowed.of(self._no_turn)
-        rec = _no_records(model.n)
-        if self.solve._fast is None:
-            r = free_loop(1, self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False),
-                          turn, 0.0, False, *rec)
-            status = self.settle_free(model, state, ctx, (DONE if r[2] == NONE else r[2],) + r[3:6])
-            name = FREE_NAME
-        else:
-            a = self.steady_args(model, state, ctx, h)
-            if a is None:
-                return FAIL
-            (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
-            kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-            r = steady_loop(1, kall, ko, kq, kq, turn, float(h), flags, flags, False, 0, 0.0, False, *rec)
-            status = self.settle(model, state, ctx, (DONE if r[7] == NONE else r[7],) + r[8:], out, store_on, c)
-            name = NAME
-        profile.charge(name, 1, time.perf_counter() - t0)
-        return status
+        kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
+        kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+        b = self.borrowed.of
+        r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(self.turn), h, flags0, flags1, band_check,
+                        int(solve._band), float(state.t), rec_on, *blocks_)
+        done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
+        if done:
+            state.t = t
+            state.steps += done
+            if solved:
+                last = done - 2 if free_last else done - 1
+                self.finish_solve(model, state, ctx, outs[last % 2], True, int(sw_last), float(res_last))
+                if solved > 1:
+                    ctx.profile.count("contact_rows", c.m * (solved - 1))
+                    ctx.profile.count("solver_sweeps", int(sw_sum))
+                ctx.contacts = c
+            ctx.warm0 = old if done == 1 else outs[(done - 2) % 2]
+            if free_last:
+                self._no_contact(state, ctx)
+                solve._fast = None
+        if pend != NONE:
+            self._restart(state, ctx, plan, h)
+            pend = self.settle(model, state, ctx, r[7:], outs[done % 2], True, c)
+        calls = done + (pend != NONE)
+        if calls:
+            ctx.profile.charge(NAME, calls, time.perf_counter() - t0)
+        return done, pend
+
+    def _free_advance(self, model, state, ctx, plan, n, h, rec_on, blocks_, t0) -> tuple[int, int]:
+        """:meth:`advance` by the contact-free call (:func:`free_loop`)."""
+        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        done, t, pend, nbb, npl, nsb = free_loop(n, self.kfree.of((kb, kf, kbr, kcol, ks)), h,
+                                                 self.flags(ctx, False, False, False), self.borrowed.of(self.turn),
+                                                 float(state.t), rec_on, *blocks_)
+        if done:
+            state.t = t
+            state.steps += done
+            self._no_contact(state, ctx)
+        if pend != NONE:
+            self._restart(state, ctx, plan, h)
+            pend = self.settle_free(model, state, ctx, (pend, nbb, npl, nsb))
+        calls = done + (pend != NONE)
+        if calls:
+            ctx.profile.charge(FREE_NAME, calls, time.perf_counter() - t0)
+        return done, pend
+
+    def _restart(self, state, ctx, plan, h: float) -> None:
+        """The context as the staged step begins the step a loop stopped
+        at (its try is settled into it: a CCD status goes on from there)."""
+        ctx.missed_skip.clear()
+        ctx.warm0 = state.warm
+        ctx.event_mode = (EventMode.EVENT if plan.impact is not None and plan.max_events > 0
+                          else EventMode.SPECULATIVE)
+        ctx.reset(state, h)
+        ctx.stop_allowed = plan.stops
 
     def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
-        """After :func:`steady_kernel` returned ``res``: the backoff, the
-        solve's bookkeeping (``Solve.fused_finish``, or a step with no
-        contact: :meth:`_no_contact`), the pairs the CCD stage reads.
-        Returns the status."""
+        """After :func:`steady_kernel` returned ``res``: the solve's
+        bookkeeping (``Solve.fused_finish``, or a step with no contact:
+        :meth:`_no_contact`), the pairs the CCD stage reads.  Returns the
+        status (FAIL: nothing to do, the staged step runs the step)."""
         status, nbb, npl, nsb, cnt, sw, r = res
         if status == FAIL:
-            # not steady: stage by stage, and the next tries wait (1, 2, 4,
-            # ... 64 steps while they keep failing)
-            self.backoff = min(2 * self.backoff, MAX_BACKOFF) if self.backoff else 1
-            self.wait = self.backoff
             return status
-        self.backoff = 0
         if cnt:
             self.finish_solve(model, state, ctx, out, store_on, int(sw), float(r))
             ctx.contacts = c
@@ -573,14 +641,11 @@ class SteadyStep:
         self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
 
     def settle_free(self, model, state, ctx, res) -> int:
-        """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,
-        with the contact-free call's own backoff)."""
-        status, nbb, npl, nsb = res[0], res[1], res[2], res[3]
+        """After :func:`free_kernel` returned ``res`` (status and pairs, as
+        :meth:`settle`)."""
+        status, nbb, npl, nsb = res
         if status == FAIL:
-            self.free_backoff = min(2 * self.free_backoff, MAX_BACKOFF) if self.free_backoff else 1
-            self.free_wait = self.free_backoff
             return status
-        self.free_backoff = 0
         self._no_contact(state, ctx)
         if status == CCD:
             self._pairs(ctx, nbb, npl, nsb)
