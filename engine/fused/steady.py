@@ -407,12 +407,10 @@ class SteadyStep:
     def build(model, stages, turn=None) -> "SteadyStep | None":
         """The fused step for ``stages`` when the scene has only stages it
         covers (module doc) and steps whole (``substeps`` 1), else None:
-        decided once, with the plan (``turn`` its rotation split's limit).
-        The solver's phase-by-phase flag (``solver.PHASE_BY_PHASE``, read
-        here) keeps every solve staged."""
+        decided once, with the plan (``turn`` its rotation split's limit)."""
         from physbench.engine.ccd import CCD as CCDStage, Impact
 
-        if model.substeps != 1 or _S.PHASE_BY_PHASE:
+        if model.substeps != 1:
             return None
         forces = [s for s in stages if s.family == "forces"]
         if any(type(s) not in FORCES for s in forces):
