@@ -163,12 +163,12 @@ class ReferenceAdapter(Adapter):
     def step(self, n: int = 1) -> None:
         from physbench.engine.pipeline import advance
 
-        # the steady steps n at a time in one compiled call (engine/loop.py)
+        # the steady steps n at a time in one compiled call (engine/fused/loop.py)
         advance(self.model, self.state, self.pipeline, self.profile, n)
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """As the base class's loop of step(1) and read_state, the steady
-        steps recorded inside the engine's compiled loop (engine/loop.py);
+        steps recorded inside the engine's compiled loop (engine/fused/loop.py);
         ``block_done`` counts the rows written."""
         from physbench.engine.pipeline import advance
 

@@ -165,7 +165,7 @@ def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]
                                         "velocity_verlet"])
 @pytest.mark.parametrize("scene,settle", [("column", 240), ("spheres", 240)])
 def test_steady_step_allocates_nothing(monkeypatch, _unboxed, scene, settle, integrator):
-    """A steady step's whole fused call (engine/steady.py::steady_kernel:
+    """A steady step's whole fused call (engine/fused/steady.py::steady_kernel:
     free flight, broad and narrow phase, the solve stage, the position
     update, the end-pose check, the commit) allocates no array in compiled
     code beyond unboxing its arguments, with every integrator it covers,
@@ -244,7 +244,7 @@ def test_lu_skip_is_lu_bit_for_bit(seed):
 @pytest.mark.parametrize("scene", ["column", "spheres"])
 def test_steps_run_as_a_loop_allocate_nothing_per_step(scene):
     """``eng.step(n)`` runs consecutive steady steps inside one compiled
-    loop (engine/loop.py): what it allocates in compiled code (the loop's
+    loop (engine/fused/steady.py): what it allocates in compiled code (the loop's
     argument unboxing, the odd step one by one) does not grow with the
     number of steps: 400 steps allocate exactly as many arrays as 100."""
     from numba.core.runtime import _nrt_python, rtsys

@@ -132,7 +132,7 @@ ROLLING = [
 
 @pytest.mark.parametrize("sid,variant,settings", ROLLING, ids=[f"{c[0]}-{i}" for i, c in enumerate(ROLLING)])
 def test_rolling_friction_with_stops_takes_the_fused_step(sid, variant, settings):
-    """Rolling friction with friction stops (engine/steady_stops.py): the
+    """Rolling friction with friction stops (engine/fused/stops.py): the
     fused step's gate falls back to the staged step wherever the staged
     solve's stop test could find a rolling stop; every frame of the whole
     run is the staged step's, bit for bit, the friction stops counted
@@ -163,7 +163,7 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
     closed (its step flags' stops_gate False) the ball rolling uphill is
     not cut at its rolling stop in a fused step, and its frames differ
     from the staged step's.  (It rolls without slipping: only the gate's
-    rolling half, engine/steady_stops.py, sees the stop.)"""
+    rolling half, engine/fused/stops.py, sees the stop.)"""
     from physbench.engine.fused.steady import SteadyStep
 
     scene = load_scene("friction.rolling_resistance", "uphill_5deg")
@@ -185,7 +185,7 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
 
 def test_the_fused_energy_conserving_rotation_allocates_nothing():
     """The fused step's energy-conserving rotation runs on the plan's kept
-    work arrays (steady_gyro.gyro_items, gyroscopic.energy_rotation_into):
+    work arrays (fused.gyro.gyro_items, gyroscopic.energy_rotation_into):
     50 calls in compiled code allocate what one does (numba's allocation
     counter), where the same kernel on work arrays made per call (what the
     stage and the flight step did before) allocates per call."""
@@ -241,7 +241,7 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
     ("friction.cylinder_rolls", {"integrator": "rk4"}), ("stacking.cans", {}), ("stacking.log_pile", {})])
 def test_every_gyroscopic_setting_steps_without_allocating(scene, settings):
     """Steps taken n at a time (``eng.step(n)``: one compiled loop,
-    engine/loop.py) allocate no array per step in compiled code (numba's
+    engine/fused/) allocate no array per step in compiled code (numba's
     allocation counter) for every gyroscopic treatment and with springs:
     200 steps allocate exactly as many arrays as 100 (the loop's argument
     unboxing).  Before, per step: the energy-conserving rotation's three

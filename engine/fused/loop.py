@@ -57,7 +57,7 @@ def flight_kernel(kb, kg, h):
     springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R0, v, w, F, T)
     gyroscopic_torque(t_idx, t_I, R0, w, T)
     # integrate.ImplicitGyroscopic (the explicit torque is the force model's
-    # here: gyro_items' is empty, engine/steady_gyro.py)
+    # here: gyro_items' is empty, engine/fused/gyro.py)
     before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
@@ -77,7 +77,7 @@ def flight_loop(n, substeps, kb, kg, h, t, rec_on, pos, quat, vel, angvel):
     each step's state into row k of the blocks when ``rec_on``; returns the
     time after them (``state.t`` plus h per (sub)step, added one by one as
     the step loop does)."""
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py)
     for k in range(n):
         for s in range(substeps):
             flight_kernel(kb, kg, h)
@@ -94,7 +94,7 @@ class FlightStep:
         self.fly = fly
         self.gyro = gyro
         #: the gyroscopic stage's arrays and kept work, as the fused steady
-        #: step's (steady_gyro.gyro_items; no explicit torque there: the
+        #: step's (gyro.gyro_items; no explicit torque there: the
         #: force model has it)
         self.gy = gyro_items((), gyro)
         #: the stages the call runs: each counts its calls (its seconds are
@@ -102,7 +102,7 @@ class FlightStep:
         self.names = tuple(s.name for s in forces) + tuple(s.name for s in (gyro, fly) if s is not None) + (
             "integrate_positions",)
         self._k = self._k_ctx = None
-        #: the packs handed to the loop, borrowed (engine/borrow.py)
+        #: the packs handed to the loop, borrowed (engine/fused/borrow.py)
         self.borrowed = Borrowed()
 
     @staticmethod

@@ -25,13 +25,17 @@ of every scenario are unchanged), and stops where the step is not steady:
 Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
 pipeline's plan): the fused call covers gravity (or no force), every
 integrator, the three gyroscopic treatments (the explicit torque, the
-implicit and the energy-conserving stage: engine/steady_gyro.py), the
+implicit and the energy-conserving stage: engine/fused/gyro.py), the
 sequential-impulse solve without Baumgarte's bias (friction stops of
-sliding and rolling contacts: the gate above, engine/steady_stops.py for
-the rolling half), with or without the CCD stage.  Other scenes,
-profiling by stage (``Profile.by_stage``) and the solver's phase-by-phase
-flag run the stages one by one.  The profile times the fused call as the
-stage ``steady_step``.
+sliding and rolling contacts: the gate above, engine/fused/stops.py for
+the rolling half), with or without the CCD stage, in scenes that step
+whole (``substeps`` 1).  Other scenes and profiling by stage
+(``Profile.by_stage``) run the stages one by one; so does a solve phase by
+phase (``solver.PHASE_BY_PHASE``: it keeps no steady solve).  The steps
+run through the door (engine/fused/__init__.py): :meth:`SteadyStep.advance`
+runs consecutive ones in one compiled loop (:func:`steady_loop`,
+:func:`free_loop`).  The profile times the fused calls as the stages
+``steady_step`` and ``contact_free_step``.
 """
 
 from __future__ import annotations
@@ -76,7 +80,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     into both: engine/README.md "Compiled code and compile time"): the start of the
     (mini-)step, gravity, the free flight, the broad phase and the narrow
     phase (the packs and the plan's flags and reals as theirs),
-    with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
+    with the gyroscopic stages ``gy`` (engine/fused/gyro.py) in their
     places.
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
     False when a kept buffer is short (nothing of the state written: the
@@ -93,7 +97,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     if has_gravity:
         gravity(mg, F)
-    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (steady_gyro)
+    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (gyro.py)
     before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
@@ -101,7 +105,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
                 Vn, Wn, T_mean, u_lin, u_ang, work)
     v_free[:, :] = Vn
     w_free[:, :] = Wn
-    # integrate.EnergyConservingRotation (steady_gyro)
+    # integrate.EnergyConservingRotation (gyro.py)
     after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     # broadstage.BroadPhase
     nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
@@ -178,7 +182,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    key, idx = borrow((key, idx))  # (no reference counting: engine/borrow.py)
+    key, idx = borrow((key, idx))  # (no reference counting: engine/fused/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -244,13 +248,13 @@ def _turns(turn, kb, h):
 def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
     """Up to ``n`` steps of :func:`free_kernel` (its packs kb, kf, kbr,
     kcol, ks as one, ``kall``), each step's state into row k of the record
-    blocks when ``rec_on`` (engine/loop.py); stops before a step split for
+    blocks when ``rec_on`` (:meth:`SteadyStep.advance`); stops before a step split for
     fast rotation and at a try that is not DONE.  Returns (steps done, time
     after them, the status of the try that stopped it or NONE, the last
     try's pairs (body, plane, static box)).  The contact-free call's one
     compiled entry: one step from Python is ``n`` = 1
     (:meth:`SteadyStep.run`)."""
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py)
     kb = kall.items[0]
     nbb = npl = nsb = 0
     for k in range(n):
@@ -291,7 +295,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     res_last = 0.0
     kb, kw = kall.items[0], kall.items[7]
     dwi = kw.items[-1]
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py; steady_kernel borrows key, idx)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py; steady_kernel borrows key, idx)
     nbb = npl = nsb = cnt = sw = 0
     res = 0.0
     for k in range(n):
@@ -373,7 +377,7 @@ class SteadyStep:
 
     def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None, turn=None):
         self.gravity = next((s for s in forces if type(s) is Gravity), None)
-        #: the gyroscopic stages' arrays (engine/steady_gyro.py), the
+        #: the gyroscopic stages' arrays (engine/fused/gyro.py), the
         #: settings Pack's third item
         self.gyro = gyro_items(forces, gyro)
         self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
@@ -392,7 +396,7 @@ class SteadyStep:
         self._ks = self._ks_key = None
         self._empty = Contacts.empty()
         #: the warm caches' packs handed to the fused calls, borrowed
-        #: (engine/borrow.py)
+        #: (engine/fused/borrow.py)
         self.borrowed = Borrowed()
         #: the packs that stay as one, borrowed (steady_kernel, free_kernel and
         #: the loops over steps)
