@@ -163,12 +163,12 @@ class ReferenceAdapter(Adapter):
     def step(self, n: int = 1) -> None:
         from physbench.engine.pipeline import advance
 
-        # the steady steps n at a time in one compiled call (engine/loop.py)
+        # the steady steps n at a time in one compiled call (engine/fused/loop.py)
         advance(self.model, self.state, self.pipeline, self.profile, n)
 
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """As the base class's loop of step(1) and read_state, the steady
-        steps recorded inside the engine's compiled loop (engine/loop.py);
+        steps recorded inside the engine's compiled loop (engine/fused/loop.py);
         ``block_done`` counts the rows written."""
         from physbench.engine.pipeline import advance
 
@@ -194,7 +194,7 @@ class ReferenceAdapter(Adapter):
         from the step context the pipeline keeps on the state: point midway
         between the surfaces, normal from body a toward b, depth = -gap;
         None if the engine keeps them in another form."""
-        ctx = getattr(getattr(self, "state", None), "_ctx", None)
+        ctx = getattr(getattr(self, "state", None), "ctx", None)
         if ctx is None:
             return None
         c = getattr(ctx, "contacts", None)
@@ -218,7 +218,7 @@ class ReferenceAdapter(Adapter):
         if self.contact_forces_reason.startswith("penalty"):
             return None
         st = getattr(self, "state", None)
-        ctx = getattr(st, "_ctx", None)
+        ctx = getattr(st, "ctx", None)
         c = getattr(ctx, "contacts", None)
         w = getattr(st, "warm", None)
         if w is None or c is None or len(w.pairs) == 0 or c.m == 0:

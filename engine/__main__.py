@@ -30,7 +30,7 @@ import time
 from physbench.engine import Engine, jit
 from physbench.engine.cache import cache_dir
 from physbench.engine.broadstage import SAP_MIN_BODIES
-from physbench.engine.steady import warm_scene
+from physbench.engine.fused.steady import warm_scene
 
 #: the contact scenes whose kernels are compiled ahead: (shapes, plane):
 #: all pairs and the sweep

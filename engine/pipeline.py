@@ -1,14 +1,22 @@
-"""The step pipeline: assembled once from the scene's effects and settings,
-run every step in the order of the seed notes' loop::
+"""The step: stages assembled once from the scene's effects and settings
+(:func:`build_pipeline`), and the step loop that runs them, as named
+stages::
 
-    forces -> integrate velocities -> collide (broad, narrow) -> solve
-           -> integrate positions [-> time of impact]
+    step = advance(1)
+    advance(n):   fast path (engine.fused.advance: whole steps as compiled
+                  calls while the scene is steady)  ->  staged step where it stops
+    staged:       substeps x rotation parts (_parts) x _substep
+    _substep:     stages  ->  friction stop | commit | impact event
+    stages:       forces -> [implicit gyroscopic] -> integrate velocities
+                  -> [energy-conserving rotation] -> broad phase -> narrow phase
+                  -> solve -> integrate positions [-> CCD]
 
 Only what the scene calls for is built: no broad/narrow phase, solver or CCD
 without 'contact'; no friction rows without 'friction' (the solver's
 ``friction`` flag); no gyroscopic stage without 'gyroscopic'; a force stage
-only for an effect that is present (and non-zero somewhere).  Each stage has
-the signature ``stage(model, state, ctx)`` and runs through the profile,
+only for an effect that is present (and non-zero somewhere).  What the step
+loop switches on is decided once per pipeline (:class:`Plan`).  Each stage
+has the signature ``stage(model, state, ctx)`` and runs through the profile,
 which counts calls and time per stage (see profile.py).
 """
 
@@ -17,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,9 +42,8 @@ from physbench.engine.penalty import PenaltyContacts
 from physbench.engine.profile import Profile, Stage, add_jit_seconds
 from physbench.engine.solver import Solve, _pair_codes_abs
 from physbench.engine.state import Context, State
-from physbench.engine.steady import CCD as CCD_NEEDED, DONE, SteadyStep, warm_scene, warm_scene_for
-from physbench.engine import loop as _loop
-from physbench.engine.loop import FlightStep
+from physbench.engine import fused
+from physbench.engine.fused.steady import blocks_usable, record_blocks, warm_scene, warm_scene_for
 
 
 def build_pipeline(model: Model) -> tuple[Stage, ...]:
@@ -66,9 +73,10 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     stages.append(IntegratePositions(model))
     if contact and not penalty and model.setting("ccd") != "off":
         stages += [CCD(model), Impact(model)]
-    if SteadyStep.build(model, stages) is not None:
+    fast = fused.build(model, stages)
+    if isinstance(fast, fused.SteadyStep):
         _warm_steady(model)
-    elif FlightStep.build(model, stages) is not None:
+    elif fast is not None:
         _warm_flight(model)
     return tuple(stages)
 
@@ -79,12 +87,12 @@ _STEADY_READY: set = set()
 
 
 def _warm_steady(model: Model) -> None:
-    """Compile (or load) the fused steady step (engine/steady.py) once per
+    """Compile (or load) the fused steady step (engine/fused/steady.py) once per
     process and broad phase (the part of its argument types that follows
     the scene: engine.broadstage.uses_sap; the narrow phase's families do
     not change them, engine.collision.collide.family_table), at build like
     every kernel (engine/jit.py): a few steps of
-    :func:`engine.steady.warm_scene_for` the model, with its settings; the
+    :func:`engine.fused.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
     key = uses_sap(model)
     if key in _STEADY_READY:
@@ -98,11 +106,11 @@ def _warm_steady(model: Model) -> None:
     add_jit_seconds(prof.jit_s)  # (the Profile took them: they stay pending for the caller's)
     for _ in range(4):
         step(m, st, stages, prof)
-    # the loops over steps (engine/loop.py): the contact-free call's (it
+    # the loops over steps (engine/fused/steady.py): the contact-free call's (it
     # fails on the first step's contacts), then the steady call's
     stages = build_pipeline(m)  # (a fresh solve stage: no steady solve kept)
     st = State.from_model(m)
-    advance(m, st, stages, prof, 6, _loop.record_blocks(6, m.n))
+    advance(m, st, stages, prof, 6, record_blocks(6, m.n))
     add_jit_seconds(time.perf_counter() - t0)
 
 
@@ -112,8 +120,8 @@ _flight_ready = False
 
 def _warm_flight(model: Model) -> None:
     """Compile (or load) the step of a scene without contact
-    (engine/loop.py) once per process, as :func:`_warm_steady`: a few steps
-    of :func:`engine.steady.warm_scene` without contact."""
+    (engine/fused/loop.py) once per process, as :func:`_warm_steady`: a few
+    steps of :func:`engine.fused.steady.warm_scene` without contact."""
     global _flight_ready
     if _flight_ready:
         return
@@ -126,7 +134,7 @@ def _warm_flight(model: Model) -> None:
     prof = Profile()
     add_jit_seconds(prof.jit_s)
     step(m, st, stages, prof)
-    advance(m, st, stages, prof, 2, _loop.record_blocks(2, m.n))
+    advance(m, st, stages, prof, 2, record_blocks(2, m.n))
     add_jit_seconds(time.perf_counter() - t0)
 
 
@@ -142,8 +150,9 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
     ctx = context(model, state, profile)
     plan = _plan_of(model, ctx, stages)
     ctx.kept(state)
-    if plan.fused is not None:
-        plan.fused.prime(model, state, ctx)
+    prime = getattr(plan.fast, "prime", None)
+    if prime is not None:
+        prime(model, state, ctx)
     for s in stages:
         prime = getattr(s, "prime", None)
         if prime is not None:
@@ -152,12 +161,10 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
 
 
 def context(model: Model, state: State, profile: Profile) -> Context:
-    """The state's scratch context (created on first use)."""
-    ctx = getattr(state, "_ctx", None)
+    """The state's scratch context (``state.ctx``, created on first use)."""
+    ctx = state.ctx
     if ctx is None:
-        ctx = Context(model)
-        ctx.profile = profile
-        state._ctx = ctx
+        ctx = state.ctx = Context(model)
     ctx.profile = profile
     return ctx
 
@@ -167,101 +174,80 @@ def _commit(model: Model, state: State, ctx: Context, h: float) -> None:
     state.t += h
 
 
-def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, tried=None) -> None:
-    """Advance ``state`` by one step dt, as ``substeps`` substeps of
-    h = dt / substeps.  A substep runs the stages in order; when the CCD
-    stage reports an impact inside the substep, the substep is cut at the
-    time of impact (refined on the integrated trajectory), the impact
-    impulse is applied there and the rest of the substep runs the same way;
-    likewise at a friction stop (a sliding or rolling contact coming to rest
-    and not staying at rest, :func:`_substep`).
-    A substep in which a non-round body would turn by more than
-    ``max_rotation_per_step`` runs as equal parts that do not (see
-    :func:`_parts`; counted as ``rotation_splits``).
-    """
-    ctx = context(model, state, profile)
-    plan = _plan_of(model, ctx, stages)
-    if plan.flight is not None and not profile.by_stage:
-        plan.flight.run(model, state, ctx, profile)  # a scene without contact: one call (engine/loop.py)
-        return
-    main, impact, max_events, turn = plan.main, plan.impact, plan.max_events, plan.turn
-    for _ in range(model.substeps):
-        parts = _parts(model, state, turn) if turn is not None else 1
-        if parts > 1:
-            profile.count("rotation_splits", parts - 1)
-        fused = plan.fused if not profile.by_stage else None
-        for _ in range(parts):
-            _substep(model, state, ctx, main, impact, max_events, model.h / parts, profile, plan.stops, fused, tried)
-            tried = None
-    state.steps += 1
-
-
-def _plan_of(model: Model, ctx: Context, stages) -> "Plan":
-    """The context's plan for ``stages`` (made once)."""
-    plan = ctx.info.get("plan")
-    if plan is None or plan.stages is not stages:
-        plan = ctx.info["plan"] = _plan(model, stages)
-    return plan
-
-
-#: most steps stepped one by one after a loop over steps that stopped at
-#: its first step (:func:`advance`)
-MAX_BLOCK_BACKOFF = 64
+def step(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile) -> None:
+    """Advance ``state`` by one step dt: :func:`advance` of one step."""
+    advance(model, state, stages, profile, 1)
 
 
 def advance(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, n: int, rec=None,
             progress: list | None = None) -> None:
-    """``n`` steps, as ``n`` calls of :func:`step` give them (the same bits
-    and bookkeeping), the steady ones ``n`` at a time in one compiled call
-    (engine/loop.py).  ``rec``: (pos, quat, vel, angvel) blocks (n, n_bodies,
-    3|4) that get the state after step i in row i, or None; ``progress``: a
-    one-element list that holds the rows recorded so far (a failure in the
-    middle loses no recorded frame)."""
+    """``n`` steps: each through the fast path's door (engine/fused/,
+    :func:`engine.fused.advance`: whole steps as compiled calls, the bits
+    of the staged step), and where it stops, one :func:`staged` step.
+    ``rec``: (pos, quat, vel, angvel) blocks (n, n_bodies, 3|4) that get the
+    state after step i in row i, or None; ``progress``: a one-element list
+    that holds the rows recorded so far (a failure in the middle loses no
+    recorded frame)."""
     ctx = context(model, state, profile)
     if model.joints is not None and not profile.by_stage:
         # a scene with joints: n steps as one compiled call (engine/joints/stage.py)
         stages[-1].run_block(model, state, ctx, profile, n, rec, progress)
         return
     plan = _plan_of(model, ctx, stages)
-    # (one step: the step's own fused try costs less Python than a loop's)
-    fast = n > 1 and not profile.by_stage and (rec is None or _loop.blocks_usable(rec))
+    # (the door records into the blocks when its loops can write them;
+    # else it steps one at a time, and each row is written here)
+    direct = rec is None or blocks_usable(rec)
     k = 0
     while k < n:
-        got, tried = 0, None
-        if fast and plan.fused is not None and plan.fused.block_wait:
-            plan.fused.block_wait -= 1
-        elif fast:
-            sub = None if rec is None else (rec[0][k:], rec[1][k:], rec[2][k:], rec[3][k:])
-            if plan.flight is not None:
-                plan.flight.run(model, state, ctx, profile, n - k, sub)
-                got = n - k
-            elif plan.fused is not None:
-                got, tried = _loop.fused_block(model, state, ctx, plan, profile, n - k, sub)
-        if got == 0 and tried is not None:
-            # the loop stopped at its first step (a rolling contact the
-            # CCD stage checks every step): the next steps go one by one
-            # (the same bits and bookkeeping), trying a loop again after 1,
-            # 2, 4 ... 64 steps; the loop's Python costs more than the
-            # step's own (loop.fused_block)
-            f = plan.fused
-            f.block_backoff = min(2 * f.block_backoff, MAX_BLOCK_BACKOFF) if f.block_backoff else 1
-            f.block_wait = f.block_backoff
-        elif got and plan.fused is not None:
-            plan.fused.block_backoff = 0
+        got, stop = fused.advance(model, state, ctx, plan, n - k if direct else 1,
+                                  None if rec is None or not direct else tuple(a[k:] for a in rec))
+        if got and not direct:
+            _record(rec, k, state)
         k += got
         if progress is not None:
             progress[0] = k
         if k >= n:
             break
-        step(model, state, stages, profile, tried)
+        if got and stop == fused.NONE:
+            continue  # (it stopped before trying the next step: it may run it)
+        staged(model, state, stages, profile, stop == fused.CCD)
         if rec is not None:
-            rec[0][k] = state.x
-            rec[1][k] = state.q
-            rec[2][k] = state.v
-            rec[3][k] = state.w
+            _record(rec, k, state)
         k += 1
         if progress is not None:
             progress[0] = k
+
+
+def _record(rec, k: int, state: State) -> None:
+    rec[0][k] = state.x
+    rec[1][k] = state.q
+    rec[2][k] = state.v
+    rec[3][k] = state.w
+
+
+def staged(model: Model, state: State, stages: tuple[Stage, ...], profile: Profile, resume: bool = False) -> None:
+    """One step dt stage by stage: ``substeps`` substeps of h = dt /
+    substeps, each in equal parts where a non-round body would turn by more
+    than ``max_rotation_per_step`` (:func:`_parts`, counted as
+    ``rotation_splits``), each part one :func:`_substep`.  ``resume``: the
+    door ran the step as far as its CCD stage (:func:`engine.fused.advance`),
+    and the step goes on from there."""
+    ctx = context(model, state, profile)
+    plan = _plan_of(model, ctx, stages)
+    for _ in range(model.substeps):
+        parts = 1 if resume else _parts(model, state, plan.turn, profile)
+        for _ in range(parts):
+            _substep(model, state, ctx, plan, model.h / parts, profile, resume)
+            resume = False
+    state.steps += 1
+
+
+def _plan_of(model: Model, ctx: Context, stages) -> "Plan":
+    """The context's plan for ``stages`` (made once)."""
+    plan = ctx.plan
+    if plan is None or plan.stages is not stages:
+        plan = ctx.plan = _plan(model, stages)
+    return plan
 
 
 @dataclass(frozen=True)
@@ -278,18 +264,19 @@ class Plan:
     max_events: int
     turn: tuple | None
     stops: bool
-    #: the steady step as one compiled call (engine/steady.py), or None
-    #: when the scene has a stage it does not cover
-    fused: SteadyStep | None = None
-    #: a scene without contact's step as one compiled call (engine/loop.py)
-    flight: FlightStep | None = None
+    #: the scene's compiled step behind the door (:func:`engine.fused.build`:
+    #: engine.fused.FlightStep or engine.fused.SteadyStep), or None
+    fast: object = None
+    #: when the door tries again after a failed try
+    backoff: fused.Backoff = field(default_factory=fused.Backoff)
 
 
 def _plan(model: Model, stages: tuple[Stage, ...]) -> Plan:
+    turn = _turn_limit(model)
     return Plan(stages, tuple(s for s in stages if s.family != "impact"),
                 next((s for s in stages if s.family == "impact"), None), int(model.settings["ccd_max_events"]),
-                _turn_limit(model), bool(model.settings["friction_stops"]) and model.has("friction"),
-                SteadyStep.build(model, stages), FlightStep.build(model, stages))
+                turn, bool(model.settings["friction_stops"]) and model.has("friction"),
+                fused.build(model, stages, turn))
 
 
 #: most parts a step is split into for fast rotation (a diverging run would
@@ -311,9 +298,10 @@ def _turn_limit(model: Model):
     return limit, boxes, axisym
 
 
-def _parts(model: Model, state: State, turn) -> int:
+def _parts(model: Model, state: State, turn, profile: Profile) -> int:
     """Equal parts of the next substep such that no non-round body turns by
-    more than the limit in one (from the angular velocities at its start).
+    more than the limit in one (from the angular velocities at its start);
+    1 when ``turn`` (the plan's limit) is None.
 
     Contacts are found at the start pose and an impact is detected from
     each contact point's motion along the chord of its step; a point on a
@@ -323,132 +311,151 @@ def _parts(model: Model, state: State, turn) -> int:
     tunnelling.spinning_long_box at 80 rad/s and 1/30 s: 2.7 rad per step,
     17 cm deep in one phase of 16).  Rotation about the axis of a cylinder
     or capsule does not change the space it occupies and does not count."""
+    if turn is None:
+        return 1
     limit, boxes, axisym = turn
     h = model.h
     w2 = max_turn_sq(state.w, state.q, boxes, axisym)
     theta = math.sqrt(w2) * h
     if not theta > limit:  # (NaN: a blown-up state is not split either)
         return 1
-    return min(int(math.ceil(theta / limit)), MAX_PARTS)
+    parts = min(int(math.ceil(theta / limit)), MAX_PARTS)
+    profile.count("rotation_splits", parts - 1)
+    return parts
 
 
 #: friction stops (see :func:`_substep`) per (sub)step at most
 MAX_STOPS = 8
 
 
-def _substep(model: Model, state: State, ctx: Context, main, impact, max_events: int, h: float,
-             profile: Profile, allow_stops: bool, fused: SteadyStep | None = None, tried=None) -> None:
-    """One (sub)step of length h, cut at every time of impact and at every
-    friction stop.
+@dataclass
+class _Cut:
+    """Where a (sub)step of length ``h`` stands: ``remaining`` s of it to
+    run, the ``events`` (times of impact) and friction ``stops`` it was cut
+    at so far."""
 
-    A friction stop (setting ``friction_stops``): the solver found a contact
-    that slid (or rolled) at the start of the step at rest at its end, and
-    where inside the step it came to rest (``ctx.stop``,
-    :meth:`engine.solver.Rows.stop_times`).  The step is rerun to that time
-    from the same start (same contacts, the warm start it began with) and
-    committed there; the rest of the step then starts with the contact at
-    rest, where static friction decides whether it stays or turns round.
-    Without the cut the stopped contact sticks for the rest of the step
-    whatever the forces, an error of first order in the step (a block thrown
-    up a 35 degree slope slid back 6.6 mm behind the closed form at 1/240 s).
+    h: float
+    remaining: float
+    events: int = 0
+    stops: int = 0
 
-    ``fused``: the plan's steady step (engine/steady.py), tried first as
-    one compiled call; where the step is not steady it runs stage by
-    stage as before (the same bits).  ``tried``: that try made already by
-    a loop over steps (engine/loop.py, :func:`advance`): a callable that
-    settles it and gives its status.
+
+def _substep(model: Model, state: State, ctx: Context, plan: "Plan", h: float, profile: Profile,
+             resume: bool = False) -> None:
+    """One (sub)step of length h, cut at every friction stop and at every
+    time of impact: its named stages, in a loop until the (sub)step is
+    committed whole::
+
+        stages (forces ... CCD) -> friction stop | commit | impact event
+
+    ``resume``: the door (:func:`engine.fused.advance`) ran the (sub)step
+    as far as its CCD stage and left the context as the stages before it
+    would (``ctx.warm0`` the warm-start cache the step began with): the
+    CCD stage runs, and the (sub)step goes on from there.
     """
-    remaining = h
-    events = 0
-    stops = 0
-    ctx.missed_skip.clear()
-    try_fused = tried is not None or (fused is not None and fused.ready())
+    cut = _Cut(h, h)
+    if not resume:
+        ctx.missed_skip.clear()
     while True:
-        warm0 = ctx.warm0 = state.warm
-        ctx.event_mode = EventMode.EVENT if (impact is not None and events < max_events) else EventMode.SPECULATIVE
-        staged = True
-        if try_fused:
-            try_fused = False
-            ctx.reset(state, remaining)
-            ctx.stop_allowed = allow_stops
-            if tried is not None:
-                status = tried(model, state, ctx)
-                tried = None
-            else:
-                status = fused.run(model, state, ctx, remaining, profile)
-            if status == DONE:
-                state.t += remaining
-                break
-            if status == CCD_NEEDED:
-                profile.run(main[-1], model, state, ctx)  # the CCD stage, after what the call did
-                staged = False
-        if staged:
-            ctx.begin(model, state, remaining)
-            ctx.stop_allowed = allow_stops and stops < MAX_STOPS and events == 0
-            for s in main:
-                profile.run(s, model, state, ctx)
+        warm0 = _stages(model, state, ctx, plan, cut, profile, resume)
+        resume = False
         if ctx.event is None and ctx.stop is not None:
-            tau = ctx.stop
-            state.warm = warm0
-            _rerun_short(model, state, ctx, main, profile, tau)
-            if ctx.impacts is None:
-                _commit(model, state, ctx, tau)
-                profile.count("friction_stops")
-                stops += 1
-                remaining -= tau
-                if remaining <= 1e-12 * h:
-                    break
-                continue
-            # an impact inside the shortened step (not seen in the whole
-            # one): the step runs again whole, without the stop
-            stops = MAX_STOPS
-            state.warm = warm0
-            continue
-        if ctx.event is None:
-            _commit(model, state, ctx, remaining)
-            break
-        clear = False
-        if ctx.event.tau <= 1e-9 * h:
-            tau = 0.0
+            done = _friction_stop(model, state, ctx, plan, cut, warm0, profile)
+        elif ctx.event is None:
+            _commit(model, state, ctx, cut.remaining)
+            done = True
         else:
-            tau = refine_toi(model, state, ctx, main, profile)
-            clear = ctx.toi.clear
-            p = ctx.toi.pair
-            if p.missed and tau <= 1e-9 * h:
-                # a missed impact (ccd.missed_impacts) with no time to it:
-                # the points it follows were in contact at the start already
-                # -- a contact going on (a capsule rolling at 1/60 s brings
-                # new material into contact, far from where it touched in
-                # the body's frame), whose overlap is position correction's.
-                # As an event it made no progress, 32 times over.  The
-                # mini-step runs again without it.
-                ctx.missed_skip.add(int(_pair_codes_abs(model, p.a, p.b, p.sidx)))
-                profile.count("missed_dropped")
-                state.warm = warm0
-                continue
-            _commit(model, state, ctx, tau)
-        profile.run(impact, model, state, ctx)
-        if clear:
-            # the followed pair was still clear at the end of the
-            # (mini-)step (the solve held it clear through other contacts):
-            # the step ends here, and its solve warm-starts the next.
-            # Restarting the next step cold made no pair persistent, so
-            # gravity's approach made a resting box's clear corner an
-            # impact again: one event a step, for as long as it lay there.
-            # (The impact solve still runs: the rows the reruns left out
-            # may end touching and approaching -- without it, mixed_bin at
-            # 1/30 s sank 1.7 mm; 0.81 mm with it)
-            break
-        # the impact solve has stopped every touching approach (plastic
-        # stops included): re-applying the cached resting forces over the
-        # rest of the step would count them twice, and a solver with few
-        # sweeps cannot take the excess back out (a Gauss-Seidel-only
-        # column gained 16 x its energy); the rest of the step starts cold
-        state.warm = None
-        events += 1
-        remaining -= tau
-        if remaining <= 1e-12 * h:
-            break
+            done = _impact_event(model, state, ctx, plan, cut, warm0, profile)
+        if done:
+            return
+
+
+def _stages(model: Model, state: State, ctx: Context, plan: "Plan", cut: _Cut, profile: Profile, resume: bool):
+    """The stages over the rest of the (sub)step from ``state`` (after the
+    door's call: the CCD stage only).  Returns the warm-start cache the
+    run began with."""
+    main = plan.main
+    if resume:
+        profile.run(main[-1], model, state, ctx)  # the CCD stage, after what the door's call did
+        return ctx.warm0
+    warm0 = ctx.warm0 = state.warm
+    ctx.event_mode = (EventMode.EVENT if (plan.impact is not None and cut.events < plan.max_events)
+                      else EventMode.SPECULATIVE)
+    ctx.begin(model, state, cut.remaining)
+    ctx.stop_allowed = plan.stops and cut.stops < MAX_STOPS and cut.events == 0
+    for s in main:
+        profile.run(s, model, state, ctx)
+    return warm0
+
+
+def _friction_stop(model: Model, state: State, ctx: Context, plan: "Plan", cut: _Cut, warm0,
+                   profile: Profile) -> bool:
+    """Cut the (sub)step at a friction stop (setting ``friction_stops``):
+    the solver found a contact that slid (or rolled) at the start of the
+    step at rest at its end, and where inside the step it came to rest
+    (``ctx.stop``, :meth:`engine.solver.Rows.stop_times`).  The step is
+    rerun to that time from the same start (same contacts, the warm start
+    it began with) and committed there; the rest of the step then starts
+    with the contact at rest, where static friction decides whether it
+    stays or turns round (a turnaround exact instead of first order in the
+    step: tests/test_engine_friction.py).  Returns whether the (sub)step
+    is done."""
+    tau = ctx.stop
+    state.warm = warm0
+    _rerun_short(model, state, ctx, plan.main, profile, tau)
+    if ctx.impacts is None:
+        _commit(model, state, ctx, tau)
+        profile.count("friction_stops")
+        cut.stops += 1
+        cut.remaining -= tau
+        return cut.remaining <= 1e-12 * cut.h
+    # an impact inside the shortened step (not seen in the whole
+    # one): the step runs again whole, without the stop
+    cut.stops = MAX_STOPS
+    state.warm = warm0
+    return False
+
+
+def _impact_event(model: Model, state: State, ctx: Context, plan: "Plan", cut: _Cut, warm0,
+                  profile: Profile) -> bool:
+    """Cut the (sub)step at the time of impact the CCD stage reported
+    (refined on the integrated trajectory, :func:`engine.ccd.refine_toi`),
+    commit there and resolve the impact (the impact stage).  Returns
+    whether the (sub)step is done."""
+    h = cut.h
+    clear = False
+    if ctx.event.tau <= 1e-9 * h:
+        tau = 0.0
+    else:
+        tau = refine_toi(model, state, ctx, plan.main, profile)
+        clear = ctx.toi.clear
+        p = ctx.toi.pair
+        if p.missed and tau <= 1e-9 * h:
+            # a missed impact (ccd.missed_impacts) with no time to it: the
+            # points it follows were in contact at the start already -- a
+            # contact going on, whose overlap is position correction's.  The
+            # mini-step runs again without it.
+            ctx.missed_skip.add(int(_pair_codes_abs(model, p.a, p.b, p.sidx)))
+            profile.count("missed_dropped")
+            state.warm = warm0
+            return False
+        _commit(model, state, ctx, tau)
+    profile.run(plan.impact, model, state, ctx)
+    if clear:
+        # the followed pair was still clear at the end of the (mini-)step
+        # (the solve held it clear through other contacts): the step ends
+        # here, and its solve warm-starts the next (a cold start would
+        # make a resting box's clear corner an impact again every step).
+        # The impact solve still runs: the rows the reruns left out may
+        # end touching and approaching.
+        return True
+    # the impact solve has stopped every touching approach (plastic stops
+    # included): the rest of the step starts cold (re-applying the cached
+    # resting forces would count them twice)
+    state.warm = None
+    cut.events += 1
+    cut.remaining -= tau
+    return cut.remaining <= 1e-12 * h
 
 
 def _rerun_short(model: Model, state: State, ctx: Context, main, profile: Profile, tau: float) -> None:

@@ -57,7 +57,7 @@ class Profile:
 
     def __init__(self, by_stage: bool = False) -> None:
         #: time every stage on its own: the step runs stage by stage, never
-        #: as the fused steady step (engine/steady.py, timed as one stage,
+        #: as the fused steady step (engine/fused/steady.py, timed as one stage,
         #: ``steady_step``)
         self.by_stage = by_stage
         #: seconds the kernels took to compile or load at the build before
@@ -78,7 +78,7 @@ class Profile:
 
     def charge(self, name: str, calls: int, seconds: float) -> None:
         """Count ``calls`` calls of ``name`` taking ``seconds`` (s) in all
-        (a stage's, or a fused call's: engine/steady.py, engine/loop.py)."""
+        (a stage's, or a fused call's: engine/fused/steady.py, engine/fused/loop.py)."""
         self.calls[name] = self.calls.get(name, 0) + calls
         self.seconds[name] = self.seconds.get(name, 0.0) + seconds
 

@@ -298,53 +298,19 @@ class Solve(Stage):
         same Contacts while its count and buffers stay)."""
         return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e))
 
-    def _fast_path(self, model, state, ctx, c, cl, h, sc, store_on):
-        """The steady step's whole stage as ONE compiled call
-        (:func:`engine.contact.phases.classify_stage`) when the last solve
-        had no impact row and its packs stay (the same classification
-        views ``cl``, work views, Rows): True when it solved, else the
-        number of impact rows it classified (it found impacts or another
-        contact graph: the caller goes on from the classification), or
-        None when it did not run (no packs kept; the phase-by-phase flag)."""
-        fast = self._fast
-        if fast is None or fast[0] is not cl or PHASE_BY_PHASE:
-            return None
-        topo = fast[1]
-        prep = self._prep
-        key = prep[4]
-        views = sc.group(key, lambda: _take_stage(sc, *key[1:]))
-        if prep[0] is not topo or prep[1] is not views:
-            return None
-        kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any, warm_on, out = self._steady_args(model, state, ctx, cl, topo,
-                                                                                        c, store_on)
-        f = self.friction
-        nimp, solved, sw, res, pushed, sliding_any = phases.classify_stage(
-            kc, kx, kt, kw, ko, kq, kk, key, idx, model.n_statics, h, self.c, self.thr, self.beta, self.slop, warm_any,
-            True, f, f and bool(model.rolling), warm_on, self.direct, RESTING_SPEED, DIRECT_MAX_ROWS,
-            ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
-        if not solved:
-            return nimp
-        rows = self._steady_rows(state, c, idx, res, sw, store_on, out)
-        U, U0, vt0 = views[16], views[17], views[19]
-        self._finish(model, ctx, rows, U, U0 if f else None, vt0 if f else None, pushed, h, store_on, state,
-                     sliding_any)
-        self._grow_band(views, rows.m)
-        return True
-
     def store_on(self, model, h: float) -> bool:
         """Whether a (sub)step of length h stores its forces for the next."""
         return h >= WARM_MIN_STEP * model.h
 
     def fused_args(self, model, state, ctx, h, store_on):
-        """What :func:`engine.steady.steady_kernel` hands to
-        phases.classify_stage (as :meth:`_fast_path` does), assuming the
-        step's contacts are the last solve's in number and graph (the
-        kernel checks): (kc, kx, kt, kw, ko, kq, kk, key, idx, warm_any,
-        warm_on, the warm cache written or None), or None when this stage
-        keeps no steady solve (the last one had an impact row, another
-        graph, the phase-by-phase flag)."""
+        """What :func:`engine.fused.steady.steady_kernel` hands to
+        phases.classify_stage, assuming the step's contacts are the last
+        solve's in number and graph (the kernel checks): (kc, kx, kt, kw,
+        ko, kq, kk, key, idx, warm_any, warm_on, the warm cache written or
+        None), or None when this stage keeps no steady solve (``_fast``
+        None: the last one had an impact row or ran phase by phase)."""
         fast = self._fast
-        if fast is None or PHASE_BY_PHASE:
+        if fast is None:
             return None
         cl, topo, c = fast
         prep = self._prep
@@ -356,7 +322,7 @@ class Solve(Stage):
 
     def _steady_args(self, model, state, ctx, cl, topo, c, store_on) -> tuple:
         """The kept packs phases.classify_stage reads in a steady solve
-        (:meth:`_fast_path`, :meth:`fused_args`) and the flags from the
+        (:meth:`fused_args`) and the flags from the
         state's warm cache: (kc, kx, kt, kw, ko, kq, kk, key, idx,
         warm_any, warm_on, the warm cache written or None)."""
         old = state.warm
@@ -367,10 +333,10 @@ class Solve(Stage):
                 topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
 
     def fused_finish(self, model, state, ctx, out, store_on, sweeps, residual) -> None:
-        """After a steady solve in the fused step: what :meth:`_fast_path`
-        and :meth:`_finish` do after phases.classify_stage, without the
-        friction-stop test: the kernel ran its gate (sliding and rolling,
-        engine/steady_stops.py) and found no candidate, and the test opens
+        """After a steady solve in the fused step (engine/fused/steady.py):
+        what :meth:`__call__` does after the solve (:meth:`_finish`),
+        without the friction-stop test: the kernel ran its gate (sliding
+        and rolling, engine/fused/stops.py) and found no candidate, and the test opens
         for any rolling contact and needs the end velocities, which the
         fused call does not hand back.  No Baumgarte bias: the fused step's
         plan has none."""
@@ -399,6 +365,7 @@ class Solve(Stage):
         ctx.impacts = None
         if c is None or c.m == 0:
             state.warm = None
+            self._fast = None  # (no steady solve kept: the fused step tries its contact-free call)
             return
         m = c.m
         sc = ctx.scratch
@@ -420,7 +387,13 @@ class Solve(Stage):
         old = state.warm
         store_on = h >= WARM_MIN_STEP * model.h
         drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
-        if drop and self.ccd == "events" and ctx.drop_rows.size == m:
+        if not (drop and self.ccd == "events" and ctx.drop_rows.size == m):
+            o = old.packed if old else _NO_CACHE
+            nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
+                                    c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
+                                    bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching,
+                                    impact, codes_all)
+        else:
             # a rerun of the time-of-impact search whose rows are all the
             # step's impact rows (a lone pair's impact: billiards, a ball
             # landing): every row is left out whatever the classification
@@ -428,17 +401,6 @@ class Solve(Stage):
             # solve -- what the path below ends in for sel.size == 0
             state.warm = None
             return
-        done = self._fast_path(model, state, ctx, c, cl, h, sc, store_on) if not drop else None
-        if done is True:
-            return
-        if done is None:
-            o = old.packed if old else _NO_CACHE
-            nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
-                                    c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
-                                    bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching,
-                                    impact, codes_all)
-        else:
-            nimp = done  # classified by the fused call, which left the rest to this path
         vn_free, vn0, un = vn[0], vn[1], vn[2]
         gap = c.gap
         if drop:
@@ -488,8 +450,9 @@ class Solve(Stage):
         else:
             rows, U, U0, vt0, pushed = self._solve_compiled(model, state, ctx, c, sel, nimp, topo, touching, vn, old, h,
                                                          sc, store_on)
-            # the next steady step may run as one call (_fast_path) while the
-            # contact graph and these packs stay
+            # the kept steady solve: the fused step (engine/fused/steady.py)
+            # runs the next steps as one call while the contact graph and
+            # these packs stay
             self._fast = (cl, topo, c) if nimp == 0 and self._prep is not None else None
         self._finish(model, ctx, rows, U, U0, vt0, pushed, h, store_on, state, bool(self.friction and rows.slip.any()))
 

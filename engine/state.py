@@ -15,7 +15,7 @@ stage.  All arrays are allocated once, at build.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,9 @@ class State:
     #: the warm-start cache the last solve left (engine.solver.WarmCache),
     #: None to start cold
     warm: Any = None
+    #: the step's scratch context (engine.state.Context), made by the first
+    #: step (engine.pipeline.context) and kept with the state
+    ctx: Any = field(default=None, repr=False)
 
     @classmethod
     def from_model(cls, model: Model) -> "State":
@@ -167,6 +170,9 @@ class Context:
         # the warm-start cache the (mini-)step began with, which the step
         # loop may restore (pipeline._substep): the solve stores into others
         self.warm0: Any = None
+        #: the step loop's plan of this context's pipeline (engine.pipeline.Plan,
+        #: made by its first step)
+        self.plan: Any = None
         self.info: dict[str, Any] = {}
         #: the CCD stage's end-pose check's buffers (engine.ccd.end_pose_pairs:
         #: moved pairs i, j, body-plane, body-static-box pairs (int64), end

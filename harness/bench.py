@@ -440,7 +440,7 @@ def step_scaling(sizes: tuple[int, ...] = (100, 1000, 3000, 10000), steps: int =
         a.build(scene, cls.resolve_settings(scene, settings))
         build = time.process_time() - t0
         # every stage timed on its own: the fused calls (the steady and the
-        # contact-free step, engine/steady.py) time several stages as one
+        # contact-free step, engine/fused/steady.py) time several stages as one
         a.profile.by_stage = True
         t0 = time.process_time()
         a.step(steps)

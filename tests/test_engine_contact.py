@@ -303,35 +303,27 @@ def test_compiled_colouring_is_the_greedy_colouring():
 ])
 def test_steady_steps_solve_in_one_compiled_call(monkeypatch, sid, settings, steady):
     """A steady step (no impact row, the contact graph of the last solve)
-    runs the whole solve stage as one compiled call
-    (engine.contact.phases.classify_stage, which compares the step's pair
-    codes with the kept topology's; ``steady`` the least fraction of the
-    solves that do), and the final state is the bits of the phase-by-phase
-    solve."""
+    runs, its whole solve stage included, as one compiled call: the fused
+    step (engine/fused/steady.py, whose kernel runs
+    engine.contact.phases.classify_stage; ``steady`` the least fraction of
+    the steps that do), and the final state is the bits of the solve
+    phase by phase, stage by stage (the Solve stage itself has no fast
+    path: one compiled call after classification, or the phases)."""
     from physbench.engine import solver
-    from physbench.engine.contact import phases
+    from physbench.engine.fused.steady import NAME
 
     def final(one_call: bool):
         monkeypatch.setattr(solver, "PHASE_BY_PHASE", not one_call)
         eng = engine_for(load_scene(sid, overrides={"scenario.duration": 0.3}), settings)
-        eng.profile.by_stage = True  # the stage itself (not inside the fused steady step, engine/steady.py)
-        calls = {"solved": 0, "left": 0}
-        orig = phases.classify_stage
-
-        def spy(*a):
-            out = orig(*a)
-            calls["solved" if out[1] else "left"] += 1
-            return out
-
-        monkeypatch.setattr(phases, "classify_stage", spy)
+        eng.profile.by_stage = not one_call
         eng.step(72)
         s = eng.state
-        return calls, eng.profile.as_dict()["solve"]["calls"], [a.copy() for a in (s.x, s.q, s.v, s.w)]
+        return eng.profile.as_dict().get(NAME, {}).get("calls", 0), [a.copy() for a in (s.x, s.q, s.v, s.w)]
 
-    calls, solves, one = final(True)
-    assert calls["solved"] > 0 and calls["solved"] >= steady * solves
-    none, _, phased = final(False)
-    assert none == {"solved": 0, "left": 0}
+    calls, one = final(True)
+    assert calls >= steady * 72
+    none, phased = final(False)
+    assert none == 0
     for f, p in zip(one, phased):
         assert np.array_equal(f, p)
 

@@ -92,7 +92,7 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     from physbench.engine.collision.collide import F_PS, F_SS, F_XS, N_FAMILIES
     from physbench.engine.jit import parts
     from physbench.engine.model import build_model
-    from physbench.engine.steady import warm_scene, warm_scene_for
+    from physbench.engine.fused.steady import warm_scene, warm_scene_for
 
     defaults = {k: v[0] for k, v in SETTINGS.items()} | {"dt": 1 / 240}
     two = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults)

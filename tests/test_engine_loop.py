@@ -1,8 +1,9 @@
-"""Steps as compiled calls (engine/loop.py, engine/steady.py): several
-steps in one call (``pipeline.advance``) give the same bits, frames and
-bookkeeping as one ``pipeline.step`` per step; the contact-free step of a
-contact scene and the step of a scene without contact are one call each,
-with the bits of the step stage by stage."""
+"""Part of the contract between the staged and the fused step (stated in
+tests/test_engine_steady.py): steps as compiled calls (engine/fused/):
+several steps in one call (``pipeline.advance``) give the same bits,
+frames and bookkeeping as one ``pipeline.step`` per step; the contact-free
+step of a contact scene and the step of a scene without contact are one
+call each, with the bits of the step stage by stage."""
 
 import numpy as np
 import pytest
@@ -10,8 +11,9 @@ import pytest
 from physbench.adapters.reference import ReferenceAdapter, engine_for, scene_input
 from physbench.contract.scene import load_scene
 from physbench.engine import default_settings, pipeline
-from physbench.engine.loop import FLIGHT_NAME
-from physbench.engine.steady import FREE_NAME, NAME
+from physbench.engine.fused import SteadyStep
+from physbench.engine.fused.loop import FLIGHT_NAME
+from physbench.engine.fused.steady import FREE_NAME, NAME
 from physbench.harness.bench import column_scene
 
 
@@ -53,20 +55,20 @@ def _bookkeeping(eng):
     contents), the contacts, the backoff."""
     p = eng.profile
     s = eng.state
-    ctx = s._ctx
-    plan = ctx.info["plan"]
+    ctx = s.ctx
+    plan = ctx.plan
     out = {"calls": dict(p.calls), "counters": dict(p.counters), "t": s.t, "steps": s.steps}
     if s.warm is not None:
-        pool = plan.fused.solve._warm if plan.fused is not None else None
+        pool = plan.fast.solve._warm if isinstance(plan.fast, SteadyStep) else None
         slot = [i for i, c in enumerate(pool._cache) if c is s.warm] if pool is not None else None
         out["warm"] = (slot, [a.tobytes() for a in s.warm.packed])
     else:
         out["warm"] = None
     c = ctx.contacts
     out["contacts"] = None if c is None else (c.m, c.gap.tobytes())
-    if plan.fused is not None:
-        f = plan.fused
-        out["backoff"] = (f.backoff, f.wait, f.free_backoff, f.free_wait, f.solve._fast is not None)
+    out["backoff"] = (plan.backoff.wait, plan.backoff.span, plan.backoff.what)
+    if isinstance(plan.fast, SteadyStep):
+        out["steady"] = plan.fast.solve._fast is not None
     return out
 
 
@@ -141,17 +143,17 @@ def test_contact_free_and_no_contact_steps_are_one_call(sid, name, share):
 
 
 def test_steady_steps_run_many_to_a_compiled_call(monkeypatch):
-    """A resting column steps through pipeline.step (Python) only where a
-    step is not steady: 300 steps, a handful of calls."""
+    """A resting column steps stage by stage (pipeline.staged) only where
+    a step is not steady: 300 steps, a handful of staged steps."""
     eng = engine_for(column_scene(10), {})
     calls = [0]
-    real = pipeline.step
+    real = pipeline.staged
 
     def counting(*a, **k):
         calls[0] += 1
         return real(*a, **k)
 
-    monkeypatch.setattr(pipeline, "step", counting)
+    monkeypatch.setattr(pipeline, "staged", counting)
     eng.step(300)
     assert eng.profile.as_dict()[NAME]["calls"] >= 290
     assert calls[0] <= 10
@@ -159,19 +161,19 @@ def test_steady_steps_run_many_to_a_compiled_call(monkeypatch):
 
 def test_a_failure_in_a_block_loses_no_recorded_frame(monkeypatch):
     """step_record's block_done counts the rows written by the compiled
-    loop before a step that raised (the head-on impact's step runs through
-    pipeline.step), and those rows are the per-step loop's."""
+    loop before a step that raised (the head-on impact's step runs stage
+    by stage: pipeline.staged), and those rows are the per-step loop's."""
     scene = load_scene("billiards.head_on")
     steps = int(round(scene.duration / scene.dt))
     ref, frames = _per_step(scene, {}, steps)
     a = ReferenceAdapter()
     a.build(scene, default_settings(scene_input(scene)))
-    real = pipeline.step
+    real = pipeline.staged
 
     def boom(*args, **kw):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(pipeline, "step", boom)
+    monkeypatch.setattr(pipeline, "staged", boom)
     nb = scene.n_bodies
     blocks = (np.full((steps, nb, 3), np.nan), np.full((steps, nb, 4), np.nan), np.full((steps, nb, 3), np.nan),
               np.full((steps, nb, 3), np.nan))
@@ -182,4 +184,4 @@ def test_a_failure_in_a_block_loses_no_recorded_frame(monkeypatch):
     for x, y in zip(blocks, frames):
         assert np.array_equal(x[:k], y[:k])
         assert np.isnan(x[k:]).all()
-    monkeypatch.setattr(pipeline, "step", real)
+    monkeypatch.setattr(pipeline, "staged", real)

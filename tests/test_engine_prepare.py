@@ -32,8 +32,8 @@ def test_build_makes_what_the_first_event_step_used(monkeypatch):
     st = {"dt": 0.032, "integrator": "rk4"}
     ad = ReferenceAdapter()
     ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
-    ctx = ad.state._ctx
-    assert "plan" in ctx.info and "ccd_collider" in ctx.info and "ccd_geometry" in ctx.info
+    ctx = ad.state.ctx
+    assert ctx.plan is not None and "ccd_collider" in ctx.info and "ccd_geometry" in ctx.info
     colliders = _spy(monkeypatch, Collider)
     contexts = _spy(monkeypatch, Context)
     plans = []
@@ -42,7 +42,7 @@ def test_build_makes_what_the_first_event_step_used(monkeypatch):
     ad.step(16)
     assert ad.stages()["counters"]["impacts"] >= 1  # the run went through an impact event
     assert colliders == [] and contexts == [] and plans == []
-    assert ad.state._ctx is ctx
+    assert ad.state.ctx is ctx
 
 
 def test_engine_prepares_at_build():
@@ -51,7 +51,7 @@ def test_engine_prepares_at_build():
 
     sc = load_scene("billiards.head_on")
     eng = Engine(scene_input(sc), dict(ReferenceAdapter.resolve_settings(sc, {"dt": 0.032})))
-    assert "plan" in eng.state._ctx.info and "ccd_collider" in eng.state._ctx.info
+    assert eng.state.ctx.plan is not None and "ccd_collider" in eng.state.ctx.info
 
 
 def test_prepare_changes_no_bit():
@@ -70,7 +70,7 @@ def test_prepare_changes_no_bit():
         full = dict(ReferenceAdapter.resolve_settings(sc, st))
         model = build_model(scene_input(sc), full)  # no prepare: everything made on first use
         state, stages = State.from_model(model), build_pipeline(model)
-        assert getattr(state, "_ctx", None) is None
+        assert state.ctx is None
         advance(model, state, stages, Profile(), 30)
         for f in ("x", "q", "v", "w"):
             assert np.array_equal(getattr(ad.state, f), getattr(state, f)), (name, f)

@@ -1,13 +1,33 @@
-"""The steady step as one compiled call (engine/steady.py): the same bits
-as the step stage by stage, on every kind of step it meets (resting,
-sliding, landing, impacts, friction stops), and it runs where a scene is
-steady; which scenes it covers is decided once, with the plan."""
+"""The contract between the staged and the fused step (engine/fused/).
+
+The engine has two paths for a step: the staged step (engine/pipeline.py,
+one stage object after the other) and the fast path behind one door
+(``engine.fused.advance``: the steady, contact-free and flight steps as
+compiled calls, runs of them as one compiled loop).  The contract:
+
+1. a step on the fast path gives the staged step's bits: every recorded
+   frame and the final state, bit for bit, on every kind of step either
+   path meets (resting, sliding, rolling, landing, impacts, friction
+   stops, every integrator and gyroscopic treatment);
+2. it leaves the staged step's bookkeeping: the profile's calls and
+   counters (``contact_rows``, ``solver_sweeps``), ``state.t``,
+   ``state.steps``, the warm-start cache, the contacts;
+3. which scenes the fast path covers is decided once, with the plan, and
+   where it runs it runs for most steps of a steady scene.
+
+This module pins the contract for the steady step (and 3.); with it,
+tests/test_engine_steady_gyro.py (the gyroscopic stages, rolling friction
+with stops) and tests/test_engine_loop.py (runs of steps as one loop, the
+contact-free and flight steps) are the contract.  A physics change to a
+stage that the fused step also runs must keep them passing: they compare
+the two paths, not fixed numbers (tests/test_determinism.py pins those)."""
 
 import numpy as np
 import pytest
 
 from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
+from physbench.engine.fused import SteadyStep
 from physbench.harness.bench import column_scene, spheres_scene
 
 
@@ -65,8 +85,8 @@ def test_steady_scenes_step_in_one_call(make, steps, share):
 def test_plan_decides_once_what_the_fused_step_covers(sid, settings, covered):
     eng = engine_for(load_scene(sid), settings)
     eng.step(2)
-    plan = eng.state._ctx.info["plan"]
-    assert (plan.fused is not None) == covered
+    plan = eng.state.ctx.plan
+    assert isinstance(plan.fast, SteadyStep) == covered
 
 
 def _kernel_allocations(settings: dict, steps: int) -> int:
@@ -117,7 +137,7 @@ def _unboxed():
 def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]:
     """(fused calls that committed, compiled allocations inside them beyond
     the unboxing of their arguments) over ``steps`` steps of ``eng``."""
-    import physbench.engine.steady as steady
+    import physbench.engine.fused.steady as steady
     from numba.core.runtime import _nrt_python, rtsys
 
     _nrt_python.memsys_enable_stats()
@@ -145,7 +165,7 @@ def _fused_allocations(monkeypatch, unboxed, eng, steps: int) -> tuple[int, int]
                                         "velocity_verlet"])
 @pytest.mark.parametrize("scene,settle", [("column", 240), ("spheres", 240)])
 def test_steady_step_allocates_nothing(monkeypatch, _unboxed, scene, settle, integrator):
-    """A steady step's whole fused call (engine/steady.py::steady_kernel:
+    """A steady step's whole fused call (engine/fused/steady.py::steady_kernel:
     free flight, broad and narrow phase, the solve stage, the position
     update, the end-pose check, the commit) allocates no array in compiled
     code beyond unboxing its arguments, with every integrator it covers,
@@ -224,7 +244,7 @@ def test_lu_skip_is_lu_bit_for_bit(seed):
 @pytest.mark.parametrize("scene", ["column", "spheres"])
 def test_steps_run_as_a_loop_allocate_nothing_per_step(scene):
     """``eng.step(n)`` runs consecutive steady steps inside one compiled
-    loop (engine/loop.py): what it allocates in compiled code (the loop's
+    loop (engine/fused/steady.py): what it allocates in compiled code (the loop's
     argument unboxing, the odd step one by one) does not grow with the
     number of steps: 400 steps allocate exactly as many arrays as 100."""
     from numba.core.runtime import _nrt_python, rtsys

@@ -1,12 +1,13 @@
-"""Contact scenes with a gyroscopic stage take the fused steady step
-(engine/steady.py with engine/steady_gyro.py): each of the three
+"""Part of the contract between the staged and the fused step (stated in
+tests/test_engine_steady.py): contact scenes with a gyroscopic stage take
+the fused steady step (engine/fused/steady.py with engine/fused/gyro.py): each of the three
 gyroscopic treatments (the energy-conserving rotation, the implicit
 update, the explicit torque) runs inside the fused call at its place of
 the staged pipeline, and every recorded frame is bit for bit the staged
 step's (one ``pipeline.step`` per step with ``Profile.by_stage``), whether
 the steps run one fused call each or many to a compiled loop
 (``pipeline.advance``).  Likewise rolling friction with friction stops
-(engine/steady_stops.py: the stop gate's rolling half)."""
+(engine/fused/stops.py: the stop gate's rolling half)."""
 
 import numpy as np
 import pytest
@@ -14,8 +15,8 @@ import pytest
 from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
 from physbench.engine import pipeline
-from physbench.engine.steady import FREE_NAME, NAME
-from physbench.engine.steady_gyro import ENERGY, IMPLICIT, NO_GYRO
+from physbench.engine.fused.steady import FREE_NAME, NAME
+from physbench.engine.fused.gyro import ENERGY, IMPLICIT, NO_GYRO
 
 
 def _frames(eng, steps, by_stage):
@@ -80,7 +81,7 @@ def test_gyroscopic_contact_scene_takes_the_fused_step_with_the_staged_bits(sid,
     assert NAME not in ref.profile.as_dict() and FREE_NAME not in ref.profile.as_dict()
 
     one = engine_for(scene, settings)
-    fused = _plan(one).fused
+    fused = _plan(one).fast
     assert fused is not None  # decided once, with the plan: the scene is covered
     assert fused.gyro[0] == code
     assert (fused.gyro[1].size > 0) == torque
@@ -111,7 +112,7 @@ def test_the_comparison_sees_the_gyroscopic_stage(sid, settings, steps):
     scene = load_scene(sid)
     staged = _frames(engine_for(scene, settings), steps, True)
     eng = engine_for(scene, settings)
-    fused = _plan(eng).fused
+    fused = _plan(eng).fast
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
     fused.gyro = (NO_GYRO, zi, z3, zi, z3, z3, z3) + fused.gyro[7:]
     fused._ks_key = None  # (the engine made its settings Pack at build: pipeline.prepare)
@@ -131,7 +132,7 @@ ROLLING = [
 
 @pytest.mark.parametrize("sid,variant,settings", ROLLING, ids=[f"{c[0]}-{i}" for i, c in enumerate(ROLLING)])
 def test_rolling_friction_with_stops_takes_the_fused_step(sid, variant, settings):
-    """Rolling friction with friction stops (engine/steady_stops.py): the
+    """Rolling friction with friction stops (engine/fused/stops.py): the
     fused step's gate falls back to the staged step wherever the staged
     solve's stop test could find a rolling stop; every frame of the whole
     run is the staged step's, bit for bit, the friction stops counted
@@ -141,7 +142,7 @@ def test_rolling_friction_with_stops_takes_the_fused_step(sid, variant, settings
     ref = engine_for(scene, settings)
     staged = _frames(ref, steps, True)
     one = engine_for(scene, settings)
-    fused = _plan(one).fused
+    fused = _plan(one).fast
     assert fused is not None
     frames = _frames(one, steps, False)
     for x, y in zip(staged, frames):
@@ -162,8 +163,8 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
     closed (its step flags' stops_gate False) the ball rolling uphill is
     not cut at its rolling stop in a fused step, and its frames differ
     from the staged step's.  (It rolls without slipping: only the gate's
-    rolling half, engine/steady_stops.py, sees the stop.)"""
-    from physbench.engine.steady import SteadyStep
+    rolling half, engine/fused/stops.py, sees the stop.)"""
+    from physbench.engine.fused.steady import SteadyStep
 
     scene = load_scene("friction.rolling_resistance", "uphill_5deg")
     settings = {"dt": 0.016}
@@ -184,7 +185,7 @@ def test_the_comparison_sees_the_rolling_stop(monkeypatch):
 
 def test_the_fused_energy_conserving_rotation_allocates_nothing():
     """The fused step's energy-conserving rotation runs on the plan's kept
-    work arrays (steady_gyro.gyro_items, gyroscopic.energy_rotation_into):
+    work arrays (fused.gyro.gyro_items, gyroscopic.energy_rotation_into):
     50 calls in compiled code allocate what one does (numba's allocation
     counter), where the same kernel on work arrays made per call (what the
     stage and the flight step did before) allocates per call."""
@@ -210,7 +211,7 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
                                  u_ang, np.empty((4, g, 3)), np.empty((g, 4)), np.empty((g, 3, 3)))
 
     eng = engine_for(load_scene("friction.capsule_spins_to_rest"), {})
-    fused = _plan(eng).fused
+    fused = _plan(eng).fast
     gy = fused.gyro
     assert gy[0] == ENERGY and gy[3].size == 1 and gy[8].shape == (4, 1, 3)
     assert any(type(s) is EnergyConservingRotation for s in eng.stages)
@@ -240,7 +241,7 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
     ("friction.cylinder_rolls", {"integrator": "rk4"}), ("stacking.cans", {}), ("stacking.log_pile", {})])
 def test_every_gyroscopic_setting_steps_without_allocating(scene, settings):
     """Steps taken n at a time (``eng.step(n)``: one compiled loop,
-    engine/loop.py) allocate no array per step in compiled code (numba's
+    engine/fused/) allocate no array per step in compiled code (numba's
     allocation counter) for every gyroscopic treatment and with springs:
     200 steps allocate exactly as many arrays as 100 (the loop's argument
     unboxing).  Before, per step: the energy-conserving rotation's three

@@ -1,4 +1,4 @@
-"""The gyroscopic stages inside the fused steady step (engine/steady.py).
+"""The gyroscopic stages inside the fused steady step (engine/fused/steady.py).
 
 A contact scene with the 'gyroscopic' effect and a non-isotropic body
 (a rolling cylinder, a spinning capsule, a log pile) has one of three
@@ -20,8 +20,8 @@ the same places of the step (:func:`before_flight` after gravity,
 the same bits as the stages one by one (tests/test_engine_steady_gyro.py).
 The plan's arrays for them are one tuple (:func:`gyro_items`), the third
 item of the steady step's settings Pack, so the loops over steps
-(engine/loop.py) pass them on unchanged; a scene without contact's
-flight step (engine/loop.py, ``flight_kernel``) runs the same two calls
+(engine/fused/steady.py) pass them on unchanged; a scene without contact's
+flight step (engine/fused/loop.py, ``flight_kernel``) runs the same two calls
 on its own tuple (without the explicit torque: its force model has it).
 """
 

@@ -25,13 +25,17 @@ of every scenario are unchanged), and stops where the step is not steady:
 Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
 pipeline's plan): the fused call covers gravity (or no force), every
 integrator, the three gyroscopic treatments (the explicit torque, the
-implicit and the energy-conserving stage: engine/steady_gyro.py), the
+implicit and the energy-conserving stage: engine/fused/gyro.py), the
 sequential-impulse solve without Baumgarte's bias (friction stops of
-sliding and rolling contacts: the gate above, engine/steady_stops.py for
-the rolling half), with or without the CCD stage.  Other scenes,
-profiling by stage (``Profile.by_stage``) and the solver's phase-by-phase
-flag run the stages one by one.  The profile times the fused call as the
-stage ``steady_step``.
+sliding and rolling contacts: the gate above, engine/fused/stops.py for
+the rolling half), with or without the CCD stage, in scenes that step
+whole (``substeps`` 1).  Other scenes and profiling by stage
+(``Profile.by_stage``) run the stages one by one; so does a solve phase by
+phase (``solver.PHASE_BY_PHASE``: it keeps no steady solve).  The steps
+run through the door (engine/fused/__init__.py): :meth:`SteadyStep.advance`
+runs consecutive ones in one compiled loop (:func:`steady_loop`,
+:func:`free_loop`).  The profile times the fused calls as the stages
+``steady_step`` and ``contact_free_step``.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from operator import is_
 import numpy as np
 from numba import njit
 
-from physbench.engine.borrow import Borrowed, BorrowedOf, borrow, borrowed
+from physbench.engine.fused.borrow import Borrowed, BorrowedOf, borrow, borrowed
 from physbench.engine.broadstage import BroadPhase, _broad_step
 from physbench.engine.collision import NarrowPhase, box
 from physbench.engine.collision.collide import collide_packed
@@ -57,18 +61,12 @@ from physbench.engine import solver as _S
 from physbench.engine.pack import Pack
 from physbench.engine.solver import Solve
 from physbench.engine.state import Contacts, _commit_packed, record_packed
-from physbench.engine.steady_gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
-from physbench.engine.steady_stops import rolling_candidate
+from physbench.engine.fused.gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from physbench.engine.fused.stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 #: no try pending after a loop (it stopped before trying the next step)
 NONE = -1
-#: the rotation split's Pack when a loop is not to check it (one step
-#: from Python: pipeline._parts split it already)
-_NO_TURN = (False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-#: most steps a failed try makes the next wait
-MAX_BACKOFF = 64
 
 #: the profile's name of the fused call
 NAME = "steady_step"
@@ -82,7 +80,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     into both: engine/README.md "Compiled code and compile time"): the start of the
     (mini-)step, gravity, the free flight, the broad phase and the narrow
     phase (the packs and the plan's flags and reals as theirs),
-    with the gyroscopic stages ``gy`` (engine/steady_gyro.py) in their
+    with the gyroscopic stages ``gy`` (engine/fused/gyro.py) in their
     places.
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
     False when a kept buffer is short (nothing of the state written: the
@@ -99,7 +97,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     if has_gravity:
         gravity(mg, F)
-    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (steady_gyro)
+    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (gyro.py)
     before_flight(gy, R0, w, T, W, h)
     # integrate.IntegrateVelocities
     w0[:, :] = Wn
@@ -107,7 +105,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
                 Vn, Wn, T_mean, u_lin, u_ang, work)
     v_free[:, :] = Vn
     w_free[:, :] = Wn
-    # integrate.EnergyConservingRotation (steady_gyro)
+    # integrate.EnergyConservingRotation (gyro.py)
     after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     # broadstage.BroadPhase
     nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
@@ -184,7 +182,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
      rolling, iterations, passes, max_rows, face_points) = flags
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    key, idx = borrow((key, idx))  # (no reference counting: engine/borrow.py)
+    key, idx = borrow((key, idx))  # (no reference counting: engine/fused/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
@@ -250,13 +248,13 @@ def _turns(turn, kb, h):
 def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
     """Up to ``n`` steps of :func:`free_kernel` (its packs kb, kf, kbr,
     kcol, ks as one, ``kall``), each step's state into row k of the record
-    blocks when ``rec_on`` (engine/loop.py); stops before a step split for
+    blocks when ``rec_on`` (:meth:`SteadyStep.advance`); stops before a step split for
     fast rotation and at a try that is not DONE.  Returns (steps done, time
     after them, the status of the try that stopped it or NONE, the last
     try's pairs (body, plane, static box)).  The contact-free call's one
     compiled entry: one step from Python is ``n`` = 1
     (:meth:`SteadyStep.run`)."""
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py)
     kb = kall.items[0]
     nbb = npl = nsb = 0
     for k in range(n):
@@ -297,7 +295,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     res_last = 0.0
     kb, kw = kall.items[0], kall.items[7]
     dwi = kw.items[-1]
-    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/borrow.py; steady_kernel borrows key, idx)
+    pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py; steady_kernel borrows key, idx)
     nbb = npl = nsb = cnt = sw = 0
     res = 0.0
     for k in range(n):
@@ -338,6 +336,27 @@ def _no_records(nb: int) -> tuple:
     return z
 
 
+def blocks(rec, nb: int) -> tuple:
+    """(record?, the four blocks) for the loops: ``rec`` when given, else
+    empty blocks."""
+    if rec is not None:
+        return True, tuple(rec)
+    return False, _no_records(nb)
+
+
+def blocks_usable(rec) -> bool:
+    """Whether the loops can write the record blocks ``rec`` themselves
+    (float64, C-contiguous, writeable: what they are compiled for)."""
+    return all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable for a in rec)
+
+
+def record_blocks(n: int, nb: int) -> tuple:
+    """Record blocks for ``n`` steps of ``nb`` bodies (pos, quat, vel,
+    angvel), NaN-filled."""
+    return (np.full((n, nb, 3), np.nan), np.full((n, nb, 4), np.nan), np.full((n, nb, 3), np.nan),
+            np.full((n, nb, 3), np.nan))
+
+
 @njit(cache=True)
 def steady_pack(kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks):
     """:func:`steady_kernel`'s ``kall``: the packs borrowed (valid while they
@@ -356,9 +375,9 @@ class SteadyStep:
     """The plan's fused steady step (module doc) over the pipeline's stage
     objects, whose kept buffers it reads and writes."""
 
-    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None):
+    def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None, turn=None):
         self.gravity = next((s for s in forces if type(s) is Gravity), None)
-        #: the gyroscopic stages' arrays (engine/steady_gyro.py), the
+        #: the gyroscopic stages' arrays (engine/fused/gyro.py), the
         #: settings Pack's third item
         self.gyro = gyro_items(forces, gyro)
         self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
@@ -375,31 +394,28 @@ class SteadyStep:
         self._kf = self._kf_ctx = None
         self._kbr = self._kbr_key = None
         self._ks = self._ks_key = None
-        self.backoff = 0  # steps to run staged before trying again (after a FAIL)
-        self.wait = 0
-        # the same for the contact-free call (free_kernel)
-        self.free_backoff = 0
-        self.free_wait = 0
-        # the same for a loop over steps (engine/loop.py; pipeline.advance)
-        self.block_backoff = 0
-        self.block_wait = 0
         self._empty = Contacts.empty()
         #: the warm caches' packs handed to the fused calls, borrowed
-        #: (engine/borrow.py)
+        #: (engine/fused/borrow.py)
         self.borrowed = Borrowed()
         #: the packs that stay as one, borrowed (steady_kernel, free_kernel and
         #: the loops over steps)
         self.kall = BorrowedOf(steady_pack)
         self.kfree = BorrowedOf(free_pack)
-        #: the loops' rotation-split Pack for one step from Python (none)
-        self._no_turn = Pack(_NO_TURN)
+        #: the rotation split's limit as the loops read it (:func:`_turns`;
+        #: ``turn`` the plan's, pipeline._turn_limit: None never splits)
+        self.turn = Pack((False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64)) if turn is None else (
+            True, float(turn[0]), np.ascontiguousarray(turn[1], np.int64), np.ascontiguousarray(turn[2], np.int64)))
 
     @staticmethod
-    def build(model, stages) -> "SteadyStep | None":
+    def build(model, stages, turn=None) -> "SteadyStep | None":
         """The fused step for ``stages`` when the scene has only stages it
-        covers (module doc), else None: decided once, with the plan."""
+        covers (module doc) and steps whole (``substeps`` 1), else None:
+        decided once, with the plan (``turn`` its rotation split's limit)."""
         from physbench.engine.ccd import CCD as CCDStage, Impact
 
+        if model.substeps != 1:
+            return None
         forces = [s for s in stages if s.family == "forces"]
         if any(type(s) not in FORCES for s in forces):
             return None
@@ -411,7 +427,7 @@ class SteadyStep:
         fly, broad, narrow, solve, pos = rest[:5]
         if solve.correction == "baumgarte":
             return None
-        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro)
+        return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro, turn)
 
     def _flight_pack(self, ctx):
         """The free flight's arrays (and the context's views over its first
@@ -459,23 +475,6 @@ class SteadyStep:
                  _S.STOP_MAX_RESIDUAL, self.lim, _S.ROLL_TOL)
         return flags, reals
 
-    def ready(self) -> bool:
-        """Whether the next (mini-)step tries a fused call: not while
-        waiting after a failed try; the steady call (:func:`steady_kernel`)
-        while the solve keeps a steady solve (``Solve._fast``), else the
-        contact-free call (:func:`free_kernel`), which waits after its own
-        failed tries (a step with contacts but no steady solve: the first
-        steps of a resting scene, a landing)."""
-        if self.wait:
-            self.wait -= 1
-            return False
-        if self.solve._fast is not None:
-            return True
-        if self.free_wait:
-            self.free_wait -= 1
-            return False
-        return True
-
     def flags(self, ctx, warm_any: bool, warm_on: bool, store_on: bool) -> tuple:
         """The kernels' ``step_flags`` for a (mini-)step of ``ctx``."""
         solve = self.solve
@@ -515,47 +514,118 @@ class SteadyStep:
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         self.kfree.of((kb, kf, kbr, kcol, ks))
 
-    def run(self, model, state, ctx, h: float, profile) -> int:
-        """Try the (mini-)step of length ``h`` from ``state`` as one call
-        (module doc): returns DONE, FAIL or CCD; with CCD the context holds
-        what the CCD stage reads.  The steady call while the solve keeps a
-        steady solve, else the contact-free one."""
+    def call(self) -> str:
+        """The compiled call :meth:`advance` makes next (its profile name):
+        the steady call while the solve keeps a steady solve, else the
+        contact-free call."""
+        return FREE_NAME if self.solve._fast is None else NAME
+
+    def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
+        """Up to ``n`` steps from ``state`` in one compiled loop
+        (:func:`steady_loop` while the solve keeps a steady solve, else
+        :func:`free_loop`), each step's state into row k of the blocks
+        ``rec`` when given: the door's step (engine/fused/__init__.py).
+        Returns (steps done, the status of the try that stopped the loop,
+        settled, or NONE).  With CCD the context holds what the CCD stage
+        reads, and the staged step goes on from it; with FAIL nothing of
+        that step was kept.  The bookkeeping between the steps --
+        ``Solve.fused_finish``, the warm-start pool's rotation, the
+        profile's calls and counters, ``state.t`` and ``state.steps``,
+        ``ctx.contacts`` -- comes out as with one staged step per step
+        (tests/test_engine_loop.py); the profile's seconds are the loop's."""
         t0 = time.perf_counter()
+        h = float(model.h)
+        # the context as the staged step begins a step
+        ctx.missed_skip.clear()
+        ctx.warm0 = old = state.warm
+        ctx.event_mode = (EventMode.EVENT if plan.impact is not None and plan.max_events > 0
+                          else EventMode.SPECULATIVE)
+        ctx.reset(state, h)
+        ctx.stop_allowed = plan.stops
+        rec_on, blocks_ = blocks(rec, model.n)
+        solve = self.solve
+        if solve._fast is None:
+            return self._free_advance(model, state, ctx, plan, n, h, rec_on, blocks_, t0)
+        a = self.steady_args(model, state, ctx, h)
+        if a is None:
+            return 0, NONE
+        sp, flags0, out1, store_on, c = a
+        if not store_on:
+            return 0, NONE
+        # the pool's rotation: step k stores into outs[k % 2] (WarmPool.slot)
+        pool = solve._warm
+        size = (c.m, int(solve._fast[1].uniq_codes.size))
+        out2 = pool.slot(size, out1, out1)
+        if pool.slot(size, out2, out2) is not out1:
+            n = min(n, 2)
+        outs = (out1, out2)
+        flags1 = self.flags(ctx, True, bool(solve.warm), True)
+        band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
-        # one step of the loops (their one compiled entry each), no
-        # rotation split to check (pipeline._parts did), nothing recorded
-        turn = self.borrowed.of(self._no_turn)
-        rec = _no_records(model.n)
-        if self.solve._fast is None:
-            r = free_loop(1, self.kfree.of((kb, kf, kbr, kcol, ks)), float(h), self.flags(ctx, False, False, False),
-                          turn, 0.0, False, *rec)
-            status = self.settle_free(model, state, ctx, (DONE if r[2] == NONE else r[2],) + r[3:6])
-            name = FREE_NAME
-        else:
-            a = self.steady_args(model, state, ctx, h)
-            if a is None:
-                return FAIL
-            (kc, kx, kt, kw, ko, kq, kk, key, idx), flags, out, store_on, c = a
-            kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
-            r = steady_loop(1, kall, ko, kq, kq, turn, float(h), flags, flags, False, 0, 0.0, False, *rec)
-            status = self.settle(model, state, ctx, (DONE if r[7] == NONE else r[7],) + r[8:], out, store_on, c)
-            name = NAME
-        profile.charge(name, 1, time.perf_counter() - t0)
-        return status
+        kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
+        kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+        b = self.borrowed.of
+        r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(self.turn), h, flags0, flags1, band_check,
+                        int(solve._band), float(state.t), rec_on, *blocks_)
+        done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
+        if done:
+            state.t = t
+            state.steps += done
+            if solved:
+                last = done - 2 if free_last else done - 1
+                self.finish_solve(model, state, ctx, outs[last % 2], True, int(sw_last), float(res_last))
+                if solved > 1:
+                    ctx.profile.count("contact_rows", c.m * (solved - 1))
+                    ctx.profile.count("solver_sweeps", int(sw_sum))
+                ctx.contacts = c
+            ctx.warm0 = old if done == 1 else outs[(done - 2) % 2]
+            if free_last:
+                self._no_contact(state, ctx)
+                solve._fast = None
+        if pend != NONE:
+            self._restart(state, ctx, plan, h)
+            pend = self.settle(model, state, ctx, r[7:], outs[done % 2], True, c)
+        calls = done + (pend != NONE)
+        if calls:
+            ctx.profile.charge(NAME, calls, time.perf_counter() - t0)
+        return done, pend
+
+    def _free_advance(self, model, state, ctx, plan, n, h, rec_on, blocks_, t0) -> tuple[int, int]:
+        """:meth:`advance` by the contact-free call (:func:`free_loop`)."""
+        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        done, t, pend, nbb, npl, nsb = free_loop(n, self.kfree.of((kb, kf, kbr, kcol, ks)), h,
+                                                 self.flags(ctx, False, False, False), self.borrowed.of(self.turn),
+                                                 float(state.t), rec_on, *blocks_)
+        if done:
+            state.t = t
+            state.steps += done
+            self._no_contact(state, ctx)
+        if pend != NONE:
+            self._restart(state, ctx, plan, h)
+            pend = self.settle_free(model, state, ctx, (pend, nbb, npl, nsb))
+        calls = done + (pend != NONE)
+        if calls:
+            ctx.profile.charge(FREE_NAME, calls, time.perf_counter() - t0)
+        return done, pend
+
+    def _restart(self, state, ctx, plan, h: float) -> None:
+        """The context as the staged step begins the step a loop stopped
+        at (its try is settled into it: a CCD status goes on from there)."""
+        ctx.missed_skip.clear()
+        ctx.warm0 = state.warm
+        ctx.event_mode = (EventMode.EVENT if plan.impact is not None and plan.max_events > 0
+                          else EventMode.SPECULATIVE)
+        ctx.reset(state, h)
+        ctx.stop_allowed = plan.stops
 
     def settle(self, model, state, ctx, res, out, store_on: bool, c) -> int:
-        """After :func:`steady_kernel` returned ``res``: the backoff, the
-        solve's bookkeeping (``Solve.fused_finish``, or a step with no
-        contact: :meth:`_no_contact`), the pairs the CCD stage reads.
-        Returns the status."""
+        """After :func:`steady_kernel` returned ``res``: the solve's
+        bookkeeping (``Solve.fused_finish``, or a step with no contact:
+        :meth:`_no_contact`), the pairs the CCD stage reads.  Returns the
+        status (FAIL: nothing to do, the staged step runs the step)."""
         status, nbb, npl, nsb, cnt, sw, r = res
         if status == FAIL:
-            # not steady: stage by stage, and the next tries wait (1, 2, 4,
-            # ... 64 steps while they keep failing)
-            self.backoff = min(2 * self.backoff, MAX_BACKOFF) if self.backoff else 1
-            self.wait = self.backoff
             return status
-        self.backoff = 0
         if cnt:
             self.finish_solve(model, state, ctx, out, store_on, int(sw), float(r))
             ctx.contacts = c
@@ -573,14 +643,11 @@ class SteadyStep:
         self.solve.fused_finish(model, state, ctx, out, store_on, sweeps, residual)
 
     def settle_free(self, model, state, ctx, res) -> int:
-        """After :func:`free_kernel` returned ``res`` (as :meth:`settle`,
-        with the contact-free call's own backoff)."""
-        status, nbb, npl, nsb = res[0], res[1], res[2], res[3]
+        """After :func:`free_kernel` returned ``res`` (status and pairs, as
+        :meth:`settle`)."""
+        status, nbb, npl, nsb = res
         if status == FAIL:
-            self.free_backoff = min(2 * self.free_backoff, MAX_BACKOFF) if self.free_backoff else 1
-            self.free_wait = self.free_backoff
             return status
-        self.free_backoff = 0
         self._no_contact(state, ctx)
         if status == CCD:
             self._pairs(ctx, nbb, npl, nsb)

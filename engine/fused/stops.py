@@ -1,5 +1,5 @@
 """The rolling part of the friction-stop gate inside the fused steady step
-(engine/steady.py).
+(engine/fused/steady.py).
 
 A steady step of a scene with rolling friction and friction stops
 (friction.rolling_resistance, friction.cylinder_rolling_resistance) must
