@@ -189,7 +189,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     sweeps = 0
     residual = 0.0
     if cnt != 0:  # (no contact: Solve.__call__ leaves the velocities; SteadyStep.settle)
-        # solver.Solve (its steady path, Solve._fast_path)
+        # solver.Solve (the staged solve after prepare.classify)
         nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
             kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, bool(True), friction,
             rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
