@@ -32,14 +32,41 @@ deterministic): ``ctx.pairs_i``/``pairs_j`` (i < j), ``ctx.plane_pairs``
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_pairs, _sweep_pairs, sap_pairs
 from physbench.engine.flight import q2m
+from physbench.engine.geometry import Pairs, Shapes, Statics, shapes_of, statics_of  # noqa: F401
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from physbench.engine.profile import Stage
 from physbench.engine.sap import _FALLBACK, SapBuffers, _sap_step
+
+
+#: what the broad phase reads of a step's motion: the start pose ``x0`` (n,
+#: 3) m, ``R0`` (n, 3, 3), the free-flight end pose ``q1`` (n, 4), ``x1``
+#: (n, 3) and its rotations ``R1`` (n, 3, 3) (written), the start and end
+#: velocities ``v0``, ``v1``, ``w0``, ``w1`` (>= n, 3) and the mean
+#: velocity ``u`` (>= n, 3)
+Motion = namedtuple("Motion", ("x0", "R0", "q1", "x1", "R1", "v0", "v1", "u", "w0", "w1"))
+
+#: the broad phase's buffers, kept between steps: the swept boxes ``lo``,
+#: ``hi`` (n, 3), ``sweep`` (n,) m, the sweep's kept sort ``order`` (n,),
+#: ``state`` and ``grid`` (engine.sap.SapBuffers), and the pairs written
+#: (``pi``, ``pj``, their sweep codes ``code``, ``bp``, ``pk``, ``bs``,
+#: ``sk``: the fields of an engine.geometry.Pairs)
+BroadBuffers = namedtuple("BroadBuffers", ("lo", "hi", "sweep", "order", "state", "grid", "pi", "pj", "code", "bp",
+                                           "pk", "bs", "sk"))
+
+#: the fused step's broad-phase pack (engine/steady.py): the bodies'
+#: :class:`Shapes`, the :class:`Statics`, the end rotations ``R1`` (n, 3,
+#: 3), the :class:`BroadBuffers`, the narrow phase's ``margins`` and
+#: ``no_sweep`` (n,), the CCD stage's ``fast`` flags and ``fast_min`` (n,)
+#: and its end-pose buffers ``end`` (an engine.ccd_end.EndPose)
+FusedBroad = namedtuple("FusedBroad", ("shapes", "statics", "R1", "buf", "margins", "no_sweep", "fast", "fast_min",
+                                       "end"))
 
 
 #: below this many bodies ``sap`` tests all pairs instead: the same pairs in
@@ -63,14 +90,18 @@ def _extent_axis(shape, r, half, hl, R, i):
 
 
 @njit(cache=True)
-def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
-                 lo, hi, sweep):
-    """Per body: the union of its boxes at the start (x0, R0) and the
+def _swept_boxes(shapes, motion, h, grow, lo, hi, sweep):
+    """Per body (``shapes`` the bodies' :class:`Shapes`, ``motion`` a
+    :class:`Motion`): the union of its boxes at the start (x0, R0) and the
     free-flight end pose (x1, R1), grown by ``grow``, into lo, hi (n, 3);
     and ``sweep`` (n,): h (max speed + max angular speed * bounding radius)
     over the start (v0, w0) and end (v1, w1) velocities and the mean
     velocity u (all (>= n, 3)).  Allocates nothing
     (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    shape, radius, half, half_length, bound_radius = (shapes.shape, shapes.radius, shapes.half, shapes.half_length,
+                                                      shapes.bound_radius)
+    x0, R0, x1, R1, v0, v1, u, w0, w1 = (motion.x0, motion.R0, motion.x1, motion.R1, motion.v0, motion.v1, motion.u,
+                                         motion.w0, motion.w1)
     for k in range(x0.shape[0]):
         for i in range(3):
             e0 = _extent_axis(shape[k], radius[k], half[k], half_length[k], R0[k], i)
@@ -117,28 +148,32 @@ def _box_pairs_kernel(lo, hi, slo, shi, out_b, out_p):
 
 
 @njit(cache=True)
-def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1, x1, R1, v0, v1, u, w0, w1, h, grow,
-                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, grid, pi, pj, code, bp, pk, bs, sk):
-    """The whole broad phase in one call: the end rotations R1 of q1, the
-    swept boxes lo, hi and ``sweep`` (:func:`_swept_boxes`), the body-body
-    pairs (``sap``: :func:`_sap_step`, else every pair,
+def _broad_step(sap, shapes, statics, motion, buf, h, grow):
+    """The whole broad phase in one call: the end rotations ``motion.R1``
+    of ``motion.q1``, the swept boxes lo, hi and ``sweep``
+    (:func:`_swept_boxes`, grown by ``grow`` m, over a step of ``h`` s),
+    the body-body pairs (``sap``: :func:`_sap_step`, else every pair,
     :func:`_brute_kernel`), the body-plane and body-static-box pairs, into
-    the caller's buffers.  Returns their three counts (minus the need where
-    a buffer was short; ``_FALLBACK`` for the body-body pairs to be found
-    by :func:`sap_pairs`)."""
-    q2m(q1, R1)
-    _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
-                 lo, hi, sweep)
+    the buffers ``buf`` (a :class:`BroadBuffers`); ``shapes`` the bodies'
+    :class:`Shapes`, ``statics`` the :class:`Statics`, ``motion`` a
+    :class:`Motion`.  Returns their three counts (minus the need where a
+    buffer was short; ``_FALLBACK`` for the body-body pairs to be found by
+    :func:`sap_pairs`)."""
+    m = motion
+    lo, hi, pi, pj = buf.lo, buf.hi, buf.pi, buf.pj
+    q2m(m.q1, m.R1)
+    _swept_boxes(shapes, m, h, grow, lo, hi, buf.sweep)
     nbb = 0
     if lo.shape[0] >= 2:
         if sap is not None:
-            nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
+            nbb = _sap_step(lo, hi, buf.order, buf.state, pi, pj, buf.code, buf.grid)
             if nbb > pi.shape[0]:
                 nbb = -nbb
         else:
             nbb = _brute_kernel(lo, hi, pi, pj)
-    npl = _plane_pairs_kernel(lo, hi, planes_n, planes_off, grow, bp, pk) if planes_n.shape[0] else 0
-    nsb = _box_pairs_kernel(lo, hi, slo, shi, bs, sk) if slo.shape[0] else 0
+    planes_n, slo = statics.planes_n, statics.slo
+    npl = _plane_pairs_kernel(lo, hi, planes_n, statics.planes_off, grow, buf.bp, buf.pk) if planes_n.shape[0] else 0
+    nsb = _box_pairs_kernel(lo, hi, slo, statics.shi, buf.bs, buf.sk) if slo.shape[0] else 0
     return nbb, npl, nsb
 
 
@@ -167,25 +202,29 @@ class BroadPhase(Stage):
         self._grow(2 * n + 16, 2 * n + 16)
         # writable copies: the kernels are compiled (and warmed, warm_up)
         # for writable arrays, and the model's are read-only
-        self.shape = np.array(model.shape, np.int64)
-        self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
-                                                       model.bound_radius))
-        self.planes = (np.array(model.plane_normal, float).reshape(-1, 3), np.array(model.plane_offset, float))
-        self.sbox = (np.array(model.sbox_aabb_lo, float).reshape(-1, 3), np.array(model.sbox_aabb_hi, float).reshape(-1, 3))
+        self.shapes = shapes_of(model)
+        self.statics = statics_of(model)
 
     def _grow(self, npl: int, nsb: int) -> None:
         self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
         self.bs, self.sk = np.empty(nsb, np.int64), np.empty(nsb, np.int64)
+
+    def buffers(self, ctx) -> BroadBuffers:
+        """The buffers :func:`_broad_step` writes (the sweep's into
+        ``ctx.sweep``), as they are now (a grown buffer is a new array)."""
+        P = self.pairs
+        return BroadBuffers(lo=self.lo, hi=self.hi, sweep=ctx.sweep, order=P.order, state=P.state, grid=P.grid,
+                            pi=P.pi, pj=P.pj, code=P.code, bp=self.bp, pk=self.pk, bs=self.bs, sk=self.sk)
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
         P = self.pairs
         while True:
-            nbb, npl, nsb = _broad_step(self.sap, self.shape, *self.geom, state.x, ctx.R0, ctx.q1, ctx.x1, self.R1,
-                                        state.v, ctx.v, ctx.u_lin, state.w, ctx.w, float(ctx.h), self.margin,
-                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, P.order, P.state,
-                                        P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+            nbb, npl, nsb = _broad_step(self.sap, self.shapes, self.statics,
+                                        Motion(x0=state.x, R0=ctx.R0, q1=ctx.q1, x1=ctx.x1, R1=self.R1, v0=state.v,
+                                               v1=ctx.v, u=ctx.u_lin, w0=state.w, w1=ctx.w),
+                                        self.buffers(ctx), float(ctx.h), self.margin)
             short = [max(-c, 0) for c in (nbb, npl, nsb)]
             if nbb == _FALLBACK:
                 short[0] = 0
@@ -224,10 +263,15 @@ def warm_up(sap: bool = True) -> None:
             np.empty(n, np.int64))
     for flag in ((True,) if sap else (None,)):
         i1 = np.empty(1, np.int64)
-        _broad_step(flag, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
-                    z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
-                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
-                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+        _broad_step(flag, Shapes(shape=shape, radius=z + 0.1, half=z3 + 0.1, half_length=z, bound_radius=z + 0.2),
+                    Statics(planes_n=np.array([[0.0, 0.0, 1.0]]), planes_off=np.zeros(1), slo=z3[:1].copy(),
+                            shi=z3[:1].copy()),
+                    Motion(x0=z3, R0=R, q1=q, x1=z3, R1=R.copy(), v0=z3, v1=np.zeros((n + 1, 3)), u=z3, w0=z3,
+                           w1=np.zeros((n + 1, 3))),
+                    BroadBuffers(lo=lo, hi=hi, sweep=sw, order=np.arange(n, dtype=np.int64),
+                                 state=np.array([-1, 1], np.int64), grid=grid, pi=i1, pj=i1.copy(), code=i1.copy(),
+                                 bp=i1.copy(), pk=i1.copy(), bs=i1.copy(), sk=i1.copy()),
+                    0.01, 1e-4)
     if not sap:
         return
     SapBuffers(n).run(lo, hi)

@@ -16,6 +16,7 @@ family functions called one group at a time."""
 from __future__ import annotations
 
 import warnings
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, typeof
@@ -351,15 +352,46 @@ def family_table(fams: tuple) -> tuple:
     return t
 
 
+#: the narrow phase's contacts as :func:`collide` writes them (m,) each:
+#: bodies ``a``, ``b`` (b = n for statics), static index ``sidx`` (-1 for a
+#: body pair), ``normal``, ``point`` (m, 3), ``gap`` m, feature id ``fid``,
+#: restitution ``e``, friction coefficients ``mus``, ``muk``, ``mur``
+ContactOut = namedtuple("ContactOut", ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk", "mur"))
+
+#: the narrow phase's work arrays over pairs (:func:`collide`): the pairs'
+#: order ``perm``, group bounds ``start`` (33,), keys ``key``, a group's
+#: bodies ``ga``, ``gb``, statics ``st``, margins ``gm``, materials ``ma``,
+#: ``mb``, edge flags ``edge`` and separations ``se``, -1s ``capm1``; the
+#: families' scratch ``fw`` (FAMILY_FW floats) and ``iw`` (FAMILY_IW ints)
+NarrowWork = namedtuple("NarrowWork", ("perm", "start", "key", "ga", "gb", "st", "gm", "ma", "mb", "edge", "se",
+                                       "capm1", "fw", "iw"))
+
+#: the narrow phase's kept arrays (engine.collision.dispatch.Collider):
+#: ``body`` (shape, radius, half_extents, half_length, material) over the
+#: bodies, ``planes`` (normal, offset, static index), ``sboxes`` (centre,
+#: rotation, half-extents, static index), the statics' materials ``smat``,
+#: the pair tables ``coef`` (e, mus, muk, mur), the work arrays ``W``,
+#: ``A``, ``B``, ``slot``, the output ``out`` (:func:`collide`) and the
+#: families' functions ``fams`` (:func:`family_table`)
+Narrow = namedtuple("Narrow", ("body", "planes", "sboxes", "smat", "coef", "W", "A", "B", "slot", "out", "fams"))
+
+
+#: a group's slots as :func:`_emit` reads them (views of the ``slot``
+#: work arrays): normals ``n``, points ``p`` (k, S, 3), gaps ``g``, feature
+#: ids ``f``, flags ``ok`` (k, S)
+_Slots = namedtuple("_Slots", ("n", "p", "g", "f", "ok"))
+
+
 @njit(cache=True)
-def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, coef, out, cnt):
+def _emit(fam, k, neg, ga, gb, st, mg, S, mat_a, mat_b, coef, out, cnt):
     """Write the kept contacts (gap < the pair's margin mg) of a group's k
-    pairs in the family's order (``BOUNDS``): bodies ga (k,), gb (k,) (or
-    the world n with statics st (k,) >= 0), their materials mat_a, mat_b
-    (k,) into the pair tables ``coef`` (e, mus, muk, mur); ``out`` (a, b,
-    sidx, normal, point, gap, fid, e, mus, muk, mur) written from cnt on
-    while there is room.  Returns the count after them."""
-    cap = out[0].shape[0]
+    pairs in the family's order (``BOUNDS``), from its slots ``S`` (a
+    ``_Slots``): bodies ga (k,), gb (k,) (or the world n with statics st
+    (k,) >= 0), their materials mat_a, mat_b (k,) into the pair tables
+    ``coef`` (e, mus, muk, mur); ``out`` (a :class:`ContactOut`) written
+    from cnt on while there is room.  Returns the count after them."""
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    cap = out.a.shape[0]
     bnd = BOUNDS[fam]
     for q in range(bnd.shape[0] - 1):
         lo, hi = bnd[q], bnd[q + 1]
@@ -370,33 +402,34 @@ def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, c
                 if not (S_ok[t, s] and S_g[t, s] < mg[t]):
                     continue
                 if cnt < cap:
-                    out[0][cnt] = ga[t]
-                    out[1][cnt] = gb[t]
-                    out[2][cnt] = st[t]
+                    out.a[cnt] = ga[t]
+                    out.b[cnt] = gb[t]
+                    out.sidx[cnt] = st[t]
                     for i in range(3):
-                        out[3][cnt, i] = -S_n[t, s, i] if neg else S_n[t, s, i]
-                        out[4][cnt, i] = S_p[t, s, i]
-                    out[5][cnt] = S_g[t, s]
-                    out[6][cnt] = S_f[t, s]
+                        out.normal[cnt, i] = -S_n[t, s, i] if neg else S_n[t, s, i]
+                        out.point[cnt, i] = S_p[t, s, i]
+                    out.gap[cnt] = S_g[t, s]
+                    out.fid[cnt] = S_f[t, s]
                     ma, mb = mat_a[t], mat_b[t]
-                    out[7][cnt] = coef[0][ma, mb]
-                    out[8][cnt] = coef[1][ma, mb]
-                    out[9][cnt] = coef[2][ma, mb]
-                    out[10][cnt] = coef[3][ma, mb]
+                    out.e[cnt] = coef[0][ma, mb]
+                    out.mus[cnt] = coef[1][ma, mb]
+                    out.muk[cnt] = coef[2][ma, mb]
+                    out.mur[cnt] = coef[3][ma, mb]
                 cnt += 1
     return cnt
 
 
 @njit(cache=True)
-def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margin, sweep, planes, sboxes, smat,
-            coef, face_points, fams, W, A, B, slot, out):
+def collide(k_, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep, face_points):
     """Contacts of every candidate pair at the pose X (n, 3), R (n, 3, 3).
 
-    ``body`` (shape, radius, half_extents, half_length, material) over the
-    n bodies; pairs: body-body ``pi``/``pj`` (i < j), body-plane ``bp``
-    (body) / ``pk`` (plane row), body-static-box ``bs`` / ``sk``, with
-    margins (m) ``mbb``, ``mbp``, ``mbs`` -- written here as ``margin`` +
-    both bodies' ``sweep`` (n,) when ``from_sweep``; ``planes`` (normal,
+    ``k_`` the collider's arrays (a :class:`Narrow`): ``body`` (shape,
+    radius, half_extents, half_length, material) over the n bodies; pairs:
+    body-body ``pi``/``pj`` (i < j), body-plane ``bp`` (body) / ``pk``
+    (plane row), body-static-box ``bs`` / ``sk``, with margins (m)
+    ``margins`` (body-body, body-plane, body-static-box) -- written here as
+    ``margin`` + both bodies' ``sweep`` (n,) when ``from_sweep``;
+    ``planes`` (normal,
     offset, static index), ``sboxes`` (centre, rotation, half-extents,
     static index); ``smat`` the statics' materials, ``coef`` the pair
     tables (e, mus, muk, mur) over materials; ``face_points`` see
@@ -417,8 +450,12 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     contacts are written only while they fit ``out`` and the groups run
     only while they fit ``A``/``B`` and ``slot``; the caller grows what was
     short and calls again."""
+    body, planes, sboxes, smat, coef, fams = k_.body, k_.planes, k_.sboxes, k_.smat, k_.coef, k_.fams
+    W, A, B, slot, out = k_.W, k_.A, k_.B, k_.slot, k_.out
+    mbb, mbp, mbs = margins
     shape, radius, half, hlen, bmat = body
-    perm, start, key, ga, gb, st, gm, ma, mb, edge, se, capm1, fw, iw = W
+    perm, start, key, ga, gb, st, gm = W.perm, W.start, W.key, W.ga, W.gb, W.st, W.gm
+    ma, mb, edge, se, capm1, fw, iw = W.ma, W.mb, W.edge, W.se, W.capm1, W.fw, W.iw
     n = shape.shape[0]
     K = A[0].shape[0]
     cap_slots = slot[2].shape[0]
@@ -497,23 +534,18 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
                         for l in range(3):
                             B[1][t, i, l] = sboxes[1][row, i, l]
             neg = fams[fam](fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw)
-            S_n = slot[0][:k * S * 3].reshape((k, S, 3))
-            S_p = slot[1][:k * S * 3].reshape((k, S, 3))
-            S_g = slot[2][:k * S].reshape((k, S))
-            S_f = slot[3][:k * S].reshape((k, S))
-            S_ok = slot[4][:k * S].reshape((k, S))
-            cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
+            views = _Slots(n=slot[0][:k * S * 3].reshape((k, S, 3)), p=slot[1][:k * S * 3].reshape((k, S, 3)),
+                           g=slot[2][:k * S].reshape((k, S)), f=slot[3][:k * S].reshape((k, S)),
+                           ok=slot[4][:k * S].reshape((k, S)))
+            cnt = _emit(fam, k, neg, ga, gb, st, gm, views, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 
 
 @njit(cache=True)
 def collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin, sweep, face_points):
     """:func:`collide` with the arrays kept between calls in ONE argument:
-    ``kept`` an :class:`engine.pack.Pack` of (body, planes, sboxes, smat,
-    coef, W, A, B, slot, out, fams) (the Collider's buffers and the
-    scene's :func:`family_table`, whose type is the same for every scene; one pointer to
-    unbox instead of ~55 arrays); ``margins`` (body-body, body-plane,
-    body-static-box); the rest as :func:`collide`."""
-    body, planes, sboxes, smat, coef, W, A, B, slot, out, fams = kept.items
-    return collide(body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk, margins[2], from_sweep, margin,
-                   sweep, planes, sboxes, smat, coef, face_points, fams, W, A, B, slot, out)
+    ``kept`` an :class:`engine.pack.Pack` of a :class:`Narrow` (the
+    Collider's buffers and the scene's :func:`family_table`, whose type is
+    the same for every scene; one pointer to unbox instead of ~55 arrays);
+    the rest as :func:`collide`."""
+    return collide(kept.items, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep, face_points)

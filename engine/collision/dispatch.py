@@ -17,7 +17,8 @@ from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
-                                                collide_packed, families, family_table, ALL_FAMILIES)
+                                                ContactOut, Narrow, NarrowWork, collide_packed, families, family_table,
+                                                ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -76,9 +77,9 @@ class Collider:
 
     def _pairs(self, m: int) -> None:
         i, z = np.empty(m, np.int64), np.empty(m)
-        self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
-                  np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64), np.zeros(FAMILY_FW),
-                  np.zeros(FAMILY_IW, np.int64))
+        self.W = NarrowWork(perm=i, start=np.zeros(33, np.int64), key=i.copy(), ga=i.copy(), gb=i.copy(), st=i.copy(),
+                            gm=z, ma=i.copy(), mb=i.copy(), edge=np.zeros(m, np.bool_), se=z.copy(),
+                            capm1=np.full(m, -1, np.int64), fw=np.zeros(FAMILY_FW), iw=np.zeros(FAMILY_IW, np.int64))
         self.margins = tuple(np.empty(m) for _ in range(3))
 
     def _group(self, k: int, slots: int) -> None:
@@ -90,13 +91,15 @@ class Collider:
 
     def _out(self, m: int) -> None:
         i = np.empty(m, np.int64)
-        self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
-                    np.empty(m), np.empty(m), np.empty(m), np.empty(m))
+        self.out = ContactOut(a=i, b=i.copy(), sidx=i.copy(), normal=np.empty((m, 3)), point=np.empty((m, 3)),
+                              gap=np.empty(m), fid=i.copy(), e=np.empty(m), mus=np.empty(m), muk=np.empty(m),
+                              mur=np.empty(m))
 
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
-        return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                              self.slot, self.out, family_table(self.fams)))
+        return self._kept.of(Narrow(body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
+                                    coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
+                                    fams=family_table(self.fams)))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
@@ -119,13 +122,13 @@ class Collider:
         bp, pk = plane_pairs
         bs, sk = sbox_pairs
         m = max(pi.shape[0], bp.shape[0], bs.shape[0])
-        if self.W[0].shape[0] < m:
+        if self.W.perm.shape[0] < m:
             self._pairs(2 * m)
         from_sweep = margins is None
         if from_sweep:
             margins = self.margins
         else:
-            sweep = self.W[6]
+            sweep = self.W.gm
         while True:
             kept = self.packed()
             cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
@@ -134,7 +137,7 @@ class Collider:
             if need_k > self.A[0].shape[0] or need_s > self.slot[2].shape[0]:
                 self._group(2 * need_k, 2 * need_s)
                 short = True
-            if cnt > self.out[0].shape[0]:
+            if cnt > self.out.a.shape[0]:
                 self._out(2 * cnt)
                 short = True
             if not short:
@@ -145,8 +148,8 @@ class Collider:
             # the same views of the same buffers: the same object (a steady
             # step's solve keeps what it built from them, solver.Solve)
             return last[2]
-        c = Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
-                     o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        c = Contacts(a=o.a[:cnt], b=o.b[:cnt], sidx=o.sidx[:cnt], normal=o.normal[:cnt], point=o.point[:cnt],
+                     gap=o.gap[:cnt], fid=o.fid[:cnt], e=o.e[:cnt], mus=o.mus[:cnt], muk=o.muk[:cnt], mur=o.mur[:cnt])
         self._contacts = (cnt, o, c)
         return c
 
