@@ -122,7 +122,7 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     cnt, need_k, need_s = collide_packed(kcol, x, R0, buf.pi[:nbb], buf.pj[:nbb], br.margins, buf.bp[:npl],
                                          buf.pk[:npl], buf.bs[:nsb], buf.sk[:nsb], bool(True), margin,
                                          buf.sweep if speculative else br.no_sweep, face_points)
-    return need_k <= col.A[0].shape[0] and need_s <= col.slot[2].shape[0], nbb, npl, nsb, cnt
+    return need_k <= col.A.c.shape[0] and need_s <= col.slot.g.shape[0], nbb, npl, nsb, cnt
 
 
 @njit(cache=True)

@@ -155,18 +155,46 @@ def families(shape) -> tuple:
 # compiles once, not once per set of families; a family a scene lacks is
 # :func:`_missing`, which raises.
 
+#: the driver's contact slots: normals ``n``, points ``p``, gaps ``g``,
+#: feature ids ``f`` (int64), flags ``ok`` (bool) -- flat over a group's
+#: pairs x slots (``n``, ``p`` 3 floats a slot) in the collider's buffers,
+#: (k, S, 3) and (k, S) views of them in a group's family call
+Slots = namedtuple("Slots", ("n", "p", "g", "f", "ok"))
+
+#: a group's gathered side (one per pair, k of them): centres ``c`` (k, 3),
+#: rotations ``R`` (k, 3, 3), box half extents ``h`` (k, 3), radii ``r``,
+#: half lengths ``hl`` (k,); a plane's normal in ``c``, its offset in ``r``
+Side = namedtuple("Side", ("c", "R", "h", "r", "hl"))
+
+#: the bodies' shapes as the driver reads them: codes ``shape``, radii
+#: ``radius``, half extents ``half`` (n, 3), ``half_length``, ``material``
+BodyShapes = namedtuple("BodyShapes", ("shape", "radius", "half", "half_length", "material"))
+
+#: the static planes: unit ``normal`` (k, 3), ``offset`` (k,) m, ``static``
+#: index (k,)
+PlaneRows = namedtuple("PlaneRows", ("normal", "offset", "static"))
+
+#: the static boxes: ``centre`` (k, 3), rotation ``R`` (k, 3, 3), ``half``
+#: extents (k, 3), ``static`` index (k,)
+BoxRows = namedtuple("BoxRows", ("centre", "R", "half", "static"))
+
+#: the pair coefficients over materials (a, b): restitution ``e``, static and
+#: kinetic friction ``mus``, ``muk``, rolling friction ``mur`` (m)
+PairTables = namedtuple("PairTables", ("e", "mus", "muk", "mur"))
+
+
 @njit(cache=True)
 def _slots(fam, k, slot):
-    """The group's slot views (k, S, ...) of the flat ``slot`` buffers
-    (normals, points, gaps, fids, flags), fids and flags zeroed, and the
+    """The group's slot views (k, S, ...) of the flat ``slot`` buffers (a
+    :class:`Slots`, as the views), fids and flags zeroed, and the
     flags set where the family writes every slot (one slot per pair, the
     box- and cylinder-plane families)."""
     S = SLOTS[fam]
-    S_n = slot[0][:k * S * 3].reshape((k, S, 3))
-    S_p = slot[1][:k * S * 3].reshape((k, S, 3))
-    S_g = slot[2][:k * S].reshape((k, S))
-    S_f = slot[3][:k * S].reshape((k, S))
-    S_ok = slot[4][:k * S].reshape((k, S))
+    S_n = slot.n[:k * S * 3].reshape((k, S, 3))
+    S_p = slot.p[:k * S * 3].reshape((k, S, 3))
+    S_g = slot.g[:k * S].reshape((k, S))
+    S_f = slot.f[:k * S].reshape((k, S))
+    S_ok = slot.ok[:k * S].reshape((k, S))
     for t in range(k):
         for s in range(S):
             S_f[t, s] = 0
@@ -175,7 +203,7 @@ def _slots(fam, k, slot):
         for t in range(k):
             for s in range(S):
                 S_ok[t, s] = True
-    return S_n, S_p, S_g, S_f, S_ok
+    return Slots(n=S_n, p=S_p, g=S_g, f=S_f, ok=S_ok)
 
 
 # Each family's loop over the k gathered pairs (A, B: the sides' (c, R, h,
@@ -187,109 +215,125 @@ def _slots(fam, k, slot):
 # with :func:`_signature` by :func:`_compiled`.
 
 def _ss(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_sphere_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_sphere_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _sb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XS
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_box_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_box_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _bb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XB
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
     mg, ed, sep = gm[:k], edge[:k], se[:k]
-    _box_box_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[2][:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
+    _box_box_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.h[:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
                     sep, fw, iw)
     edge_pair_face_points(S_g, S_ok, ed, sep, mg, face_points)
     return False
 
 
 def _sc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_capsule_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_capsule_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :],
                            S_g[:, 0], fw)
     return False
 
 
 def _bc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_box_kernel(B[0][:k], B[1][:k], B[4][:k], B[3][:k], A[0][:k], A[1][:k], A[2][:k], S_n, S_p, S_g, S_f,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_box_kernel(B.c[:k], B.R[:k], B.hl[:k], B.r[:k], A.c[:k], A.R[:k], A.h[:k], S_n, S_p, S_g, S_f,
                         S_ok, fw)
     return True
 
 
 def _cc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_capsule_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_capsule_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
                             S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _sy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_cylinder_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], capm1[:k], S_n[:, 0, :],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_cylinder_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], capm1[:k], S_n[:, 0, :],
                             S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _by(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_cylinder_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], gm[:k], True,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_cylinder_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], gm[:k], True,
                          _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _cy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
                              S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _yy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _cylinder_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _cylinder_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k],
                               gm[:k], True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
     return False
 
 
 def _ps(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_plane_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_plane_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _pb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_plane_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_plane_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
     return False
 
 
 def _pc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f, S_ok, fw)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _py(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _cylinder_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _cylinder_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
     return False
 
 
 def _xc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_box_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n, S_p, S_g, S_f,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_box_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n, S_p, S_g, S_f,
                         S_ok, fw)
     return False
 
 
 def _xy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_cylinder_kernel(B[0][:k], B[1][:k], B[2][:k], A[0][:k], A[1][:k], A[4][:k], A[3][:k], gm[:k], True,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_cylinder_kernel(B.c[:k], B.R[:k], B.h[:k], A.c[:k], A.R[:k], A.hl[:k], A.r[:k], gm[:k], True,
                          _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
     return True
 
@@ -313,8 +357,8 @@ def _signature():
     (:class:`engine.collision.dispatch.Collider`: writable C-contiguous
     float64, int64 and bool arrays)."""
     f1, i1, b1 = np.zeros(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
-    side = typeof((np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)), f1, f1))
-    return types.boolean(types.int64, types.int64, side, side, typeof(f1), typeof((f1, f1, f1, i1, b1)),
+    side = typeof(Side(c=np.zeros((1, 3)), R=np.zeros((1, 3, 3)), h=np.zeros((1, 3)), r=f1, hl=f1))
+    return types.boolean(types.int64, types.int64, side, side, typeof(f1), typeof(Slots(n=f1, p=f1, g=f1, f=i1, ok=b1)),
                          typeof(b1), typeof(f1), typeof(i1), types.boolean, typeof(f1), typeof(i1))
 
 
@@ -376,17 +420,11 @@ NarrowWork = namedtuple("NarrowWork", ("perm", "start", "key", "ga", "gb", "st",
 Narrow = namedtuple("Narrow", ("body", "planes", "sboxes", "smat", "coef", "W", "A", "B", "slot", "out", "fams"))
 
 
-#: a group's slots as :func:`_emit` reads them (views of the ``slot``
-#: work arrays): normals ``n``, points ``p`` (k, S, 3), gaps ``g``, feature
-#: ids ``f``, flags ``ok`` (k, S)
-_Slots = namedtuple("_Slots", ("n", "p", "g", "f", "ok"))
-
-
 @njit(cache=True)
 def _emit(fam, k, neg, ga, gb, st, mg, S, mat_a, mat_b, coef, out, cnt):
     """Write the kept contacts (gap < the pair's margin mg) of a group's k
     pairs in the family's order (``BOUNDS``), from its slots ``S`` (a
-    ``_Slots``): bodies ga (k,), gb (k,) (or the world n with statics st
+    :class:`Slots` of views): bodies ga (k,), gb (k,) (or the world n with statics st
     (k,) >= 0), their materials mat_a, mat_b (k,) into the pair tables
     ``coef`` (e, mus, muk, mur); ``out`` (a :class:`ContactOut`) written
     from cnt on while there is room.  Returns the count after them."""
@@ -411,10 +449,10 @@ def _emit(fam, k, neg, ga, gb, st, mg, S, mat_a, mat_b, coef, out, cnt):
                     out.gap[cnt] = S_g[t, s]
                     out.fid[cnt] = S_f[t, s]
                     ma, mb = mat_a[t], mat_b[t]
-                    out.e[cnt] = coef[0][ma, mb]
-                    out.mus[cnt] = coef[1][ma, mb]
-                    out.muk[cnt] = coef[2][ma, mb]
-                    out.mur[cnt] = coef[3][ma, mb]
+                    out.e[cnt] = coef.e[ma, mb]
+                    out.mus[cnt] = coef.mus[ma, mb]
+                    out.muk[cnt] = coef.muk[ma, mb]
+                    out.mur[cnt] = coef.mur[ma, mb]
                 cnt += 1
     return cnt
 
@@ -453,12 +491,12 @@ def collide(k_, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep
     body, planes, sboxes, smat, coef, fams = k_.body, k_.planes, k_.sboxes, k_.smat, k_.coef, k_.fams
     W, A, B, slot, out = k_.W, k_.A, k_.B, k_.slot, k_.out
     mbb, mbp, mbs = margins
-    shape, radius, half, hlen, bmat = body
+    shape, radius, half, hlen, bmat = body.shape, body.radius, body.half, body.half_length, body.material
     perm, start, key, ga, gb, st, gm = W.perm, W.start, W.key, W.ga, W.gb, W.st, W.gm
     ma, mb, edge, se, capm1, fw, iw = W.ma, W.mb, W.edge, W.se, W.capm1, W.fw, W.iw
     n = shape.shape[0]
-    K = A[0].shape[0]
-    cap_slots = slot[2].shape[0]
+    K = A.c.shape[0]
+    cap_slots = slot.g.shape[0]
     need_k = 0
     need_s = 0
     cnt = np.int64(0)  # (typed, not Literal[int](0): _emit compiles once; engine/README.md "Compiled code and compile time")
@@ -508,35 +546,35 @@ def collide(k_, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep
                     ma[t], mb[t] = bmat[i], bmat[j]
                 elif part == 1:
                     ga[t], gb[t] = bp[p], n
-                    st[t] = planes[2][pk[p]]
+                    st[t] = planes.static[pk[p]]
                     gm[t] = mbp[p]
                     ma[t], mb[t] = bmat[bp[p]], smat[st[t]]
                 else:
                     ga[t], gb[t] = bs[p], n
-                    st[t] = sboxes[3][sk[p]]
+                    st[t] = sboxes.static[sk[p]]
                     gm[t] = mbs[p]
                     ma[t], mb[t] = bmat[bs[p]], smat[st[t]]
-            _gather_body(X, R, half, radius, hlen, ga[:k], A[0], A[1], A[2], A[3], A[4])
+            _gather_body(X, R, half, radius, hlen, ga[:k], A.c, A.R, A.h, A.r, A.hl)
             if part == 0:
-                _gather_body(X, R, half, radius, hlen, gb[:k], B[0], B[1], B[2], B[3], B[4])
+                _gather_body(X, R, half, radius, hlen, gb[:k], B.c, B.R, B.h, B.r, B.hl)
             elif part == 1:
                 for t in range(k):
                     row = pk[perm[lo + t]]
                     for i in range(3):
-                        B[0][t, i] = planes[0][row, i]
-                    B[3][t] = planes[1][row]
+                        B.c[t, i] = planes.normal[row, i]
+                    B.r[t] = planes.offset[row]
             else:
                 for t in range(k):
                     row = sk[perm[lo + t]]
                     for i in range(3):
-                        B[0][t, i] = sboxes[0][row, i]
-                        B[2][t, i] = sboxes[2][row, i]
+                        B.c[t, i] = sboxes.centre[row, i]
+                        B.h[t, i] = sboxes.half[row, i]
                         for l in range(3):
-                            B[1][t, i, l] = sboxes[1][row, i, l]
+                            B.R[t, i, l] = sboxes.R[row, i, l]
             neg = fams[fam](fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw)
-            views = _Slots(n=slot[0][:k * S * 3].reshape((k, S, 3)), p=slot[1][:k * S * 3].reshape((k, S, 3)),
-                           g=slot[2][:k * S].reshape((k, S)), f=slot[3][:k * S].reshape((k, S)),
-                           ok=slot[4][:k * S].reshape((k, S)))
+            views = Slots(n=slot.n[:k * S * 3].reshape((k, S, 3)), p=slot.p[:k * S * 3].reshape((k, S, 3)),
+                          g=slot.g[:k * S].reshape((k, S)), f=slot.f[:k * S].reshape((k, S)),
+                          ok=slot.ok[:k * S].reshape((k, S)))
             cnt = _emit(fam, k, neg, ga, gb, st, gm, views, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 

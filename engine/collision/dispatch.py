@@ -17,7 +17,8 @@ from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
-                                                ContactOut, Narrow, NarrowWork, collide_packed, families, family_table,
+                                                BodyShapes, BoxRows, ContactOut, Narrow, NarrowWork, PairTables,
+                                                PlaneRows, Side, Slots, collide_packed, families, family_table,
                                                 ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
@@ -58,13 +59,14 @@ class Collider:
         # writable copies: the kernel is compiled (and warmed) for writable
         # C-contiguous arrays, the model's are read-only
         f = lambda a, t=float: np.array(a, t)  # noqa: E731
-        self.body = (f(model.shape, np.int64), f(model.radius), f(model.half_extents), f(model.half_length),
-                     f(model.body_material, np.int64))
-        self.planes = (f(model.plane_normal).reshape(-1, 3), f(model.plane_offset), f(model.plane_static, np.int64))
-        self.sboxes = (f(model.sbox_pos).reshape(-1, 3), f(model.sbox_R).reshape(-1, 3, 3),
-                       f(model.sbox_half).reshape(-1, 3), f(model.sbox_static, np.int64))
+        self.body = BodyShapes(shape=f(model.shape, np.int64), radius=f(model.radius), half=f(model.half_extents),
+                               half_length=f(model.half_length), material=f(model.body_material, np.int64))
+        self.planes = PlaneRows(normal=f(model.plane_normal).reshape(-1, 3), offset=f(model.plane_offset),
+                                static=f(model.plane_static, np.int64))
+        self.sboxes = BoxRows(centre=f(model.sbox_pos).reshape(-1, 3), R=f(model.sbox_R).reshape(-1, 3, 3),
+                              half=f(model.sbox_half).reshape(-1, 3), static=f(model.sbox_static, np.int64))
         self.smat = f(model.static_material, np.int64)
-        self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
+        self.coef = PairTables(e=f(model.pair_e), mus=f(model.pair_mus), muk=f(model.pair_muk), mur=f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
         #: the families compiled for the driver (collide.families: the
         #: scene's shapes; the others raise, collide.family_table)
@@ -84,10 +86,10 @@ class Collider:
 
     def _group(self, k: int, slots: int) -> None:
         def side():
-            return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros(k)
+            return Side(c=np.zeros((k, 3)), R=np.zeros((k, 3, 3)), h=np.zeros((k, 3)), r=np.zeros(k), hl=np.zeros(k))
         self.A, self.B = side(), side()
-        self.slot = (np.zeros(3 * slots), np.zeros(3 * slots), np.zeros(slots), np.zeros(slots, np.int64),
-                     np.zeros(slots, np.bool_))
+        self.slot = Slots(n=np.zeros(3 * slots), p=np.zeros(3 * slots), g=np.zeros(slots), f=np.zeros(slots, np.int64),
+                          ok=np.zeros(slots, np.bool_))
 
     def _out(self, m: int) -> None:
         i = np.empty(m, np.int64)
@@ -134,7 +136,7 @@ class Collider:
             cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
                                                  sweep, box.EDGE_FACE_POINTS)
             short = False
-            if need_k > self.A[0].shape[0] or need_s > self.slot[2].shape[0]:
+            if need_k > self.A.c.shape[0] or need_s > self.slot.g.shape[0]:
                 self._group(2 * need_k, 2 * need_s)
                 short = True
             if cnt > self.out.a.shape[0]:
