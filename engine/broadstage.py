@@ -33,6 +33,7 @@ deterministic): ``ctx.pairs_i``/``pairs_j`` (i < j), ``ctx.plane_pairs``
 from __future__ import annotations
 
 from collections import namedtuple
+from operator import is_
 
 import numpy as np
 from numba import njit
@@ -41,6 +42,7 @@ from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_
 from physbench.engine.flight import q2m
 from physbench.engine.geometry import Pairs, Shapes, Statics, shapes_of, statics_of  # noqa: F401
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from physbench.engine.pack import KeptPack, Pack
 from physbench.engine.profile import Stage
 from physbench.engine.sap import _FALLBACK, SapBuffers, _sap_step
 
@@ -59,6 +61,11 @@ Motion = namedtuple("Motion", ("x0", "R0", "q1", "x1", "R1", "v0", "v1", "u", "w
 #: ``sk``: the fields of an engine.geometry.Pairs)
 BroadBuffers = namedtuple("BroadBuffers", ("lo", "hi", "sweep", "order", "state", "grid", "pi", "pj", "code", "bp",
                                            "pk", "bs", "sk"))
+
+#: the broad stage's kept arrays (:meth:`BroadPhase.kept`): the bodies'
+#: :class:`Shapes`, the :class:`Statics`, the end rotations ``R1`` (n, 3, 3)
+#: and the :class:`BroadBuffers`
+BroadArrays = namedtuple("BroadArrays", ("shapes", "statics", "R1", "buf"))
 
 #: the fused step's broad-phase pack (engine/steady.py): the bodies'
 #: :class:`Shapes`, the :class:`Statics`, the end rotations ``R1`` (n, 3,
@@ -177,6 +184,21 @@ def _broad_step(sap, shapes, statics, motion, buf, h, grow):
     return nbb, npl, nsb
 
 
+@njit(cache=True)
+def _broad_call(sap, kbroad, kb, u, h, grow):
+    """:func:`_broad_step` from Python with its arrays in two Packs (one
+    pointer each to unbox; named tuples handed from Python are typed off
+    numba's fast path): ``kbroad`` the stage's :class:`BroadArrays`, ``kb``
+    the (mini-)step's engine.state.StepArrays (the start pose and
+    velocities x, R0, v, w, the free flight's end x1, q1, V, W), ``u`` the
+    mean velocity (>= n, 3)."""
+    b = kbroad.items
+    s = kb.items
+    return _broad_step(sap, b.shapes, b.statics,
+                       Motion(x0=s.x, R0=s.R0, q1=s.q1, x1=s.x1, R1=b.R1, v0=s.v, v1=s.V, u=u, w0=s.w, w1=s.W),
+                       b.buf, h, grow)
+
+
 class BroadPhase(Stage):
     """Swept-box broad phase (see module doc): one compiled call per step
     (:func:`_broad_step`) into buffers kept between steps and grown
@@ -204,6 +226,8 @@ class BroadPhase(Stage):
         # for writable arrays, and the model's are read-only
         self.shapes = shapes_of(model)
         self.statics = statics_of(model)
+        self._buf = self._buf_key = None
+        self._kept = KeptPack()
 
     def _grow(self, npl: int, nsb: int) -> None:
         self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
@@ -211,20 +235,29 @@ class BroadPhase(Stage):
 
     def buffers(self, ctx) -> BroadBuffers:
         """The buffers :func:`_broad_step` writes (the sweep's into
-        ``ctx.sweep``), as they are now (a grown buffer is a new array)."""
+        ``ctx.sweep``), the same object while they are the same arrays (a
+        grown buffer is a new array)."""
         P = self.pairs
-        return BroadBuffers(lo=self.lo, hi=self.hi, sweep=ctx.sweep, order=P.order, state=P.state, grid=P.grid,
-                            pi=P.pi, pj=P.pj, code=P.code, bp=self.bp, pk=self.pk, bs=self.bs, sk=self.sk)
+        key = (ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+        if self._buf_key is None or not all(map(is_, key, self._buf_key)):
+            self._buf = BroadBuffers(lo=self.lo, hi=self.hi, sweep=ctx.sweep, order=P.order, state=P.state,
+                                     grid=P.grid, pi=P.pi, pj=P.pj, code=P.code, bp=self.bp, pk=self.pk, bs=self.bs,
+                                     sk=self.sk)
+            self._buf_key = key
+        return self._buf
+
+    def kept(self, ctx) -> Pack:
+        """:func:`_broad_call`'s ``kbroad``: the stage's arrays as one Pack,
+        kept while they stay."""
+        return self._kept.of(BroadArrays(shapes=self.shapes, statics=self.statics, R1=self.R1, buf=self.buffers(ctx)))
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
         P = self.pairs
         while True:
-            nbb, npl, nsb = _broad_step(self.sap, self.shapes, self.statics,
-                                        Motion(x0=state.x, R0=ctx.R0, q1=ctx.q1, x1=ctx.x1, R1=self.R1, v0=state.v,
-                                               v1=ctx.v, u=ctx.u_lin, w0=state.w, w1=ctx.w),
-                                        self.buffers(ctx), float(ctx.h), self.margin)
+            nbb, npl, nsb = _broad_call(self.sap, self.kept(ctx), ctx.kept(state), ctx.u_lin, float(ctx.h),
+                                        self.margin)
             short = [max(-c, 0) for c in (nbb, npl, nsb)]
             if nbb == _FALLBACK:
                 short[0] = 0
@@ -252,6 +285,8 @@ def warm_up(sap: bool = True) -> None:
     argument types of the step (writable C-contiguous float64 and int64
     arrays), on a tiny problem (see :mod:`engine.jit`): all pairs, and with
     ``sap`` the sweep's kernels and the general ``sap_pairs``' too."""
+    from physbench.engine.state import StepArrays
+
     n = 3
     z3, z = np.zeros((n, 3)), np.zeros(n)
     R = np.tile(np.eye(3), (n, 1, 1))
@@ -263,15 +298,19 @@ def warm_up(sap: bool = True) -> None:
             np.empty(n, np.int64))
     for flag in ((True,) if sap else (None,)):
         i1 = np.empty(1, np.int64)
-        _broad_step(flag, Shapes(shape=shape, radius=z + 0.1, half=z3 + 0.1, half_length=z, bound_radius=z + 0.2),
-                    Statics(planes_n=np.array([[0.0, 0.0, 1.0]]), planes_off=np.zeros(1), slo=z3[:1].copy(),
+        kbroad = Pack(BroadArrays(
+            shapes=Shapes(shape=shape, radius=z + 0.1, half=z3 + 0.1, half_length=z, bound_radius=z + 0.2),
+            statics=Statics(planes_n=np.array([[0.0, 0.0, 1.0]]), planes_off=np.zeros(1), slo=z3[:1].copy(),
                             shi=z3[:1].copy()),
-                    Motion(x0=z3, R0=R, q1=q, x1=z3, R1=R.copy(), v0=z3, v1=np.zeros((n + 1, 3)), u=z3, w0=z3,
-                           w1=np.zeros((n + 1, 3))),
-                    BroadBuffers(lo=lo, hi=hi, sweep=sw, order=np.arange(n, dtype=np.int64),
-                                 state=np.array([-1, 1], np.int64), grid=grid, pi=i1, pj=i1.copy(), code=i1.copy(),
-                                 bp=i1.copy(), pk=i1.copy(), bs=i1.copy(), sk=i1.copy()),
-                    0.01, 1e-4)
+            R1=R.copy(),
+            buf=BroadBuffers(lo=lo, hi=hi, sweep=sw, order=np.arange(n, dtype=np.int64),
+                             state=np.array([-1, 1], np.int64), grid=grid, pi=i1, pj=i1.copy(), code=i1.copy(),
+                             bp=i1.copy(), pk=i1.copy(), bs=i1.copy(), sk=i1.copy())))
+        v1 = np.zeros((n + 1, 3))
+        kb = Pack(StepArrays(x=z3, q=q, v=z3.copy(), w=z3.copy(), inv_I=z3 + 1.0, x1=z3.copy(), q1=q.copy(), V=v1,
+                             W=v1.copy(), F=z3.copy(), T=z3.copy(), vp=v1.copy(), wp=v1.copy(), R0=R,
+                             Iinv0=np.zeros((n + 1, 3, 3))))
+        _broad_call(flag, kbroad, kb, z3.copy(), 0.01, 1e-4)
     if not sap:
         return
     SapBuffers(n).run(lo, hi)

@@ -44,7 +44,7 @@ from physbench.engine.collision import collide_pairs
 from physbench.engine.collision.dispatch import static_row
 from physbench.engine.ccd_end import FeatureContacts, missed_candidates
 from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
-                             _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
+                             _geometry_kept, _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
 from physbench.engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
@@ -86,7 +86,7 @@ class CCD(Stage):
         Pack, the model's geometry, the rotations' buffer, the candidate
         flags, the gap's work rows, the reruns' stage list."""
         _collider(model, ctx).packed()
-        _geometry(model, ctx)
+        _geometry_kept(model, ctx)
         _rotations(ctx, state.q)
         _cand_buffer(ctx, 16)
         _gap_work(ctx, 8)

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from physbench.engine.flight import end_pose_pairs
-from physbench.engine.geometry import EndPose, Pairs, Shapes, Statics
+from physbench.engine.geometry import EndPose, Geometry, Pairs, Shapes, Statics
 
 SPHERE, BOX, CAPSULE, CYLINDER = 0, 1, 2, 3  # engine.model's shape codes
 
@@ -162,6 +162,19 @@ def end_pose_candidates(x0, q0, x1, q1, shapes, statics, lim, has_fast, fast, pa
     return end_pose_clear(x1, shapes, statics, lim, out, nb, npl, ns)
 
 
+@njit(cache=True)
+def end_pose_call(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout):
+    """:func:`end_pose_candidates` from Python (the CCD stage,
+    engine.ccd_kept.end_pose_pairs) with its kept arrays in Packs (one
+    pointer each to unbox; named tuples handed from Python are typed off
+    numba's fast path): ``kgeo`` of the model's geometry (``shapes``,
+    ``statics``: engine.ccd_kept.Geometry), ``kout`` of the buffers (an
+    engine.geometry.EndPose); the pairs one by one."""
+    g = kgeo.items
+    return end_pose_candidates(x0, q0, x1, q1, g.shapes, g.statics, lim, has_fast, fast,
+                               Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk), kout.items)
+
+
 #: contacts as :func:`missed_candidates` reads them: bodies ``a``, ``b``
 #: (m,) (b = n for statics), static index ``sidx`` (m,) (-1 for a body
 #: pair), ``gap`` (m,) m, ``point`` (m, 3) m, feature ids ``fid`` (m,)
@@ -291,8 +304,11 @@ def warm_up() -> None:
     e = np.empty(n, np.int64)
     out = EndPose(ci=e, cj=e.copy(), cbp=e.copy(), cpk=e.copy(), cbs=e.copy(), csk=e.copy(), sw=np.empty(n),
                   R1=np.empty((n, 3, 3)))
+    from physbench.engine.pack import Pack
+
+    kgeo = Pack(Geometry(shapes=shapes, statics=statics, static_shape=np.zeros(1, np.int64)))
     for has_fast in (False, True):
-        end_pose_candidates(x, q, x + 1.0, q.copy(), shapes, statics, 0.1, has_fast, np.ones(n, np.bool_), pairs, out)
+        end_pose_call(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_), *pairs, Pack(out))
     z = np.zeros(0, np.int64)
     missed_candidates(1, FeatureContacts(a=i[:1], b=i[1:], sidx=i[:1] - 1, gap=np.zeros(1), point=np.zeros((1, 3)),
                                          fid=i[:1]),

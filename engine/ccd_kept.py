@@ -7,14 +7,13 @@ rotations, the grouping of rows by pair code."""
 
 from __future__ import annotations
 
-from collections import namedtuple
-
 import numpy as np
 
 from physbench.engine import flight
-from physbench.engine.ccd_end import end_pose_candidates
+from physbench.engine.ccd_end import end_pose_call
 from physbench.engine.collision.dispatch import Collider, static_row
-from physbench.engine.geometry import Pairs, shapes_of, statics_of
+from physbench.engine.geometry import Geometry, shapes_of, statics_of
+from physbench.engine.pack import Pack
 from physbench.engine.model import BOX, S_BOX
 
 
@@ -58,23 +57,15 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    out = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
-    g = _geometry(model, ctx)
-    nb, npl, ns = end_pose_candidates(state.x, state.q, ctx.x1, ctx.q1, g.shapes, g.statics, lim, fast is not None,
-                                      _NO_FAST if fast is None else fast, Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk),
-                                      out)
+    out, kout = ctx.end_pose_kept(max(pi.size, bp.size, bs.size))
+    nb, npl, ns = end_pose_call(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
+                                _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, kout)
     if not nb + npl + ns:
         return None
     return (out.ci[:nb], out.cj[:nb]), (out.cbp[:npl], out.cpk[:npl]), (out.cbs[:ns], out.csk[:ns]), out.R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
-
-
-#: the model's geometry as the CCD stages' kernels read it: the bodies'
-#: engine.geometry.Shapes, the Statics and the static shape codes
-#: (n_statics,) int64
-Geometry = namedtuple("Geometry", ("shapes", "statics", "static_shape"))
 
 
 def _geometry(model, ctx) -> Geometry:
@@ -85,6 +76,15 @@ def _geometry(model, ctx) -> Geometry:
         g = ctx.info["ccd_geometry"] = Geometry(shapes=shapes_of(model), statics=statics_of(model),
                                                 static_shape=np.array(model.static_shape, np.int64))
     return g
+
+
+def _geometry_kept(model, ctx) -> Pack:
+    """:func:`_geometry` as one Pack (engine.ccd_end.end_pose_call), kept in
+    the context."""
+    k = ctx.info.get("ccd_geometry_kept")
+    if k is None:
+        k = ctx.info["ccd_geometry_kept"] = Pack(_geometry(model, ctx))
+    return k
 
 
 class _Groups:

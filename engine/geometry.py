@@ -18,6 +18,12 @@ Shapes = namedtuple("Shapes", ("shape", "radius", "half", "half_length", "bound_
 #: (k, 3) m)
 Statics = namedtuple("Statics", ("planes_n", "planes_off", "slo", "shi"))
 
+#: the model's geometry as the CCD stages' kernels read it
+#: (engine.ccd_kept._geometry): the bodies' :class:`Shapes`, the
+#: :class:`Statics` and the static shape codes ``static_shape``
+#: (n_statics,) int64
+Geometry = namedtuple("Geometry", ("shapes", "statics", "static_shape"))
+
 #: candidate pairs: bodies ``pi`` < ``pj``; (body ``bp``, plane row ``pk``);
 #: (body ``bs``, static-box row ``sk``), int64 each
 Pairs = namedtuple("Pairs", ("pi", "pj", "bp", "pk", "bs", "sk"))

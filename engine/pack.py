@@ -65,9 +65,11 @@ class KeptPack:
         self._items: tuple | None = None
         self._pack = None
 
-    def of(self, items: tuple) -> Pack:
+    def of(self, items: tuple, make=None) -> Pack:
+        """``make(*items)`` (default ``Pack(items)``) unless ``items`` are
+        the same objects as last time."""
         last = self._items
         if last is None or len(last) != len(items) or not all(map(is_, last, items)):
-            self._pack = Pack(items)
+            self._pack = Pack(items) if make is None else make(*items)
             self._items = items
         return self._pack

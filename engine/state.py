@@ -174,6 +174,7 @@ class Context:
         #: moved pairs i, j, body-plane, body-static-box pairs (int64), end
         #: displacements (n,), end rotations (n, 3, 3)), grown geometrically
         self._end_pose = self._end_pose_buffers(n, 2 * n + 16)
+        self._end_pose_pack = KeptPack()
         #: no sweep (n,) zeros: a margin that is the same for every pair
         self.no_sweep = np.zeros(n)
         #: the contact solve's work arrays (grown geometrically, kept)
@@ -192,6 +193,12 @@ class Context:
         if buf.ci.shape[0] < m:
             buf = self._end_pose = self._end_pose_buffers(buf.sw.shape[0], max(m, 2 * buf.ci.shape[0]))
         return buf
+
+    def end_pose_kept(self, m: int) -> tuple:
+        """(:meth:`end_pose_buffers`, the same as one Pack, kept while they
+        stay)."""
+        buf = self.end_pose_buffers(m)
+        return buf, self._end_pose_pack.of(buf)
 
     def kept(self, state: State) -> Pack:
         """The arrays of a (mini-)step's start and commit as one Pack (see

@@ -18,7 +18,7 @@ from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
                                                 BodyShapes, BoxRows, ContactOut, Narrow, NarrowWork, PairTables,
-                                                PlaneRows, Side, Slots, collide_packed, families, family_table,
+                                                PlaneRows, Side, Slots, collide_packed, narrow_pack, families, family_table,
                                                 ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
@@ -101,7 +101,7 @@ class Collider:
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
         return self._kept.of(Narrow(body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
                                     coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
-                                    fams=family_table(self.fams)))
+                                    fams=family_table(self.fams)), narrow_pack)
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``

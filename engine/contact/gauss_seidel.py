@@ -343,7 +343,7 @@ def iterate(U, rows, f, friction, iterations, tol, world, wk):
     Returns (sweeps done, the last sweep's largest change relative to the
     largest normal impulse)."""
     ab, J, M, mn, lam_n, target = rows.ab, rows.J, rows.M, rows.mn, rows.lam, rows.target
-    lam_t = f.lam_t
+    pab, pid, Mt, lam_t, mu, rt, mur = f.pab, f.pid, f.Mt, f.lam_t, f.mu, f.rt, f.mur
     m = lam_n.shape[0]
     npch = lam_t.shape[0]
     nr = lam_t.shape[1]
