@@ -249,7 +249,9 @@ class BroadPhase(Stage):
     def kept(self, ctx) -> Pack:
         """:func:`_broad_call`'s ``kbroad``: the stage's arrays as one Pack,
         kept while they stay."""
-        return self._kept.of(BroadArrays(shapes=self.shapes, statics=self.statics, R1=self.R1, buf=self.buffers(ctx)))
+        buf = self.buffers(ctx)
+        return self._kept.of((self.shapes, self.statics, self.R1, buf), lambda: Pack(BroadArrays(
+            shapes=self.shapes, statics=self.statics, R1=self.R1, buf=buf)))
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:

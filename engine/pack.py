@@ -66,10 +66,13 @@ class KeptPack:
         self._pack = None
 
     def of(self, items: tuple, make=None) -> Pack:
-        """``make(*items)`` (default ``Pack(items)``) unless ``items`` are
-        the same objects as last time."""
+        """The Pack made last time when ``items`` (what it holds) are the
+        same objects as then, else a new one: ``make()`` (a Pack of a
+        named tuple of ``items``, built only then: a named tuple costs more
+        to build in Python than the identity test), default
+        ``Pack(items)``."""
         last = self._items
         if last is None or len(last) != len(items) or not all(map(is_, last, items)):
-            self._pack = Pack(items) if make is None else make(*items)
+            self._pack = Pack(items) if make is None else make()
             self._items = items
         return self._pack

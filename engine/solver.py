@@ -154,6 +154,9 @@ class Solve(Stage):
         self._fast = None
         self._kx = KeptPack()
         self._kk = KeptPack()
+        #: the settings phases.solve_stage reads (:meth:`_settings`), kept
+        #: while the policy constants they hold stay
+        self._settings_key = self._settings_nt = None
         #: band storage (floats) of the sparse direct start's work array
         #: (grown by :meth:`_grow_band`)
         self._band = 0
@@ -288,31 +291,39 @@ class Solve(Stage):
         """The pose and velocities as one Pack (see phases.solve_stage),
         kept while the arrays are the same objects (the context's, every
         step)."""
-        return self._kc.of(Pose(X=state.x, Iinv=ctx.Iinv0, R0=ctx.R0, V=ctx.v, W=ctx.w, V0=state.v, W0=state.w,
-                                Vp=ctx.vp, Wp=ctx.wp, inv_mass=model.inv_mass, bound_radius=model.bound_radius))
+        return self._kc.of((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp, model.inv_mass,
+                            model.bound_radius), lambda: Pack(Pose(
+                                X=state.x, Iinv=ctx.Iinv0, R0=ctx.R0, V=ctx.v, W=ctx.w, V0=state.v, W0=state.w,
+                                Vp=ctx.vp, Wp=ctx.wp, inv_mass=model.inv_mass, bound_radius=model.bound_radius)))
 
     def _contacts(self, c: Contacts) -> Pack:
         """The contacts' arrays read by phases.classify_stage as one Pack,
         kept while they are the same arrays (the narrow phase hands out the
         same Contacts while its count and buffers stay)."""
-        return self._kk.of(ContactArrays(a=c.a, b=c.b, sidx=c.sidx, point=c.point, normal=c.normal, gap=c.gap, e=c.e))
+        return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e), lambda: Pack(ContactArrays(
+            a=c.a, b=c.b, sidx=c.sidx, point=c.point, normal=c.normal, gap=c.gap, e=c.e)))
 
     def _classified(self, ctx, cl) -> Pack:
         """The classification's views ``cl`` and the free flight's mean
         velocities as one Pack (phases.classify_stage's ``kx``), kept while
         they are the same arrays."""
         vn, touching, impact, codes = cl
-        return self._kx.of(Classified(UL=ctx.u_lin, UA=ctx.u_ang, vn=vn, touching=touching, impact=impact,
-                                      codes=codes))
+        return self._kx.of((ctx.u_lin, ctx.u_ang, vn, touching, impact, codes), lambda: Pack(Classified(
+            UL=ctx.u_lin, UA=ctx.u_ang, vn=vn, touching=touching, impact=impact, codes=codes)))
 
     def _settings(self, model) -> Settings:
         """The solve's settings as phases.solve_stage reads them (the
         policy constants read at each call)."""
         f = self.friction
-        return Settings(n_statics=model.n_statics, lever=self.c, thr=self.thr, beta=self.beta, slop=self.slop,
-                        friction=f, rolling=f and bool(model.rolling), direct=self.direct, resting=RESTING_SPEED,
-                        max_rows=DIRECT_MAX_ROWS, passes=ACTIVE_SET_PASSES, slip_tol=SLIP_TOL,
-                        iterations=self.iterations, relax_on=self.correction != "none")
+        key = (model.n_statics, bool(model.rolling), RESTING_SPEED, DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, SLIP_TOL)
+        if key != self._settings_key:
+            self._settings_nt = Settings(
+                n_statics=model.n_statics, lever=self.c, thr=self.thr, beta=self.beta, slop=self.slop, friction=f,
+                rolling=f and bool(model.rolling), direct=self.direct, resting=RESTING_SPEED, max_rows=DIRECT_MAX_ROWS,
+                passes=ACTIVE_SET_PASSES, slip_tol=SLIP_TOL, iterations=self.iterations,
+                relax_on=self.correction != "none")
+            self._settings_key = key
+        return self._settings_nt
 
     def _fast_path(self, model, state, ctx, c, cl, h, sc, store_on):
         """The steady step's whole stage as ONE compiled call

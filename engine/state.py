@@ -206,9 +206,11 @@ class Context:
         and the context's x1, q1, v, w, F, T, vp, wp, R0, Iinv0; kept while
         the state's arrays are the same objects (the context's never
         change)."""
-        return self._kept.of(StepArrays(x=state.x, q=state.q, v=state.v, w=state.w, inv_I=self._inv_I, x1=self.x1,
-                                        q1=self.q1, V=self.v, W=self.w, F=self.F, T=self.T, vp=self.vp, wp=self.wp,
-                                        R0=self.R0, Iinv0=self.Iinv0))
+        return self._kept.of((state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w,
+                              self.F, self.T, self.vp, self.wp, self.R0, self.Iinv0), lambda: Pack(StepArrays(
+                                  x=state.x, q=state.q, v=state.v, w=state.w, inv_I=self._inv_I, x1=self.x1,
+                                  q1=self.q1, V=self.v, W=self.w, F=self.F, T=self.T, vp=self.vp, wp=self.wp,
+                                  R0=self.R0, Iinv0=self.Iinv0)))
 
     def commit(self, state: State) -> None:
         """The state's pose and velocities set to the candidate end state

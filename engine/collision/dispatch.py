@@ -99,9 +99,12 @@ class Collider:
 
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
-        return self._kept.of(Narrow(body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
-                                    coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
-                                    fams=family_table(self.fams)), narrow_pack)
+        fams = family_table(self.fams)
+        return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
+                              self.slot, self.out, fams), lambda: narrow_pack(
+                                  body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
+                                  coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
+                                  fams=fams))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
