@@ -32,14 +32,48 @@ deterministic): ``ctx.pairs_i``/``pairs_j`` (i < j), ``ctx.plane_pairs``
 
 from __future__ import annotations
 
+from collections import namedtuple
+from operator import is_
+
 import numpy as np
 from numba import njit
 
 from physbench.engine.broadphase import PairBuffer, _brute_kernel, _emit, _grid_pairs, _sweep_pairs, sap_pairs
 from physbench.engine.flight import q2m
+from physbench.engine.geometry import Pairs, Shapes, Statics, shapes_of, statics_of  # noqa: F401
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from physbench.engine.pack import KeptPack, Pack
 from physbench.engine.profile import Stage
 from physbench.engine.sap import _FALLBACK, SapBuffers, _sap_step
+
+
+#: what the broad phase reads of a step's motion: the start pose ``x0`` (n,
+#: 3) m, ``R0`` (n, 3, 3), the free-flight end pose ``q1`` (n, 4), ``x1``
+#: (n, 3) and its rotations ``R1`` (n, 3, 3) (written), the start and end
+#: velocities ``v0``, ``v1``, ``w0``, ``w1`` (>= n, 3) and the mean
+#: velocity ``u`` (>= n, 3)
+Motion = namedtuple("Motion", ("x0", "R0", "q1", "x1", "R1", "v0", "v1", "u", "w0", "w1"))
+
+#: the broad phase's buffers, kept between steps: the swept boxes ``lo``,
+#: ``hi`` (n, 3), ``sweep`` (n,) m, the sweep's kept sort ``order`` (n,),
+#: ``state`` and ``grid`` (engine.sap.SapBuffers), and the pairs written
+#: (``pi``, ``pj``, their sweep codes ``code``, ``bp``, ``pk``, ``bs``,
+#: ``sk``: the fields of an engine.geometry.Pairs)
+BroadBuffers = namedtuple("BroadBuffers", ("lo", "hi", "sweep", "order", "state", "grid", "pi", "pj", "code", "bp",
+                                           "pk", "bs", "sk"))
+
+#: the broad stage's kept arrays (:meth:`BroadPhase.kept`): the bodies'
+#: :class:`Shapes`, the :class:`Statics`, the end rotations ``R1`` (n, 3, 3)
+#: and the :class:`BroadBuffers`
+BroadArrays = namedtuple("BroadArrays", ("shapes", "statics", "R1", "buf"))
+
+#: the fused step's broad-phase pack (engine/fused/steady.py): the bodies'
+#: :class:`Shapes`, the :class:`Statics`, the end rotations ``R1`` (n, 3,
+#: 3), the :class:`BroadBuffers`, the narrow phase's ``margins`` and
+#: ``no_sweep`` (n,), the CCD stage's ``fast`` flags and ``fast_min`` (n,)
+#: and its end-pose buffers ``end`` (an engine.ccd_end.EndPose)
+FusedBroad = namedtuple("FusedBroad", ("shapes", "statics", "R1", "buf", "margins", "no_sweep", "fast", "fast_min",
+                                       "end"))
 
 
 #: below this many bodies ``sap`` tests all pairs instead: the same pairs in
@@ -63,14 +97,18 @@ def _extent_axis(shape, r, half, hl, R, i):
 
 
 @njit(cache=True)
-def _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
-                 lo, hi, sweep):
-    """Per body: the union of its boxes at the start (x0, R0) and the
+def _swept_boxes(shapes, motion, h, grow, lo, hi, sweep):
+    """Per body (``shapes`` the bodies' :class:`Shapes`, ``motion`` a
+    :class:`Motion`): the union of its boxes at the start (x0, R0) and the
     free-flight end pose (x1, R1), grown by ``grow``, into lo, hi (n, 3);
     and ``sweep`` (n,): h (max speed + max angular speed * bounding radius)
     over the start (v0, w0) and end (v1, w1) velocities and the mean
     velocity u (all (>= n, 3)).  Allocates nothing
     (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    shape, radius, half, half_length, bound_radius = (shapes.shape, shapes.radius, shapes.half, shapes.half_length,
+                                                      shapes.bound_radius)
+    x0, R0, x1, R1, v0, v1, u, w0, w1 = (motion.x0, motion.R0, motion.x1, motion.R1, motion.v0, motion.v1, motion.u,
+                                         motion.w0, motion.w1)
     for k in range(x0.shape[0]):
         for i in range(3):
             e0 = _extent_axis(shape[k], radius[k], half[k], half_length[k], R0[k], i)
@@ -117,29 +155,48 @@ def _box_pairs_kernel(lo, hi, slo, shi, out_b, out_p):
 
 
 @njit(cache=True)
-def _broad_step(sap, shape, radius, half, half_length, bound_radius, x0, R0, q1, x1, R1, v0, v1, u, w0, w1, h, grow,
-                planes_n, planes_off, slo, shi, lo, hi, sweep, order, state, grid, pi, pj, code, bp, pk, bs, sk):
-    """The whole broad phase in one call: the end rotations R1 of q1, the
-    swept boxes lo, hi and ``sweep`` (:func:`_swept_boxes`), the body-body
-    pairs (``sap``: :func:`_sap_step`, else every pair,
+def _broad_step(sap, shapes, statics, motion, buf, h, grow):
+    """The whole broad phase in one call: the end rotations ``motion.R1``
+    of ``motion.q1``, the swept boxes lo, hi and ``sweep``
+    (:func:`_swept_boxes`, grown by ``grow`` m, over a step of ``h`` s),
+    the body-body pairs (``sap``: :func:`_sap_step`, else every pair,
     :func:`_brute_kernel`), the body-plane and body-static-box pairs, into
-    the caller's buffers.  Returns their three counts (minus the need where
-    a buffer was short; ``_FALLBACK`` for the body-body pairs to be found
-    by :func:`sap_pairs`)."""
-    q2m(q1, R1)
-    _swept_boxes(shape, radius, half, half_length, bound_radius, x0, R0, x1, R1, v0, v1, u, w0, w1, h, grow,
-                 lo, hi, sweep)
+    the buffers ``buf`` (a :class:`BroadBuffers`); ``shapes`` the bodies'
+    :class:`Shapes`, ``statics`` the :class:`Statics`, ``motion`` a
+    :class:`Motion`.  Returns their three counts (minus the need where a
+    buffer was short; ``_FALLBACK`` for the body-body pairs to be found by
+    :func:`sap_pairs`)."""
+    m = motion
+    lo, hi, pi, pj = buf.lo, buf.hi, buf.pi, buf.pj
+    q2m(m.q1, m.R1)
+    _swept_boxes(shapes, m, h, grow, lo, hi, buf.sweep)
     nbb = 0
     if lo.shape[0] >= 2:
         if sap is not None:
-            nbb = _sap_step(lo, hi, order, state, pi, pj, code, grid)
+            nbb = _sap_step(lo, hi, buf.order, buf.state, pi, pj, buf.code, buf.grid)
             if nbb > pi.shape[0]:
                 nbb = -nbb
         else:
             nbb = _brute_kernel(lo, hi, pi, pj)
-    npl = _plane_pairs_kernel(lo, hi, planes_n, planes_off, grow, bp, pk) if planes_n.shape[0] else 0
-    nsb = _box_pairs_kernel(lo, hi, slo, shi, bs, sk) if slo.shape[0] else 0
+    planes_n, slo = statics.planes_n, statics.slo
+    npl = _plane_pairs_kernel(lo, hi, planes_n, statics.planes_off, grow, buf.bp, buf.pk) if planes_n.shape[0] else 0
+    nsb = _box_pairs_kernel(lo, hi, slo, statics.shi, buf.bs, buf.sk) if slo.shape[0] else 0
     return nbb, npl, nsb
+
+
+@njit(cache=True)
+def _broad_call(sap, kbroad, kb, u, h, grow):
+    """:func:`_broad_step` from Python with its arrays in two Packs (one
+    pointer each to unbox; named tuples handed from Python are typed off
+    numba's fast path): ``kbroad`` the stage's :class:`BroadArrays`, ``kb``
+    the (mini-)step's engine.state.StepArrays (the start pose and
+    velocities x, R0, v, w, the free flight's end x1, q1, V, W), ``u`` the
+    mean velocity (>= n, 3)."""
+    b = kbroad.items
+    s = kb.items
+    return _broad_step(sap, b.shapes, b.statics,
+                       Motion(x0=s.x, R0=s.R0, q1=s.q1, x1=s.x1, R1=b.R1, v0=s.v, v1=s.V, u=u, w0=s.w, w1=s.W),
+                       b.buf, h, grow)
 
 
 class BroadPhase(Stage):
@@ -167,25 +224,42 @@ class BroadPhase(Stage):
         self._grow(2 * n + 16, 2 * n + 16)
         # writable copies: the kernels are compiled (and warmed, warm_up)
         # for writable arrays, and the model's are read-only
-        self.shape = np.array(model.shape, np.int64)
-        self.geom = tuple(np.array(a, float) for a in (model.radius, model.half_extents, model.half_length,
-                                                       model.bound_radius))
-        self.planes = (np.array(model.plane_normal, float).reshape(-1, 3), np.array(model.plane_offset, float))
-        self.sbox = (np.array(model.sbox_aabb_lo, float).reshape(-1, 3), np.array(model.sbox_aabb_hi, float).reshape(-1, 3))
+        self.shapes = shapes_of(model)
+        self.statics = statics_of(model)
+        self._buf = self._buf_key = None
+        self._kept = KeptPack()
 
     def _grow(self, npl: int, nsb: int) -> None:
         self.bp, self.pk = np.empty(npl, np.int64), np.empty(npl, np.int64)
         self.bs, self.sk = np.empty(nsb, np.int64), np.empty(nsb, np.int64)
+
+    def buffers(self, ctx) -> BroadBuffers:
+        """The buffers :func:`_broad_step` writes (the sweep's into
+        ``ctx.sweep``), the same object while they are the same arrays (a
+        grown buffer is a new array)."""
+        P = self.pairs
+        key = (ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+        if self._buf_key is None or not all(map(is_, key, self._buf_key)):
+            self._buf = BroadBuffers(lo=self.lo, hi=self.hi, sweep=ctx.sweep, order=P.order, state=P.state,
+                                     grid=P.grid, pi=P.pi, pj=P.pj, code=P.code, bp=self.bp, pk=self.pk, bs=self.bs,
+                                     sk=self.sk)
+            self._buf_key = key
+        return self._buf
+
+    def kept(self, ctx) -> Pack:
+        """:func:`_broad_call`'s ``kbroad``: the stage's arrays as one Pack,
+        kept while they stay."""
+        buf = self.buffers(ctx)
+        return self._kept.of((self.shapes, self.statics, self.R1, buf), lambda: Pack(BroadArrays(
+            shapes=self.shapes, statics=self.statics, R1=self.R1, buf=buf)))
 
     def __call__(self, model, state, ctx) -> None:
         if ctx.reuse_contacts:
             return
         P = self.pairs
         while True:
-            nbb, npl, nsb = _broad_step(self.sap, self.shape, *self.geom, state.x, ctx.R0, ctx.q1, ctx.x1, self.R1,
-                                        state.v, ctx.v, ctx.u_lin, state.w, ctx.w, float(ctx.h), self.margin,
-                                        *self.planes, *self.sbox, self.lo, self.hi, ctx.sweep, P.order, P.state,
-                                        P.grid, P.pi, P.pj, P.code, self.bp, self.pk, self.bs, self.sk)
+            nbb, npl, nsb = _broad_call(self.sap, self.kept(ctx), ctx.kept(state), ctx.u_lin, float(ctx.h),
+                                        self.margin)
             short = [max(-c, 0) for c in (nbb, npl, nsb)]
             if nbb == _FALLBACK:
                 short[0] = 0
@@ -213,6 +287,8 @@ def warm_up(sap: bool = True) -> None:
     argument types of the step (writable C-contiguous float64 and int64
     arrays), on a tiny problem (see :mod:`engine.jit`): all pairs, and with
     ``sap`` the sweep's kernels and the general ``sap_pairs``' too."""
+    from physbench.engine.state import StepArrays
+
     n = 3
     z3, z = np.zeros((n, 3)), np.zeros(n)
     R = np.tile(np.eye(3), (n, 1, 1))
@@ -224,10 +300,19 @@ def warm_up(sap: bool = True) -> None:
             np.empty(n, np.int64))
     for flag in ((True,) if sap else (None,)):
         i1 = np.empty(1, np.int64)
-        _broad_step(flag, shape, z + 0.1, z3 + 0.1, z, z + 0.2, z3, R, q, z3, R.copy(), z3, np.zeros((n + 1, 3)), z3,
-                    z3, np.zeros((n + 1, 3)), 0.01, 1e-4, np.array([[0.0, 0.0, 1.0]]), np.zeros(1), z3[:1].copy(),
-                    z3[:1].copy(), lo, hi, sw, np.arange(n, dtype=np.int64), np.array([-1, 1], np.int64), grid, i1,
-                    i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy(), i1.copy())
+        kbroad = Pack(BroadArrays(
+            shapes=Shapes(shape=shape, radius=z + 0.1, half=z3 + 0.1, half_length=z, bound_radius=z + 0.2),
+            statics=Statics(planes_n=np.array([[0.0, 0.0, 1.0]]), planes_off=np.zeros(1), slo=z3[:1].copy(),
+                            shi=z3[:1].copy()),
+            R1=R.copy(),
+            buf=BroadBuffers(lo=lo, hi=hi, sweep=sw, order=np.arange(n, dtype=np.int64),
+                             state=np.array([-1, 1], np.int64), grid=grid, pi=i1, pj=i1.copy(), code=i1.copy(),
+                             bp=i1.copy(), pk=i1.copy(), bs=i1.copy(), sk=i1.copy())))
+        v1 = np.zeros((n + 1, 3))
+        kb = Pack(StepArrays(x=z3, q=q, v=z3.copy(), w=z3.copy(), inv_I=z3 + 1.0, x1=z3.copy(), q1=q.copy(), V=v1,
+                             W=v1.copy(), F=z3.copy(), T=z3.copy(), vp=v1.copy(), wp=v1.copy(), R0=R,
+                             Iinv0=np.zeros((n + 1, 3, 3))))
+        _broad_call(flag, kbroad, kb, z3.copy(), 0.01, 1e-4)
     if not sap:
         return
     SapBuffers(n).run(lo, hi)

@@ -42,9 +42,9 @@ import numpy as np
 from physbench.engine import flight
 from physbench.engine.collision import collide_pairs
 from physbench.engine.collision.dispatch import static_row
-from physbench.engine.ccd_end import missed_candidates
+from physbench.engine.ccd_end import FeatureContacts, missed_candidates
 from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
-                             _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
+                             _geometry_kept, _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
 from physbench.engine.ccd_gap import NO_FID, NO_P3, gap as _gap
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
@@ -86,7 +86,7 @@ class CCD(Stage):
         Pack, the model's geometry, the rotations' buffer, the candidate
         flags, the gap's work rows, the reruns' stage list."""
         _collider(model, ctx).packed()
-        _geometry(model, ctx)
+        _geometry_kept(model, ctx)
         _rotations(ctx, state.q)
         _cand_buffer(ctx, 16)
         _gap_work(ctx, 8)
@@ -194,10 +194,12 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     cand = _cand_buffer(ctx, c.m)
     g = _geometry(model, ctx)
     k0 = c0 if has0 else _NO_CONTACTS
-    if not missed_candidates(model.n, model.n_statics, c.a, c.b, c.sidx, c.gap, c.point, c.fid, k0.a, k0.b, k0.sidx,
-                             k0.gap, k0.point, k0.fid, ctx.impacts.rows if ctx.impacts is not None else _NO_I,
-                             np.asarray(skip, np.int64), _drop_codes(ctx), ctx.x1, R1, state.x, ctx.R0, g[4], g[0],
-                             g[9], TOUCH_TOL, lim, cand):
+    if not missed_candidates(model.n_statics,
+                             FeatureContacts(a=c.a, b=c.b, sidx=c.sidx, gap=c.gap, point=c.point, fid=c.fid),
+                             FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
+                             ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),
+                             _drop_codes(ctx), ctx.x1, R1, state.x, ctx.R0, g.shapes, g.static_shape, TOUCH_TOL, lim,
+                             cand):
         return []
     code = _pair_codes(model, c)
     cand_codes = set(code[cand[:c.m]].tolist())

@@ -13,18 +13,20 @@ move by more than lim a step (so :func:`engine.flight.end_pose_pairs`
 keeps them), but they end resting within the slop.  Leaving such pairs
 out leaves the collision's contacts, and so every decision made from
 them, unchanged (the same bits), and lets the steady step
-(engine/steady.py) finish the step itself instead of returning to the
+(engine/fused/steady.py) finish the step itself instead of returning to the
 Python CCD stage to find nothing.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 from physbench.engine.flight import end_pose_pairs
+from physbench.engine.geometry import EndPose, Geometry, Pairs, Shapes, Statics
 
 SPHERE, BOX, CAPSULE, CYLINDER = 0, 1, 2, 3  # engine.model's shape codes
 
@@ -60,12 +62,13 @@ def _plane_depth(s, r, hx, hy, hz, hl, R, k, n0, n1, n2):
 
 
 @njit(cache=True)
-def end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi, lim, ci, cj,
-                   nb, cbp, cpk, npl, cbs, csk, ns):
+def end_pose_clear(x1, shapes, statics, lim, out, nb, npl, ns):
     """Leave out, in place and keeping the order, the moved pairs (the
-    front ``nb`` of ``ci``/``cj``, ``npl`` of ``cbp``/``cpk``, ``ns`` of
-    ``cbs``/``csk``, :func:`engine.flight.end_pose_pairs`) whose end pose
-    (x1 (n, 3), R1 (n, 3, 3)) provably has no contact with a gap below
+    front ``nb`` of ``out.ci``/``cj``, ``npl`` of ``cbp``/``cpk``, ``ns`` of
+    ``cbs``/``csk``, :func:`engine.flight.end_pose_pairs`; ``out`` an
+    engine.geometry.EndPose) whose end pose (x1 (n, 3), ``out.R1`` (n, 3,
+    3); the bodies' engine.geometry.Shapes ``shapes``, the Statics
+    ``statics``) provably has no contact with a gap below
     -``lim`` (m): a lower bound of every contact's gap lies above -lim by
     more than ``CLEAR_TOL`` (+ ``CLEAR_REL`` of the coordinates).  Returns
     the counts left (body pairs, planes, static boxes).
@@ -85,6 +88,10 @@ def end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, plane
       AABB (``slo``/``shi`` (k, 3)) minus the radius (0 inside it);
     * any other pair is kept (box against box and the cylinder pairs: a
       clipped manifold or an approximate distance, no such bound)."""
+    shape, radius, half, half_length, bound_radius = (shapes.shape, shapes.radius, shapes.half, shapes.half_length,
+                                                      shapes.bound_radius)
+    planes_n, planes_off, slo, shi = statics.planes_n, statics.planes_off, statics.slo, statics.shi
+    ci, cj, cbp, cpk, cbs, csk, R1 = out.ci, out.cj, out.cbp, out.cpk, out.cbs, out.csk, out.R1
     thr = -lim + CLEAR_TOL
     m = 0
     for k in range(nb):
@@ -136,21 +143,42 @@ def end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, plane
 
 
 @njit(cache=True)
-def end_pose_candidates(x0, q0, x1, q1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi,
-                        lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk, cbs, csk, R1):
-    """:func:`engine.flight.end_pose_pairs` (the pairs that moved by more
-    than ``lim``, into the front of ``ci`` ... ``csk``; R1 (n, 3, 3) the
-    rotations of q1 when any did), then :func:`end_pose_clear` over them:
-    the counts of the pairs whose end pose may hold a missed impact (body
-    pairs, planes, static boxes).  One call (the steady step's and the CCD
-    stage's, engine/ccd.py ``end_pose_pairs``)."""
-    nb, npl, ns = end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj,
-                                 cbp, cpk, cbs, csk, R1)
+def end_pose_candidates(x0, q0, x1, q1, shapes, statics, lim, has_fast, fast, pairs, out):
+    """:func:`engine.flight.end_pose_pairs` (the candidate ``pairs``, an
+    engine.geometry.Pairs, that moved by more than ``lim`` m between the
+    start pose x0 (n, 3), q0 (n, 4) and the end pose x1, q1 -- with
+    ``has_fast`` only those of a body flagged in ``fast`` (n,) --, into the
+    front of ``out.ci`` ... ``csk``, ``out`` an engine.geometry.EndPose;
+    ``out.R1`` (n, 3, 3) the rotations of q1 when any did), then
+    :func:`end_pose_clear` over them: the counts of the pairs whose end pose
+    may hold a missed impact (body pairs, planes, static boxes).  One call
+    (the steady step's and the CCD stage's, engine/ccd.py
+    ``end_pose_pairs``)."""
+    o, p = out, pairs
+    nb, npl, ns = end_pose_pairs(x0, q0, x1, q1, shapes.bound_radius, lim, has_fast, fast, p.pi, p.pj, p.bp, p.pk,
+                                 p.bs, p.sk, o.sw, o.ci, o.cj, o.cbp, o.cpk, o.cbs, o.csk, o.R1)
     if nb + npl + ns == 0:
         return 0, 0, 0
-    return end_pose_clear(x1, R1, shape, radius, half, half_length, bound_radius, planes_n, planes_off, slo, shi, lim,
-                          ci, cj, nb, cbp, cpk, npl, cbs, csk, ns)
+    return end_pose_clear(x1, shapes, statics, lim, out, nb, npl, ns)
 
+
+@njit(cache=True)
+def end_pose_call(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout):
+    """:func:`end_pose_candidates` from Python (the CCD stage,
+    engine.ccd_kept.end_pose_pairs) with its kept arrays in Packs (one
+    pointer each to unbox; named tuples handed from Python are typed off
+    numba's fast path): ``kgeo`` of the model's geometry (``shapes``,
+    ``statics``: engine.ccd_kept.Geometry), ``kout`` of the buffers (an
+    engine.geometry.EndPose); the pairs one by one."""
+    g = kgeo.items
+    return end_pose_candidates(x0, q0, x1, q1, g.shapes, g.statics, lim, has_fast, fast,
+                               Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk), kout.items)
+
+
+#: contacts as :func:`missed_candidates` reads them: bodies ``a``, ``b``
+#: (m,) (b = n for statics), static index ``sidx`` (m,) (-1 for a body
+#: pair), ``gap`` (m,) m, ``point`` (m, 3) m, feature ids ``fid`` (m,)
+FeatureContacts = namedtuple("FeatureContacts", ("a", "b", "sidx", "gap", "point", "fid"))
 
 #: relative slack of the matching radius in :func:`missed_candidates`: a
 #: point within (1 - NEAR_SLACK) of it is near for sure; one at the radius
@@ -159,16 +187,17 @@ NEAR_SLACK = 1e-9
 
 
 @njit(cache=True)
-def missed_candidates(n, n_statics, a, b, sidx, gap, point, fid, a0, b0, sidx0, gap0, point0, fid0, imp_rows, skip,
-                      drop, x1, R1, x0, R0, bound_radius, shape, static_shape, touch_tol, lim, cand):
-    """Which end-pose contacts (a, b, sidx, gap, fid (m,), point (m, 3):
-    the collision at the margin -lim of the moved pairs) may make their
-    pair a missed impact (engine.ccd.missed_impacts' rule): ``cand`` (>= m,)
-    bool set True on them; returns how many.  The start contacts a0 ...
-    fid0 (m0,) (the step's); ``imp_rows`` their impact rows; ``skip`` the
+def missed_candidates(n_statics, end, start, imp_rows, skip, drop, x1, R1, x0, R0, shapes, static_shape, touch_tol,
+                      lim, cand):
+    """Which end-pose contacts (``end``, a :class:`FeatureContacts`: the
+    collision at the margin -lim of the moved pairs) may make their pair a
+    missed impact (engine.ccd.missed_impacts' rule): ``cand`` (>= m,) bool
+    set True on them; returns how many.  The start contacts ``start`` (m0
+    of them: the step's); ``imp_rows`` their impact rows; ``skip`` the
     pair codes that are impacts already, ``drop`` those left out
     (``ctx.missed_skip``); the start and end poses x0, R0, x1, R1; the
-    model's ``bound_radius``, ``shape`` (n,), ``static_shape``.
+    bodies' engine.geometry.Shapes ``shapes`` (n of them), the static shape
+    codes ``static_shape``.
 
     A contact of a pair in ``drop`` is never one.  Of a pair apart at the
     start (no impact, least start gap > ``touch_tol``) every contact is
@@ -182,6 +211,10 @@ def missed_candidates(n, n_statics, a, b, sidx, gap, point, fid, a0, b0, sidx0, 
     decision in Python.  A superset of the contacts that decide a missed
     impact, so the Python decision runs only over their pairs and finds
     the same impacts (tests/test_ccd_end_clear.py)."""
+    a, b, sidx, gap, point, fid = end.a, end.b, end.sidx, end.gap, end.point, end.fid
+    a0, b0, sidx0, gap0, point0, fid0 = start.a, start.b, start.sidx, start.gap, start.point, start.fid
+    bound_radius, shape = shapes.bound_radius, shapes.shape
+    n = shape.shape[0]
     m, m0 = gap.shape[0], gap0.shape[0]
     ns1 = n_statics + 1
     code0 = np.empty(m0, np.int64)
@@ -263,13 +296,25 @@ def warm_up() -> None:
     q[:, 0] = 1.0
     i = np.arange(n, dtype=np.int64)
     one = np.ones(n)
+    shapes = Shapes(shape=np.array([0, 1], np.int64), radius=one, half=np.ones((n, 3)), half_length=one,
+                    bound_radius=one)
+    statics = Statics(planes_n=np.array([[0.0, 0.0, 1.0]]), planes_off=np.zeros(1), slo=np.zeros((1, 3)),
+                      shi=np.ones((1, 3)))
+    pairs = Pairs(pi=i[:1], pj=i[1:], bp=i, pk=np.zeros(n, np.int64), bs=i, sk=np.zeros(n, np.int64))
+    e = np.empty(n, np.int64)
+    out = EndPose(ci=e, cj=e.copy(), cbp=e.copy(), cpk=e.copy(), cbs=e.copy(), csk=e.copy(), sw=np.empty(n),
+                  R1=np.empty((n, 3, 3)))
+    from physbench.engine.pack import Pack
+
+    kgeo = Pack(Geometry(shapes=shapes, statics=statics, static_shape=np.zeros(1, np.int64)))
     for has_fast in (False, True):
-        end_pose_candidates(x, q, x + 1.0, q.copy(), np.array([0, 1], np.int64), one, np.ones((n, 3)), one, one,
-                            np.array([[0.0, 0.0, 1.0]]), np.zeros(1), np.zeros((1, 3)), np.ones((1, 3)), 0.1, has_fast,
-                            np.ones(n, np.bool_), i[:1], i[1:], i, np.zeros(n, np.int64), i, np.zeros(n, np.int64),
-                            np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
-                            np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3, 3)))
+        end_pose_call(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_), *pairs, Pack(out))
     z = np.zeros(0, np.int64)
-    missed_candidates(n, 1, i[:1], i[1:], i[:1] - 1, np.zeros(1), np.zeros((1, 3)), i[:1], i[:1], i[1:], i[:1] - 1,
-                      np.zeros(1), np.zeros((1, 3)), i[:1], z, z, z, x, np.empty((n, 3, 3)), x, np.empty((n, 3, 3)),
-                      one, np.array([0, 1], np.int64), np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))
+    missed_candidates(1, FeatureContacts(a=i[:1], b=i[1:], sidx=i[:1] - 1, gap=np.zeros(1), point=np.zeros((1, 3)),
+                                         fid=i[:1]),
+                      FeatureContacts(a=i[:1], b=i[1:], sidx=i[:1] - 1, gap=np.zeros(1), point=np.zeros((1, 3)),
+                                      fid=i[:1]),
+                      z, z, z, x, np.empty((n, 3, 3)), x, np.empty((n, 3, 3)),
+                      Shapes(shape=np.array([0, 1], np.int64), radius=one, half=np.ones((n, 3)), half_length=one,
+                             bound_radius=one),
+                      np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))

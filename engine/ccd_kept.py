@@ -10,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.engine import flight
-from physbench.engine.ccd_end import end_pose_candidates
+from physbench.engine.ccd_end import end_pose_call
 from physbench.engine.collision.dispatch import Collider, static_row
+from physbench.engine.geometry import Geometry, shapes_of, statics_of
+from physbench.engine.pack import Pack
 from physbench.engine.model import BOX, S_BOX
 
 
@@ -55,33 +57,34 @@ def end_pose_pairs(model, state, ctx, lim: float, fast: np.ndarray | None):
     pi, pj = ctx.pairs_i, ctx.pairs_j
     bp, pk = ctx.plane_pairs
     bs, sk = ctx.sbox_pairs
-    ci, cj, cbp, cpk, cbs, csk, sw, R1 = ctx.end_pose_buffers(max(pi.size, bp.size, bs.size))
-    nb, npl, ns = end_pose_candidates(state.x, state.q, ctx.x1, ctx.q1, *_geometry(model, ctx)[:9], lim,
-                                      fast is not None, _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, sw,
-                                      ci, cj, cbp, cpk, cbs, csk, R1)
+    out, kout = ctx.end_pose_kept(max(pi.size, bp.size, bs.size))
+    nb, npl, ns = end_pose_call(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
+                                _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, kout)
     if not nb + npl + ns:
         return None
-    return (ci[:nb], cj[:nb]), (cbp[:npl], cpk[:npl]), (cbs[:ns], csk[:ns]), R1
+    return (out.ci[:nb], out.cj[:nb]), (out.cbp[:npl], out.cpk[:npl]), (out.cbs[:ns], out.csk[:ns]), out.R1
 
 
 _NO_FAST = np.zeros(0, np.bool_)
 
 
-def _geometry(model, ctx) -> tuple:
-    """The model's shape codes (n,), radii (n,), half extents (n, 3), half
-    lengths (n,), bounding radii (n,), plane normals (k, 3) and offsets
-    (k,), static boxes' AABB corners (k, 3) each, static shape codes
-    (n_statics,): writable copies (the
-    kernels are compiled for writable arrays), kept in the context."""
+def _geometry(model, ctx) -> Geometry:
+    """The model's :class:`Geometry` as writable copies (the kernels are
+    compiled for writable arrays), kept in the context."""
     g = ctx.info.get("ccd_geometry")
     if g is None:
-        f = lambda a, t=float: np.array(a, t)  # noqa: E731
-        g = ctx.info["ccd_geometry"] = (
-            f(model.shape, np.int64), f(model.radius), f(model.half_extents).reshape(-1, 3), f(model.half_length),
-            f(model.bound_radius), f(model.plane_normal).reshape(-1, 3), f(model.plane_offset),
-            f(model.sbox_aabb_lo).reshape(-1, 3), f(model.sbox_aabb_hi).reshape(-1, 3),
-            f(model.static_shape, np.int64))
+        g = ctx.info["ccd_geometry"] = Geometry(shapes=shapes_of(model), statics=statics_of(model),
+                                                static_shape=np.array(model.static_shape, np.int64))
     return g
+
+
+def _geometry_kept(model, ctx) -> Pack:
+    """:func:`_geometry` as one Pack (engine.ccd_end.end_pose_call), kept in
+    the context."""
+    k = ctx.info.get("ccd_geometry_kept")
+    if k is None:
+        k = ctx.info["ccd_geometry_kept"] = Pack(_geometry(model, ctx))
+    return k
 
 
 class _Groups:

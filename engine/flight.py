@@ -234,7 +234,7 @@ def _q_step(q0, k, s, d0, d1, d2, d3, out):
 
 @njit(cache=True)
 def _qd(w, q, k):
-    """dq/dt = 1/2 (0, w[k]) (x) q[k] (mathutil.quat_deriv)."""
+    """dq/dt = 1/2 (0, w[k]) (x) q[k]."""
     wx, wy, wz = w[k, 0], w[k, 1], w[k, 2]
     qw, qx, qy, qz = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
     d0 = -0.5 * (wx * qx + wy * qy + wz * qz)
@@ -260,7 +260,7 @@ def _euler_body(x0, q0, v0, w0, k, s, wd, qd, xd, vd, ad, x, q, v, w):
 
 @njit(cache=True)
 def rotate(q, k, px, py, pz, out):
-    """out[k] = exp(phi) (x) q[k], renormalised (mathutil.rotate_world)."""
+    """out[k] = exp(phi) (x) q[k], renormalised."""
     ang = math.sqrt(px * px + py * py + pz * pz)
     half = 0.5 * ang
     if ang < 1e-8:

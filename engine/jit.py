@@ -131,6 +131,8 @@ def warm_dynamics() -> None:
 def _warm_solve() -> None:
     """The contact solve's kernels (and the contact topology's)."""
     from physbench.engine.contact import gauss_seidel, linalg, prepare, warm
+    from physbench.engine.contact.packs import Bodies, Cache, ContactArrays, NormalRows, Patches, PatchSet, RowArrays
+    from physbench.engine.pack import Pack
 
     m, nb = 3, 2  # three rows on two bodies and the world (index 2)
     J = np.ones((m, 12))
@@ -162,9 +164,10 @@ def _warm_solve() -> None:
     gauss_seidel.apply_patches(U, pab, Mt, lam_t, nb)
     zb = np.zeros(npch, np.bool_)
     z2 = np.zeros((npch, 2))
-    gauss_seidel.iterate(U, ab, J, M, np.ones(m), np.zeros(m), r, True, pab, pid, Jt, Mt, np.ones((npch, 5)), lam_t,
-                   np.ones(npch), np.ones(npch), np.ones(npch), zb, z2, zb, z2, 2, 1e-7, nb,
-                   np.empty(gauss_seidel.work_size(m, npch, 5)))
+    gauss_seidel.iterate(U, NormalRows(ab=ab, J=J, M=M, mn=np.ones(m), lam=np.zeros(m), target=r),
+                         Patches(pab=pab, pid=pid, Jt=Jt, Mt=Mt, mt=np.ones((npch, 5)), lam_t=lam_t, mu=np.ones(npch),
+                                 rt=np.ones(npch), mur=np.ones(npch), pin_t=zb, dir_t=z2, pin_r=zb, dir_r=z2),
+                         True, 2, 1e-7, nb, np.empty(gauss_seidel.work_size(m, npch, 5)))
     gauss_seidel.iterate_normal(U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
     # preparation and warm start: two bodies and the world, three contacts
     # (the model's arrays are read-only: ``ro``, the types the step passes)
@@ -179,36 +182,37 @@ def _warm_solve() -> None:
     vn = np.zeros((3, m))
     tb = np.zeros(m, np.bool_)
     codes = np.zeros(m, np.int64)
-    for warm_flag in (False, True):
-        prepare.classify(X, V, V, X, X, X, X, a, b, -np.ones(m, np.int64), P3, P3, z3, nb, 0, 0.01, 0.01, 0.5,
-                         1e-4, warm_flag, codes, P3, z3, tb, R0, br, vn, tb.copy(), tb.copy(), codes.copy())
+    # (prepare.classify: compiled by phases.classify_stage's warm-up, the
+    # same argument types)
     lm = np.empty((m, 3))
     prepare.normal_rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm)
     P = np.zeros((npch, 3))
     t = np.zeros((npch, 2, 3))
+    bodies = Bodies(X=X, Iinv=Iinv, inv_mass=im, R0=R0)
+    cs = ContactArrays(a=a, b=b, sidx=-np.ones(m, np.int64), point=P3, normal=P3, gap=z3, e=z3.copy())
+    ps = PatchSet(pid=pid, pa=pab[:, 0].copy(), pb=pab[:, 1].copy(), cnt=np.ones(npch), mus=np.ones(npch))
     for nr in (3, 5):
         Jt5 = np.zeros((npch, nr, 12))
-        prepare.patch_rows(X, Iinv, im, P3, P3, act, pid, pab[:, 0].copy(), pab[:, 1].copy(), np.ones(npch), nb,
-                           nr == 5, P, P.copy(), np.zeros(npch), t, Jt5, Jt5.copy(), np.zeros((npch, nr)))
-        prepare.rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm, r.copy(), r.copy(), True,
-                     pid, pab[:, 0].copy(), pab[:, 1].copy(), np.ones(npch), nr == 5, P, P.copy(),
-                     np.zeros(npch), t, Jt5, Jt5.copy(), np.zeros((npch, nr)), np.zeros((npch, nr)), zb.copy(),
-                     np.ones(npch), np.ones(npch))
+        out = RowArrays(J=J, M=M, mn=r.copy(), loc=lm, lam_n=r.copy(), target=r.copy(), P=P, N=P.copy(),
+                        rt=np.zeros(npch), t=t, Jt=Jt5, Mt=Jt5.copy(), mt=np.zeros((npch, nr)),
+                        lam_t=np.zeros((npch, nr)), slip=zb.copy(), mu=np.ones(npch))
+        prepare.rows(bodies, True, cs, act, nb, out, ps, True, nr == 5)
         prepare.patch_velocity(Jt5, U, pab, 0, 2, z2.copy())
         prepare.sliding(Jt5, U, pab, np.ones(npch), 1e-4, z2.copy(), zb.copy())
         prepare.stop_candidate(pid, r, Jt5, U, pab, z2, 1e-4, nr == 5, z2, np.ones(npch), 1e-4)
     e0 = np.zeros(0)
     e3 = np.zeros((0, 3))
     ei = np.zeros(0, np.int64)
-    prepare.rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm, r.copy(), r.copy(), False, ei,
-                 ei, ei, e0, False, e3, e3, e0, np.zeros((0, 2, 3)), np.zeros((0, 3, 12)), np.zeros((0, 3, 12)), e3,
-                 e3, np.zeros(0, np.bool_), e0, e0)
+    prepare.rows(bodies, True, cs, act, nb,
+                 RowArrays(J=J, M=M, mn=r.copy(), loc=lm, lam_n=r.copy(), target=r.copy(), P=e3, N=e3, rt=e0,
+                           t=np.zeros((0, 2, 3)), Jt=np.zeros((0, 3, 12)), Mt=np.zeros((0, 3, 12)), mt=e3, lam_t=e3,
+                           slip=np.zeros(0, np.bool_), mu=e0),
+                 PatchSet(pid=ei, pa=ei, pb=ei, cnt=e0, mus=e0), False, False)
     prepare.targets(act, tb, vn, z3, z3, 0.01, 0.5, 0.01, 0.2, 1e-4, r.copy(), r.copy())
     lt = np.zeros((npch, 3))
-    warm.match(codes, lm, a, br, codes, lm, z3, codes, P3, z3, P3, 0.01, r.copy(), True, False, pid, t,
-               lt, zb.copy())
-    warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01,
-               codes.copy(), lm.copy(), r.copy(), tb.copy(), codes.copy(), P3.copy(), z3.copy(), P3.copy())
+    cache = Pack(Cache(code=codes, loc=lm, fn=z3, pairs=codes.copy(), ft=P3, tw=z3.copy(), rr=P3.copy(), touch=tb))
+    warm.match(codes, lm, a, br, cache, 0.01, r.copy(), True, False, pid, t, lt, zb.copy())
+    warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01, cache)
     _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
     from physbench.engine.contact import topology
 
@@ -237,6 +241,7 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
 
     from physbench.engine import solver
     from physbench.engine.contact import phases
+    from physbench.engine.contact.packs import Cache, Classified, ContactArrays, Pose, Settings
     from physbench.engine.contact.scratch import Scratch
     from physbench.engine.pack import Pack
 
@@ -245,28 +250,31 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
     X = np.zeros((nb, 3))
     R0 = np.tile(np.eye(3), (nb, 1, 1))
     Iinv = np.tile(np.eye(3), (nb + 1, 1, 1))
-    kc = Pack((X, Iinv, R0, V, V.copy(), X.copy(), X.copy(), V.copy(), V.copy(), _ro(np.ones(nb + 1)), br))
+    kc = Pack(Pose(X=X, Iinv=Iinv, R0=R0, V=V, W=V.copy(), V0=X.copy(), W0=X.copy(), Vp=V.copy(), Wp=V.copy(),
+                   inv_mass=_ro(np.ones(nb + 1)), bound_radius=br))
     f1 = np.ones(npch)
     topo = SimpleNamespace(ab=ab, a=a, b=b, pid=pid, pa=pab[:, 0].copy(), pb=pab[:, 1].copy(), cnt=f1.copy(),
                            pab=pab, codes=codes, code_order=np.arange(m, dtype=np.int64),
                            code_first=np.arange(npch, dtype=np.int64), uniq_pid=np.arange(npch, dtype=np.int64),
                            mus=f1.copy(), muk=f1.copy(), mur=None, np=npch)
-    cache = Pack((codes, loc, r, codes[:npch].copy(), loc[:npch].copy(), f1.copy(), loc[:npch].copy(), tb))
-    out = Pack((codes.copy(), loc.copy(), r.copy(), codes[:npch].copy(), loc[:npch].copy(), f1.copy(),
-                loc[:npch].copy(), tb.copy()))
+    cache = Pack(Cache(code=codes, loc=loc, fn=r, pairs=codes[:npch].copy(), ft=loc[:npch].copy(), tw=f1.copy(),
+                       rr=loc[:npch].copy(), touch=tb))
+    out = Pack(Cache(code=codes.copy(), loc=loc.copy(), fn=r.copy(), pairs=codes[:npch].copy(), ft=loc[:npch].copy(),
+                     tw=f1.copy(), rr=loc[:npch].copy(), touch=tb.copy()))
     vn = np.zeros((3, m))
     for friction, rolling in ((True, False), (True, True), (False, False)):
         k = npch if friction else 0
         views = solver._take_stage(Scratch(), nb, m, k, 5 if rolling else 3, friction,
                                    solver._direct_size(True, nb, m, 0))
         kt, kw = Pack(solver._topology_items(topo, friction, rolling)), Pack(solver._work_items(views, friction))
-        phases.solve_stage(kc, kt, kw, cache, out, a, b, loc, loc, r, r, a, tb, vn, 0.01, 0.5, 0.01, 0.2, 1e-4,
-                           friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)
+        s = Settings(n_statics=0, lever=0.5, thr=0.01, beta=0.2, slop=1e-4, friction=friction, rolling=rolling,
+                     direct=True, resting=1e-5, max_rows=400, passes=4, slip_tol=1e-4, iterations=2, relax_on=True)
+        kk = Pack(ContactArrays(a=a, b=b, sidx=-np.ones(m, np.int64), point=loc.copy(), normal=loc.copy(), gap=r.copy(),
+                                e=r.copy()))
+        phases.solve_stage(kc, kt, kw, cache, out, kk, a, tb, vn, 0.01, s, True, True)
         # the whole stage of a steady step (classification first)
-        kx = Pack((X.copy(), X.copy(), vn, tb.copy(), tb.copy(), codes.copy()))
-        kk = Pack((a, b, -np.ones(m, np.int64), loc.copy(), loc.copy(), r.copy(), r.copy()))
-        phases.classify_stage(kc, kx, kt, kw, cache, out, kk, codes.copy(), a, 0, 0.01, 0.5, 0.01, 0.2, 1e-4, True,
-                              True, friction, rolling, True, True, 1e-5, 400, 4, 1e-4, 2, True, True)
+        kx = Pack(Classified(UL=X.copy(), UA=X.copy(), vn=vn, touching=tb.copy(), impact=tb.copy(), codes=codes.copy()))
+        phases.classify_stage(kc, kx, kt, kw, cache, out, kk, codes.copy(), a, 0.01, s, True, True, True, True)
 
 
 def _flight_arrays(nb: int = 2):
@@ -296,8 +304,9 @@ def _warm_flight() -> None:
     inv_I = np.ones((nb, 3))
     flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
     vw1 = np.zeros((nb + 1, 3))
-    kept = Pack((x.copy(), q.copy(), v.copy(), v.copy(), inv_I, x.copy(), q.copy(), vw1.copy(), vw1.copy(), v.copy(),
-                 v.copy(), vw1.copy(), vw1.copy(), R.copy(), Iinv.copy()))
+    kept = Pack(state.StepArrays(x=x.copy(), q=q.copy(), v=v.copy(), w=v.copy(), inv_I=inv_I, x1=x.copy(), q1=q.copy(),
+                                 V=vw1.copy(), W=vw1.copy(), F=v.copy(), T=v.copy(), vp=vw1.copy(), wp=vw1.copy(),
+                                 R0=R.copy(), Iinv0=Iinv.copy()))
     state._begin_packed(kept)  # Context.begin and .commit
     state._commit_packed(kept)
     F = np.zeros((nb, 3))

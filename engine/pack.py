@@ -65,9 +65,14 @@ class KeptPack:
         self._items: tuple | None = None
         self._pack = None
 
-    def of(self, items: tuple) -> Pack:
+    def of(self, items: tuple, make=None) -> Pack:
+        """The Pack made last time when ``items`` (what it holds) are the
+        same objects as then, else a new one: ``make()`` (a Pack of a
+        named tuple of ``items``, built only then: a named tuple costs more
+        to build in Python than the identity test), default
+        ``Pack(items)``."""
         last = self._items
         if last is None or len(last) != len(items) or not all(map(is_, last, items)):
-            self._pack = Pack(items)
+            self._pack = Pack(items) if make is None else make()
             self._items = items
         return self._pack

@@ -73,6 +73,7 @@ from physbench.engine.contact.rows import (  # noqa: F401  (the solver's names, 
     dense_direct_solve,
     point_normal_velocity,
 )
+from physbench.engine.contact.packs import Cache, Classified, ContactArrays, Pose, RowArrays, Settings, Topo, Work
 from physbench.engine.contact.rows import _take_rows
 from physbench.engine.contact.warm import WarmCache, WarmPool, store_forces, warm_start  # noqa: F401
 from physbench.engine.pack import KeptPack, Pack
@@ -85,8 +86,8 @@ WARM_MIN_STEP = 1e-3  # (sub)steps shorter than this fraction of the model's ste
 
 _NO_I = np.zeros(0, np.int64)
 #: an empty warm cache (WarmCache.packed)
-_NO_CACHE = (_NO_I, np.zeros((0, 3)), np.zeros(0), _NO_I, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
-             np.zeros(0, np.bool_))
+_NO_CACHE = Cache(code=_NO_I, loc=np.zeros((0, 3)), fn=np.zeros(0), pairs=_NO_I, ft=np.zeros((0, 3)), tw=np.zeros(0),
+                  rr=np.zeros((0, 3)), touch=np.zeros(0, np.bool_))
 _NO_P = np.zeros((0, 2), np.int64)
 _NO_F = np.zeros((0, 3, 12))
 _NO_LT = np.zeros((0, 3))
@@ -153,6 +154,9 @@ class Solve(Stage):
         self._fast = None
         self._kx = KeptPack()
         self._kk = KeptPack()
+        #: the settings phases.solve_stage reads (:meth:`_settings`), kept
+        #: while the policy constants they hold stay
+        self._settings_key = self._settings_nt = None
         #: band storage (floats) of the sparse direct start's work array
         #: (grown by :meth:`_grow_band`)
         self._band = 0
@@ -261,10 +265,8 @@ class Solve(Stage):
         ko = old.kept if warm_on else _no_cache()
         out = self._warm.slot((m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
         sw, rows.residual, pushed = phases.solve_stage(
-            self._pose(model, state, ctx), kt, kw, ko, out.kept if store_on else _no_cache(), c.a, c.b, c.point,
-            c.normal, c.gap, c.e, idx,
-            touching, vn, h, self.c, self.thr, self.beta, self.slop, f, rolling, warm_on, self.direct, RESTING_SPEED,
-            DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, SLIP_TOL, self.iterations, self.correction != "none", store_on)
+            self._pose(model, state, ctx), kt, kw, ko, out.kept if store_on else _no_cache(), self._contacts(c), idx,
+            touching, vn, h, self._settings(model), warm_on, store_on)
         rows.sweeps = int(sw)
         if store_on:
             state.warm = out
@@ -289,14 +291,39 @@ class Solve(Stage):
         """The pose and velocities as one Pack (see phases.solve_stage),
         kept while the arrays are the same objects (the context's, every
         step)."""
-        return self._kc.of((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp,
-                            model.inv_mass, model.bound_radius))
+        return self._kc.of((state.x, ctx.Iinv0, ctx.R0, ctx.v, ctx.w, state.v, state.w, ctx.vp, ctx.wp, model.inv_mass,
+                            model.bound_radius), lambda: Pack(Pose(
+                                X=state.x, Iinv=ctx.Iinv0, R0=ctx.R0, V=ctx.v, W=ctx.w, V0=state.v, W0=state.w,
+                                Vp=ctx.vp, Wp=ctx.wp, inv_mass=model.inv_mass, bound_radius=model.bound_radius)))
 
     def _contacts(self, c: Contacts) -> Pack:
         """The contacts' arrays read by phases.classify_stage as one Pack,
         kept while they are the same arrays (the narrow phase hands out the
         same Contacts while its count and buffers stay)."""
-        return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e))
+        return self._kk.of((c.a, c.b, c.sidx, c.point, c.normal, c.gap, c.e), lambda: Pack(ContactArrays(
+            a=c.a, b=c.b, sidx=c.sidx, point=c.point, normal=c.normal, gap=c.gap, e=c.e)))
+
+    def _classified(self, ctx, cl) -> Pack:
+        """The classification's views ``cl`` and the free flight's mean
+        velocities as one Pack (phases.classify_stage's ``kx``), kept while
+        they are the same arrays."""
+        vn, touching, impact, codes = cl
+        return self._kx.of((ctx.u_lin, ctx.u_ang, vn, touching, impact, codes), lambda: Pack(Classified(
+            UL=ctx.u_lin, UA=ctx.u_ang, vn=vn, touching=touching, impact=impact, codes=codes)))
+
+    def _settings(self, model) -> Settings:
+        """The solve's settings as phases.solve_stage reads them (the
+        policy constants read at each call)."""
+        f = self.friction
+        key = (model.n_statics, bool(model.rolling), RESTING_SPEED, DIRECT_MAX_ROWS, ACTIVE_SET_PASSES, SLIP_TOL)
+        if key != self._settings_key:
+            self._settings_nt = Settings(
+                n_statics=model.n_statics, lever=self.c, thr=self.thr, beta=self.beta, slop=self.slop, friction=f,
+                rolling=f and bool(model.rolling), direct=self.direct, resting=RESTING_SPEED, max_rows=DIRECT_MAX_ROWS,
+                passes=ACTIVE_SET_PASSES, slip_tol=SLIP_TOL, iterations=self.iterations,
+                relax_on=self.correction != "none")
+            self._settings_key = key
+        return self._settings_nt
 
     def store_on(self, model, h: float) -> bool:
         """Whether a (sub)step of length h stores its forces for the next."""
@@ -328,7 +355,7 @@ class Solve(Stage):
         old = state.warm
         warm_any = old is not None
         out = self._warm.slot((c.m, topo.uniq_codes.size), old, ctx.warm0) if store_on else None
-        return (self._pose(model, state, ctx), self._kx.of((ctx.u_lin, ctx.u_ang) + cl), topo._kept, self._prep[3],
+        return (self._pose(model, state, ctx), self._classified(ctx, cl), topo._kept, self._prep[3],
                 old.kept if warm_any else _no_cache(), out.kept if store_on else _no_cache(), self._contacts(c),
                 topo.key, topo.order, warm_any, bool(self.warm and warm_any), out)
 
@@ -388,11 +415,9 @@ class Solve(Stage):
         store_on = h >= WARM_MIN_STEP * model.h
         drop = ctx.event_mode is EventMode.DROP and ctx.drop_rows is not None
         if not (drop and self.ccd == "events" and ctx.drop_rows.size == m):
-            o = old.packed if old else _NO_CACHE
-            nimp = prepare.classify(state.x, ctx.v, ctx.w, state.v, state.w, ctx.u_lin, ctx.u_ang, c.a, c.b, c.sidx,
-                                    c.point, c.normal, c.gap, n, model.n_statics, h, self.thr, self.c, self.slop,
-                                    bool(old), o[0], o[1], o[2], o[7], ctx.R0, model.bound_radius, vn, touching,
-                                    impact, codes_all)
+            nimp = prepare.classify(self._pose(model, state, ctx), self._classified(ctx, cl), self._contacts(c),
+                                    old.kept if old else _no_cache(), model.n_statics, h, self.thr, self.c, self.slop,
+                                    bool(old))
         else:
             # a rerun of the time-of-impact search whose rows are all the
             # step's impact rows (a lone pair's impact: billiards, a ball
@@ -533,9 +558,11 @@ def _work_items(views: tuple, friction: bool) -> tuple:
         t = _NO_T
         Jt = Mt = _NO_F
         slip = _NO_B
-    items = (J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu) + tuple(views[16:])
-    assert len(items) == len(phases.WORK)  # the order phases.WORK names
-    return items
+    rows = RowArrays(J=J, M=M, mn=mn, loc=loc, lam_n=lam_n, target=target, P=P, N=N, rt=rt, t=t, Jt=Jt, Mt=Mt, mt=mt,
+                     lam_t=lam_t, slip=slip, mu=mu)
+    U, U0, Ud, vt0, pin_t, dir_t, matched, r_direct, bias, Up, lam_p, touch_rows, wk, dwf, dwi = views[16:]
+    return Work(rows=rows, U=U, U0=U0, Ud=Ud, vt0=vt0, pin_t=pin_t, dir_t=dir_t, matched=matched, r_direct=r_direct,
+                bias=bias, Up=Up, lam_p=lam_p, touch_rows=touch_rows, wk=wk, dwf=dwf, dwi=dwi)
 
 
 def _topology_items(topo: Topology, friction: bool, rolling: bool) -> tuple:
@@ -550,7 +577,10 @@ def _topology_items(topo: Topology, friction: bool, rolling: bool) -> tuple:
         fr = (_NO_I, _NO_I, _NO_I, _NO_D, _NO_P)
         coef = (_NO_D, _NO_D, _NO_D)
         uniq_pid = _NO_I
-    return (topo.ab, topo.a, topo.b) + fr + (topo.codes, topo.code_order, topo.code_first, uniq_pid) + coef
+    pid, pa, pb, cnt, pab = fr
+    mus, muk, mur = coef
+    return Topo(ab=topo.ab, a=topo.a, b=topo.b, pid=pid, pa=pa, pb=pb, cnt=cnt, pab=pab, codes=topo.codes,
+                code_order=topo.code_order, code_first=topo.code_first, uniq_pid=uniq_pid, mus=mus, muk=muk, mur=mur)
 
 
 _NO_CACHE_PACK: list = []

@@ -15,6 +15,7 @@ stage.  All arrays are allocated once, at build.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from physbench.engine.flight import begin_step
+from physbench.engine.geometry import EndPose
 from physbench.engine.pack import KeptPack, Pack
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.control import Event, EventMode, Impacts, TimeOfImpact
@@ -178,23 +180,31 @@ class Context:
         #: moved pairs i, j, body-plane, body-static-box pairs (int64), end
         #: displacements (n,), end rotations (n, 3, 3)), grown geometrically
         self._end_pose = self._end_pose_buffers(n, 2 * n + 16)
+        self._end_pose_pack = KeptPack()
         #: no sweep (n,) zeros: a margin that is the same for every pair
         self.no_sweep = np.zeros(n)
         #: the contact solve's work arrays (grown geometrically, kept)
         self.scratch = Scratch()
 
     @staticmethod
-    def _end_pose_buffers(n: int, m: int) -> tuple:
+    def _end_pose_buffers(n: int, m: int) -> EndPose:
         i = np.empty(m, np.int64)
-        return i, i.copy(), i.copy(), i.copy(), i.copy(), i.copy(), np.empty(n), np.empty((n, 3, 3))
+        return EndPose(ci=i, cj=i.copy(), cbp=i.copy(), cpk=i.copy(), cbs=i.copy(), csk=i.copy(), sw=np.empty(n),
+                       R1=np.empty((n, 3, 3)))
 
-    def end_pose_buffers(self, m: int) -> tuple:
+    def end_pose_buffers(self, m: int) -> EndPose:
         """The CCD end-pose check's buffers (see ``_end_pose``) for at most
         ``m`` pairs of each kind: kept, grown geometrically."""
         buf = self._end_pose
-        if buf[0].shape[0] < m:
-            buf = self._end_pose = self._end_pose_buffers(buf[6].shape[0], max(m, 2 * buf[0].shape[0]))
+        if buf.ci.shape[0] < m:
+            buf = self._end_pose = self._end_pose_buffers(buf.sw.shape[0], max(m, 2 * buf.ci.shape[0]))
         return buf
+
+    def end_pose_kept(self, m: int) -> tuple:
+        """(:meth:`end_pose_buffers`, the same as one Pack, kept while they
+        stay)."""
+        buf = self.end_pose_buffers(m)
+        return buf, self._end_pose_pack.of(buf)
 
     def kept(self, state: State) -> Pack:
         """The arrays of a (mini-)step's start and commit as one Pack (see
@@ -203,7 +213,10 @@ class Context:
         the state's arrays are the same objects (the context's never
         change)."""
         return self._kept.of((state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w,
-                              self.F, self.T, self.vp, self.wp, self.R0, self.Iinv0))
+                              self.F, self.T, self.vp, self.wp, self.R0, self.Iinv0), lambda: Pack(StepArrays(
+                                  x=state.x, q=state.q, v=state.v, w=state.w, inv_I=self._inv_I, x1=self.x1,
+                                  q1=self.q1, V=self.v, W=self.w, F=self.F, T=self.T, vp=self.vp, wp=self.wp,
+                                  R0=self.R0, Iinv0=self.Iinv0)))
 
     def commit(self, state: State) -> None:
         """The state's pose and velocities set to the candidate end state
@@ -231,18 +244,29 @@ class Context:
         self.eR = self.R0
 
 
+#: a (mini-)step's start and commit arrays (:meth:`Context.kept`): the
+#: state's pose and velocities ``x`` (n, 3), ``q`` (n, 4), ``v``, ``w`` (n,
+#: 3), the body inverse inertias ``inv_I`` (n, 3), the context's candidate
+#: end pose ``x1``, ``q1``, velocities ``V``, ``W`` (n+1, 3), forces and
+#: torques ``F``, ``T``, pseudo velocities ``vp``, ``wp`` (n+1, 3), start
+#: rotations ``R0`` (n, 3, 3) and inverse world inertias ``Iinv0`` (n+1, 3, 3)
+StepArrays = namedtuple("StepArrays", ("x", "q", "v", "w", "inv_I", "x1", "q1", "V", "W", "F", "T", "vp", "wp", "R0",
+                                       "Iinv0"))
+
+
 @njit(cache=True)
 def _begin_packed(k):
     """:func:`engine.flight.begin_step` over :meth:`Context.kept`'s arrays."""
-    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = k.items
-    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
+    b = k.items
+    begin_step(b.x, b.q, b.v, b.w, b.inv_I, b.x1, b.q1, b.V, b.W, b.F, b.T, b.vp, b.wp, b.R0, b.Iinv0)
 
 
 @njit(cache=True)
 def _commit_packed(k):
     """x, q, v, w = x1, q1, V[:n], W[:n] over :meth:`Context.kept`'s arrays
     (copies: the same bits)."""
-    x, q, v, w, _, x1, q1, V, W, _, _, _, _, _, _ = k.items
+    b = k.items
+    x, q, v, w, x1, q1, V, W = b.x, b.q, b.v, b.w, b.x1, b.q1, b.V, b.W
     for i in range(x.shape[0]):
         for c in range(3):
             x[i, c] = x1[i, c]
@@ -258,7 +282,8 @@ def record_packed(kb, k, rec_on, pos, quat, vel, angvel):
     :func:`_commit_packed`'s) into row ``k`` of the record blocks (pos,
     vel, angvel (n, n_bodies, 3), quat (n, n_bodies, 4)) when ``rec_on``."""
     if rec_on:
-        x, q, v, w = kb.items[0], kb.items[1], kb.items[2], kb.items[3]
+        b = kb.items
+        x, q, v, w = b.x, b.q, b.v, b.w
         for i in range(x.shape[0]):
             for c in range(3):
                 pos[k, i, c] = x[i, c]

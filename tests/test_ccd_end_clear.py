@@ -26,6 +26,7 @@ from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
 from physbench.engine import ccd, ccd_end, flight
 from physbench.engine.collision import collide_pairs
+from physbench.engine.geometry import EndPose, Pairs, shapes_of, statics_of
 from physbench.engine.mathutil import quat_to_matrix
 
 SCENE = """
@@ -99,10 +100,7 @@ def _unit(rng, k):
 
 
 def _geometry(model):
-    f = lambda a, t=float: np.array(a, t)  # noqa: E731
-    return (f(model.shape, np.int64), f(model.radius), f(model.half_extents).reshape(-1, 3), f(model.half_length),
-            f(model.bound_radius), f(model.plane_normal).reshape(-1, 3), f(model.plane_offset),
-            f(model.sbox_aabb_lo).reshape(-1, 3), f(model.sbox_aabb_hi).reshape(-1, 3))
+    return shapes_of(model), statics_of(model)
 
 
 def _deep(model, X, R, pi, pj, bp, pk, bs, sk, lim):
@@ -164,8 +162,8 @@ def test_end_pose_clear_leaves_out_only_pairs_with_nothing_deep(tmp_path, seed):
         moved_p = [(int(b), int(k)) for b, k in zip(bp, pk) if sw[b] > lim and (not has_fast or fast[b])]
         moved_s = [(int(b), int(k)) for b, k in zip(bs, sk) if sw[b] > lim and (not has_fast or fast[b])]
         assert (nb, npl, ns) == (len(moved_b), len(moved_p), len(moved_s))
-        mb, mp, ms = ccd_end.end_pose_candidates(x0, q0, x1, q1, *geo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk,
-                                                 sw, *out, R)
+        mb, mp, ms = ccd_end.end_pose_candidates(x0, q0, x1, q1, *geo, lim, has_fast, fast,
+                                                 Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk), EndPose(*out, sw, R))
         keep_b = list(zip(out[0][:mb].tolist(), out[1][:mb].tolist()))
         keep_p = list(zip(out[2][:mp].tolist(), out[3][:mp].tolist()))
         keep_s = list(zip(out[4][:ms].tolist(), out[5][:ms].tolist()))
@@ -213,8 +211,8 @@ def test_end_pose_clear_keeps_a_pair_ending_deep(tmp_path):
     z = np.zeros(0, np.int64)
     out = [np.full(n, -7, np.int64) for _ in range(6)]
     mb, mp, ms = ccd_end.end_pose_candidates(x0, q, x1, q.copy(), *_geometry(model), 3e-4, False,
-                                             np.zeros(n, np.bool_), z, z, bp, pk, z, z, np.empty(n), *out,
-                                             np.empty((n, 3, 3)))
+                                             np.zeros(n, np.bool_), Pairs(pi=z, pj=z, bp=bp, pk=pk, bs=z, sk=z),
+                                             EndPose(*out, np.empty(n), np.empty((n, 3, 3))))
     assert (mb, mp, ms) == (0, n, 0) and np.array_equal(out[2][:n], bp)
 
 
@@ -312,7 +310,7 @@ def test_missed_candidates_keep_every_missed_impact(monkeypatch, case):
     real_cand, real = ccd.missed_candidates, ccd.missed_impacts
 
     def every(*args):
-        m = args[5].shape[0]  # gap
+        m = args[1].gap.shape[0]  # the end-pose contacts
         args[-1][:m] = True
         return m
 

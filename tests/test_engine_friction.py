@@ -637,9 +637,21 @@ def _sweep(d, iterations):
     from physbench.engine.contact import gauss_seidel as gs
 
     zb, z2 = np.zeros(1, np.bool_), np.zeros((1, 2))
-    return gs.iterate(d["U"], d["ab"], d["J"], d["M"], d["mn"], d["lam_n"], d["target"], True, d["pab"], d["pid"],
-                      d["Jt"], d["Mt"], d["mt"], d["lam_t"], d["mu"], d["rt"], d["mur"], zb, z2, zb, z2, iterations,
-                      1e-7, 1, np.empty(gs.work_size(1, 1, 3)))
+    return gs.iterate(d["U"], _normal_rows(d), _patches(d, zb, z2), True, iterations, 1e-7, 1,
+                      np.empty(gs.work_size(1, 1, 3)))
+
+
+def _normal_rows(d):
+    from physbench.engine.contact.packs import NormalRows
+
+    return NormalRows(ab=d["ab"], J=d["J"], M=d["M"], mn=d["mn"], lam=d["lam_n"], target=d["target"])
+
+
+def _patches(d, zb, z2):
+    from physbench.engine.contact.packs import Patches
+
+    return Patches(pab=d["pab"], pid=d["pid"], Jt=d["Jt"], Mt=d["Mt"], mt=d["mt"], lam_t=d["lam_t"], mu=d["mu"],
+                   rt=d["rt"], mur=d["mur"], pin_t=zb, dir_t=z2, pin_r=zb, dir_r=z2)
 
 
 def _one_sweep_by_hand(d):
@@ -714,9 +726,8 @@ def test_a_solve_cut_short_keeps_rolling_friction_inside_its_disc_too():
     d.update(Jt=Jt, Mt=Jt.copy(), mt=1.0 / np.sum(Jt * Jt, axis=2), lam_t=np.zeros((1, 5)), mur=np.array([0.05]))
     U0 = d["U"].copy()
     zb, z2 = np.zeros(1, np.bool_), np.zeros((1, 2))
-    sweeps, _ = gs.iterate(d["U"], d["ab"], d["J"], d["M"], d["mn"], d["lam_n"], d["target"], True, d["pab"],
-                           d["pid"], d["Jt"], d["Mt"], d["mt"], d["lam_t"], d["mu"], d["rt"], d["mur"], zb, z2, zb, z2,
-                           1, 1e-7, 1, np.empty(gs.work_size(1, 1, 5)))
+    sweeps, _ = gs.iterate(d["U"], _normal_rows(d), _patches(d, zb, z2), True, 1, 1e-7, 1,
+                           np.empty(gs.work_size(1, 1, 5)))
     assert sweeps == 1
     ln, lt = d["lam_n"][0], d["lam_t"][0]
     assert ln > 0.0

@@ -16,6 +16,7 @@ family functions called one group at a time."""
 from __future__ import annotations
 
 import warnings
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, typeof
@@ -30,6 +31,7 @@ from physbench.engine.collision.cylinder import (CYLINDER_FW, _BOX_EDGES, _CORNE
 from physbench.engine.collision.cylinder_pair import YY_FW, YY_IW, _SIDE_MAX, _cylinder_cylinder_kernel
 from physbench.engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
+from physbench.engine.pack import Pack
 
 # family codes: body-body by shape pair (sphere S, box B, capsule C,
 # cylinder Y), then the body's shape against a plane (P_*) and a static box (X_*)
@@ -154,18 +156,46 @@ def families(shape) -> tuple:
 # compiles once, not once per set of families; a family a scene lacks is
 # :func:`_missing`, which raises.
 
+#: the driver's contact slots: normals ``n``, points ``p``, gaps ``g``,
+#: feature ids ``f`` (int64), flags ``ok`` (bool) -- flat over a group's
+#: pairs x slots (``n``, ``p`` 3 floats a slot) in the collider's buffers,
+#: (k, S, 3) and (k, S) views of them in a group's family call
+Slots = namedtuple("Slots", ("n", "p", "g", "f", "ok"))
+
+#: a group's gathered side (one per pair, k of them): centres ``c`` (k, 3),
+#: rotations ``R`` (k, 3, 3), box half extents ``h`` (k, 3), radii ``r``,
+#: half lengths ``hl`` (k,); a plane's normal in ``c``, its offset in ``r``
+Side = namedtuple("Side", ("c", "R", "h", "r", "hl"))
+
+#: the bodies' shapes as the driver reads them: codes ``shape``, radii
+#: ``radius``, half extents ``half`` (n, 3), ``half_length``, ``material``
+BodyShapes = namedtuple("BodyShapes", ("shape", "radius", "half", "half_length", "material"))
+
+#: the static planes: unit ``normal`` (k, 3), ``offset`` (k,) m, ``static``
+#: index (k,)
+PlaneRows = namedtuple("PlaneRows", ("normal", "offset", "static"))
+
+#: the static boxes: ``centre`` (k, 3), rotation ``R`` (k, 3, 3), ``half``
+#: extents (k, 3), ``static`` index (k,)
+BoxRows = namedtuple("BoxRows", ("centre", "R", "half", "static"))
+
+#: the pair coefficients over materials (a, b): restitution ``e``, static and
+#: kinetic friction ``mus``, ``muk``, rolling friction ``mur`` (m)
+PairTables = namedtuple("PairTables", ("e", "mus", "muk", "mur"))
+
+
 @njit(cache=True)
 def _slots(fam, k, slot):
-    """The group's slot views (k, S, ...) of the flat ``slot`` buffers
-    (normals, points, gaps, fids, flags), fids and flags zeroed, and the
+    """The group's slot views (k, S, ...) of the flat ``slot`` buffers (a
+    :class:`Slots`, as the views), fids and flags zeroed, and the
     flags set where the family writes every slot (one slot per pair, the
     box- and cylinder-plane families)."""
     S = SLOTS[fam]
-    S_n = slot[0][:k * S * 3].reshape((k, S, 3))
-    S_p = slot[1][:k * S * 3].reshape((k, S, 3))
-    S_g = slot[2][:k * S].reshape((k, S))
-    S_f = slot[3][:k * S].reshape((k, S))
-    S_ok = slot[4][:k * S].reshape((k, S))
+    S_n = slot.n[:k * S * 3].reshape((k, S, 3))
+    S_p = slot.p[:k * S * 3].reshape((k, S, 3))
+    S_g = slot.g[:k * S].reshape((k, S))
+    S_f = slot.f[:k * S].reshape((k, S))
+    S_ok = slot.ok[:k * S].reshape((k, S))
     for t in range(k):
         for s in range(S):
             S_f[t, s] = 0
@@ -174,7 +204,7 @@ def _slots(fam, k, slot):
         for t in range(k):
             for s in range(S):
                 S_ok[t, s] = True
-    return S_n, S_p, S_g, S_f, S_ok
+    return Slots(n=S_n, p=S_p, g=S_g, f=S_f, ok=S_ok)
 
 
 # Each family's loop over the k gathered pairs (A, B: the sides' (c, R, h,
@@ -186,109 +216,125 @@ def _slots(fam, k, slot):
 # with :func:`_signature` by :func:`_compiled`.
 
 def _ss(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_sphere_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_sphere_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _sb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XS
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_box_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_box_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _bb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XB
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
     mg, ed, sep = gm[:k], edge[:k], se[:k]
-    _box_box_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[2][:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
+    _box_box_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.h[:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
                     sep, fw, iw)
     edge_pair_face_points(S_g, S_ok, ed, sep, mg, face_points)
     return False
 
 
 def _sc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_capsule_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_capsule_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :],
                            S_g[:, 0], fw)
     return False
 
 
 def _bc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_box_kernel(B[0][:k], B[1][:k], B[4][:k], B[3][:k], A[0][:k], A[1][:k], A[2][:k], S_n, S_p, S_g, S_f,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_box_kernel(B.c[:k], B.R[:k], B.hl[:k], B.r[:k], A.c[:k], A.R[:k], A.h[:k], S_n, S_p, S_g, S_f,
                         S_ok, fw)
     return True
 
 
 def _cc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_capsule_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_capsule_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
                             S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _sy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_cylinder_kernel(A[0][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], capm1[:k], S_n[:, 0, :],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_cylinder_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], capm1[:k], S_n[:, 0, :],
                             S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _by(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_cylinder_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], gm[:k], True,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_cylinder_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], gm[:k], True,
                          _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _cy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k], S_n,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
                              S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _yy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _cylinder_cylinder_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[4][:k], B[3][:k],
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _cylinder_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k],
                               gm[:k], True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
     return False
 
 
 def _ps(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _sphere_plane_kernel(A[0][:k], A[3][:k], B[0][:k], B[3][:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _sphere_plane_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
     return False
 
 
 def _pb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_plane_kernel(A[0][:k], A[1][:k], A[2][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_plane_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
     return False
 
 
 def _pc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f, S_ok, fw)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f, S_ok, fw)
     return False
 
 
 def _py(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _cylinder_plane_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[3][:k], S_n, S_p, S_g, S_f)
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _cylinder_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
     return False
 
 
 def _xc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _capsule_box_kernel(A[0][:k], A[1][:k], A[4][:k], A[3][:k], B[0][:k], B[1][:k], B[2][:k], S_n, S_p, S_g, S_f,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _capsule_box_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n, S_p, S_g, S_f,
                         S_ok, fw)
     return False
 
 
 def _xy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S_n, S_p, S_g, S_f, S_ok = _slots(fam, k, slot)
-    _box_cylinder_kernel(B[0][:k], B[1][:k], B[2][:k], A[0][:k], A[1][:k], A[4][:k], A[3][:k], gm[:k], True,
+    S = _slots(fam, k, slot)
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    _box_cylinder_kernel(B.c[:k], B.R[:k], B.h[:k], A.c[:k], A.R[:k], A.hl[:k], A.r[:k], gm[:k], True,
                          _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
     return True
 
@@ -312,8 +358,8 @@ def _signature():
     (:class:`engine.collision.dispatch.Collider`: writable C-contiguous
     float64, int64 and bool arrays)."""
     f1, i1, b1 = np.zeros(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
-    side = typeof((np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)), f1, f1))
-    return types.boolean(types.int64, types.int64, side, side, typeof(f1), typeof((f1, f1, f1, i1, b1)),
+    side = typeof(Side(c=np.zeros((1, 3)), R=np.zeros((1, 3, 3)), h=np.zeros((1, 3)), r=f1, hl=f1))
+    return types.boolean(types.int64, types.int64, side, side, typeof(f1), typeof(Slots(n=f1, p=f1, g=f1, f=i1, ok=b1)),
                          typeof(b1), typeof(f1), typeof(i1), types.boolean, typeof(f1), typeof(i1))
 
 
@@ -351,15 +397,50 @@ def family_table(fams: tuple) -> tuple:
     return t
 
 
+#: the narrow phase's contacts as :func:`collide` writes them (m,) each:
+#: bodies ``a``, ``b`` (b = n for statics), static index ``sidx`` (-1 for a
+#: body pair), ``normal``, ``point`` (m, 3), ``gap`` m, feature id ``fid``,
+#: restitution ``e``, friction coefficients ``mus``, ``muk``, ``mur``
+ContactOut = namedtuple("ContactOut", ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk", "mur"))
+
+#: the narrow phase's work arrays over pairs (:func:`collide`): the pairs'
+#: order ``perm``, group bounds ``start`` (33,), keys ``key``, a group's
+#: bodies ``ga``, ``gb``, statics ``st``, margins ``gm``, materials ``ma``,
+#: ``mb``, edge flags ``edge`` and separations ``se``, -1s ``capm1``; the
+#: families' scratch ``fw`` (FAMILY_FW floats) and ``iw`` (FAMILY_IW ints)
+NarrowWork = namedtuple("NarrowWork", ("perm", "start", "key", "ga", "gb", "st", "gm", "ma", "mb", "edge", "se",
+                                       "capm1", "fw", "iw"))
+
+#: the narrow phase's kept arrays (engine.collision.dispatch.Collider):
+#: ``body`` (shape, radius, half_extents, half_length, material) over the
+#: bodies, ``planes`` (normal, offset, static index), ``sboxes`` (centre,
+#: rotation, half-extents, static index), the statics' materials ``smat``,
+#: the pair tables ``coef`` (e, mus, muk, mur), the work arrays ``W``,
+#: ``A``, ``B``, ``slot``, the output ``out`` (:func:`collide`) and the
+#: families' functions ``fams`` (:func:`family_table`)
+Narrow = namedtuple("Narrow", ("body", "planes", "sboxes", "smat", "coef", "W", "A", "B", "slot", "out", "fams"))
+
+
 @njit(cache=True)
-def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, coef, out, cnt):
+def narrow_pack(body, planes, sboxes, smat, coef, W, A, B, slot, out, fams):
+    """The collider's kept arrays as one Pack of a :class:`Narrow`, made in
+    compiled code: numba types the table of compiled functions ``fams``
+    (:func:`family_table`) on its fast path only as a plain tuple argument
+    (inside a named tuple handed from Python it took ~3-5 ms a Pack)."""
+    return Pack(Narrow(body=body, planes=planes, sboxes=sboxes, smat=smat, coef=coef, W=W, A=A, B=B, slot=slot,
+                       out=out, fams=fams))
+
+
+@njit(cache=True)
+def _emit(fam, k, neg, ga, gb, st, mg, S, mat_a, mat_b, coef, out, cnt):
     """Write the kept contacts (gap < the pair's margin mg) of a group's k
-    pairs in the family's order (``BOUNDS``): bodies ga (k,), gb (k,) (or
-    the world n with statics st (k,) >= 0), their materials mat_a, mat_b
-    (k,) into the pair tables ``coef`` (e, mus, muk, mur); ``out`` (a, b,
-    sidx, normal, point, gap, fid, e, mus, muk, mur) written from cnt on
-    while there is room.  Returns the count after them."""
-    cap = out[0].shape[0]
+    pairs in the family's order (``BOUNDS``), from its slots ``S`` (a
+    :class:`Slots` of views): bodies ga (k,), gb (k,) (or the world n with statics st
+    (k,) >= 0), their materials mat_a, mat_b (k,) into the pair tables
+    ``coef`` (e, mus, muk, mur); ``out`` (a :class:`ContactOut`) written
+    from cnt on while there is room.  Returns the count after them."""
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
+    cap = out.a.shape[0]
     bnd = BOUNDS[fam]
     for q in range(bnd.shape[0] - 1):
         lo, hi = bnd[q], bnd[q + 1]
@@ -370,33 +451,34 @@ def _emit(fam, k, neg, ga, gb, st, mg, S_n, S_p, S_g, S_f, S_ok, mat_a, mat_b, c
                 if not (S_ok[t, s] and S_g[t, s] < mg[t]):
                     continue
                 if cnt < cap:
-                    out[0][cnt] = ga[t]
-                    out[1][cnt] = gb[t]
-                    out[2][cnt] = st[t]
+                    out.a[cnt] = ga[t]
+                    out.b[cnt] = gb[t]
+                    out.sidx[cnt] = st[t]
                     for i in range(3):
-                        out[3][cnt, i] = -S_n[t, s, i] if neg else S_n[t, s, i]
-                        out[4][cnt, i] = S_p[t, s, i]
-                    out[5][cnt] = S_g[t, s]
-                    out[6][cnt] = S_f[t, s]
+                        out.normal[cnt, i] = -S_n[t, s, i] if neg else S_n[t, s, i]
+                        out.point[cnt, i] = S_p[t, s, i]
+                    out.gap[cnt] = S_g[t, s]
+                    out.fid[cnt] = S_f[t, s]
                     ma, mb = mat_a[t], mat_b[t]
-                    out[7][cnt] = coef[0][ma, mb]
-                    out[8][cnt] = coef[1][ma, mb]
-                    out[9][cnt] = coef[2][ma, mb]
-                    out[10][cnt] = coef[3][ma, mb]
+                    out.e[cnt] = coef.e[ma, mb]
+                    out.mus[cnt] = coef.mus[ma, mb]
+                    out.muk[cnt] = coef.muk[ma, mb]
+                    out.mur[cnt] = coef.mur[ma, mb]
                 cnt += 1
     return cnt
 
 
 @njit(cache=True)
-def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margin, sweep, planes, sboxes, smat,
-            coef, face_points, fams, W, A, B, slot, out):
+def collide(k_, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep, face_points):
     """Contacts of every candidate pair at the pose X (n, 3), R (n, 3, 3).
 
-    ``body`` (shape, radius, half_extents, half_length, material) over the
-    n bodies; pairs: body-body ``pi``/``pj`` (i < j), body-plane ``bp``
-    (body) / ``pk`` (plane row), body-static-box ``bs`` / ``sk``, with
-    margins (m) ``mbb``, ``mbp``, ``mbs`` -- written here as ``margin`` +
-    both bodies' ``sweep`` (n,) when ``from_sweep``; ``planes`` (normal,
+    ``k_`` the collider's arrays (a :class:`Narrow`): ``body`` (shape,
+    radius, half_extents, half_length, material) over the n bodies; pairs:
+    body-body ``pi``/``pj`` (i < j), body-plane ``bp`` (body) / ``pk``
+    (plane row), body-static-box ``bs`` / ``sk``, with margins (m)
+    ``margins`` (body-body, body-plane, body-static-box) -- written here as
+    ``margin`` + both bodies' ``sweep`` (n,) when ``from_sweep``;
+    ``planes`` (normal,
     offset, static index), ``sboxes`` (centre, rotation, half-extents,
     static index); ``smat`` the statics' materials, ``coef`` the pair
     tables (e, mus, muk, mur) over materials; ``face_points`` see
@@ -417,11 +499,15 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
     contacts are written only while they fit ``out`` and the groups run
     only while they fit ``A``/``B`` and ``slot``; the caller grows what was
     short and calls again."""
-    shape, radius, half, hlen, bmat = body
-    perm, start, key, ga, gb, st, gm, ma, mb, edge, se, capm1, fw, iw = W
+    body, planes, sboxes, smat, coef, fams = k_.body, k_.planes, k_.sboxes, k_.smat, k_.coef, k_.fams
+    W, A, B, slot, out = k_.W, k_.A, k_.B, k_.slot, k_.out
+    mbb, mbp, mbs = margins
+    shape, radius, half, hlen, bmat = body.shape, body.radius, body.half, body.half_length, body.material
+    perm, start, key, ga, gb, st, gm = W.perm, W.start, W.key, W.ga, W.gb, W.st, W.gm
+    ma, mb, edge, se, capm1, fw, iw = W.ma, W.mb, W.edge, W.se, W.capm1, W.fw, W.iw
     n = shape.shape[0]
-    K = A[0].shape[0]
-    cap_slots = slot[2].shape[0]
+    K = A.c.shape[0]
+    cap_slots = slot.g.shape[0]
     need_k = 0
     need_s = 0
     cnt = np.int64(0)  # (typed, not Literal[int](0): _emit compiles once; engine/README.md "Compiled code and compile time")
@@ -471,49 +557,44 @@ def collide(body, X, R, pi, pj, mbb, bp, pk, mbp, bs, sk, mbs, from_sweep, margi
                     ma[t], mb[t] = bmat[i], bmat[j]
                 elif part == 1:
                     ga[t], gb[t] = bp[p], n
-                    st[t] = planes[2][pk[p]]
+                    st[t] = planes.static[pk[p]]
                     gm[t] = mbp[p]
                     ma[t], mb[t] = bmat[bp[p]], smat[st[t]]
                 else:
                     ga[t], gb[t] = bs[p], n
-                    st[t] = sboxes[3][sk[p]]
+                    st[t] = sboxes.static[sk[p]]
                     gm[t] = mbs[p]
                     ma[t], mb[t] = bmat[bs[p]], smat[st[t]]
-            _gather_body(X, R, half, radius, hlen, ga[:k], A[0], A[1], A[2], A[3], A[4])
+            _gather_body(X, R, half, radius, hlen, ga[:k], A.c, A.R, A.h, A.r, A.hl)
             if part == 0:
-                _gather_body(X, R, half, radius, hlen, gb[:k], B[0], B[1], B[2], B[3], B[4])
+                _gather_body(X, R, half, radius, hlen, gb[:k], B.c, B.R, B.h, B.r, B.hl)
             elif part == 1:
                 for t in range(k):
                     row = pk[perm[lo + t]]
                     for i in range(3):
-                        B[0][t, i] = planes[0][row, i]
-                    B[3][t] = planes[1][row]
+                        B.c[t, i] = planes.normal[row, i]
+                    B.r[t] = planes.offset[row]
             else:
                 for t in range(k):
                     row = sk[perm[lo + t]]
                     for i in range(3):
-                        B[0][t, i] = sboxes[0][row, i]
-                        B[2][t, i] = sboxes[2][row, i]
+                        B.c[t, i] = sboxes.centre[row, i]
+                        B.h[t, i] = sboxes.half[row, i]
                         for l in range(3):
-                            B[1][t, i, l] = sboxes[1][row, i, l]
+                            B.R[t, i, l] = sboxes.R[row, i, l]
             neg = fams[fam](fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw)
-            S_n = slot[0][:k * S * 3].reshape((k, S, 3))
-            S_p = slot[1][:k * S * 3].reshape((k, S, 3))
-            S_g = slot[2][:k * S].reshape((k, S))
-            S_f = slot[3][:k * S].reshape((k, S))
-            S_ok = slot[4][:k * S].reshape((k, S))
-            cnt = _emit(fam, k, neg, ga, gb, st, gm, S_n, S_p, S_g, S_f, S_ok, ma, mb, coef, out, cnt)
+            views = Slots(n=slot.n[:k * S * 3].reshape((k, S, 3)), p=slot.p[:k * S * 3].reshape((k, S, 3)),
+                          g=slot.g[:k * S].reshape((k, S)), f=slot.f[:k * S].reshape((k, S)),
+                          ok=slot.ok[:k * S].reshape((k, S)))
+            cnt = _emit(fam, k, neg, ga, gb, st, gm, views, ma, mb, coef, out, cnt)
     return cnt, need_k, need_s
 
 
 @njit(cache=True)
 def collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin, sweep, face_points):
     """:func:`collide` with the arrays kept between calls in ONE argument:
-    ``kept`` an :class:`engine.pack.Pack` of (body, planes, sboxes, smat,
-    coef, W, A, B, slot, out, fams) (the Collider's buffers and the
-    scene's :func:`family_table`, whose type is the same for every scene; one pointer to
-    unbox instead of ~55 arrays); ``margins`` (body-body, body-plane,
-    body-static-box); the rest as :func:`collide`."""
-    body, planes, sboxes, smat, coef, W, A, B, slot, out, fams = kept.items
-    return collide(body, X, R, pi, pj, margins[0], bp, pk, margins[1], bs, sk, margins[2], from_sweep, margin,
-                   sweep, planes, sboxes, smat, coef, face_points, fams, W, A, B, slot, out)
+    ``kept`` an :class:`engine.pack.Pack` of a :class:`Narrow` (the
+    Collider's buffers and the scene's :func:`family_table`, whose type is
+    the same for every scene; one pointer to unbox instead of ~55 arrays);
+    the rest as :func:`collide`."""
+    return collide(kept.items, X, R, pi, pj, bp, pk, bs, sk, margins, from_sweep, margin, sweep, face_points)

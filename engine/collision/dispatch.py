@@ -17,7 +17,9 @@ from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
-                                                collide_packed, families, family_table, ALL_FAMILIES)
+                                                BodyShapes, BoxRows, ContactOut, Narrow, NarrowWork, PairTables,
+                                                PlaneRows, Side, Slots, collide_packed, narrow_pack, families, family_table,
+                                                ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -57,13 +59,14 @@ class Collider:
         # writable copies: the kernel is compiled (and warmed) for writable
         # C-contiguous arrays, the model's are read-only
         f = lambda a, t=float: np.array(a, t)  # noqa: E731
-        self.body = (f(model.shape, np.int64), f(model.radius), f(model.half_extents), f(model.half_length),
-                     f(model.body_material, np.int64))
-        self.planes = (f(model.plane_normal).reshape(-1, 3), f(model.plane_offset), f(model.plane_static, np.int64))
-        self.sboxes = (f(model.sbox_pos).reshape(-1, 3), f(model.sbox_R).reshape(-1, 3, 3),
-                       f(model.sbox_half).reshape(-1, 3), f(model.sbox_static, np.int64))
+        self.body = BodyShapes(shape=f(model.shape, np.int64), radius=f(model.radius), half=f(model.half_extents),
+                               half_length=f(model.half_length), material=f(model.body_material, np.int64))
+        self.planes = PlaneRows(normal=f(model.plane_normal).reshape(-1, 3), offset=f(model.plane_offset),
+                                static=f(model.plane_static, np.int64))
+        self.sboxes = BoxRows(centre=f(model.sbox_pos).reshape(-1, 3), R=f(model.sbox_R).reshape(-1, 3, 3),
+                              half=f(model.sbox_half).reshape(-1, 3), static=f(model.sbox_static, np.int64))
         self.smat = f(model.static_material, np.int64)
-        self.coef = (f(model.pair_e), f(model.pair_mus), f(model.pair_muk), f(model.pair_mur))
+        self.coef = PairTables(e=f(model.pair_e), mus=f(model.pair_mus), muk=f(model.pair_muk), mur=f(model.pair_mur))
         self.margins = (np.empty(0), np.empty(0), np.empty(0))
         #: the families compiled for the driver (collide.families: the
         #: scene's shapes; the others raise, collide.family_table)
@@ -76,32 +79,37 @@ class Collider:
 
     def _pairs(self, m: int) -> None:
         i, z = np.empty(m, np.int64), np.empty(m)
-        self.W = (i, np.zeros(33, np.int64), i.copy(), i.copy(), i.copy(), i.copy(), z, i.copy(), i.copy(),
-                  np.zeros(m, np.bool_), z.copy(), np.full(m, -1, np.int64), np.zeros(FAMILY_FW),
-                  np.zeros(FAMILY_IW, np.int64))
+        self.W = NarrowWork(perm=i, start=np.zeros(33, np.int64), key=i.copy(), ga=i.copy(), gb=i.copy(), st=i.copy(),
+                            gm=z, ma=i.copy(), mb=i.copy(), edge=np.zeros(m, np.bool_), se=z.copy(),
+                            capm1=np.full(m, -1, np.int64), fw=np.zeros(FAMILY_FW), iw=np.zeros(FAMILY_IW, np.int64))
         self.margins = tuple(np.empty(m) for _ in range(3))
 
     def _group(self, k: int, slots: int) -> None:
         def side():
-            return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros(k), np.zeros(k)
+            return Side(c=np.zeros((k, 3)), R=np.zeros((k, 3, 3)), h=np.zeros((k, 3)), r=np.zeros(k), hl=np.zeros(k))
         self.A, self.B = side(), side()
-        self.slot = (np.zeros(3 * slots), np.zeros(3 * slots), np.zeros(slots), np.zeros(slots, np.int64),
-                     np.zeros(slots, np.bool_))
+        self.slot = Slots(n=np.zeros(3 * slots), p=np.zeros(3 * slots), g=np.zeros(slots), f=np.zeros(slots, np.int64),
+                          ok=np.zeros(slots, np.bool_))
 
     def _out(self, m: int) -> None:
         i = np.empty(m, np.int64)
-        self.out = (i, i.copy(), i.copy(), np.empty((m, 3)), np.empty((m, 3)), np.empty(m), i.copy(),
-                    np.empty(m), np.empty(m), np.empty(m), np.empty(m))
+        self.out = ContactOut(a=i, b=i.copy(), sidx=i.copy(), normal=np.empty((m, 3)), point=np.empty((m, 3)),
+                              gap=np.empty(m), fid=i.copy(), e=np.empty(m), mus=np.empty(m), muk=np.empty(m),
+                              mur=np.empty(m))
 
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
+        fams = family_table(self.fams)
         return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                              self.slot, self.out, family_table(self.fams)))
+                              self.slot, self.out, fams), lambda: narrow_pack(
+                                  body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
+                                  coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
+                                  fams=fams))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
         contacts in the present buffers (the views of a call made into the
-        same buffers by a compiled caller, engine/steady.py), else None."""
+        same buffers by a compiled caller, engine/fused/steady.py), else None."""
         last = self._contacts
         return last[2] if last is not None and last[0] == cnt and last[1] is self.out else None
 
@@ -119,22 +127,22 @@ class Collider:
         bp, pk = plane_pairs
         bs, sk = sbox_pairs
         m = max(pi.shape[0], bp.shape[0], bs.shape[0])
-        if self.W[0].shape[0] < m:
+        if self.W.perm.shape[0] < m:
             self._pairs(2 * m)
         from_sweep = margins is None
         if from_sweep:
             margins = self.margins
         else:
-            sweep = self.W[6]
+            sweep = self.W.gm
         while True:
             kept = self.packed()
             cnt, need_k, need_s = collide_packed(kept, X, R, pi, pj, margins, bp, pk, bs, sk, from_sweep, margin,
                                                  sweep, box.EDGE_FACE_POINTS)
             short = False
-            if need_k > self.A[0].shape[0] or need_s > self.slot[2].shape[0]:
+            if need_k > self.A.c.shape[0] or need_s > self.slot.g.shape[0]:
                 self._group(2 * need_k, 2 * need_s)
                 short = True
-            if cnt > self.out[0].shape[0]:
+            if cnt > self.out.a.shape[0]:
                 self._out(2 * cnt)
                 short = True
             if not short:
@@ -145,8 +153,8 @@ class Collider:
             # the same views of the same buffers: the same object (a steady
             # step's solve keeps what it built from them, solver.Solve)
             return last[2]
-        c = Contacts(o[0][:cnt], o[1][:cnt], o[2][:cnt], o[3][:cnt], o[4][:cnt], o[5][:cnt], o[6][:cnt],
-                     o[7][:cnt], o[8][:cnt], o[9][:cnt], o[10][:cnt])
+        c = Contacts(a=o.a[:cnt], b=o.b[:cnt], sidx=o.sidx[:cnt], normal=o.normal[:cnt], point=o.point[:cnt],
+                     gap=o.gap[:cnt], fid=o.fid[:cnt], e=o.e[:cnt], mus=o.mus[:cnt], muk=o.muk[:cnt], mur=o.mur[:cnt])
         self._contacts = (cnt, o, c)
         return c
 

@@ -214,8 +214,9 @@ def _onto_disc(new, i, lim, pinned, d):
 
 
 @njit(cache=True, inline="always")
-def _rolling_block(U, pab, Jt, Mt, mt, lam_t, p, lim_t, tl, lim_r, pin_t, dir_t, pin_r, dir_r, w, world):
-    """One patch of five rows (tangent, tangent, twist, rolling, rolling)
+def _rolling_block(U, f, p, lim_t, tl, lim_r, w, world):
+    """Patch ``p`` of the patches ``f`` (engine.contact.packs.Patches) with
+    five rows (tangent, tangent, twist, rolling, rolling)
     solved as a block: the per-row updates of :func:`friction_pass`
     (Coulomb disc ``lim_t``, twist limit ``tl``, rolling disc ``lim_r``)
     repeated on the patch's own velocities v = v0 + W (lam - lam0), W (5, 5)
@@ -228,6 +229,8 @@ def _rolling_block(U, pab, Jt, Mt, mt, lam_t, p, lim_t, tl, lim_r, pin_t, dir_t,
     as a block it is exact at every heading
     (tests/test_engine_friction.py::test_cylinder_rolling_resistance_at_every_heading).
     ``w`` (40,) scratch: new (5,), lam (5,), v (5,), W (25,)."""
+    pab, Jt, Mt, mt, lam_t = f.pab, f.Jt, f.Mt, f.mt, f.lam_t
+    pin_t, dir_t, pin_r, dir_r = f.pin_t[p], f.dir_t[p], f.pin_r[p], f.dir_r[p]
     ia = pab[p, 0]
     ib = pab[p, 1]
     for r in range(5):
@@ -303,21 +306,24 @@ def _rolling_step(mt, w, p, lim):
 
 
 @njit(cache=True)
-def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn, new):
-    """One sweep of the friction patches: tangent and twist rows (Coulomb
-    disc mu Fn, twist limit mu Fn r_twist), then the rolling rows (disc
-    mu_r Fn), Fn the patch's normal impulse at the start of the sweep.
-    ``Fn`` (np,) and ``new`` (>= nr,) work arrays."""
+def friction_pass(U, f, lam_n, world, Fn, new):
+    """One sweep of the friction patches ``f`` (engine.contact.packs.Patches):
+    tangent and twist rows (Coulomb disc mu Fn, twist limit mu Fn
+    r_twist), then the rolling rows (disc mu_r Fn), Fn the patch's normal
+    impulse at the start of the sweep.  ``Fn`` (np,) and ``new`` (>= nr,)
+    work arrays."""
+    pab, Jt, Mt, mt, lam_t, mu, rt = f.pab, f.Jt, f.Mt, f.mt, f.lam_t, f.mu, f.rt
+    pid, pin_t, dir_t = f.pid, f.pin_t, f.dir_t
     npch = lam_t.shape[0]
     nr = lam_t.shape[1]
     Fn[:] = 0.0
     for i in range(pid.shape[0]):
         Fn[pid[i]] += lam_n[i]
     if nr == 5:  # patches with rolling rows: each solved as a block
+        mur = f.mur
         for p in range(npch):
             lim = mu[p] * Fn[p]
-            _rolling_block(U, pab, Jt, Mt, mt, lam_t, p, lim, lim * rt[p], mur[p] * Fn[p], pin_t[p], dir_t[p],
-                           pin_r[p], dir_r[p], new, world)
+            _rolling_block(U, f, p, lim, lim * rt[p], mur[p] * Fn[p], new, world)
         return
     for p in range(npch):
         _patch_rows(U, pab, Jt, Mt, mt, lam_t, p, 0, 3, new, world)
@@ -329,12 +335,15 @@ def friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir
 
 
 @njit(cache=True)
-def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_t, mu, rt, mur,
-            pin_t, dir_t, pin_r, dir_r, iterations, tol, world, wk):
-    """Sweeps of friction (patches) then normal rows until no impulse
-    changes by more than ``tol`` times the largest normal impulse in a
-    sweep; ``wk`` the work array (module doc).  Returns (sweeps done, the
-    last sweep's largest change relative to the largest normal impulse)."""
+def iterate(U, rows, f, friction, iterations, tol, world, wk):
+    """Sweeps of friction (the patches ``f``, engine.contact.packs.Patches,
+    with ``friction``) then normal rows (``rows``, engine.contact.packs.
+    NormalRows) until no impulse changes by more than ``tol`` times the
+    largest normal impulse in a sweep; ``wk`` the work array (module doc).
+    Returns (sweeps done, the last sweep's largest change relative to the
+    largest normal impulse)."""
+    ab, J, M, mn, lam_n, target = rows.ab, rows.J, rows.M, rows.mn, rows.lam, rows.target
+    pab, pid, Mt, lam_t, mu, rt, mur = f.pab, f.pid, f.Mt, f.lam_t, f.mu, f.rt, f.mur
     m = lam_n.shape[0]
     npch = lam_t.shape[0]
     nr = lam_t.shape[1]
@@ -346,8 +355,7 @@ def iterate(U, ab, J, M, mn, lam_n, target, friction, pab, pid, Jt, Mt, mt, lam_
             for p in range(npch):
                 for r in range(nr):
                     prev_t[p * nr + r] = lam_t[p, r]
-            friction_pass(U, pab, pid, Jt, Mt, mt, lam_t, lam_n, mu, rt, mur, pin_t, dir_t, pin_r, dir_r, world, Fn,
-                          new)
+            friction_pass(U, f, lam_n, world, Fn, new)
         normal_pass(U, ab, J, M, mn, lam_n, target, world)
         change = 0.0
         for i in range(m):

@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from physbench.engine.contact import linalg, propagate
+from physbench.engine.contact.packs import ImpactGroups, ImpactPatches, ImpactRows
 from physbench.engine.flight import q2m
 from physbench.engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
 from physbench.engine.contact.scratch import Scratch
@@ -210,15 +211,17 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     go, gs, inv, bo, b0, vcur = propagate.setup(code, ab, n, np.ascontiguousarray(rows.J), U)
     f = np.ascontiguousarray
     if friction:
-        nr = rows.Jt.shape[1]
-        fr = (f(rows.Jt), f(rows.Mt), f(rows.mt), f(rows.pa, np.int64), f(rows.pb, np.int64), f(rows.mus, float),
-              f(rows.muk, float), f(rows.r_twist), f(rows.mur, float) if rows.rolling else np.zeros(rows.np))
+        fr = ImpactPatches(Jt=f(rows.Jt), Mt=f(rows.Mt), mt=f(rows.mt), pa=f(rows.pa, np.int64),
+                           pb=f(rows.pb, np.int64), mus=f(rows.mus, float), muk=f(rows.muk, float),
+                           r_twist=f(rows.r_twist), mur=f(rows.mur, float) if rows.rolling else np.zeros(rows.np))
     else:
         nr = 3
-        fr = (np.zeros((0, nr, 12)), np.zeros((0, nr, 12)), np.zeros((0, nr)), _NO_I, _NO_I, _NO_D, _NO_D, _NO_D,
-              _NO_D)
-    args = (f(rows.J), f(rows.M), f(ab, np.int64), f(cs.e, float), f(rows.pid, np.int64) if friction else _NO_I,
-            go, gs, inv, bo, b0, U, vcur, float(thr), bool(friction)) + fr + (bool(friction and rows.rolling),)
+        fr = ImpactPatches(Jt=np.zeros((0, nr, 12)), Mt=np.zeros((0, nr, 12)), mt=np.zeros((0, nr)), pa=_NO_I,
+                           pb=_NO_I, mus=_NO_D, muk=_NO_D, r_twist=_NO_D, mur=_NO_D)
+    args = (ImpactRows(J=f(rows.J), M=f(rows.M), ab=f(ab, np.int64), e=f(cs.e, float),
+                       pid=f(rows.pid, np.int64) if friction else _NO_I),
+            ImpactGroups(go=go, gs=gs, inv=inv, bo=bo, b0=b0), U, vcur, float(thr), bool(friction), fr,
+            bool(friction and rows.rolling))
     if not propagate.propagate(0, *args):
         # pinned configuration: resolve all approaches together
         v = vn_all()
@@ -253,8 +256,11 @@ def warm_up() -> None:
     U = np.zeros((2, 6))
     for friction in (False, True):
         k = 1 if friction else 0
-        propagate.propagate(0, J, J.copy(), ab, np.ones(2), i2[:2 if friction else 0], np.arange(2, dtype=np.int64),
-                            np.array([0, 2], np.int64), i2, np.arange(2, dtype=np.int64),
-                            np.array([0, 2, 2], np.int64), U, -np.ones(2), 0.1, friction, np.ones((k, 3, 12)),
-                            np.ones((k, 3, 12)), np.ones((k, 3)), i2[:k], i2[:k] + 1, np.ones(k), np.ones(k),
-                            np.ones(k), np.ones(k), False)
+        propagate.propagate(0, ImpactRows(J=J, M=J.copy(), ab=ab, e=np.ones(2), pid=i2[:2 if friction else 0]),
+                            ImpactGroups(go=np.arange(2, dtype=np.int64), gs=np.array([0, 2], np.int64), inv=i2,
+                                         bo=np.arange(2, dtype=np.int64), b0=np.array([0, 2, 2], np.int64)),
+                            U, -np.ones(2), 0.1, friction,
+                            ImpactPatches(Jt=np.ones((k, 3, 12)), Mt=np.ones((k, 3, 12)), mt=np.ones((k, 3)),
+                                          pa=i2[:k], pb=i2[:k] + 1, mus=np.ones(k), muk=np.ones(k), r_twist=np.ones(k),
+                                          mur=np.ones(k)),
+                            False)

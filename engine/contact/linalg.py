@@ -21,6 +21,7 @@ index ``world`` (its rows of M are zero: it couples nothing).
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -320,9 +321,12 @@ def _sort_by_key(key, val, k):
         val[0], val[end - 1] = val[end - 1], val[0]
 
 
+#: :func:`spd_solve_sparse_into`'s int64 work arrays (its doc)
+SparseWork = namedtuple("SparseWork", ("cnt", "ptr", "idx", "deg", "visited", "order", "pos", "nbr", "nbr_key", "need"))
+
+
 @njit(cache=True)
-def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, cnt, ptr, idx, deg, visited, order,
-                          pos, nbr, nbr_key, need):
+def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, work):
     """Solve K_aa lam = r_a over the rows ``rows`` (indices, ascending) with
     Tikhonov eps = eps_rel max diag(K_aa), K symmetric positive
     semi-definite and sparse (rows couple only through shared bodies).
@@ -335,8 +339,11 @@ def spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, y, band, cnt
     (zeros outside ``rows``); returns ok, False at a non-positive pivot.
     Scratch: ``y`` (>= s,), ``band`` (an island's band storage: a new array
     when it is shorter; ``need[0]`` is set to the most this call needed),
-    int64 ``cnt``, ``ptr``, ``idx`` as :func:`body_rows_into`, ``deg``,
-    ``visited``, ``order``, ``pos``, ``nbr``, ``nbr_key`` (>= s,)."""
+    and ``work`` (a :class:`SparseWork`): int64 ``cnt``, ``ptr``, ``idx`` as
+    :func:`body_rows_into`, ``deg``, ``visited``, ``order``, ``pos``,
+    ``nbr``, ``nbr_key`` (>= s,), ``need`` (1,)."""
+    cnt, ptr, idx, deg, visited = work.cnt, work.ptr, work.idx, work.deg, work.visited
+    order, pos, nbr, nbr_key, need = work.order, work.pos, work.nbr, work.nbr_key, work.need
     s = rows.size
     lam[:] = 0.0
     need[0] = 0
@@ -461,11 +468,11 @@ def spd_solve_sparse(J, M, a, b, world, r, rows, eps_rel):
     s = rows.size
     lam = np.empty(m)
     e = np.empty(s, np.int64)
-    ok = spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, np.empty(s), np.empty(0),
-                               np.empty(world + 1, np.int64), np.empty(world + 2, np.int64),
-                               np.empty(2 * s, np.int64), e, np.empty(s, np.int64), np.empty(s, np.int64),
-                               np.empty(s, np.int64), np.empty(s, np.int64), np.empty(s, np.int64),
-                               np.empty(1, np.int64))
+    work = SparseWork(cnt=np.empty(world + 1, np.int64), ptr=np.empty(world + 2, np.int64),
+                      idx=np.empty(2 * s, np.int64), deg=e, visited=np.empty(s, np.int64), order=np.empty(s, np.int64),
+                      pos=np.empty(s, np.int64), nbr=np.empty(s, np.int64), nbr_key=np.empty(s, np.int64),
+                      need=np.empty(1, np.int64))
+    ok = spd_solve_sparse_into(J, M, a, b, world, r, rows, eps_rel, lam, np.empty(s), np.empty(0), work)
     return lam, ok
 
 

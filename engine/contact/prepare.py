@@ -41,10 +41,14 @@ def pair_code(a, b, sidx, n, n_statics):
 
 
 @njit(cache=True)
-def _point_vn(V, W, a, b, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2):
-    """n . (vb + wb x rB - va - wa x rA) with rA = p - xa, rB = p - xb
-    (xa, xb as scalars); velocity fields (k, 3) with k = nb (body b = nb,
-    the world, at rest) or nb + 1 (its row zero)."""
+def _point_vn(V, W, a, b, p, n, xa, xb):
+    """n . (vb + wb x rB - va - wa x rA) with rA = p - xa, rB = p - xb (p,
+    n, xa, xb tuples of three scalars); velocity fields (k, 3) with k = nb
+    (body b = nb, the world, at rest) or nb + 1 (its row zero)."""
+    px, py, pz = p
+    nx, ny, nz = n
+    xa0, xa1, xa2 = xa
+    xb0, xb1, xb2 = xb
     ax = px - xa0
     ay = py - xa1
     az = pz - xa2
@@ -65,25 +69,34 @@ def _point_vn(V, W, a, b, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2):
 
 
 @njit(cache=True)
-def classify(X, V1, W1, V0, W0, UL, UA, a, b, sidx, point, normal, gap, nb, n_statics, h, thr, lever, slop,
-             warm, o_code, o_loc, o_fn, o_touch, R0, bound_radius, vn, touching, impact, codes):
+def classify(kc, kx, kk, ko, n_statics, h, thr, lever, slop, warm):
     """Normal velocities and classification of the contacts (m of them).
 
-    ``X`` (nb, 3) positions at the start pose; velocity fields (as
-    :func:`_point_vn`): ``V1``/``W1`` the free flight's end, ``V0``/``W0``
-    the start of the step, ``UL``/``UA`` the free flight's mean motion.  Writes ``vn`` (3, m): rows vn_free, vn0, un (m/s);
-    ``touching`` (m,) gap <= 1e-6 m; ``impact`` (m,) rows this step's motion
-    closes at an approach above ``thr`` m/s (see solver.Solve); ``codes``
-    (m,) pair codes.  With ``warm`` (the last solve's cache: sorted pair
-    codes ``o_code`` (k,), points in body a's frame ``o_loc`` (k, 3), normal
-    forces ``o_fn`` (k,), ``o_touch`` (k,) bool), a touching row approaching
-    faster than ``thr`` that a speculative row would sink beyond ``slop``
-    is an impact too, and in a pair that pressed last step (a cached point
-    with a positive force) a closing row stays an impact only when it is
-    not near a point that pressed at rest (within 0.1 bound radius + 0.1 mm
-    in body a's frame, ``R0`` (nb, 3, 3) the start rotations), it approached
-    faster than ``thr`` at the start, and it would sink beyond ``slop``.
-    Returns the number of impact rows."""
+    The arrays come as :class:`engine.pack.Pack` s of the named tuples of
+    engine.contact.packs: ``kc`` the :class:`Pose` (positions ``X`` (nb, 3)
+    at the start pose, velocity fields as :func:`_point_vn`: ``V``/``W``
+    the free flight's end, ``V0``/``W0`` the start of the step), ``kx`` the
+    :class:`Classified` (``UL``/``UA`` the free flight's mean motion, and
+    the outputs), ``kk`` the :class:`ContactArrays`, ``ko`` the last
+    solve's :class:`Cache`.  Writes ``vn`` (3, m): rows vn_free, vn0, un
+    (m/s); ``touching`` (m,) gap <= 1e-6 m; ``impact`` (m,) rows this
+    step's motion closes at an approach above ``thr`` m/s (see
+    solver.Solve); ``codes`` (m,) pair codes.  With ``warm`` (the last
+    solve's cache: sorted pair codes ``code`` (k,), points in body a's
+    frame ``loc`` (k, 3), normal forces ``fn`` (k,), ``touch`` (k,) bool),
+    a touching row approaching faster than ``thr`` that a speculative row
+    would sink beyond ``slop`` is an impact too, and in a pair that
+    pressed last step (a cached point with a positive force) a closing row
+    stays an impact only when it is not near a point that pressed at rest
+    (within 0.1 bound radius + 0.1 mm in body a's frame, ``R0`` (nb, 3, 3)
+    the start rotations), it approached faster than ``thr`` at the start,
+    and it would sink beyond ``slop``.  Returns the number of impact rows."""
+    pose, cl, c, o = kc.items, kx.items, kk.items, ko.items
+    X, V1, W1, V0, W0, R0, bound_radius = pose.X, pose.V, pose.W, pose.V0, pose.W0, pose.R0, pose.bound_radius
+    UL, UA, vn, touching, impact, codes = cl.UL, cl.UA, cl.vn, cl.touching, cl.impact, cl.codes
+    a, b, sidx, point, normal, gap = c.a, c.b, c.sidx, c.point, c.normal, c.gap
+    o_code, o_loc, o_fn, o_touch = o.code, o.loc, o.fn, o.touch
+    nb = X.shape[0]
     m = a.shape[0]
     k = o_code.shape[0]
     count = 0
@@ -96,9 +109,10 @@ def classify(X, V1, W1, V0, W0, UL, UA, a, b, sidx, point, normal, gap, nb, n_st
             xb0, xb1, xb2 = X[ib, 0], X[ib, 1], X[ib, 2]
         px, py, pz = point[i, 0], point[i, 1], point[i, 2]
         nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
-        v1 = _point_vn(V1, W1, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
-        v0 = _point_vn(V0, W0, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
-        un = _point_vn(UL, UA, ia, ib, px, py, pz, nx, ny, nz, xa0, xa1, xa2, xb0, xb1, xb2)
+        p3, n3, xa, xb = (px, py, pz), (nx, ny, nz), (xa0, xa1, xa2), (xb0, xb1, xb2)
+        v1 = _point_vn(V1, W1, ia, ib, p3, n3, xa, xb)
+        v0 = _point_vn(V0, W0, ia, ib, p3, n3, xa, xb)
+        un = _point_vn(UL, UA, ia, ib, p3, n3, xa, xb)
         vn[0, i] = v1
         vn[1, i] = v0
         vn[2, i] = un
@@ -174,12 +188,16 @@ def _basis(nx, ny, nz):
 
 
 @njit(cache=True, inline="always")
-def _row(J, M, i, l0, l1, l2, a0, a1, a2, b0, b1, b2, ima, imb, IA, IB):
-    """Fill row i of J/M (k, 12) for the direction (l0, l1, l2) (zero for
-    an angular row) with angular parts (a0, a1, a2) for a and (b0, b1, b2)
-    for b (J's a side is -lin, -ang_a); returns J[i] . M[i] (summed in
-    column order).  Scalars, not 3-vectors: nothing is allocated
+def _row(J, M, i, lin, ang_a, ang_b, ima, imb, IA, IB):
+    """Fill row i of J/M (k, 12) for the direction ``lin`` = (l0, l1, l2)
+    (zero for an angular row) with angular parts ``ang_a`` = (a0, a1, a2)
+    for a and ``ang_b`` = (b0, b1, b2) for b (J's a side is -lin, -ang_a);
+    returns J[i] . M[i] (summed in column order).  Tuples of scalars, not
+    arrays: nothing is allocated
     (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    l0, l1, l2 = lin
+    a0, a1, a2 = ang_a
+    b0, b1, b2 = ang_b
     J[i, 0] = -l0
     J[i, 1] = -l1
     J[i, 2] = -l2
@@ -239,8 +257,8 @@ def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J
         ib = b[k]
         ax, ay, az, bx, by, bz = _arms(point[k, 0], point[k, 1], point[k, 2], X, ia, ib, nb)
         nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
-        kn = _row(J, M, i, nx, ny, nz, ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx,
-                  by * nz - bz * ny, bz * nx - bx * nz, bx * ny - by * nx, inv_mass[ia], inv_mass[ib], Iinv[ia],
+        kn = _row(J, M, i, (nx, ny, nz), (ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx),
+                  (by * nz - bz * ny, bz * nx - bx * nz, bx * ny - by * nx), inv_mass[ia], inv_mass[ib], Iinv[ia],
                   Iinv[ib])
         mn[i] = 1.0 / kn
         if not want_loc:
@@ -250,13 +268,19 @@ def normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J
 
 
 @njit(cache=True)
-def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, rolling, P, N, r_twist, t, Jt, Mt,
-               mt):
-    """The friction patches of the rows ``sel`` (m,) (patch of row i
-    ``pid[i]``, patch bodies ``pa``/``pb`` (np,), rows per patch ``cnt``
-    (np,) float): centroids ``P`` and normals ``N`` (np, 3), ``r_twist``
-    (np,) m, tangents ``t`` (np, 2, 3), ``Jt``/``Mt`` (np, nr, 12) and
-    ``mt`` (np, nr) with nr = 5 when ``rolling`` else 3 (module doc)."""
+def patch_rows(bodies, c, sel, ps, nb, rolling, out):
+    """The friction patches of the rows ``sel`` (m,) (engine.contact.packs:
+    ``bodies`` a :class:`Bodies`, ``c`` the :class:`ContactArrays`, ``ps``
+    the :class:`PatchSet`: patch of row i ``pid[i]``, patch bodies
+    ``pa``/``pb`` (np,), rows per patch ``cnt`` (np,) float) into ``out``
+    (a :class:`RowArrays`): centroids ``P`` and normals ``N`` (np, 3),
+    ``rt`` (np,) m the twist radii, tangents ``t`` (np, 2, 3), ``Jt``/``Mt``
+    (np, nr, 12) and ``mt`` (np, nr) with nr = 5 when ``rolling`` else 3
+    (module doc)."""
+    X, Iinv, inv_mass = bodies.X, bodies.Iinv, bodies.inv_mass
+    point, normal = c.point, c.normal
+    pid, pa, pb, cnt = ps.pid, ps.pa, ps.pb, ps.cnt
+    P, N, r_twist, t, Jt, Mt, mt = out.P, out.N, out.rt, out.t, out.Jt, out.Mt, out.mt
     npch = pa.shape[0]
     m = sel.shape[0]
     P[:, :] = 0.0
@@ -311,16 +335,16 @@ def patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, roll
         Mp = Mt[p]
         for r in range(2):  # tangent rows: lever arms x t
             l0, l1, l2 = t[p, r, 0], t[p, r, 1], t[p, r, 2]
-            kt = _row(Jp, Mp, r, l0, l1, l2, ay * l2 - az * l1, az * l0 - ax * l2, ax * l1 - ay * l0,
-                      by * l2 - bz * l1, bz * l0 - bx * l2, bx * l1 - by * l0, ima, imb, IA, IB)
+            kt = _row(Jp, Mp, r, (l0, l1, l2), (ay * l2 - az * l1, az * l0 - ax * l2, ax * l1 - ay * l0),
+                      (by * l2 - bz * l1, bz * l0 - bx * l2, bx * l1 - by * l0), ima, imb, IA, IB)
             mt[p, r] = 1.0 / kt if kt > 0.0 else 0.0
         n0, n1, n2 = N[p, 0], N[p, 1], N[p, 2]
-        kt = _row(Jp, Mp, 2, 0.0, 0.0, 0.0, n0, n1, n2, n0, n1, n2, ima, imb, IA, IB)  # twist about N
+        kt = _row(Jp, Mp, 2, (0.0, 0.0, 0.0), (n0, n1, n2), (n0, n1, n2), ima, imb, IA, IB)  # twist about N
         mt[p, 2] = 1.0 / kt if kt > 0.0 else 0.0
         if rolling:
             for r in range(2):
                 l0, l1, l2 = t[p, r, 0], t[p, r, 1], t[p, r, 2]
-                kt = _row(Jp, Mp, 3 + r, 0.0, 0.0, 0.0, l0, l1, l2, l0, l1, l2, ima, imb, IA, IB)
+                kt = _row(Jp, Mp, 3 + r, (0.0, 0.0, 0.0), (l0, l1, l2), (l0, l1, l2), ima, imb, IA, IB)
                 mt[p, 3 + r] = 1.0 / kt if kt > 0.0 else 0.0
 
 
@@ -397,22 +421,24 @@ def sliding(Jt, U, pab, r_twist, slip_tol, vt, slip):
 
 
 @njit(cache=True)
-def rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc, lam_n, target, friction,
-         pid, pa, pb, cnt, rolling, P, N, r_twist, t, Jt, Mt, mt, lam_t, slip, mu, mus):
-    """The rows of a solve in one call: :func:`normal_rows`, then (with
+def rows(bodies, want_loc, c, sel, nb, out, ps, friction, rolling):
+    """The rows of a solve in one call (engine.contact.packs: ``bodies`` a
+    :class:`Bodies`, ``c`` the :class:`ContactArrays`, ``out`` the
+    :class:`RowArrays` written, ``ps`` the :class:`PatchSet`):
+    :func:`normal_rows` of the contacts ``sel`` (m,), then (with
     ``friction``) :func:`patch_rows`; the impulses ``lam_n`` (m,) and
     ``lam_t`` (np, nr), the ``target`` (m,) and the ``slip`` (np,) flags
     cleared, ``mu`` (np,) set to the static coefficients ``mus`` (np,)
     (the same arithmetic as the separate calls: tests/test_determinism.py)."""
-    normal_rows(X, Iinv, inv_mass, R0, want_loc, a, b, point, normal, sel, nb, J, M, mn, loc)
-    lam_n[:] = 0.0
-    target[:] = 0.0
+    normal_rows(bodies.X, bodies.Iinv, bodies.inv_mass, bodies.R0, want_loc, c.a, c.b, c.point, c.normal, sel, nb,
+                out.J, out.M, out.mn, out.loc)
+    out.lam_n[:] = 0.0
+    out.target[:] = 0.0
     if friction:
-        patch_rows(X, Iinv, inv_mass, point, normal, sel, pid, pa, pb, cnt, nb, rolling, P, N, r_twist, t, Jt,
-                   Mt, mt)
-        lam_t[:] = 0.0
-        slip[:] = False
-        mu[:] = mus
+        patch_rows(bodies, c, sel, ps, nb, rolling, out)
+        out.lam_t[:] = 0.0
+        out.slip[:] = False
+        out.mu[:] = ps.mus
 
 
 @njit(cache=True)

@@ -15,12 +15,19 @@ tests/test_impact_propagate.py against numpy and ``math.hypot``."""
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 from physbench.engine.contact import linalg
 from physbench.engine.contact.rows import SLIP_TOL
+
+#: :func:`propagate`'s scratch for :func:`_resolve`: each pair's normal
+#: block ``K`` (G, k, k) and whether it is built (``have`` (G,)), each
+#: patch's inverted friction block ``Kinv`` (np, nr, nr) and ``ok`` (np,),
+#: a pair's targets ``tgt``, impulses ``lam`` and residual ``r`` (k,)
+_Work = namedtuple("_Work", ("K", "have", "Kinv", "ok", "tgt", "lam", "r"))
 
 
 @njit(cache=True)
@@ -251,8 +258,9 @@ def block_normal(J, M, ab, idx, k, target, U, K, world, lam, r):
 
 
 @njit(cache=True)
-def patch_impulse(Jt, Mt, mt, pa, pb, mus, muk, r_twist, mur, rolling, p, Fn, U, world, Kinv, ok):
-    """One-shot Coulomb friction impulse on patch p after a normal impulse
+def patch_impulse(f, rolling, p, Fn, U, world, Kinv, ok):
+    """One-shot Coulomb friction impulse on patch p of the patches ``f``
+    (an engine.contact.packs.ImpactPatches) after a normal impulse
     Fn (impact._propagate's doc): the impulse that stops its tangential
     and twist (and rolling) motion by the inverse of its block (Kinv[p],
     computed at the patch's first impulse: ok[p] 1 invertible, -1 not, 0
@@ -260,6 +268,7 @@ def patch_impulse(Jt, Mt, mt, pa, pb, mus, muk, r_twist, mur, rolling, p, Fn, U,
     ones; the rolling impulse to the mu_r Fn disc."""
     if Fn <= 0.0:
         return
+    Jt, Mt, mt, pa, pb, mus, muk, r_twist, mur = f.Jt, f.Mt, f.mt, f.pa, f.pb, f.mus, f.muk, f.r_twist, f.mur
     nr = Jt.shape[1]
     a, b = pa[p], pb[p]
     if ok[p] == 0:
@@ -367,17 +376,19 @@ def setup(code, ab, n, J, U):
 
 
 @njit(cache=True)
-def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb, mus, muk,
-              r_twist, mur, rolling):
-    """Impulse propagation over rows (J, M (m, 12), ab (m, 2), e, pid,
-    inv (m,): the pair of each row; go, gs: the rows of pair g are
-    go[gs[g]:gs[g + 1]]; bo, b0: the rows of body i are bo[b0[i]:b0[i +
-    1]]) on U (n+1, 6) in place, with vcur (m,) the rows' normal speeds
-    kept current.  ``mode`` 0: the fastest approach above ``thr`` first,
+def propagate(mode, rows, groups, U, vcur, thr, friction, patches, rolling):
+    """Impulse propagation over ``rows`` (an engine.contact.packs.ImpactRows;
+    ``groups`` its ImpactGroups: the rows of each pair and of each body,
+    the pair of each row) on U (n+1, 6) in place, with vcur (m,) the rows'
+    normal speeds kept current; with ``friction`` the ImpactPatches
+    ``patches`` (``rolling``: their rolling rows).  ``mode`` 0: the fastest
+    approach above ``thr`` first,
     with restitution, until none is left (returns whether it settled
     within 20 solves per pair + 10); 1: the slow approaches stopped, three
     passes over the approaching pairs in order (returns True)."""
     m = vcur.shape[0]
+    gs, inv = groups.gs, groups.inv
+    Jt = patches.Jt
     G = gs.shape[0] - 1
     world = U.shape[0] - 1
     kmax = 1
@@ -393,6 +404,7 @@ def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, frictio
     lam = np.empty(kmax)
     r = np.empty(kmax)
     mark = np.zeros(G, np.bool_)
+    work = _Work(K=K, have=have, Kinv=Kinv, ok=ok, tgt=tgt, lam=lam, r=r)
     if mode == 0:
         for _ in range(20 * G + 10):
             j = 0
@@ -401,8 +413,7 @@ def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, frictio
                     j = i
             if vcur[j] >= -thr:
                 return True
-            _resolve(inv[j], bool(True), J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
-                     mus, muk, r_twist, mur, rolling, K, have, Kinv, ok, tgt, lam, r, world)
+            _resolve(inv[j], bool(True), rows, groups, U, vcur, thr, friction, patches, rolling, work, world)
         return False
     for _ in range(3):
         any_slow = False
@@ -415,17 +426,20 @@ def propagate(mode, J, M, ab, e, pid, go, gs, inv, bo, b0, U, vcur, thr, frictio
             break
         for g in range(G):
             if mark[g]:
-                _resolve(g, bool(False), J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb,
-                         mus, muk, r_twist, mur, rolling, K, have, Kinv, ok, tgt, lam, r, world)
+                _resolve(g, bool(False), rows, groups, U, vcur, thr, friction, patches, rolling, work, world)
     return True
 
 
 @njit(cache=True)
-def _resolve(g, restitution, J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, friction, Jt, Mt, mt, pa, pb, mus, muk,
-             r_twist, mur, rolling, K, have, Kinv, ok, tgt, lam, r, world):
-    """One pair's collision: its normal block with restitution targets
-    (or none), its friction impulse, the normal block again if friction
-    left a row approaching, then its bodies' rows' speeds."""
+def _resolve(g, restitution, rows, groups, U, vcur, thr, friction, patches, rolling, work, world):
+    """One pair's collision (pair ``g``; the arguments as
+    :func:`propagate`'s, ``work`` its scratch): its normal block with
+    restitution targets (or none), its friction impulse, the normal block
+    again if friction left a row approaching, then its bodies' rows'
+    speeds."""
+    J, M, ab, e, pid = rows.J, rows.M, rows.ab, rows.e, rows.pid
+    go, gs, bo, b0 = groups.go, groups.gs, groups.bo, groups.b0
+    K, have, Kinv, ok, tgt, lam, r = work.K, work.have, work.Kinv, work.ok, work.tgt, work.lam, work.r
     idx = go[gs[g]:gs[g + 1]]
     k = idx.shape[0]
     if not have[g]:
@@ -438,7 +452,7 @@ def _resolve(g, restitution, J, M, ab, e, pid, go, gs, bo, b0, U, vcur, thr, fri
     if friction:
         Fn = _pwsum(lam, k)
         if Fn > 0:
-            patch_impulse(Jt, Mt, mt, pa, pb, mus, muk, r_twist, mur, rolling, pid[idx[0]], Fn, U, world, Kinv, ok)
+            patch_impulse(patches, rolling, pid[idx[0]], Fn, U, world, Kinv, ok)
             again = False
             for i in range(k):
                 v2 = _vn(J, idx[i], U, ab[idx[i], 0], ab[idx[i], 1])

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.engine.contact import gauss_seidel, linalg, prepare
+from physbench.engine.contact.packs import Bodies, ContactArrays, NormalRows, Patches, PatchSet, RowArrays
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.contact.topology import (  # noqa: F401  (the names rows.py had before the split)
     Topology,
@@ -175,9 +176,13 @@ class Rows:
         if prepared:
             return  # the caller's compiled call fills the views (engine/contact/phases.py solve_stage)
         # normal rows, patches, cleared impulses: one compiled call
-        prepare.rows(X, Iinv, model.inv_mass, R0 if want_loc else _NO_R, want_loc, c.a, c.b, c.point, c.normal,
-                     idx, n, self.J, self.M, self.mn, self.loc, self.lam_n, self.target, friction, pid, pa, pb,
-                     cnt, rolling, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu, mus)
+        prepare.rows(Bodies(X=X, Iinv=Iinv, inv_mass=model.inv_mass, R0=R0 if want_loc else _NO_R), want_loc,
+                     ContactArrays(a=c.a, b=c.b, sidx=c.sidx, point=c.point, normal=c.normal, gap=c.gap,
+                                   e=_NO_D if c.e is None else c.e),
+                     idx, n, RowArrays(J=self.J, M=self.M, mn=self.mn, loc=self.loc, lam_n=self.lam_n,
+                                       target=self.target, P=P, N=N, rt=rt, t=t, Jt=Jt, Mt=Mt, mt=mt, lam_t=lam_t,
+                                       slip=slip, mu=mu),
+                     PatchSet(pid=pid, pa=pa, pb=pb, cnt=cnt, mus=mus), friction, rolling)
 
     # the body-a and body-b halves of the rows (views; the sweeps use the
     # stacked (m, 12) and (np, nr, 12) arrays)
@@ -406,17 +411,18 @@ class Rows:
                 pin_r = pin[2] if pin[2] is not None else np.zeros(npch, np.bool_)
                 dir_r = np.ascontiguousarray(pin[3]) if pin[3] is not None else np.zeros((npch, 2))
             mur = self.mur if self.mur is not None else np.zeros(npch)
-            sw, self.residual = gauss_seidel.iterate(
-                U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, True, self.topo.pab,
-                self.pid, self.Jt, self.Mt, self.mt, self.lam_t, self.mu, self.r_twist, mur,
-                pin_t, dir_t, pin_r, dir_r, iterations, tol, self.world, self.sweep_work())
+            patches = Patches(pab=self.topo.pab, pid=self.pid, Jt=self.Jt, Mt=self.Mt, mt=self.mt, lam_t=self.lam_t,
+                              mu=self.mu, rt=self.r_twist, mur=mur, pin_t=pin_t, dir_t=dir_t, pin_r=pin_r,
+                              dir_r=dir_r)
         else:
             z = np.zeros(0)
             zb = np.zeros(0, np.bool_)
-            sw, self.residual = gauss_seidel.iterate(
-                U, self.topo.ab, self.J, self.M, self.mn, self.lam_n, self.target, False, self._NO_P,
-                np.zeros(0, np.int64), self._NO_F, self._NO_F, np.zeros((0, 3)), np.zeros((0, 3)), z, z, z,
-                zb, np.zeros((0, 2)), zb, np.zeros((0, 2)), iterations, tol, self.world, self.sweep_work())
+            patches = Patches(pab=self._NO_P, pid=np.zeros(0, np.int64), Jt=self._NO_F, Mt=self._NO_F,
+                              mt=np.zeros((0, 3)), lam_t=np.zeros((0, 3)), mu=z, rt=z, mur=z, pin_t=zb,
+                              dir_t=np.zeros((0, 2)), pin_r=zb, dir_r=np.zeros((0, 2)))
+        normal = NormalRows(ab=self.topo.ab, J=self.J, M=self.M, mn=self.mn, lam=self.lam_n, target=self.target)
+        sw, self.residual = gauss_seidel.iterate(U, normal, patches, self.friction, iterations, tol, self.world,
+                                                 self.sweep_work())
         return int(sw)
 
     def sweep_work(self) -> np.ndarray:

@@ -1,11 +1,12 @@
 """The warm start (the warm-start phase) and its cache (the store phase):
 compiled matching and filling, the cache dataclass and the phases' calls.
 
-The cache a solve leaves (solver.WarmCache) is sorted by pair code:
-``o_code`` (k,) the pair code of each cached point, ``o_loc`` (k, 3) m its
-point in body a's frame, ``o_fn`` (k,) N its normal force; per distinct
-pair ``u_code`` (p,) with the friction force ``u_ft`` (p, 3) N, twist
-torque ``u_tw`` (p,) N m and rolling torque ``u_rr`` (p, 3) N m.
+The cache a solve leaves (:class:`WarmCache`; the kernels read it as an
+engine.contact.packs.Cache) is sorted by pair code: ``code`` (k,) the pair
+code of each cached point, ``loc`` (k, 3) m its point in body a's frame,
+``fn`` (k,) N its normal force; per distinct pair its code ``pairs`` (p,)
+with the friction force ``ft`` (p, 3) N, twist torque ``tw`` (p,) N m and
+rolling torque ``rr`` (p, 3) N m.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from physbench.engine.contact.packs import Cache
 from physbench.engine.contact.rows import Rows
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.pack import Pack
@@ -25,17 +27,19 @@ _NO_LT = np.zeros((0, 3))
 
 
 @njit(cache=True)
-def match(codes, loc, a, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr, h, lam_n, friction,
-          rolling, pid, t, lam_t, matched):
+def match(codes, loc, a, bound_radius, ko, h, lam_n, friction, rolling, pid, t, lam_t, matched):
     """Warm impulses of the rows (pair ``codes`` (m,), points in body a's
-    frame ``loc`` (m, 3), bodies ``a`` (m,)): each row takes lambda = fn h
-    of the nearest cached point of its pair (the first on ties) within
-    0.1 ``bound_radius[a]`` + 0.1 mm; with ``friction``, the patch
-    ``pid[i]`` of a matched row takes its pair's friction force in its
-    tangent frame ``t`` (np, 2, 3), the twist and (``rolling``) the rolling
-    torque, times h.  ``lam_n`` (m,) and ``lam_t`` (np, nr) are written
-    where matched (left as they are elsewhere); ``matched`` (np,) bool
-    scratch."""
+    frame ``loc`` (m, 3), bodies ``a`` (m,)) from the cache ``ko`` (a
+    :class:`engine.pack.Pack` of an engine.contact.packs.Cache): each row
+    takes lambda = fn h of the nearest cached point of its pair (the first
+    on ties) within 0.1 ``bound_radius[a]`` + 0.1 mm; with ``friction``,
+    the patch ``pid[i]`` of a matched row takes its pair's friction force
+    in its tangent frame ``t`` (np, 2, 3), the twist and (``rolling``) the
+    rolling torque, times h.  ``lam_n`` (m,) and ``lam_t`` (np, nr) are
+    written where matched (left as they are elsewhere); ``matched`` (np,)
+    bool scratch."""
+    o = ko.items
+    o_code, o_loc, o_fn, u_code, u_ft, u_tw, u_rr = o.code, o.loc, o.fn, o.pairs, o.ft, o.tw, o.rr
     m = codes.shape[0]
     k = o_code.shape[0]
     if friction:
@@ -76,12 +80,14 @@ def match(codes, loc, a, bound_radius, o_code, o_loc, o_fn, u_code, u_ft, u_tw, 
 
 
 @njit(cache=True)
-def store(order, codes, loc, lam_n, touch, first, uniq_pid, friction, rolling, lam_t, t, h, o_code, o_loc,
-          o_fn, o_touch, u_code, u_ft, u_tw, u_rr):
-    """Fill a cache (the ``o_``/``u_`` arrays, module doc) from a solve:
-    rows in the stable sort by pair code ``order`` (m,), ``first`` (p,)
-    the first sorted row of each distinct pair and ``uniq_pid`` (p,) its
-    patch; forces are impulses / h (N, N m)."""
+def store(order, codes, loc, lam_n, touch, first, uniq_pid, friction, rolling, lam_t, t, h, kq):
+    """Fill a cache (``kq``, a :class:`engine.pack.Pack` of an
+    engine.contact.packs.Cache) from a solve: rows in the stable sort by
+    pair code ``order`` (m,), ``first`` (p,) the first sorted row of each
+    distinct pair and ``uniq_pid`` (p,) its patch; forces are impulses / h
+    (N, N m)."""
+    q = kq.items
+    o_code, o_loc, o_fn, o_touch, u_code, u_ft, u_tw, u_rr = q.code, q.loc, q.fn, q.touch, q.pairs, q.ft, q.tw, q.rr
     for s in range(order.shape[0]):
         i = order[s]
         o_code[s] = codes[i]
@@ -111,9 +117,9 @@ def warm_start(model, old: "WarmCache", rows: Rows, h: float) -> None:
     (:func:`engine.contact.warm.match`)."""
     topo = rows.topo
     f = rows.friction
-    match(topo.codes, rows.loc, rows.a, model.bound_radius, old.codes, old.loc, old.fn, old.pairs, old.ft,
-               old.tw, old.rr, h, rows.lam_n, f, f and rows.rolling, topo.pid if f else _NO_I,
-               rows.t if f else _NO_T, rows.lam_t if f else _NO_LT, np.zeros(rows.np if f else 0, np.bool_))
+    match(topo.codes, rows.loc, rows.a, model.bound_radius, old.kept, h, rows.lam_n, f, f and rows.rolling,
+          topo.pid if f else _NO_I, rows.t if f else _NO_T, rows.lam_t if f else _NO_LT,
+          np.zeros(rows.np if f else 0, np.bool_))
 
 
 def _fill(rows: Rows, h: float, touching: np.ndarray, out: "WarmCache") -> "WarmCache":
@@ -122,8 +128,8 @@ def _fill(rows: Rows, h: float, touching: np.ndarray, out: "WarmCache") -> "Warm
     topo = rows.topo
     f = rows.friction
     store(topo.code_order, topo.codes, rows.loc, rows.lam_n, touching[rows.idx], topo.code_first,
-               topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT,
-               rows.t if f else _NO_T, h, out.codes, out.loc, out.fn, out.touch, out.pairs, out.ft, out.tw, out.rr)
+          topo.uniq_pid if f else _NO_I, f, f and rows.rolling, rows.lam_t if f else _NO_LT, rows.t if f else _NO_T, h,
+          out.kept)
     return out
 
 
@@ -210,8 +216,10 @@ class WarmCache:
     touch: np.ndarray
 
     @property
-    def packed(self) -> tuple:
-        return (self.codes, self.loc, self.fn, self.pairs, self.ft, self.tw, self.rr, self.touch)
+    def packed(self) -> Cache:
+        """The arrays as the kernels read them (engine.contact.packs.Cache)."""
+        return Cache(code=self.codes, loc=self.loc, fn=self.fn, pairs=self.pairs, ft=self.ft, tw=self.tw, rr=self.rr,
+                     touch=self.touch)
 
     @property
     def kept(self) -> Pack:

@@ -48,12 +48,13 @@ import numpy as np
 from numba import njit
 
 from physbench.engine.fused.borrow import Borrowed, BorrowedOf, borrow, borrowed
-from physbench.engine.broadstage import BroadPhase, _broad_step
+from physbench.engine.broadstage import BroadPhase, FusedBroad, Motion, _broad_step
 from physbench.engine.collision import NarrowPhase, box
 from physbench.engine.collision.collide import collide_packed
 from physbench.engine.contact import phases, prepare
 from physbench.engine.control import EventMode
 from physbench.engine.ccd_end import end_pose_candidates
+from physbench.engine.geometry import Pairs
 from physbench.engine.flight import begin_step, free_flight, gravity, integrate_positions, max_turn_sq
 from physbench.engine.forces import Gravity
 from physbench.engine.integrate import IntegratePositions, IntegrateVelocities
@@ -90,9 +91,8 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
     x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
     mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
-    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
-     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
-     R1_end) = kbr.items
+    br = kbr.items
+    buf = br.buf
     # the start of the (mini-)step (state.Context.begin), the force stage
     begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
     if has_gravity:
@@ -108,19 +108,19 @@ def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     # integrate.EnergyConservingRotation (gyro.py)
     after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
     # broadstage.BroadPhase
-    nbb, npl, nsb = _broad_step(sap, shape, radius, half, half_length, bound_radius, x, R0, q1, x1, R1, v, V, u_lin,
-                                w, W, h, margin, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate, grid, pi,
-                                pj, pcode, bp, pk, bs, sk)
+    nbb, npl, nsb = _broad_step(sap, br.shapes, br.statics,
+                                Motion(x0=x, R0=R0, q1=q1, x1=x1, R1=br.R1, v0=v, v1=V, u=u_lin, w0=w, w1=W), buf, h,
+                                margin)
     if nbb < 0 or npl < 0 or nsb < 0:
         return False, 0, 0, 0, 0
     # collision.NarrowPhase (Collider.run)
-    W_ = kcol.items[5]
-    if W_[0].shape[0] < max(nbb, npl, nsb):
+    col = kcol.items
+    if col.W.perm.shape[0] < max(nbb, npl, nsb):
         return False, 0, 0, 0, 0
-    cnt, need_k, need_s = collide_packed(kcol, x, R0, pi[:nbb], pj[:nbb], margins, bp[:npl], pk[:npl], bs[:nsb],
-                                         sk[:nsb], bool(True), margin, sweep if speculative else no_sweep, face_points)
-    A, slot = kcol.items[6], kcol.items[8]
-    return need_k <= A[0].shape[0] and need_s <= slot[2].shape[0], nbb, npl, nsb, cnt
+    cnt, need_k, need_s = collide_packed(kcol, x, R0, buf.pi[:nbb], buf.pj[:nbb], br.margins, buf.bp[:npl],
+                                         buf.pk[:npl], buf.bs[:nsb], buf.sk[:nsb], bool(True), margin,
+                                         buf.sweep if speculative else br.no_sweep, face_points)
+    return need_k <= col.A.c.shape[0] and need_s <= col.slot.g.shape[0], nbb, npl, nsb, cnt
 
 
 @njit(cache=True)
@@ -132,15 +132,15 @@ def _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
     (ccd_end.end_pose_clear: a rolling ball, a sliding block finish in the
     fused call, tests/test_ccd_end_clear.py).  The candidates are left in
     the pack's buffers (ci, cj, cbp, cpk, cbs, csk) for the CCD stage."""
-    (shape, radius, half, half_length, bound_radius, R1, planes_n, planes_off, slo, shi, lo, hi, sweep, order, bstate,
-     grid, pi, pj, pcode, bp, pk, bs, sk, margins, no_sweep, fast, fast_min, ci, cj, cbp, cpk, cbs, csk, sw_end,
-     R1_end) = kbr.items
+    br = kbr.items
+    buf = br.buf
+    sweep, fast, fast_min = buf.sweep, br.fast, br.fast_min
     if has_fast:
         for k in range(sweep.shape[0]):
             fast[k] = sweep[k] > fast_min[k]
-    nb, nplm, nsm = end_pose_candidates(x, q, x1, q1, shape, radius, half, half_length, bound_radius, planes_n,
-                                        planes_off, slo, shi, lim, has_fast, fast, pi[:nbb], pj[:nbb], bp[:npl],
-                                        pk[:npl], bs[:nsb], sk[:nsb], sw_end, ci, cj, cbp, cpk, cbs, csk, R1_end)
+    nb, nplm, nsm = end_pose_candidates(x, q, x1, q1, br.shapes, br.statics, lim, has_fast, fast,
+                                        Pairs(pi=buf.pi[:nbb], pj=buf.pj[:nbb], bp=buf.bp[:npl], pk=buf.pk[:npl],
+                                              bs=buf.bs[:nsb], sk=buf.sk[:nsb]), br.end)
     return nb + nplm + nsm > 0
 
 
@@ -184,15 +184,17 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
     key, idx = borrow((key, idx))  # (no reference counting: engine/fused/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
-    if not ok or cnt > kcol.items[9][0].shape[0] or (cnt != 0 and cnt != key.shape[0]):
+    if not ok or cnt > kcol.items.out.a.shape[0] or (cnt != 0 and cnt != key.shape[0]):
         return FAIL, 0, 0, 0, 0, 0, 0.0
     sweeps = 0
     residual = 0.0
     if cnt != 0:  # (no contact: Solve.__call__ leaves the velocities; SteadyStep.settle)
         # solver.Solve (the staged solve after prepare.classify)
+        settings = phases.Settings(n_statics=n_statics, lever=lever, thr=thr, beta=beta, slop=slop, friction=friction,
+                                   rolling=rolling, direct=direct, resting=resting, max_rows=max_rows, passes=passes,
+                                   slip_tol=slip_tol, iterations=iterations, relax_on=relax_on)
         nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
-            kc, kx, kt, kw, ko, kq, kk, key, idx, n_statics, h, lever, thr, beta, slop, warm_any, bool(True), friction,
-            rolling, warm_on, direct, resting, max_rows, passes, slip_tol, iterations, relax_on, store_on)
+            kc, kx, kt, kw, ko, kq, kk, key, idx, h, settings, warm_any, bool(True), warm_on, store_on)
         if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
         if stops_gate and residual <= stop_max_res and (sliding_any or rolling):
@@ -200,10 +202,11 @@ def steady_kernel(kall, ko, kq, h, step_flags):
             # rolling half: steady_stops)
             wi = kw.items
             ti = kt.items
-            vt0 = wi[19]
-            if prepare.stop_candidate(ti[3], wi[4], wi[10], wi[16], ti[7], vt0, slip_tol, bool(False), vt0, wi[8][:0],
-                                      roll_tol) or (rolling and rolling_candidate(
-                                          ti[3], wi[4], wi[10], wi[16], wi[17], ti[7], ti[14], roll_tol,
+            rw = wi.rows
+            vt0 = wi.vt0
+            if prepare.stop_candidate(ti.pid, rw.lam_n, rw.Jt, wi.U, ti.pab, vt0, slip_tol, bool(False), vt0,
+                                      rw.rt[:0], roll_tol) or (rolling and rolling_candidate(
+                                          ti.pid, rw.lam_n, rw.Jt, wi.U, wi.U0, ti.pab, ti.mur, roll_tol,
                                           vt0.shape[0])):
                 return FAIL, 0, 0, 0, 0, 0, 0.0
     status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
@@ -294,7 +297,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     sw_last = 0
     res_last = 0.0
     kb, kw = kall.items[0], kall.items[7]
-    dwi = kw.items[-1]
+    dwi = kw.items.dwi
     pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py; steady_kernel borrows key, idx)
     nbb = npl = nsb = cnt = sw = 0
     res = 0.0
@@ -448,9 +451,9 @@ class SteadyStep:
         ep = ctx.end_pose_buffers(max(P.pi.size, b.bp.size, b.bs.size))
         key = (ctx, P.pi, P.order, P.state, P.grid, b.bp, b.bs, col.margins, ep)
         if self._kbr_key is None or not all(map(is_, key, self._kbr_key)):
-            self._kbr = Pack((b.shape,) + b.geom + (b.R1,) + b.planes + b.sbox + (
-                b.lo, b.hi, ctx.sweep, P.order, P.state, P.grid, P.pi, P.pj, P.code, b.bp, b.pk, b.bs, b.sk,
-                col.margins, self.no_sweep, self.fast, self.fast_min) + ep)
+            self._kbr = Pack(FusedBroad(shapes=b.shapes, statics=b.statics, R1=b.R1, buf=b.buffers(ctx),
+                                        margins=col.margins, no_sweep=self.no_sweep, fast=self.fast,
+                                        fast_min=self.fast_min, end=ep))
             self._kbr_key = key
         return self._kbr
 
