@@ -37,7 +37,7 @@ OVER = {
     "flight.py::_stage": 18,
     "collision/kernels.py::crossing_contacts1": 18,
     "ccd_gap.py::gap": 18,
-    "steady.py::steady_loop": 17,
+    "fused/steady.py::steady_loop": 17,
     "collision/cylinder_pair.py::_cylinder_cylinder_kernel": 17,
     "collision/cylinder.py::_box_cylinder_kernel": 17,
     "joints/step.py::_rk_part": 16,
