@@ -51,6 +51,8 @@ rows, and impacts are resolved at their time of impact (impact.py).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from physbench.engine.contact import gauss_seidel, phases, prepare
@@ -583,11 +585,8 @@ def _topology_items(topo: Topology, friction: bool, rolling: bool) -> tuple:
                 code_order=topo.code_order, code_first=topo.code_first, uniq_pid=uniq_pid, mus=mus, muk=muk, mur=mur)
 
 
-_NO_CACHE_PACK: list = []
-
-
+@functools.cache
 def _no_cache() -> Pack:
-    """The empty warm cache as a Pack (built on first use)."""
-    if not _NO_CACHE_PACK:
-        _NO_CACHE_PACK.append(Pack(_NO_CACHE))
-    return _NO_CACHE_PACK[0]
+    """The empty warm cache as a Pack (built on first use, then the same
+    object: its arrays never change)."""
+    return Pack(_NO_CACHE)

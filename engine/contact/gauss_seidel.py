@@ -200,14 +200,23 @@ def _patch_apply(U, pab, Mt, lam_t, p, r0, r1, new, world):
 
 
 @njit(cache=True, inline="always")
-def _onto_disc(new, i, lim, pinned, d):
-    """(new[i], new[i+1]) scaled back onto the disc of radius ``lim``, or
-    when ``pinned`` held on its rim against the unit direction ``d`` (2,)."""
-    mag = math.sqrt(new[i] ** 2 + new[i + 1] ** 2)
+def _scale_onto_disc(new, i, lim):
+    """(new[i], new[i + 1]) scaled onto the disc of radius ``lim`` when
+    outside it; whether it was."""
+    mag = math.sqrt(new[i] * new[i] + new[i + 1] * new[i + 1])
     if mag > lim:
         f = lim / mag if mag > 0 else 1.0
         new[i] *= f
         new[i + 1] *= f
+        return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _onto_disc(new, i, lim, pinned, d):
+    """(new[i], new[i+1]) scaled back onto the disc of radius ``lim``, or
+    when ``pinned`` held on its rim against the unit direction ``d`` (2,)."""
+    _scale_onto_disc(new, i, lim)
     if pinned:
         new[i] = -lim * d[0]
         new[i + 1] = -lim * d[1]
@@ -399,28 +408,16 @@ def onto_cone(U, pab, pid, Mt, lam_t, lam_n, mu, rt, mur, world, Fn, new):
         lim = mu[p] * Fn[p]
         if lim < 0.0:
             lim = 0.0
-        out = False
         for r in range(nr):
             new[r] = lam_t[p, r]
-        mag = math.sqrt(new[0] * new[0] + new[1] * new[1])
-        if mag > lim:
-            f = lim / mag
-            new[0] *= f
-            new[1] *= f
-            out = True
+        out = _scale_onto_disc(new, 0, lim)
         tl = lim * rt[p]
         if abs(new[2]) > tl:
             new[2] = min(max(new[2], -tl), tl)
             out = True
         if nr == 5:
             lr = mur[p] * Fn[p]
-            if lr < 0.0:
-                lr = 0.0
-            mr = math.sqrt(new[3] * new[3] + new[4] * new[4])
-            if mr > lr:
-                f = lr / mr
-                new[3] *= f
-                new[4] *= f
+            if _scale_onto_disc(new, 3, lr if lr > 0.0 else 0.0):
                 out = True
         if out:
             _patch_apply(U, pab, Mt, lam_t, p, 0, nr, new, world)
