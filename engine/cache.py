@@ -92,6 +92,8 @@ def _engine_locator():
 
         def __init__(self, py_func, py_file: str, rel: Path):
             self._lineno = py_func.__code__.co_firstlineno
+            # numba's warning for a kernel it cannot cache names this file
+            self._py_file = py_file
             sub = "_".join(rel.parent.parts) or "engine"
             self._cache_path = str(cache_dir() / sub)
 

@@ -86,3 +86,24 @@ def test_the_cache_does_not_depend_on_where_the_engine_lies():
 def test_nothing_is_cached_inside_the_package(monkeypatch):
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     assert cache.ROOT not in cache.cache_dir().parents
+
+
+def test_a_kernel_numba_cannot_cache_warns_and_does_not_crash():
+    """numba names the kernel's file in the warning it gives for a kernel it
+    cannot cache (lifted loops, dynamic globals: it happens at NUMBA_OPT=0);
+    the engine's locator must carry that file, or the build dies with an
+    AttributeError instead of running uncached."""
+    import types
+    import warnings
+
+    from physbench.engine.contact import phases
+
+    impl = phases.solve_stage._cache._impl
+    assert impl.locator._py_file.endswith("phases.py")
+    cres = types.SimpleNamespace(lifted=[types.SimpleNamespace(can_cache=False)],
+                                 library=types.SimpleNamespace(has_dynamic_globals=False),
+                                 fndesc=types.SimpleNamespace(qualname="solve_stage"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert impl.check_cachable(cres) is False
+    assert any("Cannot cache" in str(w.message) and w.filename.endswith("phases.py") for w in caught)
