@@ -29,7 +29,7 @@ Backward free flight: x(-tau) = x0 - v0 tau + g tau^2 / 2, v(-tau) = v0 - g tau;
 rotation: the world-frame angular velocity is constant without the
 gyroscopic effect (that is the scene's physics then), q(-tau) =
 exp(-w tau) q0; with it, the torque-free Euler equations are integrated back
-over tau (scipy, rtol 1e-12), which for a spin about a principal axis or an
+over tau (fixed-step Runge-Kutta: the same bits on every CPU), which for a spin about a principal axis or an
 isotropic body is the same constant rotation.
 """
 
@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from physbench.contract.rotation import quat_exp, quat_mul, rotation_matrix
+from physbench.contract.rotation import (body_to_world_angvel, dot, norm, quat_exp, quat_mul, rotation_matrix,
+                                         world_to_body_angvel)
 
 #: effects under which the motion before t = 0 is free flight with a
 #: closed form (contacts are ruled out by the clearance test)
@@ -52,39 +53,68 @@ class PhaseError(ValueError):
     """The scene's start is not free flight, so it cannot be phase-shifted."""
 
 
+#: the torque-free integration's steps: at most this much rotation (rad) of
+#: the attitude or of the body-frame angular velocity per step of the
+#: classical Runge-Kutta scheme (local error ~ (rate h)^5 / 120): the
+#: backward start agrees with scipy's DOP853 at rtol 1e-13 within 1e-11
+#: (tests/test_phase.py::test_the_torque_free_backward_flight_matches_an_adaptive_solver)
+_RK_TURN = 1e-3
+
+
+def _euler_rhs(y: tuple[float, ...], I: tuple[float, float, float]) -> tuple[float, ...]:
+    """d/dt of (q wxyz, w body) of a torque-free body with principal
+    moments ``I``: q' = q (0, w) / 2, I w' = -w x I w; Python floats."""
+    qw, qx, qy, qz, a, b, c = y
+    Ia, Ib, Ic = I
+    return (0.5 * (-qx * a - qy * b - qz * c), 0.5 * (qw * a + qy * c - qz * b),
+            0.5 * (qw * b - qx * c + qz * a), 0.5 * (qw * c + qx * b - qy * a),
+            (Ib - Ic) * b * c / Ia, (Ic - Ia) * c * a / Ib, (Ia - Ib) * a * b / Ic)
+
+
 def _torque_free_back(q0: np.ndarray, w0: np.ndarray, inertia: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
     """(q, w world) of a torque-free body tau seconds before (q0, w0 world),
-    principal moments ``inertia`` (3,)."""
-    R0 = rotation_matrix(q0)
-    wb0 = R0.T @ w0
-    Lb = inertia * wb0
-    if float(np.linalg.norm(np.cross(wb0, Lb))) <= 1e-12 * float(np.linalg.norm(wb0) * np.linalg.norm(Lb) + 1e-300):
+    principal moments ``inertia`` (3,).  Classical Runge-Kutta over equal
+    steps of at most :data:`_RK_TURN` rad, in Python floats summed in a
+    fixed order: no BLAS call and no adaptive step, so the start is the same
+    to the bit on every CPU (tests/test_engine_blas_free.py)."""
+    q0 = np.asarray(q0, float) / norm(q0)
+    wb0 = world_to_body_angvel(q0, np.asarray(w0, float))
+    Lb = np.asarray(inertia, float) * wb0
+    if norm(np.cross(wb0, Lb)) <= 1e-12 * (norm(wb0) * norm(Lb) + 1e-300):
         # steady rotation (isotropic, or about a principal axis): w constant in the world
-        return quat_mul(quat_exp(-w0 * tau), q0), w0.copy()
-    from scipy.integrate import solve_ivp
-
-    def rhs(_t: float, y: np.ndarray) -> np.ndarray:
-        q, wb = y[:4], y[4:]
-        dq = 0.5 * quat_mul(q, np.concatenate([[0.0], wb]))
-        dw = -np.cross(wb, inertia * wb) / inertia
-        return np.concatenate([dq, dw])
-
-    sol = solve_ivp(rhs, (0.0, -tau), np.concatenate([q0 / np.linalg.norm(q0), wb0]), method="DOP853",
-                    rtol=1e-12, atol=1e-14)
-    q = sol.y[:4, -1]
-    q = q / np.linalg.norm(q)
-    return q, rotation_matrix(q) @ sol.y[4:, -1]
+        return quat_mul(quat_exp(-np.asarray(w0, float) * tau), q0), np.asarray(w0, float).copy()
+    I = tuple(float(v) for v in inertia)
+    # the body-frame rates: |w| for the attitude, up to |w| |I_j - I_k| / I_i
+    # for w itself (Euler's equations)
+    rate = norm(wb0) * max(1.0, abs(I[1] - I[2]) / I[0], abs(I[2] - I[0]) / I[1], abs(I[0] - I[1]) / I[2])
+    n = max(16, math.ceil(rate * tau / _RK_TURN))
+    h = -tau / n
+    y = tuple(float(v) for v in q0) + tuple(float(v) for v in wb0)
+    for _ in range(n):
+        k1 = _euler_rhs(y, I)
+        k2 = _euler_rhs(tuple(a + 0.5 * h * b for a, b in zip(y, k1)), I)
+        k3 = _euler_rhs(tuple(a + 0.5 * h * b for a, b in zip(y, k2)), I)
+        k4 = _euler_rhs(tuple(a + h * b for a, b in zip(y, k3)), I)
+        y = tuple(a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
+    q = np.array(y[:4])
+    q = q / norm(q)
+    return q, body_to_world_angvel(q, np.array(y[4:]))
 
 
 def _static_clearance(p: np.ndarray, r: float, s: Any) -> np.ndarray:
     """Distances (m) from spheres (centres p (k, 3), radius r) to static
-    ``s`` (negative: overlapping), (k,)."""
-    p = np.atleast_2d(p)
+    ``s`` (negative: overlapping), (k,).  Component by component (no
+    BLAS-dispatched product: the same decision on every CPU)."""
+    p = np.atleast_2d(np.asarray(p, float))
     if s.shape == "plane":
-        return p @ np.asarray(s.normal, float) - s.offset - r
-    local = (p - np.asarray(s.position, float)) @ rotation_matrix(s.orientation)  # rows: R^T (p - c)
+        n = np.asarray(s.normal, float)
+        return p[:, 0] * n[0] + p[:, 1] * n[1] + p[:, 2] * n[2] - s.offset - r
+    d = p - np.asarray(s.position, float)
+    R = rotation_matrix(s.orientation)
+    local = np.stack([d[:, 0] * R[0, i] + d[:, 1] * R[1, i] + d[:, 2] * R[2, i] for i in range(3)], axis=1)  # R^T d
     h = np.asarray(s.half_extents, float)
-    outside = np.linalg.norm(np.maximum(np.abs(local) - h, 0.0), axis=1)
+    e = np.maximum(np.abs(local) - h, 0.0)
+    outside = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
     inside = -np.min(h - np.abs(local), axis=1)
     return np.where(outside > 0.0, outside, inside) - r
 
@@ -115,10 +145,10 @@ def shift_scene(scene: Any, f: float, dt: float | None = None) -> Any:
         # path length, so between samples it can dip by at most half their
         # spacing below the sampled minimum, and the parabola's chords are off
         # by at most |g| tau^2 / 8 -- both go into the allowance
-        slack0 = float(np.linalg.norm(g)) * tau * tau
+        slack0 = norm(g) * tau * tau
         for i, b in enumerate(scene.bodies):
             x0, v0 = np.asarray(b.position, float), np.asarray(b.velocity, float)
-            length = float(np.linalg.norm(v0)) * tau + slack0
+            length = norm(v0) * tau + slack0
             k = int(min(max(33, math.ceil(length / 1e-3) + 1), 20001))
             s_ = np.linspace(0.0, 1.0, k)[:, None] * tau
             path = x0 - v0 * s_ + 0.5 * g * s_ * s_
@@ -134,9 +164,9 @@ def shift_scene(scene: Any, f: float, dt: float | None = None) -> Any:
                 # relative motion is uniform (same gravity): closest approach over the segment
                 d0 = x0 - np.asarray(c.position, float)
                 dv = v0 - np.asarray(c.velocity, float)
-                den = float(dv @ dv) * tau * tau
-                u = 0.0 if den == 0 else min(max(float(d0 @ dv) * tau / den, 0.0), 1.0)
-                gap = float(np.linalg.norm(d0 - dv * tau * u)) - b.bounding_radius - c.bounding_radius
+                den = dot(dv, dv) * tau * tau
+                u = 0.0 if den == 0 else min(max(dot(d0, dv) * tau / den, 0.0), 1.0)
+                gap = norm(d0 - dv * tau * u) - b.bounding_radius - c.bounding_radius
                 if gap <= 0.0:
                     raise PhaseError(f"{scene.id}: phase shift needs free flight before t = 0; bodies {b.name!r} "
                                      f"and {c.name!r} come within {gap:.3g} m of each other over the {tau:.3g} s "
@@ -150,7 +180,7 @@ def shift_scene(scene: Any, f: float, dt: float | None = None) -> Any:
         else:
             q, w = quat_mul(quat_exp(-w0 * tau), q0), w0.copy()
         bodies.append(dataclasses.replace(b, position=x0 - v0 * tau + 0.5 * g * tau * tau, velocity=v0 - g * tau,
-                                          orientation=q / np.linalg.norm(q), angular_velocity=w))
+                                          orientation=q / norm(q), angular_velocity=w))
     return dataclasses.replace(scene, bodies=tuple(bodies))
 
 

@@ -86,8 +86,8 @@ def test_the_dynamics_modules_call_no_blas():
 
 
 #: the contract modules that build a scene's numbers (poses, joint frames,
-#: plane offsets) before any engine sees them
-SCENE_BUILDING = ("scene.py", "scene_model.py", "rotation.py", "shapes.py")
+#: plane offsets, a phase-shifted start) before any engine sees them
+SCENE_BUILDING = ("scene.py", "scene_model.py", "rotation.py", "shapes.py", "phase.py")
 
 
 def test_building_a_scene_calls_no_blas():
@@ -104,3 +104,37 @@ def test_building_a_scene_calls_no_blas():
     # the joint reach check measures, it builds nothing: allowed
     bad = [b for b in bad if "near = [" not in b]
     assert not bad, "\n".join(bad)
+
+
+_SHIFT_CODE = """
+import hashlib, sys
+import numpy as np
+from physbench.contract.phase import shift_scene
+from physbench.contract.scene import load_scene
+for sid in sys.argv[1:]:
+    h = hashlib.sha256()
+    for f in (0.3, 0.85):
+        for b in shift_scene(load_scene(sid), f).bodies:
+            for a in (b.position, b.orientation, b.velocity, b.angular_velocity):
+                h.update(np.ascontiguousarray(a, dtype="<f8").tobytes())
+    print(sid, h.hexdigest())
+"""
+
+
+def test_a_phase_shifted_start_is_the_same_under_every_blas_core_type():
+    """A phase sweep's starts (contract/phase.py: the backward free flight,
+    a tumbling body's torque-free rotation, the clearance checks) are the
+    same to the bit whatever kernel OpenBLAS picks; with scipy's adaptive
+    solver (its error norms are BLAS dot products) they were not
+    guaranteed."""
+    sids = ("gyroscopic.dzhanibekov", "tunnelling.spinning_long_box", "tunnelling.bullet_400")
+    outs = []
+    for core in CORE_TYPES:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("OPENBLAS", "PYTHON"))}
+        env.update(PYTHONPATH=str(REPO), OPENBLAS_CORETYPE=core, OPENBLAS_NUM_THREADS="1")
+        out = subprocess.run([sys.executable, "-c", _SHIFT_CODE, *sids], capture_output=True, text=True, cwd=REPO,
+                             env=env, timeout=300)
+        assert out.returncode == 0, out.stderr
+        outs.append(out.stdout)
+    assert len(outs[0].splitlines()) == len(sids)
+    assert outs[0] == outs[1] == outs[2], outs
