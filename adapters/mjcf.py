@@ -45,7 +45,7 @@ def _pair_contact(mat, cal_solref: tuple[float, float]) -> tuple[int, tuple[floa
 
 #: MuJoCo's compiler refuses a moving body whose mass or any principal
 #: inertia is not above mjMINVAL (1e-15): "mass and inertia of moving bodies
-#: must be larger than mjMINVAL" (mujoco 4.0.0; a 1e-9 kg sphere of radius
+#: must be larger than mjMINVAL" (mujoco 4.0.1; a 1e-9 kg sphere of radius
 #: 1e-6 m has 4e-22 kg m^2, inside the spec bounds).  Below MASS_FLOOR the
 #: model's masses are scaled up (:func:`mass_scale`).
 MASS_FLOOR = 1e-12

@@ -69,7 +69,7 @@ Materials
     so that the engine's combination yields it, and writes an explicit
     ``<contact><pair>`` with the exact values for every other pair.  An
     explicit pair overrides MuJoCo's automatic (dynamic) contact for the same
-    two geoms (measured on 4.0.0: no duplicate contacts, the pair's solref
+    two geoms (measured on 4.0.1: no duplicate contacts, the pair's solref
     wins), so broad phase stays automatic and only mixed-material scenes pay
     for explicit pairs.
 

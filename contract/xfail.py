@@ -38,7 +38,7 @@ from packaging.version import InvalidVersion, Version
 #: the engine versions the shipped scenarios' plain-string xfails were
 #: measured on (one line per engine)
 MEASURED_ON: dict[str, str] = {
-    "mujoco": "4.0.0",
+    "mujoco": "4.0.1",
     "pybullet": "3.2.7",
     "pymunk": "7.3.1",
     "rapier": "0.36.1",
