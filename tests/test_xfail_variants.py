@@ -98,3 +98,24 @@ def test_a_variants_own_xfail_override_is_checked_too(tmp_path):
     with pytest.raises(SpecError) as e:
         load_scene(p)
     assert "variant 'plastic': check[2].xfail.drake.variants: unknown variant 'nope'" in "\n".join(e.value.errors)
+
+
+def test_an_override_of_a_check_the_variant_does_not_run_is_refused(tmp_path):
+    """A variant that overrides check[N] while check N holds only in other
+    variants changes nothing: the spec is refused, naming the variant, the
+    key and the check's variants (billiards.break_16 and
+    tunnelling.spinning_long_box carried such dead overrides).  Overriding
+    the check's ``variants`` in the same variant makes it live."""
+    p = _spec(tmp_path, '{ mujoco = "soft" }')
+    text = p.read_text(encoding="utf-8").replace('metric = "max_penetration"\nmax = 0.002\n',
+                                                 'metric = "max_penetration"\nmax = 0.002\nvariants = ["base"]\n')
+    dead = text + '"check[2].xfail" = { mujoco = "soft: measured 5 mm" }\n'
+    p.write_text(dead, encoding="utf-8")
+    with pytest.raises(SpecError) as e:
+        load_scene(p)
+    msg = "\n".join(e.value.errors)
+    assert "variant 'plastic': 'check[2].xfail' overrides check[2], which holds only in variants ['base']" in msg, msg
+    p.write_text(dead + '"check[2].variants" = ["plastic"]\n', encoding="utf-8")
+    scene = load_scene(p, "plastic")
+    check = [c for c in scene.checks if c.metric == "max_penetration"][0]
+    assert check.xfail["mujoco"].reason == "soft: measured 5 mm"

@@ -146,4 +146,30 @@ def _xfail_variant_errors(label: str, raw: dict[str, Any], variants: dict[str, d
         for key, value in over.items():
             if isinstance(key, str) and key.endswith(".xfail"):
                 scan(f"variant {name!r}: {key}", value)
+    return errs + _dead_check_override_errors(label, checks, variants)
+
+
+def _dead_check_override_errors(label: str, checks: Any, variants: dict[str, dict[str, Any]]) -> list[str]:
+    """A variant's override of ``check[N]...`` where check N holds only in
+    other variants (its ``variants`` list, not overridden by that variant)
+    would change nothing: refused, so no input is silently ignored
+    (tests/test_xfail_variants.py::test_an_override_of_a_check_the_variant_does_not_run_is_refused)."""
+    import re
+
+    errs: list[str] = []
+    if not isinstance(checks, list):
+        return errs
+    for name, over in variants.items():
+        for key in over:
+            m = re.match(r"check\[(\d+)\]\.", key) if isinstance(key, str) else None
+            if m is None or not (0 <= int(m.group(1)) < len(checks)):
+                continue
+            i = int(m.group(1))
+            c = checks[i]
+            held = c.get("variants") if isinstance(c, dict) else None
+            if not isinstance(held, list) or name in held or f"check[{i}].variants" in over:
+                continue
+            errs.append(f"{label}: variant {name!r}: {key!r} overrides check[{i}], which holds only in variants "
+                        f"{held}: the override would change nothing (add {name!r} to the check's variants, or "
+                        f"drop the override)")
     return errs
