@@ -40,7 +40,7 @@ from physbench.contract.spec.schema import integer_key
 from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 from physbench.harness.execute import RunRequest
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
-from physbench.harness.points import lost_row, request_row
+from physbench.harness.points import cached_scene, lost_row, request_row
 from physbench.harness.references import get_model
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
@@ -437,7 +437,10 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
     except StopIteration as stop:
         res: SearchResult = stop.value
     res.rounds = rounds  # rounds of runs (a value's phases may take several; rows read back take none)
-    scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+    # the summary's scene (its id and primary metric): the client's per-process cache where the search sets no
+    # spec keys (one load per scenario for every search and the suite's check, not one per search)
+    scene = (load_scene(req.scenario, req.variant, dict(req.overrides)) if req.overrides
+             else cached_scene(req.scenario, req.variant))
     summary = {
         "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
         "scenario": scene.id, "variant": req.variant, "engine": req.engine,
