@@ -205,7 +205,10 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
             def on_row(p: Point, row: dict[str, Any]) -> None:
                 row.update(ctx)
                 sd.write_point(row)
-                bar.advance(task)
+                if shown:
+                    bar.advance(task)
+
+            shown = err.is_terminal  # no bar (a log file): no per-point description or advance to make
 
             cached, store, done = _store_limits(sd, ctx, err)
             if reqs:
@@ -213,7 +216,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                           "stored rows read back)", markup=False, highlight=False)
             point_cost, search_cost = expected_costs(root, s.name, sd.manifest["machine_id"], todo, reqs)
             with ex if ex is not None else make_executor(executor, jobs) as ex:
-                run_schedule(ex, todo, reqs, on_row, done, store, cached, on_start, point_cost, search_cost)
+                run_schedule(ex, todo, reqs, on_row, done, store, cached, on_start if shown else None, point_cost,
+                             search_cost)
     except (KeyboardInterrupt, *refused) as e:
         if isinstance(e, refused):
             err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
