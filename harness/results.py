@@ -24,8 +24,8 @@ are built from the rows with pyarrow, one table per row schema (:func:`rows_tabl
 typed as ``from_pandas`` types each row), tables whose columns agree stored
 as one part (:func:`one_part_table`, read back split by :func:`read_part_tables`)
 and merged by :func:`merge_tables`:
-pyarrow where the parts share a schema, else one ``pandas.concat`` and
-:func:`_normalize`, the store's one normaliser.
+pyarrow, each column typed as one ``pandas.concat`` and :func:`_normalize`
+(the store's one normaliser) type it.
 """
 
 from __future__ import annotations
@@ -310,7 +310,7 @@ def _pandas_typing(situation: tuple[tuple[Any, int] | None, ...]) -> Any:
     return pa.Table.from_pandas(df[["c"]], preserve_index=False).schema.field("c").type
 
 
-def merge_tables(tables: list[Any]):
+def merge_tables(tables: list[Any], rows: list[int] | None = None):
     """The rows of ``tables`` (parts, each typed on its own) as one Table,
     in the parts' order, typed as ``pandas.concat`` of the parts then
     :func:`_normalize` types them (the store's one normaliser): parts of
@@ -326,6 +326,8 @@ def merge_tables(tables: list[Any]):
     (pandas' typing of a few mixes depends on the order of the frames: a
     float before a bool gives floats, the reverse text or bools; the
     frames are in the order their schemas first appear.)
+    ``rows``: only these rows (indices into the parts' rows, in their
+    order), in this order -- the same table as the whole merge's ``take``.
     Tests: tests/test_results_store.py::test_merged_parts_read_back_as_the_pandas_merge_wrote_them,
     ::test_every_mix_of_kinds_merges_as_pandas_merged_it,
     ::test_parts_of_mixed_kinds_merge_to_one_typed_column,
@@ -343,10 +345,12 @@ def merge_tables(tables: list[Any]):
         groups.setdefault(t.schema, []).append((t, start))
         start += t.num_rows
     if len(groups) == 1:
-        return pa.concat_tables([t for t, _ in next(iter(groups.values()))])
+        whole = pa.concat_tables([t for t, _ in next(iter(groups.values()))])
+        return whole if rows is None else whole.take(pa.array(rows, pa.int64()))
     merged = [pa.concat_tables([t for t, _ in same]).combine_chunks() for same in groups.values()]
     rank = [i for same in groups.values() for t, at in same for i in range(at, at + t.num_rows)]
-    order = pa.array(sorted(range(len(rank)), key=rank.__getitem__), pa.int64())  # group order -> parts' order
+    order = sorted(range(len(rank)), key=rank.__getitem__)  # parts' order -> group order
+    final = pa.array(order if rows is None else [order[i] for i in rows], pa.int64())
     names = list(dict.fromkeys(n for g in merged for n in g.schema.names))  # pandas.concat's: as they first come
     columns: dict[str, Any] = {}
     hard: list[str] = []
@@ -365,28 +369,36 @@ def merge_tables(tables: list[Any]):
             continue
         # pandas types a column by the kinds of its frames, not by how often each comes
         typ = _pandas_typing(tuple(dict.fromkeys(situation)))
-        pieces = []
+        pieces, gap = [], 0  # gap: rows of nulls to add before the next piece (absent or all null)
         for g, have in zip(merged, situation):
-            if have is None or pa.types.is_null(have[0]) or have[1] == 2:  # absent or all null: nulls
-                pieces.append(pa.nulls(g.num_rows, typ))
-            elif have[0] == typ:
+            if have is None or pa.types.is_null(have[0]) or have[1] == 2:
+                gap += g.num_rows
+                continue
+            if gap:
+                pieces.append(pa.nulls(gap, typ))
+                gap = 0
+            if have[0] == typ:
                 pieces.extend(g.column(name).chunks)
             elif _exact_cast(have[0], typ):
                 pieces.extend(c.cast(typ, safe=False) for c in g.column(name).chunks)
             else:
                 break
         else:
+            if gap:
+                pieces.append(pa.nulls(gap, typ))
             col = pa.chunked_array(pieces, typ)
             if pa.types.is_floating(typ) and pc.any(pc.is_nan(col)).as_py():
                 col = pc.if_else(pc.is_nan(col), pa.scalar(None, typ), col)  # NaN stored as null, as pandas
-            columns[name] = col.take(order)
+            columns[name] = col.take(final)
             continue
         hard.append(name)
     if hard:  # the pandas merge, on these columns only (pandas types each column on its own)
         df = pd.concat([g.select([c for c in hard if c in g.schema.names]).to_pandas() for g in merged],
                        ignore_index=True)
-        df = _normalize(df.iloc[order.to_pylist()].reset_index(drop=True))
+        df = _normalize(df.iloc[order].reset_index(drop=True))  # typed on every row, as the whole merge
         table = pa.Table.from_pandas(df[hard], preserve_index=False)
+        if rows is not None:
+            table = table.take(pa.array(rows, pa.int64()))
         columns.update((c, table.column(c)) for c in hard)
     return pa.table({n: columns[n] for n in names})
 
@@ -673,10 +685,15 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
     import pyarrow as pa
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    table = merge_tables([t for p in list_parts(d) for t in read_part_tables(p)])
-    if key_column not in table.column_names:
-        table = table.append_column(key_column, pa.array([], pa.large_string()))
-    keys = table.column(key_column).to_pylist()
+    parts = [t for p in list_parts(d) for t in read_part_tables(p)]
+    keyed = bool(parts) and all(key_column in t.column_names for t in parts)
+    if keyed:  # the keys first: the merge then builds only the rows kept, in their order
+        keys = [k for t in parts for k in t.column(key_column).to_pylist()]
+    else:
+        table = merge_tables(parts)
+        if key_column not in table.column_names:
+            table = table.append_column(key_column, pa.array([None] * table.num_rows, pa.large_string()))
+        keys = table.column(key_column).to_pylist()
     rank = {k: i for i, k in enumerate(order)}
     # a key is stored once by construction; should a bug ever store one
     # twice, the first row wins and the manifest says so
@@ -685,7 +702,7 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
         first.setdefault(k, i)
     man["duplicates_dropped"] = len(keys) - len(first)
     rows = sorted(first.values(), key=lambda i: rank.get(keys[i], len(rank)))
-    table = table.take(pa.array(rows, pa.int64()))
+    table = merge_tables(parts, rows) if keyed else table.take(pa.array(rows, pa.int64()))
     keys = [keys[i] for i in rows]
     for col in sorted({c for v in (columns or {}).values() for c in v}):
         values = pa.array([(columns or {}).get(k, {}).get(col) for k in keys])
