@@ -23,7 +23,7 @@ Storage (asv style, ``results/sweeps/``)::
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (temp file, fsync, rename); the rows of
-about a second go into one part, so a killed sweep loses at most those
+about five seconds go into one part (harness.sweep_store.PART_FLUSH_S), so a killed sweep loses at most those
 and the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.
