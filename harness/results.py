@@ -258,9 +258,11 @@ def _pandas_row_table(row: dict[str, Any]):
     return pa.Table.from_pandas(_normalize(pd.DataFrame([row])), preserve_index=False)
 
 
-#: casts :func:`merge_tables` makes in Arrow where pandas gives the same values: (from, to) type ids
-#: (an int64 as a float64 is the C conversion numpy makes too; text widened or narrowed; nulls as any type)
 def _exact_cast(src: Any, dst: Any) -> bool:
+    """Whether :func:`merge_tables` may cast a column of type ``src`` to
+    ``dst`` in Arrow with the values pandas gives: the same type, nulls as
+    any type, an int64 as a float64 (the C conversion numpy makes too),
+    text widened or narrowed."""
     import pyarrow as pa
 
     return (src == dst or pa.types.is_null(src) or (src == pa.int64() and dst == pa.float64())
@@ -295,13 +297,14 @@ def _pandas_typing(situation: tuple[tuple[Any, int] | None, ...]) -> Any:
     in order: None (absent), or (its type, 0 no null / 1 some / 2 all
     null); found by running that merge on one stand-in row per schema
     (:func:`_sample`; each state once, in the order they first come).  Only
-    asked where the schemas hold at most one non-null type, where pandas' typing depends on no value but these
-    (:func:`_normalize` leaves a column of one kind of value as it is)."""
+    asked where the schemas hold at most one non-null type: there pandas'
+    typing depends on no value but these (:func:`_normalize` leaves a column
+    of one kind of value as it is)."""
     import pandas as pd
     import pyarrow as pa
 
     frames = []
-    for i, have in enumerate(situation):
+    for have in situation:
         cols = {"__k": pa.array(["k"] * (2 if have and have[1] == 1 else 1))}
         if have is not None:
             cols["c"] = _sample(*have)
