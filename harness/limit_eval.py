@@ -40,7 +40,7 @@ from physbench.contract.spec.schema import integer_key
 from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 from physbench.harness.execute import RunRequest
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
-from physbench.harness.points import lost_row, request_row
+from physbench.harness.points import cached_scene, lost_row, request_row
 from physbench.harness.references import get_model
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
@@ -362,6 +362,24 @@ def _decided(rows: list[dict[str, Any] | None]) -> bool:
     return True
 
 
+#: the scenes of searches' summaries that set spec keys, by (scenario, variant, repr of the keys set)
+_SUMMARY_SCENES: dict[tuple[str, str | None, str], Any] = {}
+
+
+def _summary_scene(req: LimitRequest) -> Any:
+    """The scene a search's summary row names (its id, primary metric):
+    loaded once per process for every search of the same scenario, variant
+    and spec keys set (a suite's ``[[limit]]`` block is one search per
+    engine), a scene without keys set from the per-process cache the
+    suite's check filled (harness.points.cached_scene)."""
+    if not req.overrides:
+        return cached_scene(req.scenario, req.variant)
+    key = (req.scenario, req.variant, repr(req.overrides))
+    if key not in _SUMMARY_SCENES:
+        _SUMMARY_SCENES[key] = load_scene(req.scenario, req.variant, dict(req.overrides))
+    return _SUMMARY_SCENES[key]
+
+
 def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cached: dict[str, dict[str, Any]],
                  width: int | Callable[[], int] = 1
                  ) -> Generator[list[EvalItem], list[dict[str, Any]], tuple[SearchResult, dict[str, Any]]]:
@@ -437,7 +455,7 @@ def search_items(req: LimitRequest, store: Callable[[dict[str, Any]], None], cac
     except StopIteration as stop:
         res: SearchResult = stop.value
     res.rounds = rounds  # rounds of runs (a value's phases may take several; rows read back take none)
-    scene = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+    scene = _summary_scene(req)
     summary = {
         "row_kind": RESULT_ROW, "point_key": f"limit:{limit_id}", "limit_id": limit_id,
         "scenario": scene.id, "variant": req.variant, "engine": req.engine,

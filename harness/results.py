@@ -24,8 +24,8 @@ are built from the rows with pyarrow, one table per row schema (:func:`rows_tabl
 typed as ``from_pandas`` types each row), tables whose columns agree stored
 as one part (:func:`one_part_table`, read back split by :func:`read_part_tables`)
 and merged by :func:`merge_tables`:
-pyarrow where the parts share a schema, else one ``pandas.concat`` and
-:func:`_normalize`, the store's one normaliser.
+pyarrow, each column typed as one ``pandas.concat`` and :func:`_normalize`
+(the store's one normaliser) type it.
 """
 
 from __future__ import annotations
@@ -258,22 +258,86 @@ def _pandas_row_table(row: dict[str, Any]):
     return pa.Table.from_pandas(_normalize(pd.DataFrame([row])), preserve_index=False)
 
 
-def merge_tables(tables: list[Any]):
+def _exact_cast(src: Any, dst: Any) -> bool:
+    """Whether :func:`merge_tables` may cast a column of type ``src`` to
+    ``dst`` in Arrow with the values pandas gives: the same type, nulls as
+    any type, an int64 as a float64 (the C conversion numpy makes too),
+    text widened or narrowed."""
+    import pyarrow as pa
+
+    return (src == dst or pa.types.is_null(src) or (src == pa.int64() and dst == pa.float64())
+            or ((pa.types.is_string(src) or pa.types.is_large_string(src))
+                and (pa.types.is_string(dst) or pa.types.is_large_string(dst))))
+
+
+@functools.lru_cache(maxsize=1)
+def _simple_types() -> frozenset:
+    """The column types :func:`merge_tables` types in Arrow (others take the pandas merge)."""
+    import pyarrow as pa
+
+    return frozenset((pa.null(), pa.bool_(), pa.int64(), pa.float64(), pa.string(), pa.large_string()))
+
+
+def _sample(typ: Any, nulls: int) -> Any:
+    """A stand-in column of type ``typ`` for :func:`_pandas_typing`: one
+    value, one value and a null (``nulls`` 1), or one null (``nulls`` 2)."""
+    import pyarrow as pa
+
+    value = {pa.bool_(): True, pa.int64(): 1, pa.float64(): 1.5}.get(typ, "x")
+    if pa.types.is_null(typ) or nulls == 2:
+        return pa.nulls(1, typ)
+    return pa.array([value, None] if nulls else [value], typ)
+
+
+@functools.lru_cache(maxsize=4096)
+def _pandas_typing(situation: tuple[tuple[Any, int] | None, ...]) -> Any:
+    """The Arrow type the pandas merge (``Table.to_pandas`` of each schema's
+    rows, ``pandas.concat``, :func:`_normalize`, ``Table.from_pandas``)
+    gives a column whose schemas hold it as ``situation`` says, per schema
+    in order: None (absent), or (its type, 0 no null / 1 some / 2 all
+    null); found by running that merge on one stand-in row per schema
+    (:func:`_sample`; each state once, in the order they first come).  Only
+    asked where the schemas hold at most one non-null type: there pandas'
+    typing depends on no value but these (:func:`_normalize` leaves a column
+    of one kind of value as it is)."""
+    import pandas as pd
+    import pyarrow as pa
+
+    frames = []
+    for have in situation:
+        cols = {"__k": pa.array(["k"] * (2 if have and have[1] == 1 else 1))}
+        if have is not None:
+            cols["c"] = _sample(*have)
+        frames.append(pa.table(cols).to_pandas())
+    df = _normalize(pd.concat(frames, ignore_index=True))
+    return pa.Table.from_pandas(df[["c"]], preserve_index=False).schema.field("c").type
+
+
+def merge_tables(tables: list[Any], rows: list[int] | None = None):
     """The rows of ``tables`` (parts, each typed on its own) as one Table,
     in the parts' order, typed as ``pandas.concat`` of the parts then
     :func:`_normalize` types them (the store's one normaliser): parts of
     one schema are concatenated by pyarrow; where the parts' schemas
     differ (a column missing from some parts, or int in one and float,
-    None or text in another), each schema's rows become one DataFrame and
-    the job's frames one ``pandas.concat`` then :func:`_normalize`.
+    None or text in another), the columns are the union of the schemas'
+    in pandas' order, and each column is typed as the pandas merge (each
+    schema's rows one DataFrame, the job's frames one ``pandas.concat``,
+    then :func:`_normalize`) types it: in Arrow where its schemas hold at
+    most one non-null type (:func:`_pandas_typing` gives the type; the
+    parts' values cast exactly, :func:`_exact_cast`), the other columns
+    (text beside a bool, an int beside text ...) through that pandas merge.
     (pandas' typing of a few mixes depends on the order of the frames: a
     float before a bool gives floats, the reverse text or bools; the
     frames are in the order their schemas first appear.)
+    ``rows``: only these rows (indices into the parts' rows, in their
+    order), in this order -- the same table as the whole merge's ``take``.
     Tests: tests/test_results_store.py::test_merged_parts_read_back_as_the_pandas_merge_wrote_them,
     ::test_every_mix_of_kinds_merges_as_pandas_merged_it,
-    ::test_parts_of_mixed_kinds_merge_to_one_typed_column."""
+    ::test_parts_of_mixed_kinds_merge_to_one_typed_column,
+    ::test_the_arrow_merge_types_every_column_as_the_pandas_merge."""
     import pandas as pd
     import pyarrow as pa
+    import pyarrow.compute as pc
 
     if not tables:
         return pa.table({})
@@ -284,14 +348,62 @@ def merge_tables(tables: list[Any]):
         groups.setdefault(t.schema, []).append((t, start))
         start += t.num_rows
     if len(groups) == 1:
-        return pa.concat_tables([t for t, _ in next(iter(groups.values()))])
-    frames, rank = [], []  # rank: a frame row -> its row in the parts' order
-    for same in groups.values():
-        frames.append(pa.concat_tables([t for t, _ in same]).to_pandas())
-        rank.extend(i for t, at in same for i in range(at, at + t.num_rows))
-    df = pd.concat(frames, ignore_index=True)
-    df = df.iloc[sorted(range(len(rank)), key=rank.__getitem__)].reset_index(drop=True)
-    return pa.Table.from_pandas(_normalize(df), preserve_index=False)
+        whole = pa.concat_tables([t for t, _ in next(iter(groups.values()))])
+        return whole if rows is None else whole.take(pa.array(rows, pa.int64()))
+    merged = [pa.concat_tables([t for t, _ in same]).combine_chunks() for same in groups.values()]
+    rank = [i for same in groups.values() for t, at in same for i in range(at, at + t.num_rows)]
+    order = sorted(range(len(rank)), key=rank.__getitem__)  # parts' order -> group order
+    final = pa.array(order if rows is None else [order[i] for i in rows], pa.int64())
+    names = list(dict.fromkeys(n for g in merged for n in g.schema.names))  # pandas.concat's: as they first come
+    columns: dict[str, Any] = {}
+    hard: list[str] = []
+    simple, null = _simple_types(), pa.null()
+    # per column and schema: None (absent) or (its type, 0 no null / 1 some / 2 all null)
+    states: dict[str, list[tuple[Any, int] | None]] = {n: [None] * len(merged) for n in names}
+    for gi, g in enumerate(merged):
+        n = g.num_rows
+        for f, col in zip(g.schema, g.columns):
+            states[f.name][gi] = (f.type, 0 if col.null_count == 0 else 2 if col.null_count == n else 1)
+    for name in names:
+        situation = states[name]
+        kinds = {h[0] for h in situation if h is not None and h[1] != 2 and h[0] != null}
+        if len(kinds) > 1 or not all(h is None or h[0] in simple for h in situation):
+            hard.append(name)
+            continue
+        # pandas types a column by the kinds of its frames, not by how often each comes
+        typ = _pandas_typing(tuple(dict.fromkeys(situation)))
+        pieces, gap = [], 0  # gap: rows of nulls to add before the next piece (absent or all null)
+        for g, have in zip(merged, situation):
+            if have is None or pa.types.is_null(have[0]) or have[1] == 2:
+                gap += g.num_rows
+                continue
+            if gap:
+                pieces.append(pa.nulls(gap, typ))
+                gap = 0
+            if have[0] == typ:
+                pieces.extend(g.column(name).chunks)
+            elif _exact_cast(have[0], typ):
+                pieces.extend(c.cast(typ, safe=False) for c in g.column(name).chunks)
+            else:
+                break
+        else:
+            if gap:
+                pieces.append(pa.nulls(gap, typ))
+            col = pa.chunked_array(pieces, typ)
+            if pa.types.is_floating(typ) and pc.any(pc.is_nan(col)).as_py():
+                col = pc.if_else(pc.is_nan(col), pa.scalar(None, typ), col)  # NaN stored as null, as pandas
+            columns[name] = col.take(final)
+            continue
+        hard.append(name)
+    if hard:  # the pandas merge, on these columns only (pandas types each column on its own)
+        df = pd.concat([g.select([c for c in hard if c in g.schema.names]).to_pandas() for g in merged],
+                       ignore_index=True)
+        df = _normalize(df.iloc[order].reset_index(drop=True))  # typed on every row, as the whole merge
+        table = pa.Table.from_pandas(df[hard], preserve_index=False)
+        if rows is not None:
+            table = table.take(pa.array(rows, pa.int64()))
+        columns.update((c, table.column(c)) for c in hard)
+    return pa.table({n: columns[n] for n in names})
 
 
 # ---------------------------------------------------------------------------
@@ -576,10 +688,15 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
     import pyarrow as pa
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    table = merge_tables([t for p in list_parts(d) for t in read_part_tables(p)])
-    if key_column not in table.column_names:
-        table = table.append_column(key_column, pa.array([], pa.large_string()))
-    keys = table.column(key_column).to_pylist()
+    parts = [t for p in list_parts(d) for t in read_part_tables(p)]
+    keyed = bool(parts) and all(key_column in t.column_names for t in parts)
+    if keyed:  # the keys first: the merge then builds only the rows kept, in their order
+        keys = [k for t in parts for k in t.column(key_column).to_pylist()]
+    else:
+        table = merge_tables(parts)
+        if key_column not in table.column_names:
+            table = table.append_column(key_column, pa.array([None] * table.num_rows, pa.large_string()))
+        keys = table.column(key_column).to_pylist()
     rank = {k: i for i, k in enumerate(order)}
     # a key is stored once by construction; should a bug ever store one
     # twice, the first row wins and the manifest says so
@@ -588,7 +705,7 @@ def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
         first.setdefault(k, i)
     man["duplicates_dropped"] = len(keys) - len(first)
     rows = sorted(first.values(), key=lambda i: rank.get(keys[i], len(rank)))
-    table = table.take(pa.array(rows, pa.int64()))
+    table = merge_tables(parts, rows) if keyed else table.take(pa.array(rows, pa.int64()))
     keys = [keys[i] for i in rows]
     for col in sorted({c for v in (columns or {}).values() for c in v}):
         values = pa.array([(columns or {}).get(k, {}).get(col) for k in keys])

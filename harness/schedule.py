@@ -236,7 +236,11 @@ def expected_costs(root: Any, suite: str, machine: str | None, points: list[Poin
         import pandas as pd
 
         try:
-            df = pd.read_parquet(files[-1])
+            import pyarrow.parquet as pq
+
+            have = set(pq.read_schema(files[-1]).names)  # the columns read below only
+            df = pd.read_parquet(files[-1], columns=[c for c in ("point_key", "point_wall_s", "row_kind", "limit_id")
+                                                     if c in have])
         except Exception:
             df = pd.DataFrame()
         if "point_wall_s" in df.columns and "point_key" in df.columns:

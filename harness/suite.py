@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from physbench.contract.phase import phase_values
 from physbench.contract.data import SHIPPED_SUITES
 from physbench.contract.spec import SpecError, _display, _format_errors, read_toml
-from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point
+from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point, cached_scene
 from physbench.harness.sweep_store import PLAIN_NAME, SuiteError, plain_name
 from physbench.adapters import engine_names, get_adapter
 from physbench.harness.limits import LimitRequest, validate_request
@@ -327,7 +327,9 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                                   f"its variants: {', '.join(loaded.variants) or 'none'}")
                     continue
                 try:
-                    scene = load_scene(target, var, loaded=loaded)
+                    # a shipped scenario: the per-process cache the record-size check, the schedule's cost model
+                    # and the searches' summaries read too (it loads once per client); a spec file: read afresh
+                    scene = load_scene(target, var, loaded=loaded) if pathlike else cached_scene(target, var)
                 except SpecError as exc:
                     errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
                     continue
@@ -391,7 +393,8 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     def scene_of(i: int, entry: SuiteEntry) -> Any:
         if i not in scenes:
             try:
-                scenes[i] = load_scene(entry.path or entry.scenario, entry.variant)
+                scenes[i] = (load_scene(entry.path, entry.variant) if entry.path
+                             else cached_scene(entry.scenario, entry.variant))
             except SpecError:
                 scenes[i] = None  # reported where the scenario is listed
         return scenes[i]

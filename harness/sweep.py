@@ -23,7 +23,7 @@ Storage (asv style, ``results/sweeps/``)::
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (temp file, fsync, rename); the rows of
-about a second go into one part, so a killed sweep loses at most those
+about five seconds go into one part (harness.sweep_store.PART_FLUSH_S), so a killed sweep loses at most those
 and the points in flight.  A
 sweep resumes (automatically, or with ``resume=True``) by reading the finished
 point keys back from its parts.
@@ -205,7 +205,10 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
             def on_row(p: Point, row: dict[str, Any]) -> None:
                 row.update(ctx)
                 sd.write_point(row)
-                bar.advance(task)
+                if shown:
+                    bar.advance(task)
+
+            shown = err.is_terminal  # no bar (a log file): no per-point description or advance to make
 
             cached, store, done = _store_limits(sd, ctx, err)
             if reqs:
@@ -213,7 +216,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                           "stored rows read back)", markup=False, highlight=False)
             point_cost, search_cost = expected_costs(root, s.name, sd.manifest["machine_id"], todo, reqs)
             with ex if ex is not None else make_executor(executor, jobs) as ex:
-                run_schedule(ex, todo, reqs, on_row, done, store, cached, on_start, point_cost, search_cost)
+                run_schedule(ex, todo, reqs, on_row, done, store, cached, on_start if shown else None, point_cost,
+                             search_cost)
     except (KeyboardInterrupt, *refused) as e:
         if isinstance(e, refused):
             err.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
@@ -238,8 +242,11 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     finally:
         sd.close()
     import pandas as pd
+    import pyarrow.parquet as pq
 
-    df = pd.read_parquet(out)
+    # the summary's columns only (a nightly's file is thousands of rows of 200-odd columns)
+    have = set(pq.read_schema(out).names)
+    df = pd.read_parquet(out, columns=[c for c in ("engine", "status", "point_wall_s", "row_kind") if c in have])
     wall = time.perf_counter() - t_start
     if "row_kind" in df.columns:  # breaking-point rows: summarized as their searches finished
         df = df[df["row_kind"].isna()]

@@ -6,7 +6,7 @@
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename); the rows of about two seconds go into one part (or a few, where
+rename); the rows of about five seconds go into one part (or a few, where
 their columns' types disagree: harness.results.PartsDir.write_rows), so a
 killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
@@ -83,9 +83,10 @@ def _now() -> str:
 
 #: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
 #: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows.
-#: A part's cost per row falls with its rows (harness/selfbench/sweep.py --store);
-#: 2 workers finish about 12 rows a second, so 2 s gives about 24 rows a write
-PART_FLUSH_S = 2.0
+#: A part costs the client about 3 ms of CPU whatever its rows, plus about 0.1 ms a row, and the merge reads
+#: each part (harness/selfbench/sweep.py --store): 2 workers finish 7-12 of the nightly's rows a second, so
+#: 5 s gives 35-60 rows a part (0.14 ms a row to write, 0.18 to merge, against 0.25 and 0.31 at 2 s)
+PART_FLUSH_S = 5.0
 PART_MAX_ROWS = 1000
 #: the name of the sweep's part-writer thread (:meth:`SweepDir.write_behind`;
 #: harness/selfbench/sweep.py accounts its CPU by it)

@@ -184,7 +184,7 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
         grid = { sleep_s = [0.0, 0.001, 0.002, 0.003, 2.5, 2.501, 2.502, 2.503, 2.504, 2.505] }
     """)
     # the six slow points take three rounds of 2.5 s on two workers, past two
-    # part flushes (sweep_store.PART_FLUSH_S = 2 s): the kill lands after 5
+    # part flushes (sweep_store.PART_FLUSH_S set to 2 s): the kill lands after 5
     # rows are stored and before the tenth (with 1 s points every row could
     # be done by the first flush that held 5)
     out = tmp_path / "out"
@@ -193,8 +193,10 @@ def test_killing_the_client_mid_sweep_resumes_without_loss_or_duplicates(tmp_pat
         sys.path.insert(0, {str(ROOT)!r})
         from physbench.adapters.base import register
         from tests.test_dask_executor import DaskFake
+        from physbench.harness import sweep_store
         from physbench.harness.sweep import sweep_main
         register("dask_fake", lambda: DaskFake)
+        sweep_store.PART_FLUSH_S = 2.0  # the points' times below are set against a 2 s flush
         sweep_main({str(p)!r}, out_dir={str(out)!r}, executor="dask", scheduler={lc.scheduler_address!r})
     """)
     before = kill_after_parts(script, out, 5, tmp_path, 120)

@@ -238,3 +238,66 @@ def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, swee
     order = list(dict.fromkeys(r["point_key"] for r in rows))[::-1]
     _same_file(R.consolidate_parts(one, "point_key", order, "now")[0],
                R.consolidate_parts(many, "point_key", order, "now")[0])
+
+
+def _pandas_group_merge(tables):
+    """The merge of parts of several schemas as harness.results.merge_tables
+    made it before it typed columns in Arrow: each schema's rows one
+    DataFrame (schemas in the order they first appear), one
+    ``pandas.concat``, the parts' row order, ``_normalize``, ``from_pandas``."""
+    import pyarrow as pa
+
+    groups: dict = {}
+    start = 0
+    for t in tables:
+        t = t.replace_schema_metadata(None)
+        groups.setdefault(t.schema, []).append((t, start))
+        start += t.num_rows
+    frames, rank = [], []
+    for same in groups.values():
+        frames.append(pa.concat_tables([t for t, _ in same]).to_pandas())
+        rank.extend(i for t, at in same for i in range(at, at + t.num_rows))
+    df = pd.concat(frames, ignore_index=True)
+    df = df.iloc[sorted(range(len(rank)), key=rank.__getitem__)].reset_index(drop=True)
+    return pa.Table.from_pandas(R._normalize(df), preserve_index=False)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_arrow_merge_types_every_column_as_the_pandas_merge(tmp_path, seed):
+    """Parts of random rows -- each column, row by row, None, text, an int,
+    a float, NaN, a bool or absent, mostly one kind per column as a sweep's
+    rows are (a metric float or NaN, a setting absent on other engines,
+    text beside gaps, a column all None) -- stored several rows to a part
+    (``PartsDir.write_rows``) merge to the columns, types and values the
+    whole-frame pandas merge gives (:func:`_pandas_group_merge`), read
+    either way; and so does a part per row."""
+    import random
+
+    rng = random.Random(seed)
+    kinds = list(_KINDS)
+    cols = [f"c{j}" for j in range(14)]
+    main = {c: rng.choice(kinds) for c in cols}  # a column's usual kind
+    rows = []
+    for i in range(rng.randint(20, 60)):
+        row = {"point_key": f"k{i}"}
+        for c in cols:
+            k = main[c] if rng.random() < 0.8 else rng.choice(kinds)
+            if k != "absent":
+                row[c] = _KINDS[k] if k != "int" else rng.randint(-5, 5)
+        if rng.random() < 0.1:  # a row whose columns come in another order
+            items = list(row.items())
+            rng.shuffle(items)
+            row = dict(items)
+        rows.append(row)
+    for per_part in (1, 7):
+        d = tmp_path / f"job{per_part}"
+        d.mkdir()
+        store = R.PartsDir(d, {}, -1, "point_key")
+        for i in range(0, len(rows), per_part):
+            store.write_rows(rows[i:i + per_part])
+        tables = [t for p in R.list_parts(d) for t in R.read_part_tables(p)]
+        if len({t.schema for t in tables}) < 2:
+            continue
+        old = R.write_table_atomic(_pandas_group_merge(tables), tmp_path / f"old{per_part}.parquet")
+        new = R.write_table_atomic(R.merge_tables(tables), tmp_path / f"new{per_part}.parquet")
+        _same_file(old, new)

@@ -595,8 +595,10 @@ def test_resume_after_the_process_is_killed(tmp_path):
         sys.path.insert(0, {str(ROOT)!r})
         from physbench.adapters.base import register
         from tests.test_sweep import FakeSweep
+        from physbench.harness import sweep_store
         from physbench.harness.sweep import sweep_main
         register("fake_sweep", lambda: FakeSweep)
+        sweep_store.PART_FLUSH_S = 2.0  # the points' times below are set against a 2 s flush
         sweep_main({str(p)!r}, out_dir={str(out)!r})
     """)
     before = kill_after_parts(script, out, 5, ROOT, 60)

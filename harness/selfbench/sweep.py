@@ -495,6 +495,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--overhead-items", type=int, default=200, help="sleeping tasks per overhead figure (0: skip)")
     p.add_argument("--store-rows", type=int, default=2000,
                    help="rows of the first run the client's storing cost is measured on (0: skip; minutes for 2000)")
+    p.add_argument("--store-batch", type=int, default=32,
+                   help="rows to a write in the client's storing cost (the sweep's part writer gathers "
+                        "harness.sweep_store.PART_FLUSH_S seconds of rows)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     p.add_argument("--core-scaling", action="store_true",
                    help="only measure one point's CPU alone and as --jobs copies at once")
@@ -526,7 +529,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.store is not None:
         import pyarrow.parquet as pq
 
-        _print_store(store_costs(pq.read_table(args.store).to_pylist()))
+        _print_store(store_costs(pq.read_table(args.store).to_pylist(), limit=args.store_rows or 2000,
+                                 batch=args.store_batch))
         return 0
     if args.replay is not None:
         import pandas as pd
@@ -558,7 +562,8 @@ def main(argv: list[str] | None = None) -> int:
                 import pyarrow.parquet as pq
 
                 if args.store_rows > 0:
-                    store = store_costs(pq.read_table(r["sweep_file"]).to_pylist(), limit=args.store_rows)
+                    store = store_costs(pq.read_table(r["sweep_file"]).to_pylist(), limit=args.store_rows,
+                                        batch=args.store_batch)
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
