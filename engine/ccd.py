@@ -511,7 +511,8 @@ def _rerun_stages(ctx, stages) -> tuple:
     list."""
     kept = ctx.ccd.rerun
     if kept is None or kept[0] is not stages:
-        kept = ctx.ccd.rerun = (stages, tuple(s for s in stages if s.family not in ("broadphase", "narrowphase", "ccd")))
+        rerun = tuple(s for s in stages if s.family not in ("broadphase", "narrowphase", "ccd"))
+        kept = ctx.ccd.rerun = (stages, rerun)
     return kept[1]
 
 

@@ -1,9 +1,10 @@
 """The CCD stages' small helpers and what they keep in the context
-(``Context.ccd``, an :class:`engine.state.CcdKept`; engine/ccd.py): the end-pose check's Python side (its buffers and the
-model's geometry as writable copies, one compiled call,
-:mod:`engine.ccd_end`), the collider the CCD and impact stages' collision
-calls run into, the followed pair's collision arguments, the end-pose
-rotations, the grouping of rows by pair code."""
+(``Context.ccd``, an :class:`engine.state.CcdKept`; engine/ccd.py): the
+end-pose check's Python side (its buffers and the model's geometry as
+writable copies, one compiled call, :mod:`engine.ccd_end`), the collider
+the CCD and impact stages' collision calls run into, the followed pair's
+collision arguments, the end-pose rotations, the grouping of rows by pair
+code."""
 
 from __future__ import annotations
 

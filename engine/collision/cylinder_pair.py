@@ -400,10 +400,11 @@ def _four_points(cand, cnt, pn, margin, use_margin, work, S):
     and on either side of their line the one farthest from it, all
     measured across the pair normal ``pn`` (3,)), without near repeats,
     into slots 0-3 of the pair's :class:`Slots` ``S``; the pair's farther
-    (speculative) contacts are all kept, from slot 4 on.  The features of the two bodies often name the
-    same point twice (a rim crossing seen from each side) or nearly (a rim
-    support point a few mm from a crossing): with them in, a can offset on
-    an equal can turned at 2e-3 rad/s within a step instead of resting.
+    (speculative) contacts are all kept, from slot 4 on.  The features of
+    the two bodies often name the same point twice (a rim crossing seen
+    from each side) or nearly (a rim support point a few mm from a
+    crossing): with them in, a can offset on an equal can turned at 2e-3
+    rad/s within a step instead of resting.
     Contacts beyond the ``margin`` (m, where ``use_margin``) are dropped
     first.  Separated, the deepest is the smallest gap: the distance stays
     exact.  ``work`` a :class:`ManifoldWork`."""
