@@ -342,16 +342,16 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
         return np.inf, 0.0
     wk = _gap_work(ctx, c.m)
     tol = 0.1 * float(model.bound_radius[a]) + 1e-4
-    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, model.n, a, tol,
-                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude,
-                NO_FID if fids is None else fids, fids is not None, wk)
+    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, a, tol,
+                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude, NO_FID if fids is None else fids,
+                wk)
 
 
 def _gap_work(ctx, m: int) -> np.ndarray:
     """The gap kernel's (>= m, 5) work rows, kept in the context."""
-    wk = ctx.info.get("ccd_gap_work")
+    wk = ctx.ccd.gap_work
     if wk is None or wk.shape[0] < m:
-        wk = ctx.info["ccd_gap_work"] = np.empty((2 * m, 5))
+        wk = ctx.ccd.gap_work = np.empty((2 * m, 5))
     return wk
 
 
@@ -509,10 +509,10 @@ def _rerun_stages(ctx, stages) -> tuple:
     """The stages a rerun runs (all but the broad and narrow phases and the
     CCD stage: the contacts are the step's), kept in the context per stage
     list."""
-    kept = ctx.info.get("ccd_rerun")
+    kept = ctx.ccd.rerun
     if kept is None or kept[0] is not stages:
-        kept = ctx.info["ccd_rerun"] = (stages, tuple(s for s in stages
-                                                      if s.family not in ("broadphase", "narrowphase", "ccd")))
+        rerun = tuple(s for s in stages if s.family not in ("broadphase", "narrowphase", "ccd"))
+        kept = ctx.ccd.rerun = (stages, rerun)
     return kept[1]
 
 

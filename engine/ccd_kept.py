@@ -1,9 +1,10 @@
 """The CCD stages' small helpers and what they keep in the context
-(engine/ccd.py): the end-pose check's Python side (its buffers and the
-model's geometry as writable copies, one compiled call,
-:mod:`engine.ccd_end`), the collider the CCD and impact stages' collision
-calls run into, the followed pair's collision arguments, the end-pose
-rotations, the grouping of rows by pair code."""
+(``Context.ccd``, an :class:`engine.state.CcdKept`; engine/ccd.py): the
+end-pose check's Python side (its buffers and the model's geometry as
+writable copies, one compiled call, :mod:`engine.ccd_end`), the collider
+the CCD and impact stages' collision calls run into, the followed pair's
+collision arguments, the end-pose rotations, the grouping of rows by pair
+code."""
 
 from __future__ import annotations
 
@@ -71,9 +72,9 @@ _NO_FAST = np.zeros(0, np.bool_)
 def _geometry(model, ctx) -> Geometry:
     """The model's :class:`Geometry` as writable copies (the kernels are
     compiled for writable arrays), kept in the context."""
-    g = ctx.info.get("ccd_geometry")
+    g = ctx.ccd.geometry
     if g is None:
-        g = ctx.info["ccd_geometry"] = Geometry(shapes=shapes_of(model), statics=statics_of(model),
+        g = ctx.ccd.geometry = Geometry(shapes=shapes_of(model), statics=statics_of(model),
                                                 static_shape=np.array(model.static_shape, np.int64))
     return g
 
@@ -81,9 +82,9 @@ def _geometry(model, ctx) -> Geometry:
 def _geometry_kept(model, ctx) -> Pack:
     """:func:`_geometry` as one Pack (engine.ccd_end.end_pose_call), kept in
     the context."""
-    k = ctx.info.get("ccd_geometry_kept")
+    k = ctx.ccd.geometry_pack
     if k is None:
-        k = ctx.info["ccd_geometry_kept"] = Pack(_geometry(model, ctx))
+        k = ctx.ccd.geometry_pack = Pack(_geometry(model, ctx))
     return k
 
 
@@ -106,9 +107,9 @@ def _collider(model, ctx) -> Collider:
     kept in the context (their contacts are views of its buffers, valid
     until its next call): a fresh one per call copied the model's arrays,
     O(n) each time, ~0.3 ms a call at 30 bodies."""
-    col = ctx.info.get("ccd_collider")
+    col = ctx.ccd.collider
     if col is None:
-        col = ctx.info["ccd_collider"] = Collider(model)
+        col = ctx.ccd.collider = Collider(model)
     return col
 
 
@@ -121,9 +122,9 @@ def _member(x: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 def _cand_buffer(ctx, m: int) -> np.ndarray:
     """A kept (>= m,) bool buffer of the context (missed_candidates' flags)."""
-    buf = ctx.info.get("ccd_cand")
+    buf = ctx.ccd.cand
     if buf is None or buf.shape[0] < m:
-        buf = ctx.info["ccd_cand"] = np.zeros(max(m, 2 * (0 if buf is None else buf.shape[0]), 16), np.bool_)
+        buf = ctx.ccd.cand = np.zeros(max(m, 2 * (0 if buf is None else buf.shape[0]), 16), np.bool_)
     return buf
 
 
@@ -147,9 +148,7 @@ def _pair_query(model, ctx, a: int, b: int, sidx: int) -> tuple:
     margin, as :func:`engine.collision.pair_contacts` builds them: (body
     pairs i, j, plane pairs, static-box pairs, margins), kept in the
     context per pair."""
-    qs = ctx.info.get("ccd_pair_query")
-    if qs is None:
-        qs = ctx.info["ccd_pair_query"] = {}
+    qs = ctx.ccd.pair_query
     key = (a, b, sidx)
     q = qs.get(key)
     if q is None:
@@ -174,8 +173,8 @@ def _rotations(ctx, q: np.ndarray) -> np.ndarray:
     compiled call (:func:`engine.flight.q2m`, mathutil.quat_to_matrix's
     arithmetic) into a buffer kept in the context, valid until the next
     call."""
-    R = ctx.info.get("ccd_R")
+    R = ctx.ccd.R
     if R is None or R.shape[0] != q.shape[0]:
-        R = ctx.info["ccd_R"] = np.empty((q.shape[0], 3, 3))
+        R = ctx.ccd.R = np.empty((q.shape[0], 3, 3))
     flight.q2m(q, R)
     return R

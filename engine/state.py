@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections import namedtuple
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,10 @@ from physbench.engine.pack import KeptPack, Pack
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.control import Event, EventMode, Impacts, TimeOfImpact
 from physbench.engine.model import Model
+
+if TYPE_CHECKING:
+    from physbench.engine.collision.dispatch import Collider
+    from physbench.engine.geometry import Geometry
 
 
 @dataclass(eq=False)
@@ -103,6 +107,29 @@ class Contacts:
                           ("a", "b", "sidx", "normal", "point", "gap", "fid", "e", "mus", "muk", "mur")))
 
 
+@dataclass(eq=False)
+class CcdKept:
+    """What the CCD and impact stages keep in a context between calls, each
+    made on first use or at build (``engine.ccd.CCD.prime``) by
+    engine/ccd_kept.py and engine/ccd.py: the model's ``geometry`` as
+    writable copies and as one Pack (``geometry_pack``), the ``collider``
+    their collision calls run into, the missed-impact candidates' flags
+    ``cand`` (>= m,) bool, the followed pair's collision arguments
+    ``pair_query`` by (a, b, static index), the rotations' buffer ``R``
+    (n, 3, 3), the gap kernel's work rows ``gap_work`` (>= m, 5), and the
+    time-of-impact reruns' stages ``rerun`` (the step's stage list, the
+    stages a rerun runs)."""
+
+    geometry: Geometry | None = None
+    geometry_pack: Pack | None = None
+    collider: Collider | None = None
+    cand: np.ndarray | None = None
+    pair_query: dict[tuple[int, int, int], tuple] = field(default_factory=dict)
+    R: np.ndarray | None = None
+    gap_work: np.ndarray | None = None
+    rerun: tuple | None = None
+
+
 class Context:
     """Per-step scratch (see module docstring).  Shapes: ``x1`` (n, 3), ``q1``
     (n, 4), ``v``/``w`` (n+1, 3) working velocities with the world row n kept
@@ -175,7 +202,8 @@ class Context:
         #: the step loop's plan of this context's pipeline (engine.pipeline.Plan,
         #: made by its first step)
         self.plan: Any = None
-        self.info: dict[str, Any] = {}
+        #: what the CCD and impact stages keep between calls
+        self.ccd = CcdKept()
         #: the CCD stage's end-pose check's buffers (engine.ccd.end_pose_pairs:
         #: moved pairs i, j, body-plane, body-static-box pairs (int64), end
         #: displacements (n,), end rotations (n, 3, 3)), grown geometrically

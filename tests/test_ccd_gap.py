@@ -77,8 +77,8 @@ def test_compiled_gap_is_the_numpy_gap_bit_for_bit(seed):
         excl = local[rng.integers(0, m, int(rng.integers(1, 3)))] if case in (2, 3, 5) else None
         fids = np.unique(fid[rng.integers(0, m, 2)]) if case >= 4 else None
         want = _numpy_gap(point, gap, fid, ca, cb, normal, x1, q1, V, W, n, a, tol, loc, excl, fids)
-        got = ccd_gap.gap(point, gap, fid, ca, cb, normal, x1, R1[a], V, W, n, a, tol,
-                       ccd_gap.NO_P3 if loc is None else np.ascontiguousarray(loc),
-                       ccd_gap.NO_P3 if excl is None else np.ascontiguousarray(excl),
-                       ccd_gap.NO_FID if fids is None else fids, fids is not None, np.empty((m, 5)))
+        got = ccd_gap.gap(point, gap, fid, ca, cb, normal, x1, R1[a], V, W, a, tol,
+                          ccd_gap.NO_P3 if loc is None else np.ascontiguousarray(loc),
+                          ccd_gap.NO_P3 if excl is None else np.ascontiguousarray(excl),
+                          ccd_gap.NO_FID if fids is None else fids, np.empty((m, 5)))
         assert np.array_equal(np.array(got), np.array(want)), (case, got, want)

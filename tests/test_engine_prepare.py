@@ -33,7 +33,7 @@ def test_build_makes_what_the_first_event_step_used(monkeypatch):
     ad = ReferenceAdapter()
     ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
     ctx = ad.state.ctx
-    assert ctx.plan is not None and "ccd_collider" in ctx.info and "ccd_geometry" in ctx.info
+    assert ctx.plan is not None and ctx.ccd.collider is not None and ctx.ccd.geometry is not None
     colliders = _spy(monkeypatch, Collider)
     contexts = _spy(monkeypatch, Context)
     plans = []
@@ -51,7 +51,7 @@ def test_engine_prepares_at_build():
 
     sc = load_scene("billiards.head_on")
     eng = Engine(scene_input(sc), dict(ReferenceAdapter.resolve_settings(sc, {"dt": 0.032})))
-    assert eng.state.ctx.plan is not None and "ccd_collider" in eng.state.ctx.info
+    assert eng.state.ctx.plan is not None and eng.state.ctx.ccd.collider is not None
 
 
 def test_prepare_changes_no_bit():

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from physbench.engine.collision.kernels import cross3, empty, segment_segment
+from physbench.engine.collision.kernels import Boxes, Slots, cross3, empty, segment_segment
 
 
 @njit(cache=True)
@@ -90,14 +90,17 @@ BOX_FW, BOX_IW = 275, 20
 
 
 @njit(cache=True)
-def _box_box_kernel(cA, RA, hA, cB, RB, hB, margin, S_n, S_p, S_g, S_f, S_ok, edge, se_out, fw, iw):
-    """Separating axes and contacts of box pairs (k of them), written into
-    the slots (k, 5): the edge-edge point (slot 0), then up to four
-    face-manifold points; ``edge`` (k,) whether the pair's axis is an edge
-    axis, ``se_out`` (k,) its best edge-axis separation (m).  ``fw``
-    (>= :data:`BOX_FW`,) float64 and ``iw`` (>= :data:`BOX_IW`,) int64 its
-    scratch: nothing is allocated
+def _box_box_kernel(A, B, margin, S, edge, se_out, fw, iw):
+    """Separating axes and contacts of box pairs (k of them: the
+    :class:`Boxes` ``A`` against ``B``, ``margin`` (k,) m), written into
+    the :class:`Slots` ``S`` (k, 5): the edge-edge point (slot 0), then up
+    to four face-manifold points; ``edge`` (k,) whether the pair's axis is
+    an edge axis, ``se_out`` (k,) its best edge-axis separation (m).
+    ``fw`` (>= :data:`BOX_FW`,) float64 and ``iw`` (>= :data:`BOX_IW`,)
+    int64 its scratch: nothing is allocated
     (tests/test_engine_steady.py::test_steady_step_allocates_nothing)."""
+    cA, RA, hA, cB, RB, hB = A.c, A.R, A.h, B.c, B.R, B.h
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
     k = cA.shape[0]
     C = fw[0:9].reshape((3, 3))
     absC = fw[9:18].reshape((3, 3))
@@ -349,8 +352,9 @@ def box_box(cA, RA, hA, cB, RB, hB, margin):
     se = np.zeros(k)
     f = np.ascontiguousarray
     mg = f(margin, float)
-    _box_box_kernel(f(cA, float), f(RA, float), f(hA, float), f(cB, float), f(RB, float), f(hB, float),
-                    mg, S_n, S_p, S_g, S_f, S_ok, edge, se, np.empty(BOX_FW), np.empty(BOX_IW, np.int64))
+    _box_box_kernel(Boxes(c=f(cA, float), R=f(RA, float), h=f(hA, float)),
+                    Boxes(c=f(cB, float), R=f(RB, float), h=f(hB, float)), mg,
+                    Slots(n=S_n, p=S_p, g=S_g, f=S_f, ok=S_ok), edge, se, np.empty(BOX_FW), np.empty(BOX_IW, np.int64))
     edge_pair_face_points(S_g, S_ok, edge, se, mg, EDGE_FACE_POINTS)
     if not S_ok.any():
         return empty()

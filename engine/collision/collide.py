@@ -29,6 +29,7 @@ from physbench.engine.collision.capsule import (CAPSULE_FW, _capsule_box_kernel,
 from physbench.engine.collision.cylinder import (CYLINDER_FW, _BOX_EDGES, _CORNERS, _box_cylinder_kernel,
                                        _capsule_cylinder_kernel, _cylinder_plane_kernel, _sphere_cylinder_kernel)
 from physbench.engine.collision.cylinder_pair import YY_FW, YY_IW, _SIDE_MAX, _cylinder_cylinder_kernel
+from physbench.engine.collision.kernels import Boxes, Cylinders, Slots
 from physbench.engine.collision.sphere import _sphere_box_kernel, _sphere_plane_kernel, _sphere_sphere_kernel
 from physbench.engine.model import BOX, CAPSULE, CYLINDER, SPHERE
 from physbench.engine.pack import Pack
@@ -156,11 +157,10 @@ def families(shape) -> tuple:
 # compiles once, not once per set of families; a family a scene lacks is
 # :func:`_missing`, which raises.
 
-#: the driver's contact slots: normals ``n``, points ``p``, gaps ``g``,
-#: feature ids ``f`` (int64), flags ``ok`` (bool) -- flat over a group's
-#: pairs x slots (``n``, ``p`` 3 floats a slot) in the collider's buffers,
-#: (k, S, 3) and (k, S) views of them in a group's family call
-Slots = namedtuple("Slots", ("n", "p", "g", "f", "ok"))
+# The driver's contact slots are :class:`engine.collision.kernels.Slots`
+# (normals, points, gaps, fids, flags): flat over a group's pairs x slots
+# (``n``, ``p`` 3 floats a slot) in the collider's buffers, (k, S, 3) and
+# (k, S) views of them in a group's family call.
 
 #: a group's gathered side (one per pair, k of them): centres ``c`` (k, 3),
 #: rotations ``R`` (k, 3, 3), box half extents ``h`` (k, 3), radii ``r``,
@@ -215,127 +215,116 @@ def _slots(fam, k, slot):
 # the families' scratch (FAMILY_FW, FAMILY_IW).  Plain functions: compiled
 # with :func:`_signature` by :func:`_compiled`.
 
+@njit(cache=True)
+def _boxes(side, k):
+    """The first k rows of a gathered :class:`Side` as :class:`Boxes`."""
+    return Boxes(c=side.c[:k], R=side.R[:k], h=side.h[:k])
+
+
+@njit(cache=True)
+def _cylinders(side, k):
+    """The first k rows of a gathered :class:`Side` as :class:`Cylinders`."""
+    return Cylinders(c=side.c[:k], R=side.R[:k], hl=side.hl[:k], r=side.r[:k])
+
+
 def _ss(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _sphere_sphere_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    _sphere_sphere_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S.n[:, 0, :], S.p[:, 0, :], S.g[:, 0])
     return False
 
 
 def _sb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XS
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _sphere_box_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    _sphere_box_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S.n[:, 0, :], S.p[:, 0, :], S.g[:, 0])
     return False
 
 
 def _bb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):  # also F_XB
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
     mg, ed, sep = gm[:k], edge[:k], se[:k]
-    _box_box_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.h[:k], mg, S_n, S_p, S_g, S_f, S_ok, ed,
-                    sep, fw, iw)
-    edge_pair_face_points(S_g, S_ok, ed, sep, mg, face_points)
+    _box_box_kernel(_boxes(A, k), _boxes(B, k), mg, S, ed, sep, fw, iw)
+    edge_pair_face_points(S.g, S.ok, ed, sep, mg, face_points)
     return False
 
 
 def _sc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _sphere_capsule_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :],
-                           S_g[:, 0], fw)
+    _sphere_capsule_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S.n[:, 0, :], S.p[:, 0, :],
+                           S.g[:, 0], fw)
     return False
 
 
 def _bc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _capsule_box_kernel(B.c[:k], B.R[:k], B.hl[:k], B.r[:k], A.c[:k], A.R[:k], A.h[:k], S_n, S_p, S_g, S_f,
-                        S_ok, fw)
+    _capsule_box_kernel(B.c[:k], B.R[:k], B.hl[:k], B.r[:k], A.c[:k], A.R[:k], A.h[:k], S.n, S.p, S.g, S.f, S.ok,
+                        fw)
     return True
 
 
 def _cc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _capsule_capsule_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
-                            S_p, S_g, S_f, S_ok, fw)
+    _capsule_capsule_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S.n, S.p,
+                            S.g, S.f, S.ok, fw)
     return False
 
 
 def _sy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _sphere_cylinder_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], capm1[:k], S_n[:, 0, :],
-                            S_p[:, 0, :], S_g[:, 0])
+    _sphere_cylinder_kernel(A.c[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], capm1[:k], S.n[:, 0, :],
+                            S.p[:, 0, :], S.g[:, 0])
     return False
 
 
 def _by(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _box_cylinder_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], gm[:k], True,
-                         _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
+    _box_cylinder_kernel(_boxes(A, k), _cylinders(B, k), gm[:k], True, _CORNERS, _BOX_EDGES, _slots(fam, k, slot),
+                         fw)
     return False
 
 
 def _cy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _capsule_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k], S_n,
-                             S_p, S_g, S_f, S_ok, fw)
+    _capsule_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], _cylinders(B, k), _slots(fam, k, slot), fw)
     return False
 
 
 def _yy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _cylinder_cylinder_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.hl[:k], B.r[:k],
-                              gm[:k], True, S_n, S_p, S_g, S_f, S_ok, fw, iw)
+    _cylinder_cylinder_kernel(_cylinders(A, k), _cylinders(B, k), gm[:k], True, _slots(fam, k, slot), fw, iw)
     return False
 
 
 def _ps(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _sphere_plane_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S_n[:, 0, :], S_p[:, 0, :], S_g[:, 0])
+    _sphere_plane_kernel(A.c[:k], A.r[:k], B.c[:k], B.r[:k], S.n[:, 0, :], S.p[:, 0, :], S.g[:, 0])
     return False
 
 
 def _pb(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _box_plane_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
+    _box_plane_kernel(A.c[:k], A.R[:k], A.h[:k], B.c[:k], B.r[:k], S.n, S.p, S.g, S.f)
     return False
 
 
 def _pc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _capsule_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f, S_ok, fw)
+    _capsule_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S.n, S.p, S.g, S.f, S.ok, fw)
     return False
 
 
 def _py(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _cylinder_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S_n, S_p, S_g, S_f)
+    _cylinder_plane_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.r[:k], S.n, S.p, S.g, S.f)
     return False
 
 
 def _xc(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
     S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _capsule_box_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S_n, S_p, S_g, S_f,
-                        S_ok, fw)
+    _capsule_box_kernel(A.c[:k], A.R[:k], A.hl[:k], A.r[:k], B.c[:k], B.R[:k], B.h[:k], S.n, S.p, S.g, S.f, S.ok,
+                        fw)
     return False
 
 
 def _xy(fam, k, A, B, gm, slot, edge, se, capm1, face_points, fw, iw):
-    S = _slots(fam, k, slot)
-    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
-    _box_cylinder_kernel(B.c[:k], B.R[:k], B.h[:k], A.c[:k], A.R[:k], A.hl[:k], A.r[:k], gm[:k], True,
-                         _CORNERS, _BOX_EDGES, S_n, S_p, S_g, S_f, S_ok, fw)
+    _box_cylinder_kernel(_boxes(B, k), _cylinders(A, k), gm[:k], True, _CORNERS, _BOX_EDGES, _slots(fam, k, slot),
+                         fw)
     return True
 
 

@@ -13,9 +13,9 @@ from numba import njit
 
 from physbench.engine.collision.capsule import capsule_ends1
 from physbench.engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, FACE_TOL, RIM_FIDS, SDF_BOX, SDF_CYLINDER,
-                                      crossing_contacts1, cylinder_rim1, gather, local_offset, norm3, rim_contacts1,
-                                      segment_and_caps1, segment_closest1, segment_min1, slots, sphere_cylinder1,
-                                      to_local)
+                                      Boxes, Cylinders, Slots, crossing_contacts1, cylinder_rim1, gather, local_offset,
+                                      norm3, one_cylinder, pair_slots, rim_contacts1, segment_and_caps1,
+                                      segment_closest1, segment_min1, slots, sphere_cylinder1, to_local)
 
 __all__ = ["CYLINDER_FACE_COS", "FACE_TOL", "box_cylinder", "capsule_cylinder", "cylinder_plane", "sphere_cylinder"]
 
@@ -104,22 +104,25 @@ def cylinder_plane(c, R, hl, r, pn, po):
 
 
 @njit(cache=True)
-def _capsule_cylinder_kernel(c, R, hl, r, cc, Rc, hlc, rc, S_n, S_p, S_g, S_f, S_ok, fw):
+def _capsule_cylinder_kernel(c, R, hl, r, cyl, S, fw):
+    """:func:`capsule_cylinder` over the pairs: capsules (c (k, 3), R (k,
+    3, 3), half lengths hl, radii r (k,)) against the :class:`Cylinders`
+    ``cyl`` into the :class:`Slots` ``S`` (k, 13); ``fw`` (>= CYLINDER_FW,)
+    scratch."""
     V = fw[:12].reshape((4, 3))
     e0, e1, x, q = V[0], V[1], V[2], V[3]
     s2 = fw[12:14]
     oh = fw[14:17]
     P = fw[17:41].reshape((8, 3))
     for k in range(c.shape[0]):
-        oh[0], oh[1], oh[2] = hlc[k], rc[k], 0.0
+        cy = one_cylinder(cyl, k)
+        Sk = pair_slots(S, k)
+        oh[0], oh[1], oh[2] = cy.hl, cy.r, 0.0
         capsule_ends1(c[k], R[k], hl[k], e0, e1)
-        segment_and_caps1(SDF_CYLINDER, e0, e1, hl[k], r[k], cc[k], Rc[k], oh, x, S_n[k], S_p[k], S_g[k], S_f[k],
-                          S_ok[k])
-        crossing_contacts1(e0, e1, r[k], cc[k], Rc[k], hlc[k], rc[k], s2, x, 3, 1, 3, 1, S_n[k], S_p[k], S_g[k],
-                           S_f[k], S_ok[k])
+        segment_and_caps1(SDF_CYLINDER, e0, e1, hl[k], r[k], cy.c, cy.R, oh, x, Sk.n, Sk.p, Sk.g, Sk.f, Sk.ok)
+        crossing_contacts1(e0, e1, r[k], cy, s2, x, 3, 1, 3, 1, Sk)
         # the rim facing the capsule: pn from the capsule toward the cylinder
-        rim_contacts1(cc[k], Rc[k], hlc[k], rc[k], S_n[k, 0], SDF_CYLINDER, e0, e1, Rc[k], r[k], 5, 8, P, q,
-                      S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
+        rim_contacts1(cy, Sk.n[0], SDF_CYLINDER, e0, e1, cy.R, r[k], 5, 8, P, q, Sk)
 
 
 def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
@@ -136,8 +139,8 @@ def capsule_cylinder(c, R, hl, r, cc, Rc, hlc, rc):
     rim point's id."""
     out = slots(c.shape[0], 13)
     if c.shape[0]:
-        _capsule_cylinder_kernel(_f(c), _f(R), _f(hl), _f(r), _f(cc), _f(Rc), _f(hlc), _f(rc), *out,
-                                 np.empty(CYLINDER_FW))
+        _capsule_cylinder_kernel(_f(c), _f(R), _f(hl), _f(r), Cylinders(c=_f(cc), R=_f(Rc), hl=_f(hlc), r=_f(rc)),
+                                 Slots(*out), np.empty(CYLINDER_FW))
     return gather(*out, blocks=[(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 13)])
 
 
@@ -157,13 +160,22 @@ def _box_point(cb, Rb, hb, mult, out):
 
 
 @njit(cache=True)
-def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners, edges,
-                         S_n, S_p, S_g, S_f, S_ok, fw):
+def _box_cylinder_kernel(box, cyl, margin, use_margin, corners, edges, S, fw):
+    """:func:`box_cylinder` over the pairs: the :class:`Boxes` ``box``
+    against the :class:`Cylinders` ``cyl`` into the :class:`Slots` ``S``
+    (k, 52); ``corners`` (8, 3) and ``edges`` (12, 2, 3) the box's
+    multipliers (``_CORNERS``, ``_BOX_EDGES``), ``margin`` (k,) m where
+    ``use_margin``; ``fw`` (>= CYLINDER_FW,) scratch."""
+    cb, Rb, hb = box.c, box.R, box.h
+    cc, Rc, hl, rc = cyl.c, cyl.R, cyl.hl, cyl.r
+    S_n, S_p, S_g, S_f, S_ok = S.n, S.p, S.g, S.f, S.ok
     V = fw[:21].reshape((7, 3))
     x, e0, e1, oh, dA, axc, pn = V[0], V[1], V[2], V[3], V[4], V[5], V[6]
     s2 = fw[21:23]
     P = fw[23:47].reshape((8, 3))
     for k in range(cb.shape[0]):
+        cy = one_cylinder(cyl, k)
+        Sk = pair_slots(S, k)
         oh[0], oh[1], oh[2] = hl[k], rc[k], 0.0
         for m in range(8):
             _box_point(cb[k], Rb[k], hb[k], corners[m], x)
@@ -188,8 +200,7 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
                 S_g[k, sl] = sphere_cylinder1(x, 0.0, cc[k], Rc[k], hl[k], rc[k], np.int64(-1), S_n[k, sl], S_p[k, sl])
                 S_f[k, sl] = 8 + e
                 S_ok[k, sl] = True
-            crossing_contacts1(e0, e1, 0.0, cc[k], Rc[k], hl[k], rc[k], s2, x, 20 + e, 12, 20 + 2 * e, 1, S_n[k],
-                               S_p[k], S_g[k], S_f[k], S_ok[k])
+            crossing_contacts1(e0, e1, 0.0, cy, s2, x, 20 + e, 12, 20 + 2 * e, 1, Sk)
         # the rim facing the box face of largest separation
         local_offset(Rb[k], cc[k], cb[k], dA)
         for i in range(3):
@@ -206,8 +217,7 @@ def _box_cylinder_kernel(cb, Rb, hb, cc, Rc, hl, rc, margin, use_margin, corners
         sg = 1.0 if dA[f] >= 0.0 else -1.0
         for i in range(3):
             pn[i] = Rb[k, i, f] * sg
-        rim_contacts1(cc[k], Rc[k], hl[k], rc[k], pn, SDF_BOX, cb[k], hb[k], Rb[k], 0.0, 44, 48, P, x,
-                      S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k])
+        rim_contacts1(cy, pn, SDF_BOX, cb[k], hb[k], Rb[k], 0.0, 44, 48, P, x, Sk)
 
 
 def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
@@ -236,6 +246,6 @@ def box_cylinder(cb, Rb, hb, cc, Rc, hl, rc, margin=None):
     out = slots(m, 52)
     if m:
         mg = np.zeros(m) if margin is None else _f(margin)
-        _box_cylinder_kernel(_f(cb), _f(Rb), _f(hb), _f(cc), _f(Rc), _f(hl), _f(rc), mg, margin is not None,
-                             _CORNERS, _BOX_EDGES, *out, np.empty(CYLINDER_FW))
+        _box_cylinder_kernel(Boxes(c=_f(cb), R=_f(Rb), h=_f(hb)), Cylinders(c=_f(cc), R=_f(Rc), hl=_f(hl), r=_f(rc)),
+                             mg, margin is not None, _CORNERS, _BOX_EDGES, Slots(*out), np.empty(CYLINDER_FW))
     return gather(*out, blocks=[(0, 8), (8, 20), (20, 32), (32, 44), (44, 52)])

@@ -11,12 +11,14 @@ box-box keeps them (:func:`cylinder_cylinder`)."""
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-from physbench.engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, GOLDEN, SDF_CYLINDER, circle_crossings1, cylinder_rim1,
-                                      gather, norm3, segment_min1, segment_segment, sdf1, slots, sphere_cylinder1)
+from physbench.engine.collision.kernels import (EDGE_POINT_TOL, CYLINDER_FACE_COS, GOLDEN, SDF_CYLINDER, Cylinders, Slots,
+                                      circle_crossings1, cylinder_rim1, gather, norm3, one_cylinder, pair_slots,
+                                      segment_min1, segment_segment, sdf1, slots, sphere_cylinder1)
 
 
 #: rim samples per cap for the search of a rim's minima and radius
@@ -43,16 +45,26 @@ _SIDE_MAX = 5 + 4 * RIM_SAMPLES + 3
 #: the kernel's scratch as slices of the collider's kept work (nothing
 #: allocated a call or a pair, tests/test_engine_steady_gyro.py::
 #: test_every_gyroscopic_setting_steps_without_allocating): floats -- a
-#: pair's candidates (bn, bp (B, 3), bg, key (B,), E (B, 3), sp, area (B,)),
-#: the axes and normals (12), :func:`_pair_normal`'s (27), one side's
-#: (:func:`_points_against`: _SIDE_FW) --; ints -- bf, order, near, sel
-#: (B,) and one side's fid, infg (_SIDE_MAX,)
+#: pair's candidates' n, p (B, 3), g (:class:`Candidates`), the
+#: :class:`ManifoldWork`'s key (B,), E (B, 3), sp, area (B,), the axes and
+#: normals (12), :func:`_pair_normal`'s (27), one side's
+#: (:func:`_points_against`: _SIDE_FW) --; ints -- the candidates' f, the
+#: work's order, near, sel (B,) and one side's fid, infg (_SIDE_MAX,)
 _B = 2 * _SIDE_MAX
 _RIM_FW = 12 + 2 * RIM_SAMPLES
 _SIDE_FW = 3 * _SIDE_MAX + 47 + _RIM_FW
 _PAIR_FW = 13 * _B + 12 + 27
 YY_FW = _PAIR_FW + _SIDE_FW
 YY_IW = 4 * _B + 2 * _SIDE_MAX
+
+#: a pair's candidate contacts (B of room): normals ``n``, points ``p`` (B,
+#: 3), gaps ``g`` (B,) m, feature ids ``f`` (B,) int64
+Candidates = namedtuple("Candidates", ("n", "p", "g", "f"))
+
+#: :func:`_four_points`' scratch: the candidates' ``order``, sort ``key``,
+#: offsets ``E`` (B, 3) across the normal, spans ``sp`` and ``area`` (B,);
+#: the touching set ``near`` and the kept flags ``sel`` (B,) int64
+ManifoldWork = namedtuple("ManifoldWork", ("order", "key", "E", "sp", "area", "near", "sel"))
 
 
 @njit(cache=True)
@@ -239,15 +251,19 @@ def _pair_normal(ca, axa, hla, ra, cb, axb, hlb, rb, out, pw):
 
 
 @njit(cache=True)
-def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n, fid0, bn, bp, bg, bf, cnt, sw,
-                    siw):
-    """One side of :func:`cylinder_cylinder`: points of cylinders (c, R,
-    hl, r) against the other cylinders' exact signed distance, ``pn``
-    (k, 3) the pair normal from these toward the others.  Points inside
-    the other leave through its cap where pn is within 45 degrees of its
-    axis, else through its side.  Returns contacts with normals from these
-    toward the others.  ``sw`` (_SIDE_FW,), ``siw`` (2 _SIDE_MAX,) int64
-    scratch."""
+def _points_against(me, other, pn, margin, use_margin, sgn_n, fid0, cand, cnt, sw, siw):
+    """One side of :func:`cylinder_cylinder`: points of the cylinder ``me``
+    against the cylinder ``other``'s exact signed distance (each
+    :func:`engine.collision.kernels.one_cylinder`), ``pn`` (3,) the pair
+    normal from ``me`` toward ``other``.  Points inside the other leave
+    through its cap where pn is within 45 degrees of its axis, else
+    through its side.  Writes the contacts, normals times ``sgn_n`` (from
+    ``me`` toward ``other`` for 1), fids ``fid0`` + the feature's, into the
+    :class:`Candidates` ``cand`` from ``cnt`` on; returns the count after
+    them.  ``margin`` m, where ``use_margin``: rim samples farther are not
+    refined.  ``sw`` (_SIDE_FW,), ``siw`` (2 _SIDE_MAX,) int64 scratch."""
+    c, R, hl, r = me.c, me.R, me.hl, me.r
+    oc, oR, ohl, orr = other.c, other.R, other.hl, other.r
     oh = sw[0:3]
     oh[0], oh[1], oh[2] = ohl, orr, 0.0
     cap_face = 1 if abs(pn[0] * oR[0, 2] + pn[1] * oR[1, 2] + pn[2] * oR[2, 2]) >= CYLINDER_FACE_COS else 0
@@ -333,69 +349,67 @@ def _points_against(c, R, hl, r, oc, oR, ohl, orr, pn, margin, use_margin, sgn_n
                 fid[m] = 49 + j
                 m += 1
     for t in range(m):
-        g = sphere_cylinder1(pts[t], 0.0, oc, oR, ohl, orr, cap_face, bn[cnt], bp[cnt])
-        bg[cnt] = np.inf if infg[t] else g
+        g = sphere_cylinder1(pts[t], 0.0, oc, oR, ohl, orr, cap_face, cand.n[cnt], cand.p[cnt])
+        cand.g[cnt] = np.inf if infg[t] else g
         for i in range(3):
-            bn[cnt, i] *= sgn_n
-        bf[cnt] = fid0 + fid[t]
+            cand.n[cnt, i] *= sgn_n
+        cand.f[cnt] = fid0 + fid[t]
         cnt += 1
     return cnt
 
 
 @njit(cache=True)
-def _cylinder_cylinder_kernel(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin, use_margin, S_n, S_p, S_g, S_f, S_ok, fw,
-                              iw):
-    """:func:`cylinder_cylinder` over the pairs into the slots; ``fw``
-    (>= YY_FW,) float64 and ``iw`` (>= YY_IW,) int64 scratch."""
-    B = _B
-    bn = fw[0:3 * B].reshape((B, 3))
-    bp = fw[3 * B:6 * B].reshape((B, 3))
-    bg = fw[6 * B:7 * B]
-    key = fw[7 * B:8 * B]
-    E = fw[8 * B:11 * B].reshape((B, 3))
-    sp = fw[11 * B:12 * B]
-    area = fw[12 * B:13 * B]
-    axa = fw[13 * B:13 * B + 3]
-    axb = fw[13 * B + 3:13 * B + 6]
-    pn = fw[13 * B + 6:13 * B + 9]
-    mpn = fw[13 * B + 9:13 * B + 12]
-    pw = fw[13 * B + 12:_PAIR_FW]
+def _cylinder_cylinder_kernel(A, B, margin, use_margin, S, fw, iw):
+    """:func:`cylinder_cylinder` over the pairs (the :class:`Cylinders`
+    ``A`` against ``B``, ``margin`` (k,) m where ``use_margin``) into the
+    :class:`Slots` ``S`` (k, 4 + 2 _SIDE_MAX); ``fw`` (>= YY_FW,) float64
+    and ``iw`` (>= YY_IW,) int64 scratch."""
+    Ra, Rb = A.R, B.R
+    nB = _B
+    cand = Candidates(n=fw[0:3 * nB].reshape((nB, 3)), p=fw[3 * nB:6 * nB].reshape((nB, 3)), g=fw[6 * nB:7 * nB],
+                      f=iw[0:nB])
+    axa = fw[13 * nB:13 * nB + 3]
+    axb = fw[13 * nB + 3:13 * nB + 6]
+    pn = fw[13 * nB + 6:13 * nB + 9]
+    mpn = fw[13 * nB + 9:13 * nB + 12]
+    pw = fw[13 * nB + 12:_PAIR_FW]
     sw = fw[_PAIR_FW:_PAIR_FW + _SIDE_FW]
-    bf = iw[0:B]
-    order = iw[B:2 * B]
-    near_w = iw[2 * B:3 * B]
-    sel_w = iw[3 * B:4 * B]
-    siw = iw[4 * B:4 * B + 2 * _SIDE_MAX]
-    for k in range(ca.shape[0]):
+    work = ManifoldWork(order=iw[nB:2 * nB], key=fw[7 * nB:8 * nB], E=fw[8 * nB:11 * nB].reshape((nB, 3)),
+                        sp=fw[11 * nB:12 * nB], area=fw[12 * nB:13 * nB], near=iw[2 * nB:3 * nB],
+                        sel=iw[3 * nB:4 * nB])
+    siw = iw[4 * nB:4 * nB + 2 * _SIDE_MAX]
+    for k in range(A.c.shape[0]):
+        a, b = one_cylinder(A, k), one_cylinder(B, k)
         for i in range(3):
             axa[i] = Ra[k, i, 2]
             axb[i] = Rb[k, i, 2]
-        _pair_normal(ca[k], axa, hla[k], ra[k], cb[k], axb, hlb[k], rb[k], pn, pw)
+        _pair_normal(a.c, axa, a.hl, a.r, b.c, axb, b.hl, b.r, pn, pw)
         for i in range(3):
             mpn[i] = -pn[i]
-        cnt = _points_against(ca[k], Ra[k], hla[k], ra[k], cb[k], Rb[k], hlb[k], rb[k], pn, margin[k], use_margin,
-                              1.0, np.int64(0), bn, bp, bg, bf, np.int64(0), sw, siw)  # (typed ints: one compile)
-        cnt = _points_against(cb[k], Rb[k], hlb[k], rb[k], ca[k], Ra[k], hla[k], ra[k], mpn, margin[k], use_margin,
-                              -1.0, np.int64(128), bn, bp, bg, bf, cnt, sw, siw)
-        _four_points(bn, bp, bg, bf, cnt, pn, margin[k], use_margin, order, key, E, sp, area,
-                     S_n[k], S_p[k], S_g[k], S_f[k], S_ok[k], near_w, sel_w)
+        cnt = _points_against(a, b, pn, margin[k], use_margin, 1.0, np.int64(0), cand, np.int64(0), sw,
+                              siw)  # (typed ints: one compile)
+        cnt = _points_against(b, a, mpn, margin[k], use_margin, -1.0, np.int64(128), cand, cnt, sw, siw)
+        _four_points(cand, cnt, pn, margin[k], use_margin, work, pair_slots(S, k))
 
 
 @njit(cache=True)
-def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp, area, S_n, S_p, S_g, S_f, S_ok,
-                 near_w, sel_w):
-    """The touching set of each pair -- its contacts within MANIFOLD_BAND
-    of its deepest -- reduced to at most four points as box-box keeps them
-    (the deepest, the one farthest from it, and on either side of their
-    line the one farthest from it, all measured across the pair normal
-    ``pn`` (k, 3)), without near repeats; the pair's farther (speculative)
-    contacts are all kept.  The features of the two bodies often name the
-    same point twice (a rim crossing seen from each side) or nearly (a rim
-    support point a few mm from a crossing): with them in, a can offset on
-    an equal can turned at 2e-3 rad/s within a step instead of resting.
-    Contacts beyond the margin (k,) are dropped first.  Separated, the
-    deepest is the smallest gap: the distance stays exact.  ``near_w``,
-    ``sel_w`` (B,) int64 scratch."""
+def _four_points(cand, cnt, pn, margin, use_margin, work, S):
+    """The touching set of a pair -- its first ``cnt`` :class:`Candidates`
+    ``cand`` within MANIFOLD_BAND of its deepest -- reduced to at most four
+    points as box-box keeps them (the deepest, the one farthest from it,
+    and on either side of their line the one farthest from it, all
+    measured across the pair normal ``pn`` (3,)), without near repeats,
+    into slots 0-3 of the pair's :class:`Slots` ``S``; the pair's farther
+    (speculative) contacts are all kept, from slot 4 on.  The features of
+    the two bodies often name the same point twice (a rim crossing seen
+    from each side) or nearly (a rim support point a few mm from a
+    crossing): with them in, a can offset on an equal can turned at 2e-3
+    rad/s within a step instead of resting.
+    Contacts beyond the ``margin`` (m, where ``use_margin``) are dropped
+    first.  Separated, the deepest is the smallest gap: the distance stays
+    exact.  ``work`` a :class:`ManifoldWork`."""
+    bn, bp, bg, bf = cand.n, cand.p, cand.g, cand.f
+    order, key, E, sp, area = work.order, work.key, work.E, work.sp, work.area
     m = np.int64(0)
     first = np.inf
     for t in range(cnt):
@@ -435,7 +449,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
             nn += 1
     ns = np.int64(0)
     if nn:
-        near = near_w[:nn]
+        near = work.near[:nn]
         j = 0
         for a in range(m):
             if bg[order[a]] <= first + MANIFOLD_BAND:
@@ -471,7 +485,7 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
             if area[a] < area[i3]:
                 i3 = a
         ok1 = span > MANIFOLD_MIN_SPAN
-        sel = sel_w[:nn]  # (0/1 flags)
+        sel = work.sel[:nn]  # (0/1 flags)
         for a in range(nn):
             sel[a] = 0
         sel[0] = True
@@ -483,25 +497,26 @@ def _four_points(bn, bp, bg, bf, cnt, pn, margin, use_margin, order, key, E, sp,
                 sel[i3] = True
         for a in range(nn):  # in depth order
             if sel[a]:
-                _put(near[a], ns, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok)
+                _put(near[a], ns, cand, S)
                 ns += 1
     # the farther (speculative) contacts, all kept, in order after slot 4
     sl = np.int64(4)
     for a in range(m):
         t = order[a]
         if bg[t] > first + MANIFOLD_BAND:
-            _put(t, sl, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok)
+            _put(t, sl, cand, S)
             sl += 1
 
 
 @njit(cache=True)
-def _put(t, sl, bn, bp, bg, bf, S_n, S_p, S_g, S_f, S_ok):
+def _put(t, sl, cand, S):
+    """Candidate t into slot sl of one pair's :class:`Slots` ``S``."""
     for i in range(3):
-        S_n[sl, i] = bn[t, i]
-        S_p[sl, i] = bp[t, i]
-    S_g[sl] = bg[t]
-    S_f[sl] = bf[t]
-    S_ok[sl] = True
+        S.n[sl, i] = cand.n[t, i]
+        S.p[sl, i] = cand.p[t, i]
+    S.g[sl] = cand.g[t]
+    S.f[sl] = cand.f[t]
+    S.ok[sl] = True
 
 
 def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
@@ -539,6 +554,7 @@ def cylinder_cylinder(ca, Ra, hla, ra, cb, Rb, hlb, rb, margin=None):
     if m:
         f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
         mg = np.zeros(m) if margin is None else f(margin)
-        _cylinder_cylinder_kernel(f(ca), f(Ra), f(hla), f(ra), f(cb), f(Rb), f(hlb), f(rb), mg, margin is not None,
-                                  *out, np.empty(YY_FW), np.empty(YY_IW, np.int64))
+        _cylinder_cylinder_kernel(Cylinders(c=f(ca), R=f(Ra), hl=f(hla), r=f(ra)),
+                                  Cylinders(c=f(cb), R=f(Rb), hl=f(hlb), r=f(rb)), mg, margin is not None,
+                                  Slots(*out), np.empty(YY_FW), np.empty(YY_IW, np.int64))
     return gather(*out, blocks=[(0, 4), (4, 4 + 2 * _SIDE_MAX)])

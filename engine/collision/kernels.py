@@ -9,10 +9,41 @@ side's slot arrays and their gathering into contacts."""
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 EPS = 1e-12
+
+#: contact slots: normals ``n``, points ``p``, gaps ``g``, feature ids ``f``
+#: (int64), written flags ``ok`` (bool) -- a family kernel's (k, S, 3) and
+#: (k, S) over its pairs, one pair's (S, 3) and (S,) (:func:`pair_slots`),
+#: or flat over a group's pairs x slots (the collider's buffers,
+#: engine.collision.collide)
+Slots = namedtuple("Slots", ("n", "p", "g", "f", "ok"))
+
+#: cylinders (axis = body z): centres ``c`` (k, 3), rotations ``R`` (k, 3,
+#: 3), half lengths ``hl`` and radii ``r`` (k,) m -- or one cylinder's (3,),
+#: (3, 3) and floats (:func:`one_cylinder`)
+Cylinders = namedtuple("Cylinders", ("c", "R", "hl", "r"))
+
+#: boxes: centres ``c`` (k, 3), rotations ``R`` (k, 3, 3), half extents
+#: ``h`` (k, 3) m
+Boxes = namedtuple("Boxes", ("c", "R", "h"))
+
+
+@njit(cache=True)
+def pair_slots(S, k):
+    """Pair k's slots (S, 3) and (S,): views of the family's :class:`Slots` ``S``."""
+    return Slots(n=S.n[k], p=S.p[k], g=S.g[k], f=S.f[k], ok=S.ok[k])
+
+
+@njit(cache=True)
+def one_cylinder(cyl, k):
+    """Cylinder k of the :class:`Cylinders` ``cyl``: its centre (3,) and
+    rotation (3, 3) as views, half length and radius."""
+    return Cylinders(c=cyl.c[k], R=cyl.R[k], hl=cyl.hl[k], r=cyl.r[k])
 
 #: an edge point is a contact only where it is deeper (or closer) than both
 #: of its corners by this much (m): on a flat stretch the corners stand for it
@@ -436,44 +467,45 @@ def segment_and_caps1(kind, e0, e1, hl, r, oc, oR, oh, x, S_n, S_p, S_g, S_f, S_
 
 
 @njit(cache=True)
-def crossing_contacts1(e0, e1, r, cc, Rc, hl, rc, s2, x, sl0, sl_step, fid0, fid_step, S_n, S_p, S_g, S_f, S_ok):
+def crossing_contacts1(e0, e1, r, cyl, s2, x, sl0, sl_step, fid0, fid_step, S):
     """Spheres of radius r at the segment e0 -> e1's crossings of a
-    cylinder's radius (:func:`circle_crossings1`; cylinder centre cc,
-    rotation Rc, half length hl, radius rc) against the cylinder, into
-    slots sl0 + j sl_step of one pair's rows with fids fid0 + j fid_step
-    (j = 0, 1; none where there is no crossing).  ``s2`` (2,), ``x`` (3,)
-    scratch."""
-    circle_crossings1(e0, e1, cc, Rc, rc, s2)
+    cylinder's radius (:func:`circle_crossings1`; ``cyl`` one cylinder,
+    :func:`one_cylinder`) against the cylinder, into slots sl0 + j sl_step
+    of one pair's slots ``S`` (:func:`pair_slots`) with fids fid0 + j
+    fid_step (j = 0, 1; none where there is no crossing).  ``s2`` (2,),
+    ``x`` (3,) scratch."""
+    circle_crossings1(e0, e1, cyl.c, cyl.R, cyl.r, s2)
     for j in range(2):
         if not np.isnan(s2[j]):
             for i in range(3):
                 x[i] = e0[i] + (e1[i] - e0[i]) * s2[j]
             sl = sl0 + sl_step * j
-            S_g[sl] = sphere_cylinder1(x, r, cc, Rc, hl, rc, np.int64(-1), S_n[sl], S_p[sl])
-            S_f[sl] = fid0 + fid_step * j
-            S_ok[sl] = True
+            S.g[sl] = sphere_cylinder1(x, r, cyl.c, cyl.R, cyl.hl, cyl.r, np.int64(-1), S.n[sl], S.p[sl])
+            S.f[sl] = fid0 + fid_step * j
+            S.ok[sl] = True
 
 
 @njit(cache=True)
-def rim_contacts1(cc, Rc, hl, rc, pn, kind, oa, ob, oR, orr, sl0, fid0, P, q, S_n, S_p, S_g, S_f, S_ok):
-    """A cylinder's rim points facing a surface of normal pn (toward the
-    cylinder; :func:`cylinder_rim1`) against the other body, into slots
-    sl0.. sl0 + 7 of one pair's rows with fids fid0 + RIM_FIDS: against a
+def rim_contacts1(cyl, pn, kind, oa, ob, oR, orr, sl0, fid0, P, q, S):
+    """The rim points of one cylinder ``cyl`` (:func:`one_cylinder`) facing
+    a surface of normal pn (toward the cylinder; :func:`cylinder_rim1`)
+    against the other body, into slots sl0.. sl0 + 7 of one pair's slots
+    ``S`` (:func:`pair_slots`) with fids fid0 + RIM_FIDS: against a
     capsule (``kind`` SDF_CYLINDER: segment oa -> ob, radius orr; the
     closest point on it) or a box (SDF_BOX: centre oa, rotation oR,
     half-extents ob).  Normals from the other body toward the cylinder;
     the points :func:`cylinder_rim1` drops get gap inf.  P (8, 3), q (3,)
     scratch."""
-    side = cylinder_rim1(cc, Rc, hl, rc, pn, P)
+    side = cylinder_rim1(cyl.c, cyl.R, cyl.hl, cyl.r, pn, P)
     for m in range(8):
         sl = sl0 + m
         if kind == SDF_BOX:
-            g = sphere_box1(P[m], 0.0, oa, oR, ob, S_n[sl], S_p[sl])
+            g = sphere_box1(P[m], 0.0, oa, oR, ob, S.n[sl], S.p[sl])
         else:
             segment_closest1(P[m], oa, ob, q)
-            g = sphere_sphere1(P[m], 0.0, q, orr, S_n[sl], S_p[sl])
+            g = sphere_sphere1(P[m], 0.0, q, orr, S.n[sl], S.p[sl])
         for i in range(3):
-            S_n[sl, i] = -S_n[sl, i]
-        S_g[sl] = np.inf if side and m % 4 != 0 else g
-        S_f[sl] = fid0 + RIM_FIDS[m]
-        S_ok[sl] = True
+            S.n[sl, i] = -S.n[sl, i]
+        S.g[sl] = np.inf if side and m % 4 != 0 else g
+        S.f[sl] = fid0 + RIM_FIDS[m]
+        S.ok[sl] = True
