@@ -20,27 +20,18 @@ ENGINE = Path(__file__).resolve().parent.parent / "engine"
 CEILING = 15
 
 #: the kernels still above the ceiling, with their parameter counts: the
-#: joints' and the free flight's (engine/joints, engine/flight.py,
-#: engine/fused/steady.py, engine/gyroscopic.py), the collision families' inner
-#: kernels (their slot arrays one by one) and the time-of-impact gap
+#: collision families' inner kernels (their slot arrays one by one) and the
+#: time-of-impact gap
 #: (called from the Python search loop, where a named tuple argument costs
 #: more to dispatch than its arrays one by one)
 OVER = {
-    "joints/step.py::joint_block": 39,
-    "joints/step.py::joint_step": 30,
-    "flight.py::free_flight": 25,
-    "flight.py::end_pose_pairs": 22,
     "collision/cylinder_pair.py::_points_against": 20,
     "collision/cylinder_pair.py::_four_points": 20,
-    "gyroscopic.py::energy_rotation_into": 19,
     "collision/kernels.py::rim_contacts1": 19,
-    "flight.py::_stage": 18,
     "collision/kernels.py::crossing_contacts1": 18,
     "ccd_gap.py::gap": 18,
-    "fused/steady.py::steady_loop": 17,
     "collision/cylinder_pair.py::_cylinder_cylinder_kernel": 17,
     "collision/cylinder.py::_box_cylinder_kernel": 17,
-    "joints/step.py::_rk_part": 16,
     "collision/box.py::_box_box_kernel": 16,
 }
 
