@@ -11,7 +11,8 @@ integrators run them again at their intermediate states (RK stages).
 stage exists for the effects a scene lists (``wanted``, see
 :func:`force_stages`), runs its compiled kernel of engine/flight.py and
 gives its arrays to the compiled force model (``fields``,
-:func:`force_model`), which the integrators evaluate at their intermediate
+:func:`force_model`) and compiles its kernel ahead on small arrays of the
+context's types (``warm``, engine.jit), which the integrators evaluate at their intermediate
 states and the fused steps at the start (engine.flight.apply_forces lists
 the kernels in the same order; tests/test_engine_force_table.py pins the
 staged bits of every entry on every compiled path).
@@ -46,6 +47,10 @@ class Gravity(Stage):
     def fields(self) -> dict:
         return {"mg": np.array(self.mg, float)}
 
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        flight.gravity(np.ones(F.shape), F)
+
     def __call__(self, model, state, ctx) -> None:
         flight.gravity(self.mg, ctx.F)
 
@@ -68,6 +73,10 @@ class _Drag(Stage):
 
     def fields(self) -> dict:
         return {self.field: self.c}
+
+    @classmethod
+    def warm(cls, x, R, v, F, T) -> None:
+        cls.kernel(np.ones(x.shape[0]), v, F)
 
     def __call__(self, model, state, ctx) -> None:
         self.kernel(self.c, ctx.ev, ctx.F)
@@ -120,6 +129,12 @@ class Springs(Stage):
     def fields(self) -> dict:
         return dict(zip(("s_a", "s_b", "s_pa", "s_pb", "s_k", "s_c", "s_L0"), self.args))
 
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        one = np.ones(1)
+        flight.springs(np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)), np.ones((1, 3)), one,
+                       one, one, x, R, v, v, F, T)
+
     def __call__(self, model, state, ctx) -> None:
         flight.springs(*self.args, ctx.ex, ctx.eR, ctx.ev, ctx.ew, ctx.F, ctx.T)
 
@@ -146,6 +161,10 @@ class GyroscopicTorque(Stage):
 
     def fields(self) -> dict:
         return {"g_idx": np.array(self.idx, np.int64), "g_I": self.I}
+
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        flight.gyroscopic_torque(np.arange(x.shape[0], dtype=np.int64), np.ones((x.shape[0], 3)), R, v, T)
 
     def __call__(self, model, state, ctx) -> None:
         flight.gyroscopic_torque(self.idx, self.I, ctx.eR, ctx.ew, ctx.T)

@@ -335,23 +335,12 @@ def _warm_flight() -> None:
 
 
 def _warm_force(kind: str) -> None:
-    """The force stage ``kind``'s own kernel (engine/forces.py), as the
-    stage calls it (C-contiguous arrays of the context)."""
-    from physbench.engine import flight
-
+    """The force stage ``kind``'s own kernel (engine.forces.FORCES: the
+    stage's ``warm``), as the stage calls it (C-contiguous arrays of the
+    context)."""
     nb = 2
     x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
-    F, T = np.zeros((nb, 3)), np.zeros((nb, 3))
-    if kind == "Gravity":
-        flight.gravity(np.ones((nb, 3)), F)
-    elif kind == "LinearDrag":
-        flight.linear_drag(np.ones(nb), v, F)
-    elif kind == "QuadraticDrag":
-        flight.quadratic_drag(np.ones(nb), v, F)
-    elif kind == "Springs":
-        flight.springs(*springs[3:10], x, R, v, v, F, T)
-    elif kind == "GyroscopicTorque":
-        flight.gyroscopic_torque(idx, I, R, v, T)
+    next(S for S in FORCES if S.__name__ == kind).warm(x, R, v, np.zeros((nb, 3)), np.zeros((nb, 3)))
 
 
 def _warm_gyro(mode: str) -> None:

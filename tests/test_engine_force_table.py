@@ -14,8 +14,9 @@ tests/test_engine_steady.py), for forces: the force stages' one table
 
 A new force effect is its kernel, its field of ``ForceModel`` and its line
 in ``apply_forces`` (engine/flight.py) and its stage class in the table
-(engine/forces.py); this test then runs it on every path once it has a
-scene recipe in :data:`RECIPES` (it fails for an entry without one)."""
+(engine/forces.py: ``wanted``, ``fields``, ``kernel``, ``warm``); this
+test then runs it on every path once it has a scene recipe in
+:data:`RECIPES` (it fails for an entry without one)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from physbench.engine import Engine, flight, forces
+from physbench.engine import Engine, flight, forces, jit
 from physbench.engine.fused import SteadyStep
 from physbench.engine.fused.loop import FLIGHT_NAME, FlightStep
 from physbench.engine.fused.steady import FREE_NAME, NAME, warm_scene
@@ -87,6 +88,8 @@ def test_every_force_stage_has_a_recipe_and_a_compiled_form():
     calls = [n.func.id for st in body for n in ast.walk(st) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)]
     assert calls == [S.kernel.py_func.__name__ for S in forces.FORCES]
     for S in forces.FORCES:
+        jit._warm_force(S.__name__)  # the warm-up compiles (or loads) the stage's own kernel from the table
+        assert S.kernel.signatures
         inp, settings = _input(S.__name__, False)
         eng = Engine(inp, settings)
         stages = [s for s in eng.stages if s.family == "forces"]
