@@ -154,9 +154,7 @@ def end_pose_candidates(x0, q0, x1, q1, shapes, statics, lim, has_fast, fast, pa
     may hold a missed impact (body pairs, planes, static boxes).  One call
     (the steady step's and the CCD stage's, engine/ccd.py
     ``end_pose_pairs``)."""
-    o, p = out, pairs
-    nb, npl, ns = end_pose_pairs(x0, q0, x1, q1, shapes.bound_radius, lim, has_fast, fast, p.pi, p.pj, p.bp, p.pk,
-                                 p.bs, p.sk, o.sw, o.ci, o.cj, o.cbp, o.cpk, o.cbs, o.csk, o.R1)
+    nb, npl, ns = end_pose_pairs(x0, q0, x1, q1, shapes.bound_radius, lim, has_fast, fast, pairs, out)
     if nb + npl + ns == 0:
         return 0, 0, 0
     return end_pose_clear(x1, shapes, statics, lim, out, nb, npl, ns)

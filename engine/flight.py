@@ -7,14 +7,19 @@ positions ``x`` (n, 3) m, orientations ``q`` (n, 4) wxyz, velocities
 ``v``/``w`` (n, 3) world frame, rotations ``R`` (n, 3, 3), forces and
 torques ``F``/``T`` (n, 3) N, N m (world frame, about the centre of mass).
 
-The force model is a tuple of arrays (:func:`force_model`), the effects
-absent from a scene as empty arrays: ``mg`` (n, 3) or (0, 3) gravity
+The force model is a :data:`ForceModel` (engine.forces.force_model), the
+effects absent from a scene as empty arrays: ``mg`` (n, 3) or (0, 3) gravity
 forces; ``c_lin`` (n,) or (0,) linear drag N s/m; ``c_quad`` (n,) or (0,)
 quadratic drag N s^2/m^2; springs ``s_a``/``s_b`` (k,) body or -1 (the
 world), anchors ``s_pa``/``s_pb`` (k, 3) (body frame; world points for the
 world), ``s_k`` N/m, ``s_c`` N s/m, ``s_L0`` m (k,); the explicit
 gyroscopic torque on bodies ``g_idx`` (g,) with principal moments ``g_I``
-(g, 3).  Integrators: see engine/integrate.py (``METHOD`` codes).
+(g, 3).  :func:`apply_forces` is the one list of the force kernels, in the
+force stages' order (engine.forces.FORCES): the staged force stages, the
+integrators' evaluations at their intermediate states (:func:`evaluate`)
+and the fused steps (engine/fused/part.py) all follow it.  Integrators:
+see engine/integrate.py (``METHOD`` codes); :func:`fly` is the free-flight
+stage's one call, staged and fused.
 
 Also the step loop's per-step pose kernels: the start of a (mini-)step
 (:func:`begin_step`), the rotation split's turn rate (:func:`max_turn_sq`)
@@ -26,8 +31,44 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+from collections import namedtuple
+
 from numba import njit
+
+#: the compiled force model (module doc): one field per force kernel's
+#: arrays, in :func:`apply_forces`'s order
+ForceModel = namedtuple("ForceModel", ("mg", "c_lin", "c_quad", "s_a", "s_b", "s_pa", "s_pb", "s_k", "s_c", "s_L0",
+                                       "g_idx", "g_I"))
+
+#: the free flight's law (:func:`free_flight`): the integrator's ``METHOD``
+#: code, whether there are forces at all, whether they are state-independent
+#: (``constant``: evaluated once), whether any makes torques, the force model
+#: (:data:`ForceModel`), inverse masses (n,) 1/kg and principal inverse
+#: inertias (n, 3) 1/(kg m^2), the contact lever (1/2, or 1 for the
+#: velocity-first integrator)
+Integrator = namedtuple("Integrator", ("method", "has_forces", "constant", "torque", "fm", "inv_m", "inv_I",
+                                       "lever"))
+
+#: the start of a free flight: pose x (n, 3), q (n, 4), velocities v, w
+#: (n, 3) (w possibly after the implicit gyroscopic update), ``w_start`` the
+#: state's angular velocities (n, 3), the forces F, T (n, 3) evaluated there
+#: and their rotations R (n, 3, 3)
+FlightStart = namedtuple("FlightStart", ("x", "q", "v", "w", "w_start", "F", "T", "R"))
+
+#: what a free flight writes: the end state x (n, 3), q (n, 4), v, w (n, 3),
+#: the step's mean torque ``T_mean`` and mean velocities ``u_lin``, ``u_ang``
+#: (n, 3)
+FlightEnd = namedtuple("FlightEnd", ("x", "q", "v", "w", "T_mean", "u_lin", "u_ang"))
+
+#: the free-flight stage's kept arrays (:func:`fly`;
+#: engine.integrate.IntegrateVelocities.pack): its :data:`Integrator`, the
+#: context's working velocities ``V``, ``W`` (n, 3: the first n rows), their
+#: copies after the flight ``v_free``, ``w_free``, the flight's start angular
+#: velocities ``w0`` (n, 3), ``T_mean``, ``u_lin``, ``u_ang`` (n, 3), the
+#: work array (:data:`WORK_SLABS`, n, 4), the pseudo velocities ``vp``,
+#: ``wp`` (n, 3: first n rows) the position update reads
+Flight = namedtuple("Flight", ("ig", "V", "W", "v_free", "w_free", "w0", "T_mean", "u_lin", "u_ang", "work", "vp",
+                               "wp"))
 
 METHOD = {"explicit_euler": 0, "semi_implicit_euler": 1, "midpoint": 2, "heun": 3, "rk4": 4, "velocity_verlet": 5}
 
@@ -173,23 +214,35 @@ def gyroscopic_torque(g_idx, g_I, R, w, T):
 
 
 @njit(cache=True)
+def apply_forces(fm, x, R, v, w, F, T):
+    """The force kernels of the force model ``fm`` (:data:`ForceModel`) at
+    (x, R, v, w), added into F, T (n, 3): the ONE list of them, in the
+    force stages' order (engine.forces.FORCES: gravity, linear drag,
+    quadratic drag, springs, gyroscopic torque; an absent effect's arrays
+    are empty, its kernel a no-op).  A new force effect is its kernel here,
+    its field of :data:`ForceModel` and its stage in engine/forces.py
+    (tests/test_engine_force_table.py pins that every effect of the table
+    gives the staged bits on every compiled path)."""
+    gravity(fm.mg, F)
+    linear_drag(fm.c_lin, v, F)
+    quadratic_drag(fm.c_quad, v, F)
+    springs(fm.s_a, fm.s_b, fm.s_pa, fm.s_pb, fm.s_k, fm.s_c, fm.s_L0, x, R, v, w, F, T)
+    gyroscopic_torque(fm.g_idx, fm.g_I, R, w, T)
+
+
+@njit(cache=True)
 def evaluate(fm, x, q, v, w, R, F, T):
     """F, T (zeroed first) of the force model ``fm`` at the state (x, q, v,
     w); R (n, 3, 3) is filled from the normalised q when a force reads the
     pose (springs, gyroscopic torque)."""
-    mg, c_lin, c_quad, s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, g_idx, g_I = fm
     F[:, :] = 0.0
     T[:, :] = 0.0
-    if s_a.shape[0] or g_idx.shape[0]:
+    if fm.s_a.shape[0] or fm.g_idx.shape[0]:
         # (the normalised quaternion as scalars, no array: q2m's arithmetic)
         for k in range(q.shape[0]):
             s = math.sqrt(q[k, 0] ** 2 + q[k, 1] ** 2 + q[k, 2] ** 2 + q[k, 3] ** 2)
             _rot_row(R, k, q[k, 0] / s, q[k, 1] / s, q[k, 2] / s, q[k, 3] / s)
-    gravity(mg, F)
-    linear_drag(c_lin, v, F)
-    quadratic_drag(c_quad, v, F)
-    springs(s_a, s_b, s_pa, s_pb, s_k, s_c, s_L0, x, R, v, w, F, T)
-    gyroscopic_torque(g_idx, g_I, R, w, T)
+    apply_forces(fm, x, R, v, w, F, T)
 
 
 @njit(cache=True)
@@ -209,17 +262,18 @@ def _accel(F, T, R, inv_m, inv_I, torque, a, al):
 
 
 @njit(cache=True)
-def _stage(constant, fm, x, q, v, w, R, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1):
+def _stage(ig, x, q, v, w, R, Fs, Ts, T, a0, al0, a1, al1, T1):
     """Accelerations a1, al1 (n, 3) and torques T1 at an intermediate state
     (x, q, v, w): the start's (a0, al0, T) when the forces are
-    ``constant``, else the force model evaluated there."""
-    if constant:
+    ``ig.constant``, else the force model evaluated there (``ig`` an
+    :data:`Integrator`)."""
+    if ig.constant:
         a1[:, :] = a0
         al1[:, :] = al0
         T1[:, :] = T
     else:
-        evaluate(fm, x, q, v, w, R, Fs, Ts)
-        _accel(Fs, Ts, R, inv_m, inv_I, torque, a1, al1)
+        evaluate(ig.fm, x, q, v, w, R, Fs, Ts)
+        _accel(Fs, Ts, R, ig.inv_m, ig.inv_I, ig.torque, a1, al1)
         T1[:, :] = Ts
 
 
@@ -278,16 +332,20 @@ def rotate(q, k, px, py, pz, out):
 
 
 @njit(cache=True)
-def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_start, h, F, T, R0, inv_m, inv_I, lever,
-                x1, q1, v1, w1, T_mean, u_lin, u_ang, work):
-    """The free flight over h (see engine/integrate.py): from (x0, q0, v0,
-    w0) with the forces F, T (n, 3) already evaluated there (R0 their
-    rotations), writes the end state (x1, q1, v1, w1), the step's mean
-    torque ``T_mean`` (the method's weights), the mean velocities u_lin =
-    (x1 - x0) / h and u_ang = (1 - lever) w_start + lever w1.  Forces are
-    re-evaluated at the method's intermediate states unless ``constant``
-    (then they equal the start's).  ``work`` (:data:`WORK_SLABS`, n, 4)
-    scratch (nothing is allocated)."""
+def free_flight(ig, start, end, h, work):
+    """The free flight over h (see engine/integrate.py) by the law ``ig``
+    (:data:`Integrator`): from ``start`` (:data:`FlightStart`: x0, q0, v0,
+    w0 with the forces F, T (n, 3) already evaluated there, R0 their
+    rotations), writes into ``end`` (:data:`FlightEnd`) the end state (x1,
+    q1, v1, w1), the step's mean torque ``T_mean`` (the method's weights),
+    the mean velocities u_lin = (x1 - x0) / h and u_ang = (1 - lever)
+    w_start + lever w1.  Forces are re-evaluated at the method's
+    intermediate states unless ``ig.constant`` (then they equal the
+    start's).  ``work`` (:data:`WORK_SLABS`, n, 4) scratch (nothing is
+    allocated)."""
+    method, has_forces, torque, inv_m, inv_I, lever = ig.method, ig.has_forces, ig.torque, ig.inv_m, ig.inv_I, ig.lever
+    x0, q0, v0, w0, w_start, F, T, R0 = start.x, start.q, start.v, start.w, start.w_start, start.F, start.T, start.R
+    x1, q1, v1, w1, T_mean, u_lin, u_ang = end.x, end.q, end.v, end.w, end.T_mean, end.u_lin, end.u_ang
     n = x0.shape[0]
     # (the 3-vector slabs are strided work[i, :, :3] views: the force and
     # flight kernels compile a second time for this 'A' layout, ~10 s of a
@@ -336,7 +394,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
             s = hh if method == 2 else h
             for k in range(n):
                 _euler_body(x0, q0, v0, w0, k, s, w0, q0, v0, a0, al0, xs, qs, vs, ws)
-            _stage(constant, fm, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1)
+            _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
             for k in range(n):
                 if method == 2:
                     _euler_body(x0, q0, v0, w0, k, h, ws, qs, vs, a1, al1, x1, q1, v1, w1)
@@ -384,7 +442,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                     for c in range(3):
                         vs[k, c] = v0[k, c] + s * ka[k, c]
                         ws[k, c] = w0[k, c] + s * kal[k, c]
-                _stage(constant, fm, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, Tx)
+                _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, Tx)
                 wgt = 2.0 if stage < 2 else 1.0
                 for k in range(n):
                     d0, d1, d2, d3 = _qd(ws, qs, k)
@@ -417,7 +475,7 @@ def free_flight(method, has_forces, constant, torque, fm, x0, q0, v0, w0, w_star
                     ws[k, c] = w0[k, c] + h * al0[k, c]
                 rotate(q0, k, h * (w0[k, 0] + hh * al0[k, 0]), h * (w0[k, 1] + hh * al0[k, 1]),
                        h * (w0[k, 2] + hh * al0[k, 2]), q1)
-            _stage(constant, fm, x1, q1, vs, ws, Rs, Fs, Ts, T, a0, al0, inv_m, inv_I, torque, a1, al1, T1)
+            _stage(ig, x1, q1, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
             for k in range(n):
                 for c in range(3):
                     v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
@@ -463,6 +521,32 @@ def integrate_positions(x1, q1, v1, w1, v_free, w_free, vp, wp, h, lever):
         pz = ch * (w1[k, 2] - w_free[k, 2]) + h * wp[k, 2]
         if px * px + py * py + pz * pz > 0.0:
             rotate(q1, k, px, py, pz, q1)
+
+
+@njit(cache=True)
+def fly(b, f, h):
+    """The free-flight stage (engine.integrate.IntegrateVelocities) over h
+    s: :func:`free_flight` from the (mini-)step's start ``b`` (an
+    engine.state.StepArrays: the state's x, q, w, the forces F, T, the
+    rotations R0) with the working angular velocities as they are (after
+    the implicit gyroscopic update) into the candidate end state (x1, q1,
+    the working V, W), then the free velocities v_free, w_free set to the
+    end velocities.  ``f`` the stage's :data:`Flight`.  The one call of the
+    staged stage (:func:`fly_packed`) and of the fused steps
+    (engine/fused/part.py): the same bits by construction."""
+    f.w0[:, :] = f.W
+    free_flight(f.ig, FlightStart(x=b.x, q=b.q, v=b.v, w=f.w0, w_start=b.w, F=b.F, T=b.T, R=b.R0),
+                FlightEnd(x=b.x1, q=b.q1, v=f.V, w=f.W, T_mean=f.T_mean, u_lin=f.u_lin, u_ang=f.u_ang), h, f.work)
+    f.v_free[:, :] = f.V
+    f.w_free[:, :] = f.W
+
+
+@njit(cache=True)
+def fly_packed(kb, kf, h):
+    """:func:`fly` from Python (the staged stage): ``kb`` the context's
+    begin/commit Pack (engine.state.Context.kept), ``kf`` the stage's Pack
+    of its :data:`Flight` (one pointer each to unbox)."""
+    fly(kb.items, kf.items, h)
 
 
 @njit(cache=True)
@@ -559,19 +643,21 @@ def _moved_static_pairs(sw, lim, has_fast, fast, body, other, cbody, cother):
 
 
 @njit(cache=True)
-def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, sw, ci, cj, cbp, cpk,
-                   cbs, csk, R1):
-    """The CCD stage's end-pose check in one call: ``sw`` (n,) m the
+def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pairs, out):
+    """The CCD stage's end-pose check in one call: ``out.sw`` (n,) m the
     bodies' :func:`end_displacement` (start pose x0, q0 against end pose
-    x1, q1); the pairs whose surfaces moved apart or together by more than
-    ``lim`` (m) -- body pairs ``pi``/``pj`` (the sum of both bodies'
-    values), body-plane ``bp``/``pk`` and body-static-box ``bs``/``sk`` (the
-    body's value), with ``has_fast`` only pairs with a body where ``fast``
-    (n,) holds -- copied in order into the front of ``ci``/``cj``,
-    ``cbp``/``cpk``, ``cbs``/``csk`` (int64, at least as long as their
-    inputs); and, when any pair moved, ``R1`` (n, 3, 3) the rotations of q1
+    x1, q1); the pairs of ``pairs`` (an engine.geometry.Pairs) whose
+    surfaces moved apart or together by more than ``lim`` (m) -- body pairs
+    ``pi``/``pj`` (the sum of both bodies' values), body-plane ``bp``/``pk``
+    and body-static-box ``bs``/``sk`` (the body's value), with ``has_fast``
+    only pairs with a body where ``fast`` (n,) holds -- copied in order
+    into the front of ``out.ci``/``cj``, ``cbp``/``cpk``, ``cbs``/``csk``
+    (an engine.geometry.EndPose; int64, at least as long as their inputs);
+    and, when any pair moved, ``out.R1`` (n, 3, 3) the rotations of q1
     (:func:`q2m`).  Returns the counts (body pairs, planes, static boxes)."""
+    sw = out.sw
     end_displacement(x0, q0, x1, q1, bound_radius, sw)
+    pi, pj, ci, cj = pairs.pi, pairs.pj, out.ci, out.cj
     nb = 0
     for k in range(pi.shape[0]):
         i, j = pi[k], pj[k]
@@ -579,8 +665,8 @@ def end_pose_pairs(x0, q0, x1, q1, bound_radius, lim, has_fast, fast, pi, pj, bp
             ci[nb] = i
             cj[nb] = j
             nb += 1
-    npl = _moved_static_pairs(sw, lim, has_fast, fast, bp, pk, cbp, cpk)
-    ns = _moved_static_pairs(sw, lim, has_fast, fast, bs, sk, cbs, csk)
+    npl = _moved_static_pairs(sw, lim, has_fast, fast, pairs.bp, pairs.pk, out.cbp, out.cpk)
+    ns = _moved_static_pairs(sw, lim, has_fast, fast, pairs.bs, pairs.sk, out.cbs, out.csk)
     if nb + npl + ns:
-        q2m(q1, R1)
+        q2m(q1, out.R1)
     return nb, npl, ns

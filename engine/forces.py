@@ -7,10 +7,15 @@ evaluation point ``ctx.ex`` (n, 3) positions, ``ctx.eq`` (n, 4) orientations,
 velocities.  The pipeline runs them once at the start of a step; the
 integrators run them again at their intermediate states (RK stages).
 
-Stages exist only for the effects a scene lists (see pipeline.build_pipeline).
-Each stage runs its compiled kernel of engine/flight.py; the compiled
-integrators evaluate the same kernels at their intermediate states
-(:func:`force_model`).
+:data:`FORCES` is the one table of the force stages, in their order: a
+stage exists for the effects a scene lists (``wanted``, see
+:func:`force_stages`), runs its compiled kernel of engine/flight.py and
+gives its arrays to the compiled force model (``fields``,
+:func:`force_model`) and compiles its kernel ahead on small arrays of the
+context's types (``warm``, engine.jit), which the integrators evaluate at their intermediate
+states and the fused steps at the start (engine.flight.apply_forces lists
+the kernels in the same order; tests/test_engine_force_table.py pins the
+staged bits of every entry on every compiled path).
 """
 
 from __future__ import annotations
@@ -27,12 +32,24 @@ class Gravity(Stage):
 
     name = "gravity"
     family = "forces"
+    kernel = staticmethod(flight.gravity)
     torque = False  # makes no torque
     pose = False  # does not read orientations
     constant = True  # does not depend on the state at all
 
     def __init__(self, model):
         self.mg = model.mass[:, None] * model.gravity[None, :]  # (n, 3), computed once
+
+    @staticmethod
+    def wanted(model) -> bool:
+        return model.has("gravity") and bool(np.any(model.gravity != 0.0))
+
+    def fields(self) -> dict:
+        return {"mg": np.array(self.mg, float)}
+
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        flight.gravity(np.ones(F.shape), F)
 
     def __call__(self, model, state, ctx) -> None:
         flight.gravity(self.mg, ctx.F)
@@ -50,6 +67,17 @@ class _Drag(Stage):
     def __init__(self, model):
         self.c = getattr(model, self.name).copy()
 
+    @classmethod
+    def wanted(cls, model) -> bool:
+        return model.has(cls.name) and bool(np.any(getattr(model, cls.name) > 0))
+
+    def fields(self) -> dict:
+        return {self.field: self.c}
+
+    @classmethod
+    def warm(cls, x, R, v, F, T) -> None:
+        cls.kernel(np.ones(x.shape[0]), v, F)
+
     def __call__(self, model, state, ctx) -> None:
         self.kernel(self.c, ctx.ev, ctx.F)
 
@@ -58,6 +86,7 @@ class LinearDrag(_Drag):
     """Stokes drag F = -c v (c = Body.drag_linear, N s/m)."""
 
     name = "drag_linear"
+    field = "c_lin"
     kernel = staticmethod(flight.linear_drag)
 
 
@@ -65,6 +94,7 @@ class QuadraticDrag(_Drag):
     """Quadratic drag F = -c |v| v (c = Body.drag_quadratic, N s^2/m^2)."""
 
     name = "drag_quadratic"
+    field = "c_quad"
     kernel = staticmethod(flight.quadratic_drag)
 
 
@@ -81,6 +111,7 @@ class Springs(Stage):
 
     name = "springs"
     family = "forces"
+    kernel = staticmethod(flight.springs)
     torque = True
     pose = True
 
@@ -89,6 +120,20 @@ class Springs(Stage):
                      np.array(model.spring_anchor_a, float),
                      np.array(model.spring_anchor_b, float), np.array(model.spring_k, float),
                      np.array(model.spring_c, float), np.array(model.spring_rest, float))
+
+    @staticmethod
+    def wanted(model) -> bool:
+        return (model.has("spring") or model.has("damper")) and bool(model.spring_a.size) and bool(
+            np.any(model.spring_k > 0) or np.any(model.spring_c > 0))
+
+    def fields(self) -> dict:
+        return dict(zip(("s_a", "s_b", "s_pa", "s_pb", "s_k", "s_c", "s_L0"), self.args))
+
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        one = np.ones(1)
+        flight.springs(np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)), np.ones((1, 3)), one,
+                       one, one, x, R, v, v, F, T)
 
     def __call__(self, model, state, ctx) -> None:
         flight.springs(*self.args, ctx.ex, ctx.eR, ctx.ev, ctx.ew, ctx.F, ctx.T)
@@ -102,6 +147,7 @@ class GyroscopicTorque(Stage):
 
     name = "gyroscopic"
     family = "forces"
+    kernel = staticmethod(flight.gyroscopic_torque)
     torque = True
     pose = True
 
@@ -109,45 +155,41 @@ class GyroscopicTorque(Stage):
         self.idx = np.flatnonzero(~model.isotropic)
         self.I = np.array(model.inertia_body[self.idx], float)
 
+    @staticmethod
+    def wanted(model) -> bool:
+        return model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and bool(np.any(~model.isotropic))
+
+    def fields(self) -> dict:
+        return {"g_idx": np.array(self.idx, np.int64), "g_I": self.I}
+
+    @staticmethod
+    def warm(x, R, v, F, T) -> None:
+        flight.gyroscopic_torque(np.arange(x.shape[0], dtype=np.int64), np.ones((x.shape[0], 3)), R, v, T)
+
     def __call__(self, model, state, ctx) -> None:
         flight.gyroscopic_torque(self.idx, self.I, ctx.eR, ctx.ew, ctx.T)
 
 
-def force_model(model, stages) -> tuple:
+#: the force stages, in the order they run (the order of
+#: engine.flight.apply_forces): the one table a new force effect is added to
+FORCES = (Gravity, LinearDrag, QuadraticDrag, Springs, GyroscopicTorque)
+
+
+def force_model(model, stages) -> flight.ForceModel:
     """The force stages ``stages`` as the compiled force model of
     :mod:`engine.flight` (its module doc): absent effects as empty arrays."""
     n = model.n
     z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
-    mg, c_lin, c_quad, sp, g_idx, g_I = z3, z1, z1, (zi, zi, z3, z3, z1, z1, z1), zi, z3
+    fm = dict(mg=z3, c_lin=z1, c_quad=z1, s_a=zi, s_b=zi, s_pa=z3, s_pb=z3, s_k=z1, s_c=z1, s_L0=z1, g_idx=zi, g_I=z3)
     for s in stages:
-        if isinstance(s, Gravity):
-            mg = np.array(s.mg, float)
-        elif isinstance(s, LinearDrag):
-            c_lin = s.c
-        elif isinstance(s, QuadraticDrag):
-            c_quad = s.c
-        elif isinstance(s, Springs):
-            sp = s.args
-        elif isinstance(s, GyroscopicTorque):
-            g_idx, g_I = np.array(s.idx, np.int64), s.I
-        else:  # pragma: no cover - every force stage is listed here
+        if type(s) not in FORCES:  # pragma: no cover - every force stage is in the table
             raise TypeError(f"no compiled form of the force stage {s.name}")
-    assert mg.shape[0] in (0, n)
-    return (mg, c_lin, c_quad) + tuple(sp) + (g_idx, g_I)
+        fm.update(s.fields())
+    assert fm["mg"].shape[0] in (0, n)
+    return flight.ForceModel(**fm)
 
 
 def force_stages(model) -> tuple[Stage, ...]:
-    """The force stages for the scene's smooth effects."""
-    out: list[Stage] = []
-    if model.has("gravity") and np.any(model.gravity != 0.0):
-        out.append(Gravity(model))
-    if model.has("drag_linear") and np.any(model.drag_linear > 0):
-        out.append(LinearDrag(model))
-    if model.has("drag_quadratic") and np.any(model.drag_quadratic > 0):
-        out.append(QuadraticDrag(model))
-    if (model.has("spring") or model.has("damper")) and model.spring_a.size and (
-            np.any(model.spring_k > 0) or np.any(model.spring_c > 0)):
-        out.append(Springs(model))
-    if model.has("gyroscopic") and model.setting("gyroscopic") == "explicit" and np.any(~model.isotropic):
-        out.append(GyroscopicTorque(model))
-    return tuple(out)
+    """The force stages for the scene's smooth effects (:data:`FORCES`'
+    order)."""
+    return tuple(S(model) for S in FORCES if S.wanted(model))

@@ -13,6 +13,7 @@ wxyz, angular velocities ``w`` (n(+1), 3) world frame, principal moments
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -75,6 +76,26 @@ _CBRT2 = 2.0 ** (1.0 / 3.0)
 YOSHIDA = (1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2))
 YOSHIDA_MAX = max(abs(g) for g in YOSHIDA)
 
+#: the gyroscopic stage codes: none, implicit (Catto), energy-conserving
+NO_GYRO, IMPLICIT, ENERGY = 0, 1, 2
+
+#: a gyroscopic stage's arrays (engine/integrate.py builds them, the staged
+#: stage and the fused steps read them): its ``code``, bodies ``idx`` (g,)
+#: int64, principal moments ``I`` (g, 3) kg m^2; for the energy-conserving
+#: rotation their inverses ``inv_I``, Euler coefficients ``E`` (g, 3),
+#: the composition ``yoshida`` and its largest coefficient ``ymax``, the
+#: kept work arrays ``wk``, ``wq``, ``wR`` (:func:`energy_work`); for the
+#: implicit update its ``J``, ``f`` (:func:`implicit_work`); what a stage
+#: does not use is empty
+Gyro = namedtuple("Gyro", ("code", "idx", "I", "inv_I", "E", "yoshida", "ymax", "wk", "wq", "wR", "J", "f"))
+
+
+def no_gyro() -> Gyro:
+    """The :data:`Gyro` of a step without a gyroscopic stage (every array
+    empty)."""
+    z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
+    return Gyro(NO_GYRO, zi, z3, z3, z3, YOSHIDA, float(YOSHIDA_MAX), *energy_work(0), *implicit_work(0))
+
 
 @njit(cache=True)
 def midpoint_rotation(Lb, q, I, E, h, tol, max_iter):
@@ -129,18 +150,19 @@ def _midpoint(Lb, q, I, E, h, tol, max_iter, Lm, Ln, hE):
 
 
 @njit(cache=True)
-def energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang, wk,
-                         q, R1):
+def energy_rotation_into(gy, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang):
     """The energy-conserving rotation stage (integrate.EnergyConservingRotation)
-    on the bodies ``idx`` (principal moments ``I``, ``inv_I``, Euler
-    coefficients ``E`` (g, 3)): half a kick of the mean torque on the world
+    on the bodies ``gy.idx`` of the :data:`Gyro` ``gy`` (principal moments
+    ``I``, ``inv_I``, Euler coefficients ``E`` (g, 3)): half a kick of the mean torque on the world
     angular momentum, the composed midpoint free rotation in m equal parts
     with |w| h max|yoshida| / m <= 0.5, the other half kick; writes q1,
-    w, w_free, u_ang on those bodies.  On the caller's kept work arrays
+    w, w_free, u_ang on those bodies.  On ``gy``'s kept work arrays
     (:func:`energy_work`) ``wk`` (4, g, 3) (the body angular momenta and the
-    midpoint's three), ``q`` (g, 4) and ``R1`` (g, 3, 3), overwritten: no
+    midpoint's three), ``wq`` (g, 4) and ``wR`` (g, 3, 3), overwritten: no
     allocation (every caller: the stage, the flight step, the fused steady
     step)."""
+    idx, I, inv_I, E, yoshida, ymax = gy.idx, gy.I, gy.inv_I, gy.E, gy.yoshida, gy.ymax
+    wk, q, R1 = gy.wk, gy.wq, gy.wR
     g = idx.shape[0]
     Lb = wk[0]
     wmax2 = 0.0
@@ -190,3 +212,10 @@ def energy_rotation_into(idx, I, inv_I, E, yoshida, ymax, R0, T_mean, w0, q0, h,
             u_ang[k, c] = (1.0 - lever) * w0[k, c] + lever * w1
         for c in range(4):
             q1[k, c] = q[j, c]
+
+
+@njit(cache=True)
+def energy_rotation_packed(kg, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang):
+    """:func:`energy_rotation_into` from Python (the staged stage): ``kg``
+    a Pack of the stage's :data:`Gyro` (one pointer to unbox)."""
+    energy_rotation_into(kg.items, R0, T_mean, w0, q0, h, lever, q1, w, w_free, u_ang)

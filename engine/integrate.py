@@ -47,10 +47,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.engine.flight import METHOD, WORK_SLABS, free_flight, integrate_positions
-from physbench.engine.gyroscopic import (YOSHIDA, YOSHIDA_MAX, energy_rotation_into, energy_work, implicit_gyroscopic,
-                               implicit_work, midpoint_rotation)
+from physbench.engine.flight import METHOD, WORK_SLABS, Flight, Integrator, fly_packed, integrate_positions
+from physbench.engine.gyroscopic import (ENERGY, IMPLICIT, YOSHIDA, YOSHIDA_MAX, Gyro, energy_rotation_packed,
+                                         energy_work, implicit_gyroscopic, implicit_work, midpoint_rotation)
 from physbench.engine.forces import force_model
+from physbench.engine.pack import Pack
 from physbench.engine.profile import Stage
 
 INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
@@ -69,6 +70,7 @@ class IntegrateVelocities(Stage):
     stage).  Writes ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n] (end state),
     ctx.v_free/w_free (copies of the end velocities) and ctx.u_lin/u_ang (the
     step's mean velocities, used by the contact solver's speculative rows).
+    The call is engine.flight.fly, the fused steps' too (:meth:`pack`).
     """
 
     name = "integrate_velocities"
@@ -91,17 +93,29 @@ class IntegrateVelocities(Stage):
         self.constant = bool(forces) and all(getattr(s, "constant", False) for s in forces)
         #: the compiled force model evaluated at the intermediate states
         self.fm = force_model(model, forces)
+        #: the flight's law (engine.flight.Integrator)
+        self.ig = Integrator(method=self.code, has_forces=bool(forces), constant=self.constant, torque=self.torque,
+                             fm=self.fm, inv_m=self.inv_m, inv_I=self.inv_I, lever=self.c)
         self._w0 = np.zeros((n, 3))
         self._work = np.zeros((WORK_SLABS, n, 4))
+        self._pack = self._pack_ctx = None
+
+    def pack(self, ctx) -> Pack:
+        """The stage's arrays and the context's views over its first n rows
+        as one Pack of an engine.flight.Flight, kept per context (the
+        staged call's and the fused steps')."""
+        if self._pack_ctx is not ctx:
+            n = ctx.x1.shape[0]
+            self._pack = Pack(Flight(ig=self.ig, V=ctx.v[:n], W=ctx.w[:n], v_free=ctx.v_free, w_free=ctx.w_free,
+                                     w0=self._w0, T_mean=ctx.T_mean, u_lin=ctx.u_lin, u_ang=ctx.u_ang,
+                                     work=self._work, vp=ctx.vp[:n], wp=ctx.wp[:n]))
+            self._pack_ctx = ctx
+        return self._pack
 
     def __call__(self, model, state, ctx) -> None:
-        n = model.n
-        np.copyto(self._w0, ctx.w[:n])  # w may carry the implicit gyroscopic update
-        free_flight(self.code, bool(self.forces), self.constant, self.torque, self.fm, state.x, state.q, state.v,
-                    self._w0, state.w, ctx.h, ctx.F, ctx.T, ctx.R0, self.inv_m, self.inv_I, self.c, ctx.x1, ctx.q1,
-                    ctx.v[:n], ctx.w[:n], ctx.T_mean, ctx.u_lin, ctx.u_ang, self._work)
-        ctx.v_free[:] = ctx.v[:n]
-        ctx.w_free[:] = ctx.w[:n]
+        # (w may carry the implicit gyroscopic update: the flight starts
+        # from it, the mean velocity from the state's)
+        fly_packed(ctx.kept(state), self.pack(ctx), ctx.h)
 
 
 class ImplicitGyroscopic(Stage):
@@ -118,6 +132,10 @@ class ImplicitGyroscopic(Stage):
         self.I = np.array(model.inertia_body[self.idx], float)
         #: the kernel's work arrays (Jm, fw), kept: nothing allocated a step
         self.work = implicit_work(self.idx.size)
+        z3 = np.zeros((0, 3))
+        #: the stage's arrays as the fused steps read them
+        #: (engine.gyroscopic.Gyro)
+        self.gy = Gyro(IMPLICIT, self.idx, self.I, z3, z3, YOSHIDA, float(YOSHIDA_MAX), *energy_work(0), *self.work)
 
     def __call__(self, model, state, ctx) -> None:
         if self.idx.size:
@@ -177,8 +195,11 @@ class EnergyConservingRotation(Stage):
         self.inv_I = 1.0 / self.I
         self.E = euler_coefficients(self.I)
         self.c = float(model.contact_lever)
-        #: the kernel's work arrays (wk, q, R1), kept: nothing allocated a step
-        self.work = energy_work(self.idx.size)
+        #: the kernel's arrays and kept work arrays (engine.gyroscopic.Gyro:
+        #: nothing allocated a step), the staged call's and the fused steps'
+        self.gy = Gyro(ENERGY, self.idx, self.I, self.inv_I, self.E, YOSHIDA, float(YOSHIDA_MAX),
+                       *energy_work(self.idx.size), *implicit_work(0))
+        self._kg = Pack(self.gy)
 
     def __call__(self, model, state, ctx) -> None:
         # The midpoint fixed point contracts like |w| h: at game steps and
@@ -187,8 +208,8 @@ class EnergyConservingRotation(Stage):
         # |w| h |g|max / m <= 0.5; each part conserves E and L exactly, so
         # splitting only adds accuracy (m = 1 for ordinary spins).
         if self.idx.size:
-            energy_rotation_into(self.idx, self.I, self.inv_I, self.E, YOSHIDA, YOSHIDA_MAX, ctx.R0, ctx.T_mean,
-                                 state.w, state.q, ctx.h, self.c, ctx.q1, ctx.w, ctx.w_free, ctx.u_ang, *self.work)
+            energy_rotation_packed(self._kg, ctx.R0, ctx.T_mean, state.w, state.q, ctx.h, self.c, ctx.q1, ctx.w,
+                                   ctx.w_free, ctx.u_ang)
 
 
 class IntegratePositions(Stage):

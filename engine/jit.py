@@ -16,10 +16,11 @@ import time
 
 import numpy as np
 
+from physbench.engine.forces import FORCES
 from physbench.engine.profile import add_jit_seconds
 
 #: the force stages' classes (engine/forces.py) by name
-FORCE_KINDS = ("Gravity", "LinearDrag", "QuadraticDrag", "Springs", "GyroscopicTorque")
+FORCE_KINDS = tuple(S.__name__ for S in FORCES)
 
 #: the parts compiled (or loaded) in this process (:func:`parts`)
 _READY: set = set()
@@ -278,15 +279,17 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
 
 
 def _flight_arrays(nb: int = 2):
+    from physbench.engine import flight
+
     x = np.zeros((nb, 3))
     q = np.zeros((nb, 4))
     q[:, 0] = 1.0
     idx = np.arange(nb, dtype=np.int64)
     I = np.array([[1.0, 2.0, 3.0]] * nb)
     z1, z3, zi = np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
-    springs = (z3, np.ones(nb), np.ones(nb), np.array([0], np.int64), np.array([-1], np.int64), np.zeros((1, 3)),
-               np.ones((1, 3)), np.ones(1), np.ones(1), np.ones(1), idx, I)
-    plain = (np.ones((nb, 3)), z1, z1, zi, zi, z3, z3, z1, z1, z1, zi, z3)
+    springs = flight.ForceModel(z3, np.ones(nb), np.ones(nb), np.array([0], np.int64), np.array([-1], np.int64),
+                                np.zeros((1, 3)), np.ones((1, 3)), np.ones(1), np.ones(1), np.ones(1), idx, I)
+    plain = flight.ForceModel(np.ones((nb, 3)), z1, z1, zi, zi, z3, z3, z1, z1, z1, zi, z3)
     return x, q, np.ones((nb, 3)), np.zeros((nb, 3, 3)), idx, I, plain, springs
 
 
@@ -296,6 +299,7 @@ def _warm_flight() -> None:
     update, the start and commit of a (mini-)step, the turn limit and the
     end-pose check."""
     from physbench.engine import flight, state
+    from physbench.engine.geometry import EndPose, Pairs
     from physbench.engine.pack import Pack
 
     nb = 2
@@ -313,53 +317,48 @@ def _warm_flight() -> None:
     vw = np.zeros((nb + 1, 3))
     for fm in (plain, springs):  # (one signature: the same types)
         for code in flight.METHOD.values():
-            flight.free_flight(code, True, False, True, fm, x, q, v, v.copy(), v, 0.01, F, F.copy(), R, np.ones(nb),
-                               inv_I, 0.5, x.copy(), q.copy(), vw[:nb], vw[:nb], F.copy(), F.copy(), F.copy(),
-                               np.zeros((flight.WORK_SLABS, nb, 4)))
+            # (the free-flight stage's one call, engine.integrate.IntegrateVelocities)
+            ig = flight.Integrator(method=code, has_forces=True, constant=False, torque=True, fm=fm,
+                                   inv_m=np.ones(nb), inv_I=inv_I, lever=0.5)
+            flight.fly_packed(kept, Pack(flight.Flight(ig=ig, V=vw[:nb], W=vw[:nb], v_free=F.copy(), w_free=F.copy(),
+                                                       w0=F.copy(), T_mean=F.copy(), u_lin=F.copy(),
+                                                       u_ang=F.copy(), work=np.zeros((flight.WORK_SLABS, nb, 4)),
+                                                       vp=vw[:nb], wp=vw[:nb])), 0.01)
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
     flight.max_turn_sq(v, q, idx, idx)
     zb = np.zeros(nb, np.bool_)
     for fast in (False, True):
-        flight.end_pose_pairs(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), 0.1, fast, zb, idx, idx, idx, idx, idx,
-                              idx, np.zeros(nb), idx.copy(), idx.copy(), idx.copy(), idx.copy(), idx.copy(),
-                              idx.copy(), R.copy())
+        flight.end_pose_pairs(x, q, x.copy(), q.copy(), _ro(np.ones(nb)), 0.1, fast, zb,
+                              Pairs(pi=idx, pj=idx, bp=idx, pk=idx, bs=idx, sk=idx),
+                              EndPose(ci=idx.copy(), cj=idx.copy(), cbp=idx.copy(), cpk=idx.copy(), cbs=idx.copy(),
+                                      csk=idx.copy(), sw=np.zeros(nb), R1=R.copy()))
 
 
 def _warm_force(kind: str) -> None:
-    """The force stage ``kind``'s own kernel (engine/forces.py), as the
-    stage calls it (C-contiguous arrays of the context)."""
-    from physbench.engine import flight
-
+    """The force stage ``kind``'s own kernel (engine.forces.FORCES: the
+    stage's ``warm``), as the stage calls it (C-contiguous arrays of the
+    context)."""
     nb = 2
     x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
-    F, T = np.zeros((nb, 3)), np.zeros((nb, 3))
-    if kind == "Gravity":
-        flight.gravity(np.ones((nb, 3)), F)
-    elif kind == "LinearDrag":
-        flight.linear_drag(np.ones(nb), v, F)
-    elif kind == "QuadraticDrag":
-        flight.quadratic_drag(np.ones(nb), v, F)
-    elif kind == "Springs":
-        flight.springs(*springs[3:10], x, R, v, v, F, T)
-    elif kind == "GyroscopicTorque":
-        flight.gyroscopic_torque(idx, I, R, v, T)
+    next(S for S in FORCES if S.__name__ == kind).warm(x, R, v, np.zeros((nb, 3)), np.zeros((nb, 3)))
 
 
 def _warm_gyro(mode: str) -> None:
     """The gyroscopic stage's kernel (engine/gyroscopic.py): the implicit
     update or the energy-conserving rotation."""
-    from physbench.engine import gyroscopic
+    from physbench.engine import gyroscopic as G
+    from physbench.engine.pack import Pack
 
     nb = 2
     x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
     vw = np.zeros((nb + 1, 3))
     if mode == "implicit":
-        gyroscopic.implicit_gyroscopic(idx, I, R, vw, 0.01, *gyroscopic.implicit_work(nb))
+        G.implicit_gyroscopic(idx, I, R, vw, 0.01, *G.implicit_work(nb))
     else:
         F = np.zeros((nb, 3))
-        gyroscopic.energy_rotation_into(idx, I, 1.0 / I, I.copy(), gyroscopic.YOSHIDA, gyroscopic.YOSHIDA_MAX, R, F,
-                                        v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy(),
-                                        *gyroscopic.energy_work(nb))
+        gy = G.Gyro(G.ENERGY, idx, I, 1.0 / I, I.copy(), G.YOSHIDA, float(G.YOSHIDA_MAX), *G.energy_work(nb),
+                    *G.implicit_work(0))
+        G.energy_rotation_packed(Pack(gy), R, F, v, q, 0.01, 0.5, q.copy(), vw, v.copy(), v.copy())
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

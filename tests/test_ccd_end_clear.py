@@ -155,8 +155,9 @@ def test_end_pose_clear_leaves_out_only_pairs_with_nothing_deep(tmp_path, seed):
         sw = np.empty(n)
         out = [np.full(64, -7, np.int64) for _ in range(6)]
         R = np.empty((n, 3, 3))
-        nb, npl, ns = flight.end_pose_pairs(x0, q0, x1, q1, model.bound_radius, lim, has_fast, fast, pi, pj, bp, pk,
-                                            bs, sk, sw, *[o.copy() for o in out], R.copy())
+        nb, npl, ns = flight.end_pose_pairs(x0, q0, x1, q1, model.bound_radius, lim, has_fast, fast,
+                                            Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk),
+                                            EndPose(*[o.copy() for o in out], sw=sw, R1=R.copy()))
         moved_b = [(int(i), int(j)) for i, j in zip(pi, pj) if sw[i] + sw[j] > lim and (not has_fast or fast[i]
                                                                                        or fast[j])]
         moved_p = [(int(b), int(k)) for b, k in zip(bp, pk) if sw[b] > lim and (not has_fast or fast[b])]

@@ -21,6 +21,7 @@ from physbench.adapters.reference import engine_for
 from physbench.contract.scene import load_scene
 from physbench.engine import flight
 from physbench.engine.collision import collide_pairs
+from physbench.engine.geometry import EndPose, Pairs
 from physbench.engine.mathutil import quat_to_matrix
 
 SCENE = """
@@ -125,8 +126,9 @@ def test_end_pose_pairs_is_conservative_and_matches_the_masks(tmp_path, seed):
         fast = rng.random(n) < 0.5
         out = [np.full(8, -7, np.int64) for _ in range(6)]
         sw, R1 = np.empty(n), np.empty((n, 3, 3))
-        nb, npl, ns = flight.end_pose_pairs(x0, q0, x1, q1, model.bound_radius, lim, has_fast, fast, pi, pj, bp, pk,
-                                            bp[:0], pk[:0], sw, *out, R1)
+        nb, npl, ns = flight.end_pose_pairs(x0, q0, x1, q1, model.bound_radius, lim, has_fast, fast,
+                                            Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bp[:0], sk=pk[:0]),
+                                            EndPose(*out, sw=sw, R1=R1))
         # the mask selection it replaced (engine.ccd before), and its R1
         sel = lambda a: a if not has_fast else fast[a]  # noqa: E731
         fb = (sw[pi] + sw[pj] > lim) & (sel(pi) | sel(pj) if has_fast else True)

@@ -20,20 +20,11 @@ ENGINE = Path(__file__).resolve().parent.parent / "engine"
 CEILING = 15
 
 #: the kernels still above the ceiling, with their parameter counts: the
-#: joints' and the free flight's (engine/joints, engine/flight.py,
-#: engine/fused/steady.py, engine/gyroscopic.py) and the time-of-impact gap
+#: time-of-impact gap
 #: (called from the Python search loop, where a named tuple argument costs
 #: ~0.7-0.9 us more to dispatch than its arrays one by one, ~1.1 us a call)
 OVER = {
-    "joints/step.py::joint_block": 39,
-    "joints/step.py::joint_step": 30,
-    "flight.py::free_flight": 25,
-    "flight.py::end_pose_pairs": 22,
-    "gyroscopic.py::energy_rotation_into": 19,
-    "flight.py::_stage": 18,
     "ccd_gap.py::gap": 16,
-    "fused/steady.py::steady_loop": 17,
-    "joints/step.py::_rk_part": 16,
 }
 
 

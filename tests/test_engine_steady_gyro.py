@@ -17,6 +17,7 @@ from physbench.contract.scene import load_scene
 from physbench.engine import pipeline
 from physbench.engine.fused.steady import FREE_NAME, NAME
 from physbench.engine.fused.gyro import ENERGY, IMPLICIT, NO_GYRO
+from physbench.engine.gyroscopic import no_gyro
 
 
 def _frames(eng, steps, by_stage):
@@ -83,8 +84,8 @@ def test_gyroscopic_contact_scene_takes_the_fused_step_with_the_staged_bits(sid,
     one = engine_for(scene, settings)
     fused = _plan(one).fast
     assert fused is not None  # decided once, with the plan: the scene is covered
-    assert fused.gyro[0] == code
-    assert (fused.gyro[1].size > 0) == torque
+    assert fused.gyro.code == code
+    assert (fused.fly.fm.g_idx.size > 0) == torque  # (the explicit torque: a force stage)
     frames = _frames(one, steps, False)
     for x, y in zip(staged, frames):
         assert np.array_equal(x, y)  # every frame, bit for bit
@@ -107,15 +108,20 @@ def test_gyroscopic_contact_scene_takes_the_fused_step_with_the_staged_bits(sid,
 ])
 def test_the_comparison_sees_the_gyroscopic_stage(sid, settings, steps):
     """The comparison above can fail: the fused step with its gyroscopic
-    part switched off (the plan's gyroscopic tuple emptied before the first
-    step) gives other frames than the staged step."""
+    part switched off (the plan's gyroscopic arrays emptied before the
+    first step; for the explicit torque, the free flight's force model's)
+    gives other frames than the staged step."""
     scene = load_scene(sid)
     staged = _frames(engine_for(scene, settings), steps, True)
     eng = engine_for(scene, settings)
     fused = _plan(eng).fast
     z3, zi = np.zeros((0, 3)), np.zeros(0, np.int64)
-    fused.gyro = (NO_GYRO, zi, z3, zi, z3, z3, z3) + fused.gyro[7:]
-    fused._ks_key = None  # (the engine made its settings Pack at build: pipeline.prepare)
+    if fused.fly.fm.g_idx.size:
+        fused.fly.ig = fused.fly.ig._replace(fm=fused.fly.fm._replace(g_idx=zi, g_I=z3))
+        fused.fly._pack_ctx = None  # (the flight's Pack is made again from it)
+    else:
+        fused.gyro = no_gyro()
+        fused._ks_key = None  # (the engine made its settings Pack at build: pipeline.prepare)
     off = _frames(eng, steps, False)
     assert _calls(eng, NAME) >= 0.5 * steps
     assert not all(np.array_equal(x, y) for x, y in zip(off, staged))
@@ -192,28 +198,26 @@ def test_the_fused_energy_conserving_rotation_allocates_nothing():
     from numba import njit
     from numba.core.runtime import _nrt_python, rtsys
 
-    from physbench.engine.gyroscopic import YOSHIDA, energy_rotation_into
+    from physbench.engine.gyroscopic import Gyro, energy_rotation_into
     from physbench.engine.integrate import EnergyConservingRotation
 
     @njit
     def kept(n, gy, R0, T_mean, w0, q0, h, q1, w, w_free, u_ang):
-        code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR, gJ, gf = gy
         for _ in range(n):
-            energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free,
-                                 u_ang, wk, wq, wR)
+            energy_rotation_into(gy, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free, u_ang)
 
     @njit
     def made(n, gy, R0, T_mean, w0, q0, h, q1, w, w_free, u_ang):
-        code, t_idx, t_I, gidx, gI, ginv, gE, ymax, wk, wq, wR, gJ, gf = gy
-        g = gidx.shape[0]
+        g = gy.idx.shape[0]
         for _ in range(n):
-            energy_rotation_into(gidx, gI, ginv, gE, YOSHIDA, ymax, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free,
-                                 u_ang, np.empty((4, g, 3)), np.empty((g, 4)), np.empty((g, 3, 3)))
+            fresh = Gyro(gy.code, gy.idx, gy.I, gy.inv_I, gy.E, gy.yoshida, gy.ymax, np.empty((4, g, 3)),
+                         np.empty((g, 4)), np.empty((g, 3, 3)), gy.J, gy.f)
+            energy_rotation_into(fresh, R0, T_mean, w0, q0, h, 0.5, q1, w, w_free, u_ang)
 
     eng = engine_for(load_scene("friction.capsule_spins_to_rest"), {})
     fused = _plan(eng).fast
     gy = fused.gyro
-    assert gy[0] == ENERGY and gy[3].size == 1 and gy[8].shape == (4, 1, 3)
+    assert gy.code == ENERGY and gy.idx.size == 1 and gy.wk.shape == (4, 1, 3)
     assert any(type(s) is EnergyConservingRotation for s in eng.stages)
     n = eng.model.n
     s = eng.state

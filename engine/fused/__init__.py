@@ -14,11 +14,15 @@ has is decided once, with the plan (:func:`build`):
   is not steady;
 * None -- every step is staged.
 
+Both compiled steps begin with the same flight part (part.py: the start,
+the force stages of engine.forces.FORCES, the gyroscopic stages, the free
+flight as the staged stage's own call).
+
 The contract between the two paths: a step run here gives the bits of the
 same step run stage by stage, and leaves the same bookkeeping (profile
 counts, ``state.t``, ``state.steps``, the warm-start cache, the contacts).
-tests/test_engine_steady.py, tests/test_engine_steady_gyro.py and
-tests/test_engine_loop.py pin it.
+tests/test_engine_steady.py, tests/test_engine_steady_gyro.py,
+tests/test_engine_loop.py and tests/test_engine_force_table.py pin it.
 """
 
 from __future__ import annotations

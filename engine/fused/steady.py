@@ -2,9 +2,10 @@
 
 A step of a resting or steadily sliding scene runs the same stages every
 time, and their Python glue (a stage call through the profile, the kept
-views and packs each stage looks up) cost as much as their compiled work
-(the 10-box column: ~25 of ~85 us a step).  :func:`steady_kernel` runs the
-start of the (mini-)step, gravity, the free flight, the broad phase, the
+views and packs each stage looks up) cost as much as their compiled work.
+:func:`steady_kernel` runs the flight part (engine/fused/part.py: the
+start of the (mini-)step, the force stages, the gyroscopic stages, the free
+flight), the broad phase, the
 narrow phase, the whole solve stage (:func:`engine.contact.phases.classify_stage`),
 the position update, the CCD stage's end-pose check and the commit, the
 same kernels with the same arguments in the same order as the stages call
@@ -23,9 +24,10 @@ of every scenario are unchanged), and stops where the step is not steady:
 * ``DONE`` -- committed.
 
 Which stages a scene has is decided once (:meth:`SteadyStep.build`, the
-pipeline's plan): the fused call covers gravity (or no force), every
-integrator, the three gyroscopic treatments (the explicit torque, the
-implicit and the energy-conserving stage: engine/fused/gyro.py), the
+pipeline's plan): the fused call covers every force stage of the table
+(engine.forces.FORCES), every integrator, the three gyroscopic treatments
+(the explicit torque, the implicit and the energy-conserving stage:
+engine/fused/gyro.py), the
 sequential-impulse solve without Baumgarte's bias (friction stops of
 sliding and rolling contacts: the gate above, engine/fused/stops.py for
 the rolling half), with or without the CCD stage, in scenes that step
@@ -42,6 +44,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import namedtuple
 from operator import is_
 
 import numpy as np
@@ -55,71 +58,77 @@ from physbench.engine.contact import phases, prepare
 from physbench.engine.control import EventMode
 from physbench.engine.ccd_end import end_pose_candidates
 from physbench.engine.geometry import Pairs
-from physbench.engine.flight import begin_step, free_flight, gravity, integrate_positions, max_turn_sq
-from physbench.engine.forces import Gravity
+from physbench.engine.flight import integrate_positions, max_turn_sq
+from physbench.engine.forces import FORCES
 from physbench.engine.integrate import IntegratePositions, IntegrateVelocities
 from physbench.engine import solver as _S
 from physbench.engine.pack import Pack
 from physbench.engine.solver import Solve
 from physbench.engine.state import Contacts, _commit_packed, record_packed
-from physbench.engine.fused.gyro import FORCES, after_flight, before_flight, gyro_items, split_gyro
+from physbench.engine.fused.gyro import gyro_items, split_gyro
+from physbench.engine.fused.part import flight_part
 from physbench.engine.fused.stops import rolling_candidate
 
 DONE, FAIL, CCD = 0, 1, 2
 #: no try pending after a loop (it stopped before trying the next step)
 NONE = -1
+#: :func:`steady_loop`'s ``band`` where the step has no sparse direct start
+#: to check (the largest int64: no band storage exceeds it)
+NO_BAND_CHECK = 2 ** 63 - 1
 
 #: the profile's name of the fused call
 NAME = "steady_step"
 #: ... and of the contact-free call (free_kernel)
 FREE_NAME = "contact_free_step"
 
+#: the plan's settings the steady kernels read (:meth:`SteadyStep._constants`):
+#: the broad phase's sweep and speculative margin, the static count, the
+#: solve's relaxation, direct start, friction, rolling friction, iterations,
+#: active-set passes, direct-start row limit, the box narrow phase's
+#: edge-face points
+SteadyFlags = namedtuple("SteadyFlags", ("sap", "speculative", "n_statics", "relax_on", "direct", "friction",
+                                         "rolling", "iterations", "passes", "max_rows", "face_points"))
+#: ... and its reals: the broad margin (m), the solve's threshold, Baumgarte
+#: factor, slop, resting speed, slip tolerance, the friction-stop gate's
+#: largest residual, the end-pose check's limit (m), the rolling tolerance
+SteadyReals = namedtuple("SteadyReals", ("margin", "thr", "beta", "slop", "resting", "slip_tol", "stop_max_res",
+                                         "lim", "roll_tol"))
+#: the rotation split the loops check before each step (:func:`_turns`):
+#: whether the plan splits at all, its limit (rad), the boxes (k,) and the
+#: axisymmetric bodies (j,) whose turn counts
+Turn = namedtuple("Turn", ("split", "limit", "boxes", "axisym"))
+#: the steady step's settings Pack: the flags, the reals, the gyroscopic
+#: stage's arrays (engine.gyroscopic.Gyro), the rotation split
+SteadyPlan = namedtuple("SteadyPlan", ("flags", "reals", "gy", "turn"))
+
 
 @njit(cache=True, inline="always")
 def _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy):
     """What :func:`steady_kernel` and :func:`free_kernel` run first (inlined
-    into both: engine/README.md "Compiled code and compile time"): the start of the
-    (mini-)step, gravity, the free flight, the broad phase and the narrow
-    phase (the packs and the plan's flags and reals as theirs),
-    with the gyroscopic stages ``gy`` (engine/fused/gyro.py) in their
-    places.
+    into both: engine/README.md "Compiled code and compile time"): the
+    flight part (engine/fused/part.py, with the gyroscopic stage ``gy``),
+    the broad phase and the narrow phase (the packs and the plan's
+    :data:`SteadyFlags` and :data:`SteadyReals` as theirs).
     Returns (ok, body pairs, plane pairs, static-box pairs, contacts); ok
     False when a kept buffer is short (nothing of the state written: the
     staged step recomputes everything from its start)."""
-    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
-     rolling, iterations, passes, max_rows, face_points) = flags
-    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
-    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
-    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
+    b, f = kb.items, kf.items
     br = kbr.items
     buf = br.buf
-    # the start of the (mini-)step (state.Context.begin), the force stage
-    begin_step(x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0)
-    if has_gravity:
-        gravity(mg, F)
-    # forces.GyroscopicTorque, integrate.ImplicitGyroscopic (gyro.py)
-    before_flight(gy, R0, w, T, W, h)
-    # integrate.IntegrateVelocities
-    w0[:, :] = Wn
-    free_flight(method, has_forces, constant, torque, fm, x, q, v, w0, w, h, F, T, R0, inv_m, inv_I, lever, x1, q1,
-                Vn, Wn, T_mean, u_lin, u_ang, work)
-    v_free[:, :] = Vn
-    w_free[:, :] = Wn
-    # integrate.EnergyConservingRotation (gyro.py)
-    after_flight(gy, R0, T_mean, w, q, h, lever, q1, W, w_free, u_ang)
+    flight_part(b, f, gy, h)
     # broadstage.BroadPhase
-    nbb, npl, nsb = _broad_step(sap, br.shapes, br.statics,
-                                Motion(x0=x, R0=R0, q1=q1, x1=x1, R1=br.R1, v0=v, v1=V, u=u_lin, w0=w, w1=W), buf, h,
-                                margin)
+    nbb, npl, nsb = _broad_step(flags.sap, br.shapes, br.statics,
+                                Motion(x0=b.x, R0=b.R0, q1=b.q1, x1=b.x1, R1=br.R1, v0=b.v, v1=b.V, u=f.u_lin, w0=b.w,
+                                       w1=b.W), buf, h, reals.margin)
     if nbb < 0 or npl < 0 or nsb < 0:
         return False, 0, 0, 0, 0
     # collision.NarrowPhase (Collider.run)
     col = kcol.items
     if col.W.perm.shape[0] < max(nbb, npl, nsb):
         return False, 0, 0, 0, 0
-    cnt, need_k, need_s = collide_packed(kcol, x, R0, buf.pi[:nbb], buf.pj[:nbb], br.margins, buf.bp[:npl],
-                                         buf.pk[:npl], buf.bs[:nsb], buf.sk[:nsb], bool(True), margin,
-                                         buf.sweep if speculative else br.no_sweep, face_points)
+    cnt, need_k, need_s = collide_packed(kcol, b.x, b.R0, buf.pi[:nbb], buf.pj[:nbb], br.margins, buf.bp[:npl],
+                                         buf.pk[:npl], buf.bs[:nsb], buf.sk[:nsb], bool(True), reals.margin,
+                                         buf.sweep if flags.speculative else br.no_sweep, flags.face_points)
     return need_k <= col.A.c.shape[0] and need_s <= col.slot.g.shape[0], nbb, npl, nsb, cnt
 
 
@@ -145,16 +154,15 @@ def _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
 
 
 @njit(cache=True)
-def _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb):
+def _move_and_commit(kb, kf, kbr, h, lim, ccd_check, has_fast, nbb, npl, nsb):
     """What :func:`steady_kernel` and :func:`free_kernel` run last: the
     position update (integrate.IntegratePositions), the CCD stage's
     end-pose check when the step has it, and the commit
     (state.Context.commit) when nothing moved far enough to need the CCD
     stage.  Returns DONE or CCD (nothing committed)."""
-    x, q, v, w, inv_I, x1, q1, V, W, F, T, vp, wp, R0, Iinv0 = kb.items
-    mg, fm, inv_m, Vn, Wn, v_free, w_free, w0, T_mean, u_lin, u_ang, work, vpn, wpn = kf.items
-    integrate_positions(x1, q1, Vn, Wn, v_free, w_free, vpn, wpn, h, lever)
-    if ccd_check and _end_pose_moved(kbr, x, q, x1, q1, lim, has_fast, nbb, npl, nsb):
+    b, f = kb.items, kf.items
+    integrate_positions(b.x1, b.q1, f.V, f.W, f.v_free, f.w_free, f.vp, f.wp, h, f.ig.lever)
+    if ccd_check and _end_pose_moved(kbr, b.x, b.q, b.x1, b.q1, lim, has_fast, nbb, npl, nsb):
         return CCD
     _commit_packed(kb)
     return DONE
@@ -177,11 +185,10 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     (status, body pairs, plane pairs, static-box pairs, contacts, sweeps,
     residual)."""
     kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
-    flags, reals, gy = ks.items
-    (has_gravity, method, has_forces, constant, torque, sap, speculative, n_statics, relax_on, direct, friction,
-     rolling, iterations, passes, max_rows, face_points) = flags
+    plan = ks.items
+    flags, reals, gy = plan.flags, plan.reals, plan.gy
     warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
-    lever, margin, thr, beta, slop, resting, slip_tol, stop_max_res, lim, roll_tol = reals
+    lever = kf.items.ig.lever
     key, idx = borrow((key, idx))  # (no reference counting: engine/fused/borrow.py)
     ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
     if not ok or cnt > kcol.items.out.a.shape[0] or (cnt != 0 and cnt != key.shape[0]):
@@ -190,14 +197,17 @@ def steady_kernel(kall, ko, kq, h, step_flags):
     residual = 0.0
     if cnt != 0:  # (no contact: Solve.__call__ leaves the velocities; SteadyStep.settle)
         # solver.Solve (the staged solve after prepare.classify)
-        settings = phases.Settings(n_statics=n_statics, lever=lever, thr=thr, beta=beta, slop=slop, friction=friction,
-                                   rolling=rolling, direct=direct, resting=resting, max_rows=max_rows, passes=passes,
-                                   slip_tol=slip_tol, iterations=iterations, relax_on=relax_on)
+        settings = phases.Settings(n_statics=flags.n_statics, lever=lever, thr=reals.thr, beta=reals.beta,
+                                   slop=reals.slop, friction=flags.friction, rolling=flags.rolling,
+                                   direct=flags.direct, resting=reals.resting, max_rows=flags.max_rows,
+                                   passes=flags.passes, slip_tol=reals.slip_tol, iterations=flags.iterations,
+                                   relax_on=flags.relax_on)
         nimp, solved, sweeps, residual, pushed, sliding_any = phases.classify_stage(
             kc, kx, kt, kw, ko, kq, kk, key, idx, h, settings, warm_any, bool(True), warm_on, store_on)
         if not solved:
             return FAIL, 0, 0, 0, 0, 0, 0.0
-        if stops_gate and residual <= stop_max_res and (sliding_any or rolling):
+        rolling, slip_tol, roll_tol = flags.rolling, reals.slip_tol, reals.roll_tol
+        if stops_gate and residual <= reals.stop_max_res and (sliding_any or rolling):
             # Solve._finish: Rows.stop_times opens with this gate (its
             # rolling half: steady_stops)
             wi = kw.items
@@ -209,7 +219,7 @@ def steady_kernel(kall, ko, kq, h, step_flags):
                                           ti.pid, rw.lam_n, rw.Jt, wi.U, wi.U0, ti.pab, ti.mur, roll_tol,
                                           vt0.shape[0])):
                 return FAIL, 0, 0, 0, 0, 0, 0.0
-    status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
+    status = _move_and_commit(kb, kf, kbr, h, reals.lim, ccd_check, has_fast, nbb, npl, nsb)
     return status, nbb, npl, nsb, cnt, sweeps, residual
 
 
@@ -224,14 +234,13 @@ def free_kernel(kall, h, step_flags):
     what :func:`steady_kernel` does (no sweeps, residual 0).  ``kall``:
     (kb, kf, kbr, kcol, ks) borrowed (:func:`free_pack`)."""
     kb, kf, kbr, kcol, ks = kall.items
-    flags, reals, gy = ks.items
-    ccd_check, has_fast = step_flags[4], step_flags[5]
-    lever, lim = reals[0], reals[8]
-    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, flags, reals, gy)
+    plan = ks.items
+    warm_any, warm_on, store_on, stops_gate, ccd_check, has_fast = step_flags
+    ok, nbb, npl, nsb, cnt = _fly_and_collide(kb, kf, kbr, kcol, h, plan.flags, plan.reals, plan.gy)
     if not ok or cnt != 0:
         return FAIL, 0, 0, 0, 0, 0, 0.0
     # (the velocities are the free flight's: v1 - v_free = 0, vp = wp = 0)
-    status = _move_and_commit(kb, kf, kbr, h, lever, lim, ccd_check, has_fast, nbb, npl, nsb)
+    status = _move_and_commit(kb, kf, kbr, h, plan.reals.lim, ccd_check, has_fast, nbb, npl, nsb)
     return status, nbb, npl, nsb, 0, 0, 0.0
 
 
@@ -239,16 +248,16 @@ def free_kernel(kall, h, step_flags):
 def _turns(turn, kb, h):
     """Whether the next step would be split for fast rotation
     (pipeline._parts: not sqrt(w2) h > limit means one part); ``turn`` a
-    Pack of (split?, limit rad, boxes (k,), axisymmetric bodies (j,))."""
-    has_turn, limit, boxes, axisym = turn.items
-    if not has_turn:
+    :data:`Turn`, ``kb`` the context's begin/commit Pack."""
+    if not turn.split:
         return False
-    w2 = max_turn_sq(kb.items[3], kb.items[1], boxes, axisym)
-    return math.sqrt(w2) * h > limit
+    b = kb.items
+    w2 = max_turn_sq(b.w, b.q, turn.boxes, turn.axisym)
+    return math.sqrt(w2) * h > turn.limit
 
 
 @njit(cache=True)
-def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
+def free_loop(n, kall, h, flags, t, rec_on, pos, quat, vel, angvel):
     """Up to ``n`` steps of :func:`free_kernel` (its packs kb, kf, kbr,
     kcol, ks as one, ``kall``), each step's state into row k of the record
     blocks when ``rec_on`` (:meth:`SteadyStep.advance`); stops before a step split for
@@ -258,7 +267,8 @@ def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
     compiled entry: one step from Python is ``n`` = 1
     (:meth:`SteadyStep.run`)."""
     pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py)
-    kb = kall.items[0]
+    kb, kf, kbr, kcol, ks = kall.items
+    turn = ks.items.turn
     nbb = npl = nsb = 0
     for k in range(n):
         if _turns(turn, kb, h):
@@ -272,8 +282,7 @@ def free_loop(n, kall, h, flags, turn, t, rec_on, pos, quat, vel, angvel):
 
 
 @njit(cache=True)
-def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band, t, rec_on, pos, quat, vel,
-                angvel):
+def steady_loop(n, kall, ko, kq1, kq2, h, flags0, flags1, band, t, rec_on, pos, quat, vel, angvel):
     """Up to ``n`` steps of :func:`steady_kernel`, the packs that stay as
     one, ``kall`` (kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks) as
     its (a Pack argument costs ~2.5 us of dispatch): the first warm-starts
@@ -283,8 +292,9 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     before a step split for fast rotation, at a try that is not DONE (not
     counted), after a step with no contact (the solve's bookkeeping
     changes: SteadyStep.settle) and after one whose sparse direct start
-    needed more band storage than ``band`` (``band_check``;
-    Solve._grow_band).  Returns (steps done, time after them, steps solved
+    needed more band storage than ``band`` (Solve._grow_band; the largest
+    int64 where the step has no sparse direct start).  The rotation split
+    is the settings Pack's (:data:`SteadyPlan`).  Returns (steps done, time after them, steps solved
     (with contacts), the sum of their sweeps but the last's, the last's
     sweeps and residual, whether the last step had no contact, then the
     stopping try's status or NONE and the last try's result as
@@ -296,7 +306,8 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
     sw_sum = 0
     sw_last = 0
     res_last = 0.0
-    kb, kw = kall.items[0], kall.items[7]
+    kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks = kall.items
+    turn = ks.items.turn
     dwi = kw.items.dwi
     pos, quat, vel, angvel = borrow((pos, quat, vel, angvel))  # (engine/fused/borrow.py; steady_kernel borrows key, idx)
     nbb = npl = nsb = cnt = sw = 0
@@ -322,7 +333,7 @@ def steady_loop(n, kall, ko, kq1, kq2, turn, h, flags0, flags1, band_check, band
         solved += 1
         sw_last = sw
         res_last = res
-        if band_check and dwi[0] > band:
+        if dwi[0] > band:
             return k + 1, t, solved, sw_sum, sw_last, res_last, False, NONE, nbb, npl, nsb, cnt, sw, res
     return n, t, solved, sw_sum, sw_last, res_last, False, NONE, nbb, npl, nsb, cnt, sw, res
 
@@ -379,10 +390,9 @@ class SteadyStep:
     objects, whose kept buffers it reads and writes."""
 
     def __init__(self, model, forces, fly, broad, narrow, solve, pos, ccd, gyro=None, turn=None):
-        self.gravity = next((s for s in forces if type(s) is Gravity), None)
-        #: the gyroscopic stages' arrays (engine/fused/gyro.py), the
-        #: settings Pack's third item
-        self.gyro = gyro_items(forces, gyro)
+        #: the gyroscopic stage's arrays (engine/fused/gyro.py), the
+        #: settings Pack's ``gy``
+        self.gyro = gyro_items(gyro)
         self.fly, self.broad, self.narrow, self.solve, self.pos, self.ccd = fly, broad, narrow, solve, pos, ccd
         n = model.n
         s = model.settings
@@ -393,8 +403,6 @@ class SteadyStep:
         self.fast_min = np.array(frac * model.min_extent if frac is not None else np.zeros(n), float)
         self.fast = np.zeros(n, np.bool_)
         self.no_sweep = np.zeros(n)
-        self.mg = self.gravity.mg if self.gravity is not None else np.zeros((n, 3))
-        self._kf = self._kf_ctx = None
         self._kbr = self._kbr_key = None
         self._ks = self._ks_key = None
         self._empty = Contacts.empty()
@@ -407,7 +415,7 @@ class SteadyStep:
         self.kfree = BorrowedOf(free_pack)
         #: the rotation split's limit as the loops read it (:func:`_turns`;
         #: ``turn`` the plan's, pipeline._turn_limit: None never splits)
-        self.turn = Pack((False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64)) if turn is None else (
+        self.turn = (Turn(False, 0.0, np.zeros(0, np.int64), np.zeros(0, np.int64)) if turn is None else Turn(
             True, float(turn[0]), np.ascontiguousarray(turn[1], np.int64), np.ascontiguousarray(turn[2], np.int64)))
 
     @staticmethod
@@ -432,17 +440,6 @@ class SteadyStep:
             return None
         return SteadyStep(model, forces, fly, broad, narrow, solve, pos, rest[5] if tail else None, gyro, turn)
 
-    def _flight_pack(self, ctx):
-        """The free flight's arrays (and the context's views over its first
-        n rows) as one Pack, kept per context."""
-        if self._kf_ctx is not ctx:
-            n = ctx.x1.shape[0]
-            fly = self.fly
-            self._kf = Pack((self.mg, fly.fm, fly.inv_m, ctx.v[:n], ctx.w[:n], ctx.v_free, ctx.w_free, fly._w0,
-                             ctx.T_mean, ctx.u_lin, ctx.u_ang, fly._work, ctx.vp[:n], ctx.wp[:n]))
-            self._kf_ctx = ctx
-        return self._kf
-
     def _broad_pack(self, ctx):
         """The broad phase's, the narrow phase's margins and the end-pose
         check's arrays as one Pack, kept while none of its buffers grew."""
@@ -464,18 +461,21 @@ class SteadyStep:
         key = (_S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS, _S.RESTING_SPEED, _S.SLIP_TOL, _S.STOP_MAX_RESIDUAL,
                _S.ROLL_TOL, box.EDGE_FACE_POINTS)
         if key != self._ks_key:
-            self._ks = Pack(self._constants(model) + (self.gyro,))
+            flags, reals = self._constants(model)
+            self._ks = Pack(SteadyPlan(flags=flags, reals=reals, gy=self.gyro, turn=self.turn))
             self._ks_key = key
         return self._ks
 
     def _constants(self, model):
-        fly, b, solve = self.fly, self.broad, self.solve
-        flags = (self.gravity is not None, fly.code, bool(fly.forces), fly.constant, fly.torque, b.sap,
-                 self.narrow.speculative, model.n_statics, solve.correction != "none", solve.direct, solve.friction,
-                 bool(solve.friction and model.rolling), solve.iterations, _S.ACTIVE_SET_PASSES, _S.DIRECT_MAX_ROWS,
-                 box.EDGE_FACE_POINTS)
-        reals = (float(fly.c), b.margin, solve.thr, solve.beta, solve.slop, _S.RESTING_SPEED, _S.SLIP_TOL,
-                 _S.STOP_MAX_RESIDUAL, self.lim, _S.ROLL_TOL)
+        b, solve = self.broad, self.solve
+        flags = SteadyFlags(sap=b.sap, speculative=self.narrow.speculative, n_statics=model.n_statics,
+                            relax_on=solve.correction != "none", direct=solve.direct, friction=solve.friction,
+                            rolling=bool(solve.friction and model.rolling), iterations=solve.iterations,
+                            passes=_S.ACTIVE_SET_PASSES, max_rows=_S.DIRECT_MAX_ROWS,
+                            face_points=box.EDGE_FACE_POINTS)
+        reals = SteadyReals(margin=b.margin, thr=solve.thr, beta=solve.beta, slop=solve.slop,
+                            resting=_S.RESTING_SPEED, slip_tol=_S.SLIP_TOL, stop_max_res=_S.STOP_MAX_RESIDUAL,
+                            lim=self.lim, roll_tol=_S.ROLL_TOL)
         return flags, reals
 
     def flags(self, ctx, warm_any: bool, warm_on: bool, store_on: bool) -> tuple:
@@ -507,7 +507,7 @@ class SteadyStep:
     def packs(self, model, state, ctx) -> tuple:
         """The kernels' first four packs (begin/commit, free flight, broad
         phase, narrow phase) and the settings' (module doc)."""
-        return (ctx.kept(state), self._flight_pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
+        return (ctx.kept(state), self.fly.pack(ctx), self._broad_pack(ctx), self.narrow.collider.packed(),
                 self._settings(model))
 
     def prime(self, model, state, ctx) -> None:
@@ -563,13 +563,12 @@ class SteadyStep:
             n = min(n, 2)
         outs = (out1, out2)
         flags1 = self.flags(ctx, True, bool(solve.warm), True)
-        band_check = bool(solve.direct and c.m > _S.DIRECT_MAX_ROWS)
+        band = int(solve._band) if solve.direct and c.m > _S.DIRECT_MAX_ROWS else NO_BAND_CHECK
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
         kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
         b = self.borrowed.of
-        r = steady_loop(n, kall, ko, kq1, b(out2.kept), b(self.turn), h, flags0, flags1, band_check,
-                        int(solve._band), float(state.t), rec_on, *blocks_)
+        r = steady_loop(n, kall, ko, kq1, b(out2.kept), h, flags0, flags1, band, float(state.t), rec_on, *blocks_)
         done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
         if done:
             state.t = t
@@ -597,8 +596,8 @@ class SteadyStep:
         """:meth:`advance` by the contact-free call (:func:`free_loop`)."""
         kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
         done, t, pend, nbb, npl, nsb = free_loop(n, self.kfree.of((kb, kf, kbr, kcol, ks)), h,
-                                                 self.flags(ctx, False, False, False), self.borrowed.of(self.turn),
-                                                 float(state.t), rec_on, *blocks_)
+                                                 self.flags(ctx, False, False, False), float(state.t), rec_on,
+                                                 *blocks_)
         if done:
             state.t = t
             state.steps += done

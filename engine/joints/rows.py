@@ -57,7 +57,7 @@ def free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
     w) and the unconstrained accelerations a = F / m, al = I^-1 T (n, 3)
     (m s^-2, rad s^-2): the set-up both joint solvers share (step.py's
     exact solve, sequential.py's impulses)."""
-    R, Iinv, F, T = wk[0], wk[1], wk[2], wk[3]
+    R, Iinv, F, T = wk.R, wk.Iinv, wk.F, wk.T
     frames(q, inv_I, R, Iinv)
     if has_forces:
         evaluate(fm, x, q, v, w, R, F, T)
@@ -105,7 +105,7 @@ def eval_rows(jm, x, R, v, w, want_bias, C, J, bias):
     ``JointModel.table``) at the pose (x (n, 3), R (n, 3, 3)) and velocities
     (v, w (n, 3)): C (r,) residuals (m for POINT and SLIDE, 1 for DOT),
     J (r, 12), and, when ``want_bias``, bias (r,) = (dJ/dt) u."""
-    rt, ra, rb, rk, pa0, pb0, s0, t0 = jm
+    rt, ra, rb, rk, pa0, pb0, s0, t0 = jm.rt, jm.ra, jm.rb, jm.rk, jm.pa, jm.pb, jm.s, jm.t
     z = (0.0, 0.0, 0.0)
     for r in range(rt.shape[0]):
         a, b, typ = ra[r], rb[r], rt[r]

@@ -33,12 +33,15 @@ from physbench.engine.joints.solve import mass_times_rows
 
 
 @njit(cache=True)
-def si_part(jm, fm, has_forces, inv_m, inv_I, x, q, v, w, h, iterations, beta, lam, wk):
+def si_part(js, x, q, v, w, h, iterations, beta, lam, wk):
     """One semi-implicit step of length h (s) in place on (x, q, v, w)
-    with the joint rows solved by sequential impulses (module doc); ``lam``
-    (r,) the rows' impulses (N s), kept between steps (warm start)."""
-    R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam2, y, dv, dw = wk
-    ra, rb = jm[1], jm[2]
+    of the system ``js`` (engine.joints.step.System) with the joint rows
+    solved by sequential impulses (module doc); ``lam`` (r,) the rows'
+    impulses (N s), kept between steps (warm start); ``wk`` the work
+    arrays (engine.joints.step.Work)."""
+    jm, fm, has_forces, inv_m, inv_I = js.jm, js.fm, js.has_forces, js.inv_m, js.inv_I
+    R, Iinv, C, J, MJ, bias, y, dv, dw = wk.R, wk.Iinv, wk.C, wk.J, wk.MJ, wk.bias, wk.y, wk.dv, wk.dw
+    ra, rb = jm.ra, jm.rb
     n = x.shape[0]
     free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, dv, dw)
     for k in range(n):

@@ -7,7 +7,9 @@ import time
 
 import numpy as np
 
+from physbench.engine.joints.step import End, Plan, Settings, Stages, System, Tableau, Work
 from physbench.engine.joints.table import TABLEAUS, JointModel, unsupported_reason
+from physbench.engine.pack import Pack
 from physbench.engine.profile import Stage, add_jit_seconds
 
 #: Newton iterations of the position projection at most a step
@@ -48,11 +50,11 @@ class JointFlight(Stage):
         self.project = model.setting("joint_projection") == "newton"
         self.tol = float(model.setting("joint_tolerance"))
         z3 = lambda: np.zeros((n, 3))  # noqa: E731
-        self.wk = (np.zeros((n, 3, 3)), np.zeros((n, 3, 3)), z3(), z3(), np.zeros(r), np.zeros((r, 12)),
-                   np.zeros((r, 12)), np.zeros(r), np.zeros((r, bw + 1)), np.zeros((r, bw + 1)), np.zeros(r),
-                   np.zeros(r), np.zeros(r), z3(), z3())
-        self.st = (z3(), np.zeros((n, 4)), z3(), z3(), np.zeros((4, n, 3)), np.zeros((4, n, 4)),
-                   np.zeros((4, n, 3)), np.zeros((4, n, 3)))
+        self.wk = Work(R=np.zeros((n, 3, 3)), Iinv=np.zeros((n, 3, 3)), F=z3(), T=z3(), C=np.zeros(r),
+                       J=np.zeros((r, 12)), MJ=np.zeros((r, 12)), bias=np.zeros(r), Kb=np.zeros((r, bw + 1)),
+                       L=np.zeros((r, bw + 1)), rhs=np.zeros(r), lam=np.zeros(r), y=np.zeros(r), dv=z3(), dw=z3())
+        self.st = Stages(xs=z3(), qs=np.zeros((n, 4)), vs=z3(), ws=z3(), kx=np.zeros((4, n, 3)),
+                         kq=np.zeros((4, n, 4)), kv=np.zeros((4, n, 3)), kw=np.zeros((4, n, 3)))
         self.max_turn = float(model.setting("joint_max_turn"))
         #: joint_solver = sequential_impulse (engine/joints/sequential.py)
         self.si = model.setting("joint_solver") == "sequential_impulse"
@@ -67,24 +69,34 @@ class JointFlight(Stage):
         self.w_g = float(np.sqrt(g / arms.min())) if arms.size else 0.0
         self.residual = 0.0
         self.dropped = 0
+        #: splits, Newton iterations, the last residual of a block (joint_block)
+        self._stats = np.zeros(3)
+        #: what the kernels read (engine.joints.step.Plan), as one Pack
+        self.plan = Plan(
+            sys=System(jm=self.jm, bw=np.int64(self.bw), fm=self.fm, has_forces=bool(self.has_forces),
+                       inv_m=self.inv_m, inv_I=self.inv_I),
+            tab=Tableau(A=self.A, B=self.B, S=np.int64(self.S)),
+            cfg=Settings(project_on=bool(self.project), tol=float(self.tol), max_iter=np.int64(MAX_ITER),
+                         w_g=float(self.w_g), max_turn=float(self.max_turn), max_parts=np.int64(MAX_PARTS),
+                         si_on=bool(self.si), iterations=np.int64(self.iterations), beta=float(self.beta)),
+            lam=self.lam, wk=self.wk, st=self.st, stats=self._stats)
+        self._kp = Pack(self.plan)
+        self._ke = self._ke_ctx = None
         self._warm(model)
 
     def _run(self, x0, q0, v0, w0, h, x1, q1, v1, w1):
-        from physbench.engine.joints.step import joint_step
+        from physbench.engine.joints.step import joint_step_packed
 
-        return joint_step(self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A,
-                          self.B, np.int64(self.S), x0, q0, v0, w0, float(h), x1, q1, v1, w1, self.wk, self.st,
-                          bool(self.project), float(self.tol), np.int64(MAX_ITER), float(self.w_g),
-                          float(self.max_turn), np.int64(MAX_PARTS), *self._si())
+        return joint_step_packed(self._kp, x0, q0, v0, w0, float(h), x1, q1, v1, w1)
 
-    def _si(self) -> tuple:
-        """The sequential-impulse arguments of the kernels: (on, passes,
-        Baumgarte factor, the kept impulses)."""
-        return bool(self.si), np.int64(self.iterations), float(self.beta), self.lam
-
-    def _block_args(self):
-        return (self.jm, np.int64(self.bw), self.fm, bool(self.has_forces), self.inv_m, self.inv_I, self.A, self.B,
-                np.int64(self.S))
+    def _end(self, ctx) -> Pack:
+        """The context's candidate end state (x1, q1, v, w over the first n
+        rows) as one Pack of an engine.joints.step.End, kept per context."""
+        if self._ke_ctx is not ctx:
+            n = ctx.x1.shape[0]
+            self._ke = Pack(End(x=ctx.x1, q=ctx.q1, v=ctx.v[:n], w=ctx.w[:n]))
+            self._ke_ctx = ctx
+        return self._ke
 
     def run_block(self, model, state, ctx, profile, n: int, rec=None, progress=None) -> None:
         """``n`` steps from ``state`` in one compiled call
@@ -95,7 +107,6 @@ class JointFlight(Stage):
         from physbench.engine.joints.step import joint_block
 
         t0 = time.perf_counter()
-        nb = model.n
         rec_on = rec is not None and all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
                                          for a in rec)
         self._stats[:] = 0.0
@@ -103,11 +114,8 @@ class JointFlight(Stage):
         calls = ((n, tuple(rec) if rec_on else self._no_rec),) if rec is None or rec_on else \
             tuple((1, self._no_rec) for _ in range(n))
         for k, (m, blocks) in enumerate(calls):
-            state.t = joint_block(*self._block_args(), state.x, state.q, state.v, state.w, float(model.h),
-                                  np.int64(model.substeps), float(state.t), ctx.x1, ctx.q1, ctx.v[:nb], ctx.w[:nb],
-                                  self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
-                                  float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), *self._si(), np.int64(m),
-                                  bool(rec_on), *blocks, self._stats)
+            state.t = joint_block(self._kp, self._end(ctx), state.x, state.q, state.v, state.w, float(model.h),
+                                  np.int64(model.substeps), float(state.t), np.int64(m), *blocks)
             if rec is not None and not rec_on:
                 for a, src in zip(rec, (state.x, state.q, state.v, state.w)):
                     a[k] = src
@@ -134,16 +142,13 @@ class JointFlight(Stage):
         self._run(st.x, st.q, st.v, st.w, model.h, ctx.x1, ctx.q1, ctx.v[:n], ctx.w[:n])
         ctx.commit(st)
         # the loop over steps (run_block), on the same copies
-        self._stats = np.zeros(3)
         nb = model.n
         self._no_rec = (np.zeros((0, nb, 3)), np.zeros((0, nb, 4)), np.zeros((0, nb, 3)), np.zeros((0, nb, 3)))
         from physbench.engine.joints.step import joint_block
 
-        joint_block(*self._block_args(), st.x, st.q, st.v, st.w, float(model.h), np.int64(1), 0.0, ctx.x1, ctx.q1,
-                    ctx.v[:nb], ctx.w[:nb], self.wk, self.st, bool(self.project), float(self.tol), np.int64(MAX_ITER),
-                    float(self.w_g), float(self.max_turn), np.int64(MAX_PARTS), *self._si(), np.int64(1), bool(True),
-                    *(np.zeros((1, nb, 3)), np.zeros((1, nb, 4)), np.zeros((1, nb, 3)), np.zeros((1, nb, 3))),
-                    self._stats)
+        joint_block(self._kp, self._end(ctx), st.x, st.q, st.v, st.w, float(model.h), np.int64(1), 0.0, np.int64(1),
+                    *(np.zeros((1, nb, 3)), np.zeros((1, nb, 4)), np.zeros((1, nb, 3)), np.zeros((1, nb, 3))))
+        self._ke = self._ke_ctx = None  # (the warm-up's context goes)
         self.lam[:] = 0.0  # (the warm-up's impulses are no warm start)
         add_jit_seconds(time.perf_counter() - t0)
 

@@ -24,6 +24,7 @@ Tests: tests/test_engine_joints.py.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 from numba import njit
 
@@ -32,14 +33,50 @@ from physbench.engine.joints.rows import eval_rows, frames, free_accelerations
 from physbench.engine.joints.sequential import si_part
 from physbench.engine.joints.solve import apply_rows, assemble, band_solve, factor, mass_times_rows, rows_times
 
+#: the system the joint step integrates: the rows ``jm``
+#: (engine.joints.table.Rows), the band width ``bw`` of K, the force model
+#: ``fm`` (engine.flight.ForceModel) and whether there are forces, the
+#: inverse masses (n,) 1/kg and principal inverse inertias (n, 3)
+System = namedtuple("System", ("jm", "bw", "fm", "has_forces", "inv_m", "inv_I"))
+#: an explicit Runge-Kutta tableau: ``A`` (4, 4) below the diagonal, ``B``
+#: (4,), ``S`` stages
+Tableau = namedtuple("Tableau", ("A", "B", "S"))
+#: the step's settings: the Newton projection on (``project_on``), its
+#: tolerance ``tol`` and most iterations ``max_iter``; the split: the
+#: fastest gravity swing ``w_g`` rad/s, the turn limit ``max_turn`` rad, the
+#: most parts ``max_parts``; sequential impulses on (``si_on``), their
+#: ``iterations`` and Baumgarte factor ``beta``
+Settings = namedtuple("Settings", ("project_on", "tol", "max_iter", "w_g", "max_turn", "max_parts", "si_on",
+                                   "iterations", "beta"))
+#: the kept work arrays (n bodies, r rows): rotations ``R``, world inverse
+#: inertias ``Iinv`` (n, 3, 3), forces ``F``, torques ``T`` (n, 3), residuals
+#: ``C`` (r,), Jacobians ``J`` and M^-1 J^T ``MJ`` (r, 12), biases ``bias``
+#: (r,), the band of K ``Kb`` and its factor ``L`` (r, bw + 1), ``rhs``,
+#: ``lam``, ``y`` (r,), velocity changes ``dv``, ``dw`` (n, 3)
+Work = namedtuple("Work", ("R", "Iinv", "F", "T", "C", "J", "MJ", "bias", "Kb", "L", "rhs", "lam", "y", "dv", "dw"))
+#: the Runge-Kutta stage arrays: the stage state ``xs``, ``qs``, ``vs``,
+#: ``ws`` (n, 3|4) and the slopes ``kx``, ``kq``, ``kv``, ``kw`` (4, n, 3|4)
+Stages = namedtuple("Stages", ("xs", "qs", "vs", "ws", "kx", "kq", "kv", "kw"))
+#: what the joint step keeps (engine/joints/stage.py): the :data:`System`,
+#: :data:`Tableau`, :data:`Settings`, the rows' impulses ``lam`` (r,) N s
+#: (the sequential impulses' warm start), the :data:`Work` and
+#: :data:`Stages` arrays, and ``stats`` (3,) (splits, Newton iterations,
+#: the last largest residual: :func:`joint_block`)
+Plan = namedtuple("Plan", ("sys", "tab", "cfg", "lam", "wk", "st", "stats"))
+#: the candidate end state a step writes: x (n, 3), q (n, 4), v, w (n, 3)
+End = namedtuple("End", ("x", "q", "v", "w"))
+
 
 @njit(cache=True)
-def accelerations(jm, bw, fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
-    """The constrained accelerations a, al (n, 3) at (x, q, v, w) (module
-    doc).  Returns the rows dropped as redundant."""
-    R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam, y, dv, dw = wk
-    ra, rb = jm[1], jm[2]
-    free_accelerations(fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al)
+def accelerations(js, x, q, v, w, wk, a, al):
+    """The constrained accelerations a, al (n, 3) at (x, q, v, w) of the
+    :data:`System` ``js`` (module doc).  Returns the rows dropped as
+    redundant."""
+    jm, bw, inv_m = js.jm, js.bw, js.inv_m
+    R, Iinv, C, J, MJ, bias = wk.R, wk.Iinv, wk.C, wk.J, wk.MJ, wk.bias
+    Kb, L, rhs, lam, y = wk.Kb, wk.L, wk.rhs, wk.lam, wk.y
+    ra, rb = jm.ra, jm.rb
+    free_accelerations(js.fm, js.has_forces, js.inv_m, js.inv_I, x, q, v, w, wk, a, al)
     eval_rows(jm, x, R, v, w, True, C, J, bias)
     mass_times_rows(ra, rb, J, inv_m, Iinv, MJ)
     assemble(ra, rb, J, MJ, bw, Kb)
@@ -53,12 +90,14 @@ def accelerations(jm, bw, fm, has_forces, inv_m, inv_I, x, q, v, w, wk, a, al):
 
 
 @njit(cache=True)
-def project(jm, bw, inv_m, inv_I, x, q, v, w, wk, tol, max_iter, velocities):
+def project(js, x, q, v, w, wk, tol, max_iter, velocities):
     """Newton's method on C(x, q) = 0 along M^-1 J^T, then, when
-    ``velocities``, u onto J u = 0 (module doc).  Returns (iterations,
-    largest |C| left (m or 1))."""
-    R, Iinv, F, T, C, J, MJ, bias, Kb, L, rhs, lam, y, dv, dw = wk
-    ra, rb = jm[1], jm[2]
+    ``velocities``, u onto J u = 0 (module doc; ``js`` the
+    :data:`System`).  Returns (iterations, largest |C| left (m or 1))."""
+    jm, bw, inv_m, inv_I = js.jm, js.bw, js.inv_m, js.inv_I
+    R, Iinv, C, J, MJ, bias, Kb, L, rhs, lam, y, dv, dw = (wk.R, wk.Iinv, wk.C, wk.J, wk.MJ, wk.bias, wk.Kb, wk.L,
+                                                            wk.rhs, wk.lam, wk.y, wk.dv, wk.dw)
+    ra, rb = jm.ra, jm.rb
     n = x.shape[0]
     it = 0
     worst = 0.0
@@ -104,12 +143,13 @@ def _qdot(w, q, k):
 
 
 @njit(cache=True)
-def _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, wk, st):
+def _rk_part(js, tab, x, q, v, w, h, wk, st):
     """One explicit Runge-Kutta step of length h (s) of the constrained
-    ODE (A (4, 4), B (4,): the tableau of S stages), in place on (x, q, v,
-    w); quaternions renormalised.  Returns the rows dropped as redundant
-    at its first stage."""
-    xs, qs, vs, ws, kx, kq, kv, kw = st
+    ODE of the :data:`System` ``js`` (``tab`` the :data:`Tableau`), in
+    place on (x, q, v, w); quaternions renormalised.  Returns the rows
+    dropped as redundant at its first stage."""
+    A, B, S = tab.A, tab.B, tab.S
+    xs, qs, vs, ws, kx, kq, kv, kw = st.xs, st.qs, st.vs, st.ws, st.kx, st.kq, st.kv, st.kw
     n = x.shape[0]
     dropped = 0
     for i in range(S):
@@ -126,7 +166,7 @@ def _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, wk, s
                 for j in range(i):
                     sq += h * A[i, j] * kq[j, k, c]
                 qs[k, c] = sq
-        d = accelerations(jm, bw, fm, has_forces, inv_m, inv_I, xs, qs, vs, ws, wk, kv[i], kw[i])
+        d = accelerations(js, xs, qs, vs, ws, wk, kv[i], kw[i])
         if i == 0:
             dropped = d
         for k in range(n):
@@ -177,56 +217,67 @@ def parts_for(w, h, w_g, max_turn, max_parts):
 
 
 @njit(cache=True)
-def joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x0, q0, v0, w0, h, x1, q1, v1, w1, wk, st, project_on,
-               tol, max_iter, w_g, max_turn, max_parts, si_on, iterations, beta, lam):
+def joint_step(p, x0, q0, v0, w0, h, x1, q1, v1, w1):
     """One step of length h (s) from (x0, q0, v0, w0) into (x1, q1, v1,
-    w1): :func:`parts_for` equal parts, each an explicit Runge-Kutta step
-    of the constrained ODE (:func:`_rk_part`) followed, when
-    ``project_on``, by :func:`project`.  ``st`` the stage arrays (xs, qs,
-    vs, ws, kx, kq, kv, kw).  ``si_on``: each part is instead the
-    sequential-impulse step (engine/joints/sequential.py: ``iterations``
-    passes, Baumgarte ``beta``, the warm-start impulses ``lam`` (r,)).  Returns (parts, Newton iterations, largest
-    |C| after the step, redundant rows dropped)."""
+    w1) by the :data:`Plan` ``p``: :func:`parts_for` equal parts, each an
+    explicit Runge-Kutta step of the constrained ODE (:func:`_rk_part`)
+    followed, when ``project_on``, by :func:`project`.  ``si_on``: each
+    part is instead the sequential-impulse step
+    (engine/joints/sequential.py: ``iterations`` passes, Baumgarte
+    ``beta``, the warm-start impulses ``p.lam`` (r,)).  Returns (parts,
+    Newton iterations, largest |C| after the step, redundant rows
+    dropped)."""
+    js, cfg, wk = p.sys, p.cfg, p.wk
     n = x0.shape[0]
     for k in range(n):
         for c in range(3):
             x1[k, c], v1[k, c], w1[k, c] = x0[k, c], v0[k, c], w0[k, c]
         for c in range(4):
             q1[k, c] = q0[k, c]
-    parts = parts_for(w0, h, w_g, max_turn, max_parts)
+    parts = parts_for(w0, h, cfg.w_g, cfg.max_turn, cfg.max_parts)
     hp = h / parts
     its, worst, dropped = 0, 0.0, 0
-    for p in range(parts):
-        if si_on:
-            si_part(jm, fm, has_forces, inv_m, inv_I, x1, q1, v1, w1, hp, iterations, beta, lam, wk)
+    for _ in range(parts):
+        if cfg.si_on:
+            si_part(js, x1, q1, v1, w1, hp, cfg.iterations, cfg.beta, p.lam, wk)
         else:
-            dropped = _rk_part(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x1, q1, v1, w1, hp, wk, st)
-        if project_on:
+            dropped = _rk_part(js, p.tab, x1, q1, v1, w1, hp, wk, p.st)
+        if cfg.project_on:
             # (after sequential impulses the positions only: their next
             # solve takes the velocities, and a projection of the
             # symplectic Euler step's velocities loses energy at O(h))
-            it, worst = project(jm, bw, inv_m, inv_I, x1, q1, v1, w1, wk, tol, max_iter, not si_on)
+            it, worst = project(js, x1, q1, v1, w1, wk, cfg.tol, cfg.max_iter, not cfg.si_on)
             its += it
     return parts, its, worst, dropped
 
 
 @njit(cache=True)
-def joint_block(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, substeps, t, x1, q1, v1, w1, wk, st,
-                project_on, tol, max_iter, w_g, max_turn, max_parts, si_on, iterations, beta, lam, n, rec_on, pos, quat,
-                vel, angvel, stats):
+def joint_step_packed(kp, x0, q0, v0, w0, h, x1, q1, v1, w1):
+    """:func:`joint_step` from Python (the stage): ``kp`` a Pack of the
+    :data:`Plan` (one pointer to unbox)."""
+    return joint_step(kp.items, x0, q0, v0, w0, h, x1, q1, v1, w1)
+
+
+@njit(cache=True)
+def joint_block(kp, ke, x, q, v, w, h, substeps, t, n, pos, quat, vel, angvel):
     """``n`` steps of ``substeps`` (sub)steps of length h (s) from the
-    state (x, q, v, w), each :func:`joint_step` into (x1, q1, v1, w1) and
-    committed (copied back): the same arithmetic as the staged step's
-    stage and commit, so the same bits.  When ``rec_on`` the state after
-    step k goes to row k of pos, quat, vel, angvel.  stats (3,) += (splits,
-    Newton iterations), stats[2] = the last largest residual.  Returns the
-    time t (s) advanced as the staged steps advance it."""
+    state (x, q, v, w), each :func:`joint_step` (``kp`` a Pack of the
+    :data:`Plan`) into the end state (``ke`` a Pack of an :data:`End`)
+    and committed (copied back): the
+    same arithmetic as the staged step's stage and commit, so the same
+    bits.  The state after step k goes to row k of pos, quat, vel, angvel
+    when they have rows (none: nothing recorded).  The plan's stats (3,)
+    += (splits, Newton iterations), stats[2] = the last largest residual.
+    Returns the time t (s) advanced as the staged steps advance it."""
+    p = kp.items
+    e = ke.items
+    x1, q1, v1, w1 = e.x, e.q, e.v, e.w
+    stats = p.stats
+    rec_on = pos.shape[0] != 0
     nb = x.shape[0]
     for k in range(n):
         for _ in range(substeps):
-            parts, its, worst, dropped = joint_step(jm, bw, fm, has_forces, inv_m, inv_I, A, B, S, x, q, v, w, h, x1,
-                                                    q1, v1, w1, wk, st, project_on, tol, max_iter, w_g, max_turn,
-                                                    max_parts, si_on, iterations, beta, lam)
+            parts, its, worst, dropped = joint_step(p, x, q, v, w, h, x1, q1, v1, w1)
             for i in range(nb):
                 for c in range(3):
                     x[i, c] = x1[i, c]

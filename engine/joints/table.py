@@ -3,6 +3,7 @@ joint step does not model; built once, with the model."""
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 
 import math
@@ -20,6 +21,10 @@ TABLEAUS = {
     "heun": ([[1.0]], [0.5, 0.5]),
     "rk4": ([[0.5], [0.0, 0.5], [0.0, 0.0, 1.0]], [1 / 6, 1 / 3, 1 / 3, 1 / 6]),
 }
+
+
+#: the rows as the compiled kernels read them (:attr:`JointModel.table`)
+Rows = namedtuple("Rows", ("rt", "ra", "rb", "rk", "pa", "pb", "s", "t"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,8 +48,8 @@ class JointModel:
     kinds: tuple
 
     @property
-    def table(self) -> tuple:
-        return (self.rt, self.ra, self.rb, self.rk, self.pa, self.pb, self.s, self.t)
+    def table(self) -> Rows:
+        return Rows(rt=self.rt, ra=self.ra, rb=self.rb, rk=self.rk, pa=self.pa, pb=self.pb, s=self.s, t=self.t)
 
     @property
     def rows(self) -> int:
