@@ -173,7 +173,6 @@ def _warm_solve() -> None:
     # preparation and warm start: two bodies and the world, three contacts
     # (the model's arrays are read-only: ``ro``, the types the step passes)
     X = np.zeros((nb, 3))
-    V = np.zeros((nb + 1, 3))
     R0 = np.tile(np.eye(3), (nb, 1, 1))
     Iinv = np.tile(np.eye(3), (nb + 1, 1, 1))
     im = _ro(np.ones(nb + 1))
