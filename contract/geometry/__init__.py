@@ -14,8 +14,8 @@ kernels), ``search`` (the support-function search) and ``cylinder`` (the
 kernels built on it), ``dispatch`` (the table of kernels by shape pair, the
 per-pair depth functions), ``cull`` (bounding-sphere culling) and
 ``penetration`` (the whole scene).  This package re-exports what other
-modules and the tests use, including ``projection_overlap``, ``_support`` and the placed
-body and static-box constructors (harness/trace/contacts.py).
+modules and the tests use, including ``projection_overlap``, ``_support``
+and the placed body and static-box constructors (harness/trace/contacts.py).
 
 Definition
 ----------
