@@ -12,8 +12,8 @@ from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from physbench.harness.report.analysis import is_good, scene_targets, unshifted, latest_points, line_settings
-from physbench.harness.report.rows import normalised, is_finite, fmt, settings_label
+from physbench.harness.report.analysis import is_good, latest_points, line_settings, scene_targets, unshifted
+from physbench.harness.report.rows import fmt, is_finite, normalised, settings_label
 
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds

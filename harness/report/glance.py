@@ -26,9 +26,9 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import sweep_points, breaking_points, latest_check_runs, unexpected_failures
+from physbench.harness.report.analysis import breaking_points, latest_check_runs, sweep_points, unexpected_failures
 from physbench.harness.report.cost import at_a_glance, ladder
-from physbench.harness.report.rows import normalised, is_missing
+from physbench.harness.report.rows import is_missing, normalised
 from physbench.harness.status import OUTCOMES, XFAIL
 
 #: summary.json's format version (docs/REPORT.md): bumped when a key

@@ -19,7 +19,7 @@ from typing import Any, Iterable
 
 import pandas as pd
 
-from physbench.harness.report.rows import is_missing, as_float, fmt, normalise
+from physbench.harness.report.rows import as_float, fmt, is_missing, normalise
 from physbench.harness.results import SCHEMA_VERSION, read_frame, results_dir as _results_dir
 from physbench.harness.sweep_store import sweep_files
 

@@ -19,9 +19,9 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import (LAW_COLUMNS, limit_rows, sweep_points, breaking_points, consensus_table,
-                                              contact_law_table, failing_checks, fmt_limit, phase_table,
-                                              predictability_table, stability_matrix, work_precision)
+from physbench.harness.report.analysis import (LAW_COLUMNS, breaking_points, consensus_table, contact_law_table,
+                                               failing_checks, fmt_limit, limit_rows, phase_table, predictability_table,
+                                               stability_matrix, sweep_points, work_precision)
 from physbench.harness.report.glance import first_screen, left_out, xfail_total
 from physbench.harness.report.cost import RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target
 from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
@@ -29,7 +29,7 @@ from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
 from physbench.harness.report.plots import (engine_colour, plot_breaking_point, plot_contact_laws, plot_history,
                                           plot_work_precision)
-from physbench.harness.report.rows import ERROR_FLOOR, normalised, is_finite, is_missing, fmt, settings_label
+from physbench.harness.report.rows import ERROR_FLOOR, fmt, is_finite, is_missing, normalised, settings_label
 from physbench.contract.conventions import DRAG_EXTERNAL
 from physbench.harness.runner import commit_id
 from physbench.harness.status import BAD_OUTCOMES, OK, OUTCOMES, XFAIL
