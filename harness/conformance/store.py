@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Any
 
 from physbench.contract.scene import resolve_scenario
+from physbench.harness import runner  # runner.commit_id read at call time (tests pretend another commit)
 from physbench.harness.conformance.plan import RunSpec
 from physbench.harness.results import (SCHEMA_VERSION, PartsDir, results_dir, try_lock, unfinished_dirs,
                                        write_json_atomic, write_rows)
-from physbench.harness.runner import commit_id
 
 
 def result_row(key: tuple, result: Any) -> dict[str, Any]:
@@ -60,7 +60,7 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
         except Exception as e:  # reported as a load error outcome
             h.update(repr(e).encode())
         h.update(b"\0")
-    return {"commit": commit_id(), "engines": list(engines), "scenarios": list(ids),
+    return {"commit": runner.commit_id(), "engines": list(engines), "scenarios": list(ids),
             "specs_hash": h.hexdigest()[:16], "timeout_s": timeout_s, "runs": [r.run_key for r in runs]}
 
 
