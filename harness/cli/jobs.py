@@ -19,7 +19,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     scheduler_needs_dask(args)
     settings = None
     if args.set:
-        per, rest = engine_sets(args.set, list(args.engines or default_engines()))
+        # the engines --set is checked against; check_main says which are left out, once, as it starts
+        per, rest = engine_sets(args.set, list(args.engines or default_engines(note=False)))
         if rest:
             raise UsageError(f"--set {rest[0]}: check takes engine settings only (ENGINE:KEY=VALUE or KEY=VALUE); "
                              f"vary the spec with a [[variant]]")

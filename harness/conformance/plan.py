@@ -108,12 +108,12 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     return keep
 
 
-def default_engines() -> list[str]:
+def default_engines(note: bool = True) -> list[str]:
     """The engines ``check`` runs when none are named: every registered
     engine (shipped, plug-ins) except shipped ones that are not installed
-    (their extra was not: stderr says which; ``--engines`` naming one still
-    runs it, as ``unsupported`` rows).  A plug-in that fails to load stays
-    in: its rows carry its error."""
+    (their extra was not: stderr says which, unless ``note`` is False;
+    ``--engines`` naming one still runs it, as ``unsupported`` rows).  A
+    plug-in that fails to load stays in: its rows carry its error."""
     import sys
 
     out, missing = [], []
@@ -123,7 +123,7 @@ def default_engines() -> list[str]:
         except Exception:
             available = name not in ENGINES
         (out if available else missing).append(name)
-    if missing:
+    if missing and note:
         print(f"check: left out, not installed: {', '.join(missing)} (pip install "
               f"'physbench[{','.join(missing)}]' adds them)", file=sys.stderr)
     return out
