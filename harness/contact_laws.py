@@ -206,19 +206,19 @@ def own_gap(scene: Any, rows: dict[str, np.ndarray], pos: np.ndarray, quat: np.n
     if todo.size == 0:
         return gap
     from physbench.contract.geometry.dispatch import signed_gap
-    from physbench.contract.geometry.placed import _placed_body, _placed_static_box
+    from physbench.contract.geometry.placed import placed_body, placed_static_box
     from physbench.contract.geometry.support import plane_gap
 
     statics = {x.index: x for x in scene.statics}
     for r in todo:
         a, b, s = int(rows["a"][r]), int(rows["b"][r]), int(rows["static"][r])
-        A = _placed_body(scene.bodies[a], pos[a:a + 1], quat[a:a + 1])
+        A = placed_body(scene.bodies[a], pos[a:a + 1], quat[a:a + 1])
         if b >= 0:
-            over = signed_gap(A, _placed_body(scene.bodies[b], pos[b:b + 1], quat[b:b + 1]))
+            over = signed_gap(A, placed_body(scene.bodies[b], pos[b:b + 1], quat[b:b + 1]))
         else:
             st = statics[s]
             over = (plane_gap(A, st.normal, st.offset) if st.shape == "plane"
-                    else signed_gap(A, _placed_static_box(st, 1)))
+                    else signed_gap(A, placed_static_box(st, 1)))
         gap[r] = -float(over[0])
     return gap
 

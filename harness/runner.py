@@ -140,12 +140,12 @@ class RunResult:
             "status": self.status,
             "message": self.message,
         }
-        out.update({k: _jsonable(v) for k, v in self.metrics.items()})
-        out["settings"] = {k: _jsonable(v) for k, v in self.settings.items()}
-        out["timing"] = {k: _jsonable(v) for k, v in self.timing.items()}
-        out["stages"] = _jsonable(self.stages)
+        out.update({k: jsonable(v) for k, v in self.metrics.items()})
+        out["settings"] = {k: jsonable(v) for k, v in self.settings.items()}
+        out["timing"] = {k: jsonable(v) for k, v in self.timing.items()}
+        out["stages"] = jsonable(self.stages)
         out["notes"] = list(self.notes)
-        out["info"] = _jsonable(self.info)
+        out["info"] = jsonable(self.info)
         out["machine"] = dict(self.machine)
         out["commit"] = self.commit
         out["timestamp"] = self.timestamp
@@ -202,11 +202,11 @@ class RunResult:
         return row
 
 
-def _jsonable(v: Any) -> Any:
+def jsonable(v: Any) -> Any:
     if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
+        return {str(k): jsonable(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, (np.floating, float)):
         f = float(v)
         return f if math.isfinite(f) else None
@@ -215,7 +215,7 @@ def _jsonable(v: Any) -> Any:
     if isinstance(v, np.bool_):
         return bool(v)
     if isinstance(v, np.ndarray):
-        return _jsonable(v.tolist())
+        return jsonable(v.tolist())
     return v
 
 

@@ -11,6 +11,9 @@ the tests is parsed (imports inside functions count; imports under
   a module inside the package was itself reached through it);
 - the report imports no scene loading and nothing that runs a scene (it
   reads rows); the breaking-point search imports no I/O;
+- in the housekept packages (cli, report, conformance, trace) our modules
+  are imported at module level but where LOCAL_IMPORTS gives the reason,
+  and no private name is taken from another module of ours;
 - the written rules agree with the tree: docs/ARCHITECTURE.md's table with
   ``LAYERS``, README.md's layout table with the modules, pyproject.toml's
   packages with the packages.
@@ -365,3 +368,154 @@ def test_packaging_ships_every_package():
         include = listed["find"].get("include", ["*"])
         missing = [m for m in pkgs if not any(fnmatch.fnmatchcase(m, pat) for pat in include)]
     assert not missing, f"pyproject.toml does not ship {missing}"
+
+
+# Imports of our own modules sit at module level.  A function-level one
+# stays only with its reason in a comment on its line or the line above:
+# an optional engine, a heavy import on a cold path (rerun, pandas/pyarrow,
+# numba: a command that does not always need it), or an import cycle the
+# layers forbid breaking otherwise.  In the packages below, the table lists
+# every one left (importer -> imported module -> reason), and no module
+# takes a private name (``_x``) from another module of ours, by import or
+# as ``module._x``.  The test fails on one more and on one fewer, so the
+# table only shrinks; the rest of harness/ has ceilings that only go down.
+HOUSEKEPT = ("physbench.harness.cli", "physbench.harness.report", "physbench.harness.conformance",
+             "physbench.harness.trace")
+LOCAL_IMPORTS: dict[str, dict[str, str]] = {
+    "physbench.harness.cli.bench": {"physbench.harness.selfbench.executors": "physbench's benchmark of itself, "
+                                    "off the start of every other command"},
+    "physbench.harness.cli.compile": {"physbench.engine.__main__": "numba, for this command only"},
+    "physbench.harness.cli.jobs": {"physbench.harness.report": "pandas, pyarrow, matplotlib, for this command only",
+                                   "physbench.harness.sweep": "the sweep machinery, for this command only",
+                                   "physbench.harness.limits": "the limits machinery, for this command only"},
+    "physbench.harness.cli.trace": {"physbench.harness.trace": "rerun, for this command only",
+                                    "physbench.harness.trace.contacts": "rerun (the trace package), for this command only"},
+    "physbench.harness.conformance.traces": {"physbench.harness.trace.cases": "rerun, for check --traces only",
+                                             "physbench.harness.trace.contacts": "rerun, for check --traces only"},
+}
+# the rest of harness/ (another pass owes it): at most this many
+HARNESS_LOCAL_IMPORTS_MAX = 41
+HARNESS_PRIVATE_IMPORTS_MAX = 12
+
+
+def _import_hygiene(mod: str, path: Path) -> tuple[list[tuple[int, str, bool]], list[tuple[int, str]]]:
+    """(function-level imports of our modules as (line, module, whether a
+    comment gives its reason), private names taken from other modules
+    of ours as (line, 'module._name'))."""
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    tree = ast.parse(text, str(path))
+    is_pkg = path.name == "__init__.py"
+    in_func: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            in_func |= {id(n) for n in ast.walk(node) if n is not node}
+    local: list[tuple[int, str, bool]] = []
+    private: list[tuple[int, str]] = []
+    module_names: dict[str, str] = {}  # a local name bound to a module of ours
+
+    def commented(node: ast.stmt) -> bool:
+        """A comment on the import's lines, or above it (and the imports
+        right above it: one comment for a block of them)."""
+        if any("#" in ln for ln in lines[node.lineno - 1:node.end_lineno]):
+            return True
+        i = node.lineno - 2
+        while i >= 0 and lines[i].strip().startswith(("from ", "import ")):
+            i -= 1
+        return i >= 0 and lines[i].strip().startswith("#")
+
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                here = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                here = here[:len(here) - (node.level - 1)]
+                base = ".".join(here + ([node.module] if node.module else []))
+            if _resolve(base) is None:
+                continue
+            for a in node.names:
+                full = f"{base}.{a.name}"
+                targets.append(full if full in MODULES else _resolve(base))
+                if full in MODULES:
+                    module_names[a.asname or a.name] = full
+                if a.name.startswith("_") and not a.name.startswith("__"):
+                    private.append((node.lineno, full))
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if _resolve(a.name) is None:
+                    continue
+                targets.append(_resolve(a.name))
+                if a.asname:
+                    module_names[a.asname] = a.name
+        if targets and id(node) in in_func:
+            local += [(node.lineno, t, commented(node)) for t in dict.fromkeys(targets)]
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in module_names
+                and node.attr.startswith("_") and not node.attr.startswith("__")
+                and module_names[node.value.id] != mod):
+            private.append((node.lineno, f"{module_names[node.value.id]}.{node.attr}"))
+    return local, private
+
+
+def _hygiene_violations(paths: dict[str, Path]) -> tuple[list[str], int, int]:
+    """(violations in the housekept packages, function-level imports and
+    private-name imports in the rest of harness/)."""
+    bad: list[str] = []
+    rest_local = rest_private = 0
+    for m, p in sorted(paths.items()):
+        if not m.startswith("physbench.harness"):
+            continue
+        local, private = _import_hygiene(m, p)
+        if not any(m == pkg or m.startswith(pkg + ".") for pkg in HOUSEKEPT):
+            rest_local += len(local)
+            rest_private += len(private)
+            continue
+        allowed = LOCAL_IMPORTS.get(m, {})
+        seen = set()
+        for line, target, has_comment in local:
+            seen.add(target)
+            if target not in allowed:
+                bad.append(f"{m}:{line}: imports {target} inside a function; move it to module level "
+                           f"(or list it in LOCAL_IMPORTS with its reason)")
+            elif not has_comment:
+                bad.append(f"{m}:{line}: the function-level import of {target} says no reason in a comment")
+        bad += [f"{m}: LOCAL_IMPORTS lists {t}, which it no longer imports in a function: remove it"
+                for t in sorted(set(allowed) - seen)]
+        bad += [f"{m}:{line}: takes the private name {name} from another module: make it public or move it"
+                for line, name in private]
+    bad += [f"LOCAL_IMPORTS names {m}, which is not a module" for m in sorted(set(LOCAL_IMPORTS) - set(paths))]
+    return bad, rest_local, rest_private
+
+
+def test_imports_at_module_level_and_no_private_names_across_modules():
+    bad, rest_local, rest_private = _hygiene_violations(MODULES)
+    assert not bad, "\n".join(bad)
+    assert rest_local <= HARNESS_LOCAL_IMPORTS_MAX, (
+        f"harness/ outside {HOUSEKEPT}: {rest_local} function-level imports of our modules, at most "
+        f"{HARNESS_LOCAL_IMPORTS_MAX}")
+    assert rest_private <= HARNESS_PRIVATE_IMPORTS_MAX, (
+        f"harness/ outside {HOUSEKEPT}: {rest_private} private names taken across modules, at most "
+        f"{HARNESS_PRIVATE_IMPORTS_MAX}")
+
+
+def test_the_import_hygiene_rule_can_fail(tmp_path):
+    """A function-level import, one listed without a comment, a listed one
+    gone, and a private name by import or attribute are each caught."""
+    pkg = tmp_path / "x.py"
+    pkg.write_text("from physbench.harness import runner\n"
+                   "from physbench.contract.geometry import _support\n"
+                   "def f():\n"
+                   "    from physbench.harness.execute import RunRequest\n"
+                   "    from physbench.harness.trace import write_rrd\n"
+                   "    return runner._metrics\n", encoding="utf-8")
+    local, private = _import_hygiene("physbench.harness.cli.x", pkg)
+    assert [(t, c) for _, t, c in local] == [("physbench.harness.execute", False), ("physbench.harness.trace", False)]
+    assert sorted(n for _, n in private) == ["physbench.contract.geometry._support", "physbench.harness.runner._metrics"]
+    paths = {"physbench.harness.cli.trace": pkg}
+    bad, _, _ = _hygiene_violations(paths)
+    assert any("imports physbench.harness.execute inside a function" in b for b in bad), bad
+    assert any("import of physbench.harness.trace says no reason" in b for b in bad), bad
+    assert any("lists physbench.harness.trace.contacts, which it no longer" in b for b in bad), bad
+    assert any("private name physbench.harness.runner._metrics" in b for b in bad), bad
+    assert any("private name physbench.contract.geometry._support" in b for b in bad), bad

@@ -249,10 +249,10 @@ def test_set_takes_fractions_and_engine_settings(monkeypatch):
     """--set dt=1/240 is 1/240 s (as @dt=1/30 in a check); ENGINE:KEY=VALUE
     sets one engine's setting in check and trace, validated up front."""
     from physbench.harness import cli
-    from physbench.harness.cli.common import UsageError, _split_sets, engine_sets, set_value
+    from physbench.harness.cli.common import UsageError, split_sets, engine_sets, set_value
 
     assert set_value("1/240") == 1 / 240 and set_value("1e-3") == 1e-3 and set_value("rk4") == "rk4"
-    assert _split_sets(["dt=1/240", "scenario.dt=1/60"], {"dt"}) == ({"dt": 1 / 240}, {"scenario.dt": 1 / 60})
+    assert split_sets(["dt=1/240", "scenario.dt=1/60"], {"dt"}) == ({"dt": 1 / 240}, {"scenario.dt": 1 / 60})
     per, rest = engine_sets(["mujoco:impratio=10", "dt=1/240", "material.default.friction=0.3"], ["mujoco", "pymunk"])
     assert per == {"mujoco": {"impratio": 10.0, "dt": 1 / 240}, "pymunk": {"dt": 1 / 240}}
     assert rest == ["material.default.friction=0.3"]
@@ -264,7 +264,7 @@ def test_set_takes_fractions_and_engine_settings(monkeypatch):
             engine_sets(bad, ["mujoco", "pymunk"])
     # check hands them to its runs: the settings arrive in check_main
     seen = {}
-    monkeypatch.setattr("physbench.harness.conformance.check_main", lambda **kw: seen.update(kw) or 0)
+    monkeypatch.setattr("physbench.harness.cli.jobs.check_main", lambda **kw: seen.update(kw) or 0)
     assert cli.main(["check", "billiards.head_on", "--engines", "mujoco", "pymunk", "--set", "mujoco:impratio=10"]) == 0
     assert seen["settings"] == {"mujoco": {"impratio": 10.0}}
     assert cli.main(["check", "billiards.head_on", "--set", "body[0].mass=2"]) == 2

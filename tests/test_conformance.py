@@ -284,20 +284,20 @@ def _o(outcome, value=0.0, message="m"):
 def test_combine_phases_holds_only_if_every_phase_holds():
     chk = Check("tunnelled", equals=0.0)
     xchk = Check("tunnelled", equals=0.0, xfail={"pymunk": "no CCD"})
-    o = C._combine_phases([_o(C.PASS), _o(C.PASS), _o(C.PASS)], chk)
+    o = C.combine_phases([_o(C.PASS), _o(C.PASS), _o(C.PASS)], chk)
     assert o.outcome == C.PASS and o.message.startswith("all 3 step phases")
-    o = C._combine_phases([_o(C.PASS), _o(C.FAIL, 1.0, "tunnelled = 1"), _o(C.PASS), _o(C.FAIL, 1.0)], chk)
+    o = C.combine_phases([_o(C.PASS), _o(C.FAIL, 1.0, "tunnelled = 1"), _o(C.PASS), _o(C.FAIL, 1.0)], chk)
     assert o.outcome == C.FAIL and o.value == 1.0
     assert o.message.startswith("failed in 2 of 4 step phases [.x.x]; phase 1/4: tunnelled = 1")
     # with an xfail: any failing phase is the expected failure; all passing is an unexpected pass
-    assert C._combine_phases([_o(C.XPASS), _o(C.XFAIL), _o(C.XPASS)], xchk).outcome == C.XFAIL
-    assert C._combine_phases([_o(C.XPASS), _o(C.XPASS)], xchk).outcome == C.XPASS
+    assert C.combine_phases([_o(C.XPASS), _o(C.XFAIL), _o(C.XPASS)], xchk).outcome == C.XFAIL
+    assert C.combine_phases([_o(C.XPASS), _o(C.XPASS)], xchk).outcome == C.XPASS
     # an errored phase makes the check an error
-    assert C._combine_phases([_o(C.PASS), _o(C.ERROR, None, "diverged: nan")], chk).outcome == C.ERROR
-    assert C._combine_phases([_o(C.UNSUPPORTED)] * 2, chk).outcome == C.UNSUPPORTED
+    assert C.combine_phases([_o(C.PASS), _o(C.ERROR, None, "diverged: nan")], chk).outcome == C.ERROR
+    assert C.combine_phases([_o(C.UNSUPPORTED)] * 2, chk).outcome == C.UNSUPPORTED
     # unsupported in some phases only: inconsistent, an error either way round
     for per in ([_o(C.UNSUPPORTED), _o(C.PASS)], [_o(C.PASS), _o(C.UNSUPPORTED)]):
-        o = C._combine_phases(per, chk)
+        o = C.combine_phases(per, chk)
         assert o.outcome == C.ERROR and "unsupported in some step phases only" in o.message
 
 

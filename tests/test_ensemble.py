@@ -354,7 +354,7 @@ def test_check_traces_follow_the_plain_run_not_the_ensemble(tmp_path, monkeypatc
     run to trace."""
     import types
 
-    import physbench.harness.execute as ex
+    import physbench.harness.conformance.traces as ex  # run_requests as trace_failures calls it
     import physbench.harness.trace.cases as cases
     from physbench.contract.scene import Check
     from physbench.harness.conformance.plan import RunSpec

@@ -491,7 +491,7 @@ def _brute_min_phi(A, B, n_dirs=20000, starts=5):
     best = np.empty(A.n)
     n0 = np.empty((A.n, starts, 3))
     for e in range(A.n):
-        v = geo._phi(A.take([e]), B.take([e]), d[e:e + 1], D[None])[0]
+        v = geo.projection_overlap(A.take([e]), B.take([e]), d[e:e + 1], D[None])[0]
         best[e] = v.min()
         n0[e] = D[np.argsort(v)[:starts]]
     t1 = np.cross(n0, np.where(np.abs(n0[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
@@ -500,7 +500,7 @@ def _brute_min_phi(A, B, n_dirs=20000, starts=5):
 
     def f(x):  # (A.n, starts, 2) -> (A.n, starts)
         n = n0 + x[..., :1] * t1 + x[..., 1:] * t2
-        return geo._phi(A, B, d, n / np.linalg.norm(n, axis=-1, keepdims=True))
+        return geo.projection_overlap(A, B, d, n / np.linalg.norm(n, axis=-1, keepdims=True))
 
     fun = _nelder_mead_batch(f, np.zeros((A.n, starts, 2)), step=0.02, xatol=1e-12, fatol=1e-15, maxiter=2000)
     return np.minimum(best, fun.min(axis=1))

@@ -58,7 +58,7 @@ def test_check_rows_and_sweep_name_one_machine(tmp_path, capsys):
 
 def test_report_groups_old_rows_by_host():
     """Rows written before the fingerprint (no machine.id) still group by host."""
-    from physbench.harness.report import _normalise
+    from physbench.harness.report import normalise
 
     df = pd.DataFrame([
         {"scenario": "a.b", "engine": "mujoco", "machine.host": "oldbox", "source": "check"},
@@ -67,7 +67,7 @@ def test_report_groups_old_rows_by_host():
         {"scenario": "a.b", "engine": "mujoco", "machine.host": "vm", "machine.id": "amd-epyc-1234abcd",
          "machine_id": "amd-epyc-1234abcd", "source": "sweep"},
     ])
-    assert list(_normalise(df)["machine_id"]) == ["oldbox", "amd-epyc-1234abcd", "amd-epyc-1234abcd"]
+    assert list(normalise(df)["machine_id"]) == ["oldbox", "amd-epyc-1234abcd", "amd-epyc-1234abcd"]
 
 
 def test_rows_made_without_a_run_name_the_machine():

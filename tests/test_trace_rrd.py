@@ -407,7 +407,7 @@ def test_the_runs_penetration_is_handed_to_the_trace(tmp_path, monkeypatch):
     """A run of the runner carries the metrics' penetration measurement of
     its frames on its trace; the write plots it without measuring again,
     and measures a trace that does not carry one."""
-    import physbench.contract.geometry as G
+    import physbench.harness.trace.writer as G  # measure_penetration as the writer calls it
     from physbench.harness.runner import run
 
     scene = load_scene(HEAD_ON)

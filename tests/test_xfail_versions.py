@@ -85,7 +85,7 @@ def test_step_phases_follow_the_version_rule():
     check = Check("err", max=0.01, xfail={"mujoco": Xfail("no CCD", "4.0.0")})
     for version, expected in (("4.0.0", C.XFAIL), ("4.1.0", C.FAIL)):
         per = [C.evaluate_check(check, result(v, version)) for v in (0.001, 0.05)]
-        assert C.verdicts._combine_phases(per, check).outcome == expected
+        assert C.verdicts.combine_phases(per, check).outcome == expected
 
 
 def _spec_with_xfail(tmp_path: Path, xfail_toml: str) -> Path:

@@ -14,8 +14,8 @@ kernels), ``search`` (the support-function search) and ``cylinder`` (the
 kernels built on it), ``dispatch`` (the table of kernels by shape pair, the
 per-pair depth functions), ``cull`` (bounding-sphere culling) and
 ``penetration`` (the whole scene).  This package re-exports what other
-modules and the tests use, including ``_phi``, ``_support`` and the placed
-body and static-box constructors (harness/trace/contacts.py).
+modules and the tests use, including ``projection_overlap``, ``_support``
+and the placed body and static-box constructors (harness/trace/contacts.py).
 
 Definition
 ----------
@@ -121,5 +121,5 @@ from physbench.contract.geometry.dispatch import (
     signed_gap,
 )
 from physbench.contract.geometry.penetration import Penetration, max_depth_per_frame, measure_penetration, penetration_depths
-from physbench.contract.geometry.placed import SHAPES, Placed, _placed_body, _placed_static_box
-from physbench.contract.geometry.support import _phi, _support, depth_body_plane, plane_gap
+from physbench.contract.geometry.placed import SHAPES, Placed, placed_body, placed_static_box
+from physbench.contract.geometry.support import projection_overlap, _support, depth_body_plane, plane_gap

@@ -18,7 +18,7 @@ from physbench.contract.geometry.search import (
     _rims,
     _search,
 )
-from physbench.contract.geometry.support import _phi
+from physbench.contract.geometry.support import projection_overlap
 from physbench.contract.geometry.vector import _unit_or
 
 def _k_box_cylinder(Bx: Placed, Y: Placed) -> np.ndarray:
@@ -91,7 +91,7 @@ def _k_cylinder_cylinder(A: Placed, B: Placed) -> np.ndarray:
         fb = np.broadcast_to(np.array([0.0, 0.0, 1.0]), P.shape)
         n = _unit_or(P, fb)
         n = np.concatenate([n, -n], axis=1)
-        s[todo] = np.minimum(s[todo], _phi(a, b, d, n).min(axis=1))
+        s[todo] = np.minimum(s[todo], projection_overlap(a, b, d, n).min(axis=1))
         return s
 
     return _search(A, B, cheap, expensive)

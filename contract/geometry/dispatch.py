@@ -20,7 +20,7 @@ from physbench.contract.geometry.exact import (
     _k_sphere_cylinder,
     _k_sphere_sphere,
 )
-from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, _placed_body, _placed_static_box
+from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, placed_body, placed_static_box
 from physbench.contract.geometry.support import depth_body_plane
 
 _CHUNK = 32768        # events per kernel call (bounds temporary memory)
@@ -66,16 +66,16 @@ def pair_depth(A: Placed, B: Placed) -> np.ndarray:
 def _body_pair_fn(ka: str, kb: str) -> Callable[..., np.ndarray]:
     def fn(a: Body, b: Body, pa, qa, pb, qb) -> np.ndarray:
         """Depth (m, (F,)) between bodies a and b at poses (F, 3)/(F, 4) each."""
-        return pair_depth(_placed_body(a, np.atleast_2d(pa), np.atleast_2d(qa)),
-                          _placed_body(b, np.atleast_2d(pb), np.atleast_2d(qb)))
+        return pair_depth(placed_body(a, np.atleast_2d(pa), np.atleast_2d(qa)),
+                          placed_body(b, np.atleast_2d(pb), np.atleast_2d(qb)))
     fn.__name__ = f"depth_{ka}_{kb}"
     return fn
 
 
 def _body_static_box(b: Body, s: Static, pos, quat) -> np.ndarray:
     """Depth (m, (F,)) of body b at poses pos (F, 3), quat (F, 4) in static box s."""
-    G = _placed_body(b, np.atleast_2d(pos), np.atleast_2d(quat))
-    return pair_depth(G, _placed_static_box(s, G.n))
+    G = placed_body(b, np.atleast_2d(pos), np.atleast_2d(quat))
+    return pair_depth(G, placed_static_box(s, G.n))
 
 
 def depth_sphere_sphere(a: Body, b: Body, pa, qa, pb, qb) -> np.ndarray:

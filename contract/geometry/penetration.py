@@ -12,7 +12,7 @@ import numpy as np
 from physbench.contract.scene_model import Body, Scene
 from physbench.contract.geometry.cull import _ALL_PAIRS_MAX, _body_events, _radius_classes
 from physbench.contract.geometry.dispatch import PAIR_KERNELS, pair_depth
-from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, _placed_static_box, _static_rotation
+from physbench.contract.geometry.placed import SHAPES, Placed, _ORDER, placed_static_box, _static_rotation
 from physbench.contract.geometry.support import plane_gap
 
 @dataclass
@@ -165,7 +165,7 @@ def measure_penetration(scene: Scene, trace) -> Penetration:
                     m = np.isin(ii, idx)
                     if m.any():
                         G = tab.placed(kind, pos, quat, ff[m], ii[m])
-                        st.add(ii[m] * ns + s.index, ff[m], pair_depth(G, _placed_static_box(s, G.n)))
+                        st.add(ii[m] * ns + s.index, ff[m], pair_depth(G, placed_static_box(s, G.n)))
                 m = np.isin(ii, unknown_shape)
                 if m.any():
                     st.add(ii[m] * ns + s.index, ff[m], np.full(int(m.sum()), np.nan))

@@ -61,7 +61,7 @@ class Placed:
         return cls(kind, np.asarray(pos, float), R, radius, half_length, half_extents)
 
 
-def _placed_body(b: Body, pos: np.ndarray, quat: np.ndarray) -> Placed:
+def placed_body(b: Body, pos: np.ndarray, quat: np.ndarray) -> Placed:
     return Placed.from_pose(b.shape, pos, quat, b.radius, b.half_length, b.half_extents)
 
 
@@ -69,7 +69,7 @@ def _static_rotation(s: Static) -> np.ndarray:
     return rotation_matrix(s.orientation)
 
 
-def _placed_static_box(s: Static, n: int) -> Placed:
+def placed_static_box(s: Static, n: int) -> Placed:
     """A static box as n copies of one placed box (broadcast views)."""
     return Placed("box", np.broadcast_to(np.asarray(s.position, float), (n, 3)),
                   np.broadcast_to(_static_rotation(s), (n, 3, 3)), half_extents=s.half_extents)

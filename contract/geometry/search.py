@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from physbench.contract.geometry.placed import Placed
-from physbench.contract.geometry.support import _phi
+from physbench.contract.geometry.support import projection_overlap
 from physbench.contract.geometry.vector import _dot, _golden, _norm, _perp_basis, _sq, _unit_or
 
 _CIRCLE_SAMPLES = 72  # samples on a great circle of normals (5 degrees apart)
@@ -204,7 +204,7 @@ def _eval_candidates(A: Placed, B: Placed, d: np.ndarray, axes: list[np.ndarray]
     dirs = [_unit_or(x, fb) for x in axes] + [_unit_or(p, fb) for p in points] + [_unit_or(d, fb)]
     n = np.stack(dirs, axis=1)
     n = np.concatenate([n, -n], axis=1)
-    return _phi(A, B, d, n).min(axis=1)
+    return projection_overlap(A, B, d, n).min(axis=1)
 
 
 def _search(A: Placed, B: Placed, cheap: Callable, expensive: Callable) -> np.ndarray:

@@ -91,7 +91,7 @@ def initial_contacts(scene: Scene, gap: float = CONTACT_GAP) -> list[Overlap]:
     (a ball resting on its plane); for ``physbench validate``.  Empty
     without the ``contact`` effect."""
     from physbench.contract.geometry.dispatch import signed_gap
-    from physbench.contract.geometry.placed import _placed_body, _placed_static_box
+    from physbench.contract.geometry.placed import placed_body, placed_static_box
     from physbench.contract.geometry.support import plane_gap
 
     if not scene.has("contact") or scene.n_bodies == 0:
@@ -100,14 +100,14 @@ def initial_contacts(scene: Scene, gap: float = CONTACT_GAP) -> list[Overlap]:
     pos = np.array([b.position for b in bodies], float)
     quat = np.array([b.orientation for b in bodies], float)
     rb = np.array([b.bounding_radius for b in bodies], float)
-    placed = [_placed_body(b, pos[i:i + 1], quat[i:i + 1]) for i, b in enumerate(bodies)]
+    placed = [placed_body(b, pos[i:i + 1], quat[i:i + 1]) for i, b in enumerate(bodies)]
     out: list[Overlap] = []
     for st in scene.statics:
         for i, b in enumerate(bodies):
             if st.shape == "plane":
                 d = float(plane_gap(placed[i], st.normal, st.offset)[0])
             elif st.shape == "box":
-                d = float(signed_gap(placed[i], _placed_static_box(st, 1))[0])
+                d = float(signed_gap(placed[i], placed_static_box(st, 1))[0])
             else:
                 continue
             if d > -gap:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.contract.scene_model import Body, Static
-from physbench.contract.geometry.placed import Placed, _placed_body
+from physbench.contract.geometry.placed import Placed, placed_body
 from physbench.contract.geometry.vector import _norm
 
 def _support(G: Placed, n: np.ndarray) -> np.ndarray:
@@ -29,7 +29,7 @@ def _support(G: Placed, n: np.ndarray) -> np.ndarray:
     raise ValueError(f"unknown shape {k!r}")
 
 
-def _phi(A: Placed, B: Placed, d: np.ndarray, n: np.ndarray) -> np.ndarray:
+def projection_overlap(A: Placed, B: Placed, d: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Overlap of the projections of A and B on unit n (N, M, 3) -> (N, M)."""
     return _support(A, n) + _support(B, n) - np.einsum("nmj,nj->nm", n, d)
 
@@ -47,5 +47,5 @@ def plane_gap(G: Placed, normal: np.ndarray, offset: float) -> np.ndarray:
 
 def depth_body_plane(b: Body, s: Static, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
     """Depth (m, (F,)) of body ``b`` at poses pos (F, 3), quat (F, 4) below plane ``s``."""
-    return np.maximum(0.0, plane_gap(_placed_body(b, pos, quat), s.normal, s.offset))
+    return np.maximum(0.0, plane_gap(placed_body(b, pos, quat), s.normal, s.offset))
 

@@ -39,18 +39,20 @@ import argparse
 import os
 import sys
 
+from physbench.adapters import engine_names
 from physbench.contract.spec import SpecError
+from physbench.harness import results
 from physbench.harness.cli.bench import cmd_bench
 from physbench.harness.cli.common import (
     MAX_JOBS,
     MAX_RECORD_EVERY,
     MAX_REPEATS,
     UsageError,
-    _int_in,
-    _phase_value,
-    _positive_float,
-    _seconds,
+    int_in,
     output_dir,
+    phase_value,
+    positive_float,
+    timeout_seconds,
 )
 from physbench.harness.cli.compile import cmd_compile
 from physbench.harness.cli.info import cmd_engines, cmd_list, cmd_models
@@ -59,6 +61,7 @@ from physbench.harness.cli.jobs import cmd_check, cmd_limits, cmd_report, cmd_sw
 from physbench.harness.cli.run import cmd_run
 from physbench.harness.cli.trace import cmd_trace
 from physbench.harness.cli.validate import cmd_validate
+from physbench.harness.execute import DEFAULT_TIMEOUT_S, register_env_adapters
 
 # build_parser binds each subcommand to the cmd_* name in this module at
 # call time, so a patched harness.cli.cmd_* is what runs
@@ -66,9 +69,6 @@ from physbench.harness.cli.validate import cmd_validate
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from physbench.adapters import engine_names
-    from physbench.harness.execute import DEFAULT_TIMEOUT_S
-
     ENGINES = engine_names()  # the shipped engines, entry-point plug-ins and any named in PHYSBENCH_ADAPTERS
     results_help = "results directory (default ./results, or $PHYSBENCH_RESULTS)"
     timeout_help = f"wall-clock budget per run in seconds (default {DEFAULT_TIMEOUT_S:g}); a run past it is 'timeout'"
@@ -81,13 +81,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", "-v", default=None)
     r.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE")
     r.add_argument("--json", action="store_true", help="print the result row as one JSON object")
-    r.add_argument("--record-every", type=_int_in(1, MAX_RECORD_EVERY), default=1,
+    r.add_argument("--record-every", type=int_in(1, MAX_RECORD_EVERY), default=1,
                    help="record every N >= 1 steps (default 1)")
     r.add_argument("--save", metavar="FILE.parquet", help="append the result row to a Parquet file")
-    r.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
+    r.add_argument("--phase", type=phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1: start moved back along the free flight by F dt, to reproduce a "
                         "point of a phase sweep (scenes that start in free flight only)")
-    r.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    r.add_argument("--timeout", type=timeout_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="CI conformance: every scenario's checks on every engine")
@@ -98,14 +98,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO|FILE|DIR",
                    help="only these: scenario ids, spec files or folders of spec files")
     c.add_argument("--junit", default=None, metavar="FILE.xml")
-    c.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="worker processes (default 1)")
+    c.add_argument("--jobs", type=int_in(1, MAX_JOBS), default=1, help="worker processes (default 1)")
     c.add_argument("--executor", choices=["process", "dask"], default="process",
                    help="process (default): worker processes under a watchdog; dask: runs as Dask tasks "
                         "(docs/SWEEPS.md)")
     c.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="with --executor dask: join the cluster of this Dask scheduler (e.g. tcp://host:8786); "
                         "default: a local cluster of --jobs workers")
-    c.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    c.add_argument("--timeout", type=timeout_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     c.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="resume an unfinished check with the same commit, engines, scenarios, spec files and "
                         "budget (default); --no-resume always starts afresh")
@@ -114,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "KEY=VALUE for a setting every checked engine has (dt=1/240); a check's @dt=... wins")
     c.add_argument("--traces", default=None, metavar="DIR",
                    help="write one diagnosing .rrd per FAIL, XFAIL and ERROR case into DIR (docs/TRACES.md)")
-    c.add_argument("--ensemble", type=_int_in(2, 100000), default=None, metavar="N",
+    c.add_argument("--ensemble", type=int_in(2, 100000), default=None, metavar="N",
                    help="also judge predictability: N runs from perturbed starts per scene and engine (the scene's "
                         "[perturbation], or --sigma), the check predictable == true (docs/METRICS.md)")
     c.add_argument("--sigma", type=float, default=None, metavar="M",
@@ -135,10 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="FILE.rrd")
     t.add_argument("--watch", action="store_true",
                    help="the plain side-by-side trace (bodies, energy, penetration) without the diagnosis")
-    t.add_argument("--phase", type=_phase_value, default=0.0, metavar="F",
+    t.add_argument("--phase", type=phase_value, default=0.0, metavar="F",
                    help="step phase 0 <= F < 1 (start moved back along the free flight by F dt; dt from the spec, "
                         "e.g. --set scenario.dt=...)")
-    t.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    t.add_argument("--timeout", type=timeout_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     t.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     t.set_defaults(func=cmd_trace)
 
@@ -158,7 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "reference compile time (cold and warm start)")
     b.add_argument("kind", choices=["overhead", "cost", "isolation", "scaling", "compile"])
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
-    b.add_argument("--repeats", type=_int_in(1, MAX_REPEATS), default=5)
+    b.add_argument("--repeats", type=int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -166,14 +166,14 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--suite", default="nightly", help="suite name under suites/ or path to a suite file (default nightly)")
     sw.add_argument("--engines", nargs="+", choices=ENGINES, default=None, help="only these of the suite's engines")
     sw.add_argument("--scenarios", nargs="+", default=None, help="only these of the suite's scenario ids")
-    sw.add_argument("--jobs", type=_int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
+    sw.add_argument("--jobs", type=int_in(1, MAX_JOBS), default=1, help="runs at once (timings then compete for cores)")
     sw.add_argument("--executor", choices=["serial", "process", "dask"], default=None,
                     help="default: process (worker processes under a watchdog); serial runs in this process, "
                          "without isolation; dask: points as Dask tasks (docs/SWEEPS.md)")
     sw.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="with --executor dask: join the cluster of this Dask scheduler (e.g. tcp://host:8786); "
                          "default: a local cluster of --jobs workers")
-    sw.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+    sw.add_argument("--timeout", type=timeout_seconds, default=None, metavar="SECONDS",
                     help="wall-clock budget per run in seconds (default: the suite's timeout_s)")
     sw.add_argument("--resume", action=argparse.BooleanOptionalAction, default=None,
                     help="default: resume an unfinished sweep of the same suite file, points and commit; "
@@ -209,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--results-dir", default=None, metavar="DIR", help=results_help)
     rp.add_argument("--out", default=None, metavar="FILE.html", help="default <results-dir>/report.html")
     rp.add_argument("--suites", nargs="+", default=None, help="only these suites' sweep rows")
-    rp.add_argument("--target", type=_positive_float, default=None,
+    rp.add_argument("--target", type=positive_float, default=None,
                     help="accuracy target for scenarios whose primary metric has no [[check]] max")
     rp.add_argument("--fail-on-regression", action="store_true",
                     help="exit 3 when a regression beyond noise is flagged (for a nightly pipeline)")
@@ -220,27 +220,27 @@ def build_parser() -> argparse.ArgumentParser:
     en.add_argument("--engine", "-e", default="reference", choices=ENGINES)
     en.add_argument("--variant", "-v", default=None)
     en.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE", help="an engine setting")
-    en.add_argument("--n", type=_int_in(2, 1000), default=None, help="members (default: the scene's [perturbation])")
+    en.add_argument("--n", type=int_in(2, 1000), default=None, help="members (default: the scene's [perturbation])")
     en.add_argument("--sigma", type=float, default=None, metavar="M", help="position noise per component (m)")
     en.add_argument("--sigma-velocity", type=float, default=None, metavar="M/S")
     en.add_argument("--sigma-orientation", type=float, default=None, metavar="RAD")
-    en.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None)
+    en.add_argument("--seed", type=int_in(0, 2**32 - 1), default=None)
     en.add_argument("--threshold", type=float, default=None, metavar="M",
                     help="largest final spread of a predictable scene (m; default 0.01)")
-    en.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    en.add_argument("--jobs", "-j", type=int_in(1, MAX_JOBS), default=1)
     en.add_argument("--no-batch", dest="batch", action="store_false",
                     help="one run per member even where the engine steps many worlds in one call (MJX)")
     en.add_argument("--json", action="store_true")
-    en.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    en.add_argument("--timeout", type=timeout_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     en.set_defaults(func=cmd_ensemble)
 
     cs = sub.add_parser("consensus", help="how far apart the engines' converged runs of a scene are")
     cs.add_argument("scenario", help="scenario id (family.name) or path to a spec file")
     cs.add_argument("--engines", nargs="+", default=list(ENGINES), choices=ENGINES)
     cs.add_argument("--variant", "-v", default=None)
-    cs.add_argument("--jobs", "-j", type=_int_in(1, MAX_JOBS), default=1)
+    cs.add_argument("--jobs", "-j", type=int_in(1, MAX_JOBS), default=1)
     cs.add_argument("--json", action="store_true")
-    cs.add_argument("--timeout", type=_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
+    cs.add_argument("--timeout", type=timeout_seconds, default=DEFAULT_TIMEOUT_S, metavar="SECONDS", help=timeout_help)
     cs.set_defaults(func=cmd_consensus)
 
     mo = sub.add_parser("models", help="the reference models: what each takes, its params and metrics")
@@ -260,9 +260,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from physbench.harness import results
-    from physbench.harness.execute import register_env_adapters
-
     register_env_adapters()
     args = build_parser().parse_args(argv)
     # --results-dir, for this command (results.results_dir reads it)

@@ -7,17 +7,18 @@ import argparse
 import json
 import sys
 
+from physbench.harness import bench
+
 
 def cmd_bench(args: argparse.Namespace) -> int:
     import contextlib
-
-    from physbench.harness import bench
 
     out = sys.stdout
     # with --json, stdout carries the JSON only: the tables go to stderr
     with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
         if args.kind == "isolation":
-            from physbench.harness.selfbench.executors import bench_isolation  # physbench's own bench: only here
+            # physbench's benchmark of itself stays off the start of every other command
+            from physbench.harness.selfbench.executors import bench_isolation
 
             rows = [bench_isolation(runs=max(3, 10 * args.repeats), engine=(args.engines or ["mujoco"])[0])]
             bench.print_rows(rows, "per-run cost of running in a worker process (wall ms per run, medians): in "

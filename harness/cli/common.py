@@ -11,7 +11,12 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-from physbench.contract.spec import parse_value
+from physbench.adapters import get_adapter
+from physbench.contract.phase import PhaseError
+from physbench.contract.spec import SpecError, parse_value
+from physbench.harness.conformance.plan import engine_names_in_checks
+from physbench.harness.execute import RunRequest, request_scene
+from physbench.harness.runner import check_run_size
 
 
 class UsageError(Exception):
@@ -40,8 +45,6 @@ def engine_sets(pairs: list[str], engines: list[str]) -> tuple[dict[str, dict[st
     remaining items: dotted spec keys).  Every engine setting is validated
     here (engine among ``engines``, key one of its settings, value of its
     kind): a UsageError (exit 2) otherwise."""
-    from physbench.adapters import get_adapter
-
     per: dict[str, dict[str, Any]] = {e: {} for e in engines}
     rest: list[str] = []
     caps = {}
@@ -85,7 +88,7 @@ def engine_sets(pairs: list[str], engines: list[str]) -> tuple[dict[str, dict[st
     return per, rest
 
 
-def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
+def split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
     """--set k=v items -> (engine settings, spec overrides)."""
     settings: dict[str, Any] = {}
     overrides: dict[str, Any] = {}
@@ -106,7 +109,7 @@ def _split_sets(pairs: list[str], engine_settings: set[str]) -> tuple[dict[str, 
     return settings, overrides
 
 
-def _int_in(lo: int, hi: int):
+def int_in(lo: int, hi: int):
     """argparse type: an integer in [lo, hi] (argparse reports anything else
     as a usage error, exit 2)."""
     def parse(text: str) -> int:
@@ -133,8 +136,8 @@ def _float_where(test: Any, expected: str):
     return parse
 
 
-_phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
-_positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
+phase_value = _float_where(lambda v: 0.0 <= v < 1.0, "a number 0 <= F < 1")
+positive_float = _float_where(lambda v: v > 0.0, "a finite number > 0")
 
 
 #: bounds of the CLI's counts: runs at once, benchmark repeats, record stride
@@ -176,7 +179,7 @@ def output_dir(flag: str, value: str | None) -> Path | None:
     return p
 
 
-def _fmt(v: Any) -> str:
+def fmt_value(v: Any) -> str:
     if isinstance(v, bool):
         return str(v)
     if isinstance(v, float):
@@ -188,21 +191,24 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
+def fmt_prediction(v: Any) -> str:
+    """A prediction value: a number as the metrics are printed, a list or a
+    table of them (per body) element by element."""
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {fmt_prediction(x)}" for k, x in v.items())
+    if isinstance(v, list):
+        return "[" + ", ".join(fmt_prediction(x) for x in v) + "]"
+    return fmt_value(v)
+
+
+def checked_request(args: argparse.Namespace, engine: str, settings: dict[str, Any], overrides: dict[str, Any], **kw):
     """The RunRequest of a command line, checked in this process before it
     goes to a worker: a bad spec, setting or phase is exit 2 here."""
-    from physbench.adapters import get_adapter
-    from physbench.harness.execute import RunRequest, request_scene
-    from physbench.contract.phase import PhaseError
-
     req = RunRequest(str(args.scenario), engine, args.variant, settings, overrides or {}, phase=args.phase, **kw)
     try:
         scene = request_scene(req)
     except PhaseError as e:
         raise UsageError(str(e) if str(e).startswith("--set dt") else f"--phase {args.phase:g}: {e}") from None
-    from physbench.contract.spec import SpecError
-    from physbench.harness.conformance.plan import engine_names_in_checks
-    from physbench.harness.runner import check_run_size
 
     bad, _ = engine_names_in_checks(scene, scene.source or str(args.scenario))
     if bad:  # a misspelt engine in a check is a spec error for every command
@@ -215,14 +221,12 @@ def _request(args: argparse.Namespace, engine: str, settings: dict[str, Any], ov
     return req
 
 
-
-def _scheduler_needs_dask(args: argparse.Namespace) -> None:
+def scheduler_needs_dask(args: argparse.Namespace) -> None:
     if args.scheduler and args.executor != "dask":
         raise UsageError(f"--scheduler {args.scheduler}: a scheduler address needs --executor dask")
 
 
-
-def _seconds(text: str) -> float:
+def timeout_seconds(text: str) -> float:
     """A --timeout value: a positive, finite number of seconds."""
     try:
         v = float(text)

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import argparse
 
+from physbench.harness.compile_progress import watch
+
 
 def cmd_compile(args: argparse.Namespace) -> int:
-    from physbench.engine import __main__ as engine_main  # imports numba and sets its cache directory
-    from physbench.harness.compile_progress import watch
+    # numba (and its cache directory set): loaded by this command only, not at every start
+    from physbench.engine import __main__ as engine_main
 
     watch()
     return int(engine_main.main([] if args.jobs is None else ["--jobs", str(args.jobs)]) or 0)

@@ -13,16 +13,16 @@ import argparse
 import json
 import sys
 
-from physbench.harness.cli.common import UsageError, _split_sets
+from physbench.adapters import get_adapter
+from physbench.contract.scene import load_scene
+from physbench.harness.cli.common import UsageError, split_sets
+from physbench.harness.consensus import run_consensus
+from physbench.harness.ensemble import Perturbation, run_ensemble
 
 
 def cmd_ensemble(args: argparse.Namespace) -> int:
-    from physbench.adapters import get_adapter
-    from physbench.contract.scene import load_scene
-    from physbench.harness.ensemble import Perturbation, run_ensemble
-
     cls = get_adapter(args.engine)
-    settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
+    settings, overrides = split_sets(args.set, set(cls.capabilities().settings))
     if overrides:
         raise UsageError(f"--set {', '.join(overrides)}: an ensemble takes engine settings only; "
                          "spec keys go in the spec file (or a variant)")
@@ -53,9 +53,6 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
 
 
 def cmd_consensus(args: argparse.Namespace) -> int:
-    from physbench.contract.scene import load_scene
-    from physbench.harness.consensus import run_consensus
-
     load_scene(args.scenario, args.variant)  # SpecError: exit 2
     out = run_consensus(args.scenario, args.engines, variant=args.variant, jobs=args.jobs, timeout_s=args.timeout)
     if args.json:

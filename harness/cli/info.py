@@ -5,15 +5,18 @@ from __future__ import annotations
 import argparse
 import json
 
+from physbench.adapters import PLUGIN_PROBLEMS, engine_names, engine_origin, get_adapter
+from physbench.contract.models import PLUGIN_PROBLEMS as MODEL_PLUGIN_PROBLEMS
+from physbench.contract.scene import load_scene, scenario_ids
 from physbench.contract.spec import SpecError
-from physbench.harness.cli.common import UsageError, _fmt
+from physbench.contract.xfail import Xfail, shipped_xfails
+from physbench.harness.cli.common import UsageError, fmt_value
+from physbench.harness.references import MODELS, describe, judge_lines
 
 
 def _xfail_ranges(engine: str, version: str, shipped: dict) -> str:
     """Whether ``version`` lies inside the ranges the shipped xfails of
     ``engine`` were measured for (contract/xfail.py)."""
-    from physbench.contract.xfail import Xfail
-
     parts = []
     for (measured, rng), n in sorted(shipped.get(engine, {}).items()):
         inside = Xfail("", measured, rng).covers(version)
@@ -27,9 +30,6 @@ def cmd_engines(args: argparse.Namespace) -> int:
     version, where it comes from, whether that version is inside the ranges
     the shipped known limitations were measured for, capabilities and
     settings; plug-ins that failed to load are listed with their error."""
-    from physbench.adapters import PLUGIN_PROBLEMS, engine_names, engine_origin, get_adapter
-    from physbench.contract.xfail import shipped_xfails
-
     shipped = shipped_xfails()
     caps = []
     for name in engine_names():
@@ -55,7 +55,7 @@ def cmd_engines(args: argparse.Namespace) -> int:
             continue
         t.add_row(c["engine"], c["version"], c["origin"], "yes" if c["available"] else "no", c["xfail_ranges"],
                   str(c["dimensions"]), ", ".join(c["shapes"]), ", ".join(c["effects"]),
-                  ", ".join(f"{k}={_fmt(v['default']) if v['default'] is not None else 'scene'}"
+                  ", ".join(f"{k}={fmt_value(v['default']) if v['default'] is not None else 'scene'}"
                             for k, v in c["settings"].items()))
     Console(width=240).print(t)
     for line in PLUGIN_PROBLEMS:
@@ -65,16 +65,12 @@ def cmd_engines(args: argparse.Namespace) -> int:
 
 def cmd_models(args: argparse.Namespace) -> int:
     """The reference models' declarations (the same text as docs/MODELS.md)."""
-    from physbench.harness.references import MODELS, describe
-
     if args.name is not None and args.name not in MODELS:
         raise UsageError(f"models: unknown model {args.name!r}; known: {', '.join(sorted(MODELS))}")
     descs = describe(args.name)
     if args.json:
         print(json.dumps(descs if args.name is None else descs[0]))
         return 0
-    from physbench.contract.models import PLUGIN_PROBLEMS
-
     for d in descs:
         if "error" in d:
             print(f"{d['name']} (from {d['origin']}): cannot be loaded: {d['error']}")
@@ -90,20 +86,16 @@ def cmd_models(args: argparse.Namespace) -> int:
             print(f"    {m}: {meaning}")
         print()
     if args.name is None:
-        from physbench.harness.references import judge_lines
-
         print("Judging a scene without a model:")
         for line in judge_lines():
             print(f"  {line}".rstrip())
         print()
-    for line in PLUGIN_PROBLEMS:
+    for line in MODEL_PLUGIN_PROBLEMS:
         print(f"plug-in: {line}")
     return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from physbench.contract.scene import load_scene, scenario_ids
-
     for sid in scenario_ids():
         try:
             s = load_scene(sid)

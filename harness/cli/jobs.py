@@ -7,21 +7,20 @@ import argparse
 import math
 from pathlib import Path
 
-from physbench.harness.cli.common import UsageError, _scheduler_needs_dask, _split_sets, engine_sets, output_dir, output_file
+from physbench.adapters import get_adapter
+from physbench.harness.cli.common import UsageError, engine_sets, output_dir, output_file, scheduler_needs_dask, split_sets
+from physbench.harness.conformance import check_main, default_engines
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from physbench.harness.conformance import check_main
-
     output_file("--junit", args.junit)
     output_dir("--traces", args.traces)
     scenarios = list(args.paths or []) + list(args.scenarios or [])
-    _scheduler_needs_dask(args)
+    scheduler_needs_dask(args)
     settings = None
     if args.set:
-        from physbench.harness.conformance import default_engines
-
-        per, rest = engine_sets(args.set, list(args.engines or default_engines()))
+        # the engines --set is checked against; check_main says which are left out, once, as it starts
+        per, rest = engine_sets(args.set, list(args.engines or default_engines(note=False)))
         if rest:
             raise UsageError(f"--set {rest[0]}: check takes engine settings only (ENGINE:KEY=VALUE or KEY=VALUE); "
                              f"vary the spec with a [[variant]]")
@@ -40,19 +39,20 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    # the sweep machinery (suite, store, schedule: ~20 ms of imports): loaded by this command only, not at every start
     from physbench.harness.sweep import sweep_main
 
-    _scheduler_needs_dask(args)
+    scheduler_needs_dask(args)
     return sweep_main(args.suite, engines=args.engines, jobs=args.jobs, executor=args.executor,
                       out_dir=output_dir("--out", args.out), resume=args.resume, scenarios=args.scenarios,
                       timeout_s=args.timeout, scheduler=args.scheduler)
 
 
 def cmd_limits(args: argparse.Namespace) -> int:
-    from physbench.adapters import get_adapter
+    # the limits machinery (~15 ms of imports): loaded by this command only, not at every start
     from physbench.harness.limits import LimitRequest, limits_main, parse_number
 
-    settings, overrides = _split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
+    settings, overrides = split_sets(args.set, set(get_adapter(args.engine).capabilities().settings))
 
     try:
         lo, hi = (parse_number(t, f"--range {w}") for t, w in zip(args.range, ("LO", "HI")))
@@ -74,7 +74,7 @@ def cmd_limits(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from physbench.harness.report import report_main
+    from physbench.harness.report import report_main  # pandas, pyarrow, matplotlib: loaded by this command only
 
     return report_main(results_dir=Path(args.results_dir) if args.results_dir else None,
                        out=output_file("--out", args.out), suites=args.suites, target=args.target,

@@ -8,25 +8,25 @@ import json
 import sys
 from typing import Any
 
-from physbench.harness.cli.common import _fmt, _request, _split_sets, output_file
+from physbench.adapters import get_adapter
+from physbench.harness.cli.common import checked_request, fmt_prediction, fmt_value, output_file, split_sets
+from physbench.harness.conformance import BAD, check_applies, evaluate_runs, fmt_measured, judged_apart, scene_runs
+from physbench.harness.console import console, name_column
+from physbench.harness.execute import WorkerPool, request_scene, run_isolated, run_requests
+from physbench.harness.references.predict import predictions
+from physbench.harness.results import write_rows
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from physbench.adapters import get_adapter
-    from physbench.harness.conformance import BAD
-    from physbench.harness.execute import run_isolated
-
     save = output_file("--save", args.save)
     cls = get_adapter(args.engine)
-    settings, overrides = _split_sets(args.set, set(cls.capabilities().settings))
-    req = _request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
+    settings, overrides = split_sets(args.set, set(cls.capabilities().settings))
+    req = checked_request(args, args.engine, settings, overrides, timeout_s=args.timeout, record_every=args.record_every)
     # in a worker process: an engine that aborts or hangs is a status, not a dead command
     result = run_isolated(req)
     runs, outcomes = _run_checks(req, result, settings, args)
     values, text = _predictions(req)
     if args.save:
-        from physbench.harness.results import write_rows
-
         row = result.row()
         row["phase"] = float(args.phase)  # 0 = the scene as written
         if runs:
@@ -55,11 +55,7 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
     one phase already).  Returns (planned runs, outcomes)."""
     import dataclasses
 
-    from physbench.harness.conformance import evaluate_runs, scene_runs
-    from physbench.harness.execute import WorkerPool, request_scene, run_requests
-
     scene = request_scene(dataclasses.replace(req, phase=0.0))
-    from physbench.harness.conformance import check_applies, judged_apart
 
     apart = [c.metric for c in scene.checks if check_applies(c, args.engine, scene.variant) and judged_apart(c)]
     if apart:
@@ -83,31 +79,16 @@ def _run_checks(req, result, settings: dict[str, Any], args: argparse.Namespace)
     return runs, evaluate_runs(runs, results)
 
 
-def _fmt_pred(v: Any) -> str:
-    """A prediction value: a number as the metrics are printed, a list or a
-    table of them (per body) element by element."""
-    if isinstance(v, dict):
-        return ", ".join(f"{k} {_fmt_pred(x)}" for k, x in v.items())
-    if isinstance(v, list):
-        return "[" + ", ".join(_fmt_pred(x) for x in v) + "]"
-    return _fmt(v)
-
-
 def _predictions(req) -> tuple[dict[str, Any], dict[str, str]]:
     """The scene's model predictions (harness.references.predict), for the
     scene as written (step phase 0, with the run's spec overrides)."""
     import dataclasses
-
-    from physbench.harness.execute import request_scene
-    from physbench.harness.references.predict import predictions
 
     return predictions(request_scene(dataclasses.replace(req, phase=0.0)))
 
 
 def _print_result(result, outcomes=(), values=None, text=None) -> None:
     from rich.table import Table
-
-    from physbench.harness.console import console, name_column
 
     con = console()
     title = f"{result.scenario}" + (f" [{result.variant}]" if result.variant else "") + f" on {result.engine} {result.engine_version}"
@@ -121,20 +102,20 @@ def _print_result(result, outcomes=(), values=None, text=None) -> None:
     if twins:
         t.add_column("model predicts", overflow="fold")
     for k, v in result.metrics.items():
-        t.add_row(k, _fmt(v), *([_fmt_pred(values[twins[k]]) if k in twins else ""] if twins else []))
+        t.add_row(k, fmt_value(v), *([fmt_prediction(values[twins[k]]) if k in twins else ""] if twins else []))
     con.print(t)
     if values or text:
         p = Table(title="the reference model predicts")
         name_column(p, "prediction", [*values, *(text or {})])
         p.add_column("value", overflow="fold")
         for k, v in values.items():
-            p.add_row(k, _fmt_pred(v))
+            p.add_row(k, fmt_prediction(v))
         for k, v in (text or {}).items():
             p.add_row(k, str(v))
         con.print(p)
     s = Table("setting", "value")
     for k, v in result.settings.items():
-        s.add_row(k, _fmt(v))
+        s.add_row(k, fmt_value(v))
     con.print(s)
     if result.stages:
         con.print("stages: " + json.dumps(result.stages, default=str))
@@ -143,15 +124,13 @@ def _print_result(result, outcomes=(), values=None, text=None) -> None:
     if outcomes:
         from rich.markup import escape
 
-        from physbench.harness.conformance import BAD, _fmt as fmt_value
-
         c = Table(title="checks (as physbench check)")
         name_column(c, "check", [o.metric for o in outcomes])
         for col in ("threshold", "value", "outcome", "reason"):
             c.add_column(col, overflow="fold")
         for o in outcomes:
             style = "red" if o.outcome in BAD else "green" if o.outcome == "PASS" else "yellow"
-            c.add_row(escape(o.metric), escape(o.threshold), fmt_value(o.value, o.bounds), f"[{style}]{o.outcome}[/]",
+            c.add_row(escape(o.metric), escape(o.threshold), fmt_measured(o.value, o.bounds), f"[{style}]{o.outcome}[/]",
                       escape(o.message))
         con.print(c)
 

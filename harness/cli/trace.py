@@ -6,12 +6,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from physbench.harness.cli.common import UsageError, _request, _split_sets, engine_sets, output_file
+from physbench.adapters import ENGINES, get_adapter
+from physbench.harness.cli.common import UsageError, checked_request, engine_sets, output_file, split_sets
+from physbench.harness.conformance import evaluate
+from physbench.harness.execute import WorkerPool, request_scene, run_requests
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
-    from physbench.adapters import ENGINES, get_adapter
-    from physbench.harness.execute import WorkerPool, request_scene, run_requests
+    # the trace package imports rerun (~0.5 s): loaded by this command only, not at every start
+    from physbench.harness.trace import write_rrd
     from physbench.harness.trace.contacts import DEFAULT_CAP
 
     engines = args.engines or list(ENGINES)
@@ -21,19 +24,16 @@ def cmd_trace(args: argparse.Namespace) -> int:
     output_file("-o", args.output)
     # ENGINE:KEY=VALUE for one engine, KEY=VALUE for a setting every engine has; dotted spec keys
     per_engine, rest = engine_sets(args.set, engines)
-    overrides = _split_sets(rest, set())[1] if rest else {}
+    overrides = split_sets(rest, set())[1] if rest else {}
     reqs = []
     for e in engines:
         get_adapter(e)
-        reqs.append(_request(args, e, per_engine[e], overrides, timeout_s=args.timeout, keep_trace=True,
+        reqs.append(checked_request(args, e, per_engine[e], overrides, timeout_s=args.timeout, keep_trace=True,
                              contact_cap=0 if args.watch else DEFAULT_CAP))
     scene = request_scene(reqs[0])
     with WorkerPool(args.jobs) as pool:
         done = {id(req): res for req, res in run_requests(reqs, pool)}
     results = [done[id(r)] for r in reqs]
-    from physbench.harness.conformance import evaluate
-    from physbench.harness.trace import write_rrd
-
     if args.watch:
         write_rrd(args.output, scene, results)
     else:

@@ -18,6 +18,16 @@ import json
 import sys
 from typing import Any
 
+from physbench.adapters import engine_names, get_adapter
+from physbench.contract.geometry.start import CONTACT_GAP, initial_contacts
+from physbench.contract.scene import load_scene, resolve_scenario
+from physbench.contract.spec import SpecError, load_spec
+from physbench.harness.cli.common import UsageError, fmt_prediction, fmt_value
+from physbench.harness.conformance.plan import engine_names_in_checks
+from physbench.harness.conformance.verdicts import check_applies, describe_bound, hard_checks
+from physbench.harness.console import console, name_column
+from physbench.harness.references.predict import predictions
+
 
 def _num(v: Any) -> Any:
     import numpy as np
@@ -30,14 +40,6 @@ def _num(v: Any) -> Any:
 def report(scenario: str, variant: str | None = None, engines: list[str] | None = None) -> dict[str, Any]:
     """The dry run of ``scenario`` (id or spec file) as one JSON-able dict;
     raises SpecError for a spec that does not load."""
-    from physbench.adapters import engine_names, get_adapter
-    from physbench.contract.geometry.start import CONTACT_GAP, initial_contacts
-    from physbench.contract.scene import load_scene, resolve_scenario
-    from physbench.contract.spec import SpecError, load_spec
-    from physbench.harness.conformance.verdicts import check_applies, describe_bound, hard_checks
-    from physbench.harness.conformance.plan import engine_names_in_checks
-    from physbench.harness.references.predict import predictions
-
     loaded = load_spec(resolve_scenario(scenario))
     scene = load_scene(scenario, variant, loaded=loaded)
     known = engine_names()
@@ -101,12 +103,8 @@ def report(scenario: str, variant: str | None = None, engines: list[str] | None 
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from physbench.harness.cli.common import UsageError
-
     engines = args.engines
     if engines:
-        from physbench.adapters import engine_names
-
         unknown = [e for e in engines if e not in engine_names()]
         if unknown:
             raise UsageError(f"--engines: unknown engine(s) {', '.join(unknown)}; known: {', '.join(engine_names())}")
@@ -135,10 +133,6 @@ def _print(d: dict[str, Any]) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from physbench.harness.cli.common import _fmt
-    from physbench.harness.cli.run import _fmt_pred
-    from physbench.harness.console import console, name_column
-
     con = console()
     v = f" [{d['variant']}]" if d["variant"] else ""
     con.print(f"[bold]{escape(d['scenario'])}{escape(v)}[/bold] ({escape(d['file'])}): {escape(d['title'])}")
@@ -151,11 +145,11 @@ def _print(d: dict[str, Any]) -> None:
         t.add_column(col, overflow="fold")
     for b in d["bodies"]:
         size = {k: b[k] for k in ("radius", "half_extents", "half_length") if k in b}
-        t.add_row(escape(b["name"]), b["shape"], escape(", ".join(f"{k} {_fmt_pred(x)}" for k, x in size.items())),
-                  _fmt(b["mass"]), _fmt_pred(b["position"]), _fmt_pred(b["velocity"]), escape(b["material"]))
+        t.add_row(escape(b["name"]), b["shape"], escape(", ".join(f"{k} {fmt_prediction(x)}" for k, x in size.items())),
+                  fmt_value(b["mass"]), fmt_prediction(b["position"]), fmt_prediction(b["velocity"]), escape(b["material"]))
     con.print(t)
     for s in d["statics"]:
-        extra = ", ".join(f"{k} {_fmt_pred(x)}" for k, x in s.items() if k not in ("name", "shape", "material"))
+        extra = ", ".join(f"{k} {fmt_prediction(x)}" for k, x in s.items() if k not in ("name", "shape", "material"))
         con.print(f"static {escape(s['name'])}: {s['shape']} ({escape(extra)})", highlight=False)
     con.print(f"initial contacts (touching: within {1e-9:g} m; an overlap deeper than {d['max_initial_overlap_m']:g} m "
               f"is refused at load): "
@@ -168,7 +162,7 @@ def _print(d: dict[str, Any]) -> None:
         name_column(p, "prediction", [*d["predictions"], *d["predictions_text"]])
         p.add_column("value", overflow="fold")
         for k, x in d["predictions"].items():
-            p.add_row(k, _fmt_pred(x))
+            p.add_row(k, fmt_prediction(x))
         for k, x in d["predictions_text"].items():
             p.add_row(escape(k), escape(str(x)))
         con.print(p)

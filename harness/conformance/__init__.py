@@ -77,19 +77,25 @@ from typing import Any
 
 from physbench.harness.conformance.junit import write_junit
 from physbench.harness.conformance.plan import RUN_TIMEOUT_S, RunSpec, default_engines, evaluate_runs, plan, select_scenarios
-from physbench.harness.conformance.store import _now, _row, check_identity, open_check
+from physbench.harness.conformance.store import check_identity, open_check, result_row, utc_now
 from physbench.harness.conformance.summary import exit_code, summarize
 from physbench.harness.conformance.traces import trace_failures
 from physbench.harness.conformance.verdicts import Outcome, verdicts_column
+from physbench.harness.consensus import consensus_result
+from physbench.harness.dask_executor import EnvironmentRefused
+from physbench.harness.ensemble import ensemble_result
+from physbench.harness.results import SCHEMA_VERSION, consolidate_parts, results_dir
+from physbench.harness.runner import RunResult
+
 # the names other modules and the tests take from harness.conformance
 # (limits.py, limit_eval.py, points.py, cli/run.py, cli/trace.py; tests/test_conformance.py,
 # test_scenarios.py, test_own_scenes.py, test_execute.py, test_trace_*.py)
 from physbench.harness.conformance.plan import scene_runs  # noqa: F401
 from physbench.harness.conformance.store import save_rows  # noqa: F401
 from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS, UNSUPPORTED, XFAIL, XPASS,  # noqa: F401
-                                          _combine_phases, _fmt, applicable_checks, check_applies, evaluate,
-                                          evaluate_check, hard_checks, judged_apart, run_verdicts, scene_columns,
-                                          split_metric)
+                                                    applicable_checks, check_applies, combine_phases, evaluate,
+                                                    evaluate_check, fmt_measured, hard_checks, judged_apart,
+                                                    run_verdicts, scene_columns, split_metric)
 from physbench.harness.execute import RunRequest, WorkerLost, execute_request, lost_result
 from physbench.harness.executors import make_executor
 
@@ -105,13 +111,9 @@ def execute(item: RunSpec | RunRequest):
     budget."""
     q = item.request() if isinstance(item, RunSpec) else item
     if q.consensus:
-        from physbench.harness.consensus import consensus_result
-
         per = None if q.timeout_s is None else q.timeout_s / len(q.consensus)
         return consensus_result(q.scenario, q.variant, list(q.consensus), timeout_s=per)
     if q.ensemble:
-        from physbench.harness.ensemble import ensemble_result
-
         per = None if q.timeout_s is None else q.timeout_s / q.ensemble.n
         return ensemble_result(q.scenario, q.variant, q.engine, dict(q.settings), q.ensemble, timeout_s=per)
     return execute_request(q)
@@ -210,11 +212,6 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
     SpecError for a scenario id or file that does not exist (exit 2)."""
     from rich.console import Console
 
-    from physbench.harness.results import SCHEMA_VERSION, consolidate_parts, results_dir
-    from physbench.harness.runner import RunResult
-    from physbench.contract.scene import resolve_scenario
-    from physbench.contract.spec import SpecError
-
     t0 = time.perf_counter()
     engines = list(engines) if engines else default_engines()
     ids = select_scenarios(scenarios, tags)  # raises SpecError for an unknown id, file or folder
@@ -248,7 +245,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
               markup=False, highlight=False, soft_wrap=True)
 
     def on_result(r: RunSpec, res: Any) -> None:
-        row = _row(r.key, res)
+        row = result_row(r.key, res)
         row.update(r.row_extra)
         # the store's schema version in every row, as sweeps write it (the report reads it)
         row.update(run_key=r.run_key, check_id=store.path.name, schema_version=SCHEMA_VERSION)
@@ -259,8 +256,6 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
 
     refused: tuple = ()
     if executor == "dask":
-        from physbench.harness.dask_executor import EnvironmentRefused
-
         refused = (EnvironmentRefused,)
     try:
         results.update(run_all(todo, jobs=max(1, int(jobs or 1)), progress=True, executor=executor,
@@ -286,7 +281,7 @@ def check_main(engines: list[str] | None, tags: list[str] | None, junit: str | N
             if o.key in run_keys:
                 verdicts[run_keys[o.key]].append(o)
         columns = {k: {"checks": verdicts_column(v)} for k, v in verdicts.items()}
-        saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], _now(), columns=columns)
+        saved, _ = consolidate_parts(store.path, "run_key", [r.run_key for r in runs], utc_now(), columns=columns)
         err.print(f"result rows written to {saved}", markup=False, highlight=False, soft_wrap=True)
     except Exception as e:  # the parts stay: nothing is lost
         err.print(f"warning: could not consolidate {store.path}: {type(e).__name__}: {e}", markup=False)

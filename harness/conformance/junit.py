@@ -6,7 +6,7 @@ import io
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from physbench.harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, _fmt, case_names
+from physbench.harness.conformance.verdicts import ERROR, FAIL, UNSUPPORTED, XFAIL, XPASS, Outcome, case_names, fmt_measured
 from physbench.harness.results import write_text_atomic
 
 
@@ -58,7 +58,7 @@ def junit_xml(outcomes: list[Outcome]) -> ET.ElementTree:
 
 
 def _detail(o: Outcome) -> str:
-    return f"metric {o.metric}: value {_fmt(o.value, o.bounds)}, threshold {o.threshold}\n{o.message}"
+    return f"metric {o.metric}: value {fmt_measured(o.value, o.bounds)}, threshold {o.threshold}\n{o.message}"
 
 
 def write_junit(outcomes: list[Outcome], path: str | Path) -> None:

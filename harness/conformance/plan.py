@@ -9,11 +9,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from physbench.harness.conformance.verdicts import (ERROR, Outcome, _combine_phases, applicable_checks, check_applies,
-                                                   describe_bound,
-                                          evaluate_check, hard_checks, scene_columns, split_metric)
+from physbench.adapters import ENGINES, engine_names, get_adapter
+from physbench.contract.metric_defs import CONSENSUS_METRICS
+from physbench.contract.scene import Check, Scene, load_scene, resolve_scenario, scenario_ids, spec_targets
+from physbench.contract.spec import SpecError, load_spec
+from physbench.harness.conformance.verdicts import (ERROR, Outcome, applicable_checks, check_applies, combine_phases,
+                                                    describe_bound, evaluate_check, hard_checks, scene_columns,
+                                                    split_metric)
+from physbench.harness.ensemble import ENSEMBLE_METRICS, Perturbation
 from physbench.harness.execute import DEFAULT_TIMEOUT_S, RunRequest
-from physbench.contract.scene import Check, Scene
 
 RUN_TIMEOUT_S = DEFAULT_TIMEOUT_S  # wall-clock budget per run (--timeout)
 
@@ -82,8 +86,6 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     the files' paths, anywhere on disk.  An entry that is neither raises
     SpecError (exit 2).  ``tags`` keeps the scenarios that have any of them
     (a spec that does not load is kept: it is reported, never dropped)."""
-    from physbench.contract.scene import load_scene, scenario_ids, spec_targets
-
     if scenarios:
         ids: list[str] = []
         for entry in scenarios:
@@ -106,15 +108,13 @@ def select_scenarios(scenarios: list[str] | None, tags: list[str] | None) -> lis
     return keep
 
 
-def default_engines() -> list[str]:
+def default_engines(note: bool = True) -> list[str]:
     """The engines ``check`` runs when none are named: every registered
     engine (shipped, plug-ins) except shipped ones that are not installed
-    (their extra was not: stderr says which; ``--engines`` naming one still
-    runs it, as ``unsupported`` rows).  A plug-in that fails to load stays
-    in: its rows carry its error."""
+    (their extra was not: stderr says which, unless ``note`` is False;
+    ``--engines`` naming one still runs it, as ``unsupported`` rows).  A
+    plug-in that fails to load stays in: its rows carry its error."""
     import sys
-
-    from physbench.adapters import ENGINES, engine_names, get_adapter
 
     out, missing = [], []
     for name in engine_names():
@@ -123,7 +123,7 @@ def default_engines() -> list[str]:
         except Exception:
             available = name not in ENGINES
         (out if available else missing).append(name)
-    if missing:
+    if missing and note:
         print(f"check: left out, not installed: {', '.join(missing)} (pip install "
               f"'physbench[{','.join(missing)}]' adds them)", file=sys.stderr)
     return out
@@ -147,8 +147,6 @@ def engine_names_in_checks(scene: Scene, label: str, known: Iterable[str] | None
     import difflib
 
     if known is None:
-        from physbench.adapters import engine_names
-
         known = engine_names()
     known = list(known)
     errors: list[str] = []
@@ -195,8 +193,6 @@ def ensemble_checks(scene: Scene, engine: str, ensemble: dict[str, Any] | None) 
     (metrics in harness.ensemble.ENSEMBLE_METRICS), and with ``ensemble``
     (``check --ensemble N``) on a base scene the implicit ``predictable ==
     True`` unless the scene declares a ``predictable`` check itself."""
-    from physbench.harness.ensemble import ENSEMBLE_METRICS
-
     out = [c for c in scene.checks if check_applies(c, engine, scene.variant)
            and split_metric(c.metric)[0] in ENSEMBLE_METRICS]
     if ensemble and scene.variant is None and not any(c.metric == "predictable" for c in scene.checks):
@@ -209,8 +205,6 @@ def ensemble_spec(scene: Scene, ensemble: dict[str, Any] | None):
     with the ``check --ensemble N --sigma S --threshold T`` values over it
     (``ensemble``: n, position, threshold; None values left out).  Raises
     ValueError (no noise: neither a block nor --sigma)."""
-    from physbench.harness.ensemble import Perturbation
-
     return Perturbation.of_scene(scene, **(ensemble or {}))
 
 
@@ -267,8 +261,6 @@ def consensus_runs(scene: Scene, engines: list[str], path: str | None = None,
     (``consensus_spread``), one per set of engines they name (a check's
     ``engines``, else all of ``engines``): engine :data:`CONSENSUS`, the
     engines in ``consensus``, the budget ``timeout_s`` per engine."""
-    from physbench.contract.metric_defs import CONSENSUS_METRICS
-
     groups: dict[tuple, list[Check]] = {}
     for c in scene.checks:
         if c.metric not in CONSENSUS_METRICS or (c.variants is not None and (scene.variant or "base") not in c.variants):
@@ -303,9 +295,6 @@ def plan(scenario_ids: list[str], engines: list[str],
     ``ensemble`` (``check --ensemble N``: n, position, threshold): every
     base scene with a ``[perturbation]`` block (or any, with a position
     sigma) also gets the check ``predictable == True`` on its ensemble."""
-    from physbench.contract.scene import load_scene, resolve_scenario
-    from physbench.contract.spec import SpecError, load_spec
-
     runs: list[RunSpec] = []
     errors: list[Outcome] = []
     seen: dict[str, str] = {}
@@ -357,8 +346,6 @@ def plan(scenario_ids: list[str], engines: list[str],
 
 
 def _ensemble_metrics() -> tuple[str, ...]:
-    from physbench.harness.ensemble import ENSEMBLE_METRICS
-
     return ENSEMBLE_METRICS
 
 
@@ -387,7 +374,7 @@ def evaluate_runs(runs: list[RunSpec], results: dict[tuple, Any]) -> list[Outcom
                     per.append(evaluate_check(c, other) if other is not None else
                                Outcome(r.engine, r.scenario, r.variant, c.metric, ERROR,
                                        threshold=describe_bound(c), message=f"phase {i}/{r.phases} run missing"))
-                o, key = _combine_phases(per, c), r.key
+                o, key = combine_phases(per, c), r.key
             else:
                 o, key = evaluate_check(c, res), r.key
             o.key = key

@@ -11,10 +11,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from physbench.contract.scene import resolve_scenario
+from physbench.harness import runner  # runner.commit_id read at call time (tests pretend another commit)
 from physbench.harness.conformance.plan import RunSpec
+from physbench.harness.results import (SCHEMA_VERSION, PartsDir, results_dir, try_lock, unfinished_dirs,
+                                       write_json_atomic, write_rows)
 
 
-def _row(key: tuple, result: Any) -> dict[str, Any]:
+def result_row(key: tuple, result: Any) -> dict[str, Any]:
     row = result.row()
     # the step phase of the run (a float 5th key element; 0 = the scene as
     # written; an ensemble's key ends in ("ensemble", perturbation) instead)
@@ -26,13 +30,11 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
     """Every run's result row to ``<save_dir>/<UTC timestamp>.parquet``
     (default results/check/) in one file; a failure to write is reported,
     not fatal.  (``check_main`` stores rows as they finish instead.)"""
-    from physbench.harness.results import results_dir, write_rows
-
     if not results:
         return None
     d = Path(save_dir) if save_dir is not None else results_dir() / "check"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    rows = [_row(key, r) for key, r in results.items()]
+    rows = [result_row(key, r) for key, r in results.items()]
     try:
         return write_rows(rows, d / f"{stamp}.parquet", append=False)
     except Exception as e:  # pragma: no cover - disk trouble must not hide the verdict
@@ -40,7 +42,7 @@ def save_rows(results: dict[tuple, Any], save_dir: str | Path | None) -> Path | 
         return None
 
 
-def _now() -> str:
+def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
@@ -50,9 +52,6 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
     kill and the rerun is not noticed), the engines, the scenario ids, the
     bytes of their spec files (sha256), the per-run budget, and the planned
     run keys."""
-    from physbench.harness.runner import commit_id
-    from physbench.contract.scene import resolve_scenario
-
     h = hashlib.sha256()
     for sid in ids:
         h.update(sid.encode() + b"\0")
@@ -61,7 +60,7 @@ def check_identity(ids: list[str], engines: list[str], runs: list[RunSpec], time
         except Exception as e:  # reported as a load error outcome
             h.update(repr(e).encode())
         h.update(b"\0")
-    return {"commit": commit_id(), "engines": list(engines), "scenarios": list(ids),
+    return {"commit": runner.commit_id(), "engines": list(engines), "scenarios": list(ids),
             "specs_hash": h.hexdigest()[:16], "timeout_s": timeout_s, "runs": [r.run_key for r in runs]}
 
 
@@ -69,8 +68,6 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
     """The unfinished check under ``root`` to resume (same identity, see
     :func:`check_identity`, not locked by a running check), or a new one.
     Returns (harness.results.PartsDir keyed by ``run_key``, resumed)."""
-    from physbench.harness.results import PartsDir, SCHEMA_VERSION, try_lock, unfinished_dirs, write_json_atomic
-
     if resume:
         for d, man in unfinished_dirs(root):
             if (d.parent / f"{d.name}.parquet").exists():
@@ -80,7 +77,7 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
             fd = try_lock(d)
             if fd < 0:
                 continue
-            man.setdefault("resumed", []).append(_now())
+            man.setdefault("resumed", []).append(utc_now())
             write_json_atomic(man, d / "manifest.json")
             return PartsDir(d, man, fd, "run_key"), True
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
@@ -92,6 +89,6 @@ def open_check(root: Path, ident: dict[str, Any], resume: bool = True):
     d = root / cid
     d.mkdir(parents=True)
     fd = try_lock(d)
-    man = {"schema_version": SCHEMA_VERSION, "check_id": cid, "started": _now(), "finished": None, **ident}
+    man = {"schema_version": SCHEMA_VERSION, "check_id": cid, "started": utc_now(), "finished": None, **ident}
     write_json_atomic(man, d / "manifest.json")
     return PartsDir(d, man, fd, "run_key"), False

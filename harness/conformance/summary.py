@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 from physbench.harness.conformance.verdicts import (BAD, ERROR, FAIL, OUTCOMES, PASS, UNSUPPORTED, XFAIL, XPASS, Outcome,
-                                          _fmt, case_names)
+                                                    case_names, fmt_measured)
+from physbench.harness.console import console as make_console, name_column
 
 
 def summarize(outcomes: list[Outcome], console=None) -> None:
     """Print a per engine x scenario count table and every FAIL/XPASS/ERROR."""
     from rich.markup import escape
     from rich.table import Table
-
-    from physbench.harness.console import console as make_console, name_column
 
     console = console or make_console()
     engines = sorted({o.engine for o in outcomes})
@@ -41,7 +40,7 @@ def summarize(outcomes: list[Outcome], console=None) -> None:
         for col in ("outcome", "value", "threshold", "message"):
             t2.add_column(col, overflow="fold")
         for o in bad:
-            t2.add_row(*(escape(x) for x in (o.engine, names[id(o)], o.outcome, _fmt(o.value, o.bounds), o.threshold, o.message)))
+            t2.add_row(*(escape(x) for x in (o.engine, names[id(o)], o.outcome, fmt_measured(o.value, o.bounds), o.threshold, o.message)))
         console.print(t2)
 
 

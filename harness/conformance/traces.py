@@ -10,7 +10,7 @@ from typing import Any
 
 from physbench.harness.conformance.plan import RunSpec
 from physbench.harness.conformance.verdicts import ERROR, FAIL, XFAIL, Outcome, evaluate_check, split_metric
-from physbench.harness.execute import RunRequest
+from physbench.harness.execute import RunRequest, request_scene, run_requests
 from physbench.harness.executors import make_executor
 from physbench.contract.scene import Check
 
@@ -38,7 +38,7 @@ def trace_failures(traces_dir: str | Path, runs: list["RunSpec"], results: dict[
     (harness.trace.cases.case_name) goes to ``traces_dir``; each outcome
     gets its file in ``Outcome.trace``.  Load errors have no run and no
     trace.  A trace that cannot be written is reported, never fatal."""
-    from physbench.harness.execute import request_scene, run_requests
+    # the trace package imports rerun (~0.5 s): loaded for --traces only, not by every check and run
     from physbench.harness.trace.cases import TRACED_OUTCOMES, case_name, write_case_trace
     from physbench.harness.trace.contacts import DEFAULT_CAP
 

@@ -11,10 +11,12 @@ from dataclasses import dataclass
 from fractions import Fraction
 from typing import Any, Iterable
 
+from physbench.contract.metric_defs import CONSENSUS_METRICS, ENSEMBLE_METRICS
 from physbench.harness import status as st
 from physbench.harness.references import undefined_reason
 from physbench.contract.scene import Check, Scene
 from physbench.contract.xfail import xfail_for
+from physbench.harness.runner import jsonable
 
 HARD_DT_LABEL = "1/30"
 BASE = "base"  # name standing for the base scenario in a check's `variants`
@@ -45,16 +47,14 @@ class Outcome:
     #: absolute path of the case's diagnosing trace (check --traces), else ""
     trace: str = ""
     #: the check's numeric bounds (max, min, equals +- tolerance), for
-    #: printing the value with the digits that tell it from them (:func:`_fmt`)
+    #: printing the value with the digits that tell it from them (:func:`fmt_measured`)
     bounds: tuple = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The outcome as stored in a row's ``checks`` column and printed by
         ``physbench run --json``; ``trace``: the absolute path of its
         ``.rrd`` or "" (docs/TRACES.md)."""
-        from physbench.harness.runner import _jsonable
-
-        return {"metric": self.metric, "outcome": self.outcome, "value": _jsonable(self.value),
+        return {"metric": self.metric, "outcome": self.outcome, "value": jsonable(self.value),
                 "threshold": self.threshold, "message": self.message, "trace": self.trace}
 
     @property
@@ -188,7 +188,7 @@ def meets(check: Check, value: Any) -> bool:
     return True
 
 
-def _fmt(value: Any, bounds: Iterable[float] = ()) -> str:
+def fmt_measured(value: Any, bounds: Iterable[float] = ()) -> str:
     """A metric value in a verdict: 6 significant digits, or as many more
     as it takes to tell it from each of ``bounds`` -- the digits that show
     why 0.0010000000000002507 fails ``<= 0.001`` (the text then reads back
@@ -249,7 +249,7 @@ def evaluate_check(check: Check, result, metric_name: str | None = None) -> Outc
         return o
     else:
         ok = meets(check, value)
-        msg = f"{metric} = {_fmt(value, o.bounds)}, expected {o.threshold}"
+        msg = f"{metric} = {fmt_measured(value, o.bounds)}, expected {o.threshold}"
         if metric == "stable" and not ok and result.metrics.get("stability_reason"):
             msg += f" ({result.metrics['stability_reason']})"
     if reason:
@@ -276,8 +276,6 @@ def judged_apart(check: Check) -> bool:
     """Whether ``check`` bounds a measure of the scene's ensemble
     (contract.metric_defs.ENSEMBLE_METRICS) or of the engines' consensus
     (CONSENSUS_METRICS): evaluated on a run of its own, never a plain run's."""
-    from physbench.contract.metric_defs import CONSENSUS_METRICS, ENSEMBLE_METRICS
-
     name = split_metric(check.metric)[0]
     return name in ENSEMBLE_METRICS or name in CONSENSUS_METRICS
 
@@ -356,7 +354,7 @@ def verdicts_column(outcomes: Iterable[Outcome]) -> str:
 _PHASE_MARK = {PASS: ".", XPASS: ".", FAIL: "x", XFAIL: "x", ERROR: "!", UNSUPPORTED: "-"}
 
 
-def _combine_phases(per: list[Outcome], check: Check) -> Outcome:
+def combine_phases(per: list[Outcome], check: Check) -> Outcome:
     """One check's outcome over the N step phases of its scene (``per``,
     phase 0 first): it holds only if it holds in every phase.  ERROR if
     any phase errored (without an xfail); else FAIL (XFAIL with an xfail)

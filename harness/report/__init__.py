@@ -68,8 +68,8 @@ from physbench.harness.report.plots import (ENGINE_COLOURS, engine_colour, plot_
                                           plot_history, plot_work_precision)
 from physbench.harness.report.rows import ERROR_FLOOR, fmt, normalise, settings_label
 from physbench.harness.results import results_dir as _results_dir, write_json_atomic, write_text_atomic
+from physbench.harness.runner import commit_id
 
-_normalise = normalise  # the name older callers use
 
 __all__ = ["BASELINE_RUNS", "ENGINE_COLOURS", "ERROR_FLOOR", "LADDER", "NOISE_FLOOR", "NOISE_SPREADS",
            "RATIO_AT_LEAST", "RATIO_AT_MOST", "RATIO_EXACT", "RATIO_OPEN", "SUMMARY_VERSION",
@@ -110,7 +110,6 @@ def report_main(results_dir: Path | None = None, out: Path | None = None, suites
     warnings = df.attrs.get("warnings", [])
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
-    from physbench.harness.runner import commit_id
 
     generated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     physbench_commit = commit_id()

@@ -21,7 +21,8 @@ import numpy as np
 import pandas as pd
 
 from physbench.contract.phase import wilson_interval
-from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, _num, _truthy, fmt, settings_label
+from physbench.harness.report.rows import (ERROR_FLOOR, as_float, fmt, is_finite, is_missing, json_list, normalised,
+                                           settings_label, truthy)
 from physbench.harness.status import (BAD_OUTCOMES, BROKEN_STATUSES, CHECK_ERROR, CHECK_UNSUPPORTED, DIVERGED, FAIL, OK,
                                      OUTCOMES, UNSUPPORTED, XFAIL)
 
@@ -36,15 +37,15 @@ PHASE_PASS, PHASE_FAIL, PHASE_NOT_OK, PHASE_UNSUPPORTED, PHASE_NO_VERDICT = ".",
 # selections
 
 
-def _sweeps(df: pd.DataFrame) -> pd.DataFrame:
+def sweep_points(df: pd.DataFrame) -> pd.DataFrame:
     """Sweep grid points (breaking-point rows, ``row_kind`` set, are read by
     :func:`breaking_points` only)."""
     if not len(df):
         return df
-    return df[(df["source"] == "sweep") & df["row_kind"].map(_missing)]
+    return df[(df["source"] == "sweep") & df["row_kind"].map(is_missing)]
 
 
-def _limit_rows(df: pd.DataFrame, kind: str) -> pd.DataFrame:
+def limit_rows(df: pd.DataFrame, kind: str) -> pd.DataFrame:
     if not len(df):
         return df
     return df[df["row_kind"].map(lambda v: v == kind)]
@@ -53,15 +54,15 @@ def _limit_rows(df: pd.DataFrame, kind: str) -> pd.DataFrame:
 def latest_points(df: pd.DataFrame) -> pd.DataFrame:
     """Each sweep point's latest row per machine (by sweep_id, which sorts
     by time)."""
-    df = _ensure(df)
-    s = _sweeps(df)
+    df = normalised(df)
+    s = sweep_points(df)
     if s.empty:
         return s
     s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
     return s.drop_duplicates(["machine_id", "point_key"], keep="last").reset_index(drop=True)
 
 
-def _unshifted(df: pd.DataFrame) -> pd.DataFrame:
+def unshifted(df: pd.DataFrame) -> pd.DataFrame:
     """Rows of the scene as written (phase 0): the other step phases of a
     point are draws of the same configuration, summarised by
     :func:`phase_table`, not extra points of a curve."""
@@ -71,7 +72,7 @@ def _unshifted(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
-    c = _unshifted(df[df["source"] == "check"]) if len(df) else df
+    c = unshifted(df[df["source"] == "check"]) if len(df) else df
     if c.empty:
         return c
     # a check run is the engine's defaults at the scene's dt (or the hard
@@ -83,12 +84,12 @@ def _latest_checks(df: pd.DataFrame) -> pd.DataFrame:
     return c.drop(columns="_dtkey").reset_index(drop=True)
 
 
-def _good(r: Mapping[str, Any]) -> bool:
+def is_good(r: Mapping[str, Any]) -> bool:
     """ok and not known to be unstable."""
     return r["status"] == OK and r.get("stable_flag") is not False
 
 
-def _targets(df: pd.DataFrame, target: float | None,
+def scene_targets(df: pd.DataFrame, target: float | None,
              targets: Mapping[Any, float] | float | None = None) -> dict[tuple[str, str], tuple[float | None, str]]:
     """(scenario, variant) -> (target, where it came from)."""
     out: dict[tuple[str, str], tuple[float | None, str]] = {}
@@ -100,7 +101,7 @@ def _targets(df: pd.DataFrame, target: float | None,
         if given is not None:
             out[(sc, va)] = (given, "given")
             continue
-        th = next((_num(t) for t in g["primary_threshold"] if _finite(t)), None)
+        th = next((as_float(t) for t in g["primary_threshold"] if is_finite(t)), None)
         if th is not None:
             out[(sc, va)] = (th, "check max")
         elif target is not None:
@@ -146,13 +147,13 @@ def work_precision(df: pd.DataFrame, target: float | None = None,
     its error and cost are finite; ``error_plot`` is the error clipped to
     ERROR_FLOOR (``clipped`` says whether any was).
     """
-    df = _ensure(df)
-    pts = _unshifted(latest_points(df))
+    df = normalised(df)
+    pts = unshifted(latest_points(df))
     out: dict[tuple[str, str], dict[str, Any]] = {}
     if pts.empty:
         return out
     many_machines = pts["machine_id"].nunique() > 1
-    tg = _targets(pts, target, targets)
+    tg = scene_targets(pts, target, targets)
     for (sc, va), g in pts.groupby(["scenario", "variant"], sort=True):
         metric = next((m for m in g["primary_metric"] if m), None)
         th, src = tg.get((sc, va), (None, "none"))
@@ -168,7 +169,7 @@ def work_precision(df: pd.DataFrame, target: float | None = None,
             line = lines.setdefault(key, {"label": label, "engine": r["engine"], "settings": nondt,
                                           "machine_id": r["machine_id"], "points": []})
             err, cost = r["primary_error"], r["cost"]
-            ok = _good(r) and math.isfinite(err) and math.isfinite(cost)
+            ok = is_good(r) and math.isfinite(err) and math.isfinite(cost)
             status = r["status"] if r["status"] != OK or r.get("stable_flag") is not False else "unstable"
             if r["status"] == OK and status == OK and not math.isfinite(err):
                 status = "no error"
@@ -195,8 +196,8 @@ def breaking_points(df: pd.DataFrame) -> pd.DataFrame:
     engine, parameter, range, overrides) from the stored ``limit`` rows
     (``physbench limits`` and ``[[limit]]`` blocks), with its evaluations'
     count."""
-    df = _ensure(df)
-    res = _limit_rows(df, "limit")
+    df = normalised(df)
+    res = limit_rows(df, "limit")
     cols = ["machine_id", "scenario", "variant", "engine", "limit_param", "limit_outcome", "limit_value",
             "limit_lo", "limit_hi", "limit_direction", "limit_failed_check", "limit_runs", "limit_cpu_s",
             "limit_id", "limit_range_lo", "limit_range_hi", "limit_phases", "limit_overrides", "suite", "sweep_id"]
@@ -235,7 +236,7 @@ def fmt_limit(r: Mapping[str, Any], short: bool = False) -> str:
 def hard_scenarios(df: pd.DataFrame) -> set[str]:
     """Ids of the scenarios whose rows say they are tagged 'hard' (the
     ``tags`` the rows were written with; rows without tags say nothing)."""
-    df = _ensure(df)
+    df = normalised(df)
     return {sc for sc, tags in zip(df["scenario"], df["tags"]) if tags and "hard" in tags}
 
 
@@ -253,13 +254,13 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     tagged 'hard' (:func:`hard_scenarios`), else all.
     ``df.attrs['selection']`` says which.
     """
-    df = _ensure(df)
+    df = normalised(df)
     cols = ["scenario", "variant", "engine", "points", "ok_stable", "fraction", "unstable", "diverged",
             "error", "unsupported", "other", "max_stable_dt", "min_unstable_dt", "met_checks", "checks_failed",
             "max_met_dt", "no_verdict"]
     checks = _latest_checks(df)
     checks = checks[checks["judge"] == ""] if len(checks) else checks  # ensembles, consensus: not a run's stability
-    parts = [p for p in (_unshifted(latest_points(df)), checks) if not p.empty]
+    parts = [p for p in (unshifted(latest_points(df)), checks) if not p.empty]
     if not parts:
         out = pd.DataFrame(columns=cols)
         out.attrs["selection"] = "no data"
@@ -279,8 +280,8 @@ def stability_matrix(df: pd.DataFrame, scenarios: Iterable[str] | None = None) -
     rows = []
     for (sc, va, en), g in data.groupby(["scenario", "variant", "engine"], sort=True):
         recs = g.to_dict("records")
-        good = [r for r in recs if _good(r)]
-        bad = [r for r in recs if not _good(r) and r["status"] != UNSUPPORTED]
+        good = [r for r in recs if is_good(r)]
+        bad = [r for r in recs if not is_good(r) and r["status"] != UNSUPPORTED]
         st = [r["status"] for r in recs]
         gdt = [r["dt"] for r in good if math.isfinite(r["dt"])]
         bdt = [r["dt"] for r in bad if math.isfinite(r["dt"])]
@@ -314,9 +315,8 @@ def row_verdicts(r: Mapping[str, Any]) -> list[dict] | None:
         return v
     if "verdicts" in r:  # normalised: None means not recorded
         return None
-    from physbench.harness.report.rows import _json_list
 
-    return _json_list(r.get("checks"))
+    return json_list(r.get("checks"))
 
 
 def failed_checks(r: Mapping[str, Any]) -> list[str] | None:
@@ -348,7 +348,7 @@ def _phase_outcome(r: Mapping[str, Any]) -> str:
     unsupported, '?' no verdict recorded."""
     if r["status"] == UNSUPPORTED:
         return PHASE_UNSUPPORTED
-    if not _good(r):
+    if not is_good(r):
         return PHASE_NOT_OK
     stored = row_verdicts(r)
     if stored is None:
@@ -368,7 +368,7 @@ def phase_table(df: pd.DataFrame) -> pd.DataFrame:
     or unstable, ``?`` no verdict recorded: neither counted as a failure
     nor as a pass).  ``phase0`` is the outcome of the scene as written:
     what a single run (``physbench check``, a sweep without phases) sees."""
-    df = _ensure(df)
+    df = normalised(df)
     cols = ["machine_id", "suite", "scenario", "variant", "engine", "settings", "dt", "phases", "failures",
             "fraction", "lo", "hi", "pattern", "phase0"]
     pts = latest_points(df)
@@ -456,7 +456,7 @@ def failing_checks(df: pd.DataFrame) -> pd.DataFrame:
     ``check --traces`` wrote one ('' otherwise).  Bad outcomes first.
     ``attrs['no_verdict']``: check rows with no verdict recorded (left out,
     not re-judged)."""
-    df = _ensure(df)
+    df = normalised(df)
     out, no_verdict = _verdict_table(_latest_checks(df), LISTED_OUTCOMES)
     out.attrs["no_verdict"] = no_verdict
     return out
@@ -495,7 +495,7 @@ def latest_check_runs(df: pd.DataFrame) -> pd.DataFrame:
     judge ``consensus``) is no engine and belongs to the judging section
     (:func:`consensus_table`; tests/test_report_rows.py::
     test_consensus_is_no_engine_at_a_glance)."""
-    df = _ensure(df)
+    df = normalised(df)
     c = df[(df["source"] == "check") & (df["judge"] != "consensus")] if len(df) else df
     if c.empty:
         return pd.DataFrame(columns=CHECK_RUN_COLS)
@@ -536,7 +536,7 @@ def unexpected_failures(df: pd.DataFrame, runs: pd.DataFrame | None = None) -> p
     from an earlier run of their engine and whose case (scenario, variant,
     dt) the engine's latest run did not repeat on any machine: a small
     check after a full one leaves them standing."""
-    df = _ensure(df)
+    df = normalised(df)
     if runs is None:
         runs = latest_check_runs(df)
     empty = pd.DataFrame(columns=_VERDICT_COLS)
@@ -590,11 +590,11 @@ def contact_law_table(df: pd.DataFrame) -> pd.DataFrame:
     scenarios carried any.  Rows of a run without forces carry NaN (the
     reason in their ``undefined_metrics``): they count as no value, never
     as 0.  Sorted by engine."""
-    df = _ensure(df)
+    df = normalised(df)
     cols = ["engine", "rows", "scenarios"] + [f"{n}_{k}" for n, _ in LAW_COLUMNS for k in ("max", "where")]
     checks = _latest_checks(df)
     checks = checks[checks["judge"] == ""] if len(checks) else checks
-    parts = [p for p in (_unshifted(latest_points(df)), checks) if not p.empty]
+    parts = [p for p in (unshifted(latest_points(df)), checks) if not p.empty]
     if not parts:
         return pd.DataFrame(columns=cols)
     data = pd.concat(parts, ignore_index=True, sort=False)
@@ -603,12 +603,12 @@ def contact_law_table(df: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(columns=cols)
     rows = []
     for en, g in data.groupby("engine", sort=True):
-        recs = [r for r in g.to_dict("records") if r["status"] == OK and any(_finite(r.get(c)) for c in present)]
+        recs = [r for r in g.to_dict("records") if r["status"] == OK and any(is_finite(r.get(c)) for c in present)]
         if not recs:
             continue
         out: dict[str, Any] = {"engine": en, "rows": len(recs), "scenarios": len({r["scenario"] for r in recs})}
         for n, _ in LAW_COLUMNS:
-            vals = [(_num(r.get(f"{n}_max")), r["scenario"]) for r in recs if _finite(r.get(f"{n}_max"))]
+            vals = [(as_float(r.get(f"{n}_max")), r["scenario"]) for r in recs if is_finite(r.get(f"{n}_max"))]
             best = max(vals, default=(math.nan, ""))
             out[f"{n}_max"], out[f"{n}_where"] = best
         rows.append(out)
@@ -627,7 +627,7 @@ def predictability_table(df: pd.DataFrame) -> pd.DataFrame:
     spread, the threshold (m), predictable (True/False/None: a member not
     ok) and the recorded verdict of its ``predictable`` check ('' when it
     carries none)."""
-    df = _ensure(df)
+    df = normalised(df)
     c = _latest_checks(df)
     c = c[c["judge"] == "ensemble"] if len(c) else c
     if c.empty:
@@ -641,10 +641,10 @@ def predictability_table(df: pd.DataFrame) -> pd.DataFrame:
     for r in c.sort_values(["scenario", "variant", "engine"], kind="stable").to_dict("records"):
         verdict = next((v.get("outcome", "") for v in (row_verdicts(r) or []) if v.get("metric") == "predictable"), "")
         rows.append({"scenario": r["scenario"], "variant": r["variant"], "engine": r["engine"],
-                     "members": _num(r.get("members")), "members_ok": _num(r.get("members_ok")),
-                     "final_spread": _num(r.get("final_spread")), "amplification": _num(r.get("amplification")),
-                     "event_spread": _num(r.get("event_spread")), "threshold": _num(r.get("ensemble_threshold")),
-                     "predictable": _truthy(r.get("predictable")) if r["status"] == OK else None, "verdict": verdict})
+                     "members": as_float(r.get("members")), "members_ok": as_float(r.get("members_ok")),
+                     "final_spread": as_float(r.get("final_spread")), "amplification": as_float(r.get("amplification")),
+                     "event_spread": as_float(r.get("event_spread")), "threshold": as_float(r.get("ensemble_threshold")),
+                     "predictable": truthy(r.get("predictable")) if r["status"] == OK else None, "verdict": verdict})
     out = pd.DataFrame(rows, columns=PREDICTABILITY_COLS)
     out.attrs["selection"] = "scenarios tagged 'hard'" if hard else "all scenarios (none tagged 'hard' has an ensemble)"
     return out
@@ -659,14 +659,14 @@ def consensus_table(df: pd.DataFrame) -> pd.DataFrame:
     scenario and variant: the engines and their versions, status, the
     spreads (m, rad), the row's message (the farthest pair) and its
     recorded verdicts ('metric OUTCOME; ...')."""
-    df = _ensure(df)
+    df = normalised(df)
     c = _latest_checks(df)
     c = c[c["judge"] == "consensus"] if len(c) else c
     rows = []
     for r in c.sort_values(["scenario", "variant"], kind="stable").to_dict("records"):
         vs = row_verdicts(r) or []
         rows.append({"scenario": r["scenario"], "variant": r["variant"], "engines": r["engine_version"],
-                     "status": r["status"], "consensus_spread": _num(r.get("consensus_spread")),
-                     "consensus_spread_angle": _num(r.get("consensus_spread_angle")), "message": r["message"],
+                     "status": r["status"], "consensus_spread": as_float(r.get("consensus_spread")),
+                     "consensus_spread_angle": as_float(r.get("consensus_spread_angle")), "message": r["message"],
                      "verdicts": "; ".join(f"{v.get('metric')} {v.get('outcome')}" for v in vs)})
     return pd.DataFrame(rows, columns=CONSENSUS_COLS)

@@ -12,8 +12,8 @@ from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from physbench.harness.report.analysis import _good, _targets, _unshifted, latest_points, line_settings
-from physbench.harness.report.rows import _ensure, _finite, fmt, settings_label
+from physbench.harness.report.analysis import is_good, latest_points, line_settings, scene_targets, unshifted
+from physbench.harness.report.rows import fmt, is_finite, normalised, settings_label
 
 #: :func:`cost_to_target`'s ``ratio_bound``: what the ratio to the cheapest
 #: engine is, given which of the two costs are upper bounds
@@ -36,7 +36,7 @@ def _lines(recs: list[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, A
 
 
 def _reaches(r: Mapping[str, Any], target: float) -> bool:
-    return _good(r) and math.isfinite(r["primary_error"]) and r["primary_error"] <= target
+    return is_good(r) and math.isfinite(r["primary_error"]) and r["primary_error"] <= target
 
 
 def _ends(lines: list[tuple[str, list[Mapping[str, Any]]]], target: float) -> dict[str, Any]:
@@ -47,7 +47,7 @@ def _ends(lines: list[tuple[str, list[Mapping[str, Any]]]], target: float) -> di
             costs = [r["cost"] for r in pts if _reaches(r, target) and math.isfinite(r["cost"])]
             coarse.append((label, pts[-1]["dt"], min(costs) if costs else math.nan))
             continue
-        good = [r for r in pts if _good(r) and math.isfinite(r["primary_error"])]
+        good = [r for r in pts if is_good(r) and math.isfinite(r["primary_error"])]
         if good and not any(r["primary_error"] <= target for r in good):
             best = min(good, key=lambda r: (r["primary_error"], r["dt"]))
             if best["dt"] == pts[0]["dt"]:
@@ -94,7 +94,7 @@ def _engine_points(df: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[tuple[str
     points, and per (scenario, variant, engine) their records and lines
     (:func:`_lines`).  :func:`ladder` does this once for all its rungs
     (tests/test_report.py::test_ladder_selects_and_groups_the_points_once)."""
-    pts = _unshifted(latest_points(_ensure(df)))
+    pts = unshifted(latest_points(normalised(df)))
     if pts.empty:
         return pts, []
     groups = []
@@ -139,7 +139,7 @@ def _cost_rows(groups: list[tuple[tuple[str, str, str], list[dict], list]],
         t, src = tg.get((sc, va), (None, "none"))
         if t is None:
             continue
-        good = [r for r in recs if _good(r) and math.isfinite(r["primary_error"])]
+        good = [r for r in recs if is_good(r) and math.isfinite(r["primary_error"])]
         under = [r for r in good if r["primary_error"] <= t and math.isfinite(r["cost"])]
         metric = next((r["primary_metric"] for r in recs if r["primary_metric"]), None)
         ends = _ends(lines, t)
@@ -212,7 +212,7 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
     pts, groups = _engine_points(df)
     if pts.empty:
         return pd.DataFrame(columns=_COLS)
-    return _cost_rows(groups, _targets(pts, target, targets))
+    return _cost_rows(groups, scene_targets(pts, target, targets))
 
 
 #: accuracies of the primary metric the report asks every engine for
@@ -260,7 +260,7 @@ def at_a_glance(df: pd.DataFrame, rungs: Iterable[float] = LADDER, lad: pd.DataF
         scen = 0
         for _, h in g.groupby(["scenario", "variant"], sort=True):
             scen += 1
-            r = h[h["reached"].astype(bool) & h["cost"].map(_finite)]
+            r = h[h["reached"].astype(bool) & h["cost"].map(is_finite)]
             if len(r):
                 reached += 1
                 best = r.sort_values(["cost", "engine"], kind="stable").iloc[0]["engine"]

@@ -26,9 +26,9 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import _sweeps, breaking_points, latest_check_runs, unexpected_failures
+from physbench.harness.report.analysis import breaking_points, latest_check_runs, sweep_points, unexpected_failures
 from physbench.harness.report.cost import at_a_glance, ladder
-from physbench.harness.report.rows import _ensure, _missing
+from physbench.harness.report.rows import is_missing, normalised
 from physbench.harness.status import OUTCOMES, XFAIL
 
 #: summary.json's format version (docs/REPORT.md): bumped when a key
@@ -44,7 +44,7 @@ def first_screen(df: pd.DataFrame, lad: pd.DataFrame | None = None) -> dict[str,
     :func:`at_a_glance`), ``breaking_points``, ``rows`` (how
     many check and sweep rows were read).  ``lad``: :func:`ladder` of
     ``df`` when the caller has it already."""
-    df = _ensure(df)
+    df = normalised(df)
     runs = latest_check_runs(df)
     unexpected = unexpected_failures(df, runs)
     if lad is None:
@@ -52,7 +52,7 @@ def first_screen(df: pd.DataFrame, lad: pd.DataFrame | None = None) -> dict[str,
     n_check = int((df["source"] == "check").sum()) if len(df) else 0
     return {"runs": runs, "unexpected": unexpected, "earlier": unexpected.attrs["earlier"],
             "ladder": lad, "glance": at_a_glance(df, lad=lad), "breaking_points": breaking_points(df),
-            "rows": {"check": n_check, "sweep": len(_sweeps(df))}}
+            "rows": {"check": n_check, "sweep": len(sweep_points(df))}}
 
 
 def _plain(v: Any) -> Any:
@@ -64,7 +64,7 @@ def _plain(v: Any) -> Any:
         return [_plain(x) for x in v]
     if isinstance(v, np.ndarray):
         return [_plain(x) for x in v.tolist()]
-    if _missing(v):
+    if is_missing(v):
         return None
     if isinstance(v, (bool, np.bool_)):
         return bool(v)

@@ -19,7 +19,7 @@ from typing import Any, Iterable
 
 import pandas as pd
 
-from physbench.harness.report.rows import _missing, _num, fmt, normalise
+from physbench.harness.report.rows import as_float, fmt, is_missing, normalise
 from physbench.harness.results import SCHEMA_VERSION, read_frame, results_dir as _results_dir
 from physbench.harness.sweep_store import sweep_files
 
@@ -47,7 +47,7 @@ def _read_file(path: Path, notes: list[dict[str, Any]], **extra: Any) -> pd.Data
     if df.empty:
         return None
     if "schema_version" in df.columns:
-        sv = df["schema_version"].map(_num)
+        sv = df["schema_version"].map(as_float)
         bad = ~sv.isin(list(SUPPORTED_SCHEMAS))
         if bad.any():
             versions = sorted({fmt(x) for x in df.loc[bad, "schema_version"]})
@@ -66,7 +66,7 @@ def _read_file(path: Path, notes: list[dict[str, Any]], **extra: Any) -> pd.Data
     for k, v in extra.items():
         if k in ("suite", "sweep_id", "machine_id") and k in df.columns:
             # the file's own column wins; the layout fills the gaps
-            df[k] = df[k].where(~df[k].map(_missing), v)
+            df[k] = df[k].where(~df[k].map(is_missing), v)
         else:
             df[k] = v
     return df

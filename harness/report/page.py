@@ -19,9 +19,9 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import (LAW_COLUMNS, _limit_rows, _sweeps, breaking_points, consensus_table,
-                                              contact_law_table, failing_checks, fmt_limit, phase_table,
-                                              predictability_table, stability_matrix, work_precision)
+from physbench.harness.report.analysis import (LAW_COLUMNS, breaking_points, consensus_table, contact_law_table,
+                                               failing_checks, fmt_limit, limit_rows, phase_table, predictability_table,
+                                               stability_matrix, sweep_points, work_precision)
 from physbench.harness.report.glance import first_screen, left_out, xfail_total
 from physbench.harness.report.cost import RATIO_AT_LEAST, RATIO_AT_MOST, RATIO_EXACT, cost_to_target
 from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR_ABS_FLOOR, MACHINE_SHIFT_MIN_SERIES,
@@ -29,8 +29,9 @@ from physbench.harness.report.trends import (BASELINE_RUNS, DRIFT_HORIZON, ERROR
                                     machine_shifts, regressions, scene_change_lines, scene_changes)
 from physbench.harness.report.plots import (engine_colour, plot_breaking_point, plot_contact_laws, plot_history,
                                           plot_work_precision)
-from physbench.harness.report.rows import ERROR_FLOOR, _ensure, _finite, _missing, fmt, settings_label
+from physbench.harness.report.rows import ERROR_FLOOR, fmt, is_finite, is_missing, normalised, settings_label
 from physbench.contract.conventions import DRAG_EXTERNAL
+from physbench.harness.runner import commit_id
 from physbench.harness.status import BAD_OUTCOMES, OK, OUTCOMES, XFAIL
 
 MAX_SMALL_MULTIPLES = 6
@@ -117,12 +118,12 @@ def _header_html(df: pd.DataFrame) -> str:
                                                          ("scipy", "machine.scipy"), ("env", "machine.env_id"),
                                                          ("platform", "machine.platform"),
                                                          ("python", "machine.python"))
-                         if c in g.columns and not _missing(last[c]))
+                         if c in g.columns and not is_missing(last[c]))
         machines.append([mid, info, str(len(g))])
     out.append("<h3>Machines</h3>" + _table(["machine", "info", "rows"], machines))
     sweeps = []
     classes = []
-    s = _sweeps(df)
+    s = sweep_points(df)
     if not s.empty:
         for (mid, suite, sid), g in s.groupby(["machine_id", "suite", "sweep_id"], sort=True):
             counts = g["status"].value_counts()
@@ -205,7 +206,7 @@ def _ratio_text(r: Mapping[str, Any], digits: int = 3) -> str:
 
 def _best_text(r: Mapping[str, Any], prefix: str) -> str:
     """An unreached target: the best error and its settings, else the note."""
-    if not _finite(r["best_error"]):
+    if not is_finite(r["best_error"]):
         return r["note"] or "no ok point"
     return f"{prefix} {fmt(r['best_error'])}" + (f" at {r['best_error_settings']}" if r["best_error_settings"] else "")
 
@@ -261,7 +262,7 @@ def _ladder_html(lad: pd.DataFrame) -> str:
             if r is None:
                 cells.append("-")
             elif r["reached"]:
-                ratio = "" if not _finite(r["ratio"]) or r["ratio"] == 1 else f" ({_ratio_text(r, 2)})"
+                ratio = "" if not is_finite(r["ratio"]) or r["ratio"] == 1 else f" ({_ratio_text(r, 2)})"
                 best = " <span class='good'>cheapest</span>" if r["ratio"] == 1 else ""
                 tip = f" title='{_e(r['note'])}'" if r["coarse_open"] else ""
                 cells.append(f"<span{tip}>{_e(_cost_text(r))}{_e(ratio)}</span>{best}<br><span class='note'>"
@@ -281,7 +282,7 @@ def _ladder_html(lad: pd.DataFrame) -> str:
 def _case(r: Mapping[str, Any]) -> str:
     """A check case as HTML: scenario / variant, dt."""
     case = _e(r["scenario"]) + (f" / {_e(r['variant'])}" if r["variant"] else "")
-    if _finite(r["dt"]):
+    if is_finite(r["dt"]):
         case += f" <span class='note'>dt={_e(fmt(r['dt']))}</span>"
     return case
 
@@ -434,7 +435,7 @@ def _breaking_html(df: pd.DataFrame) -> str:
     if bp.empty:
         return ("<p class='note'>No breaking-point searches stored. <code>physbench limits SCENARIO --engine E "
                 "--param KEY --range LO HI</code> or a suite's <code>[[limit]]</code> block fills this in.</p>")
-    evals = _limit_rows(df, "limit_eval")
+    evals = limit_rows(df, "limit_eval")
     parts = ["<p class='note'>Each search walks the parameter from the end where the scene holds (met every "
              "check, stayed stable, in every step phase) towards the other in steps of at most a factor 2, then "
              "bisects the first failing step to the search's tolerance. Limit: the last value that held; "
@@ -494,11 +495,11 @@ def _stability_html(sm: pd.DataFrame) -> str:
         for k in ("unstable", "diverged", "error", "unsupported", "other"):
             if r[k]:
                 txt.append(f"{r[k]} {k}")
-        if _finite(r["max_stable_dt"]):
+        if is_finite(r["max_stable_dt"]):
             txt.append(f"max stable dt {fmt(r['max_stable_dt'])}")
-        if _finite(r["min_unstable_dt"]):
+        if is_finite(r["min_unstable_dt"]):
             txt.append(f"fails from dt {fmt(r['min_unstable_dt'])}")
-        if _finite(r["max_met_dt"]):
+        if is_finite(r["max_met_dt"]):
             txt.append(f"checks met up to dt {fmt(r['max_met_dt'])}")
         frac = r["met_checks"] / supported if supported else math.nan
         return (f"<div class='cell' style='background:{_colour(frac, supported)};padding:.2em'>"
@@ -533,7 +534,7 @@ def _judge_html(df: pd.DataFrame) -> str:
             cells = [_e(r["engine"]), f"{r['rows']} ({r['scenarios']})"]
             for n, _ in LAW_COLUMNS:
                 v = r[f"{n}_max"]
-                cells.append(f"{fmt(v, 3)} <span class='note'>{_e(r[f'{n}_where'])}</span>" if _finite(v)
+                cells.append(f"{fmt(v, 3)} <span class='note'>{_e(r[f'{n}_where'])}</span>" if is_finite(v)
                              else "<span class='note'>undefined</span>")
             rows.append(cells)
         head = ["engine", "rows (scenarios)"] + [f"{n} max ({u})" for n, u in LAW_COLUMNS]
@@ -832,14 +833,12 @@ def render_html(df: pd.DataFrame, *, target: float | None = None,
     (report_main writes the same numbers to summary.json).  ``warnings``
     and the frame's data notes go to the Data section at the end; only
     what left rows out gets one line at the top."""
-    df = _ensure(df)
+    df = normalised(df)
     notes = list(df.attrs.get("data_notes", []))
     warnings = list(warnings) + list(df.attrs.get("warnings", []))
     warnings = list(dict.fromkeys(warnings))
     generated = generated or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     if physbench_commit is None:
-        from physbench.harness.runner import commit_id
-
         physbench_commit = commit_id()
     pdir = Path(page_dir) if page_dir is not None else None
     where = f" under <code>{_e(results_dir)}</code>" if results_dir is not None else ""

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from physbench.harness.report.analysis import frontier
-from physbench.harness.report.rows import ERROR_FLOOR, _finite, settings_label
+from physbench.harness.report.rows import ERROR_FLOOR, is_finite, settings_label
 from physbench.harness.status import OK
 
 
@@ -132,12 +132,12 @@ def plot_breaking_point(evals: pd.DataFrame, limits: pd.DataFrame, param: str, m
         return None
     fig = _figure(7.5, 3.6)
     ax = fig.add_subplot()
-    xs = [float(v) for v in evals["limit_value"] if _finite(v)]
+    xs = [float(v) for v in evals["limit_value"] if is_finite(v)]
     if not xs:
         return None
     if min(xs) > 0:
         ax.set_xscale("log")
-    errs = [e for e in evals["primary_error"] if _finite(e) and e > 0]
+    errs = [e for e in evals["primary_error"] if is_finite(e) and e > 0]
     ymax = max(errs) * 10 if errs else 1.0
     ymin = max(min(errs) / 3 if errs else 1e-3, ERROR_FLOOR)
     ax.set_yscale("log")
@@ -152,7 +152,7 @@ def plot_breaking_point(evals: pd.DataFrame, limits: pd.DataFrame, param: str, m
             e = r["primary_error"] if r.get("phase", 0.0) == 0.0 else by.get(v, (True, None))[1]
             by[v] = (held, e if e is not None else by.get(v, (True, None))[1])
         vals = sorted(by)
-        ys = [max(by[v][1], ERROR_FLOOR) if _finite(by[v][1]) and by[v][1] > 0 else ymax / 2 for v in vals]
+        ys = [max(by[v][1], ERROR_FLOOR) if is_finite(by[v][1]) and by[v][1] > 0 else ymax / 2 for v in vals]
         ax.plot(vals, ys, "-", color=col, lw=0.8, alpha=0.6)
         held = [i for i, v in enumerate(vals) if by[v][0]]
         bad = [i for i, v in enumerate(vals) if not by[v][0]]
@@ -227,13 +227,13 @@ def plot_contact_laws(table: pd.DataFrame) -> str | None:
     laws = (("signorini_residual", "Signorini |lam_n gap| (N m)"), ("cone_violation", "cone violation (1)"),
             ("dissipation_residual", "dissipation angle (rad)"))
     if table is None or table.empty or not any(
-            _finite(v) for n, _ in laws if f"{n}_max" in table.columns for v in table[f"{n}_max"]):
+            is_finite(v) for n, _ in laws if f"{n}_max" in table.columns for v in table[f"{n}_max"]):
         return None
     fig = _figure(9.0, 2.8)
     axes = fig.subplots(1, len(laws))
     engines = list(table["engine"])
     for ax, (n, title) in zip(axes, laws):
-        vals = [float(v) if _finite(v) else math.nan for v in table[f"{n}_max"]]
+        vals = [float(v) if is_finite(v) else math.nan for v in table[f"{n}_max"]]
         for i, (en, v) in enumerate(zip(engines, vals)):
             if math.isnan(v):
                 continue

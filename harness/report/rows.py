@@ -32,7 +32,7 @@ BASE_LABEL = "base"
 # small value helpers
 
 
-def _num(v: Any) -> float:
+def as_float(v: Any) -> float:
     """A float, NaN for anything missing or not numeric."""
     if v is None or isinstance(v, str) and v.strip().lower() in ("", "none", "nan", "null"):
         return math.nan
@@ -43,11 +43,11 @@ def _num(v: Any) -> float:
     return f
 
 
-def _finite(v: Any) -> bool:
-    return math.isfinite(_num(v))
+def is_finite(v: Any) -> bool:
+    return math.isfinite(as_float(v))
 
 
-def _missing(v: Any) -> bool:
+def is_missing(v: Any) -> bool:
     if v is None:
         return True
     if isinstance(v, float) and math.isnan(v):
@@ -60,10 +60,10 @@ def _missing(v: Any) -> bool:
         return False
 
 
-def _truthy(v: Any) -> bool | None:
+def truthy(v: Any) -> bool | None:
     """bool, 'True'/'False' text (mixed columns are stored as text), 0/1;
     None when unknown."""
-    if _missing(v):
+    if is_missing(v):
         return None
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
@@ -74,20 +74,20 @@ def _truthy(v: Any) -> bool | None:
         if s in ("false", "0", "no"):
             return False
         return None
-    f = _num(v)
+    f = as_float(v)
     return None if math.isnan(f) else f != 0.0
 
 
 def _variant(v: Any) -> str:
     """'' for the base scenario, else the variant's name."""
-    if _missing(v) or str(v) == BASE_LABEL:
+    if is_missing(v) or str(v) == BASE_LABEL:
         return ""
     return str(v)
 
 
 def _setting_value(v: Any) -> Any:
     """A setting's stored value back to a plain Python value."""
-    if _missing(v):
+    if is_missing(v):
         return None
     if isinstance(v, (np.bool_, bool)):
         return bool(v)
@@ -112,11 +112,11 @@ def _setting_value(v: Any) -> Any:
 
 def fmt(v: Any, digits: int = 3) -> str:
     """Numbers to short text ('1.23e-05', '0.002'); '-' for missing."""
-    if _missing(v):
+    if is_missing(v):
         return "-"
     if isinstance(v, (bool, np.bool_)):
         return str(bool(v))
-    f = _num(v)
+    f = as_float(v)
     if math.isnan(f):
         return str(v)
     if math.isinf(f):
@@ -139,10 +139,10 @@ def settings_label(settings: Mapping[str, Any]) -> str:
     return " ".join(parts)
 
 
-def _json_list(v: Any) -> list | None:
+def json_list(v: Any) -> list | None:
     """A JSON list column (``checks``, ``tags``) back to a list; None when
     the row has none (written before rows carried it) or it is unreadable."""
-    if _missing(v):
+    if is_missing(v):
         return None
     try:
         out = json.loads(v) if isinstance(v, str) else list(v)
@@ -183,28 +183,28 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
             df[col] = [None] * n
     df = df.astype({c: object for c in df.columns if str(df[c].dtype) in ("str", "string")})
     if n:
-        keep = ~(df["scenario"].map(_missing) | df["engine"].map(_missing))
+        keep = ~(df["scenario"].map(is_missing) | df["engine"].map(is_missing))
         df = df.loc[keep].copy()
     n = len(df)
     df["scenario"] = df["scenario"].astype(str) if n else df["scenario"]
     df["engine"] = df["engine"].astype(str) if n else df["engine"]
     df["variant"] = [_variant(v) for v in df["variant"]]
-    df["status"] = [("unknown" if _missing(s) else str(s).strip().lower()) for s in df["status"]]
-    df["message"] = ["" if _missing(m) else str(m) for m in df["message"]]
-    df["engine_version"] = ["" if _missing(m) else str(m) for m in df["engine_version"]]
-    df["commit"] = ["" if _missing(m) else str(m) for m in df["commit"]]
-    df["timestamp"] = ["" if _missing(m) else str(m) for m in df["timestamp"]]
-    df["incomplete"] = [bool(_truthy(v)) for v in df["incomplete"]]
+    df["status"] = [("unknown" if is_missing(s) else str(s).strip().lower()) for s in df["status"]]
+    df["message"] = ["" if is_missing(m) else str(m) for m in df["message"]]
+    df["engine_version"] = ["" if is_missing(m) else str(m) for m in df["engine_version"]]
+    df["commit"] = ["" if is_missing(m) else str(m) for m in df["commit"]]
+    df["timestamp"] = ["" if is_missing(m) else str(m) for m in df["timestamp"]]
+    df["incomplete"] = [bool(truthy(v)) for v in df["incomplete"]]
     # a row's machine: the sweep's machine id, else the fingerprint's id the
     # row carries (check and run rows), else the host of rows older than it
     for col in ("machine.id", "machine.host"):
         if col in df.columns:
-            df["machine_id"] = [m if not _missing(m) else h for m, h in zip(df["machine_id"], df[col])]
-    df["machine_id"] = ["unknown" if _missing(m) else str(m) for m in df["machine_id"]]
-    df["suite"] = ["" if _missing(s) else str(s) for s in df["suite"]]
-    df["sweep_id"] = ["" if _missing(s) else str(s) for s in df["sweep_id"]]
-    df["dt"] = [_num(v) for v in df["setting.dt"]]
-    df["stable_flag"] = [_truthy(v) for v in df["stable"]]
+            df["machine_id"] = [m if not is_missing(m) else h for m, h in zip(df["machine_id"], df[col])]
+    df["machine_id"] = ["unknown" if is_missing(m) else str(m) for m in df["machine_id"]]
+    df["suite"] = ["" if is_missing(s) else str(s) for s in df["suite"]]
+    df["sweep_id"] = ["" if is_missing(s) else str(s) for s in df["sweep_id"]]
+    df["dt"] = [as_float(v) for v in df["setting.dt"]]
+    df["stable_flag"] = [truthy(v) for v in df["stable"]]
 
     scols = _setting_columns(df)
     swept, keys = [], []
@@ -212,7 +212,7 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
         r = dict(zip(df.columns, row))
         ps = r.get("point_settings")
         d: dict[str, Any] | None = None
-        if not _missing(ps):
+        if not is_missing(ps):
             try:
                 d = json.loads(ps) if isinstance(ps, str) else dict(ps)
             except Exception:
@@ -222,7 +222,7 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
             d = {k: v for k, v in d.items() if v is not None}
         swept.append(d)
         pk = r.get("point_key")
-        if _missing(pk):
+        if is_missing(pk):
             pk = json.dumps([r["scenario"], r["variant"], r["engine"],
                              {c[len("setting."):]: _setting_value(r[c]) for c in scols
                               if _setting_value(r[c]) is not None}], sort_keys=True, default=str)
@@ -233,10 +233,10 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
     # starts (its ``ensemble`` column) or the engines' consensus (engine
     # ``consensus``); '' for a plain run
     ens = list(df["ensemble"]) if "ensemble" in df.columns else [None] * len(df)
-    df["judge"] = ["consensus" if e == "consensus" else ("ensemble" if not _missing(x) else "")
+    df["judge"] = ["consensus" if e == "consensus" else ("ensemble" if not is_missing(x) else "")
                    for e, x in zip(df["engine"], ens)]
-    df["scene_hash"] = ["" if _missing(h) else str(h) for h in df["scene_hash"]]
-    df["scene_path"] = ["" if _missing(h) else str(h) for h in df["scene_path"]]
+    df["scene_hash"] = ["" if is_missing(h) else str(h) for h in df["scene_hash"]]
+    df["scene_path"] = ["" if is_missing(h) else str(h) for h in df["scene_path"]]
     # a point's series: its key without the scene hash (history splits a
     # series where the hash changes: history(), scene_changes())
     df["series_key"] = [k[:-len(h) - 1] if h and k.endswith("|" + h) else k
@@ -245,40 +245,40 @@ def normalise(df: pd.DataFrame) -> pd.DataFrame:
     col = list(df["phase"]) if "phase" in df.columns else [None] * len(df)
     ph = []
     for d, c in zip(swept, col):
-        v = _num(c)
+        v = as_float(c)
         if not math.isfinite(v):
-            v = _num(d.get("phase", 0.0)) if isinstance(d, dict) else 0.0
+            v = as_float(d.get("phase", 0.0)) if isinstance(d, dict) else 0.0
         ph.append(v if math.isfinite(v) else 0.0)
     df["phase"] = ph
 
     # the verdicts and tags the row was written with (None: not recorded)
     df["verdicts"] = [[v for v in vs if isinstance(v, dict)] if vs is not None else None
-                      for vs in map(_json_list, df["checks"])]
-    df["tags"] = [tuple(str(t) for t in ts) if ts is not None else None for ts in map(_json_list, df["tags"])]
+                      for vs in map(json_list, df["checks"])]
+    df["tags"] = [tuple(str(t) for t in ts) if ts is not None else None for ts in map(json_list, df["tags"])]
     # primary metric and error, as the row recorded them
     pm, pe = [], []
     for i, row in enumerate(df.itertuples(index=False)):
         r = dict(zip(df.columns, row))
         m = r.get("primary_metric")
-        m = None if _missing(m) else str(m)
-        e = _num(r.get("primary_error"))
+        m = None if is_missing(m) else str(m)
+        e = as_float(r.get("primary_error"))
         if math.isnan(e) and m and m in r:
-            e = _num(r[m])
+            e = as_float(r[m])
         if r["status"] != OK:
             e = math.nan
         pm.append(m)
         pe.append(e)
     df["primary_metric"] = pm
     df["primary_error"] = pe
-    med = [_num(v) for v in df["cpu_s_per_sim_s_median"]]
-    own = [_num(v) for v in df["cpu_s_per_sim_s"]]
+    med = [as_float(v) for v in df["cpu_s_per_sim_s_median"]]
+    own = [as_float(v) for v in df["cpu_s_per_sim_s"]]
     df["cost"] = [m if math.isfinite(m) else o for m, o in zip(med, own)]
-    df["cost_min"] = [_num(v) for v in df["cpu_s_per_sim_s_min"]]
-    df["repeats"] = [_num(v) for v in df["repeats"]]
+    df["cost_min"] = [as_float(v) for v in df["cpu_s_per_sim_s_min"]]
+    df["repeats"] = [as_float(v) for v in df["repeats"]]
     return df.reset_index(drop=True)
 
 
-def _ensure(df: pd.DataFrame) -> pd.DataFrame:
+def normalised(df: pd.DataFrame) -> pd.DataFrame:
     """A frame straight from Parquet (not through :func:`load_results`) is
     normalised first (its rows count as sweep rows unless they say
     otherwise)."""

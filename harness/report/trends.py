@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from physbench.harness.report.analysis import _sweeps
-from physbench.harness.report.rows import ERROR_FLOOR, _ensure, settings_label
+from physbench.harness.report.analysis import sweep_points
+from physbench.harness.report.rows import ERROR_FLOOR, normalised, settings_label
 from physbench.harness.status import OK
 
 NOISE_FLOOR = 0.10  # relative change below which nothing is ever flagged
@@ -86,7 +86,7 @@ def _series(df: pd.DataFrame):
     """(machine_id, suite, series_key) -> that point's sweep rows over time
     (one per sweep, the last if repeated; ascending sweep_id), whatever the
     scene's content."""
-    s = _sweeps(_ensure(df))
+    s = sweep_points(normalised(df))
     if s.empty:
         return
     s = s.sort_values(["sweep_id", "timestamp"], kind="stable")
@@ -175,7 +175,7 @@ def machine_shifts(df: pd.DataFrame, hist: dict | None = None) -> dict[tuple[str
     alike (MuJoCo, pybullet and pymunk unchanged), 277 of 894 points
     exceeded the 10 % floor; a code change moves some series, a slower
     machine moves all of them."""
-    df = _ensure(df)
+    df = normalised(df)
     hist = history(df) if hist is None else hist
     logs: dict[tuple[str, str, str], list[float]] = {}
     for (mid, suite, _pk), g in hist.items():
@@ -199,7 +199,7 @@ def pooled_noise(df: pd.DataFrame, hist: dict | None = None) -> dict[tuple[str, 
     about its scatter; the engine's hundreds of series say much (measured on
     this VM over three nights: 3.7 % MuJoCo, 5.0 % pybullet, 5.7 % pymunk,
     2.8 % reference).  Needs ``MACHINE_SHIFT_MIN_SERIES`` differences."""
-    df = _ensure(df)
+    df = normalised(df)
     hist = history(df) if hist is None else hist
     diffs: dict[tuple[str, str, str], list[float]] = {}
     for (mid, suite, _pk), g in hist.items():
@@ -259,7 +259,7 @@ def regressions(df: pd.DataFrame, hist: dict | None = None) -> pd.DataFrame:
     otherwise the sweep compared with), latest_sweep, severity (for
     ordering).
     """
-    df = _ensure(df)
+    df = normalised(df)
     cols = ["kind", "direction", "machine_id", "suite", "scenario", "variant", "engine", "settings",
             "point_key", "previous", "latest", "change", "threshold", "previous_sweep", "latest_sweep",
             "severity"]

@@ -11,8 +11,9 @@ import numpy as np
 import rerun as rr
 
 from physbench.contract.scene import Scene
+from physbench.harness.metrics import momenta
 from physbench.harness.trace import diagnose as dg
-from physbench.harness.trace.channels import _send_scalars, _time_columns, body_entity
+from physbench.harness.trace.channels import body_entity, send_scalars, time_columns
 from physbench.harness.trace.contacts import DEFAULT_CAP, harness_contacts
 
 GHOST_COLOR = (60, 200, 90, 90)  # translucent green
@@ -132,7 +133,7 @@ class Diagnosis:
         for rs in self.predicted:
             y = dg.evaluate_series(rs.model, t)
             if y is not None:
-                _send_scalars(rec, f"{dg.PREDICTION_PATH}/{rs.key}", steps, t, y)
+                send_scalars(rec, f"{dg.PREDICTION_PATH}/{rs.key}", steps, t, y)
         if self.model is None:
             return
         t_end = float(t[-1]) if t.size else 0.0
@@ -142,7 +143,7 @@ class Diagnosis:
         if moments:
             tm = np.array([m[0] for m in moments])
             st = np.rint(tm / dt).astype(np.int64) if dt and dt > 0 else np.searchsorted(t, tm)
-            rec.send_columns("/events/model", indexes=_time_columns(st, tm),
+            rec.send_columns("/events/model", indexes=time_columns(st, tm),
                              columns=rr.TextLog.columns(text=[f"model: {m[1]} at t = {m[0]:.6g} s" for m in moments],
                                                         level=["INFO"] * len(moments)))
 
@@ -182,26 +183,24 @@ class Diagnosis:
         run's contract.geometry.Penetration (None without contact);
         ``energy``: harness.metrics.relative_energy of ``tr``, computed once
         by the writer."""
-        from physbench.harness.metrics import momenta
-
         lab = engine_path.rsplit("/", 1)[1]
         P, L = momenta(scene, tr)
-        _send_scalars(rec, f"{metrics_path}/momentum/linear", steps, t, np.linalg.norm(P, axis=1))
-        _send_scalars(rec, f"{metrics_path}/momentum/angular", steps, t, np.linalg.norm(L, axis=1))
+        send_scalars(rec, f"{metrics_path}/momentum/linear", steps, t, np.linalg.norm(P, axis=1))
+        send_scalars(rec, f"{metrics_path}/momentum/angular", steps, t, np.linalg.norm(L, axis=1))
         err = None
         traj = dg.model_trajectory(self.model, scene, t)
         if traj is not None:
             err = dg.error_series(tr.pos, traj[0])  # (F, n)
             for i, b in enumerate(scene.bodies):
                 if np.isfinite(traj[0][:, i]).all():
-                    _send_scalars(rec, body_entity(f"{metrics_path}/error", b), steps, t, err[:, i])
+                    send_scalars(rec, body_entity(f"{metrics_path}/error", b), steps, t, err[:, i])
         mine = [o for o in self.outcomes if o.engine == result.engine]
         frame_max = pen.frame_max() if pen is not None else None
         # contacts: the harness's, then the engine's own
         if pen is not None:
             self._log_contacts(rec, f"{engine_path}/contacts", steps, t,
                                harness_contacts(scene, tr, self.contact_cap, pen=pen), HARNESS_CONTACT_COLOR,
-                               _time_columns)
+                               time_columns)
         engine_note = ""
         if result.contacts is None:
             engine_note = "not recorded (the run was not traced with contacts, or the adapter cannot read them)"
@@ -209,22 +208,22 @@ class Diagnosis:
             F = tr.t.shape[0]
             eng = [(f, c) for f, c in result.contacts if f < F]
             self._log_contacts(rec, f"{engine_path}/engine_contacts", steps, t, eng, ENGINE_CONTACT_COLOR,
-                               _time_columns)
+                               time_columns)
             engine_note = f"{len(eng)} frames with contacts at /world/{lab}/engine_contacts"
         running = dg.check_series(scene, tr, frame_max, err, energy=energy)
         self.log_energy_band(rec, metrics_path, scene, tr, steps, t, running, energy)
         for name in self.checks:
             if name in running and name not in THRESHOLD_GROUP:
-                _send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])
+                send_scalars(rec, f"{metrics_path}/check/{name}", steps, t, running[name])
         for rs in self.predicted:
             y = None if rs.measure is None else dg.evaluate_series(rs.measure, tr)
             if y is not None:
-                _send_scalars(rec, f"{metrics_path}/predicted/{rs.key}", steps, t, y)
+                send_scalars(rec, f"{metrics_path}/predicted/{rs.key}", steps, t, y)
         events = dg.find_events(scene, result, tr, penetration=frame_max, error=err, model=self.model,
                                 outcomes=mine, checks=self.checks, series=running)
         if events:
             f = np.array([e.frame for e in events])
-            rec.send_columns(f"/events/{lab}", indexes=_time_columns(steps[f], t[f]),
+            rec.send_columns(f"/events/{lab}", indexes=time_columns(steps[f], t[f]),
                              columns=rr.TextLog.columns(text=[e.text for e in events],
                                                         level=[e.level for e in events]))
         doc = dg.context_markdown(scene, result, mine, self.model, engine_note)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from physbench.contract.scene import Scene
+from physbench.harness.trace.writer import write_rrd
 
 TRACED_OUTCOMES = ("FAIL", "XFAIL", "ERROR")
 
@@ -39,8 +40,6 @@ def write_case_trace(out_dir: str | Path, scene: Scene, results: Sequence, outco
     """Write the diagnosing trace of one case: ``results`` (RunResults with
     traces; engine contacts where recorded) of ``scene`` with the case's
     ``outcomes``.  Returns the path written."""
-    from physbench.harness.trace.writer import write_rrd
-
     results = list(results)
     if name is None:
         r = results[0]

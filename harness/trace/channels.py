@@ -12,30 +12,30 @@ from physbench.contract.scene import Body
 RESERVED_CHILDREN = ("static", "status", "contacts", "engine_contacts", "joints")
 
 
-def _part(name: str) -> str:
+def entity_part(name: str) -> str:
     return rr.escape_entity_path_part(name)
 
 
 def body_entity(engine_path: str, body: Body) -> str:
     """Entity path of ``body`` under ``engine_path``."""
     name = body.name if body.name not in RESERVED_CHILDREN else f"{body.name}_body"
-    return f"{engine_path}/{_part(name)}"
+    return f"{engine_path}/{entity_part(name)}"
 
 
 def joint_entity(engine_path: str, joint) -> str:
     """Entity path of ``joint`` (contract.scene_model.Joint) under
     ``engine_path``: ``<engine_path>/joints/<joint name>``."""
-    return f"{engine_path}/joints/{_part(joint.name)}"
+    return f"{engine_path}/joints/{entity_part(joint.name)}"
 
 
-def _time_columns(steps: np.ndarray, t: np.ndarray) -> list[rr.TimeColumn]:
+def time_columns(steps: np.ndarray, t: np.ndarray) -> list[rr.TimeColumn]:
     return [rr.TimeColumn("step", sequence=steps), rr.TimeColumn("sim_time", duration=t)]
 
 
-def _send_scalars(rec: rr.RecordingStream, path: str, steps: np.ndarray, t: np.ndarray, y: np.ndarray) -> None:
+def send_scalars(rec: rr.RecordingStream, path: str, steps: np.ndarray, t: np.ndarray, y: np.ndarray) -> None:
     ok = np.isfinite(y)
     if not ok.any():
         return
     if not ok.all():
         steps, t, y = steps[ok], t[ok], y[ok]
-    rec.send_columns(path, indexes=_time_columns(steps, t), columns=rr.Scalars.columns(scalars=y))
+    rec.send_columns(path, indexes=time_columns(steps, t), columns=rr.Scalars.columns(scalars=y))

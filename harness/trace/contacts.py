@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.contract.geometry import Placed, _phi, _placed_body, _placed_static_box
+from physbench.contract.geometry import Placed, measure_penetration, placed_body, placed_static_box, projection_overlap
 from physbench.contract.scene import Scene
 
 DEFAULT_CAP = 32  # contact rows per frame kept in a trace
@@ -101,7 +101,7 @@ def pair_normals(A: Placed, B: Placed) -> np.ndarray:
     # orient every candidate toward B (phi(-n) >= phi(n) when n . d >= 0)
     sgn = np.where(np.einsum("nmi,ni->nm", n, d) < 0, -1.0, 1.0)
     n = n * sgn[..., None]
-    phi = _phi(A, B, d, n)
+    phi = projection_overlap(A, B, d, n)
     phi = np.where(np.isfinite(phi) & (norm[..., 0] > 1e-12), phi, np.inf)
     best = np.argmin(phi, axis=1)
     return n[np.arange(N), best]
@@ -113,8 +113,6 @@ def harness_contacts(scene: Scene, trace, cap: int = DEFAULT_CAP, pen=None) -> l
     docstring).  ``pen``: a :class:`contract.geometry.Penetration` of this
     trace if the caller has one."""
     if pen is None:
-        from physbench.contract.geometry import measure_penetration
-
         pen = measure_penetration(scene, trace)
     ok = np.isfinite(pen.depths) & (pen.depths > 0)
     frames, cols, depths = pen.frames[ok], pen.cols[ok], pen.depths[ok]
@@ -133,13 +131,13 @@ def harness_contacts(scene: Scene, trace, cap: int = DEFAULT_CAP, pen=None) -> l
         sel = np.nonzero(cols == col)[0]
         i, kind, j = pen.pairs[col]
         f = frames[sel]
-        A = _placed_body(scene.bodies[i], trace.pos[f, i], trace.quat[f, i])
+        A = placed_body(scene.bodies[i], trace.pos[f, i], trace.quat[f, i])
         if kind == "static" and scene.statics[j].shape != "box":
             s = scene.statics[j]
             n = np.broadcast_to(-np.asarray(s.normal, float), (sel.size, 3))  # into the solid
         else:
-            B = (_placed_static_box(scene.statics[j], sel.size) if kind == "static"
-                 else _placed_body(scene.bodies[j], trace.pos[f, j], trace.quat[f, j]))
+            B = (placed_static_box(scene.statics[j], sel.size) if kind == "static"
+                 else placed_body(scene.bodies[j], trace.pos[f, j], trace.quat[f, j]))
             n = pair_normals(A, B)
         rows[sel, 3:6] = n
         rows[sel, 0:3] = support_point(A, n) - 0.5 * depths[sel, None] * n

@@ -14,7 +14,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from physbench.contract.metric_defs import dissipation
 from physbench.contract.scene import Scene
+from physbench.harness.joints import joint_violations
+from physbench.harness.metrics import momentum_drift_series, relative_energy
+from physbench.harness.references import get_model
+from physbench.harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
 
 REST_SPEED = 1e-3  # m/s: a body is at rest when |v| and |w| x bounding radius stay below this
 MAX_EVENTS = 200  # per run: a trace marks where to look, it is not a log
@@ -35,7 +40,6 @@ def reference_model(scene: Scene):
     not fit: the metrics say why)."""
     if not scene.reference_model:
         return None
-    from physbench.harness.references import get_model
 
     try:
         return get_model(scene.reference_model)(scene)
@@ -144,8 +148,6 @@ def first_above(series: np.ndarray, bound: float) -> int | None:
 def divergence_frame(trace) -> int | None:
     """First frame with a non-finite or runaway state (the runner's bounds),
     or None."""
-    from physbench.harness.runner import RUNAWAY_POSITION, RUNAWAY_SPEED
-
     with np.errstate(invalid="ignore"):
         bad = ~(np.abs(trace.pos) <= RUNAWAY_POSITION).all(axis=(1, 2))
         bad |= ~(np.abs(trace.vel) <= RUNAWAY_SPEED).all(axis=(1, 2))
@@ -197,9 +199,6 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
     caller has it (computed here when None).
     Metrics that are NaN for the scene (energy_drift of a dissipative scene,
     momentum drift under an external force) have no series."""
-    from physbench.contract.metric_defs import dissipation
-    from physbench.harness.metrics import momentum_drift_series, relative_energy
-
     out: dict[str, np.ndarray] = {}
     if penetration is not None:
         out["max_penetration"] = penetration
@@ -223,8 +222,6 @@ def check_series(scene: Scene, trace, penetration: np.ndarray | None = None,
         # the largest violation over the joints per frame: joint_drift and
         # joint_axis_drift are these series' maxima (harness.joints;
         # tests/test_trace_joints.py::test_diagnosing_trace_draws_the_joint_drift_series)
-        from physbench.harness.joints import joint_violations
-
         v = joint_violations(scene, trace)
         out["joint_drift"] = np.max(np.stack([a for a, _ in v]), axis=0)
         out["joint_axis_drift"] = np.max(np.stack([b for _, b in v]), axis=0)

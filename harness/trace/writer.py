@@ -82,11 +82,12 @@ from typing import Sequence
 import numpy as np
 import rerun as rr
 
+from physbench.contract.geometry import measure_penetration
 from physbench.harness.metrics import relative_energy
 from physbench.harness.trace.annotate import DEFAULT_CAP, Diagnosis
 from physbench.harness.trace.blueprint import default_blueprint, family_blueprint
 from physbench.harness.joints import joint_world
-from physbench.harness.trace.channels import _part, _send_scalars, _time_columns, body_entity, joint_entity
+from physbench.harness.trace.channels import body_entity, entity_part, joint_entity, send_scalars, time_columns
 
 from physbench.contract.rotation import quat_rotate, wxyz_to_xyzw
 from physbench.contract.scene import Body, Scene, Static
@@ -259,7 +260,7 @@ def body_shape(body: Body, color) -> rr.AsComponents:
 
 def _log_statics(rec: rr.RecordingStream, engine_path: str, scene: Scene, box: Extent) -> None:
     for s in scene.statics:
-        path = f"{engine_path}/static/{_part(s.name)}"
+        path = f"{engine_path}/static/{entity_part(s.name)}"
         if s.shape == "box":
             rec.log(path, rr.Transform3D(translation=s.position,
                                          quaternion=rr.Quaternion(xyzw=wxyz_to_xyzw(s.orientation))),
@@ -290,7 +291,7 @@ def _log_bodies(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: 
     """Each body's shape (static) and its poses pos (F, n, 3), quat (F, n, 4)
     wxyz at the given steps, one send_columns per body, non-finite frames
     left out."""
-    times = _time_columns(steps, t)
+    times = time_columns(steps, t)
     # one copy each into per-body contiguous float32 blocks (what rerun
     # stores), instead of a strided copy per body
     pos = np.ascontiguousarray(np.swapaxes(pos, 0, 1), dtype=np.float32)  # (n, F, 3)
@@ -311,7 +312,7 @@ def _log_bodies(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: 
         if ok.all():
             idx, p, q = times, pos[i], quat[i]
         elif ok.any():
-            idx, p, q = _time_columns(steps[ok], t[ok]), pos[i][ok], quat[i][ok]
+            idx, p, q = time_columns(steps[ok], t[ok]), pos[i][ok], quat[i][ok]
         else:
             continue
         rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(translation=p, quaternion=q))
@@ -343,7 +344,7 @@ def _log_joints(rec: rr.RecordingStream, engine_path: str, scene: Scene, steps: 
         if not ok.any():
             continue
         n = int(ok.sum())
-        idx = _time_columns(steps[ok], t[ok])
+        idx = time_columns(steps[ok], t[ok])
         lengths = np.full(n, 2)
         colors = np.tile(np.array([color, other_color], np.uint8), (n, 1))
         rec.send_columns(f"{path}/anchors", indexes=idx, columns=rr.Points3D.columns(
@@ -370,15 +371,13 @@ def _log_run(rec: rr.RecordingStream, engine_path: str, metrics_path: str, scene
     if not (F and scene.n_bodies):
         return
     energy = relative_energy(scene, tr)  # (dE, E, E_scale): the plot, the bands, the crossings
-    _send_scalars(rec, f"{metrics_path}/energy", steps, t, energy[1])
+    send_scalars(rec, f"{metrics_path}/energy", steps, t, energy[1])
     pen = None
     if scene.has("contact"):
         pen = tr.penetration
         if pen is None or pen.n_frames != F:
-            from physbench.contract.geometry import measure_penetration
-
             pen = measure_penetration(scene, tr)
-        _send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())
+        send_scalars(rec, f"{metrics_path}/penetration", steps, t, pen.frame_max())
     if diag is not None:
         diag.log_run(rec, engine_path, metrics_path, scene, result, tr, steps, t, pen, energy)
 
@@ -391,7 +390,7 @@ def run_labels(results: Sequence) -> list[str]:
     for r in results:
         k = seen.get(r.engine, 0) + 1
         seen[r.engine] = k
-        out.append(_part(r.engine if k == 1 else f"{r.engine}_{k}"))
+        out.append(entity_part(r.engine if k == 1 else f"{r.engine}_{k}"))
     return out
 
 
