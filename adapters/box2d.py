@@ -68,16 +68,18 @@ ENGINE = "box2d"
 
 GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
 
-#: steps recorded into the staging block between two conversions: its row
-#: views are made once per adapter (three views per row; made per block
-#: row, up to the runner's largest block, they cost ~0.8 us per recorded
-#: step on the bench's 10-box pyramid, measured) and the block stays in
-#: cache until it is converted.  A conversion costs ~14 us whatever its
-#: length (30 array operations and their views) besides ~14 ns per body and
-#: step: step_record with a no-op engine, warm, costs 0.53 / 0.45 / 0.41 us
-#: per step on the 10-box pyramid at 128 / 256 / 512 rows (head_on 0.39 /
-#: 0.30 / 0.26), while the rows' views cost ~0.1 ms per 256 rows, once
-CHUNK = 256
+#: body-steps (rows x bodies) of the staging block between two conversions,
+#: for scenes of fewer than 10 bodies; more bodies take :data:`CHUNK_ROWS`
+#: rows.  A conversion costs ~14 us whatever its length (30 array
+#: operations and their views) besides ~14 ns per body and step, and works
+#: in cache best at ~1280 body-steps: recording the 10-box pyramid in runs
+#: (runner / bare loop, interleaved, 41 repeats, load 5.5) costs 1.053 at 128
+#: rows and 1.061-1.065 at 256; head_on (2 bodies) 1.011 at 128 rows and
+#: 1.006 at 256 (warm, with a no-op engine: 0.39 / 0.30 / 0.26 us per step
+#: at 128 / 256 / 512 rows)
+CHUNK_ELEMENTS = 1280
+#: the fewest steps of a staging block (10 bodies and more)
+CHUNK_ROWS = 128
 
 
 class Box2dAdapter(Adapter):
@@ -162,6 +164,8 @@ class Box2dAdapter(Adapter):
             self._batch.append(body)
         n = scene.n_bodies
         self._t, self._v, self._w = np.zeros((n, 4), np.float32), np.zeros((n, 2), np.float32), np.zeros(n, np.float32)
+        self._chunk = max(CHUNK_ROWS, CHUNK_ELEMENTS // max(n, 1))  # staging rows
+        self._block = None
 
         if scene.joints:  # adapters/box2d_joints.py
             add_joints(b2, world, scene, self._bodies, self.notes, self.info)
@@ -244,30 +248,35 @@ class Box2dAdapter(Adapter):
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, each step's three batched f32 reads (transforms,
         linear and angular velocities) written straight into a row of a
-        reused staging block of :data:`CHUNK` rows through views made once
-        (no allocation per step), converted (:meth:`_convert`) into the
-        (n, bodies, 3|4) blocks every CHUNK steps, while the staging rows
-        are still in cache; also the complete steps before an exception."""
+        reused staging block (:data:`CHUNK_ELEMENTS`) through views made
+        once (no allocation per step), converted (:meth:`_convert`) into
+        the (n, bodies, 3|4) blocks every block of steps, while the staging
+        rows are still in cache; also the complete steps before an
+        exception."""
         if self._forces is not None:
             return super().step_record(n, pos, quat, vel, angvel)
         self.block_done = 0
-        for c in range(0, n, CHUNK):
-            m = min(CHUNK, n - c)
+        chunk = self._chunk
+        for c in range(0, n, chunk):
+            m = min(chunk, n - c)
             self._record(m, pos[c:c + m], quat[c:c + m], vel[c:c + m], angvel[c:c + m])
 
     def _record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """:meth:`step_record`'s chunk of n <= CHUNK steps (``block_done``
-        and ``steps`` count the complete ones)."""
+        """:meth:`step_record`'s chunk of n <= ``_chunk`` steps
+        (``block_done`` and ``steps`` count the complete ones)."""
         nb = len(self._bodies)
-        blk = getattr(self, "_block", None)
+        blk = self._block
         if blk is None:
             # pyb2d3 silently copies a non-contiguous output array (and then
             # writes nothing back): every row view below is C-contiguous,
-            # made once for the adapter's life
-            t, v, w = (np.zeros((CHUNK, nb, 4), np.float32), np.zeros((CHUNK, nb, 2), np.float32),
-                       np.zeros((CHUNK, nb), np.float32))
-            blk = self._block = (t, v, w, list(zip(t, v, w)))  # row views, made by numpy's iteration
+            # made once for the adapter's life, as far as the steps need
+            c = self._chunk
+            blk = self._block = (np.zeros((c, nb, 4), np.float32), np.zeros((c, nb, 2), np.float32),
+                                 np.zeros((c, nb), np.float32), [])
         t, v, w, rows = blk
+        if len(rows) < n:  # row views, made by numpy's iteration
+            k = len(rows)
+            rows.extend(zip(t[k:n], v[k:n], w[k:n]))
         world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
         step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
         done = 0

@@ -360,7 +360,8 @@ def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
     from physbench.adapters import box2d
 
     sc = load_scene(head_on_path)
-    n, k = 300, box2d.CHUNK + 9
+    k = max(box2d.CHUNK_ROWS, box2d.CHUNK_ELEMENTS // sc.n_bodies) + 9
+    n = k + 50
     ref = Box2dAdapter()
     ref.build(sc, Box2dAdapter.resolve_settings(sc))
     want = [np.zeros((k - 1, 2, j)) for j in (3, 4, 3, 3)]
@@ -380,6 +381,7 @@ def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
                 raise RuntimeError("engine failure")
             self.world.step(dt, sub)
 
+    assert a._chunk == k - 9
     a._world = Failing(a._world)
     got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
     with pytest.raises(RuntimeError, match="engine failure"):
