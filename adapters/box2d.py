@@ -74,9 +74,8 @@ GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
 #: operations and their views) besides ~14 ns per body and step, and works
 #: in cache best at ~1280 body-steps: recording the 10-box pyramid in runs
 #: (runner / bare loop, interleaved, 41 repeats, load 5.5) costs 1.053 at 128
-#: rows and 1.061-1.065 at 256; head_on (2 bodies) 1.011 at 128 rows and
-#: 1.006 at 256 (warm, with a no-op engine: 0.39 / 0.30 / 0.26 us per step
-#: at 128 / 256 / 512 rows)
+#: rows and 1.061-1.065 at 256; head_on (2 bodies) 0.957 at 640 rows and
+#: 0.991 at 128 (21 repeats)
 CHUNK_ELEMENTS = 1280
 #: the fewest steps of a staging block (10 bodies and more)
 CHUNK_ROWS = 128
