@@ -272,9 +272,9 @@ class Box2dAdapter(Adapter):
             # writes nothing back): every row view below is C-contiguous,
             # made once for the adapter's life, as far as the steps need
             c = self._chunk
-            blk = self._block = (np.zeros((c, nb, 4), np.float32), np.zeros((c, nb, 2), np.float32),
-                                 np.zeros((c, nb), np.float32), [])
-        t, v, w, rows = blk
+            t, v, w = np.zeros((c, nb, 4), np.float32), np.zeros((c, nb, 2), np.float32), np.zeros((c, nb), np.float32)
+            blk = self._block = (t, v, w, [], _inputs(t, v, w, np.empty((4, c, nb))))
+        t, v, w, rows, full = blk
         if len(rows) < n:  # row views, made by numpy's iteration
             k = len(rows)
             rows.extend(zip(t[k:n], v[k:n], w[k:n]))
@@ -291,7 +291,9 @@ class Box2dAdapter(Adapter):
         finally:
             self.steps += done
             self.block_done += done
-            if done and nb:
+            if done == len(t) and done == len(pos) and nb:  # a whole block: its views made once
+                _write(full, pos, quat, vel, angvel)
+            elif done and nb:
                 self._convert(t[:done], v[:done], w[:done], pos[:done], quat[:done], vel[:done], angvel[:done])
 
     def _convert(self, t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray,
@@ -313,22 +315,7 @@ class Box2dAdapter(Adapter):
         s = getattr(self, "_scratch", None)
         if s is None or s.shape[1] < m:
             s = self._scratch = np.empty((4, max(m, 1024)))
-        world_quat_from_planar_rotation(t[..., 2], t[..., 3], quat[..., 0], quat[..., 2],
-                                        s[:, :m].reshape((4, *shape)))
-        quat[..., 1::2] = 0.0
-        # one component per assignment: each is then one long strided loop
-        # (a (..., 2) pair of components would be loops of two: 2.6x slower,
-        # measured); a float32 -> float64 assignment, not a ufunc casting
-        # on the way (3x slower, measured)
-        pos[..., 0] = t[..., 0]
-        pos[..., 1] = 0.0
-        pos[..., 2] = t[..., 1]
-        vel[..., 0] = v[..., 0]
-        vel[..., 1] = 0.0
-        vel[..., 2] = v[..., 1]
-        angvel[..., 0::2] = 0.0
-        angvel[..., 1] = w
-        np.negative(angvel[..., 1], out=angvel[..., 1])
+        _write(_inputs(t, v, w, s[:, :m].reshape((4, *shape))), pos, quat, vel, angvel)
 
     bare_record = bare_loops.box2d
 
@@ -365,3 +352,32 @@ class Box2dAdapter(Adapter):
         self._scratch = None
         self._bodies = []
         self._world = None
+
+
+def _inputs(t: np.ndarray, v: np.ndarray, w: np.ndarray, scratch: np.ndarray) -> tuple:
+    """The component views :func:`_write` reads: x, y, cos, sin of the
+    transforms (..., nb, 4), vx, vy of the velocities (..., nb, 2), the
+    angular velocities (..., nb) and a float64 scratch (4, ..., nb)."""
+    return t[..., 0], t[..., 1], t[..., 2], t[..., 3], v[..., 0], v[..., 1], w, scratch
+
+
+def _write(inputs: tuple, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+    """:meth:`Box2dAdapter._convert`'s array operations, from
+    :func:`_inputs`' views into the world arrays (..., nb, 3|4)."""
+    x, y, c, s, vx, vy, w, scratch = inputs
+    world_quat_from_planar_rotation(c, s, quat[..., 0], quat[..., 2], scratch)
+    quat[..., 1::2] = 0.0
+    # one component per assignment: each is then one long strided loop
+    # (a (..., 2) pair of components would be loops of two: 2.6x slower,
+    # measured); a float32 -> float64 assignment, not a ufunc casting on
+    # the way (3x slower, measured)
+    pos[..., 0] = x
+    pos[..., 1] = 0.0
+    pos[..., 2] = y
+    vel[..., 0] = vx
+    vel[..., 1] = 0.0
+    vel[..., 2] = vy
+    angvel[..., 0::2] = 0.0
+    a = angvel[..., 1]
+    a[...] = w
+    np.negative(a, out=a)
