@@ -4,8 +4,10 @@ scenes only, single precision.
 Planar mapping (as for pymunk): a planar scene lives in the world x-z
 plane; :func:`contract.conventions.planar_from_world` at build and
 :func:`contract.conventions.world_from_planar`'s mapping in :meth:`Box2dAdapter._convert`
-(vectorised over a block) are the only conversions (2D x = world x, 2D y = world z, counter-clockwise
-w = world angular velocity (0, -w, 0)).  Mass = ``Body.mass`` and rotational
+(vectorised over a block, the quaternion from Box2D's (cos, sin) by
+:func:`contract.conventions.world_quat_from_planar_rotation`) are the only
+conversions (2D x = world x, 2D y = world z, counter-clockwise w = world
+angular velocity (0, -w, 0)).  Mass = ``Body.mass`` and rotational
 inertia = ``Body.inertia[1]`` (I_yy of the 3D body, exact for rotations about
 y), set as the body's mass data after its shape (density 0).
 
@@ -59,19 +61,26 @@ from physbench.adapters.box2d_joints import add_joints
 from physbench.adapters.box2d_scene import body_shape, declaration, rot, shape_materials, static_pose
 from physbench.adapters.forces import DRAG_NOTE, StateForces
 from physbench.adapters.planar import planar_geometry_reason
-from physbench.contract.conventions import planar_from_world, world_point_to_planar
+from physbench.contract.conventions import planar_from_world, world_point_to_planar, world_quat_from_planar_rotation
 from physbench.contract.scene import Scene
 
 ENGINE = "box2d"
 
 GYROSCOPIC_REASON = planar_gyroscopic_reason("Box2D")
 
-#: steps recorded into the staging block between two conversions: its row
-#: views are made once per adapter (three views per row; made per block
-#: row, up to the runner's largest block, they cost ~0.8 us per recorded
-#: step on the bench's 10-box pyramid, measured) and the block stays in
-#: cache until it is converted
-CHUNK = 128
+#: body-steps (rows x bodies) of the staging block between two conversions,
+#: for scenes of fewer than 10 bodies; more bodies take :data:`CHUNK_ROWS`
+#: rows.  Its row views are made once per adapter (made for every block of
+#: the runner's they cost ~0.8 us per recorded step on the 10-box pyramid,
+#: measured) and it stays in cache until converted.  A conversion costs ~14 us whatever its length (30 array
+#: operations and their views) besides ~14 ns per body and step, and works
+#: in cache best at ~1280 body-steps: recording the 10-box pyramid in runs
+#: (runner / bare loop, interleaved, 41 repeats, load 5.5) costs 1.053 at 128
+#: rows and 1.061-1.065 at 256; head_on (2 bodies) 0.957 at 640 rows and
+#: 0.991 at 128 (21 repeats)
+CHUNK_ELEMENTS = 1280
+#: the fewest steps of a staging block (10 bodies and more)
+CHUNK_ROWS = 128
 
 
 class Box2dAdapter(Adapter):
@@ -156,6 +165,8 @@ class Box2dAdapter(Adapter):
             self._batch.append(body)
         n = scene.n_bodies
         self._t, self._v, self._w = np.zeros((n, 4), np.float32), np.zeros((n, 2), np.float32), np.zeros(n, np.float32)
+        self._chunk = max(CHUNK_ROWS, CHUNK_ELEMENTS // max(n, 1))  # staging rows
+        self._block = None
 
         if scene.joints:  # adapters/box2d_joints.py
             add_joints(b2, world, scene, self._bodies, self.notes, self.info)
@@ -238,30 +249,35 @@ class Box2dAdapter(Adapter):
     def step_record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
         """Step n times, each step's three batched f32 reads (transforms,
         linear and angular velocities) written straight into a row of a
-        reused staging block of :data:`CHUNK` rows through views made once
-        (no allocation per step), converted (:meth:`_convert`) into the
-        (n, bodies, 3|4) blocks every CHUNK steps, while the staging rows
-        are still in cache; also the complete steps before an exception."""
+        reused staging block (:data:`CHUNK_ELEMENTS`) through views made
+        once (no allocation per step), converted (:meth:`_convert`) into
+        the (n, bodies, 3|4) blocks every block of steps, while the staging
+        rows are still in cache; also the complete steps before an
+        exception."""
         if self._forces is not None:
             return super().step_record(n, pos, quat, vel, angvel)
         self.block_done = 0
-        for c in range(0, n, CHUNK):
-            m = min(CHUNK, n - c)
+        chunk = self._chunk
+        for c in range(0, n, chunk):
+            m = min(chunk, n - c)
             self._record(m, pos[c:c + m], quat[c:c + m], vel[c:c + m], angvel[c:c + m])
 
     def _record(self, n: int, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
-        """:meth:`step_record`'s chunk of n <= CHUNK steps (``block_done``
-        and ``steps`` count the complete ones)."""
+        """:meth:`step_record`'s chunk of n <= ``_chunk`` steps
+        (``block_done`` and ``steps`` count the complete ones)."""
         nb = len(self._bodies)
-        blk = getattr(self, "_block", None)
+        blk = self._block
         if blk is None:
             # pyb2d3 silently copies a non-contiguous output array (and then
             # writes nothing back): every row view below is C-contiguous,
-            # made once for the adapter's life
-            t, v, w = (np.zeros((CHUNK, nb, 4), np.float32), np.zeros((CHUNK, nb, 2), np.float32),
-                       np.zeros((CHUNK, nb), np.float32))
-            blk = self._block = (t, v, w, [(t[i], v[i], w[i]) for i in range(CHUNK)])
-        t, v, w, rows = blk
+            # made once for the adapter's life, as far as the steps need
+            c = self._chunk
+            t, v, w = np.zeros((c, nb, 4), np.float32), np.zeros((c, nb, 2), np.float32), np.zeros((c, nb), np.float32)
+            blk = self._block = (t, v, w, [], _inputs(t, v, w, np.empty((4, c, nb))))
+        t, v, w, rows, full = blk
+        if len(rows) < n:  # row views, made by numpy's iteration
+            k = len(rows)
+            rows.extend(zip(t[k:n], v[k:n], w[k:n]))
         world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
         step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
         done = 0
@@ -275,7 +291,9 @@ class Box2dAdapter(Adapter):
         finally:
             self.steps += done
             self.block_done += done
-            if done and nb:
+            if done == len(t) and done == len(pos) and nb:  # a whole block: its views made once
+                _write(full, pos, quat, vel, angvel)
+            elif done and nb:
                 self._convert(t[:done], v[:done], w[:done], pos[:done], quat[:done], vel[:done], angvel[:done])
 
     def _convert(self, t: np.ndarray, v: np.ndarray, w: np.ndarray, pos: np.ndarray, quat: np.ndarray,
@@ -284,10 +302,11 @@ class Box2dAdapter(Adapter):
         (..., nb, 2) and angular velocities (..., nb) into the harness's
         world arrays (..., nb, 3|4): the mapping of
         :func:`contract.conventions.world_from_planar` (x, y -> world x, z;
-        angle = atan2(sin, cos) in float64, quaternion (cos a/2, 0,
-        -sin a/2, 0); w -> (0, -w, 0)), vectorised over the block into the
-        output arrays and two reused float64 scratch arrays: 15 array
-        operations, no temporary
+        w -> (0, -w, 0)), the quaternion from (cos, sin) by
+        :func:`contract.conventions.world_quat_from_planar_rotation` (the
+        angle path's (cos a/2, 0, -sin a/2, 0), a = atan2(sin, cos), without
+        its three transcendental passes), vectorised over the block into the
+        output arrays and a reused float64 scratch block: no temporary
         (tests/test_adapter_box2d.py::test_block_conversion_is_world_from_planar)."""
         shape = t.shape[:-1]
         m = math.prod(shape)
@@ -295,26 +314,8 @@ class Box2dAdapter(Adapter):
             return
         s = getattr(self, "_scratch", None)
         if s is None or s.shape[1] < m:
-            s = self._scratch = np.empty((2, max(m, 1024)))
-        a, h = s[0, :m].reshape(shape), s[1, :m].reshape(shape)
-        np.arctan2(t[..., 3], t[..., 2], out=a, dtype=np.float64)  # float32 -> float64 exactly, then atan2
-        np.multiply(0.5, a, out=h)
-        np.cos(h, out=quat[..., 0])
-        np.sin(h, out=a)
-        np.negative(a, out=quat[..., 2])
-        quat[..., 1::2] = 0.0
-        # one component per assignment: each is then one long strided loop
-        # (a (..., 2) pair of components would be loops of two: 2.6x slower,
-        # measured)
-        pos[..., 0] = t[..., 0]
-        pos[..., 1] = 0.0
-        pos[..., 2] = t[..., 1]
-        vel[..., 0] = v[..., 0]
-        vel[..., 1] = 0.0
-        vel[..., 2] = v[..., 1]
-        angvel[..., 0] = 0.0
-        np.negative(w, out=angvel[..., 1])
-        angvel[..., 2] = 0.0
+            s = self._scratch = np.empty((4, max(m, 1024)))
+        _write(_inputs(t, v, w, s[:, :m].reshape((4, *shape))), pos, quat, vel, angvel)
 
     bare_record = bare_loops.box2d
 
@@ -351,3 +352,32 @@ class Box2dAdapter(Adapter):
         self._scratch = None
         self._bodies = []
         self._world = None
+
+
+def _inputs(t: np.ndarray, v: np.ndarray, w: np.ndarray, scratch: np.ndarray) -> tuple:
+    """The component views :func:`_write` reads: x, y, cos, sin of the
+    transforms (..., nb, 4), vx, vy of the velocities (..., nb, 2), the
+    angular velocities (..., nb) and a float64 scratch (4, ..., nb)."""
+    return t[..., 0], t[..., 1], t[..., 2], t[..., 3], v[..., 0], v[..., 1], w, scratch
+
+
+def _write(inputs: tuple, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> None:
+    """:meth:`Box2dAdapter._convert`'s array operations, from
+    :func:`_inputs`' views into the world arrays (..., nb, 3|4)."""
+    x, y, c, s, vx, vy, w, scratch = inputs
+    world_quat_from_planar_rotation(c, s, quat[..., 0], quat[..., 2], scratch)
+    quat[..., 1::2] = 0.0
+    # one component per assignment: each is then one long strided loop
+    # (a (..., 2) pair of components would be loops of two: 2.6x slower,
+    # measured); a float32 -> float64 assignment, not a ufunc casting on
+    # the way (3x slower, measured)
+    pos[..., 0] = x
+    pos[..., 1] = 0.0
+    pos[..., 2] = y
+    vel[..., 0] = vx
+    vel[..., 1] = 0.0
+    vel[..., 2] = vy
+    angvel[..., 0::2] = 0.0
+    a = angvel[..., 1]
+    a[...] = w
+    np.negative(a, out=a)

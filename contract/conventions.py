@@ -43,7 +43,11 @@ def world_from_planar(x: float, y: float, vx: float, vy: float, angle: float, w:
                       pos_out: np.ndarray, quat_out: np.ndarray, vel_out: np.ndarray,
                       angvel_out: np.ndarray) -> None:
     """2D engine state -> world arrays, written in place (pos_out (3,),
-    quat_out (4,) wxyz, vel_out (3,), angvel_out (3,))."""
+    quat_out (4,) wxyz, vel_out (3,), angvel_out (3,)); the state may be
+    arrays of one shape, each output then having its component axis first
+    (quat_out (4, ...)).  An engine that holds a rotation as (cos, sin)
+    rather than an angle gets the same quaternion from
+    :func:`world_quat_from_planar_rotation`."""
     pos_out[0] = x
     pos_out[1] = 0.0
     pos_out[2] = y
@@ -58,6 +62,53 @@ def world_from_planar(x: float, y: float, vx: float, vy: float, angle: float, w:
     angvel_out[0] = 0.0
     angvel_out[1] = -w
     angvel_out[2] = 0.0
+
+
+def world_quat_from_planar_rotation(c: np.ndarray, s: np.ndarray, w_out: np.ndarray, y_out: np.ndarray,
+                                    scratch: np.ndarray) -> None:
+    """A 2D rotation given by its (cos, sin) pair -> the w and y components
+    of its world quaternion, the mapping of :func:`world_from_planar` with
+    angle = atan2(s, c) in (-pi, pi]: w = cos(angle/2) >= 0, y =
+    -sin(angle/2), x = z = 0 (left to the caller), with no transcendental
+    function (square roots and divisions only).
+
+    c, s: arrays of one shape (any float dtype; (c, s) need not be exactly
+    unit, as a single-precision engine's are not: normalised by r =
+    sqrt(c^2 + s^2) in float64); w_out, y_out: float64 arrays of that shape,
+    written in place; scratch: float64 array (4, *shape), overwritten.
+
+    Half-angle formula, accurate everywhere (no cancellation): with
+    p = r + |c| (>= r), the half-angle pair has a large component
+    big = sqrt(p / 2r) (>= 1/sqrt 2) and a small one small = |s| / (2 r big),
+    both to a few ulps; the large one is the cosine when c >= 0 (|angle| <=
+    pi/2), the sine when c < 0.  The choice is exact, branch-free
+    arithmetic: with u = copysign(big, c), cos = max(u, small) and |sin| =
+    max(-u, small) (at c = +-0 both are 1/sqrt 2 to an ulp, so either is
+    right); sin takes the sign of s, so s = +-0 gives the angle +-0 for
+    c > 0 and +-pi for c < 0, as atan2 does.  A NaN in gives NaN out, and so
+    does c = s = 0 (not a rotation).  19 array operations, no temporary.
+    Agrees with world_from_planar(atan2(s, c)) to 2^-50 absolute
+    (tests/test_frames.py::test_planar_rotation_quaternion_matches_the_angle_path)."""
+    a, b, r, p = scratch[0], scratch[1], scratch[2], scratch[3]
+    a[...] = c
+    np.negative(s, out=b)  # -s, the sign of the quaternion's y
+    np.multiply(a, a, out=r)  # exact for float32 input
+    np.multiply(b, b, out=p)
+    np.add(r, p, out=r)
+    np.sqrt(r, out=r)  # r
+    np.abs(a, out=p)
+    np.add(p, r, out=p)  # p = r + |c|
+    np.add(r, r, out=r)  # 2r
+    np.divide(p, r, out=p)
+    np.sqrt(p, out=p)  # big
+    np.multiply(r, p, out=r)  # 2 r big
+    np.divide(b, r, out=r)
+    np.abs(r, out=r)  # small
+    np.copysign(p, a, out=a)  # u
+    np.maximum(a, r, out=w_out)  # cos(angle/2)
+    np.negative(a, out=a)
+    np.maximum(a, r, out=p)  # |sin(angle/2)|
+    np.copysign(p, b, out=y_out)  # -sin(angle/2)
 
 
 def world_point_to_planar(p: np.ndarray) -> tuple[float, float]:

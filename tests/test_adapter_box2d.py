@@ -315,11 +315,15 @@ def test_linear_drag(tmp_path):
 
 def test_block_conversion_is_world_from_planar():
     """The block conversion (Box2dAdapter._convert: reused scratch, outputs
-    written in place) gives, bit for bit, what
-    contract.conventions.world_from_planar gives on the same float32 states
-    converted to float64 (angle = atan2(sin, cos)), for a block and for one
-    state, at angles all round the circle (both signs of zero, +-pi)."""
-    from physbench.contract.conventions import world_from_planar
+    written in place), for a block and for one state, at angles all round
+    the circle (both signs of zero, +-pi): positions and velocities bit for
+    bit what contract.conventions.world_from_planar gives on the same
+    float32 states converted to float64; the quaternion bit for bit
+    contract.conventions.world_quat_from_planar_rotation's (its x and z
+    exactly 0), which is world_from_planar's at angle = atan2(sin, cos) to
+    2^-50 (the bound derived in
+    tests/test_frames.py::test_planar_rotation_quaternion_matches_the_angle_path)."""
+    from physbench.contract.conventions import world_from_planar, world_quat_from_planar_rotation
 
     rng = np.random.default_rng(7)
     k, nb = 300, 7
@@ -327,6 +331,7 @@ def test_block_conversion_is_world_from_planar():
     ang[0, :4] = [0.0, np.pi, -np.pi, 1e-9]
     t = np.stack([rng.normal(0, 3, (k, nb)), rng.normal(0, 3, (k, nb)), np.cos(ang), np.sin(ang)], -1).astype(np.float32)
     t[0, 4, 2:] = [1.0, -0.0]
+    t[0, 5, 2:] = [-1.0, -0.0]
     v = rng.normal(0, 5, (k, nb, 2)).astype(np.float32)
     w = rng.normal(0, 20, (k, nb)).astype(np.float32)
     a = Box2dAdapter()
@@ -339,8 +344,13 @@ def test_block_conversion_is_world_from_planar():
                           np.arctan2(t64[..., 3], t64[..., 2]), ww.astype(float), *(np.moveaxis(x, -1, 0) for x in want))
         got = [np.full((*shape, m), np.nan) for m in (3, 4, 3, 3)]
         a._convert(tt, vv, ww, *got)
-        for g, x in zip(got, want):
-            assert np.array_equal(g.view(np.uint64), x.view(np.uint64))
+        for i in (0, 2, 3):
+            assert np.array_equal(got[i].view(np.uint64), want[i].view(np.uint64))
+        q = np.full((2, *shape), np.nan)
+        world_quat_from_planar_rotation(tt[..., 2], tt[..., 3], q[0], q[1], np.empty((4, *shape)))
+        assert np.array_equal(got[1][..., 0::2].view(np.uint64), np.moveaxis(q, 0, -1).view(np.uint64))
+        assert np.array_equal(got[1][..., 1::2].view(np.uint64), np.zeros((*shape, 2), np.uint64))
+        assert np.abs(got[1] - want[1]).max() <= 2.0 ** -50
 
 
 def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
@@ -350,7 +360,8 @@ def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
     from physbench.adapters import box2d
 
     sc = load_scene(head_on_path)
-    n, k = 300, box2d.CHUNK + 9
+    k = max(box2d.CHUNK_ROWS, box2d.CHUNK_ELEMENTS // sc.n_bodies) + 9
+    n = k + 50
     ref = Box2dAdapter()
     ref.build(sc, Box2dAdapter.resolve_settings(sc))
     want = [np.zeros((k - 1, 2, j)) for j in (3, 4, 3, 3)]
@@ -370,6 +381,7 @@ def test_block_recording_keeps_frames_before_an_engine_error(head_on_path):
                 raise RuntimeError("engine failure")
             self.world.step(dt, sub)
 
+    assert a._chunk == k - 9
     a._world = Failing(a._world)
     got = [np.full((n, 2, j), np.nan) for j in (3, 4, 3, 3)]
     with pytest.raises(RuntimeError, match="engine failure"):
