@@ -275,9 +275,7 @@ class Box2dAdapter(Adapter):
             t, v, w = np.zeros((c, nb, 4), np.float32), np.zeros((c, nb, 2), np.float32), np.zeros((c, nb), np.float32)
             blk = self._block = (t, v, w, [], _inputs(t, v, w, np.empty((4, c, nb))))
         t, v, w, rows, full = blk
-        if len(rows) < n:  # row views, made by numpy's iteration
-            k = len(rows)
-            rows.extend(zip(t[k:n], v[k:n], w[k:n]))
+        rows.extend(zip(t[len(rows):n], v[len(rows):n], w[len(rows):n]))  # missing row views (none: empty slices)
         world, dt, sub, bt = self._world, self._dt, self._substeps, self._batch
         step, gt, gv, gw = world.step, bt.get_transforms, bt.get_linear_velocities, bt.get_angular_velocities
         done = 0
@@ -378,6 +376,5 @@ def _write(inputs: tuple, pos: np.ndarray, quat: np.ndarray, vel: np.ndarray, an
     vel[..., 1] = 0.0
     vel[..., 2] = vy
     angvel[..., 0::2] = 0.0
-    a = angvel[..., 1]
-    a[...] = w
-    np.negative(a, out=a)
+    angvel[..., 1] = w
+    np.negative(angvel[..., 1], out=angvel[..., 1])
