@@ -87,6 +87,17 @@ def _with_parents(mod: str, importer: str) -> list[str]:
     return out
 
 
+def _from_module(mod: str, is_pkg: bool, node: ast.ImportFrom) -> str:
+    """The absolute module a ``from ... import`` in module ``mod`` (a
+    package's ``__init__`` when ``is_pkg``) reads from."""
+    base = node.module or ""
+    if node.level:
+        here = mod.split(".") if is_pkg else mod.split(".")[:-1]
+        here = here[:len(here) - (node.level - 1)]
+        base = ".".join(here + ([node.module] if node.module else []))
+    return base
+
+
 def _imports(mod: str, path: Path) -> set[str]:
     """Modules of ours that ``mod`` imports at run time (any depth in the file)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
@@ -103,11 +114,7 @@ def _imports(mod: str, path: Path) -> set[str]:
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                here = mod.split(".") if is_pkg else mod.split(".")[:-1]
-                here = here[:len(here) - (node.level - 1)]
-                base = ".".join(here + ([node.module] if node.module else []))
+            base = _from_module(mod, is_pkg, node)
             names = [f"{base}.{a.name}" for a in node.names] or [base]
         for n in names:
             r = _resolve(n)
@@ -427,11 +434,7 @@ def _import_hygiene(mod: str, path: Path) -> tuple[list[tuple[int, str, bool]], 
     for node in ast.walk(tree):
         targets: list[str] = []
         if isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                here = mod.split(".") if is_pkg else mod.split(".")[:-1]
-                here = here[:len(here) - (node.level - 1)]
-                base = ".".join(here + ([node.module] if node.module else []))
+            base = _from_module(mod, is_pkg, node)
             if _resolve(base) is None:
                 continue
             for a in node.names:
