@@ -157,7 +157,58 @@ def prepare(model: Model, state: State, stages: tuple[Stage, ...], profile: Prof
         prime = getattr(s, "prime", None)
         if prime is not None:
             prime(model, state, ctx, plan.main)
+    if isinstance(plan.fast, fused.SteadyStep):
+        _prime_start(model, state, ctx, plan)
     return ctx
+
+
+#: the context's attributes a (mini-)step's stages assign (each step sets
+#: them anew before reading them); :func:`_prime_start` gives them back
+_STEP_FIELDS = ("h", "event_mode", "stop_allowed", "event", "impacts", "stop", "ex", "eq", "ev", "ew", "eR", "warm0",
+                "contacts", "rows", "pairs_i", "pairs_j", "plane_pairs", "sbox_pairs", "reuse_contacts")
+
+
+def _prime_start(model: Model, state: State, ctx: Context, plan: "Plan") -> None:
+    """At build, for a scene with a fused steady step: the first step's
+    stages up to the solve run once on the start state and their results
+    are dropped (the state's pose, velocities, ``t``, ``steps`` and warm
+    cache, the context's per-step fields and the profile are as before).
+    What stays is set-up: the narrow phase's contact buffers sized for the
+    start's contacts, the solve's work views, topology, Rows and Packs, and
+    the solve's kept steady solve (``Solve._fast``), so the door's first try
+    is the steady call instead of a contact-free call that the start's
+    contacts make fail, and that call's warm caches and packs
+    (``SteadyStep.prime_steady``).  The first step still computes all of its physics
+    (flight, broad and narrow phase, classification, direct start, sweeps):
+    the steady call checks that its contacts are the kept solve's in number
+    and graph, and any step it cannot run whole runs staged from its start,
+    with the same bits (tests/test_engine_prepare.py::
+    test_prepare_changes_no_bit, the fused/staged contract).  A stage that
+    raises here primes nothing: the first step meets the error itself."""
+    solve = plan.fast.solve
+    saved = {k: getattr(ctx, k) for k in _STEP_FIELDS}
+    warm, profile = state.warm, ctx.profile
+    probe = ctx.profile = Profile()
+    add_jit_seconds(probe.jit_s)  # (the Profile took them: they stay pending for the caller's)
+    try:
+        ctx.missed_skip.clear()
+        ctx.warm0 = state.warm
+        ctx.event_mode = EventMode.EVENT if plan.impact is not None and plan.max_events > 0 else EventMode.SPECULATIVE
+        ctx.begin(model, state, model.h)
+        ctx.stop_allowed = plan.stops
+        for s in plan.main:
+            s(model, state, ctx)
+            if s is solve:
+                break
+    except Exception:  # noqa: BLE001 (the first step raises it again, where a failure is recorded)
+        solve._fast = None
+    finally:
+        state.warm = warm
+        ctx.profile = profile
+        for k, v in saved.items():
+            setattr(ctx, k, v)
+        ctx.missed_skip.clear()
+    plan.fast.prime_steady(model, state, ctx)
 
 
 def context(model: Model, state: State, profile: Profile) -> Context:

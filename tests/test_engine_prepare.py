@@ -61,9 +61,13 @@ def test_prepare_changes_no_bit():
     from physbench.engine.state import State
     from physbench.adapters.reference import scene_input
 
-    for name, st in (("billiards.head_on", {"dt": 0.032}), ("friction.block_slides", {"dt": 0.064}),
-                     ("billiards.ball_drop_bounce", {"dt": 0.032})):
-        sc = load_scene(name)
+    from physbench.harness.bench import REFERENCE_FAST_SETTINGS, column_scene
+
+    cases = (("billiards.head_on", {"dt": 0.032}), ("friction.block_slides", {"dt": 0.064}),
+             ("billiards.ball_drop_bounce", {"dt": 0.032}), ("column", {"iterations": 10, **REFERENCE_FAST_SETTINGS}),
+             ("column", {}))
+    for name, st in cases:
+        sc = column_scene(10) if name == "column" else load_scene(name)
         ad = ReferenceAdapter()
         ad.build(sc, ReferenceAdapter.resolve_settings(sc, st))
         ad.step(30)
@@ -74,3 +78,62 @@ def test_prepare_changes_no_bit():
         advance(model, state, stages, Profile(), 30)
         for f in ("x", "q", "v", "w"):
             assert np.array_equal(getattr(ad.state, f), getattr(state, f)), (name, f)
+
+
+def _column_settings(sc):
+    from physbench.harness.bench import REFERENCE_FAST_SETTINGS
+
+    return dict(ReferenceAdapter.resolve_settings(sc, {"iterations": 10, **REFERENCE_FAST_SETTINGS}))
+
+
+def _column():
+    from physbench.harness.bench import column_scene
+
+    sc = column_scene(10)
+    ad = ReferenceAdapter()
+    ad.build(sc, _column_settings(sc))
+    return sc, ad
+
+
+def test_build_primes_the_first_step_and_leaves_the_state_as_it_was():
+    from physbench.engine.state import State
+
+    _, ad = _column()
+    fresh = State.from_model(ad.model)
+    for f in ("x", "q", "v", "w"):
+        assert np.array_equal(getattr(ad.state, f), getattr(fresh, f)), f
+    assert (ad.state.t, ad.state.steps, ad.state.warm) == (fresh.t, fresh.steps, None)
+    ctx = ad.state.ctx
+    assert ctx.contacts is None and ctx.rows is None and ctx.impacts is None and ctx.stop is None
+    prof = ad.stages()
+    assert all(v["calls"] == 0 for v in prof.values() if isinstance(v, dict) and "calls" in v)
+    assert not prof.get("counters")
+    solve = next(s for s in ad.pipeline if s.name == "solve")
+    assert solve._fast is not None  # the kept steady solve of the start's contacts
+
+
+def test_the_resting_column_s_first_step_is_the_steady_call_with_the_staged_bookkeeping():
+    from physbench.engine.model import build_model
+    from physbench.engine.pipeline import advance, build_pipeline
+    from physbench.engine.profile import Profile
+    from physbench.engine.state import State
+    from physbench.adapters.reference import scene_input
+
+    sc, ad = _column()
+    ad.step(1)
+    prof = ad.stages()
+    assert prof["steady_step"]["calls"] == 1
+    assert prof.get("contact_free_step", {"calls": 0})["calls"] == 0  # no try the start's contacts make fail
+    assert prof["solve"]["calls"] == 0  # nothing of the step staged
+    # the same step on an engine that made everything on first use (a
+    # contact-free try that fails, then the staged step): same bits, counters
+    model = build_model(scene_input(sc), _column_settings(sc))
+    state, stages, p0 = State.from_model(model), build_pipeline(model), Profile()
+    advance(model, state, stages, p0, 1)
+    assert p0.calls["solve"] == 1 and p0.calls.get("contact_free_step") == 1
+    for f in ("x", "q", "v", "w"):
+        assert np.array_equal(getattr(ad.state, f), getattr(state, f)), f
+    assert (ad.state.t, ad.state.steps) == (state.t, state.steps)
+    assert prof["counters"] == p0.counters
+    for f in ("codes", "loc", "fn", "pairs", "ft", "tw", "rr", "touch"):
+        assert np.array_equal(getattr(ad.state.warm, f), getattr(state.warm, f)), f

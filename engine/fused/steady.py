@@ -555,18 +555,13 @@ class SteadyStep:
         sp, flags0, out1, store_on, c = a
         if not store_on:
             return 0, NONE
-        # the pool's rotation: step k stores into outs[k % 2] (WarmPool.slot)
-        pool = solve._warm
-        size = (c.m, int(solve._fast[1].uniq_codes.size))
-        out2 = pool.slot(size, out1, out1)
-        if pool.slot(size, out2, out2) is not out1:
+        out2, kall = self._loop_packs(model, state, ctx, sp, out1, c)
+        if solve._warm.slot((c.m, int(solve._fast[1].uniq_codes.size)), out2, out2) is not out1:
             n = min(n, 2)
         outs = (out1, out2)
         flags1 = self.flags(ctx, True, bool(solve.warm), True)
         band = int(solve._band) if solve.direct and c.m > _S.DIRECT_MAX_ROWS else NO_BAND_CHECK
-        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
-        kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
-        kall = self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+        ko, kq1 = sp[4], sp[5]
         b = self.borrowed.of
         r = steady_loop(n, kall, ko, kq1, b(out2.kept), h, flags0, flags1, band, float(state.t), rec_on, *blocks_)
         done, t, solved, sw_sum, sw_last, res_last, free_last, pend = r[:8]
@@ -591,6 +586,28 @@ class SteadyStep:
         if calls:
             ctx.profile.charge(NAME, calls, time.perf_counter() - t0)
         return done, pend
+
+    def _loop_packs(self, model, state, ctx, sp, out1, c) -> tuple:
+        """The steady loop's second warm cache and its one borrowed pack
+        (``sp``, ``out1``, ``c`` from :meth:`steady_args`): (out2, kall).
+        The pool's rotation: step k stores into (out1, out2)[k % 2]
+        (WarmPool.slot)."""
+        solve = self.solve
+        out2 = solve._warm.slot((c.m, int(solve._fast[1].uniq_codes.size)), out1, out1)
+        kb, kf, kbr, kcol, ks = self.packs(model, state, ctx)
+        kc, kx, kt, kw, ko, kq1, kk, key, idx = sp
+        return out2, self.kall.of((kb, kf, kbr, kcol, kc, kx, kt, kw, kk, key, idx, ks))
+
+    def prime_steady(self, model, state, ctx) -> None:
+        """At build, after the solve kept a steady solve of the start's
+        contacts (pipeline._prime_start), with the state and context as a
+        fresh engine's: the steady loop's warm caches and borrowed packs,
+        which the door's first try would make (the same objects)."""
+        if self.solve._fast is None:
+            return
+        a = self.steady_args(model, state, ctx, float(model.h))
+        if a is not None and a[3]:
+            self._loop_packs(model, state, ctx, a[0], a[2], a[4])
 
     def _free_advance(self, model, state, ctx, plan, n, h, rec_on, blocks_, t0) -> tuple[int, int]:
         """:meth:`advance` by the contact-free call (:func:`free_loop`)."""
