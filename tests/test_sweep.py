@@ -585,6 +585,35 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
     sd.close()
 
 
+def test_the_writer_gathers_a_flush_of_rows_and_drain_does_not_wait_for_it(tmp_path, monkeypatch):
+    """The part writer sleeps through its flush time (it is not woken by
+    every row): rows queued within PART_FLUSH_S go into one part, and drain
+    writes what is queued at once; a full batch (PART_MAX_ROWS) is written
+    without waiting for the flush time."""
+    from physbench.harness.results import list_parts, read_part
+
+    monkeypatch.setattr(ST, "PART_FLUSH_S", 60.0)
+    sd = ST.SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd.write_behind()
+    for k in "abcde":
+        sd.write_point({"point_key": k, "x": 1.0})
+    t = time.monotonic()
+    sd.drain()
+    assert time.monotonic() - t < 30.0
+    parts = list_parts(tmp_path)
+    assert [read_part(p).column("point_key").to_pylist() for p in parts] == [list("abcde")]
+
+    monkeypatch.setattr(ST, "PART_MAX_ROWS", 3)
+    sd.write_behind()
+    for k in "fgh":
+        sd.write_point({"point_key": k, "x": 1.0})
+    deadline = time.monotonic() + 30.0
+    while len(list_parts(tmp_path)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [read_part(p).column("point_key").to_pylist() for p in list_parts(tmp_path)][1:] == [list("fgh")]
+    sd.close()
+
+
 def test_a_failed_write_stays_failed(tmp_path, monkeypatch):
     """Once a queued write failed, every later write_point and drain raises
     its error and stores nothing more: no row is written after a lost one
