@@ -120,7 +120,7 @@ def cached_spec(path: str | Path) -> LoadedSpec:
     same bytes: the file is read on every call and a changed file is loaded
     afresh (a file that does not load raises its SpecError every time).  A
     suite's check loads each spec file once, for its sweep blocks, scenes
-    and searches (tests/test_suite.py::test_a_suite_check_parses_each_spec_file_once);
+    and searches (tests/test_sweep.py::test_a_suite_check_parses_each_spec_file_once);
     a worker loads a search's spec once, not once per evaluation.  Callers
     do not modify what it returns (LoadedSpec.validated copies)."""
     p = Path(path)

@@ -215,7 +215,7 @@ class Pendulum(ReferenceModel):
         Computed on first use, not in __init__: every refusal is made before
         them, and a sweep's client, which builds the model only to check the
         scene, then never imports scipy.special (0.16 s of CPU;
-        tests/test_suite.py::test_checking_the_nightly_imports_no_engine_model_library)."""
+        tests/test_sweep.py::test_checking_the_nightly_does_not_import_scipy_special)."""
         from scipy.special import ellipk, ellipkinc
 
         K = float(ellipk(self.m))
