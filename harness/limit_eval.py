@@ -35,12 +35,12 @@ from physbench.adapters import get_adapter
 from physbench.contract.metric_defs import GENERIC_METRICS
 from physbench.contract.phase import phase_values
 from physbench.contract.scene import load_scene, resolve_scenario
-from physbench.contract.spec import SpecError, load_spec, parse_key_path
+from physbench.contract.spec import SpecError, parse_key_path
 from physbench.contract.spec.schema import integer_key
 from physbench.harness.conformance import FAIL, PASS, applicable_checks, evaluate_check, split_metric
 from physbench.harness.execute import RunRequest
 from physbench.harness.limit_search import UNSUPPORTED, SearchResult, Verdict, drive, search_rounds
-from physbench.harness.points import cached_scene, lost_row, request_row
+from physbench.harness.points import cached_scene, cached_spec, lost_row, request_row
 from physbench.harness.references import get_model
 
 #: row kinds (column ``row_kind``): one row per run of a search, one per search
@@ -150,7 +150,7 @@ def load_at(req: LimitRequest, value: float):
     an engine setting, the scene as written).  Raises SpecError (a value the
     spec does not accept: a negative mass, a restitution over 1)."""
 
-    loaded = load_spec(resolve_scenario(req.scenario))
+    loaded = cached_spec(resolve_scenario(req.scenario))
     overrides = dict(req.overrides)
     if is_engine_setting(req.engine, req.param):
         return load_scene(req.scenario, req.variant, overrides or None, loaded=loaded)
@@ -280,7 +280,7 @@ def _filled_at(scenario: str, variant: str | None, engine: str, param: str) -> t
     if is_engine_setting(engine, param):
         return ()
     try:
-        return tuple(_fill_vector(load_spec(resolve_scenario(scenario)), variant, param).items())
+        return tuple(_fill_vector(cached_spec(resolve_scenario(scenario)), variant, param).items())
     except Exception:
         return ()  # the run's own load reports it
 

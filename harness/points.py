@@ -14,6 +14,7 @@ evaluation's columns, harness/limit_eval.py).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import statistics
@@ -22,10 +23,12 @@ import traceback
 import warnings
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
+from pathlib import Path
 from typing import Any
 
 from physbench.contract.phase import PhaseError
-from physbench.contract.scene import load_scene
+from physbench.contract.scene import load_scene, resolve_scenario
+from physbench.contract.spec import LoadedSpec, load_spec
 from physbench.harness import runner
 from physbench.harness import status as st
 from physbench.harness.conformance import run_verdicts, scene_columns, verdicts_column
@@ -107,11 +110,44 @@ class Point:
 # running one point (in a worker process or in-process)
 
 
+#: (path as given, resolved path, SHA-256 of the file's bytes) -> its LoadedSpec
+_SPECS: dict[tuple[str, str, bytes], LoadedSpec] = {}
+_SPECS_MAX = 256
+
+
+def cached_spec(path: str | Path) -> LoadedSpec:
+    """``load_spec(path)``, parsed and validated once per process for the
+    same bytes: the file is read on every call and a changed file is loaded
+    afresh (a file that does not load raises its SpecError every time).  A
+    suite's check loads each spec file once, for its sweep blocks, scenes
+    and searches (tests/test_sweep.py::test_a_suite_check_parses_each_spec_file_once);
+    a worker loads a search's spec once, not once per evaluation.  Callers
+    do not modify what it returns (LoadedSpec.validated copies)."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError:
+        return load_spec(p)  # its SpecError, naming the file
+    key = (str(p), str(p.resolve()), hashlib.sha256(data).digest())
+    hit = _SPECS.get(key)
+    if hit is None:
+        hit = load_spec(p)
+        try:
+            same = p.read_bytes() == data  # not written to in between: the spec read is the one keyed
+        except OSError:
+            same = False
+        if same:
+            if len(_SPECS) >= _SPECS_MAX:
+                _SPECS.clear()
+            _SPECS[key] = hit
+    return hit
+
+
 @lru_cache(maxsize=64)
 def cached_scene(scenario: str, variant: str | None):
     """``scenario``: an id or a spec file's path."""
 
-    return load_scene(scenario, variant)
+    return load_scene(scenario, variant, loaded=cached_spec(resolve_scenario(scenario)))
 
 
 def run_point(point: Point) -> dict[str, Any]:

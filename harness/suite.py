@@ -24,12 +24,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from physbench.contract.phase import phase_values
 from physbench.contract.data import SHIPPED_SUITES
 from physbench.contract.spec import SpecError, _display, _format_errors, read_toml
-from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point, cached_scene
+from physbench.harness.points import PHASE_KEY, RUN_TIMEOUT_S, Point, cached_scene, cached_spec
 from physbench.harness.sweep_store import PLAIN_NAME, SuiteError, plain_name
 from physbench.adapters import engine_names, get_adapter
 from physbench.harness.limits import LimitRequest, validate_request
 from physbench.contract.scene import load_scene, n_steps, resolve_scenario, scenario_ids, spec_targets
-from physbench.contract.spec import load_spec, record_size_error
+from physbench.contract.spec import record_size_error
 
 #: the shipped suites (package data, contract/data.py)
 SUITE_DIR = SHIPPED_SUITES
@@ -318,7 +318,7 @@ def _check_suite(model: SuiteModel, label: str, errors: list[str], base: Path = 
                 continue
             for target in targets:
                 try:
-                    loaded = load_spec(resolve_scenario(target))
+                    loaded = cached_spec(resolve_scenario(target))
                 except SpecError as exc:
                     errors.append(f"{where}.scenarios[{j}]: scenario {target!r} does not load: {exc.errors[0]}")
                     continue
@@ -393,7 +393,8 @@ def _check_record_size(where: str, scen: list[SuiteEntry], axes: dict[str, dict[
     def scene_of(i: int, entry: SuiteEntry) -> Any:
         if i not in scenes:
             try:
-                scenes[i] = (load_scene(entry.path, entry.variant) if entry.path
+                scenes[i] = (load_scene(entry.path, entry.variant, loaded=cached_spec(resolve_scenario(entry.path)))
+                             if entry.path
                              else cached_scene(entry.scenario, entry.variant))
             except SpecError:
                 scenes[i] = None  # reported where the scenario is listed

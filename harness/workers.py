@@ -280,6 +280,10 @@ def _progress_fd() -> int | None:
     return fd
 
 
+#: bytes read from a worker's pipe at a time
+READ_CHUNK = 1 << 16
+
+
 class _Worker:
     """One worker process: its pipes, stderr file, and the item it runs."""
 
@@ -314,7 +318,7 @@ class _Worker:
         """Hand ``unit`` (an item or a :class:`Batch`) over; ``budgets``: one per item."""
         payload = pickle.dumps((fn, unit), protocol=pickle.HIGHEST_PROTOCOL)
         self.err.flush()
-        self.err_offset = self.err_path.stat().st_size
+        self.err_offset = os.fstat(self.err.fileno()).st_size  # the file the worker's stderr goes to
         self.proc.stdin.write(_HEADER.pack(len(payload)) + payload)
         self.proc.stdin.flush()
         self.items, self.index, self.budgets, self.busy = members(unit), 0, budgets, True
@@ -329,13 +333,23 @@ class _Worker:
     def read(self) -> tuple[bool, list[Any]]:
         """Read what is there: (eof, the whole replies in), one reply per
         item; eof: the worker died (end of file)."""
-        try:
-            chunk = os.read(self.fd, 1 << 20)
-        except BlockingIOError:
-            return False, []
-        if not chunk:
-            return True, []
-        self.buf += chunk
+        eof, got = False, False
+        while True:
+            # 64 KiB at a time: a reply is a few KiB, and a 1 MiB read buffer is allocated (mmap) and freed
+            # at every read (about 10 us of CPU each)
+            try:
+                chunk = os.read(self.fd, READ_CHUNK)
+            except BlockingIOError:
+                break
+            if not chunk:
+                eof = True
+                break
+            self.buf += chunk
+            got = True
+            if len(chunk) < READ_CHUNK:
+                break  # the pipe is empty
+        if not got:
+            return eof, []
         msgs = []
         while len(self.buf) >= _HEADER.size:
             (n,) = _HEADER.unpack_from(self.buf)
@@ -343,7 +357,7 @@ class _Worker:
                 break
             msgs.append(pickle.loads(bytes(self.buf[_HEADER.size:_HEADER.size + n])))
             del self.buf[:_HEADER.size + n]
-        return False, msgs
+        return eof, msgs
 
     def replied(self) -> Any:
         """Count the running item's reply in: returns the item; the next

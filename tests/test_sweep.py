@@ -28,6 +28,7 @@ from physbench.harness import points as P, suite as SU, sweep as S, sweep_store 
 from physbench.harness.results import SCHEMA_VERSION, write_json_atomic, write_parquet_atomic
 from physbench.harness.runner import run as _REAL_RUN
 from physbench.contract.scene import load_scene
+from physbench.contract.spec import SpecError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -157,6 +158,91 @@ def test_shipped_suites_load():
 
     for sid in {p.scenario for p in pts}:
         assert load_scene(sid).primary_metric and load_scene(sid).reference_model
+
+
+def test_checking_the_nightly_does_not_import_scipy_special(tmp_path):
+    """The suite check builds each scene's reference model, to refuse a scene
+    its model cannot model; the pendulum model computes its elliptic
+    integrals (scipy.special, 0.16 s of the client's CPU to import) on first
+    use, after its refusals, so checking the nightly -- a pendulum among its
+    scenes -- imports no scipy.special in a fresh process."""
+    code = ("import sys\n"
+            "from physbench.harness.suite import load_suite\n"
+            "from physbench.harness.points import cached_scene\n"
+            "s = load_suite('nightly')\n"
+            "print(sorted({cached_scene(e.scenario, e.variant).reference_model\n"
+            "              for b in s.sweeps for e in b.scenarios}))\n"
+            "print('scipy.special' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert out.returncode == 0, out.stderr
+    models, imported = out.stdout.strip().splitlines()[-2:]
+    assert "'pendulum'" in models
+    assert imported == "False"
+
+
+def test_a_pendulum_model_refuses_as_before_and_computes_its_period_on_first_use():
+    """The pendulum's refusals come before its elliptic integrals; its
+    period is 4 K(k^2) / wn, K computed here by the arithmetic-geometric
+    mean (K(m) = pi / (2 AGM(1, sqrt(1 - m))))."""
+    from physbench.contract.models import get_model
+
+    scene = load_scene("joints.pendulum")
+    model = get_model("pendulum")(scene)
+    assert "_elliptic" not in vars(model)  # not computed by the constructor
+    a, b = 1.0, math.sqrt(1.0 - model.m)
+    for _ in range(40):
+        a, b = (a + b) / 2.0, math.sqrt(a * b)
+    assert model.T == pytest.approx(4.0 * (math.pi / (2.0 * a)) / model.wn, rel=1e-12)
+    # the refusal still comes at load, as a spec error naming the key (the suite check's message)
+    with pytest.raises(SpecError, match=r"body\[0\].position: model 'pendulum' cannot model this scene: "
+                                        r".*never swings"):
+        load_scene("joints.pendulum", overrides={"body[0].position": [0.0, 0.0, 1.0]})
+
+
+def test_cached_spec_loads_a_changed_file_afresh(tmp_path):
+    f = tmp_path / "spec.toml"
+    text = (ROOT / "scenarios" / "billiards" / "head_on.toml").read_text()
+    f.write_text(text)
+    a = P.cached_spec(f)
+    assert P.cached_spec(f) is a  # same bytes: parsed once
+    f.write_text(text.replace("restitution = 0.9", "restitution = 0.8"))  # same size, other content
+    b = P.cached_spec(f)
+    assert b is not a and b.raw != a.raw
+    f.write_text(text.replace("restitution = 0.9", "restitution = 1.9"))
+    msgs = []
+    for _ in range(2):  # a file that does not load raises every time, with the same message
+        with pytest.raises(SpecError) as e:
+            P.cached_spec(f)
+        msgs.append(e.value.errors)
+    assert msgs[0] == msgs[1] and "restitution" in " ".join(msgs[0])
+    f.unlink()
+    with pytest.raises(SpecError, match="no such file"):
+        P.cached_spec(f)
+
+
+def test_a_suite_check_parses_each_spec_file_once(monkeypatch):
+    """Checking the nightly (sweep blocks, scenes, record sizes, the
+    searches' scenes at both ends of their ranges) reads each spec file once."""
+    import physbench.contract.scene as CS
+
+    real = P.load_spec
+    counts: dict[str, int] = {}
+
+    def counted(path):
+        counts[str(Path(path).resolve())] = counts.get(str(Path(path).resolve()), 0) + 1
+        return real(path)
+
+    monkeypatch.setattr(P, "load_spec", counted)
+    monkeypatch.setattr(CS, "load_spec", counted)
+    monkeypatch.setattr(P, "_SPECS", {})
+    P.cached_scene.cache_clear()
+    try:
+        s = SU.load_suite("nightly")
+    finally:
+        P.cached_scene.cache_clear()
+    files = {str(Path(CS.resolve_scenario(e.scenario)).resolve()) for b in s.sweeps for e in b.scenarios}
+    files |= {str(Path(CS.resolve_scenario(r.scenario)).resolve()) for r in s.limits}
+    assert set(counts) == files and set(counts.values()) == {1}, counts
 
 
 #: the nightly's dt ladder rule (suites/nightly.toml, docs/SWEEPS.md): at
@@ -498,6 +584,35 @@ def test_write_behind_stores_rows_in_order_and_surfaces_a_failed_write(tmp_path,
         while time.monotonic() < deadline:
             sd.write_point({"point_key": "d", "x": 1.0})
             time.sleep(0.01)
+    sd.close()
+
+
+def test_the_writer_gathers_a_flush_of_rows_and_drain_does_not_wait_for_it(tmp_path, monkeypatch):
+    """The part writer sleeps through its flush time (it is not woken by
+    every row): rows queued within PART_FLUSH_S go into one part, and drain
+    writes what is queued at once; a full batch (PART_MAX_ROWS) is written
+    without waiting for the flush time."""
+    from physbench.harness.results import list_parts, read_part
+
+    monkeypatch.setattr(ST, "PART_FLUSH_S", 60.0)
+    sd = ST.SweepDir(tmp_path, {"sweep_id": "s"}, os.open(tmp_path / "lock", os.O_CREAT | os.O_RDWR))
+    sd.write_behind()
+    for k in "abcde":
+        sd.write_point({"point_key": k, "x": 1.0})
+    t = time.monotonic()
+    sd.drain()
+    assert time.monotonic() - t < 30.0
+    parts = list_parts(tmp_path)
+    assert [read_part(p).column("point_key").to_pylist() for p in parts] == [list("abcde")]
+
+    monkeypatch.setattr(ST, "PART_MAX_ROWS", 3)
+    sd.write_behind()
+    for k in "fgh":
+        sd.write_point({"point_key": k, "x": 1.0})
+    deadline = time.monotonic() + 30.0
+    while len(list_parts(tmp_path)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [read_part(p).column("point_key").to_pylist() for p in list_parts(tmp_path)][1:] == [list("fgh")]
     sd.close()
 
 

@@ -73,10 +73,10 @@ root finding and scipy's quad, computed in the test).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
-from scipy.special import ellipj, ellipk, ellipkinc
 
 from physbench.contract.rotation import quat_to_matrix
 from physbench.harness.references import (TRAJECTORY, ReferenceError, ReferenceModel, divide, fit_slope,
@@ -201,24 +201,47 @@ class Pendulum(ReferenceModel):
         if not self.whirls:
             self.m = k2
             self.theta_max = 2.0 * math.asin(self.k)
-            self.K = float(ellipk(self.m))
-            phi0 = math.asin(max(-1.0, min(1.0, math.sin(th0 / 2) / self.k)))
-            F0 = float(ellipkinc(phi0, self.m))
-            self.u0 = F0 if w0 >= 0.0 else 2.0 * self.K - F0
-            self.T = 4.0 * self.K / self.wn
         else:
             # theta / 2 = s am(k wn t + u0 | 1 / k^2), s the sense of turning;
             # one turn takes 2 K(1 / k^2) / (k wn)
             self.m = 1.0 / k2
             self.theta_max = math.pi
-            self.K = float(ellipk(self.m))
             self.sense = 1.0 if w0 > 0.0 else -1.0
-            self.u0 = float(ellipkinc(self.sense * th0 / 2.0, self.m))
-            self.T = 2.0 * self.K / (self.k * self.wn)
+
+    @functools.cached_property
+    def _elliptic(self) -> tuple[float, float, float]:
+        """(K(m), u0, T s): the complete integral, the start's argument of
+        the elliptic functions and the period (one turn when it whirls).
+        Computed on first use, not in __init__: every refusal is made before
+        them, and a sweep's client, which builds the model only to check the
+        scene, then never imports scipy.special (0.16 s of CPU;
+        tests/test_sweep.py::test_checking_the_nightly_does_not_import_scipy_special)."""
+        from scipy.special import ellipk, ellipkinc
+
+        K = float(ellipk(self.m))
+        if not self.whirls:
+            phi0 = math.asin(max(-1.0, min(1.0, math.sin(self.theta0 / 2) / self.k)))
+            F0 = float(ellipkinc(phi0, self.m))
+            return K, (F0 if self.w0 >= 0.0 else 2.0 * K - F0), 4.0 * K / self.wn
+        return K, float(ellipkinc(self.sense * self.theta0 / 2.0, self.m)), 2.0 * K / (self.k * self.wn)
+
+    @property
+    def K(self) -> float:
+        return self._elliptic[0]
+
+    @property
+    def u0(self) -> float:
+        return self._elliptic[1]
+
+    @property
+    def T(self) -> float:
+        return self._elliptic[2]
 
     # ---- the closed form ---------------------------------------------------
     def angle(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(theta (F,) rad, theta' (F,) rad/s) at times t (F,) s."""
+        from scipy.special import ellipj  # see _elliptic
+
         if self.whirls:
             _, _, dn, ph = ellipj(self.k * self.wn * np.asarray(t, float) + self.u0, self.m)
             return self.sense * 2.0 * ph, self.sense * 2.0 * self.k * self.wn * dn
