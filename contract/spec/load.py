@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from physbench.contract.spec.errors import SpecError
-from physbench.contract.spec.overrides import apply_override
+from physbench.contract.spec.overrides import apply_override, parse_key_path
 from physbench.contract.spec.schema import SpecModel, name_error
 from physbench.contract.spec.validate import validate_raw
 
@@ -154,20 +154,24 @@ def _dead_check_override_errors(label: str, checks: Any, variants: dict[str, dic
     other variants (its ``variants`` list, not overridden by that variant)
     would change nothing: refused, so no input is silently ignored
     (tests/test_xfail_variants.py::test_an_override_of_a_check_the_variant_does_not_run_is_refused)."""
-    import re
-
     errs: list[str] = []
     if not isinstance(checks, list):
         return errs
     for name, over in variants.items():
+        paths = {}
         for key in over:
-            m = re.match(r"check\[(\d+)\]\.", key) if isinstance(key, str) else None
-            if m is None or not (0 <= int(m.group(1)) < len(checks)):
+            try:
+                paths[key] = parse_key_path(key) if isinstance(key, str) else None
+            except ValueError:
+                paths[key] = None  # (apply_override reports it)
+        overridden = {tuple(p) for p in paths.values() if p is not None}
+        for key, path in paths.items():
+            if path is None or len(path) < 3 or path[0] != "check" or not isinstance(path[1], int):
                 continue
-            i = int(m.group(1))
-            c = checks[i]
+            i = path[1]
+            c = checks[i] if 0 <= i < len(checks) else None
             held = c.get("variants") if isinstance(c, dict) else None
-            if not isinstance(held, list) or name in held or f"check[{i}].variants" in over:
+            if not isinstance(held, list) or name in held or ("check", i, "variants") in overridden:
                 continue
             errs.append(f"{label}: variant {name!r}: {key!r} overrides check[{i}], which holds only in variants "
                         f"{held}: the override would change nothing (add {name!r} to the check's variants, or "
