@@ -458,6 +458,23 @@ def optional_import(module: str, *also: str) -> tuple[Any, str]:
     return mod, ""
 
 
+def not_installed(*dists: str) -> str:
+    """Why an engine whose distributions are ``dists`` cannot run here, ''
+    when all are installed: read from the installed packages' metadata,
+    nothing imported (an adapter whose engine is slow to import checks
+    this in its capabilities and imports the engine at its first build,
+    where a broken install fails that run with the reason)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    lost = []
+    for d in dists:
+        try:
+            version(d)
+        except PackageNotFoundError:
+            lost.append(d)
+    return f"not installed: {', '.join(lost)}" if lost else ""
+
+
 def module_version(mod_name: str) -> str:
     try:
         from importlib.metadata import version

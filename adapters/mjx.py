@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version
+from physbench.adapters.base import Adapter, Capabilities, Setting, Unsupported, module_version, not_installed
 from physbench.adapters.forces import drag_coefficients
 from physbench.adapters.mjx_batch import batched_models
 from physbench.adapters.mjcf import build_mjcf
@@ -102,14 +102,23 @@ def _import():
     return jax, mjx
 
 
-try:
-    import mujoco
+#: MuJoCo, JAX and MJX, imported by the first model built (:func:`_load`):
+#: a suite's check reads this adapter's capabilities without them (JAX's
+#: import is ~1 s of a sweep client's start-up)
+jax = mjx = mujoco = None
+#: '' when MuJoCo MJX and JAX are installed, else what is missing (nothing imported)
+_MISSING = not_installed("mujoco-mjx", "jax")
 
-    jax, mjx = _import()
-    _IMPORT_ERROR = ""
-except ImportError as _e:  # pragma: no cover - depends on the environment
-    jax = mjx = mujoco = None
-    _IMPORT_ERROR = f"import mujoco.mjx / jax failed: {_e}"
+
+def _load() -> None:
+    """Import MuJoCo, JAX and MJX once (an ImportError here fails the run
+    that needed them, with its reason)."""
+    global jax, mjx, mujoco
+    if mjx is None:
+        import mujoco as mj
+
+        jax, mjx = _import()
+        mujoco = mj
 
 
 def _settings() -> dict[str, Setting]:
@@ -138,7 +147,7 @@ class MjxAdapter(Adapter):
         return Capabilities(
             engine=ENGINE, version=module_version("mujoco-mjx"), dimensions=3, shapes=_SHAPES,
             static_shapes=_STATIC_SHAPES, effects=_EFFECTS, settings=_settings(),
-            available=mjx is not None, unavailable_reason=_IMPORT_ERROR,
+            available=not _MISSING, unavailable_reason=_MISSING,
             notes=("MuJoCo's model (same MJCF and restitution calibration) stepped by MJX in float64",
                    "compiled once per model shape: jit_s apart", "no noslip solver, no speculative contacts",
                    "batched: many starts of one scene in one vmap call (physbench ensemble)"))
@@ -164,6 +173,7 @@ class MjxAdapter(Adapter):
     def _model(self, scene: Scene, settings: dict[str, Any]) -> None:
         """The MuJoCo model of ``scene`` on MJX (self.m, self.mx), its
         start as MJX data (self.dx) and the block function (not compiled)."""
+        _load()
         reason = self.unsupported_reason(scene)
         if reason is not None:
             raise Unsupported(reason)
