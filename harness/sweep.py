@@ -238,7 +238,7 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
         raise
     try:  # still locked: a sweep started meanwhile must not resume this directory
         sd.drain()
-        out = consolidate(sd.path)
+        out = consolidate(sd.path, sd.written)  # the parts this process wrote: not read back
     finally:
         sd.close()
     import pandas as pd
