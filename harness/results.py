@@ -613,8 +613,8 @@ def try_lock(d: Path) -> int:
     return fd
 
 
-#: rows of the parts a :class:`PartsDir` keeps in memory for the merge (about 10 kB a row: a
-#: nightly's 3,200 rows are about 30 MB); parts beyond are read back from disk
+#: rows of the parts a :class:`PartsDir` keeps in memory for the merge (about 3 kB a row in Arrow: a
+#: nightly's 3,200 rows are 10 MB); parts beyond are read back from disk
 KEEP_ROWS = 20_000
 
 #: pyarrow.parquet.write_table options of a part: no compression,

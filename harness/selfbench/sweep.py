@@ -117,8 +117,11 @@ class CpuAccount:
                 k = (p.pid, p.create_time())
                 c = p.cpu_times()
                 if k not in self.kind:
-                    self.kind[k] = self._kind(" ".join(p.cmdline()))
                     self.first[k] = c.user + c.system if start else 0.0
+                if self.kind.get(k, "other processes") == "other processes":
+                    # asked again until it is known: a process sampled between its fork and its exec still
+                    # shows this process's command line
+                    self.kind[k] = self._kind(" ".join(p.cmdline()))
                 self.last[k] = c.user + c.system
             except psutil.Error:
                 pass
