@@ -105,9 +105,9 @@ def _settings() -> dict[str, Setting]:
 
 
 def _joint_kinds() -> frozenset[str]:
-    from physbench.engine.joints import KINDS
+    from physbench.engine import JOINT_KINDS  # engine/settings.py: no numba
 
-    return frozenset(KINDS)
+    return frozenset(JOINT_KINDS)
 
 
 class ReferenceAdapter(Adapter):

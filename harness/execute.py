@@ -100,9 +100,11 @@ class RunRequest:
     consensus: tuple = ()
 
     def __post_init__(self) -> None:
-        p = Path(self.scenario)
-        if not p.is_absolute() and (p.suffix == ".toml" or os.sep in self.scenario) and p.exists():
-            object.__setattr__(self, "scenario", str(p.resolve()))
+        s = self.scenario
+        if s.endswith(".toml") or os.sep in s:  # else an id: no path to build (a sweep makes one request an item)
+            p = Path(s)
+            if not p.is_absolute() and (p.suffix == ".toml" or os.sep in s) and p.exists():
+                object.__setattr__(self, "scenario", str(p.resolve()))
 
     @property
     def label(self) -> str:

@@ -21,9 +21,10 @@ the usual umask, never the 0600 of a ``mkstemp`` file), under
 job that writes its finished runs' rows as parts and resumes after a kill
 (``physbench sweep``: several rows to a part; ``physbench check``): parts
 are built from the rows with pyarrow, one table per row schema (:func:`rows_table`,
-typed as ``from_pandas`` types each row), tables whose columns agree stored
-as one part (:func:`one_part_table`, read back split by :func:`read_part_tables`)
-and merged by :func:`merge_tables`:
+typed as ``from_pandas`` types each row), the tables of one write stored
+as one part (:func:`one_part_table`: a column two of them hold with
+different types stored once per type; read back split by
+:func:`read_part_tables`) and merged by :func:`merge_tables`:
 pyarrow, each column typed as one ``pandas.concat`` and :func:`_normalize`
 (the store's one normaliser) type it.
 """
@@ -210,7 +211,7 @@ def row_signature(row: dict[str, Any]) -> tuple[tuple[str, Any], ...] | None:
     """The Arrow schema of ``row`` as (column, type) pairs, from its values'
     Python types (:func:`_scalar_types`), or None for a row holding a value
     of another type (a list, another numpy scalar: the pandas path types
-    it).  Rows of one signature share one part (:func:`rows_table`)."""
+    it).  Rows of one signature make one table (:func:`rows_table`)."""
     types = _scalar_types()
     try:
         return tuple((k, types[type(v)]) for k, v in row.items())
@@ -418,97 +419,129 @@ def list_parts(d: Path) -> list[Path]:
 #: an index into the list stored under this key in the part's ``physbench`` metadata
 PART_SCHEMA_COLUMN = "__row_schema"
 PART_SCHEMAS_KEY = "row_schemas"
+#: ... and, where two of its row schemas hold a column with different types (an int and a float, a bool and
+#: text), the column's name of each stored column (the stored names of the second type on are made up)
+PART_COLUMNS_KEY = "row_columns"
 
 
-def _packs(schemas: list[Any]) -> list[list[int]]:
-    """``schemas`` (each a pyarrow Schema or (name, type) pairs; indices, in
-    order) in runs of consecutive ones whose columns agree in type where
-    two of them have a column (a null-typed column agrees with any): the
-    tables one part holds."""
+def _stored_columns(schemas: list[Any]) -> tuple[list[tuple[str, Any]], dict[tuple[str, Any], int]]:
+    """The columns a part of rows of ``schemas`` (each a pyarrow Schema or
+    (name, type) pairs) stores: one per column name and non-null type, in
+    the order they first appear (a name held null-typed only: one of type
+    null), as (name, type); and the index of each (name, type) a schema
+    holds -- a null-typed one's is its name's first stored column."""
     import pyarrow as pa
 
     null = pa.null()
-    runs: list[list[int]] = []
-    types: dict[str, Any] = {}
-    for i, sch in enumerate(schemas):
-        fields = [(f.name, f.type) for f in sch] if isinstance(sch, pa.Schema) else sch
-        agree = bool(runs) and all(t == null or types.get(n, t) in (t, null) for n, t in fields)
-        if not agree:
-            runs.append([])
-            types = {}
-        runs[-1].append(i)
-        for n, t in fields:
-            if t != null or n not in types:
-                types[n] = t
-    return runs
+    kinds: dict[str, list[Any]] = {}
+    for sch in schemas:
+        for f in sch:
+            n, t = (f.name, f.type) if isinstance(f, pa.Field) else f
+            have = kinds.setdefault(n, [])
+            if t != null and t not in have:
+                have.append(t)
+    stored = [(n, t) for n, ts in kinds.items() for t in (ts or [null])]
+    index = {c: i for i, c in enumerate(stored)}
+    for n, ts in kinds.items():
+        index[(n, null)] = index[(n, ts[0] if ts else null)]
+    return stored, index
+
+
+def _stored_names(stored: list[tuple[str, Any]]) -> tuple[list[str], list[str] | None]:
+    """The names the ``stored`` columns are written under -- their own, but
+    a made-up one (``__row_schema<k>:<name>``) for a name's second type on --
+    and, where one is made up, every stored column's own name (None else)."""
+    seen: set[str] = set()
+    out = []
+    for n, _ in stored:
+        name, k = n, 0
+        while name in seen or (name != n and name in {m for m, _ in stored}):
+            k += 1
+            name = f"{PART_SCHEMA_COLUMN}{k}:{n}"
+        seen.add(name)
+        out.append(name)
+    return out, (None if out == [n for n, _ in stored] else [n for n, _ in stored])
 
 
 def _signature_part(groups: list[tuple[tuple[tuple[str, Any], ...], list[dict[str, Any]]]]):
-    """Rows of several signatures whose columns agree (:func:`_packs`) as
-    :func:`one_part_table` makes them from their :func:`rows_table` s,
-    built straight from the rows: one array per column of the union, not
-    one per column of each signature.  Raises what pyarrow raises for a
-    value its type cannot hold (the caller then takes the tables' path)."""
+    """Rows of several signatures as :func:`one_part_table` makes them from
+    their :func:`rows_table` s, built straight from the rows: one array per
+    stored column (:func:`_stored_columns`), not one per column of each
+    signature.  Raises what pyarrow raises for a value its type cannot hold
+    (the caller then takes the tables' path)."""
     import pyarrow as pa
 
     null, f64 = pa.null(), pa.float64()
-    types: dict[str, Any] = {}
-    for sig, _ in groups:
-        for n, t in sig:
-            if t != null or n not in types:
-                types[n] = t
-    index = {n: i for i, n in enumerate(types)}
-    rows = [r for _, same in groups for r in same]
-    arrays = [pa.array([r.get(n) for r in rows], t, from_pandas=True) if t == f64  # NaN -> null, as rows_table
-              else pa.array([r.get(n) for r in rows], t) for n, t in types.items()]
+    stored, index = _stored_columns([sig for sig, _ in groups])
+    values: list[list[Any]] = [[] for _ in stored]
+    for sig, same in groups:
+        # a signature's rows hold its columns in its order: transposed in C, not value by value
+        columns = list(zip(*[r.values() for r in same]))
+        held = {index[c]: j for j, c in enumerate(sig) if c[1] != null}
+        gap = [None] * len(same)
+        for i, col in enumerate(values):
+            j = held.get(i)
+            col.extend(gap if j is None else columns[j])
+    arrays = [pa.array(v, t, from_pandas=True) if t == f64 else pa.array(v, t)  # NaN -> null, as rows_table
+              for v, (_, t) in zip(values, stored)]
     arrays.append(pa.array([k for k, (_, same) in enumerate(groups) for _ in same], pa.int32()))
-    schema = pa.schema(list(types.items()) + [(PART_SCHEMA_COLUMN, pa.int32())])
-    schemas = [[[index[n] for n, _ in sig], [index[n] for n, t in sig if t == null]] for sig, _ in groups]
-    return pa.Table.from_arrays(arrays, schema=schema), schemas
+    names, own = _stored_names(stored)
+    schema = pa.schema([(m, t) for m, (_, t) in zip(names, stored)] + [(PART_SCHEMA_COLUMN, pa.int32())])
+    schemas = [[[index[c] for c in sig], [index[c] for c in sig if c[1] == null]] for sig, _ in groups]
+    return pa.Table.from_arrays(arrays, schema=schema), schemas, own
 
 
-def one_part_table(tables: list[Any]) -> tuple[Any, list[list[list[int]]] | None]:
-    """Tables whose columns agree in type (:func:`_packs`) as one table to
-    store as one part, and what :func:`read_part_tables` needs to give the
-    tables back: (table, None) for one table; for several, their columns'
-    union in the order they first appear (a table lacking a column, or
-    holding it null-typed, has nulls of the union's type there) plus
-    :data:`PART_SCHEMA_COLUMN`, each row's table, and per table [its
-    columns, those of them null-typed] as indices into the union.  A part
-    so costs one Parquet write, whatever the row signatures among its rows
+def one_part_table(tables: list[Any]) -> tuple[Any, list[list[list[int]]] | None, list[str] | None]:
+    """Tables (each of its own row schema) as one table to store as one
+    part, and what :func:`read_part_tables` needs to give the tables back:
+    (table, None, None) for one table; for several, their stored columns
+    (:func:`_stored_columns`: one per column name and type; a table lacking
+    a column, or holding it null-typed, has nulls there) plus
+    :data:`PART_SCHEMA_COLUMN`, each row's table, per table [its columns,
+    those of them null-typed] as indices into the stored columns, and the
+    stored columns' own names where a name is stored under two types
+    (:func:`_stored_names`; else None).  A flush of a sweep's rows so costs
+    one Parquet write, whatever their row signatures and however their
+    types disagree
     (tests/test_results_store.py::test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one)."""
     import pyarrow as pa
 
     if len(tables) == 1:
-        return tables[0], None
-    types: dict[str, Any] = {}
-    for t in tables:
-        for f in t.schema:
-            if f.type != pa.null() or f.name not in types:
-                types[f.name] = f.type
-    index = {n: i for i, n in enumerate(types)}
-    schema = pa.schema(list(types.items()) + [(PART_SCHEMA_COLUMN, pa.int32())])
+        return tables[0], None, None
+    null = pa.null()
+    stored, index = _stored_columns([t.schema for t in tables])
+    names, own = _stored_names(stored)
+    schema = pa.schema([(m, t) for m, (_, t) in zip(names, stored)] + [(PART_SCHEMA_COLUMN, pa.int32())])
     parts, schemas = [], []
     for k, t in enumerate(tables):
-        n, have = t.num_rows, {f.name: f.type for f in t.schema}
-        cols = [t.column(c) if c in have and have[c] == ty else pa.nulls(n, ty) for c, ty in types.items()]
+        n = t.num_rows
+        have = {index[(f.name, f.type)]: i for i, f in enumerate(t.schema) if f.type != null}
+        cols = [t.column(have[j]) if j in have else pa.nulls(n, ty) for j, (_, ty) in enumerate(stored)]
         parts.append(pa.Table.from_arrays(cols + [pa.array([k] * n, pa.int32())], schema=schema))
-        schemas.append([[index[f.name] for f in t.schema], [index[f.name] for f in t.schema if f.type == pa.null()]])
-    return pa.concat_tables(parts).combine_chunks(), schemas
+        schemas.append([[index[(f.name, f.type)] for f in t.schema],
+                        [index[(f.name, f.type)] for f in t.schema if f.type == null]])
+    return pa.concat_tables(parts).combine_chunks(), schemas, own
 
 
 def read_part_tables(p: Path) -> list[Any]:
     """The tables a part holds (:func:`read_part`), each with its own row
     schema: one, or those :func:`one_part_table` stored together, given
-    back as they were (columns, order, types, values)."""
+    back as they were (columns, names, order, types, values)."""
+    t = read_part(p)
+    return split_part(t, json.loads((t.schema.metadata or {}).get(b"physbench", b"{}")))
+
+
+def split_part(t: Any, meta: dict[str, Any]) -> list[Any]:
+    """The tables of a part's table ``t`` whose ``physbench`` metadata is
+    ``meta`` (:func:`read_part_tables`; the part writer's own copy of what
+    it wrote, :attr:`PartsDir.written`, is split the same way)."""
     import pyarrow as pa
 
-    t = read_part(p)
-    meta = json.loads((t.schema.metadata or {}).get(b"physbench", b"{}"))
     schemas = meta.get(PART_SCHEMAS_KEY)
     if not schemas:
         return [t]
-    names, fields = t.column_names, [f.remove_metadata() for f in t.schema]
+    names = meta.get(PART_COLUMNS_KEY) or t.column_names
+    fields = [f.remove_metadata().with_name(n) for f, n in zip(t.schema, names)]
     which = t.column(PART_SCHEMA_COLUMN).to_pylist()
     out, start = [], 0
     while start < len(which):
@@ -580,6 +613,10 @@ def try_lock(d: Path) -> int:
     return fd
 
 
+#: rows of the parts a :class:`PartsDir` keeps in memory for the merge (about 3 kB a row in Arrow: a
+#: nightly's 3,200 rows are 10 MB); parts beyond are read back from disk
+KEEP_ROWS = 20_000
+
 #: pyarrow.parquet.write_table options of a part: no compression,
 #: no column statistics (a part is read whole, once); the merged file is
 #: written with the defaults
@@ -598,6 +635,11 @@ class PartsDir:
         self.lock_fd = lock_fd
         self.key_column = key_column
         self.done, self.next_part = part_keys(path, key_column)
+        #: the parts this object wrote, by file name: (table, its ``physbench`` metadata), as written, up to
+        #: :data:`KEEP_ROWS` rows in all -- the merge takes them from here instead of reading them back
+        #: (:func:`consolidate_parts`; the same tables: tests/test_results_store.py::test_the_merge_of_the_kept_parts_is_the_merge_of_the_files)
+        self.written: dict[str, tuple[Any, dict[str, Any]]] = {}
+        self._kept_rows = 0
         for tmp in path.glob(".tmp-*"):  # a write in flight when killed
             tmp.unlink()
 
@@ -606,15 +648,18 @@ class PartsDir:
         return self.write_rows([row], metadata)[0]
 
     def write_rows(self, rows: list[dict[str, Any]], metadata: dict[str, Any] | None = None) -> list[Path]:
-        """Store ``rows`` as the next parts: one table per :func:`row_signature`
+        """Store ``rows`` as the next part: one table per :func:`row_signature`
         among them (its rows in their order, :func:`rows_table`; the tables
         in the order their signatures first appear, so a merge types the
-        columns as it typed one part per row), consecutive tables whose
-        columns agree in type sharing one part (:func:`one_part_table`: a
-        sweep's rows of different engines and statuses, one write), each written atomically and
-        fsynced before this returns: once the caller counts a row done, it
-        is on disk.  A part is whole or absent, so a kill loses whole
-        parts, never half a row.  Returns the parts' paths."""
+        columns as it typed one part per row), all in one part
+        (:func:`one_part_table`: a sweep's rows of different engines and
+        statuses, one write, whatever their columns' types), written
+        atomically and fsynced before this returns: once the caller counts
+        a row done, it is on disk.  A part is whole or absent, so a kill
+        loses whole parts, never half a row.  Returns the part's path (a
+        list: empty for no rows)."""
+        if not rows:
+            return []
         groups: dict[Any, tuple[Any, list[dict[str, Any]]]] = {}  # a row the pandas path types: a table alone
         for i, row in enumerate(rows):
             sig = row_signature(row)
@@ -622,28 +667,27 @@ class PartsDir:
         import pyarrow as pa
 
         listed = list(groups.values())
-        # a row the pandas path types (no signature): its own table first, for its schema
-        alone = {i: rows_table(same, None) for i, (sig, same) in enumerate(listed) if sig is None}
-        paths = []
-        for run in _packs([alone[i].schema if i in alone else listed[i][0] for i in range(len(listed))]):
-            p = self.path / f"part-{self.next_part:06d}.parquet"
-            table = schemas = None
-            if len(run) > 1 and not any(i in alone for i in run):
-                try:
-                    table, schemas = _signature_part([listed[i] for i in run])
-                except (OverflowError, pa.ArrowException):
-                    table = None
-            if table is None:
-                table, schemas = one_part_table([alone[i] if i in alone else rows_table(listed[i][1], listed[i][0])
-                                                 for i in run])
-            meta = dict(metadata or {})
-            if schemas is not None:
-                meta[PART_SCHEMAS_KEY] = schemas
-            write_table_atomic(table, p, meta, **PART_WRITE_OPTIONS)
-            self.next_part += 1
-            self.done.update(r[self.key_column] for i in run for r in listed[i][1])
-            paths.append(p)
-        return paths
+        p = self.path / f"part-{self.next_part:06d}.parquet"
+        table = schemas = names = None
+        if len(listed) > 1 and all(sig is not None for sig, _ in listed):
+            try:
+                table, schemas, names = _signature_part(listed)
+            except (OverflowError, pa.ArrowException):
+                table = None
+        if table is None:
+            table, schemas, names = one_part_table([rows_table(same, sig) for sig, same in listed])
+        meta = dict(metadata or {})
+        if schemas is not None:
+            meta[PART_SCHEMAS_KEY] = schemas
+        if names is not None:
+            meta[PART_COLUMNS_KEY] = names
+        write_table_atomic(table, p, meta, **PART_WRITE_OPTIONS)
+        if self._kept_rows + len(rows) <= KEEP_ROWS:
+            self.written[p.name] = (table, meta)
+            self._kept_rows += len(rows)
+        self.next_part += 1
+        self.done.update(r[self.key_column] for r in rows)
+        return [p]
 
     def part_rows(self) -> list[dict[str, Any]]:
         """The stored rows, one dict per row, each part read on its own (so
@@ -678,18 +722,25 @@ def unfinished_dirs(parent: Path) -> list[tuple[Path, dict[str, Any]]]:
 
 
 def consolidate_parts(d: Path, key_column: str, order: list[str], finished: str,
-                      columns: dict[str, dict[str, Any]] | None = None) -> tuple[Path, dict[str, Any]]:
+                      columns: dict[str, dict[str, Any]] | None = None,
+                      written: dict[str, tuple[Any, dict[str, Any]]] | None = None) -> tuple[Path, dict[str, Any]]:
     """Merge the parts of job directory ``d`` into ``<d>.parquet`` (rows in
     ``order`` of their keys, one per key; :func:`merge_tables`), write
     ``<d>.manifest.json``, then -- only once both are safely in place --
     remove ``d``.  ``columns`` maps a key to values set on its row (a
-    check's verdicts, known only once every run is in).  Returns
-    (consolidated file, manifest)."""
+    check's verdicts, known only once every run is in).  ``written``: the
+    tables of parts the caller wrote itself and holds the directory's lock
+    for (:attr:`PartsDir.written`), taken from memory instead of read back
+    (a part the size of a nightly's flush costs a few ms to read); every
+    other part is read.  Returns (consolidated file, manifest)."""
     import pyarrow as pa
 
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    parts = [t for p in list_parts(d) for t in read_part_tables(p)]
-    keyed = bool(parts) and all(key_column in t.column_names for t in parts)
+    parts = []
+    for p in list_parts(d):
+        kept = (written or {}).get(p.name)
+        parts.extend(split_part(*kept) if kept is not None else read_part_tables(p))
+    keyed = bool(parts) and all(t.schema.get_field_index(key_column) >= 0 for t in parts)
     if keyed:  # the keys first: the merge then builds only the rows kept, in their order
         keys = [k for t in parts for k in t.column(key_column).to_pylist()]
     else:

@@ -6,9 +6,9 @@
     <machine-id>/<suite>/<sweep_id>.manifest.json     when complete
 
 Every file is written atomically (harness/results.py: temp file, fsync,
-rename); the rows of about five seconds go into one part (or a few, where
-their columns' types disagree: harness.results.PartsDir.write_rows), so a
-killed sweep loses at most those and the points in flight.  A sweep resumes by reading the finished point keys back
+rename); the rows of about five seconds go into one part
+(harness.results.PartsDir.write_rows), so a killed sweep loses at most
+those and the points in flight.  A sweep resumes by reading the finished point keys back
 from its parts (:func:`open_sweep`).  The one reader of the layout is
 :func:`sweep_files`.  Names that become directories are plain names
 (:func:`plain_name`, :func:`confined`).
@@ -83,9 +83,9 @@ def _now() -> str:
 
 #: seconds of rows the part writer gathers into one write (a killed sweep loses at most these and the
 #: points in flight; tests/test_sweep.py::test_resume_after_the_process_is_killed), and at most this many rows.
-#: A part costs the client about 3 ms of CPU whatever its rows, plus about 0.1 ms a row, and the merge reads
-#: each part (harness/selfbench/sweep.py --store): 2 workers finish 7-12 of the nightly's rows a second, so
-#: 5 s gives 35-60 rows a part (0.14 ms a row to write, 0.18 to merge, against 0.25 and 0.31 at 2 s)
+#: A part costs the client a few ms of CPU whatever its rows (a Parquet write of the flush's columns, fsync),
+#: plus a few hundredths of a ms a row (harness/selfbench/sweep.py --store): 2 workers finish 7-12 of the
+#: nightly's rows a second, so 5 s gives 35-60 rows a part
 PART_FLUSH_S = 5.0
 PART_MAX_ROWS = 1000
 #: the name of the sweep's part-writer thread (:meth:`SweepDir.write_behind`;
@@ -98,7 +98,7 @@ class SweepDir(PartsDir):
     keyed by ``point_key`` (harness.results.PartsDir).  After
     :meth:`write_behind`, :meth:`write_point` hands each row to a writer
     thread, which stores the rows of each :data:`PART_FLUSH_S` seconds
-    together (one part per row signature, in order): the caller (the
+    together (one part a flush, harness.results.PartsDir.write_rows): the caller (the
     sweep's loop, which feeds the executor and the searches) does not wait
     for the parts' encoding and fsync."""
 
@@ -132,8 +132,8 @@ class SweepDir(PartsDir):
             batch = [self._queue.get()]
             if batch[0] is None:
                 return
-            # the rows of the next PART_FLUSH_S seconds (at most PART_MAX_ROWS) go into one write: one part per
-            # row signature, so a part's encoding and the merge's read are paid per batch, not per row.  The
+            # the rows of the next PART_FLUSH_S seconds (at most PART_MAX_ROWS) go into one write, one part,
+            # so a part's encoding is paid per batch, not per row.  The
             # thread sleeps through those seconds instead of waking at every row (about 10 us of CPU a row);
             # drain() and a full batch (write_point) wake it early
             self._wake.wait(PART_FLUSH_S)
@@ -293,13 +293,15 @@ def open_sweep(suite: Any, points: list[Any], root: Path, resume: bool | None, j
     return SweepDir(d, man, fd), False
 
 
-def consolidate(d: Path) -> Path:
+def consolidate(d: Path, written: dict[str, Any] | None = None) -> Path:
     """Merge the parts of sweep directory ``d`` into ``<d>.parquet`` (rows in
     planned order, one per point key), write ``<d>.manifest.json``, then --
-    only once both are safely in place -- remove ``d``.  Returns the
+    only once both are safely in place -- remove ``d``.  ``written``: the
+    parts the caller wrote, held in memory (:attr:`SweepDir.written`, under
+    the directory's lock: harness.results.consolidate_parts).  Returns the
     consolidated file's path."""
     man = json.loads((d / "manifest.json").read_text(encoding="utf-8"))
-    out, _ = consolidate_parts(d, "point_key", list(man.get("points", [])), _now())
+    out, _ = consolidate_parts(d, "point_key", list(man.get("points", [])), _now(), written=written)
     return out
 
 

@@ -62,3 +62,40 @@ def test_blas_core_type_enters_the_arithmetic_key():
         keys[core] = out.stdout.strip()
     assert keys["Prescott"] != keys["Sandybridge"]
     assert "Sandybridge" in keys["Sandybridge"]
+
+
+def test_blas_list_is_the_one_importing_scipy_linalg_gives():
+    # the fingerprint loads scipy.linalg's BLAS without importing scipy.linalg (a sweep client's start-up);
+    # the list, and every id and string made from it (machine and env ids key stored history), must be the
+    # ones importing scipy.linalg gives: each way in a fresh process, with the CPU's own core type and another
+    code = ("import json, sys\n"
+            "if sys.argv[1] == 'import':\n"
+            "    import scipy.linalg\n"
+            "from physbench.harness import fingerprint as F\n"
+            "if sys.argv[1] == 'import':\n"
+            "    F._load_scipy_blas = lambda: None\n"
+            "fp = F.fingerprint()\n"
+            "print(json.dumps({'fp': fp, 'env_id': F.env_id(fp), 'machine_id': F.machine_id(fp),\n"
+            "                  'key': F.arithmetic_key(fp), 'summary': F.summary(fp),\n"
+            "                  'scipy.linalg': 'scipy.linalg' in sys.modules}))\n")
+    import json
+
+    for core in (None, "Sandybridge"):
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        env.pop("OPENBLAS_CORETYPE", None)
+        if core:
+            env["OPENBLAS_CORETYPE"] = core
+        got = {}
+        for way in ("import", "load"):
+            out = subprocess.run([sys.executable, "-c", code, way], capture_output=True, text=True, env=env,
+                                 cwd=ROOT, timeout=120)
+            assert out.returncode == 0, out.stderr
+            got[way] = json.loads(out.stdout)
+        assert got["import"].pop("scipy.linalg") is True
+        assert got["load"].pop("scipy.linalg") is False
+        assert got["load"] == got["import"], core
+        import scipy
+
+        # scipy's own OpenBLAS (wheels ship one beside numpy's) is listed
+        assert len(got["load"]["fp"]["blas"]) >= 1
+        assert scipy.__version__ in got["load"]["key"]

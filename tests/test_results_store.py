@@ -194,14 +194,14 @@ def test_parts_of_mixed_kinds_merge_to_one_typed_column(tmp_path):
 
 
 def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, sweep_rows):
-    """``PartsDir.write_rows`` stores rows several to a part: one table per
-    row signature, in the order the signatures first appear, consecutive
-    tables whose columns agree in type in one part (a column two of them
-    hold with different non-null types starts a new part): each row reads
-    back with the types and values its own one-row part held, the report's
-    and the limit cache's reader (``read_frame``) sees one row per row
-    without the part's bookkeeping column, and the merged file is the one
-    the one-row parts merge to."""
+    """``PartsDir.write_rows`` stores the rows of one call as one part: one
+    table per row signature, in the order the signatures first appear, all
+    in the part even where two of them hold a column with different
+    non-null types (stored as two columns, the second under a made-up name):
+    each row reads back with the names, types and values its own one-row
+    part held, the report's and the limit cache's reader (``read_frame``)
+    sees one row per row without the part's bookkeeping columns, and the
+    merged file is the one the one-row parts merge to."""
     import pyarrow as pa
 
     rows = _rows_of_every_kind() + sweep_rows + _rows_of_every_kind()[:3]
@@ -218,18 +218,26 @@ def test_a_part_of_several_rows_reads_back_as_its_rows_one_by_one(tmp_path, swee
         groups.setdefault(R.row_signature(row) or i, []).append(i)
     for i, row in enumerate(rows[5:], 5):
         groups.setdefault(("second", R.row_signature(row) or i), []).append(i)
-    # rows a and b disagree in type (setting.ccd bool / text, setting.iterations int / float): two parts;
-    # the smoke sweep's rows, of several signatures, share parts
-    assert 2 < len(paths) < len(groups) < len(rows) and b.done == a.done
+    # rows a and b disagree in type (setting.ccd bool / text, setting.iterations int / float), and so do
+    # the smoke sweep's rows of several signatures: still one part a call
+    assert len(paths) == 2 and len(groups) < len(rows) and b.done == a.done
     assert sum(pq.read_metadata(p).num_rows for p in paths) == len(rows)
-    several = [p for p in paths if len(R.read_part_tables(p)) > 1]
-    assert several and all(R.PART_SCHEMA_COLUMN in pq.read_schema(p).names for p in several)
-    for p in paths:  # a part's tables agree in every column they share
-        types: dict = {}
-        for t in R.read_part_tables(p):
-            for f in t.schema:
-                if f.type != pa.null():
-                    assert types.setdefault(f.name, f.type) == f.type, (p, f)
+    assert all(R.PART_SCHEMA_COLUMN in pq.read_schema(p).names for p in paths)
+    second = [isinstance(g, tuple) and g[0] == "second" for g in groups]
+    assert [len(R.read_part_tables(p)) for p in paths] == [second.count(False), second.count(True)]
+    renamed = json.loads(pq.read_schema(paths[0]).metadata[b"physbench"])[R.PART_COLUMNS_KEY]
+    stored = pq.read_schema(paths[0]).names
+    # one stored column per type the rows give a column (bool and text; int, float and bool), the first
+    # type's under the column's own name
+    assert renamed.count("setting.ccd") == 2 and renamed.count("setting.iterations") == 3
+    for name in ("setting.ccd", "setting.iterations"):
+        assert stored[renamed.index(name)] == name and stored.count(name) == 1
+    types: dict = {}  # across the part's tables, a column may have several types
+    for t in R.read_part_tables(paths[0]):
+        for f in t.schema:
+            if f.type != pa.null():
+                types.setdefault(f.name, set()).add(f.type)
+    assert len(types["setting.ccd"]) == 2 and len(types["setting.iterations"]) == 3  # int, float, bool
     one_rows = a.part_rows()
     _same_values([one_rows[i] for same in groups.values() for i in same], b.part_rows())
     framed = pd.concat([R.read_frame(p) for p in paths], ignore_index=True)
@@ -301,3 +309,28 @@ def test_the_arrow_merge_types_every_column_as_the_pandas_merge(tmp_path, seed):
         old = R.write_table_atomic(_pandas_group_merge(tables), tmp_path / f"old{per_part}.parquet")
         new = R.write_table_atomic(R.merge_tables(tables), tmp_path / f"new{per_part}.parquet")
         _same_file(old, new)
+
+
+def test_the_merge_of_the_kept_parts_is_the_merge_of_the_files(tmp_path, sweep_rows):
+    """A sweep merges the parts it wrote itself from its own copy of them
+    (``PartsDir.written``) instead of reading them back: the merged file is
+    the one reading every part gives, also when only some parts are kept (a
+    resumed sweep's parts from before are read) and when a part holds a
+    row the pandas path types (a list)."""
+    rows = _rows_of_every_kind() + sweep_rows + _rows_of_every_kind()[:3]
+    dirs = [tmp_path / n for n in ("read", "kept", "some")]
+    stores = []
+    for d in dirs:
+        d.mkdir()
+        R.write_json_atomic({"points": []}, d / "manifest.json")
+        store = R.PartsDir(d, {}, -1, "point_key")
+        for i in range(0, len(rows), 7):
+            store.write_rows(rows[i:i + 7], {"sweep_id": "s"})
+        stores.append(store)
+    names = [p.name for p in R.list_parts(dirs[0])]
+    assert len(names) > 2 and list(stores[1].written) == names
+    some = dict(list(stores[2].written.items())[1:])
+    order = list(dict.fromkeys(r["point_key"] for r in rows))[::-1]
+    read = R.consolidate_parts(dirs[0], "point_key", order, "now")[0]
+    for d, written in ((dirs[1], stores[1].written), (dirs[2], some)):
+        _same_file(read, R.consolidate_parts(d, "point_key", order, "now", written=written)[0])

@@ -927,3 +927,27 @@ def test_phase_sweep_measures_the_plate_tunnelling_law(tmp_path):
     bad = col[col["phase"] > 0]
     assert len(bad) == 2 * 7 and (bad["status"] == "error").all()
     assert bad["message"].str.contains("phase shift needs free flight").all()
+
+
+def test_the_start_up_objects_are_out_of_the_loop_s_collections(tmp_path, monkeypatch):
+    """sweep_main freezes the objects its start-up made (gc.freeze) while
+    the sweep's loop runs, so the garbage collector's full collections do
+    not walk them for every few hundred rows, and gives them back after
+    (a caller's later collections see them again), also when the loop
+    raises."""
+    import gc
+
+    frozen = []
+
+    def loop(*a, **kw):
+        frozen.append(gc.get_freeze_count())
+        if len(frozen) == 2:
+            raise RuntimeError("the loop failed")
+
+    monkeypatch.setattr(S, "run_schedule", loop)
+    before = gc.get_freeze_count()
+    assert S.sweep_main("smoke", executor="serial", out_dir=tmp_path / "a", resume=False) == 0
+    assert frozen[0] > before + 10_000 and gc.get_freeze_count() == before
+    with pytest.raises(RuntimeError, match="the loop failed"):
+        S.sweep_main("smoke", executor="serial", out_dir=tmp_path / "b", resume=False)
+    assert len(frozen) == 2 and gc.get_freeze_count() == before

@@ -39,5 +39,5 @@ bodies (the joint step integrates w x I w explicitly: setting
 ``gyroscopic = explicit``).
 """
 
-#: the joint kinds the engine builds
-KINDS = ("revolute", "spherical", "prismatic", "fixed")
+#: the joint kinds the engine builds (defined with the settings, engine/settings.py: read without numba)
+from physbench.engine.settings import JOINT_KINDS as KINDS  # noqa: E402

@@ -117,8 +117,11 @@ class CpuAccount:
                 k = (p.pid, p.create_time())
                 c = p.cpu_times()
                 if k not in self.kind:
-                    self.kind[k] = self._kind(" ".join(p.cmdline()))
                     self.first[k] = c.user + c.system if start else 0.0
+                if self.kind.get(k, "other processes") == "other processes":
+                    # asked again until it is known: a process sampled between its fork and its exec still
+                    # shows this process's command line
+                    self.kind[k] = self._kind(" ".join(p.cmdline()))
                 self.last[k] = c.user + c.system
             except psutil.Error:
                 pass
@@ -389,10 +392,11 @@ def store_costs(rows: list[dict[str, Any]], limit: int = 2000, batch: int = 32) 
     directory: a part per row the pandas way (``DataFrame`` ->
     ``Table.from_pandas`` -> Parquet, fsync, rename), a part per row the
     Arrow way (``PartsDir.write_part``), and ``batch`` rows at a time
-    (``PartsDir.write_rows``: one part per row signature, as the sweep's
-    part writer stores each half second of rows); and the merge of each
-    store's parts into one file (pandas: ``read_parquet`` + ``concat``;
-    Arrow: ``consolidate_parts``).  ms of CPU (``time.process_time``) per
+    (``PartsDir.write_rows``: one part a write, as the sweep's part writer
+    stores each flush of rows); and the merge of each store's parts into
+    one file (pandas: ``read_parquet`` + ``concat``; Arrow:
+    ``consolidate_parts``, the batched parts from the writer's own copy of
+    them, as the sweep merges them).  ms of CPU (``time.process_time``) per
     row; ``client_ms`` = write + merge of the batched parts."""
     import pandas as pd
 
@@ -414,7 +418,7 @@ def store_costs(rows: list[dict[str, Any]], limit: int = 2000, batch: int = 32) 
         for r in rows:
             store.write_part(r, {"sweep_id": "bench"})
         out["part_write_row_ms"] = 1e3 * (time.process_time() - c) / n
-        store = PartsDir(dirs["batch"], {}, -1, "point_key")
+        batched = store = PartsDir(dirs["batch"], {}, -1, "point_key")
         c = time.process_time()
         for i in range(0, len(rows), batch):
             store.write_rows(rows[i:i + batch], {"sweep_id": "bench"})
@@ -426,7 +430,8 @@ def store_costs(rows: list[dict[str, Any]], limit: int = 2000, batch: int = 32) 
         out["merge_pandas_ms"] = 1e3 * (time.process_time() - c) / n
         for k in ("row", "batch"):
             c = time.process_time()
-            consolidate_parts(dirs[k], "point_key", [r["point_key"] for r in rows], "now")
+            consolidate_parts(dirs[k], "point_key", [r["point_key"] for r in rows], "now",
+                              written=batched.written if k == "batch" else None)
             out[f"merge_{k}_ms"] = 1e3 * (time.process_time() - c) / n
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
