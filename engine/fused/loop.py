@@ -110,6 +110,10 @@ class FlightStep:
         """The compiled call :meth:`advance` makes (its profile name)."""
         return FLIGHT_NAME
 
+    def kept(self) -> None:
+        """No steady solve (the door's Backoff): a flight step never fails."""
+        return None
+
     def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
         """The door's step (engine/fused/__init__.py): :meth:`run`, which
         never stops early.  Returns (n, NONE)."""

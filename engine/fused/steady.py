@@ -523,6 +523,13 @@ class SteadyStep:
         contact-free call."""
         return FREE_NAME if self.solve._fast is None else NAME
 
+    def kept(self):
+        """The kept steady solve's contact graph (its engine.solver.Topology,
+        one object per graph while the solve's cache holds it) or None: what
+        the door's Backoff compares a failed try's with."""
+        fast = self.solve._fast
+        return None if fast is None else fast[1]
+
     def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
         """Up to ``n`` steps from ``state`` in one compiled loop
         (:func:`steady_loop` while the solve keeps a steady solve, else
