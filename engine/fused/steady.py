@@ -609,12 +609,16 @@ class SteadyStep:
         """At build, after the solve kept a steady solve of the start's
         contacts (pipeline._prime_start), with the state and context as a
         fresh engine's: the steady loop's warm caches and borrowed packs,
-        which the door's first try would make (the same objects)."""
+        which the door's first try would make (the same objects): the
+        second warm cache's Pack and its borrowed twin among them (~40 us of
+        a fresh engine's first call: tests/test_engine_prepare.py::
+        test_the_first_steady_call_makes_no_pack)."""
         if self.solve._fast is None:
             return
         a = self.steady_args(model, state, ctx, float(model.h))
         if a is not None and a[3]:
-            self._loop_packs(model, state, ctx, a[0], a[2], a[4])
+            out2, _ = self._loop_packs(model, state, ctx, a[0], a[2], a[4])
+            self.borrowed.of(out2.kept)
 
     def _free_advance(self, model, state, ctx, plan, n, h, rec_on, blocks_, t0) -> tuple[int, int]:
         """:meth:`advance` by the contact-free call (:func:`free_loop`)."""
