@@ -610,9 +610,9 @@ class SteadyStep:
         contacts (pipeline._prime_start), with the state and context as a
         fresh engine's: the steady loop's warm caches and borrowed packs,
         which the door's first try would make (the same objects): the
-        second warm cache's Pack and its borrowed twin among them (~40 us of
-        a fresh engine's first call: tests/test_engine_prepare.py::
-        test_the_first_steady_call_makes_no_pack)."""
+        second warm cache's Pack and its borrowed twin among them (10-20 us
+        of a fresh engine's first call, measured on friction.ball_rolls:
+        tests/test_engine_prepare.py::test_the_first_steady_call_makes_no_pack)."""
         if self.solve._fast is None:
             return
         a = self.steady_args(model, state, ctx, float(model.h))
