@@ -137,3 +137,48 @@ def test_the_resting_column_s_first_step_is_the_steady_call_with_the_staged_book
     assert prof["counters"] == p0.counters
     for f in ("codes", "loc", "fn", "pairs", "ft", "tw", "rr", "touch"):
         assert np.array_equal(getattr(ad.state.warm, f), getattr(state.warm, f)), f
+
+
+def test_the_first_steady_call_makes_no_pack(monkeypatch):
+    """A rolling ball's and a resting column's first steps are the steady
+    loop's call: after the adapter's build it makes no Pack and borrows
+    nothing new (the second warm cache's Pack and its borrowed twin were
+    made at build: engine/fused/steady.py SteadyStep.prime_steady)."""
+    from physbench.engine import pack
+    from physbench.engine.fused import borrow
+
+    for name, settings in (("friction.ball_rolls", {"dt": 0.064}), ("stacking.column_5", {"dt": 0.064})):
+        sc = load_scene(name)
+        ad = ReferenceAdapter()
+        ad.build(sc, ReferenceAdapter.resolve_settings(sc, settings))
+        fast = ad.state.ctx.plan.fast
+        kall = fast.kall._pack
+        packs = _spy(monkeypatch, pack.Pack, "__new__")
+        twins = []
+        real = borrow.borrowed
+        monkeypatch.setattr(borrow, "borrowed", lambda p: twins.append(1) or real(p))
+        nb = sc.n_bodies
+        rec = (np.zeros((4, nb, 3)), np.zeros((4, nb, 4)), np.zeros((4, nb, 3)), np.zeros((4, nb, 3)))
+        ad.step_record(4, *rec)
+        assert ad.stages()["steady_step"]["calls"] >= 4
+        assert packs == [] and twins == [] and fast.kall._pack is kall, name
+        monkeypatch.undo()
+
+
+def test_the_first_flight_call_makes_no_pack(monkeypatch):
+    """The same for a scene without contact (engine/fused/loop.py
+    FlightStep.prime): the first call borrows nothing new."""
+    from physbench.engine import pack
+    from physbench.engine.fused import borrow
+
+    sc = load_scene("gyroscopic.dzhanibekov")
+    ad = ReferenceAdapter()
+    ad.build(sc, ReferenceAdapter.resolve_settings(sc, {"dt": 0.032}))
+    packs = _spy(monkeypatch, pack.Pack, "__new__")
+    twins = []
+    real = borrow.borrowed
+    monkeypatch.setattr(borrow, "borrowed", lambda p: twins.append(1) or real(p))
+    rec = (np.zeros((4, 1, 3)), np.zeros((4, 1, 4)), np.zeros((4, 1, 3)), np.zeros((4, 1, 3)))
+    ad.step_record(4, *rec)
+    assert ad.stages()["flight_step"]["calls"] == 4
+    assert packs == [] and twins == []

@@ -41,9 +41,17 @@ class Backoff:
     the tries keep failing; a try that ran a step starts over.  The wait
     is for the call that failed (``what``, the compiled step's
     ``call()``): a scene whose contact-free call failed at a landing tries
-    the steady call as soon as its solve is steady."""
+    the steady call as soon as its solve is steady.  The first wait of a
+    run of failures is skipped when the staged step kept a steady solve
+    of another contact graph than the one the failed try was made with
+    (``kept``, the compiled step's ``kept()``): a contact that came or
+    went fails the try that meets it, and the graph the staged step kept
+    is what the next try checks against (a block whose speculative
+    contacts appear as it speeds up).  A graph that keeps changing fails
+    again and waits 2, 4 ... as before
+    (tests/test_engine_loop.py::test_backoff_retries_at_once_after_a_new_contact_graph)."""
 
-    __slots__ = ("wait", "span", "what")
+    __slots__ = ("wait", "span", "what", "kept")
 
     def __init__(self) -> None:
         #: steps left to wait before the next try
@@ -52,22 +60,29 @@ class Backoff:
         self.span = 0
         #: the call that failed last
         self.what = None
+        #: the steady solve (its contact graph) the failed try was made with
+        self.kept = None
 
-    def ready(self, what) -> bool:
-        """Whether this step tries the call ``what`` (a waiting step
-        counts down)."""
+    def ready(self, what, kept=None) -> bool:
+        """Whether this step tries the call ``what`` with the kept steady
+        solve ``kept`` (a waiting step counts down)."""
         if self.wait and what == self.what:
+            if self.span == 1 and kept is not None and kept is not self.kept:
+                self.wait = 0  # (a new contact graph since the first failure: try it)
+                return True
             self.wait -= 1
             return False
         return True
 
-    def failed(self, what) -> None:
+    def failed(self, what, kept=None) -> None:
         self.span = min(2 * self.span, MAX_BACKOFF) if self.span and what == self.what else 1
         self.wait = self.span
         self.what = what
+        self.kept = kept
 
     def passed(self) -> None:
         self.span = 0
+        self.kept = None
 
 
 def build(model, stages, turn=None):
@@ -99,13 +114,15 @@ def advance(model, state, ctx, plan, n: int, rec=None) -> tuple[int, int]:
     if fast is None or ctx.profile.by_stage:
         return 0, NONE
     what = fast.call()
-    if not plan.backoff.ready(what):
+    kept = fast.kept()
+    if not plan.backoff.ready(what, kept):
         return 0, NONE
     done, status = fast.advance(model, state, ctx, plan, n, rec)
     if done:
         plan.backoff.passed()
     if status == FAIL:  # (the try that stopped the steps: the same rule whatever ran before it)
-        plan.backoff.failed(what)
+        # (the solve the failing try checked: after done steps, the kept one now)
+        plan.backoff.failed(what, fast.kept())
     return done, status
 
 

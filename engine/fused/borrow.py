@@ -14,8 +14,9 @@ numba's increments and decrements of it return at their NULL check.
 :func:`borrowed` is a Pack whose arrays (in its tuple and nested tuples)
 are borrowed views of a kept Pack's; it does not keep them alive, so
 :class:`Borrowed` keeps the Pack it was made from next to it (as long as
-the borrowed one is handed out).  Only the fused calls' packs are
-borrowed (engine/fused/steady.py, engine/fused/loop.py); a borrowed array is never
+the borrowed one is handed out).  Only the fused calls' packs and the
+joint step's arrays are borrowed (engine/fused/steady.py,
+engine/fused/loop.py, engine/joints/step.py); a borrowed array is never
 handed back to Python (numba would box it as an array that owns nothing).
 """
 

@@ -110,6 +110,19 @@ class FlightStep:
         """The compiled call :meth:`advance` makes (its profile name)."""
         return FLIGHT_NAME
 
+    def prime(self, model, state, ctx) -> None:
+        """At build (pipeline.prepare): the packs the first call hands to
+        the loop and their borrowed twins, which a fresh engine's first
+        call would make (the same objects)."""
+        b = self.borrowed.of
+        b(ctx.kept(state))
+        b(self.fly.pack(ctx))
+        b(self.kg)
+
+    def kept(self) -> None:
+        """No steady solve (the door's Backoff): a flight step never fails."""
+        return None
+
     def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
         """The door's step (engine/fused/__init__.py): :meth:`run`, which
         never stops early.  Returns (n, NONE)."""

@@ -523,6 +523,13 @@ class SteadyStep:
         contact-free call."""
         return FREE_NAME if self.solve._fast is None else NAME
 
+    def kept(self):
+        """The kept steady solve's contact graph (its engine.solver.Topology,
+        one object per graph while the solve's cache holds it) or None: what
+        the door's Backoff compares a failed try's with."""
+        fast = self.solve._fast
+        return None if fast is None else fast[1]
+
     def advance(self, model, state, ctx, plan, n: int, rec) -> tuple[int, int]:
         """Up to ``n`` steps from ``state`` in one compiled loop
         (:func:`steady_loop` while the solve keeps a steady solve, else
@@ -602,12 +609,16 @@ class SteadyStep:
         """At build, after the solve kept a steady solve of the start's
         contacts (pipeline._prime_start), with the state and context as a
         fresh engine's: the steady loop's warm caches and borrowed packs,
-        which the door's first try would make (the same objects)."""
+        which the door's first try would make (the same objects): the
+        second warm cache's Pack and its borrowed twin among them (10-20 us
+        of a fresh engine's first call, measured on friction.ball_rolls:
+        tests/test_engine_prepare.py::test_the_first_steady_call_makes_no_pack)."""
         if self.solve._fast is None:
             return
         a = self.steady_args(model, state, ctx, float(model.h))
         if a is not None and a[3]:
-            self._loop_packs(model, state, ctx, a[0], a[2], a[4])
+            out2, _ = self._loop_packs(model, state, ctx, a[0], a[2], a[4])
+            self.borrowed.of(out2.kept)
 
     def _free_advance(self, model, state, ctx, plan, n, h, rec_on, blocks_, t0) -> tuple[int, int]:
         """:meth:`advance` by the contact-free call (:func:`free_loop`)."""

@@ -29,6 +29,7 @@ from collections import namedtuple
 from numba import njit
 
 from physbench.engine.flight import rotate
+from physbench.engine.fused.borrow import borrow
 from physbench.engine.joints.rows import eval_rows, frames, free_accelerations
 from physbench.engine.joints.sequential import si_part
 from physbench.engine.joints.solve import apply_rows, assemble, band_solve, factor, mass_times_rows, rows_times
@@ -254,8 +255,12 @@ def joint_step(p, x0, q0, v0, w0, h, x1, q1, v1, w1):
 @njit(cache=True)
 def joint_step_packed(kp, x0, q0, v0, w0, h, x1, q1, v1, w1):
     """:func:`joint_step` from Python (the stage): ``kp`` a Pack of the
-    :data:`Plan` (one pointer to unbox)."""
-    return joint_step(kp.items, x0, q0, v0, w0, h, x1, q1, v1, w1)
+    :data:`Plan` (one pointer to unbox).  The plan's and the state's
+    arrays are borrowed for the call (engine/fused/borrow.py: no reference
+    counting, the same memory and arithmetic; they live in the caller's
+    hands throughout)."""
+    x0, q0, v0, w0, x1, q1, v1, w1 = borrow((x0, q0, v0, w0, x1, q1, v1, w1))
+    return joint_step(borrow(kp.items), x0, q0, v0, w0, h, x1, q1, v1, w1)
 
 
 @njit(cache=True)
@@ -268,9 +273,14 @@ def joint_block(kp, ke, x, q, v, w, h, substeps, t, n, pos, quat, vel, angvel):
     bits.  The state after step k goes to row k of pos, quat, vel, angvel
     when they have rows (none: nothing recorded).  The plan's stats (3,)
     += (splits, Newton iterations), stats[2] = the last largest residual.
-    Returns the time t (s) advanced as the staged steps advance it."""
-    p = kp.items
-    e = ke.items
+    Returns the time t (s) advanced as the staged steps advance it.
+    Every array is borrowed for the call (engine/fused/borrow.py: no
+    reference counting, which cost more than the step's arithmetic; the
+    same memory, the same bits: tests/test_engine_joints.py::
+    test_the_loop_over_steps_gives_the_staged_steps_bits)."""
+    p = borrow(kp.items)
+    e = borrow(ke.items)
+    x, q, v, w, pos, quat, vel, angvel = borrow((x, q, v, w, pos, quat, vel, angvel))
     x1, q1, v1, w1 = e.x, e.q, e.v, e.w
     stats = p.stats
     rec_on = pos.shape[0] != 0
