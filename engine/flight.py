@@ -394,8 +394,9 @@ def free_flight(ig, start, end, h, work, work_q):
     the mean velocities u_lin = (x1 - x0) / h and u_ang = (1 - lever)
     w_start + lever w1.  Forces are re-evaluated at the method's
     intermediate states unless ``ig.constant`` (then they equal the
-    start's).  ``work`` (:data:`WORK_SLABS`, n, 3), ``work_q`` (2, n, 4) scratch (nothing is
-    allocated).  Called from compiled code only: it compiles for the one
+    start's).  ``work`` (:data:`WORK_SLABS`, n, 3), ``work_q`` (2, n, 4)
+    scratch (nothing is allocated).  Called from compiled code only: it
+    compiles for the one
     method ``ig.method`` (a :class:`Method`, its code in its numba type),
     the others' branches pruned before typing (:func:`_free_flight_for`)."""
     raise TypeError("engine.flight.free_flight is called from compiled code only (engine.flight.fly)")

@@ -94,8 +94,8 @@ class IntegrateVelocities(Stage):
         #: the compiled force model evaluated at the intermediate states
         self.fm = force_model(model, forces)
         #: the flight's law (engine.flight.Integrator)
-        self.ig = Integrator(method=Method(self.code), has_forces=bool(forces), constant=self.constant, torque=self.torque,
-                             fm=self.fm, inv_m=self.inv_m, inv_I=self.inv_I, lever=self.c)
+        self.ig = Integrator(method=Method(self.code), has_forces=bool(forces), constant=self.constant,
+                             torque=self.torque, fm=self.fm, inv_m=self.inv_m, inv_I=self.inv_I, lever=self.c)
         self._w0 = np.zeros((n, 3))
         self._work = np.zeros((WORK_SLABS, n, 3))
         self._work_q = np.zeros((2, n, 4))

@@ -43,7 +43,8 @@ def parts(model=None) -> tuple:
     from physbench.engine.collision.collide import ALL_FAMILIES, families
 
     if model is None:
-        return (tuple(("flight", m) for m in METHOD) + tuple(("force", k) for k in FORCE_KINDS) + (("gyro", "implicit"), ("gyro", "energy"))
+        return (tuple(("flight", m) for m in METHOD) + tuple(("force", k) for k in FORCE_KINDS)
+                + (("gyro", "implicit"), ("gyro", "energy"))
                 + (("solve",), ("broad", False), ("broad", True), ("narrow", ALL_FAMILIES), ("ccd",), ("penalty",)))
     from physbench.engine.forces import force_stages
 
@@ -125,10 +126,16 @@ def warm_collision(fams: list | None = None) -> None:
 def warm_dynamics() -> None:
     """The contact solve's, the free flight's, the force stages' and the
     gyroscopic stages' kernels (the other half of :func:`warm_up` with no
-    model)."""
+    model): the flight of the default integrator only (the one every
+    shipped scenario and every fused step ``python -m physbench.engine``
+    compiles uses; another integrator's flight compiles at its scene's
+    build, engine.flight.Method)."""
+    from physbench.engine import SETTINGS
+
     _warm_solve()
+    default = SETTINGS["integrator"][0]
     for p in parts(None):
-        if p[0] in ("flight", "force", "gyro"):
+        if p[0] in ("force", "gyro") or p == ("flight", default):
             _warm_part(p)
 
 
