@@ -43,8 +43,9 @@ ForceModel = namedtuple("ForceModel", ("mg", "c_lin", "c_quad", "s_a", "s_b", "s
                                        "g_idx", "g_I"))
 
 #: the free flight's law (:func:`free_flight`): the integrator's ``METHOD``
-#: code (a :class:`Method`), whether there are forces at all, whether they are state-independent
-#: (``constant``: evaluated once), whether any makes torques, the force model
+#: code (a :class:`Method`), whether there are forces at all, whether they
+#: are state-independent (``constant``: evaluated once), whether any makes
+#: torques, the force model
 #: (:data:`ForceModel`), inverse masses (n,) 1/kg and principal inverse
 #: inertias (n, 3) 1/(kg m^2), the contact lever (1/2, or 1 for the
 #: velocity-first integrator)
@@ -68,8 +69,8 @@ FlightEnd = namedtuple("FlightEnd", ("x", "q", "v", "w", "T_mean", "u_lin", "u_a
 #: copies after the flight ``v_free``, ``w_free``, the flight's start angular
 #: velocities ``w0`` (n, 3), ``T_mean``, ``u_lin``, ``u_ang`` (n, 3), the
 #: work arrays (:data:`WORK_SLABS`, n, 3) and ``work_q`` (2, n, 4), the
-#: pseudo velocities ``vp``,
-#: ``wp`` (n, 3: first n rows) the position update reads
+#: pseudo velocities ``vp``, ``wp`` (n, 3: first n rows) the position
+#: update reads
 Flight = namedtuple("Flight", ("ig", "V", "W", "v_free", "w_free", "w0", "T_mean", "u_lin", "u_ang", "work", "work_q",
                                "vp", "wp"))
 
@@ -121,6 +122,7 @@ def _unbox_method(typ, obj, c):
 @box(MethodType)
 def _box_method(typ, val, c):
     return c.pyapi.unserialize(c.pyapi.serialize_object(Method(typ.code)))
+
 
 #: slabs of :func:`free_flight`'s work array (WORK_SLABS, n, 3): its
 #: intermediate states, accelerations, torques and sums (0-14), the
