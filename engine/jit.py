@@ -123,19 +123,17 @@ def warm_collision(fams: list | None = None) -> None:
         _warm_part(p)
 
 
-def warm_dynamics() -> None:
+def warm_dynamics(integrator: str) -> None:
     """The contact solve's, the free flight's, the force stages' and the
     gyroscopic stages' kernels (the other half of :func:`warm_up` with no
-    model): the flight of the default integrator only (the one every
-    shipped scenario and every fused step ``python -m physbench.engine``
-    compiles uses; another integrator's flight compiles at its scene's
-    build, engine.flight.Method)."""
-    from physbench.engine import SETTINGS
-
+    model), the flight of ``integrator`` only (an engine.flight.METHOD
+    name: ``python -m physbench.engine`` passes the default, the one every
+    shipped scenario and every fused step it compiles uses; another
+    integrator's flight compiles at its scene's build,
+    engine.flight.Method)."""
     _warm_solve()
-    default = SETTINGS["integrator"][0]
     for p in parts(None):
-        if p[0] in ("force", "gyro") or p == ("flight", default):
+        if p[0] in ("force", "gyro") or p == ("flight", integrator):
             _warm_part(p)
 
 
