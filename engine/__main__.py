@@ -27,7 +27,7 @@ import subprocess
 import sys
 import time
 
-from physbench.engine import Engine, jit
+from physbench.engine import SETTINGS, Engine, jit
 from physbench.engine.cache import cache_dir
 from physbench.engine.broadstage import SAP_MIN_BODIES
 from physbench.engine.fused.steady import warm_scene
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.jobs > 1:
         other = subprocess.Popen([sys.executable, "-m", "physbench.engine", "--part", "collision"])
-        jit.warm_dynamics()
+        jit.warm_dynamics(SETTINGS["integrator"][0])  # (the default integrator's flight)
         if other.wait() != 0:  # whatever it missed, the warm-up below compiles here
             print("python -m physbench.engine: the collision half's process failed; compiling it here", file=sys.stderr)
     for shapes, plane in WARM:  # the warm-up's kernels and each one's fused steady step

@@ -29,11 +29,13 @@ and the CCD stage's end-pose check (:func:`end_displacement`,
 
 from __future__ import annotations
 
+import functools
 import math
 
 from collections import namedtuple
 
-from numba import njit
+from numba import njit, types
+from numba.extending import NativeValue, box, models, overload, register_model, typeof_impl, unbox
 
 #: the compiled force model (module doc): one field per force kernel's
 #: arrays, in :func:`apply_forces`'s order
@@ -41,8 +43,9 @@ ForceModel = namedtuple("ForceModel", ("mg", "c_lin", "c_quad", "s_a", "s_b", "s
                                        "g_idx", "g_I"))
 
 #: the free flight's law (:func:`free_flight`): the integrator's ``METHOD``
-#: code, whether there are forces at all, whether they are state-independent
-#: (``constant``: evaluated once), whether any makes torques, the force model
+#: code (a :class:`Method`), whether there are forces at all, whether they
+#: are state-independent (``constant``: evaluated once), whether any makes
+#: torques, the force model
 #: (:data:`ForceModel`), inverse masses (n,) 1/kg and principal inverse
 #: inertias (n, 3) 1/(kg m^2), the contact lever (1/2, or 1 for the
 #: velocity-first integrator)
@@ -65,19 +68,72 @@ FlightEnd = namedtuple("FlightEnd", ("x", "q", "v", "w", "T_mean", "u_lin", "u_a
 #: context's working velocities ``V``, ``W`` (n, 3: the first n rows), their
 #: copies after the flight ``v_free``, ``w_free``, the flight's start angular
 #: velocities ``w0`` (n, 3), ``T_mean``, ``u_lin``, ``u_ang`` (n, 3), the
-#: work array (:data:`WORK_SLABS`, n, 4), the pseudo velocities ``vp``,
-#: ``wp`` (n, 3: first n rows) the position update reads
-Flight = namedtuple("Flight", ("ig", "V", "W", "v_free", "w_free", "w0", "T_mean", "u_lin", "u_ang", "work", "vp",
-                               "wp"))
+#: work arrays (:data:`WORK_SLABS`, n, 3) and ``work_q`` (2, n, 4), the
+#: pseudo velocities ``vp``, ``wp`` (n, 3: first n rows) the position
+#: update reads
+Flight = namedtuple("Flight", ("ig", "V", "W", "v_free", "w_free", "w0", "T_mean", "u_lin", "u_ang", "work", "work_q",
+                               "vp", "wp"))
 
 METHOD = {"explicit_euler": 0, "semi_implicit_euler": 1, "midpoint": 2, "heun": 3, "rk4": 4, "velocity_verlet": 5}
 
-#: slabs of :func:`free_flight`'s work array (WORK_SLABS, n, 4): its
-#: intermediate states, accelerations, torques and sums (0-15), the
-#: rotations at an intermediate state (16-18, as (n, 3, 3)) and the rk4
-#: velocity sum (19) -- nothing is allocated per call
+
+class Method:
+    """An integrator's ``METHOD`` code as :data:`Integrator`'s ``method``:
+    its numba type (:class:`MethodType`) carries the code, so a flight
+    compiles for its own method alone (:func:`free_flight`; the fused steps
+    once per method, tests/test_engine_jit.py)."""
+
+    __slots__ = ("code",)
+
+    def __init__(self, code: int):
+        self.code = int(code)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Method) and other.code == self.code
+
+    def __hash__(self) -> int:
+        return hash(("Method", self.code))
+
+    def __repr__(self) -> str:
+        return f"Method({self.code})"
+
+
+class MethodType(types.Type):
+    """The numba type of a :class:`Method`: one type per code (no data)."""
+
+    def __init__(self, code: int):
+        self.code = int(code)
+        super().__init__(name=f"Method({self.code})")
+
+
+@typeof_impl.register(Method)
+def _typeof_method(val, c):
+    return MethodType(val.code)
+
+
+register_model(MethodType)(models.OpaqueModel)
+
+
+@unbox(MethodType)
+def _unbox_method(typ, obj, c):
+    return NativeValue(c.context.get_dummy_value())
+
+
+@box(MethodType)
+def _box_method(typ, val, c):
+    return c.pyapi.unserialize(c.pyapi.serialize_object(Method(typ.code)))
+
+
+#: slabs of :func:`free_flight`'s work array (WORK_SLABS, n, 3): its
+#: intermediate states, accelerations, torques and sums (0-14), the
+#: rotations at an intermediate state (15-17, as (n, 3, 3)); its quaternion
+#: work array ``work_q`` (2, n, 4) holds the intermediate orientation and
+#: the rk4 quaternion sum.  Every slab ``work[i]`` is C-contiguous, the
+#: layout of the context's arrays, so the force kernels the integrators call
+#: at intermediate states are the ones the force stages call (one compile
+#: each).  Nothing is allocated per call
 #: (tests/test_engine_steady.py::test_steady_step_allocates_nothing)
-WORK_SLABS = 20
+WORK_SLABS = 18
 
 
 @njit(cache=True, inline="always")
@@ -331,8 +387,7 @@ def rotate(q, k, px, py, pz, out):
     out[k, 0], out[k, 1], out[k, 2], out[k, 3] = w / nrm, x / nrm, y / nrm, z / nrm
 
 
-@njit(cache=True)
-def free_flight(ig, start, end, h, work):
+def free_flight(ig, start, end, h, work, work_q):
     """The free flight over h (see engine/integrate.py) by the law ``ig``
     (:data:`Integrator`): from ``start`` (:data:`FlightStart`: x0, q0, v0,
     w0 with the forces F, T (n, 3) already evaluated there, R0 their
@@ -341,154 +396,164 @@ def free_flight(ig, start, end, h, work):
     the mean velocities u_lin = (x1 - x0) / h and u_ang = (1 - lever)
     w_start + lever w1.  Forces are re-evaluated at the method's
     intermediate states unless ``ig.constant`` (then they equal the
-    start's).  ``work`` (:data:`WORK_SLABS`, n, 4) scratch (nothing is
-    allocated)."""
-    method, has_forces, torque, inv_m, inv_I, lever = ig.method, ig.has_forces, ig.torque, ig.inv_m, ig.inv_I, ig.lever
-    x0, q0, v0, w0, w_start, F, T, R0 = start.x, start.q, start.v, start.w, start.w_start, start.F, start.T, start.R
-    x1, q1, v1, w1, T_mean, u_lin, u_ang = end.x, end.q, end.v, end.w, end.T_mean, end.u_lin, end.u_ang
-    n = x0.shape[0]
-    # (the 3-vector slabs are strided work[i, :, :3] views: the force and
-    # flight kernels compile a second time for this 'A' layout, ~10 s of a
-    # cold compile, but a C-contiguous view needs numba's reshape, ~1 us
-    # for the 13 slabs of every call -- +25 % on a one-body flight step;
-    # engine/README.md "Compiled code and compile time")
-    a0, al0 = work[0, :, :3], work[1, :, :3]
-    a1, al1 = work[2, :, :3], work[3, :, :3]
-    xs, qs, vs, ws = work[4, :, :3], work[5], work[6, :, :3], work[7, :, :3]
-    Fs, Ts = work[8, :, :3], work[9, :, :3]
-    Rs = work[16:19].reshape((12 * n,))[:9 * n].reshape((n, 3, 3))
-    T1 = work[10, :, :3]
-    T2 = work[11, :, :3]
-    T3 = work[12, :, :3]
-    Sw = work[13, :, :3]
-    Sq = work[14]
-    Sx = work[15, :, :3]
-    Sv = work[19, :, :3]
-    if not has_forces:
-        for k in range(n):
-            for c in range(3):
-                x1[k, c] = v0[k, c] * h + x0[k, c]
-                v1[k, c] = v0[k, c]
-                w1[k, c] = w0[k, c]
-                T_mean[k, c] = 0.0
-            rotate(q0, k, h * w0[k, 0], h * w0[k, 1], h * w0[k, 2], q1)
-    else:
-        _accel(F, T, R0, inv_m, inv_I, torque, a0, al0)
-        hh = 0.5 * h
-        if method == 0 or method == 1:  # explicit / semi-implicit Euler
+    start's).  ``work`` (:data:`WORK_SLABS`, n, 3), ``work_q`` (2, n, 4)
+    scratch (nothing is allocated).  Called from compiled code only: it
+    compiles for the one
+    method ``ig.method`` (a :class:`Method`, its code in its numba type),
+    the others' branches pruned before typing (:func:`_free_flight_for`)."""
+    raise TypeError("engine.flight.free_flight is called from compiled code only (engine.flight.fly)")
+
+
+@overload(free_flight)
+def _free_flight_typed(ig, start, end, h, work, work_q):
+    return _free_flight_for(ig.types[ig.fields.index("method")].code)
+
+
+@functools.cache
+def _free_flight_for(method: int):
+    """:func:`free_flight` for the METHOD code ``method``: a constant of the
+    closure, so numba prunes the other methods' branches before typing
+    (one implementation per code, the same arithmetic as every other)."""
+
+    def free_flight_method(ig, start, end, h, work, work_q):
+        has_forces, torque, inv_m, inv_I, lever = ig.has_forces, ig.torque, ig.inv_m, ig.inv_I, ig.lever
+        x0, q0, v0, w0, w_start, F, T, R0 = start.x, start.q, start.v, start.w, start.w_start, start.F, start.T, start.R
+        x1, q1, v1, w1, T_mean, u_lin, u_ang = end.x, end.q, end.v, end.w, end.T_mean, end.u_lin, end.u_ang
+        n = x0.shape[0]
+        a0, al0, a1, al1 = work[0], work[1], work[2], work[3]
+        xs, vs, ws = work[4], work[5], work[6]
+        Fs, Ts = work[7], work[8]
+        T1, T2, T3 = work[9], work[10], work[11]
+        Sw, Sx, Sv = work[12], work[13], work[14]
+        Rs = work[15:18].reshape((n, 3, 3))
+        qs, Sq = work_q[0], work_q[1]
+        if not has_forces:
             for k in range(n):
-                d0, d1, d2, d3 = _qd(w0, q0, k)
                 for c in range(3):
-                    v1[k, c] = v0[k, c] + h * a0[k, c]
-                    w1[k, c] = w0[k, c] + h * al0[k, c]
-                    T_mean[k, c] = T[k, c]
-                if method == 0:
+                    x1[k, c] = v0[k, c] * h + x0[k, c]
+                    v1[k, c] = v0[k, c]
+                    w1[k, c] = w0[k, c]
+                    T_mean[k, c] = 0.0
+                rotate(q0, k, h * w0[k, 0], h * w0[k, 1], h * w0[k, 2], q1)
+        else:
+            _accel(F, T, R0, inv_m, inv_I, torque, a0, al0)
+            hh = 0.5 * h
+            if method == 0 or method == 1:  # explicit / semi-implicit Euler
+                for k in range(n):
+                    d0, d1, d2, d3 = _qd(w0, q0, k)
                     for c in range(3):
-                        x1[k, c] = x0[k, c] + h * v0[k, c]
-                    _q_step(q0, k, h, d0, d1, d2, d3, q1)
-                else:
+                        v1[k, c] = v0[k, c] + h * a0[k, c]
+                        w1[k, c] = w0[k, c] + h * al0[k, c]
+                        T_mean[k, c] = T[k, c]
+                    if method == 0:
+                        for c in range(3):
+                            x1[k, c] = x0[k, c] + h * v0[k, c]
+                        _q_step(q0, k, h, d0, d1, d2, d3, q1)
+                    else:
+                        for c in range(3):
+                            x1[k, c] = x0[k, c] + h * v1[k, c]
+                        rotate(q0, k, h * w1[k, 0], h * w1[k, 1], h * w1[k, 2], q1)
+            elif method == 2 or method == 3:  # midpoint / Heun: one intermediate state
+                s = hh if method == 2 else h
+                for k in range(n):
+                    _euler_body(x0, q0, v0, w0, k, s, w0, q0, v0, a0, al0, xs, qs, vs, ws)
+                _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
+                for k in range(n):
+                    if method == 2:
+                        _euler_body(x0, q0, v0, w0, k, h, ws, qs, vs, a1, al1, x1, q1, v1, w1)
+                        for c in range(3):
+                            T_mean[k, c] = T1[k, c]
+                    else:
+                        e0, e1, e2, e3 = _qd(w0, q0, k)
+                        d0, d1, d2, d3 = _qd(ws, qs, k)
+                        q1[k, 0] = q0[k, 0] + hh * (e0 + d0)
+                        q1[k, 1] = q0[k, 1] + hh * (e1 + d1)
+                        q1[k, 2] = q0[k, 2] + hh * (e2 + d2)
+                        q1[k, 3] = q0[k, 3] + hh * (e3 + d3)
+                        for c in range(3):
+                            x1[k, c] = x0[k, c] + hh * (v0[k, c] + vs[k, c])
+                            v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
+                            w1[k, c] = w0[k, c] + hh * (al0[k, c] + al1[k, c])
+                            T_mean[k, c] = 0.5 * (T[k, c] + T1[k, c])
+            elif method == 4:  # rk4
+                # slopes K_j = [v, dq/dt, a, alpha] of the stages, summed as
+                # K1 + 2 K2 + 2 K3 + K4 in that order
+                ka, kal = a0, al0
+                for k in range(n):  # K1
+                    d0, d1, d2, d3 = _qd(w0, q0, k)
+                    Sq[k, 0], Sq[k, 1], Sq[k, 2], Sq[k, 3] = d0, d1, d2, d3
                     for c in range(3):
-                        x1[k, c] = x0[k, c] + h * v1[k, c]
-                    rotate(q0, k, h * w1[k, 0], h * w1[k, 1], h * w1[k, 2], q1)
-        elif method == 2 or method == 3:  # midpoint / Heun: one intermediate state
-            s = hh if method == 2 else h
-            for k in range(n):
-                _euler_body(x0, q0, v0, w0, k, s, w0, q0, v0, a0, al0, xs, qs, vs, ws)
-            _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
-            for k in range(n):
-                if method == 2:
-                    _euler_body(x0, q0, v0, w0, k, h, ws, qs, vs, a1, al1, x1, q1, v1, w1)
+                        Sx[k, c] = v0[k, c]
+                        Sv[k, c] = a0[k, c]
+                        Sw[k, c] = al0[k, c]
+                for stage in range(3):
+                    s = hh if stage < 2 else h
+                    Tx = T1 if stage == 0 else (T2 if stage == 1 else T3)
+                    # Y = Y0 + s K (K the last slope)
+                    for k in range(n):
+                        if stage == 0:
+                            d0, d1, d2, d3 = _qd(w0, q0, k)
+                            kv = v0
+                        else:
+                            d0, d1, d2, d3 = _qd(ws, qs, k)
+                            kv = vs
+                        kx0, kx1, kx2 = kv[k, 0], kv[k, 1], kv[k, 2]
+                        _q_step(q0, k, s, d0, d1, d2, d3, qs)
+                        xs[k, 0] = x0[k, 0] + s * kx0
+                        xs[k, 1] = x0[k, 1] + s * kx1
+                        xs[k, 2] = x0[k, 2] + s * kx2
+                        for c in range(3):
+                            vs[k, c] = v0[k, c] + s * ka[k, c]
+                            ws[k, c] = w0[k, c] + s * kal[k, c]
+                    _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, Tx)
+                    wgt = 2.0 if stage < 2 else 1.0
+                    for k in range(n):
+                        d0, d1, d2, d3 = _qd(ws, qs, k)
+                        Sq[k, 0] += wgt * d0
+                        Sq[k, 1] += wgt * d1
+                        Sq[k, 2] += wgt * d2
+                        Sq[k, 3] += wgt * d3
+                        for c in range(3):
+                            Sx[k, c] += wgt * vs[k, c]
+                            Sv[k, c] += wgt * a1[k, c]
+                            Sw[k, c] += wgt * al1[k, c]
+                    # the next stage reads this stage's slopes before its own
+                    # _stage overwrites a1, al1: no copy needed
+                    ka, kal = a1, al1
+                h6 = h / 6.0
+                for k in range(n):
                     for c in range(3):
-                        T_mean[k, c] = T1[k, c]
-                else:
-                    e0, e1, e2, e3 = _qd(w0, q0, k)
-                    d0, d1, d2, d3 = _qd(ws, qs, k)
-                    q1[k, 0] = q0[k, 0] + hh * (e0 + d0)
-                    q1[k, 1] = q0[k, 1] + hh * (e1 + d1)
-                    q1[k, 2] = q0[k, 2] + hh * (e2 + d2)
-                    q1[k, 3] = q0[k, 3] + hh * (e3 + d3)
+                        x1[k, c] = x0[k, c] + h6 * Sx[k, c]
+                        v1[k, c] = v0[k, c] + h6 * Sv[k, c]
+                        w1[k, c] = w0[k, c] + h6 * Sw[k, c]
+                        T_mean[k, c] = (T[k, c] + 2 * T1[k, c] + 2 * T2[k, c] + T3[k, c]) / 6.0
+                    for c in range(4):
+                        q1[k, c] = q0[k, c] + h6 * Sq[k, c]
+            else:  # velocity Verlet
+                hh2 = hh * h
+                for k in range(n):
                     for c in range(3):
-                        x1[k, c] = x0[k, c] + hh * (v0[k, c] + vs[k, c])
+                        x1[k, c] = x0[k, c] + h * v0[k, c] + hh2 * a0[k, c]
+                        vs[k, c] = v0[k, c] + h * a0[k, c]
+                        ws[k, c] = w0[k, c] + h * al0[k, c]
+                    rotate(q0, k, h * (w0[k, 0] + hh * al0[k, 0]), h * (w0[k, 1] + hh * al0[k, 1]),
+                           h * (w0[k, 2] + hh * al0[k, 2]), q1)
+                _stage(ig, x1, q1, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
+                for k in range(n):
+                    for c in range(3):
                         v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
                         w1[k, c] = w0[k, c] + hh * (al0[k, c] + al1[k, c])
                         T_mean[k, c] = 0.5 * (T[k, c] + T1[k, c])
-        elif method == 4:  # rk4
-            # slopes K_j = [v, dq/dt, a, alpha] of the stages, summed as
-            # K1 + 2 K2 + 2 K3 + K4 in that order
-            ka, kal = a0, al0
-            for k in range(n):  # K1
-                d0, d1, d2, d3 = _qd(w0, q0, k)
-                Sq[k, 0], Sq[k, 1], Sq[k, 2], Sq[k, 3] = d0, d1, d2, d3
-                for c in range(3):
-                    Sx[k, c] = v0[k, c]
-                    Sv[k, c] = a0[k, c]
-                    Sw[k, c] = al0[k, c]
-            for stage in range(3):
-                s = hh if stage < 2 else h
-                Tx = T1 if stage == 0 else (T2 if stage == 1 else T3)
-                # Y = Y0 + s K (K the last slope)
-                for k in range(n):
-                    if stage == 0:
-                        d0, d1, d2, d3 = _qd(w0, q0, k)
-                        kv = v0
-                    else:
-                        d0, d1, d2, d3 = _qd(ws, qs, k)
-                        kv = vs
-                    kx0, kx1, kx2 = kv[k, 0], kv[k, 1], kv[k, 2]
-                    _q_step(q0, k, s, d0, d1, d2, d3, qs)
-                    xs[k, 0] = x0[k, 0] + s * kx0
-                    xs[k, 1] = x0[k, 1] + s * kx1
-                    xs[k, 2] = x0[k, 2] + s * kx2
-                    for c in range(3):
-                        vs[k, c] = v0[k, c] + s * ka[k, c]
-                        ws[k, c] = w0[k, c] + s * kal[k, c]
-                _stage(ig, xs, qs, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, Tx)
-                wgt = 2.0 if stage < 2 else 1.0
-                for k in range(n):
-                    d0, d1, d2, d3 = _qd(ws, qs, k)
-                    Sq[k, 0] += wgt * d0
-                    Sq[k, 1] += wgt * d1
-                    Sq[k, 2] += wgt * d2
-                    Sq[k, 3] += wgt * d3
-                    for c in range(3):
-                        Sx[k, c] += wgt * vs[k, c]
-                        Sv[k, c] += wgt * a1[k, c]
-                        Sw[k, c] += wgt * al1[k, c]
-                # the next stage reads this stage's slopes before its own
-                # _stage overwrites a1, al1: no copy needed
-                ka, kal = a1, al1
-            h6 = h / 6.0
-            for k in range(n):
-                for c in range(3):
-                    x1[k, c] = x0[k, c] + h6 * Sx[k, c]
-                    v1[k, c] = v0[k, c] + h6 * Sv[k, c]
-                    w1[k, c] = w0[k, c] + h6 * Sw[k, c]
-                    T_mean[k, c] = (T[k, c] + 2 * T1[k, c] + 2 * T2[k, c] + T3[k, c]) / 6.0
+            for k in range(n):  # renormalise
+                s = math.sqrt(q1[k, 0] ** 2 + q1[k, 1] ** 2 + q1[k, 2] ** 2 + q1[k, 3] ** 2)
                 for c in range(4):
-                    q1[k, c] = q0[k, c] + h6 * Sq[k, c]
-        else:  # velocity Verlet
-            hh2 = hh * h
-            for k in range(n):
-                for c in range(3):
-                    x1[k, c] = x0[k, c] + h * v0[k, c] + hh2 * a0[k, c]
-                    vs[k, c] = v0[k, c] + h * a0[k, c]
-                    ws[k, c] = w0[k, c] + h * al0[k, c]
-                rotate(q0, k, h * (w0[k, 0] + hh * al0[k, 0]), h * (w0[k, 1] + hh * al0[k, 1]),
-                       h * (w0[k, 2] + hh * al0[k, 2]), q1)
-            _stage(ig, x1, q1, vs, ws, Rs, Fs, Ts, T, a0, al0, a1, al1, T1)
-            for k in range(n):
-                for c in range(3):
-                    v1[k, c] = v0[k, c] + hh * (a0[k, c] + a1[k, c])
-                    w1[k, c] = w0[k, c] + hh * (al0[k, c] + al1[k, c])
-                    T_mean[k, c] = 0.5 * (T[k, c] + T1[k, c])
-        for k in range(n):  # renormalise
-            s = math.sqrt(q1[k, 0] ** 2 + q1[k, 1] ** 2 + q1[k, 2] ** 2 + q1[k, 3] ** 2)
-            for c in range(4):
-                q1[k, c] /= s
-    for k in range(n):
-        for c in range(3):
-            u_lin[k, c] = (x1[k, c] - x0[k, c]) / h
-            u_ang[k, c] = (1.0 - lever) * w_start[k, c] + lever * w1[k, c]
+                    q1[k, c] /= s
+        for k in range(n):
+            for c in range(3):
+                u_lin[k, c] = (x1[k, c] - x0[k, c]) / h
+                u_ang[k, c] = (1.0 - lever) * w_start[k, c] + lever * w1[k, c]
+
+    return free_flight_method
 
 
 @njit(cache=True)
@@ -536,7 +601,8 @@ def fly(b, f, h):
     (engine/fused/part.py): the same bits by construction."""
     f.w0[:, :] = f.W
     free_flight(f.ig, FlightStart(x=b.x, q=b.q, v=b.v, w=f.w0, w_start=b.w, F=b.F, T=b.T, R=b.R0),
-                FlightEnd(x=b.x1, q=b.q1, v=f.V, w=f.W, T_mean=f.T_mean, u_lin=f.u_lin, u_ang=f.u_ang), h, f.work)
+                FlightEnd(x=b.x1, q=b.q1, v=f.V, w=f.W, T_mean=f.T_mean, u_lin=f.u_lin, u_ang=f.u_ang), h, f.work,
+                f.work_q)
     f.v_free[:, :] = f.V
     f.w_free[:, :] = f.W
 

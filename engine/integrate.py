@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from physbench.engine.flight import METHOD, WORK_SLABS, Flight, Integrator, fly_packed, integrate_positions
+from physbench.engine.flight import METHOD, WORK_SLABS, Flight, Integrator, Method, fly_packed, integrate_positions
 from physbench.engine.gyroscopic import (ENERGY, IMPLICIT, YOSHIDA, YOSHIDA_MAX, Gyro, energy_rotation_packed,
                                          energy_work, implicit_gyroscopic, implicit_work, midpoint_rotation)
 from physbench.engine.forces import force_model
@@ -94,10 +94,11 @@ class IntegrateVelocities(Stage):
         #: the compiled force model evaluated at the intermediate states
         self.fm = force_model(model, forces)
         #: the flight's law (engine.flight.Integrator)
-        self.ig = Integrator(method=self.code, has_forces=bool(forces), constant=self.constant, torque=self.torque,
-                             fm=self.fm, inv_m=self.inv_m, inv_I=self.inv_I, lever=self.c)
+        self.ig = Integrator(method=Method(self.code), has_forces=bool(forces), constant=self.constant,
+                             torque=self.torque, fm=self.fm, inv_m=self.inv_m, inv_I=self.inv_I, lever=self.c)
         self._w0 = np.zeros((n, 3))
-        self._work = np.zeros((WORK_SLABS, n, 4))
+        self._work = np.zeros((WORK_SLABS, n, 3))
+        self._work_q = np.zeros((2, n, 4))
         self._pack = self._pack_ctx = None
 
     def pack(self, ctx) -> Pack:
@@ -108,7 +109,7 @@ class IntegrateVelocities(Stage):
             n = ctx.x1.shape[0]
             self._pack = Pack(Flight(ig=self.ig, V=ctx.v[:n], W=ctx.w[:n], v_free=ctx.v_free, w_free=ctx.w_free,
                                      w0=self._w0, T_mean=ctx.T_mean, u_lin=ctx.u_lin, u_ang=ctx.u_ang,
-                                     work=self._work, vp=ctx.vp[:n], wp=ctx.wp[:n]))
+                                     work=self._work, work_q=self._work_q, vp=ctx.vp[:n], wp=ctx.wp[:n]))
             self._pack_ctx = ctx
         return self._pack
 

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from physbench.engine.flight import METHOD
 from physbench.engine.forces import FORCES
 from physbench.engine.profile import add_jit_seconds
 
@@ -28,7 +29,9 @@ _READY: set = set()
 
 def parts(model=None) -> tuple:
     """The kernel groups ``model``'s stages call (the same decision as
-    :func:`engine.pipeline.build_pipeline`'s): the free flight always, each
+    :func:`engine.pipeline.build_pipeline`'s): the free flight of the
+    model's integrator always (its compiled code is the method's alone:
+    engine.flight.Method), each
     force stage's own kernel (engine.forces.force_stages), the gyroscopic
     stage's; with
     contact the broad phase (with the sweep's kernels only where it sweeps,
@@ -40,11 +43,12 @@ def parts(model=None) -> tuple:
     from physbench.engine.collision.collide import ALL_FAMILIES, families
 
     if model is None:
-        return ((("flight",),) + tuple(("force", k) for k in FORCE_KINDS) + (("gyro", "implicit"), ("gyro", "energy"))
+        return (tuple(("flight", m) for m in METHOD) + tuple(("force", k) for k in FORCE_KINDS)
+                + (("gyro", "implicit"), ("gyro", "energy"))
                 + (("solve",), ("broad", False), ("broad", True), ("narrow", ALL_FAMILIES), ("ccd",), ("penalty",)))
     from physbench.engine.forces import force_stages
 
-    out = [("flight",)] + [("force", type(s).__name__) for s in force_stages(model)]
+    out = [("flight", model.setting("integrator"))] + [("force", type(s).__name__) for s in force_stages(model)]
     mode = model.setting("gyroscopic")
     if model.has("gyroscopic") and np.any(~model.isotropic) and mode != "explicit":
         out.append(("gyro", "implicit" if mode == "implicit" else "energy"))
@@ -78,7 +82,7 @@ def warm_up(model=None) -> float:
 
 def _warm_part(p: tuple) -> None:
     if p[0] == "flight":
-        _warm_flight()
+        _warm_flight(p[1])
     elif p[0] == "force":
         _warm_force(p[1])
     elif p[0] == "gyro":
@@ -119,13 +123,17 @@ def warm_collision(fams: list | None = None) -> None:
         _warm_part(p)
 
 
-def warm_dynamics() -> None:
+def warm_dynamics(integrator: str) -> None:
     """The contact solve's, the free flight's, the force stages' and the
     gyroscopic stages' kernels (the other half of :func:`warm_up` with no
-    model)."""
+    model), the flight of ``integrator`` only (an engine.flight.METHOD
+    name: ``python -m physbench.engine`` passes the default, the one every
+    shipped scenario and every fused step it compiles uses; another
+    integrator's flight compiles at its scene's build,
+    engine.flight.Method)."""
     _warm_solve()
     for p in parts(None):
-        if p[0] in ("flight", "force", "gyro"):
+        if p[0] in ("force", "gyro") or p == ("flight", integrator):
             _warm_part(p)
 
 
@@ -292,11 +300,11 @@ def _flight_arrays(nb: int = 2):
     return x, q, np.ones((nb, 3)), np.zeros((nb, 3, 3)), idx, I, plain, springs
 
 
-def _warm_flight() -> None:
-    """The free-flight kernels (engine/flight.py) on two bodies, every
-    integrator (the force kernels are compiled into it), the position
-    update, the start and commit of a (mini-)step, the turn limit and the
-    end-pose check."""
+def _warm_flight(method: str) -> None:
+    """The free-flight kernels (engine/flight.py) on two bodies: the
+    integrator ``method`` (an engine.flight.METHOD name; the force kernels
+    are compiled into it), the position update, the start and commit of a
+    (mini-)step, the turn limit and the end-pose check."""
     from physbench.engine import flight, state
     from physbench.engine.geometry import EndPose, Pairs
     from physbench.engine.pack import Pack
@@ -315,14 +323,13 @@ def _warm_flight() -> None:
     F = np.zeros((nb, 3))
     vw = np.zeros((nb + 1, 3))
     for fm in (plain, springs):  # (one signature: the same types)
-        for code in flight.METHOD.values():
-            # (the free-flight stage's one call, engine.integrate.IntegrateVelocities)
-            ig = flight.Integrator(method=code, has_forces=True, constant=False, torque=True, fm=fm,
-                                   inv_m=np.ones(nb), inv_I=inv_I, lever=0.5)
-            flight.fly_packed(kept, Pack(flight.Flight(ig=ig, V=vw[:nb], W=vw[:nb], v_free=F.copy(), w_free=F.copy(),
-                                                       w0=F.copy(), T_mean=F.copy(), u_lin=F.copy(),
-                                                       u_ang=F.copy(), work=np.zeros((flight.WORK_SLABS, nb, 4)),
-                                                       vp=vw[:nb], wp=vw[:nb])), 0.01)
+        # (the free-flight stage's one call, engine.integrate.IntegrateVelocities)
+        ig = flight.Integrator(method=flight.Method(METHOD[method]), has_forces=True, constant=False, torque=True,
+                               fm=fm, inv_m=np.ones(nb), inv_I=inv_I, lever=0.5)
+        flight.fly_packed(kept, Pack(flight.Flight(ig=ig, V=vw[:nb], W=vw[:nb], v_free=F.copy(), w_free=F.copy(),
+                                                   w0=F.copy(), T_mean=F.copy(), u_lin=F.copy(), u_ang=F.copy(),
+                                                   work=np.zeros((flight.WORK_SLABS, nb, 3)),
+                                                   work_q=np.zeros((2, nb, 4)), vp=vw[:nb], wp=vw[:nb])), 0.01)
     flight.integrate_positions(x.copy(), q.copy(), vw[:nb], vw[:nb], v, v, vw[:nb], vw[:nb], 0.01, 0.5)
     flight.max_turn_sq(v, q, idx, idx)
     zb = np.zeros(nb, np.bool_)

@@ -81,20 +81,21 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     return tuple(stages)
 
 
-#: the broad phases (whether it sweeps) whose fused steady step this
-#: process compiled or loaded (:func:`_warm_steady`)
+#: the (broad phase: whether it sweeps, integrator) pairs whose fused steady
+#: step this process compiled or loaded (:func:`_warm_steady`)
 _STEADY_READY: set = set()
 
 
 def _warm_steady(model: Model) -> None:
     """Compile (or load) the fused steady step (engine/fused/steady.py) once per
-    process and broad phase (the part of its argument types that follows
-    the scene: engine.broadstage.uses_sap; the narrow phase's families do
-    not change them, engine.collision.collide.family_table), at build like
+    process, broad phase and integrator (the parts of its argument types
+    that follow the scene: engine.broadstage.uses_sap, engine.flight.Method;
+    the narrow phase's families do not change them,
+    engine.collision.collide.family_table), at build like
     every kernel (engine/jit.py): a few steps of
     :func:`engine.fused.steady.warm_scene_for` the model, with its settings; the
     seconds count as JIT time."""
-    key = uses_sap(model)
+    key = (uses_sap(model), model.setting("integrator"))
     if key in _STEADY_READY:
         return
     _STEADY_READY.add(key)
@@ -114,18 +115,19 @@ def _warm_steady(model: Model) -> None:
     add_jit_seconds(time.perf_counter() - t0)
 
 
-#: whether this process compiled or loaded the flight step (:func:`_warm_flight`)
-_flight_ready = False
+#: the integrators whose flight step this process compiled or loaded
+#: (:func:`_warm_flight`)
+_FLIGHT_READY: set = set()
 
 
 def _warm_flight(model: Model) -> None:
     """Compile (or load) the step of a scene without contact
-    (engine/fused/loop.py) once per process, as :func:`_warm_steady`: a few
-    steps of :func:`engine.fused.steady.warm_scene` without contact."""
-    global _flight_ready
-    if _flight_ready:
+    (engine/fused/loop.py) once per process and integrator, as
+    :func:`_warm_steady`: a few steps of
+    :func:`engine.fused.steady.warm_scene` without contact."""
+    if model.setting("integrator") in _FLIGHT_READY:
         return
-    _flight_ready = True
+    _FLIGHT_READY.add(model.setting("integrator"))
     t0 = time.perf_counter()
     inp = dataclasses.replace(warm_scene(), effects=frozenset({"gravity"}))
     m = build_model(inp, {**model.settings, "dt": 1 / 240})

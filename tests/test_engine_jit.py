@@ -106,15 +106,18 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
     off = build_model(warm_scene(("sphere", "sphere"), plane=False), defaults | {"ccd": "off"})
     assert [p[0] for p in parts(off)] == ["flight", "force", "broad", "narrow", "solve"]
     free = build_model(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})), defaults)
-    assert parts(free) == (("flight",), ("force", "Gravity"))
+    assert parts(free) == (("flight", "rk4"), ("force", "Gravity"))  # the default integrator's flight alone
+    euler = build_model(dataclasses.replace(warm_scene(), effects=frozenset({"gravity"})),
+                        defaults | {"integrator": "semi_implicit_euler"})
+    assert parts(euler)[0] == ("flight", "semi_implicit_euler")
     still = build_model(dataclasses.replace(warm_scene(), effects=frozenset()), defaults)
-    assert parts(still) == (("flight",),)  # no force, no gyroscopic kernel
+    assert parts(still) == (("flight", "rk4"),)  # no force, no gyroscopic kernel
     assert ("broad", False) in got  # two bodies: all pairs, the sweep not compiled
     many = build_model(warm_scene(("sphere",) * 20, plane=True), defaults)
     assert ("broad", True) in parts(many)
     assert ("broad", False) in parts(build_model(warm_scene(("sphere",) * 20, plane=True),
                                                  defaults | {"broadphase": "brute"}))
-    assert len(parts(None)) == 14  # every group, every family: python -m physbench.engine's halves
+    assert len(parts(None)) == 19  # every group, integrator, family: python -m physbench.engine's halves
     # the fused step's warm scene has the model's families
     from physbench.engine.collision.collide import families
 
@@ -126,3 +129,64 @@ def test_a_scene_warms_only_the_kernel_groups_its_stages_call():
         w = build_model(warm_scene_for(m), defaults)
         assert families(w.shape) == families(m.shape)
         assert uses_sap(w) == uses_sap(m) and w.n <= max(m.n, 17)
+
+
+_FLIGHTS = """
+import numpy as np
+from numba.core import event
+from physbench.engine import flight, state
+from physbench.engine.jit import _flight_arrays
+from physbench.engine.pack import Pack
+
+nb = 2
+with event.install_recorder("numba:compile") as rec:
+    ends, staged = [], []
+    for name in ("semi_implicit_euler", "rk4"):
+        x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
+        x[0] = (0.1, 0.2, 0.3)
+        w = np.array([[0.5, -1.0, 2.0], [3.0, 0.25, -0.5]])
+        vw = np.zeros((nb + 1, 3))
+        R0, Iinv0 = np.zeros((nb, 3, 3)), np.zeros((nb + 1, 3, 3))
+        inv_I = 1.0 / I
+        flight.start_pose(q, inv_I, R0, Iinv0)
+        b = state.StepArrays(x=x, q=q, v=v, w=w, inv_I=inv_I, x1=x.copy(), q1=q.copy(), V=vw.copy(), W=vw.copy(),
+                             F=np.zeros((nb, 3)), T=np.zeros((nb, 3)), vp=vw.copy(), wp=vw.copy(), R0=R0, Iinv0=Iinv0)
+        kept = Pack(b)
+        state._begin_packed(kept)
+        flight.apply_forces(springs, b.x, b.R0, b.v, b.w, b.F, b.T)  # (the force stages at the start state)
+        ig = flight.Integrator(method=flight.Method(flight.METHOD[name]), has_forces=True, constant=False,
+                               torque=True, fm=springs, inv_m=np.ones(nb), inv_I=inv_I, lever=0.5)
+        F = np.zeros((nb, 3))
+        f = flight.Flight(ig=ig, V=b.V[:nb], W=b.W[:nb], v_free=F.copy(), w_free=F.copy(), w0=F.copy(),
+                          T_mean=F.copy(), u_lin=F.copy(), u_ang=F.copy(), work=np.zeros((flight.WORK_SLABS, nb, 3)),
+                          work_q=np.zeros((2, nb, 4)), vp=b.vp[:nb], wp=b.wp[:nb])
+        flight.fly_packed(kept, Pack(f), 1e-2)
+        ends.append(np.concatenate([b.x1.ravel(), b.q1.ravel(), f.V.ravel(), f.W.ravel(), f.T_mean.ravel()]))
+        staged.append(len(flight._stage.overloads))
+print(staged, sum(1 for _, e in rec.buffer if e.is_start))
+print(ends[0].tobytes().hex())
+print(ends[1].tobytes().hex())
+"""
+
+
+def test_each_integrator_compiles_its_own_flight_and_the_cache_keeps_both(tmp_path):
+    """The free flight compiles for the model's integrator alone
+    (engine.flight.Method: the method's code is in the argument types, the
+    other methods' branches are pruned before typing): the semi-implicit
+    Euler flight never types the intermediate-state kernel
+    (``flight._stage``) that rk4 needs.  The two methods' compiled flights
+    are separate cache entries: a second process with the same cache
+    directory loads both (no compile at all) and gets the same bits."""
+    env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path)}
+    runs = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _FLIGHTS], capture_output=True, text=True, cwd=REPO, env=env,
+                             timeout=600)
+        assert out.returncode == 0, out.stderr
+        runs.append(out.stdout.split("\n")[:3])
+    (staged, compiles), (staged2, compiles2) = (r[0].rsplit(" ", 1) for r in runs)
+    assert staged == "[0, 1]"  # Euler: no intermediate state; rk4: one
+    assert int(compiles) > 0
+    assert (staged2, compiles2) == ("[0, 0]", "0")  # everything loaded from the cache
+    assert runs[0][1:] == runs[1][1:]  # the same end states, method by method
+    assert runs[0][1] != runs[0][2]  # (two methods, two different end states)
