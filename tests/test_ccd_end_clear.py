@@ -364,6 +364,9 @@ def test_landing_spheres_skip_the_python_rule(monkeypatch):
 
     monkeypatch.setattr(ccd, "missed_impacts", spy)
     monkeypatch.setattr(ccd, "_pair_codes", count)
+    # every step staged, so the staged CCD stage spied on runs in each
+    # whatever the fast path's door tries (engine/fused: its backoff)
+    eng.profile.by_stage = True
     eng.step(30)
     assert inside["calls"] >= 10
     assert inside["codes"] == 0
