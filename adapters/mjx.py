@@ -115,10 +115,9 @@ def _load() -> None:
     that needed them, with its reason)."""
     global jax, mjx, mujoco
     if mjx is None:
-        import mujoco as mj
+        import mujoco
 
         jax, mjx = _import()
-        mujoco = mj
 
 
 def _settings() -> dict[str, Setting]:

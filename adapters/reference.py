@@ -11,7 +11,6 @@ counters (contact rows, impacts, time-of-impact iterations).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -224,18 +223,10 @@ class ReferenceAdapter(Adapter):
         w = getattr(st, "warm", None)
         if w is None or c is None or len(w.pairs) == 0 or c.m == 0:
             return _NO_FORCES
-        if c.m <= SMALL_PATCHES:
-            return _patches_small(self.model, c, w)
         return _patches(self.model, c, w)
 
     def close(self) -> None:
         pass
-
-
-#: contacts up to which :func:`_patches_small` reads the patches (plain
-#: Python over the rows: ~10x cheaper than the array path there; the same
-#: bits, tests/test_contact_laws.py::test_reference_patch_readers_agree)
-SMALL_PATCHES = 64
 
 
 def _patches(m, c, w) -> dict[str, np.ndarray]:
@@ -266,52 +257,6 @@ def _patches(m, c, w) -> dict[str, np.ndarray]:
     return {"a": a.astype(np.int64), "b": np.where(b >= n, -1, b).astype(np.int64),
             "static": sidx.astype(np.int64), "point": point, "normal": nrm, "gap": gap, "lam_n": lam_n,
             "lam_t": lam_t}
-
-
-def _patches_small(m, c, w) -> dict[str, np.ndarray]:
-    """:func:`_patches` by plain Python over the rows: the sums in the
-    same order from 0.0 (np.bincount's), the same divisions; the norms
-    and the tangential projection by the same array calls."""
-    n1, ns1 = m.n + 1, m.n_statics + 1
-    pairs = {p: i for i, p in enumerate(w.pairs.tolist())}
-    sums: dict[int, list] = {}  # pair code -> [count, point (3), normal (3), smallest gap]
-    for a, b, s, p, nr, g in zip(c.a.tolist(), c.b.tolist(), c.sidx.tolist(), c.point.tolist(), c.normal.tolist(),
-                                 np.asarray(c.gap).tolist()):
-        code = (a * n1 + b) * ns1 + (s + 1)
-        if code not in pairs:
-            continue
-        e = sums.get(code)
-        if e is None:
-            e = sums[code] = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.inf]
-        e[0] += 1
-        e[1] += p[0]
-        e[2] += p[1]
-        e[3] += p[2]
-        e[4] += nr[0]
-        e[5] += nr[1]
-        e[6] += nr[2]
-        e[7] = e[7] if (e[7] < g or e[7] != e[7]) else g  # (np.minimum's rule: NaN wins, a tie takes g)
-    fn: dict[int, float] = {}
-    for code, f in zip(w.codes.tolist(), w.fn.tolist()):
-        fn[code] = fn.get(code, 0.0) + f
-    uniq = sorted(sums)
-    k = len(uniq)
-    rows = [sums[u] for u in uniq]
-    point = np.array([[r[1] / r[0], r[2] / r[0], r[3] / r[0]] for r in rows], float).reshape(k, 3)
-    nrm = np.array([r[4:7] for r in rows], float).reshape(k, 3)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    ft = np.asarray(w.ft, float)[[pairs[u] for u in uniq]].reshape(k, 3)
-    lam_t = ft - np.sum(ft * nrm, axis=1, keepdims=True) * nrm
-    a, b, sidx = [], [], []
-    for u in uniq:
-        q, r = divmod(u, ns1)
-        qa, qb = divmod(q, n1)
-        a.append(qa)
-        b.append(-1 if qb >= n1 - 1 else qb)
-        sidx.append(r - 1)
-    return {"a": np.array(a, np.int64), "b": np.array(b, np.int64), "static": np.array(sidx, np.int64),
-            "point": point, "normal": nrm, "gap": np.array([r[7] for r in rows], float),
-            "lam_n": np.array([fn.get(u, 0.0) for u in uniq], float), "lam_t": lam_t}
 
 
 _NO_FORCES = {"a": np.zeros(0, np.int64), "b": np.zeros(0, np.int64), "static": np.zeros(0, np.int64),

@@ -169,9 +169,10 @@ def request_row(req: RunRequest) -> dict[str, Any]:
     only: the engines are deterministic, and metric code is not what is
     timed).  A first run that read the contact forces after every step
     (a contact-law metric: harness/runner.py) is not timed: one more run
-    is, so the row's cost is the engine's stepping alone.  Only ok runs count in the median and minimum CPU time; a run
-    that is not ok is not repeated (the row's ``cpu_s_per_sim_s`` keeps
-    the runner's figure for the part that ran).  A request with a
+    is, so the row's cost is the engine's stepping alone.  Only ok runs
+    count in the median and minimum CPU time; a run that is not ok is
+    not repeated (the row's ``cpu_s_per_sim_s`` keeps the runner's figure
+    for the part that ran).  A request with a
     ``probe`` (one evaluation of a breaking-point search) also gets the
     probe's columns (its verdict).  Never raises for engine trouble: a
     scene that does not load, a run that raises are :func:`failure_row`

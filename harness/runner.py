@@ -411,7 +411,7 @@ def run(scene: Scene, engine: str, settings: dict[str, Any] | None = None, *,
     if isinstance(forces, list):
         # stepped one step a call, the contact forces read after each: this
         # run's step time is not the engine's (harness.points.request_row
-        # times another run; tests/test_points.py pins it)
+        # times another run; tests/test_points_timing.py pins it)
         result.info["contact_forces_per_step"] = True
     result.metrics["cpu_s_per_sim_s"] = cpu / sim_time if sim_time > 0 else float("nan")
     result.metrics["wall_s_per_sim_s"] = wall / sim_time if sim_time > 0 else float("nan")
