@@ -115,7 +115,8 @@ class DrakeAdapter(Adapter):
         from pydrake.common.eigen_geometry import Quaternion
         from pydrake.geometry import Box, Capsule, Cylinder, HalfSpace, Sphere
         from pydrake.math import RigidTransform
-        from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+        from pydrake.multibody.math import SpatialForce
+        from pydrake.multibody.plant import AddMultibodyPlant, ExternallyAppliedSpatialForce, MultibodyPlantConfig
         from pydrake.multibody.tree import LinearSpringDamper, SpatialInertia, UnitInertia
         from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
         from pydrake.systems.framework import DiagramBuilder
@@ -195,6 +196,7 @@ class DrakeAdapter(Adapter):
             integ.set_target_accuracy(float(settings["accuracy"]))
         c1, c2 = drag_coefficients(scene)
         self._drag = [(bodies[i].index(), float(c1[i]), float(c2[i])) for i in range(self.n) if c1[i] or c2[i]]
+        self._drag_types = (ExternallyAppliedSpatialForce, SpatialForce)  # (for each step's _apply_drag)
         if self._drag:
             self._drag_port = plant.get_applied_spatial_force_input_port()
             self.notes.append("drag: a force at the centre of mass from the velocity at the start of each "
@@ -224,9 +226,7 @@ class DrakeAdapter(Adapter):
             self.sim.AdvanceTo(self.steps * self.dt)
 
     def _apply_drag(self) -> None:
-        from pydrake.multibody.math import SpatialForce  # (loaded by the build already)
-        from pydrake.multibody.plant import ExternallyAppliedSpatialForce
-
+        ExternallyAppliedSpatialForce, SpatialForce = self._drag_types
         x = self.plant.GetPositionsAndVelocities(self.pctx)  # free bodies only (drag refuses joints)
         forces = []
         for (idx, c1, c2), iv in zip(self._drag, self._iv):

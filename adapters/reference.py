@@ -223,40 +223,35 @@ class ReferenceAdapter(Adapter):
         w = getattr(st, "warm", None)
         if w is None or c is None or len(w.pairs) == 0 or c.m == 0:
             return _NO_FORCES
-        return _patches(self.model, c, w)
+        from physbench.engine.contact.topology import _pair_codes
+
+        m = self.model
+        n, ns = m.n, m.n_statics
+        codes = _pair_codes(m, c)
+        keep = np.isin(codes, w.pairs)
+        uniq, inv = np.unique(codes[keep], return_inverse=True)  # sorted, as w.pairs
+        at = np.searchsorted(w.pairs, uniq)
+        k = uniq.size
+        cnt = np.bincount(inv, minlength=k).astype(float)
+        point = np.stack([np.bincount(inv, c.point[keep][:, j], k) for j in range(3)], axis=1) / cnt[:, None]
+        nrm = np.stack([np.bincount(inv, c.normal[keep][:, j], k) for j in range(3)], axis=1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        gap = np.full(k, np.inf)
+        np.minimum.at(gap, inv, np.asarray(c.gap)[keep])
+        wl = np.searchsorted(w.pairs, w.codes)  # each cached point's pair
+        lam_n = np.bincount(wl, w.fn, w.pairs.size)[at]
+        ft = np.asarray(w.ft, float)[at]
+        lam_t = ft - np.sum(ft * nrm, axis=1, keepdims=True) * nrm
+        sidx = uniq % (ns + 1) - 1
+        q = uniq // (ns + 1)
+        b = q % (n + 1)
+        a = q // (n + 1)
+        return {"a": a.astype(np.int64), "b": np.where(b >= n, -1, b).astype(np.int64),
+                "static": sidx.astype(np.int64), "point": point, "normal": nrm, "gap": gap, "lam_n": lam_n,
+                "lam_t": lam_t}
 
     def close(self) -> None:
         pass
-
-
-def _patches(m, c, w) -> dict[str, np.ndarray]:
-    """:meth:`ReferenceAdapter.contact_forces` of the contacts ``c`` and
-    the warm-start cache ``w`` by array operations."""
-    from physbench.engine.contact.topology import _pair_codes
-
-    n, ns = m.n, m.n_statics
-    codes = _pair_codes(m, c)
-    keep = np.isin(codes, w.pairs)
-    uniq, inv = np.unique(codes[keep], return_inverse=True)  # sorted, as w.pairs
-    at = np.searchsorted(w.pairs, uniq)
-    k = uniq.size
-    cnt = np.bincount(inv, minlength=k).astype(float)
-    point = np.stack([np.bincount(inv, c.point[keep][:, j], k) for j in range(3)], axis=1) / cnt[:, None]
-    nrm = np.stack([np.bincount(inv, c.normal[keep][:, j], k) for j in range(3)], axis=1)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    gap = np.full(k, np.inf)
-    np.minimum.at(gap, inv, np.asarray(c.gap)[keep])
-    wl = np.searchsorted(w.pairs, w.codes)  # each cached point's pair
-    lam_n = np.bincount(wl, w.fn, w.pairs.size)[at]
-    ft = np.asarray(w.ft, float)[at]
-    lam_t = ft - np.sum(ft * nrm, axis=1, keepdims=True) * nrm
-    sidx = uniq % (ns + 1) - 1
-    q = uniq // (ns + 1)
-    b = q % (n + 1)
-    a = q // (n + 1)
-    return {"a": a.astype(np.int64), "b": np.where(b >= n, -1, b).astype(np.int64),
-            "static": sidx.astype(np.int64), "point": point, "normal": nrm, "gap": gap, "lam_n": lam_n,
-            "lam_t": lam_t}
 
 
 _NO_FORCES = {"a": np.zeros(0, np.int64), "b": np.zeros(0, np.int64), "static": np.zeros(0, np.int64),

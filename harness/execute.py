@@ -101,10 +101,9 @@ class RunRequest:
 
     def __post_init__(self) -> None:
         s = self.scenario
-        if s.endswith(".toml") or os.sep in s:  # else an id: no path to build (a sweep makes one request an item)
-            p = Path(s)
-            if not p.is_absolute() and (p.suffix == ".toml" or os.sep in s) and p.exists():
-                object.__setattr__(self, "scenario", str(p.resolve()))
+        # an id: no path to build (a sweep makes one request an item)
+        if (s.endswith(".toml") or os.sep in s) and not os.path.isabs(s) and os.path.exists(s):
+            object.__setattr__(self, "scenario", str(Path(s).resolve()))
 
     @property
     def label(self) -> str:

@@ -452,10 +452,11 @@ def _stored_names(stored: list[tuple[str, Any]]) -> tuple[list[str], list[str] |
     a made-up one (``__row_schema<k>:<name>``) for a name's second type on --
     and, where one is made up, every stored column's own name (None else)."""
     seen: set[str] = set()
+    own = {m for m, _ in stored}
     out = []
     for n, _ in stored:
         name, k = n, 0
-        while name in seen or (name != n and name in {m for m, _ in stored}):
+        while name in seen or (name != n and name in own):
             k += 1
             name = f"{PART_SCHEMA_COLUMN}{k}:{n}"
         seen.add(name)

@@ -212,7 +212,8 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
     cols = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
             TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.description}"))
     try:
-        with Progress(*cols, console=err, disable=not err.is_terminal, refresh_per_second=2) as bar:
+        shown = err.is_terminal  # no bar (a log file): no per-point description or advance to make
+        with Progress(*cols, console=err, disable=not shown, refresh_per_second=2) as bar:
             task = bar.add_task("", total=len(todo))
 
             def on_start(p: Point) -> None:
@@ -223,8 +224,6 @@ def sweep_main(suite: str, engines: list[str] | None = None, jobs: int = 1, exec
                 sd.write_point(row)
                 if shown:
                     bar.advance(task)
-
-            shown = err.is_terminal  # no bar (a log file): no per-point description or advance to make
 
             cached, store, done = _store_limits(sd, ctx, err)
             if reqs:
