@@ -53,8 +53,8 @@ from physbench.engine.gyroscopic import (ENERGY, IMPLICIT, YOSHIDA, YOSHIDA_MAX,
 from physbench.engine.forces import force_model
 from physbench.engine.pack import Pack
 from physbench.engine.profile import Stage
+from physbench.engine.settings import INTEGRATORS  # noqa: F401  (the names; engine/settings.py holds them)
 
-INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
 ORDERS = {"explicit_euler": 1, "semi_implicit_euler": 1, "midpoint": 2, "heun": 2, "rk4": 4, "velocity_verlet": 2}
 
 

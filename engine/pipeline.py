@@ -125,9 +125,10 @@ def _warm_flight(model: Model) -> None:
     (engine/fused/loop.py) once per process and integrator, as
     :func:`_warm_steady`: a few steps of
     :func:`engine.fused.steady.warm_scene` without contact."""
-    if model.setting("integrator") in _FLIGHT_READY:
+    key = model.setting("integrator")
+    if key in _FLIGHT_READY:
         return
-    _FLIGHT_READY.add(model.setting("integrator"))
+    _FLIGHT_READY.add(key)
     t0 = time.perf_counter()
     inp = dataclasses.replace(warm_scene(), effects=frozenset({"gravity"}))
     m = build_model(inp, {**model.settings, "dt": 1 / 240})

@@ -13,7 +13,7 @@ import functools
 from pathlib import Path
 from typing import Any
 
-#: the free-flight integrators (engine/integrate.py implements them under the same names:
+#: the free-flight integrators (engine/integrate.py implements them, its ORDERS keyed by these names:
 #: tests/test_engine_settings.py::test_integrator_and_joint_names_match_the_engine's)
 INTEGRATORS = ("explicit_euler", "semi_implicit_euler", "midpoint", "heun", "rk4", "velocity_verlet")
 
