@@ -29,6 +29,8 @@ import time
 
 from physbench.engine import SETTINGS, Engine, jit
 from physbench.engine.cache import cache_dir
+from physbench.engine import compile_share
+from physbench.engine.compile_share import JOBS_ENV
 from physbench.engine.broadstage import SAP_MIN_BODIES
 from physbench.engine.fused.steady import warm_scene
 
@@ -54,13 +56,35 @@ def _joint_scene():
     return dataclasses.replace(inp, effects=frozenset({"gravity", "joint"}), joints=(hinge,))
 
 
+def _help_build(path: str) -> int:
+    """A cold build's helper (engine/compile_share.py): build the scene
+    pickled at ``path`` (then removed) with its settings, taking the kernel
+    groups in reverse order."""
+    import contextlib
+    import pickle
+
+    compile_share.REVERSED = True
+    try:
+        with open(path, "rb") as f:
+            inp, settings = pickle.load(f)
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+    Engine(inp, settings)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m physbench.engine", description=__doc__.split("\n\n")[0])
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap.add_argument("--jobs", type=int, default=min(2, cores), choices=(1, 2),
                     help="processes compiling at once (default: 2 where this process may use two cores or more)")
     ap.add_argument("--part", choices=("collision",), help=argparse.SUPPRESS)  # the second process's half
+    ap.add_argument("--help-build", help=argparse.SUPPRESS)  # a build's helper (engine/compile_share.py)
     args = ap.parse_args(argv)
+    if args.help_build:
+        return _help_build(args.help_build)
+    os.environ[JOBS_ENV] = "1"  # (the builds below start no helper: the halves are split here)
     t0 = time.perf_counter()
     if args.part:
         jit.warm_collision()  # every family's function

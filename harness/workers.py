@@ -55,6 +55,10 @@ WORKER_ENV = "PHYSBENCH_WORKER"
 #: characters of a dead worker's stderr kept in its row
 STDERR_TAIL = 2000
 _HEADER = struct.Struct("<Q")
+#: processes one reference build may compile in (the engine's
+#: ``compile_share.JOBS_ENV``: a pool of several workers gives each 1)
+COMPILE_JOBS_ENV = "PHYSBENCH_COMPILE_JOBS"
+
 #: environment of every run process: BLAS, OpenMP and numba held to one
 #: thread, so N workers use N cores (tests/test_execute.py::test_run_processes_use_one_thread)
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -436,6 +440,8 @@ class WorkerPool:
         env[WORKER_ENV] = "1"
         env[WORKER_ENV + "_PARENT"] = str(os.getpid())
         env.update(ONE_THREAD_ENV)
+        if self.jobs > 1:  # (several workers share a cold compile already: engine/compile_share.py)
+            env.setdefault(COMPILE_JOBS_ENV, "1")
         adapters, paths = extra_adapters()
         # physbench itself is imported as this process imported it (installed, or
         # an editable install's finder); added: a checkout's root (its tests'

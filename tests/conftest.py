@@ -1,3 +1,4 @@
+import os
 import sys
 from pathlib import Path
 
@@ -8,6 +9,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from physbench.contract.scene import canonical_example  # noqa: E402
+
+# one process per reference build: a cold build's helper process
+# (engine/compile_share.py) is tested by tests/test_compile_share.py alone
+os.environ.setdefault("PHYSBENCH_COMPILE_JOBS", "1")
 
 # ../shared/examples/head_on.toml when shared/ stands beside the repository
 # (as in CI), else the copy under tests/data
