@@ -40,6 +40,7 @@ import numpy as np
 
 from physbench.adapters import get_adapter
 from physbench.harness.runner import run
+from physbench.harness.workers import COMPILE_JOBS_ENV
 from physbench.contract.scene import Scene, canonical_example, compile_scene, load_scene
 from physbench.contract.spec import validate_raw
 
@@ -538,14 +539,18 @@ print(json.dumps({"first_step_s": first, "wall_s": time.perf_counter() - t0, "cp
 """
 
 
-def _child(cmd: list[str], cache: str, timeout: float) -> dict[str, Any]:
-    """Run ``cmd`` with NUMBA_CACHE_DIR ``cache``: its wall s, its (and
-    its children's) CPU s, its stdout."""
+def _child(cmd: list[str], cache: str, timeout: float, jobs: int | None = None) -> dict[str, Any]:
+    """Run ``cmd`` with NUMBA_CACHE_DIR ``cache`` (and a reference build's
+    compile processes ``jobs``: PHYSBENCH_COMPILE_JOBS; None: as this
+    process has it): its wall s, its (and its children's) CPU s, its
+    stdout."""
     import os
     import resource
     import subprocess
 
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    if jobs is not None:
+        env[COMPILE_JOBS_ENV] = str(jobs)
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
@@ -564,9 +569,13 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
     (warm); a process building the scenario's engine and stepping it, cold
     and warm (seconds to its first step, the functions numba compiled); and
     with ``everything``, one process building and stepping every shipped
-    scenario the reference engine runs on an empty cache (what they all compile).  Rows: wall s,
-    CPU s (the process and its workers), seconds to the first step, the
-    number of functions compiled."""
+    scenario the reference engine runs on an empty cache (what they all
+    compile).  The cold builds run as a user's would: with a helper process
+    where two cores may be used (engine/compile_share.py); the cold build
+    of the scenario also in one process (``PHYSBENCH_COMPILE_JOBS=1``),
+    beside it.  Rows: wall s, CPU s (the process, its workers and a
+    build's helper), seconds to the first step, the number of functions
+    compiled in the building process (not its helper's)."""
     import json
     import sys
     import tempfile
@@ -589,6 +598,10 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
     with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
         row(f"physbench run {scenario}, cold", _child(cli, cache, timeout))
         row(f"physbench run {scenario}, warm", _child(cli, cache, timeout))
+    with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
+        r = _child(start + [scenario], cache, timeout, jobs=1)
+        info = json.loads(r["stdout"].strip().splitlines()[-1])
+        row(f"build and step {scenario}, cold, one process", r, info["first_step_s"], info["compiled"])
     with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
         for kind in ("cold", "warm"):
             r = _child(start + [scenario], cache, timeout)

@@ -177,8 +177,8 @@ def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled
 
     calls = []
 
-    def child(cmd, cache, timeout):
-        calls.append((cmd, cache, sorted(os.listdir(cache))))
+    def child(cmd, cache, timeout, jobs=None):
+        calls.append((cmd, cache, sorted(os.listdir(cache)), jobs))
         with open(os.path.join(cache, f"marker{len(calls)}"), "w"):
             pass
         out = json.dumps({"first_step_s": 0.5, "wall_s": 1.0, "cpu_s": 0.75, "compiled": ["a", "b"]})
@@ -186,16 +186,18 @@ def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled
 
     monkeypatch.setattr(bench, "_child", child)
     rows = bench.compile_time("billiards.head_on", everything=True)
-    assert [r["measure"].rsplit(", ", 1)[1] for r in rows] == ["cold", "warm", "cold", "warm", "cold"]
-    (c1, d1, l1), (c2, d2, l2), (c3, d3, l3), (c4, d4, l4), (c5, d5, l5) = calls
-    assert l1 == [] and l3 == [] and l5 == []  # cold: an empty cache
-    assert d2 == d1 and l2 == ["marker1"] and d4 == d3 and l4 == ["marker3"]  # warm: the cold run's cache
-    assert len({d1, d3, d5}) == 3
+    assert [r["measure"].split(", ", 1)[1] for r in rows] == ["cold", "warm", "cold, one process", "cold", "warm",
+                                                              "cold"]
+    (c1, d1, l1, j1), (c2, d2, l2, j2), (c3, d3, l3, j3), (c4, d4, l4, j4), (c5, d5, l5, j5), (c6, d6, l6, j6) = calls
+    assert l1 == [] and l3 == [] and l4 == [] and l6 == []  # cold: an empty cache
+    assert d2 == d1 and l2 == ["marker1"] and d5 == d4 and l5 == ["marker4"]  # warm: the cold run's cache
+    assert len({d1, d3, d4, d6}) == 4
+    assert j3 == 1 and {j1, j2, j4, j5, j6} == {None}  # one process beside the user's way (a helper)
     assert c1[-7:] == ["run", "billiards.head_on", "-e", "reference", "--json", "--timeout", "3600.0"]
-    assert c3[-1] == "billiards.head_on" and len(c5) > 10  # every shipped scenario in one process
-    assert [r["wall_s"] for r in rows] == [3.0, 4.0, 5.0, 6.0, 7.0]
-    assert rows[0]["first_step_s"] is None and rows[2]["first_step_s"] == 0.5 and rows[4]["compiled"] == 2
-    assert not any(os.path.exists(d) for d in (d1, d3, d5))  # temporary
+    assert c3 == c4 and c4[-1] == "billiards.head_on" and len(c6) > 10  # every shipped scenario in one process
+    assert [r["wall_s"] for r in rows] == [3.0, 4.0, 5.0, 6.0, 7.0, 8.0]
+    assert rows[0]["first_step_s"] is None and rows[3]["first_step_s"] == 0.5 and rows[5]["compiled"] == 2
+    assert not any(os.path.exists(d) for d in (d1, d3, d4, d6))  # temporary
 
 
 @pytest.mark.parametrize("engine", ["mujoco", "pymunk", "pybullet", "rapier", "box2d"])
