@@ -83,10 +83,12 @@ class CCD(Stage):
         """At build (engine.pipeline.prepare): what the stage and the
         search keep in the context, made now instead of at the first
         event -- the collider of the CCD and impact collisions and its
-        Pack, the model's geometry, the rotations' buffer, the candidate
-        flags, the gap's work rows, the reruns' stage list."""
+        Pack, the model's geometry, the end-pose check's buffers' Pack, the
+        rotations' buffer, the candidate flags, the gap's work rows, the
+        reruns' stage list."""
         _collider(model, ctx).packed()
         _geometry_kept(model, ctx)
+        ctx.end_pose_kept(0)
         _rotations(ctx, state.q)
         _cand_buffer(ctx, 16)
         _gap_work(ctx, 8)
