@@ -112,7 +112,7 @@ class CCD(Stage):
             # may be another end of the body, already touching or resting
             # within the slop)
             code = _pair_codes_abs(model, c.a[idx], c.b[idx], c.sidx[idx])
-            if code.min() == code.max():
+            if idx.size == 1 or code.min() == code.max():
                 # one pair (a lone impact): its rows are all of them, in order
                 firsts, of = [j], lambda u: slice(None)
             else:

@@ -210,6 +210,7 @@ class Context:
         #: displacements (n,), end rotations (n, 3, 3)), grown geometrically
         self._end_pose = self._end_pose_buffers(n, 2 * n + 16)
         self._end_pose_pack = KeptPack()
+        self._end_pose_kept = None  # (:meth:`end_pose_kept`'s last answer)
         #: no sweep (n,) zeros: a margin that is the same for every pair
         self.no_sweep = np.zeros(n)
         #: the contact solve's work arrays (grown geometrically, kept)
@@ -233,7 +234,10 @@ class Context:
         """(:meth:`end_pose_buffers`, the same as one Pack, kept while they
         stay)."""
         buf = self.end_pose_buffers(m)
-        return buf, self._end_pose_pack.of(buf)
+        kept = self._end_pose_kept
+        if kept is None or kept[0] is not buf:
+            kept = self._end_pose_kept = (buf, self._end_pose_pack.of(buf))
+        return kept
 
     def kept(self, state: State) -> Pack:
         """The arrays of a (mini-)step's start and commit as one Pack (see

@@ -5,6 +5,7 @@ event, with the same results (the bits script; the determinism pins)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import physbench.engine.contact.impact as impact
 import physbench.engine.contact.rows as rows
@@ -67,3 +68,107 @@ def test_contact_inertias_are_world_inv_inertia_bit_for_bit():
         bodies = np.unique(np.concatenate([a, b[b < n]]))
         want[bodies] = world_inv_inertia(quat_to_matrix(q[bodies]), inv_I[bodies])
         assert np.array_equal(out, want)
+
+
+def _count_impact_python_calls(monkeypatch) -> dict:
+    """Count the impact kernel's calls and the Python-level calls of what
+    it runs inside (Rows, the propagation's set-up and its modes)."""
+    from physbench.engine.contact import propagate
+
+    calls = {"kernel": 0, "rows": 0, "setup": 0, "propagate": 0}
+    real_kernel, real_setup, real_prop = impact.impact_kernel, propagate.setup, propagate.propagate
+
+    def kernel(*a):
+        calls["kernel"] += 1
+        return real_kernel(*a)
+
+    def setup(*a):
+        calls["setup"] += 1
+        return real_setup(*a)
+
+    def prop(*a):
+        calls["propagate"] += 1
+        return real_prop(*a)
+
+    class CountingRows(rows.Rows):
+        def __init__(self, *a, **k):
+            calls["rows"] += 1
+            super().__init__(*a, **k)
+
+    monkeypatch.setattr(impact, "impact_kernel", kernel)
+    monkeypatch.setattr(propagate, "setup", setup)
+    monkeypatch.setattr(propagate, "propagate", prop)
+    monkeypatch.setattr(impact, "Rows", CountingRows)
+    return calls
+
+
+def test_an_impact_is_one_compiled_call(monkeypatch):
+    """A ball bouncing on the floor: each impact's contact inertias, rows,
+    propagation set-up and both propagation modes run inside one compiled
+    call (impact.impact_kernel): one per impact, and no Python-level Rows,
+    propagate.setup or propagate.propagate call.  On the code before, each
+    impact made one Rows and three such calls from Python."""
+    eng = engine_for(load_scene("billiards.ball_drop_bounce"), {"dt": 0.032})
+    calls = _count_impact_python_calls(monkeypatch)  # (after the build: its warm-up calls them)
+    eng.step(47)
+    n_impacts = eng.profile.as_dict()["counters"]["impacts"]
+    assert n_impacts >= 5
+    assert calls == {"kernel": n_impacts, "rows": 0, "setup": 0, "propagate": 0}
+
+
+def _states(eng) -> tuple:
+    return eng.state.x, eng.state.q, eng.state.v, eng.state.w
+
+
+@pytest.mark.parametrize("sid, steps", [("billiards.break_16", 100), ("billiards.newtons_cradle", 50)])
+def test_the_impact_kernel_gives_the_python_paths_bits(sid, steps):
+    """The compiled impact (kept work arrays) and the Python path (kept=None)
+    bit for bit where an impact runs down a chain of touching balls (the
+    rack of a break, a cradle): many pairs propagated in one impact."""
+    a = engine_for(load_scene(sid), {})
+    b = engine_for(load_scene(sid), {})
+    next(s for s in b.stages if s.family == "impact").kept = None
+    a.step(steps)
+    b.step(steps)
+    assert a.profile.as_dict()["counters"]["impacts"] >= 1
+    for u, v in zip(_states(a), _states(b)):
+        assert np.array_equal(u, v)
+
+
+def test_an_impact_the_kernel_leaves_runs_the_python_path(monkeypatch):
+    """A propagation that does not settle inside the kernel (it returns
+    False and leaves the state alone: a pinned configuration) is resolved
+    by the Python path from the start, with the bits of kept=None: the
+    kernel made to give up on every impact of a mixed bin (friction,
+    rolling bodies, plastic islands)."""
+    monkeypatch.setattr(impact, "impact_kernel", lambda *a: False)
+    a = engine_for(load_scene("stacking.mixed_bin"), {"dt": 1 / 60})
+    b = engine_for(load_scene("stacking.mixed_bin"), {"dt": 1 / 60})
+    next(s for s in b.stages if s.family == "impact").kept = None
+    a.step(40)
+    b.step(40)
+    assert a.profile.as_dict()["counters"]["impacts"] >= 10
+    for u, v in zip(_states(a), _states(b)):
+        assert np.array_equal(u, v)
+
+
+def test_the_step_pack_follows_the_states_arrays():
+    """Context.kept (the start and commit's Pack) is the same Pack while the
+    state's x, q, v, w are the same arrays, and a new one holding the new
+    arrays when one is replaced: a state whose arrays were swapped for
+    copies steps (through events) to the bits of one that kept them."""
+    a = engine_for(load_scene("billiards.head_on"), {"dt": 0.032})
+    b = engine_for(load_scene("billiards.head_on"), {"dt": 0.032})
+    ctx, st = a.state.ctx, a.state
+    p = ctx.kept(st)
+    assert ctx.kept(st) is p
+    for name in ("x", "q", "v", "w"):
+        setattr(st, name, getattr(st, name).copy())
+        p2 = ctx.kept(st)
+        assert p2 is not p and getattr(p2.items, name) is getattr(st, name)
+        p = p2
+    a.step(16)
+    b.step(16)
+    assert a.profile.as_dict()["counters"]["impacts"] == 1
+    for u, v in zip(_states(a), _states(b)):
+        assert np.array_equal(u, v)

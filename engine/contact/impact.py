@@ -168,7 +168,9 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     # (every row bouncing, the common case of billiards: no plastic island)
     together = _plastic_islands(model, cs) if plastic == "simultaneous" and not np.all(cs.e > 0.0) else None
     if kept is not None and (together is None or not together.any()):
-        return _propagate_kept(model, state, cs, iterations, thr, friction, kept)
+        m = _propagate_kept(model, state, cs, thr, friction, kept)
+        if m is not None:
+            return m
     n = model.n
     # the world inverse inertias of the contacts' bodies only, the others
     # zero (an O(n) pass per impact at 10,000 bodies was ~2 ms): one
@@ -276,12 +278,13 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
 
 
 def _propagation_args(rows: Rows, cs: Contacts, U: np.ndarray, thr: float, friction: bool, n: int) -> tuple:
-    """:func:`engine.contact.propagate.propagate`'s arguments after its
-    mode for the (uncoloured) ``rows`` of the contacts ``cs``: the rows of
-    each pair (ascending): go[gs[g]:gs[g + 1]], inv the pair of each row;
-    of each body: bo[b0[k]:b0[k + 1]]; the normal speeds of all rows (kept
-    current by the compiled loop: a pair's impulses change only the rows
-    of its two bodies), from one compiled call."""
+    """:func:`engine.contact.propagate.propagate`'s arguments (all but its
+    mode) for the uncoloured ``rows`` of the contacts ``cs`` and the
+    velocities U (n+1, 6): the rows; the rows of each pair (ascending):
+    go[gs[g]:gs[g + 1]], inv the pair of each row; of each body:
+    bo[b0[k]:b0[k + 1]]; the normal speeds of all rows (kept current by the
+    compiled loop: a pair's impulses change only the rows of its two
+    bodies), from one compiled call; the friction patches."""
     # (uncoloured: the rows are the contacts in their order, and the
     # topology's codes theirs)
     code = rows.topo.codes
@@ -321,31 +324,21 @@ def _pinned(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr: f
     args[3][:] = vn_all()
 
 
-def _propagate_kept(model, state, cs: Contacts, iterations: int, thr: float, friction: bool,
-                    kept: ImpactKept) -> int:
-    """:func:`impact_solve` of the contacts ``cs`` (no plastic island) with
-    the kept work arrays: the contact bodies' inertias, the rows, the
-    propagation and the state's new velocities in one compiled call
-    (:func:`impact_kernel`), the arithmetic of :func:`_propagate`'s
-    calls.  A propagation that does not settle goes on from Python
-    (:func:`_pinned`, on the same rows and velocities).  Returns the
-    number of rows."""
-    n = model.n
+def _propagate_kept(model, state, cs: Contacts, thr: float, friction: bool, kept: ImpactKept) -> int | None:
+    """:func:`_propagate` of the contacts ``cs`` (no plastic island) on the
+    state's velocities with the kept work arrays: the contact bodies'
+    inertias, the rows, the propagation and the new velocities in one
+    compiled call (:func:`impact_kernel`, the arithmetic of
+    :func:`impact_solve`'s calls).  Returns the number of rows, or None
+    when the propagation did not settle (a pinned configuration; the
+    state untouched): the caller's path from Python then resolves it."""
     rolling = friction and bool(model.rolling)
     topo, targs = kept.impact_topology(model, cs, friction, rolling)
     work = kept.work(model, topo, friction, rolling)
     c = ContactArrays(a=cs.a, b=cs.b, sidx=cs.sidx, point=cs.point, normal=cs.normal, gap=cs.gap, e=cs.e)
     if not impact_kernel(work, targs, c, state.x, state.q, state.v, state.w, float(thr), bool(friction),
                          bool(rolling)):
-        # (the rows the kernel wrote, again: the same arrays, the same
-        # values; the speeds args[3] are set by _pinned before they are read)
-        rows = Rows(model, state.x, work.Iinv, cs, friction, colour=False, topo=topo, scratch=kept.scratch)
-        U = work.U
-        args = _propagation_args(rows, cs, U, thr, friction, n)
-        _pinned(model, state.x, work.Iinv, cs, U, iterations, thr, friction, rows, args)
-        propagate.propagate(1, *args)  # slow approaches stop (plastic)
-        state.v[:] = U[:n, :3]
-        state.w[:] = U[:n, 3:]
+        return None
     return topo.order.size
 
 
