@@ -40,12 +40,12 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.engine import flight
-from physbench.engine.collision import collide_pairs
+from physbench.engine.collision import box, collide_pairs
 from physbench.engine.collision.dispatch import static_row
 from physbench.engine.ccd_end import FeatureContacts, missed_candidates
 from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
                              _geometry_kept, _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
-from physbench.engine.ccd_gap import NO_FID, NO_P3, gap as _gap
+from physbench.engine.ccd_gap import NO_FID, NO_P3, collide_gap as _collide_gap, gap as _gap
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
 from physbench.engine.control import Event, EventMode, ImpactPair, TimeOfImpact
@@ -334,19 +334,30 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     (:func:`_pairs_contacts`)."""
     R1 = _rotations(ctx, ctx.q1)
     c = contacts
+    tol = 0.1 * float(model.bound_radius[a]) + 1e-4
+    loc = NO_P3 if loc is None else loc
+    exclude = NO_P3 if exclude is None else exclude
+    fids = NO_FID if fids is None else fids
     if c is None:
         # pair_contacts' collision of the pair (no margin), its arguments
         # kept per pair in the context (a search calls this at every
-        # iterate)
+        # iterate): with the gap, one compiled call while the collider's
+        # and the gap's buffers hold it (ccd_gap.collide_gap), else the
+        # collider's run (which grows them) and the gap's call
         pi, pj, planes, sboxes, margins = _pair_query(model, ctx, a, b, sidx)
-        c = _collider(model, ctx).run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
+        col = _collider(model, ctx)
+        wk = ctx.ccd.gap_work
+        if wk is not None:
+            done, g, vn = _collide_gap(col.packed(), ctx.x1, R1, pi, pj, margins, planes[0], planes[1], sboxes[0],
+                                       sboxes[1], col.W.gm, box.EDGE_FACE_POINTS, ctx.v, ctx.w, a, tol, loc, exclude,
+                                       fids, wk)
+            if done:
+                return g, vn
+        c = col.run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
     if c.m == 0:
         return np.inf, 0.0
-    wk = _gap_work(ctx, c.m)
-    tol = 0.1 * float(model.bound_radius[a]) + 1e-4
-    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, a, tol,
-                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude, NO_FID if fids is None else fids,
-                wk)
+    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, a, tol, loc, exclude, fids,
+                _gap_work(ctx, c.m))
 
 
 def _gap_work(ctx, m: int) -> np.ndarray:
