@@ -42,9 +42,10 @@ import numpy as np
 from physbench.engine import flight
 from physbench.engine.collision import box, collide_pairs
 from physbench.engine.collision.dispatch import static_row
-from physbench.engine.ccd_end import FeatureContacts, missed_candidates
-from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
-                             _geometry_kept, _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
+from physbench.engine.ccd_end import FeatureContacts, missed_any as _missed_any, missed_candidates
+from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_FAST, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes,
+                                       _geometry, _geometry_kept, _member, _pair_query, _rotations, _stable_features,
+                                       end_pose_pairs)
 from physbench.engine.ccd_gap import NO_FID, NO_P3, collide_gap as _collide_gap, gap as _gap
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
@@ -179,6 +180,22 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     or None: only pairs with a body where it is True are checked."""
     slop = float(model.settings["correction_slop"])
     lim = slop + MISS_TOL
+    # the common answer (no contact of the end pose can be one) from one
+    # compiled call (ccd_end.missed_any); else the decision below, from
+    # the start
+    pi, pj = ctx.pairs_i, ctx.pairs_j
+    bp, pk = ctx.plane_pairs
+    bs, sk = ctx.sbox_pairs
+    kout = ctx.end_pose_kept(max(pi.size, bp.size, bs.size))[1]
+    col = _collider(model, ctx)
+    k0 = ctx.contacts if ctx.contacts is not None and ctx.contacts.m > 0 else _NO_CONTACTS
+    if not _missed_any(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
+                       _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, kout, col.packed(), col.margins,
+                       ctx.no_sweep, box.EDGE_FACE_POINTS, model.n_statics,
+                       FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
+                       ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),
+                       _drop_codes(ctx), ctx.R0, TOUCH_TOL, _cand_buffer(ctx, 0)):
+        return []
     moved = end_pose_pairs(model, state, ctx, lim, fast)
     if moved is None:
         return []

@@ -25,6 +25,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from physbench.engine.collision.collide import collide_packed
 from physbench.engine.flight import end_pose_pairs
 from physbench.engine.geometry import EndPose, Geometry, Pairs, Shapes, Statics
 
@@ -283,10 +284,51 @@ def missed_candidates(n_statics, end, start, imp_rows, skip, drop, x1, R1, x0, R
     return found
 
 
+@njit(cache=True)
+def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout, kcol, margins, no_sweep,
+               face_points, n_statics, start, imp_rows, skip, drop, R0, touch_tol, cand):
+    """Whether the CCD stage's end-pose check (engine/ccd.py
+    ``missed_impacts``) may find a missed impact, in one call:
+    :func:`end_pose_call` (its arguments, up to ``kout``), the collision
+    of the moved pairs at the end pose with the margin -``lim`` into the
+    collider's buffers ``kcol`` (its Pack, engine.collision.dispatch.
+    Collider.packed; ``margins`` its margin rows, ``no_sweep`` (n,) zeros,
+    ``face_points`` engine.collision.box.EDGE_FACE_POINTS), as
+    Collider.run makes it, then :func:`missed_candidates` over those
+    contacts (the rest its arguments).  Returns 0 when no contact can be
+    one (nothing moved, no contact, no candidate: no missed impact), else
+    the candidates' count, or -1 when a buffer (the collider's, ``cand``)
+    is short: either way the caller's Python path then decides, from the
+    start (the same arithmetic: tests/test_ccd_end_clear.py)."""
+    nb, npl, ns = end_pose_call(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout)
+    if nb + npl + ns == 0:
+        return 0
+    out = kout.items
+    col = kcol.items
+    if col.W.perm.shape[0] < max(nb, npl, ns):
+        return -1
+    R1 = out.R1
+    cnt, need_k, need_s = collide_packed(kcol, x1, R1, out.ci[:nb], out.cj[:nb], margins, out.cbp[:npl],
+                                         out.cpk[:npl], out.cbs[:ns], out.csk[:ns], bool(True), -lim, no_sweep,
+                                         face_points)
+    if need_k > col.A.c.shape[0] or need_s > col.slot.g.shape[0] or cnt > col.out.a.shape[0]:
+        return -1
+    if cnt == 0:
+        return 0
+    if cand.shape[0] < cnt:
+        return -1
+    o = col.out
+    g = kgeo.items
+    return missed_candidates(n_statics, FeatureContacts(a=o.a[:cnt], b=o.b[:cnt], sidx=o.sidx[:cnt], gap=o.gap[:cnt],
+                                                        point=o.point[:cnt], fid=o.fid[:cnt]),
+                             start, imp_rows, skip, drop, x1, R1, x0, R0, g.shapes, g.static_shape, touch_tol, lim,
+                             cand)
+
+
 def warm_up() -> None:
-    """Compile (or load) :func:`end_pose_candidates` and
-    :func:`missed_candidates` with the CCD stage's argument types
-    (engine/jit.py, through engine.ccd.warm_up)."""
+    """Compile (or load) :func:`end_pose_candidates`,
+    :func:`missed_candidates` and :func:`missed_any` with the CCD stage's
+    argument types (engine/jit.py, through engine.ccd.warm_up)."""
     n = 2
     x = np.zeros((n, 3))
     x[1, 2] = 1.0
@@ -316,3 +358,12 @@ def warm_up() -> None:
                       Shapes(shape=np.array([0, 1], np.int64), radius=one, half=np.ones((n, 3)), half_length=one,
                              bound_radius=one),
                       np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))
+    from physbench.engine.ccd_gap import warm_collider
+    from physbench.engine.collision import box
+
+    col = warm_collider()
+    k0 = FeatureContacts(a=z, b=z, sidx=z, gap=np.zeros(0), point=np.zeros((0, 3)), fid=z)
+    for has_fast in (False, True):  # (no pair: compiled whole, run to its first return)
+        missed_any(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_), z, z, z, z, z, z, Pack(out),
+                   col.packed(), col.margins, np.zeros(n), box.EDGE_FACE_POINTS, 1, k0, z, z, z, np.empty((n, 3, 3)),
+                   1e-6, np.zeros(n, np.bool_))

@@ -125,15 +125,28 @@ def warm_up() -> None:
     step's argument types (see engine/jit.py): the latter into a collider
     of a sphere and a plane, its families' table all missing (the driver's
     type is the same for every scene; no family is compiled here)."""
-    from types import SimpleNamespace
-
     from physbench.engine.collision import box
-    from physbench.engine.collision.collide import N_FAMILIES
-    from physbench.engine.collision.dispatch import Collider
 
     z3, i1 = np.ones((1, 3)), np.zeros(1, np.int64)
     V = np.zeros((2, 3))
     gap(z3, np.ones(1), i1, i1, i1 + 1, z3, z3, np.eye(3), V, V, 0, 0.1, z3, z3, i1, np.empty((1, 5)))
+    col = warm_collider()
+    z = np.zeros(0, np.int64)
+    inf = np.array([np.inf])
+    collide_gap(col.packed(), np.zeros((1, 3)), np.eye(3)[None].copy(), z, z, (inf, inf.copy(), inf.copy()), z, z, z, z,
+                col.W.gm, box.EDGE_FACE_POINTS, V, V, 0, 0.1, NO_P3, NO_P3, NO_FID, np.empty((1, 5)))
+
+
+def warm_collider():
+    """A collider (engine.collision.dispatch.Collider) of one sphere and a
+    plane with every family missing from its table: what the warm-ups of
+    the compiled callers of the narrow phase's driver collide into (the
+    driver's type is the same for every scene; no family compiles)."""
+    from types import SimpleNamespace
+
+    from physbench.engine.collision.collide import N_FAMILIES
+    from physbench.engine.collision.dispatch import Collider
+
     model = SimpleNamespace(
         n=1, shape=np.zeros(1, np.int64), radius=np.full(1, 0.1), half_extents=np.full((1, 3), 0.1),
         half_length=np.full(1, 0.1), body_material=np.zeros(1, np.int64), plane_normal=np.array([[0.0, 0.0, 1.0]]),
@@ -143,7 +156,4 @@ def warm_up() -> None:
         pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
     col = Collider(model, pairs=1, contacts=1)
     col.fams = (False,) * N_FAMILIES
-    z = np.zeros(0, np.int64)
-    inf = np.array([np.inf])
-    collide_gap(col.packed(), np.zeros((1, 3)), np.eye(3)[None].copy(), z, z, (inf, inf.copy(), inf.copy()), z, z, z, z,
-                col.W.gm, box.EDGE_FACE_POINTS, V, V, 0, 0.1, NO_P3, NO_P3, NO_FID, np.empty((1, 5)))
+    return col

@@ -172,3 +172,31 @@ def test_the_step_pack_follows_the_states_arrays():
     assert a.profile.as_dict()["counters"]["impacts"] == 1
     for u, v in zip(_states(a), _states(b)):
         assert np.array_equal(u, v)
+
+
+def test_the_end_pose_check_answers_none_in_one_call(monkeypatch):
+    """A ball bouncing on the floor: at every CCD stage with a pair to
+    check, the end-pose check (the moved pairs, their collision at the end
+    pose, the candidates) answers "no missed impact" in one compiled call
+    (ccd_end.missed_any), and its Python path (ccd_kept.end_pose_pairs,
+    the collider's run, missed_candidates) never runs.  On the code before
+    it ran at each of them (three compiled calls and their set-up)."""
+    from physbench.engine import ccd
+
+    calls = {"any": 0, "python": 0}
+    real_any, real_pairs = ccd._missed_any, ccd.end_pose_pairs
+
+    def any_(*a):
+        calls["any"] += 1
+        return real_any(*a)
+
+    def pairs(*a):
+        calls["python"] += 1
+        return real_pairs(*a)
+
+    monkeypatch.setattr(ccd, "_missed_any", any_)
+    monkeypatch.setattr(ccd, "end_pose_pairs", pairs)
+    eng = engine_for(load_scene("billiards.ball_drop_bounce"), {"dt": 0.032})
+    eng.step(47)
+    assert eng.profile.as_dict()["counters"]["impacts"] >= 5
+    assert calls["any"] >= 10 and calls["python"] == 0
