@@ -42,7 +42,8 @@ import numpy as np
 from physbench.engine import flight
 from physbench.engine.collision import box, collide_pairs
 from physbench.engine.collision.dispatch import static_row
-from physbench.engine.ccd_end import FeatureContacts, missed_any as _missed_any, missed_candidates
+from physbench.engine.ccd_end import (FeatureContacts, lone_impact as _lone_impact, missed_any as _missed_any,
+                                      missed_candidates)
 from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_FAST, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes,
                                        _geometry, _geometry_kept, _member, _pair_query, _rotations, _stable_features,
                                        end_pose_pairs)
@@ -105,17 +106,22 @@ class CCD(Stage):
         t = ctx.h
         if ctx.impacts is not None:
             idx, tau = ctx.impacts.rows, ctx.impacts.tau
-            j = int(np.argmin(tau))
             c = ctx.contacts
-            t = float(min(max(tau[j], 0.0), ctx.h))
-            # the impact points of each pair, in body a's frame: the
-            # refinement follows them, not the pair's deepest point (which
-            # may be another end of the body, already touching or resting
-            # within the slop)
-            code = _pair_codes_abs(model, c.a[idx], c.b[idx], c.sidx[idx])
-            if idx.size == 1 or code.min() == code.max():
-                # one pair (a lone impact): its rows are all of them, in order
-                firsts, of = [j], lambda u: slice(None)
+            g = _geometry(model, ctx)
+            # the earliest row j, its time, the rows' pair codes and, when
+            # they are one pair (a lone impact: its rows are all of them,
+            # in order), its impact points in body a's frame and feature
+            # ids to follow: one compiled call.  The impact points of each
+            # pair, in body a's frame: the refinement follows them, not
+            # the pair's deepest point (which may be another end of the
+            # body, already touching or resting within the slop)
+            j, t, code, lone, a, b, sidx, loc, fids, stable = _lone_impact(
+                idx, tau, float(ctx.h), c.a, c.b, c.sidx, c.point, c.fid, state.x, ctx.R0, g.shapes.shape,
+                g.static_shape, model.n_statics)
+            j, t = int(j), float(t)
+            if lone:
+                pairs.append(ImpactPair(int(a), int(b), int(sidx), loc, fids if stable else None, False, None))
+                firsts = ()
             else:
                 of = _Groups(code)  # the code names the pair (a, b, sidx)
                 firsts = [j] + [i for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]

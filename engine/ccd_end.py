@@ -325,10 +325,74 @@ def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk
                              cand)
 
 
+@njit(cache=True)
+def lone_impact(rows, tau, h, ca, cb, csidx, point, fid, x, R0, shape, static_shape, n_statics):
+    """The CCD stage's pick of the earliest impact (engine/ccd.py
+    ``CCD.__call__``) when the step's impact rows ``rows`` (k,) (into the
+    contacts ``ca``, ``cb``, ``csidx``, ``point`` (m, 3), ``fid``) are of
+    one pair (a lone impact), as the numpy form computes it: the earliest
+    row ``j`` (np.argmin of the first time estimates ``tau`` (k,) s), its
+    time clipped to [0, ``h``] as ``float(min(max(tau[j], 0.0), h))``, the
+    rows' pair codes (engine.contact.topology._pair_codes_abs), then, when
+    they are one pair: its bodies a, b, static index, the rows' points in
+    body a's frame at the start pose (x (n, 3), R0 (n, 3, 3); einsum
+    "ki,ij->kj" of point - x[a] and R0[a], summed (p0 + p1) + p2 as
+    engine.ccd_gap.gap does), their feature ids sorted and distinct, and
+    whether the pair's ids name material features
+    (engine.ccd_kept._stable_features over the bodies' ``shape`` and the
+    statics' ``static_shape`` codes).  Returns (j, t, codes, lone, a, b,
+    sidx, loc, fids, stable); with ``lone`` False only j, t and the codes
+    are set (tests/test_ccd_event_path.py)."""
+    k = rows.shape[0]
+    n = x.shape[0]
+    j = -1
+    for i in range(k):  # np.argmin: the first NaN, else the first least
+        if math.isnan(tau[i]):
+            j = i
+            break
+    if j < 0:
+        j = 0
+        for i in range(1, k):
+            if tau[i] < tau[j]:
+                j = i
+    t = tau[j]
+    if 0.0 > t:  # max(t, 0.0), then min(t, h), as Python's builtins
+        t = 0.0
+    if h < t:
+        t = h
+    codes = np.empty(k, np.int64)
+    lone = True
+    for i in range(k):
+        r = rows[i]
+        codes[i] = (ca[r] * (n + 1) + cb[r]) * (n_statics + 1) + (csidx[r] + 1)
+        lone &= codes[i] == codes[0]
+    loc = np.empty((k if lone else 0, 3))
+    if not lone:
+        return j, t, codes, False, -1, -1, -1, loc, np.empty(0, np.int64), False
+    r = rows[j]
+    a, b, sidx = ca[r], cb[r], csidx[r]
+    for i in range(k):
+        r = rows[i]
+        d0, d1, d2 = point[r, 0] - x[a, 0], point[r, 1] - x[a, 1], point[r, 2] - x[a, 2]
+        for c in range(3):
+            loc[i, c] = (d0 * R0[a, 0, c] + d1 * R0[a, 1, c]) + d2 * R0[a, 2, c]
+    f = np.empty(k, np.int64)
+    for i in range(k):
+        f[i] = fid[rows[i]]
+    if shape[a] != BOX:
+        stable = True
+    elif b < n:
+        stable = shape[b] != BOX
+    else:
+        stable = static_shape[sidx] != 1  # engine.model.S_BOX
+    return j, t, codes, True, a, b, sidx, loc, np.unique(f), stable
+
+
 def warm_up() -> None:
     """Compile (or load) :func:`end_pose_candidates`,
-    :func:`missed_candidates` and :func:`missed_any` with the CCD stage's
-    argument types (engine/jit.py, through engine.ccd.warm_up)."""
+    :func:`missed_candidates`, :func:`missed_any` and :func:`lone_impact`
+    with the CCD stage's argument types (engine/jit.py, through
+    engine.ccd.warm_up)."""
     n = 2
     x = np.zeros((n, 3))
     x[1, 2] = 1.0
@@ -367,3 +431,4 @@ def warm_up() -> None:
         missed_any(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_), z, z, z, z, z, z, Pack(out),
                    col.packed(), col.margins, np.zeros(n), box.EDGE_FACE_POINTS, 1, k0, z, z, z, np.empty((n, 3, 3)),
                    1e-6, np.zeros(n, np.bool_))
+    lone_impact(i[:1], np.zeros(1), 0.01, i, i, i - 1, np.zeros((n, 3)), i, x, np.empty((n, 3, 3)), i, z, 1)

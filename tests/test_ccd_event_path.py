@@ -200,3 +200,68 @@ def test_the_end_pose_check_answers_none_in_one_call(monkeypatch):
     eng.step(47)
     assert eng.profile.as_dict()["counters"]["impacts"] >= 5
     assert calls["any"] >= 10 and calls["python"] == 0
+
+
+def _numpy_pick(rows, tau, h, ca, cb, csidx, point, fid, x, R0, shape, static_shape, n_statics):
+    """The CCD stage's pick of a lone impact as numpy computed it
+    (engine/ccd.py before ccd_end.lone_impact): the reference."""
+    from physbench.engine.model import BOX, S_BOX
+
+    n = x.shape[0]
+    j = int(np.argmin(tau))
+    t = float(min(max(tau[j], 0.0), h))
+    code = (ca[rows] * (n + 1) + cb[rows]) * (n_statics + 1) + (csidx[rows] + 1)
+    if not (rows.size == 1 or code.min() == code.max()):
+        return j, t, code, False, None
+    k = int(rows[j])
+    a, b, sidx = int(ca[k]), int(cb[k]), int(csidx[k])
+    loc = np.einsum("ki,ij->kj", point[rows] - x[a], R0[a])
+    stable = shape[a] != BOX or (shape[b] != BOX if b < n else static_shape[sidx] != S_BOX)
+    fids = np.array(sorted(set(fid[rows].tolist())), np.int64) if stable else None
+    return j, t, code, True, (a, b, sidx, loc, fids)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_the_lone_impact_pick_is_the_numpy_pick(seed):
+    """ccd_end.lone_impact (one compiled call) gives the numpy form's
+    earliest row, time (clipped to [0, h], NaN kept), pair codes, and for
+    one pair its bodies, body-frame points and followed feature ids, bit
+    for bit: lone and mixed pairs, boxes and round shapes, statics."""
+    from physbench.engine import ccd_end
+
+    rng = np.random.default_rng(seed)
+    n, n_statics, m = 4, 2, 9
+    shape = rng.integers(0, 4, n).astype(np.int64)
+    static_shape = rng.integers(0, 2, n_statics).astype(np.int64)
+    x = rng.standard_normal((n, 3))
+    q = rng.standard_normal((n, 4))
+    from physbench.engine.mathutil import quat_to_matrix
+
+    R0 = quat_to_matrix(q / np.linalg.norm(q, axis=1)[:, None])
+    a0 = int(rng.integers(0, n))
+    static = bool(rng.integers(0, 2))
+    ca = np.full(m, a0, np.int64)
+    cb = np.full(m, n if static else (a0 + 1) % n, np.int64)
+    csidx = np.full(m, int(rng.integers(0, n_statics)) if static else -1, np.int64)
+    if seed % 3 == 0:  # another pair among the rows
+        cb[::2] = (a0 + 2) % n
+        csidx[::2] = -1
+    point = x[a0] + rng.standard_normal((m, 3))
+    fid = rng.integers(0, 5, m).astype(np.int64)
+    rows = np.sort(rng.choice(m, int(rng.integers(1, 5)), replace=False)).astype(np.int64)
+    h = 0.01
+    tau = h * rng.uniform(-0.5, 1.5, rows.size)
+    if seed % 5 == 1:
+        tau[-1] = np.nan
+    got = ccd_end.lone_impact(rows, tau, h, ca, cb, csidx, point, fid, x, R0, shape, static_shape, n_statics)
+    want = _numpy_pick(rows, tau, h, ca, cb, csidx, point, fid, x, R0, shape, static_shape, n_statics)
+    j, t, code, lone, a, b, sidx, loc, fids, stable = got
+    assert (int(j), np.array(float(t)).tobytes(), lone) == (want[0], np.array(want[1]).tobytes(), want[3])
+    assert np.array_equal(code, want[2])
+    if lone:
+        wa, wb, ws, wloc, wfids = want[4]
+        assert (int(a), int(b), int(sidx)) == (wa, wb, ws)
+        assert np.array_equal(loc, wloc)
+        assert (wfids is None) == (not stable)
+        if stable:
+            assert np.array_equal(fids, wfids)
