@@ -265,3 +265,28 @@ def test_the_lone_impact_pick_is_the_numpy_pick(seed):
         assert (wfids is None) == (not stable)
         if stable:
             assert np.array_equal(fids, wfids)
+
+
+def test_the_impact_stages_small_kernels_are_the_numpy_forms():
+    """impact.pair_codes, touching_count and all_positive (compiled) give
+    what engine.contact.topology._pair_codes_abs, np.flatnonzero(gap <=
+    tol).size and np.all(e > 0.0) give, NaN included."""
+    from types import SimpleNamespace
+
+    from physbench.engine.contact.topology import _pair_codes_abs
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        m, n, ns = int(rng.integers(0, 9)), int(rng.integers(1, 50)), int(rng.integers(0, 5))
+        a = rng.integers(0, n, m).astype(np.int64)
+        b = rng.integers(0, n + 1, m).astype(np.int64)
+        s = rng.integers(-1, ns, m).astype(np.int64)
+        want = _pair_codes_abs(SimpleNamespace(n=n, n_statics=ns), a, b, s)
+        assert np.array_equal(impact.pair_codes(a, b, s, n, ns), want)
+        gap = rng.uniform(-1e-6, 1e-6, m)
+        e = rng.choice([-0.5, 0.0, 0.3, np.nan, 1.0], m)
+        if m:
+            gap[0] = np.nan
+        assert impact.touching_count(gap, 1e-7) == np.flatnonzero(gap <= 1e-7).size
+        assert impact.all_positive(e) == bool(np.all(e > 0.0))
+        assert impact.all_positive(np.abs(e) + 0.1) == bool(np.all(np.abs(e) + 0.1 > 0.0))

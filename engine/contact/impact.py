@@ -58,7 +58,7 @@ class ImpactKept:
         return self._inv_I
 
     def topology(self, model, c: Contacts, friction: bool, colour: bool) -> Topology:
-        return self._topology((_pair_codes(model, c).tobytes(), friction, colour), model, c, friction, colour)
+        return self._topology((_codes(model, c), friction, colour), model, c, friction, colour)
 
     def _topology(self, key: tuple, model, c: Contacts, friction: bool, colour: bool) -> Topology:
         topo = self.topos.get(key)
@@ -75,7 +75,7 @@ class ImpactKept:
         :class:`ImpactTopo`), kept per contact set.  The patches' friction
         coefficients are set as :class:`Rows` sets them (its
         ``_patches``: from each patch's first row)."""
-        key = (_pair_codes(model, c).tobytes(), friction, False)
+        key = (_codes(model, c), friction, False)
         got = self._topo_args.get(key)
         if got is not None and self.topos.get(key) is got[0]:
             return got
@@ -160,13 +160,13 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     (:func:`impact_kernel`; the bits of the path without ``kept``:
     tests/test_ccd_event_path.py).
     """
-    sel = np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL)
-    if sel.size == 0:
+    k = touching_count(contacts.gap, 10 * TOUCH_TOL)
+    if k == 0:
         return 0
     # (all of them, the common case: the contacts themselves, read only)
-    cs = contacts if sel.size == contacts.m else contacts.take(sel)
+    cs = contacts if k == contacts.m else contacts.take(np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL))
     # (every row bouncing, the common case of billiards: no plastic island)
-    together = _plastic_islands(model, cs) if plastic == "simultaneous" and not np.all(cs.e > 0.0) else None
+    together = _plastic_islands(model, cs) if plastic == "simultaneous" and not all_positive(cs.e) else None
     if kept is not None and (together is None or not together.any()):
         m = _propagate_kept(model, state, cs, thr, friction, kept)
         if m is not None:
@@ -192,6 +192,43 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     state.v[:] = U[:n, :3]
     state.w[:] = U[:n, 3:]
     return m
+
+
+def _codes(model, c: Contacts) -> bytes:
+    """The contacts' pair codes (engine.contact.topology._pair_codes, the
+    same int64 values) as bytes: a contact set's key."""
+    return pair_codes(c.a, c.b, c.sidx, model.n, model.n_statics).tobytes()
+
+
+@njit(cache=True)
+def pair_codes(a, b, sidx, n, n_statics):
+    """(a (n + 1) + b) (n_statics + 1) + sidx + 1 per contact (a, b, sidx
+    (m,)): engine.contact.topology._pair_codes_abs in one compiled call."""
+    out = np.empty(a.shape[0], np.int64)
+    for i in range(a.shape[0]):
+        out[i] = (a[i] * (n + 1) + b[i]) * (n_statics + 1) + (sidx[i] + 1)
+    return out
+
+
+@njit(cache=True)
+def touching_count(gap, tol):
+    """How many of the gaps (m,) are <= tol: the size of
+    np.flatnonzero(gap <= tol), in one compiled call."""
+    k = 0
+    for g in gap:
+        if g <= tol:
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def all_positive(e):
+    """np.all(e > 0.0) for the coefficients of restitution e (m,) (NaN is
+    not > 0), in one compiled call."""
+    for v in e:
+        if not v > 0.0:
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -405,14 +442,18 @@ _NO_R = np.zeros((0, 3, 3))
 
 def warm_up() -> None:
     """Compile (or load) the propagation kernel, the contact bodies'
-    inertias and :func:`impact_kernel` with the step's argument types (see
-    engine/jit.py): one pair of two rows, with and without friction; and
-    the topology's kernel (engine/contact/topology.py)."""
-    _warm_impact_kernel()
+    inertias, :func:`impact_kernel` and the stage's small kernels with the
+    step's argument types (see engine/jit.py): one pair of two rows, with
+    and without friction; and the topology's kernel
+    (engine/contact/topology.py)."""
     from physbench.engine.contact import topology
 
     topology.warm_up()
+    _warm_impact_kernel()
     i1 = np.zeros(1, np.int64)
+    touching_count(np.zeros(1), 1e-8)
+    pair_codes(i1, i1 + 1, i1 - 1, 1, 1)
+    all_positive(np.ones(1))
     propagate.setup(np.array([5, 5], np.int64), np.array([[0, 1], [0, 1]], np.int64), 1, np.ones((2, 12)),
                     np.zeros((2, 6)))
     contact_inertias(np.array([[1.0, 0.0, 0.0, 0.0]]), np.ones((1, 3)), i1, i1 + 1, np.empty((2, 3, 3)))
