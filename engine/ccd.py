@@ -120,7 +120,9 @@ class CCD(Stage):
                 g.static_shape, model.n_statics)
             j, t = int(j), float(t)
             if lone:
-                pairs.append(ImpactPair(int(a), int(b), int(sidx), loc, fids if stable else None, False, None))
+                a, b, sidx = int(a), int(b), int(sidx)
+                pairs.append(ImpactPair(a, b, sidx, loc, _follow_fids(model, a, b, sidx, fids, bool(stable)), False,
+                                        None))
                 firsts = ()
             else:
                 of = _Groups(code)  # the code names the pair (a, b, sidx)
@@ -151,10 +153,14 @@ class CCD(Stage):
 
 
 
-def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
+def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray, stable: bool | None = None) -> np.ndarray | None:
     """The feature ids a search follows besides the points (see
     :func:`pair_gap`): ``fid`` where the pair's ids name material
-    features (:func:`_stable_features`), else None."""
+    features (:func:`_stable_features`), else None.  ``stable``: whether
+    they do, when known (ccd_end.lone_impact's answer; ``fid`` then sorted
+    and distinct already)."""
+    if stable is not None:
+        return fid if stable else None
     if not _stable_features(model, a, b, sidx):
         return None
     # np.unique(fid) of a pair's few ids (sorted distinct int64), without
