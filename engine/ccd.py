@@ -40,12 +40,14 @@ from __future__ import annotations
 import numpy as np
 
 from physbench.engine import flight
-from physbench.engine.collision import collide_pairs
+from physbench.engine.collision import box, collide_pairs
 from physbench.engine.collision.dispatch import static_row
-from physbench.engine.ccd_end import FeatureContacts, missed_candidates
-from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes, _geometry,
-                             _geometry_kept, _member, _pair_query, _rotations, _stable_features, end_pose_pairs)
-from physbench.engine.ccd_gap import NO_FID, NO_P3, gap as _gap
+from physbench.engine.ccd_end import (FeatureContacts, lone_impact as _lone_impact, missed_any as _missed_any,
+                                      missed_candidates)
+from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_FAST, _NO_I, _Groups, _cand_buffer, _collider, _drop_codes,
+                                       _geometry, _geometry_kept, _member, _pair_query, _rotations, _stable_features,
+                                       end_pose_pairs)
+from physbench.engine.ccd_gap import NO_FID, NO_P3, collide_gap as _collide_gap, gap as _gap
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
 from physbench.engine.control import Event, EventMode, ImpactPair, TimeOfImpact
@@ -83,10 +85,12 @@ class CCD(Stage):
         """At build (engine.pipeline.prepare): what the stage and the
         search keep in the context, made now instead of at the first
         event -- the collider of the CCD and impact collisions and its
-        Pack, the model's geometry, the rotations' buffer, the candidate
-        flags, the gap's work rows, the reruns' stage list."""
+        Pack, the model's geometry, the end-pose check's buffers' Pack, the
+        rotations' buffer, the candidate flags, the gap's work rows, the
+        reruns' stage list."""
         _collider(model, ctx).packed()
         _geometry_kept(model, ctx)
+        ctx.end_pose_kept(0)
         _rotations(ctx, state.q)
         _cand_buffer(ctx, 16)
         _gap_work(ctx, 8)
@@ -102,17 +106,24 @@ class CCD(Stage):
         t = ctx.h
         if ctx.impacts is not None:
             idx, tau = ctx.impacts.rows, ctx.impacts.tau
-            j = int(np.argmin(tau))
             c = ctx.contacts
-            t = float(min(max(tau[j], 0.0), ctx.h))
-            # the impact points of each pair, in body a's frame: the
-            # refinement follows them, not the pair's deepest point (which
-            # may be another end of the body, already touching or resting
-            # within the slop)
-            code = _pair_codes_abs(model, c.a[idx], c.b[idx], c.sidx[idx])
-            if code.min() == code.max():
-                # one pair (a lone impact): its rows are all of them, in order
-                firsts, of = [j], lambda u: slice(None)
+            g = _geometry(model, ctx)
+            # the earliest row j, its time, the rows' pair codes and, when
+            # they are one pair (a lone impact: its rows are all of them,
+            # in order), its impact points in body a's frame and feature
+            # ids to follow: one compiled call.  The impact points of each
+            # pair, in body a's frame: the refinement follows them, not
+            # the pair's deepest point (which may be another end of the
+            # body, already touching or resting within the slop)
+            j, t, code, lone, a, b, sidx, loc, fids, stable = _lone_impact(
+                idx, tau, float(ctx.h), c.a, c.b, c.sidx, c.point, c.fid, state.x, ctx.R0, g.shapes.shape,
+                g.static_shape, model.n_statics)
+            j, t = int(j), float(t)
+            if lone:
+                a, b, sidx = int(a), int(b), int(sidx)
+                pairs.append(ImpactPair(a, b, sidx, loc, _follow_fids(model, a, b, sidx, fids, bool(stable)), False,
+                                        None))
+                firsts = ()
             else:
                 of = _Groups(code)  # the code names the pair (a, b, sidx)
                 firsts = [j] + [i for i in np.unique(code, return_index=True)[1] if code[i] != code[j]]
@@ -142,10 +153,14 @@ class CCD(Stage):
 
 
 
-def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray) -> np.ndarray | None:
+def _follow_fids(model, a: int, b: int, sidx: int, fid: np.ndarray, stable: bool | None = None) -> np.ndarray | None:
     """The feature ids a search follows besides the points (see
     :func:`pair_gap`): ``fid`` where the pair's ids name material
-    features (:func:`_stable_features`), else None."""
+    features (:func:`_stable_features`), else None.  ``stable``: whether
+    they do, when known (ccd_end.lone_impact's answer; ``fid`` then sorted
+    and distinct already)."""
+    if stable is not None:
+        return fid if stable else None
     if not _stable_features(model, a, b, sidx):
         return None
     # np.unique(fid) of a pair's few ids (sorted distinct int64), without
@@ -177,6 +192,22 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     or None: only pairs with a body where it is True are checked."""
     slop = float(model.settings["correction_slop"])
     lim = slop + MISS_TOL
+    # the common answer (no contact of the end pose can be one) from one
+    # compiled call (ccd_end.missed_any); else the decision below, from
+    # the start
+    pi, pj = ctx.pairs_i, ctx.pairs_j
+    bp, pk = ctx.plane_pairs
+    bs, sk = ctx.sbox_pairs
+    kout = ctx.end_pose_kept(max(pi.size, bp.size, bs.size))[1]
+    col = _collider(model, ctx)
+    k0 = ctx.contacts if ctx.contacts is not None and ctx.contacts.m > 0 else _NO_CONTACTS
+    if not _missed_any(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
+                       _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, kout, col.packed(), col.margins,
+                       ctx.no_sweep, box.EDGE_FACE_POINTS, model.n_statics,
+                       FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
+                       ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),
+                       _drop_codes(ctx), ctx.R0, TOUCH_TOL, _cand_buffer(ctx, 0)):
+        return []
     moved = end_pose_pairs(model, state, ctx, lim, fast)
     if moved is None:
         return []
@@ -332,19 +363,30 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
     (:func:`_pairs_contacts`)."""
     R1 = _rotations(ctx, ctx.q1)
     c = contacts
+    tol = 0.1 * float(model.bound_radius[a]) + 1e-4
+    loc = NO_P3 if loc is None else loc
+    exclude = NO_P3 if exclude is None else exclude
+    fids = NO_FID if fids is None else fids
     if c is None:
         # pair_contacts' collision of the pair (no margin), its arguments
         # kept per pair in the context (a search calls this at every
-        # iterate)
+        # iterate): with the gap, one compiled call while the collider's
+        # and the gap's buffers hold it (ccd_gap.collide_gap), else the
+        # collider's run (which grows them) and the gap's call
         pi, pj, planes, sboxes, margins = _pair_query(model, ctx, a, b, sidx)
-        c = _collider(model, ctx).run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
+        col = _collider(model, ctx)
+        wk = ctx.ccd.gap_work
+        if wk is not None:
+            done, g, vn = _collide_gap(col.packed(), ctx.x1, R1, pi, pj, margins, planes[0], planes[1], sboxes[0],
+                                       sboxes[1], col.W.gm, box.EDGE_FACE_POINTS, ctx.v, ctx.w, a, tol, loc, exclude,
+                                       fids, wk)
+            if done:
+                return g, vn
+        c = col.run(ctx.x1, R1, pi, pj, planes, sboxes, margins)
     if c.m == 0:
         return np.inf, 0.0
-    wk = _gap_work(ctx, c.m)
-    tol = 0.1 * float(model.bound_radius[a]) + 1e-4
-    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, a, tol,
-                NO_P3 if loc is None else loc, NO_P3 if exclude is None else exclude, NO_FID if fids is None else fids,
-                wk)
+    return _gap(c.point, c.gap, c.fid, c.a, c.b, c.normal, ctx.x1, R1[a], ctx.v, ctx.w, a, tol, loc, exclude, fids,
+                _gap_work(ctx, c.m))
 
 
 def _gap_work(ctx, m: int) -> np.ndarray:

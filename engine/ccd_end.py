@@ -25,6 +25,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from physbench.engine.collision.collide import collide_packed
 from physbench.engine.flight import end_pose_pairs
 from physbench.engine.geometry import EndPose, Geometry, Pairs, Shapes, Statics
 
@@ -283,10 +284,115 @@ def missed_candidates(n_statics, end, start, imp_rows, skip, drop, x1, R1, x0, R
     return found
 
 
+@njit(cache=True)
+def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout, kcol, margins, no_sweep,
+               face_points, n_statics, start, imp_rows, skip, drop, R0, touch_tol, cand):
+    """Whether the CCD stage's end-pose check (engine/ccd.py
+    ``missed_impacts``) may find a missed impact, in one call:
+    :func:`end_pose_call` (its arguments, up to ``kout``), the collision
+    of the moved pairs at the end pose with the margin -``lim`` into the
+    collider's buffers ``kcol`` (its Pack, engine.collision.dispatch.
+    Collider.packed; ``margins`` its margin rows, ``no_sweep`` (n,) zeros,
+    ``face_points`` engine.collision.box.EDGE_FACE_POINTS), as
+    Collider.run makes it, then :func:`missed_candidates` over those
+    contacts (the rest its arguments).  Returns 0 when no contact can be
+    one (nothing moved, no contact, no candidate: no missed impact), else
+    the candidates' count, or -1 when a buffer (the collider's, ``cand``)
+    is short: either way the caller's Python path then decides, from the
+    start (the same arithmetic: tests/test_ccd_end_clear.py)."""
+    nb, npl, ns = end_pose_call(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pi, pj, bp, pk, bs, sk, kout)
+    if nb + npl + ns == 0:
+        return 0
+    out = kout.items
+    col = kcol.items
+    if col.W.perm.shape[0] < max(nb, npl, ns):
+        return -1
+    R1 = out.R1
+    cnt, need_k, need_s = collide_packed(kcol, x1, R1, out.ci[:nb], out.cj[:nb], margins, out.cbp[:npl],
+                                         out.cpk[:npl], out.cbs[:ns], out.csk[:ns], bool(True), -lim, no_sweep,
+                                         face_points)
+    if need_k > col.A.c.shape[0] or need_s > col.slot.g.shape[0] or cnt > col.out.a.shape[0]:
+        return -1
+    if cnt == 0:
+        return 0
+    if cand.shape[0] < cnt:
+        return -1
+    o = col.out
+    g = kgeo.items
+    return missed_candidates(n_statics, FeatureContacts(a=o.a[:cnt], b=o.b[:cnt], sidx=o.sidx[:cnt], gap=o.gap[:cnt],
+                                                        point=o.point[:cnt], fid=o.fid[:cnt]),
+                             start, imp_rows, skip, drop, x1, R1, x0, R0, g.shapes, g.static_shape, touch_tol, lim,
+                             cand)
+
+
+@njit(cache=True)
+def lone_impact(rows, tau, h, ca, cb, csidx, point, fid, x, R0, shape, static_shape, n_statics):
+    """The CCD stage's pick of the earliest impact (engine/ccd.py
+    ``CCD.__call__``) when the step's impact rows ``rows`` (k,) (into the
+    contacts ``ca``, ``cb``, ``csidx``, ``point`` (m, 3), ``fid``) are of
+    one pair (a lone impact), as the numpy form computes it: the earliest
+    row ``j`` (np.argmin of the first time estimates ``tau`` (k,) s), its
+    time clipped to [0, ``h``] as ``float(min(max(tau[j], 0.0), h))``, the
+    rows' pair codes (engine.contact.topology._pair_codes_abs), then, when
+    they are one pair: its bodies a, b, static index, the rows' points in
+    body a's frame at the start pose (x (n, 3), R0 (n, 3, 3); einsum
+    "ki,ij->kj" of point - x[a] and R0[a], summed (p0 + p1) + p2 as
+    engine.ccd_gap.gap does), their feature ids sorted and distinct, and
+    whether the pair's ids name material features
+    (engine.ccd_kept._stable_features over the bodies' ``shape`` and the
+    statics' ``static_shape`` codes).  Returns (j, t, codes, lone, a, b,
+    sidx, loc, fids, stable); with ``lone`` False only j, t and the codes
+    are set (tests/test_ccd_event_path.py)."""
+    k = rows.shape[0]
+    n = x.shape[0]
+    j = -1
+    for i in range(k):  # np.argmin: the first NaN, else the first least
+        if math.isnan(tau[i]):
+            j = i
+            break
+    if j < 0:
+        j = 0
+        for i in range(1, k):
+            if tau[i] < tau[j]:
+                j = i
+    t = tau[j]
+    if 0.0 > t:  # max(t, 0.0), then min(t, h), as Python's builtins
+        t = 0.0
+    if h < t:
+        t = h
+    codes = np.empty(k, np.int64)
+    lone = True
+    for i in range(k):
+        r = rows[i]
+        codes[i] = (ca[r] * (n + 1) + cb[r]) * (n_statics + 1) + (csidx[r] + 1)
+        lone &= codes[i] == codes[0]
+    loc = np.empty((k if lone else 0, 3))
+    if not lone:
+        return j, t, codes, False, -1, -1, -1, loc, np.empty(0, np.int64), False
+    r = rows[j]
+    a, b, sidx = ca[r], cb[r], csidx[r]
+    for i in range(k):
+        r = rows[i]
+        d0, d1, d2 = point[r, 0] - x[a, 0], point[r, 1] - x[a, 1], point[r, 2] - x[a, 2]
+        for c in range(3):
+            loc[i, c] = (d0 * R0[a, 0, c] + d1 * R0[a, 1, c]) + d2 * R0[a, 2, c]
+    f = np.empty(k, np.int64)
+    for i in range(k):
+        f[i] = fid[rows[i]]
+    if shape[a] != BOX:
+        stable = True
+    elif b < n:
+        stable = shape[b] != BOX
+    else:
+        stable = static_shape[sidx] != 1  # engine.model.S_BOX
+    return j, t, codes, True, a, b, sidx, loc, np.unique(f), stable
+
+
 def warm_up() -> None:
-    """Compile (or load) :func:`end_pose_candidates` and
-    :func:`missed_candidates` with the CCD stage's argument types
-    (engine/jit.py, through engine.ccd.warm_up)."""
+    """Compile (or load) :func:`end_pose_candidates`,
+    :func:`missed_candidates`, :func:`missed_any` and :func:`lone_impact`
+    with the CCD stage's argument types (engine/jit.py, through
+    engine.ccd.warm_up)."""
     n = 2
     x = np.zeros((n, 3))
     x[1, 2] = 1.0
@@ -316,3 +422,13 @@ def warm_up() -> None:
                       Shapes(shape=np.array([0, 1], np.int64), radius=one, half=np.ones((n, 3)), half_length=one,
                              bound_radius=one),
                       np.zeros(1, np.int64), 1e-6, 3e-4, np.zeros(n, np.bool_))
+    from physbench.engine.ccd_gap import warm_collider
+    from physbench.engine.collision import box
+
+    col = warm_collider()
+    k0 = FeatureContacts(a=z, b=z, sidx=z, gap=np.zeros(0), point=np.zeros((0, 3)), fid=z)
+    for has_fast in (False, True):  # (no pair: compiled whole, run to its first return)
+        missed_any(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_), z, z, z, z, z, z, Pack(out),
+                   col.packed(), col.margins, np.zeros(n), box.EDGE_FACE_POINTS, 1, k0, z, z, z, np.empty((n, 3, 3)),
+                   1e-6, np.zeros(n, np.bool_))
+    lone_impact(i[:1], np.zeros(1), 0.01, i, i, i - 1, np.zeros((n, 3)), i, x, np.empty((n, 3, 3)), i, z, 1)

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from physbench.engine.collision.collide import collide_packed
+
 #: no points to follow or leave out; no feature ids
 NO_P3 = np.zeros((0, 3))
 NO_FID = np.zeros(0, np.int64)
@@ -93,9 +95,65 @@ def gap(point, gap, fid, ca, cb, normal, x1, R, V, W, a, tol, loc, excl, fids, w
     return gap[k], (r0 * normal[k, 0] + r2 * normal[k, 2]) + r1 * normal[k, 1]
 
 
+@njit(cache=True)
+def collide_gap(kept, X, R1, pi, pj, margins, bp, pk, bs, sk, sweep, face_points, V, W, a, tol, loc, excl, fids, wk):
+    """The followed pair's contacts and :func:`gap` over them in one call
+    (engine/ccd.py ``pair_gap``): the collision of the pair (pi, pj, bp,
+    pk, bs, sk: one pair, its ``margins``) at the end pose (X (n, 3), R1
+    (n, 3, 3)) into the collider's buffers ``kept`` (its Pack,
+    engine.collision.dispatch.Collider.packed), as Collider.run makes it
+    (``sweep`` the collider's margin work row, ``face_points``
+    engine.collision.box.EDGE_FACE_POINTS), then the gap of body ``a``'s
+    contacts as :func:`gap` (the rest its arguments).  Returns (done, gap,
+    normal speed); done False when a buffer was short (the collider grows
+    it in Collider.run, which the caller then runs: the same contacts)."""
+    cnt, need_k, need_s = collide_packed(kept, X, R1, pi, pj, margins, bp, pk, bs, sk, bool(False), float(0.0), sweep,
+                                         face_points)
+    b = kept.items
+    if need_k > b.A.c.shape[0] or need_s > b.slot.g.shape[0] or cnt > b.out.a.shape[0] or cnt > wk.shape[0]:
+        return False, np.inf, 0.0
+    if cnt == 0:
+        return True, np.inf, 0.0
+    o = b.out
+    g, vn = gap(o.point[:cnt], o.gap[:cnt], o.fid[:cnt], o.a[:cnt], o.b[:cnt], o.normal[:cnt], X, R1[a], V, W, a, tol,
+                loc, excl, fids, wk)
+    return True, g, vn
+
+
 def warm_up() -> None:
-    """Compile (or load) :func:`gap` with the step's argument types (see
-    engine/jit.py)."""
+    """Compile (or load) :func:`gap` and :func:`collide_gap` with the
+    step's argument types (see engine/jit.py): the latter into a collider
+    of a sphere and a plane, its families' table all missing (the driver's
+    type is the same for every scene; no family is compiled here)."""
+    from physbench.engine.collision import box
+
     z3, i1 = np.ones((1, 3)), np.zeros(1, np.int64)
     V = np.zeros((2, 3))
     gap(z3, np.ones(1), i1, i1, i1 + 1, z3, z3, np.eye(3), V, V, 0, 0.1, z3, z3, i1, np.empty((1, 5)))
+    col = warm_collider()
+    z = np.zeros(0, np.int64)
+    inf = np.array([np.inf])
+    collide_gap(col.packed(), np.zeros((1, 3)), np.eye(3)[None].copy(), z, z, (inf, inf.copy(), inf.copy()), z, z, z, z,
+                col.W.gm, box.EDGE_FACE_POINTS, V, V, 0, 0.1, NO_P3, NO_P3, NO_FID, np.empty((1, 5)))
+
+
+def warm_collider():
+    """A collider (engine.collision.dispatch.Collider) of one sphere and a
+    plane with every family missing from its table: what the warm-ups of
+    the compiled callers of the narrow phase's driver collide into (the
+    driver's type is the same for every scene; no family compiles)."""
+    from types import SimpleNamespace
+
+    from physbench.engine.collision.collide import N_FAMILIES
+    from physbench.engine.collision.dispatch import Collider
+
+    model = SimpleNamespace(
+        n=1, shape=np.zeros(1, np.int64), radius=np.full(1, 0.1), half_extents=np.full((1, 3), 0.1),
+        half_length=np.full(1, 0.1), body_material=np.zeros(1, np.int64), plane_normal=np.array([[0.0, 0.0, 1.0]]),
+        plane_offset=np.zeros(1), plane_static=np.zeros(1, np.int64), sbox_pos=np.zeros((0, 3)),
+        sbox_R=np.zeros((0, 3, 3)), sbox_half=np.zeros((0, 3)), sbox_static=np.zeros(0, np.int64),
+        static_material=np.zeros(1, np.int64), pair_e=np.zeros((1, 1)), pair_mus=np.zeros((1, 1)),
+        pair_muk=np.zeros((1, 1)), pair_mur=np.zeros((1, 1)))
+    col = Collider(model, pairs=1, contacts=1)
+    col.fams = (False,) * N_FAMILIES
+    return col

@@ -301,10 +301,12 @@ def _same(r1, r2):
                                   "missed_impact_of_an_impact_pair", "missed_impact_onto_touching_box",
                                   "impact_segment_slides_onto_box", "spheres_landing"])
 def test_missed_candidates_keep_every_missed_impact(monkeypatch, case):
-    """The compiled pre-selection (ccd_end.missed_candidates) lets the
-    Python rule of ccd.missed_impacts run over its candidate pairs only: at
-    every call, the result equals the rule's over every pair (the
-    candidates all True), and missed impacts are found."""
+    """The compiled pre-selection (ccd_end.missed_candidates, and before it
+    ccd_end.missed_any, the same check in one call answering "none") lets
+    the Python rule of ccd.missed_impacts run over its candidate pairs
+    only: at every call, the result equals the rule's over every pair (no
+    compiled answer, the candidates all True), and missed impacts are
+    found."""
     from physbench.harness import bench
 
     if case == "spheres_landing":
@@ -323,6 +325,7 @@ def test_missed_candidates_keep_every_missed_impact(monkeypatch, case):
 
     def spy(model, state, ctx, skip, fast=None):
         with monkeypatch.context() as mp:
+            mp.setattr(ccd, "_missed_any", lambda *a: -1)
             mp.setattr(ccd, "missed_candidates", every)
             ref = real(model, state, ctx, skip, fast)
         out = real(model, state, ctx, skip, fast)

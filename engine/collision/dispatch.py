@@ -71,6 +71,7 @@ class Collider:
         #: the families compiled for the driver (collide.families: the
         #: scene's shapes; the others raise, collide.family_table)
         self.fams = families(model.shape)
+        self._table = None  # (fams, family_table(fams)): :meth:`packed`
         self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
@@ -99,7 +100,10 @@ class Collider:
 
     def packed(self):
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
-        fams = family_table(self.fams)
+        kt = self._table
+        if kt is None or kt[0] is not self.fams:  # (the families' table, looked up once per ``fams``)
+            kt = self._table = (self.fams, family_table(self.fams))
+        fams = kt[1]
         return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
                               self.slot, self.out, fams), lambda: narrow_pack(
                                   body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,

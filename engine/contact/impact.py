@@ -5,13 +5,16 @@ island (:func:`impact_solve`)."""
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
-from physbench.engine.contact import linalg, propagate
-from physbench.engine.contact.packs import ImpactGroups, ImpactPatches, ImpactRows
+from physbench.engine.contact import linalg, prepare, propagate
+from physbench.engine.contact.packs import (Bodies, ContactArrays, ImpactGroups, ImpactPatches, ImpactRows, PatchSet,
+                                            RowArrays)
 from physbench.engine.flight import q2m
-from physbench.engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes
+from physbench.engine.contact.rows import TOUCH_TOL, Rows, _pad, _pair_codes, _take_rows
 from physbench.engine.contact.scratch import Scratch
 from physbench.engine.contact.topology import Topology
 from physbench.engine.state import Contacts
@@ -33,6 +36,13 @@ class ImpactKept:
         self.scratch = Scratch()
         self.topos: dict = {}
         self._Iinv = self._inv_I = None
+        #: the compiled path's (:func:`impact_kernel`) topology arrays per
+        #: topology key (an :class:`ImpactTopo`, emptied with ``topos``),
+        #: its work arrays (the row views they were made of, an
+        #: :class:`ImpactWork`) and its velocities U (n+1, 6)
+        self._topo_args: dict = {}
+        self._work = None
+        self._U = None
 
     def inertia(self, n: int) -> np.ndarray:
         """A kept (n+1, 3, 3) buffer for the world inverse inertias."""
@@ -48,13 +58,71 @@ class ImpactKept:
         return self._inv_I
 
     def topology(self, model, c: Contacts, friction: bool, colour: bool) -> Topology:
-        key = (_pair_codes(model, c).tobytes(), friction, colour)
+        return self._topology((_codes(model, c), friction, colour), model, c, friction, colour)
+
+    def _topology(self, key: tuple, model, c: Contacts, friction: bool, colour: bool) -> Topology:
         topo = self.topos.get(key)
         if topo is None:
             if len(self.topos) >= self.MAX_TOPOLOGIES:
                 self.topos.clear()
+                self._topo_args.clear()
             topo = self.topos[key] = Topology(model, c.a, c.b, c.sidx, friction, colour)
         return topo
+
+    def impact_topology(self, model, c: Contacts, friction: bool, rolling: bool) -> tuple:
+        """(the propagation's uncoloured :class:`Topology` of the contacts
+        ``c``, its arrays as :func:`impact_kernel` reads them, an
+        :class:`ImpactTopo`), kept per contact set.  The patches' friction
+        coefficients are set as :class:`Rows` sets them (its
+        ``_patches``: from each patch's first row)."""
+        key = (_codes(model, c), friction, False)
+        got = self._topo_args.get(key)
+        if got is not None and self.topos.get(key) is got[0]:
+            return got
+        topo = self._topology(key, model, c, friction, False)
+        if friction:
+            if topo.mus is None:  # (Rows._patches' rule: the pair's coefficients, from its first row)
+                first = topo.order[topo.pfirst]
+                topo.mus = c.mus[first]
+                topo.muk = c.muk[first]
+                topo.mur = c.mur[first] if rolling else None
+            args = ImpactTopo(idx=topo.order, codes=topo.codes, ab=topo.ab, pid=topo.pid, pa=topo.pa, pb=topo.pb,
+                              cnt=topo.cnt, mus=topo.mus, muk=topo.muk,
+                              mur=topo.mur if rolling else np.zeros(topo.np))
+        else:
+            args = ImpactTopo(idx=topo.order, codes=topo.codes, ab=topo.ab, pid=_NO_I, pa=_NO_I, pb=_NO_I, cnt=_NO_D,
+                              mus=_NO_D, muk=_NO_D, mur=_NO_D)
+        got = self._topo_args[key] = (topo, args)
+        return got
+
+    def work(self, model, topo: Topology, friction: bool, rolling: bool) -> "ImpactWork":
+        """:func:`impact_kernel`'s work arrays for the rows of ``topo``: the
+        row arrays are the views :class:`Rows` takes from :attr:`scratch`
+        (the same group: a fallback Rows writes the same arrays), kept
+        while they stay."""
+        m = topo.order.size
+        npch = topo.np if friction else 0
+        nr = 5 if rolling else 3
+        sc = self.scratch
+        views = sc.group(("rows", m, npch, nr, friction), lambda: _take_rows(sc, m, npch, nr, friction))
+        w = self._work
+        if w is not None and w[0] is views:
+            return w[1]
+        J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu = views
+        if not friction:  # (Rows' empty patch arrays)
+            P = N = mt = lam_t = _NO_P3
+            rt = mu = _NO_D
+            t = _NO_T
+            Jt = Mt = _NO_J
+            slip = _NO_B
+        n = model.n
+        if self._U is None or self._U.shape[0] != n + 1:
+            self._U = np.empty((n + 1, 6))
+        work = ImpactWork(Iinv=self.inertia(n), inv_I=self.inv_inertia(model), inv_mass=model.inv_mass, R0=_NO_R,
+                          U=self._U, rows=RowArrays(J=J, M=M, mn=mn, loc=loc, lam_n=lam_n, target=target, P=P, N=N,
+                                                    rt=rt, t=t, Jt=Jt, Mt=Mt, mt=mt, lam_t=lam_t, slip=slip, mu=mu))
+        self._work = (views, work)
+        return work
 
 
 def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, friction: bool,
@@ -87,13 +155,22 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
       islands too.
 
     ``kept``: the stage's :class:`ImpactKept` (work arrays, topologies),
-    or None (fresh ones).
+    or None (fresh ones).  With ``kept`` and no plastic island, the
+    propagation and its set-up run as one compiled call
+    (:func:`impact_kernel`; the bits of the path without ``kept``:
+    tests/test_ccd_event_path.py).
     """
-    sel = np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL)
-    if sel.size == 0:
+    k = touching_count(contacts.gap, 10 * TOUCH_TOL)
+    if k == 0:
         return 0
     # (all of them, the common case: the contacts themselves, read only)
-    cs = contacts if sel.size == contacts.m else contacts.take(sel)
+    cs = contacts if k == contacts.m else contacts.take(np.flatnonzero(contacts.gap <= 10 * TOUCH_TOL))
+    # (every row bouncing, the common case of billiards: no plastic island)
+    together = _plastic_islands(model, cs) if plastic == "simultaneous" and not all_positive(cs.e) else None
+    if kept is not None and (together is None or not together.any()):
+        m = _propagate_kept(model, state, cs, thr, friction, kept)
+        if m is not None:
+            return m
     n = model.n
     # the world inverse inertias of the contacts' bodies only, the others
     # zero (an O(n) pass per impact at 10,000 bodies was ~2 ms): one
@@ -103,8 +180,6 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     inv_I = np.array(model.inv_inertia_body, float) if kept is None else kept.inv_inertia(model)
     contact_inertias(state.q, inv_I, cs.a, cs.b, Iinv)
     U = Rows.pack(_pad(state.v), _pad(state.w))
-    # (every row bouncing, the common case of billiards: no plastic island)
-    together = _plastic_islands(model, cs) if plastic == "simultaneous" and not np.all(cs.e > 0.0) else None
     m = 0
     if together is None or not together.any():
         m += _propagate(model, state.x, Iinv, cs, U, iterations, thr, friction, kept)
@@ -117,6 +192,43 @@ def impact_solve(model, state, contacts: Contacts, iterations: int, thr: float, 
     state.v[:] = U[:n, :3]
     state.w[:] = U[:n, 3:]
     return m
+
+
+def _codes(model, c: Contacts) -> bytes:
+    """The contacts' pair codes (engine.contact.topology._pair_codes, the
+    same int64 values) as bytes: a contact set's key."""
+    return pair_codes(c.a, c.b, c.sidx, model.n, model.n_statics).tobytes()
+
+
+@njit(cache=True)
+def pair_codes(a, b, sidx, n, n_statics):
+    """(a (n + 1) + b) (n_statics + 1) + sidx + 1 per contact (a, b, sidx
+    (m,)): engine.contact.topology._pair_codes_abs in one compiled call."""
+    out = np.empty(a.shape[0], np.int64)
+    for i in range(a.shape[0]):
+        out[i] = (a[i] * (n + 1) + b[i]) * (n_statics + 1) + (sidx[i] + 1)
+    return out
+
+
+@njit(cache=True)
+def touching_count(gap, tol):
+    """How many of the gaps (m,) are <= tol: the size of
+    np.flatnonzero(gap <= tol), in one compiled call."""
+    k = 0
+    for g in gap:
+        if g <= tol:
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def all_positive(e):
+    """np.all(e > 0.0) for the coefficients of restitution e (m,) (NaN is
+    not > 0), in one compiled call."""
+    for v in e:
+        if not v > 0.0:
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -195,19 +307,25 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
     else:
         rows = Rows(model, X, Iinv, cs, friction, colour=False, topo=kept.topology(model, cs, friction, False),
                     scratch=kept.scratch)
+    args = _propagation_args(rows, cs, U, thr, friction, n)
+    if not propagate.propagate(0, *args):
+        _pinned(model, X, Iinv, cs, U, iterations, thr, friction, rows, args)
+    propagate.propagate(1, *args)  # slow approaches stop (plastic)
+    return rows.m
+
+
+def _propagation_args(rows: Rows, cs: Contacts, U: np.ndarray, thr: float, friction: bool, n: int) -> tuple:
+    """:func:`engine.contact.propagate.propagate`'s arguments (all but its
+    mode) for the uncoloured ``rows`` of the contacts ``cs`` and the
+    velocities U (n+1, 6): the rows; the rows of each pair (ascending):
+    go[gs[g]:gs[g + 1]], inv the pair of each row; of each body:
+    bo[b0[k]:b0[k + 1]]; the normal speeds of all rows (kept current by the
+    compiled loop: a pair's impulses change only the rows of its two
+    bodies), from one compiled call; the friction patches."""
     # (uncoloured: the rows are the contacts in their order, and the
     # topology's codes theirs)
     code = rows.topo.codes
     ab = rows.topo.ab
-
-    def vn_all():
-        # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
-        return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
-
-    # the rows of each pair (ascending): go[gs[g]:gs[g + 1]], inv the pair
-    # of each row; of each body: bo[b0[k]:b0[k + 1]]; the normal speeds
-    # of all rows (kept current by the compiled loop: a pair's impulses
-    # change only the rows of its two bodies): one compiled call
     go, gs, inv, bo, b0, vcur = propagate.setup(code, ab, n, np.ascontiguousarray(rows.J), U)
     f = np.ascontiguousarray
     if friction:
@@ -218,35 +336,124 @@ def _propagate(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr
         nr = 3
         fr = ImpactPatches(Jt=np.zeros((0, nr, 12)), Mt=np.zeros((0, nr, 12)), mt=np.zeros((0, nr)), pa=_NO_I,
                            pb=_NO_I, mus=_NO_D, muk=_NO_D, r_twist=_NO_D, mur=_NO_D)
-    args = (ImpactRows(J=f(rows.J), M=f(rows.M), ab=f(ab, np.int64), e=f(cs.e, float),
+    return (ImpactRows(J=f(rows.J), M=f(rows.M), ab=f(ab, np.int64), e=f(cs.e, float),
                        pid=f(rows.pid, np.int64) if friction else _NO_I),
             ImpactGroups(go=go, gs=gs, inv=inv, bo=bo, b0=b0), U, vcur, float(thr), bool(friction), fr,
             bool(friction and rows.rolling))
-    if not propagate.propagate(0, *args):
-        # pinned configuration: resolve all approaches together
-        v = vn_all()
-        rows.target = np.where(v < -thr, -cs.e * v, 0.0)
-        rows_c = Rows(model, X, Iinv, cs, friction)
-        rows_c.target = rows.target[rows_c.order]
-        rows_c.solve_friction_regimes(U, iterations)
-        vcur[:] = vn_all()
-    propagate.propagate(1, *args)  # slow approaches stop (plastic)
-    return rows.m
+
+
+def _pinned(model, X, Iinv, cs: Contacts, U: np.ndarray, iterations: int, thr: float, friction: bool, rows: Rows,
+            args: tuple) -> None:
+    """A propagation that did not settle (a pinned configuration): every
+    approach resolved together by sequential impulses on U (n+1, 6) in
+    place, and the rows' speeds (``args``' vcur) set to the result."""
+    ab = rows.topo.ab
+
+    def vn_all():
+        # [JA | JB] . [U[a] | U[b]] per row: one gather, one reduction
+        return np.einsum("kj,kj->k", rows.J, U[ab].reshape(-1, 12))
+
+    v = vn_all()
+    rows.target = np.where(v < -thr, -cs.e * v, 0.0)
+    rows_c = Rows(model, X, Iinv, cs, friction)
+    rows_c.target = rows.target[rows_c.order]
+    rows_c.solve_friction_regimes(U, iterations)
+    args[3][:] = vn_all()
+
+
+def _propagate_kept(model, state, cs: Contacts, thr: float, friction: bool, kept: ImpactKept) -> int | None:
+    """:func:`_propagate` of the contacts ``cs`` (no plastic island) on the
+    state's velocities with the kept work arrays: the contact bodies'
+    inertias, the rows, the propagation and the new velocities in one
+    compiled call (:func:`impact_kernel`, the arithmetic of
+    :func:`impact_solve`'s calls).  Returns the number of rows, or None
+    when the propagation did not settle (a pinned configuration; the
+    state untouched): the caller's path from Python then resolves it."""
+    rolling = friction and bool(model.rolling)
+    topo, targs = kept.impact_topology(model, cs, friction, rolling)
+    work = kept.work(model, topo, friction, rolling)
+    c = ContactArrays(a=cs.a, b=cs.b, sidx=cs.sidx, point=cs.point, normal=cs.normal, gap=cs.gap, e=cs.e)
+    if not impact_kernel(work, targs, c, state.x, state.q, state.v, state.w, float(thr), bool(friction),
+                         bool(rolling)):
+        return None
+    return topo.order.size
+
+
+#: :func:`impact_kernel`'s work arrays: the world inverse inertias
+#: ``Iinv`` (n+1, 3, 3) it writes, the body inverse inertias ``inv_I`` (n,
+#: 3), the model's ``inv_mass`` (n+1,), an empty ``R0`` (the rows' lever
+#: frames are not wanted), the velocities ``U`` (n+1, 6), the rows'
+#: arrays ``rows`` (an engine.contact.packs.RowArrays)
+ImpactWork = namedtuple("ImpactWork", ("Iinv", "inv_I", "inv_mass", "R0", "U", "rows"))
+
+#: the propagation's topology as :func:`impact_kernel` reads it: the rows'
+#: contacts ``idx`` (m,), pair codes ``codes`` (m,), bodies ``ab`` (m,
+#: 2), and with friction the patches' ``pid`` (m,), ``pa``, ``pb`` (np,),
+#: ``cnt`` (np,), coefficients ``mus``, ``muk``, ``mur`` (np,) (empty
+#: without friction; ``mur`` zeros without rolling friction)
+ImpactTopo = namedtuple("ImpactTopo", ("idx", "codes", "ab", "pid", "pa", "pb", "cnt", "mus", "muk", "mur"))
+
+
+@njit(cache=True)
+def impact_kernel(work, topo, c, x, q, v, w, thr, friction, rolling):
+    """:func:`_propagate_kept`'s one call: the contact bodies' world
+    inverse inertias (:func:`contact_inertias`), U (n+1, 6) = [v | w] with
+    a zero world row, the rows of the contacts ``c`` (an
+    engine.contact.packs.ContactArrays) in ``topo``'s order
+    (engine.contact.prepare.rows, as :class:`Rows` makes them), the
+    propagation's set-up and its first mode (engine.contact.propagate); if
+    that settled, its second mode and v, w (n, 3) set from U.  Returns
+    whether it settled (if not, v and w are untouched and ``work.U`` holds
+    the velocities so far)."""
+    n = x.shape[0]
+    Iinv, U, r = work.Iinv, work.U, work.rows
+    contact_inertias(q, work.inv_I, c.a, c.b, Iinv)
+    for i in range(n):
+        for j in range(3):
+            U[i, j] = v[i, j]
+            U[i, 3 + j] = w[i, j]
+    for j in range(6):
+        U[n, j] = 0.0
+    prepare.rows(Bodies(X=x, Iinv=Iinv, inv_mass=work.inv_mass, R0=work.R0), bool(False), c, topo.idx, n, r,
+                 PatchSet(pid=topo.pid, pa=topo.pa, pb=topo.pb, cnt=topo.cnt, mus=topo.mus), friction, rolling)
+    go, gs, inv, bo, b0, vcur = propagate.setup(topo.codes, topo.ab, n, r.J, U)
+    rows = ImpactRows(J=r.J, M=r.M, ab=topo.ab, e=c.e, pid=topo.pid)
+    groups = ImpactGroups(go=go, gs=gs, inv=inv, bo=bo, b0=b0)
+    patches = ImpactPatches(Jt=r.Jt, Mt=r.Mt, mt=r.mt, pa=topo.pa, pb=topo.pb, mus=topo.mus, muk=topo.muk,
+                            r_twist=r.rt, mur=topo.mur)
+    if not propagate.propagate(np.int64(0), rows, groups, U, vcur, thr, friction, patches, rolling):
+        return False
+    propagate.propagate(np.int64(1), rows, groups, U, vcur, thr, friction, patches, rolling)
+    for i in range(n):
+        for j in range(3):
+            v[i, j] = U[i, j]
+            w[i, j] = U[i, 3 + j]
+    return True
 
 
 _NO_I = np.zeros(0, np.int64)
 _NO_D = np.zeros(0)
+_NO_B = np.zeros(0, np.bool_)
+_NO_P3 = np.zeros((0, 3))
+_NO_T = np.zeros((0, 2, 3))
+_NO_J = np.zeros((0, 3, 12))
+_NO_R = np.zeros((0, 3, 3))
 
 
 def warm_up() -> None:
-    """Compile (or load) the propagation kernel and the contact bodies'
-    inertias with the step's argument types (see engine/jit.py): one pair
-    of two rows, with and without friction; and the topology's kernel
+    """Compile (or load) the propagation kernel, the contact bodies'
+    inertias, :func:`impact_kernel` and the stage's small kernels with the
+    step's argument types (see engine/jit.py): one pair of two rows, with
+    and without friction; and the topology's kernel
     (engine/contact/topology.py)."""
     from physbench.engine.contact import topology
 
     topology.warm_up()
+    _warm_impact_kernel()
     i1 = np.zeros(1, np.int64)
+    touching_count(np.zeros(1), 1e-8)
+    pair_codes(i1, i1 + 1, i1 - 1, 1, 1)
+    all_positive(np.ones(1))
     propagate.setup(np.array([5, 5], np.int64), np.array([[0, 1], [0, 1]], np.int64), 1, np.ones((2, 12)),
                     np.zeros((2, 6)))
     contact_inertias(np.array([[1.0, 0.0, 0.0, 0.0]]), np.ones((1, 3)), i1, i1 + 1, np.empty((2, 3, 3)))
@@ -264,3 +471,35 @@ def warm_up() -> None:
                                           pa=i2[:k], pb=i2[:k] + 1, mus=np.ones(k), muk=np.ones(k), r_twist=np.ones(k),
                                           mur=np.ones(k)),
                             False)
+
+
+def _warm_impact_kernel() -> None:
+    """:func:`impact_kernel` on a sphere resting on a plane (one row, one
+    patch; the model's inverse masses read-only, as the model holds them),
+    with the arrays typed as :meth:`ImpactKept.work` and
+    :meth:`ImpactKept.impact_topology` hand them over: one signature with
+    and without friction."""
+    i1 = np.zeros(1, np.int64)
+    im = np.array([1.0, 0.0])
+    im.flags.writeable = False
+    sc = Scratch()
+    for friction in (False, True):
+        J, M, mn, loc, lam_n, target, P, N, rt, t, Jt, Mt, mt, lam_t, slip, mu = _take_rows(sc, 1, 1, 3, True)
+        if not friction:
+            P = N = mt = lam_t = _NO_P3
+            rt = mu = _NO_D
+            t = _NO_T
+            Jt = Mt = _NO_J
+            slip = _NO_B
+        work = ImpactWork(Iinv=np.zeros((2, 3, 3)), inv_I=np.ones((1, 3)), inv_mass=im, R0=_NO_R, U=np.zeros((2, 6)),
+                          rows=RowArrays(J=J, M=M, mn=mn, loc=loc, lam_n=lam_n, target=target, P=P, N=N, rt=rt, t=t,
+                                         Jt=Jt, Mt=Mt, mt=mt, lam_t=lam_t, slip=slip, mu=mu))
+        one = np.ones(1)
+        topo = (ImpactTopo(idx=i1, codes=i1 + 7, ab=np.array([[0, 1]], np.int64), pid=i1, pa=i1, pb=i1 + 1, cnt=one,
+                           mus=one * 0.5, muk=one * 0.5, mur=np.zeros(1)) if friction else
+                ImpactTopo(idx=i1, codes=i1 + 7, ab=np.array([[0, 1]], np.int64), pid=_NO_I, pa=_NO_I, pb=_NO_I,
+                           cnt=_NO_D, mus=_NO_D, muk=_NO_D, mur=_NO_D))
+        c = ContactArrays(a=i1.copy(), b=i1 + 1, sidx=i1.copy(), point=np.zeros((1, 3)),
+                          normal=np.array([[0.0, 0.0, -1.0]]), gap=np.zeros(1), e=np.ones(1) * 0.5)
+        impact_kernel(work, topo, c, np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, -1.0]]),
+                      np.zeros((1, 3)), 0.1, friction, False)
