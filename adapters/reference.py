@@ -132,6 +132,7 @@ class ReferenceAdapter(Adapter):
 
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         from physbench.engine.collision import unsupported_pairs
+        from physbench.engine.jit import helped
         from physbench.engine.model import build_model
         from physbench.engine.pipeline import build_pipeline, prepare
         from physbench.engine.profile import Profile
@@ -139,7 +140,8 @@ class ReferenceAdapter(Adapter):
 
         from physbench.engine.joints.table import unsupported_reason as joint_reason
 
-        self.model = build_model(scene_input(scene), settings)
+        inp = scene_input(scene)
+        self.model = build_model(inp, settings)
         why = joint_reason(self.model)
         if why:
             raise Unsupported(why)
@@ -147,7 +149,8 @@ class ReferenceAdapter(Adapter):
         if missing:
             raise Unsupported(f"reference engine has no narrow phase for {', '.join(missing)}")
         self.state = State.from_model(self.model)
-        self.pipeline = build_pipeline(self.model)
+        with helped(inp, settings, self.model):  # (a cold cache: a helper process compiles at once)
+            self.pipeline = build_pipeline(self.model)
         self.profile = Profile()
         for s in self.pipeline:
             self.profile.register(s.name)

@@ -71,21 +71,14 @@ class Engine:
         from physbench.engine.profile import Profile
         from physbench.engine.state import State
 
-        from physbench.engine import compile_share, jit
+        from physbench.engine.jit import helped
 
         full = default_settings(inp)
         full.update(settings or {})
         self.model = build_model(inp, full)
         self.state = State.from_model(self.model)
-        # a cold cache: a helper process compiles the other end of the
-        # kernel groups at once (engine/compile_share.py)
-        todo = () if self.model.joints is not None else [p for p in jit.parts(self.model) if p not in jit._READY]
-        helper = (compile_share.start_helper(inp, full) if todo and jit.cold_seconds(todo) >= compile_share.HELPER_MIN_S
-                  else None)
-        try:
+        with helped(inp, full, self.model):  # (a cold cache: a helper process compiles at once)
             self.stages = build_pipeline(self.model)
-        finally:
-            compile_share.end_helper(helper)
         self.profile = Profile()
         for s in self.stages:
             self.profile.register(s.name)

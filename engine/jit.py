@@ -12,6 +12,7 @@ builds in the same process find the kernels ready and report 0.
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -39,6 +40,23 @@ def cold_seconds(todo) -> float:
     """About how many CPU seconds the parts of ``todo`` not yet in the
     on-disk cache take to compile (engine/compile_share.py's marks)."""
     return sum(_COST.get(p[0], 1.0) for p in todo if not compile_share.done(p))
+
+
+@contextlib.contextmanager
+def helped(inp, settings: dict, model):
+    """Around a build's ``build_pipeline(model)`` (``model`` built from the
+    scene input ``inp`` with the full ``settings``): on a cold cache (about
+    compile_share.HELPER_MIN_S CPU s or more of ``model``'s parts left to
+    compile), a helper process builds the same scene at once, taking the
+    kernel groups from the other end (engine/compile_share.py); waited for
+    at the end."""
+    todo = () if model.joints is not None else [p for p in parts(model) if p not in _READY]
+    helper = (compile_share.start_helper(inp, settings)
+              if todo and cold_seconds(todo) >= compile_share.HELPER_MIN_S else None)
+    try:
+        yield helper
+    finally:
+        compile_share.end_helper(helper)
 
 
 def parts(model=None) -> tuple:

@@ -110,3 +110,32 @@ def test_a_pool_of_several_workers_gives_each_one_compile_process(monkeypatch):
         with workers.WorkerPool(jobs) as pool:
             got = [v for _, v in pool.map(os.getenv, [compile_share.JOBS_ENV] * jobs)]
         assert got == [want] * jobs
+
+
+@pytest.mark.parametrize("via", ["adapter", "engine"])
+def test_a_cold_build_through_the_adapter_or_the_engine_starts_its_helper_on_its_own_scene(monkeypatch, via):
+    """Both ways a reference engine is built (the adapter's ``build``, which
+    every run takes, and ``engine.Engine``) start the helper on a cold
+    cache, with the scene input and settings that build the same model,
+    and wait for it."""
+    from physbench.adapters.reference import ReferenceAdapter, scene_input
+    from physbench.contract.scene import load_scene
+    from physbench.engine import Engine, jit
+    from physbench.engine.model import build_model
+
+    started, ended = [], []
+    monkeypatch.setattr(jit, "cold_seconds", lambda todo: 1e9)  # (the cache is warm here: say it is not)
+    monkeypatch.setattr(compile_share, "start_helper", lambda inp, settings: started.append((inp, settings)) or "h")
+    monkeypatch.setattr(compile_share, "end_helper", lambda h: ended.append(h))
+    monkeypatch.setattr(jit, "_READY", set())  # (every part still to do in this process)
+    scene = load_scene("billiards.head_on")
+    if via == "adapter":
+        a = ReferenceAdapter()
+        a.build(scene, ReferenceAdapter.resolve_settings(scene))
+        model = a.model
+    else:
+        model = Engine(scene_input(scene)).model
+    assert len(started) == 1 and ended == ["h"]
+    inp, settings = started[0]
+    again = build_model(inp, settings)
+    assert dict(again.settings) == dict(model.settings) and again.n == model.n
