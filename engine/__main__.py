@@ -58,15 +58,14 @@ def _joint_scene():
 
 def _help_build(path: str) -> int:
     """A cold build's helper (engine/compile_share.py): build the scene
-    pickled at ``path`` (then removed) with its settings, taking the kernel
+    written to ``path`` (then removed) with its settings, taking the kernel
     groups in reverse order."""
     import contextlib
-    import pickle
+    from pathlib import Path
 
     compile_share.REVERSED = True
     try:
-        with open(path, "rb") as f:
-            inp, settings = pickle.load(f)
+        inp, settings = compile_share.read_build(Path(path))
     finally:
         with contextlib.suppress(OSError):
             os.unlink(path)

@@ -48,6 +48,7 @@ from physbench.engine.ccd_kept import (_NO_CONTACTS, _NO_FAST, _NO_I, _Groups, _
                                        _geometry, _geometry_kept, _member, _pair_query, _rotations, _stable_features,
                                        end_pose_pairs)
 from physbench.engine.ccd_gap import NO_FID, NO_P3, collide_gap as _collide_gap, gap as _gap
+from physbench.engine.geometry import Pairs
 from physbench.engine.profile import Stage
 from physbench.engine.contact.impact import ImpactKept, impact_solve
 from physbench.engine.control import Event, EventMode, ImpactPair, TimeOfImpact
@@ -202,11 +203,12 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     col = _collider(model, ctx)
     k0 = ctx.contacts if ctx.contacts is not None and ctx.contacts.m > 0 else _NO_CONTACTS
     if not _missed_any(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
-                       _NO_FAST if fast is None else fast, pi, pj, bp, pk, bs, sk, kout, col.packed(), col.margins,
-                       ctx.no_sweep, box.EDGE_FACE_POINTS, model.n_statics,
-                       FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
-                       ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),
-                       _drop_codes(ctx), ctx.R0, TOUCH_TOL, _cand_buffer(ctx, 0)):
+                       _NO_FAST if fast is None else fast, Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk), kout,
+                       (col.packed(), col.margins, ctx.no_sweep, box.EDGE_FACE_POINTS),
+                       (model.n_statics,
+                        FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
+                        ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),
+                        _drop_codes(ctx), ctx.R0, TOUCH_TOL, _cand_buffer(ctx, 0))):
         return []
     moved = end_pose_pairs(model, state, ctx, lim, fast)
     if moved is None:
@@ -377,8 +379,9 @@ def pair_gap(model, ctx, a: int, b: int, sidx: int, loc: np.ndarray | None = Non
         col = _collider(model, ctx)
         wk = ctx.ccd.gap_work
         if wk is not None:
-            done, g, vn = _collide_gap(col.packed(), ctx.x1, R1, pi, pj, margins, planes[0], planes[1], sboxes[0],
-                                       sboxes[1], col.W.gm, box.EDGE_FACE_POINTS, ctx.v, ctx.w, a, tol, loc, exclude,
+            done, g, vn = _collide_gap(col.packed(), ctx.x1, R1,
+                                       Pairs(pi=pi, pj=pj, bp=planes[0], pk=planes[1], bs=sboxes[0], sk=sboxes[1]),
+                                       margins, col.W.gm, box.EDGE_FACE_POINTS, ctx.v, ctx.w, a, tol, loc, exclude,
                                        fids, wk)
             if done:
                 return g, vn

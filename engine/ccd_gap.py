@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from physbench.engine.collision.collide import collide_packed
+from physbench.engine.geometry import Pairs
 
 #: no points to follow or leave out; no feature ids
 NO_P3 = np.zeros((0, 3))
@@ -96,10 +97,11 @@ def gap(point, gap, fid, ca, cb, normal, x1, R, V, W, a, tol, loc, excl, fids, w
 
 
 @njit(cache=True)
-def collide_gap(kept, X, R1, pi, pj, margins, bp, pk, bs, sk, sweep, face_points, V, W, a, tol, loc, excl, fids, wk):
+def collide_gap(kept, X, R1, pairs, margins, sweep, face_points, V, W, a, tol, loc, excl, fids, wk):
     """The followed pair's contacts and :func:`gap` over them in one call
-    (engine/ccd.py ``pair_gap``): the collision of the pair (pi, pj, bp,
-    pk, bs, sk: one pair, its ``margins``) at the end pose (X (n, 3), R1
+    (engine/ccd.py ``pair_gap``): the collision of the pair (``pairs`` an
+    engine.geometry.Pairs of pi, pj, bp, pk, bs, sk: one pair; its
+    ``margins``) at the end pose (X (n, 3), R1
     (n, 3, 3)) into the collider's buffers ``kept`` (its Pack,
     engine.collision.dispatch.Collider.packed), as Collider.run makes it
     (``sweep`` the collider's margin work row, ``face_points``
@@ -107,8 +109,8 @@ def collide_gap(kept, X, R1, pi, pj, margins, bp, pk, bs, sk, sweep, face_points
     contacts as :func:`gap` (the rest its arguments).  Returns (done, gap,
     normal speed); done False when a buffer was short (the collider grows
     it in Collider.run, which the caller then runs: the same contacts)."""
-    cnt, need_k, need_s = collide_packed(kept, X, R1, pi, pj, margins, bp, pk, bs, sk, bool(False), float(0.0), sweep,
-                                         face_points)
+    cnt, need_k, need_s = collide_packed(kept, X, R1, pairs.pi, pairs.pj, margins, pairs.bp, pairs.pk, pairs.bs,
+                                         pairs.sk, bool(False), float(0.0), sweep, face_points)
     b = kept.items
     if need_k > b.A.c.shape[0] or need_s > b.slot.g.shape[0] or cnt > b.out.a.shape[0] or cnt > wk.shape[0]:
         return False, np.inf, 0.0
@@ -133,8 +135,9 @@ def warm_up() -> None:
     col = warm_collider()
     z = np.zeros(0, np.int64)
     inf = np.array([np.inf])
-    collide_gap(col.packed(), np.zeros((1, 3)), np.eye(3)[None].copy(), z, z, (inf, inf.copy(), inf.copy()), z, z, z, z,
-                col.W.gm, box.EDGE_FACE_POINTS, V, V, 0, 0.1, NO_P3, NO_P3, NO_FID, np.empty((1, 5)))
+    collide_gap(col.packed(), np.zeros((1, 3)), np.eye(3)[None].copy(), Pairs(pi=z, pj=z, bp=z, pk=z, bs=z, sk=z),
+                (inf, inf.copy(), inf.copy()), col.W.gm, box.EDGE_FACE_POINTS, V, V, 0, 0.1, NO_P3, NO_P3, NO_FID,
+                np.empty((1, 5)))
 
 
 def warm_collider():

@@ -15,7 +15,7 @@ instead of both doing all of it.
 A build on a cold cache (groups of about :data:`HELPER_MIN_S` CPU seconds
 or more not done: ``engine.jit.cold_seconds``) that may use two cores
 starts a *helper*: ``python -m physbench.engine --help-build FILE``
-builds the same scene (FILE: the pickled scene input and settings) taking
+builds the same scene (FILE: the scene input and settings as JSON) taking
 the groups in the opposite order (:data:`REVERSED`), so the build and its
 helper start at opposite ends and meet (``engine.Engine``).  How many
 processes a build may use: ``PHYSBENCH_COMPILE_JOBS`` (1 or 2), else 2 where
@@ -32,7 +32,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import pickle
+import json
 import subprocess
 import sys
 import tempfile
@@ -142,19 +142,68 @@ def take(keys: Iterable[tuple], run: Callable[[tuple], Any]) -> None:
 HELPER_MIN_S = 20.0
 
 
+def _encode(v: Any) -> Any:
+    """A scene input's field as JSON (floats round-trip exactly: repr)."""
+    import numpy as np
+
+    if isinstance(v, np.ndarray):
+        return {"nd": v.tolist(), "dtype": v.dtype.str, "shape": list(v.shape)}
+    if isinstance(v, (tuple, list)):
+        return {"tuple": [_encode(x) for x in v]}
+    if isinstance(v, frozenset):
+        return {"set": sorted(v)}
+    if isinstance(v, np.generic):
+        return v.item()
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    raise TypeError(f"cannot hand a {type(v).__name__} to a helper")
+
+
+def _decode(v: Any) -> Any:
+    import numpy as np
+
+    if isinstance(v, dict):
+        if "nd" in v:
+            return np.array(v["nd"], dtype=np.dtype(v["dtype"])).reshape(v["shape"])
+        if "tuple" in v:
+            return tuple(_decode(x) for x in v["tuple"])
+        if "set" in v:
+            return frozenset(v["set"])
+    return v
+
+
+def write_build(path: Path, inp: Any, settings: dict) -> None:
+    """The scene input ``inp`` (an engine.model.SceneInput; its ``scene``,
+    the caller's own object the engine never reads, left out) and the
+    build's ``settings``, as JSON at ``path`` (:func:`read_build`)."""
+    import dataclasses
+
+    fields = {f.name: _encode(getattr(inp, f.name)) for f in dataclasses.fields(inp) if f.name != "scene"}
+    path.write_text(json.dumps({"input": fields, "settings": {k: _encode(v) for k, v in settings.items()}}))
+
+
+def read_build(path: Path) -> tuple:
+    """(scene input, settings) as :func:`write_build` wrote them."""
+    from physbench.engine.model import SceneInput
+
+    d = json.loads(path.read_text())
+    return (SceneInput(**{k: _decode(v) for k, v in d["input"].items()}),
+            {k: _decode(v) for k, v in d["settings"].items()})
+
+
 def start_helper(inp: Any, settings: dict) -> subprocess.Popen | None:
     """A helper process building the scene ``inp`` with ``settings`` (the
     build's own arguments) when the build may use two processes; else None.
-    The caller decides that the build is cold, and waits for the helper
+    The caller decides that the build is cold, and waits for it
     (:func:`end_helper`)."""
     if REVERSED or jobs() < 2 or fcntl is None:
         return None
     try:
         _dir().mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix="build-", suffix=".pickle", dir=_dir())
-        with os.fdopen(fd, "wb") as f:
-            pickle.dump((inp, dict(settings)), f)
-    except (OSError, pickle.PicklingError, TypeError, AttributeError):
+        fd, name = tempfile.mkstemp(prefix="build-", suffix=".json", dir=_dir())
+        os.close(fd)
+        write_build(Path(name), inp, settings)
+    except (OSError, TypeError, ValueError):
         return None
     env = dict(os.environ)
     env[JOBS_ENV] = "1"

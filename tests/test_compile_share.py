@@ -139,3 +139,38 @@ def test_a_cold_build_through_the_adapter_or_the_engine_starts_its_helper_on_its
     inp, settings = started[0]
     again = build_model(inp, settings)
     assert dict(again.settings) == dict(model.settings) and again.n == model.n
+
+
+def test_the_helper_gets_every_shipped_scene_input_and_settings_exactly(tmp_path):
+    """What a helper builds (compile_share.write_build / read_build: JSON,
+    no pickle) is the build's scene input field for field -- values,
+    dtypes, shapes, bits -- and its settings, for every shipped scenario
+    (joints, springs, statics, materials)."""
+    import dataclasses
+
+    import numpy as np
+
+    from physbench.adapters.reference import ReferenceAdapter, scene_input
+    from physbench.contract.scene import load_scene, scenario_ids
+
+    for sid in scenario_ids():
+        scene = load_scene(sid)
+        inp = scene_input(scene)
+        settings = ReferenceAdapter.resolve_settings(scene)
+        compile_share.write_build(tmp_path / "b.json", inp, settings)
+        got, got_settings = compile_share.read_build(tmp_path / "b.json")
+        assert got_settings == settings and all(type(got_settings[k]) is type(v) for k, v in settings.items()), sid
+        for f in dataclasses.fields(inp):
+            a, b = getattr(inp, f.name), getattr(got, f.name)
+            if f.name == "scene":
+                assert b is None
+            elif isinstance(a, np.ndarray):
+                assert b.dtype == a.dtype and b.shape == a.shape and a.tobytes() == b.tobytes(), (sid, f.name)
+            elif f.name == "joints":
+                assert len(a) == len(b), sid
+                for ja, jb in zip(a, b):
+                    assert len(ja) == len(jb) and all(
+                        np.asarray(x).tobytes() == np.asarray(y).tobytes() and np.asarray(x).dtype == np.asarray(y).dtype
+                        for x, y in zip(ja, jb)), (sid, ja, jb)
+            else:
+                assert a == b and type(a) is type(b), (sid, f.name, a, b)
