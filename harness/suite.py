@@ -171,15 +171,19 @@ class Suite:
 
 
 def resolve_suite(suite: str | Path) -> Path:
-    """A suite name (``suites/<name>.toml``) or a path -> the file's path."""
+    """A suite name (``suites/<name>.toml``) or a path -> the file's path.
+    A file of that path comes first; a directory of the name is no suite
+    file, so the shipped suite of the name is taken
+    (tests/test_sweep.py::test_a_directory_of_a_suites_name_does_not_hide_the_suite)."""
     p = Path(suite)
-    if p.suffix == ".toml" or p.exists():
+    if p.suffix == ".toml" or p.is_file():
         return p
     cand = SUITE_DIR / f"{suite}.toml"
     if cand.is_file():
         return cand
     known = ", ".join(sorted(q.stem for q in SUITE_DIR.glob("*.toml"))) or "none"
-    raise SuiteError([f"{suite}: <suite>: no such file and no suite of this name in suites/; known suites: {known}"])
+    what = "is a directory, not a suite file (.toml)," if p.is_dir() else "no such file"
+    raise SuiteError([f"{suite}: <suite>: {what} and no suite of this name in suites/; known suites: {known}"])
 
 
 def load_suite(path: str | Path) -> Suite:

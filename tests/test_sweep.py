@@ -338,6 +338,23 @@ grid = { integrator = ["rk5"] }
                             "(reference, pymunk)"]
 
 
+def test_a_directory_of_a_suites_name_does_not_hide_the_suite(tmp_path, monkeypatch):
+    """``--suite nightly`` run where a folder named ``nightly`` lies: the
+    shipped suite (a folder is no suite file); a folder of no suite's name
+    is an error that says it is a directory."""
+    from physbench.harness.suite import SUITE_DIR, SuiteError, resolve_suite
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "nightly").mkdir()
+    (tmp_path / "my_runs").mkdir()
+    assert resolve_suite("nightly") == SUITE_DIR / "nightly.toml"
+    with pytest.raises(SuiteError, match=r"my_runs: <suite>: is a directory, not a suite file \(\.toml\), and no "
+                                         r"suite of this name in suites/"):
+        resolve_suite("my_runs")
+    (tmp_path / "mine").write_text("")  # a file of the name still comes first
+    assert resolve_suite("mine") == Path("mine")
+
+
 def test_bad_suite_exits_2_with_the_message(tmp_path, capsys):
     p = write(tmp_path, BASE.replace("0.001]", "-1.0]"))
     assert S.sweep_main(str(p), out_dir=tmp_path / "out") == 2
