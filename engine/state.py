@@ -169,7 +169,6 @@ class Context:
         self.T_mean = np.zeros((n, 3))
         self.profile = None
         self._kept = KeptPack()
-        self._kept_of = None  # (the state's x, q, v, w, :meth:`kept`'s Pack of them)
         #: how the solve treats impacts in this (mini-)step
         self.event_mode = EventMode.EVENT
         # collision products
@@ -210,7 +209,6 @@ class Context:
         #: displacements (n,), end rotations (n, 3, 3)), grown geometrically
         self._end_pose = self._end_pose_buffers(n, 2 * n + 16)
         self._end_pose_pack = KeptPack()
-        self._end_pose_kept = None  # (:meth:`end_pose_kept`'s last answer)
         #: no sweep (n,) zeros: a margin that is the same for every pair
         self.no_sweep = np.zeros(n)
         #: the contact solve's work arrays (grown geometrically, kept)
@@ -234,10 +232,8 @@ class Context:
         """(:meth:`end_pose_buffers`, the same as one Pack, kept while they
         stay)."""
         buf = self.end_pose_buffers(m)
-        kept = self._end_pose_kept
-        if kept is None or kept[0] is not buf:
-            kept = self._end_pose_kept = (buf, self._end_pose_pack.of(buf))
-        return kept
+        # (keyed by the buffers' tuple: a new one when a buffer grows)
+        return buf, self._end_pose_pack.of((buf,), lambda: Pack(buf))
 
     def kept(self, state: State) -> Pack:
         """The arrays of a (mini-)step's start and commit as one Pack (see
@@ -245,16 +241,10 @@ class Context:
         and the context's x1, q1, v, w, F, T, vp, wp, R0, Iinv0; kept while
         the state's arrays are the same objects (the context's never
         change)."""
-        last = self._kept_of
-        if last is not None and last[0] is state.x and last[1] is state.q and last[2] is state.v and last[3] is state.w:
-            return last[4]  # (the context's arrays are never rebound: the state's decide)
-        pack = self._kept.of((state.x, state.q, state.v, state.w, self._inv_I, self.x1, self.q1, self.v, self.w,
-                              self.F, self.T, self.vp, self.wp, self.R0, self.Iinv0), lambda: Pack(StepArrays(
-                                  x=state.x, q=state.q, v=state.v, w=state.w, inv_I=self._inv_I, x1=self.x1,
-                                  q1=self.q1, V=self.v, W=self.w, F=self.F, T=self.T, vp=self.vp, wp=self.wp,
-                                  R0=self.R0, Iinv0=self.Iinv0)))
-        self._kept_of = (state.x, state.q, state.v, state.w, pack)
-        return pack
+        # (keyed by the state's four arrays: the context's are never rebound)
+        return self._kept.of((state.x, state.q, state.v, state.w), lambda: Pack(StepArrays(
+            x=state.x, q=state.q, v=state.v, w=state.w, inv_I=self._inv_I, x1=self.x1, q1=self.q1, V=self.v,
+            W=self.w, F=self.F, T=self.T, vp=self.vp, wp=self.wp, R0=self.R0, Iinv0=self.Iinv0)))
 
     def commit(self, state: State) -> None:
         """The state's pose and velocities set to the candidate end state
