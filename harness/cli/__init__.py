@@ -155,8 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_engines)
 
     b = sub.add_parser("bench", help="benchmarks: runner overhead, reference vs pybullet cost, reference scaling, "
-                                     "reference compile time (cold and warm start)")
-    b.add_argument("kind", choices=["overhead", "cost", "isolation", "scaling", "compile"])
+                                     "reference compile time (cold and warm start), the cost-to-target table's "
+                                     "points timed again side by side (targets)")
+    b.add_argument("kind", choices=["overhead", "cost", "isolation", "scaling", "compile", "targets"])
+    b.add_argument("--results-dir", default=None, metavar="DIR",
+                   help="targets: the sweep results to read (default ./results, or $PHYSBENCH_RESULTS)")
+    b.add_argument("--scenarios", nargs="+", default=None, help="targets: only these scenario ids")
     b.add_argument("--engines", nargs="+", choices=ENGINES, default=None)
     b.add_argument("--repeats", type=int_in(1, MAX_REPEATS), default=5)
     b.add_argument("--json", action="store_true")

@@ -42,6 +42,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
             bench.print_rows(rows, "reference engine start in fresh processes, on an empty compiled-kernel cache "
                                    "(cold) and on the cache it filled (warm): wall s, CPU s (with workers), s to "
                                    "the first step, functions numba compiled")
+        elif args.kind == "targets":
+            from physbench.harness.bench_targets import targets
+
+            try:
+                rows = targets(args.results_dir, repeats=args.repeats, scenarios=args.scenarios)
+            except ValueError as e:
+                print(f"physbench bench targets: {e}", file=sys.stderr)
+                return 2
+            bench.print_rows(rows, "the cost-to-target table's points timed again in one process: per scenario "
+                                   "the reference's cheapest point reaching the target and the cheapest other "
+                                   f"engine's, fresh runs, {args.repeats} repeats in alternating order after one "
+                                   "untimed run each (ms CPU per simulated second, medians; ratio_lo/hi: the "
+                                   "extreme ratios of one repeat; table_ratio: the sweep's)")
         elif args.kind == "scaling":
             sc = bench.step_scaling()
             rows = sc["rows"]

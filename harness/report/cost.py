@@ -85,8 +85,8 @@ def _ends_text(ends: list[tuple[Any, ...]]) -> str:
 
 
 _COLS = ["scenario", "variant", "engine", "primary_metric", "target", "target_source", "reached",
-         "settings", "dt", "cost", "step_us", "error", "ratio", "best_error", "best_error_settings", "points",
-         "cost_bound", "open_cost", "coarse_open", "fine_open", "ratio_bound", "note"]
+         "settings", "point_settings", "dt", "cost", "step_us", "error", "ratio", "best_error",
+         "best_error_settings", "points", "cost_bound", "open_cost", "coarse_open", "fine_open", "ratio_bound", "note"]
 
 
 def _engine_points(df: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[tuple[str, str, str], list[dict], list]]]:
@@ -112,7 +112,8 @@ def _reached_row(row: dict[str, Any], under: list[Mapping[str, Any]], ends: dict
     swept, and coarser steps may reach it for less.  A dearer open line
     leaves the cost exact within the grid and is named in the note."""
     best = min(under, key=lambda r: (r["cost"], r["primary_error"]))
-    row.update(reached=True, settings=settings_label(best["swept"]), dt=best["dt"], cost=best["cost"],
+    row.update(reached=True, settings=settings_label(best["swept"]), point_settings=best.get("point_settings", ""),
+               dt=best["dt"], cost=best["cost"],
                step_us=best["cost"] * best["dt"] * 1e6, error=best["primary_error"], best_error=math.nan,
                best_error_settings="")
     if not ends["coarse"]:
@@ -150,7 +151,8 @@ def _cost_rows(groups: list[tuple[tuple[str, str, str], list[dict], list]],
         if under:
             _reached_row(row, under, ends)
         else:
-            row.update(reached=False, settings="", dt=math.nan, cost=math.nan, step_us=math.nan, error=math.nan)
+            row.update(reached=False, settings="", point_settings="", dt=math.nan, cost=math.nan, step_us=math.nan,
+                       error=math.nan)
             row["fine_open"] = _ends_text(ends["fine"])
             if good:
                 b = min(good, key=lambda r: r["primary_error"])
@@ -205,7 +207,9 @@ def cost_to_target(df: pd.DataFrame, targets: Mapping[Any, float] | float | None
     ``=`` both costs exact, ``\u2264`` this engine's cost is a bound and
     the cheapest's is not, ``\u2265`` the reverse, ``?`` both are bounds
     (the ratio is neither); the cheapest engine's own ratio is 1 (``=``).
-    ``note`` says it in words.  ``step_us``: the reached point's CPU
+    ``note`` says it in words.  ``point_settings``: the reached point's
+    settings as its row stores them (JSON: what ``physbench bench
+    targets`` runs again).  ``step_us``: the reached point's CPU
     microseconds per step (cost x dt x 1e6): where two engines reach the
     target at the same dt, their ratio is the ratio of these.
     """
