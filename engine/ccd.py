@@ -204,7 +204,7 @@ def missed_impacts(model, state, ctx, skip: np.ndarray, fast: np.ndarray | None 
     k0 = ctx.contacts if ctx.contacts is not None and ctx.contacts.m > 0 else _NO_CONTACTS
     if not _missed_any(state.x, state.q, ctx.x1, ctx.q1, _geometry_kept(model, ctx), lim, fast is not None,
                        _NO_FAST if fast is None else fast, Pairs(pi=pi, pj=pj, bp=bp, pk=pk, bs=bs, sk=sk), kout,
-                       (col.packed(), col.margins, ctx.no_sweep, box.EDGE_FACE_POINTS),
+                       col.packed(), (col.margins, ctx.no_sweep, box.EDGE_FACE_POINTS),
                        (model.n_statics,
                         FeatureContacts(a=k0.a, b=k0.b, sidx=k0.sidx, gap=k0.gap, point=k0.point, fid=k0.fid),
                         ctx.impacts.rows if ctx.impacts is not None else _NO_I, np.asarray(skip, np.int64),

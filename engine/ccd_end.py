@@ -285,15 +285,15 @@ def missed_candidates(n_statics, end, start, imp_rows, skip, drop, x1, R1, x0, R
 
 
 @njit(cache=True)
-def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pairs, kout, narrow, cands):
+def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pairs, kout, kcol, narrow, cands):
     """Whether the CCD stage's end-pose check (engine/ccd.py
     ``missed_impacts``) may find a missed impact, in one call:
     :func:`end_pose_call` (its arguments; ``pairs`` an engine.geometry.Pairs
     of its pi, pj, bp, pk, bs, sk), the collision of the moved pairs at the
     end pose with the margin -``lim`` into the collider's buffers
-    (``narrow``: (kcol, margins, no_sweep, face_points): its Pack,
-    engine.collision.dispatch.Collider.packed, its margin rows, (n,) zeros,
-    engine.collision.box.EDGE_FACE_POINTS), as Collider.run makes it, then
+    (``kcol``: its Pack, engine.collision.dispatch.Collider.packed;
+    ``narrow``: (margins, no_sweep, face_points): its margin rows, (n,)
+    zeros, engine.collision.box.EDGE_FACE_POINTS), as Collider.run makes it, then
     :func:`missed_candidates` over those contacts (``cands``: (n_statics,
     start, imp_rows, skip, drop, R0, touch_tol, cand), its other
     arguments).  Returns 0 when no contact can be
@@ -301,7 +301,10 @@ def missed_any(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pairs, kout, narrow, c
     the candidates' count, or -1 when a buffer (the collider's, ``cand``)
     is short: either way the caller's Python path then decides, from the
     start (the same arithmetic: tests/test_ccd_end_clear.py)."""
-    kcol, margins, no_sweep, face_points = narrow
+    # (the Pack is an argument of its own: inside a tuple it would make
+    # numba type the whole tuple in Python at every call, ~60-80 us:
+    # tests/test_ccd_event_path.py::test_event_kernels_take_no_pack_inside_a_tuple)
+    margins, no_sweep, face_points = narrow
     n_statics, start, imp_rows, skip, drop, R0, touch_tol, cand = cands
     nb, npl, ns = end_pose_call(x0, q0, x1, q1, kgeo, lim, has_fast, fast, pairs.pi, pairs.pj, pairs.bp, pairs.pk,
                                 pairs.bs, pairs.sk, kout)
@@ -433,7 +436,7 @@ def warm_up() -> None:
     k0 = FeatureContacts(a=z, b=z, sidx=z, gap=np.zeros(0), point=np.zeros((0, 3)), fid=z)
     for has_fast in (False, True):  # (no pair: compiled whole, run to its first return)
         missed_any(x, q, x + 1.0, q.copy(), kgeo, 0.1, has_fast, np.ones(n, np.bool_),
-                   Pairs(pi=z, pj=z, bp=z, pk=z, bs=z, sk=z), Pack(out),
-                   (col.packed(), col.margins, np.zeros(n), box.EDGE_FACE_POINTS),
+                   Pairs(pi=z, pj=z, bp=z, pk=z, bs=z, sk=z), Pack(out), col.packed(),
+                   (col.margins, np.zeros(n), box.EDGE_FACE_POINTS),
                    (1, k0, z, z, z, np.empty((n, 3, 3)), 1e-6, np.zeros(n, np.bool_)))
     lone_impact(i[:1], np.zeros(1), 0.01, i, i, i - 1, np.zeros((n, 3)), i, x, np.empty((n, 3, 3)), i, z, 1)

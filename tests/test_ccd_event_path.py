@@ -290,3 +290,42 @@ def test_the_impact_stages_small_kernels_are_the_numpy_forms():
         assert impact.touching_count(gap, 1e-7) == np.flatnonzero(gap <= 1e-7).size
         assert impact.all_positive(e) == bool(np.all(e > 0.0))
         assert impact.all_positive(np.abs(e) + 0.1) == bool(np.all(np.abs(e) + 0.1 > 0.0))
+
+
+def _holds_a_pack(v, depth=0) -> bool:
+    from numba.experimental.structref import StructRefProxy
+
+    if isinstance(v, StructRefProxy):
+        return depth > 0
+    return isinstance(v, tuple) and any(_holds_a_pack(x, depth + 1) for x in v)
+
+
+@pytest.mark.parametrize("scenario,settings,steps", [
+    ("billiards.ball_drop_bounce", {"dt": 0.064}, 31),  # impacts, the end-pose check, the search
+    ("billiards.head_on", {"dt": 0.032}, 16),
+    ("tunnelling.bullet_400", {"dt": 0.004, "ccd": "events"}, 25),
+])
+def test_event_kernels_take_no_pack_inside_a_tuple(monkeypatch, scenario, settings, steps):
+    """A Pack (engine/pack.py) passed inside a tuple makes numba type the
+    whole tuple in Python at every call, the Pack's full type with it:
+    ccd_end.missed_any took the narrow phase's Pack in a tuple and paid
+    ~60-80 us a call, two calls an event step (half of ball_drop_bounce's
+    CPU at dt 0.064).  No compiled call of a warm engine's steps takes one."""
+    from numba.core import dispatcher
+
+    scene = load_scene(scenario)
+    engine_for(scene, settings).step(steps)  # (compiles or loads every kernel first)
+    seen = []
+    real = dispatcher._DispatcherBase.typeof_pyval
+
+    def typeof_pyval(self, val):
+        if _holds_a_pack(val):
+            seen.append(self.py_func.__qualname__)
+        return real(self, val)
+
+    monkeypatch.setattr(dispatcher._DispatcherBase, "typeof_pyval", typeof_pyval)
+    eng = engine_for(scene, settings)
+    eng.step(steps)
+    assert eng.profile.as_dict()["counters"].get("impacts", 0) + \
+        eng.profile.as_dict()["counters"].get("toi_iterations", 0) > 0  # (the event path ran)
+    assert sorted(set(seen)) == []
