@@ -10,6 +10,11 @@ and unpack the tuple inside the compiled code.
 
 The pack keeps its arrays alive (it holds references); writes through the
 arrays are seen by both sides (they share memory).
+
+A Pack is passed as an argument of its own, never inside a tuple: numba
+types a tuple holding one in Python, the Pack's whole type with it, at
+every call (~60-80 us for the narrow phase's;
+tests/test_ccd_event_path.py::test_event_kernels_take_no_pack_inside_a_tuple).
 """
 
 from __future__ import annotations
