@@ -79,6 +79,20 @@ def cache_dir(root: Path = ROOT) -> Path:
     return base_dir() / f"numba-{digest}"
 
 
+@functools.lru_cache(maxsize=None)
+def _kernel_dir(py_file: str, user: str | None, xdg: str | None) -> str | None:
+    """The cache directory of the kernels defined in ``py_file``:
+    ``cache_dir()/<subpackage>`` for a file of the engine, None for any
+    other.  Found once per file and base directory (``user``, ``xdg``: the
+    environment :func:`base_dir` reads; an engine module defines tens of
+    kernels, and importing the engine defines about 240)."""
+    try:
+        rel = Path(py_file).resolve().relative_to(ROOT)
+    except (ValueError, OSError):
+        return None
+    return str(cache_dir() / ("_".join(rel.parent.parts) or "engine"))
+
+
 def _engine_locator():
     """numba's locator for the engine's kernels (defined lazily: importing
     this module does not import numba)."""
@@ -90,12 +104,11 @@ def _engine_locator():
         not by path or timestamp (so an installed copy and a checkout of the
         same sources share one cache)."""
 
-        def __init__(self, py_func, py_file: str, rel: Path):
+        def __init__(self, py_func, py_file: str, path: str):
             self._lineno = py_func.__code__.co_firstlineno
             # numba's warning for a kernel it cannot cache names this file
             self._py_file = py_file
-            sub = "_".join(rel.parent.parts) or "engine"
-            self._cache_path = str(cache_dir() / sub)
+            self._cache_path = path
 
         def get_cache_path(self) -> str:
             return self._cache_path
@@ -108,11 +121,8 @@ def _engine_locator():
 
         @classmethod
         def from_function(cls, py_func, py_file):
-            try:
-                rel = Path(py_file).resolve().relative_to(ROOT)
-            except (ValueError, OSError):
-                return None
-            return cls(py_func, py_file, rel)
+            path = _kernel_dir(py_file, os.environ.get("NUMBA_CACHE_DIR"), os.environ.get("XDG_CACHE_HOME"))
+            return None if path is None else cls(py_func, py_file, path)
 
     return EngineCacheLocator
 

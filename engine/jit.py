@@ -28,6 +28,16 @@ FORCE_KINDS = tuple(S.__name__ for S in FORCES)
 #: the parts compiled (or loaded) in this process (:func:`parts`)
 _READY: set = set()
 
+#: the kernels a warm-up calls that only compiled code calls in a step
+#: (phases.classify_stage: inside the fused steady step; the others inside
+#: the solve's, the propagation's, the gyroscopic stage's and the free
+#: flight's kernels): a cold cache compiles them with their group (so a
+#: helper process can take them, engine/compile_share.py), a warm one does
+#: not load them (tests/test_engine_jit.py::test_a_warm_build_loads_no_compiled_only_callee);
+#: names under physbench.engine
+CALLEES = ("contact.phases.classify_stage", "contact.linalg.lu_solve", "contact.linalg.inverse",
+           "contact.linalg.solve_batch", "contact.prepare.normal_rows", "flight.start_pose")
+
 #: a part's cold compile, about (CPU s on a 2-core x86-64: billiards.head_on's
 #: solve ~43, time of impact ~16, rk4 flight ~14, sphere narrow phase ~9,
 #: broad phase ~4): the order :func:`warm_up` takes them in, and what
@@ -106,7 +116,10 @@ def warm_up(model=None) -> float:
     t0 = time.perf_counter()
 
     def run(p: tuple) -> None:
-        _warm_part(p)
+        # a group in the on-disk cache already: only what Python calls is
+        # loaded (the callees compiled into other kernels are not:
+        # tests/test_engine_jit.py::test_a_warm_build_loads_no_compiled_only_callee)
+        _warm_part(p, callees=not compile_share.done(p))
         _READY.add(p)
 
     # the costliest first (engine/compile_share.py: a helper process takes
@@ -117,15 +130,18 @@ def warm_up(model=None) -> float:
     return dt
 
 
-def _warm_part(p: tuple) -> None:
+def _warm_part(p: tuple, callees: bool = True) -> None:
+    """Compile or load the kernel group ``p`` (:func:`parts`); ``callees``
+    False: not the kernels only compiled code calls (:data:`CALLEES`), which
+    a step never loads (their machine code is inside their callers')."""
     if p[0] == "flight":
-        _warm_flight(p[1])
+        _warm_flight(p[1], callees)
     elif p[0] == "force":
         _warm_force(p[1])
     elif p[0] == "gyro":
         _warm_gyro(p[1])
     elif p[0] == "solve":
-        _warm_solve()
+        _warm_solve(callees)
     elif p[0] == "broad":
         from physbench.engine import broadstage
 
@@ -174,8 +190,9 @@ def warm_dynamics(integrator: str) -> None:
             _warm_part(p)
 
 
-def _warm_solve() -> None:
-    """The contact solve's kernels (and the contact topology's)."""
+def _warm_solve(callees: bool = True) -> None:
+    """The contact solve's kernels (and the contact topology's); with
+    ``callees``, also those only compiled code calls (:data:`CALLEES`)."""
     from physbench.engine.contact import gauss_seidel, linalg, prepare, warm
     from physbench.engine.contact.packs import Bodies, Cache, ContactArrays, NormalRows, Patches, PatchSet, RowArrays
     from physbench.engine.pack import Pack
@@ -191,9 +208,10 @@ def _warm_solve() -> None:
     linalg.lcp_residual(linalg.k_times(J, M, a, b, nb, r) - r, r)
     linalg.dense_active_set(K, r, act, 1e-10, 2)
     linalg.spd_solve_sparse(J, M, a, b, nb, r, act, 1e-10)
-    linalg.lu_solve(K + np.eye(m), r)
-    linalg.inverse(K + np.eye(m))
-    linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))  # (in place)
+    if callees:
+        linalg.lu_solve(K + np.eye(m), r)
+        linalg.inverse(K + np.eye(m))
+        linalg.solve_batch(np.tile(np.eye(3), (2, 1, 1)), np.ones((2, 3)))  # (in place)
     linalg.islands(nb, a, b)
     from physbench.engine.contact.rows import _greedy_colours
 
@@ -230,7 +248,8 @@ def _warm_solve() -> None:
     # (prepare.classify: compiled by phases.classify_stage's warm-up, the
     # same argument types)
     lm = np.empty((m, 3))
-    prepare.normal_rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm)
+    if callees:
+        prepare.normal_rows(X, Iinv, im, R0, True, a, b, P3, P3, act, nb, J, M, r.copy(), lm)
     P = np.zeros((npch, 3))
     t = np.zeros((npch, 2, 3))
     bodies = Bodies(X=X, Iinv=Iinv, inv_mass=im, R0=R0)
@@ -258,13 +277,13 @@ def _warm_solve() -> None:
     cache = Pack(Cache(code=codes, loc=lm, fn=z3, pairs=codes.copy(), ft=P3, tw=z3.copy(), rr=P3.copy(), touch=tb))
     warm.match(codes, lm, a, br, cache, 0.01, r.copy(), True, False, pid, t, lt, zb.copy())
     warm.store(act, codes, lm, r, tb, act[:npch].copy(), act[:npch].copy(), True, False, lt, t, 0.01, cache)
-    _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb)
+    _warm_phases(nb, ab, a, b, J, M, r, codes, lm, br, pab, pid, t, tb, callees)
     from physbench.engine.contact import topology
 
     topology.warm_up()
 
 
-def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
+def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb, callees: bool = True) -> None:
     """The solve's compiled calls from Python (engine/contact/phases.py):
     ``relax`` (the phase-by-phase path's) and the stage's fused calls
     (``solve_contacts`` and the kernels it calls are compiled into those,
@@ -275,13 +294,14 @@ def _warm_phases(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None
     V = np.zeros((nb + 1, 3))
     U = np.zeros((nb + 1, 6))
     phases.relax(V, V.copy(), U, ab, J, M, np.ones(m), np.zeros(m), r, 2, 1e-7, nb, np.empty(m))
-    _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb)
+    _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb, callees)
 
 
-def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
+def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb, callees: bool = True) -> None:
     """The solve stage's one compiled call (phases.solve_stage) with its
     packs built by the stage's own helpers (engine/solver.py), with and
-    without friction and rolling."""
+    without friction and rolling; with ``callees`` the fused steady step's
+    whole solve stage (phases.classify_stage) too."""
     from types import SimpleNamespace
 
     from physbench.engine import solver
@@ -317,6 +337,8 @@ def _warm_stage(nb, ab, a, b, J, M, r, codes, loc, br, pab, pid, t, tb) -> None:
         kk = Pack(ContactArrays(a=a, b=b, sidx=-np.ones(m, np.int64), point=loc.copy(), normal=loc.copy(), gap=r.copy(),
                                 e=r.copy()))
         phases.solve_stage(kc, kt, kw, cache, out, kk, a, tb, vn, 0.01, s, True, True)
+        if not callees:
+            continue
         # the whole stage of a steady step (classification first)
         kx = Pack(Classified(UL=X.copy(), UA=X.copy(), vn=vn, touching=tb.copy(), impact=tb.copy(), codes=codes.copy()))
         phases.classify_stage(kc, kx, kt, kw, cache, out, kk, codes.copy(), a, 0.01, s, True, True, True, True)
@@ -337,7 +359,7 @@ def _flight_arrays(nb: int = 2):
     return x, q, np.ones((nb, 3)), np.zeros((nb, 3, 3)), idx, I, plain, springs
 
 
-def _warm_flight(method: str) -> None:
+def _warm_flight(method: str, callees: bool = True) -> None:
     """The free-flight kernels (engine/flight.py) on two bodies: the
     integrator ``method`` (an engine.flight.METHOD name; the force kernels
     are compiled into it), the position update, the start and commit of a
@@ -350,7 +372,8 @@ def _warm_flight(method: str) -> None:
     x, q, v, R, idx, I, plain, springs = _flight_arrays(nb)
     Iinv = np.zeros((nb + 1, 3, 3))
     inv_I = np.ones((nb, 3))
-    flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
+    if callees:  # (compiled into begin_step: state._begin_packed)
+        flight.start_pose(q, np.ones((nb, 3)), R, Iinv)
     vw1 = np.zeros((nb + 1, 3))
     kept = Pack(state.StepArrays(x=x.copy(), q=q.copy(), v=v.copy(), w=v.copy(), inv_I=inv_I, x1=x.copy(), q1=q.copy(),
                                  V=vw1.copy(), W=vw1.copy(), F=v.copy(), T=v.copy(), vp=vw1.copy(), wp=vw1.copy(),

@@ -516,9 +516,14 @@ def print_rows(rows: list[dict[str, Any]], title: str) -> None:
 
 #: a fresh process: build the reference engine for each scenario id given
 #: (default variant, default settings), step it 3 steps; prints one JSON
-#: object: seconds from the process' start to the first step done, CPU s
-#: and the functions numba compiled (numba's ``numba:compile`` events;
-#: a cache hit raises none)
+#: object: seconds from the process' start to the first step done, CPU s,
+#: the functions numba compiled (numba's ``numba:compile`` events; a cache
+#: hit raises none) and the first scenario's start in parts: seconds to
+#: import the adapter and the scene loader (``imports_s``), to build its
+#: engine (``build_s``), of which loading or compiling kernels
+#: (``jit_s``: the engine's own account, engine/jit.py), and the compiled
+#: libraries numba loaded from its on-disk cache (``loaded``: the cache
+#: hits of every dispatcher in the process)
 _START_CODE = """
 import json, sys, time
 t0 = time.perf_counter()
@@ -527,15 +532,24 @@ names = set()
 with event.install_recorder("numba:compile") as rec:
     from physbench.adapters.reference import engine_for
     from physbench.contract.scene import load_scene
+    parts = {"imports_s": time.perf_counter() - t0}
     first = None
     for sid in sys.argv[1:]:
-        eng = engine_for(load_scene(sid))
+        scene = load_scene(sid)
+        t1 = time.perf_counter()
+        eng = engine_for(scene)
+        if first is None:
+            parts.update(build_s=time.perf_counter() - t1, jit_s=eng.profile.jit_s)
         eng.step(3)
         if first is None:
             first = time.perf_counter() - t0
+            import gc
+            from numba.core.dispatcher import Dispatcher
+            parts["loaded"] = sum(sum(d.stats.cache_hits.values()) for d in gc.get_objects()
+                                  if isinstance(d, Dispatcher))
 names = sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer if e.is_start})
 print(json.dumps({"first_step_s": first, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time(),
-                  "compiled": names}))
+                  "compiled": names, **parts}))
 """
 
 
@@ -575,7 +589,11 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
     of the scenario also in one process (``PHYSBENCH_COMPILE_JOBS=1``),
     beside it.  Rows: wall s, CPU s (the process, its workers and a
     build's helper), seconds to the first step, the number of functions
-    compiled in the building process (not its helper's)."""
+    compiled in the building process (not its helper's); for a process
+    building and stepping, the first scenario's start in parts: seconds
+    to import (``imports_s``), to build (``build_s``; ``jit_s`` of it
+    loading or compiling kernels) and the compiled libraries loaded from
+    the cache (``loaded``)."""
     import json
     import sys
     import tempfile
@@ -584,10 +602,14 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
 
     rows: list[dict[str, Any]] = []
 
-    def row(what: str, r: dict[str, Any], first=None, compiled=None) -> None:
+    def row(what: str, r: dict[str, Any], first=None, compiled=None, info=None) -> None:
+        info = info or {}
         rows.append({"measure": what, "wall_s": round(r["wall_s"], 2), "cpu_s": round(r["cpu_s"], 2),
                      "first_step_s": None if first is None else round(first, 2),
-                     "compiled": None if compiled is None else len(compiled)})
+                     "compiled": None if compiled is None else len(compiled),
+                     # the first scenario's start in parts (_START_CODE)
+                     **{k: None if info.get(k) is None else round(info[k], 2) for k in ("imports_s", "build_s", "jit_s")},
+                     "loaded": info.get("loaded")})
         print(f"bench compile: {json.dumps(rows[-1])}", file=sys.stderr, flush=True)  # (minutes apart)
 
     # (the run's own wall-clock budget is the bench's: a cold compile on a
@@ -601,12 +623,12 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
     with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
         r = _child(start + [scenario], cache, timeout, jobs=1)
         info = json.loads(r["stdout"].strip().splitlines()[-1])
-        row(f"build and step {scenario}, cold, one process", r, info["first_step_s"], info["compiled"])
+        row(f"build and step {scenario}, cold, one process", r, info["first_step_s"], info["compiled"], info)
     with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
         for kind in ("cold", "warm"):
             r = _child(start + [scenario], cache, timeout)
             info = json.loads(r["stdout"].strip().splitlines()[-1])
-            row(f"build and step {scenario}, {kind}", r, info["first_step_s"], info["compiled"])
+            row(f"build and step {scenario}, {kind}", r, info["first_step_s"], info["compiled"], info)
     if everything:
         from physbench.adapters.reference import ReferenceAdapter
         from physbench.contract.scene import load_scene
@@ -617,5 +639,6 @@ def compile_time(scenario: str = "billiards.head_on", everything: bool = True,
         with tempfile.TemporaryDirectory(prefix="physbench-compile-") as cache:
             r = _child(start + ids, cache, timeout)
             info = json.loads(r["stdout"].strip().splitlines()[-1])
-            row(f"build and step all {len(ids)} shipped scenarios it runs, cold", r, info["first_step_s"], info["compiled"])
+            row(f"build and step all {len(ids)} shipped scenarios it runs, cold", r, info["first_step_s"], info["compiled"],
+                info)
     return rows

@@ -200,6 +200,44 @@ def test_compile_bench_runs_cold_on_an_empty_cache_and_warm_on_the_one_it_filled
     assert not any(os.path.exists(d) for d in (d1, d3, d4, d6))  # temporary
 
 
+def test_compile_bench_start_reports_the_warm_start_in_parts(monkeypatch):
+    """The compile benchmark's build-and-step process (bench._START_CODE)
+    reports the first scenario's start in parts: import, build (of it the
+    engine's JIT time: loading kernels) and the libraries numba loaded from
+    its cache; the parts lie within the seconds to the first step, and the
+    rows carry them."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k in ("PATH", "HOME", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
+    runs = []
+    for _ in range(2):  # (the second on the cache the first filled, if it was cold)
+        out = subprocess.run([sys.executable, "-c", bench._START_CODE, "billiards.head_on"], capture_output=True,
+                             text=True, env=env, timeout=900)
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    info = runs[1]
+    assert info["compiled"] == []  # warm: everything loaded
+    assert info["loaded"] > 10  # (head_on's flight, broad and narrow phase, solve, impact, fused steps)
+    assert 0 < info["imports_s"] and 0 < info["jit_s"] <= info["build_s"]
+    assert info["imports_s"] + info["build_s"] < info["first_step_s"] <= info["wall_s"]
+    rows = []
+
+    def child(cmd, cache, timeout, jobs=None):
+        rows.append(cmd)
+        return {"wall_s": 1.0, "cpu_s": 1.0, "stdout": json.dumps(info) + "\n"}
+
+    monkeypatch.setattr(bench, "_child", child)
+    got = bench.compile_time("billiards.head_on", everything=False)
+    warm = got[-1]
+    assert warm["measure"] == "build and step billiards.head_on, warm"
+    assert warm["loaded"] == info["loaded"] and warm["imports_s"] == round(info["imports_s"], 2)
+    assert warm["build_s"] == round(info["build_s"], 2) and warm["jit_s"] == round(info["jit_s"], 2)
+    assert got[0]["loaded"] is None and got[0]["imports_s"] is None  # (physbench run: no parts)
+
+
 @pytest.mark.parametrize("engine", ["mujoco", "pymunk", "pybullet", "rapier", "box2d"])
 def test_bare_record_steps_the_same_simulation(engine):
     """The overhead benchmark's bare loop (Adapter.bare_record: step call and

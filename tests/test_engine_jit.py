@@ -190,3 +190,61 @@ def test_each_integrator_compiles_its_own_flight_and_the_cache_keeps_both(tmp_pa
     assert (staged2, compiles2) == ("[0, 0]", "0")  # everything loaded from the cache
     assert runs[0][1:] == runs[1][1:]  # the same end states, method by method
     assert runs[0][1] != runs[0][2]  # (two methods, two different end states)
+
+
+_WARM_BUILD = """
+import gc, importlib, json
+from numba.core.dispatcher import Dispatcher
+from physbench.adapters.reference import engine_for
+from physbench.contract.scene import load_scene
+from physbench.engine import compile_share
+from physbench.engine.jit import CALLEES, parts
+
+
+def stats():
+    # every dispatcher in the process: (its cache loads, compiles, specialisations)
+    return {id(d): (d, sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values()), len(d.overloads))
+            for d in gc.get_objects() if isinstance(d, Dispatcher)}
+
+
+out = {"changed": []}
+for variant in (None, "plastic"):
+    eng = engine_for(load_scene("billiards.head_on", variant))
+    if variant is None:
+        out["warm"] = all(compile_share.done(p) for p in parts(eng.model))
+        out["loaded"] = sum(s[1] for s in stats().values())
+        out["callees"] = {n: len(getattr(importlib.import_module("physbench.engine." + n.rsplit(".", 1)[0]),
+                                         n.rsplit(".", 1)[1]).overloads) for n in CALLEES}
+    before = stats()
+    eng.step(500)  # the whole scenario: the flight, the impact, the flights after it
+    out["changed"] += sorted(s[0].py_func.__qualname__ for k, s in stats().items()
+                             if before.get(k, (None, 0, 0, 0))[1:] != s[1:])
+print(json.dumps(out))
+"""
+
+
+def test_a_warm_build_loads_no_compiled_only_callee():
+    """On a warm cache a build loads the kernels Python calls, not those
+    only compiled code calls (engine.jit.CALLEES: phases.classify_stage is
+    inside the fused steady step, ...): a second process building
+    billiards.head_on loads none of them, and no step of either process
+    loads or compiles anything (the whole scenario, base and plastic
+    variant: the impact included), so the build still loads all a step
+    needs.  The libraries the warm build loads: at most 68 (74 while the
+    callees were loaded too; each costs 2 to 75 ms of the warm start,
+    ``physbench bench compile``)."""
+    import json
+
+    env = {"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
+           **{k: v for k, v in os.environ.items() if k == "NUMBA_CACHE_DIR"}}
+    runs = []
+    for _ in range(2):  # (the first fills a cold cache)
+        out = subprocess.run([sys.executable, "-c", _WARM_BUILD], capture_output=True, text=True, cwd=REPO, env=env,
+                             timeout=900)
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    first, warm = runs
+    assert warm["warm"]
+    assert warm["callees"] == {n: 0 for n in warm["callees"]} and len(warm["callees"]) == 6
+    assert first["changed"] == [] and warm["changed"] == []  # no step loads or compiles
+    assert 0 < warm["loaded"] <= 68

@@ -41,7 +41,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
             rows = bench.compile_time()
             bench.print_rows(rows, "reference engine start in fresh processes, on an empty compiled-kernel cache "
                                    "(cold) and on the cache it filled (warm): wall s, CPU s (with workers), s to "
-                                   "the first step, functions numba compiled")
+                                   "the first step, functions numba compiled; for a build-and-step process, "
+                                   "its first scenario's parts: s to import, s to build (jit_s of it: loading or "
+                                   "compiling kernels), compiled libraries loaded from the cache")
         elif args.kind == "targets":
             from physbench.harness.bench_targets import targets
 
