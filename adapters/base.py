@@ -199,6 +199,16 @@ class Adapter(abc.ABC):
             return gyroscopic_reason(scene, cls.gyroscopic_always_on)
         return None
 
+    @classmethod
+    def compile_pending_s(cls, scene: Scene, settings: dict[str, Any]) -> float:
+        """About how many CPU seconds of compiling a build of ``scene`` with
+        the resolved ``settings`` would spend before stepping, by the
+        engine's own on-disk cache (0.0: none, or the engine compiles
+        nothing of its own).  Read by the harness's scheduler
+        (harness/execute.py ``ColdSplit``): it keeps two builds that would
+        compile the same code apart.  Never raises."""
+        return 0.0
+
     # ---- life cycle --------------------------------------------------------
     @abc.abstractmethod
     def build(self, scene: Scene, settings: dict[str, Any]) -> None: ...

@@ -130,6 +130,21 @@ class ReferenceAdapter(Adapter):
             notes=("every shape pair collides, and each shape with every static (plane, slope, box)",),
         )
 
+    @classmethod
+    def compile_pending_s(cls, scene: Scene, settings: dict[str, Any]) -> float:
+        """The kernel groups a build of ``scene`` compiles that are not in
+        the on-disk cache yet, in CPU seconds (engine.jit.cold_seconds of
+        engine.jit.parts, the engine's own marks); 0.0 for a scene with
+        joints (its kernels are not grouped) or one that does not build."""
+        try:
+            from physbench.engine.jit import cold_seconds, parts
+            from physbench.engine.model import build_model
+
+            model = build_model(scene_input(scene), settings)
+            return 0.0 if model.joints is not None else float(cold_seconds(parts(model)))
+        except Exception:
+            return 0.0
+
     def build(self, scene: Scene, settings: dict[str, Any]) -> None:
         from physbench.engine.collision import unsupported_pairs
         from physbench.engine.jit import helped

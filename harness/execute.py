@@ -32,12 +32,13 @@ import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
                              InlineExecutor, WorkerLost, WorkerPool, extra_adapters, grace_s, members,
                              register_env_adapters, take, worker_main)
+from physbench.adapters.base import Adapter, get_adapter
 from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene import load_scene
 from physbench.harness import runner  # its names read at call time (tests patch them)
@@ -216,6 +217,122 @@ def lost_result(req: RunRequest, lost: WorkerLost):
 EXECUTORS = ("process", "inline", "dask")
 
 
+# ---------------------------------------------------------------------------
+# a cold compile cache on several workers
+
+
+class PendingCompile:
+    """``pending(req)``: about how many CPU seconds the engine(s) of a
+    request would compile before stepping, by their own on-disk caches
+    (adapters' ``compile_pending_s``: the reference engine's kernel
+    groups not yet marked done).  A scene is loaded once per (scenario,
+    variant, overrides) and asked once per settings; a 0 answer is kept
+    (a compiled group stays compiled), a positive one asked again next
+    time (another worker may have compiled it meanwhile).  Never raises
+    (an item that cannot say is 0: it runs as it would)."""
+
+    def __init__(self) -> None:
+        self._scenes: dict[tuple, Any] = {}
+        self._warm: set[tuple] = set()
+
+    def __call__(self, req: Any) -> float:
+        if not isinstance(req, RunRequest):
+            return 0.0
+        engines = tuple(req.consensus) or (req.engine,)
+        total = 0.0
+        for eng in engines:
+            key = (req.scenario, req.variant, repr(sorted(req.overrides.items())), eng,
+                   repr(sorted(req.settings.items())))
+            if key in self._warm:
+                continue
+            try:
+                cls = get_adapter(eng)
+                if cls.compile_pending_s.__func__ is _BASE_PENDING:  # an engine without a cache of its own
+                    self._warm.add(key)
+                    continue
+                skey = key[:3]
+                if skey not in self._scenes:
+                    self._scenes[skey] = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+                s = float(cls.compile_pending_s(self._scenes[skey], cls.resolve_settings(self._scenes[skey],
+                                                                                         dict(req.settings))))
+            except Exception:
+                s = 0.0
+            if s <= 0.0:
+                self._warm.add(key)
+            total += max(0.0, s)
+        return total
+
+
+_BASE_PENDING = Adapter.compile_pending_s.__func__
+
+
+class ColdSplit:
+    """An executor's item source that keeps two cold builds apart: while
+    one unit whose engine would compile (``pending(item) > 0`` for an item
+    of it: :class:`PendingCompile`) is in flight, the next cold unit of
+    ``source`` waits (in order) and the next warm one is handed out
+    instead; with no cold unit in flight the oldest waiting one goes
+    first.  When only cold units are left, they are handed out as they
+    come (their builds then share the compiling through the engine's
+    locks, engine/compile_share.py).
+
+    Why: pool workers share a cold compile through locks on its kernel
+    groups, and a build that needs a group another worker is compiling
+    waits for it; a worker that waits runs nothing.  So on a cold cache one
+    worker compiles and the others run what needs no compiling.  Every
+    unit is handed out exactly once, whatever the executor; with a warm
+    cache (``pending`` always 0) the order is the source's.  The consumer
+    calls :meth:`done` with each finished item.  Tests:
+    tests/test_schedule.py::test_cold_split_*."""
+
+    def __init__(self, source: Iterable[Any], pending: Callable[[Any], float]):
+        self.source = iter(source)
+        self.pending = pending
+        self.cold_in_flight: set[int] = set()  # ids of the items of the cold units handed out, not done
+        self.waiting: list[Any] = []  # cold units held back, in the source's order
+        self.deferred = 0  # units held back at least once (a check's summary line)
+
+    def _cold(self, unit: Any) -> bool:
+        return any(self.pending(i) > 0 for i in members(unit))
+
+    def _hand(self, unit: Any, cold: bool | None = None) -> Any:
+        if cold if cold is not None else self._cold(unit):
+            self.cold_in_flight.update(id(i) for i in members(unit))
+        return unit
+
+    def done(self, item: Any) -> None:
+        """``item`` (a unit's member) finished (a value or a lost worker)."""
+        self.cold_in_flight.discard(id(item))
+
+    def __iter__(self) -> Iterator[Any]:
+        while True:
+            if self.waiting and not self.cold_in_flight:
+                yield self._hand(self.waiting.pop(0))
+                continue
+            unit = next(self.source, END)
+            if unit is END or unit is WAIT:
+                if self.waiting:  # nothing else to run: the held-back cold units now
+                    yield self._hand(self.waiting.pop(0))
+                    continue
+                if unit is END:
+                    return
+                yield unit
+                continue
+            cold = self._cold(unit)
+            if cold and self.cold_in_flight:
+                self.waiting.append(unit)
+                self.deferred += 1
+                continue
+            yield self._hand(unit, cold)
+
+
+def shares_compile(executor: Any) -> bool:
+    """Whether ``executor``'s workers share this machine's compile cache
+    and run at once (``shares_compile_cache``: a local :class:`WorkerPool`)
+    with two workers or more: where :class:`ColdSplit` pays."""
+    return bool(getattr(executor, "shares_compile_cache", False)) and getattr(executor, "jobs", 1) > 1
+
+
 
 def run_requests(reqs: Iterable[RunRequest], executor: Any) -> Iterator[tuple[RunRequest, Any]]:
     """(request, RunResult) for each request as it finishes, through
@@ -233,4 +350,4 @@ def run_isolated(req: RunRequest):
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "failure_result", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
            "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
-           "members"]
+           "members", "ColdSplit", "PendingCompile", "shares_compile"]
