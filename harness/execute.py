@@ -290,7 +290,7 @@ class ColdSplit:
         self.pending = pending
         self.cold_in_flight: set[int] = set()  # ids of the items of the cold units handed out, not done
         self.waiting: list[Any] = []  # cold units held back, in the source's order
-        self.deferred = 0  # units held back at least once (a check's summary line)
+        self.deferred = 0  # units held back (counted once each time one is)
 
     def _cold(self, unit: Any) -> bool:
         return any(self.pending(i) > 0 for i in members(unit))
