@@ -200,14 +200,15 @@ class Adapter(abc.ABC):
         return None
 
     @classmethod
-    def compile_pending_s(cls, scene: Scene, settings: dict[str, Any]) -> float:
-        """About how many CPU seconds of compiling a build of ``scene`` with
-        the resolved ``settings`` would spend before stepping, by the
-        engine's own on-disk cache (0.0: none, or the engine compiles
-        nothing of its own).  Read by the harness's scheduler
-        (harness/execute.py ``ColdSplit``): it keeps two builds that would
-        compile the same code apart.  Never raises."""
-        return 0.0
+    def pending_compile(cls, scene: Scene, settings: dict[str, Any]) -> dict[str, float]:
+        """The groups of compiled code a build of ``scene`` with the
+        resolved ``settings`` would compile before stepping, by the
+        engine's own on-disk cache, as {group name: about how many CPU
+        seconds} (empty: none, or the engine compiles nothing of its own).
+        Read by the harness's scheduler (harness/execute.py ``ColdSplit``):
+        two builds that would compile the same group are kept apart.  Never
+        raises."""
+        return {}
 
     # ---- life cycle --------------------------------------------------------
     @abc.abstractmethod

@@ -222,108 +222,132 @@ EXECUTORS = ("process", "inline", "dask")
 
 
 class PendingCompile:
-    """``pending(req)``: about how many CPU seconds the engine(s) of a
+    """``pending(req)``: the compiled-code groups the engine(s) of a
     request would compile before stepping, by their own on-disk caches
-    (adapters' ``compile_pending_s``: the reference engine's kernel
-    groups not yet marked done).  A scene is loaded once per (scenario,
-    variant, overrides) and asked once per settings; a 0 answer is kept
-    (a compiled group stays compiled), a positive one asked again next
-    time (another worker may have compiled it meanwhile).  Never raises
-    (an item that cannot say is 0: it runs as it would)."""
+    (adapters' ``pending_compile``: the reference engine's kernel groups
+    not yet marked done), as a frozenset of ``engine:group`` names.  An
+    engine is asked once per (scene, settings); the groups compiled since,
+    by the cold units handed out and finished (:meth:`compiled`), are taken
+    off here (a compiled group stays compiled).  Never raises (an item
+    that cannot say has none: it runs as it would)."""
 
     def __init__(self) -> None:
         self._scenes: dict[tuple, Any] = {}
-        self._warm: set[tuple] = set()
+        self._asked: dict[tuple, frozenset[str]] = {}
+        self._compiled: set[str] = set()
 
-    def __call__(self, req: Any) -> float:
+    def compiled(self, groups: Iterable[str]) -> None:
+        """``groups`` are in the cache now (a cold unit that needed them finished)."""
+        self._compiled.update(groups)
+
+    def __call__(self, req: Any) -> frozenset[str]:
         if not isinstance(req, RunRequest):
-            return 0.0
-        engines = tuple(req.consensus) or (req.engine,)
-        total = 0.0
-        for eng in engines:
+            return frozenset()
+        out: set[str] = set()
+        for eng in tuple(req.consensus) or (req.engine,):
             key = (req.scenario, req.variant, repr(sorted(req.overrides.items())), eng,
                    repr(sorted(req.settings.items())))
-            if key in self._warm:
-                continue
-            try:
-                cls = get_adapter(eng)
-                if cls.compile_pending_s.__func__ is _BASE_PENDING:  # an engine without a cache of its own
-                    self._warm.add(key)
-                    continue
-                skey = key[:3]
-                if skey not in self._scenes:
-                    self._scenes[skey] = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
-                s = float(cls.compile_pending_s(self._scenes[skey], cls.resolve_settings(self._scenes[skey],
-                                                                                         dict(req.settings))))
-            except Exception:
-                s = 0.0
-            if s <= 0.0:
-                self._warm.add(key)
-            total += max(0.0, s)
-        return total
+            if key not in self._asked:
+                self._asked[key] = self._ask(key, req, eng)
+            out |= self._asked[key]
+        return frozenset(out - self._compiled)
+
+    def _ask(self, key: tuple, req: RunRequest, eng: str) -> frozenset[str]:
+        try:
+            cls = get_adapter(eng)
+            if cls.pending_compile.__func__ is _BASE_PENDING:  # an engine without a cache of its own
+                return frozenset()
+            skey = key[:3]
+            if skey not in self._scenes:
+                self._scenes[skey] = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+            scene = self._scenes[skey]
+            groups = cls.pending_compile(scene, cls.resolve_settings(scene, dict(req.settings)))
+            return frozenset(f"{eng}:{g}" for g, s in groups.items() if s > 0)
+        except Exception:
+            return frozenset()
 
 
-_BASE_PENDING = Adapter.compile_pending_s.__func__
+_BASE_PENDING = Adapter.pending_compile.__func__
 
 
 class ColdSplit:
-    """An executor's item source that keeps two cold builds apart: while
-    one unit whose engine would compile (``pending(item) > 0`` for an item
-    of it: :class:`PendingCompile`) is in flight, the next cold unit of
-    ``source`` waits (in order) and the next warm one is handed out
-    instead; with no cold unit in flight the oldest waiting one goes
-    first.  When only cold units are left, they are handed out as they
-    come (their builds then share the compiling through the engine's
-    locks, engine/compile_share.py).
+    """An executor's item source that keeps builds that would compile the
+    same code apart.  A unit's *pending* groups (``pending(item)`` over its
+    items: :class:`PendingCompile`) are the compiled-code groups its builds
+    would compile; a unit *conflicts* while a unit handed out and not done
+    is compiling one of them.  Each time a worker is free it gets the
+    oldest held-back unit that does not conflict, else the source's next
+    one that does not (the units that do are held back, in order); when
+    every unit left conflicts, the oldest (its build then shares the
+    compiling through the engine's locks, engine/compile_share.py, and
+    waits for the rest).
 
     Why: pool workers share a cold compile through locks on its kernel
     groups, and a build that needs a group another worker is compiling
-    waits for it; a worker that waits runs nothing.  So on a cold cache one
-    worker compiles and the others run what needs no compiling.  Every
-    unit is handed out exactly once, whatever the executor; with a warm
-    cache (``pending`` always 0) the order is the source's.  The consumer
-    calls :meth:`done` with each finished item.  Tests:
+    waits for it, running nothing.  So on a cold cache one worker compiles
+    a group while the others run what does not need it: other engines'
+    runs, scenes whose code is compiled, scenes that compile other groups.
+    Every unit is handed out exactly once, whatever the executor; with a
+    warm cache (nothing pending) the order is the source's.  The consumer
+    calls :meth:`done` with each finished item; the groups of a finished
+    unit go to ``pending.compiled`` where it has one.  Tests:
     tests/test_schedule.py::test_cold_split_*."""
 
-    def __init__(self, source: Iterable[Any], pending: Callable[[Any], float]):
+    def __init__(self, source: Iterable[Any], pending: Callable[[Any], frozenset]):
         self.source = iter(source)
         self.pending = pending
-        self.cold_in_flight: set[int] = set()  # ids of the items of the cold units handed out, not done
-        self.waiting: list[Any] = []  # cold units held back, in the source's order
+        self.compiling: dict[int, frozenset] = {}  # id(item) -> the groups its unit compiles (handed out, not done)
+        self.waiting: list[Any] = []  # units held back, in the source's order
         self.deferred = 0  # units held back (counted once each time one is)
 
-    def _cold(self, unit: Any) -> bool:
-        return any(self.pending(i) > 0 for i in members(unit))
+    def _groups(self, unit: Any) -> frozenset:
+        out: frozenset = frozenset()
+        for i in members(unit):
+            out |= self.pending(i)
+        return out
 
-    def _hand(self, unit: Any, cold: bool | None = None) -> Any:
-        if cold if cold is not None else self._cold(unit):
-            self.cold_in_flight.update(id(i) for i in members(unit))
+    def _busy(self) -> set:
+        return set().union(*self.compiling.values())
+
+    def _hand(self, unit: Any, groups: frozenset) -> Any:
+        if groups:
+            for i in members(unit):
+                self.compiling[id(i)] = groups
         return unit
 
     def done(self, item: Any) -> None:
         """``item`` (a unit's member) finished (a value or a lost worker)."""
-        self.cold_in_flight.discard(id(item))
+        groups = self.compiling.pop(id(item), None)
+        if groups and not any(g is groups for g in self.compiling.values()):  # the unit's last item
+            compiled = getattr(self.pending, "compiled", None)
+            if compiled is not None:
+                compiled(groups)
 
     def __iter__(self) -> Iterator[Any]:
         while True:
-            if self.waiting and not self.cold_in_flight:
-                yield self._hand(self.waiting.pop(0))
-                continue
-            unit = next(self.source, END)
-            if unit is END or unit is WAIT:
-                if self.waiting:  # nothing else to run: the held-back cold units now
-                    yield self._hand(self.waiting.pop(0))
+            busy = self._busy()
+            for k, unit in enumerate(self.waiting):
+                groups = self._groups(unit)
+                if not groups & busy:
+                    del self.waiting[k]
+                    break
+            else:
+                unit = next(self.source, END)
+                if unit is END or unit is WAIT:
+                    if self.waiting:  # every unit left conflicts: the oldest, sharing the compile
+                        unit = self.waiting.pop(0)
+                        yield self._hand(unit, self._groups(unit))
+                        continue
+                    if unit is END:
+                        return
+                    yield unit
                     continue
-                if unit is END:
-                    return
-                yield unit
-                continue
-            cold = self._cold(unit)
-            if cold and self.cold_in_flight:
-                self.waiting.append(unit)
-                self.deferred += 1
-                continue
-            yield self._hand(unit, cold)
+                groups = self._groups(unit)
+                if groups & busy:
+                    self.waiting.append(unit)
+                    self.deferred += 1
+                    continue
+            yield self._hand(unit, groups)
 
 
 def shares_compile(executor: Any) -> bool:

@@ -369,8 +369,8 @@ class _LockSim:
         self.jobs, self.now, self.ready_at, self.waited, self.makespan = jobs, 0.0, {}, 0.0, 0.0
         self.started: list = []
 
-    def pending(self, item) -> float:
-        return sum(self.COST.get(g, 10.0) for g in item.groups if self.ready_at.get(g, math.inf) > self.now)
+    def pending(self, item) -> frozenset:
+        return frozenset(g for g in item.groups if self.ready_at.get(g, math.inf) > self.now)
 
     def _start(self, item) -> float:
         t, wait_for = self.now, self.now
@@ -452,7 +452,7 @@ def test_cold_split_keeps_the_order_on_a_warm_cache():
     from physbench.harness.execute import ColdSplit
 
     units = _check_plan()
-    split = ColdSplit(units, lambda item: 0.0)
+    split = ColdSplit(units, lambda item: frozenset())
     assert list(split) == units and split.deferred == 0
     ex = _LockSim()
     for b in units:
@@ -461,31 +461,44 @@ def test_cold_split_keeps_the_order_on_a_warm_cache():
     assert ex.started == units
 
 
-def test_cold_split_holds_cold_units_back_in_order_and_never_starves():
-    """A second cold unit waits while one is in flight (warm ones pass it);
-    the oldest held-back unit goes first once none is in flight; with only
-    cold units left they are handed out anyway (no worker left idle);
-    a WAIT of the source hands a held-back unit instead of waiting."""
+def test_cold_split_holds_conflicting_units_back_in_order_and_never_starves():
+    """A unit that would compile a group another unit in flight compiles
+    is held back (units that need none, or other groups, pass it); the
+    oldest held-back unit that no longer conflicts goes first; with only
+    conflicting units left they are handed out anyway (no worker left
+    idle); a WAIT of the source hands a held-back unit instead of waiting;
+    a finished unit's groups go to ``pending.compiled``."""
     from physbench.harness.execute import ColdSplit
 
     c1, c2, c3, w1, w2 = (_Build(n, g) for n, g in (("c1", ("a",)), ("c2", ("a",)), ("c3", ("b",)),
                                                        ("w1", ()), ("w2", ())))
-    split = ColdSplit([c1, c2, w1, c3, w2], lambda it: 1.0 if it.groups else 0.0)
+
+    class Pending:
+        def __init__(self):
+            self.done = set()
+
+        def __call__(self, item):
+            return frozenset(item.groups) - self.done
+
+        def compiled(self, groups):
+            self.done |= groups
+
+    split = ColdSplit([c1, c2, w1, c3, w2], Pending())
     it = iter(split)
     assert next(it) is c1
-    assert next(it) is w1  # c2 held back: c1 compiles
-    assert next(it) is w2  # c3 too
-    split.done(w1)
-    assert next(it) is c2  # only cold ones left: handed out even while c1 is in flight
+    assert next(it) is w1  # c2 held back: c1 compiles group a
+    assert next(it) is c3  # group b: compiled beside a
+    assert next(it) is w2
+    assert next(it) is c2  # only conflicting ones left: handed out while c1 is in flight
     split.done(c1)
-    split.done(c2)
-    assert next(it) is c3
-    assert next(it, None) is None and split.deferred == 2
-    # the oldest held-back unit first once the cold one in flight is done
-    split = ColdSplit([c1, c2, c3, w1, w2, w1], lambda it: 1.0 if it.groups else 0.0)
+    assert split.pending.done == {"a"}
+    assert next(it, None) is None and split.deferred == 1
+    # the oldest held-back unit first once nothing in flight compiles its group
+    split = ColdSplit([c1, c2, c2, w1, w2, w1], Pending())
     it = iter(split)
     assert [next(it), next(it)] == [c1, w1]
     split.done(c1)
+    assert next(it) is c2 and split.waiting == [c2]  # (warm now: c1 compiled a)
     assert next(it) is c2
     # a source that says WAIT: a held-back unit runs meanwhile
     def source():
@@ -494,8 +507,22 @@ def test_cold_split_holds_cold_units_back_in_order_and_never_starves():
         yield WAIT
         yield w1
 
-    split = ColdSplit(source(), lambda it: 1.0 if it.groups else 0.0)
+    split = ColdSplit(source(), Pending())
     assert list(split) == [c1, c2, w1]
+
+
+def test_cold_split_compiles_other_groups_beside_each_other():
+    """With nothing but reference runs left (no other engine's run to hand
+    out), a scene's base and its variant (the same groups) are kept apart
+    and another scene's run (other groups) goes beside: no worker waits,
+    where the planned order makes one wait for each pair."""
+    plan = []
+    for k in range(4):
+        plan += [_Build(f"s{k}", (f"narrow{k}",), 1.0), _Build(f"s{k}v", (f"narrow{k}",), 1.0)]
+    plain, split = _LockSim(), _LockSim()
+    assert sorted(_drive(plain, plan, False)) == sorted(_drive(split, plan, True))
+    assert plain.waited >= 4 * 9.0
+    assert split.waited == 0.0 and split.makespan < plain.makespan - 10.0
 
 
 def test_cold_split_serves_a_sweeps_points(monkeypatch):
@@ -535,30 +562,34 @@ def test_cold_split_serves_a_sweeps_points(monkeypatch):
 
 
 def test_pending_compile_reads_the_engines_own_cache(tmp_path, monkeypatch):
-    """PendingCompile asks the engine's adapter (compile_pending_s): the
-    reference engine on an empty cache has its groups to compile (the
-    solve alone ~40 CPU s), none once every group of the scene is marked
-    done (engine/compile_share.py; a 0 is kept); an engine that compiles
-    nothing of its own is 0; a consensus run counts its engines."""
+    """PendingCompile asks the engine's adapter (pending_compile): the
+    reference engine on an empty cache has its kernel groups to compile
+    (the contact solve among them), none once every group of the scene is
+    marked done (engine/compile_share.py) or reported compiled by a
+    finished unit; an engine that compiles nothing of its own has none; a
+    consensus run counts its engines'."""
+    from physbench.adapters import get_adapter
     from physbench.adapters.reference import scene_input
     from physbench.contract.scene import load_scene
     from physbench.engine import compile_share
     from physbench.engine.jit import parts
     from physbench.engine.model import build_model
-    from physbench.adapters import get_adapter
     from physbench.harness.execute import PendingCompile, RunRequest
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    pending = PendingCompile()
     ref = RunRequest("billiards.head_on", "reference")
-    assert pending(ref) >= 40.0
-    assert pending(RunRequest("billiards.head_on", "mujoco")) == 0.0
     both = RunRequest("billiards.head_on", "consensus", consensus=("mujoco", "reference"))
-    assert pending(both) == pending(ref)
+    pending = PendingCompile()
+    groups = pending(ref)
+    assert "reference:('solve',)" in groups and len(groups) >= 4
+    assert pending(RunRequest("billiards.head_on", "mujoco")) == frozenset()
+    assert pending(both) == groups
+    assert pending(RunRequest("billiards.head_on", "reference", phase=0.5)) == groups  # the phase changes no kernel
+    pending.compiled(groups)  # (a unit that needed them finished)
+    assert pending(ref) == frozenset() and pending(both) == frozenset()
     scene = load_scene("billiards.head_on")
     model = build_model(scene_input(scene), get_adapter("reference").resolve_settings(scene, {}))
     for key in parts(model):
         with compile_share.group(key):  # (compiled: marked done)
             pass
-    assert pending(ref) == 0.0 and pending(both) == 0.0
-    assert pending(RunRequest("billiards.head_on", "reference", phase=0.5)) == 0.0  # the phase changes no kernel
+    assert PendingCompile()(ref) == frozenset()
