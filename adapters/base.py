@@ -199,6 +199,17 @@ class Adapter(abc.ABC):
             return gyroscopic_reason(scene, cls.gyroscopic_always_on)
         return None
 
+    @classmethod
+    def pending_compile(cls, scene: Scene, settings: dict[str, Any]) -> dict[str, float]:
+        """The groups of compiled code a build of ``scene`` with the
+        resolved ``settings`` would compile before stepping, by the
+        engine's own on-disk cache, as {group name: about how many CPU
+        seconds} (empty: none, or the engine compiles nothing of its own).
+        Read by the harness's scheduler (harness/execute.py ``ColdSplit``):
+        two builds that would compile the same group are kept apart.  Never
+        raises."""
+        return {}
+
     # ---- life cycle --------------------------------------------------------
     @abc.abstractmethod
     def build(self, scene: Scene, settings: dict[str, Any]) -> None: ...

@@ -75,6 +75,10 @@ def _path(key: tuple, suffix: str) -> Path:
     return _dir() / (hashlib.sha256(repr(key).encode()).hexdigest()[:20] + suffix)
 
 
+#: numba event kind broadcast around a wait for a group another process holds (data: {"group": key})
+WAIT_EVENT = "physbench:compile_wait"
+
+
 def done(key: tuple) -> bool:
     """Whether the group ``key`` was compiled into this engine's cache."""
     return _path(key, ".done").exists()
@@ -107,10 +111,16 @@ def group(key: tuple, wait: bool = True) -> Iterator[bool]:
         return
     try:
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            yield False
-            return
+            if not wait:
+                yield False
+                return
+            # another process compiles it: said on numba's event bus (harness/compile_progress.py shows it)
+            from numba.core import event
+
+            with event.trigger_event(WAIT_EVENT, data={"group": key}):
+                fcntl.flock(fd, fcntl.LOCK_EX)
         yield True
         _mark(key)
     finally:

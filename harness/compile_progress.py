@@ -52,6 +52,11 @@ IDLE_S = 1.5
 TYPICAL_S = 180.0
 TIMING_FILE = "compile-seconds.json"
 
+#: numba event kind the engine broadcasts around a wait for a kernel group
+#: another process compiles (engine/compile_share.py ``WAIT_EVENT``: the
+#: same text, not imported: the harness reaches the engine through adapters)
+WAIT_EVENT = "physbench:compile_wait"
+
 _installed: "CompileProgress | None" = None
 #: (fd, shared) taken from the environment by a worker at start (take_parent_stream)
 _parent_stream: tuple[int, bool] | None = None
@@ -73,6 +78,21 @@ def take_parent_stream() -> None:
 
 def _fmt_s(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+def group_name(key: Any) -> str:
+    """A kernel group's key (engine/jit.py ``parts``) as a short name:
+    ``('narrow', (True, None, ...))`` -> ``narrow (3 shape-pair families)``,
+    ``('steady', False, 'rk4')`` -> ``steady False rk4``."""
+    if not isinstance(key, tuple) or not key:
+        return str(key)
+    words = []
+    for v in key:
+        if isinstance(v, tuple):
+            words.append(f"({sum(1 for f in v if f)} shape-pair families)")
+        else:
+            words.append(str(v))
+    return " ".join(words)
 
 
 def _cache_dir() -> Path | None:
@@ -161,6 +181,15 @@ class CompileProgress:
             if self.depth == 0:
                 self.kernels += 1
                 self.last_event = self.clock()
+
+    def waiting(self, group: str) -> None:
+        """This process waits for another one's compile of ``group`` (a
+        kernel group held under its lock, engine/compile_share.py): said
+        at once, since no compile event comes while it waits."""
+        with self.lock:
+            now = self.clock()
+            self._write(f"physbench: waiting for another process's compile of {group} (then loaded from the cache)",
+                        now, final=self.interactive and self.t0 is None)
 
     # ---- the line ----------------------------------------------------------
     def elapsed(self, now: float) -> float:
@@ -262,6 +291,15 @@ def watch(force: bool = False) -> "CompileProgress | None":
             printer.end()
 
     event.register("numba:compile", _Listener())
+
+    class _Waits(_numba_listener_base()):
+        def on_start(self, ev: Any) -> None:
+            printer.waiting(group_name((ev.data or {}).get("group")))
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    event.register(WAIT_EVENT, _Waits())
 
     def at_exit() -> None:
         with printer.lock:

@@ -32,12 +32,13 @@ import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 from physbench.harness import status as st
 from physbench.harness.workers import (ADAPTERS_ENV, END, ONE_THREAD_ENV, WAIT, WORKER_ENV, Batch,  # noqa: F401
                              InlineExecutor, WorkerLost, WorkerPool, extra_adapters, grace_s, members,
                              register_env_adapters, take, worker_main)
+from physbench.adapters.base import Adapter, get_adapter
 from physbench.contract.phase import PhaseError, shift_scene
 from physbench.contract.scene import load_scene
 from physbench.harness import runner  # its names read at call time (tests patch them)
@@ -216,6 +217,146 @@ def lost_result(req: RunRequest, lost: WorkerLost):
 EXECUTORS = ("process", "inline", "dask")
 
 
+# ---------------------------------------------------------------------------
+# a cold compile cache on several workers
+
+
+class PendingCompile:
+    """``pending(req)``: the compiled-code groups the engine(s) of a
+    request would compile before stepping, by their own on-disk caches
+    (adapters' ``pending_compile``: the reference engine's kernel groups
+    not yet marked done), as a frozenset of ``engine:group`` names.  An
+    engine is asked once per (scene, settings); the groups compiled since,
+    by the cold units handed out and finished (:meth:`compiled`), are taken
+    off here (a compiled group stays compiled).  Never raises (an item
+    that cannot say has none: it runs as it would)."""
+
+    def __init__(self) -> None:
+        self._scenes: dict[tuple, Any] = {}
+        self._asked: dict[tuple, frozenset[str]] = {}
+        self._compiled: set[str] = set()
+
+    def compiled(self, groups: Iterable[str]) -> None:
+        """``groups`` are in the cache now (a cold unit that needed them finished)."""
+        self._compiled.update(groups)
+
+    def __call__(self, req: Any) -> frozenset[str]:
+        if not isinstance(req, RunRequest):
+            return frozenset()
+        out: set[str] = set()
+        for eng in tuple(req.consensus) or (req.engine,):
+            key = (req.scenario, req.variant, repr(sorted(req.overrides.items())), eng,
+                   repr(sorted(req.settings.items())))
+            if key not in self._asked:
+                self._asked[key] = self._ask(key, req, eng)
+            out |= self._asked[key]
+        return frozenset(out - self._compiled)
+
+    def _ask(self, key: tuple, req: RunRequest, eng: str) -> frozenset[str]:
+        try:
+            cls = get_adapter(eng)
+            if cls.pending_compile.__func__ is _BASE_PENDING:  # an engine without a cache of its own
+                return frozenset()
+            skey = key[:3]
+            if skey not in self._scenes:
+                self._scenes[skey] = load_scene(req.scenario, req.variant, dict(req.overrides) or None)
+            scene = self._scenes[skey]
+            groups = cls.pending_compile(scene, cls.resolve_settings(scene, dict(req.settings)))
+            return frozenset(f"{eng}:{g}" for g, s in groups.items() if s > 0)
+        except Exception:
+            return frozenset()
+
+
+_BASE_PENDING = Adapter.pending_compile.__func__
+
+
+class ColdSplit:
+    """An executor's item source that keeps builds that would compile the
+    same code apart.  A unit's *pending* groups (``pending(item)`` over its
+    items: :class:`PendingCompile`) are the compiled-code groups its builds
+    would compile; a unit *conflicts* while a unit handed out and not done
+    is compiling one of them.  Each time a worker is free it gets the
+    oldest held-back unit that does not conflict, else the source's next
+    one that does not (the units that do are held back, in order); when
+    every unit left conflicts, the oldest (its build then shares the
+    compiling through the engine's locks, engine/compile_share.py, and
+    waits for the rest).
+
+    Why: pool workers share a cold compile through locks on its kernel
+    groups, and a build that needs a group another worker is compiling
+    waits for it, running nothing.  So on a cold cache one worker compiles
+    a group while the others run what does not need it: other engines'
+    runs, scenes whose code is compiled, scenes that compile other groups.
+    Every unit is handed out exactly once, whatever the executor; with a
+    warm cache (nothing pending) the order is the source's.  The consumer
+    calls :meth:`done` with each finished item; the groups of a finished
+    unit go to ``pending.compiled`` where it has one.  Tests:
+    tests/test_schedule.py::test_cold_split_*."""
+
+    def __init__(self, source: Iterable[Any], pending: Callable[[Any], frozenset]):
+        self.source = iter(source)
+        self.pending = pending
+        self.compiling: dict[int, frozenset] = {}  # id(item) -> the groups its unit compiles (handed out, not done)
+        self.waiting: list[Any] = []  # units held back, in the source's order
+        self.deferred = 0  # units held back (counted once each time one is)
+
+    def _groups(self, unit: Any) -> frozenset:
+        out: frozenset = frozenset()
+        for i in members(unit):
+            out |= self.pending(i)
+        return out
+
+    def _busy(self) -> set:
+        return set().union(*self.compiling.values())
+
+    def _hand(self, unit: Any, groups: frozenset) -> Any:
+        if groups:
+            for i in members(unit):
+                self.compiling[id(i)] = groups
+        return unit
+
+    def done(self, item: Any) -> None:
+        """``item`` (a unit's member) finished (a value or a lost worker)."""
+        groups = self.compiling.pop(id(item), None)
+        if groups and not any(g is groups for g in self.compiling.values()):  # the unit's last item
+            compiled = getattr(self.pending, "compiled", None)
+            if compiled is not None:
+                compiled(groups)
+
+    def __iter__(self) -> Iterator[Any]:
+        while True:
+            busy = self._busy()
+            for k, unit in enumerate(self.waiting):
+                groups = self._groups(unit)
+                if not groups & busy:
+                    del self.waiting[k]
+                    break
+            else:
+                unit = next(self.source, END)
+                if unit is END or unit is WAIT:
+                    if self.waiting:  # every unit left conflicts: the oldest, sharing the compile
+                        unit = self.waiting.pop(0)
+                        yield self._hand(unit, self._groups(unit))
+                        continue
+                    if unit is END:
+                        return
+                    yield unit
+                    continue
+                groups = self._groups(unit)
+                if groups & busy:
+                    self.waiting.append(unit)
+                    self.deferred += 1
+                    continue
+            yield self._hand(unit, groups)
+
+
+def shares_compile(executor: Any) -> bool:
+    """Whether ``executor``'s workers share this machine's compile cache
+    and run at once (``shares_compile_cache``: a local :class:`WorkerPool`)
+    with two workers or more: where :class:`ColdSplit` pays."""
+    return bool(getattr(executor, "shares_compile_cache", False)) and getattr(executor, "jobs", 1) > 1
+
+
 
 def run_requests(reqs: Iterable[RunRequest], executor: Any) -> Iterator[tuple[RunRequest, Any]]:
     """(request, RunResult) for each request as it finishes, through
@@ -233,4 +374,4 @@ def run_isolated(req: RunRequest):
 __all__ = ["RunRequest", "request_scene", "execute_request", "WorkerLost", "failure_result", "lost_result", "WorkerPool",
            "InlineExecutor", "run_requests", "run_isolated", "register_env_adapters",
            "DEFAULT_TIMEOUT_S", "grace_s", "WAIT", "END", "take", "ONE_THREAD_ENV", "Batch",
-           "members"]
+           "members", "ColdSplit", "PendingCompile", "shares_compile"]

@@ -41,7 +41,7 @@ import itertools
 from typing import Any, Callable, Iterator
 
 from physbench.harness import points as _points
-from physbench.harness.execute import WAIT, Batch, RunRequest, WorkerLost
+from physbench.harness.execute import WAIT, Batch, ColdSplit, PendingCompile, RunRequest, WorkerLost, shares_compile
 from physbench.harness.limits import LimitRequest, SearchResult, search_items, spec_hash
 from physbench.harness.points import Point, cached_scene, lost_row
 from physbench.harness.sweep_store import sweep_files
@@ -131,7 +131,11 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
         plan[id(req)] = points[i]
         requests.append(req)
     req_cost = (lambda r: point_cost(plan[id(r)])) if point_cost else None
-    todo = iter(batched(requests, req_cost, float(getattr(executor, "batch_s", 0.0) or 0.0)))
+    units = batched(requests, req_cost, float(getattr(executor, "batch_s", 0.0) or 0.0))
+    # a cold compile cache on local workers: one compiles, the others run points that need none
+    # (harness.execute.ColdSplit; the searches' evaluations are never held back)
+    split = ColdSplit(units, PendingCompile()) if shares_compile(executor) else None
+    todo = iter(split if split is not None else units)
     seq = itertools.count()
     ready: list[tuple[float, int, RunRequest]] = []  # heap: (-search cost, tie, item)
     owner: dict[int, tuple[Any, LimitRequest, float]] = {}  # id(item) -> (its search's generator, req, cost)
@@ -198,6 +202,8 @@ def run_schedule(executor: Any, points: list[Point], searches: list[LimitRequest
     for item, value in executor.map(run_item, source(), budget_s=item_budget, on_start=started,
                                     priority=item_priority):
         row = lost_row(item, value) if isinstance(value, WorkerLost) else value
+        if split is not None:
+            split.done(item)
         if item.probe is not None:
             answered(item, row)
         else:

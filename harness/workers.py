@@ -433,6 +433,9 @@ class WorkerPool:
     a worker is free to run it.  Tests: tests/test_execute.py,
     tests/test_schedule.py."""
 
+    #: the workers share this machine's compile caches (harness.execute.shares_compile)
+    shares_compile_cache = True
+
     def __init__(self, jobs: int = 1):
         self.jobs = max(1, int(jobs))
         self.workdir = Path(tempfile.mkdtemp(prefix="physbench-workers-"))

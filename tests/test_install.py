@@ -324,6 +324,37 @@ def test_compile_progress_lines(tmp_path):
     assert "(the last compile here)" in first or "longer than the last compile here" in first, first
 
 
+def test_compile_progress_says_when_a_process_waits_for_another_compile(tmp_path, monkeypatch):
+    """A process that needs a kernel group another process is compiling
+    (its lock held, engine/compile_share.py) says so on stderr while it
+    waits, naming the group; it goes on once the lock is released."""
+    from physbench.engine import compile_share
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    key = ("narrow", (True, None, True))
+    code = textwrap.dedent(f"""
+        import numba
+        from physbench.engine import compile_share
+        from physbench.harness import compile_progress as cp
+        cp.watch()
+        with compile_share.group({key!r}) as mine:
+            print("got", mine, flush=True)
+    """)
+    with compile_share.group(key, wait=False) as mine:
+        assert mine
+        p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        import select
+
+        ready, _, _ = select.select([p.stderr], [], [], 60.0)
+        line = p.stderr.readline() if ready else ""  # said while the lock is still held here
+        assert p.poll() is None
+    out, err = p.communicate(timeout=120)
+    assert line.startswith("physbench: waiting for another process's compile of narrow (2 shape-pair families)"), \
+        line + err
+    assert p.returncode == 0 and "got True" in out
+    assert compile_share.done(key)  # (the lock's holder here marked it done)
+
+
 TOY_JIT_ADAPTER = '''
 import dataclasses
 

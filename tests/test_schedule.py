@@ -336,3 +336,260 @@ def test_points_are_batched_to_the_target_work():
     finally:
         P.request_row = real
     assert [p for p, _ in rows] == pts == got and all(p.key == k for p, k in rows)
+
+
+# ---------------------------------------------------------------------------
+# a cold compile cache on two workers (harness.execute.ColdSplit)
+
+
+class _Build:
+    """A fake run: ``groups`` of compiled code its engine needs (none: an
+    engine that compiles nothing), then ``run_s`` seconds of stepping."""
+
+    def __init__(self, name: str, groups: tuple[str, ...] = (), run_s: float = 1.0):
+        self.name, self.groups, self.run_s = name, groups, run_s
+
+    def __repr__(self) -> str:
+        return self.name
+
+
+class _LockSim:
+    """Two (``jobs``) workers in virtual time sharing a compile cache as
+    engine/compile_share.py does: a build compiles, in order, the groups
+    nobody has compiled or is compiling (COST s each), then waits for the
+    groups another worker is compiling, then runs.  ``pending(item)``: the
+    seconds of its groups not yet compiled at the current time (the
+    engine's done marks).  ``waited``: worker seconds spent waiting on
+    another's compile; ``makespan``."""
+
+    shares_compile_cache = True
+    COST = {"solve": 100.0}
+
+    def __init__(self, jobs: int = 2):
+        self.jobs, self.now, self.ready_at, self.waited, self.makespan = jobs, 0.0, {}, 0.0, 0.0
+        self.started: list = []
+
+    def pending(self, item) -> frozenset:
+        return frozenset(g for g in item.groups if self.ready_at.get(g, math.inf) > self.now)
+
+    def _start(self, item) -> float:
+        t, wait_for = self.now, self.now
+        for g in item.groups:
+            if g in self.ready_at:  # compiled, or another worker compiles it: loaded at the end
+                wait_for = max(wait_for, self.ready_at[g])
+            else:
+                t += self.COST.get(g, 10.0)
+                self.ready_at[g] = t
+        end = max(t, wait_for)
+        self.waited += end - t
+        return end + item.run_s
+
+    def map(self, fn, items, budget_s=None, on_start=None, priority=None):
+        import heapq
+        import itertools
+
+        from physbench.harness.execute import END, take
+
+        source, more, seq, running = iter(items), True, itertools.count(), []
+        while more or running:
+            while more and len(running) < self.jobs:
+                unit = take(source, bool(running))
+                if unit is END:
+                    more = False
+                if unit is END or unit is WAIT:
+                    break
+                self.started.append(unit)
+                heapq.heappush(running, (self._start(unit), next(seq), unit))
+            if running:
+                self.now, _, unit = heapq.heappop(running)
+                yield unit, unit.name
+        self.makespan = self.now
+
+
+def _check_plan(n_scenes: int = 6, others: int = 3) -> list[_Build]:
+    """A check's planned order: per scene, the reference run (the shared
+    solve group and the scene's own shape-pair group) then ``others``
+    runs of engines that compile nothing (5 s each)."""
+    out = []
+    for k in range(n_scenes):
+        out.append(_Build(f"ref{k}", ("solve", f"narrow{k % 3}"), 1.0))
+        out += [_Build(f"o{k}.{j}", (), 5.0) for j in range(others)]
+    return out
+
+
+def _drive(ex, units, split: bool):
+    from physbench.harness.execute import ColdSplit
+
+    src = ColdSplit(units, ex.pending) if split else units
+    got = []
+    for item, value in ex.map(None, src):
+        if split:
+            src.done(item)
+        got.append(value)
+    return got
+
+
+def test_cold_split_keeps_a_second_worker_off_the_compile_it_would_wait_for():
+    """On a cold cache, planned order: the second worker starts the next
+    scene's reference build and waits ~80 s for the first worker's solve
+    group.  ColdSplit hands it the other engines' runs instead: no worker
+    waits, every run runs once, and the makespan drops to within a run of
+    the work over two workers."""
+    plain, split = _LockSim(), _LockSim()
+    got_plain = _drive(plain, _check_plan(), False)
+    got_split = _drive(split, _check_plan(), True)
+    assert sorted(got_plain) == sorted(got_split) == sorted(b.name for b in _check_plan())
+    assert len(got_split) == len(set(got_split))
+    assert plain.waited > 50.0  # the waste being removed
+    assert split.waited == 0.0
+    work = 100 + 3 * 10 + 6 * 1 + 18 * 5  # compile once, run everything
+    assert split.makespan <= work / 2 + 5.0 < plain.makespan - 30.0
+
+
+def test_cold_split_keeps_the_order_on_a_warm_cache():
+    """Nothing to compile (pending 0 everywhere): the source's order,
+    unchanged, and nothing held back."""
+    from physbench.harness.execute import ColdSplit
+
+    units = _check_plan()
+    split = ColdSplit(units, lambda item: frozenset())
+    assert list(split) == units and split.deferred == 0
+    ex = _LockSim()
+    for b in units:
+        ex.ready_at.update({g: 0.0 for g in b.groups})
+    _drive(ex, units, True)
+    assert ex.started == units
+
+
+def test_cold_split_holds_conflicting_units_back_in_order_and_never_starves():
+    """A unit that would compile a group another unit in flight compiles
+    is held back (units that need none, or other groups, pass it); the
+    oldest held-back unit that no longer conflicts goes first; with only
+    conflicting units left they are handed out anyway (no worker left
+    idle); a WAIT of the source hands a held-back unit instead of waiting;
+    a finished unit's groups go to ``pending.compiled``."""
+    from physbench.harness.execute import ColdSplit
+
+    c1, c2, c3, w1, w2 = (_Build(n, g) for n, g in (("c1", ("a",)), ("c2", ("a",)), ("c3", ("b",)),
+                                                       ("w1", ()), ("w2", ())))
+
+    class Pending:
+        def __init__(self):
+            self.done = set()
+
+        def __call__(self, item):
+            return frozenset(item.groups) - self.done
+
+        def compiled(self, groups):
+            self.done |= groups
+
+    split = ColdSplit([c1, c2, w1, c3, w2], Pending())
+    it = iter(split)
+    assert next(it) is c1
+    assert next(it) is w1  # c2 held back: c1 compiles group a
+    assert next(it) is c3  # group b: compiled beside a
+    assert next(it) is w2
+    assert next(it) is c2  # only conflicting ones left: handed out while c1 is in flight
+    split.done(c1)
+    assert split.pending.done == {"a"}
+    assert next(it, None) is None and split.deferred == 1
+    # the oldest held-back unit first once nothing in flight compiles its group
+    split = ColdSplit([c1, c2, c2, w1, w2, w1], Pending())
+    it = iter(split)
+    assert [next(it), next(it)] == [c1, w1]
+    split.done(c1)
+    assert next(it) is c2 and split.waiting == [c2]  # (warm now: c1 compiled a)
+    assert next(it) is c2
+    # a source that says WAIT: a held-back unit runs meanwhile
+    def source():
+        yield c1
+        yield c2
+        yield WAIT
+        yield w1
+
+    split = ColdSplit(source(), Pending())
+    assert list(split) == [c1, c2, w1]
+
+
+def test_cold_split_compiles_other_groups_beside_each_other():
+    """With nothing but reference runs left (no other engine's run to hand
+    out), a scene's base and its variant (the same groups) are kept apart
+    and another scene's run (other groups) goes beside: no worker waits,
+    where the planned order makes one wait for each pair."""
+    plan = []
+    for k in range(4):
+        plan += [_Build(f"s{k}", (f"narrow{k}",), 1.0), _Build(f"s{k}v", (f"narrow{k}",), 1.0)]
+    plain, split = _LockSim(), _LockSim()
+    assert sorted(_drive(plain, plan, False)) == sorted(_drive(split, plan, True))
+    assert plain.waited >= 4 * 9.0
+    assert split.waited == 0.0 and split.makespan < plain.makespan - 10.0
+
+
+def test_cold_split_serves_a_sweeps_points(monkeypatch):
+    """run_schedule puts a sweep's points through ColdSplit on an executor
+    whose workers share the compile cache: same rows, no worker waits on
+    another's compile, a shorter makespan than the same points on an
+    executor that does not share it (the planned order)."""
+    from physbench.harness import schedule
+
+    plan = _check_plan()
+    pts = [Point("billiards.head_on", None, "mujoco", (("dt", 1e-3 * (i + 1)),)) for i in range(len(plan))]
+    build = {}
+
+    class Sim(_LockSim):
+        def map(self, fn, items, **kw):
+            for item, _ in super().map(fn, (build[id(u)] if id(u) in build else u for u in items), **kw):
+                yield item.req, {"point_key": item.req.key, "status": "ok"}
+
+    def request(p, _orig=Point.request):
+        r = _orig(p)
+        b = plan[pts.index(p)]
+        build[id(r)] = b
+        b.req = r
+        return r
+
+    monkeypatch.setattr(Point, "request", request)
+    runs = {}
+    for share in (True, False):
+        ex = Sim()
+        ex.shares_compile_cache = share
+        monkeypatch.setattr(schedule, "PendingCompile", lambda ex=ex: (lambda req: ex.pending(build[id(req)])))
+        rows, _, _ = _run(ex, pts, [])
+        runs[share] = ex
+        assert set(rows) == {p.key for p in pts}
+    assert runs[True].waited == 0.0 < runs[False].waited
+    assert runs[True].makespan < runs[False].makespan - 30.0
+
+
+def test_pending_compile_reads_the_engines_own_cache(tmp_path, monkeypatch):
+    """PendingCompile asks the engine's adapter (pending_compile): the
+    reference engine on an empty cache has its kernel groups to compile
+    (the contact solve among them), none once every group of the scene is
+    marked done (engine/compile_share.py) or reported compiled by a
+    finished unit; an engine that compiles nothing of its own has none; a
+    consensus run counts its engines'."""
+    from physbench.adapters import get_adapter
+    from physbench.adapters.reference import scene_input
+    from physbench.contract.scene import load_scene
+    from physbench.engine import compile_share
+    from physbench.engine.jit import parts
+    from physbench.engine.model import build_model
+    from physbench.harness.execute import PendingCompile, RunRequest
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    ref = RunRequest("billiards.head_on", "reference")
+    both = RunRequest("billiards.head_on", "consensus", consensus=("mujoco", "reference"))
+    pending = PendingCompile()
+    groups = pending(ref)
+    assert "reference:('solve',)" in groups and len(groups) >= 4
+    assert pending(RunRequest("billiards.head_on", "mujoco")) == frozenset()
+    assert pending(both) == groups
+    assert pending(RunRequest("billiards.head_on", "reference", phase=0.5)) == groups  # the phase changes no kernel
+    pending.compiled(groups)  # (a unit that needed them finished)
+    assert pending(ref) == frozenset() and pending(both) == frozenset()
+    scene = load_scene("billiards.head_on")
+    model = build_model(scene_input(scene), get_adapter("reference").resolve_settings(scene, {}))
+    for key in parts(model):
+        with compile_share.group(key):  # (compiled: marked done)
+            pass
+    assert PendingCompile()(ref) == frozenset()

@@ -96,7 +96,8 @@ from physbench.harness.conformance.verdicts import (BAD, BASE, ERROR, FAIL, PASS
                                                     applicable_checks, check_applies, combine_phases, evaluate,
                                                     evaluate_check, fmt_measured, hard_checks, judged_apart,
                                                     run_verdicts, scene_columns, split_metric)
-from physbench.harness.execute import RunRequest, WorkerLost, execute_request, lost_result
+from physbench.harness.execute import (ColdSplit, PendingCompile, RunRequest, WorkerLost, execute_request, lost_result,
+                                       shares_compile)
 from physbench.harness.executors import make_executor
 
 
@@ -153,8 +154,12 @@ def run_all(runs: list[RunSpec], jobs: int = 1, progress: bool = True, executor:
             spec_of[id(q)] = r
             reqs.append(q)
         fn = run_one if executor in ("inline", "serial") else execute
-        for q, value in ex.map(fn, reqs, budget_s=lambda q: q.budget_s,
+        # a cold compile cache on local workers: one compiles, the others run what needs none
+        split = ColdSplit(reqs, PendingCompile()) if shares_compile(ex) else None
+        for q, value in ex.map(fn, split if split is not None else reqs, budget_s=lambda q: q.budget_s,
                                on_start=lambda q: bar.update(task, description=escape(q.label))):
+            if split is not None:
+                split.done(q)
             r = spec_of.pop(id(q))
             res = lost_result(q, value) if isinstance(value, WorkerLost) else value
             results[r.key] = res
