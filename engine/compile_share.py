@@ -36,8 +36,9 @@ import json
 import subprocess
 import sys
 import tempfile
+import warnings
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 try:
     import fcntl
@@ -201,7 +202,14 @@ def read_build(path: Path) -> tuple:
             {k: _decode(v) for k, v in d["settings"].items()})
 
 
-def start_helper(inp: Any, settings: dict) -> subprocess.Popen | None:
+class Helper(NamedTuple):
+    """A started helper: its process and the file its stderr goes to."""
+
+    proc: subprocess.Popen
+    log: Path
+
+
+def start_helper(inp: Any, settings: dict) -> Helper | None:
     """A helper process building the scene ``inp`` with ``settings`` (the
     build's own arguments) when the build may use two processes; else None.
     The caller decides that the build is cold, and waits for it
@@ -213,20 +221,40 @@ def start_helper(inp: Any, settings: dict) -> subprocess.Popen | None:
         fd, name = tempfile.mkstemp(prefix="build-", suffix=".json", dir=_dir())
         os.close(fd)
         write_build(Path(name), inp, settings)
+        log = Path(name).with_suffix(".log")
+        err = open(log, "wb")
     except (OSError, TypeError, ValueError):
         return None
     env = dict(os.environ)
     env[JOBS_ENV] = "1"
-    return subprocess.Popen([sys.executable, "-m", "physbench.engine", "--help-build", name], env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with err:
+        proc = subprocess.Popen([sys.executable, "-m", "physbench.engine", "--help-build", name], env=env,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
+    return Helper(proc, log)
 
 
-def end_helper(p: subprocess.Popen | None) -> None:
+def end_helper(h: Helper | None) -> None:
     """Wait for a helper (it has nothing left but loading what this build
-    compiled: every group it holds, this build waited for)."""
-    if p is not None:
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            p.wait(timeout=120)
-        if p.poll() is None:  # pragma: no cover - a stuck helper
-            p.kill()
-            p.wait()
+    compiled: every group it holds, this build waited for).  A helper that
+    failed costs only time (this build compiled what it left): a warning
+    names its exit status and the file that keeps its stderr
+    (tests/test_compile_share.py::test_a_failed_helper_is_a_warning_with_its_log)."""
+    if h is None:
+        return
+    p = h.proc
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        p.wait(timeout=120)
+    if p.poll() is None:  # pragma: no cover - a stuck helper
+        p.kill()
+        p.wait()
+    if p.returncode == 0:
+        with contextlib.suppress(OSError):
+            h.log.unlink()
+        return
+    try:
+        tail = h.log.read_text(errors="replace")[-600:].strip()
+    except OSError:
+        tail = ""
+    warnings.warn(f"the compile helper process exited with status {p.returncode} (this build compiled its "
+                  f"kernel groups itself); its stderr is in {h.log}" + (f": ...{tail}" if tail else ""),
+                  RuntimeWarning, stacklevel=2)

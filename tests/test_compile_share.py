@@ -174,3 +174,23 @@ def test_the_helper_gets_every_shipped_scene_input_and_settings_exactly(tmp_path
                         for x, y in zip(ja, jb)), (sid, ja, jb)
             else:
                 assert a == b and type(a) is type(b), (sid, f.name, a, b)
+
+
+def test_a_failed_helper_is_a_warning_with_its_log(monkeypatch, tmp_path):
+    """A helper that fails costs only time (the build compiles what it left),
+    and says so: a RuntimeWarning with its exit status and the file that
+    keeps its stderr.  One that ends well leaves no file."""
+    monkeypatch.setenv(compile_share.JOBS_ENV, "2")
+    monkeypatch.setattr(compile_share, "REVERSED", False)
+    monkeypatch.setattr(compile_share, "_dir", lambda: tmp_path)
+    monkeypatch.setattr(compile_share, "write_build", lambda path, inp, settings: path.write_text("not JSON"))
+    h = compile_share.start_helper(object(), {})
+    assert h is not None
+    with pytest.warns(RuntimeWarning, match="exited with status 1") as rec:
+        compile_share.end_helper(h)
+    assert str(h.log) in str(rec[0].message)
+    assert "JSONDecodeError" in h.log.read_text()
+    ok = compile_share.Helper(subprocess.Popen([sys.executable, "-c", "pass"]), tmp_path / "ok.log")
+    ok.log.write_text("")
+    compile_share.end_helper(ok)
+    assert not ok.log.exists()

@@ -386,6 +386,22 @@ def family_table(fams: tuple) -> tuple:
     return t
 
 
+#: :func:`family_table_pack`'s Packs, per families
+_TABLE_PACKS: dict = {}
+
+
+def family_table_pack(fams: tuple) -> Pack:
+    """:func:`family_table` as one Pack, made once per process for the
+    families ``fams``: :func:`narrow_pack` takes it, so a build's call
+    types one Pack instead of a tuple of 18 compiled functions (~1 ms a
+    build, typed in Python)."""
+    key = tuple(f is True for f in fams)
+    p = _TABLE_PACKS.get(key)
+    if p is None:
+        p = _TABLE_PACKS[key] = Pack(family_table(fams))
+    return p
+
+
 #: the narrow phase's contacts as :func:`collide` writes them (m,) each:
 #: bodies ``a``, ``b`` (b = n for statics), static index ``sidx`` (-1 for a
 #: body pair), ``normal``, ``point`` (m, 3), ``gap`` m, feature id ``fid``,
@@ -411,13 +427,14 @@ Narrow = namedtuple("Narrow", ("body", "planes", "sboxes", "smat", "coef", "W", 
 
 
 @njit(cache=True)
-def narrow_pack(body, planes, sboxes, smat, coef, W, A, B, slot, out, fams):
+def narrow_pack(body, planes, sboxes, smat, coef, W, A, B, slot, out, kfams):
     """The collider's kept arrays as one Pack of a :class:`Narrow`, made in
-    compiled code: numba types the table of compiled functions ``fams``
-    (:func:`family_table`) on its fast path only as a plain tuple argument
-    (inside a named tuple handed from Python it took ~3-5 ms a Pack)."""
+    compiled code, with the table of compiled functions of ``kfams``
+    (:func:`family_table_pack`): numba types a Pack argument on its fast
+    path, a tuple of compiled functions in Python (~1 ms a call; inside a
+    named tuple handed from Python it took ~3-5 ms)."""
     return Pack(Narrow(body=body, planes=planes, sboxes=sboxes, smat=smat, coef=coef, W=W, A=A, B=B, slot=slot,
-                       out=out, fams=fams))
+                       out=out, fams=kfams.items))
 
 
 @njit(cache=True)

@@ -17,9 +17,9 @@ from physbench.engine.profile import Stage
 from physbench.engine.state import Contacts
 from physbench.engine.collision import box
 from physbench.engine.collision.collide import (FAMILY_FW, FAMILY_IW, MAX_SLOTS, PLANE_TABLE, SBOX_TABLE, TABLE,
-                                                BodyShapes, BoxRows, ContactOut, Narrow, NarrowWork, PairTables,
-                                                PlaneRows, Side, Slots, collide_packed, narrow_pack, families, family_table,
-                                                ALL_FAMILIES)
+                                                BodyShapes, BoxRows, ContactOut, NarrowWork, PairTables,
+                                                PlaneRows, Side, Slots, collide_packed, narrow_pack, families,
+                                                family_table_pack, ALL_FAMILIES)
 from physbench.engine.pack import KeptPack
 
 __all__ = ["Collider", "NarrowPhase", "PLANE_TABLE", "SBOX_TABLE", "TABLE", "collide_pairs", "pair_contacts",
@@ -71,7 +71,7 @@ class Collider:
         #: the families compiled for the driver (collide.families: the
         #: scene's shapes; the others raise, collide.family_table)
         self.fams = families(model.shape)
-        self._table = None  # (fams, family_table(fams)): :meth:`packed`
+        self._table = None  # (fams, family_table_pack(fams)): :meth:`packed`
         self._kept = KeptPack()  # a new Pack when a buffer grows
         self._contacts = None  # (count, out buffers, Contacts of their views) of the last run
         self._pairs(pairs)
@@ -102,13 +102,13 @@ class Collider:
         """The buffers as one Pack (engine/pack.py), kept while they stay."""
         kt = self._table
         if kt is None or kt[0] is not self.fams:  # (the families' table, looked up once per ``fams``)
-            kt = self._table = (self.fams, family_table(self.fams))
-        fams = kt[1]
+            kt = self._table = (self.fams, family_table_pack(self.fams))
+        kfams = kt[1]
         return self._kept.of((self.body, self.planes, self.sboxes, self.smat, self.coef, self.W, self.A, self.B,
-                              self.slot, self.out, fams), lambda: narrow_pack(
+                              self.slot, self.out, kfams), lambda: narrow_pack(
                                   body=self.body, planes=self.planes, sboxes=self.sboxes, smat=self.smat,
                                   coef=self.coef, W=self.W, A=self.A, B=self.B, slot=self.slot, out=self.out,
-                                  fams=fams))
+                                  kfams=kfams))
 
     def last_contacts(self, cnt: int) -> Contacts | None:
         """The Contacts :meth:`run` last returned when it had ``cnt``
