@@ -15,8 +15,10 @@ machine's load falls on both.  The ratio is the reference's median CPU
 per simulated second over the other's; its spread the least and the
 greatest ratio of one repeat's pair.
 
-The selection is the table's (:func:`harness.report.cost.cost_to_target`),
-never re-decided here; what is timed is its ``point_settings``.  Tests:
+The selection is the table's (:func:`harness.report.cost.cost_to_target`,
+which the command line computes from the results: the report layer sits
+above this one), never re-decided here; what is timed is its
+``point_settings``.  Tests:
 tests/test_bench_targets.py.
 """
 
@@ -29,7 +31,10 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from physbench.harness.points import PHASE_KEY
+from physbench.harness import runner
+from physbench.harness import status as st
+from physbench.harness.execute import RunRequest, request_scene
+from physbench.harness.points import PHASE_KEY, cached_scene
 
 #: the engine whose ratio the table is read for
 REFERENCE = "reference"
@@ -64,11 +69,6 @@ def timed_run(point: dict[str, Any]) -> float:
     """CPU seconds per simulated second of one fresh run of ``point`` (a
     :func:`pairs` record): the sweep's scene (variant, phase) and settings,
     no metrics; NaN when the run does not end ``ok``."""
-    from physbench.harness import runner
-    from physbench.harness import status as st
-    from physbench.harness.execute import RunRequest, request_scene
-    from physbench.harness.points import cached_scene
-
     settings, phase = _settings(point["point_settings"])
     variant = point["variant"] if isinstance(point["variant"], str) and point["variant"] else None
     req = RunRequest(scenario=point["scenario"], engine=point["engine"], variant=variant, settings=settings,
@@ -115,21 +115,16 @@ def side_by_side(pair: dict[str, Any], repeats: int, run: Callable[[dict[str, An
             "ratio_lo": min(per), "ratio_hi": max(per), "note": note}
 
 
-def targets(results_dir: str | None, repeats: int = 5, scenarios: list[str] | None = None,
+def targets(table: pd.DataFrame, repeats: int = 5, scenarios: list[str] | None = None,
             run: Callable[[dict[str, Any]], float] = timed_run) -> list[dict[str, Any]]:
-    """The rows of ``physbench bench targets``: the cost-to-target table of
-    the sweeps in ``results_dir`` (harness.report.loading.load_results),
-    each scenario's pair (:func:`pairs`) timed side by side
-    (:func:`side_by_side`); only ``scenarios`` (ids) when given.  Raises
-    ValueError when the results hold no sweep point or no scenario where
-    the reference reached its target."""
-    from physbench.harness.report.cost import cost_to_target
-    from physbench.harness.report.loading import load_results
-
-    table = cost_to_target(load_results(results_dir))
+    """The rows of ``physbench bench targets``: each scenario's pair
+    (:func:`pairs`) of the cost-to-target ``table``
+    (harness.report.cost.cost_to_target of a sweep's rows; the command
+    line reads them) timed side by side (:func:`side_by_side`); only
+    ``scenarios`` (ids) when given.  Raises ValueError when the table is
+    empty or has no scenario where the reference reached its target."""
     if table.empty:
-        raise ValueError(f"no sweep point with a target in {results_dir or 'the results directory'}: "
-                         "run `physbench sweep` first")
+        raise ValueError("no sweep point with a target in the results directory: run `physbench sweep` first")
     todo = pairs(table)
     if scenarios:
         todo = [p for p in todo if p["reference"]["scenario"] in set(scenarios)]

@@ -38,7 +38,7 @@ LAYERS: list[tuple[int, tuple[str, ...]]] = [
     (3, ("physbench.harness.conformance",)),  # check
     (4, ("physbench.harness.limits", "physbench.harness.limit_eval", "physbench.harness.limit_search", "physbench.harness.sweep", "physbench.harness.suite",
          "physbench.harness.points", "physbench.harness.sweep_store", "physbench.harness.schedule", "physbench.harness.selfbench", "physbench.harness.sweep_bench",
-         "physbench.harness.trace.cost", "physbench.harness.bench")),  # sweep, limits, bench (selfbench: physbench's own)
+         "physbench.harness.trace.cost", "physbench.harness.bench", "physbench.harness.bench_targets")),  # sweep, limits, bench (selfbench: physbench's own)
     (5, ("physbench.harness.report",)),  # report
     (6, ("physbench.harness.cli",)),  # the command line
 ]

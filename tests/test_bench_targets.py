@@ -88,6 +88,7 @@ def test_the_point_settings_are_run_as_the_sweep_ran_them(monkeypatch):
 
 
 def test_no_results_is_a_clear_error_and_exit_2(tmp_path, capsys):
+    """An empty results directory: a clear error, exit 2, no traceback."""
     from physbench.harness.cli import main
 
     assert main(["bench", "targets", "--results-dir", str(tmp_path)]) == 2

@@ -8,6 +8,9 @@ import json
 import sys
 
 from physbench.harness import bench
+from physbench.harness.bench_targets import targets
+from physbench.harness.report.cost import cost_to_target
+from physbench.harness.report.loading import load_results
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -45,10 +48,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                    "its first scenario's parts: s to import, s to build (jit_s of it: loading or "
                                    "compiling kernels), compiled libraries loaded from the cache")
         elif args.kind == "targets":
-            from physbench.harness.bench_targets import targets
-
             try:
-                rows = targets(args.results_dir, repeats=args.repeats, scenarios=args.scenarios)
+                rows = targets(cost_to_target(load_results(args.results_dir)), repeats=args.repeats,
+                               scenarios=args.scenarios)
             except ValueError as e:
                 print(f"physbench bench targets: {e}", file=sys.stderr)
                 return 2
