@@ -132,19 +132,22 @@ class ReferenceAdapter(Adapter):
 
     @classmethod
     def pending_compile(cls, scene: Scene, settings: dict[str, Any]) -> dict[str, float]:
-        """The kernel groups a build of ``scene`` takes (engine.jit.parts)
-        that are not in the on-disk cache yet, by name, with their CPU
-        seconds (engine.jit.cold_seconds, the engine's own marks); empty
-        for a scene with joints (its kernels are not taken under the
-        groups' locks) or one that does not build."""
+        """The kernel groups a build of ``scene`` takes (engine.jit.parts,
+        then its fused step's, engine.jit.fused_part) that are not in the
+        on-disk cache yet, by name, with their CPU seconds
+        (engine.jit.cold_seconds, the engine's own marks); empty for a scene
+        with joints (its kernels are not taken under the groups' locks) or
+        one that does not build."""
         try:
-            from physbench.engine.jit import cold_seconds, parts
+            from physbench.engine.jit import cold_seconds, fused_part, parts
             from physbench.engine.model import build_model
 
             model = build_model(scene_input(scene), settings)
             if model.joints is not None:
                 return {}
-            return {repr(p): s for p in parts(model) if (s := float(cold_seconds([p]))) > 0}
+            fused = fused_part(model)
+            groups = parts(model) + ((fused,) if fused is not None else ())
+            return {repr(p): s for p in groups if (s := float(cold_seconds([p]))) > 0}
         except Exception:
             return {}
 

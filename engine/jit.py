@@ -42,8 +42,8 @@ CALLEES = ("contact.phases.classify_stage", "contact.linalg.lu_solve", "contact.
 #: solve ~43, time of impact ~16, rk4 flight ~14, sphere narrow phase ~9,
 #: broad phase ~4): the order :func:`warm_up` takes them in, and what
 #: :func:`cold_seconds` adds up
-_COST = {"solve": 40.0, "ccd": 15.0, "flight": 14.0, "penalty": 10.0, "narrow": 9.0, "broad": 4.0, "gyro": 3.0,
-         "force": 0.5}
+_COST = {"solve": 40.0, "steady": 20.0, "ccd": 15.0, "flight": 14.0, "penalty": 10.0, "narrow": 9.0,
+         "flight_step": 8.0, "broad": 4.0, "gyro": 3.0, "force": 0.5}
 
 
 def cold_seconds(todo) -> float:
@@ -104,6 +104,28 @@ def parts(model=None) -> tuple:
             if model.setting("ccd") != "off":
                 out.append(("ccd",))
     return tuple(out)
+
+
+def fused_part(model) -> tuple | None:
+    """The kernel group of the fused step a build of ``model`` compiles
+    after its :func:`parts` (engine.pipeline.build_pipeline: the steady
+    step's ``("steady", sweeps, integrator)``, the step without contact's
+    ``("flight_step", integrator)``, engine/compile_share.py's keys), or
+    None (joints, penalty contacts, substeps, Baumgarte correction, a force
+    the fused steps do not cover: staged only).  The same decision as
+    engine.fused.build's on the built stages
+    (tests/test_engine_jit.py::test_the_fused_part_is_the_builds_fused_step)."""
+    from physbench.engine.broadstage import uses_sap
+    from physbench.engine.forces import force_stages
+
+    if model.joints is not None or any(type(s) not in FORCES for s in force_stages(model)):
+        return None
+    if not (model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0):
+        return ("flight_step", model.setting("integrator"))
+    if (model.setting("contact_model") == "penalty" or model.substeps != 1
+            or model.setting("position_correction") == "baumgarte"):
+        return None
+    return ("steady", uses_sap(model), model.setting("integrator"))
 
 
 def warm_up(model=None) -> float:

@@ -572,7 +572,7 @@ def test_pending_compile_reads_the_engines_own_cache(tmp_path, monkeypatch):
     from physbench.adapters.reference import scene_input
     from physbench.contract.scene import load_scene
     from physbench.engine import compile_share
-    from physbench.engine.jit import parts
+    from physbench.engine.jit import fused_part, parts
     from physbench.engine.model import build_model
     from physbench.harness.execute import PendingCompile, RunRequest
 
@@ -582,6 +582,7 @@ def test_pending_compile_reads_the_engines_own_cache(tmp_path, monkeypatch):
     pending = PendingCompile()
     groups = pending(ref)
     assert "reference:('solve',)" in groups and len(groups) >= 4
+    assert any(g.startswith("reference:('steady',") for g in groups)  # the fused step's group too
     assert pending(RunRequest("billiards.head_on", "mujoco")) == frozenset()
     assert pending(both) == groups
     assert pending(RunRequest("billiards.head_on", "reference", phase=0.5)) == groups  # the phase changes no kernel
@@ -589,7 +590,7 @@ def test_pending_compile_reads_the_engines_own_cache(tmp_path, monkeypatch):
     assert pending(ref) == frozenset() and pending(both) == frozenset()
     scene = load_scene("billiards.head_on")
     model = build_model(scene_input(scene), get_adapter("reference").resolve_settings(scene, {}))
-    for key in parts(model):
+    for key in parts(model) + (fused_part(model),):
         with compile_share.group(key):  # (compiled: marked done)
             pass
     assert PendingCompile()(ref) == frozenset()
