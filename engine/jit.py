@@ -94,7 +94,7 @@ def parts(model=None) -> tuple:
     mode = model.setting("gyroscopic")
     if model.has("gyroscopic") and np.any(~model.isotropic) and mode != "explicit":
         out.append(("gyro", "implicit" if mode == "implicit" else "energy"))
-    if model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0:
+    if model.collides:
         out += [("broad", uses_sap(model)),
                 ("narrow", families(model.shape))]
         if model.setting("contact_model") == "penalty":
@@ -120,7 +120,7 @@ def fused_part(model) -> tuple | None:
 
     if model.joints is not None or any(type(s) not in FORCES for s in force_stages(model)):
         return None
-    if not (model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0):
+    if not model.collides:
         return ("flight_step", model.setting("integrator"))
     if (model.setting("contact_model") == "penalty" or model.substeps != 1
             or model.setting("position_correction") == "baumgarte"):

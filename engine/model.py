@@ -218,6 +218,12 @@ class Model:
         """The length of one substep (s)."""
         return self.dt / self.substeps
 
+    @property
+    def collides(self) -> bool:
+        """Whether the step has contact stages: the contact effect and
+        something to collide (two bodies, or a body and a static)."""
+        return self.has("contact") and (self.n >= 2 or self.n_statics > 0) and self.n > 0
+
     def pair_coefficients(self, a: np.ndarray, b: np.ndarray, sidx: np.ndarray) -> tuple[np.ndarray, ...]:
         """(e, mus, muk, mur), each (m,), of contacts between bodies ``a``
         (m,) and bodies ``b`` (m,), or, where ``sidx`` >= 0, the static

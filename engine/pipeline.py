@@ -65,7 +65,7 @@ def build_pipeline(model: Model) -> tuple[Stage, ...]:
     stages.append(IntegrateVelocities(model, forces))
     if gyro and mode == "energy_conserving":
         stages.append(EnergyConservingRotation(model))
-    contact = model.has("contact") and (model.n >= 2 or model.n_statics > 0) and model.n > 0
+    contact = model.collides
     penalty = model.setting("contact_model") == "penalty"
     if contact:
         stages += [BroadPhase(model), NarrowPhase(model)]

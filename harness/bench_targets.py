@@ -33,8 +33,8 @@ import pandas as pd
 
 from physbench.harness import runner
 from physbench.harness import status as st
-from physbench.harness.execute import RunRequest, request_scene
-from physbench.harness.points import PHASE_KEY, cached_scene
+from physbench.harness.execute import request_scene
+from physbench.harness.points import Point, cached_scene
 
 #: the engine whose ratio the table is read for
 REFERENCE = "reference"
@@ -58,25 +58,28 @@ def pairs(table: pd.DataFrame, reference: str = REFERENCE) -> list[dict[str, Any
     return out
 
 
-def _settings(point_settings: str) -> tuple[dict[str, Any], float]:
-    """A row's ``point_settings`` JSON as (engine settings, phase)."""
-    s = json.loads(point_settings) if point_settings else {}
-    phase = float(s.pop(PHASE_KEY, 0.0))
-    return s, phase
+def _variant(point: dict[str, Any]) -> str | None:
+    """A :func:`pairs` record's variant (None: the scene as written)."""
+    v = point["variant"]
+    return v if isinstance(v, str) and v else None
 
 
 def timed_run(point: dict[str, Any]) -> float:
     """CPU seconds per simulated second of one fresh run of ``point`` (a
-    :func:`pairs` record): the sweep's scene (variant, phase) and settings,
-    no metrics; NaN when the run does not end ``ok``."""
-    settings, phase = _settings(point["point_settings"])
-    variant = point["variant"] if isinstance(point["variant"], str) and point["variant"] else None
-    req = RunRequest(scenario=point["scenario"], engine=point["engine"], variant=variant, settings=settings,
-                     phase=phase, compute_metrics=False, model_metrics=False)
-    scene = request_scene(req, base=cached_scene(req.scenario, variant))
-    res = runner.run(scene, req.engine, dict(settings), timeout_s=req.timeout_s, compute_metrics=False,
+    :func:`pairs` record): the sweep's request for it
+    (harness.points.Point.request: engine settings, phase, budget), no
+    metrics; NaN when the run does not end ``ok``."""
+    swept = json.loads(point["point_settings"]) if point["point_settings"] else {}
+    req = Point(point["scenario"], _variant(point), point["engine"], tuple(sorted(swept.items()))).request()
+    scene = request_scene(req, base=cached_scene(req.scenario, req.variant))
+    res = runner.run(scene, req.engine, dict(req.settings), timeout_s=req.timeout_s, compute_metrics=False,
                      model_metrics=False)
     return float(res.metrics.get("cpu_s_per_sim_s", math.nan)) if res.status == st.OK else math.nan
+
+
+#: a row's timing columns where nothing was timed
+_UNTIMED = {"reference_ms_per_sim_s": math.nan, "other_ms_per_sim_s": math.nan, "ratio": math.nan,
+            "ratio_lo": math.nan, "ratio_hi": math.nan}
 
 
 def side_by_side(pair: dict[str, Any], repeats: int, run: Callable[[dict[str, Any]], float] = timed_run
@@ -86,16 +89,14 @@ def side_by_side(pair: dict[str, Any], repeats: int, run: Callable[[dict[str, An
     doc).  ``run`` times one run (CPU s per simulated second)."""
     ref, oth = pair["reference"], pair["other"]
     row: dict[str, Any] = {
-        "scenario": ref["scenario"] + (f"[{ref['variant']}]" if isinstance(ref["variant"], str) and ref["variant"]
-                                        else ""),
+        "scenario": ref["scenario"] + (f"[{_variant(ref)}]" if _variant(ref) else ""),
         "reference_settings": ref["point_settings"],
         "other": oth["engine"] if oth else None,
         "other_settings": oth["point_settings"] if oth else None,
         "table_ratio": float(ref["ratio"]),
     }
     if oth is None:
-        return {**row, "reference_ms_per_sim_s": math.nan, "other_ms_per_sim_s": math.nan, "ratio": math.nan,
-                "ratio_lo": math.nan, "ratio_hi": math.nan, "note": "no other engine reached the target"}
+        return {**row, **_UNTIMED, "note": "no other engine reached the target"}
     run(ref), run(oth)  # untimed: imports, compiled-kernel loads, first-use caches
     a: list[float] = []
     b: list[float] = []
@@ -106,8 +107,7 @@ def side_by_side(pair: dict[str, Any], repeats: int, run: Callable[[dict[str, An
     good = [(x, y) for x, y in zip(a, b) if math.isfinite(x) and math.isfinite(y) and y > 0]
     note = "" if len(good) == repeats else f"{repeats - len(good)} of {repeats} repeats did not end ok: left out"
     if not good:
-        return {**row, "reference_ms_per_sim_s": math.nan, "other_ms_per_sim_s": math.nan, "ratio": math.nan,
-                "ratio_lo": math.nan, "ratio_hi": math.nan, "note": note}
+        return {**row, **_UNTIMED, "note": note}
     ma = statistics.median(x for x, _ in good)
     mb = statistics.median(y for _, y in good)
     per = [x / y for x, y in good]

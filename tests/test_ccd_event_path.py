@@ -70,34 +70,29 @@ def test_contact_inertias_are_world_inv_inertia_bit_for_bit():
         assert np.array_equal(out, want)
 
 
+def _counting(calls: dict, key: str, real):
+    """``real`` that counts its calls in ``calls[key]``."""
+    def f(*a):
+        calls[key] += 1
+        return real(*a)
+    return f
+
+
 def _count_impact_python_calls(monkeypatch) -> dict:
     """Count the impact kernel's calls and the Python-level calls of what
     it runs inside (Rows, the propagation's set-up and its modes)."""
     from physbench.engine.contact import propagate
 
     calls = {"kernel": 0, "rows": 0, "setup": 0, "propagate": 0}
-    real_kernel, real_setup, real_prop = impact.impact_kernel, propagate.setup, propagate.propagate
-
-    def kernel(*a):
-        calls["kernel"] += 1
-        return real_kernel(*a)
-
-    def setup(*a):
-        calls["setup"] += 1
-        return real_setup(*a)
-
-    def prop(*a):
-        calls["propagate"] += 1
-        return real_prop(*a)
 
     class CountingRows(rows.Rows):
         def __init__(self, *a, **k):
             calls["rows"] += 1
             super().__init__(*a, **k)
 
-    monkeypatch.setattr(impact, "impact_kernel", kernel)
-    monkeypatch.setattr(propagate, "setup", setup)
-    monkeypatch.setattr(propagate, "propagate", prop)
+    monkeypatch.setattr(impact, "impact_kernel", _counting(calls, "kernel", impact.impact_kernel))
+    monkeypatch.setattr(propagate, "setup", _counting(calls, "setup", propagate.setup))
+    monkeypatch.setattr(propagate, "propagate", _counting(calls, "propagate", propagate.propagate))
     monkeypatch.setattr(impact, "Rows", CountingRows)
     return calls
 
@@ -184,18 +179,8 @@ def test_the_end_pose_check_answers_none_in_one_call(monkeypatch):
     from physbench.engine import ccd
 
     calls = {"any": 0, "python": 0}
-    real_any, real_pairs = ccd._missed_any, ccd.end_pose_pairs
-
-    def any_(*a):
-        calls["any"] += 1
-        return real_any(*a)
-
-    def pairs(*a):
-        calls["python"] += 1
-        return real_pairs(*a)
-
-    monkeypatch.setattr(ccd, "_missed_any", any_)
-    monkeypatch.setattr(ccd, "end_pose_pairs", pairs)
+    monkeypatch.setattr(ccd, "_missed_any", _counting(calls, "any", ccd._missed_any))
+    monkeypatch.setattr(ccd, "end_pose_pairs", _counting(calls, "python", ccd.end_pose_pairs))
     eng = engine_for(load_scene("billiards.ball_drop_bounce"), {"dt": 0.032})
     eng.step(47)
     assert eng.profile.as_dict()["counters"]["impacts"] >= 5
